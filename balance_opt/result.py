@@ -1,0 +1,157 @@
+"""The result of a balance plan, shared by the analytic law, the optimal planner and replays, so
+that any two compare field by field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .attitude import rotation_angle, rpy_from_quaternion
+from .robot import JointLimits
+
+#: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
+LIMIT_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class LimitViolation:
+    """One stretch of time in which a joint is outside one of its limits.
+
+    Attributes:
+        joint: joint name.
+        kind: ``"position"``, ``"velocity"`` or ``"acceleration"``.
+        t_start: first sample outside the limit [s].
+        t_end: last sample outside the limit [s].
+        worst_excess: largest distance beyond the limit over the stretch [rad, rad/s, rad/s^2].
+    """
+
+    joint: str
+    kind: str
+    t_start: float
+    t_end: float
+    worst_excess: float
+
+    def __str__(self) -> str:
+        unit = {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2"}[self.kind]
+        return (f"{self.joint}: {self.kind} limit exceeded by up to {self.worst_excess:.4g} {unit} "
+                f"from t = {self.t_start:.3f} s to {self.t_end:.3f} s")
+
+
+def find_limit_violations(t, names, q, q_dot, q_ddot, limits: JointLimits,
+                          tolerance: float = LIMIT_TOLERANCE) -> list[LimitViolation]:
+    """Every stretch of samples where a joint leaves its position, velocity or acceleration limits.
+
+    Args:
+        t: sample times (T,).
+        names: joint names (n,).
+        q, q_dot, q_ddot: joint trajectories (T, n).
+        limits: limits of these joints (see :meth:`JointLimits.subset`).
+        tolerance: excess that still counts as inside.
+    """
+    found = []
+    checks = (
+        ("position", q, np.maximum(q - limits.upper, limits.lower - q)),
+        ("velocity", q_dot, np.abs(q_dot) - limits.velocity),
+        ("acceleration", q_ddot, np.abs(q_ddot) - limits.acceleration),
+    )
+    for kind, values, excess in checks:
+        if values is None:
+            continue
+        for j, name in enumerate(names):
+            outside = excess[:, j] > tolerance
+            if not outside.any():
+                continue
+            # contiguous runs of samples outside the limit
+            edges = np.diff(np.r_[0, outside.astype(int), 0])
+            for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+                found.append(LimitViolation(name, kind, float(t[start]), float(t[stop - 1]),
+                                            float(excess[start:stop, j].max())))
+    return found
+
+
+@dataclass
+class BalanceResult:
+    """A balance motion and the base attitude it produces, sampled on a time grid.
+
+    Attitude quantities are the base orientation relative to the world (the initial attitude
+    is the identity unless the task says otherwise); the base angular velocity is in the base
+    frame. Joint arrays are (T, n) with columns in the order of ``mission_joints`` and
+    ``balance_joints``.
+
+    Attributes:
+        method: what produced it (``"analytic"``, ``"optimal"``, ``"mission-only"``,
+            ``"balance-only"``, ``"simulation"``).
+        t: sample times [s].
+        mission_joints, balance_joints: joint names.
+        q_M, q_dot_M, q_ddot_M: mission arm [rad, rad/s, rad/s^2].
+        q_B, q_dot_B, q_ddot_B: balance arms [rad, rad/s, rad/s^2].
+        quaternion: base attitude (T, 4), (x, y, z, w).
+        omega: base angular velocity (T, 3), base frame [rad/s].
+        momentum_residual: norm of the angular momentum error of the motion (T,) [N m s]:
+            ``|A_G v - h0|`` recomputed from the sampled state.
+        sigma_min: smallest singular value of ``J_wB`` along the path (T,).
+        violations: every joint-limit violation of the balance (and mission) joints.
+        info: method-specific details (damping used, solver status and statistics, re-simulation
+            report, ...), plain data only.
+    """
+
+    method: str
+    t: np.ndarray
+    mission_joints: tuple[str, ...]
+    balance_joints: tuple[str, ...]
+    q_M: np.ndarray
+    q_dot_M: np.ndarray
+    q_ddot_M: np.ndarray
+    q_B: np.ndarray
+    q_dot_B: np.ndarray
+    q_ddot_B: np.ndarray
+    quaternion: np.ndarray
+    omega: np.ndarray
+    momentum_residual: np.ndarray
+    sigma_min: np.ndarray
+    violations: list[LimitViolation] = field(default_factory=list)
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def rpy(self) -> np.ndarray:
+        """Base roll, pitch, yaw (T, 3) [rad]."""
+        return rpy_from_quaternion(self.quaternion)
+
+    @property
+    def angle(self) -> np.ndarray:
+        """Base rotation angle from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
+        from .attitude import quaternion_conjugate, quaternion_multiply
+
+        rel = quaternion_multiply(quaternion_conjugate(self.quaternion[:1]), self.quaternion)
+        return rotation_angle(rel)
+
+    @property
+    def max_drift(self) -> float:
+        """Largest base rotation from the initial attitude over the motion [rad]."""
+        return float(self.angle.max())
+
+    @property
+    def final_drift(self) -> float:
+        """Base rotation from the initial attitude at the end of the motion [rad]."""
+        return float(self.angle[-1])
+
+    @property
+    def within_limits(self) -> bool:
+        return not self.violations
+
+    def summary(self) -> dict[str, Any]:
+        """Scalar figures of merit, plain floats (for tables and ``metrics.json``)."""
+        return {
+            "method": self.method,
+            "duration_s": float(self.t[-1] - self.t[0]),
+            "max_drift_rad": self.max_drift,
+            "final_drift_rad": self.final_drift,
+            "max_base_rate_rad_s": float(np.linalg.norm(self.omega, axis=1).max()),
+            "peak_balance_rate_rad_s": float(np.abs(self.q_dot_B).max()) if self.q_dot_B.size else 0.0,
+            "max_momentum_residual": float(np.max(self.momentum_residual)),
+            "min_sigma_min": float(np.min(self.sigma_min)),
+            "limit_violations": len(self.violations),
+        }
