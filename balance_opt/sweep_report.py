@@ -1,0 +1,327 @@
+"""The results of a sweep as one table and a few summary plots.
+
+The table has one row per case, in case-index order: the case's index, id and method, its
+parameters (a list parameter spread over one column per item, ``mission.goal[0]``, ...), its
+status and error, every metric of its ``metrics.json`` (nested keys joined by ``.``), and the
+wall time the case took in its worker. It is written as CSV with floats in full precision
+(``repr``), so that two runs of the same sweep compare cell by cell; the columns that depend on
+when and where a case ran are named by :func:`is_timing_column`.
+
+Parquet is not written: it would add pyarrow (about 100 MB) for a table of a few thousand rows
+that any tool reads as CSV.
+
+Plots (PNG): the distribution of the maximum and final attitude drift of each method with the
+analytic and optimal drift of each parameter set against each other, and the drift against each
+varied parameter.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import re
+from collections import Counter
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from .sweep import canonical_json, is_number, parameter_columns
+
+logger = logging.getLogger(__name__)
+
+#: Fixed leading columns of the table.
+CASE_COLUMNS = ("index", "case_id", "method", "status")
+#: Prefixes of the parameter, metric and timing columns.
+PARAM_PREFIX, METRIC_PREFIX, TIMING_PREFIX = "param.", "metric.", "time."
+#: Metric names (after the prefix) that hold wall times or machine-dependent facts: they differ
+#: from run to run, unlike everything else in the table.
+_TIMING_METRIC = re.compile(r"(^|[._])(time|times|wall|build_s|solve_s|elapsed|timestamp|date|host|pid)"
+                            r"($|[._])|_time_s$|time_s$|_s_per_|per_iteration_s$")
+#: The metrics plotted: maximum and final base rotation from the start [rad].
+MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
+#: Drift drawn at this floor on log axes when it is zero [rad].
+DRIFT_FLOOR = 1e-12
+#: Colours of the methods in the plots.
+METHOD_COLOURS = {"analytic": "tab:orange", "optimal": "tab:blue"}
+#: Figure width of one panel [in]; legible at the width of a page.
+PANEL_WIDTH = 3.6
+#: Offset between methods at a categorical parameter value (in category widths).
+CATEGORY_SPREAD = 0.2
+#: Characters of a title that fit above a single panel.
+SINGLE_PANEL_TITLE = 45
+
+
+def is_timing_column(name: str) -> bool:
+    """True for columns that depend on when and where a case ran (wall times, process ids)."""
+    if name.startswith(TIMING_PREFIX):
+        return True
+    return name.startswith(METRIC_PREFIX) and bool(_TIMING_METRIC.search(name[len(METRIC_PREFIX):]))
+
+
+def _flatten(prefix: str, value: Any, out: dict) -> None:
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _flatten(f"{prefix}.{key}" if prefix else str(key), item, out)
+    else:
+        out[prefix] = value
+
+
+def row_from_result(result: dict) -> dict[str, Any]:
+    """One table row (column -> value) from a case's result record."""
+    row: dict[str, Any] = {key: result.get(key) for key in CASE_COLUMNS}
+    for name, value in parameter_columns(result.get("parameters", {})).items():
+        row[PARAM_PREFIX + name] = value
+    metrics: dict = {}
+    _flatten("", result.get("metrics") or {}, metrics)
+    for name, value in metrics.items():
+        row[METRIC_PREFIX + name] = value
+    error = result.get("error") or {}
+    row["error_type"] = error.get("type")
+    row["error_message"] = error.get("message")
+    for name, value in (result.get("timing") or {}).items():
+        row[TIMING_PREFIX + name] = value
+    return row
+
+
+def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
+    """Columns and rows of the aggregated table, rows in case-index order.
+
+    Columns: the case columns, the parameters (first-seen order), the metrics (first-seen
+    order), the error, then the timing columns.
+    """
+    rows = [row_from_result(r) for r in sorted(results, key=lambda r: r["index"])]
+    seen: dict[str, None] = {}
+    for row in rows:
+        seen.update(dict.fromkeys(row))
+    names = list(seen)
+    groups = (
+        list(CASE_COLUMNS),
+        [c for c in names if c.startswith(PARAM_PREFIX)],
+        [c for c in names if c.startswith(METRIC_PREFIX) and not is_timing_column(c)],
+        ["error_type", "error_message"],
+        [c for c in names if is_timing_column(c)],
+    )
+    columns = [c for group in groups for c in group]
+    return columns, rows
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return json.dumps(value)
+    return str(value)
+
+
+def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dict]) -> Path:
+    """Write the table as CSV (floats as ``repr``: read back exactly; empty cell for missing)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([_cell(row.get(c)) for c in columns])
+    tmp.replace(path)
+    return path
+
+
+def read_table_csv(path: str | Path) -> tuple[list[str], list[dict[str, str]]]:
+    """Columns and rows (as text) of a table written by :func:`write_table_csv`."""
+    with Path(path).open(newline="") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or []), list(reader)
+
+
+def summarize(results: Sequence[dict]) -> dict[str, Any]:
+    """Counts per status and method, and the median drifts of each method's successful cases."""
+    out: dict[str, Any] = {"cases": len(results),
+                           "status": dict(sorted(Counter(r["status"] for r in results).items())),
+                           "methods": {}}
+    for method in sorted({r["method"] for r in results}):
+        mine = [r for r in results if r["method"] == method]
+        ok = [r for r in mine if r["status"] == "ok"]
+        entry: dict[str, Any] = {"cases": len(mine), "ok": len(ok)}
+        for key in (MAX_DRIFT, FINAL_DRIFT):
+            values = [r["metrics"][key] for r in ok if is_number((r.get("metrics") or {}).get(key))]
+            entry[f"median_{key}"] = float(np.median(values)) if values else None
+            entry[f"worst_{key}"] = float(np.max(values)) if values else None
+        out["methods"][method] = entry
+    return out
+
+
+# ------------------------------------------------------------------------------ plots
+def _figure(n_rows: int, n_cols: int, height: float = 2.8):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(PANEL_WIDTH * n_cols, height * n_rows), layout="constrained")
+    axes = fig.subplots(n_rows, n_cols, squeeze=False)
+    return fig, axes
+
+
+def _drift(result: dict, key: str) -> float | None:
+    value = (result.get("metrics") or {}).get(key)
+    return max(float(value), DRIFT_FLOOR) if is_number(value) else None
+
+
+def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path | None:
+    """Cumulative distribution of the maximum and the final drift of each method (log scale),
+    and, for the parameter sets planned by both methods, the optimal drift against the analytic
+    one. Returns the file written, or None when no case has a drift."""
+    ok = [r for r in results if r["status"] == "ok"]
+    methods = sorted({r["method"] for r in ok})
+    if not any(_drift(r, MAX_DRIFT) is not None for r in ok):
+        return None
+    paired = _pairs(ok)
+    fig, axes = _figure(1, 3 if paired else 2)
+    for ax, key, title in zip(axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")):
+        for method in methods:
+            values = np.sort([d for r in ok if r["method"] == method
+                              if (d := _drift(r, key)) is not None])
+            if values.size:
+                ax.step(values, np.arange(1, values.size + 1) / values.size, where="post",
+                        color=METHOD_COLOURS.get(method), label=f"{method} ({values.size})")
+        ax.set_xscale("log")
+        ax.set_xlabel(f"{title} of the base attitude [rad]")
+        ax.set_ylabel("fraction of cases")
+        ax.set_ylim(0, 1.02)
+        ax.grid(True, which="major", alpha=0.3)
+        ax.legend(fontsize="small", loc="lower right")
+        ax.set_title(f"distribution of the {title}")
+    if paired:
+        ax = axes[0][2]
+        for key, marker, label in ((MAX_DRIFT, "o", "maximum"), (FINAL_DRIFT, "x", "final")):
+            xy = np.array([(a, o) for a_rec, o_rec in paired
+                           if (a := _drift(a_rec, key)) is not None and (o := _drift(o_rec, key)) is not None])
+            if xy.size:
+                ax.scatter(xy[:, 0], xy[:, 1], marker=marker, s=18, label=label,
+                           facecolors="none" if marker == "o" else None,
+                           edgecolors="tab:purple" if marker == "o" else None,
+                           color="tab:green" if marker == "x" else None)
+        lo, hi = ax.get_xlim()[0], ax.get_xlim()[1]
+        lo, hi = min(lo, ax.get_ylim()[0]), max(hi, ax.get_ylim()[1])
+        ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8, ls="--", label="equal")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("analytic drift [rad]")
+        ax.set_ylabel("optimal drift [rad]")
+        ax.set_title(f"optimal vs analytic ({len(paired)} sets)")
+        ax.grid(True, which="major", alpha=0.3)
+        ax.legend(fontsize="small")
+    fig.savefig(path, dpi=150)
+    return Path(path)
+
+
+def _pairs(ok: Sequence[dict]) -> list[tuple[dict, dict]]:
+    """(analytic, optimal) results of the same parameter set, in index order."""
+    by_params: dict[str, dict[str, dict]] = {}
+    for r in sorted(ok, key=lambda r: r["index"]):
+        by_params.setdefault(canonical_json(r["parameters"]), {})[r["method"]] = r
+    return [(m["analytic"], m["optimal"]) for m in by_params.values() if {"analytic", "optimal"} <= set(m)]
+
+
+def _axis_values(values: list[Any]) -> tuple[np.ndarray, list[str] | None]:
+    """Numbers to plot a parameter at, and tick labels for a categorical parameter."""
+    if all(is_number(v) for v in values):
+        return np.array(values, dtype=float), None
+    def label(v):
+        return v if isinstance(v, str) else canonical_json(v)
+
+    labels = sorted({label(v) for v in values})
+    return np.array([labels.index(label(v)) for v in values], dtype=float), labels
+
+
+def plot_drift_against_parameter(results: Sequence[dict], name: str, path: str | Path) -> Path | None:
+    """Maximum (top) and final (bottom) drift against the varied parameter ``name`` (one panel
+    column per item of a list parameter), one colour per method, failed cases left out.
+    Returns the file written, or None when no successful case has the parameter."""
+    ok = [r for r in results if r["status"] == "ok" and name in r["parameters"]]
+    columns = sorted({c for r in ok for c in parameter_columns({name: r["parameters"][name]})},
+                     key=lambda c: [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", c)])
+    if not ok or not columns:
+        return None
+    failed = sum(1 for r in results if r["status"] != "ok" and name in r["parameters"])
+    fig, axes = _figure(2, len(columns))
+    for j, column in enumerate(columns):
+        for i, (key, what) in enumerate(((MAX_DRIFT, "maximum"), (FINAL_DRIFT, "final"))):
+            ax = axes[i][j]
+            methods = sorted({r["method"] for r in ok})
+            for k, method in enumerate(methods):
+                mine = [r for r in ok if r["method"] == method]
+                pairs = [(parameter_columns({name: r["parameters"][name]}).get(column), _drift(r, key))
+                         for r in mine]
+                pairs = [(x, d) for x, d in pairs if x is not None and d is not None]
+                if not pairs:
+                    continue
+                x, labels = _axis_values([p[0] for p in pairs])
+                if labels is not None:  # categories: methods side by side around each tick
+                    x = x + CATEGORY_SPREAD * (k - (len(methods) - 1) / 2)
+                    ax.set_xlim(-0.5, len(labels) - 0.5)
+                ax.scatter(x, [p[1] for p in pairs], s=14, alpha=0.75,
+                           color=METHOD_COLOURS.get(method), label=method)
+                if labels is not None:
+                    ax.set_xticks(range(len(labels)), labels, rotation=30, fontsize="small")
+            ax.set_yscale("log")
+            ax.grid(True, which="major", alpha=0.3)
+            ax.set_xlabel(column)
+            if j == 0:
+                ax.set_ylabel(f"{what} drift [rad]")
+            if i == 0 and j == 0:
+                ax.legend(fontsize="small")
+    note = f" ({failed} failed case(s) not shown)" if failed else ""
+    title = f"attitude drift against {name}{note}"
+    if len(columns) == 1 and len(title) > SINGLE_PANEL_TITLE:
+        title = title.replace(" (", "\n(")
+    fig.suptitle(title, fontsize="medium")
+    fig.savefig(path, dpi=150)
+    return Path(path)
+
+
+def plot_file_name(name: str) -> str:
+    """File name of the drift-against-parameter plot of key path ``name``."""
+    return "drift_vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") + ".png"
+
+
+def write_report(out_dir: str | Path, results: Sequence[dict], varied: Sequence[str],
+                 plots: bool = True, extra_summary: dict | None = None) -> dict[str, Path]:
+    """Write the table (``results.csv``), ``summary.json`` and the plots (``plots/``).
+
+    Args:
+        out_dir: the sweep's output folder.
+        results: every case's result record.
+        varied: the varied key paths (one plot each).
+        plots: draw the plots.
+        extra_summary: more entries for ``summary.json`` (the sweep's name, timing, ...).
+
+    Returns:
+        Name -> path of every file written.
+    """
+    out_dir = Path(out_dir)
+    written: dict[str, Path] = {}
+    columns, rows = results_table(results)
+    written["table"] = write_table_csv(out_dir / "results.csv", columns, rows)
+    summary = {**(extra_summary or {}), **summarize(results)}
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
+    written["summary"] = out_dir / "summary.json"
+    if plots:
+        plot_dir = out_dir / "plots"
+        plot_dir.mkdir(exist_ok=True)
+        p = plot_drift_distribution(results, plot_dir / "drift_distribution.png")
+        if p is not None:
+            written["drift_distribution"] = p
+        for name in varied:
+            p = plot_drift_against_parameter(results, name, plot_dir / plot_file_name(name))
+            if p is not None:
+                written[f"drift_vs:{name}"] = p
+    return written
+
+
+__all__ = ["is_timing_column", "plot_drift_against_parameter", "plot_drift_distribution",
+           "read_table_csv", "results_table", "row_from_result", "summarize", "write_report",
+           "write_table_csv"]
