@@ -113,7 +113,37 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
         if name is None or parent is None or child is None:
             raise URDFLoadError(source, f"a <joint> lacks a name, parent or child: {ET.tostring(el)[:80]!r}")
         joints[name] = _UrdfJoint(name, el.get("type", ""), parent.get("link"), child.get("link"), el)
+    _check_inertials(root, source)
     return root, joints
+
+
+def _check_inertials(root: ET.Element, source: str) -> None:
+    """Raise if a link's mass, inertia or inertial origin is not a number: urdfdom (under
+    Pinocchio) drops such an ``<inertial>`` with a message on stderr and loads the link
+    massless, which would silently change every momentum map."""
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        fields = [("mass", "value")] + [("inertia", k) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")]
+        for tag, attr in fields:
+            el = inertial.find(tag)
+            text = None if el is None else el.get(attr)
+            try:
+                float(text)
+            except (TypeError, ValueError):
+                raise URDFLoadError(source, f"link '{link.get('name')}': <inertial> <{tag} {attr}=...> "
+                                    f"is {text!r}, not a number") from None
+        origin = inertial.find("origin")
+        for attr in ("xyz", "rpy"):
+            text = "0 0 0" if origin is None else origin.get(attr, "0 0 0")
+            try:
+                ok = len([float(v) for v in text.split()]) == 3
+            except ValueError:
+                ok = False
+            if not ok:
+                raise URDFLoadError(source, f"link '{link.get('name')}': <inertial> <origin {attr}=...> "
+                                    f"is {text!r}, not three numbers")
 
 
 def _origin(el: ET.Element) -> pin.SE3:
@@ -177,8 +207,9 @@ class FloatingRobot:
         limits: overrides of joint limits, ``{joint: {"lower": ..., "upper": ..., "velocity": ...,
             "acceleration": ..., "effort": ...}}``; keys left out keep the URDF's value.
         ee_frames: end-effector frame per arm name (``"mission"``, ``"balance"``, ``"balance2"``
-            ...); by default the last link reached from the arm's last joint through fixed
-            joints, while that chain does not branch.
+            ...); by default the last link reached from the arm's most distal joint (the
+            deepest in the kinematic tree, whatever the order the joints were named in) through
+            fixed joints, while that chain does not branch.
 
     Raises:
         URDFLoadError: the URDF cannot be read, parsed or loaded by Pinocchio.
@@ -200,6 +231,9 @@ class FloatingRobot:
         root, self._urdf_joints = _parse_joints(text, self.source)
         self.name = root.get("name", "robot")
 
+        for arm, joints in (("mission", mission), ("balance", balance)):
+            if isinstance(joints, str):  # list("j1") would be the joints 'j', '1'
+                raise ArmError(arm, self.source, f"joints must be a list of joint names, got the string {joints!r}")
         balance_lists = [list(balance)] if balance and isinstance(balance[0], str) else [list(b) for b in balance]
         if not balance_lists:
             raise ArmError("balance", self.source, "no balance arm given")
@@ -292,7 +326,17 @@ class FloatingRobot:
         reduced.gravity = pin.Motion.Zero()
         return reduced, full
 
-    def _default_ee_frame(self, last_joint: str) -> str:
+    def _depth(self, joint: str) -> int:
+        """Number of joints from the URDF's root link down to ``joint`` (inclusive)."""
+        parent_joint = {uj.child: uj for uj in self._urdf_joints.values()}
+        depth, link = 0, self._urdf_joints[joint].child
+        while link in parent_joint and depth <= len(parent_joint):
+            depth, link = depth + 1, parent_joint[link].parent
+        return depth
+
+    def _default_ee_frame(self, joints: Sequence[str]) -> str:
+        depths = [self._depth(j) for j in joints]
+        last_joint = joints[max(i for i, d in enumerate(depths) if d == max(depths))]
         link = self._urdf_joints[last_joint].child
         while True:
             children = [j for j in self._urdf_joints.values() if j.parent == link]
@@ -303,7 +347,7 @@ class FloatingRobot:
     def _make_arms(self, arm_specs, ee_frames):
         arms, start = [], 0
         for name, joints in arm_specs:
-            frame = ee_frames.get(name) or self._default_ee_frame(joints[-1])
+            frame = ee_frames.get(name) or self._default_ee_frame(joints)
             if not self.model.existFrame(frame):
                 raise ArmError(name, self.source, f"end-effector frame '{frame}' is not a link of the URDF"
                                + _suggest(frame, [f.name for f in self.model.frames]))

@@ -26,7 +26,7 @@ from functools import cached_property
 import casadi as cs
 import numpy as np
 
-from .errors import BalanceOptError
+from .errors import BalanceOptError, JointError
 from .robot import FloatingRobot
 
 log = logging.getLogger(__name__)
@@ -55,6 +55,13 @@ def available_backends() -> list[str]:
 def _primitives_adam(robot: FloatingRobot, q: cs.SX):
     import adam.casadi
     import urdf_parser_py.xml_reflection.core as urdf_core
+
+    # adam-robotics 0.5 stacks three 3-vectors of zeros into a prismatic joint's motion
+    # subspace (12 x 1 instead of 6 x 1): fail here, by name, rather than deep inside adam.
+    for j in robot.joint_names:
+        if robot._urdf_joints[j].type == "prismatic":
+            raise JointError(j, robot.source, "is prismatic, which the 'adam' backend cannot handle "
+                             "(adam-robotics 0.5); lock it, or use backend='pinocchio'")
 
     # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
     quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
