@@ -1,0 +1,390 @@
+"""Momentum maps: the symbolic CasADi functions (every available backend) against numeric
+Pinocchio, and the numeric maps against independent computations (Pinocchio called directly,
+SVD, finite differences on the manifold, momentum conservation), on the paper's robot and on
+Baxter (floating, left arm mission, right arm balance, head and grippers locked).
+
+References are computed once per robot in module-scoped fixtures, at ``N_CONFIGS`` seeded
+random configurations within the joint limits.
+"""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.linalg import block_diag
+
+from balance_opt.errors import BalanceOptError, JointError
+from balance_opt.momentum import NumericMaps
+from balance_opt.robot import FloatingRobot
+from balance_opt.symbolic import BACKENDS, SymbolicMaps, available_backends
+
+#: Largest absolute error allowed between two exact computations of the same quantity.
+ATOL = 1e-9
+N_CONFIGS = 50
+#: Step of the central differences [s]; with one Richardson extrapolation the truncation error
+#: is O(h^4) ~ 1e-12 and the rounding error ~ 1e-16 |J| / h ~ 1e-13, well below ATOL.
+FD_STEP = 1e-3
+#: The force map inverts N^T, whose condition number reaches ~1e5 on Baxter: a backward-stable
+#: evaluation errs by ~ eps * cond(N) * |F_B| (~1e-11 |F_B|; measured <= 1e-12 |F_B|), so F_B is
+#: compared relative to its size (|F_B| reaches 3e4 N for a unit wrench F_e).
+FORCE_RTOL = 1e-9
+#: Condition numbers are ratios of singular values (dimensionless, unbounded): compared relatively.
+CONDITION_RTOL = 1e-9
+
+ROBOTS = ("paper", "baxter")
+CASES = [(r, b) for r in ROBOTS for b in available_backends()]
+
+
+def _pin_configuration(model, names, q, base=None):
+    """Pinocchio configuration with the named revolute joints at ``q``, written by joint name
+    (independent of FloatingRobot's index maps)."""
+    qp = pin.neutral(model)
+    if base is not None:
+        qp[:7] = pin.SE3ToXYZQUAT(base)
+    for name, value in zip(names, q):
+        joint = model.joints[model.getJointId(name)]
+        assert joint.nq == 1, name
+        qp[joint.idx_q] = value
+    return qp
+
+
+def _columns(model, names):
+    return np.r_[0:6, [model.joints[model.getJointId(n)].idx_v for n in names]]
+
+
+def _direct_A(robot, q, base=None):
+    """A_G straight from ``pin.computeCentroidalMap`` (world-aligned axes, base twist local),
+    columns [base; arm joints in arm order]."""
+    model = robot.model
+    qp = _pin_configuration(model, robot.joint_names, q, base)
+    return pin.computeCentroidalMap(model, model.createData(), qp)[:, _columns(model, robot.joint_names)]
+
+
+def _base_jacobian_from(A):
+    return -np.linalg.solve(A[:, :6], A[:, 6:])
+
+
+def _richardson(f, q, q_dot, h=FD_STEP):
+    """d/dt f(q + t q_dot) at t = 0: central differences with one Richardson extrapolation."""
+    def central(step):
+        return (f(q + step * q_dot) - f(q - step * q_dot)) / (2 * step)
+
+    return (4 * central(h / 2) - central(h)) / 3
+
+
+def _pinv_transpose_svd(N, rank):
+    """pinv(N^T) from the SVD of N, keeping the ``rank`` largest singular values:
+    N = U S V^T, so N^T = V S U^T and pinv(N^T) = U S^+ V^T."""
+    U, s, Vt = np.linalg.svd(N)
+    return U[:, :rank] @ np.diag(1 / s[:rank]) @ Vt[:rank]
+
+
+def _numeric_reference(robot):
+    rng = np.random.default_rng(20240611)
+    numeric = NumericMaps(robot)
+    n = robot.n
+    Q = rng.uniform(robot.limits.lower, robot.limits.upper, size=(N_CONFIGS, n))
+    QD = rng.uniform(-robot.limits.velocity, robot.limits.velocity, size=(N_CONFIGS, n))
+    F_E = rng.normal(size=(N_CONFIGS, 6))
+    mission, balance = robot.mission_indices, robot.balance_indices
+
+    def J_w(q):
+        return numeric.base_jacobian(q)[3:]
+
+    ref = {key: [] for key in ("A", "A_direct", "J_base", "J_wM", "J_wB", "dJ_w_fd", "dJ_w_q_dot", "measures")}
+    for arm in robot.arms:
+        for key in ("J_star", "M", "N", "N_svd", "F_B", "F_B_svd"):
+            ref[f"{key}_{arm.name}"] = []
+    for q, q_dot, F_e in zip(Q, QD, F_E):
+        A = numeric.centroidal_momentum_matrix(q)
+        J_base = numeric.base_jacobian(q)
+        ref["A"].append(A)
+        ref["A_direct"].append(_direct_A(robot, q))
+        ref["J_base"].append(J_base)
+        J_wM, J_wB = numeric.angular_jacobians(q)
+        ref["J_wM"].append(J_wM)
+        ref["J_wB"].append(J_wB)
+        ref["dJ_w_fd"].append(_richardson(J_w, q, q_dot))
+        # Zero momentum along the motion: 0 = d/dt (A_G v) = A_G v_dot + dA_G v (Pinocchio's dAg);
+        # with q_ddot = 0, v_dot = [dJ_base q_dot; 0], so dJ_base q_dot = -A_b^{-1} dAg v.
+        v = robot.pin_v(q_dot, J_base @ q_dot)
+        data = robot.model.createData()
+        pin.computeCentroidalMapTimeVariation(robot.model, data, robot.pin_q(q), v)
+        ref["dJ_w_q_dot"].append(-np.linalg.solve(A[:, :6], data.dAg @ v)[3:])
+        ref["measures"].append(numeric.coupling_measures(q))
+        for arm in robot.arms:
+            J_star, M = numeric.ee_generalized_jacobian(q, arm.name)
+            _, N = numeric.coupling_factors(q, arm.name)
+            ref[f"J_star_{arm.name}"].append(J_star)
+            ref[f"M_{arm.name}"].append(M)
+            ref[f"N_{arm.name}"].append(N)
+            U, s, Vt = np.linalg.svd(M, full_matrices=False)
+            ref[f"N_svd_{arm.name}"].append(J_base[:, arm.indices] @ (Vt.T / s) @ U.T)
+            ref[f"F_B_{arm.name}"].append(numeric.force_map(q, F_e, arm.name))
+            ref[f"F_B_svd_{arm.name}"].append(_pinv_transpose_svd(N, min(arm.dof, 6)) @ F_e)
+    out = {k: (v if k == "measures" else np.array(v)) for k, v in ref.items()}
+    return SimpleNamespace(robot=robot, numeric=numeric, Q=Q, QD=QD, F_E=F_E, mission=mission,
+                           balance=balance, **out)
+
+
+@pytest.fixture(scope="module")
+def reference_of(paper, baxter):
+    """Numeric references per robot name, computed on first use and kept for the module."""
+    robots, cache = {"paper": paper, "baxter": baxter}, {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = _numeric_reference(robots[name])
+        return cache[name]
+
+    return get
+
+
+@pytest.fixture(scope="module", params=CASES, ids=[f"{r}-{b}" for r, b in CASES])
+def case(request, reference_of):
+    """Symbolic maps of one robot with one backend, evaluated at the reference configurations."""
+    name, backend = request.param
+    ref = reference_of(name)
+    robot = ref.robot
+    maps = SymbolicMaps(robot, backend=backend)
+    sym = {key: [] for key in ("A", "J_base", "J_wM", "J_wB", "dJ_wM", "dJ_wB", "measures")}
+    for arm in robot.arms:
+        for key in ("J_star", "M", "M_cf", "N", "F_B"):
+            sym[f"{key}_{arm.name}"] = []
+    for q, q_dot, F_e in zip(ref.Q, ref.QD, ref.F_E):
+        sym["A"].append(maps.centroidal_momentum_matrix(q))
+        sym["J_base"].append(maps.base_jacobian(q))
+        J_wM, J_wB = maps.angular_jacobians(q)
+        sym["J_wM"].append(J_wM)
+        sym["J_wB"].append(J_wB)
+        dJ_wM, dJ_wB = maps.angular_jacobian_rates(q, q_dot)
+        sym["dJ_wM"].append(dJ_wM)
+        sym["dJ_wB"].append(dJ_wB)
+        sym["measures"].append(maps.coupling_measures(q))
+        for arm in robot.arms:
+            J_star, M = maps.ee_generalized_jacobian(q, arm.name)
+            M_cf, N = maps.coupling_factors(q, arm.name)
+            sym[f"J_star_{arm.name}"].append(J_star)
+            sym[f"M_{arm.name}"].append(M)
+            sym[f"M_cf_{arm.name}"].append(M_cf)
+            sym[f"N_{arm.name}"].append(N)
+            sym[f"F_B_{arm.name}"].append(maps.force_map(q, F_e, arm.name))
+    out = {k: (v if k == "measures" else np.array(v)) for k, v in sym.items()}
+    return SimpleNamespace(ref=ref, maps=maps, backend=backend, **out)
+
+
+def _close(actual, desired, atol=ATOL, **kwargs):
+    np.testing.assert_allclose(actual, desired, rtol=0, atol=atol, **kwargs)
+
+
+# ------------------------------------------------------------------ numeric vs independent
+@pytest.mark.parametrize("name", ROBOTS)
+def test_numeric_centroidal_map_is_pinocchio_direct(reference_of, name):
+    ref = reference_of(name)
+    assert ref.A.shape == (N_CONFIGS, 6, 6 + ref.robot.n)
+    _close(ref.A, ref.A_direct)
+    _close(ref.J_base, [_base_jacobian_from(A) for A in ref.A_direct])
+    _close(ref.J_wM, ref.J_base[:, 3:][:, :, ref.mission])
+    _close(ref.J_wB, ref.J_base[:, 3:][:, :, ref.balance])
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_base_jacobian_conserves_momentum(reference_of, name):
+    """A_G [J_base q_dot; q_dot] = 0, at the identity and at random base poses (world axes)."""
+    ref = reference_of(name)
+    rng = np.random.default_rng(11)
+    for q, q_dot, J_base in zip(ref.Q, ref.QD, ref.J_base):
+        v = np.r_[J_base @ q_dot, q_dot]
+        base = pin.SE3(pin.exp3(rng.normal(size=3)), rng.normal(scale=10, size=3))
+        _close(_direct_A(ref.robot, q) @ v, np.zeros(6))
+        _close(_direct_A(ref.robot, q, base) @ v, np.zeros(6))
+        # and the base twist for a non-zero momentum h0 (base axes)
+        h0 = rng.normal(size=6)
+        v_b = ref.numeric.base_twist(q, q_dot, h0)
+        _close(_direct_A(ref.robot, q) @ np.r_[v_b, q_dot], h0)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_base_jacobian_does_not_depend_on_base_pose(reference_of, name):
+    """A_G at a random base pose (world-aligned rows) is blkdiag(R, R) A_G(base at identity),
+    so J_base = -A_b^{-1} A_j is the same."""
+    ref = reference_of(name)
+    rng = np.random.default_rng(12)
+    for q, A, J_base in zip(ref.Q, ref.A, ref.J_base):
+        R = pin.exp3(rng.normal(size=3))
+        A_world = _direct_A(ref.robot, q, pin.SE3(R, rng.normal(scale=10, size=3)))
+        _close(A_world, block_diag(R, R) @ A)
+        _close(ref.numeric.centroidal_momentum_matrix(q, rotation=R), block_diag(R, R) @ A)
+        _close(_base_jacobian_from(A_world), J_base)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_ee_generalized_jacobian_moves_the_end_effector(reference_of, name):
+    """J_star q_dot is the end effector's twist (origin velocity, angular velocity; world =
+    base axes at the identity) when the joints move at q_dot and the base as momentum
+    conservation forces it (base integrated on SE(3) with v_b = J_base q_dot)."""
+    ref = reference_of(name)
+    model = ref.robot.model
+    data = model.createData()
+    for arm in ref.robot.arms:
+        frame = model.getFrameId(arm.ee_frame)
+        for q, q_dot, J_base, J_star in zip(ref.Q, ref.QD, ref.J_base, getattr(ref, f"J_star_{arm.name}")):
+            q0, v = ref.robot.pin_q(q), ref.robot.pin_v(q_dot, J_base @ q_dot)
+
+            def pose(t):
+                pin.framesForwardKinematics(model, data, pin.integrate(model, q0, t * v))
+                return data.oMf[frame].copy()
+
+            def twist_fd(h):
+                before, after = pose(-h), pose(h)
+                linear = (after.translation - before.translation) / (2 * h)
+                angular = pin.log3(after.rotation @ before.rotation.T) / (2 * h)
+                return np.r_[linear, angular]
+
+            twist = (4 * twist_fd(FD_STEP / 2) - twist_fd(FD_STEP)) / 3
+            _close(J_star @ q_dot, twist, err_msg=arm.name)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_angular_jacobian_rates_reference(reference_of, name):
+    """The two numeric references of the rates agree: finite differences of J_w along q_dot,
+    and Pinocchio's dAg through momentum conservation."""
+    ref = reference_of(name)
+    _close(np.einsum("kij,kj->ki", ref.dJ_w_fd, ref.QD), ref.dJ_w_q_dot)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_coupling_factor_reference(reference_of, name):
+    """N (Eq. 24) maps the end-effector twist M q_dot back to the base twist J_base,arm q_dot
+    for every q_dot the arm can express through its end effector (all of them when M has full
+    column rank, the row space of M otherwise), and equals the SVD pseudo-inverse form."""
+    ref = reference_of(name)
+    for arm in ref.robot.arms:
+        M_all, N_all = getattr(ref, f"M_{arm.name}"), getattr(ref, f"N_{arm.name}")
+        _close(N_all, getattr(ref, f"N_svd_{arm.name}"))
+        for M, N, J_base in zip(M_all, N_all, ref.J_base):
+            X = np.eye(arm.dof) if arm.dof <= 6 else M.T
+            _close(N @ M @ X, J_base[:, arm.indices] @ X, err_msg=arm.name)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_force_map_reference(reference_of, name):
+    ref = reference_of(name)
+    for arm in ref.robot.arms:
+        F_B, F_B_svd = getattr(ref, f"F_B_{arm.name}"), getattr(ref, f"F_B_svd_{arm.name}")
+        for k in range(N_CONFIGS):
+            scale = max(1.0, np.abs(F_B_svd[k]).max())
+            _close(F_B[k], F_B_svd[k], atol=FORCE_RTOL * scale, err_msg=arm.name)
+            if arm.dof >= 6:  # N is invertible: N^T F_B = F_e
+                N = getattr(ref, f"N_{arm.name}")[k]
+                _close(N.T @ F_B[k], ref.F_E[k], atol=FORCE_RTOL * scale, err_msg=arm.name)
+
+
+# ------------------------------------------------------------------------ symbolic vs numeric
+def test_centroidal_momentum_matrix(case):
+    _close(case.A, case.ref.A)
+    _close(case.A, case.ref.A_direct)
+
+
+def test_base_jacobian(case):
+    _close(case.J_base, case.ref.J_base)
+    A = case.ref.A_direct
+    residual = np.einsum("kij,kj->ki", A[:, :, :6], np.einsum("kij,kj->ki", case.J_base, case.ref.QD))
+    _close(residual + np.einsum("kij,kj->ki", A[:, :, 6:], case.ref.QD), 0)  # momentum conservation
+
+
+def test_angular_jacobians(case):
+    robot = case.ref.robot
+    assert case.J_wM.shape == (N_CONFIGS, 3, robot.mission.dof)
+    assert case.J_wB.shape == (N_CONFIGS, 3, len(robot.balance_indices))
+    _close(case.J_wM, case.ref.J_wM)
+    _close(case.J_wB, case.ref.J_wB)
+
+
+def test_angular_jacobian_rates(case):
+    ref = case.ref
+    _close(case.dJ_wM, ref.dJ_w_fd[:, :, ref.mission])
+    _close(case.dJ_wB, ref.dJ_w_fd[:, :, ref.balance])
+    # the combination Eq. 32 uses, against Pinocchio's dAg
+    rate = (np.einsum("kij,kj->ki", case.dJ_wM, ref.QD[:, ref.mission])
+            + np.einsum("kij,kj->ki", case.dJ_wB, ref.QD[:, ref.balance]))
+    _close(rate, ref.dJ_w_q_dot)
+
+
+def test_ee_generalized_jacobian_and_coupling_factors(case):
+    for arm in case.ref.robot.arms:
+        J_star = getattr(case, f"J_star_{arm.name}")
+        _close(J_star, getattr(case.ref, f"J_star_{arm.name}"), err_msg=arm.name)
+        _close(getattr(case, f"M_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name)
+        _close(getattr(case, f"M_{arm.name}"), J_star[:, :, arm.indices], err_msg=arm.name)
+        _close(getattr(case, f"M_cf_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name)
+        _close(getattr(case, f"N_{arm.name}"), getattr(case.ref, f"N_svd_{arm.name}"), err_msg=arm.name)
+
+
+def test_force_map(case):
+    for arm in case.ref.robot.arms:
+        F_B, F_B_svd = getattr(case, f"F_B_{arm.name}"), getattr(case.ref, f"F_B_svd_{arm.name}")
+        for k in range(N_CONFIGS):
+            scale = max(1.0, np.abs(F_B_svd[k]).max())
+            _close(F_B[k], F_B_svd[k], atol=FORCE_RTOL * scale, err_msg=arm.name)
+
+
+def test_coupling_measures(case):
+    robot = case.ref.robot
+    for sym, ref, J_wB in zip(case.measures, case.ref.measures, case.ref.J_wB):
+        _close(sym.balance_singular_values, np.linalg.svd(J_wB, compute_uv=False))
+        _close(sym.balance_singular_values, ref.balance_singular_values)
+        np.testing.assert_allclose(sym.balance_condition, ref.balance_condition, rtol=CONDITION_RTOL, atol=0)
+        np.testing.assert_allclose(sym.balance_condition, ref.balance_singular_values[0] / ref.sigma_min,
+                                   rtol=CONDITION_RTOL, atol=0)
+        assert sym.sigma_min == ref.balance_singular_values[2] or np.isclose(sym.sigma_min, ref.sigma_min,
+                                                                              rtol=0, atol=ATOL)
+        _close(sym.mission_norm, ref.mission_norm)
+        assert sym.per_arm.keys() == {a.name for a in robot.balance_arms}
+        for arm, (s, cond) in sym.per_arm.items():
+            _close(s, ref.per_arm[arm][0])
+            np.testing.assert_allclose(cond, ref.per_arm[arm][1], rtol=CONDITION_RTOL, atol=0)
+
+
+def test_functions_are_named_with_named_inputs_and_outputs(case):
+    maps = case.maps
+    expected = {
+        maps.centroidal_momentum_matrix_fun(): ("centroidal_momentum_matrix", ["q"], ["A_G"]),
+        maps.base_jacobian_fun(): ("base_jacobian", ["q"], ["J_base"]),
+        maps.angular_jacobians_fun(): ("angular_jacobians", ["q"], ["J_wM", "J_wB"]),
+        maps.angular_jacobian_rates_fun(): ("angular_jacobian_rates", ["q", "q_dot"], ["dJ_wM", "dJ_wB"]),
+        maps.ee_generalized_jacobian_fun("balance"): ("ee_generalized_jacobian_balance", ["q"], ["J_star", "M"]),
+        maps.coupling_factors_fun("mission"): ("coupling_factors_mission", ["q"], ["M", "N"]),
+        maps.force_map_fun("mission"): ("force_map_mission", ["q", "F_e"], ["F_B"]),
+    }
+    for fun, (name, inputs, outputs) in expected.items():
+        assert (fun.name(), fun.name_in(), fun.name_out()) == (name, inputs, outputs)
+    assert maps.angular_jacobians_fun() is maps.angular_jacobians_fun()  # built once
+
+
+# ----------------------------------------------------------------------------------- backends
+def test_backend_selection(paper):
+    found = available_backends()
+    assert found and set(found) <= set(BACKENDS)
+    assert SymbolicMaps(paper).backend == found[0]
+    with pytest.raises(BalanceOptError, match=r"unknown backend 'casadi'; expected auto, pinocchio, adam"):
+        SymbolicMaps(paper, backend="casadi")
+    if "pinocchio" not in found:
+        with pytest.raises(BalanceOptError, match=r"backend 'pinocchio' cannot be imported here "
+                                                  r"\(PyPI's pin wheels lack pinocchio.casadi\)"):
+            SymbolicMaps(paper, backend="pinocchio")
+
+
+@pytest.mark.skipif("adam" not in available_backends(), reason="adam-robotics not installed")
+def test_adam_backend_names_a_prismatic_arm_joint():
+    link = ('<link name="{}"><inertial><mass value="1"/>'
+            '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>')
+    joint = ('<joint name="{}" type="{}"><parent link="base"/><child link="{}"/><axis xyz="1 0 0"/>'
+             '<limit lower="-1" upper="1" velocity="1" effort="1"/></joint>')
+    urdf = "".join(['<robot name="slider">', link.format("base"), link.format("a"), link.format("b"),
+                    joint.format("turn", "revolute", "a"), joint.format("slide", "prismatic", "b"), "</robot>"])
+    robot = FloatingRobot(urdf, ["turn"], ["slide"])
+    with pytest.raises(JointError, match=r"joint 'slide' in <URDF string>: is prismatic, which the 'adam' "
+                                         r"backend cannot handle"):
+        SymbolicMaps(robot, backend="adam")
