@@ -158,8 +158,6 @@ class OutputsSpec:
     npz: bool = setting(True, doc="trajectories as NumPy .npz, one file per method")
     plots: bool = setting(True, doc="figures as PNG")
     report: bool = setting(True, doc="self-contained HTML report (report.html)")
-    sample_rate: float = setting(100.0, unit="Hz", exclusive_minimum=0.0,
-                                 doc="sample rate of the written trajectories")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -284,24 +282,27 @@ def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
         raise doc.error(("robot", "shipped" if r.shipped is not None else "example"), str(exc)) from None
 
 
-def _joint_path(doc: YamlDocument, joint: str) -> tuple:
-    """Key path where ``joint`` is named in the task (first of arms, locks, limits)."""
+def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
+    """Key path where ``joint`` is named in the task: under ``limits`` or ``arms.locked`` first
+    when the ``reason`` is about a limit or a lock, else in the arms."""
     data = doc.data
-    arms = data.get("arms") or {}
+    arms = data.get("arms") if isinstance(data.get("arms"), dict) else {}
+    candidates = []
     for key in ("mission", "balance"):
         value = arms.get(key)
-        if not isinstance(value, list):
-            continue
-        for i, item in enumerate(value):
+        for i, item in enumerate(value if isinstance(value, list) else []):
             if item == joint:
-                return ("arms", key, i)
-            if isinstance(item, list) and joint in item:
-                return ("arms", key, i, item.index(joint))
-    if isinstance(arms.get("locked"), dict) and joint in arms["locked"]:
-        return ("arms", "locked", joint)
-    if isinstance(data.get("limits"), dict) and joint in data["limits"]:
-        return ("limits", joint)
-    return ("arms",)
+                candidates.append(("arms", key, i))
+            elif isinstance(item, list) and joint in item:
+                candidates.append(("arms", key, i, item.index(joint)))
+    locked = ("arms", "locked", joint) if isinstance(arms.get("locked"), dict) and joint in arms["locked"] else None
+    limits = ("limits", joint) if isinstance(data.get("limits"), dict) and joint in data["limits"] else None
+    if locked and "lock" in reason:
+        candidates.insert(0, locked)
+    elif limits and "limit" in reason:
+        candidates.insert(0, limits)
+    candidates += [p for p in (locked, limits) if p]
+    return candidates[0] if candidates else ("arms",)
 
 
 def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingRobot:
@@ -316,7 +317,7 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
         key = next(k for k in ("urdf", "shipped", "example") if getattr(spec.robot, k) is not None)
         raise doc.error(("robot", key), str(exc)) from None
     except JointError as exc:
-        raise doc.error(_joint_path(doc, exc.joint), str(exc)) from None
+        raise doc.error(_joint_path(doc, exc.joint, exc.reason), str(exc)) from None
     except ArmError as exc:
         path = ("arms", "ee_frames", exc.arm) if exc.arm in a.ee_frames else ("arms", exc.arm)
         if exc.arm.startswith("balance") and exc.arm not in a.ee_frames:
@@ -359,7 +360,8 @@ def _build_mission(spec: TaskSpec, doc: YamlDocument, base_dir: Path, robot: Flo
             try:
                 return CsvTrajectory(path, robot.mission.joints, time_column=m.time_column)
             except TrajectoryError as exc:
-                raise doc.error(("mission", "file"), str(exc), ) from None
+                raise TaskTrajectoryError(doc.source, doc.line_of(("mission", "file")), ("mission", "file"),
+                                          str(exc)) from None
         if isinstance(m, CartesianMission):
             start = _check_length(doc, ("mission", "start"), m.start, n, what)
             return _cartesian_mission(m, doc, robot, start)

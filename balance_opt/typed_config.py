@@ -110,12 +110,17 @@ def _got(value) -> str:
             float: "a number", type(None): "nothing (null)"}.get(type(value), type(value).__name__)
     if isinstance(value, (dict, list)):
         return kind
+    if isinstance(value, bool):
+        return f"{str(value).lower()} ({kind})"
     return f"{value!r} ({kind})"
 
 
 def suggest(name: Any, candidates) -> str:
     """``"; did you mean 'x'?"`` for close matches, else ``""``."""
-    close = difflib.get_close_matches(str(name), [str(c) for c in candidates], n=3)
+    names = [str(c) for c in candidates]
+    close = difflib.get_close_matches(str(name), names, n=3)
+    if not close and len(str(name)) >= 3:  # an abbreviation: 'accel' for 'acceleration'
+        close = [c for c in names if c.startswith(str(name))][:3]
     return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
 
 

@@ -146,7 +146,10 @@ def parse_yaml(text: str, source: str) -> YamlDocument:
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = mark.line + 1 if mark is not None else None
-        problem = " ".join(p for p in (exc.context, exc.problem) if p)
+        context = exc.context or ""
+        if exc.context and exc.context_mark is not None and exc.context_mark.line + 1 != line:
+            context = f"{exc.context} that starts on line {exc.context_mark.line + 1}:"
+        problem = " ".join(p for p in (context, exc.problem) if p)
         raise TaskFileError(source, line, (), f"YAML syntax error: {problem}") from None
     except yaml.YAMLError as exc:
         raise TaskFileError(source, None, (), f"YAML error: {exc}") from None
