@@ -29,6 +29,7 @@ rely on), whatever the order or the number of workers.
 
 from __future__ import annotations
 
+import argparse
 import copy
 import hashlib
 import itertools
@@ -158,9 +159,10 @@ def canonical_json(data: Any) -> str:
     return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=True)
 
 
-def case_id_from(method: str, parameters: dict[str, Any], task_hash: str) -> str:
-    """Stable id of a case: a hash of its method, its parameters and the base task's hash."""
-    text = canonical_json({"method": method, "parameters": parameters, "task": task_hash})
+def case_id_from(method: str, parameters: dict[str, Any], setup_hash: str) -> str:
+    """Stable id of a case: a hash of its method, its parameters and what all cases share (the
+    base task, ``simulate``, the solver options: ``setup_hash``)."""
+    text = canonical_json({"method": method, "parameters": parameters, "setup": setup_hash})
     return hashlib.sha256(text.encode()).hexdigest()[:CASE_ID_DIGITS]
 
 
@@ -242,7 +244,8 @@ class Sweep:
         source: the sweep file (as given), for messages.
         base_dir: folder against which relative paths of the base task are resolved.
         task: the base task as plain data.
-        task_hash: SHA-256 of the base task's canonical JSON.
+        setup_hash: SHA-256 of what every case shares: the base task, ``simulate`` and the
+            solver options (part of every case id).
         cases: the cases in expansion order, plain data: ``index``, ``case_id``, ``method``,
             ``parameters`` (key path -> value), ``task`` (the base task with the parameters
             applied), ``base_dir`` and ``simulate``.
@@ -253,7 +256,7 @@ class Sweep:
     source: str
     base_dir: str
     task: dict
-    task_hash: str
+    setup_hash: str
     cases: list[dict] = field(repr=False)
     varied: tuple[str, ...] = ()
 
@@ -303,7 +306,7 @@ def _parameter_sets(spec: SweepSpec, doc: YamlDocument) -> tuple[list[dict], dic
     return sets, where
 
 
-def expand_cases(spec: SweepSpec, doc: YamlDocument, task: dict, task_hash: str,
+def expand_cases(spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str,
                  base_dir: str) -> tuple[list[dict], dict[str, tuple]]:
     """The cases of a sweep (see :class:`Sweep`), in a fixed order: parameter sets in file order
     (grid, then list, then random samples, innermost last), each with every method.
@@ -321,7 +324,7 @@ def expand_cases(spec: SweepSpec, doc: YamlDocument, task: dict, task_hash: str,
             name = str(exc.args[0]).split("'")[1]
             raise doc.error(where[name], exc.args[0]) from None
         for method in spec.methods:
-            case_id = case_id_from(method, parameters, task_hash)
+            case_id = case_id_from(method, parameters, setup_hash)
             index = len(cases)
             if case_id in seen:
                 raise doc.error((), f"case {index} ({method}, {canonical_json(parameters)}) is the "
@@ -333,7 +336,8 @@ def expand_cases(spec: SweepSpec, doc: YamlDocument, task: dict, task_hash: str,
     return cases, where
 
 
-def sweep_from_document(doc: YamlDocument, base_dir: str | Path) -> Sweep:
+def sweep_from_document(doc: YamlDocument, base_dir: str | Path,
+                        solver_options: dict[str, Any] | None = None) -> Sweep:
     """A :class:`Sweep` from a parsed sweep file.
 
     The base task and the task of every case are loaded in full (robot, mission, limits: see
@@ -344,6 +348,7 @@ def sweep_from_document(doc: YamlDocument, base_dir: str | Path) -> Sweep:
     Args:
         doc: the sweep file's document.
         base_dir: folder of the sweep file (relative paths start there).
+        solver_options: Ipopt options for every case (``--solver-option``); part of the ids.
 
     Raises:
         TaskFileError: anything wrong in the sweep file or the base task, or a parameter value
@@ -366,10 +371,15 @@ def sweep_from_document(doc: YamlDocument, base_dir: str | Path) -> Sweep:
     task = task_doc.data
     task_hash = hashlib.sha256(canonical_json(task).encode()).hexdigest()
     _load_task(task_doc, task_dir, task_hash, prefix)
-    cases, where = expand_cases(spec, doc, task, task_hash, str(task_dir))
+    solver_options = dict(solver_options or {})
+    setup = {"task": task_hash, "simulate": spec.simulate, "solver_options": solver_options}
+    setup_hash = hashlib.sha256(canonical_json(setup).encode()).hexdigest()
+    cases, where = expand_cases(spec, doc, task, setup_hash, str(task_dir))
+    for case in cases:
+        case["solver_options"] = solver_options
     _check_case_tasks(cases, doc, task_doc, task_dir, where)
     logger.info("sweep %s: %d case(s)", doc.source, len(cases))
-    return Sweep(spec, doc.source, str(task_dir), task, task_hash, cases, tuple(where))
+    return Sweep(spec, doc.source, str(task_dir), task, setup_hash, cases, tuple(where))
 
 
 def _load_task(task_doc: YamlDocument, task_dir: Path, task_hash: str, prefix: tuple):
@@ -422,15 +432,16 @@ def _varied_prefix(path: tuple, parameters: dict[str, Any]) -> str | None:
     return None
 
 
-def load_sweep(path: str | Path) -> Sweep:
+def load_sweep(path: str | Path, solver_options: dict[str, Any] | None = None) -> Sweep:
     """Read, validate and expand the sweep file at ``path`` (see :func:`sweep_from_document`)."""
     doc = load_yaml(path)
-    return sweep_from_document(doc, Path(path).resolve().parent)
+    return sweep_from_document(doc, Path(path).resolve().parent, solver_options)
 
 
-def parse_sweep(text: str, source: str, base_dir: str | Path) -> Sweep:
+def parse_sweep(text: str, source: str, base_dir: str | Path,
+                solver_options: dict[str, Any] | None = None) -> Sweep:
     """A :class:`Sweep` from YAML text (tests, generated sweeps)."""
-    return sweep_from_document(parse_yaml(text, source), base_dir)
+    return sweep_from_document(parse_yaml(text, source), base_dir, solver_options)
 
 
 def parameter_columns(parameters: dict[str, Any]) -> dict[str, Any]:
@@ -459,6 +470,173 @@ def is_number(value: Any) -> bool:
         isinstance(value, float) and math.isnan(value))
 
 
-__all__ = ["Distribution", "METHODS", "RandomSamples", "Sweep", "SweepSpec", "apply_overrides",
-           "case_id_from", "canonical_json", "draw_samples", "expand_cases", "load_sweep",
-           "parameter_columns", "parse_key_path", "parse_sweep", "sweep_from_document"]
+# ------------------------------------------------------------------------------ running a sweep
+#: The case function of task sweeps (see :mod:`balance_opt.sweep_runner`).
+TASK_RUNNER = "balance_opt.sweep_runner:run_task_case"
+#: Files a sweep writes in its output folder (besides ``cases/``).
+MANIFEST = "sweep.json"
+
+
+@dataclass
+class SweepOutcome:
+    """What :func:`run_sweep` did: the run (results, ran, skipped), the files written and the
+    summary written to ``summary.json``."""
+
+    run: Any
+    files: dict[str, Path]
+    summary: dict[str, Any]
+
+
+def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
+    """Check (and create) the output folder of a sweep.
+
+    An existing, non-empty folder is used only with ``resume`` (its finished cases are kept)
+    or ``force`` (the results of a previous sweep in it are deleted first).
+
+    Raises:
+        InputError: the folder is not empty and neither ``resume`` nor ``force`` is given, or it
+            is a file.
+    """
+    from .errors import InputError
+    from .sweep_engine import CASES_DIR
+
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"output {out_dir} exists and is not a directory")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
+        if not force:
+            raise InputError(f"output directory {out_dir} exists and is not empty; nothing was run. "
+                             "Use --resume to finish the sweep in it, --force to start it over, "
+                             "or choose another --output")
+        for old in [*(out_dir / CASES_DIR).glob("*.json"), *(out_dir / "plots").glob("*.png"),
+                    out_dir / "results.csv", out_dir / "summary.json", out_dir / MANIFEST]:
+            old.unlink(missing_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return out_dir
+
+
+def run_sweep(sweep: Sweep, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
+              resume: bool = False, force: bool = False, retry_failed: bool = False,
+              plots: bool = True, runner: str = TASK_RUNNER, on_result=None) -> SweepOutcome:
+    """Run every case of a sweep and write its results, table, summary and plots.
+
+    Args:
+        sweep: the sweep (:func:`load_sweep`).
+        out_dir: output folder: ``sweep.json`` (the cases), ``cases/<case_id>.json`` (one per
+            case, written as it finishes), ``results.csv``, ``summary.json``, ``plots/*.png``.
+        jobs: worker processes (0: in this process); with ``scheduler="local"``, the workers
+            of the local Dask cluster.
+        scheduler: None (local process pool), ``"local"`` (a Dask cluster on the loopback
+            interface, started and stopped here) or a Dask scheduler address.
+        resume: keep the finished cases found in ``out_dir`` and run the others.
+        force: start over in a non-empty ``out_dir``.
+        retry_failed: with ``resume``, run the failed cases again too.
+        plots: draw the summary plots.
+        runner: ``"module:function"`` of the case function.
+        on_result: progress callback, see :func:`balance_opt.sweep_engine.run_cases`.
+
+    Returns:
+        The outcome; the table and summary are written even when cases failed. If the run is
+        interrupted (``KeyboardInterrupt``), the table of the cases finished so far is written
+        before the interruption goes on.
+    """
+    from .sweep_engine import make_engine, run_cases, write_json_atomic
+    from .sweep_report import write_report
+
+    out_dir = prepare_output_dir(out_dir, resume, force)
+    manifest = {"name": sweep.name, "source": sweep.source, "setup_hash": sweep.setup_hash,
+                "varied": list(sweep.varied), "methods": list(sweep.spec.methods),
+                "cases": [{k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases]}
+    write_json_atomic(out_dir / MANIFEST, manifest)
+    engine = make_engine(jobs, scheduler)
+    extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
+    try:
+        run = run_cases(sweep.cases, runner, out_dir, engine, resume=resume,
+                        retry_failed=retry_failed, on_result=on_result)
+    except KeyboardInterrupt:
+        from .sweep_engine import iter_results
+
+        done = list(iter_results(out_dir, [c["case_id"] for c in sweep.cases]))
+        write_report(out_dir, done, sweep.varied, plots=False, extra_summary={**extra, "interrupted": True})
+        logger.warning("interrupted: %d of %d case(s) finished; run again with --resume to go on",
+                       len(done), len(sweep.cases))
+        raise
+    extra.update(workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped))
+    files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
+    summary = json.loads(files["summary"].read_text())
+    return SweepOutcome(run, files, summary)
+
+
+# ------------------------------------------------------------------------------ command line
+def add_sweep_parser(subparsers) -> Any:
+    """Add the ``sweep`` subcommand to the ``balance-opt`` command line."""
+    p = subparsers.add_parser(
+        "sweep", help="run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
+        description="Run every case of a sweep file (a base task and the parameters to vary); "
+                    "write one result per case as it finishes, the table results.csv, "
+                    "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
+                    "failed (their errors are in the table), 2 for a bad sweep file.")
+    p.add_argument("sweep", help="sweep file (YAML)")
+    p.add_argument("-o", "--output", metavar="DIR", help="output directory (default: results/<sweep name>)")
+    p.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
+                   help="worker processes (default: the number of CPUs; 0 runs the cases in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on Dask: the address of a scheduler (tcp://host:8786), or 'local' to start "
+                        "a local cluster of --jobs worker processes on 127.0.0.1")
+    p.add_argument("--resume", action="store_true",
+                   help="finish an interrupted sweep in --output: skip the cases already done")
+    p.add_argument("--retry-failed", action="store_true", help="with --resume, run failed cases again")
+    p.add_argument("-f", "--force", action="store_true",
+                   help="start over in an existing, non-empty output directory")
+    p.add_argument("--no-plots", action="store_true", help="skip the summary plots")
+    p.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
+                   help="Ipopt option for every optimal case (repeatable)")
+    p.add_argument("--runner", default=TASK_RUNNER, help=argparse.SUPPRESS)
+    p.set_defaults(run=run_sweep_command)
+    return p
+
+
+def run_sweep_command(args) -> int:
+    """``balance-opt sweep``: returns 0 when every case succeeded, 1 when some failed."""
+    import os
+
+    from .cli import parse_solver_option
+    from .errors import InputError
+
+    solver_options = dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+    jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
+    if jobs < 0:
+        raise InputError(f"--jobs must be >= 0, got {jobs}")
+    if args.retry_failed and not args.resume:
+        raise InputError("--retry-failed goes with --resume")
+    sweep = load_sweep(args.sweep, solver_options)
+    out_dir = Path(args.output) if args.output else Path("results") / sweep.name
+    if args.scheduler is None:
+        jobs = min(jobs, len(sweep.cases)) if jobs else 0
+
+    def progress(record, done, total):
+        metrics = record.get("metrics") or {}
+        drift = metrics.get(MAX_DRIFT_KEY)
+        what = (f"max drift {drift:.3g} rad" if isinstance(drift, float) else
+                (record.get("error") or {}).get("message", ""))
+        logger.info("[%d/%d] case %d %s %s: %s (%.2f s)", done, total, record["index"], record["method"],
+                    record["status"], what[:200], record["timing"]["case_s"])
+
+    outcome = run_sweep(sweep, out_dir, jobs=jobs, scheduler=args.scheduler, resume=args.resume,
+                        force=args.force, retry_failed=args.retry_failed, plots=not args.no_plots,
+                        runner=args.runner, on_result=progress)
+    run = outcome.run
+    logger.info("%d case(s): %d run in %.1f s on %d worker(s), %d skipped (already done), %d failed; "
+                "table %s", len(run.results), len(run.ran), run.elapsed_s, run.workers,
+                len(run.skipped), len(run.failed), outcome.files["table"])
+    return 1 if run.failed else 0
+
+
+#: Metric shown in the progress lines.
+MAX_DRIFT_KEY = "max_drift_rad"
+
+
+__all__ = ["Distribution", "METHODS", "RandomSamples", "Sweep", "SweepOutcome", "SweepSpec",
+           "add_sweep_parser", "apply_overrides", "case_id_from", "canonical_json", "draw_samples",
+           "expand_cases", "load_sweep", "parameter_columns", "parse_key_path", "parse_sweep",
+           "prepare_output_dir", "run_sweep", "run_sweep_command", "sweep_from_document"]

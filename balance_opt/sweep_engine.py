@@ -319,15 +319,25 @@ class DaskEngine:
         futures = [self._client.submit(execute_case, runner, case, pure=False,
                                        key=f"case-{case['case_id']}") for case in cases]
         by_key = {fut.key: case for fut, case in zip(futures, cases)}
+        pending = set(futures)
+        completed = as_completed(futures, with_results=True, raise_errors=False)
+        del futures
         try:
-            for fut in as_completed(futures):
+            for fut, value in completed:
                 if fut.status == "finished":
-                    yield fut.result()
-                else:  # the worker died under it (KilledWorker) or the task was lost
-                    exc = fut.exception()
-                    yield LocalPoolEngine._crash_record(by_key[fut.key], exc)
+                    record = value
+                elif fut.status in ("lost", "pending"):  # its worker died: it is computed again
+                    completed.add(fut)
+                    continue
+                else:  # it killed every worker that ran it (KilledWorker), or was cancelled
+                    exc = value[1] if isinstance(value, tuple) and len(value) == 3 else value
+                    record = LocalPoolEngine._crash_record(by_key[fut.key], exc)
+                pending.discard(fut)
+                fut.release()  # the worker may forget it: nothing to recompute if it dies later
+                yield record
         finally:
-            self._client.cancel([f for f in futures if not f.done()])
+            if pending:
+                self._client.cancel(list(pending))
 
     def describe(self) -> str:
         where = self.address or f"local cluster on {self.host}"

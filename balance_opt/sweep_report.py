@@ -101,7 +101,8 @@ def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, An
         [c for c in names if c.startswith(PARAM_PREFIX)],
         [c for c in names if c.startswith(METRIC_PREFIX) and not is_timing_column(c)],
         ["error_type", "error_message"],
-        [c for c in names if is_timing_column(c)],
+        [c for c in names if c.startswith(METRIC_PREFIX) and is_timing_column(c)],
+        [c for c in names if c.startswith(TIMING_PREFIX)],
     )
     columns = [c for group in groups for c in group]
     return columns, rows

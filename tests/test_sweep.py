@@ -1,0 +1,362 @@
+"""Sweeps: sweep files and their cases, the engines (process pool, Dask on loopback), failing
+and crashing cases, resume after an interruption, the same table whatever the number of
+workers, the report.
+
+The engine mechanics are tested with small case functions defined here (``toy_case``,
+imported by name in the worker processes); the end-to-end tests run the real planners on the
+paper's task with tiny horizons.
+"""
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from balance_opt.sweep import (
+    apply_overrides,
+    case_id_from,
+    load_sweep,
+    parameter_columns,
+    parse_key_path,
+    parse_sweep,
+    run_sweep,
+)
+from balance_opt.sweep_engine import (
+    STATUS_ERROR,
+    STATUS_OK,
+    LocalPoolEngine,
+    read_result,
+    result_path,
+    run_cases,
+    write_json_atomic,
+)
+from balance_opt.sweep_report import is_timing_column, read_table_csv, results_table
+from balance_opt.yaml_lines import TaskFileError, format_path
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_TASK = ROOT / "examples" / "paper_capture.yaml"
+TOY_RUNNER = "test_sweep:toy_case"
+#: Seconds a test waits for a subprocess sweep before giving up.
+SUBPROCESS_TIMEOUT = 120
+
+
+# ------------------------------------------------------------------------------ toy case function
+def toy_case(case: dict) -> dict:
+    """A case function with the runner's contract: ``x`` gives the drift, ``fail`` raises,
+    ``crash`` kills the worker process, ``sleep`` [s] takes time."""
+    p = case["parameters"]
+    if p.get("fail"):
+        raise ValueError(f"case {case['index']} was asked to fail")
+    if p.get("crash"):
+        os._exit(3)
+    time.sleep(p.get("sleep", 0.0))
+    x = float(p.get("x", 0.0))
+    return {"status": STATUS_OK, "metrics": {"max_drift_rad": 1e-3 * (1 + x * x), "final_drift_rad": 1e-4 * (1 + x),
+                                              "solver": {"solve_time_s": time.perf_counter()}},
+            "info": {"pid": os.getpid()}}
+
+
+def toy_cases(n: int, **flags) -> list[dict]:
+    """``n`` toy cases; ``flags`` maps a parameter name to the indices where it is set."""
+    cases = []
+    for i in range(n):
+        params = {"x": float(i)}
+        params.update({name: True for name, where in flags.items() if i in where})
+        cases.append({"index": i, "case_id": case_id_from("optimal", params, "toy"), "method": "optimal",
+                      "parameters": params})
+    return cases
+
+
+@pytest.fixture
+def tests_on_path(monkeypatch):
+    """Worker processes import ``test_sweep`` by name: put this folder on their path."""
+    here = str(Path(__file__).resolve().parent)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (here, os.environ.get("PYTHONPATH")) if p))
+    if here not in sys.path:
+        monkeypatch.syspath_prepend(here)
+    return here
+
+
+# ------------------------------------------------------------------------------ key paths
+@pytest.mark.parametrize("text, path", [
+    ("mission.goal", ("mission", "goal")),
+    ("mission.goal[2]", ("mission", "goal", 2)),
+    ("limits.balance_joint1.velocity", ("limits", "balance_joint1", "velocity")),
+    ("mission.points[1][0]", ("mission", "points", 1, 0)),
+])
+def test_key_path_round_trip(text, path):
+    assert parse_key_path(text) == path
+    assert format_path(path) == text
+
+
+@pytest.mark.parametrize("text", ["", ".a", "a.", "a..b", "[0]", "a b", "a.[0]", "a[x]"])
+def test_bad_key_path(text):
+    with pytest.raises(ValueError, match=re.escape(f"'{text}' is not a key path")):
+        parse_key_path(text)
+
+
+def test_apply_overrides_creates_mappings_and_copies():
+    base = {"mission": {"goal": [1.0, 2.0, 3.0]}, "limits": {}}
+    out = apply_overrides(base, {"mission.goal[1]": 9.0, "limits.j1.velocity": 0.5, "initial.balance": [0, 1]})
+    assert out == {"mission": {"goal": [1.0, 9.0, 3.0]}, "limits": {"j1": {"velocity": 0.5}},
+                   "initial": {"balance": [0, 1]}}
+    assert base == {"mission": {"goal": [1.0, 2.0, 3.0]}, "limits": {}}
+    with pytest.raises(KeyError, match=re.escape("parameter 'mission.goal[5]': mission.goal has no item [5]")):
+        apply_overrides(base, {"mission.goal[5]": 1.0})
+    with pytest.raises(KeyError, match=re.escape("parameter 'mission.goal.x': mission.goal is not a mapping")):
+        apply_overrides(base, {"mission.goal.x": 1.0})
+
+
+def test_parameter_columns_spread_lists():
+    assert parameter_columns({"a.b": [1.0, [2.0, 3.0]], "c": {"d": 4}, "e": "x"}) == {
+        "a.b[0]": 1.0, "a.b[1][0]": 2.0, "a.b[1][1]": 3.0, "c.d": 4, "e": "x"}
+
+
+# ------------------------------------------------------------------------------ sweep files
+SWEEP = f"""\
+task: {PAPER_TASK}
+name: small
+methods: [analytic, optimal]
+grid:
+  mission.duration: [5.0, 10.0]
+cases:
+  - {{initial.balance: [0.0, 0.5, -1.0]}}
+  - {{initial.balance: [0.3, 0.8, -1.4]}}
+random:
+  seed: 11
+  samples: 3
+  parameters:
+    mission.goal: {{uniform: [[0.8, 0.5, -1.8], [1.4, 1.1, -1.2]]}}
+    limits.balance_joint1.velocity: {{choice: [0.5, 1.0]}}
+"""
+
+
+def test_expansion_order_ids_and_samples(tmp_path):
+    sweep = parse_sweep(SWEEP, "small.yaml", tmp_path)
+    assert sweep.name == "small"
+    assert sweep.varied == ("mission.duration", "initial.balance", "mission.goal", "limits.balance_joint1.velocity")
+    assert len(sweep.cases) == 2 * 2 * 3 * 2
+    assert [c["index"] for c in sweep.cases] == list(range(24))
+    # grid outermost, then the list, then the samples, then the methods
+    first = sweep.cases[:2]
+    assert [c["method"] for c in first] == ["analytic", "optimal"]
+    assert first[0]["parameters"] == first[1]["parameters"]
+    assert first[0]["parameters"]["mission.duration"] == 5.0
+    assert sweep.cases[-1]["parameters"]["mission.duration"] == 10.0
+    assert sweep.cases[-1]["parameters"]["initial.balance"] == [0.3, 0.8, -1.4]
+    # the parameters are in the case's task
+    case = sweep.cases[5]
+    assert case["task"]["mission"]["goal"] == case["parameters"]["mission.goal"]
+    assert case["task"]["limits"]["balance_joint1"] == {
+        "acceleration": 2.0, "velocity": case["parameters"]["limits.balance_joint1.velocity"]}
+    assert case["task"]["limits"]["balance_joint2"] == {"acceleration": 2.0}
+    # seeded samples inside their bounds, the same in every grid and list cell
+    goals = np.array([c["parameters"]["mission.goal"] for c in sweep.cases])
+    assert np.all(goals >= [0.8, 0.5, -1.8]) and np.all(goals <= [1.4, 1.1, -1.2])
+    assert len({json.dumps(g) for g in goals.tolist()}) == 3
+    rng = np.random.default_rng(11)
+    expected_first = rng.uniform([0.8, 0.5, -1.8], [1.4, 1.1, -1.2])
+    np.testing.assert_allclose(goals[0], expected_first, rtol=0, atol=0)
+    # ids: unique, stable across loads, hash of method + parameters + setup
+    ids = [c["case_id"] for c in sweep.cases]
+    assert len(set(ids)) == len(ids)
+    assert ids == [c["case_id"] for c in parse_sweep(SWEEP, "other-name.yaml", tmp_path).cases]
+    assert ids[0] == case_id_from("analytic", sweep.cases[0]["parameters"], sweep.setup_hash)
+    # a different seed, the solver options or simulate change the ids
+    assert parse_sweep(SWEEP.replace("seed: 11", "seed: 12"), "s.yaml", tmp_path).cases[0]["case_id"] != ids[0]
+    assert parse_sweep(SWEEP, "s.yaml", tmp_path, {"max_iter": 5}).cases[0]["case_id"] != ids[0]
+    assert parse_sweep(SWEEP + "simulate: true\n", "s.yaml", tmp_path).cases[0]["case_id"] != ids[0]
+
+
+def test_inline_task_and_no_parameters(tmp_path):
+    inline = "task:\n" + "".join(f"  {line}\n" for line in PAPER_TASK.read_text().splitlines())
+    sweep = parse_sweep(inline + "methods: [optimal]\n", "inline.yaml", tmp_path)
+    assert [(c["index"], c["method"], c["parameters"]) for c in sweep.cases] == [(0, "optimal", {})]
+    assert sweep.cases[0]["task"]["mission"]["goal"] == [1.2, 0.9, -1.6]
+
+
+def _line(text: str, fragment: str) -> int:
+    return next(i for i, line in enumerate(text.splitlines(), 1) if fragment in line)
+
+
+BAD_SWEEPS = [
+    ("grid:\n  mission.duraton: [5.0]\n", "mission.duraton",
+     "grid.mission.duraton: mission.duraton = 5.0 (case 0): unknown key 'duraton'; expected one of type, "
+     "start, goal, duration; did you mean 'duration'?"),
+    ("grid:\n  mission.duration: [5.0, -1.0]\n", "mission.duration",
+     "grid.mission.duration: mission.duration = -1.0 (case 2): must be greater than 0 s, got -1"),
+    ("cases:\n  - {initial.balance: [0.1, 0.2]}\n", "initial.balance",
+     "cases[0].initial.balance: initial.balance = [0.1,0.2] (case 0): expected 3 values (one per balance "
+     "joint: balance_joint1, balance_joint2, balance_joint3), got 2"),
+    ("grid:\n  mission..goal: [1]\n", "mission..goal",
+     "grid.mission..goal: 'mission..goal' is not a key path"),
+    ("grid:\n  mission.duration: []\n", "mission.duration", "grid.mission.duration: expected at least one value"),
+    ("methods: [analytic, optim]\n", "methods", "methods[1]: expected one of 'analytic', 'optimal', got 'optim'"),
+    ("random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.goal: {uniform: [[0, 0], [1, 1, 1]]}\n",
+     "mission.goal", "random.parameters.mission.goal: low has shape (2,) but high has (3,)"),
+    ("random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.goal: {uniform: [1, 0]}\n",
+     "mission.goal", "random.parameters.mission.goal: low must not exceed high"),
+    ("random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.duration: {uniform: [1, 2], choice: [3]}\n",
+     "mission.duration", "random.parameters.mission.duration: expected exactly one of uniform, normal, choice, "
+                         "integers; got uniform, choice"),
+    ("cases:\n  - {mission.duration: 3.0}\n  - {mission.duration: 3.0}\n", "^task",
+     "(top level): case 2 (analytic, {\"mission.duration\":3.0}) is the same as case 0"),
+    ("grid:\n  mission.duration: [3.0]\ncases:\n  - {mission.duration: 4.0}\n", "mission.duration: [3.0]",
+     "grid.mission.duration: parameter 'mission.duration' is varied in more than one of grid, cases and random"),
+    ("grid:\n  method: [analytic]\n", "method:", "grid.method: the method is not a task parameter"),
+    ("gird:\n  mission.duration: [3.0]\n", "gird", "gird: unknown key 'gird'"),
+]
+
+
+@pytest.mark.parametrize("tail, culprit, message", BAD_SWEEPS, ids=[b[1] + str(i) for i, b in enumerate(BAD_SWEEPS)])
+def test_bad_sweep_files_name_file_line_and_key(tmp_path, tail, culprit, message):
+    text = f"task: {PAPER_TASK}\n{tail}"
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    line = 1 if culprit == "^task" else _line(text, culprit)
+    with pytest.raises(TaskFileError, match=re.escape(f"{path}:{line}: {message}")):
+        load_sweep(path)
+
+
+def test_bad_base_task_is_located_in_its_file(tmp_path):
+    task = tmp_path / "task.yaml"
+    task.write_text(PAPER_TASK.read_text().replace("duration: 10.0", "duration: ten"))
+    (tmp_path / "s.yaml").write_text("task: task.yaml\n")
+    line = _line(task.read_text(), "duration: ten")
+    with pytest.raises(TaskFileError, match=re.escape(f"{task}:{line}: mission.duration: expected a number")):
+        load_sweep(tmp_path / "s.yaml")
+    (tmp_path / "s.yaml").write_text("task: nowhere.yaml\n")
+    with pytest.raises(TaskFileError, match=re.escape(f"{tmp_path / 's.yaml'}:1: task: no task file")):
+        load_sweep(tmp_path / "s.yaml")
+
+
+def test_infeasible_case_is_left_to_fail_when_it_runs(tmp_path):
+    """A start outside the limits is a result of the study, not an error of the file."""
+    sweep = parse_sweep(f"task: {PAPER_TASK}\ncases:\n  - {{initial.balance: [9.0, 0.5, -1.0]}}\n", "s.yaml", tmp_path)
+    assert len(sweep.cases) == 2
+
+
+# ------------------------------------------------------------------------------ result files
+def test_atomic_write_and_read_back(tmp_path):
+    record = {"case_id": "abc", "index": 0, "status": STATUS_OK, "x": 0.1 + 0.2}
+    write_json_atomic(result_path(tmp_path, "abc"), record)
+    assert read_result(tmp_path, "abc") == record
+    assert [p.name for p in (tmp_path / "cases").iterdir()] == ["abc.json"]  # no temporary left
+    result_path(tmp_path, "torn").write_text('{"case_id": "torn", "sta')  # not a whole record
+    assert read_result(tmp_path, "torn") is None
+    assert read_result(tmp_path, "missing") is None
+
+
+# ------------------------------------------------------------------------------ engines (toy cases)
+def test_pool_records_failing_and_crashing_cases_and_goes_on(tmp_path, tests_on_path):
+    cases = toy_cases(7, fail={2}, crash={4})
+    run = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(2))
+    assert [r["index"] for r in run.results] == list(range(7))
+    status = {r["index"]: (r["status"], (r["error"] or {}).get("type")) for r in run.results}
+    assert status == {0: ("ok", None), 1: ("ok", None), 2: ("error", "ValueError"), 3: ("ok", None),
+                      4: ("error", "WorkerCrashed"), 5: ("ok", None), 6: ("ok", None)}
+    failed = read_result(tmp_path, cases[2]["case_id"])
+    assert failed["error"]["message"] == "case 2 was asked to fail"
+    assert "ValueError: case 2 was asked to fail" in failed["error"]["traceback"]
+    assert failed["metrics"] == {}
+    ok = read_result(tmp_path, cases[6]["case_id"])
+    assert ok["metrics"]["max_drift_rad"] == pytest.approx(1e-3 * 37, rel=0, abs=1e-15)
+    assert ok["timing"]["pid"] != os.getpid()  # ran in a worker process
+
+
+def test_resume_skips_finished_cases_after_an_interruption(tmp_path, tests_on_path):
+    """Stop a sweep after three results (as Ctrl-C would), then resume it."""
+    cases = toy_cases(8, fail={1})
+    seen = []
+
+    def stop_after_three(record, done, total):
+        seen.append(record["case_id"])
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(2), on_result=stop_after_three)
+    on_disk = sorted(p.stem for p in (tmp_path / "cases").glob("*.json"))
+    assert on_disk == sorted(seen) and len(seen) == 3
+    before = {cid: result_path(tmp_path, cid).read_bytes() for cid in seen}
+
+    run = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(2), resume=True)
+    assert sorted(run.skipped) == sorted(seen)
+    assert sorted(run.ran) == sorted(set(c["case_id"] for c in cases) - set(seen))
+    assert [r["index"] for r in run.results] == list(range(8))
+    assert all(result_path(tmp_path, cid).read_bytes() == before[cid] for cid in seen)  # untouched
+    # a resume with nothing left runs nothing; --retry-failed runs the failed case again
+    again = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(1), resume=True)
+    assert again.ran == [] and len(again.skipped) == 8
+    retry = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(1), resume=True, retry_failed=True)
+    assert retry.ran == [cases[1]["case_id"]]
+
+
+def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
+    """Kill a running ``balance-opt sweep`` (parent and workers, SIGKILL), then ``--resume``."""
+    sweep_file = tmp_path / "toy.yaml"
+    sweep_file.write_text(f"task: {PAPER_TASK}\nname: toy\nmethods: [optimal]\ngrid:\n"
+                          f"  mission.duration: [{', '.join(str(1.0 + i) for i in range(10))}]\n")
+    out = tmp_path / "out"
+    # the toy runner sleeps 0.4 s per case (parameter 'sleep' is not set: use the slow variant)
+    cmd = [sys.executable, "-m", "balance_opt.cli", "sweep", str(sweep_file), "-o", str(out), "-j", "2",
+           "--runner", "test_sweep:slow_toy_case", "--no-plots"]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + SUBPROCESS_TIMEOUT
+        while len(list((out / "cases").glob("*.json"))) < 3:
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, "the sweep did not start"
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=SUBPROCESS_TIMEOUT)
+    done = {p.stem: p.read_bytes() for p in (out / "cases").glob("*.json")}
+    assert 3 <= len(done) < 10
+    assert all(json.loads(b)["status"] == STATUS_OK for b in done.values())  # whole records only
+
+    from balance_opt.cli import main
+
+    assert main(["sweep", str(sweep_file), "-o", str(out), "-j", "2", "--runner", "test_sweep:slow_toy_case",
+                 "--no-plots"]) == 2  # not without --resume
+    assert main(["sweep", str(sweep_file), "-o", str(out), "-j", "2", "--runner", "test_sweep:slow_toy_case",
+                 "--no-plots", "--resume"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["skipped"] == len(done) and summary["ran"] == 10 - len(done)
+    assert all((out / "cases" / f"{cid}.json").read_bytes() == b for cid, b in done.items())
+    columns, rows = read_table_csv(out / "results.csv")
+    assert [int(r["index"]) for r in rows] == list(range(10))
+    assert {r["status"] for r in rows} == {"ok"}
+
+
+def slow_toy_case(case: dict) -> dict:
+    """``toy_case`` taking 0.4 s (a case of the kill-and-resume test)."""
+    time.sleep(0.4)
+    return toy_case(case)
+
+
+def _deterministic(path):
+    columns, rows = read_table_csv(path)
+    keep = [c for c in columns if not is_timing_column(c)]
+    return keep, [[row[c] for c in keep] for row in rows]
+
+
+def test_table_order_and_timing_columns():
+    results = [{"index": 1, "case_id": "b", "method": "optimal", "parameters": {"p": [1.0, 2.0]}, "status": "ok",
+                "error": None, "metrics": {"max_drift_rad": 0.1, "solver": {"solve_time_s": 3.0, "iterations": 7}},
+                "timing": {"case_s": 1.0, "pid": 5}},
+               {"index": 0, "case_id": "a", "method": "analytic", "parameters": {"p": [0.0, 2.0]}, "status": "error",
+                "error": {"type": "X", "message": "m"}, "metrics": {}, "timing": {"case_s": 1.0, "pid": 6}}]
+    columns, rows = results_table(results)
+    assert columns == ["index", "case_id", "method", "status", "param.p[0]", "param.p[1]", "metric.max_drift_rad",
+                       "metric.solver.iterations", "error_type", "error_message", "metric.solver.solve_time_s",
+                       "time.case_s", "time.pid"]
+    assert [r["case_id"] for r in rows] == ["a", "b"]
+    assert [c for c in columns if is_timing_column(c)] == ["metric.solver.solve_time_s", "time.case_s", "time.pid"]
