@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg.lapack import dgesv
 
 from .robot import FloatingRobot
 
@@ -55,11 +56,34 @@ def coupling_measures(J_wM: np.ndarray, J_wB: np.ndarray, arm_columns: dict | No
     return CouplingMeasures(s, _condition(s), float(np.linalg.norm(J_wM, 2)), per_arm)
 
 
+def _columns(indices: np.ndarray) -> slice | np.ndarray:
+    """A slice (a view, no copy) when ``indices`` are consecutive and increasing, else the
+    index array itself."""
+    indices = np.asarray(indices)
+    if indices.size and np.array_equal(indices, np.arange(indices[0], indices[0] + indices.size)):
+        return slice(int(indices[0]), int(indices[0]) + indices.size)
+    return indices
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^{-1} b`` for a small square ``a``: LAPACK ``dgesv`` called directly, several times
+    faster than ``np.linalg.solve`` at these sizes (its per-call overhead dominates)."""
+    _, _, x, info = dgesv(a, b)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular momentum map block (LAPACK dgesv info={info})")
+    return x
+
+
 class NumericMaps:
     """Momentum maps of a floating robot evaluated with numeric Pinocchio.
 
+    Built for inner loops: the Pinocchio configuration is written into a preallocated
+    template, index arrays are cached (slices where the columns are consecutive), and small
+    systems are solved with LAPACK directly.
+
     Args:
-        robot: the floating robot; its Pinocchio model and data are used (not thread safe).
+        robot: the floating robot; a private Pinocchio data is created (one ``NumericMaps``
+            per thread).
     """
 
     def __init__(self, robot: FloatingRobot):
@@ -67,21 +91,47 @@ class NumericMaps:
         self.model = robot.model
         self.data = robot.model.createData()
         self._cols = np.r_[0:6, robot.pin_v_indices]
+        self._cols_view = _columns(self._cols)
         self._mission = robot.mission_indices
         self._balance = robot.balance_indices
+        # arm columns of A_G in Pinocchio's order, by arm (for the angular Jacobians)
+        joint_cols = robot.pin_v_indices - 6
+        self._mission_pin = _columns(joint_cols[self._mission])
+        self._balance_pin = _columns(joint_cols[self._balance])
+        # configuration template: base at the identity, locked joints in place
+        self._q_template = robot.pin_q(robot.neutral())
+        ids = [self.model.getJointId(j) for j in robot.joint_names]
+        self._fast_q = all(self.model.joints[i].nq == 1 for i in ids)  # no continuous joint
+        self._idx_q = np.array([self.model.joints[i].idx_q for i in ids])
+
+    def _pin_q(self, q) -> np.ndarray:
+        """Pinocchio configuration of the arm vector ``q``, base at the identity."""
+        if not self._fast_q:
+            return self.robot.pin_q(q)
+        qp = self._q_template.copy()
+        qp[self._idx_q] = q
+        return qp
+
+    def _A_pin(self, q) -> np.ndarray:
+        """``A_G`` with the base at the identity, columns in Pinocchio's order."""
+        return pin.computeCentroidalMap(self.model, self.data, self._pin_q(q))
 
     def centroidal_momentum_matrix(self, q, rotation: np.ndarray | None = None) -> np.ndarray:
         """``A_G`` (6 x (6+n), arm order): momentum [linear; angular] about the CoM per
         [base twist in base frame; arm joint rates]. Axes of the base frame, or of the world
         when the base ``rotation`` is given."""
-        base = None if rotation is None else pin.SE3(rotation, np.zeros(3))
-        A = pin.computeCentroidalMap(self.model, self.data, self.robot.pin_q(q, base))
-        return A[:, self._cols].copy()
+        if rotation is None:
+            A = self._A_pin(q)
+        else:
+            base = pin.SE3(rotation, np.zeros(3))
+            A = pin.computeCentroidalMap(self.model, self.data, self.robot.pin_q(q, base))
+        return A[:, self._cols_view] if isinstance(self._cols_view, slice) else A[:, self._cols]
 
     def base_jacobian(self, q) -> np.ndarray:
         """``J_base`` (6 x n): base twist in the base frame per arm joint rates, zero momentum."""
         A = self.centroidal_momentum_matrix(q)
-        return -np.linalg.solve(A[:, :6], A[:, 6:])
+        J = _solve(A[:, :6], A[:, 6:])
+        return np.negative(J, out=J)
 
     def base_twist(self, q, q_dot, h0_base=None) -> np.ndarray:
         """Base twist in the base frame forced by the joint rates, for momentum ``h0_base``
@@ -90,18 +140,25 @@ class NumericMaps:
         rhs = -A[:, 6:] @ q_dot
         if h0_base is not None:
             rhs = rhs + h0_base
-        return np.linalg.solve(A[:, :6], rhs)
+        return _solve(A[:, :6], rhs)
 
     def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
-        """``(J_wM, J_wB)``: base angular velocity in the base frame per mission and balance rates."""
-        J = self.base_jacobian(q)[3:]
-        return J[:, self._mission], J[:, self._balance]
+        """``(J_wM, J_wB)``: base angular velocity in the base frame per mission and balance rates.
+
+        Uses the block structure of ``A_b``: base linear velocity adds no angular momentum about
+        the CoM (``A_b[3:, :3] = 0``), so ``omega_b = -I_G^{-1} A_j[3:] q_dot`` with the locked
+        inertia ``I_G = A_b[3:, 3:]``: a 3 x 3 solve instead of the 6 x 6 one.
+        """
+        A = self._A_pin(q)
+        J = _solve(A[3:, 3:6], A[3:, 6:])
+        np.negative(J, out=J)
+        return J[:, self._mission_pin], J[:, self._balance_pin]
 
     def ee_jacobian(self, q, arm: str = "mission") -> np.ndarray:
         """Frame Jacobian of an arm's end effector (6 x (6+n), base columns first), linear
         velocity of its origin and angular velocity in base-frame axes, base at identity."""
         frame = self.model.getFrameId(self.robot.arm(arm).ee_frame)
-        qp = self.robot.pin_q(q)
+        qp = self._pin_q(q)
         pin.computeJointJacobians(self.model, self.data, qp)
         pin.updateFramePlacements(self.model, self.data)
         J = pin.getFrameJacobian(self.model, self.data, frame, pin.LOCAL_WORLD_ALIGNED)
