@@ -80,28 +80,37 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
 
 
 def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
+    """The primitives from ``pinocchio.casadi`` (Pinocchio's algorithms on ``casadi.SX``).
+
+    Written against the pinocchio.casadi API (``cpin.Model(model)`` casts the numeric model;
+    ``computeCentroidalMap``, ``computeJointJacobians``, ``updateFramePlacements``,
+    ``getFrameJacobian`` take and return ``casadi.SX``) but not run by the test suite where
+    only PyPI's ``pin`` (no ``pinocchio.casadi``) is installed.
+    """
     import pinocchio as pin
     import pinocchio.casadi as cpin
 
-    cmodel = cpin.Model(robot.model)
+    model = robot.model
+    cmodel = cpin.Model(model)
     cdata = cmodel.createData()
-    # Pinocchio configuration with the base at the identity pose.
+    # Pinocchio configuration with the base at the identity pose, arm joints set by name.
     qp = cs.SX(robot.pin_q(np.zeros(robot.n)))
-    for i, (iq, nq) in enumerate(zip(robot._pin_idx_q, robot._pin_nq)):
-        if nq == 1:
-            qp[int(iq)] = q[i]
-        else:
-            qp[int(iq)] = cs.cos(q[i])
-            qp[int(iq) + 1] = cs.sin(q[i])
-    cols = np.r_[0:6, robot.pin_v_indices]
-    A = cpin.computeCentroidalMap(cmodel, cdata, qp)[:, cols.tolist()]
-    cpin.computeJointJacobians(cmodel, cdata, qp)
-    cpin.updateFramePlacements(cmodel, cdata)
+    for i, name in enumerate(robot.joint_names):
+        joint = model.joints[model.getJointId(name)]
+        if joint.nq == 1:
+            qp[joint.idx_q] = q[i]
+        else:  # continuous joint stored as (cos, sin)
+            qp[joint.idx_q] = cs.cos(q[i])
+            qp[joint.idx_q + 1] = cs.sin(q[i])
+    cols = [int(c) for c in np.r_[0:6, robot.pin_v_indices]]
+    A = cs.SX(cpin.computeCentroidalMap(cmodel, cdata, qp))[:, cols]
+    cpin.computeJointJacobians(cmodel, cdata, qp)  # also the joint placements oMi
+    cpin.updateFramePlacements(cmodel, cdata)  # oMf, which LOCAL_WORLD_ALIGNED needs
     jac = {}
     for arm in robot.arms:
-        fid = robot.model.getFrameId(arm.ee_frame)
-        J = cpin.getFrameJacobian(cmodel, cdata, fid, pin.LOCAL_WORLD_ALIGNED)
-        jac[arm.name] = J[:, cols.tolist()]
+        fid = model.getFrameId(arm.ee_frame)
+        J = cs.SX(cpin.getFrameJacobian(cmodel, cdata, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))
+        jac[arm.name] = J[:, cols]
     return A, jac
 
 

@@ -390,3 +390,38 @@ def test_adam_backend_names_a_prismatic_arm_joint():
     with pytest.raises(JointError, match=r"joint 'slide' in <URDF string>: is prismatic, which the 'adam' "
                                          r"backend cannot handle"):
         SymbolicMaps(robot, backend="adam")
+
+
+def test_pinocchio_backend_glue_with_a_numeric_stand_in(paper, baxter, monkeypatch):
+    """The 'pinocchio' backend's own code (configuration by joint name, column order, frame
+    ids, reference frame) run with a stand-in for ``pinocchio.casadi`` that evaluates numeric
+    Pinocchio on constant SX inputs. pinocchio.casadi itself is not installed here."""
+    import sys
+    import types
+
+    import casadi as cs
+
+    from balance_opt.symbolic import _primitives_pinocchio
+
+    def numeric(x):
+        return np.array(cs.evalf(x))
+
+    def vector(x):
+        return numeric(x).ravel()
+
+    fake = types.ModuleType("pinocchio.casadi")
+    fake.Model = lambda model: model.copy()
+    fake.computeCentroidalMap = lambda model, data, q: pin.computeCentroidalMap(model, data, vector(q))
+    fake.computeJointJacobians = lambda model, data, q: pin.computeJointJacobians(model, data, vector(q))
+    fake.updateFramePlacements = pin.updateFramePlacements
+    fake.getFrameJacobian = pin.getFrameJacobian
+    monkeypatch.setitem(sys.modules, "pinocchio.casadi", fake)
+    rng = np.random.default_rng(13)
+    for robot in (paper, baxter):
+        numeric_maps = NumericMaps(robot)
+        for _ in range(3):
+            q = rng.uniform(robot.limits.lower, robot.limits.upper)
+            A, jac = _primitives_pinocchio(robot, cs.SX(q))
+            _close(numeric(A), numeric_maps.centroidal_momentum_matrix(q))
+            for arm in robot.arms:
+                _close(numeric(jac[arm.name]), numeric_maps.ee_jacobian(q, arm.name))
