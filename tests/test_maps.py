@@ -7,6 +7,7 @@ References are computed once per robot in module-scoped fixtures, at ``N_CONFIGS
 random configurations within the joint limits.
 """
 
+from collections import defaultdict
 from types import SimpleNamespace
 
 import numpy as np
@@ -80,52 +81,57 @@ def _pinv_transpose_svd(N, rank):
     return U[:, :rank] @ np.diag(1 / s[:rank]) @ Vt[:rank]
 
 
+def _evaluate(maps, robot, Q, F_E) -> dict:
+    """The maps NumericMaps and SymbolicMaps share, at every configuration, stacked."""
+    out = defaultdict(list)
+    for q, F_e in zip(Q, F_E):
+        out["A"].append(maps.centroidal_momentum_matrix(q))
+        out["J_base"].append(maps.base_jacobian(q))
+        J_wM, J_wB = maps.angular_jacobians(q)
+        out["J_wM"].append(J_wM)
+        out["J_wB"].append(J_wB)
+        out["measures"].append(maps.coupling_measures(q))
+        for arm in robot.arms:
+            J_star, M = maps.ee_generalized_jacobian(q, arm.name)
+            M_cf, N = maps.coupling_factors(q, arm.name)
+            out[f"J_star_{arm.name}"].append(J_star)
+            out[f"M_{arm.name}"].append(M)
+            out[f"M_cf_{arm.name}"].append(M_cf)
+            out[f"N_{arm.name}"].append(N)
+            out[f"F_B_{arm.name}"].append(maps.force_map(q, F_e, arm.name))
+    return {k: (v if k == "measures" else np.array(v)) for k, v in out.items()}
+
+
 def _numeric_reference(robot):
     rng = np.random.default_rng(20240611)
     numeric = NumericMaps(robot)
-    n = robot.n
-    Q = rng.uniform(robot.limits.lower, robot.limits.upper, size=(N_CONFIGS, n))
-    QD = rng.uniform(-robot.limits.velocity, robot.limits.velocity, size=(N_CONFIGS, n))
+    Q = rng.uniform(robot.limits.lower, robot.limits.upper, size=(N_CONFIGS, robot.n))
+    QD = rng.uniform(-robot.limits.velocity, robot.limits.velocity, size=(N_CONFIGS, robot.n))
     F_E = rng.normal(size=(N_CONFIGS, 6))
-    mission, balance = robot.mission_indices, robot.balance_indices
+    ref = _evaluate(numeric, robot, Q, F_E)
 
     def J_w(q):
         return numeric.base_jacobian(q)[3:]
 
-    ref = {key: [] for key in ("A", "A_direct", "J_base", "J_wM", "J_wB", "dJ_w_fd", "dJ_w_q_dot", "measures")}
-    for arm in robot.arms:
-        for key in ("J_star", "M", "N", "N_svd", "F_B", "F_B_svd"):
-            ref[f"{key}_{arm.name}"] = []
-    for q, q_dot, F_e in zip(Q, QD, F_E):
-        A = numeric.centroidal_momentum_matrix(q)
-        J_base = numeric.base_jacobian(q)
-        ref["A"].append(A)
-        ref["A_direct"].append(_direct_A(robot, q))
-        ref["J_base"].append(J_base)
-        J_wM, J_wB = numeric.angular_jacobians(q)
-        ref["J_wM"].append(J_wM)
-        ref["J_wB"].append(J_wB)
-        ref["dJ_w_fd"].append(_richardson(J_w, q, q_dot))
+    extra = defaultdict(list)
+    for k, (q, q_dot, F_e) in enumerate(zip(Q, QD, F_E)):
+        A, J_base = ref["A"][k], ref["J_base"][k]
+        extra["A_direct"].append(_direct_A(robot, q))
+        extra["dJ_w_fd"].append(_richardson(J_w, q, q_dot))
         # Zero momentum along the motion: 0 = d/dt (A_G v) = A_G v_dot + dA_G v (Pinocchio's dAg);
         # with q_ddot = 0, v_dot = [dJ_base q_dot; 0], so dJ_base q_dot = -A_b^{-1} dAg v.
         v = robot.pin_v(q_dot, J_base @ q_dot)
         data = robot.model.createData()
         pin.computeCentroidalMapTimeVariation(robot.model, data, robot.pin_q(q), v)
-        ref["dJ_w_q_dot"].append(-np.linalg.solve(A[:, :6], data.dAg @ v)[3:])
-        ref["measures"].append(numeric.coupling_measures(q))
+        extra["dJ_w_q_dot"].append(-np.linalg.solve(A[:, :6], data.dAg @ v)[3:])
         for arm in robot.arms:
-            J_star, M = numeric.ee_generalized_jacobian(q, arm.name)
-            _, N = numeric.coupling_factors(q, arm.name)
-            ref[f"J_star_{arm.name}"].append(J_star)
-            ref[f"M_{arm.name}"].append(M)
-            ref[f"N_{arm.name}"].append(N)
-            U, s, Vt = np.linalg.svd(M, full_matrices=False)
-            ref[f"N_svd_{arm.name}"].append(J_base[:, arm.indices] @ (Vt.T / s) @ U.T)
-            ref[f"F_B_{arm.name}"].append(numeric.force_map(q, F_e, arm.name))
-            ref[f"F_B_svd_{arm.name}"].append(_pinv_transpose_svd(N, min(arm.dof, 6)) @ F_e)
-    out = {k: (v if k == "measures" else np.array(v)) for k, v in ref.items()}
-    return SimpleNamespace(robot=robot, numeric=numeric, Q=Q, QD=QD, F_E=F_E, mission=mission,
-                           balance=balance, **out)
+            U, s, Vt = np.linalg.svd(ref[f"M_{arm.name}"][k], full_matrices=False)
+            extra[f"N_svd_{arm.name}"].append(J_base[:, arm.indices] @ (Vt.T / s) @ U.T)
+            N = ref[f"N_{arm.name}"][k]
+            extra[f"F_B_svd_{arm.name}"].append(_pinv_transpose_svd(N, min(arm.dof, 6)) @ F_e)
+    ref.update({key: np.array(value) for key, value in extra.items()})
+    return SimpleNamespace(robot=robot, numeric=numeric, Q=Q, QD=QD, F_E=F_E, mission=robot.mission_indices,
+                           balance=robot.balance_indices, **ref)
 
 
 @pytest.fixture(scope="module")
@@ -148,29 +154,9 @@ def case(request, reference_of):
     ref = reference_of(name)
     robot = ref.robot
     maps = SymbolicMaps(robot, backend=backend)
-    sym = {key: [] for key in ("A", "J_base", "J_wM", "J_wB", "dJ_wM", "dJ_wB", "measures")}
-    for arm in robot.arms:
-        for key in ("J_star", "M", "M_cf", "N", "F_B"):
-            sym[f"{key}_{arm.name}"] = []
-    for q, q_dot, F_e in zip(ref.Q, ref.QD, ref.F_E):
-        sym["A"].append(maps.centroidal_momentum_matrix(q))
-        sym["J_base"].append(maps.base_jacobian(q))
-        J_wM, J_wB = maps.angular_jacobians(q)
-        sym["J_wM"].append(J_wM)
-        sym["J_wB"].append(J_wB)
-        dJ_wM, dJ_wB = maps.angular_jacobian_rates(q, q_dot)
-        sym["dJ_wM"].append(dJ_wM)
-        sym["dJ_wB"].append(dJ_wB)
-        sym["measures"].append(maps.coupling_measures(q))
-        for arm in robot.arms:
-            J_star, M = maps.ee_generalized_jacobian(q, arm.name)
-            M_cf, N = maps.coupling_factors(q, arm.name)
-            sym[f"J_star_{arm.name}"].append(J_star)
-            sym[f"M_{arm.name}"].append(M)
-            sym[f"M_cf_{arm.name}"].append(M_cf)
-            sym[f"N_{arm.name}"].append(N)
-            sym[f"F_B_{arm.name}"].append(maps.force_map(q, F_e, arm.name))
-    out = {k: (v if k == "measures" else np.array(v)) for k, v in sym.items()}
+    out = _evaluate(maps, robot, ref.Q, ref.F_E)
+    rates = [maps.angular_jacobian_rates(q, q_dot) for q, q_dot in zip(ref.Q, ref.QD)]
+    out["dJ_wM"], out["dJ_wB"] = (np.array(r) for r in zip(*rates))
     return SimpleNamespace(ref=ref, maps=maps, backend=backend, **out)
 
 
