@@ -108,7 +108,7 @@ class BalanceLawOptions:
             squares replaces the exact solve; 0 always solves exactly (a pseudo-inverse for
             a non-square ``J_wB``).
         max_damping: ``lambda_max``, the damping at a singular ``J_wB``; the damping is
-            ``lambda = lambda_max (1 - sigma_min / epsilon)`` below the threshold, 0 above.
+            ``lambda = lambda_max (1 - (sigma_min / epsilon)^2)`` below the threshold, 0 above.
         null_space_gain: ``k`` [1/s] of the null-space term ``z = -k (q_B - q_goal)`` (only acts
             when the balance joints are more than 3).
         null_space_goal: ``q_goal`` [rad], one value per balance joint; ``None`` for the middle of
@@ -163,7 +163,12 @@ def _safe_divide(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def damping(sigma_min, threshold: float, max_damping: float) -> tuple[np.ndarray, np.ndarray]:
-    """Nakamura-Hanafusa variable damping and its derivative.
+    """Variable damping (Nakamura-Hanafusa style) and its derivative.
+
+    ``lambda^2 = lambda_max^2 (1 - (sigma_min / epsilon)^2)^2`` below ``epsilon``, else 0. A
+    function of ``sigma_min^2`` (an eigenvalue of ``J J^T``, smooth where ``sigma_min(t)`` touches
+    zero and bounces back) with zero slope at ``epsilon``: the damped rates are C1 in time, so
+    ``q_ddot_B`` (Eq. 32) stays continuous through both events.
 
     Args:
         sigma_min: smallest singular value of ``J_wB`` (...).
@@ -171,15 +176,14 @@ def damping(sigma_min, threshold: float, max_damping: float) -> tuple[np.ndarray
         max_damping: ``lambda_max``.
 
     Returns:
-        ``(lambda^2, d(lambda^2)/d(sigma_min))``, each (...):
-        ``lambda^2 = lambda_max^2 (1 - sigma_min / epsilon)^2`` below ``epsilon``, else 0.
+        ``(lambda^2, d(lambda^2)/d(sigma_min))``, each (...).
     """
     sigma_min = np.asarray(sigma_min, dtype=float)
     if threshold <= 0:
         zero = np.zeros_like(sigma_min)
         return zero, zero
-    gap = np.clip(1.0 - sigma_min / threshold, 0.0, None)
-    return max_damping**2 * gap**2, -2.0 * max_damping**2 * gap / threshold
+    gap = np.clip(1.0 - (sigma_min / threshold) ** 2, 0.0, None)
+    return max_damping**2 * gap**2, -4.0 * max_damping**2 * gap * sigma_min / threshold**2
 
 
 # ---------------------------------------------------------------------------------- Pinocchio maps
