@@ -37,18 +37,18 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
-from scipy.interpolate import BPoly
 
 from .attitude import quaternion_conjugate, quaternion_multiply, rotation_angle, rpy_from_quaternion
 from .errors import InputError, TrajectoryError
 from .momentum import NumericMaps
 from .result import BalanceResult, find_limit_violations
 from .robot import FloatingRobot
-from .trajectories import JointTrajectory
+from .rollout import SampledTrajectory
+from .trajectories import PointToPoint
 from .wrenches import arm_wrenches_on_base
 
 log = logging.getLogger(__name__)
@@ -64,6 +64,8 @@ STEP_GROWTH_MAX = 5.0
 STEP_SHRINK_MIN = 0.2
 #: Smallest step the adaptive integrator accepts before giving up [s].
 MIN_STEP = 1e-10
+#: Relative momentum residual above which a simulation warns that its step is too long.
+MOMENTUM_WARNING = 1e-6
 #: Momentum scale below which the residual is reported in absolute terms [N s, N m s].
 MOMENTUM_SCALE_FLOOR = 1e-12
 
@@ -87,91 +89,23 @@ _DP_B5 = _DP_A[6]
 _DP_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40])
 
 
-class Sampleable(Protocol):
-    """Anything with ``sample(t) -> (q, q_dot, q_ddot)``, each (T, dof), and a ``duration``."""
-
-    duration: float
-
-    def sample(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
-
-
 # --------------------------------------------------------------------------------- trajectories
-class SampledTrajectory(JointTrajectory):
-    """A joint trajectory through samples of position, velocity and acceleration (for example a
-    :class:`BalanceResult`'s), interpolated by quintic Hermite pieces: positions, velocities and
-    accelerations continuous and equal to the samples at the sample times. Rests at the end
-    samples outside ``[t[0], t[-1]]``.
-
-    Args:
-        t: strictly increasing sample times (T,) [s], ``t[0] = 0``.
-        q, q_dot, q_ddot: samples (T, dof) [rad, rad/s, rad/s^2].
-    """
-
-    def __init__(self, t, q, q_dot, q_ddot):
-        t = np.asarray(t, dtype=float)
-        q, q_dot, q_ddot = (
-            np.asarray(x, dtype=float).reshape(t.size, -1) for x in (q, q_dot, q_ddot)
-        )
-        if t.size < 2 or np.any(np.diff(t) <= 0) or t[0] != 0.0:
-            raise TrajectoryError(
-                f"samples need at least 2 times, starting at 0 and increasing strictly; got {t.size}"
-            )
-        self.duration = float(t[-1])
-        self.dof = q.shape[1]
-        self._t0, self._t1 = float(t[0]), float(t[-1])
-        self._poly = BPoly.from_derivatives(t, np.stack([q, q_dot, q_ddot], axis=1))
-        self._dpoly = self._poly.derivative(1)
-        self._ddpoly = self._poly.derivative(2)
-
-    def sample(self, t):
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        tc = np.clip(t, self._t0, self._t1)
-        outside = ((t < self._t0) | (t > self._t1))[:, None]
-        q = self._poly(tc)
-        q_dot = np.where(outside, 0.0, self._dpoly(tc))
-        q_ddot = np.where(outside, 0.0, self._ddpoly(tc))
-        return q, q_dot, q_ddot
-
-
-class HeldTrajectory(JointTrajectory):
-    """Joints held still at ``q`` [rad] (for example the mission arm while Fig. 3 replays the
-    balance arm alone)."""
-
-    def __init__(self, q, duration: float = 0.0):
-        self.q = np.asarray(q, dtype=float).ravel()
-        self.dof = self.q.size
-        self.duration = float(duration)
-
-    def sample(self, t):
-        T = np.atleast_1d(np.asarray(t)).size
-        return np.tile(self.q, (T, 1)), np.zeros((T, self.dof)), np.zeros((T, self.dof))
-
-
-def mission_trajectory(plan: BalanceResult) -> SampledTrajectory:
-    """The mission arm's motion of a plan, as a trajectory."""
-    return SampledTrajectory(plan.t - plan.t[0], plan.q_M, plan.q_dot_M, plan.q_ddot_M)
-
-
-def balance_trajectory(plan: BalanceResult) -> SampledTrajectory:
-    """The balance arms' motion of a plan, as a trajectory."""
-    return SampledTrajectory(plan.t - plan.t[0], plan.q_B, plan.q_dot_B, plan.q_ddot_B)
-
-
-def _as_trajectory(value, dof: int, what: str):
-    """A trajectory from a trajectory, a plan (its balance part) or a held position."""
+def _as_trajectory(value, dof: int, what: str) -> tuple[Any, float]:
+    """``(trajectory, duration)`` from a trajectory, a plan (its ``what`` part, interpolated by
+    :meth:`SampledTrajectory.from_result`) or a position to hold (duration 0)."""
+    duration = None
     if isinstance(value, BalanceResult):
-        value = balance_trajectory(value) if what == "balance" else mission_trajectory(value)
+        value = SampledTrajectory.from_result(value, what)
     elif not hasattr(value, "sample"):
-        value = HeldTrajectory(value)
-    got = (
-        value.dof if hasattr(value, "dof") else np.atleast_2d(value.sample(np.zeros(1))[0]).shape[1]
-    )
+        q = np.asarray(value, dtype=float).ravel()
+        value, duration = PointToPoint(q, q, 1.0), 0.0  # rests at q for ever
+    got = np.reshape(value.sample(np.zeros(1))[0], (1, -1)).shape[1]
     if got != dof:
         raise TrajectoryError(
             f"the {what} trajectory has {got} joints, the robot's {what} "
             f"{'arm has' if what == 'mission' else 'arms have'} {dof}"
         )
-    return value
+    return value, float(value.duration if duration is None else duration)
 
 
 class _ArmPlan:
@@ -179,9 +113,9 @@ class _ArmPlan:
 
     def __init__(self, robot: FloatingRobot, mission, balance):
         self.robot = robot
-        self.mission = _as_trajectory(mission, robot.mission.dof, "mission")
-        self.balance = _as_trajectory(balance, robot.balance_indices.size, "balance")
-        self.duration = max(float(self.mission.duration), float(self.balance.duration))
+        self.mission, d_M = _as_trajectory(mission, robot.mission.dof, "mission")
+        self.balance, d_B = _as_trajectory(balance, robot.balance_indices.size, "balance")
+        self.duration = max(d_M, d_B)
 
     def sample(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
@@ -698,6 +632,15 @@ def simulate(
         wall_time_s=done - started,
         **stats,
     )
+    residual = float(result.momentum_residual.max())
+    if residual > MOMENTUM_WARNING:
+        log.warning(
+            "simulation lost momentum: relative residual %.3g > %.1g; the motion is too fast for "
+            "the step (peak joint acceleration %.3g rad/s^2): shorten 'dt' or use 'dopri5'",
+            residual,
+            MOMENTUM_WARNING,
+            float(np.abs(result.q_ddot).max()),
+        )
     log.info(
         "simulated %.3g s with %s (%d steps) in %.3g s; max tracking error %.3g rad, "
         "max relative momentum residual %.3g",
@@ -706,7 +649,7 @@ def simulate(
         stats["steps"],
         done - started,
         result.max_tracking_error,
-        float(result.momentum_residual.max()),
+        residual,
     )
     return result
 
@@ -716,7 +659,13 @@ def simulate_plan(
 ) -> SimulationResult:
     """Simulate a plan: its mission and balance motions (interpolated between its samples)
     tracked by the controller. Keyword arguments go to :func:`simulate`."""
-    return simulate(robot, mission_trajectory(plan), balance_trajectory(plan), options, **kwargs)
+    return simulate(
+        robot,
+        SampledTrajectory.from_result(plan, "mission"),
+        SampledTrajectory.from_result(plan, "balance"),
+        options,
+        **kwargs,
+    )
 
 
 def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> SimulationResult:
