@@ -219,7 +219,7 @@ class AngularMomentumMaps:
     def pin_configurations(self, q: np.ndarray) -> np.ndarray:
         """Pinocchio configurations (..., nq) of arm vectors (..., n), base at the identity."""
         q = np.asarray(q, dtype=float)
-        out = np.broadcast_to(self._q_ref, q.shape[:-1] + self._q_ref.shape).copy()
+        out = self._q_ref.copy() if q.ndim == 1 else np.tile(self._q_ref, q.shape[:-1] + (1,))
         out[..., self._idx_q_one] = q[..., self._one]
         if self._two.size:
             out[..., self._idx_q_two] = np.cos(q[..., self._two])
@@ -579,3 +579,16 @@ class BalanceLaw:
         h_res = _mv(I_G, omega) + _mv(A, q_dot) - ell
         return LawPath(sol.q_dot_B, q_ddot_B, omega, sol.residual, sol.sigma_min, sol.damping,
                        np.linalg.norm(h_res, axis=-1))
+
+
+def analytic_plan(robot: FloatingRobot, mission, q_B0, options: BalanceLawOptions | None = None, *,
+                  t=None, integration=None):
+    """The analytic law's balance plan (Phase II) sampled at the times ``t`` [s]: a shortcut to
+    :func:`balance_opt.rollout.rollout` (``t_eval=t``), e.g. for an optimiser's initial guess.
+
+    Raises:
+        SolverError: the law could not be integrated (an exact law through a singular ``J_wB``).
+    """
+    from .rollout import rollout  # rollout builds on this module
+
+    return rollout(robot, mission, q_B0, options, integration=integration, t_eval=t)
