@@ -437,6 +437,7 @@ class LawPath:
         omega: (T, 3) base angular velocity, base frame [rad/s].
         residual: (T, 3) [rad/s] ``J_wB q_dot_B - b``.
         sigma_min, damping: (T,).
+        condition: (T,) condition number of ``J_wB`` (``inf`` where singular).
         momentum_residual: (T,) ``|I_G omega + A q_dot - R^T L|`` [N m s].
     """
 
@@ -446,6 +447,7 @@ class LawPath:
     residual: np.ndarray
     sigma_min: np.ndarray
     damping: np.ndarray
+    condition: np.ndarray
     momentum_residual: np.ndarray
 
 
@@ -533,18 +535,18 @@ class BalanceLaw:
         _, sol, omega, *_ = self._solve(I_G, A, q_dot_M, q[self.balance], quaternion)
         return sol.q_dot_B, omega
 
-    def accelerations(self, q, q_dot, q_ddot_M, quaternion=None) -> np.ndarray:
-        """Balance joint accelerations at one instant (Eq. 32).
+    def accelerations(self, q, q_dot_M, q_ddot_M, quaternion=None) -> np.ndarray:
+        """Balance joint accelerations at one instant (Eq. 32), along the law's own rates.
 
         Args:
             q: arm vector [rad].
-            q_dot: arm rates [rad/s]; the balance part must be the law's own rates (:meth:`rates`).
+            q_dot_M: mission joint rates [rad/s] (the balance rates are the law's, :meth:`rates`).
             q_ddot_M: mission joint accelerations [rad/s^2].
             quaternion: base attitude (default identity).
         """
         quaternion = IDENTITY_QUATERNION if quaternion is None else np.asarray(quaternion, dtype=float)
-        path = self.along(np.atleast_2d(q), np.atleast_2d(np.asarray(q_dot)[self.mission]),
-                          np.atleast_2d(q_ddot_M), np.atleast_2d(quaternion))
+        path = self.along(np.atleast_2d(q), np.atleast_2d(q_dot_M), np.atleast_2d(q_ddot_M),
+                          np.atleast_2d(quaternion))
         return path.q_ddot_B[0]
 
     # ------------------------------------------------------------------ along a path
@@ -577,7 +579,9 @@ class BalanceLaw:
         z_dot = -self.options.null_space_gain * sol.q_dot_B
         q_ddot_B = acceleration_law(sol, dJ[..., self.balance], b_dot, z_dot)
         h_res = _mv(I_G, omega) + _mv(A, q_dot) - ell
-        return LawPath(sol.q_dot_B, q_ddot_B, omega, sol.residual, sol.sigma_min, sol.damping,
+        condition = _safe_divide(sol.S[..., 0], sol.sigma_min)
+        condition[sol.sigma_min == 0] = np.inf
+        return LawPath(sol.q_dot_B, q_ddot_B, omega, sol.residual, sol.sigma_min, sol.damping, condition,
                        np.linalg.norm(h_res, axis=-1))
 
 

@@ -24,7 +24,7 @@ from .rollout import IntegrationOptions, SampledTrajectory, TrajectoryLike, as_s
 from .trajectories import PointToPoint
 
 
-def _motion(robot: FloatingRobot, motion: TrajectoryLike | BalanceResult, arm: str):
+def _motion(motion: TrajectoryLike | BalanceResult, arm: str):
     """A trajectory of ``arm`` (``"mission"`` or ``"balance"``) from a trajectory or a result."""
     if isinstance(motion, BalanceResult):
         return SampledTrajectory.from_result(motion, arm)
@@ -51,7 +51,7 @@ def phase_one(robot: FloatingRobot, mission: TrajectoryLike, q_B0, *, h0=None,
               integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None) -> BalanceResult:
     """Phase I (Fig. 2): base attitude with the mission arm moving and the balance arm held at
     ``q_B0`` [rad]. ``method="mission-only"``. Other arguments as in :func:`replay`."""
-    hold = _hold(q_B0, max(_duration(robot, mission, "mission", t_eval), 1.0))
+    hold = _hold(q_B0, _duration(robot, mission, "mission", t_eval))
     return replay(robot, mission, hold, h0=h0, integration=integration, t_eval=t_eval,
                   quaternion0=quaternion0, method="mission-only")
 
@@ -67,8 +67,8 @@ def balance_only(robot: FloatingRobot, balance: TrajectoryLike | BalanceResult, 
     """Fig. 3: base attitude with the balance motion replayed and the mission arm held at
     ``q_M0`` [rad] (its start). ``balance`` is a trajectory of the balance joints or a result
     (its balance samples, interpolated). ``method="balance-only"``."""
-    balance = _motion(robot, balance, "balance")
-    hold = _hold(q_M0, max(_duration(robot, balance, "balance", t_eval), 1.0))
+    balance = _motion(balance, "balance")
+    hold = _hold(q_M0, _duration(robot, balance, "balance", t_eval))
     return replay(robot, hold, balance, h0=h0, integration=integration, t_eval=t_eval,
                   quaternion0=quaternion0, method="balance-only")
 
@@ -77,7 +77,7 @@ def both(robot: FloatingRobot, mission: TrajectoryLike | BalanceResult, balance:
          h0=None, integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None) -> BalanceResult:
     """Fig. 5: base attitude with both arms moving, replayed from the two motions (trajectories
     or results). ``method="simulation"``."""
-    return replay(robot, _motion(robot, mission, "mission"), _motion(robot, balance, "balance"), h0=h0,
+    return replay(robot, _motion(mission, "mission"), _motion(balance, "balance"), h0=h0,
                   integration=integration, t_eval=t_eval, quaternion0=quaternion0, method="simulation")
 
 

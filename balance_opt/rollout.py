@@ -374,6 +374,7 @@ def rollout(robot: FloatingRobot, mission: TrajectoryLike, q_B0, options: Balanc
         "null_space_goal": law.goal.tolist(),
         "damping_max": float(path.damping.max()),
         "damping_active_fraction": float(np.mean(path.damping > 0)),
+        "condition_max": float(path.condition.max()),
         "residual_omega_max": float(residual.max()),
         "residual_omega_rms": float(np.sqrt(np.mean(residual**2))),
         "integration": stats,
