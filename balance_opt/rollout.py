@@ -210,7 +210,7 @@ def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callabl
 
 
 def output_times(duration: float, step: float) -> np.ndarray:
-    """Output grid ``0, step, ..., duration`` (the last interval adjusted to end at ``duration``)."""
+    """Output grid from 0 to ``duration`` [s] in ``round(duration / step)`` equal intervals."""
     n = max(1, int(round(duration / step)))
     return np.linspace(0.0, duration, n + 1)
 

@@ -35,7 +35,7 @@ from balance_opt.balance_law import (
     acceleration_law,
     velocity_law,
 )
-from balance_opt.errors import InputError, SolverError
+from balance_opt.errors import InputError, SolverError, TrajectoryError
 from balance_opt.momentum import NumericMaps
 from balance_opt.phases import balance_only, both, paper_phases, phase_one
 from balance_opt.robots import paper_robot
@@ -144,6 +144,20 @@ def test_replayed_plan_keeps_base_still(paper, nonsingular):
     assert again.max_drift <= STILL_ANGLE
     np.testing.assert_allclose(again.q_dot_B, res.q_dot_B, rtol=0, atol=1e-12)
     assert both(paper, mission, res).max_drift <= STILL_ANGLE
+
+
+def test_replay_accepts_sample_arrays_and_callables(paper, nonsingular):
+    """The planner's ways in: a tuple of sample arrays, a plain callable with output times."""
+    mission, res = nonsingular
+    t = res.t[::10]
+    from_tuple = replay(paper, mission, (res.t, res.q_B, res.q_dot_B, res.q_ddot_B), t_eval=t)
+    from_callable = replay(paper, mission.sample, SampledTrajectory.from_result(res).sample, t_eval=t)
+    np.testing.assert_allclose(from_tuple.quaternion, from_callable.quaternion, rtol=0, atol=1e-15)
+    assert from_tuple.max_drift <= STILL_ANGLE
+    with pytest.raises(InputError, match="output times are needed"):
+        replay(paper, mission.sample, SampledTrajectory.from_result(res).sample)
+    with pytest.raises(TrajectoryError, match="balance trajectory has 2 joints, the robot's balance joints are 3"):
+        replay(paper, mission, (res.t, res.q_B[:, :2]))
 
 
 def test_balance_only_is_not_minus_mission_only(paper, nonsingular):
