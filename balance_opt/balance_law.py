@@ -90,10 +90,14 @@ def _check_vector(name: str, value, sizes) -> tuple[float, ...] | None:
     try:
         arr = np.asarray(value, dtype=float).ravel()
     except (TypeError, ValueError):
-        raise InputError(f"balance law option '{name}' must be a list of numbers, got {value!r}") from None
+        raise InputError(
+            f"balance law option '{name}' must be a list of numbers, got {value!r}"
+        ) from None
     if sizes is not None and arr.size not in sizes:
-        raise InputError(f"balance law option '{name}' must have {' or '.join(map(str, sizes))} values, "
-                         f"got {arr.size}")
+        raise InputError(
+            f"balance law option '{name}' must have {' or '.join(map(str, sizes))} values, "
+            f"got {arr.size}"
+        )
     if not np.all(np.isfinite(arr)):
         raise InputError(f"balance law option '{name}' has non-finite values: {arr.tolist()}")
     return tuple(float(v) for v in arr)
@@ -130,8 +134,12 @@ class BalanceLawOptions:
         for name in ("damping_threshold", "max_damping", "null_space_gain", "attitude_gain"):
             object.__setattr__(self, name, _check_scalar(name, getattr(self, name)))
         if self.damping_threshold > 0 and self.max_damping == 0:
-            raise InputError("balance law option 'max_damping' must be > 0 when 'damping_threshold' is > 0")
-        object.__setattr__(self, "null_space_goal", _check_vector("null_space_goal", self.null_space_goal, None))
+            raise InputError(
+                "balance law option 'max_damping' must be > 0 when 'damping_threshold' is > 0"
+            )
+        object.__setattr__(
+            self, "null_space_goal", _check_vector("null_space_goal", self.null_space_goal, None)
+        )
         object.__setattr__(self, "h0", _check_vector("h0", self.h0, (3, 6)))
 
     @property
@@ -246,7 +254,9 @@ class AngularMomentumMaps:
             q: arm configurations (T, n) [rad].
         """
         qp = self.pin_configurations(q)
-        full = np.empty((qp.shape[0], 6, self.model.nv))  # whole matrices: slicing in the loop costs more
+        full = np.empty(
+            (qp.shape[0], 6, self.model.nv)
+        )  # whole matrices: slicing in the loop costs more
         model, data, cmap = self.model, self.data, pin.computeCentroidalMap
         for k in range(qp.shape[0]):
             full[k] = cmap(model, data, qp[k])
@@ -338,7 +348,9 @@ class VelocityLawSolution:
     damping2_rate: np.ndarray  # d(lambda^2)/d(sigma_min)
 
 
-def velocity_law(J_wB: np.ndarray, b: np.ndarray, z: np.ndarray, options: BalanceLawOptions) -> VelocityLawSolution:
+def velocity_law(
+    J_wB: np.ndarray, b: np.ndarray, z: np.ndarray, options: BalanceLawOptions
+) -> VelocityLawSolution:
     """Solve ``J_wB q_dot_B = b`` (Eq. 31) the way ``options`` says (module docstring).
 
     Args:
@@ -356,10 +368,14 @@ def velocity_law(J_wB: np.ndarray, b: np.ndarray, z: np.ndarray, options: Balanc
     if n_B > S.shape[-1]:  # redundant: exact null-space projection (I - V V^T) z
         q_dot_B = q_dot_B + z - _mtv(Vt, _mv(Vt, z))
     residual = _mv(J_wB, q_dot_B) - b
-    return VelocityLawSolution(q_dot_B, b, residual, sigma_min, np.sqrt(lam2), J_wB, U, S, Vt, z, dlam2)
+    return VelocityLawSolution(
+        q_dot_B, b, residual, sigma_min, np.sqrt(lam2), J_wB, U, S, Vt, z, dlam2
+    )
 
 
-def acceleration_law(sol: VelocityLawSolution, dJ_wB: np.ndarray, b_dot: np.ndarray, z_dot: np.ndarray) -> np.ndarray:
+def acceleration_law(
+    sol: VelocityLawSolution, dJ_wB: np.ndarray, b_dot: np.ndarray, z_dot: np.ndarray
+) -> np.ndarray:
     """Balance joint accelerations (Eq. 32): the exact time derivative of :func:`velocity_law`.
 
     For a square, undamped ``J_wB`` this is ``J_wB q_ddot_B = b_dot - dJ_wB q_dot_B``; the
@@ -465,8 +481,13 @@ class BalanceLaw:
         InputError: a null-space goal of the wrong size.
     """
 
-    def __init__(self, robot: FloatingRobot, options: BalanceLawOptions | None = None,
-                 q_B0=None, reference=None):
+    def __init__(
+        self,
+        robot: FloatingRobot,
+        options: BalanceLawOptions | None = None,
+        q_B0=None,
+        reference=None,
+    ):
         self.robot = robot
         self.options = options or BalanceLawOptions()
         self.maps = AngularMomentumMaps(robot)
@@ -477,13 +498,21 @@ class BalanceLaw:
         if self.options.null_space_goal is not None:
             goal = np.array(self.options.null_space_goal)
             if goal.size != self.balance.size:
-                raise InputError(f"balance law option 'null_space_goal' has {goal.size} values, "
-                                 f"the balance joints are {self.balance.size}")
+                raise InputError(
+                    f"balance law option 'null_space_goal' has {goal.size} values, "
+                    f"the balance joints are {self.balance.size}"
+                )
         else:
             finite = np.isfinite(lim.lower) & np.isfinite(lim.upper)
-            goal = np.where(finite, 0.5 * (np.where(finite, lim.lower, 0) + np.where(finite, lim.upper, 0)), start)
+            goal = np.where(
+                finite,
+                0.5 * (np.where(finite, lim.lower, 0) + np.where(finite, lim.upper, 0)),
+                start,
+            )
         self.goal = goal
-        self.reference = IDENTITY_QUATERNION.copy() if reference is None else np.asarray(reference, dtype=float)
+        self.reference = (
+            IDENTITY_QUATERNION.copy() if reference is None else np.asarray(reference, dtype=float)
+        )
         self.angular_momentum = self.options.angular_momentum
 
     # ------------------------------------------------------------------ pieces
@@ -492,12 +521,16 @@ class BalanceLaw:
         zeros where h0 or the feedback gain is zero)."""
         shape = quaternion.shape[:-1] + (3,)
         if self.angular_momentum.any():
-            ell = _mtv(matrix_from_quaternion(quaternion), np.broadcast_to(self.angular_momentum, shape))
+            ell = _mtv(
+                matrix_from_quaternion(quaternion), np.broadcast_to(self.angular_momentum, shape)
+            )
             omega_h = np.linalg.solve(I_G, ell[..., None])[..., 0]
         else:
             ell = omega_h = np.zeros(shape)
         if self.options.attitude_gain:
-            e_R = rotvec_from_quaternion(quaternion_multiply(quaternion_conjugate(self.reference), quaternion))
+            e_R = rotvec_from_quaternion(
+                quaternion_multiply(quaternion_conjugate(self.reference), quaternion)
+            )
         else:
             e_R = np.zeros(shape)
         return omega_h, e_R, ell
@@ -524,9 +557,13 @@ class BalanceLaw:
             quaternion: base attitude (x, y, z, w), for ``h0`` and the feedback (default identity).
         """
         q = np.asarray(q, dtype=float)
-        quaternion = IDENTITY_QUATERNION if quaternion is None else np.asarray(quaternion, dtype=float)
+        quaternion = (
+            IDENTITY_QUATERNION if quaternion is None else np.asarray(quaternion, dtype=float)
+        )
         I_G, A = self.maps.at(q)
-        _, sol, omega, *_ = self._solve(I_G, A, np.asarray(q_dot_M, dtype=float), q[self.balance], quaternion)
+        _, sol, omega, *_ = self._solve(
+            I_G, A, np.asarray(q_dot_M, dtype=float), q[self.balance], quaternion
+        )
         return LawSample(sol.q_dot_B, omega, sol.residual, float(sol.sigma_min), float(sol.damping))
 
     def attitude_rate(self, q, q_dot_M, quaternion) -> tuple[np.ndarray, np.ndarray]:
@@ -544,9 +581,15 @@ class BalanceLaw:
             q_ddot_M: mission joint accelerations [rad/s^2].
             quaternion: base attitude (default identity).
         """
-        quaternion = IDENTITY_QUATERNION if quaternion is None else np.asarray(quaternion, dtype=float)
-        path = self.along(np.atleast_2d(q), np.atleast_2d(q_dot_M), np.atleast_2d(q_ddot_M),
-                          np.atleast_2d(quaternion))
+        quaternion = (
+            IDENTITY_QUATERNION if quaternion is None else np.asarray(quaternion, dtype=float)
+        )
+        path = self.along(
+            np.atleast_2d(q),
+            np.atleast_2d(q_dot_M),
+            np.atleast_2d(q_ddot_M),
+            np.atleast_2d(quaternion),
+        )
         return path.q_ddot_B[0]
 
     # ------------------------------------------------------------------ along a path
@@ -570,23 +613,42 @@ class BalanceLaw:
         dJ = angular_jacobian_rates_from_maps(I_G, dI_G, dA, J)
         J_wM, dJ_wM = J[..., self.mission], dJ[..., self.mission]
         # d(omega_h)/dt = I_G^{-1} (d(R^T L)/dt - dI_G omega_h), d(R^T L)/dt = -omega x R^T L
-        omega_h_dot = np.linalg.solve(I_G, (-np.cross(omega, ell) - _mv(dI_G, omega_h))[..., None])[..., 0]
+        omega_h_dot = np.linalg.solve(I_G, (-np.cross(omega, ell) - _mv(dI_G, omega_h))[..., None])[
+            ..., 0
+        ]
         b_dot = -(_mv(dJ_wM, q_dot_M) + _mv(J_wM, q_ddot_M)) - omega_h_dot
         K = self.options.attitude_gain
         if K:
-            Jr_inv = np.array([inverse_right_jacobian(e) for e in e_R.reshape(-1, 3)]).reshape(e_R.shape + (3,))
+            Jr_inv = np.array([inverse_right_jacobian(e) for e in e_R.reshape(-1, 3)]).reshape(
+                e_R.shape + (3,)
+            )
             b_dot = b_dot - K * _mv(Jr_inv, omega)
         z_dot = -self.options.null_space_gain * sol.q_dot_B
         q_ddot_B = acceleration_law(sol, dJ[..., self.balance], b_dot, z_dot)
         h_res = _mv(I_G, omega) + _mv(A, q_dot) - ell
         condition = _safe_divide(sol.S[..., 0], sol.sigma_min)
         condition[sol.sigma_min == 0] = np.inf
-        return LawPath(sol.q_dot_B, q_ddot_B, omega, sol.residual, sol.sigma_min, sol.damping, condition,
-                       np.linalg.norm(h_res, axis=-1))
+        return LawPath(
+            sol.q_dot_B,
+            q_ddot_B,
+            omega,
+            sol.residual,
+            sol.sigma_min,
+            sol.damping,
+            condition,
+            np.linalg.norm(h_res, axis=-1),
+        )
 
 
-def analytic_plan(robot: FloatingRobot, mission, q_B0, options: BalanceLawOptions | None = None, *,
-                  t=None, integration=None):
+def analytic_plan(
+    robot: FloatingRobot,
+    mission,
+    q_B0,
+    options: BalanceLawOptions | None = None,
+    *,
+    t=None,
+    integration=None,
+):
     """The analytic law's balance plan (Phase II) sampled at the times ``t`` [s]: a shortcut to
     :func:`balance_opt.rollout.rollout` (``t_eval=t``), e.g. for an optimiser's initial guess.
 

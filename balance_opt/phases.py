@@ -20,7 +20,14 @@ from .balance_law import BalanceLawOptions
 from .errors import InputError
 from .result import BalanceResult
 from .robot import FloatingRobot
-from .rollout import IntegrationOptions, SampledTrajectory, TrajectoryLike, as_sampler, replay, rollout
+from .rollout import (
+    IntegrationOptions,
+    SampledTrajectory,
+    TrajectoryLike,
+    as_sampler,
+    replay,
+    rollout,
+)
 from .trajectories import PointToPoint
 
 
@@ -43,42 +50,109 @@ def _duration(robot, motion, arm, t_eval) -> float:
     n = robot.mission_indices.size if arm == "mission" else robot.balance_indices.size
     _, duration = as_sampler(motion, n, arm)
     if duration is None:
-        raise InputError(f"output times are needed: the {arm} motion is a plain callable with no duration")
+        raise InputError(
+            f"output times are needed: the {arm} motion is a plain callable with no duration"
+        )
     return duration
 
 
-def phase_one(robot: FloatingRobot, mission: TrajectoryLike, q_B0, *, h0=None,
-              integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None) -> BalanceResult:
+def phase_one(
+    robot: FloatingRobot,
+    mission: TrajectoryLike,
+    q_B0,
+    *,
+    h0=None,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+    quaternion0=None,
+) -> BalanceResult:
     """Phase I (Fig. 2): base attitude with the mission arm moving and the balance arm held at
     ``q_B0`` [rad]. ``method="mission-only"``. Other arguments as in :func:`replay`."""
     hold = _hold(q_B0, _duration(robot, mission, "mission", t_eval))
-    return replay(robot, mission, hold, h0=h0, integration=integration, t_eval=t_eval,
-                  quaternion0=quaternion0, method="mission-only")
+    return replay(
+        robot,
+        mission,
+        hold,
+        h0=h0,
+        integration=integration,
+        t_eval=t_eval,
+        quaternion0=quaternion0,
+        method="mission-only",
+    )
 
 
-def phase_two(robot: FloatingRobot, mission: TrajectoryLike, q_B0, options: BalanceLawOptions | None = None, *,
-              integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None) -> BalanceResult:
-    """Phase II: the balance trajectory of the analytic law (:func:`rollout`), ``method="analytic"``."""
-    return rollout(robot, mission, q_B0, options, integration=integration, t_eval=t_eval, quaternion0=quaternion0)
+def phase_two(
+    robot: FloatingRobot,
+    mission: TrajectoryLike,
+    q_B0,
+    options: BalanceLawOptions | None = None,
+    *,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+    quaternion0=None,
+) -> BalanceResult:
+    """Phase II: the balance trajectory of the analytic law (:func:`rollout`),
+    ``method="analytic"``."""
+    return rollout(
+        robot,
+        mission,
+        q_B0,
+        options,
+        integration=integration,
+        t_eval=t_eval,
+        quaternion0=quaternion0,
+    )
 
 
-def balance_only(robot: FloatingRobot, balance: TrajectoryLike | BalanceResult, q_M0, *, h0=None,
-                 integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None) -> BalanceResult:
+def balance_only(
+    robot: FloatingRobot,
+    balance: TrajectoryLike | BalanceResult,
+    q_M0,
+    *,
+    h0=None,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+    quaternion0=None,
+) -> BalanceResult:
     """Fig. 3: base attitude with the balance motion replayed and the mission arm held at
     ``q_M0`` [rad] (its start). ``balance`` is a trajectory of the balance joints or a result
     (its balance samples, interpolated). ``method="balance-only"``."""
     balance = _motion(balance, "balance")
     hold = _hold(q_M0, _duration(robot, balance, "balance", t_eval))
-    return replay(robot, hold, balance, h0=h0, integration=integration, t_eval=t_eval,
-                  quaternion0=quaternion0, method="balance-only")
+    return replay(
+        robot,
+        hold,
+        balance,
+        h0=h0,
+        integration=integration,
+        t_eval=t_eval,
+        quaternion0=quaternion0,
+        method="balance-only",
+    )
 
 
-def both(robot: FloatingRobot, mission: TrajectoryLike | BalanceResult, balance: TrajectoryLike | BalanceResult, *,
-         h0=None, integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None) -> BalanceResult:
+def both(
+    robot: FloatingRobot,
+    mission: TrajectoryLike | BalanceResult,
+    balance: TrajectoryLike | BalanceResult,
+    *,
+    h0=None,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+    quaternion0=None,
+) -> BalanceResult:
     """Fig. 5: base attitude with both arms moving, replayed from the two motions (trajectories
     or results). ``method="simulation"``."""
-    return replay(robot, _motion(mission, "mission"), _motion(balance, "balance"), h0=h0,
-                  integration=integration, t_eval=t_eval, quaternion0=quaternion0, method="simulation")
+    return replay(
+        robot,
+        _motion(mission, "mission"),
+        _motion(balance, "balance"),
+        h0=h0,
+        integration=integration,
+        t_eval=t_eval,
+        quaternion0=quaternion0,
+        method="simulation",
+    )
 
 
 @dataclass
@@ -98,13 +172,22 @@ class PaperPhases:
     both: BalanceResult
 
 
-def paper_phases(robot: FloatingRobot, mission: TrajectoryLike, q_B0, options: BalanceLawOptions | None = None, *,
-                 integration: IntegrationOptions | None = None, t_eval=None) -> PaperPhases:
+def paper_phases(
+    robot: FloatingRobot,
+    mission: TrajectoryLike,
+    q_B0,
+    options: BalanceLawOptions | None = None,
+    *,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+) -> PaperPhases:
     """Phase I, Phase II, Fig. 3 and Fig. 5 for one mission, on the same output times."""
     options = options or BalanceLawOptions()
     first = phase_one(robot, mission, q_B0, h0=options.h0, integration=integration, t_eval=t_eval)
     t = first.t
     analytic = phase_two(robot, mission, q_B0, options, integration=integration, t_eval=t)
-    alone = balance_only(robot, analytic, first.q_M[0], h0=options.h0, integration=integration, t_eval=t)
+    alone = balance_only(
+        robot, analytic, first.q_M[0], h0=options.h0, integration=integration, t_eval=t
+    )
     together = both(robot, mission, analytic, h0=options.h0, integration=integration, t_eval=t)
     return PaperPhases(first, analytic, alone, together)

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -63,7 +63,8 @@ class IntegrationOptions:
 
     Attributes:
         method: ``"adaptive"`` (DOP853, error-controlled) or ``"rk4"`` (fixed step).
-        rtol, atol: tolerances of ``"adaptive"`` (``atol`` in quaternion units ~ [rad] / 2 and [rad]).
+        rtol, atol: tolerances of ``"adaptive"`` (``atol`` in quaternion units, ~ [rad] / 2,
+            and [rad] for the joints).
         step: ``"rk4"``: largest step [s] (default: the output spacing); ``"adaptive"``: largest
             step [s] (default: none).
         output_step: spacing of the output samples [s] when no output times are given.
@@ -77,12 +78,16 @@ class IntegrationOptions:
 
     def __post_init__(self):
         if self.method not in INTEGRATION_METHODS:
-            raise InputError(f"integration method '{self.method}' is unknown; expected one of "
-                             f"{', '.join(INTEGRATION_METHODS)}")
+            raise InputError(
+                f"integration method '{self.method}' is unknown; expected one of "
+                f"{', '.join(INTEGRATION_METHODS)}"
+            )
         for name in ("rtol", "atol", "output_step") + (("step",) if self.step is not None else ()):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise InputError(f"integration option '{name}' must be a positive number, got {value!r}")
+                raise InputError(
+                    f"integration option '{name}' must be a positive number, got {value!r}"
+                )
 
 
 # ---------------------------------------------------------------------------------- trajectories
@@ -109,8 +114,10 @@ class SampledTrajectory(JointTrajectory):
         q = np.asarray(q, dtype=float)
         q = q[:, None] if q.ndim == 1 else q
         if self.t.size < 2 or q.shape[0] != self.t.size:
-            raise TrajectoryError(f"sampled trajectory needs at least 2 samples and one position row per time; "
-                                  f"got {self.t.size} times and {q.shape[0]} rows")
+            raise TrajectoryError(
+                f"sampled trajectory needs at least 2 samples and one position row per time; "
+                f"got {self.t.size} times and {q.shape[0]} rows"
+            )
         if self.t[0] != 0.0 or np.any(np.diff(self.t) <= 0):
             raise TrajectoryError("sampled trajectory times must start at 0 and increase strictly")
         if q_ddot is not None and q_dot is None:
@@ -121,7 +128,9 @@ class SampledTrajectory(JointTrajectory):
                 continue
             d = np.asarray(d, dtype=float).reshape(q.shape[0], -1)
             if d.shape != q.shape:
-                raise TrajectoryError(f"sampled trajectory: {name} have shape {d.shape}, positions {q.shape}")
+                raise TrajectoryError(
+                    f"sampled trajectory: {name} have shape {d.shape}, positions {q.shape}"
+                )
             derivs.append(d)
         if not all(np.all(np.isfinite(d)) for d in derivs):
             raise TrajectoryError("sampled trajectory has non-finite values")
@@ -146,17 +155,31 @@ class SampledTrajectory(JointTrajectory):
         gap = p1 - p0 - v0 - 0.5 * a0
         dv = v1 - v0 - a0
         da = a1 - a0
-        return np.stack([p0, v0, 0.5 * a0, 10 * gap - 4 * dv + 0.5 * da,
-                         -15 * gap + 7 * dv - da, 6 * gap - 3 * dv + 0.5 * da], axis=1)
+        return np.stack(
+            [
+                p0,
+                v0,
+                0.5 * a0,
+                10 * gap - 4 * dv + 0.5 * da,
+                -15 * gap + 7 * dv - da,
+                6 * gap - 3 * dv + 0.5 * da,
+            ],
+            axis=1,
+        )
 
     @classmethod
-    def from_result(cls, result: BalanceResult, arm: str = "balance") -> "SampledTrajectory":
+    def from_result(cls, result: BalanceResult, arm: str = "balance") -> SampledTrajectory:
         """The mission (``arm="mission"``) or balance (``"balance"``) motion of a result."""
         if arm not in ("mission", "balance"):
             raise InputError(f"arm must be 'mission' or 'balance', got {arm!r}")
         s = "M" if arm == "mission" else "B"
         t = result.t - result.t[0]
-        return cls(t, getattr(result, f"q_{s}"), getattr(result, f"q_dot_{s}"), getattr(result, f"q_ddot_{s}"))
+        return cls(
+            t,
+            getattr(result, f"q_{s}"),
+            getattr(result, f"q_dot_{s}"),
+            getattr(result, f"q_ddot_{s}"),
+        )
 
     def sample(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
@@ -200,18 +223,22 @@ def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callabl
         trajectory = SampledTrajectory(*trajectory)
     sample = trajectory.sample if hasattr(trajectory, "sample") else trajectory
     if not callable(sample):
-        raise TrajectoryError(f"{what} trajectory must have sample(t), be callable or be a tuple of arrays; "
-                              f"got {type(trajectory).__name__}")
+        raise TrajectoryError(
+            f"{what} trajectory must have sample(t), be callable or be a tuple of arrays; "
+            f"got {type(trajectory).__name__}"
+        )
     probe = np.asarray(sample(np.array([0.0]))[0])
     if probe.shape[-1] != dof:
-        raise TrajectoryError(f"{what} trajectory has {probe.shape[-1]} joints, the robot's {what} joints are {dof}")
+        raise TrajectoryError(
+            f"{what} trajectory has {probe.shape[-1]} joints, the robot's {what} joints are {dof}"
+        )
     duration = getattr(trajectory, "duration", None)
     return sample, (None if duration is None else float(duration))
 
 
 def output_times(duration: float, step: float) -> np.ndarray:
     """Output grid from 0 to ``duration`` [s] in ``round(duration / step)`` equal intervals."""
-    n = max(1, int(round(duration / step)))
+    n = max(1, round(duration / step))
     return np.linspace(0.0, duration, n + 1)
 
 
@@ -227,8 +254,14 @@ def _quaternion_rate(quat: np.ndarray, omega: np.ndarray) -> np.ndarray:
     """``1/2 q * (omega, 0)`` for one quaternion (x, y, z, w) and a body rate [rad/s]."""
     x, y, z, w = quat
     a, b, c = omega
-    return 0.5 * np.array([w * a + y * c - z * b, w * b + z * a - x * c, w * c + x * b - y * a,
-                           -(x * a + y * b + z * c)])
+    return 0.5 * np.array(
+        [
+            w * a + y * c - z * b,
+            w * b + z * a - x * c,
+            w * c + x * b - y * a,
+            -(x * a + y * b + z * c),
+        ]
+    )
 
 
 def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
@@ -246,12 +279,29 @@ def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
         else the integrator's message.
     """
     if options.method == "adaptive":
-        sol = solve_ivp(rhs, (t[0], t[-1]), y0, method=ADAPTIVE_SCHEME, t_eval=t, rtol=options.rtol,
-                        atol=options.atol, max_step=options.step or np.inf)
+        sol = solve_ivp(
+            rhs,
+            (t[0], t[-1]),
+            y0,
+            method=ADAPTIVE_SCHEME,
+            t_eval=t,
+            rtol=options.rtol,
+            atol=options.atol,
+            max_step=options.step or np.inf,
+        )
         Y = sol.y.T.copy()
-        stats = {"method": "adaptive", "scheme": ADAPTIVE_SCHEME, "rtol": options.rtol, "atol": options.atol,
-                 "rhs_evaluations": int(sol.nfev)}
-        message = None if sol.status == 0 else f"{sol.message} (at t = {sol.t[-1] if sol.t.size else t[0]:.6g} s)"
+        stats = {
+            "method": "adaptive",
+            "scheme": ADAPTIVE_SCHEME,
+            "rtol": options.rtol,
+            "atol": options.atol,
+            "rhs_evaluations": int(sol.nfev),
+        }
+        message = (
+            None
+            if sol.status == 0
+            else f"{sol.message} (at t = {sol.t[-1] if sol.t.size else t[0]:.6g} s)"
+        )
     else:
         step = options.step or options.output_step
         Y = np.empty((t.size, y0.size))
@@ -281,17 +331,28 @@ def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
 
 
 # ---------------------------------------------------------------------------------- results
-def _result(robot, method, t, q, q_dot, q_ddot, quaternion, omega, momentum_residual, sigma_min, info):
+def _result(
+    robot, method, t, q, q_dot, q_ddot, quaternion, omega, momentum_residual, sigma_min, info
+):
     M, B = robot.mission_indices, robot.balance_indices
     violations = find_limit_violations(t, robot.joint_names, q, q_dot, q_ddot, robot.limits)
     return BalanceResult(
-        method=method, t=t,
+        method=method,
+        t=t,
         mission_joints=robot.mission.joints,
         balance_joints=tuple(j for a in robot.balance_arms for j in a.joints),
-        q_M=q[:, M], q_dot_M=q_dot[:, M], q_ddot_M=q_ddot[:, M],
-        q_B=q[:, B], q_dot_B=q_dot[:, B], q_ddot_B=q_ddot[:, B],
-        quaternion=quaternion, omega=omega, momentum_residual=momentum_residual, sigma_min=sigma_min,
-        violations=violations, info=info,
+        q_M=q[:, M],
+        q_dot_M=q_dot[:, M],
+        q_ddot_M=q_ddot[:, M],
+        q_B=q[:, B],
+        q_dot_B=q_dot[:, B],
+        q_ddot_B=q_ddot[:, B],
+        quaternion=quaternion,
+        omega=omega,
+        momentum_residual=momentum_residual,
+        sigma_min=sigma_min,
+        violations=violations,
+        info=info,
     )
 
 
@@ -300,7 +361,9 @@ def _initial_quaternion(quaternion0) -> np.ndarray:
         return IDENTITY_QUATERNION.copy()
     q = np.asarray(quaternion0, dtype=float).ravel()
     if q.size != 4 or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0:
-        raise InputError(f"initial attitude must be a non-zero quaternion (x, y, z, w), got {q.tolist()}")
+        raise InputError(
+            f"initial attitude must be a non-zero quaternion (x, y, z, w), got {q.tolist()}"
+        )
     return q / np.linalg.norm(q)
 
 
@@ -308,12 +371,22 @@ def _grid(t_eval, duration, options: IntegrationOptions) -> np.ndarray:
     if t_eval is not None:
         return _check_times(t_eval)
     if duration is None:
-        raise InputError("output times are needed: a trajectory given as a plain callable has no duration")
+        raise InputError(
+            "output times are needed: a trajectory given as a plain callable has no duration"
+        )
     return output_times(duration, options.output_step)
 
 
-def rollout(robot: FloatingRobot, mission: TrajectoryLike, q_B0, options: BalanceLawOptions | None = None, *,
-            integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None) -> BalanceResult:
+def rollout(
+    robot: FloatingRobot,
+    mission: TrajectoryLike,
+    q_B0,
+    options: BalanceLawOptions | None = None,
+    *,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+    quaternion0=None,
+) -> BalanceResult:
     """Phase II: the balance trajectory of the analytic law (Eq. 31) along a mission motion.
 
     Integrates the base attitude and the balance joints together; ``q_dot_B`` at the output
@@ -343,7 +416,9 @@ def rollout(robot: FloatingRobot, mission: TrajectoryLike, q_B0, options: Balanc
     sample_M, duration = as_sampler(mission, M.size, "mission")
     q_B0 = np.asarray(q_B0, dtype=float).ravel()
     if q_B0.size != B.size:
-        raise InputError(f"initial balance configuration has {q_B0.size} values, the balance joints are {B.size}")
+        raise InputError(
+            f"initial balance configuration has {q_B0.size} values, the balance joints are {B.size}"
+        )
     quat0 = _initial_quaternion(quaternion0)
     law = BalanceLaw(robot, options, q_B0=q_B0, reference=quat0)
     t = _grid(t_eval, duration, integration)
@@ -379,17 +454,38 @@ def rollout(robot: FloatingRobot, mission: TrajectoryLike, q_B0, options: Balanc
         "residual_omega_rms": float(np.sqrt(np.mean(residual**2))),
         "integration": stats,
     }
-    result = _result(robot, "analytic", t, q, q_dot, q_ddot, quat, path.omega, path.momentum_residual,
-                     path.sigma_min, info)
+    result = _result(
+        robot,
+        "analytic",
+        t,
+        q,
+        q_dot,
+        q_ddot,
+        quat,
+        path.omega,
+        path.momentum_residual,
+        path.sigma_min,
+        info,
+    )
     if failure is not None:
-        raise SolverError(f"analytic balance law rollout failed: {failure}", "integration_failed", result)
+        raise SolverError(
+            f"analytic balance law rollout failed: {failure}", "integration_failed", result
+        )
     log.debug("rollout: %d samples, %s", t.size, stats)
     return result
 
 
-def replay(robot: FloatingRobot, mission: TrajectoryLike, balance: TrajectoryLike, *, h0=None,
-           integration: IntegrationOptions | None = None, t_eval=None, quaternion0=None,
-           method: str = "simulation") -> BalanceResult:
+def replay(
+    robot: FloatingRobot,
+    mission: TrajectoryLike,
+    balance: TrajectoryLike,
+    *,
+    h0=None,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+    quaternion0=None,
+    method: str = "simulation",
+) -> BalanceResult:
     """Integrate the base attitude for GIVEN joint motions of both arms (momentum conservation).
 
     The base angular velocity is ``omega = I_G^{-1} (R^T L - A q_dot)`` at every instant (Eq. 26
@@ -405,7 +501,8 @@ def replay(robot: FloatingRobot, mission: TrajectoryLike, balance: TrajectoryLik
         balance: balance arms' motion, the same ways, all balance joints stacked (n_B).
         h0: initial momentum, world frame (3 angular or 6 [linear; angular] values), ``None`` for 0.
         integration: integrator settings.
-        t_eval: output times [s] (default: every ``integration.output_step`` over the longer motion).
+        t_eval: output times [s] (default: every ``integration.output_step`` over the longer
+            motion).
         quaternion0: initial base attitude (x, y, z, w), identity by default.
         method: the result's ``method`` label.
 
@@ -452,8 +549,13 @@ def replay(robot: FloatingRobot, mission: TrajectoryLike, balance: TrajectoryLik
     q_dot[:, M], q_dot[:, B] = qdM, qdB
     q_ddot[:, M], q_ddot[:, B] = qddM, qddB
     omega, momentum_residual, sigma_min = base_rates_along(maps, q, q_dot, quat, L)
-    info = {"integration": stats, "h0": None if h0 is None else np.asarray(h0, dtype=float).tolist()}
-    result = _result(robot, method, t, q, q_dot, q_ddot, quat, omega, momentum_residual, sigma_min, info)
+    info = {
+        "integration": stats,
+        "h0": None if h0 is None else np.asarray(h0, dtype=float).tolist(),
+    }
+    result = _result(
+        robot, method, t, q, q_dot, q_ddot, quat, omega, momentum_residual, sigma_min, info
+    )
     if failure is not None:
         raise SolverError(f"attitude replay failed: {failure}", "integration_failed", result)
     return result

@@ -183,6 +183,8 @@ IK_STARTS = 12
 IK_SEED = 0
 #: Range sampled for a joint without finite limits [rad].
 IK_UNLIMITED_RANGE = np.pi
+#: How far from orthonormal a goal rotation matrix may be.
+ROTATION_ATOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -213,19 +215,22 @@ class CartesianGoal:
     def __post_init__(self):
         position = np.asarray(self.position, dtype=float).ravel()
         if position.size != 3 or not np.all(np.isfinite(position)):
-            raise TrajectoryError(f"Cartesian goal position must be 3 finite numbers [m], got {position.tolist()}")
+            raise TrajectoryError(
+                f"Cartesian goal position must be 3 finite numbers [m], got {position.tolist()}")
         object.__setattr__(self, "position", tuple(position.tolist()))
         if self.orientation is not None:
             rot = np.asarray(self.orientation, dtype=float)
-            if rot.shape == (3, 3):
-                if not np.allclose(rot.T @ rot, np.eye(3), rtol=0, atol=1e-9) or np.linalg.det(rot) <= 0:
+            if rot.shape == (3, 3):  # a rotation matrix
+                orthonormal = np.allclose(rot.T @ rot, np.eye(3), rtol=0, atol=ROTATION_ATOL)
+                if not orthonormal or np.linalg.det(rot) <= 0:
                     raise TrajectoryError("Cartesian goal orientation matrix is not a rotation")
                 quat = pin.Quaternion(rot).coeffs()
             elif rot.size == 4 and np.all(np.isfinite(rot)) and np.linalg.norm(rot) > 0:
                 quat = rot.ravel() / np.linalg.norm(rot)
             else:
-                raise TrajectoryError("Cartesian goal orientation must be a quaternion (x, y, z, w) "
-                                      f"or a 3 x 3 rotation matrix, got {rot.tolist()}")
+                raise TrajectoryError("Cartesian goal orientation must be a quaternion "
+                                      "(x, y, z, w) or a 3 x 3 rotation matrix, "
+                                      f"got {rot.tolist()}")
             object.__setattr__(self, "orientation", tuple(float(v) for v in quat))
 
     @property
@@ -236,7 +241,7 @@ class CartesianGoal:
         x, y, z, w = self.orientation
         return pin.Quaternion(w, x, y, z).toRotationMatrix()
 
-    def solve(self, robot, q_start, base: "pin.SE3 | None" = None) -> np.ndarray:
+    def solve(self, robot, q_start, base: pin.SE3 | None = None) -> np.ndarray:
         """The arm's joint goal [rad] (see the class docstring).
 
         Args:
@@ -252,7 +257,8 @@ class CartesianGoal:
         arm = robot.arm(self.arm)
         q_start = np.asarray(q_start, dtype=float).ravel()
         if q_start.size != arm.dof:
-            raise TrajectoryError(f"Cartesian goal: the {arm.name} arm has {arm.dof} joints, start has {q_start.size}")
+            raise TrajectoryError(f"Cartesian goal: the {arm.name} arm has {arm.dof} joints, "
+                                  f"start has {q_start.size}")
         model = robot.model
         data = model.createData()
         frame = model.getFrameId(arm.ee_frame)
@@ -276,10 +282,12 @@ class CartesianGoal:
             return np.r_[e, e_rot], J, float(np.linalg.norm(e_rot))
 
         def reached(e, angle):
-            return np.linalg.norm(e[:3]) <= IK_POSITION_TOLERANCE and angle <= IK_ORIENTATION_TOLERANCE
+            close = np.linalg.norm(e[:3]) <= IK_POSITION_TOLERANCE
+            return close and angle <= IK_ORIENTATION_TOLERANCE
 
         rng = np.random.default_rng(IK_SEED)
-        starts = [np.clip(q_start, lower, upper)] + [rng.uniform(lower, upper) for _ in range(IK_STARTS - 1)]
+        starts = [np.clip(q_start, lower, upper)]
+        starts += [rng.uniform(lower, upper) for _ in range(IK_STARTS - 1)]
         best = (np.inf, np.inf, q_start)
         for q in starts:
             for _ in range(IK_MAX_ITERATIONS):
@@ -296,14 +304,15 @@ class CartesianGoal:
                 best = (float(np.linalg.norm(e[:3])), angle, q)
         distance, angle, _ = best
         what = f"{distance:.6g} m" + ("" if goal_R is None else f" and {angle:.6g} rad")
-        err = TrajectoryError(f"Cartesian goal {list(self.position)} for end effector '{arm.ee_frame}' of the "
-                              f"{arm.name} arm is unreachable within the joint limits: remaining distance {what}")
+        err = TrajectoryError(f"Cartesian goal {list(self.position)} for end effector "
+                              f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
+                              f"joint limits: remaining distance {what}")
         err.distance, err.angle = distance, angle
         raise err
 
 
-def cartesian_goal(robot, q_start, position, duration: float, orientation=None, arm: str = "mission",
-                   base: "pin.SE3 | None" = None) -> PointToPoint:
+def cartesian_goal(robot, q_start, position, duration: float, orientation=None,
+                   arm: str = "mission", base: pin.SE3 | None = None) -> PointToPoint:
     """Point-to-point motion (quintic, rest to rest) of an arm to a Cartesian goal.
 
     Args:

@@ -60,31 +60,54 @@ def main(argv=None) -> None:
     rollout(robot, mild, MILD_START[3:])  # warm-up: imports, first-call caches
 
     rows = {}
-    rows["Phase I (mission alone), replay"] = _timed(lambda: replay(robot, sc.mission, hold), args.repeat)
-    rows["Phase II, damped law (capture)"] = _timed(lambda: rollout(robot, sc.mission, sc.q_B0), args.repeat)
-    rows["Phase II, exact law (mild mission)"] = _timed(lambda: rollout(robot, mild, MILD_START[3:]), args.repeat)
+    rows["Phase I (mission alone), replay"] = _timed(
+        lambda: replay(robot, sc.mission, hold), args.repeat
+    )
+    rows["Phase II, damped law (capture)"] = _timed(
+        lambda: rollout(robot, sc.mission, sc.q_B0), args.repeat
+    )
+    rows["Phase II, exact law (mild mission)"] = _timed(
+        lambda: rollout(robot, mild, MILD_START[3:]), args.repeat
+    )
     plan = rows["Phase II, exact law (mild mission)"][2]
     rows["replay of that plan from samples"] = _timed(
-        lambda: replay(robot, mild, SampledTrajectory.from_result(plan)), args.repeat)
+        lambda: replay(robot, mild, SampledTrajectory.from_result(plan)), args.repeat
+    )
     law = BalanceLaw(robot, q_B0=MILD_START[3:])
     q = np.c_[plan.q_M, plan.q_B]
-    outputs = _timed(lambda: law.along(q, plan.q_dot_M, plan.q_ddot_M, plan.quaternion), args.repeat)
+    outputs = _timed(
+        lambda: law.along(q, plan.q_dot_M, plan.q_ddot_M, plan.quaternion), args.repeat
+    )
     if not args.skip_rk4:
         rk4 = IntegrationOptions(method="rk4", step=1e-3)
         rows["Phase II, damped law, RK4 1 ms"] = _timed(
-            lambda: rollout(robot, sc.mission, sc.q_B0, integration=rk4), 1)
+            lambda: rollout(robot, sc.mission, sc.q_B0, integration=rk4), 1
+        )
 
-    print(f"paper robot, {DURATION:g} s mission, output every 1 ms; model build (one time): {build_s * 1e3:.1f} ms")
-    header = f"{'rollout':<38}{'samples':>9}{'RHS evals':>11}{'best [s]':>10}{'median [s]':>12}{'drift [rad]':>13}"
+    print(
+        f"paper robot, {DURATION:g} s mission, output every 1 ms; "
+        f"model build (one time): {build_s * 1e3:.1f} ms"
+    )
+    header = (
+        f"{'rollout':<38}{'samples':>9}{'RHS evals':>11}{'best [s]':>10}{'median [s]':>12}"
+        f"{'drift [rad]':>13}"
+    )
     print(header)
     print("-" * len(header))
     for name, (best, median, res) in rows.items():
         evals = res.info["integration"]["rhs_evaluations"]
-        print(f"{name:<38}{res.t.size:>9}{evals:>11}{best:>10.3f}{median:>12.3f}{res.max_drift:>13.3g}")
-    print(f"{'  of which per-sample outputs (Eq. 31/32)':<38}{plan.t.size:>9}{'':>11}{outputs[0]:>10.3f}{outputs[1]:>12.3f}")
+        print(
+            f"{name:<38}{res.t.size:>9}{evals:>11}{best:>10.3f}{median:>12.3f}{res.max_drift:>13.3g}"
+        )
+    print(
+        f"{'  of which per-sample outputs (Eq. 31/32)':<38}{plan.t.size:>9}{'':>11}"
+        f"{outputs[0]:>10.3f}{outputs[1]:>12.3f}"
+    )
     worst = max(best for name, (best, _, _) in rows.items() if "RK4" not in name)
     verdict = "met" if worst <= TARGET_S else "MISSED"
-    print(f"target <= {TARGET_S} s per adaptive rollout: {verdict} (slowest best time {worst:.3f} s)")
+    print(
+        f"target <= {TARGET_S} s per adaptive rollout: {verdict} (slowest best time {worst:.3f} s)"
+    )
 
 
 if __name__ == "__main__":

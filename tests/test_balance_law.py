@@ -87,7 +87,9 @@ def _richardson_derivative(t, f):
 # ---------------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
 def nonsingular(paper):
-    mission = PointToPoint(NONSINGULAR_START[:3], NONSINGULAR_START[:3] + NONSINGULAR_MOVE, NONSINGULAR_DURATION)
+    mission = PointToPoint(
+        NONSINGULAR_START[:3], NONSINGULAR_START[:3] + NONSINGULAR_MOVE, NONSINGULAR_DURATION
+    )
     return mission, rollout(paper, mission, NONSINGULAR_START[3:])
 
 
@@ -119,7 +121,9 @@ def test_nonsingular_scenario_is_nonsingular(paper, nonsingular):
     maps = NumericMaps(paper)
     for k in range(0, res.t.size, CHECK_EVERY):
         _, J_wB = maps.angular_jacobians(np.r_[res.q_M[k], res.q_B[k]])
-        np.testing.assert_allclose(res.sigma_min[k], np.linalg.svd(J_wB, compute_uv=False)[-1], rtol=0, atol=1e-14)
+        np.testing.assert_allclose(
+            res.sigma_min[k], np.linalg.svd(J_wB, compute_uv=False)[-1], rtol=0, atol=1e-14
+        )
     assert res.violations == []
 
 
@@ -130,7 +134,7 @@ def test_nonsingular_base_stays_still(paper, nonsingular):
     maps = NumericMaps(paper)
     for k in range(0, res.t.size, CHECK_EVERY):
         q, q_dot = np.r_[res.q_M[k], res.q_B[k]], np.r_[res.q_dot_M[k], res.q_dot_B[k]]
-        # Eq. 31 holds: the base twist these rates force (6 x 6 solve of NumericMaps) has no rotation
+        # Eq. 31 holds: the base twist these rates force (NumericMaps' 6 x 6 solve) does not turn
         np.testing.assert_allclose(maps.base_twist(q, q_dot)[3:], 0.0, rtol=0, atol=RATE_ATOL)
         h = _world_angular_momentum(paper, q, q_dot, res.quaternion[k], res.omega[k])
         np.testing.assert_allclose(h, 0.0, rtol=0, atol=MOMENTUM_ATOL)
@@ -151,12 +155,16 @@ def test_replay_accepts_sample_arrays_and_callables(paper, nonsingular):
     mission, res = nonsingular
     t = res.t[::10]
     from_tuple = replay(paper, mission, (res.t, res.q_B, res.q_dot_B, res.q_ddot_B), t_eval=t)
-    from_callable = replay(paper, mission.sample, SampledTrajectory.from_result(res).sample, t_eval=t)
+    from_callable = replay(
+        paper, mission.sample, SampledTrajectory.from_result(res).sample, t_eval=t
+    )
     np.testing.assert_allclose(from_tuple.quaternion, from_callable.quaternion, rtol=0, atol=1e-15)
     assert from_tuple.max_drift <= STILL_ANGLE
     with pytest.raises(InputError, match="output times are needed"):
         replay(paper, mission.sample, SampledTrajectory.from_result(res).sample)
-    with pytest.raises(TrajectoryError, match="balance trajectory has 2 joints, the robot's balance joints are 3"):
+    with pytest.raises(
+        TrajectoryError, match="balance trajectory has 2 joints, the robot's balance joints are 3"
+    ):
         replay(paper, mission, (res.t, res.q_B[:, :2]))
 
 
@@ -181,7 +189,9 @@ def test_phase_one_matches_independent_integration(capture):
         q_M, q_dot_M, _ = mission.sample(np.array([t]))
         q, q_dot = np.r_[q_M[0], capture.q_B0], np.r_[q_dot_M[0], 0, 0, 0]
         # world-frame centroidal map at the actual attitude; solve the whole base twist
-        A = pin.computeCentroidalMap(robot.model, data, robot.pin_q(q, pin.SE3(pin.Quaternion(quat).matrix(), np.zeros(3))))
+        A = pin.computeCentroidalMap(
+            robot.model, data, robot.pin_q(q, pin.SE3(pin.Quaternion(quat).matrix(), np.zeros(3)))
+        )
         cols = np.r_[0:6, robot.pin_v_indices]
         A = A[:, cols]
         omega = np.linalg.solve(A[:, :6], -A[:, 6:] @ q_dot)[3:]
@@ -190,8 +200,15 @@ def test_phase_one_matches_independent_integration(capture):
         return Omega @ omega
 
     t_check = res.t[::CHECK_EVERY]
-    ref = solve_ivp(rhs, (0.0, mission.duration), np.array([0.0, 0, 0, 1]), method="RK45", t_eval=t_check,
-                    rtol=1e-12, atol=1e-14)
+    ref = solve_ivp(
+        rhs,
+        (0.0, mission.duration),
+        np.array([0.0, 0, 0, 1]),
+        method="RK45",
+        t_eval=t_check,
+        rtol=1e-12,
+        atol=1e-14,
+    )
     assert ref.success
     quat_ref = (ref.y / np.linalg.norm(ref.y, axis=0)).T
     assert _angle_between(quat_ref, res.quaternion[::CHECK_EVERY]).max() <= ATTITUDE_ATOL
@@ -204,8 +221,13 @@ def test_phase_one_matches_independent_integration(capture):
 def test_rk4_agrees_with_adaptive(capture):
     t = np.linspace(0.0, capture.mission.duration, 1001)
     adaptive = phase_one(capture.robot, capture.mission, capture.q_B0, t_eval=t)
-    fixed = phase_one(capture.robot, capture.mission, capture.q_B0, t_eval=t,
-                      integration=IntegrationOptions(method="rk4", step=0.01))
+    fixed = phase_one(
+        capture.robot,
+        capture.mission,
+        capture.q_B0,
+        t_eval=t,
+        integration=IntegrationOptions(method="rk4", step=0.01),
+    )
     assert fixed.info["integration"]["steps"] == 1000
     # RK4 at h = 10 ms: global error ~ h^4 |omega''''| T, measured ~1e-11
     assert _angle_between(adaptive.quaternion, fixed.quaternion).max() <= 1e-9
@@ -215,7 +237,9 @@ def test_rk4_agrees_with_adaptive(capture):
 # ---------------------------------------------------------------------------------- damped law
 def test_exact_law_fails_at_the_singular_start(capture):
     with pytest.raises(SolverError, match="analytic balance law rollout failed") as err:
-        rollout(capture.robot, capture.mission, capture.q_B0, BalanceLawOptions(damping_threshold=0.0))
+        rollout(
+            capture.robot, capture.mission, capture.q_B0, BalanceLawOptions(damping_threshold=0.0)
+        )
     assert err.value.status == "integration_failed"
     assert err.value.result is not None
 
@@ -242,8 +266,12 @@ def test_dls_bounds_rates_and_reports_its_residual(capture, capture_dls):
         assert np.linalg.norm(res.q_dot_B[k]) <= bound * requested * (1 + 1e-9) + 1e-15
         omega = maps.base_twist(q, q_dot)[3:]  # the base rate these joint rates produce
         np.testing.assert_allclose(res.omega[k], omega, rtol=0, atol=RATE_ATOL)
-        np.testing.assert_allclose(law.rates(q, res.q_dot_M[k]).residual, omega, rtol=0, atol=RATE_ATOL)
-    assert res.info["residual_omega_max"] == pytest.approx(np.linalg.norm(res.omega, axis=1).max(), rel=1e-12)
+        np.testing.assert_allclose(
+            law.rates(q, res.q_dot_M[k]).residual, omega, rtol=0, atol=RATE_ATOL
+        )
+    assert res.info["residual_omega_max"] == pytest.approx(
+        np.linalg.norm(res.omega, axis=1).max(), rel=1e-12
+    )
     assert np.abs(res.q_dot_B).max() < 1.0  # within the paper robot's 1 rad/s
     # the residual rate integrates to the attitude the motion actually produces
     again = both(robot, capture.mission, res)
@@ -287,7 +315,9 @@ def test_redundant_arm_keeps_base_still_and_uses_null_space(baxter, baxter_runs)
         q = np.r_[with_null.q_M[k], with_null.q_B[k]]
         J_wM, J_wB = maps.angular_jacobians(q)
         pinv = plain_law.rates(q, with_null.q_dot_M[k]).q_dot_B
-        np.testing.assert_allclose(pinv, np.linalg.pinv(J_wB) @ (-J_wM @ with_null.q_dot_M[k]), rtol=0, atol=1e-10)
+        np.testing.assert_allclose(
+            pinv, np.linalg.pinv(J_wB) @ (-J_wM @ with_null.q_dot_M[k]), rtol=0, atol=1e-10
+        )
         extra = law.rates(q, with_null.q_dot_M[k]).q_dot_B - pinv
         assert np.linalg.norm(extra) > 1e-3  # the null-space motion ...
         np.testing.assert_allclose(J_wB @ extra, 0.0, rtol=0, atol=RATE_ATOL)  # ... turns no base
@@ -328,7 +358,9 @@ def test_acceleration_law_is_the_derivative_of_the_velocity_law(n_B, threshold):
     sol = law(0.0)
     if threshold:
         assert sol.damping > 0
-    np.testing.assert_allclose(acceleration_law(sol, J1, b1, z1), (4 * d1 - d2) / 3, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(
+        acceleration_law(sol, J1, b1, z1), (4 * d1 - d2) / 3, rtol=0, atol=1e-8
+    )
 
 
 # ---------------------------------------------------------------------------------- h0
@@ -341,7 +373,8 @@ def _composite_inertia(robot, q):
 
 
 def _euler_rigid_body(I, L_world, t):
-    """Torque-free rigid body, Euler's equations ``I w_dot = (I w) x w`` and ``q_dot = q (w, 0) / 2``."""
+    """Torque-free rigid body: Euler's equations ``I w_dot = (I w) x w``, ``q_dot = q (w,0)/2``."""
+
     def rhs(_, y):
         quat, w = y[:4], y[4:]
         x, yq, z, s = quat
@@ -368,8 +401,9 @@ def test_h0_with_arms_at_rest_is_a_torque_free_rigid_body(paper):
     assert res.momentum_residual.max() <= MOMENTUM_ATOL
     # the world angular momentum it implies is the h0 given
     R = matrix_from_quaternion(res.quaternion)
-    np.testing.assert_allclose(np.einsum("tij,jk,tk->ti", R, I, res.omega), np.tile(L, (res.t.size, 1)),
-                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.einsum("tij,jk,tk->ti", R, I, res.omega), np.tile(L, (res.t.size, 1)), rtol=0, atol=1e-9
+    )
 
 
 def test_h0_spin_about_a_principal_axis_is_uniform(paper):
@@ -393,12 +427,17 @@ def test_law_with_h0_keeps_base_still(paper):
     assert res.max_drift <= STILL_ANGLE
     assert np.linalg.norm(res.q_B[-1] - q[3:]) > 1e-3
     for k in range(0, res.t.size, CHECK_EVERY):
-        h = _world_angular_momentum(paper, np.r_[res.q_M[k], res.q_B[k]], np.r_[res.q_dot_M[k], res.q_dot_B[k]],
-                                    res.quaternion[k], res.omega[k])
+        h = _world_angular_momentum(
+            paper,
+            np.r_[res.q_M[k], res.q_B[k]],
+            np.r_[res.q_dot_M[k], res.q_dot_B[k]],
+            res.quaternion[k],
+            res.omega[k],
+        )
         np.testing.assert_allclose(h, L, rtol=0, atol=MOMENTUM_ATOL)
 
 
-# ---------------------------------------------------------------------------------- feedback, options
+# ------------------------------------------------------------------------------ feedback, options
 def test_attitude_feedback_commands_minus_k_times_the_error(paper):
     K = 2.0
     e = np.array([0.02, -0.01, 0.03])
@@ -411,25 +450,41 @@ def test_paper_phases_are_consistent(capture):
     t = np.linspace(0.0, capture.mission.duration, 501)
     ph = paper_phases(capture.robot, capture.mission, capture.q_B0, t_eval=t)
     assert [r.method for r in (ph.mission_only, ph.analytic, ph.balance_only, ph.both)] == [
-        "mission-only", "analytic", "balance-only", "simulation"]
+        "mission-only",
+        "analytic",
+        "balance-only",
+        "simulation",
+    ]
     assert _angle_between(ph.both.quaternion, ph.analytic.quaternion).max() <= ATTITUDE_ATOL
-    np.testing.assert_allclose(ph.balance_only.q_M, np.tile(capture.mission.start, (t.size, 1)), rtol=0, atol=0)
-    np.testing.assert_allclose(ph.mission_only.q_B, np.tile(capture.q_B0, (t.size, 1)), rtol=0, atol=0)
+    np.testing.assert_allclose(
+        ph.balance_only.q_M, np.tile(capture.mission.start, (t.size, 1)), rtol=0, atol=0
+    )
+    np.testing.assert_allclose(
+        ph.mission_only.q_B, np.tile(capture.q_B0, (t.size, 1)), rtol=0, atol=0
+    )
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"damping_threshold": -1.0}, "option 'damping_threshold' must be finite and >= 0, got -1.0"),
-    ({"max_damping": 0.0}, "option 'max_damping' must be > 0 when 'damping_threshold' is > 0"),
-    ({"h0": (1.0, 2.0)}, "option 'h0' must have 3 or 6 values, got 2"),
-    ({"attitude_gain": "fast"}, "option 'attitude_gain' must be a number, got 'fast'"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (
+            {"damping_threshold": -1.0},
+            "option 'damping_threshold' must be finite and >= 0, got -1.0",
+        ),
+        ({"max_damping": 0.0}, "option 'max_damping' must be > 0 when 'damping_threshold' is > 0"),
+        ({"h0": (1.0, 2.0)}, "option 'h0' must have 3 or 6 values, got 2"),
+        ({"attitude_gain": "fast"}, "option 'attitude_gain' must be a number, got 'fast'"),
+    ],
+)
 def test_bad_law_options(kwargs, message):
     with pytest.raises(InputError, match=message):
         BalanceLawOptions(**kwargs)
 
 
 def test_bad_null_space_goal_and_integration_options(paper):
-    with pytest.raises(InputError, match="'null_space_goal' has 2 values, the balance joints are 3"):
+    with pytest.raises(
+        InputError, match="'null_space_goal' has 2 values, the balance joints are 3"
+    ):
         BalanceLaw(paper, BalanceLawOptions(null_space_goal=(0.0, 0.0)))
     with pytest.raises(InputError, match="integration method 'euler' is unknown"):
         IntegrationOptions(method="euler")

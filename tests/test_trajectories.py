@@ -5,6 +5,8 @@ Derivatives are checked against Richardson-extrapolated central differences of t
 (and velocities); Cartesian goals against forward kinematics computed here with Pinocchio.
 """
 
+import itertools
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -34,9 +36,13 @@ def _derivative(f, t, h=FD_STEP):
 
 def _check_consistent(traj, t):
     """q_dot and q_ddot are the time derivatives of q and q_dot."""
-    q, q_dot, q_ddot = traj.sample(t)
-    np.testing.assert_allclose(q_dot, _derivative(lambda s: traj.sample(s)[0], t), rtol=0, atol=FD_ATOL)
-    np.testing.assert_allclose(q_ddot, _derivative(lambda s: traj.sample(s)[1], t), rtol=0, atol=FD_ATOL)
+    _q, q_dot, q_ddot = traj.sample(t)
+    np.testing.assert_allclose(
+        q_dot, _derivative(lambda s: traj.sample(s)[0], t), rtol=0, atol=FD_ATOL
+    )
+    np.testing.assert_allclose(
+        q_ddot, _derivative(lambda s: traj.sample(s)[1], t), rtol=0, atol=FD_ATOL
+    )
 
 
 def _fk(robot, arm, q_arm):
@@ -57,7 +63,9 @@ def test_point_to_point_is_quintic_rest_to_rest():
     np.testing.assert_allclose(q[1], 0.5 * (q0 + qf), rtol=0, atol=1e-15)
     np.testing.assert_allclose(q_dot[[0, 2]], 0.0, rtol=0, atol=0)
     np.testing.assert_allclose(q_ddot[[0, 1, 2]], 0.0, rtol=0, atol=1e-15)
-    np.testing.assert_allclose(q_dot[1], 1.875 * (qf - q0) / 10.0, rtol=0, atol=1e-15)  # peak of 30 s^2(1-s)^2
+    np.testing.assert_allclose(
+        q_dot[1], 1.875 * (qf - q0) / 10.0, rtol=0, atol=1e-15
+    )  # peak of 30 s^2(1-s)^2
     _check_consistent(traj, np.linspace(0.1, 9.9, 37))
 
 
@@ -73,8 +81,12 @@ def test_via_points_pass_through_points_smoothly():
     # C2 at the via points: accelerations just before and after agree
     eps = 1e-7
     for t in times[1:-1]:
-        np.testing.assert_allclose(traj.sample(np.array([t - eps]))[2], traj.sample(np.array([t + eps]))[2],
-                                   rtol=0, atol=1e-5)
+        np.testing.assert_allclose(
+            traj.sample(np.array([t - eps]))[2],
+            traj.sample(np.array([t + eps]))[2],
+            rtol=0,
+            atol=1e-5,
+        )
 
 
 def test_csv_trajectory_reads_columns_by_name(tmp_path):
@@ -87,14 +99,18 @@ def test_csv_trajectory_reads_columns_by_name(tmp_path):
     q, _, _ = traj.sample(t)
     np.testing.assert_allclose(q, np.c_[np.sin(t), np.cos(t)], rtol=0, atol=1e-12)
     q_mid, q_dot_mid, _ = traj.sample(np.array([1.05]))
-    np.testing.assert_allclose(q_mid[0], [np.sin(1.05), np.cos(1.05)], rtol=0, atol=1e-5)  # cubic, h = 0.1
+    np.testing.assert_allclose(
+        q_mid[0], [np.sin(1.05), np.cos(1.05)], rtol=0, atol=1e-5
+    )  # cubic, h = 0.1
     np.testing.assert_allclose(q_dot_mid[0], [np.cos(1.05), -np.sin(1.05)], rtol=0, atol=1e-3)
 
 
 def test_csv_errors_name_file_line_and_column(tmp_path):
     path = tmp_path / "bad.csv"
     path.write_text("time,j1\n0,0.0\n0.1,abc\n0.2,0.3\n")
-    with pytest.raises(TrajectoryError, match=r"bad\.csv: line 3, column 'j1': not a number: 'abc'"):
+    with pytest.raises(
+        TrajectoryError, match=r"bad\.csv: line 3, column 'j1': not a number: 'abc'"
+    ):
         CsvTrajectory(path, ["j1"])
     with pytest.raises(TrajectoryError, match=r"bad\.csv: line 1: missing column\(s\) j2"):
         CsvTrajectory(path, ["j2"])
@@ -117,7 +133,7 @@ def test_sampled_interpolation_orders():
     t_mid = t[:-1] + 0.005
     cubic = SampledTrajectory(t, q, q_dot).sample(t_mid)[0][:, 0]
     spline = SampledTrajectory(t, q).sample(t_mid)[0][:, 0]
-    # cubic Hermite: error h^4 |q''''| / 384 ~ 2e-9; natural spline: ~h^4 inside (boundary effect aside)
+    # cubic Hermite: error h^4 |d4q| / 384 ~ 2e-9; natural spline: ~h^4 away from the ends
     np.testing.assert_allclose(cubic, np.sin(3 * t_mid), rtol=0, atol=1e-8)
     np.testing.assert_allclose(spline[10:-10], np.sin(3 * t_mid[10:-10]), rtol=0, atol=1e-7)
     # outside the samples the arm rests at the end
@@ -129,7 +145,9 @@ def test_sampled_interpolation_orders():
 def test_sampled_trajectory_errors():
     with pytest.raises(TrajectoryError, match="times must start at 0 and increase strictly"):
         SampledTrajectory([0.0, 0.2, 0.1], np.zeros((3, 2)))
-    with pytest.raises(TrajectoryError, match=r"velocities have shape \(3, 1\), positions \(3, 2\)"):
+    with pytest.raises(
+        TrajectoryError, match=r"velocities have shape \(3, 1\), positions \(3, 2\)"
+    ):
         SampledTrajectory([0.0, 0.1, 0.2], np.zeros((3, 2)), np.zeros((3, 1)))
     with pytest.raises(TrajectoryError, match="accelerations given without velocities"):
         SampledTrajectory([0.0, 0.1], np.zeros((2, 2)), None, np.zeros((2, 2)))
@@ -143,7 +161,9 @@ def test_cartesian_position_goal_reached(paper):
     traj = cartesian_goal(paper, start, goal, 10.0)
     assert isinstance(traj, PointToPoint) and traj.duration == 10.0
     np.testing.assert_allclose(traj.start, start, rtol=0, atol=0)
-    assert np.linalg.norm(_fk(paper, "mission", traj.end).translation - goal) <= IK_POSITION_TOLERANCE
+    assert (
+        np.linalg.norm(_fk(paper, "mission", traj.end).translation - goal) <= IK_POSITION_TOLERANCE
+    )
     lim = paper.limits.subset(paper.mission_indices)
     assert np.all(traj.end >= lim.lower) and np.all(traj.end <= lim.upper)
 
@@ -159,7 +179,9 @@ def test_cartesian_pose_goal_on_a_7_dof_arm(baxter):
     # the same goal given as a quaternion (x, y, z, w)
     quat = pin.Quaternion(pose.rotation).coeffs()
     q_goal2 = CartesianGoal(pose.translation, quat).solve(baxter, start)
-    np.testing.assert_allclose(_fk(baxter, "mission", q_goal2).homogeneous, pose.homogeneous, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(
+        _fk(baxter, "mission", q_goal2).homogeneous, pose.homogeneous, rtol=0, atol=1e-6
+    )
 
 
 def test_unreachable_goal_reports_remaining_distance(paper):
@@ -175,9 +197,11 @@ def test_unreachable_goal_reports_remaining_distance(paper):
     chain = [data.oMi[paper.model.getJointId(j)].translation for j in paper.mission.joints]
     chain.append(data.oMf[paper.model.getFrameId(paper.mission.ee_frame)].translation)
     shoulder = chain[0]
-    reach = sum(np.linalg.norm(b - a) for a, b in zip(chain[:-1], chain[1:]))
+    reach = sum(np.linalg.norm(b - a) for a, b in itertools.pairwise(chain))
     goal = shoulder + np.array([3.0, 1.0, 2.0])
-    with pytest.raises(TrajectoryError, match=r"unreachable within the joint limits: remaining distance [0-9.]+ m") as err:
+    with pytest.raises(
+        TrajectoryError, match=r"unreachable within the joint limits: remaining distance [0-9.]+ m"
+    ) as err:
         cartesian_goal(paper, [0.0, 0.3, -0.6], goal, 5.0)
     assert err.value.distance <= np.linalg.norm(points - goal, axis=1).min() + 1e-9
     assert err.value.distance >= np.linalg.norm(goal - shoulder) - reach - 1e-9
