@@ -502,13 +502,10 @@ class BalanceLaw:
                     f"balance law option 'null_space_goal' has {goal.size} values, "
                     f"the balance joints are {self.balance.size}"
                 )
-        else:
+        else:  # mid-range, or the start for a joint without finite limits
             finite = np.isfinite(lim.lower) & np.isfinite(lim.upper)
-            goal = np.where(
-                finite,
-                0.5 * (np.where(finite, lim.lower, 0) + np.where(finite, lim.upper, 0)),
-                start,
-            )
+            goal = np.array(start, dtype=float)
+            goal[finite] = 0.5 * (lim.lower[finite] + lim.upper[finite])
         self.goal = goal
         self.reference = (
             IDENTITY_QUATERNION.copy() if reference is None else np.asarray(reference, dtype=float)
@@ -613,15 +610,13 @@ class BalanceLaw:
         dJ = angular_jacobian_rates_from_maps(I_G, dI_G, dA, J)
         J_wM, dJ_wM = J[..., self.mission], dJ[..., self.mission]
         # d(omega_h)/dt = I_G^{-1} (d(R^T L)/dt - dI_G omega_h), d(R^T L)/dt = -omega x R^T L
-        omega_h_dot = np.linalg.solve(I_G, (-np.cross(omega, ell) - _mv(dI_G, omega_h))[..., None])[
-            ..., 0
-        ]
+        ell_dot = -np.cross(omega, ell)
+        omega_h_dot = np.linalg.solve(I_G, (ell_dot - _mv(dI_G, omega_h))[..., None])[..., 0]
         b_dot = -(_mv(dJ_wM, q_dot_M) + _mv(J_wM, q_ddot_M)) - omega_h_dot
         K = self.options.attitude_gain
         if K:
-            Jr_inv = np.array([inverse_right_jacobian(e) for e in e_R.reshape(-1, 3)]).reshape(
-                e_R.shape + (3,)
-            )
+            Jr_inv = np.array([inverse_right_jacobian(e) for e in e_R.reshape(-1, 3)])
+            Jr_inv = Jr_inv.reshape((*e_R.shape, 3))
             b_dot = b_dot - K * _mv(Jr_inv, omega)
         z_dot = -self.options.null_space_gain * sol.q_dot_B
         q_ddot_B = acceleration_law(sol, dJ[..., self.balance], b_dot, z_dot)
