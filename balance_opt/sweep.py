@@ -517,7 +517,7 @@ def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
 
 def run_sweep(sweep: Sweep, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
               resume: bool = False, force: bool = False, retry_failed: bool = False,
-              plots: bool = True, runner: str = TASK_RUNNER, on_result=None) -> SweepOutcome:
+              plots: bool = True, runner: str = TASK_RUNNER, on_result=None, engine=None) -> SweepOutcome:
     """Run every case of a sweep and write its results, table, summary and plots.
 
     Args:
@@ -534,6 +534,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, jobs: int = 1, scheduler: str |
         plots: draw the summary plots.
         runner: ``"module:function"`` of the case function.
         on_result: progress callback, see :func:`balance_opt.sweep_engine.run_cases`.
+        engine: an engine object to use instead of the one ``jobs`` and ``scheduler`` describe.
 
     Returns:
         The outcome; the table and summary are written even when cases failed. If the run is
@@ -548,7 +549,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, jobs: int = 1, scheduler: str |
                 "varied": list(sweep.varied), "methods": list(sweep.spec.methods),
                 "cases": [{k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases]}
     write_json_atomic(out_dir / MANIFEST, manifest)
-    engine = make_engine(jobs, scheduler)
+    engine = engine if engine is not None else make_engine(jobs, scheduler)
     extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
     try:
         run = run_cases(sweep.cases, runner, out_dir, engine, resume=resume,

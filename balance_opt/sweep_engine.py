@@ -72,10 +72,10 @@ def error_record(exc: BaseException) -> dict[str, Any]:
 def execute_case(runner: str, case: dict) -> dict:
     """Run one case in the current process and return its result record (plain data).
 
-    The runner returns a dict with at least ``status`` (one of the ``STATUS_*``) and ``metrics``;
-    any exception it raises becomes a result with status ``error`` (``solver_failed`` for a
-    :class:`~balance_opt.errors.SolverError`, whose best iterate's metrics the runner may attach
-    as ``exc.metrics``).
+    The runner returns a dict with ``status`` (one of the ``STATUS_*``), ``metrics``, and
+    optionally ``error``, ``info`` and ``timing`` (its own split of the wall time [s]); any
+    exception it raises becomes a result with status ``error`` (``solver_failed`` for a
+    :class:`~balance_opt.errors.SolverError`).
 
     Args:
         runner: ``"module:function"`` of the case function ``f(case: dict) -> dict``.
@@ -83,8 +83,9 @@ def execute_case(runner: str, case: dict) -> dict:
 
     Returns:
         ``{index, case_id, method, parameters, status, error, metrics, info, timing}`` where
-        ``timing`` holds the wall time of the case in the worker [s] (``case_s``) and the
-        worker's process id: the only fields that depend on where and when the case ran.
+        ``timing`` holds the wall time of the case in the worker [s] (``case_s``), the
+        worker's process id and the runner's timing: the only fields that depend on where and
+        when the case ran.
     """
     from .errors import SolverError
 
@@ -94,14 +95,14 @@ def execute_case(runner: str, case: dict) -> dict:
         try:
             out = resolve_runner(runner)(case)
             record.update(status=out.get("status", STATUS_OK), error=out.get("error"),
-                          metrics=out.get("metrics", {}), info=out.get("info", {}))
+                          metrics=out.get("metrics", {}), info=out.get("info", {}),
+                          runner_timing=out.get("timing", {}))
         except SolverError as exc:
-            record.update(status=STATUS_SOLVER_FAILED, error=error_record(exc),
-                          metrics=getattr(exc, "metrics", None) or {}, info={})
+            record.update(status=STATUS_SOLVER_FAILED, error=error_record(exc), metrics={}, info={})
         except Exception as exc:  # noqa: BLE001 - a failing case is recorded, the sweep goes on
             record.update(status=STATUS_ERROR, error=error_record(exc), metrics={}, info={})
         elapsed = time.perf_counter() - start
-    record["timing"] = {"case_s": elapsed, "pid": os.getpid()}
+    record["timing"] = {"case_s": elapsed, "pid": os.getpid(), **record.pop("runner_timing", {})}
     return record
 
 
@@ -281,12 +282,15 @@ class DaskEngine:
         address: scheduler address (``tcp://host:8786``); None to start a local cluster.
         workers: number of worker processes of the local cluster.
         host: interface of the local cluster (loopback by default: nothing is exposed).
+        timeout: longest wait for all the cases [s] (``TimeoutError`` after it); None: no limit.
     """
 
-    def __init__(self, address: str | None = None, workers: int = 2, host: str = "127.0.0.1"):
+    def __init__(self, address: str | None = None, workers: int = 2, host: str = "127.0.0.1",
+                 timeout: float | None = None):
         self.address = address
         self.workers = workers
         self.host = host
+        self.timeout = timeout
         self._cluster = None
         self._client = None
 
@@ -320,7 +324,7 @@ class DaskEngine:
                                        key=f"case-{case['case_id']}") for case in cases]
         by_key = {fut.key: case for fut, case in zip(futures, cases)}
         pending = set(futures)
-        completed = as_completed(futures, with_results=True, raise_errors=False)
+        completed = as_completed(futures, with_results=True, raise_errors=False, timeout=self.timeout)
         del futures
         try:
             for fut, value in completed:
