@@ -1,43 +1,264 @@
 """Command line: ``balance-opt SUBCOMMAND ...``.
 
-Exit codes: 0 success, 2 bad input, 1 solver failure.
+Subcommands:
+
+* ``validate TASK...``: load and check task files, everything short of planning;
+  ``validate --schema`` (or ``schema``) prints the JSON Schema of task files;
+* ``inspect [TASK]``: robot summary and coupling measures (the paper robot without a task);
+* ``plan TASK``: balance plans (``--method analytic|optimal|both``), trajectories, metrics,
+  figures and the HTML report;
+* ``simulate TASK``: the same, then each plan through forward dynamics;
+* ``compare TASK``: both methods, simulated, and the comparison report;
+* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot.
+
+Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
+(whatever was computed is still written). An output directory that exists and is not empty is
+never written to without ``--force``; that is checked before anything is computed.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
+import time
+from pathlib import Path
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT = 0, 1, 2
+DEFAULT_OUTPUT_ROOT = Path("results")
+_HANDLER_FLAG = "_balance_opt_cli"
+
+log = logging.getLogger("balance_opt.cli")
+
+
+# =========================================================================================== helpers
+def parse_solver_option(text: str) -> tuple[str, int | float | str]:
+    """``"max_iter=100"`` -> ``("max_iter", 100)``: the value as an int, else a float, else a string.
+
+    Raises:
+        InputError: no ``=`` or an empty key.
+    """
+    from .errors import InputError
+
+    key, sep, value = text.partition("=")
+    key, value = key.strip(), value.strip()
+    if not sep or not key:
+        raise InputError(f"--solver-option {text!r}: expected KEY=VALUE, e.g. max_iter=200")
+    for convert in (int, float):
+        try:
+            return key, convert(value)
+        except ValueError:
+            pass
+    return key, value
+
+
+def _solver_options(args) -> dict:
+    return dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+
+
+def check_output_dir(path: Path, force: bool) -> Path:
+    """Refuse an output directory that exists and is not empty, unless ``force``.
+
+    Raises:
+        InputError: the directory is not empty (or is a file), naming it and the way out.
+    """
+    from .errors import InputError
+
+    if path.exists() and not path.is_dir():
+        raise InputError(f"output {path} exists and is not a directory")
+    if path.is_dir() and any(path.iterdir()) and not force:
+        raise InputError(f"output directory {path} exists and is not empty; nothing was written. "
+                         f"Use --force to overwrite its files, or choose another --output")
+    return path
+
+
+def _configure_logging(verbose: bool, quiet: bool) -> None:
+    """Log balance-opt's messages to the current stderr (progress at INFO)."""
+    logger = logging.getLogger("balance_opt")
+    for h in [h for h in logger.handlers if getattr(h, _HANDLER_FLAG, False)]:
+        logger.removeHandler(h)
+    handler = logging.StreamHandler(sys.stderr)
+    setattr(handler, _HANDLER_FLAG, True)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S")
+                         if verbose else logging.Formatter("%(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO)
+
+
+# =========================================================================================== commands
+def _cmd_schema(args) -> int:
+    from .task import task_json_schema
+
+    print(json.dumps(task_json_schema(), indent=2))
+    return EXIT_OK
+
+
+def _cmd_validate(args) -> int:
+    from .errors import InputError
+    from .task import load_task
+
+    if args.schema:
+        return _cmd_schema(args)
+    if args.reference:
+        from .task import task_reference_markdown
+
+        print(task_reference_markdown())
+        return EXIT_OK
+    if not args.tasks:
+        raise InputError("validate: give one or more task files, or --schema")
+    for path in args.tasks:
+        task = load_task(path)
+        robot = task.robot
+        arms = "; ".join(f"{a.name} {a.dof} joints" for a in robot.arms)
+        log.info("%s: ok (robot %s, %s; mission %s, %.3g s)", path, robot.name, arms,
+                 task.spec.mission.type, task.duration)
+    return EXIT_OK
 
 
 def _cmd_inspect(args) -> int:
     from .inspection import robot_summary
-    from .robots import paper_robot
 
-    robot = paper_robot()
-    print(robot_summary(robot))
+    if args.task is None:
+        from .robots import paper_robot
+
+        print(robot_summary(paper_robot()))
+        return EXIT_OK
+    from .task import load_task
+
+    task = load_task(args.task)
+    print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
+    print(robot_summary(task.robot, task.q0))
     return EXIT_OK
 
 
+def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
+    from .pipeline import run_task
+    from .task import load_task
+
+    task = load_task(args.task)
+    solver_options = _solver_options(args)
+    output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / task.name
+    check_output_dir(output, args.force)
+    started = time.perf_counter()
+    run = run_task(task, methods=methods, simulate=simulate,
+                   output_dir=output, solver_options=solver_options)
+    log.info("wrote %d files to %s in %.1f s", len(run.files), output, time.perf_counter() - started)
+    for name, res in run.results.items():
+        log.info("  %-13s max drift %.3g rad, final drift %.3g rad, %d limit violations", name,
+                 res.max_drift, res.final_drift, len(res.violations))
+    if run.report is not None:
+        log.info("report: %s", run.report)
+    if run.failures:
+        for method, message in run.failures.items():
+            print(f"balance-opt: solver failure ({method}): {message}", file=sys.stderr)
+        return EXIT_SOLVER
+    return EXIT_OK
+
+
+def _methods(args) -> tuple[str, ...]:
+    return ("analytic", "optimal") if args.method == "both" else (args.method,)
+
+
+def _cmd_plan(args) -> int:
+    return _run_task_command(args, _methods(args), simulate=args.simulate)
+
+
+def _cmd_simulate(args) -> int:
+    return _run_task_command(args, _methods(args), simulate=True)
+
+
+def _cmd_compare(args) -> int:
+    return _run_task_command(args, ("analytic", "optimal"), simulate=not args.no_simulate)
+
+
+def _cmd_paper_figures(args) -> int:
+    from .pipeline import paper_figures
+
+    output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / "paper_figures"
+    check_output_dir(output, args.force)
+    files = paper_figures(output, task_path=args.task, solver_options=_solver_options(args))
+    log.info("wrote %d files to %s", len(files), output)
+    return EXIT_OK
+
+
+# =========================================================================================== parser
+def _common_options(parser: argparse.ArgumentParser, top: bool) -> None:
+    """``-v``/``-q`` on the top parser and on every subcommand (either place works)."""
+    default = False if top else argparse.SUPPRESS
+    parser.add_argument("-v", "--verbose", action="store_true", default=default, help="log debug messages")
+    parser.add_argument("-q", "--quiet", action="store_true", default=default, help="print errors only")
+
+
+def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) -> None:
+    if task_required:
+        parser.add_argument("task", help="task file (YAML)")
+    parser.add_argument("-o", "--output", metavar="DIR",
+                        help=f"output directory (default: {DEFAULT_OUTPUT_ROOT}/<task name>)")
+    parser.add_argument("-f", "--force", action="store_true",
+                        help="write into an existing, non-empty output directory (its files are overwritten)")
+    parser.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
+                        help="Ipopt option for the optimal planner (repeatable); overrides the task's "
+                             "optimal.ipopt; values are read as int, float or string")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="balance-opt", description=__doc__.splitlines()[0])
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    parser.add_argument("-q", "--quiet", action="store_true", help="print errors only")
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = argparse.ArgumentParser(prog="balance-opt", description=__doc__.splitlines()[0],
+                                     epilog="exit codes: 0 success, 2 bad input, 1 solver failure")
+    _common_options(parser, top=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("validate", help="check task files (everything short of planning)")
+    p.add_argument("tasks", nargs="*", metavar="TASK", help="task files (YAML)")
+    p.add_argument("--schema", action="store_true", help="print the JSON Schema of task files and exit")
+    p.add_argument("--reference", action="store_true", help="print the task-file reference (Markdown) and exit")
+    p.set_defaults(run=_cmd_validate)
+
+    p = sub.add_parser("schema", help="print the JSON Schema of task files")
+    p.set_defaults(run=_cmd_schema)
+
     p = sub.add_parser("inspect", help="print a robot summary and its coupling measures")
+    p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
     p.set_defaults(run=_cmd_inspect)
+
+    p = sub.add_parser("plan", help="plan the balance motion, write trajectories, metrics, figures, report")
+    _run_options(p)
+    p.add_argument("-m", "--method", choices=("analytic", "optimal", "both"), default="both",
+                   help="planning method (default: both)")
+    p.add_argument("--simulate", action="store_true", help="also simulate each plan (as the simulate command)")
+    p.set_defaults(run=_cmd_plan)
+
+    p = sub.add_parser("simulate", help="plan, then check each plan in a forward-dynamics simulation")
+    _run_options(p)
+    p.add_argument("-m", "--method", choices=("analytic", "optimal", "both"), default="both",
+                   help="planning method (default: both)")
+    p.set_defaults(run=_cmd_simulate)
+
+    p = sub.add_parser("compare", help="analytic and optimal plans, simulated, and the comparison report")
+    _run_options(p)
+    p.add_argument("--no-simulate", action="store_true", help="skip the forward-dynamics simulation")
+    p.set_defaults(run=_cmd_compare)
+
+    p = sub.add_parser("paper-figures", help="the paper's study: Figs 2-5 on the Table 1 robot")
+    _run_options(p, task_required=False)
+    p.add_argument("--task", help="task file of the study (default: examples/paper_capture.yaml's content)")
+    p.set_defaults(run=_cmd_paper_figures)
+
+    for subparser in sub.choices.values():
+        _common_options(subparser, top=False)
     return parser
 
 
 def main(argv=None) -> int:
-    from .errors import InputError, SolverError
+    """Run the command line; returns the exit code (0 success, 1 solver failure, 2 bad input)."""
+    from .errors import BalanceOptError, InputError, SolverError
 
     parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO,
-                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
+        return int(exc.code or 0)
+    _configure_logging(args.verbose, args.quiet)
     try:
         return args.run(args)
     except InputError as exc:
@@ -46,6 +267,12 @@ def main(argv=None) -> int:
     except SolverError as exc:
         print(f"balance-opt: solver failure: {exc}", file=sys.stderr)
         return EXIT_SOLVER
+    except BalanceOptError as exc:
+        print(f"balance-opt: failure: {exc}", file=sys.stderr)
+        return EXIT_SOLVER
+    except KeyboardInterrupt:
+        print("balance-opt: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -163,19 +163,6 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
     return out
 
 
-def _first(info: Mapping[str, Any], *keys: str):
-    """The first of ``keys`` present in ``info`` (also one level down, in sub-dicts)."""
-    for key in keys:
-        if key in info:
-            return info[key]
-    for value in info.values():
-        if isinstance(value, Mapping):
-            found = _first(value, *keys)
-            if found is not None:
-                return found
-    return None
-
-
 def peak_reaction_torques(simulation) -> dict[str, float]:
     """Largest norm of the torque each arm exerts on the base, and of their sum [N m], from a
     :class:`~balance_opt.simulation.SimulationResult` (paper Fig. 4)."""
@@ -184,12 +171,35 @@ def peak_reaction_torques(simulation) -> dict[str, float]:
     return out
 
 
+#: ``BalanceResult.info`` entries left out of ``metrics.json`` (kept in the NPZ): large arrays.
+BULKY_INFO_KEYS = ("nlp_solution", "history")
+
+
+def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
+    """Status, iterations and wall times of the solver that produced a result, from its
+    ``info`` (keys of :meth:`balance_opt.planner.BalanceNLP.solve`); ``None`` where the method
+    has no such figure (the analytic law has no iterations)."""
+    wall = info.get("wall_time_s")
+    wall = wall if isinstance(wall, Mapping) else {}
+    return {
+        "status": info.get("status"),
+        "success": info.get("success"),
+        "iterations": info.get("iterations"),
+        "objective": info.get("objective"),
+        "max_constraint_violation": info.get("max_constraint_violation"),
+        "solve_time_s": wall.get("solve"),
+        "build_time_s": wall.get("build"),
+        "wall_time_s": wall or None,
+    }
+
+
 def method_metrics(result: BalanceResult, robot: FloatingRobot, simulation=None) -> dict[str, Any]:
     """Figures of merit of one plan, plain JSON data.
 
     Keys: the result's :meth:`~BalanceResult.summary`; ``limit_margins`` (per joint, see
-    :func:`limit_margins`) and ``min_limit_margin`` per kind; ``peak_joint_rates_rad_s`` per
-    joint; ``solver`` (status, iterations, solve time, when the method reports them); and, when a
+    :func:`limit_margins`), ``min_limit_margin`` and ``balance_limit_margin`` per kind;
+    ``peak_joint_rates_rad_s`` per joint; ``violations``; ``solver`` (:func:`solver_metrics`);
+    ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].
     """
@@ -204,15 +214,8 @@ def method_metrics(result: BalanceResult, robot: FloatingRobot, simulation=None)
                                    for kind in ("position", "velocity", "acceleration")}
     out["peak_joint_rates_rad_s"] = {n: float(rates[:, k].max()) for k, n in enumerate(names)}
     out["violations"] = [str(v) for v in result.violations]
-    info = result.info
-    out["solver"] = {
-        "status": _first(info, "status", "return_status"),
-        "success": _first(info, "success"),
-        "iterations": _first(info, "iterations", "iter_count"),
-        "solve_time_s": _first(info, "solve_time_s", "wall_time_solve_s", "t_wall_total"),
-        "build_time_s": _first(info, "build_time_s", "wall_time_build_s"),
-        "wall_time_s": _first(info, "wall_time_s"),
-    }
+    out["solver"] = solver_metrics(result.info)
+    out["details"] = {k: v for k, v in result.info.items() if k not in BULKY_INFO_KEYS}
     if simulation is not None:
         sim = simulation.as_balance_result("simulation")
         out["simulation"] = {

@@ -15,6 +15,8 @@ import math
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from .result import LIMIT_TOLERANCE
+
 #: Order and labels of the methods in the table.
 METHOD_LABELS = {
     "mission-only": "Mission arm alone (Phase I)",
@@ -63,7 +65,7 @@ def _deg(x):
 
 
 def _margin_class(x) -> str:
-    return "" if x is None else ("bad" if x < 0 else "good")
+    return "" if x is None else ("bad" if x < -LIMIT_TOLERANCE else "good")
 
 
 #: Rows of the comparison table: (label, getter of a method's metrics, cell class or None).

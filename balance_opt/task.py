@@ -20,15 +20,22 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from dataclasses import dataclass, field, replace
+from dataclasses import MISSING, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, Mapping
 
 import numpy as np
 
+from .balance_law import BalanceLawOptions
+from .collocation import TRANSCRIPTIONS
 from .errors import ArmError, InfeasibleLimitsError, InputError, JointError, TrajectoryError, URDFLoadError
 from .result import LIMIT_TOLERANCE, find_limit_violations
+from .nlp_model import CONTROLS
+from .planner import GUESSES, CostWeights, PlannerOptions
 from .robot import LIMIT_KEYS, FloatingRobot
+from .rollout import INTEGRATION_METHODS, IntegrationOptions
+from .simulation import CONTROLLERS, SimulationOptions
+from .simulation import INTEGRATORS as SIMULATION_INTEGRATORS
 from .trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from .typed_config import from_data, json_schema, reference_markdown, setting
 from .yaml_lines import TaskFileError, YamlDocument, load_yaml
@@ -39,6 +46,9 @@ log = logging.getLogger(__name__)
 LIMIT_CHECK_RATE = 200.0
 #: Fewest samples used to check a mission trajectory against its limits.
 LIMIT_CHECK_MIN_SAMPLES = 501
+#: Spacing of the samples a task's results are written at [s] (the libraries' default is 1 ms:
+#: ten times more rows than a report needs).
+TASK_OUTPUT_STEP = 0.01
 SCHEMA_ID = "https://balance-opt.invalid/task.schema.json"
 
 
@@ -150,6 +160,166 @@ class LimitSpec:
     effort: float | None = setting(None, unit="N m", exclusive_minimum=0.0, doc="largest torque")
 
 
+def _default(cls, name: str):
+    """Default of field ``name`` of the option dataclass ``cls``: the library's own, so that a
+    task file and a Python call with no options do the same thing."""
+    f = cls.__dataclass_fields__[name]
+    return f.default_factory() if f.default is MISSING else f.default
+
+
+@dataclass(frozen=True, kw_only=True)
+class AnalyticSpec:
+    """The analytic balance law (Eq. 31, 32; :class:`~balance_opt.balance_law.BalanceLawOptions`)
+    and the integration of its rollout (:class:`~balance_opt.rollout.IntegrationOptions`)."""
+
+    damping_threshold: float = setting(
+        _default(BalanceLawOptions, "damping_threshold"), minimum=0.0,
+        doc="sigma_min(J_wB) below which damped least squares replaces the exact solve (0: always exact)")
+    max_damping: float = setting(_default(BalanceLawOptions, "max_damping"), minimum=0.0,
+                                 doc="damping at a singular J_wB (lambda_max)")
+    null_space_gain: float = setting(_default(BalanceLawOptions, "null_space_gain"), minimum=0.0, unit="1/s",
+                                     doc="gain of the null-space pull toward null_space_goal (redundant balance arms)")
+    null_space_goal: tuple[float, ...] | None = setting(
+        None, unit="rad", doc="null-space goal, one value per balance joint (default: middle of each joint's range)")
+    attitude_gain: float = setting(_default(BalanceLawOptions, "attitude_gain"), minimum=0.0, unit="1/s",
+                                   doc="gain K of the attitude feedback -K log(R_0^T R) (0: open loop)")
+    integrator: Literal[INTEGRATION_METHODS] = setting(
+        _default(IntegrationOptions, "method"), doc="adaptive (DOP853, error-controlled) or rk4 (fixed step)")
+    rtol: float = setting(_default(IntegrationOptions, "rtol"), exclusive_minimum=0.0,
+                          doc="relative tolerance of the adaptive integrator")
+    atol: float = setting(_default(IntegrationOptions, "atol"), exclusive_minimum=0.0,
+                          doc="absolute tolerance of the adaptive integrator")
+    step: float | None = setting(None, unit="s", exclusive_minimum=0.0,
+                                 doc="largest integration step (rk4 default: output_step)")
+    output_step: float = setting(TASK_OUTPUT_STEP, unit="s", exclusive_minimum=0.0,
+                                 doc="spacing of the output samples")
+
+    def law_options(self, h0) -> BalanceLawOptions:
+        """The law's options, with the task's initial momentum ``h0``."""
+        return BalanceLawOptions(damping_threshold=self.damping_threshold, max_damping=self.max_damping,
+                                 null_space_gain=self.null_space_gain, null_space_goal=self.null_space_goal,
+                                 attitude_gain=self.attitude_gain, h0=tuple(float(x) for x in h0))
+
+    def integration_options(self) -> IntegrationOptions:
+        return IntegrationOptions(method=self.integrator, rtol=self.rtol, atol=self.atol, step=self.step,
+                                  output_step=self.output_step)
+
+
+@dataclass(frozen=True, kw_only=True)
+class WeightsSpec:
+    """Weights of the optimal planner's objective (:class:`~balance_opt.planner.CostWeights`)."""
+
+    omega: float = setting(_default(CostWeights, "omega"), minimum=0.0,
+                           doc="base angular rate, integral of |omega_b|^2 (the paper's goal)")
+    terminal: float = setting(_default(CostWeights, "terminal"), minimum=0.0,
+                              doc="final attitude error |log R_T|^2")
+    smoothness: float = setting(_default(CostWeights, "smoothness"), minimum=0.0,
+                                doc="integral of the squared control (balance accelerations or jerks)")
+    rest: float = setting(_default(CostWeights, "rest"), minimum=0.0,
+                          doc="pull toward rest_configuration, integral of |q_B - q_rest|^2")
+    attitude: float = setting(_default(CostWeights, "attitude"), minimum=0.0,
+                              doc="attitude error along the path, integral of |log R|^2")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ConstraintsSpec:
+    """Constraints of the optimal planner."""
+
+    position_limits: bool = setting(_default(PlannerOptions, "position_limits"),
+                                    doc="balance joints within their position limits (continuous motion)")
+    velocity_limits: bool = setting(_default(PlannerOptions, "velocity_limits"),
+                                    doc="balance joints within their velocity limits")
+    acceleration_limits: bool = setting(_default(PlannerOptions, "acceleration_limits"),
+                                        doc="balance joints within their acceleration limits")
+    torque_limits: bool = setting(_default(PlannerOptions, "torque_limits"),
+                                  doc="balance joint torques (free-floating inverse dynamics) within their effort limits")
+    terminal_attitude_bound: float | None = setting(None, unit="rad", exclusive_minimum=0.0,
+                                                    doc="hard bound on the final attitude error |log R_T|")
+    path_attitude_bound: float | None = setting(None, unit="rad", exclusive_minimum=0.0,
+                                                doc="hard bound on the attitude error |log R(t)| along the path")
+    rest_at_end: bool = setting(_default(PlannerOptions, "rest_at_end"), doc="balance arm at rest at the end")
+    final_configuration: tuple[float, ...] | None = setting(
+        None, unit="rad", doc="prescribed final balance configuration, one value per balance joint")
+
+
+@dataclass(frozen=True, kw_only=True)
+class OptimalSpec:
+    """The optimal planner: direct collocation solved by Ipopt (:class:`~balance_opt.planner.PlannerOptions`)."""
+
+    intervals: int = setting(_default(PlannerOptions, "intervals"), minimum=2, doc="collocation intervals N")
+    transcription: Literal[TRANSCRIPTIONS] = setting(_default(PlannerOptions, "transcription"),
+                                                     doc="collocation scheme")
+    control: Literal[CONTROLS] = setting(_default(PlannerOptions, "control"),
+                                         doc="control input: balance joint accelerations or jerks")
+    horizon: float | None = setting(None, unit="s", exclusive_minimum=0.0,
+                                    doc="planning horizon, at least the mission's duration (default: the mission's)")
+    initial_guess: Literal[GUESSES] = setting(GUESSES[0], doc="initial guess: the analytic law clipped to the "
+                                                              "limits, or the rest configuration")
+    weights: WeightsSpec = setting(factory=WeightsSpec, doc="objective weights")
+    rest_configuration: tuple[float, ...] | None = setting(
+        None, unit="rad", doc="q_rest of the rest weight, one value per balance joint (default: initial.balance)")
+    constraints: ConstraintsSpec = setting(factory=ConstraintsSpec, doc="constraints")
+    tolerance: float = setting(_default(PlannerOptions, "tolerance"), exclusive_minimum=0.0,
+                               doc="Ipopt's convergence tolerance (tol)")
+    max_iterations: int = setting(_default(PlannerOptions, "max_iterations"), minimum=0,
+                                  doc="Ipopt's iteration limit (max_iter)")
+    resample_step: float = setting(_default(PlannerOptions, "resample_step"), unit="s", exclusive_minimum=0.0,
+                                   doc="largest step of the fine grid the plan is re-simulated on")
+    ipopt: dict[str, int | float | str] = setting(factory=dict, doc="Ipopt options passed through, e.g. "
+                                                                    "{print_level: 5}")
+
+    def planner_options(self, extra_ipopt: Mapping[str, Any] | None = None) -> PlannerOptions:
+        """The planner's options; ``extra_ipopt`` (``--solver-option``) overrides ``ipopt``."""
+        c = self.constraints
+        return PlannerOptions(
+            intervals=self.intervals, transcription=self.transcription, control=self.control,
+            horizon=self.horizon, weights=CostWeights(**{f: getattr(self.weights, f)
+                                                         for f in WeightsSpec.__dataclass_fields__}),
+            rest_configuration=self.rest_configuration, position_limits=c.position_limits,
+            velocity_limits=c.velocity_limits, acceleration_limits=c.acceleration_limits,
+            torque_limits=c.torque_limits, terminal_attitude_bound=c.terminal_attitude_bound,
+            path_attitude_bound=c.path_attitude_bound, rest_at_end=c.rest_at_end,
+            final_configuration=c.final_configuration, tolerance=self.tolerance,
+            max_iterations=self.max_iterations, resample_step=self.resample_step,
+            ipopt={**self.ipopt, **(extra_ipopt or {})})
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimulationSpec:
+    """The forward-dynamics check of each plan (:class:`~balance_opt.simulation.SimulationOptions`)."""
+
+    integrator: Literal[SIMULATION_INTEGRATORS] = setting(
+        _default(SimulationOptions, "integrator"), doc="rk4 (fixed step dt) or dopri5 (adaptive)")
+    dt: float = setting(_default(SimulationOptions, "dt"), unit="s", exclusive_minimum=0.0,
+                        doc="integration step (dopri5: first step)")
+    rtol: float = setting(_default(SimulationOptions, "rtol"), exclusive_minimum=0.0, doc="dopri5 relative tolerance")
+    atol: float = setting(_default(SimulationOptions, "atol"), exclusive_minimum=0.0, doc="dopri5 absolute tolerance")
+    max_step: float = setting(_default(SimulationOptions, "max_step"), unit="s", exclusive_minimum=0.0,
+                              doc="dopri5 largest step")
+    output_dt: float | None = setting(TASK_OUTPUT_STEP, unit="s", exclusive_minimum=0.0,
+                                      doc="time between output samples (none: every rk4 step)")
+    controller: Literal[CONTROLLERS] = setting(_default(SimulationOptions, "controller"),
+                                               doc="joint controller: PD (the paper's) or computed torque + PD")
+    kp: float | tuple[float, ...] | None = setting(
+        None, unit="N m/rad", minimum=0.0, doc="proportional gains, one or one per arm joint (default: from bandwidth)")
+    kd: float | tuple[float, ...] | None = setting(
+        None, unit="N m s/rad", minimum=0.0, doc="derivative gains, one or one per arm joint (default: from bandwidth)")
+    bandwidth: float = setting(_default(SimulationOptions, "bandwidth"), unit="rad/s", exclusive_minimum=0.0,
+                               doc="natural frequency of the default gains")
+    damping_ratio: float = setting(_default(SimulationOptions, "damping_ratio"), exclusive_minimum=0.0,
+                                   doc="damping ratio of the default gains")
+    clip_torque: bool = setting(_default(SimulationOptions, "clip_torque"),
+                                doc="saturate joint torques at their effort limits")
+
+    def simulation_options(self, h0) -> SimulationOptions:
+        """The simulator's options, with the task's initial momentum ``h0``."""
+        return SimulationOptions(integrator=self.integrator, dt=self.dt, rtol=self.rtol, atol=self.atol,
+                                 max_step=self.max_step, output_dt=self.output_dt, controller=self.controller,
+                                 kp=self.kp, kd=self.kd, bandwidth=self.bandwidth,
+                                 damping_ratio=self.damping_ratio, clip_torque=self.clip_torque,
+                                 h0=tuple(float(x) for x in h0))
+
+
 @dataclass(frozen=True, kw_only=True)
 class OutputsSpec:
     """Which files ``balance-opt plan`` writes."""
@@ -171,6 +341,9 @@ class TaskSpec:
     mission: MissionSpec = setting(doc="the mission arm's trajectory")
     initial: InitialSpec = setting(factory=InitialSpec, doc="state at t = 0")
     limits: dict[str, LimitSpec] = setting(factory=dict, doc="limit overrides, by joint name (NAME: a joint of an arm)")
+    analytic: AnalyticSpec = setting(factory=AnalyticSpec, doc="the analytic balance law")
+    optimal: OptimalSpec = setting(factory=OptimalSpec, doc="the optimal planner")
+    simulation: SimulationSpec = setting(factory=SimulationSpec, doc="the forward-dynamics simulation")
     outputs: OutputsSpec = setting(factory=OutputsSpec, doc="files to write")
 
 
@@ -263,6 +436,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     task = Task(spec, doc.source, base_dir, sha256, robot, mission, q_B0,
                 np.asarray(spec.initial.momentum, dtype=float), doc)
     _check_limits(task)
+    _check_options(task)
     log.debug("task %s: %r, mission %.3g s", doc.source, robot, mission.duration)
     return task
 
@@ -374,8 +548,17 @@ def _build_mission(spec: TaskSpec, doc: YamlDocument, base_dir: Path, robot: Flo
 
 def _cartesian_mission(m: CartesianMission, doc: YamlDocument, robot: FloatingRobot,
                        start: np.ndarray) -> JointTrajectory:
-    raise doc.error(("mission", "type"), "Cartesian missions need the inverse kinematics of issue 3, "
-                                         "not available in this version")
+    """Inverse kinematics to the goal pose (base at its initial pose), then point to point."""
+    import pinocchio as pin
+
+    from .trajectories import cartesian_goal
+
+    rotation = None if m.orientation is None else pin.rpy.rpyToMatrix(*m.orientation)
+    try:
+        return cartesian_goal(robot, start, m.position, m.duration, orientation=rotation)
+    except TrajectoryError as exc:
+        raise TaskTrajectoryError(doc.source, doc.line_of(("mission", "position")), ("mission", "position"),
+                                  str(exc)) from None
 
 
 def _initial_balance(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> np.ndarray:
@@ -419,6 +602,54 @@ def _check_limits(task: Task) -> None:
                                        f"follows it as given: {v} (limit from "
                                        f"{_limit_source(task, v.joint, key)}); no plan can meet them",
                          TaskLimitsError)
+
+
+def _check_options(task: Task) -> None:
+    """Sizes of per-joint options, and the option objects of each method built once, so that
+    their own checks fail here, located, rather than after planning started."""
+    robot, spec = task.robot, task.spec
+    n_B = robot.balance_indices.size
+    names = ", ".join(robot.joint_names[i] for i in robot.balance_indices)
+    per_balance = ((("analytic", "null_space_goal"), spec.analytic.null_space_goal),
+                   (("optimal", "rest_configuration"), spec.optimal.rest_configuration),
+                   (("optimal", "constraints", "final_configuration"), spec.optimal.constraints.final_configuration))
+    for path, values in per_balance:
+        if values is not None:
+            _check_length(task.document, path, values, n_B, f"one per balance joint: {names}")
+    for key in ("kp", "kd"):
+        value = getattr(spec.simulation, key)
+        if isinstance(value, tuple) and len(value) not in (1, robot.n):
+            raise task.error(("simulation", key), f"expected one gain or {robot.n} (one per arm joint: "
+                                                  f"{', '.join(robot.joint_names)}), got {len(value)}")
+    horizon = spec.optimal.horizon
+    if horizon is not None and horizon < task.duration:
+        raise task.error(("optimal", "horizon"), f"the horizon ({horizon:g} s) is shorter than the mission "
+                                                 f"({task.duration:g} s)")
+    final = spec.optimal.constraints.final_configuration
+    if final is not None and spec.optimal.constraints.position_limits:
+        lim = robot.limits.subset(robot.balance_indices)
+        for k, value in enumerate(final):
+            if not lim.lower[k] - LIMIT_TOLERANCE <= value <= lim.upper[k] + LIMIT_TOLERANCE:
+                j = robot.joint_names[robot.balance_indices[k]]
+                raise task.error(("optimal", "constraints", "final_configuration", k),
+                                 f"balance joint '{j}' must end at {value:g} rad, outside its position limits "
+                                 f"[{lim.lower[k]:g}, {lim.upper[k]:g}] rad; no plan can meet them", TaskLimitsError)
+    for section, build in (("analytic", lambda: (spec.analytic.law_options(task.h0),
+                                                 spec.analytic.integration_options())),
+                           ("optimal", spec.optimal.planner_options),
+                           ("simulation", lambda: spec.simulation.simulation_options(task.h0))):
+        try:
+            build()
+        except InputError as exc:
+            raise task.error((section,), str(exc)) from None
+
+
+def check_optimal_supported(task: Task) -> None:
+    """The optimal planner assumes zero initial momentum (``nlp_model``): say so, located at
+    ``initial.momentum``, before anything is computed."""
+    if np.any(task.h0 != 0.0):
+        raise task.error(("initial", "momentum"), "the optimal planner assumes zero initial momentum; "
+                                                  "plan this task with --method analytic")
 
 
 # =========================================================================================== schema

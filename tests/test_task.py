@@ -140,7 +140,7 @@ BAD_TASKS = [
      "mission.goal[1]: expected a number, got 'x' (a string)", TaskFileError),
     ("unknown top-level key", [("mission:\n", "mision:\n")], "^mision:",
      "mision: unknown key 'mision'; expected one of name, description, robot, arms, mission, initial, "
-     "limits, outputs; did you mean 'mission'?", TaskFileError),
+     "limits, analytic, optimal, simulation, outputs; did you mean 'mission'?", TaskFileError),
     ("unknown nested key", [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {accel: 2.0}")],
      "balance_joint1: {accel", "limits.balance_joint1.accel: unknown key 'accel'; expected one of lower, upper, "
      "velocity, acceleration, effort; did you mean 'acceleration'?", TaskFileError),

@@ -1,0 +1,277 @@
+"""The command line end to end through ``main([...])``: both examples with fast settings (files,
+metrics, exit codes), a table of bad inputs (exit 2, the culprit named), no overwrite without
+``--force``, and a solver failure (exit 1, outputs still written)."""
+
+import csv
+import hashlib
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from balance_opt.cli import main, parse_solver_option
+from balance_opt.outputs import read_npz_result
+from balance_opt.resources import shipped_urdf
+from balance_opt.task import task_json_schema
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+
+#: Fast settings appended to the test copies of the examples: short moves, few intervals,
+#: coarse output grids.
+FAST_OPTIONS = """
+analytic: {output_step: 0.05}
+optimal: {intervals: 12}
+simulation: {dt: 0.002, output_dt: 0.05}
+"""
+PLAN_FILES = {f"{m}.{ext}" for m in ("mission-only", "analytic", "optimal") for ext in ("csv", "npz")}
+FIGURES = {"attitude_plans.png", "balance_joints.png"}
+SIMULATION_FIGURES = {"attitude_simulated.png", "reaction_torque.png"}
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def _fast_paper(tmp_path: Path, extra: str = "") -> Path:
+    text = (EXAMPLES / "paper_capture.yaml").read_text()
+    text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]").replace("duration: 10.0", "duration: 3.0")
+    return _write(tmp_path / "paper_fast.yaml", text + FAST_OPTIONS + extra)
+
+
+def _fast_baxter(tmp_path: Path) -> Path:
+    text = (EXAMPLES / "baxter_floating.yaml").read_text()
+    text = text.replace("goal: [-0.6, -0.2, -0.5, 1.3, 0.4, 0.6, 0.3]", "goal: [-0.2, -0.4, -0.2, 0.9, 0.1, 1.1, 0.1]")
+    text = text.replace("duration: 8.0", "duration: 2.0")
+    return _write(tmp_path / "baxter_fast.yaml", text + FAST_OPTIONS.replace("intervals: 12", "intervals: 8"))
+
+
+def _metrics(out: Path) -> dict:
+    return json.loads((out / "metrics.json").read_text())
+
+
+def _check_csv(path: Path, joints) -> np.ndarray:
+    with path.open() as fh:
+        rows = list(csv.reader(fh))
+    header = rows[0]
+    assert header == ["time", *joints, "base_qx", "base_qy", "base_qz", "base_qw", "base_roll", "base_pitch",
+                      "base_yaw", "base_angle"]
+    data = np.array(rows[1:], dtype=float)
+    assert data[0, 0] == 0.0 and np.all(np.diff(data[:, 0]) > 0)
+    np.testing.assert_allclose(np.linalg.norm(data[:, -8:-4], axis=1), 1.0, rtol=0, atol=1e-12)
+    return data
+
+
+# ----------------------------------------------------------------------------------- small commands
+def test_validate_both_examples(capsys):
+    assert main(["validate", str(EXAMPLES / "paper_capture.yaml"), str(EXAMPLES / "baxter_floating.yaml")]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"paper_capture\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
+                     r"mission ptp, 10 s\)", err)
+    assert "baxter_floating.yaml: ok (robot baxter, mission 7 joints; balance 7 joints" in err
+
+
+@pytest.mark.parametrize("argv", [["validate", "--schema"], ["schema"]])
+def test_schema_is_printed(capsys, argv):
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out) == json.loads(json.dumps(task_json_schema()))
+
+
+def test_inspect_without_and_with_a_task(capsys):
+    assert main(["inspect"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("robot paper_robot") and "coupling at q = [0, 0, 0, 0, 0, 0]" in out
+    assert main(["inspect", str(EXAMPLES / "paper_capture.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("task paper_capture (") and "coupling at q = [0, 0.3, -0.6, 0, 0.5, -1]" in out
+
+
+def test_solver_option_values_are_typed():
+    assert parse_solver_option("max_iter=100") == ("max_iter", 100)
+    assert parse_solver_option("tol=1e-6") == ("tol", 1e-6)
+    assert parse_solver_option("mu_strategy = monotone") == ("mu_strategy", "monotone")
+
+
+def test_usage_error_is_exit_2(capsys):
+    assert main(["plan"]) == 2
+    assert "the following arguments are required: task" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------- end to end
+def test_plan_paper_both_methods_simulated(tmp_path, capsys):
+    task = _fast_paper(tmp_path)
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "--method", "both", "--simulate", "--output", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "optimal plan (N = 12, hermite-simpson, Ipopt) ..." in err  # progress
+    assert f"report: {out / 'report.html'}" in err
+    files = {p.name for p in out.iterdir()}
+    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | {"metrics.json", "report.html"}
+
+    joints = ["mission_joint1", "mission_joint2", "mission_joint3", "balance_joint1", "balance_joint2", "balance_joint3"]
+    data = _check_csv(out / "optimal.csv", joints)
+    npz = read_npz_result(out / "optimal.npz")
+    np.testing.assert_allclose(data[:, 1:7], np.hstack([npz.q_M, npz.q_B]), rtol=0, atol=0)
+    np.testing.assert_allclose(data[:, -1], npz.angle, rtol=0, atol=1e-15)
+
+    m = _metrics(out)
+    assert m["task"] == {"file": str(task), "name": "paper_capture",
+                         "sha256": hashlib.sha256(task.read_bytes()).hexdigest()}
+    assert set(m["versions"]) >= {"balance-opt", "pinocchio", "casadi", "ipopt"}
+    assert re.fullmatch(r"\d+\.\d+\.\d+", m["versions"]["ipopt"])
+    assert m["failures"] == {}
+    ref, analytic, optimal = (m["methods"][k] for k in ("mission-only", "analytic", "optimal"))
+    assert ref["peak_balance_rate_rad_s"] == 0.0  # Phase I: the balance arm is held
+    assert optimal["solver"]["status"] == "Solve_Succeeded" and optimal["solver"]["iterations"] > 0
+    assert optimal["solver"]["solve_time_s"] > 0
+    assert analytic["solver"]["iterations"] is None
+    assert optimal["limit_violations"] == 0 and optimal["violations"] == []
+    assert min(optimal["balance_limit_margin"].values()) > -1e-6
+    # the optimal plan keeps the base stiller than the mission arm alone would leave it
+    assert optimal["max_drift_rad"] < ref["max_drift_rad"]
+    assert optimal["final_drift_rad"] < ref["final_drift_rad"]
+    for method in (ref, analytic, optimal):
+        assert method["max_momentum_residual"] < 1e-9
+        sim = method["simulation"]
+        assert sim["max_relative_momentum_residual"] < 1e-6
+        # the simulated drift is the plan's, up to what the tracking error allows
+        assert abs(sim["max_drift_rad"] - method["max_drift_rad"]) < 0.1 * method["max_drift_rad"]
+        assert set(sim["peak_reaction_torque_Nm"]) == {"mission", "balance", "total"}
+    report = (out / "report.html").read_text()
+    assert report.count("data:image/png;base64,") == 4
+    assert "<th>Analytic law (Eq. 31)</th><th>Optimal planner</th>" in report
+
+
+def test_compare_baxter(tmp_path, capsys):
+    task = _fast_baxter(tmp_path)
+    out = tmp_path / "bax"
+    assert main(["compare", str(task), "-o", str(out)]) == 0
+    files = {p.name for p in out.iterdir()}
+    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | {"metrics.json", "report.html"}
+    _check_csv(out / "analytic.csv", [*(f"left_{j}" for j in ("s0", "s1", "e0", "e1", "w0", "w1", "w2")),
+                                      *(f"right_{j}" for j in ("s0", "s1", "e0", "e1", "w0", "w1", "w2"))])
+    m = _metrics(out)
+    ref, analytic, optimal = (m["methods"][k] for k in ("mission-only", "analytic", "optimal"))
+    # a redundant, well-conditioned balance arm: the exact law cancels the rotation ...
+    assert analytic["max_drift_rad"] < 1e-9 < ref["max_drift_rad"]
+    # ... and the balance arm cancels the mission arm's torque on the base in the simulation
+    torque = analytic["simulation"]["peak_reaction_torque_Nm"]
+    assert torque["total"] < 0.2 * torque["mission"]
+    # ... but it breaks the acceleration limits of this fast move, which the optimal plan meets
+    assert analytic["limit_violations"] > 0 and analytic["balance_limit_margin"]["acceleration"] < 0
+    assert optimal["limit_violations"] == 0
+    assert optimal["max_drift_rad"] < 0.5 * ref["max_drift_rad"]
+    assert "left_s0" in optimal["peak_joint_rates_rad_s"]
+
+
+# ----------------------------------------------------------------------------------- bad input
+def _paper_text() -> str:
+    return (EXAMPLES / "paper_capture.yaml").read_text()
+
+
+def _sub(old: str, new: str):
+    def edit(text: str, tmp_path: Path) -> str:
+        assert old in text, old
+        return text.replace(old, new, 1)
+    return edit
+
+
+def _csv_mission(text: str, tmp_path: Path) -> str:
+    (tmp_path / "mission.csv").write_text("time,mission_joint1,mission_joint2,mission_joint3\n0,0,0.3,-0.6\n"
+                                          "1,0.1,oops,-0.6\n")
+    return re.sub(r"mission:\n  type: ptp\n.*?\n\n", "mission:\n  type: csv\n  file: mission.csv\n\n", text, flags=re.S)
+
+
+#: (case, edit of the paper example, regex of the line the error names, message after "FILE:LINE: ")
+BAD_INPUTS = [
+    ("wrong type", _sub("duration: 10.0", "duration: long"), r"  duration: long",
+     "mission.duration: expected a number, got 'long' (a string)"),
+    ("unknown key", _sub("initial:\n", "initial:\n  velocity: [0, 0, 0]\n"), r"  velocity:",
+     "initial.velocity: unknown key 'velocity'; expected one of balance, momentum"),
+    ("missing file", _sub("shipped: paper_robot.urdf", "urdf: robots/none.urdf"), r"  urdf:",
+     "robot.urdf: no such URDF file: {dir}/robots/none.urdf"),
+    ("unknown joint", _sub("mission: [mission_joint1,", "mission: [mission_jiont1,"), r"  mission: \[",
+     "arms.mission[0]: joint 'mission_jiont1' in {urdf}: no such joint in the URDF (arm 'mission'); "
+     "did you mean 'mission_joint1'"),
+    ("negative duration", _sub("duration: 10.0", "duration: -10.0"), r"  duration:",
+     "mission.duration: must be greater than 0 s, got -10"),
+    ("limits no plan can meet", _sub("balance_joint3: {acceleration: 2.0}",
+                                     "balance_joint3: {acceleration: 2.0, lower: -0.5}"),
+     r"  balance: \[0.0",
+     "initial.balance[2]: balance joint 'balance_joint3' starts at -1 rad, outside its position limits "
+     "[-0.5, 2.5] rad (lower limit from limits.balance_joint3.lower); no plan can meet them"),
+    ("final configuration outside the limits", _sub("limits:", "optimal:\n  constraints: {final_configuration: "
+                                                               "[0, 0, 3]}\nlimits:"),
+     r"  constraints:", "optimal.constraints.final_configuration[2]: balance joint 'balance_joint3' must end "
+                       "at 3 rad, outside its position limits [-2.5, 2.5] rad; no plan can meet them"),
+    ("malformed CSV", _csv_mission, r"  file: mission.csv",
+     "mission.file: {dir}/mission.csv: line 3, column 'mission_joint2': not a number: 'oops'"),
+]
+
+
+@pytest.mark.parametrize("edit, line_pattern, message", [c[1:] for c in BAD_INPUTS], ids=[c[0] for c in BAD_INPUTS])
+def test_bad_input_is_exit_2_naming_the_culprit(tmp_path, capsys, edit, line_pattern, message):
+    text = edit(_paper_text(), tmp_path)
+    task = _write(tmp_path / "task.yaml", text)
+    line = next(i for i, s in enumerate(text.splitlines(), 1) if re.match(line_pattern, s))
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "-o", str(out)]) == 2
+    expected = f"balance-opt: error: {task}:{line}: " + message.format(dir=tmp_path, urdf=shipped_urdf())
+    err = capsys.readouterr().err
+    assert expected in err, err
+    assert not out.exists()  # checked before anything is computed or written
+
+
+def test_bad_solver_option_is_exit_2(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["plan", str(_fast_paper(tmp_path)), "-o", str(out), "--solver-option", "max_iter"]) == 2
+    assert "--solver-option 'max_iter': expected KEY=VALUE" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_existing_output_is_not_overwritten_without_force(tmp_path, capsys):
+    task = _fast_paper(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    keep = _write(out / "notes.txt", "mine")
+    old_metrics = _write(out / "metrics.json", "{}")
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out)]) == 2
+    assert f"output directory {out} exists and is not empty; nothing was written" in capsys.readouterr().err
+    assert {p.name for p in out.iterdir()} == {"notes.txt", "metrics.json"}
+    assert old_metrics.read_text() == "{}" and keep.read_text() == "mine"
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out), "--force"]) == 0
+    assert keep.read_text() == "mine"
+    assert set(_metrics(out)["methods"]) == {"mission-only", "analytic"}
+
+
+def test_solver_failure_is_exit_1_and_still_written(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["plan", str(_fast_paper(tmp_path)), "-m", "optimal", "-o", str(out), "--solver-option", "max_iter=1"])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert re.search(r"balance-opt: solver failure \(optimal\): Ipopt stopped with status "
+                     r"'Maximum_Iterations_Exceeded' after 1 iterations; largest constraint violation: ", err)
+    m = _metrics(out)
+    assert set(m["failures"]) == {"optimal"}
+    assert m["methods"]["optimal"]["solver"]["status"] == "Maximum_Iterations_Exceeded"
+    assert m["methods"]["optimal"]["details"]["options"]["ipopt"] == {"max_iter": 1}
+    assert {"optimal.csv", "optimal.npz", "report.html"} <= {p.name for p in out.iterdir()}
+    assert "Maximum_Iterations_Exceeded" in (out / "report.html").read_text()
+
+
+def test_quiet_prints_errors_only(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["plan", str(_fast_paper(tmp_path)), "-m", "analytic", "-o", str(out), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+    assert (out / "report.html").is_file()
+
+
+def test_outputs_can_be_switched_off(tmp_path):
+    task = _fast_paper(tmp_path, "outputs: {csv: false, npz: false, plots: false}\n")
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out), "-q"]) == 0
+    assert {p.name for p in out.iterdir()} == {"metrics.json", "report.html"}
+    assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
