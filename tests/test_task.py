@@ -246,7 +246,7 @@ def test_schema_and_validator_agree_on_the_examples_and_on_bad_input():
     schema = task_json_schema()
     jsonschema.Draft202012Validator.check_schema(schema)
     validator = jsonschema.Draft202012Validator(schema)
-    for path in sorted(EXAMPLES.glob("*.yaml")):
+    for path in (EXAMPLES / "paper_capture.yaml", EXAMPLES / "baxter_floating.yaml"):
         assert list(validator.iter_errors(yaml.safe_load(path.read_text()))) == [], path
     good = yaml.safe_load(PAPER)
     for bad_edit in (
