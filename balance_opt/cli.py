@@ -175,9 +175,15 @@ def _cmd_compare(args) -> int:
 def _cmd_paper_figures(args) -> int:
     from .pipeline import paper_figures
 
+    task = None
+    if args.task is not None:
+        from .task import load_task
+
+        task = load_task(args.task)
+    solver_options = _solver_options(args)
     output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / "paper_figures"
     check_output_dir(output, args.force)
-    files = paper_figures(output, task_path=args.task, solver_options=_solver_options(args))
+    files = paper_figures(output, task=task, solver_options=solver_options)
     log.info("wrote %d files to %s", len(files), output)
     return EXIT_OK
 
@@ -241,7 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("paper-figures", help="the paper's study: Figs 2-5 on the Table 1 robot")
     _run_options(p, task_required=False)
-    p.add_argument("--task", help="task file of the study (default: examples/paper_capture.yaml's content)")
+    p.add_argument("--task", help="task file whose analytic, optimal and simulation options the study uses "
+                                  "(its robot and mission are ignored: the study is the paper's scenario)")
     p.set_defaults(run=_cmd_paper_figures)
 
     for subparser in sub.choices.values():

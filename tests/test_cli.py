@@ -275,3 +275,36 @@ def test_outputs_can_be_switched_off(tmp_path):
     assert main(["plan", str(task), "-m", "analytic", "-o", str(out), "-q"]) == 0
     assert {p.name for p in out.iterdir()} == {"metrics.json", "report.html"}
     assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
+
+
+def test_simulate_one_method(tmp_path):
+    out = tmp_path / "out"
+    assert main(["simulate", str(_fast_paper(tmp_path)), "-m", "analytic", "-o", str(out), "-q"]) == 0
+    files = {p.name for p in out.iterdir()}
+    assert {"attitude_simulated.png", "reaction_torque.png"} <= files and "optimal.csv" not in files
+    sim = _metrics(out)["methods"]["analytic"]["simulation"]
+    assert sim["max_relative_momentum_residual"] < 1e-6 and sim["peak_reaction_torque_Nm"]["total"] > 0
+
+
+def test_paper_figures_with_fast_options(tmp_path):
+    out = tmp_path / "figs"
+    assert main(["paper-figures", "--task", str(_fast_paper(tmp_path)), "-o", str(out), "-q"]) == 0
+    stems = ("fig2_attitude_mission_arm", "fig3_attitude_balance_arm", "fig4_reaction_torque", "fig5_attitude_balanced")
+    assert {p.name for p in out.iterdir()} == {f"{s}.{e}" for s in stems for e in ("png", "pdf")} | {"study.json"}
+    study = json.loads((out / "study.json").read_text())
+    assert set(study["plans"]) == {"analytic", "optimal"}
+
+
+def test_api_example_runs_headless(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "api"
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    proc = subprocess.run([sys.executable, str(EXAMPLES / "compare_api.py"), str(_fast_paper(tmp_path)), str(out)],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(r"^optimal +[0-9.e-]+ +[0-9.e-]+ +0$", proc.stdout, re.M)
+    assert f"report: {out / 'report.html'}; solver failures: none" in proc.stdout
+    assert {"metrics.json", "report.html", "optimal.csv"} <= {p.name for p in out.iterdir()}
