@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT = 0, 1, 2
+DESCRIPTION = ("Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
+               "law and an optimal planner, compared.")
 DEFAULT_OUTPUT_ROOT = Path("results")
 _HANDLER_FLAG = "_balance_opt_cli"
 
@@ -209,7 +211,7 @@ def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) ->
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="balance-opt", description=__doc__.splitlines()[0],
+    parser = argparse.ArgumentParser(prog="balance-opt", description=DESCRIPTION,
                                      epilog="exit codes: 0 success, 2 bad input, 1 solver failure")
     _common_options(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -275,6 +275,11 @@ def test_schema_lists_every_key_with_its_description():
                                              "description": "duration of the move [s]"}
 
 
+def test_readme_reference_is_the_generated_one():
+    readme = (ROOT / "README.md").read_text()
+    assert task_reference_markdown() in readme
+
+
 def test_typed_spec_defaults():
     m = PtpMission(start=(0.0,), goal=(1.0,), duration=2.0)
     assert m.type == "ptp"
