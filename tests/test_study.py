@@ -1,0 +1,108 @@
+"""The figure functions and the paper's study: files written, curves named, physics of the
+numbers the study reports."""
+
+from types import SimpleNamespace
+
+import matplotlib as mpl
+import numpy as np
+import pytest
+from PIL import Image
+
+from balance_opt.plots import (
+    COLUMN_WIDTH,
+    attitude_figure,
+    curve_labels,
+    plan_colour,
+    reaction_torque_figure,
+)
+
+#: Smallest PNG resolution a journal accepts for line art [dpi].
+MIN_DPI = 200
+
+ATTITUDE_LABELS = ["roll [deg]", "pitch [deg]", "yaw [deg]"]
+TORQUE_LABELS = ["torque x [N m]", "torque y [N m]", "torque z [N m]"]
+
+
+def fake_attitude(rng, T=50):
+    t = np.linspace(0.0, 2.0, T)
+    return SimpleNamespace(t=t, rpy=np.cumsum(rng.normal(scale=1e-3, size=(T, 3)), axis=0))
+
+
+def fake_simulation(rng, T=50):
+    t = np.linspace(0.0, 2.0, T)
+    wrenches = {"mission": rng.normal(size=(T, 6)), "balance": rng.normal(size=(T, 6))}
+    return SimpleNamespace(
+        t=t, arm_wrenches=wrenches, total_wrench=wrenches["mission"] + wrenches["balance"]
+    )
+
+
+def check_files(paths, stem):
+    assert sorted(p.suffix for p in paths) == [".pdf", ".png"]
+    for p in paths:
+        assert p.with_suffix("") == stem and p.stat().st_size > 5000
+    png = Image.open(stem.with_suffix(".png"))
+    dpi = png.info["dpi"][0]
+    assert dpi >= MIN_DPI
+    assert png.size[0] / dpi == pytest.approx(COLUMN_WIDTH, abs=0.05)  # one paper column wide
+    assert stem.with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"
+
+
+# ------------------------------------------------------------------------------ figure functions
+def test_attitude_figure_writes_the_curves_it_names(tmp_path):
+    rng = np.random.default_rng(3)
+    results = {"analytic": fake_attitude(rng), "optimal": fake_attitude(rng)}
+    reference = {"mission-only": fake_attitude(rng)}
+    stem = tmp_path / "sub" / "attitude"
+    fig, paths = attitude_figure(results, stem, dashed=reference, title="test")
+    check_files(paths, stem)
+    assert [ax.get_ylabel() for ax in fig.axes] == ATTITUDE_LABELS
+    assert fig.axes[-1].get_xlabel() == "time [s]"
+    expected = ["analytic (damped LS)", "optimal plan", "mission arm alone"]
+    assert curve_labels(fig) == [expected] * 3
+    legend = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert sorted(x for x in legend if x.strip()) == sorted(expected)
+    for k, ax in enumerate(fig.axes):
+        lines = ax.get_lines()
+        for line, res in zip(lines, [*results.values(), *reference.values()]):
+            np.testing.assert_allclose(
+                line.get_ydata(), np.degrees(res.rpy[:, k]), rtol=0, atol=1e-12
+            )
+        assert lines[0].get_color() == plan_colour("analytic", 0) != lines[1].get_color()
+        assert lines[2].get_linestyle() == "--"
+
+
+def test_reaction_torque_figure_writes_per_arm_and_total(tmp_path):
+    rng = np.random.default_rng(4)
+    sims = {"analytic": fake_simulation(rng), "optimal": fake_simulation(rng)}
+    fig, paths = reaction_torque_figure(sims, tmp_path / "torque")
+    check_files(paths, tmp_path / "torque")
+    assert [ax.get_ylabel() for ax in fig.axes] == TORQUE_LABELS
+    parts = ["mission arm", "balance arm", "sum of arms"]
+    expected = [
+        f"{plan}: {part}" for plan in ("analytic (damped LS)", "optimal plan") for part in parts
+    ]
+    assert curve_labels(fig) == [expected] * 3
+    for k, ax in enumerate(fig.axes):
+        lines = {line.get_label(): line for line in ax.get_lines()}
+        sim = sims["optimal"]
+        np.testing.assert_allclose(
+            lines["optimal plan: sum of arms"].get_ydata(),
+            sim.total_wrench[:, 3 + k],
+            rtol=0,
+            atol=0,
+        )
+        np.testing.assert_allclose(
+            lines["optimal plan: mission arm"].get_ydata(),
+            sim.arm_wrenches["mission"][:, 3 + k],
+            rtol=0,
+            atol=0,
+        )
+
+
+def test_figures_leave_global_state_alone(tmp_path):
+    before = dict(mpl.rcParams)
+    attitude_figure(
+        {"analytic": fake_attitude(np.random.default_rng(0))}, tmp_path / "a", formats=("png",)
+    )
+    assert dict(mpl.rcParams) == before
+    assert not (tmp_path / "a.pdf").exists() and (tmp_path / "a.png").exists()
