@@ -26,8 +26,10 @@ import time
 from pathlib import Path
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT = 0, 1, 2
-DESCRIPTION = ("Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
-               "law and an optimal planner, compared.")
+DESCRIPTION = (
+    "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
+    "law and an optimal planner, compared."
+)
 DEFAULT_OUTPUT_ROOT = Path("results")
 _HANDLER_FLAG = "_balance_opt_cli"
 
@@ -70,8 +72,10 @@ def check_output_dir(path: Path, force: bool) -> Path:
     if path.exists() and not path.is_dir():
         raise InputError(f"output {path} exists and is not a directory")
     if path.is_dir() and any(path.iterdir()) and not force:
-        raise InputError(f"output directory {path} exists and is not empty; nothing was written. "
-                         f"Use --force to overwrite its files, or choose another --output")
+        raise InputError(
+            f"output directory {path} exists and is not empty; nothing was written. "
+            f"Use --force to overwrite its files, or choose another --output"
+        )
     return path
 
 
@@ -82,8 +86,11 @@ def _configure_logging(verbose: bool, quiet: bool) -> None:
         logger.removeHandler(h)
     handler = logging.StreamHandler(sys.stderr)
     setattr(handler, _HANDLER_FLAG, True)
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S")
-                         if verbose else logging.Formatter("%(message)s"))
+    handler.setFormatter(
+        logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S")
+        if verbose
+        else logging.Formatter("%(message)s")
+    )
     logger.addHandler(handler)
     logger.setLevel(logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO)
 
@@ -113,8 +120,14 @@ def _cmd_validate(args) -> int:
         task = load_task(path)
         robot = task.robot
         arms = "; ".join(f"{a.name} {a.dof} joints" for a in robot.arms)
-        log.info("%s: ok (robot %s, %s; mission %s, %.3g s)", path, robot.name, arms,
-                 task.spec.mission.type, task.duration)
+        log.info(
+            "%s: ok (robot %s, %s; mission %s, %.3g s)",
+            path,
+            robot.name,
+            arms,
+            task.spec.mission.type,
+            task.duration,
+        )
     return EXIT_OK
 
 
@@ -143,12 +156,20 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
     output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / task.name
     check_output_dir(output, args.force)
     started = time.perf_counter()
-    run = run_task(task, methods=methods, simulate=simulate,
-                   output_dir=output, solver_options=solver_options)
-    log.info("wrote %d files to %s in %.1f s", len(run.files), output, time.perf_counter() - started)
+    run = run_task(
+        task, methods=methods, simulate=simulate, output_dir=output, solver_options=solver_options
+    )
+    log.info(
+        "wrote %d files to %s in %.1f s", len(run.files), output, time.perf_counter() - started
+    )
     for name, res in run.results.items():
-        log.info("  %-13s max drift %.3g rad, final drift %.3g rad, %d limit violations", name,
-                 res.max_drift, res.final_drift, len(res.violations))
+        log.info(
+            "  %-13s max drift %.3g rad, final drift %.3g rad, %d limit violations",
+            name,
+            res.max_drift,
+            res.final_drift,
+            len(res.violations),
+        )
     if run.report is not None:
         log.info("report: %s", run.report)
     if run.failures:
@@ -194,32 +215,55 @@ def _cmd_paper_figures(args) -> int:
 def _common_options(parser: argparse.ArgumentParser, top: bool) -> None:
     """``-v``/``-q`` on the top parser and on every subcommand (either place works)."""
     default = False if top else argparse.SUPPRESS
-    parser.add_argument("-v", "--verbose", action="store_true", default=default, help="log debug messages")
-    parser.add_argument("-q", "--quiet", action="store_true", default=default, help="print errors only")
+    parser.add_argument(
+        "-v", "--verbose", action="store_true", default=default, help="log debug messages"
+    )
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", default=default, help="print errors only"
+    )
 
 
 def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) -> None:
     if task_required:
         parser.add_argument("task", help="task file (YAML)")
-    parser.add_argument("-o", "--output", metavar="DIR",
-                        help=f"output directory (default: {DEFAULT_OUTPUT_ROOT}/<task name>)")
-    parser.add_argument("-f", "--force", action="store_true",
-                        help="write into an existing, non-empty output directory (its files are overwritten)")
-    parser.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
-                        help="Ipopt option for the optimal planner (repeatable); overrides the task's "
-                             "optimal.ipopt; values are read as int, float or string")
+    parser.add_argument(
+        "-o",
+        "--output",
+        metavar="DIR",
+        help=f"output directory (default: {DEFAULT_OUTPUT_ROOT}/<task name>)",
+    )
+    parser.add_argument(
+        "-f",
+        "--force",
+        action="store_true",
+        help="write into an existing, non-empty output directory (its files are overwritten)",
+    )
+    parser.add_argument(
+        "--solver-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="Ipopt option for the optimal planner (repeatable); overrides the task's "
+        "optimal.ipopt; values are read as int, float or string",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="balance-opt", description=DESCRIPTION,
-                                     epilog="exit codes: 0 success, 2 bad input, 1 solver failure")
+    parser = argparse.ArgumentParser(
+        prog="balance-opt",
+        description=DESCRIPTION,
+        epilog="exit codes: 0 success, 2 bad input, 1 solver failure",
+    )
     _common_options(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("validate", help="check task files (everything short of planning)")
     p.add_argument("tasks", nargs="*", metavar="TASK", help="task files (YAML)")
-    p.add_argument("--schema", action="store_true", help="print the JSON Schema of task files and exit")
-    p.add_argument("--reference", action="store_true", help="print the task-file reference (Markdown) and exit")
+    p.add_argument(
+        "--schema", action="store_true", help="print the JSON Schema of task files and exit"
+    )
+    p.add_argument(
+        "--reference", action="store_true", help="print the task-file reference (Markdown) and exit"
+    )
     p.set_defaults(run=_cmd_validate)
 
     p = sub.add_parser("schema", help="print the JSON Schema of task files")
@@ -229,28 +273,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
     p.set_defaults(run=_cmd_inspect)
 
-    p = sub.add_parser("plan", help="plan the balance motion, write trajectories, metrics, figures, report")
+    p = sub.add_parser(
+        "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
+    )
     _run_options(p)
-    p.add_argument("-m", "--method", choices=("analytic", "optimal", "both"), default="both",
-                   help="planning method (default: both)")
-    p.add_argument("--simulate", action="store_true", help="also simulate each plan (as the simulate command)")
+    p.add_argument(
+        "-m",
+        "--method",
+        choices=("analytic", "optimal", "both"),
+        default="both",
+        help="planning method (default: both)",
+    )
+    p.add_argument(
+        "--simulate", action="store_true", help="also simulate each plan (as the simulate command)"
+    )
     p.set_defaults(run=_cmd_plan)
 
-    p = sub.add_parser("simulate", help="plan, then check each plan in a forward-dynamics simulation")
+    p = sub.add_parser(
+        "simulate", help="plan, then check each plan in a forward-dynamics simulation"
+    )
     _run_options(p)
-    p.add_argument("-m", "--method", choices=("analytic", "optimal", "both"), default="both",
-                   help="planning method (default: both)")
+    p.add_argument(
+        "-m",
+        "--method",
+        choices=("analytic", "optimal", "both"),
+        default="both",
+        help="planning method (default: both)",
+    )
     p.set_defaults(run=_cmd_simulate)
 
-    p = sub.add_parser("compare", help="analytic and optimal plans, simulated, and the comparison report")
+    p = sub.add_parser(
+        "compare", help="analytic and optimal plans, simulated, and the comparison report"
+    )
     _run_options(p)
-    p.add_argument("--no-simulate", action="store_true", help="skip the forward-dynamics simulation")
+    p.add_argument(
+        "--no-simulate", action="store_true", help="skip the forward-dynamics simulation"
+    )
     p.set_defaults(run=_cmd_compare)
 
     p = sub.add_parser("paper-figures", help="the paper's study: Figs 2-5 on the Table 1 robot")
     _run_options(p, task_required=False)
-    p.add_argument("--task", help="task file whose analytic, optimal and simulation options the study uses "
-                                  "(its robot and mission are ignored: the study is the paper's scenario)")
+    p.add_argument(
+        "--task",
+        help="task file whose analytic, optimal and simulation options the study uses "
+        "(its robot and mission are ignored: the study is the paper's scenario)",
+    )
     p.set_defaults(run=_cmd_paper_figures)
 
     for subparser in sub.choices.values():

@@ -21,9 +21,10 @@ import logging
 import math
 import os
 import platform
+from collections.abc import Mapping
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +50,9 @@ def ipopt_version() -> str:
 
     folder = os.path.dirname(casadi.__file__)
     patterns = ("libipopt.so*", "libipopt*.dylib", "libipopt*.dll", "ipopt*.dll")
-    candidates = sorted({p for pat in patterns for p in glob.glob(os.path.join(folder, pat))}, key=len)
+    candidates = sorted(
+        {p for pat in patterns for p in glob.glob(os.path.join(folder, pat))}, key=len
+    )
     for path in candidates:
         try:
             lib = ctypes.CDLL(path)
@@ -91,9 +94,17 @@ def software_versions() -> dict[str, str]:
 # =========================================================================================== trajectories
 def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
     """Column names and (T, k) values of the CSV of ``result`` (see the module docstring)."""
-    names = ["time", *result.mission_joints, *result.balance_joints, *QUATERNION_COLUMNS, *RPY_COLUMNS,
-             "base_angle"]
-    values = np.column_stack([result.t, result.q_M, result.q_B, result.quaternion, result.rpy, result.angle])
+    names = [
+        "time",
+        *result.mission_joints,
+        *result.balance_joints,
+        *QUATERNION_COLUMNS,
+        *RPY_COLUMNS,
+        "base_angle",
+    ]
+    values = np.column_stack(
+        [result.t, result.q_M, result.q_B, result.quaternion, result.rpy, result.angle]
+    )
     return names, values
 
 
@@ -112,12 +123,23 @@ def write_trajectory_npz(path: str | Path, result: BalanceResult) -> Path:
     """Write every array of ``result`` to a compressed ``.npz`` and return its path."""
     path = Path(path)
     np.savez_compressed(
-        path, method=result.method, t=result.t,
-        mission_joints=np.array(result.mission_joints), balance_joints=np.array(result.balance_joints),
-        q_M=result.q_M, q_dot_M=result.q_dot_M, q_ddot_M=result.q_ddot_M,
-        q_B=result.q_B, q_dot_B=result.q_dot_B, q_ddot_B=result.q_ddot_B,
-        quaternion=result.quaternion, rpy=result.rpy, angle=result.angle, omega=result.omega,
-        momentum_residual=result.momentum_residual, sigma_min=result.sigma_min,
+        path,
+        method=result.method,
+        t=result.t,
+        mission_joints=np.array(result.mission_joints),
+        balance_joints=np.array(result.balance_joints),
+        q_M=result.q_M,
+        q_dot_M=result.q_dot_M,
+        q_ddot_M=result.q_ddot_M,
+        q_B=result.q_B,
+        q_dot_B=result.q_dot_B,
+        q_ddot_B=result.q_ddot_B,
+        quaternion=result.quaternion,
+        rpy=result.rpy,
+        angle=result.angle,
+        omega=result.omega,
+        momentum_residual=result.momentum_residual,
+        sigma_min=result.sigma_min,
         info=json.dumps(to_json(result.info)),
     )
     return path
@@ -166,7 +188,10 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
 def peak_reaction_torques(simulation) -> dict[str, float]:
     """Largest norm of the torque each arm exerts on the base, and of their sum [N m], from a
     :class:`~balance_opt.simulation.SimulationResult` (paper Fig. 4)."""
-    out = {arm: float(np.linalg.norm(w[:, 3:], axis=1).max()) for arm, w in simulation.arm_wrenches.items()}
+    out = {
+        arm: float(np.linalg.norm(w[:, 3:], axis=1).max())
+        for arm, w in simulation.arm_wrenches.items()
+    }
     out["total"] = float(np.linalg.norm(simulation.total_wrench[:, 3:], axis=1).max())
     return out
 
@@ -208,10 +233,14 @@ def method_metrics(result: BalanceResult, robot: FloatingRobot, simulation=None)
     rates = np.abs(np.hstack([result.q_dot_M, result.q_dot_B]))
     out = dict(result.summary())
     out["limit_margins"] = margins
-    out["min_limit_margin"] = {kind: min(m[kind] for m in margins.values())
-                               for kind in ("position", "velocity", "acceleration")}
-    out["balance_limit_margin"] = {kind: min(margins[j][kind] for j in result.balance_joints)
-                                   for kind in ("position", "velocity", "acceleration")}
+    out["min_limit_margin"] = {
+        kind: min(m[kind] for m in margins.values())
+        for kind in ("position", "velocity", "acceleration")
+    }
+    out["balance_limit_margin"] = {
+        kind: min(margins[j][kind] for j in result.balance_joints)
+        for kind in ("position", "velocity", "acceleration")
+    }
     out["peak_joint_rates_rad_s"] = {n: float(rates[:, k].max()) for k, n in enumerate(names)}
     out["violations"] = [str(v) for v in result.violations]
     out["solver"] = solver_metrics(result.info)
@@ -224,26 +253,37 @@ def method_metrics(result: BalanceResult, robot: FloatingRobot, simulation=None)
             "max_tracking_error_rad": simulation.max_tracking_error,
             "max_relative_momentum_residual": float(simulation.momentum_residual.max()),
             "peak_reaction_torque_Nm": peak_reaction_torques(simulation),
-            "peak_joint_torque_Nm": {n: float(np.abs(simulation.tau[:, k]).max())
-                                     for k, n in enumerate(simulation.joint_names)},
+            "peak_joint_torque_Nm": {
+                n: float(np.abs(simulation.tau[:, k]).max())
+                for k, n in enumerate(simulation.joint_names)
+            },
             "wall_time_s": simulation.info.get("wall_time_s"),
         }
     return to_json(out)
 
 
-def run_metrics(task, results: Mapping[str, BalanceResult], simulations: Mapping[str, Any] | None = None,
-                failures: Mapping[str, str] | None = None) -> dict[str, Any]:
+def run_metrics(
+    task,
+    results: Mapping[str, BalanceResult],
+    simulations: Mapping[str, Any] | None = None,
+    failures: Mapping[str, str] | None = None,
+) -> dict[str, Any]:
     """The content of ``metrics.json``: the task (file, name, SHA-256), the versions, and
     :func:`method_metrics` of each result by method name; ``failures`` lists methods whose solver
     failed (their best iterate is among ``results``)."""
     simulations = simulations or {}
-    return to_json({
-        "format": METRICS_FORMAT,
-        "task": {"file": task.source, "name": task.name, "sha256": task.sha256},
-        "versions": software_versions(),
-        "methods": {name: method_metrics(r, task.robot, simulations.get(name)) for name, r in results.items()},
-        "failures": dict(failures or {}),
-    })
+    return to_json(
+        {
+            "format": METRICS_FORMAT,
+            "task": {"file": task.source, "name": task.name, "sha256": task.sha256},
+            "versions": software_versions(),
+            "methods": {
+                name: method_metrics(r, task.robot, simulations.get(name))
+                for name, r in results.items()
+            },
+            "failures": dict(failures or {}),
+        }
+    )
 
 
 def write_metrics(path: str | Path, metrics: Mapping[str, Any]) -> Path:
@@ -257,11 +297,19 @@ def read_npz_result(path: str | Path) -> BalanceResult:
     """Read back a result written by :func:`write_trajectory_npz` (violations are not kept)."""
     with np.load(path, allow_pickle=False) as z:
         return BalanceResult(
-            method=str(z["method"]), t=z["t"],
+            method=str(z["method"]),
+            t=z["t"],
             mission_joints=tuple(str(s) for s in z["mission_joints"]),
             balance_joints=tuple(str(s) for s in z["balance_joints"]),
-            q_M=z["q_M"], q_dot_M=z["q_dot_M"], q_ddot_M=z["q_ddot_M"],
-            q_B=z["q_B"], q_dot_B=z["q_dot_B"], q_ddot_B=z["q_ddot_B"],
-            quaternion=z["quaternion"], omega=z["omega"], momentum_residual=z["momentum_residual"],
-            sigma_min=z["sigma_min"], info=json.loads(str(z["info"])),
+            q_M=z["q_M"],
+            q_dot_M=z["q_dot_M"],
+            q_ddot_M=z["q_ddot_M"],
+            q_B=z["q_B"],
+            q_dot_B=z["q_dot_B"],
+            q_ddot_B=z["q_ddot_B"],
+            quaternion=z["quaternion"],
+            omega=z["omega"],
+            momentum_residual=z["momentum_residual"],
+            sigma_min=z["sigma_min"],
+            info=json.loads(str(z["info"])),
         )

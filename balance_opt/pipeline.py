@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -37,10 +38,22 @@ REFERENCE = "mission-only"
 METRICS_FILE = "metrics.json"
 REPORT_FILE = "report.html"
 FIGURES = {
-    "attitude": ("attitude_plans", "Base attitude of each plan (kinematic), with the mission arm alone (dashed)"),
-    "simulated_attitude": ("attitude_simulated", "Base attitude in the forward-dynamics simulation of each plan"),
-    "torque": ("reaction_torque", "Torque the arms exert on the base in the simulation (paper Fig. 4)"),
-    "joints": ("balance_joints", "Balance joint positions, rates and accelerations with their limits (dotted)"),
+    "attitude": (
+        "attitude_plans",
+        "Base attitude of each plan (kinematic), with the mission arm alone (dashed)",
+    ),
+    "simulated_attitude": (
+        "attitude_simulated",
+        "Base attitude in the forward-dynamics simulation of each plan",
+    ),
+    "torque": (
+        "reaction_torque",
+        "Torque the arms exert on the base in the simulation (paper Fig. 4)",
+    ),
+    "joints": (
+        "balance_joints",
+        "Balance joint positions, rates and accelerations with their limits (dotted)",
+    ),
 }
 
 
@@ -80,7 +93,9 @@ def plan_mission_only(task: Task) -> BalanceResult:
     from .phases import phase_one
 
     a = task.spec.analytic
-    return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration_options())
+    return phase_one(
+        task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration_options()
+    )
 
 
 def plan_analytic(task: Task) -> BalanceResult:
@@ -92,12 +107,21 @@ def plan_analytic(task: Task) -> BalanceResult:
     from .rollout import rollout
 
     a = task.spec.analytic
-    return rollout(task.robot, task.mission, task.q_B0, a.law_options(task.h0),
-                   integration=a.integration_options())
+    return rollout(
+        task.robot,
+        task.mission,
+        task.q_B0,
+        a.law_options(task.h0),
+        integration=a.integration_options(),
+    )
 
 
-def plan_optimal(task: Task, solver_options: Mapping[str, Any] | None = None,
-                 warm_start: BalanceResult | None = None, model=None) -> BalanceResult:
+def plan_optimal(
+    task: Task,
+    solver_options: Mapping[str, Any] | None = None,
+    warm_start: BalanceResult | None = None,
+    model=None,
+) -> BalanceResult:
     """The optimal planner with the task's options.
 
     Args:
@@ -117,7 +141,11 @@ def plan_optimal(task: Task, solver_options: Mapping[str, Any] | None = None,
     spec = task.spec.optimal
     options = spec.planner_options(solver_options)
     nlp = build_balance_nlp(model or _planner_model(task), task.mission, task.q_B0, options)
-    guess = warm_start if (warm_start is not None and spec.initial_guess == "analytic") else spec.initial_guess
+    guess = (
+        warm_start
+        if (warm_start is not None and spec.initial_guess == "analytic")
+        else spec.initial_guess
+    )
     return nlp.solve(guess)
 
 
@@ -158,8 +186,13 @@ def _timed(what: str):
     return _Timer()
 
 
-def run_task(task: Task, methods: Sequence[str] = METHODS, simulate: bool = False,
-             output_dir: str | Path | None = None, solver_options: Mapping[str, Any] | None = None) -> TaskRun:
+def run_task(
+    task: Task,
+    methods: Sequence[str] = METHODS,
+    simulate: bool = False,
+    output_dir: str | Path | None = None,
+    solver_options: Mapping[str, Any] | None = None,
+) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
     Args:
@@ -181,21 +214,30 @@ def run_task(task: Task, methods: Sequence[str] = METHODS, simulate: bool = Fals
     methods = tuple(dict.fromkeys(methods))
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
-        raise InputError(f"methods must be among {', '.join(METHODS)}, got {', '.join(methods) or 'none'}")
+        raise InputError(
+            f"methods must be among {', '.join(METHODS)}, got {', '.join(methods) or 'none'}"
+        )
     if "optimal" in methods:
         check_optimal_supported(task)
     run = TaskRun(task)
     with _timed(f"{task.name}: mission arm alone (Phase I)"):
         run.results[REFERENCE] = plan_mission_only(task)
     for method in methods:
-        with _timed(f"{task.name}: {method} plan" + (
+        with _timed(
+            f"{task.name}: {method} plan"
+            + (
                 f" (N = {task.spec.optimal.intervals}, {task.spec.optimal.transcription}, Ipopt)"
-                if method == "optimal" else "")):
+                if method == "optimal"
+                else ""
+            )
+        ):
             try:
                 if method == "analytic":
                     run.results[method] = plan_analytic(task)
                 else:
-                    run.results[method] = plan_optimal(task, solver_options, run.results.get("analytic"))
+                    run.results[method] = plan_optimal(
+                        task, solver_options, run.results.get("analytic")
+                    )
             except SolverError as exc:
                 log.error("%s plan failed: %s", method, exc)
                 run.failures[method] = str(exc)
@@ -203,17 +245,24 @@ def run_task(task: Task, methods: Sequence[str] = METHODS, simulate: bool = Fals
                     run.results[method] = exc.result
         res = run.results.get(method)
         if res is not None:
-            log.info("%s: max drift %.4g rad, final drift %.4g rad, %d limit violations", method,
-                     res.max_drift, res.final_drift, len(res.violations))
+            log.info(
+                "%s: max drift %.4g rad, final drift %.4g rad, %d limit violations",
+                method,
+                res.max_drift,
+                res.final_drift,
+                len(res.violations),
+            )
     if simulate:
         for name, res in run.results.items():
             with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
                 sim = simulate_result(task, res)
             diverged = _divergence(sim)
             if diverged:
-                message = (f"the forward-dynamics simulation of the {name} plan diverged ({diverged}); "
-                           f"try a smaller simulation.dt (now {task.spec.simulation.dt:g} s) or the "
-                           f"dopri5 integrator")
+                message = (
+                    f"the forward-dynamics simulation of the {name} plan diverged ({diverged}); "
+                    f"try a smaller simulation.dt (now {task.spec.simulation.dt:g} s) or the "
+                    f"dopri5 integrator"
+                )
                 log.error("%s", message)
                 run.failures[f"simulation of {name}"] = message
             else:
@@ -255,7 +304,9 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     if task_outputs.report:
         from .report import write_report
 
-        run.report = write_report(output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description)
+        run.report = write_report(
+            output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description
+        )
         files.append(run.report)
         if not task_outputs.plots:
             for _, path in figures:
@@ -274,8 +325,13 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     figures = []
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
     stem, caption = FIGURES["attitude"]
-    _, paths = attitude_figure(plans or run.results, output_dir / stem, dashed={REFERENCE: run.results[REFERENCE]}
-                               if plans else None, title="Base attitude", formats=("png",))
+    _, paths = attitude_figure(
+        plans or run.results,
+        output_dir / stem,
+        dashed={REFERENCE: run.results[REFERENCE]} if plans else None,
+        title="Base attitude",
+        formats=("png",),
+    )
     figures.append((caption, paths[0]))
     if plans:
         stem, caption = FIGURES["joints"]
@@ -284,20 +340,28 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     if run.simulations:
         sims = {k: v for k, v in run.simulations.items() if k != REFERENCE}
         stem, caption = FIGURES["simulated_attitude"]
-        _, paths = attitude_figure(sims or run.simulations, output_dir / stem,
-                                   dashed={REFERENCE: run.simulations[REFERENCE]} if sims else None,
-                                   title="Base attitude, forward dynamics", formats=("png",))
+        _, paths = attitude_figure(
+            sims or run.simulations,
+            output_dir / stem,
+            dashed={REFERENCE: run.simulations[REFERENCE]} if sims else None,
+            title="Base attitude, forward dynamics",
+            formats=("png",),
+        )
         figures.append((caption, paths[0]))
         if sims:
             stem, caption = FIGURES["torque"]
-            _, paths = reaction_torque_figure(sims, output_dir / stem, title="Torque on the base",
-                                              formats=("png",))
+            _, paths = reaction_torque_figure(
+                sims, output_dir / stem, title="Torque on the base", formats=("png",)
+            )
             figures.append((caption, paths[0]))
     return figures
 
 
-def paper_figures(output_dir: str | Path, task: Task | None = None,
-                  solver_options: Mapping[str, Any] | None = None) -> list[Path]:
+def paper_figures(
+    output_dir: str | Path,
+    task: Task | None = None,
+    solver_options: Mapping[str, Any] | None = None,
+) -> list[Path]:
     """The paper's study (Figs. 2-5, :func:`balance_opt.study.paper_study`) written to
     ``output_dir``; the options of the analytic law, the planner and the simulator come from
     ``task`` when given (its robot and mission must be the paper's: the study is that scenario)."""
@@ -305,9 +369,11 @@ def paper_figures(output_dir: str | Path, task: Task | None = None,
 
     kwargs = {}
     if task is not None:
-        kwargs = {"law": task.spec.analytic.law_options(task.h0),
-                  "planner": task.spec.optimal.planner_options(solver_options),
-                  "simulation": task.spec.simulation.simulation_options(task.h0)}
+        kwargs = {
+            "law": task.spec.analytic.law_options(task.h0),
+            "planner": task.spec.optimal.planner_options(solver_options),
+            "simulation": task.spec.simulation.simulation_options(task.h0),
+        }
     elif solver_options:
         from .planner import PlannerOptions
 

@@ -12,8 +12,9 @@ import base64
 import datetime
 import html
 import math
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 from .result import LIMIT_TOLERANCE
 
@@ -77,11 +78,26 @@ _ROWS: list[tuple[str, Callable[[Mapping], Any], Callable[[Any], str] | None]] =
     ("max angular momentum residual [N m s]", lambda m: _get(m, "max_momentum_residual"), None),
     ("Balance arm", None, None),
     ("peak balance joint rate [rad/s]", lambda m: _get(m, "peak_balance_rate_rad_s"), None),
-    ("position limit margin [rad]", lambda m: _get(m, "balance_limit_margin.position"), _margin_class),
-    ("velocity limit margin [rad/s]", lambda m: _get(m, "balance_limit_margin.velocity"), _margin_class),
-    ("acceleration limit margin [rad/s^2]", lambda m: _get(m, "balance_limit_margin.acceleration"), _margin_class),
-    ("limit violations (all arms)", lambda m: _get(m, "limit_violations"),
-     lambda x: "" if x is None else ("bad" if x > 0 else "good")),
+    (
+        "position limit margin [rad]",
+        lambda m: _get(m, "balance_limit_margin.position"),
+        _margin_class,
+    ),
+    (
+        "velocity limit margin [rad/s]",
+        lambda m: _get(m, "balance_limit_margin.velocity"),
+        _margin_class,
+    ),
+    (
+        "acceleration limit margin [rad/s^2]",
+        lambda m: _get(m, "balance_limit_margin.acceleration"),
+        _margin_class,
+    ),
+    (
+        "limit violations (all arms)",
+        lambda m: _get(m, "limit_violations"),
+        lambda x: "" if x is None else ("bad" if x > 0 else "good"),
+    ),
     ("smallest singular value of J_wB", lambda m: _get(m, "min_sigma_min"), None),
     ("Solver", None, None),
     ("status", lambda m: _get(m, "solver.status"), None),
@@ -90,22 +106,37 @@ _ROWS: list[tuple[str, Callable[[Mapping], Any], Callable[[Any], str] | None]] =
     ("Forward-dynamics simulation", None, None),
     ("max attitude drift [deg]", lambda m: _deg(_get(m, "simulation.max_drift_rad")), None),
     ("final attitude drift [deg]", lambda m: _deg(_get(m, "simulation.final_drift_rad")), None),
-    ("max joint tracking error [rad]", lambda m: _get(m, "simulation.max_tracking_error_rad"), None),
-    ("peak total reaction torque on the base [N m]",
-     lambda m: _get(m, "simulation.peak_reaction_torque_Nm.total"), None),
-    ("max relative momentum residual", lambda m: _get(m, "simulation.max_relative_momentum_residual"), None),
+    (
+        "max joint tracking error [rad]",
+        lambda m: _get(m, "simulation.max_tracking_error_rad"),
+        None,
+    ),
+    (
+        "peak total reaction torque on the base [N m]",
+        lambda m: _get(m, "simulation.peak_reaction_torque_Nm.total"),
+        None,
+    ),
+    (
+        "max relative momentum residual",
+        lambda m: _get(m, "simulation.max_relative_momentum_residual"),
+        None,
+    ),
 ]
 
 
 def comparison_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
     """HTML table, one column per method, rows of :data:`_ROWS` (empty sections left out)."""
-    order = [m for m in METHOD_LABELS if m in methods] + [m for m in methods if m not in METHOD_LABELS]
+    order = [m for m in METHOD_LABELS if m in methods] + [
+        m for m in methods if m not in METHOD_LABELS
+    ]
     head = "".join(f"<th>{html.escape(METHOD_LABELS.get(m, m))}</th>" for m in order)
     body, section, section_rows = [], None, []
 
     def flush():
         if section is not None and section_rows:
-            body.append(f'<tr class="section"><td colspan="{len(order) + 1}">{html.escape(section)}</td></tr>')
+            body.append(
+                f'<tr class="section"><td colspan="{len(order) + 1}">{html.escape(section)}</td></tr>'
+            )
             body.extend(section_rows)
 
     for label, getter, css in _ROWS:
@@ -136,12 +167,18 @@ def _violations(methods: Mapping[str, Mapping[str, Any]]) -> str:
 
 def _figure(title: str, png: Path) -> str:
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
-    return (f'<figure><img alt="{html.escape(title)}" src="data:image/png;base64,{data}">'
-            f"<figcaption>{html.escape(title)}</figcaption></figure>")
+    return (
+        f'<figure><img alt="{html.escape(title)}" src="data:image/png;base64,{data}">'
+        f"<figcaption>{html.escape(title)}</figcaption></figure>"
+    )
 
 
-def render_report(metrics: Mapping[str, Any], figures: Sequence[tuple[str, Path]] = (),
-                  description: str | None = None, extra_html: str = "") -> str:
+def render_report(
+    metrics: Mapping[str, Any],
+    figures: Sequence[tuple[str, Path]] = (),
+    description: str | None = None,
+    extra_html: str = "",
+) -> str:
     """The report as one HTML string.
 
     Args:
@@ -152,27 +189,34 @@ def render_report(metrics: Mapping[str, Any], figures: Sequence[tuple[str, Path]
     """
     task = metrics.get("task", {})
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())
-    failures = "".join(f'<p class="failure">{html.escape(k)}: {html.escape(v)}</p>'
-                       for k, v in (metrics.get("failures") or {}).items())
+    failures = "".join(
+        f'<p class="failure">{html.escape(k)}: {html.escape(v)}</p>'
+        for k, v in (metrics.get("failures") or {}).items()
+    )
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     parts = [
-        "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
         f"<title>balance-opt: {html.escape(str(task.get('name', 'report')))}</title>",
         f"<style>{_STYLE}</style></head><body>",
         f"<h1>balance-opt report: {html.escape(str(task.get('name', '')))}</h1>",
-        f'<p class="meta">task file <code>{html.escape(str(task.get("file", "")))}</code>, sha256 '
-        f'<code>{html.escape(str(task.get("sha256", ""))[:16])}</code>&hellip;; {stamp}; {html.escape(versions)}</p>',
+        (
+            f'<p class="meta">task file <code>{html.escape(str(task.get("file", "")))}</code>, sha256 '
+            f"<code>{html.escape(str(task.get('sha256', ''))[:16])}</code>&hellip;; {stamp}; {html.escape(versions)}</p>"
+        ),
     ]
     if description:
         parts.append(f"<p>{html.escape(description)}</p>")
     parts.append(failures)
     parts.append("<h2>Comparison</h2>")
     parts.append(comparison_table(metrics.get("methods", {})))
-    parts.append('<p class="meta">Attitude drift: rotation angle of the base from its initial attitude, '
-                 "|log(R<sub>0</sub><sup>T</sup> R)|. Margins are the smallest distance to a balance-joint "
-                 "limit over the motion (negative: the limit is broken). The plan rows are the kinematic "
-                 "motion each method produces (the optimal plan re-simulated on a fine grid); the "
-                 "simulation rows are the same plans tracked by joint controllers in forward dynamics.</p>")
+    parts.append(
+        '<p class="meta">Attitude drift: rotation angle of the base from its initial attitude, '
+        "|log(R<sub>0</sub><sup>T</sup> R)|. Margins are the smallest distance to a balance-joint "
+        "limit over the motion (negative: the limit is broken). The plan rows are the kinematic "
+        "motion each method produces (the optimal plan re-simulated on a fine grid); the "
+        "simulation rows are the same plans tracked by joint controllers in forward dynamics.</p>"
+    )
     parts.append("<h2>Limit violations</h2>")
     parts.append(_violations(metrics.get("methods", {})))
     if figures:
@@ -183,8 +227,13 @@ def render_report(metrics: Mapping[str, Any], figures: Sequence[tuple[str, Path]
     return "\n".join(parts)
 
 
-def write_report(path: str | Path, metrics: Mapping[str, Any], figures: Sequence[tuple[str, Path]] = (),
-                 description: str | None = None, extra_html: str = "") -> Path:
+def write_report(
+    path: str | Path,
+    metrics: Mapping[str, Any],
+    figures: Sequence[tuple[str, Path]] = (),
+    description: str | None = None,
+    extra_html: str = "",
+) -> Path:
     """Write :func:`render_report` to ``path`` and return it."""
     path = Path(path)
     path.write_text(render_report(metrics, figures, description, extra_html), encoding="utf-8")

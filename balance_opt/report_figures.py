@@ -4,8 +4,8 @@ labels), built without pyplot state."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import matplotlib as mpl
 import numpy as np
@@ -25,7 +25,9 @@ _ROWS = (
 MAX_COLUMNS = 7
 
 
-def joint_limits_figure(results: Mapping[str, BalanceResult], robot: FloatingRobot, path: str | Path) -> Path:
+def joint_limits_figure(
+    results: Mapping[str, BalanceResult], robot: FloatingRobot, path: str | Path
+) -> Path:
     """Balance joint positions, rates and accelerations of each plan against time, one column
     per joint, the joint's limits dotted. Writes a PNG at ``path`` and returns it.
 
@@ -45,10 +47,18 @@ def joint_limits_figure(results: Mapping[str, BalanceResult], robot: FloatingRob
             for r, (field, kind, label) in enumerate(_ROWS):
                 ax = axes[r, c]
                 for n, (name, res) in enumerate(results.items()):
-                    ax.plot(res.t, getattr(res, field)[:, k], color=plan_colour(name, n), label=plan_label(name),
-                            lw=1.1)
-                bounds = ((lim.lower[i], lim.upper[i]) if kind == "position"
-                          else (-getattr(lim, kind)[i], getattr(lim, kind)[i]))
+                    ax.plot(
+                        res.t,
+                        getattr(res, field)[:, k],
+                        color=plan_colour(name, n),
+                        label=plan_label(name),
+                        lw=1.1,
+                    )
+                bounds = (
+                    (lim.lower[i], lim.upper[i])
+                    if kind == "position"
+                    else (-getattr(lim, kind)[i], getattr(lim, kind)[i])
+                )
                 for b in bounds:
                     if np.isfinite(b):
                         ax.axhline(b, color="0.35", ls=":", lw=0.9)
@@ -60,6 +70,8 @@ def joint_limits_figure(results: Mapping[str, BalanceResult], robot: FloatingRob
                     ax.set_xlabel("time [s]")
                 ax.yaxis.set_major_locator(mpl.ticker.MaxNLocator(4))
         handles, labels = axes[0, 0].get_legend_handles_labels()
-        fig.legend(handles, labels, loc="outside upper center", ncol=max(1, len(handles)), frameon=False)
+        fig.legend(
+            handles, labels, loc="outside upper center", ncol=max(1, len(handles)), frameon=False
+        )
         fig.savefig(path, dpi=PNG_DPI // 2)
     return path

@@ -25,16 +25,26 @@ import difflib
 import math
 import types
 import typing
-from typing import Any, Literal, Sequence, Union
+from collections.abc import Sequence
+from typing import Any, Literal, Union
 
 from .yaml_lines import YamlDocument
 
 _MISSING = dataclasses.MISSING
 
 
-def setting(default: Any = _MISSING, *, doc: str, unit: str | None = None, factory=None,
-            minimum: float | None = None, exclusive_minimum: float | None = None,
-            maximum: float | None = None, min_items: int | None = None, max_items: int | None = None):
+def setting(
+    default: Any = _MISSING,
+    *,
+    doc: str,
+    unit: str | None = None,
+    factory=None,
+    minimum: float | None = None,
+    exclusive_minimum: float | None = None,
+    maximum: float | None = None,
+    min_items: int | None = None,
+    max_items: int | None = None,
+):
     """A dataclass field of a typed configuration.
 
     Args:
@@ -45,8 +55,15 @@ def setting(default: Any = _MISSING, *, doc: str, unit: str | None = None, facto
         minimum, exclusive_minimum, maximum: bounds of a number (of each number in a list).
         min_items, max_items: bounds on the length of a list.
     """
-    meta = {"doc": doc, "unit": unit, "minimum": minimum, "exclusive_minimum": exclusive_minimum,
-            "maximum": maximum, "min_items": min_items, "max_items": max_items}
+    meta = {
+        "doc": doc,
+        "unit": unit,
+        "minimum": minimum,
+        "exclusive_minimum": exclusive_minimum,
+        "maximum": maximum,
+        "min_items": min_items,
+        "max_items": max_items,
+    }
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -89,7 +106,9 @@ def _describe(tp) -> str:
         return f"a mapping of names to {_plural(typing.get_args(tp)[1])}"
     if dataclasses.is_dataclass(tp):
         return "a mapping"
-    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(tp, str(tp))
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
+        tp, str(tp)
+    )
 
 
 def _plural(tp) -> str:
@@ -106,8 +125,15 @@ def _plural(tp) -> str:
 
 
 def _got(value) -> str:
-    kind = {dict: "a mapping", list: "a list", str: "a string", bool: "a boolean", int: "an integer",
-            float: "a number", type(None): "nothing (null)"}.get(type(value), type(value).__name__)
+    kind = {
+        dict: "a mapping",
+        list: "a list",
+        str: "a string",
+        bool: "a boolean",
+        int: "an integer",
+        float: "a number",
+        type(None): "nothing (null)",
+    }.get(type(value), type(value).__name__)
     if isinstance(value, (dict, list)):
         return kind
     if isinstance(value, bool):
@@ -153,25 +179,33 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
     if origin is Literal:
         options = typing.get_args(tp)
         if value not in options or isinstance(value, bool) != isinstance(options[0], bool):
-            raise _Invalid(path, f"expected one of {', '.join(repr(o) for o in options)}, got {_got(value)}"
-                           + (suggest(value, options) if isinstance(value, str) else ""))
+            raise _Invalid(
+                path,
+                f"expected one of {', '.join(repr(o) for o in options)}, got {_got(value)}"
+                + (suggest(value, options) if isinstance(value, str) else ""),
+            )
         return value
     if origin is tuple:
         if not isinstance(value, list):
             raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
         n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
         if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
-            raise _Invalid(path, f"expected a list of {n_lo} {_plural(typing.get_args(tp)[0])}, got {len(value)}")
+            raise _Invalid(
+                path,
+                f"expected a list of {n_lo} {_plural(typing.get_args(tp)[0])}, got {len(value)}",
+            )
         if n_lo is not None and len(value) < n_lo:
             raise _Invalid(path, f"expected at least {n_lo} items, got {len(value)}")
         if n_hi is not None and len(value) > n_hi:
             raise _Invalid(path, f"expected at most {n_hi} items, got {len(value)}")
         item_meta = {k: meta.get(k) for k in ("minimum", "exclusive_minimum", "maximum", "unit")}
-        return tuple(_convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value))
+        return tuple(
+            _convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value)
+        )
     if origin is dict:
         if not isinstance(value, dict):
             raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
-        key_tp, value_tp = typing.get_args(tp)
+        value_tp = typing.get_args(tp)[1]
         out = {}
         for k, v in value.items():
             if not isinstance(k, str):
@@ -215,13 +249,18 @@ def _convert_union(value, tp, meta, path):
     tags = {_tag_of(m): m for m in members}
     if None not in tags:  # tagged union: dispatch on 'type'
         if not isinstance(value, dict):
-            raise _Invalid(path, f"expected a mapping with a 'type' key ({', '.join(tags)}), got {_got(value)}")
+            raise _Invalid(
+                path, f"expected a mapping with a 'type' key ({', '.join(tags)}), got {_got(value)}"
+            )
         if "type" not in value:
             raise _Invalid(path, f"missing key 'type'; expected one of {', '.join(tags)}")
         tag = value["type"]
         if tag not in tags:
-            raise _Invalid((*path, "type"), f"expected one of {', '.join(repr(t) for t in tags)}, got {_got(tag)}"
-                           + suggest(tag, tags))
+            raise _Invalid(
+                (*path, "type"),
+                f"expected one of {', '.join(repr(t) for t in tags)}, got {_got(tag)}"
+                + suggest(tag, tags),
+            )
         return _convert(value, tags[tag], meta, path)
     if len(members) == 1:
         return _convert(value, members[0], meta, path)
@@ -245,8 +284,10 @@ def _convert_dataclass(value, cls, path):
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     for key in value:
         if key not in fields:
-            raise _Invalid((*path, key), f"unknown key '{key}'; expected one of {', '.join(fields)}"
-                           + suggest(key, fields))
+            raise _Invalid(
+                (*path, key),
+                f"unknown key '{key}'; expected one of {', '.join(fields)}" + suggest(key, fields),
+            )
     one_of = getattr(cls, "__exactly_one__", ())
     if one_of:
         given = [k for k in one_of if value.get(k) is not None]
@@ -258,7 +299,10 @@ def _convert_dataclass(value, cls, path):
         if name in value:
             kwargs[name] = _convert(value[name], hints[name], dict(f.metadata), (*path, name))
         elif f.default is _MISSING and f.default_factory is _MISSING:
-            raise _Invalid(path, f"missing required key '{name}' ({_describe(hints[name])}: {f.metadata.get('doc', '')})")
+            raise _Invalid(
+                path,
+                f"missing required key '{name}' ({_describe(hints[name])}: {f.metadata.get('doc', '')})",
+            )
     return cls(**kwargs)
 
 
@@ -298,7 +342,10 @@ def _schema(tp, meta: dict, defs: dict) -> dict:
             out["maxItems"] = meta["max_items"]
         return out
     if origin is dict:
-        return {"type": "object", "additionalProperties": _schema(typing.get_args(tp)[1], meta, defs)}
+        return {
+            "type": "object",
+            "additionalProperties": _schema(typing.get_args(tp)[1], meta, defs),
+        }
     if dataclasses.is_dataclass(tp):
         name = tp.__name__
         if name not in defs:
@@ -368,8 +415,12 @@ def dataclass_schema(cls, defs: dict) -> dict:
         elif default is not None:
             prop["default"] = _json_default(default)
         props[f.name] = prop
-    out = {"type": "object", "description": (cls.__doc__ or "").strip().split("\n\n")[0],
-           "properties": props, "additionalProperties": False}
+    out = {
+        "type": "object",
+        "description": (cls.__doc__ or "").strip().split("\n\n")[0],
+        "properties": props,
+        "additionalProperties": False,
+    }
     if _tag_of(cls) and "type" not in required:
         required.insert(0, "type")  # the tag selects the member: always given
     if required:
@@ -451,6 +502,11 @@ def reference_markdown(cls) -> str:
     """The reference table of the format as Markdown (key, type, default, meaning)."""
     lines = ["| key | type | default | meaning |", "| --- | --- | --- | --- |"]
     for key, tp, default, doc in reference_rows(cls):
-        cells = (f"`{key}`", tp, f"`{default}`" if default not in ("required", "see below", "none") else default, doc)
+        cells = (
+            f"`{key}`",
+            tp,
+            f"`{default}`" if default not in ("required", "see below", "none") else default,
+            doc,
+        )
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return "\n".join(lines)

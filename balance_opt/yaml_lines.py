@@ -14,9 +14,10 @@ Two deliberate departures from ``yaml.safe_load``:
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import yaml
 
@@ -69,12 +70,15 @@ _FLOAT = re.compile(
     |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
     |[-+]?\.(?:inf|Inf|INF)
     |\.(?:nan|NaN|NAN))$""",
-    re.X,
+    re.VERBOSE,
 )
-_Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.yaml_implicit_resolvers = {
+    k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
 for _first in "-+0123456789.":
     _Loader.yaml_implicit_resolvers[_first] = [
-        (tag, regexp) for tag, regexp in _Loader.yaml_implicit_resolvers.get(_first, [])
+        (tag, regexp)
+        for tag, regexp in _Loader.yaml_implicit_resolvers.get(_first, [])
         if tag != "tag:yaml.org,2002:float"
     ]
 _Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT, list("-+0123456789."))
@@ -116,17 +120,25 @@ def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source:
         out: dict = {}
         for key_node, value_node in node.value:
             if not isinstance(key_node, yaml.ScalarNode):
-                raise TaskFileError(source, key_node.start_mark.line + 1, path, "a mapping key must be a plain name")
+                raise TaskFileError(
+                    source, key_node.start_mark.line + 1, path, "a mapping key must be a plain name"
+                )
             key = loader.construct_object(key_node)
             if key in out:
-                raise TaskFileError(source, key_node.start_mark.line + 1, (*path, key),
-                                    f"key '{key}' is given twice (first on line {lines[(*path, key)]})")
+                raise TaskFileError(
+                    source,
+                    key_node.start_mark.line + 1,
+                    (*path, key),
+                    f"key '{key}' is given twice (first on line {lines[(*path, key)]})",
+                )
             lines[(*path, key)] = key_node.start_mark.line + 1
             out[key] = _build(value_node, loader, (*path, key), lines, source)
             lines[(*path, key)] = key_node.start_mark.line + 1  # the key's line, not its value's
         return out
     if isinstance(node, yaml.SequenceNode):
-        return [_build(item, loader, (*path, i), lines, source) for i, item in enumerate(node.value)]
+        return [
+            _build(item, loader, (*path, i), lines, source) for i, item in enumerate(node.value)
+        ]
     return loader.construct_object(node, deep=True)
 
 
@@ -140,7 +152,9 @@ def parse_yaml(text: str, source: str) -> YamlDocument:
     try:
         node = loader.get_single_node()
         if node is None:
-            raise TaskFileError(source, None, (), "the file is empty; expected a mapping of task keys")
+            raise TaskFileError(
+                source, None, (), "the file is empty; expected a mapping of task keys"
+            )
         lines: dict[KeyPath, int] = {}
         data = _build(node, loader, (), lines, source)
     except yaml.MarkedYAMLError as exc:

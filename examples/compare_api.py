@@ -11,7 +11,13 @@ import logging
 import sys
 from pathlib import Path
 
-from balance_opt.pipeline import plan_analytic, plan_mission_only, plan_optimal, run_task, simulate_result
+from balance_opt.pipeline import (
+    plan_analytic,
+    plan_mission_only,
+    plan_optimal,
+    run_task,
+    simulate_result,
+)
 from balance_opt.task import load_task
 
 HERE = Path(__file__).resolve().parent
@@ -34,7 +40,9 @@ def main() -> None:
     simulated = simulate_result(task, optimal)
     print(f"{'':14} {'max drift':>10} {'final drift':>12} {'violations':>11}   [rad]")
     for result in (reference, analytic, optimal):
-        print(f"{result.method:14} {result.max_drift:10.4g} {result.final_drift:12.4g} {len(result.violations):11d}")
+        print(
+            f"{result.method:14} {result.max_drift:10.4g} {result.final_drift:12.4g} {len(result.violations):11d}"
+        )
     print(f"{'optimal, sim.':14} {simulated.angle.max():10.4g} {simulated.angle[-1]:12.4g}")
 
     # 3. Or everything at once, with every output (CSV, NPZ, metrics.json, PNG, report.html).

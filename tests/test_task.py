@@ -30,7 +30,11 @@ def _line_of(text: str, fragment: str) -> int:
     """1-based line of the first line of ``text`` that starts with ``fragment``, indentation aside
     (a leading ``^``: an unindented line)."""
     for i, line in enumerate(text.splitlines(), start=1):
-        if line.startswith(fragment[1:]) if fragment.startswith("^") else line.lstrip().startswith(fragment):
+        if (
+            line.startswith(fragment[1:])
+            if fragment.startswith("^")
+            else line.lstrip().startswith(fragment)
+        ):
             return i
     raise AssertionError(f"{fragment!r} not in the text")
 
@@ -53,18 +57,29 @@ def test_yaml_lines_record_every_key_path():
 
 def test_yaml_exponent_without_dot_is_a_float():
     # YAML 1.1 (PyYAML) reads 1e-3 as a string; task files must not
-    assert parse_yaml("a: 1e-3\nb: -2E+2\nc: 5\n", "t.yaml").data == {"a": 0.001, "b": -200.0, "c": 5}
+    assert parse_yaml("a: 1e-3\nb: -2E+2\nc: 5\n", "t.yaml").data == {
+        "a": 0.001,
+        "b": -200.0,
+        "c": 5,
+    }
 
 
 def test_yaml_duplicate_key_is_an_error():
-    with pytest.raises(TaskFileError, match=re.escape("t.yaml:3: x.a: key 'a' is given twice (first on line 2)")):
+    with pytest.raises(
+        TaskFileError, match=re.escape("t.yaml:3: x.a: key 'a' is given twice (first on line 2)")
+    ):
         parse_yaml("x:\n  a: 1\n  a: 2\n", "t.yaml")
 
 
 def test_yaml_syntax_error_names_the_line():
-    with pytest.raises(TaskFileError, match=re.escape("t.yaml:3: (top level): YAML syntax error: while parsing a "
-                                                      "flow sequence that starts on line 2: expected ',' or ']', "
-                                                      "but got ':'")):
+    with pytest.raises(
+        TaskFileError,
+        match=re.escape(
+            "t.yaml:3: (top level): YAML syntax error: while parsing a "
+            "flow sequence that starts on line 2: expected ',' or ']', "
+            "but got ':'"
+        ),
+    ):
         parse_yaml("a: 1\nb: [1, 2\nc: 3\n", "t.yaml")
 
 
@@ -74,7 +89,9 @@ def test_paper_example_is_the_paper_scenario():
     scenario = paper_capture()
     assert task.robot.joint_names == scenario.robot.joint_names
     for key in ("lower", "upper", "velocity", "acceleration", "effort"):
-        np.testing.assert_array_equal(getattr(task.robot.limits, key), getattr(scenario.robot.limits, key))
+        np.testing.assert_array_equal(
+            getattr(task.robot.limits, key), getattr(scenario.robot.limits, key)
+        )
     np.testing.assert_array_equal(task.q0, scenario.q0)
     t = np.linspace(0.0, scenario.mission.duration, 11)
     for a, b in zip(task.mission.sample(t), scenario.mission.sample(t)):
@@ -86,10 +103,15 @@ def test_paper_example_is_the_paper_scenario():
 
 def test_baxter_example_loads():
     task = load_task(EXAMPLES / "baxter_floating.yaml")
-    assert task.robot.mission.joints[0] == "left_s0" and task.robot.balance_arms[0].joints[-1] == "right_w2"
+    assert (
+        task.robot.mission.joints[0] == "left_s0"
+        and task.robot.balance_arms[0].joints[-1] == "right_w2"
+    )
     assert task.robot.balance_indices.size == 7
     assert task.robot.locked["head_pan"] == 0.0
-    np.testing.assert_array_equal(task.robot.limits.acceleration[task.robot.balance_indices], np.full(7, 2.0))
+    np.testing.assert_array_equal(
+        task.robot.limits.acceleration[task.robot.balance_indices], np.full(7, 2.0)
+    )
 
 
 def test_task_hash_is_the_file_hash(tmp_path):
@@ -101,103 +123,252 @@ def test_task_hash_is_the_file_hash(tmp_path):
 
 
 def test_task_from_dict_reads_relative_paths_from_base_dir(tmp_path):
-    (tmp_path / "m.csv").write_text("time,mission_joint1,mission_joint2,mission_joint3\n0,0,0.3,-0.6\n"
-                                    "1,0.1,0.35,-0.65\n2,0.2,0.4,-0.7\n")
-    data = {"robot": {"shipped": "paper_robot.urdf"},
-            "arms": {"mission": ["mission_joint1", "mission_joint2", "mission_joint3"],
-                     "balance": ["balance_joint1", "balance_joint2", "balance_joint3"]},
-            "mission": {"type": "csv", "file": "m.csv"}}
+    (tmp_path / "m.csv").write_text(
+        "time,mission_joint1,mission_joint2,mission_joint3\n0,0,0.3,-0.6\n"
+        "1,0.1,0.35,-0.65\n2,0.2,0.4,-0.7\n"
+    )
+    data = {
+        "robot": {"shipped": "paper_robot.urdf"},
+        "arms": {
+            "mission": ["mission_joint1", "mission_joint2", "mission_joint3"],
+            "balance": ["balance_joint1", "balance_joint2", "balance_joint3"],
+        },
+        "mission": {"type": "csv", "file": "m.csv"},
+    }
     task = task_from_dict(data, base_dir=tmp_path)
     assert task.duration == 2.0
     np.testing.assert_allclose(task.mission.start, [0.0, 0.3, -0.6], rtol=0, atol=1e-15)
     # default balance start: zero, inside the limits
     np.testing.assert_array_equal(task.q_B0, task.robot.neutral()[task.robot.balance_indices])
     data["mission"]["file"] = "other.csv"
-    with pytest.raises(TaskFileError, match=r"^<dict>: mission\.file: no such CSV file: .*other\.csv$"):
+    with pytest.raises(
+        TaskFileError, match=r"^<dict>: mission\.file: no such CSV file: .*other\.csv$"
+    ):
         task_from_dict(data, base_dir=tmp_path)
 
 
 def test_via_points_and_several_balance_arms(tmp_path):
-    text = PAPER.replace("balance: [balance_joint1, balance_joint2, balance_joint3]",
-                         "balance: [[balance_joint1, balance_joint2], [balance_joint3]]")
-    text = re.sub(r"mission:\n  type: ptp\n.*?\n\n", "mission:\n  type: via\n  times: [0, 4, 10]\n"
-                  "  points: [[0, 0.3, -0.6], [0.5, 0.5, -1.0], [1.2, 0.9, -1.6]]\n\n", text, flags=re.S)
+    text = PAPER.replace(
+        "balance: [balance_joint1, balance_joint2, balance_joint3]",
+        "balance: [[balance_joint1, balance_joint2], [balance_joint3]]",
+    )
+    text = re.sub(
+        r"mission:\n  type: ptp\n.*?\n\n",
+        "mission:\n  type: via\n  times: [0, 4, 10]\n"
+        "  points: [[0, 0.3, -0.6], [0.5, 0.5, -1.0], [1.2, 0.9, -1.6]]\n\n",
+        text,
+        flags=re.DOTALL,
+    )
     path = tmp_path / "via.yaml"
     path.write_text(text)
     task = load_task(path)
     assert [a.name for a in task.robot.balance_arms] == ["balance", "balance2"]
-    np.testing.assert_allclose(task.mission.sample(np.array([4.0]))[0][0], [0.5, 0.5, -1.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        task.mission.sample(np.array([4.0]))[0][0], [0.5, 0.5, -1.0], rtol=0, atol=1e-12
+    )
 
 
 # ----------------------------------------------------------------------------------- input errors
 #: (case id, text edits, the line's fragment, the exact message after "task.yaml:LINE: ", error type)
 BAD_TASKS = [
-    ("wrong type", [("duration: 10.0", "duration: ten")], "duration: ten",
-     "mission.duration: expected a number, got 'ten' (a string)", TaskFileError),
-    ("boolean for a number", [("duration: 10.0", "duration: yes")], "duration: yes",
-     "mission.duration: expected a number, got true (a boolean)", TaskFileError),
-    ("wrong item type", [("goal: [1.2, 0.9, -1.6]", "goal: [1.2, x, -1.6]")], "goal:",
-     "mission.goal[1]: expected a number, got 'x' (a string)", TaskFileError),
-    ("unknown top-level key", [("mission:\n", "mision:\n")], "^mision:",
-     "mision: unknown key 'mision'; expected one of name, description, robot, arms, mission, initial, "
-     "limits, analytic, optimal, simulation, outputs; did you mean 'mission'?", TaskFileError),
-    ("unknown nested key", [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {accel: 2.0}")],
-     "balance_joint1: {accel", "limits.balance_joint1.accel: unknown key 'accel'; expected one of lower, upper, "
-     "velocity, acceleration, effort; did you mean 'acceleration'?", TaskFileError),
-    ("unknown mission type", [("type: ptp", "type: ptpp")], "type: ptpp",
-     "mission.type: expected one of 'ptp', 'via', 'csv', 'cartesian', got 'ptpp' (a string); did you mean 'ptp'?",
-     TaskFileError),
-    ("missing URDF file", [("shipped: paper_robot.urdf", "urdf: missing/robot.urdf")], "urdf: missing",
-     "robot.urdf: no such URDF file: {dir}/missing/robot.urdf", TaskFileError),
-    ("unknown shipped URDF", [("shipped: paper_robot.urdf", "shipped: nope.urdf")], "shipped: nope",
-     "robot.shipped: no shipped URDF 'nope.urdf'; available: paper_robot.urdf", TaskFileError),
-    ("two robot sources", [("shipped: paper_robot.urdf", "shipped: paper_robot.urdf\n  example: baxter")],
-     "robot:", "robot: expected exactly one of urdf, shipped, example; got shipped, example", TaskFileError),
-    ("unknown joint", [("balance_joint3]", "balance_joint9]")], "balance: [balance_joint1",
-     "arms.balance[2]: joint 'balance_joint9' in {urdf}: no such joint in the URDF (arm 'balance'); "
-     "did you mean 'balance_joint3', 'balance_joint2', 'balance_joint1'?", TaskFileError),
-    ("locked arm joint", [("  balance: [balance_joint1, balance_joint2, balance_joint3]\n",
-                           "  balance: [balance_joint1, balance_joint2, balance_joint3]\n"
-                           "  locked: {mission_joint1: 0.3}\n")], "locked:",
-     "arms.locked.mission_joint1: joint 'mission_joint1' in {urdf}: is both an arm joint and a locked joint",
-     TaskFileError),
-    ("limit of a joint in no arm", [("balance_joint1: {acceleration: 2.0}", "head: {acceleration: 2.0}")],
-     "head:", "limits.head: joint 'head' in {urdf}: limit override for a joint that is in no arm", TaskFileError),
-    ("lower above upper", [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {lower: 1, upper: 0}")],
-     "balance_joint1: {lower", "limits.balance_joint1: joint 'balance_joint1' in {urdf}: lower limit 1.0 is "
-     "above upper limit 0.0", TaskFileError),
-    ("negative duration", [("duration: 10.0", "duration: -1")], "duration: -1",
-     "mission.duration: must be greater than 0 s, got -1", TaskFileError),
-    ("negative velocity limit", [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {velocity: -2}")],
-     "balance_joint1: {velocity", "limits.balance_joint1.velocity: must be greater than 0 rad/s, got -2",
-     TaskFileError),
-    ("goal of the wrong length", [("goal: [1.2, 0.9, -1.6]", "goal: [1.2, 0.9]")], "goal:",
-     "mission.goal: expected 3 values (one per mission joint: mission_joint1, mission_joint2, mission_joint3), got 2",
-     TaskFileError),
-    ("momentum of the wrong length", [("momentum: [0, 0, 0, 0, 0, 0]", "momentum: [0, 0, 0, 0, 0]")], "momentum:",
-     "initial.momentum: expected a list of 6 numbers, got 5", TaskFileError),
-    ("balance start outside the limits",
-     [("balance_joint2: {acceleration: 2.0}", "balance_joint2: {acceleration: 2.0, upper: 0.2}")],
-     "balance: [0.0, 0.5, -1.0]",
-     "initial.balance[1]: balance joint 'balance_joint2' starts at 0.5 rad, outside its position limits "
-     "[-1.5708, 0.2] rad (upper limit from limits.balance_joint2.upper); no plan can meet them",
-     InfeasibleLimitsError),
-    ("mission faster than its limits",
-     [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {acceleration: 2.0}\n  mission_joint1: {velocity: 0.1}")],
-     "^mission:", "mission: the mission trajectory leaves the limits of the mission arm, which follows it as given: "
-     "mission_joint1: velocity limit exceeded by up to 0.125 rad/s from t = 2.116 s to 7.884 s "
-     "(limit from limits.mission_joint1.velocity); no plan can meet them", InfeasibleLimitsError),
-    ("duplicate key", [("name: paper_capture", "name: paper_capture\nname: again")], "name: again",
-     "name: key 'name' is given twice (first on line 4)", TaskFileError),
-    ("via times not increasing",
-     [("  type: ptp\n  start: [0.0, 0.3, -0.6]          # [rad]\n  goal: [1.2, 0.9, -1.6]           # capture "
-       "configuration [rad]\n  duration: 10.0                   # [s]",
-       "  type: via\n  times: [0, 5, 5]\n  points: [[0, 0, 0], [1, 1, 1], [2, 2, 2]]")], "times:",
-     "mission.times[2]: times must increase: 5 s after 5 s", TaskFileError),
+    (
+        "wrong type",
+        [("duration: 10.0", "duration: ten")],
+        "duration: ten",
+        "mission.duration: expected a number, got 'ten' (a string)",
+        TaskFileError,
+    ),
+    (
+        "boolean for a number",
+        [("duration: 10.0", "duration: yes")],
+        "duration: yes",
+        "mission.duration: expected a number, got true (a boolean)",
+        TaskFileError,
+    ),
+    (
+        "wrong item type",
+        [("goal: [1.2, 0.9, -1.6]", "goal: [1.2, x, -1.6]")],
+        "goal:",
+        "mission.goal[1]: expected a number, got 'x' (a string)",
+        TaskFileError,
+    ),
+    (
+        "unknown top-level key",
+        [("mission:\n", "mision:\n")],
+        "^mision:",
+        (
+            "mision: unknown key 'mision'; expected one of name, description, robot, arms, mission, initial, "
+            "limits, analytic, optimal, simulation, outputs; did you mean 'mission'?"
+        ),
+        TaskFileError,
+    ),
+    (
+        "unknown nested key",
+        [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {accel: 2.0}")],
+        "balance_joint1: {accel",
+        (
+            "limits.balance_joint1.accel: unknown key 'accel'; expected one of lower, upper, "
+            "velocity, acceleration, effort; did you mean 'acceleration'?"
+        ),
+        TaskFileError,
+    ),
+    (
+        "unknown mission type",
+        [("type: ptp", "type: ptpp")],
+        "type: ptpp",
+        "mission.type: expected one of 'ptp', 'via', 'csv', 'cartesian', got 'ptpp' (a string); did you mean 'ptp'?",
+        TaskFileError,
+    ),
+    (
+        "missing URDF file",
+        [("shipped: paper_robot.urdf", "urdf: missing/robot.urdf")],
+        "urdf: missing",
+        "robot.urdf: no such URDF file: {dir}/missing/robot.urdf",
+        TaskFileError,
+    ),
+    (
+        "unknown shipped URDF",
+        [("shipped: paper_robot.urdf", "shipped: nope.urdf")],
+        "shipped: nope",
+        "robot.shipped: no shipped URDF 'nope.urdf'; available: paper_robot.urdf",
+        TaskFileError,
+    ),
+    (
+        "two robot sources",
+        [("shipped: paper_robot.urdf", "shipped: paper_robot.urdf\n  example: baxter")],
+        "robot:",
+        "robot: expected exactly one of urdf, shipped, example; got shipped, example",
+        TaskFileError,
+    ),
+    (
+        "unknown joint",
+        [("balance_joint3]", "balance_joint9]")],
+        "balance: [balance_joint1",
+        (
+            "arms.balance[2]: joint 'balance_joint9' in {urdf}: no such joint in the URDF (arm 'balance'); "
+            "did you mean 'balance_joint3', 'balance_joint2', 'balance_joint1'?"
+        ),
+        TaskFileError,
+    ),
+    (
+        "locked arm joint",
+        [
+            (
+                "  balance: [balance_joint1, balance_joint2, balance_joint3]\n",
+                (
+                    "  balance: [balance_joint1, balance_joint2, balance_joint3]\n"
+                    "  locked: {mission_joint1: 0.3}\n"
+                ),
+            )
+        ],
+        "locked:",
+        "arms.locked.mission_joint1: joint 'mission_joint1' in {urdf}: is both an arm joint and a locked joint",
+        TaskFileError,
+    ),
+    (
+        "limit of a joint in no arm",
+        [("balance_joint1: {acceleration: 2.0}", "head: {acceleration: 2.0}")],
+        "head:",
+        "limits.head: joint 'head' in {urdf}: limit override for a joint that is in no arm",
+        TaskFileError,
+    ),
+    (
+        "lower above upper",
+        [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {lower: 1, upper: 0}")],
+        "balance_joint1: {lower",
+        (
+            "limits.balance_joint1: joint 'balance_joint1' in {urdf}: lower limit 1.0 is "
+            "above upper limit 0.0"
+        ),
+        TaskFileError,
+    ),
+    (
+        "negative duration",
+        [("duration: 10.0", "duration: -1")],
+        "duration: -1",
+        "mission.duration: must be greater than 0 s, got -1",
+        TaskFileError,
+    ),
+    (
+        "negative velocity limit",
+        [("balance_joint1: {acceleration: 2.0}", "balance_joint1: {velocity: -2}")],
+        "balance_joint1: {velocity",
+        "limits.balance_joint1.velocity: must be greater than 0 rad/s, got -2",
+        TaskFileError,
+    ),
+    (
+        "goal of the wrong length",
+        [("goal: [1.2, 0.9, -1.6]", "goal: [1.2, 0.9]")],
+        "goal:",
+        "mission.goal: expected 3 values (one per mission joint: mission_joint1, mission_joint2, mission_joint3), got 2",
+        TaskFileError,
+    ),
+    (
+        "momentum of the wrong length",
+        [("momentum: [0, 0, 0, 0, 0, 0]", "momentum: [0, 0, 0, 0, 0]")],
+        "momentum:",
+        "initial.momentum: expected a list of 6 numbers, got 5",
+        TaskFileError,
+    ),
+    (
+        "balance start outside the limits",
+        [
+            (
+                "balance_joint2: {acceleration: 2.0}",
+                "balance_joint2: {acceleration: 2.0, upper: 0.2}",
+            )
+        ],
+        "balance: [0.0, 0.5, -1.0]",
+        (
+            "initial.balance[1]: balance joint 'balance_joint2' starts at 0.5 rad, outside its position limits "
+            "[-1.5708, 0.2] rad (upper limit from limits.balance_joint2.upper); no plan can meet them"
+        ),
+        InfeasibleLimitsError,
+    ),
+    (
+        "mission faster than its limits",
+        [
+            (
+                "balance_joint1: {acceleration: 2.0}",
+                "balance_joint1: {acceleration: 2.0}\n  mission_joint1: {velocity: 0.1}",
+            )
+        ],
+        "^mission:",
+        (
+            "mission: the mission trajectory leaves the limits of the mission arm, which follows it as given: "
+            "mission_joint1: velocity limit exceeded by up to 0.125 rad/s from t = 2.116 s to 7.884 s "
+            "(limit from limits.mission_joint1.velocity); no plan can meet them"
+        ),
+        InfeasibleLimitsError,
+    ),
+    (
+        "duplicate key",
+        [("name: paper_capture", "name: paper_capture\nname: again")],
+        "name: again",
+        "name: key 'name' is given twice (first on line 4)",
+        TaskFileError,
+    ),
+    (
+        "via times not increasing",
+        [
+            (
+                (
+                    "  type: ptp\n  start: [0.0, 0.3, -0.6]          # [rad]\n  goal: [1.2, 0.9, -1.6]           # capture "
+                    "configuration [rad]\n  duration: 10.0                   # [s]"
+                ),
+                "  type: via\n  times: [0, 5, 5]\n  points: [[0, 0, 0], [1, 1, 1], [2, 2, 2]]",
+            )
+        ],
+        "times:",
+        "mission.times[2]: times must increase: 5 s after 5 s",
+        TaskFileError,
+    ),
 ]
 
 
-@pytest.mark.parametrize("edits, fragment, message, error", [c[1:] for c in BAD_TASKS], ids=[c[0] for c in BAD_TASKS])
+@pytest.mark.parametrize(
+    "edits, fragment, message, error", [c[1:] for c in BAD_TASKS], ids=[c[0] for c in BAD_TASKS]
+)
 def test_bad_task_names_file_line_and_key(tmp_path, edits, fragment, message, error):
     text = PAPER
     for old, new in edits:
@@ -206,7 +377,9 @@ def test_bad_task_names_file_line_and_key(tmp_path, edits, fragment, message, er
     path.write_text(text)
     from balance_opt.resources import shipped_urdf
 
-    expected = f"{path}:{_line_of(text, fragment)}: " + message.format(dir=tmp_path, urdf=shipped_urdf())
+    expected = f"{path}:{_line_of(text, fragment)}: " + message.format(
+        dir=tmp_path, urdf=shipped_urdf()
+    )
     with pytest.raises(error) as info:
         load_task(path)
     assert str(info.value) == expected
@@ -214,27 +387,42 @@ def test_bad_task_names_file_line_and_key(tmp_path, edits, fragment, message, er
 
 
 def test_malformed_csv_names_task_line_and_csv_line(tmp_path):
-    (tmp_path / "m.csv").write_text("time,mission_joint1,mission_joint2,mission_joint3\n0,0,0,0\n1,0,abc,0\n")
-    text = re.sub(r"mission:\n  type: ptp\n.*?\n\n", "mission:\n  type: csv\n  file: m.csv\n\n", PAPER, flags=re.S)
+    (tmp_path / "m.csv").write_text(
+        "time,mission_joint1,mission_joint2,mission_joint3\n0,0,0,0\n1,0,abc,0\n"
+    )
+    text = re.sub(
+        r"mission:\n  type: ptp\n.*?\n\n",
+        "mission:\n  type: csv\n  file: m.csv\n\n",
+        PAPER,
+        flags=re.DOTALL,
+    )
     path = tmp_path / "task.yaml"
     path.write_text(text)
     with pytest.raises(TrajectoryError) as info:
         load_task(path)
-    assert str(info.value) == (f"{path}:{_line_of(text, 'file: m.csv')}: mission.file: {tmp_path / 'm.csv'}: "
-                               "line 3, column 'mission_joint2': not a number: 'abc'")
+    assert str(info.value) == (
+        f"{path}:{_line_of(text, 'file: m.csv')}: mission.file: {tmp_path / 'm.csv'}: "
+        "line 3, column 'mission_joint2': not a number: 'abc'"
+    )
 
 
 def test_missing_required_key_names_the_mapping(tmp_path):
     text = _edit(PAPER, "  duration: 10.0                   # [s]\n", "")
     path = tmp_path / "task.yaml"
     path.write_text(text)
-    with pytest.raises(TaskFileError, match=re.escape(
-            f"{path}:{_line_of(text, '^mission:')}: mission: missing required key 'duration' (a number: duration of the move)")):
+    with pytest.raises(
+        TaskFileError,
+        match=re.escape(
+            f"{path}:{_line_of(text, '^mission:')}: mission: missing required key 'duration' (a number: duration of the move)"
+        ),
+    ):
         load_task(path)
 
 
 def test_missing_task_file(tmp_path):
-    with pytest.raises(TaskFileError, match=re.escape(f"{tmp_path / 'none.yaml'}: (top level): no such file")):
+    with pytest.raises(
+        TaskFileError, match=re.escape(f"{tmp_path / 'none.yaml'}: (top level): no such file")
+    ):
         load_task(tmp_path / "none.yaml")
 
 
@@ -271,8 +459,11 @@ def test_schema_lists_every_key_with_its_description():
     assert set(schema["properties"]) == set(TaskSpec.__dataclass_fields__)
     ptp = schema["$defs"]["PtpMission"]
     assert ptp["required"] == ["type", "start", "goal", "duration"]
-    assert ptp["properties"]["duration"] == {"type": "number", "exclusiveMinimum": 0.0,
-                                             "description": "duration of the move [s]"}
+    assert ptp["properties"]["duration"] == {
+        "type": "number",
+        "exclusiveMinimum": 0.0,
+        "description": "duration of the move [s]",
+    }
 
 
 def test_readme_reference_is_the_generated_one():
