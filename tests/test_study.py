@@ -1,6 +1,7 @@
 """The figure functions and the paper's study: files written, curves named, physics of the
 numbers the study reports."""
 
+import json
 from types import SimpleNamespace
 
 import matplotlib as mpl
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from balance_opt.errors import InputError
 from balance_opt.plots import (
     COLUMN_WIDTH,
     attitude_figure,
@@ -15,9 +17,12 @@ from balance_opt.plots import (
     plan_colour,
     reaction_torque_figure,
 )
+from balance_opt.study import FIGURE_STEMS, paper_study
 
 #: Smallest PNG resolution a journal accepts for line art [dpi].
 MIN_DPI = 200
+#: The study's own check: relative momentum residual of every simulation (issue 5).
+MOMENTUM_TOLERANCE = 1e-8
 
 ATTITUDE_LABELS = ["roll [deg]", "pitch [deg]", "yaw [deg]"]
 TORQUE_LABELS = ["torque x [N m]", "torque y [N m]", "torque z [N m]"]
@@ -106,3 +111,67 @@ def test_figures_leave_global_state_alone(tmp_path):
     )
     assert dict(mpl.rcParams) == before
     assert not (tmp_path / "a.pdf").exists() and (tmp_path / "a.png").exists()
+
+
+# ------------------------------------------------------------------------------ the study
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    return paper_study(out)
+
+
+def test_study_writes_every_figure(study):
+    out = study.output_dir
+    for key, stem in FIGURE_STEMS.items():
+        check_files(study.figures[key], out / stem)
+    summary = json.loads((out / "study.json").read_text())
+    assert summary["figures"]["fig4"] == [
+        f"{FIGURE_STEMS['fig4']}.png",
+        f"{FIGURE_STEMS['fig4']}.pdf",
+    ]
+    assert set(summary["plans"]) == {"analytic", "optimal"}
+
+
+def test_study_figures_show_both_plans(study):
+    figs = study.figure_objects
+    assert curve_labels(figs["fig2"]) == [["mission arm alone", "kinematic (momentum)"]] * 3
+    assert curve_labels(figs["fig3"]) == [["analytic (damped LS)", "optimal plan"]] * 3
+    assert (
+        curve_labels(figs["fig5"])
+        == [["analytic (damped LS)", "optimal plan", "mission arm alone"]] * 3
+    )
+    assert all(len(labels) == 6 for labels in curve_labels(figs["fig4"]))
+    for name in ("fig2", "fig3", "fig5"):
+        assert [ax.get_ylabel() for ax in figs[name].axes] == ATTITUDE_LABELS
+    assert [ax.get_ylabel() for ax in figs["fig4"].axes] == TORQUE_LABELS
+
+
+def test_study_numbers(study):
+    """The study's simulations conserve momentum, reproduce their plans' attitude within their
+    tracking error, and Phase I turns the base by the known ~0.093 rad."""
+    summary = study.summary
+    assert {m: p["status"] for m, p in summary["plans"].items()} == {
+        "analytic": "ok",
+        "optimal": "ok",
+    }
+    assert summary["mission_only"]["max_drift_rad"] == pytest.approx(0.093, abs=0.002)
+    sims = [study.mission_only, *study.balance_only.values(), *study.balanced.values()]
+    assert max(s.momentum_residual.max() for s in sims) <= MOMENTUM_TOLERANCE
+    for method, plan in study.plans.items():
+        sim = study.balanced[method]
+        np.testing.assert_allclose(sim.t, plan.t, rtol=0, atol=1e-9)
+        gap = np.abs(sim.angle - plan.angle).max()
+        assert gap <= sim.max_tracking_error, method
+        assert summary["plans"][method]["limit_violations"] == [str(v) for v in plan.violations]
+        torque = summary["plans"][method]["balanced"]["peak_torque_on_base_Nm"]
+        assert set(torque) == {"mission", "balance", "total"}
+    # the balance arm alone does not simply undo the mission arm (non-holonomic)
+    fig3 = study.balance_only["analytic"].rpy[-1]
+    assert np.abs(fig3 + study.mission_only.rpy[-1]).max() > 1e-3
+
+
+def test_study_rejects_unknown_methods(tmp_path):
+    with pytest.raises(
+        InputError, match=r"study methods must be among analytic, optimal, got \['exact'\]"
+    ):
+        paper_study(tmp_path, methods=("exact",))
