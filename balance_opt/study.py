@@ -44,6 +44,8 @@ log = logging.getLogger(__name__)
 METHODS = ("analytic", "optimal")
 #: Output spacing of the plans and of the simulations [s].
 STUDY_OUTPUT_STEP = 0.01
+#: Entries of a plan's ``info`` left out of ``study.json`` (the solver's raw iterate and history).
+BULKY_INFO_KEYS = ("nlp_solution", "history")
 FIGURE_STEMS = {
     "fig2": "fig2_attitude_mission_arm",
     "fig3": "fig3_attitude_balance_arm",
@@ -221,7 +223,7 @@ def paper_study(
                 "status": status[m],
                 "plan": plans[m].summary(),
                 "limit_violations": [str(v) for v in plans[m].violations],
-                "details": plans[m].info,
+                "details": {k: v for k, v in plans[m].info.items() if k not in BULKY_INFO_KEYS},
                 "balance_only": _simulation_summary(balance_only[m]),
                 "balanced": _simulation_summary(balanced[m]),
             }
