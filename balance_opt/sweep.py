@@ -43,7 +43,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .typed_config import from_data, setting
+from .typed_config import from_data, json_schema, reference_markdown, setting
 from .yaml_lines import TaskFileError, YamlDocument, format_path, load_yaml, parse_yaml
 
 logger = logging.getLogger(__name__)
@@ -52,6 +52,7 @@ logger = logging.getLogger(__name__)
 METHODS = ("analytic", "optimal")
 #: Hex digits of a case id (48 bits: a collision among a million cases has odds ~2e-3).
 CASE_ID_DIGITS = 12
+SWEEP_SCHEMA_ID = "https://balance-opt.invalid/sweep.schema.json"
 #: Largest number of cases a sweep file may expand to (a typo in a grid should not start a
 #: year of computation).
 MAX_CASES = 1_000_000
@@ -108,6 +109,17 @@ class SweepSpec:
     cases: tuple[dict[str, Any], ...] = setting(
         (), doc="a list of parameter sets (key path -> value), each one a case")
     random: RandomSamples | None = setting(None, doc="seeded random samples of parameters")
+
+
+def sweep_json_schema() -> dict:
+    """JSON Schema (draft 2020-12) of sweep files, for editors (``balance-opt sweep --schema``);
+    the inline ``task`` and the parameter values are those of task files."""
+    return json_schema(SweepSpec, "balance-opt sweep file", SWEEP_SCHEMA_ID)
+
+
+def sweep_reference_markdown() -> str:
+    """Reference table of every sweep-file key (type, default, meaning)."""
+    return reference_markdown(SweepSpec)
 
 
 # ------------------------------------------------------------------------------ key paths
@@ -577,7 +589,7 @@ def add_sweep_parser(subparsers) -> Any:
                     "write one result per case as it finishes, the table results.csv, "
                     "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
                     "failed (their errors are in the table), 2 for a bad sweep file.")
-    p.add_argument("sweep", help="sweep file (YAML)")
+    p.add_argument("sweep", nargs="?", help="sweep file (YAML)")
     p.add_argument("-o", "--output", metavar="DIR", help="output directory (default: results/<sweep name>)")
     p.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
                    help="worker processes (default: the number of CPUs; 0 runs the cases in this process)")
@@ -592,6 +604,8 @@ def add_sweep_parser(subparsers) -> Any:
     p.add_argument("--no-plots", action="store_true", help="skip the summary plots")
     p.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
                    help="Ipopt option for every optimal case (repeatable)")
+    p.add_argument("--schema", action="store_true", help="print the JSON Schema of sweep files and exit")
+    p.add_argument("--reference", action="store_true", help="print the sweep-file reference (Markdown) and exit")
     p.add_argument("--runner", default=TASK_RUNNER, help=argparse.SUPPRESS)
     p.set_defaults(run=run_sweep_command)
     return p
@@ -604,6 +618,14 @@ def run_sweep_command(args) -> int:
     from .cli import parse_solver_option
     from .errors import InputError
 
+    if args.schema:
+        print(json.dumps(sweep_json_schema(), indent=2))
+        return 0
+    if args.reference:
+        print(sweep_reference_markdown())
+        return 0
+    if args.sweep is None:
+        raise InputError("sweep: give a sweep file, or --schema")
     solver_options = dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
@@ -640,4 +662,5 @@ MAX_DRIFT_KEY = "max_drift_rad"
 __all__ = ["Distribution", "METHODS", "RandomSamples", "Sweep", "SweepOutcome", "SweepSpec",
            "add_sweep_parser", "apply_overrides", "case_id_from", "canonical_json", "draw_samples",
            "expand_cases", "load_sweep", "parameter_columns", "parse_key_path", "parse_sweep",
-           "prepare_output_dir", "run_sweep", "run_sweep_command", "sweep_from_document"]
+           "prepare_output_dir", "run_sweep", "run_sweep_command", "sweep_from_document",
+           "sweep_json_schema", "sweep_reference_markdown"]

@@ -35,10 +35,10 @@ logger = logging.getLogger(__name__)
 CASE_COLUMNS = ("index", "case_id", "method", "status")
 #: Prefixes of the parameter, metric and timing columns.
 PARAM_PREFIX, METRIC_PREFIX, TIMING_PREFIX = "param.", "metric.", "time."
-#: Metric names (after the prefix) that hold wall times or machine-dependent facts: they differ
-#: from run to run, unlike everything else in the table.
-_TIMING_METRIC = re.compile(r"(^|[._])(time|times|wall|build_s|solve_s|elapsed|timestamp|date|host|pid)"
-                            r"($|[._])|_time_s$|time_s$|_s_per_|per_iteration_s$")
+#: Metric names (after the prefix) that hold wall times: they differ from run to run, unlike
+#: everything else in the table (``solver.solve_time_s``, ``details.wall_time_s.build``, ...;
+#: not ``details.max_violation_at.time_s``, a time along the motion).
+_TIMING_METRIC = re.compile(r"(^|[._])(wall_time|solve_time|build_time|elapsed)(_s)?($|[._])")
 #: The metrics plotted: maximum and final base rotation from the start [rad].
 MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
 #: Drift drawn at this floor on log axes when it is zero [rad].
@@ -47,6 +47,12 @@ DRIFT_FLOOR = 1e-12
 METHOD_COLOURS = {"analytic": "tab:orange", "optimal": "tab:blue"}
 #: Figure width of one panel [in]; legible at the width of a page.
 PANEL_WIDTH = 3.6
+#: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
+LOG_SCALE_RATIO = 30.0
+#: Margin of the parameter axes (a fraction of the range), so that no point sits on a border.
+PARAMETER_MARGIN = 0.08
+#: Margin around the drifts of the optimal-vs-analytic panel (a factor).
+PAIRED_MARGIN = 1.2
 #: Offset between methods at a categorical parameter value (in category widths).
 CATEGORY_SPREAD = 0.2
 #: Characters of a title that fit above a single panel.
@@ -166,6 +172,26 @@ def _figure(n_rows: int, n_cols: int, height: float = 2.8):
     return fig, axes
 
 
+def _drift_axis(ax, which: str, values) -> None:
+    """A logarithmic drift axis (powers of ten labelled) when the drifts span more than
+    :data:`LOG_SCALE_RATIO`, a linear one from zero otherwise (log ticks over a decade or so
+    are unreadable)."""
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    values = np.asarray([v for v in values if v is not None], dtype=float)
+    if values.size and values.min() > 0 and values.max() / values.min() > LOG_SCALE_RATIO:
+        (ax.set_xscale if which == "x" else ax.set_yscale)("log")
+        axis.set_major_locator(LogLocator(base=10.0))
+        axis.set_minor_formatter(NullFormatter())
+        return
+    axis.set_major_formatter(FormatStrFormatter("%.3g"))
+    if which == "x":
+        ax.set_xlim(left=0.0)
+    else:
+        ax.set_ylim(bottom=0.0)
+
+
 def _drift(result: dict, key: str) -> float | None:
     value = (result.get("metrics") or {}).get(key)
     return max(float(value), DRIFT_FLOOR) if is_number(value) else None
@@ -188,7 +214,7 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
             if values.size:
                 ax.step(values, np.arange(1, values.size + 1) / values.size, where="post",
                         color=METHOD_COLOURS.get(method), label=f"{method} ({values.size})")
-        ax.set_xscale("log")
+        _drift_axis(ax, "x", [_drift(r, key) for r in ok])
         ax.set_xlabel(f"{title} of the base attitude [rad]")
         ax.set_ylabel("fraction of cases")
         ax.set_ylim(0, 1.02)
@@ -205,11 +231,17 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
                            facecolors="none" if marker == "o" else None,
                            edgecolors="tab:purple" if marker == "o" else None,
                            color="tab:green" if marker == "x" else None)
-        lo, hi = ax.get_xlim()[0], ax.get_xlim()[1]
-        lo, hi = min(lo, ax.get_ylim()[0]), max(hi, ax.get_ylim()[1])
+        drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
+        drifts = [d for d in drifts if d is not None]
+        _drift_axis(ax, "x", drifts)
+        _drift_axis(ax, "y", drifts)
+        if ax.get_xscale() == "log":
+            lo, hi = min(drifts) / PAIRED_MARGIN, max(drifts) * PAIRED_MARGIN
+        else:
+            lo, hi = 0.0, max(drifts) * PAIRED_MARGIN
         ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8, ls="--", label="equal")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+        ax.set_xlim(lo, hi)
+        ax.set_ylim(lo, hi)
         ax.set_xlabel("analytic drift [rad]")
         ax.set_ylabel("optimal drift [rad]")
         ax.set_title(f"optimal vs analytic ({len(paired)} sets)")
@@ -268,7 +300,12 @@ def plot_drift_against_parameter(results: Sequence[dict], name: str, path: str |
                            color=METHOD_COLOURS.get(method), label=method)
                 if labels is not None:
                     ax.set_xticks(range(len(labels)), labels, rotation=30, fontsize="small")
-            ax.set_yscale("log")
+                elif all(isinstance(p[0], int) for p in pairs):
+                    from matplotlib.ticker import MaxNLocator
+
+                    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+            _drift_axis(ax, "y", [_drift(r, key) for r in ok])
+            ax.margins(x=PARAMETER_MARGIN)
             ax.grid(True, which="major", alpha=0.3)
             ax.set_xlabel(column)
             if j == 0:
