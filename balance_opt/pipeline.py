@@ -304,8 +304,9 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     if task_outputs.report:
         from .report import write_report
 
+        extra = _animation_section(run) if task_outputs.animation else ""
         run.report = write_report(
-            output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description
+            output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description, extra
         )
         files.append(run.report)
         if not task_outputs.plots:
@@ -313,6 +314,22 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
                 path.unlink()
     run.files = files
     return files
+
+
+def _animation_section(run: TaskRun) -> str:
+    """The report's 3D animation of every plan (see :mod:`balance_opt.animation`)."""
+    from .animation import animation_html
+    from .plots import plan_colour, plan_label
+
+    names = list(run.results)
+    colours = {name: plan_colour(name, i) for i, name in enumerate(names)}
+    labels = {name: plan_label(name) for name in names}
+    with _timed("animation"):
+        body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
+    return (
+        '<h2>Animation</h2><p class="meta">The robot as a stick figure (base axes: red x, green y, '
+        "blue z), base pose from the plan; drag to turn the view.</p>" + body
+    )
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:

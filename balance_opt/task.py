@@ -523,6 +523,9 @@ class OutputsSpec:
     npz: bool = setting(True, doc="trajectories as NumPy .npz, one file per method")
     plots: bool = setting(True, doc="figures as PNG")
     report: bool = setting(True, doc="self-contained HTML report (report.html)")
+    animation: bool = setting(
+        True, doc="a 3D animation of the plans in the report (stick figure, inline script)"
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
