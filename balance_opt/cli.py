@@ -57,8 +57,18 @@ def parse_solver_option(text: str) -> tuple[str, int | float | str]:
     return key, value
 
 
-def _solver_options(args) -> dict:
-    return dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+#: Ipopt's iteration log, shown (on stdout) with ``--verbose`` as the optimal planner's progress.
+VERBOSE_IPOPT = {"print_level": 5}
+
+
+def _solver_options(args, task=None) -> dict:
+    """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
+    task or the command line sets ``print_level``)."""
+    options = dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+    task_ipopt = task.spec.optimal.ipopt if task is not None else {}
+    if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
+        options.update(VERBOSE_IPOPT)
+    return options
 
 
 def check_output_dir(path: Path, force: bool) -> Path:
@@ -152,7 +162,7 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
     from .task import load_task
 
     task = load_task(args.task)
-    solver_options = _solver_options(args)
+    solver_options = _solver_options(args, task)
     output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / task.name
     check_output_dir(output, args.force)
     started = time.perf_counter()
@@ -203,7 +213,7 @@ def _cmd_paper_figures(args) -> int:
         from .task import load_task
 
         task = load_task(args.task)
-    solver_options = _solver_options(args)
+    solver_options = _solver_options(args, task)
     output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / "paper_figures"
     check_output_dir(output, args.force)
     files = paper_figures(output, task=task, solver_options=solver_options)
@@ -216,7 +226,11 @@ def _common_options(parser: argparse.ArgumentParser, top: bool) -> None:
     """``-v``/``-q`` on the top parser and on every subcommand (either place works)."""
     default = False if top else argparse.SUPPRESS
     parser.add_argument(
-        "-v", "--verbose", action="store_true", default=default, help="log debug messages"
+        "-v",
+        "--verbose",
+        action="store_true",
+        default=default,
+        help="log debug messages, and show Ipopt's iteration log (stdout)",
     )
     parser.add_argument(
         "-q", "--quiet", action="store_true", default=default, help="print errors only"

@@ -445,3 +445,11 @@ def test_api_example_runs_headless(tmp_path):
     assert re.search(r"^optimal +[0-9.e-]+ +[0-9.e-]+ +0$", proc.stdout, re.MULTILINE)
     assert f"report: {out / 'report.html'}; solver failures: none" in proc.stdout
     assert {"metrics.json", "report.html", "optimal.csv"} <= {p.name for p in out.iterdir()}
+
+
+def test_verbose_shows_the_ipopt_iterations(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["plan", str(_fast_paper(tmp_path)), "-m", "optimal", "-o", str(out), "-v"]) == 0
+    captured = capsys.readouterr()
+    assert re.search(r"^iter +objective +inf_pr", captured.out, re.M)  # Ipopt's log, as progress
+    assert " DEBUG " in captured.err

@@ -474,3 +474,43 @@ def test_readme_reference_is_the_generated_one():
 def test_typed_spec_defaults():
     m = PtpMission(start=(0.0,), goal=(1.0,), duration=2.0)
     assert m.type == "ptp"
+
+
+CARTESIAN = """robot: {shipped: paper_robot.urdf}
+arms:
+  mission: [mission_joint1, mission_joint2, mission_joint3]
+  balance: [balance_joint1, balance_joint2, balance_joint3]
+initial: {balance: [0.0, 0.5, -1.0]}
+mission:
+  type: cartesian
+  start: [0.0, 0.3, -0.6]
+  position: POSITION
+  duration: 5
+"""
+
+
+def test_cartesian_goal_is_solved_by_inverse_kinematics(tmp_path):
+    import pinocchio as pin
+
+    path = tmp_path / "cart.yaml"
+    path.write_text(CARTESIAN.replace("POSITION", "[0.9, 0.4, 1.2]"))
+    task = load_task(path)
+    model, data = task.robot.model, task.robot.model.createData()
+    q = np.r_[task.mission.end, task.q_B0]
+    pin.framesForwardKinematics(model, data, task.robot.pin_q(q))
+    reached = data.oMf[model.getFrameId(task.robot.mission.ee_frame)].translation
+    np.testing.assert_allclose(reached, [0.9, 0.4, 1.2], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(task.mission.start, [0.0, 0.3, -0.6])
+
+
+def test_unreachable_cartesian_goal_names_the_position(tmp_path):
+    path = tmp_path / "cart.yaml"
+    text = CARTESIAN.replace("POSITION", "[5.0, 0.0, 1.0]")
+    path.write_text(text)
+    with pytest.raises(TrajectoryError) as info:
+        load_task(path)
+    message = str(info.value)
+    assert message.startswith(
+        f"{path}:{_line_of(text, 'position:')}: mission.position: Cartesian goal [5.0, 0.0, 1.0]"
+    )
+    assert re.search(r"unreachable within the joint limits: remaining distance [0-9.]+ m$", message)
