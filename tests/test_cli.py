@@ -451,5 +451,7 @@ def test_verbose_shows_the_ipopt_iterations(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["plan", str(_fast_paper(tmp_path)), "-m", "optimal", "-o", str(out), "-v"]) == 0
     captured = capsys.readouterr()
-    assert re.search(r"^iter +objective +inf_pr", captured.out, re.M)  # Ipopt's log, as progress
+    assert re.search(
+        r"^iter +objective +inf_pr", captured.out, re.MULTILINE
+    )  # Ipopt's log, as progress
     assert " DEBUG " in captured.err
