@@ -9,7 +9,8 @@ Subcommands:
   figures and the HTML report;
 * ``simulate TASK``: the same, then each plan through forward dynamics;
 * ``compare TASK``: both methods, simulated, and the comparison report;
-* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot.
+* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
+* ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep`).
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
 (whatever was computed is still written). An output directory that exists and is not empty is
@@ -333,6 +334,10 @@ def build_parser() -> argparse.ArgumentParser:
         "(its robot and mission are ignored: the study is the paper's scenario)",
     )
     p.set_defaults(run=_cmd_paper_figures)
+
+    from .sweep import add_sweep_parser
+
+    add_sweep_parser(sub)
 
     for subparser in sub.choices.values():
         _common_options(subparser, top=False)
