@@ -262,6 +262,16 @@ def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) ->
     )
 
 
+def _method_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "-m",
+        "--method",
+        choices=("analytic", "optimal", "both"),
+        default="both",
+        help="planning method (default: both)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="balance-opt",
@@ -292,13 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
         "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
     )
     _run_options(p)
-    p.add_argument(
-        "-m",
-        "--method",
-        choices=("analytic", "optimal", "both"),
-        default="both",
-        help="planning method (default: both)",
-    )
+    _method_option(p)
     p.add_argument(
         "--simulate", action="store_true", help="also simulate each plan (as the simulate command)"
     )
@@ -308,13 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate", help="plan, then check each plan in a forward-dynamics simulation"
     )
     _run_options(p)
-    p.add_argument(
-        "-m",
-        "--method",
-        choices=("analytic", "optimal", "both"),
-        default="both",
-        help="planning method (default: both)",
-    )
+    _method_option(p)
     p.set_defaults(run=_cmd_simulate)
 
     p = sub.add_parser(

@@ -285,7 +285,7 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
     from .outputs import run_metrics, write_metrics, write_trajectory_csv, write_trajectory_npz
 
-    out = task_outputs = run.task.spec.outputs
+    out = run.task.spec.outputs
     output_dir.mkdir(parents=True, exist_ok=True)
     files = []
     for name, res in run.results.items():
@@ -296,20 +296,20 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures)
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []
-    if task_outputs.plots or task_outputs.report:
+    if out.plots or out.report:
         with _timed("figures"):
             figures = write_figures(run, output_dir)
-        if task_outputs.plots:
+        if out.plots:
             files.extend(path for _, path in figures)
-    if task_outputs.report:
+    if out.report:
         from .report import write_report
 
-        extra = _animation_section(run) if task_outputs.animation else ""
+        extra = _animation_section(run) if out.animation else ""
         run.report = write_report(
             output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description, extra
         )
         files.append(run.report)
-        if not task_outputs.plots:
+        if not out.plots:
             for _, path in figures:
                 path.unlink()
     run.files = files
@@ -339,32 +339,25 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     from .plots import attitude_figure, reaction_torque_figure
     from .report_figures import joint_limits_figure
 
+    def attitude(results, key, title):
+        """Attitude of the plans, the reference dashed (alone when there is no plan)."""
+        plans = {k: v for k, v in results.items() if k != REFERENCE}
+        dashed = {REFERENCE: results[REFERENCE]} if plans and REFERENCE in results else None
+        stem, caption = FIGURES[key]
+        _, paths = attitude_figure(
+            plans or results, output_dir / stem, dashed=dashed, title=title, formats=("png",)
+        )
+        figures.append((caption, paths[0]))
+        return plans
+
     figures = []
-    plans = {k: v for k, v in run.results.items() if k != REFERENCE}
-    stem, caption = FIGURES["attitude"]
-    _, paths = attitude_figure(
-        plans or run.results,
-        output_dir / stem,
-        dashed={REFERENCE: run.results[REFERENCE]} if plans else None,
-        title="Base attitude",
-        formats=("png",),
-    )
-    figures.append((caption, paths[0]))
+    plans = attitude(run.results, "attitude", "Base attitude")
     if plans:
         stem, caption = FIGURES["joints"]
         path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png")
         figures.append((caption, path))
     if run.simulations:
-        sims = {k: v for k, v in run.simulations.items() if k != REFERENCE}
-        stem, caption = FIGURES["simulated_attitude"]
-        _, paths = attitude_figure(
-            sims or run.simulations,
-            output_dir / stem,
-            dashed={REFERENCE: run.simulations[REFERENCE]} if sims else None,
-            title="Base attitude, forward dynamics",
-            formats=("png",),
-        )
-        figures.append((caption, paths[0]))
+        sims = attitude(run.simulations, "simulated_attitude", "Base attitude, forward dynamics")
         if sims:
             stem, caption = FIGURES["torque"]
             _, paths = reaction_torque_figure(
