@@ -21,7 +21,7 @@ import hashlib
 import json
 import logging
 from collections.abc import Mapping
-from dataclasses import MISSING, dataclass, field, replace
+from dataclasses import MISSING, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -947,35 +947,31 @@ def task_reference_markdown() -> str:
     return reference_markdown(TaskSpec)
 
 
-def with_options(task: Task, **section_updates: Mapping[str, Any]) -> Task:
-    """A copy of ``task`` with some option values replaced, e.g. ``with_options(task,
-    outputs={"plots": False})``; the robot and mission are kept."""
-    updates = {}
-    for section, values in section_updates.items():
-        current = getattr(task.spec, section)
-        updates[section] = replace(current, **values)
-    return replace(task, spec=replace(task.spec, **updates))
-
-
 __all__ = [
+    "AnalyticSpec",
     "ArmsSpec",
     "CartesianMission",
+    "ConstraintsSpec",
     "CsvMission",
     "InitialSpec",
     "LimitSpec",
     "MissionSpec",
+    "OptimalSpec",
     "OutputsSpec",
     "PtpMission",
     "RobotSpec",
+    "SimulationSpec",
     "Task",
     "TaskFileError",
     "TaskLimitsError",
     "TaskSpec",
     "TaskTrajectoryError",
     "ViaMission",
+    "WeightsSpec",
+    "check_optimal_supported",
     "load_task",
     "task_from_dict",
+    "task_from_document",
     "task_json_schema",
     "task_reference_markdown",
-    "with_options",
 ]
