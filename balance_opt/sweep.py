@@ -69,16 +69,27 @@ class Distribution:
     __exactly_one__ = ("uniform", "normal", "choice", "integers")
 
     uniform: tuple[Any, ...] | None = setting(
-        None, min_items=2, max_items=2,
+        None,
+        min_items=2,
+        max_items=2,
         doc="[low, high]: uniform between low and high (numbers, or lists of the same length, "
-            "drawn element by element)")
+        "drawn element by element)",
+    )
     normal: tuple[Any, ...] | None = setting(
-        None, min_items=2, max_items=2,
-        doc="[mean, std]: normal distribution (numbers, or lists of the same length)")
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[mean, std]: normal distribution (numbers, or lists of the same length)",
+    )
     choice: tuple[Any, ...] | None = setting(
-        None, min_items=1, doc="values to pick from, each equally likely")
+        None, min_items=1, doc="values to pick from, each equally likely"
+    )
     integers: tuple[int, ...] | None = setting(
-        None, min_items=2, max_items=2, doc="[low, high]: an integer from low to high, both included")
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[low, high]: an integer from low to high, both included",
+    )
 
 
 @dataclass(frozen=True)
@@ -99,15 +110,19 @@ class SweepSpec:
     """
 
     task: str | dict[str, Any] = setting(
-        doc="the base task: a task file (path relative to the sweep file) or an inline task mapping")
+        doc="the base task: a task file (path relative to the sweep file) or an inline task mapping"
+    )
     name: str | None = setting(None, doc="name of the study (for the report)")
     methods: tuple[Literal["analytic", "optimal"], ...] = setting(
-        ("analytic", "optimal"), min_items=1, doc="planning methods run on every parameter set")
+        ("analytic", "optimal"), min_items=1, doc="planning methods run on every parameter set"
+    )
     simulate: bool = setting(False, doc="also simulate each plan with the free-floating dynamics")
     grid: dict[str, tuple[Any, ...]] = setting(
-        factory=dict, doc="key path of the task -> list of values; every combination is a case")
+        factory=dict, doc="key path of the task -> list of values; every combination is a case"
+    )
     cases: tuple[dict[str, Any], ...] = setting(
-        (), doc="a list of parameter sets (key path -> value), each one a case")
+        (), doc="a list of parameter sets (key path -> value), each one a case"
+    )
     random: RandomSamples | None = setting(None, doc="seeded random samples of parameters")
 
 
@@ -130,8 +145,10 @@ def parse_key_path(text: str) -> tuple[Any, ...]:
         ValueError: ``text`` is not a key path.
     """
     if not isinstance(text, str) or not _KEY_PATH.fullmatch(text):
-        raise ValueError(f"'{text}' is not a key path (expected names joined by '.', and [i] for "
-                         "list items, like mission.goal[2])")
+        raise ValueError(
+            f"'{text}' is not a key path (expected names joined by '.', and [i] for "
+            "list items, like mission.goal[2])"
+        )
     return tuple(name if name else int(index) for name, index in _SEGMENT.findall(text))
 
 
@@ -207,14 +224,20 @@ def draw_samples(random: RandomSamples, doc: YamlDocument, at: tuple) -> list[di
         where = (*at, "parameters", name)
         try:
             if dist.uniform is not None:
-                low, high = (_as_array(v, f"uniform {k}") for k, v in zip(("low", "high"), dist.uniform))
+                low, high = (
+                    _as_array(v, f"uniform {k}") for k, v in zip(("low", "high"), dist.uniform)
+                )
                 if low.shape != high.shape:
                     raise ValueError(f"low has shape {low.shape} but high has {high.shape}")
                 if np.any(low > high):
-                    raise ValueError(f"low must not exceed high, got low={_plain(low)}, high={_plain(high)}")
+                    raise ValueError(
+                        f"low must not exceed high, got low={_plain(low)}, high={_plain(high)}"
+                    )
                 draws[name] = ("uniform", low, high)
             elif dist.normal is not None:
-                mean, std = (_as_array(v, f"normal {k}") for k, v in zip(("mean", "std"), dist.normal))
+                mean, std = (
+                    _as_array(v, f"normal {k}") for k, v in zip(("mean", "std"), dist.normal)
+                )
                 if mean.shape != std.shape and std.ndim != 0:
                     raise ValueError(f"mean has shape {mean.shape} but std has {std.shape}")
                 if np.any(std < 0):
@@ -297,8 +320,11 @@ def _parameter_sets(spec: SweepSpec, doc: YamlDocument) -> tuple[list[dict], dic
         except ValueError as exc:
             raise doc.error(at, str(exc)) from None
         if name == "method":
-            raise doc.error(at, "the method is not a task parameter: list the methods under "
-                                "'methods' (e.g. methods: [analytic, optimal])")
+            raise doc.error(
+                at,
+                "the method is not a task parameter: list the methods under "
+                "'methods' (e.g. methods: [analytic, optimal])",
+            )
     for name, values in spec.grid.items():
         if not values:
             raise doc.error(("grid", name), "expected at least one value")
@@ -306,20 +332,26 @@ def _parameter_sets(spec: SweepSpec, doc: YamlDocument) -> tuple[list[dict], dic
     list_sets = [dict(entry) for entry in spec.cases] or [{}]
     total = len(grid_sets) * len(list_sets) * len(random_sets) * len(spec.methods)
     if total > MAX_CASES:
-        raise doc.error((), f"the sweep expands to {total} cases, more than the {MAX_CASES} allowed")
+        raise doc.error(
+            (), f"the sweep expands to {total} cases, more than the {MAX_CASES} allowed"
+        )
     sets = []
     for g, c, r in itertools.product(grid_sets, list_sets, random_sets):
         clash = (set(g) & set(c)) | (set(g) & set(r)) | (set(c) & set(r))
         if clash:
-            name = sorted(clash)[0]
-            raise doc.error(where[name], f"parameter '{name}' is varied in more than one of grid, "
-                                         "cases and random; vary each parameter in one place")
+            name = min(clash)
+            raise doc.error(
+                where[name],
+                f"parameter '{name}' is varied in more than one of grid, "
+                "cases and random; vary each parameter in one place",
+            )
         sets.append({**g, **c, **r})
     return sets, where
 
 
-def expand_cases(spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str,
-                 base_dir: str) -> tuple[list[dict], dict[str, tuple]]:
+def expand_cases(
+    spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str, base_dir: str
+) -> tuple[list[dict], dict[str, tuple]]:
     """The cases of a sweep (see :class:`Sweep`), in a fixed order: parameter sets in file order
     (grid, then list, then random samples, innermost last), each with every method.
 
@@ -339,17 +371,29 @@ def expand_cases(spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str
             case_id = case_id_from(method, parameters, setup_hash)
             index = len(cases)
             if case_id in seen:
-                raise doc.error((), f"case {index} ({method}, {canonical_json(parameters)}) is the "
-                                    f"same as case {seen[case_id]}; every case must differ")
+                raise doc.error(
+                    (),
+                    f"case {index} ({method}, {canonical_json(parameters)}) is the "
+                    f"same as case {seen[case_id]}; every case must differ",
+                )
             seen[case_id] = index
-            cases.append({"index": index, "case_id": case_id, "method": method,
-                          "parameters": parameters, "task": case_task, "base_dir": base_dir,
-                          "simulate": spec.simulate})
+            cases.append(
+                {
+                    "index": index,
+                    "case_id": case_id,
+                    "method": method,
+                    "parameters": parameters,
+                    "task": case_task,
+                    "base_dir": base_dir,
+                    "simulate": spec.simulate,
+                }
+            )
     return cases, where
 
 
-def sweep_from_document(doc: YamlDocument, base_dir: str | Path,
-                        solver_options: dict[str, Any] | None = None) -> Sweep:
+def sweep_from_document(
+    doc: YamlDocument, base_dir: str | Path, solver_options: dict[str, Any] | None = None
+) -> Sweep:
     """A :class:`Sweep` from a parsed sweep file.
 
     The base task and the task of every case are loaded in full (robot, mission, limits: see
@@ -367,7 +411,9 @@ def sweep_from_document(doc: YamlDocument, base_dir: str | Path,
             of the wrong type or at an unknown key (located at the parameter in the sweep file).
     """
     if not isinstance(doc.data, dict):
-        raise doc.error((), "expected a mapping with the keys of a sweep (task, grid, cases, random)")
+        raise doc.error(
+            (), "expected a mapping with the keys of a sweep (task, grid, cases, random)"
+        )
     spec = from_data(SweepSpec, doc)
     base_dir = Path(base_dir)
     if isinstance(spec.task, str):
@@ -377,8 +423,11 @@ def sweep_from_document(doc: YamlDocument, base_dir: str | Path,
         task_doc, prefix = load_yaml(task_path), ()
     else:
         task_path, prefix = None, ("task",)
-        task_doc = YamlDocument(doc.data["task"], doc.source,
-                                {k[1:]: v for k, v in doc.lines.items() if k[:1] == ("task",)})
+        task_doc = YamlDocument(
+            doc.data["task"],
+            doc.source,
+            {k[1:]: v for k, v in doc.lines.items() if k[:1] == ("task",)},
+        )
     task_dir = task_path.parent if task_path is not None else base_dir.resolve()
     task = task_doc.data
     task_hash = hashlib.sha256(canonical_json(task).encode()).hexdigest()
@@ -406,8 +455,13 @@ def _load_task(task_doc: YamlDocument, task_dir: Path, task_hash: str, prefix: t
         raise type(exc)(exc.source, exc.line, (*prefix, *exc.path), exc.reason) from None
 
 
-def _check_case_tasks(cases: list[dict], doc: YamlDocument, task_doc: YamlDocument,
-                      task_dir: Path, where: dict[str, tuple]) -> None:
+def _check_case_tasks(
+    cases: list[dict],
+    doc: YamlDocument,
+    task_doc: YamlDocument,
+    task_dir: Path,
+    where: dict[str, tuple],
+) -> None:
     """Load the task of every distinct parameter set; an error is reported at the line of the
     varied parameter in the sweep file. Limits no plan can meet and missions that cannot be
     built are left to fail their case when it runs: in a study they are results, not typos."""
@@ -420,7 +474,9 @@ def _check_case_tasks(cases: list[dict], doc: YamlDocument, task_doc: YamlDocume
             continue
         checked.add(key)
         try:
-            task_from_document(YamlDocument(case["task"], task_doc.source, task_doc.lines), task_dir, key)
+            task_from_document(
+                YamlDocument(case["task"], task_doc.source, task_doc.lines), task_dir, key
+            )
         except (TaskLimitsError, TaskTrajectoryError):
             continue
         except TaskFileError as exc:
@@ -430,8 +486,9 @@ def _check_case_tasks(cases: list[dict], doc: YamlDocument, task_doc: YamlDocume
             value = canonical_json(case["parameters"][culprit])
             inner = format_path(exc.path)
             inner = "" if inner == culprit else f"{inner}: "
-            raise doc.error(where[culprit], f"{culprit} = {value} (case {case['index']}): "
-                                            f"{inner}{exc.reason}") from None
+            raise doc.error(
+                where[culprit], f"{culprit} = {value} (case {case['index']}): {inner}{exc.reason}"
+            ) from None
 
 
 def _varied_prefix(path: tuple, parameters: dict[str, Any]) -> str | None:
@@ -450,8 +507,9 @@ def load_sweep(path: str | Path, solver_options: dict[str, Any] | None = None) -
     return sweep_from_document(doc, Path(path).resolve().parent, solver_options)
 
 
-def parse_sweep(text: str, source: str, base_dir: str | Path,
-                solver_options: dict[str, Any] | None = None) -> Sweep:
+def parse_sweep(
+    text: str, source: str, base_dir: str | Path, solver_options: dict[str, Any] | None = None
+) -> Sweep:
     """A :class:`Sweep` from YAML text (tests, generated sweeps)."""
     return sweep_from_document(parse_yaml(text, source), base_dir, solver_options)
 
@@ -478,8 +536,11 @@ def parameter_columns(parameters: dict[str, Any]) -> dict[str, Any]:
 
 def is_number(value: Any) -> bool:
     """A real number (not a boolean), finite or not."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and not (
-        isinstance(value, float) and math.isnan(value))
+    return (
+        isinstance(value, (int, float))
+        and not isinstance(value, bool)
+        and not (isinstance(value, float) and math.isnan(value))
+    )
 
 
 # ------------------------------------------------------------------------------ running a sweep
@@ -517,19 +578,36 @@ def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
         raise InputError(f"output {out_dir} exists and is not a directory")
     if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
         if not force:
-            raise InputError(f"output directory {out_dir} exists and is not empty; nothing was run. "
-                             "Use --resume to finish the sweep in it, --force to start it over, "
-                             "or choose another --output")
-        for old in [*(out_dir / CASES_DIR).glob("*.json"), *(out_dir / "plots").glob("*.png"),
-                    out_dir / "results.csv", out_dir / "summary.json", out_dir / MANIFEST]:
+            raise InputError(
+                f"output directory {out_dir} exists and is not empty; nothing was run. "
+                "Use --resume to finish the sweep in it, --force to start it over, "
+                "or choose another --output"
+            )
+        for old in [
+            *(out_dir / CASES_DIR).glob("*.json"),
+            *(out_dir / "plots").glob("*.png"),
+            out_dir / "results.csv",
+            out_dir / "summary.json",
+            out_dir / MANIFEST,
+        ]:
             old.unlink(missing_ok=True)
     out_dir.mkdir(parents=True, exist_ok=True)
     return out_dir
 
 
-def run_sweep(sweep: Sweep, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
-              resume: bool = False, force: bool = False, retry_failed: bool = False,
-              plots: bool = True, runner: str = TASK_RUNNER, on_result=None, engine=None) -> SweepOutcome:
+def run_sweep(
+    sweep: Sweep,
+    out_dir: str | Path,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    resume: bool = False,
+    force: bool = False,
+    retry_failed: bool = False,
+    plots: bool = True,
+    runner: str = TASK_RUNNER,
+    on_result=None,
+    engine=None,
+) -> SweepOutcome:
     """Run every case of a sweep and write its results, table, summary and plots.
 
     Args:
@@ -557,24 +635,45 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, jobs: int = 1, scheduler: str |
     from .sweep_report import write_report
 
     out_dir = prepare_output_dir(out_dir, resume, force)
-    manifest = {"name": sweep.name, "source": sweep.source, "setup_hash": sweep.setup_hash,
-                "varied": list(sweep.varied), "methods": list(sweep.spec.methods),
-                "cases": [{k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases]}
+    manifest = {
+        "name": sweep.name,
+        "source": sweep.source,
+        "setup_hash": sweep.setup_hash,
+        "varied": list(sweep.varied),
+        "methods": list(sweep.spec.methods),
+        "cases": [
+            {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
+        ],
+    }
     write_json_atomic(out_dir / MANIFEST, manifest)
     engine = engine if engine is not None else make_engine(jobs, scheduler)
     extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
     try:
-        run = run_cases(sweep.cases, runner, out_dir, engine, resume=resume,
-                        retry_failed=retry_failed, on_result=on_result)
+        run = run_cases(
+            sweep.cases,
+            runner,
+            out_dir,
+            engine,
+            resume=resume,
+            retry_failed=retry_failed,
+            on_result=on_result,
+        )
     except KeyboardInterrupt:
         from .sweep_engine import iter_results
 
         done = list(iter_results(out_dir, [c["case_id"] for c in sweep.cases]))
-        write_report(out_dir, done, sweep.varied, plots=False, extra_summary={**extra, "interrupted": True})
-        logger.warning("interrupted: %d of %d case(s) finished; run again with --resume to go on",
-                       len(done), len(sweep.cases))
+        write_report(
+            out_dir, done, sweep.varied, plots=False, extra_summary={**extra, "interrupted": True}
+        )
+        logger.warning(
+            "interrupted: %d of %d case(s) finished; run again with --resume to go on",
+            len(done),
+            len(sweep.cases),
+        )
         raise
-    extra.update(workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped))
+    extra.update(
+        workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped)
+    )
     files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
     summary = json.loads(files["summary"].read_text())
     return SweepOutcome(run, files, summary)
@@ -584,28 +683,60 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, jobs: int = 1, scheduler: str |
 def add_sweep_parser(subparsers) -> Any:
     """Add the ``sweep`` subcommand to the ``balance-opt`` command line."""
     p = subparsers.add_parser(
-        "sweep", help="run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
+        "sweep",
+        help="run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
         description="Run every case of a sweep file (a base task and the parameters to vary); "
-                    "write one result per case as it finishes, the table results.csv, "
-                    "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
-                    "failed (their errors are in the table), 2 for a bad sweep file.")
+        "write one result per case as it finishes, the table results.csv, "
+        "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
+        "failed (their errors are in the table), 2 for a bad sweep file.",
+    )
     p.add_argument("sweep", nargs="?", help="sweep file (YAML)")
-    p.add_argument("-o", "--output", metavar="DIR", help="output directory (default: results/<sweep name>)")
-    p.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
-                   help="worker processes (default: the number of CPUs; 0 runs the cases in this process)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run on Dask: the address of a scheduler (tcp://host:8786), or 'local' to start "
-                        "a local cluster of --jobs worker processes on 127.0.0.1")
-    p.add_argument("--resume", action="store_true",
-                   help="finish an interrupted sweep in --output: skip the cases already done")
-    p.add_argument("--retry-failed", action="store_true", help="with --resume, run failed cases again")
-    p.add_argument("-f", "--force", action="store_true",
-                   help="start over in an existing, non-empty output directory")
+    p.add_argument(
+        "-o", "--output", metavar="DIR", help="output directory (default: results/<sweep name>)"
+    )
+    p.add_argument(
+        "-j",
+        "--jobs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes (default: the number of CPUs; 0 runs the cases in this process)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on Dask: the address of a scheduler (tcp://host:8786), or 'local' to start "
+        "a local cluster of --jobs worker processes on 127.0.0.1",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="finish an interrupted sweep in --output: skip the cases already done",
+    )
+    p.add_argument(
+        "--retry-failed", action="store_true", help="with --resume, run failed cases again"
+    )
+    p.add_argument(
+        "-f",
+        "--force",
+        action="store_true",
+        help="start over in an existing, non-empty output directory",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the summary plots")
-    p.add_argument("--solver-option", action="append", metavar="KEY=VALUE",
-                   help="Ipopt option for every optimal case (repeatable)")
-    p.add_argument("--schema", action="store_true", help="print the JSON Schema of sweep files and exit")
-    p.add_argument("--reference", action="store_true", help="print the sweep-file reference (Markdown) and exit")
+    p.add_argument(
+        "--solver-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="Ipopt option for every optimal case (repeatable)",
+    )
+    p.add_argument(
+        "--schema", action="store_true", help="print the JSON Schema of sweep files and exit"
+    )
+    p.add_argument(
+        "--reference",
+        action="store_true",
+        help="print the sweep-file reference (Markdown) and exit",
+    )
     p.add_argument("--runner", default=TASK_RUNNER, help=argparse.SUPPRESS)
     p.set_defaults(run=run_sweep_command)
     return p
@@ -626,7 +757,9 @@ def run_sweep_command(args) -> int:
         return 0
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
-    solver_options = dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+    solver_options = dict(
+        parse_solver_option(s) for s in getattr(args, "solver_option", None) or []
+    )
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
         raise InputError(f"--jobs must be >= 0, got {jobs}")
@@ -640,18 +773,46 @@ def run_sweep_command(args) -> int:
     def progress(record, done, total):
         metrics = record.get("metrics") or {}
         drift = metrics.get(MAX_DRIFT_KEY)
-        what = (f"max drift {drift:.3g} rad" if isinstance(drift, float) else
-                (record.get("error") or {}).get("message", ""))
-        logger.info("[%d/%d] case %d %s %s: %s (%.2f s)", done, total, record["index"], record["method"],
-                    record["status"], what[:200], record["timing"]["case_s"])
+        what = (
+            f"max drift {drift:.3g} rad"
+            if isinstance(drift, float)
+            else (record.get("error") or {}).get("message", "")
+        )
+        logger.info(
+            "[%d/%d] case %d %s %s: %s (%.2f s)",
+            done,
+            total,
+            record["index"],
+            record["method"],
+            record["status"],
+            what[:200],
+            record["timing"]["case_s"],
+        )
 
-    outcome = run_sweep(sweep, out_dir, jobs=jobs, scheduler=args.scheduler, resume=args.resume,
-                        force=args.force, retry_failed=args.retry_failed, plots=not args.no_plots,
-                        runner=args.runner, on_result=progress)
+    outcome = run_sweep(
+        sweep,
+        out_dir,
+        jobs=jobs,
+        scheduler=args.scheduler,
+        resume=args.resume,
+        force=args.force,
+        retry_failed=args.retry_failed,
+        plots=not args.no_plots,
+        runner=args.runner,
+        on_result=progress,
+    )
     run = outcome.run
-    logger.info("%d case(s): %d run in %.1f s on %d worker(s), %d skipped (already done), %d failed; "
-                "table %s", len(run.results), len(run.ran), run.elapsed_s, run.workers,
-                len(run.skipped), len(run.failed), outcome.files["table"])
+    logger.info(
+        "%d case(s): %d run in %.1f s on %d worker(s), %d skipped (already done), %d failed; "
+        "table %s",
+        len(run.results),
+        len(run.ran),
+        run.elapsed_s,
+        run.workers,
+        len(run.skipped),
+        len(run.failed),
+        outcome.files["table"],
+    )
     return 1 if run.failed else 0
 
 
@@ -659,8 +820,27 @@ def run_sweep_command(args) -> int:
 MAX_DRIFT_KEY = "max_drift_rad"
 
 
-__all__ = ["Distribution", "METHODS", "RandomSamples", "Sweep", "SweepOutcome", "SweepSpec",
-           "add_sweep_parser", "apply_overrides", "case_id_from", "canonical_json", "draw_samples",
-           "expand_cases", "load_sweep", "parameter_columns", "parse_key_path", "parse_sweep",
-           "prepare_output_dir", "run_sweep", "run_sweep_command", "sweep_from_document",
-           "sweep_json_schema", "sweep_reference_markdown"]
+__all__ = [
+    "METHODS",
+    "Distribution",
+    "RandomSamples",
+    "Sweep",
+    "SweepOutcome",
+    "SweepSpec",
+    "add_sweep_parser",
+    "apply_overrides",
+    "canonical_json",
+    "case_id_from",
+    "draw_samples",
+    "expand_cases",
+    "load_sweep",
+    "parameter_columns",
+    "parse_key_path",
+    "parse_sweep",
+    "prepare_output_dir",
+    "run_sweep",
+    "run_sweep_command",
+    "sweep_from_document",
+    "sweep_json_schema",
+    "sweep_reference_markdown",
+]

@@ -28,11 +28,12 @@ import tempfile
 import threading
 import time
 import traceback
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any
 
 logger = logging.getLogger(__name__)
 
@@ -94,9 +95,13 @@ def execute_case(runner: str, case: dict) -> dict:
         start = time.perf_counter()
         try:
             out = resolve_runner(runner)(case)
-            record.update(status=out.get("status", STATUS_OK), error=out.get("error"),
-                          metrics=out.get("metrics", {}), info=out.get("info", {}),
-                          runner_timing=out.get("timing", {}))
+            record.update(
+                status=out.get("status", STATUS_OK),
+                error=out.get("error"),
+                metrics=out.get("metrics", {}),
+                info=out.get("info", {}),
+                runner_timing=out.get("timing", {}),
+            )
         except SolverError as exc:
             record.update(status=STATUS_SOLVER_FAILED, error=error_record(exc), metrics={}, info={})
         except Exception as exc:  # noqa: BLE001 - a failing case is recorded, the sweep goes on
@@ -212,8 +217,9 @@ class LocalPoolEngine:
         self._env = None
 
     def _new_pool(self, jobs: int) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=jobs,
-                                   mp_context=multiprocessing.get_context(self.start_method))
+        return ProcessPoolExecutor(
+            max_workers=jobs, mp_context=multiprocessing.get_context(self.start_method)
+        )
 
     def __enter__(self):
         self._env = _single_threaded_children()
@@ -247,8 +253,9 @@ class LocalPoolEngine:
         if suspects:
             # A worker died and took the pool with it: every case not finished raised. Run
             # them again one at a time, each in a fresh process, so the culprit is known.
-            logger.warning("a worker process died; running %d unfinished case(s) one at a time",
-                           len(suspects))
+            logger.warning(
+                "a worker process died; running %d unfinished case(s) one at a time", len(suspects)
+            )
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = self._new_pool(self.workers)
             for case in sorted(suspects, key=lambda c: c["index"]):
@@ -261,10 +268,17 @@ class LocalPoolEngine:
     @staticmethod
     def _crash_record(case: dict, exc: BaseException) -> dict:
         record = {key: case[key] for key in ("index", "case_id", "method", "parameters")}
-        record.update(status=STATUS_ERROR, metrics={}, info={}, timing={"case_s": math.nan, "pid": None},
-                      error={"type": "WorkerCrashed",
-                             "message": f"the worker process running this case died: {exc}",
-                             "traceback": ""})
+        record.update(
+            status=STATUS_ERROR,
+            metrics={},
+            info={},
+            timing={"case_s": math.nan, "pid": None},
+            error={
+                "type": "WorkerCrashed",
+                "message": f"the worker process running this case died: {exc}",
+                "traceback": "",
+            },
+        )
         return record
 
     def describe(self) -> str:
@@ -285,8 +299,13 @@ class DaskEngine:
         timeout: longest wait for all the cases [s] (``TimeoutError`` after it); None: no limit.
     """
 
-    def __init__(self, address: str | None = None, workers: int = 2, host: str = "127.0.0.1",
-                 timeout: float | None = None):
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int = 2,
+        host: str = "127.0.0.1",
+        timeout: float | None = None,
+    ):
         self.address = address
         self.workers = workers
         self.host = host
@@ -299,8 +318,13 @@ class DaskEngine:
 
         if self.address is None:
             with _single_threaded_children():
-                self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
-                                             processes=True, host=self.host, dashboard_address=None)
+                self._cluster = LocalCluster(
+                    n_workers=self.workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    host=self.host,
+                    dashboard_address=None,
+                )
             self._client = Client(self._cluster)
         else:
             self._client = Client(self.address)
@@ -320,11 +344,17 @@ class DaskEngine:
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
         from dask.distributed import as_completed
 
-        futures = [self._client.submit(execute_case, runner, case, pure=False,
-                                       key=f"case-{case['case_id']}") for case in cases]
+        futures = [
+            self._client.submit(
+                execute_case, runner, case, pure=False, key=f"case-{case['case_id']}"
+            )
+            for case in cases
+        ]
         by_key = {fut.key: case for fut, case in zip(futures, cases)}
         pending = set(futures)
-        completed = as_completed(futures, with_results=True, raise_errors=False, timeout=self.timeout)
+        completed = as_completed(
+            futures, with_results=True, raise_errors=False, timeout=self.timeout
+        )
         del futures
         try:
             for fut, value in completed:
@@ -390,9 +420,15 @@ class SweepRun:
         return [r for r in self.results if r["status"] != STATUS_OK]
 
 
-def run_cases(cases: Sequence[Mapping], runner: str, out_dir: str | Path, engine=None,
-              resume: bool = False, retry_failed: bool = False,
-              on_result: Callable[[dict, int, int], None] | None = None) -> SweepRun:
+def run_cases(
+    cases: Sequence[Mapping],
+    runner: str,
+    out_dir: str | Path,
+    engine=None,
+    resume: bool = False,
+    retry_failed: bool = False,
+    on_result: Callable[[dict, int, int], None] | None = None,
+) -> SweepRun:
     """Run every case, write each result as it comes, and return them all in index order.
 
     Args:
@@ -423,8 +459,11 @@ def run_cases(cases: Sequence[Mapping], runner: str, out_dir: str | Path, engine
     if found:
         logger.info("resume: %d case(s) already done, %d to run", len(found), len(todo))
     (Path(out_dir) / CASES_DIR).mkdir(parents=True, exist_ok=True)
-    run = SweepRun(results=[], skipped=[c["case_id"] for c in cases if c["case_id"] in found],
-                   workers=engine.workers)
+    run = SweepRun(
+        results=[],
+        skipped=[c["case_id"] for c in cases if c["case_id"] in found],
+        workers=engine.workers,
+    )
     start = time.perf_counter()
     if todo:
         logger.info("running %d case(s) on %s", len(todo), engine.describe())
@@ -435,8 +474,13 @@ def run_cases(cases: Sequence[Mapping], runner: str, out_dir: str | Path, engine
                 found[record["case_id"]] = record
                 run.ran.append(record["case_id"])
                 if record["status"] != STATUS_OK:
-                    logger.warning("case %d (%s) %s: %s", record["index"], record["case_id"],
-                                   record["status"], (record.get("error") or {}).get("message"))
+                    logger.warning(
+                        "case %d (%s) %s: %s",
+                        record["index"],
+                        record["case_id"],
+                        record["status"],
+                        (record.get("error") or {}).get("message"),
+                    )
                 if on_result is not None:
                     on_result(record, len(run.ran), len(todo))
     run.elapsed_s = time.perf_counter() - start

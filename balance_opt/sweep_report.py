@@ -22,8 +22,9 @@ import json
 import logging
 import re
 from collections import Counter
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,9 @@ def is_timing_column(name: str) -> bool:
     """True for columns that depend on when and where a case ran (wall times, process ids)."""
     if name.startswith(TIMING_PREFIX):
         return True
-    return name.startswith(METRIC_PREFIX) and bool(_TIMING_METRIC.search(name[len(METRIC_PREFIX):]))
+    return name.startswith(METRIC_PREFIX) and bool(
+        _TIMING_METRIC.search(name[len(METRIC_PREFIX) :])
+    )
 
 
 def _flatten(prefix: str, value: Any, out: dict) -> None:
@@ -148,9 +151,11 @@ def read_table_csv(path: str | Path) -> tuple[list[str], list[dict[str, str]]]:
 
 def summarize(results: Sequence[dict]) -> dict[str, Any]:
     """Counts per status and method, and the median drifts of each method's successful cases."""
-    out: dict[str, Any] = {"cases": len(results),
-                           "status": dict(sorted(Counter(r["status"] for r in results).items())),
-                           "methods": {}}
+    out: dict[str, Any] = {
+        "cases": len(results),
+        "status": dict(sorted(Counter(r["status"] for r in results).items())),
+        "methods": {},
+    }
     for method in sorted({r["method"] for r in results}):
         mine = [r for r in results if r["method"] == method]
         ok = [r for r in mine if r["status"] == "ok"]
@@ -209,11 +214,17 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
     fig, axes = _figure(1, 3 if paired else 2)
     for ax, key, title in zip(axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")):
         for method in methods:
-            values = np.sort([d for r in ok if r["method"] == method
-                              if (d := _drift(r, key)) is not None])
+            values = np.sort(
+                [d for r in ok if r["method"] == method if (d := _drift(r, key)) is not None]
+            )
             if values.size:
-                ax.step(values, np.arange(1, values.size + 1) / values.size, where="post",
-                        color=METHOD_COLOURS.get(method), label=f"{method} ({values.size})")
+                ax.step(
+                    values,
+                    np.arange(1, values.size + 1) / values.size,
+                    where="post",
+                    color=METHOD_COLOURS.get(method),
+                    label=f"{method} ({values.size})",
+                )
         _drift_axis(ax, "x", [_drift(r, key) for r in ok])
         ax.set_xlabel(f"{title} of the base attitude [rad]")
         ax.set_ylabel("fraction of cases")
@@ -224,13 +235,25 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
     if paired:
         ax = axes[0][2]
         for key, marker, label in ((MAX_DRIFT, "o", "maximum"), (FINAL_DRIFT, "x", "final")):
-            xy = np.array([(a, o) for a_rec, o_rec in paired
-                           if (a := _drift(a_rec, key)) is not None and (o := _drift(o_rec, key)) is not None])
+            xy = np.array(
+                [
+                    (a, o)
+                    for a_rec, o_rec in paired
+                    if (a := _drift(a_rec, key)) is not None
+                    and (o := _drift(o_rec, key)) is not None
+                ]
+            )
             if xy.size:
-                ax.scatter(xy[:, 0], xy[:, 1], marker=marker, s=18, label=label,
-                           facecolors="none" if marker == "o" else None,
-                           edgecolors="tab:purple" if marker == "o" else None,
-                           color="tab:green" if marker == "x" else None)
+                ax.scatter(
+                    xy[:, 0],
+                    xy[:, 1],
+                    marker=marker,
+                    s=18,
+                    label=label,
+                    facecolors="none" if marker == "o" else None,
+                    edgecolors="tab:purple" if marker == "o" else None,
+                    color="tab:green" if marker == "x" else None,
+                )
         drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
         drifts = [d for d in drifts if d is not None]
         _drift_axis(ax, "x", drifts)
@@ -256,13 +279,18 @@ def _pairs(ok: Sequence[dict]) -> list[tuple[dict, dict]]:
     by_params: dict[str, dict[str, dict]] = {}
     for r in sorted(ok, key=lambda r: r["index"]):
         by_params.setdefault(canonical_json(r["parameters"]), {})[r["method"]] = r
-    return [(m["analytic"], m["optimal"]) for m in by_params.values() if {"analytic", "optimal"} <= set(m)]
+    return [
+        (m["analytic"], m["optimal"])
+        for m in by_params.values()
+        if {"analytic", "optimal"} <= set(m)
+    ]
 
 
 def _axis_values(values: list[Any]) -> tuple[np.ndarray, list[str] | None]:
     """Numbers to plot a parameter at, and tick labels for a categorical parameter."""
     if all(is_number(v) for v in values):
         return np.array(values, dtype=float), None
+
     def label(v):
         return v if isinstance(v, str) else canonical_json(v)
 
@@ -270,13 +298,17 @@ def _axis_values(values: list[Any]) -> tuple[np.ndarray, list[str] | None]:
     return np.array([labels.index(label(v)) for v in values], dtype=float), labels
 
 
-def plot_drift_against_parameter(results: Sequence[dict], name: str, path: str | Path) -> Path | None:
+def plot_drift_against_parameter(
+    results: Sequence[dict], name: str, path: str | Path
+) -> Path | None:
     """Maximum (top) and final (bottom) drift against the varied parameter ``name`` (one panel
     column per item of a list parameter), one colour per method, failed cases left out.
     Returns the file written, or None when no successful case has the parameter."""
     ok = [r for r in results if r["status"] == "ok" and name in r["parameters"]]
-    columns = sorted({c for r in ok for c in parameter_columns({name: r["parameters"][name]})},
-                     key=lambda c: [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", c)])
+    columns = sorted(
+        {c for r in ok for c in parameter_columns({name: r["parameters"][name]})},
+        key=lambda c: [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", c)],
+    )
     if not ok or not columns:
         return None
     failed = sum(1 for r in results if r["status"] != "ok" and name in r["parameters"])
@@ -287,8 +319,10 @@ def plot_drift_against_parameter(results: Sequence[dict], name: str, path: str |
             methods = sorted({r["method"] for r in ok})
             for k, method in enumerate(methods):
                 mine = [r for r in ok if r["method"] == method]
-                pairs = [(parameter_columns({name: r["parameters"][name]}).get(column), _drift(r, key))
-                         for r in mine]
+                pairs = [
+                    (parameter_columns({name: r["parameters"][name]}).get(column), _drift(r, key))
+                    for r in mine
+                ]
                 pairs = [(x, d) for x, d in pairs if x is not None and d is not None]
                 if not pairs:
                     continue
@@ -296,8 +330,14 @@ def plot_drift_against_parameter(results: Sequence[dict], name: str, path: str |
                 if labels is not None:  # categories: methods side by side around each tick
                     x = x + CATEGORY_SPREAD * (k - (len(methods) - 1) / 2)
                     ax.set_xlim(-0.5, len(labels) - 0.5)
-                ax.scatter(x, [p[1] for p in pairs], s=14, alpha=0.75,
-                           color=METHOD_COLOURS.get(method), label=method)
+                ax.scatter(
+                    x,
+                    [p[1] for p in pairs],
+                    s=14,
+                    alpha=0.75,
+                    color=METHOD_COLOURS.get(method),
+                    label=method,
+                )
                 if labels is not None:
                     ax.set_xticks(range(len(labels)), labels, rotation=30, fontsize="small")
                 elif all(isinstance(p[0], int) for p in pairs):
@@ -326,8 +366,13 @@ def plot_file_name(name: str) -> str:
     return "drift_vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") + ".png"
 
 
-def write_report(out_dir: str | Path, results: Sequence[dict], varied: Sequence[str],
-                 plots: bool = True, extra_summary: dict | None = None) -> dict[str, Path]:
+def write_report(
+    out_dir: str | Path,
+    results: Sequence[dict],
+    varied: Sequence[str],
+    plots: bool = True,
+    extra_summary: dict | None = None,
+) -> dict[str, Path]:
     """Write the table (``results.csv``), ``summary.json`` and the plots (``plots/``).
 
     Args:
@@ -360,6 +405,14 @@ def write_report(out_dir: str | Path, results: Sequence[dict], varied: Sequence[
     return written
 
 
-__all__ = ["is_timing_column", "plot_drift_against_parameter", "plot_drift_distribution",
-           "read_table_csv", "results_table", "row_from_result", "summarize", "write_report",
-           "write_table_csv"]
+__all__ = [
+    "is_timing_column",
+    "plot_drift_against_parameter",
+    "plot_drift_distribution",
+    "read_table_csv",
+    "results_table",
+    "row_from_result",
+    "summarize",
+    "write_report",
+    "write_table_csv",
+]

@@ -34,7 +34,9 @@ ROBOT_SECTIONS = ("robot", "arms")
 
 def robot_key(task_data: dict, base_dir: str) -> str:
     """Cache key of a task's robot: its URDF, arms, locked joints and end-effector frames."""
-    return canonical_json({"base_dir": str(base_dir), **{k: task_data.get(k) for k in ROBOT_SECTIONS}})
+    return canonical_json(
+        {"base_dir": str(base_dir), **{k: task_data.get(k) for k in ROBOT_SECTIONS}}
+    )
 
 
 def planner_model_for(task, key: str):
@@ -46,7 +48,9 @@ def planner_model_for(task, key: str):
     if model is None:
         start = time.perf_counter()
         model = _MODELS[key] = PlannerModel(task.robot)
-        logger.debug("planner model of %s built in %.3f s", task.robot.name, time.perf_counter() - start)
+        logger.debug(
+            "planner model of %s built in %.3f s", task.robot.name, time.perf_counter() - start
+        )
     if model.robot is task.robot:
         return model
     view = copy.copy(model)  # shares maps, compiled functions and the NLP cache
@@ -78,7 +82,9 @@ def plan_case(task, method: str, solver_options: dict | None = None):
         check_optimal_supported(task)
         spec = task.spec.optimal
         model = planner_model_for(task, robot_key(task.document.data, str(task.base_dir)))
-        nlp = build_balance_nlp(model, task.mission, task.q_B0, spec.planner_options(solver_options))
+        nlp = build_balance_nlp(
+            model, task.mission, task.q_B0, spec.planner_options(solver_options)
+        )
         return nlp.solve(spec.initial_guess)
     raise ValueError(f"unknown method '{method}'; expected analytic or optimal")
 

@@ -29,7 +29,6 @@ from balance_opt.sweep import (
     run_sweep,
 )
 from balance_opt.sweep_engine import (
-    STATUS_ERROR,
     STATUS_OK,
     LocalPoolEngine,
     read_result,
@@ -58,9 +57,15 @@ def toy_case(case: dict) -> dict:
         os._exit(3)
     time.sleep(p.get("sleep", 0.0))
     x = float(p.get("x", 0.0))
-    return {"status": STATUS_OK, "metrics": {"max_drift_rad": 1e-3 * (1 + x * x), "final_drift_rad": 1e-4 * (1 + x),
-                                              "solver": {"solve_time_s": time.perf_counter()}},
-            "info": {"pid": os.getpid()}}
+    return {
+        "status": STATUS_OK,
+        "metrics": {
+            "max_drift_rad": 1e-3 * (1 + x * x),
+            "final_drift_rad": 1e-4 * (1 + x),
+            "solver": {"solve_time_s": time.perf_counter()},
+        },
+        "info": {"pid": os.getpid()},
+    }
 
 
 def toy_cases(n: int, **flags) -> list[dict]:
@@ -69,8 +74,14 @@ def toy_cases(n: int, **flags) -> list[dict]:
     for i in range(n):
         params = {"x": float(i)}
         params.update({name: True for name, where in flags.items() if i in where})
-        cases.append({"index": i, "case_id": case_id_from("optimal", params, "toy"), "method": "optimal",
-                      "parameters": params})
+        cases.append(
+            {
+                "index": i,
+                "case_id": case_id_from("optimal", params, "toy"),
+                "method": "optimal",
+                "parameters": params,
+            }
+        )
     return cases
 
 
@@ -78,19 +89,24 @@ def toy_cases(n: int, **flags) -> list[dict]:
 def tests_on_path(monkeypatch):
     """Worker processes import ``test_sweep`` by name: put this folder on their path."""
     here = str(Path(__file__).resolve().parent)
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (here, os.environ.get("PYTHONPATH")) if p))
+    monkeypatch.setenv(
+        "PYTHONPATH", os.pathsep.join(p for p in (here, os.environ.get("PYTHONPATH")) if p)
+    )
     if here not in sys.path:
         monkeypatch.syspath_prepend(here)
     return here
 
 
 # ------------------------------------------------------------------------------ key paths
-@pytest.mark.parametrize("text, path", [
-    ("mission.goal", ("mission", "goal")),
-    ("mission.goal[2]", ("mission", "goal", 2)),
-    ("limits.balance_joint1.velocity", ("limits", "balance_joint1", "velocity")),
-    ("mission.points[1][0]", ("mission", "points", 1, 0)),
-])
+@pytest.mark.parametrize(
+    "text, path",
+    [
+        ("mission.goal", ("mission", "goal")),
+        ("mission.goal[2]", ("mission", "goal", 2)),
+        ("limits.balance_joint1.velocity", ("limits", "balance_joint1", "velocity")),
+        ("mission.points[1][0]", ("mission", "points", 1, 0)),
+    ],
+)
 def test_key_path_round_trip(text, path):
     assert parse_key_path(text) == path
     assert format_path(path) == text
@@ -104,19 +120,33 @@ def test_bad_key_path(text):
 
 def test_apply_overrides_creates_mappings_and_copies():
     base = {"mission": {"goal": [1.0, 2.0, 3.0]}, "limits": {}}
-    out = apply_overrides(base, {"mission.goal[1]": 9.0, "limits.j1.velocity": 0.5, "initial.balance": [0, 1]})
-    assert out == {"mission": {"goal": [1.0, 9.0, 3.0]}, "limits": {"j1": {"velocity": 0.5}},
-                   "initial": {"balance": [0, 1]}}
+    out = apply_overrides(
+        base, {"mission.goal[1]": 9.0, "limits.j1.velocity": 0.5, "initial.balance": [0, 1]}
+    )
+    assert out == {
+        "mission": {"goal": [1.0, 9.0, 3.0]},
+        "limits": {"j1": {"velocity": 0.5}},
+        "initial": {"balance": [0, 1]},
+    }
     assert base == {"mission": {"goal": [1.0, 2.0, 3.0]}, "limits": {}}
-    with pytest.raises(KeyError, match=re.escape("parameter 'mission.goal[5]': mission.goal has no item [5]")):
+    with pytest.raises(
+        KeyError, match=re.escape("parameter 'mission.goal[5]': mission.goal has no item [5]")
+    ):
         apply_overrides(base, {"mission.goal[5]": 1.0})
-    with pytest.raises(KeyError, match=re.escape("parameter 'mission.goal.x': mission.goal is not a mapping")):
+    with pytest.raises(
+        KeyError, match=re.escape("parameter 'mission.goal.x': mission.goal is not a mapping")
+    ):
         apply_overrides(base, {"mission.goal.x": 1.0})
 
 
 def test_parameter_columns_spread_lists():
     assert parameter_columns({"a.b": [1.0, [2.0, 3.0]], "c": {"d": 4}, "e": "x"}) == {
-        "a.b[0]": 1.0, "a.b[1][0]": 2.0, "a.b[1][1]": 3.0, "c.d": 4, "e": "x"}
+        "a.b[0]": 1.0,
+        "a.b[1][0]": 2.0,
+        "a.b[1][1]": 3.0,
+        "c.d": 4,
+        "e": "x",
+    }
 
 
 # ------------------------------------------------------------------------------ sweep files
@@ -141,7 +171,12 @@ random:
 def test_expansion_order_ids_and_samples(tmp_path):
     sweep = parse_sweep(SWEEP, "small.yaml", tmp_path)
     assert sweep.name == "small"
-    assert sweep.varied == ("mission.duration", "initial.balance", "mission.goal", "limits.balance_joint1.velocity")
+    assert sweep.varied == (
+        "mission.duration",
+        "initial.balance",
+        "mission.goal",
+        "limits.balance_joint1.velocity",
+    )
     assert len(sweep.cases) == 2 * 2 * 3 * 2
     assert [c["index"] for c in sweep.cases] == list(range(24))
     # grid outermost, then the list, then the samples, then the methods
@@ -155,7 +190,9 @@ def test_expansion_order_ids_and_samples(tmp_path):
     case = sweep.cases[5]
     assert case["task"]["mission"]["goal"] == case["parameters"]["mission.goal"]
     assert case["task"]["limits"]["balance_joint1"] == {
-        "acceleration": 2.0, "velocity": case["parameters"]["limits.balance_joint1.velocity"]}
+        "acceleration": 2.0,
+        "velocity": case["parameters"]["limits.balance_joint1.velocity"],
+    }
     assert case["task"]["limits"]["balance_joint2"] == {"acceleration": 2.0}
     # seeded samples inside their bounds, the same in every grid and list cell
     goals = np.array([c["parameters"]["mission.goal"] for c in sweep.cases])
@@ -170,7 +207,10 @@ def test_expansion_order_ids_and_samples(tmp_path):
     assert ids == [c["case_id"] for c in parse_sweep(SWEEP, "other-name.yaml", tmp_path).cases]
     assert ids[0] == case_id_from("analytic", sweep.cases[0]["parameters"], sweep.setup_hash)
     # a different seed, the solver options or simulate change the ids
-    assert parse_sweep(SWEEP.replace("seed: 11", "seed: 12"), "s.yaml", tmp_path).cases[0]["case_id"] != ids[0]
+    assert (
+        parse_sweep(SWEEP.replace("seed: 11", "seed: 12"), "s.yaml", tmp_path).cases[0]["case_id"]
+        != ids[0]
+    )
     assert parse_sweep(SWEEP, "s.yaml", tmp_path, {"max_iter": 5}).cases[0]["case_id"] != ids[0]
     assert parse_sweep(SWEEP + "simulate: true\n", "s.yaml", tmp_path).cases[0]["case_id"] != ids[0]
 
@@ -187,35 +227,78 @@ def _line(text: str, fragment: str) -> int:
 
 
 BAD_SWEEPS = [
-    ("grid:\n  mission.duraton: [5.0]\n", "mission.duraton",
-     "grid.mission.duraton: mission.duraton = 5.0 (case 0): unknown key 'duraton'; expected one of type, "
-     "start, goal, duration; did you mean 'duration'?"),
-    ("grid:\n  mission.duration: [5.0, -1.0]\n", "mission.duration",
-     "grid.mission.duration: mission.duration = -1.0 (case 2): must be greater than 0 s, got -1"),
-    ("cases:\n  - {initial.balance: [0.1, 0.2]}\n", "initial.balance",
-     "cases[0].initial.balance: initial.balance = [0.1,0.2] (case 0): expected 3 values (one per balance "
-     "joint: balance_joint1, balance_joint2, balance_joint3), got 2"),
-    ("grid:\n  mission..goal: [1]\n", "mission..goal",
-     "grid.mission..goal: 'mission..goal' is not a key path"),
-    ("grid:\n  mission.duration: []\n", "mission.duration", "grid.mission.duration: expected at least one value"),
-    ("methods: [analytic, optim]\n", "methods", "methods[1]: expected one of 'analytic', 'optimal', got 'optim'"),
-    ("random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.goal: {uniform: [[0, 0], [1, 1, 1]]}\n",
-     "mission.goal", "random.parameters.mission.goal: low has shape (2,) but high has (3,)"),
-    ("random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.goal: {uniform: [1, 0]}\n",
-     "mission.goal", "random.parameters.mission.goal: low must not exceed high"),
-    ("random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.duration: {uniform: [1, 2], choice: [3]}\n",
-     "mission.duration", "random.parameters.mission.duration: expected exactly one of uniform, normal, choice, "
-                         "integers; got uniform, choice"),
-    ("cases:\n  - {mission.duration: 3.0}\n  - {mission.duration: 3.0}\n", "^task",
-     "(top level): case 2 (analytic, {\"mission.duration\":3.0}) is the same as case 0"),
-    ("grid:\n  mission.duration: [3.0]\ncases:\n  - {mission.duration: 4.0}\n", "mission.duration: [3.0]",
-     "grid.mission.duration: parameter 'mission.duration' is varied in more than one of grid, cases and random"),
+    (
+        "grid:\n  mission.duraton: [5.0]\n",
+        "mission.duraton",
+        (
+            "grid.mission.duraton: mission.duraton = 5.0 (case 0): unknown key 'duraton'; expected one of type, "
+            "start, goal, duration; did you mean 'duration'?"
+        ),
+    ),
+    (
+        "grid:\n  mission.duration: [5.0, -1.0]\n",
+        "mission.duration",
+        "grid.mission.duration: mission.duration = -1.0 (case 2): must be greater than 0 s, got -1",
+    ),
+    (
+        "cases:\n  - {initial.balance: [0.1, 0.2]}\n",
+        "initial.balance",
+        (
+            "cases[0].initial.balance: initial.balance = [0.1,0.2] (case 0): expected 3 values (one per balance "
+            "joint: balance_joint1, balance_joint2, balance_joint3), got 2"
+        ),
+    ),
+    (
+        "grid:\n  mission..goal: [1]\n",
+        "mission..goal",
+        "grid.mission..goal: 'mission..goal' is not a key path",
+    ),
+    (
+        "grid:\n  mission.duration: []\n",
+        "mission.duration",
+        "grid.mission.duration: expected at least one value",
+    ),
+    (
+        "methods: [analytic, optim]\n",
+        "methods",
+        "methods[1]: expected one of 'analytic', 'optimal', got 'optim'",
+    ),
+    (
+        "random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.goal: {uniform: [[0, 0], [1, 1, 1]]}\n",
+        "mission.goal",
+        "random.parameters.mission.goal: low has shape (2,) but high has (3,)",
+    ),
+    (
+        "random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.goal: {uniform: [1, 0]}\n",
+        "mission.goal",
+        "random.parameters.mission.goal: low must not exceed high",
+    ),
+    (
+        "random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.duration: {uniform: [1, 2], choice: [3]}\n",
+        "mission.duration",
+        (
+            "random.parameters.mission.duration: expected exactly one of uniform, normal, choice, "
+            "integers; got uniform, choice"
+        ),
+    ),
+    (
+        "cases:\n  - {mission.duration: 3.0}\n  - {mission.duration: 3.0}\n",
+        "^task",
+        '(top level): case 2 (analytic, {"mission.duration":3.0}) is the same as case 0',
+    ),
+    (
+        "grid:\n  mission.duration: [3.0]\ncases:\n  - {mission.duration: 4.0}\n",
+        "mission.duration: [3.0]",
+        "grid.mission.duration: parameter 'mission.duration' is varied in more than one of grid, cases and random",
+    ),
     ("grid:\n  method: [analytic]\n", "method:", "grid.method: the method is not a task parameter"),
     ("gird:\n  mission.duration: [3.0]\n", "gird", "gird: unknown key 'gird'"),
 ]
 
 
-@pytest.mark.parametrize("tail, culprit, message", BAD_SWEEPS, ids=[b[1] + str(i) for i, b in enumerate(BAD_SWEEPS)])
+@pytest.mark.parametrize(
+    "tail, culprit, message", BAD_SWEEPS, ids=[b[1] + str(i) for i, b in enumerate(BAD_SWEEPS)]
+)
 def test_bad_sweep_files_name_file_line_and_key(tmp_path, tail, culprit, message):
     text = f"task: {PAPER_TASK}\n{tail}"
     path = tmp_path / "bad.yaml"
@@ -230,16 +313,24 @@ def test_bad_base_task_is_located_in_its_file(tmp_path):
     task.write_text(PAPER_TASK.read_text().replace("duration: 10.0", "duration: ten"))
     (tmp_path / "s.yaml").write_text("task: task.yaml\n")
     line = _line(task.read_text(), "duration: ten")
-    with pytest.raises(TaskFileError, match=re.escape(f"{task}:{line}: mission.duration: expected a number")):
+    with pytest.raises(
+        TaskFileError, match=re.escape(f"{task}:{line}: mission.duration: expected a number")
+    ):
         load_sweep(tmp_path / "s.yaml")
     (tmp_path / "s.yaml").write_text("task: nowhere.yaml\n")
-    with pytest.raises(TaskFileError, match=re.escape(f"{tmp_path / 's.yaml'}:1: task: no task file")):
+    with pytest.raises(
+        TaskFileError, match=re.escape(f"{tmp_path / 's.yaml'}:1: task: no task file")
+    ):
         load_sweep(tmp_path / "s.yaml")
 
 
 def test_infeasible_case_is_left_to_fail_when_it_runs(tmp_path):
     """A start outside the limits is a result of the study, not an error of the file."""
-    sweep = parse_sweep(f"task: {PAPER_TASK}\ncases:\n  - {{initial.balance: [9.0, 0.5, -1.0]}}\n", "s.yaml", tmp_path)
+    sweep = parse_sweep(
+        f"task: {PAPER_TASK}\ncases:\n  - {{initial.balance: [9.0, 0.5, -1.0]}}\n",
+        "s.yaml",
+        tmp_path,
+    )
     assert len(sweep.cases) == 2
 
 
@@ -260,8 +351,15 @@ def test_pool_records_failing_and_crashing_cases_and_goes_on(tmp_path, tests_on_
     run = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(2))
     assert [r["index"] for r in run.results] == list(range(7))
     status = {r["index"]: (r["status"], (r["error"] or {}).get("type")) for r in run.results}
-    assert status == {0: ("ok", None), 1: ("ok", None), 2: ("error", "ValueError"), 3: ("ok", None),
-                      4: ("error", "WorkerCrashed"), 5: ("ok", None), 6: ("ok", None)}
+    assert status == {
+        0: ("ok", None),
+        1: ("ok", None),
+        2: ("error", "ValueError"),
+        3: ("ok", None),
+        4: ("error", "WorkerCrashed"),
+        5: ("ok", None),
+        6: ("ok", None),
+    }
     failed = read_result(tmp_path, cases[2]["case_id"])
     assert failed["error"]["message"] == "case 2 was asked to fail"
     assert "ValueError: case 2 was asked to fail" in failed["error"]["traceback"]
@@ -289,26 +387,44 @@ def test_resume_skips_finished_cases_after_an_interruption(tmp_path, tests_on_pa
 
     run = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(2), resume=True)
     assert sorted(run.skipped) == sorted(seen)
-    assert sorted(run.ran) == sorted(set(c["case_id"] for c in cases) - set(seen))
+    assert sorted(run.ran) == sorted({c["case_id"] for c in cases} - set(seen))
     assert [r["index"] for r in run.results] == list(range(8))
     assert all(result_path(tmp_path, cid).read_bytes() == before[cid] for cid in seen)  # untouched
     # a resume with nothing left runs nothing; --retry-failed runs the failed case again
     again = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(1), resume=True)
     assert again.ran == [] and len(again.skipped) == 8
-    retry = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(1), resume=True, retry_failed=True)
+    retry = run_cases(
+        cases, TOY_RUNNER, tmp_path, LocalPoolEngine(1), resume=True, retry_failed=True
+    )
     assert retry.ran == [cases[1]["case_id"]]
 
 
 def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
     """Kill a running ``balance-opt sweep`` (parent and workers, SIGKILL), then ``--resume``."""
     sweep_file = tmp_path / "toy.yaml"
-    sweep_file.write_text(f"task: {PAPER_TASK}\nname: toy\nmethods: [optimal]\ngrid:\n"
-                          f"  mission.duration: [{', '.join(str(1.0 + i) for i in range(10))}]\n")
+    sweep_file.write_text(
+        f"task: {PAPER_TASK}\nname: toy\nmethods: [optimal]\ngrid:\n"
+        f"  mission.duration: [{', '.join(str(1.0 + i) for i in range(10))}]\n"
+    )
     out = tmp_path / "out"
     # the toy runner sleeps 0.4 s per case (parameter 'sleep' is not set: use the slow variant)
-    cmd = [sys.executable, "-m", "balance_opt.cli", "sweep", str(sweep_file), "-o", str(out), "-j", "2",
-           "--runner", "test_sweep:slow_toy_case", "--no-plots"]
-    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    cmd = [
+        sys.executable,
+        "-m",
+        "balance_opt.cli",
+        "sweep",
+        str(sweep_file),
+        "-o",
+        str(out),
+        "-j",
+        "2",
+        "--runner",
+        "test_sweep:slow_toy_case",
+        "--no-plots",
+    ]
+    proc = subprocess.Popen(
+        cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
     try:
         deadline = time.monotonic() + SUBPROCESS_TIMEOUT
         while len(list((out / "cases").glob("*.json"))) < 3:
@@ -324,14 +440,43 @@ def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
 
     from balance_opt.cli import main
 
-    assert main(["sweep", str(sweep_file), "-o", str(out), "-j", "2", "--runner", "test_sweep:slow_toy_case",
-                 "--no-plots"]) == 2  # not without --resume
-    assert main(["sweep", str(sweep_file), "-o", str(out), "-j", "2", "--runner", "test_sweep:slow_toy_case",
-                 "--no-plots", "--resume"]) == 0
+    assert (
+        main(
+            [
+                "sweep",
+                str(sweep_file),
+                "-o",
+                str(out),
+                "-j",
+                "2",
+                "--runner",
+                "test_sweep:slow_toy_case",
+                "--no-plots",
+            ]
+        )
+        == 2
+    )  # not without --resume
+    assert (
+        main(
+            [
+                "sweep",
+                str(sweep_file),
+                "-o",
+                str(out),
+                "-j",
+                "2",
+                "--runner",
+                "test_sweep:slow_toy_case",
+                "--no-plots",
+                "--resume",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["skipped"] == len(done) and summary["ran"] == 10 - len(done)
     assert all((out / "cases" / f"{cid}.json").read_bytes() == b for cid, b in done.items())
-    columns, rows = read_table_csv(out / "results.csv")
+    _columns, rows = read_table_csv(out / "results.csv")
     assert [int(r["index"]) for r in rows] == list(range(10))
     assert {r["status"] for r in rows} == {"ok"}
 
@@ -349,14 +494,161 @@ def _deterministic(path):
 
 
 def test_table_order_and_timing_columns():
-    results = [{"index": 1, "case_id": "b", "method": "optimal", "parameters": {"p": [1.0, 2.0]}, "status": "ok",
-                "error": None, "metrics": {"max_drift_rad": 0.1, "solver": {"solve_time_s": 3.0, "iterations": 7}},
-                "timing": {"case_s": 1.0, "pid": 5}},
-               {"index": 0, "case_id": "a", "method": "analytic", "parameters": {"p": [0.0, 2.0]}, "status": "error",
-                "error": {"type": "X", "message": "m"}, "metrics": {}, "timing": {"case_s": 1.0, "pid": 6}}]
+    results = [
+        {
+            "index": 1,
+            "case_id": "b",
+            "method": "optimal",
+            "parameters": {"p": [1.0, 2.0]},
+            "status": "ok",
+            "error": None,
+            "metrics": {"max_drift_rad": 0.1, "solver": {"solve_time_s": 3.0, "iterations": 7}},
+            "timing": {"case_s": 1.0, "pid": 5},
+        },
+        {
+            "index": 0,
+            "case_id": "a",
+            "method": "analytic",
+            "parameters": {"p": [0.0, 2.0]},
+            "status": "error",
+            "error": {"type": "X", "message": "m"},
+            "metrics": {},
+            "timing": {"case_s": 1.0, "pid": 6},
+        },
+    ]
     columns, rows = results_table(results)
-    assert columns == ["index", "case_id", "method", "status", "param.p[0]", "param.p[1]", "metric.max_drift_rad",
-                       "metric.solver.iterations", "error_type", "error_message", "metric.solver.solve_time_s",
-                       "time.case_s", "time.pid"]
+    assert columns == [
+        "index",
+        "case_id",
+        "method",
+        "status",
+        "param.p[0]",
+        "param.p[1]",
+        "metric.max_drift_rad",
+        "metric.solver.iterations",
+        "error_type",
+        "error_message",
+        "metric.solver.solve_time_s",
+        "time.case_s",
+        "time.pid",
+    ]
     assert [r["case_id"] for r in rows] == ["a", "b"]
-    assert [c for c in columns if is_timing_column(c)] == ["metric.solver.solve_time_s", "time.case_s", "time.pid"]
+    assert [c for c in columns if is_timing_column(c)] == [
+        "metric.solver.solve_time_s",
+        "time.case_s",
+        "time.pid",
+    ]
+
+
+# ------------------------------------------------------------------------------ real cases, end to end
+#: The paper task, short and coarse: a few optimal cases solve in well under a second each.
+REAL_SWEEP = f"""\
+task: {PAPER_TASK}
+name: e2e
+methods: [analytic, optimal]
+grid:
+  optimal.intervals: [12]
+cases:
+  - {{initial.balance: [0.0, 0.5, -1.0]}}
+  - {{initial.balance: [9.0, 0.5, -1.0]}}   # outside the limits of balance_joint1: fails
+  - {{initial.balance: [0.3, 0.8, -1.4]}}
+"""
+#: Longest a Dask sweep of the tests may take [s].
+DASK_TIMEOUT = 120
+
+
+@pytest.fixture(scope="module")
+def real_sweep(tmp_path_factory):
+    path = tmp_path_factory.mktemp("real") / "e2e.yaml"
+    path.write_text(REAL_SWEEP)
+    return path
+
+
+@pytest.fixture(scope="module")
+def pool_run(real_sweep):
+    """The real sweep through the command line, on a pool of 2 worker processes."""
+    from balance_opt.cli import main
+
+    out = real_sweep.parent / "pool2"
+    code = main(["sweep", str(real_sweep), "-o", str(out), "--jobs", "2"])
+    return code, out
+
+
+def test_pool_end_to_end_through_the_cli(pool_run):
+    code, out = pool_run
+    assert code == 1  # some cases failed: their errors are in the table
+    manifest = json.loads((out / "sweep.json").read_text())
+    assert [c["index"] for c in manifest["cases"]] == list(range(6))
+    _columns, rows = read_table_csv(out / "results.csv")
+    assert [int(r["index"]) for r in rows] == list(range(6))
+    assert [r["method"] for r in rows] == ["analytic", "optimal"] * 3
+    assert [r["case_id"] for r in rows] == [c["case_id"] for c in manifest["cases"]]
+    for r in rows:
+        assert (out / "cases" / f"{r['case_id']}.json").is_file()
+    failed = [r for r in rows if r["param.initial.balance[0]"] == "9.0"]
+    assert [r["status"] for r in failed] == ["error", "error"]
+    assert {r["error_type"] for r in failed} == {"TaskLimitsError"}
+    assert all(
+        "balance joint 'balance_joint1' starts at 9 rad, outside its position limits"
+        in r["error_message"]
+        for r in failed
+    )
+    good = [r for r in rows if r not in failed]
+    assert all(r["status"] == "ok" for r in good), [(r["status"], r["error_message"]) for r in good]
+    for r in good:  # the metrics of metrics.json, per case
+        assert 0 <= float(r["metric.final_drift_rad"]) <= float(r["metric.max_drift_rad"]) < 1.0
+        assert r["metric.method"] == r["method"]
+        assert float(r["metric.duration_s"]) == pytest.approx(10.0, rel=0, abs=1e-9)
+        assert int(r["metric.limit_violations"]) >= 0
+        assert float(r["time.case_s"]) > 0
+    optimal = [r for r in good if r["method"] == "optimal"]
+    assert all(int(r["metric.solver.iterations"]) > 0 for r in optimal)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["cases"] == 6 and summary["status"] == {"error": 2, "ok": 4}
+    assert summary["ran"] == 6 and summary["skipped"] == 0 and summary["workers"] == 2
+    plots = sorted(p.name for p in (out / "plots").glob("*.png"))
+    assert plots == [
+        "drift_distribution.png",
+        "drift_vs_initial.balance.png",
+        "drift_vs_optimal.intervals.png",
+    ]
+
+
+def test_same_table_with_one_worker(pool_run, real_sweep):
+    """Same results whatever the number of workers (timing columns aside)."""
+    _, out2 = pool_run
+    out1 = real_sweep.parent / "pool1"
+    outcome = run_sweep(load_sweep(real_sweep), out1, jobs=1, plots=False)
+    assert outcome.run.workers == 1
+    assert len({r["timing"]["pid"] for r in outcome.run.results if r["timing"]["pid"]}) == 1
+    assert _deterministic(out1 / "results.csv") == _deterministic(out2 / "results.csv")
+
+
+def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
+    """A real Dask cluster (2 worker processes on 127.0.0.1), started and stopped by the sweep."""
+    import psutil
+
+    from balance_opt.sweep_engine import DaskEngine
+
+    _, out2 = pool_run
+    out = real_sweep.parent / "dask"
+    engine = DaskEngine(None, workers=2, host="127.0.0.1", timeout=DASK_TIMEOUT)
+    outcome = run_sweep(load_sweep(real_sweep), out, engine=engine, plots=False)
+    assert outcome.summary["engine"] == "Dask (local cluster on 127.0.0.1), 2 worker(s)"
+    assert outcome.run.workers == 2 and len(outcome.run.ran) == 6
+    assert _deterministic(out / "results.csv") == _deterministic(out2 / "results.csv")
+    # the cluster is gone: no worker process left behind (multiprocessing's resource tracker
+    # lives as long as this process, by design)
+    assert engine._cluster is None and engine._client is None
+
+    def workers_left():
+        return [
+            p
+            for p in psutil.Process().children(recursive=True)
+            if "resource_tracker" not in " ".join(p.cmdline())
+        ]
+
+    deadline = time.monotonic() + 30
+    while workers_left() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert workers_left() == []
