@@ -148,6 +148,16 @@ def bernstein_basis(degree: int, s: np.ndarray) -> np.ndarray:
     return binomials * s**i * (1.0 - s) ** (degree - i)
 
 
+def monomial_from_bernstein(degree: int) -> np.ndarray:
+    """Matrix ``M`` with ``a = M b``: monomial coefficients ``a_j`` (of ``s^j``) of the polynomial
+    with Bernstein coefficients ``b_i`` on [0, 1]: ``a_j = C(d, j) sum_i (-1)^(j-i) C(j, i) b_i``."""
+    M = np.zeros((degree + 1, degree + 1))
+    for j in range(degree + 1):
+        for i in range(j + 1):
+            M[j, i] = (-1) ** (j - i) * comb(degree, j) * comb(j, i)
+    return M
+
+
 class CollocatedTrajectory(JointTrajectory):
     """The balance-joint motion of a collocation solution as a continuous, piecewise polynomial
     trajectory (see the module docstring), sampled like every mission trajectory.
@@ -161,21 +171,33 @@ class CollocatedTrajectory(JointTrajectory):
 
     def __init__(self, h: float, levels: list[list[np.ndarray]]):
         self.h = float(h)
-        # (N, degree + 1, n) per level
+        # Bernstein coefficients (N, degree + 1, n) per level, and the same polynomials in the
+        # monomial basis of s = (t - t_k) / h, for Horner evaluation
         self._coefficients = [np.stack([np.asarray(c, dtype=float).T for c in level], axis=1) for level in levels[:3]]
+        self._monomial = [np.einsum("ji,kin->kjn", monomial_from_bernstein(c.shape[1] - 1), c)
+                          for c in self._coefficients]
         self.intervals = self._coefficients[0].shape[0]
         self.dof = self._coefficients[0].shape[2]
         self.duration = self.h * self.intervals
 
     def sample(self, t):
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
-        k = np.minimum(np.floor(t / self.h).astype(int), self.intervals - 1)
-        s = np.clip(t / self.h - k, 0.0, 1.0)
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        u = np.minimum(np.maximum(t, 0.0), self.duration) / self.h
+        k = np.minimum(u.astype(int), self.intervals - 1)
+        s = (u - k)[:, None]
         out = []
-        for coefficients in self._coefficients:
-            basis = bernstein_basis(coefficients.shape[1] - 1, s)
-            out.append(np.einsum("td,tdn->tn", basis, coefficients[k]))
+        for a in self._monomial:
+            a = a[k]
+            value = a[:, -1]
+            for j in range(a.shape[1] - 2, -1, -1):
+                value = value * s + a[:, j]
+            out.append(value)
         return tuple(out)
+
+    def interval_ends(self) -> list[np.ndarray]:
+        """Per derivative (position, velocity, acceleration), the value at the end of every
+        interval (N, n): the last Bernstein coefficient."""
+        return [c[:, -1, :] for c in self._coefficients]
 
     def derivative_bounds(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per derivative (position, velocity, acceleration), the smallest and largest Bernstein

@@ -61,20 +61,25 @@ from .collocation import (
 )
 from .errors import InfeasibleLimitsError, InputError, SolverError
 from .nlp_model import CONTROLS, PlannerModel
-from .result import LIMIT_TOLERANCE, BalanceResult, find_limit_violations
+from .result import LIMIT_TOLERANCE, BalanceResult
 from .robot import FloatingRobot
+from .rollout import IntegrationOptions, replay
 
 log = logging.getLogger(__name__)
 
 #: Ipopt return statuses that count as a solution.
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-#: Default Ipopt options (``PlannerOptions.ipopt`` entries override them).
+#: Default Ipopt options (``PlannerOptions.ipopt`` entries override them). Ipopt's monotone
+#: barrier update (its default) took as many iterations as the adaptive one on the paper task
+#: and less time per iteration; MUMPS's workspace at 100 % over its estimate (Ipopt's default
+#: 1000 %) saves the system time of allocating it at every factorisation (Ipopt enlarges it when
+#: MUMPS asks).
 DEFAULT_IPOPT = {
     "print_level": 0,
     "sb": "yes",
     "linear_solver": "mumps",
     "hessian_approximation": "exact",
-    "mu_strategy": "adaptive",
+    "mumps_mem_percent": 100,
 }
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
@@ -469,31 +474,43 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
     if cs.depends_on(G_Y, cs.vertcat(w, y)) or cs.depends_on(f_Y, cs.vertcat(w, y)):
         raise AssertionError("the outer problem must be linear in the kernel outputs")
     outer = cs.Function("outer", [w, y, p], [cost, g])
-    outer_jac = cs.Function("outer_jac", [w, y, p], [cs.jacobian(g, w), G_Y, cs.gradient(cost, w), f_Y.T])
-    outer_hess = cs.Function("outer_hess", [w, y, p, lam_f, lam_g],
+    outer_grad = cs.Function("outer_grad", [w, p], [cs.substitute(cost, y, cs.DM.zeros(y.shape)),
+                                                    cs.gradient(cost, w), f_Y.T])
+    outer_jac = cs.Function("outer_jac", [w, p], [cs.jacobian(g, w), G_Y])
+    outer_hess = cs.Function("outer_hess", [w, p, lam_f, lam_g],
                              [cs.triu(cs.hessian(lagrangian, w)[0]), cs.gradient(lagrangian, y)])
 
     # ---- the NLP in MX: kernels mapped over the points, derivatives assembled
     point_idx = _point_variable_indices(variables, tr.has_midpoints)
+    point_flat = point_idx.ravel(order="F")
+    if not np.array_equal(np.sort(point_flat), np.arange(n_w)):
+        raise AssertionError("every decision variable must belong to exactly one point")
     wx, px = cs.MX.sym("w", n_w), cs.MX.sym("p", n_p)
-    Zx = cs.reshape(wx[point_idx.ravel(order="F").tolist()], kernels.n_z, n_pts)
+    Zx = cs.reshape(wx[point_flat.tolist()], kernels.n_z, n_pts)
     Mx = cs.reshape(px[6 + n_B:], n_m, n_pts)
     data = (Mx, px[2:6], px[6:6 + n_B])
     yx = cs.vec(kernels.value.map(n_pts)(Zx, *data))
     f_x, g_x = outer(wx, yx, px)
 
+    # gradient of the objective: d(c_i^T y_i)/dz_i per point (reverse mode), scattered to w
+    f0, f_w_x, f_Y_x = outer_grad(wx, px)
+    cy, grad_z = kernels.gradient.map(n_pts)(Zx, *data, cs.reshape(f_Y_x, n_y, n_pts))
+    scatter_w = np.empty(n_w, dtype=int)
+    scatter_w[point_flat] = np.arange(n_w)
+    grad_f = cs.Function("nlp_grad_f", [wx, px], [f0 + cs.sum2(cy), f_w_x + cs.vec(grad_z)[scatter_w.tolist()]],
+                         ["x", "p"], ["f", "grad_f_x"])
+
+    # Jacobian of the constraints: G_w + G_Y dY/dw, dY/dw block diagonal
     Y_jac, dY = kernels.jacobian.map(n_pts)(Zx, *data)
     sp_dy, perm_dy = _scatter(kernels.jacobian_sparsity, n_pts, lambda i: n_y * i + np.arange(n_y),
                               lambda i: point_idx[:, i], (n_y * n_pts, n_w))
     dYdw = cs.sparsity_cast(dY.nz[perm_dy.tolist()], sp_dy)
-    G_w_x, G_Y_x, f_w_x, f_Y_x = outer_jac(wx, cs.vec(Y_jac), px)
-    f_jac, g_jac = outer(wx, cs.vec(Y_jac), px)
-    grad_f = cs.Function("nlp_grad_f", [wx, px], [f_jac, f_w_x + cs.mtimes(dYdw.T, f_Y_x)],
-                         ["x", "p"], ["f", "grad_f_x"])
+    G_w_x, G_Y_x = outer_jac(wx, px)
+    g_jac = outer(wx, cs.vec(Y_jac), px)[1]
     jac_g = cs.Function("nlp_jac_g", [wx, px], [g_jac, G_w_x + cs.mtimes(G_Y_x, dYdw)], ["x", "p"], ["g", "jac_g_x"])
 
     lf, lg = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", n_g)
-    H_outer, mu = outer_hess(wx, yx, px, lf, lg)
+    H_outer, mu = outer_hess(wx, px, lf, lg)
     d2 = kernels.hessian.map(n_pts)(Zx, *data, cs.reshape(mu, n_y, n_pts))
     sp_h, perm_h = _scatter(kernels.hessian_sparsity, n_pts, lambda i: point_idx[:, i], lambda i: point_idx[:, i],
                             (n_w, n_w), upper=True)
@@ -505,7 +522,7 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
     ipopt.update(options.ipopt)
     solver = cs.nlpsol("balance_nlp", "ipopt", {"x": wx, "p": px, "f": f_x, "g": g_x},
-                       {"ipopt": ipopt, "print_time": False, "record_time": True,
+                       {"ipopt": ipopt, "print_time": False, "record_time": True, "calc_lam_p": False, "calc_lam_x": False,
                         "grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag})
     build_time = time.perf_counter() - start
     log.debug("balance NLP %s built in %.3f s: %d variables, %d constraints", key[:3], build_time, n_w, n_g)
@@ -905,65 +922,36 @@ def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
     return np.arange(N * sub + 1) * (h / sub), sub
 
 
-def _integrate_attitude(t, omega) -> np.ndarray:
-    """Attitude quaternions from body rates sampled at ``t``: ``q_{i+1} = q_i exp(dt (w_i + w_{i+1}) / 2)``."""
-    q = np.empty((t.size, 4))
-    q[0] = IDENTITY_QUATERNION
-    steps = quaternion_from_rotvec(0.5 * (omega[:-1] + omega[1:]) * np.diff(t)[:, None])
-    for i in range(t.size - 1):
-        q[i + 1] = quaternion_multiply(q[i], steps[i])
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
-
-
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
-    """Re-simulate a plan with numeric Pinocchio on a fine grid (see the module docstring)."""
-    robot = nlp.robot
+    """Re-simulate a plan on a fine grid: the balance joints follow the collocation polynomial,
+    the attitude is integrated by :func:`balance_opt.rollout.replay` (numeric Pinocchio, RK4 on
+    the unit quaternion, one step per grid interval: below 1e-10 rad on the paper task at the
+    default step); limit violations are those of the fine grid. ``info["resimulation"]``
+    reports the collocation defects (NLP attitude at the nodes against the re-simulated one;
+    joint polynomial at each interval's end against the next node), the momentum residual and
+    the drift."""
     t, sub = _fine_grid(nlp.N, nlp.h, nlp.options.resample_step)
-    q_M, q_dot_M, q_ddot_M = nlp.mission.sample(t)
-    q_B, q_dot_B, q_ddot_B = trajectory.sample(t)
-    q = np.hstack([q_M, q_B])
-    q_dot = np.hstack([q_dot_M, q_dot_B])
-    model, data = robot.model, robot.model.createData()
-    cols = np.r_[0:6, robot.pin_v_indices]
-    balance = robot.balance_indices
-    omega = np.empty((t.size, 3))
-    residual = np.empty(t.size)
-    sigma_min = np.empty(t.size)
-    for i in range(t.size):
-        A = pin.computeCentroidalMap(model, data, robot.pin_q(q[i]))[:, cols]
-        J_base = -np.linalg.solve(A[:, :6], A[:, 6:])
-        v_b = J_base @ q_dot[i]
-        omega[i] = v_b[3:]
-        residual[i] = np.linalg.norm(A @ np.r_[v_b, q_dot[i]])
-        sigma_min[i] = np.linalg.svd(J_base[3:, balance], compute_uv=False)[-1]
-    quaternion = _integrate_attitude(t, omega)
+    result = replay(nlp.robot, nlp.mission, trajectory, t_eval=t, method="optimal",
+                    integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])))
+    quaternion = result.quaternion
     # collocation defects: NLP attitude at the nodes vs the re-simulated one
     q_nodes = quaternion[::sub]
     q_nlp = quaternion_from_rotvec(sol.X[:3].T)
     attitude_defect = rotation_angle(quaternion_multiply(quaternion_conjugate(q_nlp), q_nodes))
     n_B = nlp.model.n_B
-    ends = trajectory.sample(np.arange(1, nlp.N + 1) * nlp.h - 1e-12)
+    ends = trajectory.interval_ends()
     joint_defect = max(float(np.abs(ends[0] - sol.X[3:3 + n_B, 1:].T).max()),
                        float(np.abs(ends[1] - sol.X[3 + n_B:3 + 2 * n_B, 1:].T).max()))
-    violations = find_limit_violations(t, robot.joint_names, q, q_dot, np.hstack([q_ddot_M, q_ddot_B]), robot.limits)
-    result = BalanceResult(
-        method="optimal", t=t,
-        mission_joints=tuple(robot.joint_names[i] for i in robot.mission_indices),
-        balance_joints=nlp.balance_joints,
-        q_M=q_M, q_dot_M=q_dot_M, q_ddot_M=q_ddot_M, q_B=q_B, q_dot_B=q_dot_B, q_ddot_B=q_ddot_B,
-        quaternion=quaternion, omega=omega, momentum_residual=residual, sigma_min=sigma_min,
-        violations=violations,
-    )
     result.info["resimulation"] = {
         "samples": int(t.size),
         "step_s": float(t[1] - t[0]),
         "attitude_defect_max_rad": float(attitude_defect.max()),
         "attitude_defect_final_rad": float(attitude_defect[-1]),
         "joint_defect_max": joint_defect,
-        "max_momentum_residual": float(residual.max()),
+        "max_momentum_residual": float(result.momentum_residual.max()),
         "max_drift_rad": result.max_drift,
         "final_drift_rad": result.final_drift,
         "nlp_final_drift_rad": float(np.linalg.norm(sol.X[:3, -1])),
-        "limit_violations": [str(v) for v in violations],
+        "limit_violations": [str(v) for v in result.violations],
     }
     return result
