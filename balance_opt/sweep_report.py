@@ -50,6 +50,8 @@ METHOD_COLOURS = {"analytic": "tab:orange", "optimal": "tab:blue"}
 PANEL_WIDTH = 3.6
 #: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
 LOG_SCALE_RATIO = 30.0
+#: Largest number of distinct values of a list parameter plotted as categories.
+MAX_CATEGORIES = 8
 #: Margin of the parameter axes (a fraction of the range), so that no point sits on a border.
 PARAMETER_MARGIN = 0.08
 #: Margin around the drifts of the optimal-vs-analytic panel (a factor).
@@ -290,62 +292,89 @@ def _axis_values(values: list[Any]) -> tuple[np.ndarray, list[str] | None]:
     """Numbers to plot a parameter at, and tick labels for a categorical parameter."""
     if all(is_number(v) for v in values):
         return np.array(values, dtype=float), None
+    labels = sorted({_category_label(v) for v in values})
+    return np.array([labels.index(_category_label(v)) for v in values], dtype=float), labels
 
-    def label(v):
-        return v if isinstance(v, str) else canonical_json(v)
 
-    labels = sorted({label(v) for v in values})
-    return np.array([labels.index(label(v)) for v in values], dtype=float), labels
+def _category_label(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, list) and all(is_number(v) for v in value):
+        return "[" + ", ".join(f"{v:.3g}" for v in value) + "]"
+    return canonical_json(value)
+
+
+def _parameter_views(results: Sequence[dict], name: str) -> dict[str, dict[int, Any]]:
+    """The columns a parameter is plotted against, each as case index -> value: the parameter
+    itself when it is a scalar, or a list or mapping taking few distinct values (then as
+    categories); else one column per item (``mission.goal[0]``, ...)."""
+    values = {r["index"]: r["parameters"][name] for r in results}
+    distinct = {canonical_json(v) for v in values.values()}
+    if all(not isinstance(v, (list, dict)) for v in values.values()) or (
+        len(distinct) <= MAX_CATEGORIES
+    ):
+        return {name: values}
+    views: dict[str, dict[int, Any]] = {}
+    for index, value in values.items():
+        for column, item in parameter_columns({name: value}).items():
+            views.setdefault(column, {})[index] = item
+    order = sorted(
+        views, key=lambda c: [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", c)]
+    )
+    return {c: views[c] for c in order}
 
 
 def plot_drift_against_parameter(
     results: Sequence[dict], name: str, path: str | Path
 ) -> Path | None:
-    """Maximum (top) and final (bottom) drift against the varied parameter ``name`` (one panel
-    column per item of a list parameter), one colour per method, failed cases left out.
+    """Maximum (top) and final (bottom) drift against the varied parameter ``name``, one colour
+    per method, failed cases left out. A list parameter with many distinct values gets one
+    panel column per item; with few (at most :data:`MAX_CATEGORIES`), one panel of categories.
     Returns the file written, or None when no successful case has the parameter."""
     ok = [r for r in results if r["status"] == "ok" and name in r["parameters"]]
-    columns = sorted(
-        {c for r in ok for c in parameter_columns({name: r["parameters"][name]})},
-        key=lambda c: [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", c)],
-    )
-    if not ok or not columns:
+    if not ok:
         return None
+    views = _parameter_views(ok, name)
     failed = sum(1 for r in results if r["status"] != "ok" and name in r["parameters"])
-    fig, axes = _figure(2, len(columns))
-    for j, column in enumerate(columns):
+    methods = sorted({r["method"] for r in ok})
+    fig, axes = _figure(2, len(views))
+    for j, (column, values) in enumerate(views.items()):
+        indices = sorted(values)
+        x_all, labels = _axis_values([values[i] for i in indices])
+        x_of = dict(zip(indices, x_all))
         for i, (key, what) in enumerate(((MAX_DRIFT, "maximum"), (FINAL_DRIFT, "final"))):
             ax = axes[i][j]
-            methods = sorted({r["method"] for r in ok})
             for k, method in enumerate(methods):
-                mine = [r for r in ok if r["method"] == method]
-                pairs = [
-                    (parameter_columns({name: r["parameters"][name]}).get(column), _drift(r, key))
-                    for r in mine
+                points = [
+                    (x_of[r["index"]], _drift(r, key))
+                    for r in ok
+                    if r["method"] == method and r["index"] in x_of
                 ]
-                pairs = [(x, d) for x, d in pairs if x is not None and d is not None]
-                if not pairs:
+                points = [(x, d) for x, d in points if d is not None]
+                if not points:
                     continue
-                x, labels = _axis_values([p[0] for p in pairs])
+                x = np.array([p[0] for p in points])
                 if labels is not None:  # categories: methods side by side around each tick
                     x = x + CATEGORY_SPREAD * (k - (len(methods) - 1) / 2)
-                    ax.set_xlim(-0.5, len(labels) - 0.5)
                 ax.scatter(
                     x,
-                    [p[1] for p in pairs],
+                    [p[1] for p in points],
                     s=14,
                     alpha=0.75,
                     color=METHOD_COLOURS.get(method),
                     label=method,
                 )
-                if labels is not None:
-                    ax.set_xticks(range(len(labels)), labels, rotation=30, fontsize="small")
-                elif all(isinstance(p[0], int) for p in pairs):
-                    from matplotlib.ticker import MaxNLocator
+            if labels is not None:
+                ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize="small", ha="right")
+                ax.set_xlim(-0.5, len(labels) - 0.5)
+            elif all(isinstance(values[i], int) for i in indices):
+                from matplotlib.ticker import MaxNLocator
 
-                    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+                ax.margins(x=PARAMETER_MARGIN)
+            else:
+                ax.margins(x=PARAMETER_MARGIN)
             _drift_axis(ax, "y", [_drift(r, key) for r in ok])
-            ax.margins(x=PARAMETER_MARGIN)
             ax.grid(True, which="major", alpha=0.3)
             ax.set_xlabel(column)
             if j == 0:
@@ -354,7 +383,7 @@ def plot_drift_against_parameter(
                 ax.legend(fontsize="small")
     note = f" ({failed} failed case(s) not shown)" if failed else ""
     title = f"attitude drift against {name}{note}"
-    if len(columns) == 1 and len(title) > SINGLE_PANEL_TITLE:
+    if len(views) == 1 and len(title) > SINGLE_PANEL_TITLE:
         title = title.replace(" (", "\n(")
     fig.suptitle(title, fontsize="medium")
     fig.savefig(path, dpi=150)
