@@ -84,15 +84,16 @@ def execute_case(runner: str, case: dict) -> dict:
 
     Returns:
         ``{index, case_id, method, parameters, status, error, metrics, info, timing}`` where
-        ``timing`` holds the wall time of the case in the worker [s] (``case_s``), the
-        worker's process id and the runner's timing: the only fields that depend on where and
+        ``timing`` holds the wall time of the case in the worker [s] (``case_s``), the CPU
+        time of the worker process meanwhile [s] (``cpu_s``: less than ``case_s`` when the
+        worker waited for a CPU), the worker's process id and the runner's timing: the only fields that depend on where and
         when the case ran.
     """
     from .errors import SolverError
 
     record = {key: case[key] for key in ("index", "case_id", "method", "parameters")}
     with _CASE_LOCK:
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         try:
             out = resolve_runner(runner)(case)
             record.update(
@@ -106,8 +107,13 @@ def execute_case(runner: str, case: dict) -> dict:
             record.update(status=STATUS_SOLVER_FAILED, error=error_record(exc), metrics={}, info={})
         except Exception as exc:  # noqa: BLE001 - a failing case is recorded, the sweep goes on
             record.update(status=STATUS_ERROR, error=error_record(exc), metrics={}, info={})
-        elapsed = time.perf_counter() - start
-    record["timing"] = {"case_s": elapsed, "pid": os.getpid(), **record.pop("runner_timing", {})}
+        elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    record["timing"] = {
+        "case_s": elapsed,
+        "cpu_s": cpu,
+        "pid": os.getpid(),
+        **record.pop("runner_timing", {}),
+    }
     return record
 
 
