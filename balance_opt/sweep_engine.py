@@ -86,8 +86,8 @@ def execute_case(runner: str, case: dict) -> dict:
         ``{index, case_id, method, parameters, status, error, metrics, info, timing}`` where
         ``timing`` holds the wall time of the case in the worker [s] (``case_s``), the CPU
         time of the worker process meanwhile [s] (``cpu_s``: less than ``case_s`` when the
-        worker waited for a CPU), the worker's process id and the runner's timing: the only fields that depend on where and
-        when the case ran.
+        worker waited for a CPU), the worker's process id and the runner's timing: the only
+        fields that depend on where and when the case ran.
     """
     from .errors import SolverError
 

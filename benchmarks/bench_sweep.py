@@ -99,7 +99,8 @@ def main(argv=None) -> int:
         over = {k: 100 * (workers * wall - v) / v if v else float("nan") for k, v in sums.items()}
         cpu_share = 100 * sums["cpu_s"] / sums["case_s"]
         print(
-            f"{workers:>7} {wall:>8.2f} {n / wall:>7.3f} {base / wall:>8.2f} {sums['plan_s']:>8.2f} "
+            f"{workers:>7} {wall:>8.2f} {n / wall:>7.3f} {base / wall:>8.2f} "
+            f"{sums['plan_s']:>8.2f} "
             f"{sums['planner_solve_s']:>9.2f} {sums['case_s']:>8.2f} {over['plan_s']:>7.1f}% "
             f"{over['planner_solve_s']:>8.1f}% {over['case_s']:>7.1f}% {cpu_share:>7.1f}% "
             f"{ok:>4} {iters:>5.1f}"

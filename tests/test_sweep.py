@@ -231,7 +231,8 @@ BAD_SWEEPS = [
         "grid:\n  mission.duraton: [5.0]\n",
         "mission.duraton",
         (
-            "grid.mission.duraton: mission.duraton = 5.0 (case 0): unknown key 'duraton'; expected one of type, "
+            "grid.mission.duraton: mission.duraton = 5.0 (case 0): unknown key 'duraton'; "
+            "expected one of type, "
             "start, goal, duration; did you mean 'duration'?"
         ),
     ),
@@ -244,7 +245,8 @@ BAD_SWEEPS = [
         "cases:\n  - {initial.balance: [0.1, 0.2]}\n",
         "initial.balance",
         (
-            "cases[0].initial.balance: initial.balance = [0.1,0.2] (case 0): expected 3 values (one per balance "
+            "cases[0].initial.balance: initial.balance = [0.1,0.2] (case 0): "
+            "expected 3 values (one per balance "
             "joint: balance_joint1, balance_joint2, balance_joint3), got 2"
         ),
     ),
@@ -264,7 +266,10 @@ BAD_SWEEPS = [
         "methods[1]: expected one of 'analytic', 'optimal', got 'optim'",
     ),
     (
-        "random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.goal: {uniform: [[0, 0], [1, 1, 1]]}\n",
+        (
+            "random:\n  seed: 1\n  samples: 2\n  parameters:\n"
+            "    mission.goal: {uniform: [[0, 0], [1, 1, 1]]}\n"
+        ),
         "mission.goal",
         "random.parameters.mission.goal: low has shape (2,) but high has (3,)",
     ),
@@ -274,7 +279,10 @@ BAD_SWEEPS = [
         "random.parameters.mission.goal: low must not exceed high",
     ),
     (
-        "random:\n  seed: 1\n  samples: 2\n  parameters:\n    mission.duration: {uniform: [1, 2], choice: [3]}\n",
+        (
+            "random:\n  seed: 1\n  samples: 2\n  parameters:\n"
+            "    mission.duration: {uniform: [1, 2], choice: [3]}\n"
+        ),
         "mission.duration",
         (
             "random.parameters.mission.duration: expected exactly one of uniform, normal, choice, "
@@ -289,7 +297,10 @@ BAD_SWEEPS = [
     (
         "grid:\n  mission.duration: [3.0]\ncases:\n  - {mission.duration: 4.0}\n",
         "mission.duration: [3.0]",
-        "grid.mission.duration: parameter 'mission.duration' is varied in more than one of grid, cases and random",
+        (
+            "grid.mission.duration: parameter 'mission.duration' is varied in more than one of grid, "
+            "cases and random"
+        ),
     ),
     ("grid:\n  method: [analytic]\n", "method:", "grid.method: the method is not a task parameter"),
     ("gird:\n  mission.duration: [3.0]\n", "gird", "gird: unknown key 'gird'"),
@@ -540,7 +551,7 @@ def test_table_order_and_timing_columns():
     ]
 
 
-# ------------------------------------------------------------------------------ real cases, end to end
+# ------------------------------------------------------------------------- real cases, end to end
 #: The paper task, short and coarse: a few optimal cases solve in well under a second each.
 REAL_SWEEP = f"""\
 task: {PAPER_TASK}
@@ -652,3 +663,29 @@ def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
     while workers_left() and time.monotonic() < deadline:
         time.sleep(0.1)
     assert workers_left() == []
+
+
+def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
+    """In one process, cases that vary limits, weights and the start share one planner model
+    and one compiled NLP; each case's limits still hold in its plan."""
+    from balance_opt import sweep_runner
+
+    text = (
+        f"task: {PAPER_TASK}\nmethods: [optimal]\n"
+        "grid:\n  optimal.intervals: [12]\n  limits.balance_joint1.velocity: [0.3, 1.0]\n"
+        "  optimal.weights.omega: [100.0, 10.0]\n"
+    )
+    sweep = parse_sweep(text, "cache.yaml", tmp_path)
+    results = [sweep_runner.run_task_case(case) for case in sweep.cases]
+    assert [r["status"] for r in results] == ["ok"] * 4
+    builds = [r["timing"]["planner_build_s"] for r in results]
+    assert all(b == 0.0 for b in builds[1:]), builds  # only the first case may build
+    keys = {
+        sweep_runner.robot_key(c["task"], c["base_dir"]) for c in sweep.cases
+    }  # limits are not part of the robot's key
+    assert len(keys) == 1 and keys <= set(sweep_runner._MODELS)
+    # each case's own limit binds (not the limit of the robot the cached model was built with)
+    for case, result in zip(sweep.cases, results):
+        limit = case["parameters"]["limits.balance_joint1.velocity"]
+        peak = result["metrics"]["peak_joint_rates_rad_s"]["balance_joint1"]
+        np.testing.assert_allclose(peak, limit, rtol=0, atol=1e-6)
