@@ -234,7 +234,7 @@ class PlannerModel:
         nlp_cache: compiled NLPs of this robot, keyed by their structure (filled by the planner).
     """
 
-    def __init__(self, robot: FloatingRobot, maps: SymbolicMaps | None = None, compile: bool | str = False,
+    def __init__(self, robot: FloatingRobot, maps: SymbolicMaps | None = None, compile: bool | str = "auto",
                  cache_dir: str | Path | None = None):
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be True, False or 'auto', got {compile!r}")
