@@ -451,39 +451,10 @@ def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
 
     from balance_opt.cli import main
 
-    assert (
-        main(
-            [
-                "sweep",
-                str(sweep_file),
-                "-o",
-                str(out),
-                "-j",
-                "2",
-                "--runner",
-                "test_sweep:slow_toy_case",
-                "--no-plots",
-            ]
-        )
-        == 2
-    )  # not without --resume
-    assert (
-        main(
-            [
-                "sweep",
-                str(sweep_file),
-                "-o",
-                str(out),
-                "-j",
-                "2",
-                "--runner",
-                "test_sweep:slow_toy_case",
-                "--no-plots",
-                "--resume",
-            ]
-        )
-        == 0
-    )
+    again = ["sweep", str(sweep_file), "-o", str(out), "-j", "2", "--no-plots"]
+    again += ["--runner", "test_sweep:slow_toy_case"]
+    assert main(again) == 2  # not without --resume
+    assert main([*again, "--resume"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["skipped"] == len(done) and summary["ran"] == 10 - len(done)
     assert all((out / "cases" / f"{cid}.json").read_bytes() == b for cid, b in done.items())
