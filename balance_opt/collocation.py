@@ -10,9 +10,11 @@ The balance joints are a chain of integrators (``q_ddot = u``, or ``q_dddot = u`
 ``"jerk"``). On each interval the highest derivative is the transcription's control polynomial
 (Hermite-Simpson: the quadratic through ``u_k, u_{k+1/2}, u_{k+1}``; trapezoidal: the constant
 ``(u_k + u_{k+1}) / 2``), and the lower derivatives are its exact integrals from the state at
-node ``k``. With control ``"acceleration"`` this reproduces the collocation equations exactly
-(Simpson is exact for the cubic velocity, the trapezoidal rule for the linear one), so the
-continuous plan passes through every node. Every polynomial is kept in Bernstein form on the
+node ``k``. The planner requires the next node (and the midpoint) to be these integrals' values
+(:func:`bernstein_value`), so the continuous plan passes through every node; with control
+``"acceleration"`` these are exactly the transcription's own equations (Simpson is exact for
+the cubic velocity, the trapezoidal rule for the linear one), with ``"jerk"`` they differ from
+them by the transcription's truncation error. Every polynomial is kept in Bernstein form on the
 interval: by the convex-hull property, bounding the Bernstein coefficients bounds the whole
 polynomial, so the planner enforces joint limits on the continuous motion, not only at the
 collocation points.
@@ -138,6 +140,18 @@ def joint_chain_coefficients(transcription: Transcription, starts: list, U, Um, 
     for start in reversed(starts):
         levels.append(integrate_bernstein(levels[-1], start, h))
     return levels[::-1]
+
+
+def bernstein_value(coefficients: list, s: float):
+    """Value at ``s`` in [0, 1] of the polynomial with Bernstein ``coefficients`` (symbolic or
+    numeric, each (n, N)): ``sum_i C(d, i) s^i (1 - s)^(d - i) c_i``."""
+    degree = len(coefficients) - 1
+    weights = [comb(degree, i) * s**i * (1.0 - s) ** (degree - i) for i in range(degree + 1)]
+    total = 0
+    for w, c in zip(weights, coefficients):
+        if w != 0.0:
+            total = total + w * c
+    return total
 
 
 def bernstein_basis(degree: int, s: np.ndarray) -> np.ndarray:

@@ -55,6 +55,7 @@ from .collocation import (
     TRANSCRIPTIONS,
     CollocatedTrajectory,
     Transcription,
+    bernstein_value,
     joint_chain_coefficients,
 )
 from .errors import InfeasibleLimitsError, InputError, SolverError
@@ -320,21 +321,15 @@ def _structure_key(model: PlannerModel, options: PlannerOptions) -> tuple:
     )
 
 
-#: Interior Bernstein coefficients bounded per derivative level (1 .. degree - 1; the first is the
-#: node value, bounded as a variable; the last is the next node's value where the transcription is
-#: exact). Indexed by (transcription, control) -> {kind: coefficient indices}.
 def _bernstein_levels(tr: Transcription, control: str) -> dict[str, tuple[int, ...]]:
-    kinds = ["position", "velocity", "acceleration"]
+    """Interior Bernstein coefficients bounded per derivative: ``1 .. degree - 1`` (the first is
+    the node's value and the last the next node's, both bounded as variables)."""
     d_u = tr.control_degree
     if control == "acceleration":
         degrees = {"acceleration": d_u, "velocity": d_u + 1, "position": d_u + 2}
     else:
         degrees = {"acceleration": d_u + 1, "velocity": d_u + 2, "position": d_u + 3}
-    out = {}
-    for kind in kinds:
-        last = degrees[kind] + 1 if (control == "jerk" and kind == "position") else degrees[kind]
-        out[kind] = tuple(range(1, last))
-    return out
+    return {kind: tuple(range(1, degree)) for kind, degree in degrees.items()}
 
 
 def _point_variable_indices(variables: dict[str, Block], has_midpoints: bool) -> np.ndarray:
@@ -448,15 +443,22 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
         g_offset += len(rows) * len(col_taus)
         g_parts.append(cs.vec(expr))
 
-    for name, defect in tr.defects(X, Xm, Fn, Fm, h):
-        add_con(f"collocation ({name})", state_labels, [_unit(r) for r in state_labels], interval_taus, defect,
-                per_interval=True)
-
-    # joint limits between the points: interior Bernstein coefficients (convex hull)
+    # collocation defects: the attitude by the transcription; the balance joints, a chain of
+    # integrators, exactly: each node (and midpoint) is the value of the integrated control
+    # polynomial, so the continuous plan passes through every node in every mode (with
+    # control "acceleration" these are the transcription's own equations)
     starts = [X[3:3 + n_B, :-1], X[3 + n_B:3 + 2 * n_B, :-1]]
     if control == "jerk":
         starts.append(X[3 + 2 * n_B:3 + 3 * n_B, :-1])
     levels = joint_chain_coefficients(tr, starts, U, Um, h)
+    joint_ends = cs.vertcat(*(bernstein_value(level, 1.0) for level in levels[:-1]))
+    joint_mids = cs.vertcat(*(bernstein_value(level, 0.5) for level in levels[:-1]))
+    for name, defect in tr.defects(X, Xm, Fn, Fm, h):
+        exact = (Xm[3:, :] - joint_mids) if name == "Hermite midpoint" else (X[3:, 1:] - joint_ends)
+        add_con(f"collocation ({name})", state_labels, [_unit(r) for r in state_labels], interval_taus,
+                cs.vertcat(defect[:3, :], exact), per_interval=True)
+
+    # joint limits between the points: interior Bernstein coefficients (convex hull)
     bernstein = _bernstein_levels(tr, control)
     for level, kind in enumerate(("position", "velocity", "acceleration")):
         if kind not in limit_kinds or not bernstein[kind]:

@@ -78,6 +78,9 @@ DRIFT_TOLERANCE = 1e-6
 TERMINAL_TOLERANCE = 1e-6
 #: Joint values of the continuous plan at the nodes vs the NLP's [rad, rad/s].
 NODE_TOLERANCE = 1e-9
+#: NLP attitude at the nodes against the re-simulated one, relative to the drift (Hermite-Simpson,
+#: N = 50, velocity limits active: ~5e-4).
+COLLOCATION_RELATIVE_ERROR = 1e-3
 #: Drift reduction against Phase I required on the paper capture move.
 DRIFT_REDUCTION_20S = 5.0
 DRIFT_REDUCTION_10S = 2.5
@@ -275,7 +278,9 @@ def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_pl
     assert plan.max_drift * DRIFT_REDUCTION_10S <= phase1.max_drift
     assert plan.final_drift * 50 <= phase1.final_drift
     report = plan.info["resimulation"]
-    assert report["attitude_defect_max_rad"] < 1e-5 and report["joint_defect_max"] < NODE_TOLERANCE
+    # the NLP's own attitude at the nodes is the re-simulated one to 0.1 % of the drift
+    assert report["attitude_defect_max_rad"] < COLLOCATION_RELATIVE_ERROR * plan.max_drift
+    assert report["joint_defect_max"] < NODE_TOLERANCE
     assert report["max_momentum_residual"] < 1e-9
     assert len(plan.info["history"]["inf_pr"]) == plan.info["iterations"] + 1
 
@@ -313,12 +318,14 @@ def test_rest_at_end_and_prescribed_final_configuration(model, capture):
     np.testing.assert_allclose(plan.q_dot_B[0], 0.0, rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("transcription, control", [("trapezoidal", "acceleration"), ("hermite-simpson", "jerk")])
+@pytest.mark.parametrize("transcription, control", [("trapezoidal", "acceleration"), ("hermite-simpson", "jerk"),
+                                                    ("trapezoidal", "jerk")])
 def test_other_transcriptions_plan_within_limits(model, capture, capture_plan, transcription, control):
     options = PlannerOptions(intervals=50, transcription=transcription, control=control)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     assert plan.violations == []
     assert plan.info["transcription"] == transcription and plan.info["control"] == control
+    assert plan.info["resimulation"]["joint_defect_max"] < NODE_TOLERANCE  # through every node
     phase1 = phase_one(capture.robot, capture.mission, capture.q_B0, t_eval=plan.t)
     assert plan.max_drift * DRIFT_REDUCTION_10S <= phase1.max_drift
     if control == "acceleration":  # the same objective as the default: the same optimum, to within the grids
