@@ -309,11 +309,9 @@ def _parameter_sets(spec: SweepSpec, doc: YamlDocument) -> tuple[list[dict], dic
     for i, entry in enumerate(spec.cases):
         for name in entry:
             where.setdefault(name, ("cases", i, name))
-    random_sets = [{}]
     if spec.random is not None:
         for name in spec.random.parameters:
             where.setdefault(name, ("random", "parameters", name))
-        random_sets = draw_samples(spec.random, doc, ("random",))
     for name, at in where.items():
         try:
             parse_key_path(name)
@@ -328,13 +326,15 @@ def _parameter_sets(spec: SweepSpec, doc: YamlDocument) -> tuple[list[dict], dic
     for name, values in spec.grid.items():
         if not values:
             raise doc.error(("grid", name), "expected at least one value")
-    grid_sets = [dict(zip(spec.grid, combo)) for combo in itertools.product(*spec.grid.values())]
-    list_sets = [dict(entry) for entry in spec.cases] or [{}]
-    total = len(grid_sets) * len(list_sets) * len(random_sets) * len(spec.methods)
-    if total > MAX_CASES:
+    total = math.prod(len(v) for v in spec.grid.values()) * max(1, len(spec.cases))
+    total *= (spec.random.samples if spec.random is not None else 1) * len(spec.methods)
+    if total > MAX_CASES:  # checked before anything is expanded or drawn
         raise doc.error(
             (), f"the sweep expands to {total} cases, more than the {MAX_CASES} allowed"
         )
+    grid_sets = [dict(zip(spec.grid, combo)) for combo in itertools.product(*spec.grid.values())]
+    list_sets = [dict(entry) for entry in spec.cases] or [{}]
+    random_sets = [{}] if spec.random is None else draw_samples(spec.random, doc, ("random",))
     sets = []
     for g, c, r in itertools.product(grid_sets, list_sets, random_sets):
         clash = (set(g) & set(c)) | (set(g) & set(r)) | (set(c) & set(r))
