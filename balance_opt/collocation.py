@@ -46,7 +46,9 @@ class Transcription:
 
     def __post_init__(self):
         if self.name not in TRANSCRIPTIONS:
-            raise ValueError(f"unknown transcription '{self.name}'; expected one of {', '.join(TRANSCRIPTIONS)}")
+            raise ValueError(
+                f"unknown transcription '{self.name}'; expected one of {', '.join(TRANSCRIPTIONS)}"
+            )
 
     @property
     def has_midpoints(self) -> bool:
@@ -187,9 +189,13 @@ class CollocatedTrajectory(JointTrajectory):
         self.h = float(h)
         # Bernstein coefficients (N, degree + 1, n) per level, and the same polynomials in the
         # monomial basis of s = (t - t_k) / h, for Horner evaluation
-        self._coefficients = [np.stack([np.asarray(c, dtype=float).T for c in level], axis=1) for level in levels[:3]]
-        self._monomial = [np.einsum("ji,kin->kjn", monomial_from_bernstein(c.shape[1] - 1), c)
-                          for c in self._coefficients]
+        self._coefficients = [
+            np.stack([np.asarray(c, dtype=float).T for c in level], axis=1) for level in levels[:3]
+        ]
+        self._monomial = [
+            np.einsum("ji,kin->kjn", monomial_from_bernstein(c.shape[1] - 1), c)
+            for c in self._coefficients
+        ]
         self.intervals = self._coefficients[0].shape[0]
         self.dof = self._coefficients[0].shape[2]
         self.duration = self.h * self.intervals

@@ -63,7 +63,9 @@ CACHE_ENV = "BALANCE_OPT_CACHE"
 
 def skew(v):
     """``[v]_x`` (3 x 3) of a CasADi 3-vector."""
-    return cs.vertcat(cs.horzcat(0, -v[2], v[1]), cs.horzcat(v[2], 0, -v[0]), cs.horzcat(-v[1], v[0], 0))
+    return cs.vertcat(
+        cs.horzcat(0, -v[2], v[1]), cs.horzcat(v[2], 0, -v[0]), cs.horzcat(-v[1], v[0], 0)
+    )
 
 
 def inverse_right_jacobian_sym(phi):
@@ -151,7 +153,9 @@ def find_compiler() -> str | None:
     return None
 
 
-def compile_functions(functions: list[cs.Function], cache_dir: Path | None = None) -> tuple[list[cs.Function], float, str]:
+def compile_functions(
+    functions: list[cs.Function], cache_dir: Path | None = None
+) -> tuple[list[cs.Function], float, str]:
     """Compile CasADi functions to one shared library, cached on disk by the hash of their C code.
 
     Args:
@@ -171,8 +175,18 @@ def compile_functions(functions: list[cs.Function], cache_dir: Path | None = Non
     compiler = find_compiler()
     if compiler is None:
         raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
-    digest = hashlib.sha256("\n".join([source, compiler, " ".join(COMPILER_FLAGS), cs.__version__,
-                                        platform.machine(), platform.system()]).encode()).hexdigest()[:20]
+    digest = hashlib.sha256(
+        "\n".join(
+            [
+                source,
+                compiler,
+                " ".join(COMPILER_FLAGS),
+                cs.__version__,
+                platform.machine(),
+                platform.system(),
+            ]
+        ).encode()
+    ).hexdigest()[:20]
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     library = folder / f"balance_kernels_{digest}{'.dll' if os.name == 'nt' else '.so'}"
     elapsed = 0.0
@@ -181,7 +195,11 @@ def compile_functions(functions: list[cs.Function], cache_dir: Path | None = Non
         if not library.is_file():
             elapsed = _compile(compiler, source, library)
     # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
-    return [cs.external(f.name(), str(library), {"enable_fd": True}) for f in functions], elapsed, str(library)
+    return (
+        [cs.external(f.name(), str(library), {"enable_fd": True}) for f in functions],
+        elapsed,
+        str(library),
+    )
 
 
 @contextlib.contextmanager
@@ -207,8 +225,12 @@ def _compile(compiler: str, source: str, library: Path) -> float:
         c_file = Path(tmp) / "balance_kernels.c"
         c_file.write_text(source)
         out = Path(tmp) / library.name
-        proc = subprocess.run([compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"],
-                              capture_output=True, text=True, check=False)
+        proc = subprocess.run(
+            [compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
         if proc.returncode != 0:
             raise OSError(f"{compiler} failed on the balance kernels: {proc.stderr.strip()[:500]}")
         os.replace(out, library)  # atomic: a process never loads a partial library
@@ -234,8 +256,13 @@ class PlannerModel:
         nlp_cache: compiled NLPs of this robot, keyed by their structure (filled by the planner).
     """
 
-    def __init__(self, robot: FloatingRobot, maps: SymbolicMaps | None = None, compile: bool | str = "auto",
-                 cache_dir: str | Path | None = None):
+    def __init__(
+        self,
+        robot: FloatingRobot,
+        maps: SymbolicMaps | None = None,
+        compile: bool | str = "auto",
+        cache_dir: str | Path | None = None,
+    ):
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be True, False or 'auto', got {compile!r}")
         self.robot = robot
@@ -278,7 +305,7 @@ class PlannerModel:
         x = cs.SX.sym("x", self.n_x(control))
         u = cs.SX.sym("u", n_B)
         m = cs.SX.sym("m", self.n_m)
-        return x, u, m, x[:3], x[3:3 + n_B], x[3 + n_B:3 + 2 * n_B], m[:n_M], m[n_M:2 * n_M]
+        return x, u, m, x[:3], x[3 : 3 + n_B], x[3 + n_B : 3 + 2 * n_B], m[:n_M], m[n_M : 2 * n_M]
 
     def _cached(self, key: str, make) -> cs.Function:
         if key not in self._funs:
@@ -298,13 +325,21 @@ class PlannerModel:
     def dynamics_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_dynamics(x, u, m) -> (x_dot, omega)``: the state's time derivative and the
         base angular velocity in the base frame [rad/s] (Eq. 26 with zero momentum)."""
+
         def make():
             x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
             omega = self._omega(q_M, q_B, q_dot_M, q_dot_B)
             parts = [inverse_right_jacobian_sym(phi) @ omega, q_dot_B]
-            parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B:], u]
-            return cs.Function("balance_dynamics", [x, u, m], [cs.vertcat(*parts), omega],
-                               ["x", "u", "m"], ["x_dot", "omega"], {"cse": True})
+            parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B :], u]
+            return cs.Function(
+                "balance_dynamics",
+                [x, u, m],
+                [cs.vertcat(*parts), omega],
+                ["x", "u", "m"],
+                ["x_dot", "omega"],
+                {"cse": True},
+            )
+
         return self._cached(f"dynamics_{check_control(control)}", make)
 
     def point_fun(self, control: str = "acceleration") -> cs.Function:
@@ -314,16 +349,28 @@ class PlannerModel:
         ``L = w_omega |omega_b|^2 + w_attitude |phi|^2 + w_smoothness |u|^2
         + w_rest |q_B - q_rest|^2``, with ``weights`` in the order of :data:`RUNNING_WEIGHTS`.
         """
+
         def make():
             x, u, m, phi, q_B, _, _, _ = self._symbols(control)
             weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
             q_rest = cs.SX.sym("q_rest", self.n_B)
             x_dot, omega = self.dynamics_fun(control)(x, u, m)
             dq = q_B - q_rest
-            L = (weights[0] * cs.dot(omega, omega) + weights[1] * cs.dot(phi, phi)
-                 + weights[2] * cs.dot(u, u) + weights[3] * cs.dot(dq, dq))
-            return cs.Function("balance_point", [x, u, m, weights, q_rest], [x_dot, L],
-                               ["x", "u", "m", "weights", "q_rest"], ["x_dot", "L"], {"cse": True})
+            L = (
+                weights[0] * cs.dot(omega, omega)
+                + weights[1] * cs.dot(phi, phi)
+                + weights[2] * cs.dot(u, u)
+                + weights[3] * cs.dot(dq, dq)
+            )
+            return cs.Function(
+                "balance_point",
+                [x, u, m, weights, q_rest],
+                [x_dot, L],
+                ["x", "u", "m", "weights", "q_rest"],
+                ["x_dot", "L"],
+                {"cse": True},
+            )
+
         return self._cached(f"point_{check_control(control)}", make)
 
     # ------------------------------------------------------------------ inverse dynamics
@@ -341,7 +388,9 @@ class PlannerModel:
         robot = self.robot
         quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
         try:
-            kd = adam.casadi.KinDynComputations(robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6))
+            kd = adam.casadi.KinDynComputations(
+                robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
+            )
         finally:
             urdf_core.on_error = quiet
         kd.set_frame_velocity_representation(Representations.BODY_FIXED_REPRESENTATION)
@@ -352,7 +401,9 @@ class PlannerModel:
         h = kd.bias_force(H, q, nu[:6], nu[6:])
         M = cs.SX(M.array if hasattr(M, "array") else M)
         h = cs.SX(h.array if hasattr(h, "array") else h)
-        return cs.Function("floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True})
+        return cs.Function(
+            "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
+        )
 
     def torque_fun(self) -> cs.Function:
         """``joint_torques(q, q_dot, q_ddot) -> tau``: arm joint torques [N m] (arm order) that
@@ -363,6 +414,7 @@ class PlannerModel:
         base acceleration is ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and
         ``tau = M_jb a_b + M_jj q_ddot + h_j``.
         """
+
         def make():
             n = self.robot.n
             q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
@@ -370,20 +422,36 @@ class PlannerModel:
             M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
             a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
             tau = M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
-            return cs.Function("joint_torques", [q, q_dot, q_ddot], [tau],
-                               ["q", "q_dot", "q_ddot"], ["tau"], {"cse": True})
+            return cs.Function(
+                "joint_torques",
+                [q, q_dot, q_ddot],
+                [tau],
+                ["q", "q_dot", "q_ddot"],
+                ["tau"],
+                {"cse": True},
+            )
+
         return self._cached("torque", make)
 
     def balance_torque_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point."""
+
         def make():
             x, u, m, _, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
-            q_ddot_B = u if control == "acceleration" else x[3 + 2 * self.n_B:]
-            q_ddot_M = m[2 * self.n_M:]
-            tau = self.torque_fun()(cs.vertcat(q_M, q_B), cs.vertcat(q_dot_M, q_dot_B),
-                                    cs.vertcat(q_ddot_M, q_ddot_B))
-            return cs.Function("balance_torques", [x, u, m], [tau[self.n_M:]],
-                               ["x", "u", "m"], ["tau_B"], {"cse": True})
+            q_ddot_B = u if control == "acceleration" else x[3 + 2 * self.n_B :]
+            q_ddot_M = m[2 * self.n_M :]
+            tau = self.torque_fun()(
+                cs.vertcat(q_M, q_B), cs.vertcat(q_dot_M, q_dot_B), cs.vertcat(q_ddot_M, q_ddot_B)
+            )
+            return cs.Function(
+                "balance_torques",
+                [x, u, m],
+                [tau[self.n_M :]],
+                ["x", "u", "m"],
+                ["tau_B"],
+                {"cse": True},
+            )
+
         return self._cached(f"balance_torque_{check_control(control)}", make)
 
     # ------------------------------------------------------------------ kernels
@@ -418,13 +486,33 @@ class PlannerModel:
         names = ["z", "m", "weights", "q_rest"]
         opts = {"cse": True}
         functions = [
-            cs.Function(f"balance_kernel_{suffix}", [z, m, weights, q_rest], [y], names, ["y"], opts),
-            cs.Function(f"balance_kernel_jac_{suffix}", [z, m, weights, q_rest], [y, cs.jacobian(y, z)],
-                        names, ["y", "dy_dz"], opts),
-            cs.Function(f"balance_kernel_grad_{suffix}", [z, m, weights, q_rest, c],
-                        [cs.dot(c, y), cs.gradient(cs.dot(c, y), z)], [*names, "c"], ["cy", "grad"], opts),
-            cs.Function(f"balance_kernel_hess_{suffix}", [z, m, weights, q_rest, mu], [cs.tril(hess)],
-                        [*names, "mu"], ["d2"], opts),
+            cs.Function(
+                f"balance_kernel_{suffix}", [z, m, weights, q_rest], [y], names, ["y"], opts
+            ),
+            cs.Function(
+                f"balance_kernel_jac_{suffix}",
+                [z, m, weights, q_rest],
+                [y, cs.jacobian(y, z)],
+                names,
+                ["y", "dy_dz"],
+                opts,
+            ),
+            cs.Function(
+                f"balance_kernel_grad_{suffix}",
+                [z, m, weights, q_rest, c],
+                [cs.dot(c, y), cs.gradient(cs.dot(c, y), z)],
+                [*names, "c"],
+                ["cy", "grad"],
+                opts,
+            ),
+            cs.Function(
+                f"balance_kernel_hess_{suffix}",
+                [z, m, weights, q_rest, mu],
+                [cs.tril(hess)],
+                [*names, "mu"],
+                ["d2"],
+                opts,
+            ),
         ]
         sizes = (z.numel(), y.numel())
         if not self.compile:

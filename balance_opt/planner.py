@@ -25,6 +25,13 @@ Decision variables (``Transcription`` in :mod:`balance_opt.collocation`, states 
 attitude is the rotation vector ``phi = log(R)`` at the initial attitude (exact terminal cost
 and angle bounds, no norm constraint).
 
+Assumptions: zero total momentum (the paper's case; a task with ``h0`` is refused upstream), the
+base at its initial attitude and the balance arm at rest at ``q_B0`` at ``t = 0``.
+
+Speed: the NLP's gradient, Jacobian and Hessian are assembled from per-point kernels with exact
+derivatives (see :func:`_build_structure`), compiled to C once per robot when a compiler is
+found; Ipopt (MUMPS) does the rest. ``benchmarks/bench_planner.py`` prints the times.
+
 Every plan is re-simulated on a fine grid with numeric Pinocchio: the balance joints follow the
 collocation polynomial (:class:`~balance_opt.collocation.CollocatedTrajectory`), the base
 attitude is integrated from the rates momentum conservation forces, and the returned
@@ -173,29 +180,55 @@ class PlannerOptions:
     ipopt: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
-        if isinstance(self.intervals, bool) or not isinstance(self.intervals, (int, np.integer)) or self.intervals < 2:
-            raise InputError(f"planner option 'intervals' must be an integer >= 2, got {self.intervals!r}")
+        if (
+            isinstance(self.intervals, bool)
+            or not isinstance(self.intervals, (int, np.integer))
+            or self.intervals < 2
+        ):
+            raise InputError(
+                f"planner option 'intervals' must be an integer >= 2, got {self.intervals!r}"
+            )
         if self.transcription not in TRANSCRIPTIONS:
-            raise InputError(f"planner option 'transcription' must be one of {', '.join(TRANSCRIPTIONS)}, "
-                             f"got {self.transcription!r}")
+            raise InputError(
+                f"planner option 'transcription' must be one of {', '.join(TRANSCRIPTIONS)}, "
+                f"got {self.transcription!r}"
+            )
         if self.control not in CONTROLS:
-            raise InputError(f"planner option 'control' must be one of {', '.join(CONTROLS)}, got {self.control!r}")
+            raise InputError(
+                f"planner option 'control' must be one of {', '.join(CONTROLS)}, got {self.control!r}"
+            )
         for f in dataclasses.fields(CostWeights):
             value = getattr(self.weights, f.name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise InputError(f"planner weight '{f.name}' must be a finite number >= 0, got {value!r}")
-        for name in ("horizon", "terminal_attitude_bound", "path_attitude_bound", "tolerance", "resample_step"):
+                raise InputError(
+                    f"planner weight '{f.name}' must be a finite number >= 0, got {value!r}"
+                )
+        for name in (
+            "horizon",
+            "terminal_attitude_bound",
+            "path_attitude_bound",
+            "tolerance",
+            "resample_step",
+        ):
             value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise InputError(f"planner option '{name}' must be a finite number > 0, got {value!r}")
+            if value is not None and not (
+                isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+            ):
+                raise InputError(
+                    f"planner option '{name}' must be a finite number > 0, got {value!r}"
+                )
         if not isinstance(self.max_iterations, (int, np.integer)) or self.max_iterations < 0:
-            raise InputError(f"planner option 'max_iterations' must be an integer >= 0, got {self.max_iterations!r}")
+            raise InputError(
+                f"planner option 'max_iterations' must be an integer >= 0, got {self.max_iterations!r}"
+            )
         for name in ("rest_configuration", "final_configuration"):
             value = getattr(self, name)
             if value is not None:
                 arr = np.asarray(value, dtype=float).ravel()
                 if not np.all(np.isfinite(arr)):
-                    raise InputError(f"planner option '{name}' has non-finite values: {arr.tolist()}")
+                    raise InputError(
+                        f"planner option '{name}' has non-finite values: {arr.tolist()}"
+                    )
                 object.__setattr__(self, name, tuple(float(v) for v in arr))
         object.__setattr__(self, "ipopt", dict(self.ipopt))
 
@@ -217,7 +250,9 @@ class PlannerSolverError(SolverError):
         violation: by how much it is violated (in its own unit).
     """
 
-    def __init__(self, message: str, status: str, result, constraint: str, time: float, violation: float):
+    def __init__(
+        self, message: str, status: str, result, constraint: str, time: float, violation: float
+    ):
         super().__init__(message, status, result)
         self.constraint = constraint
         self.time = time
@@ -264,8 +299,13 @@ class Block:
 def _unit(label: str, control_unit: str = "rad/s^2") -> str:
     if label.startswith("attitude"):
         return "rad"
-    for kind, unit in (("position", "rad"), ("velocity", "rad/s"), ("acceleration", "rad/s^2"),
-                       ("jerk", "rad/s^3"), ("torque", "N m")):
+    for kind, unit in (
+        ("position", "rad"),
+        ("velocity", "rad/s"),
+        ("acceleration", "rad/s^2"),
+        ("jerk", "rad/s^3"),
+        ("torque", "N m"),
+    ):
         if label.endswith(kind):
             return unit
     return control_unit
@@ -306,17 +346,21 @@ class NLPStructure:
 def _structure_key(model: PlannerModel, options: PlannerOptions) -> tuple:
     lim = model.robot.limits.subset(model.robot.balance_indices)
     finite = {
-        "position": options.position_limits and bool(np.any(np.isfinite(lim.lower) | np.isfinite(lim.upper))),
+        "position": options.position_limits
+        and bool(np.any(np.isfinite(lim.lower) | np.isfinite(lim.upper))),
         "velocity": options.velocity_limits and bool(np.any(np.isfinite(lim.velocity))),
         "acceleration": options.acceleration_limits and bool(np.any(np.isfinite(lim.acceleration))),
     }
     return (
-        int(options.intervals), options.transcription, options.control,
+        int(options.intervals),
+        options.transcription,
+        options.control,
         tuple(sorted(k for k, v in finite.items() if v)),
         bool(options.torque_limits and np.any(np.isfinite(lim.effort))),
         options.path_attitude_bound is not None,
         options.terminal_attitude_bound is not None,
-        options.tolerance, int(options.max_iterations),
+        options.tolerance,
+        int(options.max_iterations),
         tuple(sorted((k, repr(v)) for k, v in options.ipopt.items())),
     )
 
@@ -335,6 +379,7 @@ def _bernstein_levels(tr: Transcription, control: str) -> dict[str, tuple[int, .
 def _point_variable_indices(variables: dict[str, Block], has_midpoints: bool) -> np.ndarray:
     """(n_z, n_points) indices into the decision vector of each point's ``z = [x; u]``, points in
     the order nodes, then midpoints."""
+
     def idx(name):
         b = variables[name]
         return b.offset + np.arange(b.size).reshape(b.shape, order="F")
@@ -345,7 +390,9 @@ def _point_variable_indices(variables: dict[str, Block], has_midpoints: bool) ->
     return np.vstack([X, U])
 
 
-def _scatter(sparsity: cs.Sparsity, n_points: int, rows_of_point, cols_of_point, shape, upper: bool = False):
+def _scatter(
+    sparsity: cs.Sparsity, n_points: int, rows_of_point, cols_of_point, shape, upper: bool = False
+):
     """Sparsity and nonzero permutation that place the nonzeros of a mapped per-point sparse
     output (``n_points`` copies of ``sparsity`` side by side) into one global sparse matrix.
 
@@ -365,7 +412,9 @@ def _scatter(sparsity: cs.Sparsity, n_points: int, rows_of_point, cols_of_point,
     cols = np.concatenate([cols_of_point(i)[local_cols] for i in range(n_points)])
     if upper:
         rows, cols = np.minimum(rows, cols), np.maximum(rows, cols)
-    global_sp, mapping = cs.Sparsity.triplet(int(shape[0]), int(shape[1]), rows.tolist(), cols.tolist(), False)
+    global_sp, mapping = cs.Sparsity.triplet(
+        int(shape[0]), int(shape[1]), rows.tolist(), cols.tolist(), False
+    )
     mapping = np.asarray(mapping)
     if mapping.size != nnz * n_points or np.unique(mapping).size != mapping.size:
         raise AssertionError("overlapping per-point blocks")  # every variable belongs to one point
@@ -425,11 +474,11 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
 
     def var(name):
         b = variables.get(name)
-        return None if b is None else cs.reshape(w[b.offset:b.offset + b.size], *b.shape)
+        return None if b is None else cs.reshape(w[b.offset : b.offset + b.size], *b.shape)
 
     X, U, Xm, Um = var("X"), var("U"), var("Xm"), var("Um")
     F, L = Y[:n_x, :], Y[n_x, :]
-    Fn, Fm = F[:, :N + 1], (F[:, N + 1:] if tr.has_midpoints else None)
+    Fn, Fm = F[:, : N + 1], (F[:, N + 1 :] if tr.has_midpoints else None)
     cost = h * cs.mtimes(L, cs.DM(tr.quadrature_weights(N))) + w_terminal * cs.sumsqr(X[:3, N])
 
     constraints: list[Block] = []
@@ -438,8 +487,16 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
 
     def add_con(name, rows, units, col_taus, expr, per_interval=False):
         nonlocal g_offset
-        constraints.append(Block(name, tuple(rows), tuple(units), np.asarray(col_taus, dtype=float), g_offset,
-                                 per_interval))
+        constraints.append(
+            Block(
+                name,
+                tuple(rows),
+                tuple(units),
+                np.asarray(col_taus, dtype=float),
+                g_offset,
+                per_interval,
+            )
+        )
         g_offset += len(rows) * len(col_taus)
         g_parts.append(cs.vec(expr))
 
@@ -447,16 +504,22 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
     # integrators, exactly: each node (and midpoint) is the value of the integrated control
     # polynomial, so the continuous plan passes through every node in every mode (with
     # control "acceleration" these are the transcription's own equations)
-    starts = [X[3:3 + n_B, :-1], X[3 + n_B:3 + 2 * n_B, :-1]]
+    starts = [X[3 : 3 + n_B, :-1], X[3 + n_B : 3 + 2 * n_B, :-1]]
     if control == "jerk":
-        starts.append(X[3 + 2 * n_B:3 + 3 * n_B, :-1])
+        starts.append(X[3 + 2 * n_B : 3 + 3 * n_B, :-1])
     levels = joint_chain_coefficients(tr, starts, U, Um, h)
     joint_ends = cs.vertcat(*(bernstein_value(level, 1.0) for level in levels[:-1]))
     joint_mids = cs.vertcat(*(bernstein_value(level, 0.5) for level in levels[:-1]))
     for name, defect in tr.defects(X, Xm, Fn, Fm, h):
         exact = (Xm[3:, :] - joint_mids) if name == "Hermite midpoint" else (X[3:, 1:] - joint_ends)
-        add_con(f"collocation ({name})", state_labels, [_unit(r) for r in state_labels], interval_taus,
-                cs.vertcat(defect[:3, :], exact), per_interval=True)
+        add_con(
+            f"collocation ({name})",
+            state_labels,
+            [_unit(r) for r in state_labels],
+            interval_taus,
+            cs.vertcat(defect[:3, :], exact),
+            per_interval=True,
+        )
 
     # joint limits between the points: interior Bernstein coefficients (convex hull)
     bernstein = _bernstein_levels(tr, control)
@@ -465,18 +528,40 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
             continue
         coeffs = [levels[level][i] for i in bernstein[kind]]
         rows = [f"{j} {kind} (control point {i})" for i in bernstein[kind] for j in balance_names]
-        add_con(f"{kind} limit between points", rows, [_unit(kind)] * len(rows), interval_taus, cs.vertcat(*coeffs),
-                per_interval=True)
+        add_con(
+            f"{kind} limit between points",
+            rows,
+            [_unit(kind)] * len(rows),
+            interval_taus,
+            cs.vertcat(*coeffs),
+            per_interval=True,
+        )
 
     Z_phi = cs.horzcat(X[:3, :], Xm[:3, :]) if tr.has_midpoints else X[:3, :]
     if torque:
-        add_con("torque limit", [f"{j} torque" for j in balance_names], ["N m"] * n_B, taus, Y[n_x + 1:, :])
+        add_con(
+            "torque limit",
+            [f"{j} torque" for j in balance_names],
+            ["N m"] * n_B,
+            taus,
+            Y[n_x + 1 :, :],
+        )
     if path_bound:
-        add_con("path attitude bound", ["attitude |phi|^2 / bound^2"], ["(relative)"], taus,
-                path_scale * cs.sum1(Z_phi**2))
+        add_con(
+            "path attitude bound",
+            ["attitude |phi|^2 / bound^2"],
+            ["(relative)"],
+            taus,
+            path_scale * cs.sum1(Z_phi**2),
+        )
     if terminal_bound:
-        add_con("terminal attitude bound", ["attitude |phi_T|^2 / bound^2"], ["(relative)"], [float(N)],
-                terminal_scale * cs.sumsqr(X[:3, N]))
+        add_con(
+            "terminal attitude bound",
+            ["attitude |phi_T|^2 / bound^2"],
+            ["(relative)"],
+            [float(N)],
+            terminal_scale * cs.sumsqr(X[:3, N]),
+        )
     g = cs.vertcat(*g_parts)
     n_g = int(g.numel())
 
@@ -489,11 +574,17 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
     if cs.depends_on(G_Y, cs.vertcat(w, y)) or cs.depends_on(f_Y, cs.vertcat(w, y)):
         raise AssertionError("the outer problem must be linear in the kernel outputs")
     outer = cs.Function("outer", [w, y, p], [cost, g])
-    outer_grad = cs.Function("outer_grad", [w, p], [cs.substitute(cost, y, cs.DM.zeros(y.shape)),
-                                                    cs.gradient(cost, w), f_Y.T])
+    outer_grad = cs.Function(
+        "outer_grad",
+        [w, p],
+        [cs.substitute(cost, y, cs.DM.zeros(y.shape)), cs.gradient(cost, w), f_Y.T],
+    )
     outer_jac = cs.Function("outer_jac", [w, p], [cs.jacobian(g, w), G_Y])
-    outer_hess = cs.Function("outer_hess", [w, p, lam_f, lam_g],
-                             [cs.triu(cs.hessian(lagrangian, w)[0]), cs.gradient(lagrangian, y)])
+    outer_hess = cs.Function(
+        "outer_hess",
+        [w, p, lam_f, lam_g],
+        [cs.triu(cs.hessian(lagrangian, w)[0]), cs.gradient(lagrangian, y)],
+    )
 
     # ---- the NLP in MX: kernels mapped over the points, derivatives assembled
     point_idx = _point_variable_indices(variables, tr.has_midpoints)
@@ -502,8 +593,8 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
         raise AssertionError("every decision variable must belong to exactly one point")
     wx, px = cs.MX.sym("w", n_w), cs.MX.sym("p", n_p)
     Zx = cs.reshape(wx[point_flat.tolist()], kernels.n_z, n_pts)
-    Mx = cs.reshape(px[N_FIXED_PARAMETERS + n_B:], n_m, n_pts)
-    data = (Mx, px[2:6], px[N_FIXED_PARAMETERS:N_FIXED_PARAMETERS + n_B])
+    Mx = cs.reshape(px[N_FIXED_PARAMETERS + n_B :], n_m, n_pts)
+    data = (Mx, px[2:6], px[N_FIXED_PARAMETERS : N_FIXED_PARAMETERS + n_B])
     yx = cs.vec(kernels.value.map(n_pts)(Zx, *data))
     f_x, g_x = outer(wx, yx, px)
 
@@ -512,35 +603,76 @@ def _build_structure(model: PlannerModel, key: tuple, options: PlannerOptions) -
     cy, grad_z = kernels.gradient.map(n_pts)(Zx, *data, cs.reshape(f_Y_x, n_y, n_pts))
     scatter_w = np.empty(n_w, dtype=int)
     scatter_w[point_flat] = np.arange(n_w)
-    grad_f = cs.Function("nlp_grad_f", [wx, px], [f0 + cs.sum2(cy), f_w_x + cs.vec(grad_z)[scatter_w.tolist()]],
-                         ["x", "p"], ["f", "grad_f_x"])
+    grad_f = cs.Function(
+        "nlp_grad_f",
+        [wx, px],
+        [f0 + cs.sum2(cy), f_w_x + cs.vec(grad_z)[scatter_w.tolist()]],
+        ["x", "p"],
+        ["f", "grad_f_x"],
+    )
 
     # Jacobian of the constraints: G_w + G_Y dY/dw, dY/dw block diagonal
     Y_jac, dY = kernels.jacobian.map(n_pts)(Zx, *data)
-    sp_dy, perm_dy = _scatter(kernels.jacobian_sparsity, n_pts, lambda i: n_y * i + np.arange(n_y),
-                              lambda i: point_idx[:, i], (n_y * n_pts, n_w))
+    sp_dy, perm_dy = _scatter(
+        kernels.jacobian_sparsity,
+        n_pts,
+        lambda i: n_y * i + np.arange(n_y),
+        lambda i: point_idx[:, i],
+        (n_y * n_pts, n_w),
+    )
     dYdw = cs.sparsity_cast(dY.nz[perm_dy.tolist()], sp_dy)
     G_w_x, G_Y_x = outer_jac(wx, px)
     g_jac = outer(wx, cs.vec(Y_jac), px)[1]
-    jac_g = cs.Function("nlp_jac_g", [wx, px], [g_jac, G_w_x + cs.mtimes(G_Y_x, dYdw)], ["x", "p"], ["g", "jac_g_x"])
+    jac_g = cs.Function(
+        "nlp_jac_g", [wx, px], [g_jac, G_w_x + cs.mtimes(G_Y_x, dYdw)], ["x", "p"], ["g", "jac_g_x"]
+    )
 
     lf, lg = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", n_g)
     H_outer, mu = outer_hess(wx, px, lf, lg)
     d2 = kernels.hessian.map(n_pts)(Zx, *data, cs.reshape(mu, n_y, n_pts))
-    sp_h, perm_h = _scatter(kernels.hessian_sparsity, n_pts, lambda i: point_idx[:, i], lambda i: point_idx[:, i],
-                            (n_w, n_w), upper=True)
+    sp_h, perm_h = _scatter(
+        kernels.hessian_sparsity,
+        n_pts,
+        lambda i: point_idx[:, i],
+        lambda i: point_idx[:, i],
+        (n_w, n_w),
+        upper=True,
+    )
     H_kernel = cs.sparsity_cast(d2.nz[perm_h.tolist()], sp_h)
-    hess_lag = cs.Function("nlp_hess_l", [wx, px, lf, lg], [H_outer + H_kernel],
-                           ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+    hess_lag = cs.Function(
+        "nlp_hess_l",
+        [wx, px, lf, lg],
+        [H_outer + H_kernel],
+        ["x", "p", "lam_f", "lam_g"],
+        ["triu_hess_gamma_x_x"],
+    )
 
     ipopt = dict(DEFAULT_IPOPT)
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
     ipopt.update(options.ipopt)
-    solver = cs.nlpsol("balance_nlp", "ipopt", {"x": wx, "p": px, "f": f_x, "g": g_x},
-                       {"ipopt": ipopt, "print_time": False, "record_time": True, "calc_lam_p": False, "calc_lam_x": False,
-                        "grad_f": grad_f, "jac_g": jac_g, "hess_lag": hess_lag})
+    solver = cs.nlpsol(
+        "balance_nlp",
+        "ipopt",
+        {"x": wx, "p": px, "f": f_x, "g": g_x},
+        {
+            "ipopt": ipopt,
+            "print_time": False,
+            "record_time": True,
+            "calc_lam_p": False,
+            "calc_lam_x": False,
+            "grad_f": grad_f,
+            "jac_g": jac_g,
+            "hess_lag": hess_lag,
+        },
+    )
     build_time = time.perf_counter() - start
-    log.debug("balance NLP %s built in %.3f s: %d variables, %d constraints", key[:3], build_time, n_w, n_g)
+    log.debug(
+        "balance NLP %s built in %.3f s: %d variables, %d constraints",
+        key[:3],
+        build_time,
+        n_w,
+        n_g,
+    )
     return NLPStructure(key, solver, variables, constraints, n_w, n_g, n_p, bernstein, build_time)
 
 
@@ -562,8 +694,17 @@ class BalanceNLP:
     ``lbg``/``ubg``, ``parameters``, or name an index with :meth:`constraint_name`.
     """
 
-    def __init__(self, model: PlannerModel, structure: NLPStructure, mission, q_B0: np.ndarray,
-                 options: PlannerOptions, horizon: float, setup_time: float, build_time: float = 0.0):
+    def __init__(
+        self,
+        model: PlannerModel,
+        structure: NLPStructure,
+        mission,
+        q_B0: np.ndarray,
+        options: PlannerOptions,
+        horizon: float,
+        setup_time: float,
+        build_time: float = 0.0,
+    ):
         self.model = model
         self.robot = model.robot
         self.structure = structure
@@ -581,11 +722,22 @@ class BalanceNLP:
         q_M, q_dot_M, q_ddot_M = mission.sample(self.point_times)
         self.mission_samples = np.hstack([q_M, q_dot_M, q_ddot_M]).T  # (n_m, n_points)
         n_B = model.n_B
-        self.q_rest = q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
+        self.q_rest = (
+            q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
+        )
         # attitude bounds enter as |phi|^2 / bound^2 <= 1: scaled, Ipopt's tolerance is relative
-        scales = [1.0 / b**2 if b else 1.0 for b in (options.path_attitude_bound, options.terminal_attitude_bound)]
-        self.parameters = np.r_[self.h, options.weights.terminal, options.weights.running(), scales, self.q_rest,
-                                self.mission_samples.ravel(order="F")]
+        scales = [
+            1.0 / b**2 if b else 1.0
+            for b in (options.path_attitude_bound, options.terminal_attitude_bound)
+        ]
+        self.parameters = np.r_[
+            self.h,
+            options.weights.terminal,
+            options.weights.running(),
+            scales,
+            self.q_rest,
+            self.mission_samples.ravel(order="F"),
+        ]
         self.limits = self.robot.limits.subset(self.robot.balance_indices)
         self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
         self.lbx, self.ubx = self._variable_bounds()
@@ -630,7 +782,7 @@ class BalanceNLP:
             b = self.variables.get(name)
             if b is None:
                 return None
-            return w[b.offset:b.offset + b.size].reshape(b.shape, order="F")
+            return w[b.offset : b.offset + b.size].reshape(b.shape, order="F")
 
         return Solution(get("X"), get("U"), get("Xm"), get("Um"))
 
@@ -640,7 +792,7 @@ class BalanceNLP:
         for name, arr in (("X", sol.X), ("U", sol.U), ("Xm", sol.Xm), ("Um", sol.Um)):
             b = self.variables.get(name)
             if b is not None:
-                w[b.offset:b.offset + b.size] = np.asarray(arr, dtype=float).ravel(order="F")
+                w[b.offset : b.offset + b.size] = np.asarray(arr, dtype=float).ravel(order="F")
         return w
 
     # ------------------------------------------------------------------ bounds
@@ -668,11 +820,16 @@ class BalanceNLP:
         x0 = np.r_[np.zeros(3), self.q_B0, np.zeros(self.model.n_x(self.control) - 3 - n_B)]
         X_lo[:, 0] = X_hi[:, 0] = x0
         if self.options.rest_at_end:
-            X_lo[3 + n_B:, N] = X_hi[3 + n_B:, N] = 0.0
+            X_lo[3 + n_B :, N] = X_hi[3 + n_B :, N] = 0.0
         if self.options.final_configuration is not None:
-            X_lo[3:3 + n_B, N] = X_hi[3:3 + n_B, N] = self.options.final_configuration
+            X_lo[3 : 3 + n_B, N] = X_hi[3 : 3 + n_B, N] = self.options.final_configuration
         U_lo, U_hi = np.tile(u_lo[:, None], N + 1), np.tile(u_hi[:, None], N + 1)
-        mid = (np.tile(x_lo[:, None], N), np.tile(x_hi[:, None], N), np.tile(u_lo[:, None], N), np.tile(u_hi[:, None], N))
+        mid = (
+            np.tile(x_lo[:, None], N),
+            np.tile(x_hi[:, None], N),
+            np.tile(u_lo[:, None], N),
+            np.tile(u_hi[:, None], N),
+        )
         lo = self.pack(Solution(X_lo, U_lo, mid[0], mid[2]))
         hi = self.pack(Solution(X_hi, U_hi, mid[1], mid[3]))
         return lo, hi
@@ -686,8 +843,11 @@ class BalanceNLP:
                 continue
             if b.name.endswith("limit between points"):
                 kind = b.name.split()[0]
-                low, high = {"position": (lim.lower, lim.upper), "velocity": (-lim.velocity, lim.velocity),
-                             "acceleration": (-lim.acceleration, lim.acceleration)}[kind]
+                low, high = {
+                    "position": (lim.lower, lim.upper),
+                    "velocity": (-lim.velocity, lim.velocity),
+                    "acceleration": (-lim.acceleration, lim.acceleration),
+                }[kind]
                 reps = len(b.rows) // low.size
                 lo[sl] = np.tile(np.tile(low, reps)[:, None], len(b.taus)).ravel(order="F")
                 hi[sl] = np.tile(np.tile(high, reps)[:, None], len(b.taus)).ravel(order="F")
@@ -710,9 +870,9 @@ class BalanceNLP:
         _, omega = dyn(Z, V, self.mission_samples)
         omega = np.array(omega)
         N, h = self.N, self.h
-        w0, w1 = omega[:, :N], omega[:, 1:N + 1]
+        w0, w1 = omega[:, :N], omega[:, 1 : N + 1]
         if self.transcription.has_midpoints:
-            wm = omega[:, N + 1:]
+            wm = omega[:, N + 1 :]
             step = h / 6.0 * (w0 + 4.0 * wm + w1)
         else:
             step = h / 2.0 * (w0 + w1)
@@ -736,14 +896,21 @@ class BalanceNLP:
         if self.control == "jerk":
             states = np.vstack([q, qd, qdd])
             u = np.gradient(qdd[:, : self.N + 1], self.h, axis=1)
-            u = np.hstack([u, 0.5 * (u[:, :-1] + u[:, 1:])]) if self.transcription.has_midpoints else u
+            u = (
+                np.hstack([u, 0.5 * (u[:, :-1] + u[:, 1:])])
+                if self.transcription.has_midpoints
+                else u
+            )
         else:
             states, u = np.vstack([q, qd]), qdd
         Z = np.vstack([np.zeros((3, pts.size)), states])
         N = self.N
-        sol = Solution(Z[:, :N + 1].copy(), u[:, :N + 1].copy(),
-                       Z[:, N + 1:].copy() if self.transcription.has_midpoints else None,
-                       u[:, N + 1:].copy() if self.transcription.has_midpoints else None)
+        sol = Solution(
+            Z[:, : N + 1].copy(),
+            u[:, : N + 1].copy(),
+            Z[:, N + 1 :].copy() if self.transcription.has_midpoints else None,
+            u[:, N + 1 :].copy() if self.transcription.has_midpoints else None,
+        )
         lbx = self.unpack(self.lbx)
         sol.X[3:, 0] = lbx.X[3:, 0]
         self._attitude_along(sol)
@@ -752,7 +919,9 @@ class BalanceNLP:
     def rest_guess(self) -> Solution:
         """The balance arm held at ``q_B0``, the attitude it leaves (Phase I's)."""
         q_B = np.tile(self.q_B0, (2, 1))
-        return self._guess_from_samples(np.array([0.0, self.horizon]), q_B, np.zeros_like(q_B), np.zeros_like(q_B))
+        return self._guess_from_samples(
+            np.array([0.0, self.horizon]), q_B, np.zeros_like(q_B), np.zeros_like(q_B)
+        )
 
     def analytic_guess(self) -> Solution:
         """The analytic law's balance motion (Eq. 31, 32), clipped to the limits."""
@@ -769,7 +938,9 @@ class BalanceNLP:
             sol = self._guess_from_samples(guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)
         elif isinstance(guess, str):
             if guess not in GUESSES:
-                raise InputError(f"initial guess must be one of {', '.join(GUESSES)} or a BalanceResult, got {guess!r}")
+                raise InputError(
+                    f"initial guess must be one of {', '.join(GUESSES)} or a BalanceResult, got {guess!r}"
+                )
             if guess == "analytic":
                 try:
                     sol = self.analytic_guess()
@@ -781,7 +952,9 @@ class BalanceNLP:
         else:
             w = np.asarray(guess, dtype=float).ravel()
             if w.size != self.structure.n_w:
-                raise InputError(f"initial guess vector has {w.size} entries, the NLP has {self.structure.n_w}")
+                raise InputError(
+                    f"initial guess vector has {w.size} entries, the NLP has {self.structure.n_w}"
+                )
             return w
         return np.clip(self.pack(sol), self.lbx, self.ubx)
 
@@ -802,7 +975,9 @@ class BalanceNLP:
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
-        out = self.structure.solver(x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
+        out = self.structure.solver(
+            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+        )
         t2 = time.perf_counter()
         stats = self.structure.solver.stats()
         w = np.array(out["x"]).ravel()
@@ -815,32 +990,53 @@ class BalanceNLP:
         t3 = time.perf_counter()
         iters = stats.get("iterations", {})
         kernels = self.model.kernels(self.control, bool(self.structure.key[4]))
-        result.info.update({
-            "status": status,
-            "success": status in SUCCESS_STATUSES,
-            "iterations": int(stats.get("iter_count", 0)),
-            "objective": float(out["f"]),
-            "max_constraint_violation": worst[2],
-            "max_violation_at": {"constraint": worst[0], "time_s": worst[1], "unit": worst[3],
-                                 "description": worst[4]},
-            "wall_time_s": {"build": self.build_time, "setup": self.setup_time, "guess": t1 - t0,
-                            "solve": t2 - t1, "resimulate": t3 - t2},
-            "kernels": {"compiled": kernels.compiled, "compile_time_s": kernels.compile_time,
-                        "library": kernels.library},
-            "history": {k: [float(v) for v in iters.get(k, [])] for k in ("obj", "inf_pr", "inf_du")},
-            "intervals": self.N,
-            "transcription": self.transcription.name,
-            "control": self.control,
-            "horizon_s": self.horizon,
-            "options": self.options.as_dict(),
-        })
+        result.info.update(
+            {
+                "status": status,
+                "success": status in SUCCESS_STATUSES,
+                "iterations": int(stats.get("iter_count", 0)),
+                "objective": float(out["f"]),
+                "max_constraint_violation": worst[2],
+                "max_violation_at": {
+                    "constraint": worst[0],
+                    "time_s": worst[1],
+                    "unit": worst[3],
+                    "description": worst[4],
+                },
+                "wall_time_s": {
+                    "build": self.build_time,
+                    "setup": self.setup_time,
+                    "guess": t1 - t0,
+                    "solve": t2 - t1,
+                    "resimulate": t3 - t2,
+                },
+                "kernels": {
+                    "compiled": kernels.compiled,
+                    "compile_time_s": kernels.compile_time,
+                    "library": kernels.library,
+                },
+                "history": {
+                    k: [float(v) for v in iters.get(k, [])] for k in ("obj", "inf_pr", "inf_du")
+                },
+                "intervals": self.N,
+                "transcription": self.transcription.name,
+                "control": self.control,
+                "horizon_s": self.horizon,
+                "options": self.options.as_dict(),
+            }
+        )
         result.info["nlp_solution"] = w.tolist()
         if status not in SUCCESS_STATUSES:
             name, t, amount, unit, where = worst
             raise PlannerSolverError(
                 f"Ipopt stopped with status '{status}' after {result.info['iterations']} iterations; "
                 f"largest constraint violation: {where}, by {amount:.3g} {unit}",
-                status, result, name, t, amount)
+                status,
+                result,
+                name,
+                t,
+                amount,
+            )
         if status != SUCCESS_STATUSES[0]:
             log.warning("Ipopt: %s", status)
         return result
@@ -861,48 +1057,68 @@ class BalanceNLP:
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
         """The balance joints' continuous motion of a solution."""
         n_B = self.model.n_B
-        starts = [sol.X[3:3 + n_B, :-1], sol.X[3 + n_B:3 + 2 * n_B, :-1]]
+        starts = [sol.X[3 : 3 + n_B, :-1], sol.X[3 + n_B : 3 + 2 * n_B, :-1]]
         if self.control == "jerk":
-            starts.append(sol.X[3 + 2 * n_B:3 + 3 * n_B, :-1])
+            starts.append(sol.X[3 + 2 * n_B : 3 + 3 * n_B, :-1])
         levels = joint_chain_coefficients(self.transcription, starts, sol.U, sol.Um, self.h)
         return CollocatedTrajectory(self.h, levels)
 
 
 # ---------------------------------------------------------------------------------- build
-def _check_problem(model: PlannerModel, mission, q_B0, options: PlannerOptions) -> tuple[np.ndarray, float]:
+def _check_problem(
+    model: PlannerModel, mission, q_B0, options: PlannerOptions
+) -> tuple[np.ndarray, float]:
     robot = model.robot
     if getattr(mission, "dof", None) != model.n_M:
-        raise InputError(f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
-                         f"the mission arm of {robot.name} has {model.n_M}")
+        raise InputError(
+            f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
+            f"the mission arm of {robot.name} has {model.n_M}"
+        )
     q_B0 = np.asarray(q_B0, dtype=float).ravel()
     names = [robot.joint_names[i] for i in robot.balance_indices]
     if q_B0.size != model.n_B:
-        raise InputError(f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})")
+        raise InputError(
+            f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
+        )
     horizon = float(mission.duration if options.horizon is None else options.horizon)
     if horizon < mission.duration:
-        raise InputError(f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)")
+        raise InputError(
+            f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
+        )
     lim = robot.limits.subset(robot.balance_indices)
-    for what, values in (("initial configuration q_B0", q_B0), ("final_configuration", options.final_configuration)):
+    for what, values in (
+        ("initial configuration q_B0", q_B0),
+        ("final_configuration", options.final_configuration),
+    ):
         if values is None:
             continue
         values = np.asarray(values, dtype=float)
         if values.size != model.n_B:
-            raise InputError(f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}")
+            raise InputError(
+                f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
+            )
         if not options.position_limits:
             continue
         for j, name in enumerate(names):
             if not lim.lower[j] - LIMIT_TOLERANCE <= values[j] <= lim.upper[j] + LIMIT_TOLERANCE:
                 raise InfeasibleLimitsError(
                     f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
-                    f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad")
+                    f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
+                )
     if options.rest_configuration is not None and len(options.rest_configuration) != model.n_B:
-        raise InputError(f"planner option 'rest_configuration' has {len(options.rest_configuration)} values, "
-                         f"the balance joints are {model.n_B}")
+        raise InputError(
+            f"planner option 'rest_configuration' has {len(options.rest_configuration)} values, "
+            f"the balance joints are {model.n_B}"
+        )
     return q_B0, horizon
 
 
-def build_balance_nlp(planner_model: PlannerModel | FloatingRobot, mission_trajectory, q_B0,
-                      options: PlannerOptions | None = None) -> BalanceNLP:
+def build_balance_nlp(
+    planner_model: PlannerModel | FloatingRobot,
+    mission_trajectory,
+    q_B0,
+    options: PlannerOptions | None = None,
+) -> BalanceNLP:
     """Build the balance NLP of a mission.
 
     The compiled structure is taken from ``planner_model.nlp_cache`` when a problem of the same
@@ -921,7 +1137,9 @@ def build_balance_nlp(planner_model: PlannerModel | FloatingRobot, mission_traje
             configuration outside the position limits), naming the joint.
     """
     start = time.perf_counter()
-    model = planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
+    model = (
+        planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
+    )
     options = options or PlannerOptions()
     q_B0, horizon = _check_problem(model, mission_trajectory, q_B0, options)
     key = _structure_key(model, options)
@@ -930,12 +1148,25 @@ def build_balance_nlp(planner_model: PlannerModel | FloatingRobot, mission_traje
         model.nlp_cache[key] = _build_structure(model, key, options)
     structure = model.nlp_cache[key]
     build_time = structure.build_time if built_now else 0.0
-    return BalanceNLP(model, structure, mission_trajectory, q_B0, options, horizon,
-                      time.perf_counter() - start - build_time, build_time)
+    return BalanceNLP(
+        model,
+        structure,
+        mission_trajectory,
+        q_B0,
+        options,
+        horizon,
+        time.perf_counter() - start - build_time,
+        build_time,
+    )
 
 
-def plan_optimal(robot: FloatingRobot | PlannerModel, mission, q_B0, options: PlannerOptions | None = None,
-                 initial_guess="analytic") -> BalanceResult:
+def plan_optimal(
+    robot: FloatingRobot | PlannerModel,
+    mission,
+    q_B0,
+    options: PlannerOptions | None = None,
+    initial_guess="analytic",
+) -> BalanceResult:
     """Plan the balance arm's motion for a mission: :func:`build_balance_nlp` then
     :meth:`BalanceNLP.solve`. Pass a :class:`PlannerModel` to reuse the symbolic model and the
     compiled NLPs across calls."""
@@ -957,8 +1188,14 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     joint polynomial at each interval's end against the next node), the momentum residual and
     the drift."""
     t, sub = _fine_grid(nlp.N, nlp.h, nlp.options.resample_step)
-    result = replay(nlp.robot, nlp.mission, trajectory, t_eval=t, method="optimal",
-                    integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])))
+    result = replay(
+        nlp.robot,
+        nlp.mission,
+        trajectory,
+        t_eval=t,
+        method="optimal",
+        integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])),
+    )
     quaternion = result.quaternion
     # collocation defects: NLP attitude at the nodes vs the re-simulated one
     q_nodes = quaternion[::sub]
@@ -966,8 +1203,10 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     attitude_defect = rotation_angle(quaternion_multiply(quaternion_conjugate(q_nlp), q_nodes))
     n_B = nlp.model.n_B
     ends = trajectory.interval_ends()
-    joint_defect = max(float(np.abs(ends[0] - sol.X[3:3 + n_B, 1:].T).max()),
-                       float(np.abs(ends[1] - sol.X[3 + n_B:3 + 2 * n_B, 1:].T).max()))
+    joint_defect = max(
+        float(np.abs(ends[0] - sol.X[3 : 3 + n_B, 1:].T).max()),
+        float(np.abs(ends[1] - sol.X[3 + n_B : 3 + 2 * n_B, 1:].T).max()),
+    )
     result.info["resimulation"] = {
         "samples": int(t.size),
         "step_s": float(t[1] - t[0]),

@@ -32,8 +32,12 @@ def main(argv=None) -> None:
     parser.add_argument("--intervals", type=int, nargs="+", default=list(INTERVALS))
     parser.add_argument("--repeat", type=int, default=3, help="solves per N (median kept)")
     parser.add_argument("--guess", default="analytic", choices=("analytic", "rest"))
-    parser.add_argument("--compile", default="auto", choices=("auto", "yes", "no"),
-                        help="compile the kernels to C (auto: if a C compiler is found)")
+    parser.add_argument(
+        "--compile",
+        default="auto",
+        choices=("auto", "yes", "no"),
+        help="compile the kernels to C (auto: if a C compiler is found)",
+    )
     parser.add_argument("--cold", action="store_true", help="compile into a fresh cache folder")
     args = parser.parse_args(argv)
     compile_flag = {"auto": "auto", "yes": True, "no": False}[args.compile]
@@ -41,20 +45,35 @@ def main(argv=None) -> None:
     scenario = paper_capture()
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        model = PlannerModel(scenario.robot, compile=compile_flag, cache_dir=tmp if args.cold else None)
+        model = PlannerModel(
+            scenario.robot, compile=compile_flag, cache_dir=tmp if args.cold else None
+        )
         kernels = model.kernels("acceleration")
         model_time = time.perf_counter() - start
-        print(f"paper capture task, {scenario.mission.duration:g} s, Hermite-Simpson, "
-              f"control: acceleration, guess: {args.guess}")
-        print(f"per-robot model (symbolic kernels, once per robot): {model_time - kernels.compile_time:.3f} s; "
-              f"kernels {'compiled to C' if kernels.compiled else 'on the CasADi VM'}"
-              + (f", first-time compilation {kernels.compile_time:.1f} s" if kernels.compile_time else
-                 " (loaded from the cache)" if kernels.compiled else ""))
+        print(
+            f"paper capture task, {scenario.mission.duration:g} s, Hermite-Simpson, "
+            f"control: acceleration, guess: {args.guess}"
+        )
+        print(
+            f"per-robot model (symbolic kernels, once per robot): {model_time - kernels.compile_time:.3f} s; "
+            f"kernels {'compiled to C' if kernels.compiled else 'on the CasADi VM'}"
+            + (
+                f", first-time compilation {kernels.compile_time:.1f} s"
+                if kernels.compile_time
+                else " (loaded from the cache)"
+                if kernels.compiled
+                else ""
+            )
+        )
         # warm the process (imports, Ipopt, Pinocchio) on a small problem
-        build_balance_nlp(model, scenario.mission, scenario.q_B0, PlannerOptions(intervals=10)).solve(args.guess)
+        build_balance_nlp(
+            model, scenario.mission, scenario.q_B0, PlannerOptions(intervals=10)
+        ).solve(args.guess)
 
-        header = (f"{'N':>5} {'build':>7} {'guess':>7} {'solve':>7} {'iters':>6} {'per iter':>9} "
-                  f"{'total':>7} {'resim':>7} {'+resim':>7} {'max drift':>10} {'status':>16}")
+        header = (
+            f"{'N':>5} {'build':>7} {'guess':>7} {'solve':>7} {'iters':>6} {'per iter':>9} "
+            f"{'total':>7} {'resim':>7} {'+resim':>7} {'max drift':>10} {'status':>16}"
+        )
         print(header)
         print("-" * len(header))
         for N in args.intervals:
@@ -70,9 +89,11 @@ def main(argv=None) -> None:
             result = runs[0]
             iters = result.info["iterations"]
             total = build + guess + solve
-            print(f"{N:>5} {build:>7.3f} {guess:>7.3f} {solve:>7.3f} {iters:>6d} {solve / max(iters, 1) * 1e3:>7.2f}ms "
-                  f"{total:>7.3f} {resim:>7.3f} {total + resim:>7.3f} {result.max_drift:>10.5f} "
-                  f"{result.info['status']:>16}")
+            print(
+                f"{N:>5} {build:>7.3f} {guess:>7.3f} {solve:>7.3f} {iters:>6d} {solve / max(iters, 1) * 1e3:>7.2f}ms "
+                f"{total:>7.3f} {resim:>7.3f} {total + resim:>7.3f} {result.max_drift:>10.5f} "
+                f"{result.info['status']:>16}"
+            )
 
 
 if __name__ == "__main__":

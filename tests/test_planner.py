@@ -106,12 +106,16 @@ def in_plane(capture):
 @pytest.fixture(scope="module")
 def capture_plan(model, capture):
     """The paper capture task in 10 s, default options at N = 50."""
-    return build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)).solve()
+    return build_balance_nlp(
+        model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)
+    ).solve()
 
 
 def _random_points(rng, model, control, n):
     lim = model.robot.limits
-    q = rng.uniform(np.maximum(lim.lower, -2.5), np.minimum(lim.upper, 2.5), size=(n, model.robot.n))
+    q = rng.uniform(
+        np.maximum(lim.lower, -2.5), np.minimum(lim.upper, 2.5), size=(n, model.robot.n)
+    )
     q_dot = rng.uniform(-1.0, 1.0, size=(n, model.robot.n))
     phi = rng.normal(size=(n, 3)) * rng.uniform(0.0, 1.0, size=(n, 1))
     extra = rng.normal(size=(n, model.n_B)) if control == "jerk" else np.empty((n, 0))
@@ -133,9 +137,15 @@ def test_dynamics_match_numeric_pinocchio(model, control):
         J_wM, J_wB = numeric.angular_jacobians(q)
         omega_ref = J_wM @ q_dot[M] + J_wB @ q_dot[B]
         np.testing.assert_allclose(omega, omega_ref, rtol=0, atol=MODEL_TOLERANCE)
-        np.testing.assert_allclose(x_dot[:3], inverse_right_jacobian(phi) @ omega_ref, rtol=0, atol=MODEL_TOLERANCE)
-        np.testing.assert_allclose(x_dot[3:], np.r_[q_dot[B], extra, u] if control == "jerk" else np.r_[q_dot[B], u],
-                                   rtol=0, atol=ALGEBRA_TOLERANCE)
+        np.testing.assert_allclose(
+            x_dot[:3], inverse_right_jacobian(phi) @ omega_ref, rtol=0, atol=MODEL_TOLERANCE
+        )
+        np.testing.assert_allclose(
+            x_dot[3:],
+            np.r_[q_dot[B], extra, u] if control == "jerk" else np.r_[q_dot[B], u],
+            rtol=0,
+            atol=ALGEBRA_TOLERANCE,
+        )
 
 
 def test_attitude_kinematics_on_so3():
@@ -145,7 +155,11 @@ def test_attitude_kinematics_on_so3():
     rng = np.random.default_rng(7)
     phi_s = cs.SX.sym("phi", 3)
     fun = cs.Function("jr", [phi_s], [inverse_right_jacobian_sym(phi_s)])
-    hess = cs.Function("h", [phi_s], [cs.hessian(cs.sum1(inverse_right_jacobian_sym(phi_s) @ cs.DM([1, 2, 3])), phi_s)[0]])
+    hess = cs.Function(
+        "h",
+        [phi_s],
+        [cs.hessian(cs.sum1(inverse_right_jacobian_sym(phi_s) @ cs.DM([1, 2, 3])), phi_s)[0]],
+    )
     assert np.all(np.isfinite(np.array(hess(np.zeros(3)))))
     np.testing.assert_array_equal(np.array(fun(np.zeros(3))), np.eye(3))
     dt = 1e-6
@@ -154,7 +168,9 @@ def test_attitude_kinematics_on_so3():
         phi *= scale / np.linalg.norm(phi)
         omega = rng.normal(size=3)
         Jr_inv = np.array(fun(phi))
-        np.testing.assert_allclose(Jr_inv, inverse_right_jacobian(phi), rtol=0, atol=ALGEBRA_TOLERANCE)
+        np.testing.assert_allclose(
+            Jr_inv, inverse_right_jacobian(phi), rtol=0, atol=ALGEBRA_TOLERANCE
+        )
         R_next = matrix_from_quaternion(quaternion_from_rotvec(phi + dt * Jr_inv @ omega))
         R_ref = matrix_from_quaternion(quaternion_from_rotvec(phi)) @ pin.exp3(omega * dt)
         np.testing.assert_allclose(R_next, R_ref, rtol=0, atol=1e-11)
@@ -178,17 +194,29 @@ def test_torques_reproduce_the_accelerations_in_forward_dynamics(model):
         np.testing.assert_allclose(a[robot.pin_v_indices], q_ddot, rtol=0, atol=MODEL_TOLERANCE)
 
 
-@pytest.mark.parametrize("transcription, control, extra", [
-    ("hermite-simpson", "acceleration", {"path_attitude_bound": 0.2, "terminal_attitude_bound": 0.1}),
-    ("trapezoidal", "acceleration", {"rest_at_end": True}),
-    ("hermite-simpson", "jerk", {}),
-    ("hermite-simpson", "acceleration", {"torque_limits": True}),
-])
+@pytest.mark.parametrize(
+    "transcription, control, extra",
+    [
+        (
+            "hermite-simpson",
+            "acceleration",
+            {"path_attitude_bound": 0.2, "terminal_attitude_bound": 0.1},
+        ),
+        ("trapezoidal", "acceleration", {"rest_at_end": True}),
+        ("hermite-simpson", "jerk", {}),
+        ("hermite-simpson", "acceleration", {"torque_limits": True}),
+    ],
+)
 def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, control, extra):
     """The NLP's gradient, constraint Jacobian and Lagrangian Hessian, assembled from the point
     kernels by the chain rule, equal CasADi's AD of the NLP's own objective and constraints."""
-    options = PlannerOptions(intervals=4, transcription=transcription, control=control,
-                             weights=CostWeights(rest=3.0), **extra)
+    options = PlannerOptions(
+        intervals=4,
+        transcription=transcription,
+        control=control,
+        weights=CostWeights(rest=3.0),
+        **extra,
+    )
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     solver = nlp.structure.solver
     rng = np.random.default_rng(3)
@@ -200,13 +228,22 @@ def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, co
     refs = {
         "nlp_grad_f": (cs.Function("r", [x, p], [cs.gradient(f, x)]), (w, nlp.parameters), 1),
         "nlp_jac_g": (cs.Function("r", [x, p], [cs.jacobian(g, x)]), (w, nlp.parameters), 1),
-        "nlp_hess_l": (cs.Function("r", [x, p, lf, lg], [cs.triu(cs.hessian(lf * f + cs.dot(lg, g), x)[0])]),
-                       (w, nlp.parameters, 0.7, lam), 0),
+        "nlp_hess_l": (
+            cs.Function("r", [x, p, lf, lg], [cs.triu(cs.hessian(lf * f + cs.dot(lg, g), x)[0])]),
+            (w, nlp.parameters, 0.7, lam),
+            0,
+        ),
     }
     for name, (ref, args, out) in refs.items():
-        mine = np.array(cs.densify(solver.get_function(name)(*args)[out] if out else solver.get_function(name)(*args)))
+        mine = np.array(
+            cs.densify(
+                solver.get_function(name)(*args)[out] if out else solver.get_function(name)(*args)
+            )
+        )
         expected = np.array(cs.densify(ref(*args)))
-        np.testing.assert_allclose(mine, expected, rtol=0, atol=DERIVATIVE_TOLERANCE * max(1.0, np.abs(expected).max()))
+        np.testing.assert_allclose(
+            mine, expected, rtol=0, atol=DERIVATIVE_TOLERANCE * max(1.0, np.abs(expected).max())
+        )
 
 
 # ---------------------------------------------------------------------------------- transcriptions
@@ -234,7 +271,9 @@ def test_collocated_trajectory_is_the_integral_of_its_control(name):
     nodes = traj.sample(np.arange(N + 1) * h)
     np.testing.assert_allclose(nodes[0], q.T, rtol=0, atol=NODE_TOLERANCE)
     np.testing.assert_allclose(nodes[1], qd.T, rtol=0, atol=NODE_TOLERANCE)
-    t = (np.arange(N)[:, None] + np.linspace(0.05, 0.95, 7)[None, :]).ravel() * h  # off the nodes (kinks)
+    t = (
+        np.arange(N)[:, None] + np.linspace(0.05, 0.95, 7)[None, :]
+    ).ravel() * h  # off the nodes (kinks)
     eps = 1e-6
     fd = (traj.sample(t + eps)[0] - traj.sample(t - eps)[0]) / (2 * eps)
     np.testing.assert_allclose(traj.sample(t)[1], fd, rtol=0, atol=1e-7)
@@ -243,17 +282,26 @@ def test_collocated_trajectory_is_the_integral_of_its_control(name):
     # Bernstein form and the monomial form used for sampling agree
     s = np.linspace(0, 1, 9)
     coefficients = joint_chain_coefficients(tr, [q[:, :-1], qd[:, :-1]], U, Um, h)[0]
-    by_bernstein = bernstein_basis(len(coefficients) - 1, s) @ np.array([c[0, 2] for c in coefficients])
+    by_bernstein = bernstein_basis(len(coefficients) - 1, s) @ np.array(
+        [c[0, 2] for c in coefficients]
+    )
     np.testing.assert_allclose(traj.sample(h * (2 + s))[0][:, 0], by_bernstein, rtol=0, atol=1e-12)
 
 
 # ---------------------------------------------------------------------------------- plans
 def test_no_worse_than_an_analytic_law_that_stays_inside_the_limits(model, capture, in_plane):
     t = np.linspace(0.0, in_plane.duration, 1001)
-    law = analytic_plan(capture.robot, in_plane, capture.q_B0,
-                        BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3), t=t)
+    law = analytic_plan(
+        capture.robot,
+        in_plane,
+        capture.q_B0,
+        BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3),
+        t=t,
+    )
     assert law.violations == []
-    assert phase_one(capture.robot, in_plane, capture.q_B0, t_eval=t).max_drift > 1000 * law.max_drift
+    assert (
+        phase_one(capture.robot, in_plane, capture.q_B0, t_eval=t).max_drift > 1000 * law.max_drift
+    )
     plan = build_balance_nlp(model, in_plane, capture.q_B0, PlannerOptions(intervals=30)).solve()
     assert plan.violations == []
     assert plan.max_drift <= law.max_drift + DRIFT_TOLERANCE
@@ -266,8 +314,13 @@ def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_pl
     assert plan.info["status"] == "Solve_Succeeded"
     # the analytic law breaks the limits on this task
     t = np.linspace(0.0, capture.mission.duration, 1001)
-    law = analytic_plan(capture.robot, capture.mission, capture.q_B0,
-                        BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3), t=t)
+    law = analytic_plan(
+        capture.robot,
+        capture.mission,
+        capture.q_B0,
+        BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3),
+        t=t,
+    )
     assert any(v.kind == "position" and v.worst_excess > 1.0 for v in law.violations)
     # the plan meets every limit on the re-simulation's fine grid (all joints)
     assert plan.violations == []
@@ -289,8 +342,13 @@ def test_paper_capture_in_20_s_is_five_times_better_than_phase_one(model, captur
     mission = PointToPoint(PAPER_MISSION_START, PAPER_MISSION_GOAL, 20.0)
     slow = dataclasses.replace(capture, mission=mission)
     t = np.linspace(0.0, mission.duration, 2001)
-    law = analytic_plan(slow.robot, mission, slow.q_B0, BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3),
-                        t=t)
+    law = analytic_plan(
+        slow.robot,
+        mission,
+        slow.q_B0,
+        BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3),
+        t=t,
+    )
     assert any(v.kind == "position" and v.worst_excess > 1.0 for v in law.violations)
     plan = build_balance_nlp(model, mission, slow.q_B0, PlannerOptions(intervals=60)).solve()
     assert plan.violations == []
@@ -302,8 +360,12 @@ def test_hard_terminal_attitude_bound_met_in_resimulation(model, capture):
     free = PlannerOptions(intervals=100, weights=CostWeights(terminal=0.0))
     unbounded = build_balance_nlp(model, capture.mission, capture.q_B0, free).solve()
     bound = 0.5 * unbounded.final_drift
-    bounded = build_balance_nlp(model, capture.mission, capture.q_B0,
-                                dataclasses.replace(free, terminal_attitude_bound=bound)).solve()
+    bounded = build_balance_nlp(
+        model,
+        capture.mission,
+        capture.q_B0,
+        dataclasses.replace(free, terminal_attitude_bound=bound),
+    ).solve()
     assert bounded.final_drift <= bound + TERMINAL_TOLERANCE
     assert bounded.violations == []
 
@@ -318,9 +380,13 @@ def test_rest_at_end_and_prescribed_final_configuration(model, capture):
     np.testing.assert_allclose(plan.q_dot_B[0], 0.0, rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("transcription, control", [("trapezoidal", "acceleration"), ("hermite-simpson", "jerk"),
-                                                    ("trapezoidal", "jerk")])
-def test_other_transcriptions_plan_within_limits(model, capture, capture_plan, transcription, control):
+@pytest.mark.parametrize(
+    "transcription, control",
+    [("trapezoidal", "acceleration"), ("hermite-simpson", "jerk"), ("trapezoidal", "jerk")],
+)
+def test_other_transcriptions_plan_within_limits(
+    model, capture, capture_plan, transcription, control
+):
     options = PlannerOptions(intervals=50, transcription=transcription, control=control)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     assert plan.violations == []
@@ -328,15 +394,24 @@ def test_other_transcriptions_plan_within_limits(model, capture, capture_plan, t
     assert plan.info["resimulation"]["joint_defect_max"] < NODE_TOLERANCE  # through every node
     phase1 = phase_one(capture.robot, capture.mission, capture.q_B0, t_eval=plan.t)
     assert plan.max_drift * DRIFT_REDUCTION_10S <= phase1.max_drift
-    if control == "acceleration":  # the same objective as the default: the same optimum, to within the grids
+    if (
+        control == "acceleration"
+    ):  # the same objective as the default: the same optimum, to within the grids
         assert abs(plan.max_drift - capture_plan.max_drift) < 2e-3
 
 
 def test_torque_limits_hold_at_the_collocation_points(capture):
-    limits = {j: {"acceleration": 2.0, "effort": 0.5} for j in ("balance_joint1", "balance_joint2", "balance_joint3")}
+    limits = {
+        j: {"acceleration": 2.0, "effort": 0.5}
+        for j in ("balance_joint1", "balance_joint2", "balance_joint3")
+    }
     torque_model = PlannerModel(paper_robot(limits=limits), compile=False)
-    nlp = build_balance_nlp(torque_model, capture.mission, capture.q_B0,
-                            PlannerOptions(intervals=20, torque_limits=True))
+    nlp = build_balance_nlp(
+        torque_model,
+        capture.mission,
+        capture.q_B0,
+        PlannerOptions(intervals=20, torque_limits=True),
+    )
     plan = nlp.solve("rest")
     sol = nlp.unpack(plan.info["nlp_solution"])
     tau = torque_model.balance_torque_fun().map(nlp.point_times.size)
@@ -344,14 +419,24 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     torques = np.array(tau(Z, V, nlp.mission_samples))
     assert np.abs(torques).max() <= 0.5 + 1e-6
     # and without the constraint the same task needs more torque: the bound is active
-    free = build_balance_nlp(torque_model, capture.mission, capture.q_B0, PlannerOptions(intervals=20)).solve("rest")
+    free = build_balance_nlp(
+        torque_model, capture.mission, capture.q_B0, PlannerOptions(intervals=20)
+    ).solve("rest")
     sol = nlp.unpack(free.info["nlp_solution"])
-    assert np.abs(np.array(tau(np.hstack([sol.X, sol.Xm]), np.hstack([sol.U, sol.Um]),
-                               nlp.mission_samples))).max() > 0.5 + 1e-3
+    assert (
+        np.abs(
+            np.array(
+                tau(np.hstack([sol.X, sol.Xm]), np.hstack([sol.U, sol.Um]), nlp.mission_samples)
+            )
+        ).max()
+        > 0.5 + 1e-3
+    )
 
 
 def test_same_task_same_plan(model, capture, capture_plan):
-    again = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)).solve()
+    again = build_balance_nlp(
+        model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)
+    ).solve()
     for field in ("q_B", "q_dot_B", "q_ddot_B", "quaternion", "omega"):
         np.testing.assert_array_equal(getattr(again, field), getattr(capture_plan, field))
     assert again.info["nlp_solution"] == capture_plan.info["nlp_solution"]
@@ -365,10 +450,14 @@ def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_pl
     assert not np.array_equal(other.parameters, nlp.parameters)
     N, n_x, n_u = 50, model.n_x("acceleration"), model.n_u
     assert nlp.structure.n_w == (2 * N + 1) * (n_x + n_u)
-    assert [b.name for b in nlp.constraints[:2]] == ["collocation (Hermite midpoint)", "collocation (Simpson)"]
+    assert [b.name for b in nlp.constraints[:2]] == [
+        "collocation (Hermite midpoint)",
+        "collocation (Simpson)",
+    ]
     assert nlp.constraint_name(0) == ("collocation (Hermite midpoint): attitude phi_x", 0.0, "rad")
     assert nlp.describe_constraint(n_x * N + n_x + 5) == (
-        "collocation (Simpson): balance_joint3 position on the interval 0.200-0.400 s")
+        "collocation (Simpson): balance_joint3 position on the interval 0.200-0.400 s"
+    )
     # the initial state is fixed by the bounds, the limits are bounds of the other nodes
     X_lo = nlp.unpack(nlp.lbx).X
     np.testing.assert_array_equal(X_lo[:, 0], np.r_[0, 0, 0, capture.q_B0, 0, 0, 0])
@@ -377,23 +466,36 @@ def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_pl
 
 # ---------------------------------------------------------------------------------- failures
 def test_infeasible_problem_names_status_and_constraint(capture):
-    limits = {j: {"acceleration": 2.0, "velocity": 0.05} for j in ("balance_joint1", "balance_joint2", "balance_joint3")}
+    limits = {
+        j: {"acceleration": 2.0, "velocity": 0.05}
+        for j in ("balance_joint1", "balance_joint2", "balance_joint3")
+    }
     slow = PlannerModel(paper_robot(limits=limits), compile=False)
-    options = PlannerOptions(intervals=20, rest_at_end=True, final_configuration=tuple(capture.q_B0 + [0, 0, 1.0]))
-    with pytest.raises(PlannerSolverError, match=r"^Ipopt stopped with status 'Infeasible_Problem_Detected' after "
-                       r"\d+ iterations; largest constraint violation: collocation \(Simpson\): balance_joint3 "
-                       r"position on the interval \d+\.\d{3}-\d+\.\d{3} s, by \d\.\d+(e-\d+)? rad$") as info:
+    options = PlannerOptions(
+        intervals=20, rest_at_end=True, final_configuration=tuple(capture.q_B0 + [0, 0, 1.0])
+    )
+    with pytest.raises(
+        PlannerSolverError,
+        match=r"^Ipopt stopped with status 'Infeasible_Problem_Detected' after "
+        r"\d+ iterations; largest constraint violation: collocation \(Simpson\): balance_joint3 "
+        r"position on the interval \d+\.\d{3}-\d+\.\d{3} s, by \d\.\d+(e-\d+)? rad$",
+    ) as info:
         build_balance_nlp(slow, capture.mission, capture.q_B0, options).solve("rest")
     err = info.value
-    assert err.status == "Infeasible_Problem_Detected" and "balance_joint3 position" in err.constraint
+    assert (
+        err.status == "Infeasible_Problem_Detected" and "balance_joint3 position" in err.constraint
+    )
     assert isinstance(err.result, BalanceResult) and err.result.info["success"] is False
     assert err.violation == pytest.approx(err.result.info["max_constraint_violation"], rel=0, abs=0)
 
 
 def test_iteration_limit_raises_with_the_best_iterate(model, capture):
     options = PlannerOptions(intervals=20, max_iterations=2)
-    with pytest.raises(PlannerSolverError, match=r"^Ipopt stopped with status 'Maximum_Iterations_Exceeded' after 2 "
-                       r"iterations; largest constraint violation: .+ by .+") as info:
+    with pytest.raises(
+        PlannerSolverError,
+        match=r"^Ipopt stopped with status 'Maximum_Iterations_Exceeded' after 2 "
+        r"iterations; largest constraint violation: .+ by .+",
+    ) as info:
         build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     assert info.value.result.info["iterations"] == 2
 
@@ -401,25 +503,54 @@ def test_iteration_limit_raises_with_the_best_iterate(model, capture):
 def test_limits_no_plan_can_meet_raise_before_solving(model, capture):
     bad = capture.q_B0.copy()
     bad[1] = 2.0
-    with pytest.raises(InfeasibleLimitsError, match=re.escape(
+    with pytest.raises(
+        InfeasibleLimitsError,
+        match=re.escape(
             "balance joint 'balance_joint2': initial configuration q_B0 is 2 rad, outside its position limits "
-            "[-1.5708, 1.5708] rad")):
+            "[-1.5708, 1.5708] rad"
+        ),
+    ):
         build_balance_nlp(model, capture.mission, bad, PlannerOptions(intervals=10))
-    with pytest.raises(InfeasibleLimitsError, match=re.escape(
+    with pytest.raises(
+        InfeasibleLimitsError,
+        match=re.escape(
             "balance joint 'balance_joint1': final_configuration is -3 rad, outside its position limits "
-            "[-2.9671, 2.9671] rad")):
-        build_balance_nlp(model, capture.mission, capture.q_B0,
-                          PlannerOptions(intervals=10, final_configuration=(-3.0, 0.0, 0.0)))
+            "[-2.9671, 2.9671] rad"
+        ),
+    ):
+        build_balance_nlp(
+            model,
+            capture.mission,
+            capture.q_B0,
+            PlannerOptions(intervals=10, final_configuration=(-3.0, 0.0, 0.0)),
+        )
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"intervals": 1}, "planner option 'intervals' must be an integer >= 2, got 1"),
-    ({"transcription": "euler"}, ("planner option 'transcription' must be one of hermite-simpson, "
-                                  "trapezoidal, got 'euler'")),
-    ({"control": "torque"}, "planner option 'control' must be one of acceleration, jerk, got 'torque'"),
-    ({"weights": CostWeights(omega=-1.0)}, "planner weight 'omega' must be a finite number >= 0, got -1.0"),
-    ({"terminal_attitude_bound": 0.0}, "planner option 'terminal_attitude_bound' must be a finite number > 0, got 0.0"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"intervals": 1}, "planner option 'intervals' must be an integer >= 2, got 1"),
+        (
+            {"transcription": "euler"},
+            (
+                "planner option 'transcription' must be one of hermite-simpson, "
+                "trapezoidal, got 'euler'"
+            ),
+        ),
+        (
+            {"control": "torque"},
+            "planner option 'control' must be one of acceleration, jerk, got 'torque'",
+        ),
+        (
+            {"weights": CostWeights(omega=-1.0)},
+            "planner weight 'omega' must be a finite number >= 0, got -1.0",
+        ),
+        (
+            {"terminal_attitude_bound": 0.0},
+            "planner option 'terminal_attitude_bound' must be a finite number > 0, got 0.0",
+        ),
+    ],
+)
 def test_bad_options(kwargs, message):
     with pytest.raises(InputError, match=re.escape(message)):
         PlannerOptions(**kwargs)
@@ -428,8 +559,12 @@ def test_bad_options(kwargs, message):
 def test_bad_sizes(model, capture):
     with pytest.raises(InputError, match=re.escape("q_B0 has 2 values, the balance joints are 3")):
         build_balance_nlp(model, capture.mission, [0.0, 0.1], PlannerOptions(intervals=10))
-    with pytest.raises(InputError, match=re.escape("planner option 'horizon' (5.0 s) is shorter than the mission")):
-        build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=10, horizon=5.0))
+    with pytest.raises(
+        InputError, match=re.escape("planner option 'horizon' (5.0 s) is shorter than the mission")
+    ):
+        build_balance_nlp(
+            model, capture.mission, capture.q_B0, PlannerOptions(intervals=10, horizon=5.0)
+        )
 
 
 # ---------------------------------------------------------------------------------- compilation
@@ -445,8 +580,12 @@ def test_compiled_kernels_match_and_are_cached(tmp_path):
     assert first > 0.0 and second == 0.0 and library == library2
     v = np.array([0.3, -1.2, 2.0])
     np.testing.assert_allclose(np.array(compiled(v)), np.array(fun(v)), rtol=0, atol=1e-15)
-    np.testing.assert_allclose(np.array(again.map(4)(np.tile(v[:, None], 4)))[:, 2], np.array(fun(v)).ravel(),
-                               rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        np.array(again.map(4)(np.tile(v[:, None], 4)))[:, 2],
+        np.array(fun(v)).ravel(),
+        rtol=0,
+        atol=1e-15,
+    )
 
 
 def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
@@ -462,5 +601,7 @@ def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
 
 
 def test_plan_optimal_shortcut(capture, model, in_plane):
-    plan = plan_optimal(model, in_plane, capture.q_B0, PlannerOptions(intervals=10), initial_guess="rest")
+    plan = plan_optimal(
+        model, in_plane, capture.q_B0, PlannerOptions(intervals=10), initial_guess="rest"
+    )
     assert plan.method == "optimal" and plan.info["intervals"] == 10 and plan.violations == []
