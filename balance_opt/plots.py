@@ -130,7 +130,7 @@ def _finish_time_axis(axes, t_end: float) -> None:
     axes[-1].set_xlabel("time [s]")
     axes[-1].set_xlim(0.0, t_end)
     for ax in axes:
-        ax.margins(x=0)
+        ax.margins(x=0, y=0.1)  # head room: flat extremes must not sit on the frame
         ax.yaxis.set_major_locator(mpl.ticker.MaxNLocator(4))
 
 
