@@ -115,6 +115,31 @@ class BalanceResult:
     violations: list[LimitViolation] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_arm_vectors(cls, robot, method: str, t, q, q_dot, q_ddot, quaternion, omega,
+                         momentum_residual, sigma_min, info=None) -> "BalanceResult":
+        """A result from whole arm-vector arrays (T, n) of ``robot``: split into the mission and
+        balance columns, with every limit violation found on the samples."""
+        M, B = robot.mission_indices, robot.balance_indices
+        return cls(
+            method=method,
+            t=t,
+            mission_joints=robot.mission.joints,
+            balance_joints=tuple(j for a in robot.balance_arms for j in a.joints),
+            q_M=q[:, M],
+            q_dot_M=q_dot[:, M],
+            q_ddot_M=q_ddot[:, M],
+            q_B=q[:, B],
+            q_dot_B=q_dot[:, B],
+            q_ddot_B=q_ddot[:, B],
+            quaternion=quaternion,
+            omega=omega,
+            momentum_residual=momentum_residual,
+            sigma_min=sigma_min,
+            violations=find_limit_violations(t, robot.joint_names, q, q_dot, q_ddot, robot.limits),
+            info=dict(info or {}),
+        )
+
     @property
     def rpy(self) -> np.ndarray:
         """Base roll, pitch, yaw (T, 3) [rad]."""

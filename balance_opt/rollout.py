@@ -39,7 +39,7 @@ from .balance_law import (
     angular_jacobians_from_maps,
 )
 from .errors import InputError, SolverError, TrajectoryError
-from .result import BalanceResult, find_limit_violations
+from .result import BalanceResult
 from .robot import FloatingRobot
 from .trajectories import JointTrajectory
 
@@ -334,25 +334,8 @@ def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
 def _result(
     robot, method, t, q, q_dot, q_ddot, quaternion, omega, momentum_residual, sigma_min, info
 ):
-    M, B = robot.mission_indices, robot.balance_indices
-    violations = find_limit_violations(t, robot.joint_names, q, q_dot, q_ddot, robot.limits)
-    return BalanceResult(
-        method=method,
-        t=t,
-        mission_joints=robot.mission.joints,
-        balance_joints=tuple(j for a in robot.balance_arms for j in a.joints),
-        q_M=q[:, M],
-        q_dot_M=q_dot[:, M],
-        q_ddot_M=q_ddot[:, M],
-        q_B=q[:, B],
-        q_dot_B=q_dot[:, B],
-        q_ddot_B=q_ddot[:, B],
-        quaternion=quaternion,
-        omega=omega,
-        momentum_residual=momentum_residual,
-        sigma_min=sigma_min,
-        violations=violations,
-        info=info,
+    return BalanceResult.from_arm_vectors(
+        robot, method, t, q, q_dot, q_ddot, quaternion, omega, momentum_residual, sigma_min, info
     )
 
 

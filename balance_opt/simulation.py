@@ -45,7 +45,7 @@ import pinocchio as pin
 from .attitude import quaternion_conjugate, quaternion_multiply, rotation_angle, rpy_from_quaternion
 from .errors import InputError, TrajectoryError
 from .momentum import NumericMaps
-from .result import BalanceResult, find_limit_violations
+from .result import BalanceResult
 from .robot import FloatingRobot
 from .rollout import SampledTrajectory
 from .trajectories import PointToPoint
@@ -352,32 +352,15 @@ class SimulationResult:
         robot = self.robot
         maps = NumericMaps(robot)
         sigma = np.array([maps.coupling_measures(qk).sigma_min for qk in self.q])
-        mi, bi = robot.mission_indices, robot.balance_indices
-        violations = find_limit_violations(
-            self.t, self.joint_names, self.q, self.q_dot, self.q_ddot, robot.limits
-        )
         info = dict(self.info)
         info.update(
             max_tracking_error_rad=self.max_tracking_error,
             max_relative_momentum_residual=float(self.momentum_residual.max()),
         )
-        return BalanceResult(
-            method=method,
-            t=self.t.copy(),
-            mission_joints=tuple(self.joint_names[i] for i in mi),
-            balance_joints=tuple(self.joint_names[i] for i in bi),
-            q_M=self.q[:, mi],
-            q_dot_M=self.q_dot[:, mi],
-            q_ddot_M=self.q_ddot[:, mi],
-            q_B=self.q[:, bi],
-            q_dot_B=self.q_dot[:, bi],
-            q_ddot_B=self.q_ddot[:, bi],
-            quaternion=self.quaternion.copy(),
-            omega=self.omega.copy(),
-            momentum_residual=np.linalg.norm(self.momentum_error[:, 3:], axis=1),
-            sigma_min=sigma,
-            violations=violations,
-            info=info,
+        return BalanceResult.from_arm_vectors(
+            robot, method, self.t.copy(), self.q, self.q_dot, self.q_ddot,
+            self.quaternion.copy(), self.omega.copy(),
+            np.linalg.norm(self.momentum_error[:, 3:], axis=1), sigma, info,
         )
 
 
