@@ -5,9 +5,9 @@ The pipeline, one module each: ``robot`` (URDF on a free-flying base, arms by jo
 motions), ``attitude`` (SO(3)), ``result`` (the plan type every method returns).
 """
 
-from .errors import BalanceOptError, InputError, SolverError
-from .robot import Arm, FloatingRobot, JointLimits
-from .robots import baxter_floating, paper_robot
+from balance_opt.errors import BalanceOptError, InputError, SolverError
+from balance_opt.model.robot import Arm, FloatingRobot, JointLimits
+from balance_opt.model.library import baxter_floating, paper_robot
 
 __version__ = "0.1.0"
 

@@ -10,7 +10,7 @@ Subcommands:
 * ``simulate TASK``: the same, then each plan through forward dynamics;
 * ``compare TASK``: both methods, simulated, and the comparison report;
 * ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
-* ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep`).
+* ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`).
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
 (whatever was computed is still written). An output directory that exists and is not empty is
@@ -44,7 +44,7 @@ def parse_solver_option(text: str) -> tuple[str, int | float | str]:
     Raises:
         InputError: no ``=`` or an empty key.
     """
-    from .errors import InputError
+    from balance_opt.errors import InputError
 
     key, sep, value = text.partition("=")
     key, value = key.strip(), value.strip()
@@ -78,7 +78,7 @@ def check_output_dir(path: Path, force: bool) -> Path:
     Raises:
         InputError: the directory is not empty (or is a file), naming it and the way out.
     """
-    from .errors import InputError
+    from balance_opt.errors import InputError
 
     if path.exists() and not path.is_dir():
         raise InputError(f"output {path} exists and is not a directory")
@@ -108,20 +108,20 @@ def _configure_logging(verbose: bool, quiet: bool) -> None:
 
 # =========================================================================================== commands
 def _cmd_schema(args) -> int:
-    from .task import task_json_schema
+    from balance_opt.io.task import task_json_schema
 
     print(json.dumps(task_json_schema(), indent=2))
     return EXIT_OK
 
 
 def _cmd_validate(args) -> int:
-    from .errors import InputError
-    from .task import load_task
+    from balance_opt.errors import InputError
+    from balance_opt.io.task import load_task
 
     if args.schema:
         return _cmd_schema(args)
     if args.reference:
-        from .task import task_reference_markdown
+        from balance_opt.io.task import task_reference_markdown
 
         print(task_reference_markdown())
         return EXIT_OK
@@ -143,14 +143,14 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_inspect(args) -> int:
-    from .inspection import robot_summary
+    from balance_opt.model.summary import robot_summary
 
     if args.task is None:
-        from .robots import paper_robot
+        from balance_opt.model.library import paper_robot
 
         print(robot_summary(paper_robot()))
         return EXIT_OK
-    from .task import load_task
+    from balance_opt.io.task import load_task
 
     task = load_task(args.task)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
@@ -159,8 +159,8 @@ def _cmd_inspect(args) -> int:
 
 
 def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
-    from .pipeline import run_task
-    from .task import load_task
+    from balance_opt.app.pipeline import run_task
+    from balance_opt.io.task import load_task
 
     task = load_task(args.task)
     solver_options = _solver_options(args, task)
@@ -207,11 +207,11 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_paper_figures(args) -> int:
-    from .pipeline import paper_figures
+    from balance_opt.app.pipeline import paper_figures
 
     task = None
     if args.task is not None:
-        from .task import load_task
+        from balance_opt.io.task import load_task
 
         task = load_task(args.task)
     solver_options = _solver_options(args, task)
@@ -333,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(run=_cmd_paper_figures)
 
-    from .sweep import add_sweep_parser
+    from balance_opt.sweep.spec import add_sweep_parser
 
     add_sweep_parser(sub)
 
@@ -344,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (0 success, 1 solver failure, 2 bad input)."""
-    from .errors import BalanceOptError, InputError, SolverError
+    from balance_opt.errors import BalanceOptError, InputError, SolverError
 
     parser = build_parser()
     try:

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from .attitude import rotation_angle, rpy_from_quaternion
-from .robot import JointLimits
+from balance_opt.motion.so3 import rotation_angle, rpy_from_quaternion
+from balance_opt.model.robot import JointLimits
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
@@ -148,7 +148,7 @@ class BalanceResult:
     @property
     def angle(self) -> np.ndarray:
         """Base rotation angle from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
-        from .attitude import quaternion_conjugate, quaternion_multiply
+        from balance_opt.motion.so3 import quaternion_conjugate, quaternion_multiply
 
         rel = quaternion_multiply(quaternion_conjugate(self.quaternion[:1]), self.quaternion)
         return rotation_angle(rel)

@@ -19,9 +19,9 @@ import casadi as cs
 import numpy as np
 import pinocchio as pin
 
-from balance_opt.momentum import NumericMaps
-from balance_opt.robots import baxter_floating, paper_robot
-from balance_opt.symbolic import SymbolicMaps
+from balance_opt.model.maps import NumericMaps
+from balance_opt.model.library import baxter_floating, paper_robot
+from balance_opt.model.symbolic import SymbolicMaps
 
 N_MAP = 1000
 

@@ -24,10 +24,10 @@ import time
 
 import numpy as np
 
-from balance_opt.balance_law import BalanceLaw
-from balance_opt.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
-from balance_opt.scenarios import paper_capture
-from balance_opt.trajectories import PointToPoint
+from balance_opt.analytic.law import BalanceLaw
+from balance_opt.motion.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
+from balance_opt.app.scenarios import paper_capture
+from balance_opt.motion.trajectories import PointToPoint
 
 #: Speed target of the issue for a 10 s mission at 1 kHz [s].
 TARGET_S = 0.3

@@ -12,8 +12,8 @@ import argparse
 import statistics
 import time
 
-from balance_opt.scenarios import paper_capture
-from balance_opt.simulation import SimulationOptions, simulate
+from balance_opt.app.scenarios import paper_capture
+from balance_opt.dynamics.simulation import SimulationOptions, simulate
 
 CASES = (
     ("RK4 1 kHz, PD, outputs every step", SimulationOptions(dt=1e-3)),

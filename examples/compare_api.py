@@ -11,14 +11,14 @@ import logging
 import sys
 from pathlib import Path
 
-from balance_opt.pipeline import (
+from balance_opt.app.pipeline import (
     plan_analytic,
     plan_mission_only,
     plan_optimal,
     run_task,
     simulate_result,
 )
-from balance_opt.task import load_task
+from balance_opt.io.task import load_task
 
 HERE = Path(__file__).resolve().parent
 

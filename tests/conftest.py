@@ -9,13 +9,13 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 @pytest.fixture(scope="session")
 def paper():
-    from balance_opt.robots import paper_robot
+    from balance_opt.model.library import paper_robot
 
     return paper_robot()
 
 
 @pytest.fixture(scope="session")
 def baxter():
-    from balance_opt.robots import baxter_floating
+    from balance_opt.model.library import baxter_floating
 
     return baxter_floating()

@@ -19,7 +19,7 @@ import pinocchio as pin
 import pytest
 from scipy.integrate import solve_ivp
 
-from balance_opt.attitude import (
+from balance_opt.motion.so3 import (
     matrix_from_quaternion,
     quaternion_conjugate,
     quaternion_from_rotvec,
@@ -27,7 +27,7 @@ from balance_opt.attitude import (
     rotation_angle,
     rotvec_from_quaternion,
 )
-from balance_opt.balance_law import (
+from balance_opt.analytic.law import (
     DEFAULT_DAMPING_THRESHOLD,
     DEFAULT_MAX_DAMPING,
     BalanceLaw,
@@ -36,12 +36,12 @@ from balance_opt.balance_law import (
     velocity_law,
 )
 from balance_opt.errors import InputError, SolverError, TrajectoryError
-from balance_opt.momentum import NumericMaps
-from balance_opt.phases import balance_only, both, paper_phases, phase_one
-from balance_opt.robots import paper_robot
-from balance_opt.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
-from balance_opt.scenarios import paper_capture
-from balance_opt.trajectories import PointToPoint
+from balance_opt.model.maps import NumericMaps
+from balance_opt.analytic.phases import balance_only, both, paper_phases, phase_one
+from balance_opt.model.library import paper_robot
+from balance_opt.motion.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
+from balance_opt.app.scenarios import paper_capture
+from balance_opt.motion.trajectories import PointToPoint
 
 NONSINGULAR_START = np.array([0.87, -1.3, 0.16, 1.73, -1.22, -2.11])
 NONSINGULAR_MOVE = np.array([-0.2, 0.1, 0.15])

@@ -16,9 +16,9 @@ import pytest
 from scipy.linalg import block_diag
 
 from balance_opt.errors import BalanceOptError, JointError
-from balance_opt.momentum import NumericMaps
-from balance_opt.robot import FloatingRobot
-from balance_opt.symbolic import BACKENDS, SymbolicMaps, available_backends
+from balance_opt.model.maps import NumericMaps
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.model.symbolic import BACKENDS, SymbolicMaps, available_backends
 
 #: Largest absolute error allowed between two exact computations of the same quantity.
 ATOL = 1e-9
@@ -387,7 +387,7 @@ def test_pinocchio_backend_glue_with_a_numeric_stand_in(paper, baxter, monkeypat
 
     import casadi as cs
 
-    from balance_opt.symbolic import _primitives_pinocchio
+    from balance_opt.model.symbolic import _primitives_pinocchio
 
     def numeric(x):
         return np.array(cs.evalf(x))

@@ -30,28 +30,28 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.attitude import (
+from balance_opt.motion.so3 import (
     inverse_right_jacobian,
     matrix_from_quaternion,
     quaternion_from_rotvec,
 )
-from balance_opt.balance_law import BalanceLawOptions, analytic_plan
-from balance_opt.collocation import (
+from balance_opt.analytic.law import BalanceLawOptions, analytic_plan
+from balance_opt.optimal.collocation import (
     CollocatedTrajectory,
     Transcription,
     bernstein_basis,
     joint_chain_coefficients,
 )
 from balance_opt.errors import InfeasibleLimitsError, InputError
-from balance_opt.momentum import NumericMaps
-from balance_opt.nlp_model import (
+from balance_opt.model.maps import NumericMaps
+from balance_opt.optimal.model import (
     ATTITUDE_SERIES_ANGLE,
     PlannerModel,
     compile_functions,
     inverse_right_jacobian_sym,
 )
-from balance_opt.phases import phase_one
-from balance_opt.planner import (
+from balance_opt.analytic.phases import phase_one
+from balance_opt.optimal.planner import (
     CostWeights,
     PlannerOptions,
     PlannerSolverError,
@@ -59,9 +59,9 @@ from balance_opt.planner import (
     plan_optimal,
 )
 from balance_opt.result import BalanceResult
-from balance_opt.robots import paper_robot
-from balance_opt.scenarios import PAPER_MISSION_GOAL, PAPER_MISSION_START, paper_capture
-from balance_opt.trajectories import PointToPoint
+from balance_opt.model.library import paper_robot
+from balance_opt.app.scenarios import PAPER_MISSION_GOAL, PAPER_MISSION_START, paper_capture
+from balance_opt.motion.trajectories import PointToPoint
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
 MODEL_TOLERANCE = 1e-9
@@ -559,7 +559,7 @@ def test_bad_sizes(model, capture):
 
 # ---------------------------------------------------------------------------------- compilation
 def test_compiled_kernels_match_and_are_cached(tmp_path):
-    from balance_opt import nlp_model
+    from balance_opt.optimal import model as nlp_model
 
     x = cs.SX.sym("x", 3)
     fun = cs.Function("planner_test_kernel", [x], [cs.sin(x) * cs.dot(x, x)])
@@ -579,11 +579,11 @@ def test_compiled_kernels_match_and_are_cached(tmp_path):
 
 
 def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
-    from balance_opt import nlp_model
+    from balance_opt.optimal import model as nlp_model
 
     monkeypatch.setattr(nlp_model, "find_compiler", lambda: None)
     fallback = PlannerModel(capture.robot, compile=True)
-    with caplog.at_level(logging.WARNING, logger="balance_opt.nlp_model"):
+    with caplog.at_level(logging.WARNING, logger="balance_opt.optimal.model"):
         kernels = fallback.kernels()
     assert not kernels.compiled
     assert "balance kernels not compiled (no C compiler found" in caplog.text

@@ -11,9 +11,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.animation import ANIMATION_FPS, animation_data, animation_html, skeleton
-from balance_opt.attitude import quaternion_from_rotvec
-from balance_opt.outputs import (
+from balance_opt.io.animation import ANIMATION_FPS, animation_data, animation_html, skeleton
+from balance_opt.motion.so3 import quaternion_from_rotvec
+from balance_opt.io.outputs import (
     ipopt_version,
     limit_margins,
     read_npz_result,
@@ -21,7 +21,7 @@ from balance_opt.outputs import (
     write_trajectory_csv,
     write_trajectory_npz,
 )
-from balance_opt.report import comparison_table
+from balance_opt.io.report import comparison_table
 from balance_opt.result import BalanceResult
 
 ATOL = 1e-9

@@ -7,11 +7,11 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.errors import ArmError, JointError, URDFLoadError
-from balance_opt.momentum import NumericMaps
-from balance_opt.resources import shipped_urdf
-from balance_opt.robot import FloatingRobot
-from balance_opt.robots import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, baxter_floating
-from balance_opt.symbolic import SymbolicMaps
+from balance_opt.model.maps import NumericMaps
+from balance_opt.model.resources import shipped_urdf
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.model.library import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, baxter_floating
+from balance_opt.model.symbolic import SymbolicMaps
 
 ATOL = 1e-9
 N_RANDOM = 10

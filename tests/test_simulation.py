@@ -5,15 +5,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.attitude import quaternion_conjugate, quaternion_multiply, rotation_angle
-from balance_opt.balance_law import BalanceLawOptions
+from balance_opt.motion.so3 import quaternion_conjugate, quaternion_multiply, rotation_angle
+from balance_opt.analytic.law import BalanceLawOptions
 from balance_opt.errors import InputError, TrajectoryError
-from balance_opt.momentum import NumericMaps
-from balance_opt.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
-from balance_opt.scenarios import paper_capture
-from balance_opt.simulation import SimulationOptions, simulate, simulate_plan
-from balance_opt.trajectories import PointToPoint
-from balance_opt.wrenches import arm_root_joints
+from balance_opt.model.maps import NumericMaps
+from balance_opt.motion.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
+from balance_opt.app.scenarios import paper_capture
+from balance_opt.dynamics.simulation import SimulationOptions, simulate, simulate_plan
+from balance_opt.motion.trajectories import PointToPoint
+from balance_opt.dynamics.wrenches import arm_root_joints
 
 #: Momentum conservation required over a 10 s simulation (issue 5), relative.
 MOMENTUM_TOLERANCE = 1e-8
@@ -56,7 +56,7 @@ def small_move(scenario):
     robot = scenario.robot
     start = np.asarray(scenario.mission.start)
     mission = PointToPoint(start, start + SMALL_MOVE, SMALL_MOVE_DURATION)
-    # the exact law (no damping), rolled out kinematically (balance_opt.rollout)
+    # the exact law (no damping), rolled out kinematically (balance_opt.motion.rollout)
     plan = rollout(
         robot,
         mission,

@@ -10,14 +10,14 @@ import pytest
 from PIL import Image
 
 from balance_opt.errors import InputError
-from balance_opt.plots import (
+from balance_opt.io.plots import (
     COLUMN_WIDTH,
     attitude_figure,
     curve_labels,
     plan_colour,
     reaction_torque_figure,
 )
-from balance_opt.study import FIGURE_STEMS, paper_study
+from balance_opt.app.study import FIGURE_STEMS, paper_study
 
 #: Smallest PNG resolution a journal accepts for line art [dpi].
 MIN_DPI = 200

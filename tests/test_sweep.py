@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.sweep import (
+from balance_opt.sweep.spec import (
     apply_overrides,
     case_id_from,
     load_sweep,
@@ -28,7 +28,7 @@ from balance_opt.sweep import (
     parse_sweep,
     run_sweep,
 )
-from balance_opt.sweep_engine import (
+from balance_opt.sweep.engine import (
     STATUS_OK,
     LocalPoolEngine,
     read_result,
@@ -36,8 +36,8 @@ from balance_opt.sweep_engine import (
     run_cases,
     write_json_atomic,
 )
-from balance_opt.sweep_report import is_timing_column, read_table_csv, results_table
-from balance_opt.yaml_lines import TaskFileError, format_path
+from balance_opt.sweep.report import is_timing_column, read_table_csv, results_table
+from balance_opt.io.yaml_lines import TaskFileError, format_path
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_TASK = ROOT / "examples" / "paper_capture.yaml"
@@ -620,7 +620,7 @@ def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
     """A real Dask cluster (2 worker processes on 127.0.0.1), started and stopped by the sweep."""
     import psutil
 
-    from balance_opt.sweep_engine import DaskEngine
+    from balance_opt.sweep.engine import DaskEngine
 
     _, out2 = pool_run
     out = real_sweep.parent / "dask"
@@ -649,7 +649,7 @@ def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
 def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
     """In one process, cases that vary limits, weights and the start share one planner model
     and one compiled NLP; each case's limits still hold in its plan."""
-    from balance_opt import sweep_runner
+    from balance_opt.sweep import runner as sweep_runner
 
     text = (
         f"task: {PAPER_TASK}\nmethods: [optimal]\n"

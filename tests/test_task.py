@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
-from balance_opt.scenarios import paper_capture
-from balance_opt.task import (
+from balance_opt.app.scenarios import paper_capture
+from balance_opt.io.task import (
     PtpMission,
     TaskSpec,
     load_task,
@@ -18,8 +18,8 @@ from balance_opt.task import (
     task_json_schema,
     task_reference_markdown,
 )
-from balance_opt.typed_config import from_data
-from balance_opt.yaml_lines import TaskFileError, format_path, parse_yaml
+from balance_opt.io.typed_config import from_data
+from balance_opt.io.yaml_lines import TaskFileError, format_path, parse_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -375,7 +375,7 @@ def test_bad_task_names_file_line_and_key(tmp_path, edits, fragment, message, er
         text = _edit(text, old, new)
     path = tmp_path / "task.yaml"
     path.write_text(text)
-    from balance_opt.resources import shipped_urdf
+    from balance_opt.model.resources import shipped_urdf
 
     expected = f"{path}:{_line_of(text, fragment)}: " + message.format(
         dir=tmp_path, urdf=shipped_urdf()

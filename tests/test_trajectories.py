@@ -12,8 +12,8 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.errors import TrajectoryError
-from balance_opt.rollout import SampledTrajectory
-from balance_opt.trajectories import (
+from balance_opt.motion.rollout import SampledTrajectory
+from balance_opt.motion.trajectories import (
     IK_POSITION_TOLERANCE,
     CartesianGoal,
     CsvTrajectory,

@@ -1,0 +1,394 @@
+"""Running a task: the mission arm alone (Phase I, the reference), the analytic and/or optimal
+balance plans, optionally each checked by forward dynamics, then every output written.
+
+The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API share this module::
+
+    from balance_opt.io.task import load_task
+    from balance_opt.app.pipeline import run_task
+
+    run = run_task(load_task("examples/paper_capture.yaml"), methods=("analytic", "optimal"),
+                   simulate=True, output_dir="results/paper_capture")
+    run.results["optimal"].max_drift
+
+A solver failure does not stop the run: the failing method's best iterate is kept, written and
+marked in ``metrics.json`` and the report, and :attr:`TaskRun.failures` names it (the CLI then
+exits with code 1).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from balance_opt.errors import InputError, SolverError
+from balance_opt.result import BalanceResult
+from balance_opt.io.task import Task, check_optimal_supported
+
+log = logging.getLogger(__name__)
+
+METHODS = ("analytic", "optimal")
+#: Name of the reference result: the mission arm alone, balance arm held (Phase I, Fig. 2).
+REFERENCE = "mission-only"
+METRICS_FILE = "metrics.json"
+REPORT_FILE = "report.html"
+FIGURES = {
+    "attitude": (
+        "attitude_plans",
+        "Base attitude of each plan (kinematic), with the mission arm alone (dashed)",
+    ),
+    "simulated_attitude": (
+        "attitude_simulated",
+        "Base attitude in the forward-dynamics simulation of each plan",
+    ),
+    "torque": (
+        "reaction_torque",
+        "Torque the arms exert on the base in the simulation (paper Fig. 4)",
+    ),
+    "joints": (
+        "balance_joints",
+        "Balance joint positions, rates and accelerations with their limits (dotted)",
+    ),
+}
+
+
+@dataclass
+class TaskRun:
+    """Everything a run computed and wrote.
+
+    Attributes:
+        task: the task.
+        results: ``{"mission-only" | "analytic" | "optimal": BalanceResult}``; a failed method's
+            entry is its best iterate.
+        simulations: ``{method: SimulationResult}`` when simulated.
+        failures: ``{method: message}`` for the methods whose solver failed.
+        metrics: the content of ``metrics.json``.
+        files: every file written.
+        report: the HTML report, if written.
+    """
+
+    task: Task
+    results: dict[str, BalanceResult] = field(default_factory=dict)
+    simulations: dict[str, Any] = field(default_factory=dict)
+    failures: dict[str, str] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+    report: Path | None = None
+
+    @property
+    def ok(self) -> bool:
+        """No solver failed."""
+        return not self.failures
+
+
+# =========================================================================================== methods
+def plan_mission_only(task: Task) -> BalanceResult:
+    """Phase I (paper Fig. 2): the base attitude with the mission arm moving and the balance arm
+    held at its start, integrated from momentum conservation."""
+    from balance_opt.analytic.phases import phase_one
+
+    a = task.spec.analytic
+    return phase_one(
+        task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration_options()
+    )
+
+
+def plan_analytic(task: Task) -> BalanceResult:
+    """Phase II: the analytic balance law (Eq. 31, 32) rolled out with the task's options.
+
+    Raises:
+        SolverError: the rollout failed; ``result`` holds the motion up to the failure.
+    """
+    from balance_opt.motion.rollout import rollout
+
+    a = task.spec.analytic
+    return rollout(
+        task.robot,
+        task.mission,
+        task.q_B0,
+        a.law_options(task.h0),
+        integration=a.integration_options(),
+    )
+
+
+def plan_optimal(
+    task: Task,
+    solver_options: Mapping[str, Any] | None = None,
+    warm_start: BalanceResult | None = None,
+    model=None,
+) -> BalanceResult:
+    """The optimal planner with the task's options.
+
+    Args:
+        task: the task.
+        solver_options: Ipopt options overriding ``optimal.ipopt`` (``--solver-option``).
+        warm_start: an analytic result to start from (with ``optimal.initial_guess: analytic``),
+            instead of rolling out the law again.
+        model: the :class:`~balance_opt.optimal.model.PlannerModel` to use (with its cache of
+            compiled NLPs); by default one kept per robot object.
+
+    Raises:
+        SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
+    """
+    from balance_opt.optimal.planner import build_balance_nlp
+
+    check_optimal_supported(task)
+    spec = task.spec.optimal
+    options = spec.planner_options(solver_options)
+    nlp = build_balance_nlp(model or _planner_model(task), task.mission, task.q_B0, options)
+    guess = (
+        warm_start
+        if (warm_start is not None and spec.initial_guess == "analytic")
+        else spec.initial_guess
+    )
+    return nlp.solve(guess)
+
+
+_MODELS: dict[int, Any] = {}
+
+
+def _planner_model(task: Task):
+    """The robot's symbolic planner model, built once per robot object."""
+    from balance_opt.optimal.model import PlannerModel
+
+    key = id(task.robot)
+    if key not in _MODELS:
+        _MODELS.clear()  # one robot at a time: a model holds compiled NLPs
+        _MODELS[key] = PlannerModel(task.robot)
+    return _MODELS[key]
+
+
+def simulate_result(task: Task, plan: BalanceResult):
+    """Forward-dynamics simulation of a plan with the task's simulation options."""
+    from balance_opt.dynamics.simulation import simulate_plan
+
+    return simulate_plan(task.robot, plan, task.spec.simulation.simulation_options(task.h0))
+
+
+# =========================================================================================== run
+def _timed(what: str):
+    class _Timer:
+        def __enter__(self):
+            log.info("%s ...", what)
+            self.start = time.perf_counter()
+            return self
+
+        def __exit__(self, *exc):
+            if exc[0] is None:
+                log.info("%s: done in %.2f s", what, time.perf_counter() - self.start)
+            return False
+
+    return _Timer()
+
+
+def run_task(
+    task: Task,
+    methods: Sequence[str] = METHODS,
+    simulate: bool = False,
+    output_dir: str | Path | None = None,
+    solver_options: Mapping[str, Any] | None = None,
+) -> TaskRun:
+    """Plan a task with each method, optionally simulate each plan, and write the outputs.
+
+    Args:
+        task: a loaded task (:func:`balance_opt.io.task.load_task`).
+        methods: among ``"analytic"`` and ``"optimal"``; the mission arm alone is always
+            computed as the reference.
+        simulate: check each plan in a forward-dynamics simulation (and the reference too).
+        output_dir: where to write (created); ``None`` writes nothing.
+        solver_options: Ipopt options overriding the task's ``optimal.ipopt``.
+
+    Returns:
+        The run; ``run.failures`` names the methods whose solver failed (their best iterate is
+        in ``run.results`` and was written).
+
+    Raises:
+        InputError: an unknown method, or a method the task cannot use (checked before anything
+            is computed).
+    """
+    methods = tuple(dict.fromkeys(methods))
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise InputError(
+            f"methods must be among {', '.join(METHODS)}, got {', '.join(methods) or 'none'}"
+        )
+    if "optimal" in methods:
+        check_optimal_supported(task)
+    run = TaskRun(task)
+    with _timed(f"{task.name}: mission arm alone (Phase I)"):
+        run.results[REFERENCE] = plan_mission_only(task)
+    for method in methods:
+        with _timed(
+            f"{task.name}: {method} plan"
+            + (
+                f" (N = {task.spec.optimal.intervals}, {task.spec.optimal.transcription}, Ipopt)"
+                if method == "optimal"
+                else ""
+            )
+        ):
+            try:
+                if method == "analytic":
+                    run.results[method] = plan_analytic(task)
+                else:
+                    run.results[method] = plan_optimal(
+                        task, solver_options, run.results.get("analytic")
+                    )
+            except SolverError as exc:
+                log.error("%s plan failed: %s", method, exc)
+                run.failures[method] = str(exc)
+                if exc.result is not None:
+                    run.results[method] = exc.result
+        res = run.results.get(method)
+        if res is not None:
+            log.info(
+                "%s: max drift %.4g rad, final drift %.4g rad, %d limit violations",
+                method,
+                res.max_drift,
+                res.final_drift,
+                len(res.violations),
+            )
+    if simulate:
+        for name, res in run.results.items():
+            with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
+                sim = simulate_result(task, res)
+            diverged = _divergence(sim)
+            if diverged:
+                message = (
+                    f"the forward-dynamics simulation of the {name} plan diverged ({diverged}); "
+                    f"try a smaller simulation.dt (now {task.spec.simulation.dt:g} s) or the "
+                    f"dopri5 integrator"
+                )
+                log.error("%s", message)
+                run.failures[f"simulation of {name}"] = message
+            else:
+                run.simulations[name] = sim
+    if output_dir is not None:
+        write_run(run, Path(output_dir))
+    return run
+
+
+def _divergence(sim) -> str | None:
+    """Where a simulation's state stops being finite (``None`` if it never does)."""
+    finite = np.all(np.isfinite(sim.q_pin), axis=1) & np.all(np.isfinite(sim.v), axis=1)
+    if finite.all():
+        return None
+    return f"non-finite state from t = {float(sim.t[np.argmin(finite)]):.4g} s"
+
+
+# =========================================================================================== writing
+def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
+    """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
+    from balance_opt.io.outputs import run_metrics, write_metrics, write_trajectory_csv, write_trajectory_npz
+
+    out = run.task.spec.outputs
+    output_dir.mkdir(parents=True, exist_ok=True)
+    files = []
+    for name, res in run.results.items():
+        if out.csv:
+            files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
+        if out.npz:
+            files.append(write_trajectory_npz(output_dir / f"{name}.npz", res))
+    run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures)
+    files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
+    figures = []
+    if out.plots or out.report:
+        with _timed("figures"):
+            figures = write_figures(run, output_dir)
+        if out.plots:
+            files.extend(path for _, path in figures)
+    if out.report:
+        from balance_opt.io.report import write_report
+
+        extra = _animation_section(run) if out.animation else ""
+        run.report = write_report(
+            output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description, extra
+        )
+        files.append(run.report)
+        if not out.plots:
+            for _, path in figures:
+                path.unlink()
+    run.files = files
+    return files
+
+
+def _animation_section(run: TaskRun) -> str:
+    """The report's 3D animation of every plan (see :mod:`balance_opt.io.animation`)."""
+    from balance_opt.io.animation import animation_html
+    from balance_opt.io.plots import plan_colour, plan_label
+
+    names = list(run.results)
+    colours = {name: plan_colour(name, i) for i, name in enumerate(names)}
+    labels = {name: plan_label(name) for name in names}
+    with _timed("animation"):
+        body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
+    return (
+        '<h2>Animation</h2><p class="meta">The robot as a stick figure (base axes: red x, green y, '
+        "blue z), base pose from the plan; drag to turn the view.</p>" + body
+    )
+
+
+def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
+    """PNG figures of a run: the plans' attitude (and the mission arm alone), the balance
+    joints against their limits and, when simulated, the simulated attitude and the reaction
+    torques. Returns ``(caption, path)`` pairs."""
+    from balance_opt.io.plots import attitude_figure, reaction_torque_figure
+    from balance_opt.io.report_figures import joint_limits_figure
+
+    def attitude(results, key, title):
+        """Attitude of the plans, the reference dashed (alone when there is no plan)."""
+        plans = {k: v for k, v in results.items() if k != REFERENCE}
+        dashed = {REFERENCE: results[REFERENCE]} if plans and REFERENCE in results else None
+        stem, caption = FIGURES[key]
+        _, paths = attitude_figure(
+            plans or results, output_dir / stem, dashed=dashed, title=title, formats=("png",)
+        )
+        figures.append((caption, paths[0]))
+        return plans
+
+    figures = []
+    plans = attitude(run.results, "attitude", "Base attitude")
+    if plans:
+        stem, caption = FIGURES["joints"]
+        path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png")
+        figures.append((caption, path))
+    if run.simulations:
+        sims = attitude(run.simulations, "simulated_attitude", "Base attitude, forward dynamics")
+        if sims:
+            stem, caption = FIGURES["torque"]
+            _, paths = reaction_torque_figure(
+                sims, output_dir / stem, title="Torque on the base", formats=("png",)
+            )
+            figures.append((caption, paths[0]))
+    return figures
+
+
+def paper_figures(
+    output_dir: str | Path,
+    task: Task | None = None,
+    solver_options: Mapping[str, Any] | None = None,
+) -> list[Path]:
+    """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
+    ``output_dir``; the options of the analytic law, the planner and the simulator come from
+    ``task`` when given (its robot and mission must be the paper's: the study is that scenario)."""
+    from balance_opt.app.study import paper_study
+
+    kwargs = {}
+    if task is not None:
+        kwargs = {
+            "law": task.spec.analytic.law_options(task.h0),
+            "planner": task.spec.optimal.planner_options(solver_options),
+            "simulation": task.spec.simulation.simulation_options(task.h0),
+        }
+    elif solver_options:
+        from balance_opt.optimal.planner import PlannerOptions
+
+        kwargs = {"planner": PlannerOptions(ipopt=dict(solver_options))}
+    with _timed("paper study (Figs. 2-5)"):
+        study = paper_study(output_dir, **kwargs)
+    files = [p for paths in study.figures.values() for p in paths]
+    return files + [Path(output_dir) / "study.json"]

@@ -1,0 +1,253 @@
+"""The paper's simulation study in one call: the Table 1 robot, the point-to-point capture move,
+the analytic and the optimal balance plans, each checked by forward dynamics, and Figs. 2-5.
+
+* Fig. 2: base attitude due to the mission arm alone (balance arm held at its start): dynamic
+  simulation, with the kinematic replay (momentum conservation) dashed. It does not depend on
+  the balance plan.
+* Fig. 3: base attitude due to the balance arm alone: each plan's balance motion replayed by
+  the simulator with the mission arm held at its start (the motion is non-holonomic, so this
+  is not the negative of Fig. 2).
+* Fig. 4: torque the arms exert on the base after balance control, per arm and summed.
+* Fig. 5: base attitude after balance control (both arms tracking the plan).
+
+The analytic plan is the balance law with damped least squares (:func:`balance_opt.motion.rollout.rollout`
+with :class:`~balance_opt.analytic.law.BalanceLawOptions`): at the paper's start ``J_wB`` is rank
+deficient and the exact law (Eq. 31) sends the balance joints through thousands of radians. The
+optimal plan is :func:`balance_opt.optimal.planner.plan_optimal`. Every figure overlays the plans
+asked for; a plan whose solver failed is still shown (its last iterate) and flagged in the
+summary. ``study.json`` in the output folder holds the figures of merit.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from balance_opt.analytic.law import BalanceLawOptions
+from balance_opt.errors import InputError, SolverError
+from balance_opt.analytic.phases import phase_one
+from balance_opt.optimal.planner import PlannerOptions, plan_optimal
+from balance_opt.io.plots import FORMATS, attitude_figure, reaction_torque_figure
+from balance_opt.result import BalanceResult
+from balance_opt.motion.rollout import IntegrationOptions, rollout
+from balance_opt.app.scenarios import Scenario, paper_capture
+from balance_opt.dynamics.simulation import SimulationOptions, SimulationResult, simulate, simulate_plan
+
+log = logging.getLogger(__name__)
+
+METHODS = ("analytic", "optimal")
+#: Output spacing of the plans and of the simulations [s].
+STUDY_OUTPUT_STEP = 0.01
+#: Entries of a plan's ``info`` left out of ``study.json`` (the solver's raw iterate and history).
+BULKY_INFO_KEYS = ("nlp_solution", "history")
+FIGURE_STEMS = {
+    "fig2": "fig2_attitude_mission_arm",
+    "fig3": "fig3_attitude_balance_arm",
+    "fig4": "fig4_reaction_torque",
+    "fig5": "fig5_attitude_balanced",
+}
+
+
+@dataclass
+class StudyResult:
+    """Everything the study computed.
+
+    Attributes:
+        output_dir: where the figures and ``study.json`` are.
+        plans: ``{method: BalanceResult}``, the balance plans (kinematic).
+        mission_only: simulation of the mission arm alone (Fig. 2).
+        mission_only_kinematic: kinematic replay of the same (Fig. 2, dashed).
+        balance_only: ``{method: SimulationResult}``, balance arm alone (Fig. 3).
+        balanced: ``{method: SimulationResult}``, both arms tracking the plan (Figs. 4, 5).
+        figures: ``{"fig2": [png, pdf], ...}``.
+        figure_objects: ``{"fig2": matplotlib Figure, ...}``.
+        summary: plain-data figures of merit (also in ``study.json``).
+    """
+
+    output_dir: Path
+    plans: dict[str, BalanceResult]
+    mission_only: SimulationResult
+    mission_only_kinematic: BalanceResult
+    balance_only: dict[str, SimulationResult]
+    balanced: dict[str, SimulationResult]
+    figures: dict[str, list[Path]]
+    figure_objects: dict[str, Any] = field(repr=False)
+    summary: dict[str, Any]
+
+
+def _plan(
+    method: str, scenario: Scenario, law: BalanceLawOptions, planner: PlannerOptions
+) -> tuple[BalanceResult, str]:
+    """A balance plan and its status (``"ok"``, or the solver's failure status)."""
+    robot, mission = scenario.robot, scenario.mission
+    try:
+        if method == "analytic":
+            integration = IntegrationOptions(output_step=STUDY_OUTPUT_STEP)
+            return rollout(robot, mission, scenario.q_B0, law, integration=integration), "ok"
+        return plan_optimal(robot, mission, scenario.q_B0, planner), "ok"
+    except SolverError as exc:
+        if exc.result is None:
+            raise
+        log.warning("%s plan: %s; the study shows its last iterate", method, exc)
+        return exc.result, str(exc.status)
+
+
+def _plain(value):
+    """JSON form of the numpy values a result's ``info`` may hold."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
+def _torque_peaks(sim: SimulationResult) -> dict[str, float]:
+    """Largest torque norm on the base per arm and summed [N m]."""
+    out = {
+        arm: float(np.linalg.norm(w[:, 3:], axis=1).max()) for arm, w in sim.arm_wrenches.items()
+    }
+    out["total"] = float(np.linalg.norm(sim.total_wrench[:, 3:], axis=1).max())
+    return out
+
+
+def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
+    return {
+        "max_drift_rad": float(sim.angle.max()),
+        "final_drift_rad": float(sim.angle[-1]),
+        "max_tracking_error_rad": sim.max_tracking_error,
+        "max_relative_momentum_residual": float(sim.momentum_residual.max()),
+        "peak_torque_on_base_Nm": _torque_peaks(sim),
+        "wall_time_s": sim.info["wall_time_s"],
+    }
+
+
+def paper_study(
+    output_dir: str | Path,
+    *,
+    methods: Sequence[str] = METHODS,
+    simulation: SimulationOptions | None = None,
+    law: BalanceLawOptions | None = None,
+    planner: PlannerOptions | None = None,
+    formats: Sequence[str] = FORMATS,
+) -> StudyResult:
+    """Run the paper's study and write Figs. 2-5 (see the module docstring).
+
+    Args:
+        output_dir: folder for the figures (``fig2_*.png``/``.pdf`` ...) and ``study.json``;
+            created if missing.
+        methods: the balance plans to compute and overlay, among ``"analytic"`` and ``"optimal"``.
+        simulation: simulator settings (default: RK4 at 1 ms, PD tracking, outputs every 10 ms).
+        law: settings of the analytic law (default: damped least squares).
+        planner: settings of the optimal planner.
+        formats: figure file formats.
+
+    Returns:
+        The plans, simulations, figures and summary.
+
+    Raises:
+        InputError: an unknown method.
+    """
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise InputError(f"study methods must be among {', '.join(METHODS)}, got {list(methods)}")
+    output_dir = Path(output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    sim_opts = simulation or SimulationOptions(output_dt=STUDY_OUTPUT_STEP)
+    law = law or BalanceLawOptions()
+    planner = planner or PlannerOptions()
+    scenario = paper_capture()
+    robot, mission = scenario.robot, scenario.mission
+    duration = mission.duration
+
+    # Fig. 2: the mission arm alone, the balance arm held at its start
+    mission_only = simulate(robot, mission, scenario.q_B0, sim_opts)
+    kinematic = phase_one(robot, mission, scenario.q_B0, t_eval=mission_only.t)
+
+    plans, status, balance_only, balanced = {}, {}, {}, {}
+    for method in methods:
+        plans[method], status[method] = _plan(method, scenario, law, planner)
+        # Fig. 3: the plan's balance motion with the mission arm held at its start
+        balance_only[method] = simulate(robot, mission.start, plans[method], sim_opts)
+        balanced[method] = simulate_plan(robot, plans[method], sim_opts)
+
+    figures, objects = {}, {}
+    objects["fig2"], figures["fig2"] = attitude_figure(
+        {"mission-only": mission_only},
+        output_dir / FIGURE_STEMS["fig2"],
+        dashed={"kinematic": kinematic},
+        title="Base attitude due to the mission arm",
+        formats=formats,
+    )
+    objects["fig3"], figures["fig3"] = attitude_figure(
+        balance_only,
+        output_dir / FIGURE_STEMS["fig3"],
+        title="Base attitude due to the balance arm",
+        formats=formats,
+    )
+    objects["fig4"], figures["fig4"] = reaction_torque_figure(
+        balanced,
+        output_dir / FIGURE_STEMS["fig4"],
+        title="Torque on the base after balance control",
+        formats=formats,
+    )
+    objects["fig5"], figures["fig5"] = attitude_figure(
+        balanced,
+        output_dir / FIGURE_STEMS["fig5"],
+        dashed={"mission-only": mission_only},
+        title="Base attitude after balance control",
+        formats=formats,
+    )
+
+    summary = {
+        "scenario": {
+            "robot": robot.name,
+            "mission_start_rad": list(map(float, mission.start)),
+            "mission_goal_rad": list(map(float, mission.end)),
+            "duration_s": duration,
+            "balance_start_rad": scenario.q_B0.tolist(),
+        },
+        "simulation": {
+            "integrator": sim_opts.integrator,
+            "dt_s": sim_opts.dt,
+            "controller": sim_opts.controller,
+        },
+        "mission_only": _simulation_summary(mission_only),
+        "plans": {
+            m: {
+                "status": status[m],
+                "plan": plans[m].summary(),
+                "limit_violations": [str(v) for v in plans[m].violations],
+                "details": {k: v for k, v in plans[m].info.items() if k not in BULKY_INFO_KEYS},
+                "balance_only": _simulation_summary(balance_only[m]),
+                "balanced": _simulation_summary(balanced[m]),
+            }
+            for m in methods
+        },
+        "figures": {k: [p.name for p in v] for k, v in figures.items()},
+    }
+    (output_dir / "study.json").write_text(json.dumps(summary, indent=2, default=_plain))
+    for m in methods:
+        log.info(
+            "%s: plan drift %.3g rad, simulated drift %.3g rad, %d limit violations",
+            m,
+            plans[m].max_drift,
+            balanced[m].angle.max(),
+            len(plans[m].violations),
+        )
+    return StudyResult(
+        output_dir,
+        plans,
+        mission_only,
+        kinematic,
+        balance_only,
+        balanced,
+        figures,
+        objects,
+        summary,
+    )

@@ -1,0 +1,91 @@
+"""The wrench each arm exerts on the base (paper Fig. 4), from the free-floating dynamics.
+
+Running Pinocchio's RNEA with the accelerations a forward-dynamics simulation produced gives, in
+``data.f[j]``, the spatial force that body ``j``'s parent transmits to it across joint ``j``
+(joint ``j``'s frame). For an arm's *root joint* (its first joint, whose parent is the base)
+this is the force the base exerts on the whole arm; the arm exerts its opposite on the base.
+Transformed to the base frame and summed over the arms it equals the base's Newton-Euler
+wrench ``I_b a_b + v_b x* I_b v_b`` (``physics-notes.md``), because the free-flyer joint carries
+no torque.
+
+Wrenches are 6-vectors ``[force; torque]`` in base-frame axes, torque about the base frame's
+origin (the base centroid for the paper robot) [N, N m].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.errors import ArmError
+from balance_opt.model.robot import FloatingRobot
+
+#: Pinocchio joint id of the free-flyer (the base body).
+BASE_JOINT_ID = 1
+
+
+def arm_root_joints(robot: FloatingRobot) -> dict[str, int]:
+    """Pinocchio joint id of each arm's root joint (the ancestor of its joints whose parent is
+    the base), in arm order.
+
+    Raises:
+        ArmError: an arm's joints hang from several root joints, or two arms share one (their
+            wrenches on the base cannot be told apart).
+    """
+    model = robot.model
+    roots: dict[str, int] = {}
+    owner: dict[int, str] = {}
+    for arm in robot.arms:
+        found = set()
+        for name in arm.joints:
+            j = model.getJointId(name)
+            while model.parents[j] != BASE_JOINT_ID:
+                j = model.parents[j]
+            found.add(j)
+        if len(found) != 1:
+            names = ", ".join(sorted(model.names[j] for j in found))
+            raise ArmError(
+                arm.name,
+                robot.source,
+                f"joints hang from several joints on the base ({names}); "
+                "the wrench it exerts on the base is not defined per arm",
+            )
+        (root,) = found
+        if root in owner:
+            raise ArmError(
+                arm.name,
+                robot.source,
+                f"shares its root joint '{model.names[root]}' with arm "
+                f"'{owner[root]}'; their wrenches on the base cannot be told apart",
+            )
+        owner[root] = arm.name
+        roots[arm.name] = root
+    return roots
+
+
+def arm_wrenches_on_base(
+    robot: FloatingRobot, q_pin, v, a, data: pin.Data | None = None
+) -> dict[str, np.ndarray]:
+    """The wrench each arm exerts on the base along a motion (paper Fig. 4).
+
+    Args:
+        robot: the floating robot.
+        q_pin, v, a: Pinocchio configurations (T, nq), velocities and accelerations (T, nv) of a
+            motion that obeys the free-floating dynamics (for instance the ABA accelerations of
+            a simulation); base twist and acceleration in the base frame.
+        data: a Pinocchio data of ``robot.model`` to reuse (a new one by default).
+
+    Returns:
+        ``{arm name: (T, 6)}``: ``[force; torque]`` the arm exerts ON the base, base-frame axes,
+        torque about the base frame's origin [N, N m].
+    """
+    model = robot.model
+    data = data or model.createData()
+    q_pin, v, a = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q_pin, v, a))
+    roots = arm_root_joints(robot)
+    out = {name: np.empty((q_pin.shape[0], 6)) for name in roots}
+    for k in range(q_pin.shape[0]):
+        pin.rnea(model, data, q_pin[k], v[k], a[k])
+        for name, j in roots.items():
+            out[name][k] = -data.liMi[j].act(data.f[j]).vector
+    return out

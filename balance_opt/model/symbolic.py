@@ -1,0 +1,293 @@
+"""Symbolic momentum maps in CasADi: the centroidal momentum matrix, the base's generalized
+Jacobian, its angular rows per arm and their time derivatives, and the paper's coupling factors.
+
+Everything is a function of the arm vector ``q`` alone, with the base at the identity pose:
+expressed in the base frame, these maps do not depend on the base pose (see
+``physics-notes.md``), which keeps the functions small and the NLP free of base position.
+
+Two backends produce the two primitive expressions everything else is built from (the
+centroidal momentum matrix and each end effector's frame Jacobian, both with the base at the
+identity, base columns first, then arm joints in arm order):
+
+* ``"pinocchio"``: ``pinocchio.casadi``, where it can be imported (conda or source builds);
+* ``"adam"``: ``adam-robotics`` (``adam.casadi``), which PyPI users have.
+
+``backend="auto"`` takes the first of these that imports.
+
+Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
+cached), and ``name(...)`` evaluates it and returns NumPy arrays.
+"""
+
+from __future__ import annotations
+
+import logging
+from functools import cached_property
+
+import casadi as cs
+import numpy as np
+
+from balance_opt.errors import BalanceOptError, JointError
+from balance_opt.model.robot import FloatingRobot
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("pinocchio", "adam")
+
+
+def available_backends() -> list[str]:
+    """Backends that import on this machine, in order of preference."""
+    found = []
+    try:
+        import pinocchio.casadi  # noqa: F401
+
+        found.append("pinocchio")
+    except ImportError:
+        pass
+    try:
+        import adam.casadi  # noqa: F401
+
+        found.append("adam")
+    except ImportError:
+        pass
+    return found
+
+
+def _primitives_adam(robot: FloatingRobot, q: cs.SX):
+    import adam.casadi
+    import urdf_parser_py.xml_reflection.core as urdf_core
+
+    # adam-robotics 0.5 stacks three 3-vectors of zeros into a prismatic joint's motion
+    # subspace (12 x 1 instead of 6 x 1): fail here, by name, rather than deep inside adam.
+    for j in robot.joint_names:
+        if robot._urdf_joints[j].type == "prismatic":
+            raise JointError(j, robot.source, "is prismatic, which the 'adam' backend cannot handle "
+                             "(adam-robotics 0.5); lock it, or use backend='pinocchio'")
+
+    # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
+    quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
+    try:
+        kd = adam.casadi.KinDynComputations(robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6))
+    finally:
+        urdf_core.on_error = quiet
+    H = cs.SX.eye(4)
+    A = kd.centroidal_momentum_matrix(H, q)
+    A = A.array if hasattr(A, "array") else A
+    jac = {}
+    for arm in robot.arms:
+        J = kd.jacobian(arm.ee_frame, H, q)
+        jac[arm.name] = J.array if hasattr(J, "array") else J
+    return cs.SX(A), {k: cs.SX(v) for k, v in jac.items()}
+
+
+def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
+    """The primitives from ``pinocchio.casadi`` (Pinocchio's algorithms on ``casadi.SX``).
+
+    Written against the pinocchio.casadi API (``cpin.Model(model)`` casts the numeric model;
+    ``computeCentroidalMap``, ``computeJointJacobians``, ``updateFramePlacements``,
+    ``getFrameJacobian`` take and return ``casadi.SX``) but not run by the test suite where
+    only PyPI's ``pin`` (no ``pinocchio.casadi``) is installed.
+    """
+    import pinocchio as pin
+    import pinocchio.casadi as cpin
+
+    model = robot.model
+    cmodel = cpin.Model(model)
+    cdata = cmodel.createData()
+    # Pinocchio configuration with the base at the identity pose, arm joints set by name.
+    qp = cs.SX(robot.pin_q(np.zeros(robot.n)))
+    for i, name in enumerate(robot.joint_names):
+        joint = model.joints[model.getJointId(name)]
+        if joint.nq == 1:
+            qp[joint.idx_q] = q[i]
+        else:  # continuous joint stored as (cos, sin)
+            qp[joint.idx_q] = cs.cos(q[i])
+            qp[joint.idx_q + 1] = cs.sin(q[i])
+    cols = [int(c) for c in np.r_[0:6, robot.pin_v_indices]]
+    A = cs.SX(cpin.computeCentroidalMap(cmodel, cdata, qp))[:, cols]
+    cpin.computeJointJacobians(cmodel, cdata, qp)  # also the joint placements oMi
+    cpin.updateFramePlacements(cmodel, cdata)  # oMf, which LOCAL_WORLD_ALIGNED needs
+    jac = {}
+    for arm in robot.arms:
+        fid = model.getFrameId(arm.ee_frame)
+        J = cs.SX(cpin.getFrameJacobian(cmodel, cdata, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))
+        jac[arm.name] = J[:, cols]
+    return A, jac
+
+
+def _pinv(M: cs.SX) -> cs.SX:
+    """Moore-Penrose inverse of a full-rank matrix (tall: left inverse, wide: right inverse)."""
+    r, c = M.shape
+    if r == c:
+        return cs.inv(M)
+    if r > c:
+        return cs.solve(M.T @ M, M.T)
+    return M.T @ cs.solve(M @ M.T, cs.SX.eye(r))
+
+
+class SymbolicMaps:
+    """CasADi momentum maps of a floating robot.
+
+    Args:
+        robot: the floating robot.
+        backend: ``"auto"``, ``"adam"`` or ``"pinocchio"``.
+
+    Raises:
+        BalanceOptError: the backend asked for cannot be imported.
+    """
+
+    def __init__(self, robot: FloatingRobot, backend: str = "auto"):
+        found = available_backends()
+        if backend == "auto":
+            if not found:
+                raise BalanceOptError("no symbolic backend: install adam-robotics[casadi] or pinocchio with casadi")
+            backend = found[0]
+        elif backend not in BACKENDS:
+            raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
+        elif backend not in found:
+            hint = " (PyPI's pin wheels lack pinocchio.casadi)" if backend == "pinocchio" else ""
+            raise BalanceOptError(f"backend '{backend}' cannot be imported here{hint}")
+        self.robot = robot
+        self.backend = backend
+        n = robot.n
+        self._q = cs.SX.sym("q", n)
+        self._qd = cs.SX.sym("q_dot", n)
+        build = _primitives_pinocchio if backend == "pinocchio" else _primitives_adam
+        self._A, self._J_ee = build(robot, self._q)
+        log.debug("symbolic maps of %s built with %s", robot.name, backend)
+
+    # ------------------------------------------------------------------ expressions
+    @cached_property
+    def _J_base(self) -> cs.SX:
+        A_b, A_j = self._A[:, :6], self._A[:, 6:]
+        return -cs.solve(A_b, A_j)  # Eq. 19 with zero momentum, derived from A_G v = 0
+
+    def _cols(self, arm_names) -> list[int]:
+        return [int(i) for a in arm_names for i in self.robot.arm(a).indices]
+
+    @cached_property
+    def _balance_cols(self) -> list[int]:
+        return [int(i) for i in self.robot.balance_indices]
+
+    def _rate(self, M: cs.SX) -> cs.SX:
+        """Time derivative d/dt M(q) = sum_i dM/dq_i q_dot_i."""
+        return cs.reshape(cs.jtimes(cs.vec(M), self._q, self._qd), M.shape[0], M.shape[1])
+
+    def _fun(self, name: str, inputs: dict, outputs: dict) -> cs.Function:
+        return cs.Function(name, list(inputs.values()), list(outputs.values()),
+                           list(inputs), list(outputs), {"cse": True})
+
+    # ------------------------------------------------------------------ functions
+    @cached_property
+    def _funs(self) -> dict[str, cs.Function]:
+        return {}
+
+    def _cached(self, name, make):
+        if name not in self._funs:
+            self._funs[name] = make()
+        return self._funs[name]
+
+    def centroidal_momentum_matrix_fun(self) -> cs.Function:
+        """``centroidal_momentum_matrix(q) -> A_G``: 6 x (6+n), momentum [linear; angular] about the
+        CoM in base-frame axes, for the base twist in the base frame and the arm joint rates.
+        In world axes it is ``blkdiag(R, R) A_G``."""
+        return self._cached("cmm", lambda: self._fun("centroidal_momentum_matrix", {"q": self._q}, {"A_G": self._A}))
+
+    def base_jacobian_fun(self) -> cs.Function:
+        """``base_jacobian(q) -> J_base``: 6 x n, ``v_b = J_base q_dot`` with zero momentum
+        (Eq. 19), the base twist [linear; angular] in the base frame."""
+        return self._cached("J_base", lambda: self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base}))
+
+    def angular_jacobians_fun(self) -> cs.Function:
+        """``angular_jacobians(q) -> (J_wM, J_wB)``: the base angular velocity in the base frame is
+        ``J_wM q_dot_M + J_wB q_dot_B`` (Eq. 26; balance arms stacked in ``J_wB``)."""
+        def make():
+            Jw = self._J_base[3:, :]
+            return self._fun("angular_jacobians", {"q": self._q},
+                             {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]})
+        return self._cached("J_w", make)
+
+    def angular_jacobian_rates_fun(self) -> cs.Function:
+        """``angular_jacobian_rates(q, q_dot) -> (dJ_wM, dJ_wB)``: time derivatives of
+        ``J_wM`` and ``J_wB`` along ``q_dot`` (needed for Eq. 32)."""
+        def make():
+            Jw = self._J_base[3:, :]
+            return self._fun("angular_jacobian_rates", {"q": self._q, "q_dot": self._qd},
+                             {"dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
+                              "dJ_wB": self._rate(Jw[:, self._balance_cols])})
+        return self._cached("dJ_w", make)
+
+    def ee_generalized_jacobian_fun(self, arm: str = "mission") -> cs.Function:
+        """``ee_generalized_jacobian_<arm>(q) -> (J_star, M)``: the end effector's twist
+        [linear velocity of its origin; angular velocity], in base-frame axes, is
+        ``J_star q_dot`` with the base moving as momentum conservation forces it (Eq. 20-22).
+        ``M`` is the arm's own columns of ``J_star``: the paper's coupling factor (Eq. 22)."""
+        def make():
+            J = self._J_ee[arm]
+            J_star = J[:, 6:] + J[:, :6] @ self._J_base
+            return self._fun(f"ee_generalized_jacobian_{arm}", {"q": self._q},
+                             {"J_star": J_star, "M": J_star[:, self._cols([arm])]})
+        self.robot.arm(arm)
+        return self._cached(f"J_star_{arm}", make)
+
+    def coupling_factors_fun(self, arm: str = "mission") -> cs.Function:
+        """``coupling_factors_<arm>(q) -> (M, N)``: ``M`` maps the arm's joint rates to its end
+        effector's twist (Eq. 22); ``N`` maps the end effector's twist to the base twist
+        (Eq. 24), ``N = J_base,arm M^+`` (the Moore-Penrose inverse where the arm has fewer
+        than 6 joints, so that ``N`` is exact on the twists the arm can produce)."""
+        def make():
+            _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
+            N = self._J_base[:, self._cols([arm])] @ _pinv(M)
+            return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
+        return self._cached(f"MN_{arm}", make)
+
+    def force_map_fun(self, arm: str = "mission") -> cs.Function:
+        """``force_map_<arm>(q, F_e) -> F_B``: the wrench on the base from an end-effector wrench
+        ``F_e`` [force; torque], ``F_B = N^{-T} F_e`` (Eq. 25), with the Moore-Penrose inverse
+        of ``N^T`` where ``N`` is rank deficient (arms with fewer than 6 joints)."""
+        def make():
+            _, N = self.coupling_factors_fun(arm)(self._q)
+            F_e = cs.SX.sym("F_e", 6)
+            cols = self._cols([arm])
+            if len(cols) >= 6:
+                F_B = cs.solve(N.T, F_e)
+            else:
+                # N^T = B C^T with B = M (M^T M)^-1 and C = J_base,arm, both of full column rank,
+                # so pinv(N^T) = pinv(C^T) pinv(B): exact without a numeric SVD.
+                _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
+                B = _pinv(M).T
+                C = self._J_base[:, cols]
+                F_B = _pinv(C.T) @ (_pinv(B) @ F_e)
+            return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
+        return self._cached(f"F_{arm}", make)
+
+    # ------------------------------------------------------------------ numeric evaluators
+    def centroidal_momentum_matrix(self, q) -> np.ndarray:
+        return np.array(self.centroidal_momentum_matrix_fun()(q))
+
+    def base_jacobian(self, q) -> np.ndarray:
+        return np.array(self.base_jacobian_fun()(q))
+
+    def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
+        J_wM, J_wB = self.angular_jacobians_fun()(q)
+        return np.array(J_wM), np.array(J_wB)
+
+    def angular_jacobian_rates(self, q, q_dot) -> tuple[np.ndarray, np.ndarray]:
+        dJ_wM, dJ_wB = self.angular_jacobian_rates_fun()(q, q_dot)
+        return np.array(dJ_wM), np.array(dJ_wB)
+
+    def ee_generalized_jacobian(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
+        J_star, M = self.ee_generalized_jacobian_fun(arm)(q)
+        return np.array(J_star), np.array(M)
+
+    def coupling_factors(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
+        M, N = self.coupling_factors_fun(arm)(q)
+        return np.array(M), np.array(N)
+
+    def force_map(self, q, F_e, arm: str = "mission") -> np.ndarray:
+        return np.array(self.force_map_fun(arm)(q, F_e)).ravel()
+
+    def coupling_measures(self, q) -> "CouplingMeasures":
+        """Singular values and condition number of ``J_wB``, norm of ``J_wM`` at ``q``."""
+        from balance_opt.model.maps import coupling_measures
+
+        return coupling_measures(*self.angular_jacobians(q), self.robot.balance_arm_columns)

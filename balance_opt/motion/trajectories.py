@@ -1,0 +1,331 @@
+"""Mission-arm trajectories in joint space, sampled at any times with position, velocity and
+acceleration.
+
+Every trajectory has ``duration`` [s], ``dof`` and ``sample(t) -> (q, q_dot, q_ddot)`` for an
+array of times ``t`` (T,), each (T, dof). Before ``0`` and after ``duration`` the arm rests at
+its end points.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+from scipy.interpolate import CubicSpline, make_interp_spline
+
+from balance_opt.errors import TrajectoryError
+
+
+class JointTrajectory:
+    """Base class: a joint-space trajectory on ``[0, duration]``."""
+
+    duration: float
+    dof: int
+
+    def sample(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    @property
+    def start(self) -> np.ndarray:
+        return self.sample(np.array([0.0]))[0][0]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.sample(np.array([self.duration]))[0][0]
+
+
+def _check_duration(duration) -> float:
+    duration = float(duration)
+    if not duration > 0 or not np.isfinite(duration):
+        raise TrajectoryError(f"duration must be a positive number of seconds, got {duration}")
+    return duration
+
+
+class PointToPoint(JointTrajectory):
+    """Rest-to-rest motion from ``q0`` to ``qf`` with a quintic time law (the paper's PTP):
+    ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5``, zero velocity and acceleration at both ends.
+
+    Args:
+        q0, qf: start and goal [rad].
+        duration: motion time [s].
+    """
+
+    def __init__(self, q0, qf, duration: float):
+        self.q0 = np.asarray(q0, dtype=float).ravel()
+        self.qf = np.asarray(qf, dtype=float).ravel()
+        if self.q0.shape != self.qf.shape:
+            raise TrajectoryError(f"start has {self.q0.size} joints but goal has {self.qf.size}")
+        self.duration = _check_duration(duration)
+        self.dof = self.q0.size
+
+    def sample(self, t):
+        T = self.duration
+        tau = np.clip(np.atleast_1d(np.asarray(t, dtype=float)) / T, 0.0, 1.0)[:, None]
+        s = tau**3 * (10 - 15 * tau + 6 * tau**2)
+        ds = 30 * tau**2 * (1 - tau) ** 2 / T
+        dds = 60 * tau * (1 - tau) * (1 - 2 * tau) / T**2
+        dq = self.qf - self.q0
+        return self.q0 + s * dq, ds * dq, dds * dq
+
+
+class ViaPoints(JointTrajectory):
+    """A smooth motion through via points, at rest at the first and last.
+
+    The profile is a quintic B-spline through the points with zero velocity and acceleration at
+    both ends: C4 inside, so accelerations (Eq. 32) and jerks are continuous.
+
+    Args:
+        times: strictly increasing times of the points [s], the first 0.
+        points: (K, dof) joint positions [rad], K >= 2.
+    """
+
+    def __init__(self, times: Sequence[float], points):
+        self.times = np.asarray(times, dtype=float)
+        self.points = np.atleast_2d(np.asarray(points, dtype=float))
+        if self.points.shape[0] != self.times.size or self.times.size < 2:
+            raise TrajectoryError(f"via points need matching times and points, at least 2; got "
+                                  f"{self.times.size} times and {self.points.shape[0]} points")
+        if self.times[0] != 0.0 or np.any(np.diff(self.times) <= 0):
+            raise TrajectoryError(f"via-point times must start at 0 and increase strictly, got {self.times.tolist()}")
+        self.duration = float(self.times[-1])
+        self.dof = self.points.shape[1]
+        zeros = [(1, np.zeros(self.dof)), (2, np.zeros(self.dof))]
+        if self.times.size == 2:  # a B-spline of degree 5 needs more points: the quintic PTP is that spline
+            self._ptp = PointToPoint(self.points[0], self.points[1], self.duration)
+            self._spline = None
+        else:
+            self._spline = make_interp_spline(self.times, self.points, k=5, bc_type=(zeros, zeros))
+
+    def sample(self, t):
+        if self._spline is None:
+            return self._ptp.sample(t)
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
+        s = self._spline
+        return s(t), s(t, 1), s(t, 2)
+
+
+class CsvTrajectory(JointTrajectory):
+    """A trajectory read from a CSV file: a ``time`` column, one column per joint by name.
+
+    Samples are interpolated with a cubic spline (C2). Columns for other joints are ignored;
+    times must start at 0 and increase strictly.
+
+    Args:
+        path: CSV file.
+        joint_names: the columns to read, in the arm's joint order.
+        time_column: name of the time column.
+
+    Raises:
+        TrajectoryError: naming the file, and the line or column at fault.
+    """
+
+    def __init__(self, path: str | Path, joint_names: Sequence[str], time_column: str = "time"):
+        self.path = Path(path)
+        self.joint_names = tuple(joint_names)
+        where = str(self.path)
+        try:
+            with self.path.open(newline="") as fh:
+                rows = list(csv.reader(fh))
+        except OSError as exc:
+            raise TrajectoryError(f"{where}: cannot read trajectory CSV: {exc.strerror}") from None
+        rows = [r for r in rows if r and any(c.strip() for c in r)]
+        if len(rows) < 3:
+            raise TrajectoryError(f"{where}: needs a header line and at least 2 samples, found {max(len(rows) - 1, 0)}")
+        header = [h.strip() for h in rows[0]]
+        missing = [c for c in (time_column, *self.joint_names) if c not in header]
+        if missing:
+            raise TrajectoryError(f"{where}: line 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}")
+        cols = [header.index(c) for c in (time_column, *self.joint_names)]
+        data = np.empty((len(rows) - 1, len(cols)))
+        for i, row in enumerate(rows[1:]):
+            if len(row) != len(header):
+                raise TrajectoryError(f"{where}: line {i + 2}: {len(row)} fields, header has {len(header)}")
+            for k, c in enumerate(cols):
+                try:
+                    data[i, k] = float(row[c])
+                except ValueError:
+                    raise TrajectoryError(f"{where}: line {i + 2}, column '{header[c]}': "
+                                          f"not a number: {row[c]!r}") from None
+        if not np.all(np.isfinite(data)):
+            raise TrajectoryError(f"{where}: non-finite values")
+        t = data[:, 0]
+        if t[0] != 0.0:
+            raise TrajectoryError(f"{where}: line 2: time must start at 0, got {t[0]}")
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if bad.size:
+            raise TrajectoryError(f"{where}: line {bad[0] + 3}: time does not increase ({t[bad[0]]} then {t[bad[0] + 1]})")
+        self.duration = float(t[-1])
+        self.dof = len(self.joint_names)
+        self._spline = CubicSpline(t, data[:, 1:], bc_type="natural")
+
+    def sample(self, t):
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
+        s = self._spline
+        return s(t), s(t, 1), s(t, 2)
+
+
+# ---------------------------------------------------------------------------------- Cartesian goals
+#: Inverse kinematics: distance to the goal position that counts as reached [m].
+IK_POSITION_TOLERANCE = 1e-6
+#: Inverse kinematics: angle to the goal orientation that counts as reached [rad].
+IK_ORIENTATION_TOLERANCE = 1e-6
+#: Damping of the Gauss-Newton steps [m or rad]: bounds the steps near singular configurations.
+IK_DAMPING = 1e-3
+#: Largest joint step of one Gauss-Newton iteration [rad].
+IK_MAX_STEP = 0.5
+#: Iterations per start, and starts (the arm's start, then seeded random ones within the limits).
+IK_MAX_ITERATIONS = 200
+IK_STARTS = 12
+IK_SEED = 0
+#: Range sampled for a joint without finite limits [rad].
+IK_UNLIMITED_RANGE = np.pi
+#: How far from orthonormal a goal rotation matrix may be.
+ROTATION_ATOL = 1e-9
+
+
+@dataclass(frozen=True)
+class CartesianGoal:
+    """A goal pose for an arm's end effector, solved to a joint goal by inverse kinematics.
+
+    The goal is in the world frame with the base at its initial pose (``base``, identity by
+    default), and the inverse kinematics keep the base there: the joint goal is the one that
+    puts the end effector on the goal *as seen from the base at the start*. During the motion
+    the base turns and drifts as momentum conservation forces it (that is what the balance arm
+    corrects), so the world-frame end point can differ; the joint goal does not.
+
+    Solved by damped Gauss-Newton on the numeric Pinocchio model, joints clipped to their
+    position limits after every step, from the arm's start first and then from seeded random
+    configurations within the limits.
+
+    Attributes:
+        position: goal position of the end-effector frame's origin, world frame [m].
+        orientation: goal orientation as a quaternion (x, y, z, w) or a 3 x 3 rotation matrix;
+            ``None`` for position only.
+        arm: the arm whose end effector is placed (``"mission"`` by default).
+    """
+
+    position: tuple[float, float, float]
+    orientation: tuple[float, ...] | None = None
+    arm: str = "mission"
+
+    def __post_init__(self):
+        position = np.asarray(self.position, dtype=float).ravel()
+        if position.size != 3 or not np.all(np.isfinite(position)):
+            raise TrajectoryError(
+                f"Cartesian goal position must be 3 finite numbers [m], got {position.tolist()}")
+        object.__setattr__(self, "position", tuple(position.tolist()))
+        if self.orientation is not None:
+            rot = np.asarray(self.orientation, dtype=float)
+            if rot.shape == (3, 3):  # a rotation matrix
+                orthonormal = np.allclose(rot.T @ rot, np.eye(3), rtol=0, atol=ROTATION_ATOL)
+                if not orthonormal or np.linalg.det(rot) <= 0:
+                    raise TrajectoryError("Cartesian goal orientation matrix is not a rotation")
+                quat = pin.Quaternion(rot).coeffs()
+            elif rot.size == 4 and np.all(np.isfinite(rot)) and np.linalg.norm(rot) > 0:
+                quat = rot.ravel() / np.linalg.norm(rot)
+            else:
+                raise TrajectoryError("Cartesian goal orientation must be a quaternion "
+                                      "(x, y, z, w) or a 3 x 3 rotation matrix, "
+                                      f"got {rot.tolist()}")
+            object.__setattr__(self, "orientation", tuple(float(v) for v in quat))
+
+    @property
+    def rotation(self) -> np.ndarray | None:
+        """Goal orientation as a rotation matrix, or ``None``."""
+        if self.orientation is None:
+            return None
+        x, y, z, w = self.orientation
+        return pin.Quaternion(w, x, y, z).toRotationMatrix()
+
+    def solve(self, robot, q_start, base: pin.SE3 | None = None) -> np.ndarray:
+        """The arm's joint goal [rad] (see the class docstring).
+
+        Args:
+            robot: the :class:`~balance_opt.model.robot.FloatingRobot`.
+            q_start: the arm's joint start [rad] (also the first IK start).
+            base: initial base pose (identity by default).
+
+        Raises:
+            TrajectoryError: the goal is out of reach within the joint limits; the message and the
+                ``distance`` [m] (and ``angle`` [rad]) attributes give how far the best
+                configuration found stays from it.
+        """
+        arm = robot.arm(self.arm)
+        q_start = np.asarray(q_start, dtype=float).ravel()
+        if q_start.size != arm.dof:
+            raise TrajectoryError(f"Cartesian goal: the {arm.name} arm has {arm.dof} joints, "
+                                  f"start has {q_start.size}")
+        model = robot.model
+        data = model.createData()
+        frame = model.getFrameId(arm.ee_frame)
+        lim = robot.limits.subset(arm.indices)
+        lower = np.where(np.isfinite(lim.lower), lim.lower, -IK_UNLIMITED_RANGE)
+        upper = np.where(np.isfinite(lim.upper), lim.upper, IK_UNLIMITED_RANGE)
+        cols = robot.pin_v_indices[arm.indices]
+        q_full = robot.neutral()
+        goal_p = np.array(self.position)
+        goal_R = self.rotation
+
+        def error(q):
+            q_full[arm.indices] = q
+            qp = robot.pin_q(q_full, base)
+            J = pin.computeFrameJacobian(model, data, qp, frame, pin.LOCAL_WORLD_ALIGNED)[:, cols]
+            pose = data.oMf[frame]
+            e = goal_p - pose.translation
+            if goal_R is None:
+                return e, J[:3], 0.0
+            e_rot = pose.rotation @ pin.log3(pose.rotation.T @ goal_R)  # world-frame rotation error
+            return np.r_[e, e_rot], J, float(np.linalg.norm(e_rot))
+
+        def reached(e, angle):
+            close = np.linalg.norm(e[:3]) <= IK_POSITION_TOLERANCE
+            return close and angle <= IK_ORIENTATION_TOLERANCE
+
+        rng = np.random.default_rng(IK_SEED)
+        starts = [np.clip(q_start, lower, upper)]
+        starts += [rng.uniform(lower, upper) for _ in range(IK_STARTS - 1)]
+        best = (np.inf, np.inf, q_start)
+        for q in starts:
+            for _ in range(IK_MAX_ITERATIONS):
+                e, J, angle = error(q)
+                if reached(e, angle):
+                    return q
+                step = J.T @ np.linalg.solve(J @ J.T + IK_DAMPING**2 * np.eye(J.shape[0]), e)
+                scale = np.abs(step).max() / IK_MAX_STEP
+                q = np.clip(q + (step / scale if scale > 1 else step), lower, upper)
+            e, _, angle = error(q)
+            if reached(e, angle):
+                return q
+            if (np.linalg.norm(e[:3]), angle) < best[:2]:
+                best = (float(np.linalg.norm(e[:3])), angle, q)
+        distance, angle, _ = best
+        what = f"{distance:.6g} m" + ("" if goal_R is None else f" and {angle:.6g} rad")
+        err = TrajectoryError(f"Cartesian goal {list(self.position)} for end effector "
+                              f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
+                              f"joint limits: remaining distance {what}")
+        err.distance, err.angle = distance, angle
+        raise err
+
+
+def cartesian_goal(robot, q_start, position, duration: float, orientation=None,
+                   arm: str = "mission", base: pin.SE3 | None = None) -> PointToPoint:
+    """Point-to-point motion (quintic, rest to rest) of an arm to a Cartesian goal.
+
+    Args:
+        robot: the :class:`~balance_opt.model.robot.FloatingRobot`.
+        q_start: the arm's joint start [rad].
+        position: goal position of the end effector, world frame [m].
+        duration: motion time [s].
+        orientation: goal orientation (quaternion x, y, z, w or rotation matrix), optional.
+        arm: which arm (``"mission"``).
+        base: initial base pose (identity).
+
+    Raises:
+        TrajectoryError: unreachable goal (with the remaining distance), bad inputs.
+    """
+    goal = CartesianGoal(position, orientation, arm)
+    return PointToPoint(q_start, goal.solve(robot, q_start, base), duration)

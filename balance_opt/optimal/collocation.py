@@ -1,0 +1,225 @@
+"""Direct-collocation transcriptions (Hermite-Simpson, separated form, and trapezoidal) and the
+continuous balance-arm trajectory they describe.
+
+A transcription turns ``x_dot = f(x, u)`` on ``N`` intervals of length ``h`` into algebraic
+defects, a quadrature of the running cost and a polynomial of the control on each interval.
+Its functions work on matrices whose columns are time (nodes ``0..N``, midpoints ``0..N-1``),
+with CasADi MX/SX as with NumPy, so the NLP and the post-processing share one definition.
+
+The balance joints are a chain of integrators (``q_ddot = u``, or ``q_dddot = u`` with control
+``"jerk"``). On each interval the highest derivative is the transcription's control polynomial
+(Hermite-Simpson: the quadratic through ``u_k, u_{k+1/2}, u_{k+1}``; trapezoidal: the constant
+``(u_k + u_{k+1}) / 2``), and the lower derivatives are its exact integrals from the state at
+node ``k``. The planner requires the next node (and the midpoint) to be these integrals' values
+(:func:`bernstein_value`), so the continuous plan passes through every node; with control
+``"acceleration"`` these are exactly the transcription's own equations (Simpson is exact for
+the cubic velocity, the trapezoidal rule for the linear one), with ``"jerk"`` they differ from
+them by the transcription's truncation error. Every polynomial is kept in Bernstein form on the
+interval: by the convex-hull property, bounding the Bernstein coefficients bounds the whole
+polynomial, so the planner enforces joint limits on the continuous motion, not only at the
+collocation points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import comb
+
+import numpy as np
+
+from balance_opt.motion.trajectories import JointTrajectory
+
+HERMITE_SIMPSON = "hermite-simpson"
+TRAPEZOIDAL = "trapezoidal"
+TRANSCRIPTIONS = (HERMITE_SIMPSON, TRAPEZOIDAL)
+
+
+@dataclass(frozen=True)
+class Transcription:
+    """One collocation scheme.
+
+    Attributes:
+        name: ``"hermite-simpson"`` or ``"trapezoidal"``.
+    """
+
+    name: str
+
+    def __post_init__(self):
+        if self.name not in TRANSCRIPTIONS:
+            raise ValueError(
+                f"unknown transcription '{self.name}'; expected one of {', '.join(TRANSCRIPTIONS)}"
+            )
+
+    @property
+    def has_midpoints(self) -> bool:
+        """Whether states and controls are also decision variables at interval midpoints."""
+        return self.name == HERMITE_SIMPSON
+
+    @property
+    def control_degree(self) -> int:
+        """Degree of the control polynomial on an interval."""
+        return 2 if self.has_midpoints else 0
+
+    def n_points(self, N: int) -> int:
+        """Number of collocation points: nodes, then midpoints."""
+        return 2 * N + 1 if self.has_midpoints else N + 1
+
+    def point_taus(self, N: int) -> np.ndarray:
+        """Times of the collocation points in units of ``h``: nodes ``0..N``, then midpoints."""
+        nodes = np.arange(N + 1, dtype=float)
+        return np.r_[nodes, nodes[:-1] + 0.5] if self.has_midpoints else nodes
+
+    def defects(self, X, Xm, F, Fm, h) -> list[tuple[str, object]]:
+        """Collocation defects, each (n_x, N), that must vanish.
+
+        Args:
+            X, F: states and their derivatives at the nodes (n_x, N+1).
+            Xm, Fm: the same at the midpoints (n_x, N) (ignored by the trapezoidal rule).
+            h: interval length [s].
+
+        Returns:
+            ``[(name, defect), ...]``: Hermite-Simpson gives the Hermite interpolation of the
+            midpoint and the Simpson quadrature of the interval; trapezoidal one defect.
+        """
+        x0, x1, f0, f1 = X[:, :-1], X[:, 1:], F[:, :-1], F[:, 1:]
+        if self.has_midpoints:
+            return [
+                ("Hermite midpoint", Xm - 0.5 * (x0 + x1) - (h / 8.0) * (f0 - f1)),
+                ("Simpson", x1 - x0 - (h / 6.0) * (f0 + 4.0 * Fm + f1)),
+            ]
+        return [("trapezoidal", x1 - x0 - (h / 2.0) * (f0 + f1))]
+
+    def quadrature_weights(self, N: int) -> np.ndarray:
+        """Weights (in units of ``h``) of the running cost at the collocation points, in the order
+        of :meth:`point_taus`: composite Simpson or trapezoidal rule."""
+        w = np.ones(N + 1)
+        w[0] = w[-1] = 0.5
+        if self.has_midpoints:
+            return np.r_[w / 3.0, np.full(N, 2.0 / 3.0)]
+        return w
+
+    def control_coefficients(self, U, Um) -> list:
+        """Bernstein coefficients of the control polynomial of every interval, each (n_u, N).
+
+        Hermite-Simpson: the quadratic through ``u_k``, ``u_{k+1/2}``, ``u_{k+1}`` has the
+        coefficients ``u_k``, ``2 u_{k+1/2} - (u_k + u_{k+1}) / 2``, ``u_{k+1}``.
+        Trapezoidal: the constant ``(u_k + u_{k+1}) / 2``.
+        """
+        u0, u1 = U[:, :-1], U[:, 1:]
+        if self.has_midpoints:
+            return [u0, 2.0 * Um - 0.5 * (u0 + u1), u1]
+        return [0.5 * (u0 + u1)]
+
+
+def integrate_bernstein(coefficients: list, start, h) -> list:
+    """Bernstein coefficients of ``y(tau) = start + integral_0^tau c`` on ``[0, h]``, where ``c`` has
+    the Bernstein coefficients ``coefficients`` (degree ``d``) in ``s = tau / h``.
+
+    ``d_0 = start``, ``d_{i+1} = d_i + h c_i / (d + 1)``: degree ``d + 1``.
+    """
+    degree = len(coefficients) - 1
+    out = [start]
+    for c in coefficients:
+        out.append(out[-1] + (h / (degree + 1)) * c)
+    return out
+
+
+def joint_chain_coefficients(transcription: Transcription, starts: list, U, Um, h) -> list[list]:
+    """Bernstein coefficients of every derivative of the balance joints on every interval.
+
+    Args:
+        transcription: the scheme.
+        starts: the chain's states at the nodes ``0..N-1``, highest derivative last: for control
+            ``"acceleration"`` ``[q, q_dot]``, for ``"jerk"`` ``[q, q_dot, q_ddot]``, each (n, N).
+        U, Um: controls at the nodes (n, N+1) and midpoints (n, N).
+        h: interval length [s].
+
+    Returns:
+        One list of coefficient matrices (each (n, N)) per derivative, position first, the
+        control's own polynomial last.
+    """
+    levels = [transcription.control_coefficients(U, Um)]
+    for start in reversed(starts):
+        levels.append(integrate_bernstein(levels[-1], start, h))
+    return levels[::-1]
+
+
+def bernstein_value(coefficients: list, s: float):
+    """Value at ``s`` in [0, 1] of the polynomial with Bernstein ``coefficients`` (symbolic or
+    numeric, each (n, N)): ``sum_i C(d, i) s^i (1 - s)^(d - i) c_i``."""
+    degree = len(coefficients) - 1
+    weights = [comb(degree, i) * s**i * (1.0 - s) ** (degree - i) for i in range(degree + 1)]
+    total = 0
+    for w, c in zip(weights, coefficients):
+        if w != 0.0:
+            total = total + w * c
+    return total
+
+
+def bernstein_basis(degree: int, s: np.ndarray) -> np.ndarray:
+    """Bernstein basis polynomials of ``degree`` at ``s`` in [0, 1]: (len(s), degree + 1)."""
+    s = np.asarray(s, dtype=float)[:, None]
+    i = np.arange(degree + 1)[None, :]
+    binomials = np.array([comb(degree, k) for k in range(degree + 1)], dtype=float)[None, :]
+    return binomials * s**i * (1.0 - s) ** (degree - i)
+
+
+def monomial_from_bernstein(degree: int) -> np.ndarray:
+    """Matrix ``M`` with ``a = M b``: monomial coefficients ``a_j`` (of ``s^j``) of the polynomial
+    with Bernstein coefficients ``b_i`` on [0, 1]: ``a_j = C(d, j) sum_i (-1)^(j-i) C(j, i) b_i``."""
+    M = np.zeros((degree + 1, degree + 1))
+    for j in range(degree + 1):
+        for i in range(j + 1):
+            M[j, i] = (-1) ** (j - i) * comb(degree, j) * comb(j, i)
+    return M
+
+
+class CollocatedTrajectory(JointTrajectory):
+    """The balance-joint motion of a collocation solution as a continuous, piecewise polynomial
+    trajectory (see the module docstring), sampled like every mission trajectory.
+
+    Args:
+        h: interval length [s].
+        levels: per derivative (position, velocity, acceleration), a list of Bernstein
+            coefficient arrays, each (n, N), as :func:`joint_chain_coefficients` returns them
+            (evaluated, NumPy).
+    """
+
+    def __init__(self, h: float, levels: list[list[np.ndarray]]):
+        self.h = float(h)
+        # Bernstein coefficients (N, degree + 1, n) per level, and the same polynomials in the
+        # monomial basis of s = (t - t_k) / h, for Horner evaluation
+        self._coefficients = [
+            np.stack([np.asarray(c, dtype=float).T for c in level], axis=1) for level in levels[:3]
+        ]
+        self._monomial = [
+            np.einsum("ji,kin->kjn", monomial_from_bernstein(c.shape[1] - 1), c)
+            for c in self._coefficients
+        ]
+        self.intervals = self._coefficients[0].shape[0]
+        self.dof = self._coefficients[0].shape[2]
+        self.duration = self.h * self.intervals
+
+    def sample(self, t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        u = np.minimum(np.maximum(t, 0.0), self.duration) / self.h
+        k = np.minimum(u.astype(int), self.intervals - 1)
+        s = (u - k)[:, None]
+        out = []
+        for a in self._monomial:
+            a = a[k]
+            value = a[:, -1]
+            for j in range(a.shape[1] - 2, -1, -1):
+                value = value * s + a[:, j]
+            out.append(value)
+        return tuple(out)
+
+    def interval_ends(self) -> list[np.ndarray]:
+        """Per derivative (position, velocity, acceleration), the value at the end of every
+        interval (N, n): the last Bernstein coefficient."""
+        return [c[:, -1, :] for c in self._coefficients]
+
+    def derivative_bounds(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per derivative (position, velocity, acceleration), the smallest and largest Bernstein
+        coefficient of every joint (n,): bounds on the continuous motion (convex hull)."""
+        return [(c.min(axis=(0, 1)), c.max(axis=(0, 1))) for c in self._coefficients]

@@ -1,0 +1,525 @@
+"""The per-robot symbolic model of the optimal balance planner: the balance dynamics, the running
+cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point.
+
+They are built once per robot and reused for every horizon, number of intervals and mission:
+the planner (:mod:`balance_opt.optimal.planner`) only maps them over the collocation points
+(``Function.map``), so nothing symbolic grows with the number of intervals.
+
+State of one point (control ``"acceleration"``)::
+
+    x = [phi (3), q_B (n_B), q_dot_B (n_B)],   u = q_ddot_B (n_B)
+
+and with control ``"jerk"`` the balance acceleration is a state and the jerk the control::
+
+    x = [phi (3), q_B, q_dot_B, q_ddot_B],     u = q_dddot_B (n_B)
+
+``phi = log(R)`` is the base attitude as a rotation vector in the tangent space at the initial
+attitude (``R = exp([phi]_x)``, ``R(0) = I``). It makes the terminal cost ``|log R_T|^2`` and the
+attitude bounds ``|phi| <= bound`` exact, with three states and no norm constraint; its
+kinematics is ``phi_dot = Jr^{-1}(phi) omega_b`` (valid for rotations below pi, far beyond any
+drift this planner is meant for).
+
+The mission arm enters through its sample at the point, ``m = [q_M; q_dot_M; q_ddot_M]``, a
+parameter of the NLP. The base rate comes from momentum conservation with zero momentum
+(Eq. 26, 31): ``omega_b = J_wM(q) q_dot_M + J_wB(q) q_dot_B`` with ``q = [q_M; q_B]``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import logging
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+
+from balance_opt.errors import BalanceOptError
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.model.symbolic import SymbolicMaps
+
+log = logging.getLogger(__name__)
+
+CONTROLS = ("acceleration", "jerk")
+#: Rotation angle [rad] below which ``Jr^{-1}`` uses its series (the closed form is 0/0 at 0).
+ATTITUDE_SERIES_ANGLE = 1e-2
+#: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
+RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
+#: C compiler flags of the compiled kernels. -O1: on the paper robot as fast as -O2/-O3 (within
+#: 5 %) and compiled in 2/3 of the time; no -march=native or -ffast-math, so that results do
+#: not depend on the machine.
+COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
+#: Environment variable naming the folder of compiled kernels (default: the user cache folder).
+CACHE_ENV = "BALANCE_OPT_CACHE"
+
+
+def skew(v):
+    """``[v]_x`` (3 x 3) of a CasADi 3-vector."""
+    return cs.vertcat(
+        cs.horzcat(0, -v[2], v[1]), cs.horzcat(v[2], 0, -v[0]), cs.horzcat(-v[1], v[0], 0)
+    )
+
+
+def inverse_right_jacobian_sym(phi):
+    """``Jr^{-1}(phi)`` for a CasADi rotation vector: ``phi_dot = Jr^{-1}(phi) omega`` for the body
+    rate ``omega`` of ``R = exp([phi]_x)``.
+
+    ``Jr^{-1} = I + K/2 + c(a) K^2`` with ``K = [phi]_x``, ``a = |phi|`` and
+    ``c = 1/a^2 - (1 + cos a) / (2 a sin a)``; below :data:`ATTITUDE_SERIES_ANGLE` the series
+    ``1/12 + a^2/720 + a^4/30240`` (error below 1e-18) replaces the closed form, and the closed
+    form is evaluated at a safe angle there so that neither it nor its derivatives produce NaN.
+    """
+    a2 = cs.dot(phi, phi)
+    small = a2 < ATTITUDE_SERIES_ANGLE**2
+    a2_safe = cs.if_else(small, 1.0, a2)
+    a = cs.sqrt(a2_safe)
+    c_closed = 1.0 / a2_safe - (1.0 + cs.cos(a)) / (2.0 * a * cs.sin(a))
+    c_series = 1.0 / 12.0 + a2 / 720.0 + a2 * a2 / 30240.0
+    c = cs.if_else(small, c_series, c_closed)
+    K = skew(phi)
+    return cs.SX.eye(3) + 0.5 * K + c * (K @ K)
+
+
+def check_control(control: str) -> str:
+    """The control's name, checked against :data:`CONTROLS`."""
+    if control not in CONTROLS:
+        raise ValueError(f"unknown control '{control}'; expected one of {', '.join(CONTROLS)}")
+    return control
+
+
+@dataclass(frozen=True)
+class PointKernels:
+    """The NLP's nonlinear work at one collocation point, with its exact derivatives.
+
+    ``y = [x_dot (n_x); L; tau_B (n_B, only with torque limits)]`` is a function of the point's
+    decision variables ``z = [x; u]`` and of its data (mission sample ``m``, running weights,
+    ``q_rest``). The planner maps these over all points and assembles the NLP's gradient,
+    Jacobian and Hessian from them (everything else in the NLP is linear or quadratic).
+
+    Attributes:
+        value: ``(z, m, weights, q_rest) -> y``.
+        jacobian: ``(z, m, weights, q_rest) -> (y, dy/dz)`` (sparse n_y x n_z).
+        gradient: ``(z, m, weights, q_rest, c) -> (c^T y, d(c^T y)/dz)`` (reverse mode: the
+            objective's gradient without the full Jacobian).
+        hessian: ``(z, m, weights, q_rest, mu) -> d^2 (mu^T y) / dz^2`` (lower triangle, sparse).
+        n_z, n_y: sizes.
+        compiled: whether the three are compiled C (else CasADi's SX virtual machine).
+        compile_time: wall time spent compiling them in this process [s] (0 when loaded from
+            the cache folder or not compiled).
+        library: the shared library they were loaded from, if compiled.
+    """
+
+    value: cs.Function
+    jacobian: cs.Function
+    gradient: cs.Function
+    hessian: cs.Function
+    n_z: int
+    n_y: int
+    compiled: bool = False
+    compile_time: float = 0.0
+    library: str | None = None
+
+    @property
+    def jacobian_sparsity(self) -> cs.Sparsity:
+        return self.jacobian.sparsity_out(1)
+
+    @property
+    def hessian_sparsity(self) -> cs.Sparsity:
+        return self.hessian.sparsity_out(0)
+
+
+def default_cache_dir() -> Path:
+    """Folder of compiled kernels: ``$BALANCE_OPT_CACHE``, else ``$XDG_CACHE_HOME/balance-opt``
+    (``~/.cache/balance-opt``)."""
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "balance-opt"
+
+
+def find_compiler() -> str | None:
+    """A C compiler on the PATH (``$CC``, ``cc``, ``gcc``, ``clang``), or ``None``."""
+    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+def compile_functions(
+    functions: list[cs.Function], cache_dir: Path | None = None
+) -> tuple[list[cs.Function], float, str]:
+    """Compile CasADi functions to one shared library, cached on disk by the hash of their C code.
+
+    Args:
+        functions: SX functions (distinct names).
+        cache_dir: folder of the libraries (default :func:`default_cache_dir`).
+
+    Returns:
+        ``(external functions, compile time [s] (0 if cached), library path)``.
+
+    Raises:
+        OSError: no C compiler, or the compiler failed (the caller falls back to SX).
+    """
+    generator = cs.CodeGenerator("balance_kernels.c", {"with_header": False})
+    for f in functions:
+        generator.add(f)
+    source = generator.dump()
+    compiler = find_compiler()
+    if compiler is None:
+        raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
+    digest = hashlib.sha256(
+        "\n".join(
+            [
+                source,
+                compiler,
+                " ".join(COMPILER_FLAGS),
+                cs.__version__,
+                platform.machine(),
+                platform.system(),
+            ]
+        ).encode()
+    ).hexdigest()[:20]
+    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    library = folder / f"balance_kernels_{digest}{'.dll' if os.name == 'nt' else '.so'}"
+    elapsed = 0.0
+    folder.mkdir(parents=True, exist_ok=True)
+    with _file_lock(folder / f"{library.name}.lock"):  # one process compiles, the others wait
+        if not library.is_file():
+            elapsed = _compile(compiler, source, library)
+    # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
+    return (
+        [cs.external(f.name(), str(library), {"enable_fd": True}) for f in functions],
+        elapsed,
+        str(library),
+    )
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path):
+    """An exclusive lock on ``path`` (POSIX ``flock``; no lock where ``fcntl`` is missing)."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: concurrent compilations stay correct (atomic rename)
+        yield
+        return
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _compile(compiler: str, source: str, library: Path) -> float:
+    """Compile C ``source`` to the shared ``library``; returns the wall time [s]."""
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
+        c_file = Path(tmp) / "balance_kernels.c"
+        c_file.write_text(source)
+        out = Path(tmp) / library.name
+        proc = subprocess.run(
+            [compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        if proc.returncode != 0:
+            raise OSError(f"{compiler} failed on the balance kernels: {proc.stderr.strip()[:500]}")
+        os.replace(out, library)  # atomic: a process never loads a partial library
+    elapsed = time.perf_counter() - start
+    log.info("compiled balance kernels to %s in %.1f s", library, elapsed)
+    return elapsed
+
+
+class PlannerModel:
+    """Symbolic model of a robot for the optimal planner, built once and cached.
+
+    Args:
+        robot: the floating robot.
+        maps: its symbolic momentum maps (built here when not given).
+        compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``True``,
+            ``False``, or ``"auto"`` (when a C compiler is found). Without a compiler, or if
+            compiling fails, the kernels run on CasADi's virtual machine (same results, slower).
+        cache_dir: folder of compiled kernels (default :func:`default_cache_dir`).
+
+    Attributes:
+        robot, maps: as given.
+        n_M, n_B: numbers of mission and balance joints.
+        nlp_cache: compiled NLPs of this robot, keyed by their structure (filled by the planner).
+    """
+
+    def __init__(
+        self,
+        robot: FloatingRobot,
+        maps: SymbolicMaps | None = None,
+        compile: bool | str = "auto",
+        cache_dir: str | Path | None = None,
+    ):
+        if compile not in (True, False, "auto"):
+            raise ValueError(f"compile must be True, False or 'auto', got {compile!r}")
+        self.robot = robot
+        self.maps = maps if maps is not None else SymbolicMaps(robot)
+        self.n_M = robot.mission.dof
+        self.n_B = int(robot.balance_indices.size)
+        self.compile = compile if compile != "auto" else find_compiler() is not None
+        self.cache_dir = cache_dir
+        self._funs: dict[str, cs.Function] = {}
+        self._kernels: dict[tuple, PointKernels] = {}
+        self.nlp_cache: dict = {}
+
+    # ------------------------------------------------------------------ sizes
+    def n_x(self, control: str) -> int:
+        """State size: attitude (3) and balance position, velocity (and acceleration for jerk)."""
+        return 3 + (2 if check_control(control) == "acceleration" else 3) * self.n_B
+
+    @property
+    def n_u(self) -> int:
+        return self.n_B
+
+    @property
+    def n_m(self) -> int:
+        """Size of a mission sample ``[q_M; q_dot_M; q_ddot_M]``."""
+        return 3 * self.n_M
+
+    def state_labels(self, control: str) -> list[str]:
+        """Human names of the state components (for constraint names)."""
+        names = self.robot.joint_names
+        balance = [names[i] for i in self.robot.balance_indices]
+        labels = [f"attitude phi_{a}" for a in "xyz"]
+        kinds = ["position", "velocity"] + (["acceleration"] if control == "jerk" else [])
+        for kind in kinds:
+            labels += [f"{j} {kind}" for j in balance]
+        return labels
+
+    # ------------------------------------------------------------------ symbols
+    def _symbols(self, control: str):
+        n_B, n_M = self.n_B, self.n_M
+        x = cs.SX.sym("x", self.n_x(control))
+        u = cs.SX.sym("u", n_B)
+        m = cs.SX.sym("m", self.n_m)
+        return x, u, m, x[:3], x[3 : 3 + n_B], x[3 + n_B : 3 + 2 * n_B], m[:n_M], m[n_M : 2 * n_M]
+
+    def _cached(self, key: str, make) -> cs.Function:
+        if key not in self._funs:
+            self._funs[key] = make()
+        return self._funs[key]
+
+    def _omega(self, q_M, q_B, q_dot_M, q_dot_B):
+        """``omega_b = J_wM q_dot_M + J_wB q_dot_B`` computed as ``-I_G^{-1} A_j q_dot`` from the
+        angular rows of the centroidal momentum matrix (zero angular momentum about the CoM,
+        Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint columns; the base's
+        linear columns of these rows are zero. One 3 x 3 solve of a vector instead of the full
+        6 x 6 ``J_base``: half the instructions in the Hessian kernel."""
+        A = self.maps.centroidal_momentum_matrix_fun()(cs.vertcat(q_M, q_B))
+        return -cs.solve(A[3:, 3:6], A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
+
+    # ------------------------------------------------------------------ functions
+    def dynamics_fun(self, control: str = "acceleration") -> cs.Function:
+        """``balance_dynamics(x, u, m) -> (x_dot, omega)``: the state's time derivative and the
+        base angular velocity in the base frame [rad/s] (Eq. 26 with zero momentum)."""
+
+        def make():
+            x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
+            omega = self._omega(q_M, q_B, q_dot_M, q_dot_B)
+            parts = [inverse_right_jacobian_sym(phi) @ omega, q_dot_B]
+            parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B :], u]
+            return cs.Function(
+                "balance_dynamics",
+                [x, u, m],
+                [cs.vertcat(*parts), omega],
+                ["x", "u", "m"],
+                ["x_dot", "omega"],
+                {"cse": True},
+            )
+
+        return self._cached(f"dynamics_{check_control(control)}", make)
+
+    def point_fun(self, control: str = "acceleration") -> cs.Function:
+        """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
+        at one collocation point, the function the planner maps over all points.
+
+        ``L = w_omega |omega_b|^2 + w_attitude |phi|^2 + w_smoothness |u|^2
+        + w_rest |q_B - q_rest|^2``, with ``weights`` in the order of :data:`RUNNING_WEIGHTS`.
+        """
+
+        def make():
+            x, u, m, phi, q_B, _, _, _ = self._symbols(control)
+            weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
+            q_rest = cs.SX.sym("q_rest", self.n_B)
+            x_dot, omega = self.dynamics_fun(control)(x, u, m)
+            dq = q_B - q_rest
+            L = (
+                weights[0] * cs.dot(omega, omega)
+                + weights[1] * cs.dot(phi, phi)
+                + weights[2] * cs.dot(u, u)
+                + weights[3] * cs.dot(dq, dq)
+            )
+            return cs.Function(
+                "balance_point",
+                [x, u, m, weights, q_rest],
+                [x_dot, L],
+                ["x", "u", "m", "weights", "q_rest"],
+                ["x_dot", "L"],
+                {"cse": True},
+            )
+
+        return self._cached(f"point_{check_control(control)}", make)
+
+    # ------------------------------------------------------------------ inverse dynamics
+    @cached_property
+    def _dynamics_terms(self) -> cs.Function:
+        """``(q, nu) -> (M, h)``: mass matrix and bias forces of the free-floating system,
+        base at the identity, ``nu = [base twist in the base frame; q_dot]`` (adam, body-fixed
+        representation, no gravity)."""
+        try:
+            import adam.casadi
+            import urdf_parser_py.xml_reflection.core as urdf_core
+            from adam import Representations
+        except ImportError as exc:
+            raise BalanceOptError(f"torque limits need adam-robotics[casadi]: {exc}") from exc
+        robot = self.robot
+        quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
+        try:
+            kd = adam.casadi.KinDynComputations(
+                robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
+            )
+        finally:
+            urdf_core.on_error = quiet
+        kd.set_frame_velocity_representation(Representations.BODY_FIXED_REPRESENTATION)
+        q = cs.SX.sym("q", robot.n)
+        nu = cs.SX.sym("nu", 6 + robot.n)
+        H = cs.SX.eye(4)
+        M = kd.mass_matrix(H, q)
+        h = kd.bias_force(H, q, nu[:6], nu[6:])
+        M = cs.SX(M.array if hasattr(M, "array") else M)
+        h = cs.SX(h.array if hasattr(h, "array") else h)
+        return cs.Function(
+            "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
+        )
+
+    def torque_fun(self) -> cs.Function:
+        """``joint_torques(q, q_dot, q_ddot) -> tau``: arm joint torques [N m] (arm order) that
+        produce the joint accelerations ``q_ddot`` of the free-floating system with zero
+        momentum and no external wrench on the base.
+
+        With ``M nu_dot + h = [0; tau]`` and the base twist ``v_b = J_base q_dot`` (Eq. 19), the
+        base acceleration is ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and
+        ``tau = M_jb a_b + M_jj q_ddot + h_j``.
+        """
+
+        def make():
+            n = self.robot.n
+            q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
+            v_b = self.maps.base_jacobian_fun()(q) @ q_dot
+            M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
+            a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
+            tau = M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
+            return cs.Function(
+                "joint_torques",
+                [q, q_dot, q_ddot],
+                [tau],
+                ["q", "q_dot", "q_ddot"],
+                ["tau"],
+                {"cse": True},
+            )
+
+        return self._cached("torque", make)
+
+    def balance_torque_fun(self, control: str = "acceleration") -> cs.Function:
+        """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point."""
+
+        def make():
+            x, u, m, _, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
+            q_ddot_B = u if control == "acceleration" else x[3 + 2 * self.n_B :]
+            q_ddot_M = m[2 * self.n_M :]
+            tau = self.torque_fun()(
+                cs.vertcat(q_M, q_B), cs.vertcat(q_dot_M, q_dot_B), cs.vertcat(q_ddot_M, q_ddot_B)
+            )
+            return cs.Function(
+                "balance_torques",
+                [x, u, m],
+                [tau[self.n_M :]],
+                ["x", "u", "m"],
+                ["tau_B"],
+                {"cse": True},
+            )
+
+        return self._cached(f"balance_torque_{check_control(control)}", make)
+
+    # ------------------------------------------------------------------ kernels
+    def n_y(self, control: str, torque: bool) -> int:
+        """Size of a point kernel's output ``y``."""
+        return self.n_x(control) + 1 + (self.n_B if torque else 0)
+
+    def kernels(self, control: str = "acceleration", torque: bool = False) -> PointKernels:
+        """The point kernels (:class:`PointKernels`) of a control and torque setting, built once
+        (and compiled once, if the model compiles)."""
+        key = (check_control(control), bool(torque))
+        if key not in self._kernels:
+            self._kernels[key] = self._make_kernels(*key)
+        return self._kernels[key]
+
+    def _make_kernels(self, control: str, torque: bool) -> PointKernels:
+        n_x, n_u = self.n_x(control), self.n_u
+        z = cs.SX.sym("z", n_x + n_u)
+        m = cs.SX.sym("m", self.n_m)
+        weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
+        q_rest = cs.SX.sym("q_rest", self.n_B)
+        x, u = z[:n_x], z[n_x:]
+        x_dot, L = self.point_fun(control)(x, u, m, weights, q_rest)
+        parts = [x_dot, L]
+        if torque:
+            parts.append(self.balance_torque_fun(control)(x, u, m))
+        y = cs.vertcat(*parts)
+        mu = cs.SX.sym("mu", y.numel())
+        c = cs.SX.sym("c", y.numel())
+        hess, _ = cs.hessian(cs.dot(mu, y), z)
+        suffix = f"{control}{'_torque' if torque else ''}"
+        names = ["z", "m", "weights", "q_rest"]
+        opts = {"cse": True}
+        functions = [
+            cs.Function(
+                f"balance_kernel_{suffix}", [z, m, weights, q_rest], [y], names, ["y"], opts
+            ),
+            cs.Function(
+                f"balance_kernel_jac_{suffix}",
+                [z, m, weights, q_rest],
+                [y, cs.jacobian(y, z)],
+                names,
+                ["y", "dy_dz"],
+                opts,
+            ),
+            cs.Function(
+                f"balance_kernel_grad_{suffix}",
+                [z, m, weights, q_rest, c],
+                [cs.dot(c, y), cs.gradient(cs.dot(c, y), z)],
+                [*names, "c"],
+                ["cy", "grad"],
+                opts,
+            ),
+            cs.Function(
+                f"balance_kernel_hess_{suffix}",
+                [z, m, weights, q_rest, mu],
+                [cs.tril(hess)],
+                [*names, "mu"],
+                ["d2"],
+                opts,
+            ),
+        ]
+        sizes = (z.numel(), y.numel())
+        if not self.compile:
+            return PointKernels(*functions, *sizes)
+        try:
+            functions, elapsed, library = compile_functions(functions, self.cache_dir)
+        except (OSError, RuntimeError) as exc:
+            log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
+            return PointKernels(*functions, *sizes)
+        return PointKernels(*functions, *sizes, True, elapsed, library)

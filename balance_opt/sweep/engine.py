@@ -1,0 +1,502 @@
+"""Run the cases of a sweep: in this process, on a local process pool, or on a Dask cluster.
+
+A *case* is plain data (a dict: ``index``, ``case_id``, ``method``, ``parameters`` and whatever
+its runner needs), and so is its *result*. The function that runs a case, the *runner*, is named
+by a ``"module:function"`` string and imported in the worker, so nothing but strings, numbers,
+lists and dicts ever crosses a process boundary.
+
+Workers are processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each worker
+process keeps whatever its runner caches (the robot, its symbolic model and the NLP) for the
+next case; see :func:`balance_opt.sweep_cases.run_task_case`.
+
+Every finished case is written at once, atomically (a temporary file then ``os.replace``), as
+``<out>/cases/<case_id>.json``: an interrupted sweep leaves only whole result files, and
+:func:`run_cases` with ``resume=True`` skips the cases that have one. A case that raises is
+recorded with its error (type and message) and the sweep goes on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import json
+import logging
+import math
+import multiprocessing
+import os
+import tempfile
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+logger = logging.getLogger(__name__)
+
+#: Case statuses. ``ok``: ran to the end; ``solver_failed``: the planner raised a solver error
+#: (its best iterate's metrics are still recorded); ``error``: any other exception.
+STATUS_OK, STATUS_SOLVER_FAILED, STATUS_ERROR = "ok", "solver_failed", "error"
+#: Folder of the per-case result files, inside the sweep's output folder.
+CASES_DIR = "cases"
+#: Thread pools of numeric libraries inside each worker process: one thread, since the
+#: parallelism is across processes (two workers on two cores must not start four threads each).
+SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: Lines of a failing case's traceback kept in its result file.
+TRACEBACK_LINES = 12
+
+# One case at a time per process, even on a multi-threaded Dask worker (MUMPS is not thread-safe).
+_CASE_LOCK = threading.Lock()
+_RUNNERS: dict[str, Callable[[dict], dict]] = {}
+
+
+def resolve_runner(spec: str) -> Callable[[dict], dict]:
+    """The function named by ``"package.module:function"``, imported once per process."""
+    if spec not in _RUNNERS:
+        module_name, sep, name = spec.partition(":")
+        if not sep or not module_name or not name:
+            raise ValueError(f"runner must be 'module:function', got '{spec}'")
+        _RUNNERS[spec] = getattr(importlib.import_module(module_name), name)
+    return _RUNNERS[spec]
+
+
+def error_record(exc: BaseException) -> dict[str, Any]:
+    """Plain-data description of an exception: type, message and the end of its traceback."""
+    lines = traceback.format_exception(type(exc), exc, exc.__traceback__)
+    tail = "".join(lines).rstrip().splitlines()[-TRACEBACK_LINES:]
+    return {"type": type(exc).__name__, "message": str(exc), "traceback": "\n".join(tail)}
+
+
+def execute_case(runner: str, case: dict) -> dict:
+    """Run one case in the current process and return its result record (plain data).
+
+    The runner returns a dict with ``status`` (one of the ``STATUS_*``), ``metrics``, and
+    optionally ``error``, ``info`` and ``timing`` (its own split of the wall time [s]); any
+    exception it raises becomes a result with status ``error`` (``solver_failed`` for a
+    :class:`~balance_opt.errors.SolverError`).
+
+    Args:
+        runner: ``"module:function"`` of the case function ``f(case: dict) -> dict``.
+        case: the case, plain data with ``index``, ``case_id``, ``method`` and ``parameters``.
+
+    Returns:
+        ``{index, case_id, method, parameters, status, error, metrics, info, timing}`` where
+        ``timing`` holds the wall time of the case in the worker [s] (``case_s``), the CPU
+        time of the worker process meanwhile [s] (``cpu_s``: less than ``case_s`` when the
+        worker waited for a CPU), the worker's process id and the runner's timing: the only
+        fields that depend on where and when the case ran.
+    """
+    from balance_opt.errors import SolverError
+
+    record = {key: case[key] for key in ("index", "case_id", "method", "parameters")}
+    with _CASE_LOCK:
+        start, cpu_start = time.perf_counter(), time.process_time()
+        try:
+            out = resolve_runner(runner)(case)
+            record.update(
+                status=out.get("status", STATUS_OK),
+                error=out.get("error"),
+                metrics=out.get("metrics", {}),
+                info=out.get("info", {}),
+                runner_timing=out.get("timing", {}),
+            )
+        except SolverError as exc:
+            record.update(status=STATUS_SOLVER_FAILED, error=error_record(exc), metrics={}, info={})
+        except Exception as exc:  # noqa: BLE001 - a failing case is recorded, the sweep goes on
+            record.update(status=STATUS_ERROR, error=error_record(exc), metrics={}, info={})
+        elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    record["timing"] = {
+        "case_s": elapsed,
+        "cpu_s": cpu,
+        "pid": os.getpid(),
+        **record.pop("runner_timing", {}),
+    }
+    return record
+
+
+def _run_batch(runner: str, cases: Sequence[dict]) -> list[dict]:
+    """Several cases in one worker call (fewer round trips for short cases)."""
+    return [execute_case(runner, case) for case in cases]
+
+
+# --------------------------------------------------------------------------- result files
+
+
+def result_path(out_dir: str | Path, case_id: str) -> Path:
+    """Where the result of case ``case_id`` is written."""
+    return Path(out_dir) / CASES_DIR / f"{case_id}.json"
+
+
+def write_json_atomic(path: str | Path, data: Any) -> None:
+    """Write ``data`` as JSON so that ``path`` holds either its old content or the whole new
+    one, never a part: a temporary file in the same folder, flushed, then ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f, indent=1, allow_nan=True)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def read_result(out_dir: str | Path, case_id: str) -> dict | None:
+    """The recorded result of a case, or None if there is none (or it is not a whole record of
+    this case)."""
+    path = result_path(out_dir, case_id)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("case_id") != case_id or "status" not in data:
+        logger.warning("ignoring %s: not a result record of case %s", path, case_id)
+        return None
+    return data
+
+
+# --------------------------------------------------------------------------- engines
+
+
+class InProcessEngine:
+    """Runs the cases one after the other in this process (``--jobs 0``: debugging, profiling)."""
+
+    workers = 1
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
+        for case in cases:
+            yield execute_case(runner, case)
+
+    def describe(self) -> str:
+        return "in-process"
+
+
+@contextlib.contextmanager
+def _single_threaded_children():
+    """Environment inherited by worker processes started inside the block (see
+    ``SINGLE_THREAD_ENV``); variables the user has set are kept."""
+    added = {k: v for k, v in SINGLE_THREAD_ENV.items() if k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for key in added:
+            os.environ.pop(key, None)
+
+
+class LocalPoolEngine:
+    """A pool of ``jobs`` worker processes on this machine (``concurrent.futures``, started with
+    ``spawn``: no state inherited from the parent, the same on Linux, macOS and Windows).
+
+    A worker process that dies (a crash in native code) breaks the pool: the unfinished cases are
+    then run again one at a time, each in a fresh process, and a case whose process dies again
+    is recorded as an error (``WorkerCrashed``).
+
+    Args:
+        jobs: number of worker processes (>= 1).
+        start_method: ``"spawn"`` or ``"forkserver"`` (never ``"fork"``: CasADi and Pinocchio
+            hold state that must not be copied into a child).
+    """
+
+    def __init__(self, jobs: int, start_method: str = "spawn"):
+        if jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {jobs}")
+        if start_method not in ("spawn", "forkserver"):
+            raise ValueError(f"start_method must be 'spawn' or 'forkserver', got '{start_method}'")
+        self.workers = jobs
+        self.start_method = start_method
+        self._pool: ProcessPoolExecutor | None = None
+        self._env = None
+
+    def _new_pool(self, jobs: int) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(
+            max_workers=jobs, mp_context=multiprocessing.get_context(self.start_method)
+        )
+
+    def __enter__(self):
+        self._env = _single_threaded_children()
+        self._env.__enter__()
+        self._pool = self._new_pool(self.workers)
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if self._pool is not None:
+            # on an interruption, drop the cases not started yet and do not wait for workers
+            self._pool.shutdown(wait=exc_type is None, cancel_futures=True)
+            self._pool = None
+        if self._env is not None:
+            self._env.__exit__(exc_type, exc, tb)
+            self._env = None
+        return False
+
+    def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
+        suspects: list[dict] = []
+        futures = {self._pool.submit(execute_case, runner, case): case for case in cases}
+        while futures:
+            done, _ = wait(futures, return_when=FIRST_COMPLETED)
+            for fut in sorted(done, key=lambda f: futures[f]["index"]):
+                case = futures.pop(fut)
+                try:
+                    record = fut.result()
+                except BrokenProcessPool:
+                    suspects.append(case)
+                    continue
+                yield record
+        if suspects:
+            # A worker died and took the pool with it: every case not finished raised. Run
+            # them again one at a time, each in a fresh process, so the culprit is known.
+            logger.warning(
+                "a worker process died; running %d unfinished case(s) one at a time", len(suspects)
+            )
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = self._new_pool(self.workers)
+            for case in sorted(suspects, key=lambda c: c["index"]):
+                with self._new_pool(1) as alone:
+                    try:
+                        yield alone.submit(execute_case, runner, case).result()
+                    except BrokenProcessPool as exc:
+                        yield self._crash_record(case, exc)
+
+    @staticmethod
+    def _crash_record(case: dict, exc: BaseException) -> dict:
+        record = {key: case[key] for key in ("index", "case_id", "method", "parameters")}
+        record.update(
+            status=STATUS_ERROR,
+            metrics={},
+            info={},
+            timing={"case_s": math.nan, "pid": None},
+            error={
+                "type": "WorkerCrashed",
+                "message": f"the worker process running this case died: {exc}",
+                "traceback": "",
+            },
+        )
+        return record
+
+    def describe(self) -> str:
+        return f"local process pool, {self.workers} worker(s) ({self.start_method})"
+
+
+class DaskEngine:
+    """Dask distributed: a running scheduler (``address``), or a local cluster of ``workers``
+    processes on the loopback interface, started here and stopped on exit.
+
+    Workers of a remote cluster need balance-opt installed. Start them with one thread each
+    (``dask worker ADDRESS --nthreads 1``); a lock runs one case at a time per process anyway.
+
+    Args:
+        address: scheduler address (``tcp://host:8786``); None to start a local cluster.
+        workers: number of worker processes of the local cluster.
+        host: interface of the local cluster (loopback by default: nothing is exposed).
+        timeout: longest wait for all the cases [s] (``TimeoutError`` after it); None: no limit.
+    """
+
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int = 2,
+        host: str = "127.0.0.1",
+        timeout: float | None = None,
+    ):
+        self.address = address
+        self.workers = workers
+        self.host = host
+        self.timeout = timeout
+        self._cluster = None
+        self._client = None
+
+    def __enter__(self):
+        from dask.distributed import Client, LocalCluster
+
+        if self.address is None:
+            with _single_threaded_children():
+                self._cluster = LocalCluster(
+                    n_workers=self.workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    host=self.host,
+                    dashboard_address=None,
+                )
+            self._client = Client(self._cluster)
+        else:
+            self._client = Client(self.address)
+            self.workers = max(1, len(self._client.scheduler_info().get("workers", {})))
+        logger.info("Dask scheduler %s, %d worker(s)", self._client.scheduler.address, self.workers)
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+        return False
+
+    def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
+        from dask.distributed import as_completed
+
+        futures = [
+            self._client.submit(
+                execute_case, runner, case, pure=False, key=f"case-{case['case_id']}"
+            )
+            for case in cases
+        ]
+        by_key = {fut.key: case for fut, case in zip(futures, cases)}
+        pending = set(futures)
+        completed = as_completed(
+            futures, with_results=True, raise_errors=False, timeout=self.timeout
+        )
+        del futures
+        try:
+            for fut, value in completed:
+                if fut.status == "finished":
+                    record = value
+                elif fut.status in ("lost", "pending"):  # its worker died: it is computed again
+                    completed.add(fut)
+                    continue
+                else:  # it killed every worker that ran it (KilledWorker), or was cancelled
+                    exc = value[1] if isinstance(value, tuple) and len(value) == 3 else value
+                    record = LocalPoolEngine._crash_record(by_key[fut.key], exc)
+                pending.discard(fut)
+                fut.release()  # the worker may forget it: nothing to recompute if it dies later
+                yield record
+        finally:
+            if pending:
+                self._client.cancel(list(pending))
+
+    def describe(self) -> str:
+        where = self.address or f"local cluster on {self.host}"
+        return f"Dask ({where}), {self.workers} worker(s)"
+
+
+def make_engine(jobs: int = 1, scheduler: str | None = None):
+    """The engine the command line asks for.
+
+    Args:
+        jobs: worker processes (0: run in this process). With ``scheduler="local"``, the number
+            of workers of the local Dask cluster.
+        scheduler: None for the local process pool, ``"local"`` for a Dask cluster started on
+            the loopback interface, or the address of a running Dask scheduler.
+    """
+    if scheduler is None:
+        return InProcessEngine() if jobs == 0 else LocalPoolEngine(jobs)
+    if scheduler == "local":
+        return DaskEngine(None, workers=max(1, jobs))
+    return DaskEngine(scheduler)
+
+
+# --------------------------------------------------------------------------- driver
+
+
+@dataclass
+class SweepRun:
+    """What a call of :func:`run_cases` did.
+
+    Attributes:
+        results: the result record of every case, in case-index order (skipped ones included).
+        ran: ids of the cases run now.
+        skipped: ids of the cases skipped because they had a result already (``resume``).
+        elapsed_s: wall time of the call [s].
+        workers: number of worker processes.
+    """
+
+    results: list[dict]
+    ran: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    elapsed_s: float = 0.0
+    workers: int = 1
+
+    @property
+    def failed(self) -> list[dict]:
+        return [r for r in self.results if r["status"] != STATUS_OK]
+
+
+def run_cases(
+    cases: Sequence[Mapping],
+    runner: str,
+    out_dir: str | Path,
+    engine=None,
+    resume: bool = False,
+    retry_failed: bool = False,
+    on_result: Callable[[dict, int, int], None] | None = None,
+) -> SweepRun:
+    """Run every case, write each result as it comes, and return them all in index order.
+
+    Args:
+        cases: the cases (plain data, each with a unique ``case_id`` and an ``index``).
+        runner: ``"module:function"`` of the case function.
+        out_dir: the sweep's output folder (results go to ``out_dir/cases/``).
+        engine: an engine (default: one worker process); entered and left here.
+        resume: skip the cases that already have a result file.
+        retry_failed: with ``resume``, run again the cases whose recorded status is not ``ok``.
+        on_result: called after each result is written, with the result, the number of cases
+            done so far and the number to run (progress display; may raise to stop the sweep).
+
+    Returns:
+        The results of all cases, those run now and those found on disk.
+    """
+    cases = [dict(case) for case in cases]
+    ids = [case["case_id"] for case in cases]
+    if len(set(ids)) != len(ids):
+        raise ValueError("case ids are not unique")
+    engine = engine if engine is not None else LocalPoolEngine(1)
+    found: dict[str, dict] = {}
+    if resume:
+        for case in cases:
+            record = read_result(out_dir, case["case_id"])
+            if record is not None and (record["status"] == STATUS_OK or not retry_failed):
+                found[case["case_id"]] = record
+    todo = [case for case in cases if case["case_id"] not in found]
+    if found:
+        logger.info("resume: %d case(s) already done, %d to run", len(found), len(todo))
+    (Path(out_dir) / CASES_DIR).mkdir(parents=True, exist_ok=True)
+    run = SweepRun(
+        results=[],
+        skipped=[c["case_id"] for c in cases if c["case_id"] in found],
+        workers=engine.workers,
+    )
+    start = time.perf_counter()
+    if todo:
+        logger.info("running %d case(s) on %s", len(todo), engine.describe())
+        with engine:
+            run.workers = engine.workers
+            for record in engine.imap_unordered(runner, todo):
+                write_json_atomic(result_path(out_dir, record["case_id"]), record)
+                found[record["case_id"]] = record
+                run.ran.append(record["case_id"])
+                if record["status"] != STATUS_OK:
+                    logger.warning(
+                        "case %d (%s) %s: %s",
+                        record["index"],
+                        record["case_id"],
+                        record["status"],
+                        (record.get("error") or {}).get("message"),
+                    )
+                if on_result is not None:
+                    on_result(record, len(run.ran), len(todo))
+    run.elapsed_s = time.perf_counter() - start
+    run.results = sorted(found.values(), key=lambda r: r["index"])
+    return run
+
+
+def iter_results(out_dir: str | Path, case_ids: Iterable[str]) -> Iterator[dict]:
+    """The recorded results of the given cases (those that have one)."""
+    for case_id in case_ids:
+        record = read_result(out_dir, case_id)
+        if record is not None:
+            yield record

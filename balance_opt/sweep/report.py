@@ -1,0 +1,447 @@
+"""The results of a sweep as one table and a few summary plots.
+
+The table has one row per case, in case-index order: the case's index, id and method, its
+parameters (a list parameter spread over one column per item, ``mission.goal[0]``, ...), its
+status and error, every metric of its ``metrics.json`` (nested keys joined by ``.``), and the
+wall time the case took in its worker. It is written as CSV with floats in full precision
+(``repr``), so that two runs of the same sweep compare cell by cell; the columns that depend on
+when and where a case ran are named by :func:`is_timing_column`.
+
+Parquet is not written: it would add pyarrow (about 100 MB) for a table of a few thousand rows
+that any tool reads as CSV.
+
+Plots (PNG): the distribution of the maximum and final attitude drift of each method with the
+analytic and optimal drift of each parameter set against each other, and the drift against each
+varied parameter.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import re
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from balance_opt.sweep.spec import canonical_json, is_number, parameter_columns
+
+logger = logging.getLogger(__name__)
+
+#: Fixed leading columns of the table.
+CASE_COLUMNS = ("index", "case_id", "method", "status")
+#: Prefixes of the parameter, metric and timing columns.
+PARAM_PREFIX, METRIC_PREFIX, TIMING_PREFIX = "param.", "metric.", "time."
+#: Metric names (after the prefix) that hold wall times: they differ from run to run, unlike
+#: everything else in the table (``solver.solve_time_s``, ``details.wall_time_s.build``, ...;
+#: not ``details.max_violation_at.time_s``, a time along the motion).
+_TIMING_METRIC = re.compile(r"(^|[._])(wall_time|solve_time|build_time|elapsed)(_s)?($|[._])")
+#: The metrics plotted: maximum and final base rotation from the start [rad].
+MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
+#: Drift drawn at this floor on log axes when it is zero [rad].
+DRIFT_FLOOR = 1e-12
+#: Colours of the methods in the plots.
+METHOD_COLOURS = {"analytic": "tab:orange", "optimal": "tab:blue"}
+#: Figure width of one panel [in]; legible at the width of a page.
+PANEL_WIDTH = 3.6
+#: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
+LOG_SCALE_RATIO = 30.0
+#: Largest number of distinct values of a list parameter plotted as categories.
+MAX_CATEGORIES = 8
+#: Margin of the parameter axes (a fraction of the range), so that no point sits on a border.
+PARAMETER_MARGIN = 0.08
+#: Margin around the drifts of the optimal-vs-analytic panel (a factor).
+PAIRED_MARGIN = 1.2
+#: Offset between methods at a categorical parameter value (in category widths).
+CATEGORY_SPREAD = 0.2
+#: Characters of a title that fit above a single panel.
+SINGLE_PANEL_TITLE = 45
+
+
+def is_timing_column(name: str) -> bool:
+    """True for columns that depend on when and where a case ran (wall times, process ids)."""
+    if name.startswith(TIMING_PREFIX):
+        return True
+    return name.startswith(METRIC_PREFIX) and bool(
+        _TIMING_METRIC.search(name[len(METRIC_PREFIX) :])
+    )
+
+
+def _flatten(prefix: str, value: Any, out: dict) -> None:
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _flatten(f"{prefix}.{key}" if prefix else str(key), item, out)
+    else:
+        out[prefix] = value
+
+
+def row_from_result(result: dict) -> dict[str, Any]:
+    """One table row (column -> value) from a case's result record."""
+    row: dict[str, Any] = {key: result.get(key) for key in CASE_COLUMNS}
+    for name, value in parameter_columns(result.get("parameters", {})).items():
+        row[PARAM_PREFIX + name] = value
+    metrics: dict = {}
+    _flatten("", result.get("metrics") or {}, metrics)
+    for name, value in metrics.items():
+        row[METRIC_PREFIX + name] = value
+    error = result.get("error") or {}
+    row["error_type"] = error.get("type")
+    row["error_message"] = error.get("message")
+    for name, value in (result.get("timing") or {}).items():
+        row[TIMING_PREFIX + name] = value
+    return row
+
+
+def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
+    """Columns and rows of the aggregated table, rows in case-index order.
+
+    Columns: the case columns, the parameters (first-seen order), the metrics (first-seen
+    order), the error, then the timing columns.
+    """
+    rows = [row_from_result(r) for r in sorted(results, key=lambda r: r["index"])]
+    seen: dict[str, None] = {}
+    for row in rows:
+        seen.update(dict.fromkeys(row))
+    names = list(seen)
+    groups = (
+        list(CASE_COLUMNS),
+        [c for c in names if c.startswith(PARAM_PREFIX)],
+        [c for c in names if c.startswith(METRIC_PREFIX) and not is_timing_column(c)],
+        ["error_type", "error_message"],
+        [c for c in names if c.startswith(METRIC_PREFIX) and is_timing_column(c)],
+        [c for c in names if c.startswith(TIMING_PREFIX)],
+    )
+    columns = [c for group in groups for c in group]
+    return columns, rows
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return json.dumps(value)
+    return str(value)
+
+
+def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dict]) -> Path:
+    """Write the table as CSV (floats as ``repr``: read back exactly; empty cell for missing)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([_cell(row.get(c)) for c in columns])
+    tmp.replace(path)
+    return path
+
+
+def read_table_csv(path: str | Path) -> tuple[list[str], list[dict[str, str]]]:
+    """Columns and rows (as text) of a table written by :func:`write_table_csv`."""
+    with Path(path).open(newline="") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or []), list(reader)
+
+
+def summarize(results: Sequence[dict]) -> dict[str, Any]:
+    """Counts per status and method, and the median drifts of each method's successful cases."""
+    out: dict[str, Any] = {
+        "cases": len(results),
+        "status": dict(sorted(Counter(r["status"] for r in results).items())),
+        "methods": {},
+    }
+    for method in sorted({r["method"] for r in results}):
+        mine = [r for r in results if r["method"] == method]
+        ok = [r for r in mine if r["status"] == "ok"]
+        entry: dict[str, Any] = {"cases": len(mine), "ok": len(ok)}
+        for key in (MAX_DRIFT, FINAL_DRIFT):
+            values = [r["metrics"][key] for r in ok if is_number((r.get("metrics") or {}).get(key))]
+            entry[f"median_{key}"] = float(np.median(values)) if values else None
+            entry[f"worst_{key}"] = float(np.max(values)) if values else None
+        out["methods"][method] = entry
+    return out
+
+
+# ------------------------------------------------------------------------------ plots
+def _figure(n_rows: int, n_cols: int, height: float = 2.8):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(PANEL_WIDTH * n_cols, height * n_rows), layout="constrained")
+    axes = fig.subplots(n_rows, n_cols, squeeze=False)
+    return fig, axes
+
+
+def _drift_axis(ax, which: str, values) -> None:
+    """A logarithmic drift axis (powers of ten labelled) when the drifts span more than
+    :data:`LOG_SCALE_RATIO`, a linear one from zero otherwise (log ticks over a decade or so
+    are unreadable)."""
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    values = np.asarray([v for v in values if v is not None], dtype=float)
+    if values.size and values.min() > 0 and values.max() / values.min() > LOG_SCALE_RATIO:
+        (ax.set_xscale if which == "x" else ax.set_yscale)("log")
+        axis.set_major_locator(LogLocator(base=10.0))
+        axis.set_minor_formatter(NullFormatter())
+        return
+    axis.set_major_formatter(FormatStrFormatter("%.3g"))
+    if which == "x":
+        ax.set_xlim(left=0.0)
+    else:
+        ax.set_ylim(bottom=0.0)
+
+
+def _drift(result: dict, key: str) -> float | None:
+    value = (result.get("metrics") or {}).get(key)
+    return max(float(value), DRIFT_FLOOR) if is_number(value) else None
+
+
+def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path | None:
+    """Cumulative distribution of the maximum and the final drift of each method (log scale),
+    and, for the parameter sets planned by both methods, the optimal drift against the analytic
+    one. Returns the file written, or None when no case has a drift."""
+    ok = [r for r in results if r["status"] == "ok"]
+    methods = sorted({r["method"] for r in ok})
+    if not any(_drift(r, MAX_DRIFT) is not None for r in ok):
+        return None
+    paired = _pairs(ok)
+    fig, axes = _figure(1, 3 if paired else 2)
+    for ax, key, title in zip(axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")):
+        for method in methods:
+            values = np.sort(
+                [d for r in ok if r["method"] == method if (d := _drift(r, key)) is not None]
+            )
+            if values.size:
+                ax.step(
+                    values,
+                    np.arange(1, values.size + 1) / values.size,
+                    where="post",
+                    color=METHOD_COLOURS.get(method),
+                    label=f"{method} ({values.size})",
+                )
+        _drift_axis(ax, "x", [_drift(r, key) for r in ok])
+        ax.set_xlabel(f"{title} of the base attitude [rad]")
+        ax.set_ylabel("fraction of cases")
+        ax.set_ylim(0, 1.02)
+        ax.grid(True, which="major", alpha=0.3)
+        ax.legend(fontsize="small", loc="lower right")
+        ax.set_title(f"distribution of the {title}")
+    if paired:
+        ax = axes[0][2]
+        for key, marker, label in ((MAX_DRIFT, "o", "maximum"), (FINAL_DRIFT, "x", "final")):
+            xy = np.array(
+                [
+                    (a, o)
+                    for a_rec, o_rec in paired
+                    if (a := _drift(a_rec, key)) is not None
+                    and (o := _drift(o_rec, key)) is not None
+                ]
+            )
+            if xy.size:
+                ax.scatter(
+                    xy[:, 0],
+                    xy[:, 1],
+                    marker=marker,
+                    s=18,
+                    label=label,
+                    facecolors="none" if marker == "o" else None,
+                    edgecolors="tab:purple" if marker == "o" else None,
+                    color="tab:green" if marker == "x" else None,
+                )
+        drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
+        drifts = [d for d in drifts if d is not None]
+        _drift_axis(ax, "x", drifts)
+        _drift_axis(ax, "y", drifts)
+        if ax.get_xscale() == "log":
+            lo, hi = min(drifts) / PAIRED_MARGIN, max(drifts) * PAIRED_MARGIN
+        else:
+            lo, hi = 0.0, max(drifts) * PAIRED_MARGIN
+        ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8, ls="--", label="equal")
+        ax.set_xlim(lo, hi)
+        ax.set_ylim(lo, hi)
+        ax.set_xlabel("analytic drift [rad]")
+        ax.set_ylabel("optimal drift [rad]")
+        ax.set_title(f"optimal vs analytic ({len(paired)} sets)")
+        ax.grid(True, which="major", alpha=0.3)
+        ax.legend(fontsize="small")
+    fig.savefig(path, dpi=150)
+    return Path(path)
+
+
+def _pairs(ok: Sequence[dict]) -> list[tuple[dict, dict]]:
+    """(analytic, optimal) results of the same parameter set, in index order."""
+    by_params: dict[str, dict[str, dict]] = {}
+    for r in sorted(ok, key=lambda r: r["index"]):
+        by_params.setdefault(canonical_json(r["parameters"]), {})[r["method"]] = r
+    return [
+        (m["analytic"], m["optimal"])
+        for m in by_params.values()
+        if {"analytic", "optimal"} <= set(m)
+    ]
+
+
+def _axis_values(values: list[Any]) -> tuple[np.ndarray, list[str] | None]:
+    """Numbers to plot a parameter at, and tick labels for a categorical parameter."""
+    if all(is_number(v) for v in values):
+        return np.array(values, dtype=float), None
+    labels = sorted({_category_label(v) for v in values})
+    return np.array([labels.index(_category_label(v)) for v in values], dtype=float), labels
+
+
+def _category_label(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, list) and all(is_number(v) for v in value):
+        return "[" + ", ".join(f"{v:.3g}" for v in value) + "]"
+    return canonical_json(value)
+
+
+def _parameter_views(results: Sequence[dict], name: str) -> dict[str, dict[int, Any]]:
+    """The columns a parameter is plotted against, each as case index -> value: the parameter
+    itself when it is a scalar, or a list or mapping taking few distinct values (then as
+    categories); else one column per item (``mission.goal[0]``, ...)."""
+    values = {r["index"]: r["parameters"][name] for r in results}
+    distinct = {canonical_json(v) for v in values.values()}
+    if all(not isinstance(v, (list, dict)) for v in values.values()) or (
+        len(distinct) <= MAX_CATEGORIES
+    ):
+        return {name: values}
+    views: dict[str, dict[int, Any]] = {}
+    for index, value in values.items():
+        for column, item in parameter_columns({name: value}).items():
+            views.setdefault(column, {})[index] = item
+    order = sorted(
+        views, key=lambda c: [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", c)]
+    )
+    return {c: views[c] for c in order}
+
+
+def plot_drift_against_parameter(
+    results: Sequence[dict], name: str, path: str | Path
+) -> Path | None:
+    """Maximum (top) and final (bottom) drift against the varied parameter ``name``, one colour
+    per method, failed cases left out. A list parameter with many distinct values gets one
+    panel column per item; with few (at most :data:`MAX_CATEGORIES`), one panel of categories.
+    Returns the file written, or None when no successful case has the parameter."""
+    ok = [r for r in results if r["status"] == "ok" and name in r["parameters"]]
+    if not ok:
+        return None
+    views = _parameter_views(ok, name)
+    failed = sum(1 for r in results if r["status"] != "ok" and name in r["parameters"])
+    methods = sorted({r["method"] for r in ok})
+    fig, axes = _figure(2, len(views))
+    for j, (column, values) in enumerate(views.items()):
+        indices = sorted(values)
+        x_all, labels = _axis_values([values[i] for i in indices])
+        x_of = dict(zip(indices, x_all))
+        for i, (key, what) in enumerate(((MAX_DRIFT, "maximum"), (FINAL_DRIFT, "final"))):
+            ax = axes[i][j]
+            for k, method in enumerate(methods):
+                points = [
+                    (x_of[r["index"]], _drift(r, key))
+                    for r in ok
+                    if r["method"] == method and r["index"] in x_of
+                ]
+                points = [(x, d) for x, d in points if d is not None]
+                if not points:
+                    continue
+                x = np.array([p[0] for p in points])
+                if labels is not None:  # categories: methods side by side around each tick
+                    x = x + CATEGORY_SPREAD * (k - (len(methods) - 1) / 2)
+                ax.scatter(
+                    x,
+                    [p[1] for p in points],
+                    s=14,
+                    alpha=0.75,
+                    color=METHOD_COLOURS.get(method),
+                    label=method,
+                )
+            if labels is not None:
+                ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize="small", ha="right")
+                ax.set_xlim(-0.5, len(labels) - 0.5)
+            elif all(isinstance(values[i], int) for i in indices):
+                from matplotlib.ticker import MaxNLocator
+
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+                ax.margins(x=PARAMETER_MARGIN)
+            else:
+                ax.margins(x=PARAMETER_MARGIN)
+            _drift_axis(ax, "y", [_drift(r, key) for r in ok])
+            ax.grid(True, which="major", alpha=0.3)
+            ax.set_xlabel(column)
+            if j == 0:
+                ax.set_ylabel(f"{what} drift [rad]")
+            if i == 0 and j == 0:
+                ax.legend(fontsize="small")
+    note = f" ({failed} failed case(s) not shown)" if failed else ""
+    title = f"attitude drift against {name}{note}"
+    if len(views) == 1 and len(title) > SINGLE_PANEL_TITLE:
+        title = title.replace(" (", "\n(")
+    fig.suptitle(title, fontsize="medium")
+    fig.savefig(path, dpi=150)
+    return Path(path)
+
+
+def plot_file_name(name: str) -> str:
+    """File name of the drift-against-parameter plot of key path ``name``."""
+    return "drift_vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") + ".png"
+
+
+def write_report(
+    out_dir: str | Path,
+    results: Sequence[dict],
+    varied: Sequence[str],
+    plots: bool = True,
+    extra_summary: dict | None = None,
+) -> dict[str, Path]:
+    """Write the table (``results.csv``), ``summary.json`` and the plots (``plots/``).
+
+    Args:
+        out_dir: the sweep's output folder.
+        results: every case's result record.
+        varied: the varied key paths (one plot each).
+        plots: draw the plots.
+        extra_summary: more entries for ``summary.json`` (the sweep's name, timing, ...).
+
+    Returns:
+        Name -> path of every file written.
+    """
+    out_dir = Path(out_dir)
+    written: dict[str, Path] = {}
+    columns, rows = results_table(results)
+    written["table"] = write_table_csv(out_dir / "results.csv", columns, rows)
+    summary = {**(extra_summary or {}), **summarize(results)}
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
+    written["summary"] = out_dir / "summary.json"
+    if plots:
+        plot_dir = out_dir / "plots"
+        plot_dir.mkdir(exist_ok=True)
+        p = plot_drift_distribution(results, plot_dir / "drift_distribution.png")
+        if p is not None:
+            written["drift_distribution"] = p
+        for name in varied:
+            p = plot_drift_against_parameter(results, name, plot_dir / plot_file_name(name))
+            if p is not None:
+                written[f"drift_vs:{name}"] = p
+    return written
+
+
+__all__ = [
+    "is_timing_column",
+    "plot_drift_against_parameter",
+    "plot_drift_distribution",
+    "read_table_csv",
+    "results_table",
+    "row_from_result",
+    "summarize",
+    "write_report",
+    "write_table_csv",
+]
