@@ -6,8 +6,8 @@ motions), ``attitude`` (SO(3)), ``result`` (the plan type every method returns).
 """
 
 from balance_opt.errors import BalanceOptError, InputError, SolverError
-from balance_opt.model.robot import Arm, FloatingRobot, JointLimits
 from balance_opt.model.library import baxter_floating, paper_robot
+from balance_opt.model.robot import Arm, FloatingRobot, JointLimits
 
 __version__ = "0.1.0"
 

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.motion.so3 import rotation_angle, rpy_from_quaternion
 from balance_opt.model.robot import JointLimits
+from balance_opt.motion.so3 import rotation_angle, rpy_from_quaternion
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
@@ -36,12 +36,15 @@ class LimitViolation:
 
     def __str__(self) -> str:
         unit = {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2"}[self.kind]
-        return (f"{self.joint}: {self.kind} limit exceeded by up to {self.worst_excess:.4g} {unit} "
-                f"from t = {self.t_start:.3f} s to {self.t_end:.3f} s")
+        return (
+            f"{self.joint}: {self.kind} limit exceeded by up to {self.worst_excess:.4g} {unit} "
+            f"from t = {self.t_start:.3f} s to {self.t_end:.3f} s"
+        )
 
 
-def find_limit_violations(t, names, q, q_dot, q_ddot, limits: JointLimits,
-                          tolerance: float = LIMIT_TOLERANCE) -> list[LimitViolation]:
+def find_limit_violations(
+    t, names, q, q_dot, q_ddot, limits: JointLimits, tolerance: float = LIMIT_TOLERANCE
+) -> list[LimitViolation]:
     """Every stretch of samples where a joint leaves its position, velocity or acceleration limits.
 
     Args:
@@ -67,8 +70,15 @@ def find_limit_violations(t, names, q, q_dot, q_ddot, limits: JointLimits,
             # contiguous runs of samples outside the limit
             edges = np.diff(np.r_[0, outside.astype(int), 0])
             for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
-                found.append(LimitViolation(name, kind, float(t[start]), float(t[stop - 1]),
-                                            float(excess[start:stop, j].max())))
+                found.append(
+                    LimitViolation(
+                        name,
+                        kind,
+                        float(t[start]),
+                        float(t[stop - 1]),
+                        float(excess[start:stop, j].max()),
+                    )
+                )
     return found
 
 
@@ -116,8 +126,20 @@ class BalanceResult:
     info: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
-    def from_arm_vectors(cls, robot, method: str, t, q, q_dot, q_ddot, quaternion, omega,
-                         momentum_residual, sigma_min, info=None) -> "BalanceResult":
+    def from_arm_vectors(
+        cls,
+        robot,
+        method: str,
+        t,
+        q,
+        q_dot,
+        q_ddot,
+        quaternion,
+        omega,
+        momentum_residual,
+        sigma_min,
+        info=None,
+    ) -> "BalanceResult":
         """A result from whole arm-vector arrays (T, n) of ``robot``: split into the mission and
         balance columns, with every limit violation found on the samples."""
         M, B = robot.mission_indices, robot.balance_indices
@@ -175,7 +197,9 @@ class BalanceResult:
             "max_drift_rad": self.max_drift,
             "final_drift_rad": self.final_drift,
             "max_base_rate_rad_s": float(np.linalg.norm(self.omega, axis=1).max()),
-            "peak_balance_rate_rad_s": float(np.abs(self.q_dot_B).max()) if self.q_dot_B.size else 0.0,
+            "peak_balance_rate_rad_s": float(np.abs(self.q_dot_B).max())
+            if self.q_dot_B.size
+            else 0.0,
             "max_momentum_residual": float(np.max(self.momentum_residual)),
             "min_sigma_min": float(np.min(self.sigma_min)),
             "limit_violations": len(self.violations),

@@ -19,8 +19,8 @@ import casadi as cs
 import numpy as np
 import pinocchio as pin
 
-from balance_opt.model.maps import NumericMaps
 from balance_opt.model.library import baxter_floating, paper_robot
+from balance_opt.model.maps import NumericMaps
 from balance_opt.model.symbolic import SymbolicMaps
 
 N_MAP = 1000
@@ -43,15 +43,22 @@ def bench_robot(robot, repeat: int, rng: np.random.Generator) -> dict[str, float
     data = robot.model.createData()
     # the mapped functions must give the single-call results
     J_wM, J_wB = serial(Q_dm)
-    np.testing.assert_allclose(np.array(J_wB)[:, : len(robot.balance_indices)], numeric.angular_jacobians(q)[1],
-                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.array(J_wB)[:, : len(robot.balance_indices)],
+        numeric.angular_jacobians(q)[1],
+        rtol=0,
+        atol=1e-9,
+    )
     return {
         "casadi single call": _best_us(lambda: fun(q), 2000, repeat),
         f"casadi map({N_MAP}) serial, per q": _best_us(lambda: serial(Q_dm), 5, repeat, N_MAP),
         f"casadi map({N_MAP}) 2 threads, per q": _best_us(lambda: threads(Q_dm), 5, repeat, N_MAP),
-        "NumericMaps.angular_jacobians": _best_us(lambda: numeric.angular_jacobians(q), 2000, repeat),
+        "NumericMaps.angular_jacobians": _best_us(
+            lambda: numeric.angular_jacobians(q), 2000, repeat
+        ),
         "pin.computeCentroidalMap alone": _best_us(
-            lambda: pin.computeCentroidalMap(robot.model, data, q_pin), 2000, repeat),
+            lambda: pin.computeCentroidalMap(robot.model, data, q_pin), 2000, repeat
+        ),
     }
 
 
@@ -70,9 +77,13 @@ def main(argv=None) -> None:
     for row in rows:
         print(f"{row:<{width}}" + "".join(f"{results[n][row]:>16.2f}" for n in results))
     ratio = "NumericMaps / computeCentroidalMap"
-    print(f"{ratio:<{width}}" + "".join(
-        f"{results[n]['NumericMaps.angular_jacobians'] / results[n]['pin.computeCentroidalMap alone']:>15.2f}x"
-        for n in results))
+    print(
+        f"{ratio:<{width}}"
+        + "".join(
+            f"{results[n]['NumericMaps.angular_jacobians'] / results[n]['pin.computeCentroidalMap alone']:>15.2f}x"
+            for n in results
+        )
+    )
 
 
 if __name__ == "__main__":

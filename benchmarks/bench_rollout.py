@@ -25,8 +25,9 @@ import time
 import numpy as np
 
 from balance_opt.analytic.law import BalanceLaw
-from balance_opt.motion.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
 from balance_opt.app.scenarios import paper_capture
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.rollout import SampledTrajectory, replay, rollout
 from balance_opt.motion.trajectories import PointToPoint
 
 #: Speed target of the issue for a 10 s mission at 1 kHz [s].

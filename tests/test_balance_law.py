@@ -19,6 +19,19 @@ import pinocchio as pin
 import pytest
 from scipy.integrate import solve_ivp
 
+from balance_opt.analytic.law import BalanceLaw, acceleration_law, velocity_law
+from balance_opt.analytic.options import (
+    DEFAULT_DAMPING_THRESHOLD,
+    DEFAULT_MAX_DAMPING,
+    BalanceLawOptions,
+)
+from balance_opt.analytic.phases import balance_only, both, paper_phases, phase_one
+from balance_opt.app.scenarios import paper_capture
+from balance_opt.errors import InputError, SolverError, TrajectoryError
+from balance_opt.model.library import paper_robot
+from balance_opt.model.maps import NumericMaps
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.rollout import SampledTrajectory, replay, rollout
 from balance_opt.motion.so3 import (
     matrix_from_quaternion,
     quaternion_conjugate,
@@ -27,20 +40,6 @@ from balance_opt.motion.so3 import (
     rotation_angle,
     rotvec_from_quaternion,
 )
-from balance_opt.analytic.law import (
-    DEFAULT_DAMPING_THRESHOLD,
-    DEFAULT_MAX_DAMPING,
-    BalanceLaw,
-    BalanceLawOptions,
-    acceleration_law,
-    velocity_law,
-)
-from balance_opt.errors import InputError, SolverError, TrajectoryError
-from balance_opt.model.maps import NumericMaps
-from balance_opt.analytic.phases import balance_only, both, paper_phases, phase_one
-from balance_opt.model.library import paper_robot
-from balance_opt.motion.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
-from balance_opt.app.scenarios import paper_capture
 from balance_opt.motion.trajectories import PointToPoint
 
 NONSINGULAR_START = np.array([0.87, -1.3, 0.16, 1.73, -1.22, -2.11])

@@ -59,7 +59,9 @@ def _direct_A(robot, q, base=None):
     columns [base; arm joints in arm order]."""
     model = robot.model
     qp = _pin_configuration(model, robot.joint_names, q, base)
-    return pin.computeCentroidalMap(model, model.createData(), qp)[:, _columns(model, robot.joint_names)]
+    return pin.computeCentroidalMap(model, model.createData(), qp)[
+        :, _columns(model, robot.joint_names)
+    ]
 
 
 def _base_jacobian_from(A):
@@ -68,6 +70,7 @@ def _base_jacobian_from(A):
 
 def _richardson(f, q, q_dot, h=FD_STEP):
     """d/dt f(q + t q_dot) at t = 0: central differences with one Richardson extrapolation."""
+
     def central(step):
         return (f(q + step * q_dot) - f(q - step * q_dot)) / (2 * step)
 
@@ -130,8 +133,16 @@ def _numeric_reference(robot):
             N = ref[f"N_{arm.name}"][k]
             extra[f"F_B_svd_{arm.name}"].append(_pinv_transpose_svd(N, min(arm.dof, 6)) @ F_e)
     ref.update({key: np.array(value) for key, value in extra.items()})
-    return SimpleNamespace(robot=robot, numeric=numeric, Q=Q, QD=QD, F_E=F_E, mission=robot.mission_indices,
-                           balance=robot.balance_indices, **ref)
+    return SimpleNamespace(
+        robot=robot,
+        numeric=numeric,
+        Q=Q,
+        QD=QD,
+        F_E=F_E,
+        mission=robot.mission_indices,
+        balance=robot.balance_indices,
+        **ref,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -215,7 +226,9 @@ def test_ee_generalized_jacobian_moves_the_end_effector(reference_of, name):
     data = model.createData()
     for arm in ref.robot.arms:
         frame = model.getFrameId(arm.ee_frame)
-        for q, q_dot, J_base, J_star in zip(ref.Q, ref.QD, ref.J_base, getattr(ref, f"J_star_{arm.name}")):
+        for q, q_dot, J_base, J_star in zip(
+            ref.Q, ref.QD, ref.J_base, getattr(ref, f"J_star_{arm.name}")
+        ):
             q0, v = ref.robot.pin_q(q), ref.robot.pin_v(q_dot, J_base @ q_dot)
 
             def pose(t):
@@ -276,7 +289,9 @@ def test_centroidal_momentum_matrix(case):
 def test_base_jacobian(case):
     _close(case.J_base, case.ref.J_base)
     A = case.ref.A_direct
-    residual = np.einsum("kij,kj->ki", A[:, :, :6], np.einsum("kij,kj->ki", case.J_base, case.ref.QD))
+    residual = np.einsum(
+        "kij,kj->ki", A[:, :, :6], np.einsum("kij,kj->ki", case.J_base, case.ref.QD)
+    )
     _close(residual + np.einsum("kij,kj->ki", A[:, :, 6:], case.ref.QD), 0)  # momentum conservation
 
 
@@ -293,8 +308,9 @@ def test_angular_jacobian_rates(case):
     _close(case.dJ_wM, ref.dJ_w_fd[:, :, ref.mission])
     _close(case.dJ_wB, ref.dJ_w_fd[:, :, ref.balance])
     # the combination Eq. 32 uses, against Pinocchio's dAg
-    rate = (np.einsum("kij,kj->ki", case.dJ_wM, ref.QD[:, ref.mission])
-            + np.einsum("kij,kj->ki", case.dJ_wB, ref.QD[:, ref.balance]))
+    rate = np.einsum("kij,kj->ki", case.dJ_wM, ref.QD[:, ref.mission]) + np.einsum(
+        "kij,kj->ki", case.dJ_wB, ref.QD[:, ref.balance]
+    )
     _close(rate, ref.dJ_w_q_dot)
 
 
@@ -304,8 +320,12 @@ def test_ee_generalized_jacobian_and_coupling_factors(case):
         _close(J_star, getattr(case.ref, f"J_star_{arm.name}"), err_msg=arm.name)
         _close(getattr(case, f"M_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name)
         _close(getattr(case, f"M_{arm.name}"), J_star[:, :, arm.indices], err_msg=arm.name)
-        _close(getattr(case, f"M_cf_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name)
-        _close(getattr(case, f"N_{arm.name}"), getattr(case.ref, f"N_svd_{arm.name}"), err_msg=arm.name)
+        _close(
+            getattr(case, f"M_cf_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name
+        )
+        _close(
+            getattr(case, f"N_{arm.name}"), getattr(case.ref, f"N_svd_{arm.name}"), err_msg=arm.name
+        )
 
 
 def test_force_map(case):
@@ -324,9 +344,15 @@ def test_coupling_measures(case):
         _close(sym.sigma_min, s_B[2])  # the third: the one that controls the base's 3 rotations
         _close(sym.mission_norm, np.linalg.svd(J_wM, compute_uv=False)[0])
         _close(sym.balance_singular_values, ref.balance_singular_values)
-        np.testing.assert_allclose(sym.balance_condition, ref.balance_condition, rtol=CONDITION_RTOL, atol=0)
-        np.testing.assert_allclose(sym.balance_condition, ref.balance_singular_values[0] / ref.sigma_min,
-                                   rtol=CONDITION_RTOL, atol=0)
+        np.testing.assert_allclose(
+            sym.balance_condition, ref.balance_condition, rtol=CONDITION_RTOL, atol=0
+        )
+        np.testing.assert_allclose(
+            sym.balance_condition,
+            ref.balance_singular_values[0] / ref.sigma_min,
+            rtol=CONDITION_RTOL,
+            atol=0,
+        )
         _close(sym.sigma_min, ref.sigma_min)
         _close(sym.mission_norm, ref.mission_norm)
         assert sym.per_arm.keys() == {a.name for a in robot.balance_arms}
@@ -341,8 +367,16 @@ def test_functions_are_named_with_named_inputs_and_outputs(case):
         maps.centroidal_momentum_matrix_fun(): ("centroidal_momentum_matrix", ["q"], ["A_G"]),
         maps.base_jacobian_fun(): ("base_jacobian", ["q"], ["J_base"]),
         maps.angular_jacobians_fun(): ("angular_jacobians", ["q"], ["J_wM", "J_wB"]),
-        maps.angular_jacobian_rates_fun(): ("angular_jacobian_rates", ["q", "q_dot"], ["dJ_wM", "dJ_wB"]),
-        maps.ee_generalized_jacobian_fun("balance"): ("ee_generalized_jacobian_balance", ["q"], ["J_star", "M"]),
+        maps.angular_jacobian_rates_fun(): (
+            "angular_jacobian_rates",
+            ["q", "q_dot"],
+            ["dJ_wM", "dJ_wB"],
+        ),
+        maps.ee_generalized_jacobian_fun("balance"): (
+            "ee_generalized_jacobian_balance",
+            ["q"],
+            ["J_star", "M"],
+        ),
         maps.coupling_factors_fun("mission"): ("coupling_factors_mission", ["q"], ["M", "N"]),
         maps.force_map_fun("mission"): ("force_map_mission", ["q", "F_e"], ["F_B"]),
     }
@@ -356,25 +390,46 @@ def test_backend_selection(paper):
     found = available_backends()
     assert found and set(found) <= set(BACKENDS)
     assert SymbolicMaps(paper).backend == found[0]
-    with pytest.raises(BalanceOptError, match=r"unknown backend 'casadi'; expected auto, pinocchio, adam"):
+    with pytest.raises(
+        BalanceOptError, match=r"unknown backend 'casadi'; expected auto, pinocchio, adam"
+    ):
         SymbolicMaps(paper, backend="casadi")
     if "pinocchio" not in found:
-        with pytest.raises(BalanceOptError, match=r"backend 'pinocchio' cannot be imported here "
-                                                  r"\(PyPI's pin wheels lack pinocchio.casadi\)"):
+        with pytest.raises(
+            BalanceOptError,
+            match=r"backend 'pinocchio' cannot be imported here "
+            r"\(PyPI's pin wheels lack pinocchio.casadi\)",
+        ):
             SymbolicMaps(paper, backend="pinocchio")
 
 
 @pytest.mark.skipif("adam" not in available_backends(), reason="adam-robotics not installed")
 def test_adam_backend_names_a_prismatic_arm_joint():
-    link = ('<link name="{}"><inertial><mass value="1"/>'
-            '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>')
-    joint = ('<joint name="{}" type="{}"><parent link="base"/><child link="{}"/><axis xyz="1 0 0"/>'
-             '<limit lower="-1" upper="1" velocity="1" effort="1"/></joint>')
-    urdf = "".join(['<robot name="slider">', link.format("base"), link.format("a"), link.format("b"),
-                    joint.format("turn", "revolute", "a"), joint.format("slide", "prismatic", "b"), "</robot>"])
+    link = (
+        '<link name="{}"><inertial><mass value="1"/>'
+        '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>'
+    )
+    joint = (
+        '<joint name="{}" type="{}"><parent link="base"/><child link="{}"/><axis xyz="1 0 0"/>'
+        '<limit lower="-1" upper="1" velocity="1" effort="1"/></joint>'
+    )
+    urdf = "".join(
+        [
+            '<robot name="slider">',
+            link.format("base"),
+            link.format("a"),
+            link.format("b"),
+            joint.format("turn", "revolute", "a"),
+            joint.format("slide", "prismatic", "b"),
+            "</robot>",
+        ]
+    )
     robot = FloatingRobot(urdf, ["turn"], ["slide"])
-    with pytest.raises(JointError, match=r"joint 'slide' in <URDF string>: is prismatic, which the 'adam' "
-                                         r"backend cannot handle"):
+    with pytest.raises(
+        JointError,
+        match=r"joint 'slide' in <URDF string>: is prismatic, which the 'adam' "
+        r"backend cannot handle",
+    ):
         SymbolicMaps(robot, backend="adam")
 
 
@@ -397,8 +452,12 @@ def test_pinocchio_backend_glue_with_a_numeric_stand_in(paper, baxter, monkeypat
 
     fake = types.ModuleType("pinocchio.casadi")
     fake.Model = lambda model: model.copy()
-    fake.computeCentroidalMap = lambda model, data, q: pin.computeCentroidalMap(model, data, vector(q))
-    fake.computeJointJacobians = lambda model, data, q: pin.computeJointJacobians(model, data, vector(q))
+    fake.computeCentroidalMap = lambda model, data, q: pin.computeCentroidalMap(
+        model, data, vector(q)
+    )
+    fake.computeJointJacobians = lambda model, data, q: pin.computeJointJacobians(
+        model, data, vector(q)
+    )
     fake.updateFramePlacements = pin.updateFramePlacements
     fake.getFrameJacobian = pin.getFrameJacobian
     monkeypatch.setitem(sys.modules, "pinocchio.casadi", fake)

@@ -82,7 +82,10 @@ def test_link_mass_and_inertia_match_table_1(paper, arm, k):
     central = inertia.inertia
     about_joint = _inertia_about_origin(inertia)
     np.testing.assert_allclose(central - np.diag(np.diag(central)), 0, rtol=0, atol=EXACT_ATOL)
-    read = [about_joint[i, i] if about == "joint" else central[i, i] for i, about in enumerate(READING[k])]
+    read = [
+        about_joint[i, i] if about == "joint" else central[i, i]
+        for i, about in enumerate(READING[k])
+    ]
     np.testing.assert_allclose(read, table, rtol=0, atol=ROUNDING_ATOL)
 
 
@@ -94,12 +97,16 @@ def test_central_inertias_are_the_cylinder_of_table_1(paper, k):
     m = TABLE_1[k][0]
     transverse = m * (3 * RADIUS**2 + LENGTH**2) / 12
     axial = m * RADIUS**2 / 2
-    expected = (transverse, transverse, TABLE_1[1][1][2]) if k == 1 else (axial, transverse, transverse)
+    expected = (
+        (transverse, transverse, TABLE_1[1][1][2]) if k == 1 else (axial, transverse, transverse)
+    )
     np.testing.assert_allclose(np.diag(inertia.inertia), expected, rtol=0, atol=ROUNDING_ATOL)
     # and about the proximal joint, the cylinder's m(r^2/4 + L^2/3)
     about_joint = np.diag(_inertia_about_origin(inertia))
     proximal = m * (RADIUS**2 / 4 + LENGTH**2 / 3)
-    np.testing.assert_allclose(about_joint[[0, 1] if k == 1 else [1, 2]], proximal, rtol=0, atol=ROUNDING_ATOL)
+    np.testing.assert_allclose(
+        about_joint[[0, 1] if k == 1 else [1, 2]], proximal, rtol=0, atol=ROUNDING_ATOL
+    )
 
 
 def test_base_mass_and_inertia(paper):
@@ -173,7 +180,9 @@ def _kinematics(robot, q):
 
 def test_mount_points_axes_and_end_effectors_at_home(paper):
     for arm, (origins, axes, ee, _) in _kinematics(paper, np.zeros(paper.n)).items():
-        np.testing.assert_allclose(origins, HOME[arm]["origins"], rtol=0, atol=EXACT_ATOL, err_msg=arm)
+        np.testing.assert_allclose(
+            origins, HOME[arm]["origins"], rtol=0, atol=EXACT_ATOL, err_msg=arm
+        )
         np.testing.assert_allclose(axes, HOME[arm]["axes"], rtol=0, atol=EXACT_ATOL, err_msg=arm)
         np.testing.assert_allclose(ee, HOME[arm]["ee"], rtol=0, atol=EXACT_ATOL, err_msg=arm)
         assert paper.arm(arm).ee_frame == f"{arm}_ee"
@@ -185,8 +194,13 @@ def test_link_lengths_and_yaw_pitch_pitch_axes_at_random_configurations(paper):
         q = rng.uniform(paper.limits.lower, paper.limits.upper)
         for arm, (origins, axes, ee, data) in _kinematics(paper, q).items():
             points = np.vstack([origins, ee])
-            np.testing.assert_allclose(np.linalg.norm(np.diff(points, axis=0), axis=1), LENGTH,
-                                       rtol=0, atol=EXACT_ATOL, err_msg=arm)
+            np.testing.assert_allclose(
+                np.linalg.norm(np.diff(points, axis=0), axis=1),
+                LENGTH,
+                rtol=0,
+                atol=EXACT_ATOL,
+                err_msg=arm,
+            )
             # the yaw axis stays the base's +z; the pitch axes are horizontal and parallel
             np.testing.assert_allclose(axes[0], (0, 0, 1), rtol=0, atol=EXACT_ATOL)
             assert axes[0] @ axes[1] == pytest.approx(0, abs=EXACT_ATOL)
@@ -198,7 +212,9 @@ def test_link_lengths_and_yaw_pitch_pitch_axes_at_random_configurations(paper):
             for k in (1, 2, 3):
                 jid = _joint_id(paper.model, arm, k)
                 com = data.oMi[jid].act(paper.model.inertias[jid].lever)
-                np.testing.assert_allclose(com, (points[k - 1] + points[k]) / 2, rtol=0, atol=EXACT_ATOL)
+                np.testing.assert_allclose(
+                    com, (points[k - 1] + points[k]) / 2, rtol=0, atol=EXACT_ATOL
+                )
 
 
 LIMITS = {1: (2.9671, 1.0, 20.0), 2: (1.5708, 1.0, 20.0), 3: (2.5, 1.0, 20.0)}

@@ -30,38 +30,34 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from balance_opt.analytic.law import analytic_plan
+from balance_opt.analytic.options import BalanceLawOptions
+from balance_opt.analytic.phases import phase_one
+from balance_opt.app.scenarios import PAPER_MISSION_GOAL, PAPER_MISSION_START, paper_capture
+from balance_opt.errors import InfeasibleLimitsError, InputError
+from balance_opt.model.library import paper_robot
+from balance_opt.model.maps import NumericMaps
 from balance_opt.motion.so3 import (
     inverse_right_jacobian,
     matrix_from_quaternion,
     quaternion_from_rotvec,
 )
-from balance_opt.analytic.law import BalanceLawOptions, analytic_plan
+from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal.collocation import (
     CollocatedTrajectory,
     Transcription,
     bernstein_basis,
     joint_chain_coefficients,
 )
-from balance_opt.errors import InfeasibleLimitsError, InputError
-from balance_opt.model.maps import NumericMaps
 from balance_opt.optimal.model import (
     ATTITUDE_SERIES_ANGLE,
     PlannerModel,
     compile_functions,
     inverse_right_jacobian_sym,
 )
-from balance_opt.analytic.phases import phase_one
-from balance_opt.optimal.planner import (
-    CostWeights,
-    PlannerOptions,
-    PlannerSolverError,
-    build_balance_nlp,
-    plan_optimal,
-)
+from balance_opt.optimal.options import CostWeights, PlannerOptions
+from balance_opt.optimal.planner import PlannerSolverError, build_balance_nlp, plan_optimal
 from balance_opt.result import BalanceResult
-from balance_opt.model.library import paper_robot
-from balance_opt.app.scenarios import PAPER_MISSION_GOAL, PAPER_MISSION_START, paper_capture
-from balance_opt.motion.trajectories import PointToPoint
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
 MODEL_TOLERANCE = 1e-9

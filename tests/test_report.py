@@ -12,7 +12,6 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.io.animation import ANIMATION_FPS, animation_data, animation_html, skeleton
-from balance_opt.motion.so3 import quaternion_from_rotvec
 from balance_opt.io.outputs import (
     ipopt_version,
     limit_margins,
@@ -22,6 +21,7 @@ from balance_opt.io.outputs import (
     write_trajectory_npz,
 )
 from balance_opt.io.report import comparison_table
+from balance_opt.motion.so3 import quaternion_from_rotvec
 from balance_opt.result import BalanceResult
 
 ATOL = 1e-9

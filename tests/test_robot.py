@@ -7,10 +7,10 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.errors import ArmError, JointError, URDFLoadError
+from balance_opt.model.library import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, baxter_floating
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.resources import shipped_urdf
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.model.library import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, baxter_floating
 from balance_opt.model.symbolic import SymbolicMaps
 
 ATOL = 1e-9
@@ -37,28 +37,77 @@ def _joint(name, jtype, parent, child, xyz, rpy="0 0 0", axis="0 0 1", limit="")
 #: A small robot with every joint type the model handles: a continuous joint (Pinocchio stores
 #: it as (cos, sin)), a prismatic arm joint, unaligned axes, and two joints to lock (a revolute
 #: one with an unnormalised axis, and a prismatic one).
-TOY_URDF = "".join([
-    '<?xml version="1.0"?>\n<robot name="toy">',
-    _link("base", 50.0, "0.01 -0.02 0.03", (4.0, 5.0, 6.0)),
-    _link("l1", 2.0, "0 0 0.2", (0.05, 0.05, 0.01)),
-    _link("l2", 1.5, "0.25 0 0", (0.004, 0.04, 0.04)),
-    '<link name="l_tool"/>',
-    _link("r1", 2.5, "0 0.1 0.15", (0.06, 0.05, 0.02)),
-    _link("r2", 1.0, "0.1 0 0", (0.003, 0.01, 0.01)),
-    _link("sensor", 3.0, "0.1 0.1 0.1", (0.02, 0.03, 0.04)),
-    _link("payload", 4.0, "0 0 -0.05", (0.05, 0.05, 0.05)),
-    _joint("l1_yaw", "revolute", "base", "l1", "0.3 0.2 0.1", limit=_LIMIT.format(lo=0.2, hi=1.5, v=2, e=10)),
-    _joint("l2_spin", "continuous", "l1", "l2", "0 0 0.4", rpy="0.1 0.2 0.3", axis="0 1 0",
-           limit='<limit velocity="3" effort="5"/>'),
-    _joint("l_tool_fixed", "fixed", "l2", "l_tool", "0.5 0 0"),
-    _joint("r1_roll", "revolute", "base", "r1", "-0.3 0.1 0.1", rpy="0 0 2.0", axis="1 0 0",
-           limit=_LIMIT.format(lo=-2, hi=2, v=1.5, e=10)),
-    _joint("r2_slide", "prismatic", "r1", "r2", "0 0 0.3", axis="1 0 0", limit=_LIMIT.format(lo=-0.1, hi=0.2, v=0.5, e=50)),
-    _joint("tilt", "revolute", "base", "sensor", "0 0 0.5", rpy="0.3 0 0", axis="0 2 2",
-           limit=_LIMIT.format(lo=-1, hi=1, v=1, e=1)),
-    _joint("slider", "prismatic", "base", "payload", "0.1 -0.4 0", axis="1 1 0", limit=_LIMIT.format(lo=0, hi=0.3, v=1, e=1)),
-    "</robot>",
-])
+TOY_URDF = "".join(
+    [
+        '<?xml version="1.0"?>\n<robot name="toy">',
+        _link("base", 50.0, "0.01 -0.02 0.03", (4.0, 5.0, 6.0)),
+        _link("l1", 2.0, "0 0 0.2", (0.05, 0.05, 0.01)),
+        _link("l2", 1.5, "0.25 0 0", (0.004, 0.04, 0.04)),
+        '<link name="l_tool"/>',
+        _link("r1", 2.5, "0 0.1 0.15", (0.06, 0.05, 0.02)),
+        _link("r2", 1.0, "0.1 0 0", (0.003, 0.01, 0.01)),
+        _link("sensor", 3.0, "0.1 0.1 0.1", (0.02, 0.03, 0.04)),
+        _link("payload", 4.0, "0 0 -0.05", (0.05, 0.05, 0.05)),
+        _joint(
+            "l1_yaw",
+            "revolute",
+            "base",
+            "l1",
+            "0.3 0.2 0.1",
+            limit=_LIMIT.format(lo=0.2, hi=1.5, v=2, e=10),
+        ),
+        _joint(
+            "l2_spin",
+            "continuous",
+            "l1",
+            "l2",
+            "0 0 0.4",
+            rpy="0.1 0.2 0.3",
+            axis="0 1 0",
+            limit='<limit velocity="3" effort="5"/>',
+        ),
+        _joint("l_tool_fixed", "fixed", "l2", "l_tool", "0.5 0 0"),
+        _joint(
+            "r1_roll",
+            "revolute",
+            "base",
+            "r1",
+            "-0.3 0.1 0.1",
+            rpy="0 0 2.0",
+            axis="1 0 0",
+            limit=_LIMIT.format(lo=-2, hi=2, v=1.5, e=10),
+        ),
+        _joint(
+            "r2_slide",
+            "prismatic",
+            "r1",
+            "r2",
+            "0 0 0.3",
+            axis="1 0 0",
+            limit=_LIMIT.format(lo=-0.1, hi=0.2, v=0.5, e=50),
+        ),
+        _joint(
+            "tilt",
+            "revolute",
+            "base",
+            "sensor",
+            "0 0 0.5",
+            rpy="0.3 0 0",
+            axis="0 2 2",
+            limit=_LIMIT.format(lo=-1, hi=1, v=1, e=1),
+        ),
+        _joint(
+            "slider",
+            "prismatic",
+            "base",
+            "payload",
+            "0.1 -0.4 0",
+            axis="1 1 0",
+            limit=_LIMIT.format(lo=0, hi=0.3, v=1, e=1),
+        ),
+        "</robot>",
+    ]
+)
 TOY_ARMS = {"mission": ["l2_spin", "l1_yaw"], "balance": ["r1_roll", "r2_slide"]}
 TOY_LOCKED = {"tilt": 0.4, "slider": 0.1}
 
@@ -90,7 +139,7 @@ def _full_q(robot, q):
     for name, value in [*zip(robot.joint_names, q), *robot.locked.items()]:
         joint = model.joints[model.getJointId(name)]
         if joint.nq == 2:
-            qf[joint.idx_q: joint.idx_q + 2] = [np.cos(value), np.sin(value)]
+            qf[joint.idx_q : joint.idx_q + 2] = [np.cos(value), np.sin(value)]
         else:
             qf[joint.idx_q] = value
     return qf
@@ -105,8 +154,11 @@ def _body_placements(model, qp):
 # ------------------------------------------------------------------------------------ loading
 def test_path_str_and_text_load_the_same_robot():
     path = shipped_urdf()
-    robots = [_paper(), FloatingRobot(str(path), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS),
-              FloatingRobot(path.read_text(), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS)]
+    robots = [
+        _paper(),
+        FloatingRobot(str(path), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS),
+        FloatingRobot(path.read_text(), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS),
+    ]
     assert [r.source for r in robots] == [str(path), str(path), "<URDF string>"]
     q = _random_q(robots[0], np.random.default_rng(1))
     A = [NumericMaps(r).centroidal_momentum_matrix(q) for r in robots]
@@ -149,17 +201,26 @@ def test_joint_index_maps_follow_user_order():
     assert robot.arm("balance").joints == tuple(balance)
     with pytest.raises(JointError, match=r"joint 'base_link' in .*: is in no arm"):
         robot.joint_index("base_link")
-    with pytest.raises(ArmError, match=r"arm 'balance2' of .*: no such arm \(arms: mission, balance\)"):
+    with pytest.raises(
+        ArmError, match=r"arm 'balance2' of .*: no such arm \(arms: mission, balance\)"
+    ):
         robot.arm("balance2")
 
 
-@pytest.mark.parametrize("name, link, axis", [("mission_joint1", "mission_link1", (0, 0, 1)),
-                                              ("balance_joint3", "balance_link3", (0, 0, 1))])
+@pytest.mark.parametrize(
+    "name, link, axis",
+    [
+        ("mission_joint1", "mission_link1", (0, 0, 1)),
+        ("balance_joint3", "balance_link3", (0, 0, 1)),
+    ],
+)
 def test_arm_vector_entry_moves_the_joint_of_that_name(name, link, axis):
     """Setting one entry of q rotates the named joint's child link by that angle about the
     joint axis, and nothing upstream of it."""
-    robot = _paper(mission=["mission_joint3", "mission_joint1", "mission_joint2"],
-                   balance=["balance_joint3", "balance_joint2", "balance_joint1"])
+    robot = _paper(
+        mission=["mission_joint3", "mission_joint1", "mission_joint2"],
+        balance=["balance_joint3", "balance_joint2", "balance_joint1"],
+    )
     q = np.zeros(robot.n)
     home = _body_placements(robot.model, robot.pin_q(q))
     q[robot.joint_index(name)] = 0.7
@@ -196,14 +257,20 @@ def test_continuous_joint_angle_wraps():
     qp = robot.pin_q(q)
     l2 = robot.model.joints[robot.model.getJointId("l2_spin")]
     assert l2.nq == 2
-    np.testing.assert_allclose(qp[l2.idx_q: l2.idx_q + 2], [np.cos(0.3), np.sin(0.3)], rtol=0, atol=ATOL)
+    np.testing.assert_allclose(
+        qp[l2.idx_q : l2.idx_q + 2], [np.cos(0.3), np.sin(0.3)], rtol=0, atol=ATOL
+    )
     assert robot.arm_q(qp)[0] == pytest.approx(0.3, abs=ATOL)
 
 
 # --------------------------------------------------------------------------- locked joints
 LOCKED_CASES = {
-    "paper_mission_joint3": lambda: _paper(mission=PAPER_MISSION_JOINTS[:2], locked={"mission_joint3": 0.7}),
-    "baxter_head_pan": lambda: baxter_floating(locked={"head_pan": 0.3, "l_gripper_l_finger_joint": 0.01}),
+    "paper_mission_joint3": lambda: _paper(
+        mission=PAPER_MISSION_JOINTS[:2], locked={"mission_joint3": 0.7}
+    ),
+    "baxter_head_pan": lambda: baxter_floating(
+        locked={"head_pan": 0.3, "l_gripper_l_finger_joint": 0.01}
+    ),
     # adam cannot take the prismatic arm joint r2_slide (test_maps.py): lock it too
     "toy": lambda: _toy(balance=["r1_roll"], locked={**TOY_LOCKED, "r2_slide": 0.05}),
 }
@@ -218,9 +285,15 @@ def test_locked_joints_are_listed_with_their_positions(locked_robot):
     name, robot = locked_robot
     full_joints = set(robot.full_model.names[2:])  # every movable joint but the free flyer
     assert set(robot.locked) == full_joints - set(robot.joint_names)
-    expected = {"paper_mission_joint3": {"mission_joint3": 0.7, "balance_joint3": None},
-                "baxter_head_pan": {"head_pan": 0.3, "l_gripper_l_finger_joint": 0.01, "r_gripper_l_finger_joint": 0.0},
-                "toy": {**TOY_LOCKED, "r2_slide": 0.05}}[name]
+    expected = {
+        "paper_mission_joint3": {"mission_joint3": 0.7, "balance_joint3": None},
+        "baxter_head_pan": {
+            "head_pan": 0.3,
+            "l_gripper_l_finger_joint": 0.01,
+            "r_gripper_l_finger_joint": 0.0,
+        },
+        "toy": {**TOY_LOCKED, "r2_slide": 0.05},
+    }[name]
     for joint, value in expected.items():
         if value is None:
             assert joint not in robot.locked
@@ -244,21 +317,28 @@ def test_reduced_model_matches_full_model_with_locked_joints(locked_robot):
         frames_r, frames_f = _body_placements(reduced, qr), _body_placements(full, qf)
         assert frames_r.keys() == frames_f.keys()
         for frame, placement in frames_r.items():
-            np.testing.assert_allclose(placement.homogeneous, frames_f[frame].homogeneous, rtol=0, atol=ATOL,
-                                       err_msg=frame)
+            np.testing.assert_allclose(
+                placement.homogeneous, frames_f[frame].homogeneous, rtol=0, atol=ATOL, err_msg=frame
+            )
         A_f = pin.computeCentroidalMap(full, full.createData(), qf)[:, full_cols]
-        A_r = pin.computeCentroidalMap(reduced, reduced.createData(), qr)[:, np.r_[0:6, robot.pin_v_indices]]
+        A_r = pin.computeCentroidalMap(reduced, reduced.createData(), qr)[
+            :, np.r_[0:6, robot.pin_v_indices]
+        ]
         np.testing.assert_allclose(A_r, A_f, rtol=0, atol=ATOL)
 
 
 def test_locked_position_is_not_ignored(locked_robot):
     """The same robot locked at zero has a different centroidal map (so the test above can fail)."""
     name, robot = locked_robot
-    at_zero = {"paper_mission_joint3": lambda: _paper(mission=PAPER_MISSION_JOINTS[:2]),
-               "baxter_head_pan": baxter_floating,
-               "toy": lambda: _toy(balance=["r1_roll"], locked={})}[name]()
+    at_zero = {
+        "paper_mission_joint3": lambda: _paper(mission=PAPER_MISSION_JOINTS[:2]),
+        "baxter_head_pan": baxter_floating,
+        "toy": lambda: _toy(balance=["r1_roll"], locked={}),
+    }[name]()
     q = _random_q(robot, np.random.default_rng(4))
-    difference = NumericMaps(robot).centroidal_momentum_matrix(q) - NumericMaps(at_zero).centroidal_momentum_matrix(q)
+    difference = NumericMaps(robot).centroidal_momentum_matrix(q) - NumericMaps(
+        at_zero
+    ).centroidal_momentum_matrix(q)
     assert np.abs(difference).max() > 1e-3
 
 
@@ -276,7 +356,9 @@ def test_locked_urdf_is_the_same_robot(locked_robot):
         qp = pin.neutral(model)
         for name, value in zip(robot.joint_names, q):
             joint = model.joints[model.getJointId(name)]
-            qp[joint.idx_q: joint.idx_q + joint.nq] = [np.cos(value), np.sin(value)] if joint.nq == 2 else value
+            qp[joint.idx_q : joint.idx_q + joint.nq] = (
+                [np.cos(value), np.sin(value)] if joint.nq == 2 else value
+            )
         A_locked = pin.computeCentroidalMap(model, model.createData(), qp)[:, np.r_[0:6, cols]]
         A = NumericMaps(robot).centroidal_momentum_matrix(q)
         np.testing.assert_allclose(A_locked, A, rtol=0, atol=ATOL)
@@ -299,8 +381,10 @@ def test_limits_from_the_urdf():
 
 
 def test_limit_overrides():
-    overrides = {"mission_joint2": {"upper": 1.0, "acceleration": 0.5},
-                 "balance_joint1": {"lower": -1.0, "velocity": 0.3, "effort": 7}}
+    overrides = {
+        "mission_joint2": {"upper": 1.0, "acceleration": 0.5},
+        "balance_joint1": {"lower": -1.0, "velocity": 0.3, "effort": 7},
+    }
     robot = _paper(limits=overrides)
     reference = _paper().limits
     i, k = robot.joint_index("mission_joint2"), robot.joint_index("balance_joint1")
@@ -322,47 +406,103 @@ M, B = list(PAPER_MISSION_JOINTS), list(PAPER_BALANCE_JOINTS)
 PAPER = re.escape(str(shipped_urdf()))
 
 ERRORS = {
-    "unknown joint": (dict(mission=["mission_joint1", "mision_joint2"]), JointError,
-                      rf"joint 'mision_joint2' in {PAPER}: no such joint in the URDF \(arm 'mission'\); "
-                      r"did you mean 'mission_joint2'"),
-    "joint named twice": (dict(mission=["mission_joint1", "mission_joint2", "mission_joint1"]), JointError,
-                          rf"joint 'mission_joint1' in {PAPER}: is named twice in arm 'mission'"),
-    "joint in two arms": (dict(balance=["balance_joint1", "mission_joint2"]), JointError,
-                          rf"joint 'mission_joint2' in {PAPER}: is named in two arms, 'mission' and 'balance'"),
-    "joint in two balance arms": (dict(balance=[B, ["balance_joint1"]]), JointError,
-                                  r"joint 'balance_joint1' in .*: is named in two arms, 'balance' and 'balance2'"),
-    "fixed joint in an arm": (dict(mission=["mission_joint1", "mission_ee_fixed"]), JointError,
-                              rf"joint 'mission_ee_fixed' in {PAPER}: is a fixed joint and cannot be an arm joint "
-                              r"\(arm 'mission'\)"),
-    "mission arm with no joints": (dict(mission=[]), ArmError, rf"arm 'mission' of {PAPER}: has no joints"),
-    "second balance arm with no joints": (dict(balance=[B, []]), ArmError, r"arm 'balance2' of .*: has no joints"),
+    "unknown joint": (
+        dict(mission=["mission_joint1", "mision_joint2"]),
+        JointError,
+        rf"joint 'mision_joint2' in {PAPER}: no such joint in the URDF \(arm 'mission'\); "
+        r"did you mean 'mission_joint2'",
+    ),
+    "joint named twice": (
+        dict(mission=["mission_joint1", "mission_joint2", "mission_joint1"]),
+        JointError,
+        rf"joint 'mission_joint1' in {PAPER}: is named twice in arm 'mission'",
+    ),
+    "joint in two arms": (
+        dict(balance=["balance_joint1", "mission_joint2"]),
+        JointError,
+        rf"joint 'mission_joint2' in {PAPER}: is named in two arms, 'mission' and 'balance'",
+    ),
+    "joint in two balance arms": (
+        dict(balance=[B, ["balance_joint1"]]),
+        JointError,
+        r"joint 'balance_joint1' in .*: is named in two arms, 'balance' and 'balance2'",
+    ),
+    "fixed joint in an arm": (
+        dict(mission=["mission_joint1", "mission_ee_fixed"]),
+        JointError,
+        rf"joint 'mission_ee_fixed' in {PAPER}: is a fixed joint and cannot be an arm joint "
+        r"\(arm 'mission'\)",
+    ),
+    "mission arm with no joints": (
+        dict(mission=[]),
+        ArmError,
+        rf"arm 'mission' of {PAPER}: has no joints",
+    ),
+    "second balance arm with no joints": (
+        dict(balance=[B, []]),
+        ArmError,
+        r"arm 'balance2' of .*: has no joints",
+    ),
     "no balance arm": (dict(balance=[]), ArmError, r"arm 'balance' of .*: no balance arm given"),
-    "arm given as a string": (dict(mission="mission_joint1"), ArmError,
-                              r"arm 'mission' of .*: joints must be a list of joint names, got the string "
-                              r"'mission_joint1'"),
-    "unknown limit key": (dict(limits={"mission_joint2": {"jerk": 3}}), JointError,
-                          rf"joint 'mission_joint2' in {PAPER}: unknown limit 'jerk'; expected one of lower, "
-                          r"upper, velocity, acceleration, effort"),
-    "limit for a joint in no arm": (dict(limits={"base_link": {"upper": 1}}), JointError,
-                                    r"joint 'base_link' in .*: limit override for a joint that is in no arm"),
-    "lower limit above upper": (dict(limits={"balance_joint3": {"lower": 2.6}}), JointError,
-                                r"joint 'balance_joint3' in .*: lower limit 2.6 is above upper limit 2.5"),
-    "non-positive velocity limit": (dict(limits={"balance_joint3": {"velocity": 0}}), JointError,
-                                    r"joint 'balance_joint3' in .*: velocity limit must be positive, got 0.0"),
-    "unknown locked joint": (dict(mission=M[:2], locked={"mission_joint_3": 0.2}), JointError,
-                             rf"joint 'mission_joint_3' in {PAPER}: locked joint is not in the URDF; "
-                             r"did you mean 'mission_joint3'"),
-    "locked arm joint": (dict(locked={"mission_joint3": 0.2}), JointError,
-                         r"joint 'mission_joint3' in .*: is both an arm joint and a locked joint"),
-    "locked fixed joint": (dict(locked={"balance_ee_fixed": 0.2}), JointError,
-                           r"joint 'balance_ee_fixed' in .*: is a fixed joint and cannot be locked"),
-    "locked position not a number": (dict(mission=M[:2], locked={"mission_joint3": "up"}), JointError,
-                                     r"joint 'mission_joint3' in .*: locked position must be a number, got 'up'"),
-    "unknown end-effector frame": (dict(ee_frames={"mission": "mission_hand"}), ArmError,
-                                   r"arm 'mission' of .*: end-effector frame 'mission_hand' is not a link"),
-    "end effector of a missing arm": (dict(ee_frames={"balance2": "balance_ee"}), ArmError,
-                                      r"arm 'balance2' of .*: end-effector frame given for an arm that does not "
-                                      r"exist \(arms: mission, balance\)"),
+    "arm given as a string": (
+        dict(mission="mission_joint1"),
+        ArmError,
+        r"arm 'mission' of .*: joints must be a list of joint names, got the string "
+        r"'mission_joint1'",
+    ),
+    "unknown limit key": (
+        dict(limits={"mission_joint2": {"jerk": 3}}),
+        JointError,
+        rf"joint 'mission_joint2' in {PAPER}: unknown limit 'jerk'; expected one of lower, "
+        r"upper, velocity, acceleration, effort",
+    ),
+    "limit for a joint in no arm": (
+        dict(limits={"base_link": {"upper": 1}}),
+        JointError,
+        r"joint 'base_link' in .*: limit override for a joint that is in no arm",
+    ),
+    "lower limit above upper": (
+        dict(limits={"balance_joint3": {"lower": 2.6}}),
+        JointError,
+        r"joint 'balance_joint3' in .*: lower limit 2.6 is above upper limit 2.5",
+    ),
+    "non-positive velocity limit": (
+        dict(limits={"balance_joint3": {"velocity": 0}}),
+        JointError,
+        r"joint 'balance_joint3' in .*: velocity limit must be positive, got 0.0",
+    ),
+    "unknown locked joint": (
+        dict(mission=M[:2], locked={"mission_joint_3": 0.2}),
+        JointError,
+        rf"joint 'mission_joint_3' in {PAPER}: locked joint is not in the URDF; "
+        r"did you mean 'mission_joint3'",
+    ),
+    "locked arm joint": (
+        dict(locked={"mission_joint3": 0.2}),
+        JointError,
+        r"joint 'mission_joint3' in .*: is both an arm joint and a locked joint",
+    ),
+    "locked fixed joint": (
+        dict(locked={"balance_ee_fixed": 0.2}),
+        JointError,
+        r"joint 'balance_ee_fixed' in .*: is a fixed joint and cannot be locked",
+    ),
+    "locked position not a number": (
+        dict(mission=M[:2], locked={"mission_joint3": "up"}),
+        JointError,
+        r"joint 'mission_joint3' in .*: locked position must be a number, got 'up'",
+    ),
+    "unknown end-effector frame": (
+        dict(ee_frames={"mission": "mission_hand"}),
+        ArmError,
+        r"arm 'mission' of .*: end-effector frame 'mission_hand' is not a link",
+    ),
+    "end effector of a missing arm": (
+        dict(ee_frames={"balance2": "balance_ee"}),
+        ArmError,
+        r"arm 'balance2' of .*: end-effector frame given for an arm that does not "
+        r"exist \(arms: mission, balance\)",
+    ),
 }
 
 
@@ -374,14 +514,24 @@ def test_input_errors_name_the_culprit(case):
 
 
 URDF_ERRORS = {
-    "not XML": ('<robot name="x"><link name="a"></robot>', r"XML parse error: mismatched tag: line 1"),
+    "not XML": (
+        '<robot name="x"><link name="a"></robot>',
+        r"XML parse error: mismatched tag: line 1",
+    ),
     "not a robot": ("<model/>", r"root element is <model>, expected <robot>"),
-    "joint without child": ('<robot name="x"><link name="a"/><joint name="j" type="fixed"><parent link="a"/>'
-                            "</joint></robot>", r"a <joint> lacks a name, parent or child"),
-    "mass not a number": (TOY_URDF.replace('<mass value="2.0"/>', '<mass value="two"/>'),
-                          r"link 'l1': <inertial> <mass value=...> is 'two', not a number"),
-    "Pinocchio rejects it": (TOY_URDF.replace('<child link="payload"/>', '<child link="cargo"/>'),
-                             r"Pinocchio could not build a model"),
+    "joint without child": (
+        '<robot name="x"><link name="a"/><joint name="j" type="fixed"><parent link="a"/>'
+        "</joint></robot>",
+        r"a <joint> lacks a name, parent or child",
+    ),
+    "mass not a number": (
+        TOY_URDF.replace('<mass value="2.0"/>', '<mass value="two"/>'),
+        r"link 'l1': <inertial> <mass value=...> is 'two', not a number",
+    ),
+    "Pinocchio rejects it": (
+        TOY_URDF.replace('<child link="payload"/>', '<child link="cargo"/>'),
+        r"Pinocchio could not build a model",
+    ),
 }
 
 
@@ -397,7 +547,11 @@ def test_urdf_errors_name_the_file(case, as_file, tmp_path):
 
 def test_missing_file_is_named(tmp_path):
     path = tmp_path / "nowhere" / "robot.urdf"
-    with pytest.raises(URDFLoadError, match=rf"cannot load URDF {re.escape(str(path))}: no such file"):
+    with pytest.raises(
+        URDFLoadError, match=rf"cannot load URDF {re.escape(str(path))}: no such file"
+    ):
         FloatingRobot(path, M, B)
-    with pytest.raises(URDFLoadError, match=rf"cannot load URDF {re.escape(str(path))}: no such file"):
+    with pytest.raises(
+        URDFLoadError, match=rf"cannot load URDF {re.escape(str(path))}: no such file"
+    ):
         FloatingRobot(str(path), M, B)

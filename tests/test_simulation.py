@@ -5,15 +5,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.motion.so3 import quaternion_conjugate, quaternion_multiply, rotation_angle
-from balance_opt.analytic.law import BalanceLawOptions
-from balance_opt.errors import InputError, TrajectoryError
-from balance_opt.model.maps import NumericMaps
-from balance_opt.motion.rollout import IntegrationOptions, SampledTrajectory, replay, rollout
+from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import paper_capture
 from balance_opt.dynamics.simulation import SimulationOptions, simulate, simulate_plan
-from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.dynamics.wrenches import arm_root_joints
+from balance_opt.errors import InputError, TrajectoryError
+from balance_opt.model.maps import NumericMaps
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.rollout import SampledTrajectory, replay, rollout
+from balance_opt.motion.so3 import quaternion_conjugate, quaternion_multiply, rotation_angle
+from balance_opt.motion.trajectories import PointToPoint
 
 #: Momentum conservation required over a 10 s simulation (issue 5), relative.
 MOMENTUM_TOLERANCE = 1e-8

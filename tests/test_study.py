@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from balance_opt.app.study import FIGURE_STEMS, paper_study
 from balance_opt.errors import InputError
 from balance_opt.io.plots import (
     COLUMN_WIDTH,
@@ -17,7 +18,6 @@ from balance_opt.io.plots import (
     plan_colour,
     reaction_torque_figure,
 )
-from balance_opt.app.study import FIGURE_STEMS, paper_study
 
 #: Smallest PNG resolution a journal accepts for line art [dpi].
 MIN_DPI = 200

@@ -19,15 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.sweep.spec import (
-    apply_overrides,
-    case_id_from,
-    load_sweep,
-    parameter_columns,
-    parse_key_path,
-    parse_sweep,
-    run_sweep,
-)
+from balance_opt.io.yaml_lines import TaskFileError, format_path
 from balance_opt.sweep.engine import (
     STATUS_OK,
     LocalPoolEngine,
@@ -37,7 +29,15 @@ from balance_opt.sweep.engine import (
     write_json_atomic,
 )
 from balance_opt.sweep.report import is_timing_column, read_table_csv, results_table
-from balance_opt.io.yaml_lines import TaskFileError, format_path
+from balance_opt.sweep.spec import (
+    apply_overrides,
+    case_id_from,
+    load_sweep,
+    parameter_columns,
+    parse_key_path,
+    parse_sweep,
+    run_sweep,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_TASK = ROOT / "examples" / "paper_capture.yaml"

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.app.scenarios import paper_capture
+from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.io.task import (
     PtpMission,
     TaskSpec,

@@ -16,12 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from balance_opt.analytic.law import BalanceLawOptions
+from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.errors import InputError
-from balance_opt.result import BalanceResult
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.rollout import (
-    IntegrationOptions,
     SampledTrajectory,
     TrajectoryLike,
     as_sampler,
@@ -29,6 +28,7 @@ from balance_opt.motion.rollout import (
     rollout,
 )
 from balance_opt.motion.trajectories import PointToPoint
+from balance_opt.result import BalanceResult
 
 
 def _motion(motion: TrajectoryLike | BalanceResult, arm: str):

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from balance_opt.errors import InputError, SolverError
-from balance_opt.result import BalanceResult
 from balance_opt.io.task import Task, check_optimal_supported
+from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
@@ -283,7 +283,12 @@ def _divergence(sim) -> str | None:
 # =========================================================================================== writing
 def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
-    from balance_opt.io.outputs import run_metrics, write_metrics, write_trajectory_csv, write_trajectory_npz
+    from balance_opt.io.outputs import (
+        run_metrics,
+        write_metrics,
+        write_trajectory_csv,
+        write_trajectory_npz,
+    )
 
     out = run.task.spec.outputs
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -385,7 +390,7 @@ def paper_figures(
             "simulation": task.spec.simulation.simulation_options(task.h0),
         }
     elif solver_options:
-        from balance_opt.optimal.planner import PlannerOptions
+        from balance_opt.optimal.options import PlannerOptions
 
         kwargs = {"planner": PlannerOptions(ipopt=dict(solver_options))}
     with _timed("paper study (Figs. 2-5)"):

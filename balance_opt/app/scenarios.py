@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.library import paper_robot
+from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.trajectories import PointToPoint
 
 #: Mission arm start and capture configurations [rad], and the move's duration [s].
@@ -38,8 +38,10 @@ class Scenario:
 def paper_capture() -> Scenario:
     """The Table 1 robot, a 10 s point-to-point capture move of the mission arm (the paper's
     PTP), the balance arm starting bent, joint accelerations limited."""
-    limits = {j: {"acceleration": PAPER_BALANCE_ACCELERATION}
-              for j in ("balance_joint1", "balance_joint2", "balance_joint3")}
+    limits = {
+        j: {"acceleration": PAPER_BALANCE_ACCELERATION}
+        for j in ("balance_joint1", "balance_joint2", "balance_joint3")
+    }
     robot = paper_robot(limits=limits)
     mission = PointToPoint(PAPER_MISSION_START, PAPER_MISSION_GOAL, PAPER_DURATION)
     return Scenario(robot, mission, np.array(PAPER_BALANCE_START))

@@ -29,15 +29,22 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.analytic.law import BalanceLawOptions
-from balance_opt.errors import InputError, SolverError
+from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
-from balance_opt.optimal.planner import PlannerOptions, plan_optimal
-from balance_opt.io.plots import FORMATS, attitude_figure, reaction_torque_figure
-from balance_opt.result import BalanceResult
-from balance_opt.motion.rollout import IntegrationOptions, rollout
 from balance_opt.app.scenarios import Scenario, paper_capture
-from balance_opt.dynamics.simulation import SimulationOptions, SimulationResult, simulate, simulate_plan
+from balance_opt.dynamics.simulation import (
+    SimulationOptions,
+    SimulationResult,
+    simulate,
+    simulate_plan,
+)
+from balance_opt.errors import InputError, SolverError
+from balance_opt.io.plots import FORMATS, attitude_figure, reaction_torque_figure
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.rollout import rollout
+from balance_opt.optimal.options import PlannerOptions
+from balance_opt.optimal.planner import plan_optimal
+from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 

@@ -42,14 +42,19 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from balance_opt.motion.so3 import quaternion_conjugate, quaternion_multiply, rotation_angle, rpy_from_quaternion
+from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
-from balance_opt.result import BalanceResult
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.rollout import SampledTrajectory
+from balance_opt.motion.so3 import (
+    quaternion_conjugate,
+    quaternion_multiply,
+    rotation_angle,
+    rpy_from_quaternion,
+)
 from balance_opt.motion.trajectories import PointToPoint
-from balance_opt.dynamics.wrenches import arm_wrenches_on_base
+from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
@@ -358,9 +363,17 @@ class SimulationResult:
             max_relative_momentum_residual=float(self.momentum_residual.max()),
         )
         return BalanceResult.from_arm_vectors(
-            robot, method, self.t.copy(), self.q, self.q_dot, self.q_ddot,
-            self.quaternion.copy(), self.omega.copy(),
-            np.linalg.norm(self.momentum_error[:, 3:], axis=1), sigma, info,
+            robot,
+            method,
+            self.t.copy(),
+            self.q,
+            self.q_dot,
+            self.q_ddot,
+            self.quaternion.copy(),
+            self.omega.copy(),
+            np.linalg.norm(self.momentum_error[:, 3:], axis=1),
+            sigma,
+            info,
         )
 
 

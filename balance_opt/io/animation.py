@@ -17,9 +17,9 @@ from collections.abc import Mapping
 import numpy as np
 import pinocchio as pin
 
+from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.result import BalanceResult
-from balance_opt.model.robot import FloatingRobot
 
 #: Frames per second of the animation [1/s].
 ANIMATION_FPS = 25

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.result import BalanceResult
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 

@@ -12,8 +12,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from balance_opt.io.plots import COLUMN_WIDTH, PNG_DPI, STYLE, plan_colour, plan_label
-from balance_opt.result import BalanceResult
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.result import BalanceResult
 
 #: Rows of the figure: (result field, limit field, axis label).
 _ROWS = (

@@ -21,7 +21,9 @@ def paper_robot(limits: Mapping[str, Mapping[str, float]] | None = None) -> Floa
     return FloatingRobot(shipped_urdf(), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS, limits=limits)
 
 
-def baxter_floating(mission: str = "left", locked: Mapping[str, float] | None = None) -> FloatingRobot:
+def baxter_floating(
+    mission: str = "left", locked: Mapping[str, float] | None = None
+) -> FloatingRobot:
     """Baxter from example-robot-data on a free-flying base: one 7-DOF arm for the mission, the
     other to balance; head and gripper joints locked (at 0 unless ``locked`` says otherwise)."""
     left, right = BAXTER_LEFT_ARM, BAXTER_RIGHT_ARM

@@ -46,7 +46,9 @@ def _condition(s: np.ndarray) -> float:
     return float(s[0] / smallest) if smallest > 0 else float("inf")
 
 
-def coupling_measures(J_wM: np.ndarray, J_wB: np.ndarray, arm_columns: dict | None = None) -> CouplingMeasures:
+def coupling_measures(
+    J_wM: np.ndarray, J_wB: np.ndarray, arm_columns: dict | None = None
+) -> CouplingMeasures:
     """Coupling measures from the angular Jacobians (see :class:`CouplingMeasures`)."""
     s = np.linalg.svd(J_wB, compute_uv=False)
     per_arm = {}

@@ -32,12 +32,16 @@ def shipped_urdf(name: str = PAPER_ROBOT) -> Path:
 def example_robot_urdf(name: str) -> Path:
     """Path of an ``example-robot-data`` URDF, found through the package's installed files."""
     if name not in EXAMPLE_ROBOTS:
-        raise InputError(f"unknown example-robot-data robot '{name}'; known: {', '.join(sorted(EXAMPLE_ROBOTS))}")
+        raise InputError(
+            f"unknown example-robot-data robot '{name}'; known: {', '.join(sorted(EXAMPLE_ROBOTS))}"
+        )
     folder, filename = EXAMPLE_ROBOTS[name]
     try:
         dist = importlib.metadata.distribution("example-robot-data")
     except importlib.metadata.PackageNotFoundError:
-        raise InputError("example-robot-data is not installed (pip install example-robot-data)") from None
+        raise InputError(
+            "example-robot-data is not installed (pip install example-robot-data)"
+        ) from None
     suffix = f"robots/{folder}/urdf/{filename}"
     for f in dist.files or ():
         if str(f).replace("\\", "/").endswith(suffix):

@@ -111,8 +111,12 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
         name = el.get("name")
         parent, child = el.find("parent"), el.find("child")
         if name is None or parent is None or child is None:
-            raise URDFLoadError(source, f"a <joint> lacks a name, parent or child: {ET.tostring(el)[:80]!r}")
-        joints[name] = _UrdfJoint(name, el.get("type", ""), parent.get("link"), child.get("link"), el)
+            raise URDFLoadError(
+                source, f"a <joint> lacks a name, parent or child: {ET.tostring(el)[:80]!r}"
+            )
+        joints[name] = _UrdfJoint(
+            name, el.get("type", ""), parent.get("link"), child.get("link"), el
+        )
     _check_inertials(root, source)
     return root, joints
 
@@ -125,15 +129,20 @@ def _check_inertials(root: ET.Element, source: str) -> None:
         inertial = link.find("inertial")
         if inertial is None:
             continue
-        fields = [("mass", "value")] + [("inertia", k) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")]
+        fields = [("mass", "value")] + [
+            ("inertia", k) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+        ]
         for tag, attr in fields:
             el = inertial.find(tag)
             text = None if el is None else el.get(attr)
             try:
                 float(text)
             except (TypeError, ValueError):
-                raise URDFLoadError(source, f"link '{link.get('name')}': <inertial> <{tag} {attr}=...> "
-                                    f"is {text!r}, not a number") from None
+                raise URDFLoadError(
+                    source,
+                    f"link '{link.get('name')}': <inertial> <{tag} {attr}=...> "
+                    f"is {text!r}, not a number",
+                ) from None
         origin = inertial.find("origin")
         for attr in ("xyz", "rpy"):
             text = "0 0 0" if origin is None else origin.get(attr, "0 0 0")
@@ -142,8 +151,11 @@ def _check_inertials(root: ET.Element, source: str) -> None:
             except ValueError:
                 ok = False
             if not ok:
-                raise URDFLoadError(source, f"link '{link.get('name')}': <inertial> <origin {attr}=...> "
-                                    f"is {text!r}, not three numbers")
+                raise URDFLoadError(
+                    source,
+                    f"link '{link.get('name')}': <inertial> <origin {attr}=...> "
+                    f"is {text!r}, not three numbers",
+                )
 
 
 def _origin(el: ET.Element) -> pin.SE3:
@@ -158,13 +170,17 @@ def _origin(el: ET.Element) -> pin.SE3:
 
 def _axis(el: ET.Element) -> np.ndarray:
     axis = el.find("axis")
-    vec = np.array([1.0, 0.0, 0.0]) if axis is None else np.array(
-        [float(v) for v in axis.get("xyz", "1 0 0").split()]
+    vec = (
+        np.array([1.0, 0.0, 0.0])
+        if axis is None
+        else np.array([float(v) for v in axis.get("xyz", "1 0 0").split()])
     )
     return vec / np.linalg.norm(vec)
 
 
-def _lock_joints(root: ET.Element, joints: dict[str, _UrdfJoint], locked: Mapping[str, float]) -> str:
+def _lock_joints(
+    root: ET.Element, joints: dict[str, _UrdfJoint], locked: Mapping[str, float]
+) -> str:
     """URDF text in which each locked joint is a fixed joint at its locked position."""
     root = ET.fromstring(ET.tostring(root))  # work on a copy
     by_name = {el.get("name"): el for el in root.findall("joint")}
@@ -233,8 +249,16 @@ class FloatingRobot:
 
         for arm, joints in (("mission", mission), ("balance", balance)):
             if isinstance(joints, str):  # list("j1") would be the joints 'j', '1'
-                raise ArmError(arm, self.source, f"joints must be a list of joint names, got the string {joints!r}")
-        balance_lists = [list(balance)] if balance and isinstance(balance[0], str) else [list(b) for b in balance]
+                raise ArmError(
+                    arm,
+                    self.source,
+                    f"joints must be a list of joint names, got the string {joints!r}",
+                )
+        balance_lists = (
+            [list(balance)]
+            if balance and isinstance(balance[0], str)
+            else [list(b) for b in balance]
+        )
         if not balance_lists:
             raise ArmError("balance", self.source, "no balance arm given")
         arm_specs = [("mission", list(mission))]
@@ -259,8 +283,12 @@ class FloatingRobot:
         unknown_arms = set(ee_frames) - {a.name for a in self.arms}
         if unknown_arms:
             name = sorted(unknown_arms)[0]
-            raise ArmError(name, self.source, f"end-effector frame given for an arm that does not exist "
-                           f"(arms: {', '.join(a.name for a in self.arms)})")
+            raise ArmError(
+                name,
+                self.source,
+                f"end-effector frame given for an arm that does not exist "
+                f"(arms: {', '.join(a.name for a in self.arms)})",
+            )
         self.limits = self._make_limits(limits or {})
 
     # ----------------------------------------------------------------------------- checks
@@ -273,14 +301,23 @@ class FloatingRobot:
                 if not isinstance(j, str):
                     raise ArmError(arm, self.source, f"joint names must be strings, got {j!r}")
                 if j not in self._urdf_joints:
-                    raise JointError(j, self.source, f"no such joint in the URDF (arm '{arm}')"
-                                     + _suggest(j, self._urdf_joints))
+                    raise JointError(
+                        j,
+                        self.source,
+                        f"no such joint in the URDF (arm '{arm}')" + _suggest(j, self._urdf_joints),
+                    )
                 jtype = self._urdf_joints[j].type
                 if jtype == "fixed":
-                    raise JointError(j, self.source, f"is a fixed joint and cannot be an arm joint (arm '{arm}')")
+                    raise JointError(
+                        j, self.source, f"is a fixed joint and cannot be an arm joint (arm '{arm}')"
+                    )
                 if jtype not in MOVABLE_TYPES:
-                    raise JointError(j, self.source, f"has type '{jtype}'; arm joints must be one of "
-                                     f"{', '.join(MOVABLE_TYPES)} (arm '{arm}')")
+                    raise JointError(
+                        j,
+                        self.source,
+                        f"has type '{jtype}'; arm joints must be one of "
+                        f"{', '.join(MOVABLE_TYPES)} (arm '{arm}')",
+                    )
                 if j in owner:
                     where = "twice in arm" if owner[j] == arm else f"in two arms, '{owner[j]}' and"
                     raise JointError(j, self.source, f"is named {where} '{arm}'")
@@ -290,15 +327,23 @@ class FloatingRobot:
         out = {}
         for j, value in locked.items():
             if j not in self._urdf_joints:
-                raise JointError(j, self.source, "locked joint is not in the URDF" + _suggest(j, self._urdf_joints))
+                raise JointError(
+                    j,
+                    self.source,
+                    "locked joint is not in the URDF" + _suggest(j, self._urdf_joints),
+                )
             if j in self.joint_names:
                 raise JointError(j, self.source, "is both an arm joint and a locked joint")
             if self._urdf_joints[j].type not in MOVABLE_TYPES:
-                raise JointError(j, self.source, f"is a {self._urdf_joints[j].type} joint and cannot be locked")
+                raise JointError(
+                    j, self.source, f"is a {self._urdf_joints[j].type} joint and cannot be locked"
+                )
             try:
                 out[j] = float(value)
             except (TypeError, ValueError):
-                raise JointError(j, self.source, f"locked position must be a number, got {value!r}") from None
+                raise JointError(
+                    j, self.source, f"locked position must be a number, got {value!r}"
+                ) from None
         for j, uj in self._urdf_joints.items():
             if uj.type in MOVABLE_TYPES and j not in self.joint_names and j not in out:
                 out[j] = 0.0
@@ -318,7 +363,7 @@ class FloatingRobot:
             jid = full.getJointId(j)
             jm = full.joints[jid]
             if jm.nq == 2:  # continuous joint stored as (cos, sin)
-                q_ref[jm.idx_q: jm.idx_q + 2] = [math.cos(value), math.sin(value)]
+                q_ref[jm.idx_q : jm.idx_q + 2] = [math.cos(value), math.sin(value)]
             else:
                 q_ref[jm.idx_q] = value
             lock_ids.append(jid)
@@ -349,8 +394,12 @@ class FloatingRobot:
         for name, joints in arm_specs:
             frame = ee_frames.get(name) or self._default_ee_frame(joints)
             if not self.model.existFrame(frame):
-                raise ArmError(name, self.source, f"end-effector frame '{frame}' is not a link of the URDF"
-                               + _suggest(frame, [f.name for f in self.model.frames]))
+                raise ArmError(
+                    name,
+                    self.source,
+                    f"end-effector frame '{frame}' is not a link of the URDF"
+                    + _suggest(frame, [f.name for f in self.model.frames]),
+                )
             arms.append(Arm(name, tuple(joints), np.arange(start, start + len(joints)), frame))
             start += len(joints)
         return arms
@@ -366,18 +415,31 @@ class FloatingRobot:
             values["effort"][i] = self.model.effortLimit[self._pin_idx_v[i]]
         for j, over in overrides.items():
             if j not in self.joint_names:
-                raise JointError(j, self.source, "limit override for a joint that is in no arm"
-                                 + _suggest(j, self.joint_names))
+                raise JointError(
+                    j,
+                    self.source,
+                    "limit override for a joint that is in no arm" + _suggest(j, self.joint_names),
+                )
             for key, value in over.items():
                 if key not in LIMIT_KEYS:
-                    raise JointError(j, self.source, f"unknown limit '{key}'; expected one of {', '.join(LIMIT_KEYS)}")
+                    raise JointError(
+                        j,
+                        self.source,
+                        f"unknown limit '{key}'; expected one of {', '.join(LIMIT_KEYS)}",
+                    )
                 values[key][self.joint_names.index(j)] = float(value)
         for i, j in enumerate(self.joint_names):
             if not values["lower"][i] <= values["upper"][i]:
-                raise JointError(j, self.source, f"lower limit {values['lower'][i]} is above upper limit {values['upper'][i]}")
+                raise JointError(
+                    j,
+                    self.source,
+                    f"lower limit {values['lower'][i]} is above upper limit {values['upper'][i]}",
+                )
             for key in ("velocity", "acceleration", "effort"):
                 if not values[key][i] > 0:
-                    raise JointError(j, self.source, f"{key} limit must be positive, got {values[key][i]}")
+                    raise JointError(
+                        j, self.source, f"{key} limit must be positive, got {values[key][i]}"
+                    )
         return JointLimits(**values)
 
     # ----------------------------------------------------------------------------- structure
@@ -422,13 +484,17 @@ class FloatingRobot:
         try:
             return self.joint_names.index(name)
         except ValueError:
-            raise JointError(name, self.source, "is in no arm" + _suggest(name, self.joint_names)) from None
+            raise JointError(
+                name, self.source, "is in no arm" + _suggest(name, self.joint_names)
+            ) from None
 
     def arm(self, name: str) -> Arm:
         for a in self.arms:
             if a.name == name:
                 return a
-        raise ArmError(name, self.source, f"no such arm (arms: {', '.join(a.name for a in self.arms)})")
+        raise ArmError(
+            name, self.source, f"no such arm (arms: {', '.join(a.name for a in self.arms)})"
+        )
 
     def neutral(self) -> np.ndarray:
         """The zero arm configuration, moved inside the position limits where zero is outside."""
@@ -444,7 +510,7 @@ class FloatingRobot:
         one = self._pin_nq == 1
         qp[self._pin_idx_q[one]] = q[one]
         for i in np.flatnonzero(~one):
-            qp[self._pin_idx_q[i]: self._pin_idx_q[i] + 2] = [math.cos(q[i]), math.sin(q[i])]
+            qp[self._pin_idx_q[i] : self._pin_idx_q[i] + 2] = [math.cos(q[i]), math.sin(q[i])]
         return qp
 
     def pin_v(self, q_dot, base_twist=None) -> np.ndarray:

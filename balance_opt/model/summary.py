@@ -23,7 +23,9 @@ def robot_summary(robot: FloatingRobot, q=None) -> str:
     ]
     for arm in robot.arms:
         lines.append(f"  {arm.name} arm: {arm.dof} joints, end effector '{arm.ee_frame}'")
-        lines.append(f"    {'joint':<22} {'lower':>9} {'upper':>9} {'vel':>8} {'acc':>8} {'effort':>8}  [rad, rad/s, rad/s^2, N m]")
+        lines.append(
+            f"    {'joint':<22} {'lower':>9} {'upper':>9} {'vel':>8} {'acc':>8} {'effort':>8}  [rad, rad/s, rad/s^2, N m]"
+        )
         for i in arm.indices:
             lines.append(
                 f"    {robot.joint_names[i]:<22} {_fmt_limit(lim.lower[i]):>9} {_fmt_limit(lim.upper[i]):>9} "
@@ -41,5 +43,7 @@ def robot_summary(robot: FloatingRobot, q=None) -> str:
     )
     if len(m.per_arm) > 1:
         for name, (s, cond) in m.per_arm.items():
-            lines.append(f"    {name}: singular values [{', '.join(f'{v:.4g}' for v in s)}], condition {cond:.4g}")
+            lines.append(
+                f"    {name}: singular values [{', '.join(f'{v:.4g}' for v in s)}], condition {cond:.4g}"
+            )
     return "\n".join(lines)

@@ -60,13 +60,19 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
     # subspace (12 x 1 instead of 6 x 1): fail here, by name, rather than deep inside adam.
     for j in robot.joint_names:
         if robot._urdf_joints[j].type == "prismatic":
-            raise JointError(j, robot.source, "is prismatic, which the 'adam' backend cannot handle "
-                             "(adam-robotics 0.5); lock it, or use backend='pinocchio'")
+            raise JointError(
+                j,
+                robot.source,
+                "is prismatic, which the 'adam' backend cannot handle "
+                "(adam-robotics 0.5); lock it, or use backend='pinocchio'",
+            )
 
     # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
     quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
     try:
-        kd = adam.casadi.KinDynComputations(robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6))
+        kd = adam.casadi.KinDynComputations(
+            robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
+        )
     finally:
         urdf_core.on_error = quiet
     H = cs.SX.eye(4)
@@ -139,10 +145,14 @@ class SymbolicMaps:
         found = available_backends()
         if backend == "auto":
             if not found:
-                raise BalanceOptError("no symbolic backend: install adam-robotics[casadi] or pinocchio with casadi")
+                raise BalanceOptError(
+                    "no symbolic backend: install adam-robotics[casadi] or pinocchio with casadi"
+                )
             backend = found[0]
         elif backend not in BACKENDS:
-            raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
+            raise BalanceOptError(
+                f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}"
+            )
         elif backend not in found:
             hint = " (PyPI's pin wheels lack pinocchio.casadi)" if backend == "pinocchio" else ""
             raise BalanceOptError(f"backend '{backend}' cannot be imported here{hint}")
@@ -173,8 +183,14 @@ class SymbolicMaps:
         return cs.reshape(cs.jtimes(cs.vec(M), self._q, self._qd), M.shape[0], M.shape[1])
 
     def _fun(self, name: str, inputs: dict, outputs: dict) -> cs.Function:
-        return cs.Function(name, list(inputs.values()), list(outputs.values()),
-                           list(inputs), list(outputs), {"cse": True})
+        return cs.Function(
+            name,
+            list(inputs.values()),
+            list(outputs.values()),
+            list(inputs),
+            list(outputs),
+            {"cse": True},
+        )
 
     # ------------------------------------------------------------------ functions
     @cached_property
@@ -190,30 +206,46 @@ class SymbolicMaps:
         """``centroidal_momentum_matrix(q) -> A_G``: 6 x (6+n), momentum [linear; angular] about the
         CoM in base-frame axes, for the base twist in the base frame and the arm joint rates.
         In world axes it is ``blkdiag(R, R) A_G``."""
-        return self._cached("cmm", lambda: self._fun("centroidal_momentum_matrix", {"q": self._q}, {"A_G": self._A}))
+        return self._cached(
+            "cmm", lambda: self._fun("centroidal_momentum_matrix", {"q": self._q}, {"A_G": self._A})
+        )
 
     def base_jacobian_fun(self) -> cs.Function:
         """``base_jacobian(q) -> J_base``: 6 x n, ``v_b = J_base q_dot`` with zero momentum
         (Eq. 19), the base twist [linear; angular] in the base frame."""
-        return self._cached("J_base", lambda: self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base}))
+        return self._cached(
+            "J_base", lambda: self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base})
+        )
 
     def angular_jacobians_fun(self) -> cs.Function:
         """``angular_jacobians(q) -> (J_wM, J_wB)``: the base angular velocity in the base frame is
         ``J_wM q_dot_M + J_wB q_dot_B`` (Eq. 26; balance arms stacked in ``J_wB``)."""
+
         def make():
             Jw = self._J_base[3:, :]
-            return self._fun("angular_jacobians", {"q": self._q},
-                             {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]})
+            return self._fun(
+                "angular_jacobians",
+                {"q": self._q},
+                {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]},
+            )
+
         return self._cached("J_w", make)
 
     def angular_jacobian_rates_fun(self) -> cs.Function:
         """``angular_jacobian_rates(q, q_dot) -> (dJ_wM, dJ_wB)``: time derivatives of
         ``J_wM`` and ``J_wB`` along ``q_dot`` (needed for Eq. 32)."""
+
         def make():
             Jw = self._J_base[3:, :]
-            return self._fun("angular_jacobian_rates", {"q": self._q, "q_dot": self._qd},
-                             {"dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
-                              "dJ_wB": self._rate(Jw[:, self._balance_cols])})
+            return self._fun(
+                "angular_jacobian_rates",
+                {"q": self._q, "q_dot": self._qd},
+                {
+                    "dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
+                    "dJ_wB": self._rate(Jw[:, self._balance_cols]),
+                },
+            )
+
         return self._cached("dJ_w", make)
 
     def ee_generalized_jacobian_fun(self, arm: str = "mission") -> cs.Function:
@@ -221,11 +253,16 @@ class SymbolicMaps:
         [linear velocity of its origin; angular velocity], in base-frame axes, is
         ``J_star q_dot`` with the base moving as momentum conservation forces it (Eq. 20-22).
         ``M`` is the arm's own columns of ``J_star``: the paper's coupling factor (Eq. 22)."""
+
         def make():
             J = self._J_ee[arm]
             J_star = J[:, 6:] + J[:, :6] @ self._J_base
-            return self._fun(f"ee_generalized_jacobian_{arm}", {"q": self._q},
-                             {"J_star": J_star, "M": J_star[:, self._cols([arm])]})
+            return self._fun(
+                f"ee_generalized_jacobian_{arm}",
+                {"q": self._q},
+                {"J_star": J_star, "M": J_star[:, self._cols([arm])]},
+            )
+
         self.robot.arm(arm)
         return self._cached(f"J_star_{arm}", make)
 
@@ -234,16 +271,19 @@ class SymbolicMaps:
         effector's twist (Eq. 22); ``N`` maps the end effector's twist to the base twist
         (Eq. 24), ``N = J_base,arm M^+`` (the Moore-Penrose inverse where the arm has fewer
         than 6 joints, so that ``N`` is exact on the twists the arm can produce)."""
+
         def make():
             _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
             N = self._J_base[:, self._cols([arm])] @ _pinv(M)
             return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
+
         return self._cached(f"MN_{arm}", make)
 
     def force_map_fun(self, arm: str = "mission") -> cs.Function:
         """``force_map_<arm>(q, F_e) -> F_B``: the wrench on the base from an end-effector wrench
         ``F_e`` [force; torque], ``F_B = N^{-T} F_e`` (Eq. 25), with the Moore-Penrose inverse
         of ``N^T`` where ``N`` is rank deficient (arms with fewer than 6 joints)."""
+
         def make():
             _, N = self.coupling_factors_fun(arm)(self._q)
             F_e = cs.SX.sym("F_e", 6)
@@ -258,6 +298,7 @@ class SymbolicMaps:
                 C = self._J_base[:, cols]
                 F_B = _pinv(C.T) @ (_pinv(B) @ F_e)
             return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
+
         return self._cached(f"F_{arm}", make)
 
     # ------------------------------------------------------------------ numeric evaluators

@@ -87,14 +87,20 @@ class ViaPoints(JointTrajectory):
         self.times = np.asarray(times, dtype=float)
         self.points = np.atleast_2d(np.asarray(points, dtype=float))
         if self.points.shape[0] != self.times.size or self.times.size < 2:
-            raise TrajectoryError(f"via points need matching times and points, at least 2; got "
-                                  f"{self.times.size} times and {self.points.shape[0]} points")
+            raise TrajectoryError(
+                f"via points need matching times and points, at least 2; got "
+                f"{self.times.size} times and {self.points.shape[0]} points"
+            )
         if self.times[0] != 0.0 or np.any(np.diff(self.times) <= 0):
-            raise TrajectoryError(f"via-point times must start at 0 and increase strictly, got {self.times.tolist()}")
+            raise TrajectoryError(
+                f"via-point times must start at 0 and increase strictly, got {self.times.tolist()}"
+            )
         self.duration = float(self.times[-1])
         self.dof = self.points.shape[1]
         zeros = [(1, np.zeros(self.dof)), (2, np.zeros(self.dof))]
-        if self.times.size == 2:  # a B-spline of degree 5 needs more points: the quintic PTP is that spline
+        if (
+            self.times.size == 2
+        ):  # a B-spline of degree 5 needs more points: the quintic PTP is that spline
             self._ptp = PointToPoint(self.points[0], self.points[1], self.duration)
             self._spline = None
         else:
@@ -134,22 +140,29 @@ class CsvTrajectory(JointTrajectory):
             raise TrajectoryError(f"{where}: cannot read trajectory CSV: {exc.strerror}") from None
         rows = [r for r in rows if r and any(c.strip() for c in r)]
         if len(rows) < 3:
-            raise TrajectoryError(f"{where}: needs a header line and at least 2 samples, found {max(len(rows) - 1, 0)}")
+            raise TrajectoryError(
+                f"{where}: needs a header line and at least 2 samples, found {max(len(rows) - 1, 0)}"
+            )
         header = [h.strip() for h in rows[0]]
         missing = [c for c in (time_column, *self.joint_names) if c not in header]
         if missing:
-            raise TrajectoryError(f"{where}: line 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}")
+            raise TrajectoryError(
+                f"{where}: line 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}"
+            )
         cols = [header.index(c) for c in (time_column, *self.joint_names)]
         data = np.empty((len(rows) - 1, len(cols)))
         for i, row in enumerate(rows[1:]):
             if len(row) != len(header):
-                raise TrajectoryError(f"{where}: line {i + 2}: {len(row)} fields, header has {len(header)}")
+                raise TrajectoryError(
+                    f"{where}: line {i + 2}: {len(row)} fields, header has {len(header)}"
+                )
             for k, c in enumerate(cols):
                 try:
                     data[i, k] = float(row[c])
                 except ValueError:
-                    raise TrajectoryError(f"{where}: line {i + 2}, column '{header[c]}': "
-                                          f"not a number: {row[c]!r}") from None
+                    raise TrajectoryError(
+                        f"{where}: line {i + 2}, column '{header[c]}': not a number: {row[c]!r}"
+                    ) from None
         if not np.all(np.isfinite(data)):
             raise TrajectoryError(f"{where}: non-finite values")
         t = data[:, 0]
@@ -157,7 +170,9 @@ class CsvTrajectory(JointTrajectory):
             raise TrajectoryError(f"{where}: line 2: time must start at 0, got {t[0]}")
         bad = np.flatnonzero(np.diff(t) <= 0)
         if bad.size:
-            raise TrajectoryError(f"{where}: line {bad[0] + 3}: time does not increase ({t[bad[0]]} then {t[bad[0] + 1]})")
+            raise TrajectoryError(
+                f"{where}: line {bad[0] + 3}: time does not increase ({t[bad[0]]} then {t[bad[0] + 1]})"
+            )
         self.duration = float(t[-1])
         self.dof = len(self.joint_names)
         self._spline = CubicSpline(t, data[:, 1:], bc_type="natural")
@@ -216,7 +231,8 @@ class CartesianGoal:
         position = np.asarray(self.position, dtype=float).ravel()
         if position.size != 3 or not np.all(np.isfinite(position)):
             raise TrajectoryError(
-                f"Cartesian goal position must be 3 finite numbers [m], got {position.tolist()}")
+                f"Cartesian goal position must be 3 finite numbers [m], got {position.tolist()}"
+            )
         object.__setattr__(self, "position", tuple(position.tolist()))
         if self.orientation is not None:
             rot = np.asarray(self.orientation, dtype=float)
@@ -228,9 +244,11 @@ class CartesianGoal:
             elif rot.size == 4 and np.all(np.isfinite(rot)) and np.linalg.norm(rot) > 0:
                 quat = rot.ravel() / np.linalg.norm(rot)
             else:
-                raise TrajectoryError("Cartesian goal orientation must be a quaternion "
-                                      "(x, y, z, w) or a 3 x 3 rotation matrix, "
-                                      f"got {rot.tolist()}")
+                raise TrajectoryError(
+                    "Cartesian goal orientation must be a quaternion "
+                    "(x, y, z, w) or a 3 x 3 rotation matrix, "
+                    f"got {rot.tolist()}"
+                )
             object.__setattr__(self, "orientation", tuple(float(v) for v in quat))
 
     @property
@@ -257,8 +275,9 @@ class CartesianGoal:
         arm = robot.arm(self.arm)
         q_start = np.asarray(q_start, dtype=float).ravel()
         if q_start.size != arm.dof:
-            raise TrajectoryError(f"Cartesian goal: the {arm.name} arm has {arm.dof} joints, "
-                                  f"start has {q_start.size}")
+            raise TrajectoryError(
+                f"Cartesian goal: the {arm.name} arm has {arm.dof} joints, start has {q_start.size}"
+            )
         model = robot.model
         data = model.createData()
         frame = model.getFrameId(arm.ee_frame)
@@ -304,15 +323,24 @@ class CartesianGoal:
                 best = (float(np.linalg.norm(e[:3])), angle, q)
         distance, angle, _ = best
         what = f"{distance:.6g} m" + ("" if goal_R is None else f" and {angle:.6g} rad")
-        err = TrajectoryError(f"Cartesian goal {list(self.position)} for end effector "
-                              f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
-                              f"joint limits: remaining distance {what}")
+        err = TrajectoryError(
+            f"Cartesian goal {list(self.position)} for end effector "
+            f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
+            f"joint limits: remaining distance {what}"
+        )
         err.distance, err.angle = distance, angle
         raise err
 
 
-def cartesian_goal(robot, q_start, position, duration: float, orientation=None,
-                   arm: str = "mission", base: pin.SE3 | None = None) -> PointToPoint:
+def cartesian_goal(
+    robot,
+    q_start,
+    position,
+    duration: float,
+    orientation=None,
+    arm: str = "mission",
+    base: pin.SE3 | None = None,
+) -> PointToPoint:
     """Point-to-point motion (quintic, rest to rest) of an arm to a Cartesian goal.
 
     Args:

@@ -76,8 +76,8 @@ def plan_case(task, method: str, solver_options: dict | None = None):
     if method == "optimal":
         # pipeline.plan_optimal, with this worker's model cache (the pipeline keeps one model
         # per robot object, and every case builds its own robot)
-        from balance_opt.optimal.planner import build_balance_nlp
         from balance_opt.io.task import check_optimal_supported
+        from balance_opt.optimal.planner import build_balance_nlp
 
         check_optimal_supported(task)
         spec = task.spec.optimal
@@ -114,8 +114,8 @@ def run_task_case(case: dict) -> dict:
         Other errors are raised, and recorded by the engine.
     """
     from balance_opt.errors import SolverError
-    from balance_opt.sweep.engine import STATUS_OK, STATUS_SOLVER_FAILED, error_record
     from balance_opt.io.task import task_from_dict
+    from balance_opt.sweep.engine import STATUS_OK, STATUS_SOLVER_FAILED, error_record
 
     start = time.perf_counter()
     task = task_from_dict(case["task"], Path(case["base_dir"]), source=f"case {case['index']}")

@@ -44,7 +44,13 @@ from typing import Any, Literal
 import numpy as np
 
 from balance_opt.io.typed_config import from_data, json_schema, reference_markdown, setting
-from balance_opt.io.yaml_lines import TaskFileError, YamlDocument, format_path, load_yaml, parse_yaml
+from balance_opt.io.yaml_lines import (
+    TaskFileError,
+    YamlDocument,
+    format_path,
+    load_yaml,
+    parse_yaml,
+)
 
 logger = logging.getLogger(__name__)
 
