@@ -13,7 +13,8 @@ import statistics
 import time
 
 from balance_opt.app.scenarios import paper_capture
-from balance_opt.dynamics.simulation import SimulationOptions, simulate
+from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.dynamics.simulation import simulate
 
 CASES = (
     ("RK4 1 kHz, PD, outputs every step", SimulationOptions(dt=1e-3)),

@@ -1,10 +1,26 @@
-"""Shared fixtures: robots and their maps, built once per test session."""
+"""Shared fixtures: robots and their maps, built once per test session.
+
+Compiled planner kernels go to a temporary folder of this test session (removed at its end), never
+to the user's own cache; set ``BALANCE_OPT_TEST_CACHE`` to a folder to keep them across runs.
+"""
 
 import os
+import shutil
+import tempfile
 
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+_KEPT_CACHE = os.environ.get("BALANCE_OPT_TEST_CACHE")
+_SESSION_CACHE = _KEPT_CACHE or tempfile.mkdtemp(prefix="balance-opt-test-cache-")
+# Set before any balance_opt import reads it; worker processes of the sweep tests inherit it.
+os.environ["BALANCE_OPT_CACHE"] = _SESSION_CACHE
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if not _KEPT_CACHE:
+        shutil.rmtree(_SESSION_CACHE, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

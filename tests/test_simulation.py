@@ -7,7 +7,8 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import paper_capture
-from balance_opt.dynamics.simulation import SimulationOptions, simulate, simulate_plan
+from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.dynamics.simulation import simulate, simulate_plan
 from balance_opt.dynamics.wrenches import arm_root_joints
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps

@@ -32,12 +32,8 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.app.scenarios import Scenario, paper_capture
-from balance_opt.dynamics.simulation import (
-    SimulationOptions,
-    SimulationResult,
-    simulate,
-    simulate_plan,
-)
+from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
 from balance_opt.io.plots import FORMATS, attitude_figure, reaction_torque_figure
 from balance_opt.motion.options import IntegrationOptions

@@ -28,8 +28,8 @@ from typing import Any, Literal
 import numpy as np
 
 from balance_opt.analytic.options import BalanceLawOptions
-from balance_opt.dynamics.simulation import CONTROLLERS, SimulationOptions
-from balance_opt.dynamics.simulation import INTEGRATORS as SIMULATION_INTEGRATORS
+from balance_opt.dynamics.options import CONTROLLERS, SimulationOptions
+from balance_opt.dynamics.options import INTEGRATORS as SIMULATION_INTEGRATORS
 from balance_opt.errors import (
     ArmError,
     InfeasibleLimitsError,
@@ -44,8 +44,7 @@ from balance_opt.model.robot import LIMIT_KEYS, FloatingRobot
 from balance_opt.motion.options import INTEGRATION_METHODS, IntegrationOptions
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.collocation import TRANSCRIPTIONS
-from balance_opt.optimal.model import CONTROLS
-from balance_opt.optimal.options import GUESSES, CostWeights, PlannerOptions
+from balance_opt.optimal.options import CONTROLS, GUESSES, CostWeights, PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
 
 log = logging.getLogger(__name__)

@@ -45,10 +45,10 @@ import numpy as np
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import SymbolicMaps
+from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
 
-CONTROLS = ("acceleration", "jerk")
 #: Rotation angle [rad] below which ``Jr^{-1}`` uses its series (the closed form is 0/0 at 0).
 ATTITUDE_SERIES_ANGLE = 1e-2
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.

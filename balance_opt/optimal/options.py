@@ -12,8 +12,10 @@ import numpy as np
 
 from balance_opt.errors import InputError
 from balance_opt.optimal.collocation import TRANSCRIPTIONS
-from balance_opt.optimal.model import CONTROLS
 
+#: Control inputs of the collocation: balance joint accelerations, or jerks (accelerations
+#: become states).
+CONTROLS = ("acceleration", "jerk")
 #: Ipopt return statuses that count as a solution.
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: Default Ipopt options (``PlannerOptions.ipopt`` entries override them). Ipopt's monotone
