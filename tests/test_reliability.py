@@ -1,0 +1,84 @@
+"""Reliability: bad input refused before any work, with the option, key or file named."""
+
+import math
+
+import pytest
+
+from balance_opt.optimal import ipopt_options
+
+
+@pytest.fixture(scope="module")
+def catalog():
+    return ipopt_options.option_catalog()
+
+
+def test_catalog_is_ipopts_own_list(catalog):
+    # Types and ranges as Ipopt documents them, read from the bundled library.
+    assert (
+        catalog["tol"].type == "real" and catalog["tol"].lower == 0 and catalog["tol"].lower_strict
+    )
+    assert catalog["max_iter"].type == "integer" and catalog["max_iter"].lower == 0
+    assert catalog["print_level"].upper == 12 and not catalog["print_level"].upper_strict
+    assert {"mumps", "ma57"} <= set(catalog["linear_solver"].values)
+    assert catalog["mu_superlinear_decrease_power"].upper_strict
+    assert len(catalog) > 200
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "message"),
+    [
+        ("tolx", 1e-3, "unknown Ipopt option 'tolx'; did you mean 'tol'?"),
+        (
+            "tol",
+            math.nan,
+            "Ipopt option 'tol' must be finite, got nan; expected a finite number > 0",
+        ),
+        ("tol", 0.0, "Ipopt option 'tol' is out of range, got 0.0; expected a finite number > 0"),
+        (
+            "max_iter",
+            10.5,
+            "Ipopt option 'max_iter' takes an integer, got 10.5; expected an integer >= 0",
+        ),
+        ("max_iter", "many", "Ipopt option 'max_iter' takes a number, got 'many'"),
+        ("max_iter", True, "Ipopt option 'max_iter' takes a number, got True"),
+        ("print_level", 13, "out of range, got 13; expected an integer >= 0 and <= 12"),
+        (
+            "hessian_approximation",
+            "bfgs",
+            "does not accept 'bfgs'; expected one of 'exact', 'limited-memory'",
+        ),
+        ("linear_solver", "ma57", "Ipopt cannot load linear solver 'ma57'"),
+        ("mu_strategy", 3, "Ipopt option 'mu_strategy' takes a string, got 3"),
+    ],
+)
+def test_bad_ipopt_option_is_named(catalog, name, value, message):
+    problem = ipopt_options.option_problem(name, value, catalog)
+    assert problem is not None and message in problem
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("tol", 1e-6),
+        ("max_iter", 500),
+        ("max_iter", 500.0),
+        ("print_level", 12),
+        ("sb", "yes"),
+        ("linear_solver", "mumps"),
+        ("hessian_approximation", "limited-memory"),
+    ],
+)
+def test_good_ipopt_option_passes(catalog, name, value):
+    assert ipopt_options.option_problem(name, value, catalog) is None
+
+
+def test_catalog_cached_on_disk_is_reused(tmp_path, monkeypatch, catalog):
+    monkeypatch.setenv("BALANCE_OPT_CACHE", str(tmp_path))
+    monkeypatch.setattr(ipopt_options, "_CATALOG", None)
+    first = ipopt_options.option_catalog()
+    files = list(tmp_path.glob("ipopt-options-*.json"))
+    assert len(files) == 1 and first == catalog
+    # A second process reads the file: asking Ipopt again would be a failure here.
+    monkeypatch.setattr(ipopt_options, "_CATALOG", None)
+    monkeypatch.setattr(ipopt_options, "_documentation_from_ipopt", lambda: pytest.fail("re-read"))
+    assert ipopt_options.option_catalog() == catalog
