@@ -13,8 +13,8 @@ import contextlib
 import ctypes
 import difflib
 import html
-import io
 import importlib.metadata
+import io
 import json
 import math
 import os
@@ -33,10 +33,10 @@ BUNDLED_LINEAR_SOLVERS = ("mumps",)
 #: Options Ipopt accepts but does not document (``sb``: suppress the banner).
 UNDOCUMENTED = {"sb": ("yes", "no")}
 
-_BLOCK = re.compile(r"<strong>(\w+)</strong>(.*?)</blockquote>", re.S)
+_BLOCK = re.compile(r"<strong>(\w+)</strong>(.*?)</blockquote>", re.DOTALL)
 _TYPE = re.compile(r"this (integer|real|string) option")
-_RANGE = re.compile(r"valid range for this (?:integer|real) option is (.*?) and its default", re.S)
-_VALUE = re.compile(r"^ - ([^:\s]+):", re.M)
+_RANGE = re.compile(r"valid range for this (?:integer|real) option is (.*?) and its default", re.DOTALL)
+_VALUE = re.compile(r"^ - ([^:\s]+):", re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,7 @@ _CATALOG: dict[str, IpoptOption] | None = None
 
 def option_catalog() -> dict[str, IpoptOption]:
     """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk)."""
-    global _CATALOG  # noqa: PLW0603 -- one parse per process, like an import
+    global _CATALOG
     if _CATALOG is not None:
         return _CATALOG
     path = _catalog_file()
