@@ -82,3 +82,97 @@ def test_catalog_cached_on_disk_is_reused(tmp_path, monkeypatch, catalog):
     monkeypatch.setattr(ipopt_options, "_CATALOG", None)
     monkeypatch.setattr(ipopt_options, "_documentation_from_ipopt", lambda: pytest.fail("re-read"))
     assert ipopt_options.option_catalog() == catalog
+
+
+# ---------------------------------------------------------------------------- output folders
+def _files(folder):
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*"))
+
+
+def test_output_folder_replaces_whole_run_only_when_complete(tmp_path):
+    from balance_opt.io.output_dir import OutputFolder
+
+    target = tmp_path / "run"
+    target.mkdir()
+    (target / "optimal.csv").write_text("old")
+    (target / "metrics.json").write_text("old")
+    with OutputFolder(target, force=True) as out:
+        (out.staging / "metrics.json").write_text("new")
+        # While the run writes, the old results are intact.
+        assert (target / "optimal.csv").read_text() == "old"
+    assert _files(target) == ["metrics.json"]  # no file of the earlier run is left
+    assert (target / "metrics.json").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no staging, no lock left
+
+
+def test_output_folder_interrupted_run_leaves_previous_results(tmp_path):
+    from balance_opt.io.output_dir import OutputFolder
+
+    target = tmp_path / "run"
+    target.mkdir()
+    (target / "metrics.json").write_text("old")
+    with pytest.raises(KeyboardInterrupt), OutputFolder(target, force=True) as out:
+        (out.staging / "metrics.json").write_text("half")
+        raise KeyboardInterrupt
+    assert _files(target) == ["metrics.json"] and (target / "metrics.json").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_output_folder_refuses_non_empty_without_force(tmp_path):
+    from balance_opt.io.output_dir import OutputFolder, OutputFolderError
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "x.txt").write_text("keep")
+    with pytest.raises(OutputFolderError, match=r"exists and is not empty; use --force"):
+        OutputFolder(tmp_path / "run").open()
+    assert (tmp_path / "run" / "x.txt").read_text() == "keep"
+
+
+@pytest.mark.parametrize("where", ["file-parent", "proc"])
+def test_output_folder_not_creatable_fails_at_once(tmp_path, where):
+    from balance_opt.io.output_dir import OutputFolder, OutputFolderError
+
+    if where == "file-parent":
+        (tmp_path / "plain").write_text("")
+        target = tmp_path / "plain" / "run"
+    else:
+        target = "/proc/balance-opt-run"
+    with pytest.raises(OutputFolderError, match=r"cannot (create|write in) output folder"):
+        OutputFolder(target).open()
+
+
+def test_output_folder_lock_refuses_second_run_and_dies_with_its_holder(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    from balance_opt.io.output_dir import OutputFolder, OutputFolderError
+
+    target = tmp_path / "run"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\n"
+            "from balance_opt.io.output_dir import OutputFolder\n"
+            f"out = OutputFolder({str(target)!r}); out.open(); print('ready', flush=True)\n"
+            "time.sleep(60)\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "ready"
+        with pytest.raises(
+            OutputFolderError,
+            match=rf"being written by another balance-opt run \(process {holder.pid}\)",
+        ):
+            OutputFolder(target).open()
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    # The kernel released the lock; the killed run's staging folder is cleaned up.
+    with OutputFolder(target) as out:
+        (out.staging / "a.txt").write_text("x")
+    assert _files(target) == ["a.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
