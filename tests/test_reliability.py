@@ -176,3 +176,105 @@ def test_output_folder_lock_refuses_second_run_and_dies_with_its_holder(tmp_path
         (out.staging / "a.txt").write_text("x")
     assert _files(target) == ["a.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+# ---------------------------------------------------------------------------- URDF physics
+_LINK = '<link name="{n}"><inertial><mass value="{m}"/><inertia ixx="{ixx}" ixy="0" ixz="0" iyy="{iyy}" iyz="0" izz="{izz}"/></inertial></link>'
+_JOINT = '<joint name="{n}" type="revolute"><parent link="{p}"/><child link="{c}"/><axis xyz="{axis}"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+
+
+def _urdf(links=None, joints=None):
+    import xml.etree.ElementTree as ET
+
+    links = links or [
+        dict(n="base", m=10, ixx=1, iyy=1, izz=1),
+        dict(n="arm", m=1, ixx=0.1, iyy=0.1, izz=0.05),
+    ]
+    joints = joints if joints is not None else [dict(n="j1", p="base", c="arm", axis="0 0 1")]
+    text = "<robot name='r'>" + "".join(_LINK.format(**lk) for lk in links)
+    text += "".join(_JOINT.format(**j) for j in joints) + "</robot>"
+    return ET.fromstring(text)
+
+
+def test_physical_urdf_passes_without_warnings():
+    from balance_opt.model.urdf_checks import check_urdf_physics
+
+    assert check_urdf_physics(_urdf(), "r.urdf") == []
+
+
+@pytest.mark.parametrize(
+    ("links", "joints", "message"),
+    [
+        (
+            [
+                dict(n="base", m=10, ixx=1, iyy=1, izz=1),
+                dict(n="arm", m=-1, ixx=0.1, iyy=0.1, izz=0.05),
+            ],
+            None,
+            "r.urdf: link 'arm': mass -1 kg is negative",
+        ),
+        (
+            [
+                dict(n="base", m=10, ixx=1, iyy=1, izz=1),
+                dict(n="arm", m=1, ixx=0.1, iyy=-0.1, izz=0.05),
+            ],
+            None,
+            "link 'arm': inertia is not positive semi-definite",
+        ),
+        (
+            [
+                dict(n="base", m=10, ixx=1, iyy=1, izz=1),
+                dict(n="arm", m="nan", ixx=0.1, iyy=0.1, izz=0.05),
+            ],
+            None,
+            "link 'arm': <inertial> <mass value=...> is 'nan', not a finite number",
+        ),
+        (
+            None,
+            [dict(n="j1", p="base", c="arm", axis="0 0 0")],
+            "joint 'j1': axis is of zero length",
+        ),
+        (
+            None,
+            [
+                dict(n="j1", p="base", c="arm", axis="0 0 1"),
+                dict(n="j2", p="base", c="arm", axis="0 0 1"),
+            ],
+            "link 'arm' is the child of two joints ('j1' and 'j2')",
+        ),
+        (
+            None,
+            [dict(n="j1", p="base", c="hand", axis="0 0 1")],
+            "joint 'j1': its child link 'hand' is not a <link>",
+        ),
+        (None, [], "a URDF has one root link, this one has 2: 'base', 'arm'"),
+    ],
+)
+def test_non_physical_urdf_refused_naming_link_or_joint(links, joints, message):
+    from balance_opt.errors import URDFLoadError
+    from balance_opt.model.urdf_checks import check_urdf_physics
+
+    with pytest.raises(URDFLoadError) as info:
+        check_urdf_physics(_urdf(links, joints), "r.urdf")
+    assert message in str(info.value)
+
+
+def test_implausible_inertias_are_warned_by_link():
+    from balance_opt.model.urdf_checks import check_urdf_physics
+
+    links = [
+        dict(n="base", m=10, ixx=1, iyy=1, izz=1),
+        dict(n="arm", m=1, ixx=0.01, iyy=0.01, izz=0.05),  # 0.01 + 0.01 < 0.05
+        dict(n="tip", m=0, ixx=0.1, iyy=0.1, izz=0.1),
+    ]
+    joints = [
+        dict(n="j1", p="base", c="arm", axis="0 0 1"),
+        dict(n="j2", p="arm", c="tip", axis="0 1 0"),
+    ]
+    warnings = check_urdf_physics(_urdf(links, joints), "r.urdf")
+    assert len(warnings) == 2
+    assert (
+        "link 'arm': principal moments 0.01, 0.01, 0.05 kg m^2 break the triangle inequality"
+        in warnings[0]
+    )
+    assert warnings[1] == "link 'tip' has zero mass but a non-zero inertia"
