@@ -153,10 +153,12 @@ def test_output_folder_lock_refuses_second_run_and_dies_with_its_holder(tmp_path
         [
             sys.executable,
             "-c",
-            "import sys, time\n"
-            "from balance_opt.io.output_dir import OutputFolder\n"
-            f"out = OutputFolder({str(target)!r}); out.open(); print('ready', flush=True)\n"
-            "time.sleep(60)\n",
+            (
+                "import sys, time\n"
+                "from balance_opt.io.output_dir import OutputFolder\n"
+                f"out = OutputFolder({str(target)!r}); out.open(); print('ready', flush=True)\n"
+                "time.sleep(60)\n"
+            ),
         ],
         stdout=subprocess.PIPE,
         text=True,
@@ -187,10 +189,12 @@ def _urdf(links=None, joints=None):
     import xml.etree.ElementTree as ET
 
     links = links or [
-        dict(n="base", m=10, ixx=1, iyy=1, izz=1),
-        dict(n="arm", m=1, ixx=0.1, iyy=0.1, izz=0.05),
+        {"n": "base", "m": 10, "ixx": 1, "iyy": 1, "izz": 1},
+        {"n": "arm", "m": 1, "ixx": 0.1, "iyy": 0.1, "izz": 0.05},
     ]
-    joints = joints if joints is not None else [dict(n="j1", p="base", c="arm", axis="0 0 1")]
+    joints = (
+        joints if joints is not None else [{"n": "j1", "p": "base", "c": "arm", "axis": "0 0 1"}]
+    )
     text = "<robot name='r'>" + "".join(_LINK.format(**lk) for lk in links)
     text += "".join(_JOINT.format(**j) for j in joints) + "</robot>"
     return ET.fromstring(text)
@@ -207,44 +211,44 @@ def test_physical_urdf_passes_without_warnings():
     [
         (
             [
-                dict(n="base", m=10, ixx=1, iyy=1, izz=1),
-                dict(n="arm", m=-1, ixx=0.1, iyy=0.1, izz=0.05),
+                {"n": "base", "m": 10, "ixx": 1, "iyy": 1, "izz": 1},
+                {"n": "arm", "m": -1, "ixx": 0.1, "iyy": 0.1, "izz": 0.05},
             ],
             None,
             "r.urdf: link 'arm': mass -1 kg is negative",
         ),
         (
             [
-                dict(n="base", m=10, ixx=1, iyy=1, izz=1),
-                dict(n="arm", m=1, ixx=0.1, iyy=-0.1, izz=0.05),
+                {"n": "base", "m": 10, "ixx": 1, "iyy": 1, "izz": 1},
+                {"n": "arm", "m": 1, "ixx": 0.1, "iyy": -0.1, "izz": 0.05},
             ],
             None,
             "link 'arm': inertia is not positive semi-definite",
         ),
         (
             [
-                dict(n="base", m=10, ixx=1, iyy=1, izz=1),
-                dict(n="arm", m="nan", ixx=0.1, iyy=0.1, izz=0.05),
+                {"n": "base", "m": 10, "ixx": 1, "iyy": 1, "izz": 1},
+                {"n": "arm", "m": "nan", "ixx": 0.1, "iyy": 0.1, "izz": 0.05},
             ],
             None,
             "link 'arm': <inertial> <mass value=...> is 'nan', not a finite number",
         ),
         (
             None,
-            [dict(n="j1", p="base", c="arm", axis="0 0 0")],
+            [{"n": "j1", "p": "base", "c": "arm", "axis": "0 0 0"}],
             "joint 'j1': axis is of zero length",
         ),
         (
             None,
             [
-                dict(n="j1", p="base", c="arm", axis="0 0 1"),
-                dict(n="j2", p="base", c="arm", axis="0 0 1"),
+                {"n": "j1", "p": "base", "c": "arm", "axis": "0 0 1"},
+                {"n": "j2", "p": "base", "c": "arm", "axis": "0 0 1"},
             ],
             "link 'arm' is the child of two joints ('j1' and 'j2')",
         ),
         (
             None,
-            [dict(n="j1", p="base", c="hand", axis="0 0 1")],
+            [{"n": "j1", "p": "base", "c": "hand", "axis": "0 0 1"}],
             "joint 'j1': its child link 'hand' is not a <link>",
         ),
         (None, [], "a URDF has one root link, this one has 2: 'base', 'arm'"),
@@ -263,13 +267,13 @@ def test_implausible_inertias_are_warned_by_link():
     from balance_opt.model.urdf_checks import check_urdf_physics
 
     links = [
-        dict(n="base", m=10, ixx=1, iyy=1, izz=1),
-        dict(n="arm", m=1, ixx=0.01, iyy=0.01, izz=0.05),  # 0.01 + 0.01 < 0.05
-        dict(n="tip", m=0, ixx=0.1, iyy=0.1, izz=0.1),
+        {"n": "base", "m": 10, "ixx": 1, "iyy": 1, "izz": 1},
+        {"n": "arm", "m": 1, "ixx": 0.01, "iyy": 0.01, "izz": 0.05},  # 0.01 + 0.01 < 0.05
+        {"n": "tip", "m": 0, "ixx": 0.1, "iyy": 0.1, "izz": 0.1},
     ]
     joints = [
-        dict(n="j1", p="base", c="arm", axis="0 0 1"),
-        dict(n="j2", p="arm", c="tip", axis="0 1 0"),
+        {"n": "j1", "p": "base", "c": "arm", "axis": "0 0 1"},
+        {"n": "j2", "p": "arm", "c": "tip", "axis": "0 1 0"},
     ]
     warnings = check_urdf_physics(_urdf(links, joints), "r.urdf")
     assert len(warnings) == 2
