@@ -29,15 +29,14 @@ from balance_opt.sweep.engine import (
     write_json_atomic,
 )
 from balance_opt.sweep.report import is_timing_column, read_table_csv, results_table
-from balance_opt.sweep.spec import (
+from balance_opt.sweep.cases import (
     apply_overrides,
     case_id_from,
-    load_sweep,
     parameter_columns,
     parse_key_path,
-    parse_sweep,
-    run_sweep,
 )
+from balance_opt.sweep.run import run_sweep
+from balance_opt.sweep.spec import load_sweep, parse_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_TASK = ROOT / "examples" / "paper_capture.yaml"
@@ -649,6 +648,8 @@ def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
 def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
     """In one process, cases that vary limits, weights and the start share one planner model
     and one compiled NLP; each case's limits still hold in its plan."""
+    from balance_opt.app.models import ModelCache
+    from balance_opt.io.task import task_from_dict
     from balance_opt.sweep import runner as sweep_runner
 
     text = (
@@ -657,14 +658,14 @@ def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
         "  optimal.weights.omega: [100.0, 10.0]\n"
     )
     sweep = parse_sweep(text, "cache.yaml", tmp_path)
-    results = [sweep_runner.run_task_case(case) for case in sweep.cases]
+    models = ModelCache()
+    results = [sweep_runner.run_task_case(case, models) for case in sweep.cases]
     assert [r["status"] for r in results] == ["ok"] * 4
     builds = [r["timing"]["planner_build_s"] for r in results]
     assert all(b == 0.0 for b in builds[1:]), builds  # only the first case may build
-    keys = {
-        sweep_runner.robot_key(c["task"], c["base_dir"]) for c in sweep.cases
-    }  # limits are not part of the robot's key
-    assert len(keys) == 1 and keys <= set(sweep_runner._MODELS)
+    robots = [task_from_dict(c["task"], Path(c["base_dir"])).robot for c in sweep.cases]
+    assert len(models) == 1  # limits are not part of the model's key
+    assert all(robot in models for robot in robots)
     # each case meets its own limit, and the loose cases use more than the tight limit of the
     # robot the cached model was built with (the first case's)
     peaks = [r["metrics"]["peak_joint_rates_rad_s"]["balance_joint1"] for r in results]

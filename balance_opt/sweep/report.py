@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.sweep.spec import canonical_json, is_number, parameter_columns
+from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
 
