@@ -93,9 +93,7 @@ def plan_mission_only(task: Task) -> BalanceResult:
     from balance_opt.analytic.phases import phase_one
 
     a = task.spec.analytic
-    return phase_one(
-        task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration_options()
-    )
+    return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration)
 
 
 def plan_analytic(task: Task) -> BalanceResult:
@@ -107,13 +105,7 @@ def plan_analytic(task: Task) -> BalanceResult:
     from balance_opt.motion.rollout import rollout
 
     a = task.spec.analytic
-    return rollout(
-        task.robot,
-        task.mission,
-        task.q_B0,
-        a.law_options(task.h0),
-        integration=a.integration_options(),
-    )
+    return rollout(task.robot, task.mission, task.q_B0, a.law, integration=a.integration)
 
 
 def plan_optimal(
@@ -139,7 +131,7 @@ def plan_optimal(
 
     check_optimal_supported(task)
     spec = task.spec.optimal
-    options = spec.planner_options(solver_options)
+    options = task.planner_options(solver_options)
     nlp = build_balance_nlp(model or _planner_model(task), task.mission, task.q_B0, options)
     guess = (
         warm_start
@@ -167,7 +159,7 @@ def simulate_result(task: Task, plan: BalanceResult):
     """Forward-dynamics simulation of a plan with the task's simulation options."""
     from balance_opt.dynamics.simulation import simulate_plan
 
-    return simulate_plan(task.robot, plan, task.spec.simulation.simulation_options(task.h0))
+    return simulate_plan(task.robot, plan, task.spec.simulation)
 
 
 # =========================================================================================== run
@@ -226,7 +218,8 @@ def run_task(
         with _timed(
             f"{task.name}: {method} plan"
             + (
-                f" (N = {task.spec.optimal.intervals}, {task.spec.optimal.transcription}, Ipopt)"
+                f" (N = {task.spec.optimal.planner.intervals}, "
+                f"{task.spec.optimal.planner.transcription}, Ipopt)"
                 if method == "optimal"
                 else ""
             )
@@ -385,9 +378,9 @@ def paper_figures(
     kwargs = {}
     if task is not None:
         kwargs = {
-            "law": task.spec.analytic.law_options(task.h0),
-            "planner": task.spec.optimal.planner_options(solver_options),
-            "simulation": task.spec.simulation.simulation_options(task.h0),
+            "law": task.spec.analytic.law,
+            "planner": task.planner_options(solver_options),
+            "simulation": task.spec.simulation,
         }
     elif solver_options:
         from balance_opt.optimal.options import PlannerOptions

@@ -83,7 +83,7 @@ def plan_case(task, method: str, solver_options: dict | None = None):
         spec = task.spec.optimal
         model = planner_model_for(task, robot_key(task.document.data, str(task.base_dir)))
         nlp = build_balance_nlp(
-            model, task.mission, task.q_B0, spec.planner_options(solver_options)
+            model, task.mission, task.q_B0, task.planner_options(solver_options)
         )
         return nlp.solve(spec.initial_guess)
     raise ValueError(f"unknown method '{method}'; expected analytic or optimal")
