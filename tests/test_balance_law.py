@@ -52,6 +52,9 @@ STILL_ANGLE = 1e-8  # [rad]
 MOMENTUM_ATOL = 1e-9  # [N m s]
 #: Two evaluations of the same exact expression by different code paths [rad/s].
 RATE_ATOL = 1e-12
+#: Output spacing of the rollouts checked sample by sample: 1 kHz (the library's default is
+#: 10 ms).
+KHZ = IntegrationOptions(output_step=1e-3)
 #: Per-sample independent checks look at every CHECK_EVERY-th output sample (1 kHz output).
 CHECK_EVERY = 50
 #: Attitudes from two error-controlled integrators (tolerances <= 1e-10 relative, attitude
@@ -91,7 +94,7 @@ def nonsingular(paper):
     mission = PointToPoint(
         NONSINGULAR_START[:3], NONSINGULAR_START[:3] + NONSINGULAR_MOVE, NONSINGULAR_DURATION
     )
-    return mission, rollout(paper, mission, NONSINGULAR_START[3:])
+    return mission, rollout(paper, mission, NONSINGULAR_START[3:], integration=KHZ)
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +104,7 @@ def capture():
 
 @pytest.fixture(scope="module")
 def capture_dls(capture):
-    return rollout(capture.robot, capture.mission, capture.q_B0)
+    return rollout(capture.robot, capture.mission, capture.q_B0, integration=KHZ)
 
 
 @pytest.fixture(scope="module")
@@ -109,8 +112,8 @@ def baxter_runs(baxter):
     q0 = baxter.neutral()
     M, B = baxter.mission_indices, baxter.balance_indices
     mission = PointToPoint(q0[M], q0[M] + 0.3, 4.0)
-    with_null = rollout(baxter, mission, q0[B])
-    plain = rollout(baxter, mission, q0[B], BalanceLawOptions(null_space_gain=0.0))
+    with_null = rollout(baxter, mission, q0[B], integration=KHZ)
+    plain = rollout(baxter, mission, q0[B], BalanceLawOptions(null_space_gain=0.0), integration=KHZ)
     return mission, with_null, plain
 
 
@@ -145,7 +148,7 @@ def test_replayed_plan_keeps_base_still(paper, nonsingular):
     """The law's balance motion, interpolated from its 1 kHz samples and replayed by momentum
     conservation alone (no law), keeps the base still: the plan itself balances."""
     mission, res = nonsingular
-    again = replay(paper, mission, SampledTrajectory.from_result(res))
+    again = replay(paper, mission, SampledTrajectory.from_result(res), integration=KHZ)
     assert again.max_drift <= STILL_ANGLE
     np.testing.assert_allclose(again.q_dot_B, res.q_dot_B, rtol=0, atol=1e-12)
     assert both(paper, mission, res).max_drift <= STILL_ANGLE
@@ -174,7 +177,9 @@ def test_balance_only_is_not_minus_mission_only(paper, nonsingular):
     to, but not exactly, the opposite of Fig. 2 (a holonomic system would cancel exactly)."""
     mission, res = nonsingular
     alone = rotvec_from_quaternion(balance_only(paper, res, NONSINGULAR_START[:3]).quaternion[-1])
-    first = rotvec_from_quaternion(phase_one(paper, mission, NONSINGULAR_START[3:]).quaternion[-1])
+    first = rotvec_from_quaternion(
+        phase_one(paper, mission, NONSINGULAR_START[3:], integration=KHZ).quaternion[-1]
+    )
     assert np.linalg.norm(first) > 1e-3
     assert 1e-6 < np.linalg.norm(alone + first) < 0.1 * np.linalg.norm(first)
 
@@ -182,7 +187,7 @@ def test_balance_only_is_not_minus_mission_only(paper, nonsingular):
 # ---------------------------------------------------------------------------------- Phase I
 def test_phase_one_matches_independent_integration(capture):
     robot, mission = capture.robot, capture.mission
-    res = phase_one(robot, mission, capture.q_B0)
+    res = phase_one(robot, mission, capture.q_B0, integration=KHZ)
     data = robot.model.createData()
 
     def rhs(t, y):
@@ -283,7 +288,7 @@ def test_dls_bounds_rates_and_reports_its_residual(capture, capture_dls):
 def test_velocity_violations_are_reported(nonsingular):
     mission, res = nonsingular
     robot = paper_robot(limits={"balance_joint1": {"velocity": 0.05}})
-    slow = rollout(robot, mission, NONSINGULAR_START[3:])
+    slow = rollout(robot, mission, NONSINGULAR_START[3:], integration=KHZ)
     found = [v for v in slow.violations if v.joint == "balance_joint1" and v.kind == "velocity"]
     assert len(found) == 1
     over = np.abs(res.q_dot_B[:, 0]) > 0.05 + 1e-6
@@ -334,7 +339,7 @@ def test_eq32_matches_finite_differences_of_eq31(case, request, paper):
     else:
         sc = request.getfixturevalue("capture")
         options = BalanceLawOptions(attitude_gain=0.5, h0=(0.0, 0.0, 0.0, 0.02, -0.01, 0.03))
-        res = rollout(sc.robot, sc.mission, sc.q_B0, options)
+        res = rollout(sc.robot, sc.mission, sc.q_B0, options, integration=KHZ)
         assert res.info["damping_active_fraction"] == 1.0
     fd = _richardson_derivative(res.t, res.q_dot_B)
     assert np.abs(res.q_ddot_B).max() > 1e-2
@@ -392,7 +397,13 @@ def test_h0_with_arms_at_rest_is_a_torque_free_rigid_body(paper):
     q = NONSINGULAR_START
     L = np.array([3.0, -2.0, 5.0])  # [N m s]: tumbles at ~0.07 rad/s
     duration = 20.0
-    res = phase_one(paper, PointToPoint(q[:3], q[:3], duration), q[3:], h0=np.r_[0, 0, 0, L])
+    res = phase_one(
+        paper,
+        PointToPoint(q[:3], q[:3], duration),
+        q[3:],
+        h0=np.r_[0, 0, 0, L],
+        integration=KHZ,
+    )
     I = _composite_inertia(paper, q)
     t = res.t[::CHECK_EVERY]
     quat_ref, omega_ref = _euler_rigid_body(I, L, t)
@@ -412,7 +423,7 @@ def test_h0_spin_about_a_principal_axis_is_uniform(paper):
     I = _composite_inertia(paper, q)
     moments, axes = np.linalg.eigh(I)
     L = 2.0 * axes[:, 0]  # [N m s] about the axis of least inertia
-    res = phase_one(paper, PointToPoint(q[:3], q[:3], 2.0), q[3:], h0=L)
+    res = phase_one(paper, PointToPoint(q[:3], q[:3], 2.0), q[3:], h0=L, integration=KHZ)
     rate = 2.0 / moments[0]
     np.testing.assert_allclose(res.angle, rate * res.t, rtol=0, atol=1e-9)
     expected = quaternion_from_rotvec(np.outer(res.t * rate, axes[:, 0]))
@@ -424,7 +435,9 @@ def test_law_with_h0_keeps_base_still(paper):
     momentum and the base stays still."""
     q = NONSINGULAR_START
     L = np.array([0.003, -0.002, 0.004])  # [N m s]
-    res = rollout(paper, PointToPoint(q[:3], q[:3], 3.0), q[3:], BalanceLawOptions(h0=L))
+    res = rollout(
+        paper, PointToPoint(q[:3], q[:3], 3.0), q[3:], BalanceLawOptions(h0=L), integration=KHZ
+    )
     assert res.max_drift <= STILL_ANGLE
     assert np.linalg.norm(res.q_B[-1] - q[3:]) > 1e-3
     for k in range(0, res.t.size, CHECK_EVERY):
