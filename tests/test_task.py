@@ -20,7 +20,8 @@ from balance_opt.io.task import (
     task_reference_markdown,
 )
 from balance_opt.io.task_spec import PtpMission, TaskSpec
-from balance_opt.io.typed_config import from_data, reference_rows
+from balance_opt.io.typed_config import from_data
+from balance_opt.io.typed_reference import reference_rows
 from balance_opt.io.yaml_lines import TaskFileError, format_path, parse_yaml
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import CostWeights, PlannerOptions

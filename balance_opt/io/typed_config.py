@@ -8,8 +8,8 @@ one declaration this module derives
   to typed objects, every error naming the file, the line and the key path and what was expected;
 * the validator of Python calls, :func:`check_settings`, which the dataclass's ``__post_init__``
   calls: the same checks, an :class:`~balance_opt.errors.InputError` naming the option;
-* the JSON Schema, :func:`json_schema`, for editors;
-* the reference table of the README, :func:`reference_rows` and :func:`reference_markdown`;
+* the JSON Schema and the README's reference table (:mod:`balance_opt.io.typed_reference`,
+  from :func:`file_layout`, the keys as laid out in a file);
 * :func:`walk_settings`: every value of a tree with its key path and declaration, for checks
   that need more than the value (one value per joint of a robot, ...).
 
@@ -110,37 +110,37 @@ def setting(
 
 # ----------------------------------------------------------------------------------- type helpers
 @functools.cache
-def _hints(cls) -> dict:
+def type_hints(cls) -> dict:
     return typing.get_type_hints(cls)
 
 
-def _is_union(tp) -> bool:
+def is_union(tp) -> bool:
     return typing.get_origin(tp) in (Union, types.UnionType)
 
 
-def _union_args(tp) -> tuple:
-    return typing.get_args(tp) if _is_union(tp) else (tp,)
+def union_args(tp) -> tuple:
+    return typing.get_args(tp) if is_union(tp) else (tp,)
 
 
-def _tag_of(cls) -> str | None:
+def tag_of(cls) -> str | None:
     """The ``type`` literal of a tagged-union member, or None."""
     if not dataclasses.is_dataclass(cls):
         return None
-    tp = _hints(cls).get("type")
+    tp = type_hints(cls).get("type")
     if typing.get_origin(tp) is Literal and len(typing.get_args(tp)) == 1:
         return typing.get_args(tp)[0]
     return None
 
 
-def _describe(tp) -> str:
+def describe(tp) -> str:
     """Human name of a type, as used in 'expected ...' messages and the reference."""
     if tp is type(None):
         return "null"
-    if _is_union(tp):
+    if is_union(tp):
         members = [a for a in typing.get_args(tp) if a is not type(None)]
-        if all(_tag_of(a) for a in members):
-            return "a mapping with type: " + " | ".join(_tag_of(a) for a in members)
-        return " or ".join(_describe(a) for a in members)
+        if all(tag_of(a) for a in members):
+            return "a mapping with type: " + " | ".join(tag_of(a) for a in members)
+        return " or ".join(describe(a) for a in members)
     origin = typing.get_origin(tp)
     if origin is Literal:
         return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
@@ -156,7 +156,7 @@ def _describe(tp) -> str:
 
 
 def _plural(tp) -> str:
-    if _is_union(tp):
+    if is_union(tp):
         return " or ".join(_plural(a) for a in typing.get_args(tp) if a is not type(None))
     origin = typing.get_origin(tp)
     if origin is tuple:
@@ -194,7 +194,7 @@ def suggest(name: Any, candidates) -> str:
     return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
 
 
-def _field_default(f):
+def field_default(f):
     if f.default is not _MISSING:
         return f.default
     if f.default_factory is not _MISSING:
@@ -204,7 +204,7 @@ def _field_default(f):
 
 # ----------------------------------------------------------------------------------- file layout
 @dataclasses.dataclass(frozen=True)
-class _Leaf:
+class Leaf:
     """A key of the file bound to a field: ``attrs`` is the attribute path from the class whose
     layout holds it (more than one name through ``inline`` fields)."""
 
@@ -219,7 +219,7 @@ class _Leaf:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Section:
+class Section:
     """A mapping of the file whose keys are fields of the enclosing class (``section=``)."""
 
     key: str
@@ -230,26 +230,26 @@ class _Section:
 
 def _prefixed(entry, name: str):
     """``entry`` of an inline field ``name``: its attribute paths start with ``name``."""
-    if isinstance(entry, _Section):
+    if isinstance(entry, Section):
         return dataclasses.replace(entry, entries=tuple(_prefixed(e, name) for e in entry.entries))
     return dataclasses.replace(entry, attrs=(name, *entry.attrs))
 
 
 @functools.cache
-def _layout(cls) -> tuple:
+def file_layout(cls) -> tuple:
     """The keys of ``cls``'s mapping in the file, in order: leaves and sections."""
-    hints = _hints(cls)
+    hints = type_hints(cls)
     entries: list = []
     sections: dict[str, list] = {}
-    late: list[_Leaf] = []
+    late: list[Leaf] = []
     for f in dataclasses.fields(cls):
         meta = f.metadata
         if not f.init or not meta.get("in_file", True):
             continue
         if meta.get("inline"):
-            entries.extend(_prefixed(e, f.name) for e in _layout(hints[f.name]))
+            entries.extend(_prefixed(e, f.name) for e in file_layout(hints[f.name]))
             continue
-        leaf = _Leaf(meta.get("key") or f.name, (f.name,), f, hints[f.name])
+        leaf = Leaf(meta.get("key") or f.name, (f.name,), f, hints[f.name])
         if meta.get("section"):
             if meta["section"] not in sections:
                 sections[meta["section"]] = []
@@ -261,7 +261,7 @@ def _layout(cls) -> tuple:
             entries.append(leaf)
     docs = getattr(cls, "__sections__", {})
     entries = [
-        _Section(e, docs[e], f"{cls.__name__}.{e}", tuple(sections[e])) if isinstance(e, str) else e
+        Section(e, docs[e], f"{cls.__name__}.{e}", tuple(sections[e])) if isinstance(e, str) else e
         for e in entries
     ]
     for leaf in late:
@@ -272,7 +272,7 @@ def _layout(cls) -> tuple:
     return tuple(entries)
 
 
-def _get(obj, attrs: tuple[str, ...]):
+def get_attr(obj, attrs: tuple[str, ...]):
     for name in attrs:
         obj = getattr(obj, name)
     return obj
@@ -287,7 +287,7 @@ class _Invalid(Exception):
         self.reason = reason
 
 
-_NUMBER_META = ("minimum", "exclusive_minimum", "maximum", "finite", "unit")
+NUMBER_META = ("minimum", "exclusive_minimum", "maximum", "finite", "unit")
 
 
 def _check_number(value: float, meta: dict, path: tuple) -> None:
@@ -307,7 +307,7 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
 
 def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
     if not isinstance(value, list):
-        raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
+        raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
     n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
     if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
         raise _Invalid(
@@ -317,7 +317,7 @@ def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
         raise _Invalid(path, f"expected at least {n_lo} items, got {len(value)}")
     if n_hi is not None and len(value) > n_hi:
         raise _Invalid(path, f"expected at most {n_hi} items, got {len(value)}")
-    item_meta = {k: meta.get(k) for k in _NUMBER_META}
+    item_meta = {k: meta.get(k) for k in NUMBER_META}
     return tuple(
         _convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value)
     )
@@ -350,7 +350,7 @@ def _convert_scalar(value, tp, meta: dict, path: tuple):
 
 
 def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
-    if _is_union(tp):
+    if is_union(tp):
         return _convert_union(value, tp, meta, path)
     origin = typing.get_origin(tp)
     if origin is Literal:
@@ -366,7 +366,7 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
         return _convert_list(value, tp, meta, path)
     if origin is dict:
         if not isinstance(value, dict):
-            raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
+            raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
         value_tp = typing.get_args(tp)[1]
         out = {}
         for k, v in value.items():
@@ -386,11 +386,11 @@ def _convert_union(value, tp, meta, path):
     if value is None:
         if type(None) in members:
             return None
-        raise _Invalid(path, f"expected {_describe(tp)}, got nothing (null)")
+        raise _Invalid(path, f"expected {describe(tp)}, got nothing (null)")
     members = [m for m in members if m is not type(None)]
     if any(dataclasses.is_dataclass(m) and isinstance(value, m) for m in members):
         return value  # built in Python: it checked itself
-    tags = {_tag_of(m): m for m in members}
+    tags = {tag_of(m): m for m in members}
     if None not in tags:  # tagged union: dispatch on 'type'
         if not isinstance(value, dict):
             raise _Invalid(
@@ -418,7 +418,7 @@ def _convert_union(value, tp, meta, path):
                 first_error = exc
     if first_error is not None and len(first_error.path) > len(path):
         raise first_error
-    raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
+    raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
 
 
 def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=()) -> None:
@@ -437,7 +437,7 @@ def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=(
             what = "none" if not given else ", ".join(given)
             raise _Invalid(path, f"expected exactly one of {', '.join(one_of)}; got {what}")
     for e in entries:
-        if isinstance(e, _Section):
+        if isinstance(e, Section):
             if e.key in value:
                 sub = value[e.key]
                 if not isinstance(sub, dict):
@@ -448,10 +448,10 @@ def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=(
             for name in e.attrs[:-1]:
                 node = node.setdefault(name, {})
             node[e.attrs[-1]] = _convert(value[e.key], e.tp, e.meta, (*path, e.key))
-        elif _field_default(e.field) is _MISSING:
+        elif field_default(e.field) is _MISSING:
             raise _Invalid(
                 path,
-                f"missing required key '{e.key}' ({_describe(e.tp)}: {e.meta.get('doc', '')})",
+                f"missing required key '{e.key}' ({describe(e.tp)}: {e.meta.get('doc', '')})",
             )
 
 
@@ -460,7 +460,7 @@ def _build(cls, tree: dict, path: tuple):
     mapping's ``path``."""
     fields = {f.name: f for f in dataclasses.fields(cls)}
     kwargs = {
-        name: _build(_hints(cls)[name], value, path)
+        name: _build(type_hints(cls)[name], value, path)
         if fields[name].metadata.get("inline")
         else value
         for name, value in tree.items()
@@ -475,7 +475,7 @@ def _convert_dataclass(value, cls, path):
     if not isinstance(value, dict):
         raise _Invalid(path, f"expected a mapping, got {_got(value)}")
     tree: dict = {}
-    _read_mapping(value, _layout(cls), path, tree, getattr(cls, "__exactly_one__", ()))
+    _read_mapping(value, file_layout(cls), path, tree, getattr(cls, "__exactly_one__", ()))
     return _build(cls, tree, path)
 
 
@@ -530,7 +530,7 @@ def check_settings(obj, what: str) -> None:
     Raises:
         InputError: ``"<what> '<name>': <problem>"`` for the first field that does not fit.
     """
-    hints = _hints(type(obj))
+    hints = type_hints(type(obj))
     for f in dataclasses.fields(obj):
         if "doc" not in f.metadata:
             continue
@@ -546,228 +546,16 @@ def check_settings(obj, what: str) -> None:
 def walk_settings(obj, path: Sequence[Any] = ()) -> Iterator[tuple[tuple, Any, dict]]:
     """Every value of the typed tree ``obj``: ``(key path in the file, value, declaration)``,
     depth first (the values of nested dataclasses, not the dataclasses)."""
-    yield from _walk(obj, _layout(type(obj)), tuple(path))
+    yield from _walk(obj, file_layout(type(obj)), tuple(path))
 
 
 def _walk(obj, entries: tuple, path: tuple):
     for e in entries:
-        if isinstance(e, _Section):
+        if isinstance(e, Section):
             yield from _walk(obj, e.entries, (*path, e.key))
             continue
-        value = _get(obj, e.attrs)
+        value = get_attr(obj, e.attrs)
         if dataclasses.is_dataclass(value):
             yield from walk_settings(value, (*path, e.key))
         else:
             yield (*path, e.key), value, e.meta
-
-
-# ----------------------------------------------------------------------------------- JSON Schema
-def _number_schema(tp, meta: dict) -> dict:
-    out = {"type": "integer" if tp is int else "number"}
-    for name, key in (
-        ("minimum", "minimum"),
-        ("exclusive_minimum", "exclusiveMinimum"),
-        ("maximum", "maximum"),
-    ):
-        if meta.get(name) is not None:
-            out[key] = meta[name]
-    return out
-
-
-def _schema(tp, meta: dict, defs: dict) -> dict:
-    if _is_union(tp):
-        members = typing.get_args(tp)
-        if all(_tag_of(m) for m in members if m is not type(None)):
-            return {"oneOf": [_schema(m, meta, defs) for m in members]}
-        return {"anyOf": [_schema(m, meta, defs) for m in members]}
-    origin = typing.get_origin(tp)
-    if tp is type(None):
-        return {"type": "null"}
-    if origin is Literal:
-        return {"enum": list(typing.get_args(tp))}
-    if origin is tuple:
-        item_meta = {k: meta.get(k) for k in _NUMBER_META}
-        out = {"type": "array", "items": _schema(typing.get_args(tp)[0], item_meta, defs)}
-        if meta.get("min_items") is not None:
-            out["minItems"] = meta["min_items"]
-        if meta.get("max_items") is not None:
-            out["maxItems"] = meta["max_items"]
-        return out
-    if origin is dict:
-        return {
-            "type": "object",
-            "additionalProperties": _schema(typing.get_args(tp)[1], meta, defs),
-        }
-    if dataclasses.is_dataclass(tp):
-        name = tp.__name__
-        if name not in defs:
-            defs[name] = None  # placeholder against recursion
-            defs[name] = dataclass_schema(tp, defs)
-        return {"$ref": f"#/$defs/{name}"}
-    if tp in (int, float):
-        return _number_schema(tp, meta)
-    if tp is bool:
-        return {"type": "boolean"}
-    if tp is str:
-        return {"type": "string", "minLength": 1}
-    if tp is Any:
-        return {}
-    raise TypeError(f"typed_config: unsupported field type {tp!r}")
-
-
-def _json_default(value):
-    if dataclasses.is_dataclass(value):
-        return _entries_data(value, _layout(type(value)))
-    if isinstance(value, tuple):
-        return [_json_default(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _json_default(v) for k, v in value.items()}
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def _entries_data(obj, entries: tuple) -> dict:
-    """The keys of ``entries`` with their values in ``obj`` (``None``: their defaults), as
-    plain data laid out as in a file."""
-    out = {}
-    for e in entries:
-        if isinstance(e, _Section):
-            out[e.key] = _entries_data(obj, e.entries)
-        else:
-            out[e.key] = _json_default(
-                _field_default(e.field) if obj is None else _get(obj, e.attrs)
-            )
-    return out
-
-
-def _doc(meta: dict) -> str:
-    doc = meta.get("doc", "")
-    return f"{doc} [{meta['unit']}]" if meta.get("unit") else doc
-
-
-def _object_schema(entries: tuple, description: str, defs: dict) -> tuple[dict, list]:
-    """JSON Schema object of a mapping with the keys ``entries``, and its required keys."""
-    props, required = {}, []
-    for e in entries:
-        if isinstance(e, _Section):
-            if e.name not in defs:
-                schema, _ = _object_schema(e.entries, e.doc[:1].upper() + e.doc[1:] + ".", defs)
-                defs[e.name] = schema
-            props[e.key] = {
-                "allOf": [{"$ref": f"#/$defs/{e.name}"}],
-                "description": e.doc,
-                "default": _entries_data(None, e.entries),
-            }
-            continue
-        prop = _schema(e.tp, e.meta, defs)
-        if "$ref" in prop:
-            prop = {"allOf": [prop]}
-        prop["description"] = _doc(e.meta)
-        default = _field_default(e.field)
-        if default is _MISSING:
-            required.append(e.key)
-        elif default is not None:
-            prop["default"] = _json_default(default)
-        props[e.key] = prop
-    out = {
-        "type": "object",
-        "description": description,
-        "properties": props,
-        "additionalProperties": False,
-    }
-    return out, required
-
-
-def dataclass_schema(cls, defs: dict) -> dict:
-    """JSON Schema object of one dataclass (nested dataclasses go to ``defs``)."""
-    description = (cls.__doc__ or "").strip().split("\n\n")[0]
-    out, required = _object_schema(_layout(cls), description, defs)
-    if _tag_of(cls) and "type" not in required:
-        required.insert(0, "type")  # the tag selects the member: always given
-    if required:
-        out["required"] = required
-    one_of = getattr(cls, "__exactly_one__", ())
-    if one_of:
-        out["oneOf"] = [{"required": [k]} for k in one_of]
-    return out
-
-
-def json_schema(cls, title: str, schema_id: str | None = None) -> dict:
-    """JSON Schema (draft 2020-12) of the format whose root is the dataclass ``cls``."""
-    defs: dict = {}
-    root = dataclass_schema(cls, defs)
-    out = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title}
-    if schema_id:
-        out["$id"] = schema_id
-    out.update(root)
-    if defs:
-        out["$defs"] = defs
-    return out
-
-
-# ----------------------------------------------------------------------------------- reference
-def _default_text(f) -> str:
-    default = _field_default(f)
-    if default is _MISSING:
-        return "required"
-    if dataclasses.is_dataclass(default):
-        return "see below"
-    if default is None:
-        return "none"
-    if isinstance(default, bool):
-        return str(default).lower()
-    if isinstance(default, float) and math.isinf(default):
-        return "inf" if default > 0 else "-inf"
-    if isinstance(default, (tuple, dict)) and not default:
-        return "[]" if isinstance(default, tuple) else "{}"
-    return repr(default) if isinstance(default, str) else str(_json_default(default))
-
-
-def reference_rows(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
-    """Rows ``(key path, type, default, meaning)`` of every key of the format, depth first.
-
-    Tagged-union members are listed under ``prefix (type: tag)``.
-    """
-    return _entry_rows(_layout(cls), prefix)
-
-
-def _entry_rows(entries: tuple, prefix: str) -> list[tuple[str, str, str, str]]:
-    rows = []
-    for e in entries:
-        key = f"{prefix}{e.key}"
-        if isinstance(e, _Section):
-            rows.append((key, "mapping", "see below", e.doc))
-            rows.extend(_entry_rows(e.entries, f"{key}."))
-            continue
-        tp, doc = e.tp, _doc(e.meta)
-        members = [m for m in _union_args(tp) if m is not type(None)]
-        if len(members) > 1 and all(_tag_of(m) for m in members):
-            rows.append((key, _describe(tp), _default_text(e.field), doc))
-            for m in members:
-                for sub in reference_rows(m, f"{key}."):
-                    if sub[0] != f"{key}.type":
-                        rows.append((f"{sub[0]} (type: {_tag_of(m)})", *sub[1:]))
-        elif len(members) == 1 and dataclasses.is_dataclass(members[0]):
-            rows.append((key, "mapping", _default_text(e.field), doc))
-            rows.extend(reference_rows(members[0], f"{key}."))
-        elif typing.get_origin(tp) is dict and dataclasses.is_dataclass(typing.get_args(tp)[1]):
-            rows.append((key, "mapping of names to mappings", _default_text(e.field), doc))
-            rows.extend(reference_rows(typing.get_args(tp)[1], f"{key}.NAME."))
-        else:
-            rows.append((key, _describe(tp), _default_text(e.field), doc))
-    return rows
-
-
-def reference_markdown(cls) -> str:
-    """The reference table of the format as Markdown (key, type, default, meaning)."""
-    lines = ["| key | type | default | meaning |", "| --- | --- | --- | --- |"]
-    for key, tp, default, doc in reference_rows(cls):
-        cells = (
-            f"`{key}`",
-            tp,
-            f"`{default}`" if default not in ("required", "see below", "none") else default,
-            doc,
-        )
-        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
-    return "\n".join(lines)
