@@ -315,8 +315,12 @@ def _cartesian_mission(
 
 
 def check_optimal_supported(task: Task) -> None:
-    """The optimal planner assumes zero initial momentum (``nlp_model``): say so, located at
-    ``initial.momentum``, before anything is computed."""
+    """The optimal planner assumes zero initial momentum (:mod:`balance_opt.optimal.model`): say
+    so, located at ``initial.momentum``, before anything is computed.
+
+    Raises:
+        TaskFileError: the task's initial momentum is not zero.
+    """
     if np.any(task.h0 != 0.0):
         raise task.error(
             ("initial", "momentum"),
