@@ -151,7 +151,7 @@ def test_replayed_plan_keeps_base_still(paper, nonsingular):
     again = replay(paper, mission, SampledTrajectory.from_result(res), integration=KHZ)
     assert again.max_drift <= STILL_ANGLE
     np.testing.assert_allclose(again.q_dot_B, res.q_dot_B, rtol=0, atol=1e-12)
-    assert both(paper, mission, res).max_drift <= STILL_ANGLE
+    assert both(paper, mission, res, integration=KHZ).max_drift <= STILL_ANGLE
 
 
 def test_replay_accepts_sample_arrays_and_callables(paper, nonsingular):
@@ -176,7 +176,9 @@ def test_balance_only_is_not_minus_mission_only(paper, nonsingular):
     """Fig. 3 is the balance motion replayed alone: the motion is non-holonomic, so it is close
     to, but not exactly, the opposite of Fig. 2 (a holonomic system would cancel exactly)."""
     mission, res = nonsingular
-    alone = rotvec_from_quaternion(balance_only(paper, res, NONSINGULAR_START[:3]).quaternion[-1])
+    alone = rotvec_from_quaternion(
+        balance_only(paper, res, NONSINGULAR_START[:3], integration=KHZ).quaternion[-1]
+    )
     first = rotvec_from_quaternion(
         phase_one(paper, mission, NONSINGULAR_START[3:], integration=KHZ).quaternion[-1]
     )
@@ -280,7 +282,7 @@ def test_dls_bounds_rates_and_reports_its_residual(capture, capture_dls):
     )
     assert np.abs(res.q_dot_B).max() < 1.0  # within the paper robot's 1 rad/s
     # the residual rate integrates to the attitude the motion actually produces
-    again = both(robot, capture.mission, res)
+    again = both(robot, capture.mission, res, integration=KHZ)
     assert _angle_between(again.quaternion, res.quaternion).max() <= ATTITUDE_ATOL
     assert res.max_drift > 0.01  # damping trades attitude for bounded rates on this arm
 
