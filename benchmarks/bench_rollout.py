@@ -35,6 +35,8 @@ TARGET_S = 0.3
 MILD_START = np.array([0.87, -1.3, 0.16, 1.73, -1.22, -2.11])
 MILD_MOVE = np.array([-0.2, 0.1, 0.15])
 DURATION = 10.0
+#: Output every 1 ms (the library's default is 10 ms).
+KHZ = IntegrationOptions(output_step=1e-3)
 
 
 def _timed(fn, repeat: int):
@@ -58,21 +60,22 @@ def main(argv=None) -> None:
     robot = sc.robot
     hold = PointToPoint(sc.q_B0, sc.q_B0, DURATION)
     mild = PointToPoint(MILD_START[:3], MILD_START[:3] + MILD_MOVE, DURATION)
-    rollout(robot, mild, MILD_START[3:])  # warm-up: imports, first-call caches
+    rollout(robot, mild, MILD_START[3:], integration=KHZ)  # warm-up: imports, first-call caches
 
     rows = {}
     rows["Phase I (mission alone), replay"] = _timed(
-        lambda: replay(robot, sc.mission, hold), args.repeat
+        lambda: replay(robot, sc.mission, hold, integration=KHZ), args.repeat
     )
     rows["Phase II, damped law (capture)"] = _timed(
-        lambda: rollout(robot, sc.mission, sc.q_B0), args.repeat
+        lambda: rollout(robot, sc.mission, sc.q_B0, integration=KHZ), args.repeat
     )
     rows["Phase II, exact law (mild mission)"] = _timed(
-        lambda: rollout(robot, mild, MILD_START[3:]), args.repeat
+        lambda: rollout(robot, mild, MILD_START[3:], integration=KHZ), args.repeat
     )
     plan = rows["Phase II, exact law (mild mission)"][2]
     rows["replay of that plan from samples"] = _timed(
-        lambda: replay(robot, mild, SampledTrajectory.from_result(plan)), args.repeat
+        lambda: replay(robot, mild, SampledTrajectory.from_result(plan), integration=KHZ),
+        args.repeat,
     )
     law = BalanceLaw(robot, q_B0=MILD_START[3:])
     q = np.c_[plan.q_M, plan.q_B]
@@ -80,7 +83,7 @@ def main(argv=None) -> None:
         lambda: law.along(q, plan.q_dot_M, plan.q_ddot_M, plan.quaternion), args.repeat
     )
     if not args.skip_rk4:
-        rk4 = IntegrationOptions(method="rk4", step=1e-3)
+        rk4 = IntegrationOptions(method="rk4", step=1e-3, output_step=1e-3)
         rows["Phase II, damped law, RK4 1 ms"] = _timed(
             lambda: rollout(robot, sc.mission, sc.q_B0, integration=rk4), 1
         )
