@@ -25,10 +25,11 @@ import time
 import numpy as np
 
 from balance_opt.analytic.law import BalanceLaw
+from balance_opt.analytic.rollout import rollout
 from balance_opt.app.scenarios import paper_capture
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.rollout import SampledTrajectory, replay, rollout
-from balance_opt.motion.trajectories import PointToPoint
+from balance_opt.motion.replay import replay
+from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
 
 #: Speed target of the issue for a 10 s mission at 1 kHz [s].
 TARGET_S = 0.3

@@ -211,7 +211,7 @@ def _default(cls, name: str):
 @dataclass(frozen=True, kw_only=True)
 class AnalyticSpec:
     """The analytic balance law (Eq. 31, 32; :class:`~balance_opt.analytic.law.BalanceLawOptions`)
-    and the integration of its rollout (:class:`~balance_opt.motion.rollout.IntegrationOptions`)."""
+    and the integration of its rollout (:class:`~balance_opt.motion.options.IntegrationOptions`)."""
 
     damping_threshold: float = setting(
         _default(BalanceLawOptions, "damping_threshold"),
@@ -657,7 +657,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
 
 
 def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
-    from balance_opt.model.resources import example_robot_urdf, shipped_urdf
+    from balance_opt.model.library import example_robot_urdf, shipped_urdf
 
     r = spec.robot
     if r.urdf is not None:

@@ -20,9 +20,9 @@ from __future__ import annotations
 import difflib
 import math
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -51,7 +51,7 @@ class JointLimits:
     acceleration: np.ndarray
     effort: np.ndarray
 
-    def subset(self, indices) -> "JointLimits":
+    def subset(self, indices) -> JointLimits:
         """The limits of the joints at ``indices`` of the arm vector."""
         return JointLimits(*(getattr(self, k)[indices] for k in LIMIT_KEYS))
 
