@@ -361,13 +361,7 @@ def simulate(
         raise TrajectoryError(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
-    n = robot.n
-    q0 = plan.sample(np.zeros(1))[0][0]
-    kp_default, kd_default = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
-    kp = _per_joint(opts.kp, n, "kp")
-    kd = _per_joint(opts.kd, n, "kd")
-    kp = kp_default if kp is None else kp
-    kd = kd_default if kd is None else kd
+    kp, kd = _gains(robot, plan, opts)
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
     x0 = _initial_state(robot, plan, h0, base)
@@ -395,6 +389,22 @@ def simulate(
         wall_time_s=done - started,
         **stats,
     )
+    _log_run(result)
+    return result
+
+
+def _gains(robot: FloatingRobot, plan: _ArmPlan, opts: SimulationOptions):
+    """``(kp, kd)`` per arm joint: the options', else :func:`default_gains` at the start."""
+    q0 = plan.sample(np.zeros(1))[0][0]
+    kp_default, kd_default = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
+    kp = _per_joint(opts.kp, robot.n, "kp")
+    kd = _per_joint(opts.kd, robot.n, "kd")
+    return (kp_default if kp is None else kp), (kd_default if kd is None else kd)
+
+
+def _log_run(result: SimulationResult) -> None:
+    """Log the run, with a warning when the step was too long to keep the momentum."""
+    info = result.info
     residual = float(result.momentum_residual.max())
     if residual > MOMENTUM_WARNING:
         log.warning(
@@ -407,14 +417,13 @@ def simulate(
     log.info(
         "simulated %.3g s with %s (%d steps) in %.3g s; max tracking error %.3g rad, "
         "max relative momentum residual %.3g",
-        t_end,
-        opts.integrator,
-        stats["steps"],
-        done - started,
+        info["duration_s"],
+        info["integrator"],
+        info["steps"],
+        info["wall_time_s"],
         result.max_tracking_error,
         residual,
     )
-    return result
 
 
 def simulate_plan(

@@ -106,26 +106,30 @@ def replay(
     for samples, cols in ((sample_M(t), M), (sample_B(t), B)):
         for full, part in zip((q, q_dot, q_ddot), samples):
             full[:, cols] = part
-    I_G, A = maps.angular_maps(q)
-    ell = np.vecmat(np.broadcast_to(L, (t.size, 3)), matrix_from_quaternion(quat))  # R^T L
-    omega = base_angular_velocity(I_G, A, q_dot, ell)
     info = {
         "integration": stats,
         "h0": None if h0 is None else np.asarray(h0, dtype=float).tolist(),
     }
-    result = BalanceResult.from_arm_vectors(
-        robot,
+    result = _result(maps, method, t, q, q_dot, q_ddot, quat, L, info)
+    if failure is not None:
+        raise SolverError(f"attitude replay failed: {failure}", "integration_failed", result)
+    return result
+
+
+def _result(maps: NumericMaps, method, t, q, q_dot, q_ddot, quat, L, info) -> BalanceResult:
+    """The replayed samples, with the base rate, ``sigma_min`` and the momentum check."""
+    I_G, A = maps.angular_maps(q)
+    ell = np.vecmat(np.broadcast_to(L, (t.size, 3)), matrix_from_quaternion(quat))  # R^T L
+    return BalanceResult.from_arm_vectors(
+        maps.robot,
         method,
         t,
         q,
         q_dot,
         q_ddot,
         quat,
-        omega,
+        base_angular_velocity(I_G, A, q_dot, ell),
         momentum_residual(maps, t, q, q_dot, quat, L),
         maps.balance_sigma_min(I_G, A),
         info,
     )
-    if failure is not None:
-        raise SolverError(f"attitude replay failed: {failure}", "integration_failed", result)
-    return result
