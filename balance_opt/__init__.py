@@ -1,8 +1,17 @@
 """balance-opt: balance-arm motion planning for free-floating multi-arm space robots.
 
-The pipeline, one module each: ``robot`` (URDF on a free-flying base, arms by joint names),
-``symbolic`` and ``momentum`` (CasADi and Pinocchio momentum maps), ``trajectories`` (mission
-motions), ``attitude`` (SO(3)), ``result`` (the plan type every method returns).
+The stages, one subpackage each:
+
+* ``model``: the robot (URDF on a free-flying base, arms by joint names) and its momentum maps,
+  numeric (Pinocchio) and symbolic (CasADi);
+* ``motion``: mission trajectories, SO(3) attitude, and the kinematic rollout of a plan;
+* ``analytic``: the paper's balance law and its phases; ``optimal``: the optimal planner (NLP);
+* ``dynamics``: forward-dynamics simulation of a plan and the wrenches on the base;
+* ``io``: task files, output files, figures and the HTML report;
+* ``app``: running a task end to end (``pipeline``), the paper's study; ``sweep``: many tasks.
+
+``result`` holds the plan type every method returns, ``errors`` the exceptions, ``cli`` the
+``balance-opt`` command. Importing the package loads the robot model (Pinocchio), not CasADi.
 """
 
 from balance_opt.errors import BalanceOptError, InputError, SolverError

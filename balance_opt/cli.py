@@ -10,7 +10,8 @@ Subcommands:
 * ``simulate TASK``: the same, then each plan through forward dynamics;
 * ``compare TASK``: both methods, simulated, and the comparison report;
 * ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
-* ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`).
+* ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
+  Dask cluster.
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
 (whatever was computed is still written). An output directory that exists and is not empty is
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from pathlib import Path
@@ -222,6 +224,85 @@ def _cmd_paper_figures(args) -> int:
     return EXIT_OK
 
 
+#: Metric shown in the sweep's progress lines.
+MAX_DRIFT_KEY = "max_drift_rad"
+
+
+def _sweep_progress(record: dict, done: int, total: int) -> None:
+    """One log line per finished case of a sweep."""
+    metrics = record.get("metrics") or {}
+    drift = metrics.get(MAX_DRIFT_KEY)
+    what = (
+        f"max drift {drift:.3g} rad"
+        if isinstance(drift, float)
+        else (record.get("error") or {}).get("message", "")
+    )
+    log.info(
+        "[%d/%d] case %d %s %s: %s (%.2f s)",
+        done,
+        total,
+        record["index"],
+        record["method"],
+        record["status"],
+        what[:200],
+        record["timing"]["case_s"],
+    )
+
+
+def _cmd_sweep(args) -> int:
+    """``balance-opt sweep``: 0 when every case succeeded, 1 when some failed."""
+    from balance_opt.errors import InputError
+    from balance_opt.sweep.spec import load_sweep, sweep_json_schema, sweep_reference_markdown
+
+    if args.schema:
+        print(json.dumps(sweep_json_schema(), indent=2))
+        return EXIT_OK
+    if args.reference:
+        print(sweep_reference_markdown())
+        return EXIT_OK
+    if args.sweep is None:
+        raise InputError("sweep: give a sweep file, or --schema")
+    solver_options = dict(
+        parse_solver_option(s) for s in getattr(args, "solver_option", None) or []
+    )
+    jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
+    if jobs < 0:
+        raise InputError(f"--jobs must be >= 0, got {jobs}")
+    if args.retry_failed and not args.resume:
+        raise InputError("--retry-failed goes with --resume")
+    sweep = load_sweep(args.sweep, solver_options)
+    out_dir = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / sweep.name
+    if args.scheduler is None:
+        jobs = min(jobs, len(sweep.cases)) if jobs else 0
+    from balance_opt.sweep.run import TASK_RUNNER, run_sweep
+
+    outcome = run_sweep(
+        sweep,
+        out_dir,
+        jobs=jobs,
+        scheduler=args.scheduler,
+        resume=args.resume,
+        force=args.force,
+        retry_failed=args.retry_failed,
+        plots=not args.no_plots,
+        runner=args.runner or TASK_RUNNER,
+        on_result=_sweep_progress,
+    )
+    run = outcome.run
+    log.info(
+        "%d case(s): %d run in %.1f s on %d worker(s), %d skipped (already done), %d failed; "
+        "table %s",
+        len(run.results),
+        len(run.ran),
+        run.elapsed_s,
+        run.workers,
+        len(run.skipped),
+        len(run.failed),
+        outcome.files["table"],
+    )
+    return EXIT_SOLVER if run.failed else EXIT_OK
+
+
 # =========================================================================================== parser
 def _common_options(parser: argparse.ArgumentParser, top: bool) -> None:
     """``-v``/``-q`` on the top parser and on every subcommand (either place works)."""
@@ -272,15 +353,8 @@ def _method_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="balance-opt",
-        description=DESCRIPTION,
-        epilog="exit codes: 0 success, 2 bad input, 1 solver failure",
-    )
-    _common_options(parser, top=True)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
+def _add_check_commands(sub) -> None:
+    """``validate``, ``schema`` and ``inspect``: everything short of planning."""
     p = sub.add_parser("validate", help="check task files (everything short of planning)")
     p.add_argument("tasks", nargs="*", metavar="TASK", help="task files (YAML)")
     p.add_argument(
@@ -298,6 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
     p.set_defaults(run=_cmd_inspect)
 
+
+def _add_run_commands(sub) -> None:
+    """``plan``, ``simulate``, ``compare`` and ``paper-figures``."""
     p = sub.add_parser(
         "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
     )
@@ -333,10 +410,81 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(run=_cmd_paper_figures)
 
-    from balance_opt.sweep.spec import add_sweep_parser
 
-    add_sweep_parser(sub)
+def _add_sweep_command(sub) -> None:
+    """``sweep``: many tasks from a sweep file."""
+    p = sub.add_parser(
+        "sweep",
+        help="run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
+        description="Run every case of a sweep file (a base task and the parameters to vary); "
+        "write one result per case as it finishes, the table results.csv, "
+        "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
+        "failed (their errors are in the table), 2 for a bad sweep file.",
+    )
+    p.add_argument("sweep", nargs="?", help="sweep file (YAML)")
+    p.add_argument(
+        "-o", "--output", metavar="DIR", help="output directory (default: results/<sweep name>)"
+    )
+    p.add_argument(
+        "-j",
+        "--jobs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes (default: the number of CPUs; 0 runs the cases in this process)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on Dask: the address of a scheduler (tcp://host:8786), or 'local' to start "
+        "a local cluster of --jobs worker processes on 127.0.0.1",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="finish an interrupted sweep in --output: skip the cases already done",
+    )
+    p.add_argument(
+        "--retry-failed", action="store_true", help="with --resume, run failed cases again"
+    )
+    p.add_argument(
+        "-f",
+        "--force",
+        action="store_true",
+        help="start over in an existing, non-empty output directory",
+    )
+    p.add_argument("--no-plots", action="store_true", help="skip the summary plots")
+    p.add_argument(
+        "--solver-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="Ipopt option for every optimal case (repeatable)",
+    )
+    p.add_argument(
+        "--schema", action="store_true", help="print the JSON Schema of sweep files and exit"
+    )
+    p.add_argument(
+        "--reference",
+        action="store_true",
+        help="print the sweep-file reference (Markdown) and exit",
+    )
+    # "module:function" of another case function (tests); default: the task runner
+    p.add_argument("--runner", default=None, help=argparse.SUPPRESS)
+    p.set_defaults(run=_cmd_sweep)
 
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``balance-opt`` parser: every subcommand, ``-v``/``-q`` on each."""
+    parser = argparse.ArgumentParser(
+        prog="balance-opt",
+        description=DESCRIPTION,
+        epilog="exit codes: 0 success, 2 bad input, 1 solver failure",
+    )
+    _common_options(parser, top=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_check_commands(sub)
+    _add_run_commands(sub)
+    _add_sweep_command(sub)
     for subparser in sub.choices.values():
         _common_options(subparser, top=False)
     return parser

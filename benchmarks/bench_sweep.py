@@ -62,7 +62,8 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
     from balance_opt.sweep.report import is_timing_column, results_table
-    from balance_opt.sweep.spec import parse_sweep, run_sweep
+    from balance_opt.sweep.run import run_sweep
+    from balance_opt.sweep.spec import parse_sweep
 
     sweep = parse_sweep(sweep_text(args.cases, args.intervals, args.seed), "bench.yaml", ROOT)
     print(

@@ -6,11 +6,14 @@ import csv
 import hashlib
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import balance_opt
 from balance_opt.cli import main, parse_solver_option
 from balance_opt.io.outputs import read_npz_result
 from balance_opt.io.task import task_json_schema
@@ -129,12 +132,22 @@ def test_solver_option_values_are_typed():
     assert parse_solver_option("mu_strategy = monotone") == ("mu_strategy", "monotone")
 
 
+def test_importing_the_package_does_not_load_casadi():
+    """``import balance_opt`` stays light: CasADi is loaded by the stages that need it."""
+    code = "import sys, balance_opt; print(balance_opt.__version__, 'casadi' in sys.modules)"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout.split()
+    assert out == [balance_opt.__version__, "False"]
+
+
 def test_usage_error_is_exit_2(capsys):
     assert main(["plan"]) == 2
     assert "the following arguments are required: task" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------------- end to end
+@pytest.mark.slow
 def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     task = _fast_paper(tmp_path)
     out = tmp_path / "out"
@@ -189,6 +202,7 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     assert "<th>Analytic law (Eq. 31)</th><th>Optimal planner</th>" in report
 
 
+@pytest.mark.slow
 def test_compare_baxter(tmp_path, capsys):
     task = _fast_baxter(tmp_path)
     out = tmp_path / "bax"
@@ -351,6 +365,7 @@ def test_existing_output_is_not_overwritten_without_force(tmp_path, capsys):
     assert set(_metrics(out)["methods"]) == {"mission-only", "analytic"}
 
 
+@pytest.mark.slow
 def test_solver_failure_is_exit_1_and_still_written(tmp_path, capsys):
     out = tmp_path / "out"
     code = main(
@@ -397,6 +412,7 @@ def test_outputs_can_be_switched_off(tmp_path):
     assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
 
 
+@pytest.mark.slow
 def test_simulate_one_method(tmp_path):
     out = tmp_path / "out"
     assert (
@@ -410,6 +426,7 @@ def test_simulate_one_method(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_paper_figures_with_fast_options(tmp_path):
     out = tmp_path / "figs"
     assert main(["paper-figures", "--task", str(_fast_paper(tmp_path)), "-o", str(out), "-q"]) == 0
@@ -426,6 +443,7 @@ def test_paper_figures_with_fast_options(tmp_path):
     assert set(study["plans"]) == {"analytic", "optimal"}
 
 
+@pytest.mark.slow
 def test_api_example_runs_headless(tmp_path):
     import os
     import subprocess

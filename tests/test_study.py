@@ -120,6 +120,7 @@ def study(tmp_path_factory):
     return paper_study(out)
 
 
+@pytest.mark.slow
 def test_study_writes_every_figure(study):
     out = study.output_dir
     for key, stem in FIGURE_STEMS.items():
@@ -132,6 +133,7 @@ def test_study_writes_every_figure(study):
     assert set(summary["plans"]) == {"analytic", "optimal"}
 
 
+@pytest.mark.slow
 def test_study_figures_show_both_plans(study):
     figs = study.figure_objects
     assert curve_labels(figs["fig2"]) == [["mission arm alone", "kinematic (momentum)"]] * 3
@@ -146,6 +148,7 @@ def test_study_figures_show_both_plans(study):
     assert [ax.get_ylabel() for ax in figs["fig4"].axes] == TORQUE_LABELS
 
 
+@pytest.mark.slow
 def test_study_numbers(study):
     """The study's simulations conserve momentum, reproduce their plans' attitude within their
     tracking error, and Phase I turns the base by the known ~0.093 rad."""

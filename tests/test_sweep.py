@@ -20,6 +20,12 @@ import numpy as np
 import pytest
 
 from balance_opt.io.yaml_lines import TaskFileError, format_path
+from balance_opt.sweep.cases import (
+    apply_overrides,
+    case_id_from,
+    parameter_columns,
+    parse_key_path,
+)
 from balance_opt.sweep.engine import (
     STATUS_OK,
     LocalPoolEngine,
@@ -29,15 +35,8 @@ from balance_opt.sweep.engine import (
     write_json_atomic,
 )
 from balance_opt.sweep.report import is_timing_column, read_table_csv, results_table
-from balance_opt.sweep.spec import (
-    apply_overrides,
-    case_id_from,
-    load_sweep,
-    parameter_columns,
-    parse_key_path,
-    parse_sweep,
-    run_sweep,
-)
+from balance_opt.sweep.run import run_sweep
+from balance_opt.sweep.spec import load_sweep, parse_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_TASK = ROOT / "examples" / "paper_capture.yaml"
@@ -367,6 +366,7 @@ def test_atomic_write_and_read_back(tmp_path):
 
 
 # ------------------------------------------------------------------------------ engines (toy cases)
+@pytest.mark.slow
 def test_pool_records_failing_and_crashing_cases_and_goes_on(tmp_path, tests_on_path):
     cases = toy_cases(7, fail={2}, crash={4})
     run = run_cases(cases, TOY_RUNNER, tmp_path, LocalPoolEngine(2))
@@ -390,6 +390,7 @@ def test_pool_records_failing_and_crashing_cases_and_goes_on(tmp_path, tests_on_
     assert ok["timing"]["pid"] != os.getpid()  # ran in a worker process
 
 
+@pytest.mark.slow
 def test_resume_skips_finished_cases_after_an_interruption(tmp_path, tests_on_path):
     """Stop a sweep after three results (as Ctrl-C would), then resume it."""
     cases = toy_cases(8, fail={1})
@@ -420,6 +421,7 @@ def test_resume_skips_finished_cases_after_an_interruption(tmp_path, tests_on_pa
     assert retry.ran == [cases[1]["case_id"]]
 
 
+@pytest.mark.slow
 def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
     """Kill a running ``balance-opt sweep`` (parent and workers, SIGKILL), then ``--resume``."""
     sweep_file = tmp_path / "toy.yaml"
@@ -566,6 +568,7 @@ def pool_run(real_sweep):
     return code, out
 
 
+@pytest.mark.slow
 def test_pool_end_to_end_through_the_cli(pool_run):
     code, out = pool_run
     assert code == 1  # some cases failed: their errors are in the table
@@ -606,6 +609,7 @@ def test_pool_end_to_end_through_the_cli(pool_run):
     ]
 
 
+@pytest.mark.slow
 def test_same_table_with_one_worker(pool_run, real_sweep):
     """Same results whatever the number of workers (timing columns aside)."""
     _, out2 = pool_run
@@ -616,6 +620,7 @@ def test_same_table_with_one_worker(pool_run, real_sweep):
     assert _deterministic(out1 / "results.csv") == _deterministic(out2 / "results.csv")
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
     """A real Dask cluster (2 worker processes on 127.0.0.1), started and stopped by the sweep."""
     import psutil
@@ -646,9 +651,35 @@ def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
     assert workers_left() == []
 
 
+def test_model_cache_key_is_the_kinematics_not_the_limits():
+    """Robots that differ only in their limits share a planner model; other locked positions
+    (another inertia of the locked chain) or another robot do not."""
+    from balance_opt import baxter_floating, paper_robot
+    from balance_opt.app.models import kinematics_key
+
+    tight = paper_robot(limits={"balance_joint1": {"velocity": 0.3}})
+    assert kinematics_key(paper_robot()) == kinematics_key(tight)
+    assert kinematics_key(paper_robot()) != kinematics_key(baxter_floating())
+    assert kinematics_key(baxter_floating()) != kinematics_key(
+        baxter_floating(locked={"head_pan": 0.5})
+    )
+
+
+def test_plan_dispatch_rejects_an_unknown_method():
+    from balance_opt.app.pipeline import plan
+    from balance_opt.errors import InputError
+    from balance_opt.io.task import load_task
+
+    with pytest.raises(InputError, match=r"unknown method 'exact'; expected analytic or optimal"):
+        plan(load_task(PAPER_TASK), "exact")
+
+
+@pytest.mark.slow
 def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
     """In one process, cases that vary limits, weights and the start share one planner model
     and one compiled NLP; each case's limits still hold in its plan."""
+    from balance_opt.app.models import ModelCache
+    from balance_opt.io.task import task_from_dict
     from balance_opt.sweep import runner as sweep_runner
 
     text = (
@@ -657,14 +688,14 @@ def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
         "  optimal.weights.omega: [100.0, 10.0]\n"
     )
     sweep = parse_sweep(text, "cache.yaml", tmp_path)
-    results = [sweep_runner.run_task_case(case) for case in sweep.cases]
+    models = ModelCache()
+    results = [sweep_runner.run_task_case(case, models) for case in sweep.cases]
     assert [r["status"] for r in results] == ["ok"] * 4
     builds = [r["timing"]["planner_build_s"] for r in results]
     assert all(b == 0.0 for b in builds[1:]), builds  # only the first case may build
-    keys = {
-        sweep_runner.robot_key(c["task"], c["base_dir"]) for c in sweep.cases
-    }  # limits are not part of the robot's key
-    assert len(keys) == 1 and keys <= set(sweep_runner._MODELS)
+    robots = [task_from_dict(c["task"], Path(c["base_dir"])).robot for c in sweep.cases]
+    assert len(models) == 1  # limits are not part of the model's key
+    assert all(robot in models for robot in robots)
     # each case meets its own limit, and the loose cases use more than the tight limit of the
     # robot the cached model was built with (the first case's)
     peaks = [r["metrics"]["peak_joint_rates_rad_s"]["balance_joint1"] for r in results]

@@ -17,6 +17,7 @@ exits with code 1).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from collections.abc import Mapping, Sequence
@@ -26,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
 from balance_opt.io.task import Task, check_optimal_supported
 from balance_opt.result import BalanceResult
@@ -120,7 +122,7 @@ def plan_optimal(
     task: Task,
     solver_options: Mapping[str, Any] | None = None,
     warm_start: BalanceResult | None = None,
-    model=None,
+    models: ModelCache | None = None,
 ) -> BalanceResult:
     """The optimal planner with the task's options.
 
@@ -129,8 +131,8 @@ def plan_optimal(
         solver_options: Ipopt options overriding ``optimal.ipopt`` (``--solver-option``).
         warm_start: an analytic result to start from (with ``optimal.initial_guess: analytic``),
             instead of rolling out the law again.
-        model: the :class:`~balance_opt.optimal.model.PlannerModel` to use (with its cache of
-            compiled NLPs); by default one kept per robot object.
+        models: the planner models to reuse (with their compiled NLPs); without one, the
+            model is built for this call only.
 
     Raises:
         SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
@@ -140,7 +142,8 @@ def plan_optimal(
     check_optimal_supported(task)
     spec = task.spec.optimal
     options = spec.planner_options(solver_options)
-    nlp = build_balance_nlp(model or _planner_model(task), task.mission, task.q_B0, options)
+    model = (models if models is not None else ModelCache()).planner_model(task.robot)
+    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
     guess = (
         warm_start
         if (warm_start is not None and spec.initial_guess == "analytic")
@@ -149,18 +152,31 @@ def plan_optimal(
     return nlp.solve(guess)
 
 
-_MODELS: dict[int, Any] = {}
+def plan(
+    task: Task,
+    method: str,
+    solver_options: Mapping[str, Any] | None = None,
+    warm_start: BalanceResult | None = None,
+    models: ModelCache | None = None,
+) -> BalanceResult:
+    """The plan of ``method``: the one dispatch of ``balance-opt plan`` and of the sweep cases.
 
+    Args:
+        task: the task.
+        method: ``"mission-only"`` (the reference), ``"analytic"`` or ``"optimal"``.
+        solver_options, warm_start, models: for the optimal method (see :func:`plan_optimal`).
 
-def _planner_model(task: Task):
-    """The robot's symbolic planner model, built once per robot object."""
-    from balance_opt.optimal.model import PlannerModel
-
-    key = id(task.robot)
-    if key not in _MODELS:
-        _MODELS.clear()  # one robot at a time: a model holds compiled NLPs
-        _MODELS[key] = PlannerModel(task.robot)
-    return _MODELS[key]
+    Raises:
+        InputError: an unknown method.
+        SolverError: the method failed; its ``result`` holds what was computed.
+    """
+    if method == REFERENCE:
+        return plan_mission_only(task)
+    if method == "analytic":
+        return plan_analytic(task)
+    if method == "optimal":
+        return plan_optimal(task, solver_options, warm_start, models)
+    raise InputError(f"unknown method '{method}'; expected {' or '.join(METHODS)}")
 
 
 def simulate_result(task: Task, plan: BalanceResult):
@@ -171,19 +187,13 @@ def simulate_result(task: Task, plan: BalanceResult):
 
 
 # =========================================================================================== run
+@contextlib.contextmanager
 def _timed(what: str):
-    class _Timer:
-        def __enter__(self):
-            log.info("%s ...", what)
-            self.start = time.perf_counter()
-            return self
-
-        def __exit__(self, *exc):
-            if exc[0] is None:
-                log.info("%s: done in %.2f s", what, time.perf_counter() - self.start)
-            return False
-
-    return _Timer()
+    """Log ``what ...``, then ``what: done in X s`` when the block ends without error."""
+    log.info("%s ...", what)
+    start = time.perf_counter()
+    yield
+    log.info("%s: done in %.2f s", what, time.perf_counter() - start)
 
 
 def run_task(
@@ -192,6 +202,7 @@ def run_task(
     simulate: bool = False,
     output_dir: str | Path | None = None,
     solver_options: Mapping[str, Any] | None = None,
+    models: ModelCache | None = None,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -202,6 +213,7 @@ def run_task(
         simulate: check each plan in a forward-dynamics simulation (and the reference too).
         output_dir: where to write (created); ``None`` writes nothing.
         solver_options: Ipopt options overriding the task's ``optimal.ipopt``.
+        models: planner models to reuse across runs; by default this run keeps its own.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
@@ -211,6 +223,21 @@ def run_task(
         InputError: an unknown method, or a method the task cannot use (checked before anything
             is computed).
     """
+    methods = _checked_methods(task, methods)
+    run = TaskRun(task)
+    models = models if models is not None else ModelCache()
+    for method in (REFERENCE, *methods):
+        _plan_into(run, method, solver_options, models)
+    if simulate:
+        for name in list(run.results):
+            _simulate_into(run, name)
+    if output_dir is not None:
+        write_run(run, Path(output_dir))
+    return run
+
+
+def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
+    """The methods without repeats, checked before anything is computed."""
     methods = tuple(dict.fromkeys(methods))
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
@@ -219,57 +246,58 @@ def run_task(
         )
     if "optimal" in methods:
         check_optimal_supported(task)
-    run = TaskRun(task)
-    with _timed(f"{task.name}: mission arm alone (Phase I)"):
-        run.results[REFERENCE] = plan_mission_only(task)
-    for method in methods:
-        with _timed(
-            f"{task.name}: {method} plan"
-            + (
-                f" (N = {task.spec.optimal.intervals}, {task.spec.optimal.transcription}, Ipopt)"
-                if method == "optimal"
-                else ""
+    return methods
+
+
+def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) -> None:
+    """Plan ``method`` into ``run.results``; a solver failure is recorded, its iterate kept."""
+    task = run.task
+    if method == REFERENCE:
+        what = "mission arm alone (Phase I)"
+    elif method == "optimal":
+        spec = task.spec.optimal
+        what = f"optimal plan (N = {spec.intervals}, {spec.transcription}, Ipopt)"
+    else:
+        what = f"{method} plan"
+    with _timed(f"{task.name}: {what}"):
+        try:
+            run.results[method] = plan(
+                task, method, solver_options, run.results.get("analytic"), models
             )
-        ):
-            try:
-                if method == "analytic":
-                    run.results[method] = plan_analytic(task)
-                else:
-                    run.results[method] = plan_optimal(
-                        task, solver_options, run.results.get("analytic")
-                    )
-            except SolverError as exc:
-                log.error("%s plan failed: %s", method, exc)
-                run.failures[method] = str(exc)
-                if exc.result is not None:
-                    run.results[method] = exc.result
-        res = run.results.get(method)
-        if res is not None:
-            log.info(
-                "%s: max drift %.4g rad, final drift %.4g rad, %d limit violations",
-                method,
-                res.max_drift,
-                res.final_drift,
-                len(res.violations),
-            )
-    if simulate:
-        for name, res in run.results.items():
-            with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
-                sim = simulate_result(task, res)
-            diverged = _divergence(sim)
-            if diverged:
-                message = (
-                    f"the forward-dynamics simulation of the {name} plan diverged ({diverged}); "
-                    f"try a smaller simulation.dt (now {task.spec.simulation.dt:g} s) or the "
-                    f"dopri5 integrator"
-                )
-                log.error("%s", message)
-                run.failures[f"simulation of {name}"] = message
-            else:
-                run.simulations[name] = sim
-    if output_dir is not None:
-        write_run(run, Path(output_dir))
-    return run
+        except SolverError as exc:
+            if method == REFERENCE:
+                raise
+            log.error("%s plan failed: %s", method, exc)
+            run.failures[method] = str(exc)
+            if exc.result is not None:
+                run.results[method] = exc.result
+    res = run.results.get(method)
+    if res is not None and method != REFERENCE:
+        log.info(
+            "%s: max drift %.4g rad, final drift %.4g rad, %d limit violations",
+            method,
+            res.max_drift,
+            res.final_drift,
+            len(res.violations),
+        )
+
+
+def _simulate_into(run: TaskRun, name: str) -> None:
+    """Simulate ``run.results[name]``; a diverging simulation is a failure, not a result."""
+    task = run.task
+    with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
+        sim = simulate_result(task, run.results[name])
+    diverged = _divergence(sim)
+    if diverged:
+        message = (
+            f"the forward-dynamics simulation of the {name} plan diverged ({diverged}); "
+            f"try a smaller simulation.dt (now {task.spec.simulation.dt:g} s) or the "
+            f"dopri5 integrator"
+        )
+        log.error("%s", message)
+        run.failures[f"simulation of {name}"] = message
+    else:
+        run.simulations[name] = sim
 
 
 def _divergence(sim) -> str | None:

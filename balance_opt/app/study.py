@@ -130,6 +130,71 @@ def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
     }
 
 
+def _write_figures(output_dir: Path, formats, mission_only, kinematic, balance_only, balanced):
+    """Figs. 2-5: ``({"fig2": [files], ...}, {"fig2": Figure, ...})``."""
+    figures, objects = {}, {}
+    objects["fig2"], figures["fig2"] = attitude_figure(
+        {"mission-only": mission_only},
+        output_dir / FIGURE_STEMS["fig2"],
+        dashed={"kinematic": kinematic},
+        title="Base attitude due to the mission arm",
+        formats=formats,
+    )
+    objects["fig3"], figures["fig3"] = attitude_figure(
+        balance_only,
+        output_dir / FIGURE_STEMS["fig3"],
+        title="Base attitude due to the balance arm",
+        formats=formats,
+    )
+    objects["fig4"], figures["fig4"] = reaction_torque_figure(
+        balanced,
+        output_dir / FIGURE_STEMS["fig4"],
+        title="Torque on the base after balance control",
+        formats=formats,
+    )
+    objects["fig5"], figures["fig5"] = attitude_figure(
+        balanced,
+        output_dir / FIGURE_STEMS["fig5"],
+        dashed={"mission-only": mission_only},
+        title="Base attitude after balance control",
+        formats=formats,
+    )
+    return figures, objects
+
+
+def _summary(
+    scenario: Scenario, sim_opts, mission_only, plans, status, balance_only, balanced
+) -> dict[str, Any]:
+    """The figures of merit of ``study.json`` (without the list of figures)."""
+    mission = scenario.mission
+    return {
+        "scenario": {
+            "robot": scenario.robot.name,
+            "mission_start_rad": list(map(float, mission.start)),
+            "mission_goal_rad": list(map(float, mission.end)),
+            "duration_s": mission.duration,
+            "balance_start_rad": scenario.q_B0.tolist(),
+        },
+        "simulation": {
+            "integrator": sim_opts.integrator,
+            "dt_s": sim_opts.dt,
+            "controller": sim_opts.controller,
+        },
+        "mission_only": _simulation_summary(mission_only),
+        "plans": {
+            m: {
+                "status": status[m],
+                "plan": plans[m].summary(),
+                "limit_violations": [str(v) for v in plans[m].violations],
+                "details": {k: v for k, v in plans[m].info.items() if k not in BULKY_INFO_KEYS},
+                "balance_only": _simulation_summary(balance_only[m]),
+                "balanced": _simulation_summary(balanced[m]),
+            }
+            for m in plans
+        },
+    }
+
+
 def paper_study(
     output_dir: str | Path,
     *,
@@ -166,7 +231,6 @@ def paper_study(
     planner = planner or PlannerOptions()
     scenario = paper_capture()
     robot, mission = scenario.robot, scenario.mission
-    duration = mission.duration
 
     # Fig. 2: the mission arm alone, the balance arm held at its start
     mission_only = simulate(robot, mission, scenario.q_B0, sim_opts)
@@ -179,61 +243,11 @@ def paper_study(
         balance_only[method] = simulate(robot, mission.start, plans[method], sim_opts)
         balanced[method] = simulate_plan(robot, plans[method], sim_opts)
 
-    figures, objects = {}, {}
-    objects["fig2"], figures["fig2"] = attitude_figure(
-        {"mission-only": mission_only},
-        output_dir / FIGURE_STEMS["fig2"],
-        dashed={"kinematic": kinematic},
-        title="Base attitude due to the mission arm",
-        formats=formats,
+    figures, objects = _write_figures(
+        output_dir, formats, mission_only, kinematic, balance_only, balanced
     )
-    objects["fig3"], figures["fig3"] = attitude_figure(
-        balance_only,
-        output_dir / FIGURE_STEMS["fig3"],
-        title="Base attitude due to the balance arm",
-        formats=formats,
-    )
-    objects["fig4"], figures["fig4"] = reaction_torque_figure(
-        balanced,
-        output_dir / FIGURE_STEMS["fig4"],
-        title="Torque on the base after balance control",
-        formats=formats,
-    )
-    objects["fig5"], figures["fig5"] = attitude_figure(
-        balanced,
-        output_dir / FIGURE_STEMS["fig5"],
-        dashed={"mission-only": mission_only},
-        title="Base attitude after balance control",
-        formats=formats,
-    )
-
-    summary = {
-        "scenario": {
-            "robot": robot.name,
-            "mission_start_rad": list(map(float, mission.start)),
-            "mission_goal_rad": list(map(float, mission.end)),
-            "duration_s": duration,
-            "balance_start_rad": scenario.q_B0.tolist(),
-        },
-        "simulation": {
-            "integrator": sim_opts.integrator,
-            "dt_s": sim_opts.dt,
-            "controller": sim_opts.controller,
-        },
-        "mission_only": _simulation_summary(mission_only),
-        "plans": {
-            m: {
-                "status": status[m],
-                "plan": plans[m].summary(),
-                "limit_violations": [str(v) for v in plans[m].violations],
-                "details": {k: v for k, v in plans[m].info.items() if k not in BULKY_INFO_KEYS},
-                "balance_only": _simulation_summary(balance_only[m]),
-                "balanced": _simulation_summary(balanced[m]),
-            }
-            for m in methods
-        },
-        "figures": {k: [p.name for p in v] for k, v in figures.items()},
-    }
+    summary = _summary(scenario, sim_opts, mission_only, plans, status, balance_only, balanced)
+    summary["figures"] = {k: [p.name for p in v] for k, v in figures.items()}
     (output_dir / "study.json").write_text(json.dumps(summary, indent=2, default=_plain))
     for m in methods:
         log.info(

@@ -118,6 +118,50 @@ def skeleton(robot: FloatingRobot) -> tuple[list[int], list[tuple[int, int]]]:
     return points, segments
 
 
+def _frame(robot: FloatingRobot, data, points: list[int], q_arm, R, box, com0, offset):
+    """One frame (the stick figure's points, the base attitude ``R``, the base box corners [m])
+    and the CoM of the robot placed with its base at the origin. The frame is shifted so that
+    the CoM is at ``com0 + offset`` (its free-flight line; ``com0=None``: the first frame)."""
+    model = robot.model
+    qp = robot.pin_q(q_arm, pin.SE3(R, np.zeros(3)))
+    com = pin.centerOfMass(model, data, qp)
+    shift = (com if com0 is None else com0) + offset - com
+    pin.forwardKinematics(model, data, qp)
+    pin.updateFramePlacements(model, data)
+    pts = np.array(
+        [data.oMi[p].translation if p > 0 else data.oMf[-p - 1].translation for p in points]
+    )
+    frame = {"points": pts + shift, "R": R}
+    if box is not None:
+        size, placement = box
+        corners = np.array(
+            [[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5) for sz in (-0.5, 0.5)]
+        )
+        frame["box"] = (
+            R @ (placement.rotation @ (corners * size).T + placement.translation[:, None])
+        ).T + frame["points"][0]
+    return frame, com
+
+
+def _method_frames(robot: FloatingRobot, res: BalanceResult, points, box, p0, fps: float):
+    """Sample times, frame sample indices and frames of one plan at ``fps``."""
+    data = robot.model.createData()
+    t = np.arange(res.t[0], res.t[-1] + 1e-9, 1.0 / fps)
+    idx = np.searchsorted(res.t, t).clip(0, res.t.size - 1)
+    q = np.hstack([res.q_M, res.q_B])[idx]
+    arm_q = np.empty_like(q)
+    for k, joint in enumerate((*res.mission_joints, *res.balance_joints)):
+        arm_q[:, robot.joint_index(joint)] = q[:, k]
+    frames, com0, mass = [], None, robot.total_mass
+    for i, k in enumerate(idx):
+        R = matrix_from_quaternion(res.quaternion[k])
+        offset = (t[i] - t[0]) * p0 / mass
+        frame, com = _frame(robot, data, points, arm_q[i], R, box, com0, offset)
+        com0 = com if com0 is None else com0
+        frames.append(frame)
+    return t, idx, frames
+
+
 def animation_data(
     robot: FloatingRobot,
     results: Mapping[str, BalanceResult],
@@ -127,49 +171,12 @@ def animation_data(
 ) -> dict:
     """Plain data of the animation: per method, the sample times and per frame the points of
     the stick figure, the base axes and box corners, world frame [m]."""
-    model, data = robot.model, robot.model.createData()
     points, segments = skeleton(robot)
     box = _base_box(robot)
-    mass = robot.total_mass
     p0 = np.zeros(3) if h0 is None else np.asarray(h0, dtype=float)[:3]
     methods = {}
-    for n, (name, res) in enumerate(results.items()):
-        t = np.arange(res.t[0], res.t[-1] + 1e-9, 1.0 / fps)
-        idx = np.searchsorted(res.t, t).clip(0, res.t.size - 1)
-        q = np.hstack([res.q_M, res.q_B])[idx]
-        arm_q = np.empty_like(q)
-        for k, joint in enumerate((*res.mission_joints, *res.balance_joints)):
-            arm_q[:, robot.joint_index(joint)] = q[:, k]
-        frames, c0 = [], None
-        for i, k in enumerate(idx):
-            R = matrix_from_quaternion(res.quaternion[k])
-            qp = robot.pin_q(arm_q[i], pin.SE3(R, np.zeros(3)))
-            com = pin.centerOfMass(model, data, qp)
-            c0 = com if c0 is None else c0
-            shift = (
-                c0 + (t[i] - t[0]) * p0 / mass - com
-            )  # base position keeping the CoM on its line
-            pin.forwardKinematics(model, data, qp)
-            pin.updateFramePlacements(model, data)
-            pts = (
-                np.array(
-                    [
-                        data.oMi[p].translation if p > 0 else data.oMf[-p - 1].translation
-                        for p in points
-                    ]
-                )
-                + shift
-            )
-            frame = {"points": pts, "R": R}
-            if box is not None:
-                size, placement = box
-                corners = np.array(
-                    [[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5) for sz in (-0.5, 0.5)]
-                )
-                frame["box"] = (
-                    R @ (placement.rotation @ (corners * size).T + placement.translation[:, None])
-                ).T + pts[0]
-            frames.append(frame)
+    for name, res in results.items():
+        t, idx, frames = _method_frames(robot, res, points, box, p0, fps)
         methods[name] = {
             "t": t,
             "frames": frames,

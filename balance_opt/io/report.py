@@ -1,6 +1,8 @@
-"""The comparison report: one self-contained HTML file (no external files, no scripts) with the
-task, a table comparing the methods side by side, the limit violations, and the figures embedded
-as base64 PNG.
+"""The comparison report: one self-contained HTML file (nothing external: no linked file, library
+or network access) with the task, a table comparing the methods side by side, the limit
+violations, the figures embedded as base64 PNG and, when the task's ``outputs.animation`` asks
+for it, the 3D animation of :mod:`balance_opt.io.animation` (an inline script, passed in as
+``extra_html``).
 
 The table reads ``metrics.json`` content (:func:`balance_opt.io.outputs.run_metrics`), so the
 report and the metrics never disagree.

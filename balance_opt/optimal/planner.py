@@ -185,8 +185,8 @@ class NLPStructure:
         return blocks[int(np.searchsorted([b.offset for b in blocks], index, side="right")) - 1]
 
 
-def _structure_key(model: PlannerModel, options: PlannerOptions) -> tuple:
-    lim = model.robot.limits.subset(model.robot.balance_indices)
+def _structure_key(robot: FloatingRobot, options: PlannerOptions) -> tuple:
+    lim = robot.limits.subset(robot.balance_indices)
     finite = {
         "position": options.position_limits
         and bool(np.any(np.isfinite(lim.lower) | np.isfinite(lim.upper))),
@@ -546,9 +546,10 @@ class BalanceNLP:
         horizon: float,
         setup_time: float,
         build_time: float = 0.0,
+        robot: FloatingRobot | None = None,
     ):
         self.model = model
-        self.robot = model.robot
+        self.robot = model.robot if robot is None else robot
         self.structure = structure
         self.mission = mission
         self.q_B0 = q_B0
@@ -908,9 +909,10 @@ class BalanceNLP:
 
 # ---------------------------------------------------------------------------------- build
 def _check_problem(
-    model: PlannerModel, mission, q_B0, options: PlannerOptions
+    model: PlannerModel, robot: FloatingRobot, mission, q_B0, options: PlannerOptions
 ) -> tuple[np.ndarray, float]:
-    robot = model.robot
+    if robot.joint_names != model.robot.joint_names:
+        raise InputError(f"robot {robot.name} is not the robot of the planner model")
     if getattr(mission, "dof", None) != model.n_M:
         raise InputError(
             f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
@@ -960,6 +962,7 @@ def build_balance_nlp(
     mission_trajectory,
     q_B0,
     options: PlannerOptions | None = None,
+    robot: FloatingRobot | None = None,
 ) -> BalanceNLP:
     """Build the balance NLP of a mission.
 
@@ -972,6 +975,9 @@ def build_balance_nlp(
         mission_trajectory: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
         q_B0: initial balance configuration [rad] (the balance arm starts at rest).
         options: planner settings (defaults: :class:`PlannerOptions`).
+        robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
+            may change the limits; the model and its compiled NLPs stay valid); default: the
+            model's robot.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
@@ -983,8 +989,9 @@ def build_balance_nlp(
         planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
     )
     options = options or PlannerOptions()
-    q_B0, horizon = _check_problem(model, mission_trajectory, q_B0, options)
-    key = _structure_key(model, options)
+    robot = model.robot if robot is None else robot
+    q_B0, horizon = _check_problem(model, robot, mission_trajectory, q_B0, options)
+    key = _structure_key(robot, options)
     built_now = key not in model.nlp_cache
     if built_now:
         model.nlp_cache[key] = _build_structure(model, key, options)
@@ -999,6 +1006,7 @@ def build_balance_nlp(
         horizon,
         time.perf_counter() - start - build_time,
         build_time,
+        robot,
     )
 
 

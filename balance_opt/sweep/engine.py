@@ -6,8 +6,8 @@ by a ``"module:function"`` string and imported in the worker, so nothing but str
 lists and dicts ever crosses a process boundary.
 
 Workers are processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each worker
-process keeps whatever its runner caches (the robot, its symbolic model and the NLP) for the
-next case; see :func:`balance_opt.sweep_cases.run_task_case`.
+process keeps whatever its runner caches for the next case (the task runner: a planner model per
+robot, with its compiled NLPs; see :mod:`balance_opt.sweep.runner`).
 
 Every finished case is written at once, atomically (a temporary file then ``os.replace``), as
 ``<out>/cases/<case_id>.json``: an interrupted sweep leaves only whole result files, and

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.sweep.spec import canonical_json, is_number, parameter_columns
+from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
 
@@ -205,9 +205,10 @@ def _drift(result: dict, key: str) -> float | None:
 
 
 def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path | None:
-    """Cumulative distribution of the maximum and the final drift of each method (log scale),
-    and, for the parameter sets planned by both methods, the optimal drift against the analytic
-    one. Returns the file written, or None when no case has a drift."""
+    """Cumulative distribution of the maximum and the final drift of each method and, for the
+    parameter sets planned by both methods, the optimal drift against the analytic one (drift
+    axes logarithmic when the drifts span more than :data:`LOG_SCALE_RATIO`). Returns the file
+    written, or None when no case has a drift."""
     ok = [r for r in results if r["status"] == "ok"]
     methods = sorted({r["method"] for r in ok})
     if not any(_drift(r, MAX_DRIFT) is not None for r in ok):
@@ -215,65 +216,73 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
     paired = _pairs(ok)
     fig, axes = _figure(1, 3 if paired else 2)
     for ax, key, title in zip(axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")):
-        for method in methods:
-            values = np.sort(
-                [d for r in ok if r["method"] == method if (d := _drift(r, key)) is not None]
-            )
-            if values.size:
-                ax.step(
-                    values,
-                    np.arange(1, values.size + 1) / values.size,
-                    where="post",
-                    color=METHOD_COLOURS.get(method),
-                    label=f"{method} ({values.size})",
-                )
-        _drift_axis(ax, "x", [_drift(r, key) for r in ok])
-        ax.set_xlabel(f"{title} of the base attitude [rad]")
-        ax.set_ylabel("fraction of cases")
-        ax.set_ylim(0, 1.02)
-        ax.grid(True, which="major", alpha=0.3)
-        ax.legend(fontsize="small", loc="lower right")
-        ax.set_title(f"distribution of the {title}")
+        _distribution_panel(ax, ok, methods, key, title)
     if paired:
-        ax = axes[0][2]
-        for key, marker, label in ((MAX_DRIFT, "o", "maximum"), (FINAL_DRIFT, "x", "final")):
-            xy = np.array(
-                [
-                    (a, o)
-                    for a_rec, o_rec in paired
-                    if (a := _drift(a_rec, key)) is not None
-                    and (o := _drift(o_rec, key)) is not None
-                ]
-            )
-            if xy.size:
-                ax.scatter(
-                    xy[:, 0],
-                    xy[:, 1],
-                    marker=marker,
-                    s=18,
-                    label=label,
-                    facecolors="none" if marker == "o" else None,
-                    edgecolors="tab:purple" if marker == "o" else None,
-                    color="tab:green" if marker == "x" else None,
-                )
-        drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
-        drifts = [d for d in drifts if d is not None]
-        _drift_axis(ax, "x", drifts)
-        _drift_axis(ax, "y", drifts)
-        if ax.get_xscale() == "log":
-            lo, hi = min(drifts) / PAIRED_MARGIN, max(drifts) * PAIRED_MARGIN
-        else:
-            lo, hi = 0.0, max(drifts) * PAIRED_MARGIN
-        ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8, ls="--", label="equal")
-        ax.set_xlim(lo, hi)
-        ax.set_ylim(lo, hi)
-        ax.set_xlabel("analytic drift [rad]")
-        ax.set_ylabel("optimal drift [rad]")
-        ax.set_title(f"optimal vs analytic ({len(paired)} sets)")
-        ax.grid(True, which="major", alpha=0.3)
-        ax.legend(fontsize="small")
+        _paired_panel(axes[0][2], paired)
     fig.savefig(path, dpi=150)
     return Path(path)
+
+
+def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str, title: str):
+    """Cumulative distribution of drift ``key`` of each method's successful cases."""
+    for method in methods:
+        values = np.sort(
+            [d for r in ok if r["method"] == method if (d := _drift(r, key)) is not None]
+        )
+        if values.size:
+            ax.step(
+                values,
+                np.arange(1, values.size + 1) / values.size,
+                where="post",
+                color=METHOD_COLOURS.get(method),
+                label=f"{method} ({values.size})",
+            )
+    _drift_axis(ax, "x", [_drift(r, key) for r in ok])
+    ax.set_xlabel(f"{title} of the base attitude [rad]")
+    ax.set_ylabel("fraction of cases")
+    ax.set_ylim(0, 1.02)
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize="small", loc="lower right")
+    ax.set_title(f"distribution of the {title}")
+
+
+def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
+    """Optimal against analytic drift of the same parameter sets, with the diagonal."""
+    for key, marker, label in ((MAX_DRIFT, "o", "maximum"), (FINAL_DRIFT, "x", "final")):
+        xy = np.array(
+            [
+                (a, o)
+                for a_rec, o_rec in paired
+                if (a := _drift(a_rec, key)) is not None and (o := _drift(o_rec, key)) is not None
+            ]
+        )
+        if xy.size:
+            ax.scatter(
+                xy[:, 0],
+                xy[:, 1],
+                marker=marker,
+                s=18,
+                label=label,
+                facecolors="none" if marker == "o" else None,
+                edgecolors="tab:purple" if marker == "o" else None,
+                color="tab:green" if marker == "x" else None,
+            )
+    drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
+    drifts = [d for d in drifts if d is not None]
+    _drift_axis(ax, "x", drifts)
+    _drift_axis(ax, "y", drifts)
+    if ax.get_xscale() == "log":
+        lo, hi = min(drifts) / PAIRED_MARGIN, max(drifts) * PAIRED_MARGIN
+    else:
+        lo, hi = 0.0, max(drifts) * PAIRED_MARGIN
+    ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8, ls="--", label="equal")
+    ax.set_xlim(lo, hi)
+    ax.set_ylim(lo, hi)
+    ax.set_xlabel("analytic drift [rad]")
+    ax.set_ylabel("optimal drift [rad]")
+    ax.set_title(f"optimal vs analytic ({len(paired)} sets)")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize="small")
 
 
 def _pairs(ok: Sequence[dict]) -> list[tuple[dict, dict]]:

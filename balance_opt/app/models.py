@@ -1,0 +1,79 @@
+"""Planner models kept for reuse: one :class:`~balance_opt.optimal.model.PlannerModel` per robot
+kinematics, in an explicit cache object that its owner passes around.
+
+Building a planner model (the symbolic momentum maps, the compiled point kernels) and each
+compiled NLP structure it caches takes seconds; solving a case takes less. Whoever plans many
+tasks keeps one :class:`ModelCache`: :func:`balance_opt.app.pipeline.run_task` makes one per run,
+a sweep worker process keeps one for its life (:mod:`balance_opt.sweep.runner`).
+
+The key is the robot's kinematic and inertial content (its locked URDF text, its arms and their
+end-effector frames), not the Python object: two tasks that load the same robot share a model.
+Joint limits are not part of the key: they are numeric bounds of the NLP, and the planner takes
+the task's robot (with its limits) next to the model
+(:func:`~balance_opt.optimal.planner.build_balance_nlp`'s ``robot``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from balance_opt.model.robot import FloatingRobot
+    from balance_opt.optimal.model import PlannerModel
+
+log = logging.getLogger(__name__)
+
+
+def kinematics_key(robot: FloatingRobot) -> str:
+    """SHA-256 of what a planner model depends on: the locked URDF (links, joints, inertia,
+    locked positions), the arm joints in order and the end-effector frames."""
+    content = {
+        "urdf": robot.locked_urdf,
+        "joints": list(robot.joint_names),
+        "arms": [[arm.name, list(arm.joints), arm.ee_frame] for arm in robot.arms],
+    }
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+
+class ModelCache:
+    """Planner models by robot kinematics (see the module docstring).
+
+    Args:
+        max_models: the most models kept; the oldest is dropped beyond it (each holds compiled
+            NLPs). ``None``: no limit.
+    """
+
+    def __init__(self, max_models: int | None = None):
+        self.max_models = max_models
+        self._models: dict[str, PlannerModel] = {}
+
+    def planner_model(self, robot: FloatingRobot) -> PlannerModel:
+        """The planner model of ``robot``'s kinematics, built on first use.
+
+        The model may have been built for another robot object of the same kinematics (other
+        limits): plan with ``robot`` next to it, never with ``model.robot``.
+        """
+        from balance_opt.optimal.model import PlannerModel
+
+        key = kinematics_key(robot)
+        model = self._models.get(key)
+        if model is None:
+            start = time.perf_counter()
+            model = PlannerModel(robot)
+            log.debug(
+                "planner model of %s built in %.3f s", robot.name, time.perf_counter() - start
+            )
+            if self.max_models is not None and len(self._models) >= self.max_models:
+                self._models.pop(next(iter(self._models)))
+            self._models[key] = model
+        return model
+
+    def __len__(self) -> int:
+        return len(self._models)
+
+    def __contains__(self, robot: FloatingRobot) -> bool:
+        return kinematics_key(robot) in self._models

@@ -1,0 +1,200 @@
+"""All-or-nothing output folders: a run writes into a staging folder beside its target and moves
+it into place only when every file is complete.
+
+* The location is checked before any work: the staging folder is created at once, so a target
+  whose parent is a regular file, a read-only folder or ``/proc`` fails in milliseconds.
+* A lock (``fcntl.flock`` on a file beside the target) refuses a second run into the same folder
+  while the first one runs; the kernel releases it when its holder dies, even by ``kill -9``.
+* Success swaps the staging folder and the old target in one atomic ``renameat2`` exchange where
+  the system has it (two renames otherwise), then deletes the old folder: a reader sees either
+  the whole old run or the whole new one, and never a file of an earlier run beside new ones.
+* Failure or interruption deletes the staging folder and leaves the target as it was. Staging
+  folders of runs killed before they could clean up are removed by the next run into the same
+  place.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import errno
+import fcntl
+import os
+import shutil
+from pathlib import Path
+from types import TracebackType
+
+from balance_opt.errors import InputError
+
+#: Name prefixes of the helper entries kept beside a target folder ``NAME``.
+STAGING_PREFIX = ".{name}.partial-"
+LOCK_NAME = ".{name}.lock"
+_RENAME_EXCHANGE = 2  # renameat2 flag (Linux >= 3.15)
+_AT_FDCWD = -100
+
+
+class OutputFolderError(InputError):
+    """The output folder cannot be used (not creatable, not empty, or in use)."""
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two paths with Linux's ``renameat2(RENAME_EXCHANGE)``; False if absent."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    rc = renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    if rc == 0:
+        return True
+    if ctypes.get_errno() in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()), str(a))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class OutputFolder:
+    """A target folder written all-or-nothing; use as a context manager around the run.
+
+    Example::
+
+        with OutputFolder("results/capture", force=True) as out:
+            write_everything(out.staging)   # files go to the staging folder
+        # here results/capture holds exactly the files written above
+
+    Args:
+        target: the folder the user asked for.
+        force: replace a target that exists and is not empty (only once the new run is
+            complete); without it such a target is refused before any work.
+    """
+
+    def __init__(self, target: str | Path, force: bool = False):
+        self.target = Path(target).absolute()
+        self.force = force
+        self.staging: Path | None = None
+        self._lock_fd: int | None = None
+
+    # ------------------------------------------------------------------ opening
+    def open(self) -> Path:
+        """Check the location, take the lock and create the staging folder; returns it."""
+        target, name = self.target, self.target.name
+        if target.exists() and not target.is_dir():
+            raise OutputFolderError(f"output folder {target} exists and is not a folder")
+        if target.is_dir() and any(target.iterdir()) and not self.force:
+            raise OutputFolderError(
+                f"output folder {target} exists and is not empty; use --force to replace it "
+                "(the old results are kept until the new ones are complete)"
+            )
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputFolderError(
+                f"cannot create output folder {target}: {exc.strerror or exc}"
+            ) from None
+        self._lock(target.parent / LOCK_NAME.format(name=name))
+        self._remove_dead_staging()
+        staging = target.parent / f"{STAGING_PREFIX.format(name=name)}{os.getpid()}"
+        try:
+            shutil.rmtree(staging, ignore_errors=True)
+            staging.mkdir()
+            probe = staging / ".write-test"
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            self._unlock()
+            raise OutputFolderError(
+                f"cannot write in output folder {target.parent}: {exc.strerror or exc}"
+            ) from None
+        self.staging = staging
+        return staging
+
+    def _lock(self, path: Path) -> None:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise OutputFolderError(
+                f"cannot create output folder {self.target}: {exc.strerror or exc}"
+            ) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise OutputFolderError(
+                f"output folder {self.target} is being written by another balance-opt run "
+                f"(process {holder}); wait for it to finish or choose another --output"
+            ) from None
+        try:
+            same_file = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same_file = False
+        if not same_file:  # the previous holder removed the file as we opened it: lock anew
+            os.close(fd)
+            return self._lock(path)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        self._lock_fd = fd
+
+    def _unlock(self) -> None:
+        if self._lock_fd is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.target.parent / LOCK_NAME.format(name=self.target.name))
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+    def _remove_dead_staging(self) -> None:
+        prefix = STAGING_PREFIX.format(name=self.target.name)
+        for entry in self.target.parent.glob(f"{prefix}*"):
+            pid = entry.name[len(prefix) :].split(".")[0]
+            if pid.isdigit() and not _pid_alive(int(pid)):
+                shutil.rmtree(entry, ignore_errors=True)
+
+    # ------------------------------------------------------------------ closing
+    def commit(self) -> Path:
+        """Move the complete staging folder into place (replacing the old target)."""
+        if self.staging is None:
+            raise RuntimeError("OutputFolder.commit() before open()")
+        target, staging = self.target, self.staging
+        if target.exists():
+            if not _exchange(staging, target):
+                old = staging.with_name(staging.name + ".old")
+                os.rename(target, old)
+                os.rename(staging, target)
+                staging = old
+            shutil.rmtree(staging, ignore_errors=True)  # the old run, now at the staging path
+        else:
+            os.rename(staging, target)
+        self.staging = None
+        self._unlock()
+        return target
+
+    def abort(self) -> None:
+        """Delete the staging folder; the target stays as it was."""
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging = None
+        self._unlock()
+
+    def __enter__(self) -> OutputFolder:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.commit()
+        else:
+            self.abort()

@@ -1,0 +1,170 @@
+"""Physical sanity of a URDF, checked before Pinocchio loads it.
+
+urdfdom and Pinocchio load many files that describe no physical robot: a negative mass, an
+inertia with a negative principal moment, a joint axis of length zero, a link with two parents.
+The momentum maps of such a model are meaningless (or NaN), and the failure shows up much later,
+deep inside a solver. These checks name the link or joint at fault instead.
+
+Errors (the file is refused): a link mass that is negative or not finite; an inertia matrix that
+is not positive semi-definite; a joint axis of zero length; a joint whose parent or child link is
+missing; a link that is the child of two joints; more than one root link; a kinematic loop.
+
+Warnings (physically possible, but almost always a typo): principal moments that break the
+triangle inequality (no rigid body has them); a link with zero mass but non-zero inertia.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from balance_opt.errors import URDFLoadError
+
+#: Relative tolerance of the positive semi-definiteness and triangle-inequality checks (printed
+#: URDF inertias are rounded to a few digits).
+INERTIA_RTOL = 1e-6
+#: A negative principal moment smaller than this is a rounding slip of the file, warned about
+#: rather than refused (tiago's antenna: -3.5e-8) [kg m^2].
+INERTIA_ROUNDING = 1e-6
+_INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+
+
+def _number(source: str, where: str, text: str | None) -> float:
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise URDFLoadError(source, f"{where} is {text!r}, not a number") from None
+    if not math.isfinite(value):
+        raise URDFLoadError(source, f"{where} is {text!r}, not a finite number")
+    return value
+
+
+def _vector(source: str, where: str, text: str) -> np.ndarray:
+    parts = text.split()
+    if len(parts) != 3:
+        raise URDFLoadError(source, f"{where} is {text!r}, not three numbers")
+    return np.array([_number(source, where, p) for p in parts])
+
+
+def _check_inertial(link: ET.Element, source: str) -> list[str]:
+    """Errors raised, warnings returned, for one link's ``<inertial>``."""
+    inertial = link.find("inertial")
+    if inertial is None:
+        return []
+    name = link.get("name")
+    mass_el = inertial.find("mass")
+    mass = _number(
+        source,
+        f"link '{name}': <inertial> <mass value=...>",
+        None if mass_el is None else mass_el.get("value"),
+    )
+    if mass < 0:
+        raise URDFLoadError(source, f"link '{name}': mass {mass:g} kg is negative")
+    inertia_el = inertial.find("inertia")
+    values = {
+        k: _number(
+            source,
+            f"link '{name}': <inertial> <inertia {k}=...>",
+            None if inertia_el is None else inertia_el.get(k),
+        )
+        for k in _INERTIA_KEYS
+    }
+    origin = inertial.find("origin")
+    for attr in ("xyz", "rpy"):
+        text = "0 0 0" if origin is None else origin.get(attr, "0 0 0")
+        _vector(source, f"link '{name}': <inertial> <origin {attr}=...>", text)
+    inertia = np.array(
+        [
+            [values["ixx"], values["ixy"], values["ixz"]],
+            [values["ixy"], values["iyy"], values["iyz"]],
+            [values["ixz"], values["iyz"], values["izz"]],
+        ]
+    )
+    moments = np.linalg.eigvalsh(inertia)
+    scale = max(float(np.max(np.abs(moments))), 1e-300)
+    warnings = []
+    if -INERTIA_ROUNDING <= moments[0] < -INERTIA_RTOL * scale:
+        warnings.append(
+            f"link '{name}': inertia has a negative principal moment {moments[0]:.3g} kg m^2, "
+            "taken as a rounding error"
+        )
+    elif moments[0] < -INERTIA_RTOL * scale:
+        raise URDFLoadError(
+            source,
+            f"link '{name}': inertia is not positive semi-definite (principal moments "
+            f"{', '.join(f'{m:.4g}' for m in moments)} kg m^2)",
+        )
+    if mass == 0 and scale > 1e-300:
+        warnings.append(f"link '{name}' has zero mass but a non-zero inertia")
+    a, b, c = moments
+    if a + b < c * (1 - INERTIA_RTOL) and scale > 1e-300:
+        warnings.append(
+            f"link '{name}': principal moments {a:.4g}, {b:.4g}, {c:.4g} kg m^2 break the "
+            "triangle inequality (no rigid body has them; are some given about a joint instead "
+            "of the centre of mass?)"
+        )
+    return warnings
+
+
+def _check_tree(root: ET.Element, source: str) -> None:
+    links = [el.get("name") for el in root.findall("link")]
+    if not links:
+        raise URDFLoadError(source, "the file has no <link> element")
+    known = set(links)
+    parent_of: dict[str, str] = {}
+    for joint in root.findall("joint"):
+        name = joint.get("name")
+        for tag in ("parent", "child"):
+            el = joint.find(tag)
+            link = None if el is None else el.get("link")
+            if link not in known:
+                raise URDFLoadError(
+                    source, f"joint '{name}': its {tag} link {link!r} is not a <link> of the file"
+                )
+        child = joint.find("child").get("link")
+        if child in parent_of:
+            raise URDFLoadError(
+                source,
+                f"link '{child}' is the child of two joints ('{parent_of[child]}' and '{name}'); "
+                "a URDF is a tree",
+            )
+        parent_of[child] = name
+        if joint.get("type") in ("revolute", "continuous", "prismatic"):
+            axis = joint.find("axis")
+            if axis is not None:
+                xyz = _vector(source, f"joint '{name}': <axis xyz=...>", axis.get("xyz", "1 0 0"))
+                if np.linalg.norm(xyz) < 1e-12:
+                    raise URDFLoadError(source, f"joint '{name}': axis is of zero length")
+    roots = [link for link in links if link not in parent_of]
+    if len(roots) != 1:
+        raise URDFLoadError(
+            source,
+            f"a URDF has one root link, this one has {len(roots)}"
+            + (
+                f": {', '.join(repr(r) for r in roots)}"
+                if roots
+                else " (every link has a parent: a loop)"
+            ),
+        )
+    parent_link = {
+        j.find("child").get("link"): j.find("parent").get("link") for j in root.findall("joint")
+    }
+    for link in links:  # every link must reach the root: no loops
+        seen, at = set(), link
+        while at in parent_link:
+            if at in seen:
+                raise URDFLoadError(source, f"link '{link}' is in a kinematic loop")
+            seen.add(at)
+            at = parent_link[at]
+
+
+def check_urdf_physics(root: ET.Element, source: str) -> list[str]:
+    """Raise :class:`URDFLoadError` naming the link or joint of a non-physical URDF; return the
+    warnings (implausible but possible values), each naming its link."""
+    _check_tree(root, source)
+    warnings: list[str] = []
+    for link in root.findall("link"):
+        warnings.extend(_check_inertial(link, source))
+    return warnings

@@ -1,0 +1,229 @@
+"""Ipopt options checked against Ipopt's own option list, before any planning.
+
+The list comes from the Ipopt library that CasADi bundles: asked once for its option documentation
+(``print_options_documentation`` in its Doxygen form, which states each option's type, range and
+possible values), parsed, and kept on disk beside the compiled kernels, keyed by the CasADi
+version, so that validating a task does not need CasADi again. A linear solver that Ipopt knows
+but cannot load (the HSL solvers are not in the wheel) is found by a one-variable solve with it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import difflib
+import html
+import importlib.metadata
+import io
+import json
+import math
+import os
+import re
+import tempfile
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+#: Ipopt option types, as its documentation names them.
+INTEGER, REAL, STRING = "integer", "real", "string"
+#: Linear solvers known to be in the CasADi wheel's Ipopt (no load test needed).
+BUNDLED_LINEAR_SOLVERS = ("mumps",)
+
+#: Options Ipopt accepts but does not document (``sb``: suppress the banner).
+UNDOCUMENTED = {"sb": ("yes", "no")}
+
+_BLOCK = re.compile(r"<strong>(\w+)</strong>(.*?)</blockquote>", re.DOTALL)
+_TYPE = re.compile(r"this (integer|real|string) option")
+_RANGE = re.compile(r"valid range for this (?:integer|real) option is (.*?) and its default", re.DOTALL)
+_VALUE = re.compile(r"^ - ([^:\s]+):", re.MULTILINE)
+
+
+@dataclass(frozen=True)
+class IpoptOption:
+    """One Ipopt option: its type, its range (numbers) or its possible values (strings)."""
+
+    name: str
+    type: str
+    lower: float | None = None
+    lower_strict: bool = False
+    upper: float | None = None
+    upper_strict: bool = False
+    values: tuple[str, ...] = ()
+
+    def describe(self) -> str:
+        """The expected value in words, e.g. ``an integer >= 0`` or ``one of 'yes', 'no'``."""
+        if self.type == STRING:
+            return (
+                "one of " + ", ".join(repr(v) for v in self.values) if self.values else "a string"
+            )
+        what = "an integer" if self.type == INTEGER else "a finite number"
+        parts = []
+        if self.lower is not None:
+            parts.append(f"{'>' if self.lower_strict else '>='} {self.lower:g}")
+        if self.upper is not None:
+            parts.append(f"{'<' if self.upper_strict else '<='} {self.upper:g}")
+        return what + (" " + " and ".join(parts) if parts else "")
+
+
+def _number(text: str) -> float:
+    """A number of Ipopt's documentation: ``1``, ``0.5``, ``10<sup>-08</sup>``, ``+inf``."""
+    text = html.unescape(text).strip()
+    match = re.fullmatch(r"([+-]?[\d.]+)<sup>([+-]?\d+)</sup>", text)
+    if match:
+        return float(match.group(1)) ** float(match.group(2))
+    return float(text)
+
+
+def _range(name: str, text: str) -> dict[str, Any]:
+    """Bounds of ``lo < name <= hi`` (either side optional, or ``unrestricted``)."""
+    text = " ".join(html.unescape(text).replace("≤", "<=").split())
+    if text == "unrestricted":
+        return {}
+    out: dict[str, Any] = {}
+    left, _, right = text.partition(name)
+    if left.strip():
+        value, op = left.strip().rsplit(" ", 1)
+        out.update(lower=_number(value), lower_strict=op == "<")
+    if right.strip():
+        op, value = right.strip().split(" ", 1)
+        out.update(upper=_number(value), upper_strict=op == "<")
+    return out
+
+
+def parse_documentation(text: str) -> dict[str, IpoptOption]:
+    """Options from Ipopt's Doxygen-mode option documentation."""
+    catalog = {}
+    for name, body in _BLOCK.findall(text):
+        kind = _TYPE.search(body)
+        if kind is None:
+            continue
+        fields: dict[str, Any] = {}
+        bounds = _RANGE.search(body)
+        if bounds:
+            fields = _range(name, bounds.group(1))
+        if kind.group(1) == STRING:
+            fields["values"] = tuple(_VALUE.findall(body))
+        catalog[name] = IpoptOption(name=name, type=kind.group(1), **fields)
+    for name, values in UNDOCUMENTED.items():
+        catalog.setdefault(name, IpoptOption(name=name, type=STRING, values=values))
+    return catalog
+
+
+def _documentation_from_ipopt() -> str:
+    """Ipopt's option documentation, printed by a solver of a one-variable problem."""
+    import casadi as cs
+
+    x = cs.SX.sym("x")
+    opts = {
+        "ipopt.print_options_documentation": "yes",
+        "ipopt.print_advanced_options": "yes",
+        "ipopt.print_options_mode": "doxygen",
+        "ipopt.print_level": 5,
+        "ipopt.max_iter": 0,
+        "print_time": False,
+    }
+    # CasADi routes Ipopt's journal through Python's sys.stdout; some builds print to the C
+    # stdout instead (file descriptor 1, buffered): capture both.
+    text = io.StringIO()
+    with tempfile.TemporaryFile(mode="w+") as out:
+        saved = os.dup(1)
+        try:
+            os.dup2(out.fileno(), 1)
+            with contextlib.redirect_stdout(text):
+                cs.nlpsol("options_doc", "ipopt", {"x": x, "f": x**2}, opts)(x0=1.0)
+            ctypes.CDLL(None).fflush(None)
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+        out.seek(0)
+        return text.getvalue() + out.read()
+
+
+def _catalog_file() -> Path:
+    from balance_opt.optimal.model import default_cache_dir as cache_dir  # TODO(merge): codegen
+
+    version = importlib.metadata.version("casadi")
+    return cache_dir() / f"ipopt-options-casadi-{version}.json"
+
+
+_CATALOG: dict[str, IpoptOption] | None = None
+
+
+def option_catalog() -> dict[str, IpoptOption]:
+    """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk)."""
+    global _CATALOG
+    if _CATALOG is not None:
+        return _CATALOG
+    path = _catalog_file()
+    with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
+        data = json.loads(path.read_text())
+        _CATALOG = {k: IpoptOption(**{**v, "values": tuple(v["values"])}) for k, v in data.items()}
+        if _CATALOG:
+            return _CATALOG
+    _CATALOG = parse_documentation(_documentation_from_ipopt())
+    with contextlib.suppress(OSError):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({k: asdict(v) for k, v in _CATALOG.items()}))
+        os.replace(tmp, path)
+    return _CATALOG
+
+
+def linear_solver_loads(name: str) -> bool:
+    """Whether Ipopt can load linear solver ``name`` (a one-variable solve with it)."""
+    if name in BUNDLED_LINEAR_SOLVERS:
+        return True
+    import casadi as cs
+
+    x = cs.SX.sym("x")
+    opts = {"ipopt.linear_solver": name, "ipopt.print_level": 0, "print_time": False}
+    opts["ipopt.sb"] = "yes"
+    try:
+        solver = cs.nlpsol("probe", "ipopt", {"x": x, "f": (x - 1) ** 2}, opts)
+        solver(x0=0.0)
+    except RuntimeError:
+        return False
+    return solver.stats().get("return_status") not in (
+        "Invalid_Option",
+        "Invalid_Problem_Definition",
+    )
+
+
+def option_problem(name: str, value: Any, catalog: Mapping[str, IpoptOption]) -> str | None:
+    """What is wrong with Ipopt option ``name = value``, or ``None`` when Ipopt accepts it."""
+    option = catalog.get(name)
+    if option is None:
+        close = difflib.get_close_matches(name, list(catalog), n=1)
+        hint = f"; did you mean '{close[0]}'?" if close else ""
+        return f"unknown Ipopt option '{name}'{hint}"
+    expected = f"expected {option.describe()}"
+    if option.type == STRING:
+        if not isinstance(value, str):
+            return f"Ipopt option '{name}' takes a string, got {value!r}; {expected}"
+        if option.values and value not in option.values:
+            return f"Ipopt option '{name}' does not accept {value!r}; {expected}"
+        if name == "linear_solver" and not linear_solver_loads(value):
+            return (
+                f"Ipopt cannot load linear solver {value!r} (not in this installation: the HSL "
+                "solvers need a separately installed library); 'mumps' is always available"
+            )
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f"Ipopt option '{name}' takes a number, got {value!r}; {expected}"
+    if not math.isfinite(value):
+        return f"Ipopt option '{name}' must be finite, got {value!r}; {expected}"
+    if option.type == INTEGER and value != int(value):
+        return f"Ipopt option '{name}' takes an integer, got {value!r}; {expected}"
+    low, high = option.lower, option.upper
+    if (low is not None and (value < low or (option.lower_strict and value == low))) or (
+        high is not None and (value > high or (option.upper_strict and value == high))
+    ):
+        return f"Ipopt option '{name}' is out of range, got {value!r}; {expected}"
+    return None
+
+
+def clean_value(name: str, value: Any, catalog: Mapping[str, IpoptOption]) -> Any:
+    """``value`` in the type Ipopt wants (an integer option given ``500.0`` becomes ``500``)."""
+    option = catalog[name]
+    return int(value) if option.type == INTEGER else value

@@ -1,0 +1,164 @@
+"""Running a sweep: its output folder, the manifest of its cases (``sweep.json``), the cases
+on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plots
+(:mod:`balance_opt.sweep.report`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from balance_opt.errors import InputError
+from balance_opt.sweep.engine import (
+    CASES_DIR,
+    iter_results,
+    make_engine,
+    run_cases,
+    write_json_atomic,
+)
+from balance_opt.sweep.report import write_report
+from balance_opt.sweep.spec import Sweep
+
+logger = logging.getLogger(__name__)
+
+#: The case function of task sweeps (see :mod:`balance_opt.sweep.runner`).
+TASK_RUNNER = "balance_opt.sweep.runner:run_task_case"
+#: Files a sweep writes in its output folder (besides ``cases/``).
+MANIFEST = "sweep.json"
+
+
+@dataclass
+class SweepOutcome:
+    """What :func:`run_sweep` did: the run (results, ran, skipped), the files written and the
+    summary written to ``summary.json``."""
+
+    run: Any
+    files: dict[str, Path]
+    summary: dict[str, Any]
+
+
+def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
+    """Check (and create) the output folder of a sweep.
+
+    An existing, non-empty folder is used only with ``resume`` (its finished cases are kept)
+    or ``force`` (the results of a previous sweep in it are deleted first).
+
+    Raises:
+        InputError: the folder is not empty and neither ``resume`` nor ``force`` is given, or it
+            is a file.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"output {out_dir} exists and is not a directory")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
+        if not force:
+            raise InputError(
+                f"output directory {out_dir} exists and is not empty; nothing was run. "
+                "Use --resume to finish the sweep in it, --force to start it over, "
+                "or choose another --output"
+            )
+        for old in [
+            *(out_dir / CASES_DIR).glob("*.json"),
+            *(out_dir / "plots").glob("*.png"),
+            out_dir / "results.csv",
+            out_dir / "summary.json",
+            out_dir / MANIFEST,
+        ]:
+            old.unlink(missing_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return out_dir
+
+
+def sweep_manifest(sweep: Sweep) -> dict[str, Any]:
+    """The content of ``sweep.json``: the sweep's name, source, varied key paths, methods and
+    every case's index, id, method and parameters."""
+    return {
+        "name": sweep.name,
+        "source": sweep.source,
+        "setup_hash": sweep.setup_hash,
+        "varied": list(sweep.varied),
+        "methods": list(sweep.spec.methods),
+        "cases": [
+            {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
+        ],
+    }
+
+
+def run_sweep(
+    sweep: Sweep,
+    out_dir: str | Path,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    resume: bool = False,
+    force: bool = False,
+    retry_failed: bool = False,
+    plots: bool = True,
+    runner: str = TASK_RUNNER,
+    on_result=None,
+    engine=None,
+) -> SweepOutcome:
+    """Run every case of a sweep and write its results, table, summary and plots.
+
+    Args:
+        sweep: the sweep (:func:`balance_opt.sweep.spec.load_sweep`).
+        out_dir: output folder: ``sweep.json`` (the cases), ``cases/<case_id>.json`` (one per
+            case, written as it finishes), ``results.csv``, ``summary.json``, ``plots/*.png``.
+        jobs: worker processes (0: in this process); with ``scheduler="local"``, the workers
+            of the local Dask cluster.
+        scheduler: None (local process pool), ``"local"`` (a Dask cluster on the loopback
+            interface, started and stopped here) or a Dask scheduler address.
+        resume: keep the finished cases found in ``out_dir`` and run the others.
+        force: start over in a non-empty ``out_dir``.
+        retry_failed: with ``resume``, run the failed cases again too.
+        plots: draw the summary plots.
+        runner: ``"module:function"`` of the case function.
+        on_result: progress callback, see :func:`balance_opt.sweep.engine.run_cases`.
+        engine: an engine object to use instead of the one ``jobs`` and ``scheduler`` describe.
+
+    Returns:
+        The outcome; the table and summary are written even when cases failed. If the run is
+        interrupted (``KeyboardInterrupt``), the table of the cases finished so far is written
+        before the interruption goes on.
+    """
+    out_dir = prepare_output_dir(out_dir, resume, force)
+    write_json_atomic(out_dir / MANIFEST, sweep_manifest(sweep))
+    engine = engine if engine is not None else make_engine(jobs, scheduler)
+    extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
+    try:
+        run = run_cases(
+            sweep.cases,
+            runner,
+            out_dir,
+            engine,
+            resume=resume,
+            retry_failed=retry_failed,
+            on_result=on_result,
+        )
+    except KeyboardInterrupt:
+        _write_interrupted(sweep, out_dir, extra)
+        raise
+    extra.update(
+        workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped)
+    )
+    files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
+    summary = json.loads(files["summary"].read_text())
+    return SweepOutcome(run, files, summary)
+
+
+def _write_interrupted(sweep: Sweep, out_dir: Path, extra: dict[str, Any]) -> None:
+    """The table and summary of the cases an interrupted sweep finished (no plots)."""
+    done = list(iter_results(out_dir, [c["case_id"] for c in sweep.cases]))
+    write_report(
+        out_dir, done, sweep.varied, plots=False, extra_summary={**extra, "interrupted": True}
+    )
+    logger.warning(
+        "interrupted: %d of %d case(s) finished; run again with --resume to go on",
+        len(done),
+        len(sweep.cases),
+    )
+
+
+__all__ = ["MANIFEST", "TASK_RUNNER", "SweepOutcome", "prepare_output_dir", "run_sweep"]
