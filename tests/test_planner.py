@@ -323,7 +323,7 @@ def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_pl
     # the NLP's own attitude at the nodes is the re-simulated one to 0.1 % of the drift
     assert report["attitude_defect_max_rad"] < COLLOCATION_RELATIVE_ERROR * plan.max_drift
     assert report["joint_defect_max"] < NODE_TOLERANCE
-    assert report["max_momentum_residual"] < 1e-9
+    assert report["max_momentum_residual"] < 1e-6  # relative, finite-difference floor ~1e-8
     assert len(plan.info["history"]["inf_pr"]) == plan.info["iterations"] + 1
 
 

@@ -271,7 +271,6 @@ class FloatingRobot:
         self.locked_urdf = _lock_joints(root, self._urdf_joints, self.locked)
 
         self.model, self.full_model = self._build_pinocchio(text)
-        self.data = self.model.createData()
 
         self._joint_ids = [self.model.getJointId(j) for j in self.joint_names]
         self._pin_idx_q = np.array([self.model.joints[i].idx_q for i in self._joint_ids])

@@ -162,9 +162,16 @@ def inverse_right_jacobian(phi: np.ndarray) -> np.ndarray:
 _UNIFORM_GRID = 1e-9
 
 
-def _coefficient_weights(nodes: np.ndarray, degree: int) -> np.ndarray:
-    """Weights (..., p) that give the ``degree`` coefficient of the polynomial through p values
-    at the scaled times ``nodes`` (..., p): row ``degree`` of the inverse Vandermonde matrix."""
+#: How many of a window polynomial's top coefficients measure its roughness: small for a smooth
+#: motion (h^j f^(j) / j!), not across a corner. Two, because one can vanish across a corner
+#: (the 6th difference of a kink placed symmetrically in the window is zero).
+_ROUGHNESS_TERMS = 2
+
+
+def _coefficient_weights(nodes: np.ndarray, degree) -> np.ndarray:
+    """Weights (..., p) (or (..., k, p) for a slice of degrees) that give the ``degree``
+    coefficients of the polynomial through p values at the scaled times ``nodes`` (..., p):
+    rows of the inverse Vandermonde matrix."""
     V = nodes[..., :, None] ** np.arange(nodes.shape[-1])
     return np.linalg.inv(V)[..., degree, :]
 
@@ -175,10 +182,11 @@ def body_rates_from_samples(t, q, points: int = RATE_STENCIL) -> np.ndarray:
     value at ``t_k`` is the body rate.
 
     The derivative is that of the polynomial through ``points`` consecutive samples (error
-    O(h^(points - 1)) for a smooth motion). Of the windows that contain ``t_k``, the one with the
-    smallest leading coefficient is used (essentially non-oscillatory selection): a motion whose
-    acceleration has corners (a collocated plan) is then differentiated from one side of the
-    corner rather than across it.
+    O(h^(points - 1)) for a smooth motion). Of the windows that contain ``t_k``, the smoothest is
+    used, the one whose polynomial has the smallest top two coefficients (in the spirit of
+    essentially non-oscillatory schemes): a motion whose acceleration or jerk has
+    corners (a collocated plan) is then differentiated from one side of the corner rather than
+    across it.
 
     Args:
         t: strictly increasing times (T,) [s].
@@ -199,15 +207,16 @@ def body_rates_from_samples(t, q, points: int = RATE_STENCIL) -> np.ndarray:
     span = t[idx[:, -1]] - t[idx[:, 0]]
     steps = np.diff(t)
     uniform = np.ptp(steps) <= _UNIFORM_GRID * steps.mean()
-    # smoothness of each window: its polynomial's leading coefficient, attitude seen from its start
+    # roughness of each window: its polynomial's high coefficients, attitude seen from its start
     phi = rotvec_from_quaternion(relative_rotation(q[idx[:, :1]], q[idx]))
     nodes = window / (p - 1) if uniform else (t[idx] - t[idx[:, :1]]) / span[:, None]
-    lead = np.broadcast_to(_coefficient_weights(nodes, p - 1), idx.shape)
-    smoothness = np.linalg.norm(np.einsum("wp,wpi->wi", lead, phi), axis=-1)
+    high = _coefficient_weights(nodes, slice(max(1, p - _ROUGHNESS_TERMS), p))
+    high = np.broadcast_to(high, idx.shape[:1] + high.shape[-2:])
+    roughness = np.linalg.norm(high @ phi, axis=-1).sum(axis=-1)
     # for each sample, the smoothest window that contains it
     k = np.arange(T)
     candidates = np.clip(k[:, None] - window, 0, T - p)  # (T, p) window starts containing k
-    best = candidates[k, np.argmin(smoothness[candidates], axis=1)]
+    best = candidates[k, np.argmin(roughness[candidates], axis=1)]
     # the derivative at t_k of the polynomial through that window, attitude seen from q_k
     idx_k = best[:, None] + window
     phi_k = rotvec_from_quaternion(relative_rotation(q[:, None], q[idx_k]))
