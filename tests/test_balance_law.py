@@ -32,9 +32,9 @@ from balance_opt.app.scenarios import paper_capture
 from balance_opt.errors import InputError, SolverError, TrajectoryError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
-from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion import replay as replay_module
 from balance_opt.motion.momentum_check import momentum_residual
+from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.replay import replay
 from balance_opt.motion.so3 import (
     matrix_from_quaternion,

@@ -141,6 +141,7 @@ def test_rk4_is_fourth_order_on_the_manifold(scenario):
     assert e1 / e2 > 12.0
 
 
+@pytest.mark.slow
 def test_adaptive_matches_rk4(scenario):
     robot = scenario.robot
     start = np.asarray(scenario.mission.start)
@@ -246,6 +247,7 @@ def test_mission_only_attitude_matches_the_kinematic_replay(mission_only, scenar
     assert gap <= res.max_tracking_error
 
 
+@pytest.mark.slow
 def test_exact_law_rollout_and_simulation_agree(small_move):
     """The kinematic rollout of the exact law (base still) and the dynamic simulation of the same
     plan agree on the attitude within the tracking error the simulation reports, with either

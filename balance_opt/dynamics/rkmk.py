@@ -52,7 +52,8 @@ class Plan(Protocol):
 
 
 class StepControl(Protocol):
-    """The settings :func:`dopri5` reads (:class:`~balance_opt.dynamics.options.SimulationOptions`)."""
+    """The settings :func:`dopri5` reads
+    (:class:`~balance_opt.dynamics.options.SimulationOptions`)."""
 
     dt: float
     max_step: float

@@ -2,9 +2,10 @@
 through.
 
 The system is the free-flyer base and its arms with no gravity, no external wrench, no
-thrusters or wheels (``docs/physics.md``, "Forces on the base"); its momentum is therefore constant. Accelerations
-come from Pinocchio's articulated-body algorithm (``pin.aba``) with the joint torques of one of
-two controllers that track the planned trajectories of *all* arm joints (mission and balance):
+thrusters or wheels (``docs/physics.md``, "Forces on the base"); its momentum is therefore
+constant. Accelerations come from Pinocchio's articulated-body algorithm (``pin.aba``) with the
+joint torques of one of two controllers that track the planned trajectories of *all* arm joints
+(mission and balance):
 
 * ``"pd"``, the paper's Phase I controller: ``tau = K_p (q_d - q) + K_d (q_dot_d - q_dot)``;
 * ``"computed-torque"``: the free-floating inverse dynamics of the planned joint accelerations
@@ -336,7 +337,8 @@ def simulate(
     Args:
         robot: the floating robot.
         mission: the mission arm's planned motion: anything with ``sample(t) -> (q, q_dot,
-            q_ddot)`` and ``duration`` (a :class:`~balance_opt.motion.trajectories.JointTrajectory`),
+            q_ddot)`` and ``duration``
+            (a :class:`~balance_opt.motion.trajectories.JointTrajectory`),
             a :class:`BalanceResult` (its mission part, interpolated), or a position (n_M,) [rad]
             to hold.
         balance: the balance arms' planned motion, same forms (n_B joints, balance arms

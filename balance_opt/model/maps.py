@@ -199,7 +199,8 @@ class NumericMaps:
         return J[:, self._cols]
 
     def ee_generalized_jacobian(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
-        """``(J_star, M)`` of Eq. 20-22 (:func:`balance_opt.model.coupling.generalized_jacobian`)."""
+        """``(J_star, M)`` of Eq. 20-22
+        (:func:`balance_opt.model.coupling.generalized_jacobian`)."""
         J_star = coupling.generalized_jacobian(self.ee_jacobian(q, arm), self.base_jacobian(q))
         return J_star, J_star[:, self.robot.arm(arm).indices]
 

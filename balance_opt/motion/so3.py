@@ -31,11 +31,17 @@ RATE_STENCIL = 7
 # ---------------------------------------------------------------------------------- quaternions
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product ``a * b`` of quaternions (..., 4) in (x, y, z, w) order."""
-    av, aw = a[..., :3], a[..., 3:]
-    bv, bw = b[..., :3], b[..., 3:]
-    v = aw * bv + bw * av + np.cross(av, bv)
-    w = aw * bw - np.sum(av * bv, axis=-1, keepdims=True)
-    return np.concatenate([v, w], axis=-1)
+    ax, ay, az, aw = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
+    return np.stack(
+        [
+            aw * bx + bw * ax + ay * bz - az * by,
+            aw * by + bw * ay + az * bx - ax * bz,
+            aw * bz + bw * az + ax * by - ay * bx,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        axis=-1,
+    )
 
 
 def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
@@ -157,7 +163,7 @@ def inverse_right_jacobian(phi: np.ndarray) -> np.ndarray:
     return np.eye(3) + 0.5 * K + c[..., None, None] * (K @ K)
 
 
-# ---------------------------------------------------------------------------------- sampled attitude
+# ---------------------------------------------------------------------------------- sampled
 #: Relative spread of the sample spacing below which a time grid counts as uniform.
 _UNIFORM_GRID = 1e-9
 

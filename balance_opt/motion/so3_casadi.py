@@ -19,7 +19,8 @@ def skew_sym(v):
 
 def inverse_right_jacobian_sym(phi):
     """``Jr^{-1}(phi)`` for a CasADi rotation vector: ``phi_dot = Jr^{-1}(phi) omega`` for the body
-    rate ``omega`` of ``R = exp([phi]_x)`` (see :func:`balance_opt.motion.so3.inverse_right_jacobian`).
+    rate ``omega`` of ``R = exp([phi]_x)`` (the numeric face:
+    :func:`balance_opt.motion.so3.inverse_right_jacobian`).
 
     Below :data:`~balance_opt.motion.so3.SERIES_ANGLE` the series replaces the closed form, and
     the closed form is evaluated at a safe angle there so that neither it nor its derivatives
