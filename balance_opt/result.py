@@ -104,7 +104,7 @@ class BalanceResult:
             momentum about the CoM against the initial one, ``|L(t) - L0|``, over the largest
             angular momentum the joints carry plus ``|L0|``. For planned and replayed motions it
             is recomputed from the exported samples alone, the base rate by finite differences
-            of the attitude (:mod:`balance_opt.motion.momentum_check`; floor ~1e-9); for a
+            of the attitude (:mod:`balance_opt.motion.momentum_check`; floor ~1e-9 to 1e-7); for a
             simulation, from the simulated state.
         sigma_min: smallest singular value of ``J_wB`` along the path (T,).
         violations: every joint-limit violation of the balance (and mission) joints.
