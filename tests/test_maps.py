@@ -16,9 +16,10 @@ import pytest
 from scipy.linalg import block_diag
 
 from balance_opt.errors import BalanceOptError, JointError
-from balance_opt.model.maps import NumericMaps
+from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import BACKENDS, SymbolicMaps, available_backends
+from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
 
 #: Largest absolute error allowed between two exact computations of the same quantity.
 ATOL = 1e-9
@@ -200,6 +201,55 @@ def test_base_jacobian_conserves_momentum(reference_of, name):
         h0 = rng.normal(size=6)
         v_b = ref.numeric.base_twist(q, q_dot, h0)
         _close(_direct_A(ref.robot, q) @ np.r_[v_b, q_dot], h0)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_one_configuration_builder_for_single_configurations_and_batches(reference_of, name):
+    """A batch of configurations gives, row by row, the single-configuration maps; a base
+    attitude goes where Pinocchio expects it (against ``pin_q`` of an SE(3) base pose)."""
+    ref = reference_of(name)
+    maps = ref.numeric
+    Q = ref.Q[:10]
+    quaternion = quaternion_from_rotvec(np.random.default_rng(13).normal(size=(10, 3)))
+    batch = maps.centroidal(Q, quaternion)
+    I_G, A = maps.angular_maps(Q)
+    J_wM, J_wB = maps.angular_jacobians(Q)
+    for k, q in enumerate(Q):
+        base = pin.SE3(matrix_from_quaternion(quaternion[k]), np.zeros(3))
+        single = pin.computeCentroidalMap(ref.robot.model, maps.data, ref.robot.pin_q(q, base))
+        _close(batch[k], single)
+        _close(I_G[k], ref.A[k][3:, 3:6])
+        _close(A[k], ref.A[k][3:, 6:])
+        _close(J_wM[k], ref.J_wM[k])
+        _close(J_wB[k], ref.J_wB[k])
+    np.testing.assert_allclose(
+        maps.balance_sigma_min(I_G, A),
+        [m.sigma_min for m in ref.measures[:10]],
+        rtol=0,
+        atol=ATOL,
+    )
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_base_angular_velocity_keeps_the_momentum(reference_of, name):
+    """The one base-rate function: with the angular momentum ``L`` (world axes) and the base at
+    attitude ``R``, ``omega = I_G^{-1} (R^T L - A q_dot)`` gives back ``L`` through Pinocchio's
+    world-frame map at ``R``; for ``L = 0`` it is ``J_wM q_dot_M + J_wB q_dot_B``. Batched and
+    one at a time alike."""
+    ref = reference_of(name)
+    maps, robot = ref.numeric, ref.robot
+    rng = np.random.default_rng(14)
+    quaternion = quaternion_from_rotvec(rng.normal(size=(N_CONFIGS, 3)))
+    R = matrix_from_quaternion(quaternion)
+    L = rng.normal(size=3)
+    I_G, A = maps.angular_maps(ref.Q)
+    omega = base_angular_velocity(I_G, A, ref.QD, np.einsum("kji,j->ki", R, L))
+    omega_0 = base_angular_velocity(I_G, A, ref.QD)
+    for k, (q, q_dot) in enumerate(zip(ref.Q, ref.QD)):
+        A_world = _direct_A(robot, q, pin.SE3(R[k], np.zeros(3)))
+        _close(A_world[3:] @ np.r_[0.0, 0.0, 0.0, omega[k], q_dot], L)
+        _close(omega_0[k], ref.J_wM[k] @ q_dot[ref.mission] + ref.J_wB[k] @ q_dot[ref.balance])
+        _close(base_angular_velocity(I_G[k], A[k], q_dot), omega_0[k])
 
 
 @pytest.mark.parametrize("name", ROBOTS)

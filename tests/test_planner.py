@@ -30,18 +30,20 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.analytic.law import analytic_plan
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
+from balance_opt.analytic.rollout import rollout
 from balance_opt.app.scenarios import PAPER_MISSION_GOAL, PAPER_MISSION_START, paper_capture
 from balance_opt.errors import InfeasibleLimitsError, InputError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
 from balance_opt.motion.so3 import (
+    SERIES_ANGLE,
     inverse_right_jacobian,
     matrix_from_quaternion,
     quaternion_from_rotvec,
 )
+from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal.collocation import (
     CollocatedTrajectory,
@@ -49,12 +51,7 @@ from balance_opt.optimal.collocation import (
     bernstein_basis,
     joint_chain_coefficients,
 )
-from balance_opt.optimal.model import (
-    ATTITUDE_SERIES_ANGLE,
-    PlannerModel,
-    compile_functions,
-    inverse_right_jacobian_sym,
-)
+from balance_opt.optimal.model import PlannerModel, compile_functions
 from balance_opt.optimal.options import CostWeights, PlannerOptions
 from balance_opt.optimal.planner import PlannerSolverError, build_balance_nlp, plan_optimal
 from balance_opt.result import BalanceResult
@@ -112,7 +109,7 @@ def capture_plan(model, capture):
 def _near_exact_law(robot, mission, q_B0, t):
     """The analytic law with its damping 10 times weaker than the default: close to the exact
     Eq. 31 wherever J_wB is not singular."""
-    return analytic_plan(robot, mission, q_B0, NEAR_EXACT_LAW, t=t)
+    return rollout(robot, mission, q_B0, NEAR_EXACT_LAW, t_eval=t)
 
 
 def _random_points(rng, model, control, n):
@@ -167,7 +164,7 @@ def test_attitude_kinematics_on_so3():
     assert np.all(np.isfinite(np.array(hess(np.zeros(3)))))
     np.testing.assert_array_equal(np.array(fun(np.zeros(3))), np.eye(3))
     dt = 1e-6
-    for scale in (0.5 * ATTITUDE_SERIES_ANGLE, 2.0 * ATTITUDE_SERIES_ANGLE, 0.3, 2.0):
+    for scale in (0.5 * SERIES_ANGLE, 2.0 * SERIES_ANGLE, 0.3, 2.0):
         phi = rng.normal(size=3)
         phi *= scale / np.linalg.norm(phi)
         omega = rng.normal(size=3)
@@ -326,7 +323,7 @@ def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_pl
     # the NLP's own attitude at the nodes is the re-simulated one to 0.1 % of the drift
     assert report["attitude_defect_max_rad"] < COLLOCATION_RELATIVE_ERROR * plan.max_drift
     assert report["joint_defect_max"] < NODE_TOLERANCE
-    assert report["max_momentum_residual"] < 1e-9
+    assert report["max_momentum_residual"] < 1e-6  # relative, finite-difference floor ~1e-8
     assert len(plan.info["history"]["inf_pr"]) == plan.info["iterations"] + 1
 
 

@@ -477,7 +477,7 @@ def test_bad_task_names_file_line_and_key(tmp_path, edits, fragment, message, er
         text = _edit(text, old, new)
     path = tmp_path / "task.yaml"
     path.write_text(text)
-    from balance_opt.model.resources import shipped_urdf
+    from balance_opt.model.library import shipped_urdf
 
     expected = f"{path}:{_line_of(text, fragment)}: " + message.format(
         dir=tmp_path, urdf=shipped_urdf()

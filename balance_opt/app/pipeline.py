@@ -104,7 +104,7 @@ def plan_analytic(task: Task) -> BalanceResult:
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
     """
-    from balance_opt.motion.rollout import rollout
+    from balance_opt.analytic.rollout import rollout
 
     a = task.spec.analytic
     return rollout(task.robot, task.mission, task.q_B0, a.law, integration=a.integration)

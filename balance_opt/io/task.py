@@ -178,7 +178,7 @@ def _with_momentum(spec: TaskSpec) -> TaskSpec:
 
 
 def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
-    from balance_opt.model.resources import example_robot_urdf, shipped_urdf
+    from balance_opt.model.library import example_robot_urdf, shipped_urdf
 
     r = spec.robot
     if r.urdf is not None:

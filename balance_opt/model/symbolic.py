@@ -2,8 +2,8 @@
 Jacobian, its angular rows per arm and their time derivatives, and the paper's coupling factors.
 
 Everything is a function of the arm vector ``q`` alone, with the base at the identity pose:
-expressed in the base frame, these maps do not depend on the base pose (see
-``physics-notes.md``), which keeps the functions small and the NLP free of base position.
+expressed in the base frame, these maps do not depend on the base pose (``docs/physics.md``,
+"Momentum maps"), which keeps the functions small and the NLP free of base position.
 
 Two backends produce the two primitive expressions everything else is built from (the
 centroidal momentum matrix and each end effector's frame Jacobian, both with the base at the
@@ -27,11 +27,15 @@ import casadi as cs
 import numpy as np
 
 from balance_opt.errors import BalanceOptError, JointError
+from balance_opt.model import coupling
+from balance_opt.model.coupling import CouplingMeasures, LinearAlgebra, coupling_measures
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
 
 BACKENDS = ("pinocchio", "adam")
+#: CasADi's linear algebra, for the coupling factors of :mod:`balance_opt.model.coupling`.
+CASADI = LinearAlgebra(cs.solve, cs.inv, cs.SX.eye)
 
 
 def available_backends() -> list[str]:
@@ -120,16 +124,6 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     return A, jac
 
 
-def _pinv(M: cs.SX) -> cs.SX:
-    """Moore-Penrose inverse of a full-rank matrix (tall: left inverse, wide: right inverse)."""
-    r, c = M.shape
-    if r == c:
-        return cs.inv(M)
-    if r > c:
-        return cs.solve(M.T @ M, M.T)
-    return M.T @ cs.solve(M @ M.T, cs.SX.eye(r))
-
-
 class SymbolicMaps:
     """CasADi momentum maps of a floating robot.
 
@@ -168,8 +162,11 @@ class SymbolicMaps:
     # ------------------------------------------------------------------ expressions
     @cached_property
     def _J_base(self) -> cs.SX:
-        A_b, A_j = self._A[:, :6], self._A[:, 6:]
-        return -cs.solve(A_b, A_j)  # Eq. 19 with zero momentum, derived from A_G v = 0
+        return coupling.base_jacobian(self._A, CASADI)
+
+    @cached_property
+    def _J_w(self) -> cs.SX:
+        return coupling.angular_jacobian(self._A[3:, 3:6], self._A[3:, 6:], CASADI)
 
     def _cols(self, arm_names) -> list[int]:
         return [int(i) for a in arm_names for i in self.robot.arm(a).indices]
@@ -222,7 +219,7 @@ class SymbolicMaps:
         ``J_wM q_dot_M + J_wB q_dot_B`` (Eq. 26; balance arms stacked in ``J_wB``)."""
 
         def make():
-            Jw = self._J_base[3:, :]
+            Jw = self._J_w
             return self._fun(
                 "angular_jacobians",
                 {"q": self._q},
@@ -236,7 +233,7 @@ class SymbolicMaps:
         ``J_wM`` and ``J_wB`` along ``q_dot`` (needed for Eq. 32)."""
 
         def make():
-            Jw = self._J_base[3:, :]
+            Jw = self._J_w
             return self._fun(
                 "angular_jacobian_rates",
                 {"q": self._q, "q_dot": self._qd},
@@ -255,8 +252,7 @@ class SymbolicMaps:
         ``M`` is the arm's own columns of ``J_star``: the paper's coupling factor (Eq. 22)."""
 
         def make():
-            J = self._J_ee[arm]
-            J_star = J[:, 6:] + J[:, :6] @ self._J_base
+            J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
             return self._fun(
                 f"ee_generalized_jacobian_{arm}",
                 {"q": self._q},
@@ -274,7 +270,7 @@ class SymbolicMaps:
 
         def make():
             _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-            N = self._J_base[:, self._cols([arm])] @ _pinv(M)
+            N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
             return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
 
         return self._cached(f"MN_{arm}", make)
@@ -285,18 +281,10 @@ class SymbolicMaps:
         of ``N^T`` where ``N`` is rank deficient (arms with fewer than 6 joints)."""
 
         def make():
-            _, N = self.coupling_factors_fun(arm)(self._q)
+            _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
             F_e = cs.SX.sym("F_e", 6)
-            cols = self._cols([arm])
-            if len(cols) >= 6:
-                F_B = cs.solve(N.T, F_e)
-            else:
-                # N^T = B C^T with B = M (M^T M)^-1 and C = J_base,arm, both of full column rank,
-                # so pinv(N^T) = pinv(C^T) pinv(B): exact without a numeric SVD.
-                _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-                B = _pinv(M).T
-                C = self._J_base[:, cols]
-                F_B = _pinv(C.T) @ (_pinv(B) @ F_e)
+            J_base_arm = self._J_base[:, self._cols([arm])]
+            F_B = coupling.force_on_base(J_base_arm, M, F_e, CASADI)
             return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
 
         return self._cached(f"F_{arm}", make)
@@ -327,8 +315,6 @@ class SymbolicMaps:
     def force_map(self, q, F_e, arm: str = "mission") -> np.ndarray:
         return np.array(self.force_map_fun(arm)(q, F_e)).ravel()
 
-    def coupling_measures(self, q) -> "CouplingMeasures":
+    def coupling_measures(self, q) -> CouplingMeasures:
         """Singular values and condition number of ``J_wB``, norm of ``J_wM`` at ``q``."""
-        from balance_opt.model.maps import coupling_measures
-
         return coupling_measures(*self.angular_jacobians(q), self.robot.balance_arm_columns)

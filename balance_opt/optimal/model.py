@@ -45,12 +45,11 @@ import numpy as np
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import SymbolicMaps
+from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
 
-#: Rotation angle [rad] below which ``Jr^{-1}`` uses its series (the closed form is 0/0 at 0).
-ATTITUDE_SERIES_ANGLE = 1e-2
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
 #: C compiler flags of the compiled kernels. -O1: on the paper robot as fast as -O2/-O3 (within
@@ -59,33 +58,6 @@ RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
 COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
 #: Environment variable naming the folder of compiled kernels (default: the user cache folder).
 CACHE_ENV = "BALANCE_OPT_CACHE"
-
-
-def skew(v):
-    """``[v]_x`` (3 x 3) of a CasADi 3-vector."""
-    return cs.vertcat(
-        cs.horzcat(0, -v[2], v[1]), cs.horzcat(v[2], 0, -v[0]), cs.horzcat(-v[1], v[0], 0)
-    )
-
-
-def inverse_right_jacobian_sym(phi):
-    """``Jr^{-1}(phi)`` for a CasADi rotation vector: ``phi_dot = Jr^{-1}(phi) omega`` for the body
-    rate ``omega`` of ``R = exp([phi]_x)``.
-
-    ``Jr^{-1} = I + K/2 + c(a) K^2`` with ``K = [phi]_x``, ``a = |phi|`` and
-    ``c = 1/a^2 - (1 + cos a) / (2 a sin a)``; below :data:`ATTITUDE_SERIES_ANGLE` the series
-    ``1/12 + a^2/720 + a^4/30240`` (error below 1e-18) replaces the closed form, and the closed
-    form is evaluated at a safe angle there so that neither it nor its derivatives produce NaN.
-    """
-    a2 = cs.dot(phi, phi)
-    small = a2 < ATTITUDE_SERIES_ANGLE**2
-    a2_safe = cs.if_else(small, 1.0, a2)
-    a = cs.sqrt(a2_safe)
-    c_closed = 1.0 / a2_safe - (1.0 + cs.cos(a)) / (2.0 * a * cs.sin(a))
-    c_series = 1.0 / 12.0 + a2 / 720.0 + a2 * a2 / 30240.0
-    c = cs.if_else(small, c_series, c_closed)
-    K = skew(phi)
-    return cs.SX.eye(3) + 0.5 * K + c * (K @ K)
 
 
 def check_control(control: str) -> str:

@@ -52,7 +52,7 @@ import numpy as np
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.rollout import replay
+from balance_opt.motion.replay import replay
 from balance_opt.motion.so3 import (
     quaternion_conjugate,
     quaternion_from_rotvec,
@@ -768,10 +768,10 @@ class BalanceNLP:
 
     def analytic_guess(self) -> Solution:
         """The analytic law's balance motion (Eq. 31, 32), clipped to the limits."""
-        from balance_opt.analytic.law import analytic_plan
+        from balance_opt.analytic.rollout import rollout
 
         t = np.linspace(0.0, self.horizon, max(4 * self.N + 1, 201))
-        plan = analytic_plan(self.robot, self.mission, self.q_B0, t=t)
+        plan = rollout(self.robot, self.mission, self.q_B0, t_eval=t)
         return self._guess_from_samples(plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
 
     def initial_guess(self, guess="analytic") -> np.ndarray:
@@ -1031,7 +1031,7 @@ def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
 
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
     """Re-simulate a plan on a fine grid: the balance joints follow the collocation polynomial,
-    the attitude is integrated by :func:`balance_opt.motion.rollout.replay` (numeric Pinocchio, RK4 on
+    the attitude is integrated by :func:`balance_opt.motion.replay.replay` (numeric Pinocchio, RK4 on
     the unit quaternion, one step per grid interval: below 1e-10 rad on the paper task at the
     default step); limit violations are those of the fine grid. ``info["resimulation"]``
     reports the collocation defects (NLP attitude at the nodes against the re-simulated one;
