@@ -34,7 +34,7 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import casadi as cs
@@ -178,7 +178,7 @@ def find_toolchain() -> Toolchain:
         raise BridgeUnavailable("not supported on Windows")
     compiler = find_cxx_compiler()
     if compiler is None:
-        raise BridgeUnavailable("no C++ compiler found ($CXX, c++, g++, clang++)")
+        raise BridgeUnavailable("no C++ compiler found: tried $CXX, c++, g++, clang++")
     casadi_dir = Path(cs.__file__).parent
     headers = {
         "pinocchio/autodiff/casadi.hpp": _header_dir("pinocchio/autodiff/casadi.hpp"),
@@ -203,10 +203,12 @@ def find_toolchain() -> Toolchain:
     return Toolchain(compiler, includes, (pinocchio_lib, str(casadi_dir)))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _compiler_version(compiler: str) -> str:
     try:
-        out = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=60)
+        out = subprocess.run(
+            [compiler, "--version"], capture_output=True, text=True, timeout=60, check=False
+        )
     except (OSError, subprocess.SubprocessError) as exc:
         raise BridgeUnavailable(f"{compiler} does not run: {exc}") from exc
     return (out.stdout.splitlines() or [""])[0]
@@ -278,9 +280,7 @@ def _first_error(stderr: str) -> str:
 
 def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
     """Build the program into a temporary name in its folder, then rename it into place."""
-    log.info(
-        "building the Pinocchio-CasADi bridge (once per machine, about %d min)", BUILD_MINUTES
-    )
+    log.info("building the Pinocchio-CasADi bridge (once per machine, about %d min)", BUILD_MINUTES)
     start, cpu0 = time.perf_counter(), _children_cpu()
     with tempfile.TemporaryDirectory(dir=program.parent) as tmp:
         out = Path(tmp) / program.name
@@ -359,10 +359,16 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
 
 # ----------------------------------------------------------------------------- per robot
 
+
 def _robot_key(robot, program: Path) -> str:
     frames = [arm.ee_frame for arm in robot.arms]
     spec = [program.name, robot.locked_urdf, *robot.joint_names, "|", *frames]
     return hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
+
+
+def function_path(robot, program: Path) -> Path:
+    """Where the function of ``robot`` made by ``program`` is cached."""
+    return program.parent / "functions" / f"{robot.name}_{_robot_key(robot, program)}.casadi"
 
 
 def _load(path: Path, robot) -> cs.Function | None:
@@ -408,7 +414,7 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
         BridgeUnavailable: the program cannot be built, or it failed on this robot.
     """
     program = ensure_bridge(cache_dir).path
-    path = program.parent / "functions" / f"{robot.name}_{_robot_key(robot, program)}.casadi"
+    path = function_path(robot, program)
     known = _LOADED.get(path)
     if known is not None and known[0] == _signature(path):
         return known[1]
