@@ -23,7 +23,6 @@ import time
 import timeit
 from pathlib import Path
 
-import casadi as cs
 import numpy as np
 
 from balance_opt.model import bridge

@@ -227,6 +227,13 @@ def test_build_failure_names_the_first_compiler_error(fake_compiler):
     assert _programs(fake_compiler / "cache") == []
 
 
+def test_unwritable_cache_folder_makes_the_bridge_unavailable(fake_compiler):
+    blocker = fake_compiler / "not-a-folder"
+    blocker.write_text("")
+    with pytest.raises(bridge.BridgeUnavailable, match=r"build failed: .*not-a-folder"):
+        bridge.ensure_bridge(blocker / "cache")
+
+
 def test_build_progress_is_logged(fake_compiler, monkeypatch, caplog):
     monkeypatch.setattr(bridge, "PROGRESS_SECONDS", 0.1)
     with caplog.at_level("INFO", logger="balance_opt.model.bridge"):

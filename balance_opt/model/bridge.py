@@ -27,7 +27,6 @@ import json
 import logging
 import os
 import platform
-import resource
 import shutil
 import subprocess
 import sys
@@ -310,6 +309,8 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
 
 
 def _children_cpu() -> float:
+    import resource  # POSIX only, like the bridge
+
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_utime + usage.ru_stime
 
@@ -348,11 +349,14 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     known = _BUILT.get(program)
     if known is not None and known[0] == _signature(program):
         return known[1]
-    folder.mkdir(parents=True, exist_ok=True)
-    with _locked(folder / f"{program.name}.lock"):
-        record = _read_record(program)
-        if record is None:
-            record = _compile(toolchain, program)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with _locked(folder / f"{program.name}.lock"):
+            record = _read_record(program)
+            if record is None:
+                record = _compile(toolchain, program)
+    except OSError as exc:  # unwritable cache folder, compiler gone, disk full, ...
+        raise BridgeUnavailable(f"build failed: {exc}") from exc
     _BUILT[program] = (_signature(program), record)
     return record
 
@@ -393,7 +397,10 @@ def _generate(program: Path, robot, path: Path) -> float:
         out = Path(tmp) / path.name
         frames = [arm.ee_frame for arm in robot.arms]
         args = [str(program), str(urdf), str(out), str(robot.n), *robot.joint_names, *frames]
-        proc = subprocess.run(args, capture_output=True, text=True, check=False)
+        try:
+            proc = subprocess.run(args, capture_output=True, text=True, check=False)
+        except OSError as exc:  # e.g. the program was replaced by a broken file meanwhile
+            raise BridgeUnavailable(f"the bridge does not run: {exc}") from exc
         if proc.returncode != 0:
             raise BridgeUnavailable(
                 f"the bridge failed on {robot.name} (exit status {proc.returncode}): "
@@ -420,7 +427,10 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
         return known[1]
     fun = _load(path, robot)
     if fun is None:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise BridgeUnavailable(f"cache folder: {exc}") from exc
         elapsed = _generate(program, robot, path)
         fun = _load(path, robot)
         if fun is None:

@@ -32,6 +32,12 @@ import casadi as cs
 import numpy as np
 
 from balance_opt.errors import BalanceOptError, JointError
+from balance_opt.model.bridge import (
+    BridgeUnavailable,
+    bridge_primitives,
+    ensure_bridge,
+    find_toolchain,
+)
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
@@ -52,8 +58,6 @@ def available_backends() -> list[str]:
     anything: ``"pinocchio"`` where ``pinocchio.casadi`` imports or the bridge's compiler,
     headers and libraries are all found (its build may still fail), ``"adam"`` where it imports.
     """
-    from balance_opt.model.bridge import BridgeUnavailable, find_toolchain
-
     found = []
     try:
         if not _pinocchio_casadi_imports():
@@ -94,8 +98,6 @@ def _resolve_backend(backend: str) -> tuple[str, str]:
     Raises:
         BalanceOptError: unknown backend, or the one asked for cannot be used here.
     """
-    from balance_opt.model.bridge import BridgeUnavailable, ensure_bridge
-
     if backend not in ("auto", *BACKENDS):
         raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
     if backend == "adam":
@@ -176,8 +178,6 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     try:
         import pinocchio.casadi as cpin
     except ImportError:
-        from balance_opt.model.bridge import bridge_primitives
-
         return bridge_primitives(robot, q)
 
     model = robot.model
@@ -230,8 +230,6 @@ class SymbolicMaps:
     """
 
     def __init__(self, robot: FloatingRobot, backend: str = "auto"):
-        from balance_opt.model.bridge import BridgeUnavailable
-
         self.robot = robot
         self.backend, self.backend_description = _resolve_backend(backend)
         n = robot.n
