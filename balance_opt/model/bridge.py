@@ -21,7 +21,6 @@ Everything is cached in ``<kernel cache>/pinocchio-bridge/``:
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import logging
@@ -229,29 +228,22 @@ def _build_key(toolchain: Toolchain) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
+def _kernel_cache():
+    """The planner's kernel cache module (its folder and its file lock are shared), wherever
+    the optimal package keeps it; imported late so that this module stays below it."""
+    try:
+        from balance_opt.optimal import codegen
+    except ImportError:
+        from balance_opt.optimal import model as codegen
+    return codegen
+
+
 def cache_folder() -> Path:
     """``<kernel cache folder>/pinocchio-bridge`` (see ``default_cache_dir``)."""
-    try:  # the planner's cache folder, wherever the optimal package keeps it
-        from balance_opt.optimal.codegen import default_cache_dir
-    except ImportError:
-        from balance_opt.optimal.model import default_cache_dir
-    return Path(default_cache_dir()) / FOLDER
+    return Path(_kernel_cache().default_cache_dir()) / FOLDER
 
 
 # ----------------------------------------------------------------------------- the program
-@contextlib.contextmanager
-def _locked(path: Path):
-    """An exclusive ``flock`` on ``path``: one process builds, the others wait for it."""
-    import fcntl
-
-    with open(path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
 def _sha256(path: Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -351,7 +343,8 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
         return known[1]
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with _locked(folder / f"{program.name}.lock"):
+        # one process builds, the others wait for it
+        with _kernel_cache()._file_lock(folder / f"{program.name}.lock"):
             record = _read_record(program)
             if record is None:
                 record = _compile(toolchain, program)
