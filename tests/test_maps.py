@@ -373,9 +373,14 @@ def test_ee_generalized_jacobian_and_coupling_factors(case):
         _close(
             getattr(case, f"M_cf_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name
         )
-        _close(
-            getattr(case, f"N_{arm.name}"), getattr(case.ref, f"N_svd_{arm.name}"), err_msg=arm.name
-        )
+        # N = J_base,arm M^+ with M^+ from the normal equations, which square the condition
+        # number of M (up to 2e3 on Baxter): errors of ~eps cond(M)^2 |N| are rounding
+        # (measured <= 0.7 of that with either backend)
+        N, N_svd = getattr(case, f"N_{arm.name}"), getattr(case.ref, f"N_svd_{arm.name}")
+        for k, M in enumerate(getattr(case.ref, f"M_{arm.name}")):
+            s = np.linalg.svd(M, compute_uv=False)
+            rounding = 10 * np.finfo(float).eps * (s[0] / s[-1]) ** 2 * np.abs(N_svd[k]).max()
+            _close(N[k], N_svd[k], atol=max(ATOL, rounding), err_msg=arm.name)
 
 
 def test_force_map(case):
@@ -447,8 +452,8 @@ def test_backend_selection(paper):
     if "pinocchio" not in found:
         with pytest.raises(
             BalanceOptError,
-            match=r"backend 'pinocchio' cannot be imported here "
-            r"\(PyPI's pin wheels lack pinocchio.casadi\)",
+            match=r"backend 'pinocchio' cannot be used here: pinocchio.casadi does not import "
+            r"\(PyPI's pin wheels lack it\) and the Pinocchio-CasADi bridge is unavailable: ",
         ):
             SymbolicMaps(paper, backend="pinocchio")
 

@@ -9,10 +9,15 @@ Two backends produce the two primitive expressions everything else is built from
 centroidal momentum matrix and each end effector's frame Jacobian, both with the base at the
 identity, base columns first, then arm joints in arm order):
 
-* ``"pinocchio"``: ``pinocchio.casadi``, where it can be imported (conda or source builds);
-* ``"adam"``: ``adam-robotics`` (``adam.casadi``), which PyPI users have.
+* ``"pinocchio"``: Pinocchio's own algorithms on ``casadi.SX``: through ``pinocchio.casadi``
+  where it imports (conda or source builds), else through the Pinocchio-CasADi bridge
+  (:mod:`balance_opt.model.bridge`, a small C++ program compiled once per machine against the
+  pip wheels; it needs a C++ compiler);
+* ``"adam"``: ``adam-robotics`` (``adam.casadi``), pure Python.
 
-``backend="auto"`` takes the first of these that imports.
+``backend="auto"`` takes ``"pinocchio"`` where it works (building the bridge on first use),
+else ``"adam"``, and then says why in one log line per process. Pinocchio's expressions are
+about four times smaller than adam's on Baxter (``benchmarks/bench_bridge.py``).
 
 Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
 cached), and ``name(...)`` evaluates it and returns NumPy arrays.
@@ -28,6 +33,12 @@ import numpy as np
 
 from balance_opt.errors import BalanceOptError, JointError
 from balance_opt.model import coupling
+from balance_opt.model.bridge import (
+    BridgeUnavailable,
+    bridge_primitives,
+    ensure_bridge,
+    find_toolchain,
+)
 from balance_opt.model.coupling import CouplingMeasures, LinearAlgebra, coupling_measures
 from balance_opt.model.robot import FloatingRobot
 
@@ -38,14 +49,25 @@ BACKENDS = ("pinocchio", "adam")
 CASADI = LinearAlgebra(cs.solve, cs.inv, cs.SX.eye)
 
 
-def available_backends() -> list[str]:
-    """Backends that import on this machine, in order of preference."""
-    found = []
+def _pinocchio_casadi_imports() -> bool:
     try:
         import pinocchio.casadi  # noqa: F401
-
-        found.append("pinocchio")
     except ImportError:
+        return False
+    return True
+
+
+def available_backends() -> list[str]:
+    """Backends usable on this machine, in order of preference, found without building
+    anything: ``"pinocchio"`` where ``pinocchio.casadi`` imports or the bridge's compiler,
+    headers and libraries are all found (its build may still fail), ``"adam"`` where it imports.
+    """
+    found = []
+    try:
+        if not _pinocchio_casadi_imports():
+            find_toolchain()
+        found.append("pinocchio")
+    except BridgeUnavailable:
         pass
     try:
         import adam.casadi  # noqa: F401
@@ -54,6 +76,63 @@ def available_backends() -> list[str]:
     except ImportError:
         pass
     return found
+
+
+_NOTED: set[str] = set()  # fallback reasons already logged by this process
+
+
+def _fall_back_to_adam(reason: str) -> tuple[str, str]:
+    """Choose adam for ``auto``, saying why once per process and reason."""
+    try:
+        import adam.casadi  # noqa: F401
+    except ImportError:
+        raise BalanceOptError(
+            f"no symbolic backend: the Pinocchio-CasADi bridge is unavailable ({reason}) "
+            "and adam-robotics[casadi] is not installed"
+        ) from None
+    if reason not in _NOTED:
+        _NOTED.add(reason)
+        log.info("symbolic backend: adam, not the Pinocchio-CasADi bridge: %s", reason)
+    return "adam", f"adam ({reason})"
+
+
+def _resolve_backend(backend: str) -> tuple[str, str]:
+    """``(backend, description)`` for the backend asked for; builds the bridge if needed.
+
+    Raises:
+        BalanceOptError: unknown backend, or the one asked for cannot be used here.
+    """
+    if backend not in ("auto", *BACKENDS):
+        raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
+    if backend == "adam":
+        try:
+            import adam.casadi  # noqa: F401
+        except ImportError:
+            raise BalanceOptError("backend 'adam' cannot be imported here") from None
+        return "adam", "adam"
+    if _pinocchio_casadi_imports():
+        return "pinocchio", "pinocchio (pinocchio.casadi)"
+    try:
+        record = ensure_bridge()
+    except BridgeUnavailable as exc:
+        if backend == "auto":
+            return _fall_back_to_adam(exc.reason)
+        raise BalanceOptError(
+            "backend 'pinocchio' cannot be used here: pinocchio.casadi does not import (PyPI's "
+            f"pin wheels lack it) and the Pinocchio-CasADi bridge is unavailable: {exc.reason}"
+        ) from None
+    return "pinocchio", f"pinocchio (bridge, built in {record.wall_seconds:.0f} s)"
+
+
+def backend_description(backend: str = "auto") -> str:
+    """What ``SymbolicMaps(robot, backend)`` uses here, for ``balance-opt inspect``: e.g.
+    ``"pinocchio (bridge, built in 95 s)"`` or ``"adam (no C++ compiler found: ...)"``.
+    Builds the bridge first if ``backend`` may use it and it is not cached yet.
+
+    Raises:
+        BalanceOptError: as :class:`SymbolicMaps` does for this ``backend``.
+    """
+    return _resolve_backend(backend)[1]
 
 
 def _primitives_adam(robot: FloatingRobot, q: cs.SX):
@@ -90,15 +169,20 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
 
 
 def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
-    """The primitives from ``pinocchio.casadi`` (Pinocchio's algorithms on ``casadi.SX``).
+    """The primitives from Pinocchio's algorithms on ``casadi.SX``: through ``pinocchio.casadi``
+    where it imports, else through the bridge (:func:`balance_opt.model.bridge.bridge_primitives`).
 
-    Written against the pinocchio.casadi API (``cpin.Model(model)`` casts the numeric model;
-    ``computeCentroidalMap``, ``computeJointJacobians``, ``updateFramePlacements``,
-    ``getFrameJacobian`` take and return ``casadi.SX``) but not run by the test suite where
-    only PyPI's ``pin`` (no ``pinocchio.casadi``) is installed.
+    The ``pinocchio.casadi`` path is written against its API (``cpin.Model(model)`` casts the
+    numeric model; ``computeCentroidalMap``, ``computeJointJacobians``,
+    ``updateFramePlacements``, ``getFrameJacobian`` take and return ``casadi.SX``); the test
+    suite runs it with a numeric stand-in where only PyPI's ``pin`` is installed.
     """
     import pinocchio as pin
-    import pinocchio.casadi as cpin
+
+    try:
+        import pinocchio.casadi as cpin
+    except ImportError:
+        return bridge_primitives(robot, q)
 
     model = robot.model
     cmodel = cpin.Model(model)
@@ -131,33 +215,29 @@ class SymbolicMaps:
         robot: the floating robot.
         backend: ``"auto"``, ``"adam"`` or ``"pinocchio"``.
 
+    Attributes:
+        backend: the backend used, ``"pinocchio"`` or ``"adam"``.
+        backend_description: the same with how or why, see :func:`backend_description`.
+
     Raises:
-        BalanceOptError: the backend asked for cannot be imported.
+        BalanceOptError: the backend asked for cannot be used here.
     """
 
     def __init__(self, robot: FloatingRobot, backend: str = "auto"):
-        found = available_backends()
-        if backend == "auto":
-            if not found:
-                raise BalanceOptError(
-                    "no symbolic backend: install adam-robotics[casadi] or pinocchio with casadi"
-                )
-            backend = found[0]
-        elif backend not in BACKENDS:
-            raise BalanceOptError(
-                f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}"
-            )
-        elif backend not in found:
-            hint = " (PyPI's pin wheels lack pinocchio.casadi)" if backend == "pinocchio" else ""
-            raise BalanceOptError(f"backend '{backend}' cannot be imported here{hint}")
         self.robot = robot
-        self.backend = backend
+        self.backend, self.backend_description = _resolve_backend(backend)
         n = robot.n
         self._q = cs.SX.sym("q", n)
         self._qd = cs.SX.sym("q_dot", n)
-        build = _primitives_pinocchio if backend == "pinocchio" else _primitives_adam
-        self._A, self._J_ee = build(robot, self._q)
-        log.debug("symbolic maps of %s built with %s", robot.name, backend)
+        try:
+            build = _primitives_pinocchio if self.backend == "pinocchio" else _primitives_adam
+            self._A, self._J_ee = build(robot, self._q)
+        except BridgeUnavailable as exc:  # built, but failed on this robot
+            if backend != "auto":
+                raise
+            self.backend, self.backend_description = _fall_back_to_adam(exc.reason)
+            self._A, self._J_ee = _primitives_adam(robot, self._q)
+        log.debug("symbolic maps of %s built with %s", robot.name, self.backend_description)
 
     # ------------------------------------------------------------------ expressions
     @cached_property
