@@ -39,6 +39,7 @@ import dataclasses
 import difflib
 import functools
 import math
+import re
 import types
 import typing
 from collections.abc import Iterator, Mapping, Sequence
@@ -62,6 +63,8 @@ def setting(
     finite: bool = True,
     min_items: int | None = None,
     max_items: int | None = None,
+    item: str | None = None,
+    pattern: tuple[str, str] | None = None,
     per: str | None = None,
     key: str | None = None,
     section: str | None = None,
@@ -79,6 +82,9 @@ def setting(
         minimum, exclusive_minimum, maximum: bounds of a number (of each number in a list).
         finite: reject ``inf`` (NaN is always rejected).
         min_items, max_items: bounds on the length of a list.
+        item: what the list's items name, for messages (``"joint"``: ``"must name at least
+            one joint"``).
+        pattern: ``(regular expression, the rule in words)`` a string must match in full.
         per: the list holds one value per item of this kind (e.g. ``"balance joint"``); checked
             by the user of :func:`walk_settings`, who knows how many there are.
         key: name of the key in files, when it differs from the attribute's.
@@ -96,6 +102,8 @@ def setting(
         "finite": finite,
         "min_items": min_items,
         "max_items": max_items,
+        "item": item,
+        "pattern": pattern,
         "per": per,
         "key": key,
         "section": section,
@@ -309,6 +317,9 @@ def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
     if not isinstance(value, list):
         raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
     n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
+    if n_lo is not None and len(value) < n_lo and meta.get("item"):
+        got = f"got {len(value)}" if value else "got an empty list"
+        raise _Invalid(path, f"must name at least {_count(n_lo, meta['item'])}, {got}")
     if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
         raise _Invalid(
             path, f"expected a list of {n_lo} {_plural(typing.get_args(tp)[0])}, got {len(value)}"
@@ -321,6 +332,16 @@ def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
     return tuple(
         _convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value)
     )
+
+
+def _count(n: int, noun: str) -> str:
+    """``"one joint"``, ``"2 joints"``."""
+    return f"one {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def _check_pattern(value: str, meta: dict, path: tuple) -> None:
+    if meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
+        raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
 
 
 def _convert_scalar(value, tp, meta: dict, path: tuple):
@@ -343,6 +364,7 @@ def _convert_scalar(value, tp, meta: dict, path: tuple):
             raise _Invalid(path, f"expected a string, got {_got(value)}")
         if not value.strip():
             raise _Invalid(path, "expected a non-empty string")
+        _check_pattern(value, meta, path)
         return value
     if tp is Any:
         return value
@@ -408,16 +430,17 @@ def _convert_union(value, tp, meta, path):
         return _convert(value, tags[tag], meta, path)
     if len(members) == 1:
         return _convert(value, members[0], meta, path)
-    first_error = None
+    errors = []
     for m in members:
         try:
             return _convert(value, m, meta, path)
         except _Invalid as exc:
-            # prefer an error found deeper inside the value (it fit the member's shape)
-            if first_error is None or len(exc.path) > len(first_error.path):
-                first_error = exc
-    if first_error is not None and len(first_error.path) > len(path):
-        raise first_error
+            errors.append(exc)
+    # prefer an error found deeper inside the value (it fit the member's shape), or the one
+    # reason every member gave (an empty list where each member wants items)
+    deepest = max(errors, key=lambda e: len(e.path))
+    if len(deepest.path) > len(path) or len({e.reason for e in errors}) == 1:
+        raise deepest
     raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
 
 

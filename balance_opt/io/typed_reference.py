@@ -76,6 +76,8 @@ def _schema(tp, meta: dict, defs: dict) -> dict:
     if tp is bool:
         return {"type": "boolean"}
     if tp is str:
+        if meta.get("pattern"):
+            return {"type": "string", "pattern": f"^(?:{meta['pattern'][0]})$"}
         return {"type": "string", "minLength": 1}
     if tp is Any:
         return {}

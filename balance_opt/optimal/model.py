@@ -46,6 +46,7 @@ from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import SymbolicMaps
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
+from balance_opt.optimal.cache import CACHE_ENV, default_cache_dir  # noqa: F401 (re-exported)
 from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
@@ -56,8 +57,6 @@ RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
 #: 5 %) and compiled in 2/3 of the time; no -march=native or -ffast-math, so that results do
 #: not depend on the machine.
 COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
-#: Environment variable naming the folder of compiled kernels (default: the user cache folder).
-CACHE_ENV = "BALANCE_OPT_CACHE"
 
 
 def check_control(control: str) -> str:
@@ -106,15 +105,6 @@ class PointKernels:
     @property
     def hessian_sparsity(self) -> cs.Sparsity:
         return self.hessian.sparsity_out(0)
-
-
-def default_cache_dir() -> Path:
-    """Folder of compiled kernels: ``$BALANCE_OPT_CACHE``, else ``$XDG_CACHE_HOME/balance-opt``
-    (``~/.cache/balance-opt``)."""
-    if os.environ.get(CACHE_ENV):
-        return Path(os.environ[CACHE_ENV])
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "balance-opt"
 
 
 def find_compiler() -> str | None:
