@@ -34,6 +34,7 @@ from balance_opt.io.task_checks import (
     TaskTrajectoryError,
     check_lengths,
     check_limits,
+    check_time_grids,
 )
 from balance_opt.io.task_spec import (
     CartesianMission,
@@ -144,10 +145,11 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
             f"expected a mapping of task keys ({', '.join(TaskSpec.__dataclass_fields__)}), "
             f"got {type(doc.data).__name__}",
         )
-    spec: TaskSpec = from_data(TaskSpec, doc)
+    spec: TaskSpec = _with_checked_ipopt(from_data(TaskSpec, doc), doc)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)
     mission = _build_mission(spec, doc, base_dir, robot)
+    check_time_grids(spec, doc, float(mission.duration))
     q_B0 = (
         robot.neutral()[robot.balance_indices]
         if spec.initial.balance is None
@@ -167,6 +169,21 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     )
     log.debug("task %s: %r, mission %.3g s", doc.source, robot, mission.duration)
     return task
+
+
+def _with_checked_ipopt(spec: TaskSpec, doc: YamlDocument) -> TaskSpec:
+    """``spec`` with ``optimal.ipopt`` checked against Ipopt's own option list and its values
+    in the types Ipopt wants (CasADi is imported only when the list is not cached yet)."""
+    planner = spec.optimal.planner
+    if not planner.ipopt:
+        return spec
+    from balance_opt.optimal.ipopt_options import check_ipopt_options
+
+    ipopt = check_ipopt_options(
+        planner.ipopt, lambda name, problem: doc.error(("optimal", "ipopt", name), problem)
+    )
+    optimal = dataclasses.replace(spec.optimal, planner=dataclasses.replace(planner, ipopt=ipopt))
+    return dataclasses.replace(spec, optimal=optimal)
 
 
 def _with_momentum(spec: TaskSpec) -> TaskSpec:

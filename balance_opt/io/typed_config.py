@@ -436,12 +436,35 @@ def _convert_union(value, tp, meta, path):
             return _convert(value, m, meta, path)
         except _Invalid as exc:
             errors.append(exc)
-    # prefer an error found deeper inside the value (it fit the member's shape), or the one
-    # reason every member gave (an empty list where each member wants items)
+    # The most telling error: one found deeper inside the value (it fit the member's shape),
+    # the one reason every member gave (an empty list where each member wants items), or that
+    # of the only member of the value's kind (inf for a number or a list of numbers).
     deepest = max(errors, key=lambda e: len(e.path))
+    fitting = [e for m, e in zip(members, errors) if _same_kind(value, m)]
     if len(deepest.path) > len(path) or len({e.reason for e in errors}) == 1:
         raise deepest
+    if len(fitting) == 1:
+        raise fitting[0]
     raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
+
+
+def _same_kind(value, tp) -> bool:
+    """Whether ``value`` is of the kind of type ``tp`` (a list for a tuple, a number for a
+    float...), whatever its content or range."""
+    origin = typing.get_origin(tp)
+    if origin is tuple:
+        return isinstance(value, list)
+    if origin is dict or dataclasses.is_dataclass(tp):
+        return isinstance(value, dict)
+    if origin is Literal or tp is str:
+        return isinstance(value, str)
+    if tp is bool:
+        return isinstance(value, bool)
+    if tp is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if tp is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return False
 
 
 def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=()) -> None:
