@@ -288,9 +288,10 @@ def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None
             f"{step * MAX_SAMPLES:.3g} s",
         )
     for what, key, step in _fixed_steps(spec):
-        if step * MIN_STEPS_PER_MISSION > duration:
+        longest = duration / MIN_STEPS_PER_MISSION
+        if step > longest:
             raise doc.error(
                 key,
                 f"{what} step of {step:g} s does not resolve the {duration:g} s mission: it "
-                f"must be at most 1/{MIN_STEPS_PER_MISSION} of it, {duration / MIN_STEPS_PER_MISSION:.3g} s",
+                f"must be at most 1/{MIN_STEPS_PER_MISSION} of it, {longest:.3g} s",
             )
