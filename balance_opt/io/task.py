@@ -47,7 +47,7 @@ from balance_opt.io.task_spec import (
 )
 from balance_opt.io.typed_config import from_data
 from balance_opt.io.yaml_lines import TaskFileError, YamlDocument, load_yaml
-from balance_opt.model.robot import LIMIT_KEYS, FloatingRobot
+from balance_opt.model.robot import LIMIT_KEYS, FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
 
@@ -257,6 +257,8 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
     except URDFLoadError as exc:
         key = next(k for k in ("urdf", "shipped", "example") if getattr(spec.robot, k) is not None)
         raise doc.error(("robot", key), str(exc)) from None
+    except LimitOverrideError as exc:
+        raise doc.error(("limits", exc.joint, exc.key), str(exc)) from None
     except JointError as exc:
         raise doc.error(_joint_path(doc, exc.joint, exc.reason), str(exc)) from None
     except ArmError as exc:
