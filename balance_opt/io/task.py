@@ -333,18 +333,53 @@ def _cartesian_mission(
         raise doc.error(("mission", "position"), str(exc), TaskTrajectoryError) from None
 
 
-def check_optimal_supported(task: Task) -> None:
-    """The optimal planner assumes zero initial momentum (:mod:`balance_opt.optimal.model`): say
-    so, located at ``initial.momentum``, before anything is computed.
+def check_methods(task: Task, methods) -> None:
+    """What the planning ``methods`` need of the task beyond its loading, checked before
+    anything is computed (``balance-opt validate`` checks those of ``plan``'s default
+    methods, analytic and optimal).
 
     Raises:
-        TaskFileError: the task's initial momentum is not zero.
+        TaskFileError: located at the key the method cannot work with.
+    """
+    if "optimal" in methods:
+        check_optimal_supported(task)
+
+
+def check_optimal_supported(task: Task) -> None:
+    """What the optimal planner cannot do, located in the task: a non-zero initial momentum
+    (:mod:`balance_opt.optimal.model` assumes zero), torque limits on a robot with a prismatic
+    arm joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
+    joints), or a prismatic arm joint where the symbolic backend would be adam (no
+    ``pinocchio.casadi`` and no compiler for the Pinocchio-CasADi bridge).
+
+    Raises:
+        TaskFileError: naming the key and the way out.
     """
     if np.any(task.h0 != 0.0):
         raise task.error(
             ("initial", "momentum"),
             "the optimal planner assumes zero initial momentum; "
             "plan this task with --method analytic",
+        )
+    robot = task.robot
+    prismatic = [j for j in robot.joint_names if robot.joint_type(j) == "prismatic"]
+    if not prismatic:
+        return
+    if task.spec.optimal.planner.torque_limits:
+        raise task.error(
+            ("optimal", "constraints", "torque_limits"),
+            f"torque limits are computed with adam-robotics, which cannot handle the prismatic "
+            f"arm joint '{prismatic[0]}'; turn them off, lock the joint, or plan with "
+            "--method analytic",
+        )
+    from balance_opt.model.symbolic import available_backends  # imports CasADi
+
+    if "pinocchio" not in available_backends():
+        raise task.error(
+            _joint_path(task.document, prismatic[0]),
+            f"joint '{prismatic[0]}' is prismatic, which the optimal planner's only symbolic "
+            "backend here, adam, cannot handle (no pinocchio.casadi, and no C++ toolchain for "
+            "the Pinocchio-CasADi bridge); lock it, or plan with --method analytic",
         )
 
 
@@ -354,6 +389,7 @@ __all__ = [
     "TaskLimitsError",
     "TaskSpec",
     "TaskTrajectoryError",
+    "check_methods",
     "check_optimal_supported",
     "load_task",
     "task_from_dict",

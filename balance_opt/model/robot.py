@@ -517,6 +517,10 @@ class FloatingRobot:
         """Mass of the whole system [kg]."""
         return float(sum(inertia.mass for inertia in self.model.inertias))
 
+    def joint_type(self, name: str) -> str:
+        """The URDF type of joint ``name`` (``"revolute"``, ``"prismatic"``, ``"fixed"``, ...)."""
+        return self._urdf_joints[name].type
+
     def joint_index(self, name: str) -> int:
         """Position of joint ``name`` in the arm vector."""
         try:
