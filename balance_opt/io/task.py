@@ -34,6 +34,7 @@ from balance_opt.io.task_checks import (
     TaskTrajectoryError,
     check_lengths,
     check_limits,
+    check_problem_size,
     check_time_grids,
 )
 from balance_opt.io.task_spec import (
@@ -148,6 +149,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     spec: TaskSpec = _with_checked_ipopt(from_data(TaskSpec, doc), doc)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)
+    check_problem_size(spec, doc, robot)
     mission = _build_mission(spec, doc, base_dir, robot)
     check_time_grids(spec, doc, float(mission.duration))
     q_B0 = (

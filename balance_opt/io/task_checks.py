@@ -17,6 +17,8 @@ planner's problem (:mod:`balance_opt.optimal.budget`) are checked by :mod:`balan
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from balance_opt.errors import InfeasibleLimitsError, TrajectoryError
@@ -40,6 +42,13 @@ MAX_SAMPLES = 1_000_000
 #: longer than 1/100 of the motion does not resolve it (a 20 s step over a 10 s move gave
 #: tracking errors of 1e8 rad).
 MIN_STEPS_PER_MISSION = 100
+#: Ipopt iterations of a typical optimal plan (paper task: 33-36 at N = 100 to 800; Baxter:
+#: 61-78), and the estimated planning time above which loading warns [s].
+TYPICAL_ITERATIONS = 50
+LONG_PLAN_SECONDS = 600.0
+
+
+log = logging.getLogger(__name__)
 
 
 class TaskLimitsError(TaskFileError, InfeasibleLimitsError):
@@ -295,3 +304,51 @@ def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None
                 f"{what} step of {step:g} s does not resolve the {duration:g} s mission: it "
                 f"must be at most 1/{MIN_STEPS_PER_MISSION} of it, {longest:.3g} s",
             )
+
+
+# ---------------------------------------------------------------------------- problem size
+def _duration_words(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
+    """The optimal planner's problem fits in the memory budget
+    (:func:`~balance_opt.optimal.budget.memory_budget`), by an estimate made before anything
+    is built.
+
+    Raises:
+        TaskFileError: at ``optimal.intervals``, with the estimate and the largest ``N`` that
+            fits.
+    """
+    from balance_opt.optimal.budget import largest_intervals, memory_budget, problem_size
+
+    planner = spec.optimal.planner
+    n_B = len(robot.balance_indices)
+    size = problem_size(n_B, planner)
+    budget = memory_budget()
+    expected = size.build_seconds + TYPICAL_ITERATIONS * size.iteration_seconds
+    if size.memory_bytes <= budget:
+        if expected > LONG_PLAN_SECONDS:
+            log.warning(
+                "%s: the optimal plan with %d intervals may take about %s (build %s, then "
+                "%s per Ipopt iteration)",
+                doc.source,
+                planner.intervals,
+                _duration_words(expected),
+                _duration_words(size.build_seconds),
+                _duration_words(size.iteration_seconds),
+            )
+        return
+    raise doc.error(
+        ("optimal", "intervals"),
+        f"{planner.intervals} intervals would need about {size.memory_bytes / 2**30:.1f} GiB of "
+        f"memory ({size.variables:.3g} variables, {size.nonzeros:.3g} non-zeros in Ipopt's KKT "
+        f"matrix with {n_B} balance joints), about {_duration_words(size.build_seconds)} to "
+        f"build and {_duration_words(size.iteration_seconds)} per Ipopt iteration; one problem "
+        f"may use {budget / 2**30:.1f} GiB (half of this machine's memory): at most "
+        f"{largest_intervals(n_B, planner, budget)} intervals fit",
+    )
