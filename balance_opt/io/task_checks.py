@@ -327,8 +327,8 @@ def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) 
     from balance_opt.optimal.budget import largest_intervals, memory_budget, problem_size
 
     planner = spec.optimal.planner
-    n_B = len(robot.balance_indices)
-    size = problem_size(n_B, planner)
+    limits = robot.limits.subset(robot.balance_indices)
+    size = problem_size(planner, limits)
     budget = memory_budget()
     expected = size.build_seconds + TYPICAL_ITERATIONS * size.iteration_seconds
     if size.memory_bytes <= budget:
@@ -347,8 +347,8 @@ def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) 
         ("optimal", "intervals"),
         f"{planner.intervals} intervals would need about {size.memory_bytes / 2**30:.1f} GiB of "
         f"memory ({size.variables:.3g} variables, {size.nonzeros:.3g} non-zeros in Ipopt's KKT "
-        f"matrix with {n_B} balance joints), about {_duration_words(size.build_seconds)} to "
+        f"matrix with {len(limits.lower)} balance joints), about {_duration_words(size.build_seconds)} to "
         f"build and {_duration_words(size.iteration_seconds)} per Ipopt iteration; one problem "
         f"may use {budget / 2**30:.1f} GiB (half of this machine's memory): at most "
-        f"{largest_intervals(n_B, planner, budget)} intervals fit",
+        f"{largest_intervals(planner, limits, budget)} intervals fit",
     )

@@ -9,15 +9,16 @@ Those are counted per interval from the problem's structure (no CasADi needed):
 * variables: the state ``x`` (``3 + 2 n_B``, ``3 + 3 n_B`` with jerk control) and the control
   ``u`` (``n_B``) of each point, one point per interval (two with Hermite-Simpson's midpoints);
 * constraints: ``n_x`` per collocation defect (two with Hermite-Simpson), ``n_B`` per interior
-  Bernstein coefficient of each limited derivative, ``n_B`` torque rows and one attitude row per
-  point when those are asked;
+  Bernstein coefficient of each limited derivative (limited: asked for, and finite for some
+  balance joint), ``n_B`` torque rows and one attitude row per point when those are asked;
 * Hessian: the kernels are nonlinear in ``k = 3 + 2 n_B`` entries of a point (attitude, balance
-  positions and rates; the controls too with torque limits), dense among them, plus the control's
-  diagonal: ``k (k + 1) / 2 + n_B`` per point;
+  positions and rates), dense among them, plus the control's diagonal: ``k (k + 1) / 2 + n_B``
+  per point, and ``n_B^2`` more with torque limits;
 * Jacobian: fitted on the planner's own counts (paper robot with 1 and 3 balance joints, Baxter
   with 7; both transcriptions, both controls, limits on and off; within 6 %):
   ``5.46 n_w + 3.60 n_g`` per Hermite-Simpson interval, ``4.94 n_w + 2.15 n_g`` per trapezoidal
-  one, plus ``3 n_B`` per torque row.
+  one (``n_g`` the defects and limit rows), plus ``3 n_B`` per torque row and 3 per attitude
+  row.
 
 Memory and time per non-zero were measured (peak resident memory with ``getrusage``, wall times)
 on the paper robot (3 balance joints: 184, 231 and 298 MB at N = 100, 400, 800) and Baxter
@@ -31,6 +32,8 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+
+import numpy as np
 
 from balance_opt.optimal.collocation import Transcription
 
@@ -81,36 +84,54 @@ class ProblemSize:
         return ITERATION_SECONDS_PER_NONZERO * self.nonzeros
 
 
-def _per_interval(n_B: int, options) -> tuple[float, float, float]:
-    """(variables, constraints, KKT non-zeros) per interval of the problem of ``options``."""
+def _limited(options, limits) -> dict[str, bool]:
+    """Which limit constraints the planner adds: asked for, and finite for some balance joint."""
+    return {
+        "acceleration": options.acceleration_limits
+        and bool(np.isfinite(limits.acceleration).any()),
+        "velocity": options.velocity_limits and bool(np.isfinite(limits.velocity).any()),
+        "position": options.position_limits
+        and bool((np.isfinite(limits.lower) | np.isfinite(limits.upper)).any()),
+        "torque": options.torque_limits and bool(np.isfinite(limits.effort).any()),
+    }
+
+
+def _per_interval(options, limits) -> tuple[int, int, float]:
+    """(variables, constraints, KKT non-zeros) per interval of the problem of ``options`` with
+    the balance joints' ``limits``."""
     tr = Transcription(options.transcription)
+    n_B = len(limits.lower)
     points = 2 if tr.has_midpoints else 1
     jerk = options.control == "jerk"
     n_x = 3 + (3 if jerk else 2) * n_B
     n_w = points * (n_x + n_B)
-    levels = {
-        "acceleration": options.acceleration_limits,
-        "velocity": options.velocity_limits,
-        "position": options.position_limits,
-    }
+    limited = _limited(options, limits)
     degree = tr.control_degree + (1 if jerk else 0)  # of the acceleration polynomial
-    interior = sum(max(degree + i - 1, 0) for i, on in enumerate(levels.values()) if on)
-    torque_rows = points * n_B if options.torque_limits else 0
-    n_g = points * n_x  # Hermite-Simpson: a midpoint defect and a Simpson defect
-    n_g += n_B * interior + torque_rows + (points if options.path_attitude_bound else 0)
-    k = 3 + 2 * n_B + (n_B if options.torque_limits else 0)
-    hessian = points * (k * (k + 1) / 2 + n_B)
+    interior = sum(
+        max(degree + i - 1, 0)
+        for i, kind in enumerate(("acceleration", "velocity", "position"))
+        if limited[kind]
+    )
+    # Hermite-Simpson has a midpoint defect and a Simpson defect, trapezoidal one
+    n_g_fit = points * n_x + n_B * interior
+    torque_rows = points * n_B if limited["torque"] else 0
+    path_rows = points if options.path_attitude_bound is not None else 0
     a, b = JACOBIAN_FIT[tr.name]
-    jacobian = a * n_w + b * n_g + 3 * n_B * torque_rows
+    # a torque row depends on a point's positions, rates and controls; an attitude row on phi
+    jacobian = a * n_w + b * n_g_fit + 3 * n_B * torque_rows + 3 * path_rows
+    k = 3 + 2 * n_B
+    hessian = points * (k * (k + 1) / 2 + n_B + (n_B**2 if limited["torque"] else 0))
+    n_g = n_g_fit + torque_rows + path_rows
     return n_w, n_g, jacobian + hessian + n_w + n_g
 
 
-def problem_size(n_B: int, options) -> ProblemSize:
-    """The size of the optimal problem with ``n_B`` balance joints and the planner ``options``
-    (a :class:`~balance_opt.optimal.options.PlannerOptions`)."""
-    n_w, n_g, nonzeros = _per_interval(n_B, options)
+def problem_size(options, limits) -> ProblemSize:
+    """The size of the optimal problem of the planner ``options`` (a
+    :class:`~balance_opt.optimal.options.PlannerOptions`) whose balance joints have the
+    ``limits`` (a :class:`~balance_opt.model.robot.JointLimits`, one entry per balance joint)."""
+    n_w, n_g, nonzeros = _per_interval(options, limits)
     N = options.intervals
-    return ProblemSize(N, round(n_w * N), round(n_g * N), round(nonzeros * N))
+    return ProblemSize(N, n_w * N, n_g * N, round(nonzeros * N))
 
 
 def memory_budget() -> float:
@@ -123,7 +144,7 @@ def memory_budget() -> float:
     return MEMORY_FRACTION * total if total > 0 else FALLBACK_BUDGET
 
 
-def largest_intervals(n_B: int, options, budget: float) -> int:
+def largest_intervals(options, limits, budget: float) -> int:
     """The largest ``N`` whose problem fits in ``budget`` bytes."""
-    _, _, nonzeros = _per_interval(n_B, options)
+    _, _, nonzeros = _per_interval(options, limits)
     return max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
