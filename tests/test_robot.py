@@ -414,8 +414,10 @@ ERRORS = {
     "unknown joint": (
         dict(mission=["mission_joint1", "mision_joint2"]),
         JointError,
-        rf"joint 'mision_joint2' in {PAPER}: no such joint in the URDF \(arm 'mission'\); "
-        r"did you mean 'mission_joint2'",
+        (
+            rf"joint 'mision_joint2' in {PAPER}: no such joint in the URDF \(arm 'mission'\); "
+            r"did you mean 'mission_joint2'"
+        ),
     ),
     "joint named twice": (
         dict(mission=["mission_joint1", "mission_joint2", "mission_joint1"]),
@@ -435,8 +437,10 @@ ERRORS = {
     "fixed joint in an arm": (
         dict(mission=["mission_joint1", "mission_ee_fixed"]),
         JointError,
-        rf"joint 'mission_ee_fixed' in {PAPER}: is a fixed joint and cannot be an arm joint "
-        r"\(arm 'mission'\)",
+        (
+            rf"joint 'mission_ee_fixed' in {PAPER}: is a fixed joint and cannot be an arm joint "
+            r"\(arm 'mission'\)"
+        ),
     ),
     "mission arm with no joints": (
         dict(mission=[]),
@@ -452,14 +456,18 @@ ERRORS = {
     "arm given as a string": (
         dict(mission="mission_joint1"),
         ArmError,
-        r"arm 'mission' of .*: joints must be a list of joint names, got the string "
-        r"'mission_joint1'",
+        (
+            r"arm 'mission' of .*: joints must be a list of joint names, got the string "
+            r"'mission_joint1'"
+        ),
     ),
     "unknown limit key": (
         dict(limits={"mission_joint2": {"jerk": 3}}),
         JointError,
-        rf"joint 'mission_joint2' in {PAPER}: unknown limit 'jerk'; expected one of lower, "
-        r"upper, velocity, acceleration, effort",
+        (
+            rf"joint 'mission_joint2' in {PAPER}: unknown limit 'jerk'; expected one of lower, "
+            r"upper, velocity, acceleration, effort"
+        ),
     ),
     "limit for a joint in no arm": (
         dict(limits={"base_link": {"upper": 1}}),
@@ -479,8 +487,10 @@ ERRORS = {
     "unknown locked joint": (
         dict(mission=M[:2], locked={"mission_joint_3": 0.2}),
         JointError,
-        rf"joint 'mission_joint_3' in {PAPER}: locked joint is not in the URDF; "
-        r"did you mean 'mission_joint3'",
+        (
+            rf"joint 'mission_joint_3' in {PAPER}: locked joint is not in the URDF; "
+            r"did you mean 'mission_joint3'"
+        ),
     ),
     "locked arm joint": (
         dict(locked={"mission_joint3": 0.2}),
@@ -505,8 +515,10 @@ ERRORS = {
     "end effector of a missing arm": (
         dict(ee_frames={"balance2": "balance_ee"}),
         ArmError,
-        r"arm 'balance2' of .*: end-effector frame given for an arm that does not "
-        r"exist \(arms: mission, balance\)",
+        (
+            r"arm 'balance2' of .*: end-effector frame given for an arm that does not "
+            r"exist \(arms: mission, balance\)"
+        ),
     ),
 }
 
@@ -525,8 +537,10 @@ URDF_ERRORS = {
     ),
     "not a robot": ("<model/>", r"root element is <model>, expected <robot>"),
     "joint without child": (
-        '<robot name="x"><link name="a"/><joint name="j" type="fixed"><parent link="a"/>'
-        "</joint></robot>",
+        (
+            '<robot name="x"><link name="a"/><joint name="j" type="fixed"><parent link="a"/>'
+            "</joint></robot>"
+        ),
         r"a <joint> lacks a name, parent or child",
     ),
     "mass not a number": (
@@ -539,8 +553,10 @@ URDF_ERRORS = {
     ),
     "urdfdom rejects it": (
         TOY_URDF.replace(_LIMIT.format(lo=-2, hi=2, v=1.5, e=10), ""),
-        r"Pinocchio could not build a model: .*\(urdfdom: Joint \[r1_roll\] is of type "
-        r"REVOLUTE but it does not specify limits",
+        (
+            r"Pinocchio could not build a model: .*\(urdfdom: Joint \[r1_roll\] is of type "
+            r"REVOLUTE but it does not specify limits"
+        ),
     ),
 }
 
