@@ -556,3 +556,21 @@ def test_torque_limits_with_a_prismatic_arm_joint_are_refused(tmp_path, capsys):
         "are computed with adam-robotics, which cannot handle the prismatic arm joint 'b2'; "
         "turn them off, lock the joint, or plan with --method analytic\n"
     )
+
+
+def test_integration_that_fails_in_its_first_step_reports_it():
+    # An absurd initial momentum (1e300 N m s) made the attitude integration fail at once, and
+    # the empty output of the integrator crashed instead of reporting the failure.
+    import numpy as np
+
+    from balance_opt.motion.integration import integrate
+    from balance_opt.motion.options import IntegrationOptions
+
+    y0 = np.array([0.0, 0.0, 0.0, 1.0])
+    Y, _, message = integrate(
+        lambda t, y: np.full(4, 1e300) * (1.0 + t),
+        y0,
+        np.linspace(0.0, 1.0, 11),
+        IntegrationOptions(),
+    )
+    assert Y.tolist() == [y0.tolist()] and message is not None and "(at t = 0 s)" in message

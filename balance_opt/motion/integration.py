@@ -119,11 +119,14 @@ def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
         "atol": options.atol,
         "rhs_evaluations": int(sol.nfev),
     }
+    reached = np.asarray(sol.t)
     message = (
         None
         if sol.status == 0
-        else f"{sol.message} (at t = {sol.t[-1] if sol.t.size else t[0]:.6g} s)"
+        else f"{sol.message} (at t = {reached[-1] if reached.size else t[0]:.6g} s)"
     )
+    if not reached.size:  # failed in its first step: scipy returns empty lists
+        return np.array(y0, dtype=float)[None, :], stats, message
     return sol.y.T.copy(), stats, message
 
 
