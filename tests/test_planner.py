@@ -49,14 +49,15 @@ from balance_opt.optimal.collocation import (
     bernstein_basis,
     joint_chain_coefficients,
 )
+from balance_opt.optimal import codegen
+from balance_opt.optimal.codegen import compile_functions
 from balance_opt.optimal.model import (
     ATTITUDE_SERIES_ANGLE,
     PlannerModel,
-    compile_functions,
     inverse_right_jacobian_sym,
 )
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.planner import PlannerSolverError, build_balance_nlp, plan_optimal
+from balance_opt.optimal.solve import PlannerSolverError, build_balance_nlp, plan_optimal
 from balance_opt.result import BalanceResult
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
@@ -555,11 +556,9 @@ def test_bad_sizes(model, capture):
 
 # ---------------------------------------------------------------------------------- compilation
 def test_compiled_kernels_match_and_are_cached(tmp_path):
-    from balance_opt.optimal import model as nlp_model
-
     x = cs.SX.sym("x", 3)
     fun = cs.Function("planner_test_kernel", [x], [cs.sin(x) * cs.dot(x, x)])
-    if nlp_model.find_compiler() is None:
+    if codegen.find_compiler() is None:
         pytest.skip("no C compiler")
     (compiled,), first, library = compile_functions([fun], tmp_path)
     (again,), second, library2 = compile_functions([fun], tmp_path)
@@ -575,9 +574,7 @@ def test_compiled_kernels_match_and_are_cached(tmp_path):
 
 
 def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
-    from balance_opt.optimal import model as nlp_model
-
-    monkeypatch.setattr(nlp_model, "find_compiler", lambda: None)
+    monkeypatch.setattr(codegen, "find_compiler", lambda: None)
     fallback = PlannerModel(capture.robot, compile=True)
     with caplog.at_level(logging.WARNING, logger="balance_opt.optimal.model"):
         kernels = fallback.kernels()

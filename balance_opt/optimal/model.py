@@ -26,15 +26,7 @@ parameter of the NLP. The base rate comes from momentum conservation with zero m
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import logging
-import os
-import platform
-import shutil
-import subprocess
-import tempfile
-import time
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -45,6 +37,7 @@ import numpy as np
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import SymbolicMaps
+from balance_opt.optimal import codegen
 from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
@@ -53,12 +46,6 @@ log = logging.getLogger(__name__)
 ATTITUDE_SERIES_ANGLE = 1e-2
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
-#: C compiler flags of the compiled kernels. -O1: on the paper robot as fast as -O2/-O3 (within
-#: 5 %) and compiled in 2/3 of the time; no -march=native or -ffast-math, so that results do
-#: not depend on the machine.
-COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
-#: Environment variable naming the folder of compiled kernels (default: the user cache folder).
-CACHE_ENV = "BALANCE_OPT_CACHE"
 
 
 def skew(v):
@@ -110,7 +97,7 @@ class PointKernels:
         gradient: ``(z, m, weights, q_rest, c) -> (c^T y, d(c^T y)/dz)`` (reverse mode: the
             objective's gradient without the full Jacobian).
         hessian: ``(z, m, weights, q_rest, mu) -> d^2 (mu^T y) / dz^2`` (lower triangle, sparse).
-        n_z, n_y: sizes.
+        n_x, n_z, n_y: sizes of the state, of ``z`` and of ``y``.
         compiled: whether the three are compiled C (else CasADi's SX virtual machine).
         compile_time: wall time spent compiling them in this process [s] (0 when loaded from
             the cache folder or not compiled).
@@ -121,11 +108,18 @@ class PointKernels:
     jacobian: cs.Function
     gradient: cs.Function
     hessian: cs.Function
+    n_x: int
     n_z: int
     n_y: int
     compiled: bool = False
     compile_time: float = 0.0
     library: str | None = None
+
+    def split(self, Y) -> tuple:
+        """``(x_dot, L, tau_B)``: the rows of kernel outputs ``Y`` (n_y, n_points); ``tau_B`` is
+        ``None`` without torques."""
+        torque = Y[self.n_x + 1 :, :] if self.n_y > self.n_x + 1 else None
+        return Y[: self.n_x, :], Y[self.n_x, :], torque
 
     @property
     def jacobian_sparsity(self) -> cs.Sparsity:
@@ -134,109 +128,6 @@ class PointKernels:
     @property
     def hessian_sparsity(self) -> cs.Sparsity:
         return self.hessian.sparsity_out(0)
-
-
-def default_cache_dir() -> Path:
-    """Folder of compiled kernels: ``$BALANCE_OPT_CACHE``, else ``$XDG_CACHE_HOME/balance-opt``
-    (``~/.cache/balance-opt``)."""
-    if os.environ.get(CACHE_ENV):
-        return Path(os.environ[CACHE_ENV])
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "balance-opt"
-
-
-def find_compiler() -> str | None:
-    """A C compiler on the PATH (``$CC``, ``cc``, ``gcc``, ``clang``), or ``None``."""
-    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
-        if name and shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
-def compile_functions(
-    functions: list[cs.Function], cache_dir: Path | None = None
-) -> tuple[list[cs.Function], float, str]:
-    """Compile CasADi functions to one shared library, cached on disk by the hash of their C code.
-
-    Args:
-        functions: SX functions (distinct names).
-        cache_dir: folder of the libraries (default :func:`default_cache_dir`).
-
-    Returns:
-        ``(external functions, compile time [s] (0 if cached), library path)``.
-
-    Raises:
-        OSError: no C compiler, or the compiler failed (the caller falls back to SX).
-    """
-    generator = cs.CodeGenerator("balance_kernels.c", {"with_header": False})
-    for f in functions:
-        generator.add(f)
-    source = generator.dump()
-    compiler = find_compiler()
-    if compiler is None:
-        raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
-    digest = hashlib.sha256(
-        "\n".join(
-            [
-                source,
-                compiler,
-                " ".join(COMPILER_FLAGS),
-                cs.__version__,
-                platform.machine(),
-                platform.system(),
-            ]
-        ).encode()
-    ).hexdigest()[:20]
-    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    library = folder / f"balance_kernels_{digest}{'.dll' if os.name == 'nt' else '.so'}"
-    elapsed = 0.0
-    folder.mkdir(parents=True, exist_ok=True)
-    with _file_lock(folder / f"{library.name}.lock"):  # one process compiles, the others wait
-        if not library.is_file():
-            elapsed = _compile(compiler, source, library)
-    # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
-    return (
-        [cs.external(f.name(), str(library), {"enable_fd": True}) for f in functions],
-        elapsed,
-        str(library),
-    )
-
-
-@contextlib.contextmanager
-def _file_lock(path: Path):
-    """An exclusive lock on ``path`` (POSIX ``flock``; no lock where ``fcntl`` is missing)."""
-    try:
-        import fcntl
-    except ImportError:  # Windows: concurrent compilations stay correct (atomic rename)
-        yield
-        return
-    with open(path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
-def _compile(compiler: str, source: str, library: Path) -> float:
-    """Compile C ``source`` to the shared ``library``; returns the wall time [s]."""
-    start = time.perf_counter()
-    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-        c_file = Path(tmp) / "balance_kernels.c"
-        c_file.write_text(source)
-        out = Path(tmp) / library.name
-        proc = subprocess.run(
-            [compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"],
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        if proc.returncode != 0:
-            raise OSError(f"{compiler} failed on the balance kernels: {proc.stderr.strip()[:500]}")
-        os.replace(out, library)  # atomic: a process never loads a partial library
-    elapsed = time.perf_counter() - start
-    log.info("compiled balance kernels to %s in %.1f s", library, elapsed)
-    return elapsed
 
 
 class PlannerModel:
@@ -248,7 +139,8 @@ class PlannerModel:
         compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``True``,
             ``False``, or ``"auto"`` (when a C compiler is found). Without a compiler, or if
             compiling fails, the kernels run on CasADi's virtual machine (same results, slower).
-        cache_dir: folder of compiled kernels (default :func:`default_cache_dir`).
+        cache_dir: folder of compiled kernels (default
+            :func:`~balance_opt.optimal.codegen.default_cache_dir`).
 
     Attributes:
         robot, maps: as given.
@@ -269,7 +161,7 @@ class PlannerModel:
         self.maps = maps if maps is not None else SymbolicMaps(robot)
         self.n_M = robot.mission.dof
         self.n_B = int(robot.balance_indices.size)
-        self.compile = compile if compile != "auto" else find_compiler() is not None
+        self.compile = compile if compile != "auto" else codegen.find_compiler() is not None
         self.cache_dir = cache_dir
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
@@ -288,6 +180,12 @@ class PlannerModel:
     def n_m(self) -> int:
         """Size of a mission sample ``[q_M; q_dot_M; q_ddot_M]``."""
         return 3 * self.n_M
+
+    def joint_rows(self, control: str) -> list[slice]:
+        """State rows of the balance joints' chain of integrators: position, velocity (and
+        acceleration with control ``"jerk"``)."""
+        n_B = self.n_B
+        return [slice(3 + k * n_B, 3 + (k + 1) * n_B) for k in range((self.n_x(control) - 3) // n_B)]
 
     def state_labels(self, control: str) -> list[str]:
         """Human names of the state components (for constraint names)."""
@@ -514,11 +412,11 @@ class PlannerModel:
                 opts,
             ),
         ]
-        sizes = (z.numel(), y.numel())
+        sizes = (n_x, z.numel(), y.numel())
         if not self.compile:
             return PointKernels(*functions, *sizes)
         try:
-            functions, elapsed, library = compile_functions(functions, self.cache_dir)
+            functions, elapsed, library = codegen.compile_functions(functions, self.cache_dir)
         except (OSError, RuntimeError) as exc:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
             return PointKernels(*functions, *sizes)

@@ -4,7 +4,7 @@ method (optionally simulate the plan), and return the metrics of ``metrics.json`
 Each worker process keeps, for the life of the process, one
 :class:`~balance_opt.optimal.model.PlannerModel` per robot (URDF, arms, locked joints): the symbolic
 model is built once, and so is each compiled NLP structure (intervals, transcription, control,
-constraint switches, solver options; :func:`~balance_opt.optimal.planner.build_balance_nlp` caches them
+constraint switches, solver options; :func:`~balance_opt.optimal.solve.build_balance_nlp` caches them
 on the model). What the cases vary (mission, horizon, initial configuration, weights, limits)
 enters the NLP as parameters and bounds: a new case of a known structure costs no build.
 
@@ -77,7 +77,7 @@ def plan_case(task, method: str, solver_options: dict | None = None):
         # pipeline.plan_optimal, with this worker's model cache (the pipeline keeps one model
         # per robot object, and every case builds its own robot)
         from balance_opt.io.task import check_optimal_supported
-        from balance_opt.optimal.planner import build_balance_nlp
+        from balance_opt.optimal.solve import build_balance_nlp
 
         check_optimal_supported(task)
         spec = task.spec.optimal
