@@ -73,7 +73,6 @@ class SymbolicNLP:
         transcription: its scheme.
         joints: the balance joints' names.
         state_labels: a label per state row.
-        joint_rows: the state rows of the balance joints' position, velocity (, acceleration).
         variables: the decision variables ``X``, ``U``, ``Xm``, ``Um``.
         levels: Bernstein coefficients of the balance joints on every interval, one list per
             derivative (position first, the control last), each coefficient (n_B, N)
@@ -87,7 +86,6 @@ class SymbolicNLP:
     transcription: Transcription
     joints: tuple[str, ...]
     state_labels: tuple[str, ...]
-    joint_rows: list[slice]
     variables: Solution
     levels: list[list]
     x_dot: Any
@@ -181,7 +179,11 @@ class Collocation(Constraint):
         Fn, Fm = F[:, : N + 1], (F[:, N + 1 :] if tr.has_midpoints else None)
         out = []
         for name, defect in tr.defects(v.X, v.Xm, Fn, Fm, h):
-            exact = (v.Xm[3:, :] - joint_mids) if name == "Hermite midpoint" else (v.X[3:, 1:] - joint_ends)
+            exact = (
+                (v.Xm[3:, :] - joint_mids)
+                if name == "Hermite midpoint"
+                else (v.X[3:, 1:] - joint_ends)
+            )
             out.append(
                 Rows(
                     f"collocation ({name})",
@@ -319,12 +321,20 @@ class TorqueLimit(Constraint):
 
 
 def attitude_scale(bound: float | None) -> float:
-    """The parameter an attitude bound enters with: ``1 / bound^2`` (1 when unset). The rows are
-    ``|phi|^2 / bound^2 <= 1``: scaled, because Ipopt's constraint tolerance is absolute."""
+    """The parameter an attitude bound enters with: ``1 / bound^2`` (1 when unset)."""
     return 1.0 / bound**2 if bound else 1.0
 
 
-class PathAttitudeBound(Constraint):
+class AttitudeBound(Constraint):
+    """A bound on the base's rotation from its initial attitude, ``|log R| <= bound``, as rows
+    ``|phi|^2 / bound^2 <= 1``: squared, so that the rows are smooth at ``phi = 0``; scaled,
+    so that Ipopt's absolute constraint tolerance is relative to the bound."""
+
+    def row_bounds(self, problem, block):
+        return np.full(block.size, -np.inf), np.ones(block.size)
+
+
+class PathAttitudeBound(AttitudeBound):
     """``|log R(t)| <= path_attitude_bound`` at every collocation point."""
 
     name = "path attitude bound"
@@ -341,15 +351,12 @@ class PathAttitudeBound(Constraint):
             )
         ]
 
-    def row_bounds(self, problem, block):
-        return np.full(block.size, -np.inf), np.ones(block.size)
-
     def check(self, problem, result):
         excess = result.angle - problem.options.path_attitude_bound
         return _worst(excess[:, None], result.t, ["|log R|"], lambda _: self.name, "rad")
 
 
-class TerminalAttitudeBound(Constraint):
+class TerminalAttitudeBound(AttitudeBound):
     """``|log R_T| <= terminal_attitude_bound`` at the last node."""
 
     name = "terminal attitude bound"
@@ -365,9 +372,6 @@ class TerminalAttitudeBound(Constraint):
                 nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N]),
             )
         ]
-
-    def row_bounds(self, problem, block):
-        return np.full(block.size, -np.inf), np.ones(block.size)
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
@@ -387,7 +391,7 @@ class InitialState(Constraint):
         return [problem.q_B0] + [zeros] * (n_levels - 1)
 
     def bound_variables(self, problem, lower, upper):
-        x0 = np.r_[np.zeros(3), *self.targets(problem)]
+        x0 = np.concatenate([np.zeros(3), *self.targets(problem)])
         lower.X[:, 0] = upper.X[:, 0] = x0
 
     def check(self, problem, result):

@@ -36,9 +36,7 @@ def guess_solution(problem: BalanceProblem, guess, first_state: np.ndarray) -> S
         InputError: an unknown name.
     """
     if isinstance(guess, BalanceResult):
-        return from_samples(
-            problem, first_state, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B
-        )
+        return from_samples(problem, first_state, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)
     if guess not in GUESSES:
         raise InputError(
             f"initial guess must be one of {', '.join(GUESSES)} or a BalanceResult, got {guess!r}"

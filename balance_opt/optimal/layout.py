@@ -230,7 +230,10 @@ class VariableLayout(BlockStack):
     def unpack_symbolic(self, w) -> Solution:
         """States and controls of a symbolic decision vector (CasADi column vector)."""
         return Solution(
-            **{n: cs.reshape(w[b.offset : b.offset + b.size], *b.shape) for n, b in self.by_name.items()}
+            **{
+                n: cs.reshape(w[b.offset : b.offset + b.size], *b.shape)
+                for n, b in self.by_name.items()
+            }
         )
 
     def pack(self, sol: Solution) -> np.ndarray:

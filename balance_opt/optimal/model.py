@@ -2,8 +2,11 @@
 cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point.
 
 They are built once per robot and reused for every horizon, number of intervals and mission:
-the planner (:mod:`balance_opt.optimal.planner`) only maps them over the collocation points
-(``Function.map``), so nothing symbolic grows with the number of intervals.
+the NLP (:mod:`balance_opt.optimal.nlp`) only maps them over the collocation points
+(``Function.map``), so nothing symbolic grows with the number of intervals. The point kernels
+(:class:`PointKernels`: the point's outputs with their exact first and second derivatives) are
+what the NLP evaluates; they are compiled to C when a compiler is found
+(:mod:`balance_opt.optimal.codegen`).
 
 State of one point (control ``"acceleration"``)::
 
@@ -17,11 +20,12 @@ and with control ``"jerk"`` the balance acceleration is a state and the jerk the
 attitude (``R = exp([phi]_x)``, ``R(0) = I``). It makes the terminal cost ``|log R_T|^2`` and the
 attitude bounds ``|phi| <= bound`` exact, with three states and no norm constraint; its
 kinematics is ``phi_dot = Jr^{-1}(phi) omega_b`` (valid for rotations below pi, far beyond any
-drift this planner is meant for).
+drift this planner is meant for; ``docs/physics.md``, "Attitude").
 
 The mission arm enters through its sample at the point, ``m = [q_M; q_dot_M; q_ddot_M]``, a
 parameter of the NLP. The base rate comes from momentum conservation with zero momentum
-(Eq. 26, 31): ``omega_b = J_wM(q) q_dot_M + J_wB(q) q_dot_B`` with ``q = [q_M; q_B]``.
+(Eq. 26, 31; ``docs/physics.md``, "Base motion forced by the joints"):
+``omega_b = J_wM(q) q_dot_M + J_wB(q) q_dot_B`` with ``q = [q_M; q_B]``.
 """
 
 from __future__ import annotations
@@ -88,8 +92,9 @@ class PointKernels:
 
     ``y = [x_dot (n_x); L; tau_B (n_B, only with torque limits)]`` is a function of the point's
     decision variables ``z = [x; u]`` and of its data (mission sample ``m``, running weights,
-    ``q_rest``). The planner maps these over all points and assembles the NLP's gradient,
-    Jacobian and Hessian from them (everything else in the NLP is linear or quadratic).
+    ``q_rest``). The NLP maps these over all points and assembles its gradient, Jacobian and
+    Hessian from them (:mod:`balance_opt.optimal.nlp`): the rest of the NLP is linear in the
+    kernels' outputs and at most quadratic in the decision variables.
 
     Attributes:
         value: ``(z, m, weights, q_rest) -> y``.
@@ -98,7 +103,7 @@ class PointKernels:
             objective's gradient without the full Jacobian).
         hessian: ``(z, m, weights, q_rest, mu) -> d^2 (mu^T y) / dz^2`` (lower triangle, sparse).
         n_x, n_z, n_y: sizes of the state, of ``z`` and of ``y``.
-        compiled: whether the three are compiled C (else CasADi's SX virtual machine).
+        compiled: whether the four are compiled C (else CasADi's SX virtual machine).
         compile_time: wall time spent compiling them in this process [s] (0 when loaded from
             the cache folder or not compiled).
         library: the shared library they were loaded from, if compiled.
@@ -138,14 +143,17 @@ class PlannerModel:
         maps: its symbolic momentum maps (built here when not given).
         compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``True``,
             ``False``, or ``"auto"`` (when a C compiler is found). Without a compiler, or if
-            compiling fails, the kernels run on CasADi's virtual machine (same results, slower).
+            compiling fails, the kernels run on CasADi's virtual machine (the same functions,
+            slower).
         cache_dir: folder of compiled kernels (default
             :func:`~balance_opt.optimal.codegen.default_cache_dir`).
 
     Attributes:
         robot, maps: as given.
         n_M, n_B: numbers of mission and balance joints.
-        nlp_cache: compiled NLPs of this robot, keyed by their structure (filled by the planner).
+        nlp_cache: compiled NLPs of this robot by their
+            :class:`~balance_opt.optimal.layout.StructureKey` (filled by
+            :func:`~balance_opt.optimal.solve.build_balance_nlp`).
     """
 
     def __init__(
@@ -185,7 +193,9 @@ class PlannerModel:
         """State rows of the balance joints' chain of integrators: position, velocity (and
         acceleration with control ``"jerk"``)."""
         n_B = self.n_B
-        return [slice(3 + k * n_B, 3 + (k + 1) * n_B) for k in range((self.n_x(control) - 3) // n_B)]
+        return [
+            slice(3 + k * n_B, 3 + (k + 1) * n_B) for k in range((self.n_x(control) - 3) // n_B)
+        ]
 
     def state_labels(self, control: str) -> list[str]:
         """Human names of the state components (for constraint names)."""
@@ -215,7 +225,8 @@ class PlannerModel:
         angular rows of the centroidal momentum matrix (zero angular momentum about the CoM,
         Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint columns; the base's
         linear columns of these rows are zero. One 3 x 3 solve of a vector instead of the full
-        6 x 6 ``J_base``: half the instructions in the Hessian kernel."""
+        6 x 6 ``J_base``: on the paper robot the Hessian kernel has 54 % of the instructions
+        (23.6k against 43.7k)."""
         A = self.maps.centroidal_momentum_matrix_fun()(cs.vertcat(q_M, q_B))
         return -cs.solve(A[3:, 3:6], A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
 
@@ -242,7 +253,7 @@ class PlannerModel:
 
     def point_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
-        at one collocation point, the function the planner maps over all points.
+        at one collocation point (the point kernels' first outputs).
 
         ``L = w_omega |omega_b|^2 + w_attitude |phi|^2 + w_smoothness |u|^2
         + w_rest |q_B - q_rest|^2``, with ``weights`` in the order of :data:`RUNNING_WEIGHTS`.

@@ -99,7 +99,9 @@ class _Outer:
     hessian: cs.Function  # (w, p, lam_f, lam_g) -> (triu d2L/dw2, dL/dy = mu)
 
 
-def build_structure(model: PlannerModel, key: StructureKey, options: PlannerOptions) -> NLPStructure:
+def build_structure(
+    model: PlannerModel, key: StructureKey, options: PlannerOptions
+) -> NLPStructure:
     """Build and compile the NLP of a structure.
 
     Args:
@@ -151,14 +153,12 @@ def _outer_problem(
     x_dot, running, torque = kernels.split(Y)
     cost = par.h * cs.mtimes(running, cs.DM(tr.quadrature_weights(N)))
     cost = cost + par.terminal_weight * cs.sumsqr(v.X[:3, N])
-    joint_rows = model.joint_rows(key.control)
-    starts = [v.X[r, :-1] for r in joint_rows]
+    starts = [v.X[r, :-1] for r in model.joint_rows(key.control)]
     symbols = SymbolicNLP(
         key=key,
         transcription=tr,
         joints=tuple(model.robot.joint_names[i] for i in model.robot.balance_indices),
         state_labels=tuple(model.state_labels(key.control)),
-        joint_rows=joint_rows,
         variables=v,
         levels=joint_chain_coefficients(tr, starts, v.U, v.Um, par.h),
         x_dot=x_dot,
@@ -308,9 +308,7 @@ def _hessian(kernels: PointKernels, outer: _Outer, x: _Mapped, n_g: int) -> cs.F
     Hessian weighted by ``mu``."""
     lf, lg = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", n_g)
     H_outer, mu = outer.hessian(x.w, x.p, lf, lg)
-    d2 = kernels.hessian.map(x.n_points)(
-        x.Z, *x.data, cs.reshape(mu, kernels.n_y, x.n_points)
-    )
+    d2 = kernels.hessian.map(x.n_points)(x.Z, *x.data, cs.reshape(mu, kernels.n_y, x.n_points))
     sp_h, perm_h = _scatter(
         kernels.hessian_sparsity,
         x.n_points,
