@@ -15,11 +15,14 @@ when asked, so one compiled NLP serves every problem of its structure.
 
 What holds where. The balance joints' position, velocity and acceleration limits hold on the
 whole continuous plan (the piecewise polynomial of
-:class:`~balance_opt.optimal.collocation.CollocatedTrajectory`): on every interval each of
-these derivatives is a polynomial in Bernstein form, its first and last coefficients are the
-values at the two nodes (bounded as decision variables) and its interior coefficients are
-constraint rows (:class:`JointLimit`); a polynomial lies in the convex hull of its Bernstein
-coefficients. Bounding the values at the nodes and midpoints alone would not do: the quadratic
+:class:`~balance_opt.optimal.collocation.CollocatedTrajectory`), to the solver's tolerance: on
+every interval each of these derivatives is a polynomial in Bernstein form, and a polynomial
+lies in the convex hull of its Bernstein coefficients. Its first and last coefficients are its
+values at the interval's ends: decision variables bounded by the limits (the states at the two
+nodes, the collocation rows making the last one the next node's; or, for the acceleration with
+control ``"acceleration"``, the controls at the two nodes, whose mean is the constant
+acceleration of the trapezoidal rule). Its interior coefficients are constraint rows
+(:class:`JointLimit`). Bounding the values at the nodes and midpoints alone would not do: the quadratic
 acceleration of Hermite-Simpson through 1, 1, -1 at the start, middle and end of an interval
 peaks at 1.25 a quarter of the way in. The convex hull is conservative (the polynomial may stay
 inside a limit its hull crosses). Torques and the path attitude bound hold at the collocation
@@ -93,25 +96,8 @@ class SymbolicNLP:
     parameters: NLPParameters
 
 
-@dataclass(frozen=True)
-class Rows:
-    """A block of constraint rows, before it is placed in ``g``.
-
-    Attributes:
-        name: the block's name (``"velocity limit between points"``).
-        labels: a label per row.
-        units: a unit per row.
-        taus: a time per column in units of ``h`` (an interval's start for interval rows).
-        expression: the rows' values, (len(labels), len(taus)), symbolic.
-        per_interval: whether a column is an interval rather than an instant.
-    """
-
-    name: str
-    labels: tuple[str, ...]
-    units: tuple[str, ...]
-    taus: np.ndarray
-    expression: Any
-    per_interval: bool = False
+#: Rows a kind adds to ``g``: a block (not yet stacked) and its values, (rows, columns), symbolic.
+Rows = tuple[Block, Any]
 
 
 def _per_column(values, n_columns: int) -> np.ndarray:
@@ -122,10 +108,10 @@ def _per_column(values, n_columns: int) -> np.ndarray:
 def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Violation | None:
     """The largest entry of ``excess`` (T, n) above :data:`LIMIT_TOLERANCE`, as a violation of
     ``describe(names[column])`` at ``t[row]``; ``None`` when none is above."""
-    excess = np.atleast_2d(np.asarray(excess, dtype=float).T).T
-    if excess.size == 0 or not np.nanmax(excess) > LIMIT_TOLERANCE:
+    excess = np.asarray(excess, dtype=float)
+    if excess.size == 0 or not excess.max() > LIMIT_TOLERANCE:
         return None
-    row, col = np.unravel_index(int(np.nanargmax(excess)), excess.shape)
+    row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
     return Violation(describe(names[col]), float(t[row]), float(excess[row, col]), unit)
 
 
@@ -140,7 +126,8 @@ class Constraint:
     name = "constraint"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        """The rows this kind adds to ``g``."""
+        """The rows this kind adds to ``g``: ``(block, values)`` pairs, the block named for the
+        failure messages (its name, a label and a unit per row, a time per column)."""
         return []
 
     def row_bounds(self, problem: BalanceProblem, block: Block) -> tuple[np.ndarray, np.ndarray]:
@@ -184,16 +171,14 @@ class Collocation(Constraint):
                 if name == "Hermite midpoint"
                 else (v.X[3:, 1:] - joint_ends)
             )
-            out.append(
-                Rows(
-                    f"collocation ({name})",
-                    nlp.state_labels,
-                    tuple(unit_of(r) for r in nlp.state_labels),
-                    np.arange(N, dtype=float),
-                    cs.vertcat(defect[:3, :], exact),
-                    per_interval=True,
-                )
+            block = Block(
+                f"collocation ({name})",
+                nlp.state_labels,
+                tuple(unit_of(r) for r in nlp.state_labels),
+                np.arange(N, dtype=float),
+                per_interval=True,
             )
+            out.append((block, cs.vertcat(defect[:3, :], exact)))
         return out
 
     def row_bounds(self, problem, block):
@@ -216,8 +201,8 @@ class JointLimit(Constraint):
         self.name = f"{kind} limit"
         self.level = DERIVATIVES.index(kind)
         self.control = control
-        # the control is derivative 2 (acceleration) or 3 (jerk); one integration raises the
-        # degree by one; the first and last coefficients are node values
+        # the control is derivative 2 (acceleration) or 3 (jerk), and each integration raises
+        # the degree by one; the first and last coefficients are bounded as variables
         control_level = 2 if control == "acceleration" else 3
         degree = transcription.control_degree + control_level - self.level
         self.interior = tuple(range(1, degree))
@@ -238,16 +223,14 @@ class JointLimit(Constraint):
         labels = tuple(
             f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
         )
-        return [
-            Rows(
-                f"{self.kind} limit between points",
-                labels,
-                (unit_of(self.kind),) * len(labels),
-                np.arange(nlp.key.intervals, dtype=float),
-                cs.vertcat(*coefficients),
-                per_interval=True,
-            )
-        ]
+        block = Block(
+            f"{self.kind} limit between points",
+            labels,
+            (unit_of(self.kind),) * len(labels),
+            np.arange(nlp.key.intervals, dtype=float),
+            per_interval=True,
+        )
+        return [(block, cs.vertcat(*coefficients))]
 
     def row_bounds(self, problem, block):
         lower, upper = self.limits(problem)
@@ -287,15 +270,13 @@ class TorqueLimit(Constraint):
     name = "torque limit"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        return [
-            Rows(
-                "torque limit",
-                tuple(f"{j} torque" for j in nlp.joints),
-                ("N m",) * len(nlp.joints),
-                nlp.transcription.point_taus(nlp.key.intervals),
-                nlp.torque,
-            )
-        ]
+        block = Block(
+            "torque limit",
+            tuple(f"{j} torque" for j in nlp.joints),
+            ("N m",) * len(nlp.joints),
+            nlp.transcription.point_taus(nlp.key.intervals),
+        )
+        return [(block, nlp.torque)]
 
     def row_bounds(self, problem, block):
         effort = problem.limits.effort
@@ -341,15 +322,13 @@ class PathAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        return [
-            Rows(
-                "path attitude bound",
-                ("attitude |phi|^2 / bound^2",),
-                ("(relative)",),
-                nlp.transcription.point_taus(nlp.key.intervals),
-                nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2),
-            )
-        ]
+        block = Block(
+            "path attitude bound",
+            ("attitude |phi|^2 / bound^2",),
+            ("(relative)",),
+            nlp.transcription.point_taus(nlp.key.intervals),
+        )
+        return [(block, nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2))]
 
     def check(self, problem, result):
         excess = result.angle - problem.options.path_attitude_bound
@@ -363,15 +342,13 @@ class TerminalAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
-        return [
-            Rows(
-                "terminal attitude bound",
-                ("attitude |phi_T|^2 / bound^2",),
-                ("(relative)",),
-                np.array([float(N)]),
-                nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N]),
-            )
-        ]
+        block = Block(
+            "terminal attitude bound",
+            ("attitude |phi_T|^2 / bound^2",),
+            ("(relative)",),
+            np.array([float(N)]),
+        )
+        return [(block, nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N]))]
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
@@ -433,7 +410,7 @@ def _worst_state(problem, result, index: int, when: str, targets) -> Violation |
         actual = (result.q_B, result.q_dot_B, result.q_ddot_B)[DERIVATIVES.index(kind)][index]
         found = _worst(
             np.abs(actual - value)[None, :],
-            result.t[index:][:1],
+            result.t[[index]],
             problem.balance_joints,
             lambda joint, kind=kind: f"{when} {kind} of {joint}",
             unit_of(kind),

@@ -17,6 +17,7 @@ The NLP has three vectors, each a stack of named blocks:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -113,16 +114,17 @@ class Block:
         units: a unit per row.
         taus: the time of each column in units of the interval length ``h`` (for a block
             of interval constraints, the interval's start).
-        offset: index of its first entry in the stacked vector.
         per_interval: whether a column is a collocation interval rather than an instant.
+        offset: index of its first entry in the stacked vector (0 until it is stacked,
+            :meth:`BlockStack.add`).
     """
 
     name: str
     rows: tuple[str, ...]
     units: tuple[str, ...]
     taus: np.ndarray
-    offset: int
     per_interval: bool = False
+    offset: int = 0
 
     @property
     def size(self) -> int:
@@ -151,16 +153,9 @@ class BlockStack:
         self.blocks: list[Block] = []
         self.size = 0
 
-    def add(self, name: str, rows, units, taus, per_interval: bool = False) -> Block:
-        """Append a block (rows x len(taus)) and return it."""
-        block = Block(
-            name,
-            tuple(rows),
-            tuple(units),
-            np.asarray(taus, dtype=float),
-            self.size,
-            per_interval,
-        )
+    def add(self, block: Block) -> Block:
+        """Stack a block after the others; returns it with its offset."""
+        block = dataclasses.replace(block, offset=self.size)
         self.blocks.append(block)
         self.size += block.size
         return block
@@ -218,7 +213,8 @@ class VariableLayout(BlockStack):
         ):
             if name.endswith("m") and not self.has_midpoints:
                 continue
-            self.by_name[name] = self.add(name, labels, [unit_of(r) for r in labels], taus)
+            units = tuple(unit_of(r) for r in labels)
+            self.by_name[name] = self.add(Block(name, tuple(labels), units, taus))
 
     def unpack(self, w) -> Solution:
         """States and controls of a numeric decision vector."""

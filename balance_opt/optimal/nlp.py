@@ -167,10 +167,10 @@ def _outer_problem(
     )
     rows, row_kinds, parts = BlockStack(), [], []
     for kind in kinds:
-        for r in kind.rows(symbols):
-            rows.add(r.name, r.labels, r.units, r.taus, r.per_interval)
+        for block, values in kind.rows(symbols):
+            rows.add(block)
             row_kinds.append(kind)
-            parts.append(cs.vec(r.expression))
+            parts.append(cs.vec(values))
     g = cs.vertcat(*parts)
     return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_kinds)
 
