@@ -268,8 +268,8 @@ def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, co
 @pytest.mark.parametrize("name", ["hermite-simpson", "trapezoidal"])
 def test_collocated_trajectory_is_the_integral_of_its_control(name):
     """The continuous balance motion: its velocity is the derivative of its position, and with
-    control ``"acceleration"`` it meets the collocation equations exactly (passes through the
-    node values the defects give)."""
+    control ``"acceleration"`` it passes through the nodes the transcription's equations give
+    (Simpson's rule with the Hermite midpoint of the velocity, or the trapezoidal rule)."""
     rng = np.random.default_rng(5)
     tr, N, n, h = Transcription(name), 6, 2, 0.4
     U, Um = rng.normal(size=(n, N + 1)), rng.normal(size=(n, N))

@@ -186,10 +186,6 @@ class Solution:
         return cs.horzcat(self.X, self.Xm), cs.horzcat(self.U, self.Um)
 
 
-#: Blocks of the decision vector, in their order (the midpoint blocks only with midpoints).
-DECISION_BLOCKS = ("X", "Xm", "U", "Um")
-
-
 class VariableLayout(BlockStack):
     """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um`` (see the module docstring).
 
@@ -333,8 +329,8 @@ class ParameterLayout:
         return p
 
     def unpack_symbolic(self, p) -> NLPParameters:
-        """The fields of a symbolic parameter vector (CasADi column vector); scalars as
-        scalars, the mission samples as an (n_m, n_points) matrix."""
+        """The fields of a symbolic parameter vector (CasADi column vector): each a column
+        (the scalars 1 x 1), the mission samples an (n_m, n_points) matrix."""
         fields = {name: p[sl] for name, sl in self.slices.items()}
         fields["mission"] = cs.reshape(fields["mission"], self.n_m, self.n_points)
         return NLPParameters(**fields)

@@ -14,7 +14,8 @@ rule:
   ``mu = G_Y^T lam + lam_f f_Y^T``,
 
 so no derivative is ever taken of an N-sized graph of kernel calls. Ipopt receives these three
-functions (``grad_f``, ``jac_g``, ``hess_lag``) and solves with MUMPS.
+functions (``grad_f``, ``jac_g``, ``hess_lag``); its linear solver is MUMPS unless the options
+say otherwise.
 
 :func:`build_structure` returns an :class:`NLPStructure`; the planner keeps one per
 :class:`~balance_opt.optimal.layout.StructureKey` in ``PlannerModel.nlp_cache``.
@@ -113,10 +114,9 @@ def build_structure(
     kernels = model.kernels(key.control, key.torque_limits)
     tr = Transcription(key.transcription)
     N, n_pts = key.intervals, tr.n_points(key.intervals)
-    joints = tuple(model.robot.joint_names[i] for i in model.robot.balance_indices)
-    control_kind = "acceleration" if key.control == "acceleration" else "jerk"
+    joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
     variables = VariableLayout(
-        tr, N, model.state_labels(key.control), [f"{j} {control_kind}" for j in joints]
+        tr, N, model.state_labels(key.control), [f"{j} {key.control}" for j in joints]
     )
     parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
