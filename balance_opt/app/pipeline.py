@@ -129,7 +129,7 @@ def plan_optimal(
     Raises:
         SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
     """
-    from balance_opt.optimal.planner import build_balance_nlp
+    from balance_opt.optimal.solve import build_balance_nlp
 
     check_optimal_supported(task)
     spec = task.spec.optimal

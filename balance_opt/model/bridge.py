@@ -37,6 +37,7 @@ from pathlib import Path
 
 import casadi as cs
 
+from balance_opt.cache import default_cache_dir, file_lock
 from balance_opt.errors import BalanceOptError
 
 log = logging.getLogger(__name__)
@@ -228,19 +229,9 @@ def _build_key(toolchain: Toolchain) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
-def _kernel_cache():
-    """The planner's kernel cache module (its folder and its file lock are shared), wherever
-    the optimal package keeps it; imported late so that this module stays below it."""
-    try:
-        from balance_opt.optimal import codegen
-    except ImportError:
-        from balance_opt.optimal import model as codegen
-    return codegen
-
-
 def cache_folder() -> Path:
     """``<kernel cache folder>/pinocchio-bridge`` (see ``default_cache_dir``)."""
-    return Path(_kernel_cache().default_cache_dir()) / FOLDER
+    return default_cache_dir() / FOLDER
 
 
 # ----------------------------------------------------------------------------- the program
@@ -344,7 +335,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     try:
         folder.mkdir(parents=True, exist_ok=True)
         # one process builds, the others wait for it
-        with _kernel_cache()._file_lock(folder / f"{program.name}.lock"):
+        with file_lock(folder / f"{program.name}.lock"):
             record = _read_record(program)
             if record is None:
                 record = _compile(toolchain, program)
