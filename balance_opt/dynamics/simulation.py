@@ -43,9 +43,8 @@ from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_quaternion
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
-from balance_opt.result import BalanceResult
+from balance_opt.result import AttitudeHistory, BalanceResult
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +135,7 @@ def default_gains(
 
 # --------------------------------------------------------------------------------- result
 @dataclass
-class SimulationResult:
+class SimulationResult(AttitudeHistory):
     """A simulated motion, sampled at the output times.
 
     Attributes:
@@ -199,16 +198,6 @@ class SimulationResult:
     def omega(self) -> np.ndarray:
         """Base angular velocity (T, 3), base frame [rad/s]."""
         return self.v[:, 3:6]
-
-    @property
-    def rpy(self) -> np.ndarray:
-        """Base roll, pitch, yaw (T, 3) [rad] (``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
-        return rpy_from_quaternion(self.quaternion)
-
-    @property
-    def angle(self) -> np.ndarray:
-        """Base rotation from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
-        return rotation_angle(relative_rotation(self.quaternion[:1], self.quaternion))
 
     @property
     def tracking_error(self) -> np.ndarray:

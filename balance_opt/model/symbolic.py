@@ -135,9 +135,23 @@ def backend_description(backend: str = "auto") -> str:
     return _resolve_backend(backend)[1]
 
 
-def _primitives_adam(robot: FloatingRobot, q: cs.SX):
+def adam_kindyn(robot: FloatingRobot):
+    """adam's ``KinDynComputations`` of the robot (locked joints baked in, arm joints in arm
+    order, no gravity)."""
     import adam.casadi
     import urdf_parser_py.xml_reflection.core as urdf_core
+
+    # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
+    quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
+    try:
+        return adam.casadi.KinDynComputations(
+            robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
+        )
+    finally:
+        urdf_core.on_error = quiet
+
+
+def _primitives_adam(robot: FloatingRobot, q: cs.SX):
 
     # adam-robotics 0.5 stacks three 3-vectors of zeros into a prismatic joint's motion
     # subspace (12 x 1 instead of 6 x 1): fail here, by name, rather than deep inside adam.
@@ -150,14 +164,7 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
                 "(adam-robotics 0.5); lock it, or use backend='pinocchio'",
             )
 
-    # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
-    quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
-    try:
-        kd = adam.casadi.KinDynComputations(
-            robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
-        )
-    finally:
-        urdf_core.on_error = quiet
+    kd = adam_kindyn(robot)
     H = cs.SX.eye(4)
     A = kd.centroidal_momentum_matrix(H, q)
     A = A.array if hasattr(A, "array") else A

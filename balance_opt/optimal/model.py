@@ -36,11 +36,10 @@ from functools import cached_property
 from pathlib import Path
 
 import casadi as cs
-import numpy as np
 
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.model.symbolic import SymbolicMaps
+from balance_opt.model.symbolic import SymbolicMaps, adam_kindyn
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.options import CONTROLS
@@ -261,19 +260,11 @@ class PlannerModel:
         base at the identity, ``nu = [base twist in the base frame; q_dot]`` (adam, body-fixed
         representation, no gravity)."""
         try:
-            import adam.casadi
-            import urdf_parser_py.xml_reflection.core as urdf_core
             from adam import Representations
         except ImportError as exc:
             raise BalanceOptError(f"torque limits need adam-robotics[casadi]: {exc}") from exc
         robot = self.robot
-        quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
-        try:
-            kd = adam.casadi.KinDynComputations(
-                robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
-            )
-        finally:
-            urdf_core.on_error = quiet
+        kd = adam_kindyn(robot)
         kd.set_frame_velocity_representation(Representations.BODY_FIXED_REPRESENTATION)
         q = cs.SX.sym("q", robot.n)
         nu = cs.SX.sym("nu", 6 + robot.n)
