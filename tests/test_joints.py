@@ -289,3 +289,42 @@ def test_simulation_with_a_mimic_finger_matches_pinocchio(robot, native):
     err = np.linalg.norm(pin.log3(R_sim.T @ R_ref))
     assert err < 1e-8
     assert np.linalg.norm(pin.log3(R_ref)) > 1e-2  # the base did turn
+
+
+# ------------------------------------------------------------------------- planners
+@pytest.mark.slow
+def test_plans_with_prismatic_and_continuous_balance_joints():
+    """Analytic and optimal (N = 20) plans on the robot with a prismatic and a continuous balance
+    joint (and the mimic finger): the analytic law keeps the momentum exactly but ignores the
+    limits; the optimal plan meets them (re-simulated with numeric Pinocchio)."""
+    from balance_opt.analytic.phases import phase_one
+    from balance_opt.analytic.rollout import rollout
+    from balance_opt.motion.trajectories import PointToPoint
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.options import PlannerOptions
+    from balance_opt.optimal.solve import plan_optimal
+
+    limits = {"b2": {"lower": -0.05, "upper": 0.05, "velocity": 0.2}, "b3": {"velocity": 1.0}}
+    robot = FloatingRobot(URDF, MISSION, BALANCE, locked=LOCKED, limits=limits)
+    mission, q_B0 = PointToPoint([0.0, 0.0], [1.2, 2.5], 4.0), np.array([0.2, 0.0, 3.0])
+
+    analytic = rollout(robot, mission, q_B0)
+    maps = NumericMaps(robot)
+    q, q_dot = np.c_[analytic.q_M, analytic.q_B], np.c_[analytic.q_dot_M, analytic.q_dot_B]
+    Ag = maps.centroidal(q, analytic.quaternion)
+    L = np.matvec(Ag[:, 3:], maps.velocities(q_dot, analytic.omega))
+    assert np.abs(L).max() < 1e-12
+    assert {(v.joint, v.kind) for v in analytic.violations} >= {("b2", "position")}
+
+    plan = plan_optimal(
+        PlannerModel(robot, compile=False), mission, q_B0, PlannerOptions(intervals=20)
+    )
+    assert plan.violations == []
+    tol = 1e-6
+    assert np.abs(plan.q_B[:, 1]).max() < 0.05 + tol  # prismatic [m]
+    assert np.abs(plan.q_dot_B[:, 1]).max() < 0.2 + tol  # [m/s]
+    assert np.abs(plan.q_dot_B[:, 2]).max() < 1.0 + tol  # continuous, unbounded position
+    assert plan.info["resimulation"]["max_momentum_residual"] < 1e-5
+    assert np.abs(plan.q_B[:, 1]).max() > 0.05 - 1e-3  # the prismatic limit is active
+    # so tight a stroke leaves the balance arm little: a drift below Phase I's, not far below
+    assert plan.max_drift < phase_one(robot, mission, q_B0).max_drift
