@@ -328,3 +328,35 @@ def test_plans_with_prismatic_and_continuous_balance_joints():
     assert np.abs(plan.q_B[:, 1]).max() > 0.05 - 1e-3  # the prismatic limit is active
     # so tight a stroke leaves the balance arm little: a drift below Phase I's, not far below
     assert plan.max_drift < phase_one(robot, mission, q_B0).max_drift
+
+
+def test_planner_torques_with_a_mimic_finger(native):
+    """The planner's joint torques (adam, reduced by the mimic map) against the free-floating
+    inverse dynamics of Pinocchio's own mimic model, at zero momentum."""
+    from balance_opt.optimal.model import PlannerModel
+
+    robot = FloatingRobot(URDF, MISSION, ["b1", "b3"], locked={**LOCKED, "b2": 0.1})
+    torque = PlannerModel(robot, compile=False).torque_fun()
+    data, sel = native.createData(), _native_cols(native, robot.joint_names)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        q, q_dot, q_ddot = _random_q(robot, rng), rng.normal(size=4), rng.normal(size=4)
+        qn = _native_q(native, robot.joint_names, q)
+        qn[native.joints[native.getJointId("b2")].idx_q] = 0.1
+        A = pin.computeCentroidalMap(native, data, qn)[:, sel]
+        nu = np.r_[coupling.base_jacobian(A, NUMPY) @ q_dot, q_dot]
+        v = np.zeros(native.nv)
+        v[sel] = nu
+        M = pin.crba(native, data, qn)
+        M = (np.triu(M) + np.triu(M, 1).T)[np.ix_(sel, sel)]
+        h = pin.nonLinearEffects(native, data, qn, v)[sel]
+        a_b = -np.linalg.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
+        ref = M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
+        np.testing.assert_allclose(np.array(torque(q, q_dot, q_ddot)).ravel(), ref, atol=1e-10)
+
+
+def test_torque_limits_name_a_prismatic_joint(robot):
+    from balance_opt.optimal.model import PlannerModel
+
+    with pytest.raises(JointError, match="'b2' .*is prismatic.*plan without torque limits"):
+        PlannerModel(robot, compile=False).torque_fun()

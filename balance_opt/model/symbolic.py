@@ -21,7 +21,7 @@ about four times smaller than adam's on Baxter (``benchmarks/bench_bridge.py``).
 
 Mimic joints that follow an arm joint (``FloatingRobot.followers``) are evaluated as joints of
 their own at ``k q_driver + c``, and their columns are then folded, times ``k``, into their
-drivers' (:func:`_model_joints`, :func:`_fold`): a follower's momentum belongs to its driver.
+drivers' (:func:`model_joint_positions`, :func:`model_velocity_map`): a follower's momentum belongs to its driver.
 
 Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
 cached), and ``name(...)`` evaluates it and returns NumPy arrays.
@@ -139,7 +139,7 @@ def backend_description(backend: str = "auto") -> str:
     return _resolve_backend(backend)[1]
 
 
-def _model_joints(robot: FloatingRobot, q: cs.SX) -> cs.SX:
+def model_joint_positions(robot: FloatingRobot, q: cs.SX) -> cs.SX:
     """Positions of the model joints (arm joints, then followers) from the arm vector ``q``."""
     if not robot.followers:
         return q
@@ -147,22 +147,22 @@ def _model_joints(robot: FloatingRobot, q: cs.SX) -> cs.SX:
     return cs.mtimes(cs.DM(E), q) + cs.DM(e)
 
 
+def model_velocity_map(robot: FloatingRobot) -> np.ndarray:
+    """(6 + model joints) x (6+n): velocities of [base; model joints] per [base; arm joints]."""
+    return robot.velocity_map[np.r_[0:6, robot.model_v_indices]]
+
+
 def _fold(robot: FloatingRobot, X: cs.SX) -> cs.SX:
     """A 6 x (6 + model joints) matrix as a 6 x (6+n) one over [base; arm joints]: each
     follower's column added, times its multiplier, into its driver's."""
     if not robot.followers:
         return X
-    E, _ = robot.mimic_matrix
-    G = np.zeros((6 + E.shape[0], 6 + robot.n))
-    G[:6, :6] = np.eye(6)
-    G[6:, 6:] = E
-    return cs.mtimes(X, cs.DM(G))
+    return cs.mtimes(X, cs.DM(model_velocity_map(robot)))
 
 
-def _primitives_adam(robot: FloatingRobot, q: cs.SX):
-    import adam.casadi
-    import urdf_parser_py.xml_reflection.core as urdf_core
-
+def check_adam_joints(robot: FloatingRobot, remedy: str = "lock it, or use backend='pinocchio'"):
+    """Raise a ``JointError`` naming the first prismatic model joint (adam cannot take it),
+    ending with ``remedy``."""
     # adam-robotics 0.5 stacks three 3-vectors of zeros into a prismatic joint's motion
     # subspace (12 x 1 instead of 6 x 1): fail here, by name, rather than deep inside adam.
     for j in robot.model_joint_names:
@@ -172,8 +172,15 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
                 j,
                 robot.source,
                 f"is prismatic{follows}, which the 'adam' backend cannot handle "
-                "(adam-robotics 0.5); lock it, or use backend='pinocchio'",
+                f"(adam-robotics 0.5); {remedy}",
             )
+
+
+def _primitives_adam(robot: FloatingRobot, q: cs.SX):
+    import adam.casadi
+    import urdf_parser_py.xml_reflection.core as urdf_core
+
+    check_adam_joints(robot)
 
     # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
     quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
@@ -184,7 +191,7 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
     finally:
         urdf_core.on_error = quiet
     H = cs.SX.eye(4)
-    qm = _model_joints(robot, q)
+    qm = model_joint_positions(robot, q)
     A = kd.centroidal_momentum_matrix(H, qm)
     A = A.array if hasattr(A, "array") else A
     jac = {}
@@ -208,7 +215,7 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     try:
         import pinocchio.casadi as cpin
     except ImportError:
-        A, jac = bridge_primitives(robot, _model_joints(robot, q))
+        A, jac = bridge_primitives(robot, model_joint_positions(robot, q))
         return _fold(robot, A), {k: _fold(robot, J) for k, J in jac.items()}
 
     model = robot.model
@@ -216,7 +223,7 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     cdata = cmodel.createData()
     # Pinocchio configuration with the base at the identity pose, model joints set by name.
     qp = cs.SX(robot.pin_q(np.zeros(robot.n)))
-    qm = _model_joints(robot, q)
+    qm = model_joint_positions(robot, q)
     for i, name in enumerate(robot.model_joint_names):
         joint = model.joints[model.getJointId(name)]
         if joint.nq == 1:

@@ -40,7 +40,12 @@ import numpy as np
 
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.model.symbolic import SymbolicMaps
+from balance_opt.model.symbolic import (
+    SymbolicMaps,
+    check_adam_joints,
+    model_joint_positions,
+    model_velocity_map,
+)
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.options import CONTROLS
@@ -267,10 +272,11 @@ class PlannerModel:
         except ImportError as exc:
             raise BalanceOptError(f"torque limits need adam-robotics[casadi]: {exc}") from exc
         robot = self.robot
+        check_adam_joints(robot, "lock it, or plan without torque limits (they use adam)")
         quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
         try:
             kd = adam.casadi.KinDynComputations(
-                robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
+                robot.locked_urdf, list(robot.model_joint_names), gravity=np.zeros(6)
             )
         finally:
             urdf_core.on_error = quiet
@@ -278,10 +284,15 @@ class PlannerModel:
         q = cs.SX.sym("q", robot.n)
         nu = cs.SX.sym("nu", 6 + robot.n)
         H = cs.SX.eye(4)
-        M = kd.mass_matrix(H, q)
-        h = kd.bias_force(H, q, nu[:6], nu[6:])
+        # mimic joints move with their drivers: reduced coordinates, M_r = G^T M G, h_r = G^T h
+        G = cs.DM(model_velocity_map(robot))
+        q_m, nu_m = model_joint_positions(robot, q), cs.mtimes(G, nu) if robot.followers else nu
+        M = kd.mass_matrix(H, q_m)
+        h = kd.bias_force(H, q_m, nu_m[:6], nu_m[6:])
         M = cs.SX(M.array if hasattr(M, "array") else M)
         h = cs.SX(h.array if hasattr(h, "array") else h)
+        if robot.followers:
+            M, h = G.T @ M @ G, G.T @ h
         return cs.Function(
             "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
         )
