@@ -36,8 +36,16 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import ArmError, JointError, URDFLoadError
+from balance_opt.model.joints import (
+    MOVABLE_TYPES,
+    Mimic,
+    lock_joints,
+    mimic_matrix,
+    narrow_driver_limits,
+    parse_mimic,
+    resolve_mimics,
+)
 
-MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 LIMIT_KEYS = ("lower", "upper", "velocity", "acceleration", "effort")
 
 
@@ -95,37 +103,6 @@ class _UrdfJoint:
     mimic: tuple[str, float, float] | None = None  # (driver, multiplier, offset)
 
 
-@dataclass(frozen=True)
-class Mimic:
-    """How a mimic joint follows its driver: ``q = multiplier * q_driver + offset``.
-
-    Attributes:
-        driver: the joint it follows (the first driver of a chain of mimics).
-        multiplier: ``k`` [rad/rad, m/m, or mixed units between joint types].
-        offset: ``c`` [rad or m].
-    """
-
-    driver: str
-    multiplier: float
-    offset: float
-
-
-def _parse_mimic(el: ET.Element, source: str) -> tuple[str, float, float] | None:
-    mimic = el.find("mimic")
-    if mimic is None:
-        return None
-    try:
-        k = float(mimic.get("multiplier", "1"))
-        c = float(mimic.get("offset", "0"))
-    except ValueError:
-        raise URDFLoadError(
-            source, f"joint '{el.get('name')}': <mimic> multiplier or offset is not a number"
-        ) from None
-    if mimic.get("joint") is None:
-        raise URDFLoadError(source, f"joint '{el.get('name')}': <mimic> names no joint")
-    return mimic.get("joint"), k, c
-
-
 def _read_urdf(urdf: str | Path) -> tuple[str, str]:
     """Return (text, source name) for a URDF given as a path or as XML text."""
     if isinstance(urdf, Path) or not str(urdf).lstrip().startswith("<"):
@@ -160,7 +137,7 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             parent.get("link"),
             child.get("link"),
             el,
-            _parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
+            parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     _check_inertials(root, source)
     return root, joints
@@ -203,86 +180,6 @@ def _check_inertials(root: ET.Element, source: str) -> None:
                 )
 
 
-def _origin(el: ET.Element) -> pin.SE3:
-    origin = el.find("origin")
-    xyz = np.zeros(3)
-    rpy = np.zeros(3)
-    if origin is not None:
-        xyz = np.array([float(v) for v in origin.get("xyz", "0 0 0").split()])
-        rpy = np.array([float(v) for v in origin.get("rpy", "0 0 0").split()])
-    return pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
-
-
-def _axis(el: ET.Element) -> np.ndarray:
-    axis = el.find("axis")
-    vec = (
-        np.array([1.0, 0.0, 0.0])
-        if axis is None
-        else np.array([float(v) for v in axis.get("xyz", "1 0 0").split()])
-    )
-    return vec / np.linalg.norm(vec)
-
-
-def _resolve_mimics(joints: dict[str, _UrdfJoint], source: str) -> dict[str, Mimic]:
-    """Every mimic joint with its first driver, chains composed:
-    ``k1 (k2 q + c2) + c1 = (k1 k2) q + (k1 c2 + c1)``."""
-    out = {}
-    for name, uj in joints.items():
-        if uj.mimic is None:
-            continue
-        driver, k, c = uj.mimic
-        seen = [name]
-        while True:
-            if driver not in joints or joints[driver].type not in MOVABLE_TYPES:
-                raise URDFLoadError(
-                    source, f"mimic joint '{name}' follows '{driver}', which is not a movable joint"
-                )
-            if driver in seen:
-                raise URDFLoadError(source, f"mimic joints follow each other in a loop: {seen}")
-            parent = joints[driver].mimic
-            if parent is None:
-                break
-            seen.append(driver)
-            driver, k, c = parent[0], k * parent[1], k * parent[2] + c
-        out[name] = Mimic(driver, k, c)
-    return out
-
-
-def _lock_joints(
-    root: ET.Element,
-    joints: dict[str, _UrdfJoint],
-    locked: Mapping[str, float],
-    followers=(),
-) -> str:
-    """URDF text in which each locked joint is a fixed joint at its locked position, and the
-    ``followers`` (mimic joints of arm joints) are plain joints: the caller drives them."""
-    root = ET.fromstring(ET.tostring(root))  # work on a copy
-    by_name = {el.get("name"): el for el in root.findall("joint")}
-    for name in followers:
-        for child in by_name[name].findall("mimic"):
-            by_name[name].remove(child)
-    for name, value in locked.items():
-        el = by_name[name]
-        motion = (
-            pin.SE3(np.eye(3), _axis(el) * value)
-            if joints[name].type == "prismatic"
-            else pin.SE3(pin.exp3(_axis(el) * value), np.zeros(3))
-        )
-        placement = _origin(el) * motion
-        rpy = pin.rpy.matrixToRpy(placement.rotation)
-        for tag in ("origin", "axis", "limit", "mimic", "dynamics", "safety_controller"):
-            for child in el.findall(tag):
-                el.remove(child)
-        el.set("type", "fixed")
-        ET.SubElement(
-            el,
-            "origin",
-            xyz=" ".join(repr(float(v)) for v in placement.translation),
-            rpy=" ".join(repr(float(v)) for v in rpy),
-        )
-    return ET.tostring(root, encoding="unicode")
-
-
 def _suggest(name: str, candidates) -> str:
     close = difflib.get_close_matches(name, list(candidates), n=3)
     return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
@@ -322,7 +219,7 @@ class FloatingRobot:
     ):
         text, self.source = _read_urdf(urdf)
         root, self._urdf_joints = _parse_joints(text, self.source)
-        self.mimics: dict[str, Mimic] = _resolve_mimics(self._urdf_joints, self.source)
+        self.mimics: dict[str, Mimic] = resolve_mimics(self._urdf_joints, self.source)
         self.name = root.get("name", "robot")
 
         for arm, joints in (("mission", mission), ("balance", balance)):
@@ -352,7 +249,7 @@ class FloatingRobot:
         }
         #: the arm joints, then the followers: the movable joints of ``model``
         self.model_joint_names: tuple[str, ...] = self.joint_names + tuple(self.followers)
-        self.locked_urdf = _lock_joints(root, self._urdf_joints, self.locked, self.followers)
+        self.locked_urdf = lock_joints(root, self._urdf_joints, self.locked, self.followers)
 
         self.model, self.full_model = self._build_pinocchio(text)
 
@@ -364,14 +261,17 @@ class FloatingRobot:
         self._pin_idx_q = self._model_idx_q[: self.n]
         self._pin_idx_v = self._model_idx_v[: self.n]
         self._pin_nq = self._model_nq[: self.n]
-        self._mimic_E, self._mimic_e = self._make_mimic_matrix()
-        self._G = self._make_velocity_map()
+        self._mimic_E, self._mimic_e = mimic_matrix(self.joint_names, self.followers)
+        # G: Pinocchio velocity per [base twist; arm joint rates]
+        self._G = np.zeros((self.model.nv, 6 + self.n))
+        self._G[:6, :6] = np.eye(6)
+        self._G[self._model_idx_v, 6:] = self._mimic_E
 
         ee_frames = dict(ee_frames or {})
         self.arms: tuple[Arm, ...] = tuple(self._make_arms(arm_specs, ee_frames))
         unknown_arms = set(ee_frames) - {a.name for a in self.arms}
         if unknown_arms:
-            name = sorted(unknown_arms)[0]
+            name = min(unknown_arms)
             raise ArmError(
                 name,
                 self.source,
@@ -521,7 +421,7 @@ class FloatingRobot:
                 values["upper"][i] = self.model.upperPositionLimit[self._pin_idx_q[i]]
             values["velocity"][i] = self.model.velocityLimit[self._pin_idx_v[i]]
             values["effort"][i] = self.model.effortLimit[self._pin_idx_v[i]]
-        self._follower_limits(values)
+        narrow_driver_limits(values, self.model, self.joint_names, self.followers)
         for j, over in overrides.items():
             if j not in self.joint_names:
                 raise JointError(
@@ -550,40 +450,6 @@ class FloatingRobot:
                         j, self.source, f"{key} limit must be positive, got {values[key][i]}"
                     )
         return JointLimits(**values)
-
-    def _follower_limits(self, values: dict[str, np.ndarray]) -> None:
-        """Narrow each driver's position and velocity limits to those its followers allow."""
-        for f, m in self.followers.items():
-            i, k = self.joint_names.index(m.driver), m.multiplier
-            jm = self.model.joints[self.model.getJointId(f)]
-            if k == 0.0:
-                continue
-            if jm.nq == 1:
-                bounds = (self.model.lowerPositionLimit[jm.idx_q] - m.offset) / k, (
-                    self.model.upperPositionLimit[jm.idx_q] - m.offset
-                ) / k
-                values["lower"][i] = max(values["lower"][i], min(bounds))
-                values["upper"][i] = min(values["upper"][i], max(bounds))
-            values["velocity"][i] = min(
-                values["velocity"][i], self.model.velocityLimit[jm.idx_v] / abs(k)
-            )
-
-    def _make_mimic_matrix(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(E, e)``: the model joints' positions are ``E q + e`` for the arm vector ``q``."""
-        E = np.zeros((len(self.model_joint_names), self.n))
-        E[: self.n] = np.eye(self.n)
-        e = np.zeros(len(self.model_joint_names))
-        for r, m in enumerate(self.followers.values(), start=self.n):
-            E[r, self.joint_names.index(m.driver)] = m.multiplier
-            e[r] = m.offset
-        return E, e
-
-    def _make_velocity_map(self) -> np.ndarray:
-        """``G`` (nv x (6+n)): Pinocchio velocity per [base twist; arm joint rates]."""
-        G = np.zeros((self.model.nv, 6 + self.n))
-        G[:6, :6] = np.eye(6)
-        G[self._model_idx_v, 6:] = self._mimic_E
-        return G
 
     # ----------------------------------------------------------------------------- structure
     @property

@@ -9,7 +9,6 @@ import numpy as np
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
 
-
 #: Units of a joint's position, speed, acceleration and effort by its position unit.
 _UNITS = {"rad": "[rad, rad/s, rad/s^2, N m]", "m": "[m, m/s, m/s^2, N]"}
 
@@ -39,7 +38,8 @@ def robot_summary(robot: FloatingRobot, q=None) -> str:
             )
     if robot.followers:
         follows = ", ".join(
-            f"{j} = {m.multiplier:.4g} {m.driver} + {m.offset:.4g}" for j, m in robot.followers.items()
+            f"{j} = {m.multiplier:.4g} {m.driver} + {m.offset:.4g}"
+            for j, m in robot.followers.items()
         )
         lines.append(f"  mimic joints moving with their driver: {follows}")
     if robot.locked:
