@@ -39,7 +39,13 @@ import casadi as cs
 
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.model.symbolic import SymbolicMaps, adam_kindyn
+from balance_opt.model.symbolic import (
+    SymbolicMaps,
+    adam_kindyn,
+    check_adam_joints,
+    model_joint_positions,
+    model_velocity_map,
+)
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.options import CONTROLS
@@ -264,15 +270,21 @@ class PlannerModel:
         except ImportError as exc:
             raise BalanceOptError(f"torque limits need adam-robotics[casadi]: {exc}") from exc
         robot = self.robot
+        check_adam_joints(robot, "lock it, or plan without torque limits (they use adam)")
         kd = adam_kindyn(robot)
         kd.set_frame_velocity_representation(Representations.BODY_FIXED_REPRESENTATION)
         q = cs.SX.sym("q", robot.n)
         nu = cs.SX.sym("nu", 6 + robot.n)
         H = cs.SX.eye(4)
-        M = kd.mass_matrix(H, q)
-        h = kd.bias_force(H, q, nu[:6], nu[6:])
+        # mimic joints move with their drivers: reduced coordinates, M_r = G^T M G, h_r = G^T h
+        G = cs.DM(model_velocity_map(robot))
+        q_m, nu_m = model_joint_positions(robot, q), cs.mtimes(G, nu) if robot.followers else nu
+        M = kd.mass_matrix(H, q_m)
+        h = kd.bias_force(H, q_m, nu_m[:6], nu_m[6:])
         M = cs.SX(M.array if hasattr(M, "array") else M)
         h = cs.SX(h.array if hasattr(h, "array") else h)
+        if robot.followers:
+            M, h = G.T @ M @ G, G.T @ h
         return cs.Function(
             "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
         )
