@@ -119,7 +119,11 @@ def entries(folder: Path) -> list[Entry]:
         key = path
         if path.suffix == ".json" and kind in ("planner kernels", "bridge"):
             siblings = [p for p in path.parent.glob(f"{path.stem}*") if p != path]
-            artefacts = [p for p in siblings if record_path(p) == path and p.is_file()]
+            artefacts = [
+                p
+                for p in siblings
+                if record_path(p) == path and p.is_file() and not p.name.endswith(".lock")
+            ]
             key = artefacts[0] if artefacts else path
         with contextlib.suppress(OSError):
             entry = found.setdefault(key, Entry(kind, str(key.relative_to(folder))))

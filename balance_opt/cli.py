@@ -11,7 +11,8 @@ Subcommands:
 * ``compare TASK``: both methods, simulated, and the comparison report;
 * ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
 * ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
-  Dask cluster.
+  Dask cluster;
+* ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
 (whatever was computed is still written). An output directory that exists and is not empty is
@@ -27,6 +28,8 @@ import os
 import sys
 import time
 from pathlib import Path
+
+from balance_opt.cli_tools import add_tool_commands
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT = 0, 1, 2
 DESCRIPTION = (
@@ -485,6 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_check_commands(sub)
     _add_run_commands(sub)
     _add_sweep_command(sub)
+    add_tool_commands(sub)
     for subparser in sub.choices.values():
         _common_options(subparser, top=False)
     return parser

@@ -41,7 +41,11 @@ class RobotSpec:
     shipped: str | None = setting(
         None, doc="name of a URDF shipped with balance-opt (folder urdf/), e.g. paper_robot.urdf"
     )
-    example: str | None = setting(None, doc="name of an example-robot-data robot, e.g. baxter")
+    example: str | None = setting(
+        None,
+        doc="name of an example-robot-data robot, e.g. baxter, talos, ur5, panda "
+        "(`balance-opt robots` lists them)",
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
