@@ -64,7 +64,8 @@ def _cmd_robots(args) -> int:
         if info.error:
             print(f"  does not load: {info.error}")
             return 2
-        print(f"  {info.dof} movable joints, {len(info.chains)} chains, {info.mass:.2f} kg")
+        joints, chains = _count(info.dof, "movable joint", "movable joints"), len(info.chains)
+        print(f"  {joints}, {_count(chains, 'chain', 'chains')}, {info.mass:.2f} kg")
         print("\n".join(_joint_lines(info.chains)))
         for warning in info.warnings:
             print(f"  warning: {warning}")
