@@ -8,6 +8,8 @@
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import datetime
 import os
 
@@ -87,6 +89,31 @@ def _cmd_robots(args) -> int:
     for info in failed:
         print(f"does not load: {info.name}: {info.error}")
     return EXIT_OK
+
+
+def backend_option(parser: argparse.ArgumentParser) -> None:
+    """``--backend``: the symbolic backend, overriding the task's ``robot.backend``."""
+    parser.add_argument(
+        "--backend",
+        choices=("auto", "pinocchio", "adam"),
+        help="symbolic backend of the optimal planner (default: the task's robot.backend, auto)",
+    )
+
+
+def with_backend(task, backend: str | None):
+    """``task`` with ``robot.backend`` replaced by ``backend`` (unchanged when ``None``)."""
+    if backend is None:
+        return task
+    robot = dataclasses.replace(task.spec.robot, backend=backend)
+    return dataclasses.replace(task, spec=dataclasses.replace(task.spec, robot=robot))
+
+
+def backend_line(backend: str) -> str:
+    """``symbolic backend: pinocchio (...)`` or ``symbolic backend: adam (...)`` for
+    ``balance-opt inspect`` (builds the Pinocchio-CasADi bridge first if it may be used)."""
+    from balance_opt.model.symbolic import backend_description
+
+    return f"symbolic backend: {backend_description(backend)}"
 
 
 def add_tool_commands(sub) -> None:
