@@ -36,6 +36,13 @@ def test_task_file_selects_the_backend(tmp_path, backend):
     assert task.spec.robot.backend == (backend or "auto")
 
 
+def test_task_choices_are_the_symbolic_backends():
+    from balance_opt.io.task_spec import SYMBOLIC_BACKENDS
+    from balance_opt.model.symbolic import BACKENDS
+
+    assert SYMBOLIC_BACKENDS == ("auto", *BACKENDS)
+
+
 def test_unknown_backend_is_refused_with_line_and_key(tmp_path, capsys):
     path = _task(tmp_path, "pinochio")
     assert main(["validate", str(path)]) == 2

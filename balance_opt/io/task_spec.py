@@ -25,12 +25,12 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.io.typed_config import setting
 from balance_opt.io.typed_reference import json_schema, reference_markdown
-from balance_opt.model.symbolic import BACKENDS
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import GUESSES, PlannerOptions
 
-#: Values of ``robot.backend``.
-SYMBOLIC_BACKENDS = ("auto", *BACKENDS)
+#: Values of ``robot.backend``: ``auto`` and :data:`balance_opt.model.symbolic.BACKENDS` (not
+#: imported: loading a task does not import CasADi).
+SYMBOLIC_BACKENDS = ("auto", "pinocchio", "adam")
 
 SCHEMA_ID = "https://balance-opt.invalid/task.schema.json"
 
