@@ -11,7 +11,8 @@ Subcommands:
 * ``compare TASK``: both methods, simulated, and the comparison report;
 * ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
 * ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
-  Dask cluster.
+  Dask cluster;
+* ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
 (whatever was computed is still written). An output directory that exists and is not empty is
@@ -27,6 +28,8 @@ import os
 import sys
 import time
 from pathlib import Path
+
+from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT = 0, 1, 2
 DESCRIPTION = (
@@ -151,12 +154,14 @@ def _cmd_inspect(args) -> int:
         from balance_opt.model.library import paper_robot
 
         print(robot_summary(paper_robot()))
+        print(backend_line(args.backend or "auto"))
         return EXIT_OK
     from balance_opt.io.task import load_task
 
-    task = load_task(args.task)
+    task = with_backend(load_task(args.task), args.backend)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
+    print(backend_line(task.spec.robot.backend))
     return EXIT_OK
 
 
@@ -164,7 +169,7 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
     from balance_opt.app.pipeline import run_task
     from balance_opt.io.task import load_task
 
-    task = load_task(args.task)
+    task = with_backend(load_task(args.task), args.backend)
     solver_options = _solver_options(args, task)
     output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / task.name
     check_output_dir(output, args.force)
@@ -370,6 +375,7 @@ def _add_check_commands(sub) -> None:
 
     p = sub.add_parser("inspect", help="print a robot summary and its coupling measures")
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
+    backend_option(p)
     p.set_defaults(run=_cmd_inspect)
 
 
@@ -379,6 +385,7 @@ def _add_run_commands(sub) -> None:
         "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
     )
     _run_options(p)
+    backend_option(p)
     _method_option(p)
     p.add_argument(
         "--simulate", action="store_true", help="also simulate each plan (as the simulate command)"
@@ -389,6 +396,7 @@ def _add_run_commands(sub) -> None:
         "simulate", help="plan, then check each plan in a forward-dynamics simulation"
     )
     _run_options(p)
+    backend_option(p)
     _method_option(p)
     p.set_defaults(run=_cmd_simulate)
 
@@ -396,6 +404,7 @@ def _add_run_commands(sub) -> None:
         "compare", help="analytic and optimal plans, simulated, and the comparison report"
     )
     _run_options(p)
+    backend_option(p)
     p.add_argument(
         "--no-simulate", action="store_true", help="skip the forward-dynamics simulation"
     )
@@ -485,6 +494,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_check_commands(sub)
     _add_run_commands(sub)
     _add_sweep_command(sub)
+    add_tool_commands(sub)
     for subparser in sub.choices.values():
         _common_options(subparser, top=False)
     return parser

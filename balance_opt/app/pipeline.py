@@ -134,7 +134,9 @@ def plan_optimal(
     check_optimal_supported(task)
     spec = task.spec.optimal
     options = task.planner_options(solver_options)
-    model = (models if models is not None else ModelCache()).planner_model(task.robot)
+    model = (models if models is not None else ModelCache()).planner_model(
+        task.robot, task.spec.robot.backend
+    )
     nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
     guess = (
         warm_start

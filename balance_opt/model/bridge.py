@@ -30,7 +30,6 @@ import platform
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from functools import cache
@@ -38,7 +37,7 @@ from pathlib import Path
 
 import casadi as cs
 
-from balance_opt.cache import default_cache_dir, file_lock
+from balance_opt.cache import build_dir, default_cache_dir, file_lock, sha256_of
 from balance_opt.errors import BalanceOptError
 
 log = logging.getLogger(__name__)
@@ -236,19 +235,11 @@ def cache_folder() -> Path:
 
 
 # ----------------------------------------------------------------------------- the program
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _read_record(program: Path) -> BuildRecord | None:
     """The record of a cached program whose bytes still match it, else ``None``."""
     try:
         record = json.loads(program.with_suffix(".json").read_text())
-        if program.is_file() and _sha256(program) == record["sha256"]:
+        if program.is_file() and sha256_of(program) == record["sha256"]:
             return BuildRecord(program, record["wall_seconds"], record["cpu_seconds"], False)
     except (OSError, ValueError, KeyError, TypeError):
         pass
@@ -265,7 +256,7 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
     """Build the program into a temporary name in its folder, then rename it into place."""
     log.info("building the Pinocchio-CasADi bridge (once per machine, about %d min)", BUILD_MINUTES)
     start, cpu0 = time.perf_counter(), _children_cpu()
-    with tempfile.TemporaryDirectory(dir=program.parent) as tmp:
+    with build_dir(program.parent, program.name) as tmp:
         out = Path(tmp) / program.name
         with open(Path(tmp) / "stderr.txt", "w+") as err:
             proc = subprocess.Popen(
@@ -283,7 +274,7 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
         if proc.returncode != 0:
             raise BridgeUnavailable(f"build failed: {_first_error(stderr)}")
         wall, cpu = time.perf_counter() - start, _children_cpu() - cpu0
-        record = {"sha256": _sha256(out), "wall_seconds": wall, "cpu_seconds": cpu}
+        record = {"sha256": sha256_of(out), "wall_seconds": wall, "cpu_seconds": cpu}
         os.replace(out, program)  # atomic: no process ever runs a half-written program
     tmp_record = program.with_suffix(".json.tmp")
     tmp_record.write_text(json.dumps(record))
@@ -377,7 +368,7 @@ def _load(path: Path, robot) -> cs.Function | None:
 def _generate(program: Path, robot, path: Path) -> float:
     """Run the program on ``robot``; the function lands in ``path``. Returns the time [s]."""
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+    with build_dir(path.parent, path.stem) as tmp:
         urdf = Path(tmp) / "robot.urdf"
         urdf.write_text(robot.locked_urdf)
         out = Path(tmp) / path.name
