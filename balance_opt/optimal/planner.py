@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
+from balance_opt.app.interrupts import raise_if_interrupted
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
@@ -821,6 +822,7 @@ class BalanceNLP:
         out = self.structure.solver(
             x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
         )
+        raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
         t2 = time.perf_counter()
         stats = self.structure.solver.stats()
         w = np.array(out["x"]).ravel()
