@@ -85,9 +85,9 @@ def make_parent(target: Path) -> None:
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputFolderError(
-            f"cannot create output folder {target}: {exc.strerror or exc}"
-        ) from None
+        blocking = next((p for p in target.parents if p.exists() and not p.is_dir()), None)
+        reason = f"{blocking} is a file" if blocking else exc.strerror or str(exc)
+        raise OutputFolderError(f"cannot create output folder {target}: {reason}") from None
 
 
 class FolderLock:
