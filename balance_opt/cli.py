@@ -204,7 +204,11 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
         started = time.perf_counter()
         run = run_task(
-            task, methods=methods, simulate=simulate, output_dir=folder, solver_options=solver_options
+            task,
+            methods=methods,
+            simulate=simulate,
+            output_dir=folder,
+            solver_options=solver_options,
         )
     log.info(
         "wrote %d files to %s in %.1f s",
@@ -457,7 +461,9 @@ def _add_sweep_command(sub) -> None:
         description="Run every case of a sweep file (a base task and the parameters to vary); "
         "write one result per case as it finishes, the table results.csv, "
         "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
-        "failed (their errors are in the table), 2 for a bad sweep file.",
+        "failed (their errors are in the table), 2 for a bad sweep file or an output folder "
+        "that cannot be used (another sweep writing to it, for one), 130 when interrupted "
+        "(--resume goes on).",
     )
     p.add_argument("sweep", nargs="?", help="sweep file (YAML)")
     p.add_argument(

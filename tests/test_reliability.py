@@ -288,14 +288,14 @@ def test_implausible_inertias_are_warned_by_link():
 _EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples"
 
 
-def _task_file(tmp_path):
+def _task_file(tmp_path, extra=""):
     """The paper task made fast (short move, few intervals, coarse output grids)."""
     text = (_EXAMPLES / "paper_capture.yaml").read_text()
     text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]")
     text = text.replace("duration: 10.0", "duration: 3.0")
     text += (
         "analytic: {output_step: 0.05}\noptimal: {intervals: 12}\n"
-        "simulation: {dt: 0.002, output_dt: 0.05}\n"
+        "simulation: {dt: 0.002, output_dt: 0.05}\n" + extra
     )
     path = tmp_path / "task.yaml"
     path.write_text(text)
@@ -386,7 +386,7 @@ def test_task_name_cannot_write_outside_results(tmp_path, monkeypatch):
     from balance_opt.cli import main
     from balance_opt.io.task import Task
 
-    task = _task_file(tmp_path)
+    task = _task_file(tmp_path, "outputs: {plots: false, report: false}\n")
     work = tmp_path / "a" / "b"
     work.mkdir(parents=True)
     monkeypatch.chdir(work)
