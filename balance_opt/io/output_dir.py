@@ -203,14 +203,13 @@ class OutputFolder:
         if self.staging is not None:
             return self.staging
         target, name = self.target, self.target.name
-        if target.is_dir() and any(target.iterdir()) and not self.force:
-            raise OutputFolderError(
-                f"output folder {target} exists and is not empty; use --force to replace it "
-                "(the old results are kept until the new ones are complete), or choose "
-                "another --output"
-            )
         make_parent(target)
-        self._lock.acquire()
+        self._lock.acquire()  # first: a run that ends meanwhile cannot be replaced unasked
+        try:
+            self._check_replaceable()
+        except BaseException:
+            self._lock.release()
+            raise
         self._remove_dead_staging()
         staging = target.parent / f"{STAGING_PREFIX.format(name=name)}{os.getpid()}"
         try:
@@ -226,6 +225,21 @@ class OutputFolder:
             ) from None
         self.staging = staging
         return staging
+
+    def _check_replaceable(self) -> None:
+        """Refuse a target that exists and is not empty, unless ``force``."""
+        try:
+            not_empty = self.target.is_dir() and any(self.target.iterdir())
+        except OSError as exc:
+            raise OutputFolderError(
+                f"cannot read output folder {self.target}: {exc.strerror or exc}"
+            ) from None
+        if not_empty and not self.force:
+            raise OutputFolderError(
+                f"output folder {self.target} exists and is not empty; use --force to replace "
+                "it (the old results are kept until the new ones are complete), or choose "
+                "another --output"
+            )
 
     def _remove_dead_staging(self) -> None:
         prefix = STAGING_PREFIX.format(name=self.target.name)
