@@ -4,8 +4,10 @@ The stages, one subpackage each:
 
 * ``model``: the robot (URDF on a free-flying base, arms by joint names) and its momentum maps,
   numeric (Pinocchio) and symbolic (CasADi);
-* ``motion``: mission trajectories, SO(3) attitude, and the kinematic rollout of a plan;
-* ``analytic``: the paper's balance law and its phases; ``optimal``: the optimal planner (NLP);
+* ``motion``: joint trajectories, SO(3) attitude, the kinematic replay of joint motions and the
+  momentum check of a sampled motion;
+* ``analytic``: the paper's balance law, its rollout and its phases; ``optimal``: the optimal
+  planner (NLP);
 * ``dynamics``: forward-dynamics simulation of a plan and the wrenches on the base;
 * ``io``: task files, output files, figures and the HTML report;
 * ``app``: running a task end to end (``pipeline``), the paper's study; ``sweep``: many tasks.

@@ -77,7 +77,7 @@ def _solver_options(args, task=None) -> dict:
     """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
     task or the command line sets ``print_level``)."""
     options = dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
-    task_ipopt = task.spec.optimal.ipopt if task is not None else {}
+    task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}
     if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
         options.update(VERBOSE_IPOPT)
     return options

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from balance_opt.model.robot import JointLimits
-from balance_opt.motion.so3 import rotation_angle, rpy_from_quaternion
+from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_quaternion
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
@@ -82,8 +82,24 @@ def find_limit_violations(
     return found
 
 
+class AttitudeHistory:
+    """The base attitude read two ways, for any motion with a ``quaternion`` array (T, 4)."""
+
+    quaternion: np.ndarray
+
+    @property
+    def rpy(self) -> np.ndarray:
+        """Base roll, pitch, yaw (T, 3) [rad] (``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
+        return rpy_from_quaternion(self.quaternion)
+
+    @property
+    def angle(self) -> np.ndarray:
+        """Base rotation from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
+        return rotation_angle(relative_rotation(self.quaternion[:1], self.quaternion))
+
+
 @dataclass
-class BalanceResult:
+class BalanceResult(AttitudeHistory):
     """A balance motion and the base attitude it produces, sampled on a time grid.
 
     Attitude quantities are the base orientation relative to the world (the initial attitude
@@ -100,8 +116,12 @@ class BalanceResult:
         q_B, q_dot_B, q_ddot_B: balance arms [rad, rad/s, rad/s^2].
         quaternion: base attitude (T, 4), (x, y, z, w).
         omega: base angular velocity (T, 3), base frame [rad/s].
-        momentum_residual: norm of the angular momentum error of the motion (T,) [N m s]:
-            ``|A_G v - h0|`` recomputed from the sampled state.
+        momentum_residual: relative angular momentum residual of the motion (T,): the angular
+            momentum about the CoM against the initial one, ``|L(t) - L0|``, over the largest
+            angular momentum the joints carry plus ``|L0|``. For planned and replayed motions it
+            is recomputed from the exported samples alone, the base rate by finite differences
+            of the attitude (:mod:`balance_opt.motion.momentum_check`; floor ~1e-9 to 1e-7); for a
+            simulation, from the simulated state.
         sigma_min: smallest singular value of ``J_wB`` along the path (T,).
         violations: every joint-limit violation of the balance (and mission) joints.
         info: method-specific details (damping used, solver status and statistics, re-simulation
@@ -139,7 +159,7 @@ class BalanceResult:
         momentum_residual,
         sigma_min,
         info=None,
-    ) -> "BalanceResult":
+    ) -> BalanceResult:
         """A result from whole arm-vector arrays (T, n) of ``robot``: split into the mission and
         balance columns, with every limit violation found on the samples."""
         M, B = robot.mission_indices, robot.balance_indices
@@ -163,19 +183,6 @@ class BalanceResult:
         )
 
     @property
-    def rpy(self) -> np.ndarray:
-        """Base roll, pitch, yaw (T, 3) [rad]."""
-        return rpy_from_quaternion(self.quaternion)
-
-    @property
-    def angle(self) -> np.ndarray:
-        """Base rotation angle from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
-        from balance_opt.motion.so3 import quaternion_conjugate, quaternion_multiply
-
-        rel = quaternion_multiply(quaternion_conjugate(self.quaternion[:1]), self.quaternion)
-        return rotation_angle(rel)
-
-    @property
     def max_drift(self) -> float:
         """Largest base rotation from the initial attitude over the motion [rad]."""
         return float(self.angle.max())
@@ -184,10 +191,6 @@ class BalanceResult:
     def final_drift(self) -> float:
         """Base rotation from the initial attitude at the end of the motion [rad]."""
         return float(self.angle[-1])
-
-    @property
-    def within_limits(self) -> bool:
-        return not self.violations
 
     def summary(self) -> dict[str, Any]:
         """Scalar figures of merit, plain floats (for tables and ``metrics.json``)."""

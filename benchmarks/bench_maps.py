@@ -2,8 +2,8 @@
 
 * the CasADi function ``angular_jacobians`` (symbolic backend), one call from Python, and mapped
   over 1000 configurations (``fun.map(1000)``, serial and with 2 threads), per configuration;
-* the numeric path ``NumericMaps.angular_jacobians`` (what the analytic law and the simulator
-  call in their inner loops);
+* the numeric path ``NumericMaps.angular_jacobians`` (Pinocchio's ``A_G`` and a 3 x 3 solve, as
+  in the analytic law's right-hand side);
 * Pinocchio's own ``computeCentroidalMap`` alone, the floor of the numeric path.
 
 Run: ``python benchmarks/bench_maps.py`` (one run, prints one table, times in microseconds:

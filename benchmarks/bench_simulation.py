@@ -17,9 +17,12 @@ from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import simulate
 
 CASES = (
-    ("RK4 1 kHz, PD, outputs every step", SimulationOptions(dt=1e-3)),
+    ("RK4 1 kHz, PD, outputs every step", SimulationOptions(dt=1e-3, output_dt=None)),
     ("RK4 1 kHz, PD, outputs every 10 ms", SimulationOptions(dt=1e-3, output_dt=0.01)),
-    ("RK4 1 kHz, computed torque", SimulationOptions(dt=1e-3, controller="computed-torque")),
+    (
+        "RK4 1 kHz, computed torque",
+        SimulationOptions(dt=1e-3, output_dt=None, controller="computed-torque"),
+    ),
     ("DOPRI5 rtol 1e-10, PD, outputs 10 ms", SimulationOptions(integrator="dopri5")),
     (
         "DOPRI5 rtol 1e-8, PD, outputs 10 ms",

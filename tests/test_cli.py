@@ -17,7 +17,7 @@ import balance_opt
 from balance_opt.cli import main, parse_solver_option
 from balance_opt.io.outputs import read_npz_result
 from balance_opt.io.task import task_json_schema
-from balance_opt.model.resources import shipped_urdf
+from balance_opt.model.library import shipped_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -190,8 +190,8 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     # the optimal plan keeps the base stiller than the mission arm alone would leave it
     assert optimal["max_drift_rad"] < ref["max_drift_rad"]
     assert optimal["final_drift_rad"] < ref["final_drift_rad"]
-    for method in (ref, analytic, optimal):
-        assert method["max_momentum_residual"] < 1e-9
+    for method in (ref, analytic, optimal):  # relative; finite-difference floor ~1e-8 at 10 ms
+        assert method["max_momentum_residual"] < 1e-6
         sim = method["simulation"]
         assert sim["max_relative_momentum_residual"] < 1e-6
         # the simulated drift is the plan's, up to what the tracking error allows

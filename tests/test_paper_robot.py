@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.model.resources import shipped_urdf
+from balance_opt.model.library import shipped_urdf
 
 #: Tolerance where no rounding is involved (float arithmetic only).
 EXACT_ATOL = 1e-12

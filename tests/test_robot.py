@@ -7,9 +7,13 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.errors import ArmError, JointError, URDFLoadError
-from balance_opt.model.library import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, baxter_floating
+from balance_opt.model.library import (
+    PAPER_BALANCE_JOINTS,
+    PAPER_MISSION_JOINTS,
+    baxter_floating,
+    shipped_urdf,
+)
 from balance_opt.model.maps import NumericMaps
-from balance_opt.model.resources import shipped_urdf
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import SymbolicMaps
 

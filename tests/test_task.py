@@ -1,6 +1,7 @@
 """Task files: loading with line numbers, typed validation, every input error located by file,
 line and key path, the JSON Schema from the same source, and the examples."""
 
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -8,18 +9,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import paper_capture
+from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.io.task import (
-    PtpMission,
-    TaskSpec,
     load_task,
     task_from_dict,
     task_json_schema,
     task_reference_markdown,
 )
+from balance_opt.io.task_spec import PtpMission, TaskSpec
 from balance_opt.io.typed_config import from_data
+from balance_opt.io.typed_reference import reference_rows
 from balance_opt.io.yaml_lines import TaskFileError, format_path, parse_yaml
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.optimal.options import CostWeights, PlannerOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -349,6 +354,85 @@ BAD_TASKS = [
         TaskFileError,
     ),
     (
+        "infinite duration",
+        [("duration: 10.0", "duration: .inf")],
+        "duration: .inf",
+        "mission.duration: expected a finite number, got inf",
+        TaskFileError,
+    ),
+    (
+        "infinite option",
+        [("limits:", "analytic: {attitude_gain: .inf}\nlimits:")],
+        "analytic:",
+        "analytic.attitude_gain: expected a finite number, got inf",
+        TaskFileError,
+    ),
+    (
+        "option below its minimum",
+        [("limits:", "optimal:\n  weights: {omega: -1}\nlimits:")],
+        "weights:",
+        "optimal.weights.omega: must be at least 0, got -1",
+        TaskFileError,
+    ),
+    (
+        "unknown key in a section written flat on its class",
+        [("limits:", "optimal:\n  constraints: {position_limit: true}\nlimits:")],
+        "constraints:",
+        (
+            "optimal.constraints.position_limit: unknown key 'position_limit'; expected one of "
+            "position_limits, velocity_limits, acceleration_limits, torque_limits, "
+            "terminal_attitude_bound, path_attitude_bound, rest_at_end, final_configuration; "
+            "did you mean 'position_limits', 'velocity_limits', 'acceleration_limits'?"
+        ),
+        TaskFileError,
+    ),
+    (
+        "attribute name instead of the key",
+        [("limits:", "analytic: {method: rk4}\nlimits:")],
+        "analytic:",
+        (
+            "analytic.method: unknown key 'method'; expected one of damping_threshold, "
+            "max_damping, null_space_gain, null_space_goal, attitude_gain, integrator, rtol, "
+            "atol, step, output_step"
+        ),
+        TaskFileError,
+    ),
+    (
+        "options that contradict each other",
+        [("limits:", "analytic:\n  damping_threshold: 0.01\n  max_damping: 0\nlimits:")],
+        "^analytic:",
+        "analytic: balance law option 'max_damping' must be > 0 when 'damping_threshold' is > 0",
+        TaskFileError,
+    ),
+    (
+        "option list of the wrong length",
+        [("limits:", "optimal: {rest_configuration: [0, 0]}\nlimits:")],
+        "optimal:",
+        (
+            "optimal.rest_configuration: expected 3 values (one per balance joint: "
+            "balance_joint1, balance_joint2, balance_joint3), got 2"
+        ),
+        TaskFileError,
+    ),
+    (
+        "gains of the wrong length",
+        [("limits:", "simulation: {kp: [1, 2]}\nlimits:")],
+        "simulation:",
+        (
+            "simulation.kp: expected 6 values (one per arm joint: mission_joint1, "
+            "mission_joint2, mission_joint3, balance_joint1, balance_joint2, balance_joint3), "
+            "got 2"
+        ),
+        TaskFileError,
+    ),
+    (
+        "horizon shorter than the mission",
+        [("limits:", "optimal: {horizon: 5}\nlimits:")],
+        "optimal:",
+        "optimal.horizon: the horizon (5 s) is shorter than the mission (10 s)",
+        TaskFileError,
+    ),
+    (
         "via times not increasing",
         [
             (
@@ -363,6 +447,24 @@ BAD_TASKS = [
         "mission.times[2]: times must increase: 5 s after 5 s",
         TaskFileError,
     ),
+    (
+        "via point of the wrong length",
+        [
+            (
+                (
+                    "  type: ptp\n  start: [0.0, 0.3, -0.6]          # [rad]\n  goal: [1.2, 0.9, -1.6]           # capture "
+                    "configuration [rad]\n  duration: 10.0                   # [s]"
+                ),
+                "  type: via\n  times: [0, 5, 10]\n  points: [[0, 0.3, -0.6], [1, 1], [2, 2, 2]]",
+            )
+        ],
+        "points:",
+        (
+            "mission.points[1]: expected 3 values (one per mission joint: mission_joint1, "
+            "mission_joint2, mission_joint3), got 2"
+        ),
+        TaskFileError,
+    ),
 ]
 
 
@@ -375,7 +477,7 @@ def test_bad_task_names_file_line_and_key(tmp_path, edits, fragment, message, er
         text = _edit(text, old, new)
     path = tmp_path / "task.yaml"
     path.write_text(text)
-    from balance_opt.model.resources import shipped_urdf
+    from balance_opt.model.library import shipped_urdf
 
     expected = f"{path}:{_line_of(text, fragment)}: " + message.format(
         dir=tmp_path, urdf=shipped_urdf()
@@ -514,3 +616,201 @@ def test_unreachable_cartesian_goal_names_the_position(tmp_path):
         f"{path}:{_line_of(text, 'position:')}: mission.position: Cartesian goal [5.0, 0.0, 1.0]"
     )
     assert re.search(r"unreachable within the joint limits: remaining distance [0-9.]+ m$", message)
+
+
+# ----------------------------------------------------------------------------------- options
+MINIMAL = """robot: {shipped: paper_robot.urdf}
+arms:
+  mission: [mission_joint1, mission_joint2, mission_joint3]
+  balance: [balance_joint1, balance_joint2, balance_joint3]
+initial: {balance: [0.0, 0.5, -1.0]}
+mission: {type: ptp, start: [0.0, 0.3, -0.6], goal: [0.2, 0.4, -0.7], duration: 2.0}
+"""
+
+#: Where each option class sits in a task file (key path of its section) and how to get it
+#: from a TaskSpec.
+OPTION_SECTIONS = {
+    BalanceLawOptions: (("analytic",), lambda spec: spec.analytic.law),
+    IntegrationOptions: (("analytic",), lambda spec: spec.analytic.integration),
+    PlannerOptions: (("optimal",), lambda spec: spec.optimal.planner),
+    CostWeights: (("optimal", "weights"), lambda spec: spec.optimal.planner.weights),
+    SimulationOptions: (("simulation",), lambda spec: spec.simulation),
+}
+
+
+@pytest.mark.parametrize("cls", OPTION_SECTIONS, ids=lambda c: c.__name__)
+def test_python_defaults_are_the_task_file_defaults(tmp_path, cls):
+    get = OPTION_SECTIONS[cls][1]
+    assert get(from_data(TaskSpec, parse_yaml(MINIMAL, "minimal.yaml"))) == cls()
+    # a loaded task: the same, with the initial momentum where the class takes one
+    path = tmp_path / "minimal.yaml"
+    path.write_text(MINIMAL)
+    expected = cls(h0=(0.0,) * 6) if "h0" in cls.__dataclass_fields__ else cls()
+    assert get(load_task(path).spec) == expected
+
+
+def test_output_steps_are_one_default():
+    # the CLI's numbers stay those of a task file: 100 Hz output from Python too
+    assert IntegrationOptions().output_step == 0.01
+    assert SimulationOptions().output_dt == 0.01
+
+
+def _file_keys(cls) -> dict[str, object]:
+    """Key path (below the class's section) -> field, for every field a file sets."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if not f.metadata["in_file"] or f.metadata["inline"]:
+            continue
+        key = (f.metadata["section"],) if f.metadata["section"] else ()
+        out[".".join((*key, f.metadata["key"] or f.name))] = f
+    return out
+
+
+def _schema_at(schema: dict, path) -> dict:
+    node = schema
+    for key in path:
+        node = node["properties"][key]
+        ref = node.get("$ref") or (node.get("allOf") or [{}])[0].get("$ref")
+        if ref:
+            node = schema["$defs"][ref.rsplit("/", 1)[1]]
+    return node
+
+
+@pytest.mark.parametrize("cls", OPTION_SECTIONS, ids=lambda c: c.__name__)
+def test_every_option_is_in_the_schema_and_the_reference(cls):
+    section = OPTION_SECTIONS[cls][0]
+    schema = task_json_schema()
+    rows = {row[0]: row for row in reference_rows(TaskSpec)}
+    keys = _file_keys(cls)
+    assert keys
+    for key, f in keys.items():
+        path = (*section, *key.split("."))
+        parent, name = _schema_at(schema, path[:-1]), path[-1]
+        assert name in parent["properties"], path
+        assert parent["properties"][name]["description"].startswith(f.metadata["doc"]), path
+        assert ".".join(path) in rows, path
+        assert f"`{'.'.join(path)}`" in task_reference_markdown()
+    # fields set from elsewhere in the task are not keys of the file
+    for f in dataclasses.fields(cls):
+        if not f.metadata["in_file"]:
+            assert f.name not in _schema_at(schema, section)["properties"]
+            assert ".".join((*section, f.name)) not in rows
+
+
+def test_option_keys_of_the_task_format():
+    """The public format: keys and defaults of the option sections, as they have always been."""
+    rows = {k: d for k, _, d, _ in reference_rows(TaskSpec) if k.split(".")[0] in OPTION_KEYS}
+    assert rows == {k: d for k, d in OPTION_KEYS_DEFAULTS}
+
+
+OPTION_KEYS = ("analytic", "optimal", "simulation")
+OPTION_KEYS_DEFAULTS = [
+    ("analytic", "see below"),
+    ("analytic.damping_threshold", "0.001"),
+    ("analytic.max_damping", "0.01"),
+    ("analytic.null_space_gain", "1.0"),
+    ("analytic.null_space_goal", "none"),
+    ("analytic.attitude_gain", "0.0"),
+    ("analytic.integrator", "'adaptive'"),
+    ("analytic.rtol", "1e-10"),
+    ("analytic.atol", "1e-12"),
+    ("analytic.step", "none"),
+    ("analytic.output_step", "0.01"),
+    ("optimal", "see below"),
+    ("optimal.intervals", "100"),
+    ("optimal.transcription", "'hermite-simpson'"),
+    ("optimal.control", "'acceleration'"),
+    ("optimal.horizon", "none"),
+    ("optimal.initial_guess", "'analytic'"),
+    ("optimal.weights", "see below"),
+    ("optimal.weights.omega", "100.0"),
+    ("optimal.weights.terminal", "100.0"),
+    ("optimal.weights.smoothness", "0.001"),
+    ("optimal.weights.rest", "0.0"),
+    ("optimal.weights.attitude", "300.0"),
+    ("optimal.rest_configuration", "none"),
+    ("optimal.constraints", "see below"),
+    ("optimal.constraints.position_limits", "true"),
+    ("optimal.constraints.velocity_limits", "true"),
+    ("optimal.constraints.acceleration_limits", "true"),
+    ("optimal.constraints.torque_limits", "false"),
+    ("optimal.constraints.terminal_attitude_bound", "none"),
+    ("optimal.constraints.path_attitude_bound", "none"),
+    ("optimal.constraints.rest_at_end", "false"),
+    ("optimal.constraints.final_configuration", "none"),
+    ("optimal.tolerance", "1e-08"),
+    ("optimal.max_iterations", "1000"),
+    ("optimal.resample_step", "0.01"),
+    ("optimal.ipopt", "{}"),
+    ("simulation", "see below"),
+    ("simulation.integrator", "'rk4'"),
+    ("simulation.dt", "0.001"),
+    ("simulation.rtol", "1e-10"),
+    ("simulation.atol", "1e-12"),
+    ("simulation.max_step", "0.05"),
+    ("simulation.output_dt", "0.01"),
+    ("simulation.controller", "'pd'"),
+    ("simulation.kp", "none"),
+    ("simulation.kd", "none"),
+    ("simulation.bandwidth", "20.0"),
+    ("simulation.damping_ratio", "1.0"),
+    ("simulation.clip_torque", "false"),
+]
+
+
+def test_task_file_options_reach_the_library_objects(tmp_path):
+    text = _edit(PAPER, "momentum: [0, 0, 0, 0, 0, 0]", "momentum: [0, 0, 0, 0, 0, 0.01]") + (
+        "analytic: {attitude_gain: 0.5, integrator: rk4, step: 0.002}\n"
+        "optimal:\n"
+        "  intervals: 40\n"
+        "  initial_guess: rest\n"
+        "  weights: {omega: 3}\n"
+        "  constraints: {torque_limits: true, path_attitude_bound: 0.1}\n"
+        "  ipopt: {max_cpu_time: 5}\n"
+    )
+    path = tmp_path / "task.yaml"
+    path.write_text(text)
+    task = load_task(path)
+    a, o = task.spec.analytic, task.spec.optimal
+    assert a.law == BalanceLawOptions(attitude_gain=0.5, h0=(0, 0, 0, 0, 0, 0.01))
+    assert a.integration == IntegrationOptions(method="rk4", step=0.002)
+    assert o.initial_guess == "rest"
+    assert o.planner == PlannerOptions(
+        intervals=40,
+        weights=CostWeights(omega=3.0),
+        torque_limits=True,
+        path_attitude_bound=0.1,
+        ipopt={"max_cpu_time": 5},
+    )
+    assert task.spec.simulation == SimulationOptions(h0=(0, 0, 0, 0, 0, 0.01))
+    # --solver-option entries override the task's, the others are kept
+    merged = task.planner_options({"max_cpu_time": 9, "print_level": 5})
+    assert merged.ipopt == {"max_cpu_time": 9, "print_level": 5}
+    assert dataclasses.replace(merged, ipopt=o.planner.ipopt) == o.planner
+    assert task.planner_options() is o.planner
+
+
+def test_python_options_are_normalised():
+    options = PlannerOptions(
+        intervals=np.int64(20), rest_configuration=np.array([0.1, 0.2, 0.3]), tolerance=1
+    )
+    assert options.intervals == 20 and type(options.intervals) is int
+    assert options.rest_configuration == (0.1, 0.2, 0.3)
+    assert type(options.tolerance) is float
+    assert hash(BalanceLawOptions(null_space_goal=np.zeros(3), h0=[0, 0, 1]))
+
+
+def test_loading_a_task_imports_neither_casadi_nor_the_planner():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from balance_opt.io.task import load_task\n"
+        f"load_task({str(EXAMPLES / 'paper_capture.yaml')!r})\n"
+        "print(sorted(m for m in sys.modules if m == 'casadi' or m.startswith('balance_opt.optimal.')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout
+    assert out.strip() == "['balance_opt.optimal.collocation', 'balance_opt.optimal.options']"

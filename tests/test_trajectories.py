@@ -12,12 +12,12 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.errors import TrajectoryError
-from balance_opt.motion.rollout import SampledTrajectory
 from balance_opt.motion.trajectories import (
     IK_POSITION_TOLERANCE,
     CartesianGoal,
     CsvTrajectory,
     PointToPoint,
+    SampledTrajectory,
     ViaPoints,
     cartesian_goal,
 )

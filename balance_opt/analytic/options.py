@@ -1,4 +1,9 @@
-"""Settings of the analytic balance law (Eq. 31, 32)."""
+"""Settings of the analytic balance law (Eq. 31, 32; ``docs/physics.md``, "The balance law").
+
+Each field is declared once, with :func:`~balance_opt.io.typed_config.setting`: its default,
+its meaning, its unit and its bounds serve Python calls and the ``analytic`` section of task
+files alike (``balance-opt validate --reference``).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from balance_opt.errors import InputError
+from balance_opt.io.typed_config import check_settings, setting
 
 #: ``sigma_min(J_wB)`` below which damping starts [rad of base rotation per rad of joint motion].
 #: On the paper robot a random configuration has sigma_min ~ 5e-4, the best ones ~ 5e-3.
@@ -17,74 +23,69 @@ DEFAULT_MAX_DAMPING = 1e-2
 DEFAULT_NULL_SPACE_GAIN = 1.0
 
 
-def _check_scalar(name: str, value, allow_zero: bool = True) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"balance law option '{name}' must be a number, got {value!r}") from None
-    if not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise InputError(f"balance law option '{name}' must be finite and {bound}, got {value}")
-    return value
-
-
-def _check_vector(name: str, value, sizes) -> tuple[float, ...] | None:
-    if value is None:
-        return None
-    try:
-        arr = np.asarray(value, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise InputError(
-            f"balance law option '{name}' must be a list of numbers, got {value!r}"
-        ) from None
-    if sizes is not None and arr.size not in sizes:
-        raise InputError(
-            f"balance law option '{name}' must have {' or '.join(map(str, sizes))} values, "
-            f"got {arr.size}"
-        )
-    if not np.all(np.isfinite(arr)):
-        raise InputError(f"balance law option '{name}' has non-finite values: {arr.tolist()}")
-    return tuple(float(v) for v in arr)
-
-
 @dataclass(frozen=True)
 class BalanceLawOptions:
-    """Settings of the analytic balance law (see the module docstring for the equations).
+    """Settings of the analytic balance law.
 
-    Attributes:
-        damping_threshold: ``epsilon``, the value of ``sigma_min(J_wB)`` below which damped least
-            squares replaces the exact solve; 0 always solves exactly (a pseudo-inverse for
-            a non-square ``J_wB``).
-        max_damping: ``lambda_max``, the damping at a singular ``J_wB``; the damping is
-            ``lambda = lambda_max (1 - (sigma_min / epsilon)^2)`` below the threshold, 0 above.
-        null_space_gain: ``k`` [1/s] of the null-space term ``z = -k (q_B - q_goal)`` (only acts
-            when the balance joints are more than 3).
-        null_space_goal: ``q_goal`` [rad], one value per balance joint; ``None`` for the middle of
-            each joint's range (its initial position if the joint has no finite limits).
-        attitude_gain: ``K`` [1/s] of the attitude feedback ``-K log(R_0^T R)``; 0 is open loop.
-        h0: initial momentum, constant in the world frame: 6 values [linear (N s); angular about
-            the CoM (N m s)] as in the rows of ``A_G``, or the 3 angular values; ``None`` for
-            zero (the paper). Only the angular part affects the attitude.
+    Below ``damping_threshold`` (``epsilon``) damped least squares replaces the exact solve of
+    ``J_wB q_dot_B = b``, with the damping ``lambda = max_damping (1 - (sigma_min /
+    epsilon)^2)``, 0 above; a threshold of 0 always solves exactly (a pseudo-inverse for a
+    non-square ``J_wB``). The null-space term ``z = -k (q_B - q_goal)`` (gain
+    ``null_space_gain``) only acts when the balance joints are more than 3; the default goal
+    is the middle of each joint's range (its initial position if the joint has no finite
+    limits). ``h0`` is set from the task's ``initial.momentum``, not from the ``analytic``
+    section.
+
+    Raises:
+        InputError: a field that does not fit its declaration (``"balance law option
+            'max_damping': must be at least 0, got -1"``), ``h0`` with neither 3 nor 6 values,
+            or no damping at a singular ``J_wB`` while damping is on.
     """
 
-    damping_threshold: float = DEFAULT_DAMPING_THRESHOLD
-    max_damping: float = DEFAULT_MAX_DAMPING
-    null_space_gain: float = DEFAULT_NULL_SPACE_GAIN
-    null_space_goal: tuple[float, ...] | None = None
-    attitude_gain: float = 0.0
-    h0: tuple[float, ...] | None = None
+    damping_threshold: float = setting(
+        DEFAULT_DAMPING_THRESHOLD,
+        minimum=0.0,
+        doc="sigma_min(J_wB) below which damped least squares replaces the exact solve "
+        "(0: always exact)",
+    )
+    max_damping: float = setting(
+        DEFAULT_MAX_DAMPING, minimum=0.0, doc="damping at a singular J_wB (lambda_max)"
+    )
+    null_space_gain: float = setting(
+        DEFAULT_NULL_SPACE_GAIN,
+        minimum=0.0,
+        unit="1/s",
+        doc="gain of the null-space pull toward null_space_goal (redundant balance arms)",
+    )
+    null_space_goal: tuple[float, ...] | None = setting(
+        None,
+        unit="rad",
+        per="balance joint",
+        doc="null-space goal, one value per balance joint (default: middle of each joint's range)",
+    )
+    attitude_gain: float = setting(
+        0.0,
+        minimum=0.0,
+        unit="1/s",
+        doc="gain K of the attitude feedback -K log(R_0^T R) (0: open loop)",
+    )
+    h0: tuple[float, ...] | None = setting(
+        None,
+        in_file=False,
+        unit="N s; N m s",
+        doc="initial momentum, constant in the world frame: [linear; angular about the CoM] as "
+        "in the rows of A_G, or the 3 angular values (default: zero, the paper's); only the "
+        "angular part affects the attitude",
+    )
 
     def __post_init__(self):
-        for name in ("damping_threshold", "max_damping", "null_space_gain", "attitude_gain"):
-            object.__setattr__(self, name, _check_scalar(name, getattr(self, name)))
+        check_settings(self, "balance law option")
         if self.damping_threshold > 0 and self.max_damping == 0:
             raise InputError(
                 "balance law option 'max_damping' must be > 0 when 'damping_threshold' is > 0"
             )
-        object.__setattr__(
-            self, "null_space_goal", _check_vector("null_space_goal", self.null_space_goal, None)
-        )
-        object.__setattr__(self, "h0", _check_vector("h0", self.h0, (3, 6)))
+        if self.h0 is not None and len(self.h0) not in (3, 6):
+            raise InputError(f"balance law option 'h0' must have 3 or 6 values, got {len(self.h0)}")
 
     @property
     def angular_momentum(self) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 * Phase I (:func:`phase_one`, paper Fig. 2): the mission arm moves alone, the balance arm is held
   at its start; the base turns as momentum conservation forces it (Eq. 26 integrated).
-* Phase II (:func:`phase_two`): the balance trajectory computed by the analytic law (Eq. 31, 32).
+* Phase II (:func:`balance_opt.analytic.rollout.rollout`): the balance trajectory computed by
+  the analytic law (Eq. 31, 32).
 * :func:`balance_only` (Fig. 3): the balance motion replayed with the mission arm held still.
   The motion is non-holonomic, so this is not simply the negative of Fig. 2.
 * :func:`both` (Fig. 5): the attitude with both arms moving, replayed from the two motions.
@@ -17,17 +18,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from balance_opt.analytic.options import BalanceLawOptions
+from balance_opt.analytic.rollout import rollout
 from balance_opt.errors import InputError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.rollout import (
+from balance_opt.motion.replay import replay
+from balance_opt.motion.trajectories import (
+    PointToPoint,
     SampledTrajectory,
     TrajectoryLike,
     as_sampler,
-    replay,
-    rollout,
 )
-from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.result import BalanceResult
 
 
@@ -78,29 +79,6 @@ def phase_one(
         t_eval=t_eval,
         quaternion0=quaternion0,
         method="mission-only",
-    )
-
-
-def phase_two(
-    robot: FloatingRobot,
-    mission: TrajectoryLike,
-    q_B0,
-    options: BalanceLawOptions | None = None,
-    *,
-    integration: IntegrationOptions | None = None,
-    t_eval=None,
-    quaternion0=None,
-) -> BalanceResult:
-    """Phase II: the balance trajectory of the analytic law (:func:`rollout`),
-    ``method="analytic"``."""
-    return rollout(
-        robot,
-        mission,
-        q_B0,
-        options,
-        integration=integration,
-        t_eval=t_eval,
-        quaternion0=quaternion0,
     )
 
 
@@ -185,7 +163,7 @@ def paper_phases(
     options = options or BalanceLawOptions()
     first = phase_one(robot, mission, q_B0, h0=options.h0, integration=integration, t_eval=t_eval)
     t = first.t
-    analytic = phase_two(robot, mission, q_B0, options, integration=integration, t_eval=t)
+    analytic = rollout(robot, mission, q_B0, options, integration=integration, t_eval=t)
     alone = balance_only(
         robot, analytic, first.q_M[0], h0=options.h0, integration=integration, t_eval=t
     )

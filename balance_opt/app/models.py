@@ -10,7 +10,7 @@ The key is the robot's kinematic and inertial content (its locked URDF text, its
 end-effector frames), not the Python object: two tasks that load the same robot share a model.
 Joint limits are not part of the key: they are numeric bounds of the NLP, and the planner takes
 the task's robot (with its limits) next to the model
-(:func:`~balance_opt.optimal.planner.build_balance_nlp`'s ``robot``).
+(:func:`~balance_opt.optimal.solve.build_balance_nlp`'s ``robot``).
 """
 
 from __future__ import annotations

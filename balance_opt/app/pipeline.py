@@ -103,9 +103,7 @@ def plan_mission_only(task: Task) -> BalanceResult:
     from balance_opt.analytic.phases import phase_one
 
     a = task.spec.analytic
-    return phase_one(
-        task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration_options()
-    )
+    return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration)
 
 
 def plan_analytic(task: Task) -> BalanceResult:
@@ -114,16 +112,10 @@ def plan_analytic(task: Task) -> BalanceResult:
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
     """
-    from balance_opt.motion.rollout import rollout
+    from balance_opt.analytic.rollout import rollout
 
     a = task.spec.analytic
-    return rollout(
-        task.robot,
-        task.mission,
-        task.q_B0,
-        a.law_options(task.h0),
-        integration=a.integration_options(),
-    )
+    return rollout(task.robot, task.mission, task.q_B0, a.law, integration=a.integration)
 
 
 def plan_optimal(
@@ -145,11 +137,11 @@ def plan_optimal(
     Raises:
         SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
     """
-    from balance_opt.optimal.planner import build_balance_nlp
+    from balance_opt.optimal.solve import build_balance_nlp
 
     check_optimal_supported(task)
     spec = task.spec.optimal
-    options = spec.planner_options(solver_options)
+    options = task.planner_options(solver_options)
     model = (models if models is not None else ModelCache()).planner_model(task.robot)
     nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
     guess = (
@@ -191,7 +183,7 @@ def simulate_result(task: Task, plan: BalanceResult):
     """Forward-dynamics simulation of a plan with the task's simulation options."""
     from balance_opt.dynamics.simulation import simulate_plan
 
-    return simulate_plan(task.robot, plan, task.spec.simulation.simulation_options(task.h0))
+    return simulate_plan(task.robot, plan, task.spec.simulation)
 
 
 # =========================================================================================== run
@@ -283,7 +275,7 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
     if method == REFERENCE:
         what = "mission arm alone (Phase I)"
     elif method == "optimal":
-        spec = task.spec.optimal
+        spec = task.spec.optimal.planner
         what = f"optimal plan (N = {spec.intervals}, {spec.transcription}, Ipopt)"
     else:
         what = f"{method} plan"
@@ -449,9 +441,9 @@ def paper_figures(
     kwargs = {}
     if task is not None:
         kwargs = {
-            "law": task.spec.analytic.law_options(task.h0),
-            "planner": task.spec.optimal.planner_options(solver_options),
-            "simulation": task.spec.simulation.simulation_options(task.h0),
+            "law": task.spec.analytic.law,
+            "planner": task.planner_options(solver_options),
+            "simulation": task.spec.simulation,
         }
     elif solver_options:
         from balance_opt.optimal.options import PlannerOptions

@@ -2,9 +2,10 @@
 through.
 
 The system is the free-flyer base and its arms with no gravity, no external wrench, no
-thrusters or wheels (``physics-notes.md``); its momentum is therefore constant. Accelerations
-come from Pinocchio's articulated-body algorithm (``pin.aba``) with the joint torques of one of
-two controllers that track the planned trajectories of *all* arm joints (mission and balance):
+thrusters or wheels (``docs/physics.md``, "Forces on the base"); its momentum is therefore
+constant. Accelerations come from Pinocchio's articulated-body algorithm (``pin.aba``) with the
+joint torques of one of two controllers that track the planned trajectories of *all* arm joints
+(mission and balance):
 
 * ``"pd"``, the paper's Phase I controller: ``tau = K_p (q_d - q) + K_d (q_dot_d - q_dot)``;
 * ``"computed-torque"``: the free-floating inverse dynamics of the planned joint accelerations
@@ -13,28 +14,18 @@ two controllers that track the planned trajectories of *all* arm joints (mission
   (the base is unactuated), ``a_b = -M_bb^{-1} (M_bj q_ddot_d + h_b)``, and the joint rows give
   the feed-forward torque.
 
-Integration keeps the configuration on its manifold. Both integrators are Runge-Kutta-Munthe-Kaas
-(RKMK) schemes: a step from ``q_n`` works in the local coordinates ``u`` with
-``q = pin.integrate(q_n, u)``, where the velocity ``v`` (base twist in the base frame) maps to
-``u_dot = dDifference(q_n, q) v`` exactly (``pin.dDifference``, the inverse right Jacobian of the
-SE(3) exponential for the base). Plain RK in ``u`` is then exact to the method's order; mixing the
-stage velocities without that map would cost two orders on the base rotation.
-
-* ``"rk4"``: the classical fixed-step RK4 in that form. The planned trajectories are sampled at
-  every stage time before the loop, vectorised.
-* ``"dopri5"``: the Dormand-Prince 5(4) embedded pair in the same form, with error control on
-  the tangent-space increments (``atol + rtol |x|`` per component, RMS norm) and steps that land
-  on every output time.
+Integration keeps the configuration on its manifold (:mod:`balance_opt.dynamics.rkmk`: RK4 or
+an adaptive Dormand-Prince 5(4), both Runge-Kutta-Munthe-Kaas schemes).
 
 The initial state is the planned joint state at ``t = 0`` and the base twist that gives the
 system its initial momentum ``h0`` (zero by default):
-``v_b = A_b^{-1} (h0 - A_j q_dot)`` (``J_base q_dot`` for ``h0 = 0``, paper Eq. 19, 26).
+``v_b = A_b^{-1} (h0 - A_j q_dot)`` (``J_base q_dot`` for ``h0 = 0``, paper Eq. 19, 26), by
+:meth:`balance_opt.model.maps.NumericMaps.base_twist`.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,49 +38,20 @@ from balance_opt.dynamics.options import (
     DEFAULT_DAMPING_RATIO,
     SimulationOptions,
 )
+from balance_opt.dynamics.rkmk import dopri5, rk4
 from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.rollout import SampledTrajectory
-from balance_opt.motion.so3 import (
-    quaternion_conjugate,
-    quaternion_multiply,
-    rotation_angle,
-    rpy_from_quaternion,
-)
-from balance_opt.motion.trajectories import PointToPoint
-from balance_opt.result import BalanceResult
+from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
+from balance_opt.result import AttitudeHistory, BalanceResult
 
 log = logging.getLogger(__name__)
 
-#: Step-size control of the adaptive integrator: safety factor and bounds of the step ratio.
-STEP_SAFETY = 0.9
-STEP_GROWTH_MAX = 5.0
-STEP_SHRINK_MIN = 0.2
-#: Smallest step the adaptive integrator accepts before giving up [s].
-MIN_STEP = 1e-10
 #: Relative momentum residual above which a simulation warns that its step is too long.
 MOMENTUM_WARNING = 1e-6
 #: Momentum scale below which the residual is reported in absolute terms [N s, N m s].
 MOMENTUM_SCALE_FLOOR = 1e-12
-
-
-# Dormand-Prince 5(4): nodes, stage matrix, 5th-order weights (the solution) and 4th-order weights.
-_DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0])
-_DP_A = np.array(
-    [
-        [0, 0, 0, 0, 0, 0, 0],
-        [1 / 5, 0, 0, 0, 0, 0, 0],
-        [3 / 40, 9 / 40, 0, 0, 0, 0, 0],
-        [44 / 45, -56 / 15, 32 / 9, 0, 0, 0, 0],
-        [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0, 0, 0],
-        [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656, 0, 0],
-        [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0],
-    ]
-)
-_DP_B5 = _DP_A[6]
-_DP_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40])
 
 
 # --------------------------------------------------------------------------------- trajectories
@@ -173,7 +135,7 @@ def default_gains(
 
 # --------------------------------------------------------------------------------- result
 @dataclass
-class SimulationResult:
+class SimulationResult(AttitudeHistory):
     """A simulated motion, sampled at the output times.
 
     Attributes:
@@ -238,17 +200,6 @@ class SimulationResult:
         return self.v[:, 3:6]
 
     @property
-    def rpy(self) -> np.ndarray:
-        """Base roll, pitch, yaw (T, 3) [rad] (``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
-        return rpy_from_quaternion(self.quaternion)
-
-    @property
-    def angle(self) -> np.ndarray:
-        """Base rotation from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
-        q = self.quaternion
-        return rotation_angle(quaternion_multiply(quaternion_conjugate(q[:1]), q))
-
-    @property
     def tracking_error(self) -> np.ndarray:
         """Planned minus simulated joint positions (T, n) [rad]."""
         return self.q_des - self.q
@@ -280,18 +231,16 @@ class SimulationResult:
 
     def as_balance_result(self, method: str = "simulation") -> BalanceResult:
         """The simulated motion as a :class:`BalanceResult`, to compare field by field with the
-        plan it tracked. ``momentum_residual`` there is the absolute angular momentum error
-        [N m s]; ``sigma_min`` is recomputed along the simulated path."""
-        robot = self.robot
-        maps = NumericMaps(robot)
-        sigma = np.array([maps.coupling_measures(qk).sigma_min for qk in self.q])
+        plan it tracked. ``momentum_residual`` there is the relative angular momentum error
+        ``|L - L0| / scale_L``; ``sigma_min`` is recomputed along the simulated path."""
+        maps = NumericMaps(self.robot)
         info = dict(self.info)
         info.update(
             max_tracking_error_rad=self.max_tracking_error,
             max_relative_momentum_residual=float(self.momentum_residual.max()),
         )
         return BalanceResult.from_arm_vectors(
-            robot,
+            self.robot,
             method,
             self.t.copy(),
             self.q,
@@ -299,8 +248,8 @@ class SimulationResult:
             self.q_ddot,
             self.quaternion.copy(),
             self.omega.copy(),
-            np.linalg.norm(self.momentum_error[:, 3:], axis=1),
-            sigma,
+            np.linalg.norm(self.momentum_error[:, 3:], axis=1) / self.momentum_scale[1],
+            maps.balance_sigma_min(*maps.angular_maps(self.q)),
             info,
         )
 
@@ -362,126 +311,6 @@ def _initial_state(
     return robot.pin_q(q0, base), robot.pin_v(qd0, twist)
 
 
-def _rk4(dyn: _Dynamics, plan: _ArmPlan, x0, t_end: float, dt: float, stride: int):
-    """Fixed-step RKMK4 (see the module docstring). Returns output arrays and step counts."""
-    model = dyn.model
-    n_steps = max(1, math.ceil(t_end / dt - 1e-9))
-    h = t_end / n_steps
-    # planned joint state at every stage time: index 2k is t_k, 2k+1 is t_k + h/2
-    grid = np.arange(2 * n_steps + 1) * (h / 2)
-    QD, VD, AD = plan.sample(grid)
-    out_steps = np.unique(np.r_[np.arange(0, n_steps, stride), n_steps])
-    is_out = np.zeros(n_steps + 1, dtype=bool)
-    is_out[out_steps] = True
-    T = out_steps.size
-    Q, V, A, TAU = (np.empty((T, m)) for m in (model.nq, model.nv, model.nv, dyn.idx_v.size))
-    q, v = x0
-    integrate, ddiff, ARG1 = pin.integrate, pin.dDifference, pin.ArgumentPosition.ARG1
-    h2, h6 = h / 2, h / 6
-    j = 0
-    for k in range(n_steps):
-        i = 2 * k
-        a1, tau1 = dyn(q, v, QD[i], VD[i], AD[i])
-        if is_out[k]:
-            Q[j], V[j], A[j], TAU[j] = q, v, a1, tau1
-            j += 1
-        v1 = v
-        q2 = integrate(model, q, h2 * v1)
-        v2 = v + h2 * a1
-        a2, _ = dyn(q2, v2, QD[i + 1], VD[i + 1], AD[i + 1])
-        u2 = ddiff(model, q, q2, ARG1) @ v2
-        q3 = integrate(model, q, h2 * u2)
-        v3 = v + h2 * a2
-        a3, _ = dyn(q3, v3, QD[i + 1], VD[i + 1], AD[i + 1])
-        u3 = ddiff(model, q, q3, ARG1) @ v3
-        q4 = integrate(model, q, h * u3)
-        v4 = v + h * a3
-        a4, _ = dyn(q4, v4, QD[i + 2], VD[i + 2], AD[i + 2])
-        u4 = ddiff(model, q, q4, ARG1) @ v4
-        q = integrate(model, q, h6 * (v1 + 2.0 * (u2 + u3) + u4))
-        v = v + h6 * (a1 + 2.0 * (a2 + a3) + a4)
-    a_end, tau_end = dyn(q, v, QD[-1], VD[-1], AD[-1])
-    Q[j], V[j], A[j], TAU[j] = q, v, a_end, tau_end
-    return (
-        out_steps * h,
-        Q,
-        V,
-        A,
-        TAU,
-        {"steps": n_steps, "step_s": h, "rhs_evaluations": 4 * n_steps + 1},
-    )
-
-
-def _dopri5(
-    dyn: _Dynamics, plan: _ArmPlan, x0, t_end: float, opts: SimulationOptions, output_dt: float
-):
-    """Adaptive RKMK Dormand-Prince 5(4) with steps that land on the output times."""
-    model = dyn.model
-    integrate, ddiff, ARG1 = pin.integrate, pin.dDifference, pin.ArgumentPosition.ARG1
-    n_out = max(1, math.ceil(t_end / output_dt - 1e-9))
-    t_out = np.linspace(0.0, t_end, n_out + 1)
-    nv = model.nv
-    Q, V, A, TAU = (np.empty((t_out.size, m)) for m in (model.nq, nv, nv, dyn.idx_v.size))
-
-    def rhs(t, q, v):
-        qd, vd, ad = (x[0] for x in plan.sample(np.array([t])))
-        return dyn(q, v, qd, vd, ad)
-
-    q, v = x0
-    t, h = 0.0, min(opts.dt, opts.max_step)
-    a, tau = rhs(t, q, v)
-    Q[0], V[0], A[0], TAU[0] = q, v, a, tau
-    KU, KV = np.empty((7, nv)), np.empty((7, nv))
-    accepted = rejected = evaluations = 0
-    for j in range(1, t_out.size):
-        while t < t_out[j]:
-            step = min(h, t_out[j] - t)
-            last = step >= t_out[j] - t
-            KU[0], KV[0] = v, a
-            for s in range(1, 7):
-                du = step * (_DP_A[s, :s] @ KU[:s])
-                qs = integrate(model, q, du)
-                vs = v + step * (_DP_A[s, :s] @ KV[:s])
-                a_s, tau_s = rhs(t + _DP_C[s] * step, qs, vs)
-                KU[s], KV[s] = ddiff(model, q, qs, ARG1) @ vs, a_s
-            evaluations += 6
-            # the 7th stage sits at the new state (first same as last)
-            dv5 = step * (_DP_B5 @ KV)
-            eu, ev = step * ((_DP_B5 - _DP_B4) @ KU), step * ((_DP_B5 - _DP_B4) @ KV)
-            v_new = v + dv5
-            scale_u = opts.atol + opts.rtol
-            scale_v = opts.atol + opts.rtol * np.maximum(np.abs(v), np.abs(v_new))
-            err = math.sqrt((np.sum((eu / scale_u) ** 2) + np.sum((ev / scale_v) ** 2)) / (2 * nv))
-            if err <= 1.0:
-                t = t_out[j] if last else t + step
-                q, v = (
-                    qs,
-                    v_new,
-                )  # qs is integrate(q, du5): stage 7 nodes equal the 5th-order weights
-                a, tau = a_s, tau_s
-                accepted += 1
-            else:
-                rejected += 1
-            factor = STEP_SAFETY * err**-0.2 if err > 0 else STEP_GROWTH_MAX
-            h_new = step * min(STEP_GROWTH_MAX, max(STEP_SHRINK_MIN, factor))
-            if not last or err > 1.0:  # a step cut short to land on an output time says little
-                h = min(h_new, opts.max_step)
-            if h < MIN_STEP:
-                raise InputError(
-                    f"adaptive integration stalled at t = {t:.6g} s (step {h:.3g} s below "
-                    f"{MIN_STEP} s); loosen 'rtol'/'atol' or check the gains"
-                )
-        Q[j], V[j], A[j], TAU[j] = q, v, a, tau
-    return (
-        t_out,
-        Q,
-        V,
-        A,
-        TAU,
-        {"steps": accepted, "rejected_steps": rejected, "rhs_evaluations": evaluations + 1},
-    )
-
-
 # --------------------------------------------------------------------------------- entry points
 def simulate(
     robot: FloatingRobot,
@@ -497,7 +326,8 @@ def simulate(
     Args:
         robot: the floating robot.
         mission: the mission arm's planned motion: anything with ``sample(t) -> (q, q_dot,
-            q_ddot)`` and ``duration`` (a :class:`~balance_opt.motion.trajectories.JointTrajectory`),
+            q_ddot)`` and ``duration``
+            (a :class:`~balance_opt.motion.trajectories.JointTrajectory`),
             a :class:`BalanceResult` (its mission part, interpolated), or a position (n_M,) [rad]
             to hold.
         balance: the balance arms' planned motion, same forms (n_B joints, balance arms
@@ -522,13 +352,7 @@ def simulate(
         raise TrajectoryError(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
-    n = robot.n
-    q0 = plan.sample(np.zeros(1))[0][0]
-    kp_default, kd_default = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
-    kp = _per_joint(opts.kp, n, "kp")
-    kd = _per_joint(opts.kd, n, "kd")
-    kp = kp_default if kp is None else kp
-    kd = kd_default if kd is None else kd
+    kp, kd = _gains(robot, plan, opts)
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
     x0 = _initial_state(robot, plan, h0, base)
@@ -536,10 +360,10 @@ def simulate(
     if opts.integrator == "rk4":
         output_dt = opts.output_dt or opts.dt
         stride = max(1, round(output_dt / opts.dt))
-        t, Q, V, A, TAU, stats = _rk4(dyn, plan, x0, t_end, opts.dt, stride)
+        t, Q, V, A, TAU, stats = rk4(dyn, plan, x0, t_end, opts.dt, stride)
     else:
         output_dt = opts.output_dt or 0.01
-        t, Q, V, A, TAU, stats = _dopri5(dyn, plan, x0, t_end, opts, output_dt)
+        t, Q, V, A, TAU, stats = dopri5(dyn, plan, x0, t_end, opts, output_dt)
     integrated = time.perf_counter()
 
     result = _postprocess(robot, dyn, plan, t, Q, V, A, TAU, h0)
@@ -556,6 +380,22 @@ def simulate(
         wall_time_s=done - started,
         **stats,
     )
+    _log_run(result)
+    return result
+
+
+def _gains(robot: FloatingRobot, plan: _ArmPlan, opts: SimulationOptions):
+    """``(kp, kd)`` per arm joint: the options', else :func:`default_gains` at the start."""
+    q0 = plan.sample(np.zeros(1))[0][0]
+    kp_default, kd_default = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
+    kp = _per_joint(opts.kp, robot.n, "kp")
+    kd = _per_joint(opts.kd, robot.n, "kd")
+    return (kp_default if kp is None else kp), (kd_default if kd is None else kd)
+
+
+def _log_run(result: SimulationResult) -> None:
+    """Log the run, with a warning when the step was too long to keep the momentum."""
+    info = result.info
     residual = float(result.momentum_residual.max())
     if residual > MOMENTUM_WARNING:
         log.warning(
@@ -568,14 +408,13 @@ def simulate(
     log.info(
         "simulated %.3g s with %s (%d steps) in %.3g s; max tracking error %.3g rad, "
         "max relative momentum residual %.3g",
-        t_end,
-        opts.integrator,
-        stats["steps"],
-        done - started,
+        info["duration_s"],
+        info["integrator"],
+        info["steps"],
+        info["wall_time_s"],
         result.max_tracking_error,
         residual,
     )
-    return result
 
 
 def simulate_plan(

@@ -5,8 +5,8 @@ Running Pinocchio's RNEA with the accelerations a forward-dynamics simulation pr
 (joint ``j``'s frame). For an arm's *root joint* (its first joint, whose parent is the base)
 this is the force the base exerts on the whole arm; the arm exerts its opposite on the base.
 Transformed to the base frame and summed over the arms it equals the base's Newton-Euler
-wrench ``I_b a_b + v_b x* I_b v_b`` (``physics-notes.md``), because the free-flyer joint carries
-no torque.
+wrench ``I_b a_b + v_b x* I_b v_b`` (``docs/physics.md``, "Forces on the base"), because the
+free-flyer joint carries no torque.
 
 Wrenches are 6-vectors ``[force; torque]`` in base-frame axes, torque about the base frame's
 origin (the base centroid for the paper robot) [N, N m].

@@ -202,7 +202,7 @@ BULKY_INFO_KEYS = ("nlp_solution", "history")
 
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
     """Status, iterations and wall times of the solver that produced a result, from its
-    ``info`` (keys of :meth:`balance_opt.optimal.planner.BalanceNLP.solve`); ``None`` where the method
+    ``info`` (keys of :meth:`balance_opt.optimal.solve.BalanceNLP.solve`); ``None`` where the method
     has no such figure (the analytic law has no iterations)."""
     wall = info.get("wall_time_s")
     wall = wall if isinstance(wall, Mapping) else {}

@@ -77,7 +77,7 @@ _ROWS: list[tuple[str, Callable[[Mapping], Any], Callable[[Any], str] | None]] =
     ("max attitude drift [deg]", lambda m: _deg(_get(m, "max_drift_rad")), None),
     ("final attitude drift [deg]", lambda m: _deg(_get(m, "final_drift_rad")), None),
     ("max base angular rate [deg/s]", lambda m: _deg(_get(m, "max_base_rate_rad_s")), None),
-    ("max angular momentum residual [N m s]", lambda m: _get(m, "max_momentum_residual"), None),
+    ("max relative angular momentum residual", lambda m: _get(m, "max_momentum_residual"), None),
     ("Balance arm", None, None),
     ("peak balance joint rate [rad/s]", lambda m: _get(m, "peak_balance_rate_rad_s"), None),
     (

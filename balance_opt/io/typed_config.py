@@ -1,18 +1,33 @@
-"""Typed configuration: frozen dataclasses are the single source of truth for a file format.
+"""Typed configuration: one declaration per setting, for files and for Python alike.
 
 A format is a tree of frozen dataclasses whose fields are declared with :func:`setting` (a
 ``dataclasses.field`` that also carries a description, a unit and value constraints). From that
 one declaration this module derives
 
-* the validator, :func:`from_data`: plain data (from :mod:`balance_opt.io.yaml_lines`) to typed
-  objects, every error naming the file, the line and the key path and what was expected;
-* the JSON Schema, :func:`json_schema`, for editors;
-* the reference table of the README, :func:`reference_rows`.
+* the validator of files, :func:`from_data`: plain data (from :mod:`balance_opt.io.yaml_lines`)
+  to typed objects, every error naming the file, the line and the key path and what was expected;
+* the validator of Python calls, :func:`check_settings`, which the dataclass's ``__post_init__``
+  calls: the same checks, an :class:`~balance_opt.errors.InputError` naming the option;
+* the JSON Schema and the README's reference table (:mod:`balance_opt.io.typed_reference`,
+  from :func:`file_layout`, the keys as laid out in a file);
+* :func:`walk_settings`: every value of a tree with its key path and declaration, for checks
+  that need more than the value (one value per joint of a robot, ...).
 
 Supported field types: ``bool``, ``int``, ``float`` (an int is accepted), ``str``,
 ``Literal[...]``, ``tuple[T, ...]`` (a YAML list), ``dict[str, T]`` (a mapping with free keys),
 ``T | None``, unions of those, nested dataclasses, and *tagged unions*: a union of dataclasses
 that each have a ``type: Literal["..."]`` field, chosen by the ``type`` key.
+
+A field's key in the file may differ from its place on the class:
+
+* ``key="integrator"``: the key is named differently from the attribute;
+* ``section="constraints"``: the field is an attribute of the class but its key is written
+  inside the mapping ``constraints``; the class's ``__sections__`` describes each section;
+* ``inline=True`` (a dataclass-typed field): the other way round, the keys of the nested
+  dataclass are written in the parent's mapping, as if they were its own;
+* ``after="horizon"``: the key is listed after another key (schema and reference order);
+* ``in_file=False``: the field is set from elsewhere, not a key of the file; Python calls are
+  still checked.
 
 A dataclass may set ``__exactly_one__ = ("a", "b", ...)``: exactly one of these keys must be
 given.
@@ -22,13 +37,15 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import types
 import typing
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Literal, Union
 
-from balance_opt.io.yaml_lines import YamlDocument
+from balance_opt.errors import InputError
+from balance_opt.io.keypath import format_path
 
 _MISSING = dataclasses.MISSING
 
@@ -42,8 +59,15 @@ def setting(
     minimum: float | None = None,
     exclusive_minimum: float | None = None,
     maximum: float | None = None,
+    finite: bool = True,
     min_items: int | None = None,
     max_items: int | None = None,
+    per: str | None = None,
+    key: str | None = None,
+    section: str | None = None,
+    inline: bool = False,
+    after: str | None = None,
+    in_file: bool = True,
 ):
     """A dataclass field of a typed configuration.
 
@@ -53,7 +77,15 @@ def setting(
         unit: unit of the number(s), e.g. ``"rad/s"``.
         factory: a default factory instead of ``default`` (for dicts and dataclasses).
         minimum, exclusive_minimum, maximum: bounds of a number (of each number in a list).
+        finite: reject ``inf`` (NaN is always rejected).
         min_items, max_items: bounds on the length of a list.
+        per: the list holds one value per item of this kind (e.g. ``"balance joint"``); checked
+            by the user of :func:`walk_settings`, who knows how many there are.
+        key: name of the key in files, when it differs from the attribute's.
+        section: name of the mapping the key is written in (see the module docstring).
+        inline: write the keys of this dataclass-typed field in the parent's mapping.
+        after: list the key after this other key.
+        in_file: ``False`` for a field that files do not set.
     """
     meta = {
         "doc": doc,
@@ -61,8 +93,15 @@ def setting(
         "minimum": minimum,
         "exclusive_minimum": exclusive_minimum,
         "maximum": maximum,
+        "finite": finite,
         "min_items": min_items,
         "max_items": max_items,
+        "per": per,
+        "key": key,
+        "section": section,
+        "inline": inline,
+        "after": after,
+        "in_file": in_file,
     }
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
@@ -70,33 +109,38 @@ def setting(
 
 
 # ----------------------------------------------------------------------------------- type helpers
-def _is_union(tp) -> bool:
+@functools.cache
+def type_hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def is_union(tp) -> bool:
     return typing.get_origin(tp) in (Union, types.UnionType)
 
 
-def _union_args(tp) -> tuple:
-    return typing.get_args(tp) if _is_union(tp) else (tp,)
+def union_args(tp) -> tuple:
+    return typing.get_args(tp) if is_union(tp) else (tp,)
 
 
-def _tag_of(cls) -> str | None:
+def tag_of(cls) -> str | None:
     """The ``type`` literal of a tagged-union member, or None."""
     if not dataclasses.is_dataclass(cls):
         return None
-    tp = typing.get_type_hints(cls).get("type")
+    tp = type_hints(cls).get("type")
     if typing.get_origin(tp) is Literal and len(typing.get_args(tp)) == 1:
         return typing.get_args(tp)[0]
     return None
 
 
-def _describe(tp) -> str:
+def describe(tp) -> str:
     """Human name of a type, as used in 'expected ...' messages and the reference."""
     if tp is type(None):
         return "null"
-    if _is_union(tp):
+    if is_union(tp):
         members = [a for a in typing.get_args(tp) if a is not type(None)]
-        if all(_tag_of(a) for a in members):
-            return "a mapping with type: " + " | ".join(_tag_of(a) for a in members)
-        return " or ".join(_describe(a) for a in members)
+        if all(tag_of(a) for a in members):
+            return "a mapping with type: " + " | ".join(tag_of(a) for a in members)
+        return " or ".join(describe(a) for a in members)
     origin = typing.get_origin(tp)
     if origin is Literal:
         return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
@@ -112,7 +156,7 @@ def _describe(tp) -> str:
 
 
 def _plural(tp) -> str:
-    if _is_union(tp):
+    if is_union(tp):
         return " or ".join(_plural(a) for a in typing.get_args(tp) if a is not type(None))
     origin = typing.get_origin(tp)
     if origin is tuple:
@@ -150,13 +194,100 @@ def suggest(name: Any, candidates) -> str:
     return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
 
 
+def field_default(f):
+    if f.default is not _MISSING:
+        return f.default
+    if f.default_factory is not _MISSING:
+        return f.default_factory()
+    return _MISSING
+
+
+# ----------------------------------------------------------------------------------- file layout
+@dataclasses.dataclass(frozen=True)
+class Leaf:
+    """A key of the file bound to a field: ``attrs`` is the attribute path from the class whose
+    layout holds it (more than one name through ``inline`` fields)."""
+
+    key: str
+    attrs: tuple[str, ...]
+    field: dataclasses.Field
+    tp: Any
+
+    @property
+    def meta(self) -> dict:
+        return dict(self.field.metadata)
+
+
+@dataclasses.dataclass(frozen=True)
+class Section:
+    """A mapping of the file whose keys are fields of the enclosing class (``section=``)."""
+
+    key: str
+    doc: str
+    name: str
+    entries: tuple
+
+
+def _prefixed(entry, name: str):
+    """``entry`` of an inline field ``name``: its attribute paths start with ``name``."""
+    if isinstance(entry, Section):
+        return dataclasses.replace(entry, entries=tuple(_prefixed(e, name) for e in entry.entries))
+    return dataclasses.replace(entry, attrs=(name, *entry.attrs))
+
+
+@functools.cache
+def file_layout(cls) -> tuple:
+    """The keys of ``cls``'s mapping in the file, in order: leaves and sections."""
+    hints = type_hints(cls)
+    entries: list = []
+    sections: dict[str, list] = {}
+    late: list[Leaf] = []
+    for f in dataclasses.fields(cls):
+        meta = f.metadata
+        if not f.init or not meta.get("in_file", True):
+            continue
+        if meta.get("inline"):
+            entries.extend(_prefixed(e, f.name) for e in file_layout(hints[f.name]))
+            continue
+        leaf = Leaf(meta.get("key") or f.name, (f.name,), f, hints[f.name])
+        if meta.get("section"):
+            if meta["section"] not in sections:
+                sections[meta["section"]] = []
+                entries.append(meta["section"])  # placeholder, filled below
+            sections[meta["section"]].append(leaf)
+        elif meta.get("after"):
+            late.append(leaf)
+        else:
+            entries.append(leaf)
+    docs = getattr(cls, "__sections__", {})
+    entries = [
+        Section(e, docs[e], f"{cls.__name__}.{e}", tuple(sections[e])) if isinstance(e, str) else e
+        for e in entries
+    ]
+    for leaf in late:
+        keys = [e.key for e in entries]
+        entries.insert(keys.index(leaf.field.metadata["after"]) + 1, leaf)
+    keys = [e.key for e in entries]
+    assert len(keys) == len(set(keys)), f"{cls.__name__}: a key is declared twice: {keys}"
+    return tuple(entries)
+
+
+def get_attr(obj, attrs: tuple[str, ...]):
+    for name in attrs:
+        obj = getattr(obj, name)
+    return obj
+
+
 # ----------------------------------------------------------------------------------- validation
 class _Invalid(Exception):
-    """Internal: a value at ``path`` does not fit; turned into a TaskFileError by from_data."""
+    """Internal: a value at ``path`` does not fit; turned into an InputError by the callers."""
 
     def __init__(self, path: tuple, reason: str):
         self.path = path
         self.reason = reason
+
+
+NUMBER_META = ("minimum", "exclusive_minimum", "maximum", "finite", "unit")
 
 
 def _check_number(value: float, meta: dict, path: tuple) -> None:
@@ -164,6 +295,8 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
     unit = f" {meta['unit']}" if meta.get("unit") else ""
     if math.isnan(value):
         raise _Invalid(path, "expected a number, got NaN")
+    if math.isinf(value) and meta.get("finite", True):
+        raise _Invalid(path, f"expected a finite number, got {value:g}")
     if xlo is not None and not value > xlo:
         raise _Invalid(path, f"must be greater than {xlo:g}{unit}, got {value:g}")
     if lo is not None and not value >= lo:
@@ -172,48 +305,25 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
         raise _Invalid(path, f"must be at most {hi:g}{unit}, got {value:g}")
 
 
-def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
-    if _is_union(tp):
-        return _convert_union(value, tp, meta, path)
-    origin = typing.get_origin(tp)
-    if origin is Literal:
-        options = typing.get_args(tp)
-        if value not in options or isinstance(value, bool) != isinstance(options[0], bool):
-            raise _Invalid(
-                path,
-                f"expected one of {', '.join(repr(o) for o in options)}, got {_got(value)}"
-                + (suggest(value, options) if isinstance(value, str) else ""),
-            )
-        return value
-    if origin is tuple:
-        if not isinstance(value, list):
-            raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
-        n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
-        if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
-            raise _Invalid(
-                path,
-                f"expected a list of {n_lo} {_plural(typing.get_args(tp)[0])}, got {len(value)}",
-            )
-        if n_lo is not None and len(value) < n_lo:
-            raise _Invalid(path, f"expected at least {n_lo} items, got {len(value)}")
-        if n_hi is not None and len(value) > n_hi:
-            raise _Invalid(path, f"expected at most {n_hi} items, got {len(value)}")
-        item_meta = {k: meta.get(k) for k in ("minimum", "exclusive_minimum", "maximum", "unit")}
-        return tuple(
-            _convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value)
+def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
+    if not isinstance(value, list):
+        raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
+    n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
+    if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
+        raise _Invalid(
+            path, f"expected a list of {n_lo} {_plural(typing.get_args(tp)[0])}, got {len(value)}"
         )
-    if origin is dict:
-        if not isinstance(value, dict):
-            raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
-        value_tp = typing.get_args(tp)[1]
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise _Invalid((*path, k), f"expected a name as key, got {_got(k)}")
-            out[k] = _convert(v, value_tp, meta, (*path, k))
-        return out
-    if dataclasses.is_dataclass(tp):
-        return _convert_dataclass(value, tp, path)
+    if n_lo is not None and len(value) < n_lo:
+        raise _Invalid(path, f"expected at least {n_lo} items, got {len(value)}")
+    if n_hi is not None and len(value) > n_hi:
+        raise _Invalid(path, f"expected at most {n_hi} items, got {len(value)}")
+    item_meta = {k: meta.get(k) for k in NUMBER_META}
+    return tuple(
+        _convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value)
+    )
+
+
+def _convert_scalar(value, tp, meta: dict, path: tuple):
     if tp is bool:
         if not isinstance(value, bool):
             raise _Invalid(path, f"expected true or false, got {_got(value)}")
@@ -239,14 +349,48 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
     raise TypeError(f"typed_config: unsupported field type {tp!r} at {path}")
 
 
+def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
+    if is_union(tp):
+        return _convert_union(value, tp, meta, path)
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        options = typing.get_args(tp)
+        if value not in options or isinstance(value, bool) != isinstance(options[0], bool):
+            raise _Invalid(
+                path,
+                f"expected one of {', '.join(repr(o) for o in options)}, got {_got(value)}"
+                + (suggest(value, options) if isinstance(value, str) else ""),
+            )
+        return value
+    if origin is tuple:
+        return _convert_list(value, tp, meta, path)
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
+        value_tp = typing.get_args(tp)[1]
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise _Invalid((*path, k), f"expected a name as key, got {_got(k)}")
+            out[k] = _convert(v, value_tp, meta, (*path, k))
+        return out
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):  # built in Python: it checked itself
+            return value
+        return _convert_dataclass(value, tp, path)
+    return _convert_scalar(value, tp, meta, path)
+
+
 def _convert_union(value, tp, meta, path):
     members = typing.get_args(tp)
     if value is None:
         if type(None) in members:
             return None
-        raise _Invalid(path, f"expected {_describe(tp)}, got nothing (null)")
+        raise _Invalid(path, f"expected {describe(tp)}, got nothing (null)")
     members = [m for m in members if m is not type(None)]
-    tags = {_tag_of(m): m for m in members}
+    if any(dataclasses.is_dataclass(m) and isinstance(value, m) for m in members):
+        return value  # built in Python: it checked itself
+    tags = {tag_of(m): m for m in members}
     if None not in tags:  # tagged union: dispatch on 'type'
         if not isinstance(value, dict):
             raise _Invalid(
@@ -274,40 +418,74 @@ def _convert_union(value, tp, meta, path):
                 first_error = exc
     if first_error is not None and len(first_error.path) > len(path):
         raise first_error
-    raise _Invalid(path, f"expected {_describe(tp)}, got {_got(value)}")
+    raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
 
 
-def _convert_dataclass(value, cls, path):
-    if not isinstance(value, dict):
-        raise _Invalid(path, f"expected a mapping, got {_got(value)}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=()) -> None:
+    """Convert the keys of ``value`` (a mapping at ``path``) into ``tree``, a nested dict of
+    keyword arguments by attribute path."""
+    keys = {e.key: e for e in entries}
     for key in value:
-        if key not in fields:
+        if key not in keys:
             raise _Invalid(
                 (*path, key),
-                f"unknown key '{key}'; expected one of {', '.join(fields)}" + suggest(key, fields),
+                f"unknown key '{key}'; expected one of {', '.join(keys)}" + suggest(key, keys),
             )
-    one_of = getattr(cls, "__exactly_one__", ())
     if one_of:
         given = [k for k in one_of if value.get(k) is not None]
         if len(given) != 1:
             what = "none" if not given else ", ".join(given)
             raise _Invalid(path, f"expected exactly one of {', '.join(one_of)}; got {what}")
-    kwargs = {}
-    for name, f in fields.items():
-        if name in value:
-            kwargs[name] = _convert(value[name], hints[name], dict(f.metadata), (*path, name))
-        elif f.default is _MISSING and f.default_factory is _MISSING:
+    for e in entries:
+        if isinstance(e, Section):
+            if e.key in value:
+                sub = value[e.key]
+                if not isinstance(sub, dict):
+                    raise _Invalid((*path, e.key), f"expected a mapping, got {_got(sub)}")
+                _read_mapping(sub, e.entries, (*path, e.key), tree)
+        elif e.key in value:
+            node = tree
+            for name in e.attrs[:-1]:
+                node = node.setdefault(name, {})
+            node[e.attrs[-1]] = _convert(value[e.key], e.tp, e.meta, (*path, e.key))
+        elif field_default(e.field) is _MISSING:
             raise _Invalid(
                 path,
-                f"missing required key '{name}' ({_describe(hints[name])}: {f.metadata.get('doc', '')})",
+                f"missing required key '{e.key}' ({describe(e.tp)}: {e.meta.get('doc', '')})",
             )
-    return cls(**kwargs)
 
 
-def from_data(cls, doc: YamlDocument, path: Sequence[Any] = ()):
+def _build(cls, tree: dict, path: tuple):
+    """``cls`` from the keyword arguments ``tree``; its own (cross-field) checks located at the
+    mapping's ``path``."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {
+        name: _build(type_hints(cls)[name], value, path)
+        if fields[name].metadata.get("inline")
+        else value
+        for name, value in tree.items()
+    }
+    try:
+        return cls(**kwargs)
+    except InputError as exc:
+        raise _Invalid(path, str(exc)) from None
+
+
+def _convert_dataclass(value, cls, path):
+    if not isinstance(value, dict):
+        raise _Invalid(path, f"expected a mapping, got {_got(value)}")
+    tree: dict = {}
+    _read_mapping(value, file_layout(cls), path, tree, getattr(cls, "__exactly_one__", ()))
+    return _build(cls, tree, path)
+
+
+def from_data(cls, doc, path: Sequence[Any] = ()):
     """Typed ``cls`` instance from the plain data of ``doc`` (at ``path`` inside it).
+
+    Args:
+        cls: the dataclass at the root of the format.
+        doc: a :class:`~balance_opt.io.yaml_lines.YamlDocument`.
+        path: key path of the value inside the document.
 
     Raises:
         TaskFileError: naming the file, the line and the key path of the first bad value, and what
@@ -322,191 +500,62 @@ def from_data(cls, doc: YamlDocument, path: Sequence[Any] = ()):
         raise doc.error(exc.path, exc.reason) from None
 
 
-# ----------------------------------------------------------------------------------- JSON Schema
-def _schema(tp, meta: dict, defs: dict) -> dict:
-    if _is_union(tp):
-        members = typing.get_args(tp)
-        if all(_tag_of(m) for m in members if m is not type(None)):
-            return {"oneOf": [_schema(m, meta, defs) for m in members]}
-        return {"anyOf": [_schema(m, meta, defs) for m in members]}
-    origin = typing.get_origin(tp)
-    if tp is type(None):
-        return {"type": "null"}
-    if origin is Literal:
-        return {"enum": list(typing.get_args(tp))}
-    if origin is tuple:
-        out = {"type": "array", "items": _schema(typing.get_args(tp)[0], _number_meta(meta), defs)}
-        if meta.get("min_items") is not None:
-            out["minItems"] = meta["min_items"]
-        if meta.get("max_items") is not None:
-            out["maxItems"] = meta["max_items"]
-        return out
-    if origin is dict:
-        return {
-            "type": "object",
-            "additionalProperties": _schema(typing.get_args(tp)[1], meta, defs),
-        }
-    if dataclasses.is_dataclass(tp):
-        name = tp.__name__
-        if name not in defs:
-            defs[name] = None  # placeholder against recursion
-            defs[name] = dataclass_schema(tp, defs)
-        return {"$ref": f"#/$defs/{name}"}
-    if tp in (int, float):
-        out = {"type": "integer" if tp is int else "number"}
-        if meta.get("minimum") is not None:
-            out["minimum"] = meta["minimum"]
-        if meta.get("exclusive_minimum") is not None:
-            out["exclusiveMinimum"] = meta["exclusive_minimum"]
-        if meta.get("maximum") is not None:
-            out["maximum"] = meta["maximum"]
-        return out
-    if tp is bool:
-        return {"type": "boolean"}
-    if tp is str:
-        return {"type": "string", "minLength": 1}
-    if tp is Any:
-        return {}
-    raise TypeError(f"typed_config: unsupported field type {tp!r}")
-
-
-def _number_meta(meta: dict) -> dict:
-    return {k: meta.get(k) for k in ("minimum", "exclusive_minimum", "maximum")}
-
-
-def _json_default(value):
+def _plain(value):
+    """A Python value as the plain data of a file: sequences and arrays as lists, NumPy scalars
+    as Python numbers, mappings as dicts; dataclasses are kept."""
+    if value is None or isinstance(value, (str, bool, int, float)):
+        return value
     if dataclasses.is_dataclass(value):
-        return {f.name: _json_default(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, tuple):
-        return [_json_default(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _json_default(v) for k, v in value.items()}
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
+        return value
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "tolist"):  # NumPy arrays and scalars
+        return _plain(value.tolist())
     return value
 
 
-def _field_default(f):
-    if f.default is not _MISSING:
-        return f.default
-    if f.default_factory is not _MISSING:
-        return f.default_factory()
-    return _MISSING
+def check_settings(obj, what: str) -> None:
+    """Check and normalise the fields of the frozen dataclass ``obj`` against their
+    :func:`setting` declarations (for its ``__post_init__``).
 
+    Lists and arrays become tuples of Python numbers, mappings dicts, ints given for floats
+    floats.
 
-def dataclass_schema(cls, defs: dict) -> dict:
-    """JSON Schema object of one dataclass (nested dataclasses go to ``defs``)."""
-    hints = typing.get_type_hints(cls)
-    props, required = {}, []
-    for f in dataclasses.fields(cls):
-        if not f.init:
-            continue
-        meta = dict(f.metadata)
-        prop = _schema(hints[f.name], meta, defs)
-        doc = meta.get("doc", "")
-        if meta.get("unit"):
-            doc = f"{doc} [{meta['unit']}]"
-        if "$ref" in prop:
-            prop = {"allOf": [prop]}
-        prop["description"] = doc
-        default = _field_default(f)
-        if default is _MISSING:
-            required.append(f.name)
-        elif default is not None:
-            prop["default"] = _json_default(default)
-        props[f.name] = prop
-    out = {
-        "type": "object",
-        "description": (cls.__doc__ or "").strip().split("\n\n")[0],
-        "properties": props,
-        "additionalProperties": False,
-    }
-    if _tag_of(cls) and "type" not in required:
-        required.insert(0, "type")  # the tag selects the member: always given
-    if required:
-        out["required"] = required
-    one_of = getattr(cls, "__exactly_one__", ())
-    if one_of:
-        out["oneOf"] = [{"required": [k]} for k in one_of]
-    return out
+    Args:
+        obj: the instance, fields already set.
+        what: how the error names an option, e.g. ``"planner option"``.
 
-
-def json_schema(cls, title: str, schema_id: str | None = None) -> dict:
-    """JSON Schema (draft 2020-12) of the format whose root is the dataclass ``cls``."""
-    defs: dict = {}
-    root = dataclass_schema(cls, defs)
-    out = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title}
-    if schema_id:
-        out["$id"] = schema_id
-    out.update(root)
-    if defs:
-        out["$defs"] = defs
-    return out
-
-
-# ----------------------------------------------------------------------------------- reference
-def _default_text(f) -> str:
-    default = _field_default(f)
-    if default is _MISSING:
-        return "required"
-    if dataclasses.is_dataclass(default):
-        return "see below"
-    if default is None:
-        return "none"
-    if isinstance(default, bool):
-        return str(default).lower()
-    if isinstance(default, float) and math.isinf(default):
-        return "inf" if default > 0 else "-inf"
-    if isinstance(default, (tuple, dict)) and not default:
-        return "[]" if isinstance(default, tuple) else "{}"
-    return repr(default) if isinstance(default, str) else str(_json_default(default))
-
-
-def reference_rows(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
-    """Rows ``(key path, type, default, meaning)`` of every key of the format, depth first.
-
-    Tagged-union members are listed under ``prefix (type: tag)``.
+    Raises:
+        InputError: ``"<what> '<name>': <problem>"`` for the first field that does not fit.
     """
-    rows = []
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        if not f.init:
+    hints = type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        if "doc" not in f.metadata:
             continue
-        tp, meta = hints[f.name], dict(f.metadata)
-        key = f"{prefix}{f.name}"
-        doc = meta.get("doc", "")
-        if meta.get("unit"):
-            doc = f"{doc} [{meta['unit']}]"
-        members = [m for m in _union_args(tp) if m is not type(None)]
-        if len(members) > 1 and all(_tag_of(m) for m in members):
-            rows.append((key, _describe(tp), _default_text(f), doc))
-            for m in members:
-                for sub in reference_rows(m, f"{key}."):
-                    if sub[0] == f"{key}.type":
-                        continue
-                    rows.append((f"{sub[0]} (type: {_tag_of(m)})", *sub[1:]))
-            continue
-        if len(members) == 1 and dataclasses.is_dataclass(members[0]):
-            rows.append((key, "mapping", _default_text(f), doc))
-            rows.extend(reference_rows(members[0], f"{key}."))
-            continue
-        if typing.get_origin(tp) is dict and dataclasses.is_dataclass(typing.get_args(tp)[1]):
-            rows.append((key, "mapping of names to mappings", _default_text(f), doc))
-            rows.extend(reference_rows(typing.get_args(tp)[1], f"{key}.NAME."))
-            continue
-        rows.append((key, _describe(tp), _default_text(f), doc))
-    return rows
+        value = getattr(obj, f.name)
+        try:
+            converted = _convert(_plain(value), hints[f.name], dict(f.metadata), (f.name,))
+        except _Invalid as exc:
+            raise InputError(f"{what} '{format_path(exc.path)}': {exc.reason}") from None
+        if converted is not value:
+            object.__setattr__(obj, f.name, converted)
 
 
-def reference_markdown(cls) -> str:
-    """The reference table of the format as Markdown (key, type, default, meaning)."""
-    lines = ["| key | type | default | meaning |", "| --- | --- | --- | --- |"]
-    for key, tp, default, doc in reference_rows(cls):
-        cells = (
-            f"`{key}`",
-            tp,
-            f"`{default}`" if default not in ("required", "see below", "none") else default,
-            doc,
-        )
-        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
-    return "\n".join(lines)
+def walk_settings(obj, path: Sequence[Any] = ()) -> Iterator[tuple[tuple, Any, dict]]:
+    """Every value of the typed tree ``obj``: ``(key path in the file, value, declaration)``,
+    depth first (the values of nested dataclasses, not the dataclasses)."""
+    yield from _walk(obj, file_layout(type(obj)), tuple(path))
+
+
+def _walk(obj, entries: tuple, path: tuple):
+    for e in entries:
+        if isinstance(e, Section):
+            yield from _walk(obj, e.entries, (*path, e.key))
+            continue
+        value = get_attr(obj, e.attrs)
+        if dataclasses.is_dataclass(value):
+            yield from walk_settings(value, (*path, e.key))
+        else:
+            yield (*path, e.key), value, e.meta

@@ -22,20 +22,7 @@ from typing import Any
 import yaml
 
 from balance_opt.errors import InputError
-
-#: A key path: mapping keys (str) and sequence positions (int), outermost first.
-KeyPath = tuple[Any, ...]
-
-
-def format_path(path: Sequence[Any]) -> str:
-    """``("mission", "goal", 2)`` -> ``"mission.goal[2]"``; the empty path is ``"(top level)"``."""
-    out = ""
-    for part in path:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += f".{part}" if out else str(part)
-    return out or "(top level)"
+from balance_opt.io.keypath import KeyPath, format_path
 
 
 class TaskFileError(InputError):
@@ -108,9 +95,12 @@ class YamlDocument:
                 return None
             path = path[:-1]
 
-    def error(self, path: Sequence[Any], reason: str) -> TaskFileError:
-        """A :class:`TaskFileError` located at ``path`` in this document."""
-        return TaskFileError(self.source, self.line_of(path), path, reason)
+    def error(
+        self, path: Sequence[Any], reason: str, cls: type[TaskFileError] | None = None
+    ) -> TaskFileError:
+        """A :class:`TaskFileError` (or its subclass ``cls``) located at ``path`` in this
+        document."""
+        return (cls or TaskFileError)(self.source, self.line_of(path), path, reason)
 
 
 def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source: str) -> Any:

@@ -1,87 +1,54 @@
 """Numeric momentum maps with Pinocchio: the reference for the symbolic maps, and the fast path
-the analytic law and the simulator use in their inner loops.
+of the analytic law, the replays and the simulator, for one configuration or a batch.
 
-Conventions (``physics-notes.md``): Pinocchio's free-flyer velocity ``v[:6]`` is the base twist
-in the base frame; ``pin.computeCentroidalMap`` gives ``A_G`` with world-aligned rows about the
-CoM. Computed with the base at the identity pose, ``A_G`` is expressed in the base frame, and
-``J_base = -A_b^{-1} A_j`` does not depend on the base pose.
+Conventions (``docs/physics.md``, "Frames and conventions" and "Momentum maps"): Pinocchio's
+free-flyer velocity ``v[:6]`` is the base twist in the base frame; ``pin.computeCentroidalMap``
+gives ``A_G`` with world-aligned rows about the CoM. Computed with the base at the identity
+pose, ``A_G`` is expressed in the base frame, and so are the maps derived from it, which do not
+depend on the base pose.
+
+:func:`base_angular_velocity` is THE base rate forced by the joints (``docs/physics.md``, "Base
+motion forced by the joints"): every numeric caller goes through it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pinocchio as pin
-from scipy.linalg.lapack import dgesv
 
+from balance_opt.model import coupling
+from balance_opt.model.coupling import NUMPY, CouplingMeasures, coupling_measures, solve
 from balance_opt.model.robot import FloatingRobot
 
 
-@dataclass(frozen=True)
-class CouplingMeasures:
-    """How strongly the arms couple to the base attitude at one configuration.
+def base_angular_velocity(I_G: np.ndarray, A: np.ndarray, q_dot: np.ndarray, ell=None):
+    """Base angular velocity forced by the joints, base frame [rad/s] (Eq. 26):
+    ``omega = I_G^{-1} (ell - A q_dot)``, which is ``J_wM q_dot_M + J_wB q_dot_B`` at zero
+    momentum. Batched over leading dimensions.
 
-    Attributes:
-        balance_singular_values: singular values of ``J_wB``, largest first [rad/s per rad/s].
-        balance_condition: condition number of ``J_wB`` (``inf`` when rank deficient).
-        mission_norm: spectral norm of ``J_wM``: the largest base rate per unit mission rate.
-        per_arm: the same per balance arm: ``{arm: (singular values, condition)}``.
+    Args:
+        I_G: locked inertia about the CoM, base axes (..., 3, 3) [kg m^2].
+        A: angular rows of ``A_G`` for the joints in ``q_dot`` (..., 3, k) [kg m^2].
+        q_dot: joint rates (..., k) [rad/s].
+        ell: the system's angular momentum about the CoM in base axes, ``R^T L`` (..., 3)
+            [N m s]; ``None`` for zero.
     """
-
-    balance_singular_values: np.ndarray
-    balance_condition: float
-    mission_norm: float
-    per_arm: dict
-
-    @property
-    def sigma_min(self) -> float:
-        """Smallest singular value of ``J_wB`` among its first three (the ones that control the
-        base's three rotations)."""
-        return float(self.balance_singular_values[min(2, len(self.balance_singular_values) - 1)])
+    rhs = -np.matvec(A, q_dot)
+    if ell is not None:
+        rhs = rhs + ell
+    return solve(I_G, rhs[..., None])[..., 0]
 
 
-def _condition(s: np.ndarray) -> float:
-    smallest = s[min(2, len(s) - 1)]
-    return float(s[0] / smallest) if smallest > 0 else float("inf")
-
-
-def coupling_measures(
-    J_wM: np.ndarray, J_wB: np.ndarray, arm_columns: dict | None = None
-) -> CouplingMeasures:
-    """Coupling measures from the angular Jacobians (see :class:`CouplingMeasures`)."""
-    s = np.linalg.svd(J_wB, compute_uv=False)
-    per_arm = {}
-    for name, cols in (arm_columns or {}).items():
-        s_arm = np.linalg.svd(J_wB[:, cols], compute_uv=False)
-        per_arm[name] = (s_arm, _condition(s_arm))
-    return CouplingMeasures(s, _condition(s), float(np.linalg.norm(J_wM, 2)), per_arm)
-
-
-def _columns(indices: np.ndarray) -> slice | np.ndarray:
-    """A slice (a view, no copy) when ``indices`` are consecutive and increasing, else the
-    index array itself."""
-    indices = np.asarray(indices)
-    if indices.size and np.array_equal(indices, np.arange(indices[0], indices[0] + indices.size)):
-        return slice(int(indices[0]), int(indices[0]) + indices.size)
-    return indices
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a^{-1} b`` for a small square ``a``: LAPACK ``dgesv`` called directly, several times
-    faster than ``np.linalg.solve`` at these sizes (its per-call overhead dominates)."""
-    _, _, x, info = dgesv(a, b)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"singular momentum map block (LAPACK dgesv info={info})")
-    return x
+def angular_jacobian_rate(I_G, dI_G, dA, J_w) -> np.ndarray:
+    """``dJ_w/dt = -I_G^{-1} (dA + dI_G J_w)`` (..., 3, n), from ``I_G J_w = -A``."""
+    return -solve(I_G, dA + dI_G @ J_w)
 
 
 class NumericMaps:
     """Momentum maps of a floating robot evaluated with numeric Pinocchio.
 
-    Built for inner loops: the Pinocchio configuration is written into a preallocated
-    template, index arrays are cached (slices where the columns are consecutive), and small
-    systems are solved with LAPACK directly.
+    Methods taking an arm configuration ``q`` accept one (n,) or, where they say so, a batch
+    (T, n). Index arrays and a configuration template are prepared once, for inner loops.
 
     Args:
         robot: the floating robot; a private Pinocchio data is created (one ``NumericMaps``
@@ -92,96 +59,163 @@ class NumericMaps:
         self.robot = robot
         self.model = robot.model
         self.data = robot.model.createData()
-        self._cols = np.r_[0:6, robot.pin_v_indices]
-        self._cols_view = _columns(self._cols)
-        self._mission = robot.mission_indices
-        self._balance = robot.balance_indices
-        # arm columns of A_G in Pinocchio's order, by arm (for the angular Jacobians)
-        joint_cols = robot.pin_v_indices - 6
-        self._mission_pin = _columns(joint_cols[self._mission])
-        self._balance_pin = _columns(joint_cols[self._balance])
-        # configuration template: base at the identity, locked joints in place
-        self._q_template = robot.pin_q(robot.neutral())
+        self.mass = robot.total_mass
         ids = [self.model.getJointId(j) for j in robot.joint_names]
-        self._fast_q = all(self.model.joints[i].nq == 1 for i in ids)  # no continuous joint
-        self._idx_q = np.array([self.model.joints[i].idx_q for i in ids])
+        idx_q = np.array([self.model.joints[i].idx_q for i in ids])
+        nq = np.array([self.model.joints[i].nq for i in ids])
+        self._one = np.flatnonzero(nq == 1)
+        self._two = np.flatnonzero(nq == 2)  # continuous joints stored as (cos, sin)
+        self._idx_q_one = idx_q[self._one]
+        self._idx_q_two = idx_q[self._two]
+        self._q_ref = robot.pin_q(robot.neutral())  # base at identity, locked joints in place
+        self._idx_v = robot.pin_v_indices
+        self._cols = np.r_[0:6, self._idx_v]  # [base; arm joints in arm order]
+        self._angular_cols = np.r_[3:6, self._idx_v]
 
-    def _pin_q(self, q) -> np.ndarray:
-        """Pinocchio configuration of the arm vector ``q``, base at the identity."""
-        if not self._fast_q:
-            return self.robot.pin_q(q)
-        qp = self._q_template.copy()
-        qp[self._idx_q] = q
-        return qp
+    # ------------------------------------------------------------------ Pinocchio vectors
+    def configurations(self, q, quaternion=None) -> np.ndarray:
+        """Pinocchio configurations (..., nq) of arm vectors (..., n): base at the origin with
+        attitude ``quaternion`` (..., 4), (x, y, z, w), identity by default."""
+        q = np.asarray(q, dtype=float)
+        out = self._q_ref.copy() if q.ndim == 1 else np.tile(self._q_ref, q.shape[:-1] + (1,))
+        out[..., self._idx_q_one] = q[..., self._one]
+        if self._two.size:
+            out[..., self._idx_q_two] = np.cos(q[..., self._two])
+            out[..., self._idx_q_two + 1] = np.sin(q[..., self._two])
+        if quaternion is not None:
+            out[..., 3:7] = quaternion
+        return out
 
-    def _A_pin(self, q) -> np.ndarray:
-        """``A_G`` with the base at the identity, columns in Pinocchio's order."""
-        return pin.computeCentroidalMap(self.model, self.data, self._pin_q(q))
+    def velocities(self, q_dot, omega=None) -> np.ndarray:
+        """Pinocchio velocities (..., nv) of arm rates (..., n), the base not translating and
+        turning at ``omega`` (..., 3) [rad/s, base frame] (at rest by default)."""
+        q_dot = np.asarray(q_dot, dtype=float)
+        out = np.zeros(q_dot.shape[:-1] + (self.model.nv,))
+        out[..., self._idx_v] = q_dot
+        if omega is not None:
+            out[..., 3:6] = omega
+        return out
+
+    # ------------------------------------------------------------------ centroidal maps
+    def centroidal(self, q, quaternion=None) -> np.ndarray:
+        """Pinocchio's whole ``A_G``, (6, nv) for one configuration or (T, 6, nv) for a batch,
+        base attitude ``quaternion`` (identity by default: base-frame axes)."""
+        qp = self.configurations(q, quaternion)
+        if qp.ndim == 1:
+            return pin.computeCentroidalMap(self.model, self.data, qp)
+        full = np.empty((qp.shape[0], 6, self.model.nv))  # whole matrices: slicing costs more
+        model, data, cmap = self.model, self.data, pin.computeCentroidalMap
+        for k in range(qp.shape[0]):
+            full[k] = cmap(model, data, qp[k])
+        return full
+
+    def angular_blocks(self, Ag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(I_G, A)`` (..., 3, 3) and (..., 3, n), arm order, from Pinocchio ``A_G`` (..., 6, nv):
+        the angular momentum about the CoM is ``I_G omega + A q_dot``."""
+        rows = Ag[..., 3:, self._angular_cols]
+        return rows[..., :3], rows[..., 3:]
+
+    def angular_maps(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """``(I_G, A)`` at one configuration or a batch, base-frame axes."""
+        return self.angular_blocks(self.centroidal(q))
+
+    def angular_map_rates(self, q, q_dot, Ag=None) -> tuple[np.ndarray, np.ndarray]:
+        """Time derivatives ``(dI_G, dA)`` along a joint motion, each (T, 3, .) (the base's own
+        motion changes none of these base-frame maps).
+
+        Pinocchio's ``dAg`` is exact only in the product ``dAg v``: it leaves out the motion of
+        the CoM the rows are taken about. The true matrix derivative of the angular rows is
+        ``dAg_ang - [c_dot]_x Ag_lin`` with ``c_dot = Ag_lin v / m`` (tested against finite
+        differences); the balance law needs the matrix itself (damping, null space).
+
+        Args:
+            q: arm configurations (T, n) [rad].
+            q_dot: arm rates (T, n) [rad/s].
+            Ag: :meth:`centroidal` at ``q`` if already computed.
+        """
+        qp = self.configurations(q)
+        vp = self.velocities(q_dot)
+        T = qp.shape[0]
+        d_full = np.empty((T, 6, self.model.nv))
+        model, data, cmap_rate = self.model, self.data, pin.computeCentroidalMapTimeVariation
+        if Ag is None:
+            Ag = np.empty_like(d_full)
+            for k in range(T):
+                d_full[k] = cmap_rate(model, data, qp[k], vp[k])
+                Ag[k] = data.Ag
+        else:
+            for k in range(T):
+                d_full[k] = cmap_rate(model, data, qp[k], vp[k])
+        lin = Ag[:, :3]
+        c = np.matvec(lin, vp) / self.mass  # CoM velocity (T, 3)
+        cross = np.cross(c[:, :, None], lin, axis=1)  # [c_dot]_x applied to each column
+        return self.angular_blocks(np.concatenate([d_full[:, :3], d_full[:, 3:] - cross], axis=1))
 
     def centroidal_momentum_matrix(self, q, rotation: np.ndarray | None = None) -> np.ndarray:
         """``A_G`` (6 x (6+n), arm order): momentum [linear; angular] about the CoM per
         [base twist in base frame; arm joint rates]. Axes of the base frame, or of the world
         when the base ``rotation`` is given."""
-        if rotation is None:
-            A = self._A_pin(q)
-        else:
-            base = pin.SE3(rotation, np.zeros(3))
-            A = pin.computeCentroidalMap(self.model, self.data, self.robot.pin_q(q, base))
-        return A[:, self._cols_view] if isinstance(self._cols_view, slice) else A[:, self._cols]
+        quaternion = None if rotation is None else pin.Quaternion(rotation).coeffs()
+        return self.centroidal(q, quaternion)[:, self._cols]
+
+    # ------------------------------------------------------------------ base motion
+    def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """``(J_wM, J_wB)``: base angular velocity in the base frame per mission and balance
+        rates (balance arms stacked), for one configuration or a batch."""
+        J = coupling.angular_jacobian(*self.angular_maps(q), NUMPY)
+        return J[..., self.robot.mission_indices], J[..., self.robot.balance_indices]
 
     def base_jacobian(self, q) -> np.ndarray:
         """``J_base`` (6 x n): base twist in the base frame per arm joint rates, zero momentum."""
-        A = self.centroidal_momentum_matrix(q)
-        J = _solve(A[:, :6], A[:, 6:])
-        return np.negative(J, out=J)
+        return coupling.base_jacobian(self.centroidal_momentum_matrix(q), NUMPY)
 
     def base_twist(self, q, q_dot, h0_base=None) -> np.ndarray:
-        """Base twist in the base frame forced by the joint rates, for momentum ``h0_base``
-        ([linear; angular about the CoM], base-frame axes; zero by default)."""
-        A = self.centroidal_momentum_matrix(q)
-        rhs = -A[:, 6:] @ q_dot
-        if h0_base is not None:
-            rhs = rhs + h0_base
-        return _solve(A[:, :6], rhs)
+        """Base twist [linear; angular] in the base frame forced by the joint rates, for the
+        momentum ``h0_base`` ([linear; angular about the CoM], base-frame axes; zero by default).
 
-    def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
-        """``(J_wM, J_wB)``: base angular velocity in the base frame per mission and balance rates.
-
-        Uses the block structure of ``A_b``: base linear velocity adds no angular momentum about
-        the CoM (``A_b[3:, :3] = 0``), so ``omega_b = -I_G^{-1} A_j[3:] q_dot`` with the locked
-        inertia ``I_G = A_b[3:, 3:]``: a 3 x 3 solve instead of the 6 x 6 one.
+        The angular part is :func:`base_angular_velocity`; the linear part then follows from the
+        linear rows, ``A_b,lin [v; omega] = p0 - A_j,lin q_dot``.
         """
-        A = self._A_pin(q)
-        J = _solve(A[3:, 3:6], A[3:, 6:])
-        np.negative(J, out=J)
-        return J[:, self._mission_pin], J[:, self._balance_pin]
+        h0 = np.zeros(6) if h0_base is None else np.asarray(h0_base, dtype=float)
+        A = self.centroidal_momentum_matrix(q)
+        omega = base_angular_velocity(A[3:, 3:6], A[3:, 6:], q_dot, h0[3:])
+        p = h0[:3] - A[:3, 6:] @ q_dot - A[:3, 3:6] @ omega
+        return np.r_[solve(A[:3, :3], p), omega]
 
+    def balance_sigma_min(self, I_G, A) -> np.ndarray:
+        """Smallest singular value of ``J_wB`` among its first three (...,), from the angular
+        maps (:meth:`angular_maps`) of one configuration or a batch."""
+        J_wB = coupling.angular_jacobian(I_G, A[..., self.robot.balance_indices], NUMPY)
+        return np.linalg.svd(J_wB, compute_uv=False)[..., -1]
+
+    # ------------------------------------------------------------------ end effectors
     def ee_jacobian(self, q, arm: str = "mission") -> np.ndarray:
         """Frame Jacobian of an arm's end effector (6 x (6+n), base columns first), linear
         velocity of its origin and angular velocity in base-frame axes, base at identity."""
         frame = self.model.getFrameId(self.robot.arm(arm).ee_frame)
-        qp = self._pin_q(q)
-        pin.computeJointJacobians(self.model, self.data, qp)
+        pin.computeJointJacobians(self.model, self.data, self.configurations(q))
         pin.updateFramePlacements(self.model, self.data)
         J = pin.getFrameJacobian(self.model, self.data, frame, pin.LOCAL_WORLD_ALIGNED)
         return J[:, self._cols]
 
     def ee_generalized_jacobian(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
-        """``(J_star, M)`` of Eq. 20-22: see :meth:`SymbolicMaps.ee_generalized_jacobian_fun`."""
-        J = self.ee_jacobian(q, arm)
-        J_star = J[:, 6:] + J[:, :6] @ self.base_jacobian(q)
+        """``(J_star, M)`` of Eq. 20-22
+        (:func:`balance_opt.model.coupling.generalized_jacobian`)."""
+        J_star = coupling.generalized_jacobian(self.ee_jacobian(q, arm), self.base_jacobian(q))
         return J_star, J_star[:, self.robot.arm(arm).indices]
 
     def coupling_factors(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
         """``(M, N)`` of Eq. 22 and 24."""
         _, M = self.ee_generalized_jacobian(q, arm)
-        N = self.base_jacobian(q)[:, self.robot.arm(arm).indices] @ np.linalg.pinv(M)
-        return M, N
+        J_base_arm = self.base_jacobian(q)[:, self.robot.arm(arm).indices]
+        return M, coupling.coupling_factor(J_base_arm, M, NUMPY)
 
     def force_map(self, q, F_e, arm: str = "mission") -> np.ndarray:
         """``F_B = N^{-T} F_e`` (Eq. 25), Moore-Penrose inverse where ``N`` is rank deficient."""
-        _, N = self.coupling_factors(q, arm)
-        return np.linalg.pinv(N.T) @ np.asarray(F_e, dtype=float)
+        _, M = self.ee_generalized_jacobian(q, arm)
+        J_base_arm = self.base_jacobian(q)[:, self.robot.arm(arm).indices]
+        return coupling.force_on_base(J_base_arm, M, np.asarray(F_e, dtype=float), NUMPY)
 
     def coupling_measures(self, q) -> CouplingMeasures:
+        """Singular values and condition number of ``J_wB``, norm of ``J_wM`` at ``q``."""
         return coupling_measures(*self.angular_jacobians(q), self.robot.balance_arm_columns)

@@ -20,9 +20,9 @@ from __future__ import annotations
 import difflib
 import math
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -51,7 +51,7 @@ class JointLimits:
     acceleration: np.ndarray
     effort: np.ndarray
 
-    def subset(self, indices) -> "JointLimits":
+    def subset(self, indices) -> JointLimits:
         """The limits of the joints at ``indices`` of the arm vector."""
         return JointLimits(*(getattr(self, k)[indices] for k in LIMIT_KEYS))
 
@@ -271,7 +271,6 @@ class FloatingRobot:
         self.locked_urdf = _lock_joints(root, self._urdf_joints, self.locked)
 
         self.model, self.full_model = self._build_pinocchio(text)
-        self.data = self.model.createData()
 
         self._joint_ids = [self.model.getJointId(j) for j in self.joint_names]
         self._pin_idx_q = np.array([self.model.joints[i].idx_q for i in self._joint_ids])

@@ -2,17 +2,22 @@
 Jacobian, its angular rows per arm and their time derivatives, and the paper's coupling factors.
 
 Everything is a function of the arm vector ``q`` alone, with the base at the identity pose:
-expressed in the base frame, these maps do not depend on the base pose (see
-``physics-notes.md``), which keeps the functions small and the NLP free of base position.
+expressed in the base frame, these maps do not depend on the base pose (``docs/physics.md``,
+"Momentum maps"), which keeps the functions small and the NLP free of base position.
 
 Two backends produce the two primitive expressions everything else is built from (the
 centroidal momentum matrix and each end effector's frame Jacobian, both with the base at the
 identity, base columns first, then arm joints in arm order):
 
-* ``"pinocchio"``: ``pinocchio.casadi``, where it can be imported (conda or source builds);
-* ``"adam"``: ``adam-robotics`` (``adam.casadi``), which PyPI users have.
+* ``"pinocchio"``: Pinocchio's own algorithms on ``casadi.SX``: through ``pinocchio.casadi``
+  where it imports (conda or source builds), else through the Pinocchio-CasADi bridge
+  (:mod:`balance_opt.model.bridge`, a small C++ program compiled once per machine against the
+  pip wheels; it needs a C++ compiler);
+* ``"adam"``: ``adam-robotics`` (``adam.casadi``), pure Python.
 
-``backend="auto"`` takes the first of these that imports.
+``backend="auto"`` takes ``"pinocchio"`` where it works (building the bridge on first use),
+else ``"adam"``, and then says why in one log line per process. Pinocchio's expressions are
+about four times smaller than adam's on Baxter (``benchmarks/bench_bridge.py``).
 
 Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
 cached), and ``name(...)`` evaluates it and returns NumPy arrays.
@@ -27,21 +32,42 @@ import casadi as cs
 import numpy as np
 
 from balance_opt.errors import BalanceOptError, JointError
+from balance_opt.model import coupling
+from balance_opt.model.bridge import (
+    BridgeUnavailable,
+    bridge_primitives,
+    ensure_bridge,
+    find_toolchain,
+)
+from balance_opt.model.coupling import CouplingMeasures, LinearAlgebra, coupling_measures
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
 
 BACKENDS = ("pinocchio", "adam")
+#: CasADi's linear algebra, for the coupling factors of :mod:`balance_opt.model.coupling`.
+CASADI = LinearAlgebra(cs.solve, cs.inv, cs.SX.eye)
+
+
+def _pinocchio_casadi_imports() -> bool:
+    try:
+        import pinocchio.casadi  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def available_backends() -> list[str]:
-    """Backends that import on this machine, in order of preference."""
+    """Backends usable on this machine, in order of preference, found without building
+    anything: ``"pinocchio"`` where ``pinocchio.casadi`` imports or the bridge's compiler,
+    headers and libraries are all found (its build may still fail), ``"adam"`` where it imports.
+    """
     found = []
     try:
-        import pinocchio.casadi  # noqa: F401
-
+        if not _pinocchio_casadi_imports():
+            find_toolchain()
         found.append("pinocchio")
-    except ImportError:
+    except BridgeUnavailable:
         pass
     try:
         import adam.casadi  # noqa: F401
@@ -52,9 +78,80 @@ def available_backends() -> list[str]:
     return found
 
 
-def _primitives_adam(robot: FloatingRobot, q: cs.SX):
+_NOTED: set[str] = set()  # fallback reasons already logged by this process
+
+
+def _fall_back_to_adam(reason: str) -> tuple[str, str]:
+    """Choose adam for ``auto``, saying why once per process and reason."""
+    try:
+        import adam.casadi  # noqa: F401
+    except ImportError:
+        raise BalanceOptError(
+            f"no symbolic backend: the Pinocchio-CasADi bridge is unavailable ({reason}) "
+            "and adam-robotics[casadi] is not installed"
+        ) from None
+    if reason not in _NOTED:
+        _NOTED.add(reason)
+        log.info("symbolic backend: adam, not the Pinocchio-CasADi bridge: %s", reason)
+    return "adam", f"adam ({reason})"
+
+
+def _resolve_backend(backend: str) -> tuple[str, str]:
+    """``(backend, description)`` for the backend asked for; builds the bridge if needed.
+
+    Raises:
+        BalanceOptError: unknown backend, or the one asked for cannot be used here.
+    """
+    if backend not in ("auto", *BACKENDS):
+        raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
+    if backend == "adam":
+        try:
+            import adam.casadi  # noqa: F401
+        except ImportError:
+            raise BalanceOptError("backend 'adam' cannot be imported here") from None
+        return "adam", "adam"
+    if _pinocchio_casadi_imports():
+        return "pinocchio", "pinocchio (pinocchio.casadi)"
+    try:
+        record = ensure_bridge()
+    except BridgeUnavailable as exc:
+        if backend == "auto":
+            return _fall_back_to_adam(exc.reason)
+        raise BalanceOptError(
+            "backend 'pinocchio' cannot be used here: pinocchio.casadi does not import (PyPI's "
+            f"pin wheels lack it) and the Pinocchio-CasADi bridge is unavailable: {exc.reason}"
+        ) from None
+    return "pinocchio", f"pinocchio (bridge, built in {record.wall_seconds:.0f} s)"
+
+
+def backend_description(backend: str = "auto") -> str:
+    """What ``SymbolicMaps(robot, backend)`` uses here, for ``balance-opt inspect``: e.g.
+    ``"pinocchio (bridge, built in 95 s)"`` or ``"adam (no C++ compiler found: ...)"``.
+    Builds the bridge first if ``backend`` may use it and it is not cached yet.
+
+    Raises:
+        BalanceOptError: as :class:`SymbolicMaps` does for this ``backend``.
+    """
+    return _resolve_backend(backend)[1]
+
+
+def adam_kindyn(robot: FloatingRobot):
+    """adam's ``KinDynComputations`` of the robot (locked joints baked in, arm joints in arm
+    order, no gravity)."""
     import adam.casadi
     import urdf_parser_py.xml_reflection.core as urdf_core
+
+    # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
+    quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
+    try:
+        return adam.casadi.KinDynComputations(
+            robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
+        )
+    finally:
+        urdf_core.on_error = quiet
+
+
+def _primitives_adam(robot: FloatingRobot, q: cs.SX):
 
     # adam-robotics 0.5 stacks three 3-vectors of zeros into a prismatic joint's motion
     # subspace (12 x 1 instead of 6 x 1): fail here, by name, rather than deep inside adam.
@@ -67,14 +164,7 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
                 "(adam-robotics 0.5); lock it, or use backend='pinocchio'",
             )
 
-    # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
-    quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
-    try:
-        kd = adam.casadi.KinDynComputations(
-            robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
-        )
-    finally:
-        urdf_core.on_error = quiet
+    kd = adam_kindyn(robot)
     H = cs.SX.eye(4)
     A = kd.centroidal_momentum_matrix(H, q)
     A = A.array if hasattr(A, "array") else A
@@ -86,15 +176,20 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
 
 
 def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
-    """The primitives from ``pinocchio.casadi`` (Pinocchio's algorithms on ``casadi.SX``).
+    """The primitives from Pinocchio's algorithms on ``casadi.SX``: through ``pinocchio.casadi``
+    where it imports, else through the bridge (:func:`balance_opt.model.bridge.bridge_primitives`).
 
-    Written against the pinocchio.casadi API (``cpin.Model(model)`` casts the numeric model;
-    ``computeCentroidalMap``, ``computeJointJacobians``, ``updateFramePlacements``,
-    ``getFrameJacobian`` take and return ``casadi.SX``) but not run by the test suite where
-    only PyPI's ``pin`` (no ``pinocchio.casadi``) is installed.
+    The ``pinocchio.casadi`` path is written against its API (``cpin.Model(model)`` casts the
+    numeric model; ``computeCentroidalMap``, ``computeJointJacobians``,
+    ``updateFramePlacements``, ``getFrameJacobian`` take and return ``casadi.SX``); the test
+    suite runs it with a numeric stand-in where only PyPI's ``pin`` is installed.
     """
     import pinocchio as pin
-    import pinocchio.casadi as cpin
+
+    try:
+        import pinocchio.casadi as cpin
+    except ImportError:
+        return bridge_primitives(robot, q)
 
     model = robot.model
     cmodel = cpin.Model(model)
@@ -120,16 +215,6 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     return A, jac
 
 
-def _pinv(M: cs.SX) -> cs.SX:
-    """Moore-Penrose inverse of a full-rank matrix (tall: left inverse, wide: right inverse)."""
-    r, c = M.shape
-    if r == c:
-        return cs.inv(M)
-    if r > c:
-        return cs.solve(M.T @ M, M.T)
-    return M.T @ cs.solve(M @ M.T, cs.SX.eye(r))
-
-
 class SymbolicMaps:
     """CasADi momentum maps of a floating robot.
 
@@ -137,39 +222,38 @@ class SymbolicMaps:
         robot: the floating robot.
         backend: ``"auto"``, ``"adam"`` or ``"pinocchio"``.
 
+    Attributes:
+        backend: the backend used, ``"pinocchio"`` or ``"adam"``.
+        backend_description: the same with how or why, see :func:`backend_description`.
+
     Raises:
-        BalanceOptError: the backend asked for cannot be imported.
+        BalanceOptError: the backend asked for cannot be used here.
     """
 
     def __init__(self, robot: FloatingRobot, backend: str = "auto"):
-        found = available_backends()
-        if backend == "auto":
-            if not found:
-                raise BalanceOptError(
-                    "no symbolic backend: install adam-robotics[casadi] or pinocchio with casadi"
-                )
-            backend = found[0]
-        elif backend not in BACKENDS:
-            raise BalanceOptError(
-                f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}"
-            )
-        elif backend not in found:
-            hint = " (PyPI's pin wheels lack pinocchio.casadi)" if backend == "pinocchio" else ""
-            raise BalanceOptError(f"backend '{backend}' cannot be imported here{hint}")
         self.robot = robot
-        self.backend = backend
+        self.backend, self.backend_description = _resolve_backend(backend)
         n = robot.n
         self._q = cs.SX.sym("q", n)
         self._qd = cs.SX.sym("q_dot", n)
-        build = _primitives_pinocchio if backend == "pinocchio" else _primitives_adam
-        self._A, self._J_ee = build(robot, self._q)
-        log.debug("symbolic maps of %s built with %s", robot.name, backend)
+        try:
+            build = _primitives_pinocchio if self.backend == "pinocchio" else _primitives_adam
+            self._A, self._J_ee = build(robot, self._q)
+        except BridgeUnavailable as exc:  # built, but failed on this robot
+            if backend != "auto":
+                raise
+            self.backend, self.backend_description = _fall_back_to_adam(exc.reason)
+            self._A, self._J_ee = _primitives_adam(robot, self._q)
+        log.debug("symbolic maps of %s built with %s", robot.name, self.backend_description)
 
     # ------------------------------------------------------------------ expressions
     @cached_property
     def _J_base(self) -> cs.SX:
-        A_b, A_j = self._A[:, :6], self._A[:, 6:]
-        return -cs.solve(A_b, A_j)  # Eq. 19 with zero momentum, derived from A_G v = 0
+        return coupling.base_jacobian(self._A, CASADI)
+
+    @cached_property
+    def _J_w(self) -> cs.SX:
+        return coupling.angular_jacobian(self._A[3:, 3:6], self._A[3:, 6:], CASADI)
 
     def _cols(self, arm_names) -> list[int]:
         return [int(i) for a in arm_names for i in self.robot.arm(a).indices]
@@ -222,7 +306,7 @@ class SymbolicMaps:
         ``J_wM q_dot_M + J_wB q_dot_B`` (Eq. 26; balance arms stacked in ``J_wB``)."""
 
         def make():
-            Jw = self._J_base[3:, :]
+            Jw = self._J_w
             return self._fun(
                 "angular_jacobians",
                 {"q": self._q},
@@ -236,7 +320,7 @@ class SymbolicMaps:
         ``J_wM`` and ``J_wB`` along ``q_dot`` (needed for Eq. 32)."""
 
         def make():
-            Jw = self._J_base[3:, :]
+            Jw = self._J_w
             return self._fun(
                 "angular_jacobian_rates",
                 {"q": self._q, "q_dot": self._qd},
@@ -255,8 +339,7 @@ class SymbolicMaps:
         ``M`` is the arm's own columns of ``J_star``: the paper's coupling factor (Eq. 22)."""
 
         def make():
-            J = self._J_ee[arm]
-            J_star = J[:, 6:] + J[:, :6] @ self._J_base
+            J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
             return self._fun(
                 f"ee_generalized_jacobian_{arm}",
                 {"q": self._q},
@@ -274,7 +357,7 @@ class SymbolicMaps:
 
         def make():
             _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-            N = self._J_base[:, self._cols([arm])] @ _pinv(M)
+            N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
             return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
 
         return self._cached(f"MN_{arm}", make)
@@ -285,18 +368,10 @@ class SymbolicMaps:
         of ``N^T`` where ``N`` is rank deficient (arms with fewer than 6 joints)."""
 
         def make():
-            _, N = self.coupling_factors_fun(arm)(self._q)
+            _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
             F_e = cs.SX.sym("F_e", 6)
-            cols = self._cols([arm])
-            if len(cols) >= 6:
-                F_B = cs.solve(N.T, F_e)
-            else:
-                # N^T = B C^T with B = M (M^T M)^-1 and C = J_base,arm, both of full column rank,
-                # so pinv(N^T) = pinv(C^T) pinv(B): exact without a numeric SVD.
-                _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-                B = _pinv(M).T
-                C = self._J_base[:, cols]
-                F_B = _pinv(C.T) @ (_pinv(B) @ F_e)
+            J_base_arm = self._J_base[:, self._cols([arm])]
+            F_B = coupling.force_on_base(J_base_arm, M, F_e, CASADI)
             return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
 
         return self._cached(f"F_{arm}", make)
@@ -327,8 +402,6 @@ class SymbolicMaps:
     def force_map(self, q, F_e, arm: str = "mission") -> np.ndarray:
         return np.array(self.force_map_fun(arm)(q, F_e)).ravel()
 
-    def coupling_measures(self, q) -> "CouplingMeasures":
+    def coupling_measures(self, q) -> CouplingMeasures:
         """Singular values and condition number of ``J_wB``, norm of ``J_wM`` at ``q``."""
-        from balance_opt.model.maps import coupling_measures
-
         return coupling_measures(*self.angular_jacobians(q), self.robot.balance_arm_columns)

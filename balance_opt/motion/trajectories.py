@@ -1,5 +1,6 @@
-"""Mission-arm trajectories in joint space, sampled at any times with position, velocity and
-acceleration.
+"""Joint-space trajectories, sampled at any times with position, velocity and acceleration: the
+mission motions (point to point, via points, CSV files, Cartesian goals) and sampled arrays
+(plans and results replayed).
 
 Every trajectory has ``duration`` [s], ``dof`` and ``sample(t) -> (q, q_dot, q_ddot)`` for an
 array of times ``t`` (T,), each (T, dof). Before ``0`` and after ``duration`` the arm rests at
@@ -9,15 +10,19 @@ its end points.
 from __future__ import annotations
 
 import csv
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
 from scipy.interpolate import CubicSpline, make_interp_spline
 
-from balance_opt.errors import TrajectoryError
+from balance_opt.errors import InputError, TrajectoryError
+
+if TYPE_CHECKING:
+    from balance_opt.result import BalanceResult
 
 
 class JointTrajectory:
@@ -181,6 +186,152 @@ class CsvTrajectory(JointTrajectory):
         t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
         s = self._spline
         return s(t), s(t, 1), s(t, 2)
+
+
+# ---------------------------------------------------------------------------------- sampled
+class SampledTrajectory(JointTrajectory):
+    """A joint trajectory given as samples, interpolated piecewise.
+
+    With positions, velocities and accelerations: quintic Hermite interpolation (C2, error
+    O(h^6)), the natural choice to replay a plan or a :class:`BalanceResult`; with positions and
+    velocities: cubic Hermite (C1); with positions only: a natural cubic spline (C2). Before the
+    first and after the last sample the arm rests at its end positions.
+
+    Args:
+        t: strictly increasing sample times (T,) [s], the first 0.
+        q: positions (T, dof) [rad].
+        q_dot: velocities (T, dof) [rad/s], optional.
+        q_ddot: accelerations (T, dof) [rad/s^2], optional (needs ``q_dot``).
+
+    Raises:
+        TrajectoryError: bad times or shapes.
+    """
+
+    def __init__(self, t, q, q_dot=None, q_ddot=None):
+        self.t = np.asarray(t, dtype=float).ravel()
+        q = np.asarray(q, dtype=float)
+        q = q[:, None] if q.ndim == 1 else q
+        if self.t.size < 2 or q.shape[0] != self.t.size:
+            raise TrajectoryError(
+                f"sampled trajectory needs at least 2 samples and one position row per time; "
+                f"got {self.t.size} times and {q.shape[0]} rows"
+            )
+        if self.t[0] != 0.0 or np.any(np.diff(self.t) <= 0):
+            raise TrajectoryError("sampled trajectory times must start at 0 and increase strictly")
+        if q_ddot is not None and q_dot is None:
+            raise TrajectoryError("sampled trajectory: accelerations given without velocities")
+        derivs = [q]
+        for name, d in (("velocities", q_dot), ("accelerations", q_ddot)):
+            if d is None:
+                continue
+            d = np.asarray(d, dtype=float).reshape(q.shape[0], -1)
+            if d.shape != q.shape:
+                raise TrajectoryError(
+                    f"sampled trajectory: {name} have shape {d.shape}, positions {q.shape}"
+                )
+            derivs.append(d)
+        if not all(np.all(np.isfinite(d)) for d in derivs):
+            raise TrajectoryError("sampled trajectory has non-finite values")
+        self.duration = float(self.t[-1])
+        self.dof = q.shape[1]
+        self._h = np.diff(self.t)
+        self._spline = None
+        if len(derivs) == 1:
+            self._spline = CubicSpline(self.t, q, bc_type="natural")
+        else:
+            self._coeffs = self._hermite_coefficients(derivs)
+
+    def _hermite_coefficients(self, derivs) -> np.ndarray:
+        """Per-interval polynomial coefficients in ``s = (t - t_k) / h`` (K, degree + 1, dof)."""
+        h = self._h[:, None]
+        p0, p1 = derivs[0][:-1], derivs[0][1:]
+        v0, v1 = derivs[1][:-1] * h, derivs[1][1:] * h
+        if len(derivs) == 2:  # cubic Hermite
+            dp = p1 - p0
+            return np.stack([p0, v0, 3 * dp - 2 * v0 - v1, -2 * dp + v0 + v1], axis=1)
+        a0, a1 = derivs[2][:-1] * h**2, derivs[2][1:] * h**2
+        gap = p1 - p0 - v0 - 0.5 * a0
+        dv = v1 - v0 - a0
+        da = a1 - a0
+        return np.stack(
+            [
+                p0,
+                v0,
+                0.5 * a0,
+                10 * gap - 4 * dv + 0.5 * da,
+                -15 * gap + 7 * dv - da,
+                6 * gap - 3 * dv + 0.5 * da,
+            ],
+            axis=1,
+        )
+
+    @classmethod
+    def from_result(cls, result: BalanceResult, arm: str = "balance") -> SampledTrajectory:
+        """The mission (``arm="mission"``) or balance (``"balance"``) motion of a result."""
+        if arm not in ("mission", "balance"):
+            raise InputError(f"arm must be 'mission' or 'balance', got {arm!r}")
+        s = "M" if arm == "mission" else "B"
+        t = result.t - result.t[0]
+        return cls(
+            t,
+            getattr(result, f"q_{s}"),
+            getattr(result, f"q_dot_{s}"),
+            getattr(result, f"q_ddot_{s}"),
+        )
+
+    def sample(self, t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        inside = (t >= 0.0) & (t <= self.duration)
+        tc = np.clip(t, 0.0, self.duration)
+        if self._spline is not None:
+            q, q_dot, q_ddot = self._spline(tc), self._spline(tc, 1), self._spline(tc, 2)
+        else:
+            k = np.clip(np.searchsorted(self.t, tc, side="right") - 1, 0, self._h.size - 1)
+            h = self._h[k][:, None]
+            s = ((tc - self.t[k]) / self._h[k])[:, None]
+            c = self._coeffs[k]  # (T, degree + 1, dof)
+            deg = c.shape[1] - 1
+            q = c[:, deg]
+            q_dot = deg * c[:, deg]
+            q_ddot = deg * (deg - 1) * c[:, deg]
+            for j in range(deg - 1, -1, -1):  # Horner for the value and both derivatives
+                q = q * s + c[:, j]
+                if j >= 1:
+                    q_dot = q_dot * s + j * c[:, j]
+                if j >= 2:
+                    q_ddot = q_ddot * s + j * (j - 1) * c[:, j]
+            q_dot = q_dot / h
+            q_ddot = q_ddot / h**2
+        out = ~inside[:, None]
+        return q, np.where(out, 0.0, q_dot), np.where(out, 0.0, q_ddot)
+
+
+TrajectoryLike = JointTrajectory | Callable | tuple
+
+
+def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callable, float | None]:
+    """``(sample, duration)`` for a trajectory given as an object with ``sample(t)``, a callable
+    ``f(t) -> (q, q_dot, q_ddot)`` of an array of times, or a tuple of sample arrays
+    ``(t, q[, q_dot[, q_ddot]])`` (a :class:`SampledTrajectory`).
+
+    Raises:
+        TrajectoryError: the trajectory has the wrong number of joints.
+    """
+    if isinstance(trajectory, tuple):
+        trajectory = SampledTrajectory(*trajectory)
+    sample = trajectory.sample if hasattr(trajectory, "sample") else trajectory
+    if not callable(sample):
+        raise TrajectoryError(
+            f"{what} trajectory must have sample(t), be callable or be a tuple of arrays; "
+            f"got {type(trajectory).__name__}"
+        )
+    probe = np.asarray(sample(np.array([0.0]))[0])
+    if probe.shape[-1] != dof:
+        raise TrajectoryError(
+            f"{what} trajectory has {probe.shape[-1]} joints, the robot's {what} joints are {dof}"
+        )
+    duration = getattr(trajectory, "duration", None)
+    return sample, (None if duration is None else float(duration))
 
 
 # ---------------------------------------------------------------------------------- Cartesian goals

@@ -25,6 +25,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from balance_opt.cache import default_cache_dir
+
 #: Ipopt option types, as its documentation names them.
 INTEGER, REAL, STRING = "integer", "real", "string"
 #: Linear solvers known to be in the CasADi wheel's Ipopt (no load test needed).
@@ -35,7 +37,9 @@ UNDOCUMENTED = {"sb": ("yes", "no")}
 
 _BLOCK = re.compile(r"<strong>(\w+)</strong>(.*?)</blockquote>", re.DOTALL)
 _TYPE = re.compile(r"this (integer|real|string) option")
-_RANGE = re.compile(r"valid range for this (?:integer|real) option is (.*?) and its default", re.DOTALL)
+_RANGE = re.compile(
+    r"valid range for this (?:integer|real) option is (.*?) and its default", re.DOTALL
+)
 _VALUE = re.compile(r"^ - ([^:\s]+):", re.MULTILINE)
 
 
@@ -141,10 +145,8 @@ def _documentation_from_ipopt() -> str:
 
 
 def _catalog_file() -> Path:
-    from balance_opt.optimal.model import default_cache_dir as cache_dir  # TODO(merge): codegen
-
     version = importlib.metadata.version("casadi")
-    return cache_dir() / f"ipopt-options-casadi-{version}.json"
+    return default_cache_dir() / f"ipopt-options-casadi-{version}.json"
 
 
 _CATALOG: dict[str, IpoptOption] | None = None

@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from balance_opt.io.typed_config import from_data, json_schema, reference_markdown, setting
+from balance_opt.io.typed_config import from_data, setting
+from balance_opt.io.typed_reference import json_schema, reference_markdown
 from balance_opt.io.yaml_lines import (
     TaskFileError,
     YamlDocument,

@@ -1,0 +1,175 @@
+"""The solve at the heart of the balance law: ``J x = b`` for the balance rates (Eq. 31) by
+exact, damped or minimum-norm least squares with a null-space term, and the exact time
+derivative of that solution (Eq. 32). Plain linear algebra, batched over leading dimensions.
+
+With the SVD ``J = U S V^T`` (``J``: 3 x n_B, ``docs/physics.md``, "The balance law"):
+
+* well conditioned (``sigma_min >= epsilon``): ``x = V S^{-1} U^T b``, the exact solve (the
+  minimum-norm one when ``n_B > 3``);
+* near a singular ``J`` (``sigma_min < epsilon``): damped least squares
+  ``x = V S / (S^2 + lambda^2) U^T b`` with the variable damping of :func:`damping`;
+* ``n_B > 3``: plus the null-space term ``(I - V V^T) z``, the projection of ``z`` on the exact
+  null space of ``J``, so that it never changes ``J x``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from balance_opt.analytic.options import BalanceLawOptions
+from balance_opt.model.coupling import N_ROTATIONS
+
+
+def _mv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Batched ``M x``."""
+    return np.matvec(M, x)
+
+
+def _mtv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Batched ``M^T x``."""
+    return np.vecmat(x, M)
+
+
+def _safe_divide(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a / b`` with 0 where ``b == 0`` (the pseudo-inverse convention)."""
+    return np.divide(a, b, out=np.zeros(np.broadcast(a, b).shape), where=b != 0)
+
+
+def damping(sigma_min, threshold: float, max_damping: float) -> tuple[np.ndarray, np.ndarray]:
+    """Variable damping (Nakamura-Hanafusa style) and its derivative.
+
+    ``lambda^2 = lambda_max^2 (1 - (sigma_min / epsilon)^2)^2`` below ``epsilon``, else 0. A
+    function of ``sigma_min^2`` (an eigenvalue of ``J J^T``, smooth where ``sigma_min(t)`` touches
+    zero and bounces back) with zero slope at ``epsilon``: the damped rates are C1 in time, so
+    ``q_ddot_B`` (Eq. 32) stays continuous through both events.
+
+    Args:
+        sigma_min: smallest singular value of ``J_wB`` (...).
+        threshold: ``epsilon``; 0 for none.
+        max_damping: ``lambda_max``.
+
+    Returns:
+        ``(lambda^2, d(lambda^2)/d(sigma_min))``, each (...).
+    """
+    sigma_min = np.asarray(sigma_min, dtype=float)
+    if threshold <= 0:
+        zero = np.zeros_like(sigma_min)
+        return zero, zero
+    gap = np.clip(1.0 - (sigma_min / threshold) ** 2, 0.0, None)
+    return max_damping**2 * gap**2, -4.0 * max_damping**2 * gap * sigma_min / threshold**2
+
+
+@dataclass
+class VelocityLawSolution:
+    """One solve of ``J_wB q_dot_B = b`` (Eq. 31), batched over leading dimensions.
+
+    Attributes:
+        q_dot_B: balance joint rates [rad/s].
+        b: the base angular velocity the balance arm is asked for [rad/s].
+        residual: ``J_wB q_dot_B - b`` [rad/s], what the damped inverse leaves undone (zero for
+            the exact solve).
+        sigma_min: smallest singular value of ``J_wB`` (among its first 3).
+        damping: ``lambda`` used (0 when exact).
+        J_wB, U, S, Vt, z, damping2_rate: reused by :func:`acceleration_law` (the SVD, the
+            null-space velocity and ``d(lambda^2)/d(sigma_min)``).
+    """
+
+    q_dot_B: np.ndarray
+    b: np.ndarray
+    residual: np.ndarray
+    sigma_min: np.ndarray
+    damping: np.ndarray
+    J_wB: np.ndarray
+    U: np.ndarray
+    S: np.ndarray
+    Vt: np.ndarray
+    z: np.ndarray
+    damping2_rate: np.ndarray
+
+    @property
+    def condition(self) -> np.ndarray:
+        """Condition number of ``J_wB`` (``inf`` where singular)."""
+        condition = _safe_divide(self.S[..., 0], self.sigma_min)
+        condition[self.sigma_min == 0] = np.inf
+        return condition
+
+
+def velocity_law(
+    J_wB: np.ndarray, b: np.ndarray, z: np.ndarray, options: BalanceLawOptions
+) -> VelocityLawSolution:
+    """Solve ``J_wB q_dot_B = b`` (Eq. 31) the way ``options`` says (module docstring).
+
+    Args:
+        J_wB: (..., 3, n_B).
+        b: requested base angular velocity (..., 3) [rad/s].
+        z: null-space velocity (..., n_B) [rad/s]; projected on the null space of ``J_wB``.
+        options: law settings (``damping_threshold``, ``max_damping``).
+    """
+    U, S, Vt = np.linalg.svd(J_wB, full_matrices=False)
+    sigma_min = S[..., -1]
+    lam2, dlam2 = damping(sigma_min, options.damping_threshold, options.max_damping)
+    gain = _safe_divide(S, S**2 + lam2[..., None])
+    q_dot_B = _mtv(Vt, gain * _mtv(U, b))
+    if J_wB.shape[-1] > S.shape[-1]:  # redundant: exact null-space projection (I - V V^T) z
+        q_dot_B = q_dot_B + z - _mtv(Vt, _mv(Vt, z))
+    residual = _mv(J_wB, q_dot_B) - b
+    return VelocityLawSolution(
+        q_dot_B, b, residual, sigma_min, np.sqrt(lam2), J_wB, U, S, Vt, z, dlam2
+    )
+
+
+def acceleration_law(
+    sol: VelocityLawSolution, dJ_wB: np.ndarray, b_dot: np.ndarray, z_dot: np.ndarray
+) -> np.ndarray:
+    """Balance joint accelerations (Eq. 32): the exact time derivative of :func:`velocity_law`.
+
+    For a square, undamped ``J_wB`` this is ``J_wB q_ddot_B = b_dot - dJ_wB q_dot_B``; the
+    damping (through ``d sigma_min / dt = u^T dJ_wB v``) and the null-space projector add their
+    own derivative terms.
+
+    Args:
+        sol: the velocity-level solution at the same samples.
+        dJ_wB: time derivative of ``J_wB`` (..., 3, n_B).
+        b_dot: time derivative of ``b`` (..., 3) [rad/s^2].
+        z_dot: time derivative of the null-space velocity (..., n_B) [rad/s^2].
+
+    Returns:
+        ``q_ddot_B`` (..., n_B) [rad/s^2].
+    """
+    J, U, S, Vt = sol.J_wB, sol.U, sol.S, sol.Vt
+    lam2 = sol.damping**2
+    denom = S**2 + lam2[..., None]
+    # d(sigma_min)/dt = u^T dJ v, for the smallest singular triplet
+    sigma_dot = np.einsum("...i,...ij,...j->...", U[..., :, -1], dJ_wB, Vt[..., -1, :])
+    lam2_dot = sol.damping2_rate * sigma_dot
+
+    def dls(v):  # J^# v, the (damped) inverse
+        return _mtv(Vt, _safe_divide(S, denom) * _mtv(U, v))
+
+    b = sol.b
+    if J.shape[-1] >= N_ROTATIONS:  # x = J^T y, y = (J J^T + lambda^2 I)^{-1} b
+        x = _mtv(Vt, _safe_divide(S, denom) * _mtv(U, b))
+        y = _mv(U, _safe_divide(_mtv(U, b), denom))
+        c = b_dot - _mv(dJ_wB, x) - _mv(J, _mtv(dJ_wB, y)) - lam2_dot[..., None] * y
+        x_dot = _mtv(dJ_wB, y) + dls(c)
+    else:  # tall: x = (J^T J + lambda^2 I)^{-1} J^T b
+        x = dls(b)
+        c = _mtv(dJ_wB, b - _mv(J, x)) - lam2_dot[..., None] * x
+        x_dot = _mtv(Vt, _safe_divide(_mv(Vt, c), denom)) + dls(b_dot - _mv(dJ_wB, x))
+    if J.shape[-1] > S.shape[-1]:
+        x_dot = x_dot + _null_space_rate(sol, dJ_wB, z_dot)
+    return x_dot
+
+
+def _null_space_rate(sol: VelocityLawSolution, dJ_wB, z_dot) -> np.ndarray:
+    """Time derivative of the null-space term ``w = P z``, ``P = I - J^+ J``:
+    ``dw = -P dJ^T (J J^T)^{-1} J z - J^+ dJ P z + P dz``."""
+    U, S, Vt, z = sol.U, sol.S, sol.Vt, sol.z
+    Pz = z - _mtv(Vt, _mv(Vt, z))
+    JJinvJz = _mv(U, _safe_divide(_mv(Vt, z), S))  # (J J^T)^{-1} J z = U S^{-1} V^T z
+    v = -_mtv(dJ_wB, JJinvJz) + z_dot
+    Pv = v - _mtv(Vt, _mv(Vt, v))
+    pinv_term = _mtv(Vt, _safe_divide(_mtv(U, _mv(dJ_wB, Pz)), S))
+    return Pv - pinv_term

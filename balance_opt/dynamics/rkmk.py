@@ -1,0 +1,196 @@
+"""Runge-Kutta-Munthe-Kaas (RKMK) integrators of the free-floating dynamics, on the manifold of
+Pinocchio configurations (``docs/physics.md``, "Attitude").
+
+A step from ``q_n`` works in the local coordinates ``u`` with ``q = pin.integrate(q_n, u)``,
+where the velocity ``v`` (base twist in the base frame) maps to ``u_dot = dDifference(q_n, q) v``
+exactly (``pin.dDifference``, the inverse right Jacobian of the SE(3) exponential for the base).
+Plain RK in ``u`` is then exact to the method's order; mixing the stage velocities without that
+map would cost two orders on the base rotation.
+
+* :func:`rk4`: the classical fixed-step RK4 in that form. The planned trajectories are sampled
+  at every stage time before the loop, vectorised.
+* :func:`dopri5`: the Dormand-Prince 5(4) embedded pair in the same form, with error control on
+  the tangent-space increments (``atol + rtol |x|`` per component, RMS norm) and steps that land
+  on every output time.
+
+Both take the dynamics as a callable ``dyn(q, v, q_des, q_dot_des, q_ddot_des) -> (a, tau)``
+(with ``dyn.model`` and ``dyn.idx_v``) and the plan as ``plan.sample(t) -> (q, q_dot, q_ddot)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.errors import InputError
+
+#: Step-size control of the adaptive integrator: safety factor and bounds of the step ratio.
+STEP_SAFETY = 0.9
+STEP_GROWTH_MAX = 5.0
+STEP_SHRINK_MIN = 0.2
+#: Smallest step the adaptive integrator accepts before giving up [s].
+MIN_STEP = 1e-10
+
+
+class Dynamics(Protocol):
+    """``(q, v, planned joint state) -> (a, tau)``, with the model and the joints' velocity
+    indices."""
+
+    model: pin.Model
+    idx_v: np.ndarray
+
+    def __call__(self, q, v, qd, vd, ad) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class Plan(Protocol):
+    """The planned joint motion, in arm order."""
+
+    def sample(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+class StepControl(Protocol):
+    """The settings :func:`dopri5` reads
+    (:class:`~balance_opt.dynamics.options.SimulationOptions`)."""
+
+    dt: float
+    max_step: float
+    rtol: float
+    atol: float
+
+
+# Dormand-Prince 5(4): nodes, stage matrix, 5th-order weights (the solution) and 4th-order weights.
+_DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0])
+_DP_A = np.array(
+    [
+        [0, 0, 0, 0, 0, 0, 0],
+        [1 / 5, 0, 0, 0, 0, 0, 0],
+        [3 / 40, 9 / 40, 0, 0, 0, 0, 0],
+        [44 / 45, -56 / 15, 32 / 9, 0, 0, 0, 0],
+        [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0, 0, 0],
+        [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656, 0, 0],
+        [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0],
+    ]
+)
+_DP_B5 = _DP_A[6]
+_DP_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40])
+
+
+def rk4(dyn: Dynamics, plan: Plan, x0, t_end: float, dt: float, stride: int):
+    """Fixed-step RKMK4 (see the module docstring). Returns output arrays and step counts."""
+    model = dyn.model
+    n_steps = max(1, math.ceil(t_end / dt - 1e-9))
+    h = t_end / n_steps
+    # planned joint state at every stage time: index 2k is t_k, 2k+1 is t_k + h/2
+    grid = np.arange(2 * n_steps + 1) * (h / 2)
+    QD, VD, AD = plan.sample(grid)
+    out_steps = np.unique(np.r_[np.arange(0, n_steps, stride), n_steps])
+    is_out = np.zeros(n_steps + 1, dtype=bool)
+    is_out[out_steps] = True
+    T = out_steps.size
+    Q, V, A, TAU = (np.empty((T, m)) for m in (model.nq, model.nv, model.nv, dyn.idx_v.size))
+    q, v = x0
+    integrate, ddiff, ARG1 = pin.integrate, pin.dDifference, pin.ArgumentPosition.ARG1
+    h2, h6 = h / 2, h / 6
+    j = 0
+    for k in range(n_steps):
+        i = 2 * k
+        a1, tau1 = dyn(q, v, QD[i], VD[i], AD[i])
+        if is_out[k]:
+            Q[j], V[j], A[j], TAU[j] = q, v, a1, tau1
+            j += 1
+        v1 = v
+        q2 = integrate(model, q, h2 * v1)
+        v2 = v + h2 * a1
+        a2, _ = dyn(q2, v2, QD[i + 1], VD[i + 1], AD[i + 1])
+        u2 = ddiff(model, q, q2, ARG1) @ v2
+        q3 = integrate(model, q, h2 * u2)
+        v3 = v + h2 * a2
+        a3, _ = dyn(q3, v3, QD[i + 1], VD[i + 1], AD[i + 1])
+        u3 = ddiff(model, q, q3, ARG1) @ v3
+        q4 = integrate(model, q, h * u3)
+        v4 = v + h * a3
+        a4, _ = dyn(q4, v4, QD[i + 2], VD[i + 2], AD[i + 2])
+        u4 = ddiff(model, q, q4, ARG1) @ v4
+        q = integrate(model, q, h6 * (v1 + 2.0 * (u2 + u3) + u4))
+        v = v + h6 * (a1 + 2.0 * (a2 + a3) + a4)
+    a_end, tau_end = dyn(q, v, QD[-1], VD[-1], AD[-1])
+    Q[j], V[j], A[j], TAU[j] = q, v, a_end, tau_end
+    return (
+        out_steps * h,
+        Q,
+        V,
+        A,
+        TAU,
+        {"steps": n_steps, "step_s": h, "rhs_evaluations": 4 * n_steps + 1},
+    )
+
+
+def dopri5(dyn: Dynamics, plan: Plan, x0, t_end: float, opts: StepControl, output_dt: float):
+    """Adaptive RKMK Dormand-Prince 5(4) with steps that land on the output times."""
+    model = dyn.model
+    integrate, ddiff, ARG1 = pin.integrate, pin.dDifference, pin.ArgumentPosition.ARG1
+    n_out = max(1, math.ceil(t_end / output_dt - 1e-9))
+    t_out = np.linspace(0.0, t_end, n_out + 1)
+    nv = model.nv
+    Q, V, A, TAU = (np.empty((t_out.size, m)) for m in (model.nq, nv, nv, dyn.idx_v.size))
+
+    def rhs(t, q, v):
+        qd, vd, ad = (x[0] for x in plan.sample(np.array([t])))
+        return dyn(q, v, qd, vd, ad)
+
+    q, v = x0
+    t, h = 0.0, min(opts.dt, opts.max_step)
+    a, tau = rhs(t, q, v)
+    Q[0], V[0], A[0], TAU[0] = q, v, a, tau
+    KU, KV = np.empty((7, nv)), np.empty((7, nv))
+    accepted = rejected = evaluations = 0
+    for j in range(1, t_out.size):
+        while t < t_out[j]:
+            step = min(h, t_out[j] - t)
+            last = step >= t_out[j] - t
+            KU[0], KV[0] = v, a
+            for s in range(1, 7):
+                du = step * (_DP_A[s, :s] @ KU[:s])
+                qs = integrate(model, q, du)
+                vs = v + step * (_DP_A[s, :s] @ KV[:s])
+                a_s, tau_s = rhs(t + _DP_C[s] * step, qs, vs)
+                KU[s], KV[s] = ddiff(model, q, qs, ARG1) @ vs, a_s
+            evaluations += 6
+            # the 7th stage sits at the new state (first same as last)
+            dv5 = step * (_DP_B5 @ KV)
+            eu, ev = step * ((_DP_B5 - _DP_B4) @ KU), step * ((_DP_B5 - _DP_B4) @ KV)
+            v_new = v + dv5
+            scale_u = opts.atol + opts.rtol
+            scale_v = opts.atol + opts.rtol * np.maximum(np.abs(v), np.abs(v_new))
+            err = math.sqrt((np.sum((eu / scale_u) ** 2) + np.sum((ev / scale_v) ** 2)) / (2 * nv))
+            if err <= 1.0:
+                t = t_out[j] if last else t + step
+                q, v = (
+                    qs,
+                    v_new,
+                )  # qs is integrate(q, du5): stage 7 nodes equal the 5th-order weights
+                a, tau = a_s, tau_s
+                accepted += 1
+            else:
+                rejected += 1
+            factor = STEP_SAFETY * err**-0.2 if err > 0 else STEP_GROWTH_MAX
+            h_new = step * min(STEP_GROWTH_MAX, max(STEP_SHRINK_MIN, factor))
+            if not last or err > 1.0:  # a step cut short to land on an output time says little
+                h = min(h_new, opts.max_step)
+            if h < MIN_STEP:
+                raise InputError(
+                    f"adaptive integration stalled at t = {t:.6g} s (step {h:.3g} s below "
+                    f"{MIN_STEP} s); loosen 'rtol'/'atol' or check the gains"
+                )
+        Q[j], V[j], A[j], TAU[j] = q, v, a, tau
+    return (
+        t_out,
+        Q,
+        V,
+        A,
+        TAU,
+        {"steps": accepted, "rejected_steps": rejected, "rhs_evaluations": evaluations + 1},
+    )

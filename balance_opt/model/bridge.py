@@ -1,0 +1,431 @@
+"""The Pinocchio-CasADi bridge: Pinocchio's own algorithms on ``casadi.SX`` from a pip install.
+
+PyPI's ``pin`` wheels have no ``pinocchio.casadi`` module, but they ship Pinocchio's header-only
+CasADi scalar support and its compiled URDF parser; the ``casadi`` wheel ships CasADi's headers
+and ``libcasadi``; ``cmeel-eigen`` and ``cmeel-urdfdom-headers`` add the last headers. From
+these, a small C++ program (``cpp/pinocchio_casadi_bridge.cpp``, package data) is compiled
+once per machine with the system C++ compiler. Run on a robot, it computes the centroidal
+momentum matrix and the end-effector frame Jacobians on ``casadi::SX`` and saves them as a
+``casadi.Function`` file, which :func:`bridge_primitives` loads (same ``libcasadi``, so the
+file format matches) and calls on the symbolic arm vector.
+
+Everything is cached in ``<kernel cache>/pinocchio-bridge/``:
+
+* the program, keyed by a hash of its source, the compile command, the compiler's version and
+  the versions of ``pin`` and ``casadi``; built under a file lock (one process builds, the
+  others wait), into a temporary name, then renamed; a record beside it holds the program's
+  SHA-256 (a truncated or altered program is rebuilt) and its build times;
+* each robot's saved function, keyed by the program's key, the URDF with the locked joints
+  fixed, the arm joints and the end-effector frames (an unreadable file is generated anew).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import casadi as cs
+
+from balance_opt.cache import default_cache_dir, file_lock
+from balance_opt.errors import BalanceOptError
+
+log = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).with_name("cpp") / "pinocchio_casadi_bridge.cpp"
+#: -O0: the program runs once per robot for well under a second, so optimizing it would only
+#: lengthen the build (which instantiates Pinocchio's templates on casadi::SX, ~1.5 min of CPU).
+CXX_FLAGS = ("-std=c++17", "-O0", "-s")
+#: The compile definitions Pinocchio 4.1's CMake targets (pinocchio_headers, pinocchio_parsers)
+#: export: Pinocchio's joint variant has more alternatives than Boost.MPL's default limit, and
+#: the double-scalar algorithms and the URDF parser come compiled from the pin wheel.
+DEFINES = (
+    "BOOST_MPL_LIMIT_LIST_SIZE=30",
+    "BOOST_MPL_LIMIT_VECTOR_SIZE=30",
+    "BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS",
+    "BOOST_FUSION_INVOKE_MAX_ARITY=12",
+    "PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION",
+    "PINOCCHIO_WITH_URDFDOM",
+    "PINOCCHIO_URDFDOM_HEADERS_MAJOR_VERSION=3",
+    "PINOCCHIO_URDFDOM_HEADERS_MINOR_VERSION=0",
+    "PINOCCHIO_URDFDOM_HEADERS_PATCH_VERSION=0",
+)
+LIBRARIES = ("pinocchio_parsers", "pinocchio_default")
+#: What the build notice announces [min] (measured: 1.5 min of CPU with g++ 12).
+BUILD_MINUTES = 2
+#: Seconds between two "still building" log lines.
+PROGRESS_SECONDS = 30
+#: The pip packages that bring the headers, named in the "headers not found" reason.
+HEADER_PACKAGES = "pin, casadi, cmeel-eigen, cmeel-urdfdom-headers"
+FOLDER = "pinocchio-bridge"
+
+
+class BridgeUnavailable(BalanceOptError):
+    """The bridge cannot be built or run here.
+
+    Attributes:
+        reason: why, in a few words (``"no C++ compiler found ..."``, ``"build failed: ..."``).
+    """
+
+    def __init__(self, reason: str):
+        self.reason = reason
+        super().__init__(f"the Pinocchio-CasADi bridge is unavailable: {reason}")
+
+
+@dataclass(frozen=True)
+class Toolchain:
+    """Where the compiler, the headers and the libraries of the bridge are.
+
+    Attributes:
+        compiler: the C++ compiler.
+        include_dirs: header folders, in search order.
+        library_dirs: folders of Pinocchio's and CasADi's shared libraries.
+    """
+
+    compiler: str
+    include_dirs: tuple[str, ...]
+    library_dirs: tuple[str, ...]
+
+    def command(self, output: Path) -> list[str]:
+        """The one compiler call that builds the bridge into ``output``."""
+        rpath = [f"-Wl,-rpath,{d}" for d in self.library_dirs]
+        if sys.platform.startswith("linux"):
+            # RPATH rather than RUNPATH: a foreign LD_LIBRARY_PATH cannot swap the libraries
+            rpath.append("-Wl,--disable-new-dtags")
+        return [
+            self.compiler,
+            *CXX_FLAGS,
+            *(f"-D{d}" for d in DEFINES),
+            *(f"-I{d}" for d in self.include_dirs),
+            str(SOURCE),
+            "-o",
+            str(output),
+            *(f"-L{d}" for d in self.library_dirs),
+            *(f"-l{lib}" for lib in LIBRARIES),
+            "-lcasadi",
+            *rpath,
+        ]
+
+
+@dataclass(frozen=True)
+class BuildRecord:
+    """How the cached bridge program was built.
+
+    Attributes:
+        path: the program.
+        wall_seconds: wall time of its build [s].
+        cpu_seconds: CPU time of its build [s].
+        built_now: whether this process built it.
+    """
+
+    path: Path
+    wall_seconds: float
+    cpu_seconds: float
+    built_now: bool
+
+
+# ----------------------------------------------------------------------------- toolchain
+def find_cxx_compiler() -> str | None:
+    """A C++ compiler on the PATH (``$CXX``, ``c++``, ``g++``, ``clang++``), or ``None``."""
+    for name in (os.environ.get("CXX"), "c++", "g++", "clang++"):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+def _prefixes() -> list[Path]:
+    """Install prefixes that may hold the headers: the cmeel prefixes on ``sys.path`` (where
+    the ``pin`` and ``cmeel-*`` wheels install), then the environment's and the system's."""
+    cmeel = [Path(p) / "cmeel.prefix" for p in sys.path if p]
+    return [p for p in [*cmeel, Path(sys.prefix), Path("/usr/local"), Path("/usr")] if p.is_dir()]
+
+
+def _header_dir(header: str, subfolders: tuple[str, ...] = ("",)) -> str | None:
+    for prefix in _prefixes():
+        for sub in subfolders:
+            folder = prefix / "include" / sub
+            if (folder / header).is_file():
+                return str(folder)
+    return None
+
+
+def _library_dir(name: str) -> str | None:
+    for prefix in _prefixes():
+        for lib in ("lib", "lib64"):
+            if (prefix / lib / f"lib{name}.so").exists():
+                return str(prefix / lib)
+    return None
+
+
+def find_toolchain() -> Toolchain:
+    """The compiler, headers and libraries the bridge needs, found without building anything.
+
+    Raises:
+        BridgeUnavailable: no C++ compiler, or a header or library is missing.
+    """
+    if os.name == "nt":
+        raise BridgeUnavailable("not supported on Windows")
+    compiler = find_cxx_compiler()
+    if compiler is None:
+        raise BridgeUnavailable("no C++ compiler found: tried $CXX, c++, g++, clang++")
+    casadi_dir = Path(cs.__file__).parent
+    headers = {
+        "pinocchio/autodiff/casadi.hpp": _header_dir("pinocchio/autodiff/casadi.hpp"),
+        "Eigen/Core": _header_dir("Eigen/Core", ("eigen3", "")),
+        "urdf_model/model.h": _header_dir("urdf_model/model.h", ("urdfdom_headers", "")),
+        "boost/mpl/list.hpp": _header_dir("boost/mpl/list.hpp"),
+        "casadi/casadi.hpp": (
+            str(casadi_dir / "include")
+            if (casadi_dir / "include" / "casadi" / "casadi.hpp").is_file()
+            else None
+        ),
+    }
+    missing = [h for h, d in headers.items() if d is None]
+    if missing:
+        raise BridgeUnavailable(
+            f"C++ headers not found: {', '.join(missing)} (pip packages {HEADER_PACKAGES})"
+        )
+    pinocchio_lib = _library_dir(LIBRARIES[0])
+    if pinocchio_lib is None or not (casadi_dir / "libcasadi.so").exists():
+        raise BridgeUnavailable("Pinocchio's or CasADi's shared libraries not found")
+    includes = tuple(dict.fromkeys(headers.values()))  # in order, without repeats
+    return Toolchain(compiler, includes, (pinocchio_lib, str(casadi_dir)))
+
+
+@cache
+def _compiler_version(compiler: str) -> str:
+    try:
+        out = subprocess.run(
+            [compiler, "--version"], capture_output=True, text=True, timeout=60, check=False
+        )
+    except (OSError, subprocess.SubprocessError) as exc:
+        raise BridgeUnavailable(f"{compiler} does not run: {exc}") from exc
+    return (out.stdout.splitlines() or [""])[0]
+
+
+def _build_key(toolchain: Toolchain) -> str:
+    import pinocchio
+
+    parts = [
+        SOURCE.read_text(),
+        # the source by content (above), not by where this package is installed
+        " ".join(toolchain.command(Path("out"))).replace(str(SOURCE), SOURCE.name),
+        _compiler_version(toolchain.compiler),
+        str(pinocchio.__version__),
+        cs.__version__,
+        platform.machine(),
+        platform.system(),
+    ]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+
+
+def cache_folder() -> Path:
+    """``<kernel cache folder>/pinocchio-bridge`` (see ``default_cache_dir``)."""
+    return default_cache_dir() / FOLDER
+
+
+# ----------------------------------------------------------------------------- the program
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _read_record(program: Path) -> BuildRecord | None:
+    """The record of a cached program whose bytes still match it, else ``None``."""
+    try:
+        record = json.loads(program.with_suffix(".json").read_text())
+        if program.is_file() and _sha256(program) == record["sha256"]:
+            return BuildRecord(program, record["wall_seconds"], record["cpu_seconds"], False)
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return None
+
+
+def _first_error(stderr: str) -> str:
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    errors = [line for line in lines if "error" in line.lower()]
+    return (errors or lines or ["no message"])[0][:300]
+
+
+def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
+    """Build the program into a temporary name in its folder, then rename it into place."""
+    log.info("building the Pinocchio-CasADi bridge (once per machine, about %d min)", BUILD_MINUTES)
+    start, cpu0 = time.perf_counter(), _children_cpu()
+    with tempfile.TemporaryDirectory(dir=program.parent) as tmp:
+        out = Path(tmp) / program.name
+        with open(Path(tmp) / "stderr.txt", "w+") as err:
+            proc = subprocess.Popen(
+                toolchain.command(out), stdout=subprocess.DEVNULL, stderr=err, text=True
+            )
+            while True:
+                try:
+                    proc.wait(timeout=PROGRESS_SECONDS)
+                    break
+                except subprocess.TimeoutExpired:
+                    elapsed = time.perf_counter() - start
+                    log.info("... still building the bridge (%.0f s so far)", elapsed)
+            err.seek(0)
+            stderr = err.read()
+        if proc.returncode != 0:
+            raise BridgeUnavailable(f"build failed: {_first_error(stderr)}")
+        wall, cpu = time.perf_counter() - start, _children_cpu() - cpu0
+        record = {"sha256": _sha256(out), "wall_seconds": wall, "cpu_seconds": cpu}
+        os.replace(out, program)  # atomic: no process ever runs a half-written program
+    tmp_record = program.with_suffix(".json.tmp")
+    tmp_record.write_text(json.dumps(record))
+    os.replace(tmp_record, program.with_suffix(".json"))
+    log.info("built the Pinocchio-CasADi bridge in %.0f s (CPU %.0f s): %s", wall, cpu, program)
+    return BuildRecord(program, wall, cpu, True)
+
+
+def _children_cpu() -> float:
+    import resource  # POSIX only, like the bridge
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _signature(path: Path) -> tuple | None:
+    """Size, modification time and inode of ``path``: what changes if the file is replaced,
+    truncated or rewritten (``None`` when it is missing)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_size, st.st_mtime_ns, st.st_ino)
+
+
+# Programs checked (or built) and functions loaded by this process, with the file signature
+# they were checked at: a file changed since is checked again.
+_BUILT: dict[Path, tuple[tuple, BuildRecord]] = {}
+_LOADED: dict[Path, tuple[tuple, cs.Function]] = {}
+
+
+def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
+    """The bridge program, built first if it is not cached (or if its cached bytes changed).
+
+    Args:
+        cache_dir: folder of the program (default :func:`cache_folder`).
+
+    Returns:
+        The program's build record.
+
+    Raises:
+        BridgeUnavailable: no compiler, missing headers, or the build failed.
+    """
+    toolchain = find_toolchain()
+    folder = Path(cache_dir) if cache_dir is not None else cache_folder()
+    program = folder / f"pinocchio_casadi_bridge_{_build_key(toolchain)}"
+    known = _BUILT.get(program)
+    if known is not None and known[0] == _signature(program):
+        return known[1]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        # one process builds, the others wait for it
+        with file_lock(folder / f"{program.name}.lock"):
+            record = _read_record(program)
+            if record is None:
+                record = _compile(toolchain, program)
+    except OSError as exc:  # unwritable cache folder, compiler gone, disk full, ...
+        raise BridgeUnavailable(f"build failed: {exc}") from exc
+    _BUILT[program] = (_signature(program), record)
+    return record
+
+
+# ----------------------------------------------------------------------------- per robot
+
+
+def _robot_key(robot, program: Path) -> str:
+    frames = [arm.ee_frame for arm in robot.arms]
+    spec = [program.name, robot.locked_urdf, *robot.joint_names, "|", *frames]
+    return hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
+
+
+def function_path(robot, program: Path) -> Path:
+    """Where the function of ``robot`` made by ``program`` is cached."""
+    return program.parent / "functions" / f"{robot.name}_{_robot_key(robot, program)}.casadi"
+
+
+def _load(path: Path, robot) -> cs.Function | None:
+    """The saved function at ``path`` if it loads and has the expected shape, else ``None``."""
+    try:
+        fun = cs.Function.load(str(path))
+    except RuntimeError:  # missing, truncated or foreign file
+        return None
+    shape = (6, 6 + robot.n)
+    ok = fun.n_in() == 1 and fun.size_in(0) == (robot.n, 1) and fun.n_out() == 1 + len(robot.arms)
+    if not ok or any(fun.size_out(i) != shape for i in range(fun.n_out())):
+        return None
+    return fun
+
+
+def _generate(program: Path, robot, path: Path) -> float:
+    """Run the program on ``robot``; the function lands in ``path``. Returns the time [s]."""
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+        urdf = Path(tmp) / "robot.urdf"
+        urdf.write_text(robot.locked_urdf)
+        out = Path(tmp) / path.name
+        frames = [arm.ee_frame for arm in robot.arms]
+        args = [str(program), str(urdf), str(out), str(robot.n), *robot.joint_names, *frames]
+        try:
+            proc = subprocess.run(args, capture_output=True, text=True, check=False)
+        except OSError as exc:  # e.g. the program was replaced by a broken file meanwhile
+            raise BridgeUnavailable(f"the bridge does not run: {exc}") from exc
+        if proc.returncode != 0:
+            raise BridgeUnavailable(
+                f"the bridge failed on {robot.name} (exit status {proc.returncode}): "
+                f"{_first_error(proc.stderr)}"
+            )
+        os.replace(out, path)
+    return time.perf_counter() - start
+
+
+def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
+    """``pinocchio_primitives(q) -> (A_G, J_0, ..., J_m)`` of ``robot``, from the cache or
+    generated by the bridge program (built first if needed).
+
+    ``A_G`` is the centroidal momentum matrix and ``J_k`` the frame Jacobian (world-aligned
+    axes) of arm ``k``'s end effector, 6 x (6+n) each, base columns first, then the arm joints.
+
+    Raises:
+        BridgeUnavailable: the program cannot be built, or it failed on this robot.
+    """
+    program = ensure_bridge(cache_dir).path
+    path = function_path(robot, program)
+    known = _LOADED.get(path)
+    if known is not None and known[0] == _signature(path):
+        return known[1]
+    fun = _load(path, robot)
+    if fun is None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise BridgeUnavailable(f"cache folder: {exc}") from exc
+        elapsed = _generate(program, robot, path)
+        fun = _load(path, robot)
+        if fun is None:
+            raise BridgeUnavailable(f"the bridge wrote an unreadable function file {path}")
+        log.info("Pinocchio primitives of %s generated in %.2f s", robot.name, elapsed)
+    _LOADED[path] = (_signature(path), fun)
+    return fun
+
+
+def bridge_primitives(robot, q: cs.SX) -> tuple[cs.SX, dict[str, cs.SX]]:
+    """The centroidal momentum matrix and each arm's end-effector Jacobian as ``casadi.SX``
+    expressions of the arm vector ``q`` (columns: base, then arm joints in arm order)."""
+    A, *jacobians = bridge_function(robot)(q)
+    return cs.SX(A), {arm.name: cs.SX(J) for arm, J in zip(robot.arms, jacobians)}

@@ -1,0 +1,154 @@
+"""The paper's coupling factors (Eq. 19-25), written once for NumPy arrays and CasADi
+expressions (``docs/physics.md``, "Coupling factors"), and the coupling measures of ``J_wB``.
+
+Every formula takes its linear algebra (:class:`LinearAlgebra`) as an argument: the numeric
+maps pass :data:`NUMPY`, the symbolic maps pass CasADi's. The maps are functions of the arm
+configuration alone, with the base at the identity pose (base-frame axes); columns are the
+base twist [linear; angular] in the base frame first, then the arm joints in arm order.
+
+* ``J_base = -A_b^{-1} A_j`` (Eq. 19): base twist per joint rates at zero momentum, from the
+  centroidal momentum matrix ``A_G = [A_b, A_j]``;
+* ``J_w = -I_G^{-1} A`` (Eq. 26): its angular rows, from the angular rows of ``A_G`` alone
+  (``I_G``, the locked inertia about the CoM, and ``A``, the joint columns): the base's linear
+  velocity adds no angular momentum about the CoM;
+* ``J_e* = J_e,j + J_e,b J_base`` (Eq. 20-21): an end effector's twist per joint rates with
+  the base moving as momentum conservation forces it; ``M`` (Eq. 22) is its arm's own columns;
+* ``N = J_base,arm M^+`` (Eq. 24): base twist per end-effector twist;
+* ``F_B = N^{-T} F_e`` (Eq. 25): wrench on the base per end-effector wrench.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg.lapack import dgesv
+
+#: Rows of ``J_wB``: the base's three rotations.
+N_ROTATIONS = 3
+#: Size of a twist or a wrench.
+TWIST = 6
+
+
+@dataclass(frozen=True)
+class LinearAlgebra:
+    """The three operations the coupling factors need, for one array type.
+
+    Attributes:
+        solve: ``solve(a, b) = a^{-1} b`` for a square ``a``.
+        inv: ``inv(a) = a^{-1}``.
+        eye: ``eye(n)``, the identity.
+    """
+
+    solve: Callable
+    inv: Callable
+    eye: Callable
+
+
+def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^{-1} b`` for square ``a`` (..., m, m) and ``b`` (..., m, k) or, for one system,
+    (m,). One system goes to LAPACK's ``dgesv`` directly: at 3 x 3, ``np.linalg.solve``'s
+    per-call overhead is four times the work; batches go to ``np.linalg.solve``.
+
+    Raises:
+        numpy.linalg.LinAlgError: ``a`` is singular.
+    """
+    if np.ndim(a) > 2:
+        return np.linalg.solve(a, b)
+    _, _, x, info = dgesv(a, b)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular matrix (LAPACK dgesv info={info})")
+    return x
+
+
+NUMPY = LinearAlgebra(solve, np.linalg.inv, np.eye)
+
+
+def full_rank_pinv(M, la: LinearAlgebra):
+    """Moore-Penrose inverse of a matrix of full rank (tall: left inverse, wide: right inverse),
+    without an SVD (so that CasADi can differentiate it)."""
+    r, c = M.shape
+    if r == c:
+        return la.inv(M)
+    if r > c:
+        return la.solve(M.T @ M, M.T)
+    return M.T @ la.solve(M @ M.T, la.eye(r))
+
+
+def base_jacobian(A_G, la: LinearAlgebra):
+    """``J_base = -A_b^{-1} A_j`` (6 x n, Eq. 19): base twist per joint rates, zero momentum."""
+    return -la.solve(A_G[:, :TWIST], A_G[:, TWIST:])
+
+
+def angular_jacobian(I_G, A, la: LinearAlgebra):
+    """``J_w = -I_G^{-1} A`` (3 x n): base angular velocity per joint rates, zero momentum."""
+    return -la.solve(I_G, A)
+
+
+def generalized_jacobian(J_ee, J_base):
+    """``J_e* = J_e,j + J_e,b J_base`` (6 x n, Eq. 20-21) from an end effector's frame Jacobian
+    ``J_ee`` (6 x (6 + n), base columns first)."""
+    return J_ee[:, TWIST:] + J_ee[:, :TWIST] @ J_base
+
+
+def coupling_factor(J_base_arm, M, la: LinearAlgebra):
+    """``N = J_base,arm M^+`` (6 x 6, Eq. 24): maps the end effector's twist back to the base
+    twist, exactly on the twists the arm can produce (all of them when ``M`` has rank 6)."""
+    return J_base_arm @ full_rank_pinv(M, la)
+
+
+def force_on_base(J_base_arm, M, F_e, la: LinearAlgebra):
+    """``F_B = N^{-T} F_e`` (Eq. 25), the Moore-Penrose inverse of ``N^T`` when the arm has fewer
+    than 6 joints (``N`` rank deficient).
+
+    There ``N^T = B C^T`` with ``B = (M^+)^T`` and ``C = J_base,arm``, both of full column rank,
+    so ``pinv(N^T) = pinv(C^T) pinv(B)``: exact without a numeric SVD.
+    """
+    if M.shape[1] >= TWIST:
+        return la.solve(coupling_factor(J_base_arm, M, la).T, F_e)
+    B = full_rank_pinv(M, la).T
+    return full_rank_pinv(J_base_arm.T, la) @ (full_rank_pinv(B, la) @ F_e)
+
+
+# ---------------------------------------------------------------------------------- measures
+@dataclass(frozen=True)
+class CouplingMeasures:
+    """How strongly the arms couple to the base attitude at one configuration.
+
+    Attributes:
+        balance_singular_values: singular values of ``J_wB``, largest first [rad/s per rad/s].
+        balance_condition: condition number of ``J_wB`` (``inf`` when rank deficient).
+        mission_norm: spectral norm of ``J_wM``: the largest base rate per unit mission rate.
+        per_arm: the same per balance arm: ``{arm: (singular values, condition)}``.
+    """
+
+    balance_singular_values: np.ndarray
+    balance_condition: float
+    mission_norm: float
+    per_arm: dict
+
+    @property
+    def sigma_min(self) -> float:
+        """Smallest singular value of ``J_wB`` among its first three (the ones that control the
+        base's three rotations)."""
+        return float(
+            self.balance_singular_values[min(N_ROTATIONS, len(self.balance_singular_values)) - 1]
+        )
+
+
+def _condition(s: np.ndarray) -> float:
+    smallest = s[min(N_ROTATIONS, len(s)) - 1]
+    return float(s[0] / smallest) if smallest > 0 else float("inf")
+
+
+def coupling_measures(
+    J_wM: np.ndarray, J_wB: np.ndarray, arm_columns: dict | None = None
+) -> CouplingMeasures:
+    """Coupling measures from the angular Jacobians (see :class:`CouplingMeasures`)."""
+    s = np.linalg.svd(J_wB, compute_uv=False)
+    per_arm = {}
+    for name, cols in (arm_columns or {}).items():
+        s_arm = np.linalg.svd(J_wB[:, cols], compute_uv=False)
+        per_arm[name] = (s_arm, _condition(s_arm))
+    return CouplingMeasures(s, _condition(s), float(np.linalg.norm(J_wM, 2)), per_arm)

@@ -1,0 +1,153 @@
+"""Integration of an attitude state on SO(3), with or without other states (the balance
+joints), and the output grids of rollouts and replays.
+
+Attitude representation: a unit quaternion (x, y, z, w) integrated with its kinematics
+``q_dot = 1/2 q * (omega, 0)`` (``R_dot = R [omega]_x``, ``omega`` in the base frame,
+:func:`balance_opt.motion.so3.quaternion_rate`). This flow keeps ``|q| = 1`` exactly, so the
+adaptive integrator keeps the norm to within its tolerance and the fixed-step RK4 renormalises
+after every step; every quaternion handed out is renormalised. No Euler angles are ever
+integrated (``docs/physics.md``, "Attitude").
+
+Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`):
+
+* ``"adaptive"`` (default): scipy's Dormand-Prince 8(5,3) (``DOP853``) with error control on the
+  whole state (``rtol``, ``atol``) and its 7th-order dense output at the output times; exact to
+  the integration tolerance.
+* ``"rk4"``: classic fixed-step Runge-Kutta 4, each output interval split into steps no longer
+  than ``step``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from balance_opt.errors import InputError
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.so3 import IDENTITY_QUATERNION
+
+#: The scipy scheme behind ``"adaptive"``.
+ADAPTIVE_SCHEME = "DOP853"
+#: Relative slack when splitting an output interval into RK4 steps.
+_STEP_SLACK = 1e-9
+
+
+# ---------------------------------------------------------------------------------- output grids
+def output_times(duration: float, step: float) -> np.ndarray:
+    """Output grid from 0 to ``duration`` [s] in ``round(duration / step)`` equal intervals."""
+    n = max(1, round(duration / step))
+    return np.linspace(0.0, duration, n + 1)
+
+
+def _check_times(t_eval) -> np.ndarray:
+    t = np.asarray(t_eval, dtype=float).ravel()
+    if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):
+        raise InputError("output times must be at least 2 finite, strictly increasing values")
+    return t
+
+
+def initial_quaternion(quaternion0) -> np.ndarray:
+    """The initial base attitude, normalised (identity for ``None``).
+
+    Raises:
+        InputError: not a non-zero, finite quaternion (x, y, z, w).
+    """
+    if quaternion0 is None:
+        return IDENTITY_QUATERNION.copy()
+    q = np.asarray(quaternion0, dtype=float).ravel()
+    if q.size != 4 or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0:
+        raise InputError(
+            f"initial attitude must be a non-zero quaternion (x, y, z, w), got {q.tolist()}"
+        )
+    return q / np.linalg.norm(q)
+
+
+def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> np.ndarray:
+    """The output times: ``t_eval`` checked, else :func:`output_times` over ``duration``.
+
+    Raises:
+        InputError: bad output times, or none while the duration is unknown.
+    """
+    if t_eval is not None:
+        return _check_times(t_eval)
+    if duration is None:
+        raise InputError(
+            "output times are needed: a trajectory given as a plain callable has no duration"
+        )
+    return output_times(duration, options.output_step)
+
+
+# ---------------------------------------------------------------------------------- integration
+def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
+    """Integrate ``y' = rhs(t, y)`` whose first 4 entries are a unit quaternion.
+
+    Args:
+        rhs: right-hand side ``(t, y) -> y'``.
+        y0: initial state, quaternion first.
+        t: output times (T,), the first the initial time.
+        options: integrator settings.
+
+    Returns:
+        ``(Y, stats, message)``: states at the output times with normalised quaternions (T', ny)
+        (T' < T when the integration failed), statistics (plain data) and ``None`` on success,
+        else the integrator's message.
+    """
+    run = _adaptive if options.method == "adaptive" else _rk4
+    Y, stats, message = run(rhs, y0, t, options)
+    Y[:, :4] /= np.linalg.norm(Y[:, :4], axis=1, keepdims=True)
+    return Y, stats, message
+
+
+def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
+    sol = solve_ivp(
+        rhs,
+        (t[0], t[-1]),
+        y0,
+        method=ADAPTIVE_SCHEME,
+        t_eval=t,
+        rtol=options.rtol,
+        atol=options.atol,
+        max_step=options.step or np.inf,
+    )
+    stats = {
+        "method": "adaptive",
+        "scheme": ADAPTIVE_SCHEME,
+        "rtol": options.rtol,
+        "atol": options.atol,
+        "rhs_evaluations": int(sol.nfev),
+    }
+    message = (
+        None
+        if sol.status == 0
+        else f"{sol.message} (at t = {sol.t[-1] if sol.t.size else t[0]:.6g} s)"
+    )
+    return sol.y.T.copy(), stats, message
+
+
+def _rk4(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
+    step = options.step or options.output_step
+    Y = np.empty((t.size, y0.size))
+    Y[0] = y = np.array(y0, dtype=float)
+    n_steps, message = 0, None
+    for k in range(t.size - 1):
+        n_sub = max(1, math.ceil((t[k + 1] - t[k]) / step - _STEP_SLACK))
+        h = (t[k + 1] - t[k]) / n_sub
+        for i in range(n_sub):
+            ti = t[k] + i * h
+            k1 = rhs(ti, y)
+            k2 = rhs(ti + 0.5 * h, y + 0.5 * h * k1)
+            k3 = rhs(ti + 0.5 * h, y + 0.5 * h * k2)
+            k4 = rhs(ti + h, y + h * k3)
+            y = y + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+            y[:4] /= np.linalg.norm(y[:4])
+        n_steps += n_sub
+        if not np.all(np.isfinite(y)):
+            message = f"non-finite state (at t = {t[k + 1]:.6g} s)"
+            Y = Y[: k + 1]
+            break
+        Y[k + 1] = y
+    stats = {"method": "rk4", "step": step, "steps": n_steps, "rhs_evaluations": 4 * n_steps}
+    return Y, stats, message

@@ -1,0 +1,36 @@
+"""The CasADi face of :mod:`balance_opt.motion.so3`: ``[v]_x`` and the inverse right Jacobian of
+SO(3) for symbolic rotation vectors (the optimal planner's attitude kinematics). Same threshold
+(:data:`~balance_opt.motion.so3.SERIES_ANGLE`) and same coefficients as the numeric face.
+"""
+
+from __future__ import annotations
+
+import casadi as cs
+
+from balance_opt.motion.so3 import SERIES_ANGLE, jr_inverse_closed, jr_inverse_series
+
+
+def skew_sym(v):
+    """``[v]_x`` (3 x 3) of a CasADi 3-vector."""
+    return cs.vertcat(
+        cs.horzcat(0, -v[2], v[1]), cs.horzcat(v[2], 0, -v[0]), cs.horzcat(-v[1], v[0], 0)
+    )
+
+
+def inverse_right_jacobian_sym(phi):
+    """``Jr^{-1}(phi)`` for a CasADi rotation vector: ``phi_dot = Jr^{-1}(phi) omega`` for the body
+    rate ``omega`` of ``R = exp([phi]_x)`` (the numeric face:
+    :func:`balance_opt.motion.so3.inverse_right_jacobian`).
+
+    Below :data:`~balance_opt.motion.so3.SERIES_ANGLE` the series replaces the closed form, and
+    the closed form is evaluated at a safe angle there so that neither it nor its derivatives
+    produce NaN.
+    """
+    a2 = cs.dot(phi, phi)
+    small = a2 < SERIES_ANGLE**2
+    a2_safe = cs.if_else(small, 1.0, a2)
+    a = cs.sqrt(a2_safe)
+    c_closed = jr_inverse_closed(a2_safe, a, cs.cos(a), cs.sin(a))
+    c = cs.if_else(small, jr_inverse_series(a2), c_closed)
+    K = skew_sym(phi)
+    return cs.SX.eye(3) + 0.5 * K + c * (K @ K)
