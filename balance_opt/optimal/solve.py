@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from balance_opt.errors import InputError, SolverError
+from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.replay import replay
@@ -195,6 +196,7 @@ class BalanceNLP(BalanceProblem):
         out = self.structure.solver(
             x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
         )
+        raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
         t2 = time.perf_counter()
         w = np.array(out["x"]).ravel()
         worst = self.largest_violation(w, np.array(out["g"]).ravel())
