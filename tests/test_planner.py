@@ -221,6 +221,13 @@ def test_torques_reproduce_the_accelerations_in_forward_dynamics(model):
         ),
         ("trapezoidal", "acceleration", {"rest_at_end": True}),
         ("hermite-simpson", "jerk", {}),
+        # the peak objective's epigraph variable belongs to no point
+        (
+            "hermite-simpson",
+            "acceleration",
+            {"objective": "peak", "start": "rest", "end": "rest", "path_attitude_bound": 0.2},
+        ),
+        ("trapezoidal", "jerk", {"objective": "peak", "terminal_attitude_bound": 0.1}),
         pytest.param(
             "hermite-simpson", "acceleration", {"torque_limits": True}, marks=pytest.mark.slow
         ),
@@ -229,14 +236,8 @@ def test_torques_reproduce_the_accelerations_in_forward_dynamics(model):
 def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, control, extra):
     """The NLP's gradient, constraint Jacobian and Lagrangian Hessian, assembled from the point
     kernels by the chain rule, equal CasADi's AD of the NLP's own objective and constraints."""
-    options = PlannerOptions(
-        **INTEGRAL,
-        intervals=4,
-        transcription=transcription,
-        control=control,
-        weights=CostWeights(rest=3.0),
-        **extra,
-    )
+    settings = {"intervals": 4, "transcription": transcription, "control": control}
+    options = PlannerOptions(**{**INTEGRAL, **settings, "weights": CostWeights(rest=3.0), **extra})
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     solver = nlp.structure.solver
     rng = np.random.default_rng(3)
