@@ -82,6 +82,9 @@ NODE_TOLERANCE = 1e-9
 COLLOCATION_RELATIVE_ERROR = 1e-3
 #: The analytic law the plans are compared with.
 NEAR_EXACT_LAW = BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3)
+#: The objective and end conditions these tests were written for (the peak objective and the
+#: rest ends are tested in test_quality.py).
+INTEGRAL = {"objective": "integral", "start": "still", "end": "free"}
 #: Drift reduction against Phase I required on the paper capture move.
 DRIFT_REDUCTION_20S = 5.0
 DRIFT_REDUCTION_10S = 2.5
@@ -108,7 +111,7 @@ def in_plane(capture):
 def capture_plan(model, capture):
     """The paper capture task in 10 s, default options at N = 50."""
     return build_balance_nlp(
-        model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)
+        model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=50)
     ).solve()
 
 
@@ -218,6 +221,13 @@ def test_torques_reproduce_the_accelerations_in_forward_dynamics(model):
         ),
         ("trapezoidal", "acceleration", {"rest_at_end": True}),
         ("hermite-simpson", "jerk", {}),
+        # the peak objective's epigraph variable belongs to no point
+        (
+            "hermite-simpson",
+            "acceleration",
+            {"objective": "peak", "start": "rest", "end": "rest", "path_attitude_bound": 0.2},
+        ),
+        ("trapezoidal", "jerk", {"objective": "peak", "terminal_attitude_bound": 0.1}),
         pytest.param(
             "hermite-simpson", "acceleration", {"torque_limits": True}, marks=pytest.mark.slow
         ),
@@ -226,13 +236,8 @@ def test_torques_reproduce_the_accelerations_in_forward_dynamics(model):
 def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, control, extra):
     """The NLP's gradient, constraint Jacobian and Lagrangian Hessian, assembled from the point
     kernels by the chain rule, equal CasADi's AD of the NLP's own objective and constraints."""
-    options = PlannerOptions(
-        intervals=4,
-        transcription=transcription,
-        control=control,
-        weights=CostWeights(rest=3.0),
-        **extra,
-    )
+    settings = {"intervals": 4, "transcription": transcription, "control": control}
+    options = PlannerOptions(**{**INTEGRAL, **settings, "weights": CostWeights(rest=3.0), **extra})
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     solver = nlp.structure.solver
     rng = np.random.default_rng(3)
@@ -339,7 +344,9 @@ def test_no_worse_than_an_analytic_law_that_stays_inside_the_limits(model, captu
     assert (
         phase_one(capture.robot, in_plane, capture.q_B0, t_eval=t).max_drift > 1000 * law.max_drift
     )
-    plan = build_balance_nlp(model, in_plane, capture.q_B0, PlannerOptions(intervals=30)).solve()
+    plan = build_balance_nlp(
+        model, in_plane, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=30)
+    ).solve()
     assert plan.violations == []
     assert plan.max_drift <= law.max_drift + DRIFT_TOLERANCE
     assert plan.final_drift <= law.final_drift + DRIFT_TOLERANCE
@@ -374,7 +381,9 @@ def test_paper_capture_limits_hold_on_the_whole_continuous_plan(model, capture, 
     """Every Bernstein coefficient of the plan's position, velocity and acceleration on every
     interval is inside the limits, so the continuous motion is (convex hull), not only the
     samples."""
-    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=50))
+    nlp = build_balance_nlp(
+        model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=50)
+    )
     sol = nlp.unpack(capture_plan.info["nlp_solution"])
     levels = joint_chain_coefficients(
         nlp.transcription, [sol.X[3:6, :-1], sol.X[6:9, :-1]], sol.U, sol.Um, nlp.h
@@ -400,7 +409,9 @@ def test_paper_capture_in_20_s_is_five_times_better_than_phase_one(model, captur
     t = np.linspace(0.0, mission.duration, 2001)
     law = _near_exact_law(slow.robot, mission, slow.q_B0, t)
     assert any(v.kind == "position" and v.worst_excess > 1.0 for v in law.violations)
-    plan = build_balance_nlp(model, mission, slow.q_B0, PlannerOptions(intervals=60)).solve()
+    plan = build_balance_nlp(
+        model, mission, slow.q_B0, PlannerOptions(**INTEGRAL, intervals=60)
+    ).solve()
     assert plan.violations == []
     phase1 = phase_one(slow.robot, mission, slow.q_B0, t_eval=plan.t)
     assert plan.max_drift * DRIFT_REDUCTION_20S <= phase1.max_drift
@@ -408,7 +419,7 @@ def test_paper_capture_in_20_s_is_five_times_better_than_phase_one(model, captur
 
 @pytest.mark.slow
 def test_hard_terminal_attitude_bound_met_in_resimulation(model, capture):
-    free = PlannerOptions(intervals=100, weights=CostWeights(terminal=0.0))
+    free = PlannerOptions(**INTEGRAL, intervals=100, weights=CostWeights(terminal=0.0))
     unbounded = build_balance_nlp(model, capture.mission, capture.q_B0, free).solve()
     bound = 0.5 * unbounded.final_drift
     bounded = build_balance_nlp(
@@ -424,7 +435,9 @@ def test_hard_terminal_attitude_bound_met_in_resimulation(model, capture):
 
 def test_rest_at_end_and_prescribed_final_configuration(model, capture):
     q_f = capture.q_B0 + np.array([0.2, -0.1, 0.1])
-    options = PlannerOptions(intervals=30, rest_at_end=True, final_configuration=tuple(q_f))
+    options = PlannerOptions(
+        **INTEGRAL, intervals=30, rest_at_end=True, final_configuration=tuple(q_f)
+    )
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     np.testing.assert_allclose(plan.q_B[-1], q_f, rtol=0, atol=NODE_TOLERANCE)
     np.testing.assert_allclose(plan.q_dot_B[-1], 0.0, rtol=0, atol=NODE_TOLERANCE)
@@ -440,7 +453,7 @@ def test_rest_at_end_and_prescribed_final_configuration(model, capture):
 def test_other_transcriptions_plan_within_limits(
     model, capture, capture_plan, transcription, control
 ):
-    options = PlannerOptions(intervals=50, transcription=transcription, control=control)
+    options = PlannerOptions(**INTEGRAL, intervals=50, transcription=transcription, control=control)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     assert plan.violations == []
     assert plan.info["transcription"] == transcription and plan.info["control"] == control
@@ -464,7 +477,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
         torque_model,
         capture.mission,
         capture.q_B0,
-        PlannerOptions(intervals=20, torque_limits=True),
+        PlannerOptions(**INTEGRAL, intervals=20, torque_limits=True),
     )
     plan = nlp.solve("rest")
     sol = nlp.unpack(plan.info["nlp_solution"])
@@ -481,7 +494,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     assert check.unit == "N m" and check.amount >= np.abs(torques).max() - 0.25 - 1e-9
     # and without the constraint the same task needs more torque: the bound is active
     free = build_balance_nlp(
-        torque_model, capture.mission, capture.q_B0, PlannerOptions(intervals=20)
+        torque_model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=20)
     ).solve("rest")
     sol = nlp.unpack(free.info["nlp_solution"])
     assert (
@@ -496,7 +509,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
 
 def test_same_task_same_plan(model, capture, capture_plan):
     again = build_balance_nlp(
-        model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)
+        model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=50)
     ).solve()
     for field in ("q_B", "q_dot_B", "q_ddot_B", "quaternion", "omega"):
         np.testing.assert_array_equal(getattr(again, field), getattr(capture_plan, field))
@@ -504,7 +517,7 @@ def test_same_task_same_plan(model, capture, capture_plan):
 
 
 def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_plane):
-    options = PlannerOptions(intervals=50)
+    options = PlannerOptions(**INTEGRAL, intervals=50)
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     other = build_balance_nlp(model, in_plane, capture.q_B0, options)
     assert other.structure is nlp.structure and other.build_time == 0.0
@@ -529,6 +542,7 @@ def test_structure_key_and_parameter_layout(model, capture):
     """The structure key is named and hashable and tells structures apart; the parameter vector
     is packed and unpacked by one layout, field by field."""
     options = PlannerOptions(
+        **INTEGRAL,
         intervals=10,
         path_attitude_bound=0.2,
         terminal_attitude_bound=0.05,
@@ -566,6 +580,7 @@ def test_constraint_checks_agree_with_the_result(model, capture, capture_law):
     law = capture_law
     bound = 0.5 * law.max_drift
     options = PlannerOptions(
+        **INTEGRAL,
         intervals=10,
         path_attitude_bound=bound,
         terminal_attitude_bound=bound,
@@ -606,7 +621,10 @@ def test_infeasible_problem_names_status_and_constraint(capture):
     }
     slow = PlannerModel(paper_robot(limits=limits), compile=False)
     options = PlannerOptions(
-        intervals=20, rest_at_end=True, final_configuration=tuple(capture.q_B0 + [0, 0, 1.0])
+        **INTEGRAL,
+        intervals=20,
+        rest_at_end=True,
+        final_configuration=tuple(capture.q_B0 + [0, 0, 1.0]),
     )
     with pytest.raises(
         PlannerSolverError,
@@ -624,7 +642,7 @@ def test_infeasible_problem_names_status_and_constraint(capture):
 
 
 def test_iteration_limit_raises_with_the_best_iterate(model, capture):
-    options = PlannerOptions(intervals=20, max_iterations=2)
+    options = PlannerOptions(**INTEGRAL, intervals=20, max_iterations=2)
     with pytest.raises(
         PlannerSolverError,
         match=r"^Ipopt stopped with status 'Maximum_Iterations_Exceeded' after 2 "
@@ -644,7 +662,7 @@ def test_limits_no_plan_can_meet_raise_before_solving(model, capture):
             "[-1.5708, 1.5708] rad"
         ),
     ):
-        build_balance_nlp(model, capture.mission, bad, PlannerOptions(intervals=10))
+        build_balance_nlp(model, capture.mission, bad, PlannerOptions(**INTEGRAL, intervals=10))
     with pytest.raises(
         InfeasibleLimitsError,
         match=re.escape(
@@ -656,7 +674,7 @@ def test_limits_no_plan_can_meet_raise_before_solving(model, capture):
             model,
             capture.mission,
             capture.q_B0,
-            PlannerOptions(intervals=10, final_configuration=(-3.0, 0.0, 0.0)),
+            PlannerOptions(**INTEGRAL, intervals=10, final_configuration=(-3.0, 0.0, 0.0)),
         )
 
 
@@ -706,12 +724,17 @@ def test_bad_options(cls, kwargs, message):
 
 def test_bad_sizes(model, capture):
     with pytest.raises(InputError, match=re.escape("q_B0 has 2 values, the balance joints are 3")):
-        build_balance_nlp(model, capture.mission, [0.0, 0.1], PlannerOptions(intervals=10))
+        build_balance_nlp(
+            model, capture.mission, [0.0, 0.1], PlannerOptions(**INTEGRAL, intervals=10)
+        )
     with pytest.raises(
         InputError, match=re.escape("planner option 'horizon' (5.0 s) is shorter than the mission")
     ):
         build_balance_nlp(
-            model, capture.mission, capture.q_B0, PlannerOptions(intervals=10, horizon=5.0)
+            model,
+            capture.mission,
+            capture.q_B0,
+            PlannerOptions(**INTEGRAL, intervals=10, horizon=5.0),
         )
 
 
@@ -746,6 +769,10 @@ def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
 
 def test_plan_optimal_shortcut(capture, model, in_plane):
     plan = plan_optimal(
-        model, in_plane, capture.q_B0, PlannerOptions(intervals=10), initial_guess="rest"
+        model,
+        in_plane,
+        capture.q_B0,
+        PlannerOptions(**INTEGRAL, intervals=10),
+        initial_guess="rest",
     )
     assert plan.method == "optimal" and plan.info["intervals"] == 10 and plan.violations == []

@@ -1,11 +1,13 @@
 """The optimal balance planner: the paper's balance law (Eq. 31) posed as an optimal control
 problem, transcribed by direct collocation and solved with Ipopt.
 
-The balance arm's motion is chosen to keep the base still (integral of ``|omega_b|^2``), to
-bring its attitude back at the end (``|log R_T|^2``: the motion is non-holonomic, so a closed
-joint path can undo a rotation), and to stay smooth, while every balance joint respects its
-position, velocity and acceleration limits on the whole continuous motion (optionally its torque
-limits at the collocation points). The mission arm's motion is a hard input. Assumptions: zero
+The balance arm's motion is chosen to keep the largest base rotation ``max |log R(t)|`` small
+(objective ``peak``, the default; ``integral``: the integral of ``|omega_b|^2`` and
+``|log R|^2``), to bring the attitude back at the end (``|log R_T|^2``: the motion is
+non-holonomic, so a closed joint path can undo a rotation), and to stay smooth, while every
+balance joint respects its position, velocity and acceleration limits on the whole continuous
+motion (optionally its torque limits, held on the re-simulated motion by refinement), starting
+and by default ending at rest. The mission arm's motion is a hard input. Assumptions: zero
 total momentum (a task with ``h0`` is refused upstream), the base at its initial attitude and
 the balance arm at rest at ``q_B0`` at ``t = 0``. The physics is in ``docs/physics.md``
 ("Base motion forced by the joints", "The balance law", "Attitude").
@@ -30,6 +32,9 @@ The modules, top down:
   vectors and bounds, :meth:`~BalanceNLP.solve` it), :func:`plan_optimal`, :func:`resimulate`
   and :class:`PlannerSolverError`. Every plan is re-simulated on a fine grid with numeric
   Pinocchio, and the returned result is that re-simulated motion.
+* :mod:`~balance_opt.optimal.refine`: the outer loop of :meth:`~BalanceNLP.solve`: the peak
+  problem started from the integral plan, path attitude bounds reached through the peak
+  problem, bounds tightened until the re-simulated motion meets them, multi-start.
 * :mod:`~balance_opt.optimal.problem`: one problem's numeric data (mission samples, horizon,
   limits), checked against the robot.
 * :mod:`~balance_opt.optimal.nlp`: the compiled NLP of one structure, assembled from per-point

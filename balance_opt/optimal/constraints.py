@@ -25,9 +25,10 @@ acceleration of the trapezoidal rule). Its interior coefficients are constraint 
 (:class:`JointLimit`). Bounding the values at the nodes and midpoints alone would not do: the quadratic
 acceleration of Hermite-Simpson through 1, 1, -1 at the start, middle and end of an interval
 peaks at 1.25 a quarter of the way in. The convex hull is conservative (the polynomial may stay
-inside a limit its hull crosses). Torques and the path attitude bound hold at the collocation
-points only, the terminal attitude bound at the last node; the re-simulation reports how far
-the motion between them strays (:meth:`Constraint.check`).
+inside a limit its hull crosses). Torques and the path attitude bound are rows at the
+collocation points, the terminal attitude bound at the last node; the re-simulation reports how
+far the motion between them strays (:meth:`Constraint.check`), and the planner tightens their
+bounds where it strays too far and solves again (:mod:`balance_opt.optimal.refine`).
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")
+#: Unit of the peak objective's epigraph variable: ``S = peak^2 / PEAK_SCALE^2`` [rad], so that
+#: ``S`` is of order 1 on drifts of a few hundredths of a radian.
+PEAK_SCALE = 0.01
 
 
 @dataclass(frozen=True)
@@ -279,21 +283,26 @@ class TorqueLimit(Constraint):
         return [(block, nlp.torque)]
 
     def row_bounds(self, problem, block):
-        effort = problem.limits.effort
-        return _per_column(-effort, len(block.taus)), _per_column(effort, len(block.taus))
+        """The effort limits, times ``problem.torque_factor`` (n_B, n_points) where the
+        refinement tightened them."""
+        effort = problem.limits.effort[:, None] * problem.torque_factor
+        return -effort.ravel(order="F"), effort.ravel(order="F")
+
+    @staticmethod
+    def torques(problem: BalanceProblem, result: BalanceResult) -> np.ndarray:
+        """The balance joints' torques of the free-floating inverse dynamics of a motion
+        (T, n_B) [N m]."""
+        torque = problem.model.torque_fun().map(result.t.size)
+        tau = torque(
+            np.hstack([result.q_M, result.q_B]).T,
+            np.hstack([result.q_dot_M, result.q_dot_B]).T,
+            np.hstack([result.q_ddot_M, result.q_ddot_B]).T,
+        )
+        return np.array(tau)[problem.model.n_M :].T
 
     def check(self, problem, result):
-        n_M = problem.model.n_M
-        torque = problem.model.torque_fun().map(result.t.size)
-        tau = np.array(
-            torque(
-                np.hstack([result.q_M, result.q_B]).T,
-                np.hstack([result.q_dot_M, result.q_dot_B]).T,
-                np.hstack([result.q_ddot_M, result.q_ddot_B]).T,
-            )
-        )[n_M:].T
         return _worst(
-            np.abs(tau) - problem.limits.effort,
+            np.abs(self.torques(problem, result)) - problem.limits.effort,
             result.t,
             problem.balance_joints,
             lambda joint: f"torque limit of {joint}",
@@ -316,7 +325,8 @@ class AttitudeBound(Constraint):
 
 
 class PathAttitudeBound(AttitudeBound):
-    """``|log R(t)| <= path_attitude_bound`` at every collocation point."""
+    """``|log R(t)| <= path_attitude_bound`` at every collocation point (the parameter
+    ``path_scale`` holds the bound the refinement may have tightened)."""
 
     name = "path attitude bound"
 
@@ -331,8 +341,36 @@ class PathAttitudeBound(AttitudeBound):
         return [(block, nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2))]
 
     def check(self, problem, result):
+        if problem.options.path_attitude_bound is None:
+            return None
         excess = result.angle - problem.options.path_attitude_bound
         return _worst(excess[:, None], result.t, ["|log R|"], lambda _: self.name, "rad")
+
+
+class PeakEpigraph(PathAttitudeBound):
+    """The peak objective's epigraph: ``|phi_k|^2 / PEAK_SCALE^2 <= S`` at every collocation
+    point, ``S >= 0``; with a path attitude bound, ``S`` is bounded by it (tightened by the
+    refinement: ``problem.path_bound``), and its check is the bound's."""
+
+    name = "peak epigraph"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        X, _ = nlp.variables.points()
+        block = Block(
+            "peak epigraph",
+            ("attitude |phi|^2 / PEAK_SCALE^2 - S",),
+            ("(relative)",),
+            nlp.transcription.point_taus(nlp.key.intervals),
+        )
+        return [(block, cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S)]
+
+    def row_bounds(self, problem, block):
+        return np.full(block.size, -np.inf), np.zeros(block.size)
+
+    def bound_variables(self, problem, lower, upper):
+        lower.S[:] = 0.0
+        bound = problem.path_bound
+        upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
 
 
 class TerminalAttitudeBound(AttitudeBound):
@@ -355,30 +393,50 @@ class TerminalAttitudeBound(AttitudeBound):
         return _worst([[excess]], result.t[-1:], ["|log R_T|"], lambda _: self.name, "rad")
 
 
+def _pin(problem: BalanceProblem, lower, upper, node: int, kind: str, value) -> None:
+    """Fix a derivative of the balance joints at a node: a state's rows, or (the acceleration
+    with control ``"acceleration"``) the control there. The trapezoidal rule's acceleration is
+    constant on an interval, the mean of its two nodes' controls: both are fixed."""
+    rows = problem.model.joint_rows(problem.control)
+    level = DERIVATIVES.index(kind)
+    if level < len(rows):
+        lower.X[rows[level], node] = upper.X[rows[level], node] = value
+        return
+    nodes = (
+        [node] if problem.transcription.has_midpoints else [node, node + (1 if node == 0 else -1)]
+    )
+    for k in nodes:
+        lower.U[:, k] = upper.U[:, k] = value
+
+
 class InitialState(Constraint):
     """The planner's starting point: the base at its initial attitude (``phi = 0``) and the
-    balance arm at rest at ``q_B0``; the first node's states are fixed."""
+    balance arm at rest at ``q_B0``; with ``start: rest`` also its acceleration zero (no torque
+    step at ``t = 0``)."""
 
     name = "initial state"
 
-    def targets(self, problem: BalanceProblem) -> list[np.ndarray]:
-        """Position, velocity (, acceleration) of the balance joints at ``t = 0``."""
+    def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
+        """``(derivative, value)`` of the balance joints at ``t = 0``."""
         n_levels = len(problem.model.joint_rows(problem.control))
+        if problem.options.start == "rest":
+            n_levels = 3
         zeros = np.zeros_like(problem.q_B0)
-        return [problem.q_B0] + [zeros] * (n_levels - 1)
+        return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
     def bound_variables(self, problem, lower, upper):
-        x0 = np.concatenate([np.zeros(3), *self.targets(problem)])
-        lower.X[:, 0] = upper.X[:, 0] = x0
+        lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+        for kind, value in self.targets(problem):
+            _pin(problem, lower, upper, 0, kind, value)
 
     def check(self, problem, result):
-        targets = self.targets(problem)
-        return _worst_state(problem, result, 0, "initial", list(zip(DERIVATIVES, targets)))
+        return _worst_state(problem, result, 0, "initial", self.targets(problem))
 
 
 class EndConditions(Constraint):
-    """The options ``rest_at_end`` (zero velocity, and zero acceleration with control
-    ``"jerk"``, at the last node) and ``final_configuration`` (the last node's position)."""
+    """The options ``end`` (``still``: zero velocity at the last node; ``rest``: zero velocity
+    and acceleration; ``rest_at_end`` is ``end: rest``) and ``final_configuration`` (the last
+    node's position)."""
 
     name = "end conditions"
 
@@ -387,16 +445,13 @@ class EndConditions(Constraint):
         out = []
         if problem.options.final_configuration is not None:
             out.append(("position", np.asarray(problem.options.final_configuration)))
-        if problem.options.rest_at_end:
-            n_levels = len(problem.model.joint_rows(problem.control))
-            out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
+        n_levels = {"free": 1, "still": 2, "rest": 3}[problem.options.end_condition]
+        out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
         return out
 
     def bound_variables(self, problem, lower, upper):
-        rows = problem.model.joint_rows(problem.control)
         for kind, value in self.targets(problem):
-            r = rows[DERIVATIVES.index(kind)]
-            lower.X[r, problem.N] = upper.X[r, problem.N] = value
+            _pin(problem, lower, upper, problem.N, kind, value)
 
     def check(self, problem, result):
         return _worst_state(problem, result, -1, "final", self.targets(problem))
@@ -433,6 +488,8 @@ def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
     ]
     if key.torque_limits:
         kinds.append(TorqueLimit())
+    if key.objective == "peak":
+        kinds.append(PeakEpigraph())
     if key.path_attitude_bound:
         kinds.append(PathAttitudeBound())
     if key.terminal_attitude_bound:

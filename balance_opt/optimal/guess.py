@@ -62,6 +62,26 @@ def rest_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution:
     )
 
 
+def random_guess(problem: BalanceProblem, first_state: np.ndarray, rng) -> Solution:
+    """A smooth random balance motion from rest to rest: ``q_B0`` plus three raised-cosine
+    modes per joint with amplitudes drawn up to 0.5 rad (the m-th mode's divided by m),
+    clipped to the limits by :func:`from_samples`."""
+    T, n_B = problem.horizon, problem.model.n_B
+    t = np.linspace(0.0, T, max(4 * problem.N + 1, 201))
+    q, qd, qdd = (
+        np.tile(problem.q_B0, (t.size, 1)),
+        np.zeros((t.size, n_B)),
+        np.zeros((t.size, n_B)),
+    )
+    for m in (1, 2, 3):
+        a = rng.uniform(-0.5, 0.5, size=n_B) / m
+        w = 2.0 * np.pi * m / T
+        q += 0.5 * np.outer(1.0 - np.cos(w * t), a)
+        qd += 0.5 * w * np.outer(np.sin(w * t), a)
+        qdd += 0.5 * w**2 * np.outer(np.cos(w * t), a)
+    return from_samples(problem, first_state, t, q, qd, qdd)
+
+
 def analytic_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution:
     """The analytic law's balance motion (Eq. 31, 32), clipped to the limits."""
     from balance_opt.analytic.rollout import rollout

@@ -5,9 +5,10 @@ The NLP has three vectors, each a stack of named blocks:
 * the decision vector ``w`` (:class:`VariableLayout`): the states ``X`` at the nodes
   (n_x, N+1), with Hermite-Simpson the states ``Xm`` at the midpoints (n_x, N), the controls
   ``U`` at the nodes (n_u, N+1) and with Hermite-Simpson ``Um`` at the midpoints (n_u, N), in
-  that order, each matrix stacked column by column;
+  that order, each matrix stacked column by column, then with the peak objective the epigraph
+  variable ``S`` (1, 1), which belongs to no collocation point;
 * the parameter vector ``p`` (:class:`ParameterLayout`): the numeric data of one problem
-  (interval length, weights, attitude-bound scales, ``q_rest``, the mission's samples), as the
+  (interval length, weights, attitude-bound scales, the peak's weight, ``q_rest``, the mission's samples), as the
   fields of :class:`NLPParameters`;
 * the constraint vector ``g``: the rows each constraint kind adds
   (:mod:`balance_opt.optimal.constraints`), as :class:`Block` s in the order of the kinds.
@@ -57,7 +58,9 @@ class StructureKey:
             (``"position"``, ``"velocity"``, ``"acceleration"``): switched on and finite for
             at least one balance joint.
         torque_limits: torque limits switched on and finite for at least one balance joint.
-        path_attitude_bound, terminal_attitude_bound: whether these bounds are set.
+        objective: ``"peak"`` (with the epigraph variable and its rows) or ``"integral"``.
+        path_attitude_bound, terminal_attitude_bound: whether these bounds are set (with the
+            peak objective the path bound is the epigraph variable's upper bound: no rows).
         tolerance, max_iterations: Ipopt's ``tol`` and ``max_iter``.
         ipopt: the extra Ipopt options, as sorted ``(name, repr(value))`` pairs.
     """
@@ -67,6 +70,7 @@ class StructureKey:
     control: str
     joint_limits: tuple[str, ...]
     torque_limits: bool
+    objective: str
     path_attitude_bound: bool
     terminal_attitude_bound: bool
     tolerance: float
@@ -94,7 +98,9 @@ class StructureKey:
             control=options.control,
             joint_limits=tuple(sorted(kind for kind, on in enforced.items() if on)),
             torque_limits=bool(options.torque_limits and np.any(np.isfinite(limits.effort))),
-            path_attitude_bound=options.path_attitude_bound is not None,
+            objective=options.objective,
+            path_attitude_bound=options.path_attitude_bound is not None
+            and options.objective != "peak",
             terminal_attitude_bound=options.terminal_attitude_bound is not None,
             tolerance=options.tolerance,
             max_iterations=int(options.max_iterations),
@@ -170,12 +176,14 @@ class BlockStack:
 @dataclass
 class Solution:
     """A point of the NLP, unpacked: states and controls at the nodes and midpoints (the
-    midpoints' are ``None`` without them). NumPy arrays, or CasADi symbols in the build."""
+    midpoints' are ``None`` without them) and the peak objective's epigraph variable ``S``
+    (``None`` without it). NumPy arrays, or CasADi symbols in the build."""
 
     X: Any
     U: Any
     Xm: Any = None
     Um: Any = None
+    S: Any = None
 
     def points(self) -> tuple[Any, Any]:
         """``(states, controls)`` at every collocation point: nodes, then midpoints."""
@@ -187,15 +195,19 @@ class Solution:
 
 
 class VariableLayout(BlockStack):
-    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um`` (see the module docstring).
+    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S`` (see the module
+    docstring).
 
     Args:
         transcription: the collocation scheme (whether there are midpoints).
         N: number of intervals.
         state_labels, control_labels: a label per state and per control row.
+        peak: whether there is the epigraph variable ``S``.
     """
 
-    def __init__(self, transcription: Transcription, N: int, state_labels, control_labels):
+    def __init__(
+        self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
+    ):
         super().__init__()
         nodes = np.arange(N + 1, dtype=float)
         mids = nodes[:-1] + 0.5
@@ -211,6 +223,9 @@ class VariableLayout(BlockStack):
                 continue
             units = tuple(unit_of(r) for r in labels)
             self.by_name[name] = self.add(Block(name, tuple(labels), units, taus))
+        if peak:
+            label = ("attitude peak^2 / PEAK_SCALE^2",)
+            self.by_name["S"] = self.add(Block("S", label, ("(relative)",), np.array([0.0])))
 
     def unpack(self, w) -> Solution:
         """States and controls of a numeric decision vector."""
@@ -250,9 +265,11 @@ class VariableLayout(BlockStack):
 
     def describe(self, index: int) -> tuple[str, float]:
         """``(name, tau)`` of entry ``index``: ``"node balance_joint1 velocity"``,
-        ``"midpoint ..."``."""
+        ``"midpoint ..."``, ``"peak ..."``."""
         block = self.block_at(index)
         row, _, tau = block.locate(index)
+        if block.name == "S":
+            return f"peak {row}", tau
         return f"{'midpoint' if block.name.endswith('m') else 'node'} {row}", tau
 
 
@@ -267,6 +284,7 @@ class NLPParameters(NamedTuple):
             :data:`~balance_opt.optimal.model.RUNNING_WEIGHTS` (4).
         path_scale, terminal_scale: ``1 / bound^2`` of the path and terminal attitude bounds
             (1 when unset).
+        peak_weight: the weight of ``S`` in the objective (0 without the peak objective).
         q_rest: the rest pull's configuration (n_B) [rad].
         mission: the mission arm's samples ``[q_M; q_dot_M; q_ddot_M]`` at every collocation
             point (n_m, n_points).
@@ -277,6 +295,7 @@ class NLPParameters(NamedTuple):
     running_weights: Any
     path_scale: Any
     terminal_scale: Any
+    peak_weight: Any
     q_rest: Any
     mission: Any
 
@@ -307,6 +326,7 @@ class ParameterLayout:
             "running_weights": self.n_weights,
             "path_scale": 1,
             "terminal_scale": 1,
+            "peak_weight": 1,
             "q_rest": self.n_B,
             "mission": self.n_m * self.n_points,
         }

@@ -31,7 +31,12 @@ import casadi as cs
 import numpy as np
 
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
-from balance_opt.optimal.constraints import Constraint, SymbolicNLP, constraint_kinds
+from balance_opt.optimal.constraints import (
+    PEAK_SCALE,
+    Constraint,
+    SymbolicNLP,
+    constraint_kinds,
+)
 from balance_opt.optimal.layout import (
     Block,
     BlockStack,
@@ -40,7 +45,7 @@ from balance_opt.optimal.layout import (
     VariableLayout,
 )
 from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
-from balance_opt.optimal.options import DEFAULT_IPOPT, PlannerOptions
+from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_IPOPT, PlannerOptions
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +121,11 @@ def build_structure(
     N, n_pts = key.intervals, tr.n_points(key.intervals)
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
     variables = VariableLayout(
-        tr, N, model.state_labels(key.control), [f"{j} {key.control}" for j in joints]
+        tr,
+        N,
+        model.state_labels(key.control),
+        [f"{j} {key.control}" for j in joints],
+        peak=key.objective == "peak",
     )
     parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
@@ -153,6 +162,8 @@ def _outer_problem(
     x_dot, running, torque = kernels.split(Y)
     cost = par.h * cs.mtimes(running, cs.DM(tr.quadrature_weights(N)))
     cost = cost + par.terminal_weight * cs.sumsqr(v.X[:3, N])
+    if v.S is not None:  # S is the squared peak in units of PEAK_SCALE^2
+        cost = cost + par.peak_weight * PEAK_SCALE**2 * v.S
     starts = [v.X[r, :-1] for r in model.joint_rows(key.control)]
     symbols = SymbolicNLP(
         key=key,
@@ -240,7 +251,8 @@ class _Mapped:
         w, p: the decision and parameter vectors (MX).
         Z: each point's ``z = [x; u]``, (n_z, n_points).
         data: the kernels' other inputs: mission samples, running weights, ``q_rest``.
-        point_idx: (n_z, n_points) indices into ``w`` of each point's ``z``.
+        point_idx: (n_z, n_points) indices into ``w`` of each point's ``z``: the first
+            entries of ``w``; the others (the epigraph variable) belong to no point.
     """
 
     w: cs.MX
@@ -253,8 +265,8 @@ class _Mapped:
     def of(cls, kernels: PointKernels, variables: VariableLayout, parameters: ParameterLayout):
         point_idx = variables.point_indices()
         point_flat = point_idx.ravel(order="F")
-        if not np.array_equal(np.sort(point_flat), np.arange(variables.size)):
-            raise AssertionError("every decision variable must belong to exactly one point")
+        if not np.array_equal(np.sort(point_flat), np.arange(point_flat.size)):
+            raise AssertionError("the points' variables must come first, each in one point")
         w, p = cs.MX.sym("w", variables.size), cs.MX.sym("p", parameters.size)
         Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
         par = parameters.unpack_symbolic(p)
@@ -264,21 +276,26 @@ class _Mapped:
     def n_points(self) -> int:
         return self.point_idx.shape[1]
 
+    @property
+    def n_w(self) -> int:
+        return self.w.numel()
+
 
 def _gradient(kernels: PointKernels, outer: _Outer, x: _Mapped) -> cs.Function:
     """The objective's gradient: ``f_w`` plus ``d(c_i^T y_i)/dz_i`` per point (reverse mode),
     scattered to ``w``."""
-    n_w = x.point_idx.size
+    n_pt = x.point_idx.size
     f0, f_w, f_Y = outer.gradient(x.w, x.p)
     cy, grad_z = kernels.gradient.map(x.n_points)(
         x.Z, *x.data, cs.reshape(f_Y, kernels.n_y, x.n_points)
     )
-    scatter_w = np.empty(n_w, dtype=int)
-    scatter_w[x.point_idx.ravel(order="F")] = np.arange(n_w)
+    scatter_w = np.empty(n_pt, dtype=int)
+    scatter_w[x.point_idx.ravel(order="F")] = np.arange(n_pt)
+    grad_points = cs.vertcat(cs.vec(grad_z)[scatter_w.tolist()], cs.MX.zeros(x.n_w - n_pt))
     return cs.Function(
         "nlp_grad_f",
         [x.w, x.p],
-        [f0 + cs.sum2(cy), f_w + cs.vec(grad_z)[scatter_w.tolist()]],
+        [f0 + cs.sum2(cy), f_w + grad_points],
         ["x", "p"],
         ["f", "grad_f_x"],
     )
@@ -293,7 +310,7 @@ def _jacobian(kernels: PointKernels, outer: _Outer, x: _Mapped) -> cs.Function:
         x.n_points,
         lambda i: n_y * i + np.arange(n_y),
         lambda i: x.point_idx[:, i],
-        (n_y * x.n_points, x.point_idx.size),
+        (n_y * x.n_points, x.n_w),
     )
     dYdw = cs.sparsity_cast(dY.nz[perm_dy.tolist()], sp_dy)
     G_w, G_Y = outer.jacobian(x.w, x.p)
@@ -314,7 +331,7 @@ def _hessian(kernels: PointKernels, outer: _Outer, x: _Mapped, n_g: int) -> cs.F
         x.n_points,
         lambda i: x.point_idx[:, i],
         lambda i: x.point_idx[:, i],
-        (x.point_idx.size, x.point_idx.size),
+        (x.n_w, x.n_w),
         upper=True,
     )
     H_kernel = cs.sparsity_cast(d2.nz[perm_h.tolist()], sp_h)
@@ -341,6 +358,8 @@ def _ipopt_solver(
     y = cs.vec(kernels.value.map(x.n_points)(x.Z, *x.data))
     f, g = outer.value(x.w, y, x.p)
     ipopt = dict(DEFAULT_IPOPT)
+    if variables.by_name.get("S") is not None:
+        ipopt.update(PEAK_IPOPT)
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
     ipopt.update(options.ipopt)
     return cs.nlpsol(

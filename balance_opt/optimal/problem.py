@@ -101,6 +101,11 @@ class BalanceProblem:
         mission_samples: ``[q_M; q_dot_M; q_ddot_M]`` at the points (n_m, n_points).
         q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
         limits: the balance joints' limits.
+        path_bound: the path attitude bound the NLP enforces at the points [rad]
+            (``options.path_attitude_bound``, lowered by the refinement).
+        terminal_bound: the same for the terminal attitude bound.
+        torque_factor: factor on the effort limits at each point (n_B, n_points), 1 but where
+            the refinement tightened them.
         balance_joints: their names.
     """
 
@@ -131,4 +136,8 @@ class BalanceProblem:
             q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
         )
         self.limits = self.robot.limits.subset(self.robot.balance_indices)
+        # the bounds the refinement tightens (balance_opt.optimal.refine)
+        self.path_bound = options.path_attitude_bound
+        self.terminal_bound = options.terminal_attitude_bound
+        self.torque_factor = np.ones((model.n_B, self.point_times.size))
         self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)

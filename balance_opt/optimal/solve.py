@@ -12,6 +12,7 @@ and re-simulates the solution (:func:`resimulate`): the returned
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -30,13 +31,14 @@ from balance_opt.motion.so3 import (
     rotation_angle,
 )
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import attitude_scale
+from balance_opt.optimal.constraints import PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
 from balance_opt.optimal.options import SUCCESS_STATUSES, PlannerOptions
 from balance_opt.optimal.problem import BalanceProblem, check_problem
+from balance_opt.optimal.refine import multi_start, solve_with_bounds
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -91,19 +93,36 @@ class BalanceNLP(BalanceProblem):
         self.structure = structure
         self.setup_time = setup_time
         self.build_time = build_time
-        self.parameters = structure.parameters.pack(
+        self.update_bounds()
+
+    def update_bounds(self) -> None:
+        """Set the parameter vector and the bounds from the problem's (possibly tightened)
+        bounds: ``path_bound``, ``terminal_bound``, ``torque_factor``."""
+        weights = self.options.weights
+        peak = self.structure.key.objective == "peak"
+        self.parameters = self.structure.parameters.pack(
             NLPParameters(
                 h=self.h,
-                terminal_weight=options.weights.terminal,
-                running_weights=options.weights.running(),
-                path_scale=attitude_scale(options.path_attitude_bound),
-                terminal_scale=attitude_scale(options.terminal_attitude_bound),
+                terminal_weight=weights.peak_terminal if peak else weights.terminal,
+                running_weights=weights.running(self.options.objective),
+                path_scale=attitude_scale(self.path_bound),
+                terminal_scale=attitude_scale(self.terminal_bound),
+                peak_weight=weights.peak if peak else 0.0,
                 q_rest=self.q_rest,
                 mission=self.mission_samples,
             )
         )
         self.lbx, self.ubx = self._variable_bounds()
         self.lbg, self.ubg = self._constraint_bounds()
+
+    def variant(self, **changes) -> BalanceNLP:
+        """The same problem with other options (its bounds untightened)."""
+        options = dataclasses.replace(self.options, **changes)
+        return build_balance_nlp(self.model, self.mission, self.q_B0, options, self.robot)
+
+    def solution_of(self, result: BalanceResult) -> Solution:
+        """The NLP solution a result of this problem's structure was re-simulated from."""
+        return self.unpack(np.array(result.info["nlp_solution"]))
 
     # ------------------------------------------------------------------ inspection
     @property
@@ -164,11 +183,17 @@ class BalanceNLP(BalanceProblem):
     # ------------------------------------------------------------------ solve
     def initial_guess(self, guess="analytic") -> np.ndarray:
         """The decision vector to start from: ``"analytic"``, ``"rest"``, a
-        :class:`BalanceResult` (its balance motion, clipped) or a decision vector
+        :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution` (of a
+        structure with or without the peak's variable ``S``) or a decision vector
         (:mod:`balance_opt.optimal.guess`)."""
-        if isinstance(guess, (str, BalanceResult)):
-            first_state = self.unpack(self.lbx).X[3:, 0]
-            sol = guess_solution(self, guess, first_state)
+        if isinstance(guess, (str, BalanceResult, Solution)):
+            if isinstance(guess, Solution):
+                sol = dataclasses.replace(guess, S=None)
+            else:
+                sol = guess_solution(self, guess, self.unpack(self.lbx).X[3:, 0])
+            if "S" in self.variables:  # the guess's own peak
+                X, _ = sol.points()
+                sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
             return np.clip(self.pack(sol), self.lbx, self.ubx)
         w = np.asarray(guess, dtype=float).ravel()
         if w.size != self.structure.n_w:
@@ -178,7 +203,24 @@ class BalanceNLP(BalanceProblem):
         return w
 
     def solve(self, initial_guess="analytic") -> BalanceResult:
-        """Solve with Ipopt, re-simulate the plan, return it.
+        """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
+        the peak problem first, then the torque and attitude bounds refined until the
+        re-simulated motion meets them, from ``options.starts`` guesses
+        (:mod:`balance_opt.optimal.refine`).
+
+        Args:
+            initial_guess: see :meth:`solve_once`.
+
+        Raises:
+            PlannerSolverError: Ipopt stopped without a solution, or the path attitude bound is
+                below the smallest peak found (the message states it).
+        """
+        if self.options.starts > 1:
+            return multi_start(self, initial_guess)
+        return solve_with_bounds(self, initial_guess)
+
+    def solve_once(self, initial_guess="analytic") -> BalanceResult:
+        """Solve with Ipopt once, re-simulate the plan, return it.
 
         Args:
             initial_guess: ``"analytic"`` (the analytic law clipped to the limits; the rest
