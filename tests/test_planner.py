@@ -58,8 +58,8 @@ from balance_opt.optimal.constraints import TorqueLimit
 from balance_opt.optimal.layout import NLPParameters, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.problem import BalanceProblem
-from balance_opt.optimal.solve import PlannerSolverError, build_balance_nlp, plan_optimal
+from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
+from balance_opt.optimal.solve import build_balance_nlp, plan_optimal
 from balance_opt.result import BalanceResult
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].

@@ -18,7 +18,8 @@ from balance_opt.app.scenarios import paper_capture
 from balance_opt.model.library import paper_robot
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
-from balance_opt.optimal.solve import PlannerSolverError, build_balance_nlp
+from balance_opt.optimal.problem import PlannerSolverError
+from balance_opt.optimal.solve import build_balance_nlp
 
 BALANCE = ("balance_joint1", "balance_joint2", "balance_joint3")
 #: Issue 11's targets for the default plan of the 10 s capture task [rad].

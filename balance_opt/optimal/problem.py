@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from balance_opt.errors import InfeasibleLimitsError, InputError
+from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
@@ -141,3 +141,23 @@ class BalanceProblem:
         self.terminal_bound = options.terminal_attitude_bound
         self.torque_factor = np.ones((model.n_B, self.point_times.size))
         self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
+
+
+class PlannerSolverError(SolverError):
+    """Ipopt did not solve the balance NLP.
+
+    Attributes:
+        status: Ipopt's return status.
+        result: the last iterate, re-simulated, as a :class:`BalanceResult`.
+        constraint: name of the most violated constraint.
+        time: its time [s].
+        violation: by how much it is violated (in its own unit).
+    """
+
+    def __init__(
+        self, message: str, status: str, result, constraint: str, time: float, violation: float
+    ):
+        super().__init__(message, status, result)
+        self.constraint = constraint
+        self.time = time
+        self.violation = violation

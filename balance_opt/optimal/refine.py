@@ -31,6 +31,7 @@ from balance_opt.errors import SolverError
 from balance_opt.optimal.constraints import TorqueLimit
 from balance_opt.optimal.guess import random_guess
 from balance_opt.optimal.options import GUESSES
+from balance_opt.optimal.problem import PlannerSolverError
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -55,7 +56,6 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
         PlannerSolverError: the bound is below the smallest peak found (its message states
             it), or Ipopt failed.
     """
-    from balance_opt.optimal.solve import PlannerSolverError
 
     bound = nlp.options.path_attitude_bound
     if bound is None:

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from balance_opt.errors import InputError, SolverError
+from balance_opt.errors import InputError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
@@ -37,31 +37,11 @@ from balance_opt.optimal.layout import Block, NLPParameters, Solution, Structure
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
 from balance_opt.optimal.options import SUCCESS_STATUSES, PlannerOptions
-from balance_opt.optimal.problem import BalanceProblem, check_problem
+from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
 from balance_opt.optimal.refine import multi_start, solve_with_bounds
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
-
-
-class PlannerSolverError(SolverError):
-    """Ipopt did not solve the balance NLP.
-
-    Attributes:
-        status: Ipopt's return status.
-        result: the last iterate, re-simulated, as a :class:`BalanceResult`.
-        constraint: name of the most violated constraint.
-        time: its time [s].
-        violation: by how much it is violated (in its own unit).
-    """
-
-    def __init__(
-        self, message: str, status: str, result, constraint: str, time: float, violation: float
-    ):
-        super().__init__(message, status, result)
-        self.constraint = constraint
-        self.time = time
-        self.violation = violation
 
 
 class BalanceNLP(BalanceProblem):
