@@ -75,10 +75,19 @@ def parse_solver_option(text: str) -> tuple[str, int | float | str]:
 VERBOSE_IPOPT = {"print_level": 5}
 
 
+def _command_line_ipopt(args) -> dict:
+    """``--solver-option`` values, checked against Ipopt's own option list."""
+    from balance_opt.optimal.ipopt_options import check_ipopt_options
+
+    return check_ipopt_options(
+        dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+    )
+
+
 def _solver_options(args, task=None) -> dict:
     """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
     task or the command line sets ``print_level``)."""
-    options = dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+    options = _command_line_ipopt(args)
     task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}
     if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
         options.update(VERBOSE_IPOPT)
@@ -143,7 +152,7 @@ def _cmd_schema(args) -> int:
 def _cmd_validate(args) -> int:
     """Check every task file given, each error printed with its file; exit 2 if any failed."""
     from balance_opt.errors import InputError
-    from balance_opt.io.task import load_task
+    from balance_opt.io.task import check_methods, load_task
 
     if args.schema:
         return _cmd_schema(args)
@@ -158,6 +167,7 @@ def _cmd_validate(args) -> int:
     for path in args.tasks:
         try:
             task = load_task(path)
+            check_methods(task, _methods(args))
         except InputError as exc:
             failed += 1
             message = str(exc)
@@ -307,9 +317,7 @@ def _cmd_sweep(args) -> int:
         return EXIT_OK
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
-    solver_options = dict(
-        parse_solver_option(s) for s in getattr(args, "solver_option", None) or []
-    )
+    solver_options = _command_line_ipopt(args)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
         raise InputError(f"--jobs must be >= 0, got {jobs}")
@@ -409,6 +417,7 @@ def _add_check_commands(sub) -> None:
     p.add_argument(
         "--reference", action="store_true", help="print the task-file reference (Markdown) and exit"
     )
+    _method_option(p)
     p.set_defaults(run=_cmd_validate)
 
     p = sub.add_parser("schema", help="print the JSON Schema of task files")

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.model.robot import JointLimits
+from balance_opt.model.arms import JointLimits
 from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_quaternion
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.

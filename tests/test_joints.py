@@ -136,13 +136,13 @@ def test_mimic_joint_refused_in_an_arm_or_locked():
         FloatingRobot(URDF, MISSION, BALANCE, locked={"l2": 0.1})
 
 
-
 def test_follower_limits_narrow_their_driver():
     """finger = 2 m1 + 0.2 within [-2.5, 2.5] rad and 1.5 rad/s: m1 within [-1.35, 1.15] rad
     and 0.75 rad/s."""
     text = URDF.replace('multiplier="0.7" offset="0.2"', 'multiplier="2.0" offset="0.2"')
     lim = FloatingRobot(text, MISSION, BALANCE, locked=LOCKED).limits
     assert (lim.lower[0], lim.upper[0], lim.velocity[0]) == pytest.approx((-1.35, 1.15, 0.75))
+
 
 def test_units_of_prismatic_joints(robot):
     assert robot.joint_units == ("rad", "rad", "rad", "m", "rad")

@@ -31,13 +31,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.io.output_dir import OutputFolder
-from balance_opt.io.task import Task, check_optimal_supported
+from balance_opt.io.task import Task, check_methods, check_optimal_supported
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -266,8 +264,7 @@ def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
         raise InputError(
             f"methods must be among {', '.join(METHODS)}, got {', '.join(methods) or 'none'}"
         )
-    if "optimal" in methods:
-        check_optimal_supported(task)
+    check_methods(task, methods)
     return methods
 
 
@@ -306,10 +303,12 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
 
 def _simulate_into(run: TaskRun, name: str) -> None:
     """Simulate ``run.results[name]``; a diverging simulation is a failure, not a result."""
+    from balance_opt.dynamics.simulation import divergence
+
     task = run.task
     with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
         sim = simulate_result(task, run.results[name])
-    diverged = _divergence(sim)
+    diverged = divergence(sim)
     if diverged:
         message = (
             f"the forward-dynamics simulation of the {name} plan diverged ({diverged}); "
@@ -320,14 +319,6 @@ def _simulate_into(run: TaskRun, name: str) -> None:
         run.failures[f"simulation of {name}"] = message
     else:
         run.simulations[name] = sim
-
-
-def _divergence(sim) -> str | None:
-    """Where a simulation's state stops being finite (``None`` if it never does)."""
-    finite = np.all(np.isfinite(sim.q_pin), axis=1) & np.all(np.isfinite(sim.v), axis=1)
-    if finite.all():
-        return None
-    return f"non-finite state from t = {float(sim.t[np.argmin(finite)]):.4g} s"
 
 
 # =========================================================================================== writing

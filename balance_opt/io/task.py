@@ -34,6 +34,8 @@ from balance_opt.io.task_checks import (
     TaskTrajectoryError,
     check_lengths,
     check_limits,
+    check_problem_size,
+    check_time_grids,
 )
 from balance_opt.io.task_spec import (
     CartesianMission,
@@ -46,7 +48,8 @@ from balance_opt.io.task_spec import (
 )
 from balance_opt.io.typed_config import from_data
 from balance_opt.io.yaml_lines import TaskFileError, YamlDocument, load_yaml
-from balance_opt.model.robot import LIMIT_KEYS, FloatingRobot
+from balance_opt.model.arms import LIMIT_KEYS
+from balance_opt.model.robot import FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
 
@@ -144,10 +147,12 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
             f"expected a mapping of task keys ({', '.join(TaskSpec.__dataclass_fields__)}), "
             f"got {type(doc.data).__name__}",
         )
-    spec: TaskSpec = from_data(TaskSpec, doc)
+    spec: TaskSpec = _with_checked_ipopt(from_data(TaskSpec, doc), doc)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)
+    check_problem_size(spec, doc, robot)
     mission = _build_mission(spec, doc, base_dir, robot)
+    check_time_grids(spec, doc, float(mission.duration))
     q_B0 = (
         robot.neutral()[robot.balance_indices]
         if spec.initial.balance is None
@@ -167,6 +172,21 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     )
     log.debug("task %s: %r, mission %.3g s", doc.source, robot, mission.duration)
     return task
+
+
+def _with_checked_ipopt(spec: TaskSpec, doc: YamlDocument) -> TaskSpec:
+    """``spec`` with ``optimal.ipopt`` checked against Ipopt's own option list and its values
+    in the types Ipopt wants (CasADi is imported only when the list is not cached yet)."""
+    planner = spec.optimal.planner
+    if not planner.ipopt:
+        return spec
+    from balance_opt.optimal.ipopt_options import check_ipopt_options
+
+    ipopt = check_ipopt_options(
+        planner.ipopt, lambda name, problem: doc.error(("optimal", "ipopt", name), problem)
+    )
+    optimal = dataclasses.replace(spec.optimal, planner=dataclasses.replace(planner, ipopt=ipopt))
+    return dataclasses.replace(spec, optimal=optimal)
 
 
 def _with_momentum(spec: TaskSpec) -> TaskSpec:
@@ -240,6 +260,8 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
     except URDFLoadError as exc:
         key = next(k for k in ("urdf", "shipped", "example") if getattr(spec.robot, k) is not None)
         raise doc.error(("robot", key), str(exc)) from None
+    except LimitOverrideError as exc:
+        raise doc.error(("limits", exc.joint, exc.key), str(exc)) from None
     except JointError as exc:
         raise doc.error(_joint_path(doc, exc.joint, exc.reason), str(exc)) from None
     except ArmError as exc:
@@ -314,18 +336,53 @@ def _cartesian_mission(
         raise doc.error(("mission", "position"), str(exc), TaskTrajectoryError) from None
 
 
-def check_optimal_supported(task: Task) -> None:
-    """The optimal planner assumes zero initial momentum (:mod:`balance_opt.optimal.model`): say
-    so, located at ``initial.momentum``, before anything is computed.
+def check_methods(task: Task, methods) -> None:
+    """What the planning ``methods`` need of the task beyond its loading, checked before
+    anything is computed (``balance-opt validate`` checks those of ``plan``'s default
+    methods, analytic and optimal).
 
     Raises:
-        TaskFileError: the task's initial momentum is not zero.
+        TaskFileError: located at the key the method cannot work with.
+    """
+    if "optimal" in methods:
+        check_optimal_supported(task)
+
+
+def check_optimal_supported(task: Task) -> None:
+    """What the optimal planner cannot do, located in the task: a non-zero initial momentum
+    (:mod:`balance_opt.optimal.model` assumes zero), torque limits on a robot with a prismatic
+    arm joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
+    joints), or a prismatic arm joint where the symbolic backend would be adam (no
+    ``pinocchio.casadi`` and no compiler for the Pinocchio-CasADi bridge).
+
+    Raises:
+        TaskFileError: naming the key and the way out.
     """
     if np.any(task.h0 != 0.0):
         raise task.error(
             ("initial", "momentum"),
             "the optimal planner assumes zero initial momentum; "
             "plan this task with --method analytic",
+        )
+    robot = task.robot
+    prismatic = [j for j in robot.joint_names if robot.joint_type(j) == "prismatic"]
+    if not prismatic:
+        return
+    if task.spec.optimal.planner.torque_limits:
+        raise task.error(
+            ("optimal", "constraints", "torque_limits"),
+            f"torque limits are computed with adam-robotics, which cannot handle the prismatic "
+            f"arm joint '{prismatic[0]}'; turn them off, lock the joint, or plan with "
+            "--method analytic",
+        )
+    from balance_opt.model.symbolic import available_backends  # imports CasADi
+
+    if "pinocchio" not in available_backends():
+        raise task.error(
+            _joint_path(task.document, prismatic[0]),
+            f"joint '{prismatic[0]}' is prismatic, which the optimal planner's only symbolic "
+            "backend here, adam, cannot handle (no pinocchio.casadi, and no C++ toolchain for "
+            "the Pinocchio-CasADi bridge); lock it, or plan with --method analytic",
         )
 
 
@@ -335,6 +392,7 @@ __all__ = [
     "TaskLimitsError",
     "TaskSpec",
     "TaskTrajectoryError",
+    "check_methods",
     "check_optimal_supported",
     "load_task",
     "task_from_dict",

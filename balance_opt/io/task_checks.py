@@ -1,21 +1,29 @@
 """Checks of a task that need its robot and mission, each located in the task file.
 
 :func:`~balance_opt.io.typed_config.from_data` checks what a value can be checked against
-alone (types, bounds, list lengths fixed by the format). What depends on the robot or the
-mission is checked here, once the robot and the mission are built:
+alone (types, bounds, list lengths fixed by the format). What depends on the robot, the
+mission or another value is checked here, once the robot and the mission are built:
 
 * :func:`check_lengths`: every list declared ``per="... joint"`` has one value per such joint;
+* :func:`check_time_grids`: the time grids of a plan (outputs, re-simulation, simulation) hold
+  at most :data:`MAX_SAMPLES` samples, and the fixed integration steps resolve the mission;
 * :func:`check_limits`: limits no plan can meet (a balance start or a prescribed final
   configuration outside the position limits, a mission that leaves its own limits) and a
   planning horizon shorter than the mission.
+
+The Ipopt options (:mod:`balance_opt.optimal.ipopt_options`) and the size of the optimal
+planner's problem (:mod:`balance_opt.optimal.budget`) are checked by :mod:`balance_opt.io.task`.
 """
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from balance_opt.errors import InfeasibleLimitsError, TrajectoryError
-from balance_opt.io.task_spec import TaskSpec
+from balance_opt.io.keypath import format_path
+from balance_opt.io.task_spec import CartesianMission, CsvMission, PtpMission, TaskSpec, ViaMission
 from balance_opt.io.typed_config import walk_settings
 from balance_opt.io.yaml_lines import TaskFileError, YamlDocument
 from balance_opt.model.robot import FloatingRobot
@@ -26,6 +34,21 @@ from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
 LIMIT_CHECK_RATE = 200.0
 #: Fewest samples used to check a mission trajectory against its limits.
 LIMIT_CHECK_MIN_SAMPLES = 501
+#: Most samples in one time grid of a plan (its outputs, its re-simulation, its simulation's
+#: outputs): a sample of the paper robot's plan is about 60 numbers in memory and 1 kB of CSV,
+#: so 1e6 samples are about 0.5 GB of arrays and 1 GB of files, for each method.
+MAX_SAMPLES = 1_000_000
+#: Fewest fixed integration steps (simulation ``rk4``, analytic ``rk4``) over the mission: a step
+#: longer than 1/100 of the motion does not resolve it (a 20 s step over a 10 s move gave
+#: tracking errors of 1e8 rad).
+MIN_STEPS_PER_MISSION = 100
+#: Ipopt iterations of a typical optimal plan (paper task: 33-36 at N = 100 to 800; Baxter:
+#: 61-78), and the estimated planning time above which loading warns [s].
+TYPICAL_ITERATIONS = 50
+LONG_PLAN_SECONDS = 600.0
+
+
+log = logging.getLogger(__name__)
 
 
 class TaskLimitsError(TaskFileError, InfeasibleLimitsError):
@@ -91,6 +114,32 @@ def _check_start(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, q_B0) 
             )
 
 
+def _set_positions(m, col: int) -> list[tuple[tuple, float]]:
+    """``(key, value)`` of every position the task sets for mission joint ``col``."""
+    if isinstance(m, PtpMission):
+        return [(("mission", "start", col), m.start[col]), (("mission", "goal", col), m.goal[col])]
+    if isinstance(m, ViaMission):
+        return [(("mission", "points", k, col), p[col]) for k, p in enumerate(m.points)]
+    return [(("mission", "start", col), m.start[col])]  # cartesian: the goal is solved for
+
+
+def _mission_key(spec: TaskSpec, kind: str, col: int, lim: tuple[float, float]) -> tuple:
+    """Where the task sets what makes mission joint ``col`` leave its ``kind`` limit: a start,
+    goal or via point outside the position limits, else the duration (or the times, the file)."""
+    m = spec.mission
+    if isinstance(m, CsvMission):
+        return ("mission", "file")
+    if kind == "position":
+        for key, value in _set_positions(m, col):
+            if not lim[0] - LIMIT_TOLERANCE <= value <= lim[1] + LIMIT_TOLERANCE:
+                return key
+        if isinstance(m, CartesianMission):
+            return ("mission", "position")
+    if isinstance(m, ViaMission):
+        return ("mission", "points" if kind == "position" else "times")
+    return ("mission", "duration")
+
+
 def _check_mission(
     spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, mission: JointTrajectory
 ) -> None:
@@ -98,19 +147,20 @@ def _check_mission(
     t = np.linspace(
         0.0,
         mission.duration,
-        max(LIMIT_CHECK_MIN_SAMPLES, int(mission.duration * LIMIT_CHECK_RATE)),
+        min(MAX_SAMPLES, max(LIMIT_CHECK_MIN_SAMPLES, int(mission.duration * LIMIT_CHECK_RATE))),
     )
     q, qd, qdd = mission.sample(t)
     idx = robot.mission_indices
     violations = find_limit_violations(t, robot.mission.joints, q, qd, qdd, lim.subset(idx))
     if violations:
         v = violations[0]
+        col = robot.mission.joints.index(v.joint)
         key = {"position": "lower", "velocity": "velocity", "acceleration": "acceleration"}[v.kind]
         if v.kind == "position":
-            col = robot.mission.joints.index(v.joint)
             key = "upper" if q[:, col].max() > lim.upper[idx[col]] else "lower"
+        bounds = (lim.lower[idx[col]], lim.upper[idx[col]])
         raise doc.error(
-            ("mission",),
+            _mission_key(spec, v.kind, col, bounds),
             f"the mission trajectory leaves the limits of the mission arm, which "
             f"follows it as given: {v} (limit from "
             f"{_limit_source(spec, v.joint, key)}); no plan can meet them",
@@ -159,3 +209,146 @@ def check_limits(
     _check_start(spec, doc, robot, q_B0)
     _check_mission(spec, doc, robot, mission)
     _check_planner(spec, doc, robot, float(mission.duration))
+
+
+# ------------------------------------------------------------------------------- time grids
+def _given(doc: YamlDocument, path: tuple) -> bool:
+    """Whether the file sets the key at ``path``."""
+    node = doc.data
+    for part in path:
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def duration_key(spec: TaskSpec) -> tuple:
+    """The key of the task that sets the mission's duration."""
+    m = spec.mission
+    if isinstance(m, ViaMission):
+        return ("mission", "times", len(m.times) - 1)
+    if isinstance(m, CsvMission):
+        return ("mission", "file")
+    return ("mission", "duration")
+
+
+def _grids(spec: TaskSpec, duration: float) -> list[tuple[str, tuple, float, float, tuple]]:
+    """``(what, step key, step [s], span [s], span key)`` of each time grid of a plan."""
+    planner, sim = spec.optimal.planner, spec.simulation
+    span = max(duration, planner.horizon or 0.0)
+    span_key = ("optimal", "horizon") if span > duration else duration_key(spec)
+    integration = spec.analytic.integration
+    sim_out = ("simulation", "output_dt") if sim.output_dt is not None else ("simulation", "dt")
+    return [
+        (
+            "the analytic plan's outputs",
+            ("analytic", "output_step"),
+            integration.output_step,
+            duration,
+            duration_key(spec),
+        ),
+        (
+            "the re-simulation of the optimal plan",
+            ("optimal", "resample_step"),
+            planner.resample_step,
+            span,
+            span_key,
+        ),
+        ("the simulation's outputs", sim_out, sim.output_dt or sim.dt, span, span_key),
+    ]
+
+
+def _fixed_steps(spec: TaskSpec) -> list[tuple[str, tuple, float]]:
+    """``(integrator, step key, step [s])`` of the fixed-step integrations of a task."""
+    steps = []
+    if spec.simulation.integrator == "rk4":
+        steps.append(("the simulation's rk4", ("simulation", "dt"), spec.simulation.dt))
+    integration = spec.analytic.integration
+    if integration.method == "rk4":
+        key = "step" if integration.step is not None else "output_step"
+        steps.append(("the analytic rk4", ("analytic", key), getattr(integration, key)))
+    return steps
+
+
+def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None:
+    """No time grid of a plan longer than :data:`MAX_SAMPLES` samples (each error located at
+    the step when the file sets it, else at the duration), and no fixed integration step
+    longer than 1/:data:`MIN_STEPS_PER_MISSION` of the mission.
+
+    Raises:
+        TaskFileError: ``"mission.duration: a mission of 1e+308 s sampled every 0.01 s ..."``.
+    """
+    for what, step_key, step, span, span_key in _grids(spec, duration):
+        samples = span / step
+        if samples <= MAX_SAMPLES:
+            continue
+        count = f"{samples:.3g}" if np.isfinite(samples) else "over 1e308"
+        if _given(doc, step_key):
+            raise doc.error(
+                step_key,
+                f"{step:g} s over {span:g} s ({what}) is {count} samples; a plan may "
+                f"hold at most {MAX_SAMPLES:g}: over {span:g} s the step must be at least "
+                f"{span / MAX_SAMPLES:.3g} s",
+            )
+        raise doc.error(
+            span_key,
+            f"{span:g} s sampled every {step:g} s ({format_path(step_key)}: {what}) is {count} "
+            f"samples; a plan may hold at most {MAX_SAMPLES:g}: at that step the longest is "
+            f"{step * MAX_SAMPLES:.3g} s",
+        )
+    for what, key, step in _fixed_steps(spec):
+        longest = duration / MIN_STEPS_PER_MISSION
+        if step > longest:
+            raise doc.error(
+                key,
+                f"{what} step of {step:g} s does not resolve the {duration:g} s mission: it "
+                f"must be at most 1/{MIN_STEPS_PER_MISSION} of it, {longest:.3g} s",
+            )
+
+
+# ---------------------------------------------------------------------------- problem size
+def _duration_words(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
+    """The optimal planner's problem fits in the memory budget
+    (:func:`~balance_opt.optimal.budget.memory_budget`), by an estimate made before anything
+    is built.
+
+    Raises:
+        TaskFileError: at ``optimal.intervals``, with the estimate and the largest ``N`` that
+            fits.
+    """
+    from balance_opt.optimal.budget import largest_intervals, memory_budget, problem_size
+
+    planner = spec.optimal.planner
+    limits = robot.limits.subset(robot.balance_indices)
+    size = problem_size(planner, limits)
+    budget = memory_budget()
+    expected = size.build_seconds + TYPICAL_ITERATIONS * size.iteration_seconds
+    if size.memory_bytes <= budget:
+        if expected > LONG_PLAN_SECONDS:
+            log.warning(
+                "%s: the optimal plan with %d intervals may take about %s (build %s, then "
+                "%s per Ipopt iteration)",
+                doc.source,
+                planner.intervals,
+                _duration_words(expected),
+                _duration_words(size.build_seconds),
+                _duration_words(size.iteration_seconds),
+            )
+        return
+    raise doc.error(
+        ("optimal", "intervals"),
+        f"{planner.intervals} intervals would need about {size.memory_bytes / 2**30:.1f} GiB of "
+        f"memory ({size.variables:.3g} variables, {size.nonzeros:.3g} non-zeros in Ipopt's KKT "
+        f"matrix with {len(limits.lower)} balance joints), about {_duration_words(size.build_seconds)} to "
+        f"build and {_duration_words(size.iteration_seconds)} per Ipopt iteration; one problem "
+        f"may use {budget / 2**30:.1f} GiB (half of this machine's memory): at most "
+        f"{largest_intervals(planner, limits, budget)} intervals fit",
+    )

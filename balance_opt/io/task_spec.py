@@ -33,6 +33,12 @@ from balance_opt.optimal.options import GUESSES, PlannerOptions
 SYMBOLIC_BACKENDS = ("auto", "pinocchio", "adam")
 
 SCHEMA_ID = "https://balance-opt.invalid/task.schema.json"
+#: What a task's ``name`` may be: it names the default output folder ``results/<name>``, so no
+#: path separator, no leading dot (``..``, hidden folders) and no spaces.
+NAME_PATTERN = (
+    r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}",
+    "letters, digits, '.', '_' and '-', starting with a letter or a digit, at most 100 characters",
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -63,10 +69,13 @@ class RobotSpec:
 class ArmsSpec:
     """Which joints move: the mission arm, the balance arm(s), and where the rest is locked."""
 
-    mission: tuple[str, ...] = setting(doc="joint names of the mission arm, in order", min_items=1)
+    mission: tuple[str, ...] = setting(
+        doc="joint names of the mission arm, in order", min_items=1, item="joint"
+    )
     balance: tuple[str, ...] | tuple[tuple[str, ...], ...] = setting(
         doc="joint names of the balance arm, or a list of such lists for several balance arms",
         min_items=1,
+        item="joint",
     )
     locked: dict[str, float] = setting(
         factory=dict,
@@ -228,7 +237,11 @@ class OutputsSpec:
 class TaskSpec:
     """A balance-opt task: robot, arms, start, mission, limits and the options of each method."""
 
-    name: str | None = setting(None, doc="short name used in reports (default: the file name)")
+    name: str | None = setting(
+        None,
+        pattern=NAME_PATTERN,
+        doc="short name used in reports and as the default output folder (default: the file name)",
+    )
     description: str | None = setting(None, doc="free text shown in the report")
     robot: RobotSpec = setting(doc="the robot's URDF")
     arms: ArmsSpec = setting(doc="mission and balance arms")

@@ -15,16 +15,13 @@ import typing
 from dataclasses import MISSING
 from typing import Any, Literal
 
+from balance_opt.io.type_names import describe, is_union, tag_of, union_args
 from balance_opt.io.typed_config import (
     NUMBER_META,
     Section,
-    describe,
     field_default,
     file_layout,
     get_attr,
-    is_union,
-    tag_of,
-    union_args,
 )
 
 
@@ -76,6 +73,8 @@ def _schema(tp, meta: dict, defs: dict) -> dict:
     if tp is bool:
         return {"type": "boolean"}
     if tp is str:
+        if meta.get("pattern"):
+            return {"type": "string", "pattern": f"^(?:{meta['pattern'][0]})$"}
         return {"type": "string", "minLength": 1}
     if tp is Any:
         return {}

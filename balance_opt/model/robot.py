@@ -26,6 +26,7 @@ Building the two by different routes is deliberate: the tests compare them.
 from __future__ import annotations
 
 import difflib
+import logging
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
@@ -36,6 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import ArmError, JointError, URDFLoadError
+from balance_opt.model.arms import LIMIT_KEYS, Arm, JointLimits
 from balance_opt.model.joints import (
     MOVABLE_TYPES,
     Mimic,
@@ -45,52 +47,13 @@ from balance_opt.model.joints import (
     parse_mimic,
     resolve_mimics,
 )
+from balance_opt.model.urdf_checks import check_urdf_physics, pinocchio_model
 
-LIMIT_KEYS = ("lower", "upper", "velocity", "acceleration", "effort")
+log = logging.getLogger(__name__)
 
-
-@dataclass(frozen=True)
-class JointLimits:
-    """Limits of the arm joints, in arm order.
-
-    Attributes:
-        lower: lowest position [rad or m] (``-inf`` for continuous joints).
-        upper: highest position [rad or m].
-        velocity: largest speed [rad/s or m/s].
-        acceleration: largest acceleration [rad/s^2]; URDF has none, so ``inf`` unless set.
-        effort: largest torque [N m] or force [N].
-    """
-
-    lower: np.ndarray
-    upper: np.ndarray
-    velocity: np.ndarray
-    acceleration: np.ndarray
-    effort: np.ndarray
-
-    def subset(self, indices) -> JointLimits:
-        """The limits of the joints at ``indices`` of the arm vector."""
-        return JointLimits(*(getattr(self, k)[indices] for k in LIMIT_KEYS))
-
-
-@dataclass(frozen=True)
-class Arm:
-    """One arm: its role, its joints (in the user's order) and its end-effector frame.
-
-    Attributes:
-        name: ``"mission"``, or the balance arm's name (``"balance"``, ``"balance2"``, ...).
-        joints: joint names in the order the user gave.
-        indices: positions of these joints in the robot's arm vector.
-        ee_frame: name of the end-effector frame (a URDF link).
-    """
-
-    name: str
-    joints: tuple[str, ...]
-    indices: np.ndarray = field(repr=False)
-    ee_frame: str
-
-    @property
-    def dof(self) -> int:
-        return len(self.joints)
+#: A balance arm whose links have less than this fraction of the robot's mass and of its
+#: inertia moves nothing: it is refused.
+MASSLESS = 1e-9
 
 
 @dataclass(frozen=True)
@@ -139,45 +102,39 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             el,
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
-    _check_inertials(root, source)
+    for warning in check_urdf_physics(root, source):
+        _warn_once(f"URDF {source}: {warning}")
     return root, joints
 
 
-def _check_inertials(root: ET.Element, source: str) -> None:
-    """Raise if a link's mass, inertia or inertial origin is not a number: urdfdom (under
-    Pinocchio) drops such an ``<inertial>`` with a message on stderr and loads the link
-    massless, which would silently change every momentum map."""
-    for link in root.findall("link"):
-        inertial = link.find("inertial")
-        if inertial is None:
-            continue
-        fields = [("mass", "value")] + [
-            ("inertia", k) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
-        ]
-        for tag, attr in fields:
-            el = inertial.find(tag)
-            text = None if el is None else el.get(attr)
-            try:
-                float(text)
-            except (TypeError, ValueError):
-                raise URDFLoadError(
-                    source,
-                    f"link '{link.get('name')}': <inertial> <{tag} {attr}=...> "
-                    f"is {text!r}, not a number",
-                ) from None
-        origin = inertial.find("origin")
-        for attr in ("xyz", "rpy"):
-            text = "0 0 0" if origin is None else origin.get(attr, "0 0 0")
-            try:
-                ok = len([float(v) for v in text.split()]) == 3
-            except ValueError:
-                ok = False
-            if not ok:
-                raise URDFLoadError(
-                    source,
-                    f"link '{link.get('name')}': <inertial> <origin {attr}=...> "
-                    f"is {text!r}, not three numbers",
-                )
+_WARNED: set[str] = set()
+
+
+def _warn_once(message: str) -> None:
+    """Log ``message`` as a warning the first time only (robots are built again and again)."""
+    if message not in _WARNED:
+        _WARNED.add(message)
+        log.warning("%s", message)
+
+
+def _ancestors(model: pin.Model, joint_id: int) -> list[int]:
+    """``joint_id`` and the joints above it up to the root (Pinocchio's joint ids)."""
+    out = [joint_id]
+    while model.parents[out[-1]] != 0:
+        out.append(model.parents[out[-1]])
+    return out
+
+
+class LimitOverrideError(JointError):
+    """A limit override (``limits={joint: {key: value}}``) that no joint can have.
+
+    Attributes:
+        key: the override at fault (``"lower"``, ``"velocity"``, ...).
+    """
+
+    def __init__(self, joint: str, source: str, key: str, reason: str):
+        self.key = key
+        super().__init__(joint, source, reason)
 
 
 def _suggest(name: str, candidates) -> str:
@@ -279,6 +236,8 @@ class FloatingRobot:
                 f"(arms: {', '.join(a.name for a in self.arms)})",
             )
         self.limits = self._make_limits(limits or {})
+        for arm in self.balance_arms:
+            self._check_moves_mass(arm)
 
     # ----------------------------------------------------------------------------- checks
     def _check_arm_joints(self, arm_specs) -> None:
@@ -358,10 +317,7 @@ class FloatingRobot:
         return out
 
     def _build_pinocchio(self, text: str):
-        try:
-            full = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
-        except Exception as exc:  # Pinocchio raises ValueError or RuntimeError, with C++ text
-            raise URDFLoadError(self.source, f"Pinocchio could not build a model: {exc}") from exc
+        full = pinocchio_model(text, self.source)
         full.gravity = pin.Motion.Zero()
         q_ref = pin.neutral(full)
         lock_ids = []
@@ -438,18 +394,57 @@ class FloatingRobot:
                     )
                 values[key][self.joint_names.index(j)] = float(value)
         for i, j in enumerate(self.joint_names):
-            if not values["lower"][i] <= values["upper"][i]:
-                raise JointError(
-                    j,
-                    self.source,
-                    f"lower limit {values['lower'][i]} is above upper limit {values['upper'][i]}",
-                )
-            for key in ("velocity", "acceleration", "effort"):
-                if not values[key][i] > 0:
-                    raise JointError(
-                        j, self.source, f"{key} limit must be positive, got {values[key][i]}"
-                    )
+            self._check_limits_of(j, {k: values[k][i] for k in LIMIT_KEYS}, overrides.get(j, {}))
         return JointLimits(**values)
+
+    def _check_moves_mass(self, arm: Arm) -> None:
+        """Refuse a balance arm that moves no mass and no inertia: its motion would change
+        nothing, and every plan would equal the mission arm alone."""
+        model = self.model
+        ids = {self._joint_ids[i] for i in arm.indices}
+        moved = [  # every body below a joint of the arm
+            b for b in range(1, model.njoints) if ids & set(_ancestors(model, b))
+        ]
+        mass = sum(model.inertias[b].mass for b in moved)
+        inertia = sum(float(np.trace(model.inertias[b].inertia)) for b in moved)
+        scale = sum(float(np.trace(model.inertias[b].inertia)) for b in range(model.njoints))
+        if mass <= MASSLESS * self.total_mass and inertia <= MASSLESS * scale:
+            raise ArmError(
+                arm.name,
+                self.source,
+                f"moves no mass: the links below its joints ({', '.join(arm.joints)}) weigh "
+                f"{mass:.3g} kg (of {self.total_mass:.4g} kg); a massless balance arm cannot "
+                "balance anything (check their <inertial> elements)",
+            )
+
+    def _check_limits_of(self, joint: str, value: dict, given: Mapping[str, float]) -> None:
+        """Limits of ``joint`` that no joint can have, blamed on the override that set them
+        (:class:`LimitOverrideError`), else on the URDF."""
+        lo, hi = value["lower"], value["upper"]
+        if not lo <= hi:
+            if "lower" not in given and "upper" not in given:
+                raise URDFLoadError(
+                    self.source, f"joint '{joint}': <limit> has lower {lo:g} above upper {hi:g}"
+                )
+            key = "lower" if "lower" in given else "upper"
+            other = "upper" if key == "lower" else "lower"
+            raise LimitOverrideError(
+                joint,
+                self.source,
+                key,
+                f"lower limit {lo:g} is above upper limit {hi:g}"
+                + ("" if other in given else f" ({other} limit from the URDF)"),
+            )
+        for key in ("velocity", "acceleration", "effort"):
+            if not value[key] > 0:
+                if key not in given:
+                    raise URDFLoadError(
+                        self.source,
+                        f"joint '{joint}': <limit> has {key} {value[key]:g}; it must be positive",
+                    )
+                raise LimitOverrideError(
+                    joint, self.source, key, f"{key} limit must be positive, got {value[key]:g}"
+                )
 
     # ----------------------------------------------------------------------------- structure
     @property
@@ -521,6 +516,10 @@ class FloatingRobot:
     def total_mass(self) -> float:
         """Mass of the whole system [kg]."""
         return float(sum(inertia.mass for inertia in self.model.inertias))
+
+    def joint_type(self, name: str) -> str:
+        """The URDF type of joint ``name`` (``"revolute"``, ``"prismatic"``, ``"fixed"``, ...)."""
+        return self._urdf_joints[name].type
 
     def joint_index(self, name: str) -> int:
         """Position of joint ``name`` in the arm vector."""

@@ -1,4 +1,5 @@
-"""Physical sanity of a URDF, checked before Pinocchio loads it.
+"""Why a URDF is refused: its physical sanity, checked before Pinocchio loads it, and urdfdom's
+own reasons when Pinocchio refuses it.
 
 urdfdom and Pinocchio load many files that describe no physical robot: a negative mass, an
 inertia with a negative principal moment, a joint axis of length zero, a link with two parents.
@@ -11,16 +12,29 @@ missing; a link that is the child of two joints; more than one root link; a kine
 
 Warnings (physically possible, but almost always a typo): principal moments that break the
 triangle inequality (no rigid body has them); a link with zero mass but non-zero inertia.
+
+:func:`pinocchio_model` builds the model; urdfdom, the parser under Pinocchio, prints why it
+refuses a file on the process's standard error and Pinocchio raises a bare "does not contain a
+valid URDF model": that output is captured into the error instead of reaching the terminal.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import logging
 import math
+import os
+import sys
+import tempfile
 import xml.etree.ElementTree as ET
 
 import numpy as np
+import pinocchio as pin
 
 from balance_opt.errors import URDFLoadError
+
+log = logging.getLogger(__name__)
 
 #: Relative tolerance of the positive semi-definiteness and triangle-inequality checks (printed
 #: URDF inertias are rounded to a few digits).
@@ -28,6 +42,9 @@ INERTIA_RTOL = 1e-6
 #: A negative principal moment smaller than this is a rounding slip of the file, warned about
 #: rather than refused (tiago's antenna: -3.5e-8) [kg m^2].
 INERTIA_ROUNDING = 1e-6
+#: An inertia whose principal moments are all below this is nil (a bead of 1 g and 1 mm has
+#: 4e-10): not checked for shape (icub's head: -2.4e-35) [kg m^2].
+INERTIA_NIL = 1e-12
 _INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
 
 
@@ -83,7 +100,9 @@ def _check_inertial(link: ET.Element, source: str) -> list[str]:
         ]
     )
     moments = np.linalg.eigvalsh(inertia)
-    scale = max(float(np.max(np.abs(moments))), 1e-300)
+    scale = float(np.max(np.abs(moments)))
+    if scale < INERTIA_NIL:
+        return []
     warnings = []
     if -INERTIA_ROUNDING <= moments[0] < -INERTIA_RTOL * scale:
         warnings.append(
@@ -96,10 +115,10 @@ def _check_inertial(link: ET.Element, source: str) -> list[str]:
             f"link '{name}': inertia is not positive semi-definite (principal moments "
             f"{', '.join(f'{m:.4g}' for m in moments)} kg m^2)",
         )
-    if mass == 0 and scale > 1e-300:
+    if mass == 0:
         warnings.append(f"link '{name}' has zero mass but a non-zero inertia")
     a, b, c = moments
-    if a + b < c * (1 - INERTIA_RTOL) and scale > 1e-300:
+    if a + b < c * (1 - INERTIA_RTOL):
         warnings.append(
             f"link '{name}': principal moments {a:.4g}, {b:.4g}, {c:.4g} kg m^2 break the "
             "triangle inequality (no rigid body has them; are some given about a joint instead "
@@ -168,3 +187,57 @@ def check_urdf_physics(root: ET.Element, source: str) -> list[str]:
     for link in root.findall("link"):
         warnings.extend(_check_inertial(link, source))
     return warnings
+
+
+@contextlib.contextmanager
+def _stderr_captured(lines: list[str]):
+    """Collect what C++ code prints on file descriptor 2 into ``lines`` instead of the terminal
+    (urdfdom, under Pinocchio, prints why it refuses a file there and raises a bare "not a
+    valid URDF model"). Output of other threads in the meantime is collected too."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        try:
+            os.dup2(tmp.fileno(), 2)
+            yield
+        finally:
+            with contextlib.suppress(OSError, AttributeError):
+                ctypes.CDLL(None).fflush(None)
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines.extend(tmp.read().decode(errors="replace").splitlines())
+
+
+def _urdfdom_reasons(lines: list[str]) -> str:
+    """urdfdom's messages without their source locations: ``"Error: X\n at line ..."`` -> X."""
+    reasons = []
+    for line in lines:
+        line = line.strip()
+        if not line or line.startswith("at line "):
+            continue
+        text = line.removeprefix("Error:").strip()
+        if text not in reasons:
+            reasons.append(text)
+    return "; ".join(reasons)
+
+
+def pinocchio_model(text: str, source: str) -> pin.Model:
+    """Pinocchio's model of the URDF ``text`` on a free-flyer root joint.
+
+    Raises:
+        URDFLoadError: Pinocchio refused the file, with urdfdom's reasons.
+    """
+    printed: list[str] = []
+    try:
+        with _stderr_captured(printed):
+            return pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+    except Exception as exc:  # Pinocchio raises ValueError or RuntimeError, with C++ text
+        why = _urdfdom_reasons(printed)
+        raise URDFLoadError(
+            source,
+            f"Pinocchio could not build a model: {exc}" + (f" (urdfdom: {why})" if why else ""),
+        ) from exc
+    finally:
+        if printed:
+            log.debug("urdfdom on %s: %s", source, _urdfdom_reasons(printed))

@@ -16,16 +16,20 @@ import html
 import importlib.metadata
 import io
 import json
+import logging
 import math
 import os
 import re
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from balance_opt.cache import default_cache_dir
+from balance_opt.errors import InputError
+
+log = logging.getLogger(__name__)
 
 #: Ipopt option types, as its documentation names them.
 INTEGER, REAL, STRING = "integer", "real", "string"
@@ -153,7 +157,12 @@ _CATALOG: dict[str, IpoptOption] | None = None
 
 
 def option_catalog() -> dict[str, IpoptOption]:
-    """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk)."""
+    """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk).
+
+    Raises:
+        ImportError: CasADi is not installed (and the list is not cached).
+        RuntimeError: Ipopt failed, or printed no option documentation.
+    """
     global _CATALOG
     if _CATALOG is not None:
         return _CATALOG
@@ -163,7 +172,10 @@ def option_catalog() -> dict[str, IpoptOption]:
         _CATALOG = {k: IpoptOption(**{**v, "values": tuple(v["values"])}) for k, v in data.items()}
         if _CATALOG:
             return _CATALOG
-    _CATALOG = parse_documentation(_documentation_from_ipopt())
+    catalog = parse_documentation(_documentation_from_ipopt())
+    if len(catalog) <= len(UNDOCUMENTED):
+        raise RuntimeError("Ipopt printed no option documentation")
+    _CATALOG = catalog
     with contextlib.suppress(OSError):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
@@ -229,3 +241,43 @@ def clean_value(name: str, value: Any, catalog: Mapping[str, IpoptOption]) -> An
     """``value`` in the type Ipopt wants (an integer option given ``500.0`` becomes ``500``)."""
     option = catalog[name]
     return int(value) if option.type == INTEGER else value
+
+
+def _solver_option_error(name: str, problem: str) -> InputError:
+    return InputError(f"--solver-option {name}: {problem}")
+
+
+def check_ipopt_options(
+    options: Mapping[str, Any],
+    error: Callable[[str, str], Exception] = _solver_option_error,
+) -> dict[str, Any]:
+    """``options`` checked against Ipopt's own option list, each value in the type Ipopt wants.
+
+    Reads the option list from the cache (asks Ipopt, through CasADi, when it is not cached);
+    when the list cannot be had at all, the options pass unchecked, with a warning.
+
+    Args:
+        options: Ipopt options by name.
+        error: the exception to raise for option ``name`` and what is wrong with it; by default
+            an :class:`~balance_opt.errors.InputError` ``"--solver-option NAME: ..."``.
+
+    Returns:
+        The options, an integer option given as ``500.0`` as ``500``.
+
+    Raises:
+        InputError: (or what ``error`` makes) for the first option Ipopt would reject.
+    """
+    if not options:
+        return {}
+    try:
+        catalog = option_catalog()
+    except (ImportError, RuntimeError, OSError) as exc:  # no CasADi, Ipopt fails, no temp file
+        log.warning("Ipopt options not checked: cannot read Ipopt's option list (%s)", exc)
+        return dict(options)
+    out = {}
+    for name, value in options.items():
+        problem = option_problem(name, value, catalog)
+        if problem is not None:
+            raise error(name, problem)
+        out[name] = clean_value(name, value, catalog)
+    return out
