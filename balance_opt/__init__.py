@@ -17,8 +17,9 @@ The stages, one subpackage each:
 """
 
 from balance_opt.errors import BalanceOptError, InputError, SolverError
+from balance_opt.model.arms import Arm, JointLimits
 from balance_opt.model.library import baxter_floating, paper_robot
-from balance_opt.model.robot import Arm, FloatingRobot, JointLimits
+from balance_opt.model.robot import FloatingRobot
 
 __version__ = "0.1.0"
 

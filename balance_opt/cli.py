@@ -11,24 +11,35 @@ Subcommands:
 * ``compare TASK``: both methods, simulated, and the comparison report;
 * ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
 * ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
-  Dask cluster.
+  Dask cluster;
+* ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
-(whatever was computed is still written). An output directory that exists and is not empty is
-never written to without ``--force``; that is checked before anything is computed.
+(whatever was computed is still written), 130 interrupted (Ctrl-C or SIGTERM; nothing written).
+
+Outputs are all-or-nothing (:class:`~balance_opt.io.output_dir.OutputFolder`): the output folder
+is checked and locked before anything is computed (a folder that cannot be created, is in use by
+another run, or exists and is not empty without ``--force`` is exit 2), the files are written
+into a staging folder beside it, and that folder takes the place of the old one when complete.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
+import re
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
-EXIT_OK, EXIT_SOLVER, EXIT_INPUT = 0, 1, 2
+from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
+from balance_opt.io.output_dir import OutputFolder
+
+EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 DESCRIPTION = (
     "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
     "law and an optimal planner, compared."
@@ -83,22 +94,35 @@ def _solver_options(args, task=None) -> dict:
     return options
 
 
-def check_output_dir(path: Path, force: bool) -> Path:
-    """Refuse an output directory that exists and is not empty, unless ``force``.
+#: Characters a default output folder name keeps; any run of others becomes one ``_``.
+_UNSAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
 
-    Raises:
-        InputError: the directory is not empty (or is a file), naming it and the way out.
-    """
-    from balance_opt.errors import InputError
 
-    if path.exists() and not path.is_dir():
-        raise InputError(f"output {path} exists and is not a directory")
-    if path.is_dir() and any(path.iterdir()) and not force:
-        raise InputError(
-            f"output directory {path} exists and is not empty; nothing was written. "
-            f"Use --force to overwrite its files, or choose another --output"
-        )
-    return path
+def default_output_folder(name: str) -> Path:
+    """``results/<name>``, the default output folder of a task or sweep ``name``, with the name
+    made a plain folder name: only letters, digits, ``.``, ``_`` and ``-`` (others become
+    ``_``), no leading dot. So a name such as ``../../x`` stays inside ``results/``."""
+    safe = _UNSAFE_NAME.sub("_", name).lstrip(".") or "unnamed"
+    if safe != name:
+        log.warning("name %r is not a plain folder name; the output folder is %s", name, safe)
+    return DEFAULT_OUTPUT_ROOT / safe
+
+
+@contextlib.contextmanager
+def _early_output(args) -> Iterator[OutputFolder | None]:
+    """The ``--output`` folder opened (checked, locked, staging created) before anything else,
+    even before the task is loaded; ``None`` without ``--output``. Given up if the block fails
+    before the run takes it over."""
+    if not args.output:
+        yield None
+        return
+    folder = OutputFolder(args.output, args.force)
+    folder.open()
+    try:
+        yield folder
+    except BaseException:
+        folder.abort()
+        raise
 
 
 def _configure_logging(verbose: bool, quiet: bool) -> None:
@@ -126,6 +150,7 @@ def _cmd_schema(args) -> int:
 
 
 def _cmd_validate(args) -> int:
+    """Check every task file given, each error printed with its file; exit 2 if any failed."""
     from balance_opt.errors import InputError
     from balance_opt.io.task import check_methods, load_task
 
@@ -138,9 +163,18 @@ def _cmd_validate(args) -> int:
         return EXIT_OK
     if not args.tasks:
         raise InputError("validate: give one or more task files, or --schema")
+    failed = 0
     for path in args.tasks:
-        task = load_task(path)
-        check_methods(task, _methods(args))
+        try:
+            task = load_task(path)
+            check_methods(task, _methods(args))
+        except InputError as exc:
+            failed += 1
+            message = str(exc)
+            if not message.startswith(str(path)):
+                message = f"{path}: {message}"
+            print(f"balance-opt: error: {message}", file=sys.stderr)
+            continue
         robot = task.robot
         arms = "; ".join(f"{a.name} {a.dof} joints" for a in robot.arms)
         log.info(
@@ -151,7 +185,9 @@ def _cmd_validate(args) -> int:
             task.spec.mission.type,
             task.duration,
         )
-    return EXIT_OK
+    if failed and len(args.tasks) > 1:
+        log.info("%d of %d task files failed", failed, len(args.tasks))
+    return EXIT_INPUT if failed else EXIT_OK
 
 
 def _cmd_inspect(args) -> int:
@@ -161,12 +197,14 @@ def _cmd_inspect(args) -> int:
         from balance_opt.model.library import paper_robot
 
         print(robot_summary(paper_robot()))
+        print(backend_line(args.backend or "auto"))
         return EXIT_OK
     from balance_opt.io.task import load_task
 
-    task = load_task(args.task)
+    task = with_backend(load_task(args.task), args.backend)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
+    print(backend_line(task.spec.robot.backend))
     return EXIT_OK
 
 
@@ -174,16 +212,23 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
     from balance_opt.app.pipeline import run_task
     from balance_opt.io.task import load_task
 
-    task = load_task(args.task)
-    solver_options = _solver_options(args, task)
-    output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / task.name
-    check_output_dir(output, args.force)
-    started = time.perf_counter()
-    run = run_task(
-        task, methods=methods, simulate=simulate, output_dir=output, solver_options=solver_options
-    )
+    with _early_output(args) as folder:
+        task = with_backend(load_task(args.task), args.backend)
+        solver_options = _solver_options(args, task)
+        folder = folder or OutputFolder(default_output_folder(task.name), args.force)
+        started = time.perf_counter()
+        run = run_task(
+            task,
+            methods=methods,
+            simulate=simulate,
+            output_dir=folder,
+            solver_options=solver_options,
+        )
     log.info(
-        "wrote %d files to %s in %.1f s", len(run.files), output, time.perf_counter() - started
+        "wrote %d files to %s in %.1f s",
+        len(run.files),
+        folder.target,
+        time.perf_counter() - started,
     )
     for name, res in run.results.items():
         log.info(
@@ -221,16 +266,16 @@ def _cmd_compare(args) -> int:
 def _cmd_paper_figures(args) -> int:
     from balance_opt.app.pipeline import paper_figures
 
-    task = None
-    if args.task is not None:
-        from balance_opt.io.task import load_task
+    with _early_output(args) as folder:
+        task = None
+        if args.task is not None:
+            from balance_opt.io.task import load_task
 
-        task = load_task(args.task)
-    solver_options = _solver_options(args, task)
-    output = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / "paper_figures"
-    check_output_dir(output, args.force)
-    files = paper_figures(output, task=task, solver_options=solver_options)
-    log.info("wrote %d files to %s", len(files), output)
+            task = load_task(args.task)
+        solver_options = _solver_options(args, task)
+        folder = folder or OutputFolder(DEFAULT_OUTPUT_ROOT / "paper_figures", args.force)
+        files = paper_figures(folder, task=task, solver_options=solver_options)
+    log.info("wrote %d files to %s", len(files), folder.target)
     return EXIT_OK
 
 
@@ -279,7 +324,7 @@ def _cmd_sweep(args) -> int:
     if args.retry_failed and not args.resume:
         raise InputError("--retry-failed goes with --resume")
     sweep = load_sweep(args.sweep, solver_options)
-    out_dir = Path(args.output) if args.output else DEFAULT_OUTPUT_ROOT / sweep.name
+    out_dir = Path(args.output) if args.output else default_output_folder(sweep.name)
     if args.scheduler is None:
         jobs = min(jobs, len(sweep.cases)) if jobs else 0
     from balance_opt.sweep.run import TASK_RUNNER, run_sweep
@@ -340,7 +385,8 @@ def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) ->
         "-f",
         "--force",
         action="store_true",
-        help="write into an existing, non-empty output directory (its files are overwritten)",
+        help="replace an existing, non-empty output folder: its old files are all removed, "
+        "once the new results are complete",
     )
     parser.add_argument(
         "--solver-option",
@@ -379,6 +425,7 @@ def _add_check_commands(sub) -> None:
 
     p = sub.add_parser("inspect", help="print a robot summary and its coupling measures")
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
+    backend_option(p)
     p.set_defaults(run=_cmd_inspect)
 
 
@@ -388,6 +435,7 @@ def _add_run_commands(sub) -> None:
         "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
     )
     _run_options(p)
+    backend_option(p)
     _method_option(p)
     p.add_argument(
         "--simulate", action="store_true", help="also simulate each plan (as the simulate command)"
@@ -398,6 +446,7 @@ def _add_run_commands(sub) -> None:
         "simulate", help="plan, then check each plan in a forward-dynamics simulation"
     )
     _run_options(p)
+    backend_option(p)
     _method_option(p)
     p.set_defaults(run=_cmd_simulate)
 
@@ -405,6 +454,7 @@ def _add_run_commands(sub) -> None:
         "compare", help="analytic and optimal plans, simulated, and the comparison report"
     )
     _run_options(p)
+    backend_option(p)
     p.add_argument(
         "--no-simulate", action="store_true", help="skip the forward-dynamics simulation"
     )
@@ -428,7 +478,9 @@ def _add_sweep_command(sub) -> None:
         description="Run every case of a sweep file (a base task and the parameters to vary); "
         "write one result per case as it finishes, the table results.csv, "
         "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
-        "failed (their errors are in the table), 2 for a bad sweep file.",
+        "failed (their errors are in the table), 2 for a bad sweep file or an output folder "
+        "that cannot be used (another sweep writing to it, for one), 130 when interrupted "
+        "(--resume goes on).",
     )
     p.add_argument("sweep", nargs="?", help="sweep file (YAML)")
     p.add_argument(
@@ -487,21 +539,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="balance-opt",
         description=DESCRIPTION,
-        epilog="exit codes: 0 success, 2 bad input, 1 solver failure",
+        epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted",
     )
     _common_options(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_check_commands(sub)
     _add_run_commands(sub)
     _add_sweep_command(sub)
+    add_tool_commands(sub)
     for subparser in sub.choices.values():
         _common_options(subparser, top=False)
     return parser
 
 
 def main(argv=None) -> int:
-    """Run the command line; returns the exit code (0 success, 1 solver failure, 2 bad input)."""
+    """Run the command line; returns the exit code (0 success, 1 solver failure, 2 bad input,
+    130 interrupted by Ctrl-C or SIGTERM)."""
     from balance_opt.errors import BalanceOptError, InputError, SolverError
+    from balance_opt.interrupts import handling_signals
 
     parser = build_parser()
     try:
@@ -510,7 +565,8 @@ def main(argv=None) -> int:
         return int(exc.code or 0)
     _configure_logging(args.verbose, args.quiet)
     try:
-        return args.run(args)
+        with handling_signals():
+            return args.run(args)
     except InputError as exc:
         print(f"balance-opt: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
@@ -522,7 +578,7 @@ def main(argv=None) -> int:
         return EXIT_SOLVER
     except KeyboardInterrupt:
         print("balance-opt: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.model.robot import JointLimits
+from balance_opt.model.arms import JointLimits
 from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_quaternion
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
@@ -82,8 +82,24 @@ def find_limit_violations(
     return found
 
 
+class AttitudeHistory:
+    """The base attitude read two ways, for any motion with a ``quaternion`` array (T, 4)."""
+
+    quaternion: np.ndarray
+
+    @property
+    def rpy(self) -> np.ndarray:
+        """Base roll, pitch, yaw (T, 3) [rad] (``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
+        return rpy_from_quaternion(self.quaternion)
+
+    @property
+    def angle(self) -> np.ndarray:
+        """Base rotation from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
+        return rotation_angle(relative_rotation(self.quaternion[:1], self.quaternion))
+
+
 @dataclass
-class BalanceResult:
+class BalanceResult(AttitudeHistory):
     """A balance motion and the base attitude it produces, sampled on a time grid.
 
     Attitude quantities are the base orientation relative to the world (the initial attitude
@@ -165,16 +181,6 @@ class BalanceResult:
             violations=find_limit_violations(t, robot.joint_names, q, q_dot, q_ddot, robot.limits),
             info=dict(info or {}),
         )
-
-    @property
-    def rpy(self) -> np.ndarray:
-        """Base roll, pitch, yaw (T, 3) [rad]."""
-        return rpy_from_quaternion(self.quaternion)
-
-    @property
-    def angle(self) -> np.ndarray:
-        """Base rotation angle from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
-        return rotation_angle(relative_rotation(self.quaternion[:1], self.quaternion))
 
     @property
     def max_drift(self) -> float:

@@ -23,7 +23,7 @@ import time
 from balance_opt.app.scenarios import paper_capture
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
-from balance_opt.optimal.planner import build_balance_nlp
+from balance_opt.optimal.solve import build_balance_nlp
 
 INTERVALS = (50, 100, 200, 400, 800)
 

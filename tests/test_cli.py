@@ -355,14 +355,16 @@ def test_existing_output_is_not_overwritten_without_force(tmp_path, capsys):
     old_metrics = _write(out / "metrics.json", "{}")
     assert main(["plan", str(task), "-m", "analytic", "-o", str(out)]) == 2
     assert (
-        f"output directory {out} exists and is not empty; nothing was written"
-        in capsys.readouterr().err
+        f"balance-opt: error: output folder {out} exists and is not empty; use --force to "
+        "replace it" in capsys.readouterr().err
     )
     assert {p.name for p in out.iterdir()} == {"notes.txt", "metrics.json"}
     assert old_metrics.read_text() == "{}" and keep.read_text() == "mine"
     assert main(["plan", str(task), "-m", "analytic", "-o", str(out), "--force"]) == 0
-    assert keep.read_text() == "mine"
+    # --force replaces the whole folder: no file of before is left, nothing beside it either
+    assert not keep.exists()
     assert set(_metrics(out)["methods"]) == {"mission-only", "analytic"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "paper_fast.yaml"]
 
 
 @pytest.mark.slow

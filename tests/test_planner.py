@@ -45,15 +45,21 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.motion.trajectories import PointToPoint
+from balance_opt.optimal import codegen
+from balance_opt.optimal.codegen import compile_functions
 from balance_opt.optimal.collocation import (
     CollocatedTrajectory,
     Transcription,
     bernstein_basis,
+    bernstein_value,
     joint_chain_coefficients,
 )
-from balance_opt.optimal.model import PlannerModel, compile_functions
+from balance_opt.optimal.constraints import TorqueLimit
+from balance_opt.optimal.layout import NLPParameters, StructureKey
+from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.planner import PlannerSolverError, build_balance_nlp, plan_optimal
+from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
+from balance_opt.optimal.solve import build_balance_nlp, plan_optimal
 from balance_opt.result import BalanceResult
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
@@ -76,6 +82,9 @@ NODE_TOLERANCE = 1e-9
 COLLOCATION_RELATIVE_ERROR = 1e-3
 #: The analytic law the plans are compared with.
 NEAR_EXACT_LAW = BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3)
+#: The objective and end conditions these tests were written for (the peak objective and the
+#: rest ends are tested in test_quality.py).
+INTEGRAL = {"objective": "integral", "start": "still", "end": "free"}
 #: Drift reduction against Phase I required on the paper capture move.
 DRIFT_REDUCTION_20S = 5.0
 DRIFT_REDUCTION_10S = 2.5
@@ -102,8 +111,15 @@ def in_plane(capture):
 def capture_plan(model, capture):
     """The paper capture task in 10 s, default options at N = 50."""
     return build_balance_nlp(
-        model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)
+        model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=50)
     ).solve()
+
+
+@pytest.fixture(scope="module")
+def capture_law(capture):
+    """The near-exact analytic law on the paper capture task, 1001 samples."""
+    t = np.linspace(0.0, capture.mission.duration, 1001)
+    return _near_exact_law(capture.robot, capture.mission, capture.q_B0, t)
 
 
 def _near_exact_law(robot, mission, q_B0, t):
@@ -205,19 +221,23 @@ def test_torques_reproduce_the_accelerations_in_forward_dynamics(model):
         ),
         ("trapezoidal", "acceleration", {"rest_at_end": True}),
         ("hermite-simpson", "jerk", {}),
-        ("hermite-simpson", "acceleration", {"torque_limits": True}),
+        # the peak objective's epigraph variable belongs to no point
+        (
+            "hermite-simpson",
+            "acceleration",
+            {"objective": "peak", "start": "rest", "end": "rest", "path_attitude_bound": 0.2},
+        ),
+        ("trapezoidal", "jerk", {"objective": "peak", "terminal_attitude_bound": 0.1}),
+        pytest.param(
+            "hermite-simpson", "acceleration", {"torque_limits": True}, marks=pytest.mark.slow
+        ),
     ],
 )
 def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, control, extra):
     """The NLP's gradient, constraint Jacobian and Lagrangian Hessian, assembled from the point
     kernels by the chain rule, equal CasADi's AD of the NLP's own objective and constraints."""
-    options = PlannerOptions(
-        intervals=4,
-        transcription=transcription,
-        control=control,
-        weights=CostWeights(rest=3.0),
-        **extra,
-    )
+    settings = {"intervals": 4, "transcription": transcription, "control": control}
+    options = PlannerOptions(**{**INTEGRAL, **settings, "weights": CostWeights(rest=3.0), **extra})
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     solver = nlp.structure.solver
     rng = np.random.default_rng(3)
@@ -251,8 +271,8 @@ def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, co
 @pytest.mark.parametrize("name", ["hermite-simpson", "trapezoidal"])
 def test_collocated_trajectory_is_the_integral_of_its_control(name):
     """The continuous balance motion: its velocity is the derivative of its position, and with
-    control ``"acceleration"`` it meets the collocation equations exactly (passes through the
-    node values the defects give)."""
+    control ``"acceleration"`` it passes through the nodes the transcription's equations give
+    (Simpson's rule with the Hermite midpoint of the velocity, or the trapezoidal rule)."""
     rng = np.random.default_rng(5)
     tr, N, n, h = Transcription(name), 6, 2, 0.4
     U, Um = rng.normal(size=(n, N + 1)), rng.normal(size=(n, N))
@@ -289,6 +309,33 @@ def test_collocated_trajectory_is_the_integral_of_its_control(name):
     np.testing.assert_allclose(traj.sample(h * (2 + s))[0][:, 0], by_bernstein, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["hermite-simpson", "trapezoidal"])
+def test_exact_joint_chain_against_the_transcription(name):
+    """With control ``"acceleration"`` the exact joint equations are the transcription's own,
+    except the Hermite midpoint of the position, off by ``h^2 (u_k - 2 u_m + u_k+1) / 96``."""
+    rng = np.random.default_rng(11)
+    tr, N, n, h = Transcription(name), 5, 2, 0.3
+    U, Um = rng.normal(size=(n, N + 1)), rng.normal(size=(n, N))
+    q0, v0 = rng.normal(size=(n, N)), rng.normal(size=(n, N))
+    levels = joint_chain_coefficients(tr, [q0, v0], U, Um, h)
+    ends = np.vstack([bernstein_value(level, 1.0) for level in levels[:2]])
+    mids = np.vstack([bernstein_value(level, 0.5) for level in levels[:2]])
+    starts = np.vstack([q0, v0])
+    for k in range(N):  # each interval on its own: its start, its exact end and midpoint
+        X = np.column_stack([starts[:, k], ends[:, k]])
+        F = np.vstack([X[n:], U[:, k : k + 2]])
+        Fm = np.r_[mids[n:, k], Um[:, k]][:, None]
+        for defect_name, defect in tr.defects(X, mids[:, k : k + 1], F, Fm, h):
+            expected = np.zeros(2 * n)
+            if defect_name == "Hermite midpoint":
+                expected[:n] = h**2 / 96 * (U[:, k] - 2 * Um[:, k] + U[:, k + 1])
+            np.testing.assert_allclose(defect[:, 0], expected, rtol=0, atol=ALGEBRA_TOLERANCE)
+            if defect_name == "Hermite midpoint":
+                assert np.abs(expected).max() > 1e3 * ALGEBRA_TOLERANCE
+    # and a quadratic through bounded values at the start, middle and end can overshoot them
+    assert bernstein_value([1.0, 2.0 * 1.0 - 0.5 * (1.0 - 1.0), -1.0], 0.25) == pytest.approx(1.25)
+
+
 # ---------------------------------------------------------------------------------- plans
 def test_no_worse_than_an_analytic_law_that_stays_inside_the_limits(model, capture, in_plane):
     t = np.linspace(0.0, in_plane.duration, 1001)
@@ -297,19 +344,20 @@ def test_no_worse_than_an_analytic_law_that_stays_inside_the_limits(model, captu
     assert (
         phase_one(capture.robot, in_plane, capture.q_B0, t_eval=t).max_drift > 1000 * law.max_drift
     )
-    plan = build_balance_nlp(model, in_plane, capture.q_B0, PlannerOptions(intervals=30)).solve()
+    plan = build_balance_nlp(
+        model, in_plane, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=30)
+    ).solve()
     assert plan.violations == []
     assert plan.max_drift <= law.max_drift + DRIFT_TOLERANCE
     assert plan.final_drift <= law.final_drift + DRIFT_TOLERANCE
 
 
-def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_plan):
+def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_plan, capture_law):
     plan = capture_plan
     assert isinstance(plan, BalanceResult) and plan.method == "optimal"
     assert plan.info["status"] == "Solve_Succeeded"
     # the analytic law breaks the limits on this task
-    t = np.linspace(0.0, capture.mission.duration, 1001)
-    law = _near_exact_law(capture.robot, capture.mission, capture.q_B0, t)
+    law = capture_law
     assert any(v.kind == "position" and v.worst_excess > 1.0 for v in law.violations)
     # the plan meets every limit on the re-simulation's fine grid (all joints)
     assert plan.violations == []
@@ -324,23 +372,54 @@ def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_pl
     assert report["attitude_defect_max_rad"] < COLLOCATION_RELATIVE_ERROR * plan.max_drift
     assert report["joint_defect_max"] < NODE_TOLERANCE
     assert report["max_momentum_residual"] < 1e-6  # relative, finite-difference floor ~1e-8
+    # every constraint kind holds on the re-simulated motion too
+    assert report["constraint_violations"] == []
     assert len(plan.info["history"]["inf_pr"]) == plan.info["iterations"] + 1
 
 
+def test_paper_capture_limits_hold_on_the_whole_continuous_plan(model, capture, capture_plan):
+    """Every Bernstein coefficient of the plan's position, velocity and acceleration on every
+    interval is inside the limits, so the continuous motion is (convex hull), not only the
+    samples."""
+    nlp = build_balance_nlp(
+        model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=50)
+    )
+    sol = nlp.unpack(capture_plan.info["nlp_solution"])
+    levels = joint_chain_coefficients(
+        nlp.transcription, [sol.X[3:6, :-1], sol.X[6:9, :-1]], sol.U, sol.Um, nlp.h
+    )
+    lim = nlp.limits
+    bounds = [
+        (lim.lower, lim.upper),
+        (-lim.velocity, lim.velocity),
+        (-lim.acceleration, lim.acceleration),
+    ]
+    for level, (low, high) in zip(levels, bounds):
+        coefficients = np.stack(level)  # (degree + 1, n_B, N)
+        assert np.all(coefficients >= low[None, :, None] - 1e-6)
+        assert np.all(coefficients <= high[None, :, None] + 1e-6)
+    # the velocity limits are active: the hull is what holds the motion in
+    assert np.abs(capture_plan.q_dot_B).max() > lim.velocity.min() - 1e-3
+
+
+@pytest.mark.slow
 def test_paper_capture_in_20_s_is_five_times_better_than_phase_one(model, capture):
     mission = PointToPoint(PAPER_MISSION_START, PAPER_MISSION_GOAL, 20.0)
     slow = dataclasses.replace(capture, mission=mission)
     t = np.linspace(0.0, mission.duration, 2001)
     law = _near_exact_law(slow.robot, mission, slow.q_B0, t)
     assert any(v.kind == "position" and v.worst_excess > 1.0 for v in law.violations)
-    plan = build_balance_nlp(model, mission, slow.q_B0, PlannerOptions(intervals=60)).solve()
+    plan = build_balance_nlp(
+        model, mission, slow.q_B0, PlannerOptions(**INTEGRAL, intervals=60)
+    ).solve()
     assert plan.violations == []
     phase1 = phase_one(slow.robot, mission, slow.q_B0, t_eval=plan.t)
     assert plan.max_drift * DRIFT_REDUCTION_20S <= phase1.max_drift
 
 
+@pytest.mark.slow
 def test_hard_terminal_attitude_bound_met_in_resimulation(model, capture):
-    free = PlannerOptions(intervals=100, weights=CostWeights(terminal=0.0))
+    free = PlannerOptions(**INTEGRAL, intervals=100, weights=CostWeights(terminal=0.0))
     unbounded = build_balance_nlp(model, capture.mission, capture.q_B0, free).solve()
     bound = 0.5 * unbounded.final_drift
     bounded = build_balance_nlp(
@@ -351,16 +430,20 @@ def test_hard_terminal_attitude_bound_met_in_resimulation(model, capture):
     ).solve()
     assert bounded.final_drift <= bound + TERMINAL_TOLERANCE
     assert bounded.violations == []
+    assert bounded.info["resimulation"]["constraint_violations"] == []
 
 
 def test_rest_at_end_and_prescribed_final_configuration(model, capture):
     q_f = capture.q_B0 + np.array([0.2, -0.1, 0.1])
-    options = PlannerOptions(intervals=30, rest_at_end=True, final_configuration=tuple(q_f))
+    options = PlannerOptions(
+        **INTEGRAL, intervals=30, rest_at_end=True, final_configuration=tuple(q_f)
+    )
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     np.testing.assert_allclose(plan.q_B[-1], q_f, rtol=0, atol=NODE_TOLERANCE)
     np.testing.assert_allclose(plan.q_dot_B[-1], 0.0, rtol=0, atol=NODE_TOLERANCE)
     np.testing.assert_allclose(plan.q_B[0], capture.q_B0, rtol=0, atol=0)
     np.testing.assert_allclose(plan.q_dot_B[0], 0.0, rtol=0, atol=0)
+    assert plan.info["resimulation"]["constraint_violations"] == []
 
 
 @pytest.mark.parametrize(
@@ -370,7 +453,7 @@ def test_rest_at_end_and_prescribed_final_configuration(model, capture):
 def test_other_transcriptions_plan_within_limits(
     model, capture, capture_plan, transcription, control
 ):
-    options = PlannerOptions(intervals=50, transcription=transcription, control=control)
+    options = PlannerOptions(**INTEGRAL, intervals=50, transcription=transcription, control=control)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     assert plan.violations == []
     assert plan.info["transcription"] == transcription and plan.info["control"] == control
@@ -383,6 +466,7 @@ def test_other_transcriptions_plan_within_limits(
         assert abs(plan.max_drift - capture_plan.max_drift) < 2e-3
 
 
+@pytest.mark.slow
 def test_torque_limits_hold_at_the_collocation_points(capture):
     limits = {
         j: {"acceleration": 2.0, "effort": 0.5}
@@ -393,7 +477,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
         torque_model,
         capture.mission,
         capture.q_B0,
-        PlannerOptions(intervals=20, torque_limits=True),
+        PlannerOptions(**INTEGRAL, intervals=20, torque_limits=True),
     )
     plan = nlp.solve("rest")
     sol = nlp.unpack(plan.info["nlp_solution"])
@@ -401,9 +485,16 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     Z, V = np.hstack([sol.X, sol.Xm]), np.hstack([sol.U, sol.Um])
     torques = np.array(tau(Z, V, nlp.mission_samples))
     assert np.abs(torques).max() <= 0.5 + 1e-6
+    # the re-simulation's torque check sees at least the torques at the points: with a lower
+    # effort limit it reports what the points exceed it by, or more (between the points)
+    lowered = dataclasses.replace(nlp.limits, effort=np.full(3, 0.25))
+    problem = BalanceProblem(torque_model, capture.mission, capture.q_B0, nlp.options, 10.0)
+    problem.limits = lowered
+    check = TorqueLimit().check(problem, plan)
+    assert check.unit == "N m" and check.amount >= np.abs(torques).max() - 0.25 - 1e-9
     # and without the constraint the same task needs more torque: the bound is active
     free = build_balance_nlp(
-        torque_model, capture.mission, capture.q_B0, PlannerOptions(intervals=20)
+        torque_model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=20)
     ).solve("rest")
     sol = nlp.unpack(free.info["nlp_solution"])
     assert (
@@ -418,7 +509,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
 
 def test_same_task_same_plan(model, capture, capture_plan):
     again = build_balance_nlp(
-        model, capture.mission, capture.q_B0, PlannerOptions(intervals=50)
+        model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=50)
     ).solve()
     for field in ("q_B", "q_dot_B", "q_ddot_B", "quaternion", "omega"):
         np.testing.assert_array_equal(getattr(again, field), getattr(capture_plan, field))
@@ -426,7 +517,7 @@ def test_same_task_same_plan(model, capture, capture_plan):
 
 
 def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_plane):
-    options = PlannerOptions(intervals=50)
+    options = PlannerOptions(**INTEGRAL, intervals=50)
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     other = build_balance_nlp(model, in_plane, capture.q_B0, options)
     assert other.structure is nlp.structure and other.build_time == 0.0
@@ -447,6 +538,81 @@ def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_pl
     np.testing.assert_array_equal(X_lo[3:6, 1], capture.robot.limits.lower[3:])
 
 
+def test_structure_key_and_parameter_layout(model, capture):
+    """The structure key is named and hashable and tells structures apart; the parameter vector
+    is packed and unpacked by one layout, field by field."""
+    options = PlannerOptions(
+        **INTEGRAL,
+        intervals=10,
+        path_attitude_bound=0.2,
+        terminal_attitude_bound=0.05,
+        weights=CostWeights(rest=2.0),
+        rest_configuration=tuple(capture.q_B0 + 0.1),
+    )
+    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
+    key = nlp.structure.key
+    assert (key.intervals, key.transcription, key.control) == (
+        10,
+        "hermite-simpson",
+        "acceleration",
+    )
+    assert key.joint_limits == ("acceleration", "position", "velocity")
+    assert key.path_attitude_bound and key.terminal_attitude_bound and not key.torque_limits
+    assert model.nlp_cache[key] is nlp.structure
+    assert StructureKey.of(nlp.limits, options) == key
+    assert StructureKey.of(nlp.limits, dataclasses.replace(options, control="jerk")) != key
+    p = cs.SX.sym("p", nlp.structure.n_p)
+    fields = nlp.structure.parameters.unpack_symbolic(p)
+    unpack = cs.Function("unpack", [p], list(fields))
+    values = dict(zip(NLPParameters._fields, (np.array(v) for v in unpack(nlp.parameters))))
+    assert values["h"] == nlp.h and values["terminal_weight"] == options.weights.terminal
+    np.testing.assert_array_equal(values["running_weights"].ravel(), [100.0, 300.0, 1e-3, 2.0])
+    assert values["path_scale"] == 1 / 0.2**2 and values["terminal_scale"] == 1 / 0.05**2
+    np.testing.assert_array_equal(values["q_rest"].ravel(), capture.q_B0 + 0.1)
+    np.testing.assert_array_equal(values["mission"], nlp.mission_samples)
+    q_M, q_dot_M, q_ddot_M = capture.mission.sample(nlp.point_times)
+    np.testing.assert_array_equal(values["mission"], np.hstack([q_M, q_dot_M, q_ddot_M]).T)
+
+
+def test_constraint_checks_agree_with_the_result(model, capture, capture_law):
+    """Each constraint kind's check on a motion (the analytic law's, which breaks the position
+    limits) finds the worst violation that ``result.violations`` and the drift report."""
+    law = capture_law
+    bound = 0.5 * law.max_drift
+    options = PlannerOptions(
+        **INTEGRAL,
+        intervals=10,
+        path_attitude_bound=bound,
+        terminal_attitude_bound=bound,
+        rest_at_end=True,
+        final_configuration=tuple(capture.q_B0),
+    )
+    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
+    found = {kind.name: kind.check(nlp, law) for kind in nlp.structure.kinds}
+    for kind in ("position", "velocity", "acceleration"):
+        expected = [v for v in law.violations if v.kind == kind and v.joint in nlp.balance_joints]
+        check = found[f"{kind} limit"]
+        if not expected:
+            assert check is None
+            continue
+        worst = max(expected, key=lambda v: v.worst_excess)
+        assert check.amount == worst.worst_excess
+        assert check.constraint == f"{kind} limit of {worst.joint}"
+        assert worst.t_start <= check.time <= worst.t_end
+    assert found["position limit"].amount > 1.0
+    path = found["path attitude bound"]
+    assert path.amount == pytest.approx(law.max_drift - bound, rel=0, abs=1e-15)
+    assert path.time == law.t[np.argmax(law.angle)]
+    terminal = found["terminal attitude bound"]
+    assert terminal.amount == pytest.approx(law.final_drift - bound, rel=0, abs=1e-15)
+    assert terminal.time == law.t[-1]
+    end = found["end conditions"]
+    q_end_error = np.abs(law.q_B[-1] - capture.q_B0)
+    assert end.amount == max(q_end_error.max(), np.abs(law.q_dot_B[-1]).max())
+    assert found["initial state"] is None and found["collocation"] is None
+    assert str(path) == f"path attitude bound at t = {path.time:.3f} s, by {path.amount:.4g} rad"
+
+
 # ---------------------------------------------------------------------------------- failures
 def test_infeasible_problem_names_status_and_constraint(capture):
     limits = {
@@ -455,7 +621,10 @@ def test_infeasible_problem_names_status_and_constraint(capture):
     }
     slow = PlannerModel(paper_robot(limits=limits), compile=False)
     options = PlannerOptions(
-        intervals=20, rest_at_end=True, final_configuration=tuple(capture.q_B0 + [0, 0, 1.0])
+        **INTEGRAL,
+        intervals=20,
+        rest_at_end=True,
+        final_configuration=tuple(capture.q_B0 + [0, 0, 1.0]),
     )
     with pytest.raises(
         PlannerSolverError,
@@ -473,7 +642,7 @@ def test_infeasible_problem_names_status_and_constraint(capture):
 
 
 def test_iteration_limit_raises_with_the_best_iterate(model, capture):
-    options = PlannerOptions(intervals=20, max_iterations=2)
+    options = PlannerOptions(**INTEGRAL, intervals=20, max_iterations=2)
     with pytest.raises(
         PlannerSolverError,
         match=r"^Ipopt stopped with status 'Maximum_Iterations_Exceeded' after 2 "
@@ -493,7 +662,7 @@ def test_limits_no_plan_can_meet_raise_before_solving(model, capture):
             "[-1.5708, 1.5708] rad"
         ),
     ):
-        build_balance_nlp(model, capture.mission, bad, PlannerOptions(intervals=10))
+        build_balance_nlp(model, capture.mission, bad, PlannerOptions(**INTEGRAL, intervals=10))
     with pytest.raises(
         InfeasibleLimitsError,
         match=re.escape(
@@ -505,7 +674,7 @@ def test_limits_no_plan_can_meet_raise_before_solving(model, capture):
             model,
             capture.mission,
             capture.q_B0,
-            PlannerOptions(intervals=10, final_configuration=(-3.0, 0.0, 0.0)),
+            PlannerOptions(**INTEGRAL, intervals=10, final_configuration=(-3.0, 0.0, 0.0)),
         )
 
 
@@ -555,22 +724,25 @@ def test_bad_options(cls, kwargs, message):
 
 def test_bad_sizes(model, capture):
     with pytest.raises(InputError, match=re.escape("q_B0 has 2 values, the balance joints are 3")):
-        build_balance_nlp(model, capture.mission, [0.0, 0.1], PlannerOptions(intervals=10))
+        build_balance_nlp(
+            model, capture.mission, [0.0, 0.1], PlannerOptions(**INTEGRAL, intervals=10)
+        )
     with pytest.raises(
         InputError, match=re.escape("planner option 'horizon' (5.0 s) is shorter than the mission")
     ):
         build_balance_nlp(
-            model, capture.mission, capture.q_B0, PlannerOptions(intervals=10, horizon=5.0)
+            model,
+            capture.mission,
+            capture.q_B0,
+            PlannerOptions(**INTEGRAL, intervals=10, horizon=5.0),
         )
 
 
 # ---------------------------------------------------------------------------------- compilation
 def test_compiled_kernels_match_and_are_cached(tmp_path):
-    from balance_opt.optimal import model as nlp_model
-
     x = cs.SX.sym("x", 3)
     fun = cs.Function("planner_test_kernel", [x], [cs.sin(x) * cs.dot(x, x)])
-    if nlp_model.find_compiler() is None:
+    if codegen.find_compiler() is None:
         pytest.skip("no C compiler")
     (compiled,), first, library = compile_functions([fun], tmp_path)
     (again,), second, library2 = compile_functions([fun], tmp_path)
@@ -586,9 +758,7 @@ def test_compiled_kernels_match_and_are_cached(tmp_path):
 
 
 def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
-    from balance_opt.optimal import model as nlp_model
-
-    monkeypatch.setattr(nlp_model, "find_compiler", lambda: None)
+    monkeypatch.setattr(codegen, "find_compiler", lambda: None)
     fallback = PlannerModel(capture.robot, compile=True)
     with caplog.at_level(logging.WARNING, logger="balance_opt.optimal.model"):
         kernels = fallback.kernels()
@@ -599,6 +769,10 @@ def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
 
 def test_plan_optimal_shortcut(capture, model, in_plane):
     plan = plan_optimal(
-        model, in_plane, capture.q_B0, PlannerOptions(intervals=10), initial_guess="rest"
+        model,
+        in_plane,
+        capture.q_B0,
+        PlannerOptions(**INTEGRAL, intervals=10),
+        initial_guess="rest",
     )
     assert plan.method == "optimal" and plan.info["intervals"] == 10 and plan.violations == []

@@ -282,3 +282,167 @@ def test_implausible_inertias_are_warned_by_link():
         in warnings[0]
     )
     assert warnings[1] == "link 'tip' has zero mass but a non-zero inertia"
+
+
+# ---------------------------------------------------------------------------- outputs of commands
+_EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples"
+
+
+def _task_file(tmp_path, extra=""):
+    """The paper task made fast (short move, few intervals, coarse output grids)."""
+    text = (_EXAMPLES / "paper_capture.yaml").read_text()
+    text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]")
+    text = text.replace("duration: 10.0", "duration: 3.0")
+    text += (
+        "analytic: {output_step: 0.05}\noptimal: {intervals: 12}\n"
+        "simulation: {dt: 0.002, output_dt: 0.05}\n" + extra
+    )
+    path = tmp_path / "task.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.slow
+def test_force_leaves_no_file_of_the_earlier_run(tmp_path):
+    from balance_opt.cli import main
+
+    task = _task_file(tmp_path)
+    out, fresh = tmp_path / "out", tmp_path / "fresh"
+    assert main(["compare", str(task), "-o", str(out), "-q"]) == 0
+    assert {"optimal.csv", "optimal.npz", "reaction_torque.png"} <= set(_files(out))
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out), "--force", "-q"]) == 0
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(fresh), "-q"]) == 0
+    assert _files(out) == _files(fresh)  # exactly the files of an analytic plan
+    assert not any("optimal" in name for name in _files(out))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fresh", "out", "task.yaml"]
+
+
+@pytest.mark.parametrize("where", ["file-parent", "in-use", "not-empty"])
+def test_output_folder_checked_before_the_task_is_loaded(tmp_path, capsys, monkeypatch, where):
+    from balance_opt.cli import main
+    from balance_opt.io import task as task_module
+    from balance_opt.io.output_dir import FolderLock
+
+    monkeypatch.setattr(task_module, "load_task", lambda path: pytest.fail("task loaded"))
+    out = tmp_path / "out"
+    lock = FolderLock(out)
+    if where == "file-parent":
+        (tmp_path / "plain").write_text("")
+        out = tmp_path / "plain" / "out"
+        message = f"cannot create output folder {out}: {tmp_path / 'plain'} is a file"
+        before = ["plain"]
+    elif where == "in-use":
+        lock.acquire()  # another run (an open file description of its own) holds the lock
+        message = f"output folder {out} is being written by another balance-opt run"
+        before = []
+    else:
+        out.mkdir()
+        (out / "mine.txt").write_text("mine")
+        message = f"output folder {out} exists and is not empty; use --force"
+        before = ["out", "out/mine.txt"]
+    try:
+        assert main(["plan", "task.yaml", "-o", str(out)]) == 2
+    finally:
+        lock.release()
+    assert f"balance-opt: error: {message}" in capsys.readouterr().err
+    assert _files(tmp_path) == before  # nothing written, nothing left beside
+
+
+def test_default_output_folder_checked_before_any_computation(tmp_path, capsys, monkeypatch):
+    from balance_opt.app import pipeline
+    from balance_opt.cli import main
+
+    task = _task_file(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "results").write_text("a file where the results folder goes")
+    monkeypatch.setattr(pipeline, "_compute", lambda *a: pytest.fail("planning started"))
+    assert main(["plan", str(task)]) == 2
+    err = capsys.readouterr().err
+    results = tmp_path / "results"
+    assert f"cannot create output folder {results / 'paper_capture'}: {results} is a file" in err
+
+
+@pytest.mark.parametrize(
+    ("name", "folder"),
+    [
+        ("paper_capture", "paper_capture"),
+        ("../../x", "_.._x"),
+        ("/etc/passwd", "_etc_passwd"),
+        (".hidden", "hidden"),
+        ("..", "unnamed"),
+        ("capture run 2", "capture_run_2"),
+        ("capture\\run", "capture_run"),
+    ],
+)
+def test_default_output_folder_name_is_sanitised(name, folder):
+    from pathlib import Path
+
+    from balance_opt.cli import default_output_folder
+
+    assert default_output_folder(name) == Path("results") / folder
+
+
+def test_task_name_cannot_write_outside_results(tmp_path, monkeypatch):
+    from balance_opt.cli import main
+    from balance_opt.io.task import Task
+
+    task = _task_file(tmp_path, "outputs: {plots: false, report: false}\n")
+    work = tmp_path / "a" / "b"
+    work.mkdir(parents=True)
+    monkeypatch.chdir(work)
+    monkeypatch.setattr(Task, "name", property(lambda self: "../../x"))
+    assert main(["plan", str(task), "-m", "analytic", "-q"]) == 0
+    assert (work / "results" / "_.._x" / "metrics.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "task.yaml"]
+    assert sorted(p.name for p in (work / "results").iterdir()) == ["_.._x"]
+
+
+def test_validate_reports_every_file(tmp_path, capsys):
+    from balance_opt.cli import main
+
+    good = _task_file(tmp_path)
+    no_robot = tmp_path / "no_robot.yaml"
+    no_robot.write_text("name: x\n")
+    missing = tmp_path / "missing.yaml"
+    code = main(["validate", str(no_robot), str(good), str(missing), str(_EXAMPLES / "x.yaml")])
+    err = capsys.readouterr().err
+    assert code == 2
+    errors = [line for line in err.splitlines() if line.startswith("balance-opt: error: ")]
+    assert [e.split(": ")[2].split(":")[0] for e in errors] == [
+        str(no_robot),
+        str(missing),
+        str(_EXAMPLES / "x.yaml"),
+    ]
+    assert "missing required key 'robot'" in errors[0]
+    assert f"{good}: ok" in err
+    assert main(["validate", str(good), str(_EXAMPLES / "baxter_floating.yaml")]) == 0
+
+
+def test_sweep_into_a_folder_in_use_is_refused(tmp_path, capsys):
+    from balance_opt.cli import main
+    from balance_opt.io.output_dir import FolderLock
+
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(
+        f"task: {_EXAMPLES / 'paper_capture.yaml'}\nname: s\nmethods: [analytic]\n"
+        "grid:\n  mission.duration: [1.0, 2.0]\n"
+    )
+    out = tmp_path / "out"
+    with FolderLock(out):
+        assert main(["sweep", str(sweep), "-o", str(out), "-j", "0"]) == 2
+    assert f"output folder {out} is being written by another" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_replaced_atomically_keeps_the_old_file_on_error(tmp_path):
+    from balance_opt.io.output_dir import replaced_atomically
+
+    path = tmp_path / "summary.json"
+    path.write_text("old")
+    with pytest.raises(KeyboardInterrupt), replaced_atomically(path) as tmp:
+        tmp.write_text("half")
+        raise KeyboardInterrupt
+    assert path.read_text() == "old" and _files(tmp_path) == ["summary.json"]
+    with replaced_atomically(path) as tmp:
+        tmp.write_text("new")
+    assert path.read_text() == "new" and _files(tmp_path) == ["summary.json"]

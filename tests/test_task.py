@@ -381,7 +381,7 @@ BAD_TASKS = [
         (
             "optimal.constraints.position_limit: unknown key 'position_limit'; expected one of "
             "position_limits, velocity_limits, acceleration_limits, torque_limits, "
-            "terminal_attitude_bound, path_attitude_bound, rest_at_end, final_configuration; "
+            "terminal_attitude_bound, path_attitude_bound, start, end, rest_at_end, final_configuration; "
             "did you mean 'position_limits', 'velocity_limits', 'acceleration_limits'?"
         ),
         TaskFileError,
@@ -717,6 +717,7 @@ OPTION_KEYS_DEFAULTS = [
     ("analytic.step", "none"),
     ("analytic.output_step", "0.01"),
     ("optimal", "see below"),
+    ("optimal.objective", "'peak'"),
     ("optimal.intervals", "100"),
     ("optimal.transcription", "'hermite-simpson'"),
     ("optimal.control", "'acceleration'"),
@@ -728,6 +729,9 @@ OPTION_KEYS_DEFAULTS = [
     ("optimal.weights.smoothness", "0.001"),
     ("optimal.weights.rest", "0.0"),
     ("optimal.weights.attitude", "300.0"),
+    ("optimal.weights.peak", "100000.0"),
+    ("optimal.weights.peak_terminal", "1000000.0"),
+    ("optimal.weights.regularisation", "0.01"),
     ("optimal.rest_configuration", "none"),
     ("optimal.constraints", "see below"),
     ("optimal.constraints.position_limits", "true"),
@@ -736,11 +740,15 @@ OPTION_KEYS_DEFAULTS = [
     ("optimal.constraints.torque_limits", "false"),
     ("optimal.constraints.terminal_attitude_bound", "none"),
     ("optimal.constraints.path_attitude_bound", "none"),
+    ("optimal.constraints.start", "'rest'"),
+    ("optimal.constraints.end", "'rest'"),
     ("optimal.constraints.rest_at_end", "false"),
     ("optimal.constraints.final_configuration", "none"),
     ("optimal.tolerance", "1e-08"),
     ("optimal.max_iterations", "1000"),
     ("optimal.resample_step", "0.01"),
+    ("optimal.starts", "1"),
+    ("optimal.seed", "0"),
     ("optimal.ipopt", "{}"),
     ("simulation", "see below"),
     ("simulation.integrator", "'rk4'"),

@@ -384,13 +384,13 @@ def test_size_estimate_counts_the_planners_own_problem(
 ):
     # The estimate (no CasADi) against the NLP the planner builds: sizes exact, non-zeros close.
     import numpy as np
+    from balance_opt.optimal.planner import build_balance_nlp
 
     from balance_opt.model.library import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, shipped_urdf
     from balance_opt.motion.trajectories import PointToPoint
     from balance_opt.optimal import budget
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.options import PlannerOptions
-    from balance_opt.optimal.planner import build_balance_nlp
 
     limits = {j: {"acceleration": acceleration} for j in PAPER_BALANCE_JOINTS if acceleration}
     robot = FloatingRobot(shipped_urdf(), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS, limits=limits)

@@ -10,7 +10,7 @@ The key is the robot's kinematic and inertial content (its locked URDF text, its
 end-effector frames), not the Python object: two tasks that load the same robot share a model.
 Joint limits are not part of the key: they are numeric bounds of the NLP, and the planner takes
 the task's robot (with its limits) next to the model
-(:func:`~balance_opt.optimal.planner.build_balance_nlp`'s ``robot``).
+(:func:`~balance_opt.optimal.solve.build_balance_nlp`'s ``robot``).
 """
 
 from __future__ import annotations
@@ -51,19 +51,22 @@ class ModelCache:
         self.max_models = max_models
         self._models: dict[str, PlannerModel] = {}
 
-    def planner_model(self, robot: FloatingRobot) -> PlannerModel:
-        """The planner model of ``robot``'s kinematics, built on first use.
+    def planner_model(self, robot: FloatingRobot, backend: str = "auto") -> PlannerModel:
+        """The planner model of ``robot``'s kinematics, built on first use with the symbolic
+        ``backend`` (``"auto"``, ``"pinocchio"`` or ``"adam"``, see
+        :class:`~balance_opt.model.symbolic.SymbolicMaps`).
 
         The model may have been built for another robot object of the same kinematics (other
         limits): plan with ``robot`` next to it, never with ``model.robot``.
         """
+        from balance_opt.model.symbolic import SymbolicMaps
         from balance_opt.optimal.model import PlannerModel
 
-        key = kinematics_key(robot)
+        key = f"{kinematics_key(robot)}/{backend}"
         model = self._models.get(key)
         if model is None:
             start = time.perf_counter()
-            model = PlannerModel(robot)
+            model = PlannerModel(robot, SymbolicMaps(robot, backend))
             log.debug(
                 "planner model of %s built in %.3f s", robot.name, time.perf_counter() - start
             )
@@ -76,4 +79,4 @@ class ModelCache:
         return len(self._models)
 
     def __contains__(self, robot: FloatingRobot) -> bool:
-        return kinematics_key(robot) in self._models
+        return any(key.startswith(kinematics_key(robot)) for key in self._models)

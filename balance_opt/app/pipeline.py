@@ -13,6 +13,12 @@ The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API sha
 A solver failure does not stop the run: the failing method's best iterate is kept, written and
 marked in ``metrics.json`` and the report, and :attr:`TaskRun.failures` names it (the CLI then
 exits with code 1).
+
+Outputs are all-or-nothing (:class:`~balance_opt.io.output_dir.OutputFolder`): the output folder
+is checked and locked before anything is computed, the files are written into a staging folder
+beside it, and that folder takes the place of the old one only when every file is written. An
+error or an interruption (Ctrl-C, SIGTERM: :mod:`balance_opt.interrupts`) leaves the old
+folder as it was.
 """
 
 from __future__ import annotations
@@ -27,6 +33,8 @@ from typing import Any
 
 from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
+from balance_opt.interrupts import handling_signals
+from balance_opt.io.output_dir import OutputFolder
 from balance_opt.io.task import Task, check_methods, check_optimal_supported
 from balance_opt.result import BalanceResult
 
@@ -127,12 +135,14 @@ def plan_optimal(
     Raises:
         SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
     """
-    from balance_opt.optimal.planner import build_balance_nlp
+    from balance_opt.optimal.solve import build_balance_nlp
 
     check_optimal_supported(task)
     spec = task.spec.optimal
     options = task.planner_options(solver_options)
-    model = (models if models is not None else ModelCache()).planner_model(task.robot)
+    model = (models if models is not None else ModelCache()).planner_model(
+        task.robot, task.spec.robot.backend
+    )
     nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
     guess = (
         warm_start
@@ -190,9 +200,10 @@ def run_task(
     task: Task,
     methods: Sequence[str] = METHODS,
     simulate: bool = False,
-    output_dir: str | Path | None = None,
+    output_dir: str | Path | OutputFolder | None = None,
     solver_options: Mapping[str, Any] | None = None,
     models: ModelCache | None = None,
+    force: bool = False,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -201,19 +212,40 @@ def run_task(
         methods: among ``"analytic"`` and ``"optimal"``; the mission arm alone is always
             computed as the reference.
         simulate: check each plan in a forward-dynamics simulation (and the reference too).
-        output_dir: where to write (created); ``None`` writes nothing.
+        output_dir: where to write, all-or-nothing (see the module docstring): a folder, or an
+            :class:`~balance_opt.io.output_dir.OutputFolder` (possibly opened already);
+            ``None`` writes nothing.
         solver_options: Ipopt options overriding the task's ``optimal.ipopt``.
         models: planner models to reuse across runs; by default this run keeps its own.
+        force: replace an output folder that exists and is not empty (once the new one is
+            complete); without it such a folder is refused before anything is computed.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
-        in ``run.results`` and was written).
+        in ``run.results`` and was written). ``run.files`` are the paths in ``output_dir``.
 
     Raises:
-        InputError: an unknown method, or a method the task cannot use (checked before anything
-            is computed).
+        InputError: an unknown method, or a method the task cannot use; an output folder that
+            cannot be created, is in use by another run, or is not empty without ``force``
+            (all checked before anything is computed).
+        KeyboardInterrupt: Ctrl-C or SIGTERM (:class:`~balance_opt.interrupts.Interrupted`);
+            nothing is written.
     """
     methods = _checked_methods(task, methods)
+    if output_dir is None:
+        with handling_signals():
+            return _compute(task, methods, simulate, solver_options, models)
+    folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
+    with handling_signals(), folder:
+        run = _compute(task, methods, simulate, solver_options, models)
+        write_run(run, folder.staging)
+        run.files = [folder.final(path) for path in run.files]
+        run.report = None if run.report is None else folder.final(run.report)
+    return run
+
+
+def _compute(task: Task, methods, simulate: bool, solver_options, models) -> TaskRun:
+    """The plans (the reference first) and, with ``simulate``, their simulations."""
     run = TaskRun(task)
     models = models if models is not None else ModelCache()
     for method in (REFERENCE, *methods):
@@ -221,8 +253,6 @@ def run_task(
     if simulate:
         for name in list(run.results):
             _simulate_into(run, name)
-    if output_dir is not None:
-        write_run(run, Path(output_dir))
     return run
 
 
@@ -384,15 +414,23 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
 
 
 def paper_figures(
-    output_dir: str | Path,
+    output_dir: str | Path | OutputFolder,
     task: Task | None = None,
     solver_options: Mapping[str, Any] | None = None,
+    force: bool = False,
 ) -> list[Path]:
     """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
-    ``output_dir``; the options of the analytic law, the planner and the simulator come from
-    ``task`` when given (its robot and mission must be the paper's: the study is that scenario)."""
+    ``output_dir``, all-or-nothing as :func:`run_task` writes; the options of the analytic law,
+    the planner and the simulator come from ``task`` when given (its robot and mission must be
+    the paper's: the study is that scenario).
+
+    Raises:
+        InputError: the output folder cannot be used (see :func:`run_task`), checked first.
+        KeyboardInterrupt: Ctrl-C or SIGTERM; nothing is written.
+    """
     from balance_opt.app.study import paper_study
 
+    folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
     kwargs = {}
     if task is not None:
         kwargs = {
@@ -404,7 +442,7 @@ def paper_figures(
         from balance_opt.optimal.options import PlannerOptions
 
         kwargs = {"planner": PlannerOptions(ipopt=dict(solver_options))}
-    with _timed("paper study (Figs. 2-5)"):
-        study = paper_study(output_dir, **kwargs)
-    files = [p for paths in study.figures.values() for p in paths]
-    return files + [Path(output_dir) / "study.json"]
+    with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
+        study = paper_study(folder.staging, **kwargs)
+        files = [p for paths in study.figures.values() for p in paths]
+        return [folder.final(p) for p in (*files, folder.staging / "study.json")]

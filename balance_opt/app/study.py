@@ -13,7 +13,7 @@ the analytic and the optimal balance plans, each checked by forward dynamics, an
 The analytic plan is the balance law with damped least squares (:func:`balance_opt.analytic.rollout.rollout`
 with :class:`~balance_opt.analytic.law.BalanceLawOptions`): at the paper's start ``J_wB`` is rank
 deficient and the exact law (Eq. 31) sends the balance joints through thousands of radians. The
-optimal plan is :func:`balance_opt.optimal.planner.plan_optimal`. Every figure overlays the plans
+optimal plan is :func:`balance_opt.optimal.solve.plan_optimal`. Every figure overlays the plans
 asked for; a plan whose solver failed is still shown (its last iterate) and flagged in the
 summary. ``study.json`` in the output folder holds the figures of merit.
 """
@@ -39,7 +39,7 @@ from balance_opt.errors import InputError, SolverError
 from balance_opt.io.plots import FORMATS, attitude_figure, reaction_torque_figure
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import PlannerOptions
-from balance_opt.optimal.planner import plan_optimal
+from balance_opt.optimal.solve import plan_optimal
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)

@@ -14,6 +14,11 @@ joint torques of one of two controllers that track the planned trajectories of *
   (the base is unactuated), ``a_b = -M_bb^{-1} (M_bj q_ddot_d + h_b)``, and the joint rows give
   the feed-forward torque.
 
+Mimic joints that follow an arm joint are driven by it: in the coordinates ``nu = [base twist;
+q_dot]`` with ``v = G nu`` (``FloatingRobot.velocity_map``, constant), the accelerations are
+``a = G (G^T M G)^{-1} G^T (tau - h)``, Pinocchio's ``crba`` and ``nonLinearEffects`` in place
+of ``aba``; the follower's reaction is no torque of the driver's.
+
 Integration keeps the configuration on its manifold (:mod:`balance_opt.dynamics.rkmk`: RK4 or
 an adaptive Dormand-Prince 5(4), both Runge-Kutta-Munthe-Kaas schemes).
 
@@ -43,9 +48,8 @@ from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_quaternion
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
-from balance_opt.result import BalanceResult
+from balance_opt.result import AttitudeHistory, BalanceResult
 
 log = logging.getLogger(__name__)
 
@@ -132,14 +136,15 @@ def default_gains(
         ``(kp, kd)`` in arm order [N m/rad, N m s/rad].
     """
     data = robot.model.createData()
-    M = pin.crba(robot.model, data, robot.pin_q(q))
-    m_ii = np.diag(M)[robot.pin_v_indices]
+    M = _symmetric(pin.crba(robot.model, data, robot.pin_q(q)))
+    G = robot.velocity_map  # a driver's inertia includes its followers'
+    m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
     return m_ii * bandwidth**2, 2.0 * damping_ratio * bandwidth * m_ii
 
 
 # --------------------------------------------------------------------------------- result
 @dataclass
-class SimulationResult:
+class SimulationResult(AttitudeHistory):
     """A simulated motion, sampled at the output times.
 
     Attributes:
@@ -204,16 +209,6 @@ class SimulationResult:
         return self.v[:, 3:6]
 
     @property
-    def rpy(self) -> np.ndarray:
-        """Base roll, pitch, yaw (T, 3) [rad] (``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
-        return rpy_from_quaternion(self.quaternion)
-
-    @property
-    def angle(self) -> np.ndarray:
-        """Base rotation from the initial attitude, ``|log(R_0^T R)|`` (T,) [rad]."""
-        return rotation_angle(relative_rotation(self.quaternion[:1], self.quaternion))
-
-    @property
     def tracking_error(self) -> np.ndarray:
         """Planned minus simulated joint positions (T, n) [rad]."""
         return self.q_des - self.q
@@ -269,6 +264,11 @@ class SimulationResult:
 
 
 # --------------------------------------------------------------------------------- dynamics
+def _symmetric(M: np.ndarray) -> np.ndarray:
+    """The joint-space inertia from ``pin.crba``'s upper triangle."""
+    return np.triu(M) + np.triu(M, 1).T
+
+
 class _Dynamics:
     """``(q, v, planned joint state) -> (a, tau)`` with one reused Pinocchio data."""
 
@@ -285,6 +285,7 @@ class _Dynamics:
         self.effort = robot.limits.effort if clip_torque else None
         self.tau_full = np.zeros(robot.model.nv)
         self.acc = np.zeros(robot.model.nv)
+        self.G = robot.velocity_map if robot.followers else None
 
     def joint_positions(self, q):
         return q[self.idx_q] if self.revolute_only else self.robot.arm_q(q)
@@ -302,15 +303,25 @@ class _Dynamics:
         if self.effort is not None:
             tau = np.clip(tau, -self.effort, self.effort)
         self.tau_full[self.idx_v] = tau
-        return pin.aba(self.model, self.data, q, v, self.tau_full), tau
+        if self.G is None:
+            return pin.aba(self.model, self.data, q, v, self.tau_full), tau
+        G = self.G  # mimic joints driven by their drivers: reduced coordinates
+        M = _symmetric(pin.crba(self.model, self.data, q))
+        f = G.T @ (self.tau_full - pin.nonLinearEffects(self.model, self.data, q, v))
+        return G @ np.linalg.solve(G.T @ M @ G, f), tau
 
     def feedforward(self, q, v, ad):
         """Joint torques of the free-floating inverse dynamics for joint accelerations ``ad``."""
         M = pin.crba(self.model, self.data, q)
-        self.acc[self.idx_v] = ad
+        if self.G is not None:  # followers accelerate with their drivers
+            self.acc[:] = self.G[:, 6:] @ ad
+        else:
+            self.acc[self.idx_v] = ad
         tau0 = pin.rnea(self.model, self.data, q, v, self.acc)
         # M_bb is the composite inertia of the whole system in the base frame
         a_b = -np.linalg.solve(self.data.Ycrb[1].matrix(), tau0[:6])
+        if self.G is not None:  # generalized forces on the arm joints: G^T (tau0 + M_:b a_b)
+            return self.G[:, 6:].T @ (tau0 + _symmetric(M)[:, :6] @ a_b)
         return tau0[self.idx_v] + M[:6, self.idx_v].T @ a_b
 
 
@@ -469,11 +480,12 @@ def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> 
     momentum = np.empty((T, 6))
     joint_momentum = np.empty((T, 6))
     cols = robot.pin_v_indices
+    moving = robot.model_v_indices  # arm joints and the mimic joints following them
     for k in range(T):
         q[k] = dyn.joint_positions(Q[k])
         A_G = pin.computeCentroidalMap(model, data, Q[k])
         momentum[k] = A_G @ V[k]
-        joint_momentum[k] = A_G[:, cols] @ V[k, cols]
+        joint_momentum[k] = A_G[:, moving] @ V[k, moving]
     scale = tuple(
         max(
             float(np.linalg.norm(joint_momentum[:, s], axis=1).max() + np.linalg.norm(h0[s])),

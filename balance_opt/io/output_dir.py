@@ -3,14 +3,18 @@ it into place only when every file is complete.
 
 * The location is checked before any work: the staging folder is created at once, so a target
   whose parent is a regular file, a read-only folder or ``/proc`` fails in milliseconds.
-* A lock (``fcntl.flock`` on a file beside the target) refuses a second run into the same folder
-  while the first one runs; the kernel releases it when its holder dies, even by ``kill -9``.
+* A lock (``fcntl.flock`` on a file beside the target, :class:`FolderLock`) refuses a second run
+  into the same folder while the first one runs; the kernel releases it when its holder dies,
+  even by ``kill -9``.
 * Success swaps the staging folder and the old target in one atomic ``renameat2`` exchange where
   the system has it (two renames otherwise), then deletes the old folder: a reader sees either
   the whole old run or the whole new one, and never a file of an earlier run beside new ones.
 * Failure or interruption deletes the staging folder and leaves the target as it was. Staging
   folders of runs killed before they could clean up are removed by the next run into the same
   place.
+
+Single files that are rewritten in place by runs that add to a folder (a sweep's table and
+summary) go through :func:`replaced_atomically` instead.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import errno
 import fcntl
 import os
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
 
@@ -62,6 +67,114 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _target_path(target: str | Path) -> Path:
+    """The absolute target; a symbolic link to a folder is followed (the folder is replaced,
+    the link kept)."""
+    path = Path(target).absolute()
+    return path.resolve() if path.is_symlink() else path
+
+
+def make_parent(target: Path) -> None:
+    """Create the folder that will hold ``target``.
+
+    Raises:
+        OutputFolderError: it cannot be created (a regular file in the way, no permission, ...).
+    """
+    if target.exists() and not target.is_dir():
+        raise OutputFolderError(f"output folder {target} exists and is not a folder")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        blocking = next((p for p in target.parents if p.exists() and not p.is_dir()), None)
+        reason = f"{blocking} is a file" if blocking else exc.strerror or str(exc)
+        raise OutputFolderError(f"cannot create output folder {target}: {reason}") from None
+
+
+class FolderLock:
+    """Exclusive lock of a target folder while a run writes to it: ``flock`` on the file
+    ``.NAME.lock`` beside the folder, holding the process id of its holder.
+
+    Args:
+        target: the folder (its parent must exist: :func:`make_parent`).
+    """
+
+    def __init__(self, target: str | Path):
+        self.target = _target_path(target)
+        self.path = self.target.parent / LOCK_NAME.format(name=self.target.name)
+        self._fd: int | None = None
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def acquire(self) -> None:
+        """Take the lock, without waiting.
+
+        Raises:
+            OutputFolderError: another process holds it (its id is named), or the lock file
+                cannot be created.
+        """
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise OutputFolderError(
+                f"cannot create output folder {self.target}: {exc.strerror or exc}"
+            ) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise OutputFolderError(
+                f"output folder {self.target} is being written by another balance-opt run "
+                f"(process {holder}); wait for it to finish or choose another --output"
+            ) from None
+        try:
+            same_file = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same_file = False
+        if not same_file:  # the previous holder removed the file as we opened it: lock anew
+            os.close(fd)
+            return self.acquire()
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        """Give the lock up and remove its file (nothing if not held)."""
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.path)
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> FolderLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+@contextlib.contextmanager
+def replaced_atomically(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write to; when the block ends without error it is
+    flushed to disk and renamed onto ``path`` (which holds its old content or the whole new one,
+    never a part); on error it is removed. The suffix is kept (matplotlib reads the format from
+    it)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
 class OutputFolder:
     """A target folder written all-or-nothing; use as a context manager around the run.
 
@@ -78,29 +191,25 @@ class OutputFolder:
     """
 
     def __init__(self, target: str | Path, force: bool = False):
-        self.target = Path(target).absolute()
+        self.target = _target_path(target)
         self.force = force
         self.staging: Path | None = None
-        self._lock_fd: int | None = None
+        self._lock = FolderLock(self.target)
 
     # ------------------------------------------------------------------ opening
     def open(self) -> Path:
-        """Check the location, take the lock and create the staging folder; returns it."""
+        """Check the location, take the lock and create the staging folder; returns it (the
+        same one if already open)."""
+        if self.staging is not None:
+            return self.staging
         target, name = self.target, self.target.name
-        if target.exists() and not target.is_dir():
-            raise OutputFolderError(f"output folder {target} exists and is not a folder")
-        if target.is_dir() and any(target.iterdir()) and not self.force:
-            raise OutputFolderError(
-                f"output folder {target} exists and is not empty; use --force to replace it "
-                "(the old results are kept until the new ones are complete)"
-            )
+        make_parent(target)
+        self._lock.acquire()  # first: a run that ends meanwhile cannot be replaced unasked
         try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise OutputFolderError(
-                f"cannot create output folder {target}: {exc.strerror or exc}"
-            ) from None
-        self._lock(target.parent / LOCK_NAME.format(name=name))
+            self._check_replaceable()
+        except BaseException:
+            self._lock.release()
+            raise
         self._remove_dead_staging()
         staging = target.parent / f"{STAGING_PREFIX.format(name=name)}{os.getpid()}"
         try:
@@ -110,46 +219,27 @@ class OutputFolder:
             probe.write_bytes(b"")
             probe.unlink()
         except OSError as exc:
-            self._unlock()
+            self._lock.release()
             raise OutputFolderError(
                 f"cannot write in output folder {target.parent}: {exc.strerror or exc}"
             ) from None
         self.staging = staging
         return staging
 
-    def _lock(self, path: Path) -> None:
+    def _check_replaceable(self) -> None:
+        """Refuse a target that exists and is not empty, unless ``force``."""
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            not_empty = self.target.is_dir() and any(self.target.iterdir())
         except OSError as exc:
             raise OutputFolderError(
-                f"cannot create output folder {self.target}: {exc.strerror or exc}"
+                f"cannot read output folder {self.target}: {exc.strerror or exc}"
             ) from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
+        if not_empty and not self.force:
             raise OutputFolderError(
-                f"output folder {self.target} is being written by another balance-opt run "
-                f"(process {holder}); wait for it to finish or choose another --output"
-            ) from None
-        try:
-            same_file = os.stat(path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same_file = False
-        if not same_file:  # the previous holder removed the file as we opened it: lock anew
-            os.close(fd)
-            return self._lock(path)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, str(os.getpid()).encode(), 0)
-        self._lock_fd = fd
-
-    def _unlock(self) -> None:
-        if self._lock_fd is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(self.target.parent / LOCK_NAME.format(name=self.target.name))
-            os.close(self._lock_fd)
-            self._lock_fd = None
+                f"output folder {self.target} exists and is not empty; use --force to replace "
+                "it (the old results are kept until the new ones are complete), or choose "
+                "another --output"
+            )
 
     def _remove_dead_staging(self) -> None:
         prefix = STAGING_PREFIX.format(name=self.target.name)
@@ -158,23 +248,36 @@ class OutputFolder:
             if pid.isdigit() and not _pid_alive(int(pid)):
                 shutil.rmtree(entry, ignore_errors=True)
 
+    def final(self, path: str | Path) -> Path:
+        """Where a file written in the staging folder is once the folder is committed."""
+        if self.staging is None:
+            raise RuntimeError("OutputFolder.final() outside open() and commit()")
+        return self.target / Path(path).relative_to(self.staging)
+
     # ------------------------------------------------------------------ closing
     def commit(self) -> Path:
-        """Move the complete staging folder into place (replacing the old target)."""
+        """Move the complete staging folder into place (replacing the old target).
+
+        An interruption before the swap leaves the old target as it was (the staging folder is
+        deleted); after it, the target holds the new run."""
         if self.staging is None:
             raise RuntimeError("OutputFolder.commit() before open()")
         target, staging = self.target, self.staging
-        if target.exists():
-            if not _exchange(staging, target):
-                old = staging.with_name(staging.name + ".old")
-                os.rename(target, old)
+        try:
+            if target.exists():
+                if not _exchange(staging, target):
+                    old = staging.with_name(staging.name + ".old")
+                    os.rename(target, old)
+                    os.rename(staging, target)
+                    staging = old
+                shutil.rmtree(staging, ignore_errors=True)  # the old run, now at that path
+            else:
                 os.rename(staging, target)
-                staging = old
-            shutil.rmtree(staging, ignore_errors=True)  # the old run, now at the staging path
-        else:
-            os.rename(staging, target)
+        except BaseException:
+            self.abort()
+            raise
         self.staging = None
-        self._unlock()
+        self._lock.release()
         return target
 
     def abort(self) -> None:
@@ -182,7 +285,7 @@ class OutputFolder:
         if self.staging is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
             self.staging = None
-        self._unlock()
+        self._lock.release()
 
     def __enter__(self) -> OutputFolder:
         self.open()

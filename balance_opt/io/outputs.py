@@ -1,10 +1,11 @@
 """What a run writes: trajectories (CSV, NPZ), figures of merit (``metrics.json``) and the
 versions of the software that computed them.
 
-* ``<method>.csv``: a ``time`` column [s], one column per arm joint by name [rad] (mission joints
-  first, then balance joints), the base attitude as a quaternion (``base_qx .. base_qw``) and as
-  roll, pitch, yaw (``base_roll``, ``base_pitch``, ``base_yaw``) [rad], and the rotation angle from
-  the start (``base_angle``) [rad]. A mission CSV task (``mission: {type: csv}``) reads it back.
+* ``<method>.csv``: a ``time`` column [s], one column per arm joint by name [rad; m for a
+  prismatic joint] (mission joints first, then balance joints), the base attitude as a
+  quaternion (``base_qx .. base_qw``) and as roll, pitch, yaw (``base_roll``, ``base_pitch``,
+  ``base_yaw``) [rad], and the rotation angle from the start (``base_angle``) [rad]. A mission
+  CSV task (``mission: {type: csv}``) reads it back.
 * ``<method>.npz``: every array of the :class:`~balance_opt.result.BalanceResult` by its field
   name, the joint names, and ``info`` as JSON text.
 * ``metrics.json``: see :func:`method_metrics` and :func:`run_metrics`.
@@ -167,7 +168,8 @@ def to_json(value: Any) -> Any:
 
 def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict[str, float]]:
     """Smallest distance to each limit over the motion, per joint: ``{joint: {"position": m,
-    "velocity": m, "acceleration": m}}`` [rad, rad/s, rad/s^2]; negative where the limit is broken,
+    "velocity": m, "acceleration": m}}`` [rad, rad/s, rad/s^2; m, m/s, m/s^2 for a prismatic
+    joint]; negative where the limit is broken,
     ``inf`` (``null`` in JSON) where there is no limit."""
     names = (*result.mission_joints, *result.balance_joints)
     q = np.hstack([result.q_M, result.q_B])
@@ -202,7 +204,7 @@ BULKY_INFO_KEYS = ("nlp_solution", "history")
 
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
     """Status, iterations and wall times of the solver that produced a result, from its
-    ``info`` (keys of :meth:`balance_opt.optimal.planner.BalanceNLP.solve`); ``None`` where the method
+    ``info`` (keys of :meth:`balance_opt.optimal.solve.BalanceNLP.solve`); ``None`` where the method
     has no such figure (the analytic law has no iterations)."""
     wall = info.get("wall_time_s")
     wall = wall if isinstance(wall, Mapping) else {}
@@ -223,7 +225,7 @@ def method_metrics(result: BalanceResult, robot: FloatingRobot, simulation=None)
 
     Keys: the result's :meth:`~BalanceResult.summary`; ``limit_margins`` (per joint, see
     :func:`limit_margins`), ``min_limit_margin`` and ``balance_limit_margin`` per kind;
-    ``peak_joint_rates_rad_s`` per joint; ``violations``; ``solver`` (:func:`solver_metrics`);
+    ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says); ``violations``; ``solver`` (:func:`solver_metrics`);
     ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].

@@ -79,19 +79,19 @@ _ROWS: list[tuple[str, Callable[[Mapping], Any], Callable[[Any], str] | None]] =
     ("max base angular rate [deg/s]", lambda m: _deg(_get(m, "max_base_rate_rad_s")), None),
     ("max relative angular momentum residual", lambda m: _get(m, "max_momentum_residual"), None),
     ("Balance arm", None, None),
-    ("peak balance joint rate [rad/s]", lambda m: _get(m, "peak_balance_rate_rad_s"), None),
+    ("peak balance joint rate [rad/s or m/s]", lambda m: _get(m, "peak_balance_rate_rad_s"), None),
     (
-        "position limit margin [rad]",
+        "position limit margin [rad or m]",
         lambda m: _get(m, "balance_limit_margin.position"),
         _margin_class,
     ),
     (
-        "velocity limit margin [rad/s]",
+        "velocity limit margin [rad/s or m/s]",
         lambda m: _get(m, "balance_limit_margin.velocity"),
         _margin_class,
     ),
     (
-        "acceleration limit margin [rad/s^2]",
+        "acceleration limit margin [rad/s^2 or m/s^2]",
         lambda m: _get(m, "balance_limit_margin.acceleration"),
         _margin_class,
     ),

@@ -48,7 +48,8 @@ from balance_opt.io.task_spec import (
 )
 from balance_opt.io.typed_config import from_data
 from balance_opt.io.yaml_lines import TaskFileError, YamlDocument, load_yaml
-from balance_opt.model.robot import LIMIT_KEYS, FloatingRobot, LimitOverrideError
+from balance_opt.model.arms import LIMIT_KEYS
+from balance_opt.model.robot import FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
 

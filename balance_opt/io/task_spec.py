@@ -28,6 +28,10 @@ from balance_opt.io.typed_reference import json_schema, reference_markdown
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import GUESSES, PlannerOptions
 
+#: Values of ``robot.backend``: ``auto`` and :data:`balance_opt.model.symbolic.BACKENDS` (not
+#: imported: loading a task does not import CasADi).
+SYMBOLIC_BACKENDS = ("auto", "pinocchio", "adam")
+
 SCHEMA_ID = "https://balance-opt.invalid/task.schema.json"
 #: What a task's ``name`` may be: it names the default output folder ``results/<name>``, so no
 #: path separator, no leading dot (``..``, hidden folders) and no spaces.
@@ -39,7 +43,8 @@ NAME_PATTERN = (
 
 @dataclass(frozen=True, kw_only=True)
 class RobotSpec:
-    """Which URDF: exactly one of ``urdf``, ``shipped`` or ``example``."""
+    """Which URDF: exactly one of ``urdf``, ``shipped`` or ``example``; and the symbolic backend
+    that turns it into CasADi expressions (:mod:`balance_opt.model.symbolic`)."""
 
     __exactly_one__ = ("urdf", "shipped", "example")
 
@@ -47,7 +52,17 @@ class RobotSpec:
     shipped: str | None = setting(
         None, doc="name of a URDF shipped with balance-opt (folder urdf/), e.g. paper_robot.urdf"
     )
-    example: str | None = setting(None, doc="name of an example-robot-data robot, e.g. baxter")
+    example: str | None = setting(
+        None,
+        doc="name of an example-robot-data robot, e.g. baxter, talos, ur5, panda "
+        "(`balance-opt robots` lists them)",
+    )
+    backend: Literal[SYMBOLIC_BACKENDS] = setting(
+        "auto",
+        doc="symbolic backend of the optimal planner's momentum maps: pinocchio (Pinocchio's "
+        "CasADi interface, through a bridge compiled once per machine with a C++ compiler), adam, "
+        "or auto (pinocchio where the bridge builds, else adam); --backend overrides it",
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -225,8 +240,7 @@ class TaskSpec:
     name: str | None = setting(
         None,
         pattern=NAME_PATTERN,
-        doc="short name used in reports and as the default output folder (default: the file "
-        "name)",
+        doc="short name used in reports and as the default output folder (default: the file name)",
     )
     description: str | None = setting(None, doc="free text shown in the report")
     robot: RobotSpec = setting(doc="the robot's URDF")

@@ -36,17 +36,24 @@ given.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import functools
 import math
 import re
-import types
 import typing
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Any, Literal, Union
+from typing import Any, Literal
 
 from balance_opt.errors import InputError
 from balance_opt.io.keypath import format_path
+from balance_opt.io.type_names import (
+    describe,
+    is_union,
+    plural,
+    suggest,
+    tag_of,
+    type_hints,
+    value_words,
+)
 
 _MISSING = dataclasses.MISSING
 
@@ -114,92 +121,6 @@ def setting(
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
-
-
-# ----------------------------------------------------------------------------------- type helpers
-@functools.cache
-def type_hints(cls) -> dict:
-    return typing.get_type_hints(cls)
-
-
-def is_union(tp) -> bool:
-    return typing.get_origin(tp) in (Union, types.UnionType)
-
-
-def union_args(tp) -> tuple:
-    return typing.get_args(tp) if is_union(tp) else (tp,)
-
-
-def tag_of(cls) -> str | None:
-    """The ``type`` literal of a tagged-union member, or None."""
-    if not dataclasses.is_dataclass(cls):
-        return None
-    tp = type_hints(cls).get("type")
-    if typing.get_origin(tp) is Literal and len(typing.get_args(tp)) == 1:
-        return typing.get_args(tp)[0]
-    return None
-
-
-def describe(tp) -> str:
-    """Human name of a type, as used in 'expected ...' messages and the reference."""
-    if tp is type(None):
-        return "null"
-    if is_union(tp):
-        members = [a for a in typing.get_args(tp) if a is not type(None)]
-        if all(tag_of(a) for a in members):
-            return "a mapping with type: " + " | ".join(tag_of(a) for a in members)
-        return " or ".join(describe(a) for a in members)
-    origin = typing.get_origin(tp)
-    if origin is Literal:
-        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
-    if origin is tuple:
-        return f"a list of {_plural(typing.get_args(tp)[0])}"
-    if origin is dict:
-        return f"a mapping of names to {_plural(typing.get_args(tp)[1])}"
-    if dataclasses.is_dataclass(tp):
-        return "a mapping"
-    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
-        tp, str(tp)
-    )
-
-
-def _plural(tp) -> str:
-    if is_union(tp):
-        return " or ".join(_plural(a) for a in typing.get_args(tp) if a is not type(None))
-    origin = typing.get_origin(tp)
-    if origin is tuple:
-        return f"lists of {_plural(typing.get_args(tp)[0])}"
-    if origin is dict or dataclasses.is_dataclass(tp):
-        return "mappings"
-    if origin is Literal:
-        return "names (" + ", ".join(repr(a) for a in typing.get_args(tp)) + ")"
-    return {bool: "booleans", int: "integers", float: "numbers", str: "strings"}.get(tp, str(tp))
-
-
-def _got(value) -> str:
-    kind = {
-        dict: "a mapping",
-        list: "a list",
-        str: "a string",
-        bool: "a boolean",
-        int: "an integer",
-        float: "a number",
-        type(None): "nothing (null)",
-    }.get(type(value), type(value).__name__)
-    if isinstance(value, (dict, list)):
-        return kind
-    if isinstance(value, bool):
-        return f"{str(value).lower()} ({kind})"
-    return f"{value!r} ({kind})"
-
-
-def suggest(name: Any, candidates) -> str:
-    """``"; did you mean 'x'?"`` for close matches, else ``""``."""
-    names = [str(c) for c in candidates]
-    close = difflib.get_close_matches(str(name), names, n=3)
-    if not close and len(str(name)) >= 3:  # an abbreviation: 'accel' for 'acceleration'
-        close = [c for c in names if c.startswith(str(name))][:3]
-    return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
 
 
 def field_default(f):
@@ -315,14 +236,14 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
 
 def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
     if not isinstance(value, list):
-        raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
+        raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
     n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
     if n_lo is not None and len(value) < n_lo and meta.get("item"):
         got = f"got {len(value)}" if value else "got an empty list"
         raise _Invalid(path, f"must name at least {_count(n_lo, meta['item'])}, {got}")
     if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
         raise _Invalid(
-            path, f"expected a list of {n_lo} {_plural(typing.get_args(tp)[0])}, got {len(value)}"
+            path, f"expected a list of {n_lo} {plural(typing.get_args(tp)[0])}, got {len(value)}"
         )
     if n_lo is not None and len(value) < n_lo:
         raise _Invalid(path, f"expected at least {n_lo} items, got {len(value)}")
@@ -347,21 +268,21 @@ def _check_pattern(value: str, meta: dict, path: tuple) -> None:
 def _convert_scalar(value, tp, meta: dict, path: tuple):
     if tp is bool:
         if not isinstance(value, bool):
-            raise _Invalid(path, f"expected true or false, got {_got(value)}")
+            raise _Invalid(path, f"expected true or false, got {value_words(value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise _Invalid(path, f"expected an integer, got {_got(value)}")
+            raise _Invalid(path, f"expected an integer, got {value_words(value)}")
         _check_number(value, meta, path)
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _Invalid(path, f"expected a number, got {_got(value)}")
+            raise _Invalid(path, f"expected a number, got {value_words(value)}")
         _check_number(float(value), meta, path)
         return float(value)
     if tp is str:
         if not isinstance(value, str):
-            raise _Invalid(path, f"expected a string, got {_got(value)}")
+            raise _Invalid(path, f"expected a string, got {value_words(value)}")
         if not value.strip():
             raise _Invalid(path, "expected a non-empty string")
         _check_pattern(value, meta, path)
@@ -380,7 +301,7 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
         if value not in options or isinstance(value, bool) != isinstance(options[0], bool):
             raise _Invalid(
                 path,
-                f"expected one of {', '.join(repr(o) for o in options)}, got {_got(value)}"
+                f"expected one of {', '.join(repr(o) for o in options)}, got {value_words(value)}"
                 + (suggest(value, options) if isinstance(value, str) else ""),
             )
         return value
@@ -388,12 +309,12 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
         return _convert_list(value, tp, meta, path)
     if origin is dict:
         if not isinstance(value, dict):
-            raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
+            raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
         value_tp = typing.get_args(tp)[1]
         out = {}
         for k, v in value.items():
             if not isinstance(k, str):
-                raise _Invalid((*path, k), f"expected a name as key, got {_got(k)}")
+                raise _Invalid((*path, k), f"expected a name as key, got {value_words(k)}")
             out[k] = _convert(v, value_tp, meta, (*path, k))
         return out
     if dataclasses.is_dataclass(tp):
@@ -416,7 +337,7 @@ def _convert_union(value, tp, meta, path):
     if None not in tags:  # tagged union: dispatch on 'type'
         if not isinstance(value, dict):
             raise _Invalid(
-                path, f"expected a mapping with a 'type' key ({', '.join(tags)}), got {_got(value)}"
+                path, f"expected a mapping with a 'type' key ({', '.join(tags)}), got {value_words(value)}"
             )
         if "type" not in value:
             raise _Invalid(path, f"missing key 'type'; expected one of {', '.join(tags)}")
@@ -424,7 +345,7 @@ def _convert_union(value, tp, meta, path):
         if tag not in tags:
             raise _Invalid(
                 (*path, "type"),
-                f"expected one of {', '.join(repr(t) for t in tags)}, got {_got(tag)}"
+                f"expected one of {', '.join(repr(t) for t in tags)}, got {value_words(tag)}"
                 + suggest(tag, tags),
             )
         return _convert(value, tags[tag], meta, path)
@@ -445,7 +366,7 @@ def _convert_union(value, tp, meta, path):
         raise deepest
     if len(fitting) == 1:
         raise fitting[0]
-    raise _Invalid(path, f"expected {describe(tp)}, got {_got(value)}")
+    raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
 
 
 def _same_kind(value, tp) -> bool:
@@ -487,7 +408,7 @@ def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=(
             if e.key in value:
                 sub = value[e.key]
                 if not isinstance(sub, dict):
-                    raise _Invalid((*path, e.key), f"expected a mapping, got {_got(sub)}")
+                    raise _Invalid((*path, e.key), f"expected a mapping, got {value_words(sub)}")
                 _read_mapping(sub, e.entries, (*path, e.key), tree)
         elif e.key in value:
             node = tree
@@ -519,7 +440,7 @@ def _build(cls, tree: dict, path: tuple):
 
 def _convert_dataclass(value, cls, path):
     if not isinstance(value, dict):
-        raise _Invalid(path, f"expected a mapping, got {_got(value)}")
+        raise _Invalid(path, f"expected a mapping, got {value_words(value)}")
     tree: dict = {}
     _read_mapping(value, file_layout(cls), path, tree, getattr(cls, "__exactly_one__", ()))
     return _build(cls, tree, path)

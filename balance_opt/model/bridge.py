@@ -16,7 +16,8 @@ Everything is cached in ``<kernel cache>/pinocchio-bridge/``:
   others wait), into a temporary name, then renamed; a record beside it holds the program's
   SHA-256 (a truncated or altered program is rebuilt) and its build times;
 * each robot's saved function, keyed by the program's key, the URDF with the locked joints
-  fixed, the arm joints and the end-effector frames (an unreadable file is generated anew).
+  fixed, the model joints (arm joints and their mimic followers)
+  and the end-effector frames (an unreadable file is generated anew).
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ import platform
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from functools import cache
@@ -37,6 +37,7 @@ from pathlib import Path
 
 import casadi as cs
 
+from balance_opt.cache import build_dir, default_cache_dir, file_lock, sha256_of
 from balance_opt.errors import BalanceOptError
 
 log = logging.getLogger(__name__)
@@ -228,35 +229,17 @@ def _build_key(toolchain: Toolchain) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
-def _kernel_cache():
-    """The planner's kernel cache module (its folder and its file lock are shared), wherever
-    the optimal package keeps it; imported late so that this module stays below it."""
-    try:
-        from balance_opt.optimal import codegen
-    except ImportError:
-        from balance_opt.optimal import model as codegen
-    return codegen
-
-
 def cache_folder() -> Path:
     """``<kernel cache folder>/pinocchio-bridge`` (see ``default_cache_dir``)."""
-    return Path(_kernel_cache().default_cache_dir()) / FOLDER
+    return default_cache_dir() / FOLDER
 
 
 # ----------------------------------------------------------------------------- the program
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _read_record(program: Path) -> BuildRecord | None:
     """The record of a cached program whose bytes still match it, else ``None``."""
     try:
         record = json.loads(program.with_suffix(".json").read_text())
-        if program.is_file() and _sha256(program) == record["sha256"]:
+        if program.is_file() and sha256_of(program) == record["sha256"]:
             return BuildRecord(program, record["wall_seconds"], record["cpu_seconds"], False)
     except (OSError, ValueError, KeyError, TypeError):
         pass
@@ -273,7 +256,7 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
     """Build the program into a temporary name in its folder, then rename it into place."""
     log.info("building the Pinocchio-CasADi bridge (once per machine, about %d min)", BUILD_MINUTES)
     start, cpu0 = time.perf_counter(), _children_cpu()
-    with tempfile.TemporaryDirectory(dir=program.parent) as tmp:
+    with build_dir(program.parent, program.name) as tmp:
         out = Path(tmp) / program.name
         with open(Path(tmp) / "stderr.txt", "w+") as err:
             proc = subprocess.Popen(
@@ -291,7 +274,7 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
         if proc.returncode != 0:
             raise BridgeUnavailable(f"build failed: {_first_error(stderr)}")
         wall, cpu = time.perf_counter() - start, _children_cpu() - cpu0
-        record = {"sha256": _sha256(out), "wall_seconds": wall, "cpu_seconds": cpu}
+        record = {"sha256": sha256_of(out), "wall_seconds": wall, "cpu_seconds": cpu}
         os.replace(out, program)  # atomic: no process ever runs a half-written program
     tmp_record = program.with_suffix(".json.tmp")
     tmp_record.write_text(json.dumps(record))
@@ -344,7 +327,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     try:
         folder.mkdir(parents=True, exist_ok=True)
         # one process builds, the others wait for it
-        with _kernel_cache()._file_lock(folder / f"{program.name}.lock"):
+        with file_lock(folder / f"{program.name}.lock"):
             record = _read_record(program)
             if record is None:
                 record = _compile(toolchain, program)
@@ -359,7 +342,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
 
 def _robot_key(robot, program: Path) -> str:
     frames = [arm.ee_frame for arm in robot.arms]
-    spec = [program.name, robot.locked_urdf, *robot.joint_names, "|", *frames]
+    spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
     return hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
 
 
@@ -374,8 +357,9 @@ def _load(path: Path, robot) -> cs.Function | None:
         fun = cs.Function.load(str(path))
     except RuntimeError:  # missing, truncated or foreign file
         return None
-    shape = (6, 6 + robot.n)
-    ok = fun.n_in() == 1 and fun.size_in(0) == (robot.n, 1) and fun.n_out() == 1 + len(robot.arms)
+    n = len(robot.model_joint_names)  # arm joints, then the mimic joints following them
+    shape = (6, 6 + n)
+    ok = fun.n_in() == 1 and fun.size_in(0) == (n, 1) and fun.n_out() == 1 + len(robot.arms)
     if not ok or any(fun.size_out(i) != shape for i in range(fun.n_out())):
         return None
     return fun
@@ -384,12 +368,13 @@ def _load(path: Path, robot) -> cs.Function | None:
 def _generate(program: Path, robot, path: Path) -> float:
     """Run the program on ``robot``; the function lands in ``path``. Returns the time [s]."""
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+    with build_dir(path.parent, path.stem) as tmp:
         urdf = Path(tmp) / "robot.urdf"
         urdf.write_text(robot.locked_urdf)
         out = Path(tmp) / path.name
         frames = [arm.ee_frame for arm in robot.arms]
-        args = [str(program), str(urdf), str(out), str(robot.n), *robot.joint_names, *frames]
+        joints = robot.model_joint_names
+        args = [str(program), str(urdf), str(out), str(len(joints)), *joints, *frames]
         try:
             proc = subprocess.run(args, capture_output=True, text=True, check=False)
         except OSError as exc:  # e.g. the program was replaced by a broken file meanwhile
@@ -408,7 +393,7 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
     generated by the bridge program (built first if needed).
 
     ``A_G`` is the centroidal momentum matrix and ``J_k`` the frame Jacobian (world-aligned
-    axes) of arm ``k``'s end effector, 6 x (6+n) each, base columns first, then the arm joints.
+    axes) of arm ``k``'s end effector, 6 x (6+m) each, base columns first, then the m model joints.
 
     Raises:
         BridgeUnavailable: the program cannot be built, or it failed on this robot.
@@ -435,6 +420,7 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
 
 def bridge_primitives(robot, q: cs.SX) -> tuple[cs.SX, dict[str, cs.SX]]:
     """The centroidal momentum matrix and each arm's end-effector Jacobian as ``casadi.SX``
-    expressions of the arm vector ``q`` (columns: base, then arm joints in arm order)."""
+    expressions of the model joints' positions ``q`` (``robot.model_joint_names``: the arm
+    joints, then the mimic joints following them; columns: base, then those joints)."""
     A, *jacobians = bridge_function(robot)(q)
     return cs.SX(A), {arm.name: cs.SX(J) for arm, J in zip(robot.arms, jacobians)}

@@ -7,6 +7,10 @@ gives ``A_G`` with world-aligned rows about the CoM. Computed with the base at t
 pose, ``A_G`` is expressed in the base frame, and so are the maps derived from it, which do not
 depend on the base pose.
 
+Mimic joints that follow an arm joint move with it: configurations place them by their drivers,
+and every map over arm joints folds a follower's column, times its multiplier, into its
+driver's (``FloatingRobot.arm_columns``).
+
 :func:`base_angular_velocity` is THE base rate forced by the joints (``docs/physics.md``, "Base
 motion forced by the joints"): every numeric caller goes through it.
 """
@@ -60,23 +64,26 @@ class NumericMaps:
         self.model = robot.model
         self.data = robot.model.createData()
         self.mass = robot.total_mass
-        ids = [self.model.getJointId(j) for j in robot.joint_names]
-        idx_q = np.array([self.model.joints[i].idx_q for i in ids])
-        nq = np.array([self.model.joints[i].nq for i in ids])
+        # model joints: the arm joints, then the mimic joints that follow them
+        ids = [self.model.getJointId(j) for j in robot.model_joint_names]
+        idx_q = np.array([self.model.joints[i].idx_q for i in ids], dtype=int)
+        nq = np.array([self.model.joints[i].nq for i in ids], dtype=int)
         self._one = np.flatnonzero(nq == 1)
         self._two = np.flatnonzero(nq == 2)  # continuous joints stored as (cos, sin)
         self._idx_q_one = idx_q[self._one]
         self._idx_q_two = idx_q[self._two]
         self._q_ref = robot.pin_q(robot.neutral())  # base at identity, locked joints in place
-        self._idx_v = robot.pin_v_indices
-        self._cols = np.r_[0:6, self._idx_v]  # [base; arm joints in arm order]
-        self._angular_cols = np.r_[3:6, self._idx_v]
+        self._idx_v = robot.model_v_indices
+        E, e = robot.mimic_matrix
+        self._mimic = (E.T, e) if robot.followers else None
 
     # ------------------------------------------------------------------ Pinocchio vectors
     def configurations(self, q, quaternion=None) -> np.ndarray:
         """Pinocchio configurations (..., nq) of arm vectors (..., n): base at the origin with
         attitude ``quaternion`` (..., 4), (x, y, z, w), identity by default."""
         q = np.asarray(q, dtype=float)
+        if self._mimic is not None:
+            q = q @ self._mimic[0] + self._mimic[1]
         out = self._q_ref.copy() if q.ndim == 1 else np.tile(self._q_ref, q.shape[:-1] + (1,))
         out[..., self._idx_q_one] = q[..., self._one]
         if self._two.size:
@@ -90,6 +97,8 @@ class NumericMaps:
         """Pinocchio velocities (..., nv) of arm rates (..., n), the base not translating and
         turning at ``omega`` (..., 3) [rad/s, base frame] (at rest by default)."""
         q_dot = np.asarray(q_dot, dtype=float)
+        if self._mimic is not None:
+            q_dot = q_dot @ self._mimic[0]
         out = np.zeros(q_dot.shape[:-1] + (self.model.nv,))
         out[..., self._idx_v] = q_dot
         if omega is not None:
@@ -112,7 +121,7 @@ class NumericMaps:
     def angular_blocks(self, Ag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(I_G, A)`` (..., 3, 3) and (..., 3, n), arm order, from Pinocchio ``A_G`` (..., 6, nv):
         the angular momentum about the CoM is ``I_G omega + A q_dot``."""
-        rows = Ag[..., 3:, self._angular_cols]
+        rows = self.robot.arm_columns(Ag[..., 3:, :])[..., 3:]
         return rows[..., :3], rows[..., 3:]
 
     def angular_maps(self, q) -> tuple[np.ndarray, np.ndarray]:
@@ -156,7 +165,7 @@ class NumericMaps:
         [base twist in base frame; arm joint rates]. Axes of the base frame, or of the world
         when the base ``rotation`` is given."""
         quaternion = None if rotation is None else pin.Quaternion(rotation).coeffs()
-        return self.centroidal(q, quaternion)[:, self._cols]
+        return self.robot.arm_columns(self.centroidal(q, quaternion))
 
     # ------------------------------------------------------------------ base motion
     def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +205,7 @@ class NumericMaps:
         pin.computeJointJacobians(self.model, self.data, self.configurations(q))
         pin.updateFramePlacements(self.model, self.data)
         J = pin.getFrameJacobian(self.model, self.data, frame, pin.LOCAL_WORLD_ALIGNED)
-        return J[:, self._cols]
+        return self.robot.arm_columns(J)
 
     def ee_generalized_jacobian(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
         """``(J_star, M)`` of Eq. 20-22

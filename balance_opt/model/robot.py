@@ -5,12 +5,20 @@ order the user named them: the mission arm first, then each balance arm. Every o
 joint is locked at a fixed position. Pinocchio orders joints differently (depth-first over the
 kinematic tree), so conversions always go through joint names, never through positions.
 
+A URDF mimic joint follows its driver, ``q = k q_driver + c`` (``<mimic joint= multiplier=
+offset=>``, chains of mimics resolved to the first driver). When the driver is locked, the
+mimic is locked at ``k q_driver + c``; when the driver is an arm joint, the mimic is a
+*follower*: it stays movable in the models below and moves with its driver, so its momentum
+belongs to the driver's column (``velocity_map``). The *model joints* are the arm joints
+followed by the followers.
+
 Two views of the same robot are kept:
 
 * ``robot.model``: a numeric Pinocchio model (free-flyer root, zero gravity) reduced by
   ``pin.buildReducedModel`` with the locked joints at their positions;
 * ``robot.locked_urdf``: the URDF text with each locked joint turned into a fixed joint whose
-  origin holds the locked position; symbolic backends (adam) are built from it.
+  origin holds the locked position, and the followers' ``<mimic>`` tags removed (every
+  consumer drives them through ``mimic_matrix``); symbolic backends are built from it.
 
 Building the two by different routes is deliberate: the tests compare them.
 """
@@ -29,59 +37,23 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import ArmError, JointError, URDFLoadError
+from balance_opt.model.arms import LIMIT_KEYS, Arm, JointLimits
+from balance_opt.model.joints import (
+    MOVABLE_TYPES,
+    Mimic,
+    lock_joints,
+    mimic_matrix,
+    narrow_driver_limits,
+    parse_mimic,
+    resolve_mimics,
+)
 from balance_opt.model.urdf_checks import check_urdf_physics, pinocchio_model
 
 log = logging.getLogger(__name__)
 
-MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
-LIMIT_KEYS = ("lower", "upper", "velocity", "acceleration", "effort")
 #: A balance arm whose links have less than this fraction of the robot's mass and of its
 #: inertia moves nothing: it is refused.
 MASSLESS = 1e-9
-
-
-@dataclass(frozen=True)
-class JointLimits:
-    """Limits of the arm joints, in arm order.
-
-    Attributes:
-        lower: lowest position [rad or m] (``-inf`` for continuous joints).
-        upper: highest position [rad or m].
-        velocity: largest speed [rad/s or m/s].
-        acceleration: largest acceleration [rad/s^2]; URDF has none, so ``inf`` unless set.
-        effort: largest torque [N m] or force [N].
-    """
-
-    lower: np.ndarray
-    upper: np.ndarray
-    velocity: np.ndarray
-    acceleration: np.ndarray
-    effort: np.ndarray
-
-    def subset(self, indices) -> JointLimits:
-        """The limits of the joints at ``indices`` of the arm vector."""
-        return JointLimits(*(getattr(self, k)[indices] for k in LIMIT_KEYS))
-
-
-@dataclass(frozen=True)
-class Arm:
-    """One arm: its role, its joints (in the user's order) and its end-effector frame.
-
-    Attributes:
-        name: ``"mission"``, or the balance arm's name (``"balance"``, ``"balance2"``, ...).
-        joints: joint names in the order the user gave.
-        indices: positions of these joints in the robot's arm vector.
-        ee_frame: name of the end-effector frame (a URDF link).
-    """
-
-    name: str
-    joints: tuple[str, ...]
-    indices: np.ndarray = field(repr=False)
-    ee_frame: str
-
-    @property
-    def dof(self) -> int:
-        return len(self.joints)
 
 
 @dataclass(frozen=True)
@@ -91,6 +63,7 @@ class _UrdfJoint:
     parent: str
     child: str
     element: ET.Element = field(repr=False)
+    mimic: tuple[str, float, float] | None = None  # (driver, multiplier, offset)
 
 
 def _read_urdf(urdf: str | Path) -> tuple[str, str]:
@@ -122,7 +95,12 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
                 source, f"a <joint> lacks a name, parent or child: {ET.tostring(el)[:80]!r}"
             )
         joints[name] = _UrdfJoint(
-            name, el.get("type", ""), parent.get("link"), child.get("link"), el
+            name,
+            el.get("type", ""),
+            parent.get("link"),
+            child.get("link"),
+            el,
+            parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     for warning in check_urdf_physics(root, source):
         _warn_once(f"URDF {source}: {warning}")
@@ -159,54 +137,6 @@ class LimitOverrideError(JointError):
         super().__init__(joint, source, reason)
 
 
-def _origin(el: ET.Element) -> pin.SE3:
-    origin = el.find("origin")
-    xyz = np.zeros(3)
-    rpy = np.zeros(3)
-    if origin is not None:
-        xyz = np.array([float(v) for v in origin.get("xyz", "0 0 0").split()])
-        rpy = np.array([float(v) for v in origin.get("rpy", "0 0 0").split()])
-    return pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
-
-
-def _axis(el: ET.Element) -> np.ndarray:
-    axis = el.find("axis")
-    vec = (
-        np.array([1.0, 0.0, 0.0])
-        if axis is None
-        else np.array([float(v) for v in axis.get("xyz", "1 0 0").split()])
-    )
-    return vec / np.linalg.norm(vec)
-
-
-def _lock_joints(
-    root: ET.Element, joints: dict[str, _UrdfJoint], locked: Mapping[str, float]
-) -> str:
-    """URDF text in which each locked joint is a fixed joint at its locked position."""
-    root = ET.fromstring(ET.tostring(root))  # work on a copy
-    by_name = {el.get("name"): el for el in root.findall("joint")}
-    for name, value in locked.items():
-        el = by_name[name]
-        motion = (
-            pin.SE3(np.eye(3), _axis(el) * value)
-            if joints[name].type == "prismatic"
-            else pin.SE3(pin.exp3(_axis(el) * value), np.zeros(3))
-        )
-        placement = _origin(el) * motion
-        rpy = pin.rpy.matrixToRpy(placement.rotation)
-        for tag in ("origin", "axis", "limit", "mimic", "dynamics", "safety_controller"):
-            for child in el.findall(tag):
-                el.remove(child)
-        el.set("type", "fixed")
-        ET.SubElement(
-            el,
-            "origin",
-            xyz=" ".join(repr(float(v)) for v in placement.translation),
-            rpy=" ".join(repr(float(v)) for v in rpy),
-        )
-    return ET.tostring(root, encoding="unicode")
-
-
 def _suggest(name: str, candidates) -> str:
     close = difflib.get_close_matches(name, list(candidates), n=3)
     return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
@@ -220,7 +150,7 @@ class FloatingRobot:
         mission: joint names of the mission arm.
         balance: joint names of the balance arm, or a list of such lists for several balance arms.
         locked: positions of locked joints [rad or m]; every movable joint that is in no arm and
-            not named here is locked at 0.
+            not named here is locked at 0, except mimic joints, which follow their driver.
         limits: overrides of joint limits, ``{joint: {"lower": ..., "upper": ..., "velocity": ...,
             "acceleration": ..., "effort": ...}}``; keys left out keep the URDF's value.
         ee_frames: end-effector frame per arm name (``"mission"``, ``"balance"``, ``"balance2"``
@@ -230,8 +160,8 @@ class FloatingRobot:
 
     Raises:
         URDFLoadError: the URDF cannot be read, parsed or loaded by Pinocchio.
-        JointError: a joint is unknown, named twice, in two arms, fixed, or of an unsupported
-            type; a lock or a limit override names a wrong joint or key.
+        JointError: a joint is unknown, named twice, in two arms, fixed, a mimic joint, or of an
+            unsupported type; a lock or a limit override names a wrong joint or key.
         ArmError: an arm has no joints, or a named end-effector frame does not exist.
     """
 
@@ -246,6 +176,7 @@ class FloatingRobot:
     ):
         text, self.source = _read_urdf(urdf)
         root, self._urdf_joints = _parse_joints(text, self.source)
+        self.mimics: dict[str, Mimic] = resolve_mimics(self._urdf_joints, self.source)
         self.name = root.get("name", "robot")
 
         for arm, joints in (("mission", mission), ("balance", balance)):
@@ -269,14 +200,29 @@ class FloatingRobot:
 
         self.joint_names: tuple[str, ...] = tuple(j for _, js in arm_specs for j in js)
         self.locked = self._check_locked(locked or {})
-        self.locked_urdf = _lock_joints(root, self._urdf_joints, self.locked)
+        #: mimic joints that follow an arm joint, in URDF order
+        self.followers: dict[str, Mimic] = {
+            j: m for j, m in self.mimics.items() if m.driver in self.joint_names
+        }
+        #: the arm joints, then the followers: the movable joints of ``model``
+        self.model_joint_names: tuple[str, ...] = self.joint_names + tuple(self.followers)
+        self.locked_urdf = lock_joints(root, self._urdf_joints, self.locked, self.followers)
 
         self.model, self.full_model = self._build_pinocchio(text)
 
-        self._joint_ids = [self.model.getJointId(j) for j in self.joint_names]
-        self._pin_idx_q = np.array([self.model.joints[i].idx_q for i in self._joint_ids])
-        self._pin_idx_v = np.array([self.model.joints[i].idx_v for i in self._joint_ids])
-        self._pin_nq = np.array([self.model.joints[i].nq for i in self._joint_ids])
+        ids = [self.model.getJointId(j) for j in self.model_joint_names]
+        self._model_idx_q = np.array([self.model.joints[i].idx_q for i in ids], dtype=int)
+        self._model_idx_v = np.array([self.model.joints[i].idx_v for i in ids], dtype=int)
+        self._model_nq = np.array([self.model.joints[i].nq for i in ids], dtype=int)
+        self._joint_ids = ids[: len(self.joint_names)]
+        self._pin_idx_q = self._model_idx_q[: self.n]
+        self._pin_idx_v = self._model_idx_v[: self.n]
+        self._pin_nq = self._model_nq[: self.n]
+        self._mimic_E, self._mimic_e = mimic_matrix(self.joint_names, self.followers)
+        # G: Pinocchio velocity per [base twist; arm joint rates]
+        self._G = np.zeros((self.model.nv, 6 + self.n))
+        self._G[:6, :6] = np.eye(6)
+        self._G[self._model_idx_v, 6:] = self._mimic_E
 
         ee_frames = dict(ee_frames or {})
         self.arms: tuple[Arm, ...] = tuple(self._make_arms(arm_specs, ee_frames))
@@ -320,6 +266,15 @@ class FloatingRobot:
                         f"has type '{jtype}'; arm joints must be one of "
                         f"{', '.join(MOVABLE_TYPES)} (arm '{arm}')",
                     )
+                if j in self.mimics:
+                    m = self.mimics[j]
+                    raise JointError(
+                        j,
+                        self.source,
+                        f"is a mimic joint following '{m.driver}' (multiplier {m.multiplier:g}, "
+                        f"offset {m.offset:g}) and cannot be an arm joint (arm '{arm}'); name "
+                        f"its driver '{m.driver}' in an arm and '{j}' moves with it",
+                    )
                 if j in owner:
                     where = "twice in arm" if owner[j] == arm else f"in two arms, '{owner[j]}' and"
                     raise JointError(j, self.source, f"is named {where} '{arm}'")
@@ -340,6 +295,13 @@ class FloatingRobot:
                 raise JointError(
                     j, self.source, f"is a {self._urdf_joints[j].type} joint and cannot be locked"
                 )
+            if j in self.mimics:
+                raise JointError(
+                    j,
+                    self.source,
+                    f"is a mimic joint following '{self.mimics[j].driver}' and cannot be locked "
+                    f"on its own; lock its driver '{self.mimics[j].driver}'",
+                )
             try:
                 out[j] = float(value)
             except (TypeError, ValueError):
@@ -347,8 +309,11 @@ class FloatingRobot:
                     j, self.source, f"locked position must be a number, got {value!r}"
                 ) from None
         for j, uj in self._urdf_joints.items():
-            if uj.type in MOVABLE_TYPES and j not in self.joint_names and j not in out:
-                out[j] = 0.0
+            if uj.type in MOVABLE_TYPES and j not in self.joint_names and j not in self.mimics:
+                out.setdefault(j, 0.0)
+        for j, m in self.mimics.items():  # a locked driver locks its mimics
+            if m.driver not in self.joint_names:
+                out[j] = m.multiplier * out[m.driver] + m.offset
         return out
 
     def _build_pinocchio(self, text: str):
@@ -412,6 +377,7 @@ class FloatingRobot:
                 values["upper"][i] = self.model.upperPositionLimit[self._pin_idx_q[i]]
             values["velocity"][i] = self.model.velocityLimit[self._pin_idx_v[i]]
             values["effort"][i] = self.model.effortLimit[self._pin_idx_v[i]]
+        narrow_driver_limits(values, self.model, self.joint_names, self.followers)
         for j, over in overrides.items():
             if j not in self.joint_names:
                 raise JointError(
@@ -513,6 +479,40 @@ class FloatingRobot:
         return out
 
     @property
+    def mimic_matrix(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(E, e)``: positions of the model joints (``model_joint_names``: arm joints, then
+        followers) are ``E q + e``, their rates ``E q_dot`` [rad or m]."""
+        return self._mimic_E.copy(), self._mimic_e.copy()
+
+    @property
+    def velocity_map(self) -> np.ndarray:
+        """``G`` (nv x (6+n)): Pinocchio's velocity is ``G [base twist; q_dot]``; a Pinocchio
+        matrix over velocities becomes one over [base; arm joints] as ``X G`` (each follower's
+        column added, times its multiplier, into its driver's) and a generalized force ``f``
+        becomes ``G^T f``."""
+        return self._G.copy()
+
+    @property
+    def model_v_indices(self) -> np.ndarray:
+        """Index of each model joint (arm joints, then followers) in Pinocchio's velocity."""
+        return self._model_idx_v.copy()
+
+    def arm_columns(self, X: np.ndarray) -> np.ndarray:
+        """``X G``: a Pinocchio matrix (..., nv) over velocities as one over [base twist; arm
+        joint rates] (..., 6+n), followers' columns folded into their drivers'."""
+        if not self.followers:  # a plain selection: cheaper, and bit for bit the same
+            return X[..., np.r_[0:6, self._pin_idx_v]]
+        return X @ self._G
+
+    @property
+    def joint_units(self) -> tuple[str, ...]:
+        """Unit of each arm joint's position, in arm order: ``"m"`` for prismatic joints, else
+        ``"rad"`` (rates and accelerations per s and s^2, efforts N or N m)."""
+        return tuple(
+            "m" if self._urdf_joints[j].type == "prismatic" else "rad" for j in self.joint_names
+        )
+
+    @property
     def total_mass(self) -> float:
         """Mass of the whole system [kg]."""
         return float(sum(inertia.mass for inertia in self.model.inertias))
@@ -544,23 +544,27 @@ class FloatingRobot:
 
     # ----------------------------------------------------------------------------- conversions
     def pin_q(self, q, base: pin.SE3 | None = None) -> np.ndarray:
-        """Pinocchio configuration from the arm vector ``q`` and the base pose (identity by default)."""
+        """Pinocchio configuration from the arm vector ``q`` and the base pose (identity by
+        default), followers placed by their drivers."""
         q = np.asarray(q, dtype=float)
+        if self.followers:
+            q = self._mimic_E @ q + self._mimic_e
         qp = pin.neutral(self.model)
         if base is not None:
             qp[:7] = pin.SE3ToXYZQUAT(base)
-        one = self._pin_nq == 1
-        qp[self._pin_idx_q[one]] = q[one]
+        one = self._model_nq == 1
+        qp[self._model_idx_q[one]] = q[one]
         for i in np.flatnonzero(~one):
-            qp[self._pin_idx_q[i] : self._pin_idx_q[i] + 2] = [math.cos(q[i]), math.sin(q[i])]
+            qp[self._model_idx_q[i] : self._model_idx_q[i] + 2] = [math.cos(q[i]), math.sin(q[i])]
         return qp
 
     def pin_v(self, q_dot, base_twist=None) -> np.ndarray:
-        """Pinocchio velocity from arm joint rates and the base twist (local frame, zero by default)."""
+        """Pinocchio velocity from arm joint rates and the base twist (local frame, zero by
+        default), followers moving with their drivers."""
         v = np.zeros(self.model.nv)
         if base_twist is not None:
             v[:6] = base_twist
-        v[self._pin_idx_v] = q_dot
+        v[self._model_idx_v] = self._mimic_E @ np.asarray(q_dot, dtype=float)
         return v
 
     def arm_q(self, q_pin) -> np.ndarray:
@@ -571,7 +575,8 @@ class FloatingRobot:
         return q
 
     def arm_v(self, v_pin) -> np.ndarray:
-        """Arm joint rates (or accelerations, torques) from a Pinocchio tangent vector."""
+        """Arm joint rates (or accelerations) from a Pinocchio tangent vector; a generalized
+        force maps to the arm joints as ``velocity_map.T @ f`` instead."""
         return np.asarray(v_pin)[self._pin_idx_v]
 
     @property

@@ -1,5 +1,6 @@
-"""A readable summary of a floating robot: mass, arms, joints and limits, locked joints, and the
-coupling measures at a configuration (the home configuration by default)."""
+"""A readable summary of a floating robot: mass, arms, joints and limits (with their units),
+mimic joints, locked joints, and the coupling measures at a configuration (the home configuration
+by default)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,9 @@ import numpy as np
 
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
+
+#: Units of a joint's position, speed, acceleration and effort by its position unit.
+_UNITS = {"rad": "[rad, rad/s, rad/s^2, N m]", "m": "[m, m/s, m/s^2, N]"}
 
 
 def _fmt_limit(x: float) -> str:
@@ -24,15 +28,25 @@ def robot_summary(robot: FloatingRobot, q=None) -> str:
     for arm in robot.arms:
         lines.append(f"  {arm.name} arm: {arm.dof} joints, end effector '{arm.ee_frame}'")
         lines.append(
-            f"    {'joint':<22} {'lower':>9} {'upper':>9} {'vel':>8} {'acc':>8} {'effort':>8}  [rad, rad/s, rad/s^2, N m]"
+            f"    {'joint':<22} {'lower':>9} {'upper':>9} {'vel':>8} {'acc':>8} {'effort':>8}  units"
         )
         for i in arm.indices:
             lines.append(
                 f"    {robot.joint_names[i]:<22} {_fmt_limit(lim.lower[i]):>9} {_fmt_limit(lim.upper[i]):>9} "
                 f"{_fmt_limit(lim.velocity[i]):>8} {_fmt_limit(lim.acceleration[i]):>8} {_fmt_limit(lim.effort[i]):>8}"
+                f"  {_UNITS[robot.joint_units[i]]}"
             )
+    if robot.followers:
+        follows = ", ".join(
+            f"{j} = {m.multiplier:.4g} {m.driver} + {m.offset:.4g}"
+            for j, m in robot.followers.items()
+        )
+        lines.append(f"  mimic joints moving with their driver: {follows}")
     if robot.locked:
-        locked = ", ".join(f"{j}={v:.4g}" for j, v in robot.locked.items())
+        locked = ", ".join(
+            f"{j}={v:.4g}" + (f" (mimics {robot.mimics[j].driver})" if j in robot.mimics else "")
+            for j, v in robot.locked.items()
+        )
         lines.append(f"  locked: {locked}")
     m = NumericMaps(robot).coupling_measures(q)
     lines.append(f"  coupling at q = [{', '.join(f'{v:.3g}' for v in q)}]:")

@@ -19,6 +19,10 @@ identity, base columns first, then arm joints in arm order):
 else ``"adam"``, and then says why in one log line per process. Pinocchio's expressions are
 about four times smaller than adam's on Baxter (``benchmarks/bench_bridge.py``).
 
+Mimic joints that follow an arm joint (``FloatingRobot.followers``) are evaluated as joints of
+their own at ``k q_driver + c``, and their columns are then folded, times ``k``, into their
+drivers' (:func:`model_joint_positions`, :func:`model_velocity_map`): a follower's momentum belongs to its driver.
+
 Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
 cached), and ``name(...)`` evaluates it and returns NumPy arrays.
 """
@@ -135,37 +139,71 @@ def backend_description(backend: str = "auto") -> str:
     return _resolve_backend(backend)[1]
 
 
-def _primitives_adam(robot: FloatingRobot, q: cs.SX):
-    import adam.casadi
-    import urdf_parser_py.xml_reflection.core as urdf_core
+def model_joint_positions(robot: FloatingRobot, q: cs.SX) -> cs.SX:
+    """Positions of the model joints (arm joints, then followers) from the arm vector ``q``."""
+    if not robot.followers:
+        return q
+    E, e = robot.mimic_matrix
+    return cs.mtimes(cs.DM(E), q) + cs.DM(e)
 
+
+def model_velocity_map(robot: FloatingRobot) -> np.ndarray:
+    """(6 + model joints) x (6+n): velocities of [base; model joints] per [base; arm joints]."""
+    return robot.velocity_map[np.r_[0:6, robot.model_v_indices]]
+
+
+def _fold(robot: FloatingRobot, X: cs.SX) -> cs.SX:
+    """A 6 x (6 + model joints) matrix as a 6 x (6+n) one over [base; arm joints]: each
+    follower's column added, times its multiplier, into its driver's."""
+    if not robot.followers:
+        return X
+    return cs.mtimes(X, cs.DM(model_velocity_map(robot)))
+
+
+def check_adam_joints(robot: FloatingRobot, remedy: str = "lock it, or use backend='pinocchio'"):
+    """Raise a ``JointError`` naming the first prismatic model joint (adam cannot take it),
+    ending with ``remedy``."""
     # adam-robotics 0.5 stacks three 3-vectors of zeros into a prismatic joint's motion
     # subspace (12 x 1 instead of 6 x 1): fail here, by name, rather than deep inside adam.
-    for j in robot.joint_names:
+    for j in robot.model_joint_names:
         if robot._urdf_joints[j].type == "prismatic":
+            follows = f" (it follows '{robot.followers[j].driver}')" if j in robot.followers else ""
             raise JointError(
                 j,
                 robot.source,
-                "is prismatic, which the 'adam' backend cannot handle "
-                "(adam-robotics 0.5); lock it, or use backend='pinocchio'",
+                f"is prismatic{follows}, which the 'adam' backend cannot handle "
+                f"(adam-robotics 0.5); {remedy}",
             )
+
+
+def adam_kindyn(robot: FloatingRobot):
+    """adam's ``KinDynComputations`` of the robot (locked joints baked in, the model joints:
+    arm joints then mimic followers, no gravity)."""
+    import adam.casadi
+    import urdf_parser_py.xml_reflection.core as urdf_core
 
     # urdf_parser_py prints every tag it does not know (transmissions, ...) to stderr.
     quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
     try:
-        kd = adam.casadi.KinDynComputations(
-            robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
+        return adam.casadi.KinDynComputations(
+            robot.locked_urdf, list(robot.model_joint_names), gravity=np.zeros(6)
         )
     finally:
         urdf_core.on_error = quiet
+
+
+def _primitives_adam(robot: FloatingRobot, q: cs.SX):
+    check_adam_joints(robot)
+    kd = adam_kindyn(robot)
     H = cs.SX.eye(4)
-    A = kd.centroidal_momentum_matrix(H, q)
+    qm = model_joint_positions(robot, q)
+    A = kd.centroidal_momentum_matrix(H, qm)
     A = A.array if hasattr(A, "array") else A
     jac = {}
     for arm in robot.arms:
-        J = kd.jacobian(arm.ee_frame, H, q)
-        jac[arm.name] = J.array if hasattr(J, "array") else J
-    return cs.SX(A), {k: cs.SX(v) for k, v in jac.items()}
+        J = kd.jacobian(arm.ee_frame, H, qm)
+        jac[arm.name] = _fold(robot, cs.SX(J.array if hasattr(J, "array") else J))
+    return _fold(robot, cs.SX(A)), jac
 
 
 def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
@@ -182,29 +220,31 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     try:
         import pinocchio.casadi as cpin
     except ImportError:
-        return bridge_primitives(robot, q)
+        A, jac = bridge_primitives(robot, model_joint_positions(robot, q))
+        return _fold(robot, A), {k: _fold(robot, J) for k, J in jac.items()}
 
     model = robot.model
     cmodel = cpin.Model(model)
     cdata = cmodel.createData()
-    # Pinocchio configuration with the base at the identity pose, arm joints set by name.
+    # Pinocchio configuration with the base at the identity pose, model joints set by name.
     qp = cs.SX(robot.pin_q(np.zeros(robot.n)))
-    for i, name in enumerate(robot.joint_names):
+    qm = model_joint_positions(robot, q)
+    for i, name in enumerate(robot.model_joint_names):
         joint = model.joints[model.getJointId(name)]
         if joint.nq == 1:
-            qp[joint.idx_q] = q[i]
+            qp[joint.idx_q] = qm[i]
         else:  # continuous joint stored as (cos, sin)
-            qp[joint.idx_q] = cs.cos(q[i])
-            qp[joint.idx_q + 1] = cs.sin(q[i])
-    cols = [int(c) for c in np.r_[0:6, robot.pin_v_indices]]
-    A = cs.SX(cpin.computeCentroidalMap(cmodel, cdata, qp))[:, cols]
+            qp[joint.idx_q] = cs.cos(qm[i])
+            qp[joint.idx_q + 1] = cs.sin(qm[i])
+    G = cs.DM(robot.velocity_map)  # [base; arm joints], followers folded into their drivers
+    A = cs.mtimes(cs.SX(cpin.computeCentroidalMap(cmodel, cdata, qp)), G)
     cpin.computeJointJacobians(cmodel, cdata, qp)  # also the joint placements oMi
     cpin.updateFramePlacements(cmodel, cdata)  # oMf, which LOCAL_WORLD_ALIGNED needs
     jac = {}
     for arm in robot.arms:
         fid = model.getFrameId(arm.ee_frame)
         J = cs.SX(cpin.getFrameJacobian(cmodel, cdata, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))
-        jac[arm.name] = J[:, cols]
+        jac[arm.name] = cs.mtimes(J, G)
     return A, jac
 
 

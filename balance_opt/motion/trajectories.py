@@ -435,7 +435,7 @@ class CartesianGoal:
         lim = robot.limits.subset(arm.indices)
         lower = np.where(np.isfinite(lim.lower), lim.lower, -IK_UNLIMITED_RANGE)
         upper = np.where(np.isfinite(lim.upper), lim.upper, IK_UNLIMITED_RANGE)
-        cols = robot.pin_v_indices[arm.indices]
+        cols = 6 + arm.indices  # of robot.arm_columns: mimic followers folded in
         q_full = robot.neutral()
         goal_p = np.array(self.position)
         goal_R = self.rotation
@@ -443,7 +443,8 @@ class CartesianGoal:
         def error(q):
             q_full[arm.indices] = q
             qp = robot.pin_q(q_full, base)
-            J = pin.computeFrameJacobian(model, data, qp, frame, pin.LOCAL_WORLD_ALIGNED)[:, cols]
+            J = pin.computeFrameJacobian(model, data, qp, frame, pin.LOCAL_WORLD_ALIGNED)
+            J = robot.arm_columns(J)[:, cols]
             pose = data.oMf[frame]
             e = goal_p - pose.translation
             if goal_R is None:

@@ -4,20 +4,26 @@ continuous balance-arm trajectory they describe.
 A transcription turns ``x_dot = f(x, u)`` on ``N`` intervals of length ``h`` into algebraic
 defects, a quadrature of the running cost and a polynomial of the control on each interval.
 Its functions work on matrices whose columns are time (nodes ``0..N``, midpoints ``0..N-1``),
-with CasADi MX/SX as with NumPy, so the NLP and the post-processing share one definition.
+with CasADi SX/MX as with NumPy, so the NLP and the post-processing share one definition.
 
 The balance joints are a chain of integrators (``q_ddot = u``, or ``q_dddot = u`` with control
 ``"jerk"``). On each interval the highest derivative is the transcription's control polynomial
 (Hermite-Simpson: the quadratic through ``u_k, u_{k+1/2}, u_{k+1}``; trapezoidal: the constant
 ``(u_k + u_{k+1}) / 2``), and the lower derivatives are its exact integrals from the state at
-node ``k``. The planner requires the next node (and the midpoint) to be these integrals' values
-(:func:`bernstein_value`), so the continuous plan passes through every node; with control
-``"acceleration"`` these are exactly the transcription's own equations (Simpson is exact for
-the cubic velocity, the trapezoidal rule for the linear one), with ``"jerk"`` they differ from
-them by the transcription's truncation error. Every polynomial is kept in Bernstein form on the
-interval: by the convex-hull property, bounding the Bernstein coefficients bounds the whole
-polynomial, so the planner enforces joint limits on the continuous motion, not only at the
-collocation points.
+node ``k`` (:func:`joint_chain_coefficients`). The planner requires the next node (and the
+midpoint) to be these integrals' values (:func:`bernstein_value`), so the continuous plan
+(:class:`CollocatedTrajectory`) passes through every node. With control ``"acceleration"``
+these equations are the transcription's own, except one: the trapezoidal rule integrates the
+constant acceleration and the linear velocity exactly, Simpson's rule the quadratic
+acceleration and the cubic velocity, and the Hermite midpoint is exact for the cubic velocity;
+but the position is quartic, and the transcription's Hermite midpoint of the position is off
+by ``h^2 (u_k - 2 u_{k+1/2} + u_{k+1}) / 96``. With control ``"jerk"`` they differ from the
+transcription's by its truncation error.
+
+Every polynomial is kept in Bernstein form on its interval (``s = (t - t_k) / h`` in [0, 1]):
+its first and last coefficients are its values at the two ends, and it lies in the convex hull
+of its coefficients, which is how the planner bounds the continuous motion
+(:mod:`balance_opt.optimal.constraints`).
 """
 
 from __future__ import annotations
@@ -218,8 +224,3 @@ class CollocatedTrajectory(JointTrajectory):
         """Per derivative (position, velocity, acceleration), the value at the end of every
         interval (N, n): the last Bernstein coefficient."""
         return [c[:, -1, :] for c in self._coefficients]
-
-    def derivative_bounds(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per derivative (position, velocity, acceleration), the smallest and largest Bernstein
-        coefficient of every joint (n,): bounds on the continuous motion (convex hull)."""
-        return [(c.min(axis=(0, 1)), c.max(axis=(0, 1))) for c in self._coefficients]

@@ -26,8 +26,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from balance_opt.cache import default_cache_dir
 from balance_opt.errors import InputError
-from balance_opt.optimal.cache import default_cache_dir
 
 log = logging.getLogger(__name__)
 

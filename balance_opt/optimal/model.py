@@ -2,8 +2,11 @@
 cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point.
 
 They are built once per robot and reused for every horizon, number of intervals and mission:
-the planner (:mod:`balance_opt.optimal.planner`) only maps them over the collocation points
-(``Function.map``), so nothing symbolic grows with the number of intervals.
+the NLP (:mod:`balance_opt.optimal.nlp`) only maps them over the collocation points
+(``Function.map``), so nothing symbolic grows with the number of intervals. The point kernels
+(:class:`PointKernels`: the point's outputs with their exact first and second derivatives) are
+what the NLP evaluates; they are compiled to C when a compiler is found
+(:mod:`balance_opt.optimal.codegen`).
 
 State of one point (control ``"acceleration"``)::
 
@@ -17,46 +20,40 @@ and with control ``"jerk"`` the balance acceleration is a state and the jerk the
 attitude (``R = exp([phi]_x)``, ``R(0) = I``). It makes the terminal cost ``|log R_T|^2`` and the
 attitude bounds ``|phi| <= bound`` exact, with three states and no norm constraint; its
 kinematics is ``phi_dot = Jr^{-1}(phi) omega_b`` (valid for rotations below pi, far beyond any
-drift this planner is meant for).
+drift this planner is meant for; ``docs/physics.md``, "Attitude").
 
 The mission arm enters through its sample at the point, ``m = [q_M; q_dot_M; q_ddot_M]``, a
 parameter of the NLP. The base rate comes from momentum conservation with zero momentum
-(Eq. 26, 31): ``omega_b = J_wM(q) q_dot_M + J_wB(q) q_dot_B`` with ``q = [q_M; q_B]``.
+(Eq. 26, 31; ``docs/physics.md``, "Base motion forced by the joints"):
+``omega_b = J_wM(q) q_dot_M + J_wB(q) q_dot_B`` with ``q = [q_M; q_B]``.
 """
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import logging
-import os
-import platform
-import shutil
-import subprocess
-import tempfile
-import time
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
 import casadi as cs
-import numpy as np
 
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.model.symbolic import SymbolicMaps
+from balance_opt.model.symbolic import (
+    SymbolicMaps,
+    adam_kindyn,
+    check_adam_joints,
+    model_joint_positions,
+    model_velocity_map,
+)
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
-from balance_opt.optimal.cache import CACHE_ENV, default_cache_dir  # noqa: F401 (re-exported)
+from balance_opt.optimal import codegen
 from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
 
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
-#: C compiler flags of the compiled kernels. -O1: on the paper robot as fast as -O2/-O3 (within
-#: 5 %) and compiled in 2/3 of the time; no -march=native or -ffast-math, so that results do
-#: not depend on the machine.
-COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
 
 
 def check_control(control: str) -> str:
@@ -72,8 +69,9 @@ class PointKernels:
 
     ``y = [x_dot (n_x); L; tau_B (n_B, only with torque limits)]`` is a function of the point's
     decision variables ``z = [x; u]`` and of its data (mission sample ``m``, running weights,
-    ``q_rest``). The planner maps these over all points and assembles the NLP's gradient,
-    Jacobian and Hessian from them (everything else in the NLP is linear or quadratic).
+    ``q_rest``). The NLP maps these over all points and assembles its gradient, Jacobian and
+    Hessian from them (:mod:`balance_opt.optimal.nlp`): the rest of the NLP is linear in the
+    kernels' outputs and at most quadratic in the decision variables.
 
     Attributes:
         value: ``(z, m, weights, q_rest) -> y``.
@@ -81,8 +79,8 @@ class PointKernels:
         gradient: ``(z, m, weights, q_rest, c) -> (c^T y, d(c^T y)/dz)`` (reverse mode: the
             objective's gradient without the full Jacobian).
         hessian: ``(z, m, weights, q_rest, mu) -> d^2 (mu^T y) / dz^2`` (lower triangle, sparse).
-        n_z, n_y: sizes.
-        compiled: whether the three are compiled C (else CasADi's SX virtual machine).
+        n_x, n_z, n_y: sizes of the state, of ``z`` and of ``y``.
+        compiled: whether the four are compiled C (else CasADi's SX virtual machine).
         compile_time: wall time spent compiling them in this process [s] (0 when loaded from
             the cache folder or not compiled).
         library: the shared library they were loaded from, if compiled.
@@ -92,11 +90,18 @@ class PointKernels:
     jacobian: cs.Function
     gradient: cs.Function
     hessian: cs.Function
+    n_x: int
     n_z: int
     n_y: int
     compiled: bool = False
     compile_time: float = 0.0
     library: str | None = None
+
+    def split(self, Y) -> tuple:
+        """``(x_dot, L, tau_B)``: the rows of kernel outputs ``Y`` (n_y, n_points); ``tau_B`` is
+        ``None`` without torques."""
+        torque = Y[self.n_x + 1 :, :] if self.n_y > self.n_x + 1 else None
+        return Y[: self.n_x, :], Y[self.n_x, :], torque
 
     @property
     def jacobian_sparsity(self) -> cs.Sparsity:
@@ -107,100 +112,6 @@ class PointKernels:
         return self.hessian.sparsity_out(0)
 
 
-def find_compiler() -> str | None:
-    """A C compiler on the PATH (``$CC``, ``cc``, ``gcc``, ``clang``), or ``None``."""
-    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
-        if name and shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
-def compile_functions(
-    functions: list[cs.Function], cache_dir: Path | None = None
-) -> tuple[list[cs.Function], float, str]:
-    """Compile CasADi functions to one shared library, cached on disk by the hash of their C code.
-
-    Args:
-        functions: SX functions (distinct names).
-        cache_dir: folder of the libraries (default :func:`default_cache_dir`).
-
-    Returns:
-        ``(external functions, compile time [s] (0 if cached), library path)``.
-
-    Raises:
-        OSError: no C compiler, or the compiler failed (the caller falls back to SX).
-    """
-    generator = cs.CodeGenerator("balance_kernels.c", {"with_header": False})
-    for f in functions:
-        generator.add(f)
-    source = generator.dump()
-    compiler = find_compiler()
-    if compiler is None:
-        raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
-    digest = hashlib.sha256(
-        "\n".join(
-            [
-                source,
-                compiler,
-                " ".join(COMPILER_FLAGS),
-                cs.__version__,
-                platform.machine(),
-                platform.system(),
-            ]
-        ).encode()
-    ).hexdigest()[:20]
-    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    library = folder / f"balance_kernels_{digest}{'.dll' if os.name == 'nt' else '.so'}"
-    elapsed = 0.0
-    folder.mkdir(parents=True, exist_ok=True)
-    with _file_lock(folder / f"{library.name}.lock"):  # one process compiles, the others wait
-        if not library.is_file():
-            elapsed = _compile(compiler, source, library)
-    # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
-    return (
-        [cs.external(f.name(), str(library), {"enable_fd": True}) for f in functions],
-        elapsed,
-        str(library),
-    )
-
-
-@contextlib.contextmanager
-def _file_lock(path: Path):
-    """An exclusive lock on ``path`` (POSIX ``flock``; no lock where ``fcntl`` is missing)."""
-    try:
-        import fcntl
-    except ImportError:  # Windows: concurrent compilations stay correct (atomic rename)
-        yield
-        return
-    with open(path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
-def _compile(compiler: str, source: str, library: Path) -> float:
-    """Compile C ``source`` to the shared ``library``; returns the wall time [s]."""
-    start = time.perf_counter()
-    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-        c_file = Path(tmp) / "balance_kernels.c"
-        c_file.write_text(source)
-        out = Path(tmp) / library.name
-        proc = subprocess.run(
-            [compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"],
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        if proc.returncode != 0:
-            raise OSError(f"{compiler} failed on the balance kernels: {proc.stderr.strip()[:500]}")
-        os.replace(out, library)  # atomic: a process never loads a partial library
-    elapsed = time.perf_counter() - start
-    log.info("compiled balance kernels to %s in %.1f s", library, elapsed)
-    return elapsed
-
-
 class PlannerModel:
     """Symbolic model of a robot for the optimal planner, built once and cached.
 
@@ -209,13 +120,17 @@ class PlannerModel:
         maps: its symbolic momentum maps (built here when not given).
         compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``True``,
             ``False``, or ``"auto"`` (when a C compiler is found). Without a compiler, or if
-            compiling fails, the kernels run on CasADi's virtual machine (same results, slower).
-        cache_dir: folder of compiled kernels (default :func:`default_cache_dir`).
+            compiling fails, the kernels run on CasADi's virtual machine (the same functions,
+            slower).
+        cache_dir: folder of compiled kernels (default
+            :func:`~balance_opt.cache.default_cache_dir`).
 
     Attributes:
         robot, maps: as given.
         n_M, n_B: numbers of mission and balance joints.
-        nlp_cache: compiled NLPs of this robot, keyed by their structure (filled by the planner).
+        nlp_cache: compiled NLPs of this robot by their
+            :class:`~balance_opt.optimal.layout.StructureKey` (filled by
+            :func:`~balance_opt.optimal.solve.build_balance_nlp`).
     """
 
     def __init__(
@@ -231,7 +146,7 @@ class PlannerModel:
         self.maps = maps if maps is not None else SymbolicMaps(robot)
         self.n_M = robot.mission.dof
         self.n_B = int(robot.balance_indices.size)
-        self.compile = compile if compile != "auto" else find_compiler() is not None
+        self.compile = compile if compile != "auto" else codegen.find_compiler() is not None
         self.cache_dir = cache_dir
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
@@ -250,6 +165,14 @@ class PlannerModel:
     def n_m(self) -> int:
         """Size of a mission sample ``[q_M; q_dot_M; q_ddot_M]``."""
         return 3 * self.n_M
+
+    def joint_rows(self, control: str) -> list[slice]:
+        """State rows of the balance joints' chain of integrators: position, velocity (and
+        acceleration with control ``"jerk"``)."""
+        n_B = self.n_B
+        return [
+            slice(3 + k * n_B, 3 + (k + 1) * n_B) for k in range((self.n_x(control) - 3) // n_B)
+        ]
 
     def state_labels(self, control: str) -> list[str]:
         """Human names of the state components (for constraint names)."""
@@ -279,7 +202,8 @@ class PlannerModel:
         angular rows of the centroidal momentum matrix (zero angular momentum about the CoM,
         Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint columns; the base's
         linear columns of these rows are zero. One 3 x 3 solve of a vector instead of the full
-        6 x 6 ``J_base``: half the instructions in the Hessian kernel."""
+        6 x 6 ``J_base``: on the paper robot the Hessian kernel has 54 % of the instructions
+        (23.6k against 43.7k)."""
         A = self.maps.centroidal_momentum_matrix_fun()(cs.vertcat(q_M, q_B))
         return -cs.solve(A[3:, 3:6], A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
 
@@ -306,7 +230,7 @@ class PlannerModel:
 
     def point_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
-        at one collocation point, the function the planner maps over all points.
+        at one collocation point (the point kernels' first outputs).
 
         ``L = w_omega |omega_b|^2 + w_attitude |phi|^2 + w_smoothness |u|^2
         + w_rest |q_B - q_rest|^2``, with ``weights`` in the order of :data:`RUNNING_WEIGHTS`.
@@ -342,27 +266,25 @@ class PlannerModel:
         base at the identity, ``nu = [base twist in the base frame; q_dot]`` (adam, body-fixed
         representation, no gravity)."""
         try:
-            import adam.casadi
-            import urdf_parser_py.xml_reflection.core as urdf_core
             from adam import Representations
         except ImportError as exc:
             raise BalanceOptError(f"torque limits need adam-robotics[casadi]: {exc}") from exc
         robot = self.robot
-        quiet, urdf_core.on_error = urdf_core.on_error, lambda *args, **kwargs: None
-        try:
-            kd = adam.casadi.KinDynComputations(
-                robot.locked_urdf, list(robot.joint_names), gravity=np.zeros(6)
-            )
-        finally:
-            urdf_core.on_error = quiet
+        check_adam_joints(robot, "lock it, or plan without torque limits (they use adam)")
+        kd = adam_kindyn(robot)
         kd.set_frame_velocity_representation(Representations.BODY_FIXED_REPRESENTATION)
         q = cs.SX.sym("q", robot.n)
         nu = cs.SX.sym("nu", 6 + robot.n)
         H = cs.SX.eye(4)
-        M = kd.mass_matrix(H, q)
-        h = kd.bias_force(H, q, nu[:6], nu[6:])
+        # mimic joints move with their drivers: reduced coordinates, M_r = G^T M G, h_r = G^T h
+        G = cs.DM(model_velocity_map(robot))
+        q_m, nu_m = model_joint_positions(robot, q), cs.mtimes(G, nu) if robot.followers else nu
+        M = kd.mass_matrix(H, q_m)
+        h = kd.bias_force(H, q_m, nu_m[:6], nu_m[6:])
         M = cs.SX(M.array if hasattr(M, "array") else M)
         h = cs.SX(h.array if hasattr(h, "array") else h)
+        if robot.followers:
+            M, h = G.T @ M @ G, G.T @ h
         return cs.Function(
             "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
         )
@@ -476,11 +398,11 @@ class PlannerModel:
                 opts,
             ),
         ]
-        sizes = (z.numel(), y.numel())
+        sizes = (n_x, z.numel(), y.numel())
         if not self.compile:
             return PointKernels(*functions, *sizes)
         try:
-            functions, elapsed, library = compile_functions(functions, self.cache_dir)
+            functions, elapsed, library = codegen.compile_functions(functions, self.cache_dir)
         except (OSError, RuntimeError) as exc:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
             return PointKernels(*functions, *sizes)

@@ -22,9 +22,7 @@ import importlib
 import json
 import logging
 import math
-import multiprocessing
 import os
-import tempfile
 import threading
 import time
 import traceback
@@ -34,6 +32,9 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from balance_opt.io.output_dir import replaced_atomically
+from balance_opt.sweep.workers import new_pool, stop_pool
 
 logger = logging.getLogger(__name__)
 
@@ -132,21 +133,11 @@ def result_path(out_dir: str | Path, case_id: str) -> Path:
 
 def write_json_atomic(path: str | Path, data: Any) -> None:
     """Write ``data`` as JSON so that ``path`` holds either its old content or the whole new
-    one, never a part: a temporary file in the same folder, flushed, then ``os.replace``."""
+    one, never a part (:func:`~balance_opt.io.output_dir.replaced_atomically`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=1, allow_nan=True)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    with replaced_atomically(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=1, allow_nan=True) + "\n")
 
 
 def read_result(out_dir: str | Path, case_id: str) -> dict | None:
@@ -204,7 +195,8 @@ class LocalPoolEngine:
 
     A worker process that dies (a crash in native code) breaks the pool: the unfinished cases are
     then run again one at a time, each in a fresh process, and a case whose process dies again
-    is recorded as an error (``WorkerCrashed``).
+    is recorded as an error (``WorkerCrashed``). The workers end with this process, even when it
+    is killed, and an interruption ends them at once (:mod:`balance_opt.sweep.workers`).
 
     Args:
         jobs: number of worker processes (>= 1).
@@ -223,9 +215,7 @@ class LocalPoolEngine:
         self._env = None
 
     def _new_pool(self, jobs: int) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(
-            max_workers=jobs, mp_context=multiprocessing.get_context(self.start_method)
-        )
+        return new_pool(jobs, self.start_method)
 
     def __enter__(self):
         self._env = _single_threaded_children()
@@ -235,8 +225,10 @@ class LocalPoolEngine:
 
     def __exit__(self, exc_type, exc, tb):
         if self._pool is not None:
-            # on an interruption, drop the cases not started yet and do not wait for workers
-            self._pool.shutdown(wait=exc_type is None, cancel_futures=True)
+            if exc_type is None:
+                self._pool.shutdown(wait=True)
+            else:  # an interruption: drop the cases not started, end the running ones now
+                stop_pool(self._pool)
             self._pool = None
         if self._env is not None:
             self._env.__exit__(exc_type, exc, tb)
@@ -265,11 +257,16 @@ class LocalPoolEngine:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = self._new_pool(self.workers)
             for case in sorted(suspects, key=lambda c: c["index"]):
-                with self._new_pool(1) as alone:
-                    try:
-                        yield alone.submit(execute_case, runner, case).result()
-                    except BrokenProcessPool as exc:
-                        yield self._crash_record(case, exc)
+                alone = self._new_pool(1)
+                try:
+                    record = alone.submit(execute_case, runner, case).result()
+                except BrokenProcessPool as exc:
+                    record = self._crash_record(case, exc)
+                except BaseException:
+                    stop_pool(alone)
+                    raise
+                alone.shutdown(wait=True)
+                yield record
 
     @staticmethod
     def _crash_record(case: dict, exc: BaseException) -> dict:

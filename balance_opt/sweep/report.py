@@ -10,6 +10,9 @@ when and where a case ran are named by :func:`is_timing_column`.
 Parquet is not written: it would add pyarrow (about 100 MB) for a table of a few thousand rows
 that any tool reads as CSV.
 
+Every file is written atomically (:func:`~balance_opt.io.output_dir.replaced_atomically`): an
+interrupted sweep leaves the old table, summary or plot, or the whole new one.
+
 Plots (PNG): the distribution of the maximum and final attitude drift of each method with the
 analytic and optimal drift of each parameter set against each other, and the drift against each
 varied parameter.
@@ -28,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.io.output_dir import replaced_atomically
 from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
@@ -134,13 +138,11 @@ def _cell(value: Any) -> str:
 def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dict]) -> Path:
     """Write the table as CSV (floats as ``repr``: read back exactly; empty cell for missing)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with tmp.open("w", newline="") as f:
+    with replaced_atomically(path) as tmp, tmp.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(columns)
         for row in rows:
             writer.writerow([_cell(row.get(c)) for c in columns])
-    tmp.replace(path)
     return path
 
 
@@ -177,6 +179,13 @@ def _figure(n_rows: int, n_cols: int, height: float = 2.8):
     fig = Figure(figsize=(PANEL_WIDTH * n_cols, height * n_rows), layout="constrained")
     axes = fig.subplots(n_rows, n_cols, squeeze=False)
     return fig, axes
+
+
+def _save(fig, path: str | Path) -> Path:
+    """Write a figure as PNG, atomically."""
+    with replaced_atomically(path) as tmp:
+        fig.savefig(tmp, dpi=150)
+    return Path(path)
 
 
 def _drift_axis(ax, which: str, values) -> None:
@@ -219,8 +228,7 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
         _distribution_panel(ax, ok, methods, key, title)
     if paired:
         _paired_panel(axes[0][2], paired)
-    fig.savefig(path, dpi=150)
-    return Path(path)
+    return _save(fig, path)
 
 
 def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str, title: str):
@@ -395,8 +403,7 @@ def plot_drift_against_parameter(
     if len(views) == 1 and len(title) > SINGLE_PANEL_TITLE:
         title = title.replace(" (", "\n(")
     fig.suptitle(title, fontsize="medium")
-    fig.savefig(path, dpi=150)
-    return Path(path)
+    return _save(fig, path)
 
 
 def plot_file_name(name: str) -> str:
@@ -428,7 +435,8 @@ def write_report(
     columns, rows = results_table(results)
     written["table"] = write_table_csv(out_dir / "results.csv", columns, rows)
     summary = {**(extra_summary or {}), **summarize(results)}
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
+    with replaced_atomically(out_dir / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
     written["summary"] = out_dir / "summary.json"
     if plots:
         plot_dir = out_dir / "plots"

@@ -1,6 +1,11 @@
 """Running a sweep: its output folder, the manifest of its cases (``sweep.json``), the cases
 on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plots
 (:mod:`balance_opt.sweep.report`).
+
+A sweep's folder grows case by case (so that ``--resume`` can finish it), unlike the
+all-or-nothing folder of a single task: each file in it is written atomically instead (a whole
+case, table, summary or plot, or none), and the folder is locked while the sweep runs
+(:class:`~balance_opt.io.output_dir.FolderLock`: a second sweep into it is refused).
 """
 
 from __future__ import annotations
@@ -11,7 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from balance_opt.errors import InputError
+from balance_opt.interrupts import handling_signals
+from balance_opt.io.output_dir import FolderLock, OutputFolderError, make_parent
 from balance_opt.sweep.engine import (
     CASES_DIR,
     iter_results,
@@ -47,15 +53,14 @@ def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
     or ``force`` (the results of a previous sweep in it are deleted first).
 
     Raises:
-        InputError: the folder is not empty and neither ``resume`` nor ``force`` is given, or it
-            is a file.
+        OutputFolderError: the folder is not empty and neither ``resume`` nor ``force`` is given,
+            or it cannot be created.
     """
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"output {out_dir} exists and is not a directory")
+    make_parent(out_dir)
     if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
         if not force:
-            raise InputError(
+            raise OutputFolderError(
                 f"output directory {out_dir} exists and is not empty; nothing was run. "
                 "Use --resume to finish the sweep in it, --force to start it over, "
                 "or choose another --output"
@@ -68,7 +73,12 @@ def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
             out_dir / MANIFEST,
         ]:
             old.unlink(missing_ok=True)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise OutputFolderError(
+            f"cannot create output folder {out_dir}: {exc.strerror or exc}"
+        ) from None
     return out_dir
 
 
@@ -120,30 +130,36 @@ def run_sweep(
 
     Returns:
         The outcome; the table and summary are written even when cases failed. If the run is
-        interrupted (``KeyboardInterrupt``), the table of the cases finished so far is written
-        before the interruption goes on.
+        interrupted (``KeyboardInterrupt``; Ctrl-C or SIGTERM), the table of the cases finished
+        so far is written before the interruption goes on.
+
+    Raises:
+        OutputFolderError: the folder cannot be used (see :func:`prepare_output_dir`), or
+            another sweep is writing to it.
     """
-    out_dir = prepare_output_dir(out_dir, resume, force)
-    write_json_atomic(out_dir / MANIFEST, sweep_manifest(sweep))
-    engine = engine if engine is not None else make_engine(jobs, scheduler)
-    extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
-    try:
-        run = run_cases(
-            sweep.cases,
-            runner,
-            out_dir,
-            engine,
-            resume=resume,
-            retry_failed=retry_failed,
-            on_result=on_result,
+    make_parent(Path(out_dir).absolute())
+    with handling_signals(), FolderLock(out_dir):
+        out_dir = prepare_output_dir(out_dir, resume, force)
+        write_json_atomic(out_dir / MANIFEST, sweep_manifest(sweep))
+        engine = engine if engine is not None else make_engine(jobs, scheduler)
+        extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
+        try:
+            run = run_cases(
+                sweep.cases,
+                runner,
+                out_dir,
+                engine,
+                resume=resume,
+                retry_failed=retry_failed,
+                on_result=on_result,
+            )
+        except KeyboardInterrupt:
+            _write_interrupted(sweep, out_dir, extra)
+            raise
+        extra.update(
+            workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped)
         )
-    except KeyboardInterrupt:
-        _write_interrupted(sweep, out_dir, extra)
-        raise
-    extra.update(
-        workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped)
-    )
-    files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
+        files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
     summary = json.loads(files["summary"].read_text())
     return SweepOutcome(run, files, summary)
 

@@ -1,0 +1,498 @@
+"""The constraint kinds of the balance NLP, each one object that owns everything about it.
+
+A kind (:class:`Constraint`) says
+
+* which rows it adds to the constraint vector ``g`` and how they are computed
+  (:meth:`Constraint.rows`, symbolic, once per compiled structure), with their names (the
+  names Ipopt's failures are reported with);
+* the lower and upper bounds of those rows for one problem (:meth:`Constraint.row_bounds`);
+* which decision variables it bounds, and how (:meth:`Constraint.bound_variables`);
+* how far the re-simulated motion breaks it (:meth:`Constraint.check`).
+
+A kind holds no numeric data: it is chosen by the structure key and reads the limits,
+configurations and bounds from the problem (:class:`~balance_opt.optimal.problem.BalanceProblem`)
+when asked, so one compiled NLP serves every problem of its structure.
+
+What holds where. The balance joints' position, velocity and acceleration limits hold on the
+whole continuous plan (the piecewise polynomial of
+:class:`~balance_opt.optimal.collocation.CollocatedTrajectory`), to the solver's tolerance: on
+every interval each of these derivatives is a polynomial in Bernstein form, and a polynomial
+lies in the convex hull of its Bernstein coefficients. Its first and last coefficients are its
+values at the interval's ends: decision variables bounded by the limits (the states at the two
+nodes, the collocation rows making the last one the next node's; or, for the acceleration with
+control ``"acceleration"``, the controls at the two nodes, whose mean is the constant
+acceleration of the trapezoidal rule). Its interior coefficients are constraint rows
+(:class:`JointLimit`). Bounding the values at the nodes and midpoints alone would not do: the quadratic
+acceleration of Hermite-Simpson through 1, 1, -1 at the start, middle and end of an interval
+peaks at 1.25 a quarter of the way in. The convex hull is conservative (the polynomial may stay
+inside a limit its hull crosses). Torques and the path attitude bound are rows at the
+collocation points, the terminal attitude bound at the last node; the re-simulation reports how
+far the motion between them strays (:meth:`Constraint.check`), and the planner tightens their
+bounds where it strays too far and solves again (:mod:`balance_opt.optimal.refine`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as cs
+import numpy as np
+
+from balance_opt.optimal.collocation import Transcription, bernstein_value
+from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey, unit_of
+from balance_opt.optimal.problem import BalanceProblem
+from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
+
+#: The balance joints' derivatives, in the order of their Bernstein levels.
+DERIVATIVES = ("position", "velocity", "acceleration")
+#: Unit of the peak objective's epigraph variable: ``S = peak^2 / PEAK_SCALE^2`` [rad], so that
+#: ``S`` is of order 1 on drifts of a few hundredths of a radian.
+PEAK_SCALE = 0.01
+
+
+@dataclass(frozen=True)
+class Violation:
+    """The worst breach of a constraint by a motion.
+
+    Attributes:
+        constraint: what is broken (``"velocity limit of balance_joint2"``).
+        time: when [s].
+        amount: by how much, in ``unit``.
+        unit: the constraint's unit.
+    """
+
+    constraint: str
+    time: float
+    amount: float
+    unit: str
+
+    def __str__(self) -> str:
+        return f"{self.constraint} at t = {self.time:.3f} s, by {self.amount:.4g} {self.unit}"
+
+
+@dataclass(frozen=True)
+class SymbolicNLP:
+    """What the constraint rows are made of, in the build (CasADi SX).
+
+    Attributes:
+        key: the structure.
+        transcription: its scheme.
+        joints: the balance joints' names.
+        state_labels: a label per state row.
+        variables: the decision variables ``X``, ``U``, ``Xm``, ``Um``.
+        levels: Bernstein coefficients of the balance joints on every interval, one list per
+            derivative (position first, the control last), each coefficient (n_B, N)
+            (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`).
+        x_dot: the state derivatives at the points (n_x, n_points), nodes then midpoints.
+        torque: the balance joints' torques at the points (n_B, n_points), or ``None``.
+        parameters: the parameter vector's fields.
+    """
+
+    key: StructureKey
+    transcription: Transcription
+    joints: tuple[str, ...]
+    state_labels: tuple[str, ...]
+    variables: Solution
+    levels: list[list]
+    x_dot: Any
+    torque: Any
+    parameters: NLPParameters
+
+
+#: Rows a kind adds to ``g``: a block (not yet stacked) and its values, (rows, columns), symbolic.
+Rows = tuple[Block, Any]
+
+
+def _per_column(values, n_columns: int) -> np.ndarray:
+    """A bound per row repeated for every column, stacked like a block (column by column)."""
+    return np.tile(np.asarray(values, dtype=float)[:, None], n_columns).ravel(order="F")
+
+
+def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Violation | None:
+    """The largest entry of ``excess`` (T, n) above :data:`LIMIT_TOLERANCE`, as a violation of
+    ``describe(names[column])`` at ``t[row]``; ``None`` when none is above."""
+    excess = np.asarray(excess, dtype=float)
+    if excess.size == 0 or not excess.max() > LIMIT_TOLERANCE:
+        return None
+    row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
+    return Violation(describe(names[col]), float(t[row]), float(excess[row, col]), unit)
+
+
+class Constraint:
+    """One kind of constraint of the balance NLP (the base adds nothing; see the module
+    docstring for the four things a kind owns).
+
+    Attributes:
+        name: the kind's name (``"velocity limit"``).
+    """
+
+    name = "constraint"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        """The rows this kind adds to ``g``: ``(block, values)`` pairs, the block named for the
+        failure messages (its name, a label and a unit per row, a time per column)."""
+        return []
+
+    def row_bounds(self, problem: BalanceProblem, block: Block) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of one of its blocks of rows in ``g``, stacked column by
+        column."""
+        raise NotImplementedError(f"{self.name} adds no rows")
+
+    def bound_variables(self, problem: BalanceProblem, lower: Solution, upper: Solution) -> None:
+        """Narrow the decision variables' bounds, in place."""
+
+    def check(self, problem: BalanceProblem, result: BalanceResult) -> Violation | None:
+        """The worst violation by the re-simulated motion beyond :data:`LIMIT_TOLERANCE`, or
+        ``None``."""
+        return None
+
+
+class Collocation(Constraint):
+    """The collocation defects: the attitude by the transcription; the balance joints, a chain
+    of integrators, exactly (each node, and each midpoint, is the value of the integrated
+    control polynomial, so the continuous plan passes through every node; see
+    :mod:`balance_opt.optimal.collocation`). They all vanish.
+
+    Its check is the re-simulation report's (``attitude_defect_*``, ``joint_defect_max``):
+    the defects compare the plan with its re-simulation, not a motion with a bound.
+    """
+
+    name = "collocation"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        tr, N, v = nlp.transcription, nlp.key.intervals, nlp.variables
+        h = nlp.parameters.h
+        levels = nlp.levels[:-1]  # the joint states' polynomials, not the control's
+        joint_ends = cs.vertcat(*(bernstein_value(level, 1.0) for level in levels))
+        joint_mids = cs.vertcat(*(bernstein_value(level, 0.5) for level in levels))
+        F = nlp.x_dot
+        Fn, Fm = F[:, : N + 1], (F[:, N + 1 :] if tr.has_midpoints else None)
+        out = []
+        for name, defect in tr.defects(v.X, v.Xm, Fn, Fm, h):
+            exact = (
+                (v.Xm[3:, :] - joint_mids)
+                if name == "Hermite midpoint"
+                else (v.X[3:, 1:] - joint_ends)
+            )
+            block = Block(
+                f"collocation ({name})",
+                nlp.state_labels,
+                tuple(unit_of(r) for r in nlp.state_labels),
+                np.arange(N, dtype=float),
+                per_interval=True,
+            )
+            out.append((block, cs.vertcat(defect[:3, :], exact)))
+        return out
+
+    def row_bounds(self, problem, block):
+        return np.zeros(block.size), np.zeros(block.size)
+
+
+class JointLimit(Constraint):
+    """A joint limit of the balance joints (position, velocity or acceleration) on the
+    continuous plan: bounds on the nodes' (and midpoints') values and constraint rows on the
+    interior Bernstein coefficients of every interval (see the module docstring).
+
+    Args:
+        kind: ``"position"``, ``"velocity"`` or ``"acceleration"``.
+        transcription: the scheme (the degree of the control polynomial).
+        control: ``"acceleration"`` or ``"jerk"``.
+    """
+
+    def __init__(self, kind: str, transcription: Transcription, control: str):
+        self.kind = kind
+        self.name = f"{kind} limit"
+        self.level = DERIVATIVES.index(kind)
+        self.control = control
+        # the control is derivative 2 (acceleration) or 3 (jerk), and each integration raises
+        # the degree by one; the first and last coefficients are bounded as variables
+        control_level = 2 if control == "acceleration" else 3
+        degree = transcription.control_degree + control_level - self.level
+        self.interior = tuple(range(1, degree))
+
+    def limits(self, problem: BalanceProblem) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper limit of every balance joint."""
+        lim = problem.limits
+        return {
+            "position": (lim.lower, lim.upper),
+            "velocity": (-lim.velocity, lim.velocity),
+            "acceleration": (-lim.acceleration, lim.acceleration),
+        }[self.kind]
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        if not self.interior:
+            return []
+        coefficients = [nlp.levels[self.level][i] for i in self.interior]
+        labels = tuple(
+            f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
+        )
+        block = Block(
+            f"{self.kind} limit between points",
+            labels,
+            (unit_of(self.kind),) * len(labels),
+            np.arange(nlp.key.intervals, dtype=float),
+            per_interval=True,
+        )
+        return [(block, cs.vertcat(*coefficients))]
+
+    def row_bounds(self, problem, block):
+        lower, upper = self.limits(problem)
+        reps = len(self.interior)
+        return (
+            _per_column(np.tile(lower, reps), len(block.taus)),
+            _per_column(np.tile(upper, reps), len(block.taus)),
+        )
+
+    def bound_variables(self, problem, lower, upper):
+        low, high = self.limits(problem)
+        if self.level == 2 and self.control == "acceleration":  # the control itself
+            names, rows = ("U", "Um"), slice(None)
+        else:
+            names, rows = ("X", "Xm"), problem.model.joint_rows(self.control)[self.level]
+        for name in names:
+            if getattr(lower, name) is not None:
+                getattr(lower, name)[rows, :] = low[:, None]
+                getattr(upper, name)[rows, :] = high[:, None]
+
+    def check(self, problem, result):
+        values = (result.q_B, result.q_dot_B, result.q_ddot_B)[self.level]
+        low, high = self.limits(problem)
+        return _worst(
+            np.maximum(values - high, low - values),
+            result.t,
+            problem.balance_joints,
+            lambda joint: f"{self.kind} limit of {joint}",
+            unit_of(self.kind),
+        )
+
+
+class TorqueLimit(Constraint):
+    """The balance joints' effort limits [N m] on the torques of the free-floating inverse
+    dynamics, at the collocation points (the point kernels compute the torques)."""
+
+    name = "torque limit"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        block = Block(
+            "torque limit",
+            tuple(f"{j} torque" for j in nlp.joints),
+            ("N m",) * len(nlp.joints),
+            nlp.transcription.point_taus(nlp.key.intervals),
+        )
+        return [(block, nlp.torque)]
+
+    def row_bounds(self, problem, block):
+        """The effort limits, times ``problem.torque_factor`` (n_B, n_points) where the
+        refinement tightened them."""
+        effort = problem.limits.effort[:, None] * problem.torque_factor
+        return -effort.ravel(order="F"), effort.ravel(order="F")
+
+    @staticmethod
+    def torques(problem: BalanceProblem, result: BalanceResult) -> np.ndarray:
+        """The balance joints' torques of the free-floating inverse dynamics of a motion
+        (T, n_B) [N m]."""
+        torque = problem.model.torque_fun().map(result.t.size)
+        tau = torque(
+            np.hstack([result.q_M, result.q_B]).T,
+            np.hstack([result.q_dot_M, result.q_dot_B]).T,
+            np.hstack([result.q_ddot_M, result.q_ddot_B]).T,
+        )
+        return np.array(tau)[problem.model.n_M :].T
+
+    def check(self, problem, result):
+        return _worst(
+            np.abs(self.torques(problem, result)) - problem.limits.effort,
+            result.t,
+            problem.balance_joints,
+            lambda joint: f"torque limit of {joint}",
+            "N m",
+        )
+
+
+def attitude_scale(bound: float | None) -> float:
+    """The parameter an attitude bound enters with: ``1 / bound^2`` (1 when unset)."""
+    return 1.0 / bound**2 if bound else 1.0
+
+
+class AttitudeBound(Constraint):
+    """A bound on the base's rotation from its initial attitude, ``|log R| <= bound``, as rows
+    ``|phi|^2 / bound^2 <= 1``: squared, so that the rows are smooth at ``phi = 0``; scaled,
+    so that Ipopt's absolute constraint tolerance is relative to the bound."""
+
+    def row_bounds(self, problem, block):
+        return np.full(block.size, -np.inf), np.ones(block.size)
+
+
+class PathAttitudeBound(AttitudeBound):
+    """``|log R(t)| <= path_attitude_bound`` at every collocation point (the parameter
+    ``path_scale`` holds the bound the refinement may have tightened)."""
+
+    name = "path attitude bound"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        X, _ = nlp.variables.points()
+        block = Block(
+            "path attitude bound",
+            ("attitude |phi|^2 / bound^2",),
+            ("(relative)",),
+            nlp.transcription.point_taus(nlp.key.intervals),
+        )
+        return [(block, nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2))]
+
+    def check(self, problem, result):
+        if problem.options.path_attitude_bound is None:
+            return None
+        excess = result.angle - problem.options.path_attitude_bound
+        return _worst(excess[:, None], result.t, ["|log R|"], lambda _: self.name, "rad")
+
+
+class PeakEpigraph(PathAttitudeBound):
+    """The peak objective's epigraph: ``|phi_k|^2 / PEAK_SCALE^2 <= S`` at every collocation
+    point, ``S >= 0``; with a path attitude bound, ``S`` is bounded by it (tightened by the
+    refinement: ``problem.path_bound``), and its check is the bound's."""
+
+    name = "peak epigraph"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        X, _ = nlp.variables.points()
+        block = Block(
+            "peak epigraph",
+            ("attitude |phi|^2 / PEAK_SCALE^2 - S",),
+            ("(relative)",),
+            nlp.transcription.point_taus(nlp.key.intervals),
+        )
+        return [(block, cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S)]
+
+    def row_bounds(self, problem, block):
+        return np.full(block.size, -np.inf), np.zeros(block.size)
+
+    def bound_variables(self, problem, lower, upper):
+        lower.S[:] = 0.0
+        bound = problem.path_bound
+        upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
+
+
+class TerminalAttitudeBound(AttitudeBound):
+    """``|log R_T| <= terminal_attitude_bound`` at the last node."""
+
+    name = "terminal attitude bound"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        N = nlp.key.intervals
+        block = Block(
+            "terminal attitude bound",
+            ("attitude |phi_T|^2 / bound^2",),
+            ("(relative)",),
+            np.array([float(N)]),
+        )
+        return [(block, nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N]))]
+
+    def check(self, problem, result):
+        excess = result.final_drift - problem.options.terminal_attitude_bound
+        return _worst([[excess]], result.t[-1:], ["|log R_T|"], lambda _: self.name, "rad")
+
+
+def _pin(problem: BalanceProblem, lower, upper, node: int, kind: str, value) -> None:
+    """Fix a derivative of the balance joints at a node: a state's rows, or (the acceleration
+    with control ``"acceleration"``) the control there. The trapezoidal rule's acceleration is
+    constant on an interval, the mean of its two nodes' controls: both are fixed."""
+    rows = problem.model.joint_rows(problem.control)
+    level = DERIVATIVES.index(kind)
+    if level < len(rows):
+        lower.X[rows[level], node] = upper.X[rows[level], node] = value
+        return
+    nodes = (
+        [node] if problem.transcription.has_midpoints else [node, node + (1 if node == 0 else -1)]
+    )
+    for k in nodes:
+        lower.U[:, k] = upper.U[:, k] = value
+
+
+class InitialState(Constraint):
+    """The planner's starting point: the base at its initial attitude (``phi = 0``) and the
+    balance arm at rest at ``q_B0``; with ``start: rest`` also its acceleration zero (no torque
+    step at ``t = 0``)."""
+
+    name = "initial state"
+
+    def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
+        """``(derivative, value)`` of the balance joints at ``t = 0``."""
+        n_levels = len(problem.model.joint_rows(problem.control))
+        if problem.options.start == "rest":
+            n_levels = 3
+        zeros = np.zeros_like(problem.q_B0)
+        return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
+
+    def bound_variables(self, problem, lower, upper):
+        lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+        for kind, value in self.targets(problem):
+            _pin(problem, lower, upper, 0, kind, value)
+
+    def check(self, problem, result):
+        return _worst_state(problem, result, 0, "initial", self.targets(problem))
+
+
+class EndConditions(Constraint):
+    """The options ``end`` (``still``: zero velocity at the last node; ``rest``: zero velocity
+    and acceleration; ``rest_at_end`` is ``end: rest``) and ``final_configuration`` (the last
+    node's position)."""
+
+    name = "end conditions"
+
+    def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
+        """``(derivative, value)`` of every prescribed end value."""
+        out = []
+        if problem.options.final_configuration is not None:
+            out.append(("position", np.asarray(problem.options.final_configuration)))
+        n_levels = {"free": 1, "still": 2, "rest": 3}[problem.options.end_condition]
+        out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
+        return out
+
+    def bound_variables(self, problem, lower, upper):
+        for kind, value in self.targets(problem):
+            _pin(problem, lower, upper, problem.N, kind, value)
+
+    def check(self, problem, result):
+        return _worst_state(problem, result, -1, "final", self.targets(problem))
+
+
+def _worst_state(problem, result, index: int, when: str, targets) -> Violation | None:
+    """The worst distance of the balance joints' state at sample ``index`` from ``targets``
+    (``[(derivative, value)]``)."""
+    worst = None
+    for kind, value in targets:
+        actual = (result.q_B, result.q_dot_B, result.q_ddot_B)[DERIVATIVES.index(kind)][index]
+        found = _worst(
+            np.abs(actual - value)[None, :],
+            result.t[[index]],
+            problem.balance_joints,
+            lambda joint, kind=kind: f"{when} {kind} of {joint}",
+            unit_of(kind),
+        )
+        if found is not None and (worst is None or found.amount > worst.amount):
+            worst = found
+    return worst
+
+
+def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
+    """The constraint kinds of a structure, in the order of their rows in ``g`` and of their
+    variable bounds (later kinds override earlier ones: the fixed initial and end values win
+    over the limits)."""
+    transcription = Transcription(key.transcription)
+    kinds: list[Constraint] = [Collocation()]
+    kinds += [
+        JointLimit(kind, transcription, key.control)
+        for kind in DERIVATIVES
+        if kind in key.joint_limits
+    ]
+    if key.torque_limits:
+        kinds.append(TorqueLimit())
+    if key.objective == "peak":
+        kinds.append(PeakEpigraph())
+    if key.path_attitude_bound:
+        kinds.append(PathAttitudeBound())
+    if key.terminal_attitude_bound:
+        kinds.append(TerminalAttitudeBound())
+    kinds += [InitialState(), EndConditions()]
+    return tuple(kinds)

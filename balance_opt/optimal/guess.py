@@ -1,0 +1,149 @@
+"""Initial guesses of the balance NLP: a sampled balance-arm motion turned into a point of the
+NLP.
+
+The motion (the analytic law's, the arm held at rest, or a given result's) is interpolated at
+the collocation points and clipped to the joint limits; the first node gets the initial state;
+the attitude rows follow the base rate that joint motion forces (integrated by the
+transcription's quadrature from ``phi = 0``).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from balance_opt.errors import InputError, SolverError
+from balance_opt.optimal.layout import Solution
+from balance_opt.optimal.options import GUESSES
+from balance_opt.optimal.problem import BalanceProblem
+from balance_opt.result import BalanceResult
+
+log = logging.getLogger(__name__)
+
+
+def guess_solution(problem: BalanceProblem, guess, first_state: np.ndarray) -> Solution:
+    """The guess named by ``guess``, unclipped.
+
+    Args:
+        problem: the problem.
+        guess: ``"analytic"`` (the analytic law, Eq. 31, 32; the rest guess when the law
+            fails), ``"rest"`` (the balance arm held at ``q_B0``) or a :class:`BalanceResult`
+            (its balance motion).
+        first_state: the balance joints' states at the first node (the initial state).
+
+    Raises:
+        InputError: an unknown name.
+    """
+    if isinstance(guess, BalanceResult):
+        return from_samples(problem, first_state, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)
+    if guess not in GUESSES:
+        raise InputError(
+            f"initial guess must be one of {', '.join(GUESSES)} or a BalanceResult, got {guess!r}"
+        )
+    if guess == "analytic":
+        try:
+            return analytic_guess(problem, first_state)
+        except SolverError as exc:
+            log.info("analytic law failed (%s); starting from rest", exc)
+    return rest_guess(problem, first_state)
+
+
+def rest_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution:
+    """The balance arm held at ``q_B0``, the attitude it leaves (Phase I's)."""
+    q_B = np.tile(problem.q_B0, (2, 1))
+    return from_samples(
+        problem,
+        first_state,
+        np.array([0.0, problem.horizon]),
+        q_B,
+        np.zeros_like(q_B),
+        np.zeros_like(q_B),
+    )
+
+
+def random_guess(problem: BalanceProblem, first_state: np.ndarray, rng) -> Solution:
+    """A smooth random balance motion from rest to rest: ``q_B0`` plus three raised-cosine
+    modes per joint with amplitudes drawn up to 0.5 rad (the m-th mode's divided by m),
+    clipped to the limits by :func:`from_samples`."""
+    T, n_B = problem.horizon, problem.model.n_B
+    t = np.linspace(0.0, T, max(4 * problem.N + 1, 201))
+    q, qd, qdd = (
+        np.tile(problem.q_B0, (t.size, 1)),
+        np.zeros((t.size, n_B)),
+        np.zeros((t.size, n_B)),
+    )
+    for m in (1, 2, 3):
+        a = rng.uniform(-0.5, 0.5, size=n_B) / m
+        w = 2.0 * np.pi * m / T
+        q += 0.5 * np.outer(1.0 - np.cos(w * t), a)
+        qd += 0.5 * w * np.outer(np.sin(w * t), a)
+        qdd += 0.5 * w**2 * np.outer(np.cos(w * t), a)
+    return from_samples(problem, first_state, t, q, qd, qdd)
+
+
+def analytic_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution:
+    """The analytic law's balance motion (Eq. 31, 32), clipped to the limits."""
+    from balance_opt.analytic.rollout import rollout
+
+    t = np.linspace(0.0, problem.horizon, max(4 * problem.N + 1, 201))
+    plan = rollout(problem.robot, problem.mission, problem.q_B0, t_eval=t)
+    return from_samples(problem, first_state, plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
+
+
+def from_samples(
+    problem: BalanceProblem, first_state: np.ndarray, t, q_B, q_dot_B, q_ddot_B
+) -> Solution:
+    """A point of the NLP from sampled balance motion (T, n_B) at times ``t`` (T,):
+    interpolated at the points, clipped to the limits, the initial state imposed and the
+    attitude integrated along it. With control ``"jerk"`` the jerk is the acceleration's
+    finite difference at the nodes (midpoints: the mean of the two nodes')."""
+    pts, lim, N = problem.point_times, problem.limits, problem.N
+    has_midpoints = problem.transcription.has_midpoints
+
+    def at(values):
+        values = np.atleast_2d(values)
+        return np.array([np.interp(pts, t, values[:, j]) for j in range(values.shape[1])])
+
+    q = np.clip(at(q_B).T, lim.lower, lim.upper).T
+    qd = np.clip(at(q_dot_B).T, -lim.velocity, lim.velocity).T
+    qdd = np.clip(at(q_ddot_B).T, -lim.acceleration, lim.acceleration).T
+    if problem.control == "jerk":
+        states = np.vstack([q, qd, qdd])
+        u = np.gradient(qdd[:, : N + 1], problem.h, axis=1)
+        u = np.hstack([u, 0.5 * (u[:, :-1] + u[:, 1:])]) if has_midpoints else u
+    else:
+        states, u = np.vstack([q, qd]), qdd
+    Z = np.vstack([np.zeros((3, pts.size)), states])
+    sol = Solution(
+        Z[:, : N + 1].copy(),
+        u[:, : N + 1].copy(),
+        Z[:, N + 1 :].copy() if has_midpoints else None,
+        u[:, N + 1 :].copy() if has_midpoints else None,
+    )
+    sol.X[3:, 0] = first_state
+    attitude_along(problem, sol)
+    return sol
+
+
+def attitude_along(problem: BalanceProblem, sol: Solution) -> None:
+    """Fill the attitude rows of ``sol`` with the transcription's quadrature, from ``phi = 0``,
+    of the base rate ``omega_b`` its joint motion forces (the nodes by the Simpson or
+    trapezoidal rule, the midpoints by the Hermite interpolation). ``phi_dot = Jr^{-1}(phi)
+    omega_b`` is ``omega_b`` up to terms of order ``|phi| |omega_b|``: a guess, not a solution
+    of the defects."""
+    dyn = problem.model.dynamics_fun(problem.control).map(problem.point_times.size)
+    Z, V = sol.points()
+    Z = Z.copy()
+    Z[:3] = 0.0
+    _, omega = dyn(Z, V, problem.mission_samples)
+    omega = np.array(omega)
+    N, h = problem.N, problem.h
+    w0, w1 = omega[:, :N], omega[:, 1 : N + 1]
+    if problem.transcription.has_midpoints:
+        step = h / 6.0 * (w0 + 4.0 * omega[:, N + 1 :] + w1)
+    else:
+        step = h / 2.0 * (w0 + w1)
+    sol.X[:3] = np.hstack([np.zeros((3, 1)), np.cumsum(step, axis=1)])
+    if sol.Xm is not None:
+        sol.Xm[:3] = 0.5 * (sol.X[:3, :-1] + sol.X[:3, 1:]) + h / 8.0 * (w0 - w1)

@@ -1,0 +1,356 @@
+"""Where everything sits in the balance NLP's vectors, in one place for the build and the solve.
+
+The NLP has three vectors, each a stack of named blocks:
+
+* the decision vector ``w`` (:class:`VariableLayout`): the states ``X`` at the nodes
+  (n_x, N+1), with Hermite-Simpson the states ``Xm`` at the midpoints (n_x, N), the controls
+  ``U`` at the nodes (n_u, N+1) and with Hermite-Simpson ``Um`` at the midpoints (n_u, N), in
+  that order, each matrix stacked column by column, then with the peak objective the epigraph
+  variable ``S`` (1, 1), which belongs to no collocation point;
+* the parameter vector ``p`` (:class:`ParameterLayout`): the numeric data of one problem
+  (interval length, weights, attitude-bound scales, the peak's weight, ``q_rest``, the mission's samples), as the
+  fields of :class:`NLPParameters`;
+* the constraint vector ``g``: the rows each constraint kind adds
+  (:mod:`balance_opt.optimal.constraints`), as :class:`Block` s in the order of the kinds.
+
+:class:`StructureKey` names what makes two problems share one compiled NLP.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import casadi as cs
+import numpy as np
+
+from balance_opt.optimal.collocation import Transcription
+
+#: Unit of a row, by the last word of its label (``"balance_joint2 velocity"`` -> rad/s).
+UNITS = {
+    "position": "rad",
+    "velocity": "rad/s",
+    "acceleration": "rad/s^2",
+    "jerk": "rad/s^3",
+    "torque": "N m",
+}
+
+
+def unit_of(label: str) -> str:
+    """Unit of a state, control or limit label: the attitude rows are in rad, a joint row in the
+    unit of its last word (:data:`UNITS`)."""
+    if label.startswith("attitude"):
+        return "rad"
+    return UNITS[label.split()[-1]]
+
+
+# ---------------------------------------------------------------------------------- structure key
+@dataclass(frozen=True)
+class StructureKey:
+    """What two problems must share to share one compiled NLP (everything else is numeric data).
+
+    Attributes:
+        intervals: ``N``.
+        transcription: ``"hermite-simpson"`` or ``"trapezoidal"``.
+        control: ``"acceleration"`` or ``"jerk"``.
+        joint_limits: the joint-limit kinds enforced between the collocation points
+            (``"position"``, ``"velocity"``, ``"acceleration"``): switched on and finite for
+            at least one balance joint.
+        torque_limits: torque limits switched on and finite for at least one balance joint.
+        objective: ``"peak"`` (with the epigraph variable and its rows) or ``"integral"``.
+        path_attitude_bound, terminal_attitude_bound: whether these bounds are set (with the
+            peak objective the path bound is the epigraph variable's upper bound: no rows).
+        tolerance, max_iterations: Ipopt's ``tol`` and ``max_iter``.
+        ipopt: the extra Ipopt options, as sorted ``(name, repr(value))`` pairs.
+    """
+
+    intervals: int
+    transcription: str
+    control: str
+    joint_limits: tuple[str, ...]
+    torque_limits: bool
+    objective: str
+    path_attitude_bound: bool
+    terminal_attitude_bound: bool
+    tolerance: float
+    max_iterations: int
+    ipopt: tuple[tuple[str, str], ...]
+
+    @classmethod
+    def of(cls, limits, options) -> StructureKey:
+        """The key of a problem.
+
+        Args:
+            limits: the balance joints' :class:`~balance_opt.model.robot.JointLimits`.
+            options: the :class:`~balance_opt.optimal.options.PlannerOptions`.
+        """
+        enforced = {
+            "position": options.position_limits
+            and bool(np.any(np.isfinite(limits.lower) | np.isfinite(limits.upper))),
+            "velocity": options.velocity_limits and bool(np.any(np.isfinite(limits.velocity))),
+            "acceleration": options.acceleration_limits
+            and bool(np.any(np.isfinite(limits.acceleration))),
+        }
+        return cls(
+            intervals=int(options.intervals),
+            transcription=options.transcription,
+            control=options.control,
+            joint_limits=tuple(sorted(kind for kind, on in enforced.items() if on)),
+            torque_limits=bool(options.torque_limits and np.any(np.isfinite(limits.effort))),
+            objective=options.objective,
+            path_attitude_bound=options.path_attitude_bound is not None
+            and options.objective != "peak",
+            terminal_attitude_bound=options.terminal_attitude_bound is not None,
+            tolerance=options.tolerance,
+            max_iterations=int(options.max_iterations),
+            ipopt=tuple(sorted((k, repr(v)) for k, v in options.ipopt.items())),
+        )
+
+
+# ---------------------------------------------------------------------------------- blocks
+@dataclass(frozen=True)
+class Block:
+    """A block of variables or constraints: a matrix whose columns are time, stacked column by
+    column into its vector.
+
+    Attributes:
+        name: what the block holds (``"collocation (Simpson)"``, ``"torque limit"`` ...).
+        rows: a label per row (``"balance_joint2 velocity"`` ...).
+        units: a unit per row.
+        taus: the time of each column in units of the interval length ``h`` (for a block
+            of interval constraints, the interval's start).
+        per_interval: whether a column is a collocation interval rather than an instant.
+        offset: index of its first entry in the stacked vector (0 until it is stacked,
+            :meth:`BlockStack.add`).
+    """
+
+    name: str
+    rows: tuple[str, ...]
+    units: tuple[str, ...]
+    taus: np.ndarray
+    per_interval: bool = False
+    offset: int = 0
+
+    @property
+    def size(self) -> int:
+        return len(self.rows) * len(self.taus)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return len(self.rows), len(self.taus)
+
+    @property
+    def slice(self) -> slice:
+        """Its entries in the stacked vector."""
+        return slice(self.offset, self.offset + self.size)
+
+    def locate(self, index: int) -> tuple[str, str, float]:
+        """``(row label, unit, tau)`` of a global index inside this block."""
+        local = index - self.offset
+        row, col = local % len(self.rows), local // len(self.rows)
+        return self.rows[row], self.units[row], float(self.taus[col])
+
+
+class BlockStack:
+    """Blocks stacked one after the other into a vector."""
+
+    def __init__(self):
+        self.blocks: list[Block] = []
+        self.size = 0
+
+    def add(self, block: Block) -> Block:
+        """Stack a block after the others; returns it with its offset."""
+        block = dataclasses.replace(block, offset=self.size)
+        self.blocks.append(block)
+        self.size += block.size
+        return block
+
+    def block_at(self, index: int) -> Block:
+        """The block holding entry ``index``."""
+        offsets = [b.offset for b in self.blocks]
+        return self.blocks[int(np.searchsorted(offsets, index, side="right")) - 1]
+
+
+# ---------------------------------------------------------------------------------- decision vector
+@dataclass
+class Solution:
+    """A point of the NLP, unpacked: states and controls at the nodes and midpoints (the
+    midpoints' are ``None`` without them) and the peak objective's epigraph variable ``S``
+    (``None`` without it). NumPy arrays, or CasADi symbols in the build."""
+
+    X: Any
+    U: Any
+    Xm: Any = None
+    Um: Any = None
+    S: Any = None
+
+    def points(self) -> tuple[Any, Any]:
+        """``(states, controls)`` at every collocation point: nodes, then midpoints."""
+        if self.Xm is None:
+            return self.X, self.U
+        if isinstance(self.X, np.ndarray):
+            return np.hstack([self.X, self.Xm]), np.hstack([self.U, self.Um])
+        return cs.horzcat(self.X, self.Xm), cs.horzcat(self.U, self.Um)
+
+
+class VariableLayout(BlockStack):
+    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S`` (see the module
+    docstring).
+
+    Args:
+        transcription: the collocation scheme (whether there are midpoints).
+        N: number of intervals.
+        state_labels, control_labels: a label per state and per control row.
+        peak: whether there is the epigraph variable ``S``.
+    """
+
+    def __init__(
+        self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
+    ):
+        super().__init__()
+        nodes = np.arange(N + 1, dtype=float)
+        mids = nodes[:-1] + 0.5
+        self.has_midpoints = transcription.has_midpoints
+        self.by_name: dict[str, Block] = {}
+        for name, labels, taus in (
+            ("X", state_labels, nodes),
+            ("Xm", state_labels, mids),
+            ("U", control_labels, nodes),
+            ("Um", control_labels, mids),
+        ):
+            if name.endswith("m") and not self.has_midpoints:
+                continue
+            units = tuple(unit_of(r) for r in labels)
+            self.by_name[name] = self.add(Block(name, tuple(labels), units, taus))
+        if peak:
+            label = ("attitude peak^2 / PEAK_SCALE^2",)
+            self.by_name["S"] = self.add(Block("S", label, ("(relative)",), np.array([0.0])))
+
+    def unpack(self, w) -> Solution:
+        """States and controls of a numeric decision vector."""
+        w = np.asarray(w, dtype=float).ravel()
+        return Solution(
+            **{n: w[b.slice].reshape(b.shape, order="F") for n, b in self.by_name.items()}
+        )
+
+    def unpack_symbolic(self, w) -> Solution:
+        """States and controls of a symbolic decision vector (CasADi column vector)."""
+        return Solution(
+            **{
+                n: cs.reshape(w[b.offset : b.offset + b.size], *b.shape)
+                for n, b in self.by_name.items()
+            }
+        )
+
+    def pack(self, sol: Solution) -> np.ndarray:
+        """The numeric decision vector of unpacked states and controls."""
+        w = np.empty(self.size)
+        for name, b in self.by_name.items():
+            w[b.slice] = np.asarray(getattr(sol, name), dtype=float).ravel(order="F")
+        return w
+
+    def point_indices(self) -> np.ndarray:
+        """(n_z, n_points) indices into ``w`` of each point's ``z = [x; u]``, points in the order
+        nodes, then midpoints."""
+
+        def indices(name):
+            b = self.by_name[name]
+            return b.offset + np.arange(b.size).reshape(b.shape, order="F")
+
+        X, U = indices("X"), indices("U")
+        if self.has_midpoints:
+            X, U = np.hstack([X, indices("Xm")]), np.hstack([U, indices("Um")])
+        return np.vstack([X, U])
+
+    def describe(self, index: int) -> tuple[str, float]:
+        """``(name, tau)`` of entry ``index``: ``"node balance_joint1 velocity"``,
+        ``"midpoint ..."``, ``"peak ..."``."""
+        block = self.block_at(index)
+        row, _, tau = block.locate(index)
+        if block.name == "S":
+            return f"peak {row}", tau
+        return f"{'midpoint' if block.name.endswith('m') else 'node'} {row}", tau
+
+
+# ---------------------------------------------------------------------------------- parameters
+class NLPParameters(NamedTuple):
+    """The fields of the parameter vector ``p``, in its order.
+
+    Attributes:
+        h: interval length [s].
+        terminal_weight: weight of ``|log R_T|^2``.
+        running_weights: the running-cost weights in the order of
+            :data:`~balance_opt.optimal.model.RUNNING_WEIGHTS` (4).
+        path_scale, terminal_scale: ``1 / bound^2`` of the path and terminal attitude bounds
+            (1 when unset).
+        peak_weight: the weight of ``S`` in the objective (0 without the peak objective).
+        q_rest: the rest pull's configuration (n_B) [rad].
+        mission: the mission arm's samples ``[q_M; q_dot_M; q_ddot_M]`` at every collocation
+            point (n_m, n_points).
+    """
+
+    h: Any
+    terminal_weight: Any
+    running_weights: Any
+    path_scale: Any
+    terminal_scale: Any
+    peak_weight: Any
+    q_rest: Any
+    mission: Any
+
+
+@dataclass(frozen=True)
+class ParameterLayout:
+    """The parameter vector ``p``: the fields of :class:`NLPParameters`, one after the other
+    (the mission samples column by column).
+
+    Args:
+        n_weights: number of running-cost weights.
+        n_B: number of balance joints.
+        n_m: size of a mission sample.
+        n_points: number of collocation points.
+    """
+
+    n_weights: int
+    n_B: int
+    n_m: int
+    n_points: int
+
+    @property
+    def slices(self) -> dict[str, slice]:
+        """Each field's entries in ``p``."""
+        sizes = {
+            "h": 1,
+            "terminal_weight": 1,
+            "running_weights": self.n_weights,
+            "path_scale": 1,
+            "terminal_scale": 1,
+            "peak_weight": 1,
+            "q_rest": self.n_B,
+            "mission": self.n_m * self.n_points,
+        }
+        out, start = {}, 0
+        for name in NLPParameters._fields:
+            out[name] = slice(start, start + sizes[name])
+            start += sizes[name]
+        return out
+
+    @property
+    def size(self) -> int:
+        return self.slices["mission"].stop
+
+    def pack(self, values: NLPParameters) -> np.ndarray:
+        """The numeric parameter vector of a problem."""
+        p = np.empty(self.size)
+        for name, sl in self.slices.items():
+            value = np.asarray(getattr(values, name), dtype=float)
+            p[sl] = value.ravel(order="F")
+        return p
+
+    def unpack_symbolic(self, p) -> NLPParameters:
+        """The fields of a symbolic parameter vector (CasADi column vector): each a column
+        (the scalars 1 x 1), the mission samples an (n_m, n_points) matrix."""
+        fields = {name: p[sl] for name, sl in self.slices.items()}
+        fields["mission"] = cs.reshape(fields["mission"], self.n_m, self.n_points)
+        return NLPParameters(**fields)

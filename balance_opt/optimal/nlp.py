@@ -1,0 +1,379 @@
+"""Building the compiled balance NLP of one structure from the per-point kernels.
+
+The nonlinear work is in the point kernels (:class:`~balance_opt.optimal.model.PointKernels`),
+mapped over all collocation points. Everything else (collocation defects, quadrature, the
+constraint kinds' rows, the terminal cost) is the *outer problem*: an SX function of the
+decision vector ``w``, the kernels' outputs ``Y`` and the parameters ``p``, linear in ``Y``
+(checked when it is built). The NLP's gradient, Jacobian and Hessian are assembled by the chain
+rule:
+
+* ``dg/dw = G_w + G_Y dY/dw``, with ``dY/dw`` block diagonal (each variable belongs to one
+  point, so each point's kernel Jacobian lands in its own columns);
+* ``grad f = f_w + sum_i d(c_i^T y_i)/dz_i`` with ``c = f_Y^T`` (reverse mode per point);
+* ``H = d2(lam^T G + lam_f f)/dw2 + sum_i d2(mu_i^T y_i)/dz_i^2`` with
+  ``mu = G_Y^T lam + lam_f f_Y^T``,
+
+so no derivative is ever taken of an N-sized graph of kernel calls. Ipopt receives these three
+functions (``grad_f``, ``jac_g``, ``hess_lag``); its linear solver is MUMPS unless the options
+say otherwise.
+
+:func:`build_structure` returns an :class:`NLPStructure`; the planner keeps one per
+:class:`~balance_opt.optimal.layout.StructureKey` in ``PlannerModel.nlp_cache``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+
+from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
+from balance_opt.optimal.constraints import (
+    PEAK_SCALE,
+    Constraint,
+    SymbolicNLP,
+    constraint_kinds,
+)
+from balance_opt.optimal.layout import (
+    Block,
+    BlockStack,
+    ParameterLayout,
+    StructureKey,
+    VariableLayout,
+)
+from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
+from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_IPOPT, PlannerOptions
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class NLPStructure:
+    """The compiled NLP of one structure, shared by every problem of that structure.
+
+    Attributes:
+        key: the structure.
+        solver: the CasADi ``nlpsol`` (Ipopt).
+        variables: the decision vector's layout.
+        parameters: the parameter vector's layout.
+        rows: the constraint vector's blocks, in order.
+        row_kinds: the constraint kind that owns each block of ``rows``.
+        kinds: every constraint kind of the structure (some own no rows, only bounds).
+        build_time: wall time to build it [s].
+    """
+
+    key: StructureKey
+    solver: cs.Function
+    variables: VariableLayout
+    parameters: ParameterLayout
+    rows: BlockStack
+    row_kinds: tuple[Constraint, ...]
+    kinds: tuple[Constraint, ...]
+    build_time: float
+
+    @property
+    def n_w(self) -> int:
+        """Size of the decision vector."""
+        return self.variables.size
+
+    @property
+    def n_g(self) -> int:
+        """Size of the constraint vector."""
+        return self.rows.size
+
+    @property
+    def n_p(self) -> int:
+        """Size of the parameter vector."""
+        return self.parameters.size
+
+    @property
+    def constraints(self) -> list[Block]:
+        """The constraint vector's blocks, in order."""
+        return self.rows.blocks
+
+
+@dataclass
+class _Outer:
+    """The outer problem's functions (SX, see the module docstring)."""
+
+    value: cs.Function  # (w, y, p) -> (f, g)
+    gradient: cs.Function  # (w, p) -> (f at y = 0, f_w, f_Y^T)
+    jacobian: cs.Function  # (w, p) -> (G_w, G_Y)
+    hessian: cs.Function  # (w, p, lam_f, lam_g) -> (triu d2L/dw2, dL/dy = mu)
+
+
+def build_structure(
+    model: PlannerModel, key: StructureKey, options: PlannerOptions
+) -> NLPStructure:
+    """Build and compile the NLP of a structure.
+
+    Args:
+        model: the robot's planner model (its point kernels).
+        key: the structure.
+        options: the planner settings the key was made of (for Ipopt's options).
+    """
+    start = time.perf_counter()
+    kernels = model.kernels(key.control, key.torque_limits)
+    tr = Transcription(key.transcription)
+    N, n_pts = key.intervals, tr.n_points(key.intervals)
+    joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
+    variables = VariableLayout(
+        tr,
+        N,
+        model.state_labels(key.control),
+        [f"{j} {key.control}" for j in joints],
+        peak=key.objective == "peak",
+    )
+    parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
+    kinds = constraint_kinds(key)
+    outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds)
+    solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, options)
+    build_time = time.perf_counter() - start
+    log.debug(
+        "balance NLP (N = %d, %s, %s) built in %.3f s: %d variables, %d constraints",
+        N,
+        key.transcription,
+        key.control,
+        build_time,
+        variables.size,
+        rows.size,
+    )
+    return NLPStructure(key, solver, variables, parameters, rows, row_kinds, kinds, build_time)
+
+
+def _outer_problem(
+    model: PlannerModel,
+    key: StructureKey,
+    kernels: PointKernels,
+    variables: VariableLayout,
+    parameters: ParameterLayout,
+    kinds: tuple[Constraint, ...],
+) -> tuple[_Outer, BlockStack, tuple[Constraint, ...]]:
+    """The outer problem in SX: the cost, and every kind's rows stacked into ``g``."""
+    tr, N = Transcription(key.transcription), key.intervals
+    w = cs.SX.sym("w", variables.size)
+    Y = cs.SX.sym("Y", kernels.n_y, tr.n_points(N))
+    p = cs.SX.sym("p", parameters.size)
+    v = variables.unpack_symbolic(w)
+    par = parameters.unpack_symbolic(p)
+    x_dot, running, torque = kernels.split(Y)
+    cost = par.h * cs.mtimes(running, cs.DM(tr.quadrature_weights(N)))
+    cost = cost + par.terminal_weight * cs.sumsqr(v.X[:3, N])
+    if v.S is not None:  # S is the squared peak in units of PEAK_SCALE^2
+        cost = cost + par.peak_weight * PEAK_SCALE**2 * v.S
+    starts = [v.X[r, :-1] for r in model.joint_rows(key.control)]
+    symbols = SymbolicNLP(
+        key=key,
+        transcription=tr,
+        joints=tuple(model.robot.joint_names[i] for i in model.robot.balance_indices),
+        state_labels=tuple(model.state_labels(key.control)),
+        variables=v,
+        levels=joint_chain_coefficients(tr, starts, v.U, v.Um, par.h),
+        x_dot=x_dot,
+        torque=torque,
+        parameters=par,
+    )
+    rows, row_kinds, parts = BlockStack(), [], []
+    for kind in kinds:
+        for block, values in kind.rows(symbols):
+            rows.add(block)
+            row_kinds.append(kind)
+            parts.append(cs.vec(values))
+    g = cs.vertcat(*parts)
+    return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_kinds)
+
+
+def _outer_functions(w, y, p, cost, g) -> _Outer:
+    """The outer problem's value and derivatives, checked linear in the kernel outputs ``y``."""
+    lam_g = cs.SX.sym("lam_g", g.numel())
+    lam_f = cs.SX.sym("lam_f")
+    lagrangian = lam_f * cost + cs.dot(lam_g, g)
+    G_Y = cs.jacobian(g, y)
+    f_Y = cs.jacobian(cost, y)
+    if cs.depends_on(G_Y, cs.vertcat(w, y)) or cs.depends_on(f_Y, cs.vertcat(w, y)):
+        raise AssertionError("the outer problem must be linear in the kernel outputs")
+    return _Outer(
+        cs.Function("outer", [w, y, p], [cost, g]),
+        cs.Function(
+            "outer_grad",
+            [w, p],
+            [cs.substitute(cost, y, cs.DM.zeros(y.shape)), cs.gradient(cost, w), f_Y.T],
+        ),
+        cs.Function("outer_jac", [w, p], [cs.jacobian(g, w), G_Y]),
+        cs.Function(
+            "outer_hess",
+            [w, p, lam_f, lam_g],
+            [cs.triu(cs.hessian(lagrangian, w)[0]), cs.gradient(lagrangian, y)],
+        ),
+    )
+
+
+def _scatter(
+    sparsity: cs.Sparsity, n_points: int, rows_of_point, cols_of_point, shape, upper: bool = False
+):
+    """Sparsity and nonzero permutation that place the nonzeros of a mapped per-point sparse
+    output (``n_points`` copies of ``sparsity`` side by side) into one global sparse matrix.
+
+    Args:
+        sparsity: pattern of one point's block.
+        n_points: number of points.
+        rows_of_point, cols_of_point: ``f(i) -> array``: the global row and column of each local
+            row and column of point ``i``.
+        shape: the global matrix's shape.
+        upper: mirror every entry to the upper triangle (for a lower-triangular Hessian block).
+
+    Returns:
+        ``(global sparsity, permutation)`` with ``global_nz = mapped_nz[permutation]``.
+    """
+    local_rows, local_cols = (np.asarray(v) for v in sparsity.get_triplet())
+    nnz = local_rows.size
+    rows = np.concatenate([rows_of_point(i)[local_rows] for i in range(n_points)])
+    cols = np.concatenate([cols_of_point(i)[local_cols] for i in range(n_points)])
+    if upper:
+        rows, cols = np.minimum(rows, cols), np.maximum(rows, cols)
+    global_sp, mapping = cs.Sparsity.triplet(
+        int(shape[0]), int(shape[1]), rows.tolist(), cols.tolist(), False
+    )
+    mapping = np.asarray(mapping)
+    if mapping.size != nnz * n_points or np.unique(mapping).size != mapping.size:
+        raise AssertionError("overlapping per-point blocks")  # every variable belongs to one point
+    return global_sp, mapping
+
+
+@dataclass
+class _Mapped:
+    """The NLP's MX symbols and the per-point view of them that the kernels are mapped over.
+
+    Attributes:
+        w, p: the decision and parameter vectors (MX).
+        Z: each point's ``z = [x; u]``, (n_z, n_points).
+        data: the kernels' other inputs: mission samples, running weights, ``q_rest``.
+        point_idx: (n_z, n_points) indices into ``w`` of each point's ``z``: the first
+            entries of ``w``; the others (the epigraph variable) belong to no point.
+    """
+
+    w: cs.MX
+    p: cs.MX
+    Z: cs.MX
+    data: tuple
+    point_idx: np.ndarray
+
+    @classmethod
+    def of(cls, kernels: PointKernels, variables: VariableLayout, parameters: ParameterLayout):
+        point_idx = variables.point_indices()
+        point_flat = point_idx.ravel(order="F")
+        if not np.array_equal(np.sort(point_flat), np.arange(point_flat.size)):
+            raise AssertionError("the points' variables must come first, each in one point")
+        w, p = cs.MX.sym("w", variables.size), cs.MX.sym("p", parameters.size)
+        Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
+        par = parameters.unpack_symbolic(p)
+        return cls(w, p, Z, (par.mission, par.running_weights, par.q_rest), point_idx)
+
+    @property
+    def n_points(self) -> int:
+        return self.point_idx.shape[1]
+
+    @property
+    def n_w(self) -> int:
+        return self.w.numel()
+
+
+def _gradient(kernels: PointKernels, outer: _Outer, x: _Mapped) -> cs.Function:
+    """The objective's gradient: ``f_w`` plus ``d(c_i^T y_i)/dz_i`` per point (reverse mode),
+    scattered to ``w``."""
+    n_pt = x.point_idx.size
+    f0, f_w, f_Y = outer.gradient(x.w, x.p)
+    cy, grad_z = kernels.gradient.map(x.n_points)(
+        x.Z, *x.data, cs.reshape(f_Y, kernels.n_y, x.n_points)
+    )
+    scatter_w = np.empty(n_pt, dtype=int)
+    scatter_w[x.point_idx.ravel(order="F")] = np.arange(n_pt)
+    grad_points = cs.vertcat(cs.vec(grad_z)[scatter_w.tolist()], cs.MX.zeros(x.n_w - n_pt))
+    return cs.Function(
+        "nlp_grad_f",
+        [x.w, x.p],
+        [f0 + cs.sum2(cy), f_w + grad_points],
+        ["x", "p"],
+        ["f", "grad_f_x"],
+    )
+
+
+def _jacobian(kernels: PointKernels, outer: _Outer, x: _Mapped) -> cs.Function:
+    """The constraints' Jacobian ``G_w + G_Y dY/dw``, ``dY/dw`` block diagonal."""
+    n_y = kernels.n_y
+    Y, dY = kernels.jacobian.map(x.n_points)(x.Z, *x.data)
+    sp_dy, perm_dy = _scatter(
+        kernels.jacobian_sparsity,
+        x.n_points,
+        lambda i: n_y * i + np.arange(n_y),
+        lambda i: x.point_idx[:, i],
+        (n_y * x.n_points, x.n_w),
+    )
+    dYdw = cs.sparsity_cast(dY.nz[perm_dy.tolist()], sp_dy)
+    G_w, G_Y = outer.jacobian(x.w, x.p)
+    g = outer.value(x.w, cs.vec(Y), x.p)[1]
+    return cs.Function(
+        "nlp_jac_g", [x.w, x.p], [g, G_w + cs.mtimes(G_Y, dYdw)], ["x", "p"], ["g", "jac_g_x"]
+    )
+
+
+def _hessian(kernels: PointKernels, outer: _Outer, x: _Mapped, n_g: int) -> cs.Function:
+    """The Lagrangian's Hessian (upper triangle): the outer problem's plus each point's kernel
+    Hessian weighted by ``mu``."""
+    lf, lg = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", n_g)
+    H_outer, mu = outer.hessian(x.w, x.p, lf, lg)
+    d2 = kernels.hessian.map(x.n_points)(x.Z, *x.data, cs.reshape(mu, kernels.n_y, x.n_points))
+    sp_h, perm_h = _scatter(
+        kernels.hessian_sparsity,
+        x.n_points,
+        lambda i: x.point_idx[:, i],
+        lambda i: x.point_idx[:, i],
+        (x.n_w, x.n_w),
+        upper=True,
+    )
+    H_kernel = cs.sparsity_cast(d2.nz[perm_h.tolist()], sp_h)
+    return cs.Function(
+        "nlp_hess_l",
+        [x.w, x.p, lf, lg],
+        [H_outer + H_kernel],
+        ["x", "p", "lam_f", "lam_g"],
+        ["triu_hess_gamma_x_x"],
+    )
+
+
+def _ipopt_solver(
+    kernels: PointKernels,
+    variables: VariableLayout,
+    parameters: ParameterLayout,
+    outer: _Outer,
+    n_g: int,
+    options: PlannerOptions,
+) -> cs.Function:
+    """The NLP in MX (the kernels mapped over the points, the outer problem on top) with its
+    assembled derivatives (see the module docstring), handed to Ipopt."""
+    x = _Mapped.of(kernels, variables, parameters)
+    y = cs.vec(kernels.value.map(x.n_points)(x.Z, *x.data))
+    f, g = outer.value(x.w, y, x.p)
+    ipopt = dict(DEFAULT_IPOPT)
+    if variables.by_name.get("S") is not None:
+        ipopt.update(PEAK_IPOPT)
+    ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
+    ipopt.update(options.ipopt)
+    return cs.nlpsol(
+        "balance_nlp",
+        "ipopt",
+        {"x": x.w, "p": x.p, "f": f, "g": g},
+        {
+            "ipopt": ipopt,
+            "print_time": False,
+            "record_time": True,
+            "calc_lam_p": False,
+            "calc_lam_x": False,
+            "grad_f": _gradient(kernels, outer, x),
+            "jac_g": _jacobian(kernels, outer, x),
+            "hess_lag": _hessian(kernels, outer, x, n_g),
+        },
+    )

@@ -1,0 +1,163 @@
+"""One balance planning problem's numeric data: the mission, the initial configuration, the
+horizon and the options, checked against the robot before anything is built.
+
+A :class:`BalanceProblem` is what the constraint kinds (:mod:`balance_opt.optimal.constraints`)
+read their bounds from and what the initial guesses (:mod:`balance_opt.optimal.guess`) are
+built for; :class:`~balance_opt.optimal.solve.BalanceNLP` is a problem with its compiled NLP.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.optimal.collocation import Transcription
+from balance_opt.optimal.model import PlannerModel
+from balance_opt.optimal.options import PlannerOptions
+from balance_opt.result import LIMIT_TOLERANCE
+
+
+def check_problem(
+    model: PlannerModel,
+    mission,
+    q_B0,
+    options: PlannerOptions,
+    robot: FloatingRobot | None = None,
+) -> tuple[np.ndarray, float]:
+    """Check a problem's sizes and configurations against the robot.
+
+    Returns:
+        ``(q_B0 as a float array, horizon [s])``.
+
+    Raises:
+        InputError: sizes or options that do not fit the robot, a horizon shorter than the
+            mission.
+        InfeasibleLimitsError: ``q_B0`` or the prescribed final configuration outside the
+            position limits (when they are enforced), naming the joint.
+    """
+    robot = model.robot if robot is None else robot
+    if robot.joint_names != model.robot.joint_names:
+        raise InputError(f"robot {robot.name} is not the robot of the planner model")
+    if getattr(mission, "dof", None) != model.n_M:
+        raise InputError(
+            f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
+            f"the mission arm of {robot.name} has {model.n_M}"
+        )
+    q_B0 = np.asarray(q_B0, dtype=float).ravel()
+    names = [robot.joint_names[i] for i in robot.balance_indices]
+    if q_B0.size != model.n_B:
+        raise InputError(
+            f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
+        )
+    horizon = float(mission.duration if options.horizon is None else options.horizon)
+    if horizon < mission.duration:
+        raise InputError(
+            f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
+        )
+    lim = robot.limits.subset(robot.balance_indices)
+    for what, values in (
+        ("initial configuration q_B0", q_B0),
+        ("final_configuration", options.final_configuration),
+    ):
+        if values is None:
+            continue
+        values = np.asarray(values, dtype=float)
+        if values.size != model.n_B:
+            raise InputError(
+                f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
+            )
+        if not options.position_limits:
+            continue
+        for j, name in enumerate(names):
+            if not lim.lower[j] - LIMIT_TOLERANCE <= values[j] <= lim.upper[j] + LIMIT_TOLERANCE:
+                raise InfeasibleLimitsError(
+                    f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
+                    f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
+                )
+    if options.rest_configuration is not None and len(options.rest_configuration) != model.n_B:
+        raise InputError(
+            f"planner option 'rest_configuration' has {len(options.rest_configuration)} values, "
+            f"the balance joints are {model.n_B}"
+        )
+    return q_B0, horizon
+
+
+class BalanceProblem:
+    """The numeric data of one balance planning problem.
+
+    Args:
+        model: the robot's planner model.
+        mission: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
+        q_B0: initial balance configuration [rad], checked by :func:`check_problem`.
+        options: the planner settings.
+        horizon: planning horizon [s], from :func:`check_problem`.
+
+    Attributes:
+        model, robot, mission, q_B0, options, horizon: as given (``robot`` is the model's).
+        N, h: number of intervals and their length [s].
+        transcription, control: the collocation scheme and the control input.
+        point_times: times of the collocation points [s], nodes then midpoints.
+        mission_samples: ``[q_M; q_dot_M; q_ddot_M]`` at the points (n_m, n_points).
+        q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
+        limits: the balance joints' limits.
+        path_bound: the path attitude bound the NLP enforces at the points [rad]
+            (``options.path_attitude_bound``, lowered by the refinement).
+        terminal_bound: the same for the terminal attitude bound.
+        torque_factor: factor on the effort limits at each point (n_B, n_points), 1 but where
+            the refinement tightened them.
+        balance_joints: their names.
+    """
+
+    def __init__(
+        self,
+        model: PlannerModel,
+        mission,
+        q_B0: np.ndarray,
+        options: PlannerOptions,
+        horizon: float,
+        robot: FloatingRobot | None = None,
+    ):
+        self.model = model
+        # The task's robot: the model's kinematics, possibly other limits.
+        self.robot = model.robot if robot is None else robot
+        self.mission = mission
+        self.q_B0 = q_B0
+        self.options = options
+        self.horizon = horizon
+        self.N = options.intervals
+        self.h = horizon / self.N
+        self.transcription = Transcription(options.transcription)
+        self.control = options.control
+        self.point_times = self.transcription.point_taus(self.N) * self.h
+        q_M, q_dot_M, q_ddot_M = mission.sample(self.point_times)
+        self.mission_samples = np.hstack([q_M, q_dot_M, q_ddot_M]).T
+        self.q_rest = (
+            q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
+        )
+        self.limits = self.robot.limits.subset(self.robot.balance_indices)
+        # the bounds the refinement tightens (balance_opt.optimal.refine)
+        self.path_bound = options.path_attitude_bound
+        self.terminal_bound = options.terminal_attitude_bound
+        self.torque_factor = np.ones((model.n_B, self.point_times.size))
+        self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
+
+
+class PlannerSolverError(SolverError):
+    """Ipopt did not solve the balance NLP.
+
+    Attributes:
+        status: Ipopt's return status.
+        result: the last iterate, re-simulated, as a :class:`BalanceResult`.
+        constraint: name of the most violated constraint.
+        time: its time [s].
+        violation: by how much it is violated (in its own unit).
+    """
+
+    def __init__(
+        self, message: str, status: str, result, constraint: str, time: float, violation: float
+    ):
+        super().__init__(message, status, result)
+        self.constraint = constraint
+        self.time = time
+        self.violation = violation

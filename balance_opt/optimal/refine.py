@@ -1,0 +1,217 @@
+"""The outer loop of the optimal planner: bounds reached through the peak problem, limits held on
+the whole re-simulated motion, and several starts.
+
+Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.BalanceNLP.solve_once`):
+
+* **The peak objective** (:func:`plan_peak`) starts from the integral objective's plan.
+* **Bounds that converge** (:func:`solve_with_bounds`). A hard path attitude bound started
+  from a guess that drifts three times too far stalls Ipopt. So the peak problem is solved
+  first without the bound (its epigraph variable is the bound's elastic relaxation): its peak
+  is the smallest the planner finds. A bound below it fails at once, naming that peak; a
+  bound above it is met by the peak plan itself (peak objective), or the bounded problem is
+  solved warm started from the peak plan, which is feasible (integral objective).
+* **Limits on the whole motion** (:func:`refine`). Torques and attitude bounds are rows at the
+  collocation points. After each solve every one is checked on the re-simulated motion (torques
+  from the free-floating inverse dynamics on the fine grid); where one is broken beyond its
+  tolerance (:data:`TORQUE_TOLERANCE`, :data:`ATTITUDE_TOLERANCE`), its bound is tightened
+  by the measured ratio (torques: on the broken intervals only) and the problem solved again,
+  warm started, up to :data:`MAX_ROUNDS` times.
+* **Multi-start** (:func:`multi_start`): ``options.starts`` guesses (the chosen one, the other
+  named one, then smooth random motions), solved one after the other; the best objective is
+  kept and the spread is reported in ``info["starts"]``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from balance_opt.errors import SolverError
+from balance_opt.optimal.constraints import TorqueLimit
+from balance_opt.optimal.guess import random_guess
+from balance_opt.optimal.options import GUESSES
+from balance_opt.optimal.problem import PlannerSolverError
+from balance_opt.result import BalanceResult
+
+log = logging.getLogger(__name__)
+
+#: Relative excess of a torque over its effort limit, on the re-simulated motion, that is
+#: accepted without refining.
+TORQUE_TOLERANCE = 2e-3
+#: Relative excess of the re-simulated attitude over an attitude bound accepted without refining.
+ATTITUDE_TOLERANCE = 1e-3
+#: Re-solves of the refinement at most.
+MAX_ROUNDS = 6
+#: Relative excess of a bound over the smallest peak below which the peak plan is re-solved
+#: with the bound (its re-simulated peak may cross it between the points).
+BOUND_MARGIN = 1e-3
+
+
+def solve_with_bounds(nlp, guess) -> BalanceResult:
+    """Solve a problem whose path attitude bound may stall Ipopt (see the module docstring),
+    then :func:`refine`.
+
+    Raises:
+        PlannerSolverError: the bound is below the smallest peak found (its message states
+            it), or Ipopt failed.
+    """
+
+    bound = nlp.options.path_attitude_bound
+    if bound is None:
+        first = plan_peak(nlp, guess) if nlp.options.objective == "peak" else nlp.solve_once(guess)
+        return refine(nlp, first)
+    free = nlp.variant(objective="peak", path_attitude_bound=None, terminal_attitude_bound=None)
+    peak_plan = plan_peak(free, guess)
+    smallest = peak_plan.max_drift
+    peak_plan.info["smallest_peak_rad"] = smallest
+    if smallest > bound * (1.0 + ATTITUDE_TOLERANCE):
+        t = float(peak_plan.t[int(np.argmax(peak_plan.angle))])
+        raise PlannerSolverError(
+            f"path_attitude_bound {bound:.6g} rad is below the smallest peak the planner found, "
+            f"{smallest:.6g} rad (at t = {t:.3f} s): no plan met it",
+            "Bound_Below_Smallest_Peak",
+            peak_plan,
+            "path attitude bound",
+            t,
+            smallest - bound,
+        )
+    same = nlp.options.objective == "peak" and nlp.options.terminal_attitude_bound is None
+    if same and smallest <= bound * (1.0 - BOUND_MARGIN):
+        # the peak plan of the bounded problem is the free one: the bound is not active
+        result = peak_plan
+        result.info["refinement"] = {"rounds": 0, "tightened": []}
+        return result
+    result = nlp.solve_once(free.solution_of(peak_plan))
+    result.info["smallest_peak_rad"] = smallest
+    return refine(nlp, result)
+
+
+def plan_peak(nlp, guess) -> BalanceResult:
+    """Solve a peak problem: from a named guess or a result through the integral plan first
+    (its solution is the start of the peak problem; see ``PEAK_IPOPT``)."""
+    if isinstance(guess, (str, BalanceResult)):
+        integral = nlp.variant(
+            objective="integral", path_attitude_bound=None, terminal_attitude_bound=None
+        )
+        try:
+            guess = integral.solution_of(integral.solve_once(guess))
+        except SolverError as exc:
+            log.info("integral plan failed (%s); the peak problem starts from the guess", exc)
+    return nlp.solve_once(guess)
+
+
+def refine(nlp, result: BalanceResult) -> BalanceResult:
+    """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
+    warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
+    ``info["refinement"]`` lists what was tightened in each round."""
+    rounds = []
+    for _ in range(MAX_ROUNDS):
+        tightened = _tighten(nlp, result)
+        if not tightened:
+            break
+        rounds.append(tightened)
+        log.info("refinement: %s", "; ".join(tightened))
+        nlp.update_bounds()
+        result = nlp.solve_once(nlp.unpack(np.array(result.info["nlp_solution"])))
+    else:
+        if _tighten(nlp, result, dry=True):
+            log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
+    result.info["refinement"] = {"rounds": len(rounds), "tightened": rounds}
+    return result
+
+
+def _tighten(nlp, result: BalanceResult, dry: bool = False) -> list[str]:
+    """Lower the bounds the re-simulated ``result`` breaks beyond tolerance (unless ``dry``);
+    returns what it lowered, in words."""
+    out = []
+    if nlp.structure.key.torque_limits:
+        out += _tighten_torques(nlp, result, dry)
+    for name, bound, value in (
+        ("path_bound", nlp.options.path_attitude_bound, result.max_drift),
+        ("terminal_bound", nlp.options.terminal_attitude_bound, result.final_drift),
+    ):
+        if bound is not None and value > bound * (1.0 + ATTITUDE_TOLERANCE):
+            current = getattr(nlp, name)
+            if not dry:
+                setattr(nlp, name, current * bound / value * (1.0 - ATTITUDE_TOLERANCE / 2))
+            out.append(f"{name.replace('_', ' ')} {current:.6g} -> {getattr(nlp, name):.6g} rad")
+    return out
+
+
+def _tighten_torques(nlp, result: BalanceResult, dry: bool) -> list[str]:
+    """Scale the effort bounds of the points of every interval where a torque exceeds its limit
+    by more than :data:`TORQUE_TOLERANCE` by ``limit / peak`` there."""
+    effort = nlp.limits.effort
+    ratio = np.abs(TorqueLimit.torques(nlp, result)) / effort  # (T, n_B), inf effort -> 0
+    if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE:
+        return []
+    N = nlp.N
+    interval = np.minimum((result.t / nlp.h).astype(int), N - 1)
+    per_interval = np.zeros((N, nlp.model.n_B))
+    np.maximum.at(per_interval, interval, ratio)
+    broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
+    if not dry:
+        scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
+        mids = nlp.transcription.has_midpoints
+        for k in np.flatnonzero(broken.any(axis=1)):
+            columns = [k, k + 1] + ([N + 1 + k] if mids else [])
+            for c in columns:
+                nlp.torque_factor[:, c] = np.minimum(
+                    nlp.torque_factor[:, c], nlp.torque_factor[:, c] * scale[k]
+                )
+    worst = float(ratio.max() - 1.0)
+    return [f"torque bounds on {int(broken.any(axis=1).sum())} intervals (worst +{worst:.2%})"]
+
+
+def multi_start(nlp, guess) -> BalanceResult:
+    """Solve from ``options.starts`` guesses (see the module docstring) and keep the plan of
+    the smallest objective; ``info["starts"]`` holds every start's outcome.
+
+    Raises:
+        SolverError: every start failed (the first start's error).
+    """
+    rng = np.random.default_rng(nlp.options.seed)
+    guesses = [guess] + [g for g in GUESSES if g != guess]
+    guesses = guesses[: nlp.options.starts]
+    guesses += [None] * (nlp.options.starts - len(guesses))
+    best, first_error, report = None, None, []
+    for g in guesses:
+        start = g if g is not None else random_guess(nlp, nlp.unpack(nlp.lbx).X[3:, 0], rng)
+        label = "random" if g is None else (g if isinstance(g, str) else type(g).__name__)
+        try:
+            result = solve_with_bounds(_fresh(nlp), start)
+        except SolverError as exc:
+            first_error = first_error or exc
+            report.append({"guess": label, "status": str(exc.status)})
+            continue
+        report.append(
+            {
+                "guess": label,
+                "status": result.info["status"],
+                "objective": result.info["objective"],
+                "max_drift_rad": result.max_drift,
+                "final_drift_rad": result.final_drift,
+                "solve_s": result.info["wall_time_s"]["solve"],
+            }
+        )
+        if best is None or result.info["objective"] < best.info["objective"]:
+            best = result
+    if best is None:
+        raise first_error
+    objectives = [r["objective"] for r in report if "objective" in r]
+    best.info["starts"] = {
+        "runs": report,
+        "solved": len(objectives),
+        "objective_spread": float(max(objectives) - min(objectives)),
+        "max_drift_spread_rad": float(
+            max(r["max_drift_rad"] for r in report if "objective" in r)
+            - min(r["max_drift_rad"] for r in report if "objective" in r)
+        ),
+    }
+    return best
+
+
+def _fresh(nlp):
+    """The same problem with its bounds untightened (each start refines on its own)."""
+    return nlp.variant() if nlp.options.starts > 1 else nlp

@@ -1,0 +1,428 @@
+"""Building one balance problem's NLP, solving it with Ipopt and re-simulating the plan.
+
+:func:`build_balance_nlp` checks the problem, takes the compiled structure from the model's
+cache (or builds it, :mod:`balance_opt.optimal.nlp`) and returns a :class:`BalanceNLP`: the
+problem's numeric data with its parameter vector and the bounds of its variables and
+constraints, each constraint kind supplying its own (:mod:`balance_opt.optimal.constraints`).
+:meth:`BalanceNLP.solve` starts Ipopt from an initial guess (:mod:`balance_opt.optimal.guess`)
+and re-simulates the solution (:func:`resimulate`): the returned
+:class:`~balance_opt.result.BalanceResult` is the re-simulated motion, and a failure raises
+:class:`PlannerSolverError` naming the most violated constraint.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+
+import numpy as np
+
+from balance_opt.errors import InputError
+from balance_opt.interrupts import raise_if_interrupted
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.replay import replay
+from balance_opt.motion.so3 import (
+    quaternion_conjugate,
+    quaternion_from_rotvec,
+    quaternion_multiply,
+    rotation_angle,
+)
+from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
+from balance_opt.optimal.constraints import PEAK_SCALE, attitude_scale
+from balance_opt.optimal.guess import guess_solution
+from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
+from balance_opt.optimal.model import PlannerModel
+from balance_opt.optimal.nlp import NLPStructure, build_structure
+from balance_opt.optimal.options import SUCCESS_STATUSES, PlannerOptions
+from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
+from balance_opt.optimal.refine import multi_start, solve_with_bounds
+from balance_opt.result import BalanceResult
+
+log = logging.getLogger(__name__)
+
+
+class BalanceNLP(BalanceProblem):
+    """One balance planning problem with its compiled NLP and numeric inputs.
+
+    Built by :func:`build_balance_nlp`; inspect ``variables``, ``constraints``, ``lbx``/``ubx``,
+    ``lbg``/``ubg``, ``parameters``, or name an index with :meth:`constraint_name`.
+
+    Args:
+        model, mission, q_B0, options, horizon: the problem (see :class:`BalanceProblem`).
+        structure: the compiled NLP of its structure.
+        setup_time: wall time to set the problem up [s].
+        build_time: wall time spent building the structure for it [s] (0 when cached).
+    """
+
+    def __init__(
+        self,
+        model: PlannerModel,
+        structure: NLPStructure,
+        mission,
+        q_B0: np.ndarray,
+        options: PlannerOptions,
+        horizon: float,
+        setup_time: float,
+        build_time: float = 0.0,
+        robot: FloatingRobot | None = None,
+    ):
+        super().__init__(model, mission, q_B0, options, horizon, robot)
+        self.structure = structure
+        self.setup_time = setup_time
+        self.build_time = build_time
+        self.update_bounds()
+
+    def update_bounds(self) -> None:
+        """Set the parameter vector and the bounds from the problem's (possibly tightened)
+        bounds: ``path_bound``, ``terminal_bound``, ``torque_factor``."""
+        weights = self.options.weights
+        peak = self.structure.key.objective == "peak"
+        self.parameters = self.structure.parameters.pack(
+            NLPParameters(
+                h=self.h,
+                terminal_weight=weights.peak_terminal if peak else weights.terminal,
+                running_weights=weights.running(self.options.objective),
+                path_scale=attitude_scale(self.path_bound),
+                terminal_scale=attitude_scale(self.terminal_bound),
+                peak_weight=weights.peak if peak else 0.0,
+                q_rest=self.q_rest,
+                mission=self.mission_samples,
+            )
+        )
+        self.lbx, self.ubx = self._variable_bounds()
+        self.lbg, self.ubg = self._constraint_bounds()
+
+    def variant(self, **changes) -> BalanceNLP:
+        """The same problem with other options (its bounds untightened)."""
+        options = dataclasses.replace(self.options, **changes)
+        return build_balance_nlp(self.model, self.mission, self.q_B0, options, self.robot)
+
+    def solution_of(self, result: BalanceResult) -> Solution:
+        """The NLP solution a result of this problem's structure was re-simulated from."""
+        return self.unpack(np.array(result.info["nlp_solution"]))
+
+    # ------------------------------------------------------------------ inspection
+    @property
+    def variables(self) -> dict[str, Block]:
+        """The decision vector's blocks by name (``X``, ``Xm``, ``U``, ``Um``)."""
+        return self.structure.variables.by_name
+
+    @property
+    def constraints(self) -> list[Block]:
+        """The constraint vector's blocks, in order."""
+        return self.structure.constraints
+
+    def constraint_name(self, index: int) -> tuple[str, float, str]:
+        """``(name, time [s], unit)`` of constraint ``index`` (for an interval's constraint, the
+        interval's start)."""
+        block = self.structure.rows.block_at(index)
+        row, unit, tau = block.locate(index)
+        return f"{block.name}: {row}", tau * self.h, unit
+
+    def describe_constraint(self, index: int) -> str:
+        """Constraint ``index`` in words: what, which joint or quantity, when."""
+        block = self.structure.rows.block_at(index)
+        name, t, _ = self.constraint_name(index)
+        if block.per_interval:
+            return f"{name} on the interval {t:.3f}-{t + self.h:.3f} s"
+        return f"{name} at t = {t:.3f} s"
+
+    def variable_name(self, index: int) -> tuple[str, float, str]:
+        """``(name, time [s], unit)`` of decision variable ``index``."""
+        layout = self.structure.variables
+        name, tau = layout.describe(index)
+        return name, tau * self.h, layout.block_at(index).locate(index)[1]
+
+    def unpack(self, w) -> Solution:
+        """States and controls of a decision vector."""
+        return self.structure.variables.unpack(w)
+
+    def pack(self, sol: Solution) -> np.ndarray:
+        """The decision vector of unpacked states and controls."""
+        return self.structure.variables.pack(sol)
+
+    # ------------------------------------------------------------------ bounds
+    def _variable_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Free variables, narrowed by every constraint kind in turn."""
+        n_w = self.structure.n_w
+        lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
+        for kind in self.structure.kinds:
+            kind.bound_variables(self, lower, upper)
+        return self.pack(lower), self.pack(upper)
+
+    def _constraint_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each block of rows bounded by the kind that owns it."""
+        lower, upper = np.empty(self.structure.n_g), np.empty(self.structure.n_g)
+        for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
+            lower[block.slice], upper[block.slice] = kind.row_bounds(self, block)
+        return lower, upper
+
+    # ------------------------------------------------------------------ solve
+    def initial_guess(self, guess="analytic") -> np.ndarray:
+        """The decision vector to start from: ``"analytic"``, ``"rest"``, a
+        :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution` (of a
+        structure with or without the peak's variable ``S``) or a decision vector
+        (:mod:`balance_opt.optimal.guess`)."""
+        if isinstance(guess, (str, BalanceResult, Solution)):
+            if isinstance(guess, Solution):
+                sol = dataclasses.replace(guess, S=None)
+            else:
+                sol = guess_solution(self, guess, self.unpack(self.lbx).X[3:, 0])
+            if "S" in self.variables:  # the guess's own peak
+                X, _ = sol.points()
+                sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
+            return np.clip(self.pack(sol), self.lbx, self.ubx)
+        w = np.asarray(guess, dtype=float).ravel()
+        if w.size != self.structure.n_w:
+            raise InputError(
+                f"initial guess vector has {w.size} entries, the NLP has {self.structure.n_w}"
+            )
+        return w
+
+    def solve(self, initial_guess="analytic") -> BalanceResult:
+        """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
+        the peak problem first, then the torque and attitude bounds refined until the
+        re-simulated motion meets them, from ``options.starts`` guesses
+        (:mod:`balance_opt.optimal.refine`).
+
+        Args:
+            initial_guess: see :meth:`solve_once`.
+
+        Raises:
+            PlannerSolverError: Ipopt stopped without a solution, or the path attitude bound is
+                below the smallest peak found (the message states it).
+        """
+        if self.options.starts > 1:
+            return multi_start(self, initial_guess)
+        return solve_with_bounds(self, initial_guess)
+
+    def solve_once(self, initial_guess="analytic") -> BalanceResult:
+        """Solve with Ipopt once, re-simulate the plan, return it.
+
+        Args:
+            initial_guess: ``"analytic"`` (the analytic law clipped to the limits; the rest
+                guess when the law is unavailable), ``"rest"``, a :class:`BalanceResult`, or a
+                decision vector.
+
+        Raises:
+            PlannerSolverError: Ipopt stopped without a solution (infeasible, iteration limit,
+                ...); its message names the status and the most violated constraint, its
+                ``result`` is the last iterate, re-simulated.
+        """
+        t0 = time.perf_counter()
+        w0 = self.initial_guess(initial_guess)
+        t1 = time.perf_counter()
+        out = self.structure.solver(
+            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+        )
+        raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
+        t2 = time.perf_counter()
+        w = np.array(out["x"]).ravel()
+        worst = self.largest_violation(w, np.array(out["g"]).ravel())
+        sol = self.unpack(w)
+        result = resimulate(self, sol, self.trajectory(sol))
+        t3 = time.perf_counter()
+        stats = self.structure.solver.stats()
+        status = str(stats.get("return_status", "unknown"))
+        result.info.update(self._report(stats, float(out["f"]), worst, (t0, t1, t2, t3)))
+        result.info["nlp_solution"] = w.tolist()
+        if status not in SUCCESS_STATUSES:
+            name, t, amount, unit, where = worst
+            raise PlannerSolverError(
+                f"Ipopt stopped with status '{status}' after {result.info['iterations']} iterations; "
+                f"largest constraint violation: {where}, by {amount:.3g} {unit}",
+                status,
+                result,
+                name,
+                t,
+                amount,
+            )
+        if status != SUCCESS_STATUSES[0]:
+            log.warning("Ipopt: %s", status)
+        return result
+
+    def _report(self, stats: dict, objective: float, worst, times) -> dict:
+        """The solver's part of ``BalanceResult.info``."""
+        t0, t1, t2, t3 = times
+        status = str(stats.get("return_status", "unknown"))
+        iters = stats.get("iterations", {})
+        kernels = self.model.kernels(self.control, self.structure.key.torque_limits)
+        return {
+            "status": status,
+            "success": status in SUCCESS_STATUSES,
+            "iterations": int(stats.get("iter_count", 0)),
+            "objective": objective,
+            "max_constraint_violation": worst[2],
+            "max_violation_at": {
+                "constraint": worst[0],
+                "time_s": worst[1],
+                "unit": worst[3],
+                "description": worst[4],
+            },
+            "wall_time_s": {
+                "build": self.build_time,
+                "setup": self.setup_time,
+                "guess": t1 - t0,
+                "solve": t2 - t1,
+                "resimulate": t3 - t2,
+            },
+            "kernels": {
+                "compiled": kernels.compiled,
+                "compile_time_s": kernels.compile_time,
+                "library": kernels.library,
+            },
+            "history": {
+                k: [float(v) for v in iters.get(k, [])] for k in ("obj", "inf_pr", "inf_du")
+            },
+            "intervals": self.N,
+            "transcription": self.transcription.name,
+            "control": self.control,
+            "horizon_s": self.horizon,
+            "options": self.options.as_dict(),
+        }
+
+    def largest_violation(self, w, g) -> tuple[str, float, float, str, str]:
+        """``(name, time [s], amount, unit, description)`` of the most violated constraint or
+        bound."""
+        viol_g = np.maximum(np.maximum(self.lbg - g, g - self.ubg), 0.0)
+        viol_x = np.maximum(np.maximum(self.lbx - w, w - self.ubx), 0.0)
+        if viol_g.size and viol_g.max() >= (viol_x.max() if viol_x.size else 0.0):
+            i = int(np.argmax(viol_g))
+            name, t, unit = self.constraint_name(i)
+            return name, t, float(viol_g[i]), unit, self.describe_constraint(i)
+        i = int(np.argmax(viol_x))
+        name, t, unit = self.variable_name(i)
+        return f"bound on {name}", t, float(viol_x[i]), unit, f"bound on {name} at t = {t:.3f} s"
+
+    def trajectory(self, sol: Solution) -> CollocatedTrajectory:
+        """The balance joints' continuous motion of a solution."""
+        starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
+        levels = joint_chain_coefficients(self.transcription, starts, sol.U, sol.Um, self.h)
+        return CollocatedTrajectory(self.h, levels)
+
+
+# ---------------------------------------------------------------------------------- build
+def build_balance_nlp(
+    planner_model: PlannerModel | FloatingRobot,
+    mission_trajectory,
+    q_B0,
+    options: PlannerOptions | None = None,
+    robot: FloatingRobot | None = None,
+) -> BalanceNLP:
+    """Build the balance NLP of a mission.
+
+    The compiled structure is taken from ``planner_model.nlp_cache`` when a problem of the same
+    structure (:class:`~balance_opt.optimal.layout.StructureKey`: intervals, transcription,
+    control, constraint switches, solver options) was built before; the mission, horizon,
+    ``q_B0``, weights and bounds are numeric inputs.
+
+    Args:
+        planner_model: the robot's :class:`PlannerModel` (or the robot: a model is built, not kept).
+        mission_trajectory: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
+        q_B0: initial balance configuration [rad] (the balance arm starts at rest).
+        options: planner settings (defaults: :class:`PlannerOptions`).
+        robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
+            may change the limits; the model and its compiled NLPs stay valid); default: the
+            model's robot.
+
+    Raises:
+        InputError: sizes or options that do not fit the robot.
+        InfeasibleLimitsError: limits no plan can meet (``q_B0`` or the prescribed final
+            configuration outside the position limits), naming the joint.
+    """
+    start = time.perf_counter()
+    model = (
+        planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
+    )
+    options = options or PlannerOptions()
+    robot = model.robot if robot is None else robot
+    q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
+    key = StructureKey.of(robot.limits.subset(robot.balance_indices), options)
+    built_now = key not in model.nlp_cache
+    if built_now:
+        model.nlp_cache[key] = build_structure(model, key, options)
+    structure = model.nlp_cache[key]
+    build_time = structure.build_time if built_now else 0.0
+    return BalanceNLP(
+        model,
+        structure,
+        mission_trajectory,
+        q_B0,
+        options,
+        horizon,
+        time.perf_counter() - start - build_time,
+        build_time,
+        robot,
+    )
+
+
+def plan_optimal(
+    robot: FloatingRobot | PlannerModel,
+    mission,
+    q_B0,
+    options: PlannerOptions | None = None,
+    initial_guess="analytic",
+) -> BalanceResult:
+    """Plan the balance arm's motion for a mission: :func:`build_balance_nlp` then
+    :meth:`BalanceNLP.solve`. Pass a :class:`PlannerModel` to reuse the symbolic model and the
+    compiled NLPs across calls."""
+    return build_balance_nlp(robot, mission, q_B0, options).solve(initial_guess)
+
+
+# ---------------------------------------------------------------------------------- re-simulation
+def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
+    """The re-simulation grid: every interval split into ``sub`` equal steps no longer than
+    ``step``, so the grid holds every node. Returns ``(times, sub)``."""
+    sub = max(1, math.ceil(h / step - 1e-9))
+    return np.arange(N * sub + 1) * (h / sub), sub
+
+
+def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
+    """Re-simulate a plan on a fine grid (:func:`_fine_grid`, ``options.resample_step``).
+
+    The balance joints follow the collocation polynomial, the attitude is integrated by
+    :func:`balance_opt.motion.replay.replay` (numeric Pinocchio, RK4 on the unit quaternion,
+    one step per grid interval, so that no step straddles a node, where the joint motion's
+    higher derivatives jump; on the paper task at the default step within 1e-10 rad of a 20
+    times finer step); limit violations are those of the fine grid (``result.violations``). ``info["resimulation"]`` reports the collocation defects (NLP
+    attitude at the nodes against the re-simulated one; joint polynomial at each interval's end
+    against the next node), the momentum residual, the drift, the limit violations and, as
+    ``constraint_violations``, every constraint kind the re-simulated motion breaks beyond
+    tolerance (:meth:`~balance_opt.optimal.constraints.Constraint.check`: between the
+    collocation points, torques and the path attitude bound are not enforced).
+    """
+    t, sub = _fine_grid(nlp.N, nlp.h, nlp.options.resample_step)
+    result = replay(
+        nlp.robot,
+        nlp.mission,
+        trajectory,
+        t_eval=t,
+        method="optimal",
+        integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])),
+    )
+    # collocation defects: NLP attitude at the nodes vs the re-simulated one
+    q_nlp = quaternion_from_rotvec(sol.X[:3].T)
+    attitude_defect = rotation_angle(
+        quaternion_multiply(quaternion_conjugate(q_nlp), result.quaternion[::sub])
+    )
+    rows = nlp.model.joint_rows(nlp.control)
+    ends = trajectory.interval_ends()
+    joint_defect = max(float(np.abs(ends[k] - sol.X[rows[k], 1:].T).max()) for k in (0, 1))
+    checks = (kind.check(nlp, result) for kind in nlp.structure.kinds)
+    result.info["resimulation"] = {
+        "samples": int(t.size),
+        "step_s": float(t[1] - t[0]),
+        "attitude_defect_max_rad": float(attitude_defect.max()),
+        "attitude_defect_final_rad": float(attitude_defect[-1]),
+        "joint_defect_max": joint_defect,
+        "max_momentum_residual": float(result.momentum_residual.max()),
+        "max_drift_rad": result.max_drift,
+        "final_drift_rad": result.final_drift,
+        "nlp_final_drift_rad": float(np.linalg.norm(sol.X[:3, -1])),
+        "limit_violations": [str(v) for v in result.violations],
+        "constraint_violations": [str(v) for v in checks if v is not None],
+    }
+    return result
