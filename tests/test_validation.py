@@ -359,8 +359,9 @@ def test_too_many_intervals_are_refused_with_the_largest_that_fits(tmp_path, mon
         load_task(path)
     message = str(info.value)
     assert message.startswith(
-        f"{path}:{line}: optimal.intervals: 100000 intervals would need about 15.7 GiB of memory "
-        "(2.4e+06 variables, 4.17e+07 non-zeros in Ipopt's KKT matrix with 3 balance joints)"
+        f"{path}:{line}: optimal.intervals: 100000 intervals would need about 31.6 GiB of memory "
+        "(3 balance joints: 2.4e+06 variables, 8.43e+07 non-zeros in the KKT matrices of the 2 "
+        "NLPs the plan builds)"
     )
     largest = int(re.search(r"at most (\d+) intervals fit$", message).group(1))
     task = load_task(_task(tmp_path, extra=f"optimal: {{intervals: {largest}}}\n", name="ok.yaml"))
@@ -372,25 +373,26 @@ def test_too_many_intervals_are_refused_with_the_largest_that_fits(tmp_path, mon
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("transcription", "control", "torque", "acceleration"),
+    ("transcription", "control", "torque", "acceleration", "objective"),
     [
-        ("hermite-simpson", "acceleration", False, 2.0),
-        ("hermite-simpson", "jerk", False, None),
-        ("trapezoidal", "jerk", True, None),
+        ("hermite-simpson", "acceleration", False, 2.0, "peak"),
+        ("hermite-simpson", "jerk", False, None, "integral"),
+        ("trapezoidal", "jerk", True, None, "integral"),
+        ("trapezoidal", "acceleration", True, 2.0, "peak"),
     ],
 )
 def test_size_estimate_counts_the_planners_own_problem(
-    paper, transcription, control, torque, acceleration
+    paper, transcription, control, torque, acceleration, objective
 ):
     # The estimate (no CasADi) against the NLP the planner builds: sizes exact, non-zeros close.
     import numpy as np
-    from balance_opt.optimal.planner import build_balance_nlp
 
     from balance_opt.model.library import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, shipped_urdf
     from balance_opt.motion.trajectories import PointToPoint
     from balance_opt.optimal import budget
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.options import PlannerOptions
+    from balance_opt.optimal.solve import build_balance_nlp
 
     limits = {j: {"acceleration": acceleration} for j in PAPER_BALANCE_JOINTS if acceleration}
     robot = FloatingRobot(shipped_urdf(), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS, limits=limits)
@@ -405,6 +407,7 @@ def test_size_estimate_counts_the_planners_own_problem(
             control=control,
             torque_limits=torque,
             path_attitude_bound=0.1 if torque else None,
+            objective=objective,
         )
         nlp = build_balance_nlp(model, mission, np.array([0.0, 0.5, -1.0]), options, robot=robot)
         st = nlp.structure
@@ -558,6 +561,7 @@ def test_torque_limits_with_a_prismatic_arm_joint_are_refused(tmp_path, capsys):
     )
 
 
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # scipy on the blown-up step
 def test_integration_that_fails_in_its_first_step_reports_it():
     # An absurd initial momentum (1e300 N m s) made the attitude integration fail at once, and
     # the empty output of the integrator crashed instead of reporting the failure.

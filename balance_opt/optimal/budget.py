@@ -10,7 +10,8 @@ Those are counted per interval from the problem's structure (no CasADi needed):
   ``u`` (``n_B``) of each point, one point per interval (two with Hermite-Simpson's midpoints);
 * constraints: ``n_x`` per collocation defect (two with Hermite-Simpson), ``n_B`` per interior
   Bernstein coefficient of each limited derivative (limited: asked for, and finite for some
-  balance joint), ``n_B`` torque rows and one attitude row per point when those are asked;
+  balance joint), ``n_B`` torque rows per point with torque limits, and one attitude row per
+  point with the peak objective (its epigraph) or a path attitude bound;
 * Hessian: the kernels are nonlinear in ``k = 3 + 2 n_B`` entries of a point (attitude, balance
   positions and rates), dense among them, plus the control's diagonal: ``k (k + 1) / 2 + n_B``
   per point, and ``n_B^2`` more with torque limits;
@@ -18,17 +19,23 @@ Those are counted per interval from the problem's structure (no CasADi needed):
   with 7; both transcriptions, both controls, limits on and off; within 6 %):
   ``5.46 n_w + 3.60 n_g`` per Hermite-Simpson interval, ``4.94 n_w + 2.15 n_g`` per trapezoidal
   one (``n_g`` the defects and limit rows), plus ``3 n_B`` per torque row and 3 per attitude
-  row.
+  row (4 for the epigraph's, which also holds the peak variable).
+
+A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
+the peak objective starts from the plan of the integral objective, and a path attitude bound is
+approached through the peak problem without it; the estimate adds them up.
 
 Memory and time per non-zero were measured (peak resident memory with ``getrusage``, wall times)
-on the paper robot (3 balance joints: 184, 231 and 298 MB at N = 100, 400, 800) and Baxter
-(7: 209 and 323 MB at N = 100 and 400): 385-396 bytes per non-zero above a base of about 170 MB,
-an NLP build of 9-18 us per non-zero, and 0.4-2.5 us per non-zero and Ipopt iteration (quiet to
-loaded 2-core machine).
+on the paper robot (3 balance joints, integral objective: 184, 231 and 298 MB at N = 100, 400,
+800; peak objective, two NLPs: 200 and 298 MB at N = 100 and 400) and Baxter (7, integral: 209
+and 323 MB at N = 100 and 400): 355-406 bytes per non-zero above a base of about 170 MB, an NLP
+build of 9-18 us per non-zero, and 0.4-2.5 us per non-zero and Ipopt iteration (quiet to loaded
+2-core machine).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass
@@ -37,7 +44,7 @@ import numpy as np
 
 from balance_opt.optimal.collocation import Transcription
 
-#: Bytes of memory per non-zero of the KKT matrix (measured: 385-396).
+#: Bytes of memory per non-zero of the KKT matrix (measured: 355-406).
 BYTES_PER_NONZERO = 400
 #: Memory of the process before the NLP: Python, Pinocchio, CasADi, the kernels (170-182 MB).
 BASE_BYTES = 200 * 2**20
@@ -60,13 +67,16 @@ class ProblemSize:
     Attributes:
         intervals: ``N``.
         variables, constraints: lengths of the decision and constraint vectors.
-        nonzeros: non-zeros of the KKT matrix (Jacobian, Hessian triangle, diagonal).
+        nonzeros: non-zeros of the KKT matrices (Jacobian, Hessian triangle, diagonal) of
+            every NLP the plan builds.
+        problems: how many NLPs the plan builds.
     """
 
     intervals: int
     variables: int
     constraints: int
     nonzeros: int
+    problems: int = 1
 
     @property
     def memory_bytes(self) -> float:
@@ -80,8 +90,8 @@ class ProblemSize:
 
     @property
     def iteration_seconds(self) -> float:
-        """Estimated wall time of one Ipopt iteration [s]."""
-        return ITERATION_SECONDS_PER_NONZERO * self.nonzeros
+        """Estimated wall time of one Ipopt iteration [s] (of the NLPs' average size)."""
+        return ITERATION_SECONDS_PER_NONZERO * self.nonzeros / self.problems
 
 
 def _limited(options, limits) -> dict[str, bool]:
@@ -115,23 +125,52 @@ def _per_interval(options, limits) -> tuple[int, int, float]:
     # Hermite-Simpson has a midpoint defect and a Simpson defect, trapezoidal one
     n_g_fit = points * n_x + n_B * interior
     torque_rows = points * n_B if limited["torque"] else 0
-    path_rows = points if options.path_attitude_bound is not None else 0
+    peak = options.objective == "peak"
+    path_rows = points if peak or options.path_attitude_bound is not None else 0
     a, b = JACOBIAN_FIT[tr.name]
     # a torque row depends on a point's positions, rates and controls; an attitude row on phi
-    jacobian = a * n_w + b * n_g_fit + 3 * n_B * torque_rows + 3 * path_rows
+    # (and the epigraph's on the peak variable too)
+    jacobian = a * n_w + b * n_g_fit + 3 * n_B * torque_rows + (4 if peak else 3) * path_rows
     k = 3 + 2 * n_B
     hessian = points * (k * (k + 1) / 2 + n_B + (n_B**2 if limited["torque"] else 0))
     n_g = n_g_fit + torque_rows + path_rows
     return n_w, n_g, jacobian + hessian + n_w + n_g
 
 
+def _built(options) -> list:
+    """The options of every NLP a plan with ``options`` builds (see the module docstring)."""
+    free = {"path_attitude_bound": None, "terminal_attitude_bound": None}
+    built = [options]
+    if options.path_attitude_bound is not None:
+        built.append(dataclasses.replace(options, objective="peak", **free))
+    if options.objective == "peak" or options.path_attitude_bound is not None:
+        built.append(dataclasses.replace(options, objective="integral", **free))
+    # a peak problem's path bound adds no rows: such a problem is the free one
+    shapes = {
+        (
+            o.objective,
+            o.objective != "peak" and o.path_attitude_bound is not None,
+            o.terminal_attitude_bound is not None,
+        ): o
+        for o in reversed(built)
+    }
+    return list(shapes.values())
+
+
+def _nonzeros_per_interval(options, limits) -> float:
+    """KKT non-zeros per interval of every NLP a plan with ``options`` builds."""
+    return sum(_per_interval(o, limits)[2] for o in _built(options))
+
+
 def problem_size(options, limits) -> ProblemSize:
     """The size of the optimal problem of the planner ``options`` (a
     :class:`~balance_opt.optimal.options.PlannerOptions`) whose balance joints have the
-    ``limits`` (a :class:`~balance_opt.model.robot.JointLimits`, one entry per balance joint)."""
-    n_w, n_g, nonzeros = _per_interval(options, limits)
+    ``limits`` (a :class:`~balance_opt.model.robot.JointLimits`, one entry per balance joint):
+    its variables and constraints, and the non-zeros of every NLP its plan builds."""
+    n_w, n_g, _ = _per_interval(options, limits)
     N = options.intervals
-    return ProblemSize(N, n_w * N, n_g * N, round(nonzeros * N))
+    nonzeros = round(_nonzeros_per_interval(options, limits) * N)
+    return ProblemSize(N, n_w * N, n_g * N, nonzeros, len(_built(options)))
 
 
 def memory_budget() -> float:
@@ -146,5 +185,5 @@ def memory_budget() -> float:
 
 def largest_intervals(options, limits, budget: float) -> int:
     """The largest ``N`` whose problem fits in ``budget`` bytes."""
-    _, _, nonzeros = _per_interval(options, limits)
+    nonzeros = _nonzeros_per_interval(options, limits)
     return max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
