@@ -532,15 +532,16 @@ def test_validate_refuses_what_the_optimal_planner_cannot_do(tmp_path, capsys):
     assert _cli(["validate", "--method", "analytic", path], capsys)[0] == 0
 
 
-def test_torque_limits_with_a_prismatic_arm_joint_are_refused(tmp_path, capsys):
+def _prismatic_task(tmp_path: Path, extra: str, backend: str = "auto") -> Path:
+    """A task on the small robot whose balance joint b2 is prismatic."""
     slide = (
         '<joint name="b2" type="prismatic"><parent link="bl1"/><child link="bl2"/>'
         '<axis xyz="1 0 0"/><limit lower="-0.1" upper="0.1" effort="10" velocity="1"/></joint>'
     )
     (tmp_path / "r.urdf").write_text(_robot(joints={"b2": slide}))
-    path = _task(
+    return _task(
         tmp_path,
-        ("shipped: paper_robot.urdf", "urdf: r.urdf"),
+        ("shipped: paper_robot.urdf", f"urdf: r.urdf\n  backend: {backend}"),
         ("mission: [mission_joint1, mission_joint2, mission_joint3]", "mission: [m1, m2]"),
         ("balance: [balance_joint1, balance_joint2, balance_joint3]", "balance: [b1, b2]"),
         ("  balance: [0.0, 0.5, -1.0]", "  balance: [0.0, 0.0]"),
@@ -549,15 +550,35 @@ def test_torque_limits_with_a_prismatic_arm_joint_are_refused(tmp_path, capsys):
         ("balance_joint1: {acceleration: 2.0}", "b1: {acceleration: 2.0}"),
         ("  balance_joint2: {acceleration: 2.0}\n", ""),
         ("  balance_joint3: {acceleration: 2.0}\n", ""),
-        extra="optimal:\n  constraints: {torque_limits: true}\n",
+        extra=extra,
     )
+
+
+def test_torque_limits_with_a_prismatic_joint_are_refused(tmp_path, capsys):
+    path = _prismatic_task(tmp_path, "optimal:\n  constraints: {torque_limits: true}\n")
     line = _line_of(path.read_text(), "torque_limits")
     code, err = _cli(["validate", path], capsys)
     assert code == 2
     assert err == (
         f"balance-opt: error: {path}:{line}: optimal.constraints.torque_limits: torque limits "
-        "are computed with adam-robotics, which cannot handle the prismatic arm joint 'b2'; "
-        "turn them off, lock the joint, or plan with --method analytic\n"
+        "are computed with adam-robotics, which cannot handle the prismatic joint 'b2'; turn "
+        "them off, lock the joint, or plan with --method analytic\n"
+    )
+    assert _cli(["validate", "--method", "analytic", path], capsys)[0] == 0
+
+
+def test_prismatic_joint_with_the_adam_backend_is_refused(tmp_path):
+    path = _prismatic_task(tmp_path, "", backend="adam")
+    task = load_task(path)  # the analytic law takes it
+    from balance_opt.io.task import check_methods
+
+    line = _line_of(path.read_text(), "balance: [b1, b2]")
+    with pytest.raises(TaskFileError) as info:
+        check_methods(task, ("analytic", "optimal"))
+    assert str(info.value) == (
+        f"{path}:{line}: arms.balance[1]: joint 'b2' is prismatic, which the adam backend "
+        "(robot.backend) cannot handle; lock it, use the pinocchio backend, or plan with "
+        "--method analytic"
     )
 
 

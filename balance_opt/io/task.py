@@ -351,9 +351,10 @@ def check_methods(task: Task, methods) -> None:
 def check_optimal_supported(task: Task) -> None:
     """What the optimal planner cannot do, located in the task: a non-zero initial momentum
     (:mod:`balance_opt.optimal.model` assumes zero), torque limits on a robot with a prismatic
-    arm joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
-    joints), or a prismatic arm joint where the symbolic backend would be adam (no
-    ``pinocchio.casadi`` and no compiler for the Pinocchio-CasADi bridge).
+    model joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
+    joints), or a prismatic model joint where the symbolic backend is adam (``robot.backend:
+    adam``, or ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the
+    Pinocchio-CasADi bridge).
 
     Raises:
         TaskFileError: naming the key and the way out.
@@ -365,25 +366,34 @@ def check_optimal_supported(task: Task) -> None:
             "plan this task with --method analytic",
         )
     robot = task.robot
-    prismatic = [j for j in robot.joint_names if robot.joint_type(j) == "prismatic"]
+    prismatic = [j for j in robot.model_joint_names if robot.joint_type(j) == "prismatic"]
     if not prismatic:
         return
+    joint = prismatic[0]
     if task.spec.optimal.planner.torque_limits:
         raise task.error(
             ("optimal", "constraints", "torque_limits"),
             f"torque limits are computed with adam-robotics, which cannot handle the prismatic "
-            f"arm joint '{prismatic[0]}'; turn them off, lock the joint, or plan with "
-            "--method analytic",
+            f"joint '{joint}'; turn them off, lock the joint, or plan with --method analytic",
         )
-    from balance_opt.model.symbolic import available_backends  # imports CasADi
+    backend = task.spec.robot.backend
+    if backend == "auto":
+        from balance_opt.model.symbolic import available_backends  # imports CasADi
 
-    if "pinocchio" not in available_backends():
-        raise task.error(
-            _joint_path(task.document, prismatic[0]),
-            f"joint '{prismatic[0]}' is prismatic, which the optimal planner's only symbolic "
-            "backend here, adam, cannot handle (no pinocchio.casadi, and no C++ toolchain for "
-            "the Pinocchio-CasADi bridge); lock it, or plan with --method analytic",
+        if "pinocchio" in available_backends():
+            return
+        why = (
+            "the only symbolic backend here (no pinocchio.casadi, no C++ toolchain for the bridge)"
         )
+    elif backend == "adam":
+        why = "robot.backend"
+    else:
+        return
+    raise task.error(
+        _joint_path(task.document, joint),
+        f"joint '{joint}' is prismatic, which the adam backend ({why}) cannot handle; lock "
+        "it, use the pinocchio backend, or plan with --method analytic",
+    )
 
 
 __all__ = [
