@@ -384,7 +384,7 @@ def test_size_estimate_counts_the_planners_own_problem(
 ):
     # The estimate (no CasADi) against the NLP the planner builds: sizes exact, non-zeros close.
     import numpy as np
-    from balance_opt.optimal.planner import build_balance_nlp
+    from balance_opt.optimal.solve import build_balance_nlp
 
     from balance_opt.model.library import PAPER_BALANCE_JOINTS, PAPER_MISSION_JOINTS, shipped_urdf
     from balance_opt.motion.trajectories import PointToPoint
