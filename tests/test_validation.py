@@ -349,22 +349,42 @@ def test_analytic_rk4_step_is_checked_too(tmp_path):
     )
 
 
-def test_too_many_intervals_are_refused_with_the_largest_that_fits(tmp_path, monkeypatch):
+@pytest.mark.parametrize(
+    ("objective", "estimate"),
+    [
+        (
+            "integral",
+            (
+                "15.7 GiB of memory (3 balance joints: 2.4e+06 variables, 4.17e+07 "
+                "non-zeros in Ipopt's KKT matrix)"
+            ),
+        ),
+        (
+            "peak",
+            (
+                "31.6 GiB of memory (3 balance joints: 2.4e+06 variables, 8.43e+07 non-zeros "
+                "in the KKT matrices of the 2 NLPs the plan builds)"
+            ),
+        ),
+    ],
+)
+def test_too_many_intervals_are_refused_with_the_largest_that_fits(
+    tmp_path, monkeypatch, objective, estimate
+):
     from balance_opt.optimal import budget
 
     monkeypatch.setattr(budget, "memory_budget", lambda: 4 * 2**30)
-    path = _task(tmp_path, extra="optimal: {intervals: 100000}\n")
+    path = _task(tmp_path, extra=f"optimal: {{intervals: 100000, objective: {objective}}}\n")
     line = _line_of(path.read_text(), "intervals")
     with pytest.raises(TaskFileError) as info:
         load_task(path)
     message = str(info.value)
     assert message.startswith(
-        f"{path}:{line}: optimal.intervals: 100000 intervals would need about 31.6 GiB of memory "
-        "(3 balance joints: 2.4e+06 variables, 8.43e+07 non-zeros in the KKT matrices of the 2 "
-        "NLPs the plan builds)"
+        f"{path}:{line}: optimal.intervals: 100000 intervals would need about {estimate}"
     )
     largest = int(re.search(r"at most (\d+) intervals fit$", message).group(1))
-    task = load_task(_task(tmp_path, extra=f"optimal: {{intervals: {largest}}}\n", name="ok.yaml"))
+    fits = f"optimal: {{intervals: {largest}, objective: {objective}}}\n"
+    task = load_task(_task(tmp_path, extra=fits, name="ok.yaml"))
     options, limits = task.spec.optimal.planner, task.robot.limits.subset([3, 4, 5])
     assert budget.problem_size(options, limits).memory_bytes <= 4 * 2**30
     bigger = dataclasses.replace(options, intervals=largest + 1)
