@@ -346,18 +346,18 @@ def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) 
                 _duration_words(size.iteration_seconds),
             )
         return
+    matrices = (
+        "Ipopt's KKT matrix"
+        if size.problems == 1
+        else f"the KKT matrices of the {size.problems} NLPs the plan builds"
+    )
     raise doc.error(
         ("optimal", "intervals"),
         f"{planner.intervals} intervals would need about {size.memory_bytes / 2**30:.1f} GiB of "
         f"memory ({len(limits.lower)} balance joints: {size.variables:.3g} variables, "
-        f"{size.nonzeros:.3g} non-zeros in "
-        + (
-            "Ipopt's KKT matrix"
-            if size.problems == 1
-            else f"the KKT matrices of the {size.problems} NLPs the plan builds"
-        )
-        + f"), about {_duration_words(size.build_seconds)} to "
-        f"build and {_duration_words(size.iteration_seconds)} per Ipopt iteration; a plan "
+        f"{size.nonzeros:.3g} non-zeros in {matrices}), about "
+        f"{_duration_words(size.build_seconds)} to build and "
+        f"{_duration_words(size.iteration_seconds)} per Ipopt iteration; a plan "
         f"may use {budget / 2**30:.1f} GiB (half of this machine's memory): at most "
         f"{largest_intervals(planner, limits, budget)} intervals fit",
     )
