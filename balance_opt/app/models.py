@@ -15,28 +15,17 @@ the task's robot (with its limits) next to the model
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 import time
 from typing import TYPE_CHECKING
+
+from balance_opt.optimal.model_store import kinematics_key
 
 if TYPE_CHECKING:
     from balance_opt.model.robot import FloatingRobot
     from balance_opt.optimal.model import PlannerModel
 
 log = logging.getLogger(__name__)
-
-
-def kinematics_key(robot: FloatingRobot) -> str:
-    """SHA-256 of what a planner model depends on: the locked URDF (links, joints, inertia,
-    locked positions), the arm joints in order and the end-effector frames."""
-    content = {
-        "urdf": robot.locked_urdf,
-        "joints": list(robot.joint_names),
-        "arms": [[arm.name, list(arm.joints), arm.ee_frame] for arm in robot.arms],
-    }
-    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
 
 class ModelCache:
@@ -59,14 +48,13 @@ class ModelCache:
         The model may have been built for another robot object of the same kinematics (other
         limits): plan with ``robot`` next to it, never with ``model.robot``.
         """
-        from balance_opt.model.symbolic import SymbolicMaps
         from balance_opt.optimal.model import PlannerModel
 
         key = f"{kinematics_key(robot)}/{backend}"
         model = self._models.get(key)
         if model is None:
             start = time.perf_counter()
-            model = PlannerModel(robot, SymbolicMaps(robot, backend))
+            model = PlannerModel(robot, backend=backend)
             log.debug(
                 "planner model of %s built in %.3f s", robot.name, time.perf_counter() - start
             )

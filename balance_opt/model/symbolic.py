@@ -139,6 +139,26 @@ def backend_description(backend: str = "auto") -> str:
     return _resolve_backend(backend)[1]
 
 
+def backend_identity(backend: str = "auto") -> tuple[str, str]:
+    """``(backend, identity)``: the backend ``SymbolicMaps(robot, backend)`` uses here and what
+    its expressions depend on (the bridge program's build key, or the library's version), for
+    the keys of cached planner models. Builds the bridge first if needed.
+
+    Raises:
+        BalanceOptError: as :class:`SymbolicMaps` does for this ``backend``.
+    """
+    from importlib import metadata
+
+    name, description = _resolve_backend(backend)
+    if name == "adam":
+        return name, f"adam-robotics {metadata.version('adam-robotics')}"
+    if "bridge" in description:
+        return name, f"bridge {ensure_bridge().path.name}"
+    import pinocchio
+
+    return name, f"pinocchio.casadi {pinocchio.__version__}"
+
+
 def model_joint_positions(robot: FloatingRobot, q: cs.SX) -> cs.SX:
     """Positions of the model joints (arm joints, then followers) from the arm vector ``q``."""
     if not robot.followers:

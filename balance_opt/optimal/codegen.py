@@ -1,14 +1,27 @@
 """Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes.
 
-:func:`compile_functions` generates the C code of a list of CasADi functions, compiles it into
-one shared library named by the hash of that code (and of the compiler, its flags, CasADi's
-version and the platform), and loads the functions back as ``casadi.external``. The library is
-kept in the cache folder (:func:`default_cache_dir`), so a robot's kernels are compiled once per
-machine. Loading a damaged library would crash the process (a truncated one: bus error), so the
-cache's rules apply (:mod:`balance_opt.cache`): a file lock makes concurrent processes wait for
-one compilation; the library is built in a temporary folder and renamed into place; its SHA-256
-and size are recorded beside it and checked before every load, and a library that does not match
-is deleted and rebuilt. After a build the cache is trimmed to its size bound
+:func:`compile_functions` generates the C code of a list of CasADi functions and compiles it,
+with the system C compiler, into one shared library that is loaded back as ``casadi.external``.
+The library is named by a digest: the caller's (the planner model's content key, so that a
+warm run finds its library without building any expression) or else the hash of the C code;
+either way mixed with the compiler, its flags, CasADi's version and the platform. It is kept in
+the cache folder (:func:`default_cache_dir`), so a robot's kernels are compiled once per machine.
+
+Two ways to compile:
+
+* ``background=True`` (the planner's default): the C code is written beside the library and a
+  detached, low-priority process (``python -m balance_opt.optimal.codegen``) compiles it, while
+  this process goes on with the functions on CasADi's virtual machine; the next run loads the
+  library. The first plan of a robot therefore never waits for the compiler (Talos, 14 arm
+  joints: about 2.5 min of compiler time).
+* ``background=False``: compile now and wait.
+
+Loading a damaged library would crash the process (a truncated one: bus error), so the cache's
+rules apply (:mod:`balance_opt.cache`): a file lock makes processes wait for one compilation (a
+process that finds a compilation under way does not wait: it uses the virtual machine); the
+library is built in a temporary folder and renamed into place; its SHA-256 and size are recorded
+beside it and checked before every load, and a library that does not match is deleted and
+rebuilt. After a build the cache is trimmed to its size bound
 (:func:`balance_opt.cache_admin.enforce_limit`).
 """
 
@@ -20,12 +33,15 @@ import os
 import platform
 import shutil
 import subprocess
+import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as cs
 
 from balance_opt.cache import (
+    atomic_write_text,
     build_dir,
     check_record,
     clean_stale,
@@ -44,6 +60,29 @@ log = logging.getLogger(__name__)
 #: than with -O2 (19 s against 24 s, gcc); no -march=native or -ffast-math, so that results do
 #: not depend on the machine.
 COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
+#: Niceness of the background compiler: the plan being solved meanwhile keeps the CPU.
+BACKGROUND_NICENESS = 10
+_SUFFIX = ".dll" if os.name == "nt" else ".so"
+
+
+@dataclass(frozen=True)
+class Compiled:
+    """What :func:`compile_functions` returns.
+
+    Attributes:
+        functions: the external functions (compiled) or the functions given (not yet compiled).
+        compiled: whether ``functions`` run compiled C.
+        compile_time: wall time this process waited for the compiler [s] (0 when cached or in
+            the background).
+        library: the shared library (loaded, or being built in the background).
+        background: whether a background compilation was started (or found under way).
+    """
+
+    functions: list[cs.Function]
+    compiled: bool
+    compile_time: float
+    library: str
+    background: bool = False
 
 
 def find_compiler() -> str | None:
@@ -54,69 +93,152 @@ def find_compiler() -> str | None:
     return None
 
 
-def compile_functions(
-    functions: list[cs.Function], cache_dir: Path | None = None
-) -> tuple[list[cs.Function], float, str]:
-    """Compile CasADi functions to one shared library, cached on disk by the hash of their C code.
-
-    Args:
-        functions: SX functions (distinct names).
-        cache_dir: folder of the libraries (default :func:`default_cache_dir`).
-
-    Returns:
-        ``(external functions, compile time [s] (0 if cached), library path)``.
-
-    Raises:
-        OSError: no C compiler, or the compiler failed (the caller falls back to SX).
-    """
-    generator = cs.CodeGenerator("balance_kernels.c", {"with_header": False})
-    for f in functions:
-        generator.add(f)
-    source = generator.dump()
-    compiler = find_compiler()
-    if compiler is None:
-        raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
-    fingerprint = [
-        source,
+def library_path(digest: str, compiler: str, cache_dir: Path | None = None) -> Path:
+    """Where the library of content ``digest`` compiled by ``compiler`` is cached."""
+    parts = [
+        digest,
         compiler,
         " ".join(COMPILER_FLAGS),
         cs.__version__,
         platform.machine(),
         platform.system(),
     ]
-    digest = hashlib.sha256("\n".join(fingerprint).encode()).hexdigest()[:20]
+    name = hashlib.sha256("\n".join(parts).encode()).hexdigest()[:20]
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    library = folder / f"balance_kernels_{digest}{'.dll' if os.name == 'nt' else '.so'}"
-    folder.mkdir(parents=True, exist_ok=True)
-    clean_stale(folder)
-    with file_lock(folder / f"{library.name}.lock"):  # one process compiles, the others wait
-        elapsed = _ensure_library(compiler, source, library)
+    return folder / f"balance_kernels_{name}{_SUFFIX}"
+
+
+def load_cached(names: list[str], library: Path) -> list[cs.Function] | None:
+    """The functions ``names`` of ``library`` if it is cached and intact, else ``None`` (a
+    damaged library is deleted, so that it is rebuilt)."""
+    if not library.exists():
+        return None
+    with file_lock(library.parent / f"{library.name}.lock", blocking=False):
+        record, problem = check_record(library)
+        if record is None:
+            log.warning("cached balance kernels %s: %s; deleting and rebuilding", library, problem)
+            for path in (library, record_path(library)):
+                path.unlink(missing_ok=True)
+            return None
         touch(record_path(library))  # most recently used: evicted last
         # loaded under the lock, so that no other process evicts it between check and load;
         # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
-        externals = [cs.external(f.name(), str(library), {"enable_fd": True}) for f in functions]
-    if elapsed:
-        enforce_limit(folder, keep=[library, record_path(library)])
-    return externals, elapsed, str(library)
+        return [cs.external(name, str(library), {"enable_fd": True}) for name in names]
 
 
-def _ensure_library(compiler: str, source: str, library: Path) -> float:
-    """Check the cached ``library`` against its record; build it when missing or damaged.
-    Returns the compile time [s] (0 if the cached library was intact)."""
-    record, problem = check_record(library)
-    if record is not None:
-        return 0.0
-    if problem != "missing":
-        log.warning("cached balance kernels %s: %s; deleting and rebuilding", library, problem)
-    for path in (library, record_path(library)):
-        path.unlink(missing_ok=True)
-    elapsed = _compile(compiler, source, library)
-    write_record(library, compile_seconds=round(elapsed, 3))
+def compile_functions(
+    functions: list[cs.Function],
+    cache_dir: Path | None = None,
+    digest: str | None = None,
+    background: bool = False,
+    label: str = "",
+) -> Compiled:
+    """Compile CasADi functions to one shared library, cached on disk.
+
+    Args:
+        functions: SX functions (distinct names).
+        cache_dir: folder of the libraries (default :func:`default_cache_dir`).
+        digest: what the functions are, as a content hash (default: the hash of their C code).
+        background: compile in a detached process and return ``functions`` themselves.
+        label: what the notice names (e.g. the robot).
+
+    Returns:
+        See :class:`Compiled`.
+
+    Raises:
+        OSError: no C compiler, or the compiler failed (the caller falls back to the VM).
+    """
+    compiler = find_compiler()
+    if compiler is None:
+        raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
+    source = None
+    if digest is None:
+        source = _source(functions)
+        digest = hashlib.sha256(source.encode()).hexdigest()
+    library = library_path(digest, compiler, cache_dir)
+    library.parent.mkdir(parents=True, exist_ok=True)
+    names = [f.name() for f in functions]
+    try:
+        loaded = load_cached(names, library)
+    except BlockingIOError:  # being compiled by another process
+        if background:
+            return Compiled(functions, False, 0.0, str(library), True)
+        loaded = None
+    if loaded is not None:
+        return Compiled(loaded, True, 0.0, str(library))
+    clean_stale(library.parent)
+    source = source if source is not None else _source(functions)
+    what = f"planner kernels for {label}" if label else "planner kernels"
+    if background:
+        if _compiling(library):
+            log.info("%s are being compiled by another process; not waiting", what)
+        else:
+            log.info("compiling %s (background) ...", what)
+            _start_background(compiler, source, library)
+        return Compiled(functions, False, 0.0, str(library), True)
+    log.info("compiling %s ...", what)
+    with file_lock(library.parent / f"{library.name}.lock"):  # one compiles, the others wait
+        elapsed = 0.0 if check_record(library)[0] else _compile(compiler, source, library)
+    externals = load_cached(names, library)
+    if externals is None:
+        raise OSError(f"the compiled library {library} does not match its record")
+    return Compiled(externals, True, elapsed, str(library))
+
+
+def _source(functions: list[cs.Function]) -> str:
+    generator = cs.CodeGenerator("balance_kernels.c", {"with_header": False})
+    for f in functions:
+        generator.add(f)
+    return generator.dump()
+
+
+def _compiling(library: Path) -> bool:
+    """Whether another process holds the lock of ``library`` (compiling it)."""
+    try:
+        with file_lock(library.parent / f"{library.name}.lock", blocking=False):
+            return False
+    except BlockingIOError:
+        return True
+
+
+def _pending_source(library: Path) -> Path:
+    """The C code waiting for a background compiler."""
+    return library.with_suffix(".c")
+
+
+def _start_background(compiler: str, source: str, library: Path) -> None:
+    """Write the C code beside ``library`` and start a detached compiler process on it."""
+    atomic_write_text(_pending_source(library), source)
+    subprocess.Popen(
+        [sys.executable, "-m", __name__, compiler, str(library)],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # survives this process and its Ctrl-C
+        close_fds=True,
+    )
+
+
+def build_pending(compiler: str, library: Path) -> float:
+    """Compile the pending C code of ``library`` (the background process's work), under the
+    library's lock; nothing to do when it is already built. Returns the compile time [s]."""
+    with file_lock(library.parent / f"{library.name}.lock"):
+        source_file = _pending_source(library)
+        if check_record(library)[0] is not None or not source_file.exists():
+            source_file.unlink(missing_ok=True)
+            return 0.0
+        source = source_file.read_text()
+        elapsed = _compile(compiler, source, library)
+        source_file.unlink(missing_ok=True)
+    enforce_limit(library.parent, keep=[library, record_path(library)])
     return elapsed
 
 
 def _compile(compiler: str, source: str, library: Path) -> float:
-    """Compile C ``source`` to the shared ``library``; returns the wall time [s]."""
+    """Compile C ``source`` to the shared ``library`` and record it; returns the wall time [s].
+    The caller holds the library's lock."""
+    for path in (library, record_path(library)):
+        path.unlink(missing_ok=True)
     start = time.perf_counter()
     with build_dir(library.parent, library.stem) as tmp:
         c_file = tmp / "balance_kernels.c"
@@ -132,5 +254,24 @@ def _compile(compiler: str, source: str, library: Path) -> float:
             raise OSError(f"{compiler} failed on the balance kernels: {proc.stderr.strip()[:500]}")
         os.replace(out, library)  # atomic: a process never loads a partial library
     elapsed = time.perf_counter() - start
+    write_record(library, compile_seconds=round(elapsed, 3))
     log.info("compiled balance kernels to %s in %.1f s", library, elapsed)
     return elapsed
+
+
+def _main(argv: list[str]) -> int:
+    """``python -m balance_opt.optimal.codegen COMPILER LIBRARY``: the background compiler."""
+    compiler, library = argv
+    try:
+        os.nice(BACKGROUND_NICENESS)
+    except (AttributeError, OSError):
+        pass
+    try:
+        build_pending(compiler, Path(library))
+    except OSError:  # the foreground keeps the VM; a later run tries again
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

@@ -42,12 +42,14 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import (
     SymbolicMaps,
     adam_kindyn,
+    backend_identity,
     check_adam_joints,
     model_joint_positions,
     model_velocity_map,
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.optimal import codegen
+from balance_opt.optimal.model_store import FunctionStore, model_key
 from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
@@ -84,6 +86,8 @@ class PointKernels:
         compile_time: wall time spent compiling them in this process [s] (0 when loaded from
             the cache folder or not compiled).
         library: the shared library they were loaded from, if compiled.
+        background: whether they run on the VM while a background process compiles them (the
+            next run loads the library).
     """
 
     value: cs.Function
@@ -96,6 +100,7 @@ class PointKernels:
     compiled: bool = False
     compile_time: float = 0.0
     library: str | None = None
+    background: bool = False
 
     def split(self, Y) -> tuple:
         """``(x_dot, L, tau_B)``: the rows of kernel outputs ``Y`` (n_y, n_points); ``tau_B`` is
@@ -113,20 +118,26 @@ class PointKernels:
 
 
 class PlannerModel:
-    """Symbolic model of a robot for the optimal planner, built once and cached.
+    """Symbolic model of a robot for the optimal planner, built once and cached in memory and
+    on disk (:mod:`balance_opt.optimal.model_store`).
 
     Args:
         robot: the floating robot.
-        maps: its symbolic momentum maps (built here when not given).
-        compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``True``,
-            ``False``, or ``"auto"`` (when a C compiler is found). Without a compiler, or if
-            compiling fails, the kernels run on CasADi's virtual machine (the same functions,
-            slower).
-        cache_dir: folder of compiled kernels (default
-            :func:`~balance_opt.cache.default_cache_dir`).
+        maps: its symbolic momentum maps (built on first use with ``backend`` when not given;
+            a run that finds its functions on disk never builds them).
+        compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``"auto"``
+            (in a background process when a C compiler is found, the kernels running on
+            CasADi's virtual machine until a later run loads the library), ``"background"``
+            (the same; the compiler must exist), ``True`` (compile now and wait) or ``False``.
+            Without a compiler, or if compiling fails, the kernels run on the virtual machine
+            (the same functions, slower).
+        cache_dir: the cache folder (default :func:`~balance_opt.cache.default_cache_dir`).
+        backend: the symbolic backend when ``maps`` is not given (see
+            :class:`~balance_opt.model.symbolic.SymbolicMaps`).
+        store: keep the model's functions on disk and load them from there.
 
     Attributes:
-        robot, maps: as given.
+        robot: as given.
         n_M, n_B: numbers of mission and balance joints.
         nlp_cache: compiled NLPs of this robot by their
             :class:`~balance_opt.optimal.layout.StructureKey` (filled by
@@ -139,18 +150,42 @@ class PlannerModel:
         maps: SymbolicMaps | None = None,
         compile: bool | str = "auto",
         cache_dir: str | Path | None = None,
+        backend: str = "auto",
+        store: bool = True,
     ):
-        if compile not in (True, False, "auto"):
-            raise ValueError(f"compile must be True, False or 'auto', got {compile!r}")
+        if compile not in (True, False, "auto", "background"):
+            raise ValueError(
+                f"compile must be True, False, 'auto' or 'background', got {compile!r}"
+            )
         self.robot = robot
-        self.maps = maps if maps is not None else SymbolicMaps(robot)
+        self._maps = maps
+        self._backend = maps.backend if maps is not None else backend
         self.n_M = robot.mission.dof
         self.n_B = int(robot.balance_indices.size)
-        self.compile = compile if compile != "auto" else codegen.find_compiler() is not None
+        if compile == "auto":
+            compile = "background" if codegen.find_compiler() is not None else False
+        self.compile = compile
         self.cache_dir = cache_dir
+        self.store = FunctionStore(robot.name, self.key, cache_dir) if store and self.key else None
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
         self.nlp_cache: dict = {}
+
+    @property
+    def maps(self) -> SymbolicMaps:
+        """The symbolic momentum maps (built on first use)."""
+        if self._maps is None:
+            self._maps = SymbolicMaps(self.robot, self._backend)
+        return self._maps
+
+    @cached_property
+    def key(self) -> str:
+        """The model's content key (:func:`~balance_opt.optimal.model_store.model_key`)."""
+        return model_key(self.robot, backend_identity(self._backend)[1])
+
+    def _stored(self, name: str, make) -> list[cs.Function]:
+        """The functions ``name``: from the disk store, else made (and saved)."""
+        return self.store.get(name, make) if self.store is not None else make()
 
     # ------------------------------------------------------------------ sizes
     def n_x(self, control: str) -> int:
@@ -226,7 +261,8 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached(f"dynamics_{check_control(control)}", make)
+        name = f"dynamics_{check_control(control)}"
+        return self._cached(name, lambda: self._stored(name, lambda: [make()])[0])
 
     def point_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
@@ -315,7 +351,7 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached("torque", make)
+        return self._cached("torque", lambda: self._stored("torque", lambda: [make()])[0])
 
     def balance_torque_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point."""
@@ -352,6 +388,45 @@ class PlannerModel:
         return self._kernels[key]
 
     def _make_kernels(self, control: str, torque: bool) -> PointKernels:
+        """The kernels from the compiled library (no expression built), else from the disk
+        store or built, compiled now or in the background as :attr:`compile` says."""
+        suffix = f"{control}{'_torque' if torque else ''}"
+        names = [f"balance_kernel{part}_{suffix}" for part in ("", "_jac", "_grad", "_hess")]
+        n_x = self.n_x(control)
+        sizes = (n_x, n_x + self.n_u, self.n_y(control, torque))
+        digest = f"{self.key}/{suffix}" if self.store is not None else None
+        compiler = codegen.find_compiler() if self.compile else None
+        if compiler is not None and digest is not None:
+            library = codegen.library_path(digest, compiler, self.cache_dir)
+            try:
+                loaded = codegen.load_cached(names, library)
+            except BlockingIOError:  # being compiled by another process
+                loaded = None
+            if loaded is not None:
+                return PointKernels(*loaded, *sizes, True, 0.0, str(library))
+        functions = self._stored(
+            f"kernels_{suffix}", lambda: self._kernel_functions(control, torque, suffix)
+        )
+        if not self.compile:
+            return PointKernels(*functions, *sizes)
+        try:
+            out = codegen.compile_functions(
+                functions,
+                self.cache_dir,
+                digest,
+                background=self.compile == "background",
+                label=self.robot.name,
+            )
+        except (OSError, RuntimeError) as exc:
+            log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
+            return PointKernels(*functions, *sizes)
+        library = out.library if out.compiled else None
+        return PointKernels(
+            *out.functions, *sizes, out.compiled, out.compile_time, library, out.background
+        )
+
+    def _kernel_functions(self, control: str, torque: bool, suffix: str) -> list[cs.Function]:
+        """The four point kernels as SX functions (value, Jacobian, gradient, Hessian)."""
         n_x, n_u = self.n_x(control), self.n_u
         z = cs.SX.sym("z", n_x + n_u)
         m = cs.SX.sym("m", self.n_m)
@@ -366,16 +441,14 @@ class PlannerModel:
         mu = cs.SX.sym("mu", y.numel())
         c = cs.SX.sym("c", y.numel())
         hess, _ = cs.hessian(cs.dot(mu, y), z)
-        suffix = f"{control}{'_torque' if torque else ''}"
         names = ["z", "m", "weights", "q_rest"]
+        inputs = [z, m, weights, q_rest]
         opts = {"cse": True}
-        functions = [
-            cs.Function(
-                f"balance_kernel_{suffix}", [z, m, weights, q_rest], [y], names, ["y"], opts
-            ),
+        return [
+            cs.Function(f"balance_kernel_{suffix}", inputs, [y], names, ["y"], opts),
             cs.Function(
                 f"balance_kernel_jac_{suffix}",
-                [z, m, weights, q_rest],
+                inputs,
                 [y, cs.jacobian(y, z)],
                 names,
                 ["y", "dy_dz"],
@@ -383,7 +456,7 @@ class PlannerModel:
             ),
             cs.Function(
                 f"balance_kernel_grad_{suffix}",
-                [z, m, weights, q_rest, c],
+                [*inputs, c],
                 [cs.dot(c, y), cs.gradient(cs.dot(c, y), z)],
                 [*names, "c"],
                 ["cy", "grad"],
@@ -391,19 +464,10 @@ class PlannerModel:
             ),
             cs.Function(
                 f"balance_kernel_hess_{suffix}",
-                [z, m, weights, q_rest, mu],
+                [*inputs, mu],
                 [cs.tril(hess)],
                 [*names, "mu"],
                 ["d2"],
                 opts,
             ),
         ]
-        sizes = (n_x, z.numel(), y.numel())
-        if not self.compile:
-            return PointKernels(*functions, *sizes)
-        try:
-            functions, elapsed, library = codegen.compile_functions(functions, self.cache_dir)
-        except (OSError, RuntimeError) as exc:
-            log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
-            return PointKernels(*functions, *sizes)
-        return PointKernels(*functions, *sizes, True, elapsed, library)

@@ -1,0 +1,158 @@
+"""The per-robot symbolic model of the planner, kept on disk: its CasADi functions saved once,
+loaded by every later run instead of being built again.
+
+Building a robot's point kernels (exact first and second derivatives of the balance dynamics)
+takes from 0.2 s (the paper robot) to 1-2.5 s (Baxter, Talos); loading them back takes a
+fraction of that, and a run whose kernels are compiled does not need them at all (the compiled
+library is named by the same key, :mod:`balance_opt.optimal.codegen`).
+
+The key (:func:`model_key`) is the robot's content (:func:`kinematics_key`), the symbolic
+backend's identity (the bridge program's build key, or the library versions), CasADi's version
+and a fingerprint of the source of the modules that shape the expressions
+(:data:`FORMULATION_MODULES`): a new version of balance-opt gets new entries instead of stale
+ones. Each entry is one file in ``<cache>/planner-models/`` with the cache's rules
+(:mod:`balance_opt.cache`): written under a lock through a temporary file, recorded (SHA-256,
+size) and checked before it is read; a damaged entry is deleted and built again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import logging
+import os
+import re
+from collections.abc import Callable
+from functools import cache
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from balance_opt.cache import (
+    build_dir,
+    check_record,
+    default_cache_dir,
+    file_lock,
+    record_path,
+    touch,
+    write_record,
+)
+
+if TYPE_CHECKING:  # casadi is imported where used: kinematics_key stays a light import
+    import casadi as cs
+
+    from balance_opt.model.robot import FloatingRobot
+
+log = logging.getLogger(__name__)
+
+FOLDER = "planner-models"
+#: The modules whose code decides the planner's symbolic functions.
+FORMULATION_MODULES = (
+    "balance_opt.optimal.model",
+    "balance_opt.optimal.model_store",
+    "balance_opt.model.symbolic",
+    "balance_opt.model.coupling",
+    "balance_opt.model.robot",
+    "balance_opt.model.joints",
+    "balance_opt.model.bridge",
+    "balance_opt.motion.so3_casadi",
+)
+
+
+def kinematics_key(robot: FloatingRobot) -> str:
+    """SHA-256 of what a planner model depends on: the locked URDF (links, joints, inertia,
+    locked positions), the arm joints in order and the end-effector frames."""
+    content = {
+        "urdf": robot.locked_urdf,
+        "joints": list(robot.joint_names),
+        "arms": [[arm.name, list(arm.joints), arm.ee_frame] for arm in robot.arms],
+    }
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+
+@cache
+def formulation_fingerprint() -> str:
+    """Hash of the source of :data:`FORMULATION_MODULES` and of CasADi's version."""
+    import casadi as cs
+
+    digest = hashlib.sha256(cs.__version__.encode())
+    for name in FORMULATION_MODULES:
+        spec = importlib.util.find_spec(name)
+        digest.update(Path(spec.origin).read_bytes() if spec and spec.origin else name.encode())
+    return digest.hexdigest()
+
+
+def model_key(robot: FloatingRobot, backend_identity: str) -> str:
+    """The content key of a robot's planner model built with a backend (see the module)."""
+    parts = [kinematics_key(robot), backend_identity, formulation_fingerprint()]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:20]
+
+
+class FunctionStore:
+    """Named lists of CasADi functions of one planner model, on disk.
+
+    Args:
+        label: a readable prefix of the file names (the robot's name).
+        key: the model's key (:func:`model_key`).
+        cache_dir: the cache folder (default :func:`~balance_opt.cache.default_cache_dir`).
+    """
+
+    def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
+        root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self.folder = root / FOLDER
+        self.prefix = f"{re.sub(r'[^A-Za-z0-9._-]+', '_', label)[:40]}_{key}"
+
+    def path(self, name: str) -> Path:
+        """The file of the entry ``name``."""
+        return self.folder / f"{self.prefix}_{name}.casadi"
+
+    def load(self, name: str) -> list[cs.Function] | None:
+        """The functions saved as ``name``, or ``None`` (missing; damaged: then deleted)."""
+        import casadi as cs
+
+        path = self.path(name)
+        if not path.exists():
+            return None
+        # under the lock: a writer renames the file into place before it records it
+        with file_lock(self.folder / f"{path.name}.lock"):
+            record, problem = check_record(path)
+            if record is not None:
+                try:
+                    functions = cs.FileDeserializer(str(path)).unpack()
+                    touch(record_path(path))
+                    return list(functions)
+                except RuntimeError as exc:
+                    problem = f"unreadable ({str(exc).strip().splitlines()[-1][:200]})"
+            log.warning("cached planner model %s: %s; building it again", path, problem)
+            for p in (path, record_path(path)):
+                p.unlink(missing_ok=True)
+        return None
+
+    def save(self, name: str, functions: list[cs.Function]) -> None:
+        """Save ``functions`` as ``name`` (a failure to write is logged, not raised: the cache
+        only saves time)."""
+        import casadi as cs
+
+        path = self.path(name)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            with (
+                file_lock(self.folder / f"{path.name}.lock"),
+                build_dir(self.folder, path.stem) as tmp,
+            ):
+                out = tmp / path.name
+                serializer = cs.FileSerializer(str(out))
+                serializer.pack(functions)
+                del serializer  # closes the file
+                os.replace(out, path)
+                write_record(path)
+        except (OSError, RuntimeError) as exc:
+            log.warning("planner model not cached (%s): %s", path, exc)
+
+    def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
+        """The functions saved as ``name``, made and saved first when not on disk."""
+        functions = self.load(name)
+        if functions is None:
+            functions = make()
+            self.save(name, functions)
+        return functions
