@@ -4,6 +4,8 @@ The entries of the cache folder (:func:`balance_opt.cache.default_cache_dir`) by
 
 * ``planner kernels``: ``balance_kernels_<hash>.so`` and its record, one per robot and problem
   structure (:mod:`balance_opt.optimal.codegen`);
+* ``planner models``: the planner's symbolic functions of each robot (``planner-models/``,
+  :mod:`balance_opt.optimal.model_store`);
 * ``bridge``: the Pinocchio-CasADi bridge program and the functions it generated per robot
   (``pinocchio-bridge/``, :mod:`balance_opt.model.bridge`);
 * ``Ipopt options``: the option catalog of the installed CasADi's Ipopt;
@@ -11,8 +13,8 @@ The entries of the cache folder (:func:`balance_opt.cache.default_cache_dir`) by
   :func:`~balance_opt.cache.clean_stale`).
 
 The size bound: after each kernel build, while the folder is larger than :func:`size_limit`
-(``$BALANCE_OPT_CACHE_LIMIT``, default 2 GiB), the least recently used planner kernels and
-bridge functions are deleted (never the bridge program, whose build takes minutes).
+(``$BALANCE_OPT_CACHE_LIMIT``, default 2 GiB), the least recently used planner kernels, planner
+models and bridge functions are deleted (never the bridge program, whose build takes minutes).
 """
 
 from __future__ import annotations
@@ -34,8 +36,11 @@ log = logging.getLogger(__name__)
 LIMIT_ENV = "BALANCE_OPT_CACHE_LIMIT"
 #: The default bound [bytes].
 DEFAULT_LIMIT = 2 * 1024**3
-KINDS = ("planner kernels", "bridge", "Ipopt options", "temporary", "other")
+KINDS = ("planner kernels", "planner models", "bridge", "Ipopt options", "temporary", "other")
 BRIDGE_FOLDER = "pinocchio-bridge"
+MODELS_FOLDER = "planner-models"
+#: Kinds whose records (``.json`` beside the artefact) are listed with their artefact.
+_RECORDED = ("planner kernels", "planner models", "bridge")
 _UNITS = {"": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
 
 
@@ -59,8 +64,9 @@ class Entry:
 
     @property
     def evictable(self) -> bool:
-        """Planner kernels and bridge functions (rebuilt in seconds to minutes when needed)."""
-        return self.kind == "planner kernels" or (
+        """Planner kernels and models, bridge functions (rebuilt in seconds to minutes when
+        needed)."""
+        return self.kind in ("planner kernels", "planner models") or (
             self.kind == "bridge" and self.name.endswith(".casadi")
         )
 
@@ -86,6 +92,8 @@ def _kind(relative: Path) -> str:
         return "temporary"
     if relative.parts[0] == BRIDGE_FOLDER:
         return "bridge"
+    if relative.parts[0] == MODELS_FOLDER:
+        return "planner models"
     if relative.name.startswith("balance_kernels_"):
         return "planner kernels"
     if relative.name.startswith("ipopt-options-"):
@@ -117,7 +125,7 @@ def entries(folder: Path) -> list[Entry]:
             continue
         # a record is listed with its artefact (same name, suffix .json)
         key = path
-        if path.suffix == ".json" and kind in ("planner kernels", "bridge"):
+        if path.suffix == ".json" and kind in _RECORDED:
             siblings = [p for p in path.parent.glob(f"{path.stem}*") if p != path]
             artefacts = [
                 p

@@ -34,10 +34,13 @@ class ModelCache:
     Args:
         max_models: the most models kept; the oldest is dropped beyond it (each holds compiled
             NLPs). ``None``: no limit.
+        compile: how the models compile their point kernels (``PlannerModel``'s ``compile``:
+            ``"auto"`` in the background, ``True`` now and waiting, ``False`` never).
     """
 
-    def __init__(self, max_models: int | None = None):
+    def __init__(self, max_models: int | None = None, compile: bool | str = "auto"):
         self.max_models = max_models
+        self.compile = compile
         self._models: dict[str, PlannerModel] = {}
 
     def planner_model(self, robot: FloatingRobot, backend: str = "auto") -> PlannerModel:
@@ -54,13 +57,15 @@ class ModelCache:
         model = self._models.get(key)
         if model is None:
             start = time.perf_counter()
-            model = PlannerModel(robot, backend=backend)
+            model = PlannerModel(robot, compile=self.compile, backend=backend)
             log.debug(
                 "planner model of %s built in %.3f s", robot.name, time.perf_counter() - start
             )
             if self.max_models is not None and len(self._models) >= self.max_models:
                 self._models.pop(next(iter(self._models)))
             self._models[key] = model
+        else:
+            model.upgrade_kernels()  # a background compilation may have finished meanwhile
         return model
 
     def __len__(self) -> int:

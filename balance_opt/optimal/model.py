@@ -85,7 +85,8 @@ class PointKernels:
         compiled: whether the four are compiled C (else CasADi's SX virtual machine).
         compile_time: wall time spent compiling them in this process [s] (0 when loaded from
             the cache folder or not compiled).
-        library: the shared library they were loaded from, if compiled.
+        library: the shared library they were loaded from, or the one being compiled in the
+            background (``None`` when not compiled).
         background: whether they run on the VM while a background process compiles them (the
             next run loads the library).
     """
@@ -387,6 +388,37 @@ class PlannerModel:
             self._kernels[key] = self._make_kernels(*key)
         return self._kernels[key]
 
+    def upgrade_kernels(self) -> int:
+        """Swap kernels running on the VM for their library once its background compilation
+        has finished (and drop the NLPs built on them); for processes that plan many tasks.
+
+        Returns:
+            How many kernel sets were swapped.
+        """
+        swapped = 0
+        for (control, torque), kernels in list(self._kernels.items()):
+            if not kernels.background or not Path(kernels.library).exists():
+                continue
+            names = [f.name() for f in (kernels.value, kernels.jacobian, kernels.gradient)]
+            names.append(kernels.hessian.name())
+            try:
+                loaded = codegen.load_cached(names, Path(kernels.library))
+            except BlockingIOError:
+                loaded = None
+            if loaded is None:
+                continue
+            sizes = (kernels.n_x, kernels.n_z, kernels.n_y)
+            self._kernels[control, torque] = PointKernels(
+                *loaded, *sizes, True, 0.0, kernels.library
+            )
+            for key in [
+                k for k in self.nlp_cache if (k.control, k.torque_limits) == (control, torque)
+            ]:
+                del self.nlp_cache[key]
+            log.info("planner kernels of %s: compiled library loaded", self.robot.name)
+            swapped += 1
+        return swapped
+
     def _make_kernels(self, control: str, torque: bool) -> PointKernels:
         """The kernels from the compiled library (no expression built), else from the disk
         store or built, compiled now or in the background as :attr:`compile` says."""
@@ -420,9 +452,8 @@ class PlannerModel:
         except (OSError, RuntimeError) as exc:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
             return PointKernels(*functions, *sizes)
-        library = out.library if out.compiled else None
         return PointKernels(
-            *out.functions, *sizes, out.compiled, out.compile_time, library, out.background
+            *out.functions, *sizes, out.compiled, out.compile_time, out.library, out.background
         )
 
     def _kernel_functions(self, control: str, torque: bool, suffix: str) -> list[cs.Function]:

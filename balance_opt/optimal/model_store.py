@@ -37,6 +37,7 @@ from balance_opt.cache import (
     touch,
     write_record,
 )
+from balance_opt.cache_admin import MODELS_FOLDER
 
 if TYPE_CHECKING:  # casadi is imported where used: kinematics_key stays a light import
     import casadi as cs
@@ -45,7 +46,7 @@ if TYPE_CHECKING:  # casadi is imported where used: kinematics_key stays a light
 
 log = logging.getLogger(__name__)
 
-FOLDER = "planner-models"
+FOLDER = MODELS_FOLDER
 #: The modules whose code decides the planner's symbolic functions.
 FORMULATION_MODULES = (
     "balance_opt.optimal.model",
