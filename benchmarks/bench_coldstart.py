@@ -33,8 +33,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from balance_opt.cache import check_record, file_lock
 from balance_opt.model.bridge import BridgeUnavailable, ensure_bridge
+from balance_opt.optimal.codegen import wait_for_library
 
 ROOT = Path(__file__).resolve().parent.parent
 TASKS = {
@@ -89,21 +89,6 @@ def run_plan(task: Path, cache: Path, mode: str) -> dict:
     return {"wall": wall, "cpu": cpu, **out}
 
 
-def wait_for_library(library: Path) -> float:
-    """Wait for a background compilation of ``library``; its compile time [s] from the record."""
-    deadline = time.monotonic() + WAIT_LIMIT
-    while time.monotonic() < deadline:
-        record, _ = check_record(library)
-        if record is not None:
-            return float(record.get("compile_seconds", float("nan")))
-        time.sleep(1.0)
-        if not library.with_suffix(".c").exists():  # no compile pending: wait for its lock
-            with file_lock(library.parent / f"{library.name}.lock"):
-                record, _ = check_record(library)
-            return float(record["compile_seconds"]) if record else float("nan")
-    return float("nan")
-
-
 def fresh_cache(bridge_program: Path | None) -> Path:
     """A temporary cache folder holding only the bridge program (a per-machine installation)."""
     folder = Path(tempfile.mkdtemp(prefix="balance-opt-coldstart-"))
@@ -122,7 +107,8 @@ def bench(name: str, task: Path, bridge_program: Path | None, wait: bool) -> dic
         row["cold"] = run_plan(task, cache, "auto")
         library = row["cold"]["kernels"]["library"]
         compiled = row["cold"]["kernels"]["compiled"]
-        row["compile"] = 0.0 if compiled or not library else wait_for_library(Path(library))
+        record = None if compiled or not library else wait_for_library(library, WAIT_LIMIT)
+        row["compile"] = float(record["compile_seconds"]) if record else float("nan")
         row["warm"] = run_plan(task, cache, "auto")
     finally:
         shutil.rmtree(cache, ignore_errors=True)

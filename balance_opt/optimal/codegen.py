@@ -234,6 +234,25 @@ def build_pending(compiler: str, library: Path) -> float:
     return elapsed
 
 
+def wait_for_library(library: str | Path, timeout: float = 3600.0) -> dict | None:
+    """Wait for the background compilation of ``library`` to end (for benchmarks and tests).
+
+    Returns:
+        The library's record (its ``compile_seconds``), or ``None`` if the compilation failed
+        or did not end within ``timeout`` [s].
+    """
+    library = Path(library)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        record, _ = check_record(library)
+        if record is not None:
+            return record
+        if not _pending_source(library).exists() and not _compiling(library):
+            return check_record(library)[0]  # ended (or never started)
+        time.sleep(0.5)
+    return None
+
+
 def _compile(compiler: str, source: str, library: Path) -> float:
     """Compile C ``source`` to the shared ``library`` and record it; returns the wall time [s].
     The caller holds the library's lock."""

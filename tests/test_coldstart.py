@@ -1,0 +1,141 @@
+"""Cold start: the planner's symbolic model cached on disk, kernels compiled in the background
+while the first plan runs on CasADi's virtual machine, and the next run loading the library."""
+
+import logging
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+import pytest
+
+from balance_opt import cache, cache_admin
+from balance_opt.model.maps import NumericMaps, base_angular_velocity
+from balance_opt.motion.trajectories import PointToPoint
+from balance_opt.optimal import codegen
+from balance_opt.optimal.model import PlannerModel
+from balance_opt.optimal.model_store import FunctionStore, model_key
+from balance_opt.optimal.options import PlannerOptions
+from balance_opt.optimal.solve import plan_optimal
+
+ROOT = Path(__file__).resolve().parents[1]
+needs_cc = pytest.mark.skipif(codegen.find_compiler() is None, reason="no C compiler")
+
+
+def _random_inputs(fun: cs.Function, seed: int = 0) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [rng.uniform(-1, 1, fun.size_in(i)) for i in range(fun.n_in())]
+
+
+def _same_kernels(a, b, tol: float) -> None:
+    for fa, fb in zip(
+        (a.value, a.jacobian, a.gradient, a.hessian), (b.value, b.jacobian, b.gradient, b.hessian)
+    ):
+        args = _random_inputs(fa)
+        for ya, yb in zip(
+            fa(*args) if fa.n_out() > 1 else [fa(*args)],
+            fb(*args) if fb.n_out() > 1 else [fb(*args)],
+        ):
+            assert np.abs(np.array(ya) - np.array(yb)).max() <= tol, fa.name()
+
+
+def test_stored_model_round_trips_and_matches_numeric_pinocchio(paper, tmp_path):
+    fresh = PlannerModel(paper, compile=False, cache_dir=tmp_path)
+    k1, dyn1 = fresh.kernels(), fresh.dynamics_fun()
+    stored = sorted(p.name for p in (tmp_path / "planner-models").glob("*.casadi"))
+    assert [n.rsplit("_", 2)[-2:] for n in stored] == [
+        ["dynamics", "acceleration.casadi"],
+        ["kernels", "acceleration.casadi"],
+    ]
+    warm = PlannerModel(paper, compile=False, cache_dir=tmp_path)
+    k2, dyn2 = warm.kernels(), warm.dynamics_fun()
+    assert warm._maps is None  # loaded: no momentum map was built
+    _same_kernels(k1, k2, 0.0)  # the same expression graph: bit for bit
+    # the loaded dynamics against numeric Pinocchio: omega_b from zero momentum (Eq. 26)
+    rng = np.random.default_rng(3)
+    q_M, q_B, qd_M, qd_B = (rng.uniform(-1, 1, 3) for _ in range(4))
+    x = np.r_[0.1, -0.2, 0.05, q_B, qd_B]
+    _, omega = dyn2(x, rng.uniform(-1, 1, 3), np.r_[q_M, qd_M, np.zeros(3)])
+    assert np.array_equal(np.array(dyn1(x, 0.5, np.r_[q_M, qd_M, 0, 0, 0])[1]), np.array(omega))
+    I_G, A = NumericMaps(paper).angular_maps(np.r_[q_M, q_B])
+    expected = base_angular_velocity(I_G, A, np.r_[qd_M, qd_B])
+    assert np.abs(np.array(omega).ravel() - expected).max() < 1e-12
+    assert np.abs(expected).max() > 1e-3  # not a trivially zero case
+    kinds = {e.kind for e in cache_admin.entries(tmp_path)}
+    assert "planner models" in kinds
+    assert all(e.evictable for e in cache_admin.entries(tmp_path) if e.kind == "planner models")
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "no record"])
+def test_damaged_stored_model_is_built_again(paper, tmp_path, caplog, damage):
+    model = PlannerModel(paper, compile=False, cache_dir=tmp_path)
+    reference = model.kernels()
+    path = model.store.path("kernels_acceleration")
+    data = path.read_bytes()
+    if damage == "truncate":
+        path.write_bytes(data[: len(data) // 2])
+    elif damage == "garbage":
+        path.write_bytes(b"\0" * len(data))
+    else:
+        cache.record_path(path).unlink()
+    with caplog.at_level(logging.WARNING, logger="balance_opt"):
+        again = PlannerModel(paper, compile=False, cache_dir=tmp_path).kernels()
+    assert f"cached planner model {path}" in caplog.text and "building it again" in caplog.text
+    _same_kernels(reference, again, 0.0)
+    assert cache.check_record(path)[0] is not None  # saved again, intact
+
+
+def test_model_key_follows_robot_and_backend(paper, baxter):
+    assert model_key(paper, "bridge x") != model_key(paper, "adam-robotics 0.5.0")
+    assert model_key(paper, "bridge x") != model_key(baxter, "bridge x")
+    adam = PlannerModel(paper, compile=False, backend="adam")
+    auto = PlannerModel(paper, compile=False, backend="pinocchio")
+    assert adam.key != auto.key
+    assert FunctionStore("a/b c", "k").prefix == "a_b_c_k"
+
+
+@needs_cc
+def test_compilation_under_way_is_not_waited_for(tmp_path):
+    x = cs.SX.sym("x", 2)
+    fun = cs.Function("coldstart_test_kernel", [x], [cs.sin(x[0]) * x[1]])
+    library = codegen.library_path("digest", codegen.find_compiler(), tmp_path)
+    with cache.file_lock(tmp_path / f"{library.name}.lock"):  # as a compiling process does
+        out = codegen.compile_functions([fun], tmp_path, "digest", background=True, label="t")
+    assert out.background and not out.compiled and out.functions == [fun]
+    assert out.library == str(library)
+    assert not list(tmp_path.glob("*.c"))  # no second compilation started
+
+
+@needs_cc
+@pytest.mark.slow
+def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, caplog):
+    mission = PointToPoint([0.0, 0.3, -0.6], [1.2, 0.9, -1.6], 10.0)
+    q_B0, options = np.array([0.0, 0.5, -1.0]), PlannerOptions(intervals=30)
+    first = PlannerModel(paper, compile="background", cache_dir=tmp_path)
+    with caplog.at_level(logging.INFO, logger="balance_opt"):
+        vm = first.kernels()
+    assert "compiling planner kernels for paper_robot (background) ..." in caplog.text
+    assert vm.background and not vm.compiled and vm.library
+    plan_vm = plan_optimal(first, mission, q_B0, options)
+    record = codegen.wait_for_library(vm.library, timeout=900)
+    assert record is not None and record["compile_seconds"] > 0
+    assert not list(tmp_path.glob("*.c")) and not list(tmp_path.glob("*.tmp-*"))
+    # the next run (a new model, as a new process would build) loads the library
+    second = PlannerModel(paper, compile="auto", cache_dir=tmp_path)
+    compiled = second.kernels()
+    assert compiled.compiled and compiled.library == vm.library and second._maps is None
+    _same_kernels(vm, compiled, 1e-9)
+    plan_c = plan_optimal(second, mission, q_B0, options)
+    assert plan_c.info["kernels"]["compiled"] and not plan_vm.info["kernels"]["compiled"]
+    w_vm, w_c = (np.array(p.info["nlp_solution"]) for p in (plan_vm, plan_c))
+    assert np.abs(w_vm - w_c).max() < 1e-7
+    assert abs(plan_vm.final_drift - plan_c.final_drift) < 1e-9
+    # a process that keeps the first model swaps the library in for its next plans
+    assert first.upgrade_kernels() == 1 and first.kernels().compiled and not first.nlp_cache
+
+
+def test_talos_example_has_fourteen_arm_joints():
+    from balance_opt.io.task import load_task
+
+    task = load_task(ROOT / "examples" / "talos_arms.yaml")
+    assert task.robot.n == 14 and task.robot.mission.dof == 7
+    assert all(j.startswith("arm_") for j in task.robot.joint_names)
