@@ -52,7 +52,9 @@ The modules, top down:
   polynomial motion of the balance joints they describe.
 * :mod:`~balance_opt.optimal.model`: the per-robot symbolic model (state, dynamics and running
   cost of one collocation point, inverse dynamics) and its point kernels.
-* :mod:`~balance_opt.optimal.codegen`: compiling the kernels to C, cached on disk.
+* :mod:`~balance_opt.optimal.model_store`: the per-robot model's functions saved on disk.
+* :mod:`~balance_opt.optimal.codegen`: compiling the kernels to C (in the background while
+  the first plan runs on CasADi's VM), cached on disk.
 
 How to add a constraint. Everything about a constraint lives in one class in
 :mod:`~balance_opt.optimal.constraints`, a subclass of ``Constraint``: ``rows`` returns the rows
