@@ -55,7 +55,7 @@ def bench_backend(robot, backend: str, repeat: int, compile_kernels: bool) -> di
         "A_G eval [us]": _best_us(lambda: cmm(q), 2000, repeat),
         "(J_wM, J_wB) eval [us]": _best_us(lambda: jw(q), 1000, repeat),
     }
-    model = PlannerModel(robot, maps=maps, compile=False)
+    model = PlannerModel(robot, maps=maps, compile=False, store=False)  # built, not loaded
     kernels, row["planner kernels build [s]"] = _timed(lambda: model.kernels("acceleration"))
     hess = kernels.hessian
     args = [rng.normal(size=hess.size_in(i)) for i in range(hess.n_in())]
@@ -63,7 +63,7 @@ def bench_backend(robot, backend: str, repeat: int, compile_kernels: bool) -> di
     row["Hessian kernel eval [us]"] = _best_us(lambda: hess(*args), 200, repeat)
     if compile_kernels:
         with tempfile.TemporaryDirectory() as tmp:
-            compiled = PlannerModel(robot, maps=maps, compile=True, cache_dir=tmp)
+            compiled = PlannerModel(robot, maps=maps, compile=True, cache_dir=tmp, store=False)
             row["kernels C compile [s]"] = compiled.kernels("acceleration").compile_time
     return row
 
