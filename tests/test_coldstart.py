@@ -2,6 +2,7 @@
 while the first plan runs on CasADi's virtual machine, and the next run loading the library."""
 
 import logging
+import os
 from pathlib import Path
 
 import casadi as cs
@@ -139,3 +140,26 @@ def test_talos_example_has_fourteen_arm_joints():
     task = load_task(ROOT / "examples" / "talos_arms.yaml")
     assert task.robot.n == 14 and task.robot.mission.dof == 7
     assert all(j.startswith("arm_") for j in task.robot.joint_names)
+
+
+def test_failed_background_compilation_is_reported_not_retried(tmp_path, monkeypatch, caplog):
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    (bindir / "broken-cc").write_text("#!/bin/sh\necho 'broken-cc: out of memory' >&2\nexit 1\n")
+    (bindir / "broken-cc").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bindir}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("CC", "broken-cc")
+    x = cs.SX.sym("x", 2)
+    fun = cs.Function("coldstart_failing_kernel", [x], [cs.cos(x[0]) * x[1]])
+    folder = tmp_path / "cache"
+    first = codegen.compile_functions([fun], folder, "digest", background=True, label="t")
+    assert first.background and not first.compiled
+    assert codegen.wait_for_library(first.library, timeout=300) is None
+    note = Path(first.library).with_suffix(".failed")
+    assert "out of memory" in note.read_text()
+    assert not list(folder.glob("*.tmp-*")) and not list(folder.glob("*.c"))
+    with caplog.at_level(logging.INFO, logger="balance_opt"):
+        again = codegen.compile_functions([fun], folder, "digest", background=True, label="t")
+    assert again.background and not again.compiled
+    assert "the background compilation failed" in caplog.text and "out of memory" in caplog.text
+    assert "(background) ..." not in caplog.text  # not started again

@@ -27,6 +27,7 @@ rebuilt. After a build the cache is trimmed to its size bound
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
@@ -62,6 +63,8 @@ log = logging.getLogger(__name__)
 COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
 #: Niceness of the background compiler: the plan being solved meanwhile keeps the CPU.
 BACKGROUND_NICENESS = 10
+#: A failed background compilation is not started again before this time [s] has passed.
+RETRY_SECONDS = 24 * 3600.0
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 
@@ -170,7 +173,15 @@ def compile_functions(
     source = source if source is not None else _source(functions)
     what = f"planner kernels for {label}" if label else "planner kernels"
     if background:
-        if _compiling(library):
+        failure = _recent_failure(library)
+        if failure:
+            log.warning(
+                "%s: the background compilation failed (%s); using CasADi's virtual machine "
+                "(`balance-opt cache --clear` to try again)",
+                what,
+                failure,
+            )
+        elif _compiling(library):
             log.info("%s are being compiled by another process; not waiting", what)
         else:
             log.info("compiling %s (background) ...", what)
@@ -206,11 +217,33 @@ def _pending_source(library: Path) -> Path:
     return library.with_suffix(".c")
 
 
+def _failure_note(library: Path) -> Path:
+    """Where a failed background compilation leaves its error message."""
+    return library.with_suffix(".failed")
+
+
+def _recent_failure(library: Path) -> str:
+    """The error of a background compilation of ``library`` that failed within
+    :data:`RETRY_SECONDS` (not retried before then), else ``""``."""
+    note = _failure_note(library)
+    try:
+        if time.time() - note.stat().st_mtime < RETRY_SECONDS:
+            return note.read_text().strip()[:300] or "no message"
+    except OSError:
+        pass
+    return ""
+
+
 def _start_background(compiler: str, source: str, library: Path) -> None:
     """Write the C code beside ``library`` and start a detached compiler process on it."""
     atomic_write_text(_pending_source(library), source)
+    # the child imports this very package, wherever it was imported from here
+    package_root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     subprocess.Popen(
         [sys.executable, "-m", __name__, compiler, str(library)],
+        env=env,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -227,9 +260,10 @@ def build_pending(compiler: str, library: Path) -> float:
         if check_record(library)[0] is not None or not source_file.exists():
             source_file.unlink(missing_ok=True)
             return 0.0
-        source = source_file.read_text()
-        elapsed = _compile(compiler, source, library)
-        source_file.unlink(missing_ok=True)
+        try:
+            elapsed = _compile(compiler, source_file.read_text(), library)
+        finally:
+            source_file.unlink(missing_ok=True)
     enforce_limit(library.parent, keep=[library, record_path(library)])
     return elapsed
 
@@ -248,7 +282,7 @@ def wait_for_library(library: str | Path, timeout: float = 3600.0) -> dict | Non
         if record is not None:
             return record
         if not _pending_source(library).exists() and not _compiling(library):
-            return check_record(library)[0]  # ended (or never started)
+            return check_record(library)[0]  # ended, failed (or never started)
         time.sleep(0.5)
     return None
 
@@ -285,10 +319,14 @@ def _main(argv: list[str]) -> int:
         os.nice(BACKGROUND_NICENESS)
     except (AttributeError, OSError):
         pass
+    library = Path(library)
     try:
-        build_pending(compiler, Path(library))
-    except OSError:  # the foreground keeps the VM; a later run tries again
+        build_pending(compiler, library)
+    except OSError as exc:  # the foreground keeps the VM; noted, so that runs do not retry
+        with contextlib.suppress(OSError):
+            atomic_write_text(_failure_note(library), str(exc))
         return 1
+    _failure_note(library).unlink(missing_ok=True)
     return 0
 
 
