@@ -1,0 +1,117 @@
+"""Free-floating inverse dynamics of a joint motion: the arm-joint torques that make the joints
+follow given positions, rates and accelerations while nothing acts on the base.
+
+With the Pinocchio velocity ``v = G [v_b; q_dot]`` (``G``: :attr:`FloatingRobot.velocity_map`,
+mimic followers moving with their drivers) the equations of motion in the reduced coordinates
+are ``M_r [a_b; q_ddot] + h_r = [0; tau]``, ``M_r = G^T M G``, ``h_r = G^T h(q, v)``. The first
+six rows (no wrench on the base) fix the base acceleration
+
+    a_b = -M_r,bb^-1 (M_r,bj q_ddot + h_r,b),
+
+and the joint rows then give ``tau = M_r,jb a_b + M_r,jj q_ddot + h_r,j``. Both use one RNEA
+with the base acceleration zero (``G^T rnea(q, v, G [0; q_ddot]) = M_r [0; q_ddot] + h_r``) and
+the joint-space inertia from CRBA. The base twist ``v_b`` is not an input: momentum conservation
+fixes it from the joints (:meth:`NumericMaps.base_twist`), for the system's momentum ``h0``
+(world frame, constant; rotated into the base frame with the base attitude of each sample).
+
+Units: torques [N m] for revolute joints, forces [N] for prismatic ones; base twist and
+acceleration in the base frame [m/s, rad/s; m/s^2, rad/s^2].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.model.maps import NumericMaps
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.so3 import matrix_from_quaternion
+from balance_opt.result import BalanceResult
+
+
+@dataclass(frozen=True)
+class InverseDynamics:
+    """Torques and base motion of a joint motion under free-floating dynamics.
+
+    Attributes:
+        joints: arm joint names, the columns of ``tau``.
+        tau: joint torques (T, n) [N m; N for prismatic joints].
+        base_twist: base twist [linear; angular] (T, 6), base frame [m/s; rad/s].
+        base_acceleration: base spatial acceleration (T, 6), base frame [m/s^2; rad/s^2].
+    """
+
+    joints: tuple[str, ...]
+    tau: np.ndarray
+    base_twist: np.ndarray
+    base_acceleration: np.ndarray
+
+
+def _symmetric(M: np.ndarray) -> np.ndarray:
+    """The whole matrix from the upper triangle CRBA fills."""
+    upper = np.triu(M)
+    return upper + np.triu(upper, 1).T
+
+
+def free_floating_torques(
+    robot: FloatingRobot, q, q_dot, q_ddot, quaternion=None, h0=None
+) -> InverseDynamics:
+    """Free-floating inverse dynamics of a motion of every arm joint (see the module docstring).
+
+    Args:
+        robot: the floating robot.
+        q, q_dot, q_ddot: arm joint positions, rates and accelerations (T, n), arm order
+            (``robot.joint_names``) [rad, rad/s, rad/s^2; m for prismatic joints].
+        quaternion: base attitude (T, 4), (x, y, z, w); needed only when ``h0`` is not zero
+            (the identity by default).
+        h0: the system's momentum [linear; angular about the CoM], world frame [N s; N m s];
+            zero by default.
+
+    Returns:
+        The torques, the base twist and the base acceleration at each sample.
+    """
+    q, q_dot, q_ddot = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, q_dot, q_ddot))
+    T = q.shape[0]
+    h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float)
+    maps = NumericMaps(robot)
+    model, data = robot.model, robot.model.createData()
+    G = robot.velocity_map
+    plain = not robot.followers  # G is a selection: index instead of multiplying
+    cols = np.r_[0:6, robot.pin_v_indices]
+    tau = np.empty((T, robot.n))
+    twist = np.empty((T, 6))
+    acc = np.empty((T, 6))
+    for k in range(T):
+        h_base = h0
+        if quaternion is not None and np.any(h0):
+            R = matrix_from_quaternion(quaternion[k])
+            h_base = np.r_[R.T @ h0[:3], R.T @ h0[3:]]
+        twist[k] = maps.base_twist(q[k], q_dot[k], h_base)
+        qp = robot.pin_q(q[k])
+        v = robot.pin_v(q_dot[k], twist[k])
+        a0 = robot.pin_v(q_ddot[k])
+        f = pin.rnea(model, data, qp, v, a0)
+        M = _symmetric(pin.crba(model, data, qp))
+        if plain:
+            f, M = f[cols], M[np.ix_(cols, cols)]
+        else:
+            f, M = G.T @ f, G.T @ M @ G
+        acc[k] = -np.linalg.solve(M[:6, :6], f[:6])
+        tau[k] = f[6:] + M[6:, :6] @ acc[k]
+    return InverseDynamics(tuple(robot.joint_names), tau, twist, acc)
+
+
+def plan_torques(robot: FloatingRobot, result: BalanceResult, h0=None) -> InverseDynamics:
+    """:func:`free_floating_torques` of a plan's joint motion (its mission and balance joints;
+    any other arm joint held still at its neutral position), with the plan's base attitude for
+    a non-zero momentum ``h0`` (world frame [N s; N m s])."""
+    names = (*result.mission_joints, *result.balance_joints)
+    columns = [robot.joint_index(j) for j in names]
+    T = result.t.size
+    q = np.tile(robot.neutral(), (T, 1))
+    q_dot, q_ddot = np.zeros((T, robot.n)), np.zeros((T, robot.n))
+    q[:, columns] = np.hstack([result.q_M, result.q_B])
+    q_dot[:, columns] = np.hstack([result.q_dot_M, result.q_dot_B])
+    q_ddot[:, columns] = np.hstack([result.q_ddot_M, result.q_ddot_B])
+    return free_floating_torques(robot, q, q_dot, q_ddot, result.quaternion, h0)
