@@ -13,16 +13,27 @@ import pytest
 
 from balance_opt.io.animation import ANIMATION_FPS, animation_data, animation_html, skeleton
 from balance_opt.io.outputs import (
+    effort_metrics,
     ipopt_version,
     limit_margins,
+    method_metrics,
     read_npz_result,
     to_json,
     write_trajectory_csv,
     write_trajectory_npz,
 )
-from balance_opt.io.report import comparison_table
+from balance_opt.io.report import (
+    MOMENTUM_TOLERANCE,
+    TORQUE_TOLERANCE,
+    comparison_table,
+    format_angle,
+    format_value,
+    margin_class,
+    torque_table,
+)
+from balance_opt.io.style import method_label
 from balance_opt.motion.so3 import quaternion_from_rotvec
-from balance_opt.result import BalanceResult
+from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 ATOL = 1e-9
 
@@ -92,17 +103,140 @@ def test_ipopt_version_is_read_from_the_library():
     assert re.fullmatch(r"\d+\.\d+\.\d+", ipopt_version())
 
 
-def test_comparison_table_marks_broken_limits():
+# ----------------------------------------------------------------------------------- report
+def test_values_below_their_tolerance_read_zero():
+    assert format_value(2.935e-19, MOMENTUM_TOLERANCE) == "0 (< 1e-09)"
+    assert format_value(3.2e-8, MOMENTUM_TOLERANCE) == "3.2e-08"
+    assert format_value(-4e-9, TORQUE_TOLERANCE, "N m") == "-4e-09 N m"
+    assert format_value(4e-10, 1e-9, "N m") == "0 (< 1e-09 N m)"
+    assert format_angle(math.radians(8.9e-14)) == "0 (< 1e-12 rad)"
+    assert format_angle(0.09291) == "0.09291 rad (5.323 deg)"
+    assert format_angle(0.02, per="/s") == "0.02 rad/s (1.146 deg/s)"
+
+
+def test_margin_colours_by_meaning():
+    assert margin_class(1.8e-7, 1.8e-7, LIMIT_TOLERANCE) == "at-limit"  # sitting on the limit
+    assert margin_class(0.005, 0.005, LIMIT_TOLERANCE) == "at-limit"  # inside the 1 % band
+    assert margin_class(0.03, 0.03, LIMIT_TOLERANCE) == "inside"
+    assert margin_class(1.07, 0.5, LIMIT_TOLERANCE) == "inside"
+    assert margin_class(-0.2, -0.1, LIMIT_TOLERANCE) == "broken"
+    assert margin_class(-5e-7, -5e-7, LIMIT_TOLERANCE) == "at-limit"  # within the tolerance
+    assert margin_class(math.inf, None, LIMIT_TOLERANCE) == ""  # no limit
+
+
+def test_comparison_table_colours_margins_and_flags_failures():
     methods = {
-        "analytic": {"max_drift_rad": 0.01, "balance_limit_margin": {"position": -0.2}},
-        "optimal": {"max_drift_rad": 0.02, "balance_limit_margin": {"position": 1e-9}},
+        "analytic": {
+            "max_drift_rad": 0.01,
+            "balance_limit_margin": {"velocity": -0.2},
+            "balance_relative_limit_margin": {"velocity": -0.2},
+        },
+        "optimal": {
+            "max_drift_rad": 1e-15,
+            "balance_limit_margin": {"velocity": 1.8e-7},
+            "balance_relative_limit_margin": {"velocity": 1.8e-7},
+        },
+        "mission-only": {
+            "max_drift_rad": 0.0929,
+            "balance_limit_margin": {"velocity": 1.0},
+            "balance_relative_limit_margin": {"velocity": 1.0},
+        },
     }
-    table = comparison_table(methods)
-    assert '<td class="bad">-0.2</td><td class="good">1e-09</td>' in table
+    table = comparison_table(methods, {"optimal": "Ipopt: Maximum_Iterations_Exceeded"})
     assert (
-        '<td>max attitude drift [deg]</td><td class="">0.573</td><td class="">1.146</td>' in table
-    )
+        "<td>velocity limit margin [rad/s or m/s]</td>"
+        '<td class="inside">1; 100 % of the limit</td>'
+        '<td class="broken">-0.2; -20 % of the limit</td>'
+        '<td class="at-limit failed">0 (&lt; 1e-06); 1.8e-05 % of the limit</td>'
+    ) in table
+    assert (
+        '<td>max attitude drift</td><td class="">0.0929 rad (5.323 deg)</td>'
+        '<td class="">0.01 rad (0.573 deg)</td><td class="failed">0 (&lt; 1e-12 rad)</td>'
+    ) in table
+    # one name per method, the style module's; the failed one flagged in its header
+    heads = re.findall(r"<th[^>]*>(.*?)</th>", table)[1:]
+    assert [re.sub("<[^>]+>", "", h) for h in heads] == [
+        method_label("mission-only"),
+        method_label("analytic"),
+        method_label("optimal") + "FAILED",
+    ]
+    assert '<th class="failed">' in table and table.count("FAILED") == 1
     assert "Forward-dynamics simulation" not in table  # empty sections are left out
+
+
+def _feedforward_torques(robot, res):
+    """Joint torques from the simulation's computed-torque feedforward, an implementation
+    of its own (composite inertia of the base, RNEA), at the base twist of zero momentum."""
+    from balance_opt.dynamics.simulation import _Dynamics
+    from balance_opt.model.maps import NumericMaps
+
+    dyn, maps = _Dynamics(robot, 0.0, 0.0, "computed-torque", False), NumericMaps(robot)
+    q = np.hstack([res.q_M, res.q_B])
+    qd = np.hstack([res.q_dot_M, res.q_dot_B])
+    qdd = np.hstack([res.q_ddot_M, res.q_ddot_B])
+    assert robot.joint_names == (*res.mission_joints, *res.balance_joints)
+    return np.array(
+        [
+            dyn.feedforward(
+                robot.pin_q(q[k]), robot.pin_v(qd[k], maps.base_twist(q[k], qd[k])), qdd[k]
+            )
+            for k in range(res.t.size)
+        ]
+    )
+
+
+def test_effort_margins_against_an_independent_inverse_dynamics(paper):
+    res = _result(paper, samples=41)
+    tau = _feedforward_torques(paper, res)
+    effort = effort_metrics(res, paper)
+    for k, joint in enumerate(paper.joint_names):
+        e, peak = effort["joints"][joint], np.abs(tau[:, k]).max()
+        limit = paper.limits.effort[k]
+        assert e["peak_Nm"] == pytest.approx(peak, rel=1e-10)
+        assert e["peak_time_s"] == res.t[np.argmax(np.abs(tau[:, k]))]
+        assert e["margin_Nm"] == pytest.approx(limit - peak, rel=1e-10)
+        assert e["relative_margin"] == pytest.approx((limit - peak) / limit, rel=1e-10)
+        assert e["status"] == "inside"
+    assert effort["violations"] == []
+
+
+def test_effort_violations_are_counted_and_no_limit_said():
+    from test_inverse_dynamics import WHEELS
+
+    from balance_opt.model.robot import FloatingRobot
+
+    robot = FloatingRobot(WHEELS, ["w1_joint"], ["w2_joint"])
+    t = np.linspace(0.0, 0.6, 101)
+    q = np.column_stack([0.5 * np.sin(4 * t), np.sin(t)])  # w1: up to 3.7 N m > 1.5 N m, once
+    qd = np.column_stack([2 * np.cos(4 * t), np.cos(t)])
+    qdd = np.column_stack([-8 * np.sin(4 * t), -np.sin(t)])
+    res = BalanceResult.from_arm_vectors(
+        robot, "x", t, q, qd, qdd, quaternion_from_rotvec(np.zeros((101, 3))),
+        np.zeros((101, 3)), np.zeros(101), np.ones(101),
+    )  # fmt: skip
+    metrics = method_metrics(res, robot)
+    w1, w2 = metrics["effort"]["joints"]["w1_joint"], metrics["effort"]["joints"]["w2_joint"]
+    c1, c2, Ib = 0.5, 0.8, 6.0  # closed form of the coaxial wheels (see test_inverse_dynamics)
+    wdot = -(c1 * qdd[:, 0] + c2 * qdd[:, 1]) / (Ib + c1 + c2)
+    peak = np.abs(c1 * (wdot + qdd[:, 0])).max()
+    assert peak > 1.5 and w1["peak_Nm"] == pytest.approx(peak, rel=1e-12)
+    assert w1["status"] == "broken" and w1["margin_Nm"] == pytest.approx(1.5 - peak, rel=1e-12)
+    assert w2 == {
+        "peak_Nm": w2["peak_Nm"], "peak_time_s": w2["peak_time_s"], "limit_Nm": None,
+        "margin_Nm": None, "relative_margin": None, "status": "no limit",
+    }  # fmt: skip
+    assert metrics["effort"]["min_relative_margin"] == w1["relative_margin"]
+    assert metrics["effort"]["balance_min_relative_margin"] is None
+    (violation,) = metrics["violations"]
+    assert violation.startswith("w1_joint: effort limit exceeded by up to ")
+    assert metrics["limit_violations"] == 1
+    table = torque_table(metrics["effort"])
+    assert '<td>w2_joint</td><td class="">' in table and "no limit" in table
+    margin = 1.5 - w1["peak_Nm"]
+    assert (
+        f'<td class="broken">{margin:.4g}</td><td class="broken">{100 * margin / 1.5:.4g} %</td>'
+        in table
+    )
 
 
 # ----------------------------------------------------------------------------------- animation

@@ -338,7 +338,8 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         if out.csv:
             files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
         if out.npz:
-            files.append(write_trajectory_npz(output_dir / f"{name}.npz", res))
+            npz = output_dir / f"{name}.npz"
+            files.append(write_trajectory_npz(npz, res, run.task.robot, run.task.h0))
     run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures)
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []

@@ -11,8 +11,10 @@ six rows (no wrench on the base) fix the base acceleration
 and the joint rows then give ``tau = M_r,jb a_b + M_r,jj q_ddot + h_r,j``. Both use one RNEA
 with the base acceleration zero (``G^T rnea(q, v, G [0; q_ddot]) = M_r [0; q_ddot] + h_r``) and
 the joint-space inertia from CRBA. The base twist ``v_b`` is not an input: momentum conservation
-fixes it from the joints (:meth:`NumericMaps.base_twist`), for the system's momentum ``h0``
-(world frame, constant; rotated into the base frame with the base attitude of each sample).
+fixes it from the joints, as the base rows of the same inertia give the system's momentum at
+the base origin, ``M_r,bb v_b + M_r,bj q_dot = h``, for the system's momentum ``h0`` (world
+frame, about the CoM, constant; rotated into the base frame with the base attitude of each
+sample and moved to the base origin).
 
 Units: torques [N m] for revolute joints, forces [N] for prismatic ones; base twist and
 acceleration in the base frame [m/s, rad/s; m/s^2, rad/s^2].
@@ -74,29 +76,30 @@ def free_floating_torques(
     q, q_dot, q_ddot = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, q_dot, q_ddot))
     T = q.shape[0]
     h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float)
-    maps = NumericMaps(robot)
     model, data = robot.model, robot.model.createData()
     G = robot.velocity_map
     plain = not robot.followers  # G is a selection: index instead of multiplying
     cols = np.r_[0:6, robot.pin_v_indices]
+    maps = NumericMaps(robot)  # Pinocchio vectors of the whole motion at once
+    qps, vs, accs = maps.configurations(q), maps.velocities(q_dot), maps.velocities(q_ddot)
     tau = np.empty((T, robot.n))
     twist = np.empty((T, 6))
     acc = np.empty((T, 6))
     for k in range(T):
-        h_base = h0
-        if quaternion is not None and np.any(h0):
-            R = matrix_from_quaternion(quaternion[k])
-            h_base = np.r_[R.T @ h0[:3], R.T @ h0[3:]]
-        twist[k] = maps.base_twist(q[k], q_dot[k], h_base)
-        qp = robot.pin_q(q[k])
-        v = robot.pin_v(q_dot[k], twist[k])
-        a0 = robot.pin_v(q_ddot[k])
-        f = pin.rnea(model, data, qp, v, a0)
+        qp = qps[k]
         M = _symmetric(pin.crba(model, data, qp))
-        if plain:
-            f, M = f[cols], M[np.ix_(cols, cols)]
-        else:
-            f, M = G.T @ f, G.T @ M @ G
+        M = M[np.ix_(cols, cols)] if plain else G.T @ M @ G
+        # momentum = M_r,b: [v_b; q_dot]: the system's momentum at the base origin, base axes
+        h = np.zeros(6)
+        if np.any(h0):
+            R = np.eye(3) if quaternion is None else matrix_from_quaternion(quaternion[k])
+            p, L = R.T @ h0[:3], R.T @ h0[3:]
+            com = data.Ycrb[1].lever  # CoM in the base frame (CRBA filled Ycrb)
+            h = np.r_[p, L + np.cross(com, p)]
+        twist[k] = np.linalg.solve(M[:6, :6], h - M[:6, 6:] @ q_dot[k])
+        vs[k, :6] = twist[k]
+        f = pin.rnea(model, data, qp, vs[k], accs[k])
+        f = f[cols] if plain else G.T @ f
         acc[k] = -np.linalg.solve(M[:6, :6], f[:6])
         tau[k] = f[6:] + M[6:, :6] @ acc[k]
     return InverseDynamics(tuple(robot.joint_names), tau, twist, acc)
