@@ -11,7 +11,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.io.animation import ANIMATION_FPS, animation_data, animation_html, skeleton
+from balance_opt.io.animation import (
+    ANIMATION_FPS,
+    ARM_COLOURS,
+    animation_data,
+    animation_html,
+    magnification,
+    magnified_axes,
+    segment_arms,
+    skeleton,
+)
 from balance_opt.io.outputs import (
     effort_metrics,
     ipopt_version,
@@ -32,7 +41,7 @@ from balance_opt.io.report import (
     torque_table,
 )
 from balance_opt.io.style import method_label
-from balance_opt.motion.so3 import quaternion_from_rotvec
+from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 ATOL = 1e-9
@@ -280,9 +289,10 @@ def test_animation_script_runs(paper, tmp_path):
     script = re.search(r"<script>(.*)</script>", fragment, re.DOTALL).group(1)
     harness = (
         """
-const drawn = [];
-const ctx = {clearRect() { drawn.length = 0; }, beginPath() {}, moveTo() {}, lineTo() {},
-             stroke() { drawn.push(this.strokeStyle); }};
+const drawn = [], texts = [];
+const ctx = {clearRect() { drawn.length = 0; texts.length = 0; }, beginPath() {}, moveTo() {},
+             lineTo() {}, arc() {}, setLineDash() {}, fillRect() {},
+             fillText(s) { texts.push(s); }, stroke() { drawn.push(this.strokeStyle); }};
 const els = {};
 function el(id) { return els[id] || (els[id] = {value: '', width: 400, height: 400, getContext: () => ctx}); }
 globalThis.document = {getElementById: el};
@@ -293,7 +303,8 @@ el('anim-method').value = 'b';
         + script
         + """
 el('anim-t').value = 3; el('anim-t').oninput();
-console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t').max, lines: drawn.length}));
+console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t').max,
+                            lines: drawn.length, colours: drawn, texts: texts}));
 """
     )
     path = tmp_path / "h.js"
@@ -304,6 +315,31 @@ console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     _points, segments = skeleton(paper)
-    assert out["lines"] == 12 + len(segments) + 3  # box edges, the stick figure, the base axes
+    # box edges, the stick figure, the base axes, the inset's circle and its 3 + 3 axes
+    assert out["lines"] == 12 + len(segments) + 3 + 7
     assert out["max"] == round(2.0 * ANIMATION_FPS)  # frames of 2 s, from 0
-    assert out["label"].startswith("t = ")
+    assert re.fullmatch(r"t = 0\.12 s, base rotation \S+ rad \(\S+ deg\)", out["label"])
+    arms = segment_arms(paper, *skeleton(paper))
+    assert out["colours"][12 : 12 + len(segments)] == [ARM_COLOURS[a] for a in arms]
+    assert {"mission arm", "balance arm", "x", "y", "z"} <= set(out["texts"])
+    factor = magnification(max(_result(paper, s).max_drift for s in (1, 2)))
+    assert f"base rotation x {factor:g} (dashed: start)" in out["texts"]
+
+
+def test_arms_magnification_and_magnified_axes(paper):
+    points, segments = skeleton(paper)
+    arms = segment_arms(paper, points, segments)
+    model = paper.model
+    for (_, child), arm in zip(segments, arms):
+        p = points[child]
+        joint = model.names[p if p > 0 else model.frames[-p - 1].parentJoint]
+        assert joint in paper.arms[arm].joints
+    assert magnification(0.0929) == 5 and magnification(0.01) == 50
+    assert magnification(0.6) == 1 and magnification(0.0) == 1
+    res = _result(paper)
+    ref = matrix_from_quaternion(res.quaternion[0])
+    mag = magnified_axes(res.quaternion, 10.0)
+    for k in (5, 20):
+        turned = ref.T @ mag[k].T  # R0^T R_mag
+        angle = math.acos((np.trace(turned) - 1) / 2)
+        assert angle == pytest.approx(10 * res.angle[k], rel=1e-9)
