@@ -323,7 +323,7 @@ console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t
     assert out["colours"][12 : 12 + len(segments)] == [ARM_COLOURS[a] for a in arms]
     assert {"mission arm", "balance arm", "x", "y", "z"} <= set(out["texts"])
     factor = magnification(max(_result(paper, s).max_drift for s in (1, 2)))
-    assert f"base rotation x {factor:g} (dashed: start)" in out["texts"]
+    assert f"base rotation x {factor:g}" in out["texts"] and "other" not in out["texts"]
 
 
 def test_arms_magnification_and_magnified_axes(paper):

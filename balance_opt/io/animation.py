@@ -63,14 +63,16 @@ function inset(f){ const r = D.inset_radius, cx = cv.width - r - 12, cy = cv.hei
     seg([cx, cy], [cx + r*u[0], cy + r*u[1]], '#aaa', 1, [3, 3]);
     seg([cx, cy], [cx + r*v[0], cy + r*v[1]], AX[a], 2);
     text(XYZ[a], [cx + (r + 2)*v[0], cy + (r + 2)*v[1]], AX[a]); }
-  text('base rotation x ' + D.magnify + ' (dashed: start)', [cx, cy - r - 12], '#333', 'center'); }
+  text('base rotation x ' + D.magnify, [cv.width - 6, cy - r - 24], '#333', 'right');
+  text('(dashed: at the start)', [cv.width - 6, cy - r - 10], '#333', 'right'); }
 function draw(){ const m = D.methods[sel.value], f = m.frames[k];
   ctx.clearRect(0, 0, cv.width, cv.height); ctx.font = '12px sans-serif';
   for (const [a, b] of D.box_edges) line(f.box[a], f.box[b], '#999', 1);
   D.segments.forEach(function(s, i){ line(f.points[s[0]], f.points[s[1]], D.arms[D.segment_arm[i]].colour, 3); });
   const o = f.points[0];
   for (let a = 0; a < 3; a++) { line(o, f.axes[a], AX[a], 2); text(XYZ[a], proj(f.axes[a]), AX[a]); }
-  D.arms.forEach(function(arm, i){ const P = proj(f.points[arm.tip]); text(arm.label, [P[0] + 6, P[1] - 6], arm.colour);
+  D.arms.forEach(function(arm, i){ if (arm.tip !== null) { const P = proj(f.points[arm.tip]);
+      text(arm.label, [P[0] + 6, P[1] - 6], arm.colour); }
     ctx.fillStyle = arm.colour; ctx.fillRect(10, 10 + 16*i, 12, 12); text(arm.label, [28, 21 + 16*i], '#333'); });
   inset(f);
   lab.textContent = 't = ' + m.t[k].toFixed(2) + ' s, base rotation ' + m.angle[k].toPrecision(3) +
@@ -260,7 +262,9 @@ def animation_data(
         }
         for a, arm in enumerate(robot.arms)
     ]
-    arms.append({"label": "other", "colour": "#777777", "tip": 0})
+    seg_arms = segment_arms(robot, points, segments)
+    if len(robot.arms) in seg_arms:  # a joint in no arm (a mimic follower on the base)
+        arms.append({"label": "other", "colour": "#777777", "tip": None})
     allpts = np.vstack(
         [
             np.vstack([f["points"], f.get("box", f["points"])])
@@ -277,7 +281,7 @@ def animation_data(
     return {
         "fps": fps,
         "segments": segments,
-        "segment_arm": segment_arms(robot, points, segments),
+        "segment_arm": seg_arms,
         "arms": arms,
         "magnify": factor,
         "box_edges": _BOX_EDGES if box is not None else [],
@@ -323,7 +327,8 @@ def animation_html(
     )
     arms = ", ".join(
         f'<span style="color:{a["colour"]};font-weight:bold">{html.escape(a["label"])}</span>'
-        for a in data["arms"][:-1]
+        for a in data["arms"]
+        if a["tip"] is not None
     )
     caption = (
         f'<p class="meta">Arms: {arms}. Base axes: red x, green y, blue z. Lower right: the base '

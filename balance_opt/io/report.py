@@ -29,6 +29,7 @@ ANGLE_TOLERANCE = 1e-12  # base attitude [rad]
 RATE_TOLERANCE = 1e-12  # base angular rate [rad/s]
 MOMENTUM_TOLERANCE = 1e-9  # relative momentum residual (the finite-difference check's floor)
 TORQUE_TOLERANCE = 1e-9  # torques [N m]
+SIGMA_TOLERANCE = 1e-12  # singular values of J_wB (rad of base per rad of joint)
 #: A margin inside the limit by at most this fraction of the limit's size is "at the limit".
 AT_LIMIT_BAND = 0.01
 
@@ -40,8 +41,9 @@ table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }
 th:first-child, td:first-child { text-align: left; }
 thead th { background: #f2f2f2; } tr.section td { background: #fafafa; font-weight: bold; text-align: left; }
-td.broken { color: #fff; background: #c62828; font-weight: bold; }
-td.at-limit { color: #000; background: #ffc107; } td.inside { color: #fff; background: #2e7d32; }
+td.broken { color: #8e0000; background: #ffcdd2; font-weight: bold; }
+td.at-limit { color: #5d4000; background: #ffe082; } td.inside { color: #1b5e20; background: #dcedc8; }
+td.bar { padding: 0.2em 0.4em; vertical-align: middle; line-height: 0; }
 td.failed, th.failed { color: #777; background: repeating-linear-gradient(135deg, #f4f4f4 0 6px,
   #e8e8e8 6px 12px); font-style: italic; }
 .flag { color: #b00020; font-weight: bold; font-style: normal; }
@@ -181,7 +183,7 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
         "effort limit margin (smallest, of the limit)",
         _effort_margin("effort.balance_min_relative_margin"),
     ),
-    ("smallest singular value of J_wB", _plain("min_sigma_min")),
+    ("smallest singular value of J_wB", _plain("min_sigma_min", SIGMA_TOLERANCE)),
     ("All arms", None),
     ("effort limit margin (smallest, of the limit)", _effort_margin("effort.min_relative_margin")),
     ("limit violations (position, rate, acceleration, effort)", _count("limit_violations")),
@@ -269,72 +271,42 @@ def torque_table(effort: Mapping[str, Any], failed: bool = False) -> str:
             (f"{100 * relative:.4g} %", css) if relative is not None else None,
         ]
         row = "".join(_cell(c, failed) for c in cells)
-        rows.append(f"<tr><td>{html.escape(joint)}</td>{row}</tr>")
+        bar = "" if relative is None else torque_bar(1 - relative, css)
+        rows.append(f'<tr><td>{html.escape(joint)}</td>{row}<td class="bar">{bar}</td></tr>')
     head = (
         "<tr><th>joint</th><th>peak |torque| [N m]</th><th>at t [s]</th>"
-        "<th>effort limit [N m]</th><th>margin [N m]</th><th>margin, of the limit</th></tr>"
+        "<th>effort limit [N m]</th><th>margin [N m]</th><th>margin, of the limit</th>"
+        f"<th>peak against the limit (0 to {_BAR_FULL:g})</th></tr>"
     )
     return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
 
-_BAR_COLOURS = {"broken": "#c62828", "at-limit": "#ffc107", "inside": "#2e7d32"}
+_BAR_COLOURS = {"broken": "#c62828", "at-limit": "#f9a825", "inside": "#2e7d32"}
+#: Largest peak / limit a torque bar shows (longer bars are cut, ending in a white notch).
+_BAR_FULL = 1.25
 
 
-def torque_bars(effort: Mapping[str, Any], width: int = 520) -> str:
-    """An inline SVG figure: per joint, its peak ``|torque|`` as a fraction of its effort limit
-    (a bar, coloured as the margins), the limit drawn as a vertical line at 1 and the
-    at-the-limit band shaded; a joint with no limit is named without a bar."""
-    joints = effort.get("joints") or {}
-    ratios = [
-        e["peak_Nm"] / e["limit_Nm"] for e in joints.values() if e.get("limit_Nm") is not None
-    ]
-    full = max([1.2, *(r * 1.05 for r in ratios)])
-    left, bar, gap = 150, 14, 6
-    span = width - left - 70
-    height = 24 + len(joints) * (bar + gap)
+def torque_bar(ratio: float, css: str, width: int = 220, height: int = 14) -> str:
+    """An inline SVG bar of a peak torque as a fraction of its limit, coloured as its margin,
+    with the limit as a dashed line at 1 and the at-the-limit band shaded."""
 
-    def x(ratio):
-        return left + span * ratio / full
+    def x(r):
+        return width * min(r, _BAR_FULL) / _BAR_FULL
 
-    band = x(1) - x(1 - AT_LIMIT_BAND)
-    parts = [
-        (
-            f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
-            'role="img" aria-label="peak joint torques against their effort limits" '
-            'font-family="sans-serif" font-size="11">'
-        ),
-        f'<rect x="{x(1) - band:.1f}" y="0" width="{band:.1f}" height="{height - 18}" fill="#ffe082"/>',
-    ]
-    for k, (joint, e) in enumerate(joints.items()):
-        y = 4 + k * (bar + gap)
-        parts.append(
-            f'<text x="{left - 6}" y="{y + bar - 3}" text-anchor="end">{html.escape(joint)}</text>'
-        )
-        if e.get("limit_Nm") is None:
-            text = f"no limit (peak {format_value(e['peak_Nm'], TORQUE_TOLERANCE, 'N m')})"
-            parts.append(f'<text x="{left + 4}" y="{y + bar - 3}" fill="#555">{text}</text>')
-            continue
-        ratio = e["peak_Nm"] / e["limit_Nm"]
-        colour = _BAR_COLOURS.get(margin_class(1 - ratio, 1 - ratio, 1e-6), "#888")
-        parts.append(
-            f'<rect x="{left}" y="{y}" width="{x(ratio) - left:.1f}" height="{bar}" '
-            f'fill="{colour}"/><text x="{x(ratio) + 4:.1f}" y="{y + bar - 3}">'
-            f"{100 * ratio:.3g} % at t = {e['peak_time_s']:.2f} s</text>"
-        )
-    axis_y = height - 16
-    parts.append(
-        f'<line x1="{x(1):.1f}" y1="0" x2="{x(1):.1f}" y2="{axis_y}" stroke="#000" '
-        f'stroke-dasharray="4 2"/><line x1="{left}" y1="{axis_y}" x2="{x(full):.1f}" '
-        f'y2="{axis_y}" stroke="#000"/>'
+    notch = (
+        f'<rect x="{width - 3}" y="0" width="3" height="{height}" fill="#fff"/>'
+        if ratio > _BAR_FULL
+        else ""
     )
-    for tick in (0.0, 0.5, 1.0):
-        parts.append(
-            f'<text x="{x(tick):.1f}" y="{height - 2}" text-anchor="middle">{tick:g}</text>'
-        )
-    parts.append(
-        f'<text x="{x(full):.1f}" y="{height - 2}" text-anchor="end">peak / limit</text></svg>'
+    return (
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" '
+        f'aria-label="{100 * ratio:.3g} % of the limit">'
+        f'<rect x="{x(1 - AT_LIMIT_BAND):.1f}" y="0" width="{x(1) - x(1 - AT_LIMIT_BAND):.1f}" '
+        f'height="{height}" fill="#ffe082"/><rect x="0" y="2" width="{x(ratio):.1f}" '
+        f'height="{height - 4}" fill="{_BAR_COLOURS.get(css, "#888")}"/>{notch}'
+        f'<line x1="{x(1):.1f}" y1="0" x2="{x(1):.1f}" y2="{height}" stroke="#000" '
+        'stroke-dasharray="3 2"/></svg>'
     )
-    return "".join(parts)
 
 
 def _torque_profiles(methods: Mapping[str, Mapping[str, Any]], failures) -> str:
@@ -346,7 +318,6 @@ def _torque_profiles(methods: Mapping[str, Mapping[str, Any]], failures) -> str:
         failed = name in (failures or {})
         flag = ' <span class="flag">FAILED</span>' if failed else ""
         parts.append(f"<h3>{html.escape(method_label(name))}{flag}</h3>")
-        parts.append(torque_bars(effort))
         parts.append(torque_table(effort, failed))
     return "".join(parts)
 
@@ -376,14 +347,15 @@ _NOTES = (
     "|log(R<sub>0</sub><sup>T</sup> R)|, in radians (degrees). Margins are the smallest distance "
     "to a balance-joint limit over the motion, and the smallest such distance as a fraction of "
     "the limit (the position range, the velocity, acceleration or effort limit). Colours: "
-    '<span class="swatch" style="background:#c62828"></span>broken (beyond the limit by more '
+    '<span class="swatch" style="background:#ffcdd2"></span>broken (beyond the limit by more '
     f"than {LIMIT_TOLERANCE:g} in the limit's unit; efforts: 1e-6 of the limit), "
-    '<span class="swatch" style="background:#ffc107"></span>at the limit (within '
+    '<span class="swatch" style="background:#ffe082"></span>at the limit (within '
     f"{100 * AT_LIMIT_BAND:g} % of it), "
-    '<span class="swatch" style="background:#2e7d32"></span>inside. Values below their '
+    '<span class="swatch" style="background:#dcedc8"></span>inside. Values below their '
     f"tolerance are shown as 0 (&lt; tolerance): attitudes {ANGLE_TOLERANCE:g} rad, base rates "
     f"{RATE_TOLERANCE:g} rad/s, relative momentum residuals {MOMENTUM_TOLERANCE:g}, limit "
-    f"margins {LIMIT_TOLERANCE:g}, torques {TORQUE_TOLERANCE:g} N m. The plan rows are the "
+    f"margins {LIMIT_TOLERANCE:g}, torques {TORQUE_TOLERANCE:g} N m, singular values "
+    f"{SIGMA_TOLERANCE:g}. The plan rows are the "
     "kinematic motion each method produces (re-simulated on a fine grid), the effort margins "
     "its free-floating inverse dynamics; the simulation rows are the same plans tracked by "
     "joint controllers in forward dynamics. A FAILED column holds a solver's last iterate, not "
@@ -437,8 +409,10 @@ def render_report(
         parts.append("<h2>Joint torques</h2>")
         parts.append(
             '<p class="meta">Torques of the free-floating inverse dynamics of each plan\'s '
-            "joint motion (nothing acts on the base): the peak |torque| of each joint against "
-            "its effort limit (dashed line; shaded: the at-the-limit band).</p>"
+            "joint motion (nothing acts on the base): the peak |torque| of each joint, when it "
+            "comes, and how it compares with the joint's effort limit (bars: peak over limit, "
+            "the limit dashed, the at-the-limit band shaded). The whole time series is in each "
+            "method's NPZ file (<code>joint_torque</code>).</p>"
         )
         parts.append(_torque_profiles(methods, fails))
     if figures:
