@@ -51,9 +51,9 @@ class InverseDynamics:
 
 
 def _symmetric(M: np.ndarray) -> np.ndarray:
-    """The whole matrix from the upper triangle CRBA fills."""
+    """The whole matrices (..., nv, nv) from the upper triangles CRBA fills."""
     upper = np.triu(M)
-    return upper + np.triu(upper, 1).T
+    return upper + np.swapaxes(np.triu(upper, 1), -1, -2)
 
 
 def free_floating_torques(
@@ -77,31 +77,30 @@ def free_floating_torques(
     T = q.shape[0]
     h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float)
     model, data = robot.model, robot.model.createData()
-    G = robot.velocity_map
-    plain = not robot.followers  # G is a selection: index instead of multiplying
-    cols = np.r_[0:6, robot.pin_v_indices]
     maps = NumericMaps(robot)  # Pinocchio vectors of the whole motion at once
     qps, vs, accs = maps.configurations(q), maps.velocities(q_dot), maps.velocities(q_ddot)
-    tau = np.empty((T, robot.n))
-    twist = np.empty((T, 6))
-    acc = np.empty((T, 6))
+    M = np.empty((T, model.nv, model.nv))
+    com = np.empty((T, 3))
+    for k in range(T):  # Pinocchio per sample, the algebra on whole arrays below
+        M[k] = pin.crba(model, data, qps[k])
+        com[k] = data.Ycrb[1].lever  # CoM in the base frame
+    M = robot.arm_columns(np.swapaxes(robot.arm_columns(_symmetric(M)), 1, 2))  # G^T M G
+    M_bb = M[:, :6, :6]
+    # the momentum at the base origin, base axes: M_r,b: [v_b; q_dot] = h
+    h = np.zeros((T, 6))
+    if np.any(h0):
+        R = np.eye(3) if quaternion is None else matrix_from_quaternion(quaternion)
+        p = np.broadcast_to(h0[:3] @ R, (T, 3))  # R^T h0 per sample
+        L = np.broadcast_to(h0[3:] @ R, (T, 3))
+        h = np.concatenate([p, L + np.cross(com, p)], axis=-1)
+    twist = np.linalg.solve(M_bb, (h - np.matvec(M[:, :6, 6:], q_dot))[..., None])[..., 0]
+    vs[:, :6] = twist
+    f = np.empty((T, model.nv))
     for k in range(T):
-        qp = qps[k]
-        M = _symmetric(pin.crba(model, data, qp))
-        M = M[np.ix_(cols, cols)] if plain else G.T @ M @ G
-        # momentum = M_r,b: [v_b; q_dot]: the system's momentum at the base origin, base axes
-        h = np.zeros(6)
-        if np.any(h0):
-            R = np.eye(3) if quaternion is None else matrix_from_quaternion(quaternion[k])
-            p, L = R.T @ h0[:3], R.T @ h0[3:]
-            com = data.Ycrb[1].lever  # CoM in the base frame (CRBA filled Ycrb)
-            h = np.r_[p, L + np.cross(com, p)]
-        twist[k] = np.linalg.solve(M[:6, :6], h - M[:6, 6:] @ q_dot[k])
-        vs[k, :6] = twist[k]
-        f = pin.rnea(model, data, qp, vs[k], accs[k])
-        f = f[cols] if plain else G.T @ f
-        acc[k] = -np.linalg.solve(M[:6, :6], f[:6])
-        tau[k] = f[6:] + M[6:, :6] @ acc[k]
+        f[k] = pin.rnea(model, data, qps[k], vs[k], accs[k])
+    f = robot.arm_columns(f)  # G^T f
+    acc = -np.linalg.solve(M_bb, f[:, :6, None])[..., 0]
+    tau = f[:, 6:] + np.matvec(M[:, 6:, :6], acc)
     return InverseDynamics(tuple(robot.joint_names), tau, twist, acc)
 
 
