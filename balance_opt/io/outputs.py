@@ -35,7 +35,9 @@ from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
-METRICS_FORMAT = 1
+#: Version of the metrics.json layout; 2: ``effort`` margins added, and ``violations`` /
+#: ``limit_violations`` count effort limits too.
+METRICS_FORMAT = 2
 QUATERNION_COLUMNS = ("base_qx", "base_qy", "base_qz", "base_qw")
 RPY_COLUMNS = ("base_roll", "base_pitch", "base_yaw")
 
