@@ -11,6 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from balance_opt.dynamics.inverse_dynamics import plan_torques
 from balance_opt.io.animation import (
     ANIMATION_FPS,
     ARM_COLOURS,
@@ -26,6 +27,7 @@ from balance_opt.io.outputs import (
     ipopt_version,
     limit_margins,
     method_metrics,
+    plan_joint_torques,
     read_npz_result,
     to_json,
     write_trajectory_csv,
@@ -38,6 +40,7 @@ from balance_opt.io.report import (
     format_angle,
     format_value,
     margin_class,
+    torque_sparkline,
     torque_table,
 )
 from balance_opt.io.style import method_label
@@ -343,3 +346,27 @@ def test_arms_magnification_and_magnified_axes(paper):
         turned = ref.T @ mag[k].T  # R0^T R_mag
         angle = math.acos((np.trace(turned) - 1) / 2)
         assert angle == pytest.approx(10 * res.angle[k], rel=1e-9)
+
+
+def test_torque_sparkline_keeps_the_peak_and_draws_the_limit():
+    t = np.linspace(0.0, 10.0, 1001)
+    tau = np.sin(t) * 0.5
+    tau[537] = -3.0  # one sample: the binning must keep it
+    svg = torque_sparkline(t, tau, 4.0, "inside", width=240, height=30)
+    top = 1.05 * 4.0
+    ys = [float(p.split(",")[1]) for p in re.search(r'points="([^"]+)"', svg).group(1).split()]
+    assert min(ys) == pytest.approx(29 - 28 * 3.0 / top, abs=0.051)  # the spike, to 0.1 px
+    (limit_y,) = re.findall(r'<line x1="0" y1="([\d.]+)"', svg)
+    assert float(limit_y) == pytest.approx(29 - 28 * 4.0 / top, abs=0.051)
+    assert "<line" not in torque_sparkline(t, tau, None, "")  # no limit, no line
+
+
+def test_plan_torques_are_reused_but_not_shared(paper):
+    res = _result(paper)
+    first = plan_joint_torques(res, paper)
+    first[:] = 0.0  # a caller's change does not reach the next caller
+    again = plan_joint_torques(res, paper)
+    assert np.abs(again).max() > 0
+    np.testing.assert_array_equal(again, plan_torques(paper, res).tau)
+    moving = plan_joint_torques(res, paper, np.array([0, 0, 0, 1.0, 0, 0]))
+    assert np.abs(moving - again).max() > 1e-6  # another momentum: computed anew

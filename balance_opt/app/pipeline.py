@@ -325,6 +325,7 @@ def _simulate_into(run: TaskRun, name: str) -> None:
 def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
     from balance_opt.io.outputs import (
+        plan_joint_torques,
         run_metrics,
         write_metrics,
         write_trajectory_csv,
@@ -352,8 +353,13 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         from balance_opt.io.report import write_report
 
         extra = _animation_section(run) if out.animation else ""
+        torques = {
+            name: (res.t, plan_joint_torques(res, run.task.robot, run.task.h0))
+            for name, res in run.results.items()
+        }
+        about = run.task.spec.description
         run.report = write_report(
-            output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description, extra
+            output_dir / REPORT_FILE, run.metrics, figures, about, extra, torques
         )
         files.append(run.report)
         if not out.plots:

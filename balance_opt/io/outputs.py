@@ -127,8 +127,21 @@ def plan_joint_torques(result: BalanceResult, robot: FloatingRobot, h0=None) -> 
     """Joint torques (T, n) of the free-floating inverse dynamics of a plan, columns in the
     order of its mission then balance joints [N m; N for prismatic joints], for the system's
     momentum ``h0`` (world frame; zero by default)."""
+    key = None if h0 is None else np.asarray(h0, dtype=float).tobytes()
+    for res, rob, k, tau in _RECENT_TORQUES:
+        if res is result and rob is robot and k == key:
+            return tau.copy()
     names = (*result.mission_joints, *result.balance_joints)
-    return plan_torques(robot, result, h0).tau[:, [robot.joint_index(j) for j in names]]
+    tau = plan_torques(robot, result, h0).tau[:, [robot.joint_index(j) for j in names]]
+    _RECENT_TORQUES.append((result, robot, key, tau))
+    del _RECENT_TORQUES[:-_RECENT_KEPT]
+    return tau.copy()
+
+
+#: The torques of the last few plans (a run's NPZ files, metrics and report ask for each plan's
+#: torques in turn; results are not changed once made), by the identity of result and robot.
+_RECENT_KEPT = 8
+_RECENT_TORQUES: list[tuple[BalanceResult, FloatingRobot, bytes | None, np.ndarray]] = []
 
 
 def write_trajectory_npz(

@@ -18,6 +18,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from balance_opt.io.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE
 
@@ -256,11 +258,42 @@ def _cell(cell: Cell, failed: bool = False) -> str:
     return f'<td class="{css}">{html.escape(text)}</td>'
 
 
-def torque_table(effort: Mapping[str, Any], failed: bool = False) -> str:
+def torque_sparkline(
+    t: np.ndarray, tau: np.ndarray, limit: float | None, css: str, width=240, height=30
+) -> str:
+    """An inline SVG of ``|tau(t)|`` over the motion (the largest value of each of about 240
+    time bins, so that no peak is lost), with the effort limit dashed when there is one."""
+    magnitude = np.abs(np.asarray(tau, dtype=float))
+    bins = np.linspace(0, magnitude.size, min(width, magnitude.size) + 1).astype(int)
+    peaks = np.maximum.reduceat(magnitude, bins[:-1])
+    top = 1.05 * max(float(magnitude.max()), limit or 0.0) or 1.0
+    xs = np.linspace(0, width, peaks.size)
+    ys = height - 1 - (height - 2) * peaks / top
+    points = " ".join(f"{x:.1f},{y:.1f}" for x, y in zip(xs, ys))
+    colour = _BAR_COLOURS.get(css, "#555")
+    limit_line = ""
+    if limit is not None:
+        y = height - 1 - (height - 2) * limit / top
+        limit_line = (
+            f'<line x1="0" y1="{y:.1f}" x2="{width}" y2="{y:.1f}" stroke="#000" '
+            'stroke-dasharray="3 2"/>'
+        )
+    return (
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" '
+        f'aria-label="|torque| from t = {t[0]:g} s to {t[-1]:g} s">{limit_line}'
+        f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="1.2"/></svg>'
+    )
+
+
+def torque_table(
+    effort: Mapping[str, Any], failed: bool = False, profile: tuple | None = None
+) -> str:
     """One method's torque profile: per joint the peak ``|tau|`` and its time, the effort limit,
-    the margin and the relative margin, coloured as the comparison table's margins."""
+    the margin and the relative margin, coloured as the comparison table's margins, a bar of
+    the peak against the limit and, given ``profile`` ``(t, tau)`` (tau (T, n), columns in the
+    order of ``effort["joints"]``), ``|tau(t)|`` over the motion."""
     rows = []
-    for joint, e in (effort.get("joints") or {}).items():
+    for k, (joint, e) in enumerate((effort.get("joints") or {}).items()):
         margin, relative = e.get("margin_Nm"), e.get("relative_margin")
         css = margin_class(relative, relative, 1e-6) if relative is not None else ""
         cells = [
@@ -272,11 +305,17 @@ def torque_table(effort: Mapping[str, Any], failed: bool = False) -> str:
         ]
         row = "".join(_cell(c, failed) for c in cells)
         bar = "" if relative is None else torque_bar(1 - relative, css)
-        rows.append(f'<tr><td>{html.escape(joint)}</td>{row}<td class="bar">{bar}</td></tr>')
+        row += f'<td class="bar">{bar}</td>'
+        if profile is not None:
+            line = torque_sparkline(profile[0], profile[1][:, k], e.get("limit_Nm"), css)
+            row += f'<td class="bar">{line}</td>'
+        rows.append(f"<tr><td>{html.escape(joint)}</td>{row}</tr>")
     head = (
         "<tr><th>joint</th><th>peak |torque| [N m]</th><th>at t [s]</th>"
         "<th>effort limit [N m]</th><th>margin [N m]</th><th>margin, of the limit</th>"
-        f"<th>peak against the limit (0 to {_BAR_FULL:g})</th></tr>"
+        f"<th>peak against the limit (0 to {_BAR_FULL:g})</th>"
+        + ("<th>|torque| over the motion (limit dashed)</th>" if profile is not None else "")
+        + "</tr>"
     )
     return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
@@ -309,7 +348,7 @@ def torque_bar(ratio: float, css: str, width: int = 220, height: int = 14) -> st
     )
 
 
-def _torque_profiles(methods: Mapping[str, Mapping[str, Any]], failures) -> str:
+def _torque_profiles(methods: Mapping[str, Mapping[str, Any]], failures, torques) -> str:
     parts = []
     for name in _ordered(methods):
         effort = methods[name].get("effort")
@@ -318,7 +357,7 @@ def _torque_profiles(methods: Mapping[str, Mapping[str, Any]], failures) -> str:
         failed = name in (failures or {})
         flag = ' <span class="flag">FAILED</span>' if failed else ""
         parts.append(f"<h3>{html.escape(method_label(name))}{flag}</h3>")
-        parts.append(torque_table(effort, failed))
+        parts.append(torque_table(effort, failed, (torques or {}).get(name)))
     return "".join(parts)
 
 
@@ -368,6 +407,7 @@ def render_report(
     figures: Sequence[tuple[str, Path]] = (),
     description: str | None = None,
     extra_html: str = "",
+    torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> str:
     """The report as one HTML string.
 
@@ -376,6 +416,9 @@ def render_report(
         figures: ``(caption, PNG file)`` pairs, embedded in that order.
         description: the task's description.
         extra_html: trusted HTML appended at the end (e.g. an animation).
+        torques: per method ``(t, tau)``, the sample times [s] and joint torques (T, n) [N m]
+            of :func:`balance_opt.io.outputs.plan_joint_torques`, drawn over the motion in
+            the torque tables (left out: peaks only).
     """
     task = metrics.get("task", {})
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())
@@ -414,7 +457,7 @@ def render_report(
             "the limit dashed, the at-the-limit band shaded). The whole time series is in each "
             "method's NPZ file (<code>joint_torque</code>).</p>"
         )
-        parts.append(_torque_profiles(methods, fails))
+        parts.append(_torque_profiles(methods, fails, torques))
     if figures:
         parts.append("<h2>Figures</h2>")
         parts.extend(_figure(title, png) for title, png in figures)
@@ -429,8 +472,10 @@ def write_report(
     figures: Sequence[tuple[str, Path]] = (),
     description: str | None = None,
     extra_html: str = "",
+    torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> Path:
     """Write :func:`render_report` to ``path`` and return it."""
     path = Path(path)
-    path.write_text(render_report(metrics, figures, description, extra_html), encoding="utf-8")
+    text = render_report(metrics, figures, description, extra_html, torques)
+    path.write_text(text, encoding="utf-8")
     return path
