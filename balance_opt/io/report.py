@@ -311,10 +311,10 @@ def torque_table(
             row += f'<td class="bar">{line}</td>'
         rows.append(f"<tr><td>{html.escape(joint)}</td>{row}</tr>")
     head = (
-        "<tr><th>joint</th><th>peak |torque| [N m]</th><th>at t [s]</th>"
-        "<th>effort limit [N m]</th><th>margin [N m]</th><th>margin, of the limit</th>"
-        f"<th>peak against the limit (0 to {_BAR_FULL:g})</th>"
-        + ("<th>|torque| over the motion (limit dashed)</th>" if profile is not None else "")
+        "<tr><th>joint</th><th>peak |&tau;| [N m]</th><th>at t [s]</th>"
+        "<th>limit [N m]</th><th>margin [N m]</th><th>margin / limit</th>"
+        f"<th>peak / limit (0 to {_BAR_FULL:g})</th>"
+        + ("<th>|&tau;(t)|, limit dashed</th>" if profile is not None else "")
         + "</tr>"
     )
     return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
