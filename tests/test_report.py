@@ -40,6 +40,7 @@ from balance_opt.io.report import (
     format_angle,
     format_value,
     margin_class,
+    render_report,
     torque_sparkline,
     torque_table,
 )
@@ -370,3 +371,15 @@ def test_plan_torques_are_reused_but_not_shared(paper):
     np.testing.assert_array_equal(again, plan_torques(paper, res).tau)
     moving = plan_joint_torques(res, paper, np.array([0, 0, 0, 1.0, 0, 0]))
     assert np.abs(moving - again).max() > 1e-6  # another momentum: computed anew
+
+
+def test_report_is_offline_and_flags_a_failed_method(paper):
+    res = _result(paper)
+    methods = {"analytic": method_metrics(res, paper), "optimal": method_metrics(res, paper)}
+    metrics = {"task": {"name": "t"}, "methods": methods, "failures": {"optimal": "Ipopt: x"}}
+    torques = {name: (res.t, plan_joint_torques(res, paper)) for name in methods}
+    page = render_report(metrics, torques=torques)
+    assert "http" not in page and "src=" not in page  # nothing to fetch
+    assert '<p class="failure">FAILED: optimal plan: Ipopt: x</p>' in page
+    assert '<h3>optimal plan <span class="flag">FAILED</span></h3>' in page
+    assert page.count("<polyline") == 2 * len(res.mission_joints + res.balance_joints)

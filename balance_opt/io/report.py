@@ -42,7 +42,7 @@ h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bo
 table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }
 th:first-child, td:first-child { text-align: left; }
-thead th { background: #f2f2f2; } tr.section td { background: #fafafa; font-weight: bold; text-align: left; }
+thead th { background: #f2f2f2; white-space: nowrap; } tr.section td { background: #fafafa; font-weight: bold; text-align: left; }
 td.broken { color: #8e0000; background: #ffcdd2; font-weight: bold; }
 td.at-limit { color: #5d4000; background: #ffe082; } td.inside { color: #1b5e20; background: #dcedc8; }
 td.bar { padding: 0.2em 0.4em; vertical-align: middle; line-height: 0; }
@@ -279,7 +279,7 @@ def torque_sparkline(
             'stroke-dasharray="3 2"/>'
         )
     return (
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" '
+        f'<svg width="{width}" height="{height}" role="img" '
         f'aria-label="|torque| from t = {t[0]:g} s to {t[-1]:g} s">{limit_line}'
         f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="1.2"/></svg>'
     )
@@ -338,7 +338,7 @@ def torque_bar(ratio: float, css: str, width: int = 220, height: int = 14) -> st
         else ""
     )
     return (
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" role="img" '
+        f'<svg width="{width}" height="{height}" role="img" '
         f'aria-label="{100 * ratio:.3g} % of the limit">'
         f'<rect x="{x(1 - AT_LIMIT_BAND):.1f}" y="0" width="{x(1) - x(1 - AT_LIMIT_BAND):.1f}" '
         f'height="{height}" fill="#ffe082"/><rect x="0" y="2" width="{x(ratio):.1f}" '
