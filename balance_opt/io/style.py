@@ -141,9 +141,14 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
     return style
 
 
+def font_sizes(width: str = "column") -> dict[str, float]:
+    """Font sizes [pt] of a figure ``width`` wide: ``base`` (labels), ``tick``, ``legend``."""
+    return dict(_FONTS[_checked_width(width)])
+
+
 def rc_params(width: str = "column") -> dict[str, Any]:
     """Matplotlib settings of a figure ``width`` wide (``"column"`` or ``"page"``)."""
-    font = _FONTS[_checked_width(width)]
+    font = font_sizes(width)
     return {
         "font.size": font["base"],
         "axes.labelsize": font["base"],
@@ -165,6 +170,7 @@ def rc_params(width: str = "column") -> dict[str, Any]:
         "pdf.fonttype": 42,  # TrueType in the PDF: editable, accepted by publishers
         "ps.fonttype": 42,
         "path.simplify": True,
+        "axes.formatter.useoffset": False,
     }
 
 
@@ -183,15 +189,22 @@ def styled(width: str = "column") -> Iterator[None]:
         yield
 
 
-def figure(width: str = "column", height: float = 2.6):
+def figure(width: str = "column", height: float = 2.6, layout: str | None = None):
     """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide (``"column"`` 3.5 in,
-    ``"page"`` 7 in) and ``height`` [in] tall, with constrained layout.
+    ``"page"`` 7 in) and ``height`` [in] tall.
 
     Build its artists inside :func:`styled` with the same width so that fonts fit the width.
+
+    Args:
+        width: ``"column"`` or ``"page"``.
+        height: [in].
+        layout: ``None`` (place the panels yourself, e.g. with
+            :func:`balance_opt.io.figure_layout.arrange`: fast) or ``"constrained"``
+            (matplotlib measures every text at each save: about twice the drawing time).
     """
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(WIDTHS[_checked_width(width)], height), layout="constrained")
+    return Figure(figsize=(WIDTHS[_checked_width(width)], height), layout=layout)
 
 
 def save(
@@ -236,6 +249,7 @@ __all__ = [
     "SCREEN_DPI",
     "WIDTHS",
     "figure",
+    "font_sizes",
     "luminance",
     "method_colour",
     "method_label",
