@@ -11,8 +11,9 @@ Method names (:data:`METHODS`):
   conservation gives for the planned joint motion (the kinematic model);
 * ``"<method>:sim"``: the forward-dynamics simulation of that plan. It keeps its method's colour
   and marker shape (a reader ties it to its plan) and gets its own line style and hollow markers;
-* ``"<method>:kinematic"`` (not in :data:`METHODS`): the plan's own style, labelled as the
-  kinematic model, for the one figure that overlays a plan and its simulation (paper Fig. 2);
+* ``"<method>:kinematic"`` (not in :data:`METHODS`): the plan under the momentum model drawn
+  as a wide pale band in its colour, for the figure that overlays a plan and its simulation
+  (paper Fig. 2: the simulated curve on top, the band shows where they agree);
 * ``"sum"``: the sum of the arms' torques on the base (paper Fig. 4) and ``"arm:mission"`` the
   mission arm's part (the balance arm's part is drawn in its plan's simulation style).
 
@@ -87,6 +88,9 @@ _STYLES: dict[str, dict[str, Any]] = {
     "sum": {"color": _BLACK, "linestyle": "-", "marker": "", "linewidth": 1.4},
     "arm:mission": {"color": _GREY, "linestyle": _DOTTED, "marker": "", "linewidth": 1.1},
 }
+#: A plan's kinematic model drawn under its forward-dynamics run (paper Fig. 2): a wide pale
+#: band in the plan's colour, so that the thin simulated curve on top shows where they agree.
+_KINEMATIC_BAND = {"linestyle": "-", "marker": "", "linewidth": 4.0, "alpha": 0.3, "zorder": 1.5}
 #: Colours of names without a style (a plan the user named): Okabe-Ito, after the ones above.
 _EXTRA = ("#009E73", "#CC79A7", "#56B4E9", "#D55E00")
 
@@ -126,7 +130,10 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
         markers: draw the markers (off for dense plots such as a joint grid).
     """
     base, suffix = _base(name)
-    key = base if suffix == KINEMATIC else name
+    if suffix == KINEMATIC:
+        style = {**_KINEMATIC_BAND, "color": method_colour(base), "label": method_label(name)}
+        return style
+    key = name
     if key in _STYLES:
         style = dict(_STYLES[key])
     else:
@@ -141,9 +148,14 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
     return style
 
 
+def font_sizes(width: str = "column") -> dict[str, float]:
+    """Font sizes [pt] of a figure ``width`` wide: ``base`` (labels), ``tick``, ``legend``."""
+    return dict(_FONTS[_checked_width(width)])
+
+
 def rc_params(width: str = "column") -> dict[str, Any]:
     """Matplotlib settings of a figure ``width`` wide (``"column"`` or ``"page"``)."""
-    font = _FONTS[_checked_width(width)]
+    font = font_sizes(width)
     return {
         "font.size": font["base"],
         "axes.labelsize": font["base"],
@@ -165,6 +177,7 @@ def rc_params(width: str = "column") -> dict[str, Any]:
         "pdf.fonttype": 42,  # TrueType in the PDF: editable, accepted by publishers
         "ps.fonttype": 42,
         "path.simplify": True,
+        "axes.formatter.useoffset": False,
     }
 
 
@@ -183,15 +196,22 @@ def styled(width: str = "column") -> Iterator[None]:
         yield
 
 
-def figure(width: str = "column", height: float = 2.6):
+def figure(width: str = "column", height: float = 2.6, layout: str | None = None):
     """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide (``"column"`` 3.5 in,
-    ``"page"`` 7 in) and ``height`` [in] tall, with constrained layout.
+    ``"page"`` 7 in) and ``height`` [in] tall.
 
     Build its artists inside :func:`styled` with the same width so that fonts fit the width.
+
+    Args:
+        width: ``"column"`` or ``"page"``.
+        height: [in].
+        layout: ``None`` (place the panels yourself, e.g. with
+            :func:`balance_opt.io.figure_layout.arrange`: fast) or ``"constrained"``
+            (matplotlib measures every text at each save: about twice the drawing time).
     """
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(WIDTHS[_checked_width(width)], height), layout="constrained")
+    return Figure(figsize=(WIDTHS[_checked_width(width)], height), layout=layout)
 
 
 def save(
@@ -236,6 +256,7 @@ __all__ = [
     "SCREEN_DPI",
     "WIDTHS",
     "figure",
+    "font_sizes",
     "luminance",
     "method_colour",
     "method_label",

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from balance_opt.io.output_dir import replaced_atomically
+from balance_opt.io.style import SCREEN_DPI, method_style, styled
 from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
@@ -48,10 +49,8 @@ _TIMING_METRIC = re.compile(r"(^|[._])(wall_time|solve_time|build_time|elapsed)(
 MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
 #: Drift drawn at this floor on log axes when it is zero [rad].
 DRIFT_FLOOR = 1e-12
-#: Colours of the methods in the plots.
-METHOD_COLOURS = {"analytic": "tab:orange", "optimal": "tab:blue"}
-#: Figure width of one panel [in]; legible at the width of a page.
-PANEL_WIDTH = 3.6
+#: Figure width of one panel [in]: a paper column (:data:`balance_opt.io.style.WIDTHS`).
+PANEL_WIDTH = 3.5
 #: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
 LOG_SCALE_RATIO = 30.0
 #: Largest number of distinct values of a list parameter plotted as categories.
@@ -62,8 +61,6 @@ PARAMETER_MARGIN = 0.08
 PAIRED_MARGIN = 1.2
 #: Offset between methods at a categorical parameter value (in category widths).
 CATEGORY_SPREAD = 0.2
-#: Characters of a title that fit above a single panel.
-SINGLE_PANEL_TITLE = 45
 
 
 def is_timing_column(name: str) -> bool:
@@ -173,7 +170,9 @@ def summarize(results: Sequence[dict]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------ plots
-def _figure(n_rows: int, n_cols: int, height: float = 2.8):
+def _figure(n_rows: int, n_cols: int, height: float = 2.6):
+    """Panels a paper column wide each, with the column fonts of :mod:`balance_opt.io.style`
+    (constrained layout: category labels vary in length)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(PANEL_WIDTH * n_cols, height * n_rows), layout="constrained")
@@ -182,10 +181,16 @@ def _figure(n_rows: int, n_cols: int, height: float = 2.8):
 
 
 def _save(fig, path: str | Path) -> Path:
-    """Write a figure as PNG, atomically."""
+    """Write a figure as PNG at the report's resolution, atomically."""
     with replaced_atomically(path) as tmp:
-        fig.savefig(tmp, dpi=150)
+        fig.savefig(tmp, dpi=SCREEN_DPI, format="png")
     return Path(path)
+
+
+def _method_style(method: str, **extra) -> dict[str, Any]:
+    """Colour and marker of a method as in every other figure (:mod:`balance_opt.io.style`)."""
+    style = method_style(method)
+    return {"color": style["color"], "label": style["label"], **extra}
 
 
 def _drift_axis(ax, which: str, values) -> None:
@@ -223,12 +228,15 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
     if not any(_drift(r, MAX_DRIFT) is not None for r in ok):
         return None
     paired = _pairs(ok)
-    fig, axes = _figure(1, 3 if paired else 2)
-    for ax, key, title in zip(axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")):
-        _distribution_panel(ax, ok, methods, key, title)
-    if paired:
-        _paired_panel(axes[0][2], paired)
-    return _save(fig, path)
+    with styled("column"):
+        fig, axes = _figure(1, 3 if paired else 2)
+        for ax, key, title in zip(
+            axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")
+        ):
+            _distribution_panel(ax, ok, methods, key, title)
+        if paired:
+            _paired_panel(axes[0][2], paired)
+        return _save(fig, path)
 
 
 def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str, title: str):
@@ -242,16 +250,15 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
                 values,
                 np.arange(1, values.size + 1) / values.size,
                 where="post",
-                color=METHOD_COLOURS.get(method),
-                label=f"{method} ({values.size})",
+                **_method_style(method, linestyle=_line_style(method)),
             )
+            ax.lines[-1].set_label(f"{ax.lines[-1].get_label()} ({values.size})")
     _drift_axis(ax, "x", [_drift(r, key) for r in ok])
     ax.set_xlabel(f"{title} of the base attitude [rad]")
     ax.set_ylabel("fraction of cases")
     ax.set_ylim(0, 1.02)
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize="small", loc="lower right")
-    ax.set_title(f"distribution of the {title}")
+    ax.legend(loc="lower right")
 
 
 def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
@@ -272,8 +279,8 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
                 s=18,
                 label=label,
                 facecolors="none" if marker == "o" else None,
-                edgecolors="tab:purple" if marker == "o" else None,
-                color="tab:green" if marker == "x" else None,
+                edgecolors="black" if marker == "o" else None,
+                color="#808080" if marker == "x" else None,
             )
     drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
     drifts = [d for d in drifts if d is not None]
@@ -288,9 +295,8 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
     ax.set_ylim(lo, hi)
     ax.set_xlabel("analytic drift [rad]")
     ax.set_ylabel("optimal drift [rad]")
-    ax.set_title(f"optimal vs analytic ({len(paired)} sets)")
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize="small")
+    ax.legend(title=f"{len(paired)} parameter sets")
 
 
 def _pairs(ok: Sequence[dict]) -> list[tuple[dict, dict]]:
@@ -354,7 +360,16 @@ def plot_drift_against_parameter(
     views = _parameter_views(ok, name)
     failed = sum(1 for r in results if r["status"] != "ok" and name in r["parameters"])
     methods = sorted({r["method"] for r in ok})
-    fig, axes = _figure(2, len(views))
+    with styled("column"):
+        fig, axes = _figure(2, len(views))
+        _parameter_panels(axes, views, ok, methods)
+        if failed:
+            axes[0][0].legend(title=f"{failed} failed case(s) not shown")
+        return _save(fig, path)
+
+
+def _parameter_panels(axes, views, ok: Sequence[dict], methods: Sequence[str]) -> None:
+    """The panels of :func:`plot_drift_against_parameter`: one column per view."""
     for j, (column, values) in enumerate(views.items()):
         indices = sorted(values)
         x_all, labels = _axis_values([values[i] for i in indices])
@@ -376,10 +391,9 @@ def plot_drift_against_parameter(
                 ax.scatter(
                     x,
                     [p[1] for p in points],
-                    s=14,
-                    alpha=0.75,
-                    color=METHOD_COLOURS.get(method),
-                    label=method,
+                    s=16,
+                    alpha=0.8,
+                    **_method_style(method, marker=_marker(method)),
                 )
             if labels is not None:
                 ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize="small", ha="right")
@@ -397,13 +411,15 @@ def plot_drift_against_parameter(
             if j == 0:
                 ax.set_ylabel(f"{what} drift [rad]")
             if i == 0 and j == 0:
-                ax.legend(fontsize="small")
-    note = f" ({failed} failed case(s) not shown)" if failed else ""
-    title = f"attitude drift against {name}{note}"
-    if len(views) == 1 and len(title) > SINGLE_PANEL_TITLE:
-        title = title.replace(" (", "\n(")
-    fig.suptitle(title, fontsize="medium")
-    return _save(fig, path)
+                ax.legend()
+
+
+def _marker(method: str) -> str:
+    return method_style(method)["marker"] or "o"
+
+
+def _line_style(method: str):
+    return method_style(method)["linestyle"]
 
 
 def plot_file_name(name: str) -> str:
