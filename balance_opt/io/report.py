@@ -136,7 +136,7 @@ def _kinematic_margin(kind: str, unit: str) -> Callable[[Mapping], Cell]:
         if not math.isfinite(margin):
             return "no limit", ""
         text = format_value(margin, LIMIT_TOLERANCE, unit)
-        if relative is not None:
+        if relative is not None and abs(margin) >= LIMIT_TOLERANCE:  # else noise, as the margin
             text += f"; {100 * relative:.3g} % of the limit"
         return text, margin_class(margin, relative, LIMIT_TOLERANCE)
 
