@@ -143,7 +143,7 @@ def plan_optimal(
     model = (models if models is not None else ModelCache()).planner_model(
         task.robot, task.spec.robot.backend
     )
-    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
+    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot, h0=task.h0)
     guess = (
         warm_start
         if (warm_start is not None and spec.initial_guess == "analytic")

@@ -349,8 +349,7 @@ def check_methods(task: Task, methods) -> None:
 
 
 def check_optimal_supported(task: Task) -> None:
-    """What the optimal planner cannot do, located in the task: a non-zero initial momentum
-    (:mod:`balance_opt.optimal.model` assumes zero), torque limits on a robot with a prismatic
+    """What the optimal planner cannot do, located in the task: torque limits on a robot with a prismatic
     model joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
     joints), or a prismatic model joint where the symbolic backend is adam (``robot.backend:
     adam``, or ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the
@@ -359,12 +358,6 @@ def check_optimal_supported(task: Task) -> None:
     Raises:
         TaskFileError: naming the key and the way out.
     """
-    if np.any(task.h0 != 0.0):
-        raise task.error(
-            ("initial", "momentum"),
-            "the optimal planner assumes zero initial momentum; "
-            "plan this task with --method analytic",
-        )
     robot = task.robot
     prismatic = [j for j in robot.model_joint_names if robot.joint_type(j) == "prismatic"]
     if not prismatic:

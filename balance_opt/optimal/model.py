@@ -22,10 +22,14 @@ attitude bounds ``|phi| <= bound`` exact, with three states and no norm constrai
 kinematics is ``phi_dot = Jr^{-1}(phi) omega_b`` (valid for rotations below pi, far beyond any
 drift this planner is meant for; ``docs/physics.md``, "Attitude").
 
-The mission arm enters through its sample at the point, ``m = [q_M; q_dot_M; q_ddot_M]``, a
-parameter of the NLP. The base rate comes from momentum conservation with zero momentum
-(Eq. 26, 31; ``docs/physics.md``, "Base motion forced by the joints"):
-``omega_b = J_wM(q) q_dot_M + J_wB(q) q_dot_B`` with ``q = [q_M; q_B]``.
+The mission arm and the system's momentum enter through the point's data
+``m = [q_M; q_dot_M; q_ddot_M; h0]``, a parameter of the NLP: ``h0`` is the constant total
+momentum [linear; angular about the CoM] in the axes of the initial base frame (the world frame
+when the base starts at the identity). The base rate comes from momentum conservation
+(Eq. 26; ``docs/physics.md``, "Base motion forced by the joints"): in base axes the momentum is
+``R^T h0`` with ``R = exp([phi]_x)``, so
+``omega_b = I_G^{-1} (R^T L0 - A_j q_dot)`` (``L0``: the angular part of ``h0``), which is
+``J_wM(q) q_dot_M + J_wB(q) q_dot_B`` when ``h0 = 0``. One compiled kernel serves every ``h0``.
 """
 
 from __future__ import annotations
@@ -46,11 +50,14 @@ from balance_opt.model.symbolic import (
     model_joint_positions,
     model_velocity_map,
 )
-from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
+from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
+
+#: Rows of the momentum ``h0`` at the end of a point's data ``m`` ([linear; angular]).
+MOMENTUM_ROWS = 6
 
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
@@ -163,8 +170,8 @@ class PlannerModel:
 
     @property
     def n_m(self) -> int:
-        """Size of a mission sample ``[q_M; q_dot_M; q_ddot_M]``."""
-        return 3 * self.n_M
+        """Size of a point's data ``[q_M; q_dot_M; q_ddot_M; h0]``."""
+        return 3 * self.n_M + MOMENTUM_ROWS
 
     def joint_rows(self, control: str) -> list[slice]:
         """State rows of the balance joints' chain of integrators: position, velocity (and
@@ -192,29 +199,38 @@ class PlannerModel:
         m = cs.SX.sym("m", self.n_m)
         return x, u, m, x[:3], x[3 : 3 + n_B], x[3 + n_B : 3 + 2 * n_B], m[:n_M], m[n_M : 2 * n_M]
 
+    def _momentum_in_base(self, phi, m):
+        """``R^T h0`` (6): the point's momentum (last rows of ``m``, initial base axes) in the
+        axes of the base at attitude ``phi``."""
+        Rt = rotation_matrix_sym(phi).T
+        h0 = m[3 * self.n_M :]
+        return cs.vertcat(Rt @ h0[:3], Rt @ h0[3:])
+
     def _cached(self, key: str, make) -> cs.Function:
         if key not in self._funs:
             self._funs[key] = make()
         return self._funs[key]
 
-    def _omega(self, q_M, q_B, q_dot_M, q_dot_B):
-        """``omega_b = J_wM q_dot_M + J_wB q_dot_B`` computed as ``-I_G^{-1} A_j q_dot`` from the
-        angular rows of the centroidal momentum matrix (zero angular momentum about the CoM,
-        Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint columns; the base's
-        linear columns of these rows are zero. One 3 x 3 solve of a vector instead of the full
-        6 x 6 ``J_base``: on the paper robot the Hessian kernel has 54 % of the instructions
-        (23.6k against 43.7k)."""
+    def _omega(self, q_M, q_B, q_dot_M, q_dot_B, ell):
+        """``omega_b = I_G^{-1} (ell - A_j q_dot)`` from the angular rows of the centroidal
+        momentum matrix (Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint
+        columns, ``ell = R^T L0`` the angular momentum about the CoM in base axes; the base's
+        linear columns of these rows are zero, so the linear momentum does not turn the base.
+        One 3 x 3 solve of a vector instead of the full 6 x 6 ``J_base``: on the paper robot the
+        Hessian kernel has 54 % of the instructions (23.6k against 43.7k)."""
         A = self.maps.centroidal_momentum_matrix_fun()(cs.vertcat(q_M, q_B))
-        return -cs.solve(A[3:, 3:6], A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
+        return cs.solve(A[3:, 3:6], ell - A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
 
     # ------------------------------------------------------------------ functions
     def dynamics_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_dynamics(x, u, m) -> (x_dot, omega)``: the state's time derivative and the
-        base angular velocity in the base frame [rad/s] (Eq. 26 with zero momentum)."""
+        base angular velocity in the base frame [rad/s] (Eq. 26 with the momentum ``h0`` of
+        ``m``)."""
 
         def make():
             x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
-            omega = self._omega(q_M, q_B, q_dot_M, q_dot_B)
+            ell = self._momentum_in_base(phi, m)[3:]
+            omega = self._omega(q_M, q_B, q_dot_M, q_dot_B, ell)
             parts = [inverse_right_jacobian_sym(phi) @ omega, q_dot_B]
             parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B :], u]
             return cs.Function(
@@ -290,42 +306,62 @@ class PlannerModel:
         )
 
     def torque_fun(self) -> cs.Function:
-        """``joint_torques(q, q_dot, q_ddot) -> tau``: arm joint torques [N m] (arm order) that
-        produce the joint accelerations ``q_ddot`` of the free-floating system with zero
-        momentum and no external wrench on the base.
+        """``joint_torques(q, q_dot, q_ddot) -> tau``: :meth:`momentum_torque_fun` with zero
+        momentum."""
 
-        With ``M nu_dot + h = [0; tau]`` and the base twist ``v_b = J_base q_dot`` (Eq. 19), the
-        base acceleration is ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and
-        ``tau = M_jb a_b + M_jj q_ddot + h_j``.
+        def make():
+            n = self.robot.n
+            q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
+            tau = self.momentum_torque_fun()(q, q_dot, q_ddot, cs.DM.zeros(MOMENTUM_ROWS))
+            return cs.Function(
+                "joint_torques", [q, q_dot, q_ddot], [tau], ["q", "q_dot", "q_ddot"], ["tau"]
+            )
+
+        return self._cached("torque", make)
+
+    def momentum_torque_fun(self) -> cs.Function:
+        """``joint_torques_h(q, q_dot, q_ddot, h_b) -> tau``: arm joint torques [N m] (arm order)
+        that produce the joint accelerations ``q_ddot`` of the free-floating system with the
+        momentum ``h_b`` (base axes, [linear; angular about the CoM]) and no external wrench on
+        the base.
+
+        With ``M nu_dot + h = [0; tau]`` and the base twist ``v_b = A_b^{-1} (h_b - A_j q_dot)``
+        (``J_base q_dot`` for zero momentum, Eq. 19), the base acceleration is
+        ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and ``tau = M_jb a_b + M_jj q_ddot + h_j``.
         """
 
         def make():
             n = self.robot.n
             q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
-            v_b = self.maps.base_jacobian_fun()(q) @ q_dot
+            h_mom = cs.SX.sym("h_b", MOMENTUM_ROWS)
+            A = self.maps.centroidal_momentum_matrix_fun()(q)
+            v_b = self.maps.base_jacobian_fun()(q) @ q_dot + cs.solve(A[:, :6], h_mom)
             M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
             a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
             tau = M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
             return cs.Function(
-                "joint_torques",
-                [q, q_dot, q_ddot],
+                "joint_torques_h",
+                [q, q_dot, q_ddot, h_mom],
                 [tau],
-                ["q", "q_dot", "q_ddot"],
+                ["q", "q_dot", "q_ddot", "h_b"],
                 ["tau"],
                 {"cse": True},
             )
 
-        return self._cached("torque", make)
+        return self._cached("torque_h", make)
 
     def balance_torque_fun(self, control: str = "acceleration") -> cs.Function:
         """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point."""
 
         def make():
-            x, u, m, _, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
+            x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
             q_ddot_B = u if control == "acceleration" else x[3 + 2 * self.n_B :]
-            q_ddot_M = m[2 * self.n_M :]
-            tau = self.torque_fun()(
-                cs.vertcat(q_M, q_B), cs.vertcat(q_dot_M, q_dot_B), cs.vertcat(q_ddot_M, q_ddot_B)
+            q_ddot_M = m[2 * self.n_M : 3 * self.n_M]
+            tau = self.momentum_torque_fun()(
+                cs.vertcat(q_M, q_B),
+                cs.vertcat(q_dot_M, q_dot_B),
+                cs.vertcat(q_ddot_M, q_ddot_B),
+                self._momentum_in_base(phi, m),
             )
             return cs.Function(
                 "balance_torques",
