@@ -170,6 +170,10 @@ def plan(
         InputError: an unknown method.
         SolverError: the method failed; its ``result`` holds what was computed.
     """
+    if task.target is not None and method in (REFERENCE, *METHODS):  # two phases (issue 16)
+        from balance_opt.app.capture import plan_captured
+
+        return plan_captured(task, method, solver_options, models)
     if method == REFERENCE:
         return plan_mission_only(task)
     if method == "analytic":

@@ -32,6 +32,7 @@ from balance_opt.errors import ArmError, InputError, JointError, TrajectoryError
 from balance_opt.io.task_checks import (
     TaskLimitsError,
     TaskTrajectoryError,
+    check_capture,
     check_lengths,
     check_limits,
     check_problem_size,
@@ -71,6 +72,7 @@ class Task:
         q_B0: balance joint positions at t = 0 [rad].
         h0: initial momentum, world frame, [linear; angular] [N s; N m s].
         document: the parsed file with its line numbers (for locating errors found later).
+        target: the target captured during the mission (``capture:``), or ``None``.
     """
 
     spec: TaskSpec
@@ -82,6 +84,7 @@ class Task:
     q_B0: np.ndarray = field(repr=False)
     h0: np.ndarray = field(repr=False)
     document: YamlDocument = field(repr=False, compare=False)
+    target: Any = field(default=None, repr=False)
 
     @property
     def name(self) -> str:
@@ -159,6 +162,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
         else np.array(spec.initial.balance)
     )
     check_limits(spec, doc, robot, mission, q_B0)
+    target = check_capture(spec, doc, float(mission.duration))
     task = Task(
         _with_momentum(spec),
         doc.source,
@@ -169,6 +173,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
         q_B0,
         np.array(spec.initial.momentum),
         doc,
+        target,
     )
     log.debug("task %s: %r, mission %.3g s", doc.source, robot, mission.duration)
     return task
