@@ -187,6 +187,13 @@ def simulate_result(task: Task, plan: BalanceResult):
     """Forward-dynamics simulation of a plan with the task's simulation options."""
     from balance_opt.dynamics.simulation import simulate_plan
 
+    if task.target is not None:  # through the capture's impulse (issue 16)
+        from balance_opt.app.capture import robot_after
+        from balance_opt.dynamics.capture_impulse import simulate_with_capture
+
+        return simulate_with_capture(
+            task.robot, robot_after(task), task.target, plan, task.spec.simulation
+        )
     return simulate_plan(task.robot, plan, task.spec.simulation)
 
 
