@@ -1,4 +1,6 @@
-"""Capturing an active target (issue 16): a non-zero total momentum in the optimal planner.
+"""Capturing an active target (issue 16): a non-zero total momentum in the optimal planner, and
+the capture itself (momentum conserved through it, no jump for a target moving with the end
+effector, the optimal plan against the law, the task section's errors).
 
 The planner's base rate with a momentum ``h0`` is checked against the analytic law's rollout
 (a different code path: numeric Pinocchio, the quaternion integrated by the law's own
@@ -8,13 +10,22 @@ exported joint motion alone, with numeric Pinocchio and nothing of the planner.
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
+from balance_opt.app.capture import plan_captured, robot_after
+from balance_opt.app.pipeline import simulate_result
 from balance_opt.app.scenarios import paper_capture
+from balance_opt.errors import InputError
+from balance_opt.io.task import load_task
+from balance_opt.model.capture import Target, attach_target, capture_state
+from balance_opt.model.maps import NumericMaps
 from balance_opt.motion.so3 import rotvec_from_quaternion
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -126,3 +137,163 @@ def test_optimal_plan_with_momentum_matches_an_independent_attitude(model, captu
     cached = len(model.nlp_cache)
     build_balance_nlp(model, capture.mission, capture.q_B0, options, h0=-H0)
     assert len(model.nlp_cache) == cached
+
+
+# ---------------------------------------------------------------------------------- the capture
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "capture_tumbling_target.yaml"
+#: Momentum about a fixed world point before and after the capture, relative [-].
+CAPTURE_TOLERANCE = 1e-12
+#: Simulated momentum against the one each phase should keep, relative (rk4, 10 ms).
+SIMULATION_TOLERANCE = 1e-6
+
+
+@pytest.fixture(scope="module")
+def example():
+    return load_task(EXAMPLE)
+
+
+def _momentum_about_origin(robot, q_pin, v) -> np.ndarray:
+    """``[p; L about the world origin]`` of a robot state, from Pinocchio's centroidal momentum."""
+    model, data = robot.model, robot.model.createData()
+    hg = pin.computeCentroidalMomentum(model, data, q_pin, v)
+    return np.r_[hg.linear, hg.angular + np.cross(data.com[0], hg.linear)]
+
+
+def _target_momentum_about_origin(robot, target, q_pin) -> np.ndarray:
+    model, data = robot.model, robot.model.createData()
+    pin.framesForwardKinematics(model, data, q_pin)
+    ee = data.oMf[model.getFrameId(robot.mission.ee_frame)]
+    c = ee.act(target.com)
+    p = target.mass * target.linear_velocity
+    I_w = ee.rotation @ target.inertia @ ee.rotation.T
+    return np.r_[p, I_w @ target.angular_velocity + np.cross(c, p)]
+
+
+def _check_conserved(task, q, q_dot, quaternion, twist_before, twist_after):
+    """Robot + free target before, robot with the target after: the same momentum about the
+    world origin (the base placed away from it: a reference point that matters)."""
+    base = pin.SE3(pin.Quaternion(*np.r_[quaternion[3], quaternion[:3]]).matrix(), np.r_[1, -2, 3])
+    robot, after = task.robot, robot_after(task)
+    before = _momentum_about_origin(
+        robot, robot.pin_q(q, base), robot.pin_v(q_dot, twist_before)
+    ) + _target_momentum_about_origin(robot, task.target, robot.pin_q(q, base))
+    now = _momentum_about_origin(after, after.pin_q(q, base), after.pin_v(q_dot, twist_after))
+    scale = np.linalg.norm(before)
+    np.testing.assert_allclose(now, before, rtol=0, atol=CAPTURE_TOLERANCE * scale)
+
+
+def test_capture_conserves_the_total_momentum_in_the_plan(example):
+    """The analytic plan's state at the capture with the base twists it reports: robot plus
+    target before equals the robot with the target after, to round-off."""
+    plan = plan_captured(example, "analytic")
+    k = int(np.flatnonzero(plan.t <= example.target.time)[-1])
+    robot = example.robot
+    q, q_dot = np.empty(robot.n), np.empty(robot.n)
+    q[robot.mission_indices], q[robot.balance_indices] = plan.q_M[k], plan.q_B[k]
+    q_dot[robot.mission_indices], q_dot[robot.balance_indices] = plan.q_dot_M[k], plan.q_dot_B[k]
+    info = plan.info["capture"]
+    assert np.linalg.norm(info["omega_jump"]) > 1e-3  # a real jump
+    _check_conserved(
+        example,
+        q,
+        q_dot,
+        plan.quaternion[k],
+        np.array(info["base_twist_before"]),
+        np.array(info["base_twist_after"]),
+    )
+    np.testing.assert_allclose(plan.omega[k], info["base_twist_before"][3:], atol=1e-9)
+    assert np.max(plan.momentum_residual) < 1e-8
+    # with the joint rates continuous (the balance arm held; the law's own rates jump at the
+    # capture, and the base rate with them), the next sample's base rate is the jump's
+    held = plan_captured(example, "mission-only")
+    after = held.info["capture"]["base_twist_after"][3:]
+    np.testing.assert_allclose(held.omega[k + 1], after, rtol=0, atol=5e-4)  # 10 ms later
+    assert np.max(np.abs(held.omega[k + 1] - held.omega[k])) > 5e-3
+
+
+def test_target_at_rest_relative_to_the_end_effector_gives_no_jump(example):
+    """A target that already moves with the end effector (its CoM at the gripper point's
+    velocity, its rotation the end effector's) is captured without any base twist jump."""
+    rng = np.random.default_rng(3)
+    robot, h0 = example.robot, np.array([0.2, -0.1, 0.3, 1.0, -0.5, 0.8])
+    q = np.r_[example.mission.start, example.q_B0] + rng.normal(scale=0.2, size=robot.n)
+    q_dot = rng.normal(scale=0.3, size=robot.n)
+    quaternion = np.array([0.1, -0.2, 0.05, 0.97]) / np.linalg.norm([0.1, -0.2, 0.05, 0.97])
+    R = pin.Quaternion(*np.r_[quaternion[3], quaternion[:3]]).matrix()
+    twist = NumericMaps(robot).base_twist(q, q_dot, np.r_[R.T @ h0[:3], R.T @ h0[3:]])
+    model, data = robot.model, robot.model.createData()
+    qp, v = robot.pin_q(q, pin.SE3(R, np.zeros(3))), robot.pin_v(q_dot, twist)
+    pin.forwardKinematics(model, data, qp, v)
+    pin.updateFramePlacements(model, data)
+    frame = model.getFrameId(robot.mission.ee_frame)
+    vel = pin.getFrameVelocity(model, data, frame, pin.LOCAL_WORLD_ALIGNED)
+    com = np.array([0.25, 0.1, -0.05])
+    point = data.oMf[frame].rotation @ com
+    target = Target(
+        1.0,
+        50.0,
+        [2.0, 0.1, 0.0, 2.5, 0.0, 3.0],
+        com,
+        vel.linear + np.cross(vel.angular, point),
+        vel.angular,
+    )
+    state = capture_state(robot, attach_target(robot, target), target, q, q_dot, quaternion, h0)
+    np.testing.assert_allclose(state.twist_after, state.twist_before, rtol=0, atol=1e-12)
+    moving = dataclasses.replace(target, angular_velocity=vel.angular + [0.0, 0.0, 0.05])
+    jumped = capture_state(robot, attach_target(robot, moving), moving, q, q_dot, quaternion, h0)
+    assert np.linalg.norm(jumped.omega_jump) > 1e-4
+
+
+@pytest.mark.slow
+def test_simulation_conserves_the_momentum_through_the_capture(example):
+    """Forward dynamics of the analytic plan: the impulse gives the robot with the target the
+    momentum robot and target had (round-off), each phase keeps its own (integrator
+    tolerance), and the simulated base rate jumps by the plan's jump."""
+    plan = plan_captured(example, "analytic")
+    sim = simulate_result(example, plan)
+    k = int(np.flatnonzero(sim.t <= example.target.time)[-1])
+    info = sim.info["capture"]
+    _check_conserved(
+        example,
+        example.robot.arm_q(sim.q_pin[k]),
+        example.robot.arm_v(sim.v[k]),
+        sim.q_pin[k, 3:7],
+        np.array(info["base_twist_before"]),
+        np.array(info["base_twist_after"]),
+    )
+    assert np.max(sim.momentum_residual) < SIMULATION_TOLERANCE
+    np.testing.assert_allclose(sim.h0[k + 1], info["momentum_after"])
+    np.testing.assert_allclose(
+        info["omega_jump"], plan.info["capture"]["omega_jump"], rtol=0, atol=1e-4
+    )
+
+
+def test_capture_section_errors_name_the_key(tmp_path):
+    text = EXAMPLE.read_text()
+    bad_time = tmp_path / "late.yaml"
+    bad_time.write_text(text.replace("time: 5.0 ", "time: 12.0"))
+    line = next(i for i, s in enumerate(bad_time.read_text().splitlines(), 1) if "time: 12" in s)
+    with pytest.raises(InputError) as err:
+        load_task(bad_time)
+    assert str(err.value) == (
+        f"{bad_time}:{line}: capture.time: must be before the end of the mission (10 s), got 12 s"
+    )
+    flat = tmp_path / "flat.yaml"
+    flat.write_text(text.replace("[2.083, 0, 0, 2.083, 0, 2.083]", "[1.0, 0, 0, 1.0, 0, 3.0]"))
+    with pytest.raises(InputError, match=r"capture\.inertia: target inertia is not physical"):
+        load_task(flat)
+
+
+@pytest.mark.slow
+def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
+    """On the example the analytic law stays within the limits; the optimal plan, through the
+    same capture, keeps the base at least as still and within the limits too, its balance
+    joints at rest at the capture (continuous rates)."""
+    law = plan_captured(example, "analytic")
+    assert not law.violations
+    plan = plan_captured(example, "optimal")
+    assert plan.info["success"] and not plan.violations
+    assert plan.max_drift <= law.max_drift + 1e-6
+    k = int(np.flatnonzero(plan.t <= example.target.time)[-1])
+    np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)
+    assert np.max(plan.momentum_residual) < 1e-6
