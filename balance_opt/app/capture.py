@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from balance_opt.errors import SolverError
+from balance_opt.io.outputs import BULKY_INFO_KEYS
 from balance_opt.model.capture import CaptureState, attach_target, capture_state
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
@@ -138,8 +139,8 @@ def _in_world(result: BalanceResult, quat_c: np.ndarray, t_c: float) -> BalanceR
 def join_phases(task, before: BalanceResult, after: BalanceResult, state: CaptureState):
     """One result of the two phases: the samples of both (the second's first sample, at the
     capture, left out: the first's last is the state just before), the limit violations of the
-    whole motion, the first phase's ``info`` with the second's under ``after_capture`` and the
-    capture's numbers under ``capture``."""
+    whole motion, the first phase's ``info`` with the second's under ``after_capture`` (without
+    its bulky arrays), the iterations of both, and the capture's numbers under ``capture``."""
     keep = slice(1, None)
     arrays = {}
     for name in (
@@ -162,11 +163,15 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     for full, suffix in ((q, ""), (q_dot, "_dot"), (q_ddot, "_ddot")):
         full[:, M], full[:, B] = arrays[f"q{suffix}_M"], arrays[f"q{suffix}_B"]
     info = dict(before.info)
-    info["after_capture"] = dict(after.info)
+    info["after_capture"] = {k: v for k, v in after.info.items() if k not in BULKY_INFO_KEYS}
     success = [r.info.get("success") for r in (before, after)]
     if any(s is not None for s in success):
         info["success"] = all(s is not False for s in success)
-    info["capture"] = capture_info(state, task.target.time)
+        if before.info.get("success") and not after.info.get("success"):
+            info["status"] = after.info.get("status")
+    if "iterations" in before.info and "iterations" in after.info:
+        info["iterations"] = before.info["iterations"] + after.info["iterations"]
+    info["capture"] = state.as_dict(task.target.time)
     return dataclasses.replace(
         before,
         **arrays,
@@ -175,19 +180,6 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
         ),
         info=info,
     )
-
-
-def capture_info(state: CaptureState, t_c: float) -> dict:
-    """The capture's numbers in a result's ``info`` (plain lists and floats)."""
-    return {
-        "time_s": float(t_c),
-        "momentum_before": state.h_before.tolist(),
-        "momentum_after": state.h_after.tolist(),
-        "target_momentum": state.h_target.tolist(),
-        "base_twist_before": state.twist_before.tolist(),
-        "base_twist_after": state.twist_after.tolist(),
-        "omega_jump": state.omega_jump.tolist(),
-    }
 
 
 # ------------------------------------------------------------------------------ the methods

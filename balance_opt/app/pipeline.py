@@ -424,6 +424,12 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
         if sims:
             balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
             draw("torque", reaction_torque_figure, balanced)
+    if run.task.target is not None:  # issue 16
+        from balance_opt.io.capture_figures import CAPTION, capture_figure
+
+        curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
+        path = capture_figure(curves, run.task.target.time, output_dir / "capture.png")
+        figures.append((CAPTION, path))
     return figures
 
 

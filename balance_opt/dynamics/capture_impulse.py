@@ -110,14 +110,7 @@ def _joined(
     )
     info = dict(first.info)
     info["after_capture"] = dict(second.info)
-    info["capture"] = {
-        "time_s": t_c,
-        "momentum_before": state.h_before.tolist(),
-        "momentum_after": state.h_after.tolist(),
-        "base_twist_before": state.twist_before.tolist(),
-        "base_twist_after": state.twist_after.tolist(),
-        "omega_jump": state.omega_jump.tolist(),
-    }
+    info["capture"] = state.as_dict(t_c)
     return dataclasses.replace(
         first,
         t=np.concatenate([first.t, second.t[keep] + t_c]),

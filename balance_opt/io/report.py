@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from balance_opt.io.capture_metrics import capture_table
 from balance_opt.result import LIMIT_TOLERANCE
 
 #: Order and labels of the methods in the table.
@@ -221,6 +222,7 @@ def render_report(
     )
     parts.append("<h2>Limit violations</h2>")
     parts.append(_violations(metrics.get("methods", {})))
+    parts.append(capture_table(metrics.get("capture")))  # issue 16: "" without a capture
     if figures:
         parts.append("<h2>Figures</h2>")
         parts.extend(_figure(title, png) for title, png in figures)

@@ -142,6 +142,17 @@ class CaptureState:
         h_target: the target's own momentum [linear; angular about its CoM], world frame.
         twist_before, twist_after: base twist [linear; angular], base frame [m/s; rad/s].
         target_com: the target's CoM relative to the base origin, world axes [m].
+        ee_impulse: the impulse the target gives the mission end effector, base-frame axes,
+            ``[linear (N s); angular about the end effector's origin (N m s)]``: minus the
+            target's momentum change as it takes the end effector's motion.
+        base_impulse: that impulse carried to the base by the coupling factors,
+            ``N^{-T} ee_impulse`` (Eq. 25 in impulse form), base frame [N s; N m s]. With an
+            arm of fewer than six joints ``N`` is rank deficient and this is its Moore-Penrose
+            form: large where the arm is far from transmitting the impulse as a wrench.
+        base_momentum_jump: the momentum change of the base body itself, ``I_b (v_after -
+            v_before)`` (spatial inertia of the base link and what is locked to it), base frame,
+            angular part about the base origin [N s; N m s]: the impulse the arm's root joints
+            actually give the base with the joints held through the impact.
     """
 
     h_before: np.ndarray
@@ -150,6 +161,24 @@ class CaptureState:
     twist_before: np.ndarray
     twist_after: np.ndarray
     target_com: np.ndarray
+    ee_impulse: np.ndarray
+    base_impulse: np.ndarray
+    base_momentum_jump: np.ndarray
+
+    def as_dict(self, t_c: float) -> dict:
+        """The capture's numbers as plain data (a result's ``info["capture"]``)."""
+        return {
+            "time_s": float(t_c),
+            "momentum_before": self.h_before.tolist(),
+            "momentum_after": self.h_after.tolist(),
+            "target_momentum": self.h_target.tolist(),
+            "base_twist_before": self.twist_before.tolist(),
+            "base_twist_after": self.twist_after.tolist(),
+            "omega_jump": self.omega_jump.tolist(),
+            "ee_impulse": self.ee_impulse.tolist(),
+            "base_impulse_coupling": self.base_impulse.tolist(),
+            "base_momentum_jump": self.base_momentum_jump.tolist(),
+        }
 
     @property
     def omega_jump(self) -> np.ndarray:
@@ -205,6 +234,28 @@ def capture_state(
     h_target = np.r_[m_t * v_t, I_t @ w_t]
     rel = np.cross(c_t - c_r, v_t - h_before[:3] / m_r)
     h_after = np.r_[h_before[:3] + h_target[:3], h_before[3:] + h_target[3:] + mu * rel]
-    twist_before = NumericMaps(robot).base_twist(q, q_dot, _to_base(R, h_before))
+    maps = NumericMaps(robot)
+    twist_before = maps.base_twist(q, q_dot, _to_base(R, h_before))
     twist_after = NumericMaps(after).base_twist(q, q_dot, _to_base(R, h_after))
-    return CaptureState(h_before, h_after, h_target, twist_before, twist_after, c_t)
+    # the end effector's twist after (world axes), which the target takes
+    pin.forwardKinematics(model, data, qp, robot.pin_v(q_dot, twist_after))
+    v_ee = pin.getFrameVelocity(
+        model, data, model.getFrameId(robot.mission.ee_frame), pin.LOCAL_WORLD_ALIGNED
+    )
+    arm = c_t - ee.translation
+    dp = m_t * (v_ee.linear + np.cross(v_ee.angular, arm) - v_t)
+    dL = I_t @ (v_ee.angular - w_t)
+    impulse = _to_base(R, np.r_[-dp, -dL + np.cross(arm, -dp)])
+    base_impulse = maps.force_map(q, impulse)
+    base_jump = model.inertias[1].matrix() @ (twist_after - twist_before)
+    return CaptureState(
+        h_before,
+        h_after,
+        h_target,
+        twist_before,
+        twist_after,
+        c_t,
+        impulse,
+        base_impulse,
+        base_jump,
+    )
