@@ -11,6 +11,7 @@ exported joint motion alone, with numeric Pinocchio and nothing of the planner.
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ import pytest
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.capture import plan_captured, robot_after
-from balance_opt.app.pipeline import simulate_result
+from balance_opt.app.pipeline import run_task, simulate_result
 from balance_opt.app.scenarios import paper_capture
 from balance_opt.errors import InputError
 from balance_opt.io.task import load_task
@@ -297,3 +298,26 @@ def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
     k = int(np.flatnonzero(plan.t <= example.target.time)[-1])
     np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)
     assert np.max(plan.momentum_residual) < 1e-6
+
+
+@pytest.mark.slow
+def test_run_writes_the_capture_block_report_and_figure(example, tmp_path):
+    """``run_task`` (what ``balance-opt compare`` runs) on the example: the ``capture`` block per
+    method and per simulation, the simulated jump close to the plan's, the drift before the
+    capture equal to the plan's own attitude at that time, the figure and the report section."""
+    run = run_task(example, simulate=True, output_dir=tmp_path / "out")
+    assert run.ok
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    block = metrics["capture"]
+    assert set(block["methods"]) == {"mission-only", "analytic", "optimal"}
+    assert set(block["simulated"]) == set(block["methods"])
+    for name, m in block["methods"].items():
+        sim = block["simulated"][name]
+        np.testing.assert_allclose(sim["omega_jump_rad_s"], m["omega_jump_rad_s"], atol=1e-3)
+        result = run.results[name]
+        k = int(np.flatnonzero(result.t <= example.target.time)[-1])
+        assert m["drift_at_capture_rad"] == pytest.approx(float(result.angle[k]), abs=1e-12)
+        assert m["max_drift_after_rad"] >= m["final_drift_since_capture_rad"]
+    assert (tmp_path / "out" / "capture.png").is_file()
+    report = (tmp_path / "out" / "report.html").read_text()
+    assert f"Capture at t = {example.target.time:g} s" in report
