@@ -135,9 +135,14 @@ def test_optimal_plan_with_momentum_matches_an_independent_attitude(model, captu
     assert max(err) < ATTITUDE_TOLERANCE
     # the momentum turned the base: without the balance arm's help the drift would be larger
     assert np.linalg.norm(pin.log3(R_ref[-1])) > 1e-3
+    # every non-zero h0 shares one structure (the value is a parameter); zero momentum has its
+    # own, without the momentum terms
     cached = len(model.nlp_cache)
-    build_balance_nlp(model, capture.mission, capture.q_B0, options, h0=-H0)
+    other = build_balance_nlp(model, capture.mission, capture.q_B0, options, h0=-H0)
+    assert other.structure is nlp.structure and nlp.structure.key.momentum
     assert len(model.nlp_cache) == cached
+    still = build_balance_nlp(model, capture.mission, capture.q_B0, options)
+    assert not still.structure.key.momentum
 
 
 # ---------------------------------------------------------------------------------- the capture

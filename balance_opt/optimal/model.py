@@ -29,7 +29,9 @@ when the base starts at the identity). The base rate comes from momentum conserv
 (Eq. 26; ``docs/physics.md``, "Base motion forced by the joints"): in base axes the momentum is
 ``R^T h0`` with ``R = exp([phi]_x)``, so
 ``omega_b = I_G^{-1} (R^T L0 - A_j q_dot)`` (``L0``: the angular part of ``h0``), which is
-``J_wM(q) q_dot_M + J_wB(q) q_dot_B`` when ``h0 = 0``. One compiled kernel serves every ``h0``.
+``J_wM(q) q_dot_M + J_wB(q) q_dot_B`` when ``h0 = 0``. The kernels come in two structures,
+with and without the momentum terms (the key's ``momentum``: on the paper robot the terms cost
+17 % more Hessian instructions, 24 % with torques); the ones with them serve every ``h0``.
 """
 
 from __future__ import annotations
@@ -61,6 +63,11 @@ MOMENTUM_ROWS = 6
 
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
+
+
+def _tag(momentum: bool) -> str:
+    """Name suffix of the functions with the momentum terms."""
+    return "_h" if momentum else ""
 
 
 def check_control(control: str) -> str:
@@ -222,14 +229,14 @@ class PlannerModel:
         return cs.solve(A[3:, 3:6], ell - A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
 
     # ------------------------------------------------------------------ functions
-    def dynamics_fun(self, control: str = "acceleration") -> cs.Function:
+    def dynamics_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_dynamics(x, u, m) -> (x_dot, omega)``: the state's time derivative and the
         base angular velocity in the base frame [rad/s] (Eq. 26 with the momentum ``h0`` of
-        ``m``)."""
+        ``m``; without ``momentum`` its rows are ignored: zero momentum)."""
 
         def make():
             x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
-            ell = self._momentum_in_base(phi, m)[3:]
+            ell = self._momentum_in_base(phi, m)[3:] if momentum else cs.SX.zeros(3)
             omega = self._omega(q_M, q_B, q_dot_M, q_dot_B, ell)
             parts = [inverse_right_jacobian_sym(phi) @ omega, q_dot_B]
             parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B :], u]
@@ -242,9 +249,9 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached(f"dynamics_{check_control(control)}", make)
+        return self._cached(f"dynamics_{check_control(control)}{_tag(momentum)}", make)
 
-    def point_fun(self, control: str = "acceleration") -> cs.Function:
+    def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
         at one collocation point (the point kernels' first outputs).
 
@@ -256,7 +263,7 @@ class PlannerModel:
             x, u, m, phi, q_B, _, _, _ = self._symbols(control)
             weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
             q_rest = cs.SX.sym("q_rest", self.n_B)
-            x_dot, omega = self.dynamics_fun(control)(x, u, m)
+            x_dot, omega = self.dynamics_fun(control, momentum)(x, u, m)
             dq = q_B - q_rest
             L = (
                 weights[0] * cs.dot(omega, omega)
@@ -273,7 +280,7 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached(f"point_{check_control(control)}", make)
+        return self._cached(f"point_{check_control(control)}{_tag(momentum)}", make)
 
     # ------------------------------------------------------------------ inverse dynamics
     @cached_property
@@ -305,16 +312,27 @@ class PlannerModel:
             "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
         )
 
+    def _torques(self, q, q_dot, q_ddot, v_b):
+        """``tau`` of the free-floating inverse dynamics with the base twist ``v_b``."""
+        M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
+        a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
+        return M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
+
     def torque_fun(self) -> cs.Function:
         """``joint_torques(q, q_dot, q_ddot) -> tau``: :meth:`momentum_torque_fun` with zero
-        momentum."""
+        momentum (the base twist ``J_base q_dot``, Eq. 19)."""
 
         def make():
             n = self.robot.n
             q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
-            tau = self.momentum_torque_fun()(q, q_dot, q_ddot, cs.DM.zeros(MOMENTUM_ROWS))
+            tau = self._torques(q, q_dot, q_ddot, self.maps.base_jacobian_fun()(q) @ q_dot)
             return cs.Function(
-                "joint_torques", [q, q_dot, q_ddot], [tau], ["q", "q_dot", "q_ddot"], ["tau"]
+                "joint_torques",
+                [q, q_dot, q_ddot],
+                [tau],
+                ["q", "q_dot", "q_ddot"],
+                ["tau"],
+                {"cse": True},
             )
 
         return self._cached("torque", make)
@@ -336,9 +354,7 @@ class PlannerModel:
             h_mom = cs.SX.sym("h_b", MOMENTUM_ROWS)
             A = self.maps.centroidal_momentum_matrix_fun()(q)
             v_b = self.maps.base_jacobian_fun()(q) @ q_dot + cs.solve(A[:, :6], h_mom)
-            M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
-            a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
-            tau = M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
+            tau = self._torques(q, q_dot, q_ddot, v_b)
             return cs.Function(
                 "joint_torques_h",
                 [q, q_dot, q_ddot, h_mom],
@@ -350,19 +366,25 @@ class PlannerModel:
 
         return self._cached("torque_h", make)
 
-    def balance_torque_fun(self, control: str = "acceleration") -> cs.Function:
-        """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point."""
+    def balance_torque_fun(
+        self, control: str = "acceleration", momentum: bool = True
+    ) -> cs.Function:
+        """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point
+        (zero momentum without ``momentum``)."""
 
         def make():
             x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
             q_ddot_B = u if control == "acceleration" else x[3 + 2 * self.n_B :]
             q_ddot_M = m[2 * self.n_M : 3 * self.n_M]
-            tau = self.momentum_torque_fun()(
+            joints = (
                 cs.vertcat(q_M, q_B),
                 cs.vertcat(q_dot_M, q_dot_B),
                 cs.vertcat(q_ddot_M, q_ddot_B),
-                self._momentum_in_base(phi, m),
             )
+            if momentum:
+                tau = self.momentum_torque_fun()(*joints, self._momentum_in_base(phi, m))
+            else:
+                tau = self.torque_fun()(*joints)
             return cs.Function(
                 "balance_torques",
                 [x, u, m],
@@ -372,37 +394,39 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached(f"balance_torque_{check_control(control)}", make)
+        return self._cached(f"balance_torque_{check_control(control)}{_tag(momentum)}", make)
 
     # ------------------------------------------------------------------ kernels
     def n_y(self, control: str, torque: bool) -> int:
         """Size of a point kernel's output ``y``."""
         return self.n_x(control) + 1 + (self.n_B if torque else 0)
 
-    def kernels(self, control: str = "acceleration", torque: bool = False) -> PointKernels:
-        """The point kernels (:class:`PointKernels`) of a control and torque setting, built once
-        (and compiled once, if the model compiles)."""
-        key = (check_control(control), bool(torque))
+    def kernels(
+        self, control: str = "acceleration", torque: bool = False, momentum: bool = False
+    ) -> PointKernels:
+        """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting,
+        built once (and compiled once, if the model compiles)."""
+        key = (check_control(control), bool(torque), bool(momentum))
         if key not in self._kernels:
             self._kernels[key] = self._make_kernels(*key)
         return self._kernels[key]
 
-    def _make_kernels(self, control: str, torque: bool) -> PointKernels:
+    def _make_kernels(self, control: str, torque: bool, momentum: bool) -> PointKernels:
         n_x, n_u = self.n_x(control), self.n_u
         z = cs.SX.sym("z", n_x + n_u)
         m = cs.SX.sym("m", self.n_m)
         weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
         q_rest = cs.SX.sym("q_rest", self.n_B)
         x, u = z[:n_x], z[n_x:]
-        x_dot, L = self.point_fun(control)(x, u, m, weights, q_rest)
+        x_dot, L = self.point_fun(control, momentum)(x, u, m, weights, q_rest)
         parts = [x_dot, L]
         if torque:
-            parts.append(self.balance_torque_fun(control)(x, u, m))
+            parts.append(self.balance_torque_fun(control, momentum)(x, u, m))
         y = cs.vertcat(*parts)
         mu = cs.SX.sym("mu", y.numel())
         c = cs.SX.sym("c", y.numel())
         hess, _ = cs.hessian(cs.dot(mu, y), z)
-        suffix = f"{control}{'_torque' if torque else ''}"
+        suffix = f"{control}{'_torque' if torque else ''}{_tag(momentum)}"
         names = ["z", "m", "weights", "q_rest"]
         opts = {"cse": True}
         functions = [

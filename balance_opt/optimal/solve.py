@@ -252,7 +252,8 @@ class BalanceNLP(BalanceProblem):
         t0, t1, t2, t3 = times
         status = str(stats.get("return_status", "unknown"))
         iters = stats.get("iterations", {})
-        kernels = self.model.kernels(self.control, self.structure.key.torque_limits)
+        key = self.structure.key
+        kernels = self.model.kernels(self.control, key.torque_limits, key.momentum)
         return {
             "status": status,
             "success": status in SUCCESS_STATUSES,
@@ -347,7 +348,8 @@ def build_balance_nlp(
     options = options or PlannerOptions()
     robot = model.robot if robot is None else robot
     q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
-    key = StructureKey.of(robot.limits.subset(robot.balance_indices), options)
+    momentum = h0 is not None and bool(np.any(np.asarray(h0, dtype=float) != 0.0))
+    key = StructureKey.of(robot.limits.subset(robot.balance_indices), options, momentum)
     built_now = key not in model.nlp_cache
     if built_now:
         model.nlp_cache[key] = build_structure(model, key, options)
