@@ -12,7 +12,11 @@ momentum ``R_c^T h_after`` and the identity as start), and its attitudes are tur
 the world frame: every planner, the analytic law's feedback included, then holds the attitude
 its phase started from. The optimal planner's first phase ends with the balance arm in its
 start condition of the second (``rest`` or ``still``), so that the balance joints' rates (and
-with ``rest`` their accelerations) are continuous through the capture.
+with ``rest`` their accelerations) are continuous through the capture; the task's end
+conditions (``final_configuration``, ``terminal_attitude_bound``) apply to the second phase,
+and the second phase's attitude terms (cost, bounds) are measured from the attitude at the
+capture. ``horizon`` is each phase's own duration, and the intervals are split between the
+phases in proportion to their durations (:func:`phase_intervals`).
 """
 
 from __future__ import annotations
@@ -213,7 +217,13 @@ def _plan_optimal(task, p: Phase, solver_options, models) -> BalanceResult:
     n_first, n_second = phase_intervals(options.intervals, task.target.time, task.duration)
     if p.index == 0:  # end in the second phase's start condition: continuous joint rates
         options = dataclasses.replace(
-            options, intervals=n_first, end=options.start, rest_at_end=False, horizon=None
+            options,
+            intervals=n_first,
+            end=options.start,
+            rest_at_end=False,
+            horizon=None,
+            final_configuration=None,  # the task's end is the second phase's
+            terminal_attitude_bound=None,
         )
     else:
         options = dataclasses.replace(options, intervals=n_second, horizon=None)
