@@ -37,7 +37,10 @@ from balance_opt.result import BalanceResult, find_limit_violations
 
 log = logging.getLogger(__name__)
 
-_ROBOTS_AFTER: dict[int, FloatingRobot] = {}
+#: Robots with their target, by (robot, target) of a task: the objects themselves are kept
+#: beside the result, so an id is never reused while its entry lives. A few at most.
+_ROBOTS_AFTER: dict[tuple[int, int], tuple[Any, Any, FloatingRobot]] = {}
+_ROBOTS_AFTER_KEPT = 4
 
 
 class MissionWindow:
@@ -58,11 +61,13 @@ class MissionWindow:
 
 
 def robot_after(task) -> FloatingRobot:
-    """The task's robot with its target attached, built once per task object."""
-    key = id(task)
+    """The task's robot with its target attached, built once per robot and target."""
+    key = (id(task.robot), id(task.target))
     if key not in _ROBOTS_AFTER:
-        _ROBOTS_AFTER[key] = attach_target(task.robot, task.target)
-    return _ROBOTS_AFTER[key]
+        while len(_ROBOTS_AFTER) >= _ROBOTS_AFTER_KEPT:
+            _ROBOTS_AFTER.pop(next(iter(_ROBOTS_AFTER)))
+        _ROBOTS_AFTER[key] = (task.robot, task.target, attach_target(task.robot, task.target))
+    return _ROBOTS_AFTER[key][2]
 
 
 @dataclass
