@@ -80,6 +80,31 @@ def test_planner_base_rate_with_momentum_matches_the_law_rollout(model, capture)
     assert np.max(np.abs(np.array(omega0).T - law.omega)) > 1e-3
 
 
+@pytest.mark.slow
+def test_torques_with_momentum_reproduce_the_accelerations_in_forward_dynamics(model):
+    """Joint torques of the free-floating inverse dynamics with a momentum ``h_b`` (base axes):
+    Pinocchio's ABA from the state whose base twist carries that momentum gives back the
+    joint accelerations, and that state's centroidal momentum is ``h_b``."""
+    rng = np.random.default_rng(5)
+    robot = model.robot
+    tau_fun = model.momentum_torque_fun()
+    data = robot.model.createData()
+    lim = robot.limits
+    for _ in range(5):
+        q = rng.uniform(np.maximum(lim.lower, -2.0), np.minimum(lim.upper, 2.0))
+        q_dot, q_ddot, h_b = (rng.normal(size=n) for n in (robot.n, robot.n, 6))
+        tau = np.array(tau_fun(q, q_dot, q_ddot, h_b)).ravel()
+        qp = robot.pin_q(q)
+        A = pin.computeCentroidalMap(robot.model, data, qp)  # base at the identity: base axes
+        v_arm = robot.pin_v(q_dot)
+        v = robot.pin_v(q_dot, np.linalg.solve(A[:, :6], h_b - A[:, 6:] @ v_arm[6:]))
+        np.testing.assert_allclose(A @ v, h_b, rtol=0, atol=1e-9)
+        tau_full = np.zeros(robot.model.nv)
+        tau_full[robot.pin_v_indices] = tau
+        a = pin.aba(robot.model, data, qp, v, tau_full)
+        np.testing.assert_allclose(a[robot.pin_v_indices], q_ddot, rtol=0, atol=1e-9)
+
+
 def _independent_attitude(robot, t, q, q_dot, h0) -> np.ndarray:
     """Base rotation matrices (every other sample) integrated from the joint motion alone: at
     each sample the base twist solves ``A_G(q, R) [v_b; q_dot] = h0`` (Pinocchio's centroidal
