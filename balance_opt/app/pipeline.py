@@ -54,19 +54,19 @@ FIGURES = {
     ),
     "simulated_attitude": (
         "attitude_simulated",
-        "Base attitude in the forward-dynamics simulation of each plan and of the mission arm "
-        "alone",
+        "Base attitude in the forward-dynamics simulation of each plan and of the mission arm alone",
     ),
     "torque": (
         "reaction_torque",
-        "Torque the arms exert on the base in the forward-dynamics simulation of each plan "
-        "(paper Fig. 4): sum of the arms, mission arm and balance arm; each plan on its own "
-        "scale",
+        (
+            "Torque the arms exert on the base in the forward-dynamics simulation of each plan "
+            "(paper Fig. 4): sum of the arms, mission arm and balance arm; each plan on its own "
+            "scale"
+        ),
     ),
     "joints": (
         "balance_joints",
-        "Balance joint positions, rates and accelerations of each plan with their limits "
-        "(dotted)",
+        "Balance joint positions, rates and accelerations of each plan with their limits (dotted)",
     ),
 }
 

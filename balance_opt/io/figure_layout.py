@@ -16,7 +16,8 @@ import numpy as np
 
 from balance_opt.io.style import WIDTHS, font_sizes
 
-#: Widths of the glyphs of tick labels [em] (DejaVu Sans); other characters count as 0.62 em.
+#: Widths of glyphs [em] (DejaVu Sans, rounded up); lower-case letters count as 0.58 em, other
+#: characters as 0.7 em.
 _GLYPH_EM = {".": 0.32, "-": 0.84, "\N{MINUS SIGN}": 0.84, "+": 0.84, " ": 0.32, "e": 0.62}
 _DIGIT_EM = 0.64
 #: Gaps [in]: around the figure, between a tick label and its axis (tick included), between
@@ -31,7 +32,9 @@ def text_width(text: str, size_pt: float) -> float:
     """Estimated width of ``text`` in inches at ``size_pt`` (mathtext counted as 4 glyphs)."""
     if text.startswith("$"):
         return 4 * _DIGIT_EM * size_pt * _PT
-    em = sum(_DIGIT_EM if c.isdigit() else _GLYPH_EM.get(c, 0.62) for c in text)
+    em = sum(
+        _DIGIT_EM if c.isdigit() else _GLYPH_EM.get(c, 0.58 if c.islower() else 0.7) for c in text
+    )
     return em * size_pt * _PT
 
 
@@ -52,10 +55,15 @@ def _y_extent(ax, tick_pt: float, label_pt: float) -> float:
 
 
 def legend_columns(labels: Sequence[str], width: str, handle_em: float = 2.6) -> int:
-    """How many legend entries fit side by side across a figure of ``width``."""
+    """How many legend columns fit across a figure of ``width``, the entries filling rows
+    (a column is as wide as its widest entry)."""
     size = font_sizes(width)["legend"]
-    entry = max(text_width(s, size) for s in labels) + (handle_em + 0.5 + 1.2) * size * _PT
-    return max(1, min(len(labels), int((WIDTHS[width] - 2 * _EDGE) // entry)))
+    entries = [text_width(s, size) + (handle_em + 0.5 + 1.2) * size * _PT for s in labels]
+    room = WIDTHS[width] - 2 * _EDGE
+    for ncol in range(len(entries), 1, -1):
+        if sum(max(entries[c::ncol]) for c in range(ncol)) <= room:
+            return ncol
+    return 1
 
 
 def arrange(
@@ -122,3 +130,10 @@ def legend_above(fig, handles, width: str, anchor: tuple[float, float], ncol: in
         borderpad=0.0,
         fontsize=font_sizes(width)["legend"],
     )
+
+
+def column_title(ax, text: str, width: str) -> None:
+    """Name a column of panels (a plan, a joint) above its top panel. Placed at a fixed height
+    (:func:`arrange` leaves room): matplotlib's automatic placement measures the axis at every
+    draw."""
+    ax.set_title(text, fontsize=font_sizes(width)["base"], y=1.0, pad=3.0)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from balance_opt.io import style
-from balance_opt.io.figure_layout import arrange, legend_above, legend_columns
+from balance_opt.io.figure_layout import arrange, column_title, legend_above, legend_columns
 
 #: Width of a paper column [in].
 COLUMN_WIDTH = style.WIDTHS["column"]
@@ -179,7 +179,7 @@ def reaction_torque_figure(
             if c:
                 for ax in axes[:, c]:
                     ax.set_ylabel("")
-            axes[0, c].set_title(style.method_label(name), fontsize=style.font_sizes(width)["base"])
+            column_title(axes[0, c], style.method_label(name), width)
         ncol = legend_columns([h.get_label() for h in handles], width)
         rows = -(-len(handles) // ncol)
         anchor = arrange(fig, axes, width, legend_rows=rows, column_titles=True)
@@ -207,6 +207,7 @@ def paper_figure_set(
         balance_only: ``{method: simulation}`` of each plan's balance arm alone (Fig. 3).
         balanced: ``{method: simulation}`` of each plan, both arms moving (Figs. 4, 5).
     """
+
     def sims(results):
         return {f"{name}{style.SIM}": res for name, res in results.items()}
 

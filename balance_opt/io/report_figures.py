@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from balance_opt.io import style
-from balance_opt.io.figure_layout import arrange, legend_above, legend_columns
+from balance_opt.io.figure_layout import arrange, column_title, legend_above, legend_columns
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.result import BalanceResult
 
@@ -18,7 +18,7 @@ from balance_opt.result import BalanceResult
 _ROWS = (
     ("q_B", "position", "position [rad]"),
     ("q_dot_B", "velocity", "rate [rad/s]"),
-    ("q_ddot_B", "acceleration", "accel. [rad/s$^2$]"),
+    ("q_ddot_B", "acceleration", "accel. [rad/s²]"),
 )
 #: Largest number of joint columns drawn (a 7-DOF arm still fits a page).
 MAX_COLUMNS = 7
@@ -60,14 +60,12 @@ def joint_limits_figure(
         axes = fig.subplots(len(_ROWS), len(joints), sharex=True, squeeze=False)
         for c, joint in enumerate(joints):
             _joint_column(axes[:, c], results, robot, joint, list(first.balance_joints))
-            axes[0, c].set_title(joint, fontsize=style.font_sizes(width)["base"])
+            column_title(axes[0, c], joint, width)
         handles = axes[0, 0].get_lines()
         handles = [h for h in handles if h.get_label() != "_limit"][: len(results)]
         handles.append(_limit_handle())
         ncol = legend_columns([h.get_label() for h in handles], width)
-        anchor = arrange(
-            fig, axes, width, legend_rows=-(-len(handles) // ncol), column_titles=True
-        )
+        anchor = arrange(fig, axes, width, legend_rows=-(-len(handles) // ncol), column_titles=True)
         legend_above(fig, handles, width, anchor, ncol)
         if path is None:
             return fig
@@ -85,13 +83,16 @@ def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joint
 
     i = robot.joint_index(joint)
     k = balance_joints.index(joint)
+    first = next(iter(results.values()))
     for r, (field, kind, label) in enumerate(_ROWS):
         ax = axes[r]
         for name, res in results.items():
             ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
-        for b in _bounds(robot.limits, kind, i):
-            if np.isfinite(b):
-                ax.axhline(b, **{**LIMIT_STYLE, "label": "_limit"})
+        bounds = [b for b in _bounds(robot.limits, kind, i) if np.isfinite(b)]
+        if bounds:  # one line for both limits (NaN between): fewer artists than axhline
+            t0, t1 = first.t[0], first.t[-1]
+            ys = [y for b in bounds for y in (b, b, np.nan)]
+            ax.plot([t0, t1, np.nan] * len(bounds), ys, **{**LIMIT_STYLE, "label": "_limit"})
         if joint == balance_joints[0]:
             ax.set_ylabel(label)
         ax.yaxis.set_major_locator(MaxNLocator(4))

@@ -11,8 +11,9 @@ Method names (:data:`METHODS`):
   conservation gives for the planned joint motion (the kinematic model);
 * ``"<method>:sim"``: the forward-dynamics simulation of that plan. It keeps its method's colour
   and marker shape (a reader ties it to its plan) and gets its own line style and hollow markers;
-* ``"<method>:kinematic"`` (not in :data:`METHODS`): the plan's own style, labelled as the
-  kinematic model, for the one figure that overlays a plan and its simulation (paper Fig. 2);
+* ``"<method>:kinematic"`` (not in :data:`METHODS`): the plan under the momentum model drawn
+  as a wide pale band in its colour, for the figure that overlays a plan and its simulation
+  (paper Fig. 2: the simulated curve on top, the band shows where they agree);
 * ``"sum"``: the sum of the arms' torques on the base (paper Fig. 4) and ``"arm:mission"`` the
   mission arm's part (the balance arm's part is drawn in its plan's simulation style).
 
@@ -69,8 +70,10 @@ _LONG_DASH = (0, (9.0, 2.5))
 _DOTTED = (0, (1.0, 1.3))
 
 #: Markers every this fraction of the axes' diagonal (markers at even spacing whatever the
-#: sampling, a dozen or so per curve).
+#: sampling, a dozen or so per curve), the first one this far along (so that the markers of
+#: curves that overlap do not sit on each other).
 MARK_EVERY = 0.09
+_MARK_START = {"mission-only": 0.0, "analytic": 0.03, "optimal": 0.06}
 
 _STYLES: dict[str, dict[str, Any]] = {
     "mission-only": {"color": _BLACK, "linestyle": _DASHED, "marker": "s"},
@@ -87,6 +90,9 @@ _STYLES: dict[str, dict[str, Any]] = {
     "sum": {"color": _BLACK, "linestyle": "-", "marker": "", "linewidth": 1.4},
     "arm:mission": {"color": _GREY, "linestyle": _DOTTED, "marker": "", "linewidth": 1.1},
 }
+#: A plan's kinematic model drawn under its forward-dynamics run (paper Fig. 2): a wide pale
+#: band in the plan's colour, so that the thin simulated curve on top shows where they agree.
+_KINEMATIC_BAND = {"linestyle": "-", "marker": "", "linewidth": 4.0, "alpha": 0.3, "zorder": 1.5}
 #: Colours of names without a style (a plan the user named): Okabe-Ito, after the ones above.
 _EXTRA = ("#009E73", "#CC79A7", "#56B4E9", "#D55E00")
 
@@ -126,7 +132,10 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
         markers: draw the markers (off for dense plots such as a joint grid).
     """
     base, suffix = _base(name)
-    key = base if suffix == KINEMATIC else name
+    if suffix == KINEMATIC:
+        style = {**_KINEMATIC_BAND, "color": method_colour(base), "label": method_label(name)}
+        return style
+    key = name
     if key in _STYLES:
         style = dict(_STYLES[key])
     else:
@@ -134,7 +143,8 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
         style = {"color": colour, "linestyle": "-", "marker": "D", "fillstyle": "none"}
     style.setdefault("linewidth", 1.2)
     if style["marker"] and markers:
-        style.update(markevery=MARK_EVERY, markersize=3.5, markeredgewidth=0.8)
+        start = _MARK_START.get(_base(name)[0], 0.0)
+        style.update(markevery=(start, MARK_EVERY), markersize=3.5, markeredgewidth=0.8)
     else:
         style["marker"] = ""
     style["label"] = method_label(name)
