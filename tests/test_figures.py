@@ -181,3 +181,66 @@ def test_figures_leave_global_state_alone(tmp_path):
     )
     assert dict(mpl.rcParams) == before
     assert not (tmp_path / "a.pdf").exists() and (tmp_path / "a.png").exists()
+
+
+def fake_plan(joints, rng, T=40):
+    t = np.linspace(0.0, 4.0, T)
+    n = len(joints)
+    q = np.cumsum(rng.normal(scale=0.05, size=(T, n)), axis=0)
+    return SimpleNamespace(
+        t=t, balance_joints=tuple(joints), q_B=q, q_dot_B=np.gradient(q, t, axis=0), q_ddot_B=q
+    )
+
+
+def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path):
+    from balance_opt.io.report_figures import joint_limits_figure
+
+    joints = [j for j in paper.joint_names if "balance" in j]
+    rng = np.random.default_rng(7)
+    plans = {"analytic": fake_plan(joints, rng), "optimal": fake_plan(joints, rng)}
+    fig = joint_limits_figure(plans, paper)
+    assert list(tmp_path.iterdir()) == []
+    assert titles(fig) == ("", joints + [""] * (2 * len(joints)))
+    top = fig.axes[0]
+    labels = [line.get_label() for line in top.get_lines()]
+    assert labels[:2] == ["analytic law", "optimal plan"]
+    i = paper.joint_index(joints[0])
+    limit = top.get_lines()[2].get_ydata()
+    np.testing.assert_allclose(limit[[0, 3]], [paper.limits.lower[i], paper.limits.upper[i]])
+    lo, hi = top.get_ylim()
+    assert lo <= paper.limits.lower[i] and hi >= paper.limits.upper[i]
+    texts_inside_and_legend_above(fig)
+    path = joint_limits_figure(plans, paper, tmp_path / "joints.png")
+    assert Image.open(path).info["dpi"][0] == pytest.approx(style.SCREEN_DPI, abs=0.5)
+
+
+def test_sweep_plots_use_the_method_styles(monkeypatch, tmp_path):
+    from balance_opt.sweep import report
+
+    figures = []
+    monkeypatch.setattr(report, "_save", lambda fig, path: figures.append(fig) or path)
+    rng = np.random.default_rng(8)
+    records = [
+        {
+            "index": 2 * k + m,
+            "method": method,
+            "status": "ok",
+            "parameters": {"mission.duration": 5.0 + k},
+            "metrics": {"max_drift_rad": rng.uniform(0.01, 0.05), "final_drift_rad": 0.01},
+        }
+        for k in range(4)
+        for m, method in enumerate(("analytic", "optimal"))
+    ]
+    report.plot_drift_distribution(records, tmp_path / "d.png")
+    report.plot_drift_against_parameter(records, "mission.duration", tmp_path / "p.png")
+    distribution, against = figures
+    steps = distribution.axes[0].get_lines()
+    assert [line.get_color() for line in steps] == [
+        style.method_colour("analytic"),
+        style.method_colour("optimal"),
+    ]
+    assert [line.get_label() for line in steps] == ["analytic law (4)", "optimal plan (4)"]
+    for fig in figures:
+        assert titles(fig)[0] == "" and not any(titles(fig)[1])
+    scatter = against.axes[0].collections
+    assert [c.get_label() for c in scatter] == ["analytic law", "optimal plan"]

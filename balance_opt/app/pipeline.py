@@ -149,7 +149,7 @@ def plan_optimal(
     model = (models if models is not None else ModelCache()).planner_model(
         task.robot, task.spec.robot.backend
     )
-    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
+    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot, h0=task.h0)
     guess = (
         warm_start
         if (warm_start is not None and spec.initial_guess == "analytic")
@@ -176,6 +176,10 @@ def plan(
         InputError: an unknown method.
         SolverError: the method failed; its ``result`` holds what was computed.
     """
+    if task.target is not None and method in (REFERENCE, *METHODS):  # two phases (issue 16)
+        from balance_opt.app.capture import plan_captured
+
+        return plan_captured(task, method, solver_options, models)
     if method == REFERENCE:
         return plan_mission_only(task)
     if method == "analytic":
@@ -189,6 +193,13 @@ def simulate_result(task: Task, plan: BalanceResult):
     """Forward-dynamics simulation of a plan with the task's simulation options."""
     from balance_opt.dynamics.simulation import simulate_plan
 
+    if task.target is not None:  # through the capture's impulse (issue 16)
+        from balance_opt.app.capture import robot_after
+        from balance_opt.dynamics.capture_impulse import simulate_with_capture
+
+        return simulate_with_capture(
+            task.robot, robot_after(task), task.target, plan, task.spec.simulation
+        )
     return simulate_plan(task.robot, plan, task.spec.simulation)
 
 
@@ -420,6 +431,12 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
         if sims:
             balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
             draw("torque", reaction_torque_figure, balanced)
+    if run.task.target is not None:  # issue 16
+        from balance_opt.io.capture_figures import CAPTION, capture_figure
+
+        curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
+        path = capture_figure(curves, run.task.target.time, output_dir / "capture.png")
+        figures.append((CAPTION, path))
     return figures
 
 

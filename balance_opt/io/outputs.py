@@ -415,7 +415,10 @@ def run_metrics(
     """The content of ``metrics.json``: the task (file, name, SHA-256), the versions, and
     :func:`method_metrics` of each result by method name; ``failures`` lists methods whose solver
     failed (their best iterate is among ``results``)."""
+    from balance_opt.io.capture_metrics import capture_metrics
+
     simulations = simulations or {}
+    capture = capture_metrics(task, results, simulations)  # issue 16; None without a capture
     return to_json(
         {
             "format": METRICS_FORMAT,
@@ -426,6 +429,7 @@ def run_metrics(
                 for name, r in results.items()
             },
             "failures": dict(failures or {}),
+            **({"capture": capture} if capture is not None else {}),
         }
     )
 

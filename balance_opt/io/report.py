@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.io.capture_metrics import capture_table
 from balance_opt.io.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE
 
@@ -458,6 +459,7 @@ def render_report(
             "method's NPZ file (<code>joint_torque</code>).</p>"
         )
         parts.append(_torque_profiles(methods, fails, torques))
+    parts.append(capture_table(metrics.get("capture")))  # "" without a capture
     if figures:
         parts.append("<h2>Figures</h2>")
         parts.extend(_figure(title, png) for title, png in figures)

@@ -83,13 +83,16 @@ def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joint
 
     i = robot.joint_index(joint)
     k = balance_joints.index(joint)
+    first = next(iter(results.values()))
     for r, (field, kind, label) in enumerate(_ROWS):
         ax = axes[r]
         for name, res in results.items():
             ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
-        for b in _bounds(robot.limits, kind, i):
-            if np.isfinite(b):
-                ax.axhline(b, **{**LIMIT_STYLE, "label": "_limit"})
+        bounds = [b for b in _bounds(robot.limits, kind, i) if np.isfinite(b)]
+        if bounds:  # one line for both limits (NaN between): fewer artists than axhline
+            t0, t1 = first.t[0], first.t[-1]
+            ys = [y for b in bounds for y in (b, b, np.nan)]
+            ax.plot([t0, t1, np.nan] * len(bounds), ys, **{**LIMIT_STYLE, "label": "_limit"})
         if joint == balance_joints[0]:
             ax.set_ylabel(label)
         ax.yaxis.set_major_locator(MaxNLocator(4))

@@ -70,8 +70,10 @@ _LONG_DASH = (0, (9.0, 2.5))
 _DOTTED = (0, (1.0, 1.3))
 
 #: Markers every this fraction of the axes' diagonal (markers at even spacing whatever the
-#: sampling, a dozen or so per curve).
+#: sampling, a dozen or so per curve), the first one this far along (so that the markers of
+#: curves that overlap do not sit on each other).
 MARK_EVERY = 0.09
+_MARK_START = {"mission-only": 0.0, "analytic": 0.03, "optimal": 0.06}
 
 _STYLES: dict[str, dict[str, Any]] = {
     "mission-only": {"color": _BLACK, "linestyle": _DASHED, "marker": "s"},
@@ -141,7 +143,8 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
         style = {"color": colour, "linestyle": "-", "marker": "D", "fillstyle": "none"}
     style.setdefault("linewidth", 1.2)
     if style["marker"] and markers:
-        style.update(markevery=MARK_EVERY, markersize=3.5, markeredgewidth=0.8)
+        start = _MARK_START.get(_base(name)[0], 0.0)
+        style.update(markevery=(start, MARK_EVERY), markersize=3.5, markeredgewidth=0.8)
     else:
         style["marker"] = ""
     style["label"] = method_label(name)

@@ -53,6 +53,9 @@ DRIFT_FLOOR = 1e-12
 PANEL_WIDTH = 3.5
 #: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
 LOG_SCALE_RATIO = 30.0
+#: Below this ratio of the largest to the smallest drift (two decades), a logarithmic drift
+#: axis labels 1, 2 and 5 times the powers of ten, not the powers alone.
+LABELLED_DECADES = 100.0
 #: Largest number of distinct values of a list parameter plotted as categories.
 MAX_CATEGORIES = 8
 #: Margin of the parameter axes (a fraction of the range), so that no point sits on a border.
@@ -203,7 +206,11 @@ def _drift_axis(ax, which: str, values) -> None:
     values = np.asarray([v for v in values if v is not None], dtype=float)
     if values.size and values.min() > 0 and values.max() / values.min() > LOG_SCALE_RATIO:
         (ax.set_xscale if which == "x" else ax.set_yscale)("log")
-        axis.set_major_locator(LogLocator(base=10.0))
+        if values.max() / values.min() < LABELLED_DECADES:  # few decades: 1, 2, 5 labelled
+            axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(FormatStrFormatter("%.3g"))
+        else:
+            axis.set_major_locator(LogLocator(base=10.0))
         axis.set_minor_formatter(NullFormatter())
         return
     axis.set_major_formatter(FormatStrFormatter("%.3g"))
@@ -234,8 +241,19 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
             axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")
         ):
             _distribution_panel(ax, ok, methods, key, title)
+        handles, labels = axes[0][0].get_legend_handles_labels()
         if paired:
             _paired_panel(axes[0][2], paired)
+            more, more_labels = axes[0][2].get_legend_handles_labels()
+            handles, labels = (
+                handles + more,
+                labels
+                + [
+                    f"{x} ({len(paired)} parameter sets)" if x != "equal" else x
+                    for x in more_labels
+                ],
+            )
+        fig.legend(handles, labels, loc="outside upper center", ncol=len(handles))
         return _save(fig, path)
 
 
@@ -258,12 +276,14 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
     ax.set_ylabel("fraction of cases")
     ax.set_ylim(0, 1.02)
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(loc="lower right")
 
 
 def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
     """Optimal against analytic drift of the same parameter sets, with the diagonal."""
-    for key, marker, label in ((MAX_DRIFT, "o", "maximum"), (FINAL_DRIFT, "x", "final")):
+    for key, marker, label in (
+        (MAX_DRIFT, "o", "maximum drift"),
+        (FINAL_DRIFT, "x", "final drift"),
+    ):
         xy = np.array(
             [
                 (a, o)
@@ -296,7 +316,6 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
     ax.set_xlabel("analytic drift [rad]")
     ax.set_ylabel("optimal drift [rad]")
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(title=f"{len(paired)} parameter sets")
 
 
 def _pairs(ok: Sequence[dict]) -> list[tuple[dict, dict]]:
@@ -363,8 +382,9 @@ def plot_drift_against_parameter(
     with styled("column"):
         fig, axes = _figure(2, len(views))
         _parameter_panels(axes, views, ok, methods)
-        if failed:
-            axes[0][0].legend(title=f"{failed} failed case(s) not shown")
+        handles, labels = axes[0][0].get_legend_handles_labels()
+        note = f"{failed} failed case{'s' if failed > 1 else ''} not shown" if failed else None
+        fig.legend(handles, labels, loc="outside upper center", ncol=len(handles), title=note)
         return _save(fig, path)
 
 
@@ -410,8 +430,6 @@ def _parameter_panels(axes, views, ok: Sequence[dict], methods: Sequence[str]) -
             ax.set_xlabel(column)
             if j == 0:
                 ax.set_ylabel(f"{what} drift [rad]")
-            if i == 0 and j == 0:
-                ax.legend()
 
 
 def _marker(method: str) -> str:
