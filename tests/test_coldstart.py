@@ -8,6 +8,7 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from balance_opt import cache, cache_admin
 from balance_opt.model.maps import NumericMaps, base_angular_velocity
@@ -43,22 +44,25 @@ def test_stored_model_round_trips_and_matches_numeric_pinocchio(paper, tmp_path)
     fresh = PlannerModel(paper, compile=False, cache_dir=tmp_path)
     k1, dyn1 = fresh.kernels(), fresh.dynamics_fun()
     stored = sorted(p.name for p in (tmp_path / "planner-models").glob("*.casadi"))
-    assert [n.rsplit("_", 2)[-2:] for n in stored] == [
-        ["dynamics", "acceleration.casadi"],
-        ["kernels", "acceleration.casadi"],
+    assert [n.split(fresh.key)[1] for n in stored] == [
+        "_dynamics_acceleration.casadi",  # built for the kernels (no momentum)
+        "_dynamics_acceleration_h.casadi",  # with the momentum terms (the default)
+        "_kernels_acceleration.casadi",
     ]
     warm = PlannerModel(paper, compile=False, cache_dir=tmp_path)
     k2, dyn2 = warm.kernels(), warm.dynamics_fun()
     assert warm._maps is None  # loaded: no momentum map was built
     _same_kernels(k1, k2, 0.0)  # the same expression graph: bit for bit
-    # the loaded dynamics against numeric Pinocchio: omega_b from zero momentum (Eq. 26)
+    # the loaded dynamics against numeric Pinocchio: omega_b = I_G^{-1} (R^T L0 - A q_dot)
     rng = np.random.default_rng(3)
     q_M, q_B, qd_M, qd_B = (rng.uniform(-1, 1, 3) for _ in range(4))
-    x = np.r_[0.1, -0.2, 0.05, q_B, qd_B]
-    _, omega = dyn2(x, rng.uniform(-1, 1, 3), np.r_[q_M, qd_M, np.zeros(3)])
-    assert np.array_equal(np.array(dyn1(x, 0.5, np.r_[q_M, qd_M, 0, 0, 0])[1]), np.array(omega))
+    phi, h0 = np.array([0.1, -0.2, 0.05]), rng.uniform(-5, 5, 6)
+    x, m = np.r_[phi, q_B, qd_B], np.r_[q_M, qd_M, np.zeros(3), h0]
+    _, omega = dyn2(x, rng.uniform(-1, 1, 3), m)
+    assert np.array_equal(np.array(dyn1(x, 0.5, m)[1]), np.array(omega))
     I_G, A = NumericMaps(paper).angular_maps(np.r_[q_M, q_B])
-    expected = base_angular_velocity(I_G, A, np.r_[qd_M, qd_B])
+    R = Rotation.from_rotvec(phi).as_matrix()
+    expected = base_angular_velocity(I_G, A, np.r_[qd_M, qd_B], ell=R.T @ h0[3:])
     assert np.abs(np.array(omega).ravel() - expected).max() < 1e-12
     assert np.abs(expected).max() > 1e-3  # not a trivially zero case
     kinds = {e.kind for e in cache_admin.entries(tmp_path)}
