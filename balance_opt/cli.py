@@ -15,7 +15,13 @@ Subcommands:
 * ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
-(whatever was computed is still written), 130 interrupted (Ctrl-C or SIGTERM; nothing written).
+(whatever was computed is still written), 130 interrupted (Ctrl-C or SIGTERM; nothing written),
+141 the reader of the output went away (``balance-opt validate --schema | head``: the code of a
+program ended by SIGPIPE, as ``cat`` gets, without a traceback).
+
+Progress of long work (stages, kernel compilation, the optimal planner's Ipopt iterations) goes
+to stderr (:mod:`balance_opt.progress`): an updating line on a terminal, one line per stage
+otherwise; ``-q`` turns it off.
 
 Outputs are all-or-nothing (:class:`~balance_opt.io.output_dir.OutputFolder`): the output folder
 is checked and locked before anything is computed (a folder that cannot be created, is in use by
@@ -31,20 +37,26 @@ import json
 import logging
 import os
 import re
+import signal
 import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from balance_opt import __version__, progress
 from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
 from balance_opt.io.output_dir import OutputFolder
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: A closed output pipe: 128 + SIGPIPE, what a shell reports for ``cat`` ended by it.
+EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
+VERSION = f"balance-opt {__version__}"
 DESCRIPTION = (
     "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
     "law and an optimal planner, compared."
 )
 DEFAULT_OUTPUT_ROOT = Path("results")
+PAPER_FIGURES_FOLDER = DEFAULT_OUTPUT_ROOT / "paper_figures"
 _HANDLER_FLAG = "_balance_opt_cli"
 
 log = logging.getLogger("balance_opt.cli")
@@ -126,11 +138,13 @@ def _early_output(args) -> Iterator[OutputFolder | None]:
 
 
 def _configure_logging(verbose: bool, quiet: bool) -> None:
-    """Log balance-opt's messages to the current stderr (progress at INFO)."""
+    """Log balance-opt's messages to the current stderr (progress at INFO), and show the live
+    progress line there unless ``quiet``."""
     logger = logging.getLogger("balance_opt")
     for h in [h for h in logger.handlers if getattr(h, _HANDLER_FLAG, False)]:
         logger.removeHandler(h)
-    handler = logging.StreamHandler(sys.stderr)
+    progress.configure(not quiet, sys.stderr)
+    handler = progress.LogHandler(sys.stderr)
     setattr(handler, _HANDLER_FLAG, True)
     handler.setFormatter(
         logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S")
@@ -273,8 +287,10 @@ def _cmd_paper_figures(args) -> int:
 
             task = load_task(args.task)
         solver_options = _solver_options(args, task)
-        folder = folder or OutputFolder(DEFAULT_OUTPUT_ROOT / "paper_figures", args.force)
-        files = paper_figures(folder, task=task, solver_options=solver_options)
+        folder = folder or OutputFolder(PAPER_FIGURES_FOLDER, args.force)
+        files = paper_figures(
+            folder, task=task, solver_options=solver_options, backend=args.backend
+        )
     log.info("wrote %d files to %s", len(files), folder.target)
     return EXIT_OK
 
@@ -317,6 +333,7 @@ def _cmd_sweep(args) -> int:
         return EXIT_OK
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
+    progress.configure(False)  # one log line per case, no Ipopt line (workers are silent)
     solver_options = _command_line_ipopt(args)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
@@ -324,6 +341,9 @@ def _cmd_sweep(args) -> int:
     if args.retry_failed and not args.resume:
         raise InputError("--retry-failed goes with --resume")
     sweep = load_sweep(args.sweep, solver_options)
+    if args.backend is not None:  # the same maps either way: the case ids do not change
+        for case in sweep.cases:
+            case["task"].setdefault("robot", {})["backend"] = args.backend
     out_dir = Path(args.output) if args.output else default_output_folder(sweep.name)
     if args.scheduler is None:
         jobs = min(jobs, len(sweep.cases)) if jobs else 0
@@ -368,18 +388,23 @@ def _common_options(parser: argparse.ArgumentParser, top: bool) -> None:
         help="log debug messages, and show Ipopt's iteration log (stdout)",
     )
     parser.add_argument(
-        "-q", "--quiet", action="store_true", default=default, help="print errors only"
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=default,
+        help="print only warnings and errors: no progress",
     )
 
 
-def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) -> None:
+def _run_options(
+    parser: argparse.ArgumentParser,
+    task_required: bool = True,
+    default_output: str = f"{DEFAULT_OUTPUT_ROOT}/<task name>",
+) -> None:
     if task_required:
         parser.add_argument("task", help="task file (YAML)")
     parser.add_argument(
-        "-o",
-        "--output",
-        metavar="DIR",
-        help=f"output directory (default: {DEFAULT_OUTPUT_ROOT}/<task name>)",
+        "-o", "--output", metavar="DIR", help=f"output directory (default: {default_output})"
     )
     parser.add_argument(
         "-f",
@@ -397,13 +422,11 @@ def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) ->
     )
 
 
-def _method_option(parser: argparse.ArgumentParser) -> None:
+def _method_option(
+    parser: argparse.ArgumentParser, help: str = "planning method (default: both)"
+) -> None:
     parser.add_argument(
-        "-m",
-        "--method",
-        choices=("analytic", "optimal", "both"),
-        default="both",
-        help="planning method (default: both)",
+        "-m", "--method", choices=("analytic", "optimal", "both"), default="both", help=help
     )
 
 
@@ -417,7 +440,11 @@ def _add_check_commands(sub) -> None:
     p.add_argument(
         "--reference", action="store_true", help="print the task-file reference (Markdown) and exit"
     )
-    _method_option(p)
+    _method_option(
+        p,
+        "check what these methods need (default: both; analytic leaves out the optimal "
+        "planner's checks)",
+    )
     p.set_defaults(run=_cmd_validate)
 
     p = sub.add_parser("schema", help="print the JSON Schema of task files")
@@ -461,7 +488,8 @@ def _add_run_commands(sub) -> None:
     p.set_defaults(run=_cmd_compare)
 
     p = sub.add_parser("paper-figures", help="the paper's study: Figs 2-5 on the Table 1 robot")
-    _run_options(p, task_required=False)
+    _run_options(p, task_required=False, default_output=str(PAPER_FIGURES_FOLDER))
+    backend_option(p)
     p.add_argument(
         "--task",
         help="task file whose analytic, optimal and simulation options the study uses "
@@ -515,6 +543,7 @@ def _add_sweep_command(sub) -> None:
         help="start over in an existing, non-empty output directory",
     )
     p.add_argument("--no-plots", action="store_true", help="skip the summary plots")
+    backend_option(p)
     p.add_argument(
         "--solver-option",
         action="append",
@@ -539,9 +568,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="balance-opt",
         description=DESCRIPTION,
-        epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted",
+        epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted, "
+        "141 output pipe closed",
     )
     _common_options(parser, top=True)
+    parser.add_argument("--version", action="version", version=VERSION)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_check_commands(sub)
     _add_run_commands(sub)
@@ -552,9 +583,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv=None) -> int:
+def _detach_stdout() -> None:
+    """Point stdout at ``/dev/null`` after its reader went away, so that nothing more (the
+    interpreter's last flush included) fails on it."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
+def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 success, 1 solver failure, 2 bad input,
-    130 interrupted by Ctrl-C or SIGTERM)."""
+    130 interrupted by Ctrl-C or SIGTERM, 141 output pipe closed)."""
     from balance_opt.errors import BalanceOptError, InputError, SolverError
     from balance_opt.interrupts import handling_signals
 
@@ -566,7 +606,12 @@ def main(argv=None) -> int:
     _configure_logging(args.verbose, args.quiet)
     try:
         with handling_signals():
-            return args.run(args)
+            code = args.run(args)
+            sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+            return code
+    except BrokenPipeError:
+        _detach_stdout()
+        return EXIT_BROKEN_PIPE
     except InputError as exc:
         print(f"balance-opt: error: {exc}", file=sys.stderr)
         return EXIT_INPUT

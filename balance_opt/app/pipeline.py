@@ -522,11 +522,13 @@ def paper_figures(
     task: Task | None = None,
     solver_options: Mapping[str, Any] | None = None,
     force: bool = False,
+    backend: str | None = None,
 ) -> list[Path]:
     """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
     ``output_dir``, all-or-nothing as :func:`run_task` writes; the options of the analytic law,
     the planner and the simulator come from ``task`` when given (its robot and mission must be
-    the paper's: the study is that scenario).
+    the paper's: the study is that scenario). ``backend`` (the optimal planner's symbolic
+    backend) defaults to the task's ``robot.backend``, else ``"auto"``.
 
     Raises:
         InputError: the output folder cannot be used (see :func:`run_task`), checked first.
@@ -547,6 +549,8 @@ def paper_figures(
 
         kwargs = {"planner": PlannerOptions(ipopt=dict(solver_options))}
     with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
-        study = paper_study(folder.staging, **kwargs)
+        if backend is None:
+            backend = task.spec.robot.backend if task is not None else "auto"
+        study = paper_study(folder.staging, backend=backend, **kwargs)
         files = [p for paths in study.figures.values() for p in paths]
         return [folder.final(p) for p in (*files, folder.staging / "study.json")]

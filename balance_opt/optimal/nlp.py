@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
+from balance_opt import progress
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
     PEAK_SCALE,
@@ -375,5 +376,8 @@ def _ipopt_solver(
             "grad_f": _gradient(kernels, outer, x),
             "jac_g": _jacobian(kernels, outer, x),
             "hess_lag": _hessian(kernels, outer, x, n_g),
+            # the live progress line (balance_opt.progress); returns at once when it is off
+            "iteration_callback": progress.ipopt_callback(x.w.numel(), n_g),
+            "iteration_callback_ignore_errors": True,
         },
     )

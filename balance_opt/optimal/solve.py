@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from balance_opt import progress
 from balance_opt.errors import InputError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
@@ -215,9 +216,10 @@ class BalanceNLP(BalanceProblem):
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
-        out = self.structure.solver(
-            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
-        )
+        with progress.solving(self.lbg, self.ubg, f"Ipopt (N = {self.N})"):
+            out = self.structure.solver(
+                x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+            )
         raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
         t2 = time.perf_counter()
         w = np.array(out["x"]).ravel()
