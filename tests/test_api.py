@@ -75,10 +75,21 @@ def test_import_is_light_and_every_name_resolves():
         bo.nope  # noqa: B018
 
 
-def test_version_is_the_project_version():
+def test_version_license_and_citation_agree_with_the_project():
+    import yaml
+
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     assert bo.__version__ == project["version"]
     assert any(d.startswith("pandas>=") for d in project["dependencies"])
+    citation = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert (citation["title"], citation["version"]) == ("balance-opt", project["version"])
+    assert citation["license"] == project["license"] == "BSD-3-Clause"
+    paper = citation["references"][0]
+    assert paper["title"] == "Dynamic Balance Control of Multi-arm Free-Floating Space Robots"
+    assert [a["family-names"] for a in paper["authors"]] == ["Huang", "Xu", "Liang"]
+    license_text = (ROOT / "LICENSE").read_text()
+    assert license_text.startswith("BSD 3-Clause License\n\nCopyright (c) 2026, balance-opt")
+    assert "Neither the name of the copyright holder nor the names of its" in license_text
 
 
 @pytest.mark.parametrize("name", API)

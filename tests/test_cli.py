@@ -465,6 +465,23 @@ def test_api_example_runs_headless(tmp_path):
     assert re.search(r"^optimal +[0-9.e-]+ +[0-9.e-]+ +0$", proc.stdout, re.MULTILINE)
     assert f"report: {out / 'report.html'}; solver failures: none" in proc.stdout
     assert {"metrics.json", "report.html", "optimal.csv"} <= {p.name for p in out.iterdir()}
+    # each plan computed once: run_task writes the plans and simulations it is given
+    for name in ("mission-only", "analytic", "optimal"):
+        assert f"{name} plan given, not planned again" in proc.stderr
+    assert (
+        "optimal plan (N =" not in proc.stderr and "forward-dynamics simulation" not in proc.stderr
+    )
+    # the folder is checked before planning: a second run is refused at once
+    again = subprocess.run(
+        [sys.executable, str(EXAMPLES / "compare_api.py"), str(_fast_paper(tmp_path)), str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        check=False,
+    )
+    assert again.returncode == 1 and again.stdout.count("\n") == 1  # the task line only
+    assert f"compare_api: output folder {out} exists and is not empty" in again.stderr
 
 
 def test_verbose_shows_the_ipopt_iterations(tmp_path, capsys):
