@@ -36,7 +36,6 @@ import contextlib
 import json
 import logging
 import os
-import re
 import signal
 import sys
 import time
@@ -44,6 +43,16 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from balance_opt import __version__, progress
+from balance_opt.cli_options import (
+    PAPER_FIGURES_FOLDER,
+    command_line_ipopt,
+    common_options,
+    default_output_folder,
+    ipopt_options_of,
+    method_option,
+    parse_solver_option,
+    run_options,
+)
 from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
 from balance_opt.io.output_dir import OutputFolder
 
@@ -55,71 +64,14 @@ DESCRIPTION = (
     "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
     "law and an optimal planner, compared."
 )
-DEFAULT_OUTPUT_ROOT = Path("results")
-PAPER_FIGURES_FOLDER = DEFAULT_OUTPUT_ROOT / "paper_figures"
 _HANDLER_FLAG = "_balance_opt_cli"
+#: Re-exported: the CLI's helpers as they were importable before cli_options.py split off.
+__all__ = ["build_parser", "default_output_folder", "main", "parse_solver_option"]
 
 log = logging.getLogger("balance_opt.cli")
 
 
 # =========================================================================================== helpers
-def parse_solver_option(text: str) -> tuple[str, int | float | str]:
-    """``"max_iter=100"`` -> ``("max_iter", 100)``: the value as an int, else a float, else a string.
-
-    Raises:
-        InputError: no ``=`` or an empty key.
-    """
-    from balance_opt.errors import InputError
-
-    key, sep, value = text.partition("=")
-    key, value = key.strip(), value.strip()
-    if not sep or not key:
-        raise InputError(f"--solver-option {text!r}: expected KEY=VALUE, e.g. max_iter=200")
-    for convert in (int, float):
-        try:
-            return key, convert(value)
-        except ValueError:
-            pass
-    return key, value
-
-
-#: Ipopt's iteration log, shown (on stdout) with ``--verbose`` as the optimal planner's progress.
-VERBOSE_IPOPT = {"print_level": 5}
-
-
-def _command_line_ipopt(args) -> dict:
-    """``--solver-option`` values, checked against Ipopt's own option list."""
-    from balance_opt.optimal.ipopt_options import check_ipopt_options
-
-    return check_ipopt_options(
-        dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
-    )
-
-
-def _solver_options(args, task=None) -> dict:
-    """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
-    task or the command line sets ``print_level``)."""
-    options = _command_line_ipopt(args)
-    task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}
-    if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
-        options.update(VERBOSE_IPOPT)
-    return options
-
-
-#: Characters a default output folder name keeps; any run of others becomes one ``_``.
-_UNSAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
-
-
-def default_output_folder(name: str) -> Path:
-    """``results/<name>``, the default output folder of a task or sweep ``name``, with the name
-    made a plain folder name: only letters, digits, ``.``, ``_`` and ``-`` (others become
-    ``_``), no leading dot. So a name such as ``../../x`` stays inside ``results/``."""
-    safe = _UNSAFE_NAME.sub("_", name).lstrip(".") or "unnamed"
-    if safe != name:
-        log.warning("name %r is not a plain folder name; the output folder is %s", name, safe)
-    return DEFAULT_OUTPUT_ROOT / safe
-
-
 @contextlib.contextmanager
 def _early_output(args) -> Iterator[OutputFolder | None]:
     """The ``--output`` folder opened (checked, locked, staging created) before anything else,
@@ -228,7 +180,7 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
 
     with _early_output(args) as folder:
         task = with_backend(load_task(args.task), args.backend)
-        solver_options = _solver_options(args, task)
+        solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
         started = time.perf_counter()
         run = run_task(
@@ -286,7 +238,7 @@ def _cmd_paper_figures(args) -> int:
             from balance_opt.io.task import load_task
 
             task = load_task(args.task)
-        solver_options = _solver_options(args, task)
+        solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(PAPER_FIGURES_FOLDER, args.force)
         files = paper_figures(
             folder, task=task, solver_options=solver_options, backend=args.backend
@@ -334,7 +286,7 @@ def _cmd_sweep(args) -> int:
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
     progress.configure(False)  # one log line per case, no Ipopt line (workers are silent)
-    solver_options = _command_line_ipopt(args)
+    solver_options = command_line_ipopt(args)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
         raise InputError(f"--jobs must be >= 0, got {jobs}")
@@ -377,59 +329,6 @@ def _cmd_sweep(args) -> int:
 
 
 # =========================================================================================== parser
-def _common_options(parser: argparse.ArgumentParser, top: bool) -> None:
-    """``-v``/``-q`` on the top parser and on every subcommand (either place works)."""
-    default = False if top else argparse.SUPPRESS
-    parser.add_argument(
-        "-v",
-        "--verbose",
-        action="store_true",
-        default=default,
-        help="log debug messages, and show Ipopt's iteration log (stdout)",
-    )
-    parser.add_argument(
-        "-q",
-        "--quiet",
-        action="store_true",
-        default=default,
-        help="print only warnings and errors: no progress",
-    )
-
-
-def _run_options(
-    parser: argparse.ArgumentParser,
-    task_required: bool = True,
-    default_output: str = f"{DEFAULT_OUTPUT_ROOT}/<task name>",
-) -> None:
-    if task_required:
-        parser.add_argument("task", help="task file (YAML)")
-    parser.add_argument(
-        "-o", "--output", metavar="DIR", help=f"output directory (default: {default_output})"
-    )
-    parser.add_argument(
-        "-f",
-        "--force",
-        action="store_true",
-        help="replace an existing, non-empty output folder: its old files are all removed, "
-        "once the new results are complete",
-    )
-    parser.add_argument(
-        "--solver-option",
-        action="append",
-        metavar="KEY=VALUE",
-        help="Ipopt option for the optimal planner (repeatable); overrides the task's "
-        "optimal.ipopt; values are read as int, float or string",
-    )
-
-
-def _method_option(
-    parser: argparse.ArgumentParser, help: str = "planning method (default: both)"
-) -> None:
-    parser.add_argument(
-        "-m", "--method", choices=("analytic", "optimal", "both"), default="both", help=help
-    )
-
-
 def _add_check_commands(sub) -> None:
     """``validate``, ``schema`` and ``inspect``: everything short of planning."""
     p = sub.add_parser("validate", help="check task files (everything short of planning)")
@@ -440,7 +339,7 @@ def _add_check_commands(sub) -> None:
     p.add_argument(
         "--reference", action="store_true", help="print the task-file reference (Markdown) and exit"
     )
-    _method_option(
+    method_option(
         p,
         "check what these methods need (default: both; analytic leaves out the optimal "
         "planner's checks)",
@@ -461,9 +360,9 @@ def _add_run_commands(sub) -> None:
     p = sub.add_parser(
         "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
     )
-    _run_options(p)
+    run_options(p)
     backend_option(p)
-    _method_option(p)
+    method_option(p)
     p.add_argument(
         "--simulate", action="store_true", help="also simulate each plan (as the simulate command)"
     )
@@ -472,15 +371,15 @@ def _add_run_commands(sub) -> None:
     p = sub.add_parser(
         "simulate", help="plan, then check each plan in a forward-dynamics simulation"
     )
-    _run_options(p)
+    run_options(p)
     backend_option(p)
-    _method_option(p)
+    method_option(p)
     p.set_defaults(run=_cmd_simulate)
 
     p = sub.add_parser(
         "compare", help="analytic and optimal plans, simulated, and the comparison report"
     )
-    _run_options(p)
+    run_options(p)
     backend_option(p)
     p.add_argument(
         "--no-simulate", action="store_true", help="skip the forward-dynamics simulation"
@@ -488,7 +387,7 @@ def _add_run_commands(sub) -> None:
     p.set_defaults(run=_cmd_compare)
 
     p = sub.add_parser("paper-figures", help="the paper's study: Figs 2-5 on the Table 1 robot")
-    _run_options(p, task_required=False, default_output=str(PAPER_FIGURES_FOLDER))
+    run_options(p, task_required=False, default_output=str(PAPER_FIGURES_FOLDER))
     backend_option(p)
     p.add_argument(
         "--task",
@@ -571,7 +470,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted, "
         "141 output pipe closed",
     )
-    _common_options(parser, top=True)
+    common_options(parser, top=True)
     parser.add_argument("--version", action="version", version=VERSION)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_check_commands(sub)
@@ -579,7 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sweep_command(sub)
     add_tool_commands(sub)
     for subparser in sub.choices.values():
-        _common_options(subparser, top=False)
+        common_options(subparser, top=False)
     return parser
 
 

@@ -157,6 +157,13 @@ def test_repr_is_short_and_says_what_matters():
     assert "all met" in repr(_synthetic(violations=0))
 
 
+def test_repr_of_a_task_is_one_line(task):
+    assert repr(task) == (
+        f"Task(name='paper_capture', source={task.source!r}, robot paper_robot (mission 3 "
+        "joints; balance 3 joints), mission ptp 3 s)"
+    )
+
+
 def test_repr_of_real_plans(plans):
     for res in plans.values():
         lines = repr(res).split("\n")
