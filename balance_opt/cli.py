@@ -512,17 +512,22 @@ def main(argv: list[str] | None = None) -> int:
         _detach_stdout()
         return EXIT_BROKEN_PIPE
     except InputError as exc:
-        print(f"balance-opt: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
+        return _fail(f"error: {exc}", EXIT_INPUT)
     except SolverError as exc:
-        print(f"balance-opt: solver failure: {exc}", file=sys.stderr)
-        return EXIT_SOLVER
+        return _fail(f"solver failure: {exc}", EXIT_SOLVER)
     except BalanceOptError as exc:
-        print(f"balance-opt: failure: {exc}", file=sys.stderr)
-        return EXIT_SOLVER
+        return _fail(f"failure: {exc}", EXIT_SOLVER)
     except KeyboardInterrupt:
-        print("balance-opt: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _fail("interrupted", EXIT_INTERRUPTED)
+    finally:
+        progress.configure(False)
+
+
+def _fail(message: str, code: int) -> int:
+    """Print ``balance-opt: message`` on stderr (on a line of its own) and return ``code``."""
+    progress.clear()
+    print(f"balance-opt: {message}", file=sys.stderr)
+    return code
 
 
 if __name__ == "__main__":

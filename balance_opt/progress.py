@@ -203,10 +203,16 @@ def ipopt_callback(n_x: int, n_g: int) -> Any:
                 return cs.Sparsity.dense(n_g)
             return cs.Sparsity(0, 0)
 
-        def eval(self, arg: list[Any]) -> list[Any]:
-            if _STATE.solve is not None:
-                iteration(float(arg[1]), np.asarray(arg[2]).ravel())
-            return [0]
+        def has_eval_buffer(self) -> bool:
+            return True  # numpy views of CasADi's own buffers: no copy of x or g
+
+        def eval_buffer(self, arg: list[Any], res: list[Any]) -> int:
+            if res and res[0] is not None:
+                np.frombuffer(res[0], dtype=float)[:] = 0.0  # non-zero would stop Ipopt
+            if _STATE.solve is not None and arg[1] is not None:
+                g = np.frombuffer(arg[2], dtype=float) if arg[2] is not None else None
+                iteration(float(np.frombuffer(arg[1], dtype=float)[0]), g)
+            return 0
 
     callback = _IterationCallback()
     _CALLBACKS.append(callback)

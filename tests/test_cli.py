@@ -448,19 +448,21 @@ def test_paper_figures_with_fast_options(tmp_path):
 @pytest.mark.slow
 def test_api_example_runs_headless(tmp_path):
     import os
-    import subprocess
-    import sys
 
     out = tmp_path / "api"
-    env = {**os.environ, "MPLBACKEND": "Agg"}
-    proc = subprocess.run(
-        [sys.executable, str(EXAMPLES / "compare_api.py"), str(_fast_paper(tmp_path)), str(out)],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-        check=False,
-    )
+    task = _fast_paper(tmp_path)
+
+    def example():
+        return subprocess.run(
+            [sys.executable, str(EXAMPLES / "compare_api.py"), str(task), str(out)],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "MPLBACKEND": "Agg"},
+            timeout=300,
+            check=False,
+        )
+
+    proc = example()
     assert proc.returncode == 0, proc.stderr
     assert re.search(r"^optimal +[0-9.e-]+ +[0-9.e-]+ +0$", proc.stdout, re.MULTILINE)
     assert f"report: {out / 'report.html'}; solver failures: none" in proc.stdout
@@ -472,14 +474,7 @@ def test_api_example_runs_headless(tmp_path):
         "optimal plan (N =" not in proc.stderr and "forward-dynamics simulation" not in proc.stderr
     )
     # the folder is checked before planning: a second run is refused at once
-    again = subprocess.run(
-        [sys.executable, str(EXAMPLES / "compare_api.py"), str(_fast_paper(tmp_path)), str(out)],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-        check=False,
-    )
+    again = example()
     assert again.returncode == 1 and again.stdout.count("\n") == 1  # the task line only
     assert f"compare_api: output folder {out} exists and is not empty" in again.stderr
 
