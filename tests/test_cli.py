@@ -2,6 +2,7 @@
 metrics, exit codes), a table of bad inputs (exit 2, the culprit named), no overwrite without
 ``--force``, and a solver failure (exit 1, outputs still written)."""
 
+import argparse
 import csv
 import hashlib
 import json
@@ -614,3 +615,14 @@ def test_optimal_plan_shows_its_ipopt_progress_unless_quiet(tmp_path, capsys):
     assert "\r" not in err  # not a terminal: no live line
     assert main(["plan", task, "-m", "optimal", "-o", str(tmp_path / "b"), "-q"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_the_readme_lists_every_subcommand():
+    from balance_opt.cli import build_parser
+
+    readme = (ROOT / "README.md").read_text()
+    listing = readme[readme.index("## Command line") : readme.index("Every command that computes")]
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [name for name in sub.choices if f"    balance-opt {name}" not in listing]
+    assert missing == []
+    assert "balance-opt --version" in listing
