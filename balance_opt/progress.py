@@ -7,7 +7,7 @@ sweep worker sees nothing. On a terminal the line updates in place (at most
 :data:`REFRESH_S` apart); elsewhere (a log file, CI) each stage is one line and a solve ends with
 one summary line, without the per-iteration updates.
 
-The planner's NLP gets an Ipopt iteration callback (:func:`ipopt_callback`, built once per NLP
+The planner's NLP gets an Ipopt iteration callback (:func:`nlpsol_options`, built once per NLP
 structure); :func:`solving` wraps one Ipopt call with the constraint bounds the violation is
 measured against. While progress is off the callback returns at once.
 """
@@ -207,6 +207,10 @@ def ipopt_callback(n_x: int, n_g: int) -> Any:
             return True  # numpy views of CasADi's own buffers: no copy of x or g
 
         def eval_buffer(self, arg: list[Any], res: list[Any]) -> int:
+            # An interrupt raised in here (Ctrl-C, SIGTERM) stops Ipopt at this iteration
+            # (CasADi's own handling; the run then raises it: balance_opt.interrupts); any
+            # other error is ignored (iteration_callback_ignore_errors): progress never
+            # ends a solve.
             if res and res[0] is not None:
                 np.frombuffer(res[0], dtype=float)[:] = 0.0  # non-zero would stop Ipopt
             if _STATE.solve is not None and arg[1] is not None:
@@ -217,3 +221,12 @@ def ipopt_callback(n_x: int, n_g: int) -> Any:
     callback = _IterationCallback()
     _CALLBACKS.append(callback)
     return callback
+
+
+def nlpsol_options(n_x: int, n_g: int) -> dict[str, Any]:
+    """The ``nlpsol`` options that give a solver the progress line: the callback of
+    :func:`ipopt_callback`, whose errors (a bug here) are ignored rather than ending the solve."""
+    return {
+        "iteration_callback": ipopt_callback(n_x, n_g),
+        "iteration_callback_ignore_errors": True,
+    }

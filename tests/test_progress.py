@@ -84,3 +84,53 @@ def test_a_closed_stream_turns_progress_off():
     stream.close()
     progress.status("anything")  # no exception
     assert not progress.enabled()
+
+
+def test_the_ipopt_callback_follows_the_solve_and_stops_it_on_an_interrupt(monkeypatch):
+    """On a small NLP: one call per Ipopt iteration (0 included), the violation of the bounds
+    given to ``solving``; an interrupt (KeyboardInterrupt) inside the callback stops Ipopt at
+    that iteration instead of being swallowed."""
+    cs = pytest.importorskip("casadi")
+    n = 30
+    x = cs.MX.sym("x", n)
+    solver = cs.nlpsol(
+        "toy",
+        "ipopt",
+        {"x": x, "f": cs.sumsqr(x - 1), "g": x[1:] - x[:-1]},
+        {
+            "ipopt": {"print_level": 0, "sb": "yes"},
+            "print_time": False,
+            **progress.nlpsol_options(n, n - 1),  # as the planner's NLP
+        },
+    )
+    x0 = np.linspace(0.0, 29.0, n)  # steps of 1 against bounds of +-0.1: violation 0.9
+    stream = io.StringIO()
+    progress.configure(True, stream)
+    with progress.solving(np.full(n - 1, -0.1), np.full(n - 1, 0.1), "toy"):
+        solver(x0=x0, lbg=-0.1, ubg=0.1)
+    stats = solver.stats()
+    assert stats["return_status"] == "Solve_Succeeded"
+    assert stream.getvalue().startswith(f"toy: {stats['iter_count']} iterations, objective ")
+    seen = []
+    real = progress.iteration
+
+    def interrupted_at_2(objective, g):
+        real(objective, g)
+        seen.append(progress._STATE.solve["violation"])
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(progress, "iteration", interrupted_at_2)
+    with progress.solving(np.full(n - 1, -0.1), np.full(n - 1, 0.1), "toy"):
+        solver(x0=x0, lbg=-0.1, ubg=0.1)
+    assert solver.stats()["return_status"] == "User_Requested_Stop"
+    assert solver.stats()["iter_count"] == 2 and len(seen) == 3
+    assert seen[0] == pytest.approx(0.9)
+
+    def broken(objective, g):
+        raise ValueError("a bug in the progress code")
+
+    monkeypatch.setattr(progress, "iteration", broken)  # must not end the solve
+    with progress.solving(np.full(n - 1, -0.1), np.full(n - 1, 0.1), "toy"):
+        solver(x0=x0, lbg=-0.1, ubg=0.1)
+    assert solver.stats()["return_status"] == "Solve_Succeeded"

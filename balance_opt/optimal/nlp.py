@@ -377,7 +377,6 @@ def _ipopt_solver(
             "jac_g": _jacobian(kernels, outer, x),
             "hess_lag": _hessian(kernels, outer, x, n_g),
             # the live progress line (balance_opt.progress); returns at once when it is off
-            "iteration_callback": progress.ipopt_callback(x.w.numel(), n_g),
-            "iteration_callback_ignore_errors": True,
+            **progress.nlpsol_options(x.w.numel(), n_g),
         },
     )
