@@ -200,7 +200,7 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
         assert set(sim["peak_reaction_torque_Nm"]) == {"mission", "balance", "total"}
     report = (out / "report.html").read_text()
     assert report.count("data:image/png;base64,") == 4
-    assert "<th>Analytic law (Eq. 31)</th><th>Optimal planner</th>" in report
+    assert re.search(r"analytic law</th><th>.*?optimal plan</th>", report)
 
 
 @pytest.mark.slow

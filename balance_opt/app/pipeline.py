@@ -50,22 +50,28 @@ METHODS = ("analytic", "optimal")
 REFERENCE = "mission-only"
 METRICS_FILE = "metrics.json"
 REPORT_FILE = "report.html"
+#: Figures of a run: key -> (file name without suffix, caption). The figures carry no title;
+#: the report prints these captions under them.
 FIGURES = {
     "attitude": (
         "attitude_plans",
-        "Base attitude of each plan (kinematic), with the mission arm alone (dashed)",
+        "Base attitude of each plan (momentum model), with the mission arm alone for reference",
     ),
     "simulated_attitude": (
         "attitude_simulated",
-        "Base attitude in the forward-dynamics simulation of each plan",
+        "Base attitude in the forward-dynamics simulation of each plan and of the mission arm alone",
     ),
     "torque": (
         "reaction_torque",
-        "Torque the arms exert on the base in the simulation (paper Fig. 4)",
+        (
+            "Torque the arms exert on the base in the forward-dynamics simulation of each plan "
+            "(paper Fig. 4): sum of the arms, mission arm and balance arm; each plan on its own "
+            "scale"
+        ),
     ),
     "joints": (
         "balance_joints",
-        "Balance joint positions, rates and accelerations with their limits (dotted)",
+        "Balance joint positions, rates and accelerations of each plan with their limits (dotted)",
     ),
 }
 
@@ -127,9 +133,13 @@ def plan_mission_only(task: Task) -> BalanceResult:
         task: a loaded task (:func:`balance_opt.io.task.load_task`).
 
     Returns:
-        A result with ``method="mission-only"``.
+        A result with ``method="mission-only"``; for a task with a capture, both phases
+        joined at the capture (:func:`balance_opt.app.capture.plan_captured`), as every method.
     """
     from balance_opt.analytic.phases import phase_one
+
+    if task.target is not None:
+        return _captured(task, REFERENCE)
 
     a = task.spec.analytic
     return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration)
@@ -149,6 +159,9 @@ def plan_analytic(task: Task) -> BalanceResult:
     """
     from balance_opt.analytic.rollout import rollout
 
+    if task.target is not None:
+        return _captured(task, "analytic")
+
     a = task.spec.analytic
     return rollout(task.robot, task.mission, task.q_B0, a.law, integration=a.integration)
 
@@ -165,7 +178,8 @@ def plan_optimal(
         task: the task.
         solver_options: Ipopt options overriding ``optimal.ipopt`` (``--solver-option``).
         warm_start: an analytic result to start from (with ``optimal.initial_guess: analytic``),
-            instead of rolling out the law again.
+            instead of rolling out the law again (not used for a task with a capture, whose
+            phases start from their own guesses).
         models: the planner models to reuse (with their compiled NLPs); without one, the
             model is built for this call only.
 
@@ -179,19 +193,28 @@ def plan_optimal(
     """
     from balance_opt.optimal.solve import build_balance_nlp
 
+    if task.target is not None:
+        return _captured(task, "optimal", solver_options, models)
     check_optimal_supported(task)
     spec = task.spec.optimal
     options = task.planner_options(solver_options)
     model = (models if models is not None else ModelCache()).planner_model(
         task.robot, task.spec.robot.backend
     )
-    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
+    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot, h0=task.h0)
     guess = (
         warm_start
         if (warm_start is not None and spec.initial_guess == "analytic")
         else spec.initial_guess
     )
     return nlp.solve(guess)
+
+
+def _captured(task: Task, method: str, solver_options=None, models=None) -> BalanceResult:
+    """The plan of a task with a capture: two phases joined at the capture (issue 16)."""
+    from balance_opt.app.capture import plan_captured
+
+    return plan_captured(task, method, solver_options, models)
 
 
 def plan(
@@ -234,6 +257,13 @@ def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
     """
     from balance_opt.dynamics.simulation import simulate_plan
 
+    if task.target is not None:  # through the capture's impulse (issue 16)
+        from balance_opt.app.capture import robot_after
+        from balance_opt.dynamics.capture_impulse import simulate_with_capture
+
+        return simulate_with_capture(
+            task.robot, robot_after(task), task.target, plan, task.spec.simulation
+        )
     return simulate_plan(task.robot, plan, task.spec.simulation)
 
 
@@ -429,6 +459,7 @@ def _simulate_into(run: TaskRun, name: str) -> None:
 def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
     from balance_opt.io.outputs import (
+        plan_joint_torques,
         run_metrics,
         write_metrics,
         write_trajectory_csv,
@@ -442,7 +473,8 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         if out.csv:
             files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
         if out.npz:
-            files.append(write_trajectory_npz(output_dir / f"{name}.npz", res))
+            npz = output_dir / f"{name}.npz"
+            files.append(write_trajectory_npz(npz, res, run.task.robot, run.task.h0))
     run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures)
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []
@@ -455,8 +487,13 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         from balance_opt.io.report import write_report
 
         extra = _animation_section(run) if out.animation else ""
+        torques = {
+            name: (res.t, plan_joint_torques(res, run.task.robot, run.task.h0))
+            for name, res in run.results.items()
+        }
+        about = run.task.spec.description
         run.report = write_report(
-            output_dir / REPORT_FILE, run.metrics, figures, run.task.spec.description, extra
+            output_dir / REPORT_FILE, run.metrics, figures, about, extra, torques
         )
         files.append(run.report)
         if not out.plots:
@@ -483,38 +520,45 @@ def _animation_section(run: TaskRun) -> str:
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
-    """PNG figures of a run: the plans' attitude (and the mission arm alone), the balance
-    joints against their limits and, when simulated, the simulated attitude and the reaction
-    torques. Returns ``(caption, path)`` pairs."""
+    """PNG figures of a run at one resolution (:data:`~balance_opt.io.style.SCREEN_DPI`, the
+    report's): the plans' attitude with the mission arm alone, the balance joints against their
+    limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
+    the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
+    ``(caption, path)`` pairs."""
     from balance_opt.io.plots import attitude_figure, reaction_torque_figure
     from balance_opt.io.report_figures import joint_limits_figure
+    from balance_opt.io.style import SCREEN_DPI, SIM
 
-    def attitude(results, key, title):
-        """Attitude of the plans, the reference dashed (alone when there is no plan)."""
-        plans = {k: v for k, v in results.items() if k != REFERENCE}
-        dashed = {REFERENCE: results[REFERENCE]} if plans and REFERENCE in results else None
+    def draw(key, function, curves):
         stem, caption = FIGURES[key]
-        _, paths = attitude_figure(
-            plans or results, output_dir / stem, dashed=dashed, title=title, formats=("png",)
-        )
+        _, paths = function(curves, output_dir / stem, formats=("png",), dpi=SCREEN_DPI)
         figures.append((caption, paths[0]))
-        return plans
 
     figures = []
-    plans = attitude(run.results, "attitude", "Base attitude")
+    plans = {k: v for k, v in run.results.items() if k != REFERENCE}
+    draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
     if plans:
         stem, caption = FIGURES["joints"]
-        path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png")
+        path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI)
         figures.append((caption, path))
     if run.simulations:
-        sims = attitude(run.simulations, "simulated_attitude", "Base attitude, forward dynamics")
+        sims = {f"{k}{SIM}": v for k, v in run.simulations.items() if k != REFERENCE}
+        reference = {f"{k}{SIM}": v for k, v in _only(run.simulations, REFERENCE).items()}
+        draw("simulated_attitude", attitude_figure, {**sims, **reference})
         if sims:
-            stem, caption = FIGURES["torque"]
-            _, paths = reaction_torque_figure(
-                sims, output_dir / stem, title="Torque on the base", formats=("png",)
-            )
-            figures.append((caption, paths[0]))
+            balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
+            draw("torque", reaction_torque_figure, balanced)
+    if run.task.target is not None:  # issue 16
+        from balance_opt.io.capture_figures import CAPTION, capture_figure
+
+        curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
+        path = capture_figure(curves, run.task.target.time, output_dir / "capture.png")
+        figures.append((CAPTION, path))
     return figures
+
+
+def _only(results: Mapping[str, Any], name: str) -> dict[str, Any]:
+    return {name: results[name]} if name in results else {}
 
 
 def paper_figures(

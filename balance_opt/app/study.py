@@ -37,7 +37,7 @@ from balance_opt.app.scenarios import Scenario, paper_capture
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
-from balance_opt.io.plots import FORMATS, attitude_figure, reaction_torque_figure
+from balance_opt.io.plots import FORMATS, paper_figure_set
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
@@ -138,34 +138,9 @@ def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
 
 def _write_figures(output_dir: Path, formats, mission_only, kinematic, balance_only, balanced):
     """Figs. 2-5: ``({"fig2": [files], ...}, {"fig2": Figure, ...})``."""
-    figures, objects = {}, {}
-    objects["fig2"], figures["fig2"] = attitude_figure(
-        {"mission-only": mission_only},
-        output_dir / FIGURE_STEMS["fig2"],
-        dashed={"kinematic": kinematic},
-        title="Base attitude due to the mission arm",
-        formats=formats,
+    return paper_figure_set(
+        output_dir, FIGURE_STEMS, formats, mission_only, kinematic, balance_only, balanced
     )
-    objects["fig3"], figures["fig3"] = attitude_figure(
-        balance_only,
-        output_dir / FIGURE_STEMS["fig3"],
-        title="Base attitude due to the balance arm",
-        formats=formats,
-    )
-    objects["fig4"], figures["fig4"] = reaction_torque_figure(
-        balanced,
-        output_dir / FIGURE_STEMS["fig4"],
-        title="Torque on the base after balance control",
-        formats=formats,
-    )
-    objects["fig5"], figures["fig5"] = attitude_figure(
-        balanced,
-        output_dir / FIGURE_STEMS["fig5"],
-        dashed={"mission-only": mission_only},
-        title="Base attitude after balance control",
-        formats=formats,
-    )
-    return figures, objects
 
 
 def _summary(

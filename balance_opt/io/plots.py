@@ -1,15 +1,17 @@
-"""Figures of the paper's study (Figs. 2-5), sized for a paper column.
+"""Figures of a plan's base attitude and of the torque on the base (paper Figs. 2-5).
 
-Every function takes a mapping ``{name: result}`` of the plans to overlay (any object with
+Every function takes a mapping ``{name: result}`` of the curves to overlay (any object with
 ``t`` and ``rpy``, such as :class:`~balance_opt.result.BalanceResult` or
-:class:`~balance_opt.dynamics.simulation.SimulationResult`; for torques, simulation results), draws
-one curve per plan and component, writes the figure as PNG and PDF and returns the
-``matplotlib.figure.Figure`` and the files. Known names (``"analytic"``, ``"optimal"``, ...)
-get fixed colours and labels so that a plan looks the same in every figure; other names get the
-next colour of a colour-blind-safe palette and are labelled by their name.
+:class:`~balance_opt.dynamics.simulation.SimulationResult`; for torques, simulation results).
+The name is a method of :mod:`balance_opt.io.style` (``"optimal"``, ``"optimal:sim"``,
+``"mission-only:kinematic"``, ...) and gives the curve its colour, line style, marker and label;
+another name gets a style of its own and is its own label.
 
-Figures are built with :class:`matplotlib.figure.Figure` (no pyplot state) inside a local
-``matplotlib.rc_context``: nothing global changes.
+The figures carry no title (a caption belongs to the text around them). They are
+:class:`matplotlib.figure.Figure` objects without pyplot state, built inside
+:func:`~balance_opt.io.style.styled` (nothing global changes), laid out by
+:mod:`balance_opt.io.figure_layout`. Given ``axes=``, a function draws into the caller's axes
+and writes nothing; given no ``stem``, it returns the figure and writes nothing.
 """
 
 from __future__ import annotations
@@ -18,236 +20,213 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import matplotlib as mpl
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
+
+from balance_opt.io import style
+from balance_opt.io.figure_layout import arrange, column_title, legend_above, legend_columns
 
 #: Width of a paper column [in].
-COLUMN_WIDTH = 3.5
-#: Resolution of the PNG files [dpi].
-PNG_DPI = 300
+COLUMN_WIDTH = style.WIDTHS["column"]
 FORMATS = ("png", "pdf")
-
-#: Okabe-Ito colours: distinct for colour-blind readers and in greyscale print.
-PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9")
-PLAN_COLOURS = {
-    "analytic": PALETTE[0],
-    "optimal": PALETTE[1],
-    "mission-only": "#000000",
-    "kinematic": PALETTE[2],
-}
-PLAN_LABELS = {
-    "analytic": "analytic (damped LS)",
-    "optimal": "optimal plan",
-    "mission-only": "mission arm alone",
-    "kinematic": "kinematic (momentum)",
-}
-#: Line style of each part of the reaction torque (Fig. 4).
-TORQUE_PARTS = {"total": ("-", 1.3), "mission": ((0, (4, 1.5)), 0.8), "balance": ((0, (1, 1)), 0.9)}
-TORQUE_PART_LABELS = {"total": "sum of arms", "mission": "mission arm", "balance": "balance arm"}
-
-STYLE = {
-    "font.size": 8,
-    "axes.labelsize": 8,
-    "axes.titlesize": 8,
-    "xtick.labelsize": 7,
-    "ytick.labelsize": 7,
-    "legend.fontsize": 7,
-    "lines.linewidth": 1.1,
-    "axes.linewidth": 0.6,
-    "xtick.major.width": 0.6,
-    "ytick.major.width": 0.6,
-    "grid.linewidth": 0.4,
-    "grid.alpha": 0.5,
-    "axes.grid": True,
-    "font.family": "DejaVu Sans",
-    "pdf.fonttype": 42,  # TrueType in the PDF: editable, accepted by publishers
-    "savefig.dpi": PNG_DPI,
-}
-
 ATTITUDE_AXES = ("roll", "pitch", "yaw")
 TORQUE_AXES = ("x", "y", "z")
+#: Height of a three-panel figure [in].
+STACK_HEIGHT = 3.9
 
 
-def plan_colour(name: str, index: int) -> str:
-    """The colour of plan ``name`` (the ``index``-th in its figure)."""
-    return PLAN_COLOURS.get(name, PALETTE[index % len(PALETTE)])
+def plan_colour(name: str, index: int = 0) -> str:
+    """The colour of ``name`` (see :func:`balance_opt.io.style.method_colour`; ``index`` is
+    not used: a method has one colour whatever its place)."""
+    del index
+    return style.method_colour(name)
 
 
 def plan_label(name: str) -> str:
-    return PLAN_LABELS.get(name, name)
+    """The display name of ``name`` (:func:`balance_opt.io.style.method_label`)."""
+    return style.method_label(name)
 
 
-def save_figure(fig: Figure, stem: str | Path, formats: Sequence[str] = FORMATS) -> list[Path]:
-    """Write ``fig`` as ``<stem>.<format>`` for each format (PNG at :data:`PNG_DPI`)."""
-    stem = Path(stem)
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for fmt in formats:
-        path = stem.with_suffix(f".{fmt}")
-        fig.savefig(path, dpi=PNG_DPI)
-        paths.append(path)
-    return paths
+def _finish(fig, stem, formats, dpi) -> list[Path]:
+    return [] if stem is None else style.save(fig, stem, formats, dpi=dpi)
 
 
-def _stacked_axes(rows: int, height: float, title: str | None):
-    fig = Figure(figsize=(COLUMN_WIDTH, height), layout="constrained")
-    axes = fig.subplots(rows, 1, sharex=True)
-    if title:
-        fig.suptitle(title)
-    return fig, axes
+def _time_axes(axes, t_end: float, labels: Sequence[str]) -> None:
+    from matplotlib.ticker import MaxNLocator
 
-
-def _blank() -> Line2D:
-    return Line2D([], [], alpha=0.0, label=" ")
-
-
-def _legend_above(ax, handles, ncol: int) -> None:
-    """A frameless legend above the top panel (constrained layout makes room for it), read row
-    by row in the order of ``handles``."""
-    rows = -(-len(handles) // ncol)
-    handles = list(handles) + [_blank() for _ in range(rows * ncol - len(handles))]
-    handles = [
-        handles[r * ncol + c] for c in range(ncol) for r in range(rows)
-    ]  # legends fill by column
-    labels = [h.get_label() for h in handles]
-    ax.legend(
-        handles,
-        labels,
-        loc="lower center",
-        bbox_to_anchor=(0.5, 1.02),
-        ncol=ncol,
-        frameon=False,
-        handlelength=2.4,
-        borderaxespad=0.0,
-        columnspacing=1.0,
-        handletextpad=0.5,
-    )
-
-
-def _finish_time_axis(axes, t_end: float) -> None:
+    for ax, label in zip(axes, labels):
+        ax.set_ylabel(label)
+        ax.margins(x=0, y=0.12)  # head room: flat extremes must not sit on the frame
+        ax.yaxis.set_major_locator(MaxNLocator(4))
     axes[-1].set_xlabel("time [s]")
     axes[-1].set_xlim(0.0, t_end)
-    for ax in axes:
-        ax.margins(x=0, y=0.1)  # head room: flat extremes must not sit on the frame
-        ax.yaxis.set_major_locator(mpl.ticker.MaxNLocator(4))
+
+
+def draw_attitude(axes, results: Mapping[str, Any]) -> list:
+    """Draw roll, pitch and yaw [deg] of each result into three axes, or, into one axes, the
+    base's rotation angle from its start [deg]. Returns the curves of the first axes."""
+    axes = list(np.atleast_1d(axes))
+    for name, res in results.items():
+        kwargs = style.method_style(name)
+        if len(axes) == 1:
+            axes[0].plot(res.t, np.degrees(res.angle), **kwargs)
+            continue
+        deg = np.degrees(res.rpy)
+        for k, ax in enumerate(axes):
+            ax.plot(res.t, deg[:, k], **kwargs)
+    return axes[0].get_lines()
 
 
 def attitude_figure(
     results: Mapping[str, Any],
-    stem: str | Path,
+    stem: str | Path | None = None,
     *,
-    title: str | None = None,
     dashed: Mapping[str, Any] | None = None,
+    title: str | None = None,
     formats: Sequence[str] = FORMATS,
-) -> tuple[Figure, list[Path]]:
-    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5).
+    dpi: int = style.PRINT_DPI,
+    axes=None,
+) -> tuple[Any, list[Path]]:
+    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
+    one column wide.
 
     Args:
-        results: ``{name: result}``, each with ``t`` (T,) [s] and ``rpy`` (T, 3) [rad]; one
-            solid curve per plan and panel.
-        stem: output path without suffix.
-        title: figure title.
-        dashed: more results drawn dashed, for reference (for example a kinematic replay).
+        results: ``{name: result}``, each with ``t`` (T,) [s] and ``rpy`` (T, 3) [rad].
+        stem: output path without suffix; ``None`` writes nothing.
+        dashed: more results, drawn after ``results`` (a reference such as the mission arm
+            alone); their style comes from their name like any other.
+        title: not drawn (captions go with the text); accepted for older callers.
         formats: file formats to write.
+        dpi: resolution of the PNG.
+        axes: three axes to draw into (nothing is written then).
 
     Returns:
-        The figure and the files written. Each curve's label is its plan's label.
+        The figure and the files written.
     """
-    with mpl.rc_context(STYLE):
-        fig, axes = _stacked_axes(3, 3.9, title)
-        t_end = 0.0
-        curves = [(name, res, "-") for name, res in results.items()]
-        curves += [(name, res, "--") for name, res in (dashed or {}).items()]
-        for i, (name, res, style) in enumerate(curves):
-            deg = np.degrees(res.rpy)
-            t_end = max(t_end, float(res.t[-1]))
-            for k, ax in enumerate(axes):
-                ax.plot(
-                    res.t,
-                    deg[:, k],
-                    style,
-                    color=plan_colour(name, i),
-                    label=plan_label(name),
-                    lw=1.0 if style != "-" else 1.4,
-                )
-        for ax, name in zip(axes, ATTITUDE_AXES):
-            ax.set_ylabel(f"{name} [deg]")
-        _finish_time_axis(axes, t_end)
-        _legend_above(axes[0], axes[0].get_legend_handles_labels()[0], ncol=min(2, len(curves)))
-        paths = save_figure(fig, stem, formats)
-    return fig, paths
+    del title
+    curves = {**results, **(dashed or {})}
+    t_end = max(float(res.t[-1]) for res in curves.values())
+    if axes is not None:
+        draw_attitude(axes, curves)
+        return np.atleast_1d(axes)[0].figure, []
+    with style.styled("column"):
+        fig = style.figure("column", STACK_HEIGHT)
+        axes = fig.subplots(3, 1, sharex=True)
+        handles = draw_attitude(axes, curves)
+        _time_axes(axes, t_end, [f"{a} [deg]" for a in ATTITUDE_AXES])
+        ncol = legend_columns([h.get_label() for h in handles], "column")
+        rows = -(-len(handles) // ncol)
+        anchor = arrange(fig, axes[:, None], "column", legend_rows=rows)
+        legend_above(fig, handles, "column", anchor, ncol)
+        return fig, _finish(fig, stem, formats, dpi)
+
+
+def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
+    """(wrench, plot kwargs) of the sum, the mission arm and the balance arm(s) of one plan."""
+    balance = sum(w for arm, w in sim.arm_wrenches.items() if arm != "mission")
+    sim_name = name if name.endswith(style.SIM) else f"{name}{style.SIM}"
+    balance_style = {**style.method_style(sim_name), "label": f"{style.method_label(name)}: "}
+    balance_style["label"] += "balance arm"
+    return [
+        (sim.total_wrench, style.method_style("sum")),
+        (sim.arm_wrenches["mission"], style.method_style("arm:mission")),
+        (balance, balance_style),
+    ]
+
+
+def draw_torque(axes, name: str, sim) -> None:
+    """Torque on the base [N m] of one plan's simulation into three axes (x, y, z): the sum of
+    the arms, the mission arm's part, the balance arm's part."""
+    for wrench, kwargs in _torque_parts(name, sim):
+        for k, ax in enumerate(np.atleast_1d(axes)):
+            ax.plot(sim.t, wrench[:, 3 + k], **kwargs)
 
 
 def reaction_torque_figure(
     simulations: Mapping[str, Any],
-    stem: str | Path,
+    stem: str | Path | None = None,
     *,
     title: str | None = None,
     formats: Sequence[str] = FORMATS,
-) -> tuple[Figure, list[Path]]:
-    """Torque the arms exert on the base, per arm and summed [N m], base axes, against time
-    (paper Fig. 4).
+    dpi: int = style.PRINT_DPI,
+) -> tuple[Any, list[Path]]:
+    """Torque the arms exert on the base [N m], base axes, against time (paper Fig. 4): one
+    column of panels per plan, each with its own scale (the analytic law's torques are tens of
+    times smaller than the optimal plan's); a page wide for two plans or more.
 
     Args:
-        simulations: ``{name: SimulationResult}``; colour tells the plan, line style the part:
-            solid the sum, dashed the mission arm, dotted the balance arm(s).
-        stem: output path without suffix.
-        title: figure title.
+        simulations: ``{name: SimulationResult}`` with ``arm_wrenches`` and ``total_wrench``.
+        stem: output path without suffix; ``None`` writes nothing.
+        title: not drawn; accepted for older callers.
         formats: file formats to write.
+        dpi: resolution of the PNG.
 
     Returns:
-        The figure and the files written. Each curve is labelled ``"<plan label>: <part>"``.
+        The figure and the files written. The curves of a panel are labelled ``"sum of
+        arms"``, ``"mission arm"`` and ``"<plan label>: balance arm"``; each column's title is
+        its plan's label.
     """
-    with mpl.rc_context(STYLE):
-        fig, axes = _stacked_axes(3, 4.3, title)
-        t_end = 0.0
-        for i, (name, sim) in enumerate(simulations.items()):
-            colour = plan_colour(name, i)
-            t_end = max(t_end, float(sim.t[-1]))
-            parts = {
-                "mission": sim.arm_wrenches["mission"],
-                "balance": sum(w for arm, w in sim.arm_wrenches.items() if arm != "mission"),
-                "total": sim.total_wrench,
-            }
-            for part, wrench in parts.items():
-                style, width = TORQUE_PARTS[part]
-                for k, ax in enumerate(axes):
-                    ax.plot(
-                        sim.t,
-                        wrench[:, 3 + k],
-                        linestyle=style,
-                        lw=width,
-                        color=colour,
-                        label=f"{plan_label(name)}: {TORQUE_PART_LABELS[part]}",
-                    )
-        for ax, name in zip(axes, TORQUE_AXES):
-            ax.set_ylabel(f"torque {name} [N m]")
-        _finish_time_axis(axes, t_end)
-        # legend: plans (colours) on the first row, parts (line styles) on the second
-        plans = [
-            Line2D([], [], color=plan_colour(n, i), lw=1.3, label=plan_label(n))
-            for i, n in enumerate(simulations)
-        ]
-        parts = [
-            Line2D(
-                [],
-                [],
-                color="0.3",
-                linestyle=TORQUE_PARTS[p][0],
-                lw=TORQUE_PARTS[p][1],
-                label=TORQUE_PART_LABELS[p],
-            )
-            for p in ("total", "mission", "balance")
-        ]
-        ncol = max(len(plans), len(parts))
-        handles = plans + [_blank()] * (ncol - len(plans)) + parts
-        _legend_above(axes[0], handles, ncol=ncol)
-        paths = save_figure(fig, stem, formats)
-    return fig, paths
+    del title
+    width = "page" if len(simulations) > 1 else "column"
+    with style.styled(width):
+        fig = style.figure(width, 4.0 if width == "page" else STACK_HEIGHT)
+        axes = fig.subplots(3, len(simulations), sharex=True, squeeze=False)
+        t_end = max(float(sim.t[-1]) for sim in simulations.values())
+        handles = []
+        for c, (name, sim) in enumerate(simulations.items()):
+            draw_torque(axes[:, c], name, sim)
+            handles += axes[0, c].get_lines()[(0 if c == 0 else 2) :]
+            _time_axes(axes[:, c], t_end, [f"torque {a} [N m]" for a in TORQUE_AXES])
+            if c:
+                for ax in axes[:, c]:
+                    ax.set_ylabel("")
+            column_title(axes[0, c], style.method_label(name), width)
+        ncol = legend_columns([h.get_label() for h in handles], width)
+        rows = -(-len(handles) // ncol)
+        anchor = arrange(fig, axes, width, legend_rows=rows, column_titles=True)
+        legend_above(fig, handles, width, anchor, ncol)
+        return fig, _finish(fig, stem, formats, dpi)
 
 
-def curve_labels(fig: Figure) -> list[list[str]]:
+def paper_figure_set(
+    output_dir: Path,
+    stems: Mapping[str, str],
+    formats: Sequence[str],
+    mission_only,
+    kinematic,
+    balance_only,
+    balanced,
+) -> tuple[dict[str, list[Path]], dict[str, Any]]:
+    """The paper's Figs. 2-5 of one study, as ``({"fig2": [files], ...}, {"fig2": Figure})``.
+
+    Args:
+        output_dir: the folder.
+        stems: file name without suffix of ``"fig2"`` ... ``"fig5"``.
+        formats: file formats.
+        mission_only: simulation of the mission arm alone (Fig. 2 solid, Fig. 5 reference).
+        kinematic: the mission arm alone under the momentum model (Fig. 2 dashed).
+        balance_only: ``{method: simulation}`` of each plan's balance arm alone (Fig. 3).
+        balanced: ``{method: simulation}`` of each plan, both arms moving (Figs. 4, 5).
+    """
+
+    def sims(results):
+        return {f"{name}{style.SIM}": res for name, res in results.items()}
+
+    figures, objects = {}, {}
+    curves = {
+        "fig2": {"mission-only:sim": mission_only, "mission-only:kinematic": kinematic},
+        "fig3": sims(balance_only),
+        "fig5": {**sims(balanced), "mission-only:sim": mission_only},
+    }
+    for key, results in curves.items():
+        objects[key], figures[key] = attitude_figure(
+            results, output_dir / stems[key], formats=formats
+        )
+    objects["fig4"], figures["fig4"] = reaction_torque_figure(
+        balanced, output_dir / stems["fig4"], formats=formats
+    )
+    return dict(sorted(figures.items())), dict(sorted(objects.items()))
+
+
+def curve_labels(fig) -> list[list[str]]:
     """The labels of the curves in each panel of a figure (to check what it shows)."""
     return [[line.get_label() for line in ax.get_lines()] for ax in fig.axes]

@@ -1,17 +1,16 @@
 """Figures of the comparison report that the paper has no counterpart for: the balance joints of
-each plan against their limits. Same look as :mod:`balance_opt.io.plots` (its style, colours and
-labels), built without pyplot state."""
+each plan against their limits. Same look as :mod:`balance_opt.io.plots` (the styles and names
+of :mod:`balance_opt.io.style`), built without pyplot state."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
 
-import matplotlib as mpl
 import numpy as np
-from matplotlib.figure import Figure
 
-from balance_opt.io.plots import COLUMN_WIDTH, PNG_DPI, STYLE, plan_colour, plan_label
+from balance_opt.io import style
+from balance_opt.io.figure_layout import arrange, column_title, legend_above, legend_columns
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.result import BalanceResult
 
@@ -19,59 +18,83 @@ from balance_opt.result import BalanceResult
 _ROWS = (
     ("q_B", "position", "position [rad]"),
     ("q_dot_B", "velocity", "rate [rad/s]"),
-    ("q_ddot_B", "acceleration", "acceleration [rad/s$^2$]"),
+    ("q_ddot_B", "acceleration", "accel. [rad/s²]"),
 )
 #: Largest number of joint columns drawn (a 7-DOF arm still fits a page).
 MAX_COLUMNS = 7
+#: Style of the limit lines.
+LIMIT_STYLE = {"color": "0.35", "linestyle": (0, (1.0, 1.0)), "linewidth": 0.9, "label": "limit"}
+
+
+def _bounds(lim, kind: str, i: int) -> tuple[float, float]:
+    if kind == "position":
+        return lim.lower[i], lim.upper[i]
+    value = getattr(lim, kind)[i]
+    return -value, value
 
 
 def joint_limits_figure(
-    results: Mapping[str, BalanceResult], robot: FloatingRobot, path: str | Path
-) -> Path:
+    results: Mapping[str, BalanceResult],
+    robot: FloatingRobot,
+    path: str | Path | None = None,
+    dpi: int = style.SCREEN_DPI,
+):
     """Balance joint positions, rates and accelerations of each plan against time, one column
-    per joint, the joint's limits dotted. Writes a PNG at ``path`` and returns it.
+    per joint, the joint's limits dotted. The y range covers both the limits and every plan,
+    so a violation is seen at a glance.
 
-    The y range covers both the limits and every plan, so a violation is seen at a glance.
+    Args:
+        results: ``{method: plan}``.
+        robot: the robot (its limits).
+        path: the PNG to write; ``None`` writes nothing.
+        dpi: resolution of the PNG.
+
+    Returns:
+        The path written, or the figure when ``path`` is None.
     """
-    path = Path(path)
     first = next(iter(results.values()))
     joints = list(first.balance_joints)[:MAX_COLUMNS]
-    lim = robot.limits
-    with mpl.rc_context(STYLE):
-        width = max(COLUMN_WIDTH, 1.6 * len(joints))
-        fig = Figure(figsize=(width, 4.2), layout="constrained")
-        axes = np.atleast_2d(fig.subplots(len(_ROWS), len(joints), sharex=True, squeeze=False))
+    width = "column" if len(joints) <= 2 else "page"
+    with style.styled(width):
+        fig = style.figure(width, 4.0)
+        axes = fig.subplots(len(_ROWS), len(joints), sharex=True, squeeze=False)
         for c, joint in enumerate(joints):
-            i = robot.joint_index(joint)
-            k = list(first.balance_joints).index(joint)
-            for r, (field, kind, label) in enumerate(_ROWS):
-                ax = axes[r, c]
-                for n, (name, res) in enumerate(results.items()):
-                    ax.plot(
-                        res.t,
-                        getattr(res, field)[:, k],
-                        color=plan_colour(name, n),
-                        label=plan_label(name),
-                        lw=1.1,
-                    )
-                bounds = (
-                    (lim.lower[i], lim.upper[i])
-                    if kind == "position"
-                    else (-getattr(lim, kind)[i], getattr(lim, kind)[i])
-                )
-                for b in bounds:
-                    if np.isfinite(b):
-                        ax.axhline(b, color="0.35", ls=":", lw=0.9)
-                if r == 0:
-                    ax.set_title(joint, fontsize=7)
-                if c == 0:
-                    ax.set_ylabel(label)
-                if r == len(_ROWS) - 1:
-                    ax.set_xlabel("time [s]")
-                ax.yaxis.set_major_locator(mpl.ticker.MaxNLocator(4))
-        handles, labels = axes[0, 0].get_legend_handles_labels()
-        fig.legend(
-            handles, labels, loc="outside upper center", ncol=max(1, len(handles)), frameon=False
-        )
-        fig.savefig(path, dpi=PNG_DPI // 2)
-    return path
+            _joint_column(axes[:, c], results, robot, joint, list(first.balance_joints))
+            column_title(axes[0, c], joint, width)
+        handles = axes[0, 0].get_lines()
+        handles = [h for h in handles if h.get_label() != "_limit"][: len(results)]
+        handles.append(_limit_handle())
+        ncol = legend_columns([h.get_label() for h in handles], width)
+        anchor = arrange(fig, axes, width, legend_rows=-(-len(handles) // ncol), column_titles=True)
+        legend_above(fig, handles, width, anchor, ncol)
+        if path is None:
+            return fig
+        return style.save(fig, Path(path).with_suffix(""), ("png",), dpi=dpi)[0]
+
+
+def _limit_handle():
+    from matplotlib.lines import Line2D
+
+    return Line2D([], [], **LIMIT_STYLE)
+
+
+def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joints) -> None:
+    from matplotlib.ticker import MaxNLocator
+
+    i = robot.joint_index(joint)
+    k = balance_joints.index(joint)
+    first = next(iter(results.values()))
+    for r, (field, kind, label) in enumerate(_ROWS):
+        ax = axes[r]
+        for name, res in results.items():
+            ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
+        bounds = [b for b in _bounds(robot.limits, kind, i) if np.isfinite(b)]
+        if bounds:  # one line for both limits (NaN between): fewer artists than axhline
+            t0, t1 = first.t[0], first.t[-1]
+            ys = [y for b in bounds for y in (b, b, np.nan)]
+            ax.plot([t0, t1, np.nan] * len(bounds), ys, **{**LIMIT_STYLE, "label": "_limit"})
+        if joint == balance_joints[0]:
+            ax.set_ylabel(label)
+        ax.yaxis.set_major_locator(MaxNLocator(4))
+        ax.margins(x=0)
+    axes[-1].set_xlabel("time [s]")

@@ -117,7 +117,7 @@ def build_structure(
         options: the planner settings the key was made of (for Ipopt's options).
     """
     start = time.perf_counter()
-    kernels = model.kernels(key.control, key.torque_limits)
+    kernels = model.kernels(key.control, key.torque_limits, key.momentum)
     tr = Transcription(key.transcription)
     N, n_pts = key.intervals, tr.n_points(key.intervals)
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from balance_opt.io.output_dir import replaced_atomically
+from balance_opt.io.style import SCREEN_DPI, method_style, styled
 from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
@@ -48,12 +49,13 @@ _TIMING_METRIC = re.compile(r"(^|[._])(wall_time|solve_time|build_time|elapsed)(
 MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
 #: Drift drawn at this floor on log axes when it is zero [rad].
 DRIFT_FLOOR = 1e-12
-#: Colours of the methods in the plots.
-METHOD_COLOURS = {"analytic": "tab:orange", "optimal": "tab:blue"}
-#: Figure width of one panel [in]; legible at the width of a page.
-PANEL_WIDTH = 3.6
+#: Figure width of one panel [in]: a paper column (:data:`balance_opt.io.style.WIDTHS`).
+PANEL_WIDTH = 3.5
 #: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
 LOG_SCALE_RATIO = 30.0
+#: Below this ratio of the largest to the smallest drift (two decades), a logarithmic drift
+#: axis labels 1, 2 and 5 times the powers of ten, not the powers alone.
+LABELLED_DECADES = 100.0
 #: Largest number of distinct values of a list parameter plotted as categories.
 MAX_CATEGORIES = 8
 #: Margin of the parameter axes (a fraction of the range), so that no point sits on a border.
@@ -62,8 +64,6 @@ PARAMETER_MARGIN = 0.08
 PAIRED_MARGIN = 1.2
 #: Offset between methods at a categorical parameter value (in category widths).
 CATEGORY_SPREAD = 0.2
-#: Characters of a title that fit above a single panel.
-SINGLE_PANEL_TITLE = 45
 
 
 def is_timing_column(name: str) -> bool:
@@ -173,7 +173,9 @@ def summarize(results: Sequence[dict]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------ plots
-def _figure(n_rows: int, n_cols: int, height: float = 2.8):
+def _figure(n_rows: int, n_cols: int, height: float = 2.6):
+    """Panels a paper column wide each, with the column fonts of :mod:`balance_opt.io.style`
+    (constrained layout: category labels vary in length)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(PANEL_WIDTH * n_cols, height * n_rows), layout="constrained")
@@ -182,10 +184,16 @@ def _figure(n_rows: int, n_cols: int, height: float = 2.8):
 
 
 def _save(fig, path: str | Path) -> Path:
-    """Write a figure as PNG, atomically."""
+    """Write a figure as PNG at the report's resolution, atomically."""
     with replaced_atomically(path) as tmp:
-        fig.savefig(tmp, dpi=150)
+        fig.savefig(tmp, dpi=SCREEN_DPI, format="png")
     return Path(path)
+
+
+def _method_style(method: str, **extra) -> dict[str, Any]:
+    """Colour and marker of a method as in every other figure (:mod:`balance_opt.io.style`)."""
+    style = method_style(method)
+    return {"color": style["color"], "label": style["label"], **extra}
 
 
 def _drift_axis(ax, which: str, values) -> None:
@@ -198,7 +206,11 @@ def _drift_axis(ax, which: str, values) -> None:
     values = np.asarray([v for v in values if v is not None], dtype=float)
     if values.size and values.min() > 0 and values.max() / values.min() > LOG_SCALE_RATIO:
         (ax.set_xscale if which == "x" else ax.set_yscale)("log")
-        axis.set_major_locator(LogLocator(base=10.0))
+        if values.max() / values.min() < LABELLED_DECADES:  # few decades: 1, 2, 5 labelled
+            axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(FormatStrFormatter("%.3g"))
+        else:
+            axis.set_major_locator(LogLocator(base=10.0))
         axis.set_minor_formatter(NullFormatter())
         return
     axis.set_major_formatter(FormatStrFormatter("%.3g"))
@@ -223,12 +235,26 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
     if not any(_drift(r, MAX_DRIFT) is not None for r in ok):
         return None
     paired = _pairs(ok)
-    fig, axes = _figure(1, 3 if paired else 2)
-    for ax, key, title in zip(axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")):
-        _distribution_panel(ax, ok, methods, key, title)
-    if paired:
-        _paired_panel(axes[0][2], paired)
-    return _save(fig, path)
+    with styled("column"):
+        fig, axes = _figure(1, 3 if paired else 2)
+        for ax, key, title in zip(
+            axes[0], (MAX_DRIFT, FINAL_DRIFT), ("maximum drift", "final drift")
+        ):
+            _distribution_panel(ax, ok, methods, key, title)
+        handles, labels = axes[0][0].get_legend_handles_labels()
+        if paired:
+            _paired_panel(axes[0][2], paired)
+            more, more_labels = axes[0][2].get_legend_handles_labels()
+            handles, labels = (
+                handles + more,
+                labels
+                + [
+                    f"{x} ({len(paired)} parameter sets)" if x != "equal" else x
+                    for x in more_labels
+                ],
+            )
+        fig.legend(handles, labels, loc="outside upper center", ncol=len(handles))
+        return _save(fig, path)
 
 
 def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str, title: str):
@@ -242,21 +268,22 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
                 values,
                 np.arange(1, values.size + 1) / values.size,
                 where="post",
-                color=METHOD_COLOURS.get(method),
-                label=f"{method} ({values.size})",
+                **_method_style(method, linestyle=_line_style(method)),
             )
+            ax.lines[-1].set_label(f"{ax.lines[-1].get_label()} ({values.size})")
     _drift_axis(ax, "x", [_drift(r, key) for r in ok])
     ax.set_xlabel(f"{title} of the base attitude [rad]")
     ax.set_ylabel("fraction of cases")
     ax.set_ylim(0, 1.02)
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize="small", loc="lower right")
-    ax.set_title(f"distribution of the {title}")
 
 
 def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
     """Optimal against analytic drift of the same parameter sets, with the diagonal."""
-    for key, marker, label in ((MAX_DRIFT, "o", "maximum"), (FINAL_DRIFT, "x", "final")):
+    for key, marker, label in (
+        (MAX_DRIFT, "o", "maximum drift"),
+        (FINAL_DRIFT, "x", "final drift"),
+    ):
         xy = np.array(
             [
                 (a, o)
@@ -272,8 +299,8 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
                 s=18,
                 label=label,
                 facecolors="none" if marker == "o" else None,
-                edgecolors="tab:purple" if marker == "o" else None,
-                color="tab:green" if marker == "x" else None,
+                edgecolors="black" if marker == "o" else None,
+                color="#808080" if marker == "x" else None,
             )
     drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
     drifts = [d for d in drifts if d is not None]
@@ -288,9 +315,7 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
     ax.set_ylim(lo, hi)
     ax.set_xlabel("analytic drift [rad]")
     ax.set_ylabel("optimal drift [rad]")
-    ax.set_title(f"optimal vs analytic ({len(paired)} sets)")
     ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize="small")
 
 
 def _pairs(ok: Sequence[dict]) -> list[tuple[dict, dict]]:
@@ -354,7 +379,17 @@ def plot_drift_against_parameter(
     views = _parameter_views(ok, name)
     failed = sum(1 for r in results if r["status"] != "ok" and name in r["parameters"])
     methods = sorted({r["method"] for r in ok})
-    fig, axes = _figure(2, len(views))
+    with styled("column"):
+        fig, axes = _figure(2, len(views))
+        _parameter_panels(axes, views, ok, methods)
+        handles, labels = axes[0][0].get_legend_handles_labels()
+        note = f"{failed} failed case{'s' if failed > 1 else ''} not shown" if failed else None
+        fig.legend(handles, labels, loc="outside upper center", ncol=len(handles), title=note)
+        return _save(fig, path)
+
+
+def _parameter_panels(axes, views, ok: Sequence[dict], methods: Sequence[str]) -> None:
+    """The panels of :func:`plot_drift_against_parameter`: one column per view."""
     for j, (column, values) in enumerate(views.items()):
         indices = sorted(values)
         x_all, labels = _axis_values([values[i] for i in indices])
@@ -376,10 +411,9 @@ def plot_drift_against_parameter(
                 ax.scatter(
                     x,
                     [p[1] for p in points],
-                    s=14,
-                    alpha=0.75,
-                    color=METHOD_COLOURS.get(method),
-                    label=method,
+                    s=16,
+                    alpha=0.8,
+                    **_method_style(method, marker=_marker(method)),
                 )
             if labels is not None:
                 ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize="small", ha="right")
@@ -396,14 +430,14 @@ def plot_drift_against_parameter(
             ax.set_xlabel(column)
             if j == 0:
                 ax.set_ylabel(f"{what} drift [rad]")
-            if i == 0 and j == 0:
-                ax.legend(fontsize="small")
-    note = f" ({failed} failed case(s) not shown)" if failed else ""
-    title = f"attitude drift against {name}{note}"
-    if len(views) == 1 and len(title) > SINGLE_PANEL_TITLE:
-        title = title.replace(" (", "\n(")
-    fig.suptitle(title, fontsize="medium")
-    return _save(fig, path)
+
+
+def _marker(method: str) -> str:
+    return method_style(method)["marker"] or "o"
+
+
+def _line_style(method: str):
+    return method_style(method)["linestyle"]
 
 
 def plot_file_name(name: str) -> str:

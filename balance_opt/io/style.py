@@ -1,0 +1,270 @@
+"""The one look of every figure balance-opt draws: a colour, line style and marker per method,
+one display name per method, font sizes for one and two paper columns, and PNG/PDF saving.
+
+The plots, the report's figures, the paper figures and the sweep plots all take their styles and
+names from here, and the HTML report takes its method names from :func:`method_label`, so a
+method looks and reads the same everywhere.
+
+Method names (:data:`METHODS`):
+
+* ``"mission-only"``, ``"analytic"``, ``"optimal"``: a plan, i.e. the base attitude that momentum
+  conservation gives for the planned joint motion (the kinematic model);
+* ``"<method>:sim"``: the forward-dynamics simulation of that plan. It keeps its method's colour
+  and marker shape (a reader ties it to its plan) and gets its own line style and hollow markers;
+* ``"<method>:kinematic"`` (not in :data:`METHODS`): the plan under the momentum model drawn
+  as a wide pale band in its colour, for the figure that overlays a plan and its simulation
+  (paper Fig. 2: the simulated curve on top, the band shows where they agree);
+* ``"sum"``: the sum of the arms' torques on the base (paper Fig. 4) and ``"arm:mission"`` the
+  mission arm's part (the balance arm's part is drawn in its plan's simulation style).
+
+Greyscale: the luminance (ITU-R 601 luma, what a greyscale printer or ``PIL``'s ``convert("L")``
+uses, 0 black to 1 white) of the method colours is mission arm alone 0.00 (black), optimal 0.34
+(blue ``#0072B2``), analytic 0.64 (orange ``#E69F00``): 0.30 or more apart, and every method
+also has its own dash pattern and marker shape. The sum of the arms is black and solid without
+markers, the mission arm's part of the torque grey 0.50 and dotted.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+#: Widths of a figure [in]: one paper column, a whole page (two columns).
+WIDTHS = {"column": 3.5, "page": 7.0}
+#: Resolution of the PNG of a paper figure [dpi] (line art: at least 300 for most journals).
+PRINT_DPI = 300
+#: Resolution of every PNG embedded in the HTML report [dpi]: one value, so that all its
+#: figures show their fonts at one size; 150 dpi draws in half the time of 300 dpi.
+SCREEN_DPI = 150
+
+#: Methods with a style, in legend order.
+METHODS = (
+    "mission-only",
+    "analytic",
+    "optimal",
+    "mission-only:sim",
+    "analytic:sim",
+    "optimal:sim",
+    "sum",
+    "arm:mission",
+)
+
+_LABELS = {
+    "mission-only": "mission arm alone",
+    "analytic": "analytic law",
+    "optimal": "optimal plan",
+    "sum": "sum of arms",
+    "arm:mission": "mission arm",
+}
+#: Suffixes of a method name: the forward-dynamics simulation, the kinematic model.
+SIM, KINEMATIC = ":sim", ":kinematic"
+_SUFFIX_LABELS = {SIM: " (forward dynamics)", KINEMATIC: " (momentum model)"}
+
+_BLACK, _BLUE, _ORANGE, _GREY = "#000000", "#0072B2", "#E69F00", "#808080"
+_DASHED = (0, (5.0, 2.0))
+_DASH_DOT = (0, (6.0, 1.5, 1.5, 1.5))
+_DASH_DOT_DOT = (0, (5.0, 1.2, 1.2, 1.2, 1.2, 1.2))
+_LONG_DASH = (0, (9.0, 2.5))
+_DOTTED = (0, (1.0, 1.3))
+
+#: Markers every this fraction of the axes' diagonal (markers at even spacing whatever the
+#: sampling, a dozen or so per curve), the first one this far along (so that the markers of
+#: curves that overlap do not sit on each other).
+MARK_EVERY = 0.09
+_MARK_START = {"mission-only": 0.0, "analytic": 0.03, "optimal": 0.06}
+
+_STYLES: dict[str, dict[str, Any]] = {
+    "mission-only": {"color": _BLACK, "linestyle": _DASHED, "marker": "s"},
+    "analytic": {"color": _ORANGE, "linestyle": _DASH_DOT, "marker": "^"},
+    "optimal": {"color": _BLUE, "linestyle": "-", "marker": "o"},
+    "mission-only:sim": {"color": _BLACK, "linestyle": "-", "marker": "s", "fillstyle": "none"},
+    "analytic:sim": {
+        "color": _ORANGE,
+        "linestyle": _DASH_DOT_DOT,
+        "marker": "^",
+        "fillstyle": "none",
+    },
+    "optimal:sim": {"color": _BLUE, "linestyle": _LONG_DASH, "marker": "o", "fillstyle": "none"},
+    "sum": {"color": _BLACK, "linestyle": "-", "marker": "", "linewidth": 1.4},
+    "arm:mission": {"color": _GREY, "linestyle": _DOTTED, "marker": "", "linewidth": 1.1},
+}
+#: A plan's kinematic model drawn under its forward-dynamics run (paper Fig. 2): a wide pale
+#: band in the plan's colour, so that the thin simulated curve on top shows where they agree.
+_KINEMATIC_BAND = {"linestyle": "-", "marker": "", "linewidth": 4.0, "alpha": 0.3, "zorder": 1.5}
+#: Colours of names without a style (a plan the user named): Okabe-Ito, after the ones above.
+_EXTRA = ("#009E73", "#CC79A7", "#56B4E9", "#D55E00")
+
+#: Font sizes [pt] per figure width: readable once printed at that width.
+_FONTS = {
+    "column": {"base": 8.0, "tick": 7.0, "legend": 7.0},
+    "page": {"base": 9.0, "tick": 8.0, "legend": 8.0},
+}
+
+
+def _base(name: str) -> tuple[str, str]:
+    for suffix in (SIM, KINEMATIC):
+        if name.endswith(suffix):
+            return name[: -len(suffix)], suffix
+    return name, ""
+
+
+def method_label(name: str) -> str:
+    """Display name of a method (``"optimal"`` -> ``"optimal plan"``, ``"optimal:sim"`` ->
+    ``"optimal plan (forward dynamics)"``); an unknown name is its own label."""
+    base, suffix = _base(name)
+    return _LABELS.get(base, base) + _SUFFIX_LABELS.get(suffix, "")
+
+
+def method_colour(name: str) -> str:
+    """The colour of a method (hex); an unknown name gets a fixed colour of its own."""
+    return method_style(name)["color"]
+
+
+def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
+    """Keyword arguments of ``Axes.plot`` for method ``name``: colour, line style, width,
+    marker (sparse) and label.
+
+    Args:
+        name: a name of :data:`METHODS`, or ``"<method>:kinematic"``; another name gets a solid
+            line in a colour derived from the name (stable between runs).
+        markers: draw the markers (off for dense plots such as a joint grid).
+    """
+    base, suffix = _base(name)
+    if suffix == KINEMATIC:
+        style = {**_KINEMATIC_BAND, "color": method_colour(base), "label": method_label(name)}
+        return style
+    key = name
+    if key in _STYLES:
+        style = dict(_STYLES[key])
+    else:
+        colour = _EXTRA[sum(map(ord, name)) % len(_EXTRA)]
+        style = {"color": colour, "linestyle": "-", "marker": "D", "fillstyle": "none"}
+    style.setdefault("linewidth", 1.2)
+    if style["marker"] and markers:
+        start = _MARK_START.get(_base(name)[0], 0.0)
+        style.update(markevery=(start, MARK_EVERY), markersize=3.5, markeredgewidth=0.8)
+    else:
+        style["marker"] = ""
+    style["label"] = method_label(name)
+    return style
+
+
+def font_sizes(width: str = "column") -> dict[str, float]:
+    """Font sizes [pt] of a figure ``width`` wide: ``base`` (labels), ``tick``, ``legend``."""
+    return dict(_FONTS[_checked_width(width)])
+
+
+def rc_params(width: str = "column") -> dict[str, Any]:
+    """Matplotlib settings of a figure ``width`` wide (``"column"`` or ``"page"``)."""
+    font = font_sizes(width)
+    return {
+        "font.size": font["base"],
+        "axes.labelsize": font["base"],
+        "axes.titlesize": font["base"],
+        "xtick.labelsize": font["tick"],
+        "ytick.labelsize": font["tick"],
+        "legend.fontsize": font["legend"],
+        "legend.frameon": False,
+        "lines.linewidth": 1.2,
+        "axes.linewidth": 0.6,
+        "xtick.major.width": 0.6,
+        "ytick.major.width": 0.6,
+        "xtick.major.size": 2.5,
+        "ytick.major.size": 2.5,
+        "grid.linewidth": 0.4,
+        "grid.color": "0.85",
+        "axes.grid": True,
+        "font.family": "DejaVu Sans",
+        "pdf.fonttype": 42,  # TrueType in the PDF: editable, accepted by publishers
+        "ps.fonttype": 42,
+        "path.simplify": True,
+        "axes.formatter.useoffset": False,
+    }
+
+
+def _checked_width(width: str) -> str:
+    if width not in WIDTHS:
+        raise ValueError(f"figure width must be one of {', '.join(WIDTHS)}, got {width!r}")
+    return width
+
+
+@contextlib.contextmanager
+def styled(width: str = "column") -> Iterator[None]:
+    """Matplotlib settings of :func:`rc_params` for the block (nothing global changes)."""
+    import matplotlib as mpl
+
+    with mpl.rc_context(rc_params(width)):
+        yield
+
+
+def figure(width: str = "column", height: float = 2.6, layout: str | None = None):
+    """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide (``"column"`` 3.5 in,
+    ``"page"`` 7 in) and ``height`` [in] tall.
+
+    Build its artists inside :func:`styled` with the same width so that fonts fit the width.
+
+    Args:
+        width: ``"column"`` or ``"page"``.
+        height: [in].
+        layout: ``None`` (place the panels yourself, e.g. with
+            :func:`balance_opt.io.figure_layout.arrange`: fast) or ``"constrained"``
+            (matplotlib measures every text at each save: about twice the drawing time).
+    """
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(WIDTHS[_checked_width(width)], height), layout=layout)
+
+
+def save(
+    fig,
+    path_without_suffix: str | Path,
+    formats: Sequence[str] = ("png", "pdf"),
+    dpi: int = PRINT_DPI,
+) -> list[Path]:
+    """Write ``fig`` as ``<path>.<format>`` for each format (PNG at ``dpi``); returns the files.
+
+    The folder is created when missing.
+    """
+    import matplotlib as mpl
+
+    stem = Path(path_without_suffix)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    paths = []
+    with mpl.rc_context({"pdf.fonttype": 42, "ps.fonttype": 42}):
+        for fmt in formats:
+            path = stem.with_name(f"{stem.name}.{fmt}")
+            fig.savefig(path, dpi=dpi, format=fmt, metadata=_metadata(fmt))
+            paths.append(path)
+    return paths
+
+
+def _metadata(fmt: str) -> dict[str, Any] | None:
+    """No creation date in a PDF, so the same figure gives the same file."""
+    return {"CreationDate": None} if fmt == "pdf" else None
+
+
+def luminance(colour: str) -> float:
+    """ITU-R 601 luma of a colour, 0 (black) to 1 (white): its grey in greyscale print."""
+    from matplotlib.colors import to_rgb
+
+    r, g, b = to_rgb(colour)
+    return 0.299 * r + 0.587 * g + 0.114 * b
+
+
+__all__ = [
+    "METHODS",
+    "PRINT_DPI",
+    "SCREEN_DPI",
+    "WIDTHS",
+    "figure",
+    "font_sizes",
+    "luminance",
+    "method_colour",
+    "method_label",
+    "method_style",
+    "rc_params",
+    "save",
+    "styled",
+]

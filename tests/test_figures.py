@@ -1,0 +1,246 @@
+"""The figure style and the figure functions: one look per method, readable in greyscale, no
+titles, curves labelled with the methods' display names, nothing written unless asked, every
+text inside the figure and no legend over the data."""
+
+from itertools import combinations
+from types import SimpleNamespace
+
+import matplotlib as mpl
+import numpy as np
+import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from PIL import Image
+
+from balance_opt.io import style
+from balance_opt.io.plots import (
+    attitude_figure,
+    curve_labels,
+    draw_attitude,
+    reaction_torque_figure,
+)
+
+#: The methods a reader compares in one figure: plans, or their simulations.
+PLANS = ("mission-only", "analytic", "optimal")
+SIMS = tuple(f"{m}:sim" for m in PLANS)
+#: Smallest luma difference between methods drawn together (0 black, 1 white).
+MIN_LUMA_STEP = 0.25
+#: Smallest PNG resolution a journal accepts for line art [dpi].
+MIN_DPI = 200
+
+
+def fake_attitude(rng, T=60, scale=1e-2):
+    t = np.linspace(0.0, 2.0, T)
+    rpy = np.cumsum(rng.normal(scale=scale, size=(T, 3)), axis=0)
+    return SimpleNamespace(t=t, rpy=rpy, angle=np.linalg.norm(rpy, axis=1))
+
+
+def fake_simulation(rng, scale, T=60):
+    t = np.linspace(0.0, 2.0, T)
+    wrenches = {
+        "mission": scale * rng.normal(size=(T, 6)),
+        "balance": scale * rng.normal(size=(T, 6)),
+    }
+    return SimpleNamespace(
+        t=t, arm_wrenches=wrenches, total_wrench=wrenches["mission"] + wrenches["balance"]
+    )
+
+
+def look(name):
+    s = style.method_style(name)
+    return (
+        round(style.luminance(s["color"]), 2),
+        str(s["linestyle"]),
+        s["marker"],
+        s.get("fillstyle"),
+    )
+
+
+# ------------------------------------------------------------------------------ the style
+def test_every_method_has_its_own_look():
+    looks = [look(m) for m in style.METHODS]
+    assert len(set(looks)) == len(looks)
+    assert len({style.method_label(m) for m in style.METHODS}) == len(style.METHODS)
+
+
+@pytest.mark.parametrize("group", [PLANS, SIMS])
+def test_methods_drawn_together_differ_in_grey_dash_and_marker(group):
+    for a, b in combinations(group, 2):
+        la, lb = look(a), look(b)
+        assert abs(la[0] - lb[0]) >= MIN_LUMA_STEP, (a, b)
+        assert la[1] != lb[1] and la[2] != lb[2], (a, b)
+
+
+def test_a_simulation_keeps_its_plans_colour_and_reads_as_a_simulation():
+    for plan in PLANS:
+        assert style.method_colour(f"{plan}:sim") == style.method_colour(plan)
+        assert look(f"{plan}:sim")[1] != look(plan)[1]
+    assert style.method_label("optimal:sim") == "optimal plan (forward dynamics)"
+    assert style.method_label("mission-only:kinematic") == "mission arm alone (momentum model)"
+    assert style.method_label("my plan") == "my plan"
+
+
+def test_the_sum_of_arms_does_not_look_like_a_plan():
+    for plan in PLANS + SIMS:
+        assert look("sum") != look(plan)
+    assert style.method_style("sum")["linewidth"] > style.method_style("analytic")["linewidth"]
+
+
+def test_unknown_width_is_refused():
+    with pytest.raises(ValueError, match="figure width must be one of column, page, got 'wide'"):
+        style.figure("wide")
+
+
+# ------------------------------------------------------------------------------ figures
+def texts_inside_and_legend_above(fig):
+    """Every text inside the figure; the legend above every panel (never over data)."""
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    box = fig.bbox
+    for ax in fig.axes:
+        tight = ax.get_tightbbox(renderer)
+        assert tight.x0 >= box.x0 - 1 and tight.x1 <= box.x1 + 1, ax.get_ylabel()
+        assert tight.y0 >= box.y0 - 1 and tight.y1 <= box.y1 + 1, ax.get_ylabel()
+    (legend,) = fig.legends
+    lbox = legend.get_window_extent(renderer)
+    assert lbox.y1 <= box.y1 + 1 and lbox.x0 >= box.x0 - 1 and lbox.x1 <= box.x1 + 1
+    for ax in fig.axes:
+        assert lbox.y0 >= ax.get_tightbbox(renderer).y1 - 1
+
+
+def titles(fig):
+    suptitle = fig._suptitle.get_text() if fig._suptitle is not None else ""
+    return suptitle, [ax.get_title() for ax in fig.axes]
+
+
+def test_attitude_figure_writes_nothing_unless_asked(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(3)
+    results = {"optimal": fake_attitude(rng), "analytic": fake_attitude(rng)}
+    fig, paths = attitude_figure(results, dashed={"mission-only": fake_attitude(rng)})
+    assert paths == [] and list(tmp_path.iterdir()) == []
+    assert titles(fig) == ("", ["", "", ""])
+    expected = ["optimal plan", "analytic law", "mission arm alone"]
+    assert curve_labels(fig) == [expected] * 3
+    for ax in fig.axes:
+        for line, name in zip(ax.get_lines(), ["optimal", "analytic", "mission-only"]):
+            assert line.get_color() == style.method_colour(name)
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert sorted(x for x in legend if x.strip()) == sorted(expected)
+    texts_inside_and_legend_above(fig)
+
+
+def test_attitude_figure_files_are_one_column_png_and_pdf(tmp_path):
+    rng = np.random.default_rng(4)
+    stem = tmp_path / "sub" / "fig.v2"
+    _, paths = attitude_figure({"analytic:sim": fake_attitude(rng)}, stem, formats=("png", "pdf"))
+    assert [p.name for p in paths] == ["fig.v2.png", "fig.v2.pdf"]
+    png = Image.open(paths[0])
+    assert png.info["dpi"][0] >= MIN_DPI
+    assert png.size[0] / png.info["dpi"][0] == pytest.approx(style.WIDTHS["column"], abs=0.02)
+    assert paths[1].read_bytes()[:5] == b"%PDF-"
+
+
+def test_attitude_draws_into_given_axes():
+    from matplotlib.figure import Figure
+
+    rng = np.random.default_rng(5)
+    result = fake_attitude(rng)
+    fig = Figure()
+    ax = fig.subplots()
+    lines = draw_attitude(ax, {"optimal": result})
+    assert [line.get_label() for line in lines] == ["optimal plan"]
+    np.testing.assert_allclose(lines[0].get_ydata(), np.degrees(result.angle), rtol=0, atol=0)
+    axes = Figure().subplots(3, 1)
+    same, paths = attitude_figure({"analytic": result}, axes=axes)
+    assert same is axes[0].figure and paths == []
+    np.testing.assert_allclose(axes[2].get_lines()[0].get_ydata(), np.degrees(result.rpy[:, 2]))
+
+
+def test_torque_figure_gives_each_plan_its_own_scale():
+    rng = np.random.default_rng(6)
+    sims = {"analytic": fake_simulation(rng, 0.3), "optimal": fake_simulation(rng, 8.0)}
+    fig, paths = reaction_torque_figure(sims)
+    assert paths == []
+    assert fig.get_size_inches()[0] == pytest.approx(style.WIDTHS["page"])
+    suptitle, panel_titles = titles(fig)
+    assert suptitle == "" and set(panel_titles) == {"", "analytic law", "optimal plan"}
+    analytic, optimal = fig.axes[0], fig.axes[1]  # first row: x torque of each plan
+    assert analytic.get_title() == "analytic law" and optimal.get_title() == "optimal plan"
+    span = [np.ptp(ax.get_ylim()) for ax in (analytic, optimal)]
+    assert span[0] < span[1] / 10
+    assert curve_labels(fig)[0] == ["sum of arms", "mission arm", "analytic law: balance arm"]
+    line = {x.get_label(): x for x in analytic.get_lines()}["sum of arms"]
+    np.testing.assert_allclose(line.get_ydata(), sims["analytic"].total_wrench[:, 3])
+    texts_inside_and_legend_above(fig)
+
+
+def test_figures_leave_global_state_alone(tmp_path):
+    before = dict(mpl.rcParams)
+    attitude_figure(
+        {"analytic": fake_attitude(np.random.default_rng(0))}, tmp_path / "a", formats=("png",)
+    )
+    assert dict(mpl.rcParams) == before
+    assert not (tmp_path / "a.pdf").exists() and (tmp_path / "a.png").exists()
+
+
+def fake_plan(joints, rng, T=40):
+    t = np.linspace(0.0, 4.0, T)
+    n = len(joints)
+    q = np.cumsum(rng.normal(scale=0.05, size=(T, n)), axis=0)
+    return SimpleNamespace(
+        t=t, balance_joints=tuple(joints), q_B=q, q_dot_B=np.gradient(q, t, axis=0), q_ddot_B=q
+    )
+
+
+def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path):
+    from balance_opt.io.report_figures import joint_limits_figure
+
+    joints = [j for j in paper.joint_names if "balance" in j]
+    rng = np.random.default_rng(7)
+    plans = {"analytic": fake_plan(joints, rng), "optimal": fake_plan(joints, rng)}
+    fig = joint_limits_figure(plans, paper)
+    assert list(tmp_path.iterdir()) == []
+    assert titles(fig) == ("", joints + [""] * (2 * len(joints)))
+    top = fig.axes[0]
+    labels = [line.get_label() for line in top.get_lines()]
+    assert labels[:2] == ["analytic law", "optimal plan"]
+    i = paper.joint_index(joints[0])
+    limit = top.get_lines()[2].get_ydata()
+    np.testing.assert_allclose(limit[[0, 3]], [paper.limits.lower[i], paper.limits.upper[i]])
+    lo, hi = top.get_ylim()
+    assert lo <= paper.limits.lower[i] and hi >= paper.limits.upper[i]
+    texts_inside_and_legend_above(fig)
+    path = joint_limits_figure(plans, paper, tmp_path / "joints.png")
+    assert Image.open(path).info["dpi"][0] == pytest.approx(style.SCREEN_DPI, abs=0.5)
+
+
+def test_sweep_plots_use_the_method_styles(monkeypatch, tmp_path):
+    from balance_opt.sweep import report
+
+    figures = []
+    monkeypatch.setattr(report, "_save", lambda fig, path: figures.append(fig) or path)
+    rng = np.random.default_rng(8)
+    records = [
+        {
+            "index": 2 * k + m,
+            "method": method,
+            "status": "ok",
+            "parameters": {"mission.duration": 5.0 + k},
+            "metrics": {"max_drift_rad": rng.uniform(0.01, 0.05), "final_drift_rad": 0.01},
+        }
+        for k in range(4)
+        for m, method in enumerate(("analytic", "optimal"))
+    ]
+    report.plot_drift_distribution(records, tmp_path / "d.png")
+    report.plot_drift_against_parameter(records, "mission.duration", tmp_path / "p.png")
+    distribution, against = figures
+    steps = distribution.axes[0].get_lines()
+    assert [line.get_color() for line in steps] == [
+        style.method_colour("analytic"),
+        style.method_colour("optimal"),
+    ]
+    assert [line.get_label() for line in steps] == ["analytic law (4)", "optimal plan (4)"]
+    for fig in figures:
+        assert titles(fig)[0] == "" and not any(titles(fig)[1])
+    scatter = against.axes[0].collections
+    assert [c.get_label() for c in scatter] == ["analytic law", "optimal plan"]
