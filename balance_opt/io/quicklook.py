@@ -1,8 +1,9 @@
 """A quick look at one result on matplotlib axes, for notebooks: :meth:`BalanceResult.plot`.
 
 Unlike the figures of :mod:`balance_opt.io.plots` (which a run writes to files), this draws on
-axes the caller owns (or on a new figure) and writes nothing; the colours and labels of the
-methods are those of the written figures.
+axes the caller owns (or on a new figure) and writes nothing; each method has the colour, line
+style, marker and label of the written figures (:func:`balance_opt.io.style.method_style`). The
+caller's matplotlib settings (fonts, sizes) are left alone.
 """
 
 from __future__ import annotations
@@ -37,26 +38,20 @@ def plot_result(result: BalanceResult, ax: Axes | None = None, kind: str = "atti
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
-    from balance_opt.io.plots import plan_colour, plan_label
+    from balance_opt.io.style import method_style
 
     if ax is None:
         import matplotlib.pyplot as plt
 
         _, ax = plt.subplots()
-    colour = plan_colour(result.method, len(ax.lines))
-    label = plan_label(result.method)
+    style = method_style(result.method)
     if kind == "attitude":
-        ax.plot(result.t, np.degrees(result.angle), color=colour, label=label)
+        ax.plot(result.t, np.degrees(result.angle), **style)
     else:
-        styles = ("-", "--", ":", "-.")
+        dashes = ("-", "--", ":", "-.")
         for j, name in enumerate(result.balance_joints):
-            ax.plot(
-                result.t,
-                result.q_B[:, j],
-                color=colour,
-                linestyle=styles[j % len(styles)],
-                label=f"{label}: {name}",
-            )
+            joint = {**style, "linestyle": dashes[j % len(dashes)], "marker": ""}
+            ax.plot(result.t, result.q_B[:, j], **{**joint, "label": f"{style['label']}: {name}"})
     ax.set_xlabel("time [s]")
     ax.set_ylabel(KINDS[kind])
     ax.legend()
