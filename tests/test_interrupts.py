@@ -144,8 +144,8 @@ def test_interrupt_while_writing_keeps_the_previous_results(tmp_path, capsys, mo
     out, before = _previous_run(tmp_path, task)
     real = outputs.write_trajectory_npz
 
-    def torn(path, result):  # a file half written when Ctrl-C comes
-        real(path, result)
+    def torn(path, result, *args):  # a file half written when Ctrl-C comes
+        real(path, result, *args)
         Path(path).write_bytes(Path(path).read_bytes()[:100])
         raise KeyboardInterrupt
 

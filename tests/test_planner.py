@@ -149,7 +149,7 @@ def test_dynamics_match_numeric_pinocchio(model, control):
     for q, q_dot, phi, extra in zip(*_random_points(rng, model, control, 20)):
         u = rng.normal(size=model.n_B)
         x = np.r_[phi, q[B], q_dot[B], extra]
-        m = np.r_[q[M], q_dot[M], rng.normal(size=M.size)]
+        m = np.r_[q[M], q_dot[M], rng.normal(size=M.size), np.zeros(6)]  # h0 = 0
         x_dot, omega = (np.array(v).ravel() for v in dyn(x, u, m))
         J_wM, J_wB = numeric.angular_jacobians(q)
         omega_ref = J_wM @ q_dot[M] + J_wB @ q_dot[B]
@@ -571,7 +571,8 @@ def test_structure_key_and_parameter_layout(model, capture):
     np.testing.assert_array_equal(values["q_rest"].ravel(), capture.q_B0 + 0.1)
     np.testing.assert_array_equal(values["mission"], nlp.mission_samples)
     q_M, q_dot_M, q_ddot_M = capture.mission.sample(nlp.point_times)
-    np.testing.assert_array_equal(values["mission"], np.hstack([q_M, q_dot_M, q_ddot_M]).T)
+    h0_rows = np.zeros((nlp.point_times.size, 6))  # the momentum h0, zero here
+    np.testing.assert_array_equal(values["mission"], np.hstack([q_M, q_dot_M, q_ddot_M, h0_rows]).T)
 
 
 def test_constraint_checks_agree_with_the_result(model, capture, capture_law):

@@ -11,18 +11,42 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.io.animation import ANIMATION_FPS, animation_data, animation_html, skeleton
+from balance_opt.dynamics.inverse_dynamics import plan_torques
+from balance_opt.io.animation import (
+    ANIMATION_FPS,
+    ARM_COLOURS,
+    animation_data,
+    animation_html,
+    magnification,
+    magnified_axes,
+    segment_arms,
+    skeleton,
+)
 from balance_opt.io.outputs import (
+    effort_metrics,
     ipopt_version,
     limit_margins,
+    method_metrics,
+    plan_joint_torques,
     read_npz_result,
     to_json,
     write_trajectory_csv,
     write_trajectory_npz,
 )
-from balance_opt.io.report import comparison_table
-from balance_opt.motion.so3 import quaternion_from_rotvec
-from balance_opt.result import BalanceResult
+from balance_opt.io.report import (
+    MOMENTUM_TOLERANCE,
+    TORQUE_TOLERANCE,
+    comparison_table,
+    format_angle,
+    format_value,
+    margin_class,
+    render_report,
+    torque_sparkline,
+    torque_table,
+)
+from balance_opt.io.style import method_label
+from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
+from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 ATOL = 1e-9
 
@@ -92,17 +116,140 @@ def test_ipopt_version_is_read_from_the_library():
     assert re.fullmatch(r"\d+\.\d+\.\d+", ipopt_version())
 
 
-def test_comparison_table_marks_broken_limits():
+# ----------------------------------------------------------------------------------- report
+def test_values_below_their_tolerance_read_zero():
+    assert format_value(2.935e-19, MOMENTUM_TOLERANCE) == "0 (< 1e-09)"
+    assert format_value(3.2e-8, MOMENTUM_TOLERANCE) == "3.2e-08"
+    assert format_value(-4e-9, TORQUE_TOLERANCE, "N m") == "-4e-09 N m"
+    assert format_value(4e-10, 1e-9, "N m") == "0 (< 1e-09 N m)"
+    assert format_angle(math.radians(8.9e-14)) == "0 (< 1e-12 rad)"
+    assert format_angle(0.09291) == "0.09291 rad (5.323 deg)"
+    assert format_angle(0.02, per="/s") == "0.02 rad/s (1.146 deg/s)"
+
+
+def test_margin_colours_by_meaning():
+    assert margin_class(1.8e-7, 1.8e-7, LIMIT_TOLERANCE) == "at-limit"  # sitting on the limit
+    assert margin_class(0.005, 0.005, LIMIT_TOLERANCE) == "at-limit"  # inside the 1 % band
+    assert margin_class(0.03, 0.03, LIMIT_TOLERANCE) == "inside"
+    assert margin_class(1.07, 0.5, LIMIT_TOLERANCE) == "inside"
+    assert margin_class(-0.2, -0.1, LIMIT_TOLERANCE) == "broken"
+    assert margin_class(-5e-7, -5e-7, LIMIT_TOLERANCE) == "at-limit"  # within the tolerance
+    assert margin_class(math.inf, None, LIMIT_TOLERANCE) == ""  # no limit
+
+
+def test_comparison_table_colours_margins_and_flags_failures():
     methods = {
-        "analytic": {"max_drift_rad": 0.01, "balance_limit_margin": {"position": -0.2}},
-        "optimal": {"max_drift_rad": 0.02, "balance_limit_margin": {"position": 1e-9}},
+        "analytic": {
+            "max_drift_rad": 0.01,
+            "balance_limit_margin": {"velocity": -0.2},
+            "balance_relative_limit_margin": {"velocity": -0.2},
+        },
+        "optimal": {
+            "max_drift_rad": 1e-15,
+            "balance_limit_margin": {"velocity": 1.8e-7},
+            "balance_relative_limit_margin": {"velocity": 1.8e-7},
+        },
+        "mission-only": {
+            "max_drift_rad": 0.0929,
+            "balance_limit_margin": {"velocity": 1.0},
+            "balance_relative_limit_margin": {"velocity": 1.0},
+        },
     }
-    table = comparison_table(methods)
-    assert '<td class="bad">-0.2</td><td class="good">1e-09</td>' in table
+    table = comparison_table(methods, {"optimal": "Ipopt: Maximum_Iterations_Exceeded"})
     assert (
-        '<td>max attitude drift [deg]</td><td class="">0.573</td><td class="">1.146</td>' in table
-    )
+        "<td>velocity limit margin [rad/s or m/s]</td>"
+        '<td class="inside">1; 100 % of the limit</td>'
+        '<td class="broken">-0.2; -20 % of the limit</td>'
+        '<td class="at-limit failed">0 (&lt; 1e-06)</td>'
+    ) in table
+    assert (
+        '<td>max attitude drift</td><td class="">0.0929 rad (5.323 deg)</td>'
+        '<td class="">0.01 rad (0.573 deg)</td><td class="failed">0 (&lt; 1e-12 rad)</td>'
+    ) in table
+    # one name per method, the style module's; the failed one flagged in its header
+    heads = re.findall(r"<th[^>]*>(.*?)</th>", table)[1:]
+    assert [re.sub("<[^>]+>", "", h) for h in heads] == [
+        method_label("mission-only"),
+        method_label("analytic"),
+        method_label("optimal") + "FAILED",
+    ]
+    assert '<th class="failed">' in table and table.count("FAILED") == 1
     assert "Forward-dynamics simulation" not in table  # empty sections are left out
+
+
+def _feedforward_torques(robot, res):
+    """Joint torques from the simulation's computed-torque feedforward, an implementation
+    of its own (composite inertia of the base, RNEA), at the base twist of zero momentum."""
+    from balance_opt.dynamics.simulation import _Dynamics
+    from balance_opt.model.maps import NumericMaps
+
+    dyn, maps = _Dynamics(robot, 0.0, 0.0, "computed-torque", False), NumericMaps(robot)
+    q = np.hstack([res.q_M, res.q_B])
+    qd = np.hstack([res.q_dot_M, res.q_dot_B])
+    qdd = np.hstack([res.q_ddot_M, res.q_ddot_B])
+    assert robot.joint_names == (*res.mission_joints, *res.balance_joints)
+    return np.array(
+        [
+            dyn.feedforward(
+                robot.pin_q(q[k]), robot.pin_v(qd[k], maps.base_twist(q[k], qd[k])), qdd[k]
+            )
+            for k in range(res.t.size)
+        ]
+    )
+
+
+def test_effort_margins_against_an_independent_inverse_dynamics(paper):
+    res = _result(paper, samples=41)
+    tau = _feedforward_torques(paper, res)
+    effort = effort_metrics(res, paper)
+    for k, joint in enumerate(paper.joint_names):
+        e, peak = effort["joints"][joint], np.abs(tau[:, k]).max()
+        limit = paper.limits.effort[k]
+        assert e["peak_Nm"] == pytest.approx(peak, rel=1e-10)
+        assert e["peak_time_s"] == res.t[np.argmax(np.abs(tau[:, k]))]
+        assert e["margin_Nm"] == pytest.approx(limit - peak, rel=1e-10)
+        assert e["relative_margin"] == pytest.approx((limit - peak) / limit, rel=1e-10)
+        assert e["status"] == "inside"
+    assert effort["violations"] == []
+
+
+def test_effort_violations_are_counted_and_no_limit_said():
+    from test_inverse_dynamics import WHEELS
+
+    from balance_opt.model.robot import FloatingRobot
+
+    robot = FloatingRobot(WHEELS, ["w1_joint"], ["w2_joint"])
+    t = np.linspace(0.0, 0.6, 101)
+    q = np.column_stack([0.5 * np.sin(4 * t), np.sin(t)])  # w1: up to 3.7 N m > 1.5 N m, once
+    qd = np.column_stack([2 * np.cos(4 * t), np.cos(t)])
+    qdd = np.column_stack([-8 * np.sin(4 * t), -np.sin(t)])
+    res = BalanceResult.from_arm_vectors(
+        robot, "x", t, q, qd, qdd, quaternion_from_rotvec(np.zeros((101, 3))),
+        np.zeros((101, 3)), np.zeros(101), np.ones(101),
+    )  # fmt: skip
+    metrics = method_metrics(res, robot)
+    w1, w2 = metrics["effort"]["joints"]["w1_joint"], metrics["effort"]["joints"]["w2_joint"]
+    c1, c2, Ib = 0.5, 0.8, 6.0  # closed form of the coaxial wheels (see test_inverse_dynamics)
+    wdot = -(c1 * qdd[:, 0] + c2 * qdd[:, 1]) / (Ib + c1 + c2)
+    peak = np.abs(c1 * (wdot + qdd[:, 0])).max()
+    assert peak > 1.5 and w1["peak_Nm"] == pytest.approx(peak, rel=1e-12)
+    assert w1["status"] == "broken" and w1["margin_Nm"] == pytest.approx(1.5 - peak, rel=1e-12)
+    assert w2 == {
+        "peak_Nm": w2["peak_Nm"], "peak_time_s": w2["peak_time_s"], "limit_Nm": None,
+        "margin_Nm": None, "relative_margin": None, "status": "no limit",
+    }  # fmt: skip
+    assert metrics["effort"]["min_relative_margin"] == w1["relative_margin"]
+    assert metrics["effort"]["balance_min_relative_margin"] is None
+    (violation,) = metrics["violations"]
+    assert violation.startswith("w1_joint: effort limit exceeded by up to ")
+    assert metrics["limit_violations"] == 1
+    table = torque_table(metrics["effort"])
+    assert '<td>w2_joint</td><td class="">' in table and "no limit" in table
+    margin = 1.5 - w1["peak_Nm"]
+    assert (
+        f'<td class="broken">{margin:.4g}</td><td class="broken">{100 * margin / 1.5:.4g} %</td>'
+        in table
+    )
 
 
 # ----------------------------------------------------------------------------------- animation
@@ -146,9 +293,10 @@ def test_animation_script_runs(paper, tmp_path):
     script = re.search(r"<script>(.*)</script>", fragment, re.DOTALL).group(1)
     harness = (
         """
-const drawn = [];
-const ctx = {clearRect() { drawn.length = 0; }, beginPath() {}, moveTo() {}, lineTo() {},
-             stroke() { drawn.push(this.strokeStyle); }};
+const drawn = [], texts = [];
+const ctx = {clearRect() { drawn.length = 0; texts.length = 0; }, beginPath() {}, moveTo() {},
+             lineTo() {}, arc() {}, setLineDash() {}, fillRect() {},
+             fillText(s) { texts.push(s); }, stroke() { drawn.push(this.strokeStyle); }};
 const els = {};
 function el(id) { return els[id] || (els[id] = {value: '', width: 400, height: 400, getContext: () => ctx}); }
 globalThis.document = {getElementById: el};
@@ -159,7 +307,8 @@ el('anim-method').value = 'b';
         + script
         + """
 el('anim-t').value = 3; el('anim-t').oninput();
-console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t').max, lines: drawn.length}));
+console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t').max,
+                            lines: drawn.length, colours: drawn, texts: texts}));
 """
     )
     path = tmp_path / "h.js"
@@ -170,6 +319,67 @@ console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     _points, segments = skeleton(paper)
-    assert out["lines"] == 12 + len(segments) + 3  # box edges, the stick figure, the base axes
+    # box edges, the stick figure, the base axes, the inset's circle and its 3 + 3 axes
+    assert out["lines"] == 12 + len(segments) + 3 + 7
     assert out["max"] == round(2.0 * ANIMATION_FPS)  # frames of 2 s, from 0
-    assert out["label"].startswith("t = ")
+    assert re.fullmatch(r"t = 0\.12 s, base rotation \S+ rad \(\S+ deg\)", out["label"])
+    arms = segment_arms(paper, *skeleton(paper))
+    assert out["colours"][12 : 12 + len(segments)] == [ARM_COLOURS[a] for a in arms]
+    assert {"mission arm", "balance arm", "x", "y", "z"} <= set(out["texts"])
+    factor = magnification(max(_result(paper, s).max_drift for s in (1, 2)))
+    assert f"base rotation x {factor:g}" in out["texts"] and "other" not in out["texts"]
+
+
+def test_arms_magnification_and_magnified_axes(paper):
+    points, segments = skeleton(paper)
+    arms = segment_arms(paper, points, segments)
+    model = paper.model
+    for (_, child), arm in zip(segments, arms):
+        p = points[child]
+        joint = model.names[p if p > 0 else model.frames[-p - 1].parentJoint]
+        assert joint in paper.arms[arm].joints
+    assert magnification(0.0929) == 5 and magnification(0.01) == 50
+    assert magnification(0.6) == 1 and magnification(0.0) == 1
+    res = _result(paper)
+    ref = matrix_from_quaternion(res.quaternion[0])
+    mag = magnified_axes(res.quaternion, 10.0)
+    for k in (5, 20):
+        turned = ref.T @ mag[k].T  # R0^T R_mag
+        angle = math.acos((np.trace(turned) - 1) / 2)
+        assert angle == pytest.approx(10 * res.angle[k], rel=1e-9)
+
+
+def test_torque_sparkline_keeps_the_peak_and_draws_the_limit():
+    t = np.linspace(0.0, 10.0, 1001)
+    tau = np.sin(t) * 0.5
+    tau[537] = -3.0  # one sample: the binning must keep it
+    svg = torque_sparkline(t, tau, 4.0, "inside", width=240, height=30)
+    top = 1.05 * 4.0
+    ys = [float(p.split(",")[1]) for p in re.search(r'points="([^"]+)"', svg).group(1).split()]
+    assert min(ys) == pytest.approx(29 - 28 * 3.0 / top, abs=0.051)  # the spike, to 0.1 px
+    (limit_y,) = re.findall(r'<line x1="0" y1="([\d.]+)"', svg)
+    assert float(limit_y) == pytest.approx(29 - 28 * 4.0 / top, abs=0.051)
+    assert "<line" not in torque_sparkline(t, tau, None, "")  # no limit, no line
+
+
+def test_plan_torques_are_reused_but_not_shared(paper):
+    res = _result(paper)
+    first = plan_joint_torques(res, paper)
+    first[:] = 0.0  # a caller's change does not reach the next caller
+    again = plan_joint_torques(res, paper)
+    assert np.abs(again).max() > 0
+    np.testing.assert_array_equal(again, plan_torques(paper, res).tau)
+    moving = plan_joint_torques(res, paper, np.array([0, 0, 0, 1.0, 0, 0]))
+    assert np.abs(moving - again).max() > 1e-6  # another momentum: computed anew
+
+
+def test_report_is_offline_and_flags_a_failed_method(paper):
+    res = _result(paper)
+    methods = {"analytic": method_metrics(res, paper), "optimal": method_metrics(res, paper)}
+    metrics = {"task": {"name": "t"}, "methods": methods, "failures": {"optimal": "Ipopt: x"}}
+    torques = {name: (res.t, plan_joint_torques(res, paper)) for name in methods}
+    page = render_report(metrics, torques=torques)
+    assert "http" not in page and "src=" not in page  # nothing to fetch
+    assert '<p class="failure">FAILED: optimal plan: Ipopt: x</p>' in page
+    assert '<h3>optimal plan <span class="flag">FAILED</span></h3>' in page
+    assert page.count("<polyline") == 2 * len(res.mission_joints + res.balance_joints)

@@ -203,7 +203,7 @@ BAD_TASKS = [
         "^mision:",
         (
             "mision: unknown key 'mision'; expected one of name, description, robot, arms, mission, initial, "
-            "limits, analytic, optimal, simulation, outputs; did you mean 'mission'?"
+            "capture, limits, analytic, optimal, simulation, outputs; did you mean 'mission'?"
         ),
         TaskFileError,
     ),

@@ -540,16 +540,10 @@ def test_plain_task_name_is_accepted(tmp_path):
 
 
 # ------------------------------------------------------------------ what plan needs (issue 12)
-def test_validate_refuses_what_the_optimal_planner_cannot_do(tmp_path, capsys):
+def test_validate_accepts_a_momentum_for_both_methods(tmp_path, capsys):
+    """The optimal planner plans with a non-zero initial momentum (issue 16)."""
     path = _task(tmp_path, ("momentum: [0, 0, 0, 0, 0, 0]", "momentum: [0, 0, 0, 0, 0, 0.5]"))
-    line = _line_of(path.read_text(), "momentum:")
-    code, err = _cli(["validate", path], capsys)
-    assert code == 2
-    assert err == (
-        f"balance-opt: error: {path}:{line}: initial.momentum: the optimal planner assumes zero "
-        "initial momentum; plan this task with --method analytic\n"
-    )
-    assert _cli(["validate", "--method", "analytic", path], capsys)[0] == 0
+    assert _cli(["validate", path], capsys)[0] == 0
 
 
 def _prismatic_task(tmp_path: Path, extra: str, backend: str = "auto") -> Path:

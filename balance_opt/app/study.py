@@ -32,6 +32,7 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
+from balance_opt.app.models import ModelCache
 from balance_opt.app.scenarios import Scenario, paper_capture
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
@@ -85,7 +86,11 @@ class StudyResult:
 
 
 def _plan(
-    method: str, scenario: Scenario, law: BalanceLawOptions, planner: PlannerOptions
+    method: str,
+    scenario: Scenario,
+    law: BalanceLawOptions,
+    planner: PlannerOptions,
+    backend: str = "auto",
 ) -> tuple[BalanceResult, str]:
     """A balance plan and its status (``"ok"``, or the solver's failure status)."""
     robot, mission = scenario.robot, scenario.mission
@@ -93,7 +98,8 @@ def _plan(
         if method == "analytic":
             integration = IntegrationOptions(output_step=STUDY_OUTPUT_STEP)
             return rollout(robot, mission, scenario.q_B0, law, integration=integration), "ok"
-        return plan_optimal(robot, mission, scenario.q_B0, planner), "ok"
+        model = ModelCache().planner_model(robot, backend)
+        return plan_optimal(model, mission, scenario.q_B0, planner), "ok"
     except SolverError as exc:
         if exc.result is None:
             raise
@@ -178,6 +184,7 @@ def paper_study(
     law: BalanceLawOptions | None = None,
     planner: PlannerOptions | None = None,
     formats: Sequence[str] = FORMATS,
+    backend: str = "auto",
 ) -> StudyResult:
     """Run the paper's study and write Figs. 2-5 (see the module docstring).
 
@@ -189,6 +196,8 @@ def paper_study(
         law: settings of the analytic law (default: damped least squares).
         planner: settings of the optimal planner.
         formats: figure file formats.
+        backend: symbolic backend of the optimal planner (``"auto"``, ``"pinocchio"``,
+            ``"adam"``).
 
     Returns:
         The plans, simulations, figures and summary.
@@ -213,7 +222,7 @@ def paper_study(
 
     plans, status, balance_only, balanced = {}, {}, {}, {}
     for method in methods:
-        plans[method], status[method] = _plan(method, scenario, law, planner)
+        plans[method], status[method] = _plan(method, scenario, law, planner, backend)
         # Fig. 3: the plan's balance motion with the mission arm held at its start
         balance_only[method] = simulate(robot, mission.start, plans[method], sim_opts)
         balanced[method] = simulate_plan(robot, plans[method], sim_opts)

@@ -345,6 +345,7 @@ def simulate(
     *,
     duration: float | None = None,
     base: pin.SE3 | None = None,
+    initial_state: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SimulationResult:
     """Simulate the free-floating robot tracking a mission and a balance trajectory.
 
@@ -360,6 +361,8 @@ def simulate(
         options: see :class:`SimulationOptions`.
         duration: simulated time [s]; the longer of the two trajectories by default.
         base: initial base pose in the world (identity by default).
+        initial_state: Pinocchio ``(q, v)`` to start from instead of the plan's start with the
+            twist of ``options.h0`` (after a capture's impulse, say).
 
     Returns:
         The simulated motion, with outputs computed at ``options.output_dt``.
@@ -380,7 +383,7 @@ def simulate(
     kp, kd = _gains(robot, plan, opts)
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
-    x0 = _initial_state(robot, plan, h0, base)
+    x0 = _initial_state(robot, plan, h0, base) if initial_state is None else initial_state
 
     if opts.integrator == "rk4":
         output_dt = opts.output_dt or opts.dt

@@ -17,8 +17,14 @@ from collections.abc import Mapping
 import numpy as np
 import pinocchio as pin
 
+from balance_opt.io.style import method_label
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.so3 import matrix_from_quaternion
+from balance_opt.motion.so3 import (
+    matrix_from_quaternion,
+    quaternion_from_rotvec,
+    relative_rotation,
+    rotvec_from_quaternion,
+)
 from balance_opt.result import BalanceResult
 
 #: Frames per second of the animation [1/s].
@@ -27,26 +33,50 @@ ANIMATION_FPS = 25
 AXIS_FRACTION = 0.25
 #: Decimals kept in the embedded coordinates [m].
 DECIMALS = 4
+#: Colour of each arm's stick figure, in arm order (mission, balance, balance2, ...):
+#: Okabe-Ito colours apart from the base axes' red, green and blue.
+ARM_COLOURS = ("#D55E00", "#7B3294", "#E69F00", "#56B4E9", "#CC79A7")
+#: The magnified view turns the base by its rotation from the start times a factor chosen so
+#: that the largest drift shows as about this angle [rad] (30 deg).
+MAGNIFIED_ANGLE = np.radians(30.0)
 
 _PLAYER = """
 (function(){
 const D = DATA, cv = document.getElementById(ID), ctx = cv.getContext('2d');
 const sel = document.getElementById(ID + '-method'), sl = document.getElementById(ID + '-t');
 const btn = document.getElementById(ID + '-play'), lab = document.getElementById(ID + '-label');
+const AX = ['#d62728', '#2ca02c', '#1f77b4'], XYZ = ['x', 'y', 'z'];
 let az = 0.6, el = 0.35, k = 0, playing = false, last = 0, drag = null;
-function proj(p){ const ca=Math.cos(az), sa=Math.sin(az), ce=Math.cos(el), se=Math.sin(el);
-  const px = p[0] - D.center[0], py = p[1] - D.center[1], pz = p[2] - D.center[2];
-  const x = ca*px + sa*py, y = -sa*px + ca*py;
-  return [cv.width/2 + D.scale*x, cv.height/2 - D.scale*(ce*pz - se*y)]; }
-function line(a, b, c, w){ const A = proj(a), B = proj(b); ctx.strokeStyle = c; ctx.lineWidth = w;
+function turn(p){ const ca=Math.cos(az), sa=Math.sin(az), ce=Math.cos(el), se=Math.sin(el);
+  const x = ca*p[0] + sa*p[1], y = -sa*p[0] + ca*p[1]; return [x, -(ce*p[2] - se*y)]; }
+function proj(p){ const r = turn([p[0] - D.center[0], p[1] - D.center[1], p[2] - D.center[2]]);
+  return [cv.width/2 + D.scale*r[0], cv.height/2 + D.scale*r[1]]; }
+function seg(A, B, c, w, dash){ ctx.strokeStyle = c; ctx.lineWidth = w; ctx.setLineDash(dash || []);
   ctx.beginPath(); ctx.moveTo(A[0], A[1]); ctx.lineTo(B[0], B[1]); ctx.stroke(); }
+function line(a, b, c, w){ seg(proj(a), proj(b), c, w); }
+function text(s, P, c, align){ ctx.fillStyle = c; ctx.textAlign = align || 'left'; ctx.fillText(s, P[0], P[1]); }
+function inset(f){ const r = D.inset_radius, cx = cv.width - r - 12, cy = cv.height - r - 12;
+  ctx.strokeStyle = '#bbb'; ctx.lineWidth = 1; ctx.setLineDash([]); ctx.beginPath();
+  ctx.arc(cx, cy, r + 6, 0, 2*Math.PI); ctx.stroke();
+  const m = D.methods[sel.value];
+  for (let a = 0; a < 3; a++) { const u = turn(m.ref_axes[a]), v = turn(f.mag[a]);
+    seg([cx, cy], [cx + r*u[0], cy + r*u[1]], '#aaa', 1, [3, 3]);
+    seg([cx, cy], [cx + r*v[0], cy + r*v[1]], AX[a], 2);
+    text(XYZ[a], [cx + (r + 2)*v[0], cy + (r + 2)*v[1]], AX[a]); }
+  text('base rotation x ' + D.magnify, [cv.width - 6, cy - r - 24], '#333', 'right');
+  text('(dashed: at the start)', [cv.width - 6, cy - r - 10], '#333', 'right'); }
 function draw(){ const m = D.methods[sel.value], f = m.frames[k];
-  ctx.clearRect(0, 0, cv.width, cv.height);
+  ctx.clearRect(0, 0, cv.width, cv.height); ctx.font = '12px sans-serif';
   for (const [a, b] of D.box_edges) line(f.box[a], f.box[b], '#999', 1);
-  for (const [i, j] of D.segments) line(f.points[i], f.points[j], m.colour, 3);
-  const o = f.points[0], cols = ['#d62728', '#2ca02c', '#1f77b4'];
-  for (let a = 0; a < 3; a++) line(o, f.axes[a], cols[a], 2);
-  lab.textContent = 't = ' + m.t[k].toFixed(2) + ' s, base rotation ' + m.angle_deg[k].toFixed(3) + ' deg'; }
+  D.segments.forEach(function(s, i){ line(f.points[s[0]], f.points[s[1]], D.arms[D.segment_arm[i]].colour, 3); });
+  const o = f.points[0];
+  for (let a = 0; a < 3; a++) { line(o, f.axes[a], AX[a], 2); text(XYZ[a], proj(f.axes[a]), AX[a]); }
+  D.arms.forEach(function(arm, i){ if (arm.tip !== null) { const P = proj(f.points[arm.tip]);
+      text(arm.label, [P[0] + 6, P[1] - 6], arm.colour); }
+    ctx.fillStyle = arm.colour; ctx.fillRect(10, 10 + 16*i, 12, 12); text(arm.label, [28, 21 + 16*i], '#333'); });
+  inset(f);
+  lab.textContent = 't = ' + m.t[k].toFixed(2) + ' s, base rotation ' + m.angle[k].toPrecision(3) +
+    ' rad (' + (m.angle[k] * 180 / Math.PI).toFixed(3) + ' deg)'; }
 function tick(now){ if (!playing) return; if (now - last > 1000 / D.fps) { last = now;
   const n = D.methods[sel.value].frames.length; k = (k + 1) % n; sl.value = k; draw(); }
   requestAnimationFrame(tick); }
@@ -118,6 +148,41 @@ def skeleton(robot: FloatingRobot) -> tuple[list[int], list[tuple[int, int]]]:
     return points, segments
 
 
+def segment_arms(robot: FloatingRobot, points: list[int], segments) -> list[int]:
+    """Index of the arm each segment belongs to (the arm of the joint or end effector it ends
+    at: the nearest arm joint at or above it), ``len(robot.arms)`` for none."""
+    model = robot.model
+    arm_of = {model.getJointId(j): a for a, arm in enumerate(robot.arms) for j in arm.joints}
+
+    def arm(point: int) -> int:
+        j = point if point > 0 else model.frames[-point - 1].parentJoint
+        while j > 1 and j not in arm_of:
+            j = model.parents[j]
+        return arm_of.get(j, len(robot.arms))
+
+    return [arm(points[child]) for _, child in segments]
+
+
+def magnification(max_angle: float) -> float:
+    """Factor of the magnified view of the base's rotation: 1, 2 or 5 times a power of ten, the
+    largest that shows ``max_angle`` [rad] at no more than :data:`MAGNIFIED_ANGLE` (1 when the
+    rotation is already that large, or nil)."""
+    if not max_angle > 0 or max_angle >= MAGNIFIED_ANGLE:
+        return 1.0
+    want = MAGNIFIED_ANGLE / max_angle
+    power = 10.0 ** np.floor(np.log10(want))
+    return float(max(f * power for f in (1, 2, 5) if f * power <= want))
+
+
+def magnified_axes(quaternion: np.ndarray, factor: float) -> np.ndarray:
+    """Base axes (T, 3, 3) (rows: x, y, z in the world) of the attitude ``R0 exp(factor
+    log(R0^T R))``: the rotation from the start ``R0``, magnified."""
+    phi = rotvec_from_quaternion(relative_rotation(quaternion[:1], quaternion))
+    R0 = matrix_from_quaternion(quaternion[0])
+    R = np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
+    return np.swapaxes(R, 1, 2)
+
+
 def _frame(robot: FloatingRobot, data, points: list[int], q_arm, R, box, com0, offset):
     """One frame (the stick figure's points, the base attitude ``R``, the base box corners [m])
     and the CoM of the robot placed with its base at the origin. The frame is shifted so that
@@ -169,20 +234,37 @@ def animation_data(
     colours: Mapping[str, str] | None = None,
     fps: float = ANIMATION_FPS,
 ) -> dict:
-    """Plain data of the animation: per method, the sample times and per frame the points of
-    the stick figure, the base axes and box corners, world frame [m]."""
+    """Plain data of the animation: per method, the sample times, the base rotation from the
+    start [rad] and per frame the points of the stick figure, the base axes and box corners
+    (world frame [m]) and the magnified base axes (``mag``, unit vectors, rotation from the
+    start times ``magnify``); the arm of each segment and each arm's label, colour and tip."""
     points, segments = skeleton(robot)
     box = _base_box(robot)
     p0 = np.zeros(3) if h0 is None else np.asarray(h0, dtype=float)[:3]
     methods = {}
+    factor = magnification(max(float(res.angle.max()) for res in results.values()))
     for name, res in results.items():
         t, idx, frames = _method_frames(robot, res, points, box, p0, fps)
+        for frame, mag in zip(frames, magnified_axes(res.quaternion[idx], factor)):
+            frame["mag"] = mag
         methods[name] = {
             "t": t,
             "frames": frames,
-            "angle_deg": np.degrees(res.angle[idx]),
+            "angle": [float(f"{a:.6g}") for a in res.angle[idx]],
+            "ref_axes": matrix_from_quaternion(res.quaternion[0]).T,
             "colour": (colours or {}).get(name, "#333333"),
         }
+    arms = [
+        {
+            "label": f"{arm.name} arm",
+            "colour": ARM_COLOURS[a % len(ARM_COLOURS)],
+            "tip": len(points) - len(robot.arms) + a,
+        }
+        for a, arm in enumerate(robot.arms)
+    ]
+    seg_arms = segment_arms(robot, points, segments)
+    if len(robot.arms) in seg_arms:  # a joint in no arm (a mimic follower on the base)
+        arms.append({"label": "other", "colour": "#777777", "tip": None})
     allpts = np.vstack(
         [
             np.vstack([f["points"], f.get("box", f["points"])])
@@ -199,6 +281,9 @@ def animation_data(
     return {
         "fps": fps,
         "segments": segments,
+        "segment_arm": seg_arms,
+        "arms": arms,
+        "magnify": factor,
         "box_edges": _BOX_EDGES if box is not None else [],
         "extent": extent,
         "center": center,
@@ -207,8 +292,9 @@ def animation_data(
 
 
 def _round(value):
+    """Coordinates to :data:`DECIMALS` decimals (the angles keep their 6 significant digits)."""
     if isinstance(value, dict):
-        return {k: _round(v) for k, v in value.items()}
+        return {k: v if k == "angle" else _round(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_round(v) for v in value]
     if isinstance(value, np.ndarray):
@@ -228,18 +314,32 @@ def animation_html(
     size: int = 520,
 ) -> str:
     """An HTML fragment: a canvas, a method selector, a play button and a time slider, with the
-    data of :func:`animation_data` inline. Drag on the canvas to turn the view."""
+    data of :func:`animation_data` inline, and a caption naming what is drawn (the arms by
+    colour, the base axes, the magnified view and its factor). Drag on the canvas to turn the
+    view. ``labels``: display name per method (default :func:`~balance_opt.io.style.method_label`)."""
     data = animation_data(robot, results, h0, colours)
     data["scale"] = 0.45 * size / (data["extent"] * np.sqrt(2.0))  # any view direction fits
+    data["inset_radius"] = round(0.11 * size)
     options = "".join(
-        f'<option value="{html.escape(name)}">{html.escape((labels or {}).get(name, name))}</option>'
+        f'<option value="{html.escape(name)}">'
+        f"{html.escape((labels or {}).get(name) or method_label(name))}</option>"
         for name in results
+    )
+    arms = ", ".join(
+        f'<span style="color:{a["colour"]};font-weight:bold">{html.escape(a["label"])}</span>'
+        for a in data["arms"]
+        if a["tip"] is not None
+    )
+    caption = (
+        f'<p class="meta">Arms: {arms}. Base axes: red x, green y, blue z. Lower right: the base '
+        f"axes turned by the base's rotation from its start magnified {data['magnify']:g} times "
+        "(dashed: the axes at the start), so that a rotation of a few degrees shows.</p>"
     )
     script = _PLAYER.replace("ID", json.dumps(element_id)).replace(
         "DATA", json.dumps(_round(data), separators=(",", ":"))
     )
     return (
-        f'<div class="animation"><canvas id="{element_id}" width="{size}" height="{size}" '
+        f'{caption}<div class="animation"><canvas id="{element_id}" width="{size}" height="{size}" '
         f'style="border:1px solid #ddd;cursor:grab"></canvas><br>'
         f'<select id="{element_id}-method">{options}</select> '
         f'<button id="{element_id}-play" type="button">play</button> '

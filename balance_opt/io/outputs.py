@@ -29,12 +29,15 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.dynamics.inverse_dynamics import plan_torques
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
-METRICS_FORMAT = 1
+#: Version of the metrics.json layout; 2: ``effort`` margins added, and ``violations`` /
+#: ``limit_violations`` count effort limits too.
+METRICS_FORMAT = 2
 QUATERNION_COLUMNS = ("base_qx", "base_qy", "base_qz", "base_qw")
 RPY_COLUMNS = ("base_roll", "base_pitch", "base_yaw")
 
@@ -120,11 +123,38 @@ def write_trajectory_csv(path: str | Path, result: BalanceResult) -> Path:
     return path
 
 
-def write_trajectory_npz(path: str | Path, result: BalanceResult) -> Path:
-    """Write every array of ``result`` to a compressed ``.npz`` and return its path."""
+def plan_joint_torques(result: BalanceResult, robot: FloatingRobot, h0=None) -> np.ndarray:
+    """Joint torques (T, n) of the free-floating inverse dynamics of a plan, columns in the
+    order of its mission then balance joints [N m; N for prismatic joints], for the system's
+    momentum ``h0`` (world frame; zero by default)."""
+    key = None if h0 is None else np.asarray(h0, dtype=float).tobytes()
+    for res, rob, k, tau in _RECENT_TORQUES:
+        if res is result and rob is robot and k == key:
+            return tau.copy()
+    names = (*result.mission_joints, *result.balance_joints)
+    tau = plan_torques(robot, result, h0).tau[:, [robot.joint_index(j) for j in names]]
+    _RECENT_TORQUES.append((result, robot, key, tau))
+    del _RECENT_TORQUES[:-_RECENT_KEPT]
+    return tau.copy()
+
+
+#: The torques of the last few plans (a run's NPZ files, metrics and report ask for each plan's
+#: torques in turn; results are not changed once made), by the identity of result and robot.
+_RECENT_KEPT = 8
+_RECENT_TORQUES: list[tuple[BalanceResult, FloatingRobot, bytes | None, np.ndarray]] = []
+
+
+def write_trajectory_npz(
+    path: str | Path, result: BalanceResult, robot: FloatingRobot | None = None, h0=None
+) -> Path:
+    """Write every array of ``result`` to a compressed ``.npz`` and return its path; with the
+    ``robot``, also ``joint_torque``, the torques of :func:`plan_joint_torques` (momentum
+    ``h0``, world frame)."""
     path = Path(path)
+    extra = {} if robot is None else {"joint_torque": plan_joint_torques(result, robot, h0)}
     np.savez_compressed(
         path,
+        **extra,
         method=result.method,
         t=result.t,
         mission_joints=np.array(result.mission_joints),
@@ -187,6 +217,107 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
     return out
 
 
+#: Relative excess over an effort limit that still counts as inside (numerical tolerance).
+EFFORT_TOLERANCE = 1e-6
+
+
+def _effort_violations(t, names, tau, limits) -> list[str]:
+    """Stretches of samples where ``|tau|`` exceeds a finite effort limit by more than
+    :data:`EFFORT_TOLERANCE` of it, in the words of :class:`~balance_opt.result.LimitViolation`."""
+    found = []
+    for j, name in enumerate(names):
+        limit = limits[j]
+        if not _has_limit(limit):
+            continue
+        excess = np.abs(tau[:, j]) - limit
+        outside = excess > EFFORT_TOLERANCE * limit
+        edges = np.diff(np.r_[0, outside.astype(int), 0])
+        for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            found.append(
+                f"{name}: effort limit exceeded by up to {excess[start:stop].max():.4g} N m "
+                f"({excess[start:stop].max() / limit:.3%} of {limit:g} N m) "
+                f"from t = {t[start]:.3f} s to {t[stop - 1]:.3f} s"
+            )
+    return found
+
+
+def _has_limit(limit: float) -> bool:
+    """An effort limit that limits: finite and positive (a URDF without one gives inf)."""
+    return bool(np.isfinite(limit) and limit > 0)
+
+
+def effort_metrics(result: BalanceResult, robot: FloatingRobot, h0=None) -> dict[str, Any]:
+    """Effort margins and torque profile of a plan, from the free-floating inverse dynamics of
+    its joint motion (:func:`~balance_opt.dynamics.inverse_dynamics.plan_torques`).
+
+    Returns:
+        ``{"joints": {joint: {...}}, "min_relative_margin": r, "balance_min_relative_margin": r,
+        "violations": [...]}``; per joint ``peak_Nm`` (largest ``|tau|``), ``peak_time_s`` (its
+        time), ``limit_Nm``, ``margin_Nm`` (limit - peak, negative where broken) and
+        ``relative_margin`` (margin / limit), the last three ``None`` where the URDF gives no
+        effort limit, with ``status`` ``"inside"`` or ``"broken"`` or ``"no limit"``. Units
+        N m (N for a prismatic joint).
+    """
+    names = (*result.mission_joints, *result.balance_joints)
+    tau = plan_joint_torques(result, robot, h0)
+    limits = np.array([robot.limits.effort[robot.joint_index(j)] for j in names])
+    joints = {}
+    for k, name in enumerate(names):
+        i = int(np.argmax(np.abs(tau[:, k])))
+        peak, limit = float(abs(tau[i, k])), float(limits[k])
+        entry = {"peak_Nm": peak, "peak_time_s": float(result.t[i])}
+        if _has_limit(limit):
+            margin = limit - peak
+            broken = margin < -EFFORT_TOLERANCE * limit
+            entry |= {
+                "limit_Nm": limit,
+                "margin_Nm": margin,
+                "relative_margin": margin / limit,
+                "status": "broken" if broken else "inside",
+            }
+        else:
+            entry |= {"limit_Nm": None, "margin_Nm": None, "relative_margin": None}
+            entry["status"] = "no limit"
+        joints[name] = entry
+
+    def smallest(subset):
+        values = [joints[j]["relative_margin"] for j in subset]
+        values = [v for v in values if v is not None]
+        return min(values) if values else None
+
+    return {
+        "joints": joints,
+        "min_relative_margin": smallest(names),
+        "balance_min_relative_margin": smallest(result.balance_joints),
+        "violations": _effort_violations(result.t, names, tau, limits),
+    }
+
+
+#: Kinds of joint limits and the size of each a relative margin is taken of.
+_LIMIT_SCALES = {
+    "position": lambda lim, i: lim.upper[i] - lim.lower[i],
+    "velocity": lambda lim, i: lim.velocity[i],
+    "acceleration": lambda lim, i: lim.acceleration[i],
+}
+
+
+def relative_limit_margins(
+    margins: Mapping[str, Mapping[str, float]], robot: FloatingRobot, joints
+) -> dict[str, float]:
+    """The smallest margin of :func:`limit_margins` over ``joints``, per kind, each relative to
+    the size of its limit (the position range, the velocity or acceleration limit): 0 on the
+    limit, 1 at rest for a rate; ``inf`` where none of them has that limit."""
+    out = {}
+    for kind, scale in _LIMIT_SCALES.items():
+        values = [
+            margins[j][kind] / scale(robot.limits, robot.joint_index(j))
+            for j in joints
+            if math.isfinite(margins[j][kind])
+        ]
+        out[kind] = min(values) if values else math.inf
+    return out
+
+
 def peak_reaction_torques(simulation) -> dict[str, float]:
     """Largest norm of the torque each arm exerts on the base, and of their sum [N m], from a
     :class:`~balance_opt.dynamics.simulation.SimulationResult` (paper Fig. 4)."""
@@ -220,12 +351,18 @@ def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def method_metrics(result: BalanceResult, robot: FloatingRobot, simulation=None) -> dict[str, Any]:
+def method_metrics(
+    result: BalanceResult, robot: FloatingRobot, simulation=None, h0=None
+) -> dict[str, Any]:
     """Figures of merit of one plan, plain JSON data.
 
     Keys: the result's :meth:`~BalanceResult.summary`; ``limit_margins`` (per joint, see
-    :func:`limit_margins`), ``min_limit_margin`` and ``balance_limit_margin`` per kind;
-    ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says); ``violations``; ``solver`` (:func:`solver_metrics`);
+    :func:`limit_margins`), ``min_limit_margin`` and ``balance_limit_margin`` per kind,
+    ``balance_relative_limit_margin`` (:func:`relative_limit_margins` of the balance joints);
+    ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says);
+    ``effort`` (:func:`effort_metrics`, for the system's momentum ``h0``, world frame, zero by
+    default); ``violations`` (joint limits, then effort limits) and their number
+    ``limit_violations``; ``solver`` (:func:`solver_metrics`);
     ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].
@@ -243,8 +380,13 @@ def method_metrics(result: BalanceResult, robot: FloatingRobot, simulation=None)
         kind: min(margins[j][kind] for j in result.balance_joints)
         for kind in ("position", "velocity", "acceleration")
     }
+    out["balance_relative_limit_margin"] = relative_limit_margins(
+        margins, robot, result.balance_joints
+    )
     out["peak_joint_rates_rad_s"] = {n: float(rates[:, k].max()) for k, n in enumerate(names)}
-    out["violations"] = [str(v) for v in result.violations]
+    out["effort"] = effort_metrics(result, robot, h0)
+    out["violations"] = [str(v) for v in result.violations] + out["effort"]["violations"]
+    out["limit_violations"] = len(out["violations"])
     out["solver"] = solver_metrics(result.info)
     out["details"] = {k: v for k, v in result.info.items() if k not in BULKY_INFO_KEYS}
     if simulation is not None:
@@ -273,17 +415,21 @@ def run_metrics(
     """The content of ``metrics.json``: the task (file, name, SHA-256), the versions, and
     :func:`method_metrics` of each result by method name; ``failures`` lists methods whose solver
     failed (their best iterate is among ``results``)."""
+    from balance_opt.io.capture_metrics import capture_metrics
+
     simulations = simulations or {}
+    capture = capture_metrics(task, results, simulations)  # issue 16; None without a capture
     return to_json(
         {
             "format": METRICS_FORMAT,
             "task": {"file": task.source, "name": task.name, "sha256": task.sha256},
             "versions": software_versions(),
             "methods": {
-                name: method_metrics(r, task.robot, simulations.get(name))
+                name: method_metrics(r, task.robot, simulations.get(name), task.h0)
                 for name, r in results.items()
             },
             "failures": dict(failures or {}),
+            **({"capture": capture} if capture is not None else {}),
         }
     )
 

@@ -18,14 +18,23 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from balance_opt.io.capture_metrics import capture_table
+from balance_opt.io.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE
 
-#: Order and labels of the methods in the table.
-METHOD_LABELS = {
-    "mission-only": "Mission arm alone (Phase I)",
-    "analytic": "Analytic law (Eq. 31)",
-    "optimal": "Optimal planner",
-}
+#: Order of the methods in the tables (others follow in the order given).
+METHOD_ORDER = ("mission-only", "analytic", "optimal")
+
+#: Values whose magnitude is below these are numerical noise, printed "0 (< tolerance)".
+ANGLE_TOLERANCE = 1e-12  # base attitude [rad]
+RATE_TOLERANCE = 1e-12  # base angular rate [rad/s]
+MOMENTUM_TOLERANCE = 1e-9  # relative momentum residual (the finite-difference check's floor)
+TORQUE_TOLERANCE = 1e-9  # torques [N m]
+SIGMA_TOLERANCE = 1e-12  # singular values of J_wB (rad of base per rad of joint)
+#: A margin inside the limit by at most this fraction of the limit's size is "at the limit".
+AT_LIMIT_BAND = 0.01
 
 _STYLE = """
 body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; margin: 2em auto;
@@ -34,24 +43,58 @@ h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bo
 table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }
 th:first-child, td:first-child { text-align: left; }
-thead th { background: #f2f2f2; } tr.section td { background: #fafafa; font-weight: bold; text-align: left; }
-td.bad { color: #b00020; font-weight: bold; } td.good { color: #1b5e20; }
+thead th { background: #f2f2f2; white-space: nowrap; } tr.section td { background: #fafafa; font-weight: bold; text-align: left; }
+td.broken { color: #8e0000; background: #ffcdd2; font-weight: bold; }
+td.at-limit { color: #5d4000; background: #ffe082; } td.inside { color: #1b5e20; background: #dcedc8; }
+td.bar { padding: 0.2em 0.4em; vertical-align: middle; line-height: 0; }
+td.failed, th.failed { color: #777; background: repeating-linear-gradient(135deg, #f4f4f4 0 6px,
+  #e8e8e8 6px 12px); font-style: italic; }
+.flag { color: #b00020; font-weight: bold; font-style: normal; }
+.swatch { display: inline-block; width: 0.9em; height: 0.9em; margin-right: 0.4em;
+          vertical-align: -0.1em; border: 1px solid #555; }
 .meta { color: #555; font-size: 0.9em; } figure { margin: 1.5em 0; }
 figure img { max-width: 100%; border: 1px solid #eee; } figcaption { color: #555; font-size: 0.9em; }
 code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-weight: bold; }
 """
 
 
-def _fmt(value: Any, digits: int = 4) -> str:
+# =========================================================================================== values
+def format_value(value: Any, tolerance: float | None = None, unit: str = "", digits=4) -> str:
+    """A value as plain text: ``"0 (< 1e-12 rad)"`` when its magnitude is below ``tolerance``,
+    ``"-"`` for None, ``"inf"``, else ``digits`` significant digits, then the unit."""
+    suffix = f" {unit}" if unit else ""
     if value is None:
-        return "&ndash;"
+        return "\u2013"
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
         if not math.isfinite(value):
-            return "&infin;" if value > 0 else "&minus;&infin;"
-        return f"{value:.{digits}g}"
-    return html.escape(str(value))
+            return "inf" if value > 0 else "-inf"
+        if tolerance is not None and abs(value) < tolerance:
+            return f"0 (< {tolerance:g}{suffix})"
+        return f"{value:.{digits}g}{suffix}"
+    return f"{value}{suffix}"
+
+
+def format_angle(rad: float | None, tolerance: float = ANGLE_TOLERANCE, per: str = "") -> str:
+    """An angle (or angular rate, ``per="/s"``) in radians and degrees, ``"0.0929 rad (5.323
+    deg)"``; below ``tolerance`` [rad] ``"0 (< 1e-12 rad)"``."""
+    if rad is None or not math.isfinite(rad) or abs(rad) < tolerance:
+        return format_value(rad, tolerance, f"rad{per}")
+    return f"{rad:.4g} rad{per} ({math.degrees(rad):.4g} deg{per})"
+
+
+def margin_class(margin: float | None, relative: float | None, tolerance: float) -> str:
+    """CSS class of a limit margin: ``"broken"`` (below ``-tolerance``), ``"at-limit"`` (within
+    :data:`AT_LIMIT_BAND` of the limit's size, or within ``tolerance`` of it), ``"inside"``;
+    ``""`` when there is no limit (``None`` or ``inf``)."""
+    if margin is None or not math.isfinite(margin):
+        return ""
+    if margin < -tolerance:
+        return "broken"
+    if margin <= tolerance or (relative is not None and relative <= AT_LIMIT_BAND):
+        return "at-limit"
+    return "inside"
 
 
 def _get(metrics: Mapping[str, Any], path: str):
@@ -63,75 +106,130 @@ def _get(metrics: Mapping[str, Any], path: str):
     return value
 
 
-def _deg(x):
-    return None if x is None else math.degrees(x)
+#: A table cell: its text (plain, escaped when rendered) and CSS class; None: no value.
+Cell = tuple[str, str] | None
 
 
-def _margin_class(x) -> str:
-    return "" if x is None else ("bad" if x < -LIMIT_TOLERANCE else "good")
+def _plain(path: str, tolerance=None, unit: str = "") -> Callable[[Mapping], Cell]:
+    def cell(m):
+        value = _get(m, path)
+        return None if value is None else (format_value(value, tolerance, unit), "")
+
+    return cell
 
 
-#: Rows of the comparison table: (label, getter of a method's metrics, cell class or None).
-_ROWS: list[tuple[str, Callable[[Mapping], Any], Callable[[Any], str] | None]] = [
-    ("Attitude", None, None),
-    ("max attitude drift [deg]", lambda m: _deg(_get(m, "max_drift_rad")), None),
-    ("final attitude drift [deg]", lambda m: _deg(_get(m, "final_drift_rad")), None),
-    ("max base angular rate [deg/s]", lambda m: _deg(_get(m, "max_base_rate_rad_s")), None),
-    ("max relative angular momentum residual", lambda m: _get(m, "max_momentum_residual"), None),
-    ("Balance arm", None, None),
-    ("peak balance joint rate [rad/s or m/s]", lambda m: _get(m, "peak_balance_rate_rad_s"), None),
+def _angle(path: str, per: str = "", tolerance=ANGLE_TOLERANCE) -> Callable[[Mapping], Cell]:
+    def cell(m):
+        value = _get(m, path)
+        return None if value is None else (format_angle(value, tolerance, per), "")
+
+    return cell
+
+
+def _kinematic_margin(kind: str, unit: str) -> Callable[[Mapping], Cell]:
+    """The balance arm's smallest margin of one kind, with the smallest relative margin."""
+
+    def cell(m):
+        margin = _get(m, f"balance_limit_margin.{kind}")
+        relative = _get(m, f"balance_relative_limit_margin.{kind}")
+        if margin is None:
+            return None
+        if not math.isfinite(margin):
+            return "no limit", ""
+        text = format_value(margin, LIMIT_TOLERANCE, unit)
+        if relative is not None and abs(margin) >= LIMIT_TOLERANCE:  # else noise, as the margin
+            text += f"; {100 * relative:.3g} % of the limit"
+        return text, margin_class(margin, relative, LIMIT_TOLERANCE)
+
+    return cell
+
+
+def _effort_margin(path: str) -> Callable[[Mapping], Cell]:
+    """The smallest relative effort margin (``None`` in the metrics: no joint has a limit)."""
+
+    def cell(m):
+        if _get(m, "effort") is None:
+            return None
+        relative = _get(m, path)
+        if relative is None:
+            return "no limit", ""
+        return f"{100 * relative:.4g} %", margin_class(relative, relative, 1e-6)
+
+    return cell
+
+
+def _count(path: str) -> Callable[[Mapping], Cell]:
+    def cell(m):
+        value = _get(m, path)
+        return None if value is None else (str(value), "broken" if value else "inside")
+
+    return cell
+
+
+#: Rows of the comparison table: (label, cell of a method's metrics); a None cell maker
+#: starts a section.
+_ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
+    ("Attitude", None),
+    ("max attitude drift", _angle("max_drift_rad")),
+    ("final attitude drift", _angle("final_drift_rad")),
+    ("max base angular rate", _angle("max_base_rate_rad_s", "/s", RATE_TOLERANCE)),
     (
-        "position limit margin [rad or m]",
-        lambda m: _get(m, "balance_limit_margin.position"),
-        _margin_class,
+        "max relative angular momentum residual",
+        _plain("max_momentum_residual", MOMENTUM_TOLERANCE),
     ),
+    ("Balance arm", None),
+    ("peak balance joint rate [rad/s or m/s]", _plain("peak_balance_rate_rad_s")),
+    ("position limit margin [rad or m]", _kinematic_margin("position", "")),
+    ("velocity limit margin [rad/s or m/s]", _kinematic_margin("velocity", "")),
+    ("acceleration limit margin [rad/s^2 or m/s^2]", _kinematic_margin("acceleration", "")),
     (
-        "velocity limit margin [rad/s or m/s]",
-        lambda m: _get(m, "balance_limit_margin.velocity"),
-        _margin_class,
+        "effort limit margin (smallest, of the limit)",
+        _effort_margin("effort.balance_min_relative_margin"),
     ),
-    (
-        "acceleration limit margin [rad/s^2 or m/s^2]",
-        lambda m: _get(m, "balance_limit_margin.acceleration"),
-        _margin_class,
-    ),
-    (
-        "limit violations (all arms)",
-        lambda m: _get(m, "limit_violations"),
-        lambda x: "" if x is None else ("bad" if x > 0 else "good"),
-    ),
-    ("smallest singular value of J_wB", lambda m: _get(m, "min_sigma_min"), None),
-    ("Solver", None, None),
-    ("status", lambda m: _get(m, "solver.status"), None),
-    ("iterations", lambda m: _get(m, "solver.iterations"), None),
-    ("solve time [s]", lambda m: _get(m, "solver.solve_time_s"), None),
-    ("Forward-dynamics simulation", None, None),
-    ("max attitude drift [deg]", lambda m: _deg(_get(m, "simulation.max_drift_rad")), None),
-    ("final attitude drift [deg]", lambda m: _deg(_get(m, "simulation.final_drift_rad")), None),
-    (
-        "max joint tracking error [rad]",
-        lambda m: _get(m, "simulation.max_tracking_error_rad"),
-        None,
-    ),
+    ("smallest singular value of J_wB", _plain("min_sigma_min", SIGMA_TOLERANCE)),
+    ("All arms", None),
+    ("effort limit margin (smallest, of the limit)", _effort_margin("effort.min_relative_margin")),
+    ("limit violations (position, rate, acceleration, effort)", _count("limit_violations")),
+    ("Solver", None),
+    ("status", _plain("solver.status")),
+    ("iterations", _plain("solver.iterations")),
+    ("solve time [s]", _plain("solver.solve_time_s")),
+    ("Forward-dynamics simulation", None),
+    ("max attitude drift", _angle("simulation.max_drift_rad")),
+    ("final attitude drift", _angle("simulation.final_drift_rad")),
+    ("max joint tracking error", _angle("simulation.max_tracking_error_rad")),
     (
         "peak total reaction torque on the base [N m]",
-        lambda m: _get(m, "simulation.peak_reaction_torque_Nm.total"),
-        None,
+        _plain("simulation.peak_reaction_torque_Nm.total", TORQUE_TOLERANCE),
     ),
     (
         "max relative momentum residual",
-        lambda m: _get(m, "simulation.max_relative_momentum_residual"),
-        None,
+        _plain("simulation.max_relative_momentum_residual", MOMENTUM_TOLERANCE),
     ),
 ]
 
 
-def comparison_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
-    """HTML table, one column per method, rows of :data:`_ROWS` (empty sections left out)."""
-    order = [m for m in METHOD_LABELS if m in methods] + [
-        m for m in methods if m not in METHOD_LABELS
-    ]
-    head = "".join(f"<th>{html.escape(METHOD_LABELS.get(m, m))}</th>" for m in order)
+# =========================================================================================== tables
+def _ordered(methods: Mapping[str, Any]) -> list[str]:
+    return [m for m in METHOD_ORDER if m in methods] + [m for m in methods if m not in METHOD_ORDER]
+
+
+def _method_head(name: str, failed: bool) -> str:
+    swatch = f'<span class="swatch" style="background:{method_colour(name)}"></span>'
+    label = swatch + html.escape(method_label(name))
+    if failed:
+        return f'<th class="failed">{label}<br><span class="flag">FAILED</span></th>'
+    return f"<th>{label}</th>"
+
+
+def comparison_table(
+    methods: Mapping[str, Mapping[str, Any]], failures: Mapping[str, str] | None = None
+) -> str:
+    """HTML table, one column per method, rows of :data:`_ROWS` (empty sections left out); the
+    columns of methods in ``failures`` are flagged FAILED and their cells greyed."""
+    order = _ordered(methods)
+    failed = {m for m in order if m in (failures or {})}
+    head = "".join(_method_head(m, m in failed) for m in order)
     body, section, section_rows = [], None, []
 
     def flush():
@@ -141,29 +239,138 @@ def comparison_table(methods: Mapping[str, Mapping[str, Any]]) -> str:
             )
             body.extend(section_rows)
 
-    for label, getter, css in _ROWS:
-        if getter is None:
+    for label, make in _ROWS:
+        if make is None:
             flush()
             section, section_rows = label, []
             continue
-        values = [getter(methods[m]) for m in order]
-        if all(v is None for v in values):
+        cells = [make(methods[m]) for m in order]
+        if all(c is None for c in cells):
             continue
-        cells = "".join(f'<td class="{css(v) if css else ""}">{_fmt(v)}</td>' for v in values)
-        section_rows.append(f"<tr><td>{html.escape(label)}</td>{cells}</tr>")
+        row = "".join(_cell(c, m in failed) for c, m in zip(cells, order))
+        section_rows.append(f"<tr><td>{html.escape(label)}</td>{row}</tr>")
     flush()
     return f"<table><thead><tr><th></th>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
+def _cell(cell: Cell, failed: bool = False) -> str:
+    text, css = cell if cell is not None else ("\u2013", "")
+    css = " ".join(c for c in (css, "failed" if failed else "") if c)
+    return f'<td class="{css}">{html.escape(text)}</td>'
+
+
+def torque_sparkline(
+    t: np.ndarray, tau: np.ndarray, limit: float | None, css: str, width=240, height=30
+) -> str:
+    """An inline SVG of ``|tau(t)|`` over the motion (the largest value of each of about 240
+    time bins, so that no peak is lost), with the effort limit dashed when there is one."""
+    magnitude = np.abs(np.asarray(tau, dtype=float))
+    bins = np.linspace(0, magnitude.size, min(width, magnitude.size) + 1).astype(int)
+    peaks = np.maximum.reduceat(magnitude, bins[:-1])
+    top = 1.05 * max(float(magnitude.max()), limit or 0.0) or 1.0
+    xs = np.linspace(0, width, peaks.size)
+    ys = height - 1 - (height - 2) * peaks / top
+    points = " ".join(f"{x:.1f},{y:.1f}" for x, y in zip(xs, ys))
+    colour = _BAR_COLOURS.get(css, "#555")
+    limit_line = ""
+    if limit is not None:
+        y = height - 1 - (height - 2) * limit / top
+        limit_line = (
+            f'<line x1="0" y1="{y:.1f}" x2="{width}" y2="{y:.1f}" stroke="#000" '
+            'stroke-dasharray="3 2"/>'
+        )
+    return (
+        f'<svg width="{width}" height="{height}" role="img" '
+        f'aria-label="|torque| from t = {t[0]:g} s to {t[-1]:g} s">{limit_line}'
+        f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="1.2"/></svg>'
+    )
+
+
+def torque_table(
+    effort: Mapping[str, Any], failed: bool = False, profile: tuple | None = None
+) -> str:
+    """One method's torque profile: per joint the peak ``|tau|`` and its time, the effort limit,
+    the margin and the relative margin, coloured as the comparison table's margins, a bar of
+    the peak against the limit and, given ``profile`` ``(t, tau)`` (tau (T, n), columns in the
+    order of ``effort["joints"]``), ``|tau(t)|`` over the motion."""
+    rows = []
+    for k, (joint, e) in enumerate((effort.get("joints") or {}).items()):
+        margin, relative = e.get("margin_Nm"), e.get("relative_margin")
+        css = margin_class(relative, relative, 1e-6) if relative is not None else ""
+        cells = [
+            (format_value(e.get("peak_Nm"), TORQUE_TOLERANCE), ""),
+            (format_value(e.get("peak_time_s"), digits=4), ""),
+            ("no limit", "") if e.get("limit_Nm") is None else (format_value(e["limit_Nm"]), ""),
+            (format_value(margin, TORQUE_TOLERANCE), css) if margin is not None else None,
+            (f"{100 * relative:.4g} %", css) if relative is not None else None,
+        ]
+        row = "".join(_cell(c, failed) for c in cells)
+        bar = "" if relative is None else torque_bar(1 - relative, css)
+        row += f'<td class="bar">{bar}</td>'
+        if profile is not None:
+            line = torque_sparkline(profile[0], profile[1][:, k], e.get("limit_Nm"), css)
+            row += f'<td class="bar">{line}</td>'
+        rows.append(f"<tr><td>{html.escape(joint)}</td>{row}</tr>")
+    head = (
+        "<tr><th>joint</th><th>peak |&tau;| [N m]</th><th>at t [s]</th>"
+        "<th>limit [N m]</th><th>margin [N m]</th><th>margin / limit</th>"
+        f"<th>peak / limit (0 to {_BAR_FULL:g})</th>"
+        + ("<th>|&tau;(t)|, limit dashed</th>" if profile is not None else "")
+        + "</tr>"
+    )
+    return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
+
+
+_BAR_COLOURS = {"broken": "#c62828", "at-limit": "#f9a825", "inside": "#2e7d32"}
+#: Largest peak / limit a torque bar shows (longer bars are cut, ending in a white notch).
+_BAR_FULL = 1.25
+
+
+def torque_bar(ratio: float, css: str, width: int = 220, height: int = 14) -> str:
+    """An inline SVG bar of a peak torque as a fraction of its limit, coloured as its margin,
+    with the limit as a dashed line at 1 and the at-the-limit band shaded."""
+
+    def x(r):
+        return width * min(r, _BAR_FULL) / _BAR_FULL
+
+    notch = (
+        f'<rect x="{width - 3}" y="0" width="3" height="{height}" fill="#fff"/>'
+        if ratio > _BAR_FULL
+        else ""
+    )
+    return (
+        f'<svg width="{width}" height="{height}" role="img" '
+        f'aria-label="{100 * ratio:.3g} % of the limit">'
+        f'<rect x="{x(1 - AT_LIMIT_BAND):.1f}" y="0" width="{x(1) - x(1 - AT_LIMIT_BAND):.1f}" '
+        f'height="{height}" fill="#ffe082"/><rect x="0" y="2" width="{x(ratio):.1f}" '
+        f'height="{height - 4}" fill="{_BAR_COLOURS.get(css, "#888")}"/>{notch}'
+        f'<line x1="{x(1):.1f}" y1="0" x2="{x(1):.1f}" y2="{height}" stroke="#000" '
+        'stroke-dasharray="3 2"/></svg>'
+    )
+
+
+def _torque_profiles(methods: Mapping[str, Mapping[str, Any]], failures, torques) -> str:
+    parts = []
+    for name in _ordered(methods):
+        effort = methods[name].get("effort")
+        if not effort:
+            continue
+        failed = name in (failures or {})
+        flag = ' <span class="flag">FAILED</span>' if failed else ""
+        parts.append(f"<h3>{html.escape(method_label(name))}{flag}</h3>")
+        parts.append(torque_table(effort, failed, (torques or {}).get(name)))
+    return "".join(parts)
+
+
 def _violations(methods: Mapping[str, Mapping[str, Any]]) -> str:
     parts = []
-    for name, m in methods.items():
-        found = m.get("violations") or []
+    for name in _ordered(methods):
+        found = methods[name].get("violations") or []
         if not found:
             continue
         shown = "".join(f"<li>{html.escape(v)}</li>" for v in found[:20])
         more = f"<li>... and {len(found) - 20} more</li>" if len(found) > 20 else ""
-        parts.append(f"<h3>{html.escape(METHOD_LABELS.get(name, name))}</h3><ul>{shown}{more}</ul>")
+        parts.append(f"<h3>{html.escape(method_label(name))}</h3><ul>{shown}{more}</ul>")
     return "".join(parts) or "<p>None: every plan stays inside every joint limit.</p>"
 
 
@@ -175,11 +382,33 @@ def _figure(title: str, png: Path) -> str:
     )
 
 
+_NOTES = (
+    '<p class="meta">Attitude drift: rotation angle of the base from its initial attitude, '
+    "|log(R<sub>0</sub><sup>T</sup> R)|, in radians (degrees). Margins are the smallest distance "
+    "to a balance-joint limit over the motion, and the smallest such distance as a fraction of "
+    "the limit (the position range, the velocity, acceleration or effort limit). Colours: "
+    '<span class="swatch" style="background:#ffcdd2"></span>broken (beyond the limit by more '
+    f"than {LIMIT_TOLERANCE:g} in the limit's unit; efforts: 1e-6 of the limit), "
+    '<span class="swatch" style="background:#ffe082"></span>at the limit (within '
+    f"{100 * AT_LIMIT_BAND:g} % of it), "
+    '<span class="swatch" style="background:#dcedc8"></span>inside. Values below their '
+    f"tolerance are shown as 0 (&lt; tolerance): attitudes {ANGLE_TOLERANCE:g} rad, base rates "
+    f"{RATE_TOLERANCE:g} rad/s, relative momentum residuals {MOMENTUM_TOLERANCE:g}, limit "
+    f"margins {LIMIT_TOLERANCE:g}, torques {TORQUE_TOLERANCE:g} N m, singular values "
+    f"{SIGMA_TOLERANCE:g}. The plan rows are the "
+    "kinematic motion each method produces (re-simulated on a fine grid), the effort margins "
+    "its free-floating inverse dynamics; the simulation rows are the same plans tracked by "
+    "joint controllers in forward dynamics. A FAILED column holds a solver's last iterate, not "
+    "a plan.</p>"
+)
+
+
 def render_report(
     metrics: Mapping[str, Any],
     figures: Sequence[tuple[str, Path]] = (),
     description: str | None = None,
     extra_html: str = "",
+    torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> str:
     """The report as one HTML string.
 
@@ -188,11 +417,14 @@ def render_report(
         figures: ``(caption, PNG file)`` pairs, embedded in that order.
         description: the task's description.
         extra_html: trusted HTML appended at the end (e.g. an animation).
+        torques: per method ``(t, tau)``, the sample times [s] and joint torques (T, n) [N m]
+            of :func:`balance_opt.io.outputs.plan_joint_torques`, drawn over the motion in
+            the torque tables (left out: peaks only).
     """
     task = metrics.get("task", {})
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())
     failures = "".join(
-        f'<p class="failure">{html.escape(k)}: {html.escape(v)}</p>'
+        f'<p class="failure">FAILED: {html.escape(method_label(k))}: {html.escape(v)}</p>'
         for k, v in (metrics.get("failures") or {}).items()
     )
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -210,17 +442,24 @@ def render_report(
     if description:
         parts.append(f"<p>{html.escape(description)}</p>")
     parts.append(failures)
+    methods = metrics.get("methods", {})
+    fails = metrics.get("failures") or {}
     parts.append("<h2>Comparison</h2>")
-    parts.append(comparison_table(metrics.get("methods", {})))
-    parts.append(
-        '<p class="meta">Attitude drift: rotation angle of the base from its initial attitude, '
-        "|log(R<sub>0</sub><sup>T</sup> R)|. Margins are the smallest distance to a balance-joint "
-        "limit over the motion (negative: the limit is broken). The plan rows are the kinematic "
-        "motion each method produces (the optimal plan re-simulated on a fine grid); the "
-        "simulation rows are the same plans tracked by joint controllers in forward dynamics.</p>"
-    )
+    parts.append(comparison_table(methods, fails))
+    parts.append(_NOTES)
     parts.append("<h2>Limit violations</h2>")
-    parts.append(_violations(metrics.get("methods", {})))
+    parts.append(_violations(methods))
+    if any(m.get("effort") for m in methods.values()):
+        parts.append("<h2>Joint torques</h2>")
+        parts.append(
+            '<p class="meta">Torques of the free-floating inverse dynamics of each plan\'s '
+            "joint motion (nothing acts on the base): the peak |torque| of each joint, when it "
+            "comes, and how it compares with the joint's effort limit (bars: peak over limit, "
+            "the limit dashed, the at-the-limit band shaded). The whole time series is in each "
+            "method's NPZ file (<code>joint_torque</code>).</p>"
+        )
+        parts.append(_torque_profiles(methods, fails, torques))
+    parts.append(capture_table(metrics.get("capture")))  # "" without a capture
     if figures:
         parts.append("<h2>Figures</h2>")
         parts.extend(_figure(title, png) for title, png in figures)
@@ -235,8 +474,10 @@ def write_report(
     figures: Sequence[tuple[str, Path]] = (),
     description: str | None = None,
     extra_html: str = "",
+    torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> Path:
     """Write :func:`render_report` to ``path`` and return it."""
     path = Path(path)
-    path.write_text(render_report(metrics, figures, description, extra_html), encoding="utf-8")
+    text = render_report(metrics, figures, description, extra_html, torques)
+    path.write_text(text, encoding="utf-8")
     return path

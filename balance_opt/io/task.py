@@ -32,6 +32,7 @@ from balance_opt.errors import ArmError, InputError, JointError, TrajectoryError
 from balance_opt.io.task_checks import (
     TaskLimitsError,
     TaskTrajectoryError,
+    check_capture,
     check_lengths,
     check_limits,
     check_problem_size,
@@ -71,6 +72,7 @@ class Task:
         q_B0: balance joint positions at t = 0 [rad].
         h0: initial momentum, world frame, [linear; angular] [N s; N m s].
         document: the parsed file with its line numbers (for locating errors found later).
+        target: the target captured during the mission (``capture:``), or ``None``.
     """
 
     spec: TaskSpec
@@ -82,6 +84,7 @@ class Task:
     q_B0: np.ndarray = field(repr=False)
     h0: np.ndarray = field(repr=False)
     document: YamlDocument = field(repr=False, compare=False)
+    target: Any = field(default=None, repr=False)
 
     @property
     def name(self) -> str:
@@ -111,6 +114,13 @@ class Task:
     def error(self, path, reason: str, cls=TaskFileError) -> TaskFileError:
         """An error located at key ``path`` of this task's file."""
         return self.document.error(path, reason, cls)
+
+    def __repr__(self) -> str:  # short for notebooks: the spec alone is pages long
+        arms = "; ".join(f"{a.name} {a.dof} joints" for a in self.robot.arms)
+        return (
+            f"Task(name={self.name!r}, source={self.source!r}, robot {self.robot.name} "
+            f"({arms}), mission {self.spec.mission.type} {self.duration:g} s)"
+        )
 
 
 # =========================================================================================== loading
@@ -159,6 +169,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
         else np.array(spec.initial.balance)
     )
     check_limits(spec, doc, robot, mission, q_B0)
+    target = check_capture(spec, doc, float(mission.duration))
     task = Task(
         _with_momentum(spec),
         doc.source,
@@ -169,6 +180,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
         q_B0,
         np.array(spec.initial.momentum),
         doc,
+        target,
     )
     log.debug("task %s: %r, mission %.3g s", doc.source, robot, mission.duration)
     return task
@@ -349,8 +361,7 @@ def check_methods(task: Task, methods) -> None:
 
 
 def check_optimal_supported(task: Task) -> None:
-    """What the optimal planner cannot do, located in the task: a non-zero initial momentum
-    (:mod:`balance_opt.optimal.model` assumes zero), torque limits on a robot with a prismatic
+    """What the optimal planner cannot do, located in the task: torque limits on a robot with a prismatic
     model joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
     joints), or a prismatic model joint where the symbolic backend is adam (``robot.backend:
     adam``, or ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the
@@ -359,12 +370,6 @@ def check_optimal_supported(task: Task) -> None:
     Raises:
         TaskFileError: naming the key and the way out.
     """
-    if np.any(task.h0 != 0.0):
-        raise task.error(
-            ("initial", "momentum"),
-            "the optimal planner assumes zero initial momentum; "
-            "plan this task with --method analytic",
-        )
     robot = task.robot
     prismatic = [j for j in robot.model_joint_names if robot.joint_type(j) == "prismatic"]
     if not prismatic:

@@ -361,3 +361,29 @@ def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) 
         f"may use {budget / 2**30:.1f} GiB (half of this machine's memory): at most "
         f"{largest_intervals(planner, limits, budget)} intervals fit",
     )
+
+
+def check_capture(spec: TaskSpec, doc: YamlDocument, duration: float):
+    """The capture section as a :class:`~balance_opt.model.capture.Target` (``None`` without
+    one): the capture time strictly inside the mission, a physical inertia.
+
+    Raises:
+        TaskFileError: located at ``capture.time`` or ``capture.inertia``.
+    """
+    from balance_opt.errors import InputError
+    from balance_opt.model.capture import Target
+
+    c = spec.capture
+    if c is None:
+        return None
+    if not c.time < duration:
+        raise doc.error(
+            ("capture", "time"),
+            f"must be before the end of the mission ({duration:g} s), got {c.time:g} s",
+        )
+    try:
+        return Target(
+            c.time, c.mass, np.array(c.inertia), c.com, c.linear_velocity, c.angular_velocity
+        )
+    except InputError as exc:
+        raise doc.error(("capture", "inertia"), str(exc)) from None

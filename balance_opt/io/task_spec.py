@@ -174,6 +174,45 @@ MissionSpec = PtpMission | ViaMission | CsvMission | CartesianMission
 
 
 @dataclass(frozen=True, kw_only=True)
+class CaptureSpec:
+    """A moving target captured by the mission end effector during the mission: from the
+    capture time on it is rigidly attached there, and the system carries its momentum."""
+
+    time: float = setting(
+        unit="s", exclusive_minimum=0.0, doc="capture time, strictly inside the mission"
+    )
+    mass: float = setting(unit="kg", exclusive_minimum=0.0, doc="mass of the target")
+    inertia: tuple[float, ...] = setting(
+        unit="kg m^2",
+        min_items=6,
+        max_items=6,
+        doc="inertia of the target about its centre of mass, axes of the mission end-effector "
+        "frame: ixx, ixy, ixz, iyy, iyz, izz",
+    )
+    com: tuple[float, ...] = setting(
+        (0.0, 0.0, 0.0),
+        unit="m",
+        min_items=3,
+        max_items=3,
+        doc="centre of mass of the target in the mission end-effector frame",
+    )
+    linear_velocity: tuple[float, ...] = setting(
+        (0.0, 0.0, 0.0),
+        unit="m/s",
+        min_items=3,
+        max_items=3,
+        doc="velocity of the target's centre of mass just before the capture, world frame",
+    )
+    angular_velocity: tuple[float, ...] = setting(
+        (0.0, 0.0, 0.0),
+        unit="rad/s",
+        min_items=3,
+        max_items=3,
+        doc="angular velocity of the target just before the capture, world frame",
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
 class LimitSpec:
     """Overrides of one joint's limits; keys left out keep the URDF's value."""
 
@@ -247,6 +286,9 @@ class TaskSpec:
     arms: ArmsSpec = setting(doc="mission and balance arms")
     mission: MissionSpec = setting(doc="the mission arm's trajectory")
     initial: InitialSpec = setting(factory=InitialSpec, doc="state at t = 0")
+    capture: CaptureSpec | None = setting(
+        None, doc="a target captured during the mission (default: none)"
+    )
     limits: dict[str, LimitSpec] = setting(
         factory=dict, doc="limit overrides, by joint name (NAME: a joint of an arm)"
     )

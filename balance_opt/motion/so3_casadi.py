@@ -1,4 +1,4 @@
-"""The CasADi face of :mod:`balance_opt.motion.so3`: ``[v]_x`` and the inverse right Jacobian of
+"""The CasADi face of :mod:`balance_opt.motion.so3`: ``[v]_x``, ``exp`` and the inverse right Jacobian of
 SO(3) for symbolic rotation vectors (the optimal planner's attitude kinematics). Same threshold
 (:data:`~balance_opt.motion.so3.SERIES_ANGLE`) and same coefficients as the numeric face.
 """
@@ -34,3 +34,18 @@ def inverse_right_jacobian_sym(phi):
     c = cs.if_else(small, jr_inverse_series(a2), c_closed)
     K = skew_sym(phi)
     return cs.SX.eye(3) + 0.5 * K + c * (K @ K)
+
+
+def rotation_matrix_sym(phi):
+    """``R = exp([phi]_x)`` (Rodrigues) for a CasADi rotation vector: ``I + s K + c K^2`` with
+    ``s = sin(a)/a``, ``c = (1 - cos a)/a^2``, their series below
+    :data:`~balance_opt.motion.so3.SERIES_ANGLE` (the closed forms evaluated at a safe angle
+    there, so that neither they nor their derivatives produce NaN)."""
+    a2 = cs.dot(phi, phi)
+    small = a2 < SERIES_ANGLE**2
+    a2_safe = cs.if_else(small, 1.0, a2)
+    a = cs.sqrt(a2_safe)
+    s = cs.if_else(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, cs.sin(a) / a)
+    c = cs.if_else(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0, (1.0 - cs.cos(a)) / a2_safe)
+    K = skew_sym(phi)
+    return cs.SX.eye(3) + s * K + c * (K @ K)

@@ -7,8 +7,8 @@ The balance arm's motion is chosen to keep the largest base rotation ``max |log 
 non-holonomic, so a closed joint path can undo a rotation), and to stay smooth, while every
 balance joint respects its position, velocity and acceleration limits on the whole continuous
 motion (optionally its torque limits, held on the re-simulated motion by refinement), starting
-and by default ending at rest. The mission arm's motion is a hard input. Assumptions: zero
-total momentum (a task with ``h0`` is refused upstream), the base at its initial attitude and
+and by default ending at rest. The mission arm's motion is a hard input. Assumptions: a
+constant total momentum ``h0`` (a parameter, zero by default), the base at the identity and
 the balance arm at rest at ``q_B0`` at ``t = 0``. The physics is in ``docs/physics.md``
 ("Base motion forced by the joints", "The balance law", "Attitude").
 

@@ -39,6 +39,7 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
+from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.optimal.collocation import Transcription, bernstein_value
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey, unit_of
 from balance_opt.optimal.problem import BalanceProblem
@@ -292,11 +293,14 @@ class TorqueLimit(Constraint):
     def torques(problem: BalanceProblem, result: BalanceResult) -> np.ndarray:
         """The balance joints' torques of the free-floating inverse dynamics of a motion
         (T, n_B) [N m]."""
-        torque = problem.model.torque_fun().map(result.t.size)
+        torque = problem.model.momentum_torque_fun().map(result.t.size)
+        Rt = np.swapaxes(matrix_from_quaternion(result.quaternion), -1, -2)
+        h_b = np.hstack([Rt @ problem.h0[:3], Rt @ problem.h0[3:]])  # R^T h0, base axes
         tau = torque(
             np.hstack([result.q_M, result.q_B]).T,
             np.hstack([result.q_dot_M, result.q_dot_B]).T,
             np.hstack([result.q_ddot_M, result.q_ddot_B]).T,
+            h_b.T,
         )
         return np.array(tau)[problem.model.n_M :].T
 

@@ -84,10 +84,12 @@ def random_guess(problem: BalanceProblem, first_state: np.ndarray, rng) -> Solut
 
 def analytic_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution:
     """The analytic law's balance motion (Eq. 31, 32), clipped to the limits."""
+    from balance_opt.analytic.options import BalanceLawOptions
     from balance_opt.analytic.rollout import rollout
 
     t = np.linspace(0.0, problem.horizon, max(4 * problem.N + 1, 201))
-    plan = rollout(problem.robot, problem.mission, problem.q_B0, t_eval=t)
+    law = BalanceLawOptions(h0=tuple(problem.h0.tolist()))
+    plan = rollout(problem.robot, problem.mission, problem.q_B0, law, t_eval=t)
     return from_samples(problem, first_state, plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
 
 

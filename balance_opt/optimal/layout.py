@@ -63,6 +63,8 @@ class StructureKey:
             peak objective the path bound is the epigraph variable's upper bound: no rows).
         tolerance, max_iterations: Ipopt's ``tol`` and ``max_iter``.
         ipopt: the extra Ipopt options, as sorted ``(name, repr(value))`` pairs.
+        momentum: whether the kernels carry the momentum terms (a non-zero ``h0``; its value
+            is a parameter).
     """
 
     intervals: int
@@ -76,14 +78,16 @@ class StructureKey:
     tolerance: float
     max_iterations: int
     ipopt: tuple[tuple[str, str], ...]
+    momentum: bool = False
 
     @classmethod
-    def of(cls, limits, options) -> StructureKey:
+    def of(cls, limits, options, momentum: bool = False) -> StructureKey:
         """The key of a problem.
 
         Args:
             limits: the balance joints' :class:`~balance_opt.model.robot.JointLimits`.
             options: the :class:`~balance_opt.optimal.options.PlannerOptions`.
+            momentum: whether the problem has a non-zero momentum ``h0``.
         """
         enforced = {
             "position": options.position_limits
@@ -105,6 +109,7 @@ class StructureKey:
             tolerance=options.tolerance,
             max_iterations=int(options.max_iterations),
             ipopt=tuple(sorted((k, repr(v)) for k, v in options.ipopt.items())),
+            momentum=bool(momentum),
         )
 
 

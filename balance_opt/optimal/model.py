@@ -22,10 +22,16 @@ attitude bounds ``|phi| <= bound`` exact, with three states and no norm constrai
 kinematics is ``phi_dot = Jr^{-1}(phi) omega_b`` (valid for rotations below pi, far beyond any
 drift this planner is meant for; ``docs/physics.md``, "Attitude").
 
-The mission arm enters through its sample at the point, ``m = [q_M; q_dot_M; q_ddot_M]``, a
-parameter of the NLP. The base rate comes from momentum conservation with zero momentum
-(Eq. 26, 31; ``docs/physics.md``, "Base motion forced by the joints"):
-``omega_b = J_wM(q) q_dot_M + J_wB(q) q_dot_B`` with ``q = [q_M; q_B]``.
+The mission arm and the system's momentum enter through the point's data
+``m = [q_M; q_dot_M; q_ddot_M; h0]``, a parameter of the NLP: ``h0`` is the constant total
+momentum [linear; angular about the CoM] in the axes of the initial base frame (the world frame
+when the base starts at the identity). The base rate comes from momentum conservation
+(Eq. 26; ``docs/physics.md``, "Base motion forced by the joints"): in base axes the momentum is
+``R^T h0`` with ``R = exp([phi]_x)``, so
+``omega_b = I_G^{-1} (R^T L0 - A_j q_dot)`` (``L0``: the angular part of ``h0``), which is
+``J_wM(q) q_dot_M + J_wB(q) q_dot_B`` when ``h0 = 0``. The kernels come in two structures,
+with and without the momentum terms (the key's ``momentum``: on the paper robot the terms cost
+17 % more Hessian instructions, 24 % with torques); the ones with them serve every ``h0``.
 """
 
 from __future__ import annotations
@@ -46,14 +52,22 @@ from balance_opt.model.symbolic import (
     model_joint_positions,
     model_velocity_map,
 )
-from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
+from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
 
+#: Rows of the momentum ``h0`` at the end of a point's data ``m`` ([linear; angular]).
+MOMENTUM_ROWS = 6
+
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
+
+
+def _tag(momentum: bool) -> str:
+    """Name suffix of the functions with the momentum terms."""
+    return "_h" if momentum else ""
 
 
 def check_control(control: str) -> str:
@@ -163,8 +177,8 @@ class PlannerModel:
 
     @property
     def n_m(self) -> int:
-        """Size of a mission sample ``[q_M; q_dot_M; q_ddot_M]``."""
-        return 3 * self.n_M
+        """Size of a point's data ``[q_M; q_dot_M; q_ddot_M; h0]``."""
+        return 3 * self.n_M + MOMENTUM_ROWS
 
     def joint_rows(self, control: str) -> list[slice]:
         """State rows of the balance joints' chain of integrators: position, velocity (and
@@ -192,29 +206,38 @@ class PlannerModel:
         m = cs.SX.sym("m", self.n_m)
         return x, u, m, x[:3], x[3 : 3 + n_B], x[3 + n_B : 3 + 2 * n_B], m[:n_M], m[n_M : 2 * n_M]
 
+    def _momentum_in_base(self, phi, m):
+        """``R^T h0`` (6): the point's momentum (last rows of ``m``, initial base axes) in the
+        axes of the base at attitude ``phi``."""
+        Rt = rotation_matrix_sym(phi).T
+        h0 = m[3 * self.n_M :]
+        return cs.vertcat(Rt @ h0[:3], Rt @ h0[3:])
+
     def _cached(self, key: str, make) -> cs.Function:
         if key not in self._funs:
             self._funs[key] = make()
         return self._funs[key]
 
-    def _omega(self, q_M, q_B, q_dot_M, q_dot_B):
-        """``omega_b = J_wM q_dot_M + J_wB q_dot_B`` computed as ``-I_G^{-1} A_j q_dot`` from the
-        angular rows of the centroidal momentum matrix (zero angular momentum about the CoM,
-        Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint columns; the base's
-        linear columns of these rows are zero. One 3 x 3 solve of a vector instead of the full
-        6 x 6 ``J_base``: on the paper robot the Hessian kernel has 54 % of the instructions
-        (23.6k against 43.7k)."""
+    def _omega(self, q_M, q_B, q_dot_M, q_dot_B, ell):
+        """``omega_b = I_G^{-1} (ell - A_j q_dot)`` from the angular rows of the centroidal
+        momentum matrix (Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint
+        columns, ``ell = R^T L0`` the angular momentum about the CoM in base axes; the base's
+        linear columns of these rows are zero, so the linear momentum does not turn the base.
+        One 3 x 3 solve of a vector instead of the full 6 x 6 ``J_base``: on the paper robot the
+        Hessian kernel has 54 % of the instructions (23.6k against 43.7k)."""
         A = self.maps.centroidal_momentum_matrix_fun()(cs.vertcat(q_M, q_B))
-        return -cs.solve(A[3:, 3:6], A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
+        return cs.solve(A[3:, 3:6], ell - A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
 
     # ------------------------------------------------------------------ functions
-    def dynamics_fun(self, control: str = "acceleration") -> cs.Function:
+    def dynamics_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_dynamics(x, u, m) -> (x_dot, omega)``: the state's time derivative and the
-        base angular velocity in the base frame [rad/s] (Eq. 26 with zero momentum)."""
+        base angular velocity in the base frame [rad/s] (Eq. 26 with the momentum ``h0`` of
+        ``m``; without ``momentum`` its rows are ignored: zero momentum)."""
 
         def make():
             x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
-            omega = self._omega(q_M, q_B, q_dot_M, q_dot_B)
+            ell = self._momentum_in_base(phi, m)[3:] if momentum else cs.SX.zeros(3)
+            omega = self._omega(q_M, q_B, q_dot_M, q_dot_B, ell)
             parts = [inverse_right_jacobian_sym(phi) @ omega, q_dot_B]
             parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B :], u]
             return cs.Function(
@@ -226,9 +249,9 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached(f"dynamics_{check_control(control)}", make)
+        return self._cached(f"dynamics_{check_control(control)}{_tag(momentum)}", make)
 
-    def point_fun(self, control: str = "acceleration") -> cs.Function:
+    def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
         at one collocation point (the point kernels' first outputs).
 
@@ -240,7 +263,7 @@ class PlannerModel:
             x, u, m, phi, q_B, _, _, _ = self._symbols(control)
             weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
             q_rest = cs.SX.sym("q_rest", self.n_B)
-            x_dot, omega = self.dynamics_fun(control)(x, u, m)
+            x_dot, omega = self.dynamics_fun(control, momentum)(x, u, m)
             dq = q_B - q_rest
             L = (
                 weights[0] * cs.dot(omega, omega)
@@ -257,7 +280,7 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached(f"point_{check_control(control)}", make)
+        return self._cached(f"point_{check_control(control)}{_tag(momentum)}", make)
 
     # ------------------------------------------------------------------ inverse dynamics
     @cached_property
@@ -289,23 +312,20 @@ class PlannerModel:
             "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
         )
 
-    def torque_fun(self) -> cs.Function:
-        """``joint_torques(q, q_dot, q_ddot) -> tau``: arm joint torques [N m] (arm order) that
-        produce the joint accelerations ``q_ddot`` of the free-floating system with zero
-        momentum and no external wrench on the base.
+    def _torques(self, q, q_dot, q_ddot, v_b):
+        """``tau`` of the free-floating inverse dynamics with the base twist ``v_b``."""
+        M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
+        a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
+        return M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
 
-        With ``M nu_dot + h = [0; tau]`` and the base twist ``v_b = J_base q_dot`` (Eq. 19), the
-        base acceleration is ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and
-        ``tau = M_jb a_b + M_jj q_ddot + h_j``.
-        """
+    def torque_fun(self) -> cs.Function:
+        """``joint_torques(q, q_dot, q_ddot) -> tau``: :meth:`momentum_torque_fun` with zero
+        momentum (the base twist ``J_base q_dot``, Eq. 19)."""
 
         def make():
             n = self.robot.n
             q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
-            v_b = self.maps.base_jacobian_fun()(q) @ q_dot
-            M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
-            a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
-            tau = M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
+            tau = self._torques(q, q_dot, q_ddot, self.maps.base_jacobian_fun()(q) @ q_dot)
             return cs.Function(
                 "joint_torques",
                 [q, q_dot, q_ddot],
@@ -317,16 +337,54 @@ class PlannerModel:
 
         return self._cached("torque", make)
 
-    def balance_torque_fun(self, control: str = "acceleration") -> cs.Function:
-        """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point."""
+    def momentum_torque_fun(self) -> cs.Function:
+        """``joint_torques_h(q, q_dot, q_ddot, h_b) -> tau``: arm joint torques [N m] (arm order)
+        that produce the joint accelerations ``q_ddot`` of the free-floating system with the
+        momentum ``h_b`` (base axes, [linear; angular about the CoM]) and no external wrench on
+        the base.
+
+        With ``M nu_dot + h = [0; tau]`` and the base twist ``v_b = A_b^{-1} (h_b - A_j q_dot)``
+        (``J_base q_dot`` for zero momentum, Eq. 19), the base acceleration is
+        ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and ``tau = M_jb a_b + M_jj q_ddot + h_j``.
+        """
 
         def make():
-            x, u, m, _, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
-            q_ddot_B = u if control == "acceleration" else x[3 + 2 * self.n_B :]
-            q_ddot_M = m[2 * self.n_M :]
-            tau = self.torque_fun()(
-                cs.vertcat(q_M, q_B), cs.vertcat(q_dot_M, q_dot_B), cs.vertcat(q_ddot_M, q_ddot_B)
+            n = self.robot.n
+            q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
+            h_mom = cs.SX.sym("h_b", MOMENTUM_ROWS)
+            A = self.maps.centroidal_momentum_matrix_fun()(q)
+            v_b = self.maps.base_jacobian_fun()(q) @ q_dot + cs.solve(A[:, :6], h_mom)
+            tau = self._torques(q, q_dot, q_ddot, v_b)
+            return cs.Function(
+                "joint_torques_h",
+                [q, q_dot, q_ddot, h_mom],
+                [tau],
+                ["q", "q_dot", "q_ddot", "h_b"],
+                ["tau"],
+                {"cse": True},
             )
+
+        return self._cached("torque_h", make)
+
+    def balance_torque_fun(
+        self, control: str = "acceleration", momentum: bool = True
+    ) -> cs.Function:
+        """``balance_torques(x, u, m) -> tau_B``: the balance joints' torques [N m] at a point
+        (zero momentum without ``momentum``)."""
+
+        def make():
+            x, u, m, phi, q_B, q_dot_B, q_M, q_dot_M = self._symbols(control)
+            q_ddot_B = u if control == "acceleration" else x[3 + 2 * self.n_B :]
+            q_ddot_M = m[2 * self.n_M : 3 * self.n_M]
+            joints = (
+                cs.vertcat(q_M, q_B),
+                cs.vertcat(q_dot_M, q_dot_B),
+                cs.vertcat(q_ddot_M, q_ddot_B),
+            )
+            if momentum:
+                tau = self.momentum_torque_fun()(*joints, self._momentum_in_base(phi, m))
+            else:
+                tau = self.torque_fun()(*joints)
             return cs.Function(
                 "balance_torques",
                 [x, u, m],
@@ -336,37 +394,39 @@ class PlannerModel:
                 {"cse": True},
             )
 
-        return self._cached(f"balance_torque_{check_control(control)}", make)
+        return self._cached(f"balance_torque_{check_control(control)}{_tag(momentum)}", make)
 
     # ------------------------------------------------------------------ kernels
     def n_y(self, control: str, torque: bool) -> int:
         """Size of a point kernel's output ``y``."""
         return self.n_x(control) + 1 + (self.n_B if torque else 0)
 
-    def kernels(self, control: str = "acceleration", torque: bool = False) -> PointKernels:
-        """The point kernels (:class:`PointKernels`) of a control and torque setting, built once
-        (and compiled once, if the model compiles)."""
-        key = (check_control(control), bool(torque))
+    def kernels(
+        self, control: str = "acceleration", torque: bool = False, momentum: bool = False
+    ) -> PointKernels:
+        """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting,
+        built once (and compiled once, if the model compiles)."""
+        key = (check_control(control), bool(torque), bool(momentum))
         if key not in self._kernels:
             self._kernels[key] = self._make_kernels(*key)
         return self._kernels[key]
 
-    def _make_kernels(self, control: str, torque: bool) -> PointKernels:
+    def _make_kernels(self, control: str, torque: bool, momentum: bool) -> PointKernels:
         n_x, n_u = self.n_x(control), self.n_u
         z = cs.SX.sym("z", n_x + n_u)
         m = cs.SX.sym("m", self.n_m)
         weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
         q_rest = cs.SX.sym("q_rest", self.n_B)
         x, u = z[:n_x], z[n_x:]
-        x_dot, L = self.point_fun(control)(x, u, m, weights, q_rest)
+        x_dot, L = self.point_fun(control, momentum)(x, u, m, weights, q_rest)
         parts = [x_dot, L]
         if torque:
-            parts.append(self.balance_torque_fun(control)(x, u, m))
+            parts.append(self.balance_torque_fun(control, momentum)(x, u, m))
         y = cs.vertcat(*parts)
         mu = cs.SX.sym("mu", y.numel())
         c = cs.SX.sym("c", y.numel())
         hess, _ = cs.hessian(cs.dot(mu, y), z)
-        suffix = f"{control}{'_torque' if torque else ''}"
+        suffix = f"{control}{'_torque' if torque else ''}{_tag(momentum)}"
         names = ["z", "m", "weights", "q_rest"]
         opts = {"cse": True}
         functions = [

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
+from balance_opt import progress
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
     PEAK_SCALE,
@@ -116,7 +117,7 @@ def build_structure(
         options: the planner settings the key was made of (for Ipopt's options).
     """
     start = time.perf_counter()
-    kernels = model.kernels(key.control, key.torque_limits)
+    kernels = model.kernels(key.control, key.torque_limits, key.momentum)
     tr = Transcription(key.transcription)
     N, n_pts = key.intervals, tr.n_points(key.intervals)
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
@@ -375,5 +376,7 @@ def _ipopt_solver(
             "grad_f": _gradient(kernels, outer, x),
             "jac_g": _jacobian(kernels, outer, x),
             "hess_lag": _hessian(kernels, outer, x, n_g),
+            # the live progress line (balance_opt.progress); returns at once when it is off
+            **progress.nlpsol_options(x.w.numel(), n_g),
         },
     )

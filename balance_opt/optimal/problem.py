@@ -83,6 +83,21 @@ def check_problem(
     return q_B0, horizon
 
 
+def momentum_of(h0) -> np.ndarray:
+    """A total momentum ``[linear; angular]`` (6,) [N s; N m s] as a float array (zero for
+    ``None``).
+
+    Raises:
+        InputError: not 6 finite values.
+    """
+    h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float).ravel()
+    if h0.size != 6 or not np.all(np.isfinite(h0)):
+        raise InputError(
+            f"momentum h0 must be 6 finite values [linear; angular], got {h0.tolist()}"
+        )
+    return h0
+
+
 class BalanceProblem:
     """The numeric data of one balance planning problem.
 
@@ -92,13 +107,15 @@ class BalanceProblem:
         q_B0: initial balance configuration [rad], checked by :func:`check_problem`.
         options: the planner settings.
         horizon: planning horizon [s], from :func:`check_problem`.
+        h0: the system's constant total momentum, world frame (the base starts at the
+            identity), ``[linear (N s); angular about the CoM (N m s)]``; ``None`` for zero.
 
     Attributes:
         model, robot, mission, q_B0, options, horizon: as given (``robot`` is the model's).
         N, h: number of intervals and their length [s].
         transcription, control: the collocation scheme and the control input.
         point_times: times of the collocation points [s], nodes then midpoints.
-        mission_samples: ``[q_M; q_dot_M; q_ddot_M]`` at the points (n_m, n_points).
+        mission_samples: each point's data ``[q_M; q_dot_M; q_ddot_M; h0]`` (n_m, n_points).
         q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
         limits: the balance joints' limits.
         path_bound: the path attitude bound the NLP enforces at the points [rad]
@@ -117,6 +134,7 @@ class BalanceProblem:
         options: PlannerOptions,
         horizon: float,
         robot: FloatingRobot | None = None,
+        h0=None,
     ):
         self.model = model
         # The task's robot: the model's kinematics, possibly other limits.
@@ -131,7 +149,9 @@ class BalanceProblem:
         self.control = options.control
         self.point_times = self.transcription.point_taus(self.N) * self.h
         q_M, q_dot_M, q_ddot_M = mission.sample(self.point_times)
-        self.mission_samples = np.hstack([q_M, q_dot_M, q_ddot_M]).T
+        self.h0 = momentum_of(h0)
+        h0_rows = np.broadcast_to(self.h0, (self.point_times.size, self.h0.size))
+        self.mission_samples = np.hstack([q_M, q_dot_M, q_ddot_M, h0_rows]).T
         self.q_rest = (
             q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
         )

@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from balance_opt import progress
 from balance_opt.errors import InputError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
@@ -68,8 +69,9 @@ class BalanceNLP(BalanceProblem):
         setup_time: float,
         build_time: float = 0.0,
         robot: FloatingRobot | None = None,
+        h0=None,
     ):
-        super().__init__(model, mission, q_B0, options, horizon, robot)
+        super().__init__(model, mission, q_B0, options, horizon, robot, h0)
         self.structure = structure
         self.setup_time = setup_time
         self.build_time = build_time
@@ -98,7 +100,9 @@ class BalanceNLP(BalanceProblem):
     def variant(self, **changes) -> BalanceNLP:
         """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
-        return build_balance_nlp(self.model, self.mission, self.q_B0, options, self.robot)
+        return build_balance_nlp(
+            self.model, self.mission, self.q_B0, options, self.robot, h0=self.h0
+        )
 
     def solution_of(self, result: BalanceResult) -> Solution:
         """The NLP solution a result of this problem's structure was re-simulated from."""
@@ -215,9 +219,10 @@ class BalanceNLP(BalanceProblem):
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
-        out = self.structure.solver(
-            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
-        )
+        with progress.solving(self.lbg, self.ubg, f"Ipopt (N = {self.N})"):
+            out = self.structure.solver(
+                x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+            )
         raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
         t2 = time.perf_counter()
         w = np.array(out["x"]).ravel()
@@ -249,7 +254,8 @@ class BalanceNLP(BalanceProblem):
         t0, t1, t2, t3 = times
         status = str(stats.get("return_status", "unknown"))
         iters = stats.get("iterations", {})
-        kernels = self.model.kernels(self.control, self.structure.key.torque_limits)
+        key = self.structure.key
+        kernels = self.model.kernels(self.control, key.torque_limits, key.momentum)
         return {
             "status": status,
             "success": status in SUCCESS_STATUSES,
@@ -311,6 +317,7 @@ def build_balance_nlp(
     q_B0,
     options: PlannerOptions | None = None,
     robot: FloatingRobot | None = None,
+    h0=None,
 ) -> BalanceNLP:
     """Build the balance NLP of a mission.
 
@@ -327,6 +334,9 @@ def build_balance_nlp(
         robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
             may change the limits; the model and its compiled NLPs stay valid); default: the
             model's robot.
+        h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
+            [N s; N m s] (the base starts at the identity); ``None`` for zero. A parameter:
+            every ``h0`` shares the compiled NLP.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
@@ -340,7 +350,8 @@ def build_balance_nlp(
     options = options or PlannerOptions()
     robot = model.robot if robot is None else robot
     q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
-    key = StructureKey.of(robot.limits.subset(robot.balance_indices), options)
+    momentum = h0 is not None and bool(np.any(np.asarray(h0, dtype=float) != 0.0))
+    key = StructureKey.of(robot.limits.subset(robot.balance_indices), options, momentum)
     built_now = key not in model.nlp_cache
     if built_now:
         model.nlp_cache[key] = build_structure(model, key, options)
@@ -356,6 +367,7 @@ def build_balance_nlp(
         time.perf_counter() - start - build_time,
         build_time,
         robot,
+        h0,
     )
 
 
@@ -365,11 +377,12 @@ def plan_optimal(
     q_B0,
     options: PlannerOptions | None = None,
     initial_guess="analytic",
+    h0=None,
 ) -> BalanceResult:
     """Plan the balance arm's motion for a mission: :func:`build_balance_nlp` then
     :meth:`BalanceNLP.solve`. Pass a :class:`PlannerModel` to reuse the symbolic model and the
-    compiled NLPs across calls."""
-    return build_balance_nlp(robot, mission, q_B0, options).solve(initial_guess)
+    compiled NLPs across calls; ``h0`` is the total momentum (see :func:`build_balance_nlp`)."""
+    return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
 
 
 # ---------------------------------------------------------------------------------- re-simulation
@@ -401,6 +414,7 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         trajectory,
         t_eval=t,
         method="optimal",
+        h0=nlp.h0,
         integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])),
     )
     # collocation defects: NLP attitude at the nodes vs the re-simulated one

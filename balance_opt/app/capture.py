@@ -1,0 +1,248 @@
+"""Planning a task with a capture (``capture:``) as two phases joined at the capture time.
+
+Before the capture every method plans the robot as usual, over ``[0, t_c]``, with the task's
+momentum. At ``t_c`` the target is attached to the mission end effector
+(:mod:`balance_opt.model.capture`): the joint positions and rates run on, the base twist jumps,
+and the momentum becomes the robot's plus the target's. After it, the same method plans the
+robot with the target (:func:`~balance_opt.model.capture.attach_target`) over ``[t_c, T]``
+with that momentum, from the attitude and balance configuration the first phase left.
+
+Each phase is planned in the frame of its own initial base attitude (the second with its
+momentum ``R_c^T h_after`` and the identity as start), and its attitudes are turned back into
+the world frame: every planner, the analytic law's feedback included, then holds the attitude
+its phase started from. The optimal planner's first phase ends with the balance arm in its
+start condition of the second (``rest`` or ``still``), so that the balance joints' rates (and
+with ``rest`` their accelerations) are continuous through the capture; the task's end
+conditions (``final_configuration``, ``terminal_attitude_bound``) apply to the second phase,
+and the second phase's attitude terms (cost, bounds) are measured from the attitude at the
+capture. ``horizon`` is each phase's own duration, and the intervals are split between the
+phases in proportion to their durations (:func:`phase_intervals`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from balance_opt.errors import SolverError
+from balance_opt.io.outputs import BULKY_INFO_KEYS
+from balance_opt.model.capture import CaptureState, attach_target, capture_state
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
+from balance_opt.result import BalanceResult, find_limit_violations
+
+log = logging.getLogger(__name__)
+
+#: Robots with their target, by (robot, target) of a task: the objects themselves are kept
+#: beside the result, so an id is never reused while its entry lives. A few at most.
+_ROBOTS_AFTER: dict[tuple[int, int], tuple[Any, Any, FloatingRobot]] = {}
+_ROBOTS_AFTER_KEPT = 4
+
+
+class MissionWindow:
+    """The mission arm's motion over ``[t0, t1]`` of a longer mission, its clock starting at 0.
+
+    Attributes:
+        dof, duration, start: as a trajectory's.
+    """
+
+    def __init__(self, mission, t0: float, t1: float):
+        self.mission, self.t0 = mission, float(t0)
+        self.duration = float(t1) - float(t0)
+        self.dof = mission.dof
+        self.start = np.asarray(mission.sample(np.array([self.t0]))[0])[0]
+
+    def sample(self, t):
+        return self.mission.sample(np.asarray(t, dtype=float) + self.t0)
+
+
+def robot_after(task) -> FloatingRobot:
+    """The task's robot with its target attached, built once per robot and target."""
+    key = (id(task.robot), id(task.target))
+    if key not in _ROBOTS_AFTER:
+        while len(_ROBOTS_AFTER) >= _ROBOTS_AFTER_KEPT:
+            _ROBOTS_AFTER.pop(next(iter(_ROBOTS_AFTER)))
+        _ROBOTS_AFTER[key] = (task.robot, task.target, attach_target(task.robot, task.target))
+    return _ROBOTS_AFTER[key][2]
+
+
+@dataclass
+class Phase:
+    """What one phase is planned from: its robot, mission window, balance start, momentum
+    (in the axes of its initial base attitude) and initial attitude (world)."""
+
+    robot: FloatingRobot
+    mission: MissionWindow
+    q_B0: np.ndarray
+    h0: np.ndarray
+    quaternion0: np.ndarray
+    index: int
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _rotated(h: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``R^T h`` of a momentum [linear; angular]."""
+    return np.r_[R.T @ h[:3], R.T @ h[3:]]
+
+
+def plan_with_capture(task, plan_phase) -> BalanceResult:
+    """Plan ``task`` in two phases with ``plan_phase(phase) -> BalanceResult`` (each phase in
+    its own start frame, see the module docstring) and join them.
+
+    Raises:
+        SolverError: a phase failed; its ``result`` joins what was planned.
+    """
+    t_c, T = task.target.time, task.duration
+    first = Phase(
+        task.robot,
+        MissionWindow(task.mission, 0.0, t_c),
+        np.asarray(task.q_B0, dtype=float),
+        np.asarray(task.h0, dtype=float),
+        np.array([0.0, 0.0, 0.0, 1.0]),
+        0,
+    )
+    before = plan_phase(first)
+    q_c, qd_c, quat_c = _state_at_end(task.robot, before)
+    after_robot = robot_after(task)
+    state = capture_state(task.robot, after_robot, task.target, q_c, qd_c, quat_c, task.h0)
+    R_c = matrix_from_quaternion(quat_c)
+    second = Phase(
+        after_robot,
+        MissionWindow(task.mission, t_c, T),
+        before.q_B[-1].copy(),
+        _rotated(state.h_after, R_c),
+        quat_c,
+        1,
+        {"q_dot_B0": before.q_dot_B[-1].copy()},
+    )
+    try:
+        after = plan_phase(second)
+    except SolverError as exc:
+        if exc.result is None:
+            raise
+        joined = join_phases(task, before, _in_world(exc.result, quat_c, t_c), state)
+        raise SolverError(str(exc), exc.status, joined) from exc
+    return join_phases(task, before, _in_world(after, quat_c, t_c), state)
+
+
+def _state_at_end(robot: FloatingRobot, result: BalanceResult):
+    """Arm positions, rates and the attitude at a result's last sample."""
+    q, q_dot = np.empty(robot.n), np.empty(robot.n)
+    M, B = robot.mission_indices, robot.balance_indices
+    q[M], q[B] = result.q_M[-1], result.q_B[-1]
+    q_dot[M], q_dot[B] = result.q_dot_M[-1], result.q_dot_B[-1]
+    return q, q_dot, result.quaternion[-1]
+
+
+def _in_world(result: BalanceResult, quat_c: np.ndarray, t_c: float) -> BalanceResult:
+    """A second-phase result (attitudes from the identity, clock from 0) in world time and
+    attitude."""
+    quat = quaternion_multiply(np.broadcast_to(quat_c, result.quaternion.shape), result.quaternion)
+    return dataclasses.replace(result, t=result.t + t_c, quaternion=quat)
+
+
+def join_phases(task, before: BalanceResult, after: BalanceResult, state: CaptureState):
+    """One result of the two phases: the samples of both (the second's first sample, at the
+    capture, left out: the first's last is the state just before), the limit violations of the
+    whole motion, the first phase's ``info`` with the second's under ``after_capture`` (without
+    its bulky arrays), the iterations of both, and the capture's numbers under ``capture``."""
+    keep = slice(1, None)
+    arrays = {}
+    for name in (
+        "t",
+        "q_M",
+        "q_dot_M",
+        "q_ddot_M",
+        "q_B",
+        "q_dot_B",
+        "q_ddot_B",
+        "quaternion",
+        "omega",
+        "momentum_residual",
+        "sigma_min",
+    ):
+        arrays[name] = np.concatenate([getattr(before, name), getattr(after, name)[keep]])
+    robot = task.robot
+    q, q_dot, q_ddot = (np.empty((arrays["t"].size, robot.n)) for _ in range(3))
+    M, B = robot.mission_indices, robot.balance_indices
+    for full, suffix in ((q, ""), (q_dot, "_dot"), (q_ddot, "_ddot")):
+        full[:, M], full[:, B] = arrays[f"q{suffix}_M"], arrays[f"q{suffix}_B"]
+    info = dict(before.info)
+    info["after_capture"] = {k: v for k, v in after.info.items() if k not in BULKY_INFO_KEYS}
+    success = [r.info.get("success") for r in (before, after)]
+    if any(s is not None for s in success):
+        info["success"] = all(s is not False for s in success)
+        if before.info.get("success") and not after.info.get("success"):
+            info["status"] = after.info.get("status")
+    if "iterations" in before.info and "iterations" in after.info:
+        info["iterations"] = before.info["iterations"] + after.info["iterations"]
+    info["capture"] = state.as_dict(task.target.time)
+    return dataclasses.replace(
+        before,
+        **arrays,
+        violations=find_limit_violations(
+            arrays["t"], robot.joint_names, q, q_dot, q_ddot, robot.limits
+        ),
+        info=info,
+    )
+
+
+# ------------------------------------------------------------------------------ the methods
+def _plan_mission_only(task, p: Phase) -> BalanceResult:
+    from balance_opt.analytic.phases import phase_one
+
+    a = task.spec.analytic
+    return phase_one(p.robot, p.mission, p.q_B0, h0=p.h0, integration=a.integration)
+
+
+def _plan_analytic(task, p: Phase) -> BalanceResult:
+    from balance_opt.analytic.rollout import rollout
+
+    a = task.spec.analytic
+    law = dataclasses.replace(a.law, h0=tuple(float(v) for v in p.h0))
+    return rollout(p.robot, p.mission, p.q_B0, law, integration=a.integration)
+
+
+def phase_intervals(intervals: int, t_c: float, duration: float) -> tuple[int, int]:
+    """The optimal planner's intervals before and after the capture, in proportion to the
+    phases' durations, at least 2 each."""
+    first = min(max(2, round(intervals * t_c / duration)), max(2, intervals - 2))
+    return first, max(2, intervals - first)
+
+
+def _plan_optimal(task, p: Phase, solver_options, models) -> BalanceResult:
+    from balance_opt.app.models import ModelCache
+    from balance_opt.optimal.solve import build_balance_nlp
+
+    options = task.planner_options(solver_options)
+    n_first, n_second = phase_intervals(options.intervals, task.target.time, task.duration)
+    if p.index == 0:  # end in the second phase's start condition: continuous joint rates
+        options = dataclasses.replace(
+            options,
+            intervals=n_first,
+            end=options.start,
+            rest_at_end=False,
+            horizon=None,
+            final_configuration=None,  # the task's end is the second phase's
+            terminal_attitude_bound=None,
+        )
+    else:
+        options = dataclasses.replace(options, intervals=n_second, horizon=None)
+    models = models if models is not None else ModelCache()
+    model = models.planner_model(p.robot, task.spec.robot.backend)
+    nlp = build_balance_nlp(model, p.mission, p.q_B0, options, robot=p.robot, h0=p.h0)
+    return nlp.solve(task.spec.optimal.initial_guess)
+
+
+def plan_captured(task, method: str, solver_options=None, models=None) -> BalanceResult:
+    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task with
+    a capture: :func:`plan_with_capture` with that method in each phase."""
+    if method == "mission-only":
+        return plan_with_capture(task, lambda p: _plan_mission_only(task, p))
+    if method == "analytic":
+        return plan_with_capture(task, lambda p: _plan_analytic(task, p))
+    return plan_with_capture(task, lambda p: _plan_optimal(task, p, solver_options, models))

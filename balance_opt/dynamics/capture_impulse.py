@@ -1,0 +1,127 @@
+"""Forward dynamics through a capture: the simulation of the robot before the capture, the
+impulse that attaches the target, and the simulation of the robot with the target after it
+(``docs/physics.md``, "Capture").
+
+The impact is taken as instantaneous and inelastic, with the joints held by their controllers
+through it: joint positions and rates do not jump, the base twist does. The twist after is the
+one that gives the robot with the target the total momentum of robot and target just before
+(:func:`~balance_opt.model.capture.capture_state`, from the simulated state at the capture,
+not from the plan), so the simulated momentum is conserved through the impulse; each phase
+then conserves its own to the integrator's tolerance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.dynamics.simulation import SimulationResult, simulate
+from balance_opt.model.capture import CaptureState, Target, capture_state
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.trajectories import SampledTrajectory
+from balance_opt.result import BalanceResult
+
+
+class _Shifted:
+    """A trajectory read from ``t0`` on, its clock starting at 0."""
+
+    def __init__(self, trajectory, t0: float):
+        self.trajectory, self.t0 = trajectory, float(t0)
+        self.duration = float(trajectory.duration) - self.t0
+
+    def sample(self, t):
+        return self.trajectory.sample(np.asarray(t, dtype=float) + self.t0)
+
+
+def impulse(
+    robot: FloatingRobot, after: FloatingRobot, target: Target, q_pin, v, h_before
+) -> tuple[np.ndarray, np.ndarray, CaptureState]:
+    """The Pinocchio state ``(q, v)`` of the robot with the target just after the capture, from
+    the robot's state ``(q_pin, v)`` and momentum ``h_before`` (world) just before."""
+    q_arm, q_dot = robot.arm_q(q_pin), robot.arm_v(v)
+    quaternion = np.asarray(q_pin[3:7], dtype=float)
+    state = capture_state(robot, after, target, q_arm, q_dot, quaternion, h_before)
+    base = pin.XYZQUATToSE3(np.asarray(q_pin[:7], dtype=float))
+    return after.pin_q(q_arm, base), after.pin_v(q_dot, state.twist_after), state
+
+
+def simulate_with_capture(
+    robot: FloatingRobot,
+    after: FloatingRobot,
+    target: Target,
+    plan: BalanceResult,
+    options: SimulationOptions | None = None,
+) -> SimulationResult:
+    """Simulate a plan through the capture of ``target`` (see the module docstring).
+
+    Returns:
+        One result over the whole plan (the second phase's first sample, at the capture, left
+        out); its ``h0`` is per sample (T, 6): the momentum each phase conserves. ``robot``
+        is the robot before the capture (same joints and limits as after);
+        ``info["capture"]`` holds the momentum and base twists across the impulse and
+        ``info["after_capture"]`` the second phase's own info.
+    """
+    opts = options or SimulationOptions()
+    mission = SampledTrajectory.from_result(plan, "mission")
+    balance = SampledTrajectory.from_result(plan, "balance")
+    t_c = float(target.time)
+    first = simulate(robot, mission, balance, opts, duration=t_c)
+    q_pin, v, state = impulse(
+        robot, after, target, first.q_pin[-1], first.v[-1], first.momentum[-1]
+    )
+    second = simulate(
+        after,
+        _Shifted(mission, t_c),
+        _Shifted(balance, t_c),
+        dataclasses.replace(opts, h0=tuple(state.h_after.tolist())),
+        initial_state=(q_pin, v),
+    )
+    return _joined(first, second, t_c, state)
+
+
+def _joined(
+    first: SimulationResult, second: SimulationResult, t_c: float, state: CaptureState
+) -> SimulationResult:
+    keep = slice(1, None)
+    arrays = {
+        name: np.concatenate([getattr(first, name), getattr(second, name)[keep]])
+        for name in (
+            "q",
+            "q_dot",
+            "q_ddot",
+            "q_des",
+            "q_dot_des",
+            "q_ddot_des",
+            "tau",
+            "q_pin",
+            "v",
+            "a",
+            "momentum",
+        )
+    }
+    h0 = np.vstack(
+        [
+            np.broadcast_to(first.h0, (first.t.size, 6)),
+            np.broadcast_to(second.h0, (second.t.size - 1, 6)),
+        ]
+    )
+    info = dict(first.info)
+    info["after_capture"] = dict(second.info)
+    info["capture"] = state.as_dict(t_c)
+    return dataclasses.replace(
+        first,
+        t=np.concatenate([first.t, second.t[keep] + t_c]),
+        **arrays,
+        h0=h0,
+        momentum_scale=tuple(
+            max(a, b) for a, b in zip(first.momentum_scale, second.momentum_scale)
+        ),
+        arm_wrenches={
+            k: np.concatenate([w, second.arm_wrenches[k][keep]])
+            for k, w in first.arm_wrenches.items()
+        },
+        info=info,
+    )

@@ -1,0 +1,119 @@
+"""Free-floating inverse dynamics of a joint motion: the arm-joint torques that make the joints
+follow given positions, rates and accelerations while nothing acts on the base.
+
+With the Pinocchio velocity ``v = G [v_b; q_dot]`` (``G``: :attr:`FloatingRobot.velocity_map`,
+mimic followers moving with their drivers) the equations of motion in the reduced coordinates
+are ``M_r [a_b; q_ddot] + h_r = [0; tau]``, ``M_r = G^T M G``, ``h_r = G^T h(q, v)``. The first
+six rows (no wrench on the base) fix the base acceleration
+
+    a_b = -M_r,bb^-1 (M_r,bj q_ddot + h_r,b),
+
+and the joint rows then give ``tau = M_r,jb a_b + M_r,jj q_ddot + h_r,j``. Both use one RNEA
+with the base acceleration zero (``G^T rnea(q, v, G [0; q_ddot]) = M_r [0; q_ddot] + h_r``) and
+the joint-space inertia from CRBA. The base twist ``v_b`` is not an input: momentum conservation
+fixes it from the joints, as the base rows of the same inertia give the system's momentum at
+the base origin, ``M_r,bb v_b + M_r,bj q_dot = h``, for the system's momentum ``h0`` (world
+frame, about the CoM, constant; rotated into the base frame with the base attitude of each
+sample and moved to the base origin).
+
+Units: torques [N m] for revolute joints, forces [N] for prismatic ones; base twist and
+acceleration in the base frame [m/s, rad/s; m/s^2, rad/s^2].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.model.maps import NumericMaps
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.so3 import matrix_from_quaternion
+from balance_opt.result import BalanceResult
+
+
+@dataclass(frozen=True)
+class InverseDynamics:
+    """Torques and base motion of a joint motion under free-floating dynamics.
+
+    Attributes:
+        joints: arm joint names, the columns of ``tau``.
+        tau: joint torques (T, n) [N m; N for prismatic joints].
+        base_twist: base twist [linear; angular] (T, 6), base frame [m/s; rad/s].
+        base_acceleration: base spatial acceleration (T, 6), base frame [m/s^2; rad/s^2].
+    """
+
+    joints: tuple[str, ...]
+    tau: np.ndarray
+    base_twist: np.ndarray
+    base_acceleration: np.ndarray
+
+
+def _symmetric(M: np.ndarray) -> np.ndarray:
+    """The whole matrices (..., nv, nv) from the upper triangles CRBA fills."""
+    upper = np.triu(M)
+    return upper + np.swapaxes(np.triu(upper, 1), -1, -2)
+
+
+def free_floating_torques(
+    robot: FloatingRobot, q, q_dot, q_ddot, quaternion=None, h0=None
+) -> InverseDynamics:
+    """Free-floating inverse dynamics of a motion of every arm joint (see the module docstring).
+
+    Args:
+        robot: the floating robot.
+        q, q_dot, q_ddot: arm joint positions, rates and accelerations (T, n), arm order
+            (``robot.joint_names``) [rad, rad/s, rad/s^2; m for prismatic joints].
+        quaternion: base attitude (T, 4), (x, y, z, w); needed only when ``h0`` is not zero
+            (the identity by default).
+        h0: the system's momentum [linear; angular about the CoM], world frame [N s; N m s];
+            zero by default.
+
+    Returns:
+        The torques, the base twist and the base acceleration at each sample.
+    """
+    q, q_dot, q_ddot = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, q_dot, q_ddot))
+    T = q.shape[0]
+    h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float)
+    model, data = robot.model, robot.model.createData()
+    maps = NumericMaps(robot)  # Pinocchio vectors of the whole motion at once
+    qps, vs, accs = maps.configurations(q), maps.velocities(q_dot), maps.velocities(q_ddot)
+    M = np.empty((T, model.nv, model.nv))
+    com = np.empty((T, 3))
+    for k in range(T):  # Pinocchio per sample, the algebra on whole arrays below
+        M[k] = pin.crba(model, data, qps[k])
+        com[k] = data.Ycrb[1].lever  # CoM in the base frame
+    M = robot.arm_columns(np.swapaxes(robot.arm_columns(_symmetric(M)), 1, 2))  # G^T M G
+    M_bb = M[:, :6, :6]
+    # the momentum at the base origin, base axes: M_r,b: [v_b; q_dot] = h
+    h = np.zeros((T, 6))
+    if np.any(h0):
+        R = np.eye(3) if quaternion is None else matrix_from_quaternion(quaternion)
+        p = np.broadcast_to(h0[:3] @ R, (T, 3))  # R^T h0 per sample
+        L = np.broadcast_to(h0[3:] @ R, (T, 3))
+        h = np.concatenate([p, L + np.cross(com, p)], axis=-1)
+    twist = np.linalg.solve(M_bb, (h - np.matvec(M[:, :6, 6:], q_dot))[..., None])[..., 0]
+    vs[:, :6] = twist
+    f = np.empty((T, model.nv))
+    for k in range(T):
+        f[k] = pin.rnea(model, data, qps[k], vs[k], accs[k])
+    f = robot.arm_columns(f)  # G^T f
+    acc = -np.linalg.solve(M_bb, f[:, :6, None])[..., 0]
+    tau = f[:, 6:] + np.matvec(M[:, 6:, :6], acc)
+    return InverseDynamics(tuple(robot.joint_names), tau, twist, acc)
+
+
+def plan_torques(robot: FloatingRobot, result: BalanceResult, h0=None) -> InverseDynamics:
+    """:func:`free_floating_torques` of a plan's joint motion (its mission and balance joints;
+    any other arm joint held still at its neutral position), with the plan's base attitude for
+    a non-zero momentum ``h0`` (world frame [N s; N m s])."""
+    names = (*result.mission_joints, *result.balance_joints)
+    columns = [robot.joint_index(j) for j in names]
+    T = result.t.size
+    q = np.tile(robot.neutral(), (T, 1))
+    q_dot, q_ddot = np.zeros((T, robot.n)), np.zeros((T, robot.n))
+    q[:, columns] = np.hstack([result.q_M, result.q_B])
+    q_dot[:, columns] = np.hstack([result.q_dot_M, result.q_dot_B])
+    q_ddot[:, columns] = np.hstack([result.q_ddot_M, result.q_ddot_B])
+    return free_floating_torques(robot, q, q_dot, q_ddot, result.quaternion, h0)

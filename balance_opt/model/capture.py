@@ -1,0 +1,261 @@
+"""Capturing a moving target: the robot with the target attached, and the momentum the capture
+leaves (``docs/physics.md``, "Capture").
+
+At the capture time the target becomes rigidly attached to the mission end effector (an
+inelastic impact). Nothing outside the robot and the target acts on them, so their total
+momentum is the same just before and just after: the momentum after is the robot's plus the
+target's, taken about the common centre of mass. :func:`attach_target` builds the robot after
+the capture as a new :class:`~balance_opt.model.robot.FloatingRobot` whose URDF has the target
+as a fixed child link of the mission end-effector link, so that every backend, numeric and
+symbolic, handles it unchanged; :func:`momentum_after_capture` gives the momentum it carries.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.errors import InputError
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.so3 import matrix_from_quaternion
+
+#: Name of the target's link and of its fixed joint in the robot after the capture.
+TARGET_LINK = "capture_target"
+TARGET_JOINT = "capture_target_joint"
+
+
+@dataclass(frozen=True)
+class Target:
+    """A rigid target captured by the mission end effector.
+
+    Attributes:
+        time: capture time [s].
+        mass: its mass [kg].
+        inertia: its inertia about its CoM (3, 3) [kg m^2], in the axes of the mission
+            end-effector frame at the capture (where it stays attached).
+        com: its CoM in the mission end-effector frame (3,) [m].
+        linear_velocity: its CoM's velocity just before the capture, world frame (3,) [m/s].
+        angular_velocity: its angular velocity just before, world frame (3,) [rad/s].
+    """
+
+    time: float
+    mass: float
+    inertia: np.ndarray
+    com: np.ndarray
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray
+
+    def __post_init__(self):
+        I = np.asarray(self.inertia, dtype=float)
+        if I.shape == (6,):  # ixx, ixy, ixz, iyy, iyz, izz
+            I = np.array([[I[0], I[1], I[2]], [I[1], I[3], I[4]], [I[2], I[4], I[5]]])
+        object.__setattr__(self, "inertia", I)
+        for name in ("com", "linear_velocity", "angular_velocity"):
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=float))
+        if not self.mass > 0:
+            raise InputError(f"target mass must be positive, got {self.mass}")
+        if I.shape != (3, 3) or not np.allclose(I, I.T):
+            raise InputError("target inertia must be a symmetric 3 x 3 matrix (or its 6 values)")
+        eig = np.linalg.eigvalsh(I)
+        if eig[0] <= 0 or eig[2] > eig[0] + eig[1] + 1e-12 * eig[2]:
+            raise InputError(
+                "target inertia is not physical: its principal moments "
+                f"{', '.join(f'{e:.6g}' for e in eig)} kg m^2 must be positive and satisfy the "
+                "triangle inequality"
+            )
+
+
+def _urdf_text(robot: FloatingRobot) -> str:
+    """The robot's own URDF text (its file), or the locked one for a robot built from text."""
+    path = Path(robot.source)
+    if robot.source != "<URDF string>" and path.is_file():
+        return path.read_text()
+    if robot.followers:
+        raise InputError("a robot with mimic joints built from URDF text cannot take a target")
+    return robot.locked_urdf
+
+
+def attached_urdf(robot: FloatingRobot, target: Target) -> str:
+    """The robot's URDF with the target as the fixed link :data:`TARGET_LINK` under the mission
+    end-effector link, its origin at the target's CoM, axes those of the end effector."""
+    root = ET.fromstring(_urdf_text(robot))
+    link = ET.SubElement(root, "link", name=TARGET_LINK)
+    inertial = ET.SubElement(link, "inertial")
+    ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
+    ET.SubElement(inertial, "mass", value=repr(float(target.mass)))
+    I = target.inertia
+    ET.SubElement(
+        inertial,
+        "inertia",
+        **{
+            k: repr(float(v))
+            for k, v in zip(
+                ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
+                (I[0, 0], I[0, 1], I[0, 2], I[1, 1], I[1, 2], I[2, 2]),
+            )
+        },
+    )
+    joint = ET.SubElement(root, "joint", name=TARGET_JOINT, type="fixed")
+    ET.SubElement(joint, "parent", link=robot.mission.ee_frame)
+    ET.SubElement(joint, "child", link=TARGET_LINK)
+    ET.SubElement(joint, "origin", xyz=" ".join(repr(float(v)) for v in target.com), rpy="0 0 0")
+    return ET.tostring(root, encoding="unicode")
+
+
+def attach_target(robot: FloatingRobot, target: Target) -> FloatingRobot:
+    """The robot after the capture: same arms, locks, limits and end-effector frames, with the
+    target rigidly attached to the mission end effector."""
+    lim = robot.limits
+    limits = {
+        j: {
+            "lower": float(lim.lower[i]),
+            "upper": float(lim.upper[i]),
+            "velocity": float(lim.velocity[i]),
+            "acceleration": float(lim.acceleration[i]),
+            "effort": float(lim.effort[i]),
+        }
+        for i, j in enumerate(robot.joint_names)
+        if robot.joint_type(j) != "continuous"
+    }
+    balance = [list(arm.joints) for arm in robot.balance_arms]
+    return FloatingRobot(
+        attached_urdf(robot, target),
+        list(robot.mission.joints),
+        balance,
+        locked=robot.locked,
+        limits=limits,
+        ee_frames={arm.name: arm.ee_frame for arm in robot.arms},
+    )
+
+
+@dataclass(frozen=True)
+class CaptureState:
+    """The system just before and just after the capture (joint motion continuous).
+
+    Attributes:
+        h_before, h_after: total momentum, world frame, [linear; angular about the CoM of the
+            system of the moment] [N s; N m s] (before: the robot alone).
+        h_target: the target's own momentum [linear; angular about its CoM], world frame.
+        twist_before, twist_after: base twist [linear; angular], base frame [m/s; rad/s].
+        target_com: the target's CoM relative to the base origin, world axes [m].
+        ee_impulse: the impulse the target gives the mission end effector, base-frame axes,
+            ``[linear (N s); angular about the end effector's origin (N m s)]``: minus the
+            target's momentum change as it takes the end effector's motion.
+        base_impulse: that impulse carried to the base by the coupling factors,
+            ``N^{-T} ee_impulse`` (Eq. 25 in impulse form), base frame [N s; N m s]. With an
+            arm of fewer than six joints ``N`` is rank deficient and this is its Moore-Penrose
+            form: large where the arm is far from transmitting the impulse as a wrench.
+        base_momentum_jump: the momentum change of the base body itself, ``I_b (v_after -
+            v_before)`` (spatial inertia of the base link and what is locked to it), base frame,
+            angular part about the base origin [N s; N m s]: the impulse the arm's root joints
+            actually give the base with the joints held through the impact.
+    """
+
+    h_before: np.ndarray
+    h_after: np.ndarray
+    h_target: np.ndarray
+    twist_before: np.ndarray
+    twist_after: np.ndarray
+    target_com: np.ndarray
+    ee_impulse: np.ndarray
+    base_impulse: np.ndarray
+    base_momentum_jump: np.ndarray
+
+    def as_dict(self, t_c: float) -> dict:
+        """The capture's numbers as plain data (a result's ``info["capture"]``)."""
+        return {
+            "time_s": float(t_c),
+            "momentum_before": self.h_before.tolist(),
+            "momentum_after": self.h_after.tolist(),
+            "target_momentum": self.h_target.tolist(),
+            "base_twist_before": self.twist_before.tolist(),
+            "base_twist_after": self.twist_after.tolist(),
+            "omega_jump": self.omega_jump.tolist(),
+            "ee_impulse": self.ee_impulse.tolist(),
+            "base_impulse_coupling": self.base_impulse.tolist(),
+            "base_momentum_jump": self.base_momentum_jump.tolist(),
+        }
+
+    @property
+    def omega_jump(self) -> np.ndarray:
+        """Jump of the base angular velocity, base frame (3,) [rad/s]."""
+        return self.twist_after[3:] - self.twist_before[3:]
+
+
+def _to_base(R: np.ndarray, h: np.ndarray) -> np.ndarray:
+    return np.r_[R.T @ h[:3], R.T @ h[3:]]
+
+
+def capture_state(
+    robot: FloatingRobot,
+    after: FloatingRobot,
+    target: Target,
+    q,
+    q_dot,
+    quaternion,
+    h_before,
+) -> CaptureState:
+    """The momentum and base twists across the capture.
+
+    The target's momentum about the common CoM ``c`` adds to the robot's: with the robot's CoM
+    ``c_r`` (velocity ``p_r / m_r``), the target's ``c_t`` (velocity ``v_t``) and the reduced
+    mass ``mu = m_r m_t / (m_r + m_t)``,
+    ``L_after = L_r + I_t omega_t + mu (c_t - c_r) x (v_t - p_r / m_r)`` and
+    ``p_after = p_r + m_t v_t``. The joint rates do not jump; the base twists solve
+    ``A_G v = R^T h`` of each robot.
+
+    Args:
+        robot, after: the robot before and after the capture (:func:`attach_target`).
+        target: the target.
+        q, q_dot: arm positions and rates at the capture [rad, rad/s].
+        quaternion: base attitude (x, y, z, w) at the capture.
+        h_before: the robot's momentum before, world frame (6,).
+    """
+    from balance_opt.model.maps import NumericMaps
+
+    q, q_dot = np.asarray(q, dtype=float), np.asarray(q_dot, dtype=float)
+    h_before = np.asarray(h_before, dtype=float)
+    R = matrix_from_quaternion(np.asarray(quaternion, dtype=float))
+    base = pin.SE3(R, np.zeros(3))
+    model, data = robot.model, robot.model.createData()
+    qp = robot.pin_q(q, base)
+    c_r = pin.centerOfMass(model, data, qp)
+    pin.framesForwardKinematics(model, data, qp)
+    ee = data.oMf[model.getFrameId(robot.mission.ee_frame)]
+    c_t = ee.act(target.com)
+    I_t = ee.rotation @ target.inertia @ ee.rotation.T
+    m_r, m_t = robot.total_mass, target.mass
+    mu = m_r * m_t / (m_r + m_t)
+    v_t, w_t = target.linear_velocity, target.angular_velocity
+    h_target = np.r_[m_t * v_t, I_t @ w_t]
+    rel = np.cross(c_t - c_r, v_t - h_before[:3] / m_r)
+    h_after = np.r_[h_before[:3] + h_target[:3], h_before[3:] + h_target[3:] + mu * rel]
+    maps = NumericMaps(robot)
+    twist_before = maps.base_twist(q, q_dot, _to_base(R, h_before))
+    twist_after = NumericMaps(after).base_twist(q, q_dot, _to_base(R, h_after))
+    # the end effector's twist after (world axes), which the target takes
+    pin.forwardKinematics(model, data, qp, robot.pin_v(q_dot, twist_after))
+    v_ee = pin.getFrameVelocity(
+        model, data, model.getFrameId(robot.mission.ee_frame), pin.LOCAL_WORLD_ALIGNED
+    )
+    arm = c_t - ee.translation
+    dp = m_t * (v_ee.linear + np.cross(v_ee.angular, arm) - v_t)
+    dL = I_t @ (v_ee.angular - w_t)
+    impulse = _to_base(R, np.r_[-dp, -dL + np.cross(arm, -dp)])
+    base_impulse = maps.force_map(q, impulse)
+    base_jump = model.inertias[1].matrix() @ (twist_after - twist_before)
+    return CaptureState(
+        h_before,
+        h_after,
+        h_target,
+        twist_before,
+        twist_after,
+        c_t,
+        impulse,
+        base_impulse,
+        base_jump,
+    )
