@@ -42,7 +42,7 @@ def _write(path: Path, text: str) -> Path:
 
 
 def _fast_paper(tmp_path: Path, extra: str = "") -> Path:
-    text = (EXAMPLES / "paper_capture.yaml").read_text()
+    text = (EXAMPLES / "capture_task.yaml").read_text()
     text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]").replace(
         "duration: 10.0", "duration: 3.0"
     )
@@ -93,7 +93,7 @@ def test_validate_both_examples(capsys):
         main(
             [
                 "validate",
-                str(EXAMPLES / "paper_capture.yaml"),
+                str(EXAMPLES / "capture_task.yaml"),
                 str(EXAMPLES / "baxter_floating.yaml"),
             ]
         )
@@ -101,7 +101,7 @@ def test_validate_both_examples(capsys):
     )
     err = capsys.readouterr().err
     assert re.search(
-        r"paper_capture\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
+        r"capture_task\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
         r"mission ptp, 10 s\)",
         err,
     )
@@ -118,10 +118,10 @@ def test_inspect_without_and_with_a_task(capsys):
     assert main(["inspect"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("robot paper_robot") and "coupling at q = [0, 0, 0, 0, 0, 0]" in out
-    assert main(["inspect", str(EXAMPLES / "paper_capture.yaml")]) == 0
+    assert main(["inspect", str(EXAMPLES / "capture_task.yaml")]) == 0
     out = capsys.readouterr().out
     assert (
-        out.startswith("task paper_capture (")
+        out.startswith("task capture_task (")
         and "coupling at q = [0, 0.3, -0.6, 0, 0.5, -1]" in out
     )
 
@@ -174,7 +174,7 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     m = _metrics(out)
     assert m["task"] == {
         "file": str(task),
-        "name": "paper_capture",
+        "name": "capture_task",
         "sha256": hashlib.sha256(task.read_bytes()).hexdigest(),
     }
     assert set(m["versions"]) >= {"balance-opt", "pinocchio", "casadi", "ipopt"}
@@ -232,7 +232,7 @@ def test_compare_baxter(tmp_path, capsys):
 
 # ----------------------------------------------------------------------------------- bad input
 def _paper_text() -> str:
-    return (EXAMPLES / "paper_capture.yaml").read_text()
+    return (EXAMPLES / "capture_task.yaml").read_text()
 
 
 def _sub(old: str, new: str):

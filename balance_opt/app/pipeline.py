@@ -6,8 +6,8 @@ The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API sha
     from balance_opt.io.task import load_task
     from balance_opt.app.pipeline import run_task
 
-    run = run_task(load_task("examples/paper_capture.yaml"), methods=("analytic", "optimal"),
-                   simulate=True, output_dir="results/paper_capture")
+    run = run_task(load_task("examples/capture_task.yaml"), methods=("analytic", "optimal"),
+                   simulate=True, output_dir="results/capture_task")
     run.results["optimal"].max_drift
 
 A solver failure does not stop the run: the failing method's best iterate is kept, written and

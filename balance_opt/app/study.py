@@ -32,7 +32,7 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import Scenario, paper_capture
+from balance_opt.app.scenarios import Scenario, capture_task
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
@@ -229,7 +229,7 @@ def paper_study(
     sim_opts = simulation or SimulationOptions(output_dt=STUDY_OUTPUT_STEP)
     law = law or BalanceLawOptions()
     planner = planner or PlannerOptions()
-    scenario = paper_capture()
+    scenario = capture_task()
     robot, mission = scenario.robot, scenario.mission
 
     # Fig. 2: the mission arm alone, the balance arm held at its start
