@@ -420,9 +420,10 @@ def paper_figures(
     force: bool = False,
 ) -> list[Path]:
     """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
-    ``output_dir``, all-or-nothing as :func:`run_task` writes; the options of the analytic law,
-    the planner and the simulator come from ``task`` when given (its robot and mission must be
-    the paper's: the study is that scenario).
+    ``output_dir``, all-or-nothing as :func:`run_task` writes: by default Figs. 2-5 of the
+    paper's law on ``paper_fig5`` and the law against the optimal plan on ``capture_task``,
+    each in a subfolder; with ``task``, Figs. 2-5 of that task (its robot, mission, balance
+    start and options), both methods, in a subfolder of its name.
 
     Raises:
         InputError: the output folder cannot be used (see :func:`run_task`), checked first.
@@ -433,7 +434,12 @@ def paper_figures(
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
     kwargs = {}
     if task is not None:
+        from balance_opt.app.scenarios import Scenario
+
         kwargs = {
+            "scenario": Scenario(
+                task.robot, task.mission, task.q_B0, task.name, task.spec.analytic.law
+            ),
             "law": task.spec.analytic.law,
             "planner": task.planner_options(solver_options),
             "simulation": task.spec.simulation,
@@ -445,4 +451,5 @@ def paper_figures(
     with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
         study = paper_study(folder.staging, **kwargs)
         files = [p for paths in study.figures.values() for p in paths]
-        return [folder.final(p) for p in (*files, folder.staging / "study.json")]
+        jsons = [folder.staging / name / "study.json" for name in study.parts]
+        return [folder.final(p) for p in (*files, *jsons, folder.staging / "study.json")]

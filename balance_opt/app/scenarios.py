@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from balance_opt.model.library import paper_robot
+from balance_opt.analytic.options import BalanceLawOptions
+from balance_opt.model.library import paper_robot, paper_robot_fig5
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.trajectories import PointToPoint
 
@@ -34,14 +35,23 @@ CAPTURE_BALANCE_START = (0.0, 0.5, -1.0)
 #: Balance joint acceleration limit [rad/s^2] (URDF carries none).
 CAPTURE_BALANCE_ACCELERATION = 2.0
 
+#: The Fig. 5 study's mission and balance start [rad, s] (``docs/paper_fig5_study.md``).
+FIG5_MISSION_START = (0.0, 0.3, -0.6)
+FIG5_MISSION_GOAL = (1.2, 0.9, -1.6)
+FIG5_DURATION = 10.0
+FIG5_BALANCE_START = (0.0, 0.0, 0.0)
+
 
 @dataclass(frozen=True)
 class Scenario:
-    """A robot, a mission trajectory and the balance arm's start."""
+    """A robot, a mission trajectory and the balance arm's start; a name and the settings of
+    the analytic law it is studied with (``None``: the defaults)."""
 
     robot: FloatingRobot
     mission: PointToPoint
     q_B0: np.ndarray
+    name: str = "scenario"
+    law: BalanceLawOptions | None = None
 
     @property
     def q0(self) -> np.ndarray:
@@ -59,4 +69,18 @@ def capture_task() -> Scenario:
     }
     robot = paper_robot(limits=limits)
     mission = PointToPoint(CAPTURE_MISSION_START, CAPTURE_MISSION_GOAL, CAPTURE_DURATION)
-    return Scenario(robot, mission, np.array(CAPTURE_BALANCE_START))
+    return Scenario(robot, mission, np.array(CAPTURE_BALANCE_START), "capture_task")
+
+
+def paper_fig5() -> Scenario:
+    """The Fig. 5 study's choice (``docs/paper_fig5_study.md``): the reading
+    :data:`~balance_opt.model.table1.FIG5_READING`, its balance start and mission, balance joint
+    accelerations limited to 2 rad/s^2, and the exact law (no damping)."""
+    limits = {
+        j: {"acceleration": CAPTURE_BALANCE_ACCELERATION}
+        for j in ("balance_joint1", "balance_joint2", "balance_joint3")
+    }
+    robot = paper_robot_fig5(limits=limits)
+    mission = PointToPoint(FIG5_MISSION_START, FIG5_MISSION_GOAL, FIG5_DURATION)
+    law = BalanceLawOptions(damping_threshold=0.0)
+    return Scenario(robot, mission, np.array(FIG5_BALANCE_START), "paper_fig5", law)
