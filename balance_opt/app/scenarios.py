@@ -37,9 +37,9 @@ CAPTURE_BALANCE_ACCELERATION = 2.0
 
 #: The Fig. 5 study's mission and balance start [rad, s] (``docs/paper_fig5_study.md``).
 FIG5_MISSION_START = (0.0, 0.3, -0.6)
-FIG5_MISSION_GOAL = (1.2, 0.9, -1.6)
+FIG5_MISSION_GOAL = (0.8, 0.7, -1.2)
 FIG5_DURATION = 10.0
-FIG5_BALANCE_START = (0.0, 0.0, 0.0)
+FIG5_BALANCE_START = (-0.36, 0.46, -0.41)
 
 
 @dataclass(frozen=True)

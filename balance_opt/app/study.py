@@ -123,6 +123,7 @@ def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
     return {
         "max_drift_rad": float(sim.angle.max()),
         "final_drift_rad": float(sim.angle[-1]),
+        "peak_base_rate_rad_s": float(np.linalg.norm(sim.omega, axis=1).max()),
         "max_tracking_error_rad": sim.max_tracking_error,
         "max_relative_momentum_residual": float(sim.momentum_residual.max()),
         "peak_torque_on_base_Nm": _torque_peaks(sim),

@@ -59,8 +59,9 @@ class Table1Reading:
     balance: ArmReading
 
 
-_Z = (0.0, 0.0, 1.0)
+_X = (1.0, 0.0, 0.0)
 _Y = (0.0, 1.0, 0.0)
+_Z = (0.0, 0.0, 1.0)
 
 #: The shipped reading (``urdf/paper_robot.urdf``): yaw-pitch-pitch arms on the top face.
 SHIPPED_READING = Table1Reading(
@@ -69,11 +70,15 @@ SHIPPED_READING = Table1Reading(
     ArmReading((-0.25, 0.0, 0.5), (0.0, 0.0, pi), (_Z, _Z, _Z)),
 )
 
-#: The reading chosen by the Fig. 5 study (``docs/paper_fig5_study.md``).
+#: The reading chosen by the Fig. 5 study (``docs/paper_fig5_study.md``): each arm on the
+#: centre of a side face, link 1 pointing out along the face normal; joint 1 turns about link 1's
+#: x (transverse: the base's vertical), joint 2 about link 2's z (as shipped), joint 3 about
+#: link 3's y (transverse, across joint 2's axis). The balance arm is the mission arm turned
+#: half a turn about the base's y axis.
 FIG5_READING = Table1Reading(
     "paper_robot_fig5",
-    ArmReading((0.25, 0.0, 0.5), (0.0, 0.0, 0.0), (_Z, _Z, _Y)),
-    ArmReading((-0.25, 0.0, 0.5), (0.0, 0.0, pi), (_Z, _Z, _Y)),
+    ArmReading((0.5, 0.0, 0.0), (0.0, pi / 2, 0.0), (_X, _Z, _Y)),
+    ArmReading((-0.5, 0.0, 0.0), (0.0, -pi / 2, 0.0), (_X, _Z, _Y)),
 )
 
 
