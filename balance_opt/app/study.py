@@ -231,9 +231,8 @@ def scenario_study(
     output_dir = Path(output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
     sim_opts = simulation or SimulationOptions(output_dt=STUDY_OUTPUT_STEP)
-    law = law or BalanceLawOptions()
+    law = law or scenario.law or BalanceLawOptions()
     planner = planner or PlannerOptions()
-    scenario = capture_task()
     robot, mission = scenario.robot, scenario.mission
 
     # Fig. 2: the mission arm alone, the balance arm held at its start
