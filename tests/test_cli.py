@@ -438,11 +438,14 @@ def test_paper_figures_with_fast_options(tmp_path):
         "fig4_reaction_torque",
         "fig5_attitude_balanced",
     )
-    assert {p.name for p in out.iterdir()} == {
+    # --task: that task alone (its robot, mission and options), in a folder of its name
+    assert {p.name for p in out.iterdir()} == {"capture_task", "study.json"}
+    assert {p.name for p in (out / "capture_task").iterdir()} == {
         f"{s}.{e}" for s in stems for e in ("png", "pdf")
     } | {"study.json"}
     study = json.loads((out / "study.json").read_text())
-    assert set(study["plans"]) == {"analytic", "optimal"}
+    assert set(study) == {"capture_task"}
+    assert set(study["capture_task"]["plans"]) == {"analytic", "optimal"}
 
 
 @pytest.mark.slow
