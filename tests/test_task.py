@@ -235,7 +235,7 @@ BAD_TASKS = [
         "unknown shipped URDF",
         [("shipped: paper_robot.urdf", "shipped: nope.urdf")],
         "shipped: nope",
-        "robot.shipped: no shipped URDF 'nope.urdf'; available: paper_robot.urdf",
+        "robot.shipped: no shipped URDF 'nope.urdf'; available: paper_robot.urdf, paper_robot_fig5.urdf",
         TaskFileError,
     ),
     (
