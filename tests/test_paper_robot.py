@@ -368,3 +368,18 @@ def test_paper_law_holds_the_balance_arms_limits_on_fig5(fig5):
     assert np.abs(spline(law.t, 1)).max() <= RATE_LIMIT
     assert np.abs(spline(law.t, 2)).max() <= ACCELERATION_LIMIT
     assert law.violations == []
+
+
+def test_fig5_reading_at_home_is_as_its_file_says():
+    """urdf/paper_robot_fig5.md: mounts, axes and the direction of the links at q = 0."""
+    robot = paper_robot_fig5()
+    kin = _kinematics(robot, np.zeros(robot.n))
+    expected = {  # joint 1 origin, axes of joints 1-3, end effector (base frame, q = 0)
+        "mission": ((0.5, 0, 0), [(0, 0, -1), (0, -1, 0), (1, 0, 0)], (1.0, 0, -1.0)),
+        "balance": ((-0.5, 0, 0), [(0, 0, 1), (0, -1, 0), (-1, 0, 0)], (-1.0, 0, 1.0)),
+    }
+    for arm, (origin, axes, ee) in expected.items():
+        origins, got_axes, got_ee, _ = kin[arm]
+        np.testing.assert_allclose(origins[0], origin, rtol=0, atol=EXACT_ATOL)
+        np.testing.assert_allclose(got_axes, axes, rtol=0, atol=EXACT_ATOL, err_msg=arm)
+        np.testing.assert_allclose(got_ee, ee, rtol=0, atol=EXACT_ATOL, err_msg=arm)
