@@ -19,7 +19,7 @@ The notebook API is at the top level::
 
     import balance_opt as bo
 
-    task = bo.load_task("examples/paper_capture.yaml")
+    task = bo.load_task("examples/capture_task.yaml")
     analytic = bo.plan_analytic(task)                   # a BalanceResult
     optimal = bo.plan_optimal(task, warm_start=analytic)
     run = bo.run_task(task, plans={"analytic": analytic, "optimal": optimal})

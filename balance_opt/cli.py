@@ -9,7 +9,8 @@ Subcommands:
   figures and the HTML report;
 * ``simulate TASK``: the same, then each plan through forward dynamics;
 * ``compare TASK``: both methods, simulated, and the comparison report;
-* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
+* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot (``paper_fig5`` and
+  ``capture_task``);
 * ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
   Dask cluster;
 * ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
@@ -391,8 +392,9 @@ def _add_run_commands(sub) -> None:
     backend_option(p)
     p.add_argument(
         "--task",
-        help="task file whose analytic, optimal and simulation options the study uses "
-        "(its robot and mission are ignored: the study is the paper's scenario)",
+        help="study this task instead (its robot, mission, balance start and options; both "
+        "methods); default: the paper's law on examples/paper_fig5.yaml's scenario and the "
+        "law against the optimal plan on examples/capture_task.yaml's",
     )
     p.set_defaults(run=_cmd_paper_figures)
 

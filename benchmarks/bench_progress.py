@@ -18,7 +18,7 @@ import statistics
 import time
 
 from balance_opt import progress
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
@@ -47,7 +47,7 @@ def main(argv=None) -> None:
         spent[0] += time.perf_counter() - start
 
     progress.iteration = timed_iteration  # the callback looks it up at each call
-    scenario = paper_capture()
+    scenario = capture_task()
     model = PlannerModel(scenario.robot)
     print(f"{'N':>5} {'iter':>5} " + " ".join(f"{m + ' [s]':>14}" for m in MODES), end="")
     print(f" {'in progress per iter [ms]':>26} {'share [%]':>10}")

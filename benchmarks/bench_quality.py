@@ -1,4 +1,4 @@
-"""Quality of the optimal plan on the paper's capture task (issue 11): the peak and final drift
+"""Quality of the optimal plan on the capture task (issue 11): the peak and final drift
 of each objective at 10 s (as shipped) and 20 s (``mission.duration: 20``), against the
 reference values of the issue, with their solve times.
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -35,7 +35,7 @@ def main(argv=None) -> None:
     parser.add_argument("--intervals", type=int, default=100)
     parser.add_argument("--durations", type=float, nargs="+", default=[10.0, 20.0])
     args = parser.parse_args(argv)
-    capture = paper_capture()
+    capture = capture_task()
     model = PlannerModel(capture.robot)
     for extra in OBJECTIVES.values():  # build every structure before timing
         options = PlannerOptions(intervals=args.intervals, **extra)

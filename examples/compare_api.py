@@ -1,6 +1,6 @@
 """The analytic law and the optimal planner compared through the Python API: the same as
 
-    balance-opt compare examples/paper_capture.yaml --output results/compare_api
+    balance-opt compare examples/capture_task.yaml --output results/compare_api
 
 Each plan is computed once: the steps below, then ``run_task`` writes every output from them.
 Runs headless (figures are written, not shown). Usage:
@@ -20,7 +20,7 @@ HERE = Path(__file__).resolve().parent
 
 def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    task_file = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "paper_capture.yaml"
+    task_file = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "capture_task.yaml"
     output = Path(sys.argv[2]) if len(sys.argv) > 2 else Path("results") / "compare_api"
 
     # 1. A task file, validated at the boundary: robot, arms, mission, limits, options.

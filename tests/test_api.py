@@ -36,7 +36,7 @@ API = (
 @pytest.fixture(scope="module")
 def task(tmp_path_factory):
     """The capture task made short and coarse (3 s, outputs every 0.05 s)."""
-    text = (EXAMPLES / "paper_capture.yaml").read_text()
+    text = (EXAMPLES / "capture_task.yaml").read_text()
     text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]")
     text = text.replace("duration: 10.0", "duration: 3.0")
     path = tmp_path_factory.mktemp("api") / "fast.yaml"
@@ -159,7 +159,7 @@ def test_repr_is_short_and_says_what_matters():
 
 def test_repr_of_a_task_is_one_line(task):
     assert repr(task) == (
-        f"Task(name='paper_capture', source={task.source!r}, robot paper_robot (mission 3 "
+        f"Task(name='capture_task', source={task.source!r}, robot paper_robot (mission 3 "
         "joints; balance 3 joints), mission ptp 3 s)"
     )
 
@@ -236,7 +236,7 @@ def test_run_task_reuses_the_plans_it_is_given(task, plans, monkeypatch):
     assert run.results["mission-only"] is plans["mission-only"]
     assert run.ok
     text = repr(run)
-    assert text.split("\n")[0] == "TaskRun(task='paper_capture', ok=True)"
+    assert text.split("\n")[0] == "TaskRun(task='capture_task', ok=True)"
     assert len(text.split("\n")) == 3 and len(text) < 400
 
 

@@ -201,7 +201,7 @@ def test_optimal_plan_after_its_cached_kernels_were_truncated(tmp_path):
     """The reported failure: a half-truncated kernel library made every later optimal plan die
     with a bus error (exit 135). Now the plan rebuilds it and succeeds."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}  # first plan: the session's cache (warm)
-    task = str(ROOT / "examples" / "paper_capture.yaml")
+    task = str(ROOT / "examples" / "capture_task.yaml")
 
     def plan(out: str) -> subprocess.CompletedProcess:
         args = [sys.executable, "-m", "balance_opt.cli", "plan", task, "-m", "optimal"]

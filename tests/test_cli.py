@@ -43,7 +43,7 @@ def _write(path: Path, text: str) -> Path:
 
 
 def _fast_paper(tmp_path: Path, extra: str = "") -> Path:
-    text = (EXAMPLES / "paper_capture.yaml").read_text()
+    text = (EXAMPLES / "capture_task.yaml").read_text()
     text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]").replace(
         "duration: 10.0", "duration: 3.0"
     )
@@ -94,7 +94,7 @@ def test_validate_both_examples(capsys):
         main(
             [
                 "validate",
-                str(EXAMPLES / "paper_capture.yaml"),
+                str(EXAMPLES / "capture_task.yaml"),
                 str(EXAMPLES / "baxter_floating.yaml"),
             ]
         )
@@ -102,7 +102,7 @@ def test_validate_both_examples(capsys):
     )
     err = capsys.readouterr().err
     assert re.search(
-        r"paper_capture\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
+        r"capture_task\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
         r"mission ptp, 10 s\)",
         err,
     )
@@ -119,10 +119,10 @@ def test_inspect_without_and_with_a_task(capsys):
     assert main(["inspect"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("robot paper_robot") and "coupling at q = [0, 0, 0, 0, 0, 0]" in out
-    assert main(["inspect", str(EXAMPLES / "paper_capture.yaml")]) == 0
+    assert main(["inspect", str(EXAMPLES / "capture_task.yaml")]) == 0
     out = capsys.readouterr().out
     assert (
-        out.startswith("task paper_capture (")
+        out.startswith("task capture_task (")
         and "coupling at q = [0, 0.3, -0.6, 0, 0.5, -1]" in out
     )
 
@@ -175,7 +175,7 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     m = _metrics(out)
     assert m["task"] == {
         "file": str(task),
-        "name": "paper_capture",
+        "name": "capture_task",
         "sha256": hashlib.sha256(task.read_bytes()).hexdigest(),
     }
     assert set(m["versions"]) >= {"balance-opt", "pinocchio", "casadi", "ipopt"}
@@ -233,7 +233,7 @@ def test_compare_baxter(tmp_path, capsys):
 
 # ----------------------------------------------------------------------------------- bad input
 def _paper_text() -> str:
-    return (EXAMPLES / "paper_capture.yaml").read_text()
+    return (EXAMPLES / "capture_task.yaml").read_text()
 
 
 def _sub(old: str, new: str):
@@ -439,11 +439,14 @@ def test_paper_figures_with_fast_options(tmp_path):
         "fig4_reaction_torque",
         "fig5_attitude_balanced",
     )
-    assert {p.name for p in out.iterdir()} == {
+    # --task: that task alone (its robot, mission and options), in a folder of its name
+    assert {p.name for p in out.iterdir()} == {"capture_task", "study.json"}
+    assert {p.name for p in (out / "capture_task").iterdir()} == {
         f"{s}.{e}" for s in stems for e in ("png", "pdf")
     } | {"study.json"}
     study = json.loads((out / "study.json").read_text())
-    assert set(study["plans"]) == {"analytic", "optimal"}
+    assert set(study) == {"capture_task"}
+    assert set(study["capture_task"]["plans"]) == {"analytic", "optimal"}
 
 
 @pytest.mark.slow
@@ -558,7 +561,7 @@ def test_the_default_output_folder_is_the_one_the_help_states(
     assert f"output directory (default: {default})" in " ".join(capsys.readouterr().out.split())
     task = _fast_paper(tmp_path)
     monkeypatch.chdir(tmp_path)
-    folder = Path(default.replace("<task name>", "paper_capture"))
+    folder = Path(default.replace("<task name>", "capture_task"))
     folder.mkdir(parents=True)
     (folder / "old.txt").write_text("old")
     argv = [str(task) if a == "TASK" else a for a in command]
@@ -587,7 +590,7 @@ def test_backend_is_taken_by_sweep_and_paper_figures(tmp_path, monkeypatch):
     monkeypatch.setattr(pipeline, "paper_figures", fake_figures)
     sweep = _write(
         tmp_path / "s.yaml",
-        f"task: {EXAMPLES / 'paper_capture.yaml'}\nmethods: [optimal]\n"
+        f"task: {EXAMPLES / 'capture_task.yaml'}\nmethods: [optimal]\n"
         "grid: {mission.duration: [2.0, 3.0]}\n",
     )
     with pytest.raises(Stop):

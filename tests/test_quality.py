@@ -1,4 +1,4 @@
-"""The quality of the optimal plan (issue 11): the peak objective on the paper capture task,
+"""The quality of the optimal plan (issue 11): the peak objective on the capture task,
 rest at both ends, path attitude bounds reached through the peak problem, torque limits held on
 the whole re-simulated motion, multi-start.
 
@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.model.library import paper_robot
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -31,7 +31,7 @@ TORQUE_EXCESS = 2e-3
 
 @pytest.fixture(scope="module")
 def capture():
-    return paper_capture()
+    return capture_task()
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,10 @@ The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API sha
 
     import balance_opt as bo
 
-    task = bo.load_task("examples/paper_capture.yaml")
+    task = bo.load_task("examples/capture_task.yaml")
     analytic = bo.plan_analytic(task)
     run = bo.run_task(task, plans={"analytic": analytic}, simulate=True,
-                      output_dir="results/paper_capture")   # plans only the optimal method
+                      output_dir="results/capture_task")   # plans only the optimal method
     run.results["optimal"].max_drift
 
 A solver failure does not stop the run: the failing method's best iterate is kept, written and
@@ -569,10 +569,11 @@ def paper_figures(
     backend: str | None = None,
 ) -> list[Path]:
     """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
-    ``output_dir``, all-or-nothing as :func:`run_task` writes; the options of the analytic law,
-    the planner and the simulator come from ``task`` when given (its robot and mission must be
-    the paper's: the study is that scenario). ``backend`` (the optimal planner's symbolic
-    backend) defaults to the task's ``robot.backend``, else ``"auto"``.
+    ``output_dir``, all-or-nothing as :func:`run_task` writes: by default Figs. 2-5 of the
+    paper's law on ``paper_fig5`` and the law against the optimal plan on ``capture_task``,
+    each in a subfolder; with ``task``, Figs. 2-5 of that task (its robot, mission, balance
+    start and options), both methods, in a subfolder of its name. ``backend`` (the optimal
+    planner's symbolic backend) defaults to the task's ``robot.backend``, else ``"auto"``.
 
     Raises:
         InputError: the output folder cannot be used (see :func:`run_task`), checked first.
@@ -583,7 +584,12 @@ def paper_figures(
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
     kwargs = {}
     if task is not None:
+        from balance_opt.app.scenarios import Scenario
+
         kwargs = {
+            "scenario": Scenario(
+                task.robot, task.mission, task.q_B0, task.name, task.spec.analytic.law
+            ),
             "law": task.spec.analytic.law,
             "planner": task.planner_options(solver_options),
             "simulation": task.spec.simulation,
@@ -597,4 +603,5 @@ def paper_figures(
             backend = task.spec.robot.backend if task is not None else "auto"
         study = paper_study(folder.staging, backend=backend, **kwargs)
         files = [p for paths in study.figures.values() for p in paths]
-        return [folder.final(p) for p in (*files, folder.staging / "study.json")]
+        jsons = [folder.staging / name / "study.json" for name in study.parts]
+        return [folder.final(p) for p in (*files, *jsons, folder.staging / "study.json")]

@@ -22,7 +22,7 @@ CONTROLS = ("acceleration", "jerk")
 #: Ipopt return statuses that count as a solution.
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: Default Ipopt options (``PlannerOptions.ipopt`` entries override them). Ipopt's monotone
-#: barrier update (its default) took as many iterations as the adaptive one on the paper task
+#: barrier update (its default) took as many iterations as the adaptive one on the capture task
 #: and less time per iteration; MUMPS's workspace at 100 % over its estimate (Ipopt's default
 #: 1000 %) saves the system time of allocating it at every factorisation (Ipopt enlarges it when
 #: MUMPS asks).
@@ -35,7 +35,7 @@ DEFAULT_IPOPT = {
 }
 #: Ipopt options of the peak objective over :data:`DEFAULT_IPOPT`. The peak problem is started
 #: from the integral plan: a small initial barrier parameter keeps Ipopt near that plan, in a
-#: basin whose peak on the paper task is 0.0211 rad; from the default 0.1 it wandered off to a
+#: basin whose peak on the capture task is 0.0211 rad; from the default 0.1 it wandered off to a
 #: plan of 0.0242 rad, as did the rest, analytic and random starts.
 PEAK_IPOPT = {"mu_init": 1e-4}
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
@@ -86,7 +86,7 @@ class CostWeights:
         0.0, minimum=0.0, doc="pull toward rest_configuration, integral of |q_B - q_rest|^2"
     )
     # Not the paper's (which only asks omega_b = 0), but what keeps the largest drift small once
-    # the limits make omega_b = 0 impossible: on the paper task it cuts the re-simulated maximum
+    # the limits make omega_b = 0 impossible: on the capture task it cuts the re-simulated maximum
     # drift by 30 % against attitude = 0; a terminal weight 10 times larger would buy a smaller
     # final drift with a larger peak, and on a short fast move a peak above Phase I's.
     attitude: float = setting(
@@ -94,7 +94,7 @@ class CostWeights:
     )
 
     # A peak 1 % lower is worth 2e-4 * peak^2 * weight: at 0.02 rad and 1e5, 8e-3, three times
-    # the regularisers' change between the 0.0207 and 0.0306 rad plans of the paper task.
+    # the regularisers' change between the 0.0207 and 0.0306 rad plans of the capture task.
     peak: float = setting(
         1e5, minimum=0.0, doc="largest attitude error, max |log R|^2 (peak objective only)"
     )
@@ -191,7 +191,7 @@ class PlannerOptions:
         doc="hard bound on the attitude error |log R(t)| along the path",
     )
     # The arm is at rest before the plan: starting with an acceleration is a torque step (on
-    # the paper task -5.6 N m on the base); 'rest' costs the 10 s plan's peak about 1 %.
+    # the capture task -5.6 N m on the base); 'rest' costs the 10 s plan's peak about 1 %.
     start: Literal[START_CONDITIONS] = setting(
         START_CONDITIONS[0],
         section="constraints",

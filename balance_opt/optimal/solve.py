@@ -399,7 +399,7 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     The balance joints follow the collocation polynomial, the attitude is integrated by
     :func:`balance_opt.motion.replay.replay` (numeric Pinocchio, RK4 on the unit quaternion,
     one step per grid interval, so that no step straddles a node, where the joint motion's
-    higher derivatives jump; on the paper task at the default step within 1e-10 rad of a 20
+    higher derivatives jump; on the capture task at the default step within 1e-10 rad of a 20
     times finer step); limit violations are those of the fine grid (``result.violations``). ``info["resimulation"]`` reports the collocation defects (NLP
     attitude at the nodes against the re-simulated one; joint polynomial at each interval's end
     against the next node), the momentum residual, the drift, the limit violations and, as
