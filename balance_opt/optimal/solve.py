@@ -31,14 +31,15 @@ from balance_opt.motion.so3 import (
     rotation_angle,
 )
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_SCALE, attitude_scale
+from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
 from balance_opt.optimal.options import SUCCESS_STATUSES, PlannerOptions
 from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
-from balance_opt.optimal.refine import multi_start, solve_with_bounds
+from balance_opt.optimal.refine import solve_with_bounds
+from balance_opt.optimal.starts import multi_start
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -79,15 +80,20 @@ class BalanceNLP(BalanceProblem):
         """Set the parameter vector and the bounds from the problem's (possibly tightened)
         bounds: ``path_bound``, ``terminal_bound``, ``torque_factor``."""
         weights = self.options.weights
-        peak = self.structure.key.objective == "peak"
+        peak = self.structure.key.objective in ("peak", "smooth")
+        smooth = self.structure.key.objective == "smooth"
+        c = self.peak_reference
         self.parameters = self.structure.parameters.pack(
             NLPParameters(
                 h=self.h,
                 terminal_weight=weights.peak_terminal if peak else weights.terminal,
-                running_weights=weights.running(self.options.objective),
+                running_weights=weights.running("peak" if peak else "integral"),
                 path_scale=attitude_scale(self.path_bound),
                 terminal_scale=attitude_scale(self.terminal_bound),
-                peak_weight=weights.peak if peak else 0.0,
+                peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
+                # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
+                smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
+                smooth_scale=1.0 / c**2 if smooth else 1.0,
                 q_rest=self.q_rest,
                 mission=self.mission_samples,
             )
@@ -99,6 +105,13 @@ class BalanceNLP(BalanceProblem):
         """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
         return build_balance_nlp(self.model, self.mission, self.q_B0, options, self.robot)
+
+    def stage(self, name: str) -> BalanceNLP:
+        """The same problem as an inner stage of the peak objective (``"smooth"``: the
+        smooth peak; :func:`~balance_opt.optimal.refine.plan_peak`)."""
+        return build_balance_nlp(
+            self.model, self.mission, self.q_B0, self.options, self.robot, stage=name
+        )
 
     def solution_of(self, result: BalanceResult) -> Solution:
         """The NLP solution a result of this problem's structure was re-simulated from."""
@@ -311,6 +324,7 @@ def build_balance_nlp(
     q_B0,
     options: PlannerOptions | None = None,
     robot: FloatingRobot | None = None,
+    stage: str | None = None,
 ) -> BalanceNLP:
     """Build the balance NLP of a mission.
 
@@ -327,6 +341,8 @@ def build_balance_nlp(
         robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
             may change the limits; the model and its compiled NLPs stay valid); default: the
             model's robot.
+        stage: ``"smooth"`` for the smooth peak stage of the peak objective (a structure no
+            option names; :mod:`balance_opt.optimal.refine`), else the options' objective.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
@@ -341,6 +357,8 @@ def build_balance_nlp(
     robot = model.robot if robot is None else robot
     q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
     key = StructureKey.of(robot.limits.subset(robot.balance_indices), options)
+    if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
+        key = dataclasses.replace(key, objective=stage, path_attitude_bound=False)
     built_now = key not in model.nlp_cache
     if built_now:
         model.nlp_cache[key] = build_structure(model, key, options)
