@@ -24,7 +24,7 @@ Those are counted per interval from the problem's structure (no CasADi needed):
 A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
 the peak objective is solved in stages (the integral objective's plan, the smooth peak, the
 epigraph), and a path attitude bound is approached through the peak problem without it; the
-estimate adds them up (the smooth peak's NLP counted as the epigraph's).
+estimate adds them up.
 
 Memory and time per non-zero were measured (peak resident memory with ``getrusage``, wall times)
 on the paper robot (3 balance joints, integral objective: 184, 231 and 298 MB at N = 100, 400,
@@ -156,8 +156,8 @@ def _built(options) -> list:
         for o in reversed(built)
     }
     out = list(shapes.values())
-    # the peak plan's smooth stage: the peak problem's variables, its rows but the epigraph's
-    out += [o for o in out if o.objective == "peak"]
+    # the peak plan's smooth stage: the peak problem without the epigraph (the integral's size)
+    out += [dataclasses.replace(o, objective="integral") for o in out if o.objective == "peak"]
     return out
 
 

@@ -374,8 +374,8 @@ def _ipopt_solver(
     y = cs.vec(kernels.value.map(x.n_points)(x.Z, *x.data))
     f, g = outer.value(x.w, y, x.p)
     ipopt = dict(DEFAULT_IPOPT)
-    ipopt.update(stage_ipopt)
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
+    ipopt.update(stage_ipopt)
     ipopt.update(options.ipopt)
     return cs.nlpsol(
         "balance_nlp",

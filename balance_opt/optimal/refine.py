@@ -28,6 +28,7 @@ import numpy as np
 
 from balance_opt.errors import SolverError
 from balance_opt.optimal.constraints import TorqueLimit
+from balance_opt.optimal.options import SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError
 from balance_opt.result import BalanceResult
 
@@ -85,12 +86,13 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
 
 
 def plan_peak(nlp, guess) -> BalanceResult:
-    """Solve a peak problem in stages (see ``PEAK_STAGES``), each warm started from the last:
-    the integral objective's plan (from a named guess or a result), the smooth peak (the
-    ``smooth`` stage: the drift's L_16 norm, without the epigraph's inequality rows, priced
-    like the peak at the start's peak ``c``), then the exact epigraph. From the integral plan
-    of the paper task the epigraph alone took 579 iterations; from the smooth peak's plan 40. Should the epigraph stage fail, the smooth peak's plan is kept
-    (with a warning). ``info["stages"]`` reports each stage's iterations and drifts."""
+    """Solve a peak problem in stages, each warm started from the last: the integral
+    objective's plan, the smooth peak (the ``smooth`` stage: the drift's L_16 norm, without
+    the epigraph's inequality rows, priced like the peak at the start's peak ``c``), then the
+    exact epigraph. From the integral plan of the paper task the epigraph alone took 579
+    Ipopt iterations; from the smooth peak's plan about 40. The inner stages are not
+    re-simulated. Should the epigraph stage fail, the smooth peak's plan is kept (with a
+    warning). ``info["stages"]`` reports each stage's status, iterations and drifts."""
     stages = []
     if isinstance(guess, np.ndarray):  # a decision vector of this problem
         guess = nlp.unpack(nlp.initial_guess(guess))
@@ -101,46 +103,41 @@ def plan_peak(nlp, guess) -> BalanceResult:
     smooth = nlp.stage("smooth")
     # its reference drift: the start's peak (the smooth term then weighs like the peak's)
     X, _ = smooth.unpack(smooth.initial_guess(guess)).points()
-    smooth.peak_reference = max(float(np.sqrt(np.sum(X[:3] ** 2, axis=0)).max()), 1e-4)
+    smooth.peak_reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
     smooth.update_bounds()
-    guess, fallback = _stage(smooth, guess, "smooth", stages, keep=True)
+    guess = smooth_plan = _stage(smooth, guess, "smooth", stages)
     try:
         result = nlp.solve_once(guess)
     except SolverError as exc:
-        if fallback is None:
+        if stages[-1]["status"] not in SUCCESS_STATUSES:
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
         stages.append({"stage": "peak", "status": str(exc.status)})
-        result = fallback
+        result = smooth.solve_once(smooth_plan)
     else:
-        stages.append(_stage_report("peak", result))
+        stages.append(
+            {
+                "stage": "peak",
+                "status": result.info["status"],
+                "iterations": result.info["iterations"],
+                "solve_s": result.info["wall_time_s"]["solve"],
+                "max_drift_rad": result.max_drift,
+                "final_drift_rad": result.final_drift,
+            }
+        )
     result.info["stages"] = stages
     return result
 
 
-def _stage(nlp, guess, name: str, stages: list, keep: bool = False):
-    """Solve one stage of :func:`plan_peak` from ``guess``; returns the next stage's guess (the
-    solution, or ``guess`` itself when the stage failed), and with ``keep`` also the result."""
-    try:
-        result = nlp.solve_once(guess)
-    except SolverError as exc:
-        log.info("%s stage failed (%s); the next stage starts from its guess", name, exc)
-        stages.append({"stage": name, "status": str(exc.status)})
-        return (guess, None) if keep else guess
-    stages.append(_stage_report(name, result))
-    following = nlp.solution_of(result)
-    return (following, result) if keep else following
-
-
-def _stage_report(name: str, result: BalanceResult) -> dict:
-    return {
-        "stage": name,
-        "status": result.info["status"],
-        "iterations": result.info["iterations"],
-        "solve_s": result.info["wall_time_s"]["solve"],
-        "max_drift_rad": result.max_drift,
-        "final_drift_rad": result.final_drift,
-    }
+def _stage(nlp, guess, name: str, stages: list):
+    """Solve one inner stage of :func:`plan_peak` from ``guess``; returns the next stage's
+    guess: the solution, or ``guess`` itself when the stage failed."""
+    sol, report = nlp.solve_stage(guess)
+    stages.append({"stage": name, **report})
+    if report["status"] in SUCCESS_STATUSES:
+        return sol
+    log.info("%s stage ended with %s; the next stage starts from its guess", name, report)
+    return guess
 
 
 def refine(nlp, result: BalanceResult) -> BalanceResult:

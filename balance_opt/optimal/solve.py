@@ -257,6 +257,33 @@ class BalanceNLP(BalanceProblem):
             log.warning("Ipopt: %s", status)
         return result
 
+    def solve_stage(self, initial_guess) -> tuple[Solution, dict]:
+        """Solve with Ipopt once without re-simulating (an inner stage of the peak objective,
+        :func:`~balance_opt.optimal.refine.plan_peak`). A failure is not raised: it is the
+        report's ``status``.
+
+        Returns:
+            ``(solution, report)``: the report holds the status, iterations, Ipopt's wall time
+            [s] and the largest and final drift at the collocation points [rad].
+        """
+        w0 = self.initial_guess(initial_guess)
+        t0 = time.perf_counter()
+        out = self.structure.solver(
+            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+        )
+        raise_if_interrupted()
+        wall = time.perf_counter() - t0
+        stats = self.structure.solver.stats()
+        sol = self.unpack(np.array(out["x"]).ravel())
+        X, _ = sol.points()
+        return sol, {
+            "status": str(stats.get("return_status", "unknown")),
+            "iterations": int(stats.get("iter_count", 0)),
+            "solve_s": wall,
+            "nlp_max_drift_rad": float(np.linalg.norm(X[:3], axis=0).max()),
+            "nlp_final_drift_rad": float(np.linalg.norm(sol.X[:3, -1])),
+        }
+
     def _report(self, stats: dict, objective: float, worst, times) -> dict:
         """The solver's part of ``BalanceResult.info``."""
         t0, t1, t2, t3 = times
