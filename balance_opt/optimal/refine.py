@@ -78,10 +78,14 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
     if same and smallest <= bound * (1.0 - BOUND_MARGIN):
         # the peak plan of the bounded problem is the free one: the bound is not active
         result = peak_plan
-        result.info["refinement"] = {"rounds": 0, "tightened": []}
+        result.info["refinement"] = {"rounds": 0, "tightened": [], "iterations": 0}
+        result.info["total_iterations"] = total_iterations(result)
         return result
     result = nlp.solve_once(free.solution_of(peak_plan))
     result.info["smallest_peak_rad"] = smallest
+    bounded = {"stage": "bounded", "status": result.info["status"]}
+    bounded["iterations"] = result.info["iterations"]
+    result.info["stages"] = peak_plan.info.get("stages", []) + [bounded]
     return refine(nlp, result)
 
 
@@ -144,7 +148,7 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
     warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
     ``info["refinement"]`` lists what was tightened in each round."""
-    rounds = []
+    rounds, iterations, stages = [], 0, result.info.get("stages")
     for _ in range(MAX_ROUNDS):
         tightened = _tighten(nlp, result)
         if not tightened:
@@ -153,11 +157,27 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
         log.info("refinement: %s", "; ".join(tightened))
         nlp.update_bounds()
         result = nlp.solve_once(nlp.unpack(np.array(result.info["nlp_solution"])))
+        iterations += result.info["iterations"]
     else:
         if _tighten(nlp, result, dry=True):
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
-    result.info["refinement"] = {"rounds": len(rounds), "tightened": rounds}
+    result.info["refinement"] = {
+        "rounds": len(rounds),
+        "tightened": rounds,
+        "iterations": iterations,
+    }
+    if stages is not None:
+        result.info["stages"] = stages
+    result.info["total_iterations"] = total_iterations(result)
     return result
+
+
+def total_iterations(result: BalanceResult) -> int:
+    """Ipopt iterations of every solve behind a plan: its stages (or its one solve) and the
+    refinement's re-solves."""
+    stages = result.info.get("stages")
+    first = sum(s.get("iterations", 0) for s in stages) if stages else result.info["iterations"]
+    return int(first + result.info.get("refinement", {}).get("iterations", 0))
 
 
 def _tighten(nlp, result: BalanceResult, dry: bool = False) -> list[str]:
