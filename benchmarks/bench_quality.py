@@ -10,7 +10,9 @@ built before the clock starts; "solve" is the wall time of :meth:`BalanceNLP.sol
 Ipopt solve, the re-simulations and the refinement), "iterations" every Ipopt iteration behind
 the plan (``info["total_iterations"]``), "x integral" the ratio of both to the integral plan's
 with the same ends. The multi-start table times :meth:`BalanceNLP.solve` with ``starts: K``
-(worker processes started, their models and NLPs built, inside the clock) against one start.
+(worker processes started, their models and NLPs built, inside the clock) against one start;
+"distinct plans" is how many starts went on past the first stage (the others reached the same
+integral plan and were merged).
 
 Run: ``python benchmarks/bench_quality.py [--intervals 100] [--starts 8]``.
 """
@@ -87,14 +89,18 @@ def multi_start_table(model, capture, intervals: int, starts: int) -> None:
         plan, wall = _timed(_prepare(model, capture.mission, capture.q_B0, options))
         rows.append((k, plan, wall))
     print()
-    print("| starts | workers | solve [s] | x one start | best peak [rad] | peak spread [rad] |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print(
+        "| starts | workers | distinct plans | solve [s] | x one start | best peak [rad] "
+        "| peak spread [rad] |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     one = rows[0][2]
     for k, plan, wall in rows:
         info = plan.info.get("starts", {})
         spread = info.get("max_drift_spread_rad", 0.0)
         print(
-            f"| {k} | {info.get('workers', 1)} | {wall:.1f} | {wall / one:.2f} "
+            f"| {k} | {info.get('workers', 1)} | {info.get('distinct', 1)} | {wall:.1f} "
+            f"| {wall / one:.2f} "
             f"| {plan.max_drift:.5f} | {spread:.5f} |"
         )
     print(f"\n(workers for {starts} starts on this machine: {workers_for(starts)})")
@@ -103,12 +109,15 @@ def multi_start_table(model, capture, intervals: int, starts: int) -> None:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--intervals", type=int, default=100)
-    parser.add_argument("--durations", type=float, nargs="+", default=[10.0, 20.0])
+    parser.add_argument(
+        "--durations", type=float, nargs="*", default=[10.0, 20.0], help="none: skip the table"
+    )
     parser.add_argument("--starts", type=int, default=8, help="multi-start size (0: skip)")
     args = parser.parse_args(argv)
     capture = paper_capture()
     model = PlannerModel(capture.robot)
-    quality_table(model, capture, args.intervals, args.durations)
+    if args.durations:
+        quality_table(model, capture, args.intervals, args.durations)
     if args.starts > 1:
         multi_start_table(model, capture, args.intervals, args.starts)
 

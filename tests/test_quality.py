@@ -159,3 +159,19 @@ def test_multi_start_keeps_the_best_and_reports_the_spread(model, capture):
     again = dataclasses.replace(options, starts=1)
     single = build_balance_nlp(model, capture.mission, capture.q_B0, again).solve()
     assert plan.info["objective"] <= single.info["objective"] + 1e-9
+
+
+@pytest.mark.slow
+def test_peak_multi_start_merges_starts_that_reach_the_same_first_plan(model, capture):
+    """Every start of the capture task reaches the same integral plan: one goes on, and the
+    plan is the single start's."""
+    options = PlannerOptions(intervals=20, starts=3, seed=2)
+    plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
+    starts = plan.info["starts"]
+    assert starts["distinct"] == 1 and starts["solved"] == 3
+    assert [r.get("same_as") for r in starts["runs"]] == [None, 0, 0]
+    assert starts["max_drift_spread_rad"] == 0.0
+    single = build_balance_nlp(
+        model, capture.mission, capture.q_B0, dataclasses.replace(options, starts=1)
+    ).solve()
+    assert plan.max_drift == pytest.approx(single.max_drift, rel=1e-6)

@@ -23,6 +23,7 @@ Several starts are :mod:`balance_opt.optimal.starts`.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -97,13 +98,10 @@ def plan_peak(nlp, guess) -> BalanceResult:
     Ipopt iterations; from the smooth peak's plan about 40. The inner stages are not
     re-simulated. Should the epigraph stage fail, the smooth peak's plan is kept (with a
     warning). ``info["stages"]`` reports each stage's status, iterations and drifts."""
-    stages = []
-    if isinstance(guess, np.ndarray):  # a decision vector of this problem
-        guess = nlp.unpack(nlp.initial_guess(guess))
-    integral = nlp.variant(
-        objective="integral", path_attitude_bound=None, terminal_attitude_bound=None
-    )
-    guess = _stage(integral, guess, "integral", stages)
+    if isinstance(guess, IntegralStart):  # the first stage done (a multi-start's)
+        stages, guess = [dict(guess.report)], guess.following
+    else:
+        stages, guess = [], integral_stage(nlp, guess).following
     smooth = nlp.stage("smooth")
     # its reference drift: the start's peak (the smooth term then weighs like the peak's)
     X, _ = smooth.unpack(smooth.initial_guess(guess)).points()
@@ -131,6 +129,28 @@ def plan_peak(nlp, guess) -> BalanceResult:
         )
     result.info["stages"] = stages
     return result
+
+
+@dataclass
+class IntegralStart:
+    """The first stage of :func:`plan_peak`, done: its report and the next stage's guess (the
+    integral plan, or the original guess when the stage failed)."""
+
+    report: dict
+    following: object
+
+
+def integral_stage(nlp, guess) -> IntegralStart:
+    """The first stage of :func:`plan_peak` for the problem ``nlp``: the integral objective's
+    plan, without bounds, from ``guess``."""
+    if isinstance(guess, np.ndarray):  # a decision vector of this problem
+        guess = nlp.unpack(nlp.initial_guess(guess))
+    integral = nlp.variant(
+        objective="integral", path_attitude_bound=None, terminal_attitude_bound=None
+    )
+    stages = []
+    following = _stage(integral, guess, "integral", stages)
+    return IntegralStart(stages[0], following)
 
 
 def _stage(nlp, guess, name: str, stages: list):

@@ -6,9 +6,14 @@ random motions drawn in this process from ``options.seed`` (so a run is reproduc
 the number of workers). With more than one start and more than one CPU the starts run in a
 pool of ``spawn`` workers (at most one per CPU): each worker builds its own
 :class:`~balance_opt.optimal.model.PlannerModel` from the pickled robot once, loading the
-compiled kernel library from the on-disk cache, and keeps it for its next starts. Each start is
-the whole single-start solve (:func:`~balance_opt.optimal.refine.solve_with_bounds`: the peak
-stages, the bounds, the refinement), untightened. ``info["starts"]`` reports every start.
+compiled kernel library from the on-disk cache, and keeps it for its next starts.
+
+A plan through the peak problem (the peak objective, or a path attitude bound) begins with the
+integral objective's plan (:func:`~balance_opt.optimal.refine.plan_peak`), and different
+starts often reach the same one (on the capture task all eight do): the starts run that first
+stage, those whose plans agree (:data:`SAME_PLAN`) are merged, and only the distinct ones go on
+through the later stages, the bounds and the refinement. ``info["starts"]`` reports every start
+(a merged one names the start it joined).
 """
 
 from __future__ import annotations
@@ -20,7 +25,11 @@ import numpy as np
 
 from balance_opt.errors import SolverError
 from balance_opt.optimal.guess import random_guess
-from balance_opt.optimal.options import GUESSES
+from balance_opt.optimal.options import GUESSES, SUCCESS_STATUSES
+
+#: Largest difference between two first-stage plans' decision vectors (rad, rad/s, rad/s^2)
+#: under which they are one plan.
+SAME_PLAN = 1e-4
 
 #: Planner models built in a worker process, by robot name and joints (one per robot).
 _WORKER_MODELS: dict = {}
@@ -50,19 +59,24 @@ def _outcome(result) -> dict:
     }
 
 
-def _solve_here(nlp, guess):
-    """One start in this process: ``(result, None)`` or ``(None, error)``."""
-    from balance_opt.optimal.refine import solve_with_bounds
+def _run(nlp, guess, phase: str):
+    """One start's ``phase`` in this process: ``"first"`` the integral stage (an
+    :class:`~balance_opt.optimal.refine.IntegralStart`), ``"plan"`` the whole solve:
+    ``(result, None)`` or ``(None, error)``."""
+    from balance_opt.optimal.refine import integral_stage, solve_with_bounds
 
+    nlp = nlp.variant(starts=1)
+    if phase == "first":
+        return integral_stage(nlp, guess), None
     try:
-        return solve_with_bounds(nlp.variant(starts=1), guess), None
+        return solve_with_bounds(nlp, guess), None
     except SolverError as exc:
         return None, exc
 
 
-def _worker_start(model_robot, robot, mission, q_B0, options, guess):
-    """One start in a worker process (see the module docstring). Returns ``(result, None)`` or
-    ``(None, (message, status))``: the planner's errors do not pickle."""
+def _worker(model_robot, robot, mission, q_B0, options, guess, phase):
+    """:func:`_run` in a worker process (see the module docstring); an error comes back as
+    ``(message, status)``: the planner's errors do not pickle."""
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.solve import build_balance_nlp
 
@@ -70,31 +84,35 @@ def _worker_start(model_robot, robot, mission, q_B0, options, guess):
     if key not in _WORKER_MODELS:
         _WORKER_MODELS[key] = PlannerModel(model_robot)
     nlp = build_balance_nlp(_WORKER_MODELS[key], mission, q_B0, options, robot)
-    result, error = _solve_here(nlp, guess)
-    if error is not None:
-        return None, (str(error), str(error.status))
-    return result, None
+    result, error = _run(nlp, guess, phase)
+    return (result, None) if error is None else (None, (str(error), str(error.status)))
 
 
-def _run_parallel(nlp, guesses, jobs: int) -> list:
-    """Every start in a pool of ``jobs`` spawn workers, in the order of ``guesses``."""
-    from balance_opt.sweep.workers import new_pool, stop_pool
+class _Runner:
+    """Runs starts in this process or in a pool of worker processes."""
 
-    options = dataclasses.replace(nlp.options, starts=1)
-    pool = new_pool(jobs, "spawn")
-    try:
-        futures = [
-            pool.submit(
-                _worker_start, nlp.model.robot, nlp.robot, nlp.mission, nlp.q_B0, options, g
-            )
-            for _, g in guesses
-        ]
-        out = [f.result() for f in futures]
-    except BaseException:
-        stop_pool(pool)
-        raise
-    pool.shutdown(wait=True)
-    return out
+    def __init__(self, nlp, jobs: int):
+        self.nlp, self.pool = nlp, None
+        if jobs > 1:
+            from balance_opt.sweep.workers import new_pool
+
+            self.pool = new_pool(jobs, "spawn")
+
+    def map(self, guesses: list, phase: str) -> list:
+        if self.pool is None:
+            return [_run(self.nlp, g, phase) for g in guesses]
+        nlp = self.nlp
+        options = dataclasses.replace(nlp.options, starts=1)
+        args = (nlp.model.robot, nlp.robot, nlp.mission, nlp.q_B0, options)
+        futures = [self.pool.submit(_worker, *args, g, phase) for g in guesses]
+        return [f.result() for f in futures]
+
+    def close(self, failed: bool) -> None:
+        if self.pool is None:
+            return
+        from balance_opt.sweep.workers import stop_pool
+
+        stop_pool(self.pool) if failed else self.pool.shutdown(wait=True)
 
 
 def workers_for(starts: int) -> int:
@@ -102,6 +120,33 @@ def workers_for(starts: int) -> int:
     process)."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(starts, cpus or 1))
+
+
+def _merge(firsts: list) -> list[int]:
+    """For each first-stage outcome the index of the first start with the same plan."""
+    owner, vectors = [], []
+    for i, (first, _) in enumerate(firsts):
+        ok = first is not None and first.report["status"] in SUCCESS_STATUSES
+        w = np.concatenate([first.following.X.ravel(), first.following.U.ravel()]) if ok else None
+        match = next(
+            (j for j, v in vectors if w is not None and np.abs(v - w).max() <= SAME_PLAN), i
+        )
+        if match == i and w is not None:
+            vectors.append((i, w))
+        owner.append(match)
+    return owner
+
+
+def _solve_all(runner: _Runner, nlp, guesses) -> tuple[list, list]:
+    """Every start's ``(result, error)`` and the start each was merged into."""
+    through_peak = nlp.options.objective == "peak" or nlp.options.path_attitude_bound is not None
+    if not through_peak:
+        return runner.map([g for _, g in guesses], "plan"), list(range(len(guesses)))
+    firsts = runner.map([g for _, g in guesses], "first")
+    owner = _merge(firsts)
+    distinct = sorted(set(owner))
+    solved = dict(zip(distinct, runner.map([firsts[i][0] for i in distinct], "plan")))
+    return [solved[owner[i]] for i in range(len(guesses))], owner
 
 
 def multi_start(nlp, guess, jobs: int | None = None):
@@ -118,20 +163,23 @@ def multi_start(nlp, guess, jobs: int | None = None):
     """
     guesses = start_guesses(nlp, guess)
     jobs = workers_for(len(guesses)) if jobs is None else max(1, jobs)
-    if jobs > 1:
-        outcomes = _run_parallel(nlp, guesses, jobs)
-    else:
-        outcomes = [_solve_here(nlp, g) for _, g in guesses]
+    runner, failed = _Runner(nlp, jobs), True
+    try:
+        outcomes, owner = _solve_all(runner, nlp, guesses)
+        failed = False
+    finally:
+        runner.close(failed)
     best, first_error, runs = None, None, []
-    for (label, _), (result, error) in zip(guesses, outcomes):
+    for i, ((label, _), (result, error)) in enumerate(zip(guesses, outcomes)):
+        run = {"guess": label} if owner[i] == i else {"guess": label, "same_as": owner[i]}
         if result is None:
             if first_error is None:
                 first_error = (
                     error if isinstance(error, SolverError) else SolverError(error[0], error[1])
                 )
-            runs.append({"guess": label, "status": str(first_error.status)})
+            runs.append({**run, "status": str(first_error.status)})
             continue
-        runs.append({"guess": label, **_outcome(result)})
+        runs.append({**run, **_outcome(result)})
         if best is None or result.info["objective"] < best.info["objective"]:
             best = result
     if best is None:
@@ -140,6 +188,7 @@ def multi_start(nlp, guess, jobs: int | None = None):
     best.info["starts"] = {
         "runs": runs,
         "solved": len(solved),
+        "distinct": len(set(owner)),
         "workers": jobs,
         "objective_spread": float(
             max(r["objective"] for r in solved) - min(r["objective"] for r in solved)
