@@ -106,6 +106,11 @@ class BalanceNLP(BalanceProblem):
         options = dataclasses.replace(self.options, **changes)
         return build_balance_nlp(self.model, self.mission, self.q_B0, options, self.robot)
 
+    @staticmethod
+    def build(*args, **kwargs) -> BalanceNLP:
+        """:func:`build_balance_nlp` (what a multi-start's worker processes call)."""
+        return build_balance_nlp(*args, **kwargs)
+
     def stage(self, name: str) -> BalanceNLP:
         """The same problem as an inner stage of the peak objective (``"smooth"``: the
         smooth peak; :func:`~balance_opt.optimal.refine.plan_peak`)."""

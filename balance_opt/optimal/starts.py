@@ -74,16 +74,16 @@ def _run(nlp, guess, phase: str):
         return None, exc
 
 
-def _worker(model_robot, robot, mission, q_B0, options, guess, phase):
-    """:func:`_run` in a worker process (see the module docstring); an error comes back as
-    ``(message, status)``: the planner's errors do not pickle."""
+def _worker(build, model_robot, robot, mission, q_B0, options, guess, phase):
+    """:func:`_run` in a worker process (see the module docstring) on the problem ``build``
+    (:func:`~balance_opt.optimal.solve.build_balance_nlp`, pickled by name) makes; an error
+    comes back as ``(message, status)``: the planner's errors do not pickle."""
     from balance_opt.optimal.model import PlannerModel
-    from balance_opt.optimal.solve import build_balance_nlp
 
     key = (model_robot.name, tuple(model_robot.joint_names))
     if key not in _WORKER_MODELS:
         _WORKER_MODELS[key] = PlannerModel(model_robot)
-    nlp = build_balance_nlp(_WORKER_MODELS[key], mission, q_B0, options, robot)
+    nlp = build(_WORKER_MODELS[key], mission, q_B0, options, robot)
     result, error = _run(nlp, guess, phase)
     return (result, None) if error is None else (None, (str(error), str(error.status)))
 
@@ -103,7 +103,7 @@ class _Runner:
             return [_run(self.nlp, g, phase) for g in guesses]
         nlp = self.nlp
         options = dataclasses.replace(nlp.options, starts=1)
-        args = (nlp.model.robot, nlp.robot, nlp.mission, nlp.q_B0, options)
+        args = (type(nlp).build, nlp.model.robot, nlp.robot, nlp.mission, nlp.q_B0, options)
         futures = [self.pool.submit(_worker, *args, g, phase) for g in guesses]
         return [f.result() for f in futures]
 
