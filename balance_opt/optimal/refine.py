@@ -1,9 +1,11 @@
-"""The outer loop of the optimal planner: bounds reached through the peak problem, limits held on
-the whole re-simulated motion, and several starts.
+"""The outer loop of the optimal planner: the peak objective's stages, bounds reached through the
+peak problem, and limits held on the whole re-simulated motion.
 
 Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.BalanceNLP.solve_once`):
 
-* **The peak objective** (:func:`plan_peak`) starts from the integral objective's plan.
+* **The peak objective** (:func:`plan_peak`) in three stages, each warm started from the
+  last: the integral objective's plan, the smooth peak (an L16 norm of the drift, no
+  inequality rows), the epigraph.
 * **Bounds that converge** (:func:`solve_with_bounds`). A hard path attitude bound started
   from a guess that drifts three times too far stalls Ipopt. So the peak problem is solved
   first without the bound (its epigraph variable is the bound's elastic relaxation): its peak
