@@ -100,10 +100,9 @@ def plan_peak(nlp, guess) -> BalanceResult:
     Ipopt iterations; from the smooth peak's plan about 40. The inner stages are not
     re-simulated. Should the epigraph stage fail, the smooth peak's plan is kept (with a
     warning). ``info["stages"]`` reports each stage's status, iterations and drifts."""
-    if isinstance(guess, IntegralStart):  # the first stage done (a multi-start's)
-        stages, guess = [dict(guess.report)], guess.following
-    else:
-        stages, guess = [], integral_stage(nlp, guess).following
+    # the first stage: done by a multi-start, or here
+    first = guess if isinstance(guess, IntegralStart) else integral_stage(nlp, guess)
+    stages, guess = [dict(first.report)], first.following
     smooth = nlp.stage("smooth")
     # its reference drift: the start's peak (the smooth term then weighs like the peak's)
     X, _ = smooth.unpack(smooth.initial_guess(guess)).points()
