@@ -717,7 +717,7 @@ OPTION_KEYS_DEFAULTS = [
     ("analytic.step", "none"),
     ("analytic.output_step", "0.01"),
     ("optimal", "see below"),
-    ("optimal.objective", "'integral'"),
+    ("optimal.objective", "'peak'"),
     ("optimal.intervals", "100"),
     ("optimal.transcription", "'hermite-simpson'"),
     ("optimal.control", "'acceleration'"),

@@ -33,11 +33,14 @@ DEFAULT_IPOPT = {
     "hessian_approximation": "exact",
     "mumps_mem_percent": 100,
 }
-#: Ipopt options of the peak objective over :data:`DEFAULT_IPOPT`. The peak problem is started
-#: from the integral plan: a small initial barrier parameter keeps Ipopt near that plan, in a
-#: basin whose peak on the capture task is 0.0211 rad; from the default 0.1 it wandered off to a
-#: plan of 0.0242 rad, as did the rest, analytic and random starts.
+#: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`. It starts
+#: from the smooth stage's plan, near its own: a small initial barrier parameter keeps it there
+#: (from the default 0.1 the epigraph wandered off to plans of 0.0242 rad on the capture task).
 PEAK_IPOPT = {"mu_init": 1e-4}
+#: Ipopt options of the peak objective's smooth stage: the adaptive barrier update took 110-120
+#: iterations from the integral plan of the paper task, the monotone one 269. (Stopping it
+#: early, at tol 1e-4 or 1e-6, cost the epigraph stage 310 iterations instead of 40.)
+SMOOTH_IPOPT = {"mu_strategy": "adaptive"}
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
 #: Objectives: the largest attitude error over the motion, or the integral of squared drift.
@@ -63,6 +66,10 @@ class CostWeights:
     terms, scaled down by ``regularisation``, to make the plan smooth and unique::
 
         J = peak * s^2 + peak_terminal * |log R_T|^2 + regularisation * (the integral terms)
+
+    It is reached in stages (:func:`balance_opt.optimal.refine.plan_peak`): the integral
+    objective's plan, then ``s^2`` replaced by the drift's L_16 norm (weighted so that it
+    costs what ``peak * s^2`` does at the integral plan's peak), then the epigraph.
 
     ``u`` is the control: balance joint accelerations [rad/s^2] (or jerks [rad/s^3]). The
     weights' units make each term dimensionless: ``omega`` [s/rad^2], ``terminal``, ``peak`` and ``peak_terminal`` [1/rad^2],
@@ -136,10 +143,10 @@ class PlannerOptions:
 
     __sections__: ClassVar[dict[str, str]] = {"constraints": "constraints of the optimal planner"}
 
-    # 'integral' stays the default until the peak problem solves in seconds (17 s against 1 s on
-    # the 10 s capture task; on short coarse plans it can also trade the peak for the end).
+    # 'peak': what users want (the stillest base); it solves in three stages (refine.plan_peak),
+    # about 5.5 times the integral objective's Ipopt iterations on the 10 s capture task.
     objective: Literal[OBJECTIVES] = setting(
-        "integral",
+        "peak",
         doc="minimise the largest attitude error (peak) or the integral of squared drift",
     )
     intervals: int = setting(100, minimum=2, doc="collocation intervals N")
