@@ -13,8 +13,25 @@ The stages, one subpackage each:
 * ``app``: running a task end to end (``pipeline``), the paper's study; ``sweep``: many tasks.
 
 ``result`` holds the plan type every method returns, ``errors`` the exceptions, ``cli`` the
-``balance-opt`` command. Importing the package loads the robot model (Pinocchio), not CasADi.
+``balance-opt`` command.
+
+The notebook API is at the top level::
+
+    import balance_opt as bo
+
+    task = bo.load_task("examples/capture_task.yaml")
+    analytic = bo.plan_analytic(task)                   # a BalanceResult
+    optimal = bo.plan_optimal(task, warm_start=analytic)
+    run = bo.run_task(task, plans={"analytic": analytic, "optimal": optimal})
+
+Importing the package loads the robot model (Pinocchio), not CasADi, pandas or matplotlib: the
+names below are imported from their modules when first used (module ``__getattr__``).
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from balance_opt.errors import BalanceOptError, InputError, SolverError
 from balance_opt.model.arms import Arm, JointLimits
@@ -23,14 +40,70 @@ from balance_opt.model.robot import FloatingRobot
 
 __version__ = "0.1.0"
 
+#: Public names imported on first use: ``name -> module``.
+_LAZY = {
+    "BalanceResult": "balance_opt.result",
+    "LimitViolation": "balance_opt.result",
+    "Task": "balance_opt.io.task",
+    "load_task": "balance_opt.io.task",
+    "task_from_dict": "balance_opt.io.task",
+    "TaskRun": "balance_opt.app.pipeline",
+    "plan_mission_only": "balance_opt.app.pipeline",
+    "plan_analytic": "balance_opt.app.pipeline",
+    "plan_optimal": "balance_opt.app.pipeline",
+    "simulate": "balance_opt.app.pipeline",
+    "run_task": "balance_opt.app.pipeline",
+    "SimulationResult": "balance_opt.dynamics.simulation",
+}
+
+if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ imports them
+    from balance_opt.app.pipeline import (
+        TaskRun,
+        plan_analytic,
+        plan_mission_only,
+        plan_optimal,
+        run_task,
+        simulate,
+    )
+    from balance_opt.dynamics.simulation import SimulationResult
+    from balance_opt.io.task import Task, load_task, task_from_dict
+    from balance_opt.result import BalanceResult, LimitViolation
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name of :data:`_LAZY` from its module on first use (PEP 562)."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'balance_opt' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later look-ups skip __getattr__
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
+
 __all__ = [
     "Arm",
     "BalanceOptError",
+    "BalanceResult",
     "FloatingRobot",
     "InputError",
     "JointLimits",
+    "LimitViolation",
+    "SimulationResult",
     "SolverError",
+    "Task",
+    "TaskRun",
     "__version__",
     "baxter_floating",
+    "load_task",
     "paper_robot",
+    "plan_analytic",
+    "plan_mission_only",
+    "plan_optimal",
+    "run_task",
+    "simulate",
+    "task_from_dict",
 ]

@@ -9,13 +9,20 @@ Subcommands:
   figures and the HTML report;
 * ``simulate TASK``: the same, then each plan through forward dynamics;
 * ``compare TASK``: both methods, simulated, and the comparison report;
-* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot;
+* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot (``paper_fig5`` and
+  ``capture_task``);
 * ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
   Dask cluster;
 * ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
-(whatever was computed is still written), 130 interrupted (Ctrl-C or SIGTERM; nothing written).
+(whatever was computed is still written), 130 interrupted (Ctrl-C or SIGTERM; nothing written),
+141 the reader of the output went away (``balance-opt validate --schema | head``: the code of a
+program ended by SIGPIPE, as ``cat`` gets, without a traceback).
+
+Progress of long work (stages, kernel compilation, the optimal planner's Ipopt iterations) goes
+to stderr (:mod:`balance_opt.progress`): an updating line on a terminal, one line per stage
+otherwise; ``-q`` turns it off.
 
 Outputs are all-or-nothing (:class:`~balance_opt.io.output_dir.OutputFolder`): the output folder
 is checked and locked before anything is computed (a folder that cannot be created, is in use by
@@ -30,84 +37,42 @@ import contextlib
 import json
 import logging
 import os
-import re
+import signal
 import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from balance_opt import __version__, progress
+from balance_opt.cli_options import (
+    PAPER_FIGURES_FOLDER,
+    command_line_ipopt,
+    common_options,
+    default_output_folder,
+    ipopt_options_of,
+    method_option,
+    parse_solver_option,
+    run_options,
+)
 from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
 from balance_opt.io.output_dir import OutputFolder
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: A closed output pipe: 128 + SIGPIPE, what a shell reports for ``cat`` ended by it.
+EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
+VERSION = f"balance-opt {__version__}"
 DESCRIPTION = (
     "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
     "law and an optimal planner, compared."
 )
-DEFAULT_OUTPUT_ROOT = Path("results")
 _HANDLER_FLAG = "_balance_opt_cli"
+#: Re-exported: the CLI's helpers as they were importable before cli_options.py split off.
+__all__ = ["build_parser", "default_output_folder", "main", "parse_solver_option"]
 
 log = logging.getLogger("balance_opt.cli")
 
 
 # =========================================================================================== helpers
-def parse_solver_option(text: str) -> tuple[str, int | float | str]:
-    """``"max_iter=100"`` -> ``("max_iter", 100)``: the value as an int, else a float, else a string.
-
-    Raises:
-        InputError: no ``=`` or an empty key.
-    """
-    from balance_opt.errors import InputError
-
-    key, sep, value = text.partition("=")
-    key, value = key.strip(), value.strip()
-    if not sep or not key:
-        raise InputError(f"--solver-option {text!r}: expected KEY=VALUE, e.g. max_iter=200")
-    for convert in (int, float):
-        try:
-            return key, convert(value)
-        except ValueError:
-            pass
-    return key, value
-
-
-#: Ipopt's iteration log, shown (on stdout) with ``--verbose`` as the optimal planner's progress.
-VERBOSE_IPOPT = {"print_level": 5}
-
-
-def _command_line_ipopt(args) -> dict:
-    """``--solver-option`` values, checked against Ipopt's own option list."""
-    from balance_opt.optimal.ipopt_options import check_ipopt_options
-
-    return check_ipopt_options(
-        dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
-    )
-
-
-def _solver_options(args, task=None) -> dict:
-    """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
-    task or the command line sets ``print_level``)."""
-    options = _command_line_ipopt(args)
-    task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}
-    if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
-        options.update(VERBOSE_IPOPT)
-    return options
-
-
-#: Characters a default output folder name keeps; any run of others becomes one ``_``.
-_UNSAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
-
-
-def default_output_folder(name: str) -> Path:
-    """``results/<name>``, the default output folder of a task or sweep ``name``, with the name
-    made a plain folder name: only letters, digits, ``.``, ``_`` and ``-`` (others become
-    ``_``), no leading dot. So a name such as ``../../x`` stays inside ``results/``."""
-    safe = _UNSAFE_NAME.sub("_", name).lstrip(".") or "unnamed"
-    if safe != name:
-        log.warning("name %r is not a plain folder name; the output folder is %s", name, safe)
-    return DEFAULT_OUTPUT_ROOT / safe
-
-
 @contextlib.contextmanager
 def _early_output(args) -> Iterator[OutputFolder | None]:
     """The ``--output`` folder opened (checked, locked, staging created) before anything else,
@@ -126,11 +91,13 @@ def _early_output(args) -> Iterator[OutputFolder | None]:
 
 
 def _configure_logging(verbose: bool, quiet: bool) -> None:
-    """Log balance-opt's messages to the current stderr (progress at INFO)."""
+    """Log balance-opt's messages to the current stderr (progress at INFO), and show the live
+    progress line there unless ``quiet``."""
     logger = logging.getLogger("balance_opt")
     for h in [h for h in logger.handlers if getattr(h, _HANDLER_FLAG, False)]:
         logger.removeHandler(h)
-    handler = logging.StreamHandler(sys.stderr)
+    progress.configure(not quiet, sys.stderr)
+    handler = progress.LogHandler(sys.stderr)
     setattr(handler, _HANDLER_FLAG, True)
     handler.setFormatter(
         logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S")
@@ -214,7 +181,7 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
 
     with _early_output(args) as folder:
         task = with_backend(load_task(args.task), args.backend)
-        solver_options = _solver_options(args, task)
+        solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
         started = time.perf_counter()
         run = run_task(
@@ -272,9 +239,11 @@ def _cmd_paper_figures(args) -> int:
             from balance_opt.io.task import load_task
 
             task = load_task(args.task)
-        solver_options = _solver_options(args, task)
-        folder = folder or OutputFolder(DEFAULT_OUTPUT_ROOT / "paper_figures", args.force)
-        files = paper_figures(folder, task=task, solver_options=solver_options)
+        solver_options = ipopt_options_of(args, task)
+        folder = folder or OutputFolder(PAPER_FIGURES_FOLDER, args.force)
+        files = paper_figures(
+            folder, task=task, solver_options=solver_options, backend=args.backend
+        )
     log.info("wrote %d files to %s", len(files), folder.target)
     return EXIT_OK
 
@@ -317,13 +286,17 @@ def _cmd_sweep(args) -> int:
         return EXIT_OK
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
-    solver_options = _command_line_ipopt(args)
+    progress.configure(False)  # one log line per case, no Ipopt line (workers are silent)
+    solver_options = command_line_ipopt(args)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
         raise InputError(f"--jobs must be >= 0, got {jobs}")
     if args.retry_failed and not args.resume:
         raise InputError("--retry-failed goes with --resume")
     sweep = load_sweep(args.sweep, solver_options)
+    if args.backend is not None:  # the same maps either way: the case ids do not change
+        for case in sweep.cases:
+            case["task"].setdefault("robot", {})["backend"] = args.backend
     out_dir = Path(args.output) if args.output else default_output_folder(sweep.name)
     if args.scheduler is None:
         jobs = min(jobs, len(sweep.cases)) if jobs else 0
@@ -357,56 +330,6 @@ def _cmd_sweep(args) -> int:
 
 
 # =========================================================================================== parser
-def _common_options(parser: argparse.ArgumentParser, top: bool) -> None:
-    """``-v``/``-q`` on the top parser and on every subcommand (either place works)."""
-    default = False if top else argparse.SUPPRESS
-    parser.add_argument(
-        "-v",
-        "--verbose",
-        action="store_true",
-        default=default,
-        help="log debug messages, and show Ipopt's iteration log (stdout)",
-    )
-    parser.add_argument(
-        "-q", "--quiet", action="store_true", default=default, help="print errors only"
-    )
-
-
-def _run_options(parser: argparse.ArgumentParser, task_required: bool = True) -> None:
-    if task_required:
-        parser.add_argument("task", help="task file (YAML)")
-    parser.add_argument(
-        "-o",
-        "--output",
-        metavar="DIR",
-        help=f"output directory (default: {DEFAULT_OUTPUT_ROOT}/<task name>)",
-    )
-    parser.add_argument(
-        "-f",
-        "--force",
-        action="store_true",
-        help="replace an existing, non-empty output folder: its old files are all removed, "
-        "once the new results are complete",
-    )
-    parser.add_argument(
-        "--solver-option",
-        action="append",
-        metavar="KEY=VALUE",
-        help="Ipopt option for the optimal planner (repeatable); overrides the task's "
-        "optimal.ipopt; values are read as int, float or string",
-    )
-
-
-def _method_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "-m",
-        "--method",
-        choices=("analytic", "optimal", "both"),
-        default="both",
-        help="planning method (default: both)",
-    )
-
-
 def _add_check_commands(sub) -> None:
     """``validate``, ``schema`` and ``inspect``: everything short of planning."""
     p = sub.add_parser("validate", help="check task files (everything short of planning)")
@@ -417,7 +340,11 @@ def _add_check_commands(sub) -> None:
     p.add_argument(
         "--reference", action="store_true", help="print the task-file reference (Markdown) and exit"
     )
-    _method_option(p)
+    method_option(
+        p,
+        "check what these methods need (default: both; analytic leaves out the optimal "
+        "planner's checks)",
+    )
     p.set_defaults(run=_cmd_validate)
 
     p = sub.add_parser("schema", help="print the JSON Schema of task files")
@@ -434,9 +361,9 @@ def _add_run_commands(sub) -> None:
     p = sub.add_parser(
         "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
     )
-    _run_options(p)
+    run_options(p)
     backend_option(p)
-    _method_option(p)
+    method_option(p)
     p.add_argument(
         "--simulate", action="store_true", help="also simulate each plan (as the simulate command)"
     )
@@ -445,15 +372,15 @@ def _add_run_commands(sub) -> None:
     p = sub.add_parser(
         "simulate", help="plan, then check each plan in a forward-dynamics simulation"
     )
-    _run_options(p)
+    run_options(p)
     backend_option(p)
-    _method_option(p)
+    method_option(p)
     p.set_defaults(run=_cmd_simulate)
 
     p = sub.add_parser(
         "compare", help="analytic and optimal plans, simulated, and the comparison report"
     )
-    _run_options(p)
+    run_options(p)
     backend_option(p)
     p.add_argument(
         "--no-simulate", action="store_true", help="skip the forward-dynamics simulation"
@@ -461,11 +388,13 @@ def _add_run_commands(sub) -> None:
     p.set_defaults(run=_cmd_compare)
 
     p = sub.add_parser("paper-figures", help="the paper's study: Figs 2-5 on the Table 1 robot")
-    _run_options(p, task_required=False)
+    run_options(p, task_required=False, default_output=str(PAPER_FIGURES_FOLDER))
+    backend_option(p)
     p.add_argument(
         "--task",
-        help="task file whose analytic, optimal and simulation options the study uses "
-        "(its robot and mission are ignored: the study is the paper's scenario)",
+        help="study this task instead (its robot, mission, balance start and options; both "
+        "methods); default: the paper's law on examples/paper_fig5.yaml's scenario and the "
+        "law against the optimal plan on examples/capture_task.yaml's",
     )
     p.set_defaults(run=_cmd_paper_figures)
 
@@ -515,6 +444,7 @@ def _add_sweep_command(sub) -> None:
         help="start over in an existing, non-empty output directory",
     )
     p.add_argument("--no-plots", action="store_true", help="skip the summary plots")
+    backend_option(p)
     p.add_argument(
         "--solver-option",
         action="append",
@@ -539,22 +469,33 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="balance-opt",
         description=DESCRIPTION,
-        epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted",
+        epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted, "
+        "141 output pipe closed",
     )
-    _common_options(parser, top=True)
+    common_options(parser, top=True)
+    parser.add_argument("--version", action="version", version=VERSION)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_check_commands(sub)
     _add_run_commands(sub)
     _add_sweep_command(sub)
     add_tool_commands(sub)
     for subparser in sub.choices.values():
-        _common_options(subparser, top=False)
+        common_options(subparser, top=False)
     return parser
 
 
-def main(argv=None) -> int:
+def _detach_stdout() -> None:
+    """Point stdout at ``/dev/null`` after its reader went away, so that nothing more (the
+    interpreter's last flush included) fails on it."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
+def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 success, 1 solver failure, 2 bad input,
-    130 interrupted by Ctrl-C or SIGTERM)."""
+    130 interrupted by Ctrl-C or SIGTERM, 141 output pipe closed)."""
     from balance_opt.errors import BalanceOptError, InputError, SolverError
     from balance_opt.interrupts import handling_signals
 
@@ -566,19 +507,29 @@ def main(argv=None) -> int:
     _configure_logging(args.verbose, args.quiet)
     try:
         with handling_signals():
-            return args.run(args)
+            code = args.run(args)
+            sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+            return code
+    except BrokenPipeError:
+        _detach_stdout()
+        return EXIT_BROKEN_PIPE
     except InputError as exc:
-        print(f"balance-opt: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
+        return _fail(f"error: {exc}", EXIT_INPUT)
     except SolverError as exc:
-        print(f"balance-opt: solver failure: {exc}", file=sys.stderr)
-        return EXIT_SOLVER
+        return _fail(f"solver failure: {exc}", EXIT_SOLVER)
     except BalanceOptError as exc:
-        print(f"balance-opt: failure: {exc}", file=sys.stderr)
-        return EXIT_SOLVER
+        return _fail(f"failure: {exc}", EXIT_SOLVER)
     except KeyboardInterrupt:
-        print("balance-opt: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _fail("interrupted", EXIT_INTERRUPTED)
+    finally:
+        progress.configure(False)
+
+
+def _fail(message: str, code: int) -> int:
+    """Print ``balance-opt: message`` on stderr (on a line of its own) and return ``code``."""
+    progress.clear()
+    print(f"balance-opt: {message}", file=sys.stderr)
+    return code
 
 
 if __name__ == "__main__":

@@ -1,16 +1,25 @@
 """The result of a balance plan, shared by the analytic law, the optimal planner and replays, so
 that any two compare field by field.
+
+A :class:`BalanceResult` is also what a notebook holds: a short ``repr``, value equality,
+:meth:`BalanceResult.to_dataframe` (pandas) and :meth:`BalanceResult.plot` (matplotlib, on axes
+you give or new ones; no file is written). pandas and matplotlib are imported only when those
+methods are called.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from balance_opt.model.arms import JointLimits
 from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_quaternion
+
+if TYPE_CHECKING:
+    import pandas
+    from matplotlib.axes import Axes
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
@@ -98,7 +107,23 @@ class AttitudeHistory:
         return rotation_angle(relative_rotation(self.quaternion[:1], self.quaternion))
 
 
-@dataclass
+#: Columns of :meth:`BalanceResult.to_dataframe` after the joints: the same names as the CSV
+#: files (:func:`balance_opt.io.outputs.trajectory_columns`; tests/test_api.py checks they agree).
+ATTITUDE_COLUMNS = (
+    "base_qx",
+    "base_qy",
+    "base_qz",
+    "base_qw",
+    "base_roll",
+    "base_pitch",
+    "base_yaw",
+    "base_angle",
+)
+#: Rows of :meth:`BalanceResult.__repr__` at most (a notebook cell's worth).
+REPR_LINES = 12
+
+
+@dataclass(eq=False)
 class BalanceResult(AttitudeHistory):
     """A balance motion and the base attitude it produces, sampled on a time grid.
 
@@ -126,6 +151,12 @@ class BalanceResult(AttitudeHistory):
         violations: every joint-limit violation of the balance (and mission) joints.
         info: method-specific details (damping used, solver status and statistics, re-simulation
             report, ...), plain data only.
+
+    Equality (``==``) compares the motion, not the record of how it was computed: two results
+    are equal when their method, joint names, every array (exactly, NaN equal to NaN, shapes
+    included) and their limit violations are equal; ``info`` (wall times, solver statistics)
+    is left out, so the same plan computed twice compares equal. It never raises. Results are
+    mutable, hence unhashable.
     """
 
     method: str
@@ -207,3 +238,105 @@ class BalanceResult(AttitudeHistory):
             "min_sigma_min": float(np.min(self.sigma_min)),
             "limit_violations": len(self.violations),
         }
+
+    # ------------------------------------------------------------------ notebook helpers
+    @property
+    def status(self) -> str:
+        """The solver's status (``info["status"]``) for optimal plans, ``"ok"`` for the other
+        methods (which either return a motion or raise)."""
+        return str(self.info.get("status", "ok"))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, BalanceResult):
+            return NotImplemented
+        for f in fields(self):
+            if f.name == "info":
+                continue
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                a, b = np.asarray(a), np.asarray(b)
+                if a.shape != b.shape or not np.array_equal(a, b, equal_nan=a.dtype.kind in "fc"):
+                    return False
+            elif a != b:
+                return False
+        return True
+
+    __hash__ = None  # mutable value type
+
+    def __repr__(self) -> str:
+        duration = float(self.t[-1] - self.t[0]) if self.t.size else 0.0
+        lines = [
+            f"BalanceResult(method={self.method!r}, status={self.status!r})",
+            f"  time       {duration:.4g} s, {self.t.size} samples",
+            f"  mission    {_joint_list(self.mission_joints)}",
+            f"  balance    {_joint_list(self.balance_joints)}",
+        ]
+        if self.t.size:
+            lines.append(
+                f"  drift      peak {_angle(self.max_drift)}, final {_angle(self.final_drift)}"
+            )
+            if self.q_dot_B.size:
+                peak_rate = float(np.abs(self.q_dot_B).max())
+                lines.append(f"  rates      balance joints up to {peak_rate:.4g} rad/s")
+        if self.violations:
+            lines.append(
+                f"  limits     {len(self.violations)} violation(s), first: {self.violations[0]}"
+            )
+        else:
+            lines.append("  limits     all met")
+        return "\n".join(lines[:REPR_LINES])
+
+    def to_dataframe(self) -> pandas.DataFrame:
+        """The motion as a table: the columns of the CSV files this method's results are written
+        to, indexed by time.
+
+        Returns:
+            A DataFrame indexed by ``time`` [s], with one column per arm joint by name (mission
+            joints first) [rad; m for a prismatic joint], the base attitude as a quaternion
+            (``base_qx .. base_qw``), as roll, pitch, yaw (``base_roll``, ``base_pitch``,
+            ``base_yaw``) [rad] and as the rotation from the start (``base_angle``) [rad]. The
+            unit of each column is in ``df.attrs["units"]``.
+        """
+        import pandas as pd
+
+        joints = (*self.mission_joints, *self.balance_joints)
+        values = np.column_stack([self.q_M, self.q_B, self.quaternion, self.rpy, self.angle])
+        df = pd.DataFrame(
+            values, index=pd.Index(self.t, name="time"), columns=[*joints, *ATTITUDE_COLUMNS]
+        )
+        units = dict.fromkeys(joints, "rad")
+        units.update(dict.fromkeys(ATTITUDE_COLUMNS[:4], "1"))
+        units.update(dict.fromkeys(ATTITUDE_COLUMNS[4:], "rad"))
+        df.attrs["units"] = {"time": "s", **units}
+        df.attrs["method"] = self.method
+        return df
+
+    def plot(self, ax: Axes | None = None, kind: str = "attitude") -> Axes:
+        """Draw this result on matplotlib axes; nothing is written to disk.
+
+        Args:
+            ax: the axes to draw on; ``None`` makes a new figure (``plt.subplots``), which a
+                notebook shows.
+            kind: ``"attitude"``: the base rotation from the start [deg] against time [s];
+                ``"balance"``: the balance joint positions [rad] against time.
+
+        Returns:
+            The axes drawn on.
+
+        Raises:
+            ValueError: an unknown ``kind``.
+        """
+        from balance_opt.io.quicklook import plot_result
+
+        return plot_result(self, ax=ax, kind=kind)
+
+
+def _joint_list(names: tuple[str, ...], limit: int = 4) -> str:
+    """``"a, b, c (3)"``: the first ``limit`` names and the count."""
+    shown = ", ".join(names[:limit]) + (", ..." if len(names) > limit else "")
+    return f"{shown} ({len(names)} joints)"
+
+
+def _angle(value: float) -> str:
+    """An angle in radians and degrees."""
+    return f"{value:.4g} rad ({np.degrees(value):.3g} deg)"

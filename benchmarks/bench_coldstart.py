@@ -38,7 +38,7 @@ from balance_opt.optimal.codegen import wait_for_library
 
 ROOT = Path(__file__).resolve().parent.parent
 TASKS = {
-    "paper": ("paper robot", ROOT / "examples" / "paper_capture.yaml"),
+    "paper": ("paper robot", ROOT / "examples" / "capture_task.yaml"),
     "baxter": ("Baxter", ROOT / "examples" / "baxter_floating.yaml"),
     "talos": ("Talos 7+7", ROOT / "examples" / "talos_arms.yaml"),
 }

@@ -6,7 +6,7 @@ of the next ones, for the figures of ``plan`` (plans only) and of ``compare`` (p
 simulations), and for Figs. 2-5 as PNG + PDF. Run it with another checkout first on
 ``PYTHONPATH`` to compare two versions of the figure code on the same machine.
 
-    python benchmarks/bench_figures.py [--task examples/paper_capture.yaml] [--repeat 3]
+    python benchmarks/bench_figures.py [--task examples/capture_task.yaml] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def _timed(function) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--task", default="examples/paper_capture.yaml")
+    parser.add_argument("--task", default="examples/capture_task.yaml")
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
 

@@ -1,4 +1,4 @@
-"""Speed of the optimal balance planner on the paper's capture task (Hermite-Simpson).
+"""Speed of the optimal balance planner on the capture task (Hermite-Simpson).
 
 For N = 50, 100, 200, 400, 800 intervals, in one warm process: the NLP build time (first build
 of that N; later builds of the same N reuse the compiled structure), the Ipopt solve time, the
@@ -20,7 +20,7 @@ import statistics
 import tempfile
 import time
 
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
@@ -43,7 +43,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     compile_flag = {"auto": "auto", "yes": True, "no": False}[args.compile]
 
-    scenario = paper_capture()
+    scenario = capture_task()
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         model = PlannerModel(
@@ -52,7 +52,7 @@ def main(argv=None) -> None:
         kernels = model.kernels("acceleration")
         model_time = time.perf_counter() - start
         print(
-            f"paper capture task, {scenario.mission.duration:g} s, Hermite-Simpson, "
+            f"capture task, {scenario.mission.duration:g} s, Hermite-Simpson, "
             f"control: acceleration, guess: {args.guess}"
         )
         print(

@@ -1,14 +1,20 @@
-"""Quality of the optimal plan on the paper's capture task (issue 11): the peak and final drift
+"""Quality of the optimal plan on the capture task (issue 11): the peak and final drift
 of each objective at 10 s (as shipped) and 20 s (``mission.duration: 20``), against the
-reference values of the issue, with their solve times.
+reference values of the issue, with their solve times and Ipopt iterations; then a multi-start
+of K starts against one start.
 
-Objectives: ``peak`` (the default: rest at both ends) and ``integral`` with the old ends
-(``start: still``, ``end: free``: the old default plan). Drifts are those of the re-simulated
-plan (numeric Pinocchio). The NLPs are built before the clock starts; "solve" is the wall time
-of :meth:`BalanceNLP.solve` (every Ipopt solve, the re-simulations and the refinement), "ipopt"
-Ipopt's own time of the last solve.
+Objectives: ``peak`` (the default: rest at both ends, solved in three stages), ``integral``
+with the same ends, and ``integral`` with the old ends (``start: still``, ``end: free``: the
+old default plan). Drifts are those of the re-simulated plan (numeric Pinocchio). The NLPs are
+built before the clock starts; "solve" is the wall time of :meth:`BalanceNLP.solve` (every
+Ipopt solve, the re-simulations and the refinement), "iterations" every Ipopt iteration behind
+the plan (``info["total_iterations"]``), "x integral" the ratio of both to the integral plan's
+with the same ends. The multi-start table times :meth:`BalanceNLP.solve` with ``starts: K``
+(worker processes started, their models and NLPs built, inside the clock) against one start;
+"distinct plans" is how many starts went on past the first stage (the others reached the same
+integral plan and were merged).
 
-Run: ``python benchmarks/bench_quality.py [--intervals 100]``.
+Run: ``python benchmarks/bench_quality.py [--intervals 100] [--starts 8]``.
 """
 
 from __future__ import annotations
@@ -16,54 +22,104 @@ from __future__ import annotations
 import argparse
 import time
 
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.optimal.starts import workers_for
 
 #: Issue 11's reference [rad]: (mission arm alone, old default, best found with limits met).
 REFERENCE = {10.0: (0.0929, 0.0306, 0.0207), 20.0: (0.0929, 0.0136, 0.0064)}
 OBJECTIVES = {
     "peak": {},
+    "integral": {"objective": "integral"},
     "integral (old ends)": {"objective": "integral", "start": "still", "end": "free"},
 }
+
+
+def _prepare(model, mission, q_B0, options):
+    """The NLP of ``options`` with every structure its plan builds already compiled."""
+    nlp = build_balance_nlp(model, mission, q_B0, options)
+    if options.objective == "peak":
+        nlp.stage("smooth")
+        nlp.variant(objective="integral")
+    return nlp
+
+
+def _timed(nlp):
+    start = time.perf_counter()
+    plan = nlp.solve()
+    return plan, time.perf_counter() - start
+
+
+def quality_table(model, capture, intervals: int, durations) -> None:
+    rows = []
+    for duration in durations:
+        m = capture.mission
+        mission = PointToPoint(m.q0, m.qf, duration) if duration != m.duration else m
+        for name, extra in OBJECTIVES.items():
+            options = PlannerOptions(intervals=intervals, **extra)
+            plan, wall = _timed(_prepare(model, mission, capture.q_B0, options))
+            rows.append((duration, name, plan, wall))
+    print(
+        "| task | objective | peak [rad] | final [rad] | reference alone / old / best "
+        "| solve [s] | iterations | x integral (time / iterations) | stages (iterations) |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    base = {d: (p, w) for d, n, p, w in rows if n == "integral"}
+    for duration, name, plan, wall in rows:
+        ref = " / ".join(f"{v:.4f}" for v in REFERENCE.get(duration, ()))
+        its = plan.info["total_iterations"]
+        b_plan, b_wall = base[duration]
+        ratio = f"{wall / b_wall:.1f} / {its / b_plan.info['total_iterations']:.1f}"
+        stages = ", ".join(
+            f"{s['stage']} {s.get('iterations', s['status'])}" for s in plan.info.get("stages", [])
+        )
+        print(
+            f"| {duration:g} s | {name} | {plan.max_drift:.5f} | {plan.final_drift:.5f} | {ref} "
+            f"| {wall:.1f} | {its} | {ratio} | {stages or '-'} |"
+        )
+
+
+def multi_start_table(model, capture, intervals: int, starts: int) -> None:
+    rows = []
+    for k in (1, starts):
+        options = PlannerOptions(intervals=intervals, starts=k)
+        plan, wall = _timed(_prepare(model, capture.mission, capture.q_B0, options))
+        rows.append((k, plan, wall))
+    print()
+    print(
+        "| starts | workers | distinct plans | solve [s] | x one start | best peak [rad] "
+        "| peak spread [rad] |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    one = rows[0][2]
+    for k, plan, wall in rows:
+        info = plan.info.get("starts", {})
+        spread = info.get("max_drift_spread_rad", 0.0)
+        print(
+            f"| {k} | {info.get('workers', 1)} | {info.get('distinct', 1)} | {wall:.1f} "
+            f"| {wall / one:.2f} "
+            f"| {plan.max_drift:.5f} | {spread:.5f} |"
+        )
+    print(f"\n(workers for {starts} starts on this machine: {workers_for(starts)})")
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--intervals", type=int, default=100)
-    parser.add_argument("--durations", type=float, nargs="+", default=[10.0, 20.0])
-    args = parser.parse_args(argv)
-    capture = paper_capture()
-    model = PlannerModel(capture.robot)
-    for extra in OBJECTIVES.values():  # build every structure before timing
-        options = PlannerOptions(intervals=args.intervals, **extra)
-        nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
-        nlp.variant(objective="integral")
-    rows = []
-    for duration in args.durations:
-        m = capture.mission
-        mission = PointToPoint(m.q0, m.qf, duration) if duration != m.duration else m
-        for name, extra in OBJECTIVES.items():
-            options = PlannerOptions(intervals=args.intervals, **extra)
-            nlp = build_balance_nlp(model, mission, capture.q_B0, options)
-            start = time.perf_counter()
-            plan = nlp.solve()
-            wall = time.perf_counter() - start
-            rows.append((duration, name, plan, wall))
-    print(
-        "| task | objective | peak [rad] | final [rad] | reference alone / old / best "
-        "| solve [s] | ipopt [s] | iterations |"
+    parser.add_argument(
+        "--durations", type=float, nargs="*", default=[10.0, 20.0], help="none: skip the table"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-    for duration, name, plan, wall in rows:
-        ref = " / ".join(f"{v:.4f}" for v in REFERENCE.get(duration, ()))
-        info = plan.info
-        print(
-            f"| {duration:g} s | {name} | {plan.max_drift:.4f} | {plan.final_drift:.5f} | {ref} "
-            f"| {wall:.1f} | {info['wall_time_s']['solve']:.1f} | {info['iterations']} |"
-        )
+    parser.add_argument("--starts", type=int, default=8, help="multi-start size (0: skip)")
+    args = parser.parse_args(argv)
+    capture = capture_task()
+    model = PlannerModel(capture.robot)
+    if args.durations:
+        quality_table(model, capture, args.intervals, args.durations)
+    if args.starts > 1:
+        multi_start_table(model, capture, args.intervals, args.starts)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Rows:
 
-* Phase I: the paper's capture move (``scenarios.paper_capture``), mission arm alone, replayed;
+* Phase I: the capture task's move (``scenarios.capture_task``), mission arm alone, replayed;
 * Phase II, damped law: the analytic law on the capture move with the default options. Its
   ``J_wB`` is singular at the start, so the exact law cannot be integrated there (see
   ``tests/test_balance_law.py``); damped least squares is active throughout;
@@ -28,7 +28,7 @@ import numpy as np
 
 from balance_opt.analytic.law import BalanceLaw
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.replay import replay
@@ -59,7 +59,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
 
     start = time.perf_counter()
-    sc = paper_capture()
+    sc = capture_task()
     build_s = time.perf_counter() - start
     robot = sc.robot
     hold = PointToPoint(sc.q_B0, sc.q_B0, DURATION)

@@ -1,4 +1,4 @@
-"""Wall time of the free-floating simulation: 10 s of the paper's capture move on the Table 1
+"""Wall time of the free-floating simulation: 10 s of the capture task's move on the Table 1
 robot, RK4 at 1 kHz with PD tracking of all six joints (issue 5 target: <= 2 s), and variants.
 
 Run: python benchmarks/bench_simulation.py [--repeat N]
@@ -12,7 +12,7 @@ import argparse
 import statistics
 import time
 
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import simulate
 
@@ -37,7 +37,7 @@ def main(argv=None) -> None:
         "--repeat", type=int, default=5, help="runs per configuration (median reported)"
     )
     args = parser.parse_args(argv)
-    sc = paper_capture()
+    sc = capture_task()
     simulate(
         sc.robot, sc.mission, sc.q_B0, SimulationOptions(output_dt=1.0)
     )  # warm up imports and caches
@@ -46,7 +46,7 @@ def main(argv=None) -> None:
         f"{'configuration':40s} {'steps':>6s} {'integr. s':>9s} {'outputs s':>9s} {'total s':>8s} "
         f"{'RTF':>6s} {'track err rad':>13s} {'mom. resid.':>11s}"
     )
-    print(f"paper capture, {sc.mission.duration:.0f} s simulated, median of {args.repeat} runs")
+    print(f"capture task, {sc.mission.duration:.0f} s simulated, median of {args.repeat} runs")
     print(header)
     print("-" * len(header))
     for name, opts in CASES:

@@ -1,4 +1,4 @@
-"""Sweep throughput: 100 optimal-planner cases of the paper's capture task (seeded random
+"""Sweep throughput: 100 optimal-planner cases of the capture task (seeded random
 capture configurations of the mission arm) run with 1 and with 2 worker processes.
 
 Prints, for each number of workers, the wall time of the whole sweep (worker start-up, symbolic
@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER_TASK = ROOT / "examples" / "paper_capture.yaml"
+PAPER_TASK = ROOT / "examples" / "capture_task.yaml"
 #: Box of the random capture configurations of the mission arm [rad].
 GOAL_LOW, GOAL_HIGH = (0.6, 0.4, -2.0), (1.6, 1.2, -1.0)
 
@@ -67,7 +67,7 @@ def main(argv=None) -> int:
 
     sweep = parse_sweep(sweep_text(args.cases, args.intervals, args.seed), "bench.yaml", ROOT)
     print(
-        f"{len(sweep.cases)} optimal cases of the paper task, N = {args.intervals}, "
+        f"{len(sweep.cases)} optimal cases of the capture task, N = {args.intervals}, "
         f"engine: {args.scheduler or 'process pool'}, {os.cpu_count()} CPUs, "
         f"load average before: {os.getloadavg()[0]:.2f}"
     )

@@ -9,7 +9,7 @@ Scenarios:
   largest this arm reaches (~5e-3, vs ~5e-4 for a random configuration), with a small 5 s
   mission move; ``sigma_min`` stays above 4x the damping threshold (checked), so the law is the
   exact solve;
-* *capture*: the paper's 10 s capture (``scenarios.paper_capture``), whose ``J_wB`` is singular
+* *capture*: the paper's 10 s capture (``scenarios.capture_task``), whose ``J_wB`` is singular
   at the start (yaw-pitch-pitch arm in the plane of symmetry): the damped law;
 * *redundant*: Baxter, 7-DOF right arm balancing the 7-DOF left arm.
 """
@@ -30,7 +30,7 @@ from balance_opt.analytic.options import (
 )
 from balance_opt.analytic.phases import balance_only, both, paper_phases, phase_one
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.errors import InputError, SolverError, TrajectoryError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
@@ -108,7 +108,7 @@ def nonsingular(paper):
 
 @pytest.fixture(scope="module")
 def capture():
-    return paper_capture()
+    return capture_task()
 
 
 @pytest.fixture(scope="module")

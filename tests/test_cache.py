@@ -206,7 +206,7 @@ def test_optimal_plan_after_its_cached_kernels_were_truncated(tmp_path):
     if (session / "pinocchio-bridge").is_dir():  # not the subject here: no rebuild wanted
         shutil.copytree(session / "pinocchio-bridge", private / "pinocchio-bridge")
     env = {**os.environ, "PYTHONPATH": str(ROOT), "BALANCE_OPT_CACHE": str(private)}
-    task = str(ROOT / "examples" / "paper_capture.yaml")
+    task = str(ROOT / "examples" / "capture_task.yaml")
 
     def plan(out: str) -> subprocess.CompletedProcess:
         args = [sys.executable, "-m", "balance_opt.cli", "plan", task, "-m", "optimal"]

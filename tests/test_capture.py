@@ -22,7 +22,7 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.capture import plan_captured, robot_after
 from balance_opt.app.pipeline import run_task, simulate_result
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.errors import InputError
 from balance_opt.io.task import load_task
 from balance_opt.model.capture import Target, attach_target, capture_state
@@ -46,7 +46,7 @@ ATTITUDE_TOLERANCE = 1e-6
 
 @pytest.fixture(scope="module")
 def capture():
-    return paper_capture()
+    return capture_task()
 
 
 @pytest.fixture(scope="module")

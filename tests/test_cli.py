@@ -2,6 +2,7 @@
 metrics, exit codes), a table of bad inputs (exit 2, the culprit named), no overwrite without
 ``--force``, and a solver failure (exit 1, outputs still written)."""
 
+import argparse
 import csv
 import hashlib
 import json
@@ -42,7 +43,7 @@ def _write(path: Path, text: str) -> Path:
 
 
 def _fast_paper(tmp_path: Path, extra: str = "") -> Path:
-    text = (EXAMPLES / "paper_capture.yaml").read_text()
+    text = (EXAMPLES / "capture_task.yaml").read_text()
     text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]").replace(
         "duration: 10.0", "duration: 3.0"
     )
@@ -93,7 +94,7 @@ def test_validate_both_examples(capsys):
         main(
             [
                 "validate",
-                str(EXAMPLES / "paper_capture.yaml"),
+                str(EXAMPLES / "capture_task.yaml"),
                 str(EXAMPLES / "baxter_floating.yaml"),
             ]
         )
@@ -101,7 +102,7 @@ def test_validate_both_examples(capsys):
     )
     err = capsys.readouterr().err
     assert re.search(
-        r"paper_capture\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
+        r"capture_task\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
         r"mission ptp, 10 s\)",
         err,
     )
@@ -118,10 +119,10 @@ def test_inspect_without_and_with_a_task(capsys):
     assert main(["inspect"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("robot paper_robot") and "coupling at q = [0, 0, 0, 0, 0, 0]" in out
-    assert main(["inspect", str(EXAMPLES / "paper_capture.yaml")]) == 0
+    assert main(["inspect", str(EXAMPLES / "capture_task.yaml")]) == 0
     out = capsys.readouterr().out
     assert (
-        out.startswith("task paper_capture (")
+        out.startswith("task capture_task (")
         and "coupling at q = [0, 0.3, -0.6, 0, 0.5, -1]" in out
     )
 
@@ -174,7 +175,7 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     m = _metrics(out)
     assert m["task"] == {
         "file": str(task),
-        "name": "paper_capture",
+        "name": "capture_task",
         "sha256": hashlib.sha256(task.read_bytes()).hexdigest(),
     }
     assert set(m["versions"]) >= {"balance-opt", "pinocchio", "casadi", "ipopt"}
@@ -232,7 +233,7 @@ def test_compare_baxter(tmp_path, capsys):
 
 # ----------------------------------------------------------------------------------- bad input
 def _paper_text() -> str:
-    return (EXAMPLES / "paper_capture.yaml").read_text()
+    return (EXAMPLES / "capture_task.yaml").read_text()
 
 
 def _sub(old: str, new: str):
@@ -438,33 +439,48 @@ def test_paper_figures_with_fast_options(tmp_path):
         "fig4_reaction_torque",
         "fig5_attitude_balanced",
     )
-    assert {p.name for p in out.iterdir()} == {
+    # --task: that task alone (its robot, mission and options), in a folder of its name
+    assert {p.name for p in out.iterdir()} == {"capture_task", "study.json"}
+    assert {p.name for p in (out / "capture_task").iterdir()} == {
         f"{s}.{e}" for s in stems for e in ("png", "pdf")
     } | {"study.json"}
     study = json.loads((out / "study.json").read_text())
-    assert set(study["plans"]) == {"analytic", "optimal"}
+    assert set(study) == {"capture_task"}
+    assert set(study["capture_task"]["plans"]) == {"analytic", "optimal"}
 
 
 @pytest.mark.slow
 def test_api_example_runs_headless(tmp_path):
     import os
-    import subprocess
-    import sys
 
     out = tmp_path / "api"
-    env = {**os.environ, "MPLBACKEND": "Agg"}
-    proc = subprocess.run(
-        [sys.executable, str(EXAMPLES / "compare_api.py"), str(_fast_paper(tmp_path)), str(out)],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-        check=False,
-    )
+    task = _fast_paper(tmp_path)
+
+    def example():
+        return subprocess.run(
+            [sys.executable, str(EXAMPLES / "compare_api.py"), str(task), str(out)],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "MPLBACKEND": "Agg"},
+            timeout=300,
+            check=False,
+        )
+
+    proc = example()
     assert proc.returncode == 0, proc.stderr
     assert re.search(r"^optimal +[0-9.e-]+ +[0-9.e-]+ +0$", proc.stdout, re.MULTILINE)
     assert f"report: {out / 'report.html'}; solver failures: none" in proc.stdout
     assert {"metrics.json", "report.html", "optimal.csv"} <= {p.name for p in out.iterdir()}
+    # each plan computed once: run_task writes the plans and simulations it is given
+    for name in ("mission-only", "analytic", "optimal"):
+        assert f"{name} plan given, not planned again" in proc.stderr
+    assert (
+        "optimal plan (N =" not in proc.stderr and "forward-dynamics simulation" not in proc.stderr
+    )
+    # the folder is checked before planning: a second run is refused at once
+    again = example()
+    assert again.returncode == 1 and again.stdout.count("\n") == 1  # the task line only
+    assert f"compare_api: output folder {out} exists and is not empty" in again.stderr
 
 
 def test_verbose_shows_the_ipopt_iterations(tmp_path, capsys):
@@ -475,3 +491,141 @@ def test_verbose_shows_the_ipopt_iterations(tmp_path, capsys):
         r"^iter +objective +inf_pr", captured.out, re.MULTILINE
     )  # Ipopt's log, as progress
     assert " DEBUG " in captured.err
+
+
+# ----------------------------------------------------------------------------------- version, pipes, help
+def test_version(capsys):
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out == f"balance-opt {balance_opt.__version__}\n"
+    out = subprocess.run(
+        [sys.executable, "-m", "balance_opt.cli", "--version"],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+    )
+    assert (out.stdout, out.stderr) == ("balance-opt 0.1.0\n", "")
+
+
+def test_a_closed_output_pipe_ends_quietly():
+    """``balance-opt validate --schema | head -1``: the reader leaves after one line; the
+    writer ends with 141 (128 + SIGPIPE, what a shell shows for ``cat``) and no traceback. The
+    pipe is made one page small so that the schema (~30 KB) cannot fit in it before the reader
+    leaves."""
+    import fcntl
+    import os
+
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, 1031, 4096)  # F_SETPIPE_SZ
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "balance_opt.cli", "validate", "--schema"],
+        stdout=write_end,
+        stderr=subprocess.PIPE,
+        cwd=ROOT,
+    )
+    os.close(write_end)
+    with os.fdopen(read_end, "rb") as reader:
+        assert reader.readline() == b"{\n"
+    _, err = proc.communicate(timeout=60)
+    assert err.decode() == ""
+    assert proc.returncode == 141
+
+
+def test_head_in_a_shell_pipe_gets_the_first_line():
+    out = subprocess.run(
+        f"'{sys.executable}' -m balance_opt.cli validate --schema | head -1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+        check=False,
+    )
+    assert (out.stdout, out.stderr, out.returncode) == ("{\n", "", 0)
+
+
+@pytest.mark.parametrize(
+    ("command", "default"),
+    [
+        (["plan", "TASK", "-m", "analytic"], "results/<task name>"),
+        (["compare", "TASK"], "results/<task name>"),
+        (["paper-figures", "--task", "TASK"], "results/paper_figures"),
+    ],
+)
+def test_the_default_output_folder_is_the_one_the_help_states(
+    command, default, tmp_path, capsys, monkeypatch
+):
+    """The folder named in ``--help`` is the one the command writes to: made non-empty, it is
+    refused (exit 2, before anything is computed)."""
+    assert main([command[0], "--help"]) == 0
+    assert f"output directory (default: {default})" in " ".join(capsys.readouterr().out.split())
+    task = _fast_paper(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    folder = Path(default.replace("<task name>", "capture_task"))
+    folder.mkdir(parents=True)
+    (folder / "old.txt").write_text("old")
+    argv = [str(task) if a == "TASK" else a for a in command]
+    assert main(argv) == 2
+    assert f"output folder {tmp_path / folder} exists and is not empty" in capsys.readouterr().err
+
+
+def test_backend_is_taken_by_sweep_and_paper_figures(tmp_path, monkeypatch):
+    from balance_opt.app import pipeline
+    from balance_opt.sweep import run as sweep_run
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_sweep(sweep, *args, **kwargs):
+        seen["sweep"] = {case["task"]["robot"]["backend"] for case in sweep.cases}
+        raise Stop
+
+    def fake_figures(folder, **kwargs):
+        seen["figures"] = kwargs["backend"]
+        raise Stop
+
+    monkeypatch.setattr(sweep_run, "run_sweep", fake_sweep)
+    monkeypatch.setattr(pipeline, "paper_figures", fake_figures)
+    sweep = _write(
+        tmp_path / "s.yaml",
+        f"task: {EXAMPLES / 'capture_task.yaml'}\nmethods: [optimal]\n"
+        "grid: {mission.duration: [2.0, 3.0]}\n",
+    )
+    with pytest.raises(Stop):
+        main(["sweep", str(sweep), "-o", str(tmp_path / "s"), "--backend", "adam", "-q"])
+    with pytest.raises(Stop):
+        main(["paper-figures", "-o", str(tmp_path / "f"), "--backend", "adam", "-q"])
+    assert seen == {"sweep": {"adam"}, "figures": "adam"}
+
+
+# ----------------------------------------------------------------------------------- progress
+def test_optimal_plan_shows_its_ipopt_progress_unless_quiet(tmp_path, capsys):
+    task = str(_fast_paper(tmp_path))
+    assert main(["plan", task, "-m", "optimal", "-o", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    line = re.compile(
+        r"^Ipopt \(N = 12\): (\d+) iterations, objective \S+, constraint violation "
+        r"(\S+) in [0-9.]+ s$",
+        re.MULTILINE,
+    )
+    found = line.findall(err)
+    assert found, err
+    iterations = _metrics(tmp_path / "a")["methods"]["optimal"]["solver"]["iterations"]
+    assert int(found[-1][0]) == iterations
+    assert float(found[-1][1]) < 1e-6
+    assert "\r" not in err  # not a terminal: no live line
+    assert main(["plan", task, "-m", "optimal", "-o", str(tmp_path / "b"), "-q"]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_the_readme_lists_every_subcommand():
+    from balance_opt.cli import build_parser
+
+    readme = (ROOT / "README.md").read_text()
+    listing = readme[readme.index("## Command line") : readme.index("Every command that computes")]
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [name for name in sub.choices if f"    balance-opt {name}" not in listing]
+    assert missing == []
+    assert "balance-opt --version" in listing

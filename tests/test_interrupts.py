@@ -25,7 +25,7 @@ from balance_opt import interrupts
 from balance_opt.cli import main
 
 TESTS = Path(__file__).resolve().parent
-PAPER_TASK = TESTS.parent / "examples" / "paper_capture.yaml"
+PAPER_TASK = TESTS.parent / "examples" / "capture_task.yaml"
 #: Ipopt options that keep the solve going for tens of seconds on the fast test task.
 SLOW_IPOPT = (
     "hessian_approximation=limited-memory",
@@ -40,7 +40,7 @@ IPOPT_ITERATION = re.compile(r"^\s*(\d+)r?\s+[-+]?\d\.\d+e[-+]\d+\s")
 
 
 def _fast_task(tmp_path: Path, intervals: int = 12, outputs: str = "{plots: false, report: false}"):
-    """The paper task made fast: a short move, coarse grids, by default no figures."""
+    """The capture task made fast: a short move, coarse grids, by default no figures."""
     text = PAPER_TASK.read_text()
     text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]")
     text = text.replace("duration: 10.0", "duration: 3.0")

@@ -1,14 +1,27 @@
 """The paper's robot (``urdf/paper_robot.urdf``) against Table 1, under the reading stated in
 ``urdf/paper_robot.md``: masses, inertias (with the parallel-axis transfers done here), link
-lengths, mount points, joint axes and limits."""
+lengths, mount points, joint axes and limits; the Table 1 builder and the second reading
+(``urdf/paper_robot_fig5.urdf``); and the paper's law on ``examples/paper_fig5.yaml``, checked
+against an attitude this file recomputes itself."""
 
 import xml.etree.ElementTree as ET
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 import pytest
+from scipy.interpolate import CubicSpline
 
-from balance_opt.model.library import shipped_urdf
+from balance_opt.app.scenarios import capture_task, paper_fig5
+from balance_opt.model.library import (
+    PAPER_FIG5_ROBOT,
+    paper_robot_fig5,
+    shipped_urdf,
+    table1_robot,
+)
+from balance_opt.model.maps import NumericMaps
+from balance_opt.model.table1 import FIG5_READING, SHIPPED_READING, table1_urdf
 
 #: Tolerance where no rounding is involved (float arithmetic only).
 EXACT_ATOL = 1e-12
@@ -229,3 +242,144 @@ def test_joint_limits(paper, arm, k):
     assert (lim.lower[i], lim.upper[i]) == (-position, position)
     assert (lim.velocity[i], lim.effort[i]) == (velocity, effort)
     assert np.isinf(lim.acceleration[i])  # URDF has none: tasks set them
+
+
+# ------------------------------------------------------------------------------ other readings
+def _same_model(a, b):
+    """Two Pinocchio models with the same bodies, joint placements and joint axes."""
+    assert [n for n in a.names] == [n for n in b.names]
+    for jid in range(1, a.njoints):
+        ia, ib = a.inertias[jid], b.inertias[jid]
+        assert ia.mass == ib.mass, a.names[jid]
+        np.testing.assert_array_equal(ia.lever, ib.lever)
+        np.testing.assert_array_equal(ia.inertia, ib.inertia)
+        np.testing.assert_allclose(
+            a.jointPlacements[jid].homogeneous, b.jointPlacements[jid].homogeneous, atol=1e-15
+        )
+        assert a.joints[jid].shortname() == b.joints[jid].shortname(), a.names[jid]
+
+
+def test_builder_reproduces_the_shipped_reading(paper):
+    """table1_urdf under the shipped reading is the shipped URDF, number for number."""
+    _same_model(table1_robot(SHIPPED_READING).model, paper.model)
+    rng = np.random.default_rng(7)
+    built = table1_robot(SHIPPED_READING)
+    for _ in range(5):
+        q = rng.uniform(paper.limits.lower, paper.limits.upper)
+        for arm, (origins, axes, ee, _) in _kinematics(built, q).items():
+            ref = _kinematics(paper, q)[arm]
+            np.testing.assert_allclose(origins, ref[0], rtol=0, atol=EXACT_ATOL)
+            np.testing.assert_allclose(axes, ref[1], rtol=0, atol=EXACT_ATOL)
+            np.testing.assert_allclose(ee, ref[2], rtol=0, atol=EXACT_ATOL)
+
+
+def test_fig5_urdf_is_the_builders_output_with_table_1_bodies(paper):
+    assert shipped_urdf(PAPER_FIG5_ROBOT).read_text() == table1_urdf(FIG5_READING)
+    fig5 = paper_robot_fig5()
+    for jid in range(1, paper.model.njoints):  # same bodies: only mounts and axes differ
+        a, b = paper.model.inertias[jid], fig5.model.inertias[jid]
+        assert (a.mass, a.lever.tolist(), a.inertia.tolist()) == (
+            b.mass,
+            b.lever.tolist(),
+            b.inertia.tolist(),
+        )
+    assert fig5.total_mass == pytest.approx(331.0, abs=EXACT_ATOL)
+
+
+def test_capture_task_starts_at_an_exactly_singular_j_wb():
+    """The comment of examples/capture_task.yaml: J_wB's singular values at its start."""
+    scenario = capture_task()
+    _, J_wB = NumericMaps(scenario.robot).angular_jacobians(scenario.q0)
+    s = np.linalg.svd(J_wB, compute_uv=False)
+    np.testing.assert_allclose(s[:2], (0.090, 0.059), rtol=0, atol=6e-4)
+    assert s[2] < 1e-15
+
+
+# ------------------------------------------------------------------------------ Fig. 5
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+#: What the paper's Fig. 5 shows, asked of the law: final attitude error at least this many
+#: times below the mission arm's alone.
+FIG5_RATIO = 20.0
+#: Balance joint limits of examples/paper_fig5.yaml: rate [rad/s] (URDF), acceleration [rad/s^2].
+RATE_LIMIT, ACCELERATION_LIMIT = 1.0, 2.0
+
+
+def _independent_attitude(robot, t, q):
+    """Base rotation angle at the end [rad] and the base rates (T, 3) [rad/s] of an arm motion
+    ``q`` (T, n) sampled at ``t``, recomputed here: joint rates from a cubic spline of the
+    positions, the base rate from zero angular momentum with Pinocchio's centroidal map, the
+    attitude by midpoint steps of the exponential map."""
+    rates = CubicSpline(t, q)(t, 1)
+    model, data = robot.model, robot.model.createData()
+    omega = np.empty((len(t), 3))
+    for k in range(len(t)):
+        A = pin.computeCentroidalMap(model, data, robot.pin_q(q[k]))[3:]  # angular rows
+        omega[k] = -np.linalg.solve(A[:, 3:6], A @ robot.pin_v(rates[k]))
+    R = np.eye(3)
+    for k in range(len(t) - 1):
+        R = R @ pin.exp3((t[k + 1] - t[k]) * (omega[k] + omega[k + 1]) / 2)
+    return float(np.linalg.norm(pin.log3(R))), omega
+
+
+@pytest.fixture(scope="module")
+def fig5():
+    from balance_opt.app.pipeline import plan_analytic, plan_mission_only
+    from balance_opt.io.task import load_task
+
+    task = load_task(EXAMPLES / "paper_fig5.yaml")
+    return task, plan_analytic(task), plan_mission_only(task)
+
+
+def test_paper_fig5_example_is_the_scenario(fig5):
+    task, _, _ = fig5
+    scenario = paper_fig5()
+    assert task.robot.name == scenario.robot.name == FIG5_READING.name
+    np.testing.assert_array_equal(task.q_B0, scenario.q_B0)
+    np.testing.assert_array_equal(task.mission.start, scenario.mission.start)
+    np.testing.assert_array_equal(task.mission.end, scenario.mission.end)
+    assert task.mission.duration == scenario.mission.duration
+    assert replace(task.spec.analytic.law, h0=None) == scenario.law  # the task sets h0 = 0
+    assert task.spec.analytic.law.damping_threshold == 0  # exact Eq. 31, no damping
+
+
+def test_paper_law_does_what_fig5_shows(fig5):
+    """Exact Eq. 31 leaves the base at least 20 times closer to its start than the mission arm
+    alone, by an attitude recomputed here from the positions alone."""
+    task, law, alone = fig5
+    q_law = np.hstack([law.q_M, law.q_B])
+    q_alone = np.hstack([alone.q_M, alone.q_B])
+    drift_law, omega_law = _independent_attitude(task.robot, law.t, q_law)
+    drift_alone, _ = _independent_attitude(task.robot, alone.t, q_alone)
+    assert drift_alone > 0.02  # a disturbance Fig. 2 shows (over 1 degree)
+    assert drift_alone / drift_law >= FIG5_RATIO, (drift_alone, drift_law)
+    # the recomputation agrees with each rollout's own attitude
+    assert drift_alone == pytest.approx(alone.final_drift, rel=1e-3)
+    assert drift_law <= law.final_drift + 1e-4
+    assert np.abs(omega_law).max() < 1e-3 * np.abs(alone.omega).max() + 1e-6
+
+
+def test_paper_law_holds_the_balance_arms_limits_on_fig5(fig5):
+    """Positions, rates and accelerations of the law's balance motion, differentiated here."""
+    task, law, _ = fig5
+    spline = CubicSpline(law.t, law.q_B)
+    lim = task.robot.limits
+    B = task.robot.balance_indices
+    assert np.all(law.q_B >= lim.lower[B]) and np.all(law.q_B <= lim.upper[B])
+    assert np.abs(spline(law.t, 1)).max() <= RATE_LIMIT
+    assert np.abs(spline(law.t, 2)).max() <= ACCELERATION_LIMIT
+    assert law.violations == []
+
+
+def test_fig5_reading_at_home_is_as_its_file_says():
+    """urdf/paper_robot_fig5.md: mounts, axes and the direction of the links at q = 0."""
+    robot = paper_robot_fig5()
+    kin = _kinematics(robot, np.zeros(robot.n))
+    expected = {  # joint 1 origin, axes of joints 1-3, end effector (base frame, q = 0)
+        "mission": ((0.5, 0, 0), [(0, 0, -1), (0, -1, 0), (1, 0, 0)], (1.0, 0, -1.0)),
+        "balance": ((-0.5, 0, 0), [(0, 0, 1), (0, -1, 0), (-1, 0, 0)], (-1.0, 0, 1.0)),
+    }
+    for arm, (origin, axes, ee) in expected.items():
+        origins, got_axes, got_ee, _ = kin[arm]
+        np.testing.assert_allclose(origins[0], origin, rtol=0, atol=EXACT_ATOL)
+        np.testing.assert_allclose(got_axes, axes, rtol=0, atol=EXACT_ATOL, err_msg=arm)
+        np.testing.assert_allclose(got_ee, ee, rtol=0, atol=EXACT_ATOL, err_msg=arm)

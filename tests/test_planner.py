@@ -9,7 +9,7 @@ Tasks:
 
 * *in-plane*: the mission arm's pitch joints only (yaw held at 0), so the base turns about one
   axis the balance arm controls well: the analytic law stays far inside the limits;
-* *capture*: the paper's capture task (``scenarios.paper_capture``), where the analytic law
+* *capture*: the capture task (``scenarios.capture_task``), where the analytic law
   breaks the limits (its balance joint 3 runs 8 rad past its limit) and the J_wB of the balance
   arm is singular at its start (rank 2: its yaw is 0, so it cannot roll the base). With the
   URDF's 1 rad/s joint rate limits, the best plan in 10 s keeps the largest drift about 3 times
@@ -33,7 +33,7 @@ import pytest
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import PAPER_MISSION_GOAL, PAPER_MISSION_START, paper_capture
+from balance_opt.app.scenarios import CAPTURE_MISSION_GOAL, CAPTURE_MISSION_START, capture_task
 from balance_opt.errors import InfeasibleLimitsError, InputError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
@@ -73,7 +73,7 @@ DERIVATIVE_TOLERANCE = 1e-9
 #: Phase I's 3e-2 rad).
 DRIFT_TOLERANCE = 1e-6
 #: A hard terminal-attitude bound is met by the re-simulated plan within this [rad]: the
-#: collocation error of Hermite-Simpson at N = 100 on the paper task (~1e-7 rad).
+#: collocation error of Hermite-Simpson at N = 100 on the capture task (~1e-7 rad).
 TERMINAL_TOLERANCE = 1e-6
 #: Joint values of the continuous plan at the nodes vs the NLP's [rad, rad/s].
 NODE_TOLERANCE = 1e-9
@@ -85,7 +85,7 @@ NEAR_EXACT_LAW = BalanceLawOptions(damping_threshold=1e-4, max_damping=1e-3)
 #: The objective and end conditions these tests were written for (the peak objective and the
 #: rest ends are tested in test_quality.py).
 INTEGRAL = {"objective": "integral", "start": "still", "end": "free"}
-#: Drift reduction against Phase I required on the paper capture move.
+#: Drift reduction against Phase I required on the capture move.
 DRIFT_REDUCTION_20S = 5.0
 DRIFT_REDUCTION_10S = 2.5
 
@@ -93,7 +93,7 @@ DRIFT_REDUCTION_10S = 2.5
 # ---------------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
 def capture():
-    return paper_capture()
+    return capture_task()
 
 
 @pytest.fixture(scope="module")
@@ -104,12 +104,12 @@ def model(capture):
 @pytest.fixture(scope="module")
 def in_plane(capture):
     """The mission arm's pitch joints only, 10 s."""
-    return PointToPoint(PAPER_MISSION_START, (0.0, 0.9, -1.6), 10.0)
+    return PointToPoint(CAPTURE_MISSION_START, (0.0, 0.9, -1.6), 10.0)
 
 
 @pytest.fixture(scope="module")
 def capture_plan(model, capture):
-    """The paper capture task in 10 s, default options at N = 50."""
+    """The capture task in 10 s, default options at N = 50."""
     return build_balance_nlp(
         model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=50)
     ).solve()
@@ -117,7 +117,7 @@ def capture_plan(model, capture):
 
 @pytest.fixture(scope="module")
 def capture_law(capture):
-    """The near-exact analytic law on the paper capture task, 1001 samples."""
+    """The near-exact analytic law on the capture task, 1001 samples."""
     t = np.linspace(0.0, capture.mission.duration, 1001)
     return _near_exact_law(capture.robot, capture.mission, capture.q_B0, t)
 
@@ -352,7 +352,7 @@ def test_no_worse_than_an_analytic_law_that_stays_inside_the_limits(model, captu
     assert plan.final_drift <= law.final_drift + DRIFT_TOLERANCE
 
 
-def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_plan, capture_law):
+def test_capture_task_meets_every_limit_and_beats_phase_one(capture, capture_plan, capture_law):
     plan = capture_plan
     assert isinstance(plan, BalanceResult) and plan.method == "optimal"
     assert plan.info["status"] == "Solve_Succeeded"
@@ -377,7 +377,7 @@ def test_paper_capture_meets_every_limit_and_beats_phase_one(capture, capture_pl
     assert len(plan.info["history"]["inf_pr"]) == plan.info["iterations"] + 1
 
 
-def test_paper_capture_limits_hold_on_the_whole_continuous_plan(model, capture, capture_plan):
+def test_capture_task_limits_hold_on_the_whole_continuous_plan(model, capture, capture_plan):
     """Every Bernstein coefficient of the plan's position, velocity and acceleration on every
     interval is inside the limits, so the continuous motion is (convex hull), not only the
     samples."""
@@ -403,8 +403,8 @@ def test_paper_capture_limits_hold_on_the_whole_continuous_plan(model, capture, 
 
 
 @pytest.mark.slow
-def test_paper_capture_in_20_s_is_five_times_better_than_phase_one(model, capture):
-    mission = PointToPoint(PAPER_MISSION_START, PAPER_MISSION_GOAL, 20.0)
+def test_capture_task_in_20_s_is_five_times_better_than_phase_one(model, capture):
+    mission = PointToPoint(CAPTURE_MISSION_START, CAPTURE_MISSION_GOAL, 20.0)
     slow = dataclasses.replace(capture, mission=mission)
     t = np.linspace(0.0, mission.duration, 2001)
     law = _near_exact_law(slow.robot, mission, slow.q_B0, t)

@@ -1,4 +1,4 @@
-"""The quality of the optimal plan (issue 11): the peak objective on the paper capture task,
+"""The quality of the optimal plan (issue 11): the peak objective on the capture task,
 rest at both ends, path attitude bounds reached through the peak problem, torque limits held on
 the whole re-simulated motion, multi-start.
 
@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.model.library import paper_robot
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -31,7 +31,7 @@ TORQUE_EXCESS = 2e-3
 
 @pytest.fixture(scope="module")
 def capture():
-    return paper_capture()
+    return capture_task()
 
 
 @pytest.fixture(scope="module")
@@ -55,10 +55,10 @@ def _no_violations(plan):
 
 @pytest.mark.slow
 def test_peak_plan_of_the_capture_task_meets_the_peak_target(model, capture):
-    plan = build_balance_nlp(
-        model, capture.mission, capture.q_B0, PlannerOptions(objective="peak")
-    ).solve()
+    plan = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions()).solve()
     assert plan.info["intervals"] == 100 and plan.info["options"]["objective"] == "peak"
+    assert [s["stage"] for s in plan.info["stages"]] == ["integral", "smooth", "peak"]
+    assert plan.info["total_iterations"] == sum(s["iterations"] for s in plan.info["stages"])
     assert plan.max_drift <= PEAK_TARGET
     assert plan.final_drift <= FINAL_TARGET
     _no_violations(plan)
@@ -152,9 +152,26 @@ def test_multi_start_keeps_the_best_and_reports_the_spread(model, capture):
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
     starts = plan.info["starts"]
     assert [r["guess"] for r in starts["runs"]] == ["analytic", "rest", "random"]
+    assert 1 <= starts["workers"] <= 3
     objectives = [r["objective"] for r in starts["runs"] if "objective" in r]
     assert plan.info["objective"] == min(objectives)
     assert starts["objective_spread"] == pytest.approx(max(objectives) - min(objectives))
     again = dataclasses.replace(options, starts=1)
     single = build_balance_nlp(model, capture.mission, capture.q_B0, again).solve()
     assert plan.info["objective"] <= single.info["objective"] + 1e-9
+
+
+@pytest.mark.slow
+def test_peak_multi_start_merges_starts_that_reach_the_same_first_plan(model, capture):
+    """Every start of the capture task reaches the same integral plan: one goes on, and the
+    plan is the single start's."""
+    options = PlannerOptions(intervals=20, starts=3, seed=2)
+    plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
+    starts = plan.info["starts"]
+    assert starts["distinct"] == 1 and starts["solved"] == 3
+    assert [r.get("same_as") for r in starts["runs"]] == [None, 0, 0]
+    assert starts["max_drift_spread_rad"] == 0.0
+    single = build_balance_nlp(
+        model, capture.mission, capture.q_B0, dataclasses.replace(options, starts=1)
+    ).solve()
+    assert plan.max_drift == pytest.approx(single.max_drift, rel=1e-6)

@@ -289,8 +289,8 @@ _EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "example
 
 
 def _task_file(tmp_path, extra=""):
-    """The paper task made fast (short move, few intervals, coarse output grids)."""
-    text = (_EXAMPLES / "paper_capture.yaml").read_text()
+    """The capture task made fast (short move, few intervals, coarse output grids)."""
+    text = (_EXAMPLES / "capture_task.yaml").read_text()
     text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]")
     text = text.replace("duration: 10.0", "duration: 3.0")
     text += (
@@ -359,13 +359,13 @@ def test_default_output_folder_checked_before_any_computation(tmp_path, capsys, 
     assert main(["plan", str(task)]) == 2
     err = capsys.readouterr().err
     results = tmp_path / "results"
-    assert f"cannot create output folder {results / 'paper_capture'}: {results} is a file" in err
+    assert f"cannot create output folder {results / 'capture_task'}: {results} is a file" in err
 
 
 @pytest.mark.parametrize(
     ("name", "folder"),
     [
-        ("paper_capture", "paper_capture"),
+        ("capture_task", "capture_task"),
         ("../../x", "_.._x"),
         ("/etc/passwd", "_etc_passwd"),
         (".hidden", "hidden"),
@@ -424,7 +424,7 @@ def test_sweep_into_a_folder_in_use_is_refused(tmp_path, capsys):
 
     sweep = tmp_path / "s.yaml"
     sweep.write_text(
-        f"task: {_EXAMPLES / 'paper_capture.yaml'}\nname: s\nmethods: [analytic]\n"
+        f"task: {_EXAMPLES / 'capture_task.yaml'}\nname: s\nmethods: [analytic]\n"
         "grid:\n  mission.duration: [1.0, 2.0]\n"
     )
     out = tmp_path / "out"

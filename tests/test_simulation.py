@@ -9,7 +9,7 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import simulate, simulate_plan
 from balance_opt.dynamics.wrenches import arm_root_joints
@@ -42,12 +42,12 @@ SMALL_MOVE_DURATION = 5.0
 
 @pytest.fixture(scope="module")
 def scenario():
-    return paper_capture()
+    return capture_task()
 
 
 @pytest.fixture(scope="module")
 def mission_only(scenario):
-    """The paper's capture move with the balance arm held: 10 s, RK4 at 1 ms (issue 5)."""
+    """The capture task's move with the balance arm held: 10 s, RK4 at 1 ms (issue 5)."""
     return simulate(
         scenario.robot, scenario.mission, scenario.q_B0, SimulationOptions(dt=1e-3, output_dt=None)
     )
@@ -102,7 +102,7 @@ def test_momentum_conserved_over_10_s(mission_only, scenario):
 def test_initial_momentum_and_base_twist():
     """A nonzero initial momentum, and joints already moving at t = 0: the initial base twist is
     the one momentum conservation requires, and the momentum stays h0."""
-    sc = paper_capture()
+    sc = capture_task()
     robot = sc.robot
     t = np.linspace(0.0, 1.0, 21)
     w = 2 * np.pi * 0.5

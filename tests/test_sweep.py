@@ -39,7 +39,7 @@ from balance_opt.sweep.run import run_sweep
 from balance_opt.sweep.spec import load_sweep, parse_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER_TASK = ROOT / "examples" / "paper_capture.yaml"
+PAPER_TASK = ROOT / "examples" / "capture_task.yaml"
 TOY_RUNNER = "test_sweep:toy_case"
 #: Joint-rate excess within the solver's tolerance [rad/s].
 LIMIT_SLACK = 1e-6
@@ -535,7 +535,7 @@ def test_table_order_and_timing_columns():
 
 
 # ------------------------------------------------------------------------- real cases, end to end
-#: The paper task, short and coarse: a few optimal cases solve in well under a second each.
+#: The capture task, short and coarse: a few optimal cases solve in well under a second each.
 REAL_SWEEP = f"""\
 task: {PAPER_TASK}
 name: e2e

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
-from balance_opt.app.scenarios import paper_capture
+from balance_opt.app.scenarios import capture_task
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.io.task import (
@@ -28,7 +28,7 @@ from balance_opt.optimal.options import CostWeights, PlannerOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
-PAPER = (EXAMPLES / "paper_capture.yaml").read_text()
+PAPER = (EXAMPLES / "capture_task.yaml").read_text()
 
 
 def _line_of(text: str, fragment: str) -> int:
@@ -90,8 +90,8 @@ def test_yaml_syntax_error_names_the_line():
 
 # ----------------------------------------------------------------------------------- examples
 def test_paper_example_is_the_paper_scenario():
-    task = load_task(EXAMPLES / "paper_capture.yaml")
-    scenario = paper_capture()
+    task = load_task(EXAMPLES / "capture_task.yaml")
+    scenario = capture_task()
     assert task.robot.joint_names == scenario.robot.joint_names
     for key in ("lower", "upper", "velocity", "acceleration", "effort"):
         np.testing.assert_array_equal(
@@ -102,7 +102,7 @@ def test_paper_example_is_the_paper_scenario():
     for a, b in zip(task.mission.sample(t), scenario.mission.sample(t)):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(task.h0, np.zeros(6))
-    assert task.name == "paper_capture"
+    assert task.name == "capture_task"
     assert len(task.sha256) == 64
 
 
@@ -235,7 +235,7 @@ BAD_TASKS = [
         "unknown shipped URDF",
         [("shipped: paper_robot.urdf", "shipped: nope.urdf")],
         "shipped: nope",
-        "robot.shipped: no shipped URDF 'nope.urdf'; available: paper_robot.urdf",
+        "robot.shipped: no shipped URDF 'nope.urdf'; available: paper_robot.urdf, paper_robot_fig5.urdf",
         TaskFileError,
     ),
     (
@@ -348,9 +348,9 @@ BAD_TASKS = [
     ),
     (
         "duplicate key",
-        [("name: paper_capture", "name: paper_capture\nname: again")],
+        [("name: capture_task", "name: capture_task\nname: again")],
         "name: again",
-        "name: key 'name' is given twice (first on line 4)",
+        "name: key 'name' is given twice (first on line 8)",
         TaskFileError,
     ),
     (
@@ -536,7 +536,7 @@ def test_schema_and_validator_agree_on_the_examples_and_on_bad_input():
     schema = task_json_schema()
     jsonschema.Draft202012Validator.check_schema(schema)
     validator = jsonschema.Draft202012Validator(schema)
-    for path in (EXAMPLES / "paper_capture.yaml", EXAMPLES / "baxter_floating.yaml"):
+    for path in (EXAMPLES / "capture_task.yaml", EXAMPLES / "baxter_floating.yaml"):
         assert list(validator.iter_errors(yaml.safe_load(path.read_text()))) == [], path
     good = yaml.safe_load(PAPER)
     for bad_edit in (
@@ -717,7 +717,7 @@ OPTION_KEYS_DEFAULTS = [
     ("analytic.step", "none"),
     ("analytic.output_step", "0.01"),
     ("optimal", "see below"),
-    ("optimal.objective", "'integral'"),
+    ("optimal.objective", "'peak'"),
     ("optimal.intervals", "100"),
     ("optimal.transcription", "'hermite-simpson'"),
     ("optimal.control", "'acceleration'"),
@@ -815,7 +815,7 @@ def test_loading_a_task_imports_neither_casadi_nor_the_planner():
     code = (
         "import sys\n"
         "from balance_opt.io.task import load_task\n"
-        f"load_task({str(EXAMPLES / 'paper_capture.yaml')!r})\n"
+        f"load_task({str(EXAMPLES / 'capture_task.yaml')!r})\n"
         "print(sorted(m for m in sys.modules if m == 'casadi' or m.startswith('balance_opt.optimal.')))"
     )
     out = subprocess.run(

@@ -20,7 +20,7 @@ from balance_opt.io.yaml_lines import TaskFileError
 from balance_opt.model.robot import FloatingRobot
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER = (ROOT / "examples" / "paper_capture.yaml").read_text()
+PAPER = (ROOT / "examples" / "capture_task.yaml").read_text()
 
 
 def _line_of(text: str, fragment: str) -> int:
@@ -29,7 +29,7 @@ def _line_of(text: str, fragment: str) -> int:
 
 
 def _task(tmp_path: Path, *edits: tuple[str, str], extra: str = "", name="task.yaml") -> Path:
-    """The paper task with ``edits`` (old, new) and ``extra`` keys appended, written to a file."""
+    """The capture task with ``edits`` (old, new) and ``extra`` keys appended, written to a file."""
     text = PAPER
     for old, new in edits:
         assert old in text, old
@@ -362,8 +362,8 @@ def test_analytic_rk4_step_is_checked_too(tmp_path):
         (
             "peak",
             (
-                "31.6 GiB of memory (3 balance joints: 2.4e+06 variables, 8.43e+07 non-zeros "
-                "in the KKT matrices of the 2 NLPs the plan builds)"
+                "47.1 GiB of memory (3 balance joints: 2.4e+06 variables, 1.26e+08 non-zeros "
+                "in the KKT matrices of the 3 NLPs the plan builds)"
             ),
         ),
     ],
@@ -525,7 +525,7 @@ def test_empty_balance_arm_says_so(tmp_path):
 
 @pytest.mark.parametrize("name", ["../../x", ".hidden", "a/b", "my task", "x" * 101])
 def test_task_name_that_is_not_a_plain_folder_name_is_refused(tmp_path, name):
-    path = _task(tmp_path, ("name: paper_capture", f"name: {name!r}"))
+    path = _task(tmp_path, ("name: capture_task", f"name: {name!r}"))
     _refused(
         path,
         "name: ",
@@ -535,7 +535,7 @@ def test_task_name_that_is_not_a_plain_folder_name_is_refused(tmp_path, name):
 
 
 def test_plain_task_name_is_accepted(tmp_path):
-    path = _task(tmp_path, ("name: paper_capture", "name: Capture-2.v1_b"))
+    path = _task(tmp_path, ("name: capture_task", "name: Capture-2.v1_b"))
     assert load_task(path).name == "Capture-2.v1_b"
 
 

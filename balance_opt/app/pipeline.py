@@ -1,13 +1,15 @@
 """Running a task: the mission arm alone (Phase I, the reference), the analytic and/or optimal
 balance plans, optionally each checked by forward dynamics, then every output written.
 
-The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API share this module::
+The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API share this module
+(its public names are also the package's: ``balance_opt.run_task``, ...)::
 
-    from balance_opt.io.task import load_task
-    from balance_opt.app.pipeline import run_task
+    import balance_opt as bo
 
-    run = run_task(load_task("examples/paper_capture.yaml"), methods=("analytic", "optimal"),
-                   simulate=True, output_dir="results/paper_capture")
+    task = bo.load_task("examples/capture_task.yaml")
+    analytic = bo.plan_analytic(task)
+    run = bo.run_task(task, plans={"analytic": analytic}, simulate=True,
+                      output_dir="results/capture_task")   # plans only the optimal method
     run.results["optimal"].max_drift
 
 A solver failure does not stop the run: the failing method's best iterate is kept, written and
@@ -29,7 +31,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
@@ -37,6 +39,9 @@ from balance_opt.interrupts import handling_signals
 from balance_opt.io.output_dir import OutputFolder
 from balance_opt.io.task import Task, check_methods, check_optimal_supported
 from balance_opt.result import BalanceResult
+
+if TYPE_CHECKING:
+    from balance_opt.dynamics.simulation import SimulationResult
 
 log = logging.getLogger(__name__)
 
@@ -99,12 +104,42 @@ class TaskRun:
         """No solver failed."""
         return not self.failures
 
+    def __repr__(self) -> str:
+        lines = [f"TaskRun(task={self.task.name!r}, ok={self.ok})"]
+        for name, res in self.results.items():
+            failed = " (failed)" if name in self.failures else ""
+            lines.append(
+                f"  {name:13} max drift {res.max_drift:.4g} rad, final {res.final_drift:.4g} rad, "
+                f"{len(res.violations)} limit violation(s){failed}"
+            )
+        if self.simulations:
+            lines.append(f"  simulated     {', '.join(self.simulations)}")
+        for name, message in self.failures.items():
+            if name not in self.results:
+                lines.append(f"  {name}: failed: {message[:80]}")
+        if self.files:
+            where = self.files[0].parent
+            report = f", report {self.report}" if self.report is not None else ""
+            lines.append(f"  files         {len(self.files)} in {where}{report}")
+        return "\n".join(lines)
+
 
 # =========================================================================================== methods
 def plan_mission_only(task: Task) -> BalanceResult:
     """Phase I (paper Fig. 2): the base attitude with the mission arm moving and the balance arm
-    held at its start, integrated from momentum conservation."""
+    held at its start, integrated from momentum conservation: the reference of every plan.
+
+    Args:
+        task: a loaded task (:func:`balance_opt.io.task.load_task`).
+
+    Returns:
+        A result with ``method="mission-only"``; for a task with a capture, both phases
+        joined at the capture (:func:`balance_opt.app.capture.plan_captured`), as every method.
+    """
     from balance_opt.analytic.phases import phase_one
+
+    if task.target is not None:
+        return _captured(task, REFERENCE)
 
     a = task.spec.analytic
     return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration)
@@ -113,10 +148,19 @@ def plan_mission_only(task: Task) -> BalanceResult:
 def plan_analytic(task: Task) -> BalanceResult:
     """Phase II: the analytic balance law (Eq. 31, 32) rolled out with the task's options.
 
+    Args:
+        task: a loaded task.
+
+    Returns:
+        A result with ``method="analytic"``.
+
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
     """
     from balance_opt.analytic.rollout import rollout
+
+    if task.target is not None:
+        return _captured(task, "analytic")
 
     a = task.spec.analytic
     return rollout(task.robot, task.mission, task.q_B0, a.law, integration=a.integration)
@@ -134,15 +178,23 @@ def plan_optimal(
         task: the task.
         solver_options: Ipopt options overriding ``optimal.ipopt`` (``--solver-option``).
         warm_start: an analytic result to start from (with ``optimal.initial_guess: analytic``),
-            instead of rolling out the law again.
+            instead of rolling out the law again (not used for a task with a capture, whose
+            phases start from their own guesses).
         models: the planner models to reuse (with their compiled NLPs); without one, the
             model is built for this call only.
 
+    Returns:
+        A result with ``method="optimal"``, re-simulated on a fine grid; ``info`` holds the
+        solver's status, iterations, objective and wall times.
+
     Raises:
+        InputError: the task asks for something the optimal planner cannot do.
         SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
     """
     from balance_opt.optimal.solve import build_balance_nlp
 
+    if task.target is not None:
+        return _captured(task, "optimal", solver_options, models)
     check_optimal_supported(task)
     spec = task.spec.optimal
     options = task.planner_options(solver_options)
@@ -156,6 +208,13 @@ def plan_optimal(
         else spec.initial_guess
     )
     return nlp.solve(guess)
+
+
+def _captured(task: Task, method: str, solver_options=None, models=None) -> BalanceResult:
+    """The plan of a task with a capture: two phases joined at the capture (issue 16)."""
+    from balance_opt.app.capture import plan_captured
+
+    return plan_captured(task, method, solver_options, models)
 
 
 def plan(
@@ -176,10 +235,6 @@ def plan(
         InputError: an unknown method.
         SolverError: the method failed; its ``result`` holds what was computed.
     """
-    if task.target is not None and method in (REFERENCE, *METHODS):  # two phases (issue 16)
-        from balance_opt.app.capture import plan_captured
-
-        return plan_captured(task, method, solver_options, models)
     if method == REFERENCE:
         return plan_mission_only(task)
     if method == "analytic":
@@ -189,8 +244,17 @@ def plan(
     raise InputError(f"unknown method '{method}'; expected {' or '.join(METHODS)}")
 
 
-def simulate_result(task: Task, plan: BalanceResult):
-    """Forward-dynamics simulation of a plan with the task's simulation options."""
+def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
+    """Forward-dynamics simulation of a plan with the task's simulation options
+    (``simulation:``): joint controllers track the plan, the base floats.
+
+    Args:
+        task: the task the plan was made for.
+        plan: any plan of that task (analytic, optimal, mission arm alone).
+
+    Returns:
+        The simulated motion, its joint torques and the arms' wrenches on the base.
+    """
     from balance_opt.dynamics.simulation import simulate_plan
 
     if task.target is not None:  # through the capture's impulse (issue 16)
@@ -201,6 +265,10 @@ def simulate_result(task: Task, plan: BalanceResult):
             task.robot, robot_after(task), task.target, plan, task.spec.simulation
         )
     return simulate_plan(task.robot, plan, task.spec.simulation)
+
+
+#: The name :func:`simulate` had first (the sweep's runner uses it).
+simulate_result = simulate
 
 
 # =========================================================================================== run
@@ -221,6 +289,8 @@ def run_task(
     solver_options: Mapping[str, Any] | None = None,
     models: ModelCache | None = None,
     force: bool = False,
+    plans: Mapping[str, BalanceResult] | None = None,
+    simulations: Mapping[str, SimulationResult] | None = None,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -236,41 +306,88 @@ def run_task(
         models: planner models to reuse across runs; by default this run keeps its own.
         force: replace an output folder that exists and is not empty (once the new one is
             complete); without it such a folder is refused before anything is computed.
+        plans: results already computed for this task, ``{"mission-only" | "analytic" |
+            "optimal": BalanceResult}``: used as they are instead of planning again (a given
+            analytic plan is also the optimal planner's warm start). A given plan whose solver
+            failed (``info["success"]`` false) is recorded in ``failures``.
+        simulations: simulations already computed, ``{name: SimulationResult}`` (with
+            ``simulate``), likewise reused.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
         in ``run.results`` and was written). ``run.files`` are the paths in ``output_dir``.
 
     Raises:
-        InputError: an unknown method, or a method the task cannot use; an output folder that
-            cannot be created, is in use by another run, or is not empty without ``force``
-            (all checked before anything is computed).
+        InputError: an unknown method, or a method the task cannot use; a given plan of
+            another method, of other joints or of another duration than the task's; an output
+            folder that cannot be created, is in use by another run, or is not empty without
+            ``force`` (all checked before anything is computed).
         KeyboardInterrupt: Ctrl-C or SIGTERM (:class:`~balance_opt.interrupts.Interrupted`);
             nothing is written.
     """
     methods = _checked_methods(task, methods)
+    given = _checked_plans(task, methods, plans or {})
+    given_sims = dict(simulations or {})
     if output_dir is None:
         with handling_signals():
-            return _compute(task, methods, simulate, solver_options, models)
+            return _compute(task, methods, simulate, solver_options, models, given, given_sims)
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
     with handling_signals(), folder:
-        run = _compute(task, methods, simulate, solver_options, models)
+        run = _compute(task, methods, simulate, solver_options, models, given, given_sims)
         write_run(run, folder.staging)
         run.files = [folder.final(path) for path in run.files]
         run.report = None if run.report is None else folder.final(run.report)
     return run
 
 
-def _compute(task: Task, methods, simulate: bool, solver_options, models) -> TaskRun:
-    """The plans (the reference first) and, with ``simulate``, their simulations."""
+def _compute(
+    task: Task, methods, simulate: bool, solver_options, models, given: dict, given_sims: dict
+) -> TaskRun:
+    """The plans (the reference first) and, with ``simulate``, their simulations; the ones
+    given are taken as they are."""
     run = TaskRun(task)
     models = models if models is not None else ModelCache()
     for method in (REFERENCE, *methods):
-        _plan_into(run, method, solver_options, models)
+        if method in given:
+            log.info("%s: %s plan given, not planned again", task.name, method)
+            run.results[method] = given[method]
+            if given[method].info.get("success", True) is False:
+                run.failures[method] = f"given plan: solver status {given[method].status}"
+        else:
+            _plan_into(run, method, solver_options, models)
     if simulate:
         for name in list(run.results):
-            _simulate_into(run, name)
+            if name in given_sims:
+                run.simulations[name] = given_sims[name]
+            else:
+                _simulate_into(run, name)
     return run
+
+
+def _checked_plans(
+    task: Task, methods: tuple[str, ...], plans: Mapping[str, BalanceResult]
+) -> dict[str, BalanceResult]:
+    """The plans given to :func:`run_task`, checked against the task and the methods."""
+    robot = task.robot
+    balance = tuple(j for arm in robot.balance_arms for j in arm.joints)
+    for name, res in plans.items():
+        where = f"run_task: plans[{name!r}]"
+        if name not in (REFERENCE, *methods):
+            raise InputError(
+                f"{where}: not among the methods of this run ({', '.join((REFERENCE, *methods))})"
+            )
+        if not isinstance(res, BalanceResult):
+            raise InputError(f"{where}: expected a BalanceResult, got {type(res).__name__}")
+        if res.method != name:
+            raise InputError(f"{where}: is a plan of method {res.method!r}")
+        if res.mission_joints != robot.mission.joints or res.balance_joints != balance:
+            raise InputError(f"{where}: its joints are not this task's arms ({task.name})")
+        duration = float(res.t[-1] - res.t[0])
+        if abs(duration - task.duration) > 1e-9 * max(1.0, task.duration):
+            raise InputError(
+                f"{where}: lasts {duration:g} s, the task's mission {task.duration:g} s"
+            )
+    return dict(plans)
 
 
 def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
@@ -449,11 +566,14 @@ def paper_figures(
     task: Task | None = None,
     solver_options: Mapping[str, Any] | None = None,
     force: bool = False,
+    backend: str | None = None,
 ) -> list[Path]:
     """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
-    ``output_dir``, all-or-nothing as :func:`run_task` writes; the options of the analytic law,
-    the planner and the simulator come from ``task`` when given (its robot and mission must be
-    the paper's: the study is that scenario).
+    ``output_dir``, all-or-nothing as :func:`run_task` writes: by default Figs. 2-5 of the
+    paper's law on ``paper_fig5`` and the law against the optimal plan on ``capture_task``,
+    each in a subfolder; with ``task``, Figs. 2-5 of that task (its robot, mission, balance
+    start and options), both methods, in a subfolder of its name. ``backend`` (the optimal
+    planner's symbolic backend) defaults to the task's ``robot.backend``, else ``"auto"``.
 
     Raises:
         InputError: the output folder cannot be used (see :func:`run_task`), checked first.
@@ -464,7 +584,12 @@ def paper_figures(
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
     kwargs = {}
     if task is not None:
+        from balance_opt.app.scenarios import Scenario
+
         kwargs = {
+            "scenario": Scenario(
+                task.robot, task.mission, task.q_B0, task.name, task.spec.analytic.law
+            ),
             "law": task.spec.analytic.law,
             "planner": task.planner_options(solver_options),
             "simulation": task.spec.simulation,
@@ -474,6 +599,9 @@ def paper_figures(
 
         kwargs = {"planner": PlannerOptions(ipopt=dict(solver_options))}
     with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
-        study = paper_study(folder.staging, **kwargs)
+        if backend is None:
+            backend = task.spec.robot.backend if task is not None else "auto"
+        study = paper_study(folder.staging, backend=backend, **kwargs)
         files = [p for paths in study.figures.values() for p in paths]
-        return [folder.final(p) for p in (*files, folder.staging / "study.json")]
+        jsons = [folder.staging / name / "study.json" for name in study.parts]
+        return [folder.final(p) for p in (*files, *jsons, folder.staging / "study.json")]

@@ -1,5 +1,4 @@
-"""The paper's simulation study in one call: the Table 1 robot, the point-to-point capture move,
-the analytic and the optimal balance plans, each checked by forward dynamics, and Figs. 2-5.
+"""The paper's simulation study: Figs. 2-5 of a scenario, each plan checked by forward dynamics.
 
 * Fig. 2: base attitude due to the mission arm alone (balance arm held at its start): dynamic
   simulation, with the kinematic replay (momentum conservation) dashed. It does not depend on
@@ -10,12 +9,13 @@ the analytic and the optimal balance plans, each checked by forward dynamics, an
 * Fig. 4: torque the arms exert on the base after balance control, per arm and summed.
 * Fig. 5: base attitude after balance control (both arms tracking the plan).
 
-The analytic plan is the balance law with damped least squares (:func:`balance_opt.analytic.rollout.rollout`
-with :class:`~balance_opt.analytic.law.BalanceLawOptions`): at the paper's start ``J_wB`` is rank
-deficient and the exact law (Eq. 31) sends the balance joints through thousands of radians. The
-optimal plan is :func:`balance_opt.optimal.solve.plan_optimal`. Every figure overlays the plans
-asked for; a plan whose solver failed is still shown (its last iterate) and flagged in the
-summary. ``study.json`` in the output folder holds the figures of merit.
+:func:`paper_study` runs two parts (:data:`PAPER_PARTS`), each in a subfolder: ``paper_fig5``,
+the paper's law (exact Eq. 31) on the reading of Table 1, start and mission where it does what
+the paper's Fig. 5 shows (``docs/paper_fig5_study.md``); and ``capture_task``, the law
+(damped least squares: its start is exactly singular) against the optimal plan on balance-opt's
+hard case. Every figure overlays the plans asked for; a plan whose solver failed is still shown
+(its last iterate) and flagged in the summary. ``study.json`` in each folder holds the figures
+of merit.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import Scenario, paper_capture
+from balance_opt.app.models import ModelCache
+from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
@@ -85,7 +86,11 @@ class StudyResult:
 
 
 def _plan(
-    method: str, scenario: Scenario, law: BalanceLawOptions, planner: PlannerOptions
+    method: str,
+    scenario: Scenario,
+    law: BalanceLawOptions,
+    planner: PlannerOptions,
+    backend: str = "auto",
 ) -> tuple[BalanceResult, str]:
     """A balance plan and its status (``"ok"``, or the solver's failure status)."""
     robot, mission = scenario.robot, scenario.mission
@@ -93,7 +98,8 @@ def _plan(
         if method == "analytic":
             integration = IntegrationOptions(output_step=STUDY_OUTPUT_STEP)
             return rollout(robot, mission, scenario.q_B0, law, integration=integration), "ok"
-        return plan_optimal(robot, mission, scenario.q_B0, planner), "ok"
+        model = ModelCache().planner_model(robot, backend)
+        return plan_optimal(model, mission, scenario.q_B0, planner), "ok"
     except SolverError as exc:
         if exc.result is None:
             raise
@@ -123,6 +129,7 @@ def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
     return {
         "max_drift_rad": float(sim.angle.max()),
         "final_drift_rad": float(sim.angle[-1]),
+        "peak_base_rate_rad_s": float(np.linalg.norm(sim.omega, axis=1).max()),
         "max_tracking_error_rad": sim.max_tracking_error,
         "max_relative_momentum_residual": float(sim.momentum_residual.max()),
         "peak_torque_on_base_Nm": _torque_peaks(sim),
@@ -144,6 +151,7 @@ def _summary(
     mission = scenario.mission
     return {
         "scenario": {
+            "name": scenario.name,
             "robot": scenario.robot.name,
             "mission_start_rad": list(map(float, mission.start)),
             "mission_goal_rad": list(map(float, mission.end)),
@@ -170,7 +178,8 @@ def _summary(
     }
 
 
-def paper_study(
+def scenario_study(
+    scenario: Scenario,
     output_dir: str | Path,
     *,
     methods: Sequence[str] = METHODS,
@@ -178,17 +187,21 @@ def paper_study(
     law: BalanceLawOptions | None = None,
     planner: PlannerOptions | None = None,
     formats: Sequence[str] = FORMATS,
+    backend: str = "auto",
 ) -> StudyResult:
-    """Run the paper's study and write Figs. 2-5 (see the module docstring).
+    """Figs. 2-5 of one scenario (see the module docstring).
 
     Args:
+        scenario: the robot, mission and balance start.
         output_dir: folder for the figures (``fig2_*.png``/``.pdf`` ...) and ``study.json``;
             created if missing.
         methods: the balance plans to compute and overlay, among ``"analytic"`` and ``"optimal"``.
         simulation: simulator settings (default: RK4 at 1 ms, PD tracking, outputs every 10 ms).
-        law: settings of the analytic law (default: damped least squares).
+        law: settings of the analytic law (default: the scenario's, else damped least squares).
         planner: settings of the optimal planner.
         formats: figure file formats.
+        backend: symbolic backend of the optimal planner (``"auto"``, ``"pinocchio"``,
+            ``"adam"``).
 
     Returns:
         The plans, simulations, figures and summary.
@@ -202,9 +215,8 @@ def paper_study(
     output_dir = Path(output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
     sim_opts = simulation or SimulationOptions(output_dt=STUDY_OUTPUT_STEP)
-    law = law or BalanceLawOptions()
+    law = law or scenario.law or BalanceLawOptions()
     planner = planner or PlannerOptions()
-    scenario = paper_capture()
     robot, mission = scenario.robot, scenario.mission
 
     # Fig. 2: the mission arm alone, the balance arm held at its start
@@ -213,7 +225,7 @@ def paper_study(
 
     plans, status, balance_only, balanced = {}, {}, {}, {}
     for method in methods:
-        plans[method], status[method] = _plan(method, scenario, law, planner)
+        plans[method], status[method] = _plan(method, scenario, law, planner, backend)
         # Fig. 3: the plan's balance motion with the mission arm held at its start
         balance_only[method] = simulate(robot, mission.start, plans[method], sim_opts)
         balanced[method] = simulate_plan(robot, plans[method], sim_opts)
@@ -226,10 +238,11 @@ def paper_study(
     (output_dir / "study.json").write_text(json.dumps(summary, indent=2, default=_plain))
     for m in methods:
         log.info(
-            "%s: plan drift %.3g rad, simulated drift %.3g rad, %d limit violations",
+            "%s on %s: final drift %.3g rad planned, %.3g rad simulated; %d limit violations",
             m,
-            plans[m].max_drift,
-            balanced[m].angle.max(),
+            scenario.name,
+            plans[m].final_drift,
+            balanced[m].angle[-1],
             len(plans[m].violations),
         )
     return StudyResult(
@@ -243,3 +256,76 @@ def paper_study(
         objects,
         summary,
     )
+
+
+#: The parts of :func:`paper_study`: name, scenario, methods. Figs. 2-5 with the paper's law on
+#: the reading where it works, and the law against the optimal plan on the hard case.
+PAPER_PARTS = (
+    ("paper_fig5", paper_fig5, ("analytic",)),
+    ("capture_task", capture_task, METHODS),
+)
+
+
+@dataclass
+class PaperStudy:
+    """The parts of :func:`paper_study`.
+
+    Attributes:
+        output_dir: the study's folder; each part's figures are in a subfolder of its name.
+        parts: ``{part name: StudyResult}``.
+        figures: ``{"<part>/fig2": [png, pdf], ...}``, every figure file.
+        summary: ``{part name: that part's summary}`` (also ``study.json``).
+    """
+
+    output_dir: Path
+    parts: dict[str, StudyResult]
+    figures: dict[str, list[Path]]
+    summary: dict[str, Any]
+
+
+def paper_study(
+    output_dir: str | Path,
+    *,
+    scenario: Scenario | None = None,
+    methods: Sequence[str] | None = None,
+    simulation: SimulationOptions | None = None,
+    law: BalanceLawOptions | None = None,
+    planner: PlannerOptions | None = None,
+    formats: Sequence[str] = FORMATS,
+    backend: str = "auto",
+) -> PaperStudy:
+    """The paper's Figs. 2-5: by default each part of :data:`PAPER_PARTS` in its own subfolder
+    of ``output_dir``; with ``scenario``, that scenario alone, in a subfolder of its name.
+
+    Args:
+        output_dir: folder of the study, created if missing; ``study.json`` there holds every
+            part's summary.
+        scenario: a scenario to study instead of the paper's parts.
+        methods: plans to overlay (default: each part's; ``scenario``: both).
+        simulation, law, planner, formats, backend: as in :func:`scenario_study`, for every
+            part (default: each scenario's own law).
+
+    Raises:
+        InputError: an unknown method.
+    """
+    output_dir = Path(output_dir)
+    if scenario is not None:
+        parts = [(scenario.name, lambda: scenario, METHODS)]
+    else:
+        parts = list(PAPER_PARTS)
+    results = {}
+    for name, make, default_methods in parts:
+        results[name] = scenario_study(
+            make(),
+            output_dir / name,
+            methods=methods or default_methods,
+            simulation=simulation,
+            law=law,
+            planner=planner,
+            formats=formats,
+            backend=backend,
+        )
+    summary = {name: r.summary for name, r in results.items()}
+    (output_dir / "study.json").write_text(json.dumps(summary, indent=2, default=_plain))
+    figures = {f"{name}/{k}": v for name, r in results.items() for k, v in r.figures.items()}
+    return PaperStudy(output_dir, results, figures, summary)

@@ -184,6 +184,10 @@ class OutputFolder:
             write_everything(out.staging)   # files go to the staging folder
         # here results/capture holds exactly the files written above
 
+    ``with`` blocks nest: the outermost one commits, an error in any of them aborts. So a
+    caller can check and lock the folder before its own work and hand it to
+    :func:`~balance_opt.app.pipeline.run_task`, which then writes into it without committing.
+
     Args:
         target: the folder the user asked for.
         force: replace a target that exists and is not empty (only once the new run is
@@ -195,6 +199,7 @@ class OutputFolder:
         self.force = force
         self.staging: Path | None = None
         self._lock = FolderLock(self.target)
+        self._depth = 0  # nested ``with`` blocks: the outermost one commits
 
     # ------------------------------------------------------------------ opening
     def open(self) -> Path:
@@ -289,6 +294,7 @@ class OutputFolder:
 
     def __enter__(self) -> OutputFolder:
         self.open()
+        self._depth += 1
         return self
 
     def __exit__(
@@ -297,7 +303,8 @@ class OutputFolder:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        if exc_type is None:
-            self.commit()
-        else:
+        self._depth -= 1
+        if exc_type is not None:
             self.abort()
+        elif self._depth == 0 and self.staging is not None:  # None: an inner block aborted
+            self.commit()

@@ -115,6 +115,13 @@ class Task:
         """An error located at key ``path`` of this task's file."""
         return self.document.error(path, reason, cls)
 
+    def __repr__(self) -> str:  # short for notebooks: the spec alone is pages long
+        arms = "; ".join(f"{a.name} {a.dof} joints" for a in self.robot.arms)
+        return (
+            f"Task(name={self.name!r}, source={self.source!r}, robot {self.robot.name} "
+            f"({arms}), mission {self.spec.mission.type} {self.duration:g} s)"
+        )
+
 
 # =========================================================================================== loading
 def load_task(path: str | Path) -> Task:

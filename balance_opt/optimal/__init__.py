@@ -33,8 +33,11 @@ The modules, top down:
   and :class:`PlannerSolverError`. Every plan is re-simulated on a fine grid with numeric
   Pinocchio, and the returned result is that re-simulated motion.
 * :mod:`~balance_opt.optimal.refine`: the outer loop of :meth:`~BalanceNLP.solve`: the peak
-  problem started from the integral plan, path attitude bounds reached through the peak
-  problem, bounds tightened until the re-simulated motion meets them, multi-start.
+  problem in three stages (the integral plan, a smooth L16 peak, the epigraph), path attitude
+  bounds reached through the peak problem, bounds tightened until the re-simulated motion
+  meets them.
+* :mod:`~balance_opt.optimal.starts`: multi-start in parallel worker processes, starts that
+  reach the same first plan merged.
 * :mod:`~balance_opt.optimal.problem`: one problem's numeric data (mission samples, horizon,
   limits), checked against the robot.
 * :mod:`~balance_opt.optimal.nlp`: the compiled NLP of one structure, assembled from per-point

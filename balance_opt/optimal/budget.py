@@ -22,8 +22,9 @@ Those are counted per interval from the problem's structure (no CasADi needed):
   row (4 for the epigraph's, which also holds the peak variable).
 
 A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
-the peak objective starts from the plan of the integral objective, and a path attitude bound is
-approached through the peak problem without it; the estimate adds them up.
+the peak objective is solved in stages (the integral objective's plan, the smooth peak, the
+epigraph), and a path attitude bound is approached through the peak problem without it; the
+estimate adds them up.
 
 Memory and time per non-zero were measured (peak resident memory with ``getrusage``, wall times)
 on the paper robot (3 balance joints, integral objective: 184, 231 and 298 MB at N = 100, 400,
@@ -154,7 +155,10 @@ def _built(options) -> list:
         ): o
         for o in reversed(built)
     }
-    return list(shapes.values())
+    out = list(shapes.values())
+    # the peak plan's smooth stage: the peak problem without the epigraph (the integral's size)
+    out += [dataclasses.replace(o, objective="integral") for o in out if o.objective == "peak"]
+    return out
 
 
 def _nonzeros_per_interval(options, limits) -> float:

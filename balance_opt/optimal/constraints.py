@@ -50,6 +50,9 @@ DERIVATIVES = ("position", "velocity", "acceleration")
 #: Unit of the peak objective's epigraph variable: ``S = peak^2 / PEAK_SCALE^2`` [rad], so that
 #: ``S`` is of order 1 on drifts of a few hundredths of a radian.
 PEAK_SCALE = 0.01
+#: Exponent ``p`` of the smooth peak (the ``smooth`` stage of the peak objective): the drift's
+#: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``.
+PEAK_POWER = 16
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ The NLP has three vectors, each a stack of named blocks:
   that order, each matrix stacked column by column, then with the peak objective the epigraph
   variable ``S`` (1, 1), which belongs to no collocation point;
 * the parameter vector ``p`` (:class:`ParameterLayout`): the numeric data of one problem
-  (interval length, weights, attitude-bound scales, the peak's weight, ``q_rest``, the mission's samples), as the
+  (interval length, weights, attitude-bound scales, the peak's weights, ``q_rest``, the mission's samples), as the
   fields of :class:`NLPParameters`;
 * the constraint vector ``g``: the rows each constraint kind adds
   (:mod:`balance_opt.optimal.constraints`), as :class:`Block` s in the order of the kinds.
@@ -290,6 +290,9 @@ class NLPParameters(NamedTuple):
         path_scale, terminal_scale: ``1 / bound^2`` of the path and terminal attitude bounds
             (1 when unset).
         peak_weight: the weight of ``S`` in the objective (0 without the peak objective).
+        smooth_weight: the weight of the smooth peak (the ``smooth`` stage of the peak
+            objective, :mod:`balance_opt.optimal.refine`; 0 elsewhere).
+        smooth_scale: ``1 / c^2``, ``c`` the smooth peak's reference drift [1/rad^2].
         q_rest: the rest pull's configuration (n_B) [rad].
         mission: the mission arm's samples ``[q_M; q_dot_M; q_ddot_M]`` at every collocation
             point (n_m, n_points).
@@ -301,6 +304,8 @@ class NLPParameters(NamedTuple):
     path_scale: Any
     terminal_scale: Any
     peak_weight: Any
+    smooth_weight: Any
+    smooth_scale: Any
     q_rest: Any
     mission: Any
 
@@ -332,6 +337,8 @@ class ParameterLayout:
             "path_scale": 1,
             "terminal_scale": 1,
             "peak_weight": 1,
+            "smooth_weight": 1,
+            "smooth_scale": 1,
             "q_rest": self.n_B,
             "mission": self.n_m * self.n_points,
         }

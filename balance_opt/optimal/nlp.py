@@ -30,8 +30,10 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
+from balance_opt import progress
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
+    PEAK_POWER,
     PEAK_SCALE,
     Constraint,
     SymbolicNLP,
@@ -45,7 +47,7 @@ from balance_opt.optimal.layout import (
     VariableLayout,
 )
 from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
-from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_IPOPT, PlannerOptions
+from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_IPOPT, SMOOTH_IPOPT, PlannerOptions
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +132,8 @@ def build_structure(
     parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
     outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds)
-    solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, options)
+    ipopt = {"peak": PEAK_IPOPT, "smooth": SMOOTH_IPOPT}.get(key.objective, {})
+    solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, options, ipopt)
     build_time = time.perf_counter() - start
     log.debug(
         "balance NLP (N = %d, %s, %s) built in %.3f s: %d variables, %d constraints",
@@ -162,8 +165,10 @@ def _outer_problem(
     x_dot, running, torque = kernels.split(Y)
     cost = par.h * cs.mtimes(running, cs.DM(tr.quadrature_weights(N)))
     cost = cost + par.terminal_weight * cs.sumsqr(v.X[:3, N])
-    if v.S is not None:  # S is the squared peak in units of PEAK_SCALE^2
+    if key.objective == "peak":  # S is the squared peak in units of PEAK_SCALE^2
         cost = cost + par.peak_weight * PEAK_SCALE**2 * v.S
+    elif key.objective == "smooth":
+        cost = cost + par.smooth_weight * _smooth_peak(v, par, tr.quadrature_weights(N))
     starts = [v.X[r, :-1] for r in model.joint_rows(key.control)]
     symbols = SymbolicNLP(
         key=key,
@@ -184,6 +189,17 @@ def _outer_problem(
             parts.append(cs.vec(values))
     g = cs.vertcat(*parts)
     return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_kinds)
+
+
+def _smooth_peak(v, par, weights: np.ndarray):
+    """``sum_k q_k (|phi_k| / c)^PEAK_POWER`` over the collocation points, ``q_k`` the
+    quadrature weights scaled to sum to 1: the drift's L_p norm to the power p, which prices
+    the peak and, unlike the epigraph, has no inequality rows (Ipopt solves it like the
+    integral objective); separable over the points."""
+    X, _ = v.points()
+    ratio = cs.sum1(X[:3, :] ** 2) * par.smooth_scale
+    q = cs.DM(weights / weights.sum())
+    return cs.mtimes(ratio ** (PEAK_POWER // 2), q)
 
 
 def _outer_functions(w, y, p, cost, g) -> _Outer:
@@ -351,6 +367,7 @@ def _ipopt_solver(
     outer: _Outer,
     n_g: int,
     options: PlannerOptions,
+    stage_ipopt: dict,
 ) -> cs.Function:
     """The NLP in MX (the kernels mapped over the points, the outer problem on top) with its
     assembled derivatives (see the module docstring), handed to Ipopt."""
@@ -358,9 +375,8 @@ def _ipopt_solver(
     y = cs.vec(kernels.value.map(x.n_points)(x.Z, *x.data))
     f, g = outer.value(x.w, y, x.p)
     ipopt = dict(DEFAULT_IPOPT)
-    if variables.by_name.get("S") is not None:
-        ipopt.update(PEAK_IPOPT)
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
+    ipopt.update(stage_ipopt)
     ipopt.update(options.ipopt)
     return cs.nlpsol(
         "balance_nlp",
@@ -375,5 +391,7 @@ def _ipopt_solver(
             "grad_f": _gradient(kernels, outer, x),
             "jac_g": _jacobian(kernels, outer, x),
             "hess_lag": _hessian(kernels, outer, x, n_g),
+            # the live progress line (balance_opt.progress); returns at once when it is off
+            **progress.nlpsol_options(x.w.numel(), n_g),
         },
     )

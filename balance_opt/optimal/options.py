@@ -22,7 +22,7 @@ CONTROLS = ("acceleration", "jerk")
 #: Ipopt return statuses that count as a solution.
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: Default Ipopt options (``PlannerOptions.ipopt`` entries override them). Ipopt's monotone
-#: barrier update (its default) took as many iterations as the adaptive one on the paper task
+#: barrier update (its default) took as many iterations as the adaptive one on the capture task
 #: and less time per iteration; MUMPS's workspace at 100 % over its estimate (Ipopt's default
 #: 1000 %) saves the system time of allocating it at every factorisation (Ipopt enlarges it when
 #: MUMPS asks).
@@ -33,11 +33,14 @@ DEFAULT_IPOPT = {
     "hessian_approximation": "exact",
     "mumps_mem_percent": 100,
 }
-#: Ipopt options of the peak objective over :data:`DEFAULT_IPOPT`. The peak problem is started
-#: from the integral plan: a small initial barrier parameter keeps Ipopt near that plan, in a
-#: basin whose peak on the paper task is 0.0211 rad; from the default 0.1 it wandered off to a
-#: plan of 0.0242 rad, as did the rest, analytic and random starts.
+#: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`. It starts
+#: from the smooth stage's plan, near its own: a small initial barrier parameter keeps it there
+#: (from the default 0.1 the epigraph wandered off to plans of 0.0242 rad on the capture task).
 PEAK_IPOPT = {"mu_init": 1e-4}
+#: Ipopt options of the peak objective's smooth stage: the adaptive barrier update took 110-120
+#: iterations from the integral plan of the paper task, the monotone one 269. (Stopping it
+#: early, at tol 1e-4 or 1e-6, cost the epigraph stage 310 iterations instead of 40.)
+SMOOTH_IPOPT = {"mu_strategy": "adaptive"}
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
 #: Objectives: the largest attitude error over the motion, or the integral of squared drift.
@@ -64,6 +67,10 @@ class CostWeights:
 
         J = peak * s^2 + peak_terminal * |log R_T|^2 + regularisation * (the integral terms)
 
+    It is reached in stages (:func:`balance_opt.optimal.refine.plan_peak`): the integral
+    objective's plan, then ``s^2`` replaced by the drift's L_16 norm (weighted so that it
+    costs what ``peak * s^2`` does at the integral plan's peak), then the epigraph.
+
     ``u`` is the control: balance joint accelerations [rad/s^2] (or jerks [rad/s^3]). The
     weights' units make each term dimensionless: ``omega`` [s/rad^2], ``terminal``, ``peak`` and ``peak_terminal`` [1/rad^2],
     ``smoothness`` [s^3/rad^2] (jerk: [s^5/rad^2]), ``rest`` and ``attitude`` [1/(rad^2 s)].
@@ -86,7 +93,7 @@ class CostWeights:
         0.0, minimum=0.0, doc="pull toward rest_configuration, integral of |q_B - q_rest|^2"
     )
     # Not the paper's (which only asks omega_b = 0), but what keeps the largest drift small once
-    # the limits make omega_b = 0 impossible: on the paper task it cuts the re-simulated maximum
+    # the limits make omega_b = 0 impossible: on the capture task it cuts the re-simulated maximum
     # drift by 30 % against attitude = 0; a terminal weight 10 times larger would buy a smaller
     # final drift with a larger peak, and on a short fast move a peak above Phase I's.
     attitude: float = setting(
@@ -94,7 +101,7 @@ class CostWeights:
     )
 
     # A peak 1 % lower is worth 2e-4 * peak^2 * weight: at 0.02 rad and 1e5, 8e-3, three times
-    # the regularisers' change between the 0.0207 and 0.0306 rad plans of the paper task.
+    # the regularisers' change between the 0.0207 and 0.0306 rad plans of the capture task.
     peak: float = setting(
         1e5, minimum=0.0, doc="largest attitude error, max |log R|^2 (peak objective only)"
     )
@@ -136,10 +143,10 @@ class PlannerOptions:
 
     __sections__: ClassVar[dict[str, str]] = {"constraints": "constraints of the optimal planner"}
 
-    # 'integral' stays the default until the peak problem solves in seconds (17 s against 1 s on
-    # the 10 s capture task; on short coarse plans it can also trade the peak for the end).
+    # 'peak': what users want (the stillest base); it solves in three stages (refine.plan_peak),
+    # about 5.5 times the integral objective's Ipopt iterations on the 10 s capture task.
     objective: Literal[OBJECTIVES] = setting(
-        "integral",
+        "peak",
         doc="minimise the largest attitude error (peak) or the integral of squared drift",
     )
     intervals: int = setting(100, minimum=2, doc="collocation intervals N")
@@ -191,7 +198,7 @@ class PlannerOptions:
         doc="hard bound on the attitude error |log R(t)| along the path",
     )
     # The arm is at rest before the plan: starting with an acceleration is a torque step (on
-    # the paper task -5.6 N m on the base); 'rest' costs the 10 s plan's peak about 1 %.
+    # the capture task -5.6 N m on the base); 'rest' costs the 10 s plan's peak about 1 %.
     start: Literal[START_CONDITIONS] = setting(
         START_CONDITIONS[0],
         section="constraints",

@@ -123,6 +123,7 @@ class BalanceProblem:
         terminal_bound: the same for the terminal attitude bound.
         torque_factor: factor on the effort limits at each point (n_B, n_points), 1 but where
             the refinement tightened them.
+        peak_reference: the drift ``c`` of the smooth peak stage [rad].
         balance_joints: their names.
     """
 
@@ -160,6 +161,8 @@ class BalanceProblem:
         self.path_bound = options.path_attitude_bound
         self.terminal_bound = options.terminal_attitude_bound
         self.torque_factor = np.ones((model.n_B, self.point_times.size))
+        # the smooth peak's reference drift c [rad] (its stage only, refine.plan_peak)
+        self.peak_reference = 1.0
         self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
 
 

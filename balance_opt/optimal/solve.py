@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from balance_opt import progress
 from balance_opt.errors import InputError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
@@ -31,14 +32,15 @@ from balance_opt.motion.so3 import (
     rotation_angle,
 )
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_SCALE, attitude_scale
+from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
 from balance_opt.optimal.options import SUCCESS_STATUSES, PlannerOptions
 from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
-from balance_opt.optimal.refine import multi_start, solve_with_bounds
+from balance_opt.optimal.refine import solve_with_bounds
+from balance_opt.optimal.starts import multi_start
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -80,15 +82,20 @@ class BalanceNLP(BalanceProblem):
         """Set the parameter vector and the bounds from the problem's (possibly tightened)
         bounds: ``path_bound``, ``terminal_bound``, ``torque_factor``."""
         weights = self.options.weights
-        peak = self.structure.key.objective == "peak"
+        peak = self.structure.key.objective in ("peak", "smooth")
+        smooth = self.structure.key.objective == "smooth"
+        c = self.peak_reference
         self.parameters = self.structure.parameters.pack(
             NLPParameters(
                 h=self.h,
                 terminal_weight=weights.peak_terminal if peak else weights.terminal,
-                running_weights=weights.running(self.options.objective),
+                running_weights=weights.running("peak" if peak else "integral"),
                 path_scale=attitude_scale(self.path_bound),
                 terminal_scale=attitude_scale(self.terminal_bound),
-                peak_weight=weights.peak if peak else 0.0,
+                peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
+                # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
+                smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
+                smooth_scale=1.0 / c**2 if smooth else 1.0,
                 q_rest=self.q_rest,
                 mission=self.mission_samples,
             )
@@ -101,6 +108,18 @@ class BalanceNLP(BalanceProblem):
         options = dataclasses.replace(self.options, **changes)
         return build_balance_nlp(
             self.model, self.mission, self.q_B0, options, self.robot, h0=self.h0
+        )
+
+    @staticmethod
+    def build(*args, **kwargs) -> BalanceNLP:
+        """:func:`build_balance_nlp` (what a multi-start's worker processes call)."""
+        return build_balance_nlp(*args, **kwargs)
+
+    def stage(self, name: str) -> BalanceNLP:
+        """The same problem as an inner stage of the peak objective (``"smooth"``: the
+        smooth peak; :func:`~balance_opt.optimal.refine.plan_peak`)."""
+        return build_balance_nlp(
+            self.model, self.mission, self.q_B0, self.options, self.robot, h0=self.h0, stage=name
         )
 
     def solution_of(self, result: BalanceResult) -> Solution:
@@ -218,9 +237,10 @@ class BalanceNLP(BalanceProblem):
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
-        out = self.structure.solver(
-            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
-        )
+        with progress.solving(self.lbg, self.ubg, f"Ipopt (N = {self.N})"):
+            out = self.structure.solver(
+                x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+            )
         raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
         t2 = time.perf_counter()
         w = np.array(out["x"]).ravel()
@@ -246,6 +266,33 @@ class BalanceNLP(BalanceProblem):
         if status != SUCCESS_STATUSES[0]:
             log.warning("Ipopt: %s", status)
         return result
+
+    def solve_stage(self, initial_guess) -> tuple[Solution, dict]:
+        """Solve with Ipopt once without re-simulating (an inner stage of the peak objective,
+        :func:`~balance_opt.optimal.refine.plan_peak`). A failure is not raised: it is the
+        report's ``status``.
+
+        Returns:
+            ``(solution, report)``: the report holds the status, iterations, Ipopt's wall time
+            [s] and the largest and final drift at the collocation points [rad].
+        """
+        w0 = self.initial_guess(initial_guess)
+        t0 = time.perf_counter()
+        out = self.structure.solver(
+            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+        )
+        raise_if_interrupted()
+        wall = time.perf_counter() - t0
+        stats = self.structure.solver.stats()
+        sol = self.unpack(np.array(out["x"]).ravel())
+        X, _ = sol.points()
+        return sol, {
+            "status": str(stats.get("return_status", "unknown")),
+            "iterations": int(stats.get("iter_count", 0)),
+            "solve_s": wall,
+            "nlp_max_drift_rad": float(np.linalg.norm(X[:3], axis=0).max()),
+            "nlp_final_drift_rad": float(np.linalg.norm(sol.X[:3, -1])),
+        }
 
     def _report(self, stats: dict, objective: float, worst, times) -> dict:
         """The solver's part of ``BalanceResult.info``."""
@@ -316,6 +363,7 @@ def build_balance_nlp(
     options: PlannerOptions | None = None,
     robot: FloatingRobot | None = None,
     h0=None,
+    stage: str | None = None,
 ) -> BalanceNLP:
     """Build the balance NLP of a mission.
 
@@ -335,6 +383,8 @@ def build_balance_nlp(
         h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
             [N s; N m s] (the base starts at the identity); ``None`` for zero. A parameter:
             every ``h0`` shares the compiled NLP.
+        stage: ``"smooth"`` for the smooth peak stage of the peak objective (a structure no
+            option names; :mod:`balance_opt.optimal.refine`), else the options' objective.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
@@ -350,6 +400,8 @@ def build_balance_nlp(
     q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
     momentum = h0 is not None and bool(np.any(np.asarray(h0, dtype=float) != 0.0))
     key = StructureKey.of(robot.limits.subset(robot.balance_indices), options, momentum)
+    if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
+        key = dataclasses.replace(key, objective=stage, path_attitude_bound=False)
     built_now = key not in model.nlp_cache
     if built_now:
         model.nlp_cache[key] = build_structure(model, key, options)
@@ -397,7 +449,7 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     The balance joints follow the collocation polynomial, the attitude is integrated by
     :func:`balance_opt.motion.replay.replay` (numeric Pinocchio, RK4 on the unit quaternion,
     one step per grid interval, so that no step straddles a node, where the joint motion's
-    higher derivatives jump; on the paper task at the default step within 1e-10 rad of a 20
+    higher derivatives jump; on the capture task at the default step within 1e-10 rad of a 20
     times finer step); limit violations are those of the fine grid (``result.violations``). ``info["resimulation"]`` reports the collocation defects (NLP
     attitude at the nodes against the re-simulated one; joint polynomial at each interval's end
     against the next node), the momentum residual, the drift, the limit violations and, as

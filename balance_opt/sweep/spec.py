@@ -3,7 +3,7 @@
 A sweep file is YAML, read and checked like a task file (every error names the file, the line
 and the key path)::
 
-    task: paper_capture.yaml        # a task file, relative to this file, or an inline mapping
+    task: capture_task.yaml        # a task file, relative to this file, or an inline mapping
     methods: [analytic, optimal]    # every parameter set is planned with each method
     grid:                           # every combination of these values ...
       optimal.intervals: [20, 40]

@@ -1,0 +1,58 @@
+"""A quick look at one result on matplotlib axes, for notebooks: :meth:`BalanceResult.plot`.
+
+Unlike the figures of :mod:`balance_opt.io.plots` (which a run writes to files), this draws on
+axes the caller owns (or on a new figure) and writes nothing; each method has the colour, line
+style, marker and label of the written figures (:func:`balance_opt.io.style.method_style`). The
+caller's matplotlib settings (fonts, sizes) are left alone.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from balance_opt.result import BalanceResult
+
+#: What :func:`plot_result` can draw: ``kind -> y-axis label``.
+KINDS = {
+    "attitude": "base rotation from start [deg]",
+    "balance": "balance joint position [rad]",
+}
+
+
+def plot_result(result: BalanceResult, ax: Axes | None = None, kind: str = "attitude") -> Axes:
+    """Draw ``result`` on ``ax`` (a new figure when ``None``) and return the axes.
+
+    Args:
+        result: the motion.
+        ax: the axes; ``None`` makes a new figure with ``plt.subplots``.
+        kind: ``"attitude"`` (the base rotation from the start, deg) or ``"balance"`` (each
+            balance joint's position, rad).
+
+    Raises:
+        ValueError: an unknown ``kind``.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    from balance_opt.io.style import method_style
+
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots()
+    style = method_style(result.method)
+    if kind == "attitude":
+        ax.plot(result.t, np.degrees(result.angle), **style)
+    else:
+        dashes = ("-", "--", ":", "-.")
+        for j, name in enumerate(result.balance_joints):
+            joint = {**style, "linestyle": dashes[j % len(dashes)], "marker": ""}
+            ax.plot(result.t, result.q_B[:, j], **{**joint, "label": f"{style['label']}: {name}"})
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(KINDS[kind])
+    ax.legend()
+    return ax
