@@ -68,7 +68,8 @@ def _planner(intervals: int, compile_kernels=True, ipopt=None):
     finally:
         cs.nlpsol = real
     w0 = nlp.initial_guess("analytic")
-    args = dict(x0=w0, p=nlp.parameters, lbx=nlp.lbx, ubx=nlp.ubx, lbg=nlp.lbg, ubg=nlp.ubg)
+    args = {"x0": w0, "p": nlp.parameters, "lbx": nlp.lbx, "ubx": nlp.ubx}
+    args.update(lbg=nlp.lbg, ubg=nlp.ubg)
     return nlp, args, captured
 
 
@@ -153,7 +154,9 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--timeout", type=float, default=600, help="per variant [s]")
     parser.add_argument("--no-fatrop", action="store_true")
-    parser.add_argument("--only", nargs="+", help="run only these variants (mumps, fatrop:auto, ...)")
+    parser.add_argument(
+        "--only", nargs="+", help="run only these variants (mumps, fatrop:auto, ...)"
+    )
     args = parser.parse_args(argv)
     print(
         f"paper task, N = {args.intervals}, median of {args.repeat} solves, "
