@@ -15,6 +15,8 @@ for three meanings of the solve S, each measured in the workers:
 
 ``CPU/case`` is the CPU time of the worker over the wall time of its cases: below 100 % the
 workers waited for a CPU (other processes on the machine, or more workers than cores).
+``cases/CPU s`` is the number of cases over the CPU time of the workers in their cases: the
+throughput per worker on an idle core, which a loaded machine does not change as much.
 
 Target: 2 workers at least 1.7 times as fast as 1. On a shared machine the load average
 (printed) and ``CPU/case`` say how much of the cores the benchmark had.
@@ -94,7 +96,7 @@ def main(argv=None) -> int:
     print(
         f"\n{'workers':>7} {'wall [s]':>8} {'cases/s':>7} {'speed-up':>8} {'plan [s]':>8} "
         f"{'Ipopt [s]':>9} {'case [s]':>8} {'ovh/plan':>8} {'ovh/Ipopt':>9} {'ovh/case':>8} "
-        f"{'CPU/case':>8} {'ok':>4} {'iter':>5}"
+        f"{'CPU/case':>8} {'cases/CPU s':>11} {'ok':>4} {'iter':>5}"
     )
     for workers, wall, n, sums, ok, iters in rows:
         over = {k: 100 * (workers * wall - v) / v if v else float("nan") for k, v in sums.items()}
@@ -104,6 +106,7 @@ def main(argv=None) -> int:
             f"{sums['plan_s']:>8.2f} "
             f"{sums['planner_solve_s']:>9.2f} {sums['case_s']:>8.2f} {over['plan_s']:>7.1f}% "
             f"{over['planner_solve_s']:>8.1f}% {over['case_s']:>7.1f}% {cpu_share:>7.1f}% "
+            f"{n / sums['cpu_s']:>11.3f} "
             f"{ok:>4} {iters:>5.1f}"
         )
     same = all(t == tables[0] for t in tables[1:])

@@ -629,3 +629,17 @@ def test_the_readme_lists_every_subcommand():
     missing = [name for name in sub.choices if f"    balance-opt {name}" not in listing]
     assert missing == []
     assert "balance-opt --version" in listing
+
+
+def test_an_hsl_solver_without_hsl_is_an_input_error_not_a_crash(tmp_path, capsys):
+    """``ma97`` crashes CasADi's Ipopt without the HSL library: it is refused before planning
+    (exit 2, nothing written) instead of ending the process with a segmentation fault."""
+    out = tmp_path / "out"
+    task = _fast_paper(tmp_path)
+    code = main(
+        ["plan", str(task), "-m", "optimal", "-o", str(out)]
+        + ["--solver-option", "linear_solver=ma97"]
+    )
+    assert code == 2
+    assert "Ipopt cannot load linear solver 'ma97'" in capsys.readouterr().err
+    assert not out.exists()

@@ -37,6 +37,7 @@ from balance_opt.sweep.engine import (
 from balance_opt.sweep.report import is_timing_column, read_table_csv, results_table
 from balance_opt.sweep.run import run_sweep
 from balance_opt.sweep.spec import load_sweep, parse_sweep
+from balance_opt.sweep.tables import diagnostics_table
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_TASK = ROOT / "examples" / "capture_task.yaml"
@@ -518,20 +519,91 @@ def test_table_order_and_timing_columns():
         "status",
         "param.p[0]",
         "param.p[1]",
-        "metric.max_drift_rad",
-        "metric.solver.iterations",
+        "max_drift_rad",
+        "solver.iterations",
+        "mission_only.max_drift_rad",
+        "mission_only.final_drift_rad",
+        "mission_only.max_base_rate_rad_s",
         "error_type",
         "error_message",
-        "metric.solver.solve_time_s",
         "time.case_s",
-        "time.pid",
+        "time.cpu_s",
+        "time.plan_s",
+        "time.baseline_s",
     ]
     assert [r["case_id"] for r in rows] == ["a", "b"]
     assert [c for c in columns if is_timing_column(c)] == [
-        "metric.solver.solve_time_s",
         "time.case_s",
-        "time.pid",
+        "time.cpu_s",
+        "time.plan_s",
+        "time.baseline_s",
     ]
+    columns, rows = diagnostics_table(results)
+    assert columns == [
+        "index",
+        "case_id",
+        "method",
+        "error_traceback",
+        "time.pid",  # first seen in case a (index 0)
+        "solver.solve_time_s",
+    ]
+    assert [(r["case_id"], r["time.pid"]) for r in rows] == [("a", 6), ("b", 5)]
+
+
+def test_the_two_tables_hold_every_recorded_value_once():
+    """Every metric, error and timing value of a record is in exactly one of the two tables."""
+    from balance_opt.sweep.tables import flatten
+
+    record = {
+        "index": 0,
+        "case_id": "c",
+        "method": "optimal",
+        "parameters": {"mission.goal": [1.0, 0.5, -1.5]},
+        "status": "ok",
+        "error": {"type": "T", "message": "m", "traceback": "tb"},
+        "metrics": {
+            "method": "optimal",
+            "max_drift_rad": 0.02,
+            "limit_margins": {"j1": {"position": 0.3}},
+            "solver": {"iterations": 9, "wall_time_s": {"solve": 0.4}},
+            "details": {"kernels": {"library": "/x.so"}},
+        },
+        "info": {"mission_only": {"max_drift_rad": 0.09, "final_drift_rad": 0.08}},
+        "timing": {"case_s": 1.0, "cpu_s": 0.9, "plan_s": 0.8, "pid": 7, "planner_solve_s": 0.4},
+    }
+    (_, (tidy,)), (_, (diag,)) = results_table([record]), diagnostics_table([record])
+    shared = {"index", "case_id", "method"}
+    assert not (set(tidy) & set(diag)) - shared
+    metrics: dict = {}
+    flatten("", record["metrics"], metrics)
+    del metrics["method"]
+    for name, value in metrics.items():
+        assert (tidy.get(name), diag.get(name)).count(value) == 1, name
+    assert (
+        tidy["mission_only.max_drift_rad"] == 0.09
+        and tidy["mission_only.max_base_rate_rad_s"] is None
+    )
+    assert (tidy["error_type"], tidy["error_message"], diag["error_traceback"]) == ("T", "m", "tb")
+    assert (tidy["time.plan_s"], diag["time.pid"], diag["time.planner_solve_s"]) == (0.8, 7, 0.4)
+    assert diag["details.kernels.library"] == "/x.so"
+    assert tidy["param.mission.goal[2]"] == -1.5
+
+
+def test_mission_only_baseline_is_the_mission_only_plan():
+    """The sweep's cheap baseline (200 RK4 steps) against ``plan --method mission-only``
+    (the task's adaptive integrator, 1e-10)."""
+    from balance_opt.app.pipeline import plan
+    from balance_opt.io.task import load_task
+    from balance_opt.sweep.runner import mission_only_baseline
+
+    task = load_task(PAPER_TASK)
+    reference = plan(task, "mission-only").summary()
+    baseline = mission_only_baseline(task)
+    assert baseline["max_drift_rad"] > 0.05  # the paper task's mission turns the base
+    for key in ("max_drift_rad", "final_drift_rad"):
+        assert baseline[key] == pytest.approx(reference[key], rel=1e-8), key
+    # the peak rate is sampled every 0.05 s instead of every 0.01 s
+    assert baseline["max_base_rate_rad_s"] == pytest.approx(reference["max_base_rate_rad_s"], 1e-4)
 
 
 # ------------------------------------------------------------------------- real cases, end to end
@@ -591,13 +663,20 @@ def test_pool_end_to_end_through_the_cli(pool_run):
     good = [r for r in rows if r not in failed]
     assert all(r["status"] == "ok" for r in good), [(r["status"], r["error_message"]) for r in good]
     for r in good:  # the metrics of metrics.json, per case
-        assert 0 <= float(r["metric.final_drift_rad"]) <= float(r["metric.max_drift_rad"]) < 1.0
-        assert r["metric.method"] == r["method"]
-        assert float(r["metric.duration_s"]) == pytest.approx(10.0, rel=0, abs=1e-9)
-        assert int(r["metric.limit_violations"]) >= 0
+        assert 0 <= float(r["final_drift_rad"]) <= float(r["max_drift_rad"]) < 1.0
+        assert float(r["duration_s"]) == pytest.approx(10.0, rel=0, abs=1e-9)
+        assert int(r["limit_violations"]) >= 0
         assert float(r["time.case_s"]) > 0
+    for a, b in zip(good[::2], good[1::2]):  # analytic and optimal of one set: one baseline
+        assert a["mission_only.max_drift_rad"] == b["mission_only.max_drift_rad"] != ""
     optimal = [r for r in good if r["method"] == "optimal"]
-    assert all(int(r["metric.solver.iterations"]) > 0 for r in optimal)
+    assert all(int(r["solver.iterations"]) > 0 for r in optimal)
+    for r in optimal:  # the optimal plan ends far stiller than the mission arm alone
+        assert float(r["final_drift_rad"]) < 0.5 * float(r["mission_only.final_drift_rad"])
+    _columns, diagnostics = read_table_csv(out / "diagnostics.csv")
+    assert [d["case_id"] for d in diagnostics] == [r["case_id"] for r in rows]
+    assert all(d["time.pid"] for d in diagnostics)
+    assert all(d["details.kernels.library"] for d, r in zip(diagnostics, rows) if r in optimal)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["cases"] == 6 and summary["status"] == {"error": 2, "ok": 4}
     assert summary["ran"] == 6 and summary["skipped"] == 0 and summary["workers"] == 2

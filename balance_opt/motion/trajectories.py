@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
-from scipy.interpolate import CubicSpline, make_interp_spline
 
 from balance_opt.errors import InputError, TrajectoryError
 
@@ -109,6 +108,8 @@ class ViaPoints(JointTrajectory):
             self._ptp = PointToPoint(self.points[0], self.points[1], self.duration)
             self._spline = None
         else:
+            from scipy.interpolate import make_interp_spline  # 0.7 s to import: only when used
+
             self._spline = make_interp_spline(self.times, self.points, k=5, bc_type=(zeros, zeros))
 
     def sample(self, t):
@@ -180,6 +181,8 @@ class CsvTrajectory(JointTrajectory):
             )
         self.duration = float(t[-1])
         self.dof = len(self.joint_names)
+        from scipy.interpolate import CubicSpline  # 0.7 s to import: only when used
+
         self._spline = CubicSpline(t, data[:, 1:], bc_type="natural")
 
     def sample(self, t):
@@ -237,6 +240,8 @@ class SampledTrajectory(JointTrajectory):
         self._h = np.diff(self.t)
         self._spline = None
         if len(derivs) == 1:
+            from scipy.interpolate import CubicSpline  # 0.7 s to import: only when used
+
             self._spline = CubicSpline(self.t, q, bc_type="natural")
         else:
             self._coeffs = self._hermite_coefficients(derivs)

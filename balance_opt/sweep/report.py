@@ -1,14 +1,5 @@
-"""The results of a sweep as one table and a few summary plots.
-
-The table has one row per case, in case-index order: the case's index, id and method, its
-parameters (a list parameter spread over one column per item, ``mission.goal[0]``, ...), its
-status and error, every metric of its ``metrics.json`` (nested keys joined by ``.``), and the
-wall time the case took in its worker. It is written as CSV with floats in full precision
-(``repr``), so that two runs of the same sweep compare cell by cell; the columns that depend on
-when and where a case ran are named by :func:`is_timing_column`.
-
-Parquet is not written: it would add pyarrow (about 100 MB) for a table of a few thousand rows
-that any tool reads as CSV.
+"""The results of a sweep: its tables (:mod:`balance_opt.sweep.tables`: ``results.csv``,
+``diagnostics.csv``), ``summary.json`` and a few summary plots.
 
 Every file is written atomically (:func:`~balance_opt.io.output_dir.replaced_atomically`): an
 interrupted sweep leaves the old table, summary or plot, or the whole new one.
@@ -20,12 +11,11 @@ varied parameter.
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import re
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,17 +24,16 @@ import numpy as np
 from balance_opt.io.output_dir import replaced_atomically
 from balance_opt.io.style import SCREEN_DPI, method_style, styled
 from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
+from balance_opt.sweep.tables import (
+    is_timing_column,
+    read_table_csv,
+    results_table,
+    write_table_csv,
+    write_tables,
+)
 
 logger = logging.getLogger(__name__)
 
-#: Fixed leading columns of the table.
-CASE_COLUMNS = ("index", "case_id", "method", "status")
-#: Prefixes of the parameter, metric and timing columns.
-PARAM_PREFIX, METRIC_PREFIX, TIMING_PREFIX = "param.", "metric.", "time."
-#: Metric names (after the prefix) that hold wall times: they differ from run to run, unlike
-#: everything else in the table (``solver.solve_time_s``, ``details.wall_time_s.build``, ...;
-#: not ``details.max_violation_at.time_s``, a time along the motion).
-_TIMING_METRIC = re.compile(r"(^|[._])(wall_time|solve_time|build_time|elapsed)(_s)?($|[._])")
 #: The metrics plotted: maximum and final base rotation from the start [rad].
 MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
 #: Drift drawn at this floor on log axes when it is zero [rad].
@@ -64,93 +53,6 @@ PARAMETER_MARGIN = 0.08
 PAIRED_MARGIN = 1.2
 #: Offset between methods at a categorical parameter value (in category widths).
 CATEGORY_SPREAD = 0.2
-
-
-def is_timing_column(name: str) -> bool:
-    """True for columns that depend on when and where a case ran (wall times, process ids)."""
-    if name.startswith(TIMING_PREFIX):
-        return True
-    return name.startswith(METRIC_PREFIX) and bool(
-        _TIMING_METRIC.search(name[len(METRIC_PREFIX) :])
-    )
-
-
-def _flatten(prefix: str, value: Any, out: dict) -> None:
-    if isinstance(value, dict):
-        for key, item in value.items():
-            _flatten(f"{prefix}.{key}" if prefix else str(key), item, out)
-    else:
-        out[prefix] = value
-
-
-def row_from_result(result: dict) -> dict[str, Any]:
-    """One table row (column -> value) from a case's result record."""
-    row: dict[str, Any] = {key: result.get(key) for key in CASE_COLUMNS}
-    for name, value in parameter_columns(result.get("parameters", {})).items():
-        row[PARAM_PREFIX + name] = value
-    metrics: dict = {}
-    _flatten("", result.get("metrics") or {}, metrics)
-    for name, value in metrics.items():
-        row[METRIC_PREFIX + name] = value
-    error = result.get("error") or {}
-    row["error_type"] = error.get("type")
-    row["error_message"] = error.get("message")
-    for name, value in (result.get("timing") or {}).items():
-        row[TIMING_PREFIX + name] = value
-    return row
-
-
-def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
-    """Columns and rows of the aggregated table, rows in case-index order.
-
-    Columns: the case columns, the parameters (first-seen order), the metrics (first-seen
-    order), the error, then the timing columns.
-    """
-    rows = [row_from_result(r) for r in sorted(results, key=lambda r: r["index"])]
-    seen: dict[str, None] = {}
-    for row in rows:
-        seen.update(dict.fromkeys(row))
-    names = list(seen)
-    groups = (
-        list(CASE_COLUMNS),
-        [c for c in names if c.startswith(PARAM_PREFIX)],
-        [c for c in names if c.startswith(METRIC_PREFIX) and not is_timing_column(c)],
-        ["error_type", "error_message"],
-        [c for c in names if c.startswith(METRIC_PREFIX) and is_timing_column(c)],
-        [c for c in names if c.startswith(TIMING_PREFIX)],
-    )
-    columns = [c for group in groups for c in group]
-    return columns, rows
-
-
-def _cell(value: Any) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return repr(value)
-    if isinstance(value, (list, tuple)):
-        return json.dumps(value)
-    return str(value)
-
-
-def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dict]) -> Path:
-    """Write the table as CSV (floats as ``repr``: read back exactly; empty cell for missing)."""
-    path = Path(path)
-    with replaced_atomically(path) as tmp, tmp.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(columns)
-        for row in rows:
-            writer.writerow([_cell(row.get(c)) for c in columns])
-    return path
-
-
-def read_table_csv(path: str | Path) -> tuple[list[str], list[dict[str, str]]]:
-    """Columns and rows (as text) of a table written by :func:`write_table_csv`."""
-    with Path(path).open(newline="") as f:
-        reader = csv.DictReader(f)
-        return list(reader.fieldnames or []), list(reader)
 
 
 def summarize(results: Sequence[dict]) -> dict[str, Any]:
@@ -452,7 +354,8 @@ def write_report(
     plots: bool = True,
     extra_summary: dict | None = None,
 ) -> dict[str, Path]:
-    """Write the table (``results.csv``), ``summary.json`` and the plots (``plots/``).
+    """Write the tables (``results.csv``, ``diagnostics.csv``: :mod:`balance_opt.sweep.tables`),
+    ``summary.json`` and the plots (``plots/``).
 
     Args:
         out_dir: the sweep's output folder.
@@ -465,9 +368,7 @@ def write_report(
         Name -> path of every file written.
     """
     out_dir = Path(out_dir)
-    written: dict[str, Path] = {}
-    columns, rows = results_table(results)
-    written["table"] = write_table_csv(out_dir / "results.csv", columns, rows)
+    written: dict[str, Path] = write_tables(out_dir, results)
     summary = {**(extra_summary or {}), **summarize(results)}
     with replaced_atomically(out_dir / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
@@ -491,7 +392,6 @@ __all__ = [
     "plot_drift_distribution",
     "read_table_csv",
     "results_table",
-    "row_from_result",
     "summarize",
     "write_report",
     "write_table_csv",

@@ -1,0 +1,115 @@
+"""Whole-command times: ``balance-opt validate``, ``plan --method optimal`` and ``compare`` on one
+task file, each run as its own process (what a user waits for: interpreter start, imports, model,
+planning, output files).
+
+Every command runs once to warm the kernel cache (not counted), then ``--repeats`` times,
+interleaved (validate, plan, compare, validate, ...) so that a change of load on a shared machine
+hits all three alike. Prints per command the median wall time, the median CPU time of the process
+(user + system: on a loaded machine wall time waits for a CPU, CPU time does not), and the ratio
+of the median wall time to validate's (targets: plan <= 2.5, compare <= 4), then the stages of the
+median run of each command from its ``-v`` log (``STAGE: done in X s`` lines; ``rest`` is the
+process time no stage accounts for: interpreter start, imports, writing the files).
+
+    python benchmarks/bench_commands.py [TASK] [--repeats 3] [--cache DIR] [--source CHECKOUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_TASK = ROOT / "examples" / "capture_task.yaml"
+#: Targets of the whole-command time as a multiple of validate's.
+TARGETS = {"plan": 2.5, "compare": 4.0}
+_STAGE = re.compile(r"INFO (.+?): done in ([0-9.]+) s")
+
+
+def command_lines(task: Path, out: Path) -> dict[str, list[str]]:
+    """The three commands, each with ``-v`` (for the stage log) and its own output folder."""
+    cli = [sys.executable, "-m", "balance_opt.cli", "-v"]
+    return {
+        "validate": [*cli, "validate", str(task)],
+        "plan": [*cli, "plan", str(task), "--method", "optimal", "-o", str(out / "plan"), "-f"],
+        "compare": [*cli, "compare", str(task), "-o", str(out / "compare"), "-f"],
+    }
+
+
+def run_once(argv: list[str], env: dict[str, str]) -> tuple[float, float, dict[str, float]]:
+    """``(wall s, CPU s, {stage: s})`` of one process."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    proc = subprocess.run(argv, check=False, env=env, capture_output=True, text=True, cwd=ROOT)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    stages: dict[str, float] = {}
+    for name, seconds in _STAGE.findall(proc.stderr + proc.stdout):
+        name = re.sub(r"^\S+: ", "", name)  # drop the task-name prefix
+        name = re.sub(r" \(.*\)$", "", name)  # drop "(N = 100, ...)"
+        stages[name] = stages.get(name, 0.0) + float(seconds)
+    return wall, cpu, stages
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("task", nargs="?", type=Path, default=DEFAULT_TASK)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--cache", default=os.environ.get("BALANCE_OPT_CACHE"), help="BALANCE_OPT_CACHE to use"
+    )
+    parser.add_argument(
+        "--source",
+        type=Path,
+        default=ROOT,
+        help="checkout whose balance_opt to run (default: this one; another to compare)",
+    )
+    args = parser.parse_args(argv)
+    env = dict(os.environ, PYTHONPATH=str(args.source.resolve()))
+    if args.cache:
+        env["BALANCE_OPT_CACHE"] = args.cache
+    print(
+        f"balance_opt from {args.source.resolve()}, task {args.task.name}, {args.repeats} interleaved runs per command after one warm-up, "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} before"
+    )
+    runs: dict[str, list[tuple[float, float, dict[str, float]]]] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_commands_") as tmp:
+        commands = command_lines(args.task.resolve(), Path(tmp))
+        for argv_ in commands.values():  # warm the kernel cache and the OS file cache
+            run_once(argv_, env)
+        for _ in range(args.repeats):
+            for name, argv_ in commands.items():
+                runs.setdefault(name, []).append(run_once(argv_, env))
+    print(f"load average after: {os.getloadavg()[0]:.2f}\n")
+    base = statistics.median(w for w, _, _ in runs["validate"])
+    print("| command | wall median [s] | runs [s] | CPU median [s] | x validate | target |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for name, samples in runs.items():
+        walls = [w for w, _, _ in samples]
+        wall = statistics.median(walls)
+        target = f"<= {TARGETS[name]}" if name in TARGETS else ""
+        print(
+            f"| {name} | {wall:.2f} | {', '.join(f'{w:.2f}' for w in walls)} | "
+            f"{statistics.median(c for _, c, _ in samples):.2f} | {wall / base:.2f} | {target} |"
+        )
+    print("\nStages of the median run [s] (from the -v log; 'rest' = the process minus its stages)")
+    for name, samples in runs.items():
+        wall, _, stages = sorted(samples, key=lambda s: s[0])[len(samples) // 2]
+        parts = [f"{stage} {sec:.2f}" for stage, sec in stages.items()]
+        parts.append(f"rest {wall - sum(stages.values()):.2f}")
+        print(f"- {name} ({wall:.2f}): " + ", ".join(parts))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
