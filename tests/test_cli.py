@@ -570,7 +570,7 @@ def test_the_default_output_folder_is_the_one_the_help_states(
 
 
 def test_backend_is_taken_by_sweep_and_paper_figures(tmp_path, monkeypatch):
-    from balance_opt.app import pipeline
+    from balance_opt.app import paper_figures
     from balance_opt.sweep import run as sweep_run
 
     seen = {}
@@ -587,7 +587,7 @@ def test_backend_is_taken_by_sweep_and_paper_figures(tmp_path, monkeypatch):
         raise Stop
 
     monkeypatch.setattr(sweep_run, "run_sweep", fake_sweep)
-    monkeypatch.setattr(pipeline, "paper_figures", fake_figures)
+    monkeypatch.setattr(paper_figures, "paper_figures", fake_figures)
     sweep = _write(
         tmp_path / "s.yaml",
         f"task: {EXAMPLES / 'capture_task.yaml'}\nmethods: [optimal]\n"
