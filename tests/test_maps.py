@@ -525,3 +525,39 @@ def test_pinocchio_backend_glue_with_a_numeric_stand_in(paper, baxter, monkeypat
             _close(numeric(A), numeric_maps.centroidal_momentum_matrix(q))
             for arm in robot.arms:
                 _close(numeric(jac[arm.name]), numeric_maps.ee_jacobian(q, arm.name))
+
+
+@pytest.mark.skipif("adam" not in available_backends(), reason="adam-robotics not installed")
+def test_adam_reads_inertials_without_an_origin():
+    """An ``<inertial>`` without ``<origin>`` sits at its link frame (the URDF default, as in
+    Talos' files); adam's parser needs it spelled out, and its map then equals Pinocchio's."""
+    link = (
+        '<link name="{}"><inertial><mass value="{}"/>'
+        '<inertia ixx="0.3" ixy="0.01" ixz="0" iyy="0.2" iyz="0" izz="0.4"/></inertial></link>'
+    )
+    joint = (
+        '<joint name="{}" type="revolute"><parent link="{}"/><child link="{}"/>'
+        '<origin xyz="{}" rpy="0.1 0 0.2"/><axis xyz="{}"/>'
+        '<limit lower="-2" upper="2" velocity="1" effort="1"/></joint>'
+    )
+    urdf = "".join(
+        [
+            '<robot name="no_origin">',
+            link.format("base", 20.0),
+            link.format("m1", 2.0),
+            link.format("m2", 1.5),
+            link.format("b1", 2.5),
+            joint.format("mj1", "base", "m1", "0.5 0 0.2", "0 0 1"),
+            joint.format("mj2", "m1", "m2", "0.4 0 0", "0 1 0"),
+            joint.format("bj1", "base", "b1", "-0.5 0.1 0.2", "1 0 0"),
+            "</robot>",
+        ]
+    )
+    robot = FloatingRobot(urdf, ["mj1", "mj2"], ["bj1"])
+    maps = SymbolicMaps(robot, backend="adam")
+    numeric = NumericMaps(robot)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(-1.5, 1.5, robot.n)
+        A_sym = np.array(maps.centroidal_momentum_matrix_fun()(q))
+        np.testing.assert_allclose(A_sym, numeric.centroidal_momentum_matrix(q), atol=1e-12)

@@ -161,4 +161,9 @@ def lock_joints(
             xyz=" ".join(repr(float(v)) for v in placement.translation),
             rpy=" ".join(repr(float(v)) for v in rpy),
         )
+    # An inertial without an origin sits at the link frame (the URDF default); adam's parser
+    # needs it spelled out (Talos has such links).
+    for inertial in root.iter("inertial"):
+        if inertial.find("origin") is None:
+            ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
     return ET.tostring(root, encoding="unicode")
