@@ -148,7 +148,10 @@ def test_optimal_plan_with_momentum_matches_an_independent_attitude(model, captu
     assert plan.info["success"]
     defect = plan.info["resimulation"]["attitude_defect_max_rad"]
     assert defect < COLLOCATION_RELATIVE_ERROR * plan.max_drift
-    assert np.max(plan.momentum_residual) < 1e-6
+    # the residual's floor is its finite differences': ~1e-7 on smooth motion, up to ~1e-5 at
+    # a sample next to the peak plan's acceleration switches (7.5e-6 here); an attitude that
+    # did not follow the momentum gives a residual of order one
+    assert np.max(plan.momentum_residual) < 3e-5
     t, q, q_dot = plan.t, np.hstack([plan.q_M, plan.q_B]), np.hstack([plan.q_dot_M, plan.q_dot_B])
     cols = np.r_[capture.robot.mission_indices, capture.robot.balance_indices]
     arm_q, arm_qd = np.empty_like(q), np.empty_like(q_dot)
@@ -327,7 +330,10 @@ def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
     assert plan.max_drift <= law.max_drift + 1e-6
     k = int(np.flatnonzero(plan.t <= example.target.time)[-1])
     np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)
-    assert np.max(plan.momentum_residual) < 1e-6
+    # the residual's floor is its finite differences': ~1e-7 on smooth motion, up to ~1e-5 at
+    # a sample next to the peak plan's acceleration switches (7.5e-6 here); an attitude that
+    # did not follow the momentum gives a residual of order one
+    assert np.max(plan.momentum_residual) < 3e-5
 
 
 @pytest.mark.slow
