@@ -36,6 +36,10 @@ DEFAULT_IPOPT = {
 #: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`. It starts
 #: from the smooth stage's plan, near its own: a small initial barrier parameter keeps it there
 #: (from the default 0.1 the epigraph wandered off to plans of 0.0242 rad on the capture task).
+#: Measured on the capture task and rejected (iterations of the epigraph stage, 10 s / 20 s,
+#: against 43 / 144): the adaptive barrier (181, to a 0.0243 rad plan / 128), small bound
+#: pushes (50-53 / -), mu-based bound multipliers (59 / 207), S started 1-10 % above the
+#: start's peak (39-40 / 157-339), warm starts of every multiplier from the smooth stage (44).
 PEAK_IPOPT = {"mu_init": 1e-4}
 #: Ipopt options of the peak objective's smooth stage. From the integral plan of the capture
 #: task the adaptive barrier update took 120 iterations, the monotone one 269; the adaptive one
