@@ -36,11 +36,17 @@ DEFAULT_IPOPT = {
 #: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`. It starts
 #: from the smooth stage's plan, near its own: a small initial barrier parameter keeps it there
 #: (from the default 0.1 the epigraph wandered off to plans of 0.0242 rad on the capture task).
+#: Measured on the capture task and rejected (iterations of the epigraph stage, 10 s / 20 s,
+#: against 43 / 144): the adaptive barrier (181, to a 0.0243 rad plan / 128), small bound
+#: pushes (50-53 / -), mu-based bound multipliers (59 / 207), S started 1-10 % above the
+#: start's peak (39-40 / 157-339), warm starts of every multiplier from the smooth stage (44).
 PEAK_IPOPT = {"mu_init": 1e-4}
-#: Ipopt options of the peak objective's smooth stage: the adaptive barrier update took 110-120
-#: iterations from the integral plan of the paper task, the monotone one 269. (Stopping it
-#: early, at tol 1e-4 or 1e-6, cost the epigraph stage 310 iterations instead of 40.)
-SMOOTH_IPOPT = {"mu_strategy": "adaptive"}
+#: Ipopt options of the peak objective's smooth stage. From the integral plan of the capture
+#: task the adaptive barrier update took 120 iterations, the monotone one 269; the adaptive one
+#: that never falls back to the monotone mode (the mode that globalises it: the start is close)
+#: 74. The probing and LOQO oracles took 570-640. (Stopping the stage early, at tol 1e-4 or
+#: 1e-6, cost the epigraph stage 310 iterations instead of 40.)
+SMOOTH_IPOPT = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "never-monotone-mode"}
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
 #: Objectives: the largest attitude error over the motion, or the integral of squared drift.
