@@ -730,7 +730,7 @@ OPTION_KEYS_DEFAULTS = [
     ("optimal.weights.rest", "0.0"),
     ("optimal.weights.attitude", "300.0"),
     ("optimal.weights.peak", "100000.0"),
-    ("optimal.weights.peak_terminal", "1000000.0"),
+    ("optimal.weights.peak_terminal", "100000.0"),
     ("optimal.weights.regularisation", "0.01"),
     ("optimal.rest_configuration", "none"),
     ("optimal.constraints", "see below"),
