@@ -40,7 +40,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from balance_opt import __version__, progress
@@ -90,10 +90,12 @@ def _early_output(args) -> Iterator[OutputFolder | None]:
         raise
 
 
-def _configure_logging(verbose: bool, quiet: bool) -> None:
+def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     """Log balance-opt's messages to the current stderr (progress at INFO), and show the live
-    progress line there unless ``quiet``."""
+    progress line there unless ``quiet``; returns what undoes it (:func:`main` called from
+    Python must not leave a handler on a stream that may be closed later)."""
     logger = logging.getLogger("balance_opt")
+    level = logger.level
     for h in [h for h in logger.handlers if getattr(h, _HANDLER_FLAG, False)]:
         logger.removeHandler(h)
     progress.configure(not quiet, sys.stderr)
@@ -106,6 +108,12 @@ def _configure_logging(verbose: bool, quiet: bool) -> None:
     )
     logger.addHandler(handler)
     logger.setLevel(logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO)
+
+    def restore() -> None:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+
+    return restore
 
 
 # =========================================================================================== commands
@@ -504,7 +512,7 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code or 0)
-    _configure_logging(args.verbose, args.quiet)
+    restore_logging = _configure_logging(args.verbose, args.quiet)
     try:
         with handling_signals():
             code = args.run(args)
@@ -523,6 +531,7 @@ def main(argv: list[str] | None = None) -> int:
         return _fail("interrupted", EXIT_INTERRUPTED)
     finally:
         progress.configure(False)
+        restore_logging()
 
 
 def _fail(message: str, code: int) -> int:

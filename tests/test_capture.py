@@ -337,10 +337,17 @@ def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
 
 
 @pytest.mark.slow
-def test_run_writes_the_capture_block_report_and_figure(example, tmp_path):
+def test_run_writes_the_capture_block_report_and_figure(tmp_path):
     """``run_task`` (what ``balance-opt compare`` runs) on the example: the ``capture`` block per
     method and per simulation, the simulated jump close to the plan's, the drift before the
-    capture equal to the plan's own attitude at that time, the figure and the report section."""
+    capture equal to the plan's own attitude at that time, the figure and the report section.
+
+    The simulation tracks with computed torque: under the default PD gains the optimal plan's
+    fast balance motion lags by up to 0.02 rad, and the jump, which depends on the joint rates
+    at the capture, then differs from the plan's by some 30 %."""
+    tracked = tmp_path / "tracked.yaml"
+    tracked.write_text(EXAMPLE.read_text() + "\nsimulation: {controller: computed-torque}\n")
+    example = load_task(tracked)
     run = run_task(example, simulate=True, output_dir=tmp_path / "out")
     assert run.ok
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())

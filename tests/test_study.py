@@ -58,7 +58,9 @@ def test_study_writes_every_figure(paper):
         out = paper.output_dir / name
         assert part.output_dir == out
         for key, stem in FIGURE_STEMS.items():
-            check_files(part.figures[key], out / stem, "page" if key == "fig4" else "column")
+            # Fig. 4: a column of panels per plan, a page wide for two plans or more
+            wide = key == "fig4" and len(summary[name]["plans"]) > 1
+            check_files(part.figures[key], out / stem, "page" if wide else "column")
             assert paper.figures[f"{name}/{key}"] == part.figures[key]
         assert summary[name]["figures"]["fig4"] == [
             f"{FIGURE_STEMS['fig4']}.png",
