@@ -156,9 +156,14 @@ def test_failed_background_compilation_is_reported_not_retried(tmp_path, monkeyp
     x = cs.SX.sym("x", 2)
     fun = cs.Function("coldstart_failing_kernel", [x], [cs.cos(x[0]) * x[1]])
     folder = tmp_path / "cache"
+    import psutil
+
+    children = {p.pid for p in psutil.Process().children(recursive=True)}
     first = codegen.compile_functions([fun], folder, "digest", background=True, label="t")
     assert first.background and not first.compiled
     assert codegen.wait_for_library(first.library, timeout=300) is None
+    # the compiler ran detached: no child (nor zombie) of this process is left behind
+    assert {p.pid for p in psutil.Process().children(recursive=True)} <= children
     note = Path(first.library).with_suffix(".failed")
     assert "out of memory" in note.read_text()
     assert not list(folder.glob("*.tmp-*")) and not list(folder.glob("*.c"))

@@ -241,8 +241,13 @@ def _start_background(compiler: str, source: str, library: Path) -> None:
     package_root = str(Path(__file__).resolve().parents[2])
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
-    subprocess.Popen(
-        [sys.executable, "-m", __name__, compiler, str(library)],
+    command = [sys.executable, "-m", __name__, compiler, str(library)]
+    if os.name == "posix":
+        # through a shell that backgrounds it and exits at once: the compiler is then no child
+        # of this process (no zombie left in a long-lived one, none among its children)
+        command = ["/bin/sh", "-c", '"$@" &', "sh", *command]
+    launcher = subprocess.Popen(
+        command,
         env=env,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
@@ -250,6 +255,8 @@ def _start_background(compiler: str, source: str, library: Path) -> None:
         start_new_session=True,  # survives this process and its Ctrl-C
         close_fds=True,
     )
+    if os.name == "posix":
+        launcher.wait()
 
 
 def build_pending(compiler: str, library: Path) -> float:
