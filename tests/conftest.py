@@ -35,3 +35,20 @@ def baxter():
     from balance_opt.model.library import baxter_floating
 
     return baxter_floating()
+
+
+@pytest.fixture(scope="module")
+def capture():
+    """The capture task's scenario (robot, mission, balance start)."""
+    from balance_opt.app.scenarios import capture_task
+
+    return capture_task()
+
+
+@pytest.fixture(scope="module")
+def model(capture):
+    """The capture robot's planner model on CasADi's VM (no compiler wait); a test module that
+    needs the compiled kernels defines its own ``model``."""
+    from balance_opt.optimal.model import PlannerModel
+
+    return PlannerModel(capture.robot, compile=False)

@@ -30,7 +30,6 @@ from balance_opt.analytic.options import (
 )
 from balance_opt.analytic.phases import balance_only, both, paper_phases, phase_one
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import capture_task
 from balance_opt.errors import InputError, SolverError, TrajectoryError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
@@ -104,11 +103,6 @@ def nonsingular(paper):
         NONSINGULAR_START[:3], NONSINGULAR_START[:3] + NONSINGULAR_MOVE, NONSINGULAR_DURATION
     )
     return mission, rollout(paper, mission, NONSINGULAR_START[3:], integration=KHZ)
-
-
-@pytest.fixture(scope="module")
-def capture():
-    return capture_task()
 
 
 @pytest.fixture(scope="module")

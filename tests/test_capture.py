@@ -22,13 +22,11 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.capture import plan_captured, robot_after
 from balance_opt.app.pipeline import run_task, simulate_result
-from balance_opt.app.scenarios import capture_task
 from balance_opt.errors import InputError
 from balance_opt.io.task import load_task
 from balance_opt.model.capture import Target, attach_target, capture_state
 from balance_opt.model.maps import NumericMaps
 from balance_opt.motion.so3 import rotvec_from_quaternion
-from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
 
@@ -42,16 +40,6 @@ RATE_TOLERANCE = 1e-9
 COLLOCATION_RELATIVE_ERROR = 5e-3
 #: Independent attitude (RK4 at twice the exported step) against the exported one [rad].
 ATTITUDE_TOLERANCE = 1e-6
-
-
-@pytest.fixture(scope="module")
-def capture():
-    return capture_task()
-
-
-@pytest.fixture(scope="module")
-def model(capture):
-    return PlannerModel(capture.robot, compile=False)
 
 
 def _points(result, h0):

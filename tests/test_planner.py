@@ -33,7 +33,7 @@ import pytest
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.scenarios import CAPTURE_MISSION_GOAL, CAPTURE_MISSION_START, capture_task
+from balance_opt.app.scenarios import CAPTURE_MISSION_GOAL, CAPTURE_MISSION_START
 from balance_opt.errors import InfeasibleLimitsError, InputError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
@@ -91,16 +91,6 @@ DRIFT_REDUCTION_10S = 2.5
 
 
 # ---------------------------------------------------------------------------------- fixtures
-@pytest.fixture(scope="module")
-def capture():
-    return capture_task()
-
-
-@pytest.fixture(scope="module")
-def model(capture):
-    return PlannerModel(capture.robot, compile=False)
-
-
 @pytest.fixture(scope="module")
 def in_plane(capture):
     """The mission arm's pitch joints only, 10 s."""

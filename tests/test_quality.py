@@ -14,7 +14,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from balance_opt.app.scenarios import capture_task
 from balance_opt.model.library import paper_robot
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -27,11 +26,6 @@ PEAK_TARGET = 0.0215
 FINAL_TARGET = 0.001
 #: Relative torque excess allowed between the collocation points.
 TORQUE_EXCESS = 2e-3
-
-
-@pytest.fixture(scope="module")
-def capture():
-    return capture_task()
 
 
 @pytest.fixture(scope="module")
