@@ -41,6 +41,7 @@ from balance_opt.io.task import Task, check_methods, check_optimal_supported
 from balance_opt.result import BalanceResult
 
 if TYPE_CHECKING:
+    from balance_opt.app.background import BackgroundSimulations
     from balance_opt.dynamics.simulation import SimulationResult
 
 log = logging.getLogger(__name__)
@@ -291,6 +292,7 @@ def run_task(
     force: bool = False,
     plans: Mapping[str, BalanceResult] | None = None,
     simulations: Mapping[str, SimulationResult] | None = None,
+    background: bool = False,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -312,6 +314,9 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
+        background: with ``simulate`` and two CPUs or more, simulate the plans made before
+            the optimal one in a worker process while it is solved (same results, less wall
+            time; :mod:`balance_opt.app.background`). The CLI sets it.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
@@ -330,10 +335,14 @@ def run_task(
     given_sims = dict(simulations or {})
     if output_dir is None:
         with handling_signals():
-            return _compute(task, methods, simulate, solver_options, models, given, given_sims)
+            return _compute(
+                task, methods, simulate, solver_options, models, given, given_sims, background
+            )
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
     with handling_signals(), folder:
-        run = _compute(task, methods, simulate, solver_options, models, given, given_sims)
+        run = _compute(
+            task, methods, simulate, solver_options, models, given, given_sims, background
+        )
         write_run(run, folder.staging)
         run.files = [folder.final(path) for path in run.files]
         run.report = None if run.report is None else folder.final(run.report)
@@ -341,27 +350,59 @@ def run_task(
 
 
 def _compute(
-    task: Task, methods, simulate: bool, solver_options, models, given: dict, given_sims: dict
+    task: Task,
+    methods,
+    simulate: bool,
+    solver_options,
+    models,
+    given: dict,
+    given_sims: dict,
+    background: bool = False,
 ) -> TaskRun:
     """The plans (the reference first) and, with ``simulate``, their simulations; the ones
     given are taken as they are."""
     run = TaskRun(task)
     models = models if models is not None else ModelCache()
-    for method in (REFERENCE, *methods):
-        if method in given:
-            log.info("%s: %s plan given, not planned again", task.name, method)
-            run.results[method] = given[method]
-            if given[method].info.get("success", True) is False:
-                run.failures[method] = f"given plan: solver status {given[method].status}"
-        else:
-            _plan_into(run, method, solver_options, models)
-    if simulate:
-        for name in list(run.results):
-            if name in given_sims:
-                run.simulations[name] = given_sims[name]
+    with _background(task, methods, simulate, given, given_sims, background) as worker:
+        for method in (REFERENCE, *methods):
+            if method in given:
+                log.info("%s: %s plan given, not planned again", task.name, method)
+                run.results[method] = given[method]
+                if given[method].info.get("success", True) is False:
+                    run.failures[method] = f"given plan: solver status {given[method].status}"
             else:
-                _simulate_into(run, name)
+                _plan_into(run, method, solver_options, models)
+            if worker is not None and method != "optimal" and method in run.results:
+                if method not in given_sims:
+                    worker.submit(method, run.results[method])
+        if simulate:
+            for name in list(run.results):
+                if name in given_sims:
+                    run.simulations[name] = given_sims[name]
+                elif worker is None or name not in worker:
+                    _simulate_into(run, name)
+            for name in list(run.results):  # the worker's, in the run's order
+                if worker is not None and name in worker:
+                    _simulate_into(run, name, worker)
+            run.simulations = {k: run.simulations[k] for k in run.results if k in run.simulations}
     return run
+
+
+def _background(task: Task, methods, simulate: bool, given, given_sims, background: bool):
+    """The worker process that simulates the plans made before the optimal one while that one
+    is solved (:mod:`balance_opt.app.background`), or a null context: only with
+    ``background``, two CPUs or more, and an optimal plan to solve after a plan to simulate."""
+    from balance_opt.app.background import BackgroundSimulations, usable_cpus
+
+    worthwhile = (
+        background
+        and simulate
+        and "optimal" in methods
+        and "optimal" not in given
+        and REFERENCE not in given_sims
+        and usable_cpus() >= 2
+    )
+    return BackgroundSimulations(task) if worthwhile else contextlib.nullcontext()
 
 
 def _checked_plans(
@@ -435,13 +476,23 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
         )
 
 
-def _simulate_into(run: TaskRun, name: str) -> None:
-    """Simulate ``run.results[name]``; a diverging simulation is a failure, not a result."""
+def _simulate_into(run: TaskRun, name: str, worker: BackgroundSimulations | None = None) -> None:
+    """Simulate ``run.results[name]`` (or take the worker's simulation of it); a diverging
+    simulation is a failure, not a result."""
     from balance_opt.dynamics.simulation import divergence
 
     task = run.task
-    with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
-        sim = simulate_result(task, run.results[name])
+    if worker is None:
+        with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
+            sim = simulate_result(task, run.results[name])
+    else:
+        sim, seconds = worker.result(name, run.results[name])
+        log.info(
+            "%s: forward-dynamics simulation of %s: done in %.2f s (worker process)",
+            task.name,
+            name,
+            seconds,
+        )
     diverged = divergence(sim)
     if diverged:
         message = (
