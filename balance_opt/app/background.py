@@ -17,9 +17,10 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures.process import BrokenProcessPool
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Self
 
 if TYPE_CHECKING:
     from balance_opt.dynamics.simulation import SimulationResult
@@ -27,6 +28,9 @@ if TYPE_CHECKING:
     from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
+
+#: ``(task, plan) -> simulation``.
+Simulate = Callable[["Task", "BalanceResult"], "SimulationResult"]
 
 
 def usable_cpus() -> int:
@@ -51,14 +55,11 @@ class _Records(logging.Handler):
 
 def _start() -> None:
     """The worker's first job: the imports a simulation needs, while the parent plans."""
-    import balance_opt.app.pipeline
     import balance_opt.dynamics.simulation  # noqa: F401
 
 
-def _simulate(task: Task, plan: BalanceResult, level: int):
+def _simulate(simulate: Simulate, task: Task, plan: BalanceResult, level: int):
     """``(simulation, robot replaced, log records, seconds)`` of one plan, in the worker."""
-    from balance_opt.app.pipeline import simulate
-
     handler = _Records(level)
     root = logging.getLogger()
     root.addHandler(handler)
@@ -80,17 +81,19 @@ class BackgroundSimulations:
 
     Args:
         task: the task whose plans are simulated.
+        simulate: ``(task, plan) -> simulation``, a module-level function (the worker gets it
+            by name).
     """
 
-    def __init__(self, task: Task):
+    def __init__(self, task: Task, simulate: Simulate):
         from balance_opt.sweep.workers import new_pool
 
-        self.task = task
+        self.task, self.simulate = task, simulate
         self._pool = new_pool(1, "spawn")
         self._futures: dict[str, Future] = {}
         self._pool.submit(_start)
 
-    def __enter__(self) -> BackgroundSimulations:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -108,7 +111,7 @@ class BackgroundSimulations:
     def submit(self, name: str, plan: BalanceResult) -> None:
         """Start simulating ``plan`` (``run.results[name]``) in the worker."""
         level = logging.getLogger("balance_opt").getEffectiveLevel()
-        self._futures[name] = self._pool.submit(_simulate, self.task, plan, level)
+        self._futures[name] = self._pool.submit(_simulate, self.simulate, self.task, plan, level)
         log.debug("%s: simulation of %s handed to the worker process", self.task.name, name)
 
     def result(self, name: str, plan: BalanceResult) -> tuple[SimulationResult, float]:
@@ -116,17 +119,15 @@ class BackgroundSimulations:
         records are logged here. Run here if the worker died.
 
         Raises:
-            Whatever :func:`balance_opt.app.pipeline.simulate` raised in the worker.
+            Whatever ``simulate`` raised in the worker.
         """
-        from balance_opt.app.pipeline import simulate
-
         future = self._futures.pop(name)
         try:
             sim, own_robot, records, seconds = future.result()
         except BrokenProcessPool as exc:
             log.warning("the worker process died (%s): simulating %s here", exc, name)
             started = time.perf_counter()
-            return simulate(self.task, plan), time.perf_counter() - started
+            return self.simulate(self.task, plan), time.perf_counter() - started
         for record in records:
             logging.getLogger(record.name).handle(record)
         if own_robot:

@@ -372,9 +372,13 @@ def _compute(
                     run.failures[method] = f"given plan: solver status {given[method].status}"
             else:
                 _plan_into(run, method, solver_options, models)
-            if worker is not None and method != "optimal" and method in run.results:
-                if method not in given_sims:
-                    worker.submit(method, run.results[method])
+            # the worker simulates a plan while the next one is planned
+            if (
+                worker is not None
+                and method in run.results
+                and method not in ("optimal", *given_sims)
+            ):
+                worker.submit(method, run.results[method])
         if simulate:
             for name in list(run.results):
                 if name in given_sims:
@@ -402,7 +406,7 @@ def _background(task: Task, methods, simulate: bool, given, given_sims, backgrou
         and REFERENCE not in given_sims
         and usable_cpus() >= 2
     )
-    return BackgroundSimulations(task) if worthwhile else contextlib.nullcontext()
+    return BackgroundSimulations(task, simulate_result) if worthwhile else contextlib.nullcontext()
 
 
 def _checked_plans(
