@@ -1,6 +1,6 @@
-"""Simulations in a worker process while the optimal plan is solved (app/background.py): the
-same files as simulated in the process itself, errors raised as they were, a dead worker
-replaced by a simulation here, no worker left after an interruption."""
+"""The run's worker process (app/background.py): simulations while the optimal plan is solved,
+figures while the other files are written; the same files as a run in one process, errors
+raised as they were, a dead worker's job done here, no worker left after an interruption."""
 
 import json
 import os
@@ -14,7 +14,7 @@ import pytest
 from test_interrupts import SLOW_IPOPT, START_TIMEOUT, _cli, _fast_task
 
 from balance_opt.app import background
-from balance_opt.app.background import BackgroundSimulations
+from balance_opt.app.background import RunWorker
 from balance_opt.cli import main
 from balance_opt.errors import InputError
 
@@ -48,25 +48,26 @@ def fake_task(monkeypatch):
 
 
 def test_worker_result_comes_back_with_the_parents_robot(fake_task):
-    with BackgroundSimulations(fake_task, where) as worker:
-        worker.submit("mission-only", [1, 2])
-        assert "mission-only" in worker
-        sim, seconds = worker.result("mission-only", [1, 2])
+    with RunWorker(fake_task, figures=False) as worker:
+        worker.submit_simulation("mission-only", where, [1, 2])
+        assert worker.has_simulation("mission-only")
+        sim, seconds = worker.simulation("mission-only")
+        assert not worker.has_simulation("mission-only")
     assert sim.worker and sim.plan == [1, 2] and seconds >= 0
     assert sim.robot is fake_task.robot  # not a pickled copy
 
 
 def test_worker_error_is_raised_in_the_parent(fake_task):
-    with BackgroundSimulations(fake_task, refuses) as worker:
-        worker.submit("analytic", 7)
+    with RunWorker(fake_task, figures=False) as worker:
+        worker.submit_simulation("analytic", refuses, 7)
         with pytest.raises(InputError, match=r"one value per arm joint \(6\), got 7"):
-            worker.result("analytic", 7)
+            worker.simulation("analytic")
 
 
 def test_dead_worker_is_replaced_by_a_simulation_here(fake_task, caplog):
-    with BackgroundSimulations(fake_task, dies_in_worker) as worker:
-        worker.submit("analytic", 1)
-        sim, _ = worker.result("analytic", 1)
+    with RunWorker(fake_task, figures=False) as worker:
+        worker.submit_simulation("analytic", dies_in_worker, 1)
+        sim, _ = worker.simulation("analytic")
     assert not sim.worker and sim.plan == 1
     assert "the worker process died" in caplog.text
 
@@ -86,20 +87,22 @@ def _without_times(metrics):
 
 @pytest.mark.slow
 def test_compare_in_the_background_writes_what_a_serial_run_writes(tmp_path, monkeypatch, caplog):
-    task = _fast_task(tmp_path, intervals=20, outputs="{plots: false, report: false}")
+    task = _fast_task(tmp_path, intervals=20, outputs="{plots: true, report: true}")
     caplog.set_level("INFO")
     assert main(["compare", str(task), "-o", str(tmp_path / "bg")]) == 0
     assert "forward-dynamics simulation of analytic: done in" in caplog.text
-    assert "(worker process)" in caplog.text
+    assert "figures: done in" in caplog.text
+    assert caplog.text.count("(worker process)") == 3  # two simulations, the figures
     monkeypatch.setattr(background, "usable_cpus", lambda: 1)
     caplog.clear()
     assert main(["compare", str(task), "-o", str(tmp_path / "serial")]) == 0
     assert "(worker process)" not in caplog.text
     files = sorted(p.name for p in (tmp_path / "bg").iterdir())
+    assert "report.html" in files and "attitude_simulated.png" in files
     assert files == sorted(p.name for p in (tmp_path / "serial").iterdir())
     for name in files:
         bg, serial = (tmp_path / where / name for where in ("bg", "serial"))
-        if name.endswith(".csv"):
+        if name.endswith((".csv", ".png")):
             assert bg.read_bytes() == serial.read_bytes(), name
     metrics = [json.loads((tmp_path / w / "metrics.json").read_text()) for w in ("bg", "serial")]
     simulated = [m["methods"]["analytic"]["simulation"] for m in metrics]

@@ -1,15 +1,21 @@
-"""Forward-dynamics simulations of finished plans in one worker process, while this process
-plans on (``compare``: the mission arm alone and the analytic plan are simulated during the
-optimal solve, on the second core).
+"""A second process for the work of a run that does not wait for the optimal plan, or that can
+go on while this process writes the other files (``plan``, ``simulate`` and ``compare`` on two
+CPUs or more):
+
+* the forward-dynamics simulations of the plans made before the optimal one (the mission arm
+  alone, the analytic plan), run while the optimal plan is solved;
+* the figures, drawn while this process writes the trajectories, the animation and the joint
+  torques of the report (Matplotlib is imported and its fonts loaded in the worker while the
+  optimal plan is solved, and never in this process).
 
 CasADi holds Python's GIL while Ipopt runs, so a thread would gain nothing: the worker is a
 process, started with ``spawn`` (nothing of CasADi or Pinocchio copied into it) as soon as the
-run starts, so that its start-up overlaps the first plans. It gets the task and the plan
-pickled and returns the :class:`~balance_opt.dynamics.simulation.SimulationResult`: the same
-code on the same inputs, so the same numbers as in this process. Its log records come back
-with the result and are logged here, in the run's order. The worker ignores Ctrl-C and dies
-with this process (:mod:`balance_opt.sweep.workers`); an interruption or an error ends it at
-once. A worker that died is not an error: the simulation is run here instead.
+run starts, so that its start-up overlaps the first plans. It gets its inputs pickled and runs
+the same functions on them as this process would, so its numbers and files are the same. Its
+log records come back with its results and are logged here, in the run's order. The worker
+ignores Ctrl-C and dies with this process (:mod:`balance_opt.sweep.workers`); an interruption or
+an error ends it at once, before the staging folder it writes figures into is removed. A worker
+that died is not an error: its job is done here instead.
 """
 
 from __future__ import annotations
@@ -20,17 +26,12 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures.process import BrokenProcessPool
-from typing import TYPE_CHECKING, Self
+from typing import TYPE_CHECKING, Any, Self
 
 if TYPE_CHECKING:
-    from balance_opt.dynamics.simulation import SimulationResult
     from balance_opt.io.task import Task
-    from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
-
-#: ``(task, plan) -> simulation``.
-Simulate = Callable[["Task", "BalanceResult"], "SimulationResult"]
 
 
 def usable_cpus() -> int:
@@ -58,39 +59,56 @@ def _start() -> None:
     import balance_opt.dynamics.simulation  # noqa: F401
 
 
-def _simulate(simulate: Simulate, task: Task, plan: BalanceResult, level: int):
-    """``(simulation, robot replaced, log records, seconds)`` of one plan, in the worker."""
+def _warm_up_figures() -> None:
+    """Import Matplotlib and load its fonts by drawing a small figure (to memory)."""
+    import io
+
+    from balance_opt.io import style
+
+    with style.styled():
+        fig = style.figure()
+        fig.add_subplot().plot([0, 1], [0, 1], label="x")
+        fig.legend()
+        fig.savefig(io.BytesIO(), format="png", dpi=style.SCREEN_DPI)
+
+
+def _call(function: Callable, args: tuple, level: int):
+    """``(result, log records, seconds)`` of ``function(*args)``, in the worker."""
     handler = _Records(level)
     root = logging.getLogger()
     root.addHandler(handler)
     logging.getLogger("balance_opt").setLevel(level)
     started = time.perf_counter()
     try:
-        sim = simulate(task, plan)
+        result = function(*args)
     finally:
         root.removeHandler(handler)
-    seconds = time.perf_counter() - started
-    own_robot = sim.robot is task.robot  # the parent puts back its own (not pickled twice)
+    return result, handler.records, time.perf_counter() - started
+
+
+def _simulate(simulate: Callable, task: Task, plan) -> tuple[Any, bool]:
+    """``(simulation, robot taken out)``: the parent puts its own robot back (not pickled)."""
+    sim = simulate(task, plan)
+    own_robot = sim.robot is task.robot
     if own_robot:
         sim.robot = None
-    return sim, own_robot, handler.records, seconds
+    return sim, own_robot
 
 
-class BackgroundSimulations:
-    """Simulations in one worker process; use as a context manager.
+class RunWorker:
+    """The worker process of one run; use as a context manager.
 
     Args:
-        task: the task whose plans are simulated.
-        simulate: ``(task, plan) -> simulation``, a module-level function (the worker gets it
-            by name).
+        task: the task of the run.
+        figures: whether the run draws figures (Matplotlib is then prepared in the worker).
     """
 
-    def __init__(self, task: Task, simulate: Simulate):
+    def __init__(self, task: Task, figures: bool):
         from balance_opt.sweep.workers import new_pool
 
-        self.task, self.simulate = task, simulate
+        self.task, self.draws_figures = task, figures
         self._pool = new_pool(1, "spawn")
-        self._futures: dict[str, Future] = {}
+        self._jobs: dict[str, tuple[Future, Callable, tuple]] = {}
         self._pool.submit(_start)
 
     def __enter__(self) -> Self:
@@ -99,40 +117,66 @@ class BackgroundSimulations:
     def __exit__(self, exc_type, exc, tb) -> bool:
         from balance_opt.sweep.workers import stop_pool
 
-        if exc_type is None and not self._futures:
+        if exc_type is None and not self._jobs:
             self._pool.shutdown(wait=True)
         else:  # an error or an interruption (or results never asked for): end it now
             stop_pool(self._pool)
         return False
 
-    def __contains__(self, name: str) -> bool:
-        return name in self._futures
+    def __contains__(self, job: str) -> bool:
+        return job in self._jobs
 
-    def submit(self, name: str, plan: BalanceResult) -> None:
-        """Start simulating ``plan`` (``run.results[name]``) in the worker."""
+    def _submit(self, job: str, function: Callable, *args) -> None:
         level = logging.getLogger("balance_opt").getEffectiveLevel()
-        self._futures[name] = self._pool.submit(_simulate, self.simulate, self.task, plan, level)
-        log.debug("%s: simulation of %s handed to the worker process", self.task.name, name)
+        self._jobs[job] = (self._pool.submit(_call, function, args, level), function, args)
+        log.debug("%s: %s handed to the worker process", self.task.name, job)
 
-    def result(self, name: str, plan: BalanceResult) -> tuple[SimulationResult, float]:
-        """``(simulation, seconds)`` of ``name``, waiting for the worker; the worker's log
-        records are logged here. Run here if the worker died.
+    def _result(self, job: str) -> tuple[Any, float]:
+        """``(result, seconds)`` of ``job``, waiting for it; done here if the worker died.
 
         Raises:
-            Whatever ``simulate`` raised in the worker.
+            Whatever the job raised in the worker.
         """
-        future = self._futures.pop(name)
+        future, function, args = self._jobs.pop(job)
         try:
-            sim, own_robot, records, seconds = future.result()
+            result, records, seconds = future.result()
         except BrokenProcessPool as exc:
-            log.warning("the worker process died (%s): simulating %s here", exc, name)
+            log.warning("the worker process died (%s): %s done here", exc, job)
             started = time.perf_counter()
-            return self.simulate(self.task, plan), time.perf_counter() - started
+            return function(*args), time.perf_counter() - started
         for record in records:
             logging.getLogger(record.name).handle(record)
+        return result, seconds
+
+    # ------------------------------------------------------------------ simulations
+    def submit_simulation(self, name: str, simulate: Callable, plan) -> None:
+        """Start ``simulate(task, plan)`` (a module-level function: the worker gets it by
+        name) of ``run.results[name]``."""
+        self._submit(f"simulation of {name}", _simulate, simulate, self.task, plan)
+
+    def has_simulation(self, name: str) -> bool:
+        return f"simulation of {name}" in self._jobs
+
+    def simulation(self, name: str) -> tuple[Any, float]:
+        """``(simulation, seconds)`` of ``name``."""
+        (sim, own_robot), seconds = self._result(f"simulation of {name}")
         if own_robot:
             sim.robot = self.task.robot
         return sim, seconds
 
+    # ------------------------------------------------------------------ figures
+    def warm_up_figures(self) -> None:
+        """Prepare Matplotlib in the worker (queued after the simulations), if the run draws."""
+        if self.draws_figures:
+            self._pool.submit(_warm_up_figures)
 
-__all__ = ["BackgroundSimulations", "usable_cpus"]
+    def submit_figures(self, draw: Callable, *args) -> None:
+        """Start ``draw(*args)`` (module-level) in the worker."""
+        self._submit("figures", draw, *args)
+
+    def figures(self) -> tuple[Any, float]:
+        """``(what draw returned, seconds)``."""
+        return self._result("figures")
+
+
+__all__ = ["RunWorker", "usable_cpus"]

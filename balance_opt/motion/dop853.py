@@ -26,6 +26,11 @@ MAX_FACTOR = 10.0
 N_STAGES = 12
 N_STAGES_EXTENDED = 16
 INTERPOLATOR_POWER = 7
+#: Why :func:`solve` stopped, by status (SciPy's words).
+MESSAGES = {
+    0: "The solver successfully reached the end of the integration interval.",
+    -1: "Required step size is less than spacing between numbers.",
+}
 #: The error estimator's order: steps scale with the error to the power -1/8.
 ERROR_EXPONENT = -1 / 8
 
@@ -383,11 +388,7 @@ def solve(
         t, y, f = t_new, y_new, f_new
         if t >= t_bound:
             status = 0
-    message = (
-        "The solver successfully reached the end of the integration interval."
-        if status == 0
-        else "Required step size is less than spacing between numbers."
-    )
+    message = MESSAGES[status]
     if not ts:
         return Solution(np.empty(0), np.empty((y.size, 0)), nfev, status, message)
     return Solution(np.hstack(ts), np.hstack(ys), nfev, status, message)
