@@ -20,6 +20,7 @@ that died is not an error: its job is done here instead.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -128,8 +129,11 @@ class RunWorker:
 
     def _submit(self, job: str, function: Callable, *args) -> None:
         level = logging.getLogger("balance_opt").getEffectiveLevel()
-        self._jobs[job] = (self._pool.submit(_call, function, args, level), function, args)
-        log.debug("%s: %s handed to the worker process", self.task.name, job)
+        try:
+            future = self._pool.submit(_call, function, args, level)
+        except BrokenProcessPool:  # died already: the job is done here when asked for
+            future = None
+        self._jobs[job] = (future, function, args)
 
     def _result(self, job: str) -> tuple[Any, float]:
         """``(result, seconds)`` of ``job``, waiting for it; done here if the worker died.
@@ -139,6 +143,8 @@ class RunWorker:
         """
         future, function, args = self._jobs.pop(job)
         try:
+            if future is None:
+                raise BrokenProcessPool("it ended before this job was handed to it")
             result, records, seconds = future.result()
         except BrokenProcessPool as exc:
             log.warning("the worker process died (%s): %s done here", exc, job)
@@ -168,7 +174,8 @@ class RunWorker:
     def warm_up_figures(self) -> None:
         """Prepare Matplotlib in the worker (queued after the simulations), if the run draws."""
         if self.draws_figures:
-            self._pool.submit(_warm_up_figures)
+            with contextlib.suppress(BrokenProcessPool):
+                self._pool.submit(_warm_up_figures)
 
     def submit_figures(self, draw: Callable, *args) -> None:
         """Start ``draw(*args)`` (module-level) in the worker."""

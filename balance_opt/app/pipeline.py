@@ -285,9 +285,12 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
-        background: with ``simulate`` and two CPUs or more, simulate the plans made before
-            the optimal one in a worker process while it is solved (same results, less wall
-            time; :mod:`balance_opt.app.background`). The CLI sets it.
+        background: with two CPUs or more and an optimal plan to solve, use a worker
+            process (:mod:`balance_opt.app.background`): it simulates the plans made before
+            the optimal one while that one is solved, and draws the figures while the other
+            files are written (the same files, less wall time). The CLI sets it. Like any
+            ``spawn`` of Python, it re-imports the main module: a script needs its
+            ``if __name__ == "__main__":`` guard.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
