@@ -7,8 +7,10 @@ interleaved (validate, plan, compare, validate, ...) so that a change of load on
 hits all three alike. Prints per command the median wall time, the median CPU time of the process
 (user + system: on a loaded machine wall time waits for a CPU, CPU time does not), and the ratio
 of the median wall time to validate's (targets: plan <= 2.5, compare <= 4), then the stages of the
-median run of each command from its ``-v`` log (``STAGE: done in X s`` lines; ``rest`` is the
-process time no stage accounts for: interpreter start, imports, writing the files).
+median run of each command from its ``-v`` log (``STAGE: done in X s`` lines; ``[worker]``
+marks the stages run in the worker process beside the main one, during other stages; ``rest`` is
+the time of the main process no stage of its own accounts for: interpreter start, imports,
+writing the files, waiting for the worker).
 
     python benchmarks/bench_commands.py [TASK] [--repeats 3] [--cache DIR] [--source CHECKOUT]
 """
@@ -30,7 +32,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TASK = ROOT / "examples" / "capture_task.yaml"
 #: Targets of the whole-command time as a multiple of validate's.
 TARGETS = {"plan": 2.5, "compare": 4.0}
-_STAGE = re.compile(r"INFO (.+?): done in ([0-9.]+) s")
+_STAGE = re.compile(r"INFO (.+?): done in ([0-9.]+) s( \(worker process\))?")
+#: Prefix of the stages run in the worker process, beside the main one (not in its wall time).
+WORKER = "[worker] "
 
 
 def command_lines(task: Path, out: Path) -> dict[str, list[str]]:
@@ -54,9 +58,10 @@ def run_once(argv: list[str], env: dict[str, str]) -> tuple[float, float, dict[s
         raise SystemExit(f"{' '.join(argv)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     stages: dict[str, float] = {}
-    for name, seconds in _STAGE.findall(proc.stderr + proc.stdout):
+    for name, seconds, where in _STAGE.findall(proc.stderr + proc.stdout):
         name = re.sub(r"^\S+: ", "", name)  # drop the task-name prefix
         name = re.sub(r" \(.*\)$", "", name)  # drop "(N = 100, ...)"
+        name = f"{WORKER}{name}" if where else name
         stages[name] = stages.get(name, 0.0) + float(seconds)
     return wall, cpu, stages
 
@@ -106,7 +111,8 @@ def main(argv=None) -> int:
     for name, samples in runs.items():
         wall, _, stages = sorted(samples, key=lambda s: s[0])[len(samples) // 2]
         parts = [f"{stage} {sec:.2f}" for stage, sec in stages.items()]
-        parts.append(f"rest {wall - sum(stages.values()):.2f}")
+        own = sum(sec for stage, sec in stages.items() if not stage.startswith(WORKER))
+        parts.append(f"rest {wall - own:.2f}")
         print(f"- {name} ({wall:.2f}): " + ", ".join(parts))
     return 0
 
