@@ -13,6 +13,7 @@ the time of the main process no stage of its own accounts for: interpreter start
 writing the files, waiting for the worker).
 
     python benchmarks/bench_commands.py [TASK] [--repeats 3] [--cache DIR] [--source CHECKOUT]
+        [--against OTHER_CHECKOUT]
 """
 
 from __future__ import annotations
@@ -79,23 +80,41 @@ def main(argv=None) -> int:
         default=ROOT,
         help="checkout whose balance_opt to run (default: this one; another to compare)",
     )
-    args = parser.parse_args(argv)
-    env = dict(os.environ, PYTHONPATH=str(args.source.resolve()))
-    if args.cache:
-        env["BALANCE_OPT_CACHE"] = args.cache
-    print(
-        f"balance_opt from {args.source.resolve()}, task {args.task.name}, {args.repeats} interleaved runs per command after one warm-up, "
-        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} before"
+    parser.add_argument(
+        "--against",
+        type=Path,
+        help="a second checkout, run interleaved with --source (same load for both)",
     )
-    runs: dict[str, list[tuple[float, float, dict[str, float]]]] = {}
+    args = parser.parse_args(argv)
+    sources = [args.source.resolve()] + ([args.against.resolve()] if args.against else [])
+    envs = []
+    for source in sources:
+        envs.append(dict(os.environ, PYTHONPATH=str(source)))
+        if args.cache:
+            envs[-1]["BALANCE_OPT_CACHE"] = args.cache
+    print(
+        f"balance_opt from {', '.join(map(str, sources))}, task {args.task.name}, {args.repeats} "
+        f"interleaved runs per command after one warm-up, {os.cpu_count()} CPUs, load average "
+        f"{os.getloadavg()[0]:.2f} before"
+    )
+    runs: list[dict[str, list]] = [{} for _ in sources]
     with tempfile.TemporaryDirectory(prefix="bench_commands_") as tmp:
         commands = command_lines(args.task.resolve(), Path(tmp))
-        for argv_ in commands.values():  # warm the kernel cache and the OS file cache
-            run_once(argv_, env)
+        for env in envs:  # warm the kernel cache and the OS file cache
+            for argv_ in commands.values():
+                run_once(argv_, env)
         for _ in range(args.repeats):
             for name, argv_ in commands.items():
-                runs.setdefault(name, []).append(run_once(argv_, env))
-    print(f"load average after: {os.getloadavg()[0]:.2f}\n")
+                for k, env in enumerate(envs):
+                    runs[k].setdefault(name, []).append(run_once(argv_, env))
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    for source, source_runs in zip(sources, runs):
+        print(f"\n{source}")
+        _print_table(source_runs)
+    return 0
+
+
+def _print_table(runs: dict[str, list[tuple[float, float, dict[str, float]]]]) -> None:
     base = statistics.median(w for w, _, _ in runs["validate"])
     print("| command | wall median [s] | runs [s] | CPU median [s] | x validate | target |")
     print("| --- | --- | --- | --- | --- | --- |")
@@ -114,7 +133,6 @@ def main(argv=None) -> int:
         own = sum(sec for stage, sec in stages.items() if not stage.startswith(WORKER))
         parts.append(f"rest {wall - own:.2f}")
         print(f"- {name} ({wall:.2f}): " + ", ".join(parts))
-    return 0
 
 
 if __name__ == "__main__":
