@@ -49,10 +49,13 @@ def command_lines(task: Path, out: Path) -> dict[str, list[str]]:
 
 
 def run_once(argv: list[str], env: dict[str, str]) -> tuple[float, float, dict[str, float]]:
-    """``(wall s, CPU s, {stage: s})`` of one process."""
+    """``(wall s, CPU s, {stage: s})`` of one process, run in the checkout on its PYTHONPATH
+    (``python -m`` puts the working folder ahead of PYTHONPATH)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    proc = subprocess.run(argv, check=False, env=env, capture_output=True, text=True, cwd=ROOT)
+    proc = subprocess.run(
+        argv, check=False, env=env, capture_output=True, text=True, cwd=env["PYTHONPATH"]
+    )
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:

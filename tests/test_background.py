@@ -48,7 +48,7 @@ def fake_task(monkeypatch):
 
 
 def test_worker_result_comes_back_with_the_parents_robot(fake_task):
-    with RunWorker(fake_task, figures=False) as worker:
+    with RunWorker(fake_task, None) as worker:
         worker.submit_simulation("mission-only", where, [1, 2])
         assert worker.has_simulation("mission-only")
         sim, seconds = worker.simulation("mission-only")
@@ -58,14 +58,14 @@ def test_worker_result_comes_back_with_the_parents_robot(fake_task):
 
 
 def test_worker_error_is_raised_in_the_parent(fake_task):
-    with RunWorker(fake_task, figures=False) as worker:
+    with RunWorker(fake_task, None) as worker:
         worker.submit_simulation("analytic", refuses, 7)
         with pytest.raises(InputError, match=r"one value per arm joint \(6\), got 7"):
             worker.simulation("analytic")
 
 
 def test_dead_worker_is_replaced_by_a_simulation_here(fake_task, caplog):
-    with RunWorker(fake_task, figures=False) as worker:
+    with RunWorker(fake_task, None) as worker:
         worker.submit_simulation("analytic", dies_in_worker, 1)
         sim, _ = worker.simulation("analytic")
     assert not sim.worker and sim.plan == 1

@@ -27,6 +27,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
 
 if TYPE_CHECKING:
@@ -101,13 +102,15 @@ class RunWorker:
 
     Args:
         task: the task of the run.
-        figures: whether the run draws figures (Matplotlib is then prepared in the worker).
+        figure_dir: where the run's figures go, ``None`` if it draws none (else Matplotlib is
+            prepared in the worker).
     """
 
-    def __init__(self, task: Task, figures: bool):
+    def __init__(self, task: Task, figure_dir: Path | None):
         from balance_opt.sweep.workers import new_pool
 
-        self.task, self.draws_figures = task, figures
+        self.task, self.figure_dir = task, figure_dir
+        self.draws_figures = figure_dir is not None
         self._pool = new_pool(1, "spawn")
         self._jobs: dict[str, tuple[Future, Callable, tuple]] = {}
         self._pool.submit(_start)
@@ -177,13 +180,16 @@ class RunWorker:
             with contextlib.suppress(BrokenProcessPool):
                 self._pool.submit(_warm_up_figures)
 
-    def submit_figures(self, draw: Callable, *args) -> None:
-        """Start ``draw(*args)`` (module-level) in the worker."""
-        self._submit("figures", draw, *args)
+    def submit_figures(self, part: str, draw: Callable, *args) -> None:
+        """Start ``draw(*args)`` (module-level), the figures ``part``, in the worker."""
+        self._submit(f"figures: {part}", draw, *args)
 
-    def figures(self) -> tuple[Any, float]:
-        """``(what draw returned, seconds)``."""
-        return self._result("figures")
+    def has_figures(self, part: str) -> bool:
+        return f"figures: {part}" in self._jobs
+
+    def figures(self, part: str) -> tuple[Any, float]:
+        """``(what draw returned, seconds)`` of the figures ``part``."""
+        return self._result(f"figures: {part}")
 
 
 __all__ = ["RunWorker", "usable_cpus"]

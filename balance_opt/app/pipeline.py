@@ -309,15 +309,16 @@ def run_task(
     given_sims = dict(simulations or {})
     args = (task, methods, simulate, solver_options, models, given, given_sims)
     if output_dir is None:
-        with handling_signals(), _worker(task, methods, simulate, given, background, False) as w:
+        with handling_signals(), _worker(task, methods, simulate, given, background, None) as w:
             return _compute(*args, w)
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
     draws = task.spec.outputs.plots or task.spec.outputs.report
-    # the worker ends (its figures written or abandoned) before the staging folder is handled
+    # the worker ends (its figures written or abandoned) before the staging folder is handled;
+    # folder.staging is there once the folder is entered
     with (
         handling_signals(),
         folder,
-        _worker(task, methods, simulate, given, background, draws) as w,
+        _worker(task, methods, simulate, given, background, draws and folder.staging) as w,
     ):
         run = _compute(*args, w)
         write_run(run, folder.staging, w)
@@ -354,6 +355,9 @@ def _compute(
         hand_over = method in run.results and method not in ("optimal", *given_sims)
         if simulate and worker is not None and hand_over:
             worker.submit_simulation(method, simulate_result, run.results[method])
+    if simulate and worker is not None and worker.draws_figures:  # while the plans are simulated
+        plans_only = TaskRun(task, results=dict(run.results), failures=dict(run.failures))
+        worker.submit_figures("plans", write_figures, plans_only, worker.figure_dir, "plans")
     if simulate:
         for name in list(run.results):
             if name in given_sims:
@@ -367,7 +371,7 @@ def _compute(
     return run
 
 
-def _worker(task: Task, methods, simulate: bool, given, background: bool, figures: bool):
+def _worker(task: Task, methods, simulate: bool, given, background: bool, figure_dir):
     """The run's worker process (:mod:`balance_opt.app.background`), or a null context: only
     with ``background``, two CPUs or more, and an optimal plan to solve (the worker's start
     and its first jobs overlap it)."""
@@ -375,12 +379,12 @@ def _worker(task: Task, methods, simulate: bool, given, background: bool, figure
 
     worthwhile = (
         background
-        and (simulate or figures)
+        and (simulate or bool(figure_dir))
         and "optimal" in methods
         and "optimal" not in given
         and usable_cpus() >= 2
     )
-    return RunWorker(task, figures) if worthwhile else contextlib.nullcontext()
+    return RunWorker(task, figure_dir or None) if worthwhile else contextlib.nullcontext()
 
 
 def _checked_plans(

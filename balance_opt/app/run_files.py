@@ -66,8 +66,9 @@ def write_run(run: TaskRun, output_dir: Path, worker: RunWorker | None = None) -
     out = run.task.spec.outputs
     output_dir.mkdir(parents=True, exist_ok=True)
     drawing = out.plots or out.report
-    if drawing and worker is not None:
-        worker.submit_figures(write_figures, run, output_dir)
+    if drawing and worker is not None:  # the rest of them if it drew the plans' already
+        part = "simulations" if worker.has_figures("plans") else "all"
+        worker.submit_figures(part, write_figures, run, output_dir, part)
     files = _write_trajectories(run, output_dir)
     run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures)
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
@@ -76,7 +77,11 @@ def write_run(run: TaskRun, output_dir: Path, worker: RunWorker | None = None) -
             figures = write_figures(run, output_dir)
     report_parts = _report_parts(run) if out.report else None
     if drawing and worker is not None:
-        figures, seconds = worker.figures()
+        figures, seconds = [], 0.0
+        for part in ("plans", "simulations", "all"):
+            if worker.has_figures(part):
+                drawn, took = worker.figures(part)
+                figures, seconds = figures + drawn, seconds + took
         log.info("figures: done in %.2f s (worker process)", seconds)
     if out.plots:
         files.extend(path for _, path in figures)
@@ -138,12 +143,14 @@ def _animation_section(run: TaskRun) -> str:
     )
 
 
-def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
+def write_figures(run: TaskRun, output_dir: Path, part: str = "all") -> list[tuple[str, Path]]:
     """PNG figures of a run at one resolution (:data:`~balance_opt.io.style.SCREEN_DPI`, the
     report's): the plans' attitude with the mission arm alone, the balance joints against their
     limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
-    the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
-    ``(caption, path)`` pairs."""
+    the report embeds them, and ``paper-figures`` writes the PDFs for print. ``part``
+    ``"plans"`` draws the first two only, ``"simulations"`` the others (the run's worker draws
+    the first while the plans are simulated). Returns ``(caption, path)`` pairs, in the
+    report's order."""
     from balance_opt.io.plots import attitude_figure, reaction_torque_figure
     from balance_opt.io.report_figures import joint_limits_figure
     from balance_opt.io.style import SCREEN_DPI, SIM
@@ -155,11 +162,16 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
 
     figures = []
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
-    draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
-    if plans:
-        stem, caption = FIGURES["joints"]
-        path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI)
-        figures.append((caption, path))
+    if part != "simulations":
+        draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
+        if plans:
+            stem, caption = FIGURES["joints"]
+            path = joint_limits_figure(
+                plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI
+            )
+            figures.append((caption, path))
+        if part == "plans":
+            return figures
     if run.simulations:
         sims = {f"{k}{SIM}": v for k, v in run.simulations.items() if k != REFERENCE}
         reference = {f"{k}{SIM}": v for k, v in _only(run.simulations, REFERENCE).items()}
