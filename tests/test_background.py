@@ -89,11 +89,12 @@ def _without_times(metrics):
 def test_compare_in_the_background_writes_what_a_serial_run_writes(tmp_path, monkeypatch, caplog):
     task = _fast_task(tmp_path, intervals=20, outputs="{plots: true, report: true}")
     caplog.set_level("INFO")
+    monkeypatch.setenv(background.WORKER_ENV, "1")
     assert main(["compare", str(task), "-o", str(tmp_path / "bg")]) == 0
     assert "forward-dynamics simulation of analytic: done in" in caplog.text
     assert "figures: done in" in caplog.text
     assert caplog.text.count("(worker process)") == 3  # two simulations, the figures
-    monkeypatch.setattr(background, "usable_cpus", lambda: 1)
+    monkeypatch.setenv(background.WORKER_ENV, "0")
     caplog.clear()
     assert main(["compare", str(task), "-o", str(tmp_path / "serial")]) == 0
     assert "(worker process)" not in caplog.text
@@ -118,7 +119,10 @@ def test_interrupted_compare_leaves_no_worker(tmp_path, signum):
     args = ["compare", str(task), "-o", str(out), "-v"]
     for option in SLOW_IPOPT:
         args += ["--solver-option", option]
-    proc = subprocess.Popen(_cli(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    env = {**os.environ, background.WORKER_ENV: "1"}
+    proc = subprocess.Popen(
+        _cli(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
     try:
         deadline = psutil.time.monotonic() + START_TIMEOUT
         for line in proc.stdout:  # Ipopt's log: the optimal plan is being solved
@@ -135,3 +139,21 @@ def test_interrupted_compare_leaves_no_worker(tmp_path, signum):
     assert stderr.rstrip().splitlines()[-1] == "balance-opt: interrupted"
     assert alive == [], [p.cmdline() for p in alive]
     assert not out.exists() and sorted(p.name for p in Path(tmp_path).iterdir()) == ["task.yaml"]
+
+
+@pytest.mark.parametrize(
+    ("setting", "cpus", "load", "pays"),
+    [
+        ("", 2, 0.3, True),
+        ("", 2, 1.6, False),
+        ("", 1, 0.0, False),
+        ("", 8, 5.0, True),
+        ("0", 8, 0.0, False),
+        ("1", 1, 9.0, True),
+    ],
+)
+def test_worker_only_when_a_cpu_is_idle_or_asked_for(monkeypatch, setting, cpus, load, pays):
+    monkeypatch.setenv(background.WORKER_ENV, setting)
+    monkeypatch.setattr(background, "usable_cpus", lambda: cpus)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    assert background.worker_pays() is pays

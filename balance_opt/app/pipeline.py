@@ -285,7 +285,7 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
-        background: with two CPUs or more and an optimal plan to solve, use a worker
+        background: with a CPU to spare and an optimal plan to solve, use a worker
             process (:mod:`balance_opt.app.background`): it simulates the plans made before
             the optimal one while that one is solved, and draws the figures while the other
             files are written (the same files, less wall time). The CLI sets it. Like any
@@ -373,16 +373,16 @@ def _compute(
 
 def _worker(task: Task, methods, simulate: bool, given, background: bool, figure_dir):
     """The run's worker process (:mod:`balance_opt.app.background`), or a null context: only
-    with ``background``, two CPUs or more, and an optimal plan to solve (the worker's start
-    and its first jobs overlap it)."""
-    from balance_opt.app.background import RunWorker, usable_cpus
+    with ``background``, a CPU to spare, and an optimal plan to solve (the worker's start and
+    its first jobs overlap it)."""
+    from balance_opt.app.background import RunWorker, worker_pays
 
     worthwhile = (
         background
         and (simulate or bool(figure_dir))
         and "optimal" in methods
         and "optimal" not in given
-        and usable_cpus() >= 2
+        and worker_pays()
     )
     return RunWorker(task, figure_dir or None) if worthwhile else contextlib.nullcontext()
 
