@@ -145,7 +145,8 @@ def test_interrupted_compare_leaves_no_worker(tmp_path, signum):
     ("setting", "cpus", "load", "pays"),
     [
         ("", 2, 0.3, True),
-        ("", 2, 1.6, False),
+        ("", 2, 1.8, True),
+        ("", 2, 2.5, False),
         ("", 1, 0.0, False),
         ("", 8, 5.0, True),
         ("0", 8, 0.0, False),
