@@ -60,7 +60,7 @@ def worker_pays() -> bool:
     cpus = usable_cpus()
     try:
         load = os.getloadavg()[0]
-    except OSError:  # not available: assume idle
+    except (AttributeError, OSError):  # not available (Windows): assume idle
         load = 0.0
     return cpus >= 2 and load < cpus
 
