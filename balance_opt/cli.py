@@ -198,6 +198,7 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
             simulate=simulate,
             output_dir=folder,
             solver_options=solver_options,
+            background=True,
         )
     log.info(
         "wrote %d files to %s in %.1f s",

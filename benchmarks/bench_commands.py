@@ -7,10 +7,13 @@ interleaved (validate, plan, compare, validate, ...) so that a change of load on
 hits all three alike. Prints per command the median wall time, the median CPU time of the process
 (user + system: on a loaded machine wall time waits for a CPU, CPU time does not), and the ratio
 of the median wall time to validate's (targets: plan <= 2.5, compare <= 4), then the stages of the
-median run of each command from its ``-v`` log (``STAGE: done in X s`` lines; ``rest`` is the
-process time no stage accounts for: interpreter start, imports, writing the files).
+median run of each command from its ``-v`` log (``STAGE: done in X s`` lines; ``[worker]``
+marks the stages run in the worker process beside the main one, during other stages; ``rest`` is
+the time of the main process no stage of its own accounts for: interpreter start, imports,
+writing the files, waiting for the worker).
 
     python benchmarks/bench_commands.py [TASK] [--repeats 3] [--cache DIR] [--source CHECKOUT]
+        [--against OTHER_CHECKOUT]
 """
 
 from __future__ import annotations
@@ -30,7 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TASK = ROOT / "examples" / "capture_task.yaml"
 #: Targets of the whole-command time as a multiple of validate's.
 TARGETS = {"plan": 2.5, "compare": 4.0}
-_STAGE = re.compile(r"INFO (.+?): done in ([0-9.]+) s")
+_STAGE = re.compile(r"INFO (.+?): done in ([0-9.]+) s( \(worker process\))?")
+#: Prefix of the stages run in the worker process, beside the main one (not in its wall time).
+WORKER = "[worker] "
 
 
 def command_lines(task: Path, out: Path) -> dict[str, list[str]]:
@@ -44,19 +49,23 @@ def command_lines(task: Path, out: Path) -> dict[str, list[str]]:
 
 
 def run_once(argv: list[str], env: dict[str, str]) -> tuple[float, float, dict[str, float]]:
-    """``(wall s, CPU s, {stage: s})`` of one process."""
+    """``(wall s, CPU s, {stage: s})`` of one process, run in the checkout on its PYTHONPATH
+    (``python -m`` puts the working folder ahead of PYTHONPATH)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    proc = subprocess.run(argv, check=False, env=env, capture_output=True, text=True, cwd=ROOT)
+    proc = subprocess.run(
+        argv, check=False, env=env, capture_output=True, text=True, cwd=env["PYTHONPATH"]
+    )
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(argv)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     stages: dict[str, float] = {}
-    for name, seconds in _STAGE.findall(proc.stderr + proc.stdout):
+    for name, seconds, where in _STAGE.findall(proc.stderr + proc.stdout):
         name = re.sub(r"^\S+: ", "", name)  # drop the task-name prefix
         name = re.sub(r" \(.*\)$", "", name)  # drop "(N = 100, ...)"
+        name = f"{WORKER}{name}" if where else name
         stages[name] = stages.get(name, 0.0) + float(seconds)
     return wall, cpu, stages
 
@@ -74,23 +83,41 @@ def main(argv=None) -> int:
         default=ROOT,
         help="checkout whose balance_opt to run (default: this one; another to compare)",
     )
-    args = parser.parse_args(argv)
-    env = dict(os.environ, PYTHONPATH=str(args.source.resolve()))
-    if args.cache:
-        env["BALANCE_OPT_CACHE"] = args.cache
-    print(
-        f"balance_opt from {args.source.resolve()}, task {args.task.name}, {args.repeats} interleaved runs per command after one warm-up, "
-        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} before"
+    parser.add_argument(
+        "--against",
+        type=Path,
+        help="a second checkout, run interleaved with --source (same load for both)",
     )
-    runs: dict[str, list[tuple[float, float, dict[str, float]]]] = {}
+    args = parser.parse_args(argv)
+    sources = [args.source.resolve()] + ([args.against.resolve()] if args.against else [])
+    envs = []
+    for source in sources:
+        envs.append(dict(os.environ, PYTHONPATH=str(source)))
+        if args.cache:
+            envs[-1]["BALANCE_OPT_CACHE"] = args.cache
+    print(
+        f"balance_opt from {', '.join(map(str, sources))}, task {args.task.name}, {args.repeats} "
+        f"interleaved runs per command after one warm-up, {os.cpu_count()} CPUs, load average "
+        f"{os.getloadavg()[0]:.2f} before"
+    )
+    runs: list[dict[str, list]] = [{} for _ in sources]
     with tempfile.TemporaryDirectory(prefix="bench_commands_") as tmp:
         commands = command_lines(args.task.resolve(), Path(tmp))
-        for argv_ in commands.values():  # warm the kernel cache and the OS file cache
-            run_once(argv_, env)
+        for env in envs:  # warm the kernel cache and the OS file cache
+            for argv_ in commands.values():
+                run_once(argv_, env)
         for _ in range(args.repeats):
             for name, argv_ in commands.items():
-                runs.setdefault(name, []).append(run_once(argv_, env))
-    print(f"load average after: {os.getloadavg()[0]:.2f}\n")
+                for k, env in enumerate(envs):
+                    runs[k].setdefault(name, []).append(run_once(argv_, env))
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    for source, source_runs in zip(sources, runs):
+        print(f"\n{source}")
+        _print_table(source_runs)
+    return 0
+
+
+def _print_table(runs: dict[str, list[tuple[float, float, dict[str, float]]]]) -> None:
     base = statistics.median(w for w, _, _ in runs["validate"])
     print("| command | wall median [s] | runs [s] | CPU median [s] | x validate | target |")
     print("| --- | --- | --- | --- | --- | --- |")
@@ -106,9 +133,9 @@ def main(argv=None) -> int:
     for name, samples in runs.items():
         wall, _, stages = sorted(samples, key=lambda s: s[0])[len(samples) // 2]
         parts = [f"{stage} {sec:.2f}" for stage, sec in stages.items()]
-        parts.append(f"rest {wall - sum(stages.values()):.2f}")
+        own = sum(sec for stage, sec in stages.items() if not stage.startswith(WORKER))
+        parts.append(f"rest {wall - own:.2f}")
         print(f"- {name} ({wall:.2f}): " + ", ".join(parts))
-    return 0
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from balance_opt.app.pipeline import _timed
+from balance_opt.app.run_files import _timed
 from balance_opt.interrupts import handling_signals
 from balance_opt.io.output_dir import OutputFolder
 from balance_opt.io.task import Task

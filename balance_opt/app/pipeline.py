@@ -27,13 +27,21 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from balance_opt.app.models import ModelCache
+from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures: public here too)
+    FIGURES,
+    METRICS_FILE,
+    REFERENCE,
+    REPORT_FILE,
+    _timed,
+    write_figures,
+    write_run,
+)
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.io.output_dir import OutputFolder
@@ -41,39 +49,12 @@ from balance_opt.io.task import Task, check_methods, check_optimal_supported
 from balance_opt.result import BalanceResult
 
 if TYPE_CHECKING:
+    from balance_opt.app.background import RunWorker
     from balance_opt.dynamics.simulation import SimulationResult
 
 log = logging.getLogger(__name__)
 
 METHODS = ("analytic", "optimal")
-#: Name of the reference result: the mission arm alone, balance arm held (Phase I, Fig. 2).
-REFERENCE = "mission-only"
-METRICS_FILE = "metrics.json"
-REPORT_FILE = "report.html"
-#: Figures of a run: key -> (file name without suffix, caption). The figures carry no title;
-#: the report prints these captions under them.
-FIGURES = {
-    "attitude": (
-        "attitude_plans",
-        "Base attitude of each plan (momentum model), with the mission arm alone for reference",
-    ),
-    "simulated_attitude": (
-        "attitude_simulated",
-        "Base attitude in the forward-dynamics simulation of each plan and of the mission arm alone",
-    ),
-    "torque": (
-        "reaction_torque",
-        (
-            "Torque the arms exert on the base in the forward-dynamics simulation of each plan "
-            "(paper Fig. 4): sum of the arms, mission arm and balance arm; each plan on its own "
-            "scale"
-        ),
-    ),
-    "joints": (
-        "balance_joints",
-        "Balance joint positions, rates and accelerations of each plan with their limits (dotted)",
-    ),
-}
 
 
 @dataclass
@@ -272,15 +253,6 @@ simulate_result = simulate
 
 
 # =========================================================================================== run
-@contextlib.contextmanager
-def _timed(what: str):
-    """Log ``what ...``, then ``what: done in X s`` when the block ends without error."""
-    log.info("%s ...", what)
-    start = time.perf_counter()
-    yield
-    log.info("%s: done in %.2f s", what, time.perf_counter() - start)
-
-
 def run_task(
     task: Task,
     methods: Sequence[str] = METHODS,
@@ -291,6 +263,7 @@ def run_task(
     force: bool = False,
     plans: Mapping[str, BalanceResult] | None = None,
     simulations: Mapping[str, SimulationResult] | None = None,
+    background: bool = False,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -312,6 +285,12 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
+        background: with a CPU to spare and an optimal plan to solve, use a worker
+            process (:mod:`balance_opt.app.background`): it simulates the plans made before
+            the optimal one while that one is solved, and draws the figures while the other
+            files are written (the same files, less wall time). The CLI sets it. Like any
+            ``spawn`` of Python, it re-imports the main module: a script needs its
+            ``if __name__ == "__main__":`` guard.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
@@ -328,26 +307,44 @@ def run_task(
     methods = _checked_methods(task, methods)
     given = _checked_plans(task, methods, plans or {})
     given_sims = dict(simulations or {})
+    args = (task, methods, simulate, solver_options, models, given, given_sims)
     if output_dir is None:
-        with handling_signals():
-            return _compute(task, methods, simulate, solver_options, models, given, given_sims)
+        with handling_signals(), _worker(task, methods, simulate, given, background, None) as w:
+            return _compute(*args, w)
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
-    with handling_signals(), folder:
-        run = _compute(task, methods, simulate, solver_options, models, given, given_sims)
-        write_run(run, folder.staging)
+    draws = task.spec.outputs.plots or task.spec.outputs.report
+    # the worker ends (its figures written or abandoned) before the staging folder is handled;
+    # folder.staging is there once the folder is entered
+    with (
+        handling_signals(),
+        folder,
+        _worker(task, methods, simulate, given, background, draws and folder.staging) as w,
+    ):
+        run = _compute(*args, w)
+        write_run(run, folder.staging, w)
         run.files = [folder.final(path) for path in run.files]
         run.report = None if run.report is None else folder.final(run.report)
     return run
 
 
 def _compute(
-    task: Task, methods, simulate: bool, solver_options, models, given: dict, given_sims: dict
+    task: Task,
+    methods,
+    simulate: bool,
+    solver_options,
+    models,
+    given: dict,
+    given_sims: dict,
+    worker: RunWorker | None = None,
 ) -> TaskRun:
     """The plans (the reference first) and, with ``simulate``, their simulations; the ones
-    given are taken as they are."""
+    given are taken as they are. The ``worker`` simulates each plan made before the optimal
+    one while the next is planned."""
     run = TaskRun(task)
     models = models if models is not None else ModelCache()
     for method in (REFERENCE, *methods):
+        if worker is not None and method == "optimal":
+            worker.warm_up_figures()
         if method in given:
             log.info("%s: %s plan given, not planned again", task.name, method)
             run.results[method] = given[method]
@@ -355,13 +352,39 @@ def _compute(
                 run.failures[method] = f"given plan: solver status {given[method].status}"
         else:
             _plan_into(run, method, solver_options, models)
+        hand_over = method in run.results and method not in ("optimal", *given_sims)
+        if simulate and worker is not None and hand_over:
+            worker.submit_simulation(method, simulate_result, run.results[method])
+    if simulate and worker is not None and worker.draws_figures:  # while the plans are simulated
+        plans_only = TaskRun(task, results=dict(run.results), failures=dict(run.failures))
+        worker.submit_figures("plans", write_figures, plans_only, worker.figure_dir, "plans")
     if simulate:
         for name in list(run.results):
             if name in given_sims:
                 run.simulations[name] = given_sims[name]
-            else:
+            elif worker is None or not worker.has_simulation(name):
                 _simulate_into(run, name)
+        for name in list(run.results):  # the worker's, in the run's order
+            if worker is not None and worker.has_simulation(name):
+                _simulate_into(run, name, worker)
+        run.simulations = {k: run.simulations[k] for k in run.results if k in run.simulations}
     return run
+
+
+def _worker(task: Task, methods, simulate: bool, given, background: bool, figure_dir):
+    """The run's worker process (:mod:`balance_opt.app.background`), or a null context: only
+    with ``background``, a CPU to spare, and an optimal plan to solve (the worker's start and
+    its first jobs overlap it)."""
+    from balance_opt.app.background import RunWorker, worker_pays
+
+    worthwhile = (
+        background
+        and (simulate or bool(figure_dir))
+        and "optimal" in methods
+        and "optimal" not in given
+        and worker_pays()
+    )
+    return RunWorker(task, figure_dir or None) if worthwhile else contextlib.nullcontext()
 
 
 def _checked_plans(
@@ -435,13 +458,23 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
         )
 
 
-def _simulate_into(run: TaskRun, name: str) -> None:
-    """Simulate ``run.results[name]``; a diverging simulation is a failure, not a result."""
+def _simulate_into(run: TaskRun, name: str, worker: RunWorker | None = None) -> None:
+    """Simulate ``run.results[name]`` (or take the worker's simulation of it); a diverging
+    simulation is a failure, not a result."""
     from balance_opt.dynamics.simulation import divergence
 
     task = run.task
-    with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
-        sim = simulate_result(task, run.results[name])
+    if worker is None:
+        with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
+            sim = simulate_result(task, run.results[name])
+    else:
+        sim, seconds = worker.simulation(name)
+        log.info(
+            "%s: forward-dynamics simulation of %s: done in %.2f s (worker process)",
+            task.name,
+            name,
+            seconds,
+        )
     diverged = divergence(sim)
     if diverged:
         message = (
@@ -453,109 +486,3 @@ def _simulate_into(run: TaskRun, name: str) -> None:
         run.failures[f"simulation of {name}"] = message
     else:
         run.simulations[name] = sim
-
-
-# =========================================================================================== writing
-def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
-    """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
-    from balance_opt.io.outputs import (
-        plan_joint_torques,
-        run_metrics,
-        write_metrics,
-        write_trajectory_csv,
-        write_trajectory_npz,
-    )
-
-    out = run.task.spec.outputs
-    output_dir.mkdir(parents=True, exist_ok=True)
-    files = []
-    for name, res in run.results.items():
-        if out.csv:
-            files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
-        if out.npz:
-            npz = output_dir / f"{name}.npz"
-            files.append(write_trajectory_npz(npz, res, run.task.robot, run.task.h0))
-    run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures)
-    files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
-    figures = []
-    if out.plots or out.report:
-        with _timed("figures"):
-            figures = write_figures(run, output_dir)
-        if out.plots:
-            files.extend(path for _, path in figures)
-    if out.report:
-        from balance_opt.io.report import write_report
-
-        extra = _animation_section(run) if out.animation else ""
-        torques = {
-            name: (res.t, plan_joint_torques(res, run.task.robot, run.task.h0))
-            for name, res in run.results.items()
-        }
-        about = run.task.spec.description
-        run.report = write_report(
-            output_dir / REPORT_FILE, run.metrics, figures, about, extra, torques
-        )
-        files.append(run.report)
-        if not out.plots:
-            for _, path in figures:
-                path.unlink()
-    run.files = files
-    return files
-
-
-def _animation_section(run: TaskRun) -> str:
-    """The report's 3D animation of every plan (see :mod:`balance_opt.io.animation`)."""
-    from balance_opt.io.animation import animation_html
-    from balance_opt.io.plots import plan_colour, plan_label
-
-    names = list(run.results)
-    colours = {name: plan_colour(name, i) for i, name in enumerate(names)}
-    labels = {name: plan_label(name) for name in names}
-    with _timed("animation"):
-        body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
-    return (
-        '<h2>Animation</h2><p class="meta">The robot as a stick figure (base axes: red x, green y, '
-        "blue z), base pose from the plan; drag to turn the view.</p>" + body
-    )
-
-
-def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
-    """PNG figures of a run at one resolution (:data:`~balance_opt.io.style.SCREEN_DPI`, the
-    report's): the plans' attitude with the mission arm alone, the balance joints against their
-    limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
-    the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
-    ``(caption, path)`` pairs."""
-    from balance_opt.io.plots import attitude_figure, reaction_torque_figure
-    from balance_opt.io.report_figures import joint_limits_figure
-    from balance_opt.io.style import SCREEN_DPI, SIM
-
-    def draw(key, function, curves):
-        stem, caption = FIGURES[key]
-        _, paths = function(curves, output_dir / stem, formats=("png",), dpi=SCREEN_DPI)
-        figures.append((caption, paths[0]))
-
-    figures = []
-    plans = {k: v for k, v in run.results.items() if k != REFERENCE}
-    draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
-    if plans:
-        stem, caption = FIGURES["joints"]
-        path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI)
-        figures.append((caption, path))
-    if run.simulations:
-        sims = {f"{k}{SIM}": v for k, v in run.simulations.items() if k != REFERENCE}
-        reference = {f"{k}{SIM}": v for k, v in _only(run.simulations, REFERENCE).items()}
-        draw("simulated_attitude", attitude_figure, {**sims, **reference})
-        if sims:
-            balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
-            draw("torque", reaction_torque_figure, balanced)
-    if run.task.target is not None:  # issue 16
-        from balance_opt.io.capture_figures import CAPTION, capture_figure
-
-        curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
-        path = capture_figure(curves, run.task.target.time, output_dir / "capture.png")
-        figures.append((CAPTION, path))
-    return figures
-
-
-def _only(results: Mapping[str, Any], name: str) -> dict[str, Any]:
-    return {name: results[name]} if name in results else {}

@@ -269,6 +269,13 @@ def _symmetric(M: np.ndarray) -> np.ndarray:
     return np.triu(M) + np.triu(M, 1).T
 
 
+def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
+    """``idx`` as a slice when its entries are consecutive, else as it is."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
 class _Dynamics:
     """``(q, v, planned joint state) -> (a, tau)`` with one reused Pinocchio data."""
 
@@ -279,6 +286,8 @@ class _Dynamics:
         self.idx_v = robot.pin_v_indices
         jids = [robot.model.getJointId(j) for j in robot.joint_names]
         self.idx_q = np.array([robot.model.joints[j].idx_q for j in jids])
+        # slices where the indices run on (the usual case): a view, no gather per call
+        self._v, self._q = _as_slice(self.idx_v), _as_slice(self.idx_q)
         self.revolute_only = all(robot.model.joints[j].nq == 1 for j in jids)
         self.kp, self.kd = kp, kd
         self.computed_torque = controller == "computed-torque"
@@ -288,7 +297,7 @@ class _Dynamics:
         self.G = robot.velocity_map if robot.followers else None
 
     def joint_positions(self, q):
-        return q[self.idx_q] if self.revolute_only else self.robot.arm_q(q)
+        return q[self._q] if self.revolute_only else self.robot.arm_q(q)
 
     def position_error(self, qd, q):
         e = qd - self.joint_positions(q)
@@ -297,12 +306,12 @@ class _Dynamics:
         return e
 
     def __call__(self, q, v, qd, vd, ad):
-        tau = self.kp * self.position_error(qd, q) + self.kd * (vd - v[self.idx_v])
+        tau = self.kp * self.position_error(qd, q) + self.kd * (vd - v[self._v])
         if self.computed_torque:
             tau = tau + self.feedforward(q, v, ad)
         if self.effort is not None:
             tau = np.clip(tau, -self.effort, self.effort)
-        self.tau_full[self.idx_v] = tau
+        self.tau_full[self._v] = tau
         if self.G is None:
             return pin.aba(self.model, self.data, q, v, self.tau_full), tau
         G = self.G  # mimic joints driven by their drivers: reduced coordinates

@@ -10,9 +10,9 @@ integrated (``docs/physics.md``, "Attitude").
 
 Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`):
 
-* ``"adaptive"`` (default): scipy's Dormand-Prince 8(5,3) (``DOP853``) with error control on the
-  whole state (``rtol``, ``atol``) and its 7th-order dense output at the output times; exact to
-  the integration tolerance.
+* ``"adaptive"`` (default): Dormand-Prince 8(5,3) (``DOP853``, :mod:`balance_opt.motion.dop853`,
+  as SciPy runs it) with error control on the whole state (``rtol``, ``atol``) and its
+  7th-order dense output at the output times; exact to the integration tolerance.
 * ``"rk4"``: classic fixed-step Runge-Kutta 4, each output interval split into steps no longer
   than ``step``.
 """
@@ -23,13 +23,13 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from balance_opt.errors import InputError
+from balance_opt.motion import dop853
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.so3 import IDENTITY_QUATERNION
 
-#: The scipy scheme behind ``"adaptive"``.
+#: The scheme behind ``"adaptive"``.
 ADAPTIVE_SCHEME = "DOP853"
 #: Relative slack when splitting an output interval into RK4 steps.
 _STEP_SLACK = 1e-9
@@ -102,16 +102,7 @@ def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
 
 
 def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
-    sol = solve_ivp(
-        rhs,
-        (t[0], t[-1]),
-        y0,
-        method=ADAPTIVE_SCHEME,
-        t_eval=t,
-        rtol=options.rtol,
-        atol=options.atol,
-        max_step=options.step or np.inf,
-    )
+    sol = dop853.solve(rhs, y0, t, options.rtol, options.atol, options.step or np.inf)
     stats = {
         "method": "adaptive",
         "scheme": ADAPTIVE_SCHEME,
@@ -119,13 +110,13 @@ def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
         "atol": options.atol,
         "rhs_evaluations": int(sol.nfev),
     }
-    reached = np.asarray(sol.t)
+    reached = sol.t
     message = (
         None
         if sol.status == 0
         else f"{sol.message} (at t = {reached[-1] if reached.size else t[0]:.6g} s)"
     )
-    if not reached.size:  # failed in its first step: scipy returns empty lists
+    if not reached.size:  # failed in its first step: no output time reached
         return np.array(y0, dtype=float)[None, :], stats, message
     return sol.y.T.copy(), stats, message
 
