@@ -19,9 +19,13 @@ process is inside Ipopt.
 
 from __future__ import annotations
 
+import logging
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future
+
+log = logging.getLogger(__name__)
 
 FIRST, PLAN = "first", "plan"
 
@@ -50,13 +54,14 @@ class Schedule:
         self._plans = [] if staged else list(range(n))
 
     def take(self, local: bool) -> tuple[str, int] | None:
-        """The next task for this process (``local``: later stages first, then the lowest first
-        stage) or for a worker (the highest first stage, then later stages); ``None``: none is
-        ready."""
+        """The next task for this process (``local``: the lowest later stages, then the lowest
+        first stage) or for a worker (the highest first stage, then the highest later stages);
+        ``None``: none is ready."""
+        end = 0 if local else -1
         if self._plans and (local or not self._firsts):
-            return PLAN, self._plans.pop(0)
+            return PLAN, self._plans.pop(end)
         if self._firsts:
-            return FIRST, self._firsts.pop(0 if local else -1)
+            return FIRST, self._firsts.pop(end)
         return None
 
     def argument(self, task: tuple[str, int]):
@@ -107,7 +112,7 @@ class Lanes:
     def run(self, schedule: Schedule) -> None:
         """Run every task of ``schedule``. Raises what a task raised (a worker's exception, a
         crashed worker's ``BrokenProcessPool``) or an interruption, the pool stopped."""
-        self.schedule = schedule
+        self.schedule, self.t0 = schedule, time.perf_counter()
         if self.workers:
             from balance_opt.sweep.workers import new_pool
 
@@ -133,7 +138,9 @@ class Lanes:
                     self.cond.wait(WAIT_S)
                     continue
                 argument = self.schedule.argument(task)
+            begun = time.perf_counter()
             value = self.local(task[0], argument)
+            self._log(task, "this process", begun)
             with self.cond:
                 self.schedule.done(task, value)
                 self._feed()
@@ -147,14 +154,22 @@ class Lanes:
             function, leading = self.remote
             try:
                 future = self.pool.submit(function, *leading, self.schedule.argument(task), task[0])
-            except Exception as exc:  # the pool broke (a worker died)
+            except RuntimeError as exc:  # the pool broke (BrokenProcessPool: a worker died)
                 self.error = self.error or exc
                 return
             self.busy += 1
-            future.add_done_callback(lambda f, task=task: self._returned(task, f))
+            begun = time.perf_counter()
+            future.add_done_callback(lambda f, task=task, b=begun: self._returned(task, f, b))
 
-    def _returned(self, task: tuple[str, int], future: Future) -> None:
+    def _log(self, task: tuple[str, int], lane: str, begun: float) -> None:
+        now = time.perf_counter()
+        log.debug(
+            "start %d, %s: %s, %.2f-%.2f s", task[1], task[0], lane, begun - self.t0, now - self.t0
+        )
+
+    def _returned(self, task: tuple[str, int], future: Future, begun: float) -> None:
         """A worker's task ended (in the pool's thread)."""
+        self._log(task, "a worker", begun)
         with self.cond:
             self.busy -= 1
             if not future.cancelled():

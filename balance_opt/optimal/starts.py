@@ -80,7 +80,11 @@ def _run(nlp, guess, phase: str):
 
 
 #: The options of the first stage's problem (:func:`~balance_opt.optimal.refine.integral_stage`).
-_FIRST_STAGE = {"objective": "integral", "path_attitude_bound": None, "terminal_attitude_bound": None}
+_FIRST_STAGE = {
+    "objective": "integral",
+    "path_attitude_bound": None,
+    "terminal_attitude_bound": None,
+}
 
 
 def _worker(build, model_robot, robot, mission, q_B0, options, h0, guess, phase):
@@ -116,9 +120,7 @@ def _same_first_plan(a, b) -> bool:
     if any(f.report["status"] not in SUCCESS_STATUSES for f in (a, b)):
         return False
     x, y = a.following, b.following
-    return bool(
-        np.abs(x.X - y.X).max() <= SAME_PLAN and np.abs(x.U - y.U).max() <= SAME_CONTROL
-    )
+    return bool(np.abs(x.X - y.X).max() <= SAME_PLAN and np.abs(x.U - y.U).max() <= SAME_CONTROL)
 
 
 def _solve_all(nlp, guesses, jobs: int) -> tuple[list, list]:
