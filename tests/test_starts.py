@@ -138,6 +138,17 @@ def test_lanes_run_tasks_in_this_process_and_a_worker_with_the_same_outcome():
 
 
 @pytest.mark.slow
+def test_a_worker_slower_than_this_process_is_not_waited_for():
+    lanes, schedule, where = _lanes("sleep")  # the worker never ends its task
+    start = time.monotonic()
+    lanes.run(schedule)
+    assert time.monotonic() - start < 10
+    assert (schedule.owner, schedule.outcomes()) == _drive(None)
+    assert set(where.values()) == {os.getpid()}  # its task (start 7) was done here too
+    assert psutil.wait_procs(_children(), timeout=5)[1] == []
+
+
+@pytest.mark.slow
 def test_a_worker_error_is_raised_and_ends_the_pool():
     lanes, schedule, _ = _lanes("fail")
     with pytest.raises(ValueError, match="worker failed on 7"):

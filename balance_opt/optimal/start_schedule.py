@@ -14,7 +14,10 @@ the workers: it takes tasks itself, from the low start indices (the first starts
 can begin at once), and the workers from the high ones, each worker one task at a time (a task
 given to a worker cannot be taken back). A worker is given its next task as soon as it hands
 back its last one (a callback in the pool's thread: Ipopt releases the GIL), even while this
-process is inside Ipopt.
+process is inside Ipopt. When nothing is ready and a worker still has a task, this process runs
+that task too and keeps whichever result comes first (the same: a task depends only on its
+input), so a multi-start never waits on a worker slower than this process, one still starting
+up on a loaded machine for instance; the pool is then stopped, not waited for.
 """
 
 from __future__ import annotations
@@ -70,8 +73,11 @@ class Schedule:
         return self.firsts[i] if kind == PLAN and self.staged else self.guesses[i]
 
     def done(self, task: tuple[str, int], value) -> None:
-        """Record a task's result; later stages that may now begin become ready."""
+        """Record a task's result (the first one, if it ran twice); later stages that may now
+        begin become ready."""
         kind, i = task
+        if (kind == PLAN and i in self.plans) or (kind == FIRST and self.firsts[i] is not None):
+            return  # a copy's (the task ran in two processes)
         if kind == PLAN:
             self.plans[i] = value
             return
@@ -106,7 +112,9 @@ class Lanes:
 
     def __init__(self, local: Callable, remote: tuple[Callable, tuple], workers: int):
         self.local, self.remote, self.workers = local, remote, workers
-        self.pool, self.busy, self.error, self.closed = None, 0, None, False
+        self.pool, self.error, self.closed = None, None, False
+        self.in_workers: dict[tuple[str, int], float] = {}  # task: when it was given
+        self.copied: set = set()
         self.cond = threading.Condition()
 
     def run(self, schedule: Schedule) -> None:
@@ -133,8 +141,8 @@ class Lanes:
                     raise self.error
                 if self.schedule.finished:
                     return
-                task = self.schedule.take(local=True)
-                if task is None:  # every ready task is in a worker
+                task = self.schedule.take(local=True) or self._copy()
+                if task is None:
                     self.cond.wait(WAIT_S)
                     continue
                 argument = self.schedule.argument(task)
@@ -145,9 +153,20 @@ class Lanes:
                 self.schedule.done(task, value)
                 self._feed()
 
+    def _copy(self) -> tuple[str, int] | None:
+        """A task a worker has, to run here too while nothing else is ready (the one given
+        first; the lock held): the same result whichever ends first, and never a wait for a
+        worker slower than this process (one still starting up)."""
+        waiting = [t for t in self.in_workers if t not in self.copied]
+        if not waiting:
+            return None
+        task = min(waiting, key=self.in_workers.get)
+        self.copied.add(task)
+        return task
+
     def _feed(self) -> None:
         """Give each idle worker a task (the lock held)."""
-        while self.pool is not None and not self.closed and self.busy < self.workers:
+        while self.pool is not None and not self.closed and len(self.in_workers) < self.workers:
             task = self.schedule.take(local=False)
             if task is None:
                 return
@@ -157,8 +176,7 @@ class Lanes:
             except RuntimeError as exc:  # the pool broke (BrokenProcessPool: a worker died)
                 self.error = self.error or exc
                 return
-            self.busy += 1
-            begun = time.perf_counter()
+            self.in_workers[task] = begun = time.perf_counter()
             future.add_done_callback(lambda f, task=task, b=begun: self._returned(task, f, b))
 
     def _log(self, task: tuple[str, int], lane: str, begun: float) -> None:
@@ -171,7 +189,7 @@ class Lanes:
         """A worker's task ended (in the pool's thread)."""
         self._log(task, "a worker", begun)
         with self.cond:
-            self.busy -= 1
+            self.in_workers.pop(task, None)
             if not future.cancelled():
                 if future.exception() is not None:
                     self.error = self.error or future.exception()
@@ -187,7 +205,9 @@ class Lanes:
             return
         from balance_opt.sweep.workers import stop_pool
 
-        stop_pool(self.pool) if failed else self.pool.shutdown(wait=True)
+        with self.cond:
+            busy = bool(self.in_workers)  # copies this process finished first: not waited for
+        stop_pool(self.pool) if failed or busy else self.pool.shutdown(wait=True)
 
 
 __all__ = ["FIRST", "PLAN", "Lanes", "Schedule"]

@@ -3,17 +3,21 @@ processes, the plan of the smallest objective kept.
 
 The guesses are the chosen one, the other named one (``analytic``, ``rest``), then smooth
 random motions drawn in this process from ``options.seed`` (so a run is reproducible whatever
-the number of workers). With more than one start and more than one CPU the starts run in a
-pool of ``spawn`` workers (at most one per CPU): each worker builds its own
-:class:`~balance_opt.optimal.model.PlannerModel` from the pickled robot once, loading the
-compiled kernel library from the on-disk cache, and keeps it for its next starts.
+the number of processes). With more than one start and more than one CPU the starts run in this
+process, which has every problem built, and in a pool of ``spawn`` workers, one per other CPU
+(:mod:`balance_opt.optimal.start_schedule` says which task runs where and when): each worker
+builds its own :class:`~balance_opt.optimal.model.PlannerModel` from the pickled robot once,
+loading the compiled kernel library from the on-disk cache, and keeps it for its next starts;
+it builds only the problems of the stages it is given.
 
 A plan through the peak problem (the peak objective, or a path attitude bound) begins with the
 integral objective's plan (:func:`~balance_opt.optimal.refine.plan_peak`), and different
 starts often reach the same one (on the capture task all eight do): the starts run that first
-stage, those whose plans agree (:data:`SAME_PLAN`) are merged, and only the distinct ones go on
-through the later stages, the bounds and the refinement. ``info["starts"]`` reports every start
-(a merged one names the start it joined).
+stage, those whose plans agree (:data:`SAME_PLAN`, :data:`SAME_CONTROL`) are merged, and only
+the distinct ones go on through the later stages, the bounds and the refinement, each as soon
+as it is known to be distinct. ``info["starts"]`` reports every start (a merged one names the
+start it joined), the distinct plans and the processes that solved (``workers``, this one
+included).
 """
 
 from __future__ import annotations
