@@ -186,3 +186,52 @@ def test_multi_start_is_the_same_with_one_process_and_with_a_worker(capture):
         assert a.get("same_as") == b.get("same_as") and a["status"] == b["status"]
         assert a["objective"] == pytest.approx(b["objective"], rel=1e-9)
     assert shared.max_drift == pytest.approx(alone.max_drift, rel=1e-9)
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_a_multi_start_exits_130_without_orphans(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group) while this process and a worker are inside
+    Ipopt: exit 130 within seconds, the worker and the pool's helpers gone."""
+    import signal
+    import subprocess
+
+    from test_interrupts import IPOPT_ITERATION, SLOW_IPOPT, START_TIMEOUT, _cli, _fast_task
+
+    task = _fast_task(tmp_path, intervals=40)
+    task.write_text(task.read_text().replace("{intervals: 40}", "{intervals: 40, starts: 4}"))
+    args = ["plan", str(task), "-m", "optimal", "-o", str(tmp_path / "out"), "-v"]
+    for option in SLOW_IPOPT:
+        args += ["--solver-option", option]
+    proc = subprocess.Popen(
+        _cli(*args),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        bufsize=1,
+        start_new_session=True,
+    )
+    descendants: list = []
+    try:
+        deadline = time.monotonic() + START_TIMEOUT
+        iterations = 0
+        for line in proc.stdout:  # the workers' Ipopt logs come here too
+            if IPOPT_ITERATION.match(line):
+                iterations += 1
+            descendants = psutil.Process(proc.pid).children(recursive=True)
+            if iterations >= 20 and len(descendants) >= 2:  # a worker and the resource tracker
+                break
+            assert time.monotonic() < deadline, "no multi-start under way"
+        os.killpg(proc.pid, signal.SIGINT)
+        start = time.monotonic()
+        _, stderr = proc.communicate(timeout=30)
+        assert time.monotonic() - start < 10
+        assert proc.returncode == 130, stderr
+        assert stderr.rstrip().splitlines()[-1] == "balance-opt: interrupted"
+        assert psutil.wait_procs(descendants, timeout=10)[1] == []
+        assert not (tmp_path / "out").exists()
+    finally:
+        for p in [proc, *descendants]:
+            try:
+                p.kill()
+            except (psutil.NoSuchProcess, ProcessLookupError):
+                pass
