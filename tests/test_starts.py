@@ -182,10 +182,12 @@ def test_multi_start_is_the_same_with_one_process_and_with_a_worker(capture):
     alone = multi_start(nlp, "analytic", jobs=1)
     shared = multi_start(nlp, "analytic", jobs=2)
     assert (alone.info["starts"]["workers"], shared.info["starts"]["workers"]) == (1, 2)
+    # the same plans; to the last bit when both processes run the same compiled kernels (not
+    # while this one runs them on CasADi's VM as a fresh cache compiles them): 1e-7
     for a, b in zip(alone.info["starts"]["runs"], shared.info["starts"]["runs"]):
         assert a.get("same_as") == b.get("same_as") and a["status"] == b["status"]
-        assert a["objective"] == pytest.approx(b["objective"], rel=1e-9)
-    assert shared.max_drift == pytest.approx(alone.max_drift, rel=1e-9)
+        assert a["objective"] == pytest.approx(b["objective"], rel=1e-7)
+    assert shared.max_drift == pytest.approx(alone.max_drift, rel=1e-7)
 
 
 @pytest.mark.slow
