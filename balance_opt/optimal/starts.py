@@ -23,6 +23,7 @@ included).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 
 import numpy as np
@@ -31,6 +32,8 @@ from balance_opt.errors import SolverError
 from balance_opt.optimal.guess import random_guess
 from balance_opt.optimal.options import GUESSES, SUCCESS_STATUSES
 from balance_opt.optimal.start_schedule import Lanes, Schedule
+
+log = logging.getLogger(__name__)
 
 #: Largest difference between two first-stage plans' states (rad, rad/s) under which they are
 #: one plan.
@@ -175,6 +178,13 @@ def multi_start(nlp, guess, jobs: int | None = None):
     if best is None:
         raise first_error
     solved = [r for r in runs if "objective" in r]
+    log.info(
+        "multi-start: %d starts, %d solved, %d distinct plans, %d processes",
+        len(runs),
+        len(solved),
+        len(set(owner)),
+        jobs,
+    )
     best.info["starts"] = {
         "runs": runs,
         "solved": len(solved),
