@@ -32,7 +32,8 @@ log = logging.getLogger(__name__)
 
 FIRST, PLAN = "first", "plan"
 
-#: Seconds between two looks at the interrupt flag while this process waits for a worker.
+#: Longest wait [s] of this process for a worker before it looks at the schedule again (a
+#: worker's return wakes it at once; this is a safety net).
 WAIT_S = 0.2
 
 
