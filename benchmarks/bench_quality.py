@@ -22,6 +22,7 @@ Run: ``python benchmarks/bench_quality.py [--intervals 100] [--starts 8] [--repe
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import resource
 import time
@@ -87,10 +88,17 @@ def quality_table(model, capture, intervals: int, durations) -> None:
 
 
 def _cpu_s() -> float:
-    """CPU time [s] of this process and of its children that ended (the workers)."""
+    """CPU time [s] of this process and of its children (the workers), once they ended (the
+    plan does not wait for idle workers to exit)."""
+    deadline = time.monotonic() + 30
+    while multiprocessing.active_children() and time.monotonic() < deadline:
+        time.sleep(0.02)
     return sum(
         u.ru_utime + u.ru_stime
-        for u in (resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN))
+        for u in (
+            resource.getrusage(resource.RUSAGE_SELF),
+            resource.getrusage(resource.RUSAGE_CHILDREN),
+        )
     )
 
 
