@@ -179,7 +179,7 @@ def multi_start(nlp, guess, jobs: int | None = None):
         raise first_error
     solved = [r for r in runs if "objective" in r]
     log.info(
-        "multi-start: %d starts, %d solved, %d distinct plans, %d processes",
+        "multi-start: %d starts, %d solved, %d distinct, in %d processes",
         len(runs),
         len(solved),
         len(set(owner)),
