@@ -83,6 +83,24 @@ def test_without_stages_every_start_is_one_task():
     assert schedule.finished and schedule.outcomes() == ["A", "B", "C"]
 
 
+def test_first_plans_are_one_within_the_state_and_control_tolerances():
+    from balance_opt.optimal.layout import Solution
+    from balance_opt.optimal.refine import IntegralStart
+    from balance_opt.optimal.starts import SAME_CONTROL, SAME_PLAN, _same_first_plan
+
+    def first(dx=0.0, du=0.0, status="Solve_Succeeded"):
+        X, U = np.zeros((9, 5)), np.ones((3, 5))
+        X[4, 2] += dx
+        U[1, 3] += du
+        return IntegralStart({"status": status}, Solution(X, U))
+
+    assert _same_first_plan(first(), first(0.9 * SAME_PLAN, -0.9 * SAME_CONTROL))
+    assert not _same_first_plan(first(), first(1.1 * SAME_PLAN))
+    assert not _same_first_plan(first(), first(du=-1.1 * SAME_CONTROL))
+    # a first stage that failed joins no other
+    assert not _same_first_plan(first(), first(status="Maximum_Iterations_Exceeded"))
+
+
 # ------------------------------------------------------------------------------ lanes
 def fake_task(tag: str, argument, kind: str):
     """A task of the fake multi-start in a worker: its value, and the process it ran in."""
