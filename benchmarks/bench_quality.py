@@ -48,7 +48,7 @@ def _prepare(model, mission, q_B0, options):
     nlp = build_balance_nlp(model, mission, q_B0, options)
     if options.objective == "peak":
         nlp.stage("smooth")
-        nlp.variant(objective="integral")
+        nlp.stage("integral")
     return nlp
 
 

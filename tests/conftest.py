@@ -8,7 +8,10 @@ import os
 import shutil
 import tempfile
 
+import numpy as np
 import pytest
+
+from balance_opt.optimal.collocation import joint_chain_coefficients
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -52,3 +55,29 @@ def model(capture):
     from balance_opt.optimal.model import PlannerModel
 
     return PlannerModel(capture.robot, compile=False)
+
+
+def _inside_hull(nlp, plan) -> None:
+    """Every Bernstein coefficient of the plan's joint position, velocity and acceleration on
+    every interval is inside the limits: the continuous motion is (convex hull)."""
+    sol = nlp.unpack(plan.info["nlp_solution"])
+    levels = joint_chain_coefficients(
+        nlp.transcription, [sol.X[3:6, :-1], sol.X[6:9, :-1]], sol.U, sol.Um, nlp.h
+    )
+    lim = nlp.limits
+    bounds = [
+        (lim.lower, lim.upper),
+        (-lim.velocity, lim.velocity),
+        (-lim.acceleration, lim.acceleration),
+    ]
+    for level, (low, high) in zip(levels, bounds):
+        coefficients = np.stack(level)  # (degree + 1, n_B, N)
+        assert np.all(coefficients >= low[None, :, None] - 1e-6)
+        assert np.all(coefficients <= high[None, :, None] + 1e-6)
+
+
+@pytest.fixture
+def inside_hull():
+    """Assert that a plan's joint motion is inside the limits on the whole continuous motion
+    (``inside_hull(nlp, plan)``, see :func:`_inside_hull`)."""
+    return _inside_hull

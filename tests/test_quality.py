@@ -47,8 +47,28 @@ def _no_violations(plan):
     assert plan.info["resimulation"]["constraint_violations"] == []
 
 
+def test_inner_peak_stages_go_without_the_rows_between_points(model, capture):
+    """The integral and smooth stages only warm start the epigraph: their structures have no
+    joint-limit rows between the points (a third of each iteration's cost), the epigraph's
+    has them, and the bounds at the points are the same in all three."""
+    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=20))
+    between = [b.name for b in nlp.constraints if b.name.endswith("limit between points")]
+    assert between == [
+        f"{k} limit between points" for k in ("position", "velocity", "acceleration")
+    ]
+    for name in ("integral", "smooth"):
+        inner = nlp.stage(name)
+        assert inner.structure.key.objective == name
+        assert not [b for b in inner.constraints if b.name.endswith("limit between points")]
+        assert inner.structure.n_g == nlp.structure.n_g - sum(
+            b.size for b in nlp.constraints if b.name.endswith("between points")
+        ) - sum(b.size for b in nlp.constraints if b.name == "peak epigraph")
+        np.testing.assert_array_equal(inner.unpack(inner.lbx).X, nlp.unpack(nlp.lbx).X)
+        np.testing.assert_array_equal(inner.unpack(inner.ubx).U, nlp.unpack(nlp.ubx).U)
+
+
 @pytest.mark.slow
-def test_peak_plan_of_the_capture_task_meets_the_peak_target(model, capture):
+def test_peak_plan_of_the_capture_task_meets_the_peak_target(model, capture, inside_hull):
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions()).solve()
     assert plan.info["intervals"] == 100 and plan.info["options"]["objective"] == "peak"
     assert [s["stage"] for s in plan.info["stages"]] == ["integral", "smooth", "peak"]
@@ -56,6 +76,7 @@ def test_peak_plan_of_the_capture_task_meets_the_peak_target(model, capture):
     assert plan.max_drift <= PEAK_TARGET
     assert plan.final_drift <= FINAL_TARGET
     _no_violations(plan)
+    inside_hull(build_balance_nlp(model, capture.mission, capture.q_B0), plan)
     # rest at both ends: no torque step at t = 0 or at the end
     for k in (0, -1):
         np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)

@@ -202,9 +202,13 @@ class JointLimit(Constraint):
         kind: ``"position"``, ``"velocity"`` or ``"acceleration"``.
         transcription: the scheme (the degree of the control polynomial).
         control: ``"acceleration"`` or ``"jerk"``.
+        between_points: whether to add the rows between the points (else only the bounds at
+            the points).
     """
 
-    def __init__(self, kind: str, transcription: Transcription, control: str):
+    def __init__(
+        self, kind: str, transcription: Transcription, control: str, between_points: bool = True
+    ):
         self.kind = kind
         self.name = f"{kind} limit"
         self.level = DERIVATIVES.index(kind)
@@ -213,7 +217,7 @@ class JointLimit(Constraint):
         # the degree by one; the first and last coefficients are bounded as variables
         control_level = 2 if control == "acceleration" else 3
         degree = transcription.control_degree + control_level - self.level
-        self.interior = tuple(range(1, degree))
+        self.interior = tuple(range(1, degree)) if between_points else ()
 
     def limits(self, problem: BalanceProblem) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper limit of every balance joint."""
@@ -489,7 +493,7 @@ def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
     transcription = Transcription(key.transcription)
     kinds: list[Constraint] = [Collocation()]
     kinds += [
-        JointLimit(kind, transcription, key.control)
+        JointLimit(kind, transcription, key.control, key.between_points)
         for kind in DERIVATIVES
         if kind in key.joint_limits
     ]

@@ -196,7 +196,11 @@ def linear_solver_loads(name: str) -> bool:
     import sys
 
     probe = subprocess.run(
-        [sys.executable, "-c", _PROBE, name], capture_output=True, text=True, timeout=120
+        [sys.executable, "-c", _PROBE, name],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     return probe.returncode == 0 and probe.stdout.strip() == "loads"
 

@@ -54,9 +54,12 @@ class StructureKey:
         intervals: ``N``.
         transcription: ``"hermite-simpson"`` or ``"trapezoidal"``.
         control: ``"acceleration"`` or ``"jerk"``.
-        joint_limits: the joint-limit kinds enforced between the collocation points
-            (``"position"``, ``"velocity"``, ``"acceleration"``): switched on and finite for
-            at least one balance joint.
+        joint_limits: the joint-limit kinds enforced (``"position"``, ``"velocity"``,
+            ``"acceleration"``): switched on and finite for at least one balance joint.
+        between_points: whether the joint limits have rows between the collocation points
+            (the interior Bernstein coefficients) besides the bounds at the points. The inner
+            stages of the peak objective go without: their plans are only warm starts, and the
+            rows make each Ipopt iteration about a third dearer.
         torque_limits: torque limits switched on and finite for at least one balance joint.
         objective: ``"peak"`` (with the epigraph variable and its rows) or ``"integral"``.
         path_attitude_bound, terminal_attitude_bound: whether these bounds are set (with the
@@ -79,6 +82,7 @@ class StructureKey:
     max_iterations: int
     ipopt: tuple[tuple[str, str], ...]
     momentum: bool = False
+    between_points: bool = True
 
     @classmethod
     def of(cls, limits, options, momentum: bool = False) -> StructureKey:

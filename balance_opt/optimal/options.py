@@ -36,11 +36,14 @@ DEFAULT_IPOPT = {
 #: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`. It starts
 #: from the smooth stage's plan, near its own: a small initial barrier parameter keeps it there
 #: (from the default 0.1 the epigraph wandered off to plans of 0.0242 rad on the capture task).
-#: Measured on the capture task and rejected (iterations of the epigraph stage, 10 s / 20 s,
-#: against 43 / 144): the adaptive barrier (181, to a 0.0243 rad plan / 128), small bound
-#: pushes (50-53 / -), mu-based bound multipliers (59 / 207), S started 1-10 % above the
-#: start's peak (39-40 / 157-339), warm starts of every multiplier from the smooth stage (44).
-PEAK_IPOPT = {"mu_init": 1e-4}
+#: 1e-3 rather than 1e-4 since the inner stages go without the joint-limit rows between the
+#: points, so that the epigraph starts outside some of them: on the capture task at 8, 10, 12,
+#: 15 and 20 s (``bench_quality.py --durations 8 10 12 15 20``) its iterations were 85, 58,
+#: 63, 414, 169 against 163, 62, 83, 1000 (failed), 480 with 1e-4; the adaptive barrier took
+#: 86, 88, 68, 466, 217. Measured before (with the rows in every stage) and rejected: small
+#: bound pushes, mu-based bound multipliers, S started 1-10 % above the start's peak, warm
+#: starts of every multiplier from the smooth stage.
+PEAK_IPOPT = {"mu_init": 1e-3}
 #: Ipopt options of the peak objective's smooth stage. From the integral plan of the capture
 #: task the adaptive barrier update took 120 iterations, the monotone one 269; the adaptive one
 #: that never falls back to the monotone mode (the mode that globalises it: the start is close)

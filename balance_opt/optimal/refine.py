@@ -5,7 +5,10 @@ Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.Balan
 
 * **The peak objective** (:func:`plan_peak`) in three stages, each warm started from the
   last: the integral objective's plan, the smooth peak (an L16 norm of the drift, no
-  inequality rows), the epigraph.
+  inequality rows), the epigraph. The two inner stages hold the joint limits at the
+  collocation points only (no rows between them): their plans are warm starts, and without
+  those rows an Ipopt iteration costs about a quarter less (on the capture task the three
+  stages took 31 + 70 + 58 iterations instead of 36 + 82 + 44, in 2.0 s instead of 2.5 s).
 * **Bounds that converge** (:func:`solve_with_bounds`). A hard path attitude bound started
   from a guess that drifts three times too far stalls Ipopt. So the peak problem is solved
   first without the bound (its epigraph variable is the bound's elastic relaxation): its peak
@@ -146,9 +149,7 @@ def integral_stage(nlp, guess) -> IntegralStart:
     plan, without bounds, from ``guess``."""
     if isinstance(guess, np.ndarray):  # a decision vector of this problem
         guess = nlp.unpack(nlp.initial_guess(guess))
-    integral = nlp.variant(
-        objective="integral", path_attitude_bound=None, terminal_attitude_bound=None
-    )
+    integral = nlp.stage("integral")
     stages = []
     following = _stage(integral, guess, "integral", stages)
     return IntegralStart(stages[0], following)

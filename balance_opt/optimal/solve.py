@@ -103,11 +103,12 @@ class BalanceNLP(BalanceProblem):
         self.lbx, self.ubx = self._variable_bounds()
         self.lbg, self.ubg = self._constraint_bounds()
 
-    def variant(self, **changes) -> BalanceNLP:
-        """The same problem with other options (its bounds untightened)."""
+    def variant(self, stage: str | None = None, **changes) -> BalanceNLP:
+        """The same problem with other options (its bounds untightened), as an inner ``stage``
+        of the peak objective if given (see :func:`build_balance_nlp`)."""
         options = dataclasses.replace(self.options, **changes)
         return build_balance_nlp(
-            self.model, self.mission, self.q_B0, options, self.robot, h0=self.h0
+            self.model, self.mission, self.q_B0, options, self.robot, h0=self.h0, stage=stage
         )
 
     @staticmethod
@@ -116,11 +117,17 @@ class BalanceNLP(BalanceProblem):
         return build_balance_nlp(*args, **kwargs)
 
     def stage(self, name: str) -> BalanceNLP:
-        """The same problem as an inner stage of the peak objective (``"smooth"``: the
-        smooth peak; :func:`~balance_opt.optimal.refine.plan_peak`)."""
-        return build_balance_nlp(
-            self.model, self.mission, self.q_B0, self.options, self.robot, h0=self.h0, stage=name
-        )
+        """The same problem as an inner stage of the peak objective
+        (:func:`~balance_opt.optimal.refine.plan_peak`): ``"integral"``, the integral
+        objective's plan without attitude bounds, or ``"smooth"``, the smooth peak."""
+        if name == "integral":
+            return self.variant(
+                "integral",
+                objective="integral",
+                path_attitude_bound=None,
+                terminal_attitude_bound=None,
+            )
+        return self.variant(name)
 
     def solution_of(self, result: BalanceResult) -> Solution:
         """The NLP solution a result of this problem's structure was re-simulated from."""
@@ -383,8 +390,9 @@ def build_balance_nlp(
         h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
             [N s; N m s] (the base starts at the identity); ``None`` for zero. A parameter:
             every ``h0`` shares the compiled NLP.
-        stage: ``"smooth"`` for the smooth peak stage of the peak objective (a structure no
-            option names; :mod:`balance_opt.optimal.refine`), else the options' objective.
+        stage: an inner stage of the peak objective (:mod:`balance_opt.optimal.refine`):
+            ``"smooth"`` (a structure no option names) or ``"integral"``; the stage's
+            structure has no joint-limit rows between the points (its plan is a warm start).
 
     Raises:
         InputError: sizes or options that do not fit the robot.
@@ -401,7 +409,9 @@ def build_balance_nlp(
     momentum = h0 is not None and bool(np.any(np.asarray(h0, dtype=float) != 0.0))
     key = StructureKey.of(robot.limits.subset(robot.balance_indices), options, momentum)
     if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
-        key = dataclasses.replace(key, objective=stage, path_attitude_bound=False)
+        key = dataclasses.replace(
+            key, objective=stage, path_attitude_bound=False, between_points=False
+        )
     built_now = key not in model.nlp_cache
     if built_now:
         model.nlp_cache[key] = build_structure(model, key, options)
