@@ -40,7 +40,8 @@ log = logging.getLogger(__name__)
 SAME_PLAN = 1e-4
 #: The same for their controls (rad/s^2, or rad/s^3 with jerk control). Ipopt's tolerance
 #: leaves more in them than in the states: the eight first plans of the capture task agree to
-#: 9e-6 in the states and 1.1e-4 rad/s^2 in the accelerations.
+#: 1.2e-5 in the states and 2.7e-4 rad/s^2 in the accelerations (their later stages end in
+#: one plan).
 SAME_CONTROL = 1e-3
 
 #: Planner models built in a worker process, by robot name and joints (one per robot).
@@ -77,16 +78,19 @@ def _run(nlp, guess, phase: str):
     (``(result, None)`` or ``(None, error)``)."""
     from balance_opt.optimal.refine import integral_stage, solve_with_bounds
 
-    nlp = nlp.variant(starts=1)
-    if phase == "first":
+    if phase == "first":  # on its stage's problem, which one start or several share
         return integral_stage(nlp, guess)
+    nlp = nlp.variant(starts=1)
     try:
         return solve_with_bounds(nlp, guess), None
     except SolverError as exc:
         return None, exc
 
 
-#: The options of the first stage's problem (:func:`~balance_opt.optimal.refine.integral_stage`).
+#: The options of the first stage's problem, as
+#: :meth:`~balance_opt.optimal.solve.BalanceNLP.stage` sets them for
+#: ``"integral"`` (:func:`~balance_opt.optimal.refine.integral_stage`): a worker builds that
+#: problem only (another set would cost one more build, not another plan).
 _FIRST_STAGE = {
     "objective": "integral",
     "path_attitude_bound": None,
@@ -105,10 +109,10 @@ def _worker(build, model_robot, robot, mission, q_B0, options, h0, guess, phase)
     if key not in _WORKER_MODELS:
         _WORKER_MODELS[key] = PlannerModel(model_robot)
     if phase == "first":
-        options = dataclasses.replace(options, **_FIRST_STAGE)
-    nlp = build(_WORKER_MODELS[key], mission, q_B0, options, robot, h0=h0)
-    if phase == "first":
+        first = dataclasses.replace(options, **_FIRST_STAGE)
+        nlp = build(_WORKER_MODELS[key], mission, q_B0, first, robot, h0=h0, stage="integral")
         return _run(nlp, guess, phase)
+    nlp = build(_WORKER_MODELS[key], mission, q_B0, options, robot, h0=h0)
     result, error = _run(nlp, guess, phase)
     return (result, None) if error is None else (None, (str(error), str(error.status)))
 
