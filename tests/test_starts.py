@@ -1,7 +1,8 @@
 """The multi-start's schedule and its lanes (:mod:`balance_opt.optimal.start_schedule`): which
 start owns a plan does not depend on the order tasks end in nor on where they run; a worker's
-error and an interruption end the pool at once; and the planner's multi-start gives the same
-starts with one process and with workers.
+error and an interruption (Ctrl-C on the command line too) end the pool at once; a worker still
+starting up is not waited for; and the planner's multi-start gives the same starts with one
+process and with a worker.
 """
 
 from __future__ import annotations
