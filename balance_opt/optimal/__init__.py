@@ -36,8 +36,9 @@ The modules, top down:
   problem in three stages (the integral plan, a smooth L16 peak, the epigraph), path attitude
   bounds reached through the peak problem, bounds tightened until the re-simulated motion
   meets them.
-* :mod:`~balance_opt.optimal.starts`: multi-start in parallel worker processes, starts that
-  reach the same first plan merged.
+* :mod:`~balance_opt.optimal.starts`: multi-start in this process and parallel worker
+  processes, starts that reach the same first plan merged;
+  :mod:`~balance_opt.optimal.start_schedule`: which of its tasks runs where and when.
 * :mod:`~balance_opt.optimal.problem`: one problem's numeric data (mission samples, horizon,
   limits), checked against the robot.
 * :mod:`~balance_opt.optimal.nlp`: the compiled NLP of one structure, assembled from per-point
