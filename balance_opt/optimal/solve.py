@@ -24,7 +24,6 @@ from balance_opt.errors import InputError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.replay import replay
 from balance_opt.motion.so3 import (
     quaternion_conjugate,
     quaternion_from_rotvec,
@@ -467,6 +466,9 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     tolerance (:meth:`~balance_opt.optimal.constraints.Constraint.check`: between the
     collocation points, torques and the path attitude bound are not enforced).
     """
+    # imported here: a multi-start's worker that only solves first stages never needs it
+    from balance_opt.motion.replay import replay
+
     t, sub = _fine_grid(nlp.N, nlp.h, nlp.options.resample_step)
     result = replay(
         nlp.robot,
