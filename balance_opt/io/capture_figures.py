@@ -46,5 +46,3 @@ def capture_figure(
         ax_a.set_ylim(bottom=0.0)
     stem = Path(path).with_suffix("")
     return save(fig, stem, formats=("png",), dpi=dpi)[0]
-
-

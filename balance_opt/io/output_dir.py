@@ -28,8 +28,12 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
+from typing import TYPE_CHECKING
 
 from balance_opt.errors import InputError
+
+if TYPE_CHECKING:  # typing.Self is Python 3.11+; annotations are not evaluated at run time
+    from typing_extensions import Self
 
 #: Name prefixes of the helper entries kept beside a target folder ``NAME``.
 STAGING_PREFIX = ".{name}.partial-"
@@ -148,7 +152,7 @@ class FolderLock:
             os.close(self._fd)
             self._fd = None
 
-    def __enter__(self) -> FolderLock:
+    def __enter__(self) -> Self:
         self.acquire()
         return self
 
@@ -292,7 +296,7 @@ class OutputFolder:
             self.staging = None
         self._lock.release()
 
-    def __enter__(self) -> OutputFolder:
+    def __enter__(self) -> Self:
         self.open()
         self._depth += 1
         return self

@@ -337,7 +337,8 @@ def _convert_union(value, tp, meta, path):
     if None not in tags:  # tagged union: dispatch on 'type'
         if not isinstance(value, dict):
             raise _Invalid(
-                path, f"expected a mapping with a 'type' key ({', '.join(tags)}), got {value_words(value)}"
+                path,
+                f"expected a mapping with a 'type' key ({', '.join(tags)}), got {value_words(value)}",
             )
         if "type" not in value:
             raise _Invalid(path, f"missing key 'type'; expected one of {', '.join(tags)}")
