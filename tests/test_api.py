@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import tomllib
 
 import balance_opt as bo
 from balance_opt.app import pipeline
@@ -77,6 +76,8 @@ def test_import_is_light_and_every_name_resolves():
 
 def test_version_license_and_citation_agree_with_the_project():
     import yaml
+
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     assert bo.__version__ == project["version"]

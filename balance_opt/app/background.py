@@ -8,9 +8,10 @@ CPU to spare, :func:`worker_pays`):
   torques of the report (Matplotlib is imported and its fonts loaded in the worker while the
   optimal plan is solved, and never in this process).
 
-CasADi holds Python's GIL while Ipopt runs, so a thread would gain nothing: the worker is a
-process, started with ``spawn`` (nothing of CasADi or Pinocchio copied into it) as soon as the
-run starts, so that its start-up overlaps the first plans. It gets its inputs pickled and runs
+Ipopt releases Python's GIL, but the simulations and the figures are Python code that would
+take it from this process's own Python work, so the worker is a process, started with
+``spawn`` (nothing of CasADi or Pinocchio copied into it) as soon as the run starts, so that
+its start-up overlaps the first plans. It gets its inputs pickled and runs
 the same functions on them as this process would, so its numbers and files are the same. Its
 log records come back with its results and are logged here, in the run's order. The worker
 ignores Ctrl-C and dies with this process (:mod:`balance_opt.sweep.workers`); an interruption or
@@ -28,9 +29,11 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # typing.Self is Python 3.11+; annotations are not evaluated at run time
+    from typing_extensions import Self
+
     from balance_opt.io.task import Task
 
 log = logging.getLogger(__name__)

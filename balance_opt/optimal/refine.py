@@ -8,8 +8,7 @@ Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.Balan
   inequality rows), the epigraph. The two inner stages hold the joint limits at the
   collocation points only (no rows between them): their plans are warm starts, and without
   those rows an Ipopt iteration costs about a quarter less (on the capture task the three
-  stages took 31 + 70 + 58 iterations instead of 36 + 82 + 44, and 2.0 s instead of 2.5 s in
-  back-to-back runs).
+  stages take 31 + 70 + 58 iterations, against 36 + 82 + 44 with the rows in every stage).
 * **Bounds that converge** (:func:`solve_with_bounds`). A hard path attitude bound started
   from a guess that drifts three times too far stalls Ipopt. So the peak problem is solved
   first without the bound (its epigraph variable is the bound's elastic relaxation): its peak
