@@ -1,29 +1,38 @@
-"""NLP solvers on the optimal planner's problem: Ipopt with each linear solver the CasADi wheel
+"""NLP solvers on the optimal planner's problems: Ipopt with each linear solver the CasADi wheel
 may carry (MUMPS, the default; SPRAL; HSL's MA27/MA57/MA86/MA97, which need the separately
 licensed HSL library) and ``fatrop``, the structure-exploiting interior-point solver bundled
-with CasADi.
+with CasADi, given the problem's stage structure.
 
-Every variant solves the same NLP of the paper task (same initial guess, parameters and
-bounds). Printed per variant: the setup time (model, NLP and solver built, in a fresh process;
-kernels from the cache), solve time (median of ``--repeat``;
-wall and CPU), iterations, return status, objective, and the same-plan check: the largest
-difference of the decision vector from Ipopt/MUMPS's solution (``same`` below 1e-6). A variant
-that cannot run prints its error message in one line.
+Two problems of the default (peak) plan of the capture task: its first stage (the integral
+objective, from the analytic guess) and its last (the exact epigraph, from the smooth stage's
+plan, as the planner solves them). Every variant solves the same NLP from the same start:
 
-Ipopt runs on the planner's compiled NLP (``build_balance_nlp``, with the linear solver set
-through ``optimal.ipopt``). fatrop gets the NLP expression the planner hands to Ipopt, rebuilt
-on CasADi's SX virtual machine (fatrop differentiates the expression itself; the compiled
-kernels carry no derivatives CasADi can use) and expanded, once with ``structure_detection:
-none`` and once with ``auto`` (which needs the variables stage by stage, ``x0, u0, x1, ...``,
-and gap-closing constraints ``x_{k+1} - F(x_k, u_k)``).
+* Ipopt runs on the planner's compiled NLP (``build_balance_nlp``, with the linear solver set
+  through ``optimal.ipopt``);
+* fatrop runs on the stage form of that NLP (:mod:`stage_form`: the rows reordered stage by
+  stage and re-expressed so that each depends on one stage, with the structure declared:
+  ``structure_detection: manual``), on CasADi's SX virtual machine (fatrop takes its derivatives
+  from CasADi's own differentiation of the expression). So that the comparison is like for
+  like, Ipopt + MUMPS also solves that stage form (``Ipopt + MUMPS, stage form``).
 
-    python benchmarks/bench_solvers.py [--intervals 50] [--repeat 3] [--timeout 600] [--no-fatrop]
+Printed per variant and problem: iterations, return status, the solve's wall time (median of
+``--repeat``), the solver's own time (the wall time outside the NLP's function evaluations:
+what a faster solver can save), the objective, and the same-plan check: the largest difference
+of the decision vector from Ipopt/MUMPS's solution on the compiled NLP (``same`` below 1e-5).
+A variant that cannot run prints its error in one line. Each variant runs in its own process
+(a solver that crashes or hangs ends only its row).
+
+    python benchmarks/bench_solvers.py [--intervals 100] [--repeat 3] [--timeout 900]
+        [--only mumps fatrop:stages ...]
+
+``--only fatrop:none`` and ``fatrop:auto`` try fatrop on the planner's NLP as it is (no
+structure; CasADi's automatic detection, which needs the stage form's ordering and explicit
+gap-closing rows, and refuses the planner's NLP).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import multiprocessing
 import os
 import statistics
@@ -34,15 +43,20 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER_TASK = ROOT / "examples" / "capture_task.yaml"
-#: Ipopt linear solvers tried (MUMPS first: the reference).
-LINEAR_SOLVERS = ("mumps", "spral", "ma27", "ma57", "ma86", "ma97")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+TASK = ROOT / "examples" / "capture_task.yaml"
+#: (kind, variant) in the table's order; MUMPS on the compiled NLP first: the reference.
+VARIANTS = [("ipopt", ls) for ls in ("mumps", "spral", "ma27", "ma57", "ma86", "ma97")] + [
+    ("ipopt-stages", "mumps"),
+    ("fatrop", "stages"),
+]
+PROBLEMS = ("integral", "epigraph")
 #: Largest decision-vector difference still called the same plan.
-SAME_PLAN = 1e-6
+SAME_PLAN = 1e-5
 
 
-def _planner(intervals: int, compile_kernels=True, ipopt=None):
-    """``(nlp, solve arguments, captured nlpsol call)`` of the paper task at N = ``intervals``."""
+def _problems(intervals: int, compile_kernels: bool, ipopt=None):
+    """``{name: (problem, start, captured nlpsol input)}`` of the capture task's peak plan."""
     import casadi as cs
 
     from balance_opt.io.task import load_task
@@ -50,93 +64,155 @@ def _planner(intervals: int, compile_kernels=True, ipopt=None):
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.solve import build_balance_nlp
 
-    task = load_task(PAPER_TASK)
-    options = dataclasses.replace(task.planner_options(ipopt), intervals=intervals)
+    task = load_task(TASK)
+    options = task.planner_options(ipopt)
+    options = type(options)(**{**options.__dict__, "intervals": intervals})
     model = PlannerModel(
         task.robot, SymbolicMaps(task.robot, task.spec.robot.backend), compile=compile_kernels
     )
-    captured: dict = {}
-    real = cs.nlpsol
+    captured, real = [], cs.nlpsol
 
     def spy(name, plugin, nlp, opts=None):
-        captured.update(nlp=nlp, opts=opts or {})
+        captured.append(nlp)
         return real(name, plugin, nlp, opts or {})
 
     cs.nlpsol = spy
     try:
-        nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
+        peak = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot)
+        integral, smooth = peak.stage("integral"), peak.stage("smooth")
     finally:
         cs.nlpsol = real
-    w0 = nlp.initial_guess("analytic")
-    args = {"x0": w0, "p": nlp.parameters, "lbx": nlp.lbx, "ubx": nlp.ubx}
-    args.update(lbg=nlp.lbg, ubg=nlp.ubg)
-    return nlp, args, captured
-
-
-def _timed_solves(solver, args, repeat: int):
-    walls, cpus, out = [], [], None
-    for _ in range(repeat):
-        w0, c0 = time.perf_counter(), time.process_time()
-        out = solver(**args)
-        walls.append(time.perf_counter() - w0)
-        cpus.append(time.process_time() - c0)
-    stats = solver.stats()
+    # the starts the planner gives them (refine.plan_peak): the integral plan, then the smooth
+    w_integral = _raw_solve(integral, integral.initial_guess("analytic"))
+    sol = integral.unpack(w_integral)
+    X, _ = smooth.unpack(smooth.initial_guess(sol)).points()
+    smooth.peak_reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
+    smooth.update_bounds()
+    w_smooth = _raw_solve(smooth, smooth.initial_guess(sol))
     return {
-        "wall": statistics.median(walls),
-        "cpu": statistics.median(cpus),
-        "iterations": int(stats.get("iter_count", -1)),
-        "status": str(stats.get("return_status", stats.get("unified_return_status", "?"))),
-        "objective": float(out["f"]),
-        "x": np.array(out["x"]).ravel(),
+        "integral": (integral, integral.initial_guess("analytic"), captured[1]),
+        "epigraph": (peak, peak.initial_guess(smooth.unpack(w_smooth)), captured[0]),
     }
 
 
-def ipopt_variant(intervals: int, linear_solver: str, repeat: int) -> dict:
-    """Ipopt with ``linear_solver`` on the planner's compiled NLP."""
-    start = time.perf_counter()
-    nlp, args, _ = _planner(intervals, ipopt={"linear_solver": linear_solver})
-    row = {"setup": time.perf_counter() - start}
-    row.update(_timed_solves(nlp.structure.solver, args, repeat))
-    return row
+def _raw_solve(problem, w0):
+    out = problem.structure.solver(**_arguments(problem, w0))
+    return np.array(out["x"]).ravel()
 
 
-def fatrop_variant(intervals: int, detection: str, repeat: int) -> dict:
-    """fatrop on the planner's NLP expression (SX kernels, expanded)."""
+def _arguments(problem, w0) -> dict:
+    return {
+        "x0": w0,
+        "p": problem.parameters,
+        "lbx": problem.lbx,
+        "ubx": problem.ubx,
+        "lbg": problem.lbg,
+        "ubg": problem.ubg,
+    }
+
+
+def _own_time(solver) -> float:
+    """The solve's wall time outside the NLP's function evaluations [s]."""
+    stats = solver.stats()
+    if "fatrop" in stats:
+        f = stats["fatrop"]
+        return f["time_total"] - sum(v for k, v in f.items() if k.endswith("_time") and "eval" in k)
+    evals = sum(v for k, v in stats.items() if k.startswith("t_wall_nlp_"))
+    return stats["t_wall_total"] - evals
+
+
+def _timed(solver, args: dict, repeat: int, back=lambda z: z) -> dict:
+    walls, own, out = [], [], None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        out = solver(**args)
+        walls.append(time.perf_counter() - start)
+        own.append(_own_time(solver))
+    stats = solver.stats()
+    status = stats.get("return_status", "?")
+    if not isinstance(status, str):  # fatrop: a number; CasADi's success flag says more
+        status = "success" if stats.get("success") else f"failed (return flag {status})"
+    return {
+        "wall": statistics.median(walls),
+        "own": statistics.median(own),
+        "iterations": int(stats.get("iter_count", -1)),
+        "status": status,
+        "objective": float(out["f"]),
+        "x": back(np.array(out["x"]).ravel()),
+    }
+
+
+def _solver_on_stage_form(kind: str, variant: str, problem, captured, tolerance: float):
+    import casadi as cs
+    from stage_form import stage_form
+
+    form = stage_form(problem, captured)
+    if kind == "fatrop":
+        opts = {"structure_detection": "manual", **form.structure, "print_time": False}
+        opts["fatrop"] = {"print_level": 0, "tol": tolerance, "max_iter": 3000}
+        if problem.structure.key.objective == "peak":
+            opts["fatrop"]["mu_init"] = 1e-3  # as the planner's epigraph stage (PEAK_IPOPT)
+    else:
+        from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_IPOPT
+
+        ipopt = {**DEFAULT_IPOPT, "tol": tolerance, "max_iter": problem.options.max_iterations}
+        if problem.structure.key.objective == "peak":
+            ipopt.update(PEAK_IPOPT)
+        opts = {"ipopt": ipopt, "print_time": False, "record_time": True}
+    return cs.nlpsol("balance_stages", kind.split("-")[0], form.nlp, opts), form
+
+
+def run_variant(kind: str, variant: str, intervals: int, repeat: int) -> dict:
+    """Every problem of the table with one variant: ``{problem: row}``."""
     import casadi as cs
 
     start = time.perf_counter()
-    _, args, captured = _planner(intervals, compile_kernels=False)
-    equality = list(np.asarray(args["lbg"]).ravel() == np.asarray(args["ubg"]).ravel())
-    solver = cs.nlpsol(
-        "balance_fatrop",
-        "fatrop",
-        captured["nlp"],
-        {
-            "expand": True,
-            "structure_detection": detection,
-            "equality": equality,
-            "fatrop": {"print_level": 0, "tol": 1e-8, "max_iter": 3000},
-        },
-    )
-    row = {"setup": time.perf_counter() - start}
-    row.update(_timed_solves(solver, args, repeat))
-    return row
+    ipopt = {"linear_solver": variant} if kind == "ipopt" else None
+    problems = _problems(intervals, compile_kernels=kind == "ipopt", ipopt=ipopt)
+    rows = {}
+    for name, (problem, w0, captured) in problems.items():
+        args = _arguments(problem, w0)
+        del args["p"]
+        if kind == "ipopt":
+            args["p"] = problem.parameters
+            rows[name] = _timed(problem.structure.solver, args, repeat)
+        elif kind == "ipopt-stages" or variant == "stages":
+            solver, form = _solver_on_stage_form(
+                kind, variant, problem, captured, problem.options.tolerance
+            )
+            args = {"x0": form.to_stages(w0), **form.bounds}
+            rows[name] = _timed(solver, args, repeat, form.from_stages)
+        else:  # fatrop on the planner's NLP as it is
+            equality = list(np.asarray(problem.lbg) == np.asarray(problem.ubg))
+            solver = cs.nlpsol(
+                "balance_fatrop",
+                "fatrop",
+                captured,
+                {
+                    "expand": True,
+                    "structure_detection": variant,
+                    "equality": equality,
+                    "fatrop": {"print_level": 0, "tol": 1e-8, "max_iter": 3000},
+                },
+            )
+            rows[name] = _timed(solver, {**args, "p": problem.parameters}, repeat)
+    rows["setup"] = time.perf_counter() - start
+    return rows
 
 
-def _child(queue, kind: str, intervals: int, variant: str, repeat: int) -> None:
+def _child(queue, kind: str, variant: str, intervals: int, repeat: int) -> None:
     try:
-        run = ipopt_variant if kind == "ipopt" else fatrop_variant
-        queue.put(run(intervals, variant, repeat))
+        queue.put(run_variant(kind, variant, intervals, repeat))
     except Exception as exc:  # noqa: BLE001 - the benchmark reports every failure as a row
         message = " ".join(str(exc).split())
         queue.put({"error": f"{type(exc).__name__}: {message[:300]}"})
 
 
-def run_isolated(kind: str, intervals: int, variant: str, repeat: int, timeout: float) -> dict:
-    """One variant in its own process (a solver that crashes or hangs ends only that row)."""
+def run_isolated(kind: str, variant: str, intervals: int, repeat: int, timeout: float) -> dict:
+    """One variant in its own process."""
     ctx = multiprocessing.get_context("spawn")
     queue = ctx.Queue()
-    proc = ctx.Process(target=_child, args=(queue, kind, intervals, variant, repeat))
+    proc = ctx.Process(target=_child, args=(queue, kind, variant, intervals, repeat))
     proc.start()
     proc.join(timeout)
     if proc.is_alive():
@@ -148,54 +224,64 @@ def run_isolated(kind: str, intervals: int, variant: str, repeat: int, timeout: 
     return queue.get()
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--intervals", type=int, default=50)
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--timeout", type=float, default=600, help="per variant [s]")
-    parser.add_argument("--no-fatrop", action="store_true")
-    parser.add_argument(
-        "--only", nargs="+", help="run only these variants (mumps, fatrop:auto, ...)"
-    )
-    args = parser.parse_args(argv)
+def _name(kind: str, variant: str) -> str:
+    if kind == "ipopt":
+        return f"Ipopt + {variant.upper()}"
+    if kind == "ipopt-stages":
+        return "Ipopt + MUMPS, stage form"
+    return "fatrop, stage form" if variant == "stages" else f"fatrop ({variant})"
+
+
+def print_table(results) -> None:
     print(
-        f"paper task, N = {args.intervals}, median of {args.repeat} solves, "
-        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}"
-    )
-    variants = [("ipopt", ls) for ls in LINEAR_SOLVERS]
-    if not args.no_fatrop:
-        variants += [("fatrop", "none"), ("fatrop", "auto")]
-    if args.only:
-        variants = [(k, v) for k, v in variants if v in args.only or f"{k}:{v}" in args.only]
-    rows = []
-    for kind, variant in variants:
-        row = run_isolated(kind, args.intervals, variant, args.repeat, args.timeout)
-        rows.append((kind, variant, row))
-        print(f"  {kind} {variant}: {row.get('error') or 'done'}", flush=True)
-    reference = rows[0][2].get("x")
-    print(
-        "\n| solver | setup [s] | solve wall [s] | solve CPU [s] | iterations | status "
-        "| objective | max |x - x_mumps| | same plan |"
+        "\n| solver | problem | iterations | status | solve [s] | solver's own [s] "
+        "| objective | max diff. to MUMPS | same plan |"
     )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for kind, variant, row in rows:
-        name = f"Ipopt + {variant.upper()}" if kind == "ipopt" else f"fatrop ({variant})"
-        if "error" in row:
-            print(f"| {name} | failed: {row['error']} | | | | | | | |")
+    reference = results[0][2]
+    for kind, variant, rows in results:
+        name = _name(kind, variant)
+        if "error" in rows:
+            print(f"| {name} | - | failed: {rows['error']} | | | | | | |")
             continue
-        if row["status"] == "Invalid_Option":  # Ipopt refused the solver before iterating
-            print(f"| {name} | {row['setup']:.2f} | | | | Invalid_Option (not available) | | | |")
-            continue
-        diff = (
-            float(np.abs(row["x"] - reference).max())
-            if reference is not None and row["x"].shape == reference.shape
-            else float("nan")
-        )
-        print(
-            f"| {name} | {row['setup']:.2f} | {row['wall']:.3f} | {row['cpu']:.3f} | "
-            f"{row['iterations']} | {row['status']} | {row['objective']:.10g} | {diff:.2e} | "
-            f"{'yes' if diff < SAME_PLAN else 'no'} |"
-        )
+        for problem in PROBLEMS:
+            row = rows[problem]
+            if row["status"] == "Invalid_Option":  # refused before iterating
+                print(f"| {name} | {problem} | | Invalid_Option (not available) | | | | | |")
+                continue
+            ref = reference.get(problem, {}).get("x")
+            diff = float(np.abs(row["x"] - ref).max()) if ref is not None else float("nan")
+            print(
+                f"| {name} | {problem} | {row['iterations']} | {row['status']} "
+                f"| {row['wall']:.3f} | {row['own']:.3f} | {row['objective']:.10g} "
+                f"| {diff:.1e} | {'yes' if diff < SAME_PLAN else 'no'} |"
+            )
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--intervals", type=int, default=100)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--timeout", type=float, default=900, help="per variant [s]")
+    parser.add_argument("--only", nargs="+", help="only these variants (mumps, fatrop:stages)")
+    args = parser.parse_args(argv)
+    print(
+        f"capture task, N = {args.intervals}, median of {args.repeat} solves, "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}"
+    )
+    variants = list(VARIANTS)
+    if args.only:
+        extra = [tuple(v.split(":")) for v in args.only if v.startswith("fatrop:")]
+        variants = [(k, v) for k, v in variants if v in args.only or f"{k}:{v}" in args.only]
+        variants += [kv for kv in extra if kv not in variants]
+        if variants[0] != ("ipopt", "mumps"):  # the reference of the same-plan check
+            variants.insert(0, ("ipopt", "mumps"))
+    results = []
+    for kind, variant in variants:
+        rows = run_isolated(kind, variant, args.intervals, args.repeat, args.timeout)
+        results.append((kind, variant, rows))
+        print(f"  {_name(kind, variant)}: {rows.get('error') or 'done'}", flush=True)
+    print_table(results)
     print(f"\nload average after: {os.getloadavg()[0]:.2f}")
     return 0
 
