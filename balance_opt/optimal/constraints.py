@@ -384,44 +384,6 @@ class PeakEpigraph(PathAttitudeBound):
         upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
 
 
-SMOOTH_FORM = "sum"
-SMOOTH_M = 2
-
-
-class SmoothPeak(Constraint):
-    """The smooth peak's variable ``T`` (the ``smooth`` stage of the peak objective)."""
-
-    name = "smooth peak"
-
-    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        X, _ = nlp.variables.points()
-        weights = nlp.transcription.quadrature_weights(nlp.key.intervals)
-        q = cs.DM(weights / weights.sum()).T
-        ratio = cs.sum1(X[:3, :] ** 2) * nlp.parameters.smooth_scale
-        T = nlp.variables.T
-        block = Block("smooth peak", ("attitude L_p sum - T",), ("(relative)",), np.array([0.0]))
-        if SMOOTH_FORM == "sum":
-            return [(block, cs.mtimes(q, (ratio ** (PEAK_POWER // 2)).T) - T)]
-        return [(block, cs.mtimes(q, ((ratio / T) ** (PEAK_POWER // 2)).T) - 1.0)]
-
-    def row_bounds(self, problem, block):
-        return np.zeros(block.size), np.zeros(block.size)
-
-    def bound_variables(self, problem, lower, upper):
-        lower.T[:] = 0.0 if SMOOTH_FORM == "sum" else 1e-3
-
-    @staticmethod
-    def cost(T):
-        """The smooth peak's cost per unit weight: ``|phi|_p^2 / c^2``."""
-        return T ** (SMOOTH_M / PEAK_POWER) if SMOOTH_FORM == "sum" else T
-
-    @staticmethod
-    def start(ratio: np.ndarray, weights: np.ndarray) -> float:
-        """``T`` of points whose ``|phi_k|^2 / c^2`` are ``ratio``."""
-        total = float(np.dot(weights / weights.sum(), ratio ** (PEAK_POWER // 2)))
-        return total if SMOOTH_FORM == "sum" else total ** (2.0 / PEAK_POWER)
-
-
 class TerminalAttitudeBound(AttitudeBound):
     """``|log R_T| <= terminal_attitude_bound`` at the last node."""
 
@@ -539,8 +501,6 @@ def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
         kinds.append(TorqueLimit())
     if key.objective == "peak":
         kinds.append(PeakEpigraph())
-    if key.objective == "smooth":
-        kinds.append(SmoothPeak())
     if key.path_attitude_bound:
         kinds.append(PathAttitudeBound())
     if key.terminal_attitude_bound:

@@ -193,7 +193,6 @@ class Solution:
     Xm: Any = None
     Um: Any = None
     S: Any = None
-    T: Any = None
 
     def points(self) -> tuple[Any, Any]:
         """``(states, controls)`` at every collocation point: nodes, then midpoints."""
@@ -216,13 +215,7 @@ class VariableLayout(BlockStack):
     """
 
     def __init__(
-        self,
-        transcription: Transcription,
-        N: int,
-        state_labels,
-        control_labels,
-        peak=False,
-        smooth=False,
+        self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
     ):
         super().__init__()
         nodes = np.arange(N + 1, dtype=float)
@@ -242,9 +235,6 @@ class VariableLayout(BlockStack):
         if peak:
             label = ("attitude peak^2 / PEAK_SCALE^2",)
             self.by_name["S"] = self.add(Block("S", label, ("(relative)",), np.array([0.0])))
-        if smooth:
-            label = ("attitude L_p sum (|phi| / c)^p",)
-            self.by_name["T"] = self.add(Block("T", label, ("(relative)",), np.array([0.0])))
 
     def unpack(self, w) -> Solution:
         """States and controls of a numeric decision vector."""
@@ -289,8 +279,6 @@ class VariableLayout(BlockStack):
         row, _, tau = block.locate(index)
         if block.name == "S":
             return f"peak {row}", tau
-        if block.name == "T":
-            return f"smooth peak {row}", tau
         return f"{'midpoint' if block.name.endswith('m') else 'node'} {row}", tau
 
 

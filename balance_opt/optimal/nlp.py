@@ -33,9 +33,9 @@ import numpy as np
 from balance_opt import progress
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
+    PEAK_POWER,
     PEAK_SCALE,
     Constraint,
-    SmoothPeak,
     SymbolicNLP,
     constraint_kinds,
 )
@@ -128,7 +128,6 @@ def build_structure(
         model.state_labels(key.control),
         [f"{j} {key.control}" for j in joints],
         peak=key.objective == "peak",
-        smooth=key.objective == "smooth",
     )
     parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
@@ -169,7 +168,7 @@ def _outer_problem(
     if key.objective == "peak":  # S is the squared peak in units of PEAK_SCALE^2
         cost = cost + par.peak_weight * PEAK_SCALE**2 * v.S
     elif key.objective == "smooth":
-        cost = cost + par.smooth_weight * SmoothPeak.cost(v.T)
+        cost = cost + par.smooth_weight * _smooth_peak(v, par, tr.quadrature_weights(N))
     starts = [v.X[r, :-1] for r in model.joint_rows(key.control)]
     symbols = SymbolicNLP(
         key=key,
@@ -190,6 +189,17 @@ def _outer_problem(
             parts.append(cs.vec(values))
     g = cs.vertcat(*parts)
     return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_kinds)
+
+
+def _smooth_peak(v, par, weights: np.ndarray):
+    """``sum_k q_k (|phi_k| / c)^PEAK_POWER`` over the collocation points, ``q_k`` the
+    quadrature weights scaled to sum to 1: the drift's L_p norm to the power p, which prices
+    the peak and, unlike the epigraph, has no inequality rows (Ipopt solves it like the
+    integral objective); separable over the points."""
+    X, _ = v.points()
+    ratio = cs.sum1(X[:3, :] ** 2) * par.smooth_scale
+    q = cs.DM(weights / weights.sum())
+    return cs.mtimes(ratio ** (PEAK_POWER // 2), q)
 
 
 def _outer_functions(w, y, p, cost, g) -> _Outer:

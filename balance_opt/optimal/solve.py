@@ -31,7 +31,7 @@ from balance_opt.motion.so3 import (
     rotation_angle,
 )
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_SCALE, SmoothPeak, attitude_scale
+from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
@@ -93,7 +93,7 @@ class BalanceNLP(BalanceProblem):
                 terminal_scale=attitude_scale(self.terminal_bound),
                 peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
                 # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
-                smooth_weight=weights.peak * c**2 if smooth else 0.0,
+                smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
                 smooth_scale=1.0 / c**2 if smooth else 1.0,
                 q_rest=self.q_rest,
                 mission=self.mission_samples,
@@ -196,17 +196,12 @@ class BalanceNLP(BalanceProblem):
         (:mod:`balance_opt.optimal.guess`)."""
         if isinstance(guess, (str, BalanceResult, Solution)):
             if isinstance(guess, Solution):
-                sol = dataclasses.replace(guess, S=None, T=None)
+                sol = dataclasses.replace(guess, S=None)
             else:
                 sol = guess_solution(self, guess, self.unpack(self.lbx).X[3:, 0])
             if "S" in self.variables:  # the guess's own peak
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
-            if "T" in self.variables:  # the guess's own smooth peak
-                X, _ = sol.points()
-                ratio = np.sum(X[:3] ** 2, axis=0) / self.peak_reference**2
-                weights = self.transcription.quadrature_weights(self.N)
-                sol.T = np.array([[SmoothPeak.start(ratio, weights)]])
             return np.clip(self.pack(sol), self.lbx, self.ubx)
         w = np.asarray(guess, dtype=float).ravel()
         if w.size != self.structure.n_w:
