@@ -161,7 +161,11 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--intervals", type=int, default=100)
     parser.add_argument(
-        "--durations", type=float, nargs="*", default=[10.0, 20.0], help="none: skip the table"
+        "--durations",
+        type=float,
+        nargs="*",
+        default=[10.0, 20.0],
+        help="task durations [s]; none given (a bare --durations): skip the table",
     )
     parser.add_argument(
         "--objectives",
