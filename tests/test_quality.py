@@ -9,11 +9,14 @@ re-simulation's, the attitude by the re-simulated motion (numeric Pinocchio).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import time
 
 import numpy as np
 import pytest
 
+from balance_opt.io.outputs import solver_metrics
 from balance_opt.model.library import paper_robot
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -73,6 +76,7 @@ def test_peak_plan_of_the_capture_task_meets_the_peak_target(model, capture, ins
     assert plan.info["intervals"] == 100 and plan.info["options"]["objective"] == "peak"
     assert [s["stage"] for s in plan.info["stages"]] == ["integral", "smooth", "peak"]
     assert plan.info["total_iterations"] == sum(s["iterations"] for s in plan.info["stages"])
+    assert plan.info["total_solve_time_s"] == sum(s["solve_s"] for s in plan.info["stages"])
     assert plan.max_drift <= PEAK_TARGET
     assert plan.final_drift <= FINAL_TARGET
     _no_violations(plan)
@@ -146,8 +150,14 @@ def test_torque_limits_hold_between_the_collocation_points(model, capture):
     options = PlannerOptions(intervals=40, objective="integral", torque_limits=True)
     robot = paper_robot(limits=limits)  # the model's kinematics, lower efforts
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options, robot=robot)
-    plan = nlp.solve()
+    with _counted_solves(nlp) as calls:
+        plan = nlp.solve()
     assert plan.info["refinement"]["rounds"] >= 1  # the points alone did not hold them
+    # the reported work is every Ipopt solve's: the first and each re-solve
+    assert len(calls) == 1 + plan.info["refinement"]["rounds"]
+    reported = solver_metrics(plan.info)
+    assert reported["iterations"] == plan.info["total_iterations"] == sum(i for i, _ in calls)
+    assert reported["solve_time_s"] == pytest.approx(sum(w for _, w in calls), abs=0.05)
     t = np.linspace(0.0, nlp.horizon, 4001)
     q_B, qd_B, qdd_B = nlp.trajectory(nlp.solution_of(plan)).sample(t)
     q_M, qd_M, qdd_M = capture.mission.sample(t)
@@ -190,3 +200,32 @@ def test_peak_multi_start_merges_starts_that_reach_the_same_first_plan(model, ca
         model, capture.mission, capture.q_B0, dataclasses.replace(options, starts=1)
     ).solve()
     assert plan.max_drift == pytest.approx(single.max_drift, rel=1e-6)
+
+
+class _CountedSolver:
+    """An NLP structure's solver that records ``(iterations, wall time [s])`` of every call."""
+
+    def __init__(self, solver, calls: list):
+        self.solver, self.calls = solver, calls
+
+    def __call__(self, **kwargs):
+        start = time.perf_counter()
+        out = self.solver(**kwargs)
+        self.calls.append((int(self.solver.stats()["iter_count"]), time.perf_counter() - start))
+        return out
+
+    def stats(self):
+        return self.solver.stats()
+
+
+@contextlib.contextmanager
+def _counted_solves(nlp):
+    """Record ``(iterations, wall time [s])`` of every Ipopt solve of ``nlp``'s own structure
+    (restored afterwards: the structure is shared through the model's cache)."""
+    calls: list = []
+    real = nlp.structure.solver
+    nlp.structure.solver = _CountedSolver(real, calls)
+    try:
+        yield calls
+    finally:
+        nlp.structure.solver = real

@@ -36,8 +36,9 @@ from balance_opt.result import BalanceResult
 log = logging.getLogger(__name__)
 
 #: Version of the metrics.json layout; 2: ``effort`` margins added, and ``violations`` /
-#: ``limit_violations`` count effort limits too.
-METRICS_FORMAT = 2
+#: ``limit_violations`` count effort limits too; 3: ``solver.iterations`` and
+#: ``solver.solve_time_s`` count every Ipopt solve behind the plan (were the last solve's).
+METRICS_FORMAT = 3
 QUATERNION_COLUMNS = ("base_qx", "base_qy", "base_qz", "base_qw")
 RPY_COLUMNS = ("base_roll", "base_pitch", "base_yaw")
 
@@ -336,16 +337,18 @@ BULKY_INFO_KEYS = ("nlp_solution", "history")
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
     """Status, iterations and wall times of the solver that produced a result, from its
     ``info`` (keys of :meth:`balance_opt.optimal.solve.BalanceNLP.solve`); ``None`` where the method
-    has no such figure (the analytic law has no iterations)."""
+    has no such figure (the analytic law has no iterations). The iterations and the solve time
+    are those of every Ipopt solve behind the plan (the peak objective's stages, the
+    refinement's re-solves); the status, objective and ``wall_time_s`` those of the last."""
     wall = info.get("wall_time_s")
     wall = wall if isinstance(wall, Mapping) else {}
     return {
         "status": info.get("status"),
         "success": info.get("success"),
-        "iterations": info.get("iterations"),
+        "iterations": info.get("total_iterations", info.get("iterations")),
         "objective": info.get("objective"),
         "max_constraint_violation": info.get("max_constraint_violation"),
-        "solve_time_s": wall.get("solve"),
+        "solve_time_s": info.get("total_solve_time_s", wall.get("solve")),
         "build_time_s": wall.get("build"),
         "wall_time_s": wall or None,
     }

@@ -84,13 +84,14 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
     if same and smallest <= bound * (1.0 - BOUND_MARGIN):
         # the peak plan of the bounded problem is the free one: the bound is not active
         result = peak_plan
-        result.info["refinement"] = {"rounds": 0, "tightened": [], "iterations": 0}
-        result.info["total_iterations"] = total_iterations(result)
+        result.info["refinement"] = {"rounds": 0, "tightened": [], "iterations": 0, "solve_s": 0.0}
+        _record_totals(result, _solves_behind(result), (0, 0.0))
         return result
     result = nlp.solve_once(free.solution_of(peak_plan))
     result.info["smallest_peak_rad"] = smallest
     bounded = {"stage": "bounded", "status": result.info["status"]}
     bounded["iterations"] = result.info["iterations"]
+    bounded["solve_s"] = result.info["wall_time_s"]["solve"]
     result.info["stages"] = peak_plan.info.get("stages", []) + [bounded]
     return refine(nlp, result)
 
@@ -170,7 +171,8 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
     warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
     ``info["refinement"]`` lists what was tightened in each round."""
-    rounds, iterations, stages = [], 0, result.info.get("stages")
+    behind = _solves_behind(result)
+    rounds, iterations, seconds, stages = [], 0, 0.0, result.info.get("stages")
     for _ in range(MAX_ROUNDS):
         tightened = _tighten(nlp, result)
         if not tightened:
@@ -180,6 +182,7 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
         nlp.update_bounds()
         result = nlp.solve_once(nlp.unpack(np.array(result.info["nlp_solution"])))
         iterations += result.info["iterations"]
+        seconds += result.info["wall_time_s"]["solve"]
     else:
         if _tighten(nlp, result, dry=True):
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
@@ -187,19 +190,31 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
         "rounds": len(rounds),
         "tightened": rounds,
         "iterations": iterations,
+        "solve_s": seconds,
     }
     if stages is not None:
         result.info["stages"] = stages
-    result.info["total_iterations"] = total_iterations(result)
+    _record_totals(result, behind, (iterations, seconds))
     return result
 
 
-def total_iterations(result: BalanceResult) -> int:
-    """Ipopt iterations of every solve behind a plan: its stages (or its one solve) and the
-    refinement's re-solves."""
+def _solves_behind(result: BalanceResult) -> tuple[int, float]:
+    """Ipopt iterations and wall time [s] of the solves that produced ``result``: the peak
+    objective's stages, or its one solve."""
     stages = result.info.get("stages")
-    first = sum(s.get("iterations", 0) for s in stages) if stages else result.info["iterations"]
-    return int(first + result.info.get("refinement", {}).get("iterations", 0))
+    if stages:
+        return (
+            sum(s.get("iterations", 0) for s in stages),
+            sum(s.get("solve_s", 0.0) for s in stages),
+        )
+    return result.info["iterations"], result.info["wall_time_s"]["solve"]
+
+
+def _record_totals(result: BalanceResult, *parts: tuple[int, float]) -> None:
+    """``info["total_iterations"]`` and ``info["total_solve_time_s"]``: every Ipopt solve behind
+    the plan (``info["iterations"]`` and ``wall_time_s["solve"]`` are the last solve's)."""
+    result.info["total_iterations"] = int(sum(its for its, _ in parts))
+    result.info["total_solve_time_s"] = float(sum(s for _, s in parts))
 
 
 def _tighten(nlp, result: BalanceResult, dry: bool = False) -> list[str]:

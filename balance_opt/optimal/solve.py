@@ -243,7 +243,7 @@ class BalanceNLP(BalanceProblem):
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
-        with progress.solving(self.lbg, self.ubg, f"Ipopt (N = {self.N})"):
+        with progress.solving(self.lbg, self.ubg, self._progress_label()):
             out = self.structure.solver(
                 x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
             )
@@ -273,6 +273,13 @@ class BalanceNLP(BalanceProblem):
             log.warning("Ipopt: %s", status)
         return result
 
+    def _progress_label(self) -> str:
+        """What the progress line of an Ipopt solve starts with: the stage of the peak
+        objective it solves (``integral``, ``smooth`` or ``peak``), if any."""
+        key = self.structure.key
+        staged = key.objective == "peak" or not key.between_points  # inner stages go without
+        return f"Ipopt (N = {self.N}{f', {key.objective} stage' if staged else ''})"
+
     def solve_stage(self, initial_guess) -> tuple[Solution, dict]:
         """Solve with Ipopt once without re-simulating (an inner stage of the peak objective,
         :func:`~balance_opt.optimal.refine.plan_peak`). A failure is not raised: it is the
@@ -284,9 +291,10 @@ class BalanceNLP(BalanceProblem):
         """
         w0 = self.initial_guess(initial_guess)
         t0 = time.perf_counter()
-        out = self.structure.solver(
-            x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
-        )
+        with progress.solving(self.lbg, self.ubg, self._progress_label()):
+            out = self.structure.solver(
+                x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
+            )
         raise_if_interrupted()
         wall = time.perf_counter() - t0
         stats = self.structure.solver.stats()

@@ -68,7 +68,8 @@ def _outcome(result) -> dict:
         "objective": result.info["objective"],
         "max_drift_rad": result.max_drift,
         "final_drift_rad": result.final_drift,
-        "solve_s": result.info["wall_time_s"]["solve"],
+        "iterations": result.info["total_iterations"],
+        "solve_s": result.info["total_solve_time_s"],  # every Ipopt solve of the start
     }
 
 

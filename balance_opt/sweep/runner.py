@@ -101,6 +101,8 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     wall = result.info.get("wall_time_s")
     if isinstance(wall, dict):  # the optimal planner's own split: build, setup, guess, solve, ...
         timing.update({f"planner_{k}_s": float(v) for k, v in wall.items()})
+    if "total_solve_time_s" in result.info:  # every Ipopt solve (``planner_solve_s``: the last)
+        timing["planner_ipopt_s"] = float(result.info["total_solve_time_s"])
     return {
         "status": status,
         "error": error,
