@@ -23,6 +23,7 @@ from balance_opt.analytic.rollout import rollout
 from balance_opt.app.capture import plan_captured, robot_after
 from balance_opt.app.pipeline import run_task, simulate_result
 from balance_opt.errors import InputError
+from balance_opt.io.outputs import solver_metrics
 from balance_opt.io.task import load_task
 from balance_opt.model.capture import Target, attach_target, capture_state
 from balance_opt.model.maps import NumericMaps
@@ -316,6 +317,13 @@ def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
     plan = plan_captured(example, "optimal")
     assert plan.info["success"] and not plan.violations
     assert plan.max_drift <= law.max_drift + 1e-6
+    # the reported solver work is both phases' (each: its stages and its refinement)
+    before = (
+        sum(s["iterations"] for s in plan.info["stages"]) + plan.info["refinement"]["iterations"]
+    )
+    after = plan.info["after_capture"]
+    after_total = sum(s["iterations"] for s in after["stages"]) + after["refinement"]["iterations"]
+    assert solver_metrics(plan.info)["iterations"] == before + after_total
     k = int(np.flatnonzero(plan.t <= example.target.time)[-1])
     np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)
     # the residual's floor is its finite differences': ~1e-7 on smooth motion, up to ~1e-5 at

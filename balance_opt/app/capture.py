@@ -178,8 +178,10 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
         info["success"] = all(s is not False for s in success)
         if before.info.get("success") and not after.info.get("success"):
             info["status"] = after.info.get("status")
-    if "iterations" in before.info and "iterations" in after.info:
-        info["iterations"] = before.info["iterations"] + after.info["iterations"]
+    # the solver's work of both phases (io.outputs.solver_metrics reports the totals)
+    for key in ("iterations", "total_iterations", "total_solve_time_s"):
+        if key in before.info and key in after.info:
+            info[key] = before.info[key] + after.info[key]
     info["capture"] = state.as_dict(task.target.time)
     return dataclasses.replace(
         before,
