@@ -138,7 +138,27 @@ def test_impossible_path_bound_fails_with_the_smallest_peak(model, capture, coar
         build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
     assert f"{best:.6g} rad" in str(info.value)
     assert info.value.status == "Bound_Below_Smallest_Peak"
+    # the failure's result reports the work of every stage behind it, not the last solve's
+    stages = info.value.result.info["stages"]
+    assert len(stages) == 3
+    assert solver_metrics(info.value.result.info)["iterations"] == sum(
+        s["iterations"] for s in stages
+    )
     assert info.value.violation == pytest.approx(0.2 * best, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
+    """When the exact peak fails, the smooth stage's plan is kept, re-simulated by one more
+    solve; the reported work includes the failed solve and that one."""
+    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=30))
+    with _counted_solves(nlp, nlp.stage("integral"), nlp.stage("smooth"), fail_first=nlp) as calls:
+        plan = nlp.solve()
+    stages = plan.info["stages"]
+    assert [s["stage"] for s in stages] == ["integral", "smooth", "peak", "smooth, re-simulated"]
+    assert stages[2]["status"] == "Maximum_Iterations_Exceeded" and stages[2]["iterations"] > 0
+    assert len(calls) == 4
+    assert solver_metrics(plan.info)["iterations"] == sum(i for i, _ in calls)
 
 
 @pytest.mark.slow
@@ -203,10 +223,11 @@ def test_peak_multi_start_merges_starts_that_reach_the_same_first_plan(model, ca
 
 
 class _CountedSolver:
-    """An NLP structure's solver that records ``(iterations, wall time [s])`` of every call."""
+    """An NLP structure's solver that records ``(iterations, wall time [s])`` of every call;
+    with ``fail_first``, its first solve reports Ipopt's iteration limit instead of its status."""
 
-    def __init__(self, solver, calls: list):
-        self.solver, self.calls = solver, calls
+    def __init__(self, solver, calls: list, fail_first: bool = False):
+        self.solver, self.calls, self.fail = solver, calls, fail_first
 
     def __call__(self, **kwargs):
         start = time.perf_counter()
@@ -215,17 +236,26 @@ class _CountedSolver:
         return out
 
     def stats(self):
-        return self.solver.stats()
+        stats = dict(self.solver.stats())
+        if self.fail:
+            self.fail = False
+            stats["return_status"] = "Maximum_Iterations_Exceeded"
+        return stats
 
 
 @contextlib.contextmanager
-def _counted_solves(nlp):
-    """Record ``(iterations, wall time [s])`` of every Ipopt solve of ``nlp``'s own structure
-    (restored afterwards: the structure is shared through the model's cache)."""
+def _counted_solves(*problems, fail_first=None):
+    """Record ``(iterations, wall time [s])`` of every Ipopt solve of the problems' structures
+    (restored afterwards: structures are shared through the model's cache); the first solve of
+    ``fail_first``'s structure reports a failure."""
     calls: list = []
-    real = nlp.structure.solver
-    nlp.structure.solver = _CountedSolver(real, calls)
+    structures = {id(p.structure): p.structure for p in problems}.values()
+    real = {id(st): st.solver for st in structures}
+    for st in structures:
+        failing = fail_first is not None and st is fail_first.structure
+        st.solver = _CountedSolver(st.solver, calls, failing)
     try:
         yield calls
     finally:
-        nlp.structure.solver = real
+        for st in structures:
+            st.solver = real[id(st)]

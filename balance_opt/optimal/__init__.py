@@ -36,6 +36,8 @@ The modules, top down:
   problem in three stages (the integral plan, a smooth L16 peak, the epigraph), path attitude
   bounds reached through the peak problem, bounds tightened until the re-simulated motion
   meets them.
+* :mod:`~balance_opt.optimal.ledger`: the Ipopt work behind one plan (every solve's
+  iterations and time, failed ones included), which the results and ``metrics.json`` report.
 * :mod:`~balance_opt.optimal.starts`: multi-start in this process and parallel worker
   processes, starts that reach the same first plan merged;
   :mod:`~balance_opt.optimal.start_schedule`: which of its tasks runs where and when.

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from balance_opt.errors import SolverError
+from balance_opt.optimal import ledger
 from balance_opt.optimal.constraints import TorqueLimit
 from balance_opt.optimal.options import SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError
@@ -54,13 +55,25 @@ BOUND_MARGIN = 1e-3
 
 def solve_with_bounds(nlp, guess) -> BalanceResult:
     """Solve a problem whose path attitude bound may stall Ipopt (see the module docstring),
-    then :func:`refine`.
+    then :func:`refine`. The plan, or the result a failure carries, holds the totals of every
+    Ipopt solve behind it (:mod:`balance_opt.optimal.ledger`).
 
     Raises:
         PlannerSolverError: the bound is below the smallest peak found (its message states
             it), or Ipopt failed.
     """
+    with ledger.ledger() as work:
+        try:
+            result = _solve_with_bounds(nlp, guess)
+        except SolverError as exc:
+            if exc.result is not None:
+                ledger.stamp(exc.result.info, work)
+            raise
+    ledger.stamp(result.info, work)
+    return result
 
+
+def _solve_with_bounds(nlp, guess) -> BalanceResult:
     bound = nlp.options.path_attitude_bound
     if bound is None:
         first = plan_peak(nlp, guess) if nlp.options.objective == "peak" else nlp.solve_once(guess)
@@ -85,7 +98,6 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
         # the peak plan of the bounded problem is the free one: the bound is not active
         result = peak_plan
         result.info["refinement"] = {"rounds": 0, "tightened": [], "iterations": 0, "solve_s": 0.0}
-        _record_totals(result, _solves_behind(result), (0, 0.0))
         return result
     result = nlp.solve_once(free.solution_of(peak_plan))
     result.info["smallest_peak_rad"] = smallest
@@ -105,7 +117,11 @@ def plan_peak(nlp, guess) -> BalanceResult:
     re-simulated. Should the epigraph stage fail, the smooth peak's plan is kept (with a
     warning). ``info["stages"]`` reports each stage's status, iterations and drifts."""
     # the first stage: done by a multi-start, or here
-    first = guess if isinstance(guess, IntegralStart) else integral_stage(nlp, guess)
+    if isinstance(guess, IntegralStart):  # solved outside this plan's ledger
+        first = guess
+        ledger.record(first.report.get("iterations", 0), first.report.get("solve_s", 0.0))
+    else:
+        first = integral_stage(nlp, guess)
     stages, guess = [dict(first.report)], first.following
     smooth = nlp.stage("smooth")
     # its reference drift: the start's peak (the smooth term then weighs like the peak's)
@@ -119,8 +135,24 @@ def plan_peak(nlp, guess) -> BalanceResult:
         if stages[-1]["status"] not in SUCCESS_STATUSES:
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
-        stages.append({"stage": "peak", "status": str(exc.status)})
+        failed = exc.result.info if exc.result is not None else {}
+        stages.append(
+            {
+                "stage": "peak",
+                "status": str(exc.status),
+                "iterations": failed.get("iterations", 0),
+                "solve_s": failed.get("wall_time_s", {}).get("solve", 0.0),
+            }
+        )
         result = smooth.solve_once(smooth_plan)
+        stages.append(
+            {
+                "stage": "smooth, re-simulated",
+                "status": result.info["status"],
+                "iterations": result.info["iterations"],
+                "solve_s": result.info["wall_time_s"]["solve"],
+            }
+        )
     else:
         stages.append(
             {
@@ -171,7 +203,6 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
     warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
     ``info["refinement"]`` lists what was tightened in each round."""
-    behind = _solves_behind(result)
     rounds, iterations, seconds, stages = [], 0, 0.0, result.info.get("stages")
     for _ in range(MAX_ROUNDS):
         tightened = _tighten(nlp, result)
@@ -194,27 +225,7 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     }
     if stages is not None:
         result.info["stages"] = stages
-    _record_totals(result, behind, (iterations, seconds))
     return result
-
-
-def _solves_behind(result: BalanceResult) -> tuple[int, float]:
-    """Ipopt iterations and wall time [s] of the solves that produced ``result``: the peak
-    objective's stages, or its one solve."""
-    stages = result.info.get("stages")
-    if stages:
-        return (
-            sum(s.get("iterations", 0) for s in stages),
-            sum(s.get("solve_s", 0.0) for s in stages),
-        )
-    return result.info["iterations"], result.info["wall_time_s"]["solve"]
-
-
-def _record_totals(result: BalanceResult, *parts: tuple[int, float]) -> None:
-    """``info["total_iterations"]`` and ``info["total_solve_time_s"]``: every Ipopt solve behind
-    the plan (``info["iterations"]`` and ``wall_time_s["solve"]`` are the last solve's)."""
-    result.info["total_iterations"] = int(sum(its for its, _ in parts))
-    result.info["total_solve_time_s"] = float(sum(s for _, s in parts))
 
 
 def _tighten(nlp, result: BalanceResult, dry: bool = False) -> list[str]:

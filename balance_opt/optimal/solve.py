@@ -30,6 +30,7 @@ from balance_opt.motion.so3 import (
     quaternion_multiply,
     rotation_angle,
 )
+from balance_opt.optimal import ledger
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution
@@ -255,6 +256,7 @@ class BalanceNLP(BalanceProblem):
         result = resimulate(self, sol, self.trajectory(sol))
         t3 = time.perf_counter()
         stats = self.structure.solver.stats()
+        ledger.record(int(stats.get("iter_count", 0)), t2 - t1)
         status = str(stats.get("return_status", "unknown"))
         result.info.update(self._report(stats, float(out["f"]), worst, (t0, t1, t2, t3)))
         result.info["nlp_solution"] = w.tolist()
@@ -298,6 +300,7 @@ class BalanceNLP(BalanceProblem):
         raise_if_interrupted()
         wall = time.perf_counter() - t0
         stats = self.structure.solver.stats()
+        ledger.record(int(stats.get("iter_count", 0)), wall)
         sol = self.unpack(np.array(out["x"]).ravel())
         X, _ = sol.points()
         return sol, {
