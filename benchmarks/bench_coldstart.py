@@ -56,7 +56,7 @@ result = plan_optimal(task, models=models)
 info = result.info
 print(json.dumps({
     "plan_wall": time.perf_counter() - start,
-    "iterations": info["iterations"],
+    "iterations": info.get("total_iterations", info["iterations"]),
     "kernels": info["kernels"],
     "final_drift": result.final_drift,
     "robot_joints": int(task.robot.n),
