@@ -142,22 +142,20 @@ def _timed(solver, args: dict, repeat: int, back=lambda z: z) -> dict:
     }
 
 
-def _solver_on_stage_form(kind: str, variant: str, problem, captured, tolerance: float):
+def _solver_on_stage_form(kind: str, problem, captured):
     import casadi as cs
     from stage_form import stage_form
 
+    from balance_opt.optimal.nlp import ipopt_options_for
+
     form = stage_form(problem, captured)
+    ipopt = ipopt_options_for(problem.structure.key.objective, problem.options)  # the planner's
     if kind == "fatrop":
         opts = {"structure_detection": "manual", **form.structure, "print_time": False}
-        opts["fatrop"] = {"print_level": 0, "tol": tolerance, "max_iter": 3000}
-        if problem.structure.key.objective == "peak":
-            opts["fatrop"]["mu_init"] = 1e-3  # as the planner's epigraph stage (PEAK_IPOPT)
+        opts["fatrop"] = {"print_level": 0, "tol": ipopt["tol"], "max_iter": 3000}
+        if "mu_init" in ipopt:  # the epigraph stage's start (PEAK_IPOPT)
+            opts["fatrop"]["mu_init"] = ipopt["mu_init"]
     else:
-        from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_IPOPT
-
-        ipopt = {**DEFAULT_IPOPT, "tol": tolerance, "max_iter": problem.options.max_iterations}
-        if problem.structure.key.objective == "peak":
-            ipopt.update(PEAK_IPOPT)
         opts = {"ipopt": ipopt, "print_time": False, "record_time": True}
     return cs.nlpsol("balance_stages", kind.split("-")[0], form.nlp, opts), form
 
@@ -177,9 +175,7 @@ def run_variant(kind: str, variant: str, intervals: int, repeat: int) -> dict:
             args["p"] = problem.parameters
             rows[name] = _timed(problem.structure.solver, args, repeat)
         elif kind == "ipopt-stages" or variant == "stages":
-            solver, form = _solver_on_stage_form(
-                kind, variant, problem, captured, problem.options.tolerance
-            )
+            solver, form = _solver_on_stage_form(kind, problem, captured)
             args = {"x0": form.to_stages(w0), **form.bounds}
             rows[name] = _timed(solver, args, repeat, form.from_stages)
         else:  # fatrop on the planner's NLP as it is

@@ -132,8 +132,8 @@ def build_structure(
     parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
     outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds)
-    ipopt = {"peak": PEAK_IPOPT, "smooth": SMOOTH_IPOPT}.get(key.objective, {})
-    solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, options, ipopt)
+    ipopt = ipopt_options_for(key.objective, options)
+    solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, ipopt)
     build_time = time.perf_counter() - start
     log.debug(
         "balance NLP (N = %d, %s, %s) built in %.3f s: %d variables, %d constraints",
@@ -360,24 +360,30 @@ def _hessian(kernels: PointKernels, outer: _Outer, x: _Mapped, n_g: int) -> cs.F
     )
 
 
+def ipopt_options_for(objective: str, options: PlannerOptions) -> dict:
+    """Ipopt's options for a structure of ``objective`` (``"peak"``, ``"smooth"``,
+    ``"integral"``): the defaults, the tolerance and iteration limit, the stage's own options,
+    then the user's ``optimal.ipopt``."""
+    ipopt = dict(DEFAULT_IPOPT)
+    ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
+    ipopt.update({"peak": PEAK_IPOPT, "smooth": SMOOTH_IPOPT}.get(objective, {}))
+    ipopt.update(options.ipopt)
+    return ipopt
+
+
 def _ipopt_solver(
     kernels: PointKernels,
     variables: VariableLayout,
     parameters: ParameterLayout,
     outer: _Outer,
     n_g: int,
-    options: PlannerOptions,
-    stage_ipopt: dict,
+    ipopt: dict,
 ) -> cs.Function:
     """The NLP in MX (the kernels mapped over the points, the outer problem on top) with its
     assembled derivatives (see the module docstring), handed to Ipopt."""
     x = _Mapped.of(kernels, variables, parameters)
     y = cs.vec(kernels.value.map(x.n_points)(x.Z, *x.data))
     f, g = outer.value(x.w, y, x.p)
-    ipopt = dict(DEFAULT_IPOPT)
-    ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
-    ipopt.update(stage_ipopt)
-    ipopt.update(options.ipopt)
     return cs.nlpsol(
         "balance_nlp",
         "ipopt",
