@@ -606,17 +606,23 @@ def test_optimal_plan_shows_its_ipopt_progress_unless_quiet(tmp_path, capsys):
     assert main(["plan", task, "-m", "optimal", "-o", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     line = re.compile(
-        r"^Ipopt \(N = 12, (?:integral|smooth|peak) stage\): (\d+) iterations, objective \S+, "
+        r"^Ipopt \(N = (\d+), (integral|smooth|peak) stage\): (\d+) iterations, objective \S+, "
         r"constraint violation "
         r"(\S+) in [0-9.]+ s$",
         re.MULTILINE,
     )
     found = line.findall(err)
     assert found, err
-    # one line per Ipopt solve (the peak objective's stages): metrics count them all
+    # one line per Ipopt solve (the peak objective's stages, the inner ones on their coarser
+    # grid): metrics count them all
+    assert [(n, stage) for n, stage, _, _ in found] == [
+        ("10", "integral"),
+        ("10", "smooth"),
+        ("12", "peak"),
+    ]
     iterations = _metrics(tmp_path / "a")["methods"]["optimal"]["solver"]["iterations"]
-    assert len(found) == 3 and sum(int(n) for n, _ in found) == iterations
-    assert float(found[-1][1]) < 1e-6
+    assert sum(int(n) for _, _, n, _ in found) == iterations
+    assert float(found[-1][3]) < 1e-6
     assert "\r" not in err  # not a terminal: no live line
     assert main(["plan", task, "-m", "optimal", "-o", str(tmp_path / "b"), "-q"]) == 0
     assert capsys.readouterr().err == ""

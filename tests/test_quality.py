@@ -18,6 +18,8 @@ import pytest
 
 from balance_opt.io.outputs import solver_metrics
 from balance_opt.model.library import paper_robot
+from balance_opt.optimal.guess import resampled
+from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.problem import PlannerSolverError
@@ -50,24 +52,81 @@ def _no_violations(plan):
     assert plan.info["resimulation"]["constraint_violations"] == []
 
 
-def test_inner_peak_stages_go_without_the_rows_between_points(model, capture):
-    """The integral and smooth stages only warm start the epigraph: their structures have no
-    joint-limit rows between the points (a third of each iteration's cost), the epigraph's
-    has them, and the bounds at the points are the same in all three."""
-    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=20))
+def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(model, capture):
+    """The integral and smooth stages only warm start the epigraph: they solve on a grid four
+    times coarser, and their structures have no joint-limit rows between the points (a third
+    of each iteration's cost); the epigraph's has them, and the bounds at the points are those
+    of a plan on the inner grid. The smooth peak kept when the epigraph fails is on the plan's
+    grid, with the rows."""
+    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=40))
     between = [b.name for b in nlp.constraints if b.name.endswith("limit between points")]
     assert between == [
         f"{k} limit between points" for k in ("position", "velocity", "acceleration")
     ]
+    on_inner_grid = build_balance_nlp(
+        model, capture.mission, capture.q_B0, PlannerOptions(intervals=10)
+    )
+    rows_between = sum(b.size for b in on_inner_grid.constraints if b.name.endswith("points"))
+    epigraph = sum(b.size for b in on_inner_grid.constraints if b.name == "peak epigraph")
     for name in ("integral", "smooth"):
         inner = nlp.stage(name)
         assert inner.structure.key.objective == name
+        assert inner.N == 10 and inner.h == pytest.approx(4 * nlp.h)
+        assert inner.stage(name) is inner  # as a multi-start's worker builds it
         assert not [b for b in inner.constraints if b.name.endswith("limit between points")]
-        assert inner.structure.n_g == nlp.structure.n_g - sum(
-            b.size for b in nlp.constraints if b.name.endswith("between points")
-        ) - sum(b.size for b in nlp.constraints if b.name == "peak epigraph")
-        np.testing.assert_array_equal(inner.unpack(inner.lbx).X, nlp.unpack(nlp.lbx).X)
-        np.testing.assert_array_equal(inner.unpack(inner.ubx).U, nlp.unpack(nlp.ubx).U)
+        assert inner.structure.n_g == on_inner_grid.structure.n_g - rows_between - epigraph
+        n_w = inner.lbx.size  # the plan's structure has one more variable: S
+        assert on_inner_grid.lbx.size == n_w + 1
+        np.testing.assert_array_equal(inner.lbx, on_inner_grid.lbx[:n_w])
+        np.testing.assert_array_equal(inner.ubx, on_inner_grid.ubx[:n_w])
+    final = nlp.stage("smooth", final=True)
+    assert final.N == 40 and final.structure.key.objective == "smooth"
+    assert [b.name for b in final.constraints if b.name.endswith("limit between points")] == (
+        between
+    )
+
+
+@pytest.mark.parametrize("n, N", [(10, 40), (40, 10), (10, 25), (7, 7)])
+@pytest.mark.parametrize("midpoints", [True, False])
+def test_resampled_guess_is_the_grid_interpolant(n, N, midpoints):
+    """A point of the NLP on n intervals, as a guess on N (the inner stages' plan handed to
+    the epigraph stage): each interval's interpolant (quadratic through nodes and midpoint,
+    or linear) at the new points. Rows sampled from a polynomial of that degree come back
+    exact on any grid; a grid that contains the old points keeps their values."""
+    T = 3.0
+    degree = 2 if midpoints else 1
+    coefficients = np.array([[0.3, -1.2, 0.5][: degree + 1], [2.0, 0.7, -0.4][: degree + 1]])
+
+    def rows(t):  # two rows, each a polynomial in t of the transcription's degree
+        return np.array([np.polyval(c, t) for c in coefficients])
+
+    def grid(k):
+        nodes = np.linspace(0.0, T, k + 1)
+        return nodes, (nodes[:-1] + 0.5 * T / k if midpoints else None)
+
+    nodes, mids = grid(n)
+    sol = Solution(
+        rows(nodes), 2 * rows(nodes), *((rows(mids), 2 * rows(mids)) if midpoints else ())
+    )
+    out = resampled(sol, N)
+    new_nodes, new_mids = grid(N)
+    np.testing.assert_allclose(out.X, rows(new_nodes), atol=1e-12)
+    np.testing.assert_allclose(out.U, 2 * rows(new_nodes), atol=1e-12)
+    if midpoints:
+        np.testing.assert_allclose(out.Xm, rows(new_mids), atol=1e-12)
+        np.testing.assert_allclose(out.Um, 2 * rows(new_mids), atol=1e-12)
+    else:
+        assert out.Xm is None and out.Um is None
+    # a non-polynomial motion: the old points come back where the new grid holds them
+    wavy = Solution(np.sin(3 * nodes)[None], np.cos(nodes)[None])
+    if midpoints:
+        wavy = Solution(wavy.X, wavy.U, np.sin(3 * mids)[None], np.cos(mids)[None])
+    back = resampled(resampled(wavy, 4 * n), n)
+    for a, b in zip(
+        (back.X, back.U, back.Xm, back.Um), (wavy.X, wavy.U, wavy.Xm, wavy.Um), strict=True
+    ):
+        if b is not None:
+            np.testing.assert_allclose(a, b, atol=1e-12)
 
 
 @pytest.mark.slow
@@ -75,6 +134,7 @@ def test_peak_plan_of_the_capture_task_meets_the_peak_target(model, capture, ins
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions()).solve()
     assert plan.info["intervals"] == 100 and plan.info["options"]["objective"] == "peak"
     assert [s["stage"] for s in plan.info["stages"]] == ["integral", "smooth", "peak"]
+    assert [s["intervals"] for s in plan.info["stages"]] == [25, 25, 100]
     assert plan.info["total_iterations"] == sum(s["iterations"] for s in plan.info["stages"])
     assert plan.info["total_solve_time_s"] == sum(s["solve_s"] for s in plan.info["stages"])
     assert plan.max_drift <= PEAK_TARGET
@@ -149,13 +209,17 @@ def test_impossible_path_bound_fails_with_the_smallest_peak(model, capture, coar
 
 @pytest.mark.slow
 def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
-    """When the exact peak fails, the smooth stage's plan is kept, re-simulated by one more
-    solve; the reported work includes the failed solve and that one."""
+    """When the exact peak fails, the smooth peak is kept: solved once more on the plan's grid
+    (with the rows between the points), from the inner stage's plan; the reported work
+    includes the failed solve and that one."""
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=30))
-    with _counted_solves(nlp, nlp.stage("integral"), nlp.stage("smooth"), fail_first=nlp) as calls:
+    problems = (nlp.stage("integral"), nlp.stage("smooth"), nlp.stage("smooth", final=True))
+    with _counted_solves(nlp, *problems, fail_first=nlp) as calls:
         plan = nlp.solve()
     stages = plan.info["stages"]
     assert [s["stage"] for s in stages] == ["integral", "smooth", "peak", "smooth, re-simulated"]
+    assert [s["intervals"] for s in stages] == [10, 10, 30, 30]
+    assert plan.info["intervals"] == 30 and plan.t[-1] == pytest.approx(capture.mission.duration)
     assert stages[2]["status"] == "Maximum_Iterations_Exceeded" and stages[2]["iterations"] > 0
     assert len(calls) == 4
     assert solver_metrics(plan.info)["iterations"] == sum(i for i, _ in calls)

@@ -362,7 +362,7 @@ def test_analytic_rk4_step_is_checked_too(tmp_path):
         (
             "peak",
             (
-                "47.1 GiB of memory (3 balance joints: 2.4e+06 variables, 1.26e+08 non-zeros "
+                "22.3 GiB of memory (3 balance joints: 2.4e+06 variables, 5.94e+07 non-zeros "
                 "in the KKT matrices of the 3 NLPs the plan builds)"
             ),
         ),
@@ -419,8 +419,13 @@ def test_size_estimate_counts_the_planners_own_problem(
     model = PlannerModel(paper, compile=False)
     mission = PointToPoint(np.zeros(3), np.full(3, 0.1), 2.0)
     balance_limits = robot.limits.subset(robot.balance_indices)
-    counts = []
-    for N in (4, 6):
+    def size(st):
+        jac = st.solver.get_function("nlp_jac_g").sparsity_out(1).nnz()
+        hess = st.solver.get_function("nlp_hess_l").sparsity_out(0).nnz()
+        return np.array([st.n_w, st.n_g, jac + hess + st.n_w + st.n_g])
+
+    counts, inner_counts = [], []
+    for N in (4, 6):  # below the inner stages' smallest grid: they have the plan's intervals
         options = PlannerOptions(
             intervals=N,
             transcription=transcription,
@@ -430,12 +435,17 @@ def test_size_estimate_counts_the_planners_own_problem(
             objective=objective,
         )
         nlp = build_balance_nlp(model, mission, np.array([0.0, 0.5, -1.0]), options, robot=robot)
-        st = nlp.structure
-        jac = st.solver.get_function("nlp_jac_g").sparsity_out(1).nnz()
-        hess = st.solver.get_function("nlp_hess_l").sparsity_out(0).nnz()
-        counts.append(np.array([st.n_w, st.n_g, jac + hess + st.n_w + st.n_g]))
+        counts.append(size(nlp.structure))
+        inner_counts.append(size(nlp.stage("integral").structure))
     per_interval = (counts[1] - counts[0]) / 2
     n_w, n_g, nonzeros = budget._per_interval(options, balance_limits)
+    assert (n_w, n_g) == tuple(per_interval[:2])
+    assert nonzeros == pytest.approx(per_interval[2], rel=0.05)
+    # the first stage, which every plan through the peak problem builds on its coarser grid
+    inner = dataclasses.replace(options, objective="integral", **budget._INNER)
+    inner = dataclasses.replace(inner, path_attitude_bound=None, terminal_attitude_bound=None)
+    per_interval = (inner_counts[1] - inner_counts[0]) / 2
+    n_w, n_g, nonzeros = budget._per_interval(inner, balance_limits)
     assert (n_w, n_g) == tuple(per_interval[:2])
     assert nonzeros == pytest.approx(per_interval[2], rel=0.05)
 

@@ -22,9 +22,10 @@ Those are counted per interval from the problem's structure (no CasADi needed):
   row (4 for the epigraph's, which also holds the peak variable).
 
 A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
-the peak objective is solved in stages (the integral objective's plan, the smooth peak, the
-epigraph), and a path attitude bound is approached through the peak problem without it; the
-estimate adds them up.
+the peak objective is solved in stages (the integral objective's plan and the smooth peak on a
+grid four times coarser, :func:`~balance_opt.optimal.options.inner_intervals`, without the
+rows between the points; then the epigraph), and a path attitude bound is approached through
+the peak problem without it; the estimate adds them up, each on its own grid.
 
 Memory and time per non-zero were measured (peak resident memory with ``getrusage``, wall times)
 on the paper robot (3 balance joints, integral objective: 184, 231 and 298 MB at N = 100, 400,
@@ -44,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from balance_opt.optimal.collocation import Transcription
+from balance_opt.optimal.options import inner_intervals
 
 #: Bytes of memory per non-zero of the KKT matrix (measured: 355-406).
 BYTES_PER_NONZERO = 400
@@ -138,14 +140,21 @@ def _per_interval(options, limits) -> tuple[int, int, float]:
     return n_w, n_g, jacobian + hessian + n_w + n_g
 
 
+#: What makes a problem an inner stage's, for its size: no joint-limit rows between the points.
+_INNER = {"position_limits": False, "velocity_limits": False, "acceleration_limits": False}
+
+
 def _built(options) -> list:
-    """The options of every NLP a plan with ``options`` builds (see the module docstring)."""
+    """The options of every NLP a plan with ``options`` builds, each with its own intervals
+    (see the module docstring)."""
     free = {"path_attitude_bound": None, "terminal_attitude_bound": None}
     built = [options]
     if options.path_attitude_bound is not None:
         built.append(dataclasses.replace(options, objective="peak", **free))
-    if options.objective == "peak" or options.path_attitude_bound is not None:
-        built.append(dataclasses.replace(options, objective="integral", **free))
+    staged = options.objective == "peak" or options.path_attitude_bound is not None
+    inner = {**_INNER, "intervals": inner_intervals(options.intervals)}
+    if staged:  # the first stage
+        built.append(dataclasses.replace(options, objective="integral", **free, **inner))
     # a peak problem's path bound adds no rows: such a problem is the free one
     shapes = {
         (
@@ -156,14 +165,17 @@ def _built(options) -> list:
         for o in reversed(built)
     }
     out = list(shapes.values())
-    # the peak plan's smooth stage: the peak problem without the epigraph (the integral's size)
-    out += [dataclasses.replace(o, objective="integral") for o in out if o.objective == "peak"]
+    # the smooth stage: the peak problem without the epigraph (the integral's size), inner
+    if staged:
+        out.append(dataclasses.replace(options, objective="integral", **free, **inner))
     return out
 
 
 def _nonzeros_per_interval(options, limits) -> float:
-    """KKT non-zeros per interval of every NLP a plan with ``options`` builds."""
-    return sum(_per_interval(o, limits)[2] for o in _built(options))
+    """KKT non-zeros per interval of ``options`` of every NLP a plan with ``options`` builds
+    (an inner stage's on its coarser grid count in proportion)."""
+    N = options.intervals
+    return sum(_per_interval(o, limits)[2] * o.intervals / N for o in _built(options))
 
 
 def problem_size(options, limits) -> ProblemSize:

@@ -5,6 +5,9 @@ The motion (the analytic law's, the arm held at rest, or a given result's) is in
 the collocation points and clipped to the joint limits; the first node gets the initial state;
 the attitude rows follow the base rate that joint motion forces (integrated by the
 transcription's quadrature from ``phi = 0``).
+
+A point of the NLP on one grid is a guess on another (:func:`resampled`): the peak objective's
+inner stages solve on a coarser grid than the last (:mod:`balance_opt.optimal.refine`).
 """
 
 from __future__ import annotations
@@ -153,3 +156,44 @@ def attitude_along(problem: BalanceProblem, sol: Solution) -> None:
     sol.X[:3] = np.hstack([np.zeros((3, 1)), np.cumsum(step, axis=1)])
     if sol.Xm is not None:
         sol.Xm[:3] = 0.5 * (sol.X[:3, :-1] + sol.X[:3, 1:]) + h / 8.0 * (w0 - w1)
+
+
+def resampled(sol: Solution, N: int) -> Solution:
+    """The point ``sol`` of an NLP on another number of intervals ``N`` over the same horizon
+    (the same transcription; ``S`` is dropped): on each of its intervals, its states and its
+    controls are interpolated through the interval's points, by the quadratic through the
+    nodes and the midpoint (Hermite-Simpson) or linearly (trapezoidal). The quadratic is the
+    Hermite-Simpson control itself and within ``O(h^3)`` of its states: a guess, whose defects
+    Ipopt removes in its first iterations. Where the new grid's points are ``sol``'s (``N`` a
+    multiple of its intervals, or the same grid), they keep their values exactly."""
+    n = sol.X.shape[1] - 1
+    if n == N:
+        return Solution(sol.X.copy(), sol.U.copy(), _copy(sol.Xm), _copy(sol.Um))
+    has_midpoints = sol.Xm is not None
+    nodes = np.arange(N + 1) * (n / N)  # the new points in units of sol's intervals
+    taus = [nodes, nodes[:-1] + 0.5 * (n / N)] if has_midpoints else [nodes]
+    X, U = (
+        [_interpolate(a, am, tau) for tau in taus] for a, am in ((sol.X, sol.Xm), (sol.U, sol.Um))
+    )
+    return Solution(X[0], U[0], X[1] if has_midpoints else None, U[1] if has_midpoints else None)
+
+
+def _interpolate(a: np.ndarray, mid: np.ndarray | None, tau: np.ndarray) -> np.ndarray:
+    """Rows ``a`` at the nodes (and ``mid`` at the midpoints) of ``n`` unit intervals, at
+    ``tau`` in [0, n]: each interval's interpolating polynomial."""
+    n = a.shape[1] - 1
+    k = np.minimum(tau.astype(int), n - 1)
+    s = tau - k
+    a0, a1 = a[:, k], a[:, k + 1]
+    if mid is None:
+        return a0 + s * (a1 - a0)
+    # Lagrange basis of the nodes s = 0, 1 and the midpoint s = 1/2
+    return (
+        a0 * ((1.0 - s) * (1.0 - 2.0 * s))
+        + mid[:, k] * (4.0 * s * (1.0 - s))
+        + a1 * (s * (2.0 * s - 1.0))
+    )
+
+
+def _copy(a):
+    return None if a is None else a.copy()

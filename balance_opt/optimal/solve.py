@@ -33,13 +33,13 @@ from balance_opt.motion.so3 import (
 from balance_opt.optimal import ledger
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
-from balance_opt.optimal.guess import guess_solution
+from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
 from balance_opt.optimal.options import SUCCESS_STATUSES, PlannerOptions
 from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
-from balance_opt.optimal.refine import solve_with_bounds
+from balance_opt.optimal.refine import solve_with_bounds, stage_changes
 from balance_opt.optimal.starts import multi_start
 from balance_opt.result import BalanceResult
 
@@ -103,12 +103,21 @@ class BalanceNLP(BalanceProblem):
         self.lbx, self.ubx = self._variable_bounds()
         self.lbg, self.ubg = self._constraint_bounds()
 
-    def variant(self, stage: str | None = None, **changes) -> BalanceNLP:
-        """The same problem with other options (its bounds untightened), as an inner ``stage``
-        of the peak objective if given (see :func:`build_balance_nlp`)."""
+    def variant(
+        self, stage: str | None = None, between_points: bool = False, **changes
+    ) -> BalanceNLP:
+        """The same problem with other options (its bounds untightened), as a ``stage`` of the
+        peak objective if given (see :func:`build_balance_nlp`)."""
         options = dataclasses.replace(self.options, **changes)
         return build_balance_nlp(
-            self.model, self.mission, self.q_B0, options, self.robot, h0=self.h0, stage=stage
+            self.model,
+            self.mission,
+            self.q_B0,
+            options,
+            self.robot,
+            h0=self.h0,
+            stage=stage,
+            between_points=between_points,
         )
 
     @staticmethod
@@ -116,18 +125,19 @@ class BalanceNLP(BalanceProblem):
         """:func:`build_balance_nlp` (what a multi-start's worker processes call)."""
         return build_balance_nlp(*args, **kwargs)
 
-    def stage(self, name: str) -> BalanceNLP:
+    def stage(self, name: str, final: bool = False) -> BalanceNLP:
         """The same problem as an inner stage of the peak objective
-        (:func:`~balance_opt.optimal.refine.plan_peak`): ``"integral"``, the integral
-        objective's plan without attitude bounds, or ``"smooth"``, the smooth peak."""
-        if name == "integral":
-            return self.variant(
-                "integral",
-                objective="integral",
-                path_attitude_bound=None,
-                terminal_attitude_bound=None,
-            )
-        return self.variant(name)
+        (:func:`~balance_opt.optimal.refine.plan_peak`), on the inner stages' coarser grid and
+        without the rows between the points: ``"integral"``, the integral objective's plan
+        without attitude bounds, or ``"smooth"``, the smooth peak. With ``final`` the smooth
+        peak as a plan of its own (what a failed epigraph stage falls back on): on this
+        problem's grid, with the rows between the points."""
+        if final:
+            return self.variant(name, between_points=True)
+        key = self.structure.key
+        if key.objective == name and not key.between_points:
+            return self  # already that stage (as a multi-start's worker builds it)
+        return self.variant(name, **stage_changes(self.options, name))
 
     def solution_of(self, result: BalanceResult) -> Solution:
         """The NLP solution a result of this problem's structure was re-simulated from."""
@@ -193,11 +203,12 @@ class BalanceNLP(BalanceProblem):
     def initial_guess(self, guess="analytic") -> np.ndarray:
         """The decision vector to start from: ``"analytic"``, ``"rest"``, a
         :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution` (of a
-        structure with or without the peak's variable ``S``) or a decision vector
+        structure with or without the peak's variable ``S``, on any number of intervals) or a
+        decision vector
         (:mod:`balance_opt.optimal.guess`)."""
         if isinstance(guess, (str, BalanceResult, Solution)):
-            if isinstance(guess, Solution):
-                sol = dataclasses.replace(guess, S=None)
+            if isinstance(guess, Solution):  # of this grid or another (an inner stage's)
+                sol = resampled(guess, self.N)
             else:
                 sol = guess_solution(self, guess, self.unpack(self.lbx).X[3:, 0])
             if "S" in self.variables:  # the guess's own peak
@@ -279,7 +290,7 @@ class BalanceNLP(BalanceProblem):
         """What the progress line of an Ipopt solve starts with: the stage of the peak
         objective it solves (``integral``, ``smooth`` or ``peak``), if any."""
         key = self.structure.key
-        staged = key.objective == "peak" or not key.between_points  # inner stages go without
+        staged = key.objective != "integral" or not key.between_points  # inner stages go without
         return f"Ipopt (N = {self.N}{f', {key.objective} stage' if staged else ''})"
 
     def solve_stage(self, initial_guess) -> tuple[Solution, dict]:
@@ -304,6 +315,7 @@ class BalanceNLP(BalanceProblem):
         sol = self.unpack(np.array(out["x"]).ravel())
         X, _ = sol.points()
         return sol, {
+            "intervals": self.N,
             "status": str(stats.get("return_status", "unknown")),
             "iterations": int(stats.get("iter_count", 0)),
             "solve_s": wall,
@@ -381,6 +393,7 @@ def build_balance_nlp(
     robot: FloatingRobot | None = None,
     h0=None,
     stage: str | None = None,
+    between_points: bool = False,
 ) -> BalanceNLP:
     """Build the balance NLP of a mission.
 
@@ -400,9 +413,11 @@ def build_balance_nlp(
         h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
             [N s; N m s] (the base starts at the identity); ``None`` for zero. A parameter:
             every ``h0`` shares the compiled NLP.
-        stage: an inner stage of the peak objective (:mod:`balance_opt.optimal.refine`):
+        stage: a stage of the peak objective (:mod:`balance_opt.optimal.refine`):
             ``"smooth"`` (a structure no option names) or ``"integral"``; the stage's
-            structure has no joint-limit rows between the points (its plan is a warm start).
+            structure has no joint-limit rows between the points (its plan is a warm start)
+            unless ``between_points``.
+        between_points: with ``stage``, keep those rows (the smooth peak as a plan).
 
     Raises:
         InputError: sizes or options that do not fit the robot.
@@ -420,7 +435,7 @@ def build_balance_nlp(
     key = StructureKey.of(robot.limits.subset(robot.balance_indices), options, momentum)
     if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
         key = dataclasses.replace(
-            key, objective=stage, path_attitude_bound=False, between_points=False
+            key, objective=stage, path_attitude_bound=False, between_points=between_points
         )
     built_now = key not in model.nlp_cache
     if built_now:

@@ -88,29 +88,19 @@ def _run(nlp, guess, phase: str):
         return None, exc
 
 
-#: The options of the first stage's problem, as
-#: :meth:`~balance_opt.optimal.solve.BalanceNLP.stage` sets them for
-#: ``"integral"`` (:func:`~balance_opt.optimal.refine.integral_stage`): a worker builds that
-#: problem only (another set would cost one more build, not another plan).
-_FIRST_STAGE = {
-    "objective": "integral",
-    "path_attitude_bound": None,
-    "terminal_attitude_bound": None,
-}
-
-
 def _worker(build, model_robot, robot, mission, q_B0, options, h0, guess, phase):
     """:func:`_run` in a worker process (see the module docstring) on the problem ``build``
     (:func:`~balance_opt.optimal.solve.build_balance_nlp`, pickled by name) makes; an error
     comes back as ``(message, status)``: the planner's errors do not pickle. A first stage
     builds only the integral problem it solves."""
     from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.refine import stage_changes
 
     key = (model_robot.name, tuple(model_robot.joint_names))
     if key not in _WORKER_MODELS:
         _WORKER_MODELS[key] = PlannerModel(model_robot)
-    if phase == "first":
-        first = dataclasses.replace(options, **_FIRST_STAGE)
+    if phase == "first":  # the problem BalanceNLP.stage("integral") makes, built alone
+        first = dataclasses.replace(options, **stage_changes(options, "integral"))
         nlp = build(_WORKER_MODELS[key], mission, q_B0, first, robot, h0=h0, stage="integral")
         return _run(nlp, guess, phase)
     nlp = build(_WORKER_MODELS[key], mission, q_B0, options, robot, h0=h0)
