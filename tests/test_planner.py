@@ -757,3 +757,32 @@ def test_plan_optimal_shortcut(capture, model, in_plane):
         initial_guess="rest",
     )
     assert plan.method == "optimal" and plan.info["intervals"] == 10 and plan.violations == []
+
+
+@pytest.mark.parametrize(("variable", "threads"), [(None, 1), ("2", 2)])
+def test_ipopt_runs_with_one_blas_thread_unless_told(variable, threads):
+    """CasADi's OpenBLAS starts a thread per core; once a planner NLP is built it has one
+    (the second core is the worker processes'), unless OPENBLAS_NUM_THREADS sets it. In a fresh
+    process: the plugin loads its OpenBLAS only once."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "from balance_opt.optimal import blas\n"
+        "from balance_opt.app.scenarios import capture_task\n"
+        "from balance_opt.optimal.model import PlannerModel\n"
+        "from balance_opt.optimal.options import PlannerOptions\n"
+        "from balance_opt.optimal.solve import build_balance_nlp\n"
+        "cap = capture_task()\n"
+        "model = PlannerModel(cap.robot, compile=False)\n"
+        "build_balance_nlp(model, cap.mission, cap.q_B0, PlannerOptions(intervals=4))\n"
+        "print(blas.casadi_openblas().openblas_get_num_threads())\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if variable is not None:
+        env["OPENBLAS_NUM_THREADS"] = variable
+    out = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.split()[-1] == str(threads)

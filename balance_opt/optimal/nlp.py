@@ -31,6 +31,7 @@ import casadi as cs
 import numpy as np
 
 from balance_opt import progress
+from balance_opt.optimal import blas
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
     PEAK_POWER,
@@ -384,7 +385,7 @@ def _ipopt_solver(
     x = _Mapped.of(kernels, variables, parameters)
     y = cs.vec(kernels.value.map(x.n_points)(x.Z, *x.data))
     f, g = outer.value(x.w, y, x.p)
-    return cs.nlpsol(
+    solver = cs.nlpsol(
         "balance_nlp",
         "ipopt",
         {"x": x.w, "p": x.p, "f": f, "g": g},
@@ -401,3 +402,5 @@ def _ipopt_solver(
             **progress.nlpsol_options(x.w.numel(), n_g),
         },
     )
+    blas.one_thread_for_ipopt()  # the plugin, and its OpenBLAS, are loaded now
+    return solver
