@@ -54,7 +54,7 @@ def _no_violations(plan):
 
 def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(model, capture):
     """The integral and smooth stages only warm start the epigraph: they solve on a grid four
-    times coarser, and their structures have no joint-limit rows between the points (a third
+    times coarser (Hermite-Simpson), and their structures have no joint-limit rows between the points (a third
     of each iteration's cost); the epigraph's has them, and the bounds at the points are those
     of a plan on the inner grid. The smooth peak kept when the epigraph fails is on the plan's
     grid, with the rows."""
@@ -79,6 +79,10 @@ def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(mod
         assert on_inner_grid.lbx.size == n_w + 1
         np.testing.assert_array_equal(inner.lbx, on_inner_grid.lbx[:n_w])
         np.testing.assert_array_equal(inner.ubx, on_inner_grid.ubx[:n_w])
+    # the trapezoidal rule has half the points per interval: half the intervals
+    trapezoidal = PlannerOptions(intervals=40, transcription="trapezoidal")
+    trapezoidal = build_balance_nlp(model, capture.mission, capture.q_B0, trapezoidal)
+    assert trapezoidal.stage("integral").N == trapezoidal.stage("smooth").N == 20
     final = nlp.stage("smooth", final=True)
     assert final.N == 40 and final.structure.key.objective == "smooth"
     assert [b.name for b in final.constraints if b.name.endswith("limit between points")] == (

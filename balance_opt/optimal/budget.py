@@ -23,7 +23,7 @@ Those are counted per interval from the problem's structure (no CasADi needed):
 
 A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
 the peak objective is solved in stages (the integral objective's plan and the smooth peak on a
-grid four times coarser, :func:`~balance_opt.optimal.options.inner_intervals`, without the
+coarser grid, :func:`~balance_opt.optimal.options.inner_intervals`, without the
 rows between the points; then the epigraph), and a path attitude bound is approached through
 the peak problem without it; the estimate adds them up, each on its own grid.
 
@@ -152,7 +152,7 @@ def _built(options) -> list:
     if options.path_attitude_bound is not None:
         built.append(dataclasses.replace(options, objective="peak", **free))
     staged = options.objective == "peak" or options.path_attitude_bound is not None
-    inner = {**_INNER, "intervals": inner_intervals(options.intervals)}
+    inner = {**_INNER, "intervals": inner_intervals(options.intervals, options.transcription)}
     if staged:  # the first stage
         built.append(dataclasses.replace(options, objective="integral", **free, **inner))
     # a peak problem's path bound adds no rows: such a problem is the free one

@@ -51,19 +51,22 @@ PEAK_IPOPT = {"mu_init": 1e-3}
 #: 1e-6, cost the epigraph stage 310 iterations instead of 40.)
 SMOOTH_IPOPT = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "never-monotone-mode"}
 #: The peak objective's inner stages solve on a grid this many times coarser than the plan's
-#: (:func:`~balance_opt.optimal.refine.stage_changes`). Their plans are warm starts: what the epigraph stage needs from
-#: them is the drift's shape, which a quarter of the capture task's 100 intervals resolves (the
-#: epigraph stage then took 56, 74, 79 iterations at 10, 8, 12 s, against 58, 85, 63 from
-#: inner stages on the full grid, ending at the same peaks), at a fifth of the inner stages'
-#: time. Half the intervals took 59 iterations at 10 s for twice the inner stages' time.
-INNER_COARSENING = 4
+#: (:func:`~balance_opt.optimal.refine.stage_changes`), by transcription. Their plans are warm
+#: starts: what the epigraph stage needs from them is the drift's shape. On the capture task
+#: (N = 100), Hermite-Simpson on a quarter of the intervals: the epigraph stage took 56, 74, 79
+#: iterations at 10, 8, 12 s against 58, 85, 63 from inner stages on the full grid, to the same
+#: peaks, and the inner stages a fifth of their time (half the intervals: 59 iterations at
+#: 10 s, the inner stages twice as long); 271 against 217 iterations at 20 s, where every
+#: coarser grid took more. The trapezoidal rule has no midpoints, half the points per
+#: interval: on a quarter the epigraph took 144 iterations against 32, on half 53.
+INNER_COARSENING = {"hermite-simpson": 4, "trapezoidal": 2}
 #: Intervals of the inner stages' grid at least (the plan's own, if it has fewer).
 INNER_MIN_INTERVALS = 10
 
 
-def inner_intervals(N: int) -> int:
+def inner_intervals(N: int, transcription: str) -> int:
     """Intervals of the inner stages' grid for a plan of ``N`` intervals."""
-    return min(N, max(INNER_MIN_INTERVALS, -(-N // INNER_COARSENING)))
+    return min(N, max(INNER_MIN_INTERVALS, -(-N // INNER_COARSENING[transcription])))
 
 
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.

@@ -6,13 +6,13 @@ Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.Balan
 * **The peak objective** (:func:`plan_peak`) in three stages, each warm started from the
   last: the integral objective's plan, the smooth peak (an L16 norm of the drift, no
   inequality rows), the epigraph. The two inner stages' plans are only warm starts, so they
-  are solved more cheaply than the last: on a grid four times coarser
-  (:func:`~balance_opt.optimal.options.inner_intervals`), the smooth peak's plan interpolated onto the plan's grid
-  (:func:`~balance_opt.optimal.guess.resampled`), and with the joint limits held at the
-  collocation points only (no rows between them). On the capture task (N = 100) the coarse
-  grid took the inner stages from 1.6 s to 0.3 s, and the epigraph stage started from it
-  took 56 iterations against 58, to the same plan; without the rows an Ipopt iteration costs
-  about a quarter less.
+  are solved more cheaply than the last: on a grid four times coarser (twice with the
+  trapezoidal rule, :func:`~balance_opt.optimal.options.inner_intervals`), the smooth peak's
+  plan interpolated onto the plan's grid (:func:`~balance_opt.optimal.guess.resampled`), and
+  with the joint limits held at the collocation points only (no rows between them). On the
+  capture task (N = 100) the coarse grid took the inner stages from 1.6 s to 0.3 s, and the
+  epigraph stage started from it took 56 iterations against 58, to the same plan; without
+  the rows an Ipopt iteration costs about a quarter less.
 * **Bounds that converge** (:func:`solve_with_bounds`). A hard path attitude bound started
   from a guess that drifts three times too far stalls Ipopt. So the peak problem is solved
   first without the bound (its epigraph variable is the bound's elastic relaxation): its peak
@@ -61,7 +61,7 @@ def stage_changes(options, name: str) -> dict:
     """The option changes that make a problem with ``options`` the inner stage ``name``
     (``"integral"`` or ``"smooth"``) of :func:`plan_peak`: its grid, and for the integral
     stage the integral objective without attitude bounds."""
-    changes = {"intervals": inner_intervals(options.intervals)}
+    changes = {"intervals": inner_intervals(options.intervals, options.transcription)}
     if name == "integral":
         changes.update(objective="integral", path_attitude_bound=None, terminal_attitude_bound=None)
     return changes
