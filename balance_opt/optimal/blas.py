@@ -25,13 +25,18 @@ _done = False
 
 
 def casadi_openblas() -> ctypes.CDLL | None:
-    """CasADi's bundled OpenBLAS (the library the Ipopt plugin loaded), or ``None`` when the
-    wheel has none (another build of CasADi)."""
+    """The OpenBLAS that CasADi's Ipopt plugin loaded, or ``None`` when none is loaded (before
+    the first ``nlpsol``, or another build of CasADi). The wheel holds several copies of the
+    file under different names: opening one by its path could load a second, unused instance,
+    so it is looked up by name among the loaded libraries only (``RTLD_NOLOAD``)."""
     import casadi
 
+    mode = getattr(os, "RTLD_NOLOAD", 0) | getattr(os, "RTLD_LAZY", 0)
+    if not mode & getattr(os, "RTLD_NOLOAD", 0):
+        return None  # no way to find the loaded one without loading another
     for path in sorted(Path(casadi.__file__).parent.glob("libcasadi-tp-openblas*")):
         try:
-            lib = ctypes.CDLL(str(path))
+            lib = ctypes.CDLL(path.name, mode=mode)
             lib.openblas_get_num_threads  # noqa: B018 (raises AttributeError without it)
         except (OSError, AttributeError):
             continue
@@ -50,6 +55,6 @@ def one_thread_for_ipopt() -> None:
         return
     lib = casadi_openblas()
     if lib is None:
-        log.debug("no OpenBLAS in CasADi's folder: its threads are left alone")
+        log.debug("CasADi's Ipopt loaded no OpenBLAS of its own: its threads are left alone")
         return
     lib.openblas_set_num_threads(ctypes.c_int(1))
