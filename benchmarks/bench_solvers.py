@@ -4,8 +4,9 @@ licensed HSL library) and ``fatrop``, the structure-exploiting interior-point so
 with CasADi, given the problem's stage structure.
 
 Two problems of the default (peak) plan of the capture task: its first stage (the integral
-objective, from the analytic guess) and its last (the exact epigraph, from the smooth stage's
-plan, as the planner solves them). Every variant solves the same NLP from the same start:
+objective on the inner stages' coarser grid, a quarter of ``--intervals``, from the analytic
+guess) and its last (the exact epigraph, from the smooth stage's plan interpolated onto the
+plan's grid, as the planner solves them). Every variant solves the same NLP from the same start:
 
 * Ipopt runs on the planner's compiled NLP (``build_balance_nlp``, with the linear solver set
   through ``optimal.ipopt``);

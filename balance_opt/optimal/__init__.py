@@ -33,9 +33,9 @@ The modules, top down:
   and :class:`PlannerSolverError`. Every plan is re-simulated on a fine grid with numeric
   Pinocchio, and the returned result is that re-simulated motion.
 * :mod:`~balance_opt.optimal.refine`: the outer loop of :meth:`~BalanceNLP.solve`: the peak
-  problem in three stages (the integral plan, a smooth L16 peak, the epigraph), path attitude
-  bounds reached through the peak problem, bounds tightened until the re-simulated motion
-  meets them.
+  problem in three stages (the integral plan and a smooth L16 peak on a coarser grid, the
+  epigraph), path attitude bounds reached through the peak problem, bounds tightened until
+  the re-simulated motion meets them.
 * :mod:`~balance_opt.optimal.ledger`: the Ipopt work behind one plan (every solve's
   iterations and time, failed ones included), which the results and ``metrics.json`` report.
 * :mod:`~balance_opt.optimal.starts`: multi-start in this process and parallel worker
