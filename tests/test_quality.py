@@ -227,6 +227,33 @@ def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
     assert stages[2]["status"] == "Maximum_Iterations_Exceeded" and stages[2]["iterations"] > 0
     assert len(calls) == 4
     assert solver_metrics(plan.info)["iterations"] == sum(i for i, _ in calls)
+    # it is the smooth peak, priced at the inner stage's reference drift: stiller than the
+    # integral plan it started from (priced at 1 rad, it came out 8 % worse than that plan)
+    assert plan.max_drift < stages[0]["nlp_max_drift_rad"]
+    _no_violations(plan)
+    # a plan of the peak problem like any other: its solution carries the peak variable
+    assert nlp.solution_of(plan).S is not None
+
+
+@pytest.mark.slow
+def test_a_bound_is_met_when_the_free_peak_stage_fails(model, capture):
+    """A path bound goes through the free peak problem (refine.solve_with_bounds); when its
+    epigraph stage fails, the smooth peak stands in for it, and the bounded problem starts from
+    that plan."""
+    options = PlannerOptions(intervals=20, objective="integral", path_attitude_bound=0.05)
+    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
+    free = nlp.variant(objective="peak", path_attitude_bound=None, terminal_attitude_bound=None)
+    with _counted_solves(free, fail_first=free):
+        plan = nlp.solve()
+    assert [s["stage"] for s in plan.info["stages"]] == [
+        "integral",
+        "smooth",
+        "peak",
+        "smooth, re-simulated",
+        "bounded",
+    ]
+    assert plan.max_drift <= 0.05 * (1 + 1e-3)
+    _no_violations(plan)
 
 
 @pytest.mark.slow

@@ -6,7 +6,8 @@ to pay: with 7 + 7 joints (Baxter, peak objective, N = 100 and 200) two threads 
 wall time as one and twice the CPU (``OPENBLAS_NUM_THREADS=1`` against ``2`` with
 ``benchmarks/bench_scaling.py``), and the second core is where the figures' worker process and
 a multi-start's workers run. So once the plugin is loaded (the first ``nlpsol``), its OpenBLAS
-is set to one thread, unless ``OPENBLAS_NUM_THREADS`` says otherwise.
+is set to one thread, unless ``OPENBLAS_NUM_THREADS`` (or ``OMP_NUM_THREADS``, which OpenBLAS
+also reads) says otherwise.
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
-#: The environment variable that overrides the choice (OpenBLAS's own).
-THREADS_VARIABLE = "OPENBLAS_NUM_THREADS"
+#: The environment variables OpenBLAS reads its number of threads from: one set overrides
+#: the choice.
+THREADS_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
 
 _done = False
 
@@ -45,13 +47,13 @@ def casadi_openblas() -> ctypes.CDLL | None:
 
 
 def one_thread_for_ipopt() -> None:
-    """Set CasADi's OpenBLAS to one thread, once per process, unless
-    :data:`THREADS_VARIABLE` is set (see the module docstring)."""
+    """Set CasADi's OpenBLAS to one thread, once per process, unless one of
+    :data:`THREADS_VARIABLES` is set (see the module docstring)."""
     global _done
     if _done:
         return
     _done = True
-    if os.environ.get(THREADS_VARIABLE):
+    if any(os.environ.get(name) for name in THREADS_VARIABLES):
         return
     lib = casadi_openblas()
     if lib is None:

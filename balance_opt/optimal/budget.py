@@ -25,7 +25,9 @@ A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.op
 the peak objective is solved in stages (the integral objective's plan and the smooth peak on a
 coarser grid, :func:`~balance_opt.optimal.options.inner_intervals`, without the
 rows between the points; then the epigraph), and a path attitude bound is approached through
-the peak problem without it; the estimate adds them up, each on its own grid.
+the peak problem without it; the estimate adds them up, each on its own grid. (A failed
+epigraph stage builds one more, the smooth peak on the plan's grid, as large as the integral
+problem: it is not counted.)
 
 Memory and time per non-zero were measured (peak resident memory with ``getrusage``, wall times)
 on the paper robot (3 balance joints, integral objective: 184, 231 and 298 MB at N = 100, 400,

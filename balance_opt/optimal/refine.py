@@ -115,7 +115,7 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
         return result
     result = nlp.solve_once(free.solution_of(peak_plan))
     result.info["smallest_peak_rad"] = smallest
-    bounded = {"stage": "bounded", "status": result.info["status"]}
+    bounded = {"stage": "bounded", "intervals": nlp.N, "status": result.info["status"]}
     bounded["iterations"] = result.info["iterations"]
     bounded["solve_s"] = result.info["wall_time_s"]["solve"]
     result.info["stages"] = peak_plan.info.get("stages", []) + [bounded]
@@ -161,7 +161,7 @@ def plan_peak(nlp, guess) -> BalanceResult:
                 "solve_s": failed.get("wall_time_s", {}).get("solve", 0.0),
             }
         )
-        result = nlp.stage("smooth", final=True).solve_once(smooth_plan)
+        result = _smooth_plan(nlp, smooth, smooth_plan)
         stages.append(
             {
                 "stage": "smooth, re-simulated",
@@ -184,6 +184,19 @@ def plan_peak(nlp, guess) -> BalanceResult:
             }
         )
     result.info["stages"] = stages
+    return result
+
+
+def _smooth_plan(nlp, smooth, guess) -> BalanceResult:
+    """The smooth peak as the plan of the peak problem ``nlp`` (a failed epigraph stage's
+    fallback): solved on ``nlp``'s grid with the rows between the points, priced at the
+    reference drift of the inner ``smooth`` stage, from ``guess``. Its ``nlp_solution`` is
+    the peak problem's (with ``S``, the plan's own peak), as every later step expects."""
+    final = nlp.stage("smooth", final=True)
+    final.peak_reference = smooth.peak_reference
+    final.update_bounds()
+    result = final.solve_once(guess)
+    result.info["nlp_solution"] = nlp.initial_guess(final.solution_of(result)).tolist()
     return result
 
 
