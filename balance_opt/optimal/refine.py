@@ -115,9 +115,7 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
         return result
     result = nlp.solve_once(free.solution_of(peak_plan))
     result.info["smallest_peak_rad"] = smallest
-    bounded = {"stage": "bounded", "intervals": nlp.N, "status": result.info["status"]}
-    bounded["iterations"] = result.info["iterations"]
-    bounded["solve_s"] = result.info["wall_time_s"]["solve"]
+    bounded = _report("bounded", nlp, result.info)
     result.info["stages"] = peak_plan.info.get("stages", []) + [bounded]
     return refine(nlp, result)
 
@@ -152,39 +150,34 @@ def plan_peak(nlp, guess) -> BalanceResult:
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
         failed = exc.result.info if exc.result is not None else {}
-        stages.append(
-            {
-                "stage": "peak",
-                "intervals": nlp.N,
-                "status": str(exc.status),
-                "iterations": failed.get("iterations", 0),
-                "solve_s": failed.get("wall_time_s", {}).get("solve", 0.0),
-            }
-        )
+        stages.append(_report("peak", nlp, failed, status=str(exc.status)))
         result = _smooth_plan(nlp, smooth, smooth_plan)
-        stages.append(
-            {
-                "stage": "smooth, re-simulated",
-                "intervals": nlp.N,
-                "status": result.info["status"],
-                "iterations": result.info["iterations"],
-                "solve_s": result.info["wall_time_s"]["solve"],
-            }
-        )
+        stages.append(_report("smooth, re-simulated", nlp, result.info))
     else:
         stages.append(
-            {
-                "stage": "peak",
-                "intervals": nlp.N,
-                "status": result.info["status"],
-                "iterations": result.info["iterations"],
-                "solve_s": result.info["wall_time_s"]["solve"],
-                "max_drift_rad": result.max_drift,
-                "final_drift_rad": result.final_drift,
-            }
+            _report(
+                "peak",
+                nlp,
+                result.info,
+                max_drift_rad=result.max_drift,
+                final_drift_rad=result.final_drift,
+            )
         )
     result.info["stages"] = stages
     return result
+
+
+def _report(stage: str, nlp, info: dict, **more) -> dict:
+    """``info["stages"]``'s entry of a stage solved by ``nlp.solve_once`` from the ``info`` of
+    its result (a failure's may be empty): its grid, status, iterations and Ipopt's time."""
+    return {
+        "stage": stage,
+        "intervals": nlp.N,
+        "status": info.get("status", "unknown"),
+        "iterations": info.get("iterations", 0),
+        "solve_s": info.get("wall_time_s", {}).get("solve", 0.0),
+        **more,
+    }
 
 
 def _smooth_plan(nlp, smooth, guess) -> BalanceResult:
