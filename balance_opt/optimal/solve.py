@@ -204,8 +204,7 @@ class BalanceNLP(BalanceProblem):
         """The decision vector to start from: ``"analytic"``, ``"rest"``, a
         :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution` (of a
         structure with or without the peak's variable ``S``, on any number of intervals) or a
-        decision vector
-        (:mod:`balance_opt.optimal.guess`)."""
+        decision vector (:mod:`balance_opt.optimal.guess`)."""
         if isinstance(guess, (str, BalanceResult, Solution)):
             if isinstance(guess, Solution):  # of this grid or another (an inner stage's)
                 sol = resampled(guess, self.N)
