@@ -33,9 +33,9 @@ def casadi_openblas() -> ctypes.CDLL | None:
     so it is looked up by name among the loaded libraries only (``RTLD_NOLOAD``)."""
     import casadi
 
-    mode = getattr(os, "RTLD_NOLOAD", 0) | getattr(os, "RTLD_LAZY", 0)
-    if not mode & getattr(os, "RTLD_NOLOAD", 0):
+    if not hasattr(os, "RTLD_NOLOAD"):
         return None  # no way to find the loaded one without loading another
+    mode = os.RTLD_NOLOAD | os.RTLD_LAZY
     for path in sorted(Path(casadi.__file__).parent.glob("libcasadi-tp-openblas*")):
         try:
             lib = ctypes.CDLL(path.name, mode=mode)

@@ -150,7 +150,7 @@ def plan_peak(nlp, guess) -> BalanceResult:
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
         failed = exc.result.info if exc.result is not None else {}
-        stages.append(_report("peak", nlp, failed, status=str(exc.status)))
+        stages.append(_report("peak", nlp, failed, status=exc.status))
         result = _smooth_plan(nlp, smooth, smooth_plan)
         stages.append(_report("smooth, re-simulated", nlp, result.info))
     else:
@@ -167,13 +167,14 @@ def plan_peak(nlp, guess) -> BalanceResult:
     return result
 
 
-def _report(stage: str, nlp, info: dict, **more) -> dict:
+def _report(stage: str, nlp, info: dict, status=None, **more) -> dict:
     """``info["stages"]``'s entry of a stage solved by ``nlp.solve_once`` from the ``info`` of
-    its result (a failure's may be empty): its grid, status, iterations and Ipopt's time."""
+    its result (a failure's may be empty, its ``status`` given): its grid, status, iterations
+    and Ipopt's time."""
     return {
         "stage": stage,
         "intervals": nlp.N,
-        "status": info.get("status", "unknown"),
+        "status": str(status) if status is not None else info.get("status", "unknown"),
         "iterations": info.get("iterations", 0),
         "solve_s": info.get("wall_time_s", {}).get("solve", 0.0),
         **more,
