@@ -151,6 +151,9 @@ class BalanceResult(AttitudeHistory):
         violations: every joint-limit violation of the balance (and mission) joints.
         info: method-specific details (damping used, solver status and statistics, re-simulation
             report, ...), plain data only.
+        solver: for optimal plans, every Ipopt solve behind the plan
+            (:class:`~balance_opt.optimal.refine.PlanReport`: each stage's status, iterations,
+            time, objective and solution, and their totals); ``None`` for the other methods.
 
     Equality (``==``) compares the motion, not the record of how it was computed: two results
     are equal when their method, joint names, every array (exactly, NaN equal to NaN, shapes
@@ -175,6 +178,7 @@ class BalanceResult(AttitudeHistory):
     sigma_min: np.ndarray
     violations: list[LimitViolation] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
+    solver: Any = field(default=None, repr=False)
 
     @classmethod
     def from_arm_vectors(
@@ -250,7 +254,7 @@ class BalanceResult(AttitudeHistory):
         if not isinstance(other, BalanceResult):
             return NotImplemented
         for f in fields(self):
-            if f.name == "info":
+            if f.name in ("info", "solver"):
                 continue
             a, b = getattr(self, f.name), getattr(other, f.name)
             if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):

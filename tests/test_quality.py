@@ -287,6 +287,24 @@ def test_torque_limits_hold_between_the_collocation_points(model, capture):
 
 
 @pytest.mark.slow
+def test_a_problem_solved_twice_gives_the_same_plan(model, capture):
+    """The refinement tightens the torque bounds of a new problem, never of the one solved: a
+    second solve of it starts from the untightened bounds and repeats the first's rounds."""
+    limits = {j: {"acceleration": 2.0, "effort": e} for j, e in zip(BALANCE, (1.5, 1.5, 0.5))}
+    options = PlannerOptions(intervals=20, objective="integral", torque_limits=True)
+    nlp = build_balance_nlp(
+        model, capture.mission, capture.q_B0, options, robot=paper_robot(limits=limits)
+    )
+    first, second = nlp.solve(), nlp.solve()
+    assert first.info["refinement"]["rounds"] >= 1
+    assert np.all(nlp.torque_factor == 1.0)
+    assert second.info["refinement"]["rounds"] == first.info["refinement"]["rounds"]
+    assert second.info["refinement"]["tightened"] == first.info["refinement"]["tightened"]
+    assert second == first  # the same motion, bit for bit
+    assert len(second.solver.solves) == 1 + first.info["refinement"]["rounds"]
+
+
+@pytest.mark.slow
 def test_multi_start_keeps_the_best_and_reports_the_spread(model, capture):
     options = PlannerOptions(intervals=20, objective="integral", starts=3, seed=1)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()

@@ -48,7 +48,7 @@ from balance_opt.optimal.layout import (
     VariableLayout,
 )
 from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
-from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_IPOPT, SMOOTH_IPOPT, PlannerOptions
+from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_STAGES, PlannerOptions
 
 log = logging.getLogger(__name__)
 
@@ -367,7 +367,7 @@ def ipopt_options_for(objective: str, options: PlannerOptions) -> dict:
     then the user's ``optimal.ipopt``."""
     ipopt = dict(DEFAULT_IPOPT)
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
-    ipopt.update({"peak": PEAK_IPOPT, "smooth": SMOOTH_IPOPT}.get(objective, {}))
+    ipopt.update(next((dict(s.ipopt) for s in PEAK_STAGES if s.name == objective), {}))
     ipopt.update(options.ipopt)
     return ipopt
 

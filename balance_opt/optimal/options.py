@@ -64,9 +64,45 @@ INNER_COARSENING = {"hermite-simpson": 4, "trapezoidal": 2}
 INNER_MIN_INTERVALS = 10
 
 
+@dataclass(frozen=True)
+class Stage:
+    """One stage of the peak objective (:func:`~balance_opt.optimal.refine.plan_peak`).
+
+    Attributes:
+        name: the stage, also its structure's objective: ``"integral"`` (the integral
+            objective's plan, without attitude bounds), ``"smooth"`` (the drift's L16 norm),
+            ``"peak"`` (the epigraph).
+        coarse: on the inner grid (:data:`INNER_COARSENING`) rather than the plan's.
+        between_points: with the joint-limit rows between the collocation points (an inner
+            stage's plan is only a warm start: without them an iteration costs a third less).
+        ipopt: its Ipopt options over :data:`DEFAULT_IPOPT`.
+    """
+
+    name: str
+    coarse: bool
+    between_points: bool
+    ipopt: tuple[tuple[str, object], ...] = ()
+
+    def intervals(self, N: int, transcription: str) -> int:
+        """The stage's intervals for a plan of ``N`` intervals."""
+        if not self.coarse:
+            return N
+        return min(N, max(INNER_MIN_INTERVALS, -(-N // INNER_COARSENING[transcription])))
+
+
+#: The stages of the peak objective, in order, each warm started from the last.
+PEAK_STAGES = (
+    Stage("integral", True, False),
+    Stage("smooth", True, False, tuple(SMOOTH_IPOPT.items())),
+    Stage("peak", False, True, tuple(PEAK_IPOPT.items())),
+)
+#: What a failed epigraph stage falls back on: the smooth peak as a plan of its own.
+SMOOTH_PLAN = Stage("smooth", False, True, tuple(SMOOTH_IPOPT.items()))
+
+
 def inner_intervals(N: int, transcription: str) -> int:
     """Intervals of the inner stages' grid for a plan of ``N`` intervals."""
-    return min(N, max(INNER_MIN_INTERVALS, -(-N // INNER_COARSENING[transcription])))
+    return PEAK_STAGES[0].intervals(N, transcription)
 
 
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.

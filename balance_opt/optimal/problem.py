@@ -8,6 +8,8 @@ built for; :class:`~balance_opt.optimal.solve.BalanceNLP` is a problem with its 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
@@ -98,6 +100,31 @@ def momentum_of(h0) -> np.ndarray:
     return h0
 
 
+@dataclass(frozen=True)
+class Bounds:
+    """The numbers of a problem's NLP that its solve lowers or sets, never in place: the
+    refinement (:mod:`balance_opt.optimal.refine`) makes a new problem with new bounds
+    (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`), so a problem solved twice
+    gives the same plan twice.
+
+    Attributes:
+        path: the path attitude bound the NLP enforces at the points [rad] (``None``: none).
+        terminal: the same for the terminal attitude bound.
+        torque_factor: factor on the effort limits at each point (n_B, n_points), read-only.
+        peak_reference: the drift ``c`` of the smooth peak stage [rad].
+    """
+
+    path: float | None
+    terminal: float | None
+    torque_factor: np.ndarray
+    peak_reference: float = 1.0
+
+    def __post_init__(self):
+        factor = np.array(self.torque_factor, dtype=float)
+        factor.flags.writeable = False
+        object.__setattr__(self, "torque_factor", factor)
+
+
 class BalanceProblem:
     """The numeric data of one balance planning problem.
 
@@ -118,12 +145,9 @@ class BalanceProblem:
         mission_samples: each point's data ``[q_M; q_dot_M; q_ddot_M; h0]`` (n_m, n_points).
         q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
         limits: the balance joints' limits.
-        path_bound: the path attitude bound the NLP enforces at the points [rad]
-            (``options.path_attitude_bound``, lowered by the refinement).
-        terminal_bound: the same for the terminal attitude bound.
-        torque_factor: factor on the effort limits at each point (n_B, n_points), 1 but where
-            the refinement tightened them.
-        peak_reference: the drift ``c`` of the smooth peak stage [rad].
+        bounds: the :class:`Bounds` its NLP enforces (``path_bound``, ``terminal_bound``,
+            ``torque_factor``, ``peak_reference`` read them): the options' until the
+            refinement makes a new problem with lower ones.
         balance_joints: their names.
     """
 
@@ -157,13 +181,28 @@ class BalanceProblem:
             q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
         )
         self.limits = self.robot.limits.subset(self.robot.balance_indices)
-        # the bounds the refinement tightens (balance_opt.optimal.refine)
-        self.path_bound = options.path_attitude_bound
-        self.terminal_bound = options.terminal_attitude_bound
-        self.torque_factor = np.ones((model.n_B, self.point_times.size))
-        # the smooth peak's reference drift c [rad] (its stage only, refine.plan_peak)
-        self.peak_reference = 1.0
+        self.bounds = Bounds(
+            options.path_attitude_bound,
+            options.terminal_attitude_bound,
+            np.ones((model.n_B, self.point_times.size)),
+        )
         self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
+
+    @property
+    def path_bound(self) -> float | None:
+        return self.bounds.path
+
+    @property
+    def terminal_bound(self) -> float | None:
+        return self.bounds.terminal
+
+    @property
+    def torque_factor(self) -> np.ndarray:
+        return self.bounds.torque_factor
+
+    @property
+    def peak_reference(self) -> float:
+        return self.bounds.peak_reference
 
 
 class PlannerSolverError(SolverError):

@@ -32,14 +32,14 @@ Several starts are :mod:`balance_opt.optimal.starts`.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from balance_opt.errors import SolverError
-from balance_opt.optimal import ledger
 from balance_opt.optimal.constraints import TorqueLimit
-from balance_opt.optimal.options import SUCCESS_STATUSES, inner_intervals
+from balance_opt.optimal.layout import Solution
+from balance_opt.optimal.options import PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError
 from balance_opt.result import BalanceResult
 
@@ -57,33 +57,120 @@ MAX_ROUNDS = 6
 BOUND_MARGIN = 1e-3
 
 
-def stage_changes(options, name: str) -> dict:
-    """The option changes that make a problem with ``options`` the inner stage ``name``
-    (``"integral"`` or ``"smooth"``) of :func:`plan_peak`: its grid, and for the integral
-    stage the integral objective without attitude bounds."""
-    changes = {"intervals": inner_intervals(options.intervals, options.transcription)}
-    if name == "integral":
-        changes.update(objective="integral", path_attitude_bound=None, terminal_attitude_bound=None)
-    return changes
+@dataclass(frozen=True)
+class SolveReport:
+    """One Ipopt solve.
+
+    Attributes:
+        stage: the objective of the structure solved (``"integral"``, ``"smooth"``, ``"peak"``).
+        intervals: its grid's ``N``.
+        status: Ipopt's return status.
+        iterations: Ipopt's iterations.
+        solve_s: Ipopt's wall time [s].
+        objective: the objective's value at the solution.
+        solution: the solution (the warm start of what follows it).
+    """
+
+    stage: str
+    intervals: int
+    status: str
+    iterations: int
+    solve_s: float
+    objective: float
+    solution: Solution
+
+    @property
+    def success(self) -> bool:
+        return self.status in SUCCESS_STATUSES
+
+    def entry(self, stage: str | None = None, **more) -> dict:
+        """Its entry of ``info["stages"]`` (``metrics.json``'s ``details.stages``)."""
+        return {
+            "stage": stage or self.stage,
+            "intervals": self.intervals,
+            "status": self.status,
+            "iterations": self.iterations,
+            "solve_s": self.solve_s,
+            **more,
+        }
+
+    def inner_entry(self) -> dict:
+        """The entry of an inner stage: with its largest and final drift at the points [rad]."""
+        X, _ = self.solution.points()
+        return self.entry(
+            nlp_max_drift_rad=float(np.linalg.norm(X[:3], axis=0).max()),
+            nlp_final_drift_rad=float(np.linalg.norm(self.solution.X[:3, -1])),
+        )
+
+
+@dataclass(frozen=True)
+class PlanReport:
+    """Every Ipopt solve behind a plan (``BalanceResult.solver``), in order: the stages, the
+    bounded problem, the refinement's rounds, failed ones included.
+
+    Attributes:
+        solves: their reports.
+        solution: the plan's NLP solution (default: the last solve's).
+    """
+
+    solves: tuple[SolveReport, ...]
+    solution: Solution | None = None
+
+    def __post_init__(self):
+        if self.solution is None and self.solves:
+            object.__setattr__(self, "solution", self.solves[-1].solution)
+
+    @property
+    def iterations(self) -> int:
+        """Ipopt's iterations, all solves."""
+        return sum(s.iterations for s in self.solves)
+
+    @property
+    def solve_s(self) -> float:
+        """Ipopt's wall time, all solves [s]."""
+        return sum(s.solve_s for s in self.solves)
+
+    def after(self, done: tuple[SolveReport, ...]) -> PlanReport:
+        """This report with the solves ``done`` before it."""
+        return PlanReport(tuple(done) + self.solves, self.solution)
+
+
+def _solve_once(nlp, guess, done=()) -> BalanceResult:
+    """``nlp.solve_once(guess)``, its plan's (or its failure's) report counting the solves
+    ``done`` before it."""
+    try:
+        result = nlp.solve_once(guess)
+    except SolverError as exc:
+        if getattr(exc.result, "solver", None) is not None:
+            exc.result.solver = exc.result.solver.after(done)
+        raise
+    result.solver = result.solver.after(done)
+    return result
+
+
+def _stamp(result: BalanceResult) -> None:
+    """The totals of every solve behind ``result`` into its ``info`` (``metrics.json``'s
+    ``solver.iterations`` and ``solver.solve_time_s``)."""
+    result.info["total_iterations"] = result.solver.iterations
+    result.info["total_solve_time_s"] = result.solver.solve_s
 
 
 def solve_with_bounds(nlp, guess) -> BalanceResult:
     """Solve a problem whose path attitude bound may stall Ipopt (see the module docstring),
     then :func:`refine`. The plan, or the result a failure carries, holds the totals of every
-    Ipopt solve behind it (:mod:`balance_opt.optimal.ledger`).
+    Ipopt solve behind it.
 
     Raises:
         PlannerSolverError: the bound is below the smallest peak found (its message states
             it), or Ipopt failed.
     """
-    with ledger.ledger() as work:
-        try:
-            result = _solve_with_bounds(nlp, guess)
-        except SolverError as exc:
-            if exc.result is not None:
-                ledger.stamp(exc.result.info, work)
-            raise
-    ledger.stamp(result.info, work)
+    try:
+        result = _solve_with_bounds(nlp, guess)
+    except SolverError as exc:
+        if getattr(exc.result, "solver", None) is not None:
+            _stamp(exc.result)
+        raise
+    _stamp(result)
     return result
 
 
@@ -113,93 +200,97 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
         result = peak_plan
         result.info["refinement"] = {"rounds": 0, "tightened": [], "iterations": 0, "solve_s": 0.0}
         return result
-    result = nlp.solve_once(free.solution_of(peak_plan))
+    result = _solve_once(nlp, peak_plan.solver.solution, peak_plan.solver.solves)
     result.info["smallest_peak_rad"] = smallest
-    bounded = _report("bounded", nlp, result.info)
+    bounded = result.solver.solves[-1].entry("bounded")
     result.info["stages"] = peak_plan.info.get("stages", []) + [bounded]
     return refine(nlp, result)
 
 
 def plan_peak(nlp, guess) -> BalanceResult:
-    """Solve a peak problem in stages, each warm started from the last: the integral
-    objective's plan, the smooth peak (the ``smooth`` stage: the drift's L_16 norm, without
-    the epigraph's inequality rows, priced like the peak at the start's peak ``c``), then the
-    exact epigraph. From the integral plan of the paper task the epigraph alone took 579
-    Ipopt iterations; from the smooth peak's plan about 40. The inner stages run on a coarser
-    grid (:func:`stage_changes`) and are not re-simulated. Should the epigraph stage fail,
-    the smooth peak is solved on the plan's grid from the inner stage's plan and kept (with
-    a warning). ``info["stages"]`` reports each stage's status, iterations, intervals and
-    drifts."""
-    # the first stage: done by a multi-start, or here
-    if isinstance(guess, IntegralStart):  # solved outside this plan's ledger
-        first = guess
-        ledger.record(first.report.get("iterations", 0), first.report.get("solve_s", 0.0))
-    else:
-        first = integral_stage(nlp, guess)
-    stages, guess = [dict(first.report)], first.following
-    smooth = nlp.stage("smooth")
-    # its reference drift: the start's peak (the smooth term then weighs like the peak's)
-    X, _ = smooth.unpack(smooth.initial_guess(guess)).points()
-    smooth.peak_reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
-    smooth.update_bounds()
-    guess = smooth_plan = _stage(smooth, guess, "smooth", stages)
+    """Solve a peak problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES`,
+    each warm started from the last: the integral objective's plan, the smooth peak (the
+    drift's L_16 norm, without the epigraph's inequality rows, priced like the peak at the
+    start's peak ``c``), then the exact epigraph. From the integral plan of the paper task the
+    epigraph alone took 579 Ipopt iterations; from the smooth peak's plan about 40. The inner
+    stages run on a coarser grid and are not re-simulated; a failed one hands its own guess on.
+    Should the epigraph stage fail, the smooth peak is solved on the plan's grid from the inner
+    stage's plan and kept (with a warning, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`).
+    ``info["stages"]`` reports each stage's status, iterations, intervals and drifts.
+
+    Args:
+        guess: the first stage's guess, or its outcome (an :class:`IntegralStart`, done by a
+            multi-start).
+    """
+    *inner, last = PEAK_STAGES
+    done: list[SolveReport] = []
+    stage_nlp = None
+    for stage in inner:
+        if isinstance(guess, IntegralStart):  # the first stage, done by a multi-start
+            report, guess = guess.report, guess.following
+        else:
+            stage_nlp = nlp.at_stage(stage)
+            if stage.name == "smooth":  # its reference drift: the start's peak (the smooth
+                # term then weighs like the peak's)
+                X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
+                reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
+                stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
+            elif isinstance(guess, np.ndarray):  # a decision vector of this problem
+                guess = nlp.unpack(nlp.initial_guess(guess))
+            report = stage_nlp.solve_stage(guess)
+            if report.success:
+                guess = report.solution
+            else:
+                log.info("%s stage ended with %s; the next one starts from its guess", stage.name, report.status)
+        done.append(report)
+    stages = [r.inner_entry() for r in done]
     try:
-        result = nlp.solve_once(guess)
+        result = _solve_once(nlp.at_stage(last), guess, tuple(done))
     except SolverError as exc:
-        if stages[-1]["status"] not in SUCCESS_STATUSES:
+        if not done[-1].success:
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
-        failed = exc.result.info if exc.result is not None else {}
-        stages.append(_report("peak", nlp, failed, status=exc.status))
-        result = _smooth_plan(nlp, smooth, smooth_plan)
-        stages.append(_report("smooth, re-simulated", nlp, result.info))
+        failed = getattr(exc.result, "solver", None)
+        failed = failed.solves[len(done):] if failed is not None else ()
+        stages.append(
+            failed[-1].entry(status=exc.status) if failed else {**_empty("peak", nlp), "status": str(exc.status)}
+        )
+        result = _smooth_plan(nlp, stage_nlp, guess, tuple(done) + tuple(failed))
+        stages.append(result.solver.solves[-1].entry("smooth, re-simulated"))
     else:
         stages.append(
-            _report(
-                "peak",
-                nlp,
-                result.info,
-                max_drift_rad=result.max_drift,
-                final_drift_rad=result.final_drift,
+            result.solver.solves[-1].entry(
+                max_drift_rad=result.max_drift, final_drift_rad=result.final_drift
             )
         )
     result.info["stages"] = stages
     return result
 
 
-def _report(stage: str, nlp, info: dict, status=None, **more) -> dict:
-    """``info["stages"]``'s entry of a stage solved by ``nlp.solve_once`` from the ``info`` of
-    its result (a failure's may be empty, its ``status`` given): its grid, status, iterations
-    and Ipopt's time."""
-    return {
-        "stage": stage,
-        "intervals": nlp.N,
-        "status": str(status) if status is not None else info.get("status", "unknown"),
-        "iterations": info.get("iterations", 0),
-        "solve_s": info.get("wall_time_s", {}).get("solve", 0.0),
-        **more,
-    }
+def _empty(stage: str, nlp) -> dict:
+    """The entry of a stage that failed before Ipopt reported on it."""
+    return {"stage": stage, "intervals": nlp.N, "status": "unknown", "iterations": 0, "solve_s": 0.0}
 
 
-def _smooth_plan(nlp, smooth, guess) -> BalanceResult:
+def _smooth_plan(nlp, smooth, guess, done) -> BalanceResult:
     """The smooth peak as the plan of the peak problem ``nlp`` (a failed epigraph stage's
     fallback): solved on ``nlp``'s grid with the rows between the points, priced at the
-    reference drift of the inner ``smooth`` stage, from ``guess``. Its ``nlp_solution`` is
-    the peak problem's (with ``S``, the plan's own peak), as every later step expects."""
-    final = nlp.stage("smooth", final=True)
-    final.peak_reference = smooth.peak_reference
-    final.update_bounds()
-    result = final.solve_once(guess)
-    result.info["nlp_solution"] = nlp.initial_guess(final.solution_of(result)).tolist()
+    reference drift of the inner ``smooth`` stage, from ``guess``. Its solution is the peak
+    problem's (with ``S``, the plan's own peak), as every later step expects."""
+    final = nlp.at_stage(SMOOTH_PLAN).with_bounds(peak_reference=smooth.peak_reference)
+    result = _solve_once(final, guess, done)
+    w = nlp.initial_guess(result.solver.solution)
+    result.solver = replace(result.solver, solution=nlp.unpack(w))
+    result.info["nlp_solution"] = w.tolist()
     return result
 
 
-@dataclass
+@dataclass(frozen=True)
 class IntegralStart:
     """The first stage of :func:`plan_peak`, done: its report and the next stage's guess (the
     integral plan, or the original guess when the stage failed)."""
 
-    report: dict
+    report: SolveReport
     following: object
 
 
@@ -208,90 +299,75 @@ def integral_stage(nlp, guess) -> IntegralStart:
     plan, without bounds, from ``guess``."""
     if isinstance(guess, np.ndarray):  # a decision vector of this problem
         guess = nlp.unpack(nlp.initial_guess(guess))
-    integral = nlp.stage("integral")
-    stages = []
-    following = _stage(integral, guess, "integral", stages)
-    return IntegralStart(stages[0], following)
-
-
-def _stage(nlp, guess, name: str, stages: list):
-    """Solve one inner stage of :func:`plan_peak` from ``guess``; returns the next stage's
-    guess: the solution, or ``guess`` itself when the stage failed."""
-    sol, report = nlp.solve_stage(guess)
-    stages.append({"stage": name, **report})
-    if report["status"] in SUCCESS_STATUSES:
-        return sol
-    log.info("%s stage ended with %s; the next stage starts from its guess", name, report)
-    return guess
+    report = nlp.at_stage(PEAK_STAGES[0]).solve_stage(guess)
+    return IntegralStart(report, report.solution if report.success else guess)
 
 
 def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
     warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
-    ``info["refinement"]`` lists what was tightened in each round."""
-    rounds, iterations, seconds, stages = [], 0, 0.0, result.info.get("stages")
+    Each round solves a new problem (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`):
+    ``nlp`` is left as it was. ``info["refinement"]`` lists what was tightened in each round."""
+    rounds, stages, before = [], result.info.get("stages"), len(result.solver.solves)
     for _ in range(MAX_ROUNDS):
-        tightened = _tighten(nlp, result)
+        changes, tightened = _tighten(nlp, result)
         if not tightened:
             break
         rounds.append(tightened)
         log.info("refinement: %s", "; ".join(tightened))
-        nlp.update_bounds()
-        result = nlp.solve_once(nlp.unpack(np.array(result.info["nlp_solution"])))
-        iterations += result.info["iterations"]
-        seconds += result.info["wall_time_s"]["solve"]
+        nlp = nlp.with_bounds(**changes)
+        result = _solve_once(nlp, result.solver.solution, result.solver.solves)
     else:
-        if _tighten(nlp, result, dry=True):
+        if _tighten(nlp, result)[1]:
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
+    extra = result.solver.solves[before:]
     result.info["refinement"] = {
         "rounds": len(rounds),
         "tightened": rounds,
-        "iterations": iterations,
-        "solve_s": seconds,
+        "iterations": sum(s.iterations for s in extra),
+        "solve_s": sum(s.solve_s for s in extra),
     }
     if stages is not None:
         result.info["stages"] = stages
     return result
 
 
-def _tighten(nlp, result: BalanceResult, dry: bool = False) -> list[str]:
-    """Lower the bounds the re-simulated ``result`` breaks beyond tolerance (unless ``dry``);
-    returns what it lowered, in words."""
-    out = []
+def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
+    """The lower bounds (changes of :class:`~balance_opt.optimal.problem.Bounds`) where the
+    re-simulated ``result`` breaks them beyond tolerance, and what they lower, in words."""
+    changes, out = {}, []
     if nlp.structure.key.torque_limits:
-        out += _tighten_torques(nlp, result, dry)
-    for name, bound, value in (
-        ("path_bound", nlp.options.path_attitude_bound, result.max_drift),
-        ("terminal_bound", nlp.options.terminal_attitude_bound, result.final_drift),
+        factor, words = _tighten_torques(nlp, result)
+        if words:
+            changes["torque_factor"], out = factor, words
+    for field, bound, value in (
+        ("path", nlp.options.path_attitude_bound, result.max_drift),
+        ("terminal", nlp.options.terminal_attitude_bound, result.final_drift),
     ):
         if bound is not None and value > bound * (1.0 + ATTITUDE_TOLERANCE):
-            current = getattr(nlp, name)
-            if not dry:
-                setattr(nlp, name, current * bound / value * (1.0 - ATTITUDE_TOLERANCE / 2))
-            out.append(f"{name.replace('_', ' ')} {current:.6g} -> {getattr(nlp, name):.6g} rad")
-    return out
+            current = getattr(nlp.bounds, field)
+            changes[field] = current * bound / value * (1.0 - ATTITUDE_TOLERANCE / 2)
+            out.append(f"{field} bound {current:.6g} -> {changes[field]:.6g} rad")
+    return changes, out
 
 
-def _tighten_torques(nlp, result: BalanceResult, dry: bool) -> list[str]:
-    """Scale the effort bounds of the points of every interval where a torque exceeds its limit
-    by more than :data:`TORQUE_TOLERANCE` by ``limit / peak`` there."""
+def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]:
+    """The effort factors with the points of every interval where a torque exceeds its limit
+    by more than :data:`TORQUE_TOLERANCE` scaled by ``limit / peak`` there."""
     effort = nlp.limits.effort
     ratio = np.abs(TorqueLimit.torques(nlp, result)) / effort  # (T, n_B), inf effort -> 0
     if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE:
-        return []
+        return nlp.torque_factor, []
     N = nlp.N
     interval = np.minimum((result.t / nlp.h).astype(int), N - 1)
     per_interval = np.zeros((N, nlp.model.n_B))
     np.maximum.at(per_interval, interval, ratio)
     broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
-    if not dry:
-        scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
-        mids = nlp.transcription.has_midpoints
-        for k in np.flatnonzero(broken.any(axis=1)):
-            columns = [k, k + 1] + ([N + 1 + k] if mids else [])
-            for c in columns:
-                nlp.torque_factor[:, c] = np.minimum(
-                    nlp.torque_factor[:, c], nlp.torque_factor[:, c] * scale[k]
-                )
+    scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
+    factor = np.array(nlp.torque_factor)
+    mids = nlp.transcription.has_midpoints
+    for k in np.flatnonzero(broken.any(axis=1)):
+        for c in [k, k + 1] + ([N + 1 + k] if mids else []):
+            factor[:, c] = np.minimum(factor[:, c], factor[:, c] * scale[k])
     worst = float(ratio.max() - 1.0)
-    return [f"torque bounds on {int(broken.any(axis=1).sum())} intervals (worst +{worst:.2%})"]
+    return factor, [f"torque bounds on {int(broken.any(axis=1).sum())} intervals (worst +{worst:.2%})"]

@@ -12,6 +12,7 @@ and re-simulates the solution (:func:`resimulate`): the returned
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import math
@@ -30,16 +31,21 @@ from balance_opt.motion.so3 import (
     quaternion_multiply,
     rotation_angle,
 )
-from balance_opt.optimal import ledger
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
-from balance_opt.optimal.options import SUCCESS_STATUSES, PlannerOptions
+from balance_opt.optimal.options import (
+    PEAK_STAGES,
+    SMOOTH_PLAN,
+    SUCCESS_STATUSES,
+    PlannerOptions,
+    Stage,
+)
 from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
-from balance_opt.optimal.refine import solve_with_bounds, stage_changes
+from balance_opt.optimal.refine import PlanReport, SolveReport, solve_with_bounds
 from balance_opt.optimal.starts import multi_start
 from balance_opt.result import BalanceResult
 
@@ -76,11 +82,18 @@ class BalanceNLP(BalanceProblem):
         self.structure = structure
         self.setup_time = setup_time
         self.build_time = build_time
-        self.update_bounds()
+        self._set_bounds()
 
-    def update_bounds(self) -> None:
-        """Set the parameter vector and the bounds from the problem's (possibly tightened)
-        bounds: ``path_bound``, ``terminal_bound``, ``torque_factor``."""
+    def with_bounds(self, **changes) -> BalanceNLP:
+        """The same problem with other :class:`~balance_opt.optimal.problem.Bounds` (fields
+        ``path``, ``terminal``, ``torque_factor``, ``peak_reference``); this one is unchanged."""
+        new = copy.copy(self)
+        new.bounds = dataclasses.replace(self.bounds, **changes)
+        new._set_bounds()
+        return new
+
+    def _set_bounds(self) -> None:
+        """Set the parameter vector and the bounds from :attr:`bounds`."""
         weights = self.options.weights
         peak = self.structure.key.objective in ("peak", "smooth")
         smooth = self.structure.key.objective == "smooth"
@@ -125,23 +138,27 @@ class BalanceNLP(BalanceProblem):
         """:func:`build_balance_nlp` (what a multi-start's worker processes call)."""
         return build_balance_nlp(*args, **kwargs)
 
-    def stage(self, name: str, final: bool = False) -> BalanceNLP:
-        """The same problem as an inner stage of the peak objective
-        (:func:`~balance_opt.optimal.refine.plan_peak`), on the inner stages' coarser grid and
-        without the rows between the points: ``"integral"``, the integral objective's plan
-        without attitude bounds, or ``"smooth"``, the smooth peak. With ``final`` the smooth
-        peak as a plan of its own (what a failed epigraph stage falls back on): on this
-        problem's grid, with the rows between the points."""
-        if final:
-            return self.variant(name, between_points=True)
+    def at_stage(self, stage: Stage) -> BalanceNLP:
+        """The same problem as a :class:`~balance_opt.optimal.options.Stage` of the peak
+        objective (:data:`~balance_opt.optimal.options.PEAK_STAGES`, or
+        :data:`~balance_opt.optimal.options.SMOOTH_PLAN`): its objective, grid and rows; the
+        integral stage without attitude bounds. Itself when it is that stage already."""
         key = self.structure.key
-        if key.objective == name and not key.between_points:
-            return self  # already that stage (as a multi-start's worker builds it)
-        return self.variant(name, **stage_changes(self.options, name))
+        if key.objective == stage.name and key.between_points == stage.between_points:
+            return self
+        changes = {"intervals": stage.intervals(self.N, self.transcription.name)}
+        if stage.name == "integral":
+            changes.update(objective="integral", path_attitude_bound=None, terminal_attitude_bound=None)
+        return self.variant(stage.name, stage.between_points, **changes)
+
+    def stage(self, name: str, final: bool = False) -> BalanceNLP:
+        """:meth:`at_stage` by name: ``"integral"`` or ``"smooth"`` (with ``final``, the smooth
+        peak as a plan of its own, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`)."""
+        return self.at_stage(SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == name))
 
     def solution_of(self, result: BalanceResult) -> Solution:
         """The NLP solution a result of this problem's structure was re-simulated from."""
-        return self.unpack(np.array(result.info["nlp_solution"]))
+        return result.solver.solution
 
     # ------------------------------------------------------------------ inspection
     @property
@@ -221,7 +238,7 @@ class BalanceNLP(BalanceProblem):
             )
         return w
 
-    def solve(self, initial_guess="analytic") -> BalanceResult:
+    def solve(self, initial_guess="analytic", executor=None) -> BalanceResult:
         """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
         the peak problem first, then the torque and attitude bounds refined until the
         re-simulated motion meets them, from ``options.starts`` guesses
@@ -229,13 +246,15 @@ class BalanceNLP(BalanceProblem):
 
         Args:
             initial_guess: see :meth:`solve_once`.
+            executor: what runs a multi-start's starts (anything with ``map``, e.g. a
+                :class:`concurrent.futures.ProcessPoolExecutor`); ``None``: this process.
 
         Raises:
             PlannerSolverError: Ipopt stopped without a solution, or the path attitude bound is
                 below the smallest peak found (the message states it).
         """
         if self.options.starts > 1:
-            return multi_start(self, initial_guess)
+            return multi_start(self, initial_guess, executor)
         return solve_with_bounds(self, initial_guess)
 
     def solve_once(self, initial_guess="analytic") -> BalanceResult:
@@ -254,35 +273,29 @@ class BalanceNLP(BalanceProblem):
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
-        with progress.solving(self.lbg, self.ubg, self._progress_label()):
-            out = self.structure.solver(
-                x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
-            )
-        raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
-        t2 = time.perf_counter()
+        out, report = self._ipopt(w0)
+        t2 = t1 + report.solve_s
         w = np.array(out["x"]).ravel()
         worst = self.largest_violation(w, np.array(out["g"]).ravel())
-        sol = self.unpack(w)
-        result = resimulate(self, sol, self.trajectory(sol))
+        result = resimulate(self, report.solution, self.trajectory(report.solution))
         t3 = time.perf_counter()
         stats = self.structure.solver.stats()
-        ledger.record(int(stats.get("iter_count", 0)), t2 - t1)
-        status = str(stats.get("return_status", "unknown"))
-        result.info.update(self._report(stats, float(out["f"]), worst, (t0, t1, t2, t3)))
+        result.solver = PlanReport((report,))
+        result.info.update(self._report(stats, report.objective, worst, (t0, t1, t2, t3)))
         result.info["nlp_solution"] = w.tolist()
-        if status not in SUCCESS_STATUSES:
+        if not report.success:
             name, t, amount, unit, where = worst
             raise PlannerSolverError(
-                f"Ipopt stopped with status '{status}' after {result.info['iterations']} iterations; "
-                f"largest constraint violation: {where}, by {amount:.3g} {unit}",
-                status,
+                f"Ipopt stopped with status '{report.status}' after {report.iterations} "
+                f"iterations; largest constraint violation: {where}, by {amount:.3g} {unit}",
+                report.status,
                 result,
                 name,
                 t,
                 amount,
             )
-        if status != SUCCESS_STATUSES[0]:
-            log.warning("Ipopt: %s", status)
+        if report.status != SUCCESS_STATUSES[0]:
+            log.warning("Ipopt: %s", report.status)
         return result
 
     def _progress_label(self) -> str:
@@ -292,35 +305,32 @@ class BalanceNLP(BalanceProblem):
         staged = key.objective != "integral" or not key.between_points  # inner stages go without
         return f"Ipopt (N = {self.N}{f', {key.objective} stage' if staged else ''})"
 
-    def solve_stage(self, initial_guess) -> tuple[Solution, dict]:
-        """Solve with Ipopt once without re-simulating (an inner stage of the peak objective,
-        :func:`~balance_opt.optimal.refine.plan_peak`). A failure is not raised: it is the
-        report's ``status``.
-
-        Returns:
-            ``(solution, report)``: the report holds the status, iterations, Ipopt's wall time
-            [s] and the largest and final drift at the collocation points [rad].
-        """
-        w0 = self.initial_guess(initial_guess)
+    def _ipopt(self, w0: np.ndarray) -> tuple[dict, SolveReport]:
+        """One Ipopt solve from ``w0``: its raw output and its report."""
         t0 = time.perf_counter()
         with progress.solving(self.lbg, self.ubg, self._progress_label()):
             out = self.structure.solver(
                 x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
             )
-        raise_if_interrupted()
+        raise_if_interrupted()  # Ctrl-C inside Ipopt ends its solve as a "failure": go on
         wall = time.perf_counter() - t0
         stats = self.structure.solver.stats()
-        ledger.record(int(stats.get("iter_count", 0)), wall)
-        sol = self.unpack(np.array(out["x"]).ravel())
-        X, _ = sol.points()
-        return sol, {
-            "intervals": self.N,
-            "status": str(stats.get("return_status", "unknown")),
-            "iterations": int(stats.get("iter_count", 0)),
-            "solve_s": wall,
-            "nlp_max_drift_rad": float(np.linalg.norm(X[:3], axis=0).max()),
-            "nlp_final_drift_rad": float(np.linalg.norm(sol.X[:3, -1])),
-        }
+        report = SolveReport(
+            stage=self.structure.key.objective,
+            intervals=self.N,
+            status=str(stats.get("return_status", "unknown")),
+            iterations=int(stats.get("iter_count", 0)),
+            solve_s=wall,
+            objective=float(out["f"]),
+            solution=self.unpack(np.array(out["x"]).ravel()),
+        )
+        return out, report
+
+    def solve_stage(self, initial_guess) -> SolveReport:
+        """Solve with Ipopt once without re-simulating (an inner stage of the peak objective,
+        :func:`~balance_opt.optimal.refine.plan_peak`). A failure is not raised: it is the
+        report's ``status``."""
+        return self._ipopt(self.initial_guess(initial_guess))[1]
 
     def _report(self, stats: dict, objective: float, worst, times) -> dict:
         """The solver's part of ``BalanceResult.info``."""
