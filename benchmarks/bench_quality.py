@@ -39,7 +39,6 @@ from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
-from balance_opt.optimal.starts import workers_for
 
 #: Issue 11's reference [rad]: (mission arm alone, old default, best found with limits met).
 REFERENCE = {10.0: (0.0929, 0.0306, 0.0207), 20.0: (0.0929, 0.0136, 0.0064)}
@@ -139,20 +138,20 @@ def multi_start_table(model, capture, intervals: int, starts: int, repeat: int =
                 rows[k] = (plan, wall, _cpu_s() - cpu)
     print()
     print(
-        "| starts | processes | distinct plans | solve [s] | x one start | CPU [s] "
+        "| starts | distinct plans | solve [s] | x one start | CPU [s] "
         "| best peak [rad] | peak spread [rad] |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     one = rows[1][1]
     for k, (plan, wall, cpu) in rows.items():
         info = plan.info.get("starts", {})
         spread = info.get("max_drift_spread_rad", 0.0)
         print(
-            f"| {k} | {info.get('workers', 1)} | {info.get('distinct', 1)} | {wall:.1f} "
+            f"| {k} | {info.get('distinct', 1)} | {wall:.1f} "
             f"| {wall / one:.2f} | {cpu:.1f} | {plan.max_drift:.5f} | {spread:.5f} |"
         )
     print(
-        f"\n(processes for {starts} starts on this machine: {workers_for(starts)}; fastest of "
+        f"\n(the starts one after the other in this process; fastest of "
         f"{repeat}; load average {os.getloadavg()[0]:.2f} at the end)"
     )
 

@@ -87,8 +87,7 @@ def _problems(intervals: int, compile_kernels: bool, ipopt=None):
     w_integral = _raw_solve(integral, integral.initial_guess("analytic"))
     sol = integral.unpack(w_integral)
     X, _ = smooth.unpack(smooth.initial_guess(sol)).points()
-    smooth.peak_reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
-    smooth.update_bounds()
+    smooth = smooth.with_bounds(peak_reference=max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4))
     w_smooth = _raw_solve(smooth, smooth.initial_guess(sol))
     return {
         "integral": (integral, integral.initial_guess("analytic"), captured[1]),

@@ -10,10 +10,13 @@ the cache folder (:func:`default_cache_dir`), so a robot's kernels are compiled 
 Two ways to compile:
 
 * ``background=True`` (the planner's default): the C code is written beside the library and a
-  detached, low-priority process (``python -m balance_opt.optimal.codegen``) compiles it, while
+  low-priority child process (``python -m balance_opt.optimal.codegen``) compiles it, while
   this process goes on with the functions on CasADi's virtual machine; the next run loads the
-  library. The first plan of a robot therefore never waits for the compiler (Talos, 14 arm
-  joints: about 2.5 min of compiler time).
+  library. The child is this process's: the planning call that started it waits for it at its
+  end (:func:`finish`, at most :data:`COMPILE_WAIT`, saying so) or stops it, and it is stopped
+  when this process exits, so no compiler outlives the command. The first plan of a robot
+  therefore does not wait for the compiler before it is solved (Talos, 14 arm joints: about
+  2.5 min of compiler time).
 * ``background=False``: compile now and wait.
 
 Loading a damaged library would crash the process (a truncated one: bus error), so the cache's
@@ -33,6 +36,7 @@ import logging
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -65,6 +69,9 @@ COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
 BACKGROUND_NICENESS = 10
 #: A failed background compilation is not started again before this time [s] has passed.
 RETRY_SECONDS = 24 * 3600.0
+#: How long the planning call that started a background compilation waits for it at its end
+#: [s] before stopping it (the next run then starts it again).
+COMPILE_WAIT = 300.0
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 
@@ -79,6 +86,7 @@ class Compiled:
             the background).
         library: the shared library (loaded, or being built in the background).
         background: whether a background compilation was started (or found under way).
+        process: the child process compiling it, when this call started one.
     """
 
     functions: list[cs.Function]
@@ -86,6 +94,7 @@ class Compiled:
     compile_time: float
     library: str
     background: bool = False
+    process: subprocess.Popen | None = None
 
 
 def find_compiler() -> str | None:
@@ -185,7 +194,8 @@ def compile_functions(
             log.info("%s are being compiled by another process; not waiting", what)
         else:
             log.info("compiling %s (background) ...", what)
-            _start_background(compiler, source, library)
+            process = _start_child(compiler, source, library)
+            return Compiled(functions, False, 0.0, str(library), True, process)
         return Compiled(functions, False, 0.0, str(library), True)
     log.info("compiling %s ...", what)
     with file_lock(library.parent / f"{library.name}.lock"):  # one compiles, the others wait
@@ -234,29 +244,58 @@ def _recent_failure(library: Path) -> str:
     return ""
 
 
-def _start_background(compiler: str, source: str, library: Path) -> None:
-    """Write the C code beside ``library`` and start a detached compiler process on it."""
+def _start_child(compiler: str, source: str, library: Path) -> subprocess.Popen:
+    """Write the C code beside ``library`` and start a child process compiling it."""
     atomic_write_text(_pending_source(library), source)
     # the child imports this very package, wherever it was imported from here
     package_root = str(Path(__file__).resolve().parents[2])
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
-    command = [sys.executable, "-m", __name__, compiler, str(library)]
-    if os.name == "posix":
-        # through a shell that backgrounds it and exits at once: the compiler is then no child
-        # of this process (no zombie left in a long-lived one, none among its children)
-        command = ["/bin/sh", "-c", '"$@" &', "sh", *command]
-    launcher = subprocess.Popen(
-        command,
+    return subprocess.Popen(
+        [sys.executable, "-m", __name__, compiler, str(library)],
         env=env,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
-        start_new_session=True,  # survives this process and its Ctrl-C
         close_fds=True,
+        # a process group of its own: stop() ends it with the compiler it runs
+        start_new_session=os.name == "posix",
     )
-    if os.name == "posix":
-        launcher.wait()
+
+
+def finish(process: subprocess.Popen, library: str | Path, timeout: float = COMPILE_WAIT) -> bool:
+    """Wait up to ``timeout`` [s] for a background compilation this process started, then stop
+    it if it still runs (its C code is removed: the next run starts again). Returns whether it
+    ended on its own."""
+    if process.poll() is None:
+        log.info(
+            "waiting for the C compiler of the planner kernels (at most %.0f s; the next runs "
+            "load the library) ...",
+            timeout,
+        )
+    try:
+        process.wait(timeout)
+        return True
+    except subprocess.TimeoutExpired:
+        stop(process)
+        _pending_source(Path(library)).unlink(missing_ok=True)
+        log.warning("planner kernels: compilation stopped after %.0f s; not cached", timeout)
+        return False
+
+
+def stop(process: subprocess.Popen) -> None:
+    """Stop a compiler child process (and the compiler it runs) and reap it."""
+    if process.poll() is None:
+        if os.name == "posix":
+            with contextlib.suppress(OSError):
+                os.killpg(process.pid, signal.SIGTERM)
+        else:
+            process.terminate()
+        try:
+            process.wait(10.0)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
 
 
 def build_pending(compiler: str, library: Path) -> float:

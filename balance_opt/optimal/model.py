@@ -37,6 +37,7 @@ with and without the momentum terms (the key's ``momentum``: on the paper robot 
 from __future__ import annotations
 
 import logging
+import weakref
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -180,6 +181,10 @@ class PlannerModel:
         if compile == "auto":
             compile = "background" if codegen.find_compiler() is not None else False
         self.compile = compile
+        # background compilations this model started: waited for at the end of a plan
+        # (finish_compiling), stopped when the model goes or the process exits
+        self._compiling: list = []
+        weakref.finalize(self, _stop_all, self._compiling)
         self.cache_dir = cache_dir
         self.store = FunctionStore(robot.name, self.key, cache_dir) if store and self.key else None
         self._funs: dict[str, cs.Function] = {}
@@ -448,6 +453,13 @@ class PlannerModel:
             self._kernels[key] = self._make_kernels(*key)
         return self._kernels[key]
 
+    def finish_compiling(self, timeout: float = codegen.COMPILE_WAIT) -> None:
+        """Wait for the background compilations this model started, each at most ``timeout``
+        [s], stopping those that do not end (:func:`~balance_opt.optimal.codegen.finish`); the
+        end of every planning call (nothing it started outlives it)."""
+        while self._compiling:
+            codegen.finish(*self._compiling.pop(), timeout)
+
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
         has finished (and drop the NLPs built on them); for processes that plan many tasks.
@@ -511,6 +523,8 @@ class PlannerModel:
         except (OSError, RuntimeError) as exc:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
             return PointKernels(*functions, *sizes)
+        if out.process is not None:
+            self._compiling.append((out.process, out.library))
         return PointKernels(
             *out.functions, *sizes, out.compiled, out.compile_time, out.library, out.background
         )
@@ -563,3 +577,9 @@ class PlannerModel:
                 opts,
             ),
         ]
+
+
+def _stop_all(compiling: list) -> None:
+    """Stop the compilers of a model that goes, or at exit."""
+    while compiling:
+        codegen.stop(compiling.pop()[0])

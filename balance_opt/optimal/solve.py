@@ -253,9 +253,12 @@ class BalanceNLP(BalanceProblem):
             PlannerSolverError: Ipopt stopped without a solution, or the path attitude bound is
                 below the smallest peak found (the message states it).
         """
-        if self.options.starts > 1:
-            return multi_start(self, initial_guess, executor)
-        return solve_with_bounds(self, initial_guess)
+        try:
+            if self.options.starts > 1:
+                return multi_start(self, initial_guess, executor)
+            return solve_with_bounds(self, initial_guess)
+        finally:  # a compilation of the kernels this plan started ends with it
+            self.model.finish_compiling()
 
     def solve_once(self, initial_guess="analytic") -> BalanceResult:
         """Solve with Ipopt once, re-simulate the plan, return it.
