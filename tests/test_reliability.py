@@ -74,12 +74,10 @@ def test_good_ipopt_option_passes(catalog, name, value):
 
 def test_catalog_cached_on_disk_is_reused(tmp_path, monkeypatch, catalog):
     monkeypatch.setenv("BALANCE_OPT_CACHE", str(tmp_path))
-    monkeypatch.setattr(ipopt_options, "_CATALOG", None)
     first = ipopt_options.option_catalog()
     files = list(tmp_path.glob("ipopt-options-*.json"))
     assert len(files) == 1 and first == catalog
     # A second process reads the file: asking Ipopt again would be a failure here.
-    monkeypatch.setattr(ipopt_options, "_CATALOG", None)
     monkeypatch.setattr(ipopt_options, "_documentation_from_ipopt", lambda: pytest.fail("re-read"))
     assert ipopt_options.option_catalog() == catalog
 

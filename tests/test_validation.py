@@ -134,7 +134,6 @@ def test_checking_ipopt_options_needs_no_casadi_once_the_list_is_cached(tmp_path
     from balance_opt.optimal import ipopt_options
 
     monkeypatch.setenv("BALANCE_OPT_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setattr(ipopt_options, "_CATALOG", None)
     ipopt_options.option_catalog()  # asks Ipopt once, writes the cache
     path = _task(tmp_path, extra="optimal:\n  ipopt: {max_iter: 50, mu_strategy: adaptive}\n")
     code = (

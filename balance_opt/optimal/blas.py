@@ -23,9 +23,6 @@ log = logging.getLogger(__name__)
 #: the choice.
 THREADS_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
 
-_done = False
-
-
 def casadi_openblas() -> ctypes.CDLL | None:
     """The OpenBLAS that CasADi's Ipopt plugin loaded, or ``None`` when none is loaded (before
     the first ``nlpsol``, or another build of CasADi). The wheel holds several copies of the
@@ -47,12 +44,8 @@ def casadi_openblas() -> ctypes.CDLL | None:
 
 
 def one_thread_for_ipopt() -> None:
-    """Set CasADi's OpenBLAS to one thread, once per process, unless one of
+    """Set CasADi's OpenBLAS to one thread (each time an NLP is built: cheap), unless one of
     :data:`THREADS_VARIABLES` is set (see the module docstring)."""
-    global _done
-    if _done:
-        return
-    _done = True
     if any(os.environ.get(name) for name in THREADS_VARIABLES):
         return
     lib = casadi_openblas()

@@ -23,7 +23,7 @@ Those are counted per interval from the problem's structure (no CasADi needed):
 
 A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
 the peak objective is solved in stages (the integral objective's plan and the smooth peak on a
-coarser grid, :func:`~balance_opt.optimal.options.inner_intervals`, without the
+coarser grid, :data:`~balance_opt.optimal.options.PEAK_STAGES`, without the
 rows between the points; then the epigraph), and a path attitude bound is approached through
 the peak problem without it; the estimate adds them up, each on its own grid. (A failed
 epigraph stage builds one more, the smooth peak on the plan's grid, as large as the integral
@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from balance_opt.optimal.collocation import Transcription
-from balance_opt.optimal.options import inner_intervals
+from balance_opt.optimal.options import PEAK_STAGES
 
 #: Bytes of memory per non-zero of the KKT matrix (measured: 355-406).
 BYTES_PER_NONZERO = 400
@@ -148,15 +148,24 @@ _INNER = {"position_limits": False, "velocity_limits": False, "acceleration_limi
 
 def _built(options) -> list:
     """The options of every NLP a plan with ``options`` builds, each with its own intervals
-    (see the module docstring)."""
+    (see the module docstring): the plan's, the free peak problem's of a path bound, and the
+    coarse stages of :data:`~balance_opt.optimal.options.PEAK_STAGES`."""
     free = {"path_attitude_bound": None, "terminal_attitude_bound": None}
     built = [options]
     if options.path_attitude_bound is not None:
         built.append(dataclasses.replace(options, objective="peak", **free))
     staged = options.objective == "peak" or options.path_attitude_bound is not None
-    inner = {**_INNER, "intervals": inner_intervals(options.intervals, options.transcription)}
-    if staged:  # the first stage
-        built.append(dataclasses.replace(options, objective="integral", **free, **inner))
+    inner = [
+        dataclasses.replace(
+            options,
+            objective="integral",  # the smooth stage has no epigraph: the integral's size
+            intervals=stage.intervals(options.intervals, options.transcription),
+            **free,
+            **({} if stage.between_points else _INNER),
+        )
+        for stage in PEAK_STAGES
+        if staged and stage.coarse
+    ]
     # a peak problem's path bound adds no rows: such a problem is the free one
     shapes = {
         (
@@ -164,13 +173,9 @@ def _built(options) -> list:
             o.objective != "peak" and o.path_attitude_bound is not None,
             o.terminal_attitude_bound is not None,
         ): o
-        for o in reversed(built)
+        for o in reversed(built + inner[:1])
     }
-    out = list(shapes.values())
-    # the smooth stage: the peak problem without the epigraph (the integral's size), inner
-    if staged:
-        out.append(dataclasses.replace(options, objective="integral", **free, **inner))
-    return out
+    return list(shapes.values()) + inner[1:]
 
 
 def _nonzeros_per_interval(options, limits) -> float:

@@ -153,9 +153,6 @@ def _catalog_file() -> Path:
     return default_cache_dir() / f"ipopt-options-casadi-{version}.json"
 
 
-_CATALOG: dict[str, IpoptOption] | None = None
-
-
 def option_catalog() -> dict[str, IpoptOption]:
     """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk).
 
@@ -163,25 +160,21 @@ def option_catalog() -> dict[str, IpoptOption]:
         ImportError: CasADi is not installed (and the list is not cached).
         RuntimeError: Ipopt failed, or printed no option documentation.
     """
-    global _CATALOG
-    if _CATALOG is not None:
-        return _CATALOG
     path = _catalog_file()
     with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
         data = json.loads(path.read_text())
-        _CATALOG = {k: IpoptOption(**{**v, "values": tuple(v["values"])}) for k, v in data.items()}
-        if _CATALOG:
-            return _CATALOG
+        catalog = {k: IpoptOption(**{**v, "values": tuple(v["values"])}) for k, v in data.items()}
+        if catalog:
+            return catalog
     catalog = parse_documentation(_documentation_from_ipopt())
     if len(catalog) <= len(UNDOCUMENTED):
         raise RuntimeError("Ipopt printed no option documentation")
-    _CATALOG = catalog
     with contextlib.suppress(OSError):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({k: asdict(v) for k, v in _CATALOG.items()}))
+        tmp.write_text(json.dumps({k: asdict(v) for k, v in catalog.items()}))
         os.replace(tmp, path)
-    return _CATALOG
+    return catalog
 
 
 def linear_solver_loads(name: str) -> bool:

@@ -51,7 +51,7 @@ PEAK_IPOPT = {"mu_init": 1e-3}
 #: 1e-6, cost the epigraph stage 310 iterations instead of 40.)
 SMOOTH_IPOPT = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "never-monotone-mode"}
 #: The peak objective's inner stages solve on a grid this many times coarser than the plan's
-#: (:func:`~balance_opt.optimal.refine.stage_changes`), by transcription. Their plans are warm
+#: (:meth:`Stage.intervals`), by transcription. Their plans are warm
 #: starts: what the epigraph stage needs from them is the drift's shape. On the capture task
 #: (N = 100), Hermite-Simpson on a quarter of the intervals: the epigraph stage took 56, 74, 79
 #: iterations at 10, 8, 12 s against 58, 85, 63 from inner stages on the full grid, to the same
@@ -98,11 +98,6 @@ PEAK_STAGES = (
 )
 #: What a failed epigraph stage falls back on: the smooth peak as a plan of its own.
 SMOOTH_PLAN = Stage("smooth", False, True, tuple(SMOOTH_IPOPT.items()))
-
-
-def inner_intervals(N: int, transcription: str) -> int:
-    """Intervals of the inner stages' grid for a plan of ``N`` intervals."""
-    return PEAK_STAGES[0].intervals(N, transcription)
 
 
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.

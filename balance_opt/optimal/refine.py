@@ -7,7 +7,7 @@ Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.Balan
   last: the integral objective's plan, the smooth peak (an L16 norm of the drift, no
   inequality rows), the epigraph. The two inner stages' plans are only warm starts, so they
   are solved more cheaply than the last: on a grid four times coarser (twice with the
-  trapezoidal rule, :func:`~balance_opt.optimal.options.inner_intervals`), the smooth peak's
+  trapezoidal rule, :data:`~balance_opt.optimal.options.PEAK_STAGES`), the smooth peak's
   plan interpolated onto the plan's grid (:func:`~balance_opt.optimal.guess.resampled`), and
   with the joint limits held at the collocation points only (no rows between them). On the
   capture task (N = 100) the coarse grid took the inner stages from 1.6 s to 0.3 s, and the
