@@ -33,14 +33,15 @@ The modules, top down:
   and :class:`PlannerSolverError`. Every plan is re-simulated on a fine grid with numeric
   Pinocchio, and the returned result is that re-simulated motion.
 * :mod:`~balance_opt.optimal.refine`: the outer loop of :meth:`~BalanceNLP.solve`: the peak
-  problem in three stages (the integral plan and a smooth L16 peak on a coarser grid, the
-  epigraph), path attitude bounds reached through the peak problem, bounds tightened until
-  the re-simulated motion meets them.
-* :mod:`~balance_opt.optimal.ledger`: the Ipopt work behind one plan (every solve's
-  iterations and time, failed ones included), which the results and ``metrics.json`` report.
-* :mod:`~balance_opt.optimal.starts`: multi-start in this process and parallel worker
-  processes, starts that reach the same first plan merged;
-  :mod:`~balance_opt.optimal.start_schedule`: which of its tasks runs where and when.
+  problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES` (the integral plan and
+  a smooth L16 peak on a coarser grid, the epigraph), path attitude bounds reached through the
+  peak problem, bounds tightened until the re-simulated motion meets them (each time a new
+  problem: a problem is never changed by its solve). Every Ipopt solve reports a
+  :class:`~balance_opt.optimal.refine.SolveReport`; a plan carries them all as
+  ``result.solver`` (:class:`~balance_opt.optimal.refine.PlanReport`, whose sums are the
+  totals ``metrics.json`` reports).
+* :mod:`~balance_opt.optimal.starts`: multi-start, the starts mapped over an executor the caller
+  passes (default: in turn, in this process), starts that reach the same first plan merged.
 * :mod:`~balance_opt.optimal.problem`: one problem's numeric data (mission samples, horizon,
   limits), checked against the robot.
 * :mod:`~balance_opt.optimal.nlp`: the compiled NLP of one structure, assembled from per-point
@@ -59,8 +60,8 @@ The modules, top down:
 * :mod:`~balance_opt.optimal.model`: the per-robot symbolic model (state, dynamics and running
   cost of one collocation point, inverse dynamics) and its point kernels.
 * :mod:`~balance_opt.optimal.model_store`: the per-robot model's functions saved on disk.
-* :mod:`~balance_opt.optimal.codegen`: compiling the kernels to C (in the background while
-  the first plan runs on CasADi's VM), cached on disk.
+* :mod:`~balance_opt.optimal.codegen`: compiling the kernels to C (in a child process while
+  the first plan runs on CasADi's VM, waited for at the plan's end), cached on disk.
 
 How to add a constraint. Everything about a constraint lives in one class in
 :mod:`~balance_opt.optimal.constraints`, a subclass of ``Constraint``: ``rows`` returns the rows

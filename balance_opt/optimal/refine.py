@@ -241,7 +241,7 @@ def plan_peak(nlp, guess) -> BalanceResult:
             if report.success:
                 guess = report.solution
             else:
-                log.info("%s stage ended with %s; the next one starts from its guess", stage.name, report.status)
+                log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
         done.append(report)
     stages = [r.inner_entry() for r in done]
     try:
@@ -251,10 +251,10 @@ def plan_peak(nlp, guess) -> BalanceResult:
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
         failed = getattr(exc.result, "solver", None)
-        failed = failed.solves[len(done):] if failed is not None else ()
-        stages.append(
-            failed[-1].entry(status=exc.status) if failed else {**_empty("peak", nlp), "status": str(exc.status)}
-        )
+        failed = failed.solves[len(done) :] if failed is not None else ()
+        status = str(exc.status)
+        none = {"stage": "peak", "intervals": nlp.N, "status": status, "iterations": 0}
+        stages.append(failed[-1].entry(status=status) if failed else {**none, "solve_s": 0.0})
         result = _smooth_plan(nlp, stage_nlp, guess, tuple(done) + tuple(failed))
         stages.append(result.solver.solves[-1].entry("smooth, re-simulated"))
     else:
@@ -265,11 +265,6 @@ def plan_peak(nlp, guess) -> BalanceResult:
         )
     result.info["stages"] = stages
     return result
-
-
-def _empty(stage: str, nlp) -> dict:
-    """The entry of a stage that failed before Ipopt reported on it."""
-    return {"stage": stage, "intervals": nlp.N, "status": "unknown", "iterations": 0, "solve_s": 0.0}
 
 
 def _smooth_plan(nlp, smooth, guess, done) -> BalanceResult:
@@ -370,4 +365,5 @@ def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]
         for c in [k, k + 1] + ([N + 1 + k] if mids else []):
             factor[:, c] = np.minimum(factor[:, c], factor[:, c] * scale[k])
     worst = float(ratio.max() - 1.0)
-    return factor, [f"torque bounds on {int(broken.any(axis=1).sum())} intervals (worst +{worst:.2%})"]
+    n = int(broken.any(axis=1).sum())
+    return factor, [f"torque bounds on {n} intervals (worst +{worst:.2%})"]

@@ -148,13 +148,16 @@ class BalanceNLP(BalanceProblem):
             return self
         changes = {"intervals": stage.intervals(self.N, self.transcription.name)}
         if stage.name == "integral":
-            changes.update(objective="integral", path_attitude_bound=None, terminal_attitude_bound=None)
+            changes.update(
+                objective="integral", path_attitude_bound=None, terminal_attitude_bound=None
+            )
         return self.variant(stage.name, stage.between_points, **changes)
 
     def stage(self, name: str, final: bool = False) -> BalanceNLP:
         """:meth:`at_stage` by name: ``"integral"`` or ``"smooth"`` (with ``final``, the smooth
         peak as a plan of its own, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`)."""
-        return self.at_stage(SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == name))
+        stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == name)
+        return self.at_stage(stage)
 
     def solution_of(self, result: BalanceResult) -> Solution:
         """The NLP solution a result of this problem's structure was re-simulated from."""

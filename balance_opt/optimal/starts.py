@@ -124,7 +124,8 @@ def multi_start(nlp, guess, executor=None):
         ]
         first = list(run(StartTask(single.at_stage(PEAK_STAGES[0]), "first"), starting))
         for i in range(len(first)):
-            owner[i] = next((j for j in range(i) if owner[j] == j and same_first_plan(first[j], first[i])), i)
+            same = (j for j in range(i) if owner[j] == j and same_first_plan(first[j], first[i]))
+            owner[i] = next(same, i)
         starting = first
     distinct = sorted(set(owner))
     solved = dict(zip(distinct, run(StartTask(single, "plan"), [starting[i] for i in distinct])))
