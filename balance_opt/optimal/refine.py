@@ -59,16 +59,20 @@ BOUND_MARGIN = 1e-3
 
 @dataclass(frozen=True)
 class SolveReport:
-    """One Ipopt solve.
+    """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`).
 
     Attributes:
-        stage: the objective of the structure solved (``"integral"``, ``"smooth"``, ``"peak"``).
+        stage: the objective of the structure solved (``"integral"``, ``"smooth"``, ``"peak"``)
+            or the stage's name in the plan (``"bounded"``, ``"smooth, re-simulated"``).
         intervals: its grid's ``N``.
         status: Ipopt's return status.
         iterations: Ipopt's iterations.
         solve_s: Ipopt's wall time [s].
         objective: the objective's value at the solution.
         solution: the solution (the warm start of what follows it).
+        drifts: figures of the stage's plan [rad], by name: ``nlp_max_drift_rad`` and
+            ``nlp_final_drift_rad`` at the collocation points (inner stages),
+            ``max_drift_rad`` and ``final_drift_rad`` re-simulated (the peak stage).
     """
 
     stage: str
@@ -78,43 +82,76 @@ class SolveReport:
     solve_s: float
     objective: float
     solution: Solution
+    drifts: tuple[tuple[str, float], ...] = ()
 
     @property
     def success(self) -> bool:
         return self.status in SUCCESS_STATUSES
 
-    def entry(self, stage: str | None = None, **more) -> dict:
-        """Its entry of ``info["stages"]`` (``metrics.json``'s ``details.stages``)."""
-        return {
-            "stage": stage or self.stage,
-            "intervals": self.intervals,
-            "status": self.status,
-            "iterations": self.iterations,
-            "solve_s": self.solve_s,
-            **more,
-        }
+    def as_stage(self, stage: str | None = None, **drifts: float) -> SolveReport:
+        """This solve as a stage of a plan: renamed, with the figures ``drifts``."""
+        return replace(self, stage=stage or self.stage, drifts=tuple(drifts.items()))
 
-    def inner_entry(self) -> dict:
-        """The entry of an inner stage: with its largest and final drift at the points [rad]."""
+    def as_inner_stage(self) -> SolveReport:
+        """This solve as an inner stage: with its largest and final drift at the points."""
         X, _ = self.solution.points()
-        return self.entry(
+        return self.as_stage(
             nlp_max_drift_rad=float(np.linalg.norm(X[:3], axis=0).max()),
             nlp_final_drift_rad=float(np.linalg.norm(self.solution.X[:3, -1])),
         )
 
+    def entry(self) -> dict:
+        """Its entry of ``info["stages"]`` (``metrics.json``'s ``details.stages``)."""
+        return {
+            "stage": self.stage,
+            "intervals": self.intervals,
+            "status": self.status,
+            "iterations": self.iterations,
+            "solve_s": self.solve_s,
+            **dict(self.drifts),
+        }
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """What the refinement (:func:`refine`) did: what it tightened in each round, in words, and
+    the Ipopt work of its re-solves."""
+
+    rounds: tuple[tuple[str, ...], ...] = ()
+    iterations: int = 0
+    solve_s: float = 0.0
+
+    def as_dict(self) -> dict:
+        """``info["refinement"]``."""
+        return {
+            "rounds": len(self.rounds),
+            "tightened": [list(r) for r in self.rounds],
+            "iterations": self.iterations,
+            "solve_s": self.solve_s,
+        }
+
 
 @dataclass(frozen=True)
 class PlanReport:
-    """Every Ipopt solve behind a plan (``BalanceResult.solver``), in order: the stages, the
-    bounded problem, the refinement's rounds, failed ones included.
+    """How an optimal plan was solved (``BalanceResult.solver``).
 
     Attributes:
-        solves: their reports.
+        solves: every Ipopt solve behind the plan, in order (the stages, the bounded problem,
+            the refinement's rounds), failed ones included.
         solution: the plan's NLP solution (default: the last solve's).
+        stages: the peak objective's stages, when it was solved in stages (``None`` else).
+        refinement: what the refinement did (``None`` before it ran).
+        smallest_peak: with a path attitude bound, the smallest peak found [rad].
+
+    :meth:`as_info` writes it into the result's ``info`` (``metrics.json``'s ``details`` and
+    its ``solver`` totals).
     """
 
     solves: tuple[SolveReport, ...]
     solution: Solution | None = None
+    stages: tuple[SolveReport, ...] | None = None
+    refinement: Refinement | None = None
+    smallest_peak: float | None = None
 
     def __post_init__(self):
         if self.solution is None and self.solves:
@@ -130,35 +167,40 @@ class PlanReport:
         """Ipopt's wall time, all solves [s]."""
         return sum(s.solve_s for s in self.solves)
 
-    def after(self, done: tuple[SolveReport, ...]) -> PlanReport:
-        """This report with the solves ``done`` before it."""
-        return PlanReport(tuple(done) + self.solves, self.solution)
+    def then(self, later: PlanReport) -> PlanReport:
+        """This report followed by the solves of ``later`` (its solution the plan's)."""
+        return replace(self, solves=self.solves + later.solves, solution=later.solution)
+
+    def as_info(self) -> dict:
+        """Its entries of ``BalanceResult.info``."""
+        out = {}
+        if self.smallest_peak is not None:
+            out["smallest_peak_rad"] = self.smallest_peak
+        if self.stages is not None:
+            out["stages"] = [s.entry() for s in self.stages]
+        if self.refinement is not None:
+            out["refinement"] = self.refinement.as_dict()
+        out["total_iterations"] = self.iterations
+        out["total_solve_time_s"] = self.solve_s
+        return out
 
 
-def _solve_once(nlp, guess, done=()) -> BalanceResult:
-    """``nlp.solve_once(guess)``, its plan's (or its failure's) report counting the solves
-    ``done`` before it."""
+def _solve_once(nlp, guess, before: PlanReport) -> BalanceResult:
+    """``nlp.solve_once(guess)``, its plan's (or its failure's) report following ``before``."""
     try:
         result = nlp.solve_once(guess)
     except SolverError as exc:
         if getattr(exc.result, "solver", None) is not None:
-            exc.result.solver = exc.result.solver.after(done)
+            exc.result.solver = before.then(exc.result.solver)
         raise
-    result.solver = result.solver.after(done)
+    result.solver = before.then(result.solver)
     return result
-
-
-def _stamp(result: BalanceResult) -> None:
-    """The totals of every solve behind ``result`` into its ``info`` (``metrics.json``'s
-    ``solver.iterations`` and ``solver.solve_time_s``)."""
-    result.info["total_iterations"] = result.solver.iterations
-    result.info["total_solve_time_s"] = result.solver.solve_s
 
 
 def solve_with_bounds(nlp, guess) -> BalanceResult:
     """Solve a problem whose path attitude bound may stall Ipopt (see the module docstring),
-    then :func:`refine`. The plan, or the result a failure carries, holds the totals of every
-    Ipopt solve behind it.
+    then :func:`refine`. The plan, or the result a failure carries, holds its
+    :class:`PlanReport` as ``solver``, written into its ``info``.
 
     Raises:
         PlannerSolverError: the bound is below the smallest peak found (its message states
@@ -168,21 +210,22 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
         result = _solve_with_bounds(nlp, guess)
     except SolverError as exc:
         if getattr(exc.result, "solver", None) is not None:
-            _stamp(exc.result)
+            exc.result.info.update(exc.result.solver.as_info())
         raise
-    _stamp(result)
+    result.info.update(result.solver.as_info())
     return result
 
 
 def _solve_with_bounds(nlp, guess) -> BalanceResult:
     bound = nlp.options.path_attitude_bound
     if bound is None:
-        first = plan_peak(nlp, guess) if nlp.options.objective == "peak" else nlp.solve_once(guess)
-        return refine(nlp, first)
+        if nlp.options.objective == "peak":
+            return refine(nlp, plan_peak(nlp, guess))
+        return refine(nlp, _solve_once(nlp, guess, PlanReport(())))
     free = nlp.variant(objective="peak", path_attitude_bound=None, terminal_attitude_bound=None)
     peak_plan = plan_peak(free, guess)
     smallest = peak_plan.max_drift
-    peak_plan.info["smallest_peak_rad"] = smallest
+    peak_plan.solver = replace(peak_plan.solver, smallest_peak=smallest)
     if smallest > bound * (1.0 + ATTITUDE_TOLERANCE):
         t = float(peak_plan.t[int(np.argmax(peak_plan.angle))])
         raise PlannerSolverError(
@@ -197,13 +240,11 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
     same = nlp.options.objective == "peak" and nlp.options.terminal_attitude_bound is None
     if same and smallest <= bound * (1.0 - BOUND_MARGIN):
         # the peak plan of the bounded problem is the free one: the bound is not active
-        result = peak_plan
-        result.info["refinement"] = {"rounds": 0, "tightened": [], "iterations": 0, "solve_s": 0.0}
-        return result
-    result = _solve_once(nlp, peak_plan.solver.solution, peak_plan.solver.solves)
-    result.info["smallest_peak_rad"] = smallest
-    bounded = result.solver.solves[-1].entry("bounded")
-    result.info["stages"] = peak_plan.info.get("stages", []) + [bounded]
+        peak_plan.solver = replace(peak_plan.solver, refinement=Refinement())
+        return peak_plan
+    result = _solve_once(nlp, peak_plan.solver.solution, peak_plan.solver)
+    bounded = result.solver.solves[-1].as_stage("bounded")
+    result.solver = replace(result.solver, stages=result.solver.stages + (bounded,))
     return refine(nlp, result)
 
 
@@ -216,7 +257,7 @@ def plan_peak(nlp, guess) -> BalanceResult:
     stages run on a coarser grid and are not re-simulated; a failed one hands its own guess on.
     Should the epigraph stage fail, the smooth peak is solved on the plan's grid from the inner
     stage's plan and kept (with a warning, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`).
-    ``info["stages"]`` reports each stage's status, iterations, intervals and drifts.
+    The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts.
 
     Args:
         guess: the first stage's guess, or its outcome (an :class:`IntegralStart`, done by a
@@ -243,37 +284,34 @@ def plan_peak(nlp, guess) -> BalanceResult:
             else:
                 log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
         done.append(report)
-    stages = [r.inner_entry() for r in done]
+    before = PlanReport(tuple(done))
+    stages = tuple(r.as_inner_stage() for r in done)
     try:
-        result = _solve_once(nlp.at_stage(last), guess, tuple(done))
+        result = _solve_once(nlp.at_stage(last), guess, before)
     except SolverError as exc:
         if not done[-1].success:
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
-        failed = getattr(exc.result, "solver", None)
-        failed = failed.solves[len(done) :] if failed is not None else ()
-        status = str(exc.status)
-        none = {"stage": "peak", "intervals": nlp.N, "status": status, "iterations": 0}
-        stages.append(failed[-1].entry(status=status) if failed else {**none, "solve_s": 0.0})
-        result = _smooth_plan(nlp, stage_nlp, guess, tuple(done) + tuple(failed))
-        stages.append(result.solver.solves[-1].entry("smooth, re-simulated"))
+        failed = getattr(exc.result, "solver", None) or before
+        before = replace(before, solves=failed.solves)
+        stages += failed.solves[len(done) :]  # the failed peak stage
+        result = _smooth_plan(nlp, stage_nlp, guess, before)
+        stages += (result.solver.solves[-1].as_stage("smooth, re-simulated"),)
     else:
-        stages.append(
-            result.solver.solves[-1].entry(
-                max_drift_rad=result.max_drift, final_drift_rad=result.final_drift
-            )
-        )
-    result.info["stages"] = stages
+        peak = result.solver.solves[-1]
+        drifts = {"max_drift_rad": result.max_drift, "final_drift_rad": result.final_drift}
+        stages += (peak.as_stage(**drifts),)
+    result.solver = replace(result.solver, stages=stages)
     return result
 
 
-def _smooth_plan(nlp, smooth, guess, done) -> BalanceResult:
+def _smooth_plan(nlp, smooth, guess, before: PlanReport) -> BalanceResult:
     """The smooth peak as the plan of the peak problem ``nlp`` (a failed epigraph stage's
     fallback): solved on ``nlp``'s grid with the rows between the points, priced at the
     reference drift of the inner ``smooth`` stage, from ``guess``. Its solution is the peak
     problem's (with ``S``, the plan's own peak), as every later step expects."""
     final = nlp.at_stage(SMOOTH_PLAN).with_bounds(peak_reference=smooth.peak_reference)
-    result = _solve_once(final, guess, done)
+    result = _solve_once(final, guess, before)
     w = nlp.initial_guess(result.solver.solution)
     result.solver = replace(result.solver, solution=nlp.unpack(w))
     result.info["nlp_solution"] = w.tolist()
@@ -302,28 +340,25 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
     warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
     Each round solves a new problem (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`):
-    ``nlp`` is left as it was. ``info["refinement"]`` lists what was tightened in each round."""
-    rounds, stages, before = [], result.info.get("stages"), len(result.solver.solves)
+    ``nlp`` is left as it was. The plan's ``solver.refinement`` lists what was tightened in each
+    round."""
+    rounds, before = [], len(result.solver.solves)
     for _ in range(MAX_ROUNDS):
         changes, tightened = _tighten(nlp, result)
         if not tightened:
             break
-        rounds.append(tightened)
+        rounds.append(tuple(tightened))
         log.info("refinement: %s", "; ".join(tightened))
         nlp = nlp.with_bounds(**changes)
-        result = _solve_once(nlp, result.solver.solution, result.solver.solves)
+        result = _solve_once(nlp, result.solver.solution, result.solver)
     else:
         if _tighten(nlp, result)[1]:
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
     extra = result.solver.solves[before:]
-    result.info["refinement"] = {
-        "rounds": len(rounds),
-        "tightened": rounds,
-        "iterations": sum(s.iterations for s in extra),
-        "solve_s": sum(s.solve_s for s in extra),
-    }
-    if stages is not None:
-        result.info["stages"] = stages
+    refinement = Refinement(
+        tuple(rounds), sum(s.iterations for s in extra), sum(s.solve_s for s in extra)
+    )
+    result.solver = replace(result.solver, refinement=refinement)
     return result
 
 
