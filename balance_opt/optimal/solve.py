@@ -133,11 +133,6 @@ class BalanceNLP(BalanceProblem):
             between_points=between_points,
         )
 
-    @staticmethod
-    def build(*args, **kwargs) -> BalanceNLP:
-        """:func:`build_balance_nlp` (what a multi-start's worker processes call)."""
-        return build_balance_nlp(*args, **kwargs)
-
     def at_stage(self, stage: Stage) -> BalanceNLP:
         """The same problem as a :class:`~balance_opt.optimal.options.Stage` of the peak
         objective (:data:`~balance_opt.optimal.options.PEAK_STAGES`, or
