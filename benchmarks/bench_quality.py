@@ -10,11 +10,9 @@ built before the clock starts; "solve" is the wall time of :meth:`BalanceNLP.sol
 Ipopt solve, the re-simulations and the refinement), "iterations" every Ipopt iteration behind
 the plan (``info["total_iterations"]``), "x integral" the ratio of both to the integral plan's
 with the same ends. The multi-start table times :meth:`BalanceNLP.solve` with ``starts: K``
-(worker processes started, their models and NLPs built, inside the clock) against one start;
-"processes" is how many solved (this one and the workers), "distinct plans" how many starts
-went on past the first stage (the others reached the same integral plan and were merged).
-
-"CPU" is that of this process and the workers, so CPU / solve tells how parallel it ran.
+(the starts one after the other in this process) against one start; "distinct plans" is how
+many starts went on past the first stage (the others reached the same integral plan and were
+merged). "CPU" is that of this process.
 With ``--repeat R`` every plan is solved R times (the same plan each time) and the fastest
 time is printed (with the median in the quality table): this VM's speed varies by up to 40 %
 from run to run even with nothing else running.
