@@ -162,7 +162,8 @@ def test_failed_background_compilation_is_reported_not_retried(tmp_path, monkeyp
     first = codegen.compile_functions([fun], folder, "digest", background=True, label="t")
     assert first.background and not first.compiled
     assert codegen.wait_for_library(first.library, timeout=300) is None
-    # the compiler ran detached: no child (nor zombie) of this process is left behind
+    # the compiler ran as this process's child: ended, and reaped by finish() (no zombie)
+    assert codegen.finish(first.process, first.library, timeout=10)
     assert {p.pid for p in psutil.Process().children(recursive=True)} <= children
     note = Path(first.library).with_suffix(".failed")
     assert "out of memory" in note.read_text()
@@ -173,3 +174,26 @@ def test_failed_background_compilation_is_reported_not_retried(tmp_path, monkeyp
     assert again.background and not again.compiled
     assert "the background compilation failed" in caplog.text and "out of memory" in caplog.text
     assert "(background) ..." not in caplog.text  # not started again
+
+
+def test_a_background_compilation_not_done_in_time_is_stopped(tmp_path, monkeypatch):
+    """The planning call that started a compilation ends it: a compiler still running after
+    the wait is stopped with everything it started, and its C code removed."""
+    import psutil
+
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    (bindir / "slow-cc").write_text("#!/bin/sh\nsleep 60\nexit 1\n")
+    (bindir / "slow-cc").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bindir}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("CC", "slow-cc")
+    x = cs.SX.sym("x", 2)
+    fun = cs.Function("coldstart_slow_kernel", [x], [cs.sin(x[0]) * x[1]])
+    children = {p.pid for p in psutil.Process().children(recursive=True)}
+    out = codegen.compile_functions([fun], tmp_path / "cache", "digest", background=True)
+    assert out.background and out.process is not None
+    assert not codegen.finish(out.process, out.library, timeout=0.5)
+    assert psutil.wait_procs(
+        [p for p in psutil.Process().children(recursive=True) if p.pid not in children], 5
+    )[1] == []
+    assert not Path(out.library).exists() and not list((tmp_path / "cache").glob("*.c"))
