@@ -14,8 +14,8 @@ integral objective's plan (:func:`~balance_opt.optimal.refine.plan_peak`), and d
 starts often reach the same one (on the capture task all eight do): every start runs that first
 stage, those whose plans agree (:data:`SAME_PLAN`, :data:`SAME_CONTROL`) are merged, and only
 the distinct ones go on through the later stages, the bounds and the refinement.
-``info["starts"]`` reports every start (a merged one names the start it joined) and the
-distinct plans.
+``info["starts"]`` reports every start (a merged one names the start it joined), the
+distinct plans and ``workers`` (1: this process; ``None``: an executor's).
 """
 
 from __future__ import annotations
@@ -149,6 +149,7 @@ def multi_start(nlp, guess, executor=None):
         "runs": runs,
         "solved": len(done),
         "distinct": len(distinct),
+        "workers": 1 if executor is None else None,  # an executor's own count is its own
         "objective_spread": _spread(done, "objective"),
         "max_drift_spread_rad": _spread(done, "max_drift_rad"),
     }
