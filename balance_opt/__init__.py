@@ -44,9 +44,9 @@ __version__ = "0.1.0"
 _LAZY = {
     "BalanceResult": "balance_opt.result",
     "LimitViolation": "balance_opt.result",
-    "Task": "balance_opt.io.task",
-    "load_task": "balance_opt.io.task",
-    "task_from_dict": "balance_opt.io.task",
+    "Task": "balance_opt.tasks.task",
+    "load_task": "balance_opt.tasks.task",
+    "task_from_dict": "balance_opt.tasks.task",
     "TaskRun": "balance_opt.app.pipeline",
     "plan_mission_only": "balance_opt.app.pipeline",
     "plan_analytic": "balance_opt.app.pipeline",
@@ -66,7 +66,7 @@ if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ impo
         simulate,
     )
     from balance_opt.dynamics.simulation import SimulationResult
-    from balance_opt.io.task import Task, load_task, task_from_dict
+    from balance_opt.tasks.task import Task, load_task, task_from_dict
     from balance_opt.result import BalanceResult, LimitViolation
 
 

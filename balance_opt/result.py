@@ -108,7 +108,7 @@ class AttitudeHistory:
 
 
 #: Columns of :meth:`BalanceResult.to_dataframe` after the joints: the same names as the CSV
-#: files (:func:`balance_opt.io.outputs.trajectory_columns`; tests/test_api.py checks they agree).
+#: files (:func:`balance_opt.report.outputs.trajectory_columns`).
 ATTITUDE_COLUMNS = (
     "base_qx",
     "base_qy",
@@ -119,6 +119,9 @@ ATTITUDE_COLUMNS = (
     "base_yaw",
     "base_angle",
 )
+#: ``BalanceResult.info`` entries left out of ``metrics.json`` and of summaries (kept in the
+#: NPZ): large arrays.
+BULKY_INFO_KEYS = ("nlp_solution", "history")
 #: Rows of :meth:`BalanceResult.__repr__` at most (a notebook cell's worth).
 REPR_LINES = 12
 
@@ -326,7 +329,7 @@ class BalanceResult(AttitudeHistory):
         Raises:
             ValueError: an unknown ``kind``.
         """
-        from balance_opt.io.quicklook import plot_result
+        from balance_opt.report.quicklook import plot_result
 
         return plot_result(self, ax=ax, kind=kind)
 

@@ -23,8 +23,8 @@ from balance_opt.analytic.rollout import rollout
 from balance_opt.app.capture import plan_captured, robot_after
 from balance_opt.app.pipeline import run_task, simulate_result
 from balance_opt.errors import InputError
-from balance_opt.io.outputs import solver_metrics
-from balance_opt.io.task import load_task
+from balance_opt.report.outputs import solver_metrics
+from balance_opt.tasks.task import load_task
 from balance_opt.model.capture import Target, attach_target, capture_state
 from balance_opt.model.maps import NumericMaps
 from balance_opt.motion.so3 import rotvec_from_quaternion

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from balance_opt.io.outputs import solver_metrics
+from balance_opt.report.outputs import solver_metrics
 from balance_opt.model.library import paper_robot
 from balance_opt.optimal.guess import resampled
 from balance_opt.optimal.layout import Solution

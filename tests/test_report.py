@@ -12,7 +12,7 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.dynamics.inverse_dynamics import plan_torques
-from balance_opt.io.animation import (
+from balance_opt.report.animation import (
     ANIMATION_FPS,
     ARM_COLOURS,
     animation_data,
@@ -22,7 +22,7 @@ from balance_opt.io.animation import (
     segment_arms,
     skeleton,
 )
-from balance_opt.io.outputs import (
+from balance_opt.report.outputs import (
     effort_metrics,
     ipopt_version,
     limit_margins,
@@ -33,7 +33,7 @@ from balance_opt.io.outputs import (
     write_trajectory_csv,
     write_trajectory_npz,
 )
-from balance_opt.io.report import (
+from balance_opt.report.report import (
     MOMENTUM_TOLERANCE,
     TORQUE_TOLERANCE,
     comparison_table,
@@ -44,7 +44,7 @@ from balance_opt.io.report import (
     torque_sparkline,
     torque_table,
 )
-from balance_opt.io.style import method_label
+from balance_opt.report.style import method_label
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 

@@ -15,8 +15,8 @@ import pytest
 
 from balance_opt.cli import main
 from balance_opt.errors import ArmError, URDFLoadError
-from balance_opt.io.task import load_task
-from balance_opt.io.yaml_lines import TaskFileError
+from balance_opt.tasks.task import load_task
+from balance_opt.config.yaml_lines import TaskFileError
 from balance_opt.model.robot import FloatingRobot
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -139,7 +139,7 @@ def test_checking_ipopt_options_needs_no_casadi_once_the_list_is_cached(tmp_path
     path = _task(tmp_path, extra="optimal:\n  ipopt: {max_iter: 50, mu_strategy: adaptive}\n")
     code = (
         "import sys\n"
-        "from balance_opt.io.task import load_task\n"
+        "from balance_opt.tasks.task import load_task\n"
         f"task = load_task({str(path)!r})\n"
         "print(task.planner_options().ipopt, 'casadi' in sys.modules)"
     )
@@ -594,7 +594,7 @@ def test_torque_limits_with_a_prismatic_joint_are_refused(tmp_path, capsys):
 def test_prismatic_joint_with_the_adam_backend_is_refused(tmp_path):
     path = _prismatic_task(tmp_path, "", backend="adam")
     task = load_task(path)  # the analytic law takes it
-    from balance_opt.io.task import check_methods
+    from balance_opt.tasks.task import check_methods
 
     line = _line_of(path.read_text(), "balance: [b1, b2]")
     with pytest.raises(TaskFileError) as info:

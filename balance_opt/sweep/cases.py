@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from balance_opt.io.yaml_lines import YamlDocument, format_path
+from balance_opt.config.yaml_lines import YamlDocument, format_path
 
 if TYPE_CHECKING:
     from balance_opt.sweep.spec import Distribution, RandomSamples, SweepSpec

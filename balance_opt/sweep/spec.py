@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from balance_opt.io.typed_config import from_data, setting
-from balance_opt.io.typed_reference import json_schema, reference_markdown
-from balance_opt.io.yaml_lines import (
+from balance_opt.config.typed_config import from_data, setting
+from balance_opt.config.typed_reference import json_schema, reference_markdown
+from balance_opt.config.yaml_lines import (
     TaskFileError,
     YamlDocument,
     format_path,
@@ -167,7 +167,7 @@ def sweep_from_document(
     """A :class:`Sweep` from a parsed sweep file.
 
     The base task and the task of every case are loaded in full (robot, mission, limits: see
-    :func:`balance_opt.io.task.task_from_document`), about 10 ms each. Limits no plan can meet and
+    :func:`balance_opt.tasks.task.task_from_document`), about 10 ms each. Limits no plan can meet and
     missions that cannot be built (an unreachable goal) are not errors of the sweep file: such
     a case fails when it runs, and the sweep goes on.
 
@@ -215,7 +215,7 @@ def sweep_from_document(
 
 def _load_task(task_doc: YamlDocument, task_dir: Path, task_hash: str, prefix: tuple):
     """Load the base task; errors in an inline task get the ``task.`` prefix on their key path."""
-    from balance_opt.io.task import task_from_document
+    from balance_opt.tasks.task import task_from_document
 
     try:
         return task_from_document(task_doc, task_dir, task_hash)
@@ -235,7 +235,7 @@ def _check_case_tasks(
     """Load the task of every distinct parameter set; an error is reported at the line of the
     varied parameter in the sweep file. Limits no plan can meet and missions that cannot be
     built are left to fail their case when it runs: in a study they are results, not typos."""
-    from balance_opt.io.task import TaskLimitsError, TaskTrajectoryError, task_from_document
+    from balance_opt.tasks.task import TaskLimitsError, TaskTrajectoryError, task_from_document
 
     checked = set()
     for case in cases:

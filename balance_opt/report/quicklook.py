@@ -1,8 +1,8 @@
 """A quick look at one result on matplotlib axes, for notebooks: :meth:`BalanceResult.plot`.
 
-Unlike the figures of :mod:`balance_opt.io.plots` (which a run writes to files), this draws on
+Unlike the figures of :mod:`balance_opt.report.plots` (which a run writes to files), this draws on
 axes the caller owns (or on a new figure) and writes nothing; each method has the colour, line
-style, marker and label of the written figures (:func:`balance_opt.io.style.method_style`). The
+style, marker and label of the written figures (:func:`balance_opt.report.style.method_style`). The
 caller's matplotlib settings (fonts, sizes) are left alone.
 """
 
@@ -38,7 +38,7 @@ def plot_result(result: BalanceResult, ax: Axes | None = None, kind: str = "atti
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
-    from balance_opt.io.style import method_style
+    from balance_opt.report.style import method_style
 
     if ax is None:
         import matplotlib.pyplot as plt
