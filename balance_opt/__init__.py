@@ -54,6 +54,7 @@ _LAZY = {
     "simulate": "balance_opt.app.pipeline",
     "run_task": "balance_opt.app.pipeline",
     "SimulationResult": "balance_opt.dynamics.simulation",
+    "plot_result": "balance_opt.report.quicklook",
 }
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ imports them
@@ -66,6 +67,7 @@ if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ impo
         simulate,
     )
     from balance_opt.dynamics.simulation import SimulationResult
+    from balance_opt.report.quicklook import plot_result
     from balance_opt.tasks.task import Task, load_task, task_from_dict
     from balance_opt.result import BalanceResult, LimitViolation
 
@@ -103,6 +105,7 @@ __all__ = [
     "plan_analytic",
     "plan_mission_only",
     "plan_optimal",
+    "plot_result",
     "run_task",
     "simulate",
     "task_from_dict",

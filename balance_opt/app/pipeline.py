@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,6 +36,7 @@ from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures
     METRICS_FILE,
     REFERENCE,
     REPORT_FILE,
+    TaskRun,
     _timed,
     write_figures,
     write_run,
@@ -53,54 +53,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 METHODS = ("analytic", "optimal")
-
-
-@dataclass
-class TaskRun:
-    """Everything a run computed and wrote.
-
-    Attributes:
-        task: the task.
-        results: ``{"mission-only" | "analytic" | "optimal": BalanceResult}``; a failed method's
-            entry is its best iterate.
-        simulations: ``{method: SimulationResult}`` when simulated.
-        failures: ``{method: message}`` for the methods whose solver failed.
-        metrics: the content of ``metrics.json``.
-        files: every file written.
-        report: the HTML report, if written.
-    """
-
-    task: Task
-    results: dict[str, BalanceResult] = field(default_factory=dict)
-    simulations: dict[str, Any] = field(default_factory=dict)
-    failures: dict[str, str] = field(default_factory=dict)
-    metrics: dict[str, Any] = field(default_factory=dict)
-    files: list[Path] = field(default_factory=list)
-    report: Path | None = None
-
-    @property
-    def ok(self) -> bool:
-        """No solver failed."""
-        return not self.failures
-
-    def __repr__(self) -> str:
-        lines = [f"TaskRun(task={self.task.name!r}, ok={self.ok})"]
-        for name, res in self.results.items():
-            failed = " (failed)" if name in self.failures else ""
-            lines.append(
-                f"  {name:13} max drift {res.max_drift:.4g} rad, final {res.final_drift:.4g} rad, "
-                f"{len(res.violations)} limit violation(s){failed}"
-            )
-        if self.simulations:
-            lines.append(f"  simulated     {', '.join(self.simulations)}")
-        for name, message in self.failures.items():
-            if name not in self.results:
-                lines.append(f"  {name}: failed: {message[:80]}")
-        if self.files:
-            where = self.files[0].parent
-            report = f", report {self.report}" if self.report is not None else ""
-            lines.append(f"  files         {len(self.files)} in {where}{report}")
-        return "\n".join(lines)
 
 
 # =========================================================================================== methods

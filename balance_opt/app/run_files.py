@@ -9,11 +9,13 @@ import contextlib
 import logging
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from balance_opt.app.pipeline import TaskRun
+    from balance_opt.result import BalanceResult
+    from balance_opt.tasks.task import Task
 
 log = logging.getLogger("balance_opt.app.pipeline")  # the run's log: one logger
 
@@ -45,6 +47,54 @@ FIGURES = {
         "Balance joint positions, rates and accelerations of each plan with their limits (dotted)",
     ),
 }
+
+
+@dataclass
+class TaskRun:
+    """Everything a run (:func:`balance_opt.app.pipeline.run_task`) computed and wrote.
+
+    Attributes:
+        task: the task.
+        results: ``{"mission-only" | "analytic" | "optimal": BalanceResult}``; a failed method's
+            entry is its best iterate.
+        simulations: ``{method: SimulationResult}`` when simulated.
+        failures: ``{method: message}`` for the methods whose solver failed.
+        metrics: the content of ``metrics.json``.
+        files: every file written.
+        report: the HTML report, if written.
+    """
+
+    task: Task
+    results: dict[str, BalanceResult] = field(default_factory=dict)
+    simulations: dict[str, Any] = field(default_factory=dict)
+    failures: dict[str, str] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+    report: Path | None = None
+
+    @property
+    def ok(self) -> bool:
+        """No solver failed."""
+        return not self.failures
+
+    def __repr__(self) -> str:
+        lines = [f"TaskRun(task={self.task.name!r}, ok={self.ok})"]
+        for name, res in self.results.items():
+            failed = " (failed)" if name in self.failures else ""
+            lines.append(
+                f"  {name:13} max drift {res.max_drift:.4g} rad, final {res.final_drift:.4g} rad, "
+                f"{len(res.violations)} limit violation(s){failed}"
+            )
+        if self.simulations:
+            lines.append(f"  simulated     {', '.join(self.simulations)}")
+        for name, message in self.failures.items():
+            if name not in self.results:
+                lines.append(f"  {name}: failed: {message[:80]}")
+        if self.files:
+            where = self.files[0].parent
+            report = f", report {self.report}" if self.report is not None else ""
+            lines.append(f"  files         {len(self.files)} in {where}{report}")
+        return "\n".join(lines)
 
 
 @contextlib.contextmanager
