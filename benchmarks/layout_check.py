@@ -277,8 +277,10 @@ def main(argv=None) -> int:
     unplaced = sorted({part_of(n) for n in modules} - set(layer_index()))
     if unplaced:
         print(f"\nparts in no layer of LAYERS: {', '.join(repr(p) for p in unplaced)}")
-    print("\nlayers, lowest first: " + " -> ".join("/".join(p or "__init__" for p in parts)
-                                                  for _, parts in LAYERS))
+    print(
+        "\nlayers, lowest first: "
+        + " -> ".join("/".join(p or "__init__" for p in parts) for _, parts in LAYERS)
+    )
     short = package.name + "."
     upward = upward_imports(graph)
     print(f"upward imports: {len(upward)}")

@@ -320,8 +320,8 @@ def test_force_leaves_no_file_of_the_earlier_run(tmp_path):
 @pytest.mark.parametrize("where", ["file-parent", "in-use", "not-empty"])
 def test_output_folder_checked_before_the_task_is_loaded(tmp_path, capsys, monkeypatch, where):
     from balance_opt.cli import main
-    from balance_opt.tasks import task as task_module
     from balance_opt.report.output_dir import FolderLock
+    from balance_opt.tasks import task as task_module
 
     monkeypatch.setattr(task_module, "load_task", lambda path: pytest.fail("task loaded"))
     out = tmp_path / "out"

@@ -12,6 +12,7 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques, plan_torques
+from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
 from balance_opt.optimal.ipopt_version import ipopt_version
 from balance_opt.report.animation import (
     ANIMATION_FPS,
@@ -44,7 +45,6 @@ from balance_opt.report.report import (
     torque_table,
 )
 from balance_opt.report.style import method_label
-from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 ATOL = 1e-9

@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 
 from balance_opt.cli import main
-from balance_opt.errors import ArmError, URDFLoadError
-from balance_opt.tasks.task import load_task
 from balance_opt.config.yaml_lines import TaskFileError
+from balance_opt.errors import ArmError, URDFLoadError
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.tasks.task import load_task
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = (ROOT / "examples" / "capture_task.yaml").read_text()

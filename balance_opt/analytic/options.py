@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from balance_opt.errors import InputError
 from balance_opt.config.typed_config import check_settings, setting
+from balance_opt.errors import InputError
 
 #: ``sigma_min(J_wB)`` below which damping starts [rad of base rotation per rad of joint motion].
 #: On the paper robot a random configuration has sigma_min ~ 5e-4, the best ones ~ 5e-3.

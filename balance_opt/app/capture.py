@@ -36,6 +36,7 @@ from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violat
 
 log = logging.getLogger(__name__)
 
+
 class MissionWindow:
     """The mission arm's motion over ``[t0, t1]`` of a longer mission, its clock starting at 0.
 

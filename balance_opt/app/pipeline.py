@@ -44,8 +44,8 @@ from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.report.output_dir import OutputFolder
-from balance_opt.tasks.task import Task, check_methods, check_optimal_supported
 from balance_opt.result import BalanceResult
+from balance_opt.tasks.task import Task, check_methods, check_optimal_supported
 
 if TYPE_CHECKING:
     from balance_opt.dynamics.simulation import SimulationResult

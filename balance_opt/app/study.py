@@ -37,10 +37,10 @@ from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
-from balance_opt.report.plots import FORMATS, paper_figure_set
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
+from balance_opt.report.plots import FORMATS, paper_figure_set
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
 
 log = logging.getLogger(__name__)

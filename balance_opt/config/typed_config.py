@@ -43,7 +43,6 @@ import typing
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Literal
 
-from balance_opt.errors import InputError
 from balance_opt.config.keypath import format_path
 from balance_opt.config.type_names import (
     describe,
@@ -54,6 +53,7 @@ from balance_opt.config.type_names import (
     type_hints,
     value_words,
 )
+from balance_opt.errors import InputError
 
 _MISSING = dataclasses.MISSING
 

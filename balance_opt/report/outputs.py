@@ -310,8 +310,8 @@ def method_metrics(
     ``balance_relative_limit_margin`` (:func:`relative_limit_margins` of the balance joints);
     ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says);
     ``effort`` (:func:`effort_metrics`, for the system's momentum ``h0``, world frame, zero by
-    default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort limits) and their number
-    ``limit_violations``; ``solver`` (:func:`solver_metrics`);
+    default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort
+    limits) and their number ``limit_violations``; ``solver`` (:func:`solver_metrics`);
     ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].

@@ -418,8 +418,8 @@ def render_report(
         description: the task's description.
         extra_html: trusted HTML appended at the end (e.g. an animation).
         torques: per method ``(t, tau)``, the sample times [s] and joint torques (T, n) [N m]
-            of :func:`balance_opt.dynamics.inverse_dynamics.plan_joint_torques`, drawn over the motion in
-            the torque tables (left out: peaks only).
+            of :func:`balance_opt.dynamics.inverse_dynamics.plan_joint_torques`, drawn over the
+            motion in the torque tables (left out: peaks only).
     """
     task = metrics.get("task", {})
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from balance_opt.model.robot import FloatingRobot
 from balance_opt.report import style
 from balance_opt.report.figure_layout import arrange, column_title, legend_above, legend_columns
-from balance_opt.model.robot import FloatingRobot
 from balance_opt.result import BalanceResult
 
 #: Rows of the figure: (result field, limit field, axis label).

@@ -73,8 +73,8 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     """
     from balance_opt.app.pipeline import plan
     from balance_opt.errors import SolverError
-    from balance_opt.tasks.task import task_from_dict
     from balance_opt.sweep.engine import STATUS_OK, STATUS_SOLVER_FAILED, error_record
+    from balance_opt.tasks.task import task_from_dict
 
     models = WORKER_MODELS if models is None else models
     start = time.perf_counter()

@@ -45,7 +45,7 @@ from balance_opt.config.yaml_lines import (
     load_yaml,
     parse_yaml,
 )
-from balance_opt.sweep.cases import (  # noqa: F401  (the file format: public here too)
+from balance_opt.sweep.cases import (  # the file format (SweepSpec, ...): public here too
     Distribution,
     RandomSamples,
     SweepSpec,
@@ -109,8 +109,8 @@ def sweep_from_document(
     """A :class:`Sweep` from a parsed sweep file.
 
     The base task and the task of every case are loaded in full (robot, mission, limits: see
-    :func:`balance_opt.tasks.task.task_from_document`), about 10 ms each. Limits no plan can meet and
-    missions that cannot be built (an unreachable goal) are not errors of the sweep file: such
+    :func:`balance_opt.tasks.task.task_from_document`), about 10 ms each. Limits no plan can meet
+    and missions that cannot be built (an unreachable goal) are not errors of the sweep file: such
     a case fails when it runs, and the sweep goes on.
 
     Args:

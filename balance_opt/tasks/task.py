@@ -29,7 +29,13 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.config.typed_config import from_data
+from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, load_yaml
 from balance_opt.errors import ArmError, InputError, JointError, TrajectoryError, URDFLoadError
+from balance_opt.model.arms import LIMIT_KEYS
+from balance_opt.model.robot import FloatingRobot, LimitOverrideError
+from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
+from balance_opt.optimal.options import PlannerOptions
 from balance_opt.tasks.task_checks import (
     TaskLimitsError,
     TaskTrajectoryError,
@@ -48,12 +54,6 @@ from balance_opt.tasks.task_spec import (
     task_json_schema,
     task_reference_markdown,
 )
-from balance_opt.config.typed_config import from_data
-from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, load_yaml
-from balance_opt.model.arms import LIMIT_KEYS
-from balance_opt.model.robot import FloatingRobot, LimitOverrideError
-from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
-from balance_opt.optimal.options import PlannerOptions
 
 log = logging.getLogger(__name__)
 

@@ -21,14 +21,20 @@ import logging
 
 import numpy as np
 
-from balance_opt.errors import InfeasibleLimitsError, TrajectoryError
 from balance_opt.config.keypath import format_path
-from balance_opt.tasks.task_spec import CartesianMission, CsvMission, PtpMission, TaskSpec, ViaMission
 from balance_opt.config.typed_config import walk_settings
 from balance_opt.config.yaml_lines import TaskFileError, YamlDocument
+from balance_opt.errors import InfeasibleLimitsError, TrajectoryError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.trajectories import JointTrajectory
 from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
+from balance_opt.tasks.task_spec import (
+    CartesianMission,
+    CsvMission,
+    PtpMission,
+    TaskSpec,
+    ViaMission,
+)
 
 #: Samples per second used to check a mission trajectory against its limits [1/s].
 LIMIT_CHECK_RATE = 200.0
