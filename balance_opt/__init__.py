@@ -1,7 +1,9 @@
 """balance-opt: balance-arm motion planning for free-floating multi-arm space robots.
 
-The stages, one subpackage each:
+The stages, one subpackage each, lowest first (each imports only from those before it; see
+``docs/architecture.md``):
 
+* ``config``: typed settings (one declaration per option), YAML with line numbers, key paths;
 * ``model``: the robot (URDF on a free-flying base, arms by joint names) and its momentum maps,
   numeric (Pinocchio) and symbolic (CasADi);
 * ``motion``: joint trajectories, SO(3) attitude, the kinematic replay of joint motions and the
@@ -9,7 +11,7 @@ The stages, one subpackage each:
 * ``analytic``: the paper's balance law, its rollout and its phases; ``optimal``: the optimal
   planner (NLP);
 * ``dynamics``: forward-dynamics simulation of a plan and the wrenches on the base;
-* ``io``: task files, output files, figures and the HTML report;
+* ``tasks``: task files; ``report``: output files, figures and the HTML report;
 * ``app``: running a task end to end (``pipeline``), the paper's study; ``sweep``: many tasks.
 
 ``result`` holds the plan type every method returns, ``errors`` the exceptions, ``cli`` the
@@ -44,9 +46,9 @@ __version__ = "0.1.0"
 _LAZY = {
     "BalanceResult": "balance_opt.result",
     "LimitViolation": "balance_opt.result",
-    "Task": "balance_opt.io.task",
-    "load_task": "balance_opt.io.task",
-    "task_from_dict": "balance_opt.io.task",
+    "Task": "balance_opt.tasks.task",
+    "load_task": "balance_opt.tasks.task",
+    "task_from_dict": "balance_opt.tasks.task",
     "TaskRun": "balance_opt.app.pipeline",
     "plan_mission_only": "balance_opt.app.pipeline",
     "plan_analytic": "balance_opt.app.pipeline",
@@ -54,6 +56,7 @@ _LAZY = {
     "simulate": "balance_opt.app.pipeline",
     "run_task": "balance_opt.app.pipeline",
     "SimulationResult": "balance_opt.dynamics.simulation",
+    "plot_result": "balance_opt.report.quicklook",
 }
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ imports them
@@ -66,8 +69,9 @@ if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ impo
         simulate,
     )
     from balance_opt.dynamics.simulation import SimulationResult
-    from balance_opt.io.task import Task, load_task, task_from_dict
+    from balance_opt.report.quicklook import plot_result
     from balance_opt.result import BalanceResult, LimitViolation
+    from balance_opt.tasks.task import Task, load_task, task_from_dict
 
 
 def __getattr__(name: str) -> Any:
@@ -103,6 +107,7 @@ __all__ = [
     "plan_analytic",
     "plan_mission_only",
     "plan_optimal",
+    "plot_result",
     "run_task",
     "simulate",
     "task_from_dict",

@@ -24,7 +24,7 @@ Progress of long work (stages, kernel compilation, the optimal planner's Ipopt i
 to stderr (:mod:`balance_opt.progress`): an updating line on a terminal, one line per stage
 otherwise; ``-q`` turns it off.
 
-Outputs are all-or-nothing (:class:`~balance_opt.io.output_dir.OutputFolder`): the output folder
+Outputs are all-or-nothing (:class:`~balance_opt.report.output_dir.OutputFolder`): the output folder
 is checked and locked before anything is computed (a folder that cannot be created, is in use by
 another run, or exists and is not empty without ``--force`` is exit 2), the files are written
 into a staging folder beside it, and that folder takes the place of the old one when complete.
@@ -55,7 +55,7 @@ from balance_opt.cli_options import (
     run_options,
 )
 from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
-from balance_opt.io.output_dir import OutputFolder
+from balance_opt.report.output_dir import OutputFolder
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: A closed output pipe: 128 + SIGPIPE, what a shell reports for ``cat`` ended by it.
@@ -118,7 +118,7 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
 
 # =========================================================================================== commands
 def _cmd_schema(args) -> int:
-    from balance_opt.io.task import task_json_schema
+    from balance_opt.tasks.task import task_json_schema
 
     print(json.dumps(task_json_schema(), indent=2))
     return EXIT_OK
@@ -127,12 +127,12 @@ def _cmd_schema(args) -> int:
 def _cmd_validate(args) -> int:
     """Check every task file given, each error printed with its file; exit 2 if any failed."""
     from balance_opt.errors import InputError
-    from balance_opt.io.task import check_methods, load_task
+    from balance_opt.tasks.task import check_methods, load_task
 
     if args.schema:
         return _cmd_schema(args)
     if args.reference:
-        from balance_opt.io.task import task_reference_markdown
+        from balance_opt.tasks.task import task_reference_markdown
 
         print(task_reference_markdown())
         return EXIT_OK
@@ -174,7 +174,7 @@ def _cmd_inspect(args) -> int:
         print(robot_summary(paper_robot()))
         print(backend_line(args.backend or "auto"))
         return EXIT_OK
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     task = with_backend(load_task(args.task), args.backend)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
@@ -185,7 +185,7 @@ def _cmd_inspect(args) -> int:
 
 def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
     from balance_opt.app.pipeline import run_task
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     with _early_output(args) as folder:
         task = with_backend(load_task(args.task), args.backend)
@@ -198,7 +198,6 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
             simulate=simulate,
             output_dir=folder,
             solver_options=solver_options,
-            background=True,
         )
     log.info(
         "wrote %d files to %s in %.1f s",
@@ -245,7 +244,7 @@ def _cmd_paper_figures(args) -> int:
     with _early_output(args) as folder:
         task = None
         if args.task is not None:
-            from balance_opt.io.task import load_task
+            from balance_opt.tasks.task import load_task
 
             task = load_task(args.task)
         solver_options = ipopt_options_of(args, task)

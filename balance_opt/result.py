@@ -1,10 +1,11 @@
 """The result of a balance plan, shared by the analytic law, the optimal planner and replays, so
 that any two compare field by field.
 
-A :class:`BalanceResult` is also what a notebook holds: a short ``repr``, value equality,
-:meth:`BalanceResult.to_dataframe` (pandas) and :meth:`BalanceResult.plot` (matplotlib, on axes
-you give or new ones; no file is written). pandas and matplotlib are imported only when those
-methods are called.
+A :class:`BalanceResult` is also what a notebook holds: a short ``repr``, value equality and
+:meth:`BalanceResult.to_dataframe` (pandas, imported only then). Drawing one is the report's
+business (:func:`balance_opt.report.quicklook.plot_result`, ``balance_opt.plot_result``): a
+result is made in the lowest layers of the package (motion, analytic, optimal, dynamics) and
+knows nothing of figures.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_q
 
 if TYPE_CHECKING:
     import pandas
-    from matplotlib.axes import Axes
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
@@ -108,7 +108,7 @@ class AttitudeHistory:
 
 
 #: Columns of :meth:`BalanceResult.to_dataframe` after the joints: the same names as the CSV
-#: files (:func:`balance_opt.io.outputs.trajectory_columns`; tests/test_api.py checks they agree).
+#: files (:func:`balance_opt.report.outputs.trajectory_columns`).
 ATTITUDE_COLUMNS = (
     "base_qx",
     "base_qy",
@@ -119,6 +119,9 @@ ATTITUDE_COLUMNS = (
     "base_yaw",
     "base_angle",
 )
+#: ``BalanceResult.info`` entries left out of ``metrics.json`` and of summaries (kept in the
+#: NPZ): large arrays.
+BULKY_INFO_KEYS = ("nlp_solution", "history")
 #: Rows of :meth:`BalanceResult.__repr__` at most (a notebook cell's worth).
 REPR_LINES = 12
 
@@ -314,25 +317,6 @@ class BalanceResult(AttitudeHistory):
         df.attrs["units"] = {"time": "s", **units}
         df.attrs["method"] = self.method
         return df
-
-    def plot(self, ax: Axes | None = None, kind: str = "attitude") -> Axes:
-        """Draw this result on matplotlib axes; nothing is written to disk.
-
-        Args:
-            ax: the axes to draw on; ``None`` makes a new figure (``plt.subplots``), which a
-                notebook shows.
-            kind: ``"attitude"``: the base rotation from the start [deg] against time [s];
-                ``"balance"``: the balance joint positions [rad] against time.
-
-        Returns:
-            The axes drawn on.
-
-        Raises:
-            ValueError: an unknown ``kind``.
-        """
-        from balance_opt.io.quicklook import plot_result
-
-        return plot_result(self, ax=ax, kind=kind)
 
 
 def _joint_list(names: tuple[str, ...], limit: int = 4) -> str:

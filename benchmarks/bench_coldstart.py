@@ -47,7 +47,7 @@ CHILD = """
 import json, sys, time
 start = time.perf_counter()
 from balance_opt.app.pipeline import plan_optimal
-from balance_opt.io.task import load_task
+from balance_opt.tasks.task import load_task
 from balance_opt.app.models import ModelCache
 task = load_task(sys.argv[1])
 # "wait": compile the kernels first and wait for them; "auto": compile in the background

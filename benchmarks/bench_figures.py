@@ -32,13 +32,13 @@ def main() -> None:
     args = parser.parse_args()
 
     from balance_opt.app.pipeline import run_task, write_figures
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     run = run_task(load_task(args.task), methods=("analytic", "optimal"), simulate=True)
     plan_run = replace(run, simulations={})
     paper = None
     try:
-        from balance_opt.io.plots import paper_figure_set
+        from balance_opt.report.plots import paper_figure_set
 
         def paper(out: Path) -> None:
             sims = run.simulations  # Fig. 3 drawn from the balanced runs: timing only

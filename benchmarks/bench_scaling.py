@@ -29,7 +29,7 @@ def task_with_intervals(path: Path, intervals: int, objective: str | None = None
     """The task of ``path`` with ``optimal.intervals`` (and ``optimal.objective``) set."""
     import yaml
 
-    from balance_opt.io.task import task_from_dict
+    from balance_opt.tasks.task import task_from_dict
 
     data = yaml.safe_load(path.read_text())
     data.setdefault("optimal", {})["intervals"] = intervals

@@ -60,10 +60,10 @@ def _problems(intervals: int, compile_kernels: bool, ipopt=None):
     """``{name: (problem, start, captured nlpsol input)}`` of the capture task's peak plan."""
     import casadi as cs
 
-    from balance_opt.io.task import load_task
     from balance_opt.model.symbolic import SymbolicMaps
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.solve import build_balance_nlp
+    from balance_opt.tasks.task import load_task
 
     task = load_task(TASK)
     options = task.planner_options(ipopt)

@@ -7,13 +7,16 @@ Prints four tables:
 * the functions over 80 lines, with ``file:line`` and whether a reason is given: a comment
   containing ``long:`` on the ``def`` line or on the line above the function (above its
   decorators, if any);
-* the import cycles between balance_opt modules, counting imports at any depth (inside
-  functions too) but not those under ``if TYPE_CHECKING:``, which never run. An import
-  ``from balance_opt.a import b`` is an edge to the module ``balance_opt.a.b`` when there is
-  one, else to ``balance_opt.a`` (importing a module also runs its parent packages'
-  ``__init__``; those implicit edges are not counted, as every import tool does).
+* the imports that run up the declared layers (:data:`LAYERS`: a module may import from its own
+  layer and the layers listed before it), and the import cycles between balance_opt modules.
+  Both count imports at any depth (inside functions too) but not those under
+  ``if TYPE_CHECKING:``, which never run. An import ``from balance_opt.a import b`` is an edge
+  to the module ``balance_opt.a.b`` when there is one, else to ``balance_opt.a`` (importing a
+  module also runs its parent packages' ``__init__``; those implicit edges are not counted, as
+  every import tool does).
 
-Always exits 0: it reports, the reader judges.
+Exits 1 when an import runs upward, a cycle exists or a part of the package is in no layer;
+the size and function tables only report.
 
     python benchmarks/layout_check.py [--package PATH] [--top 10] [--max-lines 80]
 """
@@ -29,6 +32,25 @@ ROOT = Path(__file__).resolve().parents[1]
 MODULE_LIMIT = 600
 REASON_MARK = "long:"
 MAX_CYCLES_PER_GROUP = 20
+
+#: The declared layers, lowest first: ``(layer, parts)``. A part is a subpackage or a module
+#: directly in the package (``""`` is the package's ``__init__``, the notebook API). A module
+#: imports only from its own layer and those before it; parts of one layer may import each
+#: other as long as no modules form a cycle.
+LAYERS = (
+    ("base", ("errors", "interrupts", "progress", "cache", "cache_admin")),
+    ("config", ("config",)),
+    ("model", ("model",)),
+    ("motion", ("motion", "result")),
+    ("analytic", ("analytic",)),
+    ("optimal", ("optimal",)),
+    ("dynamics", ("dynamics",)),
+    ("tasks", ("tasks",)),
+    ("report", ("report",)),
+    ("app", ("app",)),
+    ("sweep", ("sweep",)),
+    ("cli", ("cli", "cli_options", "cli_tools", "")),
+)
 
 
 def module_name(path: Path, package_dir: Path) -> str:
@@ -82,6 +104,30 @@ def import_edges(name: str, is_package: bool, tree: ast.AST, modules: set[str]) 
             if target and target.split(".")[0] == top and target != name:
                 edges.add(target)
     return edges
+
+
+def part_of(module: str) -> str:
+    """``balance_opt.sweep.spec`` -> ``sweep``; the package itself -> ``""``."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def layer_index() -> dict[str, int]:
+    """``part -> position of its layer in`` :data:`LAYERS`."""
+    return {part: i for i, (_, parts) in enumerate(LAYERS) for part in parts}
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[tuple[str, str, str, str]]:
+    """``(module, imported module, its layer, the imported one's layer)`` of every import from a
+    lower layer to a higher one."""
+    rank, names = layer_index(), [name for name, _ in LAYERS]
+    found = []
+    for module in sorted(graph):
+        for target in sorted(graph[module]):
+            a, b = rank.get(part_of(module)), rank.get(part_of(target))
+            if a is not None and b is not None and b > a:
+                found.append((module, target, names[a], names[b]))
+    return found
 
 
 def long_functions(tree: ast.AST, lines: list[str], limit: int):
@@ -228,16 +274,30 @@ def main(argv=None) -> int:
         n: import_edges(n, modules[n].name == "__init__.py", trees[n], set(modules))
         for n in modules
     }
+    unplaced = sorted({part_of(n) for n in modules} - set(layer_index()))
+    if unplaced:
+        print(f"\nparts in no layer of LAYERS: {', '.join(repr(p) for p in unplaced)}")
+    print(
+        "\nlayers, lowest first: "
+        + " -> ".join("/".join(p or "__init__" for p in parts) for _, parts in LAYERS)
+    )
+    short = package.name + "."
+    upward = upward_imports(graph)
+    print(f"upward imports: {len(upward)}")
+    for module, target, low, high in upward:
+        print(f"  {module.removeprefix(short)} ({low}) -> {target.removeprefix(short)} ({high})")
+
     groups = strongly_connected(graph)
-    print(f"\nimport cycles: {len(groups)} group(s) of modules importing each other")
+    cycles = [c for g in groups for c in simple_cycles(graph, g, MAX_CYCLES_PER_GROUP)]
+    print(f"import cycles: {len(cycles)} in {len(groups)} group(s) of modules importing each other")
     for group in groups:
-        print(f"  group: {', '.join(group)}")
-        cycles = simple_cycles(graph, group, MAX_CYCLES_PER_GROUP)
-        for cycle in cycles:
-            print("    " + " -> ".join(m.removeprefix(package.name + ".") for m in cycle))
-        if len(cycles) == MAX_CYCLES_PER_GROUP:
+        print(f"  group: {', '.join(m.removeprefix(short) for m in group)}")
+        found = simple_cycles(graph, group, MAX_CYCLES_PER_GROUP)
+        for cycle in found:
+            print("    " + " -> ".join(m.removeprefix(short) for m in cycle))
+        if len(found) == MAX_CYCLES_PER_GROUP:
             print(f"    ... (first {MAX_CYCLES_PER_GROUP} cycles shown)")
-    return 0
+    return 1 if upward or groups or unplaced else 0
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import balance_opt as bo
-from balance_opt.io.output_dir import OutputFolder
+from balance_opt.report.output_dir import OutputFolder
 
 HERE = Path(__file__).resolve().parent
 

@@ -14,8 +14,8 @@ import pytest
 import balance_opt as bo
 from balance_opt.app import pipeline
 from balance_opt.errors import InputError
-from balance_opt.io.output_dir import OutputFolder, OutputFolderError
-from balance_opt.io.outputs import write_trajectory_csv
+from balance_opt.report.output_dir import OutputFolder, OutputFolderError
+from balance_opt.report.outputs import write_trajectory_csv
 from balance_opt.result import REPR_LINES, BalanceResult, LimitViolation
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -214,16 +214,16 @@ def test_plot_returns_axes_and_writes_nothing(plans, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     fig, ax = plt.subplots()
     try:
-        assert plans["mission-only"].plot(ax=ax) is ax
-        assert plans["analytic"].plot(ax) is ax
+        assert bo.plot_result(plans["mission-only"], ax=ax) is ax
+        assert bo.plot_result(plans["analytic"], ax) is ax
         assert len(ax.lines) == 2
         np.testing.assert_allclose(ax.lines[1].get_ydata(), np.degrees(plans["analytic"].angle))
         assert ax.get_ylabel() == "base rotation from start [deg]"
-        new = plans["analytic"].plot(kind="balance")
+        new = bo.plot_result(plans["analytic"], kind="balance")
         assert new is not ax and len(new.lines) == len(plans["analytic"].balance_joints)
         plt.close(new.figure)
         with pytest.raises(ValueError, match="kind must be one of attitude, balance, got 'x'"):
-            plans["analytic"].plot(ax, kind="x")
+            bo.plot_result(plans["analytic"], ax, kind="x")
     finally:
         plt.close(fig)
     assert list(tmp_path.iterdir()) == []

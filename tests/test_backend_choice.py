@@ -6,8 +6,8 @@ import pytest
 from balance_opt.app import pipeline
 from balance_opt.app.models import ModelCache
 from balance_opt.cli import main
-from balance_opt.io.task import load_task
 from balance_opt.model.symbolic import available_backends
+from balance_opt.tasks.task import load_task
 
 TASK = """name: t
 robot: {{shipped: paper_robot.urdf{backend}}}
@@ -37,8 +37,8 @@ def test_task_file_selects_the_backend(tmp_path, backend):
 
 
 def test_task_choices_are_the_symbolic_backends():
-    from balance_opt.io.task_spec import SYMBOLIC_BACKENDS
     from balance_opt.model.symbolic import BACKENDS
+    from balance_opt.tasks.task_spec import SYMBOLIC_BACKENDS
 
     assert SYMBOLIC_BACKENDS == ("auto", *BACKENDS)
 

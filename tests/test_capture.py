@@ -23,13 +23,13 @@ from balance_opt.analytic.rollout import rollout
 from balance_opt.app.capture import plan_captured, robot_after
 from balance_opt.app.pipeline import run_task, simulate_result
 from balance_opt.errors import InputError
-from balance_opt.io.outputs import solver_metrics
-from balance_opt.io.task import load_task
 from balance_opt.model.capture import Target, attach_target, capture_state
 from balance_opt.model.maps import NumericMaps
 from balance_opt.motion.so3 import rotvec_from_quaternion
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.report.outputs import solver_metrics
+from balance_opt.tasks.task import load_task
 
 #: A total momentum [N s; N m s] that turns the paper robot's base by several degrees in 10 s.
 H0 = np.array([0.3, -0.2, 0.1, 2.0, -1.5, 3.0])

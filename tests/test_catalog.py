@@ -87,7 +87,7 @@ def test_chains_split_at_branches_and_pass_fixed_joints():
 
 
 def test_a_task_names_talos_by_its_short_name(tmp_path):
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     left = [f"arm_left_{k}_joint" for k in range(1, 8)]
     right = [f"arm_right_{k}_joint" for k in range(1, 8)]

@@ -139,7 +139,7 @@ def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, cap
 
 
 def test_talos_example_has_fourteen_arm_joints():
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     task = load_task(ROOT / "examples" / "talos_arms.yaml")
     assert task.robot.n == 14 and task.robot.mission.dof == 7

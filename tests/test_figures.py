@@ -11,8 +11,8 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from PIL import Image
 
-from balance_opt.io import style
-from balance_opt.io.plots import (
+from balance_opt.report import style
+from balance_opt.report.plots import (
     attitude_figure,
     curve_labels,
     draw_attitude,
@@ -193,7 +193,7 @@ def fake_plan(joints, rng, T=40):
 
 
 def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path):
-    from balance_opt.io.report_figures import joint_limits_figure
+    from balance_opt.report.report_figures import joint_limits_figure
 
     joints = [j for j in paper.joint_names if "balance" in j]
     rng = np.random.default_rng(7)

@@ -138,7 +138,7 @@ def test_interrupt_before_the_solve_keeps_the_previous_results(tmp_path, capsys,
 
 
 def test_interrupt_while_writing_keeps_the_previous_results(tmp_path, capsys, monkeypatch):
-    from balance_opt.io import outputs
+    from balance_opt.report import outputs
 
     task = _fast_task(tmp_path)
     out, before = _previous_run(tmp_path, task)
@@ -159,8 +159,8 @@ def test_interrupt_while_writing_keeps_the_previous_results(tmp_path, capsys, mo
 
 def test_api_run_is_all_or_nothing(tmp_path, monkeypatch):
     from balance_opt.app.pipeline import run_task
-    from balance_opt.io import outputs
-    from balance_opt.io.task import load_task
+    from balance_opt.report import outputs
+    from balance_opt.tasks.task import load_task
 
     task = load_task(_fast_task(tmp_path))
     out = tmp_path / "api"
@@ -176,7 +176,7 @@ def test_api_run_is_all_or_nothing(tmp_path, monkeypatch):
     run = run_task(task, methods=("analytic",), output_dir=out)
     assert run.report is None and all(p.parent == out for p in run.files)
     assert {p.name for p in out.iterdir()} == {p.name for p in run.files}
-    from balance_opt.io.output_dir import OutputFolderError
+    from balance_opt.report.output_dir import OutputFolderError
 
     with pytest.raises(OutputFolderError, match="exists and is not empty; use --force"):
         run_task(task, methods=("analytic",), output_dir=out)

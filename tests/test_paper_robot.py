@@ -324,7 +324,7 @@ def _independent_attitude(robot, t, q):
 @pytest.fixture(scope="module")
 def fig5():
     from balance_opt.app.pipeline import plan_analytic, plan_mission_only
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     task = load_task(EXAMPLES / "paper_fig5.yaml")
     return task, plan_analytic(task), plan_mission_only(task)

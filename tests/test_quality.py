@@ -16,7 +16,6 @@ import time
 import numpy as np
 import pytest
 
-from balance_opt.io.outputs import solver_metrics
 from balance_opt.model.library import paper_robot
 from balance_opt.optimal.guess import resampled
 from balance_opt.optimal.layout import Solution
@@ -24,6 +23,7 @@ from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.problem import PlannerSolverError
 from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.report.outputs import solver_metrics
 
 BALANCE = ("balance_joint1", "balance_joint2", "balance_joint3")
 #: Relative torque excess allowed between the collocation points.

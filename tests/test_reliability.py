@@ -88,7 +88,7 @@ def _files(folder):
 
 
 def test_output_folder_replaces_whole_run_only_when_complete(tmp_path):
-    from balance_opt.io.output_dir import OutputFolder
+    from balance_opt.report.output_dir import OutputFolder
 
     target = tmp_path / "run"
     target.mkdir()
@@ -104,7 +104,7 @@ def test_output_folder_replaces_whole_run_only_when_complete(tmp_path):
 
 
 def test_output_folder_interrupted_run_leaves_previous_results(tmp_path):
-    from balance_opt.io.output_dir import OutputFolder
+    from balance_opt.report.output_dir import OutputFolder
 
     target = tmp_path / "run"
     target.mkdir()
@@ -117,7 +117,7 @@ def test_output_folder_interrupted_run_leaves_previous_results(tmp_path):
 
 
 def test_output_folder_refuses_non_empty_without_force(tmp_path):
-    from balance_opt.io.output_dir import OutputFolder, OutputFolderError
+    from balance_opt.report.output_dir import OutputFolder, OutputFolderError
 
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "x.txt").write_text("keep")
@@ -128,7 +128,7 @@ def test_output_folder_refuses_non_empty_without_force(tmp_path):
 
 @pytest.mark.parametrize("where", ["file-parent", "proc"])
 def test_output_folder_not_creatable_fails_at_once(tmp_path, where):
-    from balance_opt.io.output_dir import OutputFolder, OutputFolderError
+    from balance_opt.report.output_dir import OutputFolder, OutputFolderError
 
     if where == "file-parent":
         (tmp_path / "plain").write_text("")
@@ -144,7 +144,7 @@ def test_output_folder_lock_refuses_second_run_and_dies_with_its_holder(tmp_path
     import subprocess
     import sys
 
-    from balance_opt.io.output_dir import OutputFolder, OutputFolderError
+    from balance_opt.report.output_dir import OutputFolder, OutputFolderError
 
     target = tmp_path / "run"
     holder = subprocess.Popen(
@@ -153,7 +153,7 @@ def test_output_folder_lock_refuses_second_run_and_dies_with_its_holder(tmp_path
             "-c",
             (
                 "import sys, time\n"
-                "from balance_opt.io.output_dir import OutputFolder\n"
+                "from balance_opt.report.output_dir import OutputFolder\n"
                 f"out = OutputFolder({str(target)!r}); out.open(); print('ready', flush=True)\n"
                 "time.sleep(60)\n"
             ),
@@ -318,8 +318,8 @@ def test_force_leaves_no_file_of_the_earlier_run(tmp_path):
 @pytest.mark.parametrize("where", ["file-parent", "in-use", "not-empty"])
 def test_output_folder_checked_before_the_task_is_loaded(tmp_path, capsys, monkeypatch, where):
     from balance_opt.cli import main
-    from balance_opt.io import task as task_module
-    from balance_opt.io.output_dir import FolderLock
+    from balance_opt.report.output_dir import FolderLock
+    from balance_opt.tasks import task as task_module
 
     monkeypatch.setattr(task_module, "load_task", lambda path: pytest.fail("task loaded"))
     out = tmp_path / "out"
@@ -382,7 +382,7 @@ def test_default_output_folder_name_is_sanitised(name, folder):
 
 def test_task_name_cannot_write_outside_results(tmp_path, monkeypatch):
     from balance_opt.cli import main
-    from balance_opt.io.task import Task
+    from balance_opt.tasks.task import Task
 
     task = _task_file(tmp_path, "outputs: {plots: false, report: false}\n")
     work = tmp_path / "a" / "b"
@@ -418,7 +418,7 @@ def test_validate_reports_every_file(tmp_path, capsys):
 
 def test_sweep_into_a_folder_in_use_is_refused(tmp_path, capsys):
     from balance_opt.cli import main
-    from balance_opt.io.output_dir import FolderLock
+    from balance_opt.report.output_dir import FolderLock
 
     sweep = tmp_path / "s.yaml"
     sweep.write_text(
@@ -433,7 +433,7 @@ def test_sweep_into_a_folder_in_use_is_refused(tmp_path, capsys):
 
 
 def test_replaced_atomically_keeps_the_old_file_on_error(tmp_path):
-    from balance_opt.io.output_dir import replaced_atomically
+    from balance_opt.report.output_dir import replaced_atomically
 
     path = tmp_path / "summary.json"
     path.write_text("old")

@@ -11,8 +11,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.dynamics.inverse_dynamics import plan_torques
-from balance_opt.io.animation import (
+from balance_opt.dynamics.inverse_dynamics import plan_joint_torques, plan_torques
+from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
+from balance_opt.optimal.ipopt_version import ipopt_version
+from balance_opt.report.animation import (
     ANIMATION_FPS,
     ARM_COLOURS,
     animation_data,
@@ -22,18 +24,16 @@ from balance_opt.io.animation import (
     segment_arms,
     skeleton,
 )
-from balance_opt.io.outputs import (
+from balance_opt.report.outputs import (
     effort_metrics,
-    ipopt_version,
     limit_margins,
     method_metrics,
-    plan_joint_torques,
     read_npz_result,
     to_json,
     write_trajectory_csv,
     write_trajectory_npz,
 )
-from balance_opt.io.report import (
+from balance_opt.report.report import (
     MOMENTUM_TOLERANCE,
     TORQUE_TOLERANCE,
     comparison_table,
@@ -44,8 +44,7 @@ from balance_opt.io.report import (
     torque_sparkline,
     torque_table,
 )
-from balance_opt.io.style import method_label
-from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
+from balance_opt.report.style import method_label
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 ATOL = 1e-9
@@ -362,15 +361,19 @@ def test_torque_sparkline_keeps_the_peak_and_draws_the_limit():
     assert "<line" not in torque_sparkline(t, tau, None, "")  # no limit, no line
 
 
-def test_plan_torques_are_reused_but_not_shared(paper):
+def test_plan_joint_torques_are_the_plans_columns_and_given_torques_are_used(paper):
     res = _result(paper)
-    first = plan_joint_torques(res, paper)
-    first[:] = 0.0  # a caller's change does not reach the next caller
-    again = plan_joint_torques(res, paper)
-    assert np.abs(again).max() > 0
-    np.testing.assert_array_equal(again, plan_torques(paper, res).tau)
+    tau = plan_joint_torques(res, paper)
+    columns = [paper.joint_index(j) for j in (*res.mission_joints, *res.balance_joints)]
+    assert np.abs(tau).max() > 0
+    np.testing.assert_array_equal(tau, plan_torques(paper, res).tau[:, columns])
     moving = plan_joint_torques(res, paper, np.array([0, 0, 0, 1.0, 0, 0]))
-    assert np.abs(moving - again).max() > 1e-6  # another momentum: computed anew
+    assert np.abs(moving - tau).max() > 1e-6  # another momentum, other torques
+    # the metrics take the caller's torques as they are (a run computes them once)
+    assert effort_metrics(res, paper, torques=moving) == effort_metrics(
+        res, paper, np.array([0, 0, 0, 1.0, 0, 0])
+    )
+    assert effort_metrics(res, paper, torques=moving) != effort_metrics(res, paper)
 
 
 def test_report_is_offline_and_flags_a_failed_method(paper):

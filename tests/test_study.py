@@ -9,8 +9,8 @@ from PIL import Image
 
 from balance_opt.app.study import FIGURE_STEMS, paper_study
 from balance_opt.errors import InputError
-from balance_opt.io.plots import curve_labels
-from balance_opt.io.style import WIDTHS
+from balance_opt.report.plots import curve_labels
+from balance_opt.report.style import WIDTHS
 
 #: Smallest PNG resolution a journal accepts for line art [dpi].
 MIN_DPI = 200

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.io.yaml_lines import TaskFileError, format_path
+from balance_opt.config.yaml_lines import TaskFileError, format_path
 from balance_opt.sweep.cases import (
     apply_overrides,
     case_id_from,
@@ -593,8 +593,8 @@ def test_mission_only_baseline_is_the_mission_only_plan():
     """The sweep's cheap baseline (200 RK4 steps) against ``plan --method mission-only``
     (the task's adaptive integrator, 1e-10)."""
     from balance_opt.app.pipeline import plan
-    from balance_opt.io.task import load_task
     from balance_opt.sweep.runner import mission_only_baseline
+    from balance_opt.tasks.task import load_task
 
     task = load_task(PAPER_TASK)
     reference = plan(task, "mission-only").summary()
@@ -747,7 +747,7 @@ def test_model_cache_key_is_the_kinematics_not_the_limits():
 def test_plan_dispatch_rejects_an_unknown_method():
     from balance_opt.app.pipeline import plan
     from balance_opt.errors import InputError
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     with pytest.raises(InputError, match=r"unknown method 'exact'; expected analytic or optimal"):
         plan(load_task(PAPER_TASK), "exact")
@@ -758,8 +758,8 @@ def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
     """In one process, cases that vary limits, weights and the start share one planner model
     and one compiled NLP; each case's limits still hold in its plan."""
     from balance_opt.app.models import ModelCache
-    from balance_opt.io.task import task_from_dict
     from balance_opt.sweep import runner as sweep_runner
+    from balance_opt.tasks.task import task_from_dict
 
     text = (
         f"task: {PAPER_TASK}\nmethods: [optimal]\n"

@@ -11,20 +11,20 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import capture_task
+from balance_opt.config.typed_config import from_data
+from balance_opt.config.typed_reference import reference_rows
+from balance_opt.config.yaml_lines import TaskFileError, format_path, parse_yaml
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
-from balance_opt.io.task import (
+from balance_opt.motion.options import IntegrationOptions
+from balance_opt.optimal.options import CostWeights, PlannerOptions
+from balance_opt.tasks.task import (
     load_task,
     task_from_dict,
     task_json_schema,
     task_reference_markdown,
 )
-from balance_opt.io.task_spec import PtpMission, TaskSpec
-from balance_opt.io.typed_config import from_data
-from balance_opt.io.typed_reference import reference_rows
-from balance_opt.io.yaml_lines import TaskFileError, format_path, parse_yaml
-from balance_opt.motion.options import IntegrationOptions
-from balance_opt.optimal.options import CostWeights, PlannerOptions
+from balance_opt.tasks.task_spec import PtpMission, TaskSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -814,7 +814,7 @@ def test_loading_a_task_imports_neither_casadi_nor_the_planner():
 
     code = (
         "import sys\n"
-        "from balance_opt.io.task import load_task\n"
+        "from balance_opt.tasks.task import load_task\n"
         f"load_task({str(EXAMPLES / 'capture_task.yaml')!r})\n"
         "print(sorted(m for m in sys.modules if m == 'casadi' or m.startswith('balance_opt.optimal.')))"
     )

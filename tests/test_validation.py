@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 
 from balance_opt.cli import main
+from balance_opt.config.yaml_lines import TaskFileError
 from balance_opt.errors import ArmError, URDFLoadError
-from balance_opt.io.task import load_task
-from balance_opt.io.yaml_lines import TaskFileError
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.tasks.task import load_task
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = (ROOT / "examples" / "capture_task.yaml").read_text()
@@ -138,7 +138,7 @@ def test_checking_ipopt_options_needs_no_casadi_once_the_list_is_cached(tmp_path
     path = _task(tmp_path, extra="optimal:\n  ipopt: {max_iter: 50, mu_strategy: adaptive}\n")
     code = (
         "import sys\n"
-        "from balance_opt.io.task import load_task\n"
+        "from balance_opt.tasks.task import load_task\n"
         f"task = load_task({str(path)!r})\n"
         "print(task.planner_options().ipopt, 'casadi' in sys.modules)"
     )
@@ -593,7 +593,7 @@ def test_torque_limits_with_a_prismatic_joint_are_refused(tmp_path, capsys):
 def test_prismatic_joint_with_the_adam_backend_is_refused(tmp_path):
     path = _prismatic_task(tmp_path, "", backend="adam")
     task = load_task(path)  # the analytic law takes it
-    from balance_opt.io.task import check_methods
+    from balance_opt.tasks.task import check_methods
 
     line = _line_of(path.read_text(), "balance: [b1, b2]")
     with pytest.raises(TaskFileError) as info:
@@ -622,3 +622,32 @@ def test_integration_that_fails_in_its_first_step_reports_it():
         IntegrationOptions(),
     )
     assert Y.tolist() == [y0.tolist()] and message is not None and "(at t = 0 s)" in message
+
+
+@pytest.mark.parametrize("method", ["adaptive", "rk4"])
+def test_integrated_attitude_of_a_constant_body_rate_is_exact(method):
+    # q(t) = q0 * exp(omega t / 2) for a constant body rate: both integrators reach it to
+    # their tolerance, the adaptive one (SciPy's DOP853) to its rtol, over many turns.
+    import numpy as np
+
+    from balance_opt.motion.integration import integrate
+    from balance_opt.motion.options import IntegrationOptions
+    from balance_opt.motion.so3 import (
+        quaternion_from_rotvec,
+        quaternion_multiply,
+        quaternion_rate,
+        relative_rotation,
+        rotation_angle,
+    )
+
+    omega = np.array([0.3, -0.2, 0.5])
+    q0 = quaternion_from_rotvec(np.array([0.1, 0.2, -0.3]))
+    t = np.linspace(0.0, 20.0, 201)
+    step = None if method == "adaptive" else 0.01
+    options = IntegrationOptions(method=method, rtol=1e-10, atol=1e-12, step=step)
+    Y, stats, message = integrate(lambda t, y: quaternion_rate(y, omega), q0, t, options)
+    exact = quaternion_multiply(q0, quaternion_from_rotvec(np.outer(t, omega)))
+    assert message is None and stats["method"] == method
+    error = rotation_angle(relative_rotation(exact, Y))
+    assert error.max() < (1e-8 if method == "adaptive" else 1e-7)
+    np.testing.assert_allclose(np.linalg.norm(Y, axis=1), 1.0, atol=1e-15)

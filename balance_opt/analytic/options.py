@@ -1,6 +1,6 @@
 """Settings of the analytic balance law (Eq. 31, 32; ``docs/physics.md``, "The balance law").
 
-Each field is declared once, with :func:`~balance_opt.io.typed_config.setting`: its default,
+Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
 its meaning, its unit and its bounds serve Python calls and the ``analytic`` section of task
 files alike (``balance-opt validate --reference``).
 """
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from balance_opt.config.typed_config import check_settings, setting
 from balance_opt.errors import InputError
-from balance_opt.io.typed_config import check_settings, setting
 
 #: ``sigma_min(J_wB)`` below which damping starts [rad of base rotation per rad of joint motion].
 #: On the paper robot a random configuration has sigma_min ~ 5e-4, the best ones ~ 5e-3.

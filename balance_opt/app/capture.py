@@ -29,18 +29,12 @@ from typing import Any
 import numpy as np
 
 from balance_opt.errors import SolverError
-from balance_opt.io.outputs import BULKY_INFO_KEYS
-from balance_opt.model.capture import CaptureState, attach_target, capture_state
+from balance_opt.model.capture import CaptureState, capture_state
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
-from balance_opt.result import BalanceResult, find_limit_violations
+from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violations
 
 log = logging.getLogger(__name__)
-
-#: Robots with their target, by (robot, target) of a task: the objects themselves are kept
-#: beside the result, so an id is never reused while its entry lives. A few at most.
-_ROBOTS_AFTER: dict[tuple[int, int], tuple[Any, Any, FloatingRobot]] = {}
-_ROBOTS_AFTER_KEPT = 4
 
 
 class MissionWindow:
@@ -61,13 +55,8 @@ class MissionWindow:
 
 
 def robot_after(task) -> FloatingRobot:
-    """The task's robot with its target attached, built once per robot and target."""
-    key = (id(task.robot), id(task.target))
-    if key not in _ROBOTS_AFTER:
-        while len(_ROBOTS_AFTER) >= _ROBOTS_AFTER_KEPT:
-            _ROBOTS_AFTER.pop(next(iter(_ROBOTS_AFTER)))
-        _ROBOTS_AFTER[key] = (task.robot, task.target, attach_target(task.robot, task.target))
-    return _ROBOTS_AFTER[key][2]
+    """The task's robot with its target attached (built once per task: the task keeps it)."""
+    return task.robot_after_capture
 
 
 @dataclass

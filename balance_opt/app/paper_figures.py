@@ -9,8 +9,8 @@ from typing import Any
 
 from balance_opt.app.run_files import _timed
 from balance_opt.interrupts import handling_signals
-from balance_opt.io.output_dir import OutputFolder
-from balance_opt.io.task import Task
+from balance_opt.report.output_dir import OutputFolder
+from balance_opt.tasks.task import Task
 
 
 def paper_figures(

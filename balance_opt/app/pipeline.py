@@ -16,7 +16,7 @@ A solver failure does not stop the run: the failing method's best iterate is kep
 marked in ``metrics.json`` and the report, and :attr:`TaskRun.failures` names it (the CLI then
 exits with code 1).
 
-Outputs are all-or-nothing (:class:`~balance_opt.io.output_dir.OutputFolder`): the output folder
+Outputs are all-or-nothing (:class:`~balance_opt.report.output_dir.OutputFolder`): the output folder
 is checked and locked before anything is computed, the files are written into a staging folder
 beside it, and that folder takes the place of the old one only when every file is written. An
 error or an interruption (Ctrl-C, SIGTERM: :mod:`balance_opt.interrupts`) leaves the old
@@ -25,10 +25,8 @@ folder as it was.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,71 +36,23 @@ from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures
     METRICS_FILE,
     REFERENCE,
     REPORT_FILE,
+    TaskRun,
     _timed,
     write_figures,
     write_run,
 )
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
-from balance_opt.io.output_dir import OutputFolder
-from balance_opt.io.task import Task, check_methods, check_optimal_supported
+from balance_opt.report.output_dir import OutputFolder
 from balance_opt.result import BalanceResult
+from balance_opt.tasks.task import Task, check_methods, check_optimal_supported
 
 if TYPE_CHECKING:
-    from balance_opt.app.background import RunWorker
     from balance_opt.dynamics.simulation import SimulationResult
 
 log = logging.getLogger(__name__)
 
 METHODS = ("analytic", "optimal")
-
-
-@dataclass
-class TaskRun:
-    """Everything a run computed and wrote.
-
-    Attributes:
-        task: the task.
-        results: ``{"mission-only" | "analytic" | "optimal": BalanceResult}``; a failed method's
-            entry is its best iterate.
-        simulations: ``{method: SimulationResult}`` when simulated.
-        failures: ``{method: message}`` for the methods whose solver failed.
-        metrics: the content of ``metrics.json``.
-        files: every file written.
-        report: the HTML report, if written.
-    """
-
-    task: Task
-    results: dict[str, BalanceResult] = field(default_factory=dict)
-    simulations: dict[str, Any] = field(default_factory=dict)
-    failures: dict[str, str] = field(default_factory=dict)
-    metrics: dict[str, Any] = field(default_factory=dict)
-    files: list[Path] = field(default_factory=list)
-    report: Path | None = None
-
-    @property
-    def ok(self) -> bool:
-        """No solver failed."""
-        return not self.failures
-
-    def __repr__(self) -> str:
-        lines = [f"TaskRun(task={self.task.name!r}, ok={self.ok})"]
-        for name, res in self.results.items():
-            failed = " (failed)" if name in self.failures else ""
-            lines.append(
-                f"  {name:13} max drift {res.max_drift:.4g} rad, final {res.final_drift:.4g} rad, "
-                f"{len(res.violations)} limit violation(s){failed}"
-            )
-        if self.simulations:
-            lines.append(f"  simulated     {', '.join(self.simulations)}")
-        for name, message in self.failures.items():
-            if name not in self.results:
-                lines.append(f"  {name}: failed: {message[:80]}")
-        if self.files:
-            where = self.files[0].parent
-            report = f", report {self.report}" if self.report is not None else ""
-            lines.append(f"  files         {len(self.files)} in {where}{report}")
-        return "\n".join(lines)
 
 
 # =========================================================================================== methods
@@ -111,7 +61,7 @@ def plan_mission_only(task: Task) -> BalanceResult:
     held at its start, integrated from momentum conservation: the reference of every plan.
 
     Args:
-        task: a loaded task (:func:`balance_opt.io.task.load_task`).
+        task: a loaded task (:func:`balance_opt.tasks.task.load_task`).
 
     Returns:
         A result with ``method="mission-only"``; for a task with a capture, both phases
@@ -263,17 +213,16 @@ def run_task(
     force: bool = False,
     plans: Mapping[str, BalanceResult] | None = None,
     simulations: Mapping[str, SimulationResult] | None = None,
-    background: bool = False,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
     Args:
-        task: a loaded task (:func:`balance_opt.io.task.load_task`).
+        task: a loaded task (:func:`balance_opt.tasks.task.load_task`).
         methods: among ``"analytic"`` and ``"optimal"``; the mission arm alone is always
             computed as the reference.
         simulate: check each plan in a forward-dynamics simulation (and the reference too).
         output_dir: where to write, all-or-nothing (see the module docstring): a folder, or an
-            :class:`~balance_opt.io.output_dir.OutputFolder` (possibly opened already);
+            :class:`~balance_opt.report.output_dir.OutputFolder` (possibly opened already);
             ``None`` writes nothing.
         solver_options: Ipopt options overriding the task's ``optimal.ipopt``.
         models: planner models to reuse across runs; by default this run keeps its own.
@@ -285,12 +234,6 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
-        background: with a CPU to spare and an optimal plan to solve, use a worker
-            process (:mod:`balance_opt.app.background`): it simulates the plans made before
-            the optimal one while that one is solved, and draws the figures while the other
-            files are written (the same files, less wall time). The CLI sets it. Like any
-            ``spawn`` of Python, it re-imports the main module: a script needs its
-            ``if __name__ == "__main__":`` guard.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
@@ -309,19 +252,12 @@ def run_task(
     given_sims = dict(simulations or {})
     args = (task, methods, simulate, solver_options, models, given, given_sims)
     if output_dir is None:
-        with handling_signals(), _worker(task, methods, simulate, given, background, None) as w:
-            return _compute(*args, w)
+        with handling_signals():
+            return _compute(*args)
     folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
-    draws = task.spec.outputs.plots or task.spec.outputs.report
-    # the worker ends (its figures written or abandoned) before the staging folder is handled;
-    # folder.staging is there once the folder is entered
-    with (
-        handling_signals(),
-        folder,
-        _worker(task, methods, simulate, given, background, draws and folder.staging) as w,
-    ):
-        run = _compute(*args, w)
-        write_run(run, folder.staging, w)
+    with handling_signals(), folder:
+        run = _compute(*args)
+        write_run(run, folder.staging)
         run.files = [folder.final(path) for path in run.files]
         run.report = None if run.report is None else folder.final(run.report)
     return run
@@ -335,16 +271,12 @@ def _compute(
     models,
     given: dict,
     given_sims: dict,
-    worker: RunWorker | None = None,
 ) -> TaskRun:
-    """The plans (the reference first) and, with ``simulate``, their simulations; the ones
-    given are taken as they are. The ``worker`` simulates each plan made before the optimal
-    one while the next is planned."""
+    """The plans (the reference first) and, with ``simulate``, their simulations, in this
+    process and in this order; the ones given are taken as they are."""
     run = TaskRun(task)
     models = models if models is not None else ModelCache()
     for method in (REFERENCE, *methods):
-        if worker is not None and method == "optimal":
-            worker.warm_up_figures()
         if method in given:
             log.info("%s: %s plan given, not planned again", task.name, method)
             run.results[method] = given[method]
@@ -352,39 +284,13 @@ def _compute(
                 run.failures[method] = f"given plan: solver status {given[method].status}"
         else:
             _plan_into(run, method, solver_options, models)
-        hand_over = method in run.results and method not in ("optimal", *given_sims)
-        if simulate and worker is not None and hand_over:
-            worker.submit_simulation(method, simulate_result, run.results[method])
-    if simulate and worker is not None and worker.draws_figures:  # while the plans are simulated
-        plans_only = TaskRun(task, results=dict(run.results), failures=dict(run.failures))
-        worker.submit_figures("plans", write_figures, plans_only, worker.figure_dir, "plans")
     if simulate:
         for name in list(run.results):
             if name in given_sims:
                 run.simulations[name] = given_sims[name]
-            elif worker is None or not worker.has_simulation(name):
+            else:
                 _simulate_into(run, name)
-        for name in list(run.results):  # the worker's, in the run's order
-            if worker is not None and worker.has_simulation(name):
-                _simulate_into(run, name, worker)
-        run.simulations = {k: run.simulations[k] for k in run.results if k in run.simulations}
     return run
-
-
-def _worker(task: Task, methods, simulate: bool, given, background: bool, figure_dir):
-    """The run's worker process (:mod:`balance_opt.app.background`), or a null context: only
-    with ``background``, a CPU to spare, and an optimal plan to solve (the worker's start and
-    its first jobs overlap it)."""
-    from balance_opt.app.background import RunWorker, worker_pays
-
-    worthwhile = (
-        background
-        and (simulate or bool(figure_dir))
-        and "optimal" in methods
-        and "optimal" not in given
-        and worker_pays()
-    )
-    return RunWorker(task, figure_dir or None) if worthwhile else contextlib.nullcontext()
 
 
 def _checked_plans(
@@ -458,23 +364,13 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
         )
 
 
-def _simulate_into(run: TaskRun, name: str, worker: RunWorker | None = None) -> None:
-    """Simulate ``run.results[name]`` (or take the worker's simulation of it); a diverging
-    simulation is a failure, not a result."""
+def _simulate_into(run: TaskRun, name: str) -> None:
+    """Simulate ``run.results[name]``; a diverging simulation is a failure, not a result."""
     from balance_opt.dynamics.simulation import divergence
 
     task = run.task
-    if worker is None:
-        with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
-            sim = simulate_result(task, run.results[name])
-    else:
-        sim, seconds = worker.simulation(name)
-        log.info(
-            "%s: forward-dynamics simulation of %s: done in %.2f s (worker process)",
-            task.name,
-            name,
-            seconds,
-        )
+    with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
+        sim = simulate_result(task, run.results[name])
     diverged = divergence(sim)
     if diverged:
         message = (

@@ -9,12 +9,13 @@ import contextlib
 import logging
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from balance_opt.app.background import RunWorker
-    from balance_opt.app.pipeline import TaskRun
+    from balance_opt.result import BalanceResult
+    from balance_opt.tasks.task import Task
 
 log = logging.getLogger("balance_opt.app.pipeline")  # the run's log: one logger
 
@@ -48,6 +49,54 @@ FIGURES = {
 }
 
 
+@dataclass
+class TaskRun:
+    """Everything a run (:func:`balance_opt.app.pipeline.run_task`) computed and wrote.
+
+    Attributes:
+        task: the task.
+        results: ``{"mission-only" | "analytic" | "optimal": BalanceResult}``; a failed method's
+            entry is its best iterate.
+        simulations: ``{method: SimulationResult}`` when simulated.
+        failures: ``{method: message}`` for the methods whose solver failed.
+        metrics: the content of ``metrics.json``.
+        files: every file written.
+        report: the HTML report, if written.
+    """
+
+    task: Task
+    results: dict[str, BalanceResult] = field(default_factory=dict)
+    simulations: dict[str, Any] = field(default_factory=dict)
+    failures: dict[str, str] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+    report: Path | None = None
+
+    @property
+    def ok(self) -> bool:
+        """No solver failed."""
+        return not self.failures
+
+    def __repr__(self) -> str:
+        lines = [f"TaskRun(task={self.task.name!r}, ok={self.ok})"]
+        for name, res in self.results.items():
+            failed = " (failed)" if name in self.failures else ""
+            lines.append(
+                f"  {name:13} max drift {res.max_drift:.4g} rad, final {res.final_drift:.4g} rad, "
+                f"{len(res.violations)} limit violation(s){failed}"
+            )
+        if self.simulations:
+            lines.append(f"  simulated     {', '.join(self.simulations)}")
+        for name, message in self.failures.items():
+            if name not in self.results:
+                lines.append(f"  {name}: failed: {message[:80]}")
+        if self.files:
+            where = self.files[0].parent
+            report = f", report {self.report}" if self.report is not None else ""
+            lines.append(f"  files         {len(self.files)} in {where}{report}")
+        return "\n".join(lines)
+
+
 @contextlib.contextmanager
 def _timed(what: str):
     """Log ``what ...``, then ``what: done in X s`` when the block ends without error."""
@@ -58,40 +107,34 @@ def _timed(what: str):
 
 
 # =========================================================================================== writing
-def write_run(run: TaskRun, output_dir: Path, worker: RunWorker | None = None) -> list[Path]:
-    """Write the trajectories, ``metrics.json``, the figures and the report of ``run``; the
-    ``worker`` draws the figures meanwhile."""
-    from balance_opt.io.outputs import run_metrics, write_metrics
+def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
+    """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
+    from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
+    from balance_opt.report.outputs import run_metrics, write_metrics
 
     out = run.task.spec.outputs
     output_dir.mkdir(parents=True, exist_ok=True)
-    drawing = out.plots or out.report
-    if drawing and worker is not None:  # the rest of them if it drew the plans' already
-        part = "simulations" if worker.has_figures("plans") else "all"
-        worker.submit_figures(part, write_figures, run, output_dir, part)
-    files = _write_trajectories(run, output_dir)
-    run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures)
+    torques = {  # the NPZ files, the metrics and the report each use them
+        name: plan_joint_torques(res, run.task.robot, run.task.h0)
+        for name, res in run.results.items()
+    }
+    files = _write_trajectories(run, output_dir, torques)
+    run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures, torques)
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
-    if drawing and worker is None:
+    figures = []
+    if out.plots or out.report:
         with _timed("figures"):
             figures = write_figures(run, output_dir)
-    report_parts = _report_parts(run) if out.report else None
-    if drawing and worker is not None:
-        figures, seconds = [], 0.0
-        for part in ("plans", "simulations", "all"):
-            if worker.has_figures(part):
-                drawn, took = worker.figures(part)
-                figures, seconds = figures + drawn, seconds + took
-        log.info("figures: done in %.2f s (worker process)", seconds)
     if out.plots:
         files.extend(path for _, path in figures)
     if out.report:
-        from balance_opt.io.report import write_report
+        from balance_opt.report.report import write_report
 
+        extra = _animation_section(run) if out.animation else ""
+        timed = {name: (res.t, torques[name]) for name, res in run.results.items()}
         about = run.task.spec.description
-        extra, torques = report_parts
         run.report = write_report(
-            output_dir / REPORT_FILE, run.metrics, figures, about, extra, torques
+            output_dir / REPORT_FILE, run.metrics, figures, about, extra, timed
         )
         files.append(run.report)
         if not out.plots:
@@ -101,9 +144,9 @@ def write_run(run: TaskRun, output_dir: Path, worker: RunWorker | None = None) -
     return files
 
 
-def _write_trajectories(run: TaskRun, output_dir: Path) -> list[Path]:
-    """The CSV and NPZ files of every plan."""
-    from balance_opt.io.outputs import write_trajectory_csv, write_trajectory_npz
+def _write_trajectories(run: TaskRun, output_dir: Path, torques: dict) -> list[Path]:
+    """The CSV and NPZ files of every plan (the NPZ with the plan's joint ``torques``)."""
+    from balance_opt.report.outputs import write_trajectory_csv, write_trajectory_npz
 
     out, files = run.task.spec.outputs, []
     for name, res in run.results.items():
@@ -111,26 +154,14 @@ def _write_trajectories(run: TaskRun, output_dir: Path) -> list[Path]:
             files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
         if out.npz:
             npz = output_dir / f"{name}.npz"
-            files.append(write_trajectory_npz(npz, res, run.task.robot, run.task.h0))
+            files.append(write_trajectory_npz(npz, res, torques[name]))
     return files
 
 
-def _report_parts(run: TaskRun) -> tuple[str, dict]:
-    """The report's animation section and the joint torques of every plan."""
-    from balance_opt.io.outputs import plan_joint_torques
-
-    extra = _animation_section(run) if run.task.spec.outputs.animation else ""
-    torques = {
-        name: (res.t, plan_joint_torques(res, run.task.robot, run.task.h0))
-        for name, res in run.results.items()
-    }
-    return extra, torques
-
-
 def _animation_section(run: TaskRun) -> str:
-    """The report's 3D animation of every plan (see :mod:`balance_opt.io.animation`)."""
-    from balance_opt.io.animation import animation_html
-    from balance_opt.io.plots import plan_colour, plan_label
+    """The report's 3D animation of every plan (see :mod:`balance_opt.report.animation`)."""
+    from balance_opt.report.animation import animation_html
+    from balance_opt.report.plots import plan_colour, plan_label
 
     names = list(run.results)
     colours = {name: plan_colour(name, i) for i, name in enumerate(names)}
@@ -143,17 +174,15 @@ def _animation_section(run: TaskRun) -> str:
     )
 
 
-def write_figures(run: TaskRun, output_dir: Path, part: str = "all") -> list[tuple[str, Path]]:
-    """PNG figures of a run at one resolution (:data:`~balance_opt.io.style.SCREEN_DPI`, the
+def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
+    """PNG figures of a run at one resolution (:data:`~balance_opt.report.style.SCREEN_DPI`, the
     report's): the plans' attitude with the mission arm alone, the balance joints against their
     limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
-    the report embeds them, and ``paper-figures`` writes the PDFs for print. ``part``
-    ``"plans"`` draws the first two only, ``"simulations"`` the others (the run's worker draws
-    the first while the plans are simulated). Returns ``(caption, path)`` pairs, in the
-    report's order."""
-    from balance_opt.io.plots import attitude_figure, reaction_torque_figure
-    from balance_opt.io.report_figures import joint_limits_figure
-    from balance_opt.io.style import SCREEN_DPI, SIM
+    the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
+    ``(caption, path)`` pairs, in the report's order."""
+    from balance_opt.report.plots import attitude_figure, reaction_torque_figure
+    from balance_opt.report.report_figures import joint_limits_figure
+    from balance_opt.report.style import SCREEN_DPI, SIM
 
     def draw(key, function, curves):
         stem, caption = FIGURES[key]
@@ -162,16 +191,11 @@ def write_figures(run: TaskRun, output_dir: Path, part: str = "all") -> list[tup
 
     figures = []
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
-    if part != "simulations":
-        draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
-        if plans:
-            stem, caption = FIGURES["joints"]
-            path = joint_limits_figure(
-                plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI
-            )
-            figures.append((caption, path))
-        if part == "plans":
-            return figures
+    draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
+    if plans:
+        stem, caption = FIGURES["joints"]
+        path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI)
+        figures.append((caption, path))
     if run.simulations:
         sims = {f"{k}{SIM}": v for k, v in run.simulations.items() if k != REFERENCE}
         reference = {f"{k}{SIM}": v for k, v in _only(run.simulations, REFERENCE).items()}
@@ -180,7 +204,7 @@ def write_figures(run: TaskRun, output_dir: Path, part: str = "all") -> list[tup
             balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
             draw("torque", reaction_torque_figure, balanced)
     if run.task.target is not None:  # issue 16
-        from balance_opt.io.capture_figures import CAPTION, capture_figure
+        from balance_opt.report.capture_figures import CAPTION, capture_figure
 
         curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
         path = capture_figure(curves, run.task.target.time, output_dir / "capture.png")

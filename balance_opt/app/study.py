@@ -37,19 +37,17 @@ from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
-from balance_opt.io.plots import FORMATS, paper_figure_set
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
-from balance_opt.result import BalanceResult
+from balance_opt.report.plots import FORMATS, paper_figure_set
+from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
 
 log = logging.getLogger(__name__)
 
 METHODS = ("analytic", "optimal")
 #: Output spacing of the plans and of the simulations [s].
 STUDY_OUTPUT_STEP = 0.01
-#: Entries of a plan's ``info`` left out of ``study.json`` (the solver's raw iterate and history).
-BULKY_INFO_KEYS = ("nlp_solution", "history")
 FIGURE_STEMS = {
     "fig2": "fig2_attitude_mission_arm",
     "fig3": "fig3_attitude_balance_arm",

@@ -117,3 +117,11 @@ def plan_torques(robot: FloatingRobot, result: BalanceResult, h0=None) -> Invers
     q_dot[:, columns] = np.hstack([result.q_dot_M, result.q_dot_B])
     q_ddot[:, columns] = np.hstack([result.q_ddot_M, result.q_ddot_B])
     return free_floating_torques(robot, q, q_dot, q_ddot, result.quaternion, h0)
+
+
+def plan_joint_torques(result: BalanceResult, robot: FloatingRobot, h0=None) -> np.ndarray:
+    """Joint torques (T, n) of :func:`plan_torques`, columns in the order of the plan's mission
+    then balance joints [N m; N for prismatic joints], for the system's momentum ``h0`` (world
+    frame; zero by default)."""
+    names = (*result.mission_joints, *result.balance_joints)
+    return plan_torques(robot, result, h0).tau[:, [robot.joint_index(j) for j in names]]

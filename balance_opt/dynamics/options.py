@@ -1,6 +1,6 @@
 """Settings of the forward-dynamics simulation.
 
-Each field is declared once, with :func:`~balance_opt.io.typed_config.setting`: its default,
+Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
 its meaning, its unit and its bounds serve Python calls and the ``simulation`` section of task
 files alike (``balance-opt validate --reference``).
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from balance_opt.io.typed_config import check_settings, setting
+from balance_opt.config.typed_config import check_settings, setting
 
 #: Default integration step [s].
 DEFAULT_DT = 1e-3

@@ -21,7 +21,6 @@ import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.so3 import matrix_from_quaternion
 
 #: Name of the target's link and of its fixed joint in the robot after the capture.
 TARGET_LINK = "capture_target"
@@ -219,7 +218,7 @@ def capture_state(
 
     q, q_dot = np.asarray(q, dtype=float), np.asarray(q_dot, dtype=float)
     h_before = np.asarray(h_before, dtype=float)
-    R = matrix_from_quaternion(np.asarray(quaternion, dtype=float))
+    R = pin.Quaternion(np.asarray(quaternion, dtype=float)).matrix()  # (x, y, z, w), as so3
     base = pin.SE3(R, np.zeros(3))
     model, data = robot.model, robot.model.createData()
     qp = robot.pin_q(q, base)

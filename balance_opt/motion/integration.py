@@ -10,9 +10,9 @@ integrated (``docs/physics.md``, "Attitude").
 
 Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`):
 
-* ``"adaptive"`` (default): Dormand-Prince 8(5,3) (``DOP853``, :mod:`balance_opt.motion.dop853`,
-  as SciPy runs it) with error control on the whole state (``rtol``, ``atol``) and its
-  7th-order dense output at the output times; exact to the integration tolerance.
+* ``"adaptive"`` (default): Dormand-Prince 8(5,3), SciPy's ``solve_ivp(method="DOP853")``, with
+  error control on the whole state (``rtol``, ``atol``) and its 7th-order dense output at the
+  output times; exact to the integration tolerance.
 * ``"rk4"``: classic fixed-step Runge-Kutta 4, each output interval split into steps no longer
   than ``step``.
 """
@@ -25,7 +25,6 @@ from collections.abc import Callable
 import numpy as np
 
 from balance_opt.errors import InputError
-from balance_opt.motion import dop853
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.so3 import IDENTITY_QUATERNION
 
@@ -102,7 +101,18 @@ def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
 
 
 def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
-    sol = dop853.solve(rhs, y0, t, options.rtol, options.atol, options.step or np.inf)
+    from scipy.integrate import solve_ivp  # scipy.integrate takes a while to import: on use
+
+    sol = solve_ivp(
+        rhs,
+        (t[0], t[-1]),
+        y0,
+        method=ADAPTIVE_SCHEME,
+        t_eval=t,
+        rtol=options.rtol,
+        atol=options.atol,
+        max_step=options.step or np.inf,
+    )
     stats = {
         "method": "adaptive",
         "scheme": ADAPTIVE_SCHEME,
@@ -110,7 +120,7 @@ def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
         "atol": options.atol,
         "rhs_evaluations": int(sol.nfev),
     }
-    reached = sol.t
+    reached = np.asarray(sol.t, dtype=float)  # a list when no output time was reached
     message = (
         None
         if sol.status == 0

@@ -1,6 +1,6 @@
 """Settings of the attitude integration (rollouts and replays).
 
-Each field is declared once, with :func:`~balance_opt.io.typed_config.setting`: its default,
+Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
 its meaning, its unit and its bounds serve Python calls and task files alike (there the keys
 sit in the ``analytic`` section, ``method`` written ``integrator``).
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from balance_opt.io.typed_config import check_settings, setting
+from balance_opt.config.typed_config import check_settings, setting
 
 #: Default relative and absolute tolerances of the adaptive integrator (quaternion, [rad]).
 DEFAULT_RTOL = 1e-10

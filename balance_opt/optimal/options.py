@@ -1,6 +1,6 @@
 """Settings of the optimal balance planner: the objective's weights and the planner's options.
 
-Each field is declared once, with :func:`~balance_opt.io.typed_config.setting`: its default,
+Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
 its meaning, its unit and its bounds serve Python calls and the ``optimal`` section of task
 files alike (``balance-opt validate --reference``).
 """
@@ -13,7 +13,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from balance_opt.io.typed_config import check_settings, setting
+from balance_opt.config.typed_config import check_settings, setting
 from balance_opt.optimal.collocation import TRANSCRIPTIONS
 
 #: Control inputs of the collocation: balance joint accelerations, or jerks (accelerations

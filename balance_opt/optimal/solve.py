@@ -236,6 +236,12 @@ class BalanceNLP(BalanceProblem):
             )
         return w
 
+    @classmethod
+    def from_data(cls, model_robot, robot, mission, q_B0, options, h0, stage) -> BalanceNLP:
+        """The problem rebuilt from its data in another process (a multi-start's worker)."""
+        model = PlannerModel(model_robot)
+        return build_balance_nlp(model, mission, q_B0, options, robot, h0=h0, stage=stage)
+
     def solve(self, initial_guess="analytic", executor=None) -> BalanceResult:
         """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
         the peak problem first, then the torque and attitude bounds refined until the

@@ -71,15 +71,11 @@ class StartTask:
         n, key = self.nlp, self.nlp.structure.key
         stage = None if key.between_points else key.objective
         data = (n.model.robot, n.robot, n.mission, n.q_B0, n.options, n.h0, stage)
-        return {"data": data, "phase": self.phase}
+        # the problem's own class rebuilds it (pickled by reference: no import of solve here)
+        return {"build": type(n).from_data, "data": data, "phase": self.phase}
 
     def __setstate__(self, state: dict) -> None:
-        from balance_opt.optimal.model import PlannerModel
-        from balance_opt.optimal.solve import build_balance_nlp
-
-        model_robot, robot, mission, q_B0, options, h0, stage = state["data"]
-        model = PlannerModel(model_robot)
-        self.nlp = build_balance_nlp(model, mission, q_B0, options, robot, h0=h0, stage=stage)
+        self.nlp = state["build"](*state["data"])
         self.phase, self.remote = state["phase"], True
 
     def __call__(self, guess):

@@ -3,7 +3,8 @@ samples), their expansion into cases, and the stable id of each case.
 
 A case is plain data (a dict): ``index``, ``case_id``, ``method``, ``parameters`` (key path ->
 value), ``task`` (the base task's data with the parameters put in), ``base_dir`` and
-``simulate``. The sweep file that declares them is read by :mod:`balance_opt.sweep.spec`.
+``simulate``. The types of the sweep file are here (:class:`SweepSpec`); the file is read by
+:mod:`balance_opt.sweep.spec`.
 """
 
 from __future__ import annotations
@@ -14,14 +15,13 @@ import itertools
 import json
 import math
 import re
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
 
-from balance_opt.io.yaml_lines import YamlDocument, format_path
-
-if TYPE_CHECKING:
-    from balance_opt.sweep.spec import Distribution, RandomSamples, SweepSpec
+from balance_opt.config.typed_config import setting
+from balance_opt.config.yaml_lines import YamlDocument, format_path
 
 #: Hex digits of a case id (48 bits: a collision among a million cases has odds ~2e-3).
 CASE_ID_DIGITS = 12
@@ -31,6 +31,71 @@ MAX_CASES = 1_000_000
 _NAME = r"[^.\[\]\s]+"
 _KEY_PATH = re.compile(rf"{_NAME}(?:\.{_NAME}|\[\d+\])*")
 _SEGMENT = re.compile(rf"({_NAME})|\[(\d+)\]")
+
+
+# ------------------------------------------------------------------------------ file format
+@dataclass(frozen=True)
+class Distribution:
+    """How one parameter is drawn in ``random`` sampling (exactly one key)."""
+
+    __exactly_one__ = ("uniform", "normal", "choice", "integers")
+
+    uniform: tuple[Any, ...] | None = setting(
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[low, high]: uniform between low and high (numbers, or lists of the same length, "
+        "drawn element by element)",
+    )
+    normal: tuple[Any, ...] | None = setting(
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[mean, std]: normal distribution (numbers, or lists of the same length)",
+    )
+    choice: tuple[Any, ...] | None = setting(
+        None, min_items=1, doc="values to pick from, each equally likely"
+    )
+    integers: tuple[int, ...] | None = setting(
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[low, high]: an integer from low to high, both included",
+    )
+
+
+@dataclass(frozen=True)
+class RandomSamples:
+    """Seeded random samples of some parameters."""
+
+    seed: int = setting(doc="seed of the random generator (numpy default_rng)")
+    samples: int = setting(doc="number of samples", minimum=1)
+    parameters: dict[str, Distribution] = setting(doc="key path of the task -> its distribution")
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A sweep: a base task, the methods, and the parameters to vary.
+
+    The cases are the product of the grid, the list of cases and the random samples (each
+    defaulting to the base task alone), times the methods.
+    """
+
+    task: str | dict[str, Any] = setting(
+        doc="the base task: a task file (path relative to the sweep file) or an inline task mapping"
+    )
+    name: str | None = setting(None, doc="name of the study (for the report)")
+    methods: tuple[Literal["analytic", "optimal"], ...] = setting(
+        ("analytic", "optimal"), min_items=1, doc="planning methods run on every parameter set"
+    )
+    simulate: bool = setting(False, doc="also simulate each plan with the free-floating dynamics")
+    grid: dict[str, tuple[Any, ...]] = setting(
+        factory=dict, doc="key path of the task -> list of values; every combination is a case"
+    )
+    cases: tuple[dict[str, Any], ...] = setting(
+        (), doc="a list of parameter sets (key path -> value), each one a case"
+    )
+    random: RandomSamples | None = setting(None, doc="seeded random samples of parameters")
 
 
 # ------------------------------------------------------------------------------ key paths

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from balance_opt.io.output_dir import replaced_atomically
+from balance_opt.report.output_dir import replaced_atomically
 from balance_opt.sweep.workers import new_pool, stop_pool
 
 logger = logging.getLogger(__name__)
@@ -133,7 +133,7 @@ def result_path(out_dir: str | Path, case_id: str) -> Path:
 
 def write_json_atomic(path: str | Path, data: Any) -> None:
     """Write ``data`` as JSON so that ``path`` holds either its old content or the whole new
-    one, never a part (:func:`~balance_opt.io.output_dir.replaced_atomically`)."""
+    one, never a part (:func:`~balance_opt.report.output_dir.replaced_atomically`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with replaced_atomically(path) as tmp:

@@ -1,7 +1,7 @@
 """The results of a sweep: its tables (:mod:`balance_opt.sweep.tables`: ``results.csv``,
 ``diagnostics.csv``), ``summary.json`` and a few summary plots.
 
-Every file is written atomically (:func:`~balance_opt.io.output_dir.replaced_atomically`): an
+Every file is written atomically (:func:`~balance_opt.report.output_dir.replaced_atomically`): an
 interrupted sweep leaves the old table, summary or plot, or the whole new one.
 
 Plots (PNG): the distribution of the maximum and final attitude drift of each method with the
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.io.output_dir import replaced_atomically
-from balance_opt.io.style import SCREEN_DPI, method_style, styled
+from balance_opt.report.output_dir import replaced_atomically
+from balance_opt.report.style import SCREEN_DPI, method_style, styled
 from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
 from balance_opt.sweep.tables import (
     is_timing_column,
@@ -38,7 +38,7 @@ logger = logging.getLogger(__name__)
 MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
 #: Drift drawn at this floor on log axes when it is zero [rad].
 DRIFT_FLOOR = 1e-12
-#: Figure width of one panel [in]: a paper column (:data:`balance_opt.io.style.WIDTHS`).
+#: Figure width of one panel [in]: a paper column (:data:`balance_opt.report.style.WIDTHS`).
 PANEL_WIDTH = 3.5
 #: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
 LOG_SCALE_RATIO = 30.0
@@ -76,7 +76,7 @@ def summarize(results: Sequence[dict]) -> dict[str, Any]:
 
 # ------------------------------------------------------------------------------ plots
 def _figure(n_rows: int, n_cols: int, height: float = 2.6):
-    """Panels a paper column wide each, with the column fonts of :mod:`balance_opt.io.style`
+    """Panels a paper column wide each, with the column fonts of :mod:`balance_opt.report.style`
     (constrained layout: category labels vary in length)."""
     from matplotlib.figure import Figure
 
@@ -93,7 +93,7 @@ def _save(fig, path: str | Path) -> Path:
 
 
 def _method_style(method: str, **extra) -> dict[str, Any]:
-    """Colour and marker of a method as in every other figure (:mod:`balance_opt.io.style`)."""
+    """Colour and marker of a method as in every other figure (:mod:`balance_opt.report.style`)."""
     style = method_style(method)
     return {"color": style["color"], "label": style["label"], **extra}
 

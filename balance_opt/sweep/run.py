@@ -5,7 +5,7 @@ on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plot
 A sweep's folder grows case by case (so that ``--resume`` can finish it), unlike the
 all-or-nothing folder of a single task: each file in it is written atomically instead (a whole
 case, table, summary or plot, or none), and the folder is locked while the sweep runs
-(:class:`~balance_opt.io.output_dir.FolderLock`: a second sweep into it is refused).
+(:class:`~balance_opt.report.output_dir.FolderLock`: a second sweep into it is refused).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from balance_opt.interrupts import handling_signals
-from balance_opt.io.output_dir import FolderLock, OutputFolderError, make_parent
+from balance_opt.report.output_dir import FolderLock, OutputFolderError, make_parent
 from balance_opt.sweep.engine import (
     CASES_DIR,
     iter_results,

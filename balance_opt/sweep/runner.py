@@ -50,7 +50,7 @@ def mission_only_baseline(task) -> dict:
 
 def _metrics(result, task, simulate: bool) -> dict:
     from balance_opt.app.pipeline import simulate_result
-    from balance_opt.io.outputs import method_metrics
+    from balance_opt.report.outputs import method_metrics
 
     simulation = simulate_result(task, result) if simulate else None
     return method_metrics(result, task.robot, simulation)
@@ -73,8 +73,8 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     """
     from balance_opt.app.pipeline import plan
     from balance_opt.errors import SolverError
-    from balance_opt.io.task import task_from_dict
     from balance_opt.sweep.engine import STATUS_OK, STATUS_SOLVER_FAILED, error_record
+    from balance_opt.tasks.task import task_from_dict
 
     models = WORKER_MODELS if models is None else models
     start = time.perf_counter()

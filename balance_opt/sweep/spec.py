@@ -34,89 +34,31 @@ import hashlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-from balance_opt.io.typed_config import from_data, setting
-from balance_opt.io.typed_reference import json_schema, reference_markdown
-from balance_opt.io.yaml_lines import (
+from balance_opt.config.typed_config import from_data
+from balance_opt.config.typed_reference import json_schema, reference_markdown
+from balance_opt.config.yaml_lines import (
     TaskFileError,
     YamlDocument,
     format_path,
     load_yaml,
     parse_yaml,
 )
-from balance_opt.sweep.cases import canonical_json, expand_cases, varied_prefix
+from balance_opt.sweep.cases import (  # the file format (SweepSpec, ...): public here too
+    Distribution,
+    RandomSamples,
+    SweepSpec,
+    canonical_json,
+    expand_cases,
+    varied_prefix,
+)
 
 logger = logging.getLogger(__name__)
 
 #: Planning methods a sweep can run.
 METHODS = ("analytic", "optimal")
 SWEEP_SCHEMA_ID = "https://balance-opt.invalid/sweep.schema.json"
-
-
-# ------------------------------------------------------------------------------ file format
-@dataclass(frozen=True)
-class Distribution:
-    """How one parameter is drawn in ``random`` sampling (exactly one key)."""
-
-    __exactly_one__ = ("uniform", "normal", "choice", "integers")
-
-    uniform: tuple[Any, ...] | None = setting(
-        None,
-        min_items=2,
-        max_items=2,
-        doc="[low, high]: uniform between low and high (numbers, or lists of the same length, "
-        "drawn element by element)",
-    )
-    normal: tuple[Any, ...] | None = setting(
-        None,
-        min_items=2,
-        max_items=2,
-        doc="[mean, std]: normal distribution (numbers, or lists of the same length)",
-    )
-    choice: tuple[Any, ...] | None = setting(
-        None, min_items=1, doc="values to pick from, each equally likely"
-    )
-    integers: tuple[int, ...] | None = setting(
-        None,
-        min_items=2,
-        max_items=2,
-        doc="[low, high]: an integer from low to high, both included",
-    )
-
-
-@dataclass(frozen=True)
-class RandomSamples:
-    """Seeded random samples of some parameters."""
-
-    seed: int = setting(doc="seed of the random generator (numpy default_rng)")
-    samples: int = setting(doc="number of samples", minimum=1)
-    parameters: dict[str, Distribution] = setting(doc="key path of the task -> its distribution")
-
-
-@dataclass(frozen=True)
-class SweepSpec:
-    """A sweep: a base task, the methods, and the parameters to vary.
-
-    The cases are the product of the grid, the list of cases and the random samples (each
-    defaulting to the base task alone), times the methods.
-    """
-
-    task: str | dict[str, Any] = setting(
-        doc="the base task: a task file (path relative to the sweep file) or an inline task mapping"
-    )
-    name: str | None = setting(None, doc="name of the study (for the report)")
-    methods: tuple[Literal["analytic", "optimal"], ...] = setting(
-        ("analytic", "optimal"), min_items=1, doc="planning methods run on every parameter set"
-    )
-    simulate: bool = setting(False, doc="also simulate each plan with the free-floating dynamics")
-    grid: dict[str, tuple[Any, ...]] = setting(
-        factory=dict, doc="key path of the task -> list of values; every combination is a case"
-    )
-    cases: tuple[dict[str, Any], ...] = setting(
-        (), doc="a list of parameter sets (key path -> value), each one a case"
-    )
-    random: RandomSamples | None = setting(None, doc="seeded random samples of parameters")
 
 
 def sweep_json_schema() -> dict:
@@ -167,8 +109,8 @@ def sweep_from_document(
     """A :class:`Sweep` from a parsed sweep file.
 
     The base task and the task of every case are loaded in full (robot, mission, limits: see
-    :func:`balance_opt.io.task.task_from_document`), about 10 ms each. Limits no plan can meet and
-    missions that cannot be built (an unreachable goal) are not errors of the sweep file: such
+    :func:`balance_opt.tasks.task.task_from_document`), about 10 ms each. Limits no plan can meet
+    and missions that cannot be built (an unreachable goal) are not errors of the sweep file: such
     a case fails when it runs, and the sweep goes on.
 
     Args:
@@ -215,7 +157,7 @@ def sweep_from_document(
 
 def _load_task(task_doc: YamlDocument, task_dir: Path, task_hash: str, prefix: tuple):
     """Load the base task; errors in an inline task get the ``task.`` prefix on their key path."""
-    from balance_opt.io.task import task_from_document
+    from balance_opt.tasks.task import task_from_document
 
     try:
         return task_from_document(task_doc, task_dir, task_hash)
@@ -235,7 +177,7 @@ def _check_case_tasks(
     """Load the task of every distinct parameter set; an error is reported at the line of the
     varied parameter in the sweep file. Limits no plan can meet and missions that cannot be
     built are left to fail their case when it runs: in a study they are results, not typos."""
-    from balance_opt.io.task import TaskLimitsError, TaskTrajectoryError, task_from_document
+    from balance_opt.tasks.task import TaskLimitsError, TaskTrajectoryError, task_from_document
 
     checked = set()
     for case in cases:

@@ -27,7 +27,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from balance_opt.io.output_dir import replaced_atomically
+from balance_opt.report.output_dir import replaced_atomically
 from balance_opt.sweep.cases import parameter_columns
 
 #: Leading columns of both tables: they identify a case.

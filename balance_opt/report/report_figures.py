@@ -1,6 +1,6 @@
 """Figures of the comparison report that the paper has no counterpart for: the balance joints of
-each plan against their limits. Same look as :mod:`balance_opt.io.plots` (the styles and names
-of :mod:`balance_opt.io.style`), built without pyplot state."""
+each plan against their limits. Same look as :mod:`balance_opt.report.plots` (the styles and names
+of :mod:`balance_opt.report.style`), built without pyplot state."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from balance_opt.io import style
-from balance_opt.io.figure_layout import arrange, column_title, legend_above, legend_columns
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.report import style
+from balance_opt.report.figure_layout import arrange, column_title, legend_above, legend_columns
 from balance_opt.result import BalanceResult
 
 #: Rows of the figure: (result field, limit field, axis label).

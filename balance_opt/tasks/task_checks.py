@@ -1,6 +1,6 @@
 """Checks of a task that need its robot and mission, each located in the task file.
 
-:func:`~balance_opt.io.typed_config.from_data` checks what a value can be checked against
+:func:`~balance_opt.config.typed_config.from_data` checks what a value can be checked against
 alone (types, bounds, list lengths fixed by the format). What depends on the robot, the
 mission or another value is checked here, once the robot and the mission are built:
 
@@ -12,7 +12,7 @@ mission or another value is checked here, once the robot and the mission are bui
   planning horizon shorter than the mission.
 
 The Ipopt options (:mod:`balance_opt.optimal.ipopt_options`) and the size of the optimal
-planner's problem (:mod:`balance_opt.optimal.budget`) are checked by :mod:`balance_opt.io.task`.
+planner's problem (:mod:`balance_opt.optimal.budget`) are checked by :mod:`balance_opt.tasks.task`.
 """
 
 from __future__ import annotations
@@ -21,14 +21,20 @@ import logging
 
 import numpy as np
 
+from balance_opt.config.keypath import format_path
+from balance_opt.config.typed_config import walk_settings
+from balance_opt.config.yaml_lines import TaskFileError, YamlDocument
 from balance_opt.errors import InfeasibleLimitsError, TrajectoryError
-from balance_opt.io.keypath import format_path
-from balance_opt.io.task_spec import CartesianMission, CsvMission, PtpMission, TaskSpec, ViaMission
-from balance_opt.io.typed_config import walk_settings
-from balance_opt.io.yaml_lines import TaskFileError, YamlDocument
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.trajectories import JointTrajectory
 from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
+from balance_opt.tasks.task_spec import (
+    CartesianMission,
+    CsvMission,
+    PtpMission,
+    TaskSpec,
+    ViaMission,
+)
 
 #: Samples per second used to check a mission trajectory against its limits [1/s].
 LIMIT_CHECK_RATE = 200.0

@@ -1,7 +1,7 @@
 """Key paths: where a value sits in a nested mapping, e.g. ``("mission", "goal", 2)``.
 
-Shared by the YAML reader (:mod:`balance_opt.io.yaml_lines`, which records the line of every
-path) and the typed configuration (:mod:`balance_opt.io.typed_config`, which names the path of
+Shared by the YAML reader (:mod:`balance_opt.config.yaml_lines`, which records the line of every
+path) and the typed configuration (:mod:`balance_opt.config.typed_config`, which names the path of
 a bad value), so that both print a path the same way.
 """
 

@@ -4,11 +4,11 @@ A format is a tree of frozen dataclasses whose fields are declared with :func:`s
 ``dataclasses.field`` that also carries a description, a unit and value constraints). From that
 one declaration this module derives
 
-* the validator of files, :func:`from_data`: plain data (from :mod:`balance_opt.io.yaml_lines`)
+* the validator of files, :func:`from_data`: plain data (from :mod:`balance_opt.config.yaml_lines`)
   to typed objects, every error naming the file, the line and the key path and what was expected;
 * the validator of Python calls, :func:`check_settings`, which the dataclass's ``__post_init__``
   calls: the same checks, an :class:`~balance_opt.errors.InputError` naming the option;
-* the JSON Schema and the README's reference table (:mod:`balance_opt.io.typed_reference`,
+* the JSON Schema and the README's reference table (:mod:`balance_opt.config.typed_reference`,
   from :func:`file_layout`, the keys as laid out in a file);
 * :func:`walk_settings`: every value of a tree with its key path and declaration, for checks
   that need more than the value (one value per joint of a robot, ...).
@@ -43,9 +43,8 @@ import typing
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Literal
 
-from balance_opt.errors import InputError
-from balance_opt.io.keypath import format_path
-from balance_opt.io.type_names import (
+from balance_opt.config.keypath import format_path
+from balance_opt.config.type_names import (
     describe,
     is_union,
     plural,
@@ -54,6 +53,7 @@ from balance_opt.io.type_names import (
     type_hints,
     value_words,
 )
+from balance_opt.errors import InputError
 
 _MISSING = dataclasses.MISSING
 
@@ -452,7 +452,7 @@ def from_data(cls, doc, path: Sequence[Any] = ()):
 
     Args:
         cls: the dataclass at the root of the format.
-        doc: a :class:`~balance_opt.io.yaml_lines.YamlDocument`.
+        doc: a :class:`~balance_opt.config.yaml_lines.YamlDocument`.
         path: key path of the value inside the document.
 
     Raises:

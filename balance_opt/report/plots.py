@@ -3,14 +3,14 @@
 Every function takes a mapping ``{name: result}`` of the curves to overlay (any object with
 ``t`` and ``rpy``, such as :class:`~balance_opt.result.BalanceResult` or
 :class:`~balance_opt.dynamics.simulation.SimulationResult`; for torques, simulation results).
-The name is a method of :mod:`balance_opt.io.style` (``"optimal"``, ``"optimal:sim"``,
+The name is a method of :mod:`balance_opt.report.style` (``"optimal"``, ``"optimal:sim"``,
 ``"mission-only:kinematic"``, ...) and gives the curve its colour, line style, marker and label;
 another name gets a style of its own and is its own label.
 
 The figures carry no title (a caption belongs to the text around them). They are
 :class:`matplotlib.figure.Figure` objects without pyplot state, built inside
-:func:`~balance_opt.io.style.styled` (nothing global changes), laid out by
-:mod:`balance_opt.io.figure_layout`. Given ``axes=``, a function draws into the caller's axes
+:func:`~balance_opt.report.style.styled` (nothing global changes), laid out by
+:mod:`balance_opt.report.figure_layout`. Given ``axes=``, a function draws into the caller's axes
 and writes nothing; given no ``stem``, it returns the figure and writes nothing.
 """
 
@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.io import style
-from balance_opt.io.figure_layout import arrange, column_title, legend_above, legend_columns
+from balance_opt.report import style
+from balance_opt.report.figure_layout import arrange, column_title, legend_above, legend_columns
 
 #: Width of a paper column [in].
 COLUMN_WIDTH = style.WIDTHS["column"]
@@ -35,14 +35,14 @@ STACK_HEIGHT = 3.9
 
 
 def plan_colour(name: str, index: int = 0) -> str:
-    """The colour of ``name`` (see :func:`balance_opt.io.style.method_colour`; ``index`` is
+    """The colour of ``name`` (see :func:`balance_opt.report.style.method_colour`; ``index`` is
     not used: a method has one colour whatever its place)."""
     del index
     return style.method_colour(name)
 
 
 def plan_label(name: str) -> str:
-    """The display name of ``name`` (:func:`balance_opt.io.style.method_label`)."""
+    """The display name of ``name`` (:func:`balance_opt.report.style.method_label`)."""
     return style.method_label(name)
 
 

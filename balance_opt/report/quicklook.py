@@ -1,8 +1,9 @@
-"""A quick look at one result on matplotlib axes, for notebooks: :meth:`BalanceResult.plot`.
+"""A quick look at one result on matplotlib axes, for notebooks: :func:`plot_result`
+(``balance_opt.plot_result``).
 
-Unlike the figures of :mod:`balance_opt.io.plots` (which a run writes to files), this draws on
+Unlike the figures of :mod:`balance_opt.report.plots` (which a run writes to files), this draws on
 axes the caller owns (or on a new figure) and writes nothing; each method has the colour, line
-style, marker and label of the written figures (:func:`balance_opt.io.style.method_style`). The
+style, marker and label of the written figures (:func:`balance_opt.report.style.method_style`). The
 caller's matplotlib settings (fonts, sizes) are left alone.
 """
 
@@ -11,6 +12,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from balance_opt.report.style import method_style
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -38,8 +41,6 @@ def plot_result(result: BalanceResult, ax: Axes | None = None, kind: str = "atti
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
-    from balance_opt.io.style import method_style
-
     if ax is None:
         import matplotlib.pyplot as plt
 

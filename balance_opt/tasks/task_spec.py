@@ -1,7 +1,7 @@
 """The task-file format: a tree of frozen dataclasses rooted at :class:`TaskSpec`.
 
 The tree is the single source of truth for the validator
-(:func:`~balance_opt.io.typed_config.from_data`), the JSON Schema (:func:`task_json_schema`,
+(:func:`~balance_opt.config.typed_config.from_data`), the JSON Schema (:func:`task_json_schema`,
 ``balance-opt validate --schema``) and the README's reference table
 (:func:`task_reference_markdown`). The sections that set the methods' options are the
 library's option classes themselves, declared once in their stage's ``options`` module:
@@ -13,7 +13,7 @@ library's option classes themselves, declared once in their stage's ``options`` 
 * ``simulation``: :class:`~balance_opt.dynamics.options.SimulationOptions`.
 
 The initial momentum of the law and of the simulation comes from ``initial.momentum``: the task
-builder (:mod:`balance_opt.io.task`) sets it.
+builder (:mod:`balance_opt.tasks.task`) sets it.
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 from balance_opt.analytic.options import BalanceLawOptions
+from balance_opt.config.typed_config import setting
+from balance_opt.config.typed_reference import json_schema, reference_markdown
 from balance_opt.dynamics.options import SimulationOptions
-from balance_opt.io.typed_config import setting
-from balance_opt.io.typed_reference import json_schema, reference_markdown
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import GUESSES, PlannerOptions
 

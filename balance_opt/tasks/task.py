@@ -1,14 +1,14 @@
 """Task files: one YAML file says which robot, which arms, which mission and which options.
 
-The format is the tree of dataclasses rooted at :class:`~balance_opt.io.task_spec.TaskSpec`
-(:mod:`balance_opt.io.task_spec`, whose option sections are the library's option classes).
+The format is the tree of dataclasses rooted at :class:`~balance_opt.tasks.task_spec.TaskSpec`
+(:mod:`balance_opt.tasks.task_spec`, whose option sections are the library's option classes).
 Loading happens at the boundary, before any planning:
 
-1. :func:`typed_config.from_data <balance_opt.io.typed_config.from_data>` checks types,
+1. :func:`typed_config.from_data <balance_opt.config.typed_config.from_data>` checks types,
    required and unknown keys and value ranges, and builds the option objects;
 2. :func:`task_from_document` resolves files (URDF, CSV, relative to the task file), builds
    the robot (unknown joints) and the mission trajectory (durations, CSV contents), checks the
-   lists given per joint and the limits (:mod:`balance_opt.io.task_checks`), and sets the
+   lists given per joint and the limits (:mod:`balance_opt.tasks.task_checks`), and sets the
    initial momentum in the options of the law and of the simulation.
 
 Every error is an :class:`~balance_opt.errors.InputError` whose message starts with
@@ -23,13 +23,20 @@ import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from balance_opt.config.typed_config import from_data
+from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, load_yaml
 from balance_opt.errors import ArmError, InputError, JointError, TrajectoryError, URDFLoadError
-from balance_opt.io.task_checks import (
+from balance_opt.model.arms import LIMIT_KEYS
+from balance_opt.model.robot import FloatingRobot, LimitOverrideError
+from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
+from balance_opt.optimal.options import PlannerOptions
+from balance_opt.tasks.task_checks import (
     TaskLimitsError,
     TaskTrajectoryError,
     check_capture,
@@ -38,7 +45,7 @@ from balance_opt.io.task_checks import (
     check_problem_size,
     check_time_grids,
 )
-from balance_opt.io.task_spec import (
+from balance_opt.tasks.task_spec import (
     CartesianMission,
     CsvMission,
     PtpMission,
@@ -47,12 +54,6 @@ from balance_opt.io.task_spec import (
     task_json_schema,
     task_reference_markdown,
 )
-from balance_opt.io.typed_config import from_data
-from balance_opt.io.yaml_lines import TaskFileError, YamlDocument, load_yaml
-from balance_opt.model.arms import LIMIT_KEYS
-from balance_opt.model.robot import FloatingRobot, LimitOverrideError
-from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
-from balance_opt.optimal.options import PlannerOptions
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +93,14 @@ class Task:
         if self.spec.name:
             return self.spec.name
         return Path(self.source).stem if self.source != "<dict>" else "task"
+
+    @cached_property
+    def robot_after_capture(self) -> FloatingRobot | None:
+        """The robot with the target attached (:func:`~balance_opt.model.capture.attach_target`),
+        built on first use and kept with the task; ``None`` without a capture."""
+        from balance_opt.model.capture import attach_target
+
+        return None if self.target is None else attach_target(self.robot, self.target)
 
     @property
     def q0(self) -> np.ndarray:

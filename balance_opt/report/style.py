@@ -209,7 +209,7 @@ def figure(width: str = "column", height: float = 2.6, layout: str | None = None
         width: ``"column"`` or ``"page"``.
         height: [in].
         layout: ``None`` (place the panels yourself, e.g. with
-            :func:`balance_opt.io.figure_layout.arrange`: fast) or ``"constrained"``
+            :func:`balance_opt.report.figure_layout.arrange`: fast) or ``"constrained"``
             (matplotlib measures every text at each save: about twice the drawing time).
     """
     from matplotlib.figure import Figure

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from balance_opt.io.style import WIDTHS, font_sizes
+from balance_opt.report.style import WIDTHS, font_sizes
 
 #: Widths of glyphs [em] (DejaVu Sans, rounded up); lower-case letters count as 0.58 em, other
 #: characters as 0.7 em.

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from balance_opt.io.style import SCREEN_DPI, figure, method_style, save, styled
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
+from balance_opt.report.style import SCREEN_DPI, figure, method_style, save, styled
 
 #: Caption of the figure in the report.
 CAPTION = (

@@ -14,24 +14,21 @@ versions of the software that computed them.
 from __future__ import annotations
 
 import csv
-import ctypes
-import glob
 import importlib.metadata
 import json
 import logging
 import math
-import os
 import platform
 from collections.abc import Mapping
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from balance_opt.dynamics.inverse_dynamics import plan_torques
+from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.result import BalanceResult
+from balance_opt.optimal.ipopt_version import ipopt_version
+from balance_opt.result import ATTITUDE_COLUMNS, BULKY_INFO_KEYS, BalanceResult
 
 log = logging.getLogger(__name__)
 
@@ -39,38 +36,9 @@ log = logging.getLogger(__name__)
 #: ``limit_violations`` count effort limits too; 3: ``solver.iterations`` and
 #: ``solver.solve_time_s`` count every Ipopt solve behind the plan (were the last solve's).
 METRICS_FORMAT = 3
-QUATERNION_COLUMNS = ("base_qx", "base_qy", "base_qz", "base_qw")
-RPY_COLUMNS = ("base_roll", "base_pitch", "base_yaw")
 
 
 # =========================================================================================== versions
-@lru_cache(maxsize=1)
-def ipopt_version() -> str:
-    """Version of the Ipopt library bundled with CasADi (e.g. ``"3.14.19"``), or ``"unknown"``.
-
-    Read from the library itself through Ipopt's C interface (``GetIpoptVersion``, Ipopt >= 3.14),
-    loaded from CasADi's folder: the library CasADi's ``nlpsol("ipopt")`` plugin loads.
-    """
-    import casadi
-
-    folder = os.path.dirname(casadi.__file__)
-    patterns = ("libipopt.so*", "libipopt*.dylib", "libipopt*.dll", "ipopt*.dll")
-    candidates = sorted(
-        {p for pat in patterns for p in glob.glob(os.path.join(folder, pat))}, key=len
-    )
-    for path in candidates:
-        try:
-            lib = ctypes.CDLL(path)
-            getter = lib.GetIpoptVersion
-        except (OSError, AttributeError):
-            continue
-        major, minor, release = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
-        getter(ctypes.byref(major), ctypes.byref(minor), ctypes.byref(release))
-        return f"{major.value}.{minor.value}.{release.value}"
-    log.debug("no Ipopt library with GetIpoptVersion in %s", folder)
-    return "unknown"
-
-
 def _distribution_version(name: str) -> str:
     try:
         return importlib.metadata.version(name)
@@ -83,10 +51,8 @@ def software_versions() -> dict[str, str]:
     import casadi
     import pinocchio
 
-    from balance_opt import __version__
-
     return {
-        "balance-opt": __version__,
+        "balance-opt": _distribution_version("balance-opt"),
         "pinocchio": pinocchio.__version__,
         "casadi": casadi.__version__,
         "ipopt": ipopt_version(),
@@ -103,9 +69,7 @@ def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
         "time",
         *result.mission_joints,
         *result.balance_joints,
-        *QUATERNION_COLUMNS,
-        *RPY_COLUMNS,
-        "base_angle",
+        *ATTITUDE_COLUMNS,
     ]
     values = np.column_stack(
         [result.t, result.q_M, result.q_B, result.quaternion, result.rpy, result.angle]
@@ -124,35 +88,14 @@ def write_trajectory_csv(path: str | Path, result: BalanceResult) -> Path:
     return path
 
 
-def plan_joint_torques(result: BalanceResult, robot: FloatingRobot, h0=None) -> np.ndarray:
-    """Joint torques (T, n) of the free-floating inverse dynamics of a plan, columns in the
-    order of its mission then balance joints [N m; N for prismatic joints], for the system's
-    momentum ``h0`` (world frame; zero by default)."""
-    key = None if h0 is None else np.asarray(h0, dtype=float).tobytes()
-    for res, rob, k, tau in _RECENT_TORQUES:
-        if res is result and rob is robot and k == key:
-            return tau.copy()
-    names = (*result.mission_joints, *result.balance_joints)
-    tau = plan_torques(robot, result, h0).tau[:, [robot.joint_index(j) for j in names]]
-    _RECENT_TORQUES.append((result, robot, key, tau))
-    del _RECENT_TORQUES[:-_RECENT_KEPT]
-    return tau.copy()
-
-
-#: The torques of the last few plans (a run's NPZ files, metrics and report ask for each plan's
-#: torques in turn; results are not changed once made), by the identity of result and robot.
-_RECENT_KEPT = 8
-_RECENT_TORQUES: list[tuple[BalanceResult, FloatingRobot, bytes | None, np.ndarray]] = []
-
-
 def write_trajectory_npz(
-    path: str | Path, result: BalanceResult, robot: FloatingRobot | None = None, h0=None
+    path: str | Path, result: BalanceResult, joint_torque: np.ndarray | None = None
 ) -> Path:
-    """Write every array of ``result`` to a compressed ``.npz`` and return its path; with the
-    ``robot``, also ``joint_torque``, the torques of :func:`plan_joint_torques` (momentum
-    ``h0``, world frame)."""
+    """Write every array of ``result`` to a compressed ``.npz`` and return its path; with
+    ``joint_torque``, the plan's joint torques
+    (:func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques`), that too."""
     path = Path(path)
-    extra = {} if robot is None else {"joint_torque": plan_joint_torques(result, robot, h0)}
+    extra = {} if joint_torque is None else {"joint_torque": joint_torque}
     np.savez_compressed(
         path,
         **extra,
@@ -247,9 +190,12 @@ def _has_limit(limit: float) -> bool:
     return bool(np.isfinite(limit) and limit > 0)
 
 
-def effort_metrics(result: BalanceResult, robot: FloatingRobot, h0=None) -> dict[str, Any]:
+def effort_metrics(
+    result: BalanceResult, robot: FloatingRobot, h0=None, torques: np.ndarray | None = None
+) -> dict[str, Any]:
     """Effort margins and torque profile of a plan, from the free-floating inverse dynamics of
-    its joint motion (:func:`~balance_opt.dynamics.inverse_dynamics.plan_torques`).
+    its joint motion: ``torques`` when the caller has them, else
+    :func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques` for the momentum ``h0``.
 
     Returns:
         ``{"joints": {joint: {...}}, "min_relative_margin": r, "balance_min_relative_margin": r,
@@ -260,7 +206,7 @@ def effort_metrics(result: BalanceResult, robot: FloatingRobot, h0=None) -> dict
         N m (N for a prismatic joint).
     """
     names = (*result.mission_joints, *result.balance_joints)
-    tau = plan_joint_torques(result, robot, h0)
+    tau = plan_joint_torques(result, robot, h0) if torques is None else torques
     limits = np.array([robot.limits.effort[robot.joint_index(j)] for j in names])
     joints = {}
     for k, name in enumerate(names):
@@ -330,10 +276,6 @@ def peak_reaction_torques(simulation) -> dict[str, float]:
     return out
 
 
-#: ``BalanceResult.info`` entries left out of ``metrics.json`` (kept in the NPZ): large arrays.
-BULKY_INFO_KEYS = ("nlp_solution", "history")
-
-
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
     """Status, iterations and wall times of the solver that produced a result, from its
     ``info`` (keys of :meth:`balance_opt.optimal.solve.BalanceNLP.solve`); ``None`` where the method
@@ -355,7 +297,11 @@ def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def method_metrics(
-    result: BalanceResult, robot: FloatingRobot, simulation=None, h0=None
+    result: BalanceResult,
+    robot: FloatingRobot,
+    simulation=None,
+    h0=None,
+    torques: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Figures of merit of one plan, plain JSON data.
 
@@ -364,8 +310,8 @@ def method_metrics(
     ``balance_relative_limit_margin`` (:func:`relative_limit_margins` of the balance joints);
     ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says);
     ``effort`` (:func:`effort_metrics`, for the system's momentum ``h0``, world frame, zero by
-    default); ``violations`` (joint limits, then effort limits) and their number
-    ``limit_violations``; ``solver`` (:func:`solver_metrics`);
+    default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort
+    limits) and their number ``limit_violations``; ``solver`` (:func:`solver_metrics`);
     ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].
@@ -387,7 +333,7 @@ def method_metrics(
         margins, robot, result.balance_joints
     )
     out["peak_joint_rates_rad_s"] = {n: float(rates[:, k].max()) for k, n in enumerate(names)}
-    out["effort"] = effort_metrics(result, robot, h0)
+    out["effort"] = effort_metrics(result, robot, h0, torques)
     out["violations"] = [str(v) for v in result.violations] + out["effort"]["violations"]
     out["limit_violations"] = len(out["violations"])
     out["solver"] = solver_metrics(result.info)
@@ -414,13 +360,15 @@ def run_metrics(
     results: Mapping[str, BalanceResult],
     simulations: Mapping[str, Any] | None = None,
     failures: Mapping[str, str] | None = None,
+    torques: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """The content of ``metrics.json``: the task (file, name, SHA-256), the versions, and
-    :func:`method_metrics` of each result by method name; ``failures`` lists methods whose solver
-    failed (their best iterate is among ``results``)."""
-    from balance_opt.io.capture_metrics import capture_metrics
+    :func:`method_metrics` of each result by method name (with its joint ``torques`` by method
+    name when the caller has them); ``failures`` lists methods whose solver failed (their best
+    iterate is among ``results``)."""
+    from balance_opt.report.capture_metrics import capture_metrics
 
-    simulations = simulations or {}
+    simulations, torques = simulations or {}, torques or {}
     capture = capture_metrics(task, results, simulations)  # issue 16; None without a capture
     return to_json(
         {
@@ -428,7 +376,9 @@ def run_metrics(
             "task": {"file": task.source, "name": task.name, "sha256": task.sha256},
             "versions": software_versions(),
             "methods": {
-                name: method_metrics(r, task.robot, simulations.get(name), task.h0)
+                name: method_metrics(
+                    r, task.robot, simulations.get(name), task.h0, torques.get(name)
+                )
                 for name, r in results.items()
             },
             "failures": dict(failures or {}),

@@ -21,8 +21,8 @@ from typing import Any
 
 import yaml
 
+from balance_opt.config.keypath import KeyPath, format_path
 from balance_opt.errors import InputError
-from balance_opt.io.keypath import KeyPath, format_path
 
 
 class TaskFileError(InputError):

@@ -1,7 +1,7 @@
 """What a typed configuration looks like to its users: its JSON Schema and its reference table.
 
-Both are derived from the :func:`~balance_opt.io.typed_config.setting` declarations of a tree
-of dataclasses, keys laid out as in a file (:func:`~balance_opt.io.typed_config.file_layout`):
+Both are derived from the :func:`~balance_opt.config.typed_config.setting` declarations of a tree
+of dataclasses, keys laid out as in a file (:func:`~balance_opt.config.typed_config.file_layout`):
 
 * :func:`json_schema`: JSON Schema (draft 2020-12), for editors;
 * :func:`reference_rows` and :func:`reference_markdown`: the README's reference table.
@@ -15,8 +15,8 @@ import typing
 from dataclasses import MISSING
 from typing import Any, Literal
 
-from balance_opt.io.type_names import describe, is_union, tag_of, union_args
-from balance_opt.io.typed_config import (
+from balance_opt.config.type_names import describe, is_union, tag_of, union_args
+from balance_opt.config.typed_config import (
     NUMBER_META,
     Section,
     field_default,

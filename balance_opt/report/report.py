@@ -1,10 +1,10 @@
 """The comparison report: one self-contained HTML file (nothing external: no linked file, library
 or network access) with the task, a table comparing the methods side by side, the limit
 violations, the figures embedded as base64 PNG and, when the task's ``outputs.animation`` asks
-for it, the 3D animation of :mod:`balance_opt.io.animation` (an inline script, passed in as
+for it, the 3D animation of :mod:`balance_opt.report.animation` (an inline script, passed in as
 ``extra_html``).
 
-The table reads ``metrics.json`` content (:func:`balance_opt.io.outputs.run_metrics`), so the
+The table reads ``metrics.json`` content (:func:`balance_opt.report.outputs.run_metrics`), so the
 report and the metrics never disagree.
 """
 
@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.io.capture_metrics import capture_table
-from balance_opt.io.style import method_colour, method_label
+from balance_opt.report.capture_metrics import capture_table
+from balance_opt.report.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE
 
 #: Order of the methods in the tables (others follow in the order given).
@@ -413,13 +413,13 @@ def render_report(
     """The report as one HTML string.
 
     Args:
-        metrics: the content of ``metrics.json`` (:func:`balance_opt.io.outputs.run_metrics`).
+        metrics: the content of ``metrics.json`` (:func:`balance_opt.report.outputs.run_metrics`).
         figures: ``(caption, PNG file)`` pairs, embedded in that order.
         description: the task's description.
         extra_html: trusted HTML appended at the end (e.g. an animation).
         torques: per method ``(t, tau)``, the sample times [s] and joint torques (T, n) [N m]
-            of :func:`balance_opt.io.outputs.plan_joint_torques`, drawn over the motion in
-            the torque tables (left out: peaks only).
+            of :func:`balance_opt.dynamics.inverse_dynamics.plan_joint_torques`, drawn over the
+            motion in the torque tables (left out: peaks only).
     """
     task = metrics.get("task", {})
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())

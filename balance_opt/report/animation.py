@@ -17,7 +17,6 @@ from collections.abc import Mapping
 import numpy as np
 import pinocchio as pin
 
-from balance_opt.io.style import method_label
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import (
     matrix_from_quaternion,
@@ -25,6 +24,7 @@ from balance_opt.motion.so3 import (
     relative_rotation,
     rotvec_from_quaternion,
 )
+from balance_opt.report.style import method_label
 from balance_opt.result import BalanceResult
 
 #: Frames per second of the animation [1/s].
@@ -316,7 +316,8 @@ def animation_html(
     """An HTML fragment: a canvas, a method selector, a play button and a time slider, with the
     data of :func:`animation_data` inline, and a caption naming what is drawn (the arms by
     colour, the base axes, the magnified view and its factor). Drag on the canvas to turn the
-    view. ``labels``: display name per method (default :func:`~balance_opt.io.style.method_label`)."""
+    view. ``labels``: display name per method (default
+    :func:`~balance_opt.report.style.method_label`)."""
     data = animation_data(robot, results, h0, colours)
     data["scale"] = 0.45 * size / (data["extent"] * np.sqrt(2.0))  # any view direction fits
     data["inset_radius"] = round(0.11 * size)

@@ -1,0 +1,98 @@
+"""benchmarks/layout_check.py on small made-up packages: it finds an upward import and a cycle
+wherever the import sits (inside a function too, not under ``if TYPE_CHECKING:``), and fails."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+CHECK = Path(__file__).resolve().parents[1] / "benchmarks" / "layout_check.py"
+
+
+def _package(root: Path, files: dict[str, str]) -> Path:
+    package = root / "balance_opt"
+    for name, text in files.items():
+        path = package / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    for folder in {package, *(p.parent for p in package.rglob("*.py"))}:
+        (folder / "__init__.py").touch()
+    return package
+
+
+def _check(package: Path) -> tuple[int, str]:
+    done = subprocess.run(
+        [sys.executable, str(CHECK), "--package", str(package)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    return done.returncode, done.stdout
+
+
+def test_downward_imports_pass(tmp_path):
+    package = _package(
+        tmp_path,
+        {
+            "model/robot.py": "from balance_opt.errors import InputError\n",
+            "motion/replay.py": "def f():\n    from balance_opt.model import robot\n",
+            "errors.py": "class InputError(Exception):\n    pass\n",
+        },
+    )
+    code, out = _check(package)
+    assert code == 0, out
+    assert "upward imports: 0" in out and "import cycles: 0 in 0 group(s)" in out
+
+
+def test_upward_import_inside_a_function_fails(tmp_path):
+    package = _package(
+        tmp_path,
+        {
+            "model/capture.py": "def f():\n    from balance_opt.motion.so3 import exp\n",
+            "motion/so3.py": "def exp():\n    pass\n",
+        },
+    )
+    code, out = _check(package)
+    assert code == 1
+    assert "upward imports: 1" in out
+    assert "  model.capture (model) -> motion.so3 (motion)" in out
+
+
+@pytest.mark.parametrize("guarded", [True, False])
+def test_cycle_counts_only_imports_that_run(tmp_path, guarded):
+    lazy = "def f():\n    from balance_opt.sweep import spec\n"
+    typed = (
+        "from typing import TYPE_CHECKING\n"
+        "if TYPE_CHECKING:\n"
+        "    from balance_opt.sweep import spec\n"
+    )
+    package = _package(
+        tmp_path,
+        {
+            "sweep/spec.py": "from balance_opt.sweep import cases\n",
+            "sweep/cases.py": typed if guarded else lazy,
+        },
+    )
+    code, out = _check(package)
+    if guarded:
+        assert code == 0 and "import cycles: 0 in 0 group(s)" in out
+    else:
+        assert code == 1 and "import cycles: 1 in 1 group(s)" in out
+        assert "    sweep.cases -> sweep.spec -> sweep.cases" in out
+
+
+def test_a_part_in_no_layer_fails(tmp_path):
+    code, out = _check(_package(tmp_path, {"io/task.py": "X = 1\n"}))
+    assert code == 1 and "parts in no layer of LAYERS: 'io'" in out
+
+
+def test_the_package_keeps_its_layers():
+    code, out = _check(CHECK.parents[1] / "balance_opt")
+    assert "import cycles: 0 in 0 group(s)" in out
+    upward = [line for line in out.splitlines() if line.startswith("  ") and " -> " in line]
+    if (CHECK.parents[1] / "balance_opt" / "optimal" / "start_schedule.py").exists():
+        # on its way out of the planner, with its pool of sweep workers
+        assert all(line.startswith("  optimal.start_schedule ") for line in upward), out
+    else:
+        assert code == 0 and not upward, out
