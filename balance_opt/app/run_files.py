@@ -22,6 +22,8 @@ log = logging.getLogger("balance_opt.app.pipeline")  # the run's log: one logger
 REFERENCE = "mission-only"
 METRICS_FILE = "metrics.json"
 REPORT_FILE = "report.html"
+#: The 3D scene of the plans beside the report (issue 28), which the report shows in a frame.
+SCENE_FILE = "scene.html"
 #: Figures of a run: key -> (file name without suffix, caption). The figures carry no title;
 #: the report prints these captions under them.
 FIGURES = {
@@ -94,6 +96,8 @@ def write_run(run: TaskRun, output_dir: Path, worker: RunWorker | None = None) -
             output_dir / REPORT_FILE, run.metrics, figures, about, extra, torques
         )
         files.append(run.report)
+        if out.animation:
+            files.append(write_run_scene(run, output_dir / SCENE_FILE))
         if not out.plots:
             for _, path in figures:
                 path.unlink()
@@ -137,10 +141,32 @@ def _animation_section(run: TaskRun) -> str:
     labels = {name: plan_label(name) for name in names}
     with _timed("animation"):
         body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
-    return (
+    scene = (
+        f'<h2>3D scene</h2><p class="meta">The robot\'s own geometry moving through each plan '
+        f'(<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
+        "<code>balance-opt view</code> serves it).</p>"
+        f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'
+        'border:1px solid #ddd"></iframe>'
+    )
+    return scene + (
         '<h2>Animation</h2><p class="meta">The robot as a stick figure (base axes: red x, green y, '
         "blue z), base pose from the plan; drag to turn the view.</p>" + body
     )
+
+
+def write_run_scene(run: TaskRun, path: Path) -> Path:
+    """The 3D scene of every plan of ``run`` (:mod:`balance_opt.io.scene`) written to ``path``."""
+    from balance_opt.io.plots import plan_label
+    from balance_opt.io.scene import write_scene
+
+    labels = {
+        name: plan_label(name) + (" (FAILED)" if name in run.failures else "")
+        for name in run.results
+    }
+    with _timed("3D scene"):
+        return write_scene(
+            path, run.task.robot, run.results, run.task.h0, run.task.target, labels, run.task.name
+        )
 
 
 def write_figures(run: TaskRun, output_dir: Path, part: str = "all") -> list[tuple[str, Path]]:

@@ -64,7 +64,7 @@ TARGET_NODE = "capture_target"
 _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 
 
-# =========================================================================================== geometry
+# ====================================================================================== geometry
 @dataclass(frozen=True)
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with
@@ -205,7 +205,7 @@ def target_box(target) -> tuple[np.ndarray, np.ndarray]:
     return sides, axes
 
 
-# =========================================================================================== motion
+# ======================================================================================== motion
 def _com_with_target(model, data, ee_frame: int, target, com_robot, mass):
     ee = data.oMf[ee_frame]
     return (mass * com_robot + target.mass * ee.act(target.com)) / (mass + target.mass)
@@ -267,7 +267,8 @@ def scene_poses(
                 before = com0 + (t_c - t[0]) * p0 / mass
                 ee_c = data.oMf[ee].act(target.com) - com + before  # continuity at t_c
                 start = (mass * before + target.mass * ee_c) / (mass + target.mass)
-                capture = (start, (p0 + target.mass * target.linear_velocity) / (mass + target.mass))
+                velocity = (p0 + target.mass * target.linear_velocity) / (mass + target.mass)
+                capture = (start, velocity)
             shift = capture[0] + (t[i] - t_c) * capture[1] - both
         placement = pin.SE3(R[i], shift)
         pin.forwardKinematics(model, data, robot.pin_q(q[i], placement))
@@ -298,7 +299,7 @@ def _free_flight_before(pose: np.ndarray, t: np.ndarray, target) -> np.ndarray:
     return out
 
 
-# =========================================================================================== commands
+# ====================================================================================== commands
 def _pack(command: dict) -> str:
     import umsgpack
 
@@ -430,7 +431,9 @@ def build_scene(
         _pack(SetTransform(cam, _path("/Cameras/default")).lower()),
         _pack(
             SetProperty(
-                "position", [1.0 * d, 0.55 * d, 0.75 * d], _path("/Cameras/default/rotated/<object>")
+                "position",
+                [1.0 * d, 0.55 * d, 0.75 * d],
+                _path("/Cameras/default/rotated/<object>"),
             ).lower()
         ),
         _pack(SetProperty("visible", False, _path("/Axes")).lower()),
@@ -478,17 +481,17 @@ def build_scene(
     return Scene(setup, animations, meta, objects, poses, nodes)
 
 
-# =========================================================================================== page
+# ========================================================================================== page
 _PAGE_STYLE = """
 html, body { margin: 0; height: 100%; overflow: hidden; font: 13px sans-serif; }
-#scene-pane { position: absolute; top: 0; left: 0; right: 0; bottom: 74px; overflow: hidden; }
-#scene-bar { position: absolute; left: 0; right: 0; bottom: 0; height: 74px; padding: 6px 10px;
+#scene-pane { position: absolute; top: 0; left: 0; right: 0; bottom: 96px; overflow: hidden; }
+#scene-bar { position: absolute; left: 0; right: 0; bottom: 0; height: 96px; padding: 6px 10px;
   box-sizing: border-box; background: #f4f4f4; border-top: 1px solid #ccc; }
 #scene-bar select, #scene-bar button { font: inherit; margin-right: 6px; }
 #scene-t { width: 45%; vertical-align: middle; }
 .key { display: inline-block; width: 0.9em; height: 0.9em; margin: 0 0.3em 0 0.8em;
   vertical-align: -0.1em; border: 1px solid #555; }
-#scene-note { color: #444; margin-top: 6px; }
+#scene-label { display: block; margin-top: 4px; } #scene-note { color: #444; margin-top: 2px; }
 """
 
 _PLAYER = """
@@ -608,7 +611,7 @@ def write_scene(
     return path
 
 
-# =========================================================================================== server
+# ======================================================================================== server
 def serve(page: str | Path, port: int = 0) -> tuple[http.server.ThreadingHTTPServer, str]:
     """Serve the folder of ``page`` on 127.0.0.1 (``port`` 0: a free one) from a thread; returns
     the server (``shutdown()`` stops it) and the page's URL."""
