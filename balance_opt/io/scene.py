@@ -67,8 +67,10 @@ _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0
 # ====================================================================================== geometry
 @dataclass(frozen=True)
 class SceneObject:
-    """One piece of visual geometry: its node name, the Pinocchio joint it moves with
-    (``TARGET_NODE``'s: -1), its placement in the joint frame and the lowered meshcat object."""
+    """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
+    placement in the joint frame, the meshcat object (``intrinsic``: its transform from
+    meshcat's axes to Pinocchio's), its vertex count (meshes) and the corners of its bounding
+    box in the joint frame (8, 3) [m]."""
 
     name: str
     joint: int
@@ -76,6 +78,7 @@ class SceneObject:
     intrinsic: np.ndarray
     mesh: Any  # a meshcat.geometry.Mesh
     vertices: int
+    corners: np.ndarray
 
 
 def visual_model(robot: FloatingRobot) -> pin.GeometryModel:
@@ -191,7 +194,15 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         mesh = isinstance(geometry, mg.TriangularMeshGeometry)
         drawn = _object(geometry, _colour(arm[obj.parentJoint], robot), opacity, mesh)
         n = int(geometry.vertices.shape[0]) if mesh else 0
-        out.append(SceneObject(obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n))
+        obj.geometry.computeLocalAABB()
+        lo, hi = obj.geometry.aabb_local.min_, obj.geometry.aabb_local.max_
+        corners = np.array(
+            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+        )
+        corners = corners @ obj.placement.rotation.T + obj.placement.translation
+        out.append(
+            SceneObject(obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners)
+        )
     return out
 
 
@@ -421,11 +432,20 @@ def build_scene(
         frame[:3, :3] = axes
         setup.append(_pack(SetTransform(frame, path).lower()))
     # the view: the grid under the robot, the camera orbiting about its middle
-    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    hull = np.vstack(
+        [points]
+        + [
+            o.corners @ start["joints"][0][o.joint - 1][:3, :3].T
+            + start["joints"][0][o.joint - 1][:3, 3]
+            for o in objects
+        ]
+    )
+    lo, hi = hull.min(axis=0), hull.max(axis=0)
+    centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
     grid, cam = np.eye(4), np.eye(4)
-    grid[:3, 3] = [centre[0], centre[1], points[:, 2].min() - 0.6 * size]
+    grid[:3, 3] = [centre[0], centre[1], lo[2] - 0.15 * extent]
     cam[:3, 3] = centre
-    d = 1.2 * size + 0.4
+    d = 0.4 * extent + 0.2
     setup += [
         _pack(SetTransform(grid, _path("/Grid")).lower()),
         _pack(SetTransform(cam, _path("/Cameras/default")).lower()),
