@@ -43,7 +43,6 @@ from balance_opt.errors import InputError
 from balance_opt.io.animation import ARM_COLOURS, magnification, magnified_axes
 from balance_opt.io.style import method_label
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -515,7 +514,8 @@ html, body { margin: 0; height: 100%; overflow: hidden; font: 13px sans-serif; }
 """
 
 _PLAYER = """
-const S = SCENE_DATA, pane = document.getElementById('scene-pane');
+const S = SCENE_DATA;
+const pane = document.getElementById('scene-pane');
 const viewer = new MeshCat.Viewer(pane);
 const fit = viewer.set_3d_pane_size.bind(viewer);  // the viewer takes the window's height
 viewer.set_3d_pane_size = function () { fit(pane.clientWidth, pane.clientHeight); };
