@@ -142,7 +142,7 @@ def _animation_section(run: TaskRun) -> str:
     with _timed("animation"):
         body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
     scene = (
-        f'<h2>3D scene</h2><p class="meta">The robot\'s own geometry moving through each plan '
+        f'<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through each plan '
         f'(<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
         "<code>balance-opt view</code> serves it).</p>"
         f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'

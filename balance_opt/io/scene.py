@@ -432,7 +432,7 @@ def build_scene(
         setup.append(_pack(SetTransform(frame, path).lower()))
     # the view: the grid under the robot, the camera orbiting about its middle
     hull = np.vstack(
-        [points]
+        [start["joints"][:, :, :3, 3].reshape(-1, 3)]  # the joints along the first plan
         + [
             o.corners @ start["joints"][0][o.joint - 1][:3, :3].T
             + start["joints"][0][o.joint - 1][:3, 3]
@@ -444,7 +444,7 @@ def build_scene(
     grid, cam = np.eye(4), np.eye(4)
     grid[:3, 3] = [centre[0], centre[1], lo[2] - 0.15 * extent]
     cam[:3, 3] = centre
-    d = 0.4 * extent + 0.2
+    d = 0.45 * extent + 0.2
     setup += [
         _pack(SetTransform(grid, _path("/Grid")).lower()),
         _pack(SetTransform(cam, _path("/Cameras/default")).lower()),
