@@ -359,7 +359,8 @@ def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
             raise InputError(
                 f"{source}: no {SCENE_FILE} and no {METRICS_FILE}: not a result folder"
             )
-        task_file = json.loads(metrics.read_text()).get("task", {}).get("file", "")
+        content = json.loads(metrics.read_text())
+        task_file = content.get("task", {}).get("file", "")
         if not Path(task_file).is_file():
             raise InputError(
                 f"{metrics}: task file '{task_file}' not found (the scene needs its robot)"
@@ -369,7 +370,8 @@ def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
         results = {n: read_npz_result(f) for n, f in files.items() if f.is_file()}
         if not results:
             raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
-        run = TaskRun(with_backend(load_task(task_file), backend), results=results)
+        task = with_backend(load_task(task_file), backend)
+        run = TaskRun(task, results=results, failures=content.get("failures") or {})
     else:
         task = with_backend(load_task(source), backend)
         run = run_task(task, methods=("analytic", "optimal"))

@@ -379,3 +379,49 @@ def test_view_serves_the_scene_a_run_wrote(paper, monkeypatch, tmp_path):
 def test_view_of_a_folder_that_is_no_result_is_exit_2(tmp_path, capsys):
     assert main(["view", str(tmp_path), "--no-browser"]) == 2
     assert "no scene.html and no metrics.json: not a result folder" in capsys.readouterr().err
+
+
+def _paper_task(tmp_path: Path, urdf_text: str | None = None) -> Path:
+    """A short version of examples/capture_task.yaml, analytic only, on its own URDF copy."""
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text(urdf_text or (ROOT / "urdf" / "paper_robot.urdf").read_text())
+    text = (ROOT / "examples" / "capture_task.yaml").read_text()
+    text = text.replace("shipped: paper_robot.urdf", f"urdf: {urdf}")
+    text = text.replace("goal: [1.2, 0.9, -1.6]", "goal: [0.6, 0.6, -1.1]")
+    text = text.replace("duration: 10.0", "duration: 3.0")
+    task = tmp_path / "task.yaml"
+    task.write_text(text)
+    return task
+
+
+def test_a_run_writes_the_scene_and_its_report_frames_it(tmp_path):
+    out = tmp_path / "out"
+    assert main(["plan", str(_paper_task(tmp_path)), "-m", "analytic", "-o", str(out), "-q"]) == 0
+    report = (out / "report.html").read_text()
+    assert '<iframe src="scene.html"' in report and EXTERNAL.search(report) is None
+    scene = (out / "scene.html").read_text()
+    assert '<option value="analytic">analytic law</option>' in scene
+
+
+def test_a_missing_mesh_leaves_the_scene_out_not_the_run(tmp_path, caplog):
+    urdf = (ROOT / "urdf" / "paper_robot.urdf").read_text()
+    urdf = urdf.replace(
+        '<geometry><box size="1.0 1.0 1.0"/></geometry>',
+        '<geometry><mesh filename="package://no_such_package/base.stl"/></geometry>',
+    )
+    out = tmp_path / "out"
+    task = _paper_task(tmp_path, urdf)
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out)]) == 0
+    assert "3D scene not written" in caplog.text and "robot.urdf" in caplog.text
+    assert not (out / "scene.html").exists()
+    assert "<iframe" not in (out / "report.html").read_text()
+
+
+@pytest.mark.slow
+def test_view_of_a_task_plans_it_and_serves_its_scene(monkeypatch, capsys):
+    seen = _serve_once(monkeypatch)
+    task = ROOT / "examples" / "capture_tumbling_target.yaml"
+    assert main(["view", str(task), "--no-browser", "-q"]) == 0
+    for option in ("mission arm alone", "analytic law", "optimal plan"):
+        assert f">{option}</option>" in seen["page"]
+    assert '"target":{"time":5.0' in seen["page"] and _gone(seen["url"])

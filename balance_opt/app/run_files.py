@@ -77,7 +77,7 @@ def write_run(run: TaskRun, output_dir: Path, worker: RunWorker | None = None) -
     if drawing and worker is None:
         with _timed("figures"):
             figures = write_figures(run, output_dir)
-    report_parts = _report_parts(run) if out.report else None
+    report_parts = _report_parts(run, output_dir) if out.report else None
     if drawing and worker is not None:
         figures, seconds = [], 0.0
         for part in ("plans", "simulations", "all"):
@@ -91,13 +91,11 @@ def write_run(run: TaskRun, output_dir: Path, worker: RunWorker | None = None) -
         from balance_opt.io.report import write_report
 
         about = run.task.spec.description
-        extra, torques = report_parts
+        extra, torques, scene = report_parts
         run.report = write_report(
             output_dir / REPORT_FILE, run.metrics, figures, about, extra, torques
         )
-        files.append(run.report)
-        if out.animation:
-            files.append(write_run_scene(run, output_dir / SCENE_FILE))
+        files += [run.report] + ([scene] if scene is not None else [])
         if not out.plots:
             for _, path in figures:
                 path.unlink()
@@ -119,19 +117,27 @@ def _write_trajectories(run: TaskRun, output_dir: Path) -> list[Path]:
     return files
 
 
-def _report_parts(run: TaskRun) -> tuple[str, dict]:
-    """The report's animation section and the joint torques of every plan."""
+def _report_parts(run: TaskRun, output_dir: Path) -> tuple[str, dict, Path | None]:
+    """The report's 3D sections (the scene written beside it, the stick-figure animation), the
+    joint torques of every plan and the scene's file (None: not written)."""
+    from balance_opt.errors import InputError
     from balance_opt.io.outputs import plan_joint_torques
 
-    extra = _animation_section(run) if run.task.spec.outputs.animation else ""
+    extra, scene = "", None
+    if run.task.spec.outputs.animation:
+        try:
+            scene = write_run_scene(run, output_dir / SCENE_FILE)
+        except InputError as exc:  # a mesh file missing: the rest of the run still counts
+            log.warning("3D scene not written: %s", exc)
+        extra = _animation_section(run, scene is not None)
     torques = {
         name: (res.t, plan_joint_torques(res, run.task.robot, run.task.h0))
         for name, res in run.results.items()
     }
-    return extra, torques
+    return extra, torques, scene
 
 
-def _animation_section(run: TaskRun) -> str:
+def _animation_section(run: TaskRun, scene: bool) -> str:
     """The report's 3D animation of every plan (see :mod:`balance_opt.io.animation`)."""
     from balance_opt.io.animation import animation_html
     from balance_opt.io.plots import plan_colour, plan_label
@@ -141,14 +147,14 @@ def _animation_section(run: TaskRun) -> str:
     labels = {name: plan_label(name) for name in names}
     with _timed("animation"):
         body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
-    scene = (
-        f'<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through each plan '
-        f'(<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
+    frame = (
+        '<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through '
+        f'each plan (<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
         "<code>balance-opt view</code> serves it).</p>"
         f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'
         'border:1px solid #ddd"></iframe>'
     )
-    return scene + (
+    return (frame if scene else "") + (
         '<h2>Animation</h2><p class="meta">The robot as a stick figure (base axes: red x, green y, '
         "blue z), base pose from the plan; drag to turn the view.</p>" + body
     )
