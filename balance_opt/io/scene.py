@@ -216,11 +216,6 @@ def target_box(target) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ======================================================================================== motion
-def _com_with_target(model, data, ee_frame: int, target, com_robot, mass):
-    ee = data.oMf[ee_frame]
-    return (mass * com_robot + target.mass * ee.act(target.com)) / (mass + target.mass)
-
-
 def scene_poses(
     robot: FloatingRobot,
     result: BalanceResult,
@@ -262,32 +257,33 @@ def scene_poses(
     base = np.empty((t.size, 4, 4))
     placements = np.empty((t.size, len(joints), 4, 4))
     target_pose = np.empty((t.size, 4, 4))
-    com0 = capture = None
+    total = mass + (target.mass if target is not None else 0.0)
+    com0 = line_after = None
     for i in range(t.size):
-        pin.forwardKinematics(model, data, robot.pin_q(q[i], pin.SE3(R[i], np.zeros(3))))
-        pin.updateFramePlacements(model, data)
+        # placed with the base at the origin, then moved: a translation moves every point alike
         com = pin.centerOfMass(model, data, robot.pin_q(q[i], pin.SE3(R[i], np.zeros(3))))
-        if com0 is None:
-            com0 = com  # the base starts at the origin
+        pin.updateFramePlacements(model, data)
+        com0 = com if com0 is None else com0  # the base starts at the origin
         if t[i] < t_c:
             shift = com0 + (t[i] - t[0]) * p0 / mass - com
         else:
-            both = _com_with_target(model, data, ee, target, com, mass)
-            if capture is None:  # the first sample after the capture: the free-flight line
-                before = com0 + (t_c - t[0]) * p0 / mass
-                ee_c = data.oMf[ee].act(target.com) - com + before  # continuity at t_c
-                start = (mass * before + target.mass * ee_c) / (mass + target.mass)
-                velocity = (p0 + target.mass * target.linear_velocity) / (mass + target.mass)
-                capture = (start, velocity)
-            shift = capture[0] + (t[i] - t_c) * capture[1] - both
-        placement = pin.SE3(R[i], shift)
-        pin.forwardKinematics(model, data, robot.pin_q(q[i], placement))
-        pin.updateFramePlacements(model, data)
-        base[i] = placement.homogeneous
+            c_t = data.oMf[ee].act(target.com)
+            if line_after is None:  # the capture: robot and target on one line from here on
+                robot_at = com0 + (t_c - t[0]) * p0 / mass
+                target_at = robot_at + c_t - com
+                line_after = (
+                    (mass * robot_at + target.mass * target_at) / total,
+                    (p0 + target.mass * target.linear_velocity) / total,
+                )
+            both = (mass * com + target.mass * c_t) / total
+            shift = line_after[0] + (t[i] - t_c) * line_after[1] - both
+        base[i] = pin.SE3(R[i], shift).homogeneous
         for k, j in enumerate(joints):
             placements[i, k] = data.oMi[j].homogeneous
+        placements[i, :, :3, 3] += shift
         if target is not None:
             target_pose[i] = (data.oMf[ee] * pin.SE3(np.eye(3), target.com)).homogeneous
+            target_pose[i, :3, 3] += shift
     out = {"t": t, "index": index, "base": base, "joints": placements}
     if target is not None:
         out["target"] = _free_flight_before(target_pose, t, target)
@@ -322,40 +318,45 @@ def _float32(values) -> Any:
     return umsgpack.Ext(0x17, np.ascontiguousarray(values, dtype="<f4").tobytes())
 
 
-def _animation(tracks: Mapping[str, tuple[np.ndarray, np.ndarray]], t: np.ndarray) -> dict:
-    """The lowered ``set_animation`` command: per node path its position and quaternion keys
-    (times [s] from the start, three.js's (x, y, z, w) order), as float32 arrays."""
+def _animation(tracks: Mapping[Any, tuple[np.ndarray, np.ndarray]], t: np.ndarray) -> dict:
+    """The lowered ``set_animation`` command: per node (a meshcat path) its position and
+    quaternion keys (times [s] from the start, three.js's (x, y, z, w) order)."""
+    from meshcat.animation import Animation, AnimationClip, AnimationTrack
     from meshcat.commands import SetAnimation
 
-    clips = []
-    for path, (position, quaternion) in tracks.items():
-        clips.append(
-            {
-                "path": path,
-                "clip": {
-                    "fps": 1.0,  # key times in seconds
-                    "name": "default",
-                    "tracks": [
-                        {"name": ".position", "type": "vector3", "times": _float32(t),
-                         "values": _float32(position.ravel())},
-                        {"name": ".quaternion", "type": "quaternion", "times": _float32(t),
-                         "values": _float32(quaternion.ravel())},
-                    ],
-                },
-            }
-        )
+    class Track(AnimationTrack):
+        """meshcat's track with its keys as two float32 arrays, which three.js reads as they
+        are, instead of a small map per key: a quarter of the size."""
 
-    class _Lowered:  # SetAnimation lowers whatever has a lower()
         def lower(self):
-            return clips
+            return {
+                "name": "." + self.name,
+                "type": self.jstype,
+                "times": _float32(self.frames),
+                "values": _float32(np.ravel(self.values)),
+            }
 
-    return SetAnimation(_Lowered(), play=False, repetitions=1).lower()
+    clips = {
+        path: AnimationClip(
+            {
+                "position": Track("position", "vector3", t, position),
+                "quaternion": Track("quaternion", "quaternion", t, quaternion),
+            },
+            fps=1.0,  # key times in seconds
+        )
+        for path, (position, quaternion) in tracks.items()
+    }
+    return SetAnimation(Animation(clips), play=False, repetitions=1).lower()
 
 
 def _tracks(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    positions = poses[:, :3, 3]
-    quaternions = np.array([pin.Quaternion(M[:3, :3]).coeffs() for M in poses])  # x, y, z, w
-    return positions, quaternions
+    """Positions (K, 3) and unit quaternions (K, 4) (x, y, z, w) of placements (K, 4, 4), each
+    quaternion on the side of its predecessor (the same rotations, no half-turn between keys)."""
+    quaternions = np.array([pin.Quaternion(M[:3, :3]).coeffs() for M in poses])
+    for k in range(1, len(quaternions)):
+        if quaternions[k] @ quaternions[k - 1] < 0:
+            quaternions[k] *= -1
+    return poses[:, :3, 3], quaternions
 
 
 @dataclass
@@ -466,11 +467,11 @@ def build_scene(
         for f in factors:
             pose = scene_poses(robot, res, nodes, h0, target, f, fps)
             tracks = {
-                _path(_node_name(robot, j)).lower(): _tracks(pose["joints"][:, k])
+                _path(_node_name(robot, j)): _tracks(pose["joints"][:, k])
                 for k, j in enumerate(nodes)
             }
             if target is not None:
-                tracks[_path(TARGET_NODE).lower()] = _tracks(pose["target"])
+                tracks[_path(TARGET_NODE)] = _tracks(pose["target"])
             key = f"{name}|{f:g}"
             animations[key] = _pack(_animation(tracks, pose["t"] - pose["t"][0]))
             poses[key] = pose
