@@ -133,7 +133,7 @@ def _shape(obj: pin.GeometryObject, cell: float, meshes: dict) -> tuple[Any, np.
     g = obj.geometry
     if isinstance(g, coal.Box):
         return mg.Box(list(2.0 * np.asarray(g.halfSide))), np.eye(4)
-    if isinstance(g, (coal.Cylinder, coal.Capsule)):
+    if isinstance(g, (coal.Cylinder, coal.Capsule)):  # a capsule: the cylinder that holds it
         length = 2.0 * g.halfLength + (2.0 * g.radius if isinstance(g, coal.Capsule) else 0.0)
         return mg.Cylinder(length, g.radius), _CYLINDER_AXIS
     if isinstance(g, coal.Sphere):
