@@ -316,14 +316,21 @@ def test_baxter_meshes_are_in_the_scene_simplified(baxter, tmp_path):
     assert {g.name for g in gmodel.geometryObjects} <= placed
     meshes = [g for g in gmodel.geometryObjects if g.meshPath.lower().endswith(".dae")]
     full = sum(g.geometry.num_vertices for g in meshes)
-    kept = 0
+    kept, sent = 0, 0
     for command in map(_unpack, setup):
-        if command["type"] != "set_object":
-            continue
+        if command["type"] != "set_object" or command["object"]["object"]["type"] != "Mesh":
+            continue  # (the base's axes are lines)
         geometry = command["object"]["geometries"][0]
         if geometry["type"] == "BufferGeometry":
             kept += len(_floats(geometry["data"]["attributes"]["position"]["array"])) // 3
+            sent += 1
     assert 0 < kept < full / 3
+    # a mesh that both arms carry (the same file) is sent once, the other link points to it
+    page = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))
+    mesh_of = {g.name: g.meshPath for g in meshes}
+    pairs = [(a.rsplit("/", 1)[-1], b.rsplit("/", 1)[-1]) for a, b in page["shared"]]
+    assert pairs and all(mesh_of[a] == mesh_of[b] and a != b for a, b in pairs)
+    assert sent == len(set(mesh_of.values())) and page["vertices"] == kept  # each file once
     assert EXTERNAL.search(text) is None and path.stat().st_size < 15e6
 
 

@@ -405,8 +405,8 @@ def build_scene(
         labels: display name per method (default :func:`~balance_opt.io.style.method_label`).
         fps: animation samples per second of motion.
     """
+    import meshcat.geometry as mg
     from meshcat.commands import SetObject, SetProperty, SetTransform
-    from meshcat.geometry import triad
 
     first = next(iter(results.values()))
     joints_all = list(range(1, robot.model.njoints))
@@ -415,15 +415,20 @@ def build_scene(
     size = max(float(np.ptp(points, axis=0).max()), 0.2)
     objects = scene_objects(robot, size)
     nodes = sorted({1, *(o.joint for o in objects)})
-    setup = []
+    setup, carrier, shared, sent = [], {}, [], 0
     for obj in objects:
         path = _path(_node_name(robot, obj.joint), obj.name)
-        setup.append(_pack(SetObject(obj.mesh, path=path).lower()))
+        drawn, geometry = obj.mesh, obj.mesh.geometry
+        if obj.vertices and id(geometry) in carrier:  # a mesh file seen before: sent once
+            drawn = mg.Mesh(mg.Box([0.0, 0.0, 0.0]), obj.mesh.material)
+            shared.append([path.lower(), carrier[id(geometry)]])
+        elif obj.vertices:
+            carrier[id(geometry)] = path.lower()
+            sent += obj.vertices
+        setup.append(_pack(SetObject(drawn, path=path).lower()))
         setup.append(_pack(SetTransform(obj.placement.homogeneous @ obj.intrinsic, path).lower()))
-    setup.append(_pack(SetObject(triad(0.6 * size), path=_path("base", "axes")).lower()))
+    setup.append(_pack(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")).lower()))
     if target is not None:
-        import meshcat.geometry as mg
-
         sides, axes = target_box(target)
         path = _path(TARGET_NODE, "box")
         box = _object(mg.Box(list(sides)), TARGET_COLOUR, 0.85, False)
@@ -496,7 +501,8 @@ def build_scene(
         if target is None
         else {"time": float(target.time), "colour": TARGET_COLOUR, "mass": float(target.mass)},
         "robot": robot.name,
-        "vertices": sum(o.vertices for o in objects),
+        "vertices": sent,
+        "shared": shared,
     }
     return Scene(setup, animations, meta, objects, poses, nodes)
 
@@ -525,6 +531,10 @@ function run(b64) { const s = atob(b64), a = new Uint8Array(s.length);
   for (let i = 0; i < s.length; i++) a[i] = s.charCodeAt(i);
   viewer.handle_command_bytearray(a); }
 S.setup.forEach(run);
+// a mesh that several links carry is sent once: the others take its geometry
+function drawnAt(path) { return viewer.scene_tree.find(path.split('/').filter(Boolean)
+  .concat(['<object>'])).object; }
+S.shared.forEach(function (s) { drawnAt(s[0]).geometry = drawnAt(s[1]).geometry; });
 const sel = document.getElementById('scene-method'), mag = document.getElementById('scene-mag');
 const sl = document.getElementById('scene-t'), btn = document.getElementById('scene-play');
 const lab = document.getElementById('scene-label'), note = document.getElementById('scene-note');
