@@ -284,10 +284,11 @@ def test_the_page_is_self_contained(paper, paper_scene, tmp_path):
     assert path.stat().st_size < 3e6
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium is not installed")
 def test_the_page_runs_in_a_browser(paper, paper_scene, tmp_path):
-    """Headless Chromium opens the page from disk (offline), the viewer starts and the player
-    shows the time and the base rotation of the plan and time asked for in the URL."""
+    """Headless Chromium opens the page from disk (offline), the viewer starts, the player
+    shows the time and the base rotation of the plan and time asked for in the URL, and plays."""
     res, scene = paper_scene
     path = tmp_path / "scene.html"
     path.write_text(scene_html(scene))
@@ -303,6 +304,14 @@ def test_the_page_runs_in_a_browser(paper, paper_scene, tmp_path):
     text = f"t = 1.20 s of 2.00 s; base rotation from the start {angle:.3g} rad"
     assert label.group(1).startswith(text)
     assert "<canvas" in proc.stdout  # the viewer's WebGL canvas
+    # "play" runs the viewer's player: the time shown moves on from where it started
+    proc = subprocess.run(
+        ["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=3000",
+         "--dump-dom", f"{path.as_uri()}#method=test&t=1.2&play"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    shown = re.search(r'<span id="scene-label">t = ([0-9.]+) s of 2.00 s', proc.stdout)
+    assert shown and 1.2 < float(shown.group(1)) <= 2.0, proc.stdout[-500:]
 
 
 @pytest.mark.slow

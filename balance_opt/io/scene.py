@@ -574,13 +574,15 @@ const h = new URLSearchParams(location.hash.slice(1));
 if (h.has('method') && S.methods[h.get('method')]) sel.value = h.get('method');
 if (h.has('magnify') && S.factors.indexOf(+h.get('magnify')) >= 0) mag.value = h.get('magnify');
 load(h.has('t') ? +h.get('t') : 0);
+if (h.has('play')) btn.onclick();
 """
 
 
 def scene_html(scene: Scene, title: str = "") -> str:
     """The scene as one self-contained HTML page: the meshcat viewer's bundle, the commands,
     a method selector, a base-rotation selector, a play button and a time slider (the URL's
-    ``#method=optimal&t=5&magnify=10`` opens a given method, time and magnification)."""
+    ``#method=optimal&t=5&magnify=10`` opens a given method, time and magnification; ``&play``
+    starts playing)."""
     from meshcat import viewer_assets_path
 
     bundle = (Path(viewer_assets_path()) / "dist" / "main.min.js").read_text(encoding="utf-8")
