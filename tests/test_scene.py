@@ -353,6 +353,10 @@ def _serve_once(monkeypatch) -> dict:
     def fetch(server, url):
         with urllib.request.urlopen(url, timeout=30) as reply:
             seen.update(url=url, status=reply.status, page=reply.read().decode())
+        try:  # the page only, not the rest of its folder
+            urllib.request.urlopen(url.replace("scene.html", "metrics.json"), timeout=30)
+        except urllib.error.HTTPError as exc:
+            seen["other"] = exc.code
 
     monkeypatch.setattr(cli, "_wait_for_stop", fetch)
     return seen
@@ -377,7 +381,7 @@ def test_view_serves_a_result_folder_on_localhost_and_stops(paper, monkeypatch, 
     assert main(["view", str(folder), "--no-browser"]) == 0
     assert re.fullmatch(r"http://127\.0\.0\.1:\d+/scene\.html", seen["url"])
     assert seen["url"] in capsys.readouterr().out
-    assert seen["status"] == 200 and "MeshCat.Viewer" in seen["page"]
+    assert seen["status"] == 200 and "MeshCat.Viewer" in seen["page"] and seen["other"] == 404
     assert '<option value="analytic">analytic law</option>' in seen["page"]
     assert _gone(seen["url"])  # the server stopped with the command
     assert not (folder / "scene.html").exists()  # the result folder is left as it was

@@ -25,7 +25,6 @@ rides the mission end effector after it.
 from __future__ import annotations
 
 import base64
-import functools
 import html
 import http.server
 import json
@@ -646,17 +645,27 @@ def write_scene(
 
 # ======================================================================================== server
 def serve(page: str | Path, port: int = 0) -> tuple[http.server.ThreadingHTTPServer, str]:
-    """Serve the folder of ``page`` on 127.0.0.1 (``port`` 0: a free one) from a thread; returns
-    the server (``shutdown()`` stops it) and the page's URL."""
-    page = Path(page).resolve()
-    handler = functools.partial(_QuietHandler, directory=str(page.parent))
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+    """Serve the page (and nothing else of its folder) on 127.0.0.1 (``port`` 0: a free one)
+    from a thread; returns the server (``shutdown()`` stops it) and the page's URL."""
+    page = Path(page)
+    body, name = page.read_bytes(), page.name
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 (the base class's name)
+            if self.path.split("?")[0] not in ("/", f"/{name}"):
+                self.send_error(404)
+                return
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html; charset=utf-8")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format, *args):  # noqa: A002 (the base class's name)
+            log.debug("view: " + format, *args)
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), Handler)
     thread = threading.Thread(target=server.serve_forever, name="balance-opt view", daemon=True)
     thread.start()
     host, port = server.server_address[:2]
-    return server, f"http://{host}:{port}/{page.name}"
-
-
-class _QuietHandler(http.server.SimpleHTTPRequestHandler):
-    def log_message(self, format, *args):  # noqa: A002 (the base class's name)
-        log.debug("view: " + format, *args)
+    return server, f"http://{host}:{port}/{name}"
