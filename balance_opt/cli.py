@@ -13,6 +13,8 @@ Subcommands:
   ``capture_task``);
 * ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
   Dask cluster;
+* ``view RESULT_DIR|TASK``: the 3D scene of a run's plans in a browser, served on 127.0.0.1
+  (:mod:`balance_opt.report.scene`);
 * ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
@@ -39,6 +41,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -337,6 +340,71 @@ def _cmd_sweep(args) -> int:
     return EXIT_SOLVER if run.failed else EXIT_OK
 
 
+def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
+    """The scene page of a result folder (its ``scene.html``, or one built into ``folder`` from
+    its NPZ files and task file) or of a task file (planned here, both methods)."""
+    from balance_opt.app.pipeline import TaskRun, run_task
+    from balance_opt.app.run_files import METRICS_FILE, REFERENCE, SCENE_FILE, write_run_scene
+    from balance_opt.errors import InputError
+    from balance_opt.tasks.task import load_task
+
+    if source.is_dir():
+        if (source / SCENE_FILE).is_file():
+            return source / SCENE_FILE
+        from balance_opt.report.outputs import read_npz_result
+
+        metrics = source / METRICS_FILE
+        if not metrics.is_file():
+            raise InputError(
+                f"{source}: no {SCENE_FILE} and no {METRICS_FILE}: not a result folder"
+            )
+        content = json.loads(metrics.read_text())
+        task_file = content.get("task", {}).get("file", "")
+        if not Path(task_file).is_file():
+            raise InputError(
+                f"{metrics}: task file '{task_file}' not found (the scene needs its robot)"
+            )
+        names = (REFERENCE, "analytic", "optimal")
+        files = {n: source / f"{n}.npz" for n in names}
+        results = {n: read_npz_result(f) for n, f in files.items() if f.is_file()}
+        if not results:
+            raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
+        task = with_backend(load_task(task_file), backend)
+        run = TaskRun(task, results=results, failures=content.get("failures") or {})
+    else:
+        task = with_backend(load_task(source), backend)
+        run = run_task(task, methods=("analytic", "optimal"))
+    return write_run_scene(run, folder / SCENE_FILE)
+
+
+def _wait_for_stop(server, url: str) -> None:
+    """Serve until Ctrl-C (tests replace this to fetch the page and return)."""
+    threading.Event().wait()
+
+
+def _cmd_view(args) -> int:
+    import tempfile
+    import webbrowser
+
+    from balance_opt.report.scene import serve
+
+    with tempfile.TemporaryDirectory(prefix="balance-opt-view-") as scratch:
+        page = _scene_page(Path(args.source), args.backend, Path(scratch))
+        server, url = serve(page, args.port)
+        try:
+            print(url, flush=True)
+            log.info("serving %s on %s (Ctrl-C stops)", page, url)
+            if not args.no_browser:
+                webbrowser.open(url, new=2)
+            _wait_for_stop(server, url)
+        except KeyboardInterrupt:
+            log.info("view: stopped")
+        finally:
+            server.shutdown()
+            server.server_close()
+    return EXIT_OK
+
+
 # =========================================================================================== parser
 def _add_check_commands(sub) -> None:
     """``validate``, ``schema`` and ``inspect``: everything short of planning."""
@@ -405,6 +473,24 @@ def _add_run_commands(sub) -> None:
         "law against the optimal plan on examples/capture_task.yaml's",
     )
     p.set_defaults(run=_cmd_paper_figures)
+
+
+def _add_view_command(sub) -> None:
+    """``view``: the 3D scene in a browser."""
+    p = sub.add_parser(
+        "view",
+        help="show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
+        description="Serve the 3D scene of a result folder (its scene.html, or one built from "
+        "its NPZ files) or of a task file (planned first, both methods) on 127.0.0.1 and open "
+        "it in a browser; Ctrl-C stops.",
+    )
+    p.add_argument("source", metavar="RESULT_DIR|TASK", help="result folder or task file")
+    p.add_argument(
+        "--no-browser", action="store_true", help="print the URL and serve, open no browser"
+    )
+    p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
+    backend_option(p)
+    p.set_defaults(run=_cmd_view)
 
 
 def _add_sweep_command(sub) -> None:
@@ -486,6 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_check_commands(sub)
     _add_run_commands(sub)
     _add_sweep_command(sub)
+    _add_view_command(sub)
     add_tool_commands(sub)
     for subparser in sub.choices.values():
         common_options(subparser, top=False)

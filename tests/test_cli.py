@@ -35,6 +35,7 @@ PLAN_FILES = {
 }
 FIGURES = {"attitude_plans.png", "balance_joints.png"}
 SIMULATION_FIGURES = {"attitude_simulated.png", "reaction_torque.png"}
+REPORT_FILES = {"metrics.json", "report.html", "scene.html"}
 
 
 def _write(path: Path, text: str) -> Path:
@@ -157,7 +158,7 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     assert "optimal plan (N = 12, hermite-simpson, Ipopt) ..." in err  # progress
     assert f"report: {out / 'report.html'}" in err
     files = {p.name for p in out.iterdir()}
-    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | {"metrics.json", "report.html"}
+    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | REPORT_FILES
 
     joints = [
         "mission_joint1",
@@ -209,7 +210,7 @@ def test_compare_baxter(tmp_path, capsys):
     out = tmp_path / "bax"
     assert main(["compare", str(task), "-o", str(out)]) == 0
     files = {p.name for p in out.iterdir()}
-    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | {"metrics.json", "report.html"}
+    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | REPORT_FILES
     _check_csv(
         out / "analytic.csv",
         [
@@ -411,7 +412,7 @@ def test_outputs_can_be_switched_off(tmp_path):
     task = _fast_paper(tmp_path, "outputs: {csv: false, npz: false, plots: false}\n")
     out = tmp_path / "out"
     assert main(["plan", str(task), "-m", "analytic", "-o", str(out), "-q"]) == 0
-    assert {p.name for p in out.iterdir()} == {"metrics.json", "report.html"}
+    assert {p.name for p in out.iterdir()} == REPORT_FILES
     assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
 
 

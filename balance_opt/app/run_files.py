@@ -23,6 +23,8 @@ log = logging.getLogger("balance_opt.app.pipeline")  # the run's log: one logger
 REFERENCE = "mission-only"
 METRICS_FILE = "metrics.json"
 REPORT_FILE = "report.html"
+#: The 3D scene of the plans beside the report (issue 28), which the report shows in a frame.
+SCENE_FILE = "scene.html"
 #: Figures of a run: key -> (file name without suffix, caption). The figures carry no title;
 #: the report prints these captions under them.
 FIGURES = {
@@ -130,13 +132,13 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     if out.report:
         from balance_opt.report.report import write_report
 
-        extra = _animation_section(run) if out.animation else ""
+        extra, scene = _report_sections(run, output_dir)
         timed = {name: (res.t, torques[name]) for name, res in run.results.items()}
         about = run.task.spec.description
         run.report = write_report(
             output_dir / REPORT_FILE, run.metrics, figures, about, extra, timed
         )
-        files.append(run.report)
+        files += [run.report] + ([scene] if scene is not None else [])
         if not out.plots:
             for _, path in figures:
                 path.unlink()
@@ -158,7 +160,22 @@ def _write_trajectories(run: TaskRun, output_dir: Path, torques: dict) -> list[P
     return files
 
 
-def _animation_section(run: TaskRun) -> str:
+def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
+    """The report's 3D sections (the scene written beside it, the stick-figure animation) and
+    the scene's file (None: not written)."""
+    from balance_opt.errors import InputError
+
+    extra, scene = "", None
+    if run.task.spec.outputs.animation:
+        try:
+            scene = write_run_scene(run, output_dir / SCENE_FILE)
+        except InputError as exc:  # a mesh file missing: the rest of the run still counts
+            log.warning("3D scene not written: %s", exc)
+        extra = _animation_section(run, scene is not None)
+    return extra, scene
+
+
+def _animation_section(run: TaskRun, scene: bool) -> str:
     """The report's 3D animation of every plan (see :mod:`balance_opt.report.animation`)."""
     from balance_opt.report.animation import animation_html
     from balance_opt.report.plots import plan_colour, plan_label
@@ -168,10 +185,33 @@ def _animation_section(run: TaskRun) -> str:
     labels = {name: plan_label(name) for name in names}
     with _timed("animation"):
         body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
-    return (
+    frame = (
+        '<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through '
+        f'each plan (<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
+        "<code>balance-opt view</code> serves it).</p>"
+        f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'
+        'border:1px solid #ddd"></iframe>'
+    )
+    return (frame if scene else "") + (
         '<h2>Animation</h2><p class="meta">The robot as a stick figure (base axes: red x, green y, '
         "blue z), base pose from the plan; drag to turn the view.</p>" + body
     )
+
+
+def write_run_scene(run: TaskRun, path: Path) -> Path:
+    """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
+    ``path``."""
+    from balance_opt.report.plots import plan_label
+    from balance_opt.report.scene import write_scene
+
+    labels = {
+        name: plan_label(name) + (" (FAILED)" if name in run.failures else "")
+        for name in run.results
+    }
+    with _timed("3D scene"):
+        return write_scene(
+            path, run.task.robot, run.results, run.task.h0, run.task.target, labels, run.task.name
+        )
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:

@@ -1,0 +1,671 @@
+"""The 3D scene of a run (issue 28): the robot's own visual geometry (the URDF's meshes, boxes,
+cylinders and spheres) moving through each plan, in one HTML file drawn by the meshcat viewer
+(its JavaScript bundle, three.js included, ships in the ``meshcat`` package).
+
+No meshcat server, socket or subprocess: the scene is made of meshcat's Python geometry and
+command objects, each lowered to the dict the viewer decodes, packed with msgpack and inlined
+(base64) in the page beside the viewer's bundle. A short script replays the commands and drives
+the viewer's animation player from a method selector, a play button and a time slider. The page
+loads nothing else: it opens from disk, offline. :func:`serve` shows it on this machine.
+
+Layout: one node per Pinocchio joint that carries geometry (the free flyer: the base) under
+``/meshcat/robot``, animated with the joint's world placement; each geometry object a child of
+its joint's node at its fixed placement in the joint frame. A mesh is thus stored once, and a
+frame costs seven numbers per joint. Each plan, and each view of the base rotation (true or
+magnified), is one animation, swapped in when selected.
+
+Base pose: the plan's attitude (or its rotation from the start magnified, as in
+:func:`balance_opt.report.animation.magnified_axes`), and the position that keeps the centre of mass
+on its free-flight line ``c(t) = c(0) + t p0 / m``: the robot's before a capture, the robot's and
+the target's together after it (with the momentum the target brings). The target, a box of
+uniform density with its inertia, flies at its own constant velocities before the capture and
+rides the mission end effector after it.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import http.server
+import json
+import logging
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.errors import InputError
+from balance_opt.report.animation import ARM_COLOURS, magnification, magnified_axes
+from balance_opt.report.style import method_label
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.result import BalanceResult
+
+log = logging.getLogger(__name__)
+
+#: Animation samples per second of motion [1/s] (the viewer interpolates between them).
+SCENE_FPS = 25
+#: Meshes are simplified by merging the vertices in each cell of a grid this many cells across
+#: the robot (a cell of about 1 cm on a 2 m robot): the look is kept, the file stays small.
+MESH_GRID = 200
+#: Colour of the links that belong to no arm (the base and what is fixed to it).
+BASE_COLOUR = "#A0A0A0"
+#: Colour of the captured target.
+TARGET_COLOUR = "#009E73"
+#: Path of the robot's nodes in the viewer's scene tree.
+ROOT = ("meshcat", "robot")
+TARGET_NODE = "capture_target"
+#: Three.js draws a cylinder along its y axis, Pinocchio along z: a quarter turn about x.
+_CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+
+
+# ====================================================================================== geometry
+@dataclass(frozen=True)
+class SceneObject:
+    """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
+    placement in the joint frame, the meshcat object (``intrinsic``: its transform from
+    meshcat's axes to Pinocchio's), its vertex count (meshes) and the corners of its bounding
+    box in the joint frame (8, 3) [m]."""
+
+    name: str
+    joint: int
+    placement: pin.SE3
+    intrinsic: np.ndarray
+    mesh: Any  # a meshcat.geometry.Mesh
+    vertices: int
+    corners: np.ndarray
+
+
+def visual_model(robot: FloatingRobot) -> pin.GeometryModel:
+    """The URDF's visual geometry on ``robot.model`` (locked joints fixed where they are locked);
+    ``package://`` meshes are looked up in the folders above the URDF file."""
+    source = Path(robot.source)
+    dirs = [str(p) for p in list(source.resolve().parents)[:6]] if source.is_file() else []
+    try:
+        return pin.buildGeomFromUrdfString(
+            robot.model, robot.locked_urdf, pin.VISUAL, package_dirs=dirs
+        )
+    except (ValueError, RuntimeError) as exc:
+        raise InputError(f"{robot.source}: cannot load the visual geometry: {exc}") from exc
+
+
+def cluster_vertices(
+    vertices: np.ndarray, faces: np.ndarray, cell: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle mesh simplified by vertex clustering: the vertices in each cube of side
+    ``cell`` [m] merged into their mean, the triangles that collapse dropped (and repeats)."""
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if cell <= 0 or faces.size == 0:
+        return vertices, faces
+    keys = np.floor(vertices / cell).astype(np.int64)
+    _, cluster = np.unique(keys, axis=0, return_inverse=True)
+    cluster = cluster.ravel()
+    counts = np.bincount(cluster)
+    merged = np.zeros((counts.size, 3))
+    np.add.at(merged, cluster, vertices)
+    merged /= counts[:, None]
+    f = cluster[faces]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    f = np.unique(f, axis=0)
+    used, f = np.unique(f, return_inverse=True)
+    return merged[used], f.reshape(-1, 3)
+
+
+def _mesh_arrays(geometry) -> tuple[np.ndarray, np.ndarray]:
+    faces = np.array(
+        [[tri[0], tri[1], tri[2]] for tri in map(geometry.tri_indices, range(geometry.num_tris))],
+        dtype=np.int64,
+    )
+    return np.asarray(geometry.vertices(), dtype=float), faces
+
+
+def _shape(obj: pin.GeometryObject, cell: float, meshes: dict) -> tuple[Any, np.ndarray] | None:
+    """meshcat geometry of a Pinocchio geometry object and its intrinsic transform (4, 4);
+    meshes are read once per file (``meshes``: this build's cache). None: a shape not drawn."""
+    import coal
+    import meshcat.geometry as mg
+
+    g = obj.geometry
+    if isinstance(g, coal.Box):
+        return mg.Box(list(2.0 * np.asarray(g.halfSide))), np.eye(4)
+    if isinstance(g, (coal.Cylinder, coal.Capsule)):  # a capsule: the cylinder that holds it
+        length = 2.0 * g.halfLength + (2.0 * g.radius if isinstance(g, coal.Capsule) else 0.0)
+        return mg.Cylinder(length, g.radius), _CYLINDER_AXIS
+    if isinstance(g, coal.Sphere):
+        return mg.Sphere(g.radius), np.eye(4)
+    if isinstance(g, coal.BVHModelBase):
+        key = (obj.meshPath, tuple(np.asarray(obj.meshScale)))
+        if key not in meshes:
+            v, f = cluster_vertices(*_mesh_arrays(g), cell)
+            meshes[key] = mg.TriangularMeshGeometry(v, f)
+        return meshes[key], np.eye(4)
+    log.warning("scene: %s (%s) is not drawn", obj.name, type(g).__name__)
+    return None
+
+
+def _arm_of_joint(robot: FloatingRobot) -> dict[int, int]:
+    """Arm index of each Pinocchio joint (the nearest arm joint at or above it);
+    ``len(robot.arms)`` for the base and what hangs from it outside the arms."""
+    model = robot.model
+    arm_of = {model.getJointId(j): a for a, arm in enumerate(robot.arms) for j in arm.joints}
+    out = {}
+    for j in range(model.njoints):
+        k = j
+        while k > 1 and k not in arm_of:
+            k = model.parents[k]
+        out[j] = arm_of.get(k, len(robot.arms))
+    return out
+
+
+def _colour(index: int, robot: FloatingRobot) -> str:
+    return BASE_COLOUR if index >= len(robot.arms) else ARM_COLOURS[index % len(ARM_COLOURS)]
+
+
+def _object(geometry, colour: str, opacity: float, flat: bool):
+    """A meshcat mesh object; simplified meshes are shaded flat (no normals to store)."""
+    import meshcat.geometry as mg
+
+    material = mg.MeshPhongMaterial(
+        color=int(colour[1:], 16), opacity=opacity, **({"flatShading": True} if flat else {})
+    )
+    return mg.Mesh(geometry, material)
+
+
+def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
+    """Every drawn piece of the robot's visual geometry, coloured by arm (``size``: the robot's
+    size [m], which sets the mesh simplification)."""
+    import meshcat.geometry as mg
+
+    gmodel, meshes, arm = visual_model(robot), {}, _arm_of_joint(robot)
+    cell = size / MESH_GRID
+    out = []
+    for obj in gmodel.geometryObjects:
+        shape = _shape(obj, cell, meshes)
+        if shape is None:
+            continue
+        geometry, intrinsic = shape
+        opacity = float(min(obj.meshColor[3], 1.0)) if obj.meshColor[3] > 0 else 1.0
+        mesh = isinstance(geometry, mg.TriangularMeshGeometry)
+        drawn = _object(geometry, _colour(arm[obj.parentJoint], robot), opacity, mesh)
+        n = int(geometry.vertices.shape[0]) if mesh else 0
+        obj.geometry.computeLocalAABB()
+        lo, hi = obj.geometry.aabb_local.min_, obj.geometry.aabb_local.max_
+        corners = np.array(
+            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+        )
+        corners = corners @ obj.placement.rotation.T + obj.placement.translation
+        out.append(
+            SceneObject(obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners)
+        )
+    return out
+
+
+def target_box(target) -> tuple[np.ndarray, np.ndarray]:
+    """Side lengths (3,) [m] of the uniform box with the target's mass and inertia, and its axes
+    (3, 3) in the mission end-effector frame (the principal axes, a right-handed frame)."""
+    moments, axes = np.linalg.eigh(np.asarray(target.inertia, dtype=float))
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1
+    sides = np.sqrt(np.maximum(6.0 * (moments.sum() - 2.0 * moments) / target.mass, 0.0))
+    return sides, axes
+
+
+# ======================================================================================== motion
+def scene_poses(
+    robot: FloatingRobot,
+    result: BalanceResult,
+    joints: list[int],
+    h0=None,
+    target=None,
+    factor: float = 1.0,
+    fps: float = SCENE_FPS,
+) -> dict[str, np.ndarray]:
+    """World placements of the scene's nodes along a plan.
+
+    Args:
+        robot: the robot (before any capture).
+        result: the plan.
+        joints: Pinocchio joint ids whose placements are wanted.
+        h0: initial momentum, world frame (6,); None: at rest.
+        target: the captured target (:class:`balance_opt.model.capture.Target`) or None.
+        factor: magnification of the base's rotation from its start (1: the plan's attitude).
+        fps: samples per second; the plan's own sample at or after each time is taken.
+
+    Returns:
+        ``t`` (K,) the plan's sample times used [s], ``index`` (K,) their indices in the plan,
+        ``base`` (K, 4, 4) the base placement, ``joints`` (K, J, 4, 4) the placements of
+        ``joints`` and, with a target, ``target`` (K, 4, 4) its box's centre and axes (the
+        mission end-effector's axes after the capture).
+    """
+    model, data = robot.model, robot.model.createData()
+    wanted = np.arange(result.t[0], result.t[-1] + 0.5 / fps, 1.0 / fps)
+    index = np.unique(np.searchsorted(result.t, wanted - 1e-9).clip(0, result.t.size - 1))
+    t = result.t[index]
+    q_plan = np.hstack([result.q_M, result.q_B])[index]
+    q = np.empty_like(q_plan)
+    for k, joint in enumerate((*result.mission_joints, *result.balance_joints)):
+        q[:, robot.joint_index(joint)] = q_plan[:, k]
+    R = np.swapaxes(magnified_axes(result.quaternion[index], factor), 1, 2)
+    p0 = np.zeros(3) if h0 is None else np.asarray(h0, dtype=float)[:3]
+    mass, ee = robot.total_mass, model.getFrameId(robot.mission.ee_frame)
+    t_c = target.time if target is not None else np.inf
+    base = np.empty((t.size, 4, 4))
+    placements = np.empty((t.size, len(joints), 4, 4))
+    target_pose = np.empty((t.size, 4, 4))
+    total = mass + (target.mass if target is not None else 0.0)
+    com0 = line_after = None
+    for i in range(t.size):
+        # placed with the base at the origin, then moved: a translation moves every point alike
+        com = pin.centerOfMass(model, data, robot.pin_q(q[i], pin.SE3(R[i], np.zeros(3))))
+        pin.updateFramePlacements(model, data)
+        com0 = com if com0 is None else com0  # the base starts at the origin
+        if t[i] < t_c:
+            shift = com0 + (t[i] - t[0]) * p0 / mass - com
+        else:
+            c_t = data.oMf[ee].act(target.com)
+            if line_after is None:  # the capture: robot and target on one line from here on
+                robot_at = com0 + (t_c - t[0]) * p0 / mass
+                target_at = robot_at + c_t - com
+                line_after = (
+                    (mass * robot_at + target.mass * target_at) / total,
+                    (p0 + target.mass * target.linear_velocity) / total,
+                )
+            both = (mass * com + target.mass * c_t) / total
+            shift = line_after[0] + (t[i] - t_c) * line_after[1] - both
+        base[i] = pin.SE3(R[i], shift).homogeneous
+        for k, j in enumerate(joints):
+            placements[i, k] = data.oMi[j].homogeneous
+        placements[i, :, :3, 3] += shift
+        if target is not None:
+            target_pose[i] = (data.oMf[ee] * pin.SE3(np.eye(3), target.com)).homogeneous
+            target_pose[i, :3, 3] += shift
+    out = {"t": t, "index": index, "base": base, "joints": placements}
+    if target is not None:
+        out["target"] = _free_flight_before(target_pose, t, target)
+    return out
+
+
+def _free_flight_before(pose: np.ndarray, t: np.ndarray, target) -> np.ndarray:
+    """The target's placements before the capture: from where the end effector takes it at the
+    capture, back along its constant linear and angular velocities (world frame)."""
+    after = np.flatnonzero(t >= target.time)
+    if after.size == 0:
+        return pose
+    at = pose[after[0]]  # the first sample at or after the capture: the grasp
+    out = pose.copy()
+    for i in np.flatnonzero(t < target.time):
+        dt = t[i] - t[after[0]]
+        out[i, :3, :3] = pin.exp3(dt * target.angular_velocity) @ at[:3, :3]
+        out[i, :3, 3] = at[:3, 3] + dt * target.linear_velocity
+    return out
+
+
+# ====================================================================================== commands
+def _pack(command: dict) -> str:
+    import umsgpack
+
+    return base64.b64encode(umsgpack.packb(command)).decode("ascii")
+
+
+def _float32(values) -> Any:
+    import umsgpack
+
+    return umsgpack.Ext(0x17, np.ascontiguousarray(values, dtype="<f4").tobytes())
+
+
+def _animation(tracks: Mapping[Any, tuple[np.ndarray, np.ndarray]], t: np.ndarray) -> dict:
+    """The lowered ``set_animation`` command: per node (a meshcat path) its position and
+    quaternion keys (times [s] from the start, three.js's (x, y, z, w) order)."""
+    from meshcat.animation import Animation, AnimationClip, AnimationTrack
+    from meshcat.commands import SetAnimation
+
+    class Track(AnimationTrack):
+        """meshcat's track with its keys as two float32 arrays, which three.js reads as they
+        are, instead of a small map per key: a quarter of the size."""
+
+        def lower(self):
+            return {
+                "name": "." + self.name,
+                "type": self.jstype,
+                "times": _float32(self.frames),
+                "values": _float32(np.ravel(self.values)),
+            }
+
+    clips = {
+        path: AnimationClip(
+            {
+                "position": Track("position", "vector3", t, position),
+                "quaternion": Track("quaternion", "quaternion", t, quaternion),
+            },
+            fps=1.0,  # key times in seconds
+        )
+        for path, (position, quaternion) in tracks.items()
+    }
+    return SetAnimation(Animation(clips), play=False, repetitions=1).lower()
+
+
+def _tracks(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (K, 3) and unit quaternions (K, 4) (x, y, z, w) of placements (K, 4, 4), each
+    quaternion on the side of its predecessor (the same rotations, no half-turn between keys)."""
+    quaternions = np.array([pin.Quaternion(M[:3, :3]).coeffs() for M in poses])
+    for k in range(1, len(quaternions)):
+        if quaternions[k] @ quaternions[k - 1] < 0:
+            quaternions[k] *= -1
+    return poses[:, :3, 3], quaternions
+
+
+@dataclass
+class Scene:
+    """A run's scene: the static commands (objects, their placements, camera) and one animation
+    per ``"<method>|<factor>"``, each a base64 msgpack blob, and what the page shows about them.
+    ``poses`` keeps the node placements of each animation (tests compare them with Pinocchio)."""
+
+    setup: list[str]
+    animations: dict[str, str]
+    meta: dict[str, Any]
+    objects: list[SceneObject] = field(repr=False)
+    poses: dict[str, dict[str, np.ndarray]] = field(repr=False)
+    nodes: list[int] = field(repr=False)
+
+
+def _path(*names: str):
+    """The meshcat path of a node under :data:`ROOT` (or, with a leading "/", of the
+    viewer's own nodes: ``"/Grid"``)."""
+    from meshcat.path import Path as MeshcatPath
+
+    if names and names[0].startswith("/"):
+        return MeshcatPath(tuple(names[0].strip("/").split("/")))
+    return MeshcatPath((*ROOT, *names))
+
+
+def _node_name(robot: FloatingRobot, joint: int) -> str:
+    return "base" if joint == 1 else robot.model.names[joint]
+
+
+def build_scene(
+    robot: FloatingRobot,
+    results: Mapping[str, BalanceResult],
+    h0=None,
+    target=None,
+    labels: Mapping[str, str] | None = None,
+    fps: float = SCENE_FPS,
+) -> Scene:
+    """The scene of a run's plans (see the module docstring).
+
+    Args:
+        robot: the robot (before any capture).
+        results: ``{method: plan}`` (the mission arm alone, analytic, optimal...).
+        h0: initial momentum, world frame (6,).
+        target: the target captured during the mission, or None.
+        labels: display name per method (default :func:`~balance_opt.report.style.method_label`).
+        fps: animation samples per second of motion.
+    """
+    import meshcat.geometry as mg
+    from meshcat.commands import SetObject, SetProperty, SetTransform
+
+    first = next(iter(results.values()))
+    joints_all = list(range(1, robot.model.njoints))
+    start = scene_poses(robot, first, joints_all, h0, None, 1.0, fps)
+    points = start["joints"][0][:, :3, 3]
+    size = max(float(np.ptp(points, axis=0).max()), 0.2)
+    objects = scene_objects(robot, size)
+    nodes = sorted({1, *(o.joint for o in objects)})
+    setup, carrier, shared, sent = [], {}, [], 0
+    for obj in objects:
+        path = _path(_node_name(robot, obj.joint), obj.name)
+        drawn, geometry = obj.mesh, obj.mesh.geometry
+        if obj.vertices and id(geometry) in carrier:  # a mesh file seen before: sent once
+            drawn = mg.Mesh(mg.Box([0.0, 0.0, 0.0]), obj.mesh.material)
+            shared.append([path.lower(), carrier[id(geometry)]])
+        elif obj.vertices:
+            carrier[id(geometry)] = path.lower()
+            sent += obj.vertices
+        setup.append(_pack(SetObject(drawn, path=path).lower()))
+        setup.append(_pack(SetTransform(obj.placement.homogeneous @ obj.intrinsic, path).lower()))
+    setup.append(_pack(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")).lower()))
+    if target is not None:
+        sides, axes = target_box(target)
+        path = _path(TARGET_NODE, "box")
+        box = _object(mg.Box(list(sides)), TARGET_COLOUR, 0.85, False)
+        setup.append(_pack(SetObject(box, path=path).lower()))
+        frame = np.eye(4)
+        frame[:3, :3] = axes
+        setup.append(_pack(SetTransform(frame, path).lower()))
+    # the view: the grid under the robot, the camera orbiting about its middle
+    hull = np.vstack(
+        [start["joints"][:, :, :3, 3].reshape(-1, 3)]  # the joints along the first plan
+        + [
+            o.corners @ start["joints"][0][o.joint - 1][:3, :3].T
+            + start["joints"][0][o.joint - 1][:3, 3]
+            for o in objects
+        ]
+    )
+    lo, hi = hull.min(axis=0), hull.max(axis=0)
+    centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
+    grid, cam = np.eye(4), np.eye(4)
+    grid[:3, 3] = [centre[0], centre[1], lo[2] - 0.15 * extent]
+    cam[:3, 3] = centre
+    d = 0.45 * extent + 0.2
+    setup += [
+        _pack(SetTransform(grid, _path("/Grid")).lower()),
+        _pack(SetTransform(cam, _path("/Cameras/default")).lower()),
+        _pack(
+            SetProperty(
+                "position",
+                [1.0 * d, 0.55 * d, 0.75 * d],
+                _path("/Cameras/default/rotated/<object>"),
+            ).lower()
+        ),
+        _pack(SetProperty("visible", False, _path("/Axes")).lower()),
+    ]
+
+    largest = max(float(np.max(res.angle)) for res in results.values())
+    factor = magnification(largest)
+    factors = [1.0] if factor == 1.0 else [1.0, factor]
+    animations, poses, meta_methods = {}, {}, {}
+    for name, res in results.items():
+        for f in factors:
+            pose = scene_poses(robot, res, nodes, h0, target, f, fps)
+            tracks = {
+                _path(_node_name(robot, j)): _tracks(pose["joints"][:, k])
+                for k, j in enumerate(nodes)
+            }
+            if target is not None:
+                tracks[_path(TARGET_NODE)] = _tracks(pose["target"])
+            key = f"{name}|{f:g}"
+            animations[key] = _pack(_animation(tracks, pose["t"] - pose["t"][0]))
+            poses[key] = pose
+        pose = poses[f"{name}|1"]
+        meta_methods[name] = {
+            "label": (labels or {}).get(name) or method_label(name),
+            "t0": float(pose["t"][0]),
+            "duration": float(pose["t"][-1] - pose["t"][0]),
+            "angle_t": [round(float(x - pose["t"][0]), 4) for x in pose["t"]],
+            "angle": [float(f"{a:.4g}") for a in res.angle[pose["index"]]],
+        }
+    arms = [
+        {"label": f"{arm.name} arm", "colour": ARM_COLOURS[a % len(ARM_COLOURS)]}
+        for a, arm in enumerate(robot.arms)
+    ]
+    meta = {
+        "methods": meta_methods,
+        "factors": factors,
+        "arms": arms,
+        "base_colour": BASE_COLOUR,
+        "target": None
+        if target is None
+        else {"time": float(target.time), "colour": TARGET_COLOUR, "mass": float(target.mass)},
+        "robot": robot.name,
+        "vertices": sent,
+        "shared": shared,
+    }
+    return Scene(setup, animations, meta, objects, poses, nodes)
+
+
+# ========================================================================================== page
+_PAGE_STYLE = """
+html, body { margin: 0; height: 100%; overflow: hidden; font: 13px sans-serif; }
+#scene-pane { position: absolute; top: 0; left: 0; right: 0; bottom: 96px; overflow: hidden; }
+#scene-bar { position: absolute; left: 0; right: 0; bottom: 0; height: 96px; padding: 6px 10px;
+  box-sizing: border-box; background: #f4f4f4; border-top: 1px solid #ccc; }
+#scene-bar select, #scene-bar button { font: inherit; margin-right: 6px; }
+#scene-t { width: 45%; vertical-align: middle; }
+.key { display: inline-block; width: 0.9em; height: 0.9em; margin: 0 0.3em 0 0.8em;
+  vertical-align: -0.1em; border: 1px solid #555; }
+#scene-label { display: block; margin-top: 4px; } #scene-note { color: #444; margin-top: 2px; }
+"""
+
+_PLAYER = """
+const S = SCENE_DATA;
+const pane = document.getElementById('scene-pane');
+const viewer = new MeshCat.Viewer(pane);
+const fit = viewer.set_3d_pane_size.bind(viewer);  // the viewer takes the window's height
+viewer.set_3d_pane_size = function () { fit(pane.clientWidth, pane.clientHeight); };
+viewer.set_3d_pane_size();
+function run(b64) { const s = atob(b64), a = new Uint8Array(s.length);
+  for (let i = 0; i < s.length; i++) a[i] = s.charCodeAt(i);
+  viewer.handle_command_bytearray(a); }
+S.setup.forEach(run);
+// a mesh that several links carry is sent once: the others take its geometry
+function drawnAt(path) { return viewer.scene_tree.find(path.split('/').filter(Boolean)
+  .concat(['<object>'])).object; }
+S.shared.forEach(function (s) { drawnAt(s[0]).geometry = drawnAt(s[1]).geometry; });
+const sel = document.getElementById('scene-method'), mag = document.getElementById('scene-mag');
+const sl = document.getElementById('scene-t'), btn = document.getElementById('scene-play');
+const lab = document.getElementById('scene-label'), note = document.getElementById('scene-note');
+const anim = viewer.animator;
+function method() { return S.methods[sel.value]; }
+function angleAt(m, t) { let k = 0;
+  while (k + 1 < m.angle_t.length && m.angle_t[k + 1] <= t + 1e-9) k++;
+  return m.angle[k]; }
+function show(t) { const m = method(), a = angleAt(m, t);
+  let s = 't = ' + (m.t0 + t).toFixed(2) + ' s of ' + (m.t0 + m.duration).toFixed(2) +
+    ' s; base rotation from the start ' + a.toPrecision(3) + ' rad (' +
+    (a * 180 / Math.PI).toFixed(2) + ' deg)';
+  if (S.target) s += (m.t0 + t >= S.target.time ? '; target captured' : '; target free') +
+    ' (capture at ' + S.target.time + ' s)';
+  lab.textContent = s; sl.value = t; }
+// the viewer's player applies only running actions: hold them paused at the time shown
+function seek(t) { anim.playing = false; anim.clock.stop();
+  anim.actions.forEach(function (a) { a.play(); a.paused = true; a.time = t; });
+  anim.mixer.update(0); viewer.set_dirty(); show(t); btn.textContent = 'play'; }
+function load(t) { run(S.animations[sel.value + '|' + mag.value]);
+  sl.max = method().duration; seek(Math.min(t, method().duration));
+  const f = +mag.value;
+  note.textContent = f === 1 ? 'Base rotation: as planned.' :
+    'Base rotation magnified ' + f + ' times (its rotation from the start), so that a drift ' +
+    'of a few degrees shows; the arms move as planned relative to the base.'; }
+sel.onchange = function () { load(+sl.value); }; mag.onchange = sel.onchange;
+sl.oninput = function () { seek(+sl.value); };
+btn.onclick = function () { if (anim.playing) { seek(+sl.value); return; }
+  const t = +sl.value >= method().duration - 1e-6 ? 0 : +sl.value;
+  seek(t); anim.actions.forEach(function (a) { a.paused = false; });
+  anim.clock.start(); anim.playing = true; btn.textContent = 'pause'; };
+(function tick() {
+  if (anim.playing) show(anim.actions.reduce(function (m, a) { return Math.max(m, a.time); }, 0));
+  else if (btn.textContent === 'pause') btn.textContent = 'play';
+  requestAnimationFrame(tick); })();
+const h = new URLSearchParams(location.hash.slice(1));
+if (h.has('method') && S.methods[h.get('method')]) sel.value = h.get('method');
+if (h.has('magnify') && S.factors.indexOf(+h.get('magnify')) >= 0) mag.value = h.get('magnify');
+load(h.has('t') ? +h.get('t') : 0);
+if (h.has('play')) btn.onclick();
+"""
+
+
+def scene_html(scene: Scene, title: str = "") -> str:
+    """The scene as one self-contained HTML page: the meshcat viewer's bundle, the commands,
+    a method selector, a base-rotation selector, a play button and a time slider (the URL's
+    ``#method=optimal&t=5&magnify=10`` opens a given method, time and magnification; ``&play``
+    starts playing)."""
+    from meshcat import viewer_assets_path
+
+    bundle = (Path(viewer_assets_path()) / "dist" / "main.min.js").read_text(encoding="utf-8")
+    meta = scene.meta
+    options = "".join(
+        f'<option value="{html.escape(name)}">{html.escape(m["label"])}</option>'
+        for name, m in meta["methods"].items()
+    )
+    rotations = "".join(
+        f'<option value="{f:g}">{"as planned" if f == 1 else f"magnified x {f:g}"}</option>'
+        for f in meta["factors"]
+    )
+    keys = "".join(
+        f'<span class="key" style="background:{a["colour"]}"></span>{html.escape(a["label"])}'
+        for a in meta["arms"]
+    )
+    keys += f'<span class="key" style="background:{meta["base_colour"]}"></span>base'
+    if meta["target"]:
+        keys += f'<span class="key" style="background:{meta["target"]["colour"]}"></span>target'
+    data = {k: v for k, v in meta.items() if k != "robot"}
+    data.update(setup=scene.setup, animations=scene.animations)
+    script = _PLAYER.replace("SCENE_DATA", json.dumps(data, separators=(",", ":")))
+    heading = html.escape(title or meta["robot"])
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>balance-opt scene: {heading}</title><style>{_PAGE_STYLE}</style></head><body>"
+        '<div id="scene-pane"></div><div id="scene-bar">'
+        f'<select id="scene-method" title="plan">{options}</select>'
+        f'<select id="scene-mag" title="base rotation">{rotations}</select>'
+        '<button id="scene-play" type="button">play</button>'
+        '<input id="scene-t" type="range" min="0" max="1" step="0.01" value="0"> '
+        f'<span id="scene-label"></span><div id="scene-note"></div>'
+        f'<div class="meta">{heading}: {keys}; base axes red x, green y, blue z. '
+        "Drag to turn, scroll to zoom.</div></div>"
+        f"<script>{bundle}</script><script>{script}</script></body></html>"
+    )
+
+
+def write_scene(
+    path: str | Path,
+    robot: FloatingRobot,
+    results: Mapping[str, BalanceResult],
+    h0=None,
+    target=None,
+    labels: Mapping[str, str] | None = None,
+    title: str = "",
+) -> Path:
+    """Build the scene of ``results`` (:func:`build_scene`), write its page to ``path`` and
+    return the path; its size is logged."""
+    path = Path(path)
+    scene = build_scene(robot, results, h0, target, labels)
+    path.write_text(scene_html(scene, title), encoding="utf-8")
+    log.info(
+        "scene: %s, %.1f MB (%d mesh vertices)",
+        path.name,
+        path.stat().st_size / 1e6,
+        scene.meta["vertices"],
+    )
+    return path
+
+
+# ======================================================================================== server
+def serve(page: str | Path, port: int = 0) -> tuple[http.server.ThreadingHTTPServer, str]:
+    """Serve the page (and nothing else of its folder) on 127.0.0.1 (``port`` 0: a free one)
+    from a thread; returns the server (``shutdown()`` stops it) and the page's URL."""
+    page = Path(page)
+    body, name = page.read_bytes(), page.name
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 (the base class's name)
+            if self.path.split("?")[0] not in ("/", f"/{name}"):
+                self.send_error(404)
+                return
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html; charset=utf-8")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format, *args):  # noqa: A002 (the base class's name)
+            log.debug("view: " + format, *args)
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), Handler)
+    thread = threading.Thread(target=server.serve_forever, name="balance-opt view", daemon=True)
+    thread.start()
+    host, port = server.server_address[:2]
+    return server, f"http://{host}:{port}/{name}"
