@@ -297,6 +297,8 @@ class NLPParameters(NamedTuple):
         smooth_weight: the weight of the smooth peak (the ``smooth`` stage of the peak
             objective, :mod:`balance_opt.optimal.refine`; 0 elsewhere).
         smooth_scale: ``1 / c^2``, ``c`` the smooth peak's reference drift [1/rad^2].
+        jerk_weight: the weight of the balance joints' squared jerk
+            (:func:`~balance_opt.optimal.nlp.jerk_integral`).
         q_rest: the rest pull's configuration (n_B) [rad].
         mission: the mission arm's samples ``[q_M; q_dot_M; q_ddot_M]`` at every collocation
             point (n_m, n_points).
@@ -310,6 +312,7 @@ class NLPParameters(NamedTuple):
     peak_weight: Any
     smooth_weight: Any
     smooth_scale: Any
+    jerk_weight: Any
     q_rest: Any
     mission: Any
 
@@ -343,6 +346,7 @@ class ParameterLayout:
             "peak_weight": 1,
             "smooth_weight": 1,
             "smooth_scale": 1,
+            "jerk_weight": 1,
             "q_rest": self.n_B,
             "mission": self.n_m * self.n_points,
         }

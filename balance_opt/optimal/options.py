@@ -69,6 +69,13 @@ def inner_intervals(N: int, transcription: str) -> int:
     return min(N, max(INNER_MIN_INTERVALS, -(-N // INNER_COARSENING[transcription])))
 
 
+#: Default weight of the balance joints' squared jerk [s^5/rad^2] (``CostWeights.jerk``). On
+#: the capture task (``benchmarks/smoothness.py``) the plans fall in two families: without the
+#: term the peak is 0.0211 rad with chatter (52/9/7 acceleration reversals); 1e-3 to 1e-2 keep
+#: that peak without the chatter (20/9/7 to 16/9/5: the bang-bang arcs themselves) but take
+#: four times the Ipopt iterations; from 0.03 the epigraph ends in the smoother family, 0.0229
+#: to 0.0233 rad with 9 to 11 reversals; 0.3 is the smallest weight with at most 10.
+JERK_DEFAULT = 0.3
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
 #: Objectives: the largest attitude error over the motion, or the integral of squared drift.
@@ -88,6 +95,7 @@ class CostWeights:
 
         J = omega * int |omega_b|^2 dt + attitude * int |log R|^2 dt + terminal * |log R_T|^2
             + smoothness * int |u|^2 dt + rest * int |q_B - q_rest|^2 dt
+            + jerk * int |q_dddot_B|^2 dt
 
     The ``peak`` objective prices the largest attitude error ``s = max_k |log R(t_k)|`` over
     the collocation points (an epigraph variable, ``|phi_k|^2 <= s^2``) and keeps the integral
@@ -101,7 +109,10 @@ class CostWeights:
 
     ``u`` is the control: balance joint accelerations [rad/s^2] (or jerks [rad/s^3]). The
     weights' units make each term dimensionless: ``omega`` [s/rad^2], ``terminal``, ``peak`` and ``peak_terminal`` [1/rad^2],
-    ``smoothness`` [s^3/rad^2] (jerk: [s^5/rad^2]), ``rest`` and ``attitude`` [1/(rad^2 s)].
+    ``smoothness`` [s^3/rad^2] (jerk: [s^5/rad^2]), ``rest`` and ``attitude`` [1/(rad^2 s)],
+    ``jerk`` [s^5/rad^2]. The jerk term is the exact integral over the continuous plan (a step of
+    the acceleration between intervals, which only the trapezoidal rule with control
+    ``"acceleration"`` has, counts as its size over ``h``: the jerk spread over one interval).
 
     Raises:
         InputError: a weight that is not a finite number >= 0 (``"planner weight 'omega': ..."``).
@@ -143,7 +154,15 @@ class CostWeights:
     regularisation: float = setting(
         1e-2,
         minimum=0.0,
-        doc="factor on the omega, attitude, smoothness and rest terms (peak objective only)",
+        doc="factor on the omega, attitude, smoothness, rest and jerk terms (peak objective only)",
+    )
+    # The peak objective's plans are bang-bang with singular arcs: many accelerations give the
+    # same peak, and without a price on their changes the solver stops on a chattering one.
+    # Priced in the epigraph stage only (not in the inner stages: see BalanceNLP.update_bounds).
+    jerk: float = setting(
+        JERK_DEFAULT,
+        minimum=0.0,
+        doc="squared jerk of the balance joints on the continuous plan, integral of |q_dddot_B|^2",
     )
 
     def __post_init__(self):
@@ -154,6 +173,10 @@ class CostWeights:
         :data:`balance_opt.optimal.model.RUNNING_WEIGHTS`, under ``objective``."""
         factor = self.regularisation if objective == "peak" else 1.0
         return factor * np.array([self.omega, self.attitude, self.smoothness, self.rest])
+
+    def jerk_weight(self, objective: str = "integral") -> float:
+        """The weight of the jerk term under ``objective`` (scaled like the running terms)."""
+        return (self.regularisation if objective == "peak" else 1.0) * self.jerk
 
 
 @dataclass(frozen=True)
