@@ -18,6 +18,7 @@ import pytest
 
 from balance_opt.io.outputs import solver_metrics
 from balance_opt.model.library import paper_robot
+from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.guess import resampled
 from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
@@ -26,11 +27,20 @@ from balance_opt.optimal.problem import PlannerSolverError
 from balance_opt.optimal.solve import build_balance_nlp
 
 BALANCE = ("balance_joint1", "balance_joint2", "balance_joint3")
-#: Issue 11's targets for the default plan of the 10 s capture task [rad].
-PEAK_TARGET = 0.0215
-FINAL_TARGET = 0.001
+#: Issue 11's targets for the default plan of the 10 s capture task [rad], raised by issue 25's
+#: jerk regulariser (``weights.jerk``: the chattering 0.0211 rad plan, final 0.0009, became a
+#: smooth one of 0.0230 rad, final 0.0020; ``benchmarks/smoothness.py``).
+PEAK_TARGET = 0.0235
+FINAL_TARGET = 0.0025
+#: Issue 25's target: acceleration reversals per balance joint of that plan.
+REVERSAL_TARGET = 10
 #: Relative torque excess allowed between the collocation points.
 TORQUE_EXCESS = 2e-3
+
+
+def nlp_limits(capture) -> np.ndarray:
+    """The balance joints' acceleration limits of the capture task [rad/s^2]."""
+    return capture.robot.limits.acceleration[capture.robot.balance_indices]
 
 
 @pytest.fixture(scope="module")
@@ -145,6 +155,8 @@ def test_peak_plan_of_the_capture_task_meets_the_peak_target(model, capture, ins
     assert plan.final_drift <= FINAL_TARGET
     _no_violations(plan)
     inside_hull(build_balance_nlp(model, capture.mission, capture.q_B0), plan)
+    figures = smoothness(plan.t, plan.q_ddot_B, plan.balance_joints, nlp_limits(capture))
+    assert figures.reversals.max() <= REVERSAL_TARGET
     # rest at both ends: no torque step at t = 0 or at the end
     for k in (0, -1):
         np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)

@@ -231,6 +231,14 @@ class LimitSpec:
     effort: float | None = setting(
         None, unit="N m", exclusive_minimum=0.0, finite=False, doc="largest torque"
     )
+    jerk: float | None = setting(
+        None,
+        unit="rad/s^3",
+        exclusive_minimum=0.0,
+        finite=False,
+        doc="largest jerk, held by the optimal planner on the whole motion (URDF has none: "
+        "unlimited)",
+    )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -55,7 +55,8 @@ class StructureKey:
         transcription: ``"hermite-simpson"`` or ``"trapezoidal"``.
         control: ``"acceleration"`` or ``"jerk"``.
         joint_limits: the joint-limit kinds enforced (``"position"``, ``"velocity"``,
-            ``"acceleration"``): switched on and finite for at least one balance joint.
+            ``"acceleration"``, ``"jerk"``): switched on and finite for at least one balance
+            joint.
         between_points: whether the joint limits have rows between the collocation points
             (the interior Bernstein coefficients) besides the bounds at the points. The inner
             stages of the peak objective go without: their plans are only warm starts, and the
@@ -99,6 +100,7 @@ class StructureKey:
             "velocity": options.velocity_limits and bool(np.any(np.isfinite(limits.velocity))),
             "acceleration": options.acceleration_limits
             and bool(np.any(np.isfinite(limits.acceleration))),
+            "jerk": options.jerk_limits and bool(np.any(np.isfinite(limits.jerk))),
         }
         return cls(
             intervals=int(options.intervals),

@@ -95,13 +95,13 @@ class CostWeights:
 
         J = omega * int |omega_b|^2 dt + attitude * int |log R|^2 dt + terminal * |log R_T|^2
             + smoothness * int |u|^2 dt + rest * int |q_B - q_rest|^2 dt
-            + jerk * int |q_dddot_B|^2 dt
 
     The ``peak`` objective prices the largest attitude error ``s = max_k |log R(t_k)|`` over
     the collocation points (an epigraph variable, ``|phi_k|^2 <= s^2``) and keeps the integral
     terms, scaled down by ``regularisation``, to make the plan smooth and unique::
 
-        J = peak * s^2 + peak_terminal * |log R_T|^2 + regularisation * (the integral terms)
+        J = peak * s^2 + peak_terminal * |log R_T|^2
+            + regularisation * (the integral terms + jerk * int |q_dddot_B|^2 dt)
 
     It is reached in stages (:func:`balance_opt.optimal.refine.plan_peak`): the integral
     objective's plan, then ``s^2`` replaced by the drift's L_16 norm (weighted so that it
@@ -162,7 +162,8 @@ class CostWeights:
     jerk: float = setting(
         JERK_DEFAULT,
         minimum=0.0,
-        doc="squared jerk of the balance joints on the continuous plan, integral of |q_dddot_B|^2",
+        doc="squared jerk of the balance joints on the continuous plan, integral of "
+        "|q_dddot_B|^2, times regularisation (peak objective only)",
     )
 
     def __post_init__(self):
@@ -175,8 +176,10 @@ class CostWeights:
         return factor * np.array([self.omega, self.attitude, self.smoothness, self.rest])
 
     def jerk_weight(self, objective: str = "integral") -> float:
-        """The weight of the jerk term under ``objective`` (scaled like the running terms)."""
-        return (self.regularisation if objective == "peak" else 1.0) * self.jerk
+        """The weight of the jerk term under ``objective``: ``regularisation * jerk`` for the
+        peak, 0 for the integral objective (a least-squares problem: its plans are smooth
+        without it; 0.003 raised the capture task's integral plan's peak by 6 %)."""
+        return self.regularisation * self.jerk if objective == "peak" else 0.0
 
 
 @dataclass(frozen=True)
@@ -232,6 +235,11 @@ class PlannerOptions:
     )
     acceleration_limits: bool = setting(
         True, section="constraints", doc="balance joints within their acceleration limits"
+    )
+    jerk_limits: bool = setting(
+        True,
+        section="constraints",
+        doc="balance joints within their jerk limits (continuous motion; limits.<joint>.jerk)",
     )
     torque_limits: bool = setting(
         False,
