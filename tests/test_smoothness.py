@@ -29,12 +29,13 @@ JERK_LIMIT = 5.0
 def test_reversals_count_swings_past_the_hysteresis_only():
     t = np.linspace(0.0, 10.0, 2001)
     rng = np.random.default_rng(0)
-    wave = 2.0 * np.sin(2 * np.pi * 0.5 * t)  # 5 periods: 10 turns, the first not a reversal
-    assert count_reversals(wave, 0.2) == 9
+    wave = 2.0 * np.sin(2 * np.pi * 0.5 * t)  # 5 periods: 10 extrema, each turned back from
+    assert count_reversals(wave, 0.2) == 10
     # ripples below the threshold are not counted, a bang-bang switch always is
-    assert count_reversals(wave + 0.05 * rng.standard_normal(t.size), 0.2) == 9
-    assert count_reversals(0.05 * rng.standard_normal(t.size), 0.2) == 0
-    assert count_reversals(np.sign(np.sin(2 * np.pi * 2.0 * t)), 0.2) == 39
+    ripple = rng.uniform(-0.09, 0.09, t.size)  # peak to peak below the threshold
+    assert count_reversals(wave + ripple, 0.2) == 10
+    assert count_reversals(ripple, 0.2) == 0
+    assert count_reversals(np.sign(np.sin(2 * np.pi * 2.0 * t)), 0.2) == 39  # 40 switches
     # a smooth rest-to-rest move: up, down, back to zero
     assert count_reversals(np.sin(2 * np.pi * t / 10.0), 0.1) == 2
 
