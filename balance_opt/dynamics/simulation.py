@@ -187,7 +187,8 @@ class SimulationResult(AttitudeHistory):
             [N s, N m s].
         h0: the momentum it should keep (6,).
         momentum_scale: ``(linear, angular)`` scale the residual is relative to: the largest
-            momentum the joint motion carries, ``max_t |A_j q_dot|``, plus ``|h0|``.
+            momentum the joints carry, each joint's counted apart
+            (``max_t sum_j |A_j[:, j] q_dot_j|``), plus ``|h0|``.
         arm_wrenches: ``{arm: (T, 6)}``, ``[force; torque]`` each arm exerts ON the base, base
             axes, torque about the base origin [N, N m] (paper Fig. 4).
         info: options, step counts, wall time; plain data.
@@ -534,20 +535,25 @@ def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> 
     T = t.size
     q = np.empty((T, robot.n))
     momentum = np.empty((T, 6))
-    joint_momentum = np.empty((T, 6))
+    joint_momentum = np.empty((T, 2))
     cols = robot.pin_v_indices
     moving = robot.model_v_indices  # arm joints and the mimic joints following them
     for k in range(T):
         q[k] = dyn.joint_positions(Q[k])
         A_G = pin.computeCentroidalMap(model, data, Q[k])
         momentum[k] = A_G @ V[k]
-        joint_momentum[k] = A_G[:, moving] @ V[k, moving]
+        # each joint's own momentum, summed: arms that cancel each other (a balanced plan
+        # tracked exactly) must not shrink the scale to nothing
+        each = A_G[:, moving] * V[k, moving]
+        joint_momentum[k] = np.linalg.norm(each[:3], axis=0).sum(), np.linalg.norm(
+            each[3:], axis=0
+        ).sum()
     scale = tuple(
         max(
-            float(np.linalg.norm(joint_momentum[:, s], axis=1).max() + np.linalg.norm(h0[s])),
+            float(joint_momentum[:, i].max() + np.linalg.norm(h0[s])),
             MOMENTUM_SCALE_FLOOR,
         )
-        for s in (slice(0, 3), slice(3, 6))
+        for i, s in enumerate((slice(0, 3), slice(3, 6)))
     )
     q_des, q_dot_des, q_ddot_des = plan.sample(t)[:3]
     return SimulationResult(
