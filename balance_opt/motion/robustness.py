@@ -53,6 +53,9 @@ from balance_opt.motion.so3 import rotation_angle
 from balance_opt.motion.trajectories import SampledTrajectory
 from balance_opt.result import BalanceResult
 
+#: Smallest eigenvalue of a body's second moment before it is perturbed, relative to its trace
+#: (or its mass, in kg m^2, for a point mass).
+SIGMA_FLOOR = 1e-12
 #: Percentile reported besides the median and the largest value.
 PERCENTILE = 95.0
 
@@ -71,8 +74,11 @@ def perturbed_inertia(inertia: pin.Inertia, size: float, rng: np.random.Generato
     z = rng.standard_normal(10)  # drawn for every body, so that bodies keep their draws
     if m <= 0.0 or size == 0.0:
         return pin.Inertia(inertia)
-    sigma = second_moment(inertia)
-    L = np.linalg.cholesky(sigma + 1e-15 * np.trace(sigma) * np.eye(3))
+    # a body on the boundary (a point mass, a thin rod: Sigma singular) gets a vanishing
+    # thickness first, so that Sigma has a Cholesky factor
+    w, V = np.linalg.eigh(second_moment(inertia))
+    sigma = (V * np.maximum(w, SIGMA_FLOOR * max(w.sum(), m))) @ V.T
+    L = np.linalg.cholesky(sigma)
     d = np.sqrt(np.diag(L))
     L2 = np.diag(np.diag(L) * np.exp(0.5 * size * z[1:4]))
     for (i, j), zij in zip(((1, 0), (2, 0), (2, 1)), z[4:7]):
