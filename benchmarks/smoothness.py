@@ -47,9 +47,8 @@ def _row(label: str, robot, capture, options: PlannerOptions) -> str:
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options, robot).solve()
     elapsed = time.perf_counter() - start
     tau = plan_torques(robot, plan).tau[:, [robot.joint_index(j) for j in plan.balance_joints]]
-    s = smoothness(
-        plan.t, plan.q_ddot_B, plan.balance_joints, robot.limits.acceleration[robot.balance_indices], tau
-    )
+    limits = robot.limits.acceleration[robot.balance_indices]
+    s = smoothness(plan.t, plan.q_ddot_B, plan.balance_joints, limits, tau)
     iterations = plan.info.get("total_iterations", "?")
     return (
         f"{label:32s} {plan.max_drift:8.5f} {plan.final_drift:9.6f} "

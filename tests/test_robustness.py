@@ -44,7 +44,8 @@ def test_perturbed_inertias_are_physical():
     for _ in range(5):  # random physical bodies: I_c = tr(Sigma) 1 - Sigma, Sigma > 0
         A = rng.standard_normal((3, 3))
         sigma = A @ A.T + 1e-3 * np.eye(3)
-        bodies.append(pin.Inertia(rng.uniform(0.1, 10), rng.standard_normal(3), np.trace(sigma) * np.eye(3) - sigma))
+        I_c = np.trace(sigma) * np.eye(3) - sigma
+        bodies.append(pin.Inertia(rng.uniform(0.1, 10), rng.standard_normal(3), I_c))
     bodies.append(pin.Inertia(5.0, np.array([0.0, 0.0, 0.25]), np.diag([0.1, 0.1, 0.004])))
     bodies.append(pin.Inertia(2.0, np.zeros(3), np.zeros((3, 3))))  # a point mass
     log_mass = []

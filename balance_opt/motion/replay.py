@@ -265,7 +265,8 @@ def _step_matrices(omega: np.ndarray, y0, t, n_sub, h):
     end (1). Returns ``(Y, message)``."""
     S = h.size
     M = _rate_matrices(omega)
-    M1, M2, M3 = M[..., :S, :, :], M[..., S : 2 * S, :, :], M[..., np.append(np.arange(1, S), 2 * S), :, :]
+    ends = np.append(np.arange(1, S), 2 * S)  # a step's end is the next step's start
+    M1, M2, M3 = M[..., :S, :, :], M[..., S : 2 * S, :, :], M[..., ends, :, :]
     eye = np.eye(4)
     hh = h[:, None, None]
     A1 = eye + 0.5 * hh * M1

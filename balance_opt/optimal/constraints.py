@@ -305,8 +305,8 @@ class JerkLimit(Constraint):
         self.control = control
 
     def coefficients(self, levels: list, h) -> list:
-        """Bernstein coefficients of the jerk on every interval, each (n_B, N), from the
-        balance joints' levels (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`)."""
+        """Bernstein coefficients of the jerk on every interval, each (n_B, N), from the balance
+        joints' levels (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`)."""
         if self.control == "jerk":
             return list(levels[3])
         acceleration = levels[2]
