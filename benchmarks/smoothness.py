@@ -22,8 +22,10 @@ import time
 
 import numpy as np
 
+from balance_opt.app.pipeline import run_task
 from balance_opt.app.scenarios import CAPTURE_BALANCE_ACCELERATION, capture_task
 from balance_opt.dynamics.inverse_dynamics import plan_torques
+from balance_opt.io.task import load_task
 from balance_opt.model.library import paper_robot
 from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.model import PlannerModel
@@ -31,6 +33,7 @@ from balance_opt.optimal.options import JERK_DEFAULT, CostWeights, PlannerOption
 from balance_opt.optimal.solve import build_balance_nlp
 
 BALANCE = ("balance_joint1", "balance_joint2", "balance_joint3")
+TASK = "examples/capture_task.yaml"
 
 
 def _robot(jerk: float | None):
@@ -41,10 +44,10 @@ def _robot(jerk: float | None):
     return paper_robot(limits=limits)
 
 
-def _row(label: str, robot, capture, options: PlannerOptions) -> str:
+def _row(label: str, robot, capture, options: PlannerOptions, guess) -> str:
     start = time.perf_counter()
     model = PlannerModel(robot)
-    plan = build_balance_nlp(model, capture.mission, capture.q_B0, options, robot).solve()
+    plan = build_balance_nlp(model, capture.mission, capture.q_B0, options, robot).solve(guess)
     elapsed = time.perf_counter() - start
     tau = plan_torques(robot, plan).tau[:, [robot.joint_index(j) for j in plan.balance_joints]]
     limits = robot.limits.acceleration[robot.balance_indices]
@@ -62,8 +65,18 @@ def main(argv=None) -> None:
     parser.add_argument("--jerk-weights", type=float, nargs="*", default=[0.0, JERK_DEFAULT])
     parser.add_argument("--jerk-limits", type=float, nargs="*", default=[20.0])
     parser.add_argument("--control-jerk", action="store_true", help="add the jerk-control row")
+    parser.add_argument(
+        "--guess",
+        choices=("analytic", "compare"),
+        default="compare",
+        help="start from the analytic law clipped to the limits, or from the analytic plan "
+        "as compare does (the same law, rolled out on its own grid)",
+    )
     args = parser.parse_args(argv)
     capture = capture_task()
+    guess = "analytic"
+    if args.guess == "compare":
+        guess = run_task(load_task(TASK), methods=["analytic"]).results["analytic"]
     print(
         f"{'setting':32s} {'peak':>8s} {'final':>9s} {'reversals':>10s} {'jerk':>8s} "
         f"{'tau rate':>9s} {'iter':>6s} {'time':>7s}"
@@ -73,15 +86,15 @@ def main(argv=None) -> None:
     robot = _robot(None)
     for w in args.jerk_weights:
         options = PlannerOptions(weights=CostWeights(jerk=w))
-        print(_row(f"weights.jerk {w:g}", robot, capture, options), flush=True)
+        print(_row(f"weights.jerk {w:g}", robot, capture, options, guess), flush=True)
     if args.control_jerk:
         options = PlannerOptions(
             control="jerk", weights=CostWeights(jerk=0.0, smoothness=0.1)
         )
-        print(_row("control jerk, smoothness 0.1", robot, capture, options), flush=True)
+        print(_row("control jerk, smoothness 0.1", robot, capture, options, guess), flush=True)
     for limit in args.jerk_limits:
         print(
-            _row(f"default + jerk limit {limit:g}", _robot(limit), capture, PlannerOptions()),
+            _row(f"default + jerk limit {limit:g}", _robot(limit), capture, PlannerOptions(), guess),
             flush=True,
         )
 

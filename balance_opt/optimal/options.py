@@ -70,12 +70,13 @@ def inner_intervals(N: int, transcription: str) -> int:
 
 
 #: Default weight of the balance joints' squared jerk [s^5/rad^2] (``CostWeights.jerk``). On
-#: the capture task (``benchmarks/smoothness.py``) the plans fall in two families: without the
-#: term the peak is 0.0211 rad with chatter (52/9/7 acceleration reversals); 1e-3 to 1e-2 keep
-#: that peak without the chatter (20/9/7 to 16/9/5: the bang-bang arcs themselves) but take
-#: four times the Ipopt iterations; from 0.03 the epigraph ends in the smoother family, 0.0229
-#: to 0.0233 rad with 9 to 11 reversals; 0.3 is the smallest weight with at most 10.
-JERK_DEFAULT = 0.3
+#: the capture task (``benchmarks/smoothness.py``, started as ``compare`` starts it) the plan
+#: without the term peaks at 0.0211 rad with chatter (52/9/7 acceleration reversals); 0.01 to
+#: 0.3 keep that peak within 1 % without the chatter (16/9/5 to 12/7/5: what is left are the
+#: bang-bang arcs themselves); 1 costs 2.3 % of the peak for 9/7/5, 3 costs 7.6 %. From the
+#: law clipped to the limits (``solve()``'s default start) the epigraph ends in another family
+#: of plans: 0.0233 rad, 9/7/6 at 1.
+JERK_DEFAULT = 1.0
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
 #: Objectives: the largest attitude error over the motion, or the integral of squared drift.
