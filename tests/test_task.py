@@ -732,7 +732,7 @@ OPTION_KEYS_DEFAULTS = [
     ("optimal.weights.peak", "100000.0"),
     ("optimal.weights.peak_terminal", "100000.0"),
     ("optimal.weights.regularisation", "0.01"),
-    ("optimal.weights.jerk", "0.3"),
+    ("optimal.weights.jerk", "1.0"),
     ("optimal.rest_configuration", "none"),
     ("optimal.constraints", "see below"),
     ("optimal.constraints.position_limits", "true"),
