@@ -70,12 +70,10 @@ def inner_intervals(N: int, transcription: str) -> int:
 
 
 #: Default weight of the balance joints' squared jerk [s^5/rad^2] (``CostWeights.jerk``). On
-#: the capture task (``benchmarks/smoothness.py``, started as ``compare`` starts it) the plan
-#: without the term peaks at 0.0211 rad with chatter (52/9/7 acceleration reversals); 0.01 to
-#: 0.3 keep that peak within 1 % without the chatter (16/9/5 to 12/7/5: what is left are the
-#: bang-bang arcs themselves); 1 costs 2.3 % of the peak for 9/7/5, 3 costs 7.6 %. From the
-#: law clipped to the limits (``solve()``'s default start) the epigraph ends in another family
-#: of plans: 0.0233 rad, 9/7/6 at 1.
+#: the capture task (``benchmarks/smoothness.py``) the plan without the term peaks at 0.0211 rad
+#: with chatter (52/9/7 acceleration reversals); 0.01 to 0.3 keep that peak within 1 % without
+#: the chatter (16/9/5 to 12/7/5: what is left are the bang-bang arcs themselves); 1 costs 2.3 %
+#: of the peak for 9/7/5, 3 costs 7.6 %.
 JERK_DEFAULT = 1.0
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
