@@ -307,14 +307,7 @@ def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
 class _Dynamics:
     """``(q, v, planned joint state) -> (a, tau)`` with one reused Pinocchio data."""
 
-    def __init__(
-        self,
-        robot: FloatingRobot,
-        kp,
-        kd,
-        controller: str,
-        clip_torque: bool,
-    ):
+    def __init__(self, robot: FloatingRobot, kp, kd, controller: str, clip_torque: bool):
         self.robot = robot
         self.model = robot.model
         self.data = robot.model.createData()
