@@ -183,7 +183,8 @@ def _outer_problem(
         torque=torque,
         parameters=par,
     )
-    cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)
+    if key.objective == "peak":  # the only stage that prices it (BalanceNLP.update_bounds)
+        cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)
     rows, row_kinds, parts = BlockStack(), [], []
     for kind in kinds:
         for block, values in kind.rows(symbols):
