@@ -216,19 +216,21 @@ def jerk_integral(acceleration: list, h):
 
     On an interval the jerk has the Bernstein coefficients ``d (c_{i+1} - c_i) / h`` (degree
     ``m = d - 1``) and ``int_0^h p^2 = h b^T G b`` with the Gram matrix of the Bernstein basis,
-    ``G_ij = C(m, i) C(m, j) / ((2m + 1) C(2m, i + j))``. A step of the acceleration from one
-    interval to the next counts as ``step^2 / h``.
+    ``G_ij = C(m, i) C(m, j) / ((2m + 1) C(2m, i + j))``. A constant acceleration per interval
+    (``d = 0``: the trapezoidal rule with control ``"acceleration"``) steps from one interval
+    to the next; a step counts as ``step^2 / h``. Otherwise the collocation makes the
+    acceleration continuous (with control ``"jerk"``, through its rows), and no step is priced.
     """
     d = len(acceleration) - 1
-    jumps = acceleration[-1][:, :-1] - acceleration[0][:, 1:]
-    total = _sum_all(jumps * jumps) / h
-    if d >= 1:
-        m = d - 1
-        b = [(d / h) * (acceleration[i + 1] - acceleration[i]) for i in range(d)]
-        for i in range(m + 1):
-            for j in range(m + 1):
-                gram = comb(m, i) * comb(m, j) / ((2 * m + 1) * comb(2 * m, i + j))
-                total = total + h * gram * _sum_all(b[i] * b[j])
+    if d == 0:  # a constant per interval: the steps are all there is
+        jumps = acceleration[0][:, :-1] - acceleration[0][:, 1:]
+        return _sum_all(jumps * jumps) / h
+    m, total = d - 1, 0
+    b = [(d / h) * (acceleration[i + 1] - acceleration[i]) for i in range(d)]
+    for i in range(m + 1):
+        for j in range(m + 1):
+            gram = comb(m, i) * comb(m, j) / ((2 * m + 1) * comb(2 * m, i + j))
+            total = total + h * gram * _sum_all(b[i] * b[j])
     return total
 
 
