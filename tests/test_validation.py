@@ -362,7 +362,7 @@ def test_analytic_rk4_step_is_checked_too(tmp_path):
         (
             "peak",
             (
-                "22.3 GiB of memory (3 balance joints: 2.4e+06 variables, 5.94e+07 non-zeros "
+                "22.6 GiB of memory (3 balance joints: 2.4e+06 variables, 6.03e+07 non-zeros "
                 "in the KKT matrices of the 3 NLPs the plan builds)"
             ),
         ),
