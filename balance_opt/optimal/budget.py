@@ -211,4 +211,12 @@ def memory_budget() -> float:
 def largest_intervals(options, limits, budget: float) -> int:
     """The largest ``N`` whose problem fits in ``budget`` bytes."""
     nonzeros = _nonzeros_per_interval(options, limits)
-    return max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
+    N = max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
+    # the inner stages' grid is rounded up to whole intervals: the size per interval at
+    # ``options.intervals`` can be a little below the one at N
+    def size(n: int) -> float:
+        return problem_size(dataclasses.replace(options, intervals=n), limits).memory_bytes
+
+    while N > 0 and size(N) > budget:
+        N -= 1
+    return N
