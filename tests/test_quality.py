@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from balance_opt.model.library import paper_robot
+from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.guess import resampled
 from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
@@ -26,8 +27,15 @@ from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.report.outputs import solver_metrics
 
 BALANCE = ("balance_joint1", "balance_joint2", "balance_joint3")
+#: Acceleration reversals per balance joint of the default plan at most (a smooth plan).
+REVERSAL_TARGET = 10
 #: Relative torque excess allowed between the collocation points.
 TORQUE_EXCESS = 2e-3
+
+
+def nlp_limits(capture) -> np.ndarray:
+    """The balance joints' acceleration limits of the capture task [rad/s^2]."""
+    return capture.robot.limits.acceleration[capture.robot.balance_indices]
 
 
 @pytest.fixture(scope="module")
@@ -162,6 +170,8 @@ def test_peak_plan_of_the_capture_task(model, capture, inside_hull):
     _no_violations(plan)
     _no_better_from_a_perturbed_plan(nlp, plan)
     inside_hull(build_balance_nlp(model, capture.mission, capture.q_B0), plan)
+    figures = smoothness(plan.t, plan.q_ddot_B, plan.balance_joints, nlp_limits(capture))
+    assert figures.reversals.max() <= REVERSAL_TARGET
     # rest at both ends: no torque step at t = 0 or at the end
     for k in (0, -1):
         np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)

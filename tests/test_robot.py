@@ -462,11 +462,11 @@ ERRORS = {
         ),
     ),
     "unknown limit key": (
-        dict(limits={"mission_joint2": {"jerk": 3}}),
+        dict(limits={"mission_joint2": {"snap": 3}}),
         JointError,
         (
-            rf"joint 'mission_joint2' in {PAPER}: unknown limit 'jerk'; expected one of lower, "
-            r"upper, velocity, acceleration, effort"
+            rf"joint 'mission_joint2' in {PAPER}: unknown limit 'snap'; expected one of lower, "
+            r"upper, velocity, acceleration, effort, jerk"
         ),
     ),
     "limit for a joint in no arm": (

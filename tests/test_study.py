@@ -16,6 +16,9 @@ from balance_opt.report.style import WIDTHS
 MIN_DPI = 200
 #: The study's own check: relative momentum residual of every simulation (issue 5).
 MOMENTUM_TOLERANCE = 1e-8
+#: Attitude gap between a plan and its simulation left when the tracking is exact (the plan's
+#: own torques as feedforward): the two integrations' own errors [rad].
+INTEGRATION_FLOOR = 1e-9
 
 ATTITUDE_LABELS = ["roll [deg]", "pitch [deg]", "yaw [deg]"]
 TORQUE_LABELS = ["torque x [N m]", "torque y [N m]", "torque z [N m]"]
@@ -111,7 +114,7 @@ def test_study_numbers(study):
         sim = study.balanced[method]
         np.testing.assert_allclose(sim.t, plan.t, rtol=0, atol=1e-9)
         gap = np.abs(sim.angle - plan.angle).max()
-        assert gap <= sim.max_tracking_error, method
+        assert gap <= sim.max_tracking_error + INTEGRATION_FLOOR, method
         assert summary["plans"][method]["limit_violations"] == [str(v) for v in plan.violations]
         torque = summary["plans"][method]["balanced"]["peak_torque_on_base_Nm"]
         assert set(torque) == {"mission", "balance", "total"}

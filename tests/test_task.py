@@ -203,7 +203,7 @@ BAD_TASKS = [
         "^mision:",
         (
             "mision: unknown key 'mision'; expected one of name, description, robot, arms, mission, initial, "
-            "capture, limits, analytic, optimal, simulation, outputs; did you mean 'mission'?"
+            "capture, limits, analytic, optimal, simulation, robustness, outputs; did you mean 'mission'?"
         ),
         TaskFileError,
     ),
@@ -213,7 +213,7 @@ BAD_TASKS = [
         "balance_joint1: {accel",
         (
             "limits.balance_joint1.accel: unknown key 'accel'; expected one of lower, upper, "
-            "velocity, acceleration, effort; did you mean 'acceleration'?"
+            "velocity, acceleration, effort, jerk; did you mean 'acceleration'?"
         ),
         TaskFileError,
     ),
@@ -380,7 +380,7 @@ BAD_TASKS = [
         "constraints:",
         (
             "optimal.constraints.position_limit: unknown key 'position_limit'; expected one of "
-            "position_limits, velocity_limits, acceleration_limits, torque_limits, "
+            "position_limits, velocity_limits, acceleration_limits, jerk_limits, torque_limits, "
             "terminal_attitude_bound, path_attitude_bound, start, end, rest_at_end, final_configuration; "
             "did you mean 'position_limits', 'velocity_limits', 'acceleration_limits'?"
         ),
@@ -703,7 +703,7 @@ def test_option_keys_of_the_task_format():
     assert rows == {k: d for k, d in OPTION_KEYS_DEFAULTS}
 
 
-OPTION_KEYS = ("analytic", "optimal", "simulation")
+OPTION_KEYS = ("analytic", "optimal", "simulation", "robustness")
 OPTION_KEYS_DEFAULTS = [
     ("analytic", "see below"),
     ("analytic.damping_threshold", "0.001"),
@@ -732,11 +732,13 @@ OPTION_KEYS_DEFAULTS = [
     ("optimal.weights.peak", "100000.0"),
     ("optimal.weights.peak_terminal", "100000.0"),
     ("optimal.weights.regularisation", "0.01"),
+    ("optimal.weights.jerk", "1.0"),
     ("optimal.rest_configuration", "none"),
     ("optimal.constraints", "see below"),
     ("optimal.constraints.position_limits", "true"),
     ("optimal.constraints.velocity_limits", "true"),
     ("optimal.constraints.acceleration_limits", "true"),
+    ("optimal.constraints.jerk_limits", "true"),
     ("optimal.constraints.torque_limits", "false"),
     ("optimal.constraints.terminal_attitude_bound", "none"),
     ("optimal.constraints.path_attitude_bound", "none"),
@@ -758,11 +760,17 @@ OPTION_KEYS_DEFAULTS = [
     ("simulation.max_step", "0.05"),
     ("simulation.output_dt", "0.01"),
     ("simulation.controller", "'pd'"),
+    ("simulation.feedforward", "true"),
     ("simulation.kp", "none"),
     ("simulation.kd", "none"),
     ("simulation.bandwidth", "20.0"),
     ("simulation.damping_ratio", "1.0"),
     ("simulation.clip_torque", "false"),
+    ("robustness", "see below"),
+    ("robustness.enabled", "none"),
+    ("robustness.samples", "50"),
+    ("robustness.perturbation", "0.1"),
+    ("robustness.seed", "0"),
 ]
 
 

@@ -361,7 +361,7 @@ def test_analytic_rk4_step_is_checked_too(tmp_path):
         (
             "peak",
             (
-                "22.3 GiB of memory (3 balance joints: 2.4e+06 variables, 5.94e+07 non-zeros "
+                "22.6 GiB of memory (3 balance joints: 2.4e+06 variables, 6.03e+07 non-zeros "
                 "in the KKT matrices of the 3 NLPs the plan builds)"
             ),
         ),
@@ -392,16 +392,19 @@ def test_too_many_intervals_are_refused_with_the_largest_that_fits(
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("transcription", "control", "torque", "acceleration", "objective"),
+    ("transcription", "control", "torque", "acceleration", "objective", "jerk"),
     [
-        ("hermite-simpson", "acceleration", False, 2.0, "peak"),
-        ("hermite-simpson", "jerk", False, None, "integral"),
-        ("trapezoidal", "jerk", True, None, "integral"),
-        ("trapezoidal", "acceleration", True, 2.0, "peak"),
+        ("hermite-simpson", "acceleration", False, 2.0, "peak", None),
+        ("hermite-simpson", "jerk", False, None, "integral", None),
+        ("trapezoidal", "jerk", True, None, "integral", None),
+        ("trapezoidal", "acceleration", True, 2.0, "peak", None),
+        ("hermite-simpson", "acceleration", False, 2.0, "peak", 10.0),
+        ("hermite-simpson", "jerk", False, None, "integral", 10.0),
+        ("trapezoidal", "jerk", False, None, "peak", 10.0),
     ],
 )
 def test_size_estimate_counts_the_planners_own_problem(
-    paper, transcription, control, torque, acceleration, objective
+    paper, transcription, control, torque, acceleration, objective, jerk
 ):
     # The estimate (no CasADi) against the NLP the planner builds: sizes exact, non-zeros close.
     import numpy as np
@@ -414,6 +417,8 @@ def test_size_estimate_counts_the_planners_own_problem(
     from balance_opt.optimal.solve import build_balance_nlp
 
     limits = {j: {"acceleration": acceleration} for j in PAPER_BALANCE_JOINTS if acceleration}
+    for j in PAPER_BALANCE_JOINTS if jerk else ():
+        limits.setdefault(j, {})["jerk"] = jerk
     robot = FloatingRobot(shipped_urdf(), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS, limits=limits)
     model = PlannerModel(paper, compile=False)
     mission = PointToPoint(np.zeros(3), np.full(3, 0.1), 2.0)

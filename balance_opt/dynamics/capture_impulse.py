@@ -68,7 +68,8 @@ def simulate_with_capture(
     mission = SampledTrajectory.from_result(plan, "mission")
     balance = SampledTrajectory.from_result(plan, "balance")
     t_c = float(target.time)
-    first = simulate(robot, mission, balance, opts, duration=t_c)
+    attitude = (plan.t, plan.quaternion)  # for the feedforward torques under momentum
+    first = simulate(robot, mission, balance, opts, duration=t_c, attitude=attitude)
     q_pin, v, state = impulse(
         robot, after, target, first.q_pin[-1], first.v[-1], first.momentum[-1]
     )
@@ -78,6 +79,7 @@ def simulate_with_capture(
         _Shifted(balance, t_c),
         dataclasses.replace(opts, h0=tuple(state.h_after.tolist())),
         initial_state=(q_pin, v),
+        attitude=(plan.t - t_c, plan.quaternion),
     )
     return _joined(first, second, t_c, state)
 

@@ -13,8 +13,10 @@ map would cost two orders on the base rotation.
   the tangent-space increments (``atol + rtol |x|`` per component, RMS norm) and steps that land
   on every output time.
 
-Both take the dynamics as a callable ``dyn(q, v, q_des, q_dot_des, q_ddot_des) -> (a, tau)``
-(with ``dyn.model`` and ``dyn.idx_v``) and the plan as ``plan.sample(t) -> (q, q_dot, q_ddot)``.
+Both take the dynamics as a callable ``dyn(q, v, q_des, q_dot_des, q_ddot_des[, tau_des]) ->
+(a, tau)`` (with ``dyn.model`` and ``dyn.idx_v``) and the plan as ``plan.sample(t) -> (q, q_dot,
+q_ddot[, tau])``: whatever the plan samples is passed on (the plan's own torques, as
+feedforward, when it has them).
 """
 
 from __future__ import annotations
@@ -42,13 +44,13 @@ class Dynamics(Protocol):
     model: pin.Model
     idx_v: np.ndarray
 
-    def __call__(self, q, v, qd, vd, ad) -> tuple[np.ndarray, np.ndarray]: ...
+    def __call__(self, q, v, qd, vd, ad, tau_d=None) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 class Plan(Protocol):
     """The planned joint motion, in arm order."""
 
-    def sample(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+    def sample(self, t) -> tuple[np.ndarray, ...]: ...
 
 
 class StepControl(Protocol):
@@ -85,7 +87,7 @@ def rk4(dyn: Dynamics, plan: Plan, x0, t_end: float, dt: float, stride: int):
     h = t_end / n_steps
     # planned joint state at every stage time: index 2k is t_k, 2k+1 is t_k + h/2
     grid = np.arange(2 * n_steps + 1) * (h / 2)
-    QD, VD, AD = plan.sample(grid)
+    P = plan.sample(grid)  # (q, q_dot, q_ddot[, the plan's torques]) per stage time
     out_steps = np.unique(np.r_[np.arange(0, n_steps, stride), n_steps])
     is_out = np.zeros(n_steps + 1, dtype=bool)
     is_out[out_steps] = True
@@ -97,26 +99,26 @@ def rk4(dyn: Dynamics, plan: Plan, x0, t_end: float, dt: float, stride: int):
     j = 0
     for k in range(n_steps):
         i = 2 * k
-        a1, tau1 = dyn(q, v, QD[i], VD[i], AD[i])
+        a1, tau1 = dyn(q, v, *(X[i] for X in P))
         if is_out[k]:
             Q[j], V[j], A[j], TAU[j] = q, v, a1, tau1
             j += 1
         v1 = v
         q2 = integrate(model, q, h2 * v1)
         v2 = v + h2 * a1
-        a2, _ = dyn(q2, v2, QD[i + 1], VD[i + 1], AD[i + 1])
+        a2, _ = dyn(q2, v2, *(X[i + 1] for X in P))
         u2 = ddiff(model, q, q2, ARG1) @ v2
         q3 = integrate(model, q, h2 * u2)
         v3 = v + h2 * a2
-        a3, _ = dyn(q3, v3, QD[i + 1], VD[i + 1], AD[i + 1])
+        a3, _ = dyn(q3, v3, *(X[i + 1] for X in P))
         u3 = ddiff(model, q, q3, ARG1) @ v3
         q4 = integrate(model, q, h * u3)
         v4 = v + h * a3
-        a4, _ = dyn(q4, v4, QD[i + 2], VD[i + 2], AD[i + 2])
+        a4, _ = dyn(q4, v4, *(X[i + 2] for X in P))
         u4 = ddiff(model, q, q4, ARG1) @ v4
         q = integrate(model, q, h6 * (v1 + 2.0 * (u2 + u3) + u4))
         v = v + h6 * (a1 + 2.0 * (a2 + a3) + a4)
-    a_end, tau_end = dyn(q, v, QD[-1], VD[-1], AD[-1])
+    a_end, tau_end = dyn(q, v, *(X[-1] for X in P))
     Q[j], V[j], A[j], TAU[j] = q, v, a_end, tau_end
     return (
         out_steps * h,
@@ -138,8 +140,7 @@ def dopri5(dyn: Dynamics, plan: Plan, x0, t_end: float, opts: StepControl, outpu
     Q, V, A, TAU = (np.empty((t_out.size, m)) for m in (model.nq, nv, nv, dyn.idx_v.size))
 
     def rhs(t, q, v):
-        qd, vd, ad = (x[0] for x in plan.sample(np.array([t])))
-        return dyn(q, v, qd, vd, ad)
+        return dyn(q, v, *(x[0] for x in plan.sample(np.array([t]))))
 
     q, v = x0
     t, h = 0.0, min(opts.dt, opts.max_step)

@@ -7,7 +7,12 @@ constant. Accelerations come from Pinocchio's articulated-body algorithm (``pin.
 joint torques of one of two controllers that track the planned trajectories of *all* arm joints
 (mission and balance):
 
-* ``"pd"``, the paper's Phase I controller: ``tau = K_p (q_d - q) + K_d (q_dot_d - q_dot)``;
+* ``"pd"``, the paper's Phase I controller: ``tau = K_p (q_d - q) + K_d (q_dot_d - q_dot)``,
+  by default plus the plan's own torques ``tau_d`` (``feedforward``): the free-floating inverse
+  dynamics of the planned ``q_d, q_dot_d, q_ddot_d`` (base unactuated, its twist from momentum
+  conservation, :mod:`balance_opt.dynamics.inverse_dynamics`), which a robot would be sent with
+  the plan. A plan the robot can follow is then followed to the integration error; PD alone
+  trails it by about ``q_ddot_d / K_p``;
 * ``"computed-torque"``: the free-floating inverse dynamics of the planned joint accelerations
   plus the same PD terms. With the joint accelerations ``q_ddot_d`` given, the base
   acceleration follows from the base rows of ``M(q) [a_b; q_ddot_d] + h = [0; tau]``
@@ -38,6 +43,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from balance_opt.dynamics.inverse_dynamics import free_floating_torques
 from balance_opt.dynamics.options import (
     DEFAULT_BANDWIDTH,
     DEFAULT_DAMPING_RATIO,
@@ -82,15 +88,28 @@ def _as_trajectory(value, dof: int, what: str) -> tuple[Any, float]:
 
 
 class _ArmPlan:
-    """Mission and balance trajectories stacked into the robot's arm vector."""
+    """Mission and balance trajectories stacked into the robot's arm vector; with
+    :meth:`add_feedforward`, also the plan's own joint torques."""
 
     def __init__(self, robot: FloatingRobot, mission, balance):
         self.robot = robot
         self.mission, d_M = _as_trajectory(mission, robot.mission.dof, "mission")
         self.balance, d_B = _as_trajectory(balance, robot.balance_indices.size, "balance")
         self.duration = max(d_M, d_B)
+        self.feedforward = False
+        self._h0 = np.zeros(6)
+        self._attitude = None
+
+    def add_feedforward(self, h0: np.ndarray, attitude=None) -> None:
+        """Make :meth:`sample` return the plan's torques too: the free-floating inverse
+        dynamics of the planned joint motion with momentum ``h0`` (world frame), the base at
+        the planned ``attitude`` (``(t, quaternion)`` samples, nearest taken; the identity when
+        ``None``: the attitude matters only for a non-zero ``h0``)."""
+        self.feedforward, self._h0, self._attitude = True, np.asarray(h0, dtype=float), attitude
 
     def sample(self, t):
+        """``(q, q_dot, q_ddot)`` at times ``t``, each (T, n), and the plan's torques (T, n)
+        with :meth:`add_feedforward`."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         out = [np.empty((t.size, self.robot.n)) for _ in range(3)]
         for traj, idx in (
@@ -99,7 +118,15 @@ class _ArmPlan:
         ):
             for o, s in zip(out, traj.sample(t)):
                 o[:, idx] = np.reshape(s, (t.size, -1))
-        return tuple(out)
+        if not self.feedforward:
+            return tuple(out)
+        quaternion = None
+        if self._attitude is not None and np.any(self._h0):
+            times, quaternions = self._attitude
+            nearest = np.clip(np.searchsorted(times, t), 0, len(times) - 1)
+            quaternion = np.asarray(quaternions)[nearest]
+        ffd = free_floating_torques(self.robot, *out, quaternion=quaternion, h0=self._h0)
+        return (*out, ffd.tau)
 
 
 # --------------------------------------------------------------------------------- options
@@ -160,7 +187,8 @@ class SimulationResult(AttitudeHistory):
             [N s, N m s].
         h0: the momentum it should keep (6,).
         momentum_scale: ``(linear, angular)`` scale the residual is relative to: the largest
-            momentum the joint motion carries, ``max_t |A_j q_dot|``, plus ``|h0|``.
+            momentum the joints carry, each joint's counted apart
+            (``max_t sum_j |A_j[:, j] q_dot_j|``), plus ``|h0|``.
         arm_wrenches: ``{arm: (T, 6)}``, ``[force; torque]`` each arm exerts ON the base, base
             axes, torque about the base origin [N, N m] (paper Fig. 4).
         info: options, step counts, wall time; plain data.
@@ -305,10 +333,13 @@ class _Dynamics:
             e = (e + np.pi) % (2 * np.pi) - np.pi
         return e
 
-    def __call__(self, q, v, qd, vd, ad):
+    def __call__(self, q, v, qd, vd, ad, tau_d=None):
+        """``tau_d``: the plan's own torques at this instant, when the plan carries them."""
         tau = self.kp * self.position_error(qd, q) + self.kd * (vd - v[self._v])
         if self.computed_torque:
             tau = tau + self.feedforward(q, v, ad)
+        elif tau_d is not None:
+            tau = tau + tau_d
         if self.effort is not None:
             tau = np.clip(tau, -self.effort, self.effort)
         self.tau_full[self._v] = tau
@@ -337,7 +368,7 @@ class _Dynamics:
 def _initial_state(
     robot: FloatingRobot, plan: _ArmPlan, h0_world: np.ndarray, base: pin.SE3 | None
 ):
-    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1)))
+    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1))[:3])
     base = base or pin.SE3.Identity()
     R = base.rotation
     h0_base = np.r_[R.T @ h0_world[:3], R.T @ h0_world[3:]]
@@ -355,6 +386,7 @@ def simulate(
     duration: float | None = None,
     base: pin.SE3 | None = None,
     initial_state: tuple[np.ndarray, np.ndarray] | None = None,
+    attitude: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SimulationResult:
     """Simulate the free-floating robot tracking a mission and a balance trajectory.
 
@@ -372,6 +404,8 @@ def simulate(
         base: initial base pose in the world (identity by default).
         initial_state: Pinocchio ``(q, v)`` to start from instead of the plan's start with the
             twist of ``options.h0`` (after a capture's impulse, say).
+        attitude: the plan's base attitude, ``(t, quaternion)`` samples, for the feedforward
+            torques under a non-zero ``options.h0`` (identity by default).
 
     Returns:
         The simulated motion, with outputs computed at ``options.output_dt``.
@@ -392,6 +426,8 @@ def simulate(
     kp, kd = _gains(robot, plan, opts)
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
+    if opts.feedforward and opts.controller == "pd":
+        plan.add_feedforward(h0, attitude)
     x0 = _initial_state(robot, plan, h0, base) if initial_state is None else initial_state
 
     if opts.integrator == "rk4":
@@ -408,6 +444,7 @@ def simulate(
     result.info.update(
         integrator=opts.integrator,
         controller=opts.controller,
+        feedforward=plan.feedforward,
         duration_s=t_end,
         kp=kp.tolist(),
         kd=kd.tolist(),
@@ -475,6 +512,7 @@ def simulate_plan(
 ) -> SimulationResult:
     """Simulate a plan: its mission and balance motions (interpolated between its samples)
     tracked by the controller. Keyword arguments go to :func:`simulate`."""
+    kwargs.setdefault("attitude", (plan.t, plan.quaternion))
     return simulate(
         robot,
         SampledTrajectory.from_result(plan, "mission"),
@@ -490,22 +528,27 @@ def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> 
     T = t.size
     q = np.empty((T, robot.n))
     momentum = np.empty((T, 6))
-    joint_momentum = np.empty((T, 6))
+    joint_momentum = np.empty((T, 2))
     cols = robot.pin_v_indices
     moving = robot.model_v_indices  # arm joints and the mimic joints following them
     for k in range(T):
         q[k] = dyn.joint_positions(Q[k])
         A_G = pin.computeCentroidalMap(model, data, Q[k])
         momentum[k] = A_G @ V[k]
-        joint_momentum[k] = A_G[:, moving] @ V[k, moving]
+        # each joint's own momentum, summed: arms that cancel each other (a balanced plan
+        # tracked exactly) must not shrink the scale to nothing
+        each = A_G[:, moving] * V[k, moving]
+        joint_momentum[k] = np.linalg.norm(each[:3], axis=0).sum(), np.linalg.norm(
+            each[3:], axis=0
+        ).sum()
     scale = tuple(
         max(
-            float(np.linalg.norm(joint_momentum[:, s], axis=1).max() + np.linalg.norm(h0[s])),
+            float(joint_momentum[:, i].max() + np.linalg.norm(h0[s])),
             MOMENTUM_SCALE_FLOOR,
         )
-        for s in (slice(0, 3), slice(3, 6))
+        for i, s in enumerate((slice(0, 3), slice(3, 6)))
     )
-    q_des, q_dot_des, q_ddot_des = plan.sample(t)
+    q_des, q_dot_des, q_ddot_des = plan.sample(t)[:3]
     return SimulationResult(
         robot=robot,
         t=t,

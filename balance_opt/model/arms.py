@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 #: Limit kinds, in the order of :class:`JointLimits`' fields.
-LIMIT_KEYS = ("lower", "upper", "velocity", "acceleration", "effort")
+LIMIT_KEYS = ("lower", "upper", "velocity", "acceleration", "effort", "jerk")
 
 
 @dataclass(frozen=True)
@@ -20,6 +20,7 @@ class JointLimits:
         velocity: largest speed [rad/s or m/s].
         acceleration: largest acceleration [rad/s^2]; URDF has none, so ``inf`` unless set.
         effort: largest torque [N m] or force [N].
+        jerk: largest jerk [rad/s^3]; URDF has none, so ``inf`` unless set.
     """
 
     lower: np.ndarray
@@ -27,6 +28,7 @@ class JointLimits:
     velocity: np.ndarray
     acceleration: np.ndarray
     effort: np.ndarray
+    jerk: np.ndarray
 
     def subset(self, indices) -> JointLimits:
         """The limits of the joints at ``indices`` of the arm vector."""

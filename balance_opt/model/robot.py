@@ -152,7 +152,8 @@ class FloatingRobot:
         locked: positions of locked joints [rad or m]; every movable joint that is in no arm and
             not named here is locked at 0, except mimic joints, which follow their driver.
         limits: overrides of joint limits, ``{joint: {"lower": ..., "upper": ..., "velocity": ...,
-            "acceleration": ..., "effort": ...}}``; keys left out keep the URDF's value.
+            "acceleration": ..., "effort": ..., "jerk": ...}}``; keys left out keep the URDF's
+            value (acceleration and jerk: unlimited).
         ee_frames: end-effector frame per arm name (``"mission"``, ``"balance"``, ``"balance2"``
             ...); by default the last link reached from the arm's most distal joint (the
             deepest in the kinematic tree, whatever the order the joints were named in) through
@@ -435,7 +436,7 @@ class FloatingRobot:
                 f"lower limit {lo:g} is above upper limit {hi:g}"
                 + ("" if other in given else f" ({other} limit from the URDF)"),
             )
-        for key in ("velocity", "acceleration", "effort"):
+        for key in ("velocity", "acceleration", "effort", "jerk"):
             if not value[key] > 0:
                 if key not in given:
                     raise URDFLoadError(

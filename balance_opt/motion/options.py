@@ -59,3 +59,36 @@ class IntegrationOptions:
 
     def __post_init__(self):
         check_settings(self, "integration option")
+
+
+@dataclass(frozen=True)
+class RobustnessOptions:
+    """The drift-under-model-error study (:mod:`balance_opt.motion.robustness`): every plan's
+    joint motion replayed on ``samples`` robots whose masses, centres of mass and inertias are
+    perturbed by ``perturbation`` (relative, physical by construction), seeded by ``seed``.
+
+    ``enabled`` unset runs the study in ``compare`` and not in ``plan``.
+
+    Raises:
+        InputError: a field that does not fit its declaration (``"robustness option 'samples':
+            must be at least 1, got 0"``).
+    """
+
+    enabled: bool | None = setting(
+        None, doc="run the study (default: in compare, not in plan)"
+    )
+    samples: int = setting(50, minimum=1, doc="perturbed models K")
+    perturbation: float = setting(
+        0.10,
+        minimum=0.0,
+        doc="relative size of the perturbation of every body's mass, centre of mass (times "
+        "its radius of gyration) and second moments",
+    )
+    seed: int = setting(0, minimum=0, doc="seed of the perturbations")
+
+    def __post_init__(self):
+        check_settings(self, "robustness option")
+
+    def runs_in(self, command: str) -> bool:
+        """Whether the study runs in ``command`` (``"plan"`` or ``"compare"``)."""
+        return self.enabled if self.enabled is not None else command == "compare"

@@ -183,18 +183,47 @@ def _rk4_given_joints(rates: _StageRates, y0: np.ndarray, t: np.ndarray, options
     none longer than ``options.step``), with the base rate at every stage time evaluated in one
     batch first. Returns ``(Y, stats, message)`` like ``integrate``."""
     step = options.step or options.output_step
-    n_sub = np.maximum(1, np.ceil(np.diff(t) / step - 1e-9)).astype(int)
-    h = np.repeat(np.diff(t) / n_sub, n_sub)
-    first = np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
-    starts = np.repeat(t[:-1], n_sub) + (np.arange(h.size) - first) * h
+    times, n_sub, h = rk4_stage_times(t, options)
     S = h.size
-    rates.at(np.concatenate([starts, starts + 0.5 * h, t[-1:]]))  # start s: s, mid: S + s
+    rates.at(times)
     if rates.spinning:
         Y, message = _stagewise(rates, y0, t, n_sub, h)
     else:
         Y, message = _step_matrices(rates.omega_table, y0, t, n_sub, h)
     stats = {"method": "rk4", "step": step, "steps": int(S), "rhs_evaluations": 4 * int(S)}
     return Y, stats, message
+
+
+def rk4_stage_times(t: np.ndarray, options: IntegrationOptions):
+    """The stage times of the fixed-step RK4 replay to output times ``t``: ``n_sub`` equal
+    steps per output interval, none longer than ``options.step`` (else ``output_step``).
+
+    Returns:
+        ``(times, n_sub, h)``: the step starts (S), their midpoints (S) and the end (1) in one
+        array; the steps per output interval; each step's length (S,).
+    """
+    step = options.step or options.output_step
+    n_sub = np.maximum(1, np.ceil(np.diff(t) / step - 1e-9)).astype(int)
+    h = np.repeat(np.diff(t) / n_sub, n_sub)
+    first = np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
+    starts = np.repeat(t[:-1], n_sub) + (np.arange(h.size) - first) * h
+    return np.concatenate([starts, starts + 0.5 * h, t[-1:]]), n_sub, h
+
+
+def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOptions, q0=None):
+    """The base attitude (..., T, 4) at ``t`` from base rates that do not depend on it (zero
+    momentum), given at :func:`rk4_stage_times` ``(times, ...)``, (..., 2 S + 1, 3) [rad/s,
+    base frame]: the same RK4 steps as :func:`replay` with ``method="rk4"``, for one rate
+    history or a batch.
+
+    Raises:
+        SolverError: the integration failed (non-finite rates).
+    """
+    _, n_sub, h = rk4_stage_times(t, options)
+    Y, message = _step_matrices(omega, initial_quaternion(q0), t, n_sub, h)
+    if message is not None:
+        raise SolverError(f"attitude replay failed: {message}", "integration_failed", None)
+    return Y
 
 
 def _stagewise(rates: _StageRates, y0, t, n_sub, h):
@@ -236,13 +265,16 @@ def _step_matrices(omega: np.ndarray, y0, t, n_sub, h):
     end (1). Returns ``(Y, message)``."""
     S = h.size
     M = _rate_matrices(omega)
-    M1, M2, M3 = M[:S], M[S : 2 * S], M[np.append(np.arange(1, S), 2 * S)]
+    ends = np.append(np.arange(1, S), 2 * S)  # a step's end is the next step's start
+    M1, M2, M3 = M[..., :S, :, :], M[..., S : 2 * S, :, :], M[..., ends, :, :]
     eye = np.eye(4)
     hh = h[:, None, None]
     A1 = eye + 0.5 * hh * M1
     A2 = eye + 0.5 * hh * (M2 @ A1)
     A3 = eye + hh * (M2 @ A2)
     P = eye + (hh / 6.0) * (M1 + 2.0 * (M2 @ A1) + 2.0 * (M2 @ A2) + M3 @ A3)
+    if omega.ndim > 2:  # a batch of rate histories (..., 2 S + 1, 3): the steps chained at once
+        return _chain_batch(P, y0, t, n_sub)
     Y = np.empty((t.size, y0.size))
     Y[0] = y = np.array(y0, dtype=float)
     last = np.cumsum(n_sub) - 1  # the step that ends each output interval
@@ -255,6 +287,25 @@ def _step_matrices(omega: np.ndarray, y0, t, n_sub, h):
                 return Y[: k + 1], f"non-finite state (at t = {t[k + 1]:.6g} s)"
             k += 1
             Y[k] = y
+    return Y, None
+
+
+def _chain_batch(P: np.ndarray, y0, t, n_sub):
+    """:func:`_step_matrices`' chain for a batch of step matrices (..., S, 4, 4): the attitudes
+    (..., T, 4). Returns ``(Y, message)``."""
+    last = np.cumsum(n_sub) - 1
+    Y = np.empty(P.shape[:-3] + (t.size, 4))
+    y = np.broadcast_to(np.asarray(y0, dtype=float), P.shape[:-3] + (4,)).copy()
+    Y[..., 0, :] = y
+    k = 0
+    for s in range(P.shape[-3]):
+        y = np.einsum("...ab,...b->...a", P[..., s, :, :], y)
+        y /= np.linalg.norm(y, axis=-1, keepdims=True)
+        if s == last[k]:
+            k += 1
+            Y[..., k, :] = y
+    if not np.all(np.isfinite(Y)):
+        return Y, "non-finite state"
     return Y, None
 
 

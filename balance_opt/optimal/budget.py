@@ -108,6 +108,7 @@ def _limited(options, limits) -> dict[str, bool]:
         "position": options.position_limits
         and bool((np.isfinite(limits.lower) | np.isfinite(limits.upper)).any()),
         "torque": options.torque_limits and bool(np.isfinite(limits.effort).any()),
+        "jerk": options.jerk_limits and bool(np.isfinite(limits.jerk).any()),
     }
 
 
@@ -136,9 +137,15 @@ def _per_interval(options, limits) -> tuple[int, int, float]:
     # a torque row depends on a point's positions, rates and controls; an attitude row on phi
     # (and the epigraph's on the peak variable too)
     jacobian = a * n_w + b * n_g_fit + 3 * n_B * torque_rows + (4 if peak else 3) * path_rows
+    # every Bernstein coefficient of the jerk is a row (constraints.JerkLimit), on the controls
+    # of its interval: the acceleration's three, or (control jerk) one to three of the jerk's
+    jerk_rows = n_B * (tr.control_degree + (1 if jerk else 0)) if limited["jerk"] else 0
+    jacobian += jerk_rows * ((5 / 3 if tr.has_midpoints else 2) if jerk else 3)
     k = 3 + 2 * n_B
     hessian = points * (k * (k + 1) / 2 + n_B + (n_B**2 if limited["torque"] else 0))
-    n_g = n_g_fit + torque_rows + path_rows
+    if peak:  # the jerk term (nlp.jerk_integral) couples an interval's controls
+        hessian += n_B * (3 if tr.has_midpoints else (1 if jerk else 2))
+    n_g = n_g_fit + torque_rows + path_rows + jerk_rows
     return n_w, n_g, jacobian + hessian + n_w + n_g
 
 
@@ -209,4 +216,12 @@ def memory_budget() -> float:
 def largest_intervals(options, limits, budget: float) -> int:
     """The largest ``N`` whose problem fits in ``budget`` bytes."""
     nonzeros = _nonzeros_per_interval(options, limits)
-    return max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
+    N = max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
+    # the inner stages' grid is rounded up to whole intervals: the size per interval at
+    # ``options.intervals`` can be a little below the one at N
+    def size(n: int) -> float:
+        return problem_size(dataclasses.replace(options, intervals=n), limits).memory_bytes
+
+    while N > 0 and size(N) > budget:
+        N -= 1
+    return N

@@ -39,6 +39,7 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
+from balance_opt.errors import InputError
 from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.optimal.collocation import Transcription, bernstein_value
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey, unit_of
@@ -280,6 +281,73 @@ class JointLimit(Constraint):
         )
 
 
+class JerkLimit(Constraint):
+    """The balance joints' jerk limits [rad/s^3] on the continuous plan: on every interval the
+    jerk is a polynomial (the derivative of the acceleration's, or with control ``"jerk"`` the
+    control's own) and every one of its Bernstein coefficients is a row. The acceleration must
+    then be continuous, so that the torques, and the reaction on the base, have no steps: the
+    trapezoidal rule with control ``"acceleration"`` (a constant acceleration per interval) is
+    refused.
+
+    Raises:
+        InputError: jerk limits with the trapezoidal rule and control ``"acceleration"``.
+    """
+
+    name = "jerk limit"
+
+    def __init__(self, transcription: Transcription, control: str):
+        if control == "acceleration" and transcription.control_degree == 0:
+            raise InputError(
+                "constraints.jerk_limits: jerk limits need a continuous acceleration; the "
+                f"{transcription.name} rule with control 'acceleration' steps it at every node: "
+                "use control 'jerk' or transcription 'hermite-simpson'"
+            )
+        self.control = control
+
+    def coefficients(self, levels: list, h) -> list:
+        """Bernstein coefficients of the jerk on every interval, each (n_B, N), from the balance
+        joints' levels (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`)."""
+        if self.control == "jerk":
+            return list(levels[3])
+        acceleration = levels[2]
+        d = len(acceleration) - 1
+        return [(d / h) * (acceleration[i + 1] - acceleration[i]) for i in range(d)]
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        coefficients = self.coefficients(nlp.levels, nlp.parameters.h)
+        labels = tuple(
+            f"{j} jerk (control point {i})" for i in range(len(coefficients)) for j in nlp.joints
+        )
+        block = Block(
+            "jerk limit",
+            labels,
+            ("rad/s^3",) * len(labels),
+            np.arange(nlp.key.intervals, dtype=float),
+            per_interval=True,
+        )
+        return [(block, cs.vertcat(*coefficients))]
+
+    def row_bounds(self, problem, block):
+        jerk = problem.limits.jerk
+        reps = len(block.rows) // jerk.size
+        return (
+            _per_column(np.tile(-jerk, reps), len(block.taus)),
+            _per_column(np.tile(jerk, reps), len(block.taus)),
+        )
+
+    def check(self, problem, result):
+        """The jerk of the re-simulated motion by finite differences of its accelerations: the
+        mean jerk over each sample interval, never above the largest."""
+        jerk = np.diff(result.q_ddot_B, axis=0) / np.diff(result.t)[:, None]
+        return _worst(
+            np.abs(jerk) - problem.limits.jerk,
+            result.t[:-1],
+            problem.balance_joints,
+            lambda joint: f"jerk limit of {joint}",
+            "rad/s^3",
+        )
+
+
 class TorqueLimit(Constraint):
     """The balance joints' effort limits [N m] on the torques of the free-floating inverse
     dynamics, at the collocation points (the point kernels compute the torques)."""
@@ -502,6 +570,8 @@ def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
         for kind in DERIVATIVES
         if kind in key.joint_limits
     ]
+    if "jerk" in key.joint_limits:
+        kinds.append(JerkLimit(transcription, key.control))
     if key.torque_limits:
         kinds.append(TorqueLimit())
     if key.objective == "peak":

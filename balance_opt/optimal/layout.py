@@ -55,7 +55,8 @@ class StructureKey:
         transcription: ``"hermite-simpson"`` or ``"trapezoidal"``.
         control: ``"acceleration"`` or ``"jerk"``.
         joint_limits: the joint-limit kinds enforced (``"position"``, ``"velocity"``,
-            ``"acceleration"``): switched on and finite for at least one balance joint.
+            ``"acceleration"``, ``"jerk"``): switched on and finite for at least one balance
+            joint.
         between_points: whether the joint limits have rows between the collocation points
             (the interior Bernstein coefficients) besides the bounds at the points. The inner
             stages of the peak objective go without: their plans are only warm starts, and the
@@ -99,6 +100,7 @@ class StructureKey:
             "velocity": options.velocity_limits and bool(np.any(np.isfinite(limits.velocity))),
             "acceleration": options.acceleration_limits
             and bool(np.any(np.isfinite(limits.acceleration))),
+            "jerk": options.jerk_limits and bool(np.any(np.isfinite(limits.jerk))),
         }
         return cls(
             intervals=int(options.intervals),
@@ -297,6 +299,8 @@ class NLPParameters(NamedTuple):
         smooth_weight: the weight of the smooth peak (the ``smooth`` stage of the peak
             objective, :mod:`balance_opt.optimal.refine`; 0 elsewhere).
         smooth_scale: ``1 / c^2``, ``c`` the smooth peak's reference drift [1/rad^2].
+        jerk_weight: the weight of the balance joints' squared jerk
+            (:func:`~balance_opt.optimal.nlp.jerk_integral`).
         q_rest: the rest pull's configuration (n_B) [rad].
         mission: the mission arm's samples ``[q_M; q_dot_M; q_ddot_M]`` at every collocation
             point (n_m, n_points).
@@ -310,6 +314,7 @@ class NLPParameters(NamedTuple):
     peak_weight: Any
     smooth_weight: Any
     smooth_scale: Any
+    jerk_weight: Any
     q_rest: Any
     mission: Any
 
@@ -343,6 +348,7 @@ class ParameterLayout:
             "peak_weight": 1,
             "smooth_weight": 1,
             "smooth_scale": 1,
+            "jerk_weight": 1,
             "q_rest": self.n_B,
             "mission": self.n_m * self.n_points,
         }

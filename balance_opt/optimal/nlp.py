@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from math import comb
 
 import casadi as cs
 import numpy as np
@@ -182,6 +183,8 @@ def _outer_problem(
         torque=torque,
         parameters=par,
     )
+    if key.objective == "peak":  # the only stage that prices it (BalanceNLP.update_bounds)
+        cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)
     rows, row_kinds, parts = BlockStack(), [], []
     for kind in kinds:
         for block, values in kind.rows(symbols):
@@ -201,6 +204,39 @@ def _smooth_peak(v, par, weights: np.ndarray):
     ratio = cs.sum1(X[:3, :] ** 2) * par.smooth_scale
     q = cs.DM(weights / weights.sum())
     return cs.mtimes(ratio ** (PEAK_POWER // 2), q)
+
+
+def jerk_integral(acceleration: list, h):
+    """``int |q_dddot|^2 dt`` of a piecewise polynomial acceleration, summed over its joints.
+
+    Args:
+        acceleration: Bernstein coefficients of the acceleration on every interval (degree
+            ``d``), each (n, N), symbolic or numeric.
+        h: interval length [s].
+
+    On an interval the jerk has the Bernstein coefficients ``d (c_{i+1} - c_i) / h`` (degree
+    ``m = d - 1``) and ``int_0^h p^2 = h b^T G b`` with the Gram matrix of the Bernstein basis,
+    ``G_ij = C(m, i) C(m, j) / ((2m + 1) C(2m, i + j))``. A constant acceleration per interval
+    (``d = 0``: the trapezoidal rule with control ``"acceleration"``) steps from one interval
+    to the next; a step counts as ``step^2 / h``. Otherwise the collocation makes the
+    acceleration continuous (with control ``"jerk"``, through its rows), and no step is priced.
+    """
+    d = len(acceleration) - 1
+    if d == 0:  # a constant per interval: the steps are all there is
+        jumps = acceleration[0][:, :-1] - acceleration[0][:, 1:]
+        return _sum_all(jumps * jumps) / h
+    m, total = d - 1, 0
+    b = [(d / h) * (acceleration[i + 1] - acceleration[i]) for i in range(d)]
+    for i in range(m + 1):
+        for j in range(m + 1):
+            gram = comb(m, i) * comb(m, j) / ((2 * m + 1) * comb(2 * m, i + j))
+            total = total + h * gram * _sum_all(b[i] * b[j])
+    return total
+
+
+def _sum_all(x):
+    """Sum of every entry, CasADi or NumPy."""
+    return cs.sum1(cs.sum2(x)) if isinstance(x, (cs.SX, cs.MX, cs.DM)) else np.sum(x)
 
 
 def _outer_functions(w, y, p, cost, g) -> _Outer:

@@ -100,6 +100,12 @@ PEAK_STAGES = (
 SMOOTH_PLAN = Stage("smooth", False, True, tuple(SMOOTH_IPOPT.items()))
 
 
+#: Default weight of the balance joints' squared jerk [s^5/rad^2] (``CostWeights.jerk``). On
+#: the capture task (``benchmarks/smoothness.py``) the plan without the term peaks at 0.0211 rad
+#: with chatter (52/9/7 acceleration reversals); 0.01 to 0.3 keep that peak within 1 % without
+#: the chatter (16/9/5 to 12/7/5: what is left are the bang-bang arcs themselves); 1 costs 2.3 %
+#: of the peak for 9/7/5, 3 costs 7.6 %.
+JERK_DEFAULT = 1.0
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
 #: Objectives: the largest attitude error over the motion, or the integral of squared drift.
@@ -124,7 +130,8 @@ class CostWeights:
     the collocation points (an epigraph variable, ``|phi_k|^2 <= s^2``) and keeps the integral
     terms, scaled down by ``regularisation``, to make the plan smooth and unique::
 
-        J = peak * s^2 + peak_terminal * |log R_T|^2 + regularisation * (the integral terms)
+        J = peak * s^2 + peak_terminal * |log R_T|^2
+            + regularisation * (the integral terms + jerk * int |q_dddot_B|^2 dt)
 
     It is reached in stages (:func:`balance_opt.optimal.refine.plan_peak`): the integral
     objective's plan, then ``s^2`` replaced by the drift's L_16 norm (weighted so that it
@@ -132,7 +139,10 @@ class CostWeights:
 
     ``u`` is the control: balance joint accelerations [rad/s^2] (or jerks [rad/s^3]). The
     weights' units make each term dimensionless: ``omega`` [s/rad^2], ``terminal``, ``peak`` and ``peak_terminal`` [1/rad^2],
-    ``smoothness`` [s^3/rad^2] (jerk: [s^5/rad^2]), ``rest`` and ``attitude`` [1/(rad^2 s)].
+    ``smoothness`` [s^3/rad^2] (jerk: [s^5/rad^2]), ``rest`` and ``attitude`` [1/(rad^2 s)],
+    ``jerk`` [s^5/rad^2]. The jerk term is the exact integral over the continuous plan (a step of
+    the acceleration between intervals, which only the trapezoidal rule with control
+    ``"acceleration"`` has, counts as its size over ``h``: the jerk spread over one interval).
 
     Raises:
         InputError: a weight that is not a finite number >= 0 (``"planner weight 'omega': ..."``).
@@ -174,7 +184,16 @@ class CostWeights:
     regularisation: float = setting(
         1e-2,
         minimum=0.0,
-        doc="factor on the omega, attitude, smoothness and rest terms (peak objective only)",
+        doc="factor on the omega, attitude, smoothness, rest and jerk terms (peak objective only)",
+    )
+    # The peak objective's plans are bang-bang with singular arcs: many accelerations give the
+    # same peak, and without a price on their changes the solver stops on a chattering one.
+    # Priced in the epigraph stage only (not in the inner stages: see BalanceNLP.update_bounds).
+    jerk: float = setting(
+        JERK_DEFAULT,
+        minimum=0.0,
+        doc="squared jerk of the balance joints on the continuous plan, integral of "
+        "|q_dddot_B|^2, times regularisation (peak objective only)",
     )
 
     def __post_init__(self):
@@ -185,6 +204,12 @@ class CostWeights:
         :data:`balance_opt.optimal.model.RUNNING_WEIGHTS`, under ``objective``."""
         factor = self.regularisation if objective == "peak" else 1.0
         return factor * np.array([self.omega, self.attitude, self.smoothness, self.rest])
+
+    def jerk_weight(self, objective: str = "integral") -> float:
+        """The weight of the jerk term under ``objective``: ``regularisation * jerk`` for the
+        peak, 0 for the integral objective (a least-squares problem: its plans are smooth
+        without it; 0.003 raised the capture task's integral plan's peak by 6 %)."""
+        return self.regularisation * self.jerk if objective == "peak" else 0.0
 
 
 @dataclass(frozen=True)
@@ -240,6 +265,11 @@ class PlannerOptions:
     )
     acceleration_limits: bool = setting(
         True, section="constraints", doc="balance joints within their acceleration limits"
+    )
+    jerk_limits: bool = setting(
+        True,
+        section="constraints",
+        doc="balance joints within their jerk limits (continuous motion; limits.<joint>.jerk)",
     )
     torque_limits: bool = setting(
         False,

@@ -11,6 +11,7 @@ library's option classes themselves, declared once in their stage's ``options`` 
 * ``optimal``: :class:`~balance_opt.optimal.options.PlannerOptions` (its constraints under
   ``optimal.constraints``) and the initial guess;
 * ``simulation``: :class:`~balance_opt.dynamics.options.SimulationOptions`.
+* ``robustness``: :class:`~balance_opt.motion.options.RobustnessOptions`.
 
 The initial momentum of the law and of the simulation comes from ``initial.momentum``: the task
 builder (:mod:`balance_opt.tasks.task`) sets it.
@@ -25,7 +26,7 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.config.typed_config import setting
 from balance_opt.config.typed_reference import json_schema, reference_markdown
 from balance_opt.dynamics.options import SimulationOptions
-from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.optimal.options import GUESSES, PlannerOptions
 
 #: Values of ``robot.backend``: ``auto`` and :data:`balance_opt.model.symbolic.BACKENDS` (not
@@ -231,6 +232,14 @@ class LimitSpec:
     effort: float | None = setting(
         None, unit="N m", exclusive_minimum=0.0, finite=False, doc="largest torque"
     )
+    jerk: float | None = setting(
+        None,
+        unit="rad/s^3",
+        exclusive_minimum=0.0,
+        finite=False,
+        doc="largest jerk, held by the optimal planner on the whole motion (URDF has none: "
+        "unlimited)",
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -296,6 +305,9 @@ class TaskSpec:
     optimal: OptimalSpec = setting(factory=OptimalSpec, doc="the optimal planner")
     simulation: SimulationOptions = setting(
         factory=SimulationOptions, doc="the forward-dynamics simulation"
+    )
+    robustness: RobustnessOptions = setting(
+        factory=RobustnessOptions, doc="drift under model error (perturbed masses and inertias)"
     )
     outputs: OutputsSpec = setting(factory=OutputsSpec, doc="files to write")
 

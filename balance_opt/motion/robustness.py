@@ -1,0 +1,274 @@
+"""Drift under model error: how a plan's base drift spreads when the robot's masses, centres of
+mass and inertias are not what the plan assumed.
+
+A plan is a joint motion. Given the joint motion, the base attitude of any model follows from
+momentum conservation alone (:func:`~balance_opt.motion.replay.replay`), so a Monte Carlo over
+models costs one kinematic replay per model: K seeded models, each link's inertial parameters
+perturbed, the plan's joint motion replayed on each, the drift (peak and final) summarised by
+its median, 95th percentile and largest value. Every method's plan is replayed on the same K
+models, so that methods compare on equal terms.
+
+Perturbations stay physical by construction. A body's inertial parameters are its mass ``m``,
+centre of mass ``c`` and the second moment of its mass about the centre of mass,
+``Sigma = int (r - c)(r - c)^T dm = tr(I_c) / 2 * 1 - I_c`` (``I_c`` its rotational inertia about
+the centre of mass). The pseudo-inertia ``[[Sigma + m c c^T, m c], [m c^T, m]]`` is positive
+definite exactly when ``m > 0`` and ``Sigma`` is positive definite, and then ``I_c = tr(Sigma) 1
+- Sigma`` is positive definite and meets the triangle inequality (its principal moments are sums
+of two of ``Sigma``'s eigenvalues); this is the condition of Wensing, Kim and Slotine. The
+perturbation acts on the log-Cholesky coordinates of these factors (Rucker and Wensing):
+with relative size ``e`` and independent standard normal draws ``z``,
+
+* ``m' = m exp(e z)``;
+* ``Sigma = L L^T`` (Cholesky), ``L'_ii = L_ii exp(e z / 2)``, ``L'_ij = L_ij + (e / 2) z
+  sqrt(L_ii L_jj)`` below the diagonal, ``Sigma' = L' L'^T``: each second moment changes by
+  about ``e``, relatively, and the principal axes turn a little;
+* ``c' = c + e z rho``, ``rho = sqrt(tr(Sigma) / m)`` the body's radius of gyration.
+
+Any draw is a physical body; a zero perturbation returns the model itself.
+
+The replays share their work. Perturbing inertial parameters leaves the kinematics alone: the
+bodies' placements ``X_i(t)`` relative to the base and their velocities ``v_i(t)`` with the base
+held are computed once per plan. For zero momentum, each model's base twist is then
+``v_b = -M_bb^{-1} sum_i X_i^* I_i v_i`` with the composite inertia
+``M_bb = sum_i X_i^* I_i X_i^{-1}`` (``X_i^*`` the force transform to the base), the spatial
+inertias ``I_i`` entering linearly: a few batched products per model, then the replay's own RK4
+steps (:func:`~balance_opt.motion.replay.attitude_from_rates`), so that a zero perturbation gives
+the plan's replay back. With a non-zero momentum each model is replayed in full.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.model.maps import NumericMaps
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
+from balance_opt.motion.replay import attitude_from_rates, replay, rk4_stage_times
+from balance_opt.motion.so3 import rotation_angle
+from balance_opt.motion.trajectories import SampledTrajectory
+from balance_opt.result import BalanceResult
+
+#: Smallest eigenvalue of a body's second moment before it is perturbed, relative to its trace
+#: (or its mass, in kg m^2, for a point mass).
+SIGMA_FLOOR = 1e-12
+#: Percentile reported besides the median and the largest value.
+PERCENTILE = 95.0
+
+
+def second_moment(inertia: pin.Inertia) -> np.ndarray:
+    """``Sigma = tr(I_c) / 2 * 1 - I_c`` (3, 3) [kg m^2]: the second moment of the body's mass
+    about its centre of mass."""
+    I_c = np.asarray(inertia.inertia)
+    return 0.5 * np.trace(I_c) * np.eye(3) - I_c
+
+
+def perturbed_inertia(inertia: pin.Inertia, size: float, rng: np.random.Generator) -> pin.Inertia:
+    """A physical body near ``inertia`` (see the module docstring): mass, centre of mass and
+    second moment perturbed by about ``size``, relatively, in log-Cholesky coordinates."""
+    m, c = float(inertia.mass), np.asarray(inertia.lever, dtype=float)
+    z = rng.standard_normal(10)  # drawn for every body, so that bodies keep their draws
+    if m <= 0.0 or size == 0.0:
+        return pin.Inertia(inertia)
+    # a body on the boundary (a point mass, a thin rod: Sigma singular) gets a vanishing
+    # thickness first, so that Sigma has a Cholesky factor
+    w, V = np.linalg.eigh(second_moment(inertia))
+    sigma = (V * np.maximum(w, SIGMA_FLOOR * max(w.sum(), m))) @ V.T
+    L = np.linalg.cholesky(sigma)
+    d = np.sqrt(np.diag(L))
+    L2 = np.diag(np.diag(L) * np.exp(0.5 * size * z[1:4]))
+    for (i, j), zij in zip(((1, 0), (2, 0), (2, 1)), z[4:7]):
+        L2[i, j] = L[i, j] + 0.5 * size * zij * d[i] * d[j]
+    sigma2 = L2 @ L2.T
+    m2 = m * np.exp(size * z[0])
+    rho = np.sqrt(np.trace(sigma) / m)
+    c2 = c + size * rho * z[7:10]
+    return pin.Inertia(m2, c2, np.trace(sigma2) * np.eye(3) - sigma2)
+
+
+def perturbed_robot(robot: FloatingRobot, size: float, rng: np.random.Generator) -> FloatingRobot:
+    """The robot with every body's inertial parameters perturbed (:func:`perturbed_inertia`):
+    a shallow copy with its own Pinocchio model."""
+    out = copy.copy(robot)
+    out.model = robot.model.copy()
+    for i in range(1, robot.model.njoints):
+        out.model.inertias[i] = perturbed_inertia(robot.model.inertias[i], size, rng)
+    return out
+
+
+@dataclass(frozen=True)
+class DriftSpread:
+    """The drift of one plan over the perturbed models.
+
+    Attributes:
+        nominal_peak, nominal_final: the plan's own largest and final drift [rad].
+        peak, final: largest and final drift on each perturbed model (K,) [rad].
+    """
+
+    nominal_peak: float
+    nominal_final: float
+    peak: np.ndarray
+    final: np.ndarray
+
+    def to_dict(self) -> dict:
+        """Median, 95th percentile and largest value of the peak and final drift [rad]."""
+        out = {
+            "nominal_max_drift_rad": self.nominal_peak,
+            "nominal_final_drift_rad": self.nominal_final,
+        }
+        for name, values in (("max_drift", self.peak), ("final_drift", self.final)):
+            out[name] = {
+                "median_rad": float(np.median(values)),
+                "p95_rad": float(np.percentile(values, PERCENTILE)),
+                "largest_rad": float(np.max(values)),
+            }
+        return out
+
+
+@dataclass(frozen=True)
+class RobustnessResult:
+    """Drift under model error of one or more plans (the same perturbed models for all).
+
+    Attributes:
+        options: the study's settings.
+        methods: per method, its :class:`DriftSpread`.
+        attitude_p95: per method, the 95th percentile over the models of the attitude error
+            ``|log R(t)|`` at each of the plan's samples (T,) [rad] (a band for figures).
+        wall_time_s: time of the study [s].
+    """
+
+    options: RobustnessOptions
+    methods: dict[str, DriftSpread]
+    attitude_p95: dict[str, np.ndarray] = field(repr=False)
+    wall_time_s: float
+
+    def to_dict(self) -> dict:
+        """Plain data (for ``metrics.json``)."""
+        return {
+            "samples": self.options.samples,
+            "perturbation": self.options.perturbation,
+            "seed": self.options.seed,
+            "methods": {k: v.to_dict() for k, v in self.methods.items()},
+            "wall_time_s": self.wall_time_s,
+        }
+
+
+def drift_under_model_error(
+    robot: FloatingRobot,
+    plans: dict[str, BalanceResult],
+    options: RobustnessOptions | None = None,
+    h0=None,
+) -> RobustnessResult:
+    """Replay every plan's joint motion on ``options.samples`` perturbed models.
+
+    Args:
+        robot: the robot the plans were made for.
+        plans: plans by method name.
+        options: the study's settings.
+        h0: the system's momentum (world frame, 3 angular or 6 values), as planned.
+
+    Returns:
+        The drift spread of each plan.
+    """
+    opts = options or RobustnessOptions()
+    start = time.perf_counter()
+    rng = np.random.default_rng(opts.seed)
+    models = [perturbed_robot(robot, opts.perturbation, rng) for _ in range(opts.samples)]
+    methods, bands = {}, {}
+    for name, plan in plans.items():
+        mission = SampledTrajectory.from_result(plan, "mission")
+        balance = SampledTrajectory.from_result(plan, "balance")
+        integration = _integration_of(plan)
+        angles = np.empty((opts.samples, plan.t.size))
+        if integration.method == "rk4" and (h0 is None or not np.any(h0)):
+            times = rk4_stage_times(plan.t, integration)[0]
+            omega = _Kinematics(robot, mission, balance, times).base_rates(models)
+            angles[:] = rotation_angle(attitude_from_rates(omega, plan.t, integration))
+        else:  # the rate depends on the attitude: every model replayed in full
+            for k, model in enumerate(models):
+                replayed = replay(
+                    model, mission, balance, h0=h0, integration=integration, t_eval=plan.t
+                )
+                angles[k] = replayed.angle
+        methods[name] = DriftSpread(
+            plan.max_drift, plan.final_drift, angles.max(axis=1), angles[:, -1]
+        )
+        bands[name] = np.percentile(angles, PERCENTILE, axis=0)
+    return RobustnessResult(opts, methods, bands, time.perf_counter() - start)
+
+
+def _inertia_basis() -> np.ndarray:
+    """``B`` (10, 6, 6) with a spatial inertia matrix ``sum_p pi_p B_p`` for Pinocchio's
+    dynamic parameters ``pi = (m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz)`` (about the frame's
+    origin): ``[[m 1, -[m c]_x], [[m c]_x, I_o]]``."""
+    B = np.zeros((10, 6, 6))
+    B[0, :3, :3] = np.eye(3)
+    for p, axis in enumerate(np.eye(3)):
+        cross = pin.skew(axis)
+        B[1 + p, :3, 3:], B[1 + p, 3:, :3] = -cross, cross
+    for p, (i, j) in enumerate(((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))):
+        B[4 + p, 3 + i, 3 + j] = B[4 + p, 3 + j, 3 + i] = 1.0
+    return B
+
+
+class _Kinematics:
+    """What the momentum of any model along a joint motion is made of, at given times: the
+    composite inertia and the joints' momentum at the base, linear in every body's dynamic
+    parameters (see the module docstring)."""
+
+    def __init__(self, robot: FloatingRobot, mission, balance, times: np.ndarray):
+        maps = NumericMaps(robot)
+        q, q_dot = np.empty((times.size, robot.n)), np.empty((times.size, robot.n))
+        for sampler, cols in ((mission, robot.mission_indices), (balance, robot.balance_indices)):
+            samples = sampler.sample(times)
+            q[:, cols], q_dot[:, cols] = samples[0], samples[1]
+        qp, vp = maps.configurations(q), maps.velocities(q_dot)
+        model, data = robot.model, robot.model.createData()
+        nb = model.njoints - 1
+        force = np.empty((times.size, nb, 6, 6))  # X_i^*: body forces to the base
+        velocity = np.empty((times.size, nb, 6))  # v_i, body frame, base held
+        for k in range(times.size):
+            pin.forwardKinematics(model, data, qp[k], vp[k])
+            for i in range(nb):
+                force[k, i] = data.oMi[i + 1].toDualActionMatrix()
+                velocity[k, i] = data.v[i + 1].vector
+        FB = np.einsum("tiab,pbc->tipac", force, _inertia_basis())
+        T = times.size
+        # (T, 6, 6, nb * 10) and (T, 6, nb * 10): X^* B_p X^*T and X^* B_p v per body, parameter
+        composite = FB @ np.swapaxes(force, -1, -2)[:, :, None]
+        self.composite = np.moveaxis(composite, (1, 2), (3, 4)).reshape(T, 6, 6, nb * 10)
+        momentum = (FB @ velocity[:, :, None, :, None])[..., 0]
+        self.momentum = np.moveaxis(momentum, (1, 2), (2, 3)).reshape(T, 6, nb * 10)
+        self.n_bodies = nb
+
+    def base_rates(self, robots) -> np.ndarray:
+        """The base angular velocity (K, T, 3) [rad/s, base frame] of each robot at zero
+        momentum."""
+        params = np.stack(
+            [
+                np.concatenate(
+                    [r.model.inertias[i + 1].toDynamicParameters() for i in range(self.n_bodies)]
+                )
+                for r in robots
+            ],
+            axis=-1,
+        )  # (nb * 10, K)
+        composite = np.moveaxis(self.composite @ params, -1, 0)  # (K, T, 6, 6)
+        momentum = np.moveaxis(self.momentum @ params, -1, 0)  # (K, T, 6)
+        twist = -np.linalg.solve(composite, momentum[..., None])[..., 0]
+        return twist[..., 3:]
+
+
+def _integration_of(plan: BalanceResult) -> IntegrationOptions:
+    """Fixed-step RK4: with the plan's own step when it was replayed so (the optimal planner's
+    plans: a zero perturbation then gives the plan back exactly), else one step per sample
+    interval (the error-controlled integration of the analytic law would cost a full replay
+    per model; RK4 on its 10 ms samples agrees with it to 1e-11 rad on the capture task)."""
+    info = plan.info.get("integration") or {}
+    if info.get("method") == "rk4" and info.get("step"):
+        return IntegrationOptions(method="rk4", step=float(info["step"]))
+    return IntegrationOptions(method="rk4", step=float(np.diff(plan.t).max()))

@@ -1,0 +1,140 @@
+"""Smoothness figures of merit of a sampled joint motion: largest jerk, acceleration reversals,
+largest torque rate, per joint.
+
+A plan can meet every position, velocity and acceleration limit and still be hard on the robot:
+an acceleration that swings from one limit to the other and back many times (bang-bang chatter)
+is a torque that does the same, on the joints' gearboxes and on the base. These numbers say how
+much of that a motion has. Everything is computed from samples (``t``, accelerations, torques):
+a pure function, the same for any method's result.
+
+Definitions (per joint):
+
+* **largest jerk** ``max |q_dddot|`` [rad/s^3]: finite differences of the sampled accelerations,
+  ``|a_{i+1} - a_i| / (t_{i+1} - t_i)``: the mean jerk over each sample interval, so never more
+  than the true largest jerk of the continuous motion, and equal to it as the samples get denser.
+* **acceleration reversals**: how many times the acceleration turns back, counted with
+  hysteresis. The acceleration's running extremum is followed; a reversal is counted when the
+  acceleration moves back from it by more than ``threshold``, and that point starts the next
+  swing. ``threshold = REVERSAL_FRACTION * scale``, ``scale`` the joint's acceleration limit when
+  it is finite, else the joint's largest ``|q_ddot|`` over the motion. Ripples smaller than the
+  threshold (sampling, the solver's tolerance) are not counted; a bang-bang switch between the
+  limits always is. A smooth rest-to-rest move (the acceleration up, down, back to zero) has 2.
+* **largest torque rate** ``max |tau_dot|`` [N m/s]: finite differences of the sampled torques
+  (when torques are given).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Fraction of a joint's acceleration scale (its limit, else its largest acceleration) by which
+#: the acceleration must move back from an extremum to count as a reversal. A tenth ignores the
+#: solver's ripples on a plan's acceleration while any swing of a fifth of the limit's range
+#: counts.
+REVERSAL_FRACTION = 0.1
+
+
+@dataclass(frozen=True)
+class Smoothness:
+    """Smoothness figures of merit of a motion, per joint (see the module docstring).
+
+    Attributes:
+        joints: joint names.
+        max_jerk: largest jerk per joint [rad/s^3].
+        reversals: acceleration reversals per joint.
+        max_torque_rate: largest torque rate per joint [N m/s], or ``None`` without torques.
+        reversal_threshold: the hysteresis used per joint [rad/s^2].
+    """
+
+    joints: tuple[str, ...]
+    max_jerk: np.ndarray
+    reversals: np.ndarray
+    max_torque_rate: np.ndarray | None
+    reversal_threshold: np.ndarray
+
+    def to_dict(self) -> dict:
+        """Plain data, per joint name (for ``metrics.json``)."""
+        out = {}
+        for i, joint in enumerate(self.joints):
+            entry = {
+                "max_jerk_rad_s3": float(self.max_jerk[i]),
+                "acceleration_reversals": int(self.reversals[i]),
+                "reversal_threshold_rad_s2": float(self.reversal_threshold[i]),
+            }
+            if self.max_torque_rate is not None:
+                entry["max_torque_rate_Nm_s"] = float(self.max_torque_rate[i])
+            out[joint] = entry
+        return out
+
+
+def count_reversals(values: np.ndarray, threshold: float) -> int:
+    """Turns of a sampled signal (T,) that move back more than ``threshold`` from the running
+    extremum (hysteresis; see the module docstring)."""
+    values = np.asarray(values, dtype=float)
+    if values.size < 2 or not threshold > 0:
+        return 0
+    count, direction = 0, 0  # +1 rising, -1 falling, 0 until the first swing
+    low = high = extremum = values[0]
+    for x in values[1:]:
+        if direction == 0:
+            low, high = min(low, x), max(high, x)
+            if x - low > threshold:
+                direction, extremum = 1, x
+            elif high - x > threshold:
+                direction, extremum = -1, x
+        elif direction * (x - extremum) > 0:  # further the same way: a new extremum
+            extremum = x
+        elif direction * (extremum - x) > threshold:  # back past the hysteresis
+            count, direction, extremum = count + 1, -direction, x
+    return count
+
+
+def smoothness(
+    t,
+    q_ddot,
+    joints,
+    acceleration_limit=None,
+    tau=None,
+    fraction: float = REVERSAL_FRACTION,
+) -> Smoothness:
+    """Smoothness figures of merit of a sampled motion (see the module docstring).
+
+    Args:
+        t: sample times (T,) [s], increasing.
+        q_ddot: joint accelerations (T, n) [rad/s^2].
+        joints: joint names (n,).
+        acceleration_limit: per joint (n,) [rad/s^2] (``inf`` or ``None``: no limit).
+        tau: joint torques (T, n) [N m], optional.
+        fraction: the reversal hysteresis as a fraction of the acceleration scale.
+
+    Returns:
+        The figures per joint.
+
+    Raises:
+        ValueError: arrays of mismatched shapes, or fewer than two samples.
+    """
+    t = np.asarray(t, dtype=float).ravel()
+    a = np.asarray(q_ddot, dtype=float).reshape(t.size, -1)
+    n = a.shape[1]
+    if t.size < 2 or len(joints) != n:
+        raise ValueError(
+            f"smoothness needs at least 2 samples and a name per joint: {t.size} samples, "
+            f"{n} joints, {len(joints)} names"
+        )
+    dt = np.diff(t)[:, None]
+    limit = np.full(n, np.inf) if acceleration_limit is None else np.asarray(acceleration_limit)
+    scale = np.where(np.isfinite(limit), limit, np.abs(a).max(axis=0))
+    threshold = fraction * scale
+    rate = None
+    if tau is not None:
+        tau = np.asarray(tau, dtype=float).reshape(t.size, n)
+        rate = np.abs(np.diff(tau, axis=0) / dt).max(axis=0)
+    return Smoothness(
+        joints=tuple(joints),
+        max_jerk=np.abs(np.diff(a, axis=0) / dt).max(axis=0),
+        reversals=np.array([count_reversals(a[:, j], threshold[j]) for j in range(n)]),
+        max_torque_rate=rate,
+        reversal_threshold=threshold,
+    )
