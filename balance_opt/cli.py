@@ -186,7 +186,7 @@ def _cmd_inspect(args) -> int:
     return EXIT_OK
 
 
-def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
+def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: str = "plan") -> int:
     from balance_opt.app.pipeline import run_task
     from balance_opt.tasks.task import load_task
 
@@ -201,6 +201,7 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
             simulate=simulate,
             output_dir=folder,
             solver_options=solver_options,
+            robustness=task.spec.robustness.runs_in(command),
         )
     log.info(
         "wrote %d files to %s in %.1f s",
@@ -216,6 +217,8 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
             res.final_drift,
             len(res.violations),
         )
+        for line in _more_summary(run.metrics["methods"].get(name, {})):
+            log.info("  %-13s %s", "", line)
     if run.report is not None:
         log.info("report: %s", run.report)
     if run.failures:
@@ -229,6 +232,24 @@ def _methods(args) -> tuple[str, ...]:
     return ("analytic", "optimal") if args.method == "both" else (args.method,)
 
 
+def _more_summary(metrics: dict) -> list[str]:
+    """The smoothness and model-error lines of one method's summary, from its metrics."""
+    lines = []
+    smooth = metrics.get("smoothness") or {}
+    if smooth and any(v["acceleration_reversals"] for v in smooth.values()):
+        reversals = "/".join(str(v["acceleration_reversals"]) for v in smooth.values())
+        jerk = max(v["max_jerk_rad_s3"] for v in smooth.values())
+        lines.append(f"acceleration reversals {reversals}, largest jerk {jerk:.3g} rad/s^3")
+    spread = metrics.get("robustness")
+    if spread:
+        peak, final = spread["max_drift"], spread["final_drift"]
+        lines.append(
+            f"under model error: max drift {peak['median_rad']:.3g} (median) / "
+            f"{peak['p95_rad']:.3g} (95 %) rad, final {final['p95_rad']:.3g} (95 %) rad"
+        )
+    return lines
+
+
 def _cmd_plan(args) -> int:
     return _run_task_command(args, _methods(args), simulate=args.simulate)
 
@@ -238,7 +259,9 @@ def _cmd_simulate(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    return _run_task_command(args, ("analytic", "optimal"), simulate=not args.no_simulate)
+    return _run_task_command(
+        args, ("analytic", "optimal"), simulate=not args.no_simulate, command="compare"
+    )
 
 
 def _cmd_paper_figures(args) -> int:

@@ -35,6 +35,8 @@ PLAN_FILES = {
 }
 FIGURES = {"attitude_plans.png", "balance_joints.png"}
 SIMULATION_FIGURES = {"attitude_simulated.png", "reaction_torque.png"}
+#: ``compare`` studies the drift under model error by default, ``plan`` does not.
+MODEL_ERROR_FIGURE = {"attitude_model_error.png"}
 REPORT_FILES = {"metrics.json", "report.html", "scene.html"}
 
 
@@ -192,6 +194,10 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     # the optimal plan keeps the base stiller than the mission arm alone would leave it
     assert optimal["max_drift_rad"] < ref["max_drift_rad"]
     assert optimal["final_drift_rad"] < ref["final_drift_rad"]
+    # smoothness figures of every balance joint; no model-error study in `plan` by default
+    assert set(optimal["smoothness"]) == set(joints[3:])
+    assert all(v["acceleration_reversals"] >= 0 for v in optimal["smoothness"].values())
+    assert "robustness" not in m and "robustness" not in optimal
     for method in (ref, analytic, optimal):  # relative; finite-difference floor ~1e-8 at 10 ms
         assert method["max_momentum_residual"] < 1e-6
         sim = method["simulation"]
@@ -210,7 +216,7 @@ def test_compare_baxter(tmp_path, capsys):
     out = tmp_path / "bax"
     assert main(["compare", str(task), "-o", str(out)]) == 0
     files = {p.name for p in out.iterdir()}
-    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | REPORT_FILES
+    assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | REPORT_FILES | MODEL_ERROR_FIGURE
     _check_csv(
         out / "analytic.csv",
         [
@@ -230,6 +236,10 @@ def test_compare_baxter(tmp_path, capsys):
     assert optimal["limit_violations"] == 0
     assert optimal["max_drift_rad"] < 0.5 * ref["max_drift_rad"]
     assert "left_s0" in optimal["peak_joint_rates_rad_s"]
+    # compare studies the drift under model error: the exact law's zero drift does not survive it
+    assert m["robustness"]["samples"] == 50 and m["robustness"]["perturbation"] == 0.1
+    spread = analytic["robustness"]["max_drift"]
+    assert analytic["max_drift_rad"] < spread["median_rad"] <= spread["p95_rad"] <= spread["largest_rad"]
 
 
 # ----------------------------------------------------------------------------------- bad input

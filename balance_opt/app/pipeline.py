@@ -213,6 +213,7 @@ def run_task(
     force: bool = False,
     plans: Mapping[str, BalanceResult] | None = None,
     simulations: Mapping[str, SimulationResult] | None = None,
+    robustness: bool | None = None,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -234,6 +235,9 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
+        robustness: replay every plan on perturbed models (the task's ``robustness``
+            settings, :mod:`balance_opt.motion.robustness`); ``None``: as the task's
+            ``robustness.enabled`` says (off when unset, as in ``balance-opt plan``).
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
@@ -250,7 +254,9 @@ def run_task(
     methods = _checked_methods(task, methods)
     given = _checked_plans(task, methods, plans or {})
     given_sims = dict(simulations or {})
-    args = (task, methods, simulate, solver_options, models, given, given_sims)
+    if robustness is None:
+        robustness = task.spec.robustness.runs_in("plan")
+    args = (task, methods, simulate, solver_options, models, given, given_sims, robustness)
     if output_dir is None:
         with handling_signals():
             return _compute(*args)
@@ -271,9 +277,11 @@ def _compute(
     models,
     given: dict,
     given_sims: dict,
+    robustness: bool = False,
 ) -> TaskRun:
-    """The plans (the reference first) and, with ``simulate``, their simulations, in this
-    process and in this order; the ones given are taken as they are."""
+    """The plans (the reference first), with ``robustness`` their drift under model error, and
+    with ``simulate`` their simulations, in this process and in this order; the ones given are
+    taken as they are."""
     run = TaskRun(task)
     models = models if models is not None else ModelCache()
     for method in (REFERENCE, *methods):
@@ -284,6 +292,8 @@ def _compute(
                 run.failures[method] = f"given plan: solver status {given[method].status}"
         else:
             _plan_into(run, method, solver_options, models)
+    if robustness:
+        _model_error_into(run)
     if simulate:
         for name in list(run.results):
             if name in given_sims:
@@ -291,6 +301,24 @@ def _compute(
             else:
                 _simulate_into(run, name)
     return run
+
+
+def _model_error_into(run: TaskRun) -> None:
+    """The drift of every plan replayed on perturbed models (not across a capture, where the
+    robot changes mid-motion: the study is left out with a note)."""
+    from balance_opt.motion.robustness import drift_under_model_error
+
+    task = run.task
+    if task.target is not None:
+        log.info("%s: drift under model error not computed across a capture", task.name)
+        return
+    options = task.spec.robustness
+    log.info(
+        "%s: drift under %.0f %% model error (%d models) ...",
+        task.name, 100 * options.perturbation, options.samples,
+    )
+    run.robustness = drift_under_model_error(task.robot, run.results, options, task.h0)
+    log.info("%s: drift under model error: done in %.2f s", task.name, run.robustness.wall_time_s)
 
 
 def _checked_plans(

@@ -28,6 +28,12 @@ SCENE_FILE = "scene.html"
 #: Figures of a run: key -> (file name without suffix, caption). The figures carry no title;
 #: the report prints these captions under them.
 FIGURES = {
+    "model_error": (
+        "attitude_model_error",
+        "Base rotation of each plan as planned (lines) and its 95th percentile when the plan's "
+        "joint motion is replayed on robots whose masses, centres of mass and inertias are "
+        "perturbed (shaded up to the dotted edge)",
+    ),
     "attitude": (
         "attitude_plans",
         "Base attitude of each plan (momentum model), with the mission arm alone for reference",
@@ -64,6 +70,8 @@ class TaskRun:
         metrics: the content of ``metrics.json``.
         files: every file written.
         report: the HTML report, if written.
+        robustness: the plans' drift under model error
+            (:class:`~balance_opt.motion.robustness.RobustnessResult`), if studied.
     """
 
     task: Task
@@ -73,6 +81,7 @@ class TaskRun:
     metrics: dict[str, Any] = field(default_factory=dict)
     files: list[Path] = field(default_factory=list)
     report: Path | None = None
+    robustness: Any = None
 
     @property
     def ok(self) -> bool:
@@ -121,7 +130,9 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         for name, res in run.results.items()
     }
     files = _write_trajectories(run, output_dir, torques)
-    run.metrics = run_metrics(run.task, run.results, run.simulations, run.failures, torques)
+    run.metrics = run_metrics(
+        run.task, run.results, run.simulations, run.failures, torques, run.robustness
+    )
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []
     if out.plots or out.report:
@@ -232,6 +243,19 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     figures = []
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
     draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
+    if run.robustness is not None:
+        from balance_opt.report.plots import model_error_figure
+
+        stem, caption = FIGURES["model_error"]
+        _, paths = model_error_figure(
+            {**plans, **_only(run.results, REFERENCE)},
+            run.robustness.attitude_p95,
+            output_dir / stem,
+            perturbation=run.robustness.options.perturbation,
+            formats=("png",),
+            dpi=SCREEN_DPI,
+        )
+        figures.append((caption, paths[0]))
     if plans:
         stem, caption = FIGURES["joints"]
         path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI)

@@ -296,6 +296,21 @@ def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def _smoothness_metrics(result: BalanceResult, robot: FloatingRobot, torques) -> dict:
+    """Largest jerk, acceleration reversals and largest torque rate of each balance joint
+    (:func:`~balance_opt.motion.smoothness.smoothness`)."""
+    from balance_opt.motion.smoothness import smoothness
+
+    cols = [robot.joint_names.index(j) for j in result.balance_joints]
+    tau = None
+    if torques is not None:  # columns: mission joints, then balance joints
+        tau = np.asarray(torques)[:, len(result.mission_joints):]
+    figures = smoothness(
+        result.t, result.q_ddot_B, result.balance_joints, robot.limits.acceleration[cols], tau
+    )
+    return figures.to_dict()
+
+
 def method_metrics(
     result: BalanceResult,
     robot: FloatingRobot,
@@ -336,6 +351,7 @@ def method_metrics(
     out["effort"] = effort_metrics(result, robot, h0, torques)
     out["violations"] = [str(v) for v in result.violations] + out["effort"]["violations"]
     out["limit_violations"] = len(out["violations"])
+    out["smoothness"] = _smoothness_metrics(result, robot, torques)
     out["solver"] = solver_metrics(result.info)
     out["details"] = {k: v for k, v in result.info.items() if k not in BULKY_INFO_KEYS}
     if simulation is not None:
@@ -361,28 +377,36 @@ def run_metrics(
     simulations: Mapping[str, Any] | None = None,
     failures: Mapping[str, str] | None = None,
     torques: Mapping[str, np.ndarray] | None = None,
+    robustness=None,
 ) -> dict[str, Any]:
     """The content of ``metrics.json``: the task (file, name, SHA-256), the versions, and
     :func:`method_metrics` of each result by method name (with its joint ``torques`` by method
     name when the caller has them); ``failures`` lists methods whose solver failed (their best
-    iterate is among ``results``)."""
+    iterate is among ``results``). With the plans' drift under model error (a
+    :class:`~balance_opt.motion.robustness.RobustnessResult`), each method's ``robustness``
+    holds its spread and the top-level ``robustness`` the study's settings."""
     from balance_opt.report.capture_metrics import capture_metrics
 
     simulations, torques = simulations or {}, torques or {}
     capture = capture_metrics(task, results, simulations)  # issue 16; None without a capture
+    methods = {
+        name: method_metrics(r, task.robot, simulations.get(name), task.h0, torques.get(name))
+        for name, r in results.items()
+    }
+    study = None
+    if robustness is not None:
+        study = robustness.to_dict()
+        for name, spread in study.pop("methods").items():
+            methods[name]["robustness"] = spread
     return to_json(
         {
             "format": METRICS_FORMAT,
             "task": {"file": task.source, "name": task.name, "sha256": task.sha256},
             "versions": software_versions(),
-            "methods": {
-                name: method_metrics(
-                    r, task.robot, simulations.get(name), task.h0, torques.get(name)
-                )
-                for name, r in results.items()
-            },
+            "methods": methods,
             "failures": dict(failures or {}),
             **({"capture": capture} if capture is not None else {}),
+            **({"robustness": study} if study is not None else {}),
         }
     )
 

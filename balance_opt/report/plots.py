@@ -120,6 +120,48 @@ def attitude_figure(
         return fig, _finish(fig, stem, formats, dpi)
 
 
+def model_error_figure(
+    results: Mapping[str, Any],
+    bands: Mapping[str, np.ndarray],
+    stem: str | Path | None = None,
+    *,
+    perturbation: float,
+    formats: Sequence[str] = FORMATS,
+    dpi: int = style.PRINT_DPI,
+) -> tuple[Any, list[Path]]:
+    """The base's rotation from its start [deg] of each plan as planned (the line) and the 95th
+    percentile over perturbed models (the band up to the dotted edge), one column wide.
+
+    Args:
+        results: ``{name: result}`` with ``t`` and ``angle``.
+        bands: ``{name: p95 angle at result.t}`` [rad] (a plan without one has no band).
+        stem: output path without suffix; ``None`` writes nothing.
+        perturbation: the relative model error the bands are for (named in the legend).
+        formats: file formats to write.
+        dpi: resolution of the PNG.
+    """
+    with style.styled("column"):
+        fig = style.figure("column", 2.4)
+        ax = fig.subplots(1, 1)
+        for name, res in results.items():
+            kwargs = style.method_style(name)
+            ax.plot(res.t, np.degrees(res.angle), **kwargs)
+            if name in bands:
+                band = np.degrees(bands[name])
+                colour = kwargs.get("color")
+                ax.fill_between(res.t, np.degrees(res.angle), band, color=colour, alpha=0.18,
+                                linewidth=0)
+                ax.plot(res.t, band, color=colour, linestyle=":", linewidth=0.9)
+        handles = [line for line in ax.get_lines() if line.get_linestyle() != ":"]
+        handles += ax.plot([], [], color="0.3", linestyle=":", linewidth=0.9,
+                           label=f"95th percentile, {perturbation:.0%} model error")
+        _time_axes([ax], max(float(r.t[-1]) for r in results.values()), ["rotation [deg]"])
+        ncol = legend_columns([h.get_label() for h in handles], "column")
+        anchor = arrange(fig, np.array([[ax]]), "column", legend_rows=-(-len(handles) // ncol))
+        legend_above(fig, handles, "column", anchor, ncol)
+        return fig, _finish(fig, stem, formats, dpi)
+
+
 def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
     """(wrench, plot kwargs) of the sum, the mission arm and the balance arm(s) of one plan."""
     balance = sum(w for arm, w in sim.arm_wrenches.items() if arm != "mission")
