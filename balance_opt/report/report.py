@@ -158,6 +158,18 @@ def _effort_margin(path: str) -> Callable[[Mapping], Cell]:
     return cell
 
 
+def _per_joint(path: str, key: str, fmt: str = "{:.3g}") -> Callable[[Mapping], Cell]:
+    """One figure of every balance joint, in joint order, joined by slashes."""
+
+    def cell(m):
+        values = _get(m, path)
+        if not values:
+            return None
+        return " / ".join(fmt.format(v[key]) for v in values.values() if key in v) or None, ""
+
+    return cell
+
+
 def _count(path: str) -> Callable[[Mapping], Cell]:
     def cell(m):
         value = _get(m, path)
@@ -187,6 +199,9 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
         _effort_margin("effort.balance_min_relative_margin"),
     ),
     ("smallest singular value of J_wB", _plain("min_sigma_min", SIGMA_TOLERANCE)),
+    ("acceleration reversals, per joint", _per_joint("smoothness", "acceleration_reversals", "{}")),
+    ("largest jerk, per joint [rad/s^3]", _per_joint("smoothness", "max_jerk_rad_s3")),
+    ("largest torque rate, per joint [N m/s]", _per_joint("smoothness", "max_torque_rate_Nm_s")),
     ("All arms", None),
     ("effort limit margin (smallest, of the limit)", _effort_margin("effort.min_relative_margin")),
     ("limit violations (position, rate, acceleration, effort)", _count("limit_violations")),
@@ -194,6 +209,10 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
     ("status", _plain("solver.status")),
     ("iterations", _plain("solver.iterations")),
     ("solve time [s]", _plain("solver.solve_time_s")),
+    ("Under model error (perturbed masses, centres of mass, inertias)", None),
+    ("max attitude drift, median", _angle("robustness.max_drift.median_rad")),
+    ("max attitude drift, 95th percentile", _angle("robustness.max_drift.p95_rad")),
+    ("final attitude drift, 95th percentile", _angle("robustness.final_drift.p95_rad")),
     ("Forward-dynamics simulation", None),
     ("max attitude drift", _angle("simulation.max_drift_rad")),
     ("final attitude drift", _angle("simulation.final_drift_rad")),
