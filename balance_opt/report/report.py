@@ -162,10 +162,9 @@ def _per_joint(path: str, key: str, fmt: str = "{:.3g}") -> Callable[[Mapping], 
     """One figure of every balance joint, in joint order, joined by slashes."""
 
     def cell(m):
-        values = _get(m, path)
-        if not values:
-            return None
-        return " / ".join(fmt.format(v[key]) for v in values.values() if key in v) or None, ""
+        values = _get(m, path) or {}
+        text = " / ".join(fmt.format(v[key]) for v in values.values() if key in v)
+        return (text, "") if text else None
 
     return cell
 
