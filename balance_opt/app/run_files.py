@@ -184,11 +184,11 @@ def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
 def write_run_scene(run: TaskRun, path: Path) -> Path:
     """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
     ``path``."""
-    from balance_opt.report.plots import plan_label
+    from balance_opt.report.style import method_label
     from balance_opt.report.scene import write_scene
 
     labels = {
-        name: plan_label(name) + (" (FAILED)" if name in run.failures else "")
+        name: method_label(name) + (" (FAILED)" if name in run.failures else "")
         for name in run.results
     }
     with _timed("3D scene"):
