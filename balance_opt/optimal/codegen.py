@@ -1,31 +1,19 @@
 """Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes.
 
-:func:`compile_functions` generates the C code of a list of CasADi functions and compiles it,
-with the system C compiler, into one shared library that is loaded back as ``casadi.external``.
-The library is named by a digest: the caller's (the planner model's content key, so that a
-warm run finds its library without building any expression) or else the hash of the C code;
-either way mixed with the compiler, its flags, CasADi's version and the platform. It is kept in
-the cache folder (:func:`default_cache_dir`), so a robot's kernels are compiled once per machine.
+:func:`compile_functions` generates the C code of CasADi functions and compiles it with the
+system C compiler into one shared library, loaded back as ``casadi.external``. The library is
+named by a digest (the planner model's content key, so that a warm run finds it without
+building any expression, or else the hash of the C code) mixed with the compiler, its flags,
+CasADi's version and the platform, and kept in the cache folder: compiled once per machine.
 
-Two ways to compile:
+``background=True`` (the planner's default) compiles in a low-priority child process while this
+process plans on CasADi's virtual machine, so that the first plan of a new robot does not wait
+for the compiler; the planning call waits for the child at its end (:func:`finish`) or stops it,
+and it is stopped when this process exits: no compiler outlives the command.
 
-* ``background=True`` (the planner's default): the C code is written beside the library and a
-  low-priority child process (``python -m balance_opt.optimal.codegen``) compiles it, while
-  this process goes on with the functions on CasADi's virtual machine; the next run loads the
-  library. The child is this process's: the planning call that started it waits for it at its
-  end (:func:`finish`, at most :data:`COMPILE_WAIT`, saying so) or stops it, and it is stopped
-  when this process exits, so no compiler outlives the command. The first plan of a robot
-  therefore does not wait for the compiler before it is solved (Talos, 14 arm joints: about
-  2.5 min of compiler time).
-* ``background=False``: compile now and wait.
-
-Loading a damaged library would crash the process (a truncated one: bus error), so the cache's
-rules apply (:mod:`balance_opt.cache`): a file lock makes processes wait for one compilation (a
-process that finds a compilation under way does not wait: it uses the virtual machine); the
-library is built in a temporary folder and renamed into place; its SHA-256 and size are recorded
-beside it and checked before every load, and a library that does not match is deleted and
-rebuilt. After a build the cache is trimmed to its size bound
-(:func:`balance_opt.cache_admin.enforce_limit`).
+Loading a damaged library would crash the process, so the cache's rules apply
+(:mod:`balance_opt.cache`): one compilation at a time under a file lock, built in a temporary
+folder and renamed into place, its SHA-256 and size recorded and checked before every load.
 """
 
 from __future__ import annotations
@@ -60,10 +48,8 @@ from balance_opt.cache_admin import enforce_limit
 
 log = logging.getLogger(__name__)
 
-#: C compiler flags of the compiled kernels. -O1: on the paper robot the kernels run as fast as
-#: with -O2 or -O3 (the differences measured were within the timing noise) and compile faster
-#: than with -O2 (19 s against 24 s, gcc); no -march=native or -ffast-math, so that results do
-#: not depend on the machine.
+#: C compiler flags of the kernels: -O1 runs them as fast as -O2 and compiles faster; no
+#: -march=native or -ffast-math, so that results do not depend on the machine.
 COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
 #: Niceness of the background compiler: the plan being solved meanwhile keeps the CPU.
 BACKGROUND_NICENESS = 10
