@@ -103,7 +103,8 @@ def atomic_write_text(path: Path, text: str) -> None:
         raise
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this host."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -121,7 +122,7 @@ def is_stale(path: Path, now: float | None = None) -> bool:
         return False
     if match is not None and match["host"] == socket.gethostname():
         pid = int(match["pid"])
-        return pid != os.getpid() and not _pid_alive(pid)
+        return pid != os.getpid() and not pid_alive(pid)
     try:
         age = (time.time() if now is None else now) - path.lstat().st_mtime
     except OSError:
