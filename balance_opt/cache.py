@@ -66,8 +66,7 @@ def file_lock(path: Path, blocking: bool = True) -> Iterator[None]:
 
 # ----------------------------------------------------------------------------- temporary builds
 #: Age [s] after which a temporary build whose process cannot be checked (another host, or a
-#: name without a process id) is deemed abandoned. Longer than the slowest build measured (the
-#: Talos kernels: 712 s on a loaded machine).
+#: name without a process id) is deemed abandoned: longer than the slowest build.
 STALE_SECONDS = 3600.0
 _TMP_MARK = ".tmp-"
 _TMP_NAME = re.compile(r"\.tmp-(?P<host>.+)-(?P<pid>\d+)-[^-]*$")

@@ -57,7 +57,7 @@ log = logging.getLogger(__name__)
 #: Relative momentum residual above which a simulation warns that its step is too long.
 MOMENTUM_WARNING = 1e-6
 #: Relative momentum residual above which a simulation has diverged: its motion is no longer the
-#: robot's (capture task, rk4: 4e-8 with a 10 ms step, 0.99 with a 20 s step).
+#: robot's.
 MOMENTUM_DIVERGED = 1e-3
 #: Momentum scale below which the residual is reported in absolute terms [N s, N m s].
 MOMENTUM_SCALE_FLOOR = 1e-12
