@@ -66,8 +66,7 @@ def file_lock(path: Path, blocking: bool = True) -> Iterator[None]:
 
 # ----------------------------------------------------------------------------- temporary builds
 #: Age [s] after which a temporary build whose process cannot be checked (another host, or a
-#: name without a process id) is deemed abandoned. Longer than the slowest build measured (the
-#: Talos kernels: 712 s on a loaded machine).
+#: name without a process id) is deemed abandoned: longer than the slowest build.
 STALE_SECONDS = 3600.0
 _TMP_MARK = ".tmp-"
 _TMP_NAME = re.compile(r"\.tmp-(?P<host>.+)-(?P<pid>\d+)-[^-]*$")
@@ -103,7 +102,8 @@ def atomic_write_text(path: Path, text: str) -> None:
         raise
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this host."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -121,7 +121,7 @@ def is_stale(path: Path, now: float | None = None) -> bool:
         return False
     if match is not None and match["host"] == socket.gethostname():
         pid = int(match["pid"])
-        return pid != os.getpid() and not _pid_alive(pid)
+        return pid != os.getpid() and not pid_alive(pid)
     try:
         age = (time.time() if now is None else now) - path.lstat().st_mtime
     except OSError:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import re
+from math import comb
 
 import casadi as cs
 import numpy as np
@@ -50,7 +51,6 @@ from balance_opt.optimal.codegen import compile_functions
 from balance_opt.optimal.collocation import (
     CollocatedTrajectory,
     Transcription,
-    bernstein_basis,
     bernstein_value,
     joint_chain_coefficients,
 )
@@ -88,6 +88,14 @@ INTEGRAL = {"objective": "integral", "start": "still", "end": "free"}
 #: Drift reduction against Phase I required on the capture move.
 DRIFT_REDUCTION_20S = 5.0
 DRIFT_REDUCTION_10S = 2.5
+
+
+def bernstein_basis(degree: int, s: np.ndarray) -> np.ndarray:
+    """The Bernstein basis polynomials of ``degree`` at ``s`` in [0, 1]: (len(s), degree + 1)."""
+    s = np.asarray(s, dtype=float)[:, None]
+    i = np.arange(degree + 1)[None, :]
+    binomials = np.array([comb(degree, k) for k in range(degree + 1)], dtype=float)[None, :]
+    return binomials * s**i * (1.0 - s) ** (degree - i)
 
 
 # ---------------------------------------------------------------------------------- fixtures

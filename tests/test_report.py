@@ -1,29 +1,16 @@
 """Outputs and report pieces: limit margins against a hand computation, JSON conversion, the
-NPZ round trip, the Ipopt version, and the report's 3D animation (geometry and its script)."""
+NPZ round trip, the Ipopt version, and the 3D scene's magnified view of the base rotation."""
 
 import json
 import math
 import re
-import shutil
-import subprocess
 
 import numpy as np
-import pinocchio as pin
 import pytest
 
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques, plan_torques
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
 from balance_opt.optimal.ipopt_version import ipopt_version
-from balance_opt.report.animation import (
-    ANIMATION_FPS,
-    ARM_COLOURS,
-    animation_data,
-    animation_html,
-    magnification,
-    magnified_axes,
-    segment_arms,
-    skeleton,
-)
 from balance_opt.report.outputs import (
     effort_metrics,
     limit_margins,
@@ -33,6 +20,7 @@ from balance_opt.report.outputs import (
     write_trajectory_csv,
     write_trajectory_npz,
 )
+from balance_opt.report.scene import magnification, magnified_axes
 from balance_opt.report.report import (
     MOMENTUM_TOLERANCE,
     TORQUE_TOLERANCE,
@@ -46,8 +34,6 @@ from balance_opt.report.report import (
 )
 from balance_opt.report.style import method_label
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
-
-ATOL = 1e-9
 
 
 def _result(robot, seed=0, samples=21):
@@ -251,92 +237,8 @@ def test_effort_violations_are_counted_and_no_limit_said():
     )
 
 
-# ----------------------------------------------------------------------------------- animation
-def test_animation_keeps_the_centre_of_mass_and_the_arm_shape(paper):
-    res = _result(paper)
-    data = animation_data(paper, {"test": res}, fps=5)
-    frames = data["methods"]["test"]["frames"]
-    points, segments = skeleton(paper)
-    assert len(segments) == len(points) - 1  # a tree: every point but the base hangs from one other
-    model, pdata = paper.model, paper.model.createData()
-    c0 = None
-    for k, frame in enumerate(frames):
-        i = np.searchsorted(res.t, data["methods"]["test"]["t"][k])
-        q = np.r_[res.q_M[i], res.q_B[i]]
-        R = np.array(
-            pin.Quaternion(res.quaternion[i][3], *res.quaternion[i][:3]).toRotationMatrix()
-        )
-        base = pin.SE3(R, frame["points"][0])
-        com = pin.centerOfMass(model, pdata, paper.pin_q(q, base))
-        c0 = com if c0 is None else c0
-        np.testing.assert_allclose(com, c0, rtol=0, atol=ATOL)  # zero momentum: the CoM stays put
-        # the end effectors, seen from the base, are where forward kinematics at the identity puts them
-        pin.framesForwardKinematics(model, pdata, paper.pin_q(q))
-        for arm, p in zip(paper.arms, frame["points"][-len(paper.arms) :]):
-            expected = pdata.oMf[model.getFrameId(arm.ee_frame)].translation
-            np.testing.assert_allclose(R.T @ (p - frame["points"][0]), expected, rtol=0, atol=ATOL)
-        # the base box (1 m cube centred on the base origin) turns with the base
-        np.testing.assert_allclose(
-            np.linalg.norm(frame["box"] - frame["points"][0], axis=1),
-            math.sqrt(3) / 2,
-            rtol=0,
-            atol=ATOL,
-        )
-
-
-@pytest.mark.skipif(shutil.which("node") is None, reason="node is not installed")
-def test_animation_script_runs(paper, tmp_path):
-    fragment = animation_html(
-        paper, {"a": _result(paper, 1), "b": _result(paper, 2)}, element_id="anim"
-    )
-    script = re.search(r"<script>(.*)</script>", fragment, re.DOTALL).group(1)
-    harness = (
-        """
-const drawn = [], texts = [];
-const ctx = {clearRect() { drawn.length = 0; texts.length = 0; }, beginPath() {}, moveTo() {},
-             lineTo() {}, arc() {}, setLineDash() {}, fillRect() {},
-             fillText(s) { texts.push(s); }, stroke() { drawn.push(this.strokeStyle); }};
-const els = {};
-function el(id) { return els[id] || (els[id] = {value: '', width: 400, height: 400, getContext: () => ctx}); }
-globalThis.document = {getElementById: el};
-globalThis.window = {addEventListener() {}};
-globalThis.requestAnimationFrame = () => {};
-el('anim-method').value = 'b';
-"""
-        + script
-        + """
-el('anim-t').value = 3; el('anim-t').oninput();
-console.log(JSON.stringify({label: el('anim-label').textContent, max: el('anim-t').max,
-                            lines: drawn.length, colours: drawn, texts: texts}));
-"""
-    )
-    path = tmp_path / "h.js"
-    path.write_text(harness)
-    proc = subprocess.run(
-        ["node", str(path)], capture_output=True, text=True, timeout=60, check=False
-    )
-    assert proc.returncode == 0, proc.stderr
-    out = json.loads(proc.stdout)
-    _points, segments = skeleton(paper)
-    # box edges, the stick figure, the base axes, the inset's circle and its 3 + 3 axes
-    assert out["lines"] == 12 + len(segments) + 3 + 7
-    assert out["max"] == round(2.0 * ANIMATION_FPS)  # frames of 2 s, from 0
-    assert re.fullmatch(r"t = 0\.12 s, base rotation \S+ rad \(\S+ deg\)", out["label"])
-    arms = segment_arms(paper, *skeleton(paper))
-    assert out["colours"][12 : 12 + len(segments)] == [ARM_COLOURS[a] for a in arms]
-    assert {"mission arm", "balance arm", "x", "y", "z"} <= set(out["texts"])
-    factor = magnification(max(_result(paper, s).max_drift for s in (1, 2)))
-    assert f"base rotation x {factor:g}" in out["texts"] and "other" not in out["texts"]
-
-
-def test_arms_magnification_and_magnified_axes(paper):
-    points, segments = skeleton(paper)
-    arms = segment_arms(paper, points, segments)
-    model = paper.model
-    for (_, child), arm in zip(segments, arms):
-        p = points[child]
-        joint = model.names[p if p > 0 else model.frames[-p - 1].parentJoint]
-        assert joint in paper.arms[arm].joints
+# ------------------------------------------------------------------------ magnified rotation
+def test_magnification_and_magnified_axes(paper):
     assert magnification(0.0929) == 5 and magnification(0.01) == 50
     assert magnification(0.6) == 1 and magnification(0.0) == 1
     res = _result(paper)

@@ -1,5 +1,5 @@
 """The files of a run (:func:`balance_opt.app.pipeline.run_task`): trajectories (CSV, NPZ),
-``metrics.json``, the figures, the animation and the HTML report, written into a folder (the
+``metrics.json``, the figures, the 3D scene and the HTML report, written into a folder (the
 staging folder of an all-or-nothing run), and the stage timing of the run's log.
 """
 
@@ -172,51 +172,34 @@ def _write_trajectories(run: TaskRun, output_dir: Path, torques: dict) -> list[P
 
 
 def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
-    """The report's 3D sections (the scene written beside it, the stick-figure animation) and
-    the scene's file (None: not written)."""
+    """The report's 3D section (the scene, written beside it) and the scene's file (None: not
+    written)."""
     from balance_opt.errors import InputError
 
-    extra, scene = "", None
-    if run.task.spec.outputs.animation:
-        try:
-            scene = write_run_scene(run, output_dir / SCENE_FILE)
-        except InputError as exc:  # a mesh file missing: the rest of the run still counts
-            log.warning("3D scene not written: %s", exc)
-        extra = _animation_section(run, scene is not None)
-    return extra, scene
-
-
-def _animation_section(run: TaskRun, scene: bool) -> str:
-    """The report's 3D animation of every plan (see :mod:`balance_opt.report.animation`)."""
-    from balance_opt.report.animation import animation_html
-    from balance_opt.report.plots import plan_colour, plan_label
-
-    names = list(run.results)
-    colours = {name: plan_colour(name, i) for i, name in enumerate(names)}
-    labels = {name: plan_label(name) for name in names}
-    with _timed("animation"):
-        body = animation_html(run.task.robot, run.results, run.task.h0, colours, labels)
-    frame = (
+    if not run.task.spec.outputs.animation:
+        return "", None
+    try:
+        scene = write_run_scene(run, output_dir / SCENE_FILE)
+    except InputError as exc:  # a mesh file missing: the rest of the run still counts
+        log.warning("3D scene not written: %s", exc)
+        return "", None
+    return (
         '<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through '
         f'each plan (<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
         "<code>balance-opt view</code> serves it).</p>"
         f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'
         'border:1px solid #ddd"></iframe>'
-    )
-    return (frame if scene else "") + (
-        '<h2>Animation</h2><p class="meta">The robot as a stick figure (base axes: red x, green y, '
-        "blue z), base pose from the plan; drag to turn the view.</p>" + body
-    )
+    ), scene
 
 
 def write_run_scene(run: TaskRun, path: Path) -> Path:
     """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
     ``path``."""
-    from balance_opt.report.plots import plan_label
+    from balance_opt.report.style import method_label
     from balance_opt.report.scene import write_scene
 
     labels = {
-        name: plan_label(name) + (" (FAILED)" if name in run.failures else "")
+        name: method_label(name) + (" (FAILED)" if name in run.failures else "")
         for name in run.results
     }
     with _timed("3D scene"):

@@ -50,7 +50,7 @@ class InverseDynamics:
     base_acceleration: np.ndarray
 
 
-def _symmetric(M: np.ndarray) -> np.ndarray:
+def symmetric(M: np.ndarray) -> np.ndarray:
     """The whole matrices (..., nv, nv) from the upper triangles CRBA fills."""
     upper = np.triu(M)
     return upper + np.swapaxes(np.triu(upper, 1), -1, -2)
@@ -84,7 +84,7 @@ def free_floating_torques(
     for k in range(T):  # Pinocchio per sample, the algebra on whole arrays below
         M[k] = pin.crba(model, data, qps[k])
         com[k] = data.Ycrb[1].lever  # CoM in the base frame
-    M = robot.arm_columns(np.swapaxes(robot.arm_columns(_symmetric(M)), 1, 2))  # G^T M G
+    M = robot.arm_columns(np.swapaxes(robot.arm_columns(symmetric(M)), 1, 2))  # G^T M G
     M_bb = M[:, :6, :6]
     # the momentum at the base origin, base axes: M_r,b: [v_b; q_dot] = h
     h = np.zeros((T, 6))

@@ -49,6 +49,7 @@ from balance_opt.dynamics.options import (
     DEFAULT_DAMPING_RATIO,
     SimulationOptions,
 )
+from balance_opt.dynamics.inverse_dynamics import symmetric
 from balance_opt.dynamics.rkmk import dopri5, rk4
 from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
@@ -62,7 +63,7 @@ log = logging.getLogger(__name__)
 #: Relative momentum residual above which a simulation warns that its step is too long.
 MOMENTUM_WARNING = 1e-6
 #: Relative momentum residual above which a simulation has diverged: its motion is no longer the
-#: robot's (capture task, rk4: 4e-8 with a 10 ms step, 0.99 with a 20 s step).
+#: robot's.
 MOMENTUM_DIVERGED = 1e-3
 #: Momentum scale below which the residual is reported in absolute terms [N s, N m s].
 MOMENTUM_SCALE_FLOOR = 1e-12
@@ -163,7 +164,7 @@ def default_gains(
         ``(kp, kd)`` in arm order [N m/rad, N m s/rad].
     """
     data = robot.model.createData()
-    M = _symmetric(pin.crba(robot.model, data, robot.pin_q(q)))
+    M = symmetric(pin.crba(robot.model, data, robot.pin_q(q)))
     G = robot.velocity_map  # a driver's inertia includes its followers'
     m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
     return m_ii * bandwidth**2, 2.0 * damping_ratio * bandwidth * m_ii
@@ -292,11 +293,6 @@ class SimulationResult(AttitudeHistory):
 
 
 # --------------------------------------------------------------------------------- dynamics
-def _symmetric(M: np.ndarray) -> np.ndarray:
-    """The joint-space inertia from ``pin.crba``'s upper triangle."""
-    return np.triu(M) + np.triu(M, 1).T
-
-
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
     """``idx`` as a slice when its entries are consecutive, else as it is."""
     if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
@@ -346,7 +342,7 @@ class _Dynamics:
         if self.G is None:
             return pin.aba(self.model, self.data, q, v, self.tau_full), tau
         G = self.G  # mimic joints driven by their drivers: reduced coordinates
-        M = _symmetric(pin.crba(self.model, self.data, q))
+        M = symmetric(pin.crba(self.model, self.data, q))
         f = G.T @ (self.tau_full - pin.nonLinearEffects(self.model, self.data, q, v))
         return G @ np.linalg.solve(G.T @ M @ G, f), tau
 
@@ -361,7 +357,7 @@ class _Dynamics:
         # M_bb is the composite inertia of the whole system in the base frame
         a_b = -np.linalg.solve(self.data.Ycrb[1].matrix(), tau0[:6])
         if self.G is not None:  # generalized forces on the arm joints: G^T (tau0 + M_:b a_b)
-            return self.G[:, 6:].T @ (tau0 + _symmetric(M)[:, :6] @ a_b)
+            return self.G[:, 6:].T @ (tau0 + symmetric(M)[:, :6] @ a_b)
         return tau0[self.idx_v] + M[:6, self.idx_v].T @ a_b
 
 

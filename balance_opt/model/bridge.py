@@ -61,7 +61,7 @@ DEFINES = (
     "PINOCCHIO_URDFDOM_HEADERS_PATCH_VERSION=0",
 )
 LIBRARIES = ("pinocchio_parsers", "pinocchio_default")
-#: What the build notice announces [min] (measured: 1.5 min of CPU with g++ 12).
+#: What the build notice announces [min].
 BUILD_MINUTES = 2
 #: Seconds between two "still building" log lines.
 PROGRESS_SECONDS = 30

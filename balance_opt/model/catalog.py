@@ -8,9 +8,8 @@ stem, each is named after its description folder instead (``anymal_b_simple``,
 ``anymal_c_simple``). :data:`ALIASES` adds the short names example-robot-data's own loaders use
 (``talos``: ``talos_reduced``, ``ur5``: ``ur5_robot``).
 
-Meshes play no part: balance-opt builds only the kinematic and inertial model (mass, centre of
-mass and inertia of each link come from ``<inertial>``), never the geometry, so ``package://``
-mesh paths are not resolved.
+The planners use only the kinematic and inertial model (``<inertial>``); meshes matter only to
+the 3D scene (:mod:`balance_opt.report.scene`).
 
 A chain is a sequence of movable joints, each the only movable joint below the previous one; it
 starts below the root or below a joint where the tree branches, and ends at a leaf or at a joint
@@ -93,7 +92,12 @@ def resolve_name(name: str) -> str:
 
 
 def example_urdf(name: str) -> Path:
-    """Path of the example-robot-data URDF of robot ``name`` (or an alias)."""
+    """Path of the example-robot-data URDF of robot ``name`` (or an alias).
+
+    Raises:
+        InputError: example-robot-data is not installed, or no robot has that name (the message
+            suggests the closest names).
+    """
     return example_robots()[resolve_name(name)]
 
 

@@ -36,17 +36,6 @@ def shipped_urdf(name: str = PAPER_ROBOT) -> Path:
     return path
 
 
-def example_robot_urdf(name: str) -> Path:
-    """Path of the URDF of the example-robot-data robot ``name`` (``balance-opt robots`` lists
-    them).
-
-    Raises:
-        InputError: example-robot-data is not installed, or no robot has that name (the message
-            suggests the closest names).
-    """
-    return example_urdf(name)
-
-
 # ---------------------------------------------------------------------------------- robots
 def paper_robot(limits: Mapping[str, Mapping[str, float]] | None = None) -> FloatingRobot:
     """The two-arm robot of the paper's Table 1 (``urdf/paper_robot.urdf``, ``docs/physics.md``,
@@ -84,4 +73,4 @@ def baxter_floating(
     other to balance; head and gripper joints locked (at 0 unless ``locked`` says otherwise)."""
     left, right = BAXTER_LEFT_ARM, BAXTER_RIGHT_ARM
     arms = (left, right) if mission == "left" else (right, left)
-    return FloatingRobot(example_robot_urdf("baxter"), arms[0], arms[1], locked=locked)
+    return FloatingRobot(example_urdf("baxter"), arms[0], arms[1], locked=locked)

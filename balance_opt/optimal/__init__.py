@@ -24,58 +24,5 @@ Use::
 or in one call ``plan_optimal(robot, mission, q_B0, options)``. Importing this package does not
 import CasADi; its modules do.
 
-The modules, top down:
-
-* :mod:`~balance_opt.optimal.options`: the settings (:class:`PlannerOptions`,
-  :class:`CostWeights`).
-* :mod:`~balance_opt.optimal.solve`: :func:`build_balance_nlp`, :class:`BalanceNLP` (inspect its
-  vectors and bounds, :meth:`~BalanceNLP.solve` it), :func:`plan_optimal`, :func:`resimulate`
-  and :class:`PlannerSolverError`. Every plan is re-simulated on a fine grid with numeric
-  Pinocchio, and the returned result is that re-simulated motion.
-* :mod:`~balance_opt.optimal.refine`: the outer loop of :meth:`~BalanceNLP.solve`: the peak
-  problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES` (the integral plan and
-  a smooth L16 peak on a coarser grid, the epigraph), path attitude bounds reached through the
-  peak problem, bounds tightened until the re-simulated motion meets them (each time a new
-  problem: a problem is never changed by its solve). Every Ipopt solve reports a
-  :class:`~balance_opt.optimal.refine.SolveReport`; a plan carries them all as
-  ``result.solver`` (:class:`~balance_opt.optimal.refine.PlanReport`, whose sums are the
-  totals ``metrics.json`` reports).
-* :mod:`~balance_opt.optimal.starts`: multi-start, the starts mapped over an executor the caller
-  passes (default: in turn, in this process), starts that reach the same first plan merged.
-* :mod:`~balance_opt.optimal.problem`: one problem's numeric data (mission samples, horizon,
-  limits), checked against the robot.
-* :mod:`~balance_opt.optimal.nlp`: the compiled NLP of one structure, assembled from per-point
-  kernels with exact derivatives by the chain rule. It depends only on the structure
-  (:class:`~balance_opt.optimal.layout.StructureKey`: intervals, transcription, control, which
-  constraints, solver options) and is cached on the model; the mission, horizon, ``q_B0``,
-  weights and bounds are numeric inputs, so another problem of the same structure costs no
-  build.
-* :mod:`~balance_opt.optimal.layout`: where everything sits in the NLP's decision, parameter and
-  constraint vectors.
-* :mod:`~balance_opt.optimal.constraints`: the constraint kinds, and what holds where (on the
-  continuous motion, or at the collocation points).
-* :mod:`~balance_opt.optimal.guess`: the initial guesses.
-* :mod:`~balance_opt.optimal.collocation`: the transcriptions and the continuous, piecewise
-  polynomial motion of the balance joints they describe.
-* :mod:`~balance_opt.optimal.model`: the per-robot symbolic model (state, dynamics and running
-  cost of one collocation point, inverse dynamics) and its point kernels.
-* :mod:`~balance_opt.optimal.model_store`: the per-robot model's functions saved on disk.
-* :mod:`~balance_opt.optimal.codegen`: compiling the kernels to C (in a child process while
-  the first plan runs on CasADi's VM, waited for at the plan's end), cached on disk.
-
-How to add a constraint. Everything about a constraint lives in one class in
-:mod:`~balance_opt.optimal.constraints`, a subclass of ``Constraint``: ``rows`` returns the rows
-it adds to the constraint vector, symbolic in the decision variables, the point kernels' outputs
-and the parameters (``SymbolicNLP``), with a block name and a label per row (Ipopt's failure
-messages name the constraint by them); ``row_bounds`` gives their lower and upper bounds for one
-problem; ``bound_variables`` narrows the decision variables' bounds instead, or as well; and
-``check`` returns its worst violation by the re-simulated motion (reported in
-``info["resimulation"]["constraint_violations"]``). Then list it in ``constraint_kinds``. If an
-option switches it on, add that switch to ``StructureKey.of`` (problems with and without it need
-different compiled NLPs) and the option to ``PlannerOptions``; numbers for its bounds are read
-from the problem when the bounds are set, but a number inside its rows must be a parameter: a
-field of ``NLPParameters`` (sized in ``ParameterLayout``, valued where ``BalanceNLP`` packs the
-parameters). A new nonlinear quantity at the points (as the torques are) goes into the point
-kernels' output (``PlannerModel`` kernels and ``PointKernels.split``): the rows must stay linear
-in the kernels' outputs.
+The modules, how a plan is solved and how to add a constraint: ``docs/architecture.md``.
 """

@@ -1,40 +1,16 @@
-"""How much memory and time the optimal planner's problem needs, estimated before it is built.
+"""How much memory and time the optimal planner's problem needs, estimated before it is built
+(no CasADi needed).
 
-Everything the planner allocates for its NLP (CasADi's graphs of the outer problem, the mapped
-kernels, Ipopt's KKT matrix and MUMPS's factors) grows linearly with the number of intervals
-``N``, in proportion to the non-zeros of the KKT matrix (the constraint Jacobian, the upper
-triangle of the Lagrangian's Hessian, and one diagonal entry per variable and per constraint).
-Those are counted per interval from the problem's structure (no CasADi needed):
-
-* variables: the state ``x`` (``3 + 2 n_B``, ``3 + 3 n_B`` with jerk control) and the control
-  ``u`` (``n_B``) of each point, one point per interval (two with Hermite-Simpson's midpoints);
-* constraints: ``n_x`` per collocation defect (two with Hermite-Simpson), ``n_B`` per interior
-  Bernstein coefficient of each limited derivative (limited: asked for, and finite for some
-  balance joint), ``n_B`` torque rows per point with torque limits, and one attitude row per
-  point with the peak objective (its epigraph) or a path attitude bound;
-* Hessian: the kernels are nonlinear in ``k = 3 + 2 n_B`` entries of a point (attitude, balance
-  positions and rates), dense among them, plus the control's diagonal: ``k (k + 1) / 2 + n_B``
-  per point, and ``n_B^2`` more with torque limits;
-* Jacobian: fitted on the planner's own counts (paper robot with 1 and 3 balance joints, Baxter
-  with 7; both transcriptions, both controls, limits on and off; within 6 %):
-  ``5.46 n_w + 3.60 n_g`` per Hermite-Simpson interval, ``4.94 n_w + 2.15 n_g`` per trapezoidal
-  one (``n_g`` the defects and limit rows), plus ``3 n_B`` per torque row and 3 per attitude
-  row (4 for the epigraph's, which also holds the peak variable).
-
-A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
-the peak objective is solved in stages (the integral objective's plan and the smooth peak on a
-coarser grid, :data:`~balance_opt.optimal.options.PEAK_STAGES`, without the
-rows between the points; then the epigraph), and a path attitude bound is approached through
-the peak problem without it; the estimate adds them up, each on its own grid. (A failed
-epigraph stage builds one more, the smooth peak on the plan's grid, as large as the integral
-problem: it is not counted.)
-
-Memory and time per non-zero were measured (peak resident memory with ``getrusage``, wall times)
-on the paper robot (3 balance joints, integral objective: 184, 231 and 298 MB at N = 100, 400,
-800; peak objective, two NLPs: 200 and 298 MB at N = 100 and 400) and Baxter (7, integral: 209
-and 323 MB at N = 100 and 400): 355-406 bytes per non-zero above a base of about 170 MB, an NLP
-build of 9-18 us per non-zero, and 0.4-2.5 us per non-zero and Ipopt iteration (quiet to loaded
-2-core machine).
+Everything the planner allocates for its NLPs (CasADi's graphs, the mapped kernels, Ipopt's KKT
+matrix and MUMPS's factors) grows in proportion to the non-zeros of the KKT matrix: the
+constraint Jacobian, the upper triangle of the Lagrangian's Hessian, and one diagonal entry per
+variable and per constraint. They are counted per interval from the problem's structure: the
+variables and constraints exactly, the Hessian as dense among the ``3 + 2 n_B`` entries of a
+point the kernels are nonlinear in, the Jacobian by a fit on the planner's own counts
+(``tests/test_validation.py`` checks both against the built NLP). A plan keeps every NLP it
+builds (the peak objective's coarse stages, the free peak problem behind a path bound) until it
+ends: the estimate adds them up, each on its own grid. The constants per non-zero come from
+``benchmarks/`` (peak resident memory and wall times on the paper robot and Baxter).
 """
 
 from __future__ import annotations
@@ -49,17 +25,17 @@ import numpy as np
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.options import PEAK_STAGES
 
-#: Bytes of memory per non-zero of the KKT matrix (measured: 355-406).
+#: Bytes of memory per non-zero of the KKT matrix.
 BYTES_PER_NONZERO = 400
-#: Memory of the process before the NLP: Python, Pinocchio, CasADi, the kernels (170-182 MB).
+#: Memory of the process before the NLP: Python, Pinocchio, CasADi, the kernels.
 BASE_BYTES = 200 * 2**20
 #: Share of the machine's physical memory one optimal problem may take.
 MEMORY_FRACTION = 0.5
 #: Budget where the physical memory cannot be read [bytes].
 FALLBACK_BUDGET = 4 * 2**30
-#: Wall time of the NLP build per non-zero [s] (measured 9-18 us).
+#: Wall time of the NLP build per non-zero [s].
 BUILD_SECONDS_PER_NONZERO = 15e-6
-#: Wall time of one Ipopt iteration per non-zero [s] (measured 0.4-2.5 us).
+#: Wall time of one Ipopt iteration per non-zero [s].
 ITERATION_SECONDS_PER_NONZERO = 1e-6
 #: Jacobian non-zeros per variable and per constraint of an interval, by transcription (fitted).
 JACOBIAN_FIT = {"hermite-simpson": (5.46, 3.60), "trapezoidal": (4.94, 2.15)}
@@ -154,35 +130,29 @@ _INNER = {"position_limits": False, "velocity_limits": False, "acceleration_limi
 
 
 def _built(options) -> list:
-    """The options of every NLP a plan with ``options`` builds, each with its own intervals
-    (see the module docstring): the plan's, the free peak problem's of a path bound, and the
-    coarse stages of :data:`~balance_opt.optimal.options.PEAK_STAGES`."""
+    """The options of every NLP a plan with ``options`` builds, each with its own intervals:
+    the plan's, the free peak problem's of a path bound (the plan's own when it is a peak
+    problem without a terminal bound: a peak problem's path bound adds no rows), and the coarse
+    stages of :data:`~balance_opt.optimal.options.PEAK_STAGES` (the smooth stage has the
+    integral's size: no epigraph)."""
     free = {"path_attitude_bound": None, "terminal_attitude_bound": None}
+    bounded, peak = options.path_attitude_bound is not None, options.objective == "peak"
     built = [options]
-    if options.path_attitude_bound is not None:
+    if bounded and (not peak or options.terminal_attitude_bound is not None):
         built.append(dataclasses.replace(options, objective="peak", **free))
-    staged = options.objective == "peak" or options.path_attitude_bound is not None
-    inner = [
-        dataclasses.replace(
-            options,
-            objective="integral",  # the smooth stage has no epigraph: the integral's size
-            intervals=stage.intervals(options.intervals, options.transcription),
-            **free,
-            **({} if stage.between_points else _INNER),
-        )
-        for stage in PEAK_STAGES
-        if staged and stage.coarse
-    ]
-    # a peak problem's path bound adds no rows: such a problem is the free one
-    shapes = {
-        (
-            o.objective,
-            o.objective != "peak" and o.path_attitude_bound is not None,
-            o.terminal_attitude_bound is not None,
-        ): o
-        for o in reversed(built + inner[:1])
-    }
-    return list(shapes.values()) + inner[1:]
+    if peak or bounded:
+        built += [
+            dataclasses.replace(
+                options,
+                objective="integral",
+                intervals=stage.intervals(options.intervals, options.transcription),
+                **free,
+                **({} if stage.between_points else _INNER),
+            )
+            for stage in PEAK_STAGES
+            if stage.coarse
+        ]
+    return built
 
 
 def _nonzeros_per_interval(options, limits) -> float:

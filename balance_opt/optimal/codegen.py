@@ -1,31 +1,19 @@
 """Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes.
 
-:func:`compile_functions` generates the C code of a list of CasADi functions and compiles it,
-with the system C compiler, into one shared library that is loaded back as ``casadi.external``.
-The library is named by a digest: the caller's (the planner model's content key, so that a
-warm run finds its library without building any expression) or else the hash of the C code;
-either way mixed with the compiler, its flags, CasADi's version and the platform. It is kept in
-the cache folder (:func:`default_cache_dir`), so a robot's kernels are compiled once per machine.
+:func:`compile_functions` generates the C code of CasADi functions and compiles it with the
+system C compiler into one shared library, loaded back as ``casadi.external``. The library is
+named by a digest (the planner model's content key, so that a warm run finds it without
+building any expression, or else the hash of the C code) mixed with the compiler, its flags,
+CasADi's version and the platform, and kept in the cache folder: compiled once per machine.
 
-Two ways to compile:
+``background=True`` (the planner's default) compiles in a low-priority child process while this
+process plans on CasADi's virtual machine, so that the first plan of a new robot does not wait
+for the compiler; the planning call waits for the child at its end (:func:`finish`) or stops it,
+and it is stopped when this process exits: no compiler outlives the command.
 
-* ``background=True`` (the planner's default): the C code is written beside the library and a
-  low-priority child process (``python -m balance_opt.optimal.codegen``) compiles it, while
-  this process goes on with the functions on CasADi's virtual machine; the next run loads the
-  library. The child is this process's: the planning call that started it waits for it at its
-  end (:func:`finish`, at most :data:`COMPILE_WAIT`, saying so) or stops it, and it is stopped
-  when this process exits, so no compiler outlives the command. The first plan of a robot
-  therefore does not wait for the compiler before it is solved (Talos, 14 arm joints: about
-  2.5 min of compiler time).
-* ``background=False``: compile now and wait.
-
-Loading a damaged library would crash the process (a truncated one: bus error), so the cache's
-rules apply (:mod:`balance_opt.cache`): a file lock makes processes wait for one compilation (a
-process that finds a compilation under way does not wait: it uses the virtual machine); the
-library is built in a temporary folder and renamed into place; its SHA-256 and size are recorded
-beside it and checked before every load, and a library that does not match is deleted and
-rebuilt. After a build the cache is trimmed to its size bound
-(:func:`balance_opt.cache_admin.enforce_limit`).
+Loading a damaged library would crash the process, so the cache's rules apply
+(:mod:`balance_opt.cache`): one compilation at a time under a file lock, built in a temporary
+folder and renamed into place, its SHA-256 and size recorded and checked before every load.
 """
 
 from __future__ import annotations
@@ -38,7 +26,7 @@ import platform
 import shutil
 import signal
 import subprocess
-import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,10 +48,8 @@ from balance_opt.cache_admin import enforce_limit
 
 log = logging.getLogger(__name__)
 
-#: C compiler flags of the compiled kernels. -O1: on the paper robot the kernels run as fast as
-#: with -O2 or -O3 (the differences measured were within the timing noise) and compile faster
-#: than with -O2 (19 s against 24 s, gcc); no -march=native or -ffast-math, so that results do
-#: not depend on the machine.
+#: C compiler flags of the kernels: -O1 runs them as fast as -O2 and compiles faster; no
+#: -march=native or -ffast-math, so that results do not depend on the machine.
 COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
 #: Niceness of the background compiler: the plan being solved meanwhile keeps the CPU.
 BACKGROUND_NICENESS = 10
@@ -86,7 +72,7 @@ class Compiled:
             the background).
         library: the shared library (loaded, or being built in the background).
         background: whether a background compilation was started (or found under way).
-        process: the child process compiling it, when this call started one.
+        process: the background compilation, when this call started one.
     """
 
     functions: list[cs.Function]
@@ -94,7 +80,7 @@ class Compiled:
     compile_time: float
     library: str
     background: bool = False
-    process: subprocess.Popen | None = None
+    process: Compilation | None = None
 
 
 def find_compiler() -> str | None:
@@ -190,12 +176,14 @@ def compile_functions(
                 what,
                 failure,
             )
-        elif _compiling(library):
-            log.info("%s are being compiled by another process; not waiting", what)
         else:
-            log.info("compiling %s (background) ...", what)
-            process = _start_child(compiler, source, library)
-            return Compiled(functions, False, 0.0, str(library), True, process)
+            try:
+                process = Compilation(compiler, source, library)
+            except BlockingIOError:
+                log.info("%s are being compiled by another process; not waiting", what)
+            else:
+                log.info("compiling %s (background) ...", what)
+                return Compiled(functions, False, 0.0, str(library), True, process)
         return Compiled(functions, False, 0.0, str(library), True)
     log.info("compiling %s ...", what)
     with file_lock(library.parent / f"{library.name}.lock"):  # one compiles, the others wait
@@ -222,11 +210,6 @@ def _compiling(library: Path) -> bool:
         return True
 
 
-def _pending_source(library: Path) -> Path:
-    """The C code waiting for a background compiler."""
-    return library.with_suffix(".c")
-
-
 def _failure_note(library: Path) -> Path:
     """Where a failed background compilation leaves its error message."""
     return library.with_suffix(".failed")
@@ -244,98 +227,84 @@ def _recent_failure(library: Path) -> str:
     return ""
 
 
-def _start_child(compiler: str, source: str, library: Path) -> subprocess.Popen:
-    """Write the C code beside ``library`` and start a child process compiling it."""
-    atomic_write_text(_pending_source(library), source)
-    # the child imports this very package, wherever it was imported from here
-    package_root = str(Path(__file__).resolve().parents[2])
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
-    return subprocess.Popen(
-        [sys.executable, "-m", __name__, compiler, str(library)],
-        env=env,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        close_fds=True,
-        # a process group of its own: stop() ends it with the compiler it runs
-        start_new_session=os.name == "posix",
-    )
+class Compilation:
+    """A background compilation: a thread of this process that runs the compiler (a child
+    process at low priority) while it holds the library's lock, taken here.
+
+    Raises:
+        BlockingIOError: another process holds the lock (it is compiling the library).
+    """
+
+    def __init__(self, compiler: str, source: str, library: Path):
+        self.library, self.compiler, self.stopped = library, None, False
+        self._lock = contextlib.ExitStack()
+        self._lock.enter_context(file_lock(library.parent / f"{library.name}.lock", False))
+        self.thread = threading.Thread(target=self._run, args=(compiler, source), daemon=True)
+        self.thread.start()
+
+    def _run(self, compiler: str, source: str) -> None:
+        library = self.library
+        try:
+            with self._lock:
+                if check_record(library)[0] is None:
+                    _compile(compiler, source, library, self)
+            enforce_limit(library.parent, keep=[library, record_path(library)])
+            _failure_note(library).unlink(missing_ok=True)
+        except OSError as exc:  # the planner keeps the VM; noted, so that runs do not retry
+            if not self.stopped:
+                with contextlib.suppress(OSError):
+                    atomic_write_text(_failure_note(library), str(exc))
 
 
-def finish(process: subprocess.Popen, library: str | Path, timeout: float = COMPILE_WAIT) -> bool:
+def finish(process: Compilation, library: str | Path, timeout: float = COMPILE_WAIT) -> bool:
     """Wait up to ``timeout`` [s] for a background compilation this process started, then stop
-    it if it still runs (its C code is removed: the next run starts again). Returns whether it
-    ended on its own."""
-    if process.poll() is None:
+    it if it still runs (the next run starts again). Returns whether it ended on its own."""
+    del library  # the compilation knows it
+    if process.thread.is_alive():
         log.info(
             "waiting for the C compiler of the planner kernels (at most %.0f s; the next runs "
             "load the library) ...",
             timeout,
         )
-    try:
-        process.wait(timeout)
+    process.thread.join(timeout)
+    if not process.thread.is_alive():
         return True
-    except subprocess.TimeoutExpired:
-        stop(process)
-        _pending_source(Path(library)).unlink(missing_ok=True)
-        log.warning("planner kernels: compilation stopped after %.0f s; not cached", timeout)
-        return False
+    stop(process)
+    log.warning("planner kernels: compilation stopped after %.0f s; not cached", timeout)
+    return False
 
 
-def stop(process: subprocess.Popen) -> None:
-    """Stop a compiler child process (and the compiler it runs) and reap it."""
-    if process.poll() is None:
+def stop(process: Compilation) -> None:
+    """Stop a background compilation (the compiler and what it started) and wait for it."""
+    process.stopped = True
+    compiler = process.compiler
+    if compiler is not None and compiler.poll() is None:
         if os.name == "posix":
             with contextlib.suppress(OSError):
-                os.killpg(process.pid, signal.SIGTERM)
+                os.killpg(compiler.pid, signal.SIGTERM)
         else:
-            process.terminate()
-        try:
-            process.wait(10.0)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
-def build_pending(compiler: str, library: Path) -> float:
-    """Compile the pending C code of ``library`` (the background process's work), under the
-    library's lock; nothing to do when it is already built. Returns the compile time [s]."""
-    with file_lock(library.parent / f"{library.name}.lock"):
-        source_file = _pending_source(library)
-        if check_record(library)[0] is not None or not source_file.exists():
-            source_file.unlink(missing_ok=True)
-            return 0.0
-        try:
-            elapsed = _compile(compiler, source_file.read_text(), library)
-        finally:
-            source_file.unlink(missing_ok=True)
-    enforce_limit(library.parent, keep=[library, record_path(library)])
-    return elapsed
+            compiler.terminate()
+    process.thread.join(10.0)
 
 
 def wait_for_library(library: str | Path, timeout: float = 3600.0) -> dict | None:
-    """Wait for the background compilation of ``library`` to end (for benchmarks and tests).
-
-    Returns:
-        The library's record (its ``compile_seconds``), or ``None`` if the compilation failed
-        or did not end within ``timeout`` [s].
-    """
+    """Wait for the compilation of ``library`` under way in any process to end (for
+    benchmarks and tests): its record (``compile_seconds``), or ``None`` (failed, or not
+    ended within ``timeout`` [s])."""
     library = Path(library)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         record, _ = check_record(library)
-        if record is not None:
+        if record is not None or not _compiling(library):
             return record
-        if not _pending_source(library).exists() and not _compiling(library):
-            return check_record(library)[0]  # ended, failed (or never started)
         time.sleep(0.5)
     return None
 
 
-def _compile(compiler: str, source: str, library: Path) -> float:
+def _compile(compiler: str, source: str, library: Path, owner: Compilation | None = None) -> float:
     """Compile C ``source`` to the shared ``library`` and record it; returns the wall time [s].
-    The caller holds the library's lock."""
+    The caller holds the library's lock; a background ``owner`` runs the compiler niced and
+    can stop it."""
     for path in (library, record_path(library)):
         path.unlink(missing_ok=True)
     start = time.perf_counter()
@@ -343,38 +312,28 @@ def _compile(compiler: str, source: str, library: Path) -> float:
         c_file = tmp / "balance_kernels.c"
         c_file.write_text(source)
         out = tmp / library.name
-        proc = subprocess.run(
-            [compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"],
-            capture_output=True,
+        command = [compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"]
+        if owner is not None and shutil.which("nice"):
+            command = [shutil.which("nice"), "-n", str(BACKGROUND_NICENESS), *command]
+        proc = subprocess.Popen(
+            command,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
             text=True,
-            check=False,
+            start_new_session=owner is not None and os.name == "posix",  # stop() ends its group
         )
+        if owner is not None:
+            owner.compiler = proc
+            if owner.stopped:  # stop() came before the compiler started
+                proc.kill()
+        _, err = proc.communicate()
+        if owner is not None and owner.stopped:
+            raise OSError("stopped")
         if proc.returncode != 0:
-            raise OSError(f"{compiler} failed on the balance kernels: {proc.stderr.strip()[:500]}")
+            raise OSError(f"{compiler} failed on the balance kernels: {err.strip()[:500]}")
         os.replace(out, library)  # atomic: a process never loads a partial library
     elapsed = time.perf_counter() - start
     write_record(library, compile_seconds=round(elapsed, 3))
     log.info("compiled balance kernels to %s in %.1f s", library, elapsed)
     return elapsed
-
-
-def _main(argv: list[str]) -> int:
-    """``python -m balance_opt.optimal.codegen COMPILER LIBRARY``: the background compiler."""
-    compiler, library = argv
-    try:
-        os.nice(BACKGROUND_NICENESS)
-    except (AttributeError, OSError):
-        pass
-    library = Path(library)
-    try:
-        build_pending(compiler, library)
-    except OSError as exc:  # the foreground keeps the VM; noted, so that runs do not retry
-        with contextlib.suppress(OSError):
-            atomic_write_text(_failure_note(library), str(exc))
-        return 1
-    _failure_note(library).unlink(missing_ok=True)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(_main(sys.argv[1:]))

@@ -162,14 +162,6 @@ def bernstein_value(coefficients: list, s: float):
     return total
 
 
-def bernstein_basis(degree: int, s: np.ndarray) -> np.ndarray:
-    """Bernstein basis polynomials of ``degree`` at ``s`` in [0, 1]: (len(s), degree + 1)."""
-    s = np.asarray(s, dtype=float)[:, None]
-    i = np.arange(degree + 1)[None, :]
-    binomials = np.array([comb(degree, k) for k in range(degree + 1)], dtype=float)[None, :]
-    return binomials * s**i * (1.0 - s) ** (degree - i)
-
-
 def monomial_from_bernstein(degree: int) -> np.ndarray:
     """Matrix ``M`` with ``a = M b``: monomial coefficients ``a_j`` (of ``s^j``) of the polynomial
     with Bernstein coefficients ``b_i`` on [0, 1]: ``a_j = C(d, j) sum_i (-1)^(j-i) C(j, i) b_i``."""

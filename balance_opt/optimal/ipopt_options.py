@@ -1,20 +1,17 @@
 """Ipopt options checked against Ipopt's own option list, before any planning.
 
-The list comes from the Ipopt library that CasADi bundles: asked once for its option documentation
-(``print_options_documentation`` in its Doxygen form, which states each option's type, range and
-possible values), parsed, and kept on disk beside the compiled kernels, keyed by the CasADi
-version, so that validating a task does not need CasADi again. A linear solver that Ipopt knows
-but cannot load (the HSL solvers are not in the wheel) is found by a one-variable solve with it.
+The list (each option's type, range or possible values) is parsed from the option documentation
+the Ipopt library bundled with CasADi writes, once, and kept in the cache folder keyed by the
+CasADi version: validating a task then needs no CasADi. A linear solver that Ipopt knows but
+cannot load (the HSL solvers are not in the wheel) is found by a one-variable solve with it.
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import difflib
 import html
 import importlib.metadata
-import io
 import json
 import logging
 import math
@@ -26,7 +23,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from balance_opt.cache import default_cache_dir
+from balance_opt.cache import atomic_write_text, default_cache_dir
 from balance_opt.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -119,48 +116,36 @@ def parse_documentation(text: str) -> dict[str, IpoptOption]:
 
 
 def _documentation_from_ipopt() -> str:
-    """Ipopt's option documentation, printed by a solver of a one-variable problem."""
+    """Ipopt's option documentation, written to a file by a solver of a one-variable problem
+    (a file: Ipopt's console output goes to Python's or to the C stdout, by build)."""
     import casadi as cs
 
     x = cs.SX.sym("x")
-    opts = {
-        "ipopt.print_options_documentation": "yes",
-        "ipopt.print_advanced_options": "yes",
-        "ipopt.print_options_mode": "doxygen",
-        "ipopt.print_level": 5,
-        "ipopt.max_iter": 0,
-        "print_time": False,
-    }
-    # CasADi routes Ipopt's journal through Python's sys.stdout; some builds print to the C
-    # stdout instead (file descriptor 1, buffered): capture both.
-    text = io.StringIO()
-    with tempfile.TemporaryFile(mode="w+") as out:
-        saved = os.dup(1)
-        try:
-            os.dup2(out.fileno(), 1)
-            with contextlib.redirect_stdout(text):
-                cs.nlpsol("options_doc", "ipopt", {"x": x, "f": x**2}, opts)(x0=1.0)
-            ctypes.CDLL(None).fflush(None)
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
-        out.seek(0)
-        return text.getvalue() + out.read()
-
-
-def _catalog_file() -> Path:
-    version = importlib.metadata.version("casadi")
-    return default_cache_dir() / f"ipopt-options-casadi-{version}.json"
+    with tempfile.TemporaryDirectory() as folder:
+        path = os.path.join(folder, "options.txt")
+        opts = {
+            "ipopt.print_options_documentation": "yes",
+            "ipopt.print_advanced_options": "yes",
+            "ipopt.print_options_mode": "doxygen",
+            "ipopt.print_level": 0,
+            "ipopt.sb": "yes",
+            "ipopt.output_file": path,
+            "ipopt.file_print_level": 5,
+            "ipopt.max_iter": 0,
+            "print_time": False,
+        }
+        cs.nlpsol("options_doc", "ipopt", {"x": x, "f": x**2}, opts)(x0=1.0)
+        return Path(path).read_text()
 
 
 def option_catalog() -> dict[str, IpoptOption]:
     """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk).
 
     Raises:
-        ImportError: CasADi is not installed (and the list is not cached).
-        RuntimeError: Ipopt failed, or printed no option documentation.
+        ImportError, RuntimeError: no CasADi (and no cached list); Ipopt failed or printed no
+            option documentation.
     """
-    path = _catalog_file()
+    path = default_cache_dir() / f"ipopt-options-casadi-{importlib.metadata.version('casadi')}.json"
     with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
         data = json.loads(path.read_text())
         catalog = {k: IpoptOption(**{**v, "values": tuple(v["values"])}) for k, v in data.items()}
@@ -171,18 +156,13 @@ def option_catalog() -> dict[str, IpoptOption]:
         raise RuntimeError("Ipopt printed no option documentation")
     with contextlib.suppress(OSError):
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({k: asdict(v) for k, v in catalog.items()}))
-        os.replace(tmp, path)
+        atomic_write_text(path, json.dumps({k: asdict(v) for k, v in catalog.items()}))
     return catalog
 
 
 def linear_solver_loads(name: str) -> bool:
-    """Whether Ipopt can load linear solver ``name`` (a one-variable solve with it).
-
-    The probe runs in a child process: without the HSL library some solvers (``ma97`` with
-    CasADi 3.8's Ipopt) crash the process that asks for them instead of failing cleanly.
-    """
+    """Whether Ipopt can load linear solver ``name``: a one-variable solve with it, in a child
+    process (without the HSL library some solvers crash the process that asks for them)."""
     if name in BUNDLED_LINEAR_SOLVERS:
         return True
     import subprocess
@@ -248,12 +228,6 @@ def option_problem(name: str, value: Any, catalog: Mapping[str, IpoptOption]) ->
     return None
 
 
-def clean_value(name: str, value: Any, catalog: Mapping[str, IpoptOption]) -> Any:
-    """``value`` in the type Ipopt wants (an integer option given ``500.0`` becomes ``500``)."""
-    option = catalog[name]
-    return int(value) if option.type == INTEGER else value
-
-
 def _solver_option_error(name: str, problem: str) -> InputError:
     return InputError(f"--solver-option {name}: {problem}")
 
@@ -262,21 +236,12 @@ def check_ipopt_options(
     options: Mapping[str, Any],
     error: Callable[[str, str], Exception] = _solver_option_error,
 ) -> dict[str, Any]:
-    """``options`` checked against Ipopt's own option list, each value in the type Ipopt wants.
-
-    Reads the option list from the cache (asks Ipopt, through CasADi, when it is not cached);
-    when the list cannot be had at all, the options pass unchecked, with a warning.
-
-    Args:
-        options: Ipopt options by name.
-        error: the exception to raise for option ``name`` and what is wrong with it; by default
-            an :class:`~balance_opt.errors.InputError` ``"--solver-option NAME: ..."``.
-
-    Returns:
-        The options, an integer option given as ``500.0`` as ``500``.
+    """``options`` checked against Ipopt's own option list (:func:`option_catalog`; unchecked,
+    with a warning, when it cannot be had), an integer option given as ``500.0`` as ``500``.
 
     Raises:
-        InputError: (or what ``error`` makes) for the first option Ipopt would reject.
+        InputError: ``error(name, problem)`` (default ``"--solver-option NAME: ..."``) for the
+            first option Ipopt would reject.
     """
     if not options:
         return {}
@@ -290,5 +255,5 @@ def check_ipopt_options(
         problem = option_problem(name, value, catalog)
         if problem is not None:
             raise error(name, problem)
-        out[name] = clean_value(name, value, catalog)
+        out[name] = int(value) if catalog[name].type == INTEGER else value
     return out

@@ -1,10 +1,9 @@
 """The per-robot symbolic model of the planner, kept on disk: its CasADi functions saved once,
 loaded by every later run instead of being built again.
 
-Building a robot's point kernels (exact first and second derivatives of the balance dynamics)
-takes from 0.2 s (the paper robot) to 1-2.5 s (Baxter, Talos); loading them back takes a
-fraction of that, and a run whose kernels are compiled does not need them at all (the compiled
-library is named by the same key, :mod:`balance_opt.optimal.codegen`).
+Loading a robot's point kernels takes a fraction of building them, and a run whose kernels are
+compiled does not need them at all (the library is named by the same key,
+:mod:`balance_opt.optimal.codegen`).
 
 The key (:func:`model_key`) is the robot's content (:func:`kinematics_key`), the symbolic
 backend's identity (the bridge program's build key, or the library versions), CasADi's version

@@ -11,7 +11,7 @@ kernels come from the on-disk cache).
 
 A plan through the peak problem (the peak objective, or a path attitude bound) begins with the
 integral objective's plan (:func:`~balance_opt.optimal.refine.plan_peak`), and different
-starts often reach the same one (on the capture task all eight do): every start runs that first
+starts often reach the same one: every start runs that first
 stage, those whose plans agree (:data:`SAME_PLAN`, :data:`SAME_CONTROL`) are merged, and only
 the distinct ones go on through the later stages, the bounds and the refinement.
 ``info["starts"]`` reports every start (a merged one names the start it joined), the
@@ -35,10 +35,8 @@ log = logging.getLogger(__name__)
 #: Largest difference between two first-stage plans' states (rad, rad/s) under which they are
 #: one plan.
 SAME_PLAN = 1e-4
-#: The same for their controls (rad/s^2, or rad/s^3 with jerk control). Ipopt's tolerance
-#: leaves more in them than in the states: the eight first plans of the capture task agree to
-#: 1.2e-5 in the states and 2.7e-4 rad/s^2 in the accelerations (their later stages end in
-#: one plan).
+#: The same for their controls (rad/s^2, or rad/s^3 with jerk control): Ipopt's tolerance
+#: leaves more in them than in the states.
 SAME_CONTROL = 1e-3
 
 

@@ -30,6 +30,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING
 
+from balance_opt.cache import pid_alive
 from balance_opt.errors import InputError
 
 if TYPE_CHECKING:  # typing.Self is Python 3.11+; annotations are not evaluated at run time
@@ -59,16 +60,6 @@ def _exchange(a: Path, b: Path) -> bool:
     if ctypes.get_errno() in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
         return False
     raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()), str(a))
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _target_path(target: str | Path) -> Path:
@@ -254,7 +245,7 @@ class OutputFolder:
         prefix = STAGING_PREFIX.format(name=self.target.name)
         for entry in self.target.parent.glob(f"{prefix}*"):
             pid = entry.name[len(prefix) :].split(".")[0]
-            if pid.isdigit() and not _pid_alive(int(pid)):
+            if pid.isdigit() and not pid_alive(int(pid)):
                 shutil.rmtree(entry, ignore_errors=True)
 
     def final(self, path: str | Path) -> Path:

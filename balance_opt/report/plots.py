@@ -25,25 +25,11 @@ import numpy as np
 from balance_opt.report import style
 from balance_opt.report.figure_layout import arrange, column_title, legend_above, legend_columns
 
-#: Width of a paper column [in].
-COLUMN_WIDTH = style.WIDTHS["column"]
 FORMATS = ("png", "pdf")
 ATTITUDE_AXES = ("roll", "pitch", "yaw")
 TORQUE_AXES = ("x", "y", "z")
 #: Height of a three-panel figure [in].
 STACK_HEIGHT = 3.9
-
-
-def plan_colour(name: str, index: int = 0) -> str:
-    """The colour of ``name`` (see :func:`balance_opt.report.style.method_colour`; ``index`` is
-    not used: a method has one colour whatever its place)."""
-    del index
-    return style.method_colour(name)
-
-
-def plan_label(name: str) -> str:
-    """The display name of ``name`` (:func:`balance_opt.report.style.method_label`)."""
-    return style.method_label(name)
 
 
 def _finish(fig, stem, formats, dpi) -> list[Path]:

@@ -1,8 +1,7 @@
 """The comparison report: one self-contained HTML file (nothing external: no linked file, library
 or network access) with the task, a table comparing the methods side by side, the limit
 violations, the figures embedded as base64 PNG and, when the task's ``outputs.animation`` asks
-for it, the 3D animation of :mod:`balance_opt.report.animation` (an inline script, passed in as
-``extra_html``).
+for it, the 3D scene of :mod:`balance_opt.report.scene` (an iframe, passed in as ``extra_html``).
 
 The table reads ``metrics.json`` content (:func:`balance_opt.report.outputs.run_metrics`), so the
 report and the metrics never disagree.
@@ -434,7 +433,7 @@ def render_report(
         metrics: the content of ``metrics.json`` (:func:`balance_opt.report.outputs.run_metrics`).
         figures: ``(caption, PNG file)`` pairs, embedded in that order.
         description: the task's description.
-        extra_html: trusted HTML appended at the end (e.g. an animation).
+        extra_html: trusted HTML appended at the end (e.g. the 3D scene).
         torques: per method ``(t, tau)``, the sample times [s] and joint torques (T, n) [N m]
             of :func:`balance_opt.dynamics.inverse_dynamics.plan_joint_torques`, drawn over the
             motion in the torque tables (left out: peaks only).

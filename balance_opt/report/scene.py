@@ -15,7 +15,7 @@ frame costs seven numbers per joint. Each plan, and each view of the base rotati
 magnified), is one animation, swapped in when selected.
 
 Base pose: the plan's attitude (or its rotation from the start magnified, as in
-:func:`balance_opt.report.animation.magnified_axes`), and the position that keeps the centre of mass
+:func:`magnified_axes`), and the position that keeps the centre of mass
 on its free-flight line ``c(t) = c(0) + t p0 / m``: the robot's before a capture, the robot's and
 the target's together after it (with the momentum the target brings). The target, a box of
 uniform density with its inertia, flies at its own constant velocities before the capture and
@@ -39,9 +39,14 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
-from balance_opt.report.animation import ARM_COLOURS, magnification, magnified_axes
-from balance_opt.report.style import method_label
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.so3 import (
+    matrix_from_quaternion,
+    quaternion_from_rotvec,
+    relative_rotation,
+    rotvec_from_quaternion,
+)
+from balance_opt.report.style import method_label
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -58,6 +63,32 @@ TARGET_COLOUR = "#009E73"
 #: Path of the robot's nodes in the viewer's scene tree.
 ROOT = ("meshcat", "robot")
 TARGET_NODE = "capture_target"
+#: Colour of each arm, in arm order (mission, balance, balance2, ...): Okabe-Ito colours apart
+#: from the axes' red, green and blue.
+ARM_COLOURS = ("#D55E00", "#7B3294", "#E69F00", "#56B4E9", "#CC79A7")
+#: The magnified view turns the base by its rotation from the start times a factor chosen so
+#: that the largest drift shows as about this angle [rad] (30 deg).
+MAGNIFIED_ANGLE = np.radians(30.0)
+
+
+def magnification(max_angle: float) -> float:
+    """Factor of the magnified view of the base's rotation: 1, 2 or 5 times a power of ten, the
+    largest that shows ``max_angle`` [rad] at no more than :data:`MAGNIFIED_ANGLE` (1 when the
+    rotation is already that large, or nil)."""
+    if not max_angle > 0 or max_angle >= MAGNIFIED_ANGLE:
+        return 1.0
+    want = MAGNIFIED_ANGLE / max_angle
+    power = 10.0 ** np.floor(np.log10(want))
+    return float(max(f * power for f in (1, 2, 5) if f * power <= want))
+
+
+def magnified_axes(quaternion: np.ndarray, factor: float) -> np.ndarray:
+    """Base axes (T, 3, 3) (rows: x, y, z in the world) of the attitude ``R0 exp(factor
+    log(R0^T R))``: the rotation from the start ``R0``, magnified."""
+    phi = rotvec_from_quaternion(relative_rotation(quaternion[:1], quaternion))
+    R0 = matrix_from_quaternion(quaternion[0])
+    R = np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
+    return np.swapaxes(R, 1, 2)
 #: Three.js draws a cylinder along its y axis, Pinocchio along z: a quarter turn about x.
 _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 

@@ -118,11 +118,6 @@ def execute_case(runner: str, case: dict) -> dict:
     return record
 
 
-def _run_batch(runner: str, cases: Sequence[dict]) -> list[dict]:
-    """Several cases in one worker call (fewer round trips for short cases)."""
-    return [execute_case(runner, case) for case in cases]
-
-
 # --------------------------------------------------------------------------- result files
 
 

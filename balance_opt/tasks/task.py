@@ -219,7 +219,8 @@ def _with_momentum(spec: TaskSpec) -> TaskSpec:
 
 
 def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
-    from balance_opt.model.library import example_robot_urdf, shipped_urdf
+    from balance_opt.model.catalog import example_urdf
+    from balance_opt.model.library import shipped_urdf
 
     r = spec.robot
     if r.urdf is not None:
@@ -228,7 +229,7 @@ def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
             raise doc.error(("robot", "urdf"), f"no such URDF file: {path}")
         return path
     try:
-        return shipped_urdf(r.shipped) if r.shipped is not None else example_robot_urdf(r.example)
+        return shipped_urdf(r.shipped) if r.shipped is not None else example_urdf(r.example)
     except InputError as exc:
         raise doc.error(
             ("robot", "shipped" if r.shipped is not None else "example"), str(exc)

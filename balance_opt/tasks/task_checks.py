@@ -45,13 +45,10 @@ LIMIT_CHECK_MIN_SAMPLES = 501
 #: so 1e6 samples are about 0.5 GB of arrays and 1 GB of files, for each method.
 MAX_SAMPLES = 1_000_000
 #: Fewest fixed integration steps (simulation ``rk4``, analytic ``rk4``) over the mission: a step
-#: longer than 1/100 of the motion does not resolve it (a 20 s step over a 10 s move gave
-#: tracking errors of 1e8 rad).
+#: longer than 1/100 of the motion does not resolve it.
 MIN_STEPS_PER_MISSION = 100
-#: Ipopt iterations of a typical optimal plan, all its solves, by objective (integral: 33-36 on
-#: the capture task at N = 100 to 800, 61-78 on Baxter; peak, its three stages: 126 on the 10 s
-#: capture task, 271 over 20 s, at N = 100, 70 and 52 of them on the coarse grid), and the estimated planning time above which
-#: loading warns [s].
+#: Ipopt iterations of a typical optimal plan, all its solves, by objective (the peak objective
+#: has three stages), and the estimated planning time above which loading warns [s].
 TYPICAL_ITERATIONS = {"integral": 50, "peak": 300}
 LONG_PLAN_SECONDS = 600.0
 

@@ -277,7 +277,7 @@ class OutputsSpec:
     plots: bool = setting(True, doc="figures as PNG")
     report: bool = setting(True, doc="self-contained HTML report (report.html)")
     animation: bool = setting(
-        True, doc="a 3D animation of the plans in the report (stick figure, inline script)"
+        True, doc="the 3D scene of the plans (scene.html), shown in the report"
     )
 
 
