@@ -334,6 +334,39 @@ def test_torque_limits_hold_between_the_collocation_points(model, capture):
     assert excess.max() > -0.01  # the limits bind
 
 
+def _plan_torque_excess(model, capture, nlp, plan, effort) -> float:
+    """The largest relative excess of the plan's torques over ``effort`` on a 2.5 ms grid."""
+    t = np.linspace(0.0, nlp.horizon, 4001)
+    q_B, qd_B, qdd_B = nlp.trajectory(nlp.solution_of(plan)).sample(t)
+    q_M, qd_M, qdd_M = capture.mission.sample(t)
+    tau = np.array(
+        model.torque_fun().map(t.size)(
+            np.hstack([q_M, q_B]).T, np.hstack([qd_M, qd_B]).T, np.hstack([qdd_M, qdd_B]).T
+        )
+    )[3:].T
+    return float((np.abs(tau) / effort - 1.0).max())
+
+
+@pytest.mark.slow
+def test_torque_limits_hold_between_coarse_samples(model, capture):
+    """The refinement checks the torques on the plan's polynomials, not on the exported
+    samples (issue 26): with samples 0.1 s apart, wider than a third of an interval, the
+    torques still hold between them."""
+    effort = np.array([1.5, 1.5, 0.5])
+    limits = {j: {"acceleration": 2.0, "effort": e} for j, e in zip(BALANCE, effort)}
+    options = PlannerOptions(
+        intervals=40, objective="integral", torque_limits=True, resample_step=0.1
+    )
+    nlp = build_balance_nlp(
+        model, capture.mission, capture.q_B0, options, robot=paper_robot(limits=limits)
+    )
+    plan = nlp.solve()
+    assert np.diff(plan.t).max() > 0.08
+    excess = _plan_torque_excess(model, capture, nlp, plan, effort)
+    assert -0.01 < excess <= TORQUE_EXCESS
+    _no_violations(plan)
+
+
 @pytest.mark.slow
 def test_a_problem_solved_twice_gives_the_same_plan(model, capture):
     """The refinement tightens the torque bounds of a new problem, never of the one solved: a

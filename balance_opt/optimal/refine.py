@@ -24,7 +24,7 @@ Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.Balan
   plan, which is feasible.
 * **Limits on the whole motion** (:func:`refine`). Torques and attitude bounds are rows at the
   collocation points. After each solve every one is checked on the re-simulated motion (torques
-  from the free-floating inverse dynamics on the fine grid); where one is broken beyond its
+  from the free-floating inverse dynamics on several points per collocation interval); where one is broken beyond its
   tolerance (:data:`TORQUE_TOLERANCE`, :data:`ATTITUDE_TOLERANCE`), its bound is tightened
   by the measured ratio (torques: on the broken intervals only) and the problem solved again,
   warm started, up to :data:`MAX_ROUNDS` times.
@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from balance_opt.errors import SolverError
-from balance_opt.optimal.constraints import TorqueLimit
+from balance_opt.optimal.constraints import TORQUE_TOLERANCE, TorqueLimit
 from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.options import PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError
@@ -48,9 +48,6 @@ from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
-#: Relative excess of a torque over its effort limit, on the re-simulated motion, that is
-#: accepted without refining.
-TORQUE_TOLERANCE = 2e-3
 #: Relative excess of the re-simulated attitude over an attitude bound accepted without refining.
 ATTITUDE_TOLERANCE = 1e-3
 #: Re-solves of the refinement at most.
@@ -414,11 +411,12 @@ def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]
     """The effort factors with the points of every interval where a torque exceeds its limit
     by more than :data:`TORQUE_TOLERANCE` scaled by ``limit / peak`` there."""
     effort = nlp.limits.effort
-    ratio = np.abs(TorqueLimit.torques(nlp, result)) / effort  # (T, n_B), inf effort -> 0
+    t, tau = TorqueLimit.torques(nlp, result)
+    ratio = np.abs(tau) / effort  # (T, n_B), inf effort -> 0
     if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE:
         return nlp.torque_factor, []
     N = nlp.N
-    interval = np.minimum((result.t / nlp.h).astype(int), N - 1)
+    interval = np.minimum((t / nlp.h).astype(int), N - 1)
     per_interval = np.zeros((N, nlp.model.n_B))
     np.maximum.at(per_interval, interval, ratio)
     broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
