@@ -202,22 +202,23 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
             output_dir=folder,
             solver_options=solver_options,
         )
-    log.info(
-        "wrote %d files to %s in %.1f s",
-        len(run.files),
-        folder.target,
-        time.perf_counter() - started,
-    )
+    from balance_opt.report.report import violation_count_text
+
+    # the results on stdout (``compare ... > log`` keeps them), the progress on stderr
+    print(f"wrote {len(run.files)} files to {folder.target} in {time.perf_counter() - started:.1f} s")
     for name, res in run.results.items():
-        log.info(
-            "  %-13s max drift %.3g rad, final drift %.3g rad, %d limit violations",
-            name,
-            res.max_drift,
-            res.final_drift,
-            len(res.violations),
+        m = run.metrics.get("methods", {}).get(name, {})
+        count = violation_count_text(
+            m.get("limit_violations", len(res.violations)), m.get("limit_violations_by_kind")
         )
+        print(
+            f"  {name:<13s} max drift {res.max_drift:.3g} rad, final drift "
+            f"{res.final_drift:.3g} rad, {count} limit violations"
+        )
+        for warning in m.get("warnings", res.warnings()):
+            print(f"  {'':<13s} WARNING: {warning}")
     if run.report is not None:
-        log.info("report: %s", run.report)
+        print(f"report: {run.report}")
     if run.failures:
         for method, message in run.failures.items():
             print(f"balance-opt: solver failure ({method}): {message}", file=sys.stderr)

@@ -5,6 +5,7 @@ metrics, exit codes), a table of bad inputs (exit 2, the culprit named), no over
 import argparse
 import csv
 import hashlib
+import html
 import json
 import re
 import subprocess
@@ -652,3 +653,45 @@ def test_an_hsl_solver_without_hsl_is_an_input_error_not_a_crash(tmp_path, capsy
     assert code == 2
     assert "Ipopt cannot load linear solver 'ma97'" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------ issue 26: results
+#: The capture task's law with hardly any damping near its singular balance arm, integrated by
+#: RK4 on the 10 ms output grid: the rates run away between the samples, which then no longer
+#: conserve momentum.
+RUNAWAY_LAW = """
+analytic: {damping_threshold: 1.0e-3, max_damping: 1.0e-4, integrator: rk4, output_step: 0.01}
+outputs: {plots: false, animation: false}
+"""
+
+
+def test_untrustworthy_plan_is_flagged_and_results_go_to_stdout(tmp_path, capsys):
+    text = (EXAMPLES / "capture_task.yaml").read_text()
+    text = text.replace("balance: [0.0, 0.5, -1.0]", "balance: [0.0, 0.5, -0.95]")
+    task = _write(tmp_path / "runaway.yaml", text + RUNAWAY_LAW)
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    m = _metrics(out)["methods"]["analytic"]
+    assert m["max_momentum_residual"] > 0.1
+    assert len(m["warnings"]) == 1
+    assert re.match(r"untrustworthy: relative momentum residual 0\.\d+ > 0\.001", m["warnings"][0])
+    # one count of the violations everywhere, split by kind
+    kinds = m["limit_violations_by_kind"]
+    assert sum(kinds.values()) == m["limit_violations"] == len(m["violations"]) > 0
+    kinematic = kinds["position"] + kinds["velocity"] + kinds["acceleration"]
+    count = (
+        f"{m['limit_violations']} ({kinematic} position/velocity/acceleration, "
+        f"{kinds['effort']} effort) limit violations"
+    )
+    assert f"analytic      max drift {m['max_drift_rad']:.3g} rad" in captured.out
+    assert count in captured.out
+    assert f"WARNING: {m['warnings'][0]}" in captured.out
+    assert f"report: {out / 'report.html'}" in captured.out
+    assert "report:" not in captured.err and "WARNING: untrustworthy" not in captured.out.split(
+        "analytic      max drift"
+    )[0]
+    report = html.unescape((out / "report.html").read_text())
+    assert re.search(rf"WARNING: [^<:]+: {re.escape(m['warnings'][0])}", report)
+    assert count.removesuffix(" limit violations") in report
+    assert re.search(r'<td class="broken">0\.\d+</td>', report)  # the residual's cell

@@ -356,12 +356,15 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
     res = run.results.get(method)
     if res is not None and method != REFERENCE:
         log.info(
-            "%s: max drift %.4g rad, final drift %.4g rad, %d limit violations",
+            "%s: max drift %.4g rad, final drift %.4g rad, %d position/velocity/acceleration "
+            "limit violations",
             method,
             res.max_drift,
             res.final_drift,
             len(res.violations),
         )
+        for warning in res.warnings():
+            log.warning("%s plan: %s", method, warning)
 
 
 def _simulate_into(run: TaskRun, name: str) -> None:

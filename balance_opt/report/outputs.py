@@ -311,7 +311,9 @@ def method_metrics(
     ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says);
     ``effort`` (:func:`effort_metrics`, for the system's momentum ``h0``, world frame, zero by
     default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort
-    limits) and their number ``limit_violations``; ``solver`` (:func:`solver_metrics`);
+    limits) and their number ``limit_violations``, by kind in ``limit_violations_by_kind``
+    (position, velocity, acceleration, effort); ``warnings``
+    (:meth:`~balance_opt.result.BalanceResult.warnings`: an untrustworthy plan); ``solver`` (:func:`solver_metrics`);
     ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].
@@ -336,6 +338,12 @@ def method_metrics(
     out["effort"] = effort_metrics(result, robot, h0, torques)
     out["violations"] = [str(v) for v in result.violations] + out["effort"]["violations"]
     out["limit_violations"] = len(out["violations"])
+    kinds = [v.kind for v in result.violations]
+    out["limit_violations_by_kind"] = {
+        **{kind: kinds.count(kind) for kind in ("position", "velocity", "acceleration")},
+        "effort": len(out["effort"]["violations"]),
+    }
+    out["warnings"] = result.warnings()
     out["solver"] = solver_metrics(result.info)
     out["details"] = {k: v for k, v in result.info.items() if k not in BULKY_INFO_KEYS}
     if simulation is not None:

@@ -22,7 +22,7 @@ import numpy as np
 
 from balance_opt.report.capture_metrics import capture_table
 from balance_opt.report.style import method_colour, method_label
-from balance_opt.result import LIMIT_TOLERANCE
+from balance_opt.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 
 #: Order of the methods in the tables (others follow in the order given).
 METHOD_ORDER = ("mission-only", "analytic", "optimal")
@@ -161,7 +161,30 @@ def _effort_margin(path: str) -> Callable[[Mapping], Cell]:
 def _count(path: str) -> Callable[[Mapping], Cell]:
     def cell(m):
         value = _get(m, path)
-        return None if value is None else (str(value), "broken" if value else "inside")
+        if value is None:
+            return None
+        return (violation_count_text(value, m.get("limit_violations_by_kind")), "broken" if value else "inside")
+
+    return cell
+
+
+def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
+    """``"116 (49 position/velocity/acceleration, 67 effort)"``: the count of ``metrics.json``'s
+    ``limit_violations``, split by kind when there are any (``limit_violations_by_kind``)."""
+    if not total or not by_kind:
+        return str(total)
+    kinematic = sum(by_kind.get(k, 0) for k in ("position", "velocity", "acceleration"))
+    return f"{total} ({kinematic} position/velocity/acceleration, {by_kind.get('effort', 0)} effort)"
+
+
+def _residual(path: str) -> Callable[[Mapping], Cell]:
+    """A relative momentum residual, flagged above :data:`UNTRUSTED_RESIDUAL`."""
+
+    def cell(m):
+        value = _get(m, path)
+        if value is None:
+            return None
+        return format_value(value, MOMENTUM_TOLERANCE), "broken" if value > UNTRUSTED_RESIDUAL else ""
 
     return cell
 
@@ -173,10 +196,7 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
     ("max attitude drift", _angle("max_drift_rad")),
     ("final attitude drift", _angle("final_drift_rad")),
     ("max base angular rate", _angle("max_base_rate_rad_s", "/s", RATE_TOLERANCE)),
-    (
-        "max relative angular momentum residual",
-        _plain("max_momentum_residual", MOMENTUM_TOLERANCE),
-    ),
+    ("max relative angular momentum residual", _residual("max_momentum_residual")),
     ("Balance arm", None),
     ("peak balance joint rate [rad/s or m/s]", _plain("peak_balance_rate_rad_s")),
     ("position limit margin [rad or m]", _kinematic_margin("position", "")),
@@ -202,10 +222,7 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
         "peak total reaction torque on the base [N m]",
         _plain("simulation.peak_reaction_torque_Nm.total", TORQUE_TOLERANCE),
     ),
-    (
-        "max relative momentum residual",
-        _plain("simulation.max_relative_momentum_residual", MOMENTUM_TOLERANCE),
-    ),
+    ("max relative momentum residual", _residual("simulation.max_relative_momentum_residual")),
 ]
 
 
@@ -443,6 +460,11 @@ def render_report(
         parts.append(f"<p>{html.escape(description)}</p>")
     parts.append(failures)
     methods = metrics.get("methods", {})
+    parts.extend(
+        f'<p class="failure">WARNING: {html.escape(method_label(k))}: {html.escape(w)}</p>'
+        for k, m in methods.items()
+        for w in m.get("warnings") or ()
+    )
     fails = metrics.get("failures") or {}
     parts.append("<h2>Comparison</h2>")
     parts.append(comparison_table(methods, fails))
