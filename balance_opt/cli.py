@@ -155,16 +155,12 @@ def _cmd_validate(args) -> int:
             continue
         robot = task.robot
         arms = "; ".join(f"{a.name} {a.dof} joints" for a in robot.arms)
-        log.info(
-            "%s: ok (robot %s, %s; mission %s, %.3g s)",
-            path,
-            robot.name,
-            arms,
-            task.spec.mission.type,
-            task.duration,
+        print(
+            f"{path}: ok (robot {robot.name}, {arms}; mission {task.spec.mission.type}, "
+            f"{task.duration:.3g} s)"
         )
     if failed and len(args.tasks) > 1:
-        log.info("%d of %d task files failed", failed, len(args.tasks))
+        print(f"{failed} of {len(args.tasks)} task files failed")
     return EXIT_INPUT if failed else EXIT_OK
 
 
@@ -256,7 +252,7 @@ def _cmd_paper_figures(args) -> int:
         files = paper_figures(
             folder, task=task, solver_options=solver_options, backend=args.backend
         )
-    log.info("wrote %d files to %s", len(files), folder.target)
+    print(f"wrote {len(files)} files to {folder.target}")
     return EXIT_OK
 
 
@@ -327,16 +323,10 @@ def _cmd_sweep(args) -> int:
         on_result=_sweep_progress,
     )
     run = outcome.run
-    log.info(
-        "%d case(s): %d run in %.1f s on %d worker(s), %d skipped (already done), %d failed; "
-        "table %s",
-        len(run.results),
-        len(run.ran),
-        run.elapsed_s,
-        run.workers,
-        len(run.skipped),
-        len(run.failed),
-        outcome.files["table"],
+    print(
+        f"{len(run.results)} case(s): {len(run.ran)} run in {run.elapsed_s:.1f} s on "
+        f"{run.workers} worker(s), {len(run.skipped)} skipped (already done), "
+        f"{len(run.failed)} failed; table {outcome.files['table']}"
     )
     return EXIT_SOLVER if run.failed else EXIT_OK
 

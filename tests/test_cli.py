@@ -102,7 +102,7 @@ def test_validate_both_examples(capsys):
         )
         == 0
     )
-    err = capsys.readouterr().err
+    err = capsys.readouterr().out  # results on stdout
     assert re.search(
         r"capture_task\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
         r"mission ptp, 10 s\)",
@@ -155,9 +155,9 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     task = _fast_paper(tmp_path)
     out = tmp_path / "out"
     assert main(["plan", str(task), "--method", "both", "--simulate", "--output", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert "optimal plan (N = 12, hermite-simpson, Ipopt) ..." in err  # progress
-    assert f"report: {out / 'report.html'}" in err
+    captured = capsys.readouterr()
+    assert "optimal plan (N = 12, hermite-simpson, Ipopt) ..." in captured.err  # progress
+    assert f"report: {out / 'report.html'}" in captured.out  # results
     files = {p.name for p in out.iterdir()}
     assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | REPORT_FILES
 
@@ -695,3 +695,13 @@ def test_untrustworthy_plan_is_flagged_and_results_go_to_stdout(tmp_path, capsys
     assert re.search(rf"WARNING: [^<:]+: {re.escape(m['warnings'][0])}", report)
     assert count.removesuffix(" limit violations") in report
     assert re.search(r'<td class="broken">0\.\d+</td>', report)  # the residual's cell
+
+
+def test_validate_on_a_sweep_file_points_to_the_sweep_command(capsys):
+    sweep = EXAMPLES / "sweep_paper.yaml"
+    line = next(i for i, s in enumerate(sweep.read_text().splitlines(), 1) if s.startswith("task:"))
+    assert main(["validate", str(sweep)]) == 2
+    assert (
+        f"balance-opt: error: {sweep}:{line}: task: this is a sweep file, not a task file: "
+        "use balance-opt sweep"
+    ) in capsys.readouterr().err

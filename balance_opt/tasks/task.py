@@ -166,6 +166,11 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
             f"expected a mapping of task keys ({', '.join(TaskSpec.__dataclass_fields__)}), "
             f"got {type(doc.data).__name__}",
         )
+    if "task" in doc.data and "task" not in TaskSpec.__dataclass_fields__:
+        # a sweep file names its base task under ``task``; no task file has that key
+        raise doc.error(
+            ("task",), "this is a sweep file, not a task file: use balance-opt sweep"
+        )
     spec: TaskSpec = _with_checked_ipopt(from_data(TaskSpec, doc), doc)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)
