@@ -309,6 +309,7 @@ class BalanceResult(AttitudeHistory):
             )
         else:
             lines.append("  limits     all met")
+        lines += [f"  WARNING    {w}" for w in self.warnings()]
         return "\n".join(lines[:REPR_LINES])
 
     def to_dataframe(self) -> pandas.DataFrame:
