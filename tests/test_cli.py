@@ -705,3 +705,12 @@ def test_validate_on_a_sweep_file_points_to_the_sweep_command(capsys):
         f"balance-opt: error: {sweep}:{line}: task: this is a sweep file, not a task file: "
         "use balance-opt sweep"
     ) in capsys.readouterr().err
+
+
+def test_plan_mission_only_writes_the_reference_alone(tmp_path, capsys):
+    out = tmp_path / "out"
+    task = _fast_paper(tmp_path, "outputs: {plots: false, animation: false}\n")
+    assert main(["plan", str(task), "-m", "mission-only", "-o", str(out), "-q"]) == 0
+    assert set(_metrics(out)["methods"]) == {"mission-only"}
+    assert {"mission-only.csv", "mission-only.npz"} <= {p.name for p in out.iterdir()}
+    assert "  mission-only  max drift" in capsys.readouterr().out

@@ -354,12 +354,15 @@ def _checked_plans(
 
 
 def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
-    """The methods without repeats, checked before anything is computed."""
-    methods = tuple(dict.fromkeys(methods))
+    """The methods without repeats, checked before anything is computed; the reference
+    (``"mission-only"``) may be asked for alone: every run computes it."""
+    given = tuple(dict.fromkeys(methods))
+    methods = tuple(m for m in given if m != REFERENCE)
     unknown = [m for m in methods if m not in METHODS]
-    if unknown or not methods:
+    if unknown or not given:
         raise InputError(
-            f"methods must be among {', '.join(METHODS)}, got {', '.join(methods) or 'none'}"
+            f"methods must be among {', '.join((REFERENCE, *METHODS))}, "
+            f"got {', '.join(given) or 'none'}"
         )
     check_methods(task, methods)
     return methods
