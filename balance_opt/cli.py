@@ -178,8 +178,16 @@ def _cmd_inspect(args) -> int:
     task = with_backend(load_task(args.task), args.backend)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
+    _print_cartesian_goal(task)
     print(backend_line(task.spec.robot.backend))
     return EXIT_OK
+
+
+def _print_cartesian_goal(task) -> None:
+    goal = task.cartesian_goal
+    if goal:
+        values = ", ".join(f"{name} {v:.6g}" for name, v in goal.items())
+        print(f"mission goal found by inverse kinematics: {values} [rad or m]")
 
 
 def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
@@ -201,6 +209,7 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
     from balance_opt.report.report import violation_count_text
 
     # the results on stdout (``compare ... > log`` keeps them), the progress on stderr
+    _print_cartesian_goal(task)
     print(f"wrote {len(run.files)} files to {folder.target} in {time.perf_counter() - started:.1f} s")
     for name, res in run.results.items():
         m = run.metrics.get("methods", {}).get(name, {})

@@ -714,3 +714,36 @@ def test_plan_mission_only_writes_the_reference_alone(tmp_path, capsys):
     assert set(_metrics(out)["methods"]) == {"mission-only"}
     assert {"mission-only.csv", "mission-only.npz"} <= {p.name for p in out.iterdir()}
     assert "  mission-only  max drift" in capsys.readouterr().out
+
+
+def test_cartesian_goal_where_the_end_effector_is_and_the_joint_goal(tmp_path, capsys):
+    from balance_opt.model.summary import end_effector_poses
+    from balance_opt.tasks.task import load_task
+
+    task = _write(
+        tmp_path / "cart.yaml",
+        "name: cart\nrobot: {shipped: paper_robot.urdf}\n"
+        "arms:\n  mission: [mission_joint1, mission_joint2, mission_joint3]\n"
+        "  balance: [balance_joint1, balance_joint2, balance_joint3]\n"
+        "initial: {balance: [0.0, 0.5, -1.0]}\n"
+        "mission: {type: cartesian, start: [0.0, 0.3, -0.6], position: [0.9, 0.4, 1.2], "
+        "duration: 3}\n"
+        "analytic: {output_step: 0.05}\noutputs: {plots: false, animation: false}\n",
+    )
+    loaded = load_task(task)
+    assert main(["inspect", str(task)]) == 0
+    out = capsys.readouterr().out
+    poses = end_effector_poses(loaded.robot, loaded.q0)
+    for arm, (position, _) in poses.items():
+        where = "[" + ", ".join(f"{x:.4g}" for x in position) + "] m"
+        assert f"  {arm} arm: 3 joints" in out
+        assert f"    end effector at {where}, roll-pitch-yaw [" in out
+    goal = dict(zip(loaded.robot.mission.joints, loaded.mission.qf))
+    line = "mission goal found by inverse kinematics: " + ", ".join(
+        f"{j} {v:.6g}" for j, v in goal.items()
+    )
+    assert line in out
+    out_dir = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out_dir), "-q"]) == 0
+    assert line in capsys.readouterr().out
+    assert _metrics(out_dir)["task"]["cartesian_goal_rad"] == pytest.approx(goal, abs=1e-12)

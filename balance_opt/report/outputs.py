@@ -370,7 +370,8 @@ def run_metrics(
     failures: Mapping[str, str] | None = None,
     torques: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, Any]:
-    """The content of ``metrics.json``: the task (file, name, SHA-256), the versions, and
+    """The content of ``metrics.json``: the task (file, name, SHA-256; for a Cartesian mission
+    ``cartesian_goal_rad``, the joint goal inverse kinematics found), the versions, and
     :func:`method_metrics` of each result by method name (with its joint ``torques`` by method
     name when the caller has them); ``failures`` lists methods whose solver failed (their best
     iterate is among ``results``)."""
@@ -381,7 +382,12 @@ def run_metrics(
     return to_json(
         {
             "format": METRICS_FORMAT,
-            "task": {"file": task.source, "name": task.name, "sha256": task.sha256},
+            "task": {
+                "file": task.source,
+                "name": task.name,
+                "sha256": task.sha256,
+                **({"cartesian_goal_rad": goal} if (goal := task.cartesian_goal) else {}),
+            },
             "versions": software_versions(),
             "methods": {
                 name: method_metrics(

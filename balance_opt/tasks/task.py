@@ -112,6 +112,14 @@ class Task:
         """Duration of the mission [s]."""
         return float(self.mission.duration)
 
+    @property
+    def cartesian_goal(self) -> dict[str, float] | None:
+        """For a Cartesian mission, the mission joints' goal found by inverse kinematics
+        [rad or m], by joint name; ``None`` for the other missions."""
+        if self.spec.mission.type != "cartesian":
+            return None
+        return dict(zip(self.robot.mission.joints, map(float, self.mission.qf)))
+
     def planner_options(self, extra_ipopt: Mapping[str, Any] | None = None) -> PlannerOptions:
         """The planner's options; ``extra_ipopt`` (``--solver-option``) overrides
         ``optimal.ipopt``."""
