@@ -24,7 +24,7 @@ from balance_opt.motion.so3 import (
     relative_rotation,
     rotvec_from_quaternion,
 )
-from balance_opt.report.style import method_label
+from balance_opt.report.style import ARM_COLOURS, method_label
 from balance_opt.result import BalanceResult
 
 #: Frames per second of the animation [1/s].
@@ -33,9 +33,6 @@ ANIMATION_FPS = 25
 AXIS_FRACTION = 0.25
 #: Decimals kept in the embedded coordinates [m].
 DECIMALS = 4
-#: Colour of each arm's stick figure, in arm order (mission, balance, balance2, ...):
-#: Okabe-Ito colours apart from the base axes' red, green and blue.
-ARM_COLOURS = ("#D55E00", "#7B3294", "#E69F00", "#56B4E9", "#CC79A7")
 #: The magnified view turns the base by its rotation from the start times a factor chosen so
 #: that the largest drift shows as about this angle [rad] (30 deg).
 MAGNIFIED_ANGLE = np.radians(30.0)

@@ -53,7 +53,8 @@ td.failed, th.failed { color: #777; background: repeating-linear-gradient(135deg
 .swatch { display: inline-block; width: 0.9em; height: 0.9em; margin-right: 0.4em;
           vertical-align: -0.1em; border: 1px solid #555; }
 .meta { color: #555; font-size: 0.9em; } figure { margin: 1.5em 0; }
-figure img { max-width: 100%; border: 1px solid #eee; } figcaption { color: #555; font-size: 0.9em; }
+figure img { width: 100%; height: auto; border: 1px solid #eee; }
+p.headline { font-size: 1.1em; } figcaption { color: #555; font-size: 0.9em; }
 code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-weight: bold; }
 """
 
@@ -391,6 +392,39 @@ def _violations(methods: Mapping[str, Mapping[str, Any]]) -> str:
     return "".join(parts) or "<p>None: every plan stays inside every joint limit.</p>"
 
 
+def headline(metrics: Mapping[str, Any]) -> str | None:
+    """One sentence computed from ``metrics``: how much stiller the best balance plan keeps the
+    base than the mission arm alone, and at what costs (``None`` without both)."""
+    methods = metrics.get("methods", {})
+    reference = methods.get("mission-only")
+    name = next((m for m in ("optimal", "analytic") if m in methods), None)
+    if reference is None or name is None:
+        return None
+    plan = methods[name]
+    a, b = plan.get("max_drift_rad"), reference.get("max_drift_rad")
+    if not a or b is None:
+        return None
+    costs = [f"balance joints up to {plan.get('peak_balance_rate_rad_s', 0.0):.3g} rad/s"]
+    margin = (plan.get("effort") or {}).get("balance_min_relative_margin")
+    if margin is not None:
+        costs.append(f"smallest effort margin {100 * margin:.3g} % of the limit")
+    solver = plan.get("solver") or {}
+    if solver.get("iterations") is not None and solver.get("solve_time_s") is not None:
+        costs.append(f"{solver['iterations']} Ipopt iterations in {solver['solve_time_s']:.3g} s")
+    count = plan.get("limit_violations")
+    if count:
+        by_kind = plan.get("limit_violations_by_kind")
+        costs.append(f"{violation_count_text(count, by_kind)} limit violations")
+    how = f"{b / a:.1f}x stiller than" if b >= a else f"{a / b:.1f}x less still than"
+    failed = " (FAILED: its solver's last iterate)" if name in (metrics.get("failures") or {}) else ""
+    warned = " (WARNING: untrustworthy, see below)" if plan.get("warnings") else ""
+    return (
+        f"The {method_label(name)}{failed}{warned} keeps the base {how} the "
+        f"{method_label('mission-only')} (peak drift {a:.3g} vs {b:.3g} rad), at these costs: "
+        f"{'; '.join(costs)}."
+    )
+
+
 def _figure(title: str, png: Path) -> str:
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
     return (
@@ -456,6 +490,9 @@ def render_report(
             f"<code>{html.escape(str(task.get('sha256', ''))[:16])}</code>&hellip;; {stamp}; {html.escape(versions)}</p>"
         ),
     ]
+    line = headline(metrics)
+    if line:
+        parts.append(f'<p class="headline">{html.escape(line)}</p>')
     if description:
         parts.append(f"<p>{html.escape(description)}</p>")
     parts.append(failures)

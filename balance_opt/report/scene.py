@@ -39,7 +39,8 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
-from balance_opt.report.animation import ARM_COLOURS, magnification, magnified_axes
+from balance_opt.report.animation import magnification, magnified_axes
+from balance_opt.report.style import ARM_COLOURS
 from balance_opt.report.style import method_label
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.result import BalanceResult
