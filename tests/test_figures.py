@@ -317,3 +317,16 @@ def test_sweep_plots_of_one_case_and_of_a_planner_parameter(monkeypatch, tmp_pat
     assert [line.get_marker() for line in distribution.axes[0].get_lines()] == ["^", "o"]
     # the analytic law does not depend on optimal.* parameters: not drawn against them
     assert [c.get_label() for c in against.axes[0].collections] == ["optimal plan"]
+
+
+def test_balance_arm_torque_reads_apart_from_the_sum_it_carries():
+    """In the optimal plan's panel the balance arm makes most of the sum: it is drawn wide and
+    pale under the thin sum, so both read apart in greyscale (issue 26)."""
+    rng = np.random.default_rng(4)
+    fig, _ = reaction_torque_figure({"optimal": fake_simulation(rng, 1.0)}, None)
+    lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
+    total, balance = lines["sum of arms"], lines["optimal plan: balance arm"]
+    assert balance.get_linewidth() >= 1.5 * total.get_linewidth()
+    assert balance.get_zorder() < total.get_zorder()
+    grey = style.luminance(balance.get_color()) * balance.get_alpha() + (1 - balance.get_alpha())
+    assert grey - style.luminance(total.get_color()) >= MIN_LUMA_STEP
