@@ -19,9 +19,10 @@ DEFAULT_ATOL = 1e-12
 #: has always written); pass 1e-3 for 1 kHz.
 DEFAULT_OUTPUT_STEP = 0.01
 INTEGRATION_METHODS = ("adaptive", "rk4")
-#: Default budget of the adaptive integrator: a smooth 10 s mission takes a few hundred
-#: evaluations (12 a step); a law whose rates run away takes hundreds of thousands.
-DEFAULT_MAX_EVALUATIONS = 50_000
+#: Default budget of the adaptive integrator: the shipped examples take 200 to 1200
+#: evaluations (12 a step); a law whose rates run away takes hundreds of thousands (at a few
+#: tenths of a millisecond each).
+DEFAULT_MAX_EVALUATIONS = 20_000
 
 
 @dataclass(frozen=True)
