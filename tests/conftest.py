@@ -30,7 +30,7 @@ _SEEDED = [] if _KEPT_CACHE else copy_programs(_USER_CACHE, Path(_SESSION_CACHE)
 os.environ["BALANCE_OPT_CACHE"] = _SESSION_CACHE
 
 
-def pytest_report_header(config):
+def _cache_line() -> str:
     if _KEPT_CACHE:
         return f"balance-opt test cache: {_SESSION_CACHE} (BALANCE_OPT_TEST_CACHE, kept)"
     bridge = (
@@ -40,6 +40,17 @@ def pytest_report_header(config):
         "build it in the session's cache (1-6 min)"
     )
     return f"balance-opt test cache: {_SESSION_CACHE} (temporary); {bridge}"
+
+
+def pytest_report_header(config):
+    return _cache_line()
+
+
+def pytest_sessionstart(session):
+    """Say so even under ``-q`` (which drops the header) when the session builds the bridge."""
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if reporter is not None and not _KEPT_CACHE and not _SEEDED and session.config.option.quiet:
+        reporter.write_line(_cache_line())
 
 
 def pytest_sessionfinish(session, exitstatus):
