@@ -210,7 +210,8 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
 
     # the results on stdout (``compare ... > log`` keeps them), the progress on stderr
     _print_cartesian_goal(task)
-    print(f"wrote {len(run.files)} files to {folder.target} in {time.perf_counter() - started:.1f} s")
+    elapsed = time.perf_counter() - started
+    print(f"wrote {len(run.files)} files to {folder.target} in {elapsed:.1f} s")
     for name, res in run.results.items():
         m = run.metrics.get("methods", {}).get(name, {})
         count = violation_count_text(

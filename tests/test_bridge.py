@@ -247,7 +247,9 @@ def test_build_progress_is_logged(fake_compiler, monkeypatch, caplog):
     )
     still = [m for m in messages[1:-1] if m.startswith("... still building the bridge (")]
     assert still and all(
-        re.fullmatch(r"\.\.\. still building the bridge \(\d+ s so far, \d+ s of CPU of about 90\)", m)
+        re.fullmatch(
+            r"\.\.\. still building the bridge \(\d+ s so far, \d+ s of CPU of about 90\)", m
+        )
         for m in still
     )
     assert messages[-1].startswith("built the Pinocchio-CasADi bridge in ")

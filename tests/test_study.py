@@ -154,7 +154,9 @@ def test_study_progress_names_what_each_simulation_simulates(tmp_path, caplog):
 
     caplog.set_level(logging.INFO, logger="balance_opt")
     fast = SimulationOptions(dt=0.002, output_dt=0.05)
-    scenario_study(capture_task(), tmp_path, methods=("analytic",), simulation=fast, formats=("png",))
+    scenario_study(
+        capture_task(), tmp_path, methods=("analytic",), simulation=fast, formats=("png",)
+    )
     done = [r.getMessage() for r in caplog.records if r.getMessage().endswith(" ...")]
     assert [m for m in done if "simulation" in m] == [
         "capture_task: forward-dynamics simulation of the mission arm alone (Fig. 2) ...",

@@ -23,11 +23,13 @@ Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.Balan
   bound above the priced peak), or the bounded problem is solved warm started from the peak
   plan, which is feasible.
 * **Limits on the whole motion** (:func:`refine`). Torques and attitude bounds are rows at the
-  collocation points. After each solve every one is checked on the re-simulated motion (torques
-  from the free-floating inverse dynamics on several points per collocation interval); where one is broken beyond its
-  tolerance (:data:`TORQUE_TOLERANCE`, :data:`ATTITUDE_TOLERANCE`), its bound is tightened
-  by the measured ratio (torques: on the broken intervals only) and the problem solved again,
-  warm started, up to :data:`MAX_ROUNDS` times.
+  collocation points. After each solve every one is checked on the continuous motion (torques:
+  the free-floating inverse dynamics of the plan's polynomials at several points of every
+  collocation interval, :meth:`~balance_opt.optimal.constraints.TorqueLimit.torques`; the
+  attitude: the re-simulated motion); where one is broken beyond its tolerance
+  (:data:`TORQUE_TOLERANCE`, :data:`ATTITUDE_TOLERANCE`), its bound is tightened by the
+  measured ratio (torques: on the broken intervals only) and the problem solved again, warm
+  started, up to :data:`MAX_ROUNDS` times.
 
 Several starts are :mod:`balance_opt.optimal.starts`.
 """

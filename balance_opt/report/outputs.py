@@ -313,7 +313,8 @@ def method_metrics(
     default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort
     limits) and their number ``limit_violations``, by kind in ``limit_violations_by_kind``
     (position, velocity, acceleration, effort); ``warnings``
-    (:meth:`~balance_opt.result.BalanceResult.warnings`: an untrustworthy plan); ``solver`` (:func:`solver_metrics`);
+    (:meth:`~balance_opt.result.BalanceResult.warnings`: an untrustworthy plan); ``solver``
+    (:func:`solver_metrics`);
     ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].

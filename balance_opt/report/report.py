@@ -164,7 +164,8 @@ def _count(path: str) -> Callable[[Mapping], Cell]:
         value = _get(m, path)
         if value is None:
             return None
-        return (violation_count_text(value, m.get("limit_violations_by_kind")), "broken" if value else "inside")
+        text = violation_count_text(value, m.get("limit_violations_by_kind"))
+        return text, "broken" if value else "inside"
 
     return cell
 
@@ -175,7 +176,8 @@ def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
     if not total or not by_kind:
         return str(total)
     kinematic = sum(by_kind.get(k, 0) for k in ("position", "velocity", "acceleration"))
-    return f"{total} ({kinematic} position/velocity/acceleration, {by_kind.get('effort', 0)} effort)"
+    effort = by_kind.get("effort", 0)
+    return f"{total} ({kinematic} position/velocity/acceleration, {effort} effort)"
 
 
 def _residual(path: str) -> Callable[[Mapping], Cell]:
@@ -185,7 +187,8 @@ def _residual(path: str) -> Callable[[Mapping], Cell]:
         value = _get(m, path)
         if value is None:
             return None
-        return format_value(value, MOMENTUM_TOLERANCE), "broken" if value > UNTRUSTED_RESIDUAL else ""
+        css = "broken" if value > UNTRUSTED_RESIDUAL else ""
+        return format_value(value, MOMENTUM_TOLERANCE), css
 
     return cell
 
@@ -416,7 +419,8 @@ def headline(metrics: Mapping[str, Any]) -> str | None:
         by_kind = plan.get("limit_violations_by_kind")
         costs.append(f"{violation_count_text(count, by_kind)} limit violations")
     how = f"{b / a:.1f}x stiller than" if b >= a else f"{a / b:.1f}x less still than"
-    failed = " (FAILED: its solver's last iterate)" if name in (metrics.get("failures") or {}) else ""
+    failures = metrics.get("failures") or {}
+    failed = " (FAILED: its solver's last iterate)" if name in failures else ""
     warned = " (WARNING: untrustworthy, see below)" if plan.get("warnings") else ""
     return (
         f"The {method_label(name)}{failed}{warned} keeps the base {how} the "
