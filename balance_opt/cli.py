@@ -155,16 +155,12 @@ def _cmd_validate(args) -> int:
             continue
         robot = task.robot
         arms = "; ".join(f"{a.name} {a.dof} joints" for a in robot.arms)
-        log.info(
-            "%s: ok (robot %s, %s; mission %s, %.3g s)",
-            path,
-            robot.name,
-            arms,
-            task.spec.mission.type,
-            task.duration,
+        print(
+            f"{path}: ok (robot {robot.name}, {arms}; mission {task.spec.mission.type}, "
+            f"{task.duration:.3g} s)"
         )
     if failed and len(args.tasks) > 1:
-        log.info("%d of %d task files failed", failed, len(args.tasks))
+        print(f"{failed} of {len(args.tasks)} task files failed")
     return EXIT_INPUT if failed else EXIT_OK
 
 
@@ -182,8 +178,16 @@ def _cmd_inspect(args) -> int:
     task = with_backend(load_task(args.task), args.backend)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
+    _print_cartesian_goal(task)
     print(backend_line(task.spec.robot.backend))
     return EXIT_OK
+
+
+def _print_cartesian_goal(task) -> None:
+    goal = task.cartesian_goal
+    if goal:
+        values = ", ".join(f"{name} {v:.6g}" for name, v in goal.items())
+        print(f"mission goal found by inverse kinematics: {values} [rad or m]")
 
 
 def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: str = "plan") -> int:
@@ -203,24 +207,27 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: s
             solver_options=solver_options,
             robustness=task.spec.robustness.runs_in(command),
         )
-    log.info(
-        "wrote %d files to %s in %.1f s",
-        len(run.files),
-        folder.target,
-        time.perf_counter() - started,
-    )
+    from balance_opt.report.report import violation_count_text
+
+    # the results on stdout (``compare ... > log`` keeps them), the progress on stderr
+    _print_cartesian_goal(task)
+    elapsed = time.perf_counter() - started
+    print(f"wrote {len(run.files)} files to {folder.target} in {elapsed:.1f} s")
     for name, res in run.results.items():
-        log.info(
-            "  %-13s max drift %.3g rad, final drift %.3g rad, %d limit violations",
-            name,
-            res.max_drift,
-            res.final_drift,
-            len(res.violations),
+        m = run.metrics.get("methods", {}).get(name, {})
+        count = violation_count_text(
+            m.get("limit_violations", len(res.violations)), m.get("limit_violations_by_kind")
         )
-        for line in _more_summary(run.metrics["methods"].get(name, {})):
-            log.info("  %-13s %s", "", line)
+        print(
+            f"  {name:<13s} max drift {res.max_drift:.3g} rad, final drift "
+            f"{res.final_drift:.3g} rad, {count} limit violations"
+        )
+        for line in _more_summary(m):
+            print(f"  {'':<13s} {line}")
+        for warning in m.get("warnings", res.warnings()):
+            print(f"  {'':<13s} WARNING: {warning}")
     if run.report is not None:
-        log.info("report: %s", run.report)
+        print(f"report: {run.report}")
     if run.failures:
         for method, message in run.failures.items():
             print(f"balance-opt: solver failure ({method}): {message}", file=sys.stderr)
@@ -278,7 +285,7 @@ def _cmd_paper_figures(args) -> int:
         files = paper_figures(
             folder, task=task, solver_options=solver_options, backend=args.backend
         )
-    log.info("wrote %d files to %s", len(files), folder.target)
+    print(f"wrote {len(files)} files to {folder.target}")
     return EXIT_OK
 
 
@@ -349,16 +356,10 @@ def _cmd_sweep(args) -> int:
         on_result=_sweep_progress,
     )
     run = outcome.run
-    log.info(
-        "%d case(s): %d run in %.1f s on %d worker(s), %d skipped (already done), %d failed; "
-        "table %s",
-        len(run.results),
-        len(run.ran),
-        run.elapsed_s,
-        run.workers,
-        len(run.skipped),
-        len(run.failed),
-        outcome.files["table"],
+    print(
+        f"{len(run.results)} case(s): {len(run.ran)} run in {run.elapsed_s:.1f} s on "
+        f"{run.workers} worker(s), {len(run.skipped)} skipped (already done), "
+        f"{len(run.failed)} failed; table {outcome.files['table']}"
     )
     return EXIT_SOLVER if run.failed else EXIT_OK
 

@@ -124,7 +124,12 @@ def run_options(
 def method_option(
     parser: argparse.ArgumentParser, help: str = "planning method (default: both)"
 ) -> None:
-    """``-m``/``--method``: analytic, optimal or both (the default)."""
+    """``-m``/``--method``: analytic, optimal or both (the default), or mission-only (the
+    reference alone, which every run computes)."""
     parser.add_argument(
-        "-m", "--method", choices=("analytic", "optimal", "both"), default="both", help=help
+        "-m",
+        "--method",
+        choices=("analytic", "optimal", "both", "mission-only"),
+        default="both",
+        help=help,
     )

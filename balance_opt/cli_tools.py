@@ -1,7 +1,7 @@
 """The housekeeping subcommands of ``balance-opt``: ``cache`` and ``robots``.
 
-* ``cache [--clear]``: where the cache is, its size and bound, its entries by kind; ``--clear``
-  deletes them (each under its lock);
+* ``cache [--list] [--clear]``: where the cache is, its size and bound, its entries by kind
+  (each entry with ``--list``); ``--clear`` deletes them (each under its lock);
 * ``robots [NAME]``: the robots of example-robot-data usable as ``robot: {example: NAME}``, with
   their movable joints by chain (to pick arms), and those that fail to load, with the reason.
 """
@@ -47,14 +47,20 @@ def _cmd_cache(args) -> int:
         print(
             f"{kind}: {_count(len(group), 'entry', 'entries')}, {format_size(sum(e.size for e in group))}"
         )
+        if not args.list:
+            continue
         for e in group:
             used = datetime.datetime.fromtimestamp(e.last_used).strftime("%Y-%m-%d %H:%M")
             print(f"  {e.name}  {format_size(e.size)}  last used {used}")
+    if found and not args.list:
+        print("--list shows every entry")
     return EXIT_OK
 
 
-def _joint_lines(chains) -> list[str]:
-    return [f"    chain {k}: {', '.join(map(str, chain))}" for k, chain in enumerate(chains, 1)]
+def _print_joint_lines(chains) -> None:
+    """Each chain's joints, one line a chain; nothing for a robot without movable joints."""
+    for k, chain in enumerate(chains, 1):
+        print(f"    chain {k}: {', '.join(map(str, chain))}")
 
 
 def _cmd_robots(args) -> int:
@@ -68,7 +74,7 @@ def _cmd_robots(args) -> int:
             return 2
         joints, chains = _count(info.dof, "movable joint", "movable joints"), len(info.chains)
         print(f"  {joints}, {_count(chains, 'chain', 'chains')}, {info.mass:.2f} kg")
-        print("\n".join(_joint_lines(info.chains)))
+        _print_joint_lines(info.chains)
         for warning in info.warnings:
             print(f"  warning: {warning}")
         return EXIT_OK
@@ -84,7 +90,7 @@ def _cmd_robots(args) -> int:
             continue
         also = f" (also: {', '.join(aliases[name])})" if name in aliases else ""
         print(f"{name}{also}: {info.dof} movable joints, {info.mass:.1f} kg")
-        print("\n".join(_joint_lines(info.chains)))
+        _print_joint_lines(info.chains)
     print(f"{len(robots) - len(failed)} of {len(robots)} robots load; use robot: {{example: NAME}}")
     for info in failed:
         print(f"does not load: {info.name}: {info.error}")
@@ -122,6 +128,7 @@ def add_tool_commands(sub) -> None:
         "cache", help="show the cache of compiled kernels and the bridge, or clear it"
     )
     p.add_argument("--clear", action="store_true", help="delete every cached entry")
+    p.add_argument("--list", action="store_true", help="list every entry (default: a summary)")
     p.set_defaults(run=_cmd_cache)
 
     p = sub.add_parser("robots", help="robots usable as robot.example, with their joints by chain")

@@ -23,6 +23,10 @@ if TYPE_CHECKING:
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
+#: Relative momentum residual above which a plan's samples do not follow momentum conservation
+#: (a motion too fast for its samples, or a law that ran away): its figures are not to be
+#: trusted. Sound plans stay below 1e-6 (the finite-difference floor of the check).
+UNTRUSTED_RESIDUAL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -246,6 +250,20 @@ class BalanceResult(AttitudeHistory):
             "limit_violations": len(self.violations),
         }
 
+    def warnings(self) -> list[str]:
+        """What makes this plan untrustworthy, in words (empty for a sound plan): a momentum
+        residual above :data:`UNTRUSTED_RESIDUAL`."""
+        residual = float(np.nanmax(self.momentum_residual)) if self.t.size > 1 else 0.0
+        if not residual > UNTRUSTED_RESIDUAL:
+            return []
+        peak = float(np.abs(self.q_ddot_B).max()) if self.q_ddot_B.size else 0.0
+        return [
+            f"untrustworthy: relative momentum residual {residual:.3g} > {UNTRUSTED_RESIDUAL:g} "
+            f"(the samples do not follow momentum conservation; peak balance joint "
+            f"acceleration {peak:.3g} rad/s^2, smallest singular value of J_wB "
+            f"{float(np.min(self.sigma_min)):.3g})"
+        ]
+
     # ------------------------------------------------------------------ notebook helpers
     @property
     def status(self) -> str:
@@ -291,6 +309,7 @@ class BalanceResult(AttitudeHistory):
             )
         else:
             lines.append("  limits     all met")
+        lines += [f"  WARNING    {w}" for w in self.warnings()]
         return "\n".join(lines[:REPR_LINES])
 
     def to_dataframe(self) -> pandas.DataFrame:

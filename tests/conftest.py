@@ -1,24 +1,56 @@
 """Shared fixtures: robots and their maps, built once per test session.
 
 Compiled planner kernels go to a temporary folder of this test session (removed at its end), never
-to the user's own cache; set ``BALANCE_OPT_TEST_CACHE`` to a folder to keep them across runs.
+to the user's own cache; set ``BALANCE_OPT_TEST_CACHE`` to a folder to keep them across runs. A
+Pinocchio-CasADi bridge already built in the user's cache (``$BALANCE_OPT_CACHE`` or the default
+folder) is copied into the temporary one (the user's is only read); without one, the header
+says that the tests that need it build one (minutes).
 """
 
 import os
 import shutil
 import tempfile
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from balance_opt.cache import default_cache_dir
+from balance_opt.model.bridge import copy_programs
 from balance_opt.optimal.collocation import joint_chain_coefficients
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 _KEPT_CACHE = os.environ.get("BALANCE_OPT_TEST_CACHE")
 _SESSION_CACHE = _KEPT_CACHE or tempfile.mkdtemp(prefix="balance-opt-test-cache-")
+_USER_CACHE = default_cache_dir()  # before the session's cache replaces it
+_SEEDED = [] if _KEPT_CACHE else copy_programs(_USER_CACHE, Path(_SESSION_CACHE))
 # Set before any balance_opt import reads it; worker processes of the sweep tests inherit it.
 os.environ["BALANCE_OPT_CACHE"] = _SESSION_CACHE
+
+
+def _cache_line() -> str:
+    if _KEPT_CACHE:
+        return f"balance-opt test cache: {_SESSION_CACHE} (BALANCE_OPT_TEST_CACHE, kept)"
+    bridge = (
+        f"Pinocchio-CasADi bridge copied from {_USER_CACHE}"
+        if _SEEDED
+        else f"no Pinocchio-CasADi bridge built in {_USER_CACHE}: the tests that need one "
+        "build it in the session's cache (1-6 min)"
+    )
+    return f"balance-opt test cache: {_SESSION_CACHE} (temporary); {bridge}"
+
+
+def pytest_report_header(config):
+    return _cache_line()
+
+
+def pytest_sessionstart(session):
+    """Say so even under ``-q`` (which drops the header) when the session builds the bridge."""
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if reporter is not None and not _KEPT_CACHE and not _SEEDED and session.config.option.quiet:
+        reporter.write_line(_cache_line())
 
 
 def pytest_sessionfinish(session, exitstatus):

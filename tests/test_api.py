@@ -307,3 +307,33 @@ def test_a_folder_opened_by_the_caller_is_written_when_its_block_ends(task, plan
         bo.run_task(task, methods=("analytic",), output_dir=folder, plans=plans)
         raise RuntimeError("after run_task")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+# ------------------------------------------------------------------------ issue 26: misuse
+def test_a_path_is_taken_where_a_task_is_expected(task, plans):
+    by_path = bo.plan_analytic(task.source)
+    assert by_path == plans["analytic"]
+    assert bo.plan_mission_only(Path(task.source)) == plans["mission-only"]
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda t, p: bo.plan_analytic(3), "task: expected a Task .* or a task file path, got int"),
+        (lambda t, p: bo.simulate(t, "x"), "plan: expected a BalanceResult .*, got str"),
+        (lambda t, p: bo.simulate({"name": "x"}, p), "task: expected a Task .*, got dict"),
+        (lambda t, p: bo.plan_optimal(t, warm_start="x"), "plan: expected a BalanceResult"),
+    ],
+)
+def test_a_wrong_argument_type_is_a_type_error_naming_the_type(task, plans, call, message):
+    with pytest.raises(TypeError, match=message):
+        call(task, plans["analytic"])
+
+
+@pytest.mark.slow
+def test_repr_of_a_simulation_is_short(task, plans):
+    sim = bo.simulate(task, plans["analytic"])
+    lines = repr(sim).split("\n")
+    assert len(lines) == 6
+    assert lines[0] == "SimulationResult(robot='paper_robot', 6 joints)"
+    assert f"peak {float(sim.angle.max()):.4g} rad" in lines[2]

@@ -275,6 +275,42 @@ def test_exact_law_fails_at_the_singular_start(capture):
     assert err.value.result is not None
 
 
+def test_a_law_that_runs_away_stops_within_its_budget_and_says_so(capture, monkeypatch):
+    """Hardly any damping near the singular start: the law's rates run away and the adaptive
+    step shrinks without end. The integration stops after ``max_evaluations``, naming how far
+    it got and why, with the motion up to there; while it runs, a progress line says where it
+    is (issue 26)."""
+    import io
+
+    from balance_opt import progress
+    from balance_opt.motion import integration
+
+    monkeypatch.setattr(integration, "PROGRESS_EVERY_S", 0.0)
+    stream = io.StringIO()
+    progress.configure(True, stream)
+    try:
+        with pytest.raises(
+            SolverError,
+            match=r"stopped after 30\d\d right-hand side evaluations \(max_evaluations\) at "
+            r"t = [\d.]+ s of 10 s, steps down to .*; smallest singular value of J_wB down to "
+            r"[\d.e+-]+, balance joint rates up to [\d.e+-]+ rad/s: the law's rates run away",
+        ) as err:
+            rollout(
+                capture.robot,
+                capture.mission,
+                capture.q_B0,
+                BalanceLawOptions(damping_threshold=1e-3, max_damping=1e-5),
+                integration=IntegrationOptions(max_evaluations=3000),
+            )
+    finally:
+        progress.configure(False)
+    result = err.value.result
+    assert 0.0 < result.t[-1] < capture.mission.duration
+    assert result.info["integration"]["rhs_evaluations"] < 3000 + 12  # one DOP853 step more
+    line = r"integrating: t = [\d.]+ of 10 s, step [\d.e+-]+ s, \d+ right-hand"
+    assert re.search(line, stream.getvalue())
+
+
 def _dls_gain_bound(threshold, max_damping):
     """sup over sigma >= 0 of sigma / (sigma^2 + lambda(sigma)^2): the largest balance rate per
     unit requested base rate the damped inverse can return."""

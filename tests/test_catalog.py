@@ -1,6 +1,7 @@
 """The robot library: every example-robot-data robot by name, its joints by chain, and the
 ``balance-opt robots`` and ``balance-opt cache`` commands."""
 
+import dataclasses
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -152,8 +153,28 @@ def test_cache_command_shows_and_clears(tmp_path, monkeypatch, capsys):
     assert out[0] == f"cache folder: {tmp_path} ($BALANCE_OPT_CACHE)"
     assert out[1].startswith("size: 2.1 kB (bound 2.15 GB, $BALANCE_OPT_CACHE_LIMIT)")
     assert out[2].startswith("planner kernels: 1 entry, ")
+    assert out[3:] == ["Ipopt options: 1 entry, 2 B", "--list shows every entry"]  # a summary
+    assert main(["cache", "--list"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[2].startswith("planner kernels: 1 entry, ")
     assert out[3].startswith("  balance_kernels_0123.so  ")
     assert out[4] == "Ipopt options: 1 entry, 2 B"
+    assert out[5].startswith("  ipopt-options-casadi-3.8.2.json  2 B  last used ")
     assert main(["cache", "--clear"]) == 0
     assert capsys.readouterr().out.splitlines()[1].startswith("deleted 2 entries (")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_robots_without_joints_print_no_blank_line(capsys, monkeypatch):
+    from balance_opt.model import catalog
+
+    infos = {
+        "box": dataclasses.replace(robot_info("ur5"), name="box", chains=[]),
+        "ur5": robot_info("ur5"),
+    }
+    monkeypatch.setattr(catalog, "example_robots", lambda: list(infos))
+    monkeypatch.setattr(catalog, "robot_info", infos.__getitem__)
+    assert main(["robots"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "" not in out
+    assert out[0].startswith("box: 0 movable joints") and out[1].startswith("ur5")

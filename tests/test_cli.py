@@ -5,6 +5,7 @@ metrics, exit codes), a table of bad inputs (exit 2, the culprit named), no over
 import argparse
 import csv
 import hashlib
+import html
 import json
 import re
 import subprocess
@@ -103,7 +104,7 @@ def test_validate_both_examples(capsys):
         )
         == 0
     )
-    err = capsys.readouterr().err
+    err = capsys.readouterr().out  # results on stdout
     assert re.search(
         r"capture_task\.yaml: ok \(robot paper_robot, mission 3 joints; balance 3 joints; "
         r"mission ptp, 10 s\)",
@@ -156,9 +157,9 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     task = _fast_paper(tmp_path)
     out = tmp_path / "out"
     assert main(["plan", str(task), "--method", "both", "--simulate", "--output", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert "optimal plan (N = 12, hermite-simpson, Ipopt) ..." in err  # progress
-    assert f"report: {out / 'report.html'}" in err
+    captured = capsys.readouterr()
+    assert "optimal plan (N = 12, hermite-simpson, Ipopt) ..." in captured.err  # progress
+    assert f"report: {out / 'report.html'}" in captured.out  # results
     files = {p.name for p in out.iterdir()}
     assert files == PLAN_FILES | FIGURES | SIMULATION_FIGURES | REPORT_FILES
 
@@ -662,3 +663,97 @@ def test_an_hsl_solver_without_hsl_is_an_input_error_not_a_crash(tmp_path, capsy
     assert code == 2
     assert "Ipopt cannot load linear solver 'ma97'" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------ issue 26: results
+#: The capture task's law with hardly any damping near its singular balance arm, integrated by
+#: RK4 on the 10 ms output grid: the rates run away between the samples, which then no longer
+#: conserve momentum.
+RUNAWAY_LAW = """
+analytic: {damping_threshold: 1.0e-3, max_damping: 1.0e-4, integrator: rk4, output_step: 0.01}
+outputs: {plots: false, animation: false}
+"""
+
+
+def test_untrustworthy_plan_is_flagged_and_results_go_to_stdout(tmp_path, capsys):
+    text = (EXAMPLES / "capture_task.yaml").read_text()
+    text = text.replace("balance: [0.0, 0.5, -1.0]", "balance: [0.0, 0.5, -0.95]")
+    task = _write(tmp_path / "runaway.yaml", text + RUNAWAY_LAW)
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    m = _metrics(out)["methods"]["analytic"]
+    assert m["max_momentum_residual"] > 0.1
+    assert len(m["warnings"]) == 1
+    assert re.match(r"untrustworthy: relative momentum residual 0\.\d+ > 0\.001", m["warnings"][0])
+    # one count of the violations everywhere, split by kind
+    kinds = m["limit_violations_by_kind"]
+    assert sum(kinds.values()) == m["limit_violations"] == len(m["violations"]) > 0
+    kinematic = kinds["position"] + kinds["velocity"] + kinds["acceleration"]
+    count = (
+        f"{m['limit_violations']} ({kinematic} position/velocity/acceleration, "
+        f"{kinds['effort']} effort) limit violations"
+    )
+    assert f"analytic      max drift {m['max_drift_rad']:.3g} rad" in captured.out
+    assert count in captured.out
+    assert f"WARNING: {m['warnings'][0]}" in captured.out
+    assert f"report: {out / 'report.html'}" in captured.out
+    assert "report:" not in captured.err and "WARNING: untrustworthy" not in captured.out.split(
+        "analytic      max drift"
+    )[0]
+    report = html.unescape((out / "report.html").read_text())
+    assert re.search(rf"WARNING: [^<:]+: {re.escape(m['warnings'][0])}", report)
+    assert count.removesuffix(" limit violations") in report
+    assert re.search(r'<td class="broken">0\.\d+</td>', report)  # the residual's cell
+
+
+def test_validate_on_a_sweep_file_points_to_the_sweep_command(capsys):
+    sweep = EXAMPLES / "sweep_paper.yaml"
+    line = next(i for i, s in enumerate(sweep.read_text().splitlines(), 1) if s.startswith("task:"))
+    assert main(["validate", str(sweep)]) == 2
+    assert (
+        f"balance-opt: error: {sweep}:{line}: task: this is a sweep file, not a task file: "
+        "use balance-opt sweep"
+    ) in capsys.readouterr().err
+
+
+def test_plan_mission_only_writes_the_reference_alone(tmp_path, capsys):
+    out = tmp_path / "out"
+    task = _fast_paper(tmp_path, "outputs: {plots: false, animation: false}\n")
+    assert main(["plan", str(task), "-m", "mission-only", "-o", str(out), "-q"]) == 0
+    assert set(_metrics(out)["methods"]) == {"mission-only"}
+    assert {"mission-only.csv", "mission-only.npz"} <= {p.name for p in out.iterdir()}
+    assert "  mission-only  max drift" in capsys.readouterr().out
+
+
+def test_cartesian_goal_where_the_end_effector_is_and_the_joint_goal(tmp_path, capsys):
+    from balance_opt.model.summary import end_effector_poses
+    from balance_opt.tasks.task import load_task
+
+    task = _write(
+        tmp_path / "cart.yaml",
+        "name: cart\nrobot: {shipped: paper_robot.urdf}\n"
+        "arms:\n  mission: [mission_joint1, mission_joint2, mission_joint3]\n"
+        "  balance: [balance_joint1, balance_joint2, balance_joint3]\n"
+        "initial: {balance: [0.0, 0.5, -1.0]}\n"
+        "mission: {type: cartesian, start: [0.0, 0.3, -0.6], position: [0.9, 0.4, 1.2], "
+        "duration: 3}\n"
+        "analytic: {output_step: 0.05}\noutputs: {plots: false, animation: false}\n",
+    )
+    loaded = load_task(task)
+    assert main(["inspect", str(task)]) == 0
+    out = capsys.readouterr().out
+    poses = end_effector_poses(loaded.robot, loaded.q0)
+    for arm, (position, _) in poses.items():
+        where = "[" + ", ".join(f"{x:.4g}" for x in position) + "] m"
+        assert f"  {arm} arm: 3 joints" in out
+        assert f"    end effector at {where}, roll-pitch-yaw [" in out
+    goal = dict(zip(loaded.robot.mission.joints, loaded.mission.qf))
+    line = "mission goal found by inverse kinematics: " + ", ".join(
+        f"{j} {v:.6g}" for j, v in goal.items()
+    )
+    assert line in out
+    out_dir = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "analytic", "-o", str(out_dir), "-q"]) == 0
+    assert line in capsys.readouterr().out
+    assert _metrics(out_dir)["task"]["cartesian_goal_rad"] == pytest.approx(goal, abs=1e-12)

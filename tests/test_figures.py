@@ -244,3 +244,88 @@ def test_sweep_plots_use_the_method_styles(monkeypatch, tmp_path):
         assert titles(fig)[0] == "" and not any(titles(fig)[1])
     scatter = against.axes[0].collections
     assert [c.get_label() for c in scatter] == ["analytic law", "optimal plan"]
+
+
+# ------------------------------------------------------------------ issue 26: figures
+def _rgb(colour):
+    return np.array(mpl.colors.to_rgb(colour))
+
+
+def test_arm_colours_are_no_method_colour_and_the_scenes_use_them():
+    from balance_opt.report import scene
+
+    plans = {style.method_colour(m) for m in PLANS}
+    others = {style.method_colour(m) for m in style.METHODS} - plans  # the torque parts' grey
+    for arm in style.ARM_COLOURS:
+        for method in plans:  # far apart in RGB (orange #E69F00 vs vermillion #D55E00: 0.27)
+            assert np.linalg.norm(_rgb(arm) - _rgb(method)) > 0.35, (arm, method)
+        for other in others:
+            assert np.linalg.norm(_rgb(arm) - _rgb(other)) > 0.25, (arm, other)
+    assert scene.ARM_COLOURS is style.ARM_COLOURS
+
+
+def test_joint_figure_keeps_the_limits_in_view_past_a_runaway_plan(paper):
+    from balance_opt.report.report_figures import OFF_SCALE, joint_limits_figure
+
+    joints = [j for j in paper.joint_names if "balance" in j]
+    rng = np.random.default_rng(7)
+    runaway, optimal = fake_plan(joints, rng), fake_plan(joints, rng)
+    runaway.q_dot_B = runaway.q_dot_B.copy()
+    runaway.q_dot_B[20, 0] = 5e4
+    fig = joint_limits_figure({"analytic": runaway, "optimal": optimal}, paper)
+    rate = fig.axes[len(joints)]  # second row, first joint
+    limit = paper.limits.velocity[paper.joint_index(joints[0])]
+    np.testing.assert_allclose(rate.get_ylim(), [-OFF_SCALE * limit, OFF_SCALE * limit])
+    notes = [t.get_text() for t in rate.texts]
+    assert notes == ["analytic law off scale (to 5e+04)"]
+    assert not fig.axes[0].texts  # the positions stay inside: no clipping, no note
+
+
+def test_torque_caption_says_how_far_apart_the_scales_are():
+    from balance_opt.app.run_files import _torque_scales
+
+    rng = np.random.default_rng(3)
+    sims = {"analytic": fake_simulation(rng, 0.01), "optimal": fake_simulation(rng, 0.3)}
+    peaks = [max(np.abs(w[:, 3:]).max() for w in s.arm_wrenches.values()) for s in sims.values()]
+    text = _torque_scales(sims)
+    assert text == (
+        f" (analytic law up to {peaks[0]:.3g} N m, optimal plan up to {peaks[1]:.3g} N m: "
+        f"the scales differ {peaks[1] / peaks[0]:.3g}x)"
+    )
+
+
+def test_sweep_plots_of_one_case_and_of_a_planner_parameter(monkeypatch, tmp_path):
+    from balance_opt.sweep import report
+
+    figures = []
+    monkeypatch.setattr(report, "_save", lambda fig, path: figures.append(fig) or path)
+    records = [
+        {
+            "index": m,
+            "method": method,
+            "status": "ok",
+            "parameters": {"optimal.intervals": 40},
+            "metrics": {"max_drift_rad": 0.02 + 0.01 * m, "final_drift_rad": 0.01},
+        }
+        for m, method in enumerate(("analytic", "optimal"))
+    ]
+    report.plot_drift_distribution(records, tmp_path / "d.png")
+    report.plot_drift_against_parameter(records, "optimal.intervals", tmp_path / "p.png")
+    distribution, against = figures
+    # one case per method: a step through one point draws nothing, its marker does
+    assert [line.get_marker() for line in distribution.axes[0].get_lines()] == ["^", "o"]
+    # the analytic law does not depend on optimal.* parameters: not drawn against them
+    assert [c.get_label() for c in against.axes[0].collections] == ["optimal plan"]
+
+
+def test_balance_arm_torque_reads_apart_from_the_sum_it_carries():
+    """In the optimal plan's panel the balance arm makes most of the sum: it is drawn wide and
+    pale under the thin sum, so both read apart in greyscale (issue 26)."""
+    rng = np.random.default_rng(4)
+    fig, _ = reaction_torque_figure({"optimal": fake_simulation(rng, 1.0)}, None)
+    lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
+    total, balance = lines["sum of arms"], lines["optimal plan: balance arm"]
+    assert balance.get_linewidth() >= 1.5 * total.get_linewidth()
+    assert balance.get_zorder() < total.get_zorder()
+    grey = style.luminance(balance.get_color()) * balance.get_alpha() + (1 - balance.get_alpha())
+    assert grey - style.luminance(total.get_color()) >= MIN_LUMA_STEP

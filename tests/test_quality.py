@@ -21,7 +21,7 @@ from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.guess import resampled
 from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
-from balance_opt.optimal.options import PlannerOptions
+from balance_opt.optimal.options import CostWeights, PlannerOptions
 from balance_opt.optimal.problem import PlannerSolverError
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.report.outputs import solver_metrics
@@ -222,23 +222,51 @@ def test_path_bound_above_the_best_peak_is_met_from_the_default_guess(model, cap
     _no_violations(plan)
 
 
+@pytest.fixture(scope="module")
+def lowest_peak(model, capture):
+    """The peak plan of the capture task at N = 40 with the final drift unpriced: the smallest
+    peak under the task's end conditions."""
+    options = PlannerOptions(
+        intervals=40, objective="peak", weights=CostWeights(peak_terminal=0.0)
+    )
+    return build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
+
+
 @pytest.mark.slow
-def test_impossible_path_bound_fails_with_the_smallest_peak(model, capture, coarse_peak):
-    best = coarse_peak.max_drift
+def test_path_bound_below_the_priced_peak_but_above_the_smallest_is_met(
+    model, capture, coarse_peak, lowest_peak
+):
+    """The peak objective's plan also prices the final drift: its peak is not the smallest a
+    plan with rest at both ends reaches. A bound between the two is met (issue 26)."""
+    assert lowest_peak.max_drift < coarse_peak.max_drift * (1 - 5e-3)
+    bound = 0.5 * (lowest_peak.max_drift + coarse_peak.max_drift)
+    for objective in ("peak", "integral"):
+        options = PlannerOptions(intervals=40, objective=objective, path_attitude_bound=bound)
+        plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
+        assert plan.max_drift <= bound * (1 + 1e-3)
+        assert plan.info["smallest_peak_rad"] == pytest.approx(lowest_peak.max_drift, rel=2e-3)
+        _no_violations(plan)
+
+
+@pytest.mark.slow
+def test_impossible_path_bound_fails_with_the_smallest_peak(model, capture, lowest_peak):
+    best = lowest_peak.max_drift
     options = PlannerOptions(intervals=40, path_attitude_bound=0.8 * best)
     with pytest.raises(
         PlannerSolverError, match="below the smallest peak the planner found"
     ) as info:
         build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
-    assert f"{best:.6g} rad" in str(info.value)
+    smallest = info.value.result.max_drift
+    assert smallest == pytest.approx(best, rel=2e-3)
+    assert f"{smallest:.6g} rad" in str(info.value)
     assert info.value.status == "Bound_Below_Smallest_Peak"
     # the failure's result reports the work of every stage behind it, not the last solve's
     stages = info.value.result.info["stages"]
-    assert len(stages) == 3
+    assert [s["stage"] for s in stages] == ["integral", "smooth", "peak", "peak, final drift free"]
     assert solver_metrics(info.value.result.info)["iterations"] == sum(
         s["iterations"] for s in stages
     )
-    assert info.value.violation == pytest.approx(0.2 * best, rel=1e-6)
+    assert info.value.violation == pytest.approx(smallest - 0.8 * best, rel=1e-6)
 
 
 @pytest.mark.slow
@@ -314,6 +342,39 @@ def test_torque_limits_hold_between_the_collocation_points(model, capture):
     excess = np.abs(tau) / effort - 1.0
     assert excess.max() <= TORQUE_EXCESS
     assert excess.max() > -0.01  # the limits bind
+
+
+def _plan_torque_excess(model, capture, nlp, plan, effort) -> float:
+    """The largest relative excess of the plan's torques over ``effort`` on a 2.5 ms grid."""
+    t = np.linspace(0.0, nlp.horizon, 4001)
+    q_B, qd_B, qdd_B = nlp.trajectory(nlp.solution_of(plan)).sample(t)
+    q_M, qd_M, qdd_M = capture.mission.sample(t)
+    tau = np.array(
+        model.torque_fun().map(t.size)(
+            np.hstack([q_M, q_B]).T, np.hstack([qd_M, qd_B]).T, np.hstack([qdd_M, qdd_B]).T
+        )
+    )[3:].T
+    return float((np.abs(tau) / effort - 1.0).max())
+
+
+@pytest.mark.slow
+def test_torque_limits_hold_between_coarse_samples(model, capture):
+    """The refinement checks the torques on the plan's polynomials, not on the exported
+    samples (issue 26): with samples 0.1 s apart, wider than a third of an interval, the
+    torques still hold between them."""
+    effort = np.array([1.5, 1.5, 0.5])
+    limits = {j: {"acceleration": 2.0, "effort": e} for j, e in zip(BALANCE, effort)}
+    options = PlannerOptions(
+        intervals=40, objective="integral", torque_limits=True, resample_step=0.1
+    )
+    nlp = build_balance_nlp(
+        model, capture.mission, capture.q_B0, options, robot=paper_robot(limits=limits)
+    )
+    plan = nlp.solve()
+    assert np.diff(plan.t).max() > 0.08
+    excess = _plan_torque_excess(model, capture, nlp, plan, effort)
+    assert -0.01 < excess <= TORQUE_EXCESS
+    _no_violations(plan)
 
 
 @pytest.mark.slow

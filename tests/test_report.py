@@ -288,3 +288,33 @@ def test_report_is_offline_and_flags_a_failed_method(paper):
     assert '<p class="failure">FAILED: optimal plan: Ipopt: x</p>' in page
     assert '<h3>optimal plan <span class="flag">FAILED</span></h3>' in page
     assert page.count("<polyline") == 2 * len(res.mission_joints + res.balance_joints)
+
+
+def test_report_opens_with_a_headline_and_shows_figures_at_the_columns_width(tmp_path):
+    from balance_opt.report.report import headline, render_report
+
+    metrics = {
+        "task": {"name": "t"},
+        "methods": {
+            "mission-only": {"max_drift_rad": 0.0929},
+            "optimal": {
+                "max_drift_rad": 0.0211,
+                "peak_balance_rate_rad_s": 0.512,
+                "effort": {"balance_min_relative_margin": 0.25},
+                "solver": {"iterations": 120, "solve_time_s": 3.4},
+                "limit_violations": 0,
+            },
+        },
+    }
+    line = headline(metrics)
+    assert line == (
+        "The optimal plan keeps the base 4.4x stiller than the mission arm alone (peak drift "
+        "0.0211 vs 0.0929 rad), at these costs: balance joints up to 0.512 rad/s; smallest "
+        "effort margin 25 % of the limit; 120 Ipopt iterations in 3.4 s."
+    )
+    png = tmp_path / "f.png"
+    png.write_bytes(b"\x89PNG fake")
+    page = render_report(metrics, [("a figure", png)])
+    assert page.index(f'<p class="headline">{line}</p>') < page.index("<h2>Comparison</h2>")
+    assert "figure img { width: 100%; height: auto;" in page
+    assert headline({"methods": {"optimal": metrics["methods"]["optimal"]}}) is None

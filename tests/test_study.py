@@ -145,3 +145,25 @@ def test_study_rejects_unknown_methods(tmp_path):
         InputError, match=r"study methods must be among analytic, optimal, got \['exact'\]"
     ):
         paper_study(tmp_path, methods=("exact",))
+
+
+@pytest.mark.slow
+def test_study_progress_names_what_each_simulation_simulates(tmp_path, caplog):
+    import logging
+
+    from balance_opt.app.scenarios import capture_task
+    from balance_opt.app.study import scenario_study
+    from balance_opt.dynamics.options import SimulationOptions
+
+    caplog.set_level(logging.INFO, logger="balance_opt")
+    fast = SimulationOptions(dt=0.002, output_dt=0.05)
+    scenario_study(
+        capture_task(), tmp_path, methods=("analytic",), simulation=fast, formats=("png",)
+    )
+    done = [r.getMessage() for r in caplog.records if r.getMessage().endswith(" ...")]
+    assert [m for m in done if "simulation" in m] == [
+        "capture_task: forward-dynamics simulation of the mission arm alone (Fig. 2) ...",
+        "capture_task: forward-dynamics simulation of the analytic plan's balance arm alone "
+        "(Fig. 3) ...",
+        "capture_task: forward-dynamics simulation of the analytic plan (Figs. 4, 5) ...",
+    ]

@@ -615,7 +615,13 @@ def test_unreachable_cartesian_goal_names_the_position(tmp_path):
     assert message.startswith(
         f"{path}:{_line_of(text, 'position:')}: mission.position: Cartesian goal [5.0, 0.0, 1.0]"
     )
-    assert re.search(r"unreachable within the joint limits: remaining distance [0-9.]+ m$", message)
+    number = r"-?[0-9.e+-]+"
+    point = rf"\[{number}, {number}, {number}\]"
+    assert re.search(
+        rf"unreachable within the joint limits: remaining distance [0-9.]+ m; the closest point "
+        rf"reached is {point} m \(joints {point}\), the end effector starts at {point} m$",
+        message,
+    )
 
 
 # ----------------------------------------------------------------------------------- options

@@ -206,6 +206,15 @@ def test_unreachable_goal_reports_remaining_distance(paper):
     assert err.value.distance <= np.linalg.norm(points - goal, axis=1).min() + 1e-9
     assert err.value.distance >= np.linalg.norm(goal - shoulder) - reach - 1e-9
     assert f"{err.value.distance:.6g} m" in str(err.value)
+    # where the end effector got to, and where it started (issue 26)
+    closest = err.value.closest
+    assert np.linalg.norm(goal - closest) == pytest.approx(err.value.distance, rel=1e-9)
+    assert "the closest point reached is [" + ", ".join(f"{x:.4g}" for x in closest) in str(
+        err.value
+    )
+    start = _fk(paper, "mission", np.array([0.0, 0.3, -0.6])).translation
+    said = str(err.value).split("the end effector starts at [")[1].removesuffix("] m")
+    np.testing.assert_allclose([float(x) for x in said.split(", ")], start, rtol=1e-3, atol=1e-12)
 
 
 def test_cartesian_goal_input_errors(paper):

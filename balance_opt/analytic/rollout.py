@@ -85,8 +85,15 @@ def rollout(
     Y, stats, failure = integrate(rhs, np.r_[quat0, q_B0], t, integration)
     result = _result(law, sample_M, t[: Y.shape[0]], Y, stats)
     if failure is not None:
+        reason = (
+            f"; smallest singular value of J_wB down to {float(result.sigma_min.min()):.3g}, "
+            f"balance joint rates up to {float(np.abs(result.q_dot_B).max()):.3g} rad/s: "
+            "the law's rates run away (raise analytic.damping_threshold or max_damping)"
+            if result.t.size > 1
+            else ""
+        )
         raise SolverError(
-            f"analytic balance law rollout failed: {failure}", "integration_failed", result
+            f"analytic balance law rollout failed: {failure}{reason}", "integration_failed", result
         )
     log.debug("rollout: %d samples, %s", result.t.size, stats)
     return result

@@ -56,7 +56,34 @@ METHODS = ("analytic", "optimal")
 
 
 # =========================================================================================== methods
-def plan_mission_only(task: Task) -> BalanceResult:
+def checked_task(task: Task | str | Path, what: str = "task") -> Task:
+    """``task``, or the task loaded from the file it names (a path or a string).
+
+    Raises:
+        TypeError: neither a :class:`~balance_opt.tasks.task.Task` nor a path.
+    """
+    if isinstance(task, Task):
+        return task
+    if isinstance(task, (str, Path)):
+        from balance_opt.tasks.task import load_task
+
+        return load_task(task)
+    raise TypeError(
+        f"{what}: expected a Task (balance_opt.load_task) or a task file path, "
+        f"got {type(task).__name__}"
+    )
+
+
+def _checked_plan(plan) -> BalanceResult:
+    if not isinstance(plan, BalanceResult):
+        raise TypeError(
+            f"plan: expected a BalanceResult (balance_opt.plan_analytic, plan_optimal, ...), "
+            f"got {type(plan).__name__}"
+        )
+    return plan
+
+
+def plan_mission_only(task: Task | str | Path) -> BalanceResult:
     """Phase I (paper Fig. 2): the base attitude with the mission arm moving and the balance arm
     held at its start, integrated from momentum conservation: the reference of every plan.
 
@@ -69,6 +96,7 @@ def plan_mission_only(task: Task) -> BalanceResult:
     """
     from balance_opt.analytic.phases import phase_one
 
+    task = checked_task(task)
     if task.target is not None:
         return _captured(task, REFERENCE)
 
@@ -76,7 +104,7 @@ def plan_mission_only(task: Task) -> BalanceResult:
     return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration)
 
 
-def plan_analytic(task: Task) -> BalanceResult:
+def plan_analytic(task: Task | str | Path) -> BalanceResult:
     """Phase II: the analytic balance law (Eq. 31, 32) rolled out with the task's options.
 
     Args:
@@ -90,6 +118,7 @@ def plan_analytic(task: Task) -> BalanceResult:
     """
     from balance_opt.analytic.rollout import rollout
 
+    task = checked_task(task)
     if task.target is not None:
         return _captured(task, "analytic")
 
@@ -124,6 +153,9 @@ def plan_optimal(
     """
     from balance_opt.optimal.solve import build_balance_nlp
 
+    task = checked_task(task)
+    if warm_start is not None:
+        _checked_plan(warm_start)
     if task.target is not None:
         return _captured(task, "optimal", solver_options, models)
     check_optimal_supported(task)
@@ -188,6 +220,7 @@ def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
     """
     from balance_opt.dynamics.simulation import simulate_plan
 
+    task, plan = checked_task(task), _checked_plan(plan)
     if task.target is not None:  # through the capture's impulse (issue 16)
         from balance_opt.app.capture import robot_after
         from balance_opt.dynamics.capture_impulse import simulate_with_capture
@@ -251,6 +284,7 @@ def run_task(
         KeyboardInterrupt: Ctrl-C or SIGTERM (:class:`~balance_opt.interrupts.Interrupted`);
             nothing is written.
     """
+    task = checked_task(task)
     methods = _checked_methods(task, methods)
     given = _checked_plans(task, methods, plans or {})
     given_sims = dict(simulations or {})
@@ -348,12 +382,15 @@ def _checked_plans(
 
 
 def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
-    """The methods without repeats, checked before anything is computed."""
-    methods = tuple(dict.fromkeys(methods))
+    """The methods without repeats, checked before anything is computed; the reference
+    (``"mission-only"``) may be asked for alone: every run computes it."""
+    given = tuple(dict.fromkeys(methods))
+    methods = tuple(m for m in given if m != REFERENCE)
     unknown = [m for m in methods if m not in METHODS]
-    if unknown or not methods:
+    if unknown or not given:
         raise InputError(
-            f"methods must be among {', '.join(METHODS)}, got {', '.join(methods) or 'none'}"
+            f"methods must be among {', '.join((REFERENCE, *METHODS))}, "
+            f"got {', '.join(given) or 'none'}"
         )
     check_methods(task, methods)
     return methods
@@ -384,12 +421,15 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
     res = run.results.get(method)
     if res is not None and method != REFERENCE:
         log.info(
-            "%s: max drift %.4g rad, final drift %.4g rad, %d limit violations",
+            "%s: max drift %.4g rad, final drift %.4g rad, %d position/velocity/acceleration "
+            "limit violations",
             method,
             res.max_drift,
             res.final_drift,
             len(res.violations),
         )
+        for warning in res.warnings():
+            log.warning("%s plan: %s", method, warning)
 
 
 def _simulate_into(run: TaskRun, name: str) -> None:

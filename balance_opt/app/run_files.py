@@ -8,6 +8,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
+
+import numpy as np
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -250,6 +252,7 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
         if sims:
             balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
             draw("torque", reaction_torque_figure, balanced)
+            figures[-1] = (figures[-1][0] + _torque_scales(balanced), figures[-1][1])
     if run.task.target is not None:  # issue 16
         from balance_opt.report.capture_figures import CAPTION, capture_figure
 
@@ -257,6 +260,22 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
         path = capture_figure(curves, run.task.target.time, output_dir / "capture.png")
         figures.append((CAPTION, path))
     return figures
+
+
+def _torque_scales(simulations: Mapping[str, Any]) -> str:
+    """The caption's words on the torque figure's scales: each plan's largest torque of an arm
+    on the base, and how many times the smallest the largest is."""
+    from balance_opt.report.style import method_label
+
+    peaks = {
+        name: max(float(np.abs(w[:, 3:]).max()) for w in sim.arm_wrenches.values())
+        for name, sim in simulations.items()
+    }
+    text = ", ".join(f"{method_label(n)} up to {p:.3g} N m" for n, p in peaks.items())
+    if len(peaks) > 1 and min(peaks.values()) > 0:
+        ratio = max(peaks.values()) / min(peaks.values())
+        text += f": the scales differ {ratio:.3g}x"
+    return f" ({text})"
 
 
 def _only(results: Mapping[str, Any], name: str) -> dict[str, Any]:

@@ -35,6 +35,7 @@ from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
 from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.app.run_files import _timed
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
 from balance_opt.motion.options import IntegrationOptions
@@ -218,15 +219,19 @@ def scenario_study(
     robot, mission = scenario.robot, scenario.mission
 
     # Fig. 2: the mission arm alone, the balance arm held at its start
-    mission_only = simulate(robot, mission, scenario.q_B0, sim_opts)
+    with _timed(f"{scenario.name}: forward-dynamics simulation of the mission arm alone (Fig. 2)"):
+        mission_only = simulate(robot, mission, scenario.q_B0, sim_opts)
     kinematic = phase_one(robot, mission, scenario.q_B0, t_eval=mission_only.t)
 
     plans, status, balance_only, balanced = {}, {}, {}, {}
     for method in methods:
         plans[method], status[method] = _plan(method, scenario, law, planner, backend)
         # Fig. 3: the plan's balance motion with the mission arm held at its start
-        balance_only[method] = simulate(robot, mission.start, plans[method], sim_opts)
-        balanced[method] = simulate_plan(robot, plans[method], sim_opts)
+        name = f"{scenario.name}: forward-dynamics simulation of the {method} plan"
+        with _timed(f"{name}'s balance arm alone (Fig. 3)"):
+            balance_only[method] = simulate(robot, mission.start, plans[method], sim_opts)
+        with _timed(f"{name} (Figs. 4, 5)"):
+            balanced[method] = simulate_plan(robot, plans[method], sim_opts)
 
     figures, objects = _write_figures(
         output_dir, formats, mission_only, kinematic, balance_only, balanced

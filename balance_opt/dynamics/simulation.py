@@ -214,6 +214,23 @@ class SimulationResult(AttitudeHistory):
     arm_wrenches: dict[str, np.ndarray]
     info: dict[str, Any] = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        """A few lines, like a plan's (the arrays are attributes)."""
+        duration = float(self.t[-1] - self.t[0]) if self.t.size else 0.0
+        lines = [
+            f"SimulationResult(robot={self.robot.name!r}, {len(self.joint_names)} joints)",
+            f"  time       {duration:.4g} s, {self.t.size} samples",
+        ]
+        if self.t.size:
+            lines += [
+                f"  drift      peak {float(self.angle.max()):.4g} rad, "
+                f"final {float(self.angle[-1]):.4g} rad",
+                f"  tracking   max error {self.max_tracking_error:.3g} rad",
+                f"  torques    up to {float(np.abs(self.tau).max()):.4g} N m",
+                f"  momentum   max relative residual {float(self.momentum_residual.max()):.3g}",
+            ]
+        return "\n".join(lines)
+
     @property
     def mission_indices(self) -> np.ndarray:
         return self.robot.mission_indices

@@ -5,6 +5,7 @@ by default)."""
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
@@ -17,6 +18,23 @@ def _fmt_limit(x: float) -> str:
     return "inf" if np.isinf(x) else f"{x:.4g}"
 
 
+def end_effector_poses(robot: FloatingRobot, q) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each arm's end-effector position [m] and roll, pitch, yaw [rad] at the arm vector ``q``,
+    the base at its initial pose (the frame a Cartesian goal is given in), by arm name."""
+    model = robot.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, robot.pin_q(np.asarray(q, dtype=float)))
+    out = {}
+    for arm in robot.arms:
+        pose = data.oMf[model.getFrameId(arm.ee_frame)]
+        out[arm.name] = (pose.translation.copy(), pin.rpy.matrixToRpy(pose.rotation))
+    return out
+
+
+def _vector(v) -> str:
+    return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
+
+
 def robot_summary(robot: FloatingRobot, q=None) -> str:
     """Text summary of ``robot`` with coupling measures at ``q`` (default: ``robot.neutral()``)."""
     q = robot.neutral() if q is None else np.asarray(q, dtype=float)
@@ -25,8 +43,14 @@ def robot_summary(robot: FloatingRobot, q=None) -> str:
         f"robot {robot.name}  ({robot.source})",
         f"  total mass {robot.total_mass:.4g} kg, {robot.n} arm joints, {len(robot.locked)} locked joints",
     ]
+    poses = end_effector_poses(robot, q)
     for arm in robot.arms:
         lines.append(f"  {arm.name} arm: {arm.dof} joints, end effector '{arm.ee_frame}'")
+        position, rpy = poses[arm.name]
+        lines.append(
+            f"    end effector at {_vector(position)} m, roll-pitch-yaw {_vector(rpy)} rad "
+            "(initial base frame)"
+        )
         lines.append(
             f"    {'joint':<22} {'lower':>9} {'upper':>9} {'vel':>8} {'acc':>8} {'effort':>8}  units"
         )

@@ -12,7 +12,9 @@ Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`):
 
 * ``"adaptive"`` (default): Dormand-Prince 8(5,3), SciPy's ``solve_ivp(method="DOP853")``, with
   error control on the whole state (``rtol``, ``atol``) and its 7th-order dense output at the
-  output times; exact to the integration tolerance.
+  output times; exact to the integration tolerance. It stops after ``max_evaluations``
+  evaluations of the right-hand side (a law that runs away shrinks the step without end) and
+  shows a progress line every :data:`PROGRESS_EVERY_S` while it runs.
 * ``"rk4"``: classic fixed-step Runge-Kutta 4, each output interval split into steps no longer
   than ``step``.
 """
@@ -20,16 +22,20 @@ Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`):
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 
 import numpy as np
 
+from balance_opt import progress
 from balance_opt.errors import InputError
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.so3 import IDENTITY_QUATERNION
 
 #: The scheme behind ``"adaptive"``.
 ADAPTIVE_SCHEME = "DOP853"
+#: Wall time between two progress lines of a long adaptive integration [s].
+PROGRESS_EVERY_S = 2.0
 #: Relative slack when splitting an output interval into RK4 steps.
 _STEP_SLACK = 1e-9
 
@@ -101,34 +107,54 @@ def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
 
 
 def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
-    from scipy.integrate import solve_ivp  # scipy.integrate takes a while to import: on use
+    """SciPy's DOP853 stepped here rather than through ``solve_ivp``: a law whose rates run
+    away drives the step toward zero, and only a loop of our own can stop it after
+    ``options.max_evaluations`` and say how far it got while it runs."""
+    from scipy.integrate import DOP853  # scipy.integrate takes a while to import: on use
 
-    sol = solve_ivp(
+    solver = DOP853(
         rhs,
-        (t[0], t[-1]),
-        y0,
-        method=ADAPTIVE_SCHEME,
-        t_eval=t,
+        t[0],
+        np.array(y0, dtype=float),
+        t[-1],
         rtol=options.rtol,
         atol=options.atol,
         max_step=options.step or np.inf,
     )
+    Y = np.empty((t.size, len(y0)))
+    Y[0] = y0
+    k, message = 1, None
+    shown = time.monotonic()
+    while k < t.size:
+        step_message = solver.step()
+        if solver.status == "failed":
+            message = f"{step_message} (at t = {solver.t:.6g} s)"
+            break
+        if t[k] <= solver.t:
+            dense = solver.dense_output()
+            while k < t.size and t[k] <= solver.t:
+                Y[k] = dense(t[k])
+                k += 1
+        if k < t.size and solver.nfev >= options.max_evaluations:
+            message = (
+                f"stopped after {solver.nfev} right-hand side evaluations (max_evaluations) at "
+                f"t = {solver.t:.6g} s of {t[-1]:.6g} s, steps down to {solver.step_size:.3g} s"
+            )
+            break
+        if time.monotonic() - shown >= PROGRESS_EVERY_S:
+            shown = time.monotonic()
+            progress.status(
+                f"integrating: t = {solver.t:.4g} of {t[-1]:.4g} s, step {solver.step_size:.3g} s, "
+                f"{solver.nfev} right-hand side evaluations (at most {options.max_evaluations})"
+            )
     stats = {
         "method": "adaptive",
         "scheme": ADAPTIVE_SCHEME,
         "rtol": options.rtol,
         "atol": options.atol,
-        "rhs_evaluations": int(sol.nfev),
+        "rhs_evaluations": int(solver.nfev),
     }
-    reached = np.asarray(sol.t, dtype=float)  # a list when no output time was reached
-    message = (
-        None
-        if sol.status == 0
-        else f"{sol.message} (at t = {reached[-1] if reached.size else t[0]:.6g} s)"
-    )
-    if not reached.size:  # failed in its first step: no output time reached
-        return np.array(y0, dtype=float)[None, :], stats, message
-    return sol.y.T.copy(), stats, message
+    return Y[:k].copy(), stats, message
 
 
 def _rk4(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):

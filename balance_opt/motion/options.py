@@ -19,6 +19,10 @@ DEFAULT_ATOL = 1e-12
 #: has always written); pass 1e-3 for 1 kHz.
 DEFAULT_OUTPUT_STEP = 0.01
 INTEGRATION_METHODS = ("adaptive", "rk4")
+#: Default budget of the adaptive integrator: the shipped examples take 200 to 1200
+#: evaluations (12 a step); a law whose rates run away takes hundreds of thousands (at a few
+#: tenths of a millisecond each).
+DEFAULT_MAX_EVALUATIONS = 20_000
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,14 @@ class IntegrationOptions:
         unit="s",
         exclusive_minimum=0.0,
         doc="spacing of the output samples",
+    )
+
+    max_evaluations: int = setting(
+        DEFAULT_MAX_EVALUATIONS,
+        minimum=1,
+        in_file=False,  # a safeguard, not a setting of a task
+        doc="right-hand side evaluations after which the adaptive integrator gives up "
+        "(a law that runs away)",
     )
 
     def __post_init__(self):

@@ -478,15 +478,23 @@ class CartesianGoal:
                 return q
             if (np.linalg.norm(e[:3]), angle) < best[:2]:
                 best = (float(np.linalg.norm(e[:3])), angle, q)
-        distance, angle, _ = best
+        distance, angle, closest_q = best
+        closest = goal_p - error(closest_q)[0][:3]
+        start = goal_p - error(np.asarray(q_start, dtype=float))[0][:3]
         what = f"{distance:.6g} m" + ("" if goal_R is None else f" and {angle:.6g} rad")
         err = TrajectoryError(
             f"Cartesian goal {list(self.position)} for end effector "
             f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
-            f"joint limits: remaining distance {what}"
+            f"joint limits: remaining distance {what}; the closest point reached is "
+            f"{_point(closest)} m (joints {_point(closest_q)}), the end effector starts at "
+            f"{_point(start)} m"
         )
-        err.distance, err.angle = distance, angle
+        err.distance, err.angle, err.closest = distance, angle, closest
         raise err
+
+
+def _point(v) -> str:
+    return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
 
 
 def cartesian_goal(

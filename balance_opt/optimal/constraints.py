@@ -348,6 +348,14 @@ class JerkLimit(Constraint):
         )
 
 
+#: Relative excess of a torque over its effort limit, on the continuous plan, that is accepted
+#: (the torque rows hold at the collocation points only).
+TORQUE_TOLERANCE = 2e-3
+#: Points per collocation interval, both ends included, at which the refinement and the check
+#: evaluate the torques (:meth:`TorqueLimit.torques`).
+TORQUE_POINTS = 9
+
+
 class TorqueLimit(Constraint):
     """The balance joints' effort limits [N m] on the torques of the free-floating inverse
     dynamics, at the collocation points (the point kernels compute the torques)."""
@@ -370,24 +378,48 @@ class TorqueLimit(Constraint):
         return -effort.ravel(order="F"), effort.ravel(order="F")
 
     @staticmethod
-    def torques(problem: BalanceProblem, result: BalanceResult) -> np.ndarray:
-        """The balance joints' torques of the free-floating inverse dynamics of a motion
-        (T, n_B) [N m]."""
-        torque = problem.model.momentum_torque_fun().map(result.t.size)
-        Rt = np.swapaxes(matrix_from_quaternion(result.quaternion), -1, -2)
+    def torques(problem: BalanceProblem, result: BalanceResult) -> tuple[np.ndarray, np.ndarray]:
+        """The balance joints' torques of the free-floating inverse dynamics of a plan, on the
+        continuous motion: ``(t (T,) [s], torques (T, n_B) [N m])``.
+
+        A torque peaks where it likes, not on the exported samples: it is evaluated on every
+        collocation interval at :data:`TORQUE_POINTS` points from its start to its end (the
+        end as a limit from inside, where the control may jump), from the plan's polynomials
+        (:meth:`~balance_opt.optimal.solve.BalanceNLP.trajectory`), the attitude interpolated
+        from the re-simulation (it only enters through a non-zero momentum). A result without
+        its NLP solution is evaluated at its own samples."""
+        solution = getattr(getattr(result, "solver", None), "solution", None)
+        if solution is None or not hasattr(problem, "trajectory"):
+            t, q_B, qd_B, qdd_B = result.t, result.q_B, result.q_dot_B, result.q_ddot_B
+            q_M, qd_M, qdd_M = result.q_M, result.q_dot_M, result.q_ddot_M
+            quaternion = result.quaternion
+        else:
+            s = np.linspace(0.0, 1.0, TORQUE_POINTS)
+            s[-1] -= 1e-9
+            t = ((np.arange(problem.N)[:, None] + s[None, :]) * problem.h).ravel()
+            q_B, qd_B, qdd_B = problem.trajectory(solution).sample(t)
+            q_M, qd_M, qdd_M = problem.mission.sample(np.minimum(t, problem.mission.duration))
+            quaternion = np.stack(
+                [np.interp(t, result.t, result.quaternion[:, i]) for i in range(4)], axis=1
+            )
+            quaternion /= np.linalg.norm(quaternion, axis=1, keepdims=True)
+        torque = problem.model.momentum_torque_fun().map(t.size)
+        Rt = np.swapaxes(matrix_from_quaternion(quaternion), -1, -2)
         h_b = np.hstack([Rt @ problem.h0[:3], Rt @ problem.h0[3:]])  # R^T h0, base axes
         tau = torque(
-            np.hstack([result.q_M, result.q_B]).T,
-            np.hstack([result.q_dot_M, result.q_dot_B]).T,
-            np.hstack([result.q_ddot_M, result.q_ddot_B]).T,
-            h_b.T,
+            np.hstack([q_M, q_B]).T, np.hstack([qd_M, qd_B]).T, np.hstack([qdd_M, qdd_B]).T, h_b.T
         )
-        return np.array(tau)[problem.model.n_M :].T
+        return t, np.array(tau)[problem.model.n_M :].T
 
     def check(self, problem, result):
+        """The worst torque beyond its limit by more than :data:`TORQUE_TOLERANCE` (relative:
+        the refinement accepts as much between the collocation points)."""
+        t, tau = self.torques(problem, result)
+        effort = problem.limits.effort
+        excess = np.abs(tau) - effort
         return _worst(
-            np.abs(self.torques(problem, result)) - problem.limits.effort,
-            result.t,
+            np.where(np.abs(tau) > effort * (1.0 + TORQUE_TOLERANCE), excess, 0.0),
+            t,
             problem.balance_joints,
             lambda joint: f"torque limit of {joint}",
             "N m",

@@ -15,16 +15,21 @@ Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.Balan
   the rows an Ipopt iteration costs about a quarter less.
 * **Bounds that converge** (:func:`solve_with_bounds`). A hard path attitude bound started
   from a guess that drifts three times too far stalls Ipopt. So the peak problem is solved
-  first without the bound (its epigraph variable is the bound's elastic relaxation): its peak
-  is the smallest the planner finds. A bound below it fails at once, naming that peak; a
-  bound above it is met by the peak plan itself (peak objective), or the bounded problem is
-  solved warm started from the peak plan, which is feasible (integral objective).
+  first without the bound (its epigraph variable is the bound's elastic relaxation). Its
+  objective also prices the final drift (``weights.peak_terminal``), so when its peak is above
+  the bound, the peak problem is solved again with that price at zero, warm started: that peak
+  is the smallest the planner finds under the task's end conditions. A bound below it fails at
+  once, naming that peak; a bound above it is met by the peak plan itself (peak objective,
+  bound above the priced peak), or the bounded problem is solved warm started from the peak
+  plan, which is feasible.
 * **Limits on the whole motion** (:func:`refine`). Torques and attitude bounds are rows at the
-  collocation points. After each solve every one is checked on the re-simulated motion (torques
-  from the free-floating inverse dynamics on the fine grid); where one is broken beyond its
-  tolerance (:data:`TORQUE_TOLERANCE`, :data:`ATTITUDE_TOLERANCE`), its bound is tightened
-  by the measured ratio (torques: on the broken intervals only) and the problem solved again,
-  warm started, up to :data:`MAX_ROUNDS` times.
+  collocation points. After each solve every one is checked on the continuous motion (torques:
+  the free-floating inverse dynamics of the plan's polynomials at several points of every
+  collocation interval, :meth:`~balance_opt.optimal.constraints.TorqueLimit.torques`; the
+  attitude: the re-simulated motion); where one is broken beyond its tolerance
+  (:data:`TORQUE_TOLERANCE`, :data:`ATTITUDE_TOLERANCE`), its bound is tightened by the
+  measured ratio (torques: on the broken intervals only) and the problem solved again, warm
+  started, up to :data:`MAX_ROUNDS` times.
 
 Several starts are :mod:`balance_opt.optimal.starts`.
 """
@@ -37,7 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from balance_opt.errors import SolverError
-from balance_opt.optimal.constraints import TorqueLimit
+from balance_opt.optimal.constraints import TORQUE_TOLERANCE, TorqueLimit
 from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.options import PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError
@@ -45,9 +50,6 @@ from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
-#: Relative excess of a torque over its effort limit, on the re-simulated motion, that is
-#: accepted without refining.
-TORQUE_TOLERANCE = 2e-3
 #: Relative excess of the re-simulated attitude over an attitude bound accepted without refining.
 ATTITUDE_TOLERANCE = 1e-3
 #: Re-solves of the refinement at most.
@@ -224,13 +226,16 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
         return refine(nlp, _solve_once(nlp, guess, PlanReport(())))
     free = nlp.variant(objective="peak", path_attitude_bound=None, terminal_attitude_bound=None)
     peak_plan = plan_peak(free, guess)
+    priced = peak_plan.max_drift <= bound * (1.0 + ATTITUDE_TOLERANCE)
+    if not priced:
+        peak_plan = _lowest_peak(free, peak_plan)
     smallest = peak_plan.max_drift
     peak_plan.solver = replace(peak_plan.solver, smallest_peak=smallest)
     if smallest > bound * (1.0 + ATTITUDE_TOLERANCE):
         t = float(peak_plan.t[int(np.argmax(peak_plan.angle))])
         raise PlannerSolverError(
             f"path_attitude_bound {bound:.6g} rad is below the smallest peak the planner found, "
-            f"{smallest:.6g} rad (at t = {t:.3f} s): no plan met it",
+            f"{smallest:.6g} rad (at t = {t:.3f} s, the final drift left free): no plan met it",
             "Bound_Below_Smallest_Peak",
             peak_plan,
             "path attitude bound",
@@ -238,6 +243,7 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
             smallest - bound,
         )
     same = nlp.options.objective == "peak" and nlp.options.terminal_attitude_bound is None
+    same = same and priced  # else peak_plan leaves the final drift unpriced: not this problem's
     if same and smallest <= bound * (1.0 - BOUND_MARGIN):
         # the peak plan of the bounded problem is the free one: the bound is not active
         peak_plan.solver = replace(peak_plan.solver, refinement=Refinement())
@@ -246,6 +252,28 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
     bounded = result.solver.solves[-1].as_stage("bounded")
     result.solver = replace(result.solver, stages=result.solver.stages + (bounded,))
     return refine(nlp, result)
+
+
+def _lowest_peak(free, peak_plan: BalanceResult) -> BalanceResult:
+    """The smallest peak of the problem ``free``: its peak problem with the final drift left
+    unpriced, warm started from its ``peak_plan``, which prices the final drift
+    (``weights.peak_terminal``) and so peaks higher than it must. A path bound between the two
+    peaks can be met; a final-drift bound is a bound of its own (``terminal_attitude_bound``).
+    The peak plan itself should that solve fail."""
+    weights = replace(free.options.weights, peak_terminal=0.0)
+    loose = free.variant(weights=weights)
+    try:
+        result = _solve_once(loose, peak_plan.solver.solution, peak_plan.solver)
+    except SolverError as exc:
+        log.warning("peak without the final drift's price failed (%s); its peak stands", exc)
+        return peak_plan
+    lowest = result.solver.solves[-1].as_stage(
+        "peak, final drift free",
+        max_drift_rad=result.max_drift,
+        final_drift_rad=result.final_drift,
+    )
+    result.solver = replace(result.solver, stages=peak_plan.solver.stages + (lowest,))
+    return result
 
 
 def plan_peak(nlp, guess) -> BalanceResult:
@@ -385,11 +413,12 @@ def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]
     """The effort factors with the points of every interval where a torque exceeds its limit
     by more than :data:`TORQUE_TOLERANCE` scaled by ``limit / peak`` there."""
     effort = nlp.limits.effort
-    ratio = np.abs(TorqueLimit.torques(nlp, result)) / effort  # (T, n_B), inf effort -> 0
+    t, tau = TorqueLimit.torques(nlp, result)
+    ratio = np.abs(tau) / effort  # (T, n_B), inf effort -> 0
     if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE:
         return nlp.torque_factor, []
     N = nlp.N
-    interval = np.minimum((result.t / nlp.h).astype(int), N - 1)
+    interval = np.minimum((t / nlp.h).astype(int), N - 1)
     per_interval = np.zeros((N, nlp.model.n_B))
     np.maximum.at(per_interval, interval, ratio)
     broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2

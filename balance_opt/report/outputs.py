@@ -326,7 +326,10 @@ def method_metrics(
     ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says);
     ``effort`` (:func:`effort_metrics`, for the system's momentum ``h0``, world frame, zero by
     default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort
-    limits) and their number ``limit_violations``; ``solver`` (:func:`solver_metrics`);
+    limits) and their number ``limit_violations``, by kind in ``limit_violations_by_kind``
+    (position, velocity, acceleration, effort); ``warnings``
+    (:meth:`~balance_opt.result.BalanceResult.warnings`: an untrustworthy plan); ``solver``
+    (:func:`solver_metrics`);
     ``details`` (the result's ``info`` without its bulky arrays); and, when a
     ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
     error, the momentum residual and the peak reaction torques on the base [N m].
@@ -352,6 +355,12 @@ def method_metrics(
     out["violations"] = [str(v) for v in result.violations] + out["effort"]["violations"]
     out["limit_violations"] = len(out["violations"])
     out["smoothness"] = _smoothness_metrics(result, robot, torques)
+    kinds = [v.kind for v in result.violations]
+    out["limit_violations_by_kind"] = {
+        **{kind: kinds.count(kind) for kind in ("position", "velocity", "acceleration")},
+        "effort": len(out["effort"]["violations"]),
+    }
+    out["warnings"] = result.warnings()
     out["solver"] = solver_metrics(result.info)
     out["details"] = {k: v for k, v in result.info.items() if k not in BULKY_INFO_KEYS}
     if simulation is not None:
@@ -379,7 +388,8 @@ def run_metrics(
     torques: Mapping[str, np.ndarray] | None = None,
     robustness=None,
 ) -> dict[str, Any]:
-    """The content of ``metrics.json``: the task (file, name, SHA-256), the versions, and
+    """The content of ``metrics.json``: the task (file, name, SHA-256; for a Cartesian mission
+    ``cartesian_goal_rad``, the joint goal inverse kinematics found), the versions, and
     :func:`method_metrics` of each result by method name (with its joint ``torques`` by method
     name when the caller has them); ``failures`` lists methods whose solver failed (their best
     iterate is among ``results``). With the plans' drift under model error (a
@@ -401,7 +411,12 @@ def run_metrics(
     return to_json(
         {
             "format": METRICS_FORMAT,
-            "task": {"file": task.source, "name": task.name, "sha256": task.sha256},
+            "task": {
+                "file": task.source,
+                "name": task.name,
+                "sha256": task.sha256,
+                **({"cartesian_goal_rad": goal} if (goal := task.cartesian_goal) else {}),
+            },
             "versions": software_versions(),
             "methods": methods,
             "failures": dict(failures or {}),

@@ -154,8 +154,12 @@ def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
     sim_name = name if name.endswith(style.SIM) else f"{name}{style.SIM}"
     balance_style = {**style.method_style(sim_name), "label": f"{style.method_label(name)}: "}
     balance_style["label"] += "balance arm"
+    # Where the balance arm carries most of the sum (the optimal plan's torques), the two
+    # curves coincide: the balance arm wide and pale under the thin sum keeps both readable,
+    # in greyscale too.
+    balance_style.update(linewidth=2.6, alpha=0.55, zorder=1.8)
     return [
-        (sim.total_wrench, style.method_style("sum")),
+        (sim.total_wrench, {**style.method_style("sum"), "zorder": 2.5}),
         (sim.arm_wrenches["mission"], style.method_style("arm:mission")),
         (balance, balance_style),
     ]

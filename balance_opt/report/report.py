@@ -21,7 +21,7 @@ import numpy as np
 
 from balance_opt.report.capture_metrics import capture_table
 from balance_opt.report.style import method_colour, method_label
-from balance_opt.result import LIMIT_TOLERANCE
+from balance_opt.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 
 #: Order of the methods in the tables (others follow in the order given).
 METHOD_ORDER = ("mission-only", "analytic", "optimal")
@@ -52,7 +52,8 @@ td.failed, th.failed { color: #777; background: repeating-linear-gradient(135deg
 .swatch { display: inline-block; width: 0.9em; height: 0.9em; margin-right: 0.4em;
           vertical-align: -0.1em; border: 1px solid #555; }
 .meta { color: #555; font-size: 0.9em; } figure { margin: 1.5em 0; }
-figure img { max-width: 100%; border: 1px solid #eee; } figcaption { color: #555; font-size: 0.9em; }
+figure img { width: 100%; height: auto; border: 1px solid #eee; }
+p.headline { font-size: 1.1em; } figcaption { color: #555; font-size: 0.9em; }
 code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-weight: bold; }
 """
 
@@ -171,7 +172,33 @@ def _per_joint(path: str, key: str, fmt: str = "{:.3g}") -> Callable[[Mapping], 
 def _count(path: str) -> Callable[[Mapping], Cell]:
     def cell(m):
         value = _get(m, path)
-        return None if value is None else (str(value), "broken" if value else "inside")
+        if value is None:
+            return None
+        text = violation_count_text(value, m.get("limit_violations_by_kind"))
+        return text, "broken" if value else "inside"
+
+    return cell
+
+
+def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
+    """``"116 (49 position/velocity/acceleration, 67 effort)"``: the count of ``metrics.json``'s
+    ``limit_violations``, split by kind when there are any (``limit_violations_by_kind``)."""
+    if not total or not by_kind:
+        return str(total)
+    kinematic = sum(by_kind.get(k, 0) for k in ("position", "velocity", "acceleration"))
+    effort = by_kind.get("effort", 0)
+    return f"{total} ({kinematic} position/velocity/acceleration, {effort} effort)"
+
+
+def _residual(path: str) -> Callable[[Mapping], Cell]:
+    """A relative momentum residual, flagged above :data:`UNTRUSTED_RESIDUAL`."""
+
+    def cell(m):
+        value = _get(m, path)
+        if value is None:
+            return None
+        css = "broken" if value > UNTRUSTED_RESIDUAL else ""
+        return format_value(value, MOMENTUM_TOLERANCE), css
 
     return cell
 
@@ -183,10 +210,7 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
     ("max attitude drift", _angle("max_drift_rad")),
     ("final attitude drift", _angle("final_drift_rad")),
     ("max base angular rate", _angle("max_base_rate_rad_s", "/s", RATE_TOLERANCE)),
-    (
-        "max relative angular momentum residual",
-        _plain("max_momentum_residual", MOMENTUM_TOLERANCE),
-    ),
+    ("max relative angular momentum residual", _residual("max_momentum_residual")),
     ("Balance arm", None),
     ("peak balance joint rate [rad/s or m/s]", _plain("peak_balance_rate_rad_s")),
     ("position limit margin [rad or m]", _kinematic_margin("position", "")),
@@ -219,10 +243,7 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
         "peak total reaction torque on the base [N m]",
         _plain("simulation.peak_reaction_torque_Nm.total", TORQUE_TOLERANCE),
     ),
-    (
-        "max relative momentum residual",
-        _plain("simulation.max_relative_momentum_residual", MOMENTUM_TOLERANCE),
-    ),
+    ("max relative momentum residual", _residual("simulation.max_relative_momentum_residual")),
 ]
 
 
@@ -391,6 +412,40 @@ def _violations(methods: Mapping[str, Mapping[str, Any]]) -> str:
     return "".join(parts) or "<p>None: every plan stays inside every joint limit.</p>"
 
 
+def headline(metrics: Mapping[str, Any]) -> str | None:
+    """One sentence computed from ``metrics``: how much stiller the best balance plan keeps the
+    base than the mission arm alone, and at what costs (``None`` without both)."""
+    methods = metrics.get("methods", {})
+    reference = methods.get("mission-only")
+    name = next((m for m in ("optimal", "analytic") if m in methods), None)
+    if reference is None or name is None:
+        return None
+    plan = methods[name]
+    a, b = plan.get("max_drift_rad"), reference.get("max_drift_rad")
+    if not a or b is None:
+        return None
+    costs = [f"balance joints up to {plan.get('peak_balance_rate_rad_s', 0.0):.3g} rad/s"]
+    margin = (plan.get("effort") or {}).get("balance_min_relative_margin")
+    if margin is not None:
+        costs.append(f"smallest effort margin {100 * margin:.3g} % of the limit")
+    solver = plan.get("solver") or {}
+    if solver.get("iterations") is not None and solver.get("solve_time_s") is not None:
+        costs.append(f"{solver['iterations']} Ipopt iterations in {solver['solve_time_s']:.3g} s")
+    count = plan.get("limit_violations")
+    if count:
+        by_kind = plan.get("limit_violations_by_kind")
+        costs.append(f"{violation_count_text(count, by_kind)} limit violations")
+    how = f"{b / a:.1f}x stiller than" if b >= a else f"{a / b:.1f}x less still than"
+    failures = metrics.get("failures") or {}
+    failed = " (FAILED: its solver's last iterate)" if name in failures else ""
+    warned = " (WARNING: untrustworthy, see below)" if plan.get("warnings") else ""
+    return (
+        f"The {method_label(name)}{failed}{warned} keeps the base {how} the "
+        f"{method_label('mission-only')} (peak drift {a:.3g} vs {b:.3g} rad), at these costs: "
+        f"{'; '.join(costs)}."
+    )
+
+
 def _figure(title: str, png: Path) -> str:
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
     return (
@@ -456,10 +511,18 @@ def render_report(
             f"<code>{html.escape(str(task.get('sha256', ''))[:16])}</code>&hellip;; {stamp}; {html.escape(versions)}</p>"
         ),
     ]
+    line = headline(metrics)
+    if line:
+        parts.append(f'<p class="headline">{html.escape(line)}</p>')
     if description:
         parts.append(f"<p>{html.escape(description)}</p>")
     parts.append(failures)
     methods = metrics.get("methods", {})
+    parts.extend(
+        f'<p class="failure">WARNING: {html.escape(method_label(k))}: {html.escape(w)}</p>'
+        for k, m in methods.items()
+        for w in m.get("warnings") or ()
+    )
     fails = metrics.get("failures") or {}
     parts.append("<h2>Comparison</h2>")
     parts.append(comparison_table(methods, fails))

@@ -22,6 +22,9 @@ _ROWS = (
 )
 #: Largest number of joint columns drawn (a 7-DOF arm still fits a page).
 MAX_COLUMNS = 7
+#: The y axis of a row reaches at most this many times a limit beyond it: a plan far outside
+#: (a law that ran away) would otherwise squash every other plan and the limits to a line.
+OFF_SCALE = 1.5
 #: Style of the limit lines.
 LIMIT_STYLE = {"color": "0.35", "linestyle": (0, (1.0, 1.0)), "linewidth": 0.9, "label": "limit"}
 
@@ -72,6 +75,26 @@ def joint_limits_figure(
         return style.save(fig, Path(path).with_suffix(""), ("png",), dpi=dpi)[0]
 
 
+def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
+    """Limit the y axis to :data:`OFF_SCALE` times the limits (measured from their middle) when
+    a plan goes beyond, and name the plans off the scale with their extreme value."""
+    middle, half = (bounds[0] + bounds[1]) / 2, (bounds[1] - bounds[0]) / 2
+    low, high = middle - OFF_SCALE * half, middle + OFF_SCALE * half
+    off = []
+    for name, res in results.items():
+        values = getattr(res, field)[:, k]
+        if values.size and (values.min() < low or values.max() > high):
+            peak = values[np.argmax(np.abs(values - middle))]
+            off.append(f"{style.method_label(name)} off scale (to {peak:.3g})")
+    if not off:
+        return
+    ax.set_ylim(low, high)
+    ax.text(
+        0.02, 0.97, "\n".join(off), transform=ax.transAxes, va="top", ha="left",
+        fontsize="x-small", color="0.2", bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+    )
+
+
 def _limit_handle():
     from matplotlib.lines import Line2D
 
@@ -93,6 +116,8 @@ def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joint
             t0, t1 = first.t[0], first.t[-1]
             ys = [y for b in bounds for y in (b, b, np.nan)]
             ax.plot([t0, t1, np.nan] * len(bounds), ys, **{**LIMIT_STYLE, "label": "_limit"})
+        if len(bounds) == 2:
+            _clip_off_scale(ax, results, field, k, bounds)
         if joint == balance_joints[0]:
             ax.set_ylabel(label)
         ax.yaxis.set_major_locator(MaxNLocator(4))

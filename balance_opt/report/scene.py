@@ -46,7 +46,7 @@ from balance_opt.motion.so3 import (
     relative_rotation,
     rotvec_from_quaternion,
 )
-from balance_opt.report.style import method_label
+from balance_opt.report.style import ARM_COLOURS, method_label
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -63,9 +63,6 @@ TARGET_COLOUR = "#009E73"
 #: Path of the robot's nodes in the viewer's scene tree.
 ROOT = ("meshcat", "robot")
 TARGET_NODE = "capture_target"
-#: Colour of each arm, in arm order (mission, balance, balance2, ...): Okabe-Ito colours apart
-#: from the axes' red, green and blue.
-ARM_COLOURS = ("#D55E00", "#7B3294", "#E69F00", "#56B4E9", "#CC79A7")
 #: The magnified view turns the base by its rotation from the start times a factor chosen so
 #: that the largest drift shows as about this angle [rad] (30 deg).
 MAGNIFIED_ANGLE = np.radians(30.0)

@@ -127,6 +127,10 @@ def _drift(result: dict, key: str) -> float | None:
     return max(float(value), DRIFT_FLOOR) if is_number(value) else None
 
 
+#: Cases of a method at most whose cumulative distribution is drawn with markers.
+FEW_CASES = 10
+
+
 def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path | None:
     """Cumulative distribution of the maximum and the final drift of each method and, for the
     parameter sets planned by both methods, the optimal drift against the analytic one (drift
@@ -166,11 +170,14 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
             [d for r in ok if r["method"] == method if (d := _drift(r, key)) is not None]
         )
         if values.size:
+            few = values.size <= FEW_CASES  # a step through one point draws nothing
             ax.step(
                 values,
                 np.arange(1, values.size + 1) / values.size,
                 where="post",
-                **_method_style(method, linestyle=_line_style(method)),
+                **_method_style(
+                    method, linestyle=_line_style(method), marker=_marker(method) if few else ""
+                ),
             )
             ax.lines[-1].set_label(f"{ax.lines[-1].get_label()} ({values.size})")
     _drift_axis(ax, "x", [_drift(r, key) for r in ok])
@@ -276,6 +283,8 @@ def plot_drift_against_parameter(
     panel column per item; with few (at most :data:`MAX_CATEGORIES`), one panel of categories.
     Returns the file written, or None when no successful case has the parameter."""
     ok = [r for r in results if r["status"] == "ok" and name in r["parameters"]]
+    if name.startswith("optimal."):  # the other methods do not depend on it
+        ok = [r for r in ok if r["method"] == "optimal"]
     if not ok:
         return None
     views = _parameter_views(ok, name)

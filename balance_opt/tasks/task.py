@@ -112,6 +112,14 @@ class Task:
         """Duration of the mission [s]."""
         return float(self.mission.duration)
 
+    @property
+    def cartesian_goal(self) -> dict[str, float] | None:
+        """For a Cartesian mission, the mission joints' goal found by inverse kinematics
+        [rad or m], by joint name; ``None`` for the other missions."""
+        if self.spec.mission.type != "cartesian":
+            return None
+        return dict(zip(self.robot.mission.joints, map(float, self.mission.qf)))
+
     def planner_options(self, extra_ipopt: Mapping[str, Any] | None = None) -> PlannerOptions:
         """The planner's options; ``extra_ipopt`` (``--solver-option``) overrides
         ``optimal.ipopt``."""
@@ -165,6 +173,11 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
             (),
             f"expected a mapping of task keys ({', '.join(TaskSpec.__dataclass_fields__)}), "
             f"got {type(doc.data).__name__}",
+        )
+    if "task" in doc.data and "task" not in TaskSpec.__dataclass_fields__:
+        # a sweep file names its base task under ``task``; no task file has that key
+        raise doc.error(
+            ("task",), "this is a sweep file, not a task file: use balance-opt sweep"
         )
     spec: TaskSpec = _with_checked_ipopt(from_data(TaskSpec, doc), doc)
     robot = _build_robot(spec, doc, base_dir)
