@@ -43,18 +43,14 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from balance_opt.dynamics.inverse_dynamics import free_floating_torques
-from balance_opt.dynamics.options import (
-    DEFAULT_BANDWIDTH,
-    DEFAULT_DAMPING_RATIO,
-    SimulationOptions,
-)
-from balance_opt.dynamics.inverse_dynamics import symmetric
+from balance_opt.dynamics.inverse_dynamics import free_floating_torques, symmetric
+from balance_opt.dynamics.options import DEFAULT_BANDWIDTH, DEFAULT_DAMPING_RATIO, SimulationOptions
 from balance_opt.dynamics.rkmk import dopri5, rk4
 from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.momentum_check import MOMENTUM_SCALE_FLOOR
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
 from balance_opt.result import AttitudeHistory, BalanceResult
 
@@ -65,8 +61,6 @@ MOMENTUM_WARNING = 1e-6
 #: Relative momentum residual above which a simulation has diverged: its motion is no longer the
 #: robot's.
 MOMENTUM_DIVERGED = 1e-3
-#: Momentum scale below which the residual is reported in absolute terms [N s, N m s].
-MOMENTUM_SCALE_FLOOR = 1e-12
 
 
 # --------------------------------------------------------------------------------- trajectories
@@ -228,24 +222,14 @@ class SimulationResult(AttitudeHistory):
         return self.q_pin[:, 3:7]
 
     @property
-    def base_position(self) -> np.ndarray:
-        """Base origin in the world (T, 3) [m]."""
-        return self.q_pin[:, :3]
-
-    @property
     def omega(self) -> np.ndarray:
         """Base angular velocity (T, 3), base frame [rad/s]."""
         return self.v[:, 3:6]
 
     @property
-    def tracking_error(self) -> np.ndarray:
-        """Planned minus simulated joint positions (T, n) [rad]."""
-        return self.q_des - self.q
-
-    @property
     def max_tracking_error(self) -> float:
         """Largest joint tracking error over the motion [rad]."""
-        return float(np.abs(self.tracking_error).max())
+        return float(np.abs(self.q_des - self.q).max())
 
     @property
     def total_wrench(self) -> np.ndarray:
@@ -254,15 +238,10 @@ class SimulationResult(AttitudeHistory):
         return sum(self.arm_wrenches.values())
 
     @property
-    def momentum_error(self) -> np.ndarray:
-        """``h(t) - h0`` (T, 6) [N s, N m s]."""
-        return self.momentum - self.h0
-
-    @property
     def momentum_residual(self) -> np.ndarray:
         """Relative momentum residual (T,): the larger of ``|p - p0| / scale_p`` and
         ``|L - L0| / scale_L`` (see ``momentum_scale``)."""
-        err = self.momentum_error
+        err = self.momentum - self.h0
         lin = np.linalg.norm(err[:, :3], axis=1) / self.momentum_scale[0]
         ang = np.linalg.norm(err[:, 3:], axis=1) / self.momentum_scale[1]
         return np.maximum(lin, ang)
@@ -286,7 +265,7 @@ class SimulationResult(AttitudeHistory):
             self.q_ddot,
             self.quaternion.copy(),
             self.omega.copy(),
-            np.linalg.norm(self.momentum_error[:, 3:], axis=1) / self.momentum_scale[1],
+            np.linalg.norm(self.momentum[:, 3:] - self.h0[..., 3:], axis=1) / self.momentum_scale[1],
             maps.balance_sigma_min(*maps.angular_maps(self.q)),
             info,
         )
@@ -534,14 +513,9 @@ def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> 
         # each joint's own momentum, summed: arms that cancel each other (a balanced plan
         # tracked exactly) must not shrink the scale to nothing
         each = A_G[:, moving] * V[k, moving]
-        joint_momentum[k] = np.linalg.norm(each[:3], axis=0).sum(), np.linalg.norm(
-            each[3:], axis=0
-        ).sum()
+        joint_momentum[k] = [np.linalg.norm(e, axis=0).sum() for e in (each[:3], each[3:])]
     scale = tuple(
-        max(
-            float(joint_momentum[:, i].max() + np.linalg.norm(h0[s])),
-            MOMENTUM_SCALE_FLOOR,
-        )
+        max(float(joint_momentum[:, i].max() + np.linalg.norm(h0[s])), MOMENTUM_SCALE_FLOOR)
         for i, s in enumerate((slice(0, 3), slice(3, 6)))
     )
     q_des, q_dot_des, q_ddot_des = plan.sample(t)[:3]
