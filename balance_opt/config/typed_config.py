@@ -66,7 +66,6 @@ def setting(
     factory=None,
     minimum: float | None = None,
     exclusive_minimum: float | None = None,
-    maximum: float | None = None,
     finite: bool = True,
     min_items: int | None = None,
     max_items: int | None = None,
@@ -86,7 +85,7 @@ def setting(
         doc: one sentence: what the value means.
         unit: unit of the number(s), e.g. ``"rad/s"``.
         factory: a default factory instead of ``default`` (for dicts and dataclasses).
-        minimum, exclusive_minimum, maximum: bounds of a number (of each number in a list).
+        minimum, exclusive_minimum: bounds of a number (of each number in a list).
         finite: reject ``inf`` (NaN is always rejected).
         min_items, max_items: bounds on the length of a list.
         item: what the list's items name, for messages (``"joint"``: ``"must name at least
@@ -105,7 +104,6 @@ def setting(
         "unit": unit,
         "minimum": minimum,
         "exclusive_minimum": exclusive_minimum,
-        "maximum": maximum,
         "finite": finite,
         "min_items": min_items,
         "max_items": max_items,
@@ -216,11 +214,11 @@ class _Invalid(Exception):
         self.reason = reason
 
 
-NUMBER_META = ("minimum", "exclusive_minimum", "maximum", "finite", "unit")
+NUMBER_META = ("minimum", "exclusive_minimum", "finite", "unit")
 
 
 def _check_number(value: float, meta: dict, path: tuple) -> None:
-    lo, xlo, hi = meta.get("minimum"), meta.get("exclusive_minimum"), meta.get("maximum")
+    lo, xlo = meta.get("minimum"), meta.get("exclusive_minimum")
     unit = f" {meta['unit']}" if meta.get("unit") else ""
     if math.isnan(value):
         raise _Invalid(path, "expected a number, got NaN")
@@ -230,8 +228,6 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
         raise _Invalid(path, f"must be greater than {xlo:g}{unit}, got {value:g}")
     if lo is not None and not value >= lo:
         raise _Invalid(path, f"must be at least {lo:g}{unit}, got {value:g}")
-    if hi is not None and not value <= hi:
-        raise _Invalid(path, f"must be at most {hi:g}{unit}, got {value:g}")
 
 
 def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:

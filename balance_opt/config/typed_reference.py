@@ -28,11 +28,7 @@ from balance_opt.config.typed_config import (
 # ----------------------------------------------------------------------------------- JSON Schema
 def _number_schema(tp, meta: dict) -> dict:
     out = {"type": "integer" if tp is int else "number"}
-    for name, key in (
-        ("minimum", "minimum"),
-        ("exclusive_minimum", "exclusiveMinimum"),
-        ("maximum", "maximum"),
-    ):
+    for name, key in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum")):
         if meta.get(name) is not None:
             out[key] = meta[name]
     return out

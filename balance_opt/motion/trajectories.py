@@ -108,7 +108,7 @@ class ViaPoints(JointTrajectory):
             self._ptp = PointToPoint(self.points[0], self.points[1], self.duration)
             self._spline = None
         else:
-            from scipy.interpolate import make_interp_spline  # 0.7 s to import: only when used
+            from scipy.interpolate import make_interp_spline  # a slow import: only when used
 
             self._spline = make_interp_spline(self.times, self.points, k=5, bc_type=(zeros, zeros))
 
@@ -181,7 +181,7 @@ class CsvTrajectory(JointTrajectory):
             )
         self.duration = float(t[-1])
         self.dof = len(self.joint_names)
-        from scipy.interpolate import CubicSpline  # 0.7 s to import: only when used
+        from scipy.interpolate import CubicSpline  # a slow import: only when used
 
         self._spline = CubicSpline(t, data[:, 1:], bc_type="natural")
 
@@ -240,7 +240,7 @@ class SampledTrajectory(JointTrajectory):
         self._h = np.diff(self.t)
         self._spline = None
         if len(derivs) == 1:
-            from scipy.interpolate import CubicSpline  # 0.7 s to import: only when used
+            from scipy.interpolate import CubicSpline  # a slow import: only when used
 
             self._spline = CubicSpline(self.t, q, bc_type="natural")
         else:
