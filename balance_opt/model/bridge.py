@@ -23,7 +23,6 @@ Everything is cached in ``<kernel cache>/pinocchio-bridge/``:
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import os
 import platform
@@ -37,7 +36,7 @@ from pathlib import Path
 
 import casadi as cs
 
-from balance_opt.cache import build_dir, default_cache_dir, file_lock, sha256_of
+from balance_opt.cache import build_dir, check_record, default_cache_dir, file_lock, write_record
 from balance_opt.errors import BalanceOptError
 
 log = logging.getLogger(__name__)
@@ -235,17 +234,6 @@ def cache_folder() -> Path:
 
 
 # ----------------------------------------------------------------------------- the program
-def _read_record(program: Path) -> BuildRecord | None:
-    """The record of a cached program whose bytes still match it, else ``None``."""
-    try:
-        record = json.loads(program.with_suffix(".json").read_text())
-        if program.is_file() and sha256_of(program) == record["sha256"]:
-            return BuildRecord(program, record["wall_seconds"], record["cpu_seconds"], False)
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    return None
-
-
 def _first_error(stderr: str) -> str:
     lines = [line.strip() for line in stderr.splitlines() if line.strip()]
     errors = [line for line in lines if "error" in line.lower()]
@@ -274,11 +262,8 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
         if proc.returncode != 0:
             raise BridgeUnavailable(f"build failed: {_first_error(stderr)}")
         wall, cpu = time.perf_counter() - start, _children_cpu() - cpu0
-        record = {"sha256": sha256_of(out), "wall_seconds": wall, "cpu_seconds": cpu}
         os.replace(out, program)  # atomic: no process ever runs a half-written program
-    tmp_record = program.with_suffix(".json.tmp")
-    tmp_record.write_text(json.dumps(record))
-    os.replace(tmp_record, program.with_suffix(".json"))
+    write_record(program, wall_seconds=wall, cpu_seconds=cpu)
     log.info("built the Pinocchio-CasADi bridge in %.0f s (CPU %.0f s): %s", wall, cpu, program)
     return BuildRecord(program, wall, cpu, True)
 
@@ -328,8 +313,10 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
         folder.mkdir(parents=True, exist_ok=True)
         # one process builds, the others wait for it
         with file_lock(folder / f"{program.name}.lock"):
-            record = _read_record(program)
-            if record is None:
+            saved, _ = check_record(program)
+            if saved is not None and {"wall_seconds", "cpu_seconds"} <= saved.keys():
+                record = BuildRecord(program, saved["wall_seconds"], saved["cpu_seconds"], False)
+            else:
                 record = _compile(toolchain, program)
     except OSError as exc:  # unwritable cache folder, compiler gone, disk full, ...
         raise BridgeUnavailable(f"build failed: {exc}") from exc
