@@ -85,11 +85,6 @@ def configure(enabled: bool, stream: IO[str] | None = None) -> None:
     _STATE.stream = (stream or sys.stderr) if enabled else None
 
 
-def enabled() -> bool:
-    """Whether progress is shown."""
-    return _STATE.enabled
-
-
 def status(message: str) -> None:
     """A stage notice (e.g. ``"compiling the planner's kernels (about 30 s) ..."``): the live line
     on a terminal (replaced by what comes next), a line of its own elsewhere. Nothing when
