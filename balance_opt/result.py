@@ -80,9 +80,7 @@ def find_limit_violations(
             edges = np.diff(np.r_[0, outside.astype(int), 0])
             for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
                 worst = float(excess[start:stop, j].max())
-                found.append(
-                    LimitViolation(name, kind, float(t[start]), float(t[stop - 1]), worst)
-                )
+                found.append(LimitViolation(name, kind, float(t[start]), float(t[stop - 1]), worst))
     return found
 
 

@@ -265,7 +265,8 @@ class SimulationResult(AttitudeHistory):
             self.q_ddot,
             self.quaternion.copy(),
             self.omega.copy(),
-            np.linalg.norm(self.momentum[:, 3:] - self.h0[..., 3:], axis=1) / self.momentum_scale[1],
+            np.linalg.norm(self.momentum[:, 3:] - self.h0[..., 3:], axis=1)
+            / self.momentum_scale[1],
             maps.balance_sigma_min(*maps.angular_maps(self.q)),
             info,
         )

@@ -73,9 +73,7 @@ class RobustnessOptions:
             must be at least 1, got 0"``).
     """
 
-    enabled: bool | None = setting(
-        None, doc="run the study (default: in compare, not in plan)"
-    )
+    enabled: bool | None = setting(None, doc="run the study (default: in compare, not in plan)")
     samples: int = setting(50, minimum=1, doc="perturbed models K")
     perturbation: float = setting(
         0.10,
