@@ -88,7 +88,27 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
 
 
-__all__ = sorted(
-    ["Arm", "BalanceOptError", "FloatingRobot", "InputError", "JointLimits", "SolverError"]
-    + ["__version__", "baxter_floating", "paper_robot", *_LAZY]
-)
+__all__ = [
+    "Arm",
+    "BalanceOptError",
+    "BalanceResult",
+    "FloatingRobot",
+    "InputError",
+    "JointLimits",
+    "LimitViolation",
+    "SimulationResult",
+    "SolverError",
+    "Task",
+    "TaskRun",
+    "__version__",
+    "baxter_floating",
+    "load_task",
+    "paper_robot",
+    "plan_analytic",
+    "plan_mission_only",
+    "plan_optimal",
+    "plot_result",
+    "run_task",
+    "simulate",
+    "task_from_dict",
+]

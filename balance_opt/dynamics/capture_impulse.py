@@ -88,7 +88,8 @@ def _joined(
     first: SimulationResult, second: SimulationResult, t_c: float, state: CaptureState
 ) -> SimulationResult:
     keep = slice(1, None)
-    names = "q q_dot q_ddot q_des q_dot_des q_ddot_des tau q_pin v a momentum".split()
+    names = ["q", "q_dot", "q_ddot", "q_des", "q_dot_des", "q_ddot_des", "tau"]
+    names += ["q_pin", "v", "a", "momentum"]
     arrays = {
         name: np.concatenate([getattr(first, name), getattr(second, name)[keep]]) for name in names
     }

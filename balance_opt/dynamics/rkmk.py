@@ -23,6 +23,7 @@ as feedforward, when it has them), and :func:`dopri5` the step control as ``opts
 from __future__ import annotations
 
 import math
+
 import numpy as np
 import pinocchio as pin
 
