@@ -42,8 +42,8 @@ from balance_opt.errors import BalanceOptError
 log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("cpp") / "pinocchio_casadi_bridge.cpp"
-#: -O0: the program runs once per robot for well under a second, so optimizing it would only
-#: lengthen the build (which instantiates Pinocchio's templates on casadi::SX, ~1.5 min of CPU).
+#: -O0: the program runs once per robot, briefly, so optimizing it would only lengthen the build
+#: (which instantiates Pinocchio's templates on casadi::SX).
 CXX_FLAGS = ("-std=c++17", "-O0", "-s")
 #: The compile definitions Pinocchio 4.1's CMake targets (pinocchio_headers, pinocchio_parsers)
 #: export: Pinocchio's joint variant has more alternatives than Boost.MPL's default limit, and

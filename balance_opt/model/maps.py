@@ -147,14 +147,12 @@ class NumericMaps:
         T = qp.shape[0]
         d_full = np.empty((T, 6, self.model.nv))
         model, data, cmap_rate = self.model, self.data, pin.computeCentroidalMapTimeVariation
-        if Ag is None:
-            Ag = np.empty_like(d_full)
-            for k in range(T):
-                d_full[k] = cmap_rate(model, data, qp[k], vp[k])
+        fill = Ag is None
+        Ag = np.empty_like(d_full) if fill else Ag
+        for k in range(T):
+            d_full[k] = cmap_rate(model, data, qp[k], vp[k])
+            if fill:
                 Ag[k] = data.Ag
-        else:
-            for k in range(T):
-                d_full[k] = cmap_rate(model, data, qp[k], vp[k])
         lin = Ag[:, :3]
         c = np.matvec(lin, vp) / self.mass  # CoM velocity (T, 3)
         cross = np.cross(c[:, :, None], lin, axis=1)  # [c_dot]_x applied to each column

@@ -17,7 +17,7 @@ identity, base columns first, then arm joints in arm order):
 
 ``backend="auto"`` takes ``"pinocchio"`` where it works (building the bridge on first use),
 else ``"adam"``, and then says why in one log line per process. Pinocchio's expressions are
-about four times smaller than adam's on Baxter (``benchmarks/bench_bridge.py``).
+the smaller (``benchmarks/bench_bridge.py``).
 
 Mimic joints that follow an arm joint (``FloatingRobot.followers``) are evaluated as joints of
 their own at ``k q_driver + c``, and their columns are then folded, times ``k``, into their

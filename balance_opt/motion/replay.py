@@ -134,8 +134,8 @@ class _StageRates:
 
     The joints are given, so everything but the attitude is known before integrating: the maps
     are evaluated once per stage time (one batched Pinocchio pass instead of a Python call per
-    right-hand side: 10-20x faster). With momentum ``L``, ``omega = I_G^{-1} (R^T L - A q_dot)``
-    depends on the attitude: its two parts are kept apart.
+    right-hand side). With momentum ``L``, ``omega = I_G^{-1} (R^T L - A q_dot)`` depends on
+    the attitude: its two parts are kept apart.
     """
 
     def __init__(self, maps: NumericMaps, sample_M, sample_B, L: np.ndarray):
