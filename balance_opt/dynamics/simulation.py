@@ -126,20 +126,15 @@ class _ArmPlan:
 
 # --------------------------------------------------------------------------------- options
 def _per_joint(value, n: int, name: str) -> np.ndarray | None:
+    """One gain per arm joint (``SimulationOptions`` checked that they are finite and
+    non-negative, not how many there are)."""
     if value is None:
         return None
-    arr = (
-        np.broadcast_to(np.asarray(value, dtype=float), (n,))
-        if np.ndim(value) == 0
-        else np.asarray(value, dtype=float)
-    )
+    arr = np.asarray(value, dtype=float)
+    arr = np.full(n, arr) if arr.ndim == 0 else arr
     if arr.shape != (n,):
         raise InputError(
             f"simulation option '{name}' needs one value per arm joint ({n}), got {arr.size}"
-        )
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise InputError(
-            f"simulation option '{name}' must be finite and non-negative, got {arr.tolist()}"
         )
     return arr.copy()
 
