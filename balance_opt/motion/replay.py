@@ -58,11 +58,9 @@ def replay(
 
     Args:
         robot: the floating robot.
-        mission: mission arm motion: a trajectory with ``sample(t)``, a callable of an array of
-            times returning ``(q, q_dot, q_ddot)`` each (T, n_M), or a tuple of sample arrays
-            ``(t, q, q_dot, q_ddot)`` (quintic Hermite interpolation, see
-            :class:`~balance_opt.motion.trajectories.SampledTrajectory`; its ``from_result`` for
-            a result).
+        mission: mission arm motion (n_M joints), in any form
+            :func:`~balance_opt.motion.trajectories.as_sampler` takes (a result's: through
+            ``SampledTrajectory.from_result``).
         balance: balance arms' motion, the same ways, all balance joints stacked (n_B).
         h0: initial momentum, world frame (3 angular or 6 [linear; angular] values), ``None`` for 0.
         integration: integrator settings.
