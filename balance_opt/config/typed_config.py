@@ -256,11 +256,6 @@ def _count(n: int, noun: str) -> str:
     return f"one {noun}" if n == 1 else f"{n} {noun}s"
 
 
-def _check_pattern(value: str, meta: dict, path: tuple) -> None:
-    if meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
-        raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
-
-
 def _convert_scalar(value, tp, meta: dict, path: tuple):
     if tp is bool:
         if not isinstance(value, bool):
@@ -281,7 +276,8 @@ def _convert_scalar(value, tp, meta: dict, path: tuple):
             raise _Invalid(path, f"expected a string, got {value_words(value)}")
         if not value.strip():
             raise _Invalid(path, "expected a non-empty string")
-        _check_pattern(value, meta, path)
+        if meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
+            raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
         return value
     if tp is Any:
         return value
@@ -316,7 +312,11 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
     if dataclasses.is_dataclass(tp):
         if isinstance(value, tp):  # built in Python: it checked itself
             return value
-        return _convert_dataclass(value, tp, path)
+        if not isinstance(value, dict):
+            raise _Invalid(path, f"expected a mapping, got {value_words(value)}")
+        tree: dict = {}
+        _read_mapping(value, file_layout(tp), path, tree, getattr(tp, "__exactly_one__", ()))
+        return _build(tp, tree, path)
     return _convert_scalar(value, tp, meta, path)
 
 
@@ -433,14 +433,6 @@ def _build(cls, tree: dict, path: tuple):
         return cls(**kwargs)
     except InputError as exc:
         raise _Invalid(path, str(exc)) from None
-
-
-def _convert_dataclass(value, cls, path):
-    if not isinstance(value, dict):
-        raise _Invalid(path, f"expected a mapping, got {value_words(value)}")
-    tree: dict = {}
-    _read_mapping(value, file_layout(cls), path, tree, getattr(cls, "__exactly_one__", ()))
-    return _build(cls, tree, path)
 
 
 def from_data(cls, doc, path: Sequence[Any] = ()):

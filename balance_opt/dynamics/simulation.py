@@ -125,11 +125,12 @@ class _ArmPlan:
 
 
 # --------------------------------------------------------------------------------- options
-def _per_joint(value, n: int, name: str) -> np.ndarray | None:
-    """One gain per arm joint (``SimulationOptions`` checked that they are finite and
-    non-negative, not how many there are)."""
+def _per_joint(value, default: np.ndarray, name: str) -> np.ndarray:
+    """One gain per arm joint, ``default`` where none is given (``SimulationOptions`` checked
+    that they are finite and non-negative, not how many there are)."""
     if value is None:
-        return None
+        return default
+    n = default.size
     arr = np.asarray(value, dtype=float)
     arr = np.full(n, arr) if arr.ndim == 0 else arr
     if arr.shape != (n,):
@@ -336,17 +337,6 @@ class _Dynamics:
         return tau0[self.idx_v] + M[:6, self.idx_v].T @ a_b
 
 
-def _initial_state(
-    robot: FloatingRobot, plan: _ArmPlan, h0_world: np.ndarray, base: pin.SE3 | None
-):
-    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1))[:3])
-    base = base or pin.SE3.Identity()
-    R = base.rotation
-    h0_base = np.r_[R.T @ h0_world[:3], R.T @ h0_world[3:]]
-    twist = NumericMaps(robot).base_twist(q0, qd0, h0_base)
-    return robot.pin_q(q0, base), robot.pin_v(qd0, twist)
-
-
 # --------------------------------------------------------------------------------- entry points
 def simulate(
     robot: FloatingRobot,
@@ -394,12 +384,18 @@ def simulate(
         raise TrajectoryError(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
-    kp, kd = _gains(robot, plan, opts)
+    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1)))
+    kp, kd = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
+    kp, kd = _per_joint(opts.kp, kp, "kp"), _per_joint(opts.kd, kd, "kd")
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
     if opts.feedforward and opts.controller == "pd":
         plan.add_feedforward(h0, attitude)
-    x0 = _initial_state(robot, plan, h0, base) if initial_state is None else initial_state
+    if initial_state is None:  # the plan's start, the base twist of the momentum h0
+        R = (base or pin.SE3.Identity()).rotation
+        twist = NumericMaps(robot).base_twist(q0, qd0, np.r_[R.T @ h0[:3], R.T @ h0[3:]])
+        initial_state = robot.pin_q(q0, base), robot.pin_v(qd0, twist)
+    x0 = initial_state
 
     if opts.integrator == "rk4":
         output_dt = opts.output_dt or opts.dt
@@ -427,15 +423,6 @@ def simulate(
     )
     _log_run(result)
     return result
-
-
-def _gains(robot: FloatingRobot, plan: _ArmPlan, opts: SimulationOptions):
-    """``(kp, kd)`` per arm joint: the options', else :func:`default_gains` at the start."""
-    q0 = plan.sample(np.zeros(1))[0][0]
-    kp_default, kd_default = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
-    kp = _per_joint(opts.kp, robot.n, "kp")
-    kd = _per_joint(opts.kd, robot.n, "kd")
-    return (kp_default if kp is None else kp), (kd_default if kd is None else kd)
 
 
 def divergence(result: SimulationResult) -> str | None:

@@ -327,15 +327,12 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
 # ----------------------------------------------------------------------------- per robot
 
 
-def _robot_key(robot, program: Path) -> str:
-    frames = [arm.ee_frame for arm in robot.arms]
-    spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
-    return hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
-
-
 def function_path(robot, program: Path) -> Path:
     """Where the function of ``robot`` made by ``program`` is cached."""
-    return program.parent / "functions" / f"{robot.name}_{_robot_key(robot, program)}.casadi"
+    frames = [arm.ee_frame for arm in robot.arms]
+    spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
+    key = hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
+    return program.parent / "functions" / f"{robot.name}_{key}.casadi"
 
 
 def _load(path: Path, robot) -> cs.Function | None:

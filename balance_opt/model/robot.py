@@ -103,18 +103,14 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     for warning in check_urdf_physics(root, source):
-        _warn_once(f"URDF {source}: {warning}")
+        message = f"URDF {source}: {warning}"
+        if message not in _WARNED:  # once: robots are built again and again
+            _WARNED.add(message)
+            log.warning("%s", message)
     return root, joints
 
 
 _WARNED: set[str] = set()
-
-
-def _warn_once(message: str) -> None:
-    """Log ``message`` as a warning the first time only (robots are built again and again)."""
-    if message not in _WARNED:
-        _WARNED.add(message)
-        log.warning("%s", message)
 
 
 def _ancestors(model: pin.Model, joint_id: int) -> list[int]:

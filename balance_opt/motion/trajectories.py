@@ -41,13 +41,6 @@ class JointTrajectory:
         return self.sample(np.array([self.duration]))[0][0]
 
 
-def _check_duration(duration) -> float:
-    duration = float(duration)
-    if not duration > 0 or not np.isfinite(duration):
-        raise TrajectoryError(f"duration must be a positive number of seconds, got {duration}")
-    return duration
-
-
 class PointToPoint(JointTrajectory):
     """Rest-to-rest motion from ``q0`` to ``qf`` with a quintic time law (the paper's PTP):
     ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5``, zero velocity and acceleration at both ends.
@@ -62,7 +55,9 @@ class PointToPoint(JointTrajectory):
         self.qf = np.asarray(qf, dtype=float).ravel()
         if self.q0.shape != self.qf.shape:
             raise TrajectoryError(f"start has {self.q0.size} joints but goal has {self.qf.size}")
-        self.duration = _check_duration(duration)
+        self.duration = T = float(duration)
+        if not T > 0 or not np.isfinite(T):
+            raise TrajectoryError(f"duration must be a positive number of seconds, got {T}")
         self.dof = self.q0.size
 
     def sample(self, t):
