@@ -44,11 +44,6 @@ def _handler(signum: int, frame) -> None:
     raise Interrupted(signum)
 
 
-def interrupted() -> int | None:
-    """The first signal received within the current :func:`handling_signals` block, if any."""
-    return _received[0] if _received else None
-
-
 def raise_if_interrupted() -> None:
     """Raise :class:`Interrupted` if a signal was received within the current
     :func:`handling_signals` block (even if the exception its handler raised was caught by a
@@ -84,4 +79,4 @@ def handling_signals() -> Iterator[None]:
             _received.clear()
 
 
-__all__ = ["SIGNALS", "Interrupted", "handling_signals", "interrupted", "raise_if_interrupted"]
+__all__ = ["SIGNALS", "Interrupted", "handling_signals", "raise_if_interrupted"]

@@ -85,11 +85,6 @@ def configure(enabled: bool, stream: IO[str] | None = None) -> None:
     _STATE.stream = (stream or sys.stderr) if enabled else None
 
 
-def enabled() -> bool:
-    """Whether progress is shown."""
-    return _STATE.enabled
-
-
 def status(message: str) -> None:
     """A stage notice (e.g. ``"compiling the planner's kernels (about 30 s) ..."``): the live line
     on a terminal (replaced by what comes next), a line of its own elsewhere. Nothing when
@@ -170,10 +165,11 @@ def solving(lbg: Any, ubg: Any, label: str = "Ipopt") -> Iterator[None]:
 _CALLBACKS: list[Any] = []
 
 
-def ipopt_callback(n_x: int, n_g: int) -> Any:
-    """A CasADi ``iteration_callback`` for an NLP with ``n_x`` variables and ``n_g``
-    constraints, feeding :func:`iteration`; returns at once while no :func:`solving` block is
-    active (progress off)."""
+def nlpsol_options(n_x: int, n_g: int) -> dict[str, Any]:
+    """The ``nlpsol`` options that give a solver of ``n_x`` variables and ``n_g`` constraints
+    the progress line: an ``iteration_callback`` feeding :func:`iteration` (it returns at once
+    while no :func:`solving` block is active), whose errors (a bug here) are ignored rather
+    than ending the solve."""
     import casadi as cs
 
     class _IterationCallback(cs.Callback):
@@ -220,13 +216,4 @@ def ipopt_callback(n_x: int, n_g: int) -> Any:
 
     callback = _IterationCallback()
     _CALLBACKS.append(callback)
-    return callback
-
-
-def nlpsol_options(n_x: int, n_g: int) -> dict[str, Any]:
-    """The ``nlpsol`` options that give a solver the progress line: the callback of
-    :func:`ipopt_callback`, whose errors (a bug here) are ignored rather than ending the solve."""
-    return {
-        "iteration_callback": ipopt_callback(n_x, n_g),
-        "iteration_callback_ignore_errors": True,
-    }
+    return {"iteration_callback": callback, "iteration_callback_ignore_errors": True}

@@ -83,15 +83,8 @@ def find_limit_violations(
             # contiguous runs of samples outside the limit
             edges = np.diff(np.r_[0, outside.astype(int), 0])
             for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
-                found.append(
-                    LimitViolation(
-                        name,
-                        kind,
-                        float(t[start]),
-                        float(t[stop - 1]),
-                        float(excess[start:stop, j].max()),
-                    )
-                )
+                worst = float(excess[start:stop, j].max())
+                found.append(LimitViolation(name, kind, float(t[start]), float(t[stop - 1]), worst))
     return found
 
 
@@ -113,15 +106,8 @@ class AttitudeHistory:
 
 #: Columns of :meth:`BalanceResult.to_dataframe` after the joints: the same names as the CSV
 #: files (:func:`balance_opt.report.outputs.trajectory_columns`).
-ATTITUDE_COLUMNS = (
-    "base_qx",
-    "base_qy",
-    "base_qz",
-    "base_qw",
-    "base_roll",
-    "base_pitch",
-    "base_yaw",
-    "base_angle",
+ATTITUDE_COLUMNS = tuple(
+    "base_" + c for c in ("qx", "qy", "qz", "qw", "roll", "pitch", "yaw", "angle")
 )
 #: ``BalanceResult.info`` entries left out of ``metrics.json`` and of summaries (kept in the
 #: NPZ): large arrays.
@@ -152,8 +138,8 @@ class BalanceResult(AttitudeHistory):
             momentum about the CoM against the initial one, ``|L(t) - L0|``, over the largest
             angular momentum the joints carry plus ``|L0|``. For planned and replayed motions it
             is recomputed from the exported samples alone, the base rate by finite differences
-            of the attitude (:mod:`balance_opt.motion.momentum_check`; floor ~1e-9 to 1e-7); for a
-            simulation, from the simulated state.
+            of the attitude (:mod:`balance_opt.motion.momentum_check`); for a simulation, from the
+            simulated state.
         sigma_min: smallest singular value of ``J_wB`` along the path (T,).
         violations: every joint-limit violation of the balance (and mission) joints.
         info: method-specific details (damping used, solver status and statistics, re-simulation

@@ -37,7 +37,7 @@ def test_silent_unless_configured():
     progress.configure(False, stream)
     progress.status("compiling")
     _solve([0.5, 0.0])
-    assert stream.getvalue() == "" and not progress.enabled()
+    assert stream.getvalue() == "" and not progress._STATE.enabled
 
 
 def test_a_file_gets_one_line_per_stage_and_per_solve(monkeypatch):
@@ -83,7 +83,7 @@ def test_a_closed_stream_turns_progress_off():
     progress.configure(True, stream)
     stream.close()
     progress.status("anything")  # no exception
-    assert not progress.enabled()
+    assert not progress._STATE.enabled
 
 
 def test_the_ipopt_callback_follows_the_solve_and_stops_it_on_an_interrupt(monkeypatch):

@@ -14,12 +14,12 @@ import pytest
 from balance_opt.errors import TrajectoryError
 from balance_opt.motion.trajectories import (
     IK_POSITION_TOLERANCE,
-    CartesianGoal,
     CsvTrajectory,
     PointToPoint,
     SampledTrajectory,
     ViaPoints,
     cartesian_goal,
+    solve_cartesian_goal,
 )
 
 #: Richardson-extrapolated central differences with step FD_STEP [s]: truncation O(h^4) ~ 1e-12,
@@ -172,13 +172,13 @@ def test_cartesian_pose_goal_on_a_7_dof_arm(baxter):
     target = np.array([0.3, -0.5, 0.2, 1.0, 0.1, 0.5, 0.2])
     pose = _fk(baxter, "mission", target)
     start = baxter.neutral()[baxter.mission_indices]
-    q_goal = CartesianGoal(pose.translation, pose.rotation).solve(baxter, start)
+    q_goal = solve_cartesian_goal(baxter, start, pose.translation, pose.rotation)
     reached = _fk(baxter, "mission", q_goal)
     assert np.linalg.norm(reached.translation - pose.translation) <= IK_POSITION_TOLERANCE
     assert np.linalg.norm(pin.log3(reached.rotation.T @ pose.rotation)) <= 1e-6
     # the same goal given as a quaternion (x, y, z, w)
     quat = pin.Quaternion(pose.rotation).coeffs()
-    q_goal2 = CartesianGoal(pose.translation, quat).solve(baxter, start)
+    q_goal2 = solve_cartesian_goal(baxter, start, pose.translation, quat)
     np.testing.assert_allclose(
         _fk(baxter, "mission", q_goal2).homogeneous, pose.homogeneous, rtol=0, atol=1e-6
     )
@@ -219,8 +219,8 @@ def test_unreachable_goal_reports_remaining_distance(paper):
 
 def test_cartesian_goal_input_errors(paper):
     with pytest.raises(TrajectoryError, match="position must be 3 finite numbers"):
-        CartesianGoal((1.0, 2.0))
+        solve_cartesian_goal(paper, [0.0, 0.0, 0.0], (1.0, 2.0))
     with pytest.raises(TrajectoryError, match="orientation matrix is not a rotation"):
-        CartesianGoal((1.0, 2.0, 3.0), 2 * np.eye(3))
+        solve_cartesian_goal(paper, [0.0, 0.0, 0.0], (1.0, 2.0, 3.0), 2 * np.eye(3))
     with pytest.raises(TrajectoryError, match="the mission arm has 3 joints, start has 2"):
-        CartesianGoal((1.0, 2.0, 3.0)).solve(paper, [0.0, 0.0])
+        solve_cartesian_goal(paper, [0.0, 0.0], (1.0, 2.0, 3.0))

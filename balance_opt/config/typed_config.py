@@ -66,7 +66,6 @@ def setting(
     factory=None,
     minimum: float | None = None,
     exclusive_minimum: float | None = None,
-    maximum: float | None = None,
     finite: bool = True,
     min_items: int | None = None,
     max_items: int | None = None,
@@ -86,7 +85,7 @@ def setting(
         doc: one sentence: what the value means.
         unit: unit of the number(s), e.g. ``"rad/s"``.
         factory: a default factory instead of ``default`` (for dicts and dataclasses).
-        minimum, exclusive_minimum, maximum: bounds of a number (of each number in a list).
+        minimum, exclusive_minimum: bounds of a number (of each number in a list).
         finite: reject ``inf`` (NaN is always rejected).
         min_items, max_items: bounds on the length of a list.
         item: what the list's items name, for messages (``"joint"``: ``"must name at least
@@ -105,7 +104,6 @@ def setting(
         "unit": unit,
         "minimum": minimum,
         "exclusive_minimum": exclusive_minimum,
-        "maximum": maximum,
         "finite": finite,
         "min_items": min_items,
         "max_items": max_items,
@@ -216,11 +214,11 @@ class _Invalid(Exception):
         self.reason = reason
 
 
-NUMBER_META = ("minimum", "exclusive_minimum", "maximum", "finite", "unit")
+NUMBER_META = ("minimum", "exclusive_minimum", "finite", "unit")
 
 
 def _check_number(value: float, meta: dict, path: tuple) -> None:
-    lo, xlo, hi = meta.get("minimum"), meta.get("exclusive_minimum"), meta.get("maximum")
+    lo, xlo = meta.get("minimum"), meta.get("exclusive_minimum")
     unit = f" {meta['unit']}" if meta.get("unit") else ""
     if math.isnan(value):
         raise _Invalid(path, "expected a number, got NaN")
@@ -230,8 +228,6 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
         raise _Invalid(path, f"must be greater than {xlo:g}{unit}, got {value:g}")
     if lo is not None and not value >= lo:
         raise _Invalid(path, f"must be at least {lo:g}{unit}, got {value:g}")
-    if hi is not None and not value <= hi:
-        raise _Invalid(path, f"must be at most {hi:g}{unit}, got {value:g}")
 
 
 def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
@@ -260,11 +256,6 @@ def _count(n: int, noun: str) -> str:
     return f"one {noun}" if n == 1 else f"{n} {noun}s"
 
 
-def _check_pattern(value: str, meta: dict, path: tuple) -> None:
-    if meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
-        raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
-
-
 def _convert_scalar(value, tp, meta: dict, path: tuple):
     if tp is bool:
         if not isinstance(value, bool):
@@ -285,7 +276,8 @@ def _convert_scalar(value, tp, meta: dict, path: tuple):
             raise _Invalid(path, f"expected a string, got {value_words(value)}")
         if not value.strip():
             raise _Invalid(path, "expected a non-empty string")
-        _check_pattern(value, meta, path)
+        if meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
+            raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
         return value
     if tp is Any:
         return value
@@ -320,7 +312,11 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
     if dataclasses.is_dataclass(tp):
         if isinstance(value, tp):  # built in Python: it checked itself
             return value
-        return _convert_dataclass(value, tp, path)
+        if not isinstance(value, dict):
+            raise _Invalid(path, f"expected a mapping, got {value_words(value)}")
+        tree: dict = {}
+        _read_mapping(value, file_layout(tp), path, tree, getattr(tp, "__exactly_one__", ()))
+        return _build(tp, tree, path)
     return _convert_scalar(value, tp, meta, path)
 
 
@@ -437,14 +433,6 @@ def _build(cls, tree: dict, path: tuple):
         return cls(**kwargs)
     except InputError as exc:
         raise _Invalid(path, str(exc)) from None
-
-
-def _convert_dataclass(value, cls, path):
-    if not isinstance(value, dict):
-        raise _Invalid(path, f"expected a mapping, got {value_words(value)}")
-    tree: dict = {}
-    _read_mapping(value, file_layout(cls), path, tree, getattr(cls, "__exactly_one__", ()))
-    return _build(cls, tree, path)
 
 
 def from_data(cls, doc, path: Sequence[Any] = ()):

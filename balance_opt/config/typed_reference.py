@@ -26,18 +26,6 @@ from balance_opt.config.typed_config import (
 
 
 # ----------------------------------------------------------------------------------- JSON Schema
-def _number_schema(tp, meta: dict) -> dict:
-    out = {"type": "integer" if tp is int else "number"}
-    for name, key in (
-        ("minimum", "minimum"),
-        ("exclusive_minimum", "exclusiveMinimum"),
-        ("maximum", "maximum"),
-    ):
-        if meta.get(name) is not None:
-            out[key] = meta[name]
-    return out
-
-
 def _schema(tp, meta: dict, defs: dict) -> dict:
     if is_union(tp):
         members = typing.get_args(tp)
@@ -69,7 +57,11 @@ def _schema(tp, meta: dict, defs: dict) -> dict:
             defs[name] = dataclass_schema(tp, defs)
         return {"$ref": f"#/$defs/{name}"}
     if tp in (int, float):
-        return _number_schema(tp, meta)
+        out = {"type": "integer" if tp is int else "number"}
+        for name, key in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum")):
+            if meta.get(name) is not None:
+                out[key] = meta[name]
+        return out
     if tp is bool:
         return {"type": "boolean"}
     if tp is str:

@@ -88,28 +88,13 @@ def _joined(
     first: SimulationResult, second: SimulationResult, t_c: float, state: CaptureState
 ) -> SimulationResult:
     keep = slice(1, None)
+    names = ["q", "q_dot", "q_ddot", "q_des", "q_dot_des", "q_ddot_des", "tau"]
+    names += ["q_pin", "v", "a", "momentum"]
     arrays = {
-        name: np.concatenate([getattr(first, name), getattr(second, name)[keep]])
-        for name in (
-            "q",
-            "q_dot",
-            "q_ddot",
-            "q_des",
-            "q_dot_des",
-            "q_ddot_des",
-            "tau",
-            "q_pin",
-            "v",
-            "a",
-            "momentum",
-        )
+        name: np.concatenate([getattr(first, name), getattr(second, name)[keep]]) for name in names
     }
-    h0 = np.vstack(
-        [
-            np.broadcast_to(first.h0, (first.t.size, 6)),
-            np.broadcast_to(second.h0, (second.t.size - 1, 6)),
-        ]
-    )
+    n1, n2 = first.t.size, second.t.size - 1
+    h0 = np.vstack([np.broadcast_to(first.h0, (n1, 6)), np.broadcast_to(second.h0, (n2, 6))])
     info = dict(first.info)
     info["after_capture"] = dict(second.info)
     info["capture"] = state.as_dict(t_c)

@@ -63,8 +63,7 @@ class SimulationOptions:
     controller: Literal[CONTROLLERS] = setting(
         CONTROLLERS[0], doc="joint controller: PD (the paper's) or computed torque + PD"
     )
-    # PD alone trails a plan by about q_ddot / kp (0.017 rad on the capture task's optimal plan,
-    # and 43 % more final drift than planned): the check would then judge the controller, not
+    # PD alone trails a plan by about q_ddot / kp: the check would judge the controller, not
     # the plan.
     feedforward: bool = setting(
         True,

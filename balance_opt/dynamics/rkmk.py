@@ -14,15 +14,15 @@ map would cost two orders on the base rotation.
   on every output time.
 
 Both take the dynamics as a callable ``dyn(q, v, q_des, q_dot_des, q_ddot_des[, tau_des]) ->
-(a, tau)`` (with ``dyn.model`` and ``dyn.idx_v``) and the plan as ``plan.sample(t) -> (q, q_dot,
-q_ddot[, tau])``: whatever the plan samples is passed on (the plan's own torques, as
-feedforward, when it has them).
+(a, tau)`` (with ``dyn.model`` and ``dyn.idx_v``), the plan as ``plan.sample(t) -> (q, q_dot,
+q_ddot[, tau])`` in arm order (whatever the plan samples is passed on: the plan's own torques,
+as feedforward, when it has them), and :func:`dopri5` the step control as ``opts`` (``dt``,
+``max_step``, ``rtol``, ``atol``: :class:`~balance_opt.dynamics.options.SimulationOptions`).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -35,32 +35,6 @@ STEP_GROWTH_MAX = 5.0
 STEP_SHRINK_MIN = 0.2
 #: Smallest step the adaptive integrator accepts before giving up [s].
 MIN_STEP = 1e-10
-
-
-class Dynamics(Protocol):
-    """``(q, v, planned joint state) -> (a, tau)``, with the model and the joints' velocity
-    indices."""
-
-    model: pin.Model
-    idx_v: np.ndarray
-
-    def __call__(self, q, v, qd, vd, ad, tau_d=None) -> tuple[np.ndarray, np.ndarray]: ...
-
-
-class Plan(Protocol):
-    """The planned joint motion, in arm order."""
-
-    def sample(self, t) -> tuple[np.ndarray, ...]: ...
-
-
-class StepControl(Protocol):
-    """The settings :func:`dopri5` reads
-    (:class:`~balance_opt.dynamics.options.SimulationOptions`)."""
-
-    dt: float
-    max_step: float
-    rtol: float
-    atol: float
 
 
 # Dormand-Prince 5(4): nodes, stage matrix, 5th-order weights (the solution) and 4th-order weights.
@@ -80,7 +54,7 @@ _DP_B5 = _DP_A[6]
 _DP_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40])
 
 
-def rk4(dyn: Dynamics, plan: Plan, x0, t_end: float, dt: float, stride: int):
+def rk4(dyn, plan, x0, t_end: float, dt: float, stride: int):
     """Fixed-step RKMK4 (see the module docstring). Returns output arrays and step counts."""
     model = dyn.model
     n_steps = max(1, math.ceil(t_end / dt - 1e-9))
@@ -120,17 +94,11 @@ def rk4(dyn: Dynamics, plan: Plan, x0, t_end: float, dt: float, stride: int):
         v = v + h6 * (a1 + 2.0 * (a2 + a3) + a4)
     a_end, tau_end = dyn(q, v, *(X[-1] for X in P))
     Q[j], V[j], A[j], TAU[j] = q, v, a_end, tau_end
-    return (
-        out_steps * h,
-        Q,
-        V,
-        A,
-        TAU,
-        {"steps": n_steps, "step_s": h, "rhs_evaluations": 4 * n_steps + 1},
-    )
+    stats = {"steps": n_steps, "step_s": h, "rhs_evaluations": 4 * n_steps + 1}
+    return out_steps * h, Q, V, A, TAU, stats
 
 
-def dopri5(dyn: Dynamics, plan: Plan, x0, t_end: float, opts: StepControl, output_dt: float):
+def dopri5(dyn, plan, x0, t_end: float, opts, output_dt: float):
     """Adaptive RKMK Dormand-Prince 5(4) with steps that land on the output times."""
     model = dyn.model
     integrate, ddiff, ARG1 = pin.integrate, pin.dDifference, pin.ArgumentPosition.ARG1
@@ -169,11 +137,8 @@ def dopri5(dyn: Dynamics, plan: Plan, x0, t_end: float, opts: StepControl, outpu
             err = math.sqrt((np.sum((eu / scale_u) ** 2) + np.sum((ev / scale_v) ** 2)) / (2 * nv))
             if err <= 1.0:
                 t = t_out[j] if last else t + step
-                q, v = (
-                    qs,
-                    v_new,
-                )  # qs is integrate(q, du5): stage 7 nodes equal the 5th-order weights
-                a, tau = a_s, tau_s
+                # qs is integrate(q, du5): stage 7's nodes are the 5th-order weights
+                q, v, a, tau = qs, v_new, a_s, tau_s
                 accepted += 1
             else:
                 rejected += 1
@@ -187,11 +152,5 @@ def dopri5(dyn: Dynamics, plan: Plan, x0, t_end: float, opts: StepControl, outpu
                     f"{MIN_STEP} s); loosen 'rtol'/'atol' or check the gains"
                 )
         Q[j], V[j], A[j], TAU[j] = q, v, a, tau
-    return (
-        t_out,
-        Q,
-        V,
-        A,
-        TAU,
-        {"steps": accepted, "rejected_steps": rejected, "rhs_evaluations": evaluations + 1},
-    )
+    stats = {"steps": accepted, "rejected_steps": rejected, "rhs_evaluations": evaluations + 1}
+    return t_out, Q, V, A, TAU, stats

@@ -43,18 +43,14 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from balance_opt.dynamics.inverse_dynamics import free_floating_torques
-from balance_opt.dynamics.options import (
-    DEFAULT_BANDWIDTH,
-    DEFAULT_DAMPING_RATIO,
-    SimulationOptions,
-)
-from balance_opt.dynamics.inverse_dynamics import symmetric
+from balance_opt.dynamics.inverse_dynamics import free_floating_torques, symmetric
+from balance_opt.dynamics.options import DEFAULT_BANDWIDTH, DEFAULT_DAMPING_RATIO, SimulationOptions
 from balance_opt.dynamics.rkmk import dopri5, rk4
 from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.momentum_check import MOMENTUM_SCALE_FLOOR
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
 from balance_opt.result import AttitudeHistory, BalanceResult
 
@@ -65,8 +61,6 @@ MOMENTUM_WARNING = 1e-6
 #: Relative momentum residual above which a simulation has diverged: its motion is no longer the
 #: robot's.
 MOMENTUM_DIVERGED = 1e-3
-#: Momentum scale below which the residual is reported in absolute terms [N s, N m s].
-MOMENTUM_SCALE_FLOOR = 1e-12
 
 
 # --------------------------------------------------------------------------------- trajectories
@@ -131,21 +125,17 @@ class _ArmPlan:
 
 
 # --------------------------------------------------------------------------------- options
-def _per_joint(value, n: int, name: str) -> np.ndarray | None:
+def _per_joint(value, default: np.ndarray, name: str) -> np.ndarray:
+    """One gain per arm joint, ``default`` where none is given (``SimulationOptions`` checked
+    that they are finite and non-negative, not how many there are)."""
     if value is None:
-        return None
-    arr = (
-        np.broadcast_to(np.asarray(value, dtype=float), (n,))
-        if np.ndim(value) == 0
-        else np.asarray(value, dtype=float)
-    )
+        return default
+    n = default.size
+    arr = np.asarray(value, dtype=float)
+    arr = np.full(n, arr) if arr.ndim == 0 else arr
     if arr.shape != (n,):
         raise InputError(
             f"simulation option '{name}' needs one value per arm joint ({n}), got {arr.size}"
-        )
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise InputError(
-            f"simulation option '{name}' must be finite and non-negative, got {arr.tolist()}"
         )
     return arr.copy()
 
@@ -245,24 +235,14 @@ class SimulationResult(AttitudeHistory):
         return self.q_pin[:, 3:7]
 
     @property
-    def base_position(self) -> np.ndarray:
-        """Base origin in the world (T, 3) [m]."""
-        return self.q_pin[:, :3]
-
-    @property
     def omega(self) -> np.ndarray:
         """Base angular velocity (T, 3), base frame [rad/s]."""
         return self.v[:, 3:6]
 
     @property
-    def tracking_error(self) -> np.ndarray:
-        """Planned minus simulated joint positions (T, n) [rad]."""
-        return self.q_des - self.q
-
-    @property
     def max_tracking_error(self) -> float:
         """Largest joint tracking error over the motion [rad]."""
-        return float(np.abs(self.tracking_error).max())
+        return float(np.abs(self.q_des - self.q).max())
 
     @property
     def total_wrench(self) -> np.ndarray:
@@ -271,15 +251,10 @@ class SimulationResult(AttitudeHistory):
         return sum(self.arm_wrenches.values())
 
     @property
-    def momentum_error(self) -> np.ndarray:
-        """``h(t) - h0`` (T, 6) [N s, N m s]."""
-        return self.momentum - self.h0
-
-    @property
     def momentum_residual(self) -> np.ndarray:
         """Relative momentum residual (T,): the larger of ``|p - p0| / scale_p`` and
         ``|L - L0| / scale_L`` (see ``momentum_scale``)."""
-        err = self.momentum_error
+        err = self.momentum - self.h0
         lin = np.linalg.norm(err[:, :3], axis=1) / self.momentum_scale[0]
         ang = np.linalg.norm(err[:, 3:], axis=1) / self.momentum_scale[1]
         return np.maximum(lin, ang)
@@ -303,7 +278,8 @@ class SimulationResult(AttitudeHistory):
             self.q_ddot,
             self.quaternion.copy(),
             self.omega.copy(),
-            np.linalg.norm(self.momentum_error[:, 3:], axis=1) / self.momentum_scale[1],
+            np.linalg.norm(self.momentum[:, 3:] - self.h0[..., 3:], axis=1)
+            / self.momentum_scale[1],
             maps.balance_sigma_min(*maps.angular_maps(self.q)),
             info,
         )
@@ -378,17 +354,6 @@ class _Dynamics:
         return tau0[self.idx_v] + M[:6, self.idx_v].T @ a_b
 
 
-def _initial_state(
-    robot: FloatingRobot, plan: _ArmPlan, h0_world: np.ndarray, base: pin.SE3 | None
-):
-    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1))[:3])
-    base = base or pin.SE3.Identity()
-    R = base.rotation
-    h0_base = np.r_[R.T @ h0_world[:3], R.T @ h0_world[3:]]
-    twist = NumericMaps(robot).base_twist(q0, qd0, h0_base)
-    return robot.pin_q(q0, base), robot.pin_v(qd0, twist)
-
-
 # --------------------------------------------------------------------------------- entry points
 def simulate(
     robot: FloatingRobot,
@@ -436,12 +401,18 @@ def simulate(
         raise TrajectoryError(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
-    kp, kd = _gains(robot, plan, opts)
+    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1)))
+    kp, kd = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
+    kp, kd = _per_joint(opts.kp, kp, "kp"), _per_joint(opts.kd, kd, "kd")
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
     if opts.feedforward and opts.controller == "pd":
         plan.add_feedforward(h0, attitude)
-    x0 = _initial_state(robot, plan, h0, base) if initial_state is None else initial_state
+    if initial_state is None:  # the plan's start, the base twist of the momentum h0
+        R = (base or pin.SE3.Identity()).rotation
+        twist = NumericMaps(robot).base_twist(q0, qd0, np.r_[R.T @ h0[:3], R.T @ h0[3:]])
+        initial_state = robot.pin_q(q0, base), robot.pin_v(qd0, twist)
+    x0 = initial_state
 
     if opts.integrator == "rk4":
         output_dt = opts.output_dt or opts.dt
@@ -469,15 +440,6 @@ def simulate(
     )
     _log_run(result)
     return result
-
-
-def _gains(robot: FloatingRobot, plan: _ArmPlan, opts: SimulationOptions):
-    """``(kp, kd)`` per arm joint: the options', else :func:`default_gains` at the start."""
-    q0 = plan.sample(np.zeros(1))[0][0]
-    kp_default, kd_default = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
-    kp = _per_joint(opts.kp, robot.n, "kp")
-    kd = _per_joint(opts.kd, robot.n, "kd")
-    return (kp_default if kp is None else kp), (kd_default if kd is None else kd)
 
 
 def divergence(result: SimulationResult) -> str | None:
@@ -551,14 +513,9 @@ def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> 
         # each joint's own momentum, summed: arms that cancel each other (a balanced plan
         # tracked exactly) must not shrink the scale to nothing
         each = A_G[:, moving] * V[k, moving]
-        joint_momentum[k] = np.linalg.norm(each[:3], axis=0).sum(), np.linalg.norm(
-            each[3:], axis=0
-        ).sum()
+        joint_momentum[k] = [np.linalg.norm(e, axis=0).sum() for e in (each[:3], each[3:])]
     scale = tuple(
-        max(
-            float(joint_momentum[:, i].max() + np.linalg.norm(h0[s])),
-            MOMENTUM_SCALE_FLOOR,
-        )
+        max(float(joint_momentum[:, i].max() + np.linalg.norm(h0[s])), MOMENTUM_SCALE_FLOOR)
         for i, s in enumerate((slice(0, 3), slice(3, 6)))
     )
     q_des, q_dot_des, q_ddot_des = plan.sample(t)[:3]

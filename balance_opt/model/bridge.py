@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import json
 import logging
 import os
 import platform
@@ -38,14 +37,14 @@ from pathlib import Path
 
 import casadi as cs
 
-from balance_opt.cache import build_dir, default_cache_dir, file_lock, sha256_of
+from balance_opt.cache import build_dir, check_record, default_cache_dir, file_lock, write_record
 from balance_opt.errors import BalanceOptError
 
 log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("cpp") / "pinocchio_casadi_bridge.cpp"
-#: -O0: the program runs once per robot for well under a second, so optimizing it would only
-#: lengthen the build (which instantiates Pinocchio's templates on casadi::SX, ~1.5 min of CPU).
+#: -O0: the program runs once per robot, briefly, so optimizing it would only lengthen the build
+#: (which instantiates Pinocchio's templates on casadi::SX).
 CXX_FLAGS = ("-std=c++17", "-O0", "-s")
 #: The compile definitions Pinocchio 4.1's CMake targets (pinocchio_headers, pinocchio_parsers)
 #: export: Pinocchio's joint variant has more alternatives than Boost.MPL's default limit, and
@@ -238,17 +237,6 @@ def cache_folder() -> Path:
 
 
 # ----------------------------------------------------------------------------- the program
-def _read_record(program: Path) -> BuildRecord | None:
-    """The record of a cached program whose bytes still match it, else ``None``."""
-    try:
-        record = json.loads(program.with_suffix(".json").read_text())
-        if program.is_file() and sha256_of(program) == record["sha256"]:
-            return BuildRecord(program, record["wall_seconds"], record["cpu_seconds"], False)
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    return None
-
-
 def _first_error(stderr: str) -> str:
     lines = [line.strip() for line in stderr.splitlines() if line.strip()]
     errors = [line for line in lines if "error" in line.lower()]
@@ -287,11 +275,8 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
         if proc.returncode != 0:
             raise BridgeUnavailable(f"build failed: {_first_error(stderr)}")
         wall, cpu = time.perf_counter() - start, _children_cpu() - cpu0
-        record = {"sha256": sha256_of(out), "wall_seconds": wall, "cpu_seconds": cpu}
         os.replace(out, program)  # atomic: no process ever runs a half-written program
-    tmp_record = program.with_suffix(".json.tmp")
-    tmp_record.write_text(json.dumps(record))
-    os.replace(tmp_record, program.with_suffix(".json"))
+    write_record(program, wall_seconds=wall, cpu_seconds=cpu)
     log.info("built the Pinocchio-CasADi bridge in %.0f s (CPU %.0f s): %s", wall, cpu, program)
     return BuildRecord(program, wall, cpu, True)
 
@@ -357,8 +342,10 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
         folder.mkdir(parents=True, exist_ok=True)
         # one process builds, the others wait for it
         with file_lock(folder / f"{program.name}.lock"):
-            record = _read_record(program)
-            if record is None:
+            saved, _ = check_record(program)
+            if saved is not None and {"wall_seconds", "cpu_seconds"} <= saved.keys():
+                record = BuildRecord(program, saved["wall_seconds"], saved["cpu_seconds"], False)
+            else:
                 record = _compile(toolchain, program)
     except OSError as exc:  # unwritable cache folder, compiler gone, disk full, ...
         raise BridgeUnavailable(f"build failed: {exc}") from exc
@@ -380,7 +367,7 @@ def copy_programs(source_cache: Path, target_cache: Path) -> list[Path]:
     for record in sorted(source.glob("pinocchio_casadi_bridge_*.json")):
         program = record.with_suffix("")
         destination = target / program.name
-        if destination.exists() or _read_record(program) is None:
+        if destination.exists() or check_record(program)[0] is None:
             continue
         target.mkdir(parents=True, exist_ok=True)
         partial = target / f"{program.name}.copy.tmp"
@@ -394,15 +381,12 @@ def copy_programs(source_cache: Path, target_cache: Path) -> list[Path]:
 # ----------------------------------------------------------------------------- per robot
 
 
-def _robot_key(robot, program: Path) -> str:
-    frames = [arm.ee_frame for arm in robot.arms]
-    spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
-    return hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
-
-
 def function_path(robot, program: Path) -> Path:
     """Where the function of ``robot`` made by ``program`` is cached."""
-    return program.parent / "functions" / f"{robot.name}_{_robot_key(robot, program)}.casadi"
+    frames = [arm.ee_frame for arm in robot.arms]
+    spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
+    key = hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
+    return program.parent / "functions" / f"{robot.name}_{key}.casadi"
 
 
 def _load(path: Path, robot) -> cs.Function | None:

@@ -246,15 +246,7 @@ def capture_state(
     dL = I_t @ (v_ee.angular - w_t)
     impulse = _to_base(R, np.r_[-dp, -dL + np.cross(arm, -dp)])
     base_impulse = maps.force_map(q, impulse)
-    base_jump = model.inertias[1].matrix() @ (twist_after - twist_before)
+    jump = model.inertias[1].matrix() @ (twist_after - twist_before)
     return CaptureState(
-        h_before,
-        h_after,
-        h_target,
-        twist_before,
-        twist_after,
-        c_t,
-        impulse,
-        base_impulse,
-        base_jump,
+        h_before, h_after, h_target, twist_before, twist_after, c_t, impulse, base_impulse, jump
     )

@@ -45,18 +45,8 @@ class LinearAlgebra:
     eye: Callable
 
 
-def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a^{-1} b`` for square ``a`` (..., m, m) and ``b`` (..., m, k) or, for one system,
-    (m,). NumPy's LAPACK ``gesv`` (SciPy's direct ``dgesv`` call saves about 10 us per 3 x 3
-    system, but importing ``scipy.linalg`` costs every command 0.25 s).
-
-    Raises:
-        numpy.linalg.LinAlgError: ``a`` is singular.
-    """
-    return np.linalg.solve(a, b)
-
-
-NUMPY = LinearAlgebra(solve, np.linalg.inv, np.eye)
+#: NumPy's LAPACK ``gesv``; not SciPy's, whose import would slow every command.
+NUMPY = LinearAlgebra(np.linalg.solve, np.linalg.inv, np.eye)
 
 
 def full_rank_pinv(M, la: LinearAlgebra):

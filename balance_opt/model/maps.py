@@ -21,7 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.model import coupling
-from balance_opt.model.coupling import NUMPY, CouplingMeasures, coupling_measures, solve
+from balance_opt.model.coupling import NUMPY, CouplingMeasures, coupling_measures
 from balance_opt.model.robot import FloatingRobot
 
 
@@ -40,12 +40,12 @@ def base_angular_velocity(I_G: np.ndarray, A: np.ndarray, q_dot: np.ndarray, ell
     rhs = -np.matvec(A, q_dot)
     if ell is not None:
         rhs = rhs + ell
-    return solve(I_G, rhs[..., None])[..., 0]
+    return np.linalg.solve(I_G, rhs[..., None])[..., 0]
 
 
 def angular_jacobian_rate(I_G, dI_G, dA, J_w) -> np.ndarray:
     """``dJ_w/dt = -I_G^{-1} (dA + dI_G J_w)`` (..., 3, n), from ``I_G J_w = -A``."""
-    return -solve(I_G, dA + dI_G @ J_w)
+    return -np.linalg.solve(I_G, dA + dI_G @ J_w)
 
 
 class NumericMaps:
@@ -147,14 +147,12 @@ class NumericMaps:
         T = qp.shape[0]
         d_full = np.empty((T, 6, self.model.nv))
         model, data, cmap_rate = self.model, self.data, pin.computeCentroidalMapTimeVariation
-        if Ag is None:
-            Ag = np.empty_like(d_full)
-            for k in range(T):
-                d_full[k] = cmap_rate(model, data, qp[k], vp[k])
+        fill = Ag is None
+        Ag = np.empty_like(d_full) if fill else Ag
+        for k in range(T):
+            d_full[k] = cmap_rate(model, data, qp[k], vp[k])
+            if fill:
                 Ag[k] = data.Ag
-        else:
-            for k in range(T):
-                d_full[k] = cmap_rate(model, data, qp[k], vp[k])
         lin = Ag[:, :3]
         c = np.matvec(lin, vp) / self.mass  # CoM velocity (T, 3)
         cross = np.cross(c[:, :, None], lin, axis=1)  # [c_dot]_x applied to each column
@@ -189,7 +187,7 @@ class NumericMaps:
         A = self.centroidal_momentum_matrix(q)
         omega = base_angular_velocity(A[3:, 3:6], A[3:, 6:], q_dot, h0[3:])
         p = h0[:3] - A[:3, 6:] @ q_dot - A[:3, 3:6] @ omega
-        return np.r_[solve(A[:3, :3], p), omega]
+        return np.r_[np.linalg.solve(A[:3, :3], p), omega]
 
     def balance_sigma_min(self, I_G, A) -> np.ndarray:
         """Smallest singular value of ``J_wB`` among its first three (...,), from the angular

@@ -25,7 +25,6 @@ Building the two by different routes is deliberate: the tests compare them.
 
 from __future__ import annotations
 
-import difflib
 import logging
 import math
 import xml.etree.ElementTree as ET
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from balance_opt.config.type_names import suggest
 from balance_opt.errors import ArmError, JointError, URDFLoadError
 from balance_opt.model.arms import LIMIT_KEYS, Arm, JointLimits
 from balance_opt.model.joints import (
@@ -103,18 +103,14 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     for warning in check_urdf_physics(root, source):
-        _warn_once(f"URDF {source}: {warning}")
+        message = f"URDF {source}: {warning}"
+        if message not in _WARNED:  # once: robots are built again and again
+            _WARNED.add(message)
+            log.warning("%s", message)
     return root, joints
 
 
 _WARNED: set[str] = set()
-
-
-def _warn_once(message: str) -> None:
-    """Log ``message`` as a warning the first time only (robots are built again and again)."""
-    if message not in _WARNED:
-        _WARNED.add(message)
-        log.warning("%s", message)
 
 
 def _ancestors(model: pin.Model, joint_id: int) -> list[int]:
@@ -135,11 +131,6 @@ class LimitOverrideError(JointError):
     def __init__(self, joint: str, source: str, key: str, reason: str):
         self.key = key
         super().__init__(joint, source, reason)
-
-
-def _suggest(name: str, candidates) -> str:
-    close = difflib.get_close_matches(name, list(candidates), n=3)
-    return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
 
 
 class FloatingRobot:
@@ -253,7 +244,7 @@ class FloatingRobot:
                     raise JointError(
                         j,
                         self.source,
-                        f"no such joint in the URDF (arm '{arm}')" + _suggest(j, self._urdf_joints),
+                        f"no such joint in the URDF (arm '{arm}')" + suggest(j, self._urdf_joints),
                     )
                 jtype = self._urdf_joints[j].type
                 if jtype == "fixed":
@@ -288,7 +279,7 @@ class FloatingRobot:
                 raise JointError(
                     j,
                     self.source,
-                    "locked joint is not in the URDF" + _suggest(j, self._urdf_joints),
+                    "locked joint is not in the URDF" + suggest(j, self._urdf_joints),
                 )
             if j in self.joint_names:
                 raise JointError(j, self.source, "is both an arm joint and a locked joint")
@@ -363,7 +354,7 @@ class FloatingRobot:
                     name,
                     self.source,
                     f"end-effector frame '{frame}' is not a link of the URDF"
-                    + _suggest(frame, [f.name for f in self.model.frames]),
+                    + suggest(frame, [f.name for f in self.model.frames]),
                 )
             arms.append(Arm(name, tuple(joints), np.arange(start, start + len(joints)), frame))
             start += len(joints)
@@ -384,7 +375,7 @@ class FloatingRobot:
                 raise JointError(
                     j,
                     self.source,
-                    "limit override for a joint that is in no arm" + _suggest(j, self.joint_names),
+                    "limit override for a joint that is in no arm" + suggest(j, self.joint_names),
                 )
             for key, value in over.items():
                 if key not in LIMIT_KEYS:
@@ -528,7 +519,7 @@ class FloatingRobot:
             return self.joint_names.index(name)
         except ValueError:
             raise JointError(
-                name, self.source, "is in no arm" + _suggest(name, self.joint_names)
+                name, self.source, "is in no arm" + suggest(name, self.joint_names)
             ) from None
 
     def arm(self, name: str) -> Arm:

@@ -17,7 +17,7 @@ identity, base columns first, then arm joints in arm order):
 
 ``backend="auto"`` takes ``"pinocchio"`` where it works (building the bridge on first use),
 else ``"adam"``, and then says why in one log line per process. Pinocchio's expressions are
-about four times smaller than adam's on Baxter (``benchmarks/bench_bridge.py``).
+the smaller (``benchmarks/bench_bridge.py``).
 
 Mimic joints that follow an arm joint (``FloatingRobot.followers``) are evaluated as joints of
 their own at ``k q_driver + c``, and their columns are then folded, times ``k``, into their
@@ -61,6 +61,14 @@ def _pinocchio_casadi_imports() -> bool:
     return True
 
 
+def _adam_imports() -> bool:
+    try:
+        import adam.casadi  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def available_backends() -> list[str]:
     """Backends usable on this machine, in order of preference, found without building
     anything: ``"pinocchio"`` where ``pinocchio.casadi`` imports or the bridge's compiler,
@@ -73,12 +81,8 @@ def available_backends() -> list[str]:
         found.append("pinocchio")
     except BridgeUnavailable:
         pass
-    try:
-        import adam.casadi  # noqa: F401
-
+    if _adam_imports():
         found.append("adam")
-    except ImportError:
-        pass
     return found
 
 
@@ -87,13 +91,11 @@ _NOTED: set[str] = set()  # fallback reasons already logged by this process
 
 def _fall_back_to_adam(reason: str) -> tuple[str, str]:
     """Choose adam for ``auto``, saying why once per process and reason."""
-    try:
-        import adam.casadi  # noqa: F401
-    except ImportError:
+    if not _adam_imports():
         raise BalanceOptError(
             f"no symbolic backend: the Pinocchio-CasADi bridge is unavailable ({reason}) "
             "and adam-robotics[casadi] is not installed"
-        ) from None
+        )
     if reason not in _NOTED:
         _NOTED.add(reason)
         log.info("symbolic backend: adam, not the Pinocchio-CasADi bridge: %s", reason)
@@ -109,10 +111,8 @@ def _resolve_backend(backend: str) -> tuple[str, str]:
     if backend not in ("auto", *BACKENDS):
         raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
     if backend == "adam":
-        try:
-            import adam.casadi  # noqa: F401
-        except ImportError:
-            raise BalanceOptError("backend 'adam' cannot be imported here") from None
+        if not _adam_imports():
+            raise BalanceOptError("backend 'adam' cannot be imported here")
         return "adam", "adam"
     if _pinocchio_casadi_imports():
         return "pinocchio", "pinocchio (pinocchio.casadi)"

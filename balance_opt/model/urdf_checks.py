@@ -132,7 +132,8 @@ def _check_tree(root: ET.Element, source: str) -> None:
     if not links:
         raise URDFLoadError(source, "the file has no <link> element")
     known = set(links)
-    parent_of: dict[str, str] = {}
+    parent_of: dict[str, str] = {}  # child link -> its joint
+    parent_link: dict[str, str] = {}  # child link -> parent link
     for joint in root.findall("joint"):
         name = joint.get("name")
         for tag in ("parent", "child"):
@@ -149,7 +150,7 @@ def _check_tree(root: ET.Element, source: str) -> None:
                 f"link '{child}' is the child of two joints ('{parent_of[child]}' and '{name}'); "
                 "a URDF is a tree",
             )
-        parent_of[child] = name
+        parent_of[child], parent_link[child] = name, joint.find("parent").get("link")
         if joint.get("type") in ("revolute", "continuous", "prismatic"):
             axis = joint.find("axis")
             if axis is not None:
@@ -167,9 +168,6 @@ def _check_tree(root: ET.Element, source: str) -> None:
                 else " (every link has a parent: a loop)"
             ),
         )
-    parent_link = {
-        j.find("child").get("link"): j.find("parent").get("link") for j in root.findall("joint")
-    }
     for link in links:  # every link must reach the root: no loops
         seen, at = set(), link
         while at in parent_link:

@@ -41,19 +41,6 @@ _STEP_SLACK = 1e-9
 
 
 # ---------------------------------------------------------------------------------- output grids
-def output_times(duration: float, step: float) -> np.ndarray:
-    """Output grid from 0 to ``duration`` [s] in ``round(duration / step)`` equal intervals."""
-    n = max(1, round(duration / step))
-    return np.linspace(0.0, duration, n + 1)
-
-
-def _check_times(t_eval) -> np.ndarray:
-    t = np.asarray(t_eval, dtype=float).ravel()
-    if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):
-        raise InputError("output times must be at least 2 finite, strictly increasing values")
-    return t
-
-
 def initial_quaternion(quaternion0) -> np.ndarray:
     """The initial base attitude, normalised (identity for ``None``).
 
@@ -71,18 +58,22 @@ def initial_quaternion(quaternion0) -> np.ndarray:
 
 
 def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> np.ndarray:
-    """The output times: ``t_eval`` checked, else :func:`output_times` over ``duration``.
+    """The output times: ``t_eval`` checked, else 0 to ``duration`` [s] in
+    ``round(duration / options.output_step)`` equal intervals.
 
     Raises:
         InputError: bad output times, or none while the duration is unknown.
     """
     if t_eval is not None:
-        return _check_times(t_eval)
+        t = np.asarray(t_eval, dtype=float).ravel()
+        if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):
+            raise InputError("output times must be at least 2 finite, strictly increasing values")
+        return t
     if duration is None:
         raise InputError(
             "output times are needed: a trajectory given as a plain callable has no duration"
         )
-    return output_times(duration, options.output_step)
+    return np.linspace(0.0, duration, max(1, round(duration / options.output_step)) + 1)
 
 
 # ---------------------------------------------------------------------------------- integration

@@ -12,8 +12,7 @@ shows up as a residual of order one.
 The residual is relative (``docs/physics.md``, "Base motion forced by the joints"): the angular
 momentum about the CoM against the initial one, ``|L(t) - L0|``, over the largest angular
 momentum the arms carry plus ``|L0|`` (:func:`momentum_scale`). Its floor is the
-finite-difference error: ~1e-9 for the paper's smooth motions, ~3e-8 for its optimal plan (jerk
-corners every 0.1 s), both sampled at 10 ms.
+finite-difference error of the recovered rate.
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ import numpy as np
 from balance_opt.model.maps import NumericMaps
 from balance_opt.motion.so3 import body_rates_from_samples
 
-#: Momentum scale below which the residual is reported in absolute terms [N m s].
+#: Momentum scale below which the residual is reported in absolute terms [N s, N m s].
 MOMENTUM_SCALE_FLOOR = 1e-12
 
 

@@ -15,8 +15,7 @@ from balance_opt.config.typed_config import check_settings, setting
 #: Default relative and absolute tolerances of the adaptive integrator (quaternion, [rad]).
 DEFAULT_RTOL = 1e-10
 DEFAULT_ATOL = 1e-12
-#: Default spacing of the output samples [s]: 100 Hz, what a report needs (and what the CLI
-#: has always written); pass 1e-3 for 1 kHz.
+#: Default spacing of the output samples [s]: 100 Hz, what a report needs.
 DEFAULT_OUTPUT_STEP = 0.01
 INTEGRATION_METHODS = ("adaptive", "rk4")
 #: Default budget of the adaptive integrator: the shipped examples take 200 to 1200
@@ -86,9 +85,7 @@ class RobustnessOptions:
             must be at least 1, got 0"``).
     """
 
-    enabled: bool | None = setting(
-        None, doc="run the study (default: in compare, not in plan)"
-    )
+    enabled: bool | None = setting(None, doc="run the study (default: in compare, not in plan)")
     samples: int = setting(50, minimum=1, doc="perturbed models K")
     perturbation: float = setting(
         0.10,

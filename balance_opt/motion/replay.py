@@ -22,23 +22,6 @@ from balance_opt.motion.trajectories import TrajectoryLike, as_sampler
 from balance_opt.result import BalanceResult
 
 
-def angular_momentum_of(h0) -> np.ndarray:
-    """The angular part, world axes (3,) [N m s], of an initial momentum given as 3 angular or 6
-    ``[linear; angular]`` values (``None`` for zero).
-
-    Raises:
-        InputError: not 3 or 6 finite values.
-    """
-    if h0 is None:
-        return np.zeros(3)
-    h0 = np.asarray(h0, dtype=float).ravel()
-    if h0.size not in (3, 6) or not np.all(np.isfinite(h0)):
-        raise InputError(
-            f"initial momentum h0 must be 3 or 6 finite values, got {h0.size}: {h0.tolist()}"
-        )
-    return h0[-3:].copy()
-
-
 def replay(
     robot: FloatingRobot,
     mission: TrajectoryLike,
@@ -58,11 +41,9 @@ def replay(
 
     Args:
         robot: the floating robot.
-        mission: mission arm motion: a trajectory with ``sample(t)``, a callable of an array of
-            times returning ``(q, q_dot, q_ddot)`` each (T, n_M), or a tuple of sample arrays
-            ``(t, q, q_dot, q_ddot)`` (quintic Hermite interpolation, see
-            :class:`~balance_opt.motion.trajectories.SampledTrajectory`; its ``from_result`` for
-            a result).
+        mission: mission arm motion (n_M joints), in any form
+            :func:`~balance_opt.motion.trajectories.as_sampler` takes (a result's: through
+            ``SampledTrajectory.from_result``).
         balance: balance arms' motion, the same ways, all balance joints stacked (n_B).
         h0: initial momentum, world frame (3 angular or 6 [linear; angular] values), ``None`` for 0.
         integration: integrator settings.
@@ -84,7 +65,12 @@ def replay(
     sample_B, dur_B = as_sampler(balance, B.size, "balance")
     durations = [d for d in (dur_M, dur_B) if d is not None]
     t = output_grid(t_eval, max(durations) if durations else None, integration)
-    L = angular_momentum_of(h0)
+    L = np.zeros(3) if h0 is None else np.asarray(h0, dtype=float).ravel()
+    if L.size not in (3, 6) or not np.all(np.isfinite(L)):
+        raise InputError(
+            f"initial momentum h0 must be 3 or 6 finite values, got {L.size}: {L.tolist()}"
+        )
+    L = L[-3:].copy()  # the angular part, world axes [N m s]
     maps = NumericMaps(robot)
     q0 = initial_quaternion(quaternion0)
     if integration.method == "rk4":  # fixed steps: every joint sample known before integrating
@@ -134,8 +120,8 @@ class _StageRates:
 
     The joints are given, so everything but the attitude is known before integrating: the maps
     are evaluated once per stage time (one batched Pinocchio pass instead of a Python call per
-    right-hand side: 10-20x faster). With momentum ``L``, ``omega = I_G^{-1} (R^T L - A q_dot)``
-    depends on the attitude: its two parts are kept apart.
+    right-hand side). With momentum ``L``, ``omega = I_G^{-1} (R^T L - A q_dot)`` depends on
+    the attitude: its two parts are kept apart.
     """
 
     def __init__(self, maps: NumericMaps, sample_M, sample_B, L: np.ndarray):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,13 +41,6 @@ class JointTrajectory:
         return self.sample(np.array([self.duration]))[0][0]
 
 
-def _check_duration(duration) -> float:
-    duration = float(duration)
-    if not duration > 0 or not np.isfinite(duration):
-        raise TrajectoryError(f"duration must be a positive number of seconds, got {duration}")
-    return duration
-
-
 class PointToPoint(JointTrajectory):
     """Rest-to-rest motion from ``q0`` to ``qf`` with a quintic time law (the paper's PTP):
     ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5``, zero velocity and acceleration at both ends.
@@ -63,7 +55,9 @@ class PointToPoint(JointTrajectory):
         self.qf = np.asarray(qf, dtype=float).ravel()
         if self.q0.shape != self.qf.shape:
             raise TrajectoryError(f"start has {self.q0.size} joints but goal has {self.qf.size}")
-        self.duration = _check_duration(duration)
+        self.duration = T = float(duration)
+        if not T > 0 or not np.isfinite(T):
+            raise TrajectoryError(f"duration must be a positive number of seconds, got {T}")
         self.dof = self.q0.size
 
     def sample(self, t):
@@ -108,7 +102,7 @@ class ViaPoints(JointTrajectory):
             self._ptp = PointToPoint(self.points[0], self.points[1], self.duration)
             self._spline = None
         else:
-            from scipy.interpolate import make_interp_spline  # 0.7 s to import: only when used
+            from scipy.interpolate import make_interp_spline  # a slow import: only when used
 
             self._spline = make_interp_spline(self.times, self.points, k=5, bc_type=(zeros, zeros))
 
@@ -181,7 +175,7 @@ class CsvTrajectory(JointTrajectory):
             )
         self.duration = float(t[-1])
         self.dof = len(self.joint_names)
-        from scipy.interpolate import CubicSpline  # 0.7 s to import: only when used
+        from scipy.interpolate import CubicSpline  # a slow import: only when used
 
         self._spline = CubicSpline(t, data[:, 1:], bc_type="natural")
 
@@ -240,7 +234,7 @@ class SampledTrajectory(JointTrajectory):
         self._h = np.diff(self.t)
         self._spline = None
         if len(derivs) == 1:
-            from scipy.interpolate import CubicSpline  # 0.7 s to import: only when used
+            from scipy.interpolate import CubicSpline  # a slow import: only when used
 
             self._spline = CubicSpline(self.t, q, bc_type="natural")
         else:
@@ -358,9 +352,29 @@ IK_UNLIMITED_RANGE = np.pi
 ROTATION_ATOL = 1e-9
 
 
-@dataclass(frozen=True)
-class CartesianGoal:
-    """A goal pose for an arm's end effector, solved to a joint goal by inverse kinematics.
+def _goal_rotation(orientation) -> np.ndarray | None:
+    """A goal orientation (quaternion (x, y, z, w) or 3 x 3 rotation matrix) as a matrix."""
+    if orientation is None:
+        return None
+    rot = np.asarray(orientation, dtype=float)
+    if rot.shape == (3, 3):
+        orthonormal = np.allclose(rot.T @ rot, np.eye(3), rtol=0, atol=ROTATION_ATOL)
+        if not orthonormal or np.linalg.det(rot) <= 0:
+            raise TrajectoryError("Cartesian goal orientation matrix is not a rotation")
+        rot = pin.Quaternion(rot).coeffs()  # as a quaternion: one normalisation for both forms
+    if rot.size == 4 and np.all(np.isfinite(rot)) and np.linalg.norm(rot) > 0:
+        x, y, z, w = rot.ravel() / np.linalg.norm(rot)
+        return pin.Quaternion(w, x, y, z).toRotationMatrix()
+    raise TrajectoryError(
+        "Cartesian goal orientation must be a quaternion (x, y, z, w) or a 3 x 3 rotation "
+        f"matrix, got {rot.tolist()}"
+    )
+
+
+def solve_cartesian_goal(
+    robot, q_start, position, orientation=None, arm: str = "mission", base: pin.SE3 | None = None
+) -> np.ndarray:
+    """The joint goal [rad] that puts an arm's end effector on a goal pose, by inverse kinematics.
 
     The goal is in the world frame with the base at its initial pose (``base``, identity by
     default), and the inverse kinematics keep the base there: the joint goal is the one that
@@ -372,125 +386,87 @@ class CartesianGoal:
     position limits after every step, from the arm's start first and then from seeded random
     configurations within the limits.
 
-    Attributes:
+    Args:
+        robot: the :class:`~balance_opt.model.robot.FloatingRobot`.
+        q_start: the arm's joint start [rad] (also the first IK start).
         position: goal position of the end-effector frame's origin, world frame [m].
-        orientation: goal orientation as a quaternion (x, y, z, w) or a 3 x 3 rotation matrix;
+        orientation: goal orientation, a quaternion (x, y, z, w) or a 3 x 3 rotation matrix;
             ``None`` for position only.
-        arm: the arm whose end effector is placed (``"mission"`` by default).
+        arm: the arm whose end effector is placed.
+        base: initial base pose (identity by default).
+
+    Raises:
+        TrajectoryError: bad inputs, or the goal is out of reach within the joint limits; the
+            message and the ``distance`` [m] (and ``angle`` [rad]) attributes give how far the
+            best configuration found stays from it.
     """
+    goal_p = np.asarray(position, dtype=float).ravel()
+    if goal_p.size != 3 or not np.all(np.isfinite(goal_p)):
+        raise TrajectoryError(
+            f"Cartesian goal position must be 3 finite numbers [m], got {goal_p.tolist()}"
+        )
+    goal_R = _goal_rotation(orientation)
+    arm = robot.arm(arm)
+    q_start = np.asarray(q_start, dtype=float).ravel()
+    if q_start.size != arm.dof:
+        raise TrajectoryError(
+            f"Cartesian goal: the {arm.name} arm has {arm.dof} joints, start has {q_start.size}"
+        )
+    model = robot.model
+    data = model.createData()
+    frame = model.getFrameId(arm.ee_frame)
+    lim = robot.limits.subset(arm.indices)
+    lower = np.where(np.isfinite(lim.lower), lim.lower, -IK_UNLIMITED_RANGE)
+    upper = np.where(np.isfinite(lim.upper), lim.upper, IK_UNLIMITED_RANGE)
+    cols = 6 + arm.indices  # of robot.arm_columns: mimic followers folded in
+    q_full = robot.neutral()
 
-    position: tuple[float, float, float]
-    orientation: tuple[float, ...] | None = None
-    arm: str = "mission"
+    def error(q):
+        q_full[arm.indices] = q
+        qp = robot.pin_q(q_full, base)
+        J = pin.computeFrameJacobian(model, data, qp, frame, pin.LOCAL_WORLD_ALIGNED)
+        J = robot.arm_columns(J)[:, cols]
+        pose = data.oMf[frame]
+        e = goal_p - pose.translation
+        if goal_R is None:
+            return e, J[:3], 0.0
+        e_rot = pose.rotation @ pin.log3(pose.rotation.T @ goal_R)  # world-frame rotation error
+        return np.r_[e, e_rot], J, float(np.linalg.norm(e_rot))
 
-    def __post_init__(self):
-        position = np.asarray(self.position, dtype=float).ravel()
-        if position.size != 3 or not np.all(np.isfinite(position)):
-            raise TrajectoryError(
-                f"Cartesian goal position must be 3 finite numbers [m], got {position.tolist()}"
-            )
-        object.__setattr__(self, "position", tuple(position.tolist()))
-        if self.orientation is not None:
-            rot = np.asarray(self.orientation, dtype=float)
-            if rot.shape == (3, 3):  # a rotation matrix
-                orthonormal = np.allclose(rot.T @ rot, np.eye(3), rtol=0, atol=ROTATION_ATOL)
-                if not orthonormal or np.linalg.det(rot) <= 0:
-                    raise TrajectoryError("Cartesian goal orientation matrix is not a rotation")
-                quat = pin.Quaternion(rot).coeffs()
-            elif rot.size == 4 and np.all(np.isfinite(rot)) and np.linalg.norm(rot) > 0:
-                quat = rot.ravel() / np.linalg.norm(rot)
-            else:
-                raise TrajectoryError(
-                    "Cartesian goal orientation must be a quaternion "
-                    "(x, y, z, w) or a 3 x 3 rotation matrix, "
-                    f"got {rot.tolist()}"
-                )
-            object.__setattr__(self, "orientation", tuple(float(v) for v in quat))
+    def reached(e, angle):
+        close = np.linalg.norm(e[:3]) <= IK_POSITION_TOLERANCE
+        return close and angle <= IK_ORIENTATION_TOLERANCE
 
-    @property
-    def rotation(self) -> np.ndarray | None:
-        """Goal orientation as a rotation matrix, or ``None``."""
-        if self.orientation is None:
-            return None
-        x, y, z, w = self.orientation
-        return pin.Quaternion(w, x, y, z).toRotationMatrix()
-
-    def solve(self, robot, q_start, base: pin.SE3 | None = None) -> np.ndarray:
-        """The arm's joint goal [rad] (see the class docstring).
-
-        Args:
-            robot: the :class:`~balance_opt.model.robot.FloatingRobot`.
-            q_start: the arm's joint start [rad] (also the first IK start).
-            base: initial base pose (identity by default).
-
-        Raises:
-            TrajectoryError: the goal is out of reach within the joint limits; the message and the
-                ``distance`` [m] (and ``angle`` [rad]) attributes give how far the best
-                configuration found stays from it.
-        """
-        arm = robot.arm(self.arm)
-        q_start = np.asarray(q_start, dtype=float).ravel()
-        if q_start.size != arm.dof:
-            raise TrajectoryError(
-                f"Cartesian goal: the {arm.name} arm has {arm.dof} joints, start has {q_start.size}"
-            )
-        model = robot.model
-        data = model.createData()
-        frame = model.getFrameId(arm.ee_frame)
-        lim = robot.limits.subset(arm.indices)
-        lower = np.where(np.isfinite(lim.lower), lim.lower, -IK_UNLIMITED_RANGE)
-        upper = np.where(np.isfinite(lim.upper), lim.upper, IK_UNLIMITED_RANGE)
-        cols = 6 + arm.indices  # of robot.arm_columns: mimic followers folded in
-        q_full = robot.neutral()
-        goal_p = np.array(self.position)
-        goal_R = self.rotation
-
-        def error(q):
-            q_full[arm.indices] = q
-            qp = robot.pin_q(q_full, base)
-            J = pin.computeFrameJacobian(model, data, qp, frame, pin.LOCAL_WORLD_ALIGNED)
-            J = robot.arm_columns(J)[:, cols]
-            pose = data.oMf[frame]
-            e = goal_p - pose.translation
-            if goal_R is None:
-                return e, J[:3], 0.0
-            e_rot = pose.rotation @ pin.log3(pose.rotation.T @ goal_R)  # world-frame rotation error
-            return np.r_[e, e_rot], J, float(np.linalg.norm(e_rot))
-
-        def reached(e, angle):
-            close = np.linalg.norm(e[:3]) <= IK_POSITION_TOLERANCE
-            return close and angle <= IK_ORIENTATION_TOLERANCE
-
-        rng = np.random.default_rng(IK_SEED)
-        starts = [np.clip(q_start, lower, upper)]
-        starts += [rng.uniform(lower, upper) for _ in range(IK_STARTS - 1)]
-        best = (np.inf, np.inf, q_start)
-        for q in starts:
-            for _ in range(IK_MAX_ITERATIONS):
-                e, J, angle = error(q)
-                if reached(e, angle):
-                    return q
-                step = J.T @ np.linalg.solve(J @ J.T + IK_DAMPING**2 * np.eye(J.shape[0]), e)
-                scale = np.abs(step).max() / IK_MAX_STEP
-                q = np.clip(q + (step / scale if scale > 1 else step), lower, upper)
-            e, _, angle = error(q)
+    rng = np.random.default_rng(IK_SEED)
+    starts = [np.clip(q_start, lower, upper)]
+    starts += [rng.uniform(lower, upper) for _ in range(IK_STARTS - 1)]
+    best = (np.inf, np.inf, q_start)
+    for q in starts:
+        for _ in range(IK_MAX_ITERATIONS):
+            e, J, angle = error(q)
             if reached(e, angle):
                 return q
-            if (np.linalg.norm(e[:3]), angle) < best[:2]:
-                best = (float(np.linalg.norm(e[:3])), angle, q)
-        distance, angle, closest_q = best
-        closest = goal_p - error(closest_q)[0][:3]
-        start = goal_p - error(np.asarray(q_start, dtype=float))[0][:3]
-        what = f"{distance:.6g} m" + ("" if goal_R is None else f" and {angle:.6g} rad")
-        err = TrajectoryError(
-            f"Cartesian goal {list(self.position)} for end effector "
-            f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
-            f"joint limits: remaining distance {what}; the closest point reached is "
-            f"{_point(closest)} m (joints {_point(closest_q)}), the end effector starts at "
-            f"{_point(start)} m"
-        )
-        err.distance, err.angle, err.closest = distance, angle, closest
-        raise err
+            step = J.T @ np.linalg.solve(J @ J.T + IK_DAMPING**2 * np.eye(J.shape[0]), e)
+            scale = np.abs(step).max() / IK_MAX_STEP
+            q = np.clip(q + (step / scale if scale > 1 else step), lower, upper)
+        e, _, angle = error(q)
+        if reached(e, angle):
+            return q
+        if (np.linalg.norm(e[:3]), angle) < best[:2]:
+            best = (float(np.linalg.norm(e[:3])), angle, q)
+    distance, angle, closest_q = best
+    closest = goal_p - error(closest_q)[0][:3]
+    start = goal_p - error(q_start)[0][:3]
+    what = f"{distance:.6g} m" + ("" if goal_R is None else f" and {angle:.6g} rad")
+    err = TrajectoryError(
+        f"Cartesian goal {goal_p.tolist()} for end effector "
+        f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
+        f"joint limits: remaining distance {what}; the closest point reached is "
+        f"{_point(closest)} m (joints {_point(closest_q)}), the end effector starts at "
+        f"{_point(start)} m"
+    )
+    err.distance, err.angle, err.closest = distance, angle, closest
+    raise err
 
 
 def _point(v) -> str:
@@ -506,19 +482,11 @@ def cartesian_goal(
     arm: str = "mission",
     base: pin.SE3 | None = None,
 ) -> PointToPoint:
-    """Point-to-point motion (quintic, rest to rest) of an arm to a Cartesian goal.
-
-    Args:
-        robot: the :class:`~balance_opt.model.robot.FloatingRobot`.
-        q_start: the arm's joint start [rad].
-        position: goal position of the end effector, world frame [m].
-        duration: motion time [s].
-        orientation: goal orientation (quaternion x, y, z, w or rotation matrix), optional.
-        arm: which arm (``"mission"``).
-        base: initial base pose (identity).
+    """Point-to-point motion (quintic, rest to rest) of an arm to a Cartesian goal
+    (:func:`solve_cartesian_goal`; the arguments are its own and the motion's ``duration`` [s]).
 
     Raises:
         TrajectoryError: unreachable goal (with the remaining distance), bad inputs.
     """
-    goal = CartesianGoal(position, orientation, arm)
-    return PointToPoint(q_start, goal.solve(robot, q_start, base), duration)
+    goal = solve_cartesian_goal(robot, q_start, position, orientation, arm, base)
+    return PointToPoint(q_start, goal, duration)
