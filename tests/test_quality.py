@@ -244,7 +244,9 @@ def test_path_bound_below_the_priced_peak_but_above_the_smallest_is_met(
         options = PlannerOptions(intervals=40, objective=objective, path_attitude_bound=bound)
         plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
         assert plan.max_drift <= bound * (1 + 1e-3)
-        assert plan.info["smallest_peak_rad"] == pytest.approx(lowest_peak.max_drift, rel=2e-3)
+        # the smallest peak it reports is no worse than an independent solve of that problem
+        # (each is a local optimum; the planner's starts from the priced peak plan)
+        assert plan.info["smallest_peak_rad"] <= lowest_peak.max_drift * (1 + 2e-3)
         _no_violations(plan)
 
 
@@ -257,7 +259,7 @@ def test_impossible_path_bound_fails_with_the_smallest_peak(model, capture, lowe
     ) as info:
         build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
     smallest = info.value.result.max_drift
-    assert smallest == pytest.approx(best, rel=2e-3)
+    assert smallest <= best * (1 + 2e-3)
     assert f"{smallest:.6g} rad" in str(info.value)
     assert info.value.status == "Bound_Below_Smallest_Peak"
     # the failure's result reports the work of every stage behind it, not the last solve's
