@@ -186,6 +186,23 @@ def _cmd_inspect(args) -> int:
     return EXIT_OK
 
 
+@contextlib.contextmanager
+def _starts_executor(task, methods: tuple[str, ...]):
+    """The sweep engine's process pool for the optimal planner's starts (``optimal.starts >
+    1``: one worker per start, at most one per CPU), for this command only; ``None`` when there
+    is nothing to run beside this process."""
+    starts = task.spec.optimal.planner.starts
+    jobs = min(starts, os.cpu_count() or 1)
+    if "optimal" not in methods or starts < 2 or jobs < 2:
+        yield None
+        return
+    from balance_opt.sweep.engine import LocalPoolEngine
+
+    with LocalPoolEngine(jobs) as engine:
+        log.info("optimal planner: %d starts on %d worker processes", starts, jobs)
+        yield engine
+
+
 def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
     from balance_opt.app.pipeline import run_task
     from balance_opt.tasks.task import load_task
@@ -195,13 +212,15 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool) -> int:
         solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
         started = time.perf_counter()
-        run = run_task(
-            task,
-            methods=methods,
-            simulate=simulate,
-            output_dir=folder,
-            solver_options=solver_options,
-        )
+        with _starts_executor(task, methods) as executor:
+            run = run_task(
+                task,
+                methods=methods,
+                simulate=simulate,
+                output_dir=folder,
+                solver_options=solver_options,
+                executor=executor,
+            )
     log.info(
         "wrote %d files to %s in %.1f s",
         len(run.files),

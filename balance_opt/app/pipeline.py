@@ -102,6 +102,7 @@ def plan_optimal(
     solver_options: Mapping[str, Any] | None = None,
     warm_start: BalanceResult | None = None,
     models: ModelCache | None = None,
+    executor=None,
 ) -> BalanceResult:
     """The optimal planner with the task's options.
 
@@ -113,6 +114,8 @@ def plan_optimal(
             phases start from their own guesses).
         models: the planner models to reuse (with their compiled NLPs); without one, the
             model is built for this call only.
+        executor: what runs the starts of ``optimal.starts > 1`` (anything with ``map``, e.g.
+            :class:`balance_opt.sweep.engine.LocalPoolEngine`); ``None``: this process.
 
     Returns:
         A result with ``method="optimal"``, re-simulated on a fine grid; ``info`` holds the
@@ -125,7 +128,7 @@ def plan_optimal(
     from balance_opt.optimal.solve import build_balance_nlp
 
     if task.target is not None:
-        return _captured(task, "optimal", solver_options, models)
+        return _captured(task, "optimal", solver_options, models, executor)
     check_optimal_supported(task)
     spec = task.spec.optimal
     options = task.planner_options(solver_options)
@@ -138,14 +141,16 @@ def plan_optimal(
         if (warm_start is not None and spec.initial_guess == "analytic")
         else spec.initial_guess
     )
-    return nlp.solve(guess)
+    return nlp.solve(guess, executor)
 
 
-def _captured(task: Task, method: str, solver_options=None, models=None) -> BalanceResult:
+def _captured(
+    task: Task, method: str, solver_options=None, models=None, executor=None
+) -> BalanceResult:
     """The plan of a task with a capture: two phases joined at the capture (issue 16)."""
     from balance_opt.app.capture import plan_captured
 
-    return plan_captured(task, method, solver_options, models)
+    return plan_captured(task, method, solver_options, models, executor)
 
 
 def plan(
@@ -154,13 +159,15 @@ def plan(
     solver_options: Mapping[str, Any] | None = None,
     warm_start: BalanceResult | None = None,
     models: ModelCache | None = None,
+    executor=None,
 ) -> BalanceResult:
     """The plan of ``method``: the one dispatch of ``balance-opt plan`` and of the sweep cases.
 
     Args:
         task: the task.
         method: ``"mission-only"`` (the reference), ``"analytic"`` or ``"optimal"``.
-        solver_options, warm_start, models: for the optimal method (see :func:`plan_optimal`).
+        solver_options, warm_start, models, executor: for the optimal method (see
+            :func:`plan_optimal`).
 
     Raises:
         InputError: an unknown method.
@@ -171,7 +178,7 @@ def plan(
     if method == "analytic":
         return plan_analytic(task)
     if method == "optimal":
-        return plan_optimal(task, solver_options, warm_start, models)
+        return plan_optimal(task, solver_options, warm_start, models, executor)
     raise InputError(f"unknown method '{method}'; expected {' or '.join(METHODS)}")
 
 
@@ -213,6 +220,7 @@ def run_task(
     force: bool = False,
     plans: Mapping[str, BalanceResult] | None = None,
     simulations: Mapping[str, SimulationResult] | None = None,
+    executor=None,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -234,6 +242,9 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
+        executor: what runs the optimal planner's starts when ``optimal.starts > 1`` (see
+            :func:`plan_optimal`); the caller creates it and shuts it down (the CLI: a process
+            pool of the sweep engine's kind for the one command).
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
@@ -250,7 +261,7 @@ def run_task(
     methods = _checked_methods(task, methods)
     given = _checked_plans(task, methods, plans or {})
     given_sims = dict(simulations or {})
-    args = (task, methods, simulate, solver_options, models, given, given_sims)
+    args = (task, methods, simulate, solver_options, models, given, given_sims, executor)
     if output_dir is None:
         with handling_signals():
             return _compute(*args)
@@ -271,6 +282,7 @@ def _compute(
     models,
     given: dict,
     given_sims: dict,
+    executor=None,
 ) -> TaskRun:
     """The plans (the reference first) and, with ``simulate``, their simulations, in this
     process and in this order; the ones given are taken as they are."""
@@ -283,7 +295,7 @@ def _compute(
             if given[method].info.get("success", True) is False:
                 run.failures[method] = f"given plan: solver status {given[method].status}"
         else:
-            _plan_into(run, method, solver_options, models)
+            _plan_into(run, method, solver_options, models, executor)
     if simulate:
         for name in list(run.results):
             if name in given_sims:
@@ -331,7 +343,9 @@ def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
     return methods
 
 
-def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) -> None:
+def _plan_into(
+    run: TaskRun, method: str, solver_options, models: ModelCache, executor=None
+) -> None:
     """Plan ``method`` into ``run.results``; a solver failure is recorded, its iterate kept."""
     task = run.task
     if method == REFERENCE:
@@ -344,7 +358,7 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
     with _timed(f"{task.name}: {what}"):
         try:
             run.results[method] = plan(
-                task, method, solver_options, run.results.get("analytic"), models
+                task, method, solver_options, run.results.get("analytic"), models, executor
             )
         except SolverError as exc:
             if method == REFERENCE:
