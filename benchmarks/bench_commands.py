@@ -141,7 +141,8 @@ def _table(runs: dict[str, list[tuple[float, float, dict[str, float]]]]) -> list
             f"| {name} | {wall:.2f} | {', '.join(f'{w:.2f}' for w in walls)} | {wall / base:.2f} "
             f"| {cpu:.2f} | {cpu / base_cpu:.2f} | {target} |"
         )
-    out += ["", "Stages of the median run [s] (from the -v log; 'rest': the process minus them):", ""]
+    out += ["", "Stages of the median run [s] (from the -v log; 'rest': the process minus them):"]
+    out.append("")
     for name, samples in runs.items():
         wall, _, stages = sorted(samples, key=lambda s: s[0])[len(samples) // 2]
         parts = [f"{stage} {sec:.2f}" for stage, sec in stages.items()]

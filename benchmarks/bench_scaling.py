@@ -90,7 +90,7 @@ def main(argv=None) -> int:
                 f"| {again.max_drift:.5f} |"
             )
             print(lines[-1], flush=True)
-        lines.append(f"| {path.stem}: per-robot model and kernels (from the cache) {model_s:.2f} s |")
+        lines.append(f"| {path.stem}: per-robot model and kernels from the cache {model_s:.2f} s |")
         print(lines[-1])
     lines += [
         "",

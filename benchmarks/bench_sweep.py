@@ -133,7 +133,7 @@ def main(argv=None) -> int:
             f"| {cpu_share:.0f} % | {n / sums['cpu_s']:.2f} | {ok} | {iters:.1f} |"
         )
     same = all(t == tables[0] for t in tables[1:])
-    lines += ["", f"Aggregated tables (timing columns aside) identical across worker counts: {same}."]
+    lines += ["", f"Aggregated tables (timing columns aside) alike for every worker count: {same}."]
     if len(rows) > 1:
         lines.append(
             f"Wall time of {rows[-1][0]} workers / {rows[0][0]}: {rows[-1][1] / base:.2f} "
