@@ -51,6 +51,8 @@ def write_section(name: str, command: str, lines: list[str], load_before: float)
     """Replace section ``name`` of :data:`DOC` (appended when missing) with ``lines``, under
     the command that wrote it and :func:`machine_line`."""
     start, end = f"<!-- bench:{name} -->", f"<!-- /bench:{name} -->"
+    while lines and not lines[0]:
+        lines = lines[1:]
     body = "\n".join(
         [start, f"`{command}`", "", machine_line(load_before), "", *lines, end]
     )
