@@ -102,7 +102,7 @@ def plan_optimal(
     solver_options: Mapping[str, Any] | None = None,
     warm_start: BalanceResult | None = None,
     models: ModelCache | None = None,
-    executor=None,
+    executor: Any | None = None,
 ) -> BalanceResult:
     """The optimal planner with the task's options.
 
@@ -159,7 +159,7 @@ def plan(
     solver_options: Mapping[str, Any] | None = None,
     warm_start: BalanceResult | None = None,
     models: ModelCache | None = None,
-    executor=None,
+    executor: Any | None = None,
 ) -> BalanceResult:
     """The plan of ``method``: the one dispatch of ``balance-opt plan`` and of the sweep cases.
 
@@ -220,7 +220,7 @@ def run_task(
     force: bool = False,
     plans: Mapping[str, BalanceResult] | None = None,
     simulations: Mapping[str, SimulationResult] | None = None,
-    executor=None,
+    executor: Any | None = None,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -282,7 +282,7 @@ def _compute(
     models,
     given: dict,
     given_sims: dict,
-    executor=None,
+    executor: Any | None = None,
 ) -> TaskRun:
     """The plans (the reference first) and, with ``simulate``, their simulations, in this
     process and in this order; the ones given are taken as they are."""
