@@ -190,6 +190,24 @@ def _print_cartesian_goal(task) -> None:
         print(f"mission goal found by inverse kinematics: {values} [rad or m]")
 
 
+
+@contextlib.contextmanager
+def _starts_executor(task, methods: tuple[str, ...]):
+    """The sweep engine's process pool for the optimal planner's starts (``optimal.starts >
+    1``: one worker per start, at most one per CPU), for this command only; ``None`` when there
+    is nothing to run beside this process."""
+    starts = task.spec.optimal.planner.starts
+    jobs = min(starts, os.cpu_count() or 1)
+    if "optimal" not in methods or starts < 2 or jobs < 2:
+        yield None
+        return
+    from balance_opt.sweep.engine import LocalPoolEngine
+
+    with LocalPoolEngine(jobs) as engine:
+        log.info("optimal planner: %d starts on %d worker processes", starts, jobs)
+        yield engine
+
+
 def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: str = "plan") -> int:
     from balance_opt.app.pipeline import run_task
     from balance_opt.tasks.task import load_task
@@ -199,14 +217,16 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: s
         solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
         started = time.perf_counter()
-        run = run_task(
-            task,
-            methods=methods,
-            simulate=simulate,
-            output_dir=folder,
-            solver_options=solver_options,
-            robustness=task.spec.robustness.runs_in(command),
-        )
+        with _starts_executor(task, methods) as executor:
+            run = run_task(
+                task,
+                methods=methods,
+                simulate=simulate,
+                output_dir=folder,
+                solver_options=solver_options,
+                executor=executor,
+                robustness=task.spec.robustness.runs_in(command),
+            )
     from balance_opt.report.report import violation_count_text
 
     # the results on stdout (``compare ... > log`` keeps them), the progress on stderr

@@ -17,7 +17,10 @@ column times the cold plan compiling the kernels first and waiting for them (the
 the background compile). The load average is printed: on a loaded machine wall times grow,
 CPU times much less.
 
-Run: ``python benchmarks/bench_coldstart.py [--tasks paper baxter talos] [--wait]``.
+The table also replaces the ``coldstart`` section of ``docs/performance.md``.
+
+Run: ``python benchmarks/bench_coldstart.py [TASK ...] [--wait] [--no-doc]`` (default: the
+three example tasks).
 """
 
 from __future__ import annotations
@@ -33,15 +36,17 @@ import tempfile
 import time
 from pathlib import Path
 
+from perf_doc import write_section
+
 from balance_opt.model.bridge import BridgeUnavailable, ensure_bridge
 from balance_opt.optimal.codegen import wait_for_library
 
 ROOT = Path(__file__).resolve().parent.parent
-TASKS = {
-    "paper": ("paper robot", ROOT / "examples" / "capture_task.yaml"),
-    "baxter": ("Baxter", ROOT / "examples" / "baxter_floating.yaml"),
-    "talos": ("Talos 7+7", ROOT / "examples" / "talos_arms.yaml"),
-}
+TASKS = (
+    ROOT / "examples" / "capture_task.yaml",
+    ROOT / "examples" / "baxter_floating.yaml",
+    ROOT / "examples" / "talos_arms.yaml",
+)
 #: The child process: load the task, plan it with the optimal method, print what happened.
 CHILD = """
 import json, sys, time
@@ -127,37 +132,42 @@ def _kernels(run: dict) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", nargs="+", choices=sorted(TASKS), default=list(TASKS))
+    parser.add_argument("tasks", nargs="*", type=Path, default=list(TASKS))
     parser.add_argument(
         "--wait", action="store_true", help="also time a cold plan that waits for the compiler"
     )
+    parser.add_argument("--no-doc", action="store_true", help="do not write docs/performance.md")
     args = parser.parse_args()
     try:
         bridge_program = ensure_bridge().path
     except BridgeUnavailable:
         bridge_program = None  # the adam backend
+    load = os.getloadavg()[0]
     print(f"CPU cores: {os.cpu_count()}; times of whole processes [s]; load = 1-min load average")
     header = (
-        "| robot | arm joints | load | cold wall | cold CPU | kernels | Ipopt iter | "
+        "| task | robot joints | load | cold wall | cold CPU | kernels | Ipopt iter | "
         "background compile wall | warm wall | warm CPU | kernels | cold/warm wall |"
     )
     if args.wait:
         header += " cold, waiting for compiler: wall | CPU |"
-    print(header)
-    print("|" + " --- |" * (header.count("|") - 1))
-    for key in args.tasks:
-        name, task = TASKS[key]
-        r = bench(name, task, bridge_program, args.wait)
+    lines = [header, "|" + " --- |" * (header.count("|") - 1)]
+    print("\n".join(lines))
+    for task in args.tasks:
+        r = bench(task.stem, task.resolve(), bridge_program, args.wait)
         cold, warm = r["cold"], r["warm"]
         line = (
-            f"| {name} | {cold['robot_joints']} | {r['load']:.1f} | {cold['wall']:.1f} | "
+            f"| {task.stem} | {cold['robot_joints']} | {r['load']:.1f} | {cold['wall']:.1f} | "
             f"{cold['cpu']:.1f} | {_kernels(cold)} | {cold['iterations']} | {r['compile']:.1f} | "
             f"{warm['wall']:.1f} | {warm['cpu']:.1f} | {_kernels(warm)} | "
             f"{cold['wall'] / warm['wall']:.2f} |"
         )
         if args.wait:
             line += f" {r['wait']['wall']:.1f} | {r['wait']['cpu']:.1f} |"
+        lines.append(line)
         print(line, flush=True)
+    if not args.no_doc:
+        command = " ".join(["python benchmarks/bench_coldstart.py", *sys.argv[1:]])
+        print(f"wrote {write_section('coldstart', command, lines, load)}")
 
 
 if __name__ == "__main__":

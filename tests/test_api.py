@@ -246,7 +246,7 @@ def test_run_task_warm_starts_the_optimal_plan_from_a_given_analytic_one(task, p
     _forbid_planning(monkeypatch)
     seen = {}
 
-    def fake_optimal(task, solver_options=None, warm_start=None, models=None):
+    def fake_optimal(task, solver_options=None, warm_start=None, models=None, executor=None):
         seen["warm_start"] = warm_start
         res = copy.deepcopy(warm_start)
         res.method = "optimal"

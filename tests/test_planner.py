@@ -806,3 +806,20 @@ def test_ipopt_runs_with_one_blas_thread_unless_told(variable, threads):
         [sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True
     )
     assert out.stdout.split()[-1] == str(threads)
+
+
+def test_the_peak_stage_barrier_start_scales_with_the_grid_and_yields_to_the_user():
+    """The epigraph stage's ``mu_init`` is PEAK_IPOPT's up to PEAK_MU_INTERVALS intervals and
+    shrinks as a finer grid (its rows) grows; the other stages keep theirs; ``optimal.ipopt``
+    still has the last word."""
+    from balance_opt.optimal.nlp import ipopt_options_for
+    from balance_opt.optimal.options import PEAK_IPOPT, PEAK_MU_INTERVALS
+
+    base = PEAK_IPOPT["mu_init"]
+    at = {n: ipopt_options_for("peak", PlannerOptions(intervals=n))["mu_init"] for n in (50, 400)}
+    assert at[50] == base
+    assert ipopt_options_for("peak", PlannerOptions(intervals=PEAK_MU_INTERVALS))["mu_init"] == base
+    assert at[400] == pytest.approx(base * PEAK_MU_INTERVALS / 400)
+    assert "mu_init" not in ipopt_options_for("smooth", PlannerOptions(intervals=400))
+    mine = PlannerOptions(intervals=400, ipopt={"mu_init": 0.05})
+    assert ipopt_options_for("peak", mine)["mu_init"] == 0.05

@@ -110,3 +110,46 @@ def test_ctrl_c_on_a_multi_start_exits_130_without_orphans(tmp_path):
                 p.kill()
             except (psutil.NoSuchProcess, ProcessLookupError):
                 pass
+
+
+def test_the_sweep_engine_maps_over_its_worker_processes_in_order():
+    """The local pool engine is the executor ``balance-opt plan`` hands the starts to: its
+    ``map`` runs in its worker processes, not this one, and returns in the order given."""
+    import operator
+
+    from balance_opt.sweep.engine import LocalPoolEngine
+
+    with LocalPoolEngine(2) as engine:
+        squares = list(engine.map(pow, range(5), [2] * 5))
+        pids = set(engine.map(operator.call, [os.getpid] * 4))
+    assert squares == [0, 1, 4, 9, 16]
+    assert pids and os.getpid() not in pids
+
+
+@pytest.mark.slow
+def test_run_task_hands_the_starts_to_the_executor_it_is_given():
+    """``run_task(executor=...)`` maps the optimal planner's starts over that executor (the CLI
+    passes the sweep engine's pool): a recording executor sees both phases of every start."""
+    from pathlib import Path
+
+    import yaml
+
+    from balance_opt.app.pipeline import run_task
+    from balance_opt.tasks.task import task_from_dict
+
+    class Recording:
+        def __init__(self):
+            self.phases = []
+
+        def map(self, function, *iterables):
+            self.phases.append(function.phase)
+            return map(function, *iterables)
+
+    task_file = Path(__file__).parents[1] / "examples" / "capture_task.yaml"
+    data = yaml.safe_load(task_file.read_text())
+    data["optimal"] = {"intervals": 20, "starts": 2}
+    task = task_from_dict(data, task_file.parent, source=task_file.name)
+    executor = Recording()
+    run = run_task(task, methods=("optimal",), executor=executor)
+    assert executor.phases == ["first", "plan"]
+    assert run.results["optimal"].info["starts"]["solved"] >= 1

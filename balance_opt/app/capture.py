@@ -205,7 +205,7 @@ def phase_intervals(intervals: int, t_c: float, duration: float) -> tuple[int, i
     return first, max(2, intervals - first)
 
 
-def _plan_optimal(task, p: Phase, solver_options, models) -> BalanceResult:
+def _plan_optimal(task, p: Phase, solver_options, models, executor=None) -> BalanceResult:
     from balance_opt.app.models import ModelCache
     from balance_opt.optimal.solve import build_balance_nlp
 
@@ -226,14 +226,18 @@ def _plan_optimal(task, p: Phase, solver_options, models) -> BalanceResult:
     models = models if models is not None else ModelCache()
     model = models.planner_model(p.robot, task.spec.robot.backend)
     nlp = build_balance_nlp(model, p.mission, p.q_B0, options, robot=p.robot, h0=p.h0)
-    return nlp.solve(task.spec.optimal.initial_guess)
+    return nlp.solve(task.spec.optimal.initial_guess, executor)
 
 
-def plan_captured(task, method: str, solver_options=None, models=None) -> BalanceResult:
+def plan_captured(
+    task, method: str, solver_options=None, models=None, executor=None
+) -> BalanceResult:
     """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task with
     a capture: :func:`plan_with_capture` with that method in each phase."""
     if method == "mission-only":
         return plan_with_capture(task, lambda p: _plan_mission_only(task, p))
     if method == "analytic":
         return plan_with_capture(task, lambda p: _plan_analytic(task, p))
-    return plan_with_capture(task, lambda p: _plan_optimal(task, p, solver_options, models))
+    return plan_with_capture(
+        task, lambda p: _plan_optimal(task, p, solver_options, models, executor)
+    )

@@ -131,6 +131,7 @@ def plan_optimal(
     solver_options: Mapping[str, Any] | None = None,
     warm_start: BalanceResult | None = None,
     models: ModelCache | None = None,
+    executor: Any | None = None,
 ) -> BalanceResult:
     """The optimal planner with the task's options.
 
@@ -142,6 +143,8 @@ def plan_optimal(
             phases start from their own guesses).
         models: the planner models to reuse (with their compiled NLPs); without one, the
             model is built for this call only.
+        executor: what runs the starts of ``optimal.starts > 1`` (anything with ``map``, e.g.
+            :class:`balance_opt.sweep.engine.LocalPoolEngine`); ``None``: this process.
 
     Returns:
         A result with ``method="optimal"``, re-simulated on a fine grid; ``info`` holds the
@@ -157,7 +160,7 @@ def plan_optimal(
     if warm_start is not None:
         _checked_plan(warm_start)
     if task.target is not None:
-        return _captured(task, "optimal", solver_options, models)
+        return _captured(task, "optimal", solver_options, models, executor)
     check_optimal_supported(task)
     spec = task.spec.optimal
     options = task.planner_options(solver_options)
@@ -170,14 +173,16 @@ def plan_optimal(
         if (warm_start is not None and spec.initial_guess == "analytic")
         else spec.initial_guess
     )
-    return nlp.solve(guess)
+    return nlp.solve(guess, executor)
 
 
-def _captured(task: Task, method: str, solver_options=None, models=None) -> BalanceResult:
+def _captured(
+    task: Task, method: str, solver_options=None, models=None, executor=None
+) -> BalanceResult:
     """The plan of a task with a capture: two phases joined at the capture (issue 16)."""
     from balance_opt.app.capture import plan_captured
 
-    return plan_captured(task, method, solver_options, models)
+    return plan_captured(task, method, solver_options, models, executor)
 
 
 def plan(
@@ -186,13 +191,15 @@ def plan(
     solver_options: Mapping[str, Any] | None = None,
     warm_start: BalanceResult | None = None,
     models: ModelCache | None = None,
+    executor: Any | None = None,
 ) -> BalanceResult:
     """The plan of ``method``: the one dispatch of ``balance-opt plan`` and of the sweep cases.
 
     Args:
         task: the task.
         method: ``"mission-only"`` (the reference), ``"analytic"`` or ``"optimal"``.
-        solver_options, warm_start, models: for the optimal method (see :func:`plan_optimal`).
+        solver_options, warm_start, models, executor: for the optimal method (see
+            :func:`plan_optimal`).
 
     Raises:
         InputError: an unknown method.
@@ -203,7 +210,7 @@ def plan(
     if method == "analytic":
         return plan_analytic(task)
     if method == "optimal":
-        return plan_optimal(task, solver_options, warm_start, models)
+        return plan_optimal(task, solver_options, warm_start, models, executor)
     raise InputError(f"unknown method '{method}'; expected {' or '.join(METHODS)}")
 
 
@@ -246,6 +253,7 @@ def run_task(
     force: bool = False,
     plans: Mapping[str, BalanceResult] | None = None,
     simulations: Mapping[str, SimulationResult] | None = None,
+    executor: Any | None = None,
     robustness: bool | None = None,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
@@ -268,6 +276,9 @@ def run_task(
             failed (``info["success"]`` false) is recorded in ``failures``.
         simulations: simulations already computed, ``{name: SimulationResult}`` (with
             ``simulate``), likewise reused.
+        executor: what runs the optimal planner's starts when ``optimal.starts > 1`` (see
+            :func:`plan_optimal`); the caller creates it and shuts it down (the CLI: a process
+            pool of the sweep engine's kind for the one command).
         robustness: replay every plan on perturbed models (the task's ``robustness``
             settings, :mod:`balance_opt.motion.robustness`); ``None``: as the task's
             ``robustness.enabled`` says (off when unset, as in ``balance-opt plan``).
@@ -290,7 +301,7 @@ def run_task(
     given_sims = dict(simulations or {})
     if robustness is None:
         robustness = task.spec.robustness.runs_in("plan")
-    args = (task, methods, simulate, solver_options, models, given, given_sims, robustness)
+    args = (task, methods, simulate, solver_options, models, given, given_sims, executor, robustness)
     if output_dir is None:
         with handling_signals():
             return _compute(*args)
@@ -311,6 +322,7 @@ def _compute(
     models,
     given: dict,
     given_sims: dict,
+    executor: Any | None = None,
     robustness: bool = False,
 ) -> TaskRun:
     """The plans (the reference first), with ``robustness`` their drift under model error, and
@@ -325,7 +337,7 @@ def _compute(
             if given[method].info.get("success", True) is False:
                 run.failures[method] = f"given plan: solver status {given[method].status}"
         else:
-            _plan_into(run, method, solver_options, models)
+            _plan_into(run, method, solver_options, models, executor)
     if robustness:
         _model_error_into(run)
     if simulate:
@@ -396,7 +408,9 @@ def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
     return methods
 
 
-def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) -> None:
+def _plan_into(
+    run: TaskRun, method: str, solver_options, models: ModelCache, executor=None
+) -> None:
     """Plan ``method`` into ``run.results``; a solver failure is recorded, its iterate kept."""
     task = run.task
     if method == REFERENCE:
@@ -409,7 +423,7 @@ def _plan_into(run: TaskRun, method: str, solver_options, models: ModelCache) ->
     with _timed(f"{task.name}: {what}"):
         try:
             run.results[method] = plan(
-                task, method, solver_options, run.results.get("analytic"), models
+                task, method, solver_options, run.results.get("analytic"), models, executor
             )
         except SolverError as exc:
             if method == REFERENCE:

@@ -134,7 +134,7 @@ def build_structure(
     parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
     outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds)
-    ipopt = ipopt_options_for(key.objective, options)
+    ipopt = ipopt_options_for(key.objective, options, key.intervals)
     solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, ipopt)
     build_time = time.perf_counter() - start
     log.debug(
@@ -397,13 +397,17 @@ def _hessian(kernels: PointKernels, outer: _Outer, x: _Mapped, n_g: int) -> cs.F
     )
 
 
-def ipopt_options_for(objective: str, options: PlannerOptions) -> dict:
+def ipopt_options_for(
+    objective: str, options: PlannerOptions, intervals: int | None = None
+) -> dict:
     """Ipopt's options for a structure of ``objective`` (``"peak"``, ``"smooth"``,
-    ``"integral"``): the defaults, the tolerance and iteration limit, the stage's own options,
-    then the user's ``optimal.ipopt``."""
+    ``"integral"``) on ``intervals`` (default: the options' own): the defaults, the tolerance
+    and iteration limit, the stage's own options (:meth:`Stage.ipopt_at`), then the user's
+    ``optimal.ipopt``."""
     ipopt = dict(DEFAULT_IPOPT)
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
-    ipopt.update(next((dict(s.ipopt) for s in PEAK_STAGES if s.name == objective), {}))
+    n = options.intervals if intervals is None else intervals
+    ipopt.update(next((s.ipopt_at(n) for s in PEAK_STAGES if s.name == objective), {}))
     ipopt.update(options.ipopt)
     return ipopt
 

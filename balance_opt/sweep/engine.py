@@ -230,6 +230,11 @@ class LocalPoolEngine:
             self._env = None
         return False
 
+    def map(self, function: Callable, *iterables) -> Iterator:
+        """``function`` over ``iterables`` in the workers, results in order: the engine as the
+        executor of the optimal planner's starts (``optimal.starts > 1``)."""
+        return self._pool.map(function, *iterables)
+
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
         suspects: list[dict] = []
         futures = {self._pool.submit(execute_case, runner, case): case for case in cases}
