@@ -1,0 +1,225 @@
+"""How close a motion brings the robot's bodies to each other, on the continuous motion.
+
+The motion is given by samples of the arm vector; between two samples it is the straight line
+in joint space (the re-simulated plans are sampled every 10 ms or finer, where that line is
+within ``h^2 |q_ddot| / 8`` of the plan). Exact distances (coal) are computed at every sample,
+and between samples *conservative advancement* bounds the motion: over an interval every point
+of a body moves at most ``sum_j |dq_j| R_j`` (``R_j``: the largest distance from joint ``j`` to
+a point of the body, a constant of the robot, :attr:`RobotGeometry.reach`), so a pair whose
+distances at the interval's ends are ``d_a``, ``d_b`` and whose two bodies move by at most ``M``
+stays at least ``(d_a + d_b - M) / 2`` apart. Where that bound could be below the pair's
+smallest distance so far (by more than ``resolution``), the interval is split at its midpoint
+and the distance computed there, down to ``min_step``. A thin link swept through a body
+between two samples is found this way; a sampled check would miss it.
+
+Pairs that stay farther than ``watch`` are not refined that finely: their lower bound is
+certified above ``watch - resolution``, their minimum is the smallest one computed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.geometry.robot_geometry import RobotGeometry
+
+#: Precision of each pair's smallest distance on the continuous motion [m].
+RESOLUTION = 1e-3
+#: Pairs farther apart than this are only certified to stay beyond it [m].
+WATCH = 0.1
+#: Shortest interval the refinement splits [s].
+MIN_STEP = 1e-6
+
+
+@dataclass(frozen=True)
+class PairClearance:
+    """One pair's smallest distance over a motion.
+
+    Attributes:
+        pair: the two links (``"balance_link3 / base_link"``).
+        index: the pair's index in the geometry's pairs.
+        distance: the smallest distance computed [m] (negative: penetration depth).
+        time: when [s].
+        lower_bound: a bound the distance stays above on the whole continuous motion [m].
+    """
+
+    pair: str
+    index: int
+    distance: float
+    time: float
+    lower_bound: float
+
+
+@dataclass(frozen=True)
+class Penetration:
+    """The first penetration found: ``pair`` at ``time`` [s], ``depth`` [m] (> 0)."""
+
+    pair: str
+    time: float
+    depth: float
+
+
+@dataclass(frozen=True)
+class ClearanceReport:
+    """The clearance of a motion (:func:`clearance`).
+
+    Attributes:
+        pairs: every checked pair's smallest distance, in the geometry's order.
+        first_penetration: the earliest penetration found, or ``None``.
+        source: the URDF elements the geometry came from (``"collision"``, ``"visual"``).
+        evaluations: exact distances computed.
+    """
+
+    pairs: tuple[PairClearance, ...]
+    first_penetration: Penetration | None
+    source: str
+    evaluations: int
+
+    @property
+    def closest(self) -> PairClearance | None:
+        """The pair that comes closest (``None`` without pairs)."""
+        return min(self.pairs, key=lambda p: p.distance, default=None)
+
+    @property
+    def min_distance(self) -> float:
+        """The smallest distance of any pair [m] (inf without pairs)."""
+        closest = self.closest
+        return closest.distance if closest is not None else float("inf")
+
+    @property
+    def collision_free(self) -> bool:
+        return self.first_penetration is None and self.min_distance > 0.0
+
+    def below(self, distance: float) -> list[PairClearance]:
+        """The pairs that come closer than ``distance`` [m], closest first."""
+        return sorted((p for p in self.pairs if p.distance < distance), key=lambda p: p.distance)
+
+    def to_dict(self, closest: int = 5) -> dict:
+        """Plain data for ``metrics.json``: the minimum, the first penetration and the
+        ``closest`` pairs."""
+        best = sorted(self.pairs, key=lambda p: p.distance)[:closest]
+        pen = self.first_penetration
+        return {
+            "min_distance_m": self.min_distance,
+            "closest_pair": best[0].pair if best else None,
+            "closest_time_s": best[0].time if best else None,
+            "collision_free": self.collision_free,
+            "first_penetration": None
+            if pen is None
+            else {"pair": pen.pair, "time_s": pen.time, "depth_m": pen.depth},
+            "closest_pairs": [
+                {
+                    "pair": p.pair,
+                    "distance_m": p.distance,
+                    "time_s": p.time,
+                    "lower_bound_m": p.lower_bound,
+                }
+                for p in best
+            ],
+            "pairs_checked": len(self.pairs),
+            "geometry_source": self.source,
+            "distance_evaluations": self.evaluations,
+        }
+
+
+def _lower(da, db, motion):
+    """The smallest distance a pair can reach between two instants where it is ``da`` and
+    ``db`` apart, its bodies moving by at most ``motion`` in between."""
+    return np.where(np.abs(da - db) >= motion, np.minimum(da, db), 0.5 * (da + db - motion))
+
+
+def clearance(
+    geometry: RobotGeometry,
+    t,
+    q,
+    pairs: Sequence[int] | None = None,
+    resolution: float = RESOLUTION,
+    watch: float = WATCH,
+    min_step: float = MIN_STEP,
+) -> ClearanceReport:
+    """The clearance of a motion of the robot (see the module docstring).
+
+    Args:
+        geometry: the robot's geometry.
+        t: sample times (T,) [s], increasing.
+        q: the arm vector at each sample (T, n) [rad or m] (mission arm, then balance arms).
+        pairs: indices of the pairs to check (default: every pair of ``geometry``).
+        resolution: precision of each pair's smallest distance [m].
+        watch: pairs farther than this are only certified to stay beyond it [m].
+        min_step: shortest interval split [s].
+    """
+    t = np.asarray(t, dtype=float).ravel()
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if q.shape[0] != t.size:
+        raise ValueError(f"{t.size} times but {q.shape[0]} configurations")
+    E, e = geometry.robot.mimic_matrix
+    q_model = q @ E.T + e
+    chosen = geometry.pairs if pairs is None else [geometry.pairs[k] for k in pairs]
+    geom, gdata = geometry.geometry_model, geometry.geometry_data
+    model, data = geometry.model, geometry.data
+    index = np.array([p.index for p in chosen], dtype=int)
+    D = np.empty((t.size, index.size))
+    for k in range(t.size):
+        pin.computeDistances(model, data, geom, gdata, geometry.pin_q(q[k]))
+        results = gdata.distanceResults
+        D[k] = [results[int(i)].min_distance for i in index]
+    evaluations = D.size
+    if index.size == 0:
+        return ClearanceReport((), None, geometry.source, 0)
+    reach = geometry.reach
+    coef = np.stack([reach[p.first] + reach[p.second] for p in chosen])  # (P, n_moving)
+    motion = np.abs(np.diff(q_model, axis=0)) @ coef.T  # (T-1, P)
+    best_k = D.argmin(axis=0)
+    best = D[best_k, np.arange(index.size)]
+    best_t = t[best_k]
+    lower = best.copy()
+    neg = D <= 0.0
+    first = [(float(t[np.argmax(neg[:, c])]), c) for c in range(index.size) if neg[:, c].any()]
+    # intervals to split: (pair column, t_a, t_b, d_a, d_b, motion)
+    items = []
+    if t.size > 1:
+        lb = _lower(D[:-1], D[1:], motion)
+        target = np.minimum(best, watch) - resolution
+        for k, c in zip(*np.nonzero(lb < target)):
+            items.append((c, t[k], t[k + 1], D[k, c], D[k + 1, c], motion[k, c]))
+        fine = lb >= target
+        lower = np.minimum(lower, np.where(fine, lb, np.inf).min(axis=0))
+
+    def configuration(time):
+        return np.array([np.interp(time, t, q[:, j]) for j in range(q.shape[1])])
+
+    while items:
+        by_time: dict[float, list] = {}
+        for item in items:
+            by_time.setdefault(0.5 * (item[1] + item[2]), []).append(item)
+        items = []
+        for tm, group in sorted(by_time.items()):
+            geometry.place(configuration(tm))
+            for c, ta, tb, da, db, m in group:
+                dm = pin.computeDistance(geom, gdata, int(index[c])).min_distance
+                evaluations += 1
+                if dm < best[c]:
+                    best[c], best_t[c] = dm, tm
+                if dm <= 0.0:
+                    first.append((tm, c))
+                for a, b, d1, d2 in ((ta, tm, da, dm), (tm, tb, dm, db)):
+                    bound = float(_lower(d1, d2, 0.5 * m))
+                    if bound >= min(best[c], watch) - resolution or b - a <= min_step:
+                        lower[c] = min(lower[c], bound)
+                    else:
+                        items.append((c, a, b, d1, d2, 0.5 * m))
+    lower = np.minimum(lower, best)
+    report = tuple(
+        PairClearance(p.name, p.index, float(best[c]), float(best_t[c]), float(lower[c]))
+        for c, p in enumerate(chosen)
+    )
+    penetration = None
+    if first:
+        tp, c = min(first)
+        geometry.place(configuration(tp))
+        depth = -pin.computeDistance(geom, gdata, int(index[c])).min_distance
+        penetration = Penetration(chosen[c].name, float(tp), float(depth))
+    return ClearanceReport(report, penetration, geometry.source, evaluations)
