@@ -251,6 +251,16 @@ class RobotGeometry:
             ]
         )
 
+    def distances_along(self, q, pair: int) -> np.ndarray:
+        """The distance [m] of pair ``pair`` at every configuration of ``q`` (T, n)."""
+        out = np.empty(len(q))
+        for k, qk in enumerate(q):
+            self.place(qk)
+            out[k] = pin.computeDistance(
+                self.geometry_model, self.geometry_data, int(pair)
+            ).min_distance
+        return out
+
     def contacts(self, q) -> list[Pair]:
         """The checked pairs in contact (distance <= 0) at the arm configuration ``q``."""
         d = self.distances(q)

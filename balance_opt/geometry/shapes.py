@@ -305,11 +305,19 @@ class ClearanceRows:
         shapes: the fitted shapes.
         rows: per row, ``(label, ((shape, shape), ...))``: the body's link and its pairs (shape
             indices), the row's body first.
+        bodies: each row's body (a joint of ``robot.model``).
         key: a content key of the shapes, pairs and soft minimum (for compiled kernels).
     """
 
     shapes: tuple[Shape, ...]
     rows: tuple[tuple[str, tuple[tuple[int, int], ...]], ...]
+    bodies: tuple[int, ...] = ()
+
+    def row_of(self, geometry: RobotGeometry, pair) -> int | None:
+        """The row that holds a geometry pair (:class:`Pair`): its deeper body's of the rows'."""
+        bodies = [geometry.body(pair.first), geometry.body(pair.second)]
+        rows = [self.bodies.index(b) for b in bodies if b in self.bodies]
+        return max(rows, key=lambda k: len(_chain(geometry.model, self.bodies[k])), default=None)
 
     @property
     def key(self) -> str:
@@ -358,7 +366,7 @@ def clearance_rows(geometry: RobotGeometry, pairs, moved_by_balance: set[int]) -
         (f"{_body_name(geometry, body)} clearance", tuple(sorted(rows[body])))
         for body in sorted(rows)
     )
-    return ClearanceRows(tuple(shapes), out)
+    return ClearanceRows(tuple(shapes), out, tuple(sorted(rows)))
 
 
 def _body_name(geometry: RobotGeometry, body: int) -> str:

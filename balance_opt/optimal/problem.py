@@ -17,6 +17,10 @@ from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE
 
+#: How far below its value at ``t = 0`` a collision row that starts inside the margin is
+#: bounded [m] (a bound equal to the fixed initial value would leave no interior).
+COLLISION_SLACK = 1e-3
+
 
 def check_problem(
     model: PlannerModel,
@@ -109,6 +113,8 @@ class BalanceProblem:
         horizon: planning horizon [s], from :func:`check_problem`.
         h0: the system's constant total momentum, world frame (the base starts at the
             identity), ``[linear (N s); angular about the CoM (N m s)]``; ``None`` for zero.
+        collision: its collision avoidance
+            (:class:`~balance_opt.optimal.collision.CollisionSetup`), or ``None``.
 
     Attributes:
         model, robot, mission, q_B0, options, horizon: as given (``robot`` is the model's).
@@ -125,6 +131,11 @@ class BalanceProblem:
             the refinement tightened them.
         peak_reference: the drift ``c`` of the smooth peak stage [rad].
         balance_joints: their names.
+        collision: as given.
+        collision_bound: lower bound of each collision row at each point (n_c, n_points) [m]:
+            the margin, below it for a row that starts closer (its value at ``t = 0`` less
+            :data:`COLLISION_SLACK`: the arm starts there, at rest), raised by the refinement
+            where the re-simulated motion came too close.
     """
 
     def __init__(
@@ -136,6 +147,7 @@ class BalanceProblem:
         horizon: float,
         robot: FloatingRobot | None = None,
         h0=None,
+        collision=None,
     ):
         self.model = model
         # The task's robot: the model's kinematics, possibly other limits.
@@ -164,6 +176,13 @@ class BalanceProblem:
         # the smooth peak's reference drift c [rad] (its stage only, refine.plan_peak)
         self.peak_reference = 1.0
         self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
+        self.collision = collision
+        self.collision_bound = None
+        if collision is not None:
+            start = np.minimum(options.collision_margin, collision.initial_rows - COLLISION_SLACK)
+            self.collision_bound = np.tile(start[:, None], self.point_times.size)
+        # the last clearance check and the result it checked (the refinement reads it)
+        self.last_clearance = None
 
 
 class PlannerSolverError(SolverError):

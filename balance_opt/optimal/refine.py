@@ -243,6 +243,8 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     else:
         if _tighten(nlp, result, dry=True):
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
+    for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure
+        kind.accept(nlp, result)
     result.info["refinement"] = {
         "rounds": len(rounds),
         "tightened": rounds,
@@ -260,6 +262,8 @@ def _tighten(nlp, result: BalanceResult, dry: bool = False) -> list[str]:
     out = []
     if nlp.structure.key.torque_limits:
         out += _tighten_torques(nlp, result, dry)
+    for kind in nlp.structure.kinds:  # the kinds that tighten their own bounds
+        out += kind.tighten(nlp, result, dry)
     for name, bound, value in (
         ("path_bound", nlp.options.path_attitude_bound, result.max_drift),
         ("terminal_bound", nlp.options.terminal_attitude_bound, result.final_drift),
