@@ -194,19 +194,16 @@ class RobotGeometry:
         return self.model.frames[obj.parentFrame].name
 
     def _pair_links(self) -> set[tuple[str, str]]:
-        objs = self.geometry_model.geometryObjects
-        return {
-            tuple(sorted((self._link(objs[p.first]), self._link(objs[p.second]))))
-            for p in self.geometry_model.collisionPairs
-        }
+        return {tuple(sorted(p.links)) for p in self.pairs}
 
     def _drop(self, test, reason: str) -> None:
         geom = self.geometry_model
         objs = geom.geometryObjects
-        for p in list(geom.collisionPairs):
-            a, b = objs[p.first], objs[p.second]
+        # indices copied first: the pairs Python sees are views into a vector that shrinks
+        for first, second in [(int(p.first), int(p.second)) for p in geom.collisionPairs]:
+            a, b = objs[first], objs[second]
             if test(a, b):
-                geom.removeCollisionPair(p)
+                geom.removeCollisionPair(pin.CollisionPair(first, second))
                 links = tuple(sorted((self._link(a), self._link(b))))
                 self.ignored.setdefault(links, reason)
 
