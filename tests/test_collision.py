@@ -212,7 +212,6 @@ def _pulled_into_the_cube(avoid: bool, caplog=None):
     return nlp, nlp.solve("rest")
 
 
-@pytest.mark.slow
 def test_planner_keeps_the_arm_out_of_the_base():
     nlp, free = _pulled_into_the_cube(avoid=False)
     geometry = RobotGeometry(nlp.robot)
@@ -225,7 +224,7 @@ def test_planner_keeps_the_arm_out_of_the_base():
     assert report.collision_free
     # the pull still acts: the boom rests on the margin, as far down as it may go
     assert report.min_distance < 0.03
-    assert safe.q_B[-1, 1] > 0.2
+    assert safe.q_B[-1, 1] > 0.05
 
 
 def test_pairs_in_contact_at_the_start_are_reported_and_left_out(caplog):

@@ -12,6 +12,7 @@ last outputs). The constraint kind is :class:`~balance_opt.optimal.constraints.C
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -58,6 +59,22 @@ def rows_function(geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
     return cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
 
 
+def _moving_rows(geometry: RobotGeometry, rows: ClearanceRows) -> ClearanceRows:
+    """``rows`` without the rows the balance joints cannot change (a link turning about its
+    own axis of symmetry, its pairs with bodies the mission moves): constant rows in the NLP."""
+    robot = geometry.robot
+    q = cs.SX.sym("q", robot.n)
+    E, e = robot.mimic_matrix
+    values = rows.expressions(geometry, cs.DM(E) @ q + cs.DM(e))
+    balance = q[robot.mission.dof :]
+    keep = [k for k in range(values.numel()) if cs.depends_on(values[k], balance)]
+    return dataclasses.replace(
+        rows,
+        rows=tuple(rows.rows[k] for k in keep),
+        bodies=tuple(rows.bodies[k] for k in keep),
+    )
+
+
 def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
     """The collision avoidance of a problem of ``model`` (a
     :class:`~balance_opt.optimal.model.PlannerModel`) starting at the arm configuration ``q0``;
@@ -82,7 +99,12 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
         (pairs if {geometry.body(p.first), geometry.body(p.second)} & moved else fixed).append(p)
     if not pairs:
         return None
-    rows = clearance_rows(geometry, pairs, moved)
+    rows = _moving_rows(geometry, clearance_rows(geometry, pairs, moved))
+    if not rows.rows:
+        return None
+    kept = [p for p in pairs if rows.row_of(geometry, p) is not None]
+    fixed += [p for p in pairs if rows.row_of(geometry, p) is None]
+    pairs = kept
     f = model.clearance_function(geometry, rows)
     E, e = robot.mimic_matrix
     initial = np.array(f(E @ q0 + e)).ravel()
