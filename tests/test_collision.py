@@ -249,3 +249,41 @@ def test_pairs_in_contact_at_the_start_are_reported_and_left_out(caplog):
         PlannerOptions(intervals=10, collision_avoidance=False),
     )
     assert off.collision is None and off.structure.key.collision == ""
+
+
+def _grid_clearance(geometry, result, step=1e-3):
+    """The smallest exact distance of every checked pair on a ``step`` grid of the motion."""
+    t = np.arange(0.0, result.t[-1] + 0.5 * step, step)
+    q = np.hstack([result.q_M, result.q_B])
+    grid = np.stack([np.interp(t, result.t, q[:, j]) for j in range(q.shape[1])], axis=1)
+    return min(geometry.distances(qk).min() for qk in grid)
+
+
+@pytest.mark.slow
+def test_capture_task_plan_avoids_the_base_and_keeps_its_drift(capture):
+    """The capture task's optimal plan without avoidance drives balance_link3 0.39 m into the
+    base; with it (the default) every pair stays beyond the margin on a 1 ms grid, and the
+    peak stays below 0.028 rad (restricting balance_joint2 to [0, 1.57] rad gives 0.0260)."""
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.options import PlannerOptions
+    from balance_opt.optimal.solve import build_balance_nlp
+
+    model = PlannerModel(capture.robot)
+    options = PlannerOptions()
+    assert options.collision_avoidance and options.collision_margin == 0.03
+    plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
+    geometry = RobotGeometry(capture.robot)
+    assert _grid_clearance(geometry, plan) >= 0.03
+    assert plan.max_drift <= 0.028
+    assert plan.final_drift <= 1e-3
+    assert plan.info["resimulation"]["constraint_violations"] == []
+
+
+@pytest.mark.slow
+def test_baxter_plan_is_collision_free():
+    from balance_opt.app.pipeline import plan
+    from balance_opt.io.task import load_task
+
+    task = load_task("examples/baxter_floating.yaml")
+    result = plan(task, "optimal")
+    assert _grid_clearance(RobotGeometry(task.robot), result, step=5e-3) >= 0.03 - 1e-6

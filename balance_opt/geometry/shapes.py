@@ -299,25 +299,32 @@ def numeric_shape_distance(first: Shape, second: Shape, geometry: RobotGeometry,
 @dataclass(frozen=True)
 class ClearanceRows:
     """What the planner's collision rows bound: one soft minimum per body the balance joints
-    move, over the fitted-shape pairs assigned to it.
+    move, over the fitted-shape pairs assigned to it, and a row of its own for each pair in
+    ``alone`` (:func:`clearance_rows`).
 
     Attributes:
         shapes: the fitted shapes.
-        rows: per row, ``(label, ((shape, shape), ...))``: the body's link and its pairs (shape
-            indices), the row's body first.
-        bodies: each row's body (a joint of ``robot.model``).
+        rows: per row, ``(label, ((shape, shape), ...))``: its pairs (shape indices), the
+            shape of the body the balance joints move first.
         key: a content key of the shapes, pairs and soft minimum (for compiled kernels).
     """
 
     shapes: tuple[Shape, ...]
     rows: tuple[tuple[str, tuple[tuple[int, int], ...]], ...]
-    bodies: tuple[int, ...] = ()
 
-    def row_of(self, geometry: RobotGeometry, pair) -> int | None:
-        """The row that holds a geometry pair (:class:`Pair`): its deeper body's of the rows'."""
-        bodies = [geometry.body(pair.first), geometry.body(pair.second)]
-        rows = [self.bodies.index(b) for b in bodies if b in self.bodies]
-        return max(rows, key=lambda k: len(_chain(geometry.model, self.bodies[k])), default=None)
+    def row_of(self, pair) -> int | None:
+        """The row that holds a geometry pair (:class:`Pair`), or ``None``."""
+        shape = {i: k for k, s in enumerate(self.shapes) for i in s.objects}
+        wanted = {(shape[pair.first], shape[pair.second]), (shape[pair.second], shape[pair.first])}
+        return next((k for k, (_, pairs) in enumerate(self.rows) if wanted & set(pairs)), None)
+
+    def pair_distances(self, geometry: RobotGeometry) -> tuple[list, cs.Function]:
+        """Every shape pair of the rows and ``d(q_model)``, their distances."""
+        q = cs.SX.sym("q_model", len(geometry.moving_joints))
+        frames = joint_placements(geometry, q)
+        pairs = [p for _, row in self.rows for p in row]
+        d = [shape_distance(self.shapes[i], self.shapes[k], frames) for i, k in pairs]
+        return pairs, cs.Function("shape_distances", [q], [cs.vertcat(*d)])
 
     @property
     def key(self) -> str:
@@ -341,11 +348,14 @@ class ClearanceRows:
         return cs.vertcat(*out)
 
 
-def clearance_rows(geometry: RobotGeometry, pairs, moved_by_balance: set[int]) -> ClearanceRows:
+def clearance_rows(
+    geometry: RobotGeometry, pairs, moved_by_balance: set[int], alone=frozenset()
+) -> ClearanceRows:
     """The planner's rows for the checked geometry pairs ``pairs`` (:class:`Pair` list) that
     involve a body the balance joints move (``moved_by_balance``: joints of ``robot.model``):
     each shape pair goes to the row of its body the balance joints move (the deeper one when
-    both do)."""
+    both do), or to a row of its own if it is in ``alone`` (shape index pairs, that body's
+    first: pairs whose shapes start close, so that the bound of their row must start lower)."""
     shapes = fit_shapes(geometry)
     of_object = {}
     for k, s in enumerate(shapes):
@@ -362,11 +372,14 @@ def clearance_rows(geometry: RobotGeometry, pairs, moved_by_balance: set[int]) -
         owner = max(moved, key=lambda b: depth[b])
         own, other = (s1, s2) if b1 == owner else (s2, s1)
         rows.setdefault(owner, set()).add((own, other))
-    out = tuple(
-        (f"{_body_name(geometry, body)} clearance", tuple(sorted(rows[body])))
-        for body in sorted(rows)
-    )
-    return ClearanceRows(tuple(shapes), out, tuple(sorted(rows)))
+    out = []
+    for body in sorted(rows):
+        shared = sorted(p for p in rows[body] if p not in alone)
+        if shared:
+            out.append((f"{_body_name(geometry, body)} clearance", tuple(shared)))
+        for i, k in sorted(p for p in rows[body] if p in alone):
+            out.append((f"{shapes[i].name} / {shapes[k].name} clearance", ((i, k),)))
+    return ClearanceRows(tuple(shapes), tuple(out))
 
 
 def _body_name(geometry: RobotGeometry, body: int) -> str:

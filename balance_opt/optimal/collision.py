@@ -24,6 +24,10 @@ from balance_opt.geometry.shapes import ClearanceRows, clearance_rows, moved_by
 
 log = logging.getLogger(__name__)
 
+#: A pair whose fitted shapes start closer than the margin plus this [m] gets a row of its own
+#: (a shared row's soft minimum lies up to log(n) / BETA below its pairs).
+ALONE_GAP = 0.01
+
 
 @dataclass
 class CollisionSetup:
@@ -68,11 +72,7 @@ def _moving_rows(geometry: RobotGeometry, rows: ClearanceRows) -> ClearanceRows:
     values = rows.expressions(geometry, cs.DM(E) @ q + cs.DM(e))
     balance = q[robot.mission.dof :]
     keep = [k for k in range(values.numel()) if cs.depends_on(values[k], balance)]
-    return dataclasses.replace(
-        rows,
-        rows=tuple(rows.rows[k] for k in keep),
-        bodies=tuple(rows.bodies[k] for k in keep),
-    )
+    return dataclasses.replace(rows, rows=tuple(rows.rows[k] for k in keep))
 
 
 def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
@@ -99,14 +99,20 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
         (pairs if {geometry.body(p.first), geometry.body(p.second)} & moved else fixed).append(p)
     if not pairs:
         return None
-    rows = _moving_rows(geometry, clearance_rows(geometry, pairs, moved))
+    rows = clearance_rows(geometry, pairs, moved)
+    # pairs whose shapes start closer than the margin get rows of their own, bounded below
+    # their start: in a shared row they would lower the bound of every pair of their body
+    E, e = robot.mimic_matrix
+    shape_pairs, distances = rows.pair_distances(geometry)
+    start = np.array(distances(E @ q0 + e)).ravel()
+    alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
+    rows = _moving_rows(geometry, clearance_rows(geometry, pairs, moved, alone))
     if not rows.rows:
         return None
-    kept = [p for p in pairs if rows.row_of(geometry, p) is not None]
-    fixed += [p for p in pairs if rows.row_of(geometry, p) is None]
+    kept = [p for p in pairs if rows.row_of(p) is not None]
+    fixed += [p for p in pairs if rows.row_of(p) is None]
     pairs = kept
     f = model.clearance_function(geometry, rows)
-    E, e = robot.mimic_matrix
     initial = np.array(f(E @ q0 + e)).ravel()
-    owner = {p.index: rows.row_of(geometry, p) for p in pairs}
+    owner = {p.index: rows.row_of(p) for p in pairs}
     return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner)
