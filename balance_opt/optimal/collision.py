@@ -81,6 +81,12 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
     ``None`` when ``options.collision_avoidance`` is off or no pair involves the balance arm."""
     if not options.collision_avoidance:
         return None
+    # the stages and refinements of one plan are variants of one problem: built once
+    key = (options.collision_ignore, options.collision_margin, np.asarray(q0, float).tobytes())
+    return model.collision_setups(key, lambda: _setup(model, options, q0))
+
+
+def _setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
     geometry = model.geometry(options.collision_ignore)
     robot = geometry.robot
     moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])

@@ -195,6 +195,7 @@ class PlannerModel:
         self.nlp_cache: dict = {}
         self._geometries: dict = {}
         self._clearance: dict = {}  # rows key -> (geometry, rows, numeric function)
+        self._setups: dict = {}
 
     # ------------------------------------------------------------------ collision
     def geometry(self, ignore=()):
@@ -214,6 +215,13 @@ class PlannerModel:
         if rows.key not in self._clearance:
             self._clearance[rows.key] = (geometry, rows, rows_function(geometry, rows))
         return self._clearance[rows.key][2]
+
+    def collision_setups(self, key, make):
+        """The collision setup of ``key`` (ignored pairs, margin, initial configuration),
+        made once (:func:`~balance_opt.optimal.collision.collision_setup`)."""
+        if key not in self._setups:
+            self._setups[key] = make()
+        return self._setups[key]
 
     def clearance_labels(self, key: str) -> tuple[str, ...]:
         """The labels of the collision rows of a key (none for ``""``)."""

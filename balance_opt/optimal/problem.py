@@ -20,6 +20,10 @@ from balance_opt.result import LIMIT_TOLERANCE
 #: How far below its value at ``t = 0`` a collision row that starts inside the margin is
 #: bounded [m] (a bound equal to the fixed initial value would leave no interior).
 COLLISION_SLACK = 1e-3
+#: The collision rows hold the margin plus this at the collocation points [m]: the motion
+#: between two points bends toward a body by about this much on the capture task, and every
+#: dip below the margin costs a refinement round (a full re-solve).
+COLLISION_ALLOWANCE = 2e-3
 
 
 def check_problem(
@@ -133,9 +137,9 @@ class BalanceProblem:
         balance_joints: their names.
         collision: as given.
         collision_bound: lower bound of each collision row at each point (n_c, n_points) [m]:
-            the margin, below it for a row that starts closer (its value at ``t = 0`` less
-            :data:`COLLISION_SLACK`: the arm starts there, at rest), raised by the refinement
-            where the re-simulated motion came too close.
+            the margin plus :data:`COLLISION_ALLOWANCE`, lower for a row that starts closer
+            (its value at ``t = 0`` less :data:`COLLISION_SLACK`: the arm starts there, at
+            rest), raised by the refinement where the re-simulated motion came too close.
     """
 
     def __init__(
@@ -179,7 +183,10 @@ class BalanceProblem:
         self.collision = collision
         self.collision_bound = None
         if collision is not None:
-            start = np.minimum(options.collision_margin, collision.initial_rows - COLLISION_SLACK)
+            start = np.minimum(
+                options.collision_margin + COLLISION_ALLOWANCE,
+                collision.initial_rows - COLLISION_SLACK,
+            )
             self.collision_bound = np.tile(start[:, None], self.point_times.size)
         # the last clearance check and the result it checked (the refinement reads it)
         self.last_clearance = None
