@@ -131,6 +131,37 @@ def _lower(da, db, motion):
     return np.where(np.abs(da - db) >= motion, np.minimum(da, db), 0.5 * (da + db - motion))
 
 
+def _refine(geometry, index, items, configuration, state, limits) -> int:
+    """Split the intervals ``items`` until each pair's bound is settled (see the module
+    docstring), updating ``state`` (best distance, its time, lower bound per pair, the
+    penetrations found) in place; returns the distances computed."""
+    best, best_t, lower, first = state
+    resolution, watch, min_step = limits
+    geom, gdata = geometry.geometry_model, geometry.geometry_data
+    evaluations = 0
+    while items:
+        by_time: dict[float, list] = {}
+        for item in items:
+            by_time.setdefault(0.5 * (item[1] + item[2]), []).append(item)
+        items = []
+        for tm, group in sorted(by_time.items()):
+            geometry.place(configuration(tm))
+            for c, ta, tb, da, db, m in group:
+                dm = pin.computeDistance(geom, gdata, int(index[c])).min_distance
+                evaluations += 1
+                if dm < best[c]:
+                    best[c], best_t[c] = dm, tm
+                if dm <= 0.0:
+                    first.append((tm, c))
+                for a, b, d1, d2 in ((ta, tm, da, dm), (tm, tb, dm, db)):
+                    bound = float(_lower(d1, d2, 0.5 * m))
+                    if bound >= min(best[c], watch) - resolution or b - a <= min_step:
+                        lower[c] = min(lower[c], bound)
+                    else:
+                        items.append((c, a, b, d1, d2, 0.5 * m))
+    return evaluations
+
+
 def clearance(
     geometry: RobotGeometry,
     t,
@@ -191,26 +222,8 @@ def clearance(
     def configuration(time):
         return np.array([np.interp(time, t, q[:, j]) for j in range(q.shape[1])])
 
-    while items:
-        by_time: dict[float, list] = {}
-        for item in items:
-            by_time.setdefault(0.5 * (item[1] + item[2]), []).append(item)
-        items = []
-        for tm, group in sorted(by_time.items()):
-            geometry.place(configuration(tm))
-            for c, ta, tb, da, db, m in group:
-                dm = pin.computeDistance(geom, gdata, int(index[c])).min_distance
-                evaluations += 1
-                if dm < best[c]:
-                    best[c], best_t[c] = dm, tm
-                if dm <= 0.0:
-                    first.append((tm, c))
-                for a, b, d1, d2 in ((ta, tm, da, dm), (tm, tb, dm, db)):
-                    bound = float(_lower(d1, d2, 0.5 * m))
-                    if bound >= min(best[c], watch) - resolution or b - a <= min_step:
-                        lower[c] = min(lower[c], bound)
-                    else:
-                        items.append((c, a, b, d1, d2, 0.5 * m))
+    state = (best, best_t, lower, first)
+    evaluations += _refine(geometry, index, items, configuration, state, (resolution, watch, min_step))
     lower = np.minimum(lower, best)
     report = tuple(
         PairClearance(p.name, p.index, float(best[c]), float(best_t[c]), float(lower[c]))

@@ -19,10 +19,27 @@ from dataclasses import dataclass
 import casadi as cs
 import numpy as np
 
+from balance_opt.geometry.clearance import ClearanceReport, PairClearance, clearance
 from balance_opt.geometry.robot_geometry import Pair, RobotGeometry
 from balance_opt.geometry.shapes import ClearanceRows, clearance_rows, moved_by
 
 log = logging.getLogger(__name__)
+
+#: How far below its value at ``t = 0`` a collision row that starts inside the margin is
+#: bounded [m] (a bound equal to the fixed initial value would leave no interior).
+COLLISION_SLACK = 1e-3
+#: The collision rows hold the margin plus this at the collocation points [m]: the motion
+#: between two points bends toward a body by about this much on the capture task, and every
+#: dip below the margin costs a refinement round (a full re-solve).
+COLLISION_ALLOWANCE = 2e-3
+#: Distance [m] by which the re-simulated motion may come closer than the margin without a
+#: refinement round.
+TOLERANCE = 1e-6
+#: The refinement raises a row's bound by the pair's shortfall and this much more [m].
+PUSH = 2e-3
+#: The check certifies the pairs' distances down to the margin plus this [m] (farther pairs are
+#: only known to stay beyond it).
+WATCH = 0.05
 
 #: A pair whose fitted shapes start closer than the margin plus this [m] gets a row of its own
 #: (a shared row's soft minimum lies up to log(n) / BETA below its pairs).
@@ -57,6 +74,38 @@ class CollisionSetup:
         return self.rows.key
 
 
+class CollisionModels:
+    """A robot's collision geometry and rows, built once per planner model: its geometry per
+    set of ignored pairs, the setup of each problem's start, each rows key's rows with their
+    numeric function (the point kernels read them by key).
+
+    Args:
+        robot: the robot.
+    """
+
+    def __init__(self, robot):
+        self.robot = robot
+        self.geometries: dict = {}
+        self.setups: dict = {}
+        #: rows key -> (rows, ``clearance_rows(q_model)``)
+        self.rows: dict = {}
+
+    def geometry(self, ignore=()) -> RobotGeometry:
+        key = tuple(sorted(tuple(sorted(p)) for p in ignore))
+        if key not in self.geometries:
+            self.geometries[key] = RobotGeometry(self.robot, ignore=key)
+        return self.geometries[key]
+
+    def function(self, geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
+        if rows.key not in self.rows:
+            self.rows[rows.key] = (rows, rows_function(geometry, rows))
+        return self.rows[rows.key][1]
+
+    def labels(self, key: str) -> tuple[str, ...]:
+        """The labels of the rows of a key (none for ``""``)."""
+        return self.rows[key][0].labels if key else ()
+
+
 def rows_function(geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
     """``clearance(q_model) -> rows``: the rows as a function of the model joints' positions."""
     q = cs.SX.sym("q_model", len(geometry.moving_joints))
@@ -83,11 +132,14 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
         return None
     # the stages and refinements of one plan are variants of one problem: built once
     key = (options.collision_ignore, options.collision_margin, np.asarray(q0, float).tobytes())
-    return model.collision_setups(key, lambda: _setup(model, options, q0))
+    setups = model.collisions.setups
+    if key not in setups:
+        setups[key] = _setup(model.collisions, options, q0)
+    return setups[key]
 
 
-def _setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
-    geometry = model.geometry(options.collision_ignore)
+def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup | None:
+    geometry = models.geometry(options.collision_ignore)
     robot = geometry.robot
     moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
     contacts = geometry.contacts(q0)
@@ -118,7 +170,70 @@ def _setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
     kept = [p for p in pairs if rows.row_of(p) is not None]
     fixed += [p for p in pairs if rows.row_of(p) is None]
     pairs = kept
-    f = model.clearance_function(geometry, rows)
+    f = models.function(geometry, rows)
     initial = np.array(f(E @ q0 + e)).ravel()
     owner = {p.index: rows.row_of(p) for p in pairs}
     return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner)
+
+
+# ---------------------------------------------------------------------------------- check
+def report(problem, result) -> ClearanceReport:
+    """The clearance of a re-simulated plan of ``problem`` over the pairs the balance joints
+    move (computed once per result: the check and the refinement share it)."""
+    last = problem.last_clearance
+    if last is not None and last[0] is result:
+        return last[1]
+    setup = problem.collision
+    out = clearance(
+        setup.geometry,
+        result.t,
+        np.hstack([result.q_M, result.q_B]),
+        pairs=[p.index for p in setup.pairs],
+        watch=problem.options.collision_margin + WATCH,
+    )
+    problem.last_clearance = (result, out)
+    return out
+
+
+def _short(problem, result) -> list[PairClearance]:
+    """The pairs closer than the margin beyond :data:`TOLERANCE`, closest first."""
+    return report(problem, result).below(problem.options.collision_margin - TOLERANCE)
+
+
+def shortfall(problem, result) -> PairClearance | None:
+    """The pair that comes closest, if closer than the margin (beyond :data:`TOLERANCE`)."""
+    short = _short(problem, result)
+    return short[0] if short else None
+
+
+def tighten(problem, result, dry: bool = False) -> list[str]:
+    """Raise the rows of the pairs closer than the margin by their shortfall plus
+    :data:`PUSH` on every interval where they are (and on the one of their minimum), unless
+    ``dry``; returns what it raised, in words."""
+    short = _short(problem, result)
+    if not short:
+        return []
+    said = [f"collision rows of {len(short)} pairs (closest {short[0].pair}, {short[0].distance:.4f} m)"]
+    if dry:
+        return said
+    margin, setup, N = problem.options.collision_margin, problem.collision, problem.N
+    mids = problem.transcription.has_midpoints
+    q = np.hstack([result.q_M, result.q_B])
+    for pair in short:
+        row = setup.owner[pair.index]
+        d = setup.geometry.distances_along(q, pair.index)
+        times = np.append(result.t[d < margin], pair.time)
+        for k in np.unique(np.minimum((times / problem.h).astype(int), N - 1)):
+            columns = [k, k + 1] + ([N + 1 + k] if mids else [])
+            problem.collision_bound[row, columns] += margin - pair.distance + PUSH
+    # the arm starts at rest where it is: the first node's rows cannot move
+    problem.collision_bound[:, 0] = np.minimum(
+        problem.collision_bound[:, 0], setup.initial_rows - COLLISION_SLACK
+    )
+    return said
+
+
+def penetration(problem, result):
+    """The first penetration of the plan's bodies
+    (:class:`~balance_opt.geometry.clearance.Penetration`), or ``None``."""
+    return report(problem, result).first_penetration

@@ -42,7 +42,8 @@ import numpy as np
 from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.optimal.collocation import Transcription, bernstein_value
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey, unit_of
-from balance_opt.optimal.problem import COLLISION_SLACK, BalanceProblem, PlannerSolverError
+from balance_opt.optimal import collision
+from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
@@ -505,27 +506,20 @@ def _worst_state(problem, result, index: int, when: str, targets) -> Violation |
     return worst
 
 
-#: Distance [m] by which the re-simulated motion may come closer than the collision margin
-#: without a refinement round.
-COLLISION_TOLERANCE = 1e-6
-#: The refinement raises a collision row's bound by the shortfall and this much more [m].
-COLLISION_PUSH = 2e-3
-
-
 class Collision(Constraint):
-    """Collision avoidance (:mod:`balance_opt.optimal.collision`): at every collocation point,
-    one row per body the balance joints move, the soft minimum of its fitted shapes' distances
-    to the others, at least ``collision.margin`` (``problem.collision_bound``). The shapes
-    contain the bodies, so at the points the exact distances are at least as large. Between
-    the points the check measures the exact distances (coal) on the re-simulated motion
-    (:func:`~balance_opt.geometry.clearance.clearance`); where a pair comes closer than the
-    margin, the refinement raises its row's bound on the intervals around it
-    (:meth:`tighten`), and a plan that still penetrates after it fails (:meth:`accept`)."""
+    """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
+    every collocation point, one row per body the balance joints move, the soft minimum of
+    its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
+    ``problem.collision_bound``). The shapes contain the bodies, so at the points the exact
+    distances are at least as large. Between the points the check measures the exact
+    distances (coal) on the re-simulated motion; where a pair comes closer than the margin,
+    the refinement raises its row's bound on the intervals around it (:meth:`tighten`), and a
+    plan that still penetrates after it fails, naming the pair and the time (:meth:`accept`)."""
 
     name = "collision"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        labels = tuple(f"{label} (soft minimum)" for label in _collision_labels(nlp))
+        labels = tuple(f"{label} (soft minimum)" for label in nlp.clearance_labels)
         block = Block(
             "collision clearance",
             labels,
@@ -537,64 +531,18 @@ class Collision(Constraint):
     def row_bounds(self, problem, block):
         return problem.collision_bound.ravel(order="F"), np.full(block.size, np.inf)
 
-    @staticmethod
-    def report(problem: BalanceProblem, result: BalanceResult):
-        """The clearance of the re-simulated motion over the pairs the balance joints move
-        (computed once per result)."""
-        from balance_opt.geometry.clearance import clearance
-
-        last = problem.last_clearance
-        if last is not None and last[0] is result:
-            return last[1]
-        setup = problem.collision
-        report = clearance(
-            setup.geometry,
-            result.t,
-            np.hstack([result.q_M, result.q_B]),
-            pairs=[p.index for p in setup.pairs],
-            watch=problem.options.collision_margin + 0.05,
-        )
-        problem.last_clearance = (result, report)
-        return report
-
     def check(self, problem, result):
-        margin = problem.options.collision_margin
-        closest = self.report(problem, result).closest
-        if closest is None or closest.distance >= margin - COLLISION_TOLERANCE:
+        closest = collision.shortfall(problem, result)
+        if closest is None:
             return None
-        return Violation(
-            f"collision margin of {closest.pair}", closest.time, margin - closest.distance, "m"
-        )
+        amount = problem.options.collision_margin - closest.distance
+        return Violation(f"collision margin of {closest.pair}", closest.time, amount, "m")
 
     def tighten(self, problem, result, dry=False):
-        report = self.report(problem, result)
-        margin = problem.options.collision_margin
-        setup, N = problem.collision, problem.N
-        short = [p for p in report.pairs if p.distance < margin - COLLISION_TOLERANCE]
-        if not short or dry:
-            return [f"collision rows of {len(short)} pairs"] if short else []
-        mids = problem.transcription.has_midpoints
-        q = np.hstack([result.q_M, result.q_B])
-        for pair in short:
-            row = setup.owner[pair.index]
-            # the intervals where the pair is closer than the margin, and the one of its minimum
-            d = setup.geometry.distances_along(q, pair.index)
-            times = np.append(result.t[d < margin], pair.time)
-            for k in np.unique(np.minimum((times / problem.h).astype(int), N - 1)):
-                columns = [k, k + 1] + ([N + 1 + k] if mids else [])
-                raise_by = margin - min(pair.distance, margin) + COLLISION_PUSH
-                problem.collision_bound[row, columns] += raise_by
-        # the arm starts at rest where it is: the first node's rows cannot be moved
-        problem.collision_bound[:, 0] = np.minimum(
-            problem.collision_bound[:, 0], setup.initial_rows - COLLISION_SLACK
-        )
-        return [
-            f"collision rows of {len(short)} pairs (closest {short[0].pair}, "
-            f"{min(p.distance for p in short):.4f} m)"
-        ]
+        return collision.tighten(problem, result, dry)
 
     def accept(self, problem, result):
-        pen = self.report(problem, result).first_penetration
+        pen = collision.penetration(problem, result)
         if pen is not None:
             raise PlannerSolverError(
                 f"no collision-free plan found: {pen.pair} penetrate by {pen.depth:.4g} m at "
@@ -605,11 +553,6 @@ class Collision(Constraint):
                 pen.time,
                 pen.depth,
             )
-
-
-def _collision_labels(nlp: SymbolicNLP) -> tuple[str, ...]:
-    n = nlp.clearance.shape[0] if nlp.clearance is not None else 0
-    return nlp.clearance_labels or tuple(f"body {k} clearance" for k in range(n))
 
 
 def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:

@@ -55,6 +55,7 @@ from balance_opt.model.symbolic import (
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
 from balance_opt.optimal import codegen
+from balance_opt.optimal.collision import CollisionModels
 from balance_opt.optimal.model_store import FunctionStore, model_key
 from balance_opt.optimal.options import CONTROLS
 
@@ -193,39 +194,8 @@ class PlannerModel:
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
         self.nlp_cache: dict = {}
-        self._geometries: dict = {}
-        self._clearance: dict = {}  # rows key -> (geometry, rows, numeric function)
-        self._setups: dict = {}
-
-    # ------------------------------------------------------------------ collision
-    def geometry(self, ignore=()):
-        """The robot's geometry with the pairs ``ignore`` left out (built once per set)."""
-        from balance_opt.geometry.robot_geometry import RobotGeometry
-
-        key = tuple(sorted(tuple(sorted(p)) for p in ignore))
-        if key not in self._geometries:
-            self._geometries[key] = RobotGeometry(self.robot, ignore=key)
-        return self._geometries[key]
-
-    def clearance_function(self, geometry, rows) -> cs.Function:
-        """``clearance_rows(q_model) -> c``: the collision rows (numeric use), kept with the
-        rows for the kernels of their structure."""
-        from balance_opt.optimal.collision import rows_function
-
-        if rows.key not in self._clearance:
-            self._clearance[rows.key] = (geometry, rows, rows_function(geometry, rows))
-        return self._clearance[rows.key][2]
-
-    def collision_setups(self, key, make):
-        """The collision setup of ``key`` (ignored pairs, margin, initial configuration),
-        made once (:func:`~balance_opt.optimal.collision.collision_setup`)."""
-        if key not in self._setups:
-            self._setups[key] = make()
-        return self._setups[key]
-
-    def clearance_labels(self, key: str) -> tuple[str, ...]:
-        """The labels of the collision rows of a key (none for ``""``)."""
-        return self._clearance[key][1].labels if key else ()
+        # the robot's geometry and collision rows (balance_opt.optimal.collision)
+        self.collisions = CollisionModels(robot)
 
     @property
     def maps(self) -> SymbolicMaps:
@@ -477,7 +447,7 @@ class PlannerModel:
     # ------------------------------------------------------------------ kernels
     def n_y(self, control: str, torque: bool, clearance: str = "") -> int:
         """Size of a point kernel's output ``y``."""
-        n_c = len(self._clearance[clearance][1].rows) if clearance else 0
+        n_c = len(self.collisions.rows[clearance][0].rows) if clearance else 0
         return self.n_x(control) + 1 + (self.n_B if torque else 0) + n_c
 
     def kernels(
@@ -488,7 +458,7 @@ class PlannerModel:
         clearance: str = "",
     ) -> PointKernels:
         """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting
-        and collision rows (their key, registered by :meth:`clearance_function`), built once
+        and collision rows (their key, registered in :attr:`collisions`), built once
         (and compiled once, if the model compiles)."""
         key = (check_control(control), bool(torque), bool(momentum), clearance)
         if key not in self._kernels:
@@ -566,15 +536,8 @@ class PlannerModel:
         except (OSError, RuntimeError) as exc:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
             return PointKernels(*functions, *sizes, n_clearance=n_c)
-        return PointKernels(
-            *out.functions,
-            *sizes,
-            out.compiled,
-            out.compile_time,
-            out.library,
-            out.background,
-            n_clearance=n_c,
-        )
+        compiled = (out.compiled, out.compile_time, out.library, out.background)
+        return PointKernels(*out.functions, *sizes, *compiled, n_clearance=n_c)
 
     def _kernel_functions(
         self, control: str, torque: bool, momentum: bool, suffix: str, clearance: str = ""
@@ -591,7 +554,7 @@ class PlannerModel:
         if torque:
             parts.append(self.balance_torque_fun(control, momentum)(x, u, m))
         if clearance:  # the clearance rows at the arm configuration [q_M; q_B]
-            _, _, f = self._clearance[clearance]
+            _, f = self.collisions.rows[clearance]
             E, e = self.robot.mimic_matrix
             q = cs.vertcat(m[: self.n_M], x[3 : 3 + self.n_B])
             parts.append(f(cs.DM(E) @ q + cs.DM(e)))

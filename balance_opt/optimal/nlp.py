@@ -182,7 +182,7 @@ def _outer_problem(
         torque=torque,
         parameters=par,
         clearance=kernels.clearance(Y),
-        clearance_labels=model.clearance_labels(key.collision),
+        clearance_labels=model.collisions.labels(key.collision),
     )
     rows, row_kinds, parts = BlockStack(), [], []
     for kind in kinds:

@@ -13,17 +13,11 @@ import numpy as np
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.optimal.collocation import Transcription
+from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE
 
-#: How far below its value at ``t = 0`` a collision row that starts inside the margin is
-#: bounded [m] (a bound equal to the fixed initial value would leave no interior).
-COLLISION_SLACK = 1e-3
-#: The collision rows hold the margin plus this at the collocation points [m]: the motion
-#: between two points bends toward a body by about this much on the capture task, and every
-#: dip below the margin costs a refinement round (a full re-solve).
-COLLISION_ALLOWANCE = 2e-3
 
 
 def check_problem(
