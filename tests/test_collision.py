@@ -68,7 +68,8 @@ def toy():
 def test_geometry_source_pairs_and_errors(toy, baxter):
     geometry = RobotGeometry(toy)
     assert geometry.source == "collision"
-    assert RobotGeometry(FloatingRobot(toy_urdf(("visual",)), ["yaw"], ["turn", "swing"])).source == "visual"
+    visual = FloatingRobot(toy_urdf(("visual",)), ["yaw"], ["turn", "swing"])
+    assert RobotGeometry(visual).source == "visual"
     names = {frozenset(p.links) for p in geometry.pairs}
     # the boom is checked against the cube and the mast; the post is adjacent to both the cube
     # and the boom, its two objects one body
@@ -77,7 +78,7 @@ def test_geometry_source_pairs_and_errors(toy, baxter):
     ignored = RobotGeometry(toy, ignore=[["boom", "mast"]])
     assert ignored.ignored[("boom", "mast")] == "ignored"
     assert frozenset(("mast", "boom")) not in {frozenset(p.links) for p in ignored.pairs}
-    with pytest.raises(InputError, match=r"collision ignore pair \['boom', 'nose'\].*no geometry on nose"):
+    with pytest.raises(InputError, match=r"ignore pair \['boom', 'nose'\].*no geometry on nose"):
         RobotGeometry(toy, ignore=[["boom", "nose"]])
     bax = RobotGeometry(baxter)
     assert bax.srdf is not None and bax.srdf.name == "baxter_manipulation.srdf"
@@ -123,7 +124,14 @@ def test_fitted_shapes_never_farther_than_the_exact_geometry(name, request):
     f = cs.Function(
         "d",
         [q],
-        [cs.vertcat(*(shapes.shape_distance(fitted[of[p.first]], fitted[of[p.second]], frames) for p in pairs))],
+        [
+            cs.vertcat(
+                *(
+                    shapes.shape_distance(fitted[of[p.first]], fitted[of[p.second]], frames)
+                    for p in pairs
+                )
+            )
+        ],
     )
     E, e = robot.mimic_matrix
     close = 0
@@ -168,7 +176,8 @@ def test_clearance_finds_a_penetration_between_two_samples(toy):
     assert report.first_penetration.depth > 0.05
     assert report.min_distance < -0.05 and not report.collision_free
     data = report.to_dict()
-    assert data["first_penetration"]["pair"] == "base / boom" and data["geometry_source"] == "collision"
+    assert data["first_penetration"]["pair"] == "base / boom"
+    assert data["geometry_source"] == "collision"
     # the same motion on a fine grid agrees with the smallest distance found
     t = np.linspace(0, 1, 2001)
     grid = np.stack([np.interp(t, [0, 1], q[:, j]) for j in range(3)], axis=1)

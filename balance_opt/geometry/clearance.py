@@ -223,7 +223,8 @@ def clearance(
         return np.array([np.interp(time, t, q[:, j]) for j in range(q.shape[1])])
 
     state = (best, best_t, lower, first)
-    evaluations += _refine(geometry, index, items, configuration, state, (resolution, watch, min_step))
+    limits = (resolution, watch, min_step)
+    evaluations += _refine(geometry, index, items, configuration, state, limits)
     lower = np.minimum(lower, best)
     report = tuple(
         PairClearance(p.name, p.index, float(best[c]), float(best_t[c]), float(lower[c]))

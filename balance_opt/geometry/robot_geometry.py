@@ -73,7 +73,9 @@ def package_dirs(urdf_path: Path | None) -> list[str]:
         dist = None
     for f in (dist.files or ()) if dist is not None else ():
         parts = Path(str(f)).parts
-        if EXAMPLE_ROBOT_DATA in parts[:-1] and parts[parts.index(EXAMPLE_ROBOT_DATA) + 1] == "robots":
+        if EXAMPLE_ROBOT_DATA not in parts[:-1]:
+            continue
+        if parts[parts.index(EXAMPLE_ROBOT_DATA) + 1] == "robots":
             share = Path(str(dist.locate_file(Path(*parts[: parts.index(EXAMPLE_ROBOT_DATA)]))))
             out.append(str(share))
             break

@@ -158,8 +158,9 @@ def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
                 lo, hi = np.asarray(box.min_, dtype=float), np.asarray(box.max_, dtype=float)
                 centre = M.translation + M.rotation @ (0.5 * (lo + hi))
                 half = 0.5 * (hi - lo)
+                rotation = M.rotation.copy()
                 shapes.append(
-                    Shape(name, body, "box", centre, centre, 0.0, M.rotation.copy(), half, (group[0],))
+                    Shape(name, body, "box", centre, centre, 0.0, rotation, half, tuple(group))
                 )
                 continue
             exact = _capsule_of_primitive(first) if len(group) == 1 else None

@@ -53,6 +53,9 @@ The modules, top down:
   constraint vectors.
 * :mod:`~balance_opt.optimal.constraints`: the constraint kinds, and what holds where (on the
   continuous motion, or at the collocation points).
+* :mod:`~balance_opt.optimal.collision`: collision avoidance (on by default): the pairs a
+  problem keeps apart, its rows, their check with exact distances and their refinement
+  (``docs/collision.md``).
 * :mod:`~balance_opt.optimal.guess`: the initial guesses.
 * :mod:`~balance_opt.optimal.collocation`: the transcriptions and the continuous, piecewise
   polynomial motion of the balance joints they describe.

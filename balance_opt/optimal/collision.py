@@ -213,7 +213,8 @@ def tighten(problem, result, dry: bool = False) -> list[str]:
     short = _short(problem, result)
     if not short:
         return []
-    said = [f"collision rows of {len(short)} pairs (closest {short[0].pair}, {short[0].distance:.4f} m)"]
+    closest = f"closest {short[0].pair}, {short[0].distance:.4f} m"
+    said = [f"collision rows of {len(short)} pairs ({closest})"]
     if dry:
         return said
     margin, setup, N = problem.options.collision_margin, problem.collision, problem.N

@@ -161,7 +161,9 @@ class Constraint:
         ``None``."""
         return None
 
-    def tighten(self, problem: BalanceProblem, result: BalanceResult, dry: bool = False) -> list[str]:
+    def tighten(
+        self, problem: BalanceProblem, result: BalanceResult, dry: bool = False
+    ) -> list[str]:
         """Tighten this kind's bounds where the re-simulated ``result`` breaks it (unless
         ``dry``) before the refinement solves again (:func:`~balance_opt.optimal.refine.refine`);
         returns what it tightened, in words."""
