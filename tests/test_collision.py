@@ -251,6 +251,16 @@ def test_pairs_in_contact_at_the_start_are_reported_and_left_out(caplog):
     assert [p.name for p in nlp.collision.initial_contacts] == ["base / boom"]
     assert "base / boom" in caplog.text
     assert "base / boom" not in {p.name for p in nlp.collision.pairs}
+    bare = FloatingRobot(toy_urdf(tags=()), ["yaw"], ["turn", "swing"])
+    with pytest.raises(InputError, match="has no <collision> or <visual> geometry"):
+        RobotGeometry(bare)
+    nlp = build_balance_nlp(
+        PlannerModel(bare, compile=False, store=False),
+        PointToPoint([0.0], [0.6], 3.0),
+        [0.0, 0.0],
+        PlannerOptions(intervals=10),
+    )
+    assert nlp.collision is None  # nothing to keep apart: the plan goes without
     off = build_balance_nlp(
         model,
         PointToPoint([0.0], [0.6], 3.0),

@@ -43,6 +43,10 @@ log = logging.getLogger(__name__)
 EXAMPLE_ROBOT_DATA = "example-robot-data"
 
 
+class NoGeometryError(InputError):
+    """A URDF without any ``<collision>`` or ``<visual>`` element."""
+
+
 @dataclass(frozen=True)
 class Pair:
     """A pair of geometry objects checked against each other.
@@ -143,9 +147,12 @@ class RobotGeometry:
                 self.model, text, kind, package_dirs=package_dirs(urdf_path)
             )
         except ValueError as exc:
-            raise InputError(f"geometry of {robot.source}: {exc}") from exc
+            raise InputError(
+                f"geometry of {robot.source}: {exc} (plan without collision avoidance: "
+                "optimal.collision.avoid: false)"
+            ) from exc
         if geom.ngeoms == 0:
-            raise InputError(f"{robot.source} has no <collision> or <visual> geometry")
+            raise NoGeometryError(f"{robot.source} has no <collision> or <visual> geometry")
         for obj in geom.geometryObjects:
             if hasattr(obj.geometry, "buildConvexRepresentation"):  # a mesh: its hull
                 obj.geometry.buildConvexRepresentation(True)

@@ -20,7 +20,7 @@ import casadi as cs
 import numpy as np
 
 from balance_opt.geometry.clearance import ClearanceReport, PairClearance, clearance
-from balance_opt.geometry.robot_geometry import Pair, RobotGeometry
+from balance_opt.geometry.robot_geometry import NoGeometryError, Pair, RobotGeometry
 from balance_opt.geometry.shapes import ClearanceRows, clearance_rows, moved_by
 
 log = logging.getLogger(__name__)
@@ -139,7 +139,11 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
 
 
 def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup | None:
-    geometry = models.geometry(options.collision_ignore)
+    try:
+        geometry = models.geometry(options.collision_ignore)
+    except NoGeometryError as exc:  # nothing to keep apart
+        log.info("no collision avoidance: %s", exc)
+        return None
     robot = geometry.robot
     moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
     contacts = geometry.contacts(q0)
