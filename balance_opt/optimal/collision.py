@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
+import pinocchio as pin
 
 from balance_opt.geometry.clearance import ClearanceReport, PairClearance, clearance
 from balance_opt.geometry.robot_geometry import NoGeometryError, Pair, RobotGeometry
@@ -124,6 +125,41 @@ def _moving_rows(geometry: RobotGeometry, rows: ClearanceRows) -> ClearanceRows:
     return dataclasses.replace(rows, rows=tuple(rows.rows[k] for k in keep))
 
 
+def _out_of_reach(geometry: RobotGeometry, pairs, moved: set[int], beyond: float) -> set[int]:
+    """The pairs (indices) of a body the balance joints move and an object fixed to the base
+    that can never come within ``beyond`` [m] of each other: the balance arm's first joint
+    turns about a fixed point, its bodies stay within their reach of it
+    (:attr:`RobotGeometry.reach`), and the object's bounding sphere is farther (Talos's legs
+    from its arm). Their rows would only cost: they are left out of the NLP."""
+    model, geom = geometry.model, geometry.geometry_model
+    root = int(min(o.parentJoint for o in geom.geometryObjects))
+    column = {j: c for c, j in enumerate(geometry.moving_joints)}
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    gdata = pin.GeometryData(geom)
+    pin.updateGeometryPlacements(model, data, geom, gdata)
+    out = set()
+    for p in pairs:
+        a, b = p.first, p.second
+        if geometry.body(a) not in moved:
+            a, b = b, a
+        if geometry.body(b) != root:
+            continue
+        j = geometry.body(a)  # the first joint of its chain the balance joints move
+        while int(model.parents[j]) in moved:
+            j = int(model.parents[j])
+        kind = model.joints[j].shortname()
+        if int(model.parents[j]) != root or kind.startswith(("JointModelP", "JointModelPrism")):
+            continue
+        box = geom.geometryObjects[b].geometry.aabb_local
+        lo, hi = np.asarray(box.min_), np.asarray(box.max_)
+        centre = gdata.oMg[b].act(0.5 * (lo + hi))
+        gap = np.linalg.norm(centre - data.oMi[j].translation) - 0.5 * np.linalg.norm(hi - lo)
+        if gap - geometry.reach[a, column[j]] > beyond:
+            out.add(p.index)
+    return out
+
+
 def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
     """The collision avoidance of a problem of ``model`` (a
     :class:`~balance_opt.optimal.model.PlannerModel`) starting at the arm configuration ``q0``;
@@ -159,6 +195,9 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
         if p.index in touching:
             continue
         (pairs if {geometry.body(p.first), geometry.body(p.second)} & moved else fixed).append(p)
+    out_of_reach = _out_of_reach(geometry, pairs, moved, options.collision_margin + WATCH)
+    fixed += [p for p in pairs if p.index in out_of_reach]
+    pairs = [p for p in pairs if p.index not in out_of_reach]
     if not pairs:
         return None
     rows = clearance_rows(geometry, pairs, moved)
