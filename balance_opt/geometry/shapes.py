@@ -350,13 +350,14 @@ class ClearanceRows:
 
 
 def clearance_rows(
-    geometry: RobotGeometry, pairs, moved_by_balance: set[int], alone=frozenset()
+    geometry: RobotGeometry, pairs, moved_by_balance: set[int], alone=frozenset(), skip=()
 ) -> ClearanceRows:
     """The planner's rows for the checked geometry pairs ``pairs`` (:class:`Pair` list) that
     involve a body the balance joints move (``moved_by_balance``: joints of ``robot.model``):
     each shape pair goes to the row of its body the balance joints move (the deeper one when
     both do), or to a row of its own if it is in ``alone`` (shape index pairs, that body's
-    first: pairs whose shapes start close, so that the bound of their row must start lower)."""
+    first: pairs whose shapes start close, so that the bound of their row must start lower);
+    shape pairs in ``skip`` get no row."""
     shapes = fit_shapes(geometry)
     of_object = {}
     for k, s in enumerate(shapes):
@@ -372,7 +373,8 @@ def clearance_rows(
             continue
         owner = max(moved, key=lambda b: depth[b])
         own, other = (s1, s2) if b1 == owner else (s2, s1)
-        rows.setdefault(owner, set()).add((own, other))
+        if (own, other) not in skip:
+            rows.setdefault(owner, set()).add((own, other))
     out = []
     for body in sorted(rows):
         shared = sorted(p for p in rows[body] if p not in alone)

@@ -58,7 +58,8 @@ class CollisionSetup:
         fixed_pairs: the checked pairs the balance joints do not move (reported only).
         initial_contacts: pairs in contact at the initial configuration, left out.
         initial_rows: the rows' values at the initial configuration [m].
-        owner: the row of each pair of ``pairs`` (by pair index).
+        owner: the row of each pair of ``pairs`` (by pair index; ``None``: held by the check
+            alone, its fitted shapes overlapping at the start).
     """
 
     geometry: RobotGeometry
@@ -67,7 +68,7 @@ class CollisionSetup:
     fixed_pairs: list[Pair]
     initial_contacts: list[Pair]
     initial_rows: np.ndarray
-    owner: dict[int, int]
+    owner: dict[int, int | None]
 
     @property
     def key(self) -> str:
@@ -207,11 +208,19 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     shape_pairs, distances = rows.pair_distances(geometry)
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
-    rows = _moving_rows(geometry, clearance_rows(geometry, pairs, moved, alone))
+    # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
+    # distance is least smooth (Ipopt got stuck on Talos's shoulder in its torso's box); the
+    # check alone holds these pairs (a penetration fails the plan)
+    overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
+    rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
+    rows = _moving_rows(geometry, rows)
     if not rows.rows:
         return None
-    kept = [p for p in pairs if rows.row_of(p) is not None]
-    fixed += [p for p in pairs if rows.row_of(p) is None]
+    shape_of = {i: k for k, s in enumerate(rows.shapes) for i in s.objects}
+    unrowed = [p for p in pairs if (shape_of[p.first], shape_of[p.second]) in overlap]
+    unrowed += [p for p in pairs if (shape_of[p.second], shape_of[p.first]) in overlap]
+    kept = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
+    fixed += [p for p in pairs if p not in kept]
     pairs = kept
     f = models.function(geometry, rows)
     initial = np.array(f(E @ q0 + e)).ravel()
@@ -265,6 +274,8 @@ def tighten(problem, result, dry: bool = False) -> list[str]:
     q = np.hstack([result.q_M, result.q_B])
     for pair in short:
         row = setup.owner[pair.index]
+        if row is None:  # a pair the check alone holds
+            continue
         d = setup.geometry.distances_along(q, pair.index)
         times = np.append(result.t[d < margin], pair.time)
         for k in np.unique(np.minimum((times / problem.h).astype(int), N - 1)):
