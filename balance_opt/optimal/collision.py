@@ -60,6 +60,8 @@ class CollisionSetup:
         initial_rows: the rows' values at the initial configuration [m].
         owner: the row of each pair of ``pairs`` (by pair index; ``None``: held by the check
             alone, its fitted shapes overlapping at the start).
+        threshold: the distance each pair of ``pairs`` is held to [m]: the margin, or its
+            exact distance at the start if smaller.
     """
 
     geometry: RobotGeometry
@@ -69,6 +71,7 @@ class CollisionSetup:
     initial_contacts: list[Pair]
     initial_rows: np.ndarray
     owner: dict[int, int | None]
+    threshold: dict[int, float]
 
     @property
     def key(self) -> str:
@@ -225,7 +228,9 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     f = models.function(geometry, rows)
     initial = np.array(f(E @ q0 + e)).ravel()
     owner = {p.index: rows.row_of(p) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner)
+    exact = geometry.distances(q0)
+    threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
+    return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner, threshold)
 
 
 # ---------------------------------------------------------------------------------- check
@@ -247,13 +252,21 @@ def report(problem, result) -> ClearanceReport:
     return out
 
 
-def _short(problem, result) -> list[PairClearance]:
-    """The pairs closer than the margin beyond :data:`TOLERANCE`, closest first."""
-    return report(problem, result).below(problem.options.collision_margin - TOLERANCE)
+def _short(problem, result, rowed: bool = False) -> list[PairClearance]:
+    """The pairs closer than their threshold (the margin, or their distance at the start if
+    smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first; with
+    ``rowed`` only those with a row (the ones the refinement can push)."""
+    setup = problem.collision
+    return [
+        p
+        for p in report(problem, result).below(problem.options.collision_margin)
+        if p.distance < setup.threshold[p.index] - TOLERANCE
+        and not (rowed and setup.owner[p.index] is None)
+    ]
 
 
 def shortfall(problem, result) -> PairClearance | None:
-    """The pair that comes closest, if closer than the margin (beyond :data:`TOLERANCE`)."""
+    """The pair that comes closest, if closer than its threshold (see :func:`_short`)."""
     short = _short(problem, result)
     return short[0] if short else None
 
@@ -262,7 +275,7 @@ def tighten(problem, result, dry: bool = False) -> list[str]:
     """Raise the rows of the pairs closer than the margin by their shortfall plus
     :data:`PUSH` on every interval where they are (and on the one of their minimum), unless
     ``dry``; returns what it raised, in words."""
-    short = _short(problem, result)
+    short = _short(problem, result, rowed=True)
     if not short:
         return []
     closest = f"closest {short[0].pair}, {short[0].distance:.4f} m"
@@ -274,8 +287,6 @@ def tighten(problem, result, dry: bool = False) -> list[str]:
     q = np.hstack([result.q_M, result.q_B])
     for pair in short:
         row = setup.owner[pair.index]
-        if row is None:  # a pair the check alone holds
-            continue
         d = setup.geometry.distances_along(q, pair.index)
         times = np.append(result.t[d < margin], pair.time)
         for k in np.unique(np.minimum((times / problem.h).astype(int), N - 1)):

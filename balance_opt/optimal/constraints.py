@@ -537,7 +537,7 @@ class Collision(Constraint):
         closest = collision.shortfall(problem, result)
         if closest is None:
             return None
-        amount = problem.options.collision_margin - closest.distance
+        amount = problem.collision.threshold[closest.index] - closest.distance
         return Violation(f"collision margin of {closest.pair}", closest.time, amount, "m")
 
     def tighten(self, problem, result, dry=False):
