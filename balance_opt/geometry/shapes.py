@@ -287,15 +287,6 @@ def shape_distance(first: Shape, second: Shape, frames: dict):
     return soft_min(out)
 
 
-def numeric_shape_distance(first: Shape, second: Shape, geometry: RobotGeometry, q) -> float:
-    """:func:`shape_distance` at the arm configuration ``q`` (numbers; for tests and checks)."""
-    qs = cs.SX.sym("q", len(geometry.moving_joints))
-    frames = joint_placements(geometry, qs)
-    f = cs.Function("d", [qs], [shape_distance(first, second, frames)])
-    E, e = geometry.robot.mimic_matrix
-    return float(f(E @ np.asarray(q, dtype=float) + e))
-
-
 # ---------------------------------------------------------------------------------- rows
 @dataclass(frozen=True)
 class ClearanceRows:
