@@ -2,8 +2,8 @@
 
 The motion is given by samples of the arm vector; between two samples it is the straight line
 in joint space (the re-simulated plans are sampled every 10 ms or finer, where that line is
-within ``h^2 |q_ddot| / 8`` of the plan). Exact distances (coal) are computed at every sample,
-and between samples *conservative advancement* bounds the motion: over an interval every point
+within ``h^2 |q_ddot| / 8`` of the plan). Exact distances (coal) are computed at samples,
+and between them *conservative advancement* bounds the motion: over an interval every point
 of a body moves at most ``sum_j |dq_j| R_j`` (``R_j``: the largest distance from joint ``j`` to
 a point of the body, a constant of the robot, :attr:`RobotGeometry.reach`), so a pair whose
 distances at the interval's ends are ``d_a``, ``d_b`` and whose two bodies move by at most ``M``
@@ -12,14 +12,20 @@ smallest distance so far (by more than ``resolution``), the interval is split at
 and the distance computed there, down to ``min_step``. A thin link swept through a body
 between two samples is found this way; a sampled check would miss it.
 
-Pairs that stay farther than ``watch`` are not refined that finely: their lower bound is
-certified above ``watch - resolution``, their minimum is the smallest one computed.
+Every pair's distance is computed at every :data:`COARSE`-th sample; an interval
+between them is split at its middle sample first (its halves bounded by the joints' travel
+over their samples), between two samples at its middle time. Pairs that stay farther than
+``watch`` are not refined that finely: their lower bound is certified above
+``watch - resolution``, their minimum is the smallest one computed. The first penetration's
+time is where its pair first touches, found from the start by the same bound (advancing by
+its distance over its bodies' largest speed).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import pinocchio as pin
@@ -32,6 +38,9 @@ RESOLUTION = 1e-3
 WATCH = 0.1
 #: Shortest interval the refinement splits [s].
 MIN_STEP = 1e-6
+#: Every pair's distance is computed at every this-many-th sample; the bound on the motion
+#: decides where the samples in between are needed (far pairs rarely need any).
+COARSE = 10
 
 
 @dataclass(frozen=True)
@@ -55,7 +64,8 @@ class PairClearance:
 
 @dataclass(frozen=True)
 class Penetration:
-    """The first penetration found: ``pair`` at ``time`` [s], ``depth`` [m] (> 0)."""
+    """The first penetration: ``pair`` touches first at ``time`` [s] and goes ``depth`` [m]
+    deep (its deepest over the motion)."""
 
     pair: str
     time: float
@@ -131,34 +141,74 @@ def _lower(da, db, motion):
     return np.where(np.abs(da - db) >= motion, np.minimum(da, db), 0.5 * (da + db - motion))
 
 
+def _pair_distance(geometry, pair: int, configuration):
+    """``distance(time)`` of one pair along the motion."""
+
+    def distance(time):
+        geometry.place(configuration(time))
+        gm, gd = geometry.geometry_model, geometry.geometry_data
+        return pin.computeDistance(gm, gd, pair).min_distance
+
+    return distance
+
+
+def _first_contact(distance, t, motion, until: float, tolerance: float = 1e-6) -> float:
+    """The first time a pair touches (distance within ``tolerance``), at the latest ``until``
+    (a time it does), by conservative advancement from ``t[0]``: on the step of the samples
+    ``k, k + 1`` its bodies approach at most at ``motion(k, k + 1) / (t[k+1] - t[k])``, so a
+    pair ``d`` apart cannot touch in the next ``d`` over that speed."""
+    k, tau = 0, float(t[0])
+    d = distance(tau)
+    for _ in range(100_000):  # converges geometrically; the bound only guards a stall
+        if d <= tolerance or tau >= until:
+            break
+        while k < t.size - 2 and t[k + 1] <= tau:
+            k += 1
+        speed = motion(k, k + 1) / (t[k + 1] - t[k])
+        tau = min(tau + d / speed, float(t[k + 1])) if speed > 0.0 else float(t[k + 1])
+        d = distance(tau)
+    return float(min(tau, until))
+
+
 def _refine(geometry, index, items, configuration, state, limits) -> int:
     """Split the intervals ``items`` until each pair's bound is settled (see the module
     docstring), updating ``state`` (best distance, its time, lower bound per pair, the
-    penetrations found) in place; returns the distances computed."""
+    penetrations found) in place; returns the distances computed. An item is
+    ``(pair column, t_a, t_b, d_a, d_b, motion bound, i_a, i_b)``: while the interval spans
+    more than one step of the samples ``i_a .. i_b`` it is split at a sample, whose halves'
+    bounds come from ``motion(i, j)``; below, at its middle (the straight line), halving it."""
     best, best_t, lower, first = state
-    resolution, watch, min_step = limits
+    resolution, watch, min_step, t, motion = limits
     geom, gdata = geometry.geometry_model, geometry.geometry_data
     evaluations = 0
     while items:
         by_time: dict[float, list] = {}
         for item in items:
-            by_time.setdefault(0.5 * (item[1] + item[2]), []).append(item)
+            ia, ib = item[6], item[7]
+            tm = t[(ia + ib) // 2] if ib - ia > 1 else 0.5 * (item[1] + item[2])
+            by_time.setdefault(float(tm), []).append(item)
         items = []
         for tm, group in sorted(by_time.items()):
             geometry.place(configuration(tm))
-            for c, ta, tb, da, db, m in group:
+            for c, ta, tb, da, db, m, ia, ib in group:
                 dm = pin.computeDistance(geom, gdata, int(index[c])).min_distance
                 evaluations += 1
                 if dm < best[c]:
                     best[c], best_t[c] = dm, tm
                 if dm <= 0.0:
                     first.append((tm, c))
-                for a, b, d1, d2 in ((ta, tm, da, dm), (tm, tb, dm, db)):
-                    bound = float(_lower(d1, d2, 0.5 * m))
+                if ib - ia > 1:
+                    im = (ia + ib) // 2
+                    halves = ((ta, tm, da, dm, motion(ia, im, c), ia, im),
+                              (tm, tb, dm, db, motion(im, ib, c), im, ib))
+                else:
+                    halves = ((ta, tm, da, dm, 0.5 * m, ia, ib), (tm, tb, dm, db, 0.5 * m, ia, ib))
+                for a, b, d1, d2, mh, i1, i2 in halves:
+                    bound = float(_lower(d1, d2, mh))
                     if bound >= min(best[c], watch) - resolution or b - a <= min_step:
                         lower[c] = min(lower[c], bound)
                     else:
-                        items.append((c, a, b, d1, d2, 0.5 * m))
+                        items.append((c, a, b, d1, d2, mh, i1, i2))
     return evaluations
 
 
@@ -186,44 +236,51 @@ def clearance(
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if q.shape[0] != t.size:
         raise ValueError(f"{t.size} times but {q.shape[0]} configurations")
-    E, e = geometry.robot.mimic_matrix
-    q_model = q @ E.T + e
     chosen = geometry.pairs if pairs is None else [geometry.pairs[k] for k in pairs]
+    if not chosen:
+        return ClearanceReport((), None, geometry.source, 0)
+    E, e = geometry.robot.mimic_matrix
+    # the joints' travel from the first sample: a body moves at most its reach times it
+    steps = np.abs(np.diff(q @ E.T + e, axis=0))
+    travel = np.vstack([np.zeros((1, E.shape[0])), np.cumsum(steps, axis=0)])
+    reach = geometry.reach
+    coef = np.stack([reach[p.first] + reach[p.second] for p in chosen])  # (P, n_moving)
+
+    def motion(i, j, c):
+        return float((travel[j] - travel[i]) @ coef[c])
+
     geom, gdata = geometry.geometry_model, geometry.geometry_data
     model, data = geometry.model, geometry.data
     index = np.array([p.index for p in chosen], dtype=int)
-    D = np.empty((t.size, index.size))
-    for k in range(t.size):
+    # every pair at every COARSE-th sample; the refinement splits at the samples in between
+    coarse = np.unique(np.r_[np.arange(0, t.size, COARSE), t.size - 1])
+    D = np.empty((coarse.size, index.size))
+    for row, k in enumerate(coarse):
         pin.computeDistances(model, data, geom, gdata, geometry.pin_q(q[k]))
         results = gdata.distanceResults
-        D[k] = [results[int(i)].min_distance for i in index]
+        D[row] = [results[int(i)].min_distance for i in index]
     evaluations = D.size
-    if index.size == 0:
-        return ClearanceReport((), None, geometry.source, 0)
-    reach = geometry.reach
-    coef = np.stack([reach[p.first] + reach[p.second] for p in chosen])  # (P, n_moving)
-    motion = np.abs(np.diff(q_model, axis=0)) @ coef.T  # (T-1, P)
     best_k = D.argmin(axis=0)
     best = D[best_k, np.arange(index.size)]
-    best_t = t[best_k]
+    best_t = t[coarse[best_k]]
     lower = best.copy()
     neg = D <= 0.0
-    first = [(float(t[np.argmax(neg[:, c])]), c) for c in range(index.size) if neg[:, c].any()]
-    # intervals to split: (pair column, t_a, t_b, d_a, d_b, motion)
-    items = []
-    if t.size > 1:
-        lb = _lower(D[:-1], D[1:], motion)
-        target = np.minimum(best, watch) - resolution
-        for k, c in zip(*np.nonzero(lb < target)):
-            items.append((c, t[k], t[k + 1], D[k, c], D[k + 1, c], motion[k, c]))
-        fine = lb >= target
-        lower = np.minimum(lower, np.where(fine, lb, np.inf).min(axis=0))
+    first = [(t[coarse[np.argmax(neg[:, c])]], c) for c in range(index.size) if neg[:, c].any()]
+    items = []  # see _refine
+    target = np.minimum(best, watch) - resolution
+    for r in range(coarse.size - 1):
+        ia, ib = int(coarse[r]), int(coarse[r + 1])
+        m = (travel[ib] - travel[ia]) @ coef.T
+        lb = _lower(D[r], D[r + 1], m)
+        for c in np.flatnonzero(lb < target):
+            items.append((c, t[ia], t[ib], D[r, c], D[r + 1, c], m[c], ia, ib))
+        lower = np.minimum(lower, np.where(lb >= target, lb, np.inf))
 
     def configuration(time):
         return np.array([np.interp(time, t, q[:, j]) for j in range(q.shape[1])])
 
     state = (best, best_t, lower, first)
-    limits = (resolution, watch, min_step)
+    limits = (resolution, watch, min_step, t, motion)
     evaluations += _refine(geometry, index, items, configuration, state, limits)
     lower = np.minimum(lower, best)
     report = tuple(
@@ -232,8 +289,13 @@ def clearance(
     )
     penetration = None
     if first:
-        tp, c = min(first)
-        geometry.place(configuration(tp))
-        depth = -pin.computeDistance(geom, gdata, int(index[c])).min_distance
-        penetration = Penetration(chosen[c].name, float(tp), float(depth))
+        # the earliest contact of each penetrating pair, found from the start by conservative
+        # advancement (the refinement finds penetrations, not where they begin)
+        contacts = []
+        for c in sorted({c for _, c in first}):
+            distance = _pair_distance(geometry, int(index[c]), configuration)
+            until = min(tn for tn, k in first if k == c)
+            contacts.append((_first_contact(distance, t, partial(motion, c=c), until), c))
+        tp, c = min(contacts)
+        penetration = Penetration(chosen[c].name, float(tp), float(-best[c]))
     return ClearanceReport(report, penetration, geometry.source, evaluations)
