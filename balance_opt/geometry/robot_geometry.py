@@ -193,6 +193,7 @@ class RobotGeometry:
         self._drop(lambda a, b: frozenset((self._link(a), self._link(b))) in wanted, "ignored")
         self.geometry_data = pin.GeometryData(geom)
         self.data = self.model.createData()
+        self.pairs: list[Pair] = self._make_pairs()
 
     # ------------------------------------------------------------------ pairs
     def link(self, index: int) -> str:
@@ -203,7 +204,7 @@ class RobotGeometry:
         return self.model.frames[obj.parentFrame].name
 
     def _pair_links(self) -> set[tuple[str, str]]:
-        return {tuple(sorted(p.links)) for p in self.pairs}
+        return {tuple(sorted(p.links)) for p in self._make_pairs()}
 
     def _drop(self, test, reason: str) -> None:
         geom = self.geometry_model
@@ -216,8 +217,7 @@ class RobotGeometry:
                 links = tuple(sorted((self._link(a), self._link(b))))
                 self.ignored.setdefault(links, reason)
 
-    @property
-    def pairs(self) -> list[Pair]:
+    def _make_pairs(self) -> list[Pair]:
         out = []
         for k, p in enumerate(self.geometry_model.collisionPairs):
             out.append(Pair(k, p.first, p.second, (self.link(p.first), self.link(p.second))))
