@@ -21,6 +21,10 @@ Those are counted per interval from the problem's structure (no CasADi needed):
   one (``n_g`` the defects and limit rows), plus ``3 n_B`` per torque row and 3 per attitude
   row (4 for the epigraph's, which also holds the peak variable).
 
+Collision avoidance's rows (one per point for each body the balance arm moves, at most, of a
+few non-zeros each; :mod:`balance_opt.optimal.collision`) are not counted: finding them needs
+the robot's geometry, and they are few next to the defects.
+
 A plan may build more than one NLP, all kept until it ends (:mod:`balance_opt.optimal.refine`):
 the peak objective is solved in stages (the integral objective's plan and the smooth peak on a
 coarser grid, :func:`~balance_opt.optimal.options.inner_intervals`, without the
