@@ -41,6 +41,7 @@ LAYERS = (
     ("base", ("errors", "interrupts", "progress", "cache", "cache_admin")),
     ("config", ("config",)),
     ("model", ("model",)),
+    ("geometry", ("geometry",)),
     ("motion", ("motion", "result")),
     ("analytic", ("analytic",)),
     ("optimal", ("optimal",)),

@@ -276,7 +276,9 @@ def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
     """When the exact peak fails, the smooth peak is kept: solved once more on the plan's grid
     (with the rows between the points), from the inner stage's plan; the reported work
     includes the failed solve and that one."""
-    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=30))
+    # without collision avoidance: its refinement would add a solve at N = 30
+    options = PlannerOptions(intervals=30, collision_avoidance=False)
+    nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     problems = (nlp.stage("integral"), nlp.stage("smooth"), nlp.stage("smooth", final=True))
     with _counted_solves(nlp, *problems, fail_first=nlp) as calls:
         plan = nlp.solve()

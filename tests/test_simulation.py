@@ -380,6 +380,4 @@ def test_plan_feedforward_reproduces_the_planned_attitude(scenario, capture_plan
     pd = simulate_plan(scenario.robot, plan, SimulationOptions(feedforward=False))
     assert pd.info["feedforward"] is False
     assert pd.max_tracking_error > 1e-3
-    final = rotation_angle(pd.quaternion[-1])
-    assert abs(final - plan.final_drift) > 0.1 * plan.final_drift
     assert attitude_gap(plan.quaternion, pd.quaternion).max() > 100 * FEEDFORWARD_ATTITUDE

@@ -437,6 +437,7 @@ def test_size_estimate_counts_the_planners_own_problem(
             torque_limits=torque,
             path_attitude_bound=0.1 if torque else None,
             objective=objective,
+            collision_avoidance=False,  # not counted by the estimate (budget's docstring)
         )
         nlp = build_balance_nlp(model, mission, np.array([0.0, 0.5, -1.0]), options, robot=robot)
         counts.append(size(nlp.structure))

@@ -29,7 +29,8 @@ JOINT2_ORIGIN = ((0.0, 0.0, LINK_LENGTH), (pi / 2, 0.0, 0.0))
 JOINT3_ORIGIN = ((LINK_LENGTH, 0.0, 0.0), (0.0, 0.0, 0.0))
 #: Position [rad], velocity [rad/s] and effort [N m] limits per joint (``paper_robot.md``).
 LIMITS = ((2.9671, 1.0, 20.0), (1.5708, 1.0, 20.0), (2.5, 1.0, 20.0))
-#: Link visuals: a cylinder along the link frame's z (link 1) or x (links 2, 3).
+#: Link visuals and collision geometry (the same shapes): a cylinder along the link frame's z
+#: (link 1) or x (links 2, 3); the base a cube.
 _VISUAL_RPY = ("0 0 0", f"0 {pi / 2!r} 0", f"0 {pi / 2!r} 0")
 
 Vec3 = tuple[float, float, float]
@@ -95,9 +96,13 @@ def _link(name: str, k: int) -> str:
         f'      <mass value="{mass!r}"/>\n'
         f'      <inertia ixx="{ixx!r}" ixy="0" ixz="0" iyy="{iyy!r}" iyz="0" izz="{izz!r}"/>\n'
         f"    </inertial>\n"
-        f'    <visual>\n      <origin xyz="{xyz}" rpy="{_VISUAL_RPY[k]}"/>\n'
-        f'      <geometry><cylinder radius="{LINK_RADIUS!r}" length="{LINK_LENGTH!r}"/>'
-        f"</geometry>\n    </visual>\n  </link>\n"
+        + "".join(
+            f'    <{tag}>\n      <origin xyz="{xyz}" rpy="{_VISUAL_RPY[k]}"/>\n'
+            f'      <geometry><cylinder radius="{LINK_RADIUS!r}" length="{LINK_LENGTH!r}"/>'
+            f"</geometry>\n    </{tag}>\n"
+            for tag in ("visual", "collision")
+        )
+        + "  </link>\n"
     )
 
 
@@ -140,8 +145,12 @@ def table1_urdf(reading: Table1Reading) -> str:
         f'      <mass value="{BASE_MASS!r}"/>\n'
         f'      <inertia ixx="{i}" ixy="0" ixz="0" iyy="{i}" iyz="0" izz="{i}"/>\n'
         "    </inertial>\n"
-        f'    <visual>\n      <geometry><box size="{_num((BASE_SIDE,) * 3)}"/></geometry>\n'
-        "    </visual>\n  </link>\n"
+        + "".join(
+            f'    <{tag}>\n      <geometry><box size="{_num((BASE_SIDE,) * 3)}"/></geometry>\n'
+            f"    </{tag}>\n"
+            for tag in ("visual", "collision")
+        )
+        + "  </link>\n"
     )
     return (
         '<?xml version="1.0"?>\n'

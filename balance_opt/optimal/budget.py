@@ -11,6 +11,9 @@ point the kernels are nonlinear in, the Jacobian by a fit on the planner's own c
 builds (the peak objective's coarse stages, the free peak problem behind a path bound) until it
 ends: the estimate adds them up, each on its own grid. The constants per non-zero come from
 ``benchmarks/`` (peak resident memory and wall times on the paper robot and Baxter).
+Collision avoidance's rows (at most one per point for each body the balance arm moves, of a few
+non-zeros each; :mod:`balance_opt.optimal.collision`) are not counted: finding them needs the
+robot's geometry, and they are few next to the defects.
 """
 
 from __future__ import annotations

@@ -43,7 +43,8 @@ from balance_opt.errors import InputError
 from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.optimal.collocation import Transcription, bernstein_value
 from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey, unit_of
-from balance_opt.optimal.problem import BalanceProblem
+from balance_opt.optimal import collision
+from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
@@ -97,6 +98,8 @@ class SymbolicNLP:
         x_dot: the state derivatives at the points (n_x, n_points), nodes then midpoints.
         torque: the balance joints' torques at the points (n_B, n_points), or ``None``.
         parameters: the parameter vector's fields.
+        clearance: the collision rows at the points (n_c, n_points), or ``None``.
+        clearance_labels: a label per collision row.
     """
 
     key: StructureKey
@@ -108,6 +111,8 @@ class SymbolicNLP:
     x_dot: Any
     torque: Any
     parameters: NLPParameters
+    clearance: Any = None
+    clearance_labels: tuple[str, ...] = ()
 
 
 #: Rows a kind adds to ``g``: a block (not yet stacked) and its values, (rows, columns), symbolic.
@@ -156,6 +161,17 @@ class Constraint:
         """The worst violation by the re-simulated motion beyond :data:`LIMIT_TOLERANCE`, or
         ``None``."""
         return None
+
+    def tighten(self, problem: BalanceProblem, result: BalanceResult) -> tuple[dict, list[str]]:
+        """This kind's bounds tightened where the re-simulated ``result`` breaks it, for the
+        refinement's next problem (:func:`~balance_opt.optimal.refine.refine`): changes of
+        :class:`~balance_opt.optimal.problem.Bounds` (none: ``{}``) and what they tighten, in
+        words."""
+        return {}, []
+
+    def accept(self, problem: BalanceProblem, result: BalanceResult) -> None:
+        """Raise :class:`~balance_opt.optimal.problem.PlannerSolverError` if the refined plan
+        still breaks this kind so badly that it is no plan."""
 
 
 class Collocation(Constraint):
@@ -591,6 +607,55 @@ def _worst_state(problem, result, index: int, when: str, targets) -> Violation |
     return worst
 
 
+class Collision(Constraint):
+    """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
+    every collocation point, one row per body the balance joints move, the soft minimum of
+    its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
+    ``problem.collision_bound``). The shapes contain the bodies, so at the points the exact
+    distances are at least as large. Between the points the check measures the exact
+    distances (coal) on the re-simulated motion; where a pair comes closer than the margin,
+    the refinement raises its row's bound on the intervals around it (:meth:`tighten`), and a
+    plan that still penetrates after it fails, naming the pair and the time (:meth:`accept`)."""
+
+    name = "collision"
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        labels = tuple(f"{label} (soft minimum)" for label in nlp.clearance_labels)
+        block = Block(
+            "collision clearance",
+            labels,
+            ("m",) * len(labels),
+            nlp.transcription.point_taus(nlp.key.intervals),
+        )
+        return [(block, nlp.clearance)]
+
+    def row_bounds(self, problem, block):
+        return problem.collision_bound.ravel(order="F"), np.full(block.size, np.inf)
+
+    def check(self, problem, result):
+        closest = collision.shortfall(problem, result)
+        if closest is None:
+            return None
+        amount = problem.collision.threshold[closest.index] - closest.distance
+        return Violation(f"collision margin of {closest.pair}", closest.time, amount, "m")
+
+    def tighten(self, problem, result):
+        return collision.tighten(problem, result)
+
+    def accept(self, problem, result):
+        pen = collision.penetration(problem, result)
+        if pen is not None:
+            raise PlannerSolverError(
+                f"no collision-free plan found: {pen.pair} penetrate by {pen.depth:.4g} m at "
+                f"t = {pen.time:.3f} s",
+                "Collision",
+                result,
+                f"collision of {pen.pair}",
+                pen.time,
+                pen.depth,
+            )
+
+
 def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
     """The constraint kinds of a structure, in the order of their rows in ``g`` and of their
     variable bounds (later kinds override earlier ones: the fixed initial and end values win
@@ -612,5 +677,7 @@ def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
         kinds.append(PathAttitudeBound())
     if key.terminal_attitude_bound:
         kinds.append(TerminalAttitudeBound())
+    if key.collision:
+        kinds.append(Collision())
     kinds += [InitialState(), EndConditions()]
     return tuple(kinds)

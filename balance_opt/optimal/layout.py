@@ -69,6 +69,9 @@ class StructureKey:
         ipopt: the extra Ipopt options, as sorted ``(name, repr(value))`` pairs.
         momentum: whether the kernels carry the momentum terms (a non-zero ``h0``; its value
             is a parameter).
+        collision: the content key of the collision rows
+            (:class:`~balance_opt.geometry.shapes.ClearanceRows`: fitted shapes and the pairs
+            kept apart), ``""`` without collision avoidance.
     """
 
     intervals: int
@@ -84,15 +87,17 @@ class StructureKey:
     ipopt: tuple[tuple[str, str], ...]
     momentum: bool = False
     between_points: bool = True
+    collision: str = ""
 
     @classmethod
-    def of(cls, limits, options, momentum: bool = False) -> StructureKey:
+    def of(cls, limits, options, momentum: bool = False, collision: str = "") -> StructureKey:
         """The key of a problem.
 
         Args:
             limits: the balance joints' :class:`~balance_opt.model.robot.JointLimits`.
             options: the :class:`~balance_opt.optimal.options.PlannerOptions`.
             momentum: whether the problem has a non-zero momentum ``h0``.
+            collision: the collision rows' key (``CollisionSetup.key``; ``""``: none).
         """
         enforced = {
             "position": options.position_limits
@@ -116,6 +121,7 @@ class StructureKey:
             max_iterations=int(options.max_iterations),
             ipopt=tuple(sorted((k, repr(v)) for k, v in options.ipopt.items())),
             momentum=bool(momentum),
+            collision=collision if options.collision_avoidance else "",
         )
 
 

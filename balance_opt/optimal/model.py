@@ -56,6 +56,7 @@ from balance_opt.model.symbolic import (
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
 from balance_opt.optimal import codegen
+from balance_opt.optimal.collision import CollisionModels
 from balance_opt.optimal.model_store import FunctionStore, model_key
 from balance_opt.optimal.options import CONTROLS
 
@@ -84,7 +85,9 @@ def check_control(control: str) -> str:
 class PointKernels:
     """The NLP's nonlinear work at one collocation point, with its exact derivatives.
 
-    ``y = [x_dot (n_x); L; tau_B (n_B, only with torque limits)]`` is a function of the point's
+    ``y = [x_dot (n_x); L; tau_B (n_B, only with torque limits); c (n_c, only with collision
+    avoidance)]`` (``c``: the clearance rows, :mod:`balance_opt.optimal.collision`) is a
+    function of the point's
     decision variables ``z = [x; u]`` and of its data (mission sample ``m``, running weights,
     ``q_rest``). The NLP maps these over all points and assembles its gradient, Jacobian and
     Hessian from them (:mod:`balance_opt.optimal.nlp`): the rest of the NLP is linear in the
@@ -117,12 +120,18 @@ class PointKernels:
     compile_time: float = 0.0
     library: str | None = None
     background: bool = False
+    n_clearance: int = 0
 
     def split(self, Y) -> tuple:
         """``(x_dot, L, tau_B)``: the rows of kernel outputs ``Y`` (n_y, n_points); ``tau_B`` is
         ``None`` without torques."""
-        torque = Y[self.n_x + 1 :, :] if self.n_y > self.n_x + 1 else None
+        end = self.n_y - self.n_clearance
+        torque = Y[self.n_x + 1 : end, :] if end > self.n_x + 1 else None
         return Y[: self.n_x, :], Y[self.n_x, :], torque
+
+    def clearance(self, Y):
+        """The clearance rows of kernel outputs ``Y`` (n_c, n_points), or ``None``."""
+        return Y[self.n_y - self.n_clearance :, :] if self.n_clearance else None
 
     @property
     def jacobian_sparsity(self) -> cs.Sparsity:
@@ -190,6 +199,8 @@ class PlannerModel:
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
         self.nlp_cache: dict = {}
+        # the robot's geometry and collision rows (balance_opt.optimal.collision)
+        self.collisions = CollisionModels(robot)
 
     @property
     def maps(self) -> SymbolicMaps:
@@ -439,16 +450,22 @@ class PlannerModel:
         return self._cached(f"balance_torque_{check_control(control)}{_tag(momentum)}", make)
 
     # ------------------------------------------------------------------ kernels
-    def n_y(self, control: str, torque: bool) -> int:
+    def n_y(self, control: str, torque: bool, clearance: str = "") -> int:
         """Size of a point kernel's output ``y``."""
-        return self.n_x(control) + 1 + (self.n_B if torque else 0)
+        n_c = len(self.collisions.rows[clearance][0].rows) if clearance else 0
+        return self.n_x(control) + 1 + (self.n_B if torque else 0) + n_c
 
     def kernels(
-        self, control: str = "acceleration", torque: bool = False, momentum: bool = False
+        self,
+        control: str = "acceleration",
+        torque: bool = False,
+        momentum: bool = False,
+        clearance: str = "",
     ) -> PointKernels:
-        """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting,
-        built once (and compiled once, if the model compiles)."""
-        key = (check_control(control), bool(torque), bool(momentum))
+        """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting
+        and collision rows (their key, registered in :attr:`collisions`), built once
+        (and compiled once, if the model compiles)."""
+        key = (check_control(control), bool(torque), bool(momentum), clearance)
         if key not in self._kernels:
             self._kernels[key] = self._make_kernels(*key)
         return self._kernels[key]
@@ -480,22 +497,30 @@ class PlannerModel:
             if loaded is None:
                 continue
             sizes = (kernels.n_x, kernels.n_z, kernels.n_y)
-            self._kernels[variant] = PointKernels(*loaded, *sizes, True, 0.0, kernels.library)
+            self._kernels[variant] = PointKernels(
+                *loaded, *sizes, True, 0.0, kernels.library, n_clearance=kernels.n_clearance
+            )
             for key in [
-                k for k in self.nlp_cache if (k.control, k.torque_limits, k.momentum) == variant
+                k
+                for k in self.nlp_cache
+                if (k.control, k.torque_limits, k.momentum, k.collision) == variant
             ]:
                 del self.nlp_cache[key]
             log.info("planner kernels of %s: compiled library loaded", self.robot.name)
             swapped += 1
         return swapped
 
-    def _make_kernels(self, control: str, torque: bool, momentum: bool) -> PointKernels:
+    def _make_kernels(
+        self, control: str, torque: bool, momentum: bool, clearance: str
+    ) -> PointKernels:
         """The kernels from the compiled library (no expression built), else from the disk
         store or built, compiled now or in the background as :attr:`compile` says."""
         suffix = f"{control}{'_torque' if torque else ''}{_tag(momentum)}"
+        suffix += f"_c{clearance}" if clearance else ""
         names = [f"balance_kernel{part}_{suffix}" for part in ("", "_jac", "_grad", "_hess")]
         n_x = self.n_x(control)
-        sizes = (n_x, n_x + self.n_u, self.n_y(control, torque))
+        sizes = (n_x, n_x + self.n_u, self.n_y(control, torque, clearance))
+        n_c = sizes[2] - self.n_y(control, torque)
         digest = f"{self.key}/{suffix}" if self.store is not None else None
         compiler = codegen.find_compiler() if self.compile else None
         if compiler is not None and digest is not None:
@@ -505,13 +530,13 @@ class PlannerModel:
             except BlockingIOError:  # being compiled by another process
                 loaded = None
             if loaded is not None:
-                return PointKernels(*loaded, *sizes, True, 0.0, str(library))
+                return PointKernels(*loaded, *sizes, True, 0.0, str(library), n_clearance=n_c)
         functions = self._stored(
             f"kernels_{suffix}",
-            lambda: self._kernel_functions(control, torque, momentum, suffix),
+            lambda: self._kernel_functions(control, torque, momentum, suffix, clearance),
         )
         if not self.compile:
-            return PointKernels(*functions, *sizes)
+            return PointKernels(*functions, *sizes, n_clearance=n_c)
         try:
             out = codegen.compile_functions(
                 functions,
@@ -522,15 +547,14 @@ class PlannerModel:
             )
         except (OSError, RuntimeError) as exc:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
-            return PointKernels(*functions, *sizes)
+            return PointKernels(*functions, *sizes, n_clearance=n_c)
         if out.process is not None:
             self._compiling.append((out.process, out.library))
-        return PointKernels(
-            *out.functions, *sizes, out.compiled, out.compile_time, out.library, out.background
-        )
+        compiled = (out.compiled, out.compile_time, out.library, out.background)
+        return PointKernels(*out.functions, *sizes, *compiled, n_clearance=n_c)
 
     def _kernel_functions(
-        self, control: str, torque: bool, momentum: bool, suffix: str
+        self, control: str, torque: bool, momentum: bool, suffix: str, clearance: str = ""
     ) -> list[cs.Function]:
         """The four point kernels as SX functions (value, Jacobian, gradient, Hessian)."""
         n_x, n_u = self.n_x(control), self.n_u
@@ -543,6 +567,11 @@ class PlannerModel:
         parts = [x_dot, L]
         if torque:
             parts.append(self.balance_torque_fun(control, momentum)(x, u, m))
+        if clearance:  # the clearance rows at the arm configuration [q_M; q_B]
+            _, f = self.collisions.rows[clearance]
+            E, e = self.robot.mimic_matrix
+            q = cs.vertcat(m[: self.n_M], x[3 : 3 + self.n_B])
+            parts.append(f(cs.DM(E) @ q + cs.DM(e)))
         y = cs.vertcat(*parts)
         mu = cs.SX.sym("mu", y.numel())
         c = cs.SX.sym("c", y.numel())

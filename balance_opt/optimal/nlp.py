@@ -120,7 +120,7 @@ def build_structure(
         options: the planner settings the key was made of (for Ipopt's options).
     """
     start = time.perf_counter()
-    kernels = model.kernels(key.control, key.torque_limits, key.momentum)
+    kernels = model.kernels(key.control, key.torque_limits, key.momentum, key.collision)
     tr = Transcription(key.transcription)
     N, n_pts = key.intervals, tr.n_points(key.intervals)
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
@@ -182,6 +182,8 @@ def _outer_problem(
         x_dot=x_dot,
         torque=torque,
         parameters=par,
+        clearance=kernels.clearance(Y),
+        clearance_labels=model.collisions.labels(key.collision),
     )
     if key.objective == "peak":  # the only stage that prices it (BalanceNLP.update_bounds)
         cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)

@@ -247,7 +247,10 @@ class PlannerOptions:
             must be at least 2, got 1"``).
     """
 
-    __sections__: ClassVar[dict[str, str]] = {"constraints": "constraints of the optimal planner"}
+    __sections__: ClassVar[dict[str, str]] = {
+        "constraints": "constraints of the optimal planner",
+        "collision": "collision avoidance between the robot's bodies (docs/collision.md)",
+    }
 
     # 'peak': what users want (the stillest base); it solves in three stages (refine.plan_peak),
     # about 5.5 times the integral objective's Ipopt iterations on the 10 s capture task.
@@ -333,6 +336,28 @@ class PlannerOptions:
         per="balance joint",
         section="constraints",
         doc="prescribed final balance configuration, one value per balance joint",
+    )
+    # On by default: a plan that drives a link through the base is no plan (the capture task's
+    # unconstrained optimum does).
+    collision_avoidance: bool = setting(
+        True,
+        key="avoid",
+        section="collision",
+        doc="keep the bodies the balance joints move apart from every other body by the margin",
+    )
+    collision_margin: float = setting(
+        0.03,
+        unit="m",
+        minimum=0.0,
+        key="margin",
+        section="collision",
+        doc="smallest distance between the balance arm's bodies and the others (exact geometry)",
+    )
+    collision_ignore: tuple[tuple[str, ...], ...] = setting(
+        (),
+        key="ignore",
+        section="collision",
+        doc="pairs of links never checked against each other, e.g. [[balance_link3, base_link]]",
     )
     tolerance: float = setting(
         1e-8, exclusive_minimum=0.0, doc="Ipopt's convergence tolerance (tol)"

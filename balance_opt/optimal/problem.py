@@ -15,9 +15,11 @@ import numpy as np
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.optimal.collocation import Transcription
+from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE
+
 
 
 def check_problem(
@@ -112,17 +114,23 @@ class Bounds:
         terminal: the same for the terminal attitude bound.
         torque_factor: factor on the effort limits at each point (n_B, n_points), read-only.
         peak_reference: the drift ``c`` of the smooth peak stage [rad].
+        collision: lower bound of each collision row at each point (n_c, n_points) [m], or
+            ``None`` without collision avoidance; read-only.
     """
 
     path: float | None
     terminal: float | None
     torque_factor: np.ndarray
     peak_reference: float = 1.0
+    collision: np.ndarray | None = None
 
     def __post_init__(self):
-        factor = np.array(self.torque_factor, dtype=float)
-        factor.flags.writeable = False
-        object.__setattr__(self, "torque_factor", factor)
+        for name in ("torque_factor", "collision"):
+            value = getattr(self, name)
+            if value is not None:
+                value = np.array(value, dtype=float)
+                value.flags.writeable = False
+                object.__setattr__(self, name, value)
 
 
 class BalanceProblem:
@@ -136,6 +144,8 @@ class BalanceProblem:
         horizon: planning horizon [s], from :func:`check_problem`.
         h0: the system's constant total momentum, world frame (the base starts at the
             identity), ``[linear (N s); angular about the CoM (N m s)]``; ``None`` for zero.
+        collision: its collision avoidance
+            (:class:`~balance_opt.optimal.collision.CollisionSetup`), or ``None``.
 
     Attributes:
         model, robot, mission, q_B0, options, horizon: as given (``robot`` is the model's).
@@ -149,6 +159,11 @@ class BalanceProblem:
             ``torque_factor``, ``peak_reference`` read them): the options' until the
             refinement makes a new problem with lower ones.
         balance_joints: their names.
+        collision: as given.
+        collision_bound: lower bound of each collision row at each point (n_c, n_points) [m]:
+            the margin plus :data:`COLLISION_ALLOWANCE`, lower for a row that starts closer
+            (its value at ``t = 0`` less :data:`COLLISION_SLACK`: the arm starts there, at
+            rest), raised by the refinement where the re-simulated motion came too close.
     """
 
     def __init__(
@@ -160,6 +175,7 @@ class BalanceProblem:
         horizon: float,
         robot: FloatingRobot | None = None,
         h0=None,
+        collision=None,
     ):
         self.model = model
         # The task's robot: the model's kinematics, possibly other limits.
@@ -181,12 +197,27 @@ class BalanceProblem:
             q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
         )
         self.limits = self.robot.limits.subset(self.robot.balance_indices)
+        self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
+        self.collision = collision
+        collision_bound = None
+        if collision is not None:
+            start = np.minimum(
+                options.collision_margin + COLLISION_ALLOWANCE,
+                collision.initial_rows - COLLISION_SLACK,
+            )
+            collision_bound = np.tile(start[:, None], self.point_times.size)
         self.bounds = Bounds(
             options.path_attitude_bound,
             options.terminal_attitude_bound,
             np.ones((model.n_B, self.point_times.size)),
+            collision=collision_bound,
         )
-        self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
+        # the last clearance check and the result it checked (the refinement reads it)
+        self.last_clearance = None
+
+    @property
+    def collision_bound(self) -> np.ndarray | None:
+        return self.bounds.collision
 
     @property
     def path_bound(self) -> float | None:

@@ -382,6 +382,8 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     else:
         if _tighten(nlp, result)[1]:
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
+    for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure
+        kind.accept(nlp, result)
     extra = result.solver.solves[before:]
     refinement = Refinement(
         tuple(rounds), sum(s.iterations for s in extra), sum(s.solve_s for s in extra)
@@ -398,6 +400,10 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
         factor, words = _tighten_torques(nlp, result)
         if words:
             changes["torque_factor"], out = factor, words
+    for kind in nlp.structure.kinds:  # the kinds that tighten bounds of their own
+        more, words = kind.tighten(nlp, result)
+        changes.update(more)
+        out += words
     for field, bound, value in (
         ("path", nlp.options.path_attitude_bound, result.max_drift),
         ("terminal", nlp.options.terminal_attitude_bound, result.final_drift),

@@ -31,6 +31,7 @@ from balance_opt.motion.so3 import (
     quaternion_multiply,
     rotation_angle,
 )
+from balance_opt.optimal.collision import collision_setup
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution, resampled
@@ -77,8 +78,9 @@ class BalanceNLP(BalanceProblem):
         build_time: float = 0.0,
         robot: FloatingRobot | None = None,
         h0=None,
+        collision=None,
     ):
-        super().__init__(model, mission, q_B0, options, horizon, robot, h0)
+        super().__init__(model, mission, q_B0, options, horizon, robot, h0, collision)
         self.structure = structure
         self.setup_time = setup_time
         self.build_time = build_time
@@ -350,7 +352,9 @@ class BalanceNLP(BalanceProblem):
         status = str(stats.get("return_status", "unknown"))
         iters = stats.get("iterations", {})
         key = self.structure.key
-        kernels = self.model.kernels(self.control, key.torque_limits, key.momentum)
+        kernels = self.model.kernels(
+            self.control, key.torque_limits, key.momentum, key.collision
+        )
         return {
             "status": status,
             "success": status in SUCCESS_STATUSES,
@@ -453,7 +457,14 @@ def build_balance_nlp(
     robot = model.robot if robot is None else robot
     q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
     momentum = h0 is not None and bool(np.any(np.asarray(h0, dtype=float) != 0.0))
-    key = StructureKey.of(robot.limits.subset(robot.balance_indices), options, momentum)
+    q_M0 = np.atleast_2d(mission_trajectory.sample(np.zeros(1))[0])[0]
+    collision = collision_setup(model, options, np.concatenate([q_M0, q_B0]))
+    key = StructureKey.of(
+        robot.limits.subset(robot.balance_indices),
+        options,
+        momentum,
+        collision.key if collision is not None else "",
+    )
     if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
         key = dataclasses.replace(
             key, objective=stage, path_attitude_bound=False, between_points=between_points
@@ -474,6 +485,7 @@ def build_balance_nlp(
         build_time,
         robot,
         h0,
+        collision,
     )
 
 

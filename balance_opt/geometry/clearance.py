@@ -1,0 +1,301 @@
+"""How close a motion brings the robot's bodies to each other, on the continuous motion.
+
+The motion is given by samples of the arm vector; between two samples it is the straight line
+in joint space (the re-simulated plans are sampled every 10 ms or finer, where that line is
+within ``h^2 |q_ddot| / 8`` of the plan). Exact distances (coal) are computed at samples,
+and between them *conservative advancement* bounds the motion: over an interval every point
+of a body moves at most ``sum_j |dq_j| R_j`` (``R_j``: the largest distance from joint ``j`` to
+a point of the body, a constant of the robot, :attr:`RobotGeometry.reach`), so a pair whose
+distances at the interval's ends are ``d_a``, ``d_b`` and whose two bodies move by at most ``M``
+stays at least ``(d_a + d_b - M) / 2`` apart. Where that bound could be below the pair's
+smallest distance so far (by more than ``resolution``), the interval is split at its midpoint
+and the distance computed there, down to ``min_step``. A thin link swept through a body
+between two samples is found this way; a sampled check would miss it.
+
+Every pair's distance is computed at every :data:`COARSE`-th sample; an interval
+between them is split at its middle sample first (its halves bounded by the joints' travel
+over their samples), between two samples at its middle time. Pairs that stay farther than
+``watch`` are not refined that finely: their lower bound is certified above
+``watch - resolution``, their minimum is the smallest one computed. The first penetration's
+time is where its pair first touches, found from the start by the same bound (advancing by
+its distance over its bodies' largest speed).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.geometry.robot_geometry import RobotGeometry
+
+#: Precision of each pair's smallest distance on the continuous motion [m].
+RESOLUTION = 1e-3
+#: Pairs farther apart than this are only certified to stay beyond it [m].
+WATCH = 0.1
+#: Shortest interval the refinement splits [s].
+MIN_STEP = 1e-6
+#: Every pair's distance is computed at every this-many-th sample; the bound on the motion
+#: decides where the samples in between are needed (far pairs rarely need any).
+COARSE = 10
+
+
+@dataclass(frozen=True)
+class PairClearance:
+    """One pair's smallest distance over a motion.
+
+    Attributes:
+        pair: the two links (``"balance_link3 / base_link"``).
+        index: the pair's index in the geometry's pairs.
+        distance: the smallest distance computed [m] (negative: penetration depth).
+        time: when [s].
+        lower_bound: a bound the distance stays above on the whole continuous motion [m].
+    """
+
+    pair: str
+    index: int
+    distance: float
+    time: float
+    lower_bound: float
+
+
+@dataclass(frozen=True)
+class Penetration:
+    """The first penetration: ``pair`` touches first at ``time`` [s] and goes ``depth`` [m]
+    deep (its deepest over the motion)."""
+
+    pair: str
+    time: float
+    depth: float
+
+
+@dataclass(frozen=True)
+class ClearanceReport:
+    """The clearance of a motion (:func:`clearance`).
+
+    Attributes:
+        pairs: every checked pair's smallest distance, in the geometry's order.
+        first_penetration: the earliest penetration found, or ``None``.
+        source: the URDF elements the geometry came from (``"collision"``, ``"visual"``).
+        evaluations: exact distances computed.
+    """
+
+    pairs: tuple[PairClearance, ...]
+    first_penetration: Penetration | None
+    source: str
+    evaluations: int
+
+    @property
+    def closest(self) -> PairClearance | None:
+        """The pair that comes closest (``None`` without pairs)."""
+        return min(self.pairs, key=lambda p: p.distance, default=None)
+
+    @property
+    def min_distance(self) -> float:
+        """The smallest distance of any pair [m] (inf without pairs)."""
+        closest = self.closest
+        return closest.distance if closest is not None else float("inf")
+
+    @property
+    def collision_free(self) -> bool:
+        return self.first_penetration is None and self.min_distance > 0.0
+
+    def below(self, distance: float) -> list[PairClearance]:
+        """The pairs that come closer than ``distance`` [m], closest first."""
+        return sorted((p for p in self.pairs if p.distance < distance), key=lambda p: p.distance)
+
+    def to_dict(self, closest: int = 5) -> dict:
+        """Plain data for ``metrics.json``: the minimum, the first penetration and the
+        ``closest`` pairs."""
+        best = sorted(self.pairs, key=lambda p: p.distance)[:closest]
+        pen = self.first_penetration
+        return {
+            "min_distance_m": self.min_distance,
+            "closest_pair": best[0].pair if best else None,
+            "closest_time_s": best[0].time if best else None,
+            "collision_free": self.collision_free,
+            "first_penetration": None
+            if pen is None
+            else {"pair": pen.pair, "time_s": pen.time, "depth_m": pen.depth},
+            "closest_pairs": [
+                {
+                    "pair": p.pair,
+                    "distance_m": p.distance,
+                    "time_s": p.time,
+                    "lower_bound_m": p.lower_bound,
+                }
+                for p in best
+            ],
+            "pairs_checked": len(self.pairs),
+            "geometry_source": self.source,
+            "distance_evaluations": self.evaluations,
+        }
+
+
+def _lower(da, db, motion):
+    """The smallest distance a pair can reach between two instants where it is ``da`` and
+    ``db`` apart, its bodies moving by at most ``motion`` in between."""
+    return np.where(np.abs(da - db) >= motion, np.minimum(da, db), 0.5 * (da + db - motion))
+
+
+def _pair_distance(geometry, pair: int, configuration):
+    """``distance(time)`` of one pair along the motion."""
+
+    def distance(time):
+        geometry.place(configuration(time))
+        gm, gd = geometry.geometry_model, geometry.geometry_data
+        return pin.computeDistance(gm, gd, pair).min_distance
+
+    return distance
+
+
+def _first_contact(distance, t, motion, until: float, tolerance: float = 1e-6) -> float:
+    """The first time a pair touches (distance within ``tolerance``), at the latest ``until``
+    (a time it does), by conservative advancement from ``t[0]``: on the step of the samples
+    ``k, k + 1`` its bodies approach at most at ``motion(k, k + 1) / (t[k+1] - t[k])``, so a
+    pair ``d`` apart cannot touch in the next ``d`` over that speed."""
+    k, tau = 0, float(t[0])
+    d = distance(tau)
+    for _ in range(100_000):  # converges geometrically; the bound only guards a stall
+        if d <= tolerance or tau >= until:
+            break
+        while k < t.size - 2 and t[k + 1] <= tau:
+            k += 1
+        speed = motion(k, k + 1) / (t[k + 1] - t[k])
+        tau = min(tau + d / speed, float(t[k + 1])) if speed > 0.0 else float(t[k + 1])
+        d = distance(tau)
+    return float(min(tau, until))
+
+
+def _refine(geometry, index, items, configuration, state, limits) -> int:
+    """Split the intervals ``items`` until each pair's bound is settled (see the module
+    docstring), updating ``state`` (best distance, its time, lower bound per pair, the
+    penetrations found) in place; returns the distances computed. An item is
+    ``(pair column, t_a, t_b, d_a, d_b, motion bound, i_a, i_b)``: while the interval spans
+    more than one step of the samples ``i_a .. i_b`` it is split at a sample, whose halves'
+    bounds come from ``motion(i, j)``; below, at its middle (the straight line), halving it."""
+    best, best_t, lower, first = state
+    resolution, watch, min_step, t, motion = limits
+    geom, gdata = geometry.geometry_model, geometry.geometry_data
+    evaluations = 0
+    while items:
+        by_time: dict[float, list] = {}
+        for item in items:
+            ia, ib = item[6], item[7]
+            tm = t[(ia + ib) // 2] if ib - ia > 1 else 0.5 * (item[1] + item[2])
+            by_time.setdefault(float(tm), []).append(item)
+        items = []
+        for tm, group in sorted(by_time.items()):
+            geometry.place(configuration(tm))
+            for c, ta, tb, da, db, m, ia, ib in group:
+                dm = pin.computeDistance(geom, gdata, int(index[c])).min_distance
+                evaluations += 1
+                if dm < best[c]:
+                    best[c], best_t[c] = dm, tm
+                if dm <= 0.0:
+                    first.append((tm, c))
+                if ib - ia > 1:
+                    im = (ia + ib) // 2
+                    halves = ((ta, tm, da, dm, motion(ia, im, c), ia, im),
+                              (tm, tb, dm, db, motion(im, ib, c), im, ib))
+                else:
+                    halves = ((ta, tm, da, dm, 0.5 * m, ia, ib), (tm, tb, dm, db, 0.5 * m, ia, ib))
+                for a, b, d1, d2, mh, i1, i2 in halves:
+                    bound = float(_lower(d1, d2, mh))
+                    if bound >= min(best[c], watch) - resolution or b - a <= min_step:
+                        lower[c] = min(lower[c], bound)
+                    else:
+                        items.append((c, a, b, d1, d2, mh, i1, i2))
+    return evaluations
+
+
+def clearance(
+    geometry: RobotGeometry,
+    t,
+    q,
+    pairs: Sequence[int] | None = None,
+    resolution: float = RESOLUTION,
+    watch: float = WATCH,
+    min_step: float = MIN_STEP,
+) -> ClearanceReport:
+    """The clearance of a motion of the robot (see the module docstring).
+
+    Args:
+        geometry: the robot's geometry.
+        t: sample times (T,) [s], increasing.
+        q: the arm vector at each sample (T, n) [rad or m] (mission arm, then balance arms).
+        pairs: indices of the pairs to check (default: every pair of ``geometry``).
+        resolution: precision of each pair's smallest distance [m].
+        watch: pairs farther than this are only certified to stay beyond it [m].
+        min_step: shortest interval split [s].
+    """
+    t = np.asarray(t, dtype=float).ravel()
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if q.shape[0] != t.size:
+        raise ValueError(f"{t.size} times but {q.shape[0]} configurations")
+    chosen = geometry.pairs if pairs is None else [geometry.pairs[k] for k in pairs]
+    if not chosen:
+        return ClearanceReport((), None, geometry.source, 0)
+    E, e = geometry.robot.mimic_matrix
+    # the joints' travel from the first sample: a body moves at most its reach times it
+    steps = np.abs(np.diff(q @ E.T + e, axis=0))
+    travel = np.vstack([np.zeros((1, E.shape[0])), np.cumsum(steps, axis=0)])
+    reach = geometry.reach
+    coef = np.stack([reach[p.first] + reach[p.second] for p in chosen])  # (P, n_moving)
+
+    def motion(i, j, c):
+        return float((travel[j] - travel[i]) @ coef[c])
+
+    geom, gdata = geometry.geometry_model, geometry.geometry_data
+    model, data = geometry.model, geometry.data
+    index = np.array([p.index for p in chosen], dtype=int)
+    # every pair at every COARSE-th sample; the refinement splits at the samples in between
+    coarse = np.unique(np.r_[np.arange(0, t.size, COARSE), t.size - 1])
+    D = np.empty((coarse.size, index.size))
+    for row, k in enumerate(coarse):
+        pin.computeDistances(model, data, geom, gdata, geometry.pin_q(q[k]))
+        results = gdata.distanceResults
+        D[row] = [results[int(i)].min_distance for i in index]
+    evaluations = D.size
+    best_k = D.argmin(axis=0)
+    best = D[best_k, np.arange(index.size)]
+    best_t = t[coarse[best_k]]
+    lower = best.copy()
+    neg = D <= 0.0
+    first = [(t[coarse[np.argmax(neg[:, c])]], c) for c in range(index.size) if neg[:, c].any()]
+    items = []  # see _refine
+    target = np.minimum(best, watch) - resolution
+    for r in range(coarse.size - 1):
+        ia, ib = int(coarse[r]), int(coarse[r + 1])
+        m = (travel[ib] - travel[ia]) @ coef.T
+        lb = _lower(D[r], D[r + 1], m)
+        for c in np.flatnonzero(lb < target):
+            items.append((c, t[ia], t[ib], D[r, c], D[r + 1, c], m[c], ia, ib))
+        lower = np.minimum(lower, np.where(lb >= target, lb, np.inf))
+
+    def configuration(time):
+        return np.array([np.interp(time, t, q[:, j]) for j in range(q.shape[1])])
+
+    state = (best, best_t, lower, first)
+    limits = (resolution, watch, min_step, t, motion)
+    evaluations += _refine(geometry, index, items, configuration, state, limits)
+    lower = np.minimum(lower, best)
+    report = tuple(
+        PairClearance(p.name, p.index, float(best[c]), float(best_t[c]), float(lower[c]))
+        for c, p in enumerate(chosen)
+    )
+    penetration = None
+    if first:
+        # the earliest contact of each penetrating pair, found from the start by conservative
+        # advancement (the refinement finds penetrations, not where they begin)
+        contacts = []
+        for c in sorted({c for _, c in first}):
+            distance = _pair_distance(geometry, int(index[c]), configuration)
+            until = min(tn for tn, k in first if k == c)
+            contacts.append((_first_contact(distance, t, partial(motion, c=c), until), c))
+        tp, c = min(contacts)
+        penetration = Penetration(chosen[c].name, float(tp), float(-best[c]))
+    return ClearanceReport(report, penetration, geometry.source, evaluations)

@@ -1,0 +1,298 @@
+"""The volume of a robot's bodies: Pinocchio's geometry model of its URDF, the pairs of bodies
+that are checked against each other, and exact distances (coal).
+
+A *body* is what moves as one piece: a joint of the robot's reduced model (``robot.model``,
+locked joints folded into their parents, the base and everything fixed to it one body). The
+geometry comes from the URDF's ``<collision>`` elements, or from its ``<visual>`` elements when
+it has none (:attr:`RobotGeometry.source` says which). Meshes are replaced by their convex
+hulls: coal reads a mesh as its triangles, so a body deep inside a mesh reads as a small
+distance, while the hull's distance is signed; the hull also contains the mesh, so a clearance
+measured on hulls holds for the meshes.
+
+Pairs of geometry objects left out (:attr:`RobotGeometry.ignored`, with the reason):
+
+* ``same body``: objects of one body never move against each other;
+* ``adjacent``: objects of a body and of its parent body (they touch at the joint by design);
+* ``srdf``: pairs an SRDF's ``<disable_collisions>`` names (example-robot-data ships some,
+  found next to the URDF);
+* ``ignored``: pairs the caller names (by link names).
+
+Pairs already in contact at a configuration are found by :meth:`RobotGeometry.contacts`; the
+planner reports them and leaves them out of that plan.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import logging
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.errors import InputError
+from balance_opt.model.robot import FloatingRobot
+
+log = logging.getLogger(__name__)
+
+#: The distribution whose share folder resolves ``package://`` paths of its robots.
+EXAMPLE_ROBOT_DATA = "example-robot-data"
+
+
+class NoGeometryError(InputError):
+    """A URDF without any ``<collision>`` or ``<visual>`` element."""
+
+
+@dataclass(frozen=True)
+class Pair:
+    """A pair of geometry objects checked against each other.
+
+    Attributes:
+        index: its index in the geometry model's collision pairs.
+        first, second: the geometry objects' indices.
+        links: the two objects' links (``("balance_link3", "base_link")``).
+    """
+
+    index: int
+    first: int
+    second: int
+    links: tuple[str, str]
+
+    @property
+    def name(self) -> str:
+        return f"{self.links[0]} / {self.links[1]}"
+
+
+def package_dirs(urdf_path: Path | None) -> list[str]:
+    """Folders ``package://`` paths resolve against: example-robot-data's share folder (the one
+    that holds ``example-robot-data/``), and the URDF's folder and the two above it."""
+    out = []
+    try:
+        dist = importlib.metadata.distribution(EXAMPLE_ROBOT_DATA)
+    except importlib.metadata.PackageNotFoundError:
+        dist = None
+    for f in (dist.files or ()) if dist is not None else ():
+        parts = Path(str(f)).parts
+        if EXAMPLE_ROBOT_DATA not in parts[:-1]:
+            continue
+        if parts[parts.index(EXAMPLE_ROBOT_DATA) + 1] == "robots":
+            share = Path(str(dist.locate_file(Path(*parts[: parts.index(EXAMPLE_ROBOT_DATA)]))))
+            out.append(str(share))
+            break
+    if urdf_path is not None:
+        folder = urdf_path.resolve().parent
+        out += [str(folder), str(folder.parent), str(folder.parent.parent)]
+    return out
+
+
+def default_srdf(urdf_path: Path | None) -> Path | None:
+    """The SRDF shipped next to a URDF (``../srdf/*.srdf`` of its description folder), if
+    exactly one, or one named after the URDF."""
+    if urdf_path is None:
+        return None
+    folder = urdf_path.resolve().parent.parent / "srdf"
+    found = sorted(folder.glob("*.srdf")) if folder.is_dir() else []
+    named = [p for p in found if p.stem == urdf_path.stem]
+    if named:
+        return named[0]
+    return found[0] if len(found) == 1 else None
+
+
+def _has_collision(urdf_text: str) -> bool:
+    return ET.fromstring(urdf_text).find("link/collision") is not None
+
+
+class RobotGeometry:
+    """The geometry of a floating robot and the pairs of objects checked for collision.
+
+    Args:
+        robot: the robot (its reduced model: locked joints are fixed).
+        srdf: an SRDF whose ``<disable_collisions>`` pairs are left out; default: the one
+            shipped next to the URDF (example-robot-data), if any; ``False``: none.
+        ignore: pairs of link names left out as well.
+
+    Attributes:
+        robot: as given.
+        model: ``robot.model``.
+        geometry_model: Pinocchio's geometry model (meshes as convex hulls), its collision pairs
+            the checked ones.
+        source: ``"collision"`` or ``"visual"``: the URDF elements the geometry was built from.
+        srdf: the SRDF applied, or ``None``.
+        pairs: the checked pairs (:class:`Pair`), in the geometry model's order.
+        ignored: the pairs left out, ``{(link, link): reason}``.
+
+    Raises:
+        InputError: the URDF has no geometry, a mesh cannot be found, an ignored pair names a
+            link without geometry.
+    """
+
+    def __init__(
+        self,
+        robot: FloatingRobot,
+        srdf: str | Path | bool | None = None,
+        ignore: Iterable[Sequence[str]] = (),
+    ):
+        self.robot = robot
+        self.model = robot.model
+        urdf_path = None if robot.source.startswith("<") else Path(robot.source)
+        text = robot.locked_urdf
+        self.source = "collision" if _has_collision(text) else "visual"
+        kind = pin.COLLISION if self.source == "collision" else pin.VISUAL
+        try:
+            geom = pin.buildGeomFromUrdfString(
+                self.model, text, kind, package_dirs=package_dirs(urdf_path)
+            )
+        except ValueError as exc:
+            raise InputError(
+                f"geometry of {robot.source}: {exc} (plan without collision avoidance: "
+                "optimal.collision.avoid: false)"
+            ) from exc
+        if geom.ngeoms == 0:
+            raise NoGeometryError(f"{robot.source} has no <collision> or <visual> geometry")
+        for obj in geom.geometryObjects:
+            if hasattr(obj.geometry, "buildConvexRepresentation"):  # a mesh: its hull
+                obj.geometry.buildConvexRepresentation(True)
+                obj.geometry = obj.geometry.convex
+            obj.geometry.computeLocalAABB()
+        self.geometry_model = geom
+        self.ignored: dict[tuple[str, str], str] = {}
+        geom.addAllCollisionPairs()
+        self._drop(lambda a, b: a.parentJoint == b.parentJoint, "same body")
+        parents = self.model.parents
+        self._drop(
+            lambda a, b: parents[a.parentJoint] == b.parentJoint
+            or parents[b.parentJoint] == a.parentJoint,
+            "adjacent",
+        )
+        self.srdf = None
+        if srdf is not False:
+            path = Path(srdf) if srdf not in (None, True) else default_srdf(urdf_path)
+            if path is not None:
+                if not path.is_file():
+                    raise InputError(f"SRDF {path}: no such file")
+                before = self._pair_links()
+                pin.removeCollisionPairs(self.model, geom, str(path))
+                for links in before - self._pair_links():
+                    self.ignored.setdefault(links, "srdf")
+                self.srdf = path
+        names = {self.link(i) for i in range(geom.ngeoms)}
+        wanted = set()
+        for pair in ignore:
+            pair = tuple(pair)
+            if len(pair) != 2 or not set(pair) <= names:
+                unknown = [n for n in pair if n not in names]
+                raise InputError(
+                    f"collision ignore pair {list(pair)}: expected two links with geometry"
+                    + (f"; no geometry on {', '.join(unknown)}" if unknown else "")
+                )
+            wanted.add(frozenset(pair))
+        self._drop(lambda a, b: frozenset((self._link(a), self._link(b))) in wanted, "ignored")
+        self.geometry_data = pin.GeometryData(geom)
+        self.data = self.model.createData()
+        self.pairs: list[Pair] = self._make_pairs()
+
+    # ------------------------------------------------------------------ pairs
+    def link(self, index: int) -> str:
+        """The link (frame) geometry object ``index`` belongs to."""
+        return self._link(self.geometry_model.geometryObjects[index])
+
+    def _link(self, obj) -> str:
+        return self.model.frames[obj.parentFrame].name
+
+    def _pair_links(self) -> set[tuple[str, str]]:
+        return {tuple(sorted(p.links)) for p in self._make_pairs()}
+
+    def _drop(self, test, reason: str) -> None:
+        geom = self.geometry_model
+        objs = geom.geometryObjects
+        # indices copied first: the pairs Python sees are views into a vector that shrinks
+        for first, second in [(int(p.first), int(p.second)) for p in geom.collisionPairs]:
+            a, b = objs[first], objs[second]
+            if test(a, b):
+                geom.removeCollisionPair(pin.CollisionPair(first, second))
+                links = tuple(sorted((self._link(a), self._link(b))))
+                self.ignored.setdefault(links, reason)
+
+    def _make_pairs(self) -> list[Pair]:
+        out = []
+        for k, p in enumerate(self.geometry_model.collisionPairs):
+            out.append(Pair(k, p.first, p.second, (self.link(p.first), self.link(p.second))))
+        return out
+
+    def body(self, index: int) -> int:
+        """The body (joint of ``model``) of geometry object ``index``."""
+        return int(self.geometry_model.geometryObjects[index].parentJoint)
+
+    @cached_property
+    def moving_joints(self) -> list[int]:
+        """Joints of ``model`` that move (the root free-flyer excluded): arm joints, then
+        followers (``robot.model_joint_names``)."""
+        return [self.model.getJointId(j) for j in self.robot.model_joint_names]
+
+    # ------------------------------------------------------------------ distances
+    def pin_q(self, q) -> np.ndarray:
+        """Pinocchio configuration of the arm vector ``q``, base at the identity (distances
+        between the robot's own bodies do not depend on the base pose)."""
+        return self.robot.pin_q(q)
+
+    def place(self, q) -> None:
+        """Place every object at the arm configuration ``q``."""
+        pin.updateGeometryPlacements(
+            self.model, self.data, self.geometry_model, self.geometry_data, self.pin_q(q)
+        )
+
+    def distances(self, q, pairs: Sequence[int] | None = None) -> np.ndarray:
+        """Exact distances [m] (negative: penetration depth) of the pairs (indices, default
+        all) at the arm configuration ``q``."""
+        self.place(q)
+        pairs = range(len(self.geometry_model.collisionPairs)) if pairs is None else pairs
+        return np.array(
+            [
+                pin.computeDistance(self.geometry_model, self.geometry_data, int(k)).min_distance
+                for k in pairs
+            ]
+        )
+
+    def distances_along(self, q, pair: int) -> np.ndarray:
+        """The distance [m] of pair ``pair`` at every configuration of ``q`` (T, n)."""
+        out = np.empty(len(q))
+        for k, qk in enumerate(q):
+            self.place(qk)
+            out[k] = pin.computeDistance(
+                self.geometry_model, self.geometry_data, int(pair)
+            ).min_distance
+        return out
+
+    def contacts(self, q) -> list[Pair]:
+        """The checked pairs in contact (distance <= 0) at the arm configuration ``q``."""
+        d = self.distances(q)
+        return [p for p in self.pairs if d[p.index] <= 0.0]
+
+    # ------------------------------------------------------------------ motion bound
+    @cached_property
+    def reach(self) -> np.ndarray:
+        """(n_objects, n_moving) bound on the distance from each moving joint's axis (its
+        origin) to any point of each object below it [m], whatever the configuration (0 for
+        joints not above the object; 1 for a prismatic joint: it moves every point by its
+        displacement): the lengths of the joint placements between them, the object's offset
+        and the radius of its bounding box about its frame."""
+        model, geom = self.model, self.geometry_model
+        column = {j: c for c, j in enumerate(self.moving_joints)}
+        out = np.zeros((geom.ngeoms, len(column)))
+        for i, obj in enumerate(geom.geometryObjects):
+            box = obj.geometry.aabb_local
+            lo, hi = np.asarray(box.min_), np.asarray(box.max_)
+            radius = float(np.linalg.norm(np.maximum(np.abs(lo), np.abs(hi))))
+            length = float(np.linalg.norm(obj.placement.translation)) + radius
+            j = int(obj.parentJoint)
+            while j > 0:
+                if j in column:
+                    prismatic = model.joints[j].shortname().startswith("JointModelP")
+                    out[i, column[j]] = 1.0 if prismatic else length
+                length += float(np.linalg.norm(model.jointPlacements[j].translation))
+                j = int(model.parents[j])
+        return out

@@ -1,0 +1,401 @@
+"""Smooth shapes that contain the robot's bodies, and their distances as CasADi expressions of
+the joint positions: what the optimal planner's collision constraints are written with.
+
+Exact distances between meshes or cylinders are not smooth functions of the configuration, so
+the planner works with simpler shapes fitted around them (:func:`fit_shapes`):
+
+* every body but the base gets one *capsule* (a segment and a radius: the points within the
+  radius of the segment) that contains all its geometry: a cylinder, sphere or capsule alone is
+  its own exact capsule; otherwise the capsule is fitted around points whose convex hull
+  contains the geometry (a box's corners, a mesh hull's vertices, a prism around each
+  cylinder), along the axis (of the three principal ones) that gives the smallest volume;
+* the base (the root body, with everything fixed to it) is large and irregular: each of its
+  objects gets a shape of its own: a box stays the exact box, a mesh gets the box around it
+  in its own frame, a cylinder, sphere or capsule its exact capsule.
+
+Distances, in :func:`clearance_expressions`: capsule to capsule is the segments' distance less
+the radii; capsule to box is the smallest signed distance from the box of the centres of
+spheres strung along the capsule's segment (spaced by at most its radius, each sphere's radius
+enlarged so that together they contain the capsule) less that radius. A shape's distance is
+never larger than the true one (the shapes contain the bodies): a constraint on it is safe.
+
+The planner bounds one quantity per body that the balance joints move: the *soft minimum*
+``m - log(sum_k exp(-beta (d_k - m))) / beta`` (``m = min_k d_k``) of the distances of all its
+pairs: smooth, and below the smallest of them by at most ``log(n) / beta``.
+
+Symbolic placements come from a forward kinematics over the numeric Pinocchio model
+(:func:`joint_placements`): revolute, continuous and prismatic joints about any axis, the base
+at the identity (distances between the robot's bodies do not depend on the base pose).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+import pinocchio as pin
+
+from balance_opt.errors import InputError
+from balance_opt.geometry.robot_geometry import RobotGeometry
+
+#: Sharpness of the soft minimum [1/m]: with n distances it is at most log(n) / BETA below the
+#: smallest (3 mm for 20).
+BETA = 1000.0
+#: Spacing of the spheres along a capsule against a box, in capsule radii: the spheres grow by
+#: at most 12 % of the radius to cover the capsule. Half a radius (3 % larger spheres) gave the
+#: capture task the same plan (peak 0.0261 rad, clearance 0.0313 m) with kernels a third larger.
+SPHERE_SPACING = 1.0
+#: Sides of the prism fitted around a cylinder (its circumscribed polygon).
+PRISM_SIDES = 16
+#: Radii tried above the smallest when fitting a capsule (factors).
+RADIUS_FACTORS = np.linspace(1.0, 2.0, 21)
+
+
+@dataclass(frozen=True)
+class Shape:
+    """A fitted shape in the frame of its body's joint.
+
+    Attributes:
+        name: the geometry object (base shapes) or body link it stands for.
+        body: the joint of ``robot.model`` that carries it.
+        kind: ``"capsule"`` or ``"box"``.
+        a, b: the capsule's segment ends [m] (a box: its centre twice).
+        radius: the capsule's radius [m] (a box: 0).
+        rotation: the box's axes in the joint frame (3 x 3; identity for a capsule).
+        half: the box's half sides [m] (zeros for a capsule).
+        objects: the geometry objects it contains.
+    """
+
+    name: str
+    body: int
+    kind: str
+    a: np.ndarray
+    b: np.ndarray
+    radius: float
+    rotation: np.ndarray
+    half: np.ndarray
+    objects: tuple[int, ...]
+
+    def numbers(self) -> list[float]:
+        """Every number that defines it (for the content key)."""
+        return [*self.a, *self.b, self.radius, *self.rotation.ravel(), *self.half]
+
+
+def _capsule_of_primitive(obj) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The exact capsule of a cylinder, sphere or capsule object, in its joint's frame."""
+    g, M = obj.geometry, obj.placement
+    name = type(g).__name__
+    if name in ("Cylinder", "Capsule"):
+        ax = M.rotation[:, 2] * g.halfLength
+        return M.translation - ax, M.translation + ax, float(g.radius)
+    if name == "Sphere":
+        return M.translation.copy(), M.translation.copy(), float(g.radius)
+    return None
+
+
+def _hull_points(obj) -> np.ndarray:
+    """Points whose convex hull contains the object, in its joint's frame."""
+    g, M = obj.geometry, obj.placement
+    name = type(g).__name__
+    if name == "Box":
+        h = np.asarray(g.halfSide)
+        local = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * h
+    elif name in ("Cylinder", "Capsule", "Sphere"):
+        r = float(g.radius)
+        half = float(getattr(g, "halfLength", 0.0)) + (r if name != "Cylinder" else 0.0)
+        angle = np.arange(PRISM_SIDES) * 2 * np.pi / PRISM_SIDES
+        ring = np.stack([np.cos(angle), np.sin(angle)], axis=1) * r / np.cos(np.pi / PRISM_SIDES)
+        local = np.vstack([np.hstack([ring, np.full((PRISM_SIDES, 1), z)]) for z in (-half, half)])
+    elif hasattr(g, "points"):
+        local = np.asarray(g.points())
+    else:
+        raise InputError(f"geometry object '{obj.name}': shape {name} has no capsule fit")
+    return local @ M.rotation.T + M.translation
+
+
+def fit_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """A capsule containing ``points`` (m, 3), of small volume: for each principal axis and
+    radius (:data:`RADIUS_FACTORS` times the largest distance from the axis) the shortest
+    segment that keeps every point within the radius; the smallest volume wins."""
+    c = points.mean(axis=0)
+    _, _, axes = np.linalg.svd(points - c, full_matrices=False)
+    best = None
+    for axis in axes:
+        s = (points - c) @ axis
+        rho = np.linalg.norm(points - c - np.outer(s, axis), axis=1)
+        for factor in RADIUS_FACTORS:
+            r = max(float(rho.max()) * factor, 1e-9)
+            w = np.sqrt(np.maximum(r**2 - rho**2, 0.0))
+            # point i is within r of [lo, hi] iff lo <= s_i + w_i and hi >= s_i - w_i
+            lo, hi = float((s + w).min()), float((s - w).max())
+            if lo > hi:  # any point of [hi, lo] will do
+                lo = hi = 0.5 * (lo + hi)
+            volume = np.pi * r**2 * (hi - lo) + 4.0 / 3.0 * np.pi * r**3
+            if best is None or volume < best[0]:
+                best = (volume, c + lo * axis, c + hi * axis, r * (1 + 1e-9))
+    return best[1], best[2], best[3]
+
+
+def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
+    """The fitted shapes of every body with geometry (see the module docstring)."""
+    objs = geometry.geometry_model.geometryObjects
+    root = min(int(o.parentJoint) for o in objs)
+    by_body: dict[int, list[int]] = {}
+    for i, o in enumerate(objs):
+        by_body.setdefault(int(o.parentJoint), []).append(i)
+    shapes = []
+    eye, zero = np.eye(3), np.zeros(3)
+    for body, members in sorted(by_body.items()):
+        groups = [[i] for i in members] if body == root else [members]
+        for group in groups:
+            first = objs[group[0]]
+            name = first.name if body == root else geometry.link(group[0])
+            kind = type(first.geometry).__name__
+            if body == root and kind not in ("Cylinder", "Capsule", "Sphere"):
+                # a box, or the box around a mesh hull in its own frame
+                M = first.placement
+                box = first.geometry.aabb_local
+                lo, hi = np.asarray(box.min_, dtype=float), np.asarray(box.max_, dtype=float)
+                centre = M.translation + M.rotation @ (0.5 * (lo + hi))
+                half = 0.5 * (hi - lo)
+                rotation = M.rotation.copy()
+                shapes.append(
+                    Shape(name, body, "box", centre, centre, 0.0, rotation, half, tuple(group))
+                )
+                continue
+            exact = _capsule_of_primitive(first) if len(group) == 1 else None
+            if exact is None:
+                exact = fit_capsule(np.vstack([_hull_points(objs[i]) for i in group]))
+            a, b, r = exact
+            shapes.append(Shape(name, body, "capsule", a, b, r, eye, zero, tuple(group)))
+    return shapes
+
+
+# ---------------------------------------------------------------------------------- kinematics
+def _rotation(axis: np.ndarray, angle) -> cs.SX:
+    K = cs.DM([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return cs.DM.eye(3) + cs.sin(angle) * K + (1 - cs.cos(angle)) * (K @ K)
+
+
+def joint_placements(geometry: RobotGeometry, q_model) -> dict[int, tuple]:
+    """``{joint: (R, p)}``: every joint frame of ``robot.model`` in the base frame (base at the
+    identity) as CasADi expressions of the model joints' positions ``q_model`` (arm joints,
+    then followers: ``robot.model_joint_names``).
+
+    Raises:
+        InputError: a joint that is not revolute, continuous or prismatic.
+    """
+    model = geometry.model
+    column = {j: c for c, j in enumerate(geometry.moving_joints)}
+    out = {}
+    for j in range(1, model.njoints):
+        parent = int(model.parents[j])
+        M = model.jointPlacements[j]
+        if parent == 0:  # the base (free-flyer at the identity)
+            out[j] = (cs.DM(M.rotation), cs.DM(M.translation))
+            continue
+        R0, p0 = out[parent]
+        R = R0 @ cs.DM(M.rotation)
+        p = p0 + R0 @ cs.DM(M.translation)
+        if j in column:
+            joint = model.joints[j]
+            kind = joint.shortname()
+            axis = np.asarray(joint.extract().getMotionAxis(), dtype=float)
+            value = q_model[column[j]]
+            if kind.startswith(("JointModelR", "JointModelRevolute")):
+                R = R @ _rotation(axis, value)
+            elif kind.startswith(("JointModelP", "JointModelPrismatic")):
+                p = p + R @ cs.DM(axis) * value
+            else:
+                raise InputError(f"joint '{model.names[j]}' ({kind}): no collision kinematics")
+        out[j] = (R, p)
+    return out
+
+
+def numeric_placements(geometry: RobotGeometry, q) -> dict[int, pin.SE3]:
+    """Pinocchio's joint placements at the arm configuration ``q`` (base at the identity)."""
+    data = geometry.model.createData()
+    pin.forwardKinematics(geometry.model, data, geometry.pin_q(q))
+    return {j: data.oMi[j] for j in range(1, geometry.model.njoints)}
+
+
+# ---------------------------------------------------------------------------------- distances
+def _clamp01(x):
+    return cs.fmin(cs.fmax(x, 0.0), 1.0)
+
+
+def segment_distance(p1, q1, p2, q2):
+    """The distance between the segments ``[p1, q1]`` and ``[p2, q2]`` (CasADi; the closest
+    points clamped onto both segments; segments of zero length are points)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e = cs.dot(d1, d1) + 1e-12, cs.dot(d2, d2) + 1e-12
+    b, c, f = cs.dot(d1, d2), cs.dot(d1, r), cs.dot(d2, r)
+    denom = a * e - b * b  # 0 for parallel segments: start from s = 0 then
+    s = cs.if_else(denom > 1e-9 * a * e, _clamp01((b * f - c * e) / denom), 0.0)
+    t_free = (b * s + f) / e
+    s = cs.if_else(
+        t_free < 0, _clamp01(-c / a), cs.if_else(t_free > 1, _clamp01((b - c) / a), s)
+    )
+    t = _clamp01(t_free)
+    gap = p1 + s * d1 - p2 - t * d2
+    return cs.sqrt(cs.dot(gap, gap) + 1e-12)
+
+
+def box_distance(point, half):
+    """Signed distance of ``point`` (box frame) from a box of half sides ``half``: outside the
+    distance, inside minus the depth below the nearest face."""
+    d = cs.sqrt(point**2 + 1e-12) - cs.DM(half)
+    outside = cs.fmax(d, 0.0)
+    return cs.sqrt(cs.dot(outside, outside) + 1e-12) + cs.fmin(cs.mmax(d), 0.0)
+
+
+def soft_min(values, beta: float = BETA):
+    """``m - log(sum exp(-beta (v - m))) / beta``, ``m = min v``: at most ``log(n) / beta``
+    below the smallest value, smooth."""
+    values = cs.vertcat(*values)
+    m = cs.mmin(values)
+    return m - cs.log(cs.sum1(cs.exp(-beta * (values - m)))) / beta
+
+
+def _place(R, p, x):
+    return p + R @ cs.DM(x)
+
+
+def shape_distance(first: Shape, second: Shape, frames: dict):
+    """The distance of two fitted shapes (at least one a capsule) as a CasADi expression;
+    ``frames`` from :func:`joint_placements`."""
+    if first.kind == "box":
+        first, second = second, first
+    R1, p1 = frames[first.body]
+    a1, b1 = _place(R1, p1, first.a), _place(R1, p1, first.b)
+    R2, p2 = frames[second.body]
+    if second.kind == "capsule":
+        a2, b2 = _place(R2, p2, second.a), _place(R2, p2, second.b)
+        return segment_distance(a1, b1, a2, b2) - first.radius - second.radius
+    # capsule against box: spheres along the segment, in the box's frame
+    length = float(np.linalg.norm(first.b - first.a))
+    spacing = SPHERE_SPACING * max(first.radius, 1e-6)
+    n = max(2, int(np.ceil(length / spacing)) + 1)
+    step = length / (n - 1)
+    radius = float(np.sqrt(first.radius**2 + (step / 2) ** 2))
+    R_box = R2 @ cs.DM(second.rotation)
+    centre = _place(R2, p2, second.a)
+    out = []
+    for s in np.linspace(0.0, 1.0, n):
+        x = R_box.T @ (a1 + s * (b1 - a1) - centre)
+        out.append(box_distance(x, second.half) - radius)
+    return soft_min(out)
+
+
+# ---------------------------------------------------------------------------------- rows
+@dataclass(frozen=True)
+class ClearanceRows:
+    """What the planner's collision rows bound: one soft minimum per body the balance joints
+    move, over the fitted-shape pairs assigned to it, and a row of its own for each pair in
+    ``alone`` (:func:`clearance_rows`).
+
+    Attributes:
+        shapes: the fitted shapes.
+        rows: per row, ``(label, ((shape, shape), ...))``: its pairs (shape indices), the
+            shape of the body the balance joints move first.
+        key: a content key of the shapes, pairs and soft minimum (for compiled kernels).
+    """
+
+    shapes: tuple[Shape, ...]
+    rows: tuple[tuple[str, tuple[tuple[int, int], ...]], ...]
+
+    def row_of(self, pair) -> int | None:
+        """The row that holds a geometry pair (:class:`Pair`), or ``None``."""
+        shape = {i: k for k, s in enumerate(self.shapes) for i in s.objects}
+        wanted = {(shape[pair.first], shape[pair.second]), (shape[pair.second], shape[pair.first])}
+        return next((k for k, (_, pairs) in enumerate(self.rows) if wanted & set(pairs)), None)
+
+    def pair_distances(self, geometry: RobotGeometry) -> tuple[list, cs.Function]:
+        """Every shape pair of the rows and ``d(q_model)``, their distances."""
+        q = cs.SX.sym("q_model", len(geometry.moving_joints))
+        frames = joint_placements(geometry, q)
+        pairs = [p for _, row in self.rows for p in row]
+        d = [shape_distance(self.shapes[i], self.shapes[k], frames) for i, k in pairs]
+        return pairs, cs.Function("shape_distances", [q], [cs.vertcat(*d)])
+
+    @property
+    def key(self) -> str:
+        h = hashlib.sha256(repr((BETA, SPHERE_SPACING)).encode())
+        for s in self.shapes:
+            h.update(np.asarray(s.numbers(), dtype=float).round(12).tobytes())
+        h.update(repr(self.rows).encode())
+        return h.hexdigest()[:12]
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return tuple(label for label, _ in self.rows)
+
+    def expressions(self, geometry: RobotGeometry, q_model):
+        """The rows' soft minima (n_rows,) as CasADi expressions of ``q_model``."""
+        frames = joint_placements(geometry, q_model)
+        out = []
+        for _, pairs in self.rows:
+            d = [shape_distance(self.shapes[i], self.shapes[k], frames) for i, k in pairs]
+            out.append(soft_min(d) if len(d) > 1 else d[0])
+        return cs.vertcat(*out)
+
+
+def clearance_rows(
+    geometry: RobotGeometry, pairs, moved_by_balance: set[int], alone=frozenset(), skip=()
+) -> ClearanceRows:
+    """The planner's rows for the checked geometry pairs ``pairs`` (:class:`Pair` list) that
+    involve a body the balance joints move (``moved_by_balance``: joints of ``robot.model``):
+    each shape pair goes to the row of its body the balance joints move (the deeper one when
+    both do), or to a row of its own if it is in ``alone`` (shape index pairs, that body's
+    first: pairs whose shapes start close, so that the bound of their row must start lower);
+    shape pairs in ``skip`` get no row."""
+    shapes = fit_shapes(geometry)
+    of_object = {}
+    for k, s in enumerate(shapes):
+        for i in s.objects:
+            of_object[i] = k
+    depth = {j: len(_chain(geometry.model, j)) for j in range(geometry.model.njoints)}
+    rows: dict[int, set] = {}
+    for p in pairs:
+        s1, s2 = of_object[p.first], of_object[p.second]
+        b1, b2 = shapes[s1].body, shapes[s2].body
+        moved = [b for b in (b1, b2) if b in moved_by_balance]
+        if not moved or s1 == s2:
+            continue
+        owner = max(moved, key=lambda b: depth[b])
+        own, other = (s1, s2) if b1 == owner else (s2, s1)
+        if (own, other) not in skip:
+            rows.setdefault(owner, set()).add((own, other))
+    out = []
+    for body in sorted(rows):
+        shared = sorted(p for p in rows[body] if p not in alone)
+        if shared:
+            out.append((f"{_body_name(geometry, body)} clearance", tuple(shared)))
+        for i, k in sorted(p for p in rows[body] if p in alone):
+            out.append((f"{shapes[i].name} / {shapes[k].name} clearance", ((i, k),)))
+    return ClearanceRows(tuple(shapes), tuple(out))
+
+
+def _body_name(geometry: RobotGeometry, body: int) -> str:
+    """A body's name: the link of its first geometry object."""
+    for i, obj in enumerate(geometry.geometry_model.geometryObjects):
+        if int(obj.parentJoint) == body:
+            return geometry.link(i)
+    return geometry.model.names[body]
+
+
+def _chain(model, j: int) -> list[int]:
+    out = []
+    while j > 0:
+        out.append(j)
+        j = int(model.parents[j])
+    return out
+
+
+def moved_by(geometry: RobotGeometry, joints) -> set[int]:
+    """Joints of ``robot.model`` moved by the given arm joints (names): them and every joint
+    below them."""
+    ids = {geometry.model.getJointId(j) for j in joints}
+    return {j for j in range(1, geometry.model.njoints) if ids & set(_chain(geometry.model, j))}

@@ -1,0 +1,311 @@
+"""Collision geometry, the clearance check and collision avoidance in the optimal planner
+(issue 24), against coal's exact distances and Pinocchio's kinematics."""
+
+import logging
+
+import casadi as cs
+import numpy as np
+import pytest
+
+from balance_opt.errors import InputError
+from balance_opt.geometry import shapes
+from balance_opt.geometry.clearance import clearance
+from balance_opt.geometry.robot_geometry import RobotGeometry
+from balance_opt.model.robot import FloatingRobot
+
+
+def _link(name, mass, geometry, origin="0 0 0", rpy="0 0 0", tags=("collision",)):
+    shapes_xml = "".join(
+        f'<{tag}><origin xyz="{origin}" rpy="{rpy}"/><geometry>{geometry}</geometry></{tag}>'
+        for tag in tags
+    )
+    return (
+        f'<link name="{name}"><inertial><origin xyz="{origin}"/><mass value="{mass}"/>'
+        f'<inertia ixx="0.05" iyy="0.05" izz="0.05" ixy="0" ixz="0" iyz="0"/></inertial>'
+        f"{shapes_xml}</link>"
+    )
+
+
+def _joint(name, parent, child, xyz, axis, limit=3.0):
+    return (
+        f'<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
+        f'<origin xyz="{xyz}"/><axis xyz="{axis}"/>'
+        f'<limit lower="-{limit}" upper="{limit}" velocity="2" effort="50"/></joint>'
+    )
+
+
+def toy_urdf(tags=("collision",)) -> str:
+    """A 0.6 m cube with a one-joint mission arm and a two-joint balance arm on its top face:
+    ``swing`` (balance joint 2, about y) turns ``boom`` (0.6 m, radius 0.03), level at 0
+    (0.07 m above the cube), into the cube from about 0.45 rad down; the balance arm's
+    ``post`` is two objects (a cylinder and a box: its capsule is fitted)."""
+    cyl = '<cylinder radius="0.03" length="0.6"/>'
+    return (
+        '<robot name="toy">'
+        + _link("base", 100.0, '<box size="0.6 0.6 0.6"/>', tags=tags)
+        + _link("mast", 2.0, '<cylinder radius="0.03" length="0.3"/>', "0 0 0.15", tags=tags)
+        + _link("post", 2.0, '<cylinder radius="0.03" length="0.1"/>', "0 0 0.05", tags=tags)
+        .replace("</link>", "")
+        + "".join(
+            f'<{tag}><origin xyz="0 0 0.08"/><geometry><box size="0.05 0.05 0.04"/></geometry>'
+            f"</{tag}>"
+            for tag in tags
+        )
+        + "</link>"
+        + _link("boom", 4.0, cyl, "0.3 0 0", "0 1.5707963267948966 0", tags=tags)
+        + _joint("yaw", "base", "mast", "0.2 0.2 0.3", "0 0 1")
+        + _joint("turn", "base", "post", "-0.1 -0.2 0.3", "0 0 1")
+        + _joint("swing", "post", "boom", "0 0 0.1", "0 1 0", limit=2.0)
+        + "</robot>"
+    )
+
+
+@pytest.fixture(scope="module")
+def toy():
+    return FloatingRobot(toy_urdf(), ["yaw"], ["turn", "swing"])
+
+
+def test_geometry_source_pairs_and_errors(toy, baxter):
+    geometry = RobotGeometry(toy)
+    assert geometry.source == "collision"
+    visual = FloatingRobot(toy_urdf(("visual",)), ["yaw"], ["turn", "swing"])
+    assert RobotGeometry(visual).source == "visual"
+    names = {frozenset(p.links) for p in geometry.pairs}
+    # the boom is checked against the cube and the mast; the post is adjacent to both the cube
+    # and the boom, its two objects one body
+    assert names == {frozenset(p) for p in (("base", "boom"), ("mast", "post"), ("mast", "boom"))}
+    assert geometry.ignored[("base", "post")] == "adjacent"
+    ignored = RobotGeometry(toy, ignore=[["boom", "mast"]])
+    assert ignored.ignored[("boom", "mast")] == "ignored"
+    assert frozenset(("mast", "boom")) not in {frozenset(p.links) for p in ignored.pairs}
+    with pytest.raises(InputError, match=r"ignore pair \['boom', 'nose'\].*no geometry on nose"):
+        RobotGeometry(toy, ignore=[["boom", "nose"]])
+    bax = RobotGeometry(baxter)
+    assert bax.srdf is not None and bax.srdf.name == "baxter_manipulation.srdf"
+    assert "srdf" in bax.ignored.values()
+
+
+def _random_configurations(robot, n, seed):
+    rng = np.random.default_rng(seed)
+    low, high = np.maximum(robot.limits.lower, -np.pi), np.minimum(robot.limits.upper, np.pi)
+    return rng.uniform(low, high, size=(n, robot.n))
+
+
+@pytest.mark.parametrize("name", ["toy", "paper", "baxter"])
+def test_symbolic_placements_match_pinocchio(name, request):
+    robot = request.getfixturevalue(name)
+    geometry = RobotGeometry(robot)
+    q = cs.SX.sym("q", len(geometry.moving_joints))
+    frames = shapes.joint_placements(geometry, q)
+    joints = sorted(frames)
+    f = cs.Function("frames", [q], [v for j in joints for v in frames[j]])
+    E, e = robot.mimic_matrix
+    for qk in _random_configurations(robot, 10, seed=3):
+        values = f(E @ qk + e)
+        reference = shapes.numeric_placements(geometry, qk)
+        for k, j in enumerate(joints):
+            np.testing.assert_allclose(np.array(values[2 * k]), reference[j].rotation, atol=1e-9)
+            np.testing.assert_allclose(
+                np.array(values[2 * k + 1]).ravel(), reference[j].translation, atol=1e-9
+            )
+
+
+@pytest.mark.parametrize("name", ["toy", "paper", "baxter"])
+def test_fitted_shapes_never_farther_than_the_exact_geometry(name, request):
+    """A fitted shape contains its body: its distance is at most coal's exact one (when the
+    exact geometry is apart; inside each other, depths are not comparable)."""
+    robot = request.getfixturevalue(name)
+    geometry = RobotGeometry(robot)
+    fitted = shapes.fit_shapes(geometry)
+    of = {i: k for k, s in enumerate(fitted) for i in s.objects}
+    q = cs.SX.sym("q", len(geometry.moving_joints))
+    frames = shapes.joint_placements(geometry, q)
+    pairs = [p for p in geometry.pairs if of[p.first] != of[p.second]]
+    f = cs.Function(
+        "d",
+        [q],
+        [
+            cs.vertcat(
+                *(
+                    shapes.shape_distance(fitted[of[p.first]], fitted[of[p.second]], frames)
+                    for p in pairs
+                )
+            )
+        ],
+    )
+    E, e = robot.mimic_matrix
+    close = 0
+    for qk in _random_configurations(robot, 100, seed=11):
+        fit = np.array(f(E @ qk + e)).ravel()
+        exact = geometry.distances(qk, [p.index for p in pairs])
+        assert np.all(fit <= np.maximum(exact, 0.0) + 1e-9), pairs[int(np.argmax(fit - exact))].name
+        close += int(np.sum((exact > 0) & (exact - fit < 0.02)))
+    assert close > 0  # some pairs come within 2 cm of their shapes: the fits are tight
+
+
+def test_segment_distance_against_sampling():
+    rng = np.random.default_rng(5)
+    p = cs.SX.sym("p", 12)
+    f = cs.Function("d", [p], [shapes.segment_distance(p[0:3], p[3:6], p[6:9], p[9:12])])
+    s = np.linspace(0, 1, 401)
+    for k in range(50):
+        x = rng.normal(size=12)
+        if k % 5 == 0:  # parallel segments, and a point
+            x[9:12] = x[6:9] + (x[3:6] - x[0:3])
+        if k % 7 == 0:
+            x[3:6] = x[0:3]
+        a = x[0:3] + s[:, None] * (x[3:6] - x[0:3])
+        b = x[6:9] + s[:, None] * (x[9:12] - x[6:9])
+        sampled = np.linalg.norm(a[:, None] - b[None], axis=2).min()
+        assert float(f(x)) == pytest.approx(sampled, abs=1e-2 * np.linalg.norm(x) / 50 + 1e-6)
+        assert float(f(x)) <= sampled + 1e-9
+
+
+def test_clearance_finds_a_penetration_between_two_samples(toy):
+    """The boom swept from level (0.07 m above the cube) on one side to nearly level on the
+    other side, straight through the cube: both samples are clear, the motion is not."""
+    geometry = RobotGeometry(toy)
+    # the boom level forward, then nearly level backward: down through the cube in between
+    q = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, np.pi - 0.1]])
+    at_samples = [geometry.distances(qk) for qk in q]
+    assert min(d.min() for d in at_samples) > 0.0
+    report = clearance(geometry, [0.0, 1.0], q)
+    assert report.first_penetration is not None
+    assert report.first_penetration.pair == "base / boom"
+    assert 0.0 < report.first_penetration.time < 1.0
+    assert report.min_distance < -0.05 and not report.collision_free
+    data = report.to_dict()
+    assert data["first_penetration"]["pair"] == "base / boom"
+    assert data["geometry_source"] == "collision"
+    # the same motion on a fine grid agrees with the smallest distance found
+    t = np.linspace(0, 1, 2001)
+    grid = np.stack([np.interp(t, [0, 1], q[:, j]) for j in range(3)], axis=1)
+    pair = [p.name for p in geometry.pairs].index("base / boom")
+    along = np.array([geometry.distances(qk)[pair] for qk in grid])
+    exact = along.min()
+    # it enters the cube where the fine grid first finds it inside
+    assert report.first_penetration.time == pytest.approx(t[np.argmax(along <= 0)], abs=1e-3)
+    assert report.first_penetration.depth == pytest.approx(-exact, abs=2e-3)
+    assert report.pairs[pair].distance == pytest.approx(exact, abs=2e-3)
+    assert report.pairs[pair].lower_bound <= exact + 1e-9
+
+
+def test_clearance_of_a_clear_motion_is_certified(toy):
+    geometry = RobotGeometry(toy)
+    q = np.array([[0.0, 0.0, -0.2], [0.5, 0.3, -0.3], [1.0, 0.6, -0.1]])
+    report = clearance(geometry, [0.0, 0.5, 1.0], q)
+    assert report.first_penetration is None and report.collision_free
+    for p in report.pairs:
+        assert p.lower_bound <= p.distance
+    boom = [p for p in report.pairs if p.pair == "base / boom"][0]
+    assert 0.0 < boom.lower_bound < boom.distance < 0.1
+
+
+def _pulled_into_the_cube(avoid: bool, caplog=None):
+    """A plan whose rest pull (q_rest: the boom 1 rad down, inside the cube) drags the boom
+    into the cube unless collision avoidance keeps it out."""
+    from balance_opt.motion.trajectories import PointToPoint
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.options import CostWeights, PlannerOptions
+    from balance_opt.optimal.solve import build_balance_nlp
+
+    robot = FloatingRobot(toy_urdf(), ["yaw"], ["turn", "swing"])
+    model = PlannerModel(robot, compile=False, store=False)
+    options = PlannerOptions(
+        objective="integral",
+        intervals=20,
+        weights=CostWeights(rest=100.0),
+        rest_configuration=(0.0, 1.0),
+        end="free",
+        collision_avoidance=avoid,
+        collision_margin=0.02,
+    )
+    nlp = build_balance_nlp(model, PointToPoint([0.0], [0.6], 3.0), [0.0, 0.0], options)
+    return nlp, nlp.solve("rest")
+
+
+def test_planner_keeps_the_arm_out_of_the_base():
+    nlp, free = _pulled_into_the_cube(avoid=False)
+    geometry = RobotGeometry(nlp.robot)
+    inside = clearance(geometry, free.t, np.hstack([free.q_M, free.q_B]))
+    assert inside.min_distance < -0.05 and inside.closest.pair == "base / boom"
+    nlp, safe = _pulled_into_the_cube(avoid=True)
+    assert [b.name for b in nlp.constraints if b.name == "collision clearance"]
+    report = clearance(geometry, safe.t, np.hstack([safe.q_M, safe.q_B]))
+    assert report.min_distance >= 0.02 - 1e-5
+    assert report.collision_free
+    # the pull still acts: the boom rests on the margin, as far down as it may go
+    assert report.min_distance < 0.03
+    assert safe.q_B[-1, 1] > 0.05
+
+
+def test_pairs_in_contact_at_the_start_are_reported_and_left_out(caplog):
+    from balance_opt.motion.trajectories import PointToPoint
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.options import PlannerOptions
+    from balance_opt.optimal.solve import build_balance_nlp
+
+    robot = FloatingRobot(toy_urdf(), ["yaw"], ["turn", "swing"])
+    model = PlannerModel(robot, compile=False, store=False)
+    with caplog.at_level(logging.WARNING, logger="balance_opt.optimal.collision"):
+        nlp = build_balance_nlp(
+            model, PointToPoint([0.0], [0.6], 3.0), [0.0, 1.0], PlannerOptions(intervals=10)
+        )
+    assert [p.name for p in nlp.collision.initial_contacts] == ["base / boom"]
+    assert "base / boom" in caplog.text
+    assert "base / boom" not in {p.name for p in nlp.collision.pairs}
+    bare = FloatingRobot(toy_urdf(tags=()), ["yaw"], ["turn", "swing"])
+    with pytest.raises(InputError, match="has no <collision> or <visual> geometry"):
+        RobotGeometry(bare)
+    nlp = build_balance_nlp(
+        PlannerModel(bare, compile=False, store=False),
+        PointToPoint([0.0], [0.6], 3.0),
+        [0.0, 0.0],
+        PlannerOptions(intervals=10),
+    )
+    assert nlp.collision is None  # nothing to keep apart: the plan goes without
+    off = build_balance_nlp(
+        model,
+        PointToPoint([0.0], [0.6], 3.0),
+        [0.0, 0.0],
+        PlannerOptions(intervals=10, collision_avoidance=False),
+    )
+    assert off.collision is None and off.structure.key.collision == ""
+
+
+def _grid_clearance(geometry, result, step=1e-3):
+    """The smallest exact distance of every checked pair on a ``step`` grid of the motion."""
+    t = np.arange(0.0, result.t[-1] + 0.5 * step, step)
+    q = np.hstack([result.q_M, result.q_B])
+    grid = np.stack([np.interp(t, result.t, q[:, j]) for j in range(q.shape[1])], axis=1)
+    return min(geometry.distances(qk).min() for qk in grid)
+
+
+@pytest.mark.slow
+def test_capture_task_plan_avoids_the_base_and_keeps_its_drift(capture):
+    """The capture task's optimal plan without avoidance drives balance_link3 0.39 m into the
+    base; with it (the default) every pair stays beyond the margin on a 1 ms grid, and the
+    peak stays below 0.028 rad (restricting balance_joint2 to [0, 1.57] rad gives 0.0260)."""
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.options import PlannerOptions
+    from balance_opt.optimal.solve import build_balance_nlp
+
+    model = PlannerModel(capture.robot)
+    options = PlannerOptions()
+    assert options.collision_avoidance and options.collision_margin == 0.03
+    plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
+    geometry = RobotGeometry(capture.robot)
+    assert _grid_clearance(geometry, plan) >= 0.03
+    assert plan.max_drift <= 0.028
+    assert plan.final_drift <= 1e-3
+    assert plan.info["resimulation"]["constraint_violations"] == []
+
+
+@pytest.mark.slow
+def test_baxter_plan_is_collision_free():
+    from balance_opt.app.pipeline import plan
+    from balance_opt.io.task import load_task
+
+    task = load_task("examples/baxter_floating.yaml")
+    result = plan(task, "optimal")
+    assert _grid_clearance(RobotGeometry(task.robot), result, step=5e-3) >= 0.03 - 1e-6
