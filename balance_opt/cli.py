@@ -260,8 +260,22 @@ def _methods(args) -> tuple[str, ...]:
 
 
 def _more_summary(metrics: dict) -> list[str]:
-    """The smoothness and model-error lines of one method's summary, from its metrics."""
+    """The clearance, smoothness and model-error lines of one method's summary, from its
+    metrics."""
     lines = []
+    c = metrics.get("clearance")
+    if c and c.get("closest_pair") is not None:
+        pen = c.get("first_penetration")
+        if pen:
+            lines.append(
+                f"COLLISION: {pen['pair']} from t = {pen['time_s']:.3f} s, "
+                f"{pen['depth_m']:.3g} m deep"
+            )
+        else:
+            lines.append(
+                f"smallest distance between bodies {c['min_distance_m']:.3g} m "
+                f"({c['closest_pair']}, t = {c['closest_time_s']:.2f} s)"
+            )
     smooth = metrics.get("smoothness") or {}
     if smooth and any(v["acceleration_reversals"] for v in smooth.values()):
         reversals = "/".join(str(v["acceleration_reversals"]) for v in smooth.values())

@@ -34,7 +34,7 @@ simulation: {dt: 0.002, output_dt: 0.05}
 PLAN_FILES = {
     f"{m}.{ext}" for m in ("mission-only", "analytic", "optimal") for ext in ("csv", "npz")
 }
-FIGURES = {"attitude_plans.png", "balance_joints.png"}
+FIGURES = {"attitude_plans.png", "balance_joints.png", "clearance.png"}
 SIMULATION_FIGURES = {"attitude_simulated.png", "reaction_torque.png"}
 #: ``compare`` studies the drift under model error by default, ``plan`` does not.
 MODEL_ERROR_FIGURE = {"attitude_model_error.png"}
@@ -195,6 +195,10 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
     # the optimal plan keeps the base stiller than the mission arm alone would leave it
     assert optimal["max_drift_rad"] < ref["max_drift_rad"]
     assert optimal["final_drift_rad"] < ref["final_drift_rad"]
+    # the clearance of every plan and simulation on the continuous motion, checked with coal
+    assert optimal["clearance"]["collision_free"] and optimal["simulation"]["clearance"]
+    assert optimal["clearance"]["min_distance_m"] >= 0.03 - 1e-3  # the default margin
+    assert ref["clearance"]["pairs_checked"] == optimal["clearance"]["pairs_checked"] > 0
     # smoothness figures of every balance joint; no model-error study in `plan` by default
     assert set(optimal["smoothness"]) == set(joints[3:])
     assert all(v["acceleration_reversals"] >= 0 for v in optimal["smoothness"].values())
@@ -424,7 +428,8 @@ def test_outputs_can_be_switched_off(tmp_path):
     out = tmp_path / "out"
     assert main(["plan", str(task), "-m", "analytic", "-o", str(out), "-q"]) == 0
     assert {p.name for p in out.iterdir()} == REPORT_FILES
-    assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
+    # the attitude, the balance joints and the clearance
+    assert (out / "report.html").read_text().count("data:image/png;base64,") == 3
 
 
 @pytest.mark.slow
@@ -690,9 +695,10 @@ def test_untrustworthy_plan_is_flagged_and_results_go_to_stdout(tmp_path, capsys
     kinds = m["limit_violations_by_kind"]
     assert sum(kinds.values()) == m["limit_violations"] == len(m["violations"]) > 0
     kinematic = kinds["position"] + kinds["velocity"] + kinds["acceleration"]
+    collision = f", {kinds['collision']} collision" if kinds["collision"] else ""
     count = (
         f"{m['limit_violations']} ({kinematic} position/velocity/acceleration, "
-        f"{kinds['effort']} effort) limit violations"
+        f"{kinds['effort']} effort{collision}) limit violations"
     )
     assert f"analytic      max drift {m['max_drift_rad']:.3g} rad" in captured.out
     assert count in captured.out

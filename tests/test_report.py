@@ -318,3 +318,25 @@ def test_report_opens_with_a_headline_and_shows_figures_at_the_columns_width(tmp
     assert page.index(f'<p class="headline">{line}</p>') < page.index("<h2>Comparison</h2>")
     assert "figure img { width: 100%; height: auto;" in page
     assert headline({"methods": {"optimal": metrics["methods"]["optimal"]}}) is None
+
+
+def test_a_penetrating_plan_counts_as_a_violation(paper):
+    """A motion whose bodies penetrate is flagged where its limit violations are counted: in
+    ``violations``, ``limit_violations``, by kind, and in the words of the CLI and the report."""
+    from balance_opt.analytic.phases import phase_one
+    from balance_opt.app.scenarios import capture_task
+    from balance_opt.geometry.clearance import ClearanceReport, PairClearance, Penetration
+    from balance_opt.report.outputs import method_metrics
+    from balance_opt.report.report import violation_count_text
+
+    scenario = capture_task()
+    plan = phase_one(scenario.robot, scenario.mission, scenario.q_B0)
+    pair = PairClearance("balance_link3 / base_link", 0, -0.39, 5.0, -0.4)
+    report = ClearanceReport((pair,), Penetration(pair.pair, 3.5, 0.39), "collision", 10)
+    m = method_metrics(plan, scenario.robot, clearance=report)
+    assert m["clearance"]["collision_free"] is False
+    assert m["violations"][-1] == "balance_link3 / base_link: collision from t = 3.500 s, 0.39 m deep"
+    assert m["limit_violations_by_kind"]["collision"] == 1
+    assert m["limit_violations"] == len(m["violations"])
+    text = violation_count_text(m["limit_violations"], m["limit_violations_by_kind"])
+    assert text.endswith(", 1 collision)")

@@ -30,6 +30,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from balance_opt.app.models import ModelCache
 from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures: public here too)
     FIGURES,
@@ -340,13 +342,50 @@ def _compute(
             _plan_into(run, method, solver_options, models, executor)
     if robustness:
         _model_error_into(run)
+    _clearance_into(
+        run, {n: (r.t, np.hstack([r.q_M, r.q_B])) for n, r in run.results.items()}, run.clearance
+    )
     if simulate:
         for name in list(run.results):
             if name in given_sims:
                 run.simulations[name] = given_sims[name]
             else:
                 _simulate_into(run, name)
+        sims = {name: (sim.t, sim.q) for name, sim in run.simulations.items()}
+        _clearance_into(run, sims, run.simulated_clearance)
     return run
+
+
+#: Samples of a motion at most in the clearance figure's curves.
+CLEARANCE_CURVE_SAMPLES = 300
+
+
+def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> None:
+    """The clearance of each motion ``(t, arm vectors)`` (a plan's, a simulation's) on the continuous
+    motion (:func:`~balance_opt.geometry.clearance.clearance`) and its smallest distance over
+    time for the figure, into ``into`` as ``{name: (report, t, distance)}``. A robot without
+    geometry has none (a log line says so); across a capture the target is not a body of the
+    check (the robot's own bodies are). A geometry that does not load (a missing mesh) leaves
+    the check out with a warning."""
+    from balance_opt.geometry.clearance import clearance
+    from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
+
+    if run.geometry is None:
+        ignore = run.task.spec.optimal.planner.collision_ignore
+        try:
+            run.geometry = RobotGeometry(run.task.robot, ignore=ignore)
+        except NoGeometryError as exc:
+            log.info("%s: no clearance check: %s", run.task.name, exc)
+            run.geometry = False
+        except InputError as exc:  # a mesh file missing: the plans still count
+            log.warning("%s: no clearance check: %s", run.task.name, exc)
+            run.geometry = False
+    if run.geometry is False:
+        return
+    for name, (t, q) in motions.items():
+        report = clearance(run.geometry, t, q)
+        step = max(1, len(t) // CLEARANCE_CURVE_SAMPLES)
+        into[name] = (report, t[::step], run.geometry.smallest_along(q[::step]))
 
 
 def _model_error_into(run: TaskRun) -> None:

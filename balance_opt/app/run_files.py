@@ -30,6 +30,12 @@ SCENE_FILE = "scene.html"
 #: Figures of a run: key -> (file name without suffix, caption). The figures carry no title;
 #: the report prints these captions under them.
 FIGURES = {
+    "clearance": (
+        "clearance",
+        "Smallest distance between any two bodies of the robot that may touch (adjacent links "
+        "and pairs the robot's SRDF disables left out), exact geometry, against time; below zero "
+        "the bodies penetrate; dotted: the optimal planner's collision margin",
+    ),
     "model_error": (
         "attitude_model_error",
         "Base rotation of each plan as planned (lines) and its 95th percentile when the plan's "
@@ -74,6 +80,11 @@ class TaskRun:
         report: the HTML report, if written.
         robustness: the plans' drift under model error
             (:class:`~balance_opt.motion.robustness.RobustnessResult`), if studied.
+        clearance: per plan ``(ClearanceReport, t, smallest distance)``
+            (:mod:`balance_opt.geometry.clearance`); ``simulated_clearance`` the same of the
+            simulations; empty for a robot without geometry.
+        geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`
+            (``False``: it has none; ``None``: not built yet).
     """
 
     task: Task
@@ -84,6 +95,9 @@ class TaskRun:
     files: list[Path] = field(default_factory=list)
     report: Path | None = None
     robustness: Any = None
+    clearance: dict[str, Any] = field(default_factory=dict)
+    simulated_clearance: dict[str, Any] = field(default_factory=dict)
+    geometry: Any = None
 
     @property
     def ok(self) -> bool:
@@ -133,7 +147,14 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     }
     files = _write_trajectories(run, output_dir, torques)
     run.metrics = run_metrics(
-        run.task, run.results, run.simulations, run.failures, torques, run.robustness
+        run.task,
+        run.results,
+        run.simulations,
+        run.failures,
+        torques,
+        run.robustness,
+        {name: c[0] for name, c in run.clearance.items()},
+        {name: c[0] for name, c in run.simulated_clearance.items()},
     )
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []
@@ -228,6 +249,18 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     figures = []
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
     draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
+    if run.clearance:
+        from balance_opt.report.plots import clearance_figure
+
+        planner = run.task.spec.optimal.planner
+        margin = planner.collision_margin if planner.collision_avoidance else None
+        curves = {name: (c[1], c[2]) for name, c in run.clearance.items()}
+        curves = {**{k: v for k, v in curves.items() if k != REFERENCE}, **_only(curves, REFERENCE)}
+        stem, caption = FIGURES["clearance"]
+        _, paths = clearance_figure(
+            curves, margin, output_dir / stem, formats=("png",), dpi=SCREEN_DPI
+        )
+        figures.append((caption, paths[0]))
     if run.robustness is not None:
         from balance_opt.report.plots import model_error_figure
 

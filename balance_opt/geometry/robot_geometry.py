@@ -257,6 +257,15 @@ class RobotGeometry:
             ]
         )
 
+    def smallest_along(self, q) -> np.ndarray:
+        """The smallest distance [m] of any checked pair at every configuration of ``q``
+        (T, n) (inf without pairs)."""
+        out = np.full(len(q), np.inf)
+        if self.pairs:
+            for k, qk in enumerate(q):
+                out[k] = self.distances(qk).min()
+        return out
+
     def distances_along(self, q, pair: int) -> np.ndarray:
         """The distance [m] of pair ``pair`` at every configuration of ``q`` (T, n)."""
         out = np.empty(len(q))

@@ -317,6 +317,8 @@ def method_metrics(
     simulation=None,
     h0=None,
     torques: np.ndarray | None = None,
+    clearance=None,
+    simulated_clearance=None,
 ) -> dict[str, Any]:
     """Figures of merit of one plan, plain JSON data.
 
@@ -353,12 +355,18 @@ def method_metrics(
     out["peak_joint_rates_rad_s"] = {n: float(rates[:, k].max()) for k, n in enumerate(names)}
     out["effort"] = effort_metrics(result, robot, h0, torques)
     out["violations"] = [str(v) for v in result.violations] + out["effort"]["violations"]
+    collisions = []
+    if clearance is not None:
+        out["clearance"] = clearance.to_dict()
+        collisions = _collision_violations(clearance)
+        out["violations"] += collisions
     out["limit_violations"] = len(out["violations"])
     out["smoothness"] = _smoothness_metrics(result, robot, torques)
     kinds = [v.kind for v in result.violations]
     out["limit_violations_by_kind"] = {
         **{kind: kinds.count(kind) for kind in ("position", "velocity", "acceleration")},
         "effort": len(out["effort"]["violations"]),
+        "collision": len(collisions),
     }
     out["warnings"] = result.warnings()
     out["solver"] = solver_metrics(result.info)
@@ -377,7 +385,20 @@ def method_metrics(
             },
             "wall_time_s": simulation.info.get("wall_time_s"),
         }
+        if simulated_clearance is not None:
+            out["simulation"]["clearance"] = simulated_clearance.to_dict()
     return to_json(out)
+
+
+def _collision_violations(clearance) -> list[str]:
+    """The first penetration of a motion as a violation (``[]``: none)."""
+    pen = clearance.first_penetration
+    if pen is None and clearance.collision_free:
+        return []
+    if pen is None:  # touching, not penetrating
+        closest = clearance.closest
+        return [f"{closest.pair}: collision (touching) at t = {closest.time:.3f} s"]
+    return [f"{pen.pair}: collision from t = {pen.time:.3f} s, {pen.depth:.4g} m deep"]
 
 
 def run_metrics(
@@ -387,6 +408,8 @@ def run_metrics(
     failures: Mapping[str, str] | None = None,
     torques: Mapping[str, np.ndarray] | None = None,
     robustness=None,
+    clearances: Mapping[str, Any] | None = None,
+    simulated_clearances: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The content of ``metrics.json``: the task (file, name, SHA-256; for a Cartesian mission
     ``cartesian_goal_rad``, the joint goal inverse kinematics found), the versions, and
@@ -394,13 +417,23 @@ def run_metrics(
     name when the caller has them); ``failures`` lists methods whose solver failed (their best
     iterate is among ``results``). With the plans' drift under model error (a
     :class:`~balance_opt.motion.robustness.RobustnessResult`), each method's ``robustness``
-    holds its spread and the top-level ``robustness`` the study's settings."""
+    holds its spread and the top-level ``robustness`` the study's settings. ``clearances`` (and
+    ``simulated_clearances``): each plan's (simulation's)
+    :class:`~balance_opt.geometry.clearance.ClearanceReport`."""
     from balance_opt.report.capture_metrics import capture_metrics
 
     simulations, torques = simulations or {}, torques or {}
     capture = capture_metrics(task, results, simulations)  # issue 16; None without a capture
     methods = {
-        name: method_metrics(r, task.robot, simulations.get(name), task.h0, torques.get(name))
+        name: method_metrics(
+            r,
+            task.robot,
+            simulations.get(name),
+            task.h0,
+            torques.get(name),
+            (clearances or {}).get(name),
+            (simulated_clearances or {}).get(name),
+        )
         for name, r in results.items()
     }
     study = None

@@ -148,6 +148,36 @@ def model_error_figure(
         return fig, _finish(fig, stem, formats, dpi)
 
 
+def clearance_figure(
+    curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    margin: float | None,
+    stem: str | Path | None = None,
+    *,
+    formats: Sequence[str] = FORMATS,
+    dpi: int = style.PRINT_DPI,
+) -> tuple[Any, list[Path]]:
+    """The smallest distance between any two bodies that may touch [m] against time, one curve
+    per motion ``{name: (t, distance)}``, with zero (contact) and the planner's ``margin``
+    (dotted) marked; one column wide."""
+    with style.styled("column"):
+        fig = style.figure("column", 2.4)
+        ax = fig.subplots(1, 1)
+        for name, (t, d) in curves.items():
+            ax.plot(t, d, **style.method_style(name))
+        ax.axhline(0.0, color="0.2", linewidth=0.8)
+        if margin is not None:
+            ax.axhline(margin, color="0.4", linestyle=":", linewidth=0.9)
+            ax.annotate(f"margin {margin:g} m", (0.01, margin), xycoords=("axes fraction", "data"),
+                        ha="left", va="bottom", fontsize="small", color="0.3")
+        t_end = max(float(t[-1]) for t, _ in curves.values())
+        _time_axes([ax], t_end, ["smallest distance [m]"])
+        handles = ax.get_lines()[: len(curves)]
+        ncol = legend_columns([h.get_label() for h in handles], "column")
+        anchor = arrange(fig, np.array([[ax]]), "column", legend_rows=-(-len(handles) // ncol))
+        legend_above(fig, handles, "column", anchor, ncol)
+        return fig, _finish(fig, stem, formats, dpi)
+
+
 def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
     """(wrench, plot kwargs) of the sum, the mission arm and the balance arm(s) of one plan."""
     balance = sum(w for arm, w in sim.arm_wrenches.items() if arm != "mission")

@@ -169,6 +169,19 @@ def _per_joint(path: str, key: str, fmt: str = "{:.3g}") -> Callable[[Mapping], 
     return cell
 
 
+def _clearance(path: str) -> Callable[[Mapping], Cell]:
+    """The smallest distance between bodies and the pair, red where they penetrate."""
+
+    def cell(m):
+        c = _get(m, path)
+        if not c or c.get("closest_pair") is None:
+            return None
+        text = f"{c['min_distance_m']:.4g} ({c['closest_pair']}, t = {c['closest_time_s']:.2f} s)"
+        return text, ("inside" if c["collision_free"] else "broken")
+
+    return cell
+
+
 def _count(path: str) -> Callable[[Mapping], Cell]:
     def cell(m):
         value = _get(m, path)
@@ -186,8 +199,9 @@ def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
     if not total or not by_kind:
         return str(total)
     kinematic = sum(by_kind.get(k, 0) for k in ("position", "velocity", "acceleration"))
-    effort = by_kind.get("effort", 0)
-    return f"{total} ({kinematic} position/velocity/acceleration, {effort} effort)"
+    effort, collision = by_kind.get("effort", 0), by_kind.get("collision", 0)
+    text = f"{total} ({kinematic} position/velocity/acceleration, {effort} effort"
+    return text + (f", {collision} collision)" if collision else ")")
 
 
 def _residual(path: str) -> Callable[[Mapping], Cell]:
@@ -226,7 +240,8 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
     ("largest torque rate, per joint [N m/s]", _per_joint("smoothness", "max_torque_rate_Nm_s")),
     ("All arms", None),
     ("effort limit margin (smallest, of the limit)", _effort_margin("effort.min_relative_margin")),
-    ("limit violations (position, rate, acceleration, effort)", _count("limit_violations")),
+    ("limit violations (position, rate, acceleration, effort, collision)", _count("limit_violations")),
+    ("smallest distance between bodies [m]", _clearance("clearance")),
     ("Solver", None),
     ("status", _plain("solver.status")),
     ("iterations", _plain("solver.iterations")),
@@ -239,6 +254,7 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
     ("max attitude drift", _angle("simulation.max_drift_rad")),
     ("final attitude drift", _angle("simulation.final_drift_rad")),
     ("max joint tracking error", _angle("simulation.max_tracking_error_rad")),
+    ("smallest distance between bodies [m]", _clearance("simulation.clearance")),
     (
         "peak total reaction torque on the base [N m]",
         _plain("simulation.peak_reaction_torque_Nm.total", TORQUE_TOLERANCE),
