@@ -211,7 +211,7 @@ def test_plan_paper_both_methods_simulated(tmp_path, capsys):
         assert abs(sim["max_drift_rad"] - method["max_drift_rad"]) < 0.1 * method["max_drift_rad"]
         assert set(sim["peak_reaction_torque_Nm"]) == {"mission", "balance", "total"}
     report = (out / "report.html").read_text()
-    assert report.count("data:image/png;base64,") == 4
+    assert report.count("data:image/png;base64,") == 5  # with the clearance figure
     assert re.search(r"analytic law</th><th>.*?optimal plan</th>", report)
 
 

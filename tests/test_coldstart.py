@@ -135,7 +135,7 @@ def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, cap
     assert np.abs(w_vm - w_c).max() < 1e-7
     assert abs(plan_vm.final_drift - plan_c.final_drift) < 1e-9
     # a process that keeps the first model swaps the library in for its next plans
-    assert first.upgrade_kernels() == 1 and first.kernels().compiled and not first.nlp_cache
+    assert first.upgrade_kernels() >= 1 and first.kernels().compiled and not first.nlp_cache
 
 
 def test_talos_example_has_fourteen_arm_joints():

@@ -1,4 +1,4 @@
-"""The 3D scene (balance_opt/io/scene.py) and ``balance-opt view``: every link with geometry is
+"""The 3D scene (balance_opt/report/scene.py) and ``balance-opt view``: every link with geometry is
 in the scene at the placement numeric Pinocchio gives at the plan's samples, the centre of mass
 on its free-flight line (across a capture too), the packed animation holds those placements,
 meshes are simplified, the page loads nothing from outside, and the view command serves it."""

@@ -368,8 +368,9 @@ class JerkLimit(Constraint):
 #: (the torque rows hold at the collocation points only).
 TORQUE_TOLERANCE = 2e-3
 #: Points per collocation interval, both ends included, at which the refinement and the check
-#: evaluate the torques (:meth:`TorqueLimit.torques`).
-TORQUE_POINTS = 9
+#: evaluate the torques (:meth:`TorqueLimit.torques`): the torque of a plan bent around a body
+#: peaks inside an interval, and a coarse grid there misses a peak by more than the tolerance.
+TORQUE_POINTS = 33
 
 
 class TorqueLimit(Constraint):
