@@ -564,3 +564,56 @@ def test_a_plan_that_stays_clear_has_no_highlight(capture, capture_geometry):
     assert "near" not in plain.meta["methods"]["swing"]
     assert "collision margin" not in scene_html(plain)
     assert "closer than the collision margin (0.03 m)" in scene_html(scene)
+
+
+def test_a_run_s_scene_uses_the_run_s_geometry_and_margin(
+    capture, capture_geometry, monkeypatch, tmp_path
+):
+    """``write_run_scene`` highlights with the geometry the run already has (none is built) and
+    the task's collision margin; a run whose robot has no geometry (``False``) gets none."""
+    import balance_opt.geometry.robot_geometry as robot_geometry
+    from balance_opt.app.run_files import TaskRun, write_run_scene
+    from balance_opt.tasks.task import load_task
+
+    def no_rebuild(*args, **kwargs):
+        raise AssertionError("the run's geometry was built again")
+
+    monkeypatch.setattr(robot_geometry, "RobotGeometry", no_rebuild)
+    task = load_task(_paper_task(tmp_path))
+    margin = task.spec.optimal.planner.collision_margin
+    results = {"swing": _through_the_base(capture.robot, -1.6)}
+    run = TaskRun(task, results=results, geometry=capture_geometry)
+    text = write_run_scene(run, tmp_path / "a.html").read_text()
+    data = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))
+    assert data["proximity"]["margin"] == margin
+    assert "base" in data["marked"] and "balance_joint3" in data["marked"]
+    run = TaskRun(task, results=results, geometry=False)
+    text = write_run_scene(run, tmp_path / "b.html").read_text()
+    data = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))
+    assert data["proximity"] is None and data["marked"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium is not installed")
+def test_the_page_names_the_penetrating_pair(capture, capture_geometry, tmp_path):
+    """In headless Chromium, the label at a time balance_link3 is in the base box names the
+    pair; at the start it names none."""
+    res = _through_the_base(capture.robot, -1.6)
+    path = write_scene(
+        tmp_path / "scene.html", capture.robot, {"swing": res}, geometry=capture_geometry,
+        margin=MARGIN,
+    )  # fmt: skip
+    assert capture_geometry.distances(np.hstack([res.q_M, res.q_B])[80]).min() < 0  # t = 2 s
+    labels = {}
+    for t in (0, 2):
+        proc = subprocess.run(
+            ["chromium", "--headless", "--no-sandbox", "--disable-gpu",
+             "--virtual-time-budget=3000", "--dump-dom", f"{path.as_uri()}#method=swing&t={t}"],
+            capture_output=True, text=True, timeout=120, check=False,
+        )  # fmt: skip
+        label = re.search(r'<span id="scene-label">([^<]*)</span>', proc.stdout)
+        assert label, proc.stderr[-2000:]
+        labels[t] = label.group(1)
+    penetrating = re.search(r"penetrating: ([^;]*)", labels[2])
+    assert penetrating and "base_link / balance_link3" in penetrating.group(1).split(", ")
+    assert "penetrating" not in labels[0] and "closer than" not in labels[0]
