@@ -20,6 +20,12 @@ on its free-flight line ``c(t) = c(0) + t p0 / m``: the robot's before a capture
 the target's together after it (with the momentum the target brings). The target, a box of
 uniform density with its inertia, flies at its own constant velocities before the capture and
 rides the mission end effector after it.
+
+Bodies too close (with the robot's collision geometry): at each frame, the links of a checked
+pair closer than the collision margin are shown amber, those of a penetrating pair red. Each
+such link has an amber and a red copy of its pieces beside them; the animation switches the
+visibility of the pieces and of the copies where the state changes (boolean keys), so the
+links that never come close cost nothing.
 """
 
 from __future__ import annotations
@@ -510,9 +516,10 @@ def build_scene(
     ever = np.any([lv.any(axis=0) for lv in levels.values()], axis=0) if levels else []
     marked = [j for j, e in zip(nodes, ever) if e and any(o.joint == j for o in objects)]
     for j in marked:  # a copy of the link's pieces per colour, shown only while it applies
+        node = _node_name(robot, j)
         for kind, colour in _OVERLAYS.values():
             for obj in (o for o in objects if o.joint == j):
-                path = _path(_node_name(robot, j), kind, obj.name)
+                path = _path(node, kind, obj.name)
                 shape = obj.mesh.geometry
                 if obj.vertices:  # the mesh sent once: the page hands it over
                     shape = mg.Box([0.0, 0.0, 0.0])
@@ -521,8 +528,7 @@ def build_scene(
                 setup.append(_pack(SetObject(drawn, path=path).lower()))
                 transform = obj.placement.homogeneous @ obj.intrinsic
                 setup.append(_pack(SetTransform(transform, path).lower()))
-            setup.append(_pack(SetProperty("visible", False, _path(_node_name(robot, j), kind))
-                               .lower()))
+            setup.append(_pack(SetProperty("visible", False, _path(node, kind)).lower()))
     setup.append(_pack(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")).lower()))
     if target is not None:
         sides, axes = target_box(target)
