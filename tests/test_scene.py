@@ -502,25 +502,23 @@ def test_links_are_red_exactly_at_the_frames_coal_finds_them_penetrating(capture
     t = pose["t"] - pose["t"][0]
     model = robot.model
     marked = []
-    for j in scene.nodes:
-        node = "base" if j == 1 else model.names[j]
-        mine = [p.index for p in geometry.pairs if any(
-            model.frames[model.getFrameId(link)].parentJoint == j for link in p.links)]  # fmt: skip
+    for o in scene.objects:  # one piece per link on this robot, collision and visual alike
+        node = "base" if o.joint == 1 else model.names[o.joint]
+        mine = [p.index for p in geometry.pairs if o.link in p.links]
         closest = d[:, mine].min(axis=1) if mine else np.full(len(t), np.inf)
         red, amber = closest < 0.0, (closest >= 0.0) & (closest < MARGIN)
+        here = f"/meshcat/robot/{node}/{o.link}"
         if not (red | amber).any():
-            assert not any(path.startswith(f"/meshcat/robot/{node}/") for path in clips)
+            assert not any(path.startswith(here) for path in clips)
             continue
-        marked.append(node)
-        np.testing.assert_array_equal(_shown(clips[f"/meshcat/robot/{node}/touch"], t), red)
-        np.testing.assert_array_equal(_shown(clips[f"/meshcat/robot/{node}/near"], t), amber)
-        own = [o.name for o in scene.objects if o.joint == j]
-        assert own
-        for name in own:
-            shown = _shown(clips[f"/meshcat/robot/{node}/{name}"], t)
-            np.testing.assert_array_equal(shown, ~(red | amber))
+        marked.append(o.link)
+        np.testing.assert_array_equal(_shown(clips[f"{here}_touch"], t), red)
+        np.testing.assert_array_equal(_shown(clips[f"{here}_near"], t), amber)
+        shown = _shown(clips[f"/meshcat/robot/{node}/{o.name}"], t)
+        np.testing.assert_array_equal(shown, ~(red | amber))
     assert scene.meta["marked"] == marked
-    assert {"base", "balance_joint3"} <= set(marked) and not any("mission" in n for n in marked)
+    assert {"base_link", "balance_link3"} <= set(marked)
+    assert not any("mission" in n for n in marked)
     base = next(p.index for p in geometry.pairs if p.name == "base_link / balance_link3")
     assert 0 < (d[:, base] < 0).sum() < len(t)  # in the base box for part of the motion only
     # the label names the pair at the frames it penetrates
@@ -534,16 +532,14 @@ def test_links_are_red_exactly_at_the_frames_coal_finds_them_penetrating(capture
     # the copies sit where the links do, red and amber, hidden until the animation shows them
     setup = [_unpack(b) for b in scene.setup]
     copies = {c["path"]: c for c in setup if c["type"] == "set_object"
-              and c["path"].split("/")[-2] in ("touch", "near")}  # fmt: skip
-    joints = {model.getJointId(n) if n != "base" else 1 for n in marked}
-    assert len(copies) == 2 * sum(o.joint in joints for o in scene.objects)
+              and c["path"].split("/")[-2].endswith(("_touch", "_near"))}  # fmt: skip
+    assert len(copies) == 2 * sum(o.link in marked for o in scene.objects)
     for c in copies.values():
         colour = c["object"]["materials"][0]["color"]
-        kind = c["path"].split("/")[-2]
+        kind = c["path"].split("/")[-2].rsplit("_", 1)[1]
         assert colour == int((TOUCH_COLOUR if kind == "touch" else NEAR_COLOUR)[1:], 16)
     hidden = {c["path"] for c in setup if c["type"] == "set_property" and c["value"] is False}
-    assert {f"/meshcat/robot/{n}/{k}" for n in scene.meta["marked"]
-            for k in ("touch", "near")} <= hidden  # fmt: skip
+    assert {c["path"].rsplit("/", 1)[0] for c in copies.values()} <= hidden
 
 
 def test_a_plan_that_stays_clear_has_no_highlight(capture, capture_geometry):
@@ -553,11 +549,11 @@ def test_a_plan_that_stays_clear_has_no_highlight(capture, capture_geometry):
     scene = build_scene(robot, {"still": res}, fps=10, geometry=capture_geometry, margin=MARGIN)
     assert scene.meta["marked"] == []
     assert scene.meta["methods"]["still"]["near"] == [[0.0, ""]]
-    assert not scene.levels["still"].any()
+    assert not any(level.any() for level in scene.levels["still"].values())
     command = _unpack(scene.animations["still|1"])
     assert all(len(a["clip"]["tracks"]) == 2 for a in command["animations"])  # placements only
     setup = [_unpack(b) for b in scene.setup]
-    assert not any(c["path"].endswith(("/touch", "/near")) for c in setup)
+    assert not any(c["path"].split("/")[-2].endswith(("_touch", "_near")) for c in setup)
     # without geometry (a robot without any): no highlighting and no legend for it
     plain = build_scene(robot, {"swing": _through_the_base(robot, -1.6)}, fps=10)
     assert plain.meta["proximity"] is None and plain.meta["marked"] == []
@@ -586,7 +582,7 @@ def test_a_run_s_scene_uses_the_run_s_geometry_and_margin(
     text = write_run_scene(run, tmp_path / "a.html").read_text()
     data = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))
     assert data["proximity"]["margin"] == margin
-    assert "base" in data["marked"] and "balance_joint3" in data["marked"]
+    assert "base_link" in data["marked"] and "balance_link3" in data["marked"]
     run = TaskRun(task, results=results, geometry=False)
     text = write_run_scene(run, tmp_path / "b.html").read_text()
     data = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))

@@ -107,8 +107,8 @@ _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
     placement in the joint frame, the meshcat object (``intrinsic``: its transform from
-    meshcat's axes to Pinocchio's), its vertex count (meshes) and the corners of its bounding
-    box in the joint frame (8, 3) [m]."""
+    meshcat's axes to Pinocchio's), its vertex count (meshes), the corners of its bounding
+    box in the joint frame (8, 3) [m] and its link (frame) name."""
 
     name: str
     joint: int
@@ -117,6 +117,7 @@ class SceneObject:
     mesh: Any  # a meshcat.geometry.Mesh
     vertices: int
     corners: np.ndarray
+    link: str = ""
 
 
 def visual_model(robot: FloatingRobot) -> pin.GeometryModel:
@@ -239,8 +240,11 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         )
         corners = corners @ obj.placement.rotation.T + obj.placement.translation
         out.append(
-            SceneObject(obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners)
-        )
+            SceneObject(
+                obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners,
+                robot.model.frames[obj.parentFrame].name,
+            )
+        )  # fmt: skip
     return out
 
 
@@ -440,9 +444,9 @@ class Scene:
     objects: list[SceneObject] = field(repr=False)
     poses: dict[str, dict[str, np.ndarray]] = field(repr=False)
     nodes: list[int] = field(repr=False)
-    #: per method, the level of each of ``nodes`` at each frame (:func:`proximity_levels`);
+    #: per method, the level of each drawn link at each frame (:func:`proximity_levels`);
     #: empty without geometry
-    levels: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    levels: dict[str, dict[str, np.ndarray]] = field(default_factory=dict, repr=False)
 
 
 def _path(*names: str):
@@ -507,19 +511,19 @@ def build_scene(
         setup.append(_pack(SetObject(drawn, path=path).lower()))
         setup.append(_pack(SetTransform(obj.placement.homogeneous @ obj.intrinsic, path).lower()))
     # the frames at which each plan is drawn, and how close its bodies are at each
+    links = {o.link: o.joint for o in objects}
     levels, texts = {}, {}
     if geometry is not None:
         for name, res in results.items():
             q = np.hstack([res.q_M, res.q_B])[frame_index(res.t, fps)]
             distances = np.array([geometry.distances(qk) for qk in q]).reshape(len(q), -1)
-            levels[name], texts[name] = proximity_levels(geometry, distances, margin, nodes)
-    ever = np.any([lv.any(axis=0) for lv in levels.values()], axis=0) if levels else []
-    marked = [j for j, e in zip(nodes, ever) if e and any(o.joint == j for o in objects)]
-    for j in marked:  # a copy of the link's pieces per colour, shown only while it applies
-        node = _node_name(robot, j)
+            levels[name], texts[name] = proximity_levels(geometry, distances, margin, links)
+    marked = [lk for lk in links if any(lv[lk].any() for lv in levels.values())]
+    for link in marked:  # a copy of the link's pieces per colour, shown only while it applies
+        node = _node_name(robot, links[link])
         for kind, colour in _OVERLAYS.values():
-            for obj in (o for o in objects if o.joint == j):
-                path = _path(node, kind, obj.name)
+            for obj in (o for o in objects if o.link == link):
+                path = _path(node, f"{link}_{kind}", obj.name)
                 shape = obj.mesh.geometry
                 if obj.vertices:  # the mesh sent once: the page hands it over
                     shape = mg.Box([0.0, 0.0, 0.0])
@@ -528,7 +532,8 @@ def build_scene(
                 setup.append(_pack(SetObject(drawn, path=path).lower()))
                 transform = obj.placement.homogeneous @ obj.intrinsic
                 setup.append(_pack(SetTransform(transform, path).lower()))
-            setup.append(_pack(SetProperty("visible", False, _path(node, kind)).lower()))
+            hidden = SetProperty("visible", False, _path(node, f"{link}_{kind}"))
+            setup.append(_pack(hidden.lower()))
     setup.append(_pack(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")).lower()))
     if target is not None:
         sides, axes = target_box(target)
@@ -580,13 +585,12 @@ def build_scene(
             if target is not None:
                 tracks[_path(TARGET_NODE)] = _tracks(pose["target"])
             visible = {}
-            for j in marked:
-                level = levels[name][:, nodes.index(j)]
-                node = _node_name(robot, j)
-                for obj in (o for o in objects if o.joint == j):
+            for link in marked:
+                level, node = levels[name][link], _node_name(robot, links[link])
+                for obj in (o for o in objects if o.link == link):
                     visible[_path(node, obj.name)] = level == 0
                 for lv, (kind, _) in _OVERLAYS.items():
-                    visible[_path(node, kind)] = level == lv
+                    visible[_path(node, f"{link}_{kind}")] = level == lv
             key = f"{name}|{f:g}"
             animations[key] = _pack(_animation(tracks, pose["t"] - pose["t"][0], visible))
             poses[key] = pose
@@ -621,7 +625,7 @@ def build_scene(
         "proximity": None
         if geometry is None
         else {"margin": float(margin), "near": NEAR_COLOUR, "touch": TOUCH_COLOUR},
-        "marked": [_node_name(robot, j) for j in marked],
+        "marked": marked,
         "vertices": sent,
         "shared": shared,
     }
@@ -629,30 +633,33 @@ def build_scene(
 
 
 def proximity_levels(
-    geometry, distances: np.ndarray, margin: float, joints: list[int]
-) -> tuple[np.ndarray, list[str]]:
-    """How close the bodies come at each frame.
+    geometry, distances: np.ndarray, margin: float, links: Mapping[str, int]
+) -> tuple[dict[str, np.ndarray], list[str]]:
+    """How close the drawn links come at each frame.
 
     Args:
         geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`.
         distances: (K, P) the distance [m] of each checked pair (``geometry.pairs``) per frame.
         margin: the collision margin [m].
-        joints: the Pinocchio joints (bodies) whose levels are wanted.
+        links: the drawn links, each with its body (Pinocchio joint). A pair's link that is not
+            drawn (a collision-only link) stands for every drawn link of its body.
 
     Returns:
-        ``levels`` (K, len(joints)): 2 where a pair of the body penetrates (distance < 0), 1
-        where one is closer than ``margin``, 0 otherwise; and per frame the label's text naming
-        those pairs ("" when none).
+        per link its level at each frame (K,): 2 where a pair of it penetrates (distance < 0),
+        1 where one is closer than ``margin``, 0 otherwise; and per frame the label's text
+        naming those pairs ("" when none).
     """
     d = np.asarray(distances, dtype=float)
     pair_level = np.where(d < 0.0, 2, np.where(d < margin, 1, 0))
-    out = np.zeros((d.shape[0], len(joints)), dtype=int)
-    column = {j: c for c, j in enumerate(joints)}
+    out = {link: np.zeros(d.shape[0], dtype=int) for link in links}
     for pair in geometry.pairs:
         for obj in (pair.first, pair.second):
-            c = column.get(geometry.body(obj))
-            if c is not None:
-                out[:, c] = np.maximum(out[:, c], pair_level[:, pair.index])
+            link = geometry.link(obj)
+            drawn = [link] if link in links else [
+                lk for lk, j in links.items() if j == geometry.body(obj)
+            ]  # fmt: skip
+            for lk in drawn:
+                out[lk] = np.maximum(out[lk], pair_level[:, pair.index])
     texts = []
     for row in pair_level:
         parts = [
