@@ -73,6 +73,8 @@ TARGET_NODE = "capture_target"
 #: while one penetrates (distance below zero).
 NEAR_COLOUR = "#FFB000"
 TOUCH_COLOUR = "#E8000B"
+#: Opacity of a highlighted link: a link inside another shows through it.
+HIGHLIGHT_OPACITY = 0.6
 #: Names of a highlighted link's overlay nodes, by level (1: near, 2: penetrating).
 _OVERLAYS = {1: ("near", NEAR_COLOUR), 2: ("touch", TOUCH_COLOUR)}
 #: The magnified view turns the base by its rotation from the start times a factor chosen so
@@ -528,7 +530,7 @@ def build_scene(
                 if obj.vertices:  # the mesh sent once: the page hands it over
                     shape = mg.Box([0.0, 0.0, 0.0])
                     shared.append([path.lower(), carrier[id(obj.mesh.geometry)]])
-                drawn = _object(shape, colour, 1.0, bool(obj.vertices))
+                drawn = _object(shape, colour, HIGHLIGHT_OPACITY, bool(obj.vertices))
                 setup.append(_pack(SetObject(drawn, path=path).lower()))
                 transform = obj.placement.homogeneous @ obj.intrinsic
                 setup.append(_pack(SetTransform(transform, path).lower()))
