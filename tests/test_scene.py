@@ -22,6 +22,8 @@ from balance_opt.report.outputs import write_trajectory_npz
 from balance_opt.report.scene import (
     ARM_COLOURS,
     BASE_COLOUR,
+    NEAR_COLOUR,
+    TOUCH_COLOUR,
     build_scene,
     cluster_vertices,
     scene_html,
@@ -445,3 +447,169 @@ def test_view_of_a_task_plans_it_and_serves_its_scene(monkeypatch, capsys):
     for option in ("mission arm alone", "analytic law", "optimal plan"):
         assert f">{option}</option>" in seen["page"]
     assert '"target":{"time":5.0' in seen["page"] and _gone(seen["url"])
+
+
+# ------------------------------------------------------------------------------ bodies too close
+MARGIN = 0.03
+
+
+def _through_the_base(robot, swing: float, duration=4.0, samples=161):
+    """A motion of the capture task's robot that turns ``balance_joint2`` from 0 to ``swing``
+    and back (the other joints still, the base not turning): at -1.6 rad ``balance_link3`` is
+    deep in the base box, at 0 every pair is 0.42 m apart or more."""
+    t = np.linspace(0.0, duration, samples)
+    q = np.zeros((samples, robot.n))
+    q[:, robot.joint_index("balance_joint2")] = swing * np.sin(np.pi * t / duration) ** 2
+    M, B = robot.mission_indices, robot.balance_indices
+    zeros = np.zeros_like(q)
+    return BalanceResult(
+        method="test", t=t, mission_joints=tuple(robot.joint_names[i] for i in M),
+        balance_joints=tuple(robot.joint_names[i] for i in B),
+        q_M=q[:, M], q_dot_M=zeros[:, M], q_ddot_M=zeros[:, M],
+        q_B=q[:, B], q_dot_B=zeros[:, B], q_ddot_B=zeros[:, B],
+        quaternion=np.tile([0.0, 0.0, 0.0, 1.0], (samples, 1)), omega=np.zeros((samples, 3)),
+        momentum_residual=np.zeros(samples), sigma_min=np.ones(samples), info={},
+    )  # fmt: skip
+
+
+def _shown(clip, t: np.ndarray) -> np.ndarray:
+    """A visibility clip's value at each time of ``t``: its last key at or before it."""
+    (track,) = clip["tracks"]
+    assert track["name"] == ".visible" and track["type"] == "bool"
+    times, values = _floats(track["times"]), np.array(track["values"], dtype=bool)
+    return values[np.searchsorted(times, t + FLOAT32, side="right") - 1]
+
+
+@pytest.fixture(scope="module")
+def capture_geometry(capture):
+    from balance_opt.geometry.robot_geometry import RobotGeometry
+
+    return RobotGeometry(capture.robot)
+
+
+def test_links_are_red_exactly_at_the_frames_coal_finds_them_penetrating(capture, capture_geometry):
+    """balance_link3 swung into the base box: its node and the base's show their red copy at the
+    frames where coal's distance of a pair of theirs is negative, their amber copy where it is
+    below the margin, their own colour elsewhere; the mission arm, never near, is not marked."""
+    robot, geometry = capture.robot, capture_geometry
+    res = _through_the_base(robot, -1.6)
+    scene = build_scene(robot, {"swing": res}, fps=10, geometry=geometry, margin=MARGIN)
+    pose = scene.poses["swing|1"]
+    q = np.hstack([res.q_M, res.q_B])[pose["index"]]
+    # coal, pair by pair, at the frames' configurations
+    d = np.array([geometry.distances_along(q, p.index) for p in geometry.pairs]).T
+    clips = {a["path"]: a["clip"] for a in _unpack(scene.animations["swing|1"])["animations"]}
+    t = pose["t"] - pose["t"][0]
+    model = robot.model
+    marked = []
+    for o in scene.objects:  # one piece per link on this robot, collision and visual alike
+        node = "base" if o.joint == 1 else model.names[o.joint]
+        mine = [p.index for p in geometry.pairs if o.link in p.links]
+        closest = d[:, mine].min(axis=1) if mine else np.full(len(t), np.inf)
+        red, amber = closest < 0.0, (closest >= 0.0) & (closest < MARGIN)
+        here = f"/meshcat/robot/{node}/{o.link}"
+        if not (red | amber).any():
+            assert not any(path.startswith(here) for path in clips)
+            continue
+        marked.append(o.link)
+        np.testing.assert_array_equal(_shown(clips[f"{here}_touch"], t), red)
+        np.testing.assert_array_equal(_shown(clips[f"{here}_near"], t), amber)
+        shown = _shown(clips[f"/meshcat/robot/{node}/{o.name}"], t)
+        np.testing.assert_array_equal(shown, ~(red | amber))
+    assert scene.meta["marked"] == marked
+    assert {"base_link", "balance_link3"} <= set(marked)
+    assert not any("mission" in n for n in marked)
+    base = next(p.index for p in geometry.pairs if p.name == "base_link / balance_link3")
+    assert 0 < (d[:, base] < 0).sum() < len(t)  # in the base box for part of the motion only
+    # the label names the pair at the frames it penetrates
+    keys = scene.meta["methods"]["swing"]["near"]
+    text = [next(s for k, s in reversed(keys) if k <= tk + 1e-9) for tk in t]
+    base = next(p.index for p in geometry.pairs if p.name == "base_link / balance_link3")
+    for k in range(len(t)):
+        penetrating = text[k].split(";")[0] if text[k].startswith("penetrating") else ""
+        assert ("base_link / balance_link3" in penetrating) == (d[k, base] < 0.0)
+        assert (text[k] == "") == (d[k].min() >= MARGIN)
+    # the copies sit where the links do, red and amber, hidden until the animation shows them
+    setup = [_unpack(b) for b in scene.setup]
+    copies = {c["path"]: c for c in setup if c["type"] == "set_object"
+              and c["path"].split("/")[-2].endswith(("_touch", "_near"))}  # fmt: skip
+    assert len(copies) == 2 * sum(o.link in marked for o in scene.objects)
+    for c in copies.values():
+        colour = c["object"]["materials"][0]["color"]
+        kind = c["path"].split("/")[-2].rsplit("_", 1)[1]
+        assert colour == int((TOUCH_COLOUR if kind == "touch" else NEAR_COLOUR)[1:], 16)
+    hidden = {c["path"] for c in setup if c["type"] == "set_property" and c["value"] is False}
+    assert {c["path"].rsplit("/", 1)[0] for c in copies.values()} <= hidden
+
+
+def test_a_plan_that_stays_clear_has_no_highlight(capture, capture_geometry):
+    robot = capture.robot
+    res = _through_the_base(robot, 0.0)
+    assert capture_geometry.distances(np.zeros(robot.n)).min() > 0.4
+    scene = build_scene(robot, {"still": res}, fps=10, geometry=capture_geometry, margin=MARGIN)
+    assert scene.meta["marked"] == []
+    assert scene.meta["methods"]["still"]["near"] == [[0.0, ""]]
+    assert not any(level.any() for level in scene.levels["still"].values())
+    command = _unpack(scene.animations["still|1"])
+    assert all(len(a["clip"]["tracks"]) == 2 for a in command["animations"])  # placements only
+    setup = [_unpack(b) for b in scene.setup]
+    assert not any(c["path"].split("/")[-2].endswith(("_touch", "_near")) for c in setup)
+    # without geometry (a robot without any): no highlighting and no legend for it
+    plain = build_scene(robot, {"swing": _through_the_base(robot, -1.6)}, fps=10)
+    assert plain.meta["proximity"] is None and plain.meta["marked"] == []
+    assert "near" not in plain.meta["methods"]["swing"]
+    assert "collision margin" not in scene_html(plain)
+    assert "closer than the collision margin (0.03 m)" in scene_html(scene)
+
+
+def test_a_run_s_scene_uses_the_run_s_geometry_and_margin(
+    capture, capture_geometry, monkeypatch, tmp_path
+):
+    """``write_run_scene`` highlights with the geometry the run already has (none is built) and
+    the task's collision margin; a run whose robot has no geometry (``False``) gets none."""
+    import balance_opt.geometry.robot_geometry as robot_geometry
+    from balance_opt.app.run_files import TaskRun, write_run_scene
+    from balance_opt.tasks.task import load_task
+
+    def no_rebuild(*args, **kwargs):
+        raise AssertionError("the run's geometry was built again")
+
+    monkeypatch.setattr(robot_geometry, "RobotGeometry", no_rebuild)
+    task = load_task(_paper_task(tmp_path))
+    margin = task.spec.optimal.planner.collision_margin
+    results = {"swing": _through_the_base(capture.robot, -1.6)}
+    run = TaskRun(task, results=results, geometry=capture_geometry)
+    text = write_run_scene(run, tmp_path / "a.html").read_text()
+    data = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))
+    assert data["proximity"]["margin"] == margin
+    assert "base_link" in data["marked"] and "balance_link3" in data["marked"]
+    run = TaskRun(task, results=results, geometry=False)
+    text = write_run_scene(run, tmp_path / "b.html").read_text()
+    data = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))
+    assert data["proximity"] is None and data["marked"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium is not installed")
+def test_the_page_names_the_penetrating_pair(capture, capture_geometry, tmp_path):
+    """In headless Chromium, the label at a time balance_link3 is in the base box names the
+    pair; at the start it names none."""
+    res = _through_the_base(capture.robot, -1.6)
+    path = write_scene(
+        tmp_path / "scene.html", capture.robot, {"swing": res}, geometry=capture_geometry,
+        margin=MARGIN,
+    )  # fmt: skip
+    assert capture_geometry.distances(np.hstack([res.q_M, res.q_B])[80]).min() < 0  # t = 2 s
+    labels = {}
+    for t in (0, 2):
+        proc = subprocess.run(
+            ["chromium", "--headless", "--no-sandbox", "--disable-gpu",
+             "--virtual-time-budget=3000", "--dump-dom", f"{path.as_uri()}#method=swing&t={t}"],
+            capture_output=True, text=True, timeout=120, check=False,
+        )  # fmt: skip
+        label = re.search(r'<span id="scene-label">([^<]*)</span>', proc.stdout)
+        assert label, proc.stderr[-2000:]
+        labels[t] = label.group(1)
+    penetrating = re.search(r"penetrating: ([^;]*)", labels[2])
+    assert penetrating and "base_link / balance_link3" in penetrating.group(1).split(", ")
+    assert "penetrating" not in labels[0] and "closer than" not in labels[0]

@@ -40,6 +40,7 @@ from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures
     REPORT_FILE,
     TaskRun,
     _timed,
+    run_geometry,
     write_figures,
     write_run,
 )
@@ -368,19 +369,8 @@ def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> N
     check (the robot's own bodies are). A geometry that does not load (a missing mesh) leaves
     the check out with a warning."""
     from balance_opt.geometry.clearance import clearance
-    from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
 
-    if run.geometry is None:
-        ignore = run.task.spec.optimal.planner.collision_ignore
-        try:
-            run.geometry = RobotGeometry(run.task.robot, ignore=ignore)
-        except NoGeometryError as exc:
-            log.info("%s: no clearance check: %s", run.task.name, exc)
-            run.geometry = False
-        except InputError as exc:  # a mesh file missing: the plans still count
-            log.warning("%s: no clearance check: %s", run.task.name, exc)
-            run.geometry = False
-    if run.geometry is False:
+    if run_geometry(run) is False:
         return
     for name, (t, q) in motions.items():
         report = clearance(run.geometry, t, q)

@@ -215,6 +215,26 @@ def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
     ), scene
 
 
+def run_geometry(run: TaskRun):
+    """The run's robot geometry (:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`),
+    built once and kept on ``run.geometry``; ``False`` for a robot without geometry (a log line
+    says so) or whose geometry does not load (a missing mesh: a warning)."""
+    from balance_opt.errors import InputError
+    from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
+
+    if run.geometry is None:
+        ignore = run.task.spec.optimal.planner.collision_ignore
+        try:
+            run.geometry = RobotGeometry(run.task.robot, ignore=ignore)
+        except NoGeometryError as exc:
+            log.info("%s: no clearance check: %s", run.task.name, exc)
+            run.geometry = False
+        except InputError as exc:  # a mesh file missing: the plans still count
+            log.warning("%s: no clearance check: %s", run.task.name, exc)
+            run.geometry = False
+    return run.geometry
+
+
 def write_run_scene(run: TaskRun, path: Path) -> Path:
     """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
     ``path``."""
@@ -225,10 +245,13 @@ def write_run_scene(run: TaskRun, path: Path) -> Path:
         name: method_label(name) + (" (FAILED)" if name in run.failures else "")
         for name in run.results
     }
+    geometry = run_geometry(run)  # the run's own when it checked clearance
     with _timed("3D scene"):
         return write_scene(
-            path, run.task.robot, run.results, run.task.h0, run.task.target, labels, run.task.name
-        )
+            path, run.task.robot, run.results, run.task.h0, run.task.target, labels,
+            run.task.name, geometry=geometry or None,
+            margin=run.task.spec.optimal.planner.collision_margin,
+        )  # fmt: skip
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:

@@ -20,6 +20,12 @@ on its free-flight line ``c(t) = c(0) + t p0 / m``: the robot's before a capture
 the target's together after it (with the momentum the target brings). The target, a box of
 uniform density with its inertia, flies at its own constant velocities before the capture and
 rides the mission end effector after it.
+
+Bodies too close (with the robot's collision geometry): at each frame, the links of a checked
+pair closer than the collision margin are shown amber, those of a penetrating pair red. Each
+such link has an amber and a red copy of its pieces beside them; the animation switches the
+visibility of the pieces and of the copies where the state changes (boolean keys), so the
+links that never come close cost nothing.
 """
 
 from __future__ import annotations
@@ -63,6 +69,14 @@ TARGET_COLOUR = "#009E73"
 #: Path of the robot's nodes in the viewer's scene tree.
 ROOT = ("meshcat", "robot")
 TARGET_NODE = "capture_target"
+#: Colours of a link while one of its checked pairs is closer than the collision margin, and
+#: while one penetrates (distance below zero).
+NEAR_COLOUR = "#FFB000"
+TOUCH_COLOUR = "#E8000B"
+#: Opacity of a highlighted link: a link inside another shows through it.
+HIGHLIGHT_OPACITY = 0.6
+#: Names of a highlighted link's overlay nodes, by level (1: near, 2: penetrating).
+_OVERLAYS = {1: ("near", NEAR_COLOUR), 2: ("touch", TOUCH_COLOUR)}
 #: The magnified view turns the base by its rotation from the start times a factor chosen so
 #: that the largest drift shows as about this angle [rad] (30 deg).
 MAGNIFIED_ANGLE = np.radians(30.0)
@@ -95,8 +109,8 @@ _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
     placement in the joint frame, the meshcat object (``intrinsic``: its transform from
-    meshcat's axes to Pinocchio's), its vertex count (meshes) and the corners of its bounding
-    box in the joint frame (8, 3) [m]."""
+    meshcat's axes to Pinocchio's), its vertex count (meshes), the corners of its bounding
+    box in the joint frame (8, 3) [m] and its link (frame) name."""
 
     name: str
     joint: int
@@ -105,6 +119,7 @@ class SceneObject:
     mesh: Any  # a meshcat.geometry.Mesh
     vertices: int
     corners: np.ndarray
+    link: str = ""
 
 
 def visual_model(robot: FloatingRobot) -> pin.GeometryModel:
@@ -227,8 +242,11 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         )
         corners = corners @ obj.placement.rotation.T + obj.placement.translation
         out.append(
-            SceneObject(obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners)
-        )
+            SceneObject(
+                obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners,
+                robot.model.frames[obj.parentFrame].name,
+            )
+        )  # fmt: skip
     return out
 
 
@@ -243,6 +261,13 @@ def target_box(target) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ======================================================================================== motion
+def frame_index(t: np.ndarray, fps: float = SCENE_FPS) -> np.ndarray:
+    """Indices into a plan's times ``t`` of the scene's frames: ``fps`` per second, each the
+    plan's own sample at or after that time."""
+    wanted = np.arange(t[0], t[-1] + 0.5 / fps, 1.0 / fps)
+    return np.unique(np.searchsorted(t, wanted - 1e-9).clip(0, t.size - 1))
+
+
 def scene_poses(
     robot: FloatingRobot,
     result: BalanceResult,
@@ -270,8 +295,7 @@ def scene_poses(
         mission end-effector's axes after the capture).
     """
     model, data = robot.model, robot.model.createData()
-    wanted = np.arange(result.t[0], result.t[-1] + 0.5 / fps, 1.0 / fps)
-    index = np.unique(np.searchsorted(result.t, wanted - 1e-9).clip(0, result.t.size - 1))
+    index = frame_index(result.t, fps)
     t = result.t[index]
     q_plan = np.hstack([result.q_M, result.q_B])[index]
     q = np.empty_like(q_plan)
@@ -345,9 +369,15 @@ def _float32(values) -> Any:
     return umsgpack.Ext(0x17, np.ascontiguousarray(values, dtype="<f4").tobytes())
 
 
-def _animation(tracks: Mapping[Any, tuple[np.ndarray, np.ndarray]], t: np.ndarray) -> dict:
+def _animation(
+    tracks: Mapping[Any, tuple[np.ndarray, np.ndarray]],
+    t: np.ndarray,
+    visible: Mapping[Any, np.ndarray] | None = None,
+) -> dict:
     """The lowered ``set_animation`` command: per node (a meshcat path) its position and
-    quaternion keys (times [s] from the start, three.js's (x, y, z, w) order)."""
+    quaternion keys (times [s] from the start, three.js's (x, y, z, w) order); ``visible``: per
+    node its visibility at each time of ``t`` (bool (K,)), stored as keys where it changes
+    (three.js holds a boolean key until the next one)."""
     from meshcat.animation import Animation, AnimationClip, AnimationTrack
     from meshcat.commands import SetAnimation
 
@@ -363,6 +393,17 @@ def _animation(tracks: Mapping[Any, tuple[np.ndarray, np.ndarray]], t: np.ndarra
                 "values": _float32(np.ravel(self.values)),
             }
 
+    class Switch(AnimationTrack):
+        """A visibility track: the key times as float32, the values a list of booleans."""
+
+        def lower(self):
+            return {
+                "name": "." + self.name,
+                "type": self.jstype,
+                "times": _float32(self.frames),
+                "values": [bool(v) for v in self.values],
+            }
+
     clips = {
         path: AnimationClip(
             {
@@ -373,6 +414,13 @@ def _animation(tracks: Mapping[Any, tuple[np.ndarray, np.ndarray]], t: np.ndarra
         )
         for path, (position, quaternion) in tracks.items()
     }
+    for path, shown in (visible or {}).items():
+        shown = np.asarray(shown, dtype=bool)
+        # the last key too: every clip lasts the whole motion
+        keys = np.unique(np.r_[0, np.flatnonzero(shown[1:] != shown[:-1]) + 1, shown.size - 1])
+        clips[path] = AnimationClip(
+            {"visible": Switch("visible", "bool", t[keys], shown[keys])}, fps=1.0
+        )
     return SetAnimation(Animation(clips), play=False, repetitions=1).lower()
 
 
@@ -398,6 +446,9 @@ class Scene:
     objects: list[SceneObject] = field(repr=False)
     poses: dict[str, dict[str, np.ndarray]] = field(repr=False)
     nodes: list[int] = field(repr=False)
+    #: per method, the level of each drawn link at each frame (:func:`proximity_levels`);
+    #: empty without geometry
+    levels: dict[str, dict[str, np.ndarray]] = field(default_factory=dict, repr=False)
 
 
 def _path(*names: str):
@@ -421,6 +472,8 @@ def build_scene(
     target=None,
     labels: Mapping[str, str] | None = None,
     fps: float = SCENE_FPS,
+    geometry=None,
+    margin: float = 0.0,
 ) -> Scene:
     """The scene of a run's plans (see the module docstring).
 
@@ -431,6 +484,11 @@ def build_scene(
         target: the target captured during the mission, or None.
         labels: display name per method (default :func:`~balance_opt.report.style.method_label`).
         fps: animation samples per second of motion.
+        geometry: the robot's collision geometry
+            (:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`) or None: with it, the
+            links of a checked pair closer than ``margin`` [m] are drawn amber at those frames,
+            those of a pair that penetrates red (:func:`proximity_levels`).
+        margin: the collision margin [m].
     """
     import meshcat.geometry as mg
     from meshcat.commands import SetObject, SetProperty, SetTransform
@@ -445,15 +503,39 @@ def build_scene(
     setup, carrier, shared, sent = [], {}, [], 0
     for obj in objects:
         path = _path(_node_name(robot, obj.joint), obj.name)
-        drawn, geometry = obj.mesh, obj.mesh.geometry
-        if obj.vertices and id(geometry) in carrier:  # a mesh file seen before: sent once
+        drawn, shape = obj.mesh, obj.mesh.geometry
+        if obj.vertices and id(shape) in carrier:  # a mesh file seen before: sent once
             drawn = mg.Mesh(mg.Box([0.0, 0.0, 0.0]), obj.mesh.material)
-            shared.append([path.lower(), carrier[id(geometry)]])
+            shared.append([path.lower(), carrier[id(shape)]])
         elif obj.vertices:
-            carrier[id(geometry)] = path.lower()
+            carrier[id(shape)] = path.lower()
             sent += obj.vertices
         setup.append(_pack(SetObject(drawn, path=path).lower()))
         setup.append(_pack(SetTransform(obj.placement.homogeneous @ obj.intrinsic, path).lower()))
+    # the frames at which each plan is drawn, and how close its bodies are at each
+    links = {o.link: o.joint for o in objects}
+    levels, texts = {}, {}
+    if geometry is not None:
+        for name, res in results.items():
+            q = np.hstack([res.q_M, res.q_B])[frame_index(res.t, fps)]
+            distances = np.array([geometry.distances(qk) for qk in q]).reshape(len(q), -1)
+            levels[name], texts[name] = proximity_levels(geometry, distances, margin, links)
+    marked = [lk for lk in links if any(lv[lk].any() for lv in levels.values())]
+    for link in marked:  # a copy of the link's pieces per colour, shown only while it applies
+        node = _node_name(robot, links[link])
+        for kind, colour in _OVERLAYS.values():
+            for obj in (o for o in objects if o.link == link):
+                path = _path(node, f"{link}_{kind}", obj.name)
+                shape = obj.mesh.geometry
+                if obj.vertices:  # the mesh sent once: the page hands it over
+                    shape = mg.Box([0.0, 0.0, 0.0])
+                    shared.append([path.lower(), carrier[id(obj.mesh.geometry)]])
+                drawn = _object(shape, colour, HIGHLIGHT_OPACITY, bool(obj.vertices))
+                setup.append(_pack(SetObject(drawn, path=path).lower()))
+                transform = obj.placement.homogeneous @ obj.intrinsic
+                setup.append(_pack(SetTransform(transform, path).lower()))
+            hidden = SetProperty("visible", False, _path(node, f"{link}_{kind}"))
+            setup.append(_pack(hidden.lower()))
     setup.append(_pack(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")).lower()))
     if target is not None:
         sides, axes = target_box(target)
@@ -504,8 +586,15 @@ def build_scene(
             }
             if target is not None:
                 tracks[_path(TARGET_NODE)] = _tracks(pose["target"])
+            visible = {}
+            for link in marked:
+                level, node = levels[name][link], _node_name(robot, links[link])
+                for obj in (o for o in objects if o.link == link):
+                    visible[_path(node, obj.name)] = level == 0
+                for lv, (kind, _) in _OVERLAYS.items():
+                    visible[_path(node, f"{link}_{kind}")] = level == lv
             key = f"{name}|{f:g}"
-            animations[key] = _pack(_animation(tracks, pose["t"] - pose["t"][0]))
+            animations[key] = _pack(_animation(tracks, pose["t"] - pose["t"][0], visible))
             poses[key] = pose
         pose = poses[f"{name}|1"]
         meta_methods[name] = {
@@ -515,6 +604,13 @@ def build_scene(
             "angle_t": [round(float(x - pose["t"][0]), 4) for x in pose["t"]],
             "angle": [float(f"{a:.4g}") for a in res.angle[pose["index"]]],
         }
+        if name in texts:  # the label's text where it changes: [time from the start, text]
+            text = texts[name]
+            meta_methods[name]["near"] = [
+                [round(float(pose["t"][k] - pose["t"][0]), 4), text[k]]
+                for k in range(len(text))
+                if k == 0 or text[k] != text[k - 1]
+            ]
     arms = [
         {"label": f"{arm.name} arm", "colour": ARM_COLOURS[a % len(ARM_COLOURS)]}
         for a, arm in enumerate(robot.arms)
@@ -528,10 +624,53 @@ def build_scene(
         if target is None
         else {"time": float(target.time), "colour": TARGET_COLOUR, "mass": float(target.mass)},
         "robot": robot.name,
+        "proximity": None
+        if geometry is None
+        else {"margin": float(margin), "near": NEAR_COLOUR, "touch": TOUCH_COLOUR},
+        "marked": marked,
         "vertices": sent,
         "shared": shared,
     }
-    return Scene(setup, animations, meta, objects, poses, nodes)
+    return Scene(setup, animations, meta, objects, poses, nodes, levels)
+
+
+def proximity_levels(
+    geometry, distances: np.ndarray, margin: float, links: Mapping[str, int]
+) -> tuple[dict[str, np.ndarray], list[str]]:
+    """How close the drawn links come at each frame.
+
+    Args:
+        geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`.
+        distances: (K, P) the distance [m] of each checked pair (``geometry.pairs``) per frame.
+        margin: the collision margin [m].
+        links: the drawn links, each with its body (Pinocchio joint). A pair's link that is not
+            drawn (a collision-only link) stands for every drawn link of its body.
+
+    Returns:
+        per link its level at each frame (K,): 2 where a pair of it penetrates (distance < 0),
+        1 where one is closer than ``margin``, 0 otherwise; and per frame the label's text
+        naming those pairs ("" when none).
+    """
+    d = np.asarray(distances, dtype=float)
+    pair_level = np.where(d < 0.0, 2, np.where(d < margin, 1, 0))
+    out = {link: np.zeros(d.shape[0], dtype=int) for link in links}
+    for pair in geometry.pairs:
+        for obj in (pair.first, pair.second):
+            link = geometry.link(obj)
+            drawn = [link] if link in links else [
+                lk for lk, j in links.items() if j == geometry.body(obj)
+            ]  # fmt: skip
+            for lk in drawn:
+                out[lk] = np.maximum(out[lk], pair_level[:, pair.index])
+    texts = []
+    for row in pair_level:
+        parts = [
+            f"{what}: " + ", ".join(p.name for p in geometry.pairs if row[p.index] == lv)
+            for lv, what in ((2, "penetrating"), (1, f"closer than {margin:g} m"))
+            if (row == lv).any()
+        ]
+        texts.append("; ".join(parts))
+    return out, texts
 
 
 # ========================================================================================== page
@@ -576,7 +715,13 @@ function show(t) { const m = method(), a = angleAt(m, t);
     (a * 180 / Math.PI).toFixed(2) + ' deg)';
   if (S.target) s += (m.t0 + t >= S.target.time ? '; target captured' : '; target free') +
     ' (capture at ' + S.target.time + ' s)';
+  const near = m.near ? textAt(m.near, t) : '';
+  if (near) s += '; ' + near;
   lab.textContent = s; sl.value = t; }
+// the proximity label in force at t: the last change at or before it
+function textAt(keys, t) { let k = 0;
+  while (k + 1 < keys.length && keys[k + 1][0] <= t + 1e-9) k++;
+  return keys[k][1]; }
 // the viewer's player applies only running actions: hold them paused at the time shown
 function seek(t) { anim.playing = false; anim.clock.stop();
   anim.actions.forEach(function (a) { a.play(); a.paused = true; a.time = t; });
@@ -629,6 +774,13 @@ def scene_html(scene: Scene, title: str = "") -> str:
     keys += f'<span class="key" style="background:{meta["base_colour"]}"></span>base'
     if meta["target"]:
         keys += f'<span class="key" style="background:{meta["target"]["colour"]}"></span>target'
+    near = meta["proximity"]
+    if near:
+        keys += (
+            f'<span class="key" style="background:{near["near"]}"></span>closer than the '
+            f'collision margin ({near["margin"]:g} m)'
+            f'<span class="key" style="background:{near["touch"]}"></span>penetrating'
+        )
     data = {k: v for k, v in meta.items() if k != "robot"}
     data.update(setup=scene.setup, animations=scene.animations)
     script = _PLAYER.replace("SCENE_DATA", json.dumps(data, separators=(",", ":")))
@@ -656,11 +808,14 @@ def write_scene(
     target=None,
     labels: Mapping[str, str] | None = None,
     title: str = "",
+    geometry=None,
+    margin: float = 0.0,
 ) -> Path:
-    """Build the scene of ``results`` (:func:`build_scene`), write its page to ``path`` and
-    return the path; its size is logged."""
+    """Build the scene of ``results`` (:func:`build_scene`; ``geometry`` and ``margin``: the
+    highlighting of links that come close), write its page to ``path`` and return the path; its
+    size is logged."""
     path = Path(path)
-    scene = build_scene(robot, results, h0, target, labels)
+    scene = build_scene(robot, results, h0, target, labels, geometry=geometry, margin=margin)
     path.write_text(scene_html(scene, title), encoding="utf-8")
     log.info(
         "scene: %s, %.1f MB (%d mesh vertices)",
