@@ -371,9 +371,11 @@ def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> N
     from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
 
     if run.geometry is None:
-        ignore = run.task.spec.optimal.planner.collision_ignore
+        planner = run.task.spec.optimal.planner
         try:
-            run.geometry = RobotGeometry(run.task.robot, ignore=ignore)
+            run.geometry = RobotGeometry(
+                run.task.robot, srdf=planner.collision_srdf, ignore=planner.collision_ignore
+            )
         except NoGeometryError as exc:
             log.info("%s: no clearance check: %s", run.task.name, exc)
             run.geometry = False
