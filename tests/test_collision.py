@@ -304,7 +304,7 @@ def test_capture_task_plan_avoids_the_base_and_keeps_its_drift(capture):
 @pytest.mark.slow
 def test_baxter_plan_is_collision_free():
     from balance_opt.app.pipeline import plan
-    from balance_opt.io.task import load_task
+    from balance_opt.tasks.task import load_task
 
     task = load_task("examples/baxter_floating.yaml")
     result = plan(task, "optimal")
