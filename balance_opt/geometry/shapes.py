@@ -41,9 +41,9 @@ from balance_opt.errors import InputError
 from balance_opt.geometry.robot_geometry import RobotGeometry
 
 #: Sharpness of the soft minimum [1/m]: with n distances it is at most log(n) / BETA below the
-#: smallest (10 mm for 20). A sharper one bends the rows harder where two distances cross, and
+#: smallest (6 mm for 20). A sharper one bends the rows harder where two distances cross, and
 #: Ipopt takes more iterations to follow them (benchmarks/bench_collision.py, docs/collision.md).
-BETA = 300.0
+BETA = 500.0
 #: Spacing of the spheres along a capsule against a box, in capsule radii: the spheres grow by
 #: at most 12 % of the radius to cover the capsule. Half a radius (3 % larger spheres) gave the
 #: capture task the same plan (peak 0.0261 rad, clearance 0.0313 m) with kernels a third larger.
