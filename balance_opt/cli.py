@@ -179,8 +179,46 @@ def _cmd_inspect(args) -> int:
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
     _print_cartesian_goal(task)
+    _print_geometry(task)
     print(backend_line(task.spec.robot.backend))
     return EXIT_OK
+
+
+def _print_geometry(task) -> None:
+    """What the clearance check and the planner's collision avoidance hold apart (the task's
+    ignored pairs and SRDF applied) and the pairs already close at the initial configuration."""
+    from balance_opt.errors import InputError
+    from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
+
+    planner = task.spec.optimal.planner
+    try:
+        geometry = RobotGeometry(
+            task.robot, srdf=planner.collision_srdf, ignore=planner.collision_ignore
+        )
+    except NoGeometryError as exc:
+        print(f"geometry: none ({exc}): no clearance check, no collision avoidance")
+        return
+    except InputError as exc:
+        print(f"geometry: not loaded ({exc})")
+        return
+    s = geometry.summary(task.q0, planner.collision_margin)
+    left_out = s["link_pairs_ignored"]
+    print(
+        f"geometry from the URDF's <{s['source']}> elements: {s['pairs_checked']} pairs checked; "
+        f"link pairs left out: {left_out['same body']} same body, {left_out['adjacent']} "
+        f"adjacent, {left_out['srdf']} by the SRDF, {left_out['ignored']} ignored by the task"
+    )
+    print(f"  SRDF: {s['srdf'] or 'none'}")
+    close = s["initial_contacts"] + s["initial_within_margin"]
+    if not close:
+        print(f"  at the initial configuration every pair is at least {s['margin_m']:g} m apart")
+    for kind, items in (("in contact", s["initial_contacts"]),
+                        (f"within the margin {s['margin_m']:g} m", s["initial_within_margin"])):
+        if items:
+            pairs = ", ".join(f"{c['pair']} ({c['distance_m']:.4f} m)" for c in items)
+            print(f"  {kind} at the initial configuration: {pairs}")
+    if s["initial_contacts"]:
+        print("  (pairs in contact at the start are left out of the optimal plan)")
 
 
 def _print_cartesian_goal(task) -> None:

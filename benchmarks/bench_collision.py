@@ -5,10 +5,11 @@ For each plan: the peak and final drift of the re-simulated motion, the smallest
 between the robot's checked bodies (coal, every pair not left out by adjacency, SRDF or
 contact at the start) on a 1 ms grid of the motion (joint positions interpolated linearly
 between the re-simulation's samples) and the pair that comes closest, the certified lower bound
-of :func:`~balance_opt.geometry.clearance.clearance` on the continuous motion, and the wall
-time of planning (building the NLP included: each setting has its own structure), the fastest
-of ``--repeat`` plans (default 2: the first of each setting also builds the planner model and
-may run its kernels on CasADi's VM while they compile). Run:
+of :func:`~balance_opt.geometry.clearance.clearance` on the continuous motion, Ipopt's
+iterations and time (every solve behind the plan), and the wall time of planning (building the
+NLP included: each setting has its own structure), the fastest of ``--repeat`` plans (default
+2: the first of each setting also builds the planner model and may run its kernels on CasADi's
+VM while they compile), with its ratio to the fastest plan without avoidance. Run:
 ``python benchmarks/bench_collision.py [--repeat 2] [examples/capture_task.yaml ...]``.
 """
 
@@ -27,7 +28,7 @@ from balance_opt.app.pipeline import plan
 from balance_opt.errors import SolverError
 from balance_opt.geometry.clearance import clearance
 from balance_opt.geometry.robot_geometry import RobotGeometry
-from balance_opt.io.task import load_task
+from balance_opt.tasks.task import load_task
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -66,7 +67,8 @@ def main(argv=None) -> None:
     )
     header = (
         f"{'task':<26} {'avoid':<5} {'status':<24} {'peak rad':>9} {'final rad':>10} "
-        f"{'clear 1ms m':>11} {'bound m':>8} {'closest pair':<34} {'plan s':>7}"
+        f"{'clear 1ms m':>11} {'bound m':>8} {'closest pair':<34} {'iters':>6} {'ipopt s':>8} "
+        f"{'plan s':>7} {'ratio':>6}"
     )
     print(header)
     print("-" * len(header))
@@ -84,6 +86,7 @@ def main(argv=None) -> None:
                 except SolverError as exc:
                     result, status = exc.result, f"failed: {exc.status}"
                 runs[avoid].append((time.perf_counter() - start, result, status))
+        base = min(r[0] for r in runs[False])
         for avoid in (False, True):
             wall = min(r[0] for r in runs[avoid])
             _, result, status = runs[avoid][-1]
@@ -93,9 +96,13 @@ def main(argv=None) -> None:
             q = np.hstack([result.q_M, result.q_B])
             best, pair = grid_clearance(geometry, result.t, q)
             bound = clearance(geometry, result.t, q).closest.lower_bound
+            report = result.solver
+            iters = report.iterations if report is not None else 0
+            ipopt_s = report.solve_s if report is not None else float("nan")
             print(
                 f"{task.name:<26} {str(avoid):<5} {status[:24]:<24} {result.max_drift:9.4f} "
-                f"{result.final_drift:10.2e} {best:11.4f} {bound:8.4f} {pair:<34} {wall:7.1f}",
+                f"{result.final_drift:10.2e} {best:11.4f} {bound:8.4f} {pair:<34} {iters:6d} {ipopt_s:8.2f} {wall:7.2f} "
+                f"{wall / base:6.2f}",
                 flush=True,
             )
 

@@ -309,3 +309,101 @@ def test_baxter_plan_is_collision_free():
     task = load_task("examples/baxter_floating.yaml")
     result = plan(task, "optimal")
     assert _grid_clearance(RobotGeometry(task.robot), result, step=5e-3) >= 0.03 - 1e-6
+
+
+def _toy_task(tmp_path, balance, srdf=None):
+    (tmp_path / "toy.urdf").write_text(toy_urdf())
+    task = tmp_path / "toy.yaml"
+    task.write_text(
+        "name: toy\nrobot:\n  urdf: toy.urdf\n"
+        + (f"  srdf: {srdf}\n" if srdf else "")
+        + "arms: {mission: [yaw], balance: [turn, swing]}\n"
+        f"initial: {{balance: {list(balance)}}}\n"
+        "mission: {type: ptp, start: [0.0], goal: [0.6], duration: 3.0}\n"
+    )
+    return task
+
+
+def test_geometry_summary_against_coal(toy):
+    geometry = RobotGeometry(toy)
+    q = np.array([0.0, 0.0, 1.0])  # the boom 1 rad down, inside the cube
+    exact = dict(zip((p.name for p in geometry.pairs), geometry.distances(q)))
+    s = geometry.summary(q, margin=0.05)
+    assert (s["source"], s["srdf"], s["pairs_checked"]) == ("collision", None, 4)
+    assert s["link_pairs_ignored"] == {"same body": 0, "adjacent": 3, "srdf": 0, "ignored": 0}
+    # coal's penetration depth (EPA, warm-started) varies in its last digits between calls
+    [contact] = s["initial_contacts"]
+    assert contact["pair"] == "base / boom"
+    assert contact["distance_m"] == pytest.approx(exact["base / boom"], abs=1e-5)
+    assert exact["base / boom"] < -0.1
+    close = {n for n, d in exact.items() if 0.0 < d <= 0.05}
+    assert {c["pair"] for c in s["initial_within_margin"]} == close
+    level = geometry.summary(np.zeros(3), margin=0.08)  # the boom level, 0.07 m above the cube
+    assert level["initial_contacts"] == []
+    [near] = level["initial_within_margin"]
+    assert near["pair"] == "base / boom" and near["distance_m"] == pytest.approx(0.07, abs=1e-6)
+
+
+def test_inspect_says_what_is_checked_and_what_starts_in_contact(tmp_path, capsys):
+    from balance_opt.cli import main
+
+    (tmp_path / "toy.srdf").write_text(
+        '<robot name="toy"><disable_collisions link1="mast" link2="boom" reason="Never"/></robot>'
+    )
+    task = _toy_task(tmp_path, [0.0, 1.0], srdf="toy.srdf")
+    assert main(["inspect", str(task)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "geometry from the URDF's <collision> elements: 3 pairs checked; link pairs left out: "
+        "0 same body, 3 adjacent, 1 by the SRDF, 0 ignored by the task\n"
+        f"  SRDF: {tmp_path / 'toy.srdf'}\n"
+        "  in contact at the initial configuration: base / boom (-0."
+    ) in out
+    assert "(pairs in contact at the start are left out of the optimal plan)" in out
+    assert main(["inspect", str(_toy_task(tmp_path, [0.0, -0.5]))]) == 0
+    out = capsys.readouterr().out
+    assert "4 pairs checked" in out and "  SRDF: none\n" in out
+    assert "  at the initial configuration every pair is at least 0.03 m apart\n" in out
+
+
+def test_a_missing_srdf_is_an_error_at_its_key(tmp_path):
+    from balance_opt.tasks.task import load_task
+
+    with pytest.raises(InputError, match=r"toy\.yaml:4: robot\.srdf: no such SRDF file: .*nope\.srdf"):
+        load_task(_toy_task(tmp_path, [0.0, 0.0], srdf="nope.srdf"))
+
+
+def test_metrics_say_what_is_checked_and_what_starts_in_contact(tmp_path):
+    import json
+
+    from balance_opt.cli import main
+
+    task = _toy_task(tmp_path, [0.0, 1.0])
+    out = tmp_path / "out"
+    argv = ["plan", str(task), "-m", "mission-only", "-o", str(out), "-q"]
+    assert main(argv) == 0
+    geometry = json.loads((out / "metrics.json").read_text())["geometry"]
+    assert geometry["source"] == "collision" and geometry["pairs_checked"] == 4
+    assert geometry["srdf"] is None and geometry["margin_m"] == 0.03
+    assert [c["pair"] for c in geometry["initial_contacts"]] == ["base / boom"]
+    assert geometry["initial_contacts"][0]["distance_m"] < -0.1
+
+
+def test_the_tasks_srdf_reaches_the_planner(tmp_path):
+    from balance_opt.motion.trajectories import PointToPoint
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.solve import build_balance_nlp
+    from balance_opt.tasks.task import load_task
+
+    srdf = tmp_path / "toy.srdf"
+    srdf.write_text(
+        '<robot name="toy"><disable_collisions link1="base" link2="boom" reason="x"/></robot>'
+    )
+    task = load_task(_toy_task(tmp_path, [0.0, 0.0], srdf="toy.srdf"))
+    options = task.planner_options()
+    assert options.collision_srdf == str(srdf.resolve())
+    model = PlannerModel(task.robot, compile=False, store=False)
+    nlp = build_balance_nlp(model, PointToPoint([0.0], [0.6], 3.0), [0.0, 0.0], options)
+    assert nlp.collision.geometry.srdf == srdf.resolve()
+    assert nlp.collision.geometry.ignored[("base", "boom")] == "srdf"
+    assert "base / boom" not in {p.name for p in nlp.collision.pairs}

@@ -155,6 +155,7 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         run.robustness,
         {name: c[0] for name, c in run.clearance.items()},
         {name: c[0] for name, c in run.simulated_clearance.items()},
+        _geometry_summary(run),
     )
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []
@@ -178,6 +179,15 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
                 path.unlink()
     run.files = files
     return files
+
+
+def _geometry_summary(run: TaskRun) -> dict | None:
+    """What the run's clearance check held apart and the pairs close at the start (``None``
+    without geometry)."""
+    if not run.geometry:
+        return None
+    margin = run.task.spec.optimal.planner.collision_margin
+    return run.geometry.summary(run.task.q0, margin)
 
 
 def _write_trajectories(run: TaskRun, output_dir: Path, torques: dict) -> list[Path]:
@@ -223,9 +233,11 @@ def run_geometry(run: TaskRun):
     from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
 
     if run.geometry is None:
-        ignore = run.task.spec.optimal.planner.collision_ignore
+        planner = run.task.spec.optimal.planner
         try:
-            run.geometry = RobotGeometry(run.task.robot, ignore=ignore)
+            run.geometry = RobotGeometry(
+                run.task.robot, srdf=planner.collision_srdf, ignore=planner.collision_ignore
+            )
         except NoGeometryError as exc:
             log.info("%s: no clearance check: %s", run.task.name, exc)
             run.geometry = False

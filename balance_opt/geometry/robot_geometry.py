@@ -281,6 +281,26 @@ class RobotGeometry:
         d = self.distances(q)
         return [p for p in self.pairs if d[p.index] <= 0.0]
 
+    def summary(self, q, margin: float = 0.0) -> dict:
+        """What is checked, as plain data (``metrics.json``'s ``geometry``, ``inspect``): the
+        elements the geometry comes from, the SRDF, the checked pairs, the link pairs left out by
+        reason, and the checked pairs closer than ``margin`` [m] at the arm configuration ``q``
+        (the ones at a distance <= 0 in contact), closest first."""
+        ignored = dict.fromkeys(("same body", "adjacent", "srdf", "ignored"), 0)
+        for reason in self.ignored.values():
+            ignored[reason] += 1
+        d = self.distances(q) if self.pairs else np.empty(0)
+        close = sorted((float(d[p.index]), p.name) for p in self.pairs if d[p.index] <= margin)
+        return {
+            "source": self.source,
+            "srdf": None if self.srdf is None else str(self.srdf),
+            "pairs_checked": len(self.pairs),
+            "link_pairs_ignored": ignored,
+            "margin_m": float(margin),
+            "initial_contacts": [{"pair": n, "distance_m": x} for x, n in close if x <= 0.0],
+            "initial_within_margin": [{"pair": n, "distance_m": x} for x, n in close if x > 0.0],
+        }
+
     # ------------------------------------------------------------------ motion bound
     @cached_property
     def reach(self) -> np.ndarray:

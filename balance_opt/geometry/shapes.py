@@ -41,8 +41,9 @@ from balance_opt.errors import InputError
 from balance_opt.geometry.robot_geometry import RobotGeometry
 
 #: Sharpness of the soft minimum [1/m]: with n distances it is at most log(n) / BETA below the
-#: smallest (3 mm for 20).
-BETA = 1000.0
+#: smallest (6 mm for 20). A sharper one bends the rows harder where two distances cross, and
+#: Ipopt takes more iterations to follow them (benchmarks/bench_collision.py, docs/collision.md).
+BETA = 500.0
 #: Spacing of the spheres along a capsule against a box, in capsule radii: the spheres grow by
 #: at most 12 % of the radius to cover the capsule. Half a radius (3 % larger spheres) gave the
 #: capture task the same plan (peak 0.0261 rad, clearance 0.0313 m) with kernels a third larger.
@@ -246,7 +247,9 @@ def segment_distance(p1, q1, p2, q2):
 def box_distance(point, half):
     """Signed distance of ``point`` (box frame) from a box of half sides ``half``: outside the
     distance, inside minus the depth below the nearest face."""
-    d = cs.sqrt(point**2 + 1e-12) - cs.DM(half)
+    # |x| is exact here: its kink lies on the box's mid-planes, where the face it measures is
+    # never the nearest one outside the box
+    d = cs.fabs(point) - cs.DM(half)
     outside = cs.fmax(d, 0.0)
     return cs.sqrt(cs.dot(outside, outside) + 1e-12) + cs.fmin(cs.mmax(d), 0.0)
 

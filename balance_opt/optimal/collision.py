@@ -95,10 +95,10 @@ class CollisionModels:
         #: rows key -> (rows, ``clearance_rows(q_model)``)
         self.rows: dict = {}
 
-    def geometry(self, ignore=()) -> RobotGeometry:
-        key = tuple(sorted(tuple(sorted(p)) for p in ignore))
+    def geometry(self, ignore=(), srdf: str | None = None) -> RobotGeometry:
+        key = (tuple(sorted(tuple(sorted(p)) for p in ignore)), srdf)
         if key not in self.geometries:
-            self.geometries[key] = RobotGeometry(self.robot, ignore=key)
+            self.geometries[key] = RobotGeometry(self.robot, srdf=srdf, ignore=key[0])
         return self.geometries[key]
 
     def function(self, geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
@@ -171,7 +171,12 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
     if not options.collision_avoidance:
         return None
     # the stages and refinements of one plan are variants of one problem: built once
-    key = (options.collision_ignore, options.collision_margin, np.asarray(q0, float).tobytes())
+    key = (
+        options.collision_ignore,
+        options.collision_srdf,
+        options.collision_margin,
+        np.asarray(q0, float).tobytes(),
+    )
     setups = model.collisions.setups
     if key not in setups:
         setups[key] = _setup(model.collisions, options, q0)
@@ -180,7 +185,7 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
 
 def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup | None:
     try:
-        geometry = models.geometry(options.collision_ignore)
+        geometry = models.geometry(options.collision_ignore, options.collision_srdf)
     except NoGeometryError as exc:  # nothing to keep apart
         log.info("no collision avoidance: %s", exc)
         return None

@@ -359,6 +359,13 @@ class PlannerOptions:
         section="collision",
         doc="pairs of links never checked against each other, e.g. [[balance_link3, base_link]]",
     )
+    collision_srdf: str | None = setting(
+        None,
+        in_file=False,  # the task's robot.srdf, resolved against the task file's folder
+        section="collision",
+        doc="SRDF whose disabled pairs are left out (default: the one shipped with an "
+        "example-robot-data robot, if any)",
+    )
     tolerance: float = setting(
         1e-8, exclusive_minimum=0.0, doc="Ipopt's convergence tolerance (tol)"
     )

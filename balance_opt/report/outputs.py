@@ -410,6 +410,7 @@ def run_metrics(
     robustness=None,
     clearances: Mapping[str, Any] | None = None,
     simulated_clearances: Mapping[str, Any] | None = None,
+    geometry: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The content of ``metrics.json``: the task (file, name, SHA-256; for a Cartesian mission
     ``cartesian_goal_rad``, the joint goal inverse kinematics found), the versions, and
@@ -419,7 +420,9 @@ def run_metrics(
     :class:`~balance_opt.motion.robustness.RobustnessResult`), each method's ``robustness``
     holds its spread and the top-level ``robustness`` the study's settings. ``clearances`` (and
     ``simulated_clearances``): each plan's (simulation's)
-    :class:`~balance_opt.geometry.clearance.ClearanceReport`."""
+    :class:`~balance_opt.geometry.clearance.ClearanceReport`; ``geometry``: what the check holds
+    apart and the pairs close at the start
+    (:meth:`~balance_opt.geometry.robot_geometry.RobotGeometry.summary`)."""
     from balance_opt.report.capture_metrics import capture_metrics
 
     simulations, torques = simulations or {}, torques or {}
@@ -455,6 +458,7 @@ def run_metrics(
             "failures": dict(failures or {}),
             **({"capture": capture} if capture is not None else {}),
             **({"robustness": study} if study is not None else {}),
+            **({"geometry": dict(geometry)} if geometry is not None else {}),
         }
     )
 

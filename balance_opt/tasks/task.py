@@ -179,7 +179,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
         raise doc.error(
             ("task",), "this is a sweep file, not a task file: use balance-opt sweep"
         )
-    spec: TaskSpec = _with_checked_ipopt(from_data(TaskSpec, doc), doc)
+    spec: TaskSpec = _with_srdf(_with_checked_ipopt(from_data(TaskSpec, doc), doc), doc, base_dir)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)
     check_problem_size(spec, doc, robot)
@@ -221,6 +221,18 @@ def _with_checked_ipopt(spec: TaskSpec, doc: YamlDocument) -> TaskSpec:
     )
     optimal = dataclasses.replace(spec.optimal, planner=dataclasses.replace(planner, ipopt=ipopt))
     return dataclasses.replace(spec, optimal=optimal)
+
+
+def _with_srdf(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
+    """``spec`` with ``robot.srdf`` (checked to exist) as the planner's collision SRDF, an
+    absolute path: the run's clearance check reads it from there too."""
+    if spec.robot.srdf is None:
+        return spec
+    path = (base_dir / spec.robot.srdf).resolve()
+    if not path.is_file():
+        raise doc.error(("robot", "srdf"), f"no such SRDF file: {path}")
+    planner = dataclasses.replace(spec.optimal.planner, collision_srdf=str(path))
+    return dataclasses.replace(spec, optimal=dataclasses.replace(spec.optimal, planner=planner))
 
 
 def _with_momentum(spec: TaskSpec) -> TaskSpec:

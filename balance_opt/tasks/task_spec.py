@@ -58,6 +58,12 @@ class RobotSpec:
         doc="name of an example-robot-data robot, e.g. baxter, talos, ur5, panda "
         "(`balance-opt robots` lists them)",
     )
+    srdf: str | None = setting(
+        None,
+        doc="path of an SRDF file, relative to the task file, whose disable_collisions pairs "
+        "the clearance check and the collision avoidance leave out (default: the SRDF shipped "
+        "with an example-robot-data robot, if any)",
+    )
     backend: Literal[SYMBOLIC_BACKENDS] = setting(
         "auto",
         doc="symbolic backend of the optimal planner's momentum maps: pinocchio (Pinocchio's "
