@@ -370,7 +370,7 @@ TORQUE_TOLERANCE = 2e-3
 #: Points per collocation interval, both ends included, at which the refinement and the check
 #: evaluate the torques (:meth:`TorqueLimit.torques`): the torque of a plan bent around a body
 #: peaks inside an interval, and a coarse grid there misses a peak by more than the tolerance.
-TORQUE_POINTS = 33
+TORQUE_POINTS = 65
 
 
 class TorqueLimit(Constraint):

@@ -417,11 +417,13 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
 
 def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]:
     """The effort factors with the points of every interval where a torque exceeds its limit
-    by more than :data:`TORQUE_TOLERANCE` scaled by ``limit / peak`` there."""
+    by more than half :data:`TORQUE_TOLERANCE` scaled by ``limit / peak`` there. Half: the
+    torques are evaluated at points of each interval, and a plan accepted at the tolerance
+    itself there could pass it between them."""
     effort = nlp.limits.effort
     t, tau = TorqueLimit.torques(nlp, result)
     ratio = np.abs(tau) / effort  # (T, n_B), inf effort -> 0
-    if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE:
+    if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE / 2:
         return nlp.torque_factor, []
     N = nlp.N
     interval = np.minimum((t / nlp.h).astype(int), N - 1)
