@@ -1,13 +1,4 @@
 """Collision avoidance in the optimal planner: which pairs a problem keeps apart, and how.
-
-For one problem (:func:`collision_setup`): the robot's geometry
-(:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`, the task's ``collision.ignore``
-pairs left out), the pairs already in contact at the initial configuration (left out of this
-plan and reported: a constraint could not hold at ``t = 0``), the pairs the balance joints move
-(the others are the mission's business: no plan of the balance arm changes them), and the rows
-of the NLP (:class:`~balance_opt.geometry.shapes.ClearanceRows`: a soft minimum of fitted-shape
-distances per body the balance joints move, at every collocation point, the point kernels'
-last outputs). The constraint kind is :class:`~balance_opt.optimal.constraints.Collision`.
 """
 
 from __future__ import annotations
@@ -50,18 +41,6 @@ ALONE_GAP = 0.01
 @dataclass
 class CollisionSetup:
     """The collision avoidance of one problem.
-
-    Attributes:
-        geometry: the robot's geometry.
-        rows: the NLP's rows.
-        pairs: the checked pairs the balance joints move (the ones the plan is held to).
-        fixed_pairs: the checked pairs the balance joints do not move (reported only).
-        initial_contacts: pairs in contact at the initial configuration, left out.
-        initial_rows: the rows' values at the initial configuration [m].
-        owner: the row of each pair of ``pairs`` (by pair index; ``None``: held by the check
-            alone, its fitted shapes overlapping at the start).
-        threshold: the distance each pair of ``pairs`` is held to [m]: the margin, or its
-            exact distance at the start if smaller.
     """
 
     geometry: RobotGeometry
@@ -83,9 +62,6 @@ class CollisionModels:
     """A robot's collision geometry and rows, built once per planner model: its geometry per
     set of ignored pairs, the setup of each problem's start, each rows key's rows with their
     numeric function (the point kernels read them by key).
-
-    Args:
-        robot: the robot.
     """
 
     def __init__(self, robot):

@@ -1,34 +1,4 @@
 """The constraint kinds of the balance NLP, each one object that owns everything about it.
-
-A kind (:class:`Constraint`) says
-
-* which rows it adds to the constraint vector ``g`` and how they are computed
-  (:meth:`Constraint.rows`, symbolic, once per compiled structure), with their names (the
-  names Ipopt's failures are reported with);
-* the lower and upper bounds of those rows for one problem (:meth:`Constraint.row_bounds`);
-* which decision variables it bounds, and how (:meth:`Constraint.bound_variables`);
-* how far the re-simulated motion breaks it (:meth:`Constraint.check`).
-
-A kind holds no numeric data: it is chosen by the structure key and reads the limits,
-configurations and bounds from the problem (:class:`~balance_opt.optimal.problem.BalanceProblem`)
-when asked, so one compiled NLP serves every problem of its structure.
-
-What holds where. The balance joints' position, velocity and acceleration limits hold on the
-whole continuous plan (the piecewise polynomial of
-:class:`~balance_opt.optimal.collocation.CollocatedTrajectory`), to the solver's tolerance: on
-every interval each of these derivatives is a polynomial in Bernstein form, and a polynomial
-lies in the convex hull of its Bernstein coefficients. Its first and last coefficients are its
-values at the interval's ends: decision variables bounded by the limits (the states at the two
-nodes, the collocation rows making the last one the next node's; or, for the acceleration with
-control ``"acceleration"``, the controls at the two nodes, whose mean is the constant
-acceleration of the trapezoidal rule). Its interior coefficients are constraint rows
-(:class:`JointLimit`). Bounding the values at the nodes and midpoints alone would not do: the quadratic
-acceleration of Hermite-Simpson through 1, 1, -1 at the start, middle and end of an interval
-peaks at 1.25 a quarter of the way in. The convex hull is conservative (the polynomial may stay
-inside a limit its hull crosses). Torques and the path attitude bound are rows at the
-collocation points, the terminal attitude bound at the last node; the re-simulation reports how
-far the motion between them strays (:meth:`Constraint.check`), and the planner tightens their
-bounds where it strays too far and solves again (:mod:`balance_opt.optimal.refine`).
 """
 
 from __future__ import annotations
@@ -65,12 +35,6 @@ PEAK_POWER = 16
 @dataclass(frozen=True)
 class Violation:
     """The worst breach of a constraint by a motion.
-
-    Attributes:
-        constraint: what is broken (``"velocity limit of balance_joint2"``).
-        time: when [s].
-        amount: by how much, in ``unit``.
-        unit: the constraint's unit.
     """
 
     constraint: str
@@ -85,21 +49,6 @@ class Violation:
 @dataclass(frozen=True)
 class SymbolicNLP:
     """What the constraint rows are made of, in the build (CasADi SX).
-
-    Attributes:
-        key: the structure.
-        transcription: its scheme.
-        joints: the balance joints' names.
-        state_labels: a label per state row.
-        variables: the decision variables ``X``, ``U``, ``Xm``, ``Um``.
-        levels: Bernstein coefficients of the balance joints on every interval, one list per
-            derivative (position first, the control last), each coefficient (n_B, N)
-            (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`).
-        x_dot: the state derivatives at the points (n_x, n_points), nodes then midpoints.
-        torque: the balance joints' torques at the points (n_B, n_points), or ``None``.
-        parameters: the parameter vector's fields.
-        clearance: the collision rows at the points (n_c, n_points), or ``None``.
-        clearance_labels: a label per collision row.
     """
 
     key: StructureKey
@@ -137,9 +86,6 @@ def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Vio
 class Constraint:
     """One kind of constraint of the balance NLP (the base adds nothing; see the module
     docstring for the four things a kind owns).
-
-    Attributes:
-        name: the kind's name (``"velocity limit"``).
     """
 
     name = "constraint"
@@ -179,9 +125,6 @@ class Collocation(Constraint):
     of integrators, exactly (each node, and each midpoint, is the value of the integrated
     control polynomial, so the continuous plan passes through every node; see
     :mod:`balance_opt.optimal.collocation`). They all vanish.
-
-    Its check is the re-simulation report's (``attitude_defect_*``, ``joint_defect_max``):
-    the defects compare the plan with its re-simulation, not a motion with a bound.
     """
 
     name = "collocation"
@@ -219,13 +162,6 @@ class JointLimit(Constraint):
     """A joint limit of the balance joints (position, velocity or acceleration) on the
     continuous plan: bounds on the nodes' (and midpoints') values and constraint rows on the
     interior Bernstein coefficients of every interval (see the module docstring).
-
-    Args:
-        kind: ``"position"``, ``"velocity"`` or ``"acceleration"``.
-        transcription: the scheme (the degree of the control polynomial).
-        control: ``"acceleration"`` or ``"jerk"``.
-        between_points: whether to add the rows between the points (else only the bounds at
-            the points).
     """
 
     def __init__(
@@ -304,9 +240,6 @@ class JerkLimit(Constraint):
     then be continuous, so that the torques, and the reaction on the base, have no steps: the
     trapezoidal rule with control ``"acceleration"`` (a constant acceleration per interval) is
     refused.
-
-    Raises:
-        InputError: jerk limits with the trapezoidal rule and control ``"acceleration"``.
     """
 
     name = "jerk limit"
@@ -398,13 +331,7 @@ class TorqueLimit(Constraint):
     def torques(problem: BalanceProblem, result: BalanceResult) -> tuple[np.ndarray, np.ndarray]:
         """The balance joints' torques of the free-floating inverse dynamics of a plan, on the
         continuous motion: ``(t (T,) [s], torques (T, n_B) [N m])``.
-
-        A torque peaks where it likes, not on the exported samples: it is evaluated on every
-        collocation interval at :data:`TORQUE_POINTS` points from its start to its end (the
-        end as a limit from inside, where the control may jump), from the plan's polynomials
-        (:meth:`~balance_opt.optimal.solve.BalanceNLP.trajectory`), the attitude interpolated
-        from the re-simulation (it only enters through a non-zero momentum). A result without
-        its NLP solution is evaluated at its own samples."""
+        """
         solution = getattr(getattr(result, "solver", None), "solution", None)
         if solution is None or not hasattr(problem, "trajectory"):
             t, q_B, qd_B, qdd_B = result.t, result.q_B, result.q_dot_B, result.q_ddot_B

@@ -1,13 +1,5 @@
 """Initial guesses of the balance NLP: a sampled balance-arm motion turned into a point of the
 NLP.
-
-The motion (the analytic law's, the arm held at rest, or a given result's) is interpolated at
-the collocation points and clipped to the joint limits; the first node gets the initial state;
-the attitude rows follow the base rate that joint motion forces (integrated by the
-transcription's quadrature from ``phi = 0``).
-
-A point of the NLP on one grid is a guess on another (:func:`resampled`): the peak objective's
-inner stages solve on a coarser grid than the last (:mod:`balance_opt.optimal.refine`).
 """
 
 from __future__ import annotations
@@ -27,16 +19,6 @@ log = logging.getLogger(__name__)
 
 def guess_solution(problem: BalanceProblem, guess, first_state: np.ndarray) -> Solution:
     """The guess named by ``guess``, unclipped.
-
-    Args:
-        problem: the problem.
-        guess: ``"analytic"`` (the analytic law, Eq. 31, 32; the rest guess when the law
-            fails), ``"rest"`` (the balance arm held at ``q_B0``) or a :class:`BalanceResult`
-            (its balance motion).
-        first_state: the balance joints' states at the first node (the initial state).
-
-    Raises:
-        InputError: an unknown name.
     """
     if isinstance(guess, BalanceResult):
         return from_samples(problem, first_state, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)

@@ -1,37 +1,5 @@
 """The per-robot symbolic model of the optimal balance planner: the balance dynamics, the running
 cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point.
-
-They are built once per robot and reused for every horizon, number of intervals and mission:
-the NLP (:mod:`balance_opt.optimal.nlp`) only maps them over the collocation points
-(``Function.map``), so nothing symbolic grows with the number of intervals. The point kernels
-(:class:`PointKernels`: the point's outputs with their exact first and second derivatives) are
-what the NLP evaluates; they are compiled to C when a compiler is found
-(:mod:`balance_opt.optimal.codegen`).
-
-State of one point (control ``"acceleration"``)::
-
-    x = [phi (3), q_B (n_B), q_dot_B (n_B)],   u = q_ddot_B (n_B)
-
-and with control ``"jerk"`` the balance acceleration is a state and the jerk the control::
-
-    x = [phi (3), q_B, q_dot_B, q_ddot_B],     u = q_dddot_B (n_B)
-
-``phi = log(R)`` is the base attitude as a rotation vector in the tangent space at the initial
-attitude (``R = exp([phi]_x)``, ``R(0) = I``). It makes the terminal cost ``|log R_T|^2`` and the
-attitude bounds ``|phi| <= bound`` exact, with three states and no norm constraint; its
-kinematics is ``phi_dot = Jr^{-1}(phi) omega_b`` (valid for rotations below pi, far beyond any
-drift this planner is meant for; ``docs/physics.md``, "Attitude").
-
-The mission arm and the system's momentum enter through the point's data
-``m = [q_M; q_dot_M; q_ddot_M; h0]``, a parameter of the NLP: ``h0`` is the constant total
-momentum [linear; angular about the CoM] in the axes of the initial base frame (the world frame
-when the base starts at the identity). The base rate comes from momentum conservation
-(Eq. 26; ``docs/physics.md``, "Base motion forced by the joints"): in base axes the momentum is
-``R^T h0`` with ``R = exp([phi]_x)``, so
-``omega_b = I_G^{-1} (R^T L0 - A_j q_dot)`` (``L0``: the angular part of ``h0``), which is
-``J_wM(q) q_dot_M + J_wB(q) q_dot_B`` when ``h0 = 0``. The kernels come in two structures,
-with and without the momentum terms (the key's ``momentum``: on the paper robot the terms cost
-17 % more Hessian instructions, 24 % with torques); the ones with them serve every ``h0``.
 """
 
 from __future__ import annotations
@@ -84,29 +52,6 @@ def check_control(control: str) -> str:
 @dataclass(frozen=True)
 class PointKernels:
     """The NLP's nonlinear work at one collocation point, with its exact derivatives.
-
-    ``y = [x_dot (n_x); L; tau_B (n_B, only with torque limits); c (n_c, only with collision
-    avoidance)]`` (``c``: the clearance rows, :mod:`balance_opt.optimal.collision`) is a
-    function of the point's
-    decision variables ``z = [x; u]`` and of its data (mission sample ``m``, running weights,
-    ``q_rest``). The NLP maps these over all points and assembles its gradient, Jacobian and
-    Hessian from them (:mod:`balance_opt.optimal.nlp`): the rest of the NLP is linear in the
-    kernels' outputs and at most quadratic in the decision variables.
-
-    Attributes:
-        value: ``(z, m, weights, q_rest) -> y``.
-        jacobian: ``(z, m, weights, q_rest) -> (y, dy/dz)`` (sparse n_y x n_z).
-        gradient: ``(z, m, weights, q_rest, c) -> (c^T y, d(c^T y)/dz)`` (reverse mode: the
-            objective's gradient without the full Jacobian).
-        hessian: ``(z, m, weights, q_rest, mu) -> d^2 (mu^T y) / dz^2`` (lower triangle, sparse).
-        n_x, n_z, n_y: sizes of the state, of ``z`` and of ``y``.
-        compiled: whether the four are compiled C (else CasADi's SX virtual machine).
-        compile_time: wall time spent compiling them in this process [s] (0 when loaded from
-            the cache folder or not compiled).
-        library: the shared library they were loaded from, or the one being compiled in the
-            background (``None`` when not compiled).
-        background: whether they run on the VM while a background process compiles them (the
-            next run loads the library).
     """
 
     value: cs.Function
@@ -145,28 +90,6 @@ class PointKernels:
 class PlannerModel:
     """Symbolic model of a robot for the optimal planner, built once and cached in memory and
     on disk (:mod:`balance_opt.optimal.model_store`).
-
-    Args:
-        robot: the floating robot.
-        maps: its symbolic momentum maps (built on first use with ``backend`` when not given;
-            a run that finds its functions on disk never builds them).
-        compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``"auto"``
-            (in a background process when a C compiler is found, the kernels running on
-            CasADi's virtual machine until a later run loads the library), ``"background"``
-            (the same; the compiler must exist), ``True`` (compile now and wait) or ``False``.
-            Without a compiler, or if compiling fails, the kernels run on the virtual machine
-            (the same functions, slower).
-        cache_dir: the cache folder (default :func:`~balance_opt.cache.default_cache_dir`).
-        backend: the symbolic backend when ``maps`` is not given (see
-            :class:`~balance_opt.model.symbolic.SymbolicMaps`).
-        store: keep the model's functions on disk and load them from there.
-
-    Attributes:
-        robot: as given.
-        n_M, n_B: numbers of mission and balance joints.
-        nlp_cache: compiled NLPs of this robot by their
-            :class:`~balance_opt.optimal.layout.StructureKey` (filled by
-            :func:`~balance_opt.optimal.solve.build_balance_nlp`).
     """
 
     def __init__(
@@ -307,9 +230,6 @@ class PlannerModel:
     def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
         at one collocation point (the point kernels' first outputs).
-
-        ``L = w_omega |omega_b|^2 + w_attitude |phi|^2 + w_smoothness |u|^2
-        + w_rest |q_B - q_rest|^2``, with ``weights`` in the order of :data:`RUNNING_WEIGHTS`.
         """
 
         def make():
@@ -395,10 +315,6 @@ class PlannerModel:
         that produce the joint accelerations ``q_ddot`` of the free-floating system with the
         momentum ``h_b`` (base axes, [linear; angular about the CoM]) and no external wrench on
         the base.
-
-        With ``M nu_dot + h = [0; tau]`` and the base twist ``v_b = A_b^{-1} (h_b - A_j q_dot)``
-        (``J_base q_dot`` for zero momentum, Eq. 19), the base acceleration is
-        ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and ``tau = M_jb a_b + M_jj q_ddot + h_j``.
         """
 
         def make():
@@ -480,9 +396,6 @@ class PlannerModel:
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
         has finished (and drop the NLPs built on them); for processes that plan many tasks.
-
-        Returns:
-            How many kernel sets were swapped.
         """
         swapped = 0
         for variant, kernels in list(self._kernels.items()):
