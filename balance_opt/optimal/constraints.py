@@ -23,12 +23,7 @@ DERIVATIVES = ("position", "velocity", "acceleration")
 #: ``S`` is of order 1 on drifts of a few hundredths of a radian.
 PEAK_SCALE = 0.01
 #: Exponent ``p`` of the smooth peak (the ``smooth`` stage of the peak objective): the drift's
-#: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``. Its pull fades as the peak
-#: falls below ``c``: the stage ends 5-41 % above the epigraph's peak on the capture task at
-#: 8-20 s. Measured and rejected there: the homogeneous norm ``(sum_k q_k (|phi_k| / c)^p)^(2/p)``
-#: (through an auxiliary variable and one row; p = 8 to 64) ends it 0-15 % above, but the stage
-#: itself then takes more iterations than the epigraph saves: 1566 to 3453 over the five
-#: durations against 1191.
+#: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``.
 PEAK_POWER = 16
 
 

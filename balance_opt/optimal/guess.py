@@ -75,8 +75,7 @@ def analytic_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution
 
     t = np.linspace(0.0, problem.horizon, max(4 * problem.N + 1, 201))
     law = BalanceLawOptions(h0=tuple(problem.h0.tolist()))
-    # a starting point needs no 1e-10 tolerance: 1e-6 takes 2.3x fewer law evaluations on the
-    # capture task (4e-7 rad away from the tight rollout) and Ipopt ends at the same plan
+    # a starting point needs no 1e-10 tolerance: Ipopt ends at the same plan from 1e-6
     loose = IntegrationOptions(rtol=1e-6, atol=1e-9)
     plan = rollout(problem.robot, problem.mission, problem.q_B0, law, t_eval=t, integration=loose)
     return from_samples(problem, first_state, plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
