@@ -1,5 +1,4 @@
-"""One BLAS thread for Ipopt's linear algebra.
-"""
+"""One BLAS thread for Ipopt's linear algebra."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
 """How much memory and time the optimal planner's problem needs, estimated before it is built
-(no CasADi needed).
-"""
+(no CasADi needed)."""
 
 from __future__ import annotations
 
@@ -32,8 +31,7 @@ JACOBIAN_FIT = {"hermite-simpson": (5.46, 3.60), "trapezoidal": (4.94, 2.15)}
 
 @dataclass(frozen=True)
 class ProblemSize:
-    """The estimated size of one optimal problem.
-    """
+    """The estimated size of one optimal problem."""
 
     intervals: int
     variables: int

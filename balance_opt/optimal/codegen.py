@@ -1,5 +1,4 @@
-"""Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes.
-"""
+"""Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes."""
 
 from __future__ import annotations
 
@@ -48,8 +47,7 @@ _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 @dataclass(frozen=True)
 class Compiled:
-    """What :func:`compile_functions` returns.
-    """
+    """What :func:`compile_functions` returns."""
 
     functions: list[cs.Function]
     compiled: bool
@@ -107,8 +105,7 @@ def compile_functions(
     background: bool = False,
     label: str = "",
 ) -> Compiled:
-    """Compile CasADi functions to one shared library, cached on disk.
-    """
+    """Compile CasADi functions to one shared library, cached on disk."""
     compiler = find_compiler()
     if compiler is None:
         raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
@@ -192,8 +189,7 @@ def _recent_failure(library: Path) -> str:
 
 class Compilation:
     """A background compilation: a thread of this process that runs the compiler (a child
-    process at low priority) while it holds the library's lock, taken here.
-    """
+    process at low priority) while it holds the library's lock, taken here."""
 
     def __init__(self, compiler: str, source: str, library: Path):
         self.library, self.compiler, self.stopped = library, None, False

@@ -1,5 +1,4 @@
-"""Collision avoidance in the optimal planner: which pairs a problem keeps apart, and how.
-"""
+"""Collision avoidance in the optimal planner: which pairs a problem keeps apart, and how."""
 
 from __future__ import annotations
 
@@ -40,8 +39,7 @@ ALONE_GAP = 0.01
 
 @dataclass
 class CollisionSetup:
-    """The collision avoidance of one problem.
-    """
+    """The collision avoidance of one problem."""
 
     geometry: RobotGeometry
     rows: ClearanceRows
@@ -61,8 +59,7 @@ class CollisionSetup:
 class CollisionModels:
     """A robot's collision geometry and rows, built once per planner model: its geometry per
     set of ignored pairs, the setup of each problem's start, each rows key's rows with their
-    numeric function (the point kernels read them by key).
-    """
+    numeric function (the point kernels read them by key)."""
 
     def __init__(self, robot):
         self.robot = robot

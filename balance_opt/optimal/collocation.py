@@ -1,6 +1,5 @@
 """Direct-collocation transcriptions (Hermite-Simpson, separated form, and trapezoidal) and the
-continuous balance-arm trajectory they describe.
-"""
+continuous balance-arm trajectory they describe."""
 
 from __future__ import annotations
 
@@ -18,8 +17,7 @@ TRANSCRIPTIONS = (HERMITE_SIMPSON, TRAPEZOIDAL)
 
 @dataclass(frozen=True)
 class Transcription:
-    """One collocation scheme.
-    """
+    """One collocation scheme."""
 
     name: str
 
@@ -49,8 +47,7 @@ class Transcription:
         return np.r_[nodes, nodes[:-1] + 0.5] if self.has_midpoints else nodes
 
     def defects(self, X, Xm, F, Fm, h) -> list[tuple[str, object]]:
-        """Collocation defects, each (n_x, N), that must vanish.
-        """
+        """Collocation defects, each (n_x, N), that must vanish."""
         x0, x1, f0, f1 = X[:, :-1], X[:, 1:], F[:, :-1], F[:, 1:]
         if self.has_midpoints:
             return [
@@ -69,8 +66,7 @@ class Transcription:
         return w
 
     def control_coefficients(self, U, Um) -> list:
-        """Bernstein coefficients of the control polynomial of every interval, each (n_u, N).
-        """
+        """Bernstein coefficients of the control polynomial of every interval, each (n_u, N)."""
         u0, u1 = U[:, :-1], U[:, 1:]
         if self.has_midpoints:
             return [u0, 2.0 * Um - 0.5 * (u0 + u1), u1]
@@ -79,8 +75,7 @@ class Transcription:
 
 def integrate_bernstein(coefficients: list, start, h) -> list:
     """Bernstein coefficients of ``y(tau) = start + integral_0^tau c`` on ``[0, h]``, where ``c`` has
-    the Bernstein coefficients ``coefficients`` (degree ``d``) in ``s = tau / h``.
-    """
+    the Bernstein coefficients ``coefficients`` (degree ``d``) in ``s = tau / h``."""
     degree = len(coefficients) - 1
     out = [start]
     for c in coefficients:
@@ -89,8 +84,7 @@ def integrate_bernstein(coefficients: list, start, h) -> list:
 
 
 def joint_chain_coefficients(transcription: Transcription, starts: list, U, Um, h) -> list[list]:
-    """Bernstein coefficients of every derivative of the balance joints on every interval.
-    """
+    """Bernstein coefficients of every derivative of the balance joints on every interval."""
     levels = [transcription.control_coefficients(U, Um)]
     for start in reversed(starts):
         levels.append(integrate_bernstein(levels[-1], start, h))
@@ -121,8 +115,7 @@ def monomial_from_bernstein(degree: int) -> np.ndarray:
 
 class CollocatedTrajectory(JointTrajectory):
     """The balance-joint motion of a collocation solution as a continuous, piecewise polynomial
-    trajectory (see the module docstring), sampled like every mission trajectory.
-    """
+    trajectory (see the module docstring), sampled like every mission trajectory."""
 
     def __init__(self, h: float, levels: list[list[np.ndarray]]):
         self.h = float(h)

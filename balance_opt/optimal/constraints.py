@@ -1,5 +1,4 @@
-"""The constraint kinds of the balance NLP, each one object that owns everything about it.
-"""
+"""The constraint kinds of the balance NLP, each one object that owns everything about it."""
 
 from __future__ import annotations
 
@@ -29,8 +28,7 @@ PEAK_POWER = 16
 
 @dataclass(frozen=True)
 class Violation:
-    """The worst breach of a constraint by a motion.
-    """
+    """The worst breach of a constraint by a motion."""
 
     constraint: str
     time: float
@@ -43,8 +41,7 @@ class Violation:
 
 @dataclass(frozen=True)
 class SymbolicNLP:
-    """What the constraint rows are made of, in the build (CasADi SX).
-    """
+    """What the constraint rows are made of, in the build (CasADi SX)."""
 
     key: StructureKey
     transcription: Transcription
@@ -80,8 +77,7 @@ def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Vio
 
 class Constraint:
     """One kind of constraint of the balance NLP (the base adds nothing; see the module
-    docstring for the four things a kind owns).
-    """
+    docstring for the four things a kind owns)."""
 
     name = "constraint"
 
@@ -119,8 +115,7 @@ class Collocation(Constraint):
     """The collocation defects: the attitude by the transcription; the balance joints, a chain
     of integrators, exactly (each node, and each midpoint, is the value of the integrated
     control polynomial, so the continuous plan passes through every node; see
-    :mod:`balance_opt.optimal.collocation`). They all vanish.
-    """
+    :mod:`balance_opt.optimal.collocation`). They all vanish."""
 
     name = "collocation"
 
@@ -156,8 +151,7 @@ class Collocation(Constraint):
 class JointLimit(Constraint):
     """A joint limit of the balance joints (position, velocity or acceleration) on the
     continuous plan: bounds on the nodes' (and midpoints') values and constraint rows on the
-    interior Bernstein coefficients of every interval (see the module docstring).
-    """
+    interior Bernstein coefficients of every interval (see the module docstring)."""
 
     def __init__(
         self, kind: str, transcription: Transcription, control: str, between_points: bool = True
@@ -234,8 +228,7 @@ class JerkLimit(Constraint):
     control's own) and every one of its Bernstein coefficients is a row. The acceleration must
     then be continuous, so that the torques, and the reaction on the base, have no steps: the
     trapezoidal rule with control ``"acceleration"`` (a constant acceleration per interval) is
-    refused.
-    """
+    refused."""
 
     name = "jerk limit"
 
@@ -325,8 +318,7 @@ class TorqueLimit(Constraint):
     @staticmethod
     def torques(problem: BalanceProblem, result: BalanceResult) -> tuple[np.ndarray, np.ndarray]:
         """The balance joints' torques of the free-floating inverse dynamics of a plan, on the
-        continuous motion: ``(t (T,) [s], torques (T, n_B) [N m])``.
-        """
+        continuous motion: ``(t (T,) [s], torques (T, n_B) [N m])``."""
         solution = getattr(getattr(result, "solver", None), "solution", None)
         if solution is None or not hasattr(problem, "trajectory"):
             t, q_B, qd_B, qdd_B = result.t, result.q_B, result.q_dot_B, result.q_ddot_B

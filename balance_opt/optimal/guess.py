@@ -1,6 +1,5 @@
 """Initial guesses of the balance NLP: a sampled balance-arm motion turned into a point of the
-NLP.
-"""
+NLP."""
 
 from __future__ import annotations
 
@@ -18,8 +17,7 @@ log = logging.getLogger(__name__)
 
 
 def guess_solution(problem: BalanceProblem, guess, first_state: np.ndarray) -> Solution:
-    """The guess named by ``guess``, unclipped.
-    """
+    """The guess named by ``guess``, unclipped."""
     if isinstance(guess, BalanceResult):
         return from_samples(problem, first_state, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)
     if guess not in GUESSES:

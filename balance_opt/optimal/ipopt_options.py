@@ -1,5 +1,4 @@
-"""Ipopt options checked against Ipopt's own option list, before any planning.
-"""
+"""Ipopt options checked against Ipopt's own option list, before any planning."""
 
 from __future__ import annotations
 
@@ -134,8 +133,7 @@ def _documentation_from_ipopt() -> str:
 
 
 def option_catalog() -> dict[str, IpoptOption]:
-    """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk).
-    """
+    """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk)."""
     path = default_cache_dir() / f"ipopt-options-casadi-{importlib.metadata.version('casadi')}.json"
     with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
         data = json.loads(path.read_text())
@@ -228,8 +226,7 @@ def check_ipopt_options(
     error: Callable[[str, str], Exception] = _solver_option_error,
 ) -> dict[str, Any]:
     """``options`` checked against Ipopt's own option list (:func:`option_catalog`; unchecked,
-    with a warning, when it cannot be had), an integer option given as ``500.0`` as ``500``.
-    """
+    with a warning, when it cannot be had), an integer option given as ``500.0`` as ``500``."""
     if not options:
         return {}
     try:

@@ -11,8 +11,7 @@ log = logging.getLogger(__name__)
 
 
 def ipopt_version() -> str:
-    """Version of the Ipopt library bundled with CasADi (e.g. ``"3.14.19"``), or ``"unknown"``.
-    """
+    """Version of the Ipopt library bundled with CasADi (e.g. ``"3.14.19"``), or ``"unknown"``."""
     import casadi
 
     folder = os.path.dirname(casadi.__file__)

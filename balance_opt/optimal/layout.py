@@ -1,5 +1,4 @@
-"""Where everything sits in the balance NLP's vectors, in one place for the build and the solve.
-"""
+"""Where everything sits in the balance NLP's vectors, in one place for the build and the solve."""
 
 from __future__ import annotations
 
@@ -33,8 +32,7 @@ def unit_of(label: str) -> str:
 # ---------------------------------------------------------------------------------- structure key
 @dataclass(frozen=True)
 class StructureKey:
-    """What two problems must share to share one compiled NLP (everything else is numeric data).
-    """
+    """What two problems must share to share one compiled NLP (everything else is numeric data)."""
 
     intervals: int
     transcription: str
@@ -53,8 +51,7 @@ class StructureKey:
 
     @classmethod
     def of(cls, limits, options, momentum: bool = False, collision: str = "") -> StructureKey:
-        """The key of a problem.
-        """
+        """The key of a problem."""
         enforced = {
             "position": options.position_limits
             and bool(np.any(np.isfinite(limits.lower) | np.isfinite(limits.upper))),
@@ -85,8 +82,7 @@ class StructureKey:
 @dataclass(frozen=True)
 class Block:
     """A block of variables or constraints: a matrix whose columns are time, stacked column by
-    column into its vector.
-    """
+    column into its vector."""
 
     name: str
     rows: tuple[str, ...]
@@ -159,8 +155,7 @@ class Solution:
 
 class VariableLayout(BlockStack):
     """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S`` (see the module
-    docstring).
-    """
+    docstring)."""
 
     def __init__(
         self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
@@ -232,8 +227,7 @@ class VariableLayout(BlockStack):
 
 # ---------------------------------------------------------------------------------- parameters
 class NLPParameters(NamedTuple):
-    """The fields of the parameter vector ``p``, in its order.
-    """
+    """The fields of the parameter vector ``p``, in its order."""
 
     h: Any
     terminal_weight: Any
@@ -251,8 +245,7 @@ class NLPParameters(NamedTuple):
 @dataclass(frozen=True)
 class ParameterLayout:
     """The parameter vector ``p``: the fields of :class:`NLPParameters`, one after the other
-    (the mission samples column by column).
-    """
+    (the mission samples column by column)."""
 
     n_weights: int
     n_B: int

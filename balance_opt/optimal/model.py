@@ -1,6 +1,5 @@
 """The per-robot symbolic model of the optimal balance planner: the balance dynamics, the running
-cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point.
-"""
+cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point."""
 
 from __future__ import annotations
 
@@ -51,8 +50,7 @@ def check_control(control: str) -> str:
 
 @dataclass(frozen=True)
 class PointKernels:
-    """The NLP's nonlinear work at one collocation point, with its exact derivatives.
-    """
+    """The NLP's nonlinear work at one collocation point, with its exact derivatives."""
 
     value: cs.Function
     jacobian: cs.Function
@@ -89,8 +87,7 @@ class PointKernels:
 
 class PlannerModel:
     """Symbolic model of a robot for the optimal planner, built once and cached in memory and
-    on disk (:mod:`balance_opt.optimal.model_store`).
-    """
+    on disk (:mod:`balance_opt.optimal.model_store`)."""
 
     def __init__(
         self,
@@ -229,8 +226,7 @@ class PlannerModel:
 
     def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
-        at one collocation point (the point kernels' first outputs).
-        """
+        at one collocation point (the point kernels' first outputs)."""
 
         def make():
             x, u, m, phi, q_B, _, _, _ = self._symbols(control)
@@ -314,8 +310,7 @@ class PlannerModel:
         """``joint_torques_h(q, q_dot, q_ddot, h_b) -> tau``: arm joint torques [N m] (arm order)
         that produce the joint accelerations ``q_ddot`` of the free-floating system with the
         momentum ``h_b`` (base axes, [linear; angular about the CoM]) and no external wrench on
-        the base.
-        """
+        the base."""
 
         def make():
             n = self.robot.n
@@ -395,8 +390,7 @@ class PlannerModel:
 
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
-        has finished (and drop the NLPs built on them); for processes that plan many tasks.
-        """
+        has finished (and drop the NLPs built on them); for processes that plan many tasks."""
         swapped = 0
         for variant, kernels in list(self._kernels.items()):
             if not kernels.background or not Path(kernels.library).exists():

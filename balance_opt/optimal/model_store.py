@@ -1,6 +1,5 @@
 """The per-robot symbolic model of the planner, kept on disk: its CasADi functions saved once,
-loaded by every later run instead of being built again.
-"""
+loaded by every later run instead of being built again."""
 
 from __future__ import annotations
 
@@ -77,8 +76,7 @@ def model_key(robot: FloatingRobot, backend_identity: str) -> str:
 
 
 class FunctionStore:
-    """Named lists of CasADi functions of one planner model, on disk.
-    """
+    """Named lists of CasADi functions of one planner model, on disk."""
 
     def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
         root = Path(cache_dir) if cache_dir is not None else default_cache_dir()

@@ -1,5 +1,4 @@
-"""Building the compiled balance NLP of one structure from the per-point kernels.
-"""
+"""Building the compiled balance NLP of one structure from the per-point kernels."""
 
 from __future__ import annotations
 
@@ -36,8 +35,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class NLPStructure:
-    """The compiled NLP of one structure, shared by every problem of that structure.
-    """
+    """The compiled NLP of one structure, shared by every problem of that structure."""
 
     key: StructureKey
     solver: cs.Function
@@ -82,8 +80,7 @@ class _Outer:
 def build_structure(
     model: PlannerModel, key: StructureKey, options: PlannerOptions
 ) -> NLPStructure:
-    """Build and compile the NLP of a structure.
-    """
+    """Build and compile the NLP of a structure."""
     start = time.perf_counter()
     kernels = model.kernels(key.control, key.torque_limits, key.momentum, key.collision)
     tr = Transcription(key.transcription)
@@ -174,8 +171,7 @@ def _smooth_peak(v, par, weights: np.ndarray):
 
 
 def jerk_integral(acceleration: list, h):
-    """``int |q_dddot|^2 dt`` of a piecewise polynomial acceleration, summed over its joints.
-    """
+    """``int |q_dddot|^2 dt`` of a piecewise polynomial acceleration, summed over its joints."""
     d = len(acceleration) - 1
     if d == 0:  # a constant per interval: the steps are all there is
         jumps = acceleration[0][:, :-1] - acceleration[0][:, 1:]
@@ -223,8 +219,7 @@ def _scatter(
     sparsity: cs.Sparsity, n_points: int, rows_of_point, cols_of_point, shape, upper: bool = False
 ):
     """Sparsity and nonzero permutation that place the nonzeros of a mapped per-point sparse
-    output (``n_points`` copies of ``sparsity`` side by side) into one global sparse matrix.
-    """
+    output (``n_points`` copies of ``sparsity`` side by side) into one global sparse matrix."""
     local_rows, local_cols = (np.asarray(v) for v in sparsity.get_triplet())
     nnz = local_rows.size
     rows = np.concatenate([rows_of_point(i)[local_rows] for i in range(n_points)])
@@ -242,8 +237,7 @@ def _scatter(
 
 @dataclass
 class _Mapped:
-    """The NLP's MX symbols and the per-point view of them that the kernels are mapped over.
-    """
+    """The NLP's MX symbols and the per-point view of them that the kernels are mapped over."""
 
     w: cs.MX
     p: cs.MX

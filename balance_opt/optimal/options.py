@@ -1,5 +1,4 @@
-"""Settings of the optimal balance planner: the objective's weights and the planner's options.
-"""
+"""Settings of the optimal balance planner: the objective's weights and the planner's options."""
 
 from __future__ import annotations
 
@@ -44,8 +43,7 @@ INNER_MIN_INTERVALS = 10
 
 @dataclass(frozen=True)
 class Stage:
-    """One stage of the peak objective (:func:`~balance_opt.optimal.refine.plan_peak`).
-    """
+    """One stage of the peak objective (:func:`~balance_opt.optimal.refine.plan_peak`)."""
 
     name: str
     coarse: bool
@@ -93,8 +91,7 @@ END_CONDITIONS = ("free", "still", "rest")
 
 @dataclass(frozen=True)
 class CostWeights:
-    """Weights of the optimal planner's objective.
-    """
+    """Weights of the optimal planner's objective."""
 
     omega: float = setting(
         100.0, minimum=0.0, doc="base angular rate, integral of |omega_b|^2 (the paper's goal)"
@@ -155,8 +152,7 @@ class CostWeights:
 
 @dataclass(frozen=True)
 class PlannerOptions:
-    """Settings of the optimal balance planner (direct collocation solved by Ipopt).
-    """
+    """Settings of the optimal balance planner (direct collocation solved by Ipopt)."""
 
     __sections__: ClassVar[dict[str, str]] = {
         "constraints": "constraints of the optimal planner",

@@ -1,6 +1,5 @@
 """One balance planning problem's numeric data: the mission, the initial configuration, the
-horizon and the options, checked against the robot before anything is built.
-"""
+horizon and the options, checked against the robot before anything is built."""
 
 from __future__ import annotations
 
@@ -25,8 +24,7 @@ def check_problem(
     options: PlannerOptions,
     robot: FloatingRobot | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Check a problem's sizes and configurations against the robot.
-    """
+    """Check a problem's sizes and configurations against the robot."""
     robot = model.robot if robot is None else robot
     if robot.joint_names != model.robot.joint_names:
         raise InputError(f"robot {robot.name} is not the robot of the planner model")
@@ -76,8 +74,7 @@ def check_problem(
 
 def momentum_of(h0) -> np.ndarray:
     """A total momentum ``[linear; angular]`` (6,) [N s; N m s] as a float array (zero for
-    ``None``).
-    """
+    ``None``)."""
     h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float).ravel()
     if h0.size != 6 or not np.all(np.isfinite(h0)):
         raise InputError(
@@ -91,8 +88,7 @@ class Bounds:
     """The numbers of a problem's NLP that its solve lowers or sets, never in place: the
     refinement (:mod:`balance_opt.optimal.refine`) makes a new problem with new bounds
     (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`), so a problem solved twice
-    gives the same plan twice.
-    """
+    gives the same plan twice."""
 
     path: float | None
     terminal: float | None
@@ -110,8 +106,7 @@ class Bounds:
 
 
 class BalanceProblem:
-    """The numeric data of one balance planning problem.
-    """
+    """The numeric data of one balance planning problem."""
 
     def __init__(
         self,
@@ -184,8 +179,7 @@ class BalanceProblem:
 
 
 class PlannerSolverError(SolverError):
-    """Ipopt did not solve the balance NLP.
-    """
+    """Ipopt did not solve the balance NLP."""
 
     def __init__(
         self, message: str, status: str, result, constraint: str, time: float, violation: float

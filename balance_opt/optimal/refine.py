@@ -1,6 +1,5 @@
 """The outer loop of the optimal planner: the peak objective's stages, bounds reached through the
-peak problem, and limits held on the whole re-simulated motion.
-"""
+peak problem, and limits held on the whole re-simulated motion."""
 
 from __future__ import annotations
 
@@ -29,8 +28,7 @@ BOUND_MARGIN = 1e-3
 
 @dataclass(frozen=True)
 class SolveReport:
-    """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`).
-    """
+    """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`)."""
 
     stage: str
     intervals: int
@@ -90,8 +88,7 @@ class Refinement:
 
 @dataclass(frozen=True)
 class PlanReport:
-    """How an optimal plan was solved (``BalanceResult.solver``).
-    """
+    """How an optimal plan was solved (``BalanceResult.solver``)."""
 
     solves: tuple[SolveReport, ...]
     solution: Solution | None = None
@@ -146,8 +143,7 @@ def _solve_once(nlp, guess, before: PlanReport) -> BalanceResult:
 def solve_with_bounds(nlp, guess) -> BalanceResult:
     """Solve a problem whose path attitude bound may stall Ipopt (see the module docstring),
     then :func:`refine`. The plan, or the result a failure carries, holds its
-    :class:`PlanReport` as ``solver``, written into its ``info``.
-    """
+    :class:`PlanReport` as ``solver``, written into its ``info``."""
     try:
         result = _solve_with_bounds(nlp, guess)
     except SolverError as exc:
@@ -225,8 +221,7 @@ def plan_peak(nlp, guess) -> BalanceResult:
     stages run on a coarser grid and are not re-simulated; a failed one hands its own guess on.
     Should the epigraph stage fail, the smooth peak is solved on the plan's grid from the inner
     stage's plan and kept (with a warning, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`).
-    The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts.
-    """
+    The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts."""
     *inner, last = PEAK_STAGES
     done: list[SolveReport] = []
     stage_nlp = None

@@ -1,5 +1,4 @@
-"""Building one balance problem's NLP, solving it with Ipopt and re-simulating the plan.
-"""
+"""Building one balance problem's NLP, solving it with Ipopt and re-simulating the plan."""
 
 from __future__ import annotations
 
@@ -45,8 +44,7 @@ log = logging.getLogger(__name__)
 
 
 class BalanceNLP(BalanceProblem):
-    """One balance planning problem with its compiled NLP and numeric inputs.
-    """
+    """One balance planning problem with its compiled NLP and numeric inputs."""
 
     def __init__(
         self,
@@ -235,8 +233,7 @@ class BalanceNLP(BalanceProblem):
         """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
         the peak problem first, then the torque and attitude bounds refined until the
         re-simulated motion meets them, from ``options.starts`` guesses
-        (:mod:`balance_opt.optimal.refine`).
-        """
+        (:mod:`balance_opt.optimal.refine`)."""
         try:
             if self.options.starts > 1:
                 return multi_start(self, initial_guess, executor)
@@ -245,8 +242,7 @@ class BalanceNLP(BalanceProblem):
             self.model.finish_compiling()
 
     def solve_once(self, initial_guess="analytic") -> BalanceResult:
-        """Solve with Ipopt once, re-simulate the plan, return it.
-        """
+        """Solve with Ipopt once, re-simulate the plan, return it."""
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
@@ -383,8 +379,7 @@ def build_balance_nlp(
     stage: str | None = None,
     between_points: bool = False,
 ) -> BalanceNLP:
-    """Build the balance NLP of a mission.
-    """
+    """Build the balance NLP of a mission."""
     start = time.perf_counter()
     model = (
         planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
@@ -448,8 +443,7 @@ def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
 
 
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
-    """Re-simulate a plan on a fine grid (:func:`_fine_grid`, ``options.resample_step``).
-    """
+    """Re-simulate a plan on a fine grid (:func:`_fine_grid`, ``options.resample_step``)."""
     # imported here: a multi-start's worker that only solves first stages never needs it
     from balance_opt.motion.replay import replay
 

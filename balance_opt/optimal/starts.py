@@ -1,6 +1,5 @@
 """Multi-start of the optimal planner: ``options.starts`` initial guesses, the plan of the
-smallest objective kept.
-"""
+smallest objective kept."""
 
 from __future__ import annotations
 
@@ -41,8 +40,7 @@ class StartTask:
     """One phase of a start on a problem, a callable of the start's guess: ``"first"`` the
     integral stage (its :class:`~balance_opt.optimal.refine.IntegralStart`), ``"plan"`` the
     whole solve (``(result, None)`` or ``(None, error)``; in another process the error as
-    ``(message, status)``: the planner's errors do not pickle).
-    """
+    ``(message, status)``: the planner's errors do not pickle)."""
 
     def __init__(self, nlp, phase: str):
         self.nlp, self.phase, self.remote = nlp, phase, False
@@ -78,8 +76,7 @@ def same_first_plan(a: IntegralStart, b: IntegralStart) -> bool:
 
 def multi_start(nlp, guess, executor=None):
     """Solve from ``options.starts`` guesses (see the module docstring) and keep the plan of
-    the smallest objective; ``info["starts"]`` holds every start's outcome and the spread.
-    """
+    the smallest objective; ``info["starts"]`` holds every start's outcome and the spread."""
     run = map if executor is None else executor.map
     guesses = start_guesses(nlp, guess)
     single = nlp.variant(starts=1)
