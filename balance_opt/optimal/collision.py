@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 #: bounded [m] (a bound equal to the fixed initial value would leave no interior).
 COLLISION_SLACK = 1e-3
 #: The collision rows hold the margin plus this at the collocation points [m]: the motion
-#: between two points bends toward a body by about this much on the capture task, and every
+#: between two points bends toward a body by about this much, and every
 #: dip below the margin costs a refinement round (a full re-solve).
 COLLISION_ALLOWANCE = 2e-3
 #: Distance [m] by which the re-simulated motion may come closer than the margin without a
@@ -190,7 +190,7 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
     # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
-    # distance is least smooth (Ipopt got stuck on Talos's shoulder in its torso's box); the
+    # distance is least smooth (Ipopt gets stuck there); the
     # check alone holds these pairs (a penetration fails the plan)
     overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
     rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
@@ -211,7 +211,6 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner, threshold)
 
 
-# ---------------------------------------------------------------------------------- check
 def report(problem, result) -> ClearanceReport:
     """The clearance of a re-simulated plan of ``problem`` over the pairs the balance joints
     move (computed once per result: the check and the refinement share it)."""

@@ -29,7 +29,6 @@ def unit_of(label: str) -> str:
     return UNITS[label.split()[-1]]
 
 
-# ---------------------------------------------------------------------------------- structure key
 @dataclass(frozen=True)
 class StructureKey:
     """What two problems must share to share one compiled NLP (everything else is numeric data)."""
@@ -78,7 +77,6 @@ class StructureKey:
         )
 
 
-# ---------------------------------------------------------------------------------- blocks
 @dataclass(frozen=True)
 class Block:
     """A block of variables or constraints: a matrix whose columns are time, stacked column by
@@ -131,7 +129,6 @@ class BlockStack:
         return self.blocks[int(np.searchsorted(offsets, index, side="right")) - 1]
 
 
-# ---------------------------------------------------------------------------------- decision vector
 @dataclass
 class Solution:
     """A point of the NLP, unpacked: states and controls at the nodes and midpoints (the
@@ -225,7 +222,6 @@ class VariableLayout(BlockStack):
         return f"{'midpoint' if block.name.endswith('m') else 'node'} {row}", tau
 
 
-# ---------------------------------------------------------------------------------- parameters
 class NLPParameters(NamedTuple):
     """The fields of the parameter vector ``p``, in its order."""
 

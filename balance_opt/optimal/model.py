@@ -138,7 +138,6 @@ class PlannerModel:
         """The functions ``name``: from the disk store, else made (and saved)."""
         return self.store.get(name, make) if self.store is not None else make()
 
-    # ------------------------------------------------------------------ sizes
     def n_x(self, control: str) -> int:
         """State size: attitude (3) and balance position, velocity (and acceleration for jerk)."""
         return 3 + (2 if check_control(control) == "acceleration" else 3) * self.n_B
@@ -170,7 +169,6 @@ class PlannerModel:
             labels += [f"{j} {kind}" for j in balance]
         return labels
 
-    # ------------------------------------------------------------------ symbols
     def _symbols(self, control: str):
         n_B, n_M = self.n_B, self.n_M
         x = cs.SX.sym("x", self.n_x(control))
@@ -195,12 +193,10 @@ class PlannerModel:
         momentum matrix (Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint
         columns, ``ell = R^T L0`` the angular momentum about the CoM in base axes; the base's
         linear columns of these rows are zero, so the linear momentum does not turn the base.
-        One 3 x 3 solve of a vector instead of the full 6 x 6 ``J_base``: on the paper robot the
-        Hessian kernel has 54 % of the instructions (23.6k against 43.7k)."""
+        One 3 x 3 solve of a vector instead of the full 6 x 6 ``J_base``: a smaller Hessian."""
         A = self.maps.centroidal_momentum_matrix_fun()(cs.vertcat(q_M, q_B))
         return cs.solve(A[3:, 3:6], ell - A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
 
-    # ------------------------------------------------------------------ functions
     def dynamics_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_dynamics(x, u, m) -> (x_dot, omega)``: the state's time derivative and the
         base angular velocity in the base frame [rad/s] (Eq. 26 with the momentum ``h0`` of
@@ -251,7 +247,6 @@ class PlannerModel:
 
         return self._cached(f"point_{check_control(control)}{_tag(momentum)}", make)
 
-    # ------------------------------------------------------------------ inverse dynamics
     @cached_property
     def _dynamics_terms(self) -> cs.Function:
         """``(q, nu) -> (M, h)``: mass matrix and bias forces of the free-floating system,
@@ -360,7 +355,6 @@ class PlannerModel:
 
         return self._cached(f"balance_torque_{check_control(control)}{_tag(momentum)}", make)
 
-    # ------------------------------------------------------------------ kernels
     def n_y(self, control: str, torque: bool, clearance: str = "") -> int:
         """Size of a point kernel's output ``y``."""
         n_c = len(self.collisions.rows[clearance][0].rows) if clearance else 0

@@ -146,7 +146,7 @@ class CostWeights:
     def jerk_weight(self, objective: str = "integral") -> float:
         """The weight of the jerk term under ``objective``: ``regularisation * jerk`` for the
         peak, 0 for the integral objective (a least-squares problem: its plans are smooth
-        without it; 0.003 raised the capture task's integral plan's peak by 6 %)."""
+        without it)."""
         return self.regularisation * self.jerk if objective == "peak" else 0.0
 
 

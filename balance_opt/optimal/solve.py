@@ -91,8 +91,7 @@ class BalanceNLP(BalanceProblem):
                 # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
                 smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
                 smooth_scale=1.0 / c**2 if smooth else 1.0,
-                # the peak objective's inner stages are warm starts: with the jerk priced there
-                # too the epigraph ended 8 % higher on the capture task (benchmarks/smoothness.py)
+                # the peak objective's inner stages are warm starts: no jerk price to bend them
                 jerk_weight=weights.jerk_weight(self.options.objective)
                 if self.structure.key.objective == self.options.objective
                 else 0.0,
@@ -145,7 +144,6 @@ class BalanceNLP(BalanceProblem):
         """The NLP solution a result of this problem's structure was re-simulated from."""
         return result.solver.solution
 
-    # ------------------------------------------------------------------ inspection
     @property
     def variables(self) -> dict[str, Block]:
         """The decision vector's blocks by name (``X``, ``Xm``, ``U``, ``Um``)."""
@@ -185,7 +183,6 @@ class BalanceNLP(BalanceProblem):
         """The decision vector of unpacked states and controls."""
         return self.structure.variables.pack(sol)
 
-    # ------------------------------------------------------------------ bounds
     def _variable_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Free variables, narrowed by every constraint kind in turn."""
         n_w = self.structure.n_w
@@ -201,7 +198,6 @@ class BalanceNLP(BalanceProblem):
             lower[block.slice], upper[block.slice] = kind.row_bounds(self, block)
         return lower, upper
 
-    # ------------------------------------------------------------------ solve
     def initial_guess(self, guess="analytic") -> np.ndarray:
         """The decision vector to start from: ``"analytic"``, ``"rest"``, a
         :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution` (of a
@@ -368,7 +364,6 @@ class BalanceNLP(BalanceProblem):
         return CollocatedTrajectory(self.h, levels)
 
 
-# ---------------------------------------------------------------------------------- build
 def build_balance_nlp(
     planner_model: PlannerModel | FloatingRobot,
     mission_trajectory,
@@ -434,7 +429,6 @@ def plan_optimal(
     return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
 
 
-# ---------------------------------------------------------------------------------- re-simulation
 def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
     """The re-simulation grid: every interval split into ``sub`` equal steps no longer than
     ``step``, so the grid holds every node. Returns ``(times, sub)``."""
