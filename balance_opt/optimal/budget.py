@@ -55,7 +55,7 @@ class ProblemSize:
         return ITERATION_SECONDS_PER_NONZERO * self.nonzeros / self.problems
 
 
-def _limited(options, limits) -> dict[str, bool]:
+def limited_kinds(options, limits) -> dict[str, bool]:
     """Which limit constraints the planner adds: asked for, and finite for some balance joint."""
     return {
         "acceleration": options.acceleration_limits
@@ -77,7 +77,7 @@ def _per_interval(options, limits) -> tuple[int, int, float]:
     jerk = options.control == "jerk"
     n_x = 3 + (3 if jerk else 2) * n_B
     n_w = points * (n_x + n_B)
-    limited = _limited(options, limits)
+    limited = limited_kinds(options, limits)
     degree = tr.control_degree + (1 if jerk else 0)  # of the acceleration polynomial
     interior = sum(
         max(degree + i - 1, 0)

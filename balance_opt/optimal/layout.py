@@ -9,6 +9,7 @@ from typing import Any, NamedTuple
 import casadi as cs
 import numpy as np
 
+from balance_opt.optimal.budget import limited_kinds
 from balance_opt.optimal.collocation import Transcription
 
 #: Unit of a row, by the last word of its label (``"balance_joint2 velocity"`` -> rad/s).
@@ -51,20 +52,14 @@ class StructureKey:
     @classmethod
     def of(cls, limits, options, momentum: bool = False, collision: str = "") -> StructureKey:
         """The key of a problem."""
-        enforced = {
-            "position": options.position_limits
-            and bool(np.any(np.isfinite(limits.lower) | np.isfinite(limits.upper))),
-            "velocity": options.velocity_limits and bool(np.any(np.isfinite(limits.velocity))),
-            "acceleration": options.acceleration_limits
-            and bool(np.any(np.isfinite(limits.acceleration))),
-            "jerk": options.jerk_limits and bool(np.any(np.isfinite(limits.jerk))),
-        }
+        enforced = limited_kinds(options, limits)
+        joints = ("position", "velocity", "acceleration", "jerk")
         return cls(
             intervals=int(options.intervals),
             transcription=options.transcription,
             control=options.control,
-            joint_limits=tuple(sorted(kind for kind, on in enforced.items() if on)),
-            torque_limits=bool(options.torque_limits and np.any(np.isfinite(limits.effort))),
+            joint_limits=tuple(sorted(kind for kind in joints if enforced[kind])),
+            torque_limits=enforced["torque"],
             objective=options.objective,
             path_attitude_bound=options.path_attitude_bound is not None
             and options.objective != "peak",
