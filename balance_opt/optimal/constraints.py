@@ -526,11 +526,9 @@ class Collision(Constraint):
     """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
     every collocation point, one row per body the balance joints move, the soft minimum of
     its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
-    ``problem.collision_bound``). The shapes contain the bodies, so at the points the exact
-    distances are at least as large. Between the points the check measures the exact
-    distances (coal) on the re-simulated motion; where a pair comes closer than the margin,
-    the refinement raises its row's bound on the intervals around it (:meth:`tighten`), and a
-    plan that still penetrates after it fails, naming the pair and the time (:meth:`accept`)."""
+    ``problem.collision_bound``). The shapes contain the bodies; between the points the
+    refinement raises a row's bound where the re-simulated motion comes closer than the margin
+    (:meth:`tighten`), and a plan that still penetrates fails (:meth:`accept`)."""
 
     name = "collision"
 

@@ -141,10 +141,8 @@ def resampled(sol: Solution, N: int) -> Solution:
     """The point ``sol`` of an NLP on another number of intervals ``N`` over the same horizon
     (the same transcription; ``S`` is dropped): on each of its intervals, its states and its
     controls are interpolated through the interval's points, by the quadratic through the
-    nodes and the midpoint (Hermite-Simpson) or linearly (trapezoidal). The quadratic is the
-    Hermite-Simpson control itself and within ``O(h^3)`` of its states: a guess, whose defects
-    Ipopt removes in its first iterations. Where the new grid's points are ``sol``'s (``N`` a
-    multiple of its intervals, or the same grid), they keep their values exactly."""
+    nodes and the midpoint (Hermite-Simpson) or linearly (trapezoidal): a guess, whose defects
+    Ipopt removes in its first iterations. Points both grids share keep their values exactly."""
     n = sol.X.shape[1] - 1
     if n == N:
         return Solution(sol.X.copy(), sol.U.copy(), _copy(sol.Xm), _copy(sol.Um))

@@ -216,9 +216,8 @@ def plan_peak(nlp, guess) -> BalanceResult:
     """Solve a peak problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES`,
     each warm started from the last: the integral objective's plan, the smooth peak (the
     drift's L_16 norm, without the epigraph's inequality rows, priced like the peak at the
-    start's peak ``c``), then the exact epigraph. From the integral plan of the paper task the
-    epigraph alone took 579 Ipopt iterations; from the smooth peak's plan about 40. The inner
-    stages run on a coarser grid and are not re-simulated; a failed one hands its own guess on.
+    start's peak ``c``), then the exact epigraph, which converges fast from near its plan. The
+    inner stages run on a coarser grid and are not re-simulated; a failed one hands its guess on.
     Should the epigraph stage fail, the smooth peak is solved on the plan's grid from the inner
     stage's plan and kept (with a warning, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`).
     The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts."""
@@ -297,10 +296,9 @@ def integral_stage(nlp, guess) -> IntegralStart:
 
 def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
-    warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
-    Each round solves a new problem (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`):
-    ``nlp`` is left as it was. The plan's ``solver.refinement`` lists what was tightened in each
-    round."""
+    warm started, until every one holds (or :data:`MAX_ROUNDS`). Each round solves a new problem
+    (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`): ``nlp`` is left as it was. The
+    plan's ``solver.refinement`` lists what was tightened in each round."""
     rounds, before = [], len(result.solver.solves)
     for _ in range(MAX_ROUNDS):
         changes, tightened = _tighten(nlp, result)
