@@ -16,7 +16,6 @@ from balance_opt.optimal.options import PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE
 
 
-
 def check_problem(
     model: PlannerModel,
     mission,
