@@ -1,11 +1,4 @@
-"""One BLAS thread for Ipopt's linear algebra.
-
-CasADi's Ipopt plugin loads its own OpenBLAS, which starts a thread per core; MUMPS's dense
-blocks on the planner's KKT matrices are too small for a second thread to pay (the same wall
-time for twice the CPU, ``benchmarks/bench_scaling.py``), and the other cores run the figures
-and a multi-start's workers. So once the plugin is loaded its OpenBLAS is set to one thread,
-unless ``OPENBLAS_NUM_THREADS`` (or ``OMP_NUM_THREADS``, which OpenBLAS also reads) is set.
-"""
+"""One BLAS thread for Ipopt's linear algebra."""
 
 from __future__ import annotations
 

@@ -1,20 +1,5 @@
 """How much memory and time the optimal planner's problem needs, estimated before it is built
-(no CasADi needed).
-
-Everything the planner allocates for its NLPs (CasADi's graphs, the mapped kernels, Ipopt's KKT
-matrix and MUMPS's factors) grows in proportion to the non-zeros of the KKT matrix: the
-constraint Jacobian, the upper triangle of the Lagrangian's Hessian, and one diagonal entry per
-variable and per constraint. They are counted per interval from the problem's structure: the
-variables and constraints exactly, the Hessian as dense among the ``3 + 2 n_B`` entries of a
-point the kernels are nonlinear in, the Jacobian by a fit on the planner's own counts
-(``tests/test_validation.py`` checks both against the built NLP). A plan keeps every NLP it
-builds (the peak objective's coarse stages, the free peak problem behind a path bound) until it
-ends: the estimate adds them up, each on its own grid. The constants per non-zero come from
-``benchmarks/`` (peak resident memory and wall times on the paper robot and Baxter).
-Collision avoidance's rows (at most one per point for each body the balance arm moves, of a few
-non-zeros each; :mod:`balance_opt.optimal.collision`) are not counted: finding them needs the
-robot's geometry, and they are few next to the defects.
-"""
+(no CasADi needed)."""
 
 from __future__ import annotations
 
@@ -46,15 +31,7 @@ JACOBIAN_FIT = {"hermite-simpson": (5.46, 3.60), "trapezoidal": (4.94, 2.15)}
 
 @dataclass(frozen=True)
 class ProblemSize:
-    """The estimated size of one optimal problem.
-
-    Attributes:
-        intervals: ``N``.
-        variables, constraints: lengths of the decision and constraint vectors.
-        nonzeros: non-zeros of the KKT matrices (Jacobian, Hessian triangle, diagonal) of
-            every NLP the plan builds.
-        problems: how many NLPs the plan builds.
-    """
+    """The estimated size of one optimal problem."""
 
     intervals: int
     variables: int
@@ -78,7 +55,7 @@ class ProblemSize:
         return ITERATION_SECONDS_PER_NONZERO * self.nonzeros / self.problems
 
 
-def _limited(options, limits) -> dict[str, bool]:
+def limited_kinds(options, limits) -> dict[str, bool]:
     """Which limit constraints the planner adds: asked for, and finite for some balance joint."""
     return {
         "acceleration": options.acceleration_limits
@@ -100,7 +77,7 @@ def _per_interval(options, limits) -> tuple[int, int, float]:
     jerk = options.control == "jerk"
     n_x = 3 + (3 if jerk else 2) * n_B
     n_w = points * (n_x + n_B)
-    limited = _limited(options, limits)
+    limited = limited_kinds(options, limits)
     degree = tr.control_degree + (1 if jerk else 0)  # of the acceleration polynomial
     interior = sum(
         max(degree + i - 1, 0)

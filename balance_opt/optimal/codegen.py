@@ -1,20 +1,4 @@
-"""Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes.
-
-:func:`compile_functions` generates the C code of CasADi functions and compiles it with the
-system C compiler into one shared library, loaded back as ``casadi.external``. The library is
-named by a digest (the planner model's content key, so that a warm run finds it without
-building any expression, or else the hash of the C code) mixed with the compiler, its flags,
-CasADi's version and the platform, and kept in the cache folder: compiled once per machine.
-
-``background=True`` (the planner's default) compiles in a low-priority child process while this
-process plans on CasADi's virtual machine, so that the first plan of a new robot does not wait
-for the compiler; the planning call waits for the child at its end (:func:`finish`) or stops it,
-and it is stopped when this process exits: no compiler outlives the command.
-
-Loading a damaged library would crash the process, so the cache's rules apply
-(:mod:`balance_opt.cache`): one compilation at a time under a file lock, built in a temporary
-folder and renamed into place, its SHA-256 and size recorded and checked before every load.
-"""
+"""Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes."""
 
 from __future__ import annotations
 
@@ -63,17 +47,7 @@ _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 @dataclass(frozen=True)
 class Compiled:
-    """What :func:`compile_functions` returns.
-
-    Attributes:
-        functions: the external functions (compiled) or the functions given (not yet compiled).
-        compiled: whether ``functions`` run compiled C.
-        compile_time: wall time this process waited for the compiler [s] (0 when cached or in
-            the background).
-        library: the shared library (loaded, or being built in the background).
-        background: whether a background compilation was started (or found under way).
-        process: the background compilation, when this call started one.
-    """
+    """What :func:`compile_functions` returns."""
 
     functions: list[cs.Function]
     compiled: bool
@@ -131,21 +105,7 @@ def compile_functions(
     background: bool = False,
     label: str = "",
 ) -> Compiled:
-    """Compile CasADi functions to one shared library, cached on disk.
-
-    Args:
-        functions: SX functions (distinct names).
-        cache_dir: folder of the libraries (default :func:`default_cache_dir`).
-        digest: what the functions are, as a content hash (default: the hash of their C code).
-        background: compile in a detached process and return ``functions`` themselves.
-        label: what the notice names (e.g. the robot).
-
-    Returns:
-        See :class:`Compiled`.
-
-    Raises:
-        OSError: no C compiler, or the compiler failed (the caller falls back to the VM).
-    """
+    """Compile CasADi functions to one shared library, cached on disk."""
     compiler = find_compiler()
     if compiler is None:
         raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
@@ -229,11 +189,7 @@ def _recent_failure(library: Path) -> str:
 
 class Compilation:
     """A background compilation: a thread of this process that runs the compiler (a child
-    process at low priority) while it holds the library's lock, taken here.
-
-    Raises:
-        BlockingIOError: another process holds the lock (it is compiling the library).
-    """
+    process at low priority) while it holds the library's lock, taken here."""
 
     def __init__(self, compiler: str, source: str, library: Path):
         self.library, self.compiler, self.stopped = library, None, False

@@ -1,14 +1,4 @@
-"""Collision avoidance in the optimal planner: which pairs a problem keeps apart, and how.
-
-For one problem (:func:`collision_setup`): the robot's geometry
-(:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`, the task's ``collision.ignore``
-pairs left out), the pairs already in contact at the initial configuration (left out of this
-plan and reported: a constraint could not hold at ``t = 0``), the pairs the balance joints move
-(the others are the mission's business: no plan of the balance arm changes them), and the rows
-of the NLP (:class:`~balance_opt.geometry.shapes.ClearanceRows`: a soft minimum of fitted-shape
-distances per body the balance joints move, at every collocation point, the point kernels'
-last outputs). The constraint kind is :class:`~balance_opt.optimal.constraints.Collision`.
-"""
+"""Collision avoidance in the optimal planner: which pairs a problem keeps apart, and how."""
 
 from __future__ import annotations
 
@@ -30,7 +20,7 @@ log = logging.getLogger(__name__)
 #: bounded [m] (a bound equal to the fixed initial value would leave no interior).
 COLLISION_SLACK = 1e-3
 #: The collision rows hold the margin plus this at the collocation points [m]: the motion
-#: between two points bends toward a body by about this much on the capture task, and every
+#: between two points bends toward a body by about this much, and every
 #: dip below the margin costs a refinement round (a full re-solve).
 COLLISION_ALLOWANCE = 2e-3
 #: Distance [m] by which the re-simulated motion may come closer than the margin without a
@@ -49,20 +39,7 @@ ALONE_GAP = 0.01
 
 @dataclass
 class CollisionSetup:
-    """The collision avoidance of one problem.
-
-    Attributes:
-        geometry: the robot's geometry.
-        rows: the NLP's rows.
-        pairs: the checked pairs the balance joints move (the ones the plan is held to).
-        fixed_pairs: the checked pairs the balance joints do not move (reported only).
-        initial_contacts: pairs in contact at the initial configuration, left out.
-        initial_rows: the rows' values at the initial configuration [m].
-        owner: the row of each pair of ``pairs`` (by pair index; ``None``: held by the check
-            alone, its fitted shapes overlapping at the start).
-        threshold: the distance each pair of ``pairs`` is held to [m]: the margin, or its
-            exact distance at the start if smaller.
-    """
+    """The collision avoidance of one problem."""
 
     geometry: RobotGeometry
     rows: ClearanceRows
@@ -82,11 +59,7 @@ class CollisionSetup:
 class CollisionModels:
     """A robot's collision geometry and rows, built once per planner model: its geometry per
     set of ignored pairs, the setup of each problem's start, each rows key's rows with their
-    numeric function (the point kernels read them by key).
-
-    Args:
-        robot: the robot.
-    """
+    numeric function (the point kernels read them by key)."""
 
     def __init__(self, robot):
         self.robot = robot
@@ -217,7 +190,7 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
     # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
-    # distance is least smooth (Ipopt got stuck on Talos's shoulder in its torso's box); the
+    # distance is least smooth (Ipopt gets stuck there); the
     # check alone holds these pairs (a penetration fails the plan)
     overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
     rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
@@ -238,7 +211,6 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner, threshold)
 
 
-# ---------------------------------------------------------------------------------- check
 def report(problem, result) -> ClearanceReport:
     """The clearance of a re-simulated plan of ``problem`` over the pairs the balance joints
     move (computed once per result: the check and the refinement share it)."""

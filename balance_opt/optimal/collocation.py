@@ -1,30 +1,5 @@
 """Direct-collocation transcriptions (Hermite-Simpson, separated form, and trapezoidal) and the
-continuous balance-arm trajectory they describe.
-
-A transcription turns ``x_dot = f(x, u)`` on ``N`` intervals of length ``h`` into algebraic
-defects, a quadrature of the running cost and a polynomial of the control on each interval.
-Its functions work on matrices whose columns are time (nodes ``0..N``, midpoints ``0..N-1``),
-with CasADi SX/MX as with NumPy, so the NLP and the post-processing share one definition.
-
-The balance joints are a chain of integrators (``q_ddot = u``, or ``q_dddot = u`` with control
-``"jerk"``). On each interval the highest derivative is the transcription's control polynomial
-(Hermite-Simpson: the quadratic through ``u_k, u_{k+1/2}, u_{k+1}``; trapezoidal: the constant
-``(u_k + u_{k+1}) / 2``), and the lower derivatives are its exact integrals from the state at
-node ``k`` (:func:`joint_chain_coefficients`). The planner requires the next node (and the
-midpoint) to be these integrals' values (:func:`bernstein_value`), so the continuous plan
-(:class:`CollocatedTrajectory`) passes through every node. With control ``"acceleration"``
-these equations are the transcription's own, except one: the trapezoidal rule integrates the
-constant acceleration and the linear velocity exactly, Simpson's rule the quadratic
-acceleration and the cubic velocity, and the Hermite midpoint is exact for the cubic velocity;
-but the position is quartic, and the transcription's Hermite midpoint of the position is off
-by ``h^2 (u_k - 2 u_{k+1/2} + u_{k+1}) / 96``. With control ``"jerk"`` they differ from the
-transcription's by its truncation error.
-
-Every polynomial is kept in Bernstein form on its interval (``s = (t - t_k) / h`` in [0, 1]):
-its first and last coefficients are its values at the two ends, and it lies in the convex hull
-of its coefficients, which is how the planner bounds the continuous motion
-(:mod:`balance_opt.optimal.constraints`).
-"""
+continuous balance-arm trajectory they describe."""
 
 from __future__ import annotations
 
@@ -42,11 +17,7 @@ TRANSCRIPTIONS = (HERMITE_SIMPSON, TRAPEZOIDAL)
 
 @dataclass(frozen=True)
 class Transcription:
-    """One collocation scheme.
-
-    Attributes:
-        name: ``"hermite-simpson"`` or ``"trapezoidal"``.
-    """
+    """One collocation scheme."""
 
     name: str
 
@@ -76,17 +47,7 @@ class Transcription:
         return np.r_[nodes, nodes[:-1] + 0.5] if self.has_midpoints else nodes
 
     def defects(self, X, Xm, F, Fm, h) -> list[tuple[str, object]]:
-        """Collocation defects, each (n_x, N), that must vanish.
-
-        Args:
-            X, F: states and their derivatives at the nodes (n_x, N+1).
-            Xm, Fm: the same at the midpoints (n_x, N) (ignored by the trapezoidal rule).
-            h: interval length [s].
-
-        Returns:
-            ``[(name, defect), ...]``: Hermite-Simpson gives the Hermite interpolation of the
-            midpoint and the Simpson quadrature of the interval; trapezoidal one defect.
-        """
+        """Collocation defects, each (n_x, N), that must vanish."""
         x0, x1, f0, f1 = X[:, :-1], X[:, 1:], F[:, :-1], F[:, 1:]
         if self.has_midpoints:
             return [
@@ -105,12 +66,7 @@ class Transcription:
         return w
 
     def control_coefficients(self, U, Um) -> list:
-        """Bernstein coefficients of the control polynomial of every interval, each (n_u, N).
-
-        Hermite-Simpson: the quadratic through ``u_k``, ``u_{k+1/2}``, ``u_{k+1}`` has the
-        coefficients ``u_k``, ``2 u_{k+1/2} - (u_k + u_{k+1}) / 2``, ``u_{k+1}``.
-        Trapezoidal: the constant ``(u_k + u_{k+1}) / 2``.
-        """
+        """Bernstein coefficients of the control polynomial of every interval, each (n_u, N)."""
         u0, u1 = U[:, :-1], U[:, 1:]
         if self.has_midpoints:
             return [u0, 2.0 * Um - 0.5 * (u0 + u1), u1]
@@ -119,10 +75,7 @@ class Transcription:
 
 def integrate_bernstein(coefficients: list, start, h) -> list:
     """Bernstein coefficients of ``y(tau) = start + integral_0^tau c`` on ``[0, h]``, where ``c`` has
-    the Bernstein coefficients ``coefficients`` (degree ``d``) in ``s = tau / h``.
-
-    ``d_0 = start``, ``d_{i+1} = d_i + h c_i / (d + 1)``: degree ``d + 1``.
-    """
+    the Bernstein coefficients ``coefficients`` (degree ``d``) in ``s = tau / h``."""
     degree = len(coefficients) - 1
     out = [start]
     for c in coefficients:
@@ -131,19 +84,7 @@ def integrate_bernstein(coefficients: list, start, h) -> list:
 
 
 def joint_chain_coefficients(transcription: Transcription, starts: list, U, Um, h) -> list[list]:
-    """Bernstein coefficients of every derivative of the balance joints on every interval.
-
-    Args:
-        transcription: the scheme.
-        starts: the chain's states at the nodes ``0..N-1``, highest derivative last: for control
-            ``"acceleration"`` ``[q, q_dot]``, for ``"jerk"`` ``[q, q_dot, q_ddot]``, each (n, N).
-        U, Um: controls at the nodes (n, N+1) and midpoints (n, N).
-        h: interval length [s].
-
-    Returns:
-        One list of coefficient matrices (each (n, N)) per derivative, position first, the
-        control's own polynomial last.
-    """
+    """Bernstein coefficients of every derivative of the balance joints on every interval."""
     levels = [transcription.control_coefficients(U, Um)]
     for start in reversed(starts):
         levels.append(integrate_bernstein(levels[-1], start, h))
@@ -174,14 +115,7 @@ def monomial_from_bernstein(degree: int) -> np.ndarray:
 
 class CollocatedTrajectory(JointTrajectory):
     """The balance-joint motion of a collocation solution as a continuous, piecewise polynomial
-    trajectory (see the module docstring), sampled like every mission trajectory.
-
-    Args:
-        h: interval length [s].
-        levels: per derivative (position, velocity, acceleration), a list of Bernstein
-            coefficient arrays, each (n, N), as :func:`joint_chain_coefficients` returns them
-            (evaluated, NumPy).
-    """
+    trajectory (see the module docstring), sampled like every mission trajectory."""
 
     def __init__(self, h: float, levels: list[list[np.ndarray]]):
         self.h = float(h)

@@ -1,35 +1,4 @@
-"""The constraint kinds of the balance NLP, each one object that owns everything about it.
-
-A kind (:class:`Constraint`) says
-
-* which rows it adds to the constraint vector ``g`` and how they are computed
-  (:meth:`Constraint.rows`, symbolic, once per compiled structure), with their names (the
-  names Ipopt's failures are reported with);
-* the lower and upper bounds of those rows for one problem (:meth:`Constraint.row_bounds`);
-* which decision variables it bounds, and how (:meth:`Constraint.bound_variables`);
-* how far the re-simulated motion breaks it (:meth:`Constraint.check`).
-
-A kind holds no numeric data: it is chosen by the structure key and reads the limits,
-configurations and bounds from the problem (:class:`~balance_opt.optimal.problem.BalanceProblem`)
-when asked, so one compiled NLP serves every problem of its structure.
-
-What holds where. The balance joints' position, velocity and acceleration limits hold on the
-whole continuous plan (the piecewise polynomial of
-:class:`~balance_opt.optimal.collocation.CollocatedTrajectory`), to the solver's tolerance: on
-every interval each of these derivatives is a polynomial in Bernstein form, and a polynomial
-lies in the convex hull of its Bernstein coefficients. Its first and last coefficients are its
-values at the interval's ends: decision variables bounded by the limits (the states at the two
-nodes, the collocation rows making the last one the next node's; or, for the acceleration with
-control ``"acceleration"``, the controls at the two nodes, whose mean is the constant
-acceleration of the trapezoidal rule). Its interior coefficients are constraint rows
-(:class:`JointLimit`). Bounding the values at the nodes and midpoints alone would not do: the quadratic
-acceleration of Hermite-Simpson through 1, 1, -1 at the start, middle and end of an interval
-peaks at 1.25 a quarter of the way in. The convex hull is conservative (the polynomial may stay
-inside a limit its hull crosses). Torques and the path attitude bound are rows at the
-collocation points, the terminal attitude bound at the last node; the re-simulation reports how
-far the motion between them strays (:meth:`Constraint.check`), and the planner tightens their
-bounds where it strays too far and solves again (:mod:`balance_opt.optimal.refine`).
-"""
+"""The constraint kinds of the balance NLP, each one object that owns everything about it."""
 
 from __future__ import annotations
 
@@ -53,25 +22,13 @@ DERIVATIVES = ("position", "velocity", "acceleration")
 #: ``S`` is of order 1 on drifts of a few hundredths of a radian.
 PEAK_SCALE = 0.01
 #: Exponent ``p`` of the smooth peak (the ``smooth`` stage of the peak objective): the drift's
-#: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``. Its pull fades as the peak
-#: falls below ``c``: the stage ends 5-41 % above the epigraph's peak on the capture task at
-#: 8-20 s. Measured and rejected there: the homogeneous norm ``(sum_k q_k (|phi_k| / c)^p)^(2/p)``
-#: (through an auxiliary variable and one row; p = 8 to 64) ends it 0-15 % above, but the stage
-#: itself then takes more iterations than the epigraph saves: 1566 to 3453 over the five
-#: durations against 1191.
+#: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``.
 PEAK_POWER = 16
 
 
 @dataclass(frozen=True)
 class Violation:
-    """The worst breach of a constraint by a motion.
-
-    Attributes:
-        constraint: what is broken (``"velocity limit of balance_joint2"``).
-        time: when [s].
-        amount: by how much, in ``unit``.
-        unit: the constraint's unit.
-    """
+    """The worst breach of a constraint by a motion."""
 
     constraint: str
     time: float
@@ -84,23 +41,7 @@ class Violation:
 
 @dataclass(frozen=True)
 class SymbolicNLP:
-    """What the constraint rows are made of, in the build (CasADi SX).
-
-    Attributes:
-        key: the structure.
-        transcription: its scheme.
-        joints: the balance joints' names.
-        state_labels: a label per state row.
-        variables: the decision variables ``X``, ``U``, ``Xm``, ``Um``.
-        levels: Bernstein coefficients of the balance joints on every interval, one list per
-            derivative (position first, the control last), each coefficient (n_B, N)
-            (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`).
-        x_dot: the state derivatives at the points (n_x, n_points), nodes then midpoints.
-        torque: the balance joints' torques at the points (n_B, n_points), or ``None``.
-        parameters: the parameter vector's fields.
-        clearance: the collision rows at the points (n_c, n_points), or ``None``.
-        clearance_labels: a label per collision row.
-    """
+    """What the constraint rows are made of, in the build (CasADi SX)."""
 
     key: StructureKey
     transcription: Transcription
@@ -136,11 +77,7 @@ def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Vio
 
 class Constraint:
     """One kind of constraint of the balance NLP (the base adds nothing; see the module
-    docstring for the four things a kind owns).
-
-    Attributes:
-        name: the kind's name (``"velocity limit"``).
-    """
+    docstring for the four things a kind owns)."""
 
     name = "constraint"
 
@@ -178,11 +115,7 @@ class Collocation(Constraint):
     """The collocation defects: the attitude by the transcription; the balance joints, a chain
     of integrators, exactly (each node, and each midpoint, is the value of the integrated
     control polynomial, so the continuous plan passes through every node; see
-    :mod:`balance_opt.optimal.collocation`). They all vanish.
-
-    Its check is the re-simulation report's (``attitude_defect_*``, ``joint_defect_max``):
-    the defects compare the plan with its re-simulation, not a motion with a bound.
-    """
+    :mod:`balance_opt.optimal.collocation`). They all vanish."""
 
     name = "collocation"
 
@@ -218,15 +151,7 @@ class Collocation(Constraint):
 class JointLimit(Constraint):
     """A joint limit of the balance joints (position, velocity or acceleration) on the
     continuous plan: bounds on the nodes' (and midpoints') values and constraint rows on the
-    interior Bernstein coefficients of every interval (see the module docstring).
-
-    Args:
-        kind: ``"position"``, ``"velocity"`` or ``"acceleration"``.
-        transcription: the scheme (the degree of the control polynomial).
-        control: ``"acceleration"`` or ``"jerk"``.
-        between_points: whether to add the rows between the points (else only the bounds at
-            the points).
-    """
+    interior Bernstein coefficients of every interval (see the module docstring)."""
 
     def __init__(
         self, kind: str, transcription: Transcription, control: str, between_points: bool = True
@@ -303,11 +228,7 @@ class JerkLimit(Constraint):
     control's own) and every one of its Bernstein coefficients is a row. The acceleration must
     then be continuous, so that the torques, and the reaction on the base, have no steps: the
     trapezoidal rule with control ``"acceleration"`` (a constant acceleration per interval) is
-    refused.
-
-    Raises:
-        InputError: jerk limits with the trapezoidal rule and control ``"acceleration"``.
-    """
+    refused."""
 
     name = "jerk limit"
 
@@ -397,14 +318,7 @@ class TorqueLimit(Constraint):
     @staticmethod
     def torques(problem: BalanceProblem, result: BalanceResult) -> tuple[np.ndarray, np.ndarray]:
         """The balance joints' torques of the free-floating inverse dynamics of a plan, on the
-        continuous motion: ``(t (T,) [s], torques (T, n_B) [N m])``.
-
-        A torque peaks where it likes, not on the exported samples: it is evaluated on every
-        collocation interval at :data:`TORQUE_POINTS` points from its start to its end (the
-        end as a limit from inside, where the control may jump), from the plan's polynomials
-        (:meth:`~balance_opt.optimal.solve.BalanceNLP.trajectory`), the attitude interpolated
-        from the re-simulation (it only enters through a non-zero momentum). A result without
-        its NLP solution is evaluated at its own samples."""
+        continuous motion: ``(t (T,) [s], torques (T, n_B) [N m])``."""
         solution = getattr(getattr(result, "solver", None), "solution", None)
         if solution is None or not hasattr(problem, "trajectory"):
             t, q_B, qd_B, qdd_B = result.t, result.q_B, result.q_dot_B, result.q_ddot_B
@@ -612,11 +526,9 @@ class Collision(Constraint):
     """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
     every collocation point, one row per body the balance joints move, the soft minimum of
     its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
-    ``problem.collision_bound``). The shapes contain the bodies, so at the points the exact
-    distances are at least as large. Between the points the check measures the exact
-    distances (coal) on the re-simulated motion; where a pair comes closer than the margin,
-    the refinement raises its row's bound on the intervals around it (:meth:`tighten`), and a
-    plan that still penetrates after it fails, naming the pair and the time (:meth:`accept`)."""
+    ``problem.collision_bound``). The shapes contain the bodies; between the points the
+    refinement raises a row's bound where the re-simulated motion comes closer than the margin
+    (:meth:`tighten`), and a plan that still penetrates fails (:meth:`accept`)."""
 
     name = "collision"
 

@@ -1,14 +1,5 @@
 """Initial guesses of the balance NLP: a sampled balance-arm motion turned into a point of the
-NLP.
-
-The motion (the analytic law's, the arm held at rest, or a given result's) is interpolated at
-the collocation points and clipped to the joint limits; the first node gets the initial state;
-the attitude rows follow the base rate that joint motion forces (integrated by the
-transcription's quadrature from ``phi = 0``).
-
-A point of the NLP on one grid is a guess on another (:func:`resampled`): the peak objective's
-inner stages solve on a coarser grid than the last (:mod:`balance_opt.optimal.refine`).
-"""
+NLP."""
 
 from __future__ import annotations
 
@@ -26,18 +17,7 @@ log = logging.getLogger(__name__)
 
 
 def guess_solution(problem: BalanceProblem, guess, first_state: np.ndarray) -> Solution:
-    """The guess named by ``guess``, unclipped.
-
-    Args:
-        problem: the problem.
-        guess: ``"analytic"`` (the analytic law, Eq. 31, 32; the rest guess when the law
-            fails), ``"rest"`` (the balance arm held at ``q_B0``) or a :class:`BalanceResult`
-            (its balance motion).
-        first_state: the balance joints' states at the first node (the initial state).
-
-    Raises:
-        InputError: an unknown name.
-    """
+    """The guess named by ``guess``, unclipped."""
     if isinstance(guess, BalanceResult):
         return from_samples(problem, first_state, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)
     if guess not in GUESSES:
@@ -93,8 +73,7 @@ def analytic_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution
 
     t = np.linspace(0.0, problem.horizon, max(4 * problem.N + 1, 201))
     law = BalanceLawOptions(h0=tuple(problem.h0.tolist()))
-    # a starting point needs no 1e-10 tolerance: 1e-6 takes 2.3x fewer law evaluations on the
-    # capture task (4e-7 rad away from the tight rollout) and Ipopt ends at the same plan
+    # a starting point needs no 1e-10 tolerance: Ipopt ends at the same plan from 1e-6
     loose = IntegrationOptions(rtol=1e-6, atol=1e-9)
     plan = rollout(problem.robot, problem.mission, problem.q_B0, law, t_eval=t, integration=loose)
     return from_samples(problem, first_state, plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
@@ -162,10 +141,8 @@ def resampled(sol: Solution, N: int) -> Solution:
     """The point ``sol`` of an NLP on another number of intervals ``N`` over the same horizon
     (the same transcription; ``S`` is dropped): on each of its intervals, its states and its
     controls are interpolated through the interval's points, by the quadratic through the
-    nodes and the midpoint (Hermite-Simpson) or linearly (trapezoidal). The quadratic is the
-    Hermite-Simpson control itself and within ``O(h^3)`` of its states: a guess, whose defects
-    Ipopt removes in its first iterations. Where the new grid's points are ``sol``'s (``N`` a
-    multiple of its intervals, or the same grid), they keep their values exactly."""
+    nodes and the midpoint (Hermite-Simpson) or linearly (trapezoidal): a guess, whose defects
+    Ipopt removes in its first iterations. Points both grids share keep their values exactly."""
     n = sol.X.shape[1] - 1
     if n == N:
         return Solution(sol.X.copy(), sol.U.copy(), _copy(sol.Xm), _copy(sol.Um))

@@ -1,10 +1,4 @@
-"""Ipopt options checked against Ipopt's own option list, before any planning.
-
-The list (each option's type, range or possible values) is parsed from the option documentation
-the Ipopt library bundled with CasADi writes, once, and kept in the cache folder keyed by the
-CasADi version: validating a task then needs no CasADi. A linear solver that Ipopt knows but
-cannot load (the HSL solvers are not in the wheel) is found by a one-variable solve with it.
-"""
+"""Ipopt options checked against Ipopt's own option list, before any planning."""
 
 from __future__ import annotations
 
@@ -139,12 +133,7 @@ def _documentation_from_ipopt() -> str:
 
 
 def option_catalog() -> dict[str, IpoptOption]:
-    """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk).
-
-    Raises:
-        ImportError, RuntimeError: no CasADi (and no cached list); Ipopt failed or printed no
-            option documentation.
-    """
+    """Every Ipopt option of the installed CasADi's Ipopt, by name (cached on disk)."""
     path = default_cache_dir() / f"ipopt-options-casadi-{importlib.metadata.version('casadi')}.json"
     with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
         data = json.loads(path.read_text())
@@ -237,12 +226,7 @@ def check_ipopt_options(
     error: Callable[[str, str], Exception] = _solver_option_error,
 ) -> dict[str, Any]:
     """``options`` checked against Ipopt's own option list (:func:`option_catalog`; unchecked,
-    with a warning, when it cannot be had), an integer option given as ``500.0`` as ``500``.
-
-    Raises:
-        InputError: ``error(name, problem)`` (default ``"--solver-option NAME: ..."``) for the
-            first option Ipopt would reject.
-    """
+    with a warning, when it cannot be had), an integer option given as ``500.0`` as ``500``."""
     if not options:
         return {}
     try:

@@ -11,11 +11,7 @@ log = logging.getLogger(__name__)
 
 
 def ipopt_version() -> str:
-    """Version of the Ipopt library bundled with CasADi (e.g. ``"3.14.19"``), or ``"unknown"``.
-
-    Read from the library itself through Ipopt's C interface (``GetIpoptVersion``, Ipopt >= 3.14),
-    loaded from CasADi's folder: the library CasADi's ``nlpsol("ipopt")`` plugin loads.
-    """
+    """Version of the Ipopt library bundled with CasADi (e.g. ``"3.14.19"``), or ``"unknown"``."""
     import casadi
 
     folder = os.path.dirname(casadi.__file__)

@@ -1,20 +1,4 @@
-"""Where everything sits in the balance NLP's vectors, in one place for the build and the solve.
-
-The NLP has three vectors, each a stack of named blocks:
-
-* the decision vector ``w`` (:class:`VariableLayout`): the states ``X`` at the nodes
-  (n_x, N+1), with Hermite-Simpson the states ``Xm`` at the midpoints (n_x, N), the controls
-  ``U`` at the nodes (n_u, N+1) and with Hermite-Simpson ``Um`` at the midpoints (n_u, N), in
-  that order, each matrix stacked column by column, then with the peak objective the epigraph
-  variable ``S`` (1, 1), which belongs to no collocation point;
-* the parameter vector ``p`` (:class:`ParameterLayout`): the numeric data of one problem
-  (interval length, weights, attitude-bound scales, the peak's weights, ``q_rest``, the mission's samples), as the
-  fields of :class:`NLPParameters`;
-* the constraint vector ``g``: the rows each constraint kind adds
-  (:mod:`balance_opt.optimal.constraints`), as :class:`Block` s in the order of the kinds.
-
-:class:`StructureKey` names what makes two problems share one compiled NLP.
-"""
+"""Where everything sits in the balance NLP's vectors, in one place for the build and the solve."""
 
 from __future__ import annotations
 
@@ -25,6 +9,7 @@ from typing import Any, NamedTuple
 import casadi as cs
 import numpy as np
 
+from balance_opt.optimal.budget import limited_kinds
 from balance_opt.optimal.collocation import Transcription
 
 #: Unit of a row, by the last word of its label (``"balance_joint2 velocity"`` -> rad/s).
@@ -45,34 +30,9 @@ def unit_of(label: str) -> str:
     return UNITS[label.split()[-1]]
 
 
-# ---------------------------------------------------------------------------------- structure key
 @dataclass(frozen=True)
 class StructureKey:
-    """What two problems must share to share one compiled NLP (everything else is numeric data).
-
-    Attributes:
-        intervals: ``N``.
-        transcription: ``"hermite-simpson"`` or ``"trapezoidal"``.
-        control: ``"acceleration"`` or ``"jerk"``.
-        joint_limits: the joint-limit kinds enforced (``"position"``, ``"velocity"``,
-            ``"acceleration"``, ``"jerk"``): switched on and finite for at least one balance
-            joint.
-        between_points: whether the joint limits have rows between the collocation points
-            (the interior Bernstein coefficients) besides the bounds at the points. The inner
-            stages of the peak objective go without: their plans are only warm starts, and the
-            rows make each Ipopt iteration about a third dearer.
-        torque_limits: torque limits switched on and finite for at least one balance joint.
-        objective: ``"peak"`` (with the epigraph variable and its rows) or ``"integral"``.
-        path_attitude_bound, terminal_attitude_bound: whether these bounds are set (with the
-            peak objective the path bound is the epigraph variable's upper bound: no rows).
-        tolerance, max_iterations: Ipopt's ``tol`` and ``max_iter``.
-        ipopt: the extra Ipopt options, as sorted ``(name, repr(value))`` pairs.
-        momentum: whether the kernels carry the momentum terms (a non-zero ``h0``; its value
-            is a parameter).
-        collision: the content key of the collision rows
-            (:class:`~balance_opt.geometry.shapes.ClearanceRows`: fitted shapes and the pairs
-            kept apart), ``""`` without collision avoidance.
-    """
+    """What two problems must share to share one compiled NLP (everything else is numeric data)."""
 
     intervals: int
     transcription: str
@@ -91,28 +51,15 @@ class StructureKey:
 
     @classmethod
     def of(cls, limits, options, momentum: bool = False, collision: str = "") -> StructureKey:
-        """The key of a problem.
-
-        Args:
-            limits: the balance joints' :class:`~balance_opt.model.robot.JointLimits`.
-            options: the :class:`~balance_opt.optimal.options.PlannerOptions`.
-            momentum: whether the problem has a non-zero momentum ``h0``.
-            collision: the collision rows' key (``CollisionSetup.key``; ``""``: none).
-        """
-        enforced = {
-            "position": options.position_limits
-            and bool(np.any(np.isfinite(limits.lower) | np.isfinite(limits.upper))),
-            "velocity": options.velocity_limits and bool(np.any(np.isfinite(limits.velocity))),
-            "acceleration": options.acceleration_limits
-            and bool(np.any(np.isfinite(limits.acceleration))),
-            "jerk": options.jerk_limits and bool(np.any(np.isfinite(limits.jerk))),
-        }
+        """The key of a problem."""
+        enforced = limited_kinds(options, limits)
+        joints = ("position", "velocity", "acceleration", "jerk")
         return cls(
             intervals=int(options.intervals),
             transcription=options.transcription,
             control=options.control,
-            joint_limits=tuple(sorted(kind for kind, on in enforced.items() if on)),
-            torque_limits=bool(options.torque_limits and np.any(np.isfinite(limits.effort))),
+            joint_limits=tuple(sorted(kind for kind in joints if enforced[kind])),
+            torque_limits=enforced["torque"],
             objective=options.objective,
             path_attitude_bound=options.path_attitude_bound is not None
             and options.objective != "peak",
@@ -125,22 +72,10 @@ class StructureKey:
         )
 
 
-# ---------------------------------------------------------------------------------- blocks
 @dataclass(frozen=True)
 class Block:
     """A block of variables or constraints: a matrix whose columns are time, stacked column by
-    column into its vector.
-
-    Attributes:
-        name: what the block holds (``"collocation (Simpson)"``, ``"torque limit"`` ...).
-        rows: a label per row (``"balance_joint2 velocity"`` ...).
-        units: a unit per row.
-        taus: the time of each column in units of the interval length ``h`` (for a block
-            of interval constraints, the interval's start).
-        per_interval: whether a column is a collocation interval rather than an instant.
-        offset: index of its first entry in the stacked vector (0 until it is stacked,
-            :meth:`BlockStack.add`).
-    """
+    column into its vector."""
 
     name: str
     rows: tuple[str, ...]
@@ -189,7 +124,6 @@ class BlockStack:
         return self.blocks[int(np.searchsorted(offsets, index, side="right")) - 1]
 
 
-# ---------------------------------------------------------------------------------- decision vector
 @dataclass
 class Solution:
     """A point of the NLP, unpacked: states and controls at the nodes and midpoints (the
@@ -213,14 +147,7 @@ class Solution:
 
 class VariableLayout(BlockStack):
     """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S`` (see the module
-    docstring).
-
-    Args:
-        transcription: the collocation scheme (whether there are midpoints).
-        N: number of intervals.
-        state_labels, control_labels: a label per state and per control row.
-        peak: whether there is the epigraph variable ``S``.
-    """
+    docstring)."""
 
     def __init__(
         self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
@@ -290,27 +217,8 @@ class VariableLayout(BlockStack):
         return f"{'midpoint' if block.name.endswith('m') else 'node'} {row}", tau
 
 
-# ---------------------------------------------------------------------------------- parameters
 class NLPParameters(NamedTuple):
-    """The fields of the parameter vector ``p``, in its order.
-
-    Attributes:
-        h: interval length [s].
-        terminal_weight: weight of ``|log R_T|^2``.
-        running_weights: the running-cost weights in the order of
-            :data:`~balance_opt.optimal.model.RUNNING_WEIGHTS` (4).
-        path_scale, terminal_scale: ``1 / bound^2`` of the path and terminal attitude bounds
-            (1 when unset).
-        peak_weight: the weight of ``S`` in the objective (0 without the peak objective).
-        smooth_weight: the weight of the smooth peak (the ``smooth`` stage of the peak
-            objective, :mod:`balance_opt.optimal.refine`; 0 elsewhere).
-        smooth_scale: ``1 / c^2``, ``c`` the smooth peak's reference drift [1/rad^2].
-        jerk_weight: the weight of the balance joints' squared jerk
-            (:func:`~balance_opt.optimal.nlp.jerk_integral`).
-        q_rest: the rest pull's configuration (n_B) [rad].
-        mission: the mission arm's samples ``[q_M; q_dot_M; q_ddot_M]`` at every collocation
-            point (n_m, n_points).
-    """
+    """The fields of the parameter vector ``p``, in its order."""
 
     h: Any
     terminal_weight: Any
@@ -328,14 +236,7 @@ class NLPParameters(NamedTuple):
 @dataclass(frozen=True)
 class ParameterLayout:
     """The parameter vector ``p``: the fields of :class:`NLPParameters`, one after the other
-    (the mission samples column by column).
-
-    Args:
-        n_weights: number of running-cost weights.
-        n_B: number of balance joints.
-        n_m: size of a mission sample.
-        n_points: number of collocation points.
-    """
+    (the mission samples column by column)."""
 
     n_weights: int
     n_B: int

@@ -1,38 +1,5 @@
 """The per-robot symbolic model of the optimal balance planner: the balance dynamics, the running
-cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point.
-
-They are built once per robot and reused for every horizon, number of intervals and mission:
-the NLP (:mod:`balance_opt.optimal.nlp`) only maps them over the collocation points
-(``Function.map``), so nothing symbolic grows with the number of intervals. The point kernels
-(:class:`PointKernels`: the point's outputs with their exact first and second derivatives) are
-what the NLP evaluates; they are compiled to C when a compiler is found
-(:mod:`balance_opt.optimal.codegen`).
-
-State of one point (control ``"acceleration"``)::
-
-    x = [phi (3), q_B (n_B), q_dot_B (n_B)],   u = q_ddot_B (n_B)
-
-and with control ``"jerk"`` the balance acceleration is a state and the jerk the control::
-
-    x = [phi (3), q_B, q_dot_B, q_ddot_B],     u = q_dddot_B (n_B)
-
-``phi = log(R)`` is the base attitude as a rotation vector in the tangent space at the initial
-attitude (``R = exp([phi]_x)``, ``R(0) = I``). It makes the terminal cost ``|log R_T|^2`` and the
-attitude bounds ``|phi| <= bound`` exact, with three states and no norm constraint; its
-kinematics is ``phi_dot = Jr^{-1}(phi) omega_b`` (valid for rotations below pi, far beyond any
-drift this planner is meant for; ``docs/physics.md``, "Attitude").
-
-The mission arm and the system's momentum enter through the point's data
-``m = [q_M; q_dot_M; q_ddot_M; h0]``, a parameter of the NLP: ``h0`` is the constant total
-momentum [linear; angular about the CoM] in the axes of the initial base frame (the world frame
-when the base starts at the identity). The base rate comes from momentum conservation
-(Eq. 26; ``docs/physics.md``, "Base motion forced by the joints"): in base axes the momentum is
-``R^T h0`` with ``R = exp([phi]_x)``, so
-``omega_b = I_G^{-1} (R^T L0 - A_j q_dot)`` (``L0``: the angular part of ``h0``), which is
-``J_wM(q) q_dot_M + J_wB(q) q_dot_B`` when ``h0 = 0``. The kernels come in two structures,
-with and without the momentum terms (the key's ``momentum``: on the paper robot the terms cost
-17 % more Hessian instructions, 24 % with torques); the ones with them serve every ``h0``.
-"""
+cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point."""
 
 from __future__ import annotations
 
@@ -83,31 +50,7 @@ def check_control(control: str) -> str:
 
 @dataclass(frozen=True)
 class PointKernels:
-    """The NLP's nonlinear work at one collocation point, with its exact derivatives.
-
-    ``y = [x_dot (n_x); L; tau_B (n_B, only with torque limits); c (n_c, only with collision
-    avoidance)]`` (``c``: the clearance rows, :mod:`balance_opt.optimal.collision`) is a
-    function of the point's
-    decision variables ``z = [x; u]`` and of its data (mission sample ``m``, running weights,
-    ``q_rest``). The NLP maps these over all points and assembles its gradient, Jacobian and
-    Hessian from them (:mod:`balance_opt.optimal.nlp`): the rest of the NLP is linear in the
-    kernels' outputs and at most quadratic in the decision variables.
-
-    Attributes:
-        value: ``(z, m, weights, q_rest) -> y``.
-        jacobian: ``(z, m, weights, q_rest) -> (y, dy/dz)`` (sparse n_y x n_z).
-        gradient: ``(z, m, weights, q_rest, c) -> (c^T y, d(c^T y)/dz)`` (reverse mode: the
-            objective's gradient without the full Jacobian).
-        hessian: ``(z, m, weights, q_rest, mu) -> d^2 (mu^T y) / dz^2`` (lower triangle, sparse).
-        n_x, n_z, n_y: sizes of the state, of ``z`` and of ``y``.
-        compiled: whether the four are compiled C (else CasADi's SX virtual machine).
-        compile_time: wall time spent compiling them in this process [s] (0 when loaded from
-            the cache folder or not compiled).
-        library: the shared library they were loaded from, or the one being compiled in the
-            background (``None`` when not compiled).
-        background: whether they run on the VM while a background process compiles them (the
-            next run loads the library).
-    """
+    """The NLP's nonlinear work at one collocation point, with its exact derivatives."""
 
     value: cs.Function
     jacobian: cs.Function
@@ -144,30 +87,7 @@ class PointKernels:
 
 class PlannerModel:
     """Symbolic model of a robot for the optimal planner, built once and cached in memory and
-    on disk (:mod:`balance_opt.optimal.model_store`).
-
-    Args:
-        robot: the floating robot.
-        maps: its symbolic momentum maps (built on first use with ``backend`` when not given;
-            a run that finds its functions on disk never builds them).
-        compile: compile the point kernels to C (cached on disk in ``cache_dir``): ``"auto"``
-            (in a background process when a C compiler is found, the kernels running on
-            CasADi's virtual machine until a later run loads the library), ``"background"``
-            (the same; the compiler must exist), ``True`` (compile now and wait) or ``False``.
-            Without a compiler, or if compiling fails, the kernels run on the virtual machine
-            (the same functions, slower).
-        cache_dir: the cache folder (default :func:`~balance_opt.cache.default_cache_dir`).
-        backend: the symbolic backend when ``maps`` is not given (see
-            :class:`~balance_opt.model.symbolic.SymbolicMaps`).
-        store: keep the model's functions on disk and load them from there.
-
-    Attributes:
-        robot: as given.
-        n_M, n_B: numbers of mission and balance joints.
-        nlp_cache: compiled NLPs of this robot by their
-            :class:`~balance_opt.optimal.layout.StructureKey` (filled by
-            :func:`~balance_opt.optimal.solve.build_balance_nlp`).
-    """
+    on disk (:mod:`balance_opt.optimal.model_store`)."""
 
     def __init__(
         self,
@@ -218,7 +138,6 @@ class PlannerModel:
         """The functions ``name``: from the disk store, else made (and saved)."""
         return self.store.get(name, make) if self.store is not None else make()
 
-    # ------------------------------------------------------------------ sizes
     def n_x(self, control: str) -> int:
         """State size: attitude (3) and balance position, velocity (and acceleration for jerk)."""
         return 3 + (2 if check_control(control) == "acceleration" else 3) * self.n_B
@@ -250,7 +169,6 @@ class PlannerModel:
             labels += [f"{j} {kind}" for j in balance]
         return labels
 
-    # ------------------------------------------------------------------ symbols
     def _symbols(self, control: str):
         n_B, n_M = self.n_B, self.n_M
         x = cs.SX.sym("x", self.n_x(control))
@@ -275,12 +193,10 @@ class PlannerModel:
         momentum matrix (Eq. 26): ``I_G`` is the locked inertia about the CoM, ``A_j`` the joint
         columns, ``ell = R^T L0`` the angular momentum about the CoM in base axes; the base's
         linear columns of these rows are zero, so the linear momentum does not turn the base.
-        One 3 x 3 solve of a vector instead of the full 6 x 6 ``J_base``: on the paper robot the
-        Hessian kernel has 54 % of the instructions (23.6k against 43.7k)."""
+        One 3 x 3 solve of a vector instead of the full 6 x 6 ``J_base``: a smaller Hessian."""
         A = self.maps.centroidal_momentum_matrix_fun()(cs.vertcat(q_M, q_B))
         return cs.solve(A[3:, 3:6], ell - A[3:, 6:] @ cs.vertcat(q_dot_M, q_dot_B))
 
-    # ------------------------------------------------------------------ functions
     def dynamics_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_dynamics(x, u, m) -> (x_dot, omega)``: the state's time derivative and the
         base angular velocity in the base frame [rad/s] (Eq. 26 with the momentum ``h0`` of
@@ -306,11 +222,7 @@ class PlannerModel:
 
     def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
-        at one collocation point (the point kernels' first outputs).
-
-        ``L = w_omega |omega_b|^2 + w_attitude |phi|^2 + w_smoothness |u|^2
-        + w_rest |q_B - q_rest|^2``, with ``weights`` in the order of :data:`RUNNING_WEIGHTS`.
-        """
+        at one collocation point (the point kernels' first outputs)."""
 
         def make():
             x, u, m, phi, q_B, _, _, _ = self._symbols(control)
@@ -335,7 +247,6 @@ class PlannerModel:
 
         return self._cached(f"point_{check_control(control)}{_tag(momentum)}", make)
 
-    # ------------------------------------------------------------------ inverse dynamics
     @cached_property
     def _dynamics_terms(self) -> cs.Function:
         """``(q, nu) -> (M, h)``: mass matrix and bias forces of the free-floating system,
@@ -394,12 +305,7 @@ class PlannerModel:
         """``joint_torques_h(q, q_dot, q_ddot, h_b) -> tau``: arm joint torques [N m] (arm order)
         that produce the joint accelerations ``q_ddot`` of the free-floating system with the
         momentum ``h_b`` (base axes, [linear; angular about the CoM]) and no external wrench on
-        the base.
-
-        With ``M nu_dot + h = [0; tau]`` and the base twist ``v_b = A_b^{-1} (h_b - A_j q_dot)``
-        (``J_base q_dot`` for zero momentum, Eq. 19), the base acceleration is
-        ``a_b = -M_bb^{-1} (M_bj q_ddot + h_b)`` and ``tau = M_jb a_b + M_jj q_ddot + h_j``.
-        """
+        the base."""
 
         def make():
             n = self.robot.n
@@ -449,7 +355,6 @@ class PlannerModel:
 
         return self._cached(f"balance_torque_{check_control(control)}{_tag(momentum)}", make)
 
-    # ------------------------------------------------------------------ kernels
     def n_y(self, control: str, torque: bool, clearance: str = "") -> int:
         """Size of a point kernel's output ``y``."""
         n_c = len(self.collisions.rows[clearance][0].rows) if clearance else 0
@@ -479,11 +384,7 @@ class PlannerModel:
 
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
-        has finished (and drop the NLPs built on them); for processes that plan many tasks.
-
-        Returns:
-            How many kernel sets were swapped.
-        """
+        has finished (and drop the NLPs built on them); for processes that plan many tasks."""
         swapped = 0
         for variant, kernels in list(self._kernels.items()):
             if not kernels.background or not Path(kernels.library).exists():

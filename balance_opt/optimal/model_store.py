@@ -1,18 +1,5 @@
 """The per-robot symbolic model of the planner, kept on disk: its CasADi functions saved once,
-loaded by every later run instead of being built again.
-
-Loading a robot's point kernels takes a fraction of building them, and a run whose kernels are
-compiled does not need them at all (the library is named by the same key,
-:mod:`balance_opt.optimal.codegen`).
-
-The key (:func:`model_key`) is the robot's content (:func:`kinematics_key`), the symbolic
-backend's identity (the bridge program's build key, or the library versions), CasADi's version
-and a fingerprint of the source of the modules that shape the expressions
-(:data:`FORMULATION_MODULES`): a new version of balance-opt gets new entries instead of stale
-ones. Each entry is one file in ``<cache>/planner-models/`` with the cache's rules
-(:mod:`balance_opt.cache`): written under a lock through a temporary file, recorded (SHA-256,
-size) and checked before it is read; a damaged entry is deleted and built again.
-"""
+loaded by every later run instead of being built again."""
 
 from __future__ import annotations
 
@@ -89,13 +76,7 @@ def model_key(robot: FloatingRobot, backend_identity: str) -> str:
 
 
 class FunctionStore:
-    """Named lists of CasADi functions of one planner model, on disk.
-
-    Args:
-        label: a readable prefix of the file names (the robot's name).
-        key: the model's key (:func:`model_key`).
-        cache_dir: the cache folder (default :func:`~balance_opt.cache.default_cache_dir`).
-    """
+    """Named lists of CasADi functions of one planner model, on disk."""
 
     def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
         root = Path(cache_dir) if cache_dir is not None else default_cache_dir()

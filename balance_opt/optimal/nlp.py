@@ -1,25 +1,4 @@
-"""Building the compiled balance NLP of one structure from the per-point kernels.
-
-The nonlinear work is in the point kernels (:class:`~balance_opt.optimal.model.PointKernels`),
-mapped over all collocation points. Everything else (collocation defects, quadrature, the
-constraint kinds' rows, the terminal cost) is the *outer problem*: an SX function of the
-decision vector ``w``, the kernels' outputs ``Y`` and the parameters ``p``, linear in ``Y``
-(checked when it is built). The NLP's gradient, Jacobian and Hessian are assembled by the chain
-rule:
-
-* ``dg/dw = G_w + G_Y dY/dw``, with ``dY/dw`` block diagonal (each variable belongs to one
-  point, so each point's kernel Jacobian lands in its own columns);
-* ``grad f = f_w + sum_i d(c_i^T y_i)/dz_i`` with ``c = f_Y^T`` (reverse mode per point);
-* ``H = d2(lam^T G + lam_f f)/dw2 + sum_i d2(mu_i^T y_i)/dz_i^2`` with
-  ``mu = G_Y^T lam + lam_f f_Y^T``,
-
-so no derivative is ever taken of an N-sized graph of kernel calls. Ipopt receives these three
-functions (``grad_f``, ``jac_g``, ``hess_lag``); its linear solver is MUMPS unless the options
-say otherwise.
-
-:func:`build_structure` returns an :class:`NLPStructure`; the planner keeps one per
-:class:`~balance_opt.optimal.layout.StructureKey` in ``PlannerModel.nlp_cache``.
-"""
+"""Building the compiled balance NLP of one structure from the per-point kernels."""
 
 from __future__ import annotations
 
@@ -56,18 +35,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class NLPStructure:
-    """The compiled NLP of one structure, shared by every problem of that structure.
-
-    Attributes:
-        key: the structure.
-        solver: the CasADi ``nlpsol`` (Ipopt).
-        variables: the decision vector's layout.
-        parameters: the parameter vector's layout.
-        rows: the constraint vector's blocks, in order.
-        row_kinds: the constraint kind that owns each block of ``rows``.
-        kinds: every constraint kind of the structure (some own no rows, only bounds).
-        build_time: wall time to build it [s].
-    """
+    """The compiled NLP of one structure, shared by every problem of that structure."""
 
     key: StructureKey
     solver: cs.Function
@@ -112,13 +80,7 @@ class _Outer:
 def build_structure(
     model: PlannerModel, key: StructureKey, options: PlannerOptions
 ) -> NLPStructure:
-    """Build and compile the NLP of a structure.
-
-    Args:
-        model: the robot's planner model (its point kernels).
-        key: the structure.
-        options: the planner settings the key was made of (for Ipopt's options).
-    """
+    """Build and compile the NLP of a structure."""
     start = time.perf_counter()
     kernels = model.kernels(key.control, key.torque_limits, key.momentum, key.collision)
     tr = Transcription(key.transcription)
@@ -209,20 +171,7 @@ def _smooth_peak(v, par, weights: np.ndarray):
 
 
 def jerk_integral(acceleration: list, h):
-    """``int |q_dddot|^2 dt`` of a piecewise polynomial acceleration, summed over its joints.
-
-    Args:
-        acceleration: Bernstein coefficients of the acceleration on every interval (degree
-            ``d``), each (n, N), symbolic or numeric.
-        h: interval length [s].
-
-    On an interval the jerk has the Bernstein coefficients ``d (c_{i+1} - c_i) / h`` (degree
-    ``m = d - 1``) and ``int_0^h p^2 = h b^T G b`` with the Gram matrix of the Bernstein basis,
-    ``G_ij = C(m, i) C(m, j) / ((2m + 1) C(2m, i + j))``. A constant acceleration per interval
-    (``d = 0``: the trapezoidal rule with control ``"acceleration"``) steps from one interval
-    to the next; a step counts as ``step^2 / h``. Otherwise the collocation makes the
-    acceleration continuous (with control ``"jerk"``, through its rows), and no step is priced.
-    """
+    """``int |q_dddot|^2 dt`` of a piecewise polynomial acceleration, summed over its joints."""
     d = len(acceleration) - 1
     if d == 0:  # a constant per interval: the steps are all there is
         jumps = acceleration[0][:, :-1] - acceleration[0][:, 1:]
@@ -270,19 +219,7 @@ def _scatter(
     sparsity: cs.Sparsity, n_points: int, rows_of_point, cols_of_point, shape, upper: bool = False
 ):
     """Sparsity and nonzero permutation that place the nonzeros of a mapped per-point sparse
-    output (``n_points`` copies of ``sparsity`` side by side) into one global sparse matrix.
-
-    Args:
-        sparsity: pattern of one point's block.
-        n_points: number of points.
-        rows_of_point, cols_of_point: ``f(i) -> array``: the global row and column of each local
-            row and column of point ``i``.
-        shape: the global matrix's shape.
-        upper: mirror every entry to the upper triangle (for a lower-triangular Hessian block).
-
-    Returns:
-        ``(global sparsity, permutation)`` with ``global_nz = mapped_nz[permutation]``.
-    """
+    output (``n_points`` copies of ``sparsity`` side by side) into one global sparse matrix."""
     local_rows, local_cols = (np.asarray(v) for v in sparsity.get_triplet())
     nnz = local_rows.size
     rows = np.concatenate([rows_of_point(i)[local_rows] for i in range(n_points)])
@@ -300,15 +237,7 @@ def _scatter(
 
 @dataclass
 class _Mapped:
-    """The NLP's MX symbols and the per-point view of them that the kernels are mapped over.
-
-    Attributes:
-        w, p: the decision and parameter vectors (MX).
-        Z: each point's ``z = [x; u]``, (n_z, n_points).
-        data: the kernels' other inputs: mission samples, running weights, ``q_rest``.
-        point_idx: (n_z, n_points) indices into ``w`` of each point's ``z``: the first
-            entries of ``w``; the others (the epigraph variable) belong to no point.
-    """
+    """The NLP's MX symbols and the per-point view of them that the kernels are mapped over."""
 
     w: cs.MX
     p: cs.MX

@@ -1,9 +1,4 @@
-"""Settings of the optimal balance planner: the objective's weights and the planner's options.
-
-Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
-its meaning, its unit and its bounds serve Python calls and the ``optimal`` section of task
-files alike (``balance-opt validate --reference``).
-"""
+"""Settings of the optimal balance planner: the objective's weights and the planner's options."""
 
 from __future__ import annotations
 
@@ -21,11 +16,8 @@ from balance_opt.optimal.collocation import TRANSCRIPTIONS
 CONTROLS = ("acceleration", "jerk")
 #: Ipopt return statuses that count as a solution.
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-#: Default Ipopt options (``PlannerOptions.ipopt`` entries override them). Ipopt's monotone
-#: barrier update (its default) took as many iterations as the adaptive one on the capture task
-#: and less time per iteration; MUMPS's workspace at 100 % over its estimate (Ipopt's default
-#: 1000 %) saves the system time of allocating it at every factorisation (Ipopt enlarges it when
-#: MUMPS asks).
+#: Default Ipopt options (``PlannerOptions.ipopt`` entries override them). MUMPS's workspace
+#: at 100 % over its estimate saves allocating it at every factorisation.
 DEFAULT_IPOPT = {
     "print_level": 0,
     "sb": "yes",
@@ -33,40 +25,17 @@ DEFAULT_IPOPT = {
     "hessian_approximation": "exact",
     "mumps_mem_percent": 100,
 }
-#: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`. It starts
-#: from the smooth stage's plan, near its own: a small initial barrier parameter keeps it there
-#: (from the default 0.1 the epigraph wandered off to plans of 0.0242 rad on the capture task).
-#: 1e-3 rather than 1e-4 since the inner stages go without the joint-limit rows between the
-#: points, so that the epigraph starts outside some of them: on the capture task at 8, 10, 12,
-#: 15 and 20 s (``bench_quality.py --durations 8 10 12 15 20``) its iterations were 85, 58,
-#: 63, 414, 169 against 163, 62, 83, 1000 (failed), 480 with 1e-4; the adaptive barrier took
-#: 86, 88, 68, 466, 217. Measured before (with the rows in every stage) and rejected: small
-#: bound pushes, mu-based bound multipliers, S started 1-10 % above the start's peak, warm
-#: starts of every multiplier from the smooth stage.
+#: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`: it starts
+#: near its plan, from the smooth stage's, and a small initial barrier parameter keeps it there.
 PEAK_IPOPT = {"mu_init": 1e-3}
-#: On grids finer than this many intervals, the epigraph stage's ``mu_init``
-#: (:data:`PEAK_IPOPT`) is scaled by this over the stage's intervals: the barrier terms of the
-#: epigraph rows all pull the peak ``S`` up, and there are as many rows as points, so that the
-#: same ``mu_init`` on a finer grid starts the stage further from the smooth stage's plan. With
-#: a fixed 1e-3 the stage took 56, 70, 168 iterations at N = 100, 200, 400 on the capture task;
-#: scaled, 56, 74, 67. Coarser grids keep 1e-3: scaled up to 2e-3 at N = 50, two of 16 random
-#: capture goals took 519 and 669 iterations (at most 223 with 1e-3).
+#: On grids finer than this many intervals, the epigraph stage's ``mu_init`` is scaled by this
+#: over the stage's intervals: every epigraph row's barrier term pulls the peak ``S`` up.
 PEAK_MU_INTERVALS = 100
-#: Ipopt options of the peak objective's smooth stage. From the integral plan of the capture
-#: task the adaptive barrier update took 120 iterations, the monotone one 269; the adaptive one
-#: that never falls back to the monotone mode (the mode that globalises it: the start is close)
-#: 74. The probing and LOQO oracles took 570-640. (Stopping the stage early, at tol 1e-4 or
-#: 1e-6, cost the epigraph stage 310 iterations instead of 40.)
+#: Ipopt options of the peak objective's smooth stage (its start is close: no globalisation).
 SMOOTH_IPOPT = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "never-monotone-mode"}
 #: The peak objective's inner stages solve on a grid this many times coarser than the plan's
-#: (:meth:`Stage.intervals`), by transcription. Their plans are warm
-#: starts: what the epigraph stage needs from them is the drift's shape. On the capture task
-#: (N = 100), Hermite-Simpson on a quarter of the intervals: the epigraph stage took 56, 74, 79
-#: iterations at 10, 8, 12 s against 58, 85, 63 from inner stages on the full grid, to the same
-#: peaks, and the inner stages a fifth of their time (half the intervals: 59 iterations at
-#: 10 s, the inner stages twice as long); 271 against 217 iterations at 20 s, where every
-#: coarser grid took more. The trapezoidal rule has no midpoints, half the points per
-#: interval: on a quarter the epigraph took 144 iterations against 32, on half 53.
+#: (:meth:`Stage.intervals`), by transcription: the epigraph stage only needs the drift's shape
+#: from them. The trapezoidal rule has half the points per interval.
 INNER_COARSENING = {"hermite-simpson": 4, "trapezoidal": 2}
 #: Intervals of the inner stages' grid at least (the plan's own, if it has fewer).
 INNER_MIN_INTERVALS = 10
@@ -74,19 +43,7 @@ INNER_MIN_INTERVALS = 10
 
 @dataclass(frozen=True)
 class Stage:
-    """One stage of the peak objective (:func:`~balance_opt.optimal.refine.plan_peak`).
-
-    Attributes:
-        name: the stage, also its structure's objective: ``"integral"`` (the integral
-            objective's plan, without attitude bounds), ``"smooth"`` (the drift's L16 norm),
-            ``"peak"`` (the epigraph).
-        coarse: on the inner grid (:data:`INNER_COARSENING`) rather than the plan's.
-        between_points: with the joint-limit rows between the collocation points (an inner
-            stage's plan is only a warm start: without them an iteration costs a third less).
-        ipopt: its Ipopt options over :data:`DEFAULT_IPOPT`.
-        mu_intervals: on a finer grid than this, its ``mu_init`` is the one in ``ipopt`` scaled
-            by this over its intervals (:data:`PEAK_MU_INTERVALS`); ``None``: as it is.
-    """
+    """One stage of the peak objective (:func:`~balance_opt.optimal.refine.plan_peak`)."""
 
     name: str
     coarse: bool
@@ -118,11 +75,8 @@ PEAK_STAGES = (
 SMOOTH_PLAN = Stage("smooth", False, True, tuple(SMOOTH_IPOPT.items()))
 
 
-#: Default weight of the balance joints' squared jerk [s^5/rad^2] (``CostWeights.jerk``). On
-#: the capture task (``benchmarks/smoothness.py``) the plan without the term peaks at 0.0211 rad
-#: with chatter (52/9/7 acceleration reversals); 0.01 to 0.3 keep that peak within 1 % without
-#: the chatter (16/9/5 to 12/7/5: what is left are the bang-bang arcs themselves); 1 costs 2.3 %
-#: of the peak for 9/7/5, 3 costs 7.6 %.
+#: Default weight of the balance joints' squared jerk [s^5/rad^2] (``CostWeights.jerk``): it
+#: removes the chatter of the peak plan's bang-bang arcs for a small share of its peak.
 JERK_DEFAULT = 1.0
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
@@ -137,34 +91,7 @@ END_CONDITIONS = ("free", "still", "rest")
 
 @dataclass(frozen=True)
 class CostWeights:
-    """Weights of the optimal planner's objective.
-
-    The ``integral`` objective is Eq. 31 as a least-squares goal::
-
-        J = omega * int |omega_b|^2 dt + attitude * int |log R|^2 dt + terminal * |log R_T|^2
-            + smoothness * int |u|^2 dt + rest * int |q_B - q_rest|^2 dt
-
-    The ``peak`` objective prices the largest attitude error ``s = max_k |log R(t_k)|`` over
-    the collocation points (an epigraph variable, ``|phi_k|^2 <= s^2``) and keeps the integral
-    terms, scaled down by ``regularisation``, to make the plan smooth and unique::
-
-        J = peak * s^2 + peak_terminal * |log R_T|^2
-            + regularisation * (the integral terms + jerk * int |q_dddot_B|^2 dt)
-
-    It is reached in stages (:func:`balance_opt.optimal.refine.plan_peak`): the integral
-    objective's plan, then ``s^2`` replaced by the drift's L_16 norm (weighted so that it
-    costs what ``peak * s^2`` does at the integral plan's peak), then the epigraph.
-
-    ``u`` is the control: balance joint accelerations [rad/s^2] (or jerks [rad/s^3]). The
-    weights' units make each term dimensionless: ``omega`` [s/rad^2], ``terminal``, ``peak`` and ``peak_terminal`` [1/rad^2],
-    ``smoothness`` [s^3/rad^2] (jerk: [s^5/rad^2]), ``rest`` and ``attitude`` [1/(rad^2 s)],
-    ``jerk`` [s^5/rad^2]. The jerk term is the exact integral over the continuous plan (a step of
-    the acceleration between intervals, which only the trapezoidal rule with control
-    ``"acceleration"`` has, counts as its size over ``h``: the jerk spread over one interval).
-
-    Raises:
-        InputError: a weight that is not a finite number >= 0 (``"planner weight 'omega': ..."``).
-    """
+    """Weights of the optimal planner's objective."""
 
     omega: float = setting(
         100.0, minimum=0.0, doc="base angular rate, integral of |omega_b|^2 (the paper's goal)"
@@ -180,22 +107,15 @@ class CostWeights:
         0.0, minimum=0.0, doc="pull toward rest_configuration, integral of |q_B - q_rest|^2"
     )
     # Not the paper's (which only asks omega_b = 0), but what keeps the largest drift small once
-    # the limits make omega_b = 0 impossible: on the capture task it cuts the re-simulated maximum
-    # drift by 30 % against attitude = 0; a terminal weight 10 times larger would buy a smaller
-    # final drift with a larger peak, and on a short fast move a peak above Phase I's.
+    # the limits make omega_b = 0 impossible.
     attitude: float = setting(
         300.0, minimum=0.0, doc="attitude error along the path, integral of |log R|^2"
     )
 
-    # A peak 1 % lower is worth 2e-4 * peak^2 * weight: at 0.02 rad and 1e5, 8e-3, three times
-    # the regularisers' change between the 0.0207 and 0.0306 rad plans of the capture task.
     peak: float = setting(
         1e5, minimum=0.0, doc="largest attitude error, max |log R|^2 (peak objective only)"
     )
-    # Priced like the peak, not above it: the final error is one of the points the peak bounds,
-    # so a larger weight buys a smaller final drift with a larger peak (1e6 on a 3 s move of the
-    # capture task's robot: peak 0.060 rad against Phase I's 0.055, final 0.010; 1e5: peak
-    # 0.038, final 0.029; on the 10 s capture task 1e5 ends at 0.00085 rad, 1e4 at 0.0048).
+    # Priced like the peak, not above it: the final error is one of the points the peak bounds.
     peak_terminal: float = setting(
         1e5, minimum=0.0, doc="final attitude error |log R_T|^2 (peak objective only)"
     )
@@ -226,34 +146,20 @@ class CostWeights:
     def jerk_weight(self, objective: str = "integral") -> float:
         """The weight of the jerk term under ``objective``: ``regularisation * jerk`` for the
         peak, 0 for the integral objective (a least-squares problem: its plans are smooth
-        without it; 0.003 raised the capture task's integral plan's peak by 6 %)."""
+        without it)."""
         return self.regularisation * self.jerk if objective == "peak" else 0.0
 
 
 @dataclass(frozen=True)
 class PlannerOptions:
-    """Settings of the optimal balance planner (direct collocation solved by Ipopt).
-
-    The constraint switches and bounds are attributes of this class, written in task files
-    under ``optimal.constraints``. Joint limits are ``robot.limits`` (the URDF's or the task's
-    overrides), enforced on the continuous motion (see :mod:`balance_opt.optimal.collocation`);
-    torque limits at the collocation points, on the torques of the free-floating inverse
-    dynamics. With control ``"jerk"``, ``rest_at_end`` also asks ``q_ddot_B(T) = 0``. A horizon
-    longer than the mission holds the mission arm at its goal and leaves the balance arm time
-    to settle.
-
-    Raises:
-        InputError: a field that does not fit its declaration (``"planner option 'intervals':
-            must be at least 2, got 1"``).
-    """
+    """Settings of the optimal balance planner (direct collocation solved by Ipopt)."""
 
     __sections__: ClassVar[dict[str, str]] = {
         "constraints": "constraints of the optimal planner",
         "collision": "collision avoidance between the robot's bodies (docs/collision.md)",
     }
 
-    # 'peak': what users want (the stillest base); it solves in three stages (refine.plan_peak),
-    # about 5.5 times the integral objective's Ipopt iterations on the 10 s capture task.
+    # 'peak': what users want (the stillest base); it solves in three stages (refine.plan_peak).
     objective: Literal[OBJECTIVES] = setting(
         "peak",
         doc="minimise the largest attitude error (peak) or the integral of squared drift",
@@ -311,8 +217,7 @@ class PlannerOptions:
         section="constraints",
         doc="hard bound on the attitude error |log R(t)| along the path",
     )
-    # The arm is at rest before the plan: starting with an acceleration is a torque step (on
-    # the capture task -5.6 N m on the base); 'rest' costs the 10 s plan's peak about 1 %.
+    # The arm is at rest before the plan: starting with an acceleration is a torque step.
     start: Literal[START_CONDITIONS] = setting(
         START_CONDITIONS[0],
         section="constraints",
@@ -337,8 +242,7 @@ class PlannerOptions:
         section="constraints",
         doc="prescribed final balance configuration, one value per balance joint",
     )
-    # On by default: a plan that drives a link through the base is no plan (the capture task's
-    # unconstrained optimum does).
+    # On by default: a plan that drives a link through the base is no plan.
     collision_avoidance: bool = setting(
         True,
         key="avoid",

@@ -1,10 +1,5 @@
 """One balance planning problem's numeric data: the mission, the initial configuration, the
-horizon and the options, checked against the robot before anything is built.
-
-A :class:`BalanceProblem` is what the constraint kinds (:mod:`balance_opt.optimal.constraints`)
-read their bounds from and what the initial guesses (:mod:`balance_opt.optimal.guess`) are
-built for; :class:`~balance_opt.optimal.solve.BalanceNLP` is a problem with its compiled NLP.
-"""
+horizon and the options, checked against the robot before anything is built."""
 
 from __future__ import annotations
 
@@ -21,7 +16,6 @@ from balance_opt.optimal.options import PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE
 
 
-
 def check_problem(
     model: PlannerModel,
     mission,
@@ -29,17 +23,7 @@ def check_problem(
     options: PlannerOptions,
     robot: FloatingRobot | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Check a problem's sizes and configurations against the robot.
-
-    Returns:
-        ``(q_B0 as a float array, horizon [s])``.
-
-    Raises:
-        InputError: sizes or options that do not fit the robot, a horizon shorter than the
-            mission.
-        InfeasibleLimitsError: ``q_B0`` or the prescribed final configuration outside the
-            position limits (when they are enforced), naming the joint.
-    """
+    """Check a problem's sizes and configurations against the robot."""
     robot = model.robot if robot is None else robot
     if robot.joint_names != model.robot.joint_names:
         raise InputError(f"robot {robot.name} is not the robot of the planner model")
@@ -89,11 +73,7 @@ def check_problem(
 
 def momentum_of(h0) -> np.ndarray:
     """A total momentum ``[linear; angular]`` (6,) [N s; N m s] as a float array (zero for
-    ``None``).
-
-    Raises:
-        InputError: not 6 finite values.
-    """
+    ``None``)."""
     h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float).ravel()
     if h0.size != 6 or not np.all(np.isfinite(h0)):
         raise InputError(
@@ -107,16 +87,7 @@ class Bounds:
     """The numbers of a problem's NLP that its solve lowers or sets, never in place: the
     refinement (:mod:`balance_opt.optimal.refine`) makes a new problem with new bounds
     (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`), so a problem solved twice
-    gives the same plan twice.
-
-    Attributes:
-        path: the path attitude bound the NLP enforces at the points [rad] (``None``: none).
-        terminal: the same for the terminal attitude bound.
-        torque_factor: factor on the effort limits at each point (n_B, n_points), read-only.
-        peak_reference: the drift ``c`` of the smooth peak stage [rad].
-        collision: lower bound of each collision row at each point (n_c, n_points) [m], or
-            ``None`` without collision avoidance; read-only.
-    """
+    gives the same plan twice."""
 
     path: float | None
     terminal: float | None
@@ -134,37 +105,7 @@ class Bounds:
 
 
 class BalanceProblem:
-    """The numeric data of one balance planning problem.
-
-    Args:
-        model: the robot's planner model.
-        mission: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
-        q_B0: initial balance configuration [rad], checked by :func:`check_problem`.
-        options: the planner settings.
-        horizon: planning horizon [s], from :func:`check_problem`.
-        h0: the system's constant total momentum, world frame (the base starts at the
-            identity), ``[linear (N s); angular about the CoM (N m s)]``; ``None`` for zero.
-        collision: its collision avoidance
-            (:class:`~balance_opt.optimal.collision.CollisionSetup`), or ``None``.
-
-    Attributes:
-        model, robot, mission, q_B0, options, horizon: as given (``robot`` is the model's).
-        N, h: number of intervals and their length [s].
-        transcription, control: the collocation scheme and the control input.
-        point_times: times of the collocation points [s], nodes then midpoints.
-        mission_samples: each point's data ``[q_M; q_dot_M; q_ddot_M; h0]`` (n_m, n_points).
-        q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
-        limits: the balance joints' limits.
-        bounds: the :class:`Bounds` its NLP enforces (``path_bound``, ``terminal_bound``,
-            ``torque_factor``, ``peak_reference`` read them): the options' until the
-            refinement makes a new problem with lower ones.
-        balance_joints: their names.
-        collision: as given.
-        collision_bound: lower bound of each collision row at each point (n_c, n_points) [m]:
-            the margin plus :data:`COLLISION_ALLOWANCE`, lower for a row that starts closer
-            (its value at ``t = 0`` less :data:`COLLISION_SLACK`: the arm starts there, at
-            rest), raised by the refinement where the re-simulated motion came too close.
-    """
+    """The numeric data of one balance planning problem."""
 
     def __init__(
         self,
@@ -237,15 +178,7 @@ class BalanceProblem:
 
 
 class PlannerSolverError(SolverError):
-    """Ipopt did not solve the balance NLP.
-
-    Attributes:
-        status: Ipopt's return status.
-        result: the last iterate, re-simulated, as a :class:`BalanceResult`.
-        constraint: name of the most violated constraint.
-        time: its time [s].
-        violation: by how much it is violated (in its own unit).
-    """
+    """Ipopt did not solve the balance NLP."""
 
     def __init__(
         self, message: str, status: str, result, constraint: str, time: float, violation: float

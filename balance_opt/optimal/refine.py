@@ -1,38 +1,5 @@
 """The outer loop of the optimal planner: the peak objective's stages, bounds reached through the
-peak problem, and limits held on the whole re-simulated motion.
-
-Three strategies around one Ipopt solve (:meth:`~balance_opt.optimal.solve.BalanceNLP.solve_once`):
-
-* **The peak objective** (:func:`plan_peak`) in three stages, each warm started from the
-  last: the integral objective's plan, the smooth peak (an L16 norm of the drift, no
-  inequality rows), the epigraph. The two inner stages' plans are only warm starts, so they
-  are solved more cheaply than the last: on a grid four times coarser (twice with the
-  trapezoidal rule, :data:`~balance_opt.optimal.options.PEAK_STAGES`), the smooth peak's
-  plan interpolated onto the plan's grid (:func:`~balance_opt.optimal.guess.resampled`), and
-  with the joint limits held at the collocation points only (no rows between them). On the
-  capture task (N = 100) the coarse grid took the inner stages from 1.6 s to 0.3 s, and the
-  epigraph stage started from it took 56 iterations against 58, to the same plan; without
-  the rows an Ipopt iteration costs about a quarter less.
-* **Bounds that converge** (:func:`solve_with_bounds`). A hard path attitude bound started
-  from a guess that drifts three times too far stalls Ipopt. So the peak problem is solved
-  first without the bound (its epigraph variable is the bound's elastic relaxation). Its
-  objective also prices the final drift (``weights.peak_terminal``), so when its peak is above
-  the bound, the peak problem is solved again with that price at zero, warm started: that peak
-  is the smallest the planner finds under the task's end conditions. A bound below it fails at
-  once, naming that peak; a bound above it is met by the peak plan itself (peak objective,
-  bound above the priced peak), or the bounded problem is solved warm started from the peak
-  plan, which is feasible.
-* **Limits on the whole motion** (:func:`refine`). Torques and attitude bounds are rows at the
-  collocation points. After each solve every one is checked on the continuous motion (torques:
-  the free-floating inverse dynamics of the plan's polynomials at several points of every
-  collocation interval, :meth:`~balance_opt.optimal.constraints.TorqueLimit.torques`; the
-  attitude: the re-simulated motion); where one is broken beyond its tolerance
-  (:data:`TORQUE_TOLERANCE`, :data:`ATTITUDE_TOLERANCE`), its bound is tightened by the
-  measured ratio (torques: on the broken intervals only) and the problem solved again, warm
-  started, up to :data:`MAX_ROUNDS` times.
-
-Several starts are :mod:`balance_opt.optimal.starts`.
-"""
+peak problem, and limits held on the whole re-simulated motion."""
 
 from __future__ import annotations
 
@@ -61,21 +28,7 @@ BOUND_MARGIN = 1e-3
 
 @dataclass(frozen=True)
 class SolveReport:
-    """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`).
-
-    Attributes:
-        stage: the objective of the structure solved (``"integral"``, ``"smooth"``, ``"peak"``)
-            or the stage's name in the plan (``"bounded"``, ``"smooth, re-simulated"``).
-        intervals: its grid's ``N``.
-        status: Ipopt's return status.
-        iterations: Ipopt's iterations.
-        solve_s: Ipopt's wall time [s].
-        objective: the objective's value at the solution.
-        solution: the solution (the warm start of what follows it).
-        drifts: figures of the stage's plan [rad], by name: ``nlp_max_drift_rad`` and
-            ``nlp_final_drift_rad`` at the collocation points (inner stages),
-            ``max_drift_rad`` and ``final_drift_rad`` re-simulated (the peak stage).
-    """
+    """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`)."""
 
     stage: str
     intervals: int
@@ -135,19 +88,7 @@ class Refinement:
 
 @dataclass(frozen=True)
 class PlanReport:
-    """How an optimal plan was solved (``BalanceResult.solver``).
-
-    Attributes:
-        solves: every Ipopt solve behind the plan, in order (the stages, the bounded problem,
-            the refinement's rounds), failed ones included.
-        solution: the plan's NLP solution (default: the last solve's).
-        stages: the peak objective's stages, when it was solved in stages (``None`` else).
-        refinement: what the refinement did (``None`` before it ran).
-        smallest_peak: with a path attitude bound, the smallest peak found [rad].
-
-    :meth:`as_info` writes it into the result's ``info`` (``metrics.json``'s ``details`` and
-    its ``solver`` totals).
-    """
+    """How an optimal plan was solved (``BalanceResult.solver``)."""
 
     solves: tuple[SolveReport, ...]
     solution: Solution | None = None
@@ -202,12 +143,7 @@ def _solve_once(nlp, guess, before: PlanReport) -> BalanceResult:
 def solve_with_bounds(nlp, guess) -> BalanceResult:
     """Solve a problem whose path attitude bound may stall Ipopt (see the module docstring),
     then :func:`refine`. The plan, or the result a failure carries, holds its
-    :class:`PlanReport` as ``solver``, written into its ``info``.
-
-    Raises:
-        PlannerSolverError: the bound is below the smallest peak found (its message states
-            it), or Ipopt failed.
-    """
+    :class:`PlanReport` as ``solver``, written into its ``info``."""
     try:
         result = _solve_with_bounds(nlp, guess)
     except SolverError as exc:
@@ -280,17 +216,11 @@ def plan_peak(nlp, guess) -> BalanceResult:
     """Solve a peak problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES`,
     each warm started from the last: the integral objective's plan, the smooth peak (the
     drift's L_16 norm, without the epigraph's inequality rows, priced like the peak at the
-    start's peak ``c``), then the exact epigraph. From the integral plan of the paper task the
-    epigraph alone took 579 Ipopt iterations; from the smooth peak's plan about 40. The inner
-    stages run on a coarser grid and are not re-simulated; a failed one hands its own guess on.
+    start's peak ``c``), then the exact epigraph, which converges fast from near its plan. The
+    inner stages run on a coarser grid and are not re-simulated; a failed one hands its guess on.
     Should the epigraph stage fail, the smooth peak is solved on the plan's grid from the inner
     stage's plan and kept (with a warning, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`).
-    The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts.
-
-    Args:
-        guess: the first stage's guess, or its outcome (an :class:`IntegralStart`, done by a
-            multi-start).
-    """
+    The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts."""
     *inner, last = PEAK_STAGES
     done: list[SolveReport] = []
     stage_nlp = None
@@ -366,10 +296,9 @@ def integral_stage(nlp, guess) -> IntegralStart:
 
 def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
-    warm started, until every one holds (or :data:`MAX_ROUNDS`); see the module docstring.
-    Each round solves a new problem (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`):
-    ``nlp`` is left as it was. The plan's ``solver.refinement`` lists what was tightened in each
-    round."""
+    warm started, until every one holds (or :data:`MAX_ROUNDS`). Each round solves a new problem
+    (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`): ``nlp`` is left as it was. The
+    plan's ``solver.refinement`` lists what was tightened in each round."""
     rounds, before = [], len(result.solver.solves)
     for _ in range(MAX_ROUNDS):
         changes, tightened = _tighten(nlp, result)

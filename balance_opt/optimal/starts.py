@@ -1,22 +1,5 @@
 """Multi-start of the optimal planner: ``options.starts`` initial guesses, the plan of the
-smallest objective kept.
-
-The guesses are the chosen one, the other named one (``analytic``, ``rest``), then smooth
-random motions drawn in this process from ``options.seed`` (so a run is reproducible whatever
-runs the starts). The starts are mapped over an executor the caller passes (anything with
-``map``, e.g. a :class:`concurrent.futures.ProcessPoolExecutor` or a Dask client's executor),
-by default one after the other in this process. A start sent to another process pickles as the
-problem's data, not its compiled NLPs: the process builds the problem it solves (the compiled
-kernels come from the on-disk cache).
-
-A plan through the peak problem (the peak objective, or a path attitude bound) begins with the
-integral objective's plan (:func:`~balance_opt.optimal.refine.plan_peak`), and different
-starts often reach the same one: every start runs that first
-stage, those whose plans agree (:data:`SAME_PLAN`, :data:`SAME_CONTROL`) are merged, and only
-the distinct ones go on through the later stages, the bounds and the refinement.
-``info["starts"]`` reports every start (a merged one names the start it joined), the
-distinct plans and ``workers`` (1: this process; ``None``: an executor's).
-"""
+smallest objective kept."""
 
 from __future__ import annotations
 
@@ -57,10 +40,7 @@ class StartTask:
     """One phase of a start on a problem, a callable of the start's guess: ``"first"`` the
     integral stage (its :class:`~balance_opt.optimal.refine.IntegralStart`), ``"plan"`` the
     whole solve (``(result, None)`` or ``(None, error)``; in another process the error as
-    ``(message, status)``: the planner's errors do not pickle).
-
-    Pickled, it is the problem's data (robot, mission, ``q_B0``, options, ``h0``, the stage);
-    unpickled, it builds that problem."""
+    ``(message, status)``: the planner's errors do not pickle)."""
 
     def __init__(self, nlp, phase: str):
         self.nlp, self.phase, self.remote = nlp, phase, False
@@ -96,16 +76,7 @@ def same_first_plan(a: IntegralStart, b: IntegralStart) -> bool:
 
 def multi_start(nlp, guess, executor=None):
     """Solve from ``options.starts`` guesses (see the module docstring) and keep the plan of
-    the smallest objective; ``info["starts"]`` holds every start's outcome and the spread.
-
-    Args:
-        nlp: the problem (a :class:`~balance_opt.optimal.solve.BalanceNLP`).
-        guess: the first start's guess.
-        executor: what runs the starts (its ``map``); ``None``: this process, in turn.
-
-    Raises:
-        SolverError: every start failed (the first start's error, or its message and status).
-    """
+    the smallest objective; ``info["starts"]`` holds every start's outcome and the spread."""
     run = map if executor is None else executor.map
     guesses = start_guesses(nlp, guess)
     single = nlp.variant(starts=1)
