@@ -1,36 +1,8 @@
-"""Command line: ``balance-opt SUBCOMMAND ...``.
-
-Subcommands:
-
-* ``validate TASK...``: load and check task files, everything short of planning;
-  ``validate --schema`` (or ``schema``) prints the JSON Schema of task files;
-* ``inspect [TASK]``: robot summary and coupling measures (the paper robot without a task);
-* ``plan TASK``: balance plans (``--method analytic|optimal|both``), trajectories, metrics,
-  figures and the HTML report;
-* ``simulate TASK``: the same, then each plan through forward dynamics;
-* ``compare TASK``: both methods, simulated, and the comparison report;
-* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot (``paper_fig5`` and
-  ``capture_task``);
-* ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
-  Dask cluster;
-* ``view RESULT_DIR|TASK``: the 3D scene of a run's plans in a browser, served on 127.0.0.1
-  (:mod:`balance_opt.report.scene`);
-* ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
+"""Command line: ``balance-opt SUBCOMMAND ...`` (``balance-opt --help``).
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
-(whatever was computed is still written), 130 interrupted (Ctrl-C or SIGTERM; nothing written),
-141 the reader of the output went away (``balance-opt validate --schema | head``: the code of a
-program ended by SIGPIPE, as ``cat`` gets, without a traceback).
-
-Progress of long work (stages, kernel compilation, the optimal planner's Ipopt iterations) goes
-to stderr (:mod:`balance_opt.progress`): an updating line on a terminal, one line per stage
-otherwise; ``-q`` turns it off.
-
-Outputs are all-or-nothing (:class:`~balance_opt.report.output_dir.OutputFolder`): the output folder
-is checked and locked before anything is computed (a folder that cannot be created, is in use by
-another run, or exists and is not empty without ``--force`` is exit 2), the files are written
-into a staging folder beside it, and that folder takes the place of the old one when complete.
-"""
+(whatever was computed is still written), 130 interrupted (nothing written), 141 the reader of
+the output went away (the code of a program ended by SIGPIPE, without a traceback)."""
 
 from __future__ import annotations
 

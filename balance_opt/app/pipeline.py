@@ -1,27 +1,8 @@
-"""Running a task: the mission arm alone (Phase I, the reference), the analytic and/or optimal
-balance plans, optionally each checked by forward dynamics, then every output written.
-
-The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API share this module
-(its public names are also the package's: ``balance_opt.run_task``, ...)::
-
-    import balance_opt as bo
-
-    task = bo.load_task("examples/capture_task.yaml")
-    analytic = bo.plan_analytic(task)
-    run = bo.run_task(task, plans={"analytic": analytic}, simulate=True,
-                      output_dir="results/capture_task")   # plans only the optimal method
-    run.results["optimal"].max_drift
+"""Running a task: the mission arm alone (the reference), the analytic and/or optimal balance
+plans, optionally each checked by forward dynamics, then every output written.
 
 A solver failure does not stop the run: the failing method's best iterate is kept, written and
-marked in ``metrics.json`` and the report, and :attr:`TaskRun.failures` names it (the CLI then
-exits with code 1).
-
-Outputs are all-or-nothing (:class:`~balance_opt.report.output_dir.OutputFolder`): the output folder
-is checked and locked before anything is computed, the files are written into a staging folder
-beside it, and that folder takes the place of the old one only when every file is written. An
-error or an interruption (Ctrl-C, SIGTERM: :mod:`balance_opt.interrupts`) leaves the old
-folder as it was.
-"""
+marked, and :attr:`TaskRun.failures` names it (the CLI then exits with code 1)."""
 
 from __future__ import annotations
 

@@ -1,22 +1,9 @@
-"""The paper's simulation study: Figs. 2-5 of a scenario, each plan checked by forward dynamics.
+"""The paper's simulation study: Figs. 2-5 of a scenario, each plan checked by forward dynamics
+(``docs/paper_fig5_study.md``).
 
-* Fig. 2: base attitude due to the mission arm alone (balance arm held at its start): dynamic
-  simulation, with the kinematic replay (momentum conservation) dashed. It does not depend on
-  the balance plan.
-* Fig. 3: base attitude due to the balance arm alone: each plan's balance motion replayed by
-  the simulator with the mission arm held at its start (the motion is non-holonomic, so this
-  is not the negative of Fig. 2).
-* Fig. 4: torque the arms exert on the base after balance control, per arm and summed.
-* Fig. 5: base attitude after balance control (both arms tracking the plan).
-
-:func:`paper_study` runs two parts (:data:`PAPER_PARTS`), each in a subfolder: ``paper_fig5``,
-the paper's law (exact Eq. 31) on the reading of Table 1, start and mission where it does what
-the paper's Fig. 5 shows (``docs/paper_fig5_study.md``); and ``capture_task``, the law
-(damped least squares: its start is exactly singular) against the optimal plan on balance-opt's
-hard case. Every figure overlays the plans asked for; a plan whose solver failed is still shown
-(its last iterate) and flagged in the summary. ``study.json`` in each folder holds the figures
-of merit.
-"""
+Fig. 3 replays each balance motion with the mission arm held: the motion is non-holonomic, so it
+is not the negative of Fig. 2. A plan whose solver failed is still shown (its last iterate) and
+flagged in the summary."""
 
 from __future__ import annotations
 

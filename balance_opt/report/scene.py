@@ -1,32 +1,13 @@
-"""The 3D scene of a run (issue 28): the robot's own visual geometry (the URDF's meshes, boxes,
-cylinders and spheres) moving through each plan, in one HTML file drawn by the meshcat viewer
-(its JavaScript bundle, three.js included, ships in the ``meshcat`` package).
+"""The 3D scene of a run in one offline HTML file drawn by the meshcat viewer (``docs/viewer.md``).
 
-No meshcat server, socket or subprocess: the scene is made of meshcat's Python geometry and
-command objects, each lowered to the dict the viewer decodes, packed with msgpack and inlined
-(base64) in the page beside the viewer's bundle. A short script replays the commands and drives
-the viewer's animation player from a method selector, a play button and a time slider. The page
-loads nothing else: it opens from disk, offline. :func:`serve` shows it on this machine.
+No meshcat server, socket or subprocess: meshcat's geometry and command objects are lowered to
+the dicts the viewer decodes, packed with msgpack and inlined in the page beside its bundle.
 
-Layout: one node per Pinocchio joint that carries geometry (the free flyer: the base) under
-``/meshcat/robot``, animated with the joint's world placement; each geometry object a child of
-its joint's node at its fixed placement in the joint frame. A mesh is thus stored once, and a
-frame costs seven numbers per joint. Each plan, and each view of the base rotation (true or
-magnified), is one animation, swapped in when selected.
-
-Base pose: the plan's attitude (or its rotation from the start magnified, as in
-:func:`magnified_axes`), and the position that keeps the centre of mass
-on its free-flight line ``c(t) = c(0) + t p0 / m``: the robot's before a capture, the robot's and
-the target's together after it (with the momentum the target brings). The target, a box of
-uniform density with its inertia, flies at its own constant velocities before the capture and
-rides the mission end effector after it.
-
-Bodies too close (with the robot's collision geometry): at each frame, the links of a checked
-pair closer than the collision margin are shown amber, those of a penetrating pair red. Each
-such link has an amber and a red copy of its pieces beside them; the animation switches the
-visibility of the pieces and of the copies where the state changes (boolean keys), so the
-links that never come close cost nothing.
-"""
+One node per Pinocchio joint that carries geometry, animated with the joint's world placement,
+so a mesh is stored once and a frame costs seven numbers per joint. The base moves so that the
+centre of mass stays on its free-flight line ``c(t) = c(0) + t p0 / m``. Links too close get
+amber and red copies whose visibility is keyed only where the state changes, so links that
+never come close cost nothing."""
 
 from __future__ import annotations
 

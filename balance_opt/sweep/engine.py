@@ -1,19 +1,9 @@
 """Run the cases of a sweep: in this process, on a local process pool, or on a Dask cluster.
 
-A *case* is plain data (a dict: ``index``, ``case_id``, ``method``, ``parameters`` and whatever
-its runner needs), and so is its *result*. The function that runs a case, the *runner*, is named
-by a ``"module:function"`` string and imported in the worker, so nothing but strings, numbers,
-lists and dicts ever crosses a process boundary.
-
-Workers are processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each worker
-process keeps whatever its runner caches for the next case (the task runner: a planner model per
-robot, with its compiled NLPs; see :mod:`balance_opt.sweep.runner`).
-
-Every finished case is written at once, atomically (a temporary file then ``os.replace``), as
-``<out>/cases/<case_id>.json``: an interrupted sweep leaves only whole result files, and
-:func:`run_cases` with ``resume=True`` skips the cases that have one. A case that raises is
-recorded with its error (type and message) and the sweep goes on.
-"""
+A case and its result are plain data, and the runner is named by a ``"module:function"`` string
+imported in the worker, so nothing but plain data crosses a process boundary. Workers are
+processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each finished case is
+written atomically to ``<out>/cases/<case_id>.json``, so ``resume=True`` can skip it."""
 
 from __future__ import annotations
 
