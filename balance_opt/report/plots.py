@@ -1,18 +1,9 @@
 """Figures of a plan's base attitude and of the torque on the base (paper Figs. 2-5).
 
-Every function takes a mapping ``{name: result}`` of the curves to overlay (any object with
-``t`` and ``rpy``, such as :class:`~balance_opt.result.BalanceResult` or
-:class:`~balance_opt.dynamics.simulation.SimulationResult`; for torques, simulation results).
-The name is a method of :mod:`balance_opt.report.style` (``"optimal"``, ``"optimal:sim"``,
-``"mission-only:kinematic"``, ...) and gives the curve its colour, line style, marker and label;
-another name gets a style of its own and is its own label.
-
-The figures carry no title (a caption belongs to the text around them). They are
-:class:`matplotlib.figure.Figure` objects without pyplot state, built inside
-:func:`~balance_opt.report.style.styled` (nothing global changes), laid out by
-:mod:`balance_opt.report.figure_layout`. Given ``axes=``, a function draws into the caller's axes
-and writes nothing; given no ``stem``, it returns the figure and writes nothing.
-"""
+Every function takes ``{name: result}`` of the curves to overlay; the name is a method of
+:mod:`balance_opt.report.style` and gives the curve its look and label. The figures carry no
+title (a caption belongs to the text around them) and touch no pyplot state. Given ``axes=`` a
+function draws into the caller's axes; given no ``stem`` it writes nothing."""
 
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
 """Running a sweep: its output folder, the manifest of its cases (``sweep.json``), the cases
-on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plots
-(:mod:`balance_opt.sweep.report`).
+on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plots.
 
-A sweep's folder grows case by case (so that ``--resume`` can finish it), unlike the
-all-or-nothing folder of a single task: each file in it is written atomically instead (a whole
-case, table, summary or plot, or none), and the folder is locked while the sweep runs
-(:class:`~balance_opt.report.output_dir.FolderLock`: a second sweep into it is refused).
-"""
+A sweep's folder grows case by case (so that ``--resume`` can finish it), so each file in it is
+written atomically instead of the whole folder, and the folder is locked while the sweep runs."""
 
 from __future__ import annotations
 

@@ -1,15 +1,9 @@
 """What one case of a task sweep does, in a worker process: build its task, plan it with its
 method (optionally simulate the plan), and return the metrics of ``metrics.json`` as plain data.
 
-Each worker process keeps one :class:`~balance_opt.app.models.ModelCache`, :data:`WORKER_MODELS`,
-for its whole life: the planner model of each robot kinematics is built once, and so is each
-compiled NLP structure (intervals, transcription, control, constraint switches, solver options;
-:func:`~balance_opt.optimal.solve.build_balance_nlp` caches them on the model). What the cases
-vary (mission, horizon, initial configuration, weights, limits) enters the NLP as parameters
-and bounds: a new case of a known structure costs no build. A case that varies the joint limits
-builds its own robot, of the same kinematics: it gets the same model, and the planner takes the
-case's robot (its limits) next to it.
-"""
+Each worker keeps one :class:`~balance_opt.app.models.ModelCache` (:data:`WORKER_MODELS`) for its
+life. What cases vary enters the NLP as parameters and bounds, so a new case of a known
+structure costs no build."""
 
 from __future__ import annotations
 
