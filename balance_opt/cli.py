@@ -47,7 +47,6 @@ __all__ = ["build_parser", "default_output_folder", "main", "parse_solver_option
 log = logging.getLogger("balance_opt.cli")
 
 
-# =========================================================================================== helpers
 @contextlib.contextmanager
 def _early_output(args) -> Iterator[OutputFolder | None]:
     """The ``--output`` folder opened (checked, locked, staging created) before anything else,
@@ -91,7 +90,6 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     return restore
 
 
-# =========================================================================================== commands
 def _cmd_schema(args) -> int:
     from balance_opt.tasks.task import task_json_schema
 
@@ -198,7 +196,6 @@ def _print_cartesian_goal(task) -> None:
     if goal:
         values = ", ".join(f"{name} {v:.6g}" for name, v in goal.items())
         print(f"mission goal found by inverse kinematics: {values} [rad or m]")
-
 
 
 @contextlib.contextmanager
@@ -473,7 +470,6 @@ def _cmd_view(args) -> int:
     return EXIT_OK
 
 
-# =========================================================================================== parser
 def _add_check_commands(sub) -> None:
     """``validate``, ``schema`` and ``inspect``: everything short of planning."""
     p = sub.add_parser("validate", help="check task files (everything short of planning)")

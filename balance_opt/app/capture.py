@@ -170,7 +170,6 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     )
 
 
-# ------------------------------------------------------------------------------ the methods
 def _plan_mission_only(task, p: Phase) -> BalanceResult:
     from balance_opt.analytic.phases import phase_one
 

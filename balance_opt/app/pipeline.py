@@ -39,7 +39,6 @@ log = logging.getLogger(__name__)
 METHODS = ("analytic", "optimal")
 
 
-# =========================================================================================== methods
 def checked_task(task: Task | str | Path, what: str = "task") -> Task:
     """``task``, or the task loaded from the file it names (a path or a string).
 
@@ -226,7 +225,6 @@ def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
 simulate_result = simulate
 
 
-# =========================================================================================== run
 def run_task(
     task: Task,
     methods: Sequence[str] = METHODS,

@@ -38,7 +38,6 @@ log = logging.getLogger(__name__)
 METRICS_FORMAT = 3
 
 
-# =========================================================================================== versions
 def _distribution_version(name: str) -> str:
     try:
         return importlib.metadata.version(name)
@@ -62,7 +61,6 @@ def software_versions() -> dict[str, str]:
     }
 
 
-# =========================================================================================== trajectories
 def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
     """Column names and (T, k) values of the CSV of ``result`` (see the module docstring)."""
     names = [
@@ -120,7 +118,6 @@ def write_trajectory_npz(
     return path
 
 
-# =========================================================================================== metrics
 def to_json(value: Any) -> Any:
     """Plain JSON data from numbers, arrays, tuples and dicts; non-finite floats become None."""
     if isinstance(value, Mapping):

@@ -58,7 +58,6 @@ code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-
 """
 
 
-# =========================================================================================== values
 def format_value(value: Any, tolerance: float | None = None, unit: str = "", digits=4) -> str:
     """A value as plain text: ``"0 (< 1e-12 rad)"`` when its magnitude is below ``tolerance``,
     ``"-"`` for None, ``"inf"``, else ``digits`` significant digits, then the unit."""
@@ -263,7 +262,6 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
 ]
 
 
-# =========================================================================================== tables
 def _ordered(methods: Mapping[str, Any]) -> list[str]:
     return [m for m in METHOD_ORDER if m in methods] + [m for m in methods if m not in METHOD_ORDER]
 

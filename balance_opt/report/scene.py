@@ -85,7 +85,6 @@ def magnified_axes(quaternion: np.ndarray, factor: float) -> np.ndarray:
 _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 
 
-# ====================================================================================== geometry
 @dataclass(frozen=True)
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
@@ -241,7 +240,6 @@ def target_box(target) -> tuple[np.ndarray, np.ndarray]:
     return sides, axes
 
 
-# ======================================================================================== motion
 def frame_index(t: np.ndarray, fps: float = SCENE_FPS) -> np.ndarray:
     """Indices into a plan's times ``t`` of the scene's frames: ``fps`` per second, each the
     plan's own sample at or after that time."""
@@ -337,7 +335,6 @@ def _free_flight_before(pose: np.ndarray, t: np.ndarray, target) -> np.ndarray:
     return out
 
 
-# ====================================================================================== commands
 def _pack(command: dict) -> str:
     import umsgpack
 
@@ -654,7 +651,6 @@ def proximity_levels(
     return out, texts
 
 
-# ========================================================================================== page
 _PAGE_STYLE = """
 html, body { margin: 0; height: 100%; overflow: hidden; font: 13px sans-serif; }
 #scene-pane { position: absolute; top: 0; left: 0; right: 0; bottom: 96px; overflow: hidden; }
@@ -807,7 +803,6 @@ def write_scene(
     return path
 
 
-# ======================================================================================== server
 def serve(page: str | Path, port: int = 0) -> tuple[http.server.ThreadingHTTPServer, str]:
     """Serve the page (and nothing else of its folder) on 127.0.0.1 (``port`` 0: a free one)
     from a thread; returns the server (``shutdown()`` stops it) and the page's URL."""

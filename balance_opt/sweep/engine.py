@@ -108,9 +108,6 @@ def execute_case(runner: str, case: dict) -> dict:
     return record
 
 
-# --------------------------------------------------------------------------- result files
-
-
 def result_path(out_dir: str | Path, case_id: str) -> Path:
     """Where the result of case ``case_id`` is written."""
     return Path(out_dir) / CASES_DIR / f"{case_id}.json"
@@ -137,9 +134,6 @@ def read_result(out_dir: str | Path, case_id: str) -> dict | None:
         logger.warning("ignoring %s: not a result record of case %s", path, case_id)
         return None
     return data
-
-
-# --------------------------------------------------------------------------- engines
 
 
 class InProcessEngine:
@@ -385,9 +379,6 @@ def make_engine(jobs: int = 1, scheduler: str | None = None):
     if scheduler == "local":
         return DaskEngine(None, workers=max(1, jobs))
     return DaskEngine(scheduler)
-
-
-# --------------------------------------------------------------------------- driver
 
 
 @dataclass

@@ -74,7 +74,6 @@ def summarize(results: Sequence[dict]) -> dict[str, Any]:
     return out
 
 
-# ------------------------------------------------------------------------------ plots
 def _figure(n_rows: int, n_cols: int, height: float = 2.6):
     """Panels a paper column wide each, with the column fonts of :mod:`balance_opt.report.style`
     (constrained layout: category labels vary in length)."""

@@ -47,7 +47,6 @@ def sweep_reference_markdown() -> str:
     return reference_markdown(SweepSpec)
 
 
-# ------------------------------------------------------------------------------ the sweep
 @dataclass(frozen=True)
 class Sweep:
     """A validated sweep file and its cases.

@@ -128,7 +128,6 @@ class Task:
         )
 
 
-# =========================================================================================== loading
 def load_task(path: str | Path) -> Task:
     """Load, validate and build the task in the YAML file at ``path``: everything short of planning.
 

@@ -204,7 +204,6 @@ def check_limits(
     _check_planner(spec, doc, robot, float(mission.duration))
 
 
-# ------------------------------------------------------------------------------- time grids
 def _given(doc: YamlDocument, path: tuple) -> bool:
     """Whether the file sets the key at ``path``."""
     node = doc.data
@@ -299,7 +298,6 @@ def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None
             )
 
 
-# ---------------------------------------------------------------------------- problem size
 def _duration_words(seconds: float) -> str:
     if seconds < 120:
         return f"{seconds:.0f} s"
