@@ -58,7 +58,6 @@ def attitude_figure(
     stem: str | Path | None = None,
     *,
     dashed: Mapping[str, Any] | None = None,
-    title: str | None = None,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
     axes=None,
@@ -71,7 +70,6 @@ def attitude_figure(
         stem: output path without suffix; ``None`` writes nothing.
         dashed: more results, drawn after ``results`` (a reference such as the mission arm
             alone); their style comes from their name like any other.
-        title: not drawn (captions go with the text); accepted for older callers.
         formats: file formats to write.
         dpi: resolution of the PNG.
         axes: three axes to draw into (nothing is written then).
@@ -79,7 +77,6 @@ def attitude_figure(
     Returns:
         The figure and the files written.
     """
-    del title
     curves = {**results, **(dashed or {})}
     t_end = max(float(res.t[-1]) for res in curves.values())
     if axes is not None:
@@ -198,7 +195,6 @@ def reaction_torque_figure(
     simulations: Mapping[str, Any],
     stem: str | Path | None = None,
     *,
-    title: str | None = None,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
 ) -> tuple[Any, list[Path]]:
@@ -209,7 +205,6 @@ def reaction_torque_figure(
     Args:
         simulations: ``{name: SimulationResult}`` with ``arm_wrenches`` and ``total_wrench``.
         stem: output path without suffix; ``None`` writes nothing.
-        title: not drawn; accepted for older callers.
         formats: file formats to write.
         dpi: resolution of the PNG.
 
@@ -218,7 +213,6 @@ def reaction_torque_figure(
         arms"``, ``"mission arm"`` and ``"<plan label>: balance arm"``; each column's title is
         its plan's label.
     """
-    del title
     width = "page" if len(simulations) > 1 else "column"
     with style.styled(width):
         fig = style.figure(width, 4.0 if width == "page" else STACK_HEIGHT)
