@@ -14,17 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from balance_opt.app.models import ModelCache
-from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures: public here too)
-    FIGURES,
-    METRICS_FILE,
-    REFERENCE,
-    REPORT_FILE,
-    TaskRun,
-    _timed,
-    run_geometry,
-    write_figures,
-    write_run,
-)
+from balance_opt.app.run_files import REFERENCE, TaskRun, _timed, run_geometry, write_run
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.report.output_dir import OutputFolder

@@ -24,13 +24,7 @@ import numpy as np
 from balance_opt.report.output_dir import replaced_atomically
 from balance_opt.report.style import SCREEN_DPI, method_style, styled
 from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
-from balance_opt.sweep.tables import (
-    is_timing_column,
-    read_table_csv,
-    results_table,
-    write_table_csv,
-    write_tables,
-)
+from balance_opt.sweep.tables import write_tables
 
 logger = logging.getLogger(__name__)
 
@@ -395,12 +389,8 @@ def write_report(
 
 
 __all__ = [
-    "is_timing_column",
     "plot_drift_against_parameter",
     "plot_drift_distribution",
-    "read_table_csv",
-    "results_table",
     "summarize",
     "write_report",
-    "write_table_csv",
 ]

@@ -20,19 +20,10 @@ from balance_opt.config.yaml_lines import (
     load_yaml,
     parse_yaml,
 )
-from balance_opt.sweep.cases import (  # the file format (SweepSpec, ...): public here too
-    Distribution,
-    RandomSamples,
-    SweepSpec,
-    canonical_json,
-    expand_cases,
-    varied_prefix,
-)
+from balance_opt.sweep.cases import SweepSpec, canonical_json, expand_cases, varied_prefix
 
 logger = logging.getLogger(__name__)
 
-#: Planning methods a sweep can run.
-METHODS = ("analytic", "optimal")
 SWEEP_SCHEMA_ID = "https://balance-opt.invalid/sweep.schema.json"
 
 
@@ -191,9 +182,6 @@ def parse_sweep(
 
 
 __all__ = [
-    "METHODS",
-    "Distribution",
-    "RandomSamples",
     "Sweep",
     "SweepSpec",
     "load_sweep",
