@@ -109,19 +109,12 @@ def plan_optimal(
     """The optimal planner with the task's options.
 
     Args:
-        task: the task.
-        solver_options: Ipopt options overriding ``optimal.ipopt`` (``--solver-option``).
-        warm_start: an analytic result to start from (with ``optimal.initial_guess: analytic``),
-            instead of rolling out the law again (not used for a task with a capture, whose
-            phases start from their own guesses).
-        models: the planner models to reuse (with their compiled NLPs); without one, the
-            model is built for this call only.
-        executor: what runs the starts of ``optimal.starts > 1`` (anything with ``map``, e.g.
-            :class:`balance_opt.sweep.engine.LocalPoolEngine`); ``None``: this process.
-
-    Returns:
-        A result with ``method="optimal"``, re-simulated on a fine grid; ``info`` holds the
-        solver's status, iterations, objective and wall times.
+        solver_options: Ipopt options overriding ``optimal.ipopt``.
+        warm_start: an analytic result to start from (``optimal.initial_guess: analytic``),
+            instead of rolling out the law again (not for a task with a capture).
+        models: the planner models to reuse; without one, the model is built for this call only.
+        executor: what runs the starts of ``optimal.starts > 1`` (anything with ``map``);
+            ``None``: this process.
 
     Raises:
         InputError: the task asks for something the optimal planner cannot do.
@@ -231,41 +224,29 @@ def run_task(
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
     Args:
-        task: a loaded task (:func:`balance_opt.tasks.task.load_task`).
-        methods: among ``"analytic"`` and ``"optimal"``; the mission arm alone is always
-            computed as the reference.
-        simulate: check each plan in a forward-dynamics simulation (and the reference too).
-        output_dir: where to write, all-or-nothing (see the module docstring): a folder, or an
-            :class:`~balance_opt.report.output_dir.OutputFolder` (possibly opened already);
-            ``None`` writes nothing.
+        task: a loaded task.
+        methods: among ``"analytic"`` and ``"optimal"``; the mission arm alone is always computed.
+        simulate: check each plan (and the reference) in a forward-dynamics simulation.
+        output_dir: a folder or an opened :class:`~balance_opt.report.output_dir.OutputFolder`,
+            written all-or-nothing; ``None`` writes nothing.
         solver_options: Ipopt options overriding the task's ``optimal.ipopt``.
-        models: planner models to reuse across runs; by default this run keeps its own.
-        force: replace an output folder that exists and is not empty (once the new one is
-            complete); without it such a folder is refused before anything is computed.
-        plans: results already computed for this task, ``{"mission-only" | "analytic" |
-            "optimal": BalanceResult}``: used as they are instead of planning again (a given
-            analytic plan is also the optimal planner's warm start). A given plan whose solver
-            failed (``info["success"]`` false) is recorded in ``failures``.
-        simulations: simulations already computed, ``{name: SimulationResult}`` (with
-            ``simulate``), likewise reused.
-        executor: what runs the optimal planner's starts when ``optimal.starts > 1`` (see
-            :func:`plan_optimal`); the caller creates it and shuts it down (the CLI: a process
-            pool of the sweep engine's kind for the one command).
-        robustness: replay every plan on perturbed models (the task's ``robustness``
-            settings, :mod:`balance_opt.motion.robustness`); ``None``: as the task's
-            ``robustness.enabled`` says (off when unset, as in ``balance-opt plan``).
+        models: planner models to reuse across runs.
+        force: replace a non-empty output folder once the new one is complete.
+        plans: ``{method: BalanceResult}`` already computed, used instead of planning again (a
+            given analytic plan is also the optimal warm start).
+        simulations: ``{name: SimulationResult}`` already computed, likewise reused.
+        executor: runs the optimal planner's starts (see :func:`plan_optimal`); owned by the caller.
+        robustness: replay every plan on perturbed models; ``None``: the task's
+            ``robustness.enabled``.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
-        in ``run.results`` and was written). ``run.files`` are the paths in ``output_dir``.
+        in ``run.results`` and was written).
 
     Raises:
-        InputError: an unknown method, or a method the task cannot use; a given plan of
-            another method, of other joints or of another duration than the task's; an output
-            folder that cannot be created, is in use by another run, or is not empty without
-            ``force`` (all checked before anything is computed).
-        KeyboardInterrupt: Ctrl-C or SIGTERM (:class:`~balance_opt.interrupts.Interrupted`);
-            nothing is written.
+        InputError: a bad method or given plan, or an unusable output folder (all checked before
+            anything is computed).
+        KeyboardInterrupt: Ctrl-C or SIGTERM; nothing is written.
     """
     task = checked_task(task)
     methods = _checked_methods(task, methods)

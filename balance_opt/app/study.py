@@ -175,22 +175,13 @@ def scenario_study(
     formats: Sequence[str] = FORMATS,
     backend: str = "auto",
 ) -> StudyResult:
-    """Figs. 2-5 of one scenario (see the module docstring).
+    """Figs. 2-5 of one scenario, written to ``output_dir`` with ``study.json``.
 
     Args:
-        scenario: the robot, mission and balance start.
-        output_dir: folder for the figures (``fig2_*.png``/``.pdf`` ...) and ``study.json``;
-            created if missing.
         methods: the balance plans to compute and overlay, among ``"analytic"`` and ``"optimal"``.
         simulation: simulator settings (default: RK4 at 1 ms, PD tracking, outputs every 10 ms).
         law: settings of the analytic law (default: the scenario's, else damped least squares).
-        planner: settings of the optimal planner.
-        formats: figure file formats.
-        backend: symbolic backend of the optimal planner (``"auto"``, ``"pinocchio"``,
-            ``"adam"``).
-
-    Returns:
-        The plans, simulations, figures and summary.
+        backend: symbolic backend of the optimal planner.
 
     Raises:
         InputError: an unknown method.

@@ -163,18 +163,11 @@ def replaced_atomically(path: str | Path) -> Iterator[Path]:
 class OutputFolder:
     """A target folder written all-or-nothing; use as a context manager around the run.
 
-    Example::
-
-        with OutputFolder("results/capture", force=True) as out:
-            write_everything(out.staging)   # files go to the staging folder
-        # here results/capture holds exactly the files written above
-
-    ``with`` blocks nest: the outermost one commits, an error in any of them aborts. So a
-    caller can check and lock the folder before its own work and hand it to
-    :func:`~balance_opt.app.pipeline.run_task`, which then writes into it without committing.
+    ``with`` blocks nest: the outermost one commits, an error in any of them aborts, so a caller
+    can check and lock the folder before its own work and hand it to
+    :func:`~balance_opt.app.pipeline.run_task`.
 
     Args:
-        target: the folder the user asked for.
         force: replace a target that exists and is not empty (only once the new run is
             complete); without it such a target is refused before any work.
     """

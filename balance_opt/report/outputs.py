@@ -1,15 +1,5 @@
 """What a run writes: trajectories (CSV, NPZ), figures of merit (``metrics.json``) and the
-versions of the software that computed them.
-
-* ``<method>.csv``: a ``time`` column [s], one column per arm joint by name [rad; m for a
-  prismatic joint] (mission joints first, then balance joints), the base attitude as a
-  quaternion (``base_qx .. base_qw``) and as roll, pitch, yaw (``base_roll``, ``base_pitch``,
-  ``base_yaw``) [rad], and the rotation angle from the start (``base_angle``) [rad]. A mission
-  CSV task (``mission: {type: csv}``) reads it back.
-* ``<method>.npz``: every array of the :class:`~balance_opt.result.BalanceResult` by its field
-  name, the joint names, and ``info`` as JSON text.
-* ``metrics.json``: see :func:`method_metrics` and :func:`run_metrics`.
-"""
+versions of the software that computed them (formats: ``docs/outputs.md``)."""
 
 from __future__ import annotations
 
@@ -317,21 +307,11 @@ def method_metrics(
     clearance=None,
     simulated_clearance=None,
 ) -> dict[str, Any]:
-    """Figures of merit of one plan, plain JSON data.
+    """Figures of merit of one plan, plain JSON data (keys: ``docs/outputs.md``).
 
-    Keys: the result's :meth:`~BalanceResult.summary`; ``limit_margins`` (per joint, see
-    :func:`limit_margins`), ``min_limit_margin`` and ``balance_limit_margin`` per kind,
-    ``balance_relative_limit_margin`` (:func:`relative_limit_margins` of the balance joints);
-    ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says);
-    ``effort`` (:func:`effort_metrics`, for the system's momentum ``h0``, world frame, zero by
-    default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort
-    limits) and their number ``limit_violations``, by kind in ``limit_violations_by_kind``
-    (position, velocity, acceleration, effort); ``warnings``
-    (:meth:`~balance_opt.result.BalanceResult.warnings`: an untrustworthy plan); ``solver``
-    (:func:`solver_metrics`);
-    ``details`` (the result's ``info`` without its bulky arrays); and, when a
-    ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
-    error, the momentum residual and the peak reaction torques on the base [N m].
+    ``h0`` is the system's momentum (world frame, zero by default) for the effort figures, unless
+    the plan's ``torques`` are given; with a ``simulation`` of the plan, its drift, tracking error,
+    momentum residual and peak reaction torques are added.
     """
     margins = limit_margins(result, robot)
     names = (*result.mission_joints, *result.balance_joints)

@@ -64,21 +64,11 @@ def error_record(exc: BaseException) -> dict[str, Any]:
 def execute_case(runner: str, case: dict) -> dict:
     """Run one case in the current process and return its result record (plain data).
 
-    The runner returns a dict with ``status`` (one of the ``STATUS_*``), ``metrics``, and
-    optionally ``error``, ``info`` and ``timing`` (its own split of the wall time [s]); any
-    exception it raises becomes a result with status ``error`` (``solver_failed`` for a
-    :class:`~balance_opt.errors.SolverError`).
-
-    Args:
-        runner: ``"module:function"`` of the case function ``f(case: dict) -> dict``.
-        case: the case, plain data with ``index``, ``case_id``, ``method`` and ``parameters``.
-
-    Returns:
-        ``{index, case_id, method, parameters, status, error, metrics, info, timing}`` where
-        ``timing`` holds the wall time of the case in the worker [s] (``case_s``), the CPU
-        time of the worker process meanwhile [s] (``cpu_s``: less than ``case_s`` when the
-        worker waited for a CPU), the worker's process id and the runner's timing: the only
-        fields that depend on where and when the case ran.
+    The runner returns ``status``, ``metrics`` and optionally ``error``, ``info`` and ``timing``;
+    any exception it raises becomes a result with status ``error`` (``solver_failed`` for a
+    :class:`~balance_opt.errors.SolverError`). The record's ``timing`` adds the case's wall
+    time (``case_s``) and the worker's CPU time meanwhile (``cpu_s``) [s] and its process id: the
+    only fields that depend on where and when the case ran.
     """
     from balance_opt.errors import SolverError
 

@@ -53,17 +53,11 @@ def _metrics(result, task, simulate: bool) -> dict:
 def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     """The case function of task sweeps (see :func:`balance_opt.sweep.engine.execute_case`).
 
-    Args:
-        case: plain data with ``task`` (the task's content, with the case's parameters),
-            ``base_dir`` (relative paths of the task), ``method``, ``simulate``,
-            ``solver_options`` and ``index``.
-        models: the planner models to use; by default the worker's, :data:`WORKER_MODELS`.
-
     Returns:
         ``{"status", "metrics", "error", "info", "timing"}``: status ``ok``, or
-        ``solver_failed`` with the metrics of what the method computed before it failed and the
-        error (type, message); ``info["mission_only"]`` is :func:`mission_only_baseline`.
-        Other errors are raised, and recorded by the engine.
+        ``solver_failed`` with the metrics of what the method computed before it failed;
+        ``info["mission_only"]`` is :func:`mission_only_baseline`. Other errors are raised, and
+        recorded by the engine.
     """
     from balance_opt.app.pipeline import plan
     from balance_opt.errors import SolverError

@@ -73,13 +73,11 @@ def sweep_from_document(
 ) -> Sweep:
     """A :class:`Sweep` from a parsed sweep file.
 
-    The base task and the task of every case are loaded in full (robot, mission, limits: see
-    :func:`balance_opt.tasks.task.task_from_document`), about 10 ms each. Limits no plan can meet
-    and missions that cannot be built (an unreachable goal) are not errors of the sweep file: such
-    a case fails when it runs, and the sweep goes on.
+    The base task and the task of every case are loaded in full. Limits no plan can meet and
+    missions that cannot be built are not errors of the sweep file: in a study they are results,
+    so such a case fails when it runs and the sweep goes on.
 
     Args:
-        doc: the sweep file's document.
         base_dir: folder of the sweep file (relative paths start there).
         solver_options: Ipopt options for every case (``--solver-option``); part of the ids.
 
