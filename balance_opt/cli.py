@@ -26,7 +26,6 @@ from balance_opt.cli_options import (
     default_output_folder,
     ipopt_options_of,
     method_option,
-    parse_solver_option,
     run_options,
 )
 from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
@@ -41,8 +40,7 @@ DESCRIPTION = (
     "law and an optimal planner, compared."
 )
 _HANDLER_FLAG = "_balance_opt_cli"
-#: Re-exported: the CLI's helpers as they were importable before cli_options.py split off.
-__all__ = ["build_parser", "default_output_folder", "main", "parse_solver_option"]
+__all__ = ["build_parser", "main"]
 
 log = logging.getLogger("balance_opt.cli")
 
