@@ -63,19 +63,10 @@ def attitude_figure(
     axes=None,
 ) -> tuple[Any, list[Path]]:
     """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
-    one column wide.
+    one column wide; returns the figure and the files written.
 
-    Args:
-        results: ``{name: result}``, each with ``t`` (T,) [s] and ``rpy`` (T, 3) [rad].
-        stem: output path without suffix; ``None`` writes nothing.
-        dashed: more results, drawn after ``results`` (a reference such as the mission arm
-            alone); their style comes from their name like any other.
-        formats: file formats to write.
-        dpi: resolution of the PNG.
-        axes: three axes to draw into (nothing is written then).
-
-    Returns:
-        The figure and the files written.
+    ``dashed``: more results drawn after ``results`` (a reference such as the mission arm alone).
+    ``axes``: three axes to draw into.
     """
     curves = {**results, **(dashed or {})}
     t_end = max(float(res.t[-1]) for res in curves.values())
@@ -200,18 +191,8 @@ def reaction_torque_figure(
 ) -> tuple[Any, list[Path]]:
     """Torque the arms exert on the base [N m], base axes, against time (paper Fig. 4): one
     column of panels per plan, each with its own scale (the analytic law's torques are tens of
-    times smaller than the optimal plan's); a page wide for two plans or more.
-
-    Args:
-        simulations: ``{name: SimulationResult}`` with ``arm_wrenches`` and ``total_wrench``.
-        stem: output path without suffix; ``None`` writes nothing.
-        formats: file formats to write.
-        dpi: resolution of the PNG.
-
-    Returns:
-        The figure and the files written. The curves of a panel are labelled ``"sum of
-        arms"``, ``"mission arm"`` and ``"<plan label>: balance arm"``; each column's title is
-        its plan's label.
+    times smaller than the optimal plan's); a page wide for two plans or more. Returns the figure
+    and the files written.
     """
     width = "page" if len(simulations) > 1 else "column"
     with style.styled(width):

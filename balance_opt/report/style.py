@@ -187,16 +187,11 @@ def styled(width: str = "column") -> Iterator[None]:
 
 def figure(width: str = "column", height: float = 2.6, layout: str | None = None):
     """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide (``"column"`` 3.5 in,
-    ``"page"`` 7 in) and ``height`` [in] tall.
+    ``"page"`` 7 in) and ``height`` [in] tall; build its artists inside :func:`styled` with the
+    same width so that fonts fit.
 
-    Build its artists inside :func:`styled` with the same width so that fonts fit the width.
-
-    Args:
-        width: ``"column"`` or ``"page"``.
-        height: [in].
-        layout: ``None`` (place the panels yourself, e.g. with
-            :func:`balance_opt.report.figure_layout.arrange`: fast) or ``"constrained"``
-            (matplotlib measures every text at each save: about twice the drawing time).
+    ``layout="constrained"`` makes matplotlib measure every text at each save, which is slow;
+    ``None`` leaves the panels to the caller (:func:`balance_opt.report.figure_layout.arrange`).
     """
     from matplotlib.figure import Figure
 

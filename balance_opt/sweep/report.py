@@ -356,18 +356,8 @@ def write_report(
     plots: bool = True,
     extra_summary: dict | None = None,
 ) -> dict[str, Path]:
-    """Write the tables (``results.csv``, ``diagnostics.csv``: :mod:`balance_opt.sweep.tables`),
-    ``summary.json`` and the plots (``plots/``).
-
-    Args:
-        out_dir: the sweep's output folder.
-        results: every case's result record.
-        varied: the varied key paths (one plot each).
-        plots: draw the plots.
-        extra_summary: more entries for ``summary.json`` (the sweep's name, timing, ...).
-
-    Returns:
-        Name -> path of every file written.
+    """Write the tables, ``summary.json`` (with ``extra_summary``) and, with ``plots``, one plot
+    per varied key path; returns name -> path of every file written.
     """
     out_dir = Path(out_dir)
     written: dict[str, Path] = write_tables(out_dir, results)
