@@ -52,7 +52,7 @@ def software_versions() -> dict[str, str]:
 
 
 def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
-    """Column names and (T, k) values of the CSV of ``result`` (see the module docstring)."""
+    """Column names and (T, k) values of the CSV of ``result`` (``docs/outputs.md``)."""
     names = [
         "time",
         *result.mission_joints,

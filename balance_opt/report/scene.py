@@ -456,17 +456,13 @@ def build_scene(
     """The scene of a run's plans (see the module docstring).
 
     Args:
-        robot: the robot (before any capture).
         results: ``{method: plan}`` (the mission arm alone, analytic, optimal...).
         h0: initial momentum, world frame (6,).
         target: the target captured during the mission, or None.
         labels: display name per method (default :func:`~balance_opt.report.style.method_label`).
-        fps: animation samples per second of motion.
-        geometry: the robot's collision geometry
-            (:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`) or None: with it, the
-            links of a checked pair closer than ``margin`` [m] are drawn amber at those frames,
-            those of a pair that penetrates red (:func:`proximity_levels`).
-        margin: the collision margin [m].
+        geometry: the robot's collision geometry or None: with it, the links of a checked pair
+            closer than ``margin`` [m] are drawn amber at those frames, those of a pair that
+            penetrates red (:func:`proximity_levels`).
     """
     import meshcat.geometry as mg
     from meshcat.commands import SetObject, SetProperty, SetTransform

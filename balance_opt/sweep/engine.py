@@ -356,13 +356,8 @@ class DaskEngine:
 
 
 def make_engine(jobs: int = 1, scheduler: str | None = None):
-    """The engine the command line asks for.
-
-    Args:
-        jobs: worker processes (0: run in this process). With ``scheduler="local"``, the number
-            of workers of the local Dask cluster.
-        scheduler: None for the local process pool, ``"local"`` for a Dask cluster started on
-            the loopback interface, or the address of a running Dask scheduler.
+    """The engine the command line asks for (``jobs`` and ``scheduler`` as in
+    :func:`balance_opt.sweep.run.run_sweep`).
     """
     if scheduler is None:
         return InProcessEngine() if jobs == 0 else LocalPoolEngine(jobs)
@@ -403,20 +398,15 @@ def run_cases(
     retry_failed: bool = False,
     on_result: Callable[[dict, int, int], None] | None = None,
 ) -> SweepRun:
-    """Run every case, write each result as it comes, and return them all in index order.
+    """Run every case, write each result as it comes, and return them all in index order (those
+    run now and those found on disk).
 
     Args:
-        cases: the cases (plain data, each with a unique ``case_id`` and an ``index``).
-        runner: ``"module:function"`` of the case function.
-        out_dir: the sweep's output folder (results go to ``out_dir/cases/``).
         engine: an engine (default: one worker process); entered and left here.
         resume: skip the cases that already have a result file.
         retry_failed: with ``resume``, run again the cases whose recorded status is not ``ok``.
         on_result: called after each result is written, with the result, the number of cases
             done so far and the number to run (progress display; may raise to stop the sweep).
-
-    Returns:
-        The results of all cases, those run now and those found on disk.
     """
     cases = [dict(case) for case in cases]
     ids = [case["case_id"] for case in cases]

@@ -154,7 +154,10 @@ def task_from_dict(
 
 
 def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
-    """Validate a parsed document and build its robot and mission (see the module docstring)."""
+    """Validate a parsed document (types, keys, ranges: :func:`~balance_opt.config.typed_config.from_data`),
+    resolve its files, build its robot and mission, check the per-joint lists and the limits
+    (:mod:`balance_opt.tasks.task_checks`) and set the initial momentum in the options.
+    """
     if not isinstance(doc.data, dict):
         raise doc.error(
             (),

@@ -191,12 +191,11 @@ def check_limits(
     mission: JointTrajectory,
     q_B0: np.ndarray,
 ) -> None:
-    """Limits no plan can meet, and a horizon shorter than the mission (see the module
-    docstring).
+    """Limits no plan can meet (a balance start or a prescribed final configuration outside the
+    position limits, a mission that leaves its own limits) and a horizon shorter than the mission.
 
     Raises:
-        TaskLimitsError: limits no plan can meet, naming the limit's source (``limits.J.KEY``
-            or URDF).
+        TaskLimitsError: naming the limit's source (``limits.J.KEY`` or URDF).
         TaskFileError: ``optimal.horizon`` shorter than the mission.
     """
     _check_start(spec, doc, robot, q_B0)
