@@ -1,11 +1,5 @@
-"""The comparison report: one self-contained HTML file (nothing external: no linked file, library
-or network access) with the task, a table comparing the methods side by side, the limit
-violations, the figures embedded as base64 PNG and, when the task's ``outputs.animation`` asks
-for it, the 3D scene of :mod:`balance_opt.report.scene` (an iframe, passed in as ``extra_html``).
-
-The table reads ``metrics.json`` content (:func:`balance_opt.report.outputs.run_metrics`), so the
-report and the metrics never disagree.
-"""
+"""The comparison report: one self-contained HTML file (no linked file, library or network
+access). Its table reads ``metrics.json`` content, so the report and the metrics never disagree."""
 
 from __future__ import annotations
 
