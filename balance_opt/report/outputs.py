@@ -180,17 +180,10 @@ def _has_limit(limit: float) -> bool:
 def effort_metrics(
     result: BalanceResult, robot: FloatingRobot, h0=None, torques: np.ndarray | None = None
 ) -> dict[str, Any]:
-    """Effort margins and torque profile of a plan, from the free-floating inverse dynamics of
-    its joint motion: ``torques`` when the caller has them, else
-    :func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques` for the momentum ``h0``.
-
-    Returns:
-        ``{"joints": {joint: {...}}, "min_relative_margin": r, "balance_min_relative_margin": r,
-        "violations": [...]}``; per joint ``peak_Nm`` (largest ``|tau|``), ``peak_time_s`` (its
-        time), ``limit_Nm``, ``margin_Nm`` (limit - peak, negative where broken) and
-        ``relative_margin`` (margin / limit), the last three ``None`` where the URDF gives no
-        effort limit, with ``status`` ``"inside"`` or ``"broken"`` or ``"no limit"``. Units
-        N m (N for a prismatic joint).
+    """Effort margins and torque profile of a plan (the ``effort`` block of ``docs/outputs.md``),
+    from the free-floating inverse dynamics of its joint motion: ``torques`` when the caller has
+    them, else :func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques` for the momentum
+    ``h0``. Units N m (N for a prismatic joint).
     """
     names = (*result.mission_joints, *result.balance_joints)
     tau = plan_joint_torques(result, robot, h0) if torques is None else torques
@@ -264,11 +257,10 @@ def peak_reaction_torques(simulation) -> dict[str, float]:
 
 
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
-    """Status, iterations and wall times of the solver that produced a result, from its
-    ``info`` (keys of :meth:`balance_opt.optimal.solve.BalanceNLP.solve`); ``None`` where the method
-    has no such figure (the analytic law has no iterations). The iterations and the solve time
-    are those of every Ipopt solve behind the plan (the peak objective's stages, the
-    refinement's re-solves); the status, objective and ``wall_time_s`` those of the last."""
+    """Status, iterations and times of the solver that produced a result, from its ``info``
+    (the ``solver`` block of ``docs/outputs.md``); ``None`` where the method has no such figure
+    (the analytic law has no iterations).
+    """
     wall = info.get("wall_time_s")
     wall = wall if isinstance(wall, Mapping) else {}
     return {

@@ -259,19 +259,15 @@ def scene_poses(
     """World placements of the scene's nodes along a plan.
 
     Args:
-        robot: the robot (before any capture).
-        result: the plan.
         joints: Pinocchio joint ids whose placements are wanted.
         h0: initial momentum, world frame (6,); None: at rest.
-        target: the captured target (:class:`balance_opt.model.capture.Target`) or None.
         factor: magnification of the base's rotation from its start (1: the plan's attitude).
         fps: samples per second; the plan's own sample at or after each time is taken.
 
     Returns:
-        ``t`` (K,) the plan's sample times used [s], ``index`` (K,) their indices in the plan,
-        ``base`` (K, 4, 4) the base placement, ``joints`` (K, J, 4, 4) the placements of
-        ``joints`` and, with a target, ``target`` (K, 4, 4) its box's centre and axes (the
-        mission end-effector's axes after the capture).
+        ``t`` (K,) the sample times used [s], ``index`` (K,) their indices in the plan, ``base``
+        (K, 4, 4), ``joints`` (K, J, 4, 4) and, with a target, ``target`` (K, 4, 4) its box's
+        centre and axes.
     """
     model, data = robot.model, robot.model.createData()
     index = frame_index(result.t, fps)
