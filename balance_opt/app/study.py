@@ -28,6 +28,7 @@ from balance_opt.errors import InputError, SolverError
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
+from balance_opt.report.outputs import peak_reaction_torques
 from balance_opt.report.plots import FORMATS, paper_figure_set
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
 
@@ -102,15 +103,6 @@ def _plain(value):
     return str(value)
 
 
-def _torque_peaks(sim: SimulationResult) -> dict[str, float]:
-    """Largest torque norm on the base per arm and summed [N m]."""
-    out = {
-        arm: float(np.linalg.norm(w[:, 3:], axis=1).max()) for arm, w in sim.arm_wrenches.items()
-    }
-    out["total"] = float(np.linalg.norm(sim.total_wrench[:, 3:], axis=1).max())
-    return out
-
-
 def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
     return {
         "max_drift_rad": float(sim.angle.max()),
@@ -118,16 +110,9 @@ def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
         "peak_base_rate_rad_s": float(np.linalg.norm(sim.omega, axis=1).max()),
         "max_tracking_error_rad": sim.max_tracking_error,
         "max_relative_momentum_residual": float(sim.momentum_residual.max()),
-        "peak_torque_on_base_Nm": _torque_peaks(sim),
+        "peak_torque_on_base_Nm": peak_reaction_torques(sim),
         "wall_time_s": sim.info["wall_time_s"],
     }
-
-
-def _write_figures(output_dir: Path, formats, mission_only, kinematic, balance_only, balanced):
-    """Figs. 2-5: ``({"fig2": [files], ...}, {"fig2": Figure, ...})``."""
-    return paper_figure_set(
-        output_dir, FIGURE_STEMS, formats, mission_only, kinematic, balance_only, balanced
-    )
 
 
 def _summary(
@@ -211,8 +196,8 @@ def scenario_study(
         with _timed(f"{name} (Figs. 4, 5)"):
             balanced[method] = simulate_plan(robot, plans[method], sim_opts)
 
-    figures, objects = _write_figures(
-        output_dir, formats, mission_only, kinematic, balance_only, balanced
+    figures, objects = paper_figure_set(
+        output_dir, FIGURE_STEMS, formats, mission_only, kinematic, balance_only, balanced
     )
     summary = _summary(scenario, sim_opts, mission_only, plans, status, balance_only, balanced)
     summary["figures"] = {k: [p.name for p in v] for k, v in figures.items()}
