@@ -32,14 +32,8 @@ _UNITS = {"": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
 
 @dataclass
 class Entry:
-    """One artefact of the cache with its record (if any).
-
-    Attributes:
-        kind: one of :data:`KINDS`.
-        name: the artefact's path relative to the cache folder.
-        files: the artefact and its record.
-        size: bytes of all its files.
-        last_used: POSIX time of the last use (latest modification of its files).
+    """One artefact of the cache with its record (if any); ``name`` is its path relative to the
+    cache folder, ``last_used`` the latest modification of its files (POSIX time).
     """
 
     kind: str

@@ -113,12 +113,7 @@ def _columns(rows: Sequence[dict], order: Sequence[str] | None = None) -> list[s
 
 
 def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
-    """Columns and rows of ``results.csv``, rows in case-index order.
-
-    Columns: ``index, case_id, method, status``, the parameters (first-seen order),
-    :data:`METRICS` (those some case has), ``mission_only.*`` (:data:`BASELINE`),
-    ``error_type``, ``error_message``, ``time.*`` (:data:`TIMES`).
-    """
+    """Columns and rows of ``results.csv`` (columns: ``docs/sweeps.md``), rows in case-index order."""
     rows = [_split(r)[0] for r in sorted(results, key=lambda r: r["index"])]
     if not rows:
         return [*KEY_COLUMNS, "status"], []
