@@ -328,14 +328,10 @@ def _cmd_paper_figures(args) -> int:
     return EXIT_OK
 
 
-#: Metric shown in the sweep's progress lines.
-MAX_DRIFT_KEY = "max_drift_rad"
-
-
 def _sweep_progress(record: dict, done: int, total: int) -> None:
     """One log line per finished case of a sweep."""
     metrics = record.get("metrics") or {}
-    drift = metrics.get(MAX_DRIFT_KEY)
+    drift = metrics.get("max_drift_rad")
     what = (
         f"max drift {drift:.3g} rad"
         if isinstance(drift, float)
