@@ -58,14 +58,8 @@ def _checked_plan(plan) -> BalanceResult:
 
 def plan_mission_only(task: Task | str | Path) -> BalanceResult:
     """Phase I (paper Fig. 2): the base attitude with the mission arm moving and the balance arm
-    held at its start, integrated from momentum conservation: the reference of every plan.
-
-    Args:
-        task: a loaded task (:func:`balance_opt.tasks.task.load_task`).
-
-    Returns:
-        A result with ``method="mission-only"``; for a task with a capture, both phases
-        joined at the capture (:func:`balance_opt.app.capture.plan_captured`), as every method.
+    held at its start, integrated from momentum conservation: the reference of every plan
+    (``method="mission-only"``).
     """
     from balance_opt.analytic.phases import phase_one
 
@@ -79,12 +73,6 @@ def plan_mission_only(task: Task | str | Path) -> BalanceResult:
 
 def plan_analytic(task: Task | str | Path) -> BalanceResult:
     """Phase II: the analytic balance law (Eq. 31, 32) rolled out with the task's options.
-
-    Args:
-        task: a loaded task.
-
-    Returns:
-        A result with ``method="analytic"``.
 
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
@@ -159,13 +147,9 @@ def plan(
     models: ModelCache | None = None,
     executor: Any | None = None,
 ) -> BalanceResult:
-    """The plan of ``method``: the one dispatch of ``balance-opt plan`` and of the sweep cases.
-
-    Args:
-        task: the task.
-        method: ``"mission-only"`` (the reference), ``"analytic"`` or ``"optimal"``.
-        solver_options, warm_start, models, executor: for the optimal method (see
-            :func:`plan_optimal`).
+    """The plan of ``method`` (``"mission-only"``, ``"analytic"`` or ``"optimal"``): the one
+    dispatch of ``balance-opt plan`` and of the sweep cases. The other arguments are those of
+    :func:`plan_optimal`, for the optimal method.
 
     Raises:
         InputError: an unknown method.
@@ -181,15 +165,9 @@ def plan(
 
 
 def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
-    """Forward-dynamics simulation of a plan with the task's simulation options
-    (``simulation:``): joint controllers track the plan, the base floats.
-
-    Args:
-        task: the task the plan was made for.
-        plan: any plan of that task (analytic, optimal, mission arm alone).
-
-    Returns:
-        The simulated motion, its joint torques and the arms' wrenches on the base.
+    """Forward-dynamics simulation of a plan of ``task`` with its simulation options: joint
+    controllers track the plan, the base floats. Returns the simulated motion, its joint torques
+    and the arms' wrenches on the base.
     """
     from balance_opt.dynamics.simulation import simulate_plan
 
