@@ -1,21 +1,7 @@
-"""What the cache holds, its size bound, and clearing it (``balance-opt cache``).
+"""What the cache holds, its size bound, and clearing it (``balance-opt cache``, ``docs/cache.md``).
 
-The entries of the cache folder (:func:`balance_opt.cache.default_cache_dir`) by kind:
-
-* ``planner kernels``: ``balance_kernels_<hash>.so`` and its record, one per robot and problem
-  structure (:mod:`balance_opt.optimal.codegen`);
-* ``planner models``: the planner's symbolic functions of each robot (``planner-models/``,
-  :mod:`balance_opt.optimal.model_store`);
-* ``bridge``: the Pinocchio-CasADi bridge program and the functions it generated per robot
-  (``pinocchio-bridge/``, :mod:`balance_opt.model.bridge`);
-* ``Ipopt options``: the option catalog of the installed CasADi's Ipopt;
-* ``temporary``: builds under way, or left by killed builds (removed by
-  :func:`~balance_opt.cache.clean_stale`).
-
-The size bound: after each kernel build, while the folder is larger than :func:`size_limit`
-(``$BALANCE_OPT_CACHE_LIMIT``, default 2 GiB), the least recently used planner kernels, planner
-models and bridge functions are deleted (never the bridge program, whose build takes minutes).
-"""
+The size bound deletes the least recently used planner kernels, planner models and bridge
+functions, never the bridge program, whose build takes minutes."""
 
 from __future__ import annotations
 
@@ -46,14 +32,8 @@ _UNITS = {"": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
 
 @dataclass
 class Entry:
-    """One artefact of the cache with its record (if any).
-
-    Attributes:
-        kind: one of :data:`KINDS`.
-        name: the artefact's path relative to the cache folder.
-        files: the artefact and its record.
-        size: bytes of all its files.
-        last_used: POSIX time of the last use (latest modification of its files).
+    """One artefact of the cache with its record (if any); ``name`` is its path relative to the
+    cache folder, ``last_used`` the latest modification of its files (POSIX time).
     """
 
     kind: str

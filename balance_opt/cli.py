@@ -1,36 +1,8 @@
-"""Command line: ``balance-opt SUBCOMMAND ...``.
-
-Subcommands:
-
-* ``validate TASK...``: load and check task files, everything short of planning;
-  ``validate --schema`` (or ``schema``) prints the JSON Schema of task files;
-* ``inspect [TASK]``: robot summary and coupling measures (the paper robot without a task);
-* ``plan TASK``: balance plans (``--method analytic|optimal|both``), trajectories, metrics,
-  figures and the HTML report;
-* ``simulate TASK``: the same, then each plan through forward dynamics;
-* ``compare TASK``: both methods, simulated, and the comparison report;
-* ``paper-figures``: the paper's study (Figs 2-5) on the Table 1 robot (``paper_fig5`` and
-  ``capture_task``);
-* ``sweep SWEEP``: many tasks at once (:mod:`balance_opt.sweep.spec`), on a process pool or a
-  Dask cluster;
-* ``view RESULT_DIR|TASK``: the 3D scene of a run's plans in a browser, served on 127.0.0.1
-  (:mod:`balance_opt.report.scene`);
-* ``cache [--clear]`` and ``robots [NAME]``: see :mod:`balance_opt.cli_tools`.
+"""Command line: ``balance-opt SUBCOMMAND ...`` (``balance-opt --help``).
 
 Exit codes: 0 success, 2 bad input (the message names the file, line and key), 1 solver failure
-(whatever was computed is still written), 130 interrupted (Ctrl-C or SIGTERM; nothing written),
-141 the reader of the output went away (``balance-opt validate --schema | head``: the code of a
-program ended by SIGPIPE, as ``cat`` gets, without a traceback).
-
-Progress of long work (stages, kernel compilation, the optimal planner's Ipopt iterations) goes
-to stderr (:mod:`balance_opt.progress`): an updating line on a terminal, one line per stage
-otherwise; ``-q`` turns it off.
-
-Outputs are all-or-nothing (:class:`~balance_opt.report.output_dir.OutputFolder`): the output folder
-is checked and locked before anything is computed (a folder that cannot be created, is in use by
-another run, or exists and is not empty without ``--force`` is exit 2), the files are written
-into a staging folder beside it, and that folder takes the place of the old one when complete.
-"""
+(whatever was computed is still written), 130 interrupted (nothing written), 141 the reader of
+the output went away (the code of a program ended by SIGPIPE, without a traceback)."""
 
 from __future__ import annotations
 
@@ -54,7 +26,6 @@ from balance_opt.cli_options import (
     default_output_folder,
     ipopt_options_of,
     method_option,
-    parse_solver_option,
     run_options,
 )
 from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
@@ -69,13 +40,11 @@ DESCRIPTION = (
     "law and an optimal planner, compared."
 )
 _HANDLER_FLAG = "_balance_opt_cli"
-#: Re-exported: the CLI's helpers as they were importable before cli_options.py split off.
-__all__ = ["build_parser", "default_output_folder", "main", "parse_solver_option"]
+__all__ = ["build_parser", "main"]
 
 log = logging.getLogger("balance_opt.cli")
 
 
-# =========================================================================================== helpers
 @contextlib.contextmanager
 def _early_output(args) -> Iterator[OutputFolder | None]:
     """The ``--output`` folder opened (checked, locked, staging created) before anything else,
@@ -119,7 +88,6 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     return restore
 
 
-# =========================================================================================== commands
 def _cmd_schema(args) -> int:
     from balance_opt.tasks.task import task_json_schema
 
@@ -226,7 +194,6 @@ def _print_cartesian_goal(task) -> None:
     if goal:
         values = ", ".join(f"{name} {v:.6g}" for name, v in goal.items())
         print(f"mission goal found by inverse kinematics: {values} [rad or m]")
-
 
 
 @contextlib.contextmanager
@@ -361,14 +328,10 @@ def _cmd_paper_figures(args) -> int:
     return EXIT_OK
 
 
-#: Metric shown in the sweep's progress lines.
-MAX_DRIFT_KEY = "max_drift_rad"
-
-
 def _sweep_progress(record: dict, done: int, total: int) -> None:
     """One log line per finished case of a sweep."""
     metrics = record.get("metrics") or {}
-    drift = metrics.get(MAX_DRIFT_KEY)
+    drift = metrics.get("max_drift_rad")
     what = (
         f"max drift {drift:.3g} rad"
         if isinstance(drift, float)
@@ -501,7 +464,6 @@ def _cmd_view(args) -> int:
     return EXIT_OK
 
 
-# =========================================================================================== parser
 def _add_check_commands(sub) -> None:
     """``validate``, ``schema`` and ``inspect``: everything short of planning."""
     p = sub.add_parser("validate", help="check task files (everything short of planning)")

@@ -1,7 +1,4 @@
-"""The options the ``balance-opt`` subcommands share (``-v``/``-q``, ``--output``, ``--force``,
-``--solver-option``, ``--method``) and how they are read: Ipopt option values, the default
-output folder. The commands themselves are in :mod:`balance_opt.cli`.
-"""
+"""The options the ``balance-opt`` subcommands share and how they are read."""
 
 from __future__ import annotations
 

@@ -1,10 +1,4 @@
-"""The housekeeping subcommands of ``balance-opt``: ``cache`` and ``robots``.
-
-* ``cache [--list] [--clear]``: where the cache is, its size and bound, its entries by kind
-  (each entry with ``--list``); ``--clear`` deletes them (each under its lock);
-* ``robots [NAME]``: the robots of example-robot-data usable as ``robot: {example: NAME}``, with
-  their movable joints by chain (to pick arms), and those that fail to load, with the reason.
-"""
+"""The housekeeping subcommands of ``balance-opt``: ``cache`` and ``robots``."""
 
 from __future__ import annotations
 

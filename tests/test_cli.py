@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 import balance_opt
-from balance_opt.cli import main, parse_solver_option
+from balance_opt.cli import main
+from balance_opt.cli_options import parse_solver_option
 from balance_opt.model.library import shipped_urdf
 from balance_opt.report.outputs import read_npz_result
 from balance_opt.tasks.task import task_json_schema

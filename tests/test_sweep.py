@@ -34,10 +34,14 @@ from balance_opt.sweep.engine import (
     run_cases,
     write_json_atomic,
 )
-from balance_opt.sweep.report import is_timing_column, read_table_csv, results_table
 from balance_opt.sweep.run import run_sweep
 from balance_opt.sweep.spec import load_sweep, parse_sweep
-from balance_opt.sweep.tables import diagnostics_table
+from balance_opt.sweep.tables import (
+    diagnostics_table,
+    is_timing_column,
+    read_table_csv,
+    results_table,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_TASK = ROOT / "examples" / "capture_task.yaml"

@@ -1,23 +1,11 @@
 """Planning a task with a capture (``capture:``) as two phases joined at the capture time.
 
-Before the capture every method plans the robot as usual, over ``[0, t_c]``, with the task's
-momentum. At ``t_c`` the target is attached to the mission end effector
-(:mod:`balance_opt.model.capture`): the joint positions and rates run on, the base twist jumps,
-and the momentum becomes the robot's plus the target's. After it, the same method plans the
-robot with the target (:func:`~balance_opt.model.capture.attach_target`) over ``[t_c, T]``
-with that momentum, from the attitude and balance configuration the first phase left.
-
-Each phase is planned in the frame of its own initial base attitude (the second with its
-momentum ``R_c^T h_after`` and the identity as start), and its attitudes are turned back into
-the world frame: every planner, the analytic law's feedback included, then holds the attitude
-its phase started from. The optimal planner's first phase ends with the balance arm in its
-start condition of the second (``rest`` or ``still``), so that the balance joints' rates (and
-with ``rest`` their accelerations) are continuous through the capture; the task's end
-conditions (``final_configuration``, ``terminal_attitude_bound``) apply to the second phase,
-and the second phase's attitude terms (cost, bounds) are measured from the attitude at the
-capture. ``horizon`` is each phase's own duration, and the intervals are split between the
-phases in proportion to their durations (:func:`phase_intervals`).
-"""
+At ``t_c`` the target is attached to the mission end effector (:mod:`balance_opt.model.capture`):
+joint positions and rates run on, the base twist jumps and the momentum gains the target's.
+Each phase is planned in the frame of its own initial base attitude and turned back into the
+world frame, so every planner (the law's feedback included) holds the attitude its phase
+started from. The optimal first phase ends in the second's balance start condition so the
+balance rates are continuous through the capture; end conditions apply to the second phase."""
 
 from __future__ import annotations
 
@@ -182,7 +170,6 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     )
 
 
-# ------------------------------------------------------------------------------ the methods
 def _plan_mission_only(task, p: Phase) -> BalanceResult:
     from balance_opt.analytic.phases import phase_one
 

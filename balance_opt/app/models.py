@@ -1,17 +1,9 @@
 """Planner models kept for reuse: one :class:`~balance_opt.optimal.model.PlannerModel` per robot
 kinematics, in an explicit cache object that its owner passes around.
 
-Building a planner model (the symbolic momentum maps, the compiled point kernels) and each
-compiled NLP structure it caches takes seconds; solving a case takes less. Whoever plans many
-tasks keeps one :class:`ModelCache`: :func:`balance_opt.app.pipeline.run_task` makes one per run,
-a sweep worker process keeps one for its life (:mod:`balance_opt.sweep.runner`).
-
-The key is the robot's kinematic and inertial content (its locked URDF text, its arms and their
-end-effector frames), not the Python object: two tasks that load the same robot share a model.
-Joint limits are not part of the key: they are numeric bounds of the NLP, and the planner takes
-the task's robot (with its limits) next to the model
-(:func:`~balance_opt.optimal.solve.build_balance_nlp`'s ``robot``).
-"""
+Building a model and its compiled NLPs takes seconds, longer than solving a case. The key is the
+robot's kinematic and inertial content, not the Python object, so two tasks that load the same
+robot share a model. Joint limits are not part of it: they are numeric bounds of the NLP."""
 
 from __future__ import annotations
 

@@ -1,27 +1,8 @@
-"""Running a task: the mission arm alone (Phase I, the reference), the analytic and/or optimal
-balance plans, optionally each checked by forward dynamics, then every output written.
-
-The CLI's ``plan``, ``simulate`` and ``compare`` commands and the Python API share this module
-(its public names are also the package's: ``balance_opt.run_task``, ...)::
-
-    import balance_opt as bo
-
-    task = bo.load_task("examples/capture_task.yaml")
-    analytic = bo.plan_analytic(task)
-    run = bo.run_task(task, plans={"analytic": analytic}, simulate=True,
-                      output_dir="results/capture_task")   # plans only the optimal method
-    run.results["optimal"].max_drift
+"""Running a task: the mission arm alone (the reference), the analytic and/or optimal balance
+plans, optionally each checked by forward dynamics, then every output written.
 
 A solver failure does not stop the run: the failing method's best iterate is kept, written and
-marked in ``metrics.json`` and the report, and :attr:`TaskRun.failures` names it (the CLI then
-exits with code 1).
-
-Outputs are all-or-nothing (:class:`~balance_opt.report.output_dir.OutputFolder`): the output folder
-is checked and locked before anything is computed, the files are written into a staging folder
-beside it, and that folder takes the place of the old one only when every file is written. An
-error or an interruption (Ctrl-C, SIGTERM: :mod:`balance_opt.interrupts`) leaves the old
-folder as it was.
-"""
+marked, and :attr:`TaskRun.failures` names it (the CLI then exits with code 1)."""
 
 from __future__ import annotations
 
@@ -33,17 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from balance_opt.app.models import ModelCache
-from balance_opt.app.run_files import (  # noqa: F401  (write_run, write_figures: public here too)
-    FIGURES,
-    METRICS_FILE,
-    REFERENCE,
-    REPORT_FILE,
-    TaskRun,
-    _timed,
-    run_geometry,
-    write_figures,
-    write_run,
-)
+from balance_opt.app.run_files import REFERENCE, TaskRun, _timed, run_geometry, write_run
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.report.output_dir import OutputFolder
@@ -58,7 +29,6 @@ log = logging.getLogger(__name__)
 METHODS = ("analytic", "optimal")
 
 
-# =========================================================================================== methods
 def checked_task(task: Task | str | Path, what: str = "task") -> Task:
     """``task``, or the task loaded from the file it names (a path or a string).
 
@@ -88,14 +58,8 @@ def _checked_plan(plan) -> BalanceResult:
 
 def plan_mission_only(task: Task | str | Path) -> BalanceResult:
     """Phase I (paper Fig. 2): the base attitude with the mission arm moving and the balance arm
-    held at its start, integrated from momentum conservation: the reference of every plan.
-
-    Args:
-        task: a loaded task (:func:`balance_opt.tasks.task.load_task`).
-
-    Returns:
-        A result with ``method="mission-only"``; for a task with a capture, both phases
-        joined at the capture (:func:`balance_opt.app.capture.plan_captured`), as every method.
+    held at its start, integrated from momentum conservation: the reference of every plan
+    (``method="mission-only"``).
     """
     from balance_opt.analytic.phases import phase_one
 
@@ -109,12 +73,6 @@ def plan_mission_only(task: Task | str | Path) -> BalanceResult:
 
 def plan_analytic(task: Task | str | Path) -> BalanceResult:
     """Phase II: the analytic balance law (Eq. 31, 32) rolled out with the task's options.
-
-    Args:
-        task: a loaded task.
-
-    Returns:
-        A result with ``method="analytic"``.
 
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
@@ -139,19 +97,12 @@ def plan_optimal(
     """The optimal planner with the task's options.
 
     Args:
-        task: the task.
-        solver_options: Ipopt options overriding ``optimal.ipopt`` (``--solver-option``).
-        warm_start: an analytic result to start from (with ``optimal.initial_guess: analytic``),
-            instead of rolling out the law again (not used for a task with a capture, whose
-            phases start from their own guesses).
-        models: the planner models to reuse (with their compiled NLPs); without one, the
-            model is built for this call only.
-        executor: what runs the starts of ``optimal.starts > 1`` (anything with ``map``, e.g.
-            :class:`balance_opt.sweep.engine.LocalPoolEngine`); ``None``: this process.
-
-    Returns:
-        A result with ``method="optimal"``, re-simulated on a fine grid; ``info`` holds the
-        solver's status, iterations, objective and wall times.
+        solver_options: Ipopt options overriding ``optimal.ipopt``.
+        warm_start: an analytic result to start from (``optimal.initial_guess: analytic``),
+            instead of rolling out the law again (not for a task with a capture).
+        models: the planner models to reuse; without one, the model is built for this call only.
+        executor: what runs the starts of ``optimal.starts > 1`` (anything with ``map``);
+            ``None``: this process.
 
     Raises:
         InputError: the task asks for something the optimal planner cannot do.
@@ -196,13 +147,9 @@ def plan(
     models: ModelCache | None = None,
     executor: Any | None = None,
 ) -> BalanceResult:
-    """The plan of ``method``: the one dispatch of ``balance-opt plan`` and of the sweep cases.
-
-    Args:
-        task: the task.
-        method: ``"mission-only"`` (the reference), ``"analytic"`` or ``"optimal"``.
-        solver_options, warm_start, models, executor: for the optimal method (see
-            :func:`plan_optimal`).
+    """The plan of ``method`` (``"mission-only"``, ``"analytic"`` or ``"optimal"``): the one
+    dispatch of ``balance-opt plan`` and of the sweep cases. The other arguments are those of
+    :func:`plan_optimal`, for the optimal method.
 
     Raises:
         InputError: an unknown method.
@@ -218,15 +165,9 @@ def plan(
 
 
 def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
-    """Forward-dynamics simulation of a plan with the task's simulation options
-    (``simulation:``): joint controllers track the plan, the base floats.
-
-    Args:
-        task: the task the plan was made for.
-        plan: any plan of that task (analytic, optimal, mission arm alone).
-
-    Returns:
-        The simulated motion, its joint torques and the arms' wrenches on the base.
+    """Forward-dynamics simulation of a plan of ``task`` with its simulation options: joint
+    controllers track the plan, the base floats. Returns the simulated motion, its joint torques
+    and the arms' wrenches on the base.
     """
     from balance_opt.dynamics.simulation import simulate_plan
 
@@ -245,7 +186,6 @@ def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
 simulate_result = simulate
 
 
-# =========================================================================================== run
 def run_task(
     task: Task,
     methods: Sequence[str] = METHODS,
@@ -262,41 +202,29 @@ def run_task(
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
     Args:
-        task: a loaded task (:func:`balance_opt.tasks.task.load_task`).
-        methods: among ``"analytic"`` and ``"optimal"``; the mission arm alone is always
-            computed as the reference.
-        simulate: check each plan in a forward-dynamics simulation (and the reference too).
-        output_dir: where to write, all-or-nothing (see the module docstring): a folder, or an
-            :class:`~balance_opt.report.output_dir.OutputFolder` (possibly opened already);
-            ``None`` writes nothing.
+        task: a loaded task.
+        methods: among ``"analytic"`` and ``"optimal"``; the mission arm alone is always computed.
+        simulate: check each plan (and the reference) in a forward-dynamics simulation.
+        output_dir: a folder or an opened :class:`~balance_opt.report.output_dir.OutputFolder`,
+            written all-or-nothing; ``None`` writes nothing.
         solver_options: Ipopt options overriding the task's ``optimal.ipopt``.
-        models: planner models to reuse across runs; by default this run keeps its own.
-        force: replace an output folder that exists and is not empty (once the new one is
-            complete); without it such a folder is refused before anything is computed.
-        plans: results already computed for this task, ``{"mission-only" | "analytic" |
-            "optimal": BalanceResult}``: used as they are instead of planning again (a given
-            analytic plan is also the optimal planner's warm start). A given plan whose solver
-            failed (``info["success"]`` false) is recorded in ``failures``.
-        simulations: simulations already computed, ``{name: SimulationResult}`` (with
-            ``simulate``), likewise reused.
-        executor: what runs the optimal planner's starts when ``optimal.starts > 1`` (see
-            :func:`plan_optimal`); the caller creates it and shuts it down (the CLI: a process
-            pool of the sweep engine's kind for the one command).
-        robustness: replay every plan on perturbed models (the task's ``robustness``
-            settings, :mod:`balance_opt.motion.robustness`); ``None``: as the task's
-            ``robustness.enabled`` says (off when unset, as in ``balance-opt plan``).
+        models: planner models to reuse across runs.
+        force: replace a non-empty output folder once the new one is complete.
+        plans: ``{method: BalanceResult}`` already computed, used instead of planning again (a
+            given analytic plan is also the optimal warm start).
+        simulations: ``{name: SimulationResult}`` already computed, likewise reused.
+        executor: runs the optimal planner's starts (see :func:`plan_optimal`); owned by the caller.
+        robustness: replay every plan on perturbed models; ``None``: the task's
+            ``robustness.enabled``.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
-        in ``run.results`` and was written). ``run.files`` are the paths in ``output_dir``.
+        in ``run.results`` and was written).
 
     Raises:
-        InputError: an unknown method, or a method the task cannot use; a given plan of
-            another method, of other joints or of another duration than the task's; an output
-            folder that cannot be created, is in use by another run, or is not empty without
-            ``force`` (all checked before anything is computed).
-        KeyboardInterrupt: Ctrl-C or SIGTERM (:class:`~balance_opt.interrupts.Interrupted`);
-            nothing is written.
+        InputError: a bad method or given plan, or an unusable output folder (all checked before
+            anything is computed).
+        KeyboardInterrupt: Ctrl-C or SIGTERM; nothing is written.
     """
     task = checked_task(task)
     methods = _checked_methods(task, methods)

@@ -133,7 +133,6 @@ def _timed(what: str):
     log.info("%s: done in %.2f s", what, time.perf_counter() - start)
 
 
-# =========================================================================================== writing
 def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
     from balance_opt.dynamics.inverse_dynamics import plan_joint_torques

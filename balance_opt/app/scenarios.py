@@ -1,16 +1,7 @@
 """balance-opt's scenarios on the Table 1 robot, defined once for the study, the examples, the
 benchmarks and the tests (``examples/capture_task.yaml`` and ``examples/paper_fig5.yaml`` hold
-the same numbers).
-
-The paper gives no start, goal, duration, joint axes or mount points: every number here is
-balance-opt's choice, not the paper's.
-
-* :func:`capture_task`: the hard case. The shipped reading of Table 1 (yaw-pitch-pitch arms),
-  whose balance start is exactly singular, so Eq. 31 has no solution there.
-* :func:`paper_fig5`: the reading, start and mission the Fig. 5 study found
-  (``docs/paper_fig5_study.md``), where exact Eq. 31 keeps the base still within the balance
-  arm's limits, as the paper's Fig. 5 shows.
-"""
+the same numbers). The paper gives no start, goal, duration, joint axes or mount points: every
+number here is balance-opt's choice."""
 
 from __future__ import annotations
 

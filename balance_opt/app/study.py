@@ -1,22 +1,9 @@
-"""The paper's simulation study: Figs. 2-5 of a scenario, each plan checked by forward dynamics.
+"""The paper's simulation study: Figs. 2-5 of a scenario, each plan checked by forward dynamics
+(``docs/paper_fig5_study.md``).
 
-* Fig. 2: base attitude due to the mission arm alone (balance arm held at its start): dynamic
-  simulation, with the kinematic replay (momentum conservation) dashed. It does not depend on
-  the balance plan.
-* Fig. 3: base attitude due to the balance arm alone: each plan's balance motion replayed by
-  the simulator with the mission arm held at its start (the motion is non-holonomic, so this
-  is not the negative of Fig. 2).
-* Fig. 4: torque the arms exert on the base after balance control, per arm and summed.
-* Fig. 5: base attitude after balance control (both arms tracking the plan).
-
-:func:`paper_study` runs two parts (:data:`PAPER_PARTS`), each in a subfolder: ``paper_fig5``,
-the paper's law (exact Eq. 31) on the reading of Table 1, start and mission where it does what
-the paper's Fig. 5 shows (``docs/paper_fig5_study.md``); and ``capture_task``, the law
-(damped least squares: its start is exactly singular) against the optimal plan on balance-opt's
-hard case. Every figure overlays the plans asked for; a plan whose solver failed is still shown
-(its last iterate) and flagged in the summary. ``study.json`` in each folder holds the figures
-of merit.
-"""
+Fig. 3 replays each balance motion with the mission arm held: the motion is non-holonomic, so it
+is not the negative of Fig. 2. A plan whose solver failed is still shown (its last iterate) and
+flagged in the summary."""
 
 from __future__ import annotations
 
@@ -41,6 +28,7 @@ from balance_opt.errors import InputError, SolverError
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
+from balance_opt.report.outputs import peak_reaction_torques
 from balance_opt.report.plots import FORMATS, paper_figure_set
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
 
@@ -115,15 +103,6 @@ def _plain(value):
     return str(value)
 
 
-def _torque_peaks(sim: SimulationResult) -> dict[str, float]:
-    """Largest torque norm on the base per arm and summed [N m]."""
-    out = {
-        arm: float(np.linalg.norm(w[:, 3:], axis=1).max()) for arm, w in sim.arm_wrenches.items()
-    }
-    out["total"] = float(np.linalg.norm(sim.total_wrench[:, 3:], axis=1).max())
-    return out
-
-
 def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
     return {
         "max_drift_rad": float(sim.angle.max()),
@@ -131,16 +110,9 @@ def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
         "peak_base_rate_rad_s": float(np.linalg.norm(sim.omega, axis=1).max()),
         "max_tracking_error_rad": sim.max_tracking_error,
         "max_relative_momentum_residual": float(sim.momentum_residual.max()),
-        "peak_torque_on_base_Nm": _torque_peaks(sim),
+        "peak_torque_on_base_Nm": peak_reaction_torques(sim),
         "wall_time_s": sim.info["wall_time_s"],
     }
-
-
-def _write_figures(output_dir: Path, formats, mission_only, kinematic, balance_only, balanced):
-    """Figs. 2-5: ``({"fig2": [files], ...}, {"fig2": Figure, ...})``."""
-    return paper_figure_set(
-        output_dir, FIGURE_STEMS, formats, mission_only, kinematic, balance_only, balanced
-    )
 
 
 def _summary(
@@ -188,22 +160,13 @@ def scenario_study(
     formats: Sequence[str] = FORMATS,
     backend: str = "auto",
 ) -> StudyResult:
-    """Figs. 2-5 of one scenario (see the module docstring).
+    """Figs. 2-5 of one scenario, written to ``output_dir`` with ``study.json``.
 
     Args:
-        scenario: the robot, mission and balance start.
-        output_dir: folder for the figures (``fig2_*.png``/``.pdf`` ...) and ``study.json``;
-            created if missing.
         methods: the balance plans to compute and overlay, among ``"analytic"`` and ``"optimal"``.
         simulation: simulator settings (default: RK4 at 1 ms, PD tracking, outputs every 10 ms).
         law: settings of the analytic law (default: the scenario's, else damped least squares).
-        planner: settings of the optimal planner.
-        formats: figure file formats.
-        backend: symbolic backend of the optimal planner (``"auto"``, ``"pinocchio"``,
-            ``"adam"``).
-
-    Returns:
-        The plans, simulations, figures and summary.
+        backend: symbolic backend of the optimal planner.
 
     Raises:
         InputError: an unknown method.
@@ -233,8 +196,8 @@ def scenario_study(
         with _timed(f"{name} (Figs. 4, 5)"):
             balanced[method] = simulate_plan(robot, plans[method], sim_opts)
 
-    figures, objects = _write_figures(
-        output_dir, formats, mission_only, kinematic, balance_only, balanced
+    figures, objects = paper_figure_set(
+        output_dir, FIGURE_STEMS, formats, mission_only, kinematic, balance_only, balanced
     )
     summary = _summary(scenario, sim_opts, mission_only, plans, status, balance_only, balanced)
     summary["figures"] = {k: [p.name for p in v] for k, v in figures.items()}

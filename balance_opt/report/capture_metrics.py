@@ -49,14 +49,8 @@ def _block(info: Mapping[str, Any], t, quaternion, t_c: float) -> dict[str, Any]
 
 
 def capture_metrics(task, results: Mapping[str, Any], simulations=None) -> dict[str, Any] | None:
-    """The ``capture`` block of ``metrics.json`` (``None`` for a task without a capture).
-
-    Per method (and per simulation, under ``simulated``): the base angular velocity's jump
-    (base frame) [rad/s], the end-effector impulse and the base impulse through the coupling
-    factors and the base body's momentum jump ([N s; N m s], base frame: see
-    :class:`~balance_opt.model.capture.CaptureState`), the momentum before and after (world),
-    and the drifts: at the capture and at most before it (from the start), at most and at the
-    end after it (from the attitude at the capture) [rad].
+    """The ``capture`` block of ``metrics.json`` (``docs/outputs.md``); ``None`` for a task
+    without a capture.
     """
     target = getattr(task, "target", None)
     if target is None:

@@ -1,11 +1,9 @@
 """Margins of a grid of panels computed from the font sizes and the tick labels, in inches.
 
-Matplotlib's constrained layout measures every text of every panel by rendering it, once per
-file written: for the report's figures that is half the drawing time. The figures balance-opt
-draws have a known shape (a grid of panels sharing the time axis, the y label left of the first
-column, a legend above), so their margins follow from the font sizes and the length of the tick
-labels alone, estimated from the widths of the DejaVu Sans glyphs.
-"""
+Constrained layout renders every text once per file written, which is slow. balance-opt's
+figures have a known shape (panels sharing the time axis, a y label left of the first column, a
+legend above), so their margins follow from font sizes and tick-label lengths alone, estimated
+from the DejaVu Sans glyph widths."""
 
 from __future__ import annotations
 

@@ -1,21 +1,11 @@
 """All-or-nothing output folders: a run writes into a staging folder beside its target and moves
 it into place only when every file is complete.
 
-* The location is checked before any work: the staging folder is created at once, so a target
-  whose parent is a regular file, a read-only folder or ``/proc`` fails in milliseconds.
-* A lock (``fcntl.flock`` on a file beside the target, :class:`FolderLock`) refuses a second run
-  into the same folder while the first one runs; the kernel releases it when its holder dies,
-  even by ``kill -9``.
-* Success swaps the staging folder and the old target in one atomic ``renameat2`` exchange where
-  the system has it (two renames otherwise), then deletes the old folder: a reader sees either
-  the whole old run or the whole new one, and never a file of an earlier run beside new ones.
-* Failure or interruption deletes the staging folder and leaves the target as it was. Staging
-  folders of runs killed before they could clean up are removed by the next run into the same
-  place.
-
-Single files that are rewritten in place by runs that add to a folder (a sweep's table and
-summary) go through :func:`replaced_atomically` instead.
-"""
+The staging folder is created at once so a bad location fails before any work. A ``flock`` on a
+file beside the target refuses a second run into the same folder (the kernel releases it even
+after ``kill -9``). Success swaps the folders in one ``renameat2`` exchange where the system has
+it, so a reader never sees files of two runs side by side. Single files rewritten in place (a
+sweep's tables) go through :func:`replaced_atomically`."""
 
 from __future__ import annotations
 
@@ -173,18 +163,11 @@ def replaced_atomically(path: str | Path) -> Iterator[Path]:
 class OutputFolder:
     """A target folder written all-or-nothing; use as a context manager around the run.
 
-    Example::
-
-        with OutputFolder("results/capture", force=True) as out:
-            write_everything(out.staging)   # files go to the staging folder
-        # here results/capture holds exactly the files written above
-
-    ``with`` blocks nest: the outermost one commits, an error in any of them aborts. So a
-    caller can check and lock the folder before its own work and hand it to
-    :func:`~balance_opt.app.pipeline.run_task`, which then writes into it without committing.
+    ``with`` blocks nest: the outermost one commits, an error in any of them aborts, so a caller
+    can check and lock the folder before its own work and hand it to
+    :func:`~balance_opt.app.pipeline.run_task`.
 
     Args:
-        target: the folder the user asked for.
         force: replace a target that exists and is not empty (only once the new run is
             complete); without it such a target is refused before any work.
     """

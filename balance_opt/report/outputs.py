@@ -1,15 +1,5 @@
 """What a run writes: trajectories (CSV, NPZ), figures of merit (``metrics.json``) and the
-versions of the software that computed them.
-
-* ``<method>.csv``: a ``time`` column [s], one column per arm joint by name [rad; m for a
-  prismatic joint] (mission joints first, then balance joints), the base attitude as a
-  quaternion (``base_qx .. base_qw``) and as roll, pitch, yaw (``base_roll``, ``base_pitch``,
-  ``base_yaw``) [rad], and the rotation angle from the start (``base_angle``) [rad]. A mission
-  CSV task (``mission: {type: csv}``) reads it back.
-* ``<method>.npz``: every array of the :class:`~balance_opt.result.BalanceResult` by its field
-  name, the joint names, and ``info`` as JSON text.
-* ``metrics.json``: see :func:`method_metrics` and :func:`run_metrics`.
-"""
+versions of the software that computed them (formats: ``docs/outputs.md``)."""
 
 from __future__ import annotations
 
@@ -38,7 +28,6 @@ log = logging.getLogger(__name__)
 METRICS_FORMAT = 3
 
 
-# =========================================================================================== versions
 def _distribution_version(name: str) -> str:
     try:
         return importlib.metadata.version(name)
@@ -62,9 +51,8 @@ def software_versions() -> dict[str, str]:
     }
 
 
-# =========================================================================================== trajectories
 def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
-    """Column names and (T, k) values of the CSV of ``result`` (see the module docstring)."""
+    """Column names and (T, k) values of the CSV of ``result`` (``docs/outputs.md``)."""
     names = [
         "time",
         *result.mission_joints,
@@ -120,7 +108,6 @@ def write_trajectory_npz(
     return path
 
 
-# =========================================================================================== metrics
 def to_json(value: Any) -> Any:
     """Plain JSON data from numbers, arrays, tuples and dicts; non-finite floats become None."""
     if isinstance(value, Mapping):
@@ -193,17 +180,10 @@ def _has_limit(limit: float) -> bool:
 def effort_metrics(
     result: BalanceResult, robot: FloatingRobot, h0=None, torques: np.ndarray | None = None
 ) -> dict[str, Any]:
-    """Effort margins and torque profile of a plan, from the free-floating inverse dynamics of
-    its joint motion: ``torques`` when the caller has them, else
-    :func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques` for the momentum ``h0``.
-
-    Returns:
-        ``{"joints": {joint: {...}}, "min_relative_margin": r, "balance_min_relative_margin": r,
-        "violations": [...]}``; per joint ``peak_Nm`` (largest ``|tau|``), ``peak_time_s`` (its
-        time), ``limit_Nm``, ``margin_Nm`` (limit - peak, negative where broken) and
-        ``relative_margin`` (margin / limit), the last three ``None`` where the URDF gives no
-        effort limit, with ``status`` ``"inside"`` or ``"broken"`` or ``"no limit"``. Units
-        N m (N for a prismatic joint).
+    """Effort margins and torque profile of a plan (the ``effort`` block of ``docs/outputs.md``),
+    from the free-floating inverse dynamics of its joint motion: ``torques`` when the caller has
+    them, else :func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques` for the momentum
+    ``h0``. Units N m (N for a prismatic joint).
     """
     names = (*result.mission_joints, *result.balance_joints)
     tau = plan_joint_torques(result, robot, h0) if torques is None else torques
@@ -277,11 +257,10 @@ def peak_reaction_torques(simulation) -> dict[str, float]:
 
 
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
-    """Status, iterations and wall times of the solver that produced a result, from its
-    ``info`` (keys of :meth:`balance_opt.optimal.solve.BalanceNLP.solve`); ``None`` where the method
-    has no such figure (the analytic law has no iterations). The iterations and the solve time
-    are those of every Ipopt solve behind the plan (the peak objective's stages, the
-    refinement's re-solves); the status, objective and ``wall_time_s`` those of the last."""
+    """Status, iterations and times of the solver that produced a result, from its ``info``
+    (the ``solver`` block of ``docs/outputs.md``); ``None`` where the method has no such figure
+    (the analytic law has no iterations).
+    """
     wall = info.get("wall_time_s")
     wall = wall if isinstance(wall, Mapping) else {}
     return {
@@ -320,21 +299,11 @@ def method_metrics(
     clearance=None,
     simulated_clearance=None,
 ) -> dict[str, Any]:
-    """Figures of merit of one plan, plain JSON data.
+    """Figures of merit of one plan, plain JSON data (keys: ``docs/outputs.md``).
 
-    Keys: the result's :meth:`~BalanceResult.summary`; ``limit_margins`` (per joint, see
-    :func:`limit_margins`), ``min_limit_margin`` and ``balance_limit_margin`` per kind,
-    ``balance_relative_limit_margin`` (:func:`relative_limit_margins` of the balance joints);
-    ``peak_joint_rates_rad_s`` per joint (m/s for a prismatic joint, whatever the key says);
-    ``effort`` (:func:`effort_metrics`, for the system's momentum ``h0``, world frame, zero by
-    default, or of the plan's ``torques`` when given); ``violations`` (joint limits, then effort
-    limits) and their number ``limit_violations``, by kind in ``limit_violations_by_kind``
-    (position, velocity, acceleration, effort); ``warnings``
-    (:meth:`~balance_opt.result.BalanceResult.warnings`: an untrustworthy plan); ``solver``
-    (:func:`solver_metrics`);
-    ``details`` (the result's ``info`` without its bulky arrays); and, when a
-    ``simulation`` of the plan is given, ``simulation`` with the drift it produced, the tracking
-    error, the momentum residual and the peak reaction torques on the base [N m].
+    ``h0`` is the system's momentum (world frame, zero by default) for the effort figures, unless
+    the plan's ``torques`` are given; with a ``simulation`` of the plan, its drift, tracking error,
+    momentum residual and peak reaction torques are added.
     """
     margins = limit_margins(result, robot)
     names = (*result.mission_joints, *result.balance_joints)

@@ -1,18 +1,9 @@
 """Figures of a plan's base attitude and of the torque on the base (paper Figs. 2-5).
 
-Every function takes a mapping ``{name: result}`` of the curves to overlay (any object with
-``t`` and ``rpy``, such as :class:`~balance_opt.result.BalanceResult` or
-:class:`~balance_opt.dynamics.simulation.SimulationResult`; for torques, simulation results).
-The name is a method of :mod:`balance_opt.report.style` (``"optimal"``, ``"optimal:sim"``,
-``"mission-only:kinematic"``, ...) and gives the curve its colour, line style, marker and label;
-another name gets a style of its own and is its own label.
-
-The figures carry no title (a caption belongs to the text around them). They are
-:class:`matplotlib.figure.Figure` objects without pyplot state, built inside
-:func:`~balance_opt.report.style.styled` (nothing global changes), laid out by
-:mod:`balance_opt.report.figure_layout`. Given ``axes=``, a function draws into the caller's axes
-and writes nothing; given no ``stem``, it returns the figure and writes nothing.
-"""
+Every function takes ``{name: result}`` of the curves to overlay; the name is a method of
+:mod:`balance_opt.report.style` and gives the curve its look and label. The figures carry no
+title (a caption belongs to the text around them) and touch no pyplot state. Given ``axes=`` a
+function draws into the caller's axes; given no ``stem`` it writes nothing."""
 
 from __future__ import annotations
 
@@ -67,28 +58,16 @@ def attitude_figure(
     stem: str | Path | None = None,
     *,
     dashed: Mapping[str, Any] | None = None,
-    title: str | None = None,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
     axes=None,
 ) -> tuple[Any, list[Path]]:
     """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
-    one column wide.
+    one column wide; returns the figure and the files written.
 
-    Args:
-        results: ``{name: result}``, each with ``t`` (T,) [s] and ``rpy`` (T, 3) [rad].
-        stem: output path without suffix; ``None`` writes nothing.
-        dashed: more results, drawn after ``results`` (a reference such as the mission arm
-            alone); their style comes from their name like any other.
-        title: not drawn (captions go with the text); accepted for older callers.
-        formats: file formats to write.
-        dpi: resolution of the PNG.
-        axes: three axes to draw into (nothing is written then).
-
-    Returns:
-        The figure and the files written.
+    ``dashed``: more results drawn after ``results`` (a reference such as the mission arm alone).
+    ``axes``: three axes to draw into.
     """
-    del title
     curves = {**results, **(dashed or {})}
     t_end = max(float(res.t[-1]) for res in curves.values())
     if axes is not None:
@@ -207,27 +186,14 @@ def reaction_torque_figure(
     simulations: Mapping[str, Any],
     stem: str | Path | None = None,
     *,
-    title: str | None = None,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
 ) -> tuple[Any, list[Path]]:
     """Torque the arms exert on the base [N m], base axes, against time (paper Fig. 4): one
     column of panels per plan, each with its own scale (the analytic law's torques are tens of
-    times smaller than the optimal plan's); a page wide for two plans or more.
-
-    Args:
-        simulations: ``{name: SimulationResult}`` with ``arm_wrenches`` and ``total_wrench``.
-        stem: output path without suffix; ``None`` writes nothing.
-        title: not drawn; accepted for older callers.
-        formats: file formats to write.
-        dpi: resolution of the PNG.
-
-    Returns:
-        The figure and the files written. The curves of a panel are labelled ``"sum of
-        arms"``, ``"mission arm"`` and ``"<plan label>: balance arm"``; each column's title is
-        its plan's label.
+    times smaller than the optimal plan's); a page wide for two plans or more. Returns the figure
+    and the files written.
     """
-    del title
     width = "page" if len(simulations) > 1 else "column"
     with style.styled(width):
         fig = style.figure(width, 4.0 if width == "page" else STACK_HEIGHT)

@@ -1,11 +1,6 @@
-"""A quick look at one result on matplotlib axes, for notebooks: :func:`plot_result`
-(``balance_opt.plot_result``).
-
-Unlike the figures of :mod:`balance_opt.report.plots` (which a run writes to files), this draws on
-axes the caller owns (or on a new figure) and writes nothing; each method has the colour, line
-style, marker and label of the written figures (:func:`balance_opt.report.style.method_style`). The
-caller's matplotlib settings (fonts, sizes) are left alone.
-"""
+"""A quick look at one result on matplotlib axes, for notebooks (``balance_opt.plot_result``):
+it draws on axes the caller owns (or a new figure), writes nothing and leaves the caller's
+matplotlib settings alone; each method looks as in the written figures."""
 
 from __future__ import annotations
 

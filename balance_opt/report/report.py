@@ -1,11 +1,5 @@
-"""The comparison report: one self-contained HTML file (nothing external: no linked file, library
-or network access) with the task, a table comparing the methods side by side, the limit
-violations, the figures embedded as base64 PNG and, when the task's ``outputs.animation`` asks
-for it, the 3D scene of :mod:`balance_opt.report.scene` (an iframe, passed in as ``extra_html``).
-
-The table reads ``metrics.json`` content (:func:`balance_opt.report.outputs.run_metrics`), so the
-report and the metrics never disagree.
-"""
+"""The comparison report: one self-contained HTML file (no linked file, library or network
+access). Its table reads ``metrics.json`` content, so the report and the metrics never disagree."""
 
 from __future__ import annotations
 
@@ -58,7 +52,6 @@ code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-
 """
 
 
-# =========================================================================================== values
 def format_value(value: Any, tolerance: float | None = None, unit: str = "", digits=4) -> str:
     """A value as plain text: ``"0 (< 1e-12 rad)"`` when its magnitude is below ``tolerance``,
     ``"-"`` for None, ``"inf"``, else ``digits`` significant digits, then the unit."""
@@ -263,7 +256,6 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
 ]
 
 
-# =========================================================================================== tables
 def _ordered(methods: Mapping[str, Any]) -> list[str]:
     return [m for m in METHOD_ORDER if m in methods] + [m for m in methods if m not in METHOD_ORDER]
 

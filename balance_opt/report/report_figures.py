@@ -44,16 +44,7 @@ def joint_limits_figure(
 ):
     """Balance joint positions, rates and accelerations of each plan against time, one column
     per joint, the joint's limits dotted. The y range covers both the limits and every plan,
-    so a violation is seen at a glance.
-
-    Args:
-        results: ``{method: plan}``.
-        robot: the robot (its limits).
-        path: the PNG to write; ``None`` writes nothing.
-        dpi: resolution of the PNG.
-
-    Returns:
-        The path written, or the figure when ``path`` is None.
+    so a violation is seen at a glance. Returns the path written, or the figure without ``path``.
     """
     first = next(iter(results.values()))
     joints = list(first.balance_joints)[:MAX_COLUMNS]

@@ -1,32 +1,13 @@
-"""The 3D scene of a run (issue 28): the robot's own visual geometry (the URDF's meshes, boxes,
-cylinders and spheres) moving through each plan, in one HTML file drawn by the meshcat viewer
-(its JavaScript bundle, three.js included, ships in the ``meshcat`` package).
+"""The 3D scene of a run in one offline HTML file drawn by the meshcat viewer (``docs/viewer.md``).
 
-No meshcat server, socket or subprocess: the scene is made of meshcat's Python geometry and
-command objects, each lowered to the dict the viewer decodes, packed with msgpack and inlined
-(base64) in the page beside the viewer's bundle. A short script replays the commands and drives
-the viewer's animation player from a method selector, a play button and a time slider. The page
-loads nothing else: it opens from disk, offline. :func:`serve` shows it on this machine.
+No meshcat server, socket or subprocess: meshcat's geometry and command objects are lowered to
+the dicts the viewer decodes, packed with msgpack and inlined in the page beside its bundle.
 
-Layout: one node per Pinocchio joint that carries geometry (the free flyer: the base) under
-``/meshcat/robot``, animated with the joint's world placement; each geometry object a child of
-its joint's node at its fixed placement in the joint frame. A mesh is thus stored once, and a
-frame costs seven numbers per joint. Each plan, and each view of the base rotation (true or
-magnified), is one animation, swapped in when selected.
-
-Base pose: the plan's attitude (or its rotation from the start magnified, as in
-:func:`magnified_axes`), and the position that keeps the centre of mass
-on its free-flight line ``c(t) = c(0) + t p0 / m``: the robot's before a capture, the robot's and
-the target's together after it (with the momentum the target brings). The target, a box of
-uniform density with its inertia, flies at its own constant velocities before the capture and
-rides the mission end effector after it.
-
-Bodies too close (with the robot's collision geometry): at each frame, the links of a checked
-pair closer than the collision margin are shown amber, those of a penetrating pair red. Each
-such link has an amber and a red copy of its pieces beside them; the animation switches the
-visibility of the pieces and of the copies where the state changes (boolean keys), so the
-links that never come close cost nothing.
-"""
+One node per Pinocchio joint that carries geometry, animated with the joint's world placement,
+so a mesh is stored once and a frame costs seven numbers per joint. The base moves so that the
+centre of mass stays on its free-flight line ``c(t) = c(0) + t p0 / m``. Links too close get
+amber and red copies whose visibility is keyed only where the state changes, so links that
+never come close cost nothing."""
 
 from __future__ import annotations
 
@@ -104,7 +85,6 @@ def magnified_axes(quaternion: np.ndarray, factor: float) -> np.ndarray:
 _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 
 
-# ====================================================================================== geometry
 @dataclass(frozen=True)
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
@@ -260,7 +240,6 @@ def target_box(target) -> tuple[np.ndarray, np.ndarray]:
     return sides, axes
 
 
-# ======================================================================================== motion
 def frame_index(t: np.ndarray, fps: float = SCENE_FPS) -> np.ndarray:
     """Indices into a plan's times ``t`` of the scene's frames: ``fps`` per second, each the
     plan's own sample at or after that time."""
@@ -280,19 +259,15 @@ def scene_poses(
     """World placements of the scene's nodes along a plan.
 
     Args:
-        robot: the robot (before any capture).
-        result: the plan.
         joints: Pinocchio joint ids whose placements are wanted.
         h0: initial momentum, world frame (6,); None: at rest.
-        target: the captured target (:class:`balance_opt.model.capture.Target`) or None.
         factor: magnification of the base's rotation from its start (1: the plan's attitude).
         fps: samples per second; the plan's own sample at or after each time is taken.
 
     Returns:
-        ``t`` (K,) the plan's sample times used [s], ``index`` (K,) their indices in the plan,
-        ``base`` (K, 4, 4) the base placement, ``joints`` (K, J, 4, 4) the placements of
-        ``joints`` and, with a target, ``target`` (K, 4, 4) its box's centre and axes (the
-        mission end-effector's axes after the capture).
+        ``t`` (K,) the sample times used [s], ``index`` (K,) their indices in the plan, ``base``
+        (K, 4, 4), ``joints`` (K, J, 4, 4) and, with a target, ``target`` (K, 4, 4) its box's
+        centre and axes.
     """
     model, data = robot.model, robot.model.createData()
     index = frame_index(result.t, fps)
@@ -356,7 +331,6 @@ def _free_flight_before(pose: np.ndarray, t: np.ndarray, target) -> np.ndarray:
     return out
 
 
-# ====================================================================================== commands
 def _pack(command: dict) -> str:
     import umsgpack
 
@@ -478,17 +452,13 @@ def build_scene(
     """The scene of a run's plans (see the module docstring).
 
     Args:
-        robot: the robot (before any capture).
         results: ``{method: plan}`` (the mission arm alone, analytic, optimal...).
         h0: initial momentum, world frame (6,).
         target: the target captured during the mission, or None.
         labels: display name per method (default :func:`~balance_opt.report.style.method_label`).
-        fps: animation samples per second of motion.
-        geometry: the robot's collision geometry
-            (:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`) or None: with it, the
-            links of a checked pair closer than ``margin`` [m] are drawn amber at those frames,
-            those of a pair that penetrates red (:func:`proximity_levels`).
-        margin: the collision margin [m].
+        geometry: the robot's collision geometry or None: with it, the links of a checked pair
+            closer than ``margin`` [m] are drawn amber at those frames, those of a pair that
+            penetrates red (:func:`proximity_levels`).
     """
     import meshcat.geometry as mg
     from meshcat.commands import SetObject, SetProperty, SetTransform
@@ -673,7 +643,6 @@ def proximity_levels(
     return out, texts
 
 
-# ========================================================================================== page
 _PAGE_STYLE = """
 html, body { margin: 0; height: 100%; overflow: hidden; font: 13px sans-serif; }
 #scene-pane { position: absolute; top: 0; left: 0; right: 0; bottom: 96px; overflow: hidden; }
@@ -826,7 +795,6 @@ def write_scene(
     return path
 
 
-# ======================================================================================== server
 def serve(page: str | Path, port: int = 0) -> tuple[http.server.ThreadingHTTPServer, str]:
     """Serve the page (and nothing else of its folder) on 127.0.0.1 (``port`` 0: a free one)
     from a thread; returns the server (``shutdown()`` stops it) and the page's URL."""

@@ -1,28 +1,10 @@
-"""The one look of every figure balance-opt draws: a colour, line style and marker per method,
-one display name per method, font sizes for one and two paper columns, and PNG/PDF saving.
+"""The one look of every figure: a colour, line style and marker per method, display names,
+font sizes for one and two paper columns, and PNG/PDF saving.
 
-The plots, the report's figures, the paper figures and the sweep plots all take their styles and
-names from here, and the HTML report takes its method names from :func:`method_label`, so a
-method looks and reads the same everywhere.
-
-Method names (:data:`METHODS`):
-
-* ``"mission-only"``, ``"analytic"``, ``"optimal"``: a plan, i.e. the base attitude that momentum
-  conservation gives for the planned joint motion (the kinematic model);
-* ``"<method>:sim"``: the forward-dynamics simulation of that plan. It keeps its method's colour
-  and marker shape (a reader ties it to its plan) and gets its own line style and hollow markers;
-* ``"<method>:kinematic"`` (not in :data:`METHODS`): the plan under the momentum model drawn
-  as a wide pale band in its colour, for the figure that overlays a plan and its simulation
-  (paper Fig. 2: the simulated curve on top, the band shows where they agree);
-* ``"sum"``: the sum of the arms' torques on the base (paper Fig. 4) and ``"arm:mission"`` the
-  mission arm's part (the balance arm's part is drawn in its plan's simulation style).
-
-Greyscale: the luminance (ITU-R 601 luma, what a greyscale printer or ``PIL``'s ``convert("L")``
-uses, 0 black to 1 white) of the method colours is mission arm alone 0.00 (black), optimal 0.34
-(blue ``#0072B2``), analytic 0.64 (orange ``#E69F00``): 0.30 or more apart, and every method
-also has its own dash pattern and marker shape. The sum of the arms is black and solid without
-markers, the mission arm's part of the torque grey 0.50 and dotted.
-"""
+``"<method>:sim"`` keeps its plan's colour and marker shape (a reader ties it to its plan) with
+its own line style and hollow markers; ``"<method>:kinematic"`` is a wide pale band under the
+simulation. The method colours are 0.30 or more apart in luminance (black, blue ``#0072B2``,
+orange ``#E69F00``) and each has its own dash pattern, so figures survive greyscale printing."""
 
 from __future__ import annotations
 
@@ -205,16 +187,11 @@ def styled(width: str = "column") -> Iterator[None]:
 
 def figure(width: str = "column", height: float = 2.6, layout: str | None = None):
     """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide (``"column"`` 3.5 in,
-    ``"page"`` 7 in) and ``height`` [in] tall.
+    ``"page"`` 7 in) and ``height`` [in] tall; build its artists inside :func:`styled` with the
+    same width so that fonts fit.
 
-    Build its artists inside :func:`styled` with the same width so that fonts fit the width.
-
-    Args:
-        width: ``"column"`` or ``"page"``.
-        height: [in].
-        layout: ``None`` (place the panels yourself, e.g. with
-            :func:`balance_opt.report.figure_layout.arrange`: fast) or ``"constrained"``
-            (matplotlib measures every text at each save: about twice the drawing time).
+    ``layout="constrained"`` makes matplotlib measure every text at each save, which is slow;
+    ``None`` leaves the panels to the caller (:func:`balance_opt.report.figure_layout.arrange`).
     """
     from matplotlib.figure import Figure
 

@@ -33,7 +33,6 @@ _KEY_PATH = re.compile(rf"{_NAME}(?:\.{_NAME}|\[\d+\])*")
 _SEGMENT = re.compile(rf"({_NAME})|\[(\d+)\]")
 
 
-# ------------------------------------------------------------------------------ file format
 @dataclass(frozen=True)
 class Distribution:
     """How one parameter is drawn in ``random`` sampling (exactly one key)."""
@@ -98,7 +97,6 @@ class SweepSpec:
     random: RandomSamples | None = setting(None, doc="seeded random samples of parameters")
 
 
-# ------------------------------------------------------------------------------ key paths
 def parse_key_path(text: str) -> tuple[Any, ...]:
     """``"mission.goal[2]"`` -> ``("mission", "goal", 2)`` (the inverse of ``format_path``).
 
@@ -143,7 +141,6 @@ def apply_overrides(task: dict, parameters: dict[str, Any]) -> dict:
     return out
 
 
-# ------------------------------------------------------------------------------ case ids
 def canonical_json(data: Any) -> str:
     """JSON with sorted keys and no spaces: equal data, equal text (floats as ``repr``)."""
     return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=True)
@@ -156,7 +153,6 @@ def case_id_from(method: str, parameters: dict[str, Any], setup_hash: str) -> st
     return hashlib.sha256(text.encode()).hexdigest()[:CASE_ID_DIGITS]
 
 
-# ------------------------------------------------------------------------------ sampling
 def _as_array(value: Any, what: str) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)
@@ -233,7 +229,6 @@ def draw_samples(random: RandomSamples, doc: YamlDocument, at: tuple) -> list[di
     ]
 
 
-# ------------------------------------------------------------------------------ expansion
 def _parameter_places(spec: SweepSpec, doc: YamlDocument) -> dict[str, tuple]:
     """Where each varied key path is written in the sweep file, after checking the key paths
     and the number of cases (before anything is expanded or drawn)."""

@@ -1,19 +1,9 @@
 """Run the cases of a sweep: in this process, on a local process pool, or on a Dask cluster.
 
-A *case* is plain data (a dict: ``index``, ``case_id``, ``method``, ``parameters`` and whatever
-its runner needs), and so is its *result*. The function that runs a case, the *runner*, is named
-by a ``"module:function"`` string and imported in the worker, so nothing but strings, numbers,
-lists and dicts ever crosses a process boundary.
-
-Workers are processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each worker
-process keeps whatever its runner caches for the next case (the task runner: a planner model per
-robot, with its compiled NLPs; see :mod:`balance_opt.sweep.runner`).
-
-Every finished case is written at once, atomically (a temporary file then ``os.replace``), as
-``<out>/cases/<case_id>.json``: an interrupted sweep leaves only whole result files, and
-:func:`run_cases` with ``resume=True`` skips the cases that have one. A case that raises is
-recorded with its error (type and message) and the sweep goes on.
-"""
+A case and its result are plain data, and the runner is named by a ``"module:function"`` string
+imported in the worker, so nothing but plain data crosses a process boundary. Workers are
+processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each finished case is
+written atomically to ``<out>/cases/<case_id>.json``, so ``resume=True`` can skip it."""
 
 from __future__ import annotations
 
@@ -74,21 +64,11 @@ def error_record(exc: BaseException) -> dict[str, Any]:
 def execute_case(runner: str, case: dict) -> dict:
     """Run one case in the current process and return its result record (plain data).
 
-    The runner returns a dict with ``status`` (one of the ``STATUS_*``), ``metrics``, and
-    optionally ``error``, ``info`` and ``timing`` (its own split of the wall time [s]); any
-    exception it raises becomes a result with status ``error`` (``solver_failed`` for a
-    :class:`~balance_opt.errors.SolverError`).
-
-    Args:
-        runner: ``"module:function"`` of the case function ``f(case: dict) -> dict``.
-        case: the case, plain data with ``index``, ``case_id``, ``method`` and ``parameters``.
-
-    Returns:
-        ``{index, case_id, method, parameters, status, error, metrics, info, timing}`` where
-        ``timing`` holds the wall time of the case in the worker [s] (``case_s``), the CPU
-        time of the worker process meanwhile [s] (``cpu_s``: less than ``case_s`` when the
-        worker waited for a CPU), the worker's process id and the runner's timing: the only
-        fields that depend on where and when the case ran.
+    The runner returns ``status``, ``metrics`` and optionally ``error``, ``info`` and ``timing``;
+    any exception it raises becomes a result with status ``error`` (``solver_failed`` for a
+    :class:`~balance_opt.errors.SolverError`). The record's ``timing`` adds the case's wall
+    time (``case_s``) and the worker's CPU time meanwhile (``cpu_s``) [s] and its process id: the
+    only fields that depend on where and when the case ran.
     """
     from balance_opt.errors import SolverError
 
@@ -118,9 +98,6 @@ def execute_case(runner: str, case: dict) -> dict:
     return record
 
 
-# --------------------------------------------------------------------------- result files
-
-
 def result_path(out_dir: str | Path, case_id: str) -> Path:
     """Where the result of case ``case_id`` is written."""
     return Path(out_dir) / CASES_DIR / f"{case_id}.json"
@@ -147,9 +124,6 @@ def read_result(out_dir: str | Path, case_id: str) -> dict | None:
         logger.warning("ignoring %s: not a result record of case %s", path, case_id)
         return None
     return data
-
-
-# --------------------------------------------------------------------------- engines
 
 
 class InProcessEngine:
@@ -382,22 +356,14 @@ class DaskEngine:
 
 
 def make_engine(jobs: int = 1, scheduler: str | None = None):
-    """The engine the command line asks for.
-
-    Args:
-        jobs: worker processes (0: run in this process). With ``scheduler="local"``, the number
-            of workers of the local Dask cluster.
-        scheduler: None for the local process pool, ``"local"`` for a Dask cluster started on
-            the loopback interface, or the address of a running Dask scheduler.
+    """The engine the command line asks for (``jobs`` and ``scheduler`` as in
+    :func:`balance_opt.sweep.run.run_sweep`).
     """
     if scheduler is None:
         return InProcessEngine() if jobs == 0 else LocalPoolEngine(jobs)
     if scheduler == "local":
         return DaskEngine(None, workers=max(1, jobs))
     return DaskEngine(scheduler)
-
-
-# --------------------------------------------------------------------------- driver
 
 
 @dataclass
@@ -432,20 +398,15 @@ def run_cases(
     retry_failed: bool = False,
     on_result: Callable[[dict, int, int], None] | None = None,
 ) -> SweepRun:
-    """Run every case, write each result as it comes, and return them all in index order.
+    """Run every case, write each result as it comes, and return them all in index order (those
+    run now and those found on disk).
 
     Args:
-        cases: the cases (plain data, each with a unique ``case_id`` and an ``index``).
-        runner: ``"module:function"`` of the case function.
-        out_dir: the sweep's output folder (results go to ``out_dir/cases/``).
         engine: an engine (default: one worker process); entered and left here.
         resume: skip the cases that already have a result file.
         retry_failed: with ``resume``, run again the cases whose recorded status is not ``ok``.
         on_result: called after each result is written, with the result, the number of cases
             done so far and the number to run (progress display; may raise to stop the sweep).
-
-    Returns:
-        The results of all cases, those run now and those found on disk.
     """
     cases = [dict(case) for case in cases]
     ids = [case["case_id"] for case in cases]

@@ -24,13 +24,7 @@ import numpy as np
 from balance_opt.report.output_dir import replaced_atomically
 from balance_opt.report.style import SCREEN_DPI, method_style, styled
 from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
-from balance_opt.sweep.tables import (
-    is_timing_column,
-    read_table_csv,
-    results_table,
-    write_table_csv,
-    write_tables,
-)
+from balance_opt.sweep.tables import write_tables
 
 logger = logging.getLogger(__name__)
 
@@ -74,7 +68,6 @@ def summarize(results: Sequence[dict]) -> dict[str, Any]:
     return out
 
 
-# ------------------------------------------------------------------------------ plots
 def _figure(n_rows: int, n_cols: int, height: float = 2.6):
     """Panels a paper column wide each, with the column fonts of :mod:`balance_opt.report.style`
     (constrained layout: category labels vary in length)."""
@@ -363,18 +356,8 @@ def write_report(
     plots: bool = True,
     extra_summary: dict | None = None,
 ) -> dict[str, Path]:
-    """Write the tables (``results.csv``, ``diagnostics.csv``: :mod:`balance_opt.sweep.tables`),
-    ``summary.json`` and the plots (``plots/``).
-
-    Args:
-        out_dir: the sweep's output folder.
-        results: every case's result record.
-        varied: the varied key paths (one plot each).
-        plots: draw the plots.
-        extra_summary: more entries for ``summary.json`` (the sweep's name, timing, ...).
-
-    Returns:
-        Name -> path of every file written.
+    """Write the tables, ``summary.json`` (with ``extra_summary``) and, with ``plots``, one plot
+    per varied key path; returns name -> path of every file written.
     """
     out_dir = Path(out_dir)
     written: dict[str, Path] = write_tables(out_dir, results)
@@ -396,12 +379,8 @@ def write_report(
 
 
 __all__ = [
-    "is_timing_column",
     "plot_drift_against_parameter",
     "plot_drift_distribution",
-    "read_table_csv",
-    "results_table",
     "summarize",
     "write_report",
-    "write_table_csv",
 ]

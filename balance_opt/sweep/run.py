@@ -1,12 +1,8 @@
 """Running a sweep: its output folder, the manifest of its cases (``sweep.json``), the cases
-on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plots
-(:mod:`balance_opt.sweep.report`).
+on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plots.
 
-A sweep's folder grows case by case (so that ``--resume`` can finish it), unlike the
-all-or-nothing folder of a single task: each file in it is written atomically instead (a whole
-case, table, summary or plot, or none), and the folder is locked while the sweep runs
-(:class:`~balance_opt.report.output_dir.FolderLock`: a second sweep into it is refused).
-"""
+A sweep's folder grows case by case (so that ``--resume`` can finish it), so each file in it is
+written atomically instead of the whole folder, and the folder is locked while the sweep runs."""
 
 from __future__ import annotations
 
@@ -113,29 +109,22 @@ def run_sweep(
     """Run every case of a sweep and write its results, table, summary and plots.
 
     Args:
-        sweep: the sweep (:func:`balance_opt.sweep.spec.load_sweep`).
-        out_dir: output folder: ``sweep.json`` (the cases), ``cases/<case_id>.json`` (one per
-            case, written as it finishes), ``results.csv``, ``summary.json``, ``plots/*.png``.
-        jobs: worker processes (0: in this process); with ``scheduler="local"``, the workers
-            of the local Dask cluster.
+        out_dir: output folder (layout: ``docs/sweeps.md``).
+        jobs: worker processes (0: in this process); with ``scheduler="local"``, Dask workers.
         scheduler: None (local process pool), ``"local"`` (a Dask cluster on the loopback
             interface, started and stopped here) or a Dask scheduler address.
         resume: keep the finished cases found in ``out_dir`` and run the others.
         force: start over in a non-empty ``out_dir``.
         retry_failed: with ``resume``, run the failed cases again too.
-        plots: draw the summary plots.
         runner: ``"module:function"`` of the case function.
         on_result: progress callback, see :func:`balance_opt.sweep.engine.run_cases`.
-        engine: an engine object to use instead of the one ``jobs`` and ``scheduler`` describe.
+        engine: an engine to use instead of the one ``jobs`` and ``scheduler`` describe.
 
-    Returns:
-        The outcome; the table and summary are written even when cases failed. If the run is
-        interrupted (``KeyboardInterrupt``; Ctrl-C or SIGTERM), the table of the cases finished
-        so far is written before the interruption goes on.
+    The table and summary are written even when cases failed, and on an interruption for the
+    cases finished so far.
 
     Raises:
-        OutputFolderError: the folder cannot be used (see :func:`prepare_output_dir`), or
-            another sweep is writing to it.
+        OutputFolderError: the folder cannot be used, or another sweep is writing to it.
     """
     make_parent(Path(out_dir).absolute())
     with handling_signals(), FolderLock(out_dir):

@@ -1,15 +1,9 @@
 """What one case of a task sweep does, in a worker process: build its task, plan it with its
 method (optionally simulate the plan), and return the metrics of ``metrics.json`` as plain data.
 
-Each worker process keeps one :class:`~balance_opt.app.models.ModelCache`, :data:`WORKER_MODELS`,
-for its whole life: the planner model of each robot kinematics is built once, and so is each
-compiled NLP structure (intervals, transcription, control, constraint switches, solver options;
-:func:`~balance_opt.optimal.solve.build_balance_nlp` caches them on the model). What the cases
-vary (mission, horizon, initial configuration, weights, limits) enters the NLP as parameters
-and bounds: a new case of a known structure costs no build. A case that varies the joint limits
-builds its own robot, of the same kinematics: it gets the same model, and the planner takes the
-case's robot (its limits) next to it.
-"""
+Each worker keeps one :class:`~balance_opt.app.models.ModelCache` (:data:`WORKER_MODELS`) for its
+life. What cases vary enters the NLP as parameters and bounds, so a new case of a known
+structure costs no build."""
 
 from __future__ import annotations
 
@@ -25,9 +19,8 @@ logger = logging.getLogger(__name__)
 WORKER_MODELS = ModelCache()
 
 
-#: RK4 steps of the mission-only baseline over the mission (a 10 s mission: 0.05 s steps; on
-#: the paper task its drift agrees with ``plan --method mission-only`` to 2e-11 rad and its
-#: peak base rate, sampled at the steps, to 5e-5 relative, at a sixth of the cost).
+#: RK4 steps of the mission-only baseline over the mission: as accurate as the reference of
+#: ``plan --method mission-only`` for a table, at a fraction of its cost.
 BASELINE_STEPS = 200
 
 
@@ -59,17 +52,11 @@ def _metrics(result, task, simulate: bool) -> dict:
 def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     """The case function of task sweeps (see :func:`balance_opt.sweep.engine.execute_case`).
 
-    Args:
-        case: plain data with ``task`` (the task's content, with the case's parameters),
-            ``base_dir`` (relative paths of the task), ``method``, ``simulate``,
-            ``solver_options`` and ``index``.
-        models: the planner models to use; by default the worker's, :data:`WORKER_MODELS`.
-
     Returns:
         ``{"status", "metrics", "error", "info", "timing"}``: status ``ok``, or
-        ``solver_failed`` with the metrics of what the method computed before it failed and the
-        error (type, message); ``info["mission_only"]`` is :func:`mission_only_baseline`.
-        Other errors are raised, and recorded by the engine.
+        ``solver_failed`` with the metrics of what the method computed before it failed;
+        ``info["mission_only"]`` is :func:`mission_only_baseline`. Other errors are raised, and
+        recorded by the engine.
     """
     from balance_opt.app.pipeline import plan
     from balance_opt.errors import SolverError

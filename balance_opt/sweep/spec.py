@@ -1,32 +1,7 @@
-"""Sweep files: a base task and the parameters to vary, expanded into cases.
+"""Sweep files: a base task and the parameters to vary (format: ``docs/sweeps.md``).
 
-A sweep file is YAML, read and checked like a task file (every error names the file, the line
-and the key path)::
-
-    task: capture_task.yaml        # a task file, relative to this file, or an inline mapping
-    methods: [analytic, optimal]    # every parameter set is planned with each method
-    grid:                           # every combination of these values ...
-      optimal.intervals: [20, 40]
-    cases:                          # ... times each of these parameter sets ...
-      - {initial.balance: [0.0, 0.5, -1.0]}
-      - {initial.balance: [0.3, 0.8, -1.4]}
-    random:                         # ... times each of these seeded random samples
-      seed: 7
-      samples: 10
-      parameters:
-        mission.goal: {uniform: [[0.8, 0.5, -1.8], [1.4, 1.1, -1.2]]}
-
-A parameter is a key path of the task file (``mission.goal``, ``limits.balance_joint1.velocity``,
-``optimal.weights.omega``, ``mission.goal[2]``), and its value replaces the base task's value
-there (missing mappings on the way are created). Anything a task file can say can be varied:
-the mission goal in joint or Cartesian space, the balance arm's initial configuration, limits,
-weights, horizon and intervals; the planning method is varied with ``methods``.
-
-Each case gets a stable id: a hash of its method, its parameters and the base task, so that the
-same case has the same id in every run (this is what ``--resume`` and the comparison of runs
-rely on), whatever the order or the number of workers. The expansion into cases is
-:mod:`balance_opt.sweep.cases`; running them, :mod:`balance_opt.sweep.run`.
-"""
+Each case id hashes its method, its parameters and the base task, so the same case has the same
+id in every run whatever the order or the number of workers (``--resume`` relies on it)."""
 
 from __future__ import annotations
 
@@ -45,19 +20,10 @@ from balance_opt.config.yaml_lines import (
     load_yaml,
     parse_yaml,
 )
-from balance_opt.sweep.cases import (  # the file format (SweepSpec, ...): public here too
-    Distribution,
-    RandomSamples,
-    SweepSpec,
-    canonical_json,
-    expand_cases,
-    varied_prefix,
-)
+from balance_opt.sweep.cases import SweepSpec, canonical_json, expand_cases, varied_prefix
 
 logger = logging.getLogger(__name__)
 
-#: Planning methods a sweep can run.
-METHODS = ("analytic", "optimal")
 SWEEP_SCHEMA_ID = "https://balance-opt.invalid/sweep.schema.json"
 
 
@@ -72,7 +38,6 @@ def sweep_reference_markdown() -> str:
     return reference_markdown(SweepSpec)
 
 
-# ------------------------------------------------------------------------------ the sweep
 @dataclass(frozen=True)
 class Sweep:
     """A validated sweep file and its cases.
@@ -108,13 +73,11 @@ def sweep_from_document(
 ) -> Sweep:
     """A :class:`Sweep` from a parsed sweep file.
 
-    The base task and the task of every case are loaded in full (robot, mission, limits: see
-    :func:`balance_opt.tasks.task.task_from_document`), about 10 ms each. Limits no plan can meet
-    and missions that cannot be built (an unreachable goal) are not errors of the sweep file: such
-    a case fails when it runs, and the sweep goes on.
+    The base task and the task of every case are loaded in full. Limits no plan can meet and
+    missions that cannot be built are not errors of the sweep file: in a study they are results,
+    so such a case fails when it runs and the sweep goes on.
 
     Args:
-        doc: the sweep file's document.
         base_dir: folder of the sweep file (relative paths start there).
         solver_options: Ipopt options for every case (``--solver-option``); part of the ids.
 
@@ -217,9 +180,6 @@ def parse_sweep(
 
 
 __all__ = [
-    "METHODS",
-    "Distribution",
-    "RandomSamples",
     "Sweep",
     "SweepSpec",
     "load_sweep",

@@ -1,22 +1,7 @@
-"""The two tables of a sweep: ``results.csv`` (tidy) and ``diagnostics.csv``.
+"""The two tables of a sweep: ``results.csv`` and ``diagnostics.csv`` (columns: ``docs/sweeps.md``).
 
-``results.csv`` has one row per case, in case-index order, and only what a study compares:
-the case (``index``, ``case_id``, ``method``, ``status``), its parameters (``param.*``; a list
-parameter spread over one column per item, ``param.mission.goal[0]``, ...), the figures of merit
-of the plan (:data:`METRICS`, the names of ``metrics.json``), the mission-only baseline of the
-same case (``mission_only.*``: the base drift the mission arm causes alone, from a kinematic
-replay), the error if any, and the wall and CPU times of the case (``time.*``).
-
-``diagnostics.csv`` has the same rows and keys (``index``, ``case_id``, ``method``) and
-everything else a case recorded: per-joint margins and rates, the solver's internals (options,
-refinement, re-simulation defects, its own time split), the kernel library's path, the worker's
-process id, the error's traceback. Nothing of ``cases/<id>.json`` is lost between the two.
-
-Both are CSV with floats in full precision (``repr``), so that two runs of the same sweep
-compare cell by cell; the columns that depend on when and where a case ran are named by
-:func:`is_timing_column`. Parquet is not written: it would add pyarrow (about 100 MB) for a
-table of a few thousand rows that any tool reads as CSV.
-"""
+Floats are written in full precision (``repr``) so that two runs of the same sweep compare cell
+by cell. Parquet is not written: pyarrow is about 100 MB for tables any tool reads as CSV."""
 
 from __future__ import annotations
 
@@ -128,12 +113,7 @@ def _columns(rows: Sequence[dict], order: Sequence[str] | None = None) -> list[s
 
 
 def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
-    """Columns and rows of ``results.csv``, rows in case-index order.
-
-    Columns: ``index, case_id, method, status``, the parameters (first-seen order),
-    :data:`METRICS` (those some case has), ``mission_only.*`` (:data:`BASELINE`),
-    ``error_type``, ``error_message``, ``time.*`` (:data:`TIMES`).
-    """
+    """Columns and rows of ``results.csv`` (columns: ``docs/sweeps.md``), rows in case-index order."""
     rows = [_split(r)[0] for r in sorted(results, key=lambda r: r["index"])]
     if not rows:
         return [*KEY_COLUMNS, "status"], []

@@ -1,19 +1,7 @@
 """Task files: one YAML file says which robot, which arms, which mission and which options.
 
-The format is the tree of dataclasses rooted at :class:`~balance_opt.tasks.task_spec.TaskSpec`
-(:mod:`balance_opt.tasks.task_spec`, whose option sections are the library's option classes).
-Loading happens at the boundary, before any planning:
-
-1. :func:`typed_config.from_data <balance_opt.config.typed_config.from_data>` checks types,
-   required and unknown keys and value ranges, and builds the option objects;
-2. :func:`task_from_document` resolves files (URDF, CSV, relative to the task file), builds
-   the robot (unknown joints) and the mission trajectory (durations, CSV contents), checks the
-   lists given per joint and the limits (:mod:`balance_opt.tasks.task_checks`), and sets the
-   initial momentum in the options of the law and of the simulation.
-
 Every error is an :class:`~balance_opt.errors.InputError` whose message starts with
-``FILE:LINE: KEY.PATH:``. Loading imports neither CasADi nor the planner.
-"""
+``FILE:LINE: KEY.PATH:``. Loading imports neither CasADi nor the planner."""
 
 from __future__ import annotations
 
@@ -140,7 +128,6 @@ class Task:
         )
 
 
-# =========================================================================================== loading
 def load_task(path: str | Path) -> Task:
     """Load, validate and build the task in the YAML file at ``path``: everything short of planning.
 
@@ -167,7 +154,10 @@ def task_from_dict(
 
 
 def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
-    """Validate a parsed document and build its robot and mission (see the module docstring)."""
+    """Validate a parsed document (types, keys, ranges: :func:`~balance_opt.config.typed_config.from_data`),
+    resolve its files, build its robot and mission, check the per-joint lists and the limits
+    (:mod:`balance_opt.tasks.task_checks`) and set the initial momentum in the options.
+    """
     if not isinstance(doc.data, dict):
         raise doc.error(
             (),

@@ -1,19 +1,7 @@
 """Checks of a task that need its robot and mission, each located in the task file.
 
-:func:`~balance_opt.config.typed_config.from_data` checks what a value can be checked against
-alone (types, bounds, list lengths fixed by the format). What depends on the robot, the
-mission or another value is checked here, once the robot and the mission are built:
-
-* :func:`check_lengths`: every list declared ``per="... joint"`` has one value per such joint;
-* :func:`check_time_grids`: the time grids of a plan (outputs, re-simulation, simulation) hold
-  at most :data:`MAX_SAMPLES` samples, and the fixed integration steps resolve the mission;
-* :func:`check_limits`: limits no plan can meet (a balance start or a prescribed final
-  configuration outside the position limits, a mission that leaves its own limits) and a
-  planning horizon shorter than the mission.
-
-The Ipopt options (:mod:`balance_opt.optimal.ipopt_options`) and the size of the optimal
-planner's problem (:mod:`balance_opt.optimal.budget`) are checked by :mod:`balance_opt.tasks.task`.
-"""
+:func:`~balance_opt.config.typed_config.from_data` checks each value alone; what depends on the
+robot, the mission or another value is checked here, once they are built."""
 
 from __future__ import annotations
 
@@ -203,12 +191,11 @@ def check_limits(
     mission: JointTrajectory,
     q_B0: np.ndarray,
 ) -> None:
-    """Limits no plan can meet, and a horizon shorter than the mission (see the module
-    docstring).
+    """Limits no plan can meet (a balance start or a prescribed final configuration outside the
+    position limits, a mission that leaves its own limits) and a horizon shorter than the mission.
 
     Raises:
-        TaskLimitsError: limits no plan can meet, naming the limit's source (``limits.J.KEY``
-            or URDF).
+        TaskLimitsError: naming the limit's source (``limits.J.KEY`` or URDF).
         TaskFileError: ``optimal.horizon`` shorter than the mission.
     """
     _check_start(spec, doc, robot, q_B0)
@@ -216,7 +203,6 @@ def check_limits(
     _check_planner(spec, doc, robot, float(mission.duration))
 
 
-# ------------------------------------------------------------------------------- time grids
 def _given(doc: YamlDocument, path: tuple) -> bool:
     """Whether the file sets the key at ``path``."""
     node = doc.data
@@ -311,7 +297,6 @@ def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None
             )
 
 
-# ---------------------------------------------------------------------------- problem size
 def _duration_words(seconds: float) -> str:
     if seconds < 120:
         return f"{seconds:.0f} s"

@@ -1,21 +1,7 @@
 """The task-file format: a tree of frozen dataclasses rooted at :class:`TaskSpec`.
 
-The tree is the single source of truth for the validator
-(:func:`~balance_opt.config.typed_config.from_data`), the JSON Schema (:func:`task_json_schema`,
-``balance-opt validate --schema``) and the README's reference table
-(:func:`task_reference_markdown`). The sections that set the methods' options are the
-library's option classes themselves, declared once in their stage's ``options`` module:
-
-* ``analytic``: :class:`~balance_opt.analytic.options.BalanceLawOptions` and
-  :class:`~balance_opt.motion.options.IntegrationOptions`, their keys side by side;
-* ``optimal``: :class:`~balance_opt.optimal.options.PlannerOptions` (its constraints under
-  ``optimal.constraints``) and the initial guess;
-* ``simulation``: :class:`~balance_opt.dynamics.options.SimulationOptions`.
-* ``robustness``: :class:`~balance_opt.motion.options.RobustnessOptions`.
-
-The initial momentum of the law and of the simulation comes from ``initial.momentum``: the task
-builder (:mod:`balance_opt.tasks.task`) sets it.
-"""
+The tree is the single source of truth for the validator, the JSON Schema and the reference
+table; the method sections are the library's own option classes, declared once in their stage."""
 
 from __future__ import annotations
 
