@@ -43,7 +43,19 @@ INNER_MIN_INTERVALS = 10
 
 @dataclass(frozen=True)
 class Stage:
-    """One stage of the peak objective (:func:`~balance_opt.optimal.refine.plan_peak`)."""
+    """One stage of the peak objective (:func:`~balance_opt.optimal.refine.plan_peak`).
+
+    Attributes:
+        name: the stage, also its structure's objective: ``"integral"`` (the integral
+            objective's plan, without attitude bounds), ``"smooth"`` (the drift's L16 norm),
+            ``"peak"`` (the epigraph).
+        coarse: on the inner grid (:data:`INNER_COARSENING`) rather than the plan's.
+        between_points: with the joint-limit rows between the collocation points (an inner
+            stage's plan is only a warm start: without them an iteration costs a third less).
+        ipopt: its Ipopt options over :data:`DEFAULT_IPOPT`.
+        mu_intervals: on a finer grid than this, its ``mu_init`` is the one in ``ipopt`` scaled
+            by this over its intervals (:data:`PEAK_MU_INTERVALS`); ``None``: as it is.
+    """
 
     name: str
     coarse: bool
@@ -91,7 +103,34 @@ END_CONDITIONS = ("free", "still", "rest")
 
 @dataclass(frozen=True)
 class CostWeights:
-    """Weights of the optimal planner's objective."""
+    """Weights of the optimal planner's objective.
+
+    The ``integral`` objective is Eq. 31 as a least-squares goal::
+
+        J = omega * int |omega_b|^2 dt + attitude * int |log R|^2 dt + terminal * |log R_T|^2
+            + smoothness * int |u|^2 dt + rest * int |q_B - q_rest|^2 dt
+
+    The ``peak`` objective prices the largest attitude error ``s = max_k |log R(t_k)|`` over
+    the collocation points (an epigraph variable, ``|phi_k|^2 <= s^2``) and keeps the integral
+    terms, scaled down by ``regularisation``, to make the plan smooth and unique::
+
+        J = peak * s^2 + peak_terminal * |log R_T|^2
+            + regularisation * (the integral terms + jerk * int |q_dddot_B|^2 dt)
+
+    It is reached in stages (:func:`balance_opt.optimal.refine.plan_peak`): the integral
+    objective's plan, then ``s^2`` replaced by the drift's L_16 norm (weighted so that it
+    costs what ``peak * s^2`` does at the integral plan's peak), then the epigraph.
+
+    ``u`` is the control: balance joint accelerations [rad/s^2] (or jerks [rad/s^3]). The
+    weights' units make each term dimensionless: ``omega`` [s/rad^2], ``terminal``, ``peak`` and ``peak_terminal`` [1/rad^2],
+    ``smoothness`` [s^3/rad^2] (jerk: [s^5/rad^2]), ``rest`` and ``attitude`` [1/(rad^2 s)],
+    ``jerk`` [s^5/rad^2]. The jerk term is the exact integral over the continuous plan (a step of
+    the acceleration between intervals, which only the trapezoidal rule with control
+    ``"acceleration"`` has, counts as its size over ``h``: the jerk spread over one interval).
+
+    Raises:
+        InputError: a weight that is not a finite number >= 0 (``"planner weight 'omega': ..."``).
+    """
 
     omega: float = setting(
         100.0, minimum=0.0, doc="base angular rate, integral of |omega_b|^2 (the paper's goal)"
@@ -152,7 +191,20 @@ class CostWeights:
 
 @dataclass(frozen=True)
 class PlannerOptions:
-    """Settings of the optimal balance planner (direct collocation solved by Ipopt)."""
+    """Settings of the optimal balance planner (direct collocation solved by Ipopt).
+
+    The constraint switches and bounds are attributes of this class, written in task files
+    under ``optimal.constraints``. Joint limits are ``robot.limits`` (the URDF's or the task's
+    overrides), enforced on the continuous motion (see :mod:`balance_opt.optimal.collocation`);
+    torque limits at the collocation points, on the torques of the free-floating inverse
+    dynamics. With control ``"jerk"``, ``rest_at_end`` also asks ``q_ddot_B(T) = 0``. A horizon
+    longer than the mission holds the mission arm at its goal and leaves the balance arm time
+    to settle.
+
+    Raises:
+        InputError: a field that does not fit its declaration (``"planner option 'intervals':
+            must be at least 2, got 1"``).
+    """
 
     __sections__: ClassVar[dict[str, str]] = {
         "constraints": "constraints of the optimal planner",

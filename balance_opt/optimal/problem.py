@@ -87,7 +87,16 @@ class Bounds:
     """The numbers of a problem's NLP that its solve lowers or sets, never in place: the
     refinement (:mod:`balance_opt.optimal.refine`) makes a new problem with new bounds
     (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`), so a problem solved twice
-    gives the same plan twice."""
+    gives the same plan twice.
+
+    Attributes:
+        path: the path attitude bound the NLP enforces at the points [rad] (``None``: none).
+        terminal: the same for the terminal attitude bound.
+        torque_factor: factor on the effort limits at each point (n_B, n_points), read-only.
+        peak_reference: the drift ``c`` of the smooth peak stage [rad].
+        collision: lower bound of each collision row at each point (n_c, n_points) [m], or
+            ``None`` without collision avoidance; read-only.
+    """
 
     path: float | None
     terminal: float | None
@@ -105,7 +114,37 @@ class Bounds:
 
 
 class BalanceProblem:
-    """The numeric data of one balance planning problem."""
+    """The numeric data of one balance planning problem.
+
+    Args:
+        model: the robot's planner model.
+        mission: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
+        q_B0: initial balance configuration [rad], checked by :func:`check_problem`.
+        options: the planner settings.
+        horizon: planning horizon [s], from :func:`check_problem`.
+        h0: the system's constant total momentum, world frame (the base starts at the
+            identity), ``[linear (N s); angular about the CoM (N m s)]``; ``None`` for zero.
+        collision: its collision avoidance
+            (:class:`~balance_opt.optimal.collision.CollisionSetup`), or ``None``.
+
+    Attributes:
+        model, robot, mission, q_B0, options, horizon: as given (``robot`` is the model's).
+        N, h: number of intervals and their length [s].
+        transcription, control: the collocation scheme and the control input.
+        point_times: times of the collocation points [s], nodes then midpoints.
+        mission_samples: each point's data ``[q_M; q_dot_M; q_ddot_M; h0]`` (n_m, n_points).
+        q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
+        limits: the balance joints' limits.
+        bounds: the :class:`Bounds` its NLP enforces (``path_bound``, ``terminal_bound``,
+            ``torque_factor``, ``peak_reference`` read them): the options' until the
+            refinement makes a new problem with lower ones.
+        balance_joints: their names.
+        collision: as given.
+        collision_bound: lower bound of each collision row at each point (n_c, n_points) [m]:
+            the margin plus :data:`COLLISION_ALLOWANCE`, lower for a row that starts closer
+            (its value at ``t = 0`` less :data:`COLLISION_SLACK`: the arm starts there, at
+            rest), raised by the refinement where the re-simulated motion came too close.
+    """
 
     def __init__(
         self,

@@ -28,7 +28,21 @@ BOUND_MARGIN = 1e-3
 
 @dataclass(frozen=True)
 class SolveReport:
-    """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`)."""
+    """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`).
+
+    Attributes:
+        stage: the objective of the structure solved (``"integral"``, ``"smooth"``, ``"peak"``)
+            or the stage's name in the plan (``"bounded"``, ``"smooth, re-simulated"``).
+        intervals: its grid's ``N``.
+        status: Ipopt's return status.
+        iterations: Ipopt's iterations.
+        solve_s: Ipopt's wall time [s].
+        objective: the objective's value at the solution.
+        solution: the solution (the warm start of what follows it).
+        drifts: figures of the stage's plan [rad], by name: ``nlp_max_drift_rad`` and
+            ``nlp_final_drift_rad`` at the collocation points (inner stages),
+            ``max_drift_rad`` and ``final_drift_rad`` re-simulated (the peak stage).
+    """
 
     stage: str
     intervals: int
@@ -88,7 +102,19 @@ class Refinement:
 
 @dataclass(frozen=True)
 class PlanReport:
-    """How an optimal plan was solved (``BalanceResult.solver``)."""
+    """How an optimal plan was solved (``BalanceResult.solver``).
+
+    Attributes:
+        solves: every Ipopt solve behind the plan, in order (the stages, the bounded problem,
+            the refinement's rounds), failed ones included.
+        solution: the plan's NLP solution (default: the last solve's).
+        stages: the peak objective's stages, when it was solved in stages (``None`` else).
+        refinement: what the refinement did (``None`` before it ran).
+        smallest_peak: with a path attitude bound, the smallest peak found [rad].
+
+    :meth:`as_info` writes it into the result's ``info`` (``metrics.json``'s ``details`` and
+    its ``solver`` totals).
+    """
 
     solves: tuple[SolveReport, ...]
     solution: Solution | None = None

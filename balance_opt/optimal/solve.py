@@ -44,7 +44,17 @@ log = logging.getLogger(__name__)
 
 
 class BalanceNLP(BalanceProblem):
-    """One balance planning problem with its compiled NLP and numeric inputs."""
+    """One balance planning problem with its compiled NLP and numeric inputs.
+
+    Built by :func:`build_balance_nlp`; inspect ``variables``, ``constraints``, ``lbx``/``ubx``,
+    ``lbg``/``ubg``, ``parameters``, or name an index with :meth:`constraint_name`.
+
+    Args:
+        model, mission, q_B0, options, horizon: the problem (see :class:`BalanceProblem`).
+        structure: the compiled NLP of its structure.
+        setup_time: wall time to set the problem up [s].
+        build_time: wall time spent building the structure for it [s] (0 when cached).
+    """
 
     def __init__(
         self,
@@ -229,7 +239,17 @@ class BalanceNLP(BalanceProblem):
         """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
         the peak problem first, then the torque and attitude bounds refined until the
         re-simulated motion meets them, from ``options.starts`` guesses
-        (:mod:`balance_opt.optimal.refine`)."""
+        (:mod:`balance_opt.optimal.refine`).
+
+        Args:
+            initial_guess: see :meth:`solve_once`.
+            executor: what runs a multi-start's starts (anything with ``map``, e.g. a
+                :class:`concurrent.futures.ProcessPoolExecutor`); ``None``: this process.
+
+        Raises:
+            PlannerSolverError: Ipopt stopped without a solution, or the path attitude bound is
+                below the smallest peak found (the message states it).
+        """
         try:
             if self.options.starts > 1:
                 return multi_start(self, initial_guess, executor)
@@ -238,7 +258,18 @@ class BalanceNLP(BalanceProblem):
             self.model.finish_compiling()
 
     def solve_once(self, initial_guess="analytic") -> BalanceResult:
-        """Solve with Ipopt once, re-simulate the plan, return it."""
+        """Solve with Ipopt once, re-simulate the plan, return it.
+
+        Args:
+            initial_guess: ``"analytic"`` (the analytic law clipped to the limits; the rest
+                guess when the law is unavailable), ``"rest"``, a :class:`BalanceResult`, or a
+                decision vector.
+
+        Raises:
+            PlannerSolverError: Ipopt stopped without a solution (infeasible, iteration limit,
+                ...); its message names the status and the most violated constraint, its
+                ``result`` is the last iterate, re-simulated.
+        """
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
         t1 = time.perf_counter()
@@ -374,7 +405,35 @@ def build_balance_nlp(
     stage: str | None = None,
     between_points: bool = False,
 ) -> BalanceNLP:
-    """Build the balance NLP of a mission."""
+    """Build the balance NLP of a mission.
+
+    The compiled structure is taken from ``planner_model.nlp_cache`` when a problem of the same
+    structure (:class:`~balance_opt.optimal.layout.StructureKey`: intervals, transcription,
+    control, constraint switches, solver options) was built before; the mission, horizon,
+    ``q_B0``, weights and bounds are numeric inputs.
+
+    Args:
+        planner_model: the robot's :class:`PlannerModel` (or the robot: a model is built, not kept).
+        mission_trajectory: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
+        q_B0: initial balance configuration [rad] (the balance arm starts at rest).
+        options: planner settings (defaults: :class:`PlannerOptions`).
+        robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
+            may change the limits; the model and its compiled NLPs stay valid); default: the
+            model's robot.
+        h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
+            [N s; N m s] (the base starts at the identity); ``None`` for zero. A parameter:
+            every ``h0`` shares the compiled NLP.
+        stage: a stage of the peak objective (:mod:`balance_opt.optimal.refine`):
+            ``"smooth"`` (a structure no option names) or ``"integral"``; the stage's
+            structure has no joint-limit rows between the points (its plan is a warm start)
+            unless ``between_points``.
+        between_points: with ``stage``, keep those rows (the smooth peak as a plan).
+
+    Raises:
+        InputError: sizes or options that do not fit the robot.
+        InfeasibleLimitsError: limits no plan can meet (``q_B0`` or the prescribed final
+            configuration outside the position limits), naming the joint.
+    """
     start = time.perf_counter()
     model = (
         planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
@@ -437,7 +496,19 @@ def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
 
 
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
-    """Re-simulate a plan on a fine grid (:func:`_fine_grid`, ``options.resample_step``)."""
+    """Re-simulate a plan on a fine grid (:func:`_fine_grid`, ``options.resample_step``).
+
+    The balance joints follow the collocation polynomial, the attitude is integrated by
+    :func:`balance_opt.motion.replay.replay` (numeric Pinocchio, RK4 on the unit quaternion,
+    one step per grid interval, so that no step straddles a node, where the joint motion's
+    higher derivatives jump; on the capture task at the default step within 1e-10 rad of a 20
+    times finer step); limit violations are those of the fine grid (``result.violations``). ``info["resimulation"]`` reports the collocation defects (NLP
+    attitude at the nodes against the re-simulated one; joint polynomial at each interval's end
+    against the next node), the momentum residual, the drift, the limit violations and, as
+    ``constraint_violations``, every constraint kind the re-simulated motion breaks beyond
+    tolerance (:meth:`~balance_opt.optimal.constraints.Constraint.check`: between the
+    collocation points, torques and the path attitude bound are not enforced).
+    """
     # imported here: a multi-start's worker that only solves first stages never needs it
     from balance_opt.motion.replay import replay
 
