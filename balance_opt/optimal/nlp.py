@@ -147,7 +147,7 @@ def _outer_problem(
         clearance=kernels.clearance(Y),
         clearance_labels=model.collisions.labels(key.collision),
     )
-    if key.objective == "peak":  # the only stage that prices it (BalanceNLP.update_bounds)
+    if key.objective == "peak":  # the only stage that prices it (BalanceNLP._set_bounds)
         cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)
     rows, row_kinds, parts = BlockStack(), [], []
     for kind in kinds:

@@ -165,7 +165,7 @@ class CostWeights:
     )
     # The peak objective's plans are bang-bang with singular arcs: many accelerations give the
     # same peak, and without a price on their changes the solver stops on a chattering one.
-    # Priced in the epigraph stage only (not in the inner stages: see BalanceNLP.update_bounds).
+    # Priced in the epigraph stage only (not in the inner stages: see BalanceNLP._set_bounds).
     jerk: float = setting(
         JERK_DEFAULT,
         minimum=0.0,
