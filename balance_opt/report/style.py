@@ -75,7 +75,7 @@ _STYLES: dict[str, dict[str, Any]] = {
 #: A plan's kinematic model drawn under its forward-dynamics run (paper Fig. 2): a wide pale
 #: band in the plan's colour, so that the thin simulated curve on top shows where they agree.
 _KINEMATIC_BAND = {"linestyle": "-", "marker": "", "linewidth": 4.0, "alpha": 0.3, "zorder": 1.5}
-#: Colour of each arm in the stick figure and the 3D scene, in arm order (mission, balance,
+#: Colour of each arm in the 3D scene, in arm order (mission, balance,
 #: balance2, ...): none of them a method's colour (black, blue, orange, grey: a reader of the
 #: report ties orange to the analytic law) nor the base axes' red, green and blue.
 ARM_COLOURS = ("#7B3294", "#A6611A", "#CC79A7", "#DFC27D", "#5E3C99")
