@@ -62,6 +62,11 @@ FIGURES = {
         "balance_joints",
         "Balance joint positions, rates and accelerations of each plan with their limits (dotted)",
     ),
+    "capture": (
+        "capture",
+        "Base angular velocity |omega_b| and attitude drift through the capture (dotted line); "
+        "the drift after the capture is measured from the attitude at the capture (thin lines)",
+    ),
 }
 
 
@@ -271,61 +276,44 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
     the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
     ``(caption, path)`` pairs, in the report's order."""
-    from balance_opt.report.plots import attitude_figure, reaction_torque_figure
-    from balance_opt.report.report_figures import joint_limits_figure
+    from balance_opt.report import plots
     from balance_opt.report.style import SCREEN_DPI, SIM
 
-    def draw(key, function, curves):
-        stem, caption = FIGURES[key]
-        _, paths = function(curves, output_dir / stem, formats=("png",), dpi=SCREEN_DPI)
-        figures.append((caption, paths[0]))
-
     figures = []
-    plans = {k: v for k, v in run.results.items() if k != REFERENCE}
-    draw("attitude", attitude_figure, {**plans, **_only(run.results, REFERENCE)})
-    if run.clearance:
-        from balance_opt.report.plots import clearance_figure
 
+    def draw(key, function, *args, note="", **kwargs):
+        stem, caption = FIGURES[key]
+        _, paths = function(*args, output_dir / stem, formats=("png",), dpi=SCREEN_DPI, **kwargs)
+        figures.append((caption + note, paths[0]))
+
+    plans = {k: v for k, v in run.results.items() if k != REFERENCE}
+    draw("attitude", plots.attitude_figure, {**plans, **_only(run.results, REFERENCE)})
+    if run.clearance:
         planner = run.task.spec.optimal.planner
         margin = planner.collision_margin if planner.collision_avoidance else None
         curves = {name: (c[1], c[2]) for name, c in run.clearance.items()}
         curves = {**{k: v for k, v in curves.items() if k != REFERENCE}, **_only(curves, REFERENCE)}
-        stem, caption = FIGURES["clearance"]
-        _, paths = clearance_figure(
-            curves, margin, output_dir / stem, formats=("png",), dpi=SCREEN_DPI
-        )
-        figures.append((caption, paths[0]))
+        draw("clearance", plots.clearance_figure, curves, margin)
     if run.robustness is not None:
-        from balance_opt.report.plots import model_error_figure
-
-        stem, caption = FIGURES["model_error"]
-        _, paths = model_error_figure(
+        draw(
+            "model_error",
+            plots.model_error_figure,
             {**plans, **_only(run.results, REFERENCE)},
             run.robustness.attitude_p95,
-            output_dir / stem,
             perturbation=run.robustness.options.perturbation,
-            formats=("png",),
-            dpi=SCREEN_DPI,
         )
-        figures.append((caption, paths[0]))
     if plans:
-        stem, caption = FIGURES["joints"]
-        path = joint_limits_figure(plans, run.task.robot, output_dir / f"{stem}.png", SCREEN_DPI)
-        figures.append((caption, path))
+        draw("joints", plots.joint_limits_figure, plans, run.task.robot)
     if run.simulations:
         sims = {f"{k}{SIM}": v for k, v in run.simulations.items() if k != REFERENCE}
         reference = {f"{k}{SIM}": v for k, v in _only(run.simulations, REFERENCE).items()}
-        draw("simulated_attitude", attitude_figure, {**sims, **reference})
+        draw("simulated_attitude", plots.attitude_figure, {**sims, **reference})
         if sims:
             balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
-            draw("torque", reaction_torque_figure, balanced)
-            figures[-1] = (figures[-1][0] + _torque_scales(balanced), figures[-1][1])
+            draw("torque", plots.reaction_torque_figure, balanced, note=_torque_scales(balanced))
     if run.task.target is not None:  # issue 16
-        from balance_opt.report.capture_figures import CAPTION, capture_figure
-
         curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
-        path = capture_figure(curves, run.task.target.time, output_dir / "capture.png")
-        figures.append((CAPTION, path))
+        draw("capture", plots.capture_figure, curves, run.task.target.time)
     return figures
 
 

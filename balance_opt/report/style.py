@@ -191,7 +191,7 @@ def figure(width: str = "column", height: float = 2.6, layout: str | None = None
     same width so that fonts fit.
 
     ``layout="constrained"`` makes matplotlib measure every text at each save, which is slow;
-    ``None`` leaves the panels to the caller (:func:`balance_opt.report.figure_layout.arrange`).
+    ``None`` leaves the panels to the caller (:func:`balance_opt.report.plots.layout`).
     """
     from matplotlib.figure import Figure
 
