@@ -20,6 +20,7 @@ from balance_opt.errors import SolverError
 from balance_opt.model.capture import CaptureState, capture_state
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
+from balance_opt.report.outputs import SAMPLED_ARRAYS
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violations
 
 log = logging.getLogger(__name__)
@@ -127,22 +128,10 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     capture, left out: the first's last is the state just before), the limit violations of the
     whole motion, the first phase's ``info`` with the second's under ``after_capture`` (without
     its bulky arrays), the iterations of both, and the capture's numbers under ``capture``."""
-    keep = slice(1, None)
-    arrays = {}
-    for name in (
-        "t",
-        "q_M",
-        "q_dot_M",
-        "q_ddot_M",
-        "q_B",
-        "q_dot_B",
-        "q_ddot_B",
-        "quaternion",
-        "omega",
-        "momentum_residual",
-        "sigma_min",
-    ):
-        arrays[name] = np.concatenate([getattr(before, name), getattr(after, name)[keep]])
+    arrays = {
+        name: np.concatenate([getattr(before, name), getattr(after, name)[1:]])
+        for name in SAMPLED_ARRAYS
+    }
     robot = task.robot
     q, q_dot, q_ddot = (np.empty((arrays["t"].size, robot.n)) for _ in range(3))
     M, B = robot.mission_indices, robot.balance_indices

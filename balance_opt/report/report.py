@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.report.capture_metrics import capture_table
 from balance_opt.report.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 
@@ -451,6 +450,45 @@ def headline(metrics: Mapping[str, Any]) -> str | None:
         f"The {method_label(name)}{failed}{warned} keeps the base {how} the "
         f"{method_label('mission-only')} (peak drift {a:.3g} vs {b:.3g} rad), at these costs: "
         f"{'; '.join(costs)}."
+    )
+
+
+def _pair(values) -> str:
+    """``|linear| / |angular|`` of a 6-vector."""
+    return f"{np.linalg.norm(values[:3]):.3g} / {np.linalg.norm(values[3:]):.3g}"
+
+
+def capture_table(block: Mapping[str, Any] | None) -> str:
+    """The report's HTML section of a ``capture`` block ("" without one)."""
+    if not block:
+        return ""
+
+    def row(name, m):
+        cells = [
+            f"{math.degrees(m['omega_jump_norm_rad_s']):.3g}",
+            _pair(m["base_momentum_jump"]),
+            _pair(m["base_impulse_coupling"]),
+            f"{math.degrees(m['max_drift_before_rad']):.3g}",
+            f"{math.degrees(m['max_drift_after_rad']):.3g}",
+            f"{math.degrees(m['final_drift_since_capture_rad']):.3g}",
+        ]
+        return f"<tr><td>{html.escape(name)}</td>" + "".join(f"<td>{c}</td>" for c in cells)
+
+    rows = [row(n, m) for n, m in block["methods"].items()]
+    rows += [row(f"{n} (simulation)", m) for n, m in block["simulated"].items()]
+    t = block["target"]
+    return (
+        f"<h2>Capture at t = {block['time_s']:g} s</h2>"
+        f"<p>Target {t['mass_kg']:g} kg, angular velocity "
+        f"{math.degrees(np.linalg.norm(t['angular_velocity_rad_s'])):.3g} deg/s.</p>"
+        "<table><tr><th>method</th><th>|&Delta;&omega;<sub>b</sub>| [deg/s]</th>"
+        "<th>base momentum jump [N s / N m s]</th><th>N<sup>-T</sup> impulse [N s / N m s]</th>"
+        "<th>max drift before [deg]</th><th>max drift after [deg]</th>"
+        "<th>final drift since capture [deg]</th></tr>" + "".join(rows) + "</table>"
+        '<p class="meta">The base momentum jump is the base body\'s own momentum change with the '
+        "joints held through the impact; the N<sup>-T</sup> impulse is the end-effector impulse "
+        "carried by the coupling factors (Eq. 25, Moore-Penrose form for an arm of fewer than "
+        "six joints). Drift after the capture is measured from the attitude at the capture.</p>"
     )
 
 
