@@ -470,7 +470,7 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_paper_figures(args) -> int:
-    from balance_opt.app.paper_figures import paper_figures
+    from balance_opt.app.study import paper_figures
 
     with _early_output(args) as folder:
         task = None

@@ -588,7 +588,7 @@ def test_the_default_output_folder_is_the_one_the_help_states(
 
 
 def test_backend_is_taken_by_sweep_and_paper_figures(tmp_path, monkeypatch):
-    from balance_opt.app import paper_figures
+    from balance_opt.app import study as paper_figures
     from balance_opt.sweep import run as sweep_run
 
     seen = {}
