@@ -557,8 +557,14 @@ def _cmd_sweep(args) -> int:
 def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
     """The scene page of a result folder (its ``scene.html``, or one built into ``folder`` from
     its NPZ files and task file) or of a task file (planned here, both methods)."""
-    from balance_opt.app.pipeline import TaskRun, run_task
-    from balance_opt.app.run_files import METRICS_FILE, REFERENCE, SCENE_FILE, write_run_scene
+    from balance_opt.app.pipeline import (
+        METRICS_FILE,
+        REFERENCE,
+        SCENE_FILE,
+        TaskRun,
+        run_task,
+        write_run_scene,
+    )
     from balance_opt.errors import InputError
     from balance_opt.tasks.task import load_task
 

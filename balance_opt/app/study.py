@@ -21,7 +21,7 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
-from balance_opt.app.run_files import _timed
+from balance_opt.app.pipeline import _timed
 from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
