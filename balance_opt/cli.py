@@ -179,22 +179,15 @@ def _cmd_robots(args) -> int:
     return EXIT_OK
 
 
-def _with_backend(task, backend: str | None):
-    """``task`` with ``robot.backend`` replaced by ``backend`` (unchanged when ``None``)."""
+def _load_task(path, backend: str | None):
+    """The task of file ``path`` with ``robot.backend`` replaced by ``backend`` (unless None)."""
+    from balance_opt.tasks.task import load_task
+
+    task = load_task(path)
     if backend is None:
         return task
     robot = dataclasses.replace(task.spec.robot, backend=backend)
     return dataclasses.replace(task, spec=dataclasses.replace(task.spec, robot=robot))
-
-
-def _backend_line(backend: str) -> str:
-    """``symbolic backend: pinocchio (...)`` or ``symbolic backend: adam (...)`` for
-    ``balance-opt inspect`` (builds the Pinocchio-CasADi bridge first if it may be used)."""
-    from balance_opt.model.symbolic import backend_description
-
-    return f"symbolic backend: {backend_description(backend)}"
-
-
 
 
 @contextlib.contextmanager
@@ -240,13 +233,6 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     return restore
 
 
-def _cmd_schema(args) -> int:
-    from balance_opt.tasks.task import task_json_schema
-
-    print(json.dumps(task_json_schema(), indent=2))
-    return EXIT_OK
-
-
 def _reference_asked(args, schema: Callable[[], dict], reference: Callable[[], str]) -> bool:
     """Print a file format's JSON Schema (``--schema``) or Markdown reference (``--reference``)
     if asked; whether it was."""
@@ -260,9 +246,12 @@ def _reference_asked(args, schema: Callable[[], dict], reference: Callable[[], s
 def _cmd_validate(args) -> int:
     """Check every task file given, each error printed with its file; exit 2 if any failed."""
     from balance_opt.errors import InputError
-    from balance_opt.tasks.task import check_methods, load_task
-
-    from balance_opt.tasks.task import task_json_schema, task_reference_markdown
+    from balance_opt.tasks.task import (
+        check_methods,
+        load_task,
+        task_json_schema,
+        task_reference_markdown,
+    )
 
     if _reference_asked(args, task_json_schema, task_reference_markdown):
         return EXIT_OK
@@ -293,21 +282,21 @@ def _cmd_validate(args) -> int:
 
 def _cmd_inspect(args) -> int:
     from balance_opt.model.summary import robot_summary
+    # the bridge is built first if the backend may use it
+    from balance_opt.model.symbolic import backend_description
 
     if args.task is None:
         from balance_opt.model.library import paper_robot
 
         print(robot_summary(paper_robot()))
-        print(_backend_line(args.backend or "auto"))
+        print(f"symbolic backend: {backend_description(args.backend or 'auto')}")
         return EXIT_OK
-    from balance_opt.tasks.task import load_task
-
-    task = _with_backend(load_task(args.task), args.backend)
+    task = _load_task(args.task, args.backend)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
     _print_cartesian_goal(task)
     _print_geometry(task)
-    print(_backend_line(task.spec.robot.backend))
+    print(f"symbolic backend: {backend_description(task.spec.robot.backend)}")
     return EXIT_OK
 
 
@@ -372,12 +361,13 @@ def _starts_executor(task, methods: tuple[str, ...]):
         yield engine
 
 
-def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: str = "plan") -> int:
+def _run_task_command(args) -> int:
+    """``plan``, ``simulate`` and ``compare``."""
     from balance_opt.app.pipeline import run_task
-    from balance_opt.tasks.task import load_task
 
+    methods = _methods(args)
     with _early_output(args) as folder:
-        task = _with_backend(load_task(args.task), args.backend)
+        task = _load_task(args.task, args.backend)
         solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
         started = time.perf_counter()
@@ -385,11 +375,13 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: s
             run = run_task(
                 task,
                 methods=methods,
-                simulate=simulate,
+                simulate=args.simulate,
                 output_dir=folder,
                 solver_options=solver_options,
                 executor=executor,
-                robustness=task.spec.robustness.runs_in(command),
+                robustness=task.spec.robustness.runs_in(
+                    "compare" if args.command == "compare" else "plan"
+                ),
             )
     from balance_opt.report.report import violation_count_text
 
@@ -455,29 +447,11 @@ def _more_summary(metrics: dict) -> list[str]:
     return lines
 
 
-def _cmd_plan(args) -> int:
-    return _run_task_command(args, _methods(args), simulate=args.simulate)
-
-
-def _cmd_simulate(args) -> int:
-    return _run_task_command(args, _methods(args), simulate=True)
-
-
-def _cmd_compare(args) -> int:
-    return _run_task_command(
-        args, ("analytic", "optimal"), simulate=not args.no_simulate, command="compare"
-    )
-
-
 def _cmd_paper_figures(args) -> int:
     from balance_opt.app.study import paper_figures
 
     with _early_output(args) as folder:
-        task = None
-        if args.task is not None:
-            from balance_opt.tasks.task import load_task
-
-            task = load_task(args.task)
+        task = None if args.task is None else _load_task(args.task, None)
         solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(PAPER_FIGURES_FOLDER, args.force)
         files = paper_figures(
@@ -589,10 +563,10 @@ def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
         results = {n: read_npz_result(f) for n, f in files.items() if f.is_file()}
         if not results:
             raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
-        task = _with_backend(load_task(task_file), backend)
+        task = _load_task(task_file, backend)
         run = TaskRun(task, results=results, failures=content.get("failures") or {})
     else:
-        task = _with_backend(load_task(source), backend)
+        task = _load_task(source, backend)
         run = run_task(task, methods=("analytic", "optimal"))
     return write_run_scene(run, folder / SCENE_FILE)
 
@@ -698,35 +672,33 @@ def _add_commands(sub) -> None:
     p.set_defaults(run=_cmd_validate)
 
     p = sub.add_parser("schema", help="print the JSON Schema of task files")
-    p.set_defaults(run=_cmd_schema)
+    p.set_defaults(run=_cmd_validate, schema=True)
 
     p = sub.add_parser("inspect", help="print a robot summary and its coupling measures")
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
     _backend_option(p)
     p.set_defaults(run=_cmd_inspect)
 
-    p = _run_command(
-        sub,
-        "plan",
-        "plan the balance motion, write trajectories, metrics, figures, report",
-        _cmd_plan,
-    )
-    _method_option(p)
-    _flag(p, "--simulate", help="also simulate each plan (as the simulate command)")
-    p = _run_command(
-        sub,
-        "simulate",
-        "plan, then check each plan in a forward-dynamics simulation",
-        _cmd_simulate,
-    )
-    _method_option(p)
-    p = _run_command(
-        sub,
-        "compare",
-        "analytic and optimal plans, simulated, and the comparison report",
-        _cmd_compare,
-    )
-    _flag(p, "--no-simulate", help="skip the forward-dynamics simulation")
+    for name, help in (
+        ("plan", "plan the balance motion, write trajectories, metrics, figures, report"),
+        ("simulate", "plan, then check each plan in a forward-dynamics simulation"),
+        ("compare", "analytic and optimal plans, simulated, and the comparison report"),
+    ):
+        p = _run_command(sub, name, help, _run_task_command)
+        if name == "compare":
+            p.add_argument(
+                "--no-simulate",
+                dest="simulate",
+                action="store_false",
+                help="skip the forward-dynamics simulation",
+            )
+            p.set_defaults(method="both")
+            continue
+        _method_option(p)
+        if name == "plan":
+            _flag(p, "--simulate", help="also simulate each plan (as the simulate command)")
+        else:
+            p.set_defaults(simulate=True)
     p = _run_command(
         sub,
         "paper-figures",
