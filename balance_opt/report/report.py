@@ -102,23 +102,25 @@ def _get(metrics: Mapping[str, Any], path: str):
 Cell = tuple[str, str] | None
 
 
-def _plain(path: str, tolerance=None, unit: str = "") -> Callable[[Mapping], Cell]:
+def _value(path: str, show: Callable[[Any, Mapping], Cell]) -> Callable[[Mapping], Cell]:
+    """The cell of the value at ``path`` of a method's metrics, ``show(value, metrics)``."""
+
     def cell(m):
         value = _get(m, path)
-        return None if value is None else (format_value(value, tolerance, unit), "")
+        return None if value is None else show(value, m)
 
     return cell
+
+
+def _plain(path: str, tolerance=None, unit: str = "") -> Callable[[Mapping], Cell]:
+    return _value(path, lambda v, m: (format_value(v, tolerance, unit), ""))
 
 
 def _angle(path: str, per: str = "", tolerance=ANGLE_TOLERANCE) -> Callable[[Mapping], Cell]:
-    def cell(m):
-        value = _get(m, path)
-        return None if value is None else (format_angle(value, tolerance, per), "")
-
-    return cell
+    return _value(path, lambda v, m: (format_angle(v, tolerance, per), ""))
 
 
-def _kinematic_margin(kind: str, unit: str) -> Callable[[Mapping], Cell]:
+def _kinematic_margin(kind: str) -> Callable[[Mapping], Cell]:
     """The balance arm's smallest margin of one kind, with the smallest relative margin."""
 
     def cell(m):
@@ -128,7 +130,7 @@ def _kinematic_margin(kind: str, unit: str) -> Callable[[Mapping], Cell]:
             return None
         if not math.isfinite(margin):
             return "no limit", ""
-        text = format_value(margin, LIMIT_TOLERANCE, unit)
+        text = format_value(margin, LIMIT_TOLERANCE)
         if relative is not None and abs(margin) >= LIMIT_TOLERANCE:  # else noise, as the margin
             text += f"; {100 * relative:.3g} % of the limit"
         return text, margin_class(margin, relative, LIMIT_TOLERANCE)
@@ -164,25 +166,23 @@ def _per_joint(path: str, key: str, fmt: str = "{:.3g}") -> Callable[[Mapping], 
 def _clearance(path: str) -> Callable[[Mapping], Cell]:
     """The smallest distance between bodies and the pair, red where they penetrate."""
 
-    def cell(m):
-        c = _get(m, path)
-        if not c or c.get("closest_pair") is None:
+    def show(c, m):
+        if c.get("closest_pair") is None:
             return None
         text = f"{c['min_distance_m']:.4g} ({c['closest_pair']}, t = {c['closest_time_s']:.2f} s)"
         return text, ("inside" if c["collision_free"] else "broken")
 
-    return cell
+    return _value(path, show)
 
 
 def _count(path: str) -> Callable[[Mapping], Cell]:
-    def cell(m):
-        value = _get(m, path)
-        if value is None:
-            return None
-        text = violation_count_text(value, m.get("limit_violations_by_kind"))
-        return text, "broken" if value else "inside"
-
-    return cell
+    return _value(
+        path,
+        lambda v, m: (
+            violation_count_text(v, m.get("limit_violations_by_kind")),
+            "broken" if v else "inside",
+        ),
+    )
 
 
 def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
@@ -199,14 +199,10 @@ def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
 def _residual(path: str) -> Callable[[Mapping], Cell]:
     """A relative momentum residual, flagged above :data:`UNTRUSTED_RESIDUAL`."""
 
-    def cell(m):
-        value = _get(m, path)
-        if value is None:
-            return None
-        css = "broken" if value > UNTRUSTED_RESIDUAL else ""
-        return format_value(value, MOMENTUM_TOLERANCE), css
+    def show(v, m):
+        return format_value(v, MOMENTUM_TOLERANCE), "broken" if v > UNTRUSTED_RESIDUAL else ""
 
-    return cell
+    return _value(path, show)
 
 
 #: Rows of the comparison table: (label, cell of a method's metrics); a None cell maker
@@ -219,9 +215,9 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
     ("max relative angular momentum residual", _residual("max_momentum_residual")),
     ("Balance arm", None),
     ("peak balance joint rate [rad/s or m/s]", _plain("peak_balance_rate_rad_s")),
-    ("position limit margin [rad or m]", _kinematic_margin("position", "")),
-    ("velocity limit margin [rad/s or m/s]", _kinematic_margin("velocity", "")),
-    ("acceleration limit margin [rad/s^2 or m/s^2]", _kinematic_margin("acceleration", "")),
+    ("position limit margin [rad or m]", _kinematic_margin("position")),
+    ("velocity limit margin [rad/s or m/s]", _kinematic_margin("velocity")),
+    ("acceleration limit margin [rad/s^2 or m/s^2]", _kinematic_margin("acceleration")),
     (
         "effort limit margin (smallest, of the limit)",
         _effort_margin("effort.balance_min_relative_margin"),
