@@ -116,7 +116,7 @@ def test_attitude_figure_writes_nothing_unless_asked(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     rng = np.random.default_rng(3)
     results = {"optimal": fake_attitude(rng), "analytic": fake_attitude(rng)}
-    fig, paths = attitude_figure(results, dashed={"mission-only": fake_attitude(rng)})
+    fig, paths = attitude_figure({**results, "mission-only": fake_attitude(rng)})
     assert paths == [] and list(tmp_path.iterdir()) == []
     assert titles(fig) == ("", ["", "", ""])
     expected = ["optimal plan", "analytic law", "mission arm alone"]

@@ -10,9 +10,7 @@ balance rates are continuous through the capture; end conditions apply to the se
 from __future__ import annotations
 
 import dataclasses
-import logging
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,8 +20,6 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
 from balance_opt.report.outputs import SAMPLED_ARRAYS
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violations
-
-log = logging.getLogger(__name__)
 
 
 class MissionWindow:
@@ -43,23 +39,16 @@ class MissionWindow:
         return self.mission.sample(np.asarray(t, dtype=float) + self.t0)
 
 
-def robot_after(task) -> FloatingRobot:
-    """The task's robot with its target attached (built once per task: the task keeps it)."""
-    return task.robot_after_capture
-
-
 @dataclass
 class Phase:
-    """What one phase is planned from: its robot, mission window, balance start, momentum
-    (in the axes of its initial base attitude) and initial attitude (world)."""
+    """What one phase (``index`` 0 or 1) is planned from: its robot, mission window, balance
+    start and momentum (in the axes of its initial base attitude)."""
 
     robot: FloatingRobot
     mission: MissionWindow
     q_B0: np.ndarray
     h0: np.ndarray
-    quaternion0: np.ndarray
     index: int
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def _rotated(h: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -80,12 +69,11 @@ def plan_with_capture(task, plan_phase) -> BalanceResult:
         MissionWindow(task.mission, 0.0, t_c),
         np.asarray(task.q_B0, dtype=float),
         np.asarray(task.h0, dtype=float),
-        np.array([0.0, 0.0, 0.0, 1.0]),
         0,
     )
     before = plan_phase(first)
     q_c, qd_c, quat_c = _state_at_end(task.robot, before)
-    after_robot = robot_after(task)
+    after_robot = task.robot_after_capture
     state = capture_state(task.robot, after_robot, task.target, q_c, qd_c, quat_c, task.h0)
     R_c = matrix_from_quaternion(quat_c)
     second = Phase(
@@ -93,9 +81,7 @@ def plan_with_capture(task, plan_phase) -> BalanceResult:
         MissionWindow(task.mission, t_c, T),
         before.q_B[-1].copy(),
         _rotated(state.h_after, R_c),
-        quat_c,
         1,
-        {"q_dot_B0": before.q_dot_B[-1].copy()},
     )
     try:
         after = plan_phase(second)

@@ -492,11 +492,10 @@ def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
 
     task, plan = checked_task(task), _checked_plan(plan)
     if task.target is not None:  # through the capture's impulse (issue 16)
-        from balance_opt.app.capture import robot_after
         from balance_opt.dynamics.capture_impulse import simulate_with_capture
 
         return simulate_with_capture(
-            task.robot, robot_after(task), task.target, plan, task.spec.simulation
+            task.robot, task.robot_after_capture, task.target, plan, task.spec.simulation
         )
     return simulate_plan(task.robot, plan, task.spec.simulation)
 

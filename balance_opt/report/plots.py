@@ -177,26 +177,20 @@ def attitude_figure(
     results: Mapping[str, Any],
     stem: str | Path | None = None,
     *,
-    dashed: Mapping[str, Any] | None = None,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
     axes=None,
 ) -> tuple[Any, list[Path]]:
     """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
-    one column wide; returns the figure and the files written.
-
-    ``dashed``: more results drawn after ``results`` (a reference such as the mission arm alone).
-    ``axes``: three axes to draw into.
-    """
-    curves = {**results, **(dashed or {})}
-    t_end = max(float(res.t[-1]) for res in curves.values())
+    one column wide (or into three ``axes``); returns the figure and the files written."""
+    t_end = max(float(res.t[-1]) for res in results.values())
     if axes is not None:
-        draw_attitude(axes, curves)
+        draw_attitude(axes, results)
         return np.atleast_1d(axes)[0].figure, []
     with style.styled("column"):
         fig = style.figure("column", STACK_HEIGHT)
         axes = fig.subplots(3, 1, sharex=True)
-        handles = draw_attitude(axes, curves)
+        handles = draw_attitude(axes, results)
         _time_axes(axes, t_end, [f"{a} [deg]" for a in ATTITUDE_AXES])
         layout(fig, axes[:, None], handles, "column")
         return fig, _finish(fig, stem, formats, dpi)
@@ -287,14 +281,6 @@ def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
     ]
 
 
-def draw_torque(axes, name: str, sim) -> None:
-    """Torque on the base [N m] of one plan's simulation into three axes (x, y, z): the sum of
-    the arms, the mission arm's part, the balance arm's part."""
-    for wrench, kwargs in _torque_parts(name, sim):
-        for k, ax in enumerate(np.atleast_1d(axes)):
-            ax.plot(sim.t, wrench[:, 3 + k], **kwargs)
-
-
 def reaction_torque_figure(
     simulations: Mapping[str, Any],
     stem: str | Path | None = None,
@@ -314,7 +300,9 @@ def reaction_torque_figure(
         t_end = max(float(sim.t[-1]) for sim in simulations.values())
         handles = []
         for c, (name, sim) in enumerate(simulations.items()):
-            draw_torque(axes[:, c], name, sim)
+            for wrench, kwargs in _torque_parts(name, sim):
+                for k, ax in enumerate(axes[:, c]):
+                    ax.plot(sim.t, wrench[:, 3 + k], **kwargs)
             handles += axes[0, c].get_lines()[(0 if c == 0 else 2) :]
             _time_axes(axes[:, c], t_end, [f"torque {a} [N m]" for a in TORQUE_AXES])
             if c:
