@@ -179,14 +179,14 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     if out.plots:
         files.extend(path for _, path in figures)
     if out.report:
-        from balance_opt.report.report import write_report
+        from balance_opt.report.report import render_report
 
         extra, scene = _report_sections(run, output_dir)
         timed = {name: (res.t, torques[name]) for name, res in run.results.items()}
         about = run.task.spec.description
-        run.report = write_report(
-            output_dir / REPORT_FILE, run.metrics, figures, about, extra, timed
-        )
+        run.report = output_dir / REPORT_FILE
+        page = render_report(run.metrics, figures, about, extra, timed)
+        run.report.write_text(page, encoding="utf-8")
         files += [run.report] + ([scene] if scene is not None else [])
         if not out.plots:
             for _, path in figures:

@@ -589,17 +589,3 @@ def render_report(
     parts.append("</body></html>")
     return "\n".join(parts)
 
-
-def write_report(
-    path: str | Path,
-    metrics: Mapping[str, Any],
-    figures: Sequence[tuple[str, Path]] = (),
-    description: str | None = None,
-    extra_html: str = "",
-    torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
-) -> Path:
-    """Write :func:`render_report` to ``path`` and return it."""
-    path = Path(path)
-    text = render_report(metrics, figures, description, extra_html, torques)
-    path.write_text(text, encoding="utf-8")
-    return path
