@@ -540,7 +540,6 @@ def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
         write_run_scene,
     )
     from balance_opt.errors import InputError
-    from balance_opt.tasks.task import load_task
 
     if source.is_dir():
         if (source / SCENE_FILE).is_file():

@@ -21,7 +21,9 @@ import numpy as np
 from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
+from balance_opt.report import plots
 from balance_opt.report.output_dir import OutputFolder
+from balance_opt.report.style import SCREEN_DPI, SIM, method_label
 from balance_opt.result import BalanceResult
 from balance_opt.tasks.task import Task, check_methods, check_optimal_supported
 
@@ -151,15 +153,25 @@ def _timed(what: str):
 def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
     from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
-    from balance_opt.report.outputs import run_metrics, write_metrics
+    from balance_opt.report.outputs import (
+        run_metrics,
+        write_metrics,
+        write_trajectory_csv,
+        write_trajectory_npz,
+    )
 
-    out = run.task.spec.outputs
+    out, files = run.task.spec.outputs, []
     output_dir.mkdir(parents=True, exist_ok=True)
     torques = {  # the NPZ files, the metrics and the report each use them
         name: plan_joint_torques(res, run.task.robot, run.task.h0)
         for name, res in run.results.items()
     }
-    files = _write_trajectories(run, output_dir, torques)
+    for name, res in run.results.items():
+        if out.csv:
+            files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
+        if out.npz:
+            files.append(write_trajectory_npz(output_dir / f"{name}.npz", res, torques[name]))
+    margin = run.task.spec.optimal.planner.collision_margin
     run.metrics = run_metrics(
         run.task,
         run.results,
@@ -169,7 +181,8 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         run.robustness,
         {name: c[0] for name, c in run.clearance.items()},
         {name: c[0] for name, c in run.simulated_clearance.items()},
-        _geometry_summary(run),
+        # what the clearance check held apart and the pairs close at the start
+        run.geometry.summary(run.task.q0, margin) if run.geometry else None,
     )
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []
@@ -195,34 +208,9 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
     return files
 
 
-def _geometry_summary(run: TaskRun) -> dict | None:
-    """What the run's clearance check held apart and the pairs close at the start (``None``
-    without geometry)."""
-    if not run.geometry:
-        return None
-    margin = run.task.spec.optimal.planner.collision_margin
-    return run.geometry.summary(run.task.q0, margin)
-
-
-def _write_trajectories(run: TaskRun, output_dir: Path, torques: dict) -> list[Path]:
-    """The CSV and NPZ files of every plan (the NPZ with the plan's joint ``torques``)."""
-    from balance_opt.report.outputs import write_trajectory_csv, write_trajectory_npz
-
-    out, files = run.task.spec.outputs, []
-    for name, res in run.results.items():
-        if out.csv:
-            files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
-        if out.npz:
-            npz = output_dir / f"{name}.npz"
-            files.append(write_trajectory_npz(npz, res, torques[name]))
-    return files
-
-
 def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
     """The report's 3D section (the scene, written beside it) and the scene's file (None: not
     written)."""
-    from balance_opt.errors import InputError
-
     if not run.task.spec.outputs.animation:
         return "", None
     try:
@@ -243,7 +231,6 @@ def run_geometry(run: TaskRun):
     """The run's robot geometry (:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`),
     built once and kept on ``run.geometry``; ``False`` for a robot without geometry (a log line
     says so) or whose geometry does not load (a missing mesh: a warning)."""
-    from balance_opt.errors import InputError
     from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
 
     if run.geometry is None:
@@ -264,7 +251,6 @@ def run_geometry(run: TaskRun):
 def write_run_scene(run: TaskRun, path: Path) -> Path:
     """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
     ``path``."""
-    from balance_opt.report.style import method_label
     from balance_opt.report.scene import write_scene
 
     labels = {
@@ -286,9 +272,6 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
     the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
     ``(caption, path)`` pairs, in the report's order."""
-    from balance_opt.report import plots
-    from balance_opt.report.style import SCREEN_DPI, SIM
-
     figures = []
 
     def draw(key, function, *args, note="", **kwargs):
@@ -330,8 +313,6 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
 def _torque_scales(simulations: Mapping[str, Any]) -> str:
     """The caption's words on the torque figure's scales: each plan's largest torque of an arm
     on the base, and how many times the smallest the largest is."""
-    from balance_opt.report.style import method_label
-
     peaks = {
         name: max(float(np.abs(w[:, 3:]).max()) for w in sim.arm_wrenches.values())
         for name, sim in simulations.items()
