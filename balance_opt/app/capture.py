@@ -145,19 +145,42 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     )
 
 
-def _plan_mission_only(task, p: Phase) -> BalanceResult:
-    from balance_opt.analytic.phases import phase_one
-
+def plan_part(
+    task,
+    method: str,
+    robot: FloatingRobot,
+    mission,
+    q_B0,
+    h0,
+    *,
+    law=None,
+    options=None,
+    guess=None,
+    models=None,
+    executor=None,
+) -> BalanceResult:
+    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a whole task
+    or of one phase of a capture: its robot, mission, balance start ``q_B0`` and momentum ``h0``;
+    the analytic ``law`` (default: the task's), the optimal planner's ``options``, initial
+    ``guess``, ``models`` (:class:`~balance_opt.app.models.ModelCache`) and ``executor``."""
     a = task.spec.analytic
-    return phase_one(p.robot, p.mission, p.q_B0, h0=p.h0, integration=a.integration)
+    if method == "mission-only":
+        from balance_opt.analytic.phases import phase_one
 
+        return phase_one(robot, mission, q_B0, h0=h0, integration=a.integration)
+    if method == "analytic":
+        from balance_opt.analytic.rollout import rollout
 
-def _plan_analytic(task, p: Phase) -> BalanceResult:
-    from balance_opt.analytic.rollout import rollout
+        law = a.law if law is None else law
+        return rollout(robot, mission, q_B0, law, integration=a.integration)
+    from balance_opt.app.models import ModelCache
+    from balance_opt.optimal.solve import build_balance_nlp
 
-    a = task.spec.analytic
-    law = dataclasses.replace(a.law, h0=tuple(float(v) for v in p.h0))
-    return rollout(p.robot, p.mission, p.q_B0, law, integration=a.integration)
+    model = (models if models is not None else ModelCache()).planner_model(
+        robot, task.spec.robot.backend
+    )
+    nlp = build_balance_nlp(model, mission, q_B0, options, robot=robot, h0=h0)
+    return nlp.solve(guess, executor)
 
 
 def phase_intervals(intervals: int, t_c: float, duration: float) -> tuple[int, int]:
@@ -167,14 +190,12 @@ def phase_intervals(intervals: int, t_c: float, duration: float) -> tuple[int, i
     return first, max(2, intervals - first)
 
 
-def _plan_optimal(task, p: Phase, solver_options, models, executor=None) -> BalanceResult:
-    from balance_opt.app.models import ModelCache
-    from balance_opt.optimal.solve import build_balance_nlp
-
+def _phase_options(task, p: Phase, solver_options):
+    """The optimal planner's options of a phase."""
     options = task.planner_options(solver_options)
     n_first, n_second = phase_intervals(options.intervals, task.target.time, task.duration)
     if p.index == 0:  # end in the second phase's start condition: continuous joint rates
-        options = dataclasses.replace(
+        return dataclasses.replace(
             options,
             intervals=n_first,
             end=options.start,
@@ -183,23 +204,22 @@ def _plan_optimal(task, p: Phase, solver_options, models, executor=None) -> Bala
             final_configuration=None,  # the task's end is the second phase's
             terminal_attitude_bound=None,
         )
-    else:
-        options = dataclasses.replace(options, intervals=n_second, horizon=None)
-    models = models if models is not None else ModelCache()
-    model = models.planner_model(p.robot, task.spec.robot.backend)
-    nlp = build_balance_nlp(model, p.mission, p.q_B0, options, robot=p.robot, h0=p.h0)
-    return nlp.solve(task.spec.optimal.initial_guess, executor)
+    return dataclasses.replace(options, intervals=n_second, horizon=None)
 
 
 def plan_captured(
     task, method: str, solver_options=None, models=None, executor=None
 ) -> BalanceResult:
     """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task with
-    a capture: :func:`plan_with_capture` with that method in each phase."""
-    if method == "mission-only":
-        return plan_with_capture(task, lambda p: _plan_mission_only(task, p))
-    if method == "analytic":
-        return plan_with_capture(task, lambda p: _plan_analytic(task, p))
-    return plan_with_capture(
-        task, lambda p: _plan_optimal(task, p, solver_options, models, executor)
-    )
+    a capture: :func:`plan_with_capture` with that method in each phase (the law holding each
+    phase's momentum)."""
+
+    def plan_phase(p: Phase) -> BalanceResult:
+        law = dataclasses.replace(task.spec.analytic.law, h0=tuple(float(v) for v in p.h0))
+        options = _phase_options(task, p, solver_options) if method == "optimal" else None
+        return plan_part(
+            task, method, p.robot, p.mission, p.q_B0, p.h0, law=law, options=options,
+            guess=task.spec.optimal.initial_guess, models=models, executor=executor,
+        )  # fmt: skip
+
+    return plan_with_capture(task, plan_phase)

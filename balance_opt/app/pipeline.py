@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from balance_opt.app.capture import plan_captured, plan_part
 from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
@@ -361,14 +362,10 @@ def plan_mission_only(task: Task | str | Path) -> BalanceResult:
     held at its start, integrated from momentum conservation: the reference of every plan
     (``method="mission-only"``).
     """
-    from balance_opt.analytic.phases import phase_one
-
     task = checked_task(task)
     if task.target is not None:
-        return _captured(task, REFERENCE)
-
-    a = task.spec.analytic
-    return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration)
+        return plan_captured(task, REFERENCE)
+    return plan_part(task, REFERENCE, task.robot, task.mission, task.q_B0, task.h0)
 
 
 def plan_analytic(task: Task | str | Path) -> BalanceResult:
@@ -377,14 +374,10 @@ def plan_analytic(task: Task | str | Path) -> BalanceResult:
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
     """
-    from balance_opt.analytic.rollout import rollout
-
     task = checked_task(task)
     if task.target is not None:
-        return _captured(task, "analytic")
-
-    a = task.spec.analytic
-    return rollout(task.robot, task.mission, task.q_B0, a.law, integration=a.integration)
+        return plan_captured(task, "analytic")
+    return plan_part(task, "analytic", task.robot, task.mission, task.q_B0, task.h0)
 
 
 def plan_optimal(
@@ -408,35 +401,19 @@ def plan_optimal(
         InputError: the task asks for something the optimal planner cannot do.
         SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
     """
-    from balance_opt.optimal.solve import build_balance_nlp
-
     task = checked_task(task)
     if warm_start is not None:
         _checked_plan(warm_start)
     if task.target is not None:
-        return _captured(task, "optimal", solver_options, models, executor)
+        return plan_captured(task, "optimal", solver_options, models, executor)
     check_optimal_supported(task)
-    spec = task.spec.optimal
-    options = task.planner_options(solver_options)
-    model = (models if models is not None else ModelCache()).planner_model(
-        task.robot, task.spec.robot.backend
-    )
-    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot, h0=task.h0)
-    guess = (
-        warm_start
-        if (warm_start is not None and spec.initial_guess == "analytic")
-        else spec.initial_guess
-    )
-    return nlp.solve(guess, executor)
-
-
-def _captured(
-    task: Task, method: str, solver_options=None, models=None, executor=None
-) -> BalanceResult:
-    """The plan of a task with a capture: two phases joined at the capture (issue 16)."""
-    from balance_opt.app.capture import plan_captured
-
-    return plan_captured(task, method, solver_options, models, executor)
+    guess = task.spec.optimal.initial_guess
+    return plan_part(
+        task, "optimal", task.robot, task.mission, task.q_B0, task.h0,
+        options=task.planner_options(solver_options),
+        guess=warm_start if (warm_start is not None and guess == "analytic") else guess,
+        models=models, executor=executor,
+    )  # fmt: skip
 
 
 def plan(
