@@ -5,7 +5,9 @@ capture.
 Every function takes ``{name: result}`` of the curves to overlay; the name is a method of
 :mod:`balance_opt.report.style` and gives the curve its look and label. The figures carry no
 title (a caption belongs to the text around them) and touch no pyplot state. Given ``axes=`` a
-function draws into the caller's axes; given no ``stem`` it writes nothing.
+function draws into the caller's axes; given no ``stem`` it writes nothing. :func:`plot_result`
+(``balance_opt.plot_result``) is a quick look at one result for notebooks, on axes the caller
+owns (or a new figure), leaving the caller's matplotlib settings alone.
 
 Constrained layout renders every text once per file written, which is slow. These figures have a
 known shape (panels sharing the time axis, a y label left of the first column, a legend above),
@@ -17,7 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +28,9 @@ from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.report import style
 from balance_opt.report.style import WIDTHS, font_sizes
 from balance_opt.result import BalanceResult
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 #: Widths of glyphs [em] (DejaVu Sans, rounded up); lower-case letters count as 0.58 em, other
 #: characters as 0.7 em.
@@ -484,3 +489,42 @@ def capture_figure(
         ax_w.set_ylim(bottom=0.0)
         ax_a.set_ylim(bottom=0.0)
     return fig, _finish(fig, stem, formats, dpi)
+
+
+#: What :func:`plot_result` can draw: ``kind -> y-axis label``.
+KINDS = {
+    "attitude": "base rotation from start [deg]",
+    "balance": "balance joint position [rad]",
+}
+
+
+def plot_result(result: BalanceResult, ax: Axes | None = None, kind: str = "attitude") -> Axes:
+    """Draw ``result`` on ``ax`` (a new figure when ``None``) and return the axes.
+
+    Args:
+        result: the motion.
+        ax: the axes; ``None`` makes a new figure with ``plt.subplots``.
+        kind: ``"attitude"`` (the base rotation from the start, deg) or ``"balance"`` (each
+            balance joint's position, rad).
+
+    Raises:
+        ValueError: an unknown ``kind``.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots()
+    kwargs = style.method_style(result.method)
+    if kind == "attitude":
+        ax.plot(result.t, np.degrees(result.angle), **kwargs)
+    else:
+        dashes = ("-", "--", ":", "-.")
+        for j, name in enumerate(result.balance_joints):
+            joint = {**kwargs, "linestyle": dashes[j % len(dashes)], "marker": ""}
+            ax.plot(result.t, result.q_B[:, j], **{**joint, "label": f"{kwargs['label']}: {name}"})
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(KINDS[kind])
+    ax.legend()
+    return ax
