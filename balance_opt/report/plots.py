@@ -216,10 +216,7 @@ def model_error_figure(
     Args:
         results: ``{name: result}`` with ``t`` and ``angle``.
         bands: ``{name: p95 angle at result.t}`` [rad] (a plan without one has no band).
-        stem: output path without suffix; ``None`` writes nothing.
         perturbation: the relative model error the bands are for (named in the legend).
-        formats: file formats to write.
-        dpi: resolution of the PNG.
     """
     with style.styled("column"):
         fig = style.figure("column", 2.4)
@@ -330,9 +327,7 @@ def paper_figure_set(
     """The paper's Figs. 2-5 of one study, as ``({"fig2": [files], ...}, {"fig2": Figure})``.
 
     Args:
-        output_dir: the folder.
         stems: file name without suffix of ``"fig2"`` ... ``"fig5"``.
-        formats: file formats.
         mission_only: simulation of the mission arm alone (Fig. 2 solid, Fig. 5 reference).
         kinematic: the mission arm alone under the momentum model (Fig. 2 dashed).
         balance_only: ``{method: simulation}`` of each plan's balance arm alone (Fig. 3).

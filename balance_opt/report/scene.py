@@ -14,6 +14,7 @@ from __future__ import annotations
 import base64
 import html
 import http.server
+import itertools
 import json
 import logging
 import threading
@@ -216,10 +217,8 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         drawn = _object(geometry, _colour(arm[obj.parentJoint], robot), opacity, mesh)
         n = int(geometry.vertices.shape[0]) if mesh else 0
         obj.geometry.computeLocalAABB()
-        lo, hi = obj.geometry.aabb_local.min_, obj.geometry.aabb_local.max_
-        corners = np.array(
-            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-        )
+        box = obj.geometry.aabb_local
+        corners = np.array(list(itertools.product(*zip(box.min_, box.max_))))
         corners = corners @ obj.placement.rotation.T + obj.placement.translation
         out.append(
             SceneObject(
