@@ -282,8 +282,7 @@ def _cmd_validate(args) -> int:
 
 def _cmd_inspect(args) -> int:
     from balance_opt.model.summary import robot_summary
-    # the bridge is built first if the backend may use it
-    from balance_opt.model.symbolic import backend_description
+    from balance_opt.model.symbolic import backend_description  # builds the bridge if used
 
     if args.task is None:
         from balance_opt.model.library import paper_robot
@@ -618,9 +617,7 @@ def _compute_options(parser, output: str, force: str, solver_option: str) -> Non
     """``--output``, ``--force``, ``--solver-option`` and ``--backend``, with a command's help."""
     parser.add_argument("-o", "--output", metavar="DIR", help=_OUTPUT_HELP.format(output))
     _flag(parser, "-f", "--force", help=force)
-    parser.add_argument(
-        "--solver-option", action="append", metavar="KEY=VALUE", help=solver_option
-    )
+    parser.add_argument("--solver-option", action="append", metavar="KEY=VALUE", help=solver_option)
     _backend_option(parser)
 
 

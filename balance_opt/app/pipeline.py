@@ -329,7 +329,6 @@ def _only(results: Mapping[str, Any], name: str) -> dict[str, Any]:
     return {name: results[name]} if name in results else {}
 
 
-
 def checked_task(task: Task | str | Path, what: str = "task") -> Task:
     """``task``, or the task loaded from the file it names (a path or a string).
 
