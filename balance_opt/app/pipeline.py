@@ -281,29 +281,27 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
         figures.append((caption + note, paths[0]))
 
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
-    draw("attitude", plots.attitude_figure, {**plans, **_only(run.results, REFERENCE)})
+    draw("attitude", plots.attitude_figure, _reference_last(run.results))
     if run.clearance:
         planner = run.task.spec.optimal.planner
         margin = planner.collision_margin if planner.collision_avoidance else None
         curves = {name: (c[1], c[2]) for name, c in run.clearance.items()}
-        curves = {**{k: v for k, v in curves.items() if k != REFERENCE}, **_only(curves, REFERENCE)}
-        draw("clearance", plots.clearance_figure, curves, margin)
+        draw("clearance", plots.clearance_figure, _reference_last(curves), margin)
     if run.robustness is not None:
         draw(
             "model_error",
             plots.model_error_figure,
-            {**plans, **_only(run.results, REFERENCE)},
+            _reference_last(run.results),
             run.robustness.attitude_p95,
             perturbation=run.robustness.options.perturbation,
         )
     if plans:
         draw("joints", plots.joint_limits_figure, plans, run.task.robot)
     if run.simulations:
-        sims = {f"{k}{SIM}": v for k, v in run.simulations.items() if k != REFERENCE}
-        reference = {f"{k}{SIM}": v for k, v in _only(run.simulations, REFERENCE).items()}
-        draw("simulated_attitude", plots.attitude_figure, {**sims, **reference})
-        if sims:
-            balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
+        sims = {f"{k}{SIM}": v for k, v in _reference_last(run.simulations).items()}
+        draw("simulated_attitude", plots.attitude_figure, sims)
+        balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
+        if balanced:
             draw("torque", plots.reaction_torque_figure, balanced, note=_torque_scales(balanced))
     if run.task.target is not None:  # issue 16
         curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
@@ -325,11 +323,13 @@ def _torque_scales(simulations: Mapping[str, Any]) -> str:
     return f" ({text})"
 
 
-def _only(results: Mapping[str, Any], name: str) -> dict[str, Any]:
-    return {name: results[name]} if name in results else {}
+def _reference_last(results: Mapping[str, Any]) -> dict[str, Any]:
+    """``results`` with the mission arm alone last (its curve drawn over the plans')."""
+    first = {k: v for k, v in results.items() if k != REFERENCE}
+    return {**first, **({REFERENCE: results[REFERENCE]} if REFERENCE in results else {})}
 
 
-def checked_task(task: Task | str | Path, what: str = "task") -> Task:
+def checked_task(task: Task | str | Path) -> Task:
     """``task``, or the task loaded from the file it names (a path or a string).
 
     Raises:
@@ -342,7 +342,7 @@ def checked_task(task: Task | str | Path, what: str = "task") -> Task:
 
         return load_task(task)
     raise TypeError(
-        f"{what}: expected a Task (balance_opt.load_task) or a task file path, "
+        "task: expected a Task (balance_opt.load_task) or a task file path, "
         f"got {type(task).__name__}"
     )
 
