@@ -56,7 +56,7 @@ _LAZY = {
     "simulate": "balance_opt.app.pipeline",
     "run_task": "balance_opt.app.pipeline",
     "SimulationResult": "balance_opt.dynamics.simulation",
-    "plot_result": "balance_opt.report.quicklook",
+    "plot_result": "balance_opt.report.plots",
 }
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ imports them
@@ -69,7 +69,7 @@ if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ impo
         simulate,
     )
     from balance_opt.dynamics.simulation import SimulationResult
-    from balance_opt.report.quicklook import plot_result
+    from balance_opt.report.plots import plot_result
     from balance_opt.result import BalanceResult, LimitViolation
     from balance_opt.tasks.task import Task, load_task, task_from_dict
 

@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
+import datetime
 import json
 import logging
 import os
+import re
 import signal
 import sys
 import threading
@@ -19,16 +22,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from balance_opt import __version__, progress
-from balance_opt.cli_options import (
-    PAPER_FIGURES_FOLDER,
-    command_line_ipopt,
-    common_options,
-    default_output_folder,
-    ipopt_options_of,
-    method_option,
-    run_options,
-)
-from balance_opt.cli_tools import add_tool_commands, backend_line, backend_option, with_backend
 from balance_opt.report.output_dir import OutputFolder
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -43,6 +36,158 @@ _HANDLER_FLAG = "_balance_opt_cli"
 __all__ = ["build_parser", "main"]
 
 log = logging.getLogger("balance_opt.cli")
+
+DEFAULT_OUTPUT_ROOT = Path("results")
+PAPER_FIGURES_FOLDER = DEFAULT_OUTPUT_ROOT / "paper_figures"
+
+
+def parse_solver_option(text: str) -> tuple[str, int | float | str]:
+    """``"max_iter=100"`` -> ``("max_iter", 100)``: the value as an int, else a float, else a string.
+
+    Raises:
+        InputError: no ``=`` or an empty key.
+    """
+    from balance_opt.errors import InputError
+
+    key, sep, value = text.partition("=")
+    key, value = key.strip(), value.strip()
+    if not sep or not key:
+        raise InputError(f"--solver-option {text!r}: expected KEY=VALUE, e.g. max_iter=200")
+    for convert in (int, float):
+        try:
+            return key, convert(value)
+        except ValueError:
+            pass
+    return key, value
+
+
+#: Ipopt's iteration log, shown (on stdout) with ``--verbose`` as the optimal planner's progress.
+VERBOSE_IPOPT = {"print_level": 5}
+
+
+def command_line_ipopt(args) -> dict:
+    """``--solver-option`` values, checked against Ipopt's own option list."""
+    from balance_opt.optimal.ipopt_options import check_ipopt_options
+
+    return check_ipopt_options(
+        dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
+    )
+
+
+def ipopt_options_of(args, task=None) -> dict:
+    """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
+    task or the command line sets ``print_level``)."""
+    options = command_line_ipopt(args)
+    task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}
+    if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
+        options.update(VERBOSE_IPOPT)
+    return options
+
+
+#: Characters a default output folder name keeps; any run of others becomes one ``_``.
+_UNSAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def default_output_folder(name: str) -> Path:
+    """``results/<name>``, the default output folder of a task or sweep ``name``, with the name
+    made a plain folder name: only letters, digits, ``.``, ``_`` and ``-`` (others become
+    ``_``), no leading dot. So a name such as ``../../x`` stays inside ``results/``."""
+    safe = _UNSAFE_NAME.sub("_", name).lstrip(".") or "unnamed"
+    if safe != name:
+        log.warning("name %r is not a plain folder name; the output folder is %s", name, safe)
+    return DEFAULT_OUTPUT_ROOT / safe
+
+
+def _count(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"
+
+
+def _cmd_cache(args) -> int:
+    from balance_opt.cache import CACHE_ENV, default_cache_dir
+    from balance_opt.cache_admin import KINDS, LIMIT_ENV, clear, entries, format_size, size_limit
+
+    folder = default_cache_dir()
+    origin = f"${CACHE_ENV}" if os.environ.get(CACHE_ENV) else "default; set $" + CACHE_ENV
+    print(f"cache folder: {folder} ({origin})")
+    if not folder.is_dir():
+        print("empty (the folder does not exist yet)")
+        return EXIT_OK
+    if args.clear:
+        deleted, kept = clear(folder)
+        size = sum(e.size for e in deleted)
+        print(f"deleted {_count(len(deleted), 'entry', 'entries')} ({format_size(size)})")
+        for entry in kept:
+            print(f"kept {entry.name}: a build under way in another process")
+        return EXIT_OK
+    found = entries(folder)
+    total = sum(e.size for e in found)
+    print(f"size: {format_size(total)} (bound {format_size(size_limit())}, ${LIMIT_ENV})")
+    for kind in KINDS:
+        group = [e for e in found if e.kind == kind]
+        if not group:
+            continue
+        print(
+            f"{kind}: {_count(len(group), 'entry', 'entries')}, {format_size(sum(e.size for e in group))}"
+        )
+        if not args.list:
+            continue
+        for e in group:
+            used = datetime.datetime.fromtimestamp(e.last_used).strftime("%Y-%m-%d %H:%M")
+            print(f"  {e.name}  {format_size(e.size)}  last used {used}")
+    if found and not args.list:
+        print("--list shows every entry")
+    return EXIT_OK
+
+
+def _print_joint_lines(chains) -> None:
+    """Each chain's joints, one line a chain; nothing for a robot without movable joints."""
+    for k, chain in enumerate(chains, 1):
+        print(f"    chain {k}: {', '.join(map(str, chain))}")
+
+
+def _cmd_robots(args) -> int:
+    from balance_opt.model.catalog import ALIASES, example_robots, robot_info
+
+    if args.name:
+        info = robot_info(args.name)
+        print(f"{info.name}: {info.path}")
+        if info.error:
+            print(f"  does not load: {info.error}")
+            return 2
+        joints, chains = _count(info.dof, "movable joint", "movable joints"), len(info.chains)
+        print(f"  {joints}, {_count(chains, 'chain', 'chains')}, {info.mass:.2f} kg")
+        _print_joint_lines(info.chains)
+        for warning in info.warnings:
+            print(f"  warning: {warning}")
+        return EXIT_OK
+    aliases = {}
+    for alias, name in ALIASES.items():
+        aliases.setdefault(name, []).append(alias)
+    failed = []
+    robots = example_robots()
+    for name in robots:
+        info = robot_info(name)
+        if info.error:
+            failed.append(info)
+            continue
+        also = f" (also: {', '.join(aliases[name])})" if name in aliases else ""
+        print(f"{name}{also}: {info.dof} movable joints, {info.mass:.1f} kg")
+        _print_joint_lines(info.chains)
+    print(f"{len(robots) - len(failed)} of {len(robots)} robots load; use robot: {{example: NAME}}")
+    for info in failed:
+        print(f"does not load: {info.name}: {info.error}")
+    return EXIT_OK
+
+
+def _load_task(path, backend: str | None):
+    """The task of file ``path`` with ``robot.backend`` replaced by ``backend`` (unless None)."""
+    from balance_opt.tasks.task import load_task
+
+    task = load_task(path)
+    if backend is None:
+        return task
+    robot = dataclasses.replace(task.spec.robot, backend=backend)
+    return dataclasses.replace(task, spec=dataclasses.replace(task.spec, robot=robot))
 
 
 @contextlib.contextmanager
@@ -88,24 +233,27 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     return restore
 
 
-def _cmd_schema(args) -> int:
-    from balance_opt.tasks.task import task_json_schema
-
-    print(json.dumps(task_json_schema(), indent=2))
-    return EXIT_OK
+def _reference_asked(args, schema: Callable[[], dict], reference: Callable[[], str]) -> bool:
+    """Print a file format's JSON Schema (``--schema``) or Markdown reference (``--reference``)
+    if asked; whether it was."""
+    if args.schema:
+        print(json.dumps(schema(), indent=2))
+    elif args.reference:
+        print(reference())
+    return args.schema or args.reference
 
 
 def _cmd_validate(args) -> int:
     """Check every task file given, each error printed with its file; exit 2 if any failed."""
     from balance_opt.errors import InputError
-    from balance_opt.tasks.task import check_methods, load_task
+    from balance_opt.tasks.task import (
+        check_methods,
+        load_task,
+        task_json_schema,
+        task_reference_markdown,
+    )
 
-    if args.schema:
-        return _cmd_schema(args)
-    if args.reference:
-        from balance_opt.tasks.task import task_reference_markdown
-
-        print(task_reference_markdown())
+    if _reference_asked(args, task_json_schema, task_reference_markdown):
         return EXIT_OK
     if not args.tasks:
         raise InputError("validate: give one or more task files, or --schema")
@@ -134,21 +282,20 @@ def _cmd_validate(args) -> int:
 
 def _cmd_inspect(args) -> int:
     from balance_opt.model.summary import robot_summary
+    from balance_opt.model.symbolic import backend_description  # builds the bridge if used
 
     if args.task is None:
         from balance_opt.model.library import paper_robot
 
         print(robot_summary(paper_robot()))
-        print(backend_line(args.backend or "auto"))
+        print(f"symbolic backend: {backend_description(args.backend or 'auto')}")
         return EXIT_OK
-    from balance_opt.tasks.task import load_task
-
-    task = with_backend(load_task(args.task), args.backend)
+    task = _load_task(args.task, args.backend)
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
     _print_cartesian_goal(task)
     _print_geometry(task)
-    print(backend_line(task.spec.robot.backend))
+    print(f"symbolic backend: {backend_description(task.spec.robot.backend)}")
     return EXIT_OK
 
 
@@ -213,12 +360,13 @@ def _starts_executor(task, methods: tuple[str, ...]):
         yield engine
 
 
-def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: str = "plan") -> int:
+def _run_task_command(args) -> int:
+    """``plan``, ``simulate`` and ``compare``."""
     from balance_opt.app.pipeline import run_task
-    from balance_opt.tasks.task import load_task
 
+    methods = _methods(args)
     with _early_output(args) as folder:
-        task = with_backend(load_task(args.task), args.backend)
+        task = _load_task(args.task, args.backend)
         solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
         started = time.perf_counter()
@@ -226,11 +374,13 @@ def _run_task_command(args, methods: tuple[str, ...], simulate: bool, command: s
             run = run_task(
                 task,
                 methods=methods,
-                simulate=simulate,
+                simulate=args.simulate,
                 output_dir=folder,
                 solver_options=solver_options,
                 executor=executor,
-                robustness=task.spec.robustness.runs_in(command),
+                robustness=task.spec.robustness.runs_in(
+                    "compare" if args.command == "compare" else "plan"
+                ),
             )
     from balance_opt.report.report import violation_count_text
 
@@ -296,29 +446,11 @@ def _more_summary(metrics: dict) -> list[str]:
     return lines
 
 
-def _cmd_plan(args) -> int:
-    return _run_task_command(args, _methods(args), simulate=args.simulate)
-
-
-def _cmd_simulate(args) -> int:
-    return _run_task_command(args, _methods(args), simulate=True)
-
-
-def _cmd_compare(args) -> int:
-    return _run_task_command(
-        args, ("analytic", "optimal"), simulate=not args.no_simulate, command="compare"
-    )
-
-
 def _cmd_paper_figures(args) -> int:
-    from balance_opt.app.paper_figures import paper_figures
+    from balance_opt.app.study import paper_figures
 
     with _early_output(args) as folder:
-        task = None
-        if args.task is not None:
-            from balance_opt.tasks.task import load_task
-
-            task = load_task(args.task)
+        task = None if args.task is None else _load_task(args.task, None)
         solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(PAPER_FIGURES_FOLDER, args.force)
         files = paper_figures(
@@ -354,11 +486,7 @@ def _cmd_sweep(args) -> int:
     from balance_opt.errors import InputError
     from balance_opt.sweep.spec import load_sweep, sweep_json_schema, sweep_reference_markdown
 
-    if args.schema:
-        print(json.dumps(sweep_json_schema(), indent=2))
-        return EXIT_OK
-    if args.reference:
-        print(sweep_reference_markdown())
+    if _reference_asked(args, sweep_json_schema, sweep_reference_markdown):
         return EXIT_OK
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
@@ -402,10 +530,15 @@ def _cmd_sweep(args) -> int:
 def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
     """The scene page of a result folder (its ``scene.html``, or one built into ``folder`` from
     its NPZ files and task file) or of a task file (planned here, both methods)."""
-    from balance_opt.app.pipeline import TaskRun, run_task
-    from balance_opt.app.run_files import METRICS_FILE, REFERENCE, SCENE_FILE, write_run_scene
+    from balance_opt.app.pipeline import (
+        METRICS_FILE,
+        REFERENCE,
+        SCENE_FILE,
+        TaskRun,
+        run_task,
+        write_run_scene,
+    )
     from balance_opt.errors import InputError
-    from balance_opt.tasks.task import load_task
 
     if source.is_dir():
         if (source / SCENE_FILE).is_file():
@@ -428,10 +561,10 @@ def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
         results = {n: read_npz_result(f) for n, f in files.items() if f.is_file()}
         if not results:
             raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
-        task = with_backend(load_task(task_file), backend)
+        task = _load_task(task_file, backend)
         run = TaskRun(task, results=results, failures=content.get("failures") or {})
     else:
-        task = with_backend(load_task(source), backend)
+        task = _load_task(source, backend)
         run = run_task(task, methods=("analytic", "optimal"))
     return write_run_scene(run, folder / SCENE_FILE)
 
@@ -464,17 +597,70 @@ def _cmd_view(args) -> int:
     return EXIT_OK
 
 
-def _add_check_commands(sub) -> None:
-    """``validate``, ``schema`` and ``inspect``: everything short of planning."""
+#: The help of the options the commands that compute share.
+_OUTPUT_HELP = "output directory (default: {})"
+_FORCE_HELP = (
+    "replace an existing, non-empty output folder: its old files are all removed, once the new "
+    "results are complete"
+)
+_SOLVER_OPTION_HELP = (
+    "Ipopt option for the optimal planner (repeatable); overrides the task's optimal.ipopt; "
+    "values are read as int, float or string"
+)
+
+
+def _flag(parser: argparse.ArgumentParser, *names: str, help: str, **kwargs) -> None:
+    parser.add_argument(*names, action="store_true", help=help, **kwargs)
+
+
+def _compute_options(parser, output: str, force: str, solver_option: str) -> None:
+    """``--output``, ``--force``, ``--solver-option`` and ``--backend``, with a command's help."""
+    parser.add_argument("-o", "--output", metavar="DIR", help=_OUTPUT_HELP.format(output))
+    _flag(parser, "-f", "--force", help=force)
+    parser.add_argument("--solver-option", action="append", metavar="KEY=VALUE", help=solver_option)
+    _backend_option(parser)
+
+
+def _backend_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--backend",
+        choices=("auto", "pinocchio", "adam"),
+        help="symbolic backend of the optimal planner (default: the task's robot.backend, auto)",
+    )
+
+
+def _method_option(parser, help: str = "planning method (default: both)") -> None:
+    """``-m``/``--method``: analytic, optimal or both (the default), or mission-only (the
+    reference alone, which every run computes)."""
+    parser.add_argument(
+        "-m",
+        "--method",
+        choices=("analytic", "optimal", "both", "mission-only"),
+        default="both",
+        help=help,
+    )
+
+
+def _reference_options(parser, what: str) -> None:
+    _flag(parser, "--schema", help=f"print the JSON Schema of {what} files and exit")
+    _flag(parser, "--reference", help=f"print the {what}-file reference (Markdown) and exit")
+
+
+def _run_command(sub, name: str, help: str, run, output=f"{DEFAULT_OUTPUT_ROOT}/<task name>"):
+    """A command that computes: ``TASK`` (but the paper study) and :func:`_compute_options`."""
+    p = sub.add_parser(name, help=help)
+    if name != "paper-figures":
+        p.add_argument("task", help="task file (YAML)")
+    _compute_options(p, output, _FORCE_HELP, _SOLVER_OPTION_HELP)
+    p.set_defaults(run=run)
+    return p
+
+
+def _add_commands(sub) -> None:
     p = sub.add_parser("validate", help="check task files (everything short of planning)")
     p.add_argument("tasks", nargs="*", metavar="TASK", help="task files (YAML)")
-    p.add_argument(
-        "--schema", action="store_true", help="print the JSON Schema of task files and exit"
-    )
-    p.add_argument(
-        "--reference", action="store_true", help="print the task-file reference (Markdown) and exit"
-    )
-    method_option(
+    _reference_options(p, "task")
+    _method_option(
         p,
         "check what these methods need (default: both; analytic leaves out the optimal "
         "planner's checks)",
@@ -482,77 +668,47 @@ def _add_check_commands(sub) -> None:
     p.set_defaults(run=_cmd_validate)
 
     p = sub.add_parser("schema", help="print the JSON Schema of task files")
-    p.set_defaults(run=_cmd_schema)
+    p.set_defaults(run=_cmd_validate, schema=True)
 
     p = sub.add_parser("inspect", help="print a robot summary and its coupling measures")
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
-    backend_option(p)
+    _backend_option(p)
     p.set_defaults(run=_cmd_inspect)
 
-
-def _add_run_commands(sub) -> None:
-    """``plan``, ``simulate``, ``compare`` and ``paper-figures``."""
-    p = sub.add_parser(
-        "plan", help="plan the balance motion, write trajectories, metrics, figures, report"
+    for name, help in (
+        ("plan", "plan the balance motion, write trajectories, metrics, figures, report"),
+        ("simulate", "plan, then check each plan in a forward-dynamics simulation"),
+        ("compare", "analytic and optimal plans, simulated, and the comparison report"),
+    ):
+        p = _run_command(sub, name, help, _run_task_command)
+        if name == "compare":
+            p.add_argument(
+                "--no-simulate",
+                dest="simulate",
+                action="store_false",
+                help="skip the forward-dynamics simulation",
+            )
+            p.set_defaults(method="both")
+            continue
+        _method_option(p)
+        if name == "plan":
+            _flag(p, "--simulate", help="also simulate each plan (as the simulate command)")
+        else:
+            p.set_defaults(simulate=True)
+    p = _run_command(
+        sub,
+        "paper-figures",
+        "the paper's study: Figs 2-5 on the Table 1 robot",
+        _cmd_paper_figures,
+        str(PAPER_FIGURES_FOLDER),
     )
-    run_options(p)
-    backend_option(p)
-    method_option(p)
-    p.add_argument(
-        "--simulate", action="store_true", help="also simulate each plan (as the simulate command)"
-    )
-    p.set_defaults(run=_cmd_plan)
-
-    p = sub.add_parser(
-        "simulate", help="plan, then check each plan in a forward-dynamics simulation"
-    )
-    run_options(p)
-    backend_option(p)
-    method_option(p)
-    p.set_defaults(run=_cmd_simulate)
-
-    p = sub.add_parser(
-        "compare", help="analytic and optimal plans, simulated, and the comparison report"
-    )
-    run_options(p)
-    backend_option(p)
-    p.add_argument(
-        "--no-simulate", action="store_true", help="skip the forward-dynamics simulation"
-    )
-    p.set_defaults(run=_cmd_compare)
-
-    p = sub.add_parser("paper-figures", help="the paper's study: Figs 2-5 on the Table 1 robot")
-    run_options(p, task_required=False, default_output=str(PAPER_FIGURES_FOLDER))
-    backend_option(p)
     p.add_argument(
         "--task",
         help="study this task instead (its robot, mission, balance start and options; both "
         "methods); default: the paper's law on examples/paper_fig5.yaml's scenario and the "
         "law against the optimal plan on examples/capture_task.yaml's",
     )
-    p.set_defaults(run=_cmd_paper_figures)
 
-
-def _add_view_command(sub) -> None:
-    """``view``: the 3D scene in a browser."""
-    p = sub.add_parser(
-        "view",
-        help="show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
-        description="Serve the 3D scene of a result folder (its scene.html, or one built from "
-        "its NPZ files) or of a task file (planned first, both methods) on 127.0.0.1 and open "
-        "it in a browser; Ctrl-C stops.",
-    )
-    p.add_argument("source", metavar="RESULT_DIR|TASK", help="result folder or task file")
-    p.add_argument(
-        "--no-browser", action="store_true", help="print the URL and serve, open no browser"
-    )
-    p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
-    backend_option(p)
-    p.set_defaults(run=_cmd_view)
-
-
-def _add_sweep_command(sub) -> None:
-    """``sweep``: many tasks from a sweep file."""
     p = sub.add_parser(
         "sweep",
         help="run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
@@ -564,8 +720,11 @@ def _add_sweep_command(sub) -> None:
         "(--resume goes on).",
     )
     p.add_argument("sweep", nargs="?", help="sweep file (YAML)")
-    p.add_argument(
-        "-o", "--output", metavar="DIR", help="output directory (default: results/<sweep name>)"
+    _compute_options(
+        p,
+        "results/<sweep name>",
+        "start over in an existing, non-empty output directory",
+        "Ipopt option for every optimal case (repeatable)",
     )
     p.add_argument(
         "-j",
@@ -581,60 +740,70 @@ def _add_sweep_command(sub) -> None:
         help="run on Dask: the address of a scheduler (tcp://host:8786), or 'local' to start "
         "a local cluster of --jobs worker processes on 127.0.0.1",
     )
-    p.add_argument(
-        "--resume",
-        action="store_true",
-        help="finish an interrupted sweep in --output: skip the cases already done",
+    _flag(
+        p, "--resume", help="finish an interrupted sweep in --output: skip the cases already done"
     )
-    p.add_argument(
-        "--retry-failed", action="store_true", help="with --resume, run failed cases again"
-    )
-    p.add_argument(
-        "-f",
-        "--force",
-        action="store_true",
-        help="start over in an existing, non-empty output directory",
-    )
-    p.add_argument("--no-plots", action="store_true", help="skip the summary plots")
-    backend_option(p)
-    p.add_argument(
-        "--solver-option",
-        action="append",
-        metavar="KEY=VALUE",
-        help="Ipopt option for every optimal case (repeatable)",
-    )
-    p.add_argument(
-        "--schema", action="store_true", help="print the JSON Schema of sweep files and exit"
-    )
-    p.add_argument(
-        "--reference",
-        action="store_true",
-        help="print the sweep-file reference (Markdown) and exit",
-    )
+    _flag(p, "--retry-failed", help="with --resume, run failed cases again")
+    _flag(p, "--no-plots", help="skip the summary plots")
+    _reference_options(p, "sweep")
     # "module:function" of another case function (tests); default: the task runner
     p.add_argument("--runner", default=None, help=argparse.SUPPRESS)
     p.set_defaults(run=_cmd_sweep)
 
+    p = sub.add_parser(
+        "view",
+        help="show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
+        description="Serve the 3D scene of a result folder (its scene.html, or one built from "
+        "its NPZ files) or of a task file (planned first, both methods) on 127.0.0.1 and open "
+        "it in a browser; Ctrl-C stops.",
+    )
+    p.add_argument("source", metavar="RESULT_DIR|TASK", help="result folder or task file")
+    _flag(p, "--no-browser", help="print the URL and serve, open no browser")
+    p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
+    _backend_option(p)
+    p.set_defaults(run=_cmd_view)
+
+    p = sub.add_parser(
+        "cache", help="show the cache of compiled kernels and the bridge, or clear it"
+    )
+    _flag(p, "--clear", help="delete every cached entry")
+    _flag(p, "--list", help="list every entry (default: a summary)")
+    p.set_defaults(run=_cmd_cache)
+
+    p = sub.add_parser("robots", help="robots usable as robot.example, with their joints by chain")
+    p.add_argument("name", nargs="?", help="one robot in detail")
+    p.set_defaults(run=_cmd_robots)
+
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``balance-opt`` parser: every subcommand, ``-v``/``-q`` on each."""
+    """The ``balance-opt`` parser: every subcommand, ``-v``/``-q`` on each (either place
+    works)."""
     parser = argparse.ArgumentParser(
         prog="balance-opt",
         description=DESCRIPTION,
         epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted, "
         "141 output pipe closed",
     )
-    common_options(parser, top=True)
+    _verbosity(parser, False)
     parser.add_argument("--version", action="version", version=VERSION)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    _add_check_commands(sub)
-    _add_run_commands(sub)
-    _add_sweep_command(sub)
-    _add_view_command(sub)
-    add_tool_commands(sub)
-    for subparser in sub.choices.values():
-        common_options(subparser, top=False)
+    _add_commands(sub)
+    for p in sub.choices.values():
+        _verbosity(p, argparse.SUPPRESS)
     return parser
+
+
+def _verbosity(parser: argparse.ArgumentParser, default) -> None:
+    _flag(
+        parser,
+        "-v",
+        "--verbose",
+        default=default,
+        help="log debug messages, and show Ipopt's iteration log (stdout)",
+    )
+    _flag(
+        parser, "-q", "--quiet", default=default, help="print only warnings and errors: no progress"
+    )
 
 
 def _detach_stdout() -> None:

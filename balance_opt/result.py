@@ -3,7 +3,7 @@ that any two compare field by field.
 
 A :class:`BalanceResult` is also what a notebook holds: a short ``repr``, value equality and
 :meth:`BalanceResult.to_dataframe` (pandas, imported only then). Drawing one is the report's
-business (:func:`balance_opt.report.quicklook.plot_result`, ``balance_opt.plot_result``): a
+business (:func:`balance_opt.report.plots.plot_result`, ``balance_opt.plot_result``): a
 result is made in the lowest layers of the package (motion, analytic, optimal, dynamics) and
 knows nothing of figures.
 """

@@ -50,7 +50,7 @@ LAYERS = (
     ("report", ("report",)),
     ("app", ("app",)),
     ("sweep", ("sweep",)),
-    ("cli", ("cli", "cli_options", "cli_tools", "")),
+    ("cli", ("cli", "")),
 )
 
 

@@ -20,7 +20,7 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.capture import plan_captured, robot_after
+from balance_opt.app.capture import plan_captured
 from balance_opt.app.pipeline import run_task, simulate_result
 from balance_opt.errors import InputError
 from balance_opt.model.capture import Target, attach_target, capture_state
@@ -196,7 +196,7 @@ def _check_conserved(task, q, q_dot, quaternion, twist_before, twist_after):
     """Robot + free target before, robot with the target after: the same momentum about the
     world origin (the base placed away from it: a reference point that matters)."""
     base = pin.SE3(pin.Quaternion(*np.r_[quaternion[3], quaternion[:3]]).matrix(), np.r_[1, -2, 3])
-    robot, after = task.robot, robot_after(task)
+    robot, after = task.robot, task.robot_after_capture
     before = _momentum_about_origin(
         robot, robot.pin_q(q, base), robot.pin_v(q_dot, twist_before)
     ) + _target_momentum_about_origin(robot, task.target, robot.pin_q(q, base))

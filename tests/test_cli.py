@@ -17,7 +17,7 @@ import pytest
 
 import balance_opt
 from balance_opt.cli import main
-from balance_opt.cli_options import parse_solver_option
+from balance_opt.cli import parse_solver_option
 from balance_opt.model.library import shipped_urdf
 from balance_opt.report.outputs import read_npz_result
 from balance_opt.tasks.task import task_json_schema
@@ -588,7 +588,7 @@ def test_the_default_output_folder_is_the_one_the_help_states(
 
 
 def test_backend_is_taken_by_sweep_and_paper_figures(tmp_path, monkeypatch):
-    from balance_opt.app import paper_figures
+    from balance_opt.app import study as paper_figures
     from balance_opt.sweep import run as sweep_run
 
     seen = {}

@@ -116,7 +116,7 @@ def test_attitude_figure_writes_nothing_unless_asked(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     rng = np.random.default_rng(3)
     results = {"optimal": fake_attitude(rng), "analytic": fake_attitude(rng)}
-    fig, paths = attitude_figure(results, dashed={"mission-only": fake_attitude(rng)})
+    fig, paths = attitude_figure({**results, "mission-only": fake_attitude(rng)})
     assert paths == [] and list(tmp_path.iterdir()) == []
     assert titles(fig) == ("", ["", "", ""])
     expected = ["optimal plan", "analytic law", "mission arm alone"]
@@ -193,12 +193,12 @@ def fake_plan(joints, rng, T=40):
 
 
 def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path):
-    from balance_opt.report.report_figures import joint_limits_figure
+    from balance_opt.report.plots import joint_limits_figure
 
     joints = [j for j in paper.joint_names if "balance" in j]
     rng = np.random.default_rng(7)
     plans = {"analytic": fake_plan(joints, rng), "optimal": fake_plan(joints, rng)}
-    fig = joint_limits_figure(plans, paper)
+    fig, _ = joint_limits_figure(plans, paper)
     assert list(tmp_path.iterdir()) == []
     assert titles(fig) == ("", joints + [""] * (2 * len(joints)))
     top = fig.axes[0]
@@ -210,7 +210,7 @@ def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path)
     lo, hi = top.get_ylim()
     assert lo <= paper.limits.lower[i] and hi >= paper.limits.upper[i]
     texts_inside_and_legend_above(fig)
-    path = joint_limits_figure(plans, paper, tmp_path / "joints.png")
+    _, [path] = joint_limits_figure(plans, paper, tmp_path / "joints")
     assert Image.open(path).info["dpi"][0] == pytest.approx(style.SCREEN_DPI, abs=0.5)
 
 
@@ -265,14 +265,14 @@ def test_arm_colours_are_no_method_colour_and_the_scenes_use_them():
 
 
 def test_joint_figure_keeps_the_limits_in_view_past_a_runaway_plan(paper):
-    from balance_opt.report.report_figures import OFF_SCALE, joint_limits_figure
+    from balance_opt.report.plots import OFF_SCALE, joint_limits_figure
 
     joints = [j for j in paper.joint_names if "balance" in j]
     rng = np.random.default_rng(7)
     runaway, optimal = fake_plan(joints, rng), fake_plan(joints, rng)
     runaway.q_dot_B = runaway.q_dot_B.copy()
     runaway.q_dot_B[20, 0] = 5e4
-    fig = joint_limits_figure({"analytic": runaway, "optimal": optimal}, paper)
+    fig, _ = joint_limits_figure({"analytic": runaway, "optimal": optimal}, paper)
     rate = fig.axes[len(joints)]  # second row, first joint
     limit = paper.limits.velocity[paper.joint_index(joints[0])]
     np.testing.assert_allclose(rate.get_ylim(), [-OFF_SCALE * limit, OFF_SCALE * limit])
@@ -282,7 +282,7 @@ def test_joint_figure_keeps_the_limits_in_view_past_a_runaway_plan(paper):
 
 
 def test_torque_caption_says_how_far_apart_the_scales_are():
-    from balance_opt.app.run_files import _torque_scales
+    from balance_opt.app.pipeline import _torque_scales
 
     rng = np.random.default_rng(3)
     sims = {"analytic": fake_simulation(rng, 0.01), "optimal": fake_simulation(rng, 0.3)}

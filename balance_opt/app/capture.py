@@ -10,9 +10,7 @@ balance rates are continuous through the capture; end conditions apply to the se
 from __future__ import annotations
 
 import dataclasses
-import logging
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,9 +18,8 @@ from balance_opt.errors import SolverError
 from balance_opt.model.capture import CaptureState, capture_state
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
+from balance_opt.report.outputs import SAMPLED_ARRAYS
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violations
-
-log = logging.getLogger(__name__)
 
 
 class MissionWindow:
@@ -42,23 +39,16 @@ class MissionWindow:
         return self.mission.sample(np.asarray(t, dtype=float) + self.t0)
 
 
-def robot_after(task) -> FloatingRobot:
-    """The task's robot with its target attached (built once per task: the task keeps it)."""
-    return task.robot_after_capture
-
-
 @dataclass
 class Phase:
-    """What one phase is planned from: its robot, mission window, balance start, momentum
-    (in the axes of its initial base attitude) and initial attitude (world)."""
+    """What one phase (``index`` 0 or 1) is planned from: its robot, mission window, balance
+    start and momentum (in the axes of its initial base attitude)."""
 
     robot: FloatingRobot
     mission: MissionWindow
     q_B0: np.ndarray
     h0: np.ndarray
-    quaternion0: np.ndarray
     index: int
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def _rotated(h: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -79,12 +69,11 @@ def plan_with_capture(task, plan_phase) -> BalanceResult:
         MissionWindow(task.mission, 0.0, t_c),
         np.asarray(task.q_B0, dtype=float),
         np.asarray(task.h0, dtype=float),
-        np.array([0.0, 0.0, 0.0, 1.0]),
         0,
     )
     before = plan_phase(first)
     q_c, qd_c, quat_c = _state_at_end(task.robot, before)
-    after_robot = robot_after(task)
+    after_robot = task.robot_after_capture
     state = capture_state(task.robot, after_robot, task.target, q_c, qd_c, quat_c, task.h0)
     R_c = matrix_from_quaternion(quat_c)
     second = Phase(
@@ -92,9 +81,7 @@ def plan_with_capture(task, plan_phase) -> BalanceResult:
         MissionWindow(task.mission, t_c, T),
         before.q_B[-1].copy(),
         _rotated(state.h_after, R_c),
-        quat_c,
         1,
-        {"q_dot_B0": before.q_dot_B[-1].copy()},
     )
     try:
         after = plan_phase(second)
@@ -127,22 +114,10 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     capture, left out: the first's last is the state just before), the limit violations of the
     whole motion, the first phase's ``info`` with the second's under ``after_capture`` (without
     its bulky arrays), the iterations of both, and the capture's numbers under ``capture``."""
-    keep = slice(1, None)
-    arrays = {}
-    for name in (
-        "t",
-        "q_M",
-        "q_dot_M",
-        "q_ddot_M",
-        "q_B",
-        "q_dot_B",
-        "q_ddot_B",
-        "quaternion",
-        "omega",
-        "momentum_residual",
-        "sigma_min",
-    ):
-        arrays[name] = np.concatenate([getattr(before, name), getattr(after, name)[keep]])
+    arrays = {
+        name: np.concatenate([getattr(before, name), getattr(after, name)[1:]])
+        for name in SAMPLED_ARRAYS
+    }
     robot = task.robot
     q, q_dot, q_ddot = (np.empty((arrays["t"].size, robot.n)) for _ in range(3))
     M, B = robot.mission_indices, robot.balance_indices
@@ -170,19 +145,42 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     )
 
 
-def _plan_mission_only(task, p: Phase) -> BalanceResult:
-    from balance_opt.analytic.phases import phase_one
-
+def plan_part(
+    task,
+    method: str,
+    robot: FloatingRobot,
+    mission,
+    q_B0,
+    h0,
+    *,
+    law=None,
+    options=None,
+    guess=None,
+    models=None,
+    executor=None,
+) -> BalanceResult:
+    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a whole task
+    or of one phase of a capture: its robot, mission, balance start ``q_B0`` and momentum ``h0``;
+    the analytic ``law`` (default: the task's), the optimal planner's ``options``, initial
+    ``guess``, ``models`` (:class:`~balance_opt.app.models.ModelCache`) and ``executor``."""
     a = task.spec.analytic
-    return phase_one(p.robot, p.mission, p.q_B0, h0=p.h0, integration=a.integration)
+    if method == "mission-only":
+        from balance_opt.analytic.phases import phase_one
 
+        return phase_one(robot, mission, q_B0, h0=h0, integration=a.integration)
+    if method == "analytic":
+        from balance_opt.analytic.rollout import rollout
 
-def _plan_analytic(task, p: Phase) -> BalanceResult:
-    from balance_opt.analytic.rollout import rollout
+        law = a.law if law is None else law
+        return rollout(robot, mission, q_B0, law, integration=a.integration)
+    from balance_opt.app.models import ModelCache
+    from balance_opt.optimal.solve import build_balance_nlp
 
-    a = task.spec.analytic
-    law = dataclasses.replace(a.law, h0=tuple(float(v) for v in p.h0))
-    return rollout(p.robot, p.mission, p.q_B0, law, integration=a.integration)
+    model = (models if models is not None else ModelCache()).planner_model(
+        robot, task.spec.robot.backend
+    )
+    nlp = build_balance_nlp(model, mission, q_B0, options, robot=robot, h0=h0)
+    return nlp.solve(guess, executor)
 
 
 def phase_intervals(intervals: int, t_c: float, duration: float) -> tuple[int, int]:
@@ -192,14 +190,12 @@ def phase_intervals(intervals: int, t_c: float, duration: float) -> tuple[int, i
     return first, max(2, intervals - first)
 
 
-def _plan_optimal(task, p: Phase, solver_options, models, executor=None) -> BalanceResult:
-    from balance_opt.app.models import ModelCache
-    from balance_opt.optimal.solve import build_balance_nlp
-
+def _phase_options(task, p: Phase, solver_options):
+    """The optimal planner's options of a phase."""
     options = task.planner_options(solver_options)
     n_first, n_second = phase_intervals(options.intervals, task.target.time, task.duration)
     if p.index == 0:  # end in the second phase's start condition: continuous joint rates
-        options = dataclasses.replace(
+        return dataclasses.replace(
             options,
             intervals=n_first,
             end=options.start,
@@ -208,23 +204,22 @@ def _plan_optimal(task, p: Phase, solver_options, models, executor=None) -> Bala
             final_configuration=None,  # the task's end is the second phase's
             terminal_attitude_bound=None,
         )
-    else:
-        options = dataclasses.replace(options, intervals=n_second, horizon=None)
-    models = models if models is not None else ModelCache()
-    model = models.planner_model(p.robot, task.spec.robot.backend)
-    nlp = build_balance_nlp(model, p.mission, p.q_B0, options, robot=p.robot, h0=p.h0)
-    return nlp.solve(task.spec.optimal.initial_guess, executor)
+    return dataclasses.replace(options, intervals=n_second, horizon=None)
 
 
 def plan_captured(
     task, method: str, solver_options=None, models=None, executor=None
 ) -> BalanceResult:
     """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task with
-    a capture: :func:`plan_with_capture` with that method in each phase."""
-    if method == "mission-only":
-        return plan_with_capture(task, lambda p: _plan_mission_only(task, p))
-    if method == "analytic":
-        return plan_with_capture(task, lambda p: _plan_analytic(task, p))
-    return plan_with_capture(
-        task, lambda p: _plan_optimal(task, p, solver_options, models, executor)
-    )
+    a capture: :func:`plan_with_capture` with that method in each phase (the law holding each
+    phase's momentum)."""
+
+    def plan_phase(p: Phase) -> BalanceResult:
+        law = dataclasses.replace(task.spec.analytic.law, h0=tuple(float(v) for v in p.h0))
+        options = _phase_options(task, p, solver_options) if method == "optimal" else None
+        return plan_part(
+            task, method, p.robot, p.mission, p.q_B0, p.h0, law=law, options=options,
+            guess=task.spec.optimal.initial_guess, models=models, executor=executor,
+        )  # fmt: skip
+
+    return plan_with_capture(task, plan_phase)

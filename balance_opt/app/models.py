@@ -24,14 +24,11 @@ class ModelCache:
     """Planner models by robot kinematics (see the module docstring).
 
     Args:
-        max_models: the most models kept; the oldest is dropped beyond it (each holds compiled
-            NLPs). ``None``: no limit.
         compile: how the models compile their point kernels (``PlannerModel``'s ``compile``:
             ``"auto"`` in the background, ``True`` now and waiting, ``False`` never).
     """
 
-    def __init__(self, max_models: int | None = None, compile: bool | str = "auto"):
-        self.max_models = max_models
+    def __init__(self, compile: bool | str = "auto"):
         self.compile = compile
         self._models: dict[str, PlannerModel] = {}
 
@@ -53,8 +50,6 @@ class ModelCache:
             log.debug(
                 "planner model of %s built in %.3f s", robot.name, time.perf_counter() - start
             )
-            if self.max_models is not None and len(self._models) >= self.max_models:
-                self._models.pop(next(iter(self._models)))
             self._models[key] = model
         else:
             model.upgrade_kernels()  # a background compilation may have finished meanwhile

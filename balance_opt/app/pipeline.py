@@ -1,23 +1,30 @@
 """Running a task: the mission arm alone (the reference), the analytic and/or optimal balance
-plans, optionally each checked by forward dynamics, then every output written.
+plans, optionally each checked by forward dynamics, then every output written: trajectories (CSV,
+NPZ), ``metrics.json``, the figures, the 3D scene and the HTML report, into a folder (the staging
+folder of an all-or-nothing run).
 
 A solver failure does not stop the run: the failing method's best iterate is kept, written and
 marked, and :attr:`TaskRun.failures` names it (the CLI then exits with code 1)."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from balance_opt.app.capture import plan_captured, plan_part
 from balance_opt.app.models import ModelCache
-from balance_opt.app.run_files import REFERENCE, TaskRun, _timed, run_geometry, write_run
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
+from balance_opt.report import plots
 from balance_opt.report.output_dir import OutputFolder
+from balance_opt.report.style import SCREEN_DPI, SIM, method_label
 from balance_opt.result import BalanceResult
 from balance_opt.tasks.task import Task, check_methods, check_optimal_supported
 
@@ -27,9 +34,302 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 METHODS = ("analytic", "optimal")
+#: Name of the reference result: the mission arm alone, balance arm held (Phase I, Fig. 2).
+REFERENCE = "mission-only"
+METRICS_FILE = "metrics.json"
+REPORT_FILE = "report.html"
+#: The 3D scene of the plans beside the report (issue 28), which the report shows in a frame.
+SCENE_FILE = "scene.html"
+#: Figures of a run: key -> (file name without suffix, caption). The figures carry no title;
+#: the report prints these captions under them.
+FIGURES = {
+    "clearance": (
+        "clearance",
+        "Smallest distance between any two bodies of the robot that may touch (adjacent links "
+        "and pairs the robot's SRDF disables left out), exact geometry, against time; below zero "
+        "the bodies penetrate; dotted: the optimal planner's collision margin",
+    ),
+    "model_error": (
+        "attitude_model_error",
+        "Base rotation of each plan as planned (lines) and its 95th percentile when the plan's "
+        "joint motion is replayed on robots whose masses, centres of mass and inertias are "
+        "perturbed (shaded up to the dotted edge)",
+    ),
+    "attitude": (
+        "attitude_plans",
+        "Base attitude of each plan (momentum model), with the mission arm alone for reference",
+    ),
+    "simulated_attitude": (
+        "attitude_simulated",
+        "Base attitude in the forward-dynamics simulation of each plan and of the mission arm alone",
+    ),
+    "torque": (
+        "reaction_torque",
+        (
+            "Torque the arms exert on the base in the forward-dynamics simulation of each plan "
+            "(paper Fig. 4): sum of the arms, mission arm and balance arm; each plan on its own "
+            "scale"
+        ),
+    ),
+    "joints": (
+        "balance_joints",
+        "Balance joint positions, rates and accelerations of each plan with their limits (dotted)",
+    ),
+    "capture": (
+        "capture",
+        "Base angular velocity |omega_b| and attitude drift through the capture (dotted line); "
+        "the drift after the capture is measured from the attitude at the capture (thin lines)",
+    ),
+}
 
 
-def checked_task(task: Task | str | Path, what: str = "task") -> Task:
+@dataclass
+class TaskRun:
+    """Everything a run (:func:`balance_opt.app.pipeline.run_task`) computed and wrote.
+
+    Attributes:
+        task: the task.
+        results: ``{"mission-only" | "analytic" | "optimal": BalanceResult}``; a failed method's
+            entry is its best iterate.
+        simulations: ``{method: SimulationResult}`` when simulated.
+        failures: ``{method: message}`` for the methods whose solver failed.
+        metrics: the content of ``metrics.json``.
+        files: every file written.
+        report: the HTML report, if written.
+        robustness: the plans' drift under model error
+            (:class:`~balance_opt.motion.robustness.RobustnessResult`), if studied.
+        clearance: per plan ``(ClearanceReport, t, smallest distance)``
+            (:mod:`balance_opt.geometry.clearance`); ``simulated_clearance`` the same of the
+            simulations; empty for a robot without geometry.
+        geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`
+            (``False``: it has none; ``None``: not built yet).
+    """
+
+    task: Task
+    results: dict[str, BalanceResult] = field(default_factory=dict)
+    simulations: dict[str, Any] = field(default_factory=dict)
+    failures: dict[str, str] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+    report: Path | None = None
+    robustness: Any = None
+    clearance: dict[str, Any] = field(default_factory=dict)
+    simulated_clearance: dict[str, Any] = field(default_factory=dict)
+    geometry: Any = None
+
+    @property
+    def ok(self) -> bool:
+        """No solver failed."""
+        return not self.failures
+
+    def __repr__(self) -> str:
+        lines = [f"TaskRun(task={self.task.name!r}, ok={self.ok})"]
+        for name, res in self.results.items():
+            failed = " (failed)" if name in self.failures else ""
+            lines.append(
+                f"  {name:13} max drift {res.max_drift:.4g} rad, final {res.final_drift:.4g} rad, "
+                f"{len(res.violations)} limit violation(s){failed}"
+            )
+        if self.simulations:
+            lines.append(f"  simulated     {', '.join(self.simulations)}")
+        for name, message in self.failures.items():
+            if name not in self.results:
+                lines.append(f"  {name}: failed: {message[:80]}")
+        if self.files:
+            where = self.files[0].parent
+            report = f", report {self.report}" if self.report is not None else ""
+            lines.append(f"  files         {len(self.files)} in {where}{report}")
+        return "\n".join(lines)
+
+
+@contextlib.contextmanager
+def _timed(what: str):
+    """Log ``what ...``, then ``what: done in X s`` when the block ends without error."""
+    log.info("%s ...", what)
+    start = time.perf_counter()
+    yield
+    log.info("%s: done in %.2f s", what, time.perf_counter() - start)
+
+
+def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
+    """Write the trajectories, ``metrics.json``, the figures and the report of ``run``."""
+    from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
+    from balance_opt.report.outputs import (
+        run_metrics,
+        write_metrics,
+        write_trajectory_csv,
+        write_trajectory_npz,
+    )
+
+    out, files = run.task.spec.outputs, []
+    output_dir.mkdir(parents=True, exist_ok=True)
+    torques = {  # the NPZ files, the metrics and the report each use them
+        name: plan_joint_torques(res, run.task.robot, run.task.h0)
+        for name, res in run.results.items()
+    }
+    for name, res in run.results.items():
+        if out.csv:
+            files.append(write_trajectory_csv(output_dir / f"{name}.csv", res))
+        if out.npz:
+            files.append(write_trajectory_npz(output_dir / f"{name}.npz", res, torques[name]))
+    margin = run.task.spec.optimal.planner.collision_margin
+    run.metrics = run_metrics(
+        run.task,
+        run.results,
+        run.simulations,
+        run.failures,
+        torques,
+        run.robustness,
+        {name: c[0] for name, c in run.clearance.items()},
+        {name: c[0] for name, c in run.simulated_clearance.items()},
+        # what the clearance check held apart and the pairs close at the start
+        run.geometry.summary(run.task.q0, margin) if run.geometry else None,
+    )
+    files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
+    figures = []
+    if out.plots or out.report:
+        with _timed("figures"):
+            figures = write_figures(run, output_dir)
+    if out.plots:
+        files.extend(path for _, path in figures)
+    if out.report:
+        from balance_opt.report.report import render_report
+
+        extra, scene = _report_sections(run, output_dir)
+        timed = {name: (res.t, torques[name]) for name, res in run.results.items()}
+        about = run.task.spec.description
+        run.report = output_dir / REPORT_FILE
+        page = render_report(run.metrics, figures, about, extra, timed)
+        run.report.write_text(page, encoding="utf-8")
+        files += [run.report] + ([scene] if scene is not None else [])
+        if not out.plots:
+            for _, path in figures:
+                path.unlink()
+    run.files = files
+    return files
+
+
+def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
+    """The report's 3D section (the scene, written beside it) and the scene's file (None: not
+    written)."""
+    if not run.task.spec.outputs.animation:
+        return "", None
+    try:
+        scene = write_run_scene(run, output_dir / SCENE_FILE)
+    except InputError as exc:  # a mesh file missing: the rest of the run still counts
+        log.warning("3D scene not written: %s", exc)
+        return "", None
+    return (
+        '<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through '
+        f'each plan (<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
+        "<code>balance-opt view</code> serves it).</p>"
+        f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'
+        'border:1px solid #ddd"></iframe>'
+    ), scene
+
+
+def run_geometry(run: TaskRun):
+    """The run's robot geometry (:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`),
+    built once and kept on ``run.geometry``; ``False`` for a robot without geometry (a log line
+    says so) or whose geometry does not load (a missing mesh: a warning)."""
+    from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
+
+    if run.geometry is None:
+        planner = run.task.spec.optimal.planner
+        try:
+            run.geometry = RobotGeometry(
+                run.task.robot, srdf=planner.collision_srdf, ignore=planner.collision_ignore
+            )
+        except NoGeometryError as exc:
+            log.info("%s: no clearance check: %s", run.task.name, exc)
+            run.geometry = False
+        except InputError as exc:  # a mesh file missing: the plans still count
+            log.warning("%s: no clearance check: %s", run.task.name, exc)
+            run.geometry = False
+    return run.geometry
+
+
+def write_run_scene(run: TaskRun, path: Path) -> Path:
+    """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
+    ``path``."""
+    from balance_opt.report.scene import write_scene
+
+    labels = {
+        name: method_label(name) + (" (FAILED)" if name in run.failures else "")
+        for name in run.results
+    }
+    geometry = run_geometry(run)  # the run's own when it checked clearance
+    with _timed("3D scene"):
+        return write_scene(
+            path, run.task.robot, run.results, run.task.h0, run.task.target, labels,
+            run.task.name, geometry=geometry or None,
+            margin=run.task.spec.optimal.planner.collision_margin,
+        )  # fmt: skip
+
+
+def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
+    """PNG figures of a run at one resolution (:data:`~balance_opt.report.style.SCREEN_DPI`, the
+    report's): the plans' attitude with the mission arm alone, the balance joints against their
+    limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
+    the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
+    ``(caption, path)`` pairs, in the report's order."""
+    figures = []
+
+    def draw(key, function, *args, note="", **kwargs):
+        stem, caption = FIGURES[key]
+        _, paths = function(*args, output_dir / stem, formats=("png",), dpi=SCREEN_DPI, **kwargs)
+        figures.append((caption + note, paths[0]))
+
+    plans = {k: v for k, v in run.results.items() if k != REFERENCE}
+    draw("attitude", plots.attitude_figure, _reference_last(run.results))
+    if run.clearance:
+        planner = run.task.spec.optimal.planner
+        margin = planner.collision_margin if planner.collision_avoidance else None
+        curves = {name: (c[1], c[2]) for name, c in run.clearance.items()}
+        draw("clearance", plots.clearance_figure, _reference_last(curves), margin)
+    if run.robustness is not None:
+        draw(
+            "model_error",
+            plots.model_error_figure,
+            _reference_last(run.results),
+            run.robustness.attitude_p95,
+            perturbation=run.robustness.options.perturbation,
+        )
+    if plans:
+        draw("joints", plots.joint_limits_figure, plans, run.task.robot)
+    if run.simulations:
+        sims = {f"{k}{SIM}": v for k, v in _reference_last(run.simulations).items()}
+        draw("simulated_attitude", plots.attitude_figure, sims)
+        balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
+        if balanced:
+            draw("torque", plots.reaction_torque_figure, balanced, note=_torque_scales(balanced))
+    if run.task.target is not None:  # issue 16
+        curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
+        draw("capture", plots.capture_figure, curves, run.task.target.time)
+    return figures
+
+
+def _torque_scales(simulations: Mapping[str, Any]) -> str:
+    """The caption's words on the torque figure's scales: each plan's largest torque of an arm
+    on the base, and how many times the smallest the largest is."""
+    peaks = {
+        name: max(float(np.abs(w[:, 3:]).max()) for w in sim.arm_wrenches.values())
+        for name, sim in simulations.items()
+    }
+    text = ", ".join(f"{method_label(n)} up to {p:.3g} N m" for n, p in peaks.items())
+    if len(peaks) > 1 and min(peaks.values()) > 0:
+        ratio = max(peaks.values()) / min(peaks.values())
+        text += f": the scales differ {ratio:.3g}x"
+    return f" ({text})"
+
+
+def _reference_last(results: Mapping[str, Any]) -> dict[str, Any]:
+    """``results`` with the mission arm alone last (its curve drawn over the plans')."""
+    first = {k: v for k, v in results.items() if k != REFERENCE}
+    return {**first, **({REFERENCE: results[REFERENCE]} if REFERENCE in results else {})}
+
+
+def checked_task(task: Task | str | Path) -> Task:
     """``task``, or the task loaded from the file it names (a path or a string).
 
     Raises:
@@ -42,7 +342,7 @@ def checked_task(task: Task | str | Path, what: str = "task") -> Task:
 
         return load_task(task)
     raise TypeError(
-        f"{what}: expected a Task (balance_opt.load_task) or a task file path, "
+        "task: expected a Task (balance_opt.load_task) or a task file path, "
         f"got {type(task).__name__}"
     )
 
@@ -61,14 +361,10 @@ def plan_mission_only(task: Task | str | Path) -> BalanceResult:
     held at its start, integrated from momentum conservation: the reference of every plan
     (``method="mission-only"``).
     """
-    from balance_opt.analytic.phases import phase_one
-
     task = checked_task(task)
     if task.target is not None:
-        return _captured(task, REFERENCE)
-
-    a = task.spec.analytic
-    return phase_one(task.robot, task.mission, task.q_B0, h0=task.h0, integration=a.integration)
+        return plan_captured(task, REFERENCE)
+    return plan_part(task, REFERENCE, task.robot, task.mission, task.q_B0, task.h0)
 
 
 def plan_analytic(task: Task | str | Path) -> BalanceResult:
@@ -77,14 +373,10 @@ def plan_analytic(task: Task | str | Path) -> BalanceResult:
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
     """
-    from balance_opt.analytic.rollout import rollout
-
     task = checked_task(task)
     if task.target is not None:
-        return _captured(task, "analytic")
-
-    a = task.spec.analytic
-    return rollout(task.robot, task.mission, task.q_B0, a.law, integration=a.integration)
+        return plan_captured(task, "analytic")
+    return plan_part(task, "analytic", task.robot, task.mission, task.q_B0, task.h0)
 
 
 def plan_optimal(
@@ -108,35 +400,19 @@ def plan_optimal(
         InputError: the task asks for something the optimal planner cannot do.
         SolverError: Ipopt did not solve the NLP; ``result`` is the last iterate, re-simulated.
     """
-    from balance_opt.optimal.solve import build_balance_nlp
-
     task = checked_task(task)
     if warm_start is not None:
         _checked_plan(warm_start)
     if task.target is not None:
-        return _captured(task, "optimal", solver_options, models, executor)
+        return plan_captured(task, "optimal", solver_options, models, executor)
     check_optimal_supported(task)
-    spec = task.spec.optimal
-    options = task.planner_options(solver_options)
-    model = (models if models is not None else ModelCache()).planner_model(
-        task.robot, task.spec.robot.backend
-    )
-    nlp = build_balance_nlp(model, task.mission, task.q_B0, options, robot=task.robot, h0=task.h0)
-    guess = (
-        warm_start
-        if (warm_start is not None and spec.initial_guess == "analytic")
-        else spec.initial_guess
-    )
-    return nlp.solve(guess, executor)
-
-
-def _captured(
-    task: Task, method: str, solver_options=None, models=None, executor=None
-) -> BalanceResult:
-    """The plan of a task with a capture: two phases joined at the capture (issue 16)."""
-    from balance_opt.app.capture import plan_captured
-
-    return plan_captured(task, method, solver_options, models, executor)
+    guess = task.spec.optimal.initial_guess
+    return plan_part(
+        task, "optimal", task.robot, task.mission, task.q_B0, task.h0,
+        options=task.planner_options(solver_options),
+        guess=warm_start if (warm_start is not None and guess == "analytic") else guess,
+        models=models, executor=executor,
+    )  # fmt: skip
 
 
 def plan(
@@ -173,11 +449,10 @@ def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
 
     task, plan = checked_task(task), _checked_plan(plan)
     if task.target is not None:  # through the capture's impulse (issue 16)
-        from balance_opt.app.capture import robot_after
         from balance_opt.dynamics.capture_impulse import simulate_with_capture
 
         return simulate_with_capture(
-            task.robot, robot_after(task), task.target, plan, task.spec.simulation
+            task.robot, task.robot_after_capture, task.target, plan, task.spec.simulation
         )
     return simulate_plan(task.robot, plan, task.spec.simulation)
 

@@ -50,15 +50,16 @@ class Scenario:
         return np.r_[self.mission.start, self.q_B0]
 
 
+def _balance_acceleration_limits() -> dict:
+    joints = ("balance_joint1", "balance_joint2", "balance_joint3")
+    return {j: {"acceleration": CAPTURE_BALANCE_ACCELERATION} for j in joints}
+
+
 def capture_task() -> Scenario:
     """The hard case: the shipped reading of Table 1, a 10 s point-to-point capture move of the
     mission arm, the balance arm starting bent at an exactly singular ``J_wB``, balance joint
     accelerations limited to 2 rad/s^2."""
-    limits = {
-        j: {"acceleration": CAPTURE_BALANCE_ACCELERATION}
-        for j in ("balance_joint1", "balance_joint2", "balance_joint3")
-    }
-    robot = paper_robot(limits=limits)
+    robot = paper_robot(limits=_balance_acceleration_limits())
     mission = PointToPoint(CAPTURE_MISSION_START, CAPTURE_MISSION_GOAL, CAPTURE_DURATION)
     return Scenario(robot, mission, np.array(CAPTURE_BALANCE_START), "capture_task")
 
@@ -67,11 +68,7 @@ def paper_fig5() -> Scenario:
     """The Fig. 5 study's choice (``docs/paper_fig5_study.md``): the reading
     :data:`~balance_opt.model.table1.FIG5_READING`, its balance start and mission, balance joint
     accelerations limited to 2 rad/s^2, and the exact law (no damping)."""
-    limits = {
-        j: {"acceleration": CAPTURE_BALANCE_ACCELERATION}
-        for j in ("balance_joint1", "balance_joint2", "balance_joint3")
-    }
-    robot = paper_robot_fig5(limits=limits)
+    robot = paper_robot_fig5(limits=_balance_acceleration_limits())
     mission = PointToPoint(FIG5_MISSION_START, FIG5_MISSION_GOAL, FIG5_DURATION)
     law = BalanceLawOptions(damping_threshold=0.0)
     return Scenario(robot, mission, np.array(FIG5_BALANCE_START), "paper_fig5", law)

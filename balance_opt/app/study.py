@@ -1,5 +1,6 @@
 """The paper's simulation study: Figs. 2-5 of a scenario, each plan checked by forward dynamics
-(``docs/paper_fig5_study.md``).
+(``docs/paper_fig5_study.md``), and ``balance-opt paper-figures``: the study written to an output
+folder all-or-nothing, as :func:`balance_opt.app.pipeline.run_task` writes its outputs.
 
 Fig. 3 replays each balance motion with the mission arm held: the motion is non-holonomic, so it
 is not the negative of Fig. 2. A plan whose solver failed is still shown (its last iterate) and
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,17 +21,20 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
+from balance_opt.app.pipeline import _timed
 from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
-from balance_opt.app.run_files import _timed
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
+from balance_opt.interrupts import handling_signals
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
+from balance_opt.report.output_dir import OutputFolder
 from balance_opt.report.outputs import peak_reaction_torques
 from balance_opt.report.plots import FORMATS, paper_figure_set
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
+from balance_opt.tasks.task import Task
 
 log = logging.getLogger(__name__)
 
@@ -295,3 +299,43 @@ def paper_study(
     (output_dir / "study.json").write_text(json.dumps(summary, indent=2, default=_plain))
     figures = {f"{name}/{k}": v for name, r in results.items() for k, v in r.figures.items()}
     return PaperStudy(output_dir, results, figures, summary)
+
+
+def paper_figures(
+    output_dir: str | Path | OutputFolder,
+    task: Task | None = None,
+    solver_options: Mapping[str, Any] | None = None,
+    force: bool = False,
+    backend: str | None = None,
+) -> list[Path]:
+    """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
+    ``output_dir``, all-or-nothing as :func:`run_task` writes: by default Figs. 2-5 of the
+    paper's law on ``paper_fig5`` and the law against the optimal plan on ``capture_task``,
+    each in a subfolder; with ``task``, Figs. 2-5 of that task (its robot, mission, balance
+    start and options), both methods, in a subfolder of its name. ``backend`` (the optimal
+    planner's symbolic backend) defaults to the task's ``robot.backend``, else ``"auto"``.
+
+    Raises:
+        InputError: the output folder cannot be used (see :func:`run_task`), checked first.
+        KeyboardInterrupt: Ctrl-C or SIGTERM; nothing is written.
+    """
+    folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
+    kwargs = {}
+    if task is not None:
+        kwargs = {
+            "scenario": Scenario(
+                task.robot, task.mission, task.q_B0, task.name, task.spec.analytic.law
+            ),
+            "law": task.spec.analytic.law,
+            "planner": task.planner_options(solver_options),
+            "simulation": task.spec.simulation,
+        }
+    elif solver_options:
+        kwargs = {"planner": PlannerOptions(ipopt=dict(solver_options))}
+    with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
+        if backend is None:
+            backend = task.spec.robot.backend if task is not None else "auto"
+        study = paper_study(folder.staging, backend=backend, **kwargs)
+        files = [p for paths in study.figures.values() for p in paths]
+        jsons = [folder.staging / name / "study.json" for name in study.parts]
+        return [folder.final(p) for p in (*files, *jsons, folder.staging / "study.json")]

@@ -88,10 +88,6 @@ class FolderLock:
         self.path = self.target.parent / LOCK_NAME.format(name=self.target.name)
         self._fd: int | None = None
 
-    @property
-    def held(self) -> bool:
-        return self._fd is not None
-
     def acquire(self) -> None:
         """Take the lock, without waiting.
 

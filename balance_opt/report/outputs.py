@@ -17,11 +17,26 @@ import numpy as np
 
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.optimal.ipopt_version import ipopt_version
 from balance_opt.result import ATTITUDE_COLUMNS, BULKY_INFO_KEYS, BalanceResult
 
 log = logging.getLogger(__name__)
 
+#: The arrays of a :class:`~balance_opt.result.BalanceResult` sampled on its time grid.
+SAMPLED_ARRAYS = (
+    "t",
+    "q_M",
+    "q_dot_M",
+    "q_ddot_M",
+    "q_B",
+    "q_dot_B",
+    "q_ddot_B",
+    "quaternion",
+    "omega",
+    "momentum_residual",
+    "sigma_min",
+)
 #: Version of the metrics.json layout; 2: ``effort`` margins added, and ``violations`` /
 #: ``limit_violations`` count effort limits too; 3: ``solver.iterations`` and
 #: ``solver.solve_time_s`` count every Ipopt solve behind the plan (were the last solve's).
@@ -88,21 +103,9 @@ def write_trajectory_npz(
         path,
         **extra,
         method=result.method,
-        t=result.t,
         mission_joints=np.array(result.mission_joints),
         balance_joints=np.array(result.balance_joints),
-        q_M=result.q_M,
-        q_dot_M=result.q_dot_M,
-        q_ddot_M=result.q_ddot_M,
-        q_B=result.q_B,
-        q_dot_B=result.q_dot_B,
-        q_ddot_B=result.q_ddot_B,
-        quaternion=result.quaternion,
-        rpy=result.rpy,
-        angle=result.angle,
-        omega=result.omega,
-        momentum_residual=result.momentum_residual,
-        sigma_min=result.sigma_min,
+        **{name: getattr(result, name) for name in (*SAMPLED_ARRAYS, "rpy", "angle")},
         info=json.dumps(to_json(result.info)),
     )
     return path
@@ -370,6 +373,61 @@ def _collision_violations(clearance) -> list[str]:
     return [f"{pen.pair}: collision from t = {pen.time:.3f} s, {pen.depth:.4g} m deep"]
 
 
+def _capture_block(info: Mapping[str, Any], t, quaternion, t_c: float) -> dict[str, Any]:
+    """Attitude drift before the capture (from the start) and after it (from the attitude at
+    the capture) [rad], and the capture's jumps and impulses."""
+    quaternion = np.asarray(quaternion)
+    k = int(np.flatnonzero(np.asarray(t) <= t_c + 1e-12)[-1])
+    from_start = rotation_angle(relative_rotation(quaternion[:1], quaternion))
+    after = rotation_angle(relative_rotation(quaternion[k : k + 1], quaternion[k:]))
+    jump = info["omega_jump"]
+    vectors = (
+        "ee_impulse",
+        "base_impulse_coupling",
+        "base_momentum_jump",
+        "momentum_before",
+        "momentum_after",
+    )
+    return {
+        "drift_at_capture_rad": float(from_start[k]),
+        "max_drift_before_rad": float(from_start[: k + 1].max()),
+        "max_drift_after_rad": float(after.max()),
+        "final_drift_since_capture_rad": float(after[-1]),
+        "max_drift_rad": float(from_start.max()),
+        "omega_jump_rad_s": list(jump),
+        "omega_jump_norm_rad_s": float(np.linalg.norm(jump)),
+        **{key: list(info[key]) for key in vectors},
+    }
+
+
+def capture_metrics(task, results: Mapping[str, Any], simulations=None) -> dict[str, Any] | None:
+    """The ``capture`` block of ``metrics.json`` (``docs/outputs.md``); ``None`` for a task
+    without a capture.
+    """
+    target = getattr(task, "target", None)
+    if target is None:
+        return None
+    t_c = float(target.time)
+    out: dict[str, Any] = {
+        "time_s": t_c,
+        "target": {
+            "mass_kg": float(target.mass),
+            "inertia_kg_m2": np.asarray(target.inertia).tolist(),
+            "com_m": np.asarray(target.com).tolist(),
+            "linear_velocity_m_s": np.asarray(target.linear_velocity).tolist(),
+            "angular_velocity_rad_s": np.asarray(target.angular_velocity).tolist(),
+        },
+        "methods": {},
+        "simulated": {},
+    }
+    for block, motions in (("methods", results), ("simulated", simulations or {})):
+        for name, r in motions.items():
+            info = r.info.get("capture")
+            if info is not None:
+                out[block][name] = _capture_block(info, r.t, r.quaternion, t_c)
+    return out
+
+
 def run_metrics(
     task,
     results: Mapping[str, BalanceResult],
@@ -392,10 +450,8 @@ def run_metrics(
     :class:`~balance_opt.geometry.clearance.ClearanceReport`; ``geometry``: what the check holds
     apart and the pairs close at the start
     (:meth:`~balance_opt.geometry.robot_geometry.RobotGeometry.summary`)."""
-    from balance_opt.report.capture_metrics import capture_metrics
-
     simulations, torques = simulations or {}, torques or {}
-    capture = capture_metrics(task, results, simulations)  # issue 16; None without a capture
+    capture = capture_metrics(task, results, simulations)  # None without a capture
     methods = {
         name: method_metrics(
             r,
@@ -444,18 +500,8 @@ def read_npz_result(path: str | Path) -> BalanceResult:
     with np.load(path, allow_pickle=False) as z:
         return BalanceResult(
             method=str(z["method"]),
-            t=z["t"],
             mission_joints=tuple(str(s) for s in z["mission_joints"]),
             balance_joints=tuple(str(s) for s in z["balance_joints"]),
-            q_M=z["q_M"],
-            q_dot_M=z["q_dot_M"],
-            q_ddot_M=z["q_ddot_M"],
-            q_B=z["q_B"],
-            q_dot_B=z["q_dot_B"],
-            q_ddot_B=z["q_ddot_B"],
-            quaternion=z["quaternion"],
-            omega=z["omega"],
-            momentum_residual=z["momentum_residual"],
-            sigma_min=z["sigma_min"],
+            **{name: z[name] for name in SAMPLED_ARRAYS},
             info=json.loads(str(z["info"])),
         )

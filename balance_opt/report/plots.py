@@ -1,20 +1,145 @@
-"""Figures of a plan's base attitude and of the torque on the base (paper Figs. 2-5).
+"""Every figure of a run and of the paper's study: the base attitude, the torque on the base
+(paper Figs. 2-5), the balance joints against their limits, clearance, model error and the
+capture.
 
 Every function takes ``{name: result}`` of the curves to overlay; the name is a method of
 :mod:`balance_opt.report.style` and gives the curve its look and label. The figures carry no
 title (a caption belongs to the text around them) and touch no pyplot state. Given ``axes=`` a
-function draws into the caller's axes; given no ``stem`` it writes nothing."""
+function draws into the caller's axes; given no ``stem`` it writes nothing. :func:`plot_result`
+(``balance_opt.plot_result``) is a quick look at one result for notebooks, on axes the caller
+owns (or a new figure), leaving the caller's matplotlib settings alone.
+
+Constrained layout renders every text once per file written, which is slow. These figures have a
+known shape (panels sharing the time axis, a y label left of the first column, a legend above),
+so their margins follow from font sizes and tick-label lengths alone, estimated from the DejaVu
+Sans glyph widths (:func:`layout`)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.report import style
-from balance_opt.report.figure_layout import arrange, column_title, legend_above, legend_columns
+from balance_opt.report.style import WIDTHS, font_sizes
+from balance_opt.result import BalanceResult
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+#: Widths of glyphs [em] (DejaVu Sans, rounded up); lower-case letters count as 0.58 em, other
+#: characters as 0.7 em.
+_GLYPH_EM = {".": 0.32, "-": 0.84, "\N{MINUS SIGN}": 0.84, "+": 0.84, " ": 0.32, "e": 0.62}
+_DIGIT_EM = 0.64
+#: Gaps [in]: around the figure, between a tick label and its axis (tick included), between
+#: a label and its tick labels, between panels of one column.
+_EDGE, _TICK_PAD, _LABEL_PAD, _ROW_GAP = 0.04, 0.07, 0.06, 0.08
+#: Height of a line of text in units of its font size.
+_LINE = 1.25
+_PT = 1.0 / 72.0
+
+
+def text_width(text: str, size_pt: float) -> float:
+    """Estimated width of ``text`` in inches at ``size_pt`` (mathtext counted as 4 glyphs)."""
+    if text.startswith("$"):
+        return 4 * _DIGIT_EM * size_pt * _PT
+    em = sum(
+        _DIGIT_EM if c.isdigit() else _GLYPH_EM.get(c, 0.58 if c.islower() else 0.7) for c in text
+    )
+    return em * size_pt * _PT
+
+
+def _tick_labels(axis) -> list[str]:
+    lo, hi = sorted(axis.get_view_interval())
+    span = (hi - lo) or 1.0
+    locs = [v for v in axis.get_major_locator()() if lo - 1e-9 * span <= v <= hi + 1e-9 * span]
+    return [s for s in axis.get_major_formatter().format_ticks(locs) if s]
+
+
+def _y_extent(ax, tick_pt: float, label_pt: float) -> float:
+    """Width left of an axes taken by its y tick labels and y label [in]."""
+    ticks = _tick_labels(ax.yaxis)
+    width = _TICK_PAD + max((text_width(s, tick_pt) for s in ticks), default=0.0)
+    if ax.get_ylabel():
+        width += _LABEL_PAD + _LINE * label_pt * _PT
+    return width
+
+
+def _legend_columns(labels: Sequence[str], width: str) -> int:
+    """How many legend columns fit across a figure of ``width``, the entries filling rows
+    (a column is as wide as its widest entry)."""
+    size = font_sizes(width)["legend"]
+    entries = [text_width(s, size) + (2.6 + 0.5 + 1.2) * size * _PT for s in labels]
+    room = WIDTHS[width] - 2 * _EDGE
+    for ncol in range(len(entries), 1, -1):
+        if sum(max(entries[c::ncol]) for c in range(ncol)) <= room:
+            return ncol
+    return 1
+
+
+def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = False) -> None:
+    """Place a grid of panels (margins from the tick labels and fonts, room above for column
+    titles) and a frameless legend of ``handles`` above them, in as many columns as fit.
+
+    Call after the data are drawn (the y tick labels depend on the data).
+    """
+    from matplotlib.lines import Line2D
+
+    ncol = _legend_columns([h.get_label() for h in handles], width)
+    rows = math.ceil(len(handles) / ncol)
+    axes = np.atleast_2d(axes)
+    fonts = font_sizes(width)
+    tick, base, leg = fonts["tick"], fonts["base"], fonts["legend"]
+    fig_w, fig_h = fig.get_size_inches()
+    n_rows, n_cols = axes.shape
+    extents = [max(_y_extent(ax, tick, base) for ax in axes[:, c]) for c in range(n_cols)]
+    left = _EDGE + extents[0]
+    gap = max(extents[1:], default=0.0) + 0.12
+    x_text = _TICK_PAD + _LINE * tick * _PT
+    bottom = _EDGE + x_text + (_LABEL_PAD + _LINE * base * _PT if axes[-1, 0].get_xlabel() else 0)
+    right = _EDGE + 0.12  # half of the last x tick label
+    legend_h = rows * 1.45 * leg * _PT + (0.04 if rows else 0.0)
+    top = _EDGE + legend_h + (_LINE * base * _PT + 0.04 if column_titles else 0.06)
+    panel_w = (fig_w - left - right - (n_cols - 1) * gap) / n_cols
+    panel_h = (fig_h - top - bottom - (n_rows - 1) * _ROW_GAP) / n_rows
+    fig.subplots_adjust(
+        left=left / fig_w,
+        right=1 - right / fig_w,
+        bottom=bottom / fig_h,
+        top=1 - top / fig_h,
+        wspace=gap / panel_w if n_cols > 1 else 0.2,
+        hspace=_ROW_GAP / panel_h if n_rows > 1 else 0.2,
+    )
+    order = [r * ncol + c for c in range(ncol) for r in range(rows)]  # legends fill by column
+    padded = list(handles) + [Line2D([], [], alpha=0, label=" ")] * (rows * ncol - len(handles))
+    cells = [padded[i] for i in order]
+    fig.legend(
+        cells,
+        [h.get_label() for h in cells],
+        loc="upper center",
+        bbox_to_anchor=((left + (fig_w - left - right) / 2) / fig_w, 1 - _EDGE / fig_h),
+        ncol=ncol,
+        frameon=False,
+        handlelength=2.6,
+        handletextpad=0.5,
+        columnspacing=1.2,
+        borderaxespad=0.0,
+        borderpad=0.0,
+        fontsize=leg,
+    )
+
+
+def column_title(ax, text: str, width: str) -> None:
+    """Name a column of panels (a plan, a joint) above its top panel. Placed at a fixed height
+    (:func:`layout` leaves room): matplotlib's automatic placement measures the axis at every
+    draw."""
+    ax.set_title(text, fontsize=font_sizes(width)["base"], y=1.0, pad=3.0)
+
 
 FORMATS = ("png", "pdf")
 ATTITUDE_AXES = ("roll", "pitch", "yaw")
@@ -57,31 +182,22 @@ def attitude_figure(
     results: Mapping[str, Any],
     stem: str | Path | None = None,
     *,
-    dashed: Mapping[str, Any] | None = None,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
     axes=None,
 ) -> tuple[Any, list[Path]]:
     """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
-    one column wide; returns the figure and the files written.
-
-    ``dashed``: more results drawn after ``results`` (a reference such as the mission arm alone).
-    ``axes``: three axes to draw into.
-    """
-    curves = {**results, **(dashed or {})}
-    t_end = max(float(res.t[-1]) for res in curves.values())
+    one column wide (or into three ``axes``); returns the figure and the files written."""
+    t_end = max(float(res.t[-1]) for res in results.values())
     if axes is not None:
-        draw_attitude(axes, curves)
+        draw_attitude(axes, results)
         return np.atleast_1d(axes)[0].figure, []
     with style.styled("column"):
         fig = style.figure("column", STACK_HEIGHT)
         axes = fig.subplots(3, 1, sharex=True)
-        handles = draw_attitude(axes, curves)
+        handles = draw_attitude(axes, results)
         _time_axes(axes, t_end, [f"{a} [deg]" for a in ATTITUDE_AXES])
-        ncol = legend_columns([h.get_label() for h in handles], "column")
-        rows = -(-len(handles) // ncol)
-        anchor = arrange(fig, axes[:, None], "column", legend_rows=rows)
-        legend_above(fig, handles, "column", anchor, ncol)
+        layout(fig, axes[:, None], handles, "column")
         return fig, _finish(fig, stem, formats, dpi)
 
 
@@ -100,10 +216,7 @@ def model_error_figure(
     Args:
         results: ``{name: result}`` with ``t`` and ``angle``.
         bands: ``{name: p95 angle at result.t}`` [rad] (a plan without one has no band).
-        stem: output path without suffix; ``None`` writes nothing.
         perturbation: the relative model error the bands are for (named in the legend).
-        formats: file formats to write.
-        dpi: resolution of the PNG.
     """
     with style.styled("column"):
         fig = style.figure("column", 2.4)
@@ -121,9 +234,7 @@ def model_error_figure(
         handles += ax.plot([], [], color="0.3", linestyle=":", linewidth=0.9,
                            label=f"95th percentile, {perturbation:.0%} model error")
         _time_axes([ax], max(float(r.t[-1]) for r in results.values()), ["rotation [deg]"])
-        ncol = legend_columns([h.get_label() for h in handles], "column")
-        anchor = arrange(fig, np.array([[ax]]), "column", legend_rows=-(-len(handles) // ncol))
-        legend_above(fig, handles, "column", anchor, ncol)
+        layout(fig, ax, handles, "column")
         return fig, _finish(fig, stem, formats, dpi)
 
 
@@ -151,9 +262,7 @@ def clearance_figure(
         t_end = max(float(t[-1]) for t, _ in curves.values())
         _time_axes([ax], t_end, ["smallest distance [m]"])
         handles = ax.get_lines()[: len(curves)]
-        ncol = legend_columns([h.get_label() for h in handles], "column")
-        anchor = arrange(fig, np.array([[ax]]), "column", legend_rows=-(-len(handles) // ncol))
-        legend_above(fig, handles, "column", anchor, ncol)
+        layout(fig, ax, handles, "column")
         return fig, _finish(fig, stem, formats, dpi)
 
 
@@ -172,14 +281,6 @@ def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
         (sim.arm_wrenches["mission"], style.method_style("arm:mission")),
         (balance, balance_style),
     ]
-
-
-def draw_torque(axes, name: str, sim) -> None:
-    """Torque on the base [N m] of one plan's simulation into three axes (x, y, z): the sum of
-    the arms, the mission arm's part, the balance arm's part."""
-    for wrench, kwargs in _torque_parts(name, sim):
-        for k, ax in enumerate(np.atleast_1d(axes)):
-            ax.plot(sim.t, wrench[:, 3 + k], **kwargs)
 
 
 def reaction_torque_figure(
@@ -201,17 +302,16 @@ def reaction_torque_figure(
         t_end = max(float(sim.t[-1]) for sim in simulations.values())
         handles = []
         for c, (name, sim) in enumerate(simulations.items()):
-            draw_torque(axes[:, c], name, sim)
+            for wrench, kwargs in _torque_parts(name, sim):
+                for k, ax in enumerate(axes[:, c]):
+                    ax.plot(sim.t, wrench[:, 3 + k], **kwargs)
             handles += axes[0, c].get_lines()[(0 if c == 0 else 2) :]
             _time_axes(axes[:, c], t_end, [f"torque {a} [N m]" for a in TORQUE_AXES])
             if c:
                 for ax in axes[:, c]:
                     ax.set_ylabel("")
             column_title(axes[0, c], style.method_label(name), width)
-        ncol = legend_columns([h.get_label() for h in handles], width)
-        rows = -(-len(handles) // ncol)
-        anchor = arrange(fig, axes, width, legend_rows=rows, column_titles=True)
-        legend_above(fig, handles, width, anchor, ncol)
+        layout(fig, axes, handles, width, column_titles=True)
         return fig, _finish(fig, stem, formats, dpi)
 
 
@@ -227,9 +327,7 @@ def paper_figure_set(
     """The paper's Figs. 2-5 of one study, as ``({"fig2": [files], ...}, {"fig2": Figure})``.
 
     Args:
-        output_dir: the folder.
         stems: file name without suffix of ``"fig2"`` ... ``"fig5"``.
-        formats: file formats.
         mission_only: simulation of the mission arm alone (Fig. 2 solid, Fig. 5 reference).
         kinematic: the mission arm alone under the momentum model (Fig. 2 dashed).
         balance_only: ``{method: simulation}`` of each plan's balance arm alone (Fig. 3).
@@ -258,3 +356,170 @@ def paper_figure_set(
 def curve_labels(fig) -> list[list[str]]:
     """The labels of the curves in each panel of a figure (to check what it shows)."""
     return [[line.get_label() for line in ax.get_lines()] for ax in fig.axes]
+
+
+#: Rows of the figure: (result field, limit field, axis label).
+_ROWS = (
+    ("q_B", "position", "position [rad]"),
+    ("q_dot_B", "velocity", "rate [rad/s]"),
+    ("q_ddot_B", "acceleration", "accel. [rad/s²]"),
+)
+#: Largest number of joint columns drawn (a 7-DOF arm still fits a page).
+MAX_COLUMNS = 7
+#: The y axis of a row reaches at most this many times a limit beyond it: a plan far outside
+#: (a law that ran away) would otherwise squash every other plan and the limits to a line.
+OFF_SCALE = 1.5
+#: Style of the limit lines.
+LIMIT_STYLE = {"color": "0.35", "linestyle": (0, (1.0, 1.0)), "linewidth": 0.9, "label": "limit"}
+
+
+def _bounds(lim, kind: str, i: int) -> tuple[float, float]:
+    if kind == "position":
+        return lim.lower[i], lim.upper[i]
+    value = getattr(lim, kind)[i]
+    return -value, value
+
+
+def joint_limits_figure(
+    results: Mapping[str, BalanceResult],
+    robot: FloatingRobot,
+    stem: str | Path | None = None,
+    *,
+    formats: Sequence[str] = ("png",),
+    dpi: int = style.SCREEN_DPI,
+) -> tuple[Any, list[Path]]:
+    """Balance joint positions, rates and accelerations of each plan against time, one column
+    per joint, the joint's limits dotted. The y range covers both the limits and every plan,
+    so a violation is seen at a glance."""
+    from matplotlib.lines import Line2D
+
+    first = next(iter(results.values()))
+    joints = list(first.balance_joints)[:MAX_COLUMNS]
+    width = "column" if len(joints) <= 2 else "page"
+    with style.styled(width):
+        fig = style.figure(width, 4.0)
+        axes = fig.subplots(len(_ROWS), len(joints), sharex=True, squeeze=False)
+        for c, joint in enumerate(joints):
+            _joint_column(axes[:, c], results, robot, joint, list(first.balance_joints))
+            column_title(axes[0, c], joint, width)
+        handles = axes[0, 0].get_lines()
+        handles = [h for h in handles if h.get_label() != "_limit"][: len(results)]
+        handles.append(Line2D([], [], **LIMIT_STYLE))
+        layout(fig, axes, handles, width, column_titles=True)
+        return fig, _finish(fig, stem, formats, dpi)
+
+
+def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
+    """Limit the y axis to :data:`OFF_SCALE` times the limits (measured from their middle) when
+    a plan goes beyond, and name the plans off the scale with their extreme value."""
+    middle, half = (bounds[0] + bounds[1]) / 2, (bounds[1] - bounds[0]) / 2
+    low, high = middle - OFF_SCALE * half, middle + OFF_SCALE * half
+    off = []
+    for name, res in results.items():
+        values = getattr(res, field)[:, k]
+        if values.size and (values.min() < low or values.max() > high):
+            peak = values[np.argmax(np.abs(values - middle))]
+            off.append(f"{style.method_label(name)} off scale (to {peak:.3g})")
+    if not off:
+        return
+    ax.set_ylim(low, high)
+    ax.text(
+        0.02, 0.97, "\n".join(off), transform=ax.transAxes, va="top", ha="left",
+        fontsize="x-small", color="0.2", bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+    )
+
+
+def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joints) -> None:
+    from matplotlib.ticker import MaxNLocator
+
+    i = robot.joint_index(joint)
+    k = balance_joints.index(joint)
+    first = next(iter(results.values()))
+    for r, (field, kind, label) in enumerate(_ROWS):
+        ax = axes[r]
+        for name, res in results.items():
+            ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
+        bounds = [b for b in _bounds(robot.limits, kind, i) if np.isfinite(b)]
+        if bounds:  # one line for both limits (NaN between): fewer artists than axhline
+            t0, t1 = first.t[0], first.t[-1]
+            ys = [y for b in bounds for y in (b, b, np.nan)]
+            ax.plot([t0, t1, np.nan] * len(bounds), ys, **{**LIMIT_STYLE, "label": "_limit"})
+        if len(bounds) == 2:
+            _clip_off_scale(ax, results, field, k, bounds)
+        if joint == balance_joints[0]:
+            ax.set_ylabel(label)
+        ax.yaxis.set_major_locator(MaxNLocator(4))
+        ax.margins(x=0)
+    axes[-1].set_xlabel("time [s]")
+
+
+def capture_figure(
+    results: Mapping[str, object],
+    t_c: float,
+    stem: str | Path | None = None,
+    *,
+    formats: Sequence[str] = FORMATS,
+    dpi: int = style.PRINT_DPI,
+) -> tuple[Any, list[Path]]:
+    """For each result (a plan or a simulation), ``|omega_b|`` [deg/s] and the drift [deg] from
+    the start (thick) and from the attitude at the capture (thin, after it)."""
+    with style.styled("column"):
+        fig = style.figure("column", 4.2, layout="constrained")
+        ax_w, ax_a = fig.subplots(2, 1, sharex=True)
+        for name, r in results.items():
+            kwargs = style.method_style(name)
+            t, quat = np.asarray(r.t), np.asarray(r.quaternion)
+            ax_w.plot(t, np.degrees(np.linalg.norm(r.omega, axis=1)), **kwargs)
+            ax_a.plot(t, np.degrees(rotation_angle(relative_rotation(quat[:1], quat))), **kwargs)
+            k = int(np.flatnonzero(t <= t_c + 1e-12)[-1])
+            since = rotation_angle(relative_rotation(quat[k : k + 1], quat[k:]))
+            thin = {**kwargs, "linewidth": 0.6, "marker": "", "label": None}
+            ax_a.plot(t[k:], np.degrees(since), **thin)
+        for ax in (ax_w, ax_a):
+            ax.axvline(t_c, color="0.4", linestyle=":", linewidth=0.8)
+        ax_w.set_ylabel("|ω_b| [deg/s]")
+        ax_a.set_ylabel("drift [deg]")
+        ax_a.set_xlabel("time [s]")
+        ax_w.legend(loc="best")
+        ax_w.set_ylim(bottom=0.0)
+        ax_a.set_ylim(bottom=0.0)
+    return fig, _finish(fig, stem, formats, dpi)
+
+
+#: What :func:`plot_result` can draw: ``kind -> y-axis label``.
+KINDS = {
+    "attitude": "base rotation from start [deg]",
+    "balance": "balance joint position [rad]",
+}
+
+
+def plot_result(result: BalanceResult, ax: Axes | None = None, kind: str = "attitude") -> Axes:
+    """Draw ``result`` on ``ax`` (a new figure when ``None``) and return the axes.
+
+    Args:
+        result: the motion.
+        ax: the axes; ``None`` makes a new figure with ``plt.subplots``.
+        kind: ``"attitude"`` (the base rotation from the start, deg) or ``"balance"`` (each
+            balance joint's position, rad).
+
+    Raises:
+        ValueError: an unknown ``kind``.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots()
+    kwargs = style.method_style(result.method)
+    if kind == "attitude":
+        ax.plot(result.t, np.degrees(result.angle), **kwargs)
+    else:
+        dashes = ("-", "--", ":", "-.")
+        for j, name in enumerate(result.balance_joints):
+            joint = {**kwargs, "linestyle": dashes[j % len(dashes)], "marker": ""}
+            ax.plot(result.t, result.q_B[:, j], **{**joint, "label": f"{kwargs['label']}: {name}"})
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(KINDS[kind])
+    ax.legend()
+    return ax

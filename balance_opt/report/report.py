@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.report.capture_metrics import capture_table
 from balance_opt.report.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 
@@ -103,23 +102,25 @@ def _get(metrics: Mapping[str, Any], path: str):
 Cell = tuple[str, str] | None
 
 
-def _plain(path: str, tolerance=None, unit: str = "") -> Callable[[Mapping], Cell]:
+def _value(path: str, show: Callable[[Any, Mapping], Cell]) -> Callable[[Mapping], Cell]:
+    """The cell of the value at ``path`` of a method's metrics, ``show(value, metrics)``."""
+
     def cell(m):
         value = _get(m, path)
-        return None if value is None else (format_value(value, tolerance, unit), "")
+        return None if value is None else show(value, m)
 
     return cell
+
+
+def _plain(path: str, tolerance=None, unit: str = "") -> Callable[[Mapping], Cell]:
+    return _value(path, lambda v, m: (format_value(v, tolerance, unit), ""))
 
 
 def _angle(path: str, per: str = "", tolerance=ANGLE_TOLERANCE) -> Callable[[Mapping], Cell]:
-    def cell(m):
-        value = _get(m, path)
-        return None if value is None else (format_angle(value, tolerance, per), "")
-
-    return cell
+    return _value(path, lambda v, m: (format_angle(v, tolerance, per), ""))
 
 
-def _kinematic_margin(kind: str, unit: str) -> Callable[[Mapping], Cell]:
+def _kinematic_margin(kind: str) -> Callable[[Mapping], Cell]:
     """The balance arm's smallest margin of one kind, with the smallest relative margin."""
 
     def cell(m):
@@ -129,7 +130,7 @@ def _kinematic_margin(kind: str, unit: str) -> Callable[[Mapping], Cell]:
             return None
         if not math.isfinite(margin):
             return "no limit", ""
-        text = format_value(margin, LIMIT_TOLERANCE, unit)
+        text = format_value(margin, LIMIT_TOLERANCE)
         if relative is not None and abs(margin) >= LIMIT_TOLERANCE:  # else noise, as the margin
             text += f"; {100 * relative:.3g} % of the limit"
         return text, margin_class(margin, relative, LIMIT_TOLERANCE)
@@ -165,25 +166,23 @@ def _per_joint(path: str, key: str, fmt: str = "{:.3g}") -> Callable[[Mapping], 
 def _clearance(path: str) -> Callable[[Mapping], Cell]:
     """The smallest distance between bodies and the pair, red where they penetrate."""
 
-    def cell(m):
-        c = _get(m, path)
-        if not c or c.get("closest_pair") is None:
+    def show(c, m):
+        if c.get("closest_pair") is None:
             return None
         text = f"{c['min_distance_m']:.4g} ({c['closest_pair']}, t = {c['closest_time_s']:.2f} s)"
         return text, ("inside" if c["collision_free"] else "broken")
 
-    return cell
+    return _value(path, show)
 
 
 def _count(path: str) -> Callable[[Mapping], Cell]:
-    def cell(m):
-        value = _get(m, path)
-        if value is None:
-            return None
-        text = violation_count_text(value, m.get("limit_violations_by_kind"))
-        return text, "broken" if value else "inside"
-
-    return cell
+    return _value(
+        path,
+        lambda v, m: (
+            violation_count_text(v, m.get("limit_violations_by_kind")),
+            "broken" if v else "inside",
+        ),
+    )
 
 
 def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
@@ -200,14 +199,10 @@ def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
 def _residual(path: str) -> Callable[[Mapping], Cell]:
     """A relative momentum residual, flagged above :data:`UNTRUSTED_RESIDUAL`."""
 
-    def cell(m):
-        value = _get(m, path)
-        if value is None:
-            return None
-        css = "broken" if value > UNTRUSTED_RESIDUAL else ""
-        return format_value(value, MOMENTUM_TOLERANCE), css
+    def show(v, m):
+        return format_value(v, MOMENTUM_TOLERANCE), "broken" if v > UNTRUSTED_RESIDUAL else ""
 
-    return cell
+    return _value(path, show)
 
 
 #: Rows of the comparison table: (label, cell of a method's metrics); a None cell maker
@@ -220,9 +215,9 @@ _ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
     ("max relative angular momentum residual", _residual("max_momentum_residual")),
     ("Balance arm", None),
     ("peak balance joint rate [rad/s or m/s]", _plain("peak_balance_rate_rad_s")),
-    ("position limit margin [rad or m]", _kinematic_margin("position", "")),
-    ("velocity limit margin [rad/s or m/s]", _kinematic_margin("velocity", "")),
-    ("acceleration limit margin [rad/s^2 or m/s^2]", _kinematic_margin("acceleration", "")),
+    ("position limit margin [rad or m]", _kinematic_margin("position")),
+    ("velocity limit margin [rad/s or m/s]", _kinematic_margin("velocity")),
+    ("acceleration limit margin [rad/s^2 or m/s^2]", _kinematic_margin("acceleration")),
     (
         "effort limit margin (smallest, of the limit)",
         _effort_margin("effort.balance_min_relative_margin"),
@@ -454,6 +449,45 @@ def headline(metrics: Mapping[str, Any]) -> str | None:
     )
 
 
+def _pair(values) -> str:
+    """``|linear| / |angular|`` of a 6-vector."""
+    return f"{np.linalg.norm(values[:3]):.3g} / {np.linalg.norm(values[3:]):.3g}"
+
+
+def capture_table(block: Mapping[str, Any] | None) -> str:
+    """The report's HTML section of a ``capture`` block ("" without one)."""
+    if not block:
+        return ""
+
+    def row(name, m):
+        cells = [
+            f"{math.degrees(m['omega_jump_norm_rad_s']):.3g}",
+            _pair(m["base_momentum_jump"]),
+            _pair(m["base_impulse_coupling"]),
+            f"{math.degrees(m['max_drift_before_rad']):.3g}",
+            f"{math.degrees(m['max_drift_after_rad']):.3g}",
+            f"{math.degrees(m['final_drift_since_capture_rad']):.3g}",
+        ]
+        return f"<tr><td>{html.escape(name)}</td>" + "".join(f"<td>{c}</td>" for c in cells)
+
+    rows = [row(n, m) for n, m in block["methods"].items()]
+    rows += [row(f"{n} (simulation)", m) for n, m in block["simulated"].items()]
+    t = block["target"]
+    return (
+        f"<h2>Capture at t = {block['time_s']:g} s</h2>"
+        f"<p>Target {t['mass_kg']:g} kg, angular velocity "
+        f"{math.degrees(np.linalg.norm(t['angular_velocity_rad_s'])):.3g} deg/s.</p>"
+        "<table><tr><th>method</th><th>|&Delta;&omega;<sub>b</sub>| [deg/s]</th>"
+        "<th>base momentum jump [N s / N m s]</th><th>N<sup>-T</sup> impulse [N s / N m s]</th>"
+        "<th>max drift before [deg]</th><th>max drift after [deg]</th>"
+        "<th>final drift since capture [deg]</th></tr>" + "".join(rows) + "</table>"
+        '<p class="meta">The base momentum jump is the base body\'s own momentum change with the '
+        "joints held through the impact; the N<sup>-T</sup> impulse is the end-effector impulse "
+        "carried by the coupling factors (Eq. 25, Moore-Penrose form for an arm of fewer than "
+        "six joints). Drift after the capture is measured from the attitude at the capture.</p>"
+    )
+
+
 def _figure(title: str, png: Path) -> str:
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
     return (
@@ -555,17 +589,3 @@ def render_report(
     parts.append("</body></html>")
     return "\n".join(parts)
 
-
-def write_report(
-    path: str | Path,
-    metrics: Mapping[str, Any],
-    figures: Sequence[tuple[str, Path]] = (),
-    description: str | None = None,
-    extra_html: str = "",
-    torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
-) -> Path:
-    """Write :func:`render_report` to ``path`` and return it."""
-    path = Path(path)
-    text = render_report(metrics, figures, description, extra_html, torques)
-    path.write_text(text, encoding="utf-8")
-    return path

@@ -14,6 +14,7 @@ from __future__ import annotations
 import base64
 import html
 import http.server
+import itertools
 import json
 import logging
 import threading
@@ -216,10 +217,8 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         drawn = _object(geometry, _colour(arm[obj.parentJoint], robot), opacity, mesh)
         n = int(geometry.vertices.shape[0]) if mesh else 0
         obj.geometry.computeLocalAABB()
-        lo, hi = obj.geometry.aabb_local.min_, obj.geometry.aabb_local.max_
-        corners = np.array(
-            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-        )
+        box = obj.geometry.aabb_local
+        corners = np.array(list(itertools.product(*zip(box.min_, box.max_))))
         corners = corners @ obj.placement.rotation.T + obj.placement.translation
         out.append(
             SceneObject(
@@ -356,26 +355,17 @@ def _animation(
     from meshcat.commands import SetAnimation
 
     class Track(AnimationTrack):
-        """meshcat's track with its keys as two float32 arrays, which three.js reads as they
-        are, instead of a small map per key: a quarter of the size."""
+        """meshcat's track with its key times (and numeric values) as float32 arrays, which
+        three.js reads as they are, instead of a small map per key: a quarter of the size;
+        a visibility track's values a list of booleans."""
 
         def lower(self):
+            values = np.ravel(self.values)
             return {
                 "name": "." + self.name,
                 "type": self.jstype,
                 "times": _float32(self.frames),
-                "values": _float32(np.ravel(self.values)),
-            }
-
-    class Switch(AnimationTrack):
-        """A visibility track: the key times as float32, the values a list of booleans."""
-
-        def lower(self):
-            return {
-                "name": "." + self.name,
-                "type": self.jstype,
-                "times": _float32(self.frames),
-                "values": [bool(v) for v in self.values],
+                "values": [bool(v) for v in values] if self.jstype == "bool" else _float32(values),
             }
 
     clips = {
@@ -393,7 +383,7 @@ def _animation(
         # the last key too: every clip lasts the whole motion
         keys = np.unique(np.r_[0, np.flatnonzero(shown[1:] != shown[:-1]) + 1, shown.size - 1])
         clips[path] = AnimationClip(
-            {"visible": Switch("visible", "bool", t[keys], shown[keys])}, fps=1.0
+            {"visible": Track("visible", "bool", t[keys], shown[keys])}, fps=1.0
         )
     return SetAnimation(Animation(clips), play=False, repetitions=1).lower()
 
@@ -471,17 +461,30 @@ def build_scene(
     objects = scene_objects(robot, size)
     nodes = sorted({1, *(o.joint for o in objects)})
     setup, carrier, shared, sent = [], {}, [], 0
-    for obj in objects:
-        path = _path(_node_name(robot, obj.joint), obj.name)
-        drawn, shape = obj.mesh, obj.mesh.geometry
-        if obj.vertices and id(shape) in carrier:  # a mesh file seen before: sent once
-            drawn = mg.Mesh(mg.Box([0.0, 0.0, 0.0]), obj.mesh.material)
+
+    def send(*commands) -> None:
+        setup.extend(_pack(c.lower()) for c in commands)
+
+    def place(obj: SceneObject, path, colour: str | None = None) -> None:
+        """A piece (in ``colour``, highlighted; else its own) at its placement; a mesh already
+        sent is handed over by the page (a mesh file several links carry is sent once)."""
+        nonlocal sent
+        shape = obj.mesh.geometry
+        if obj.vertices and id(shape) in carrier:
             shared.append([path.lower(), carrier[id(shape)]])
+            shape = mg.Box([0.0, 0.0, 0.0])
         elif obj.vertices:
             carrier[id(shape)] = path.lower()
             sent += obj.vertices
-        setup.append(_pack(SetObject(drawn, path=path).lower()))
-        setup.append(_pack(SetTransform(obj.placement.homogeneous @ obj.intrinsic, path).lower()))
+        if colour is not None:
+            drawn = _object(shape, colour, HIGHLIGHT_OPACITY, bool(obj.vertices))
+        else:
+            drawn = mg.Mesh(shape, obj.mesh.material)
+        transform = obj.placement.homogeneous @ obj.intrinsic
+        send(SetObject(drawn, path=path), SetTransform(transform, path))
+
+    for obj in objects:
+        place(obj, _path(_node_name(robot, obj.joint), obj.name))
     # the frames at which each plan is drawn, and how close its bodies are at each
     links = {o.link: o.joint for o in objects}
     levels, texts = {}, {}
@@ -495,26 +498,16 @@ def build_scene(
         node = _node_name(robot, links[link])
         for kind, colour in _OVERLAYS.values():
             for obj in (o for o in objects if o.link == link):
-                path = _path(node, f"{link}_{kind}", obj.name)
-                shape = obj.mesh.geometry
-                if obj.vertices:  # the mesh sent once: the page hands it over
-                    shape = mg.Box([0.0, 0.0, 0.0])
-                    shared.append([path.lower(), carrier[id(obj.mesh.geometry)]])
-                drawn = _object(shape, colour, HIGHLIGHT_OPACITY, bool(obj.vertices))
-                setup.append(_pack(SetObject(drawn, path=path).lower()))
-                transform = obj.placement.homogeneous @ obj.intrinsic
-                setup.append(_pack(SetTransform(transform, path).lower()))
-            hidden = SetProperty("visible", False, _path(node, f"{link}_{kind}"))
-            setup.append(_pack(hidden.lower()))
-    setup.append(_pack(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")).lower()))
+                place(obj, _path(node, f"{link}_{kind}", obj.name), colour)
+            send(SetProperty("visible", False, _path(node, f"{link}_{kind}")))
+    send(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")))
     if target is not None:
         sides, axes = target_box(target)
         path = _path(TARGET_NODE, "box")
-        box = _object(mg.Box(list(sides)), TARGET_COLOUR, 0.85, False)
-        setup.append(_pack(SetObject(box, path=path).lower()))
         frame = np.eye(4)
         frame[:3, :3] = axes
-        setup.append(_pack(SetTransform(frame, path).lower()))
+        box = _object(mg.Box(list(sides)), TARGET_COLOUR, 0.85, False)
+        send(SetObject(box, path=path), SetTransform(frame, path))
     # the view: the grid under the robot, the camera orbiting about its middle
     hull = np.vstack(
         [start["joints"][:, :, :3, 3].reshape(-1, 3)]  # the joints along the first plan
@@ -530,18 +523,14 @@ def build_scene(
     grid[:3, 3] = [centre[0], centre[1], lo[2] - 0.15 * extent]
     cam[:3, 3] = centre
     d = 0.45 * extent + 0.2
-    setup += [
-        _pack(SetTransform(grid, _path("/Grid")).lower()),
-        _pack(SetTransform(cam, _path("/Cameras/default")).lower()),
-        _pack(
-            SetProperty(
-                "position",
-                [1.0 * d, 0.55 * d, 0.75 * d],
-                _path("/Cameras/default/rotated/<object>"),
-            ).lower()
+    send(
+        SetTransform(grid, _path("/Grid")),
+        SetTransform(cam, _path("/Cameras/default")),
+        SetProperty(
+            "position", [1.0 * d, 0.55 * d, 0.75 * d], _path("/Cameras/default/rotated/<object>")
         ),
-        _pack(SetProperty("visible", False, _path("/Axes")).lower()),
-    ]
+        SetProperty("visible", False, _path("/Axes")),
+    )
 
     largest = max(float(np.max(res.angle)) for res in results.values())
     factor = magnification(largest)

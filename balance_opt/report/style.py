@@ -21,18 +21,6 @@ PRINT_DPI = 300
 #: figures show their fonts at one size; 150 dpi draws in half the time of 300 dpi.
 SCREEN_DPI = 150
 
-#: Methods with a style, in legend order.
-METHODS = (
-    "mission-only",
-    "analytic",
-    "optimal",
-    "mission-only:sim",
-    "analytic:sim",
-    "optimal:sim",
-    "sum",
-    "arm:mission",
-)
-
 _LABELS = {
     "mission-only": "mission arm alone",
     "analytic": "analytic law",
@@ -72,6 +60,8 @@ _STYLES: dict[str, dict[str, Any]] = {
     "sum": {"color": _BLACK, "linestyle": "-", "marker": "", "linewidth": 1.4},
     "arm:mission": {"color": _GREY, "linestyle": _DOTTED, "marker": "", "linewidth": 1.1},
 }
+#: Methods with a style, in legend order.
+METHODS = tuple(_STYLES)
 #: A plan's kinematic model drawn under its forward-dynamics run (paper Fig. 2): a wide pale
 #: band in the plan's colour, so that the thin simulated curve on top shows where they agree.
 _KINEMATIC_BAND = {"linestyle": "-", "marker": "", "linewidth": 4.0, "alpha": 0.3, "zorder": 1.5}
@@ -119,17 +109,15 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
     """
     base, suffix = _base(name)
     if suffix == KINEMATIC:
-        style = {**_KINEMATIC_BAND, "color": method_colour(base), "label": method_label(name)}
-        return style
-    key = name
-    if key in _STYLES:
-        style = dict(_STYLES[key])
+        return {**_KINEMATIC_BAND, "color": method_colour(base), "label": method_label(name)}
+    if name in _STYLES:
+        style = dict(_STYLES[name])
     else:
         colour = _EXTRA[sum(map(ord, name)) % len(_EXTRA)]
         style = {"color": colour, "linestyle": "-", "marker": "D", "fillstyle": "none"}
     style.setdefault("linewidth", 1.2)
     if style["marker"] and markers:
-        start = _MARK_START.get(_base(name)[0], 0.0)
+        start = _MARK_START.get(base, 0.0)
         style.update(markevery=(start, MARK_EVERY), markersize=3.5, markeredgewidth=0.8)
     else:
         style["marker"] = ""
@@ -191,7 +179,7 @@ def figure(width: str = "column", height: float = 2.6, layout: str | None = None
     same width so that fonts fit.
 
     ``layout="constrained"`` makes matplotlib measure every text at each save, which is slow;
-    ``None`` leaves the panels to the caller (:func:`balance_opt.report.figure_layout.arrange`).
+    ``None`` leaves the panels to the caller (:func:`balance_opt.report.plots.layout`).
     """
     from matplotlib.figure import Figure
 
@@ -204,10 +192,8 @@ def save(
     formats: Sequence[str] = ("png", "pdf"),
     dpi: int = PRINT_DPI,
 ) -> list[Path]:
-    """Write ``fig`` as ``<path>.<format>`` for each format (PNG at ``dpi``); returns the files.
-
-    The folder is created when missing.
-    """
+    """Write ``fig`` as ``<path>.<format>`` for each format (PNG at ``dpi``), the folder created
+    when missing; returns the files."""
     import matplotlib as mpl
 
     stem = Path(path_without_suffix)
@@ -216,14 +202,11 @@ def save(
     with mpl.rc_context({"pdf.fonttype": 42, "ps.fonttype": 42}):
         for fmt in formats:
             path = stem.with_name(f"{stem.name}.{fmt}")
-            fig.savefig(path, dpi=dpi, format=fmt, metadata=_metadata(fmt))
+            # no creation date in a PDF, so the same figure gives the same file
+            metadata = {"CreationDate": None} if fmt == "pdf" else None
+            fig.savefig(path, dpi=dpi, format=fmt, metadata=metadata)
             paths.append(path)
     return paths
-
-
-def _metadata(fmt: str) -> dict[str, Any] | None:
-    """No creation date in a PDF, so the same figure gives the same file."""
-    return {"CreationDate": None} if fmt == "pdf" else None
 
 
 def luminance(colour: str) -> float:
@@ -233,19 +216,3 @@ def luminance(colour: str) -> float:
     r, g, b = to_rgb(colour)
     return 0.299 * r + 0.587 * g + 0.114 * b
 
-
-__all__ = [
-    "METHODS",
-    "PRINT_DPI",
-    "SCREEN_DPI",
-    "WIDTHS",
-    "figure",
-    "font_sizes",
-    "luminance",
-    "method_colour",
-    "method_label",
-    "method_style",
-    "rc_params",
-    "save",
-    "styled",
-]
