@@ -14,7 +14,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from balance_opt.app.models import ModelCache
-from balance_opt.app.run_files import REFERENCE, TaskRun, _timed, run_geometry, write_run
+from balance_opt.app.run_files import (
+    REFERENCE,
+    TaskRun,
+    _timed,
+    capture_geometry,
+    run_geometry,
+    write_run,
+)
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.report.output_dir import OutputFolder
@@ -292,18 +299,27 @@ CLEARANCE_CURVE_SAMPLES = 300
 def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> None:
     """The clearance of each motion ``(t, arm vectors)`` (a plan's, a simulation's) on the continuous
     motion (:func:`~balance_opt.geometry.clearance.clearance`) and its smallest distance over
-    time for the figure, into ``into`` as ``{name: (report, t, distance)}``. A robot without
-    geometry has none (a log line says so); across a capture the target is not a body of the
-    check (the robot's own bodies are). A geometry that does not load (a missing mesh) leaves
-    the check out with a warning."""
+    time for the figure, into ``into`` as ``{name: (report, t, distance)}``. From a capture on,
+    the target is a body too (its pairs checked on the motion after it). A robot without
+    geometry has none (a log line says so). A geometry that does not load (a missing mesh)
+    leaves the check out with a warning."""
     from balance_opt.geometry.clearance import clearance
 
     if run_geometry(run) is False:
         return
+    after = capture_geometry(run)
     for name, (t, q) in motions.items():
         report = clearance(run.geometry, t, q)
         step = max(1, len(t) // CLEARANCE_CURVE_SAMPLES)
-        into[name] = (report, t[::step], run.geometry.smallest_along(q[::step]))
+        smallest = run.geometry.smallest_along(q[::step])
+        if after is not None:
+            geometry, pairs = after
+            k = int(np.searchsorted(t, run.task.target.time))
+            report = report.joined(clearance(geometry, t[k:], q[k:], pairs=pairs))
+            late = t[::step] >= run.task.target.time
+            held = geometry.smallest_along(q[::step][late], pairs)
+            smallest[late] = np.minimum(smallest[late], held)
+        into[name] = (report, t[::step], smallest)
 
 
 def _model_error_into(run: TaskRun) -> None:

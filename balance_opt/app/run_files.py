@@ -85,6 +85,8 @@ class TaskRun:
             simulations; empty for a robot without geometry.
         geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`
             (``False``: it has none; ``None``: not built yet).
+        geometry_after: with a capture, the geometry after it and the target's pairs
+            (:func:`capture_geometry`).
     """
 
     task: Task
@@ -98,6 +100,7 @@ class TaskRun:
     clearance: dict[str, Any] = field(default_factory=dict)
     simulated_clearance: dict[str, Any] = field(default_factory=dict)
     geometry: Any = None
+    geometry_after: Any = None
 
     @property
     def ok(self) -> bool:
@@ -244,6 +247,26 @@ def run_geometry(run: TaskRun):
             log.warning("%s: no clearance check: %s", run.task.name, exc)
             run.geometry = False
     return run.geometry
+
+
+def capture_geometry(run: TaskRun):
+    """The geometry of the robot after the capture (the target a body of the mission end
+    effector) and its pairs with the target, ``(geometry, pair indices)``, built once and kept
+    on ``run.geometry_after``; ``None`` without a capture or without geometry."""
+    from balance_opt.geometry.robot_geometry import RobotGeometry
+    from balance_opt.model.capture import TARGET_LINK
+
+    if run.task.target is None or run_geometry(run) is False:
+        return None
+    if run.geometry_after is None:
+        geometry = RobotGeometry(
+            run.task.robot_after_capture,
+            srdf=run.geometry.srdf or False,
+            ignore=run.task.spec.optimal.planner.collision_ignore,
+        )
+        pairs = [p.index for p in geometry.pairs if TARGET_LINK in p.links]
+        run.geometry_after = (geometry, pairs)
+    return run.geometry_after
 
 
 def write_run_scene(run: TaskRun, path: Path) -> Path:
