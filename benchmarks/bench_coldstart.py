@@ -5,17 +5,16 @@ cache folder that holds only the Pinocchio-CasADi bridge program (built once per
 a compiled wheel: not part of a robot's cold start):
 
 * **cold**: a new process loads the task and plans with the optimal method. It builds the
-  robot's symbolic model, saves it to the cache, solves with the point kernels on CasADi's
-  virtual machine and leaves their C compilation to a background process;
-* the background compilation is waited for (its wall time is read from the library's record);
+  robot's symbolic model, saves it to the cache, starts the C compilation of the point kernels
+  as its own child process, solves with the kernels on CasADi's virtual machine meanwhile, and
+  waits for the compiler before it returns (nothing outlives the command);
 * **warm**: a new process plans the same task again: the model comes from the cache, the
   kernels from the compiled library.
 
-Wall and CPU times are those of the whole process (imports included; the background compiler's
-CPU is not counted in the cold run, it runs detached at low priority). With ``--wait`` a third
-column times the cold plan compiling the kernels first and waiting for them (the behaviour before
-the background compile). The load average is printed: on a loaded machine wall times grow,
-CPU times much less.
+Wall and CPU times are those of the whole process, imports and the compiler child included
+(its wall time is read from the library's record). With ``--wait`` a third column times the
+cold plan compiling the kernels before it solves. The load average is printed: on a loaded
+machine wall times grow, CPU times much less.
 
 The table also replaces the ``coldstart`` section of ``docs/performance.md``.
 
@@ -55,7 +54,7 @@ from balance_opt.app.pipeline import plan_optimal
 from balance_opt.tasks.task import load_task
 from balance_opt.app.models import ModelCache
 task = load_task(sys.argv[1])
-# "wait": compile the kernels first and wait for them; "auto": compile in the background
+# "wait": compile the kernels before solving; "auto": compile beside the solve
 models = ModelCache(compile=True if sys.argv[2] == "wait" else "auto")
 result = plan_optimal(task, models=models)
 info = result.info
@@ -67,7 +66,7 @@ print(json.dumps({
     "robot_joints": int(task.robot.n),
 }))
 """
-WAIT_LIMIT = 3600.0  # [s] for a background compile
+WAIT_LIMIT = 3600.0  # [s] for a compile another process may still run
 
 
 def _children_cpu() -> float:
@@ -146,7 +145,7 @@ def main() -> None:
     print(f"CPU cores: {os.cpu_count()}; times of whole processes [s]; load = 1-min load average")
     header = (
         "| task | robot joints | load | cold wall | cold CPU | kernels | Ipopt iter | "
-        "background compile wall | warm wall | warm CPU | kernels | cold/warm wall |"
+        "compile wall | warm wall | warm CPU | kernels | cold/warm wall |"
     )
     if args.wait:
         header += " cold, waiting for compiler: wall | CPU |"

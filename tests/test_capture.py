@@ -360,3 +360,110 @@ def test_run_writes_the_capture_block_report_and_figure(tmp_path):
     assert (tmp_path / "out" / "capture.png").is_file()
     report = (tmp_path / "out" / "report.html").read_text()
     assert f"Capture at t = {example.target.time:g} s" in report
+
+
+def test_the_targets_box_has_its_mass_and_inertia_and_rides_on_the_end_effector(paper):
+    """The target's volume is the uniform box of its mass and inertia (Pinocchio's box inertia
+    gives the inertia back), on the mission end effector at the target's CoM."""
+    turn = pin.rpy.rpyToMatrix(0.3, -0.5, 0.8)
+    inertia = turn @ np.diag([2.0, 3.0, 4.0]) @ turn.T
+    zero = np.zeros(3)
+    target = Target(5.0, 50.0, inertia, [0.3, 0.1, 0.0], zero, zero)
+    sides, axes = target.box()
+    box = pin.Inertia.FromBox(target.mass, *sides)
+    np.testing.assert_allclose(axes @ box.inertia @ axes.T, inertia, atol=1e-12)
+    assert np.linalg.det(axes) == pytest.approx(1.0)
+
+    from balance_opt.geometry.robot_geometry import RobotGeometry
+    from balance_opt.model.capture import TARGET_LINK
+
+    after = attach_target(paper, target)
+    geometry = RobotGeometry(after)
+    (k,) = [i for i in range(geometry.geometry_model.ngeoms) if geometry.link(i) == TARGET_LINK]
+    obj = geometry.geometry_model.geometryObjects[k]
+    np.testing.assert_allclose(2.0 * np.asarray(obj.geometry.halfSide), sides, atol=1e-12)
+    q = np.random.default_rng(2).uniform(-1.0, 1.0, after.n)
+    geometry.place(q)
+    model, data = after.model, after.model.createData()
+    pin.framesForwardKinematics(model, data, after.pin_q(q))
+    held = data.oMf[model.getFrameId(after.mission.ee_frame)] * pin.SE3(axes, target.com)
+    np.testing.assert_allclose(geometry.geometry_data.oMg[k].homogeneous, held.homogeneous,
+                               atol=1e-12)  # fmt: skip
+    # the target is part of the end effector's body: checked against the base and the other
+    # arm, not against the link it is held by or that link's parent
+    pairs = {frozenset(p.links) for p in geometry.pairs if TARGET_LINK in p.links}
+    assert frozenset(("base_link", TARGET_LINK)) in pairs
+    assert frozenset(("balance_link3", TARGET_LINK)) in pairs
+    held_by = {frozenset(("mission_link3", TARGET_LINK)), frozenset(("mission_link2", TARGET_LINK))}
+    assert not held_by & pairs
+    # the planner's second phase keeps the balance arm's links off it
+    from balance_opt.optimal.collision import collision_setup
+    from balance_opt.optimal.model import PlannerModel
+
+    setup = collision_setup(PlannerModel(after), PlannerOptions(), load_task(EXAMPLE).q0)
+    rowed = {p.links for p in setup.pairs if setup.owner[p.index] is not None}
+    assert {("balance_link2", TARGET_LINK), ("balance_link3", TARGET_LINK)} <= rowed
+
+
+def _big_target_task(tmp_path, time):
+    """The example with a 1.2 m cube held 0.6 m beyond the gripper, captured at ``time``: the
+    cube reaches into the base from t = 6.2 s on."""
+    import yaml
+
+    doc = yaml.safe_load(EXAMPLE.read_text())
+    side, mass = 1.2, 50.0
+    moment = mass * 2 * side**2 / 12
+    doc["capture"].update(time=time, inertia=[moment, 0, 0, moment, 0, moment], com=[0.6, 0, 0])
+    path = tmp_path / f"big_target_{time:g}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return load_task(path)
+
+
+def _target_base_distance(task, result) -> np.ndarray:
+    """coal's distance between the target's box on the end effector and the base's cube at every
+    sample of a plan, from Pinocchio's frame placements (whether captured or not)."""
+    import coal
+
+    robot = task.robot
+    model, data = robot.model, robot.model.createData()
+    ee = model.getFrameId(robot.mission.ee_frame)
+    sides, axes = task.target.box()
+    base = model.getFrameId("base_link")
+    out = []
+    for k in range(result.t.size):
+        pin.framesForwardKinematics(model, data, robot.pin_q(np.r_[result.q_M[k], result.q_B[k]]))
+        M = data.oMf[ee] * pin.SE3(axes, task.target.com)
+        B = data.oMf[base]
+        found = coal.DistanceResult()
+        coal.distance(
+            coal.Box(*sides), coal.Transform3s(M.rotation, M.translation),
+            coal.Box(1.0, 1.0, 1.0), coal.Transform3s(B.rotation, B.translation),
+            coal.DistanceRequest(), found,
+        )  # fmt: skip
+        out.append(found.min_distance)
+    return np.array(out)
+
+
+@pytest.mark.slow
+def test_the_clearance_check_holds_the_target_from_the_capture_on(tmp_path):
+    """A target too big for the capture configuration: the check finds it in the base where coal
+    does on the plan, from the capture on and never before, whichever comes first: the moment
+    it first touches or the capture."""
+    for time, first in ((5.0, None), (8.0, 8.0)):
+        task = _big_target_task(tmp_path, time)
+        run = run_task(task, methods=("mission-only",), simulate=False)
+        report = run.clearance["mission-only"][0]
+        result = run.results["mission-only"]
+        exact = _target_base_distance(task, result)
+        after = result.t >= time
+        (pair,) = [p for p in report.pairs if p.pair == "base_link / capture_target"]
+        assert pair.distance == pytest.approx(exact[after].min(), abs=1e-3)
+        assert pair.time >= time
+        pen = report.first_penetration
+        assert pen.pair == "base_link / capture_target"
+        touch = result.t[np.flatnonzero(exact < 0.0)[0]]  # it touches between two samples
+        if first is None:
+            assert touch - 0.02 <= pen.time <= touch
+        else:
+            assert touch < time and pen.time == pytest.approx(first)
+        assert not report.collision_free

@@ -5,12 +5,14 @@ import logging
 
 import casadi as cs
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from balance_opt.errors import InputError
 from balance_opt.geometry import shapes
 from balance_opt.geometry.clearance import clearance
 from balance_opt.geometry.robot_geometry import RobotGeometry
+from balance_opt.model.capture import Target, attach_target
 from balance_opt.model.robot import FloatingRobot
 
 
@@ -65,6 +67,15 @@ def toy():
     return FloatingRobot(toy_urdf(), ["yaw"], ["turn", "swing"])
 
 
+@pytest.fixture(scope="module")
+def captured(paper):
+    """The paper robot holding a target whose box is turned in the end effector's frame."""
+    turn = pin.rpy.rpyToMatrix(0.3, -0.5, 0.8)
+    inertia = turn @ np.diag([2.0, 3.0, 4.0]) @ turn.T
+    zero = np.zeros(3)
+    return attach_target(paper, Target(5.0, 50.0, inertia, [0.3, 0.1, 0.0], zero, zero))
+
+
 def test_geometry_source_pairs_and_errors(toy, baxter):
     geometry = RobotGeometry(toy)
     assert geometry.source == "collision"
@@ -91,7 +102,7 @@ def _random_configurations(robot, n, seed):
     return rng.uniform(low, high, size=(n, robot.n))
 
 
-@pytest.mark.parametrize("name", ["toy", "paper", "baxter"])
+@pytest.mark.parametrize("name", ["toy", "paper", "baxter", "captured"])
 def test_symbolic_placements_match_pinocchio(name, request):
     robot = request.getfixturevalue(name)
     geometry = RobotGeometry(robot)
@@ -110,7 +121,7 @@ def test_symbolic_placements_match_pinocchio(name, request):
             )
 
 
-@pytest.mark.parametrize("name", ["toy", "paper", "baxter"])
+@pytest.mark.parametrize("name", ["toy", "paper", "baxter", "captured"])
 def test_fitted_shapes_never_farther_than_the_exact_geometry(name, request):
     """A fitted shape contains its body: its distance is at most coal's exact one (when the
     exact geometry is apart; inside each other, depths are not comparable)."""

@@ -27,7 +27,6 @@ from balance_opt.report.scene import (
     build_scene,
     cluster_vertices,
     scene_html,
-    target_box,
     visual_model,
     write_scene,
 )
@@ -217,7 +216,7 @@ def test_the_target_flies_free_then_rides_the_end_effector(paper):
     np.testing.assert_allclose(
         np.diff(coms, axis=0), np.outer(np.diff(t[after]), velocity), rtol=0, atol=ATOL
     )
-    sides, axes = target_box(target)
+    sides, axes = target.box()
     np.testing.assert_allclose(sides, 0.5, rtol=1e-3)  # the 0.5 m cube of its inertia
     assert np.linalg.det(axes) == pytest.approx(1.0)
 

@@ -103,6 +103,8 @@ class TaskRun:
             simulations; empty for a robot without geometry.
         geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`
             (``False``: it has none; ``None``: not built yet).
+        geometry_after: with a capture, the geometry after it and the target's pairs
+            (:func:`capture_geometry`).
     """
 
     task: Task
@@ -116,6 +118,7 @@ class TaskRun:
     clearance: dict[str, Any] = field(default_factory=dict)
     simulated_clearance: dict[str, Any] = field(default_factory=dict)
     geometry: Any = None
+    geometry_after: Any = None
 
     @property
     def ok(self) -> bool:
@@ -247,6 +250,26 @@ def run_geometry(run: TaskRun):
             log.warning("%s: no clearance check: %s", run.task.name, exc)
             run.geometry = False
     return run.geometry
+
+
+def capture_geometry(run: TaskRun):
+    """The geometry of the robot after the capture (the target a body of the mission end
+    effector) and its pairs with the target, ``(geometry, pair indices)``, built once and kept
+    on ``run.geometry_after``; ``None`` without a capture or without geometry."""
+    from balance_opt.geometry.robot_geometry import RobotGeometry
+    from balance_opt.model.capture import TARGET_LINK
+
+    if run.task.target is None or run_geometry(run) is False:
+        return None
+    if run.geometry_after is None:
+        geometry = RobotGeometry(
+            run.task.robot_after_capture,
+            srdf=run.geometry.srdf or False,
+            ignore=run.task.spec.optimal.planner.collision_ignore,
+        )
+        pairs = [p.index for p in geometry.pairs if TARGET_LINK in p.links]
+        run.geometry_after = (geometry, pairs)
+    return run.geometry_after
 
 
 def write_run_scene(run: TaskRun, path: Path) -> Path:
@@ -567,18 +590,27 @@ CLEARANCE_CURVE_SAMPLES = 300
 def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> None:
     """The clearance of each motion ``(t, arm vectors)`` (a plan's, a simulation's) on the continuous
     motion (:func:`~balance_opt.geometry.clearance.clearance`) and its smallest distance over
-    time for the figure, into ``into`` as ``{name: (report, t, distance)}``. A robot without
-    geometry has none (a log line says so); across a capture the target is not a body of the
-    check (the robot's own bodies are). A geometry that does not load (a missing mesh) leaves
-    the check out with a warning."""
+    time for the figure, into ``into`` as ``{name: (report, t, distance)}``. From a capture on,
+    the target is a body too (its pairs checked on the motion after it). A robot without
+    geometry has none (a log line says so). A geometry that does not load (a missing mesh)
+    leaves the check out with a warning."""
     from balance_opt.geometry.clearance import clearance
 
     if run_geometry(run) is False:
         return
+    after = capture_geometry(run)
     for name, (t, q) in motions.items():
         report = clearance(run.geometry, t, q)
         step = max(1, len(t) // CLEARANCE_CURVE_SAMPLES)
-        into[name] = (report, t[::step], run.geometry.smallest_along(q[::step]))
+        smallest = run.geometry.smallest_along(q[::step])
+        if after is not None:
+            geometry, pairs = after
+            k = int(np.searchsorted(t, run.task.target.time))
+            report = report.joined(clearance(geometry, t[k:], q[k:], pairs=pairs))
+            late = t[::step] >= run.task.target.time
+            held = geometry.smallest_along(q[::step][late], pairs)
+            smallest[late] = np.minimum(smallest[late], held)
+        into[name] = (report, t[::step], smallest)
 
 
 def _model_error_into(run: TaskRun) -> None:

@@ -107,6 +107,17 @@ class ClearanceReport:
         """The pairs that come closer than ``distance`` [m], closest first."""
         return sorted((p for p in self.pairs if p.distance < distance), key=lambda p: p.distance)
 
+    def joined(self, other: ClearanceReport) -> ClearanceReport:
+        """This report and ``other`` (of other pairs, or of a part of the motion) as one: every
+        pair of both, the earlier penetration (a pair's ``index`` is its own geometry's)."""
+        pens = [p for p in (self.first_penetration, other.first_penetration) if p is not None]
+        return ClearanceReport(
+            self.pairs + other.pairs,
+            min(pens, key=lambda p: p.time, default=None),
+            self.source,
+            self.evaluations + other.evaluations,
+        )
+
     def to_dict(self, closest: int = 5) -> dict:
         """Plain data for ``metrics.json``: the minimum, the first penetration and the
         ``closest`` pairs."""

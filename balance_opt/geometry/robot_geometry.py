@@ -257,13 +257,13 @@ class RobotGeometry:
             ]
         )
 
-    def smallest_along(self, q) -> np.ndarray:
-        """The smallest distance [m] of any checked pair at every configuration of ``q``
-        (T, n) (inf without pairs)."""
+    def smallest_along(self, q, pairs: Sequence[int] | None = None) -> np.ndarray:
+        """The smallest distance [m] of the pairs (indices, default all) at every configuration
+        of ``q`` (T, n) (inf without pairs)."""
         out = np.full(len(q), np.inf)
-        if self.pairs:
+        if self.pairs and (pairs is None or len(pairs)):
             for k, qk in enumerate(q):
-                out[k] = self.distances(qk).min()
+                out[k] = self.distances(qk, pairs).min()
         return out
 
     def distances_along(self, q, pair: int) -> np.ndarray:

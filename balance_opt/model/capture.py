@@ -67,6 +67,17 @@ class Target:
                 "triangle inequality"
             )
 
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The target's volume: side lengths (3,) [m] of the uniform box with its mass and
+        inertia, and the box's axes (3, 3) in the mission end-effector frame (its principal
+        axes, a right-handed frame). The task gives only mass and inertia; the scene draws this
+        box and the clearance check keeps the bodies off it after the capture."""
+        moments, axes = np.linalg.eigh(self.inertia)
+        if np.linalg.det(axes) < 0:
+            axes[:, 2] *= -1
+        sides = np.sqrt(np.maximum(6.0 * (moments.sum() - 2.0 * moments) / self.mass, 0.0))
+        return sides, axes
+
 
 def _urdf_text(robot: FloatingRobot) -> str:
     """The robot's own URDF text (its file), or the locked one for a robot built from text."""
@@ -80,9 +91,18 @@ def _urdf_text(robot: FloatingRobot) -> str:
 
 def attached_urdf(robot: FloatingRobot, target: Target) -> str:
     """The robot's URDF with the target as the fixed link :data:`TARGET_LINK` under the mission
-    end-effector link, its origin at the target's CoM, axes those of the end effector."""
+    end-effector link, its origin at the target's CoM, axes those of the end effector; its
+    volume (:meth:`Target.box`) is a ``<collision>`` box, or a ``<visual>`` one when the robot's
+    geometry comes from its visual elements (the geometry reads one kind)."""
     root = ET.fromstring(_urdf_text(robot))
     link = ET.SubElement(root, "link", name=TARGET_LINK)
+    sides, axes = target.box()
+    kind = "collision" if root.find("link/collision") is not None else "visual"
+    volume = ET.SubElement(link, kind, name=TARGET_LINK)
+    rpy = pin.rpy.matrixToRpy(axes)
+    ET.SubElement(volume, "origin", xyz="0 0 0", rpy=" ".join(repr(float(v)) for v in rpy))
+    size = " ".join(repr(float(v)) for v in sides)
+    ET.SubElement(ET.SubElement(volume, "geometry"), "box", size=size)
     inertial = ET.SubElement(link, "inertial")
     ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
     ET.SubElement(inertial, "mass", value=repr(float(target.mass)))

@@ -229,16 +229,6 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
     return out
 
 
-def target_box(target) -> tuple[np.ndarray, np.ndarray]:
-    """Side lengths (3,) [m] of the uniform box with the target's mass and inertia, and its axes
-    (3, 3) in the mission end-effector frame (the principal axes, a right-handed frame)."""
-    moments, axes = np.linalg.eigh(np.asarray(target.inertia, dtype=float))
-    if np.linalg.det(axes) < 0:
-        axes[:, 2] *= -1
-    sides = np.sqrt(np.maximum(6.0 * (moments.sum() - 2.0 * moments) / target.mass, 0.0))
-    return sides, axes
-
-
 def frame_index(t: np.ndarray, fps: float = SCENE_FPS) -> np.ndarray:
     """Indices into a plan's times ``t`` of the scene's frames: ``fps`` per second, each the
     plan's own sample at or after that time."""
@@ -502,7 +492,7 @@ def build_scene(
             send(SetProperty("visible", False, _path(node, f"{link}_{kind}")))
     send(SetObject(mg.triad(0.6 * size), path=_path("base", "axes")))
     if target is not None:
-        sides, axes = target_box(target)
+        sides, axes = target.box()
         path = _path(TARGET_NODE, "box")
         frame = np.eye(4)
         frame[:3, :3] = axes
