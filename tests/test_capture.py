@@ -389,13 +389,16 @@ def test_the_targets_box_has_its_mass_and_inertia_and_rides_on_the_end_effector(
     held = data.oMf[model.getFrameId(after.mission.ee_frame)] * pin.SE3(axes, target.com)
     np.testing.assert_allclose(geometry.geometry_data.oMg[k].homogeneous, held.homogeneous,
                                atol=1e-12)  # fmt: skip
-    # the target is part of the end effector's body: checked against the base and the other
-    # arm, not against the link it is held by or that link's parent
+    # the target is part of the end effector's body: checked against the base, the other arm
+    # and the links before the one that holds it (not adjacent: it meets none at a joint)
     pairs = {frozenset(p.links) for p in geometry.pairs if TARGET_LINK in p.links}
-    assert frozenset(("base_link", TARGET_LINK)) in pairs
-    assert frozenset(("balance_link3", TARGET_LINK)) in pairs
-    held_by = {frozenset(("mission_link3", TARGET_LINK)), frozenset(("mission_link2", TARGET_LINK))}
-    assert not held_by & pairs
+    others = ("base_link", "balance_link3", "mission_link1", "mission_link2")
+    assert {frozenset((link, TARGET_LINK)) for link in others} <= pairs
+    assert frozenset(("mission_link3", TARGET_LINK)) not in pairs
+    # a task's ignore pair of the target holds after the capture and is no error before it
+    ignore = [["balance_link3", TARGET_LINK]]
+    assert ("balance_link3", TARGET_LINK) in RobotGeometry(after, ignore=ignore).ignored
+    assert RobotGeometry(paper, ignore=ignore).ignored.get(("balance_link3", TARGET_LINK)) is None
     # the planner's second phase keeps the balance arm's links off it
     from balance_opt.optimal.collision import collision_setup
     from balance_opt.optimal.model import PlannerModel
@@ -403,6 +406,42 @@ def test_the_targets_box_has_its_mass_and_inertia_and_rides_on_the_end_effector(
     setup = collision_setup(PlannerModel(after), PlannerOptions(), load_task(EXAMPLE).q0)
     rowed = {p.links for p in setup.pairs if setup.owner[p.index] is not None}
     assert {("balance_link2", TARGET_LINK), ("balance_link3", TARGET_LINK)} <= rowed
+
+
+@pytest.mark.parametrize("moments", [(3.0, 3.0, 3.0), (2.0, 3.0, 3.0), (2.0, 2.0, 3.0)])
+def test_equal_moments_give_the_box_the_end_effectors_axes(moments):
+    """Where the inertia leaves the box's axes free (equal moments), it takes the end
+    effector's; a unique axis stays the inertia's."""
+    turn = pin.rpy.rpyToMatrix(0.3, -0.5, 0.8)
+    zero = np.zeros(3)
+    target = Target(5.0, 50.0, turn @ np.diag(moments) @ turn.T, zero, zero, zero)
+    sides, axes = target.box()
+    box = pin.Inertia.FromBox(target.mass, *sides)
+    np.testing.assert_allclose(axes @ box.inertia @ axes.T, target.inertia, atol=1e-12)
+    assert np.linalg.det(axes) == pytest.approx(1.0)
+    if len(set(moments)) == 1:
+        np.testing.assert_allclose(axes, np.eye(3), atol=1e-12)
+    else:
+        odd = turn[:, [moments.count(m) for m in moments].index(1)]
+        free = [k for k in range(3) if not np.isclose(abs(axes[:, k] @ odd), 1.0)]
+        assert len(free) == 2  # the unique axis is one of the box's
+        # the other two are the end-effector axes' projections: one lies in an axis plane
+        assert any(np.isclose(np.abs(axes[:, free]), 0.0, atol=1e-12).any(axis=0))
+
+
+def test_the_check_after_the_capture_starts_at_the_capture():
+    """The motion after the capture starts at its time: a sample a rounding error before it
+    counts, a grid without it gets the interpolated configuration."""
+    from balance_opt.app.pipeline import _from_capture
+
+    t = np.arange(0, 11) * 0.1
+    q = np.column_stack([t, 2 * t])
+    t_c = t[4] + 2e-16
+    t_after, q_after = _from_capture(t, q, t_c)
+    assert t_after[0] == t[4] and len(t_after) == 7
+    t_after, q_after = _from_capture(t, q, 0.45)
+    np.testing.assert_allclose(t_after[:2], [0.45, 0.5])
+    np.testing.assert_allclose(q_after[0], [0.45, 0.9])
 
 
 def _big_target_task(tmp_path, time):

@@ -418,3 +418,28 @@ def test_the_tasks_srdf_reaches_the_planner(tmp_path):
     assert nlp.collision.geometry.srdf == srdf.resolve()
     assert nlp.collision.geometry.ignored[("base", "boom")] == "srdf"
     assert "base / boom" not in {p.name for p in nlp.collision.pairs}
+
+
+def test_a_mesh_next_to_the_urdf_is_found_after_a_capture(tmp_path):
+    """The robot after a capture is built from URDF text: a mesh named relative to the URDF
+    file must still load (its path made absolute), the target's box beside it."""
+    (tmp_path / "meshes").mkdir()
+    corners = ["0 0 0", "0.1 0 0", "0 0.1 0", "0 0 0.1"]
+    faces = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
+    stl = "solid tip\n" + "".join(
+        "facet normal 0 0 0\nouter loop\n"
+        + "".join(f"vertex {corners[k]}\n" for k in face)
+        + "endloop\nendfacet\n"
+        for face in faces
+    ) + "endsolid tip\n"
+    (tmp_path / "meshes" / "tip.stl").write_text(stl)
+    text = toy_urdf().replace(
+        '<cylinder radius="0.03" length="0.3"/>', '<mesh filename="meshes/tip.stl"/>'
+    )
+    path = tmp_path / "toy.urdf"
+    path.write_text(text)
+    robot = FloatingRobot(path, ["yaw"], ["turn", "swing"])
+    zero = np.zeros(3)
+    after = attach_target(robot, Target(1.0, 2.0, np.eye(3) * 0.1, [0.1, 0, 0], zero, zero))
+    names = {g.name.rsplit("_", 1)[0] for g in RobotGeometry(after).geometry_model.geometryObjects}
+    assert {"mast", "capture_target"} <= names

@@ -104,7 +104,7 @@ class TaskRun:
         geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`
             (``False``: it has none; ``None``: not built yet).
         geometry_after: with a capture, the geometry after it and the target's pairs
-            (:func:`capture_geometry`).
+            (:func:`capture_geometry`; ``False``: it did not load).
     """
 
     task: Task
@@ -262,14 +262,19 @@ def capture_geometry(run: TaskRun):
     if run.task.target is None or run_geometry(run) is False:
         return None
     if run.geometry_after is None:
-        geometry = RobotGeometry(
-            run.task.robot_after_capture,
-            srdf=run.geometry.srdf or False,
-            ignore=run.task.spec.optimal.planner.collision_ignore,
-        )
+        try:
+            geometry = RobotGeometry(
+                run.task.robot_after_capture,
+                srdf=run.geometry.srdf or False,
+                ignore=run.task.spec.optimal.planner.collision_ignore,
+            )
+        except InputError as exc:  # a mesh not found from the URDF text: the rest still counts
+            log.warning("%s: the target is not checked after the capture: %s", run.task.name, exc)
+            run.geometry_after = False
+            return None
         pairs = [p.index for p in geometry.pairs if TARGET_LINK in p.links]
         run.geometry_after = (geometry, pairs)
-    return run.geometry_after
+    return run.geometry_after or None
 
 
 def write_run_scene(run: TaskRun, path: Path) -> Path:
@@ -605,12 +610,22 @@ def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> N
         smallest = run.geometry.smallest_along(q[::step])
         if after is not None:
             geometry, pairs = after
-            k = int(np.searchsorted(t, run.task.target.time))
-            report = report.joined(clearance(geometry, t[k:], q[k:], pairs=pairs))
-            late = t[::step] >= run.task.target.time
+            t_after, q_after = _from_capture(t, q, run.task.target.time)
+            report = report.joined(clearance(geometry, t_after, q_after, pairs=pairs))
+            late = t[::step] >= t_after[0]
             held = geometry.smallest_along(q[::step][late], pairs)
             smallest[late] = np.minimum(smallest[late], held)
         into[name] = (report, t[::step], smallest)
+
+
+def _from_capture(t: np.ndarray, q: np.ndarray, t_c: float) -> tuple[np.ndarray, np.ndarray]:
+    """The motion ``(t, q)`` from the capture time ``t_c`` on, starting at ``t_c`` (a sample
+    within rounding of it, else one interpolated there: joint positions are continuous)."""
+    k = int(np.searchsorted(t, t_c - 1e-9 * max(1.0, abs(t_c))))
+    if abs(t[k] - t_c) <= 1e-9 * max(1.0, abs(t_c)):
+        return t[k:], q[k:]
+    start = np.array([np.interp(t_c, t, column) for column in q.T])
+    return np.r_[t_c, t[k:]], np.vstack([start, q[k:]])
 
 
 def _model_error_into(run: TaskRun) -> None:

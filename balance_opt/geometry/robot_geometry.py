@@ -12,7 +12,9 @@ measured on hulls holds for the meshes.
 Pairs of geometry objects left out (:attr:`RobotGeometry.ignored`, with the reason):
 
 * ``same body``: objects of one body never move against each other;
-* ``adjacent``: objects of a body and of its parent body (they touch at the joint by design);
+* ``adjacent``: objects of a body and of its parent body (they touch at the joint by design;
+  not a captured target, :data:`~balance_opt.model.capture.TARGET_LINK`, which is checked
+  against the link before the one that holds it);
 * ``srdf``: pairs an SRDF's ``<disable_collisions>`` names (example-robot-data ships some,
   found next to the URDF);
 * ``ignored``: pairs the caller names (by link names).
@@ -35,6 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
+from balance_opt.model.capture import TARGET_LINK
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
@@ -163,9 +166,13 @@ class RobotGeometry:
         geom.addAllCollisionPairs()
         self._drop(lambda a, b: a.parentJoint == b.parentJoint, "same body")
         parents = self.model.parents
+        # a captured target is no link that meets its parent at a joint: it is checked
+        # against the link before the one that holds it
         self._drop(
-            lambda a, b: parents[a.parentJoint] == b.parentJoint
-            or parents[b.parentJoint] == a.parentJoint,
+            lambda a, b: TARGET_LINK not in (self._link(a), self._link(b))
+            and (
+                parents[a.parentJoint] == b.parentJoint or parents[b.parentJoint] == a.parentJoint
+            ),
             "adjacent",
         )
         self.srdf = None
@@ -183,6 +190,8 @@ class RobotGeometry:
         wanted = set()
         for pair in ignore:
             pair = tuple(pair)
+            if TARGET_LINK in pair and TARGET_LINK not in names:
+                continue  # a pair of the captured target: for the robot after the capture
             if len(pair) != 2 or not set(pair) <= names:
                 unknown = [n for n in pair if n not in names]
                 raise InputError(

@@ -73,6 +73,18 @@ class Target:
         axes, a right-handed frame). The task gives only mass and inertia; the scene draws this
         box and the clearance check keeps the bodies off it after the capture."""
         moments, axes = np.linalg.eigh(self.inertia)
+        equal = np.isclose(moments[:, None], moments[None, :], rtol=1e-9, atol=0.0)
+        # equal moments leave the axes free within their plane (or all of them free): there the
+        # box takes the end effector's axes, so that a cube's inertia gives the aligned cube
+        if equal.all():
+            axes = np.eye(3)
+        elif equal.sum() == 5:
+            odd = int(np.flatnonzero(equal.sum(axis=1) == 1)[0])
+            a = axes[:, odd]
+            e = np.eye(3)[np.argmin(np.abs(a))]
+            b = (e - (e @ a) * a) / np.linalg.norm(e - (e @ a) * a)
+            first, second = (i for i in range(3) if i != odd)
+            axes[:, first], axes[:, second] = b, np.cross(a, b)
         if np.linalg.det(axes) < 0:
             axes[:, 2] *= -1
         sides = np.sqrt(np.maximum(6.0 * (moments.sum() - 2.0 * moments) / self.mass, 0.0))
@@ -95,6 +107,12 @@ def attached_urdf(robot: FloatingRobot, target: Target) -> str:
     volume (:meth:`Target.box`) is a ``<collision>`` box, or a ``<visual>`` one when the robot's
     geometry comes from its visual elements (the geometry reads one kind)."""
     root = ET.fromstring(_urdf_text(robot))
+    source = Path(robot.source)
+    if source.is_file():  # the new URDF is text: meshes found next to the file stay found
+        for mesh in root.iter("mesh"):
+            name = mesh.get("filename", "")
+            if name and "://" not in name and not Path(name).is_absolute():
+                mesh.set("filename", str((source.parent / name).resolve()))
     link = ET.SubElement(root, "link", name=TARGET_LINK)
     sides, axes = target.box()
     kind = "collision" if root.find("link/collision") is not None else "visual"
