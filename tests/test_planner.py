@@ -55,10 +55,14 @@ from balance_opt.optimal.collocation import (
     joint_chain_coefficients,
 )
 from balance_opt.optimal.constraints import TorqueLimit
-from balance_opt.optimal.layout import NLPParameters, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
+from balance_opt.optimal.problem import (
+    BalanceProblem,
+    NLPParameters,
+    PlannerSolverError,
+    StructureKey,
+)
 from balance_opt.optimal.solve import build_balance_nlp, plan_optimal
 from balance_opt.result import BalanceResult
 

@@ -19,10 +19,9 @@ import pytest
 from balance_opt.model.library import paper_robot
 from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.guess import resampled
-from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.problem import PlannerSolverError
+from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.report.outputs import solver_metrics
 
@@ -390,7 +389,7 @@ def test_a_problem_solved_twice_gives_the_same_plan(model, capture):
     )
     first, second = nlp.solve(), nlp.solve()
     assert first.info["refinement"]["rounds"] >= 1
-    assert np.all(nlp.torque_factor == 1.0)
+    assert np.all(nlp.bounds.torque_factor == 1.0)
     assert second.info["refinement"]["rounds"] == first.info["refinement"]["rounds"]
     assert second.info["refinement"]["tightened"] == first.info["refinement"]["tightened"]
     assert second == first  # the same motion, bit for bit

@@ -259,7 +259,7 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     said = [f"collision rows of {len(short)} pairs ({closest})"]
     margin, setup, N = problem.options.collision_margin, problem.collision, problem.N
     mids = problem.transcription.has_midpoints
-    bound = np.array(problem.collision_bound)
+    bound = np.array(problem.bounds.collision)
     q = np.hstack([result.q_M, result.q_B])
     for pair in short:
         row = setup.owner[pair.index]

@@ -10,10 +10,17 @@ import numpy as np
 
 from balance_opt.errors import InputError
 from balance_opt.motion.so3 import matrix_from_quaternion
-from balance_opt.optimal.collocation import Transcription, bernstein_value
-from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey, unit_of
 from balance_opt.optimal import collision
-from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
+from balance_opt.optimal.collocation import Transcription, bernstein_value
+from balance_opt.optimal.problem import (
+    BalanceProblem,
+    Block,
+    NLPParameters,
+    PlannerSolverError,
+    Solution,
+    StructureKey,
+    unit_of,
+)
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
@@ -173,17 +180,22 @@ class JointLimit(Constraint):
             "position": (lim.lower, lim.upper),
             "velocity": (-lim.velocity, lim.velocity),
             "acceleration": (-lim.acceleration, lim.acceleration),
+            "jerk": (-lim.jerk, lim.jerk),
         }[self.kind]
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         if not self.interior:
             return []
         coefficients = [nlp.levels[self.level][i] for i in self.interior]
+        return self._coefficient_rows(nlp, f"{self.kind} limit between points", coefficients)
+
+    def _coefficient_rows(self, nlp: SymbolicNLP, name: str, coefficients: list) -> list[Rows]:
+        """One row per Bernstein coefficient (``self.interior``) and joint, per interval."""
         labels = tuple(
             f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
         )
         block = Block(
-            f"{self.kind} limit between points",
+            name,
             labels,
             (unit_of(self.kind),) * len(labels),
             np.arange(nlp.key.intervals, dtype=float),
@@ -222,15 +234,13 @@ class JointLimit(Constraint):
         )
 
 
-class JerkLimit(Constraint):
+class JerkLimit(JointLimit):
     """The balance joints' jerk limits [rad/s^3] on the continuous plan: on every interval the
     jerk is a polynomial (the derivative of the acceleration's, or with control ``"jerk"`` the
     control's own) and every one of its Bernstein coefficients is a row. The acceleration must
     then be continuous, so that the torques, and the reaction on the base, have no steps: the
     trapezoidal rule with control ``"acceleration"`` (a constant acceleration per interval) is
     refused."""
-
-    name = "jerk limit"
 
     def __init__(self, transcription: Transcription, control: str):
         if control == "acceleration" and transcription.control_degree == 0:
@@ -239,7 +249,11 @@ class JerkLimit(Constraint):
                 f"{transcription.name} rule with control 'acceleration' steps it at every node: "
                 "use control 'jerk' or transcription 'hermite-simpson'"
             )
-        self.control = control
+        self.kind, self.name, self.control = "jerk", "jerk limit", control
+        # every Bernstein coefficient of the jerk polynomial of degree control_degree (+ 1 for
+        # an acceleration control: its derivative)
+        degree = transcription.control_degree - (1 if control == "acceleration" else 0)
+        self.interior = tuple(range(degree + 1))
 
     def coefficients(self, levels: list, h) -> list:
         """Bernstein coefficients of the jerk on every interval, each (n_B, N), from the balance
@@ -252,25 +266,10 @@ class JerkLimit(Constraint):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         coefficients = self.coefficients(nlp.levels, nlp.parameters.h)
-        labels = tuple(
-            f"{j} jerk (control point {i})" for i in range(len(coefficients)) for j in nlp.joints
-        )
-        block = Block(
-            "jerk limit",
-            labels,
-            ("rad/s^3",) * len(labels),
-            np.arange(nlp.key.intervals, dtype=float),
-            per_interval=True,
-        )
-        return [(block, cs.vertcat(*coefficients))]
+        return self._coefficient_rows(nlp, "jerk limit", coefficients)
 
-    def row_bounds(self, problem, block):
-        jerk = problem.limits.jerk
-        reps = len(block.rows) // jerk.size
-        return (
-            _per_column(np.tile(-jerk, reps), len(block.taus)),
-            _per_column(np.tile(jerk, reps), len(block.taus)),
-        )
+    def bound_variables(self, problem, lower, upper):
+        pass
 
     def check(self, problem, result):
         """The jerk of the re-simulated motion by finite differences of its accelerations: the
@@ -310,9 +309,9 @@ class TorqueLimit(Constraint):
         return [(block, nlp.torque)]
 
     def row_bounds(self, problem, block):
-        """The effort limits, times ``problem.torque_factor`` (n_B, n_points) where the
+        """The effort limits, times ``problem.bounds.torque_factor`` (n_B, n_points) where the
         refinement tightened them."""
-        effort = problem.limits.effort[:, None] * problem.torque_factor
+        effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
         return -effort.ravel(order="F"), effort.ravel(order="F")
 
     @staticmethod
@@ -397,7 +396,7 @@ class PathAttitudeBound(AttitudeBound):
 class PeakEpigraph(PathAttitudeBound):
     """The peak objective's epigraph: ``|phi_k|^2 / PEAK_SCALE^2 <= S`` at every collocation
     point, ``S >= 0``; with a path attitude bound, ``S`` is bounded by it (tightened by the
-    refinement: ``problem.path_bound``), and its check is the bound's."""
+    refinement: ``problem.bounds.path``), and its check is the bound's."""
 
     name = "peak epigraph"
 
@@ -416,7 +415,7 @@ class PeakEpigraph(PathAttitudeBound):
 
     def bound_variables(self, problem, lower, upper):
         lower.S[:] = 0.0
-        bound = problem.path_bound
+        bound = problem.bounds.path
         upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
 
 
@@ -526,7 +525,7 @@ class Collision(Constraint):
     """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
     every collocation point, one row per body the balance joints move, the soft minimum of
     its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
-    ``problem.collision_bound``). The shapes contain the bodies; between the points the
+    ``problem.bounds.collision``). The shapes contain the bodies; between the points the
     refinement raises a row's bound where the re-simulated motion comes closer than the margin
     (:meth:`tighten`), and a plan that still penetrates fails (:meth:`accept`)."""
 
@@ -543,7 +542,7 @@ class Collision(Constraint):
         return [(block, nlp.clearance)]
 
     def row_bounds(self, problem, block):
-        return problem.collision_bound.ravel(order="F"), np.full(block.size, np.inf)
+        return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)
 
     def check(self, problem, result):
         closest = collision.shortfall(problem, result)

@@ -8,9 +8,8 @@ import logging
 import numpy as np
 
 from balance_opt.errors import InputError, SolverError
-from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.options import GUESSES
-from balance_opt.optimal.problem import BalanceProblem
+from balance_opt.optimal.problem import BalanceProblem, Solution
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)

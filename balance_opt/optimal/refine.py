@@ -10,9 +10,8 @@ import numpy as np
 
 from balance_opt.errors import SolverError
 from balance_opt.optimal.constraints import TORQUE_TOLERANCE, TorqueLimit
-from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.options import PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
-from balance_opt.optimal.problem import PlannerSolverError
+from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -294,7 +293,7 @@ def _smooth_plan(nlp, smooth, guess, before: PlanReport) -> BalanceResult:
     fallback): solved on ``nlp``'s grid with the rows between the points, priced at the
     reference drift of the inner ``smooth`` stage, from ``guess``. Its solution is the peak
     problem's (with ``S``, the plan's own peak), as every later step expects."""
-    final = nlp.at_stage(SMOOTH_PLAN).with_bounds(peak_reference=smooth.peak_reference)
+    final = nlp.at_stage(SMOOTH_PLAN).with_bounds(peak_reference=smooth.bounds.peak_reference)
     result = _solve_once(final, guess, before)
     w = nlp.initial_guess(result.solver.solution)
     result.solver = replace(result.solver, solution=nlp.unpack(w))
@@ -379,14 +378,14 @@ def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]
     t, tau = TorqueLimit.torques(nlp, result)
     ratio = np.abs(tau) / effort  # (T, n_B), inf effort -> 0
     if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE / 2:
-        return nlp.torque_factor, []
+        return nlp.bounds.torque_factor, []
     N = nlp.N
     interval = np.minimum((t / nlp.h).astype(int), N - 1)
     per_interval = np.zeros((N, nlp.model.n_B))
     np.maximum.at(per_interval, interval, ratio)
     broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
     scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
-    factor = np.array(nlp.torque_factor)
+    factor = np.array(nlp.bounds.torque_factor)
     mids = nlp.transcription.has_midpoints
     for k in np.flatnonzero(broken.any(axis=1)):
         for c in [k, k + 1] + ([N + 1 + k] if mids else []):

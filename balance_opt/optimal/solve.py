@@ -25,7 +25,6 @@ from balance_opt.optimal.collision import collision_setup
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution, resampled
-from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
 from balance_opt.optimal.options import (
@@ -35,7 +34,15 @@ from balance_opt.optimal.options import (
     PlannerOptions,
     Stage,
 )
-from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
+from balance_opt.optimal.problem import (
+    BalanceProblem,
+    Block,
+    NLPParameters,
+    PlannerSolverError,
+    Solution,
+    StructureKey,
+    check_problem,
+)
 from balance_opt.optimal.refine import PlanReport, SolveReport, solve_with_bounds
 from balance_opt.optimal.starts import multi_start
 from balance_opt.result import BalanceResult
@@ -89,14 +96,14 @@ class BalanceNLP(BalanceProblem):
         weights = self.options.weights
         peak = self.structure.key.objective in ("peak", "smooth")
         smooth = self.structure.key.objective == "smooth"
-        c = self.peak_reference
+        c = self.bounds.peak_reference
         self.parameters = self.structure.parameters.pack(
             NLPParameters(
                 h=self.h,
                 terminal_weight=weights.peak_terminal if peak else weights.terminal,
                 running_weights=weights.running("peak" if peak else "integral"),
-                path_scale=attitude_scale(self.path_bound),
-                terminal_scale=attitude_scale(self.terminal_bound),
+                path_scale=attitude_scale(self.bounds.path),
+                terminal_scale=attitude_scale(self.bounds.terminal),
                 peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
                 # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
                 smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
@@ -408,7 +415,7 @@ def build_balance_nlp(
     """Build the balance NLP of a mission.
 
     The compiled structure is taken from ``planner_model.nlp_cache`` when a problem of the same
-    structure (:class:`~balance_opt.optimal.layout.StructureKey`: intervals, transcription,
+    structure (:class:`~balance_opt.optimal.problem.StructureKey`: intervals, transcription,
     control, constraint switches, solver options) was built before; the mission, horizon,
     ``q_B0``, weights and bounds are numeric inputs.
 

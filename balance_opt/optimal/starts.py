@@ -3,7 +3,6 @@ smallest objective kept."""
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 
 import numpy as np
