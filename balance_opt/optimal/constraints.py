@@ -333,7 +333,7 @@ class TorqueLimit(Constraint):
                 [np.interp(t, result.t, result.quaternion[:, i]) for i in range(4)], axis=1
             )
             quaternion /= np.linalg.norm(quaternion, axis=1, keepdims=True)
-        torque = problem.model.momentum_torque_fun().map(t.size)
+        torque = problem.model.torque_fun(True).map(t.size)
         Rt = np.swapaxes(matrix_from_quaternion(quaternion), -1, -2)
         h_b = np.hstack([Rt @ problem.h0[:3], Rt @ problem.h0[3:]])  # R^T h0, base axes
         tau = torque(
