@@ -143,7 +143,7 @@ def _no_better_from_a_perturbed_plan(nlp, plan, seed: int = 0) -> None:
     """Local optimality: Ipopt started from the plan's solution with its controls perturbed by
     1 % finds no smaller objective."""
     rng = np.random.default_rng(seed)
-    sol = nlp.solution_of(plan)
+    sol = plan.solver.solution
 
     def shaken(u):
         return None if u is None else u * (1.0 + 0.01 * rng.standard_normal(u.shape))
@@ -300,7 +300,7 @@ def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
     assert plan.max_drift < stages[0]["nlp_max_drift_rad"]
     _no_violations(plan)
     # a plan of the peak problem like any other: its solution carries the peak variable
-    assert nlp.solution_of(plan).S is not None
+    assert plan.solver.solution.S is not None
 
 
 @pytest.mark.slow
@@ -348,7 +348,7 @@ def test_torque_limits_hold_between_the_collocation_points(model, capture):
 def _plan_torque_excess(model, capture, nlp, plan, effort) -> float:
     """The largest relative excess of the plan's torques over ``effort`` on a 2.5 ms grid."""
     t = np.linspace(0.0, nlp.horizon, 4001)
-    q_B, qd_B, qdd_B = nlp.trajectory(nlp.solution_of(plan)).sample(t)
+    q_B, qd_B, qdd_B = nlp.trajectory(plan.solver.solution).sample(t)
     q_M, qd_M, qdd_M = capture.mission.sample(t)
     tau = np.array(
         model.torque_fun().map(t.size)(

@@ -51,17 +51,9 @@ log = logging.getLogger(__name__)
 
 
 class BalanceNLP(BalanceProblem):
-    """One balance planning problem with its compiled NLP and numeric inputs.
-
-    Built by :func:`build_balance_nlp`; inspect ``variables``, ``constraints``, ``lbx``/``ubx``,
-    ``lbg``/``ubg``, ``parameters``, or name an index with :meth:`constraint_name`.
-
-    Args:
-        model, mission, q_B0, options, horizon: the problem (see :class:`BalanceProblem`).
-        structure: the compiled NLP of its structure.
-        setup_time: wall time to set the problem up [s].
-        build_time: wall time spent building the structure for it [s] (0 when cached).
-    """
+    """One balance planning problem with its compiled NLP (``structure``) and numeric inputs
+    (``lbx``/``ubx``, ``lbg``/``ubg``, ``parameters``), built by :func:`build_balance_nlp`;
+    ``build_time`` is 0 when the structure was cached."""
 
     def __init__(
         self,
@@ -157,10 +149,6 @@ class BalanceNLP(BalanceProblem):
         stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == name)
         return self.at_stage(stage)
 
-    def solution_of(self, result: BalanceResult) -> Solution:
-        """The NLP solution a result of this problem's structure was re-simulated from."""
-        return result.solver.solution
-
     @property
     def variables(self) -> dict[str, Block]:
         """The decision vector's blocks by name (``X``, ``Xm``, ``U``, ``Um``)."""
@@ -185,12 +173,6 @@ class BalanceNLP(BalanceProblem):
         if block.per_interval:
             return f"{name} on the interval {t:.3f}-{t + self.h:.3f} s"
         return f"{name} at t = {t:.3f} s"
-
-    def variable_name(self, index: int) -> tuple[str, float, str]:
-        """``(name, time [s], unit)`` of decision variable ``index``."""
-        layout = self.structure.variables
-        name, tau = layout.describe(index)
-        return name, tau * self.h, layout.block_at(index).locate(index)[1]
 
     def unpack(self, w) -> Solution:
         """States and controls of a decision vector."""
@@ -345,9 +327,7 @@ class BalanceNLP(BalanceProblem):
         status = str(stats.get("return_status", "unknown"))
         iters = stats.get("iterations", {})
         key = self.structure.key
-        kernels = self.model.kernels(
-            self.control, key.torque_limits, key.momentum, key.collision
-        )
+        kernels = self.model.kernels(self.control, key.torque_limits, key.momentum, key.collision)
         return {
             "status": status,
             "success": status in SUCCESS_STATUSES,
@@ -392,7 +372,9 @@ class BalanceNLP(BalanceProblem):
             name, t, unit = self.constraint_name(i)
             return name, t, float(viol_g[i]), unit, self.describe_constraint(i)
         i = int(np.argmax(viol_x))
-        name, t, unit = self.variable_name(i)
+        layout = self.structure.variables
+        name, tau = layout.describe(i)
+        t, unit = tau * self.h, layout.block_at(i).locate(i)[1]
         return f"bound on {name}", t, float(viol_x[i]), unit, f"bound on {name} at t = {t:.3f} s"
 
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
@@ -495,23 +477,13 @@ def plan_optimal(
     return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
 
 
-def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
-    """The re-simulation grid: every interval split into ``sub`` equal steps no longer than
-    ``step``, so the grid holds every node. Returns ``(times, sub)``."""
-    sub = max(1, math.ceil(h / step - 1e-9))
-    return np.arange(N * sub + 1) * (h / sub), sub
-
-
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
-    """Re-simulate a plan on a fine grid (:func:`_fine_grid`, ``options.resample_step``).
-
-    The balance joints follow the collocation polynomial, the attitude is integrated by
-    :func:`balance_opt.motion.replay.replay` (numeric Pinocchio, RK4 on the unit quaternion,
-    one step per grid interval, so that no step straddles a node, where the joint motion's
-    higher derivatives jump; on the capture task at the default step within 1e-10 rad of a 20
-    times finer step); limit violations are those of the fine grid (``result.violations``). ``info["resimulation"]`` reports the collocation defects (NLP
-    attitude at the nodes against the re-simulated one; joint polynomial at each interval's end
-    against the next node), the momentum residual, the drift, the limit violations and, as
+    """Re-simulate a plan on a fine grid: every interval split into ``sub`` equal steps no
+    longer than ``options.resample_step``, so that no RK4 step of
+    :func:`balance_opt.motion.replay.replay` straddles a node, where the joint motion's higher
+    derivatives jump. ``info["resimulation"]`` reports the collocation defects (NLP attitude at
+    the nodes against the re-simulated one; joint polynomial at each interval's end against
+    the next node), the momentum residual, the drift, the limit violations and, as
     ``constraint_violations``, every constraint kind the re-simulated motion breaks beyond
     tolerance (:meth:`~balance_opt.optimal.constraints.Constraint.check`: between the
     collocation points, torques and the path attitude bound are not enforced).
@@ -519,7 +491,8 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     # imported here: a multi-start's worker that only solves first stages never needs it
     from balance_opt.motion.replay import replay
 
-    t, sub = _fine_grid(nlp.N, nlp.h, nlp.options.resample_step)
+    sub = max(1, math.ceil(nlp.h / nlp.options.resample_step - 1e-9))
+    t = np.arange(nlp.N * sub + 1) * (nlp.h / sub)
     result = replay(
         nlp.robot,
         nlp.mission,
