@@ -791,7 +791,7 @@ def test_ipopt_runs_with_one_blas_thread_unless_told(variable, threads):
     import sys
 
     script = (
-        "from balance_opt.optimal import blas\n"
+        "from balance_opt.optimal import nlp\n"
         "from balance_opt.app.scenarios import capture_task\n"
         "from balance_opt.optimal.model import PlannerModel\n"
         "from balance_opt.optimal.options import PlannerOptions\n"
