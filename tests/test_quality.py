@@ -80,7 +80,8 @@ def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(mod
         assert inner.N == 10 and inner.h == pytest.approx(4 * nlp.h)
         assert inner.stage(name) is inner  # as a multi-start's worker builds it
         assert not [b for b in inner.constraints if b.name.endswith("limit between points")]
-        assert inner.structure.n_g == on_inner_grid.structure.n_g - rows_between - epigraph
+        expected = on_inner_grid.structure.rows.size - rows_between - epigraph
+        assert inner.structure.rows.size == expected
         n_w = inner.lbx.size  # the plan's structure has one more variable: S
         assert on_inner_grid.lbx.size == n_w + 1
         np.testing.assert_array_equal(inner.lbx, on_inner_grid.lbx[:n_w])

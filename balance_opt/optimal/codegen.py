@@ -212,10 +212,9 @@ class Compilation:
                     atomic_write_text(_failure_note(library), str(exc))
 
 
-def finish(process: Compilation, library: str | Path, timeout: float = COMPILE_WAIT) -> bool:
+def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
     """Wait up to ``timeout`` [s] for a background compilation this process started, then stop
     it if it still runs (the next run starts again). Returns whether it ended on its own."""
-    del library  # the compilation knows it
     if process.thread.is_alive():
         log.info(
             "waiting for the C compiler of the planner kernels (at most %.0f s; the next runs "

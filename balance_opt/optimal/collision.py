@@ -76,18 +76,15 @@ class CollisionModels:
 
     def function(self, geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
         if rows.key not in self.rows:
-            self.rows[rows.key] = (rows, rows_function(geometry, rows))
+            # the rows as a function of the model joints' positions
+            q = cs.SX.sym("q_model", len(geometry.moving_joints))
+            f = cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
+            self.rows[rows.key] = (rows, f)
         return self.rows[rows.key][1]
 
     def labels(self, key: str) -> tuple[str, ...]:
         """The labels of the rows of a key (none for ``""``)."""
         return self.rows[key][0].labels if key else ()
-
-
-def rows_function(geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
-    """``clearance(q_model) -> rows``: the rows as a function of the model joints' positions."""
-    q = cs.SX.sym("q_model", len(geometry.moving_joints))
-    return cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
 
 
 def _moving_rows(geometry: RobotGeometry, rows: ClearanceRows) -> ClearanceRows:

@@ -369,6 +369,10 @@ class AttitudeBound(Constraint):
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.ones(block.size)
 
+    def _rows(self, label: str, taus, values) -> list[Rows]:
+        """Its one row, of a relative quantity, at the points ``taus``."""
+        return [(Block(self.name, (label,), ("(relative)",), taus), values)]
+
 
 class PathAttitudeBound(AttitudeBound):
     """``|log R(t)| <= path_attitude_bound`` at every collocation point (the parameter
@@ -378,13 +382,9 @@ class PathAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        block = Block(
-            "path attitude bound",
-            ("attitude |phi|^2 / bound^2",),
-            ("(relative)",),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2))]
+        taus = nlp.transcription.point_taus(nlp.key.intervals)
+        values = nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2)
+        return self._rows("attitude |phi|^2 / bound^2", taus, values)
 
     def check(self, problem, result):
         if problem.options.path_attitude_bound is None:
@@ -402,13 +402,9 @@ class PeakEpigraph(PathAttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        block = Block(
-            "peak epigraph",
-            ("attitude |phi|^2 / PEAK_SCALE^2 - S",),
-            ("(relative)",),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S)]
+        taus = nlp.transcription.point_taus(nlp.key.intervals)
+        values = cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S
+        return self._rows("attitude |phi|^2 / PEAK_SCALE^2 - S", taus, values)
 
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.zeros(block.size)
@@ -426,13 +422,8 @@ class TerminalAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
-        block = Block(
-            "terminal attitude bound",
-            ("attitude |phi_T|^2 / bound^2",),
-            ("(relative)",),
-            np.array([float(N)]),
-        )
-        return [(block, nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N]))]
+        values = nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N])
+        return self._rows("attitude |phi_T|^2 / bound^2", np.array([float(N)]), values)
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
@@ -460,10 +451,10 @@ class InitialState(Constraint):
     balance arm at rest at ``q_B0``; with ``start: rest`` also its acceleration zero (no torque
     step at ``t = 0``)."""
 
-    name = "initial state"
+    name, index, when = "initial state", 0, "initial"
 
     def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
-        """``(derivative, value)`` of the balance joints at ``t = 0``."""
+        """``(derivative, value)`` of the balance joints at the node."""
         n_levels = len(problem.model.joint_rows(problem.control))
         if problem.options.start == "rest":
             n_levels = 3
@@ -471,36 +462,29 @@ class InitialState(Constraint):
         return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
     def bound_variables(self, problem, lower, upper):
-        lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+        if self.index == 0:
+            lower.X[:3, 0] = upper.X[:3, 0] = 0.0
         for kind, value in self.targets(problem):
-            _pin(problem, lower, upper, 0, kind, value)
+            _pin(problem, lower, upper, problem.N if self.index else 0, kind, value)
 
     def check(self, problem, result):
-        return _worst_state(problem, result, 0, "initial", self.targets(problem))
+        return _worst_state(problem, result, self.index, self.when, self.targets(problem))
 
 
-class EndConditions(Constraint):
+class EndConditions(InitialState):
     """The options ``end`` (``still``: zero velocity at the last node; ``rest``: zero velocity
     and acceleration; ``rest_at_end`` is ``end: rest``) and ``final_configuration`` (the last
     node's position)."""
 
-    name = "end conditions"
+    name, index, when = "end conditions", -1, "final"
 
     def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
-        """``(derivative, value)`` of every prescribed end value."""
         out = []
         if problem.options.final_configuration is not None:
             out.append(("position", np.asarray(problem.options.final_configuration)))
         n_levels = {"free": 1, "still": 2, "rest": 3}[problem.options.end_condition]
         out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
         return out
-
-    def bound_variables(self, problem, lower, upper):
-        for kind, value in self.targets(problem):
-            _pin(problem, lower, upper, problem.N, kind, value)
-
-    def check(self, problem, result):
-        return _worst_state(problem, result, -1, "final", self.targets(problem))
 
 
 def _worst_state(problem, result, index: int, when: str, targets) -> Violation | None:

@@ -344,7 +344,7 @@ class PlannerModel:
         [s], stopping those that do not end (:func:`~balance_opt.optimal.codegen.finish`); the
         end of every planning call (nothing it started outlives it)."""
         while self._compiling:
-            codegen.finish(*self._compiling.pop(), timeout)
+            codegen.finish(self._compiling.pop(), timeout)
 
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
@@ -414,7 +414,7 @@ class PlannerModel:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
             return PointKernels(*functions, *sizes, n_clearance=n_c)
         if out.process is not None:
-            self._compiling.append((out.process, out.library))
+            self._compiling.append(out.process)
         compiled = (out.compiled, out.compile_time, out.library, out.background)
         return PointKernels(*out.functions, *sizes, *compiled, n_clearance=n_c)
 
@@ -458,4 +458,4 @@ class PlannerModel:
 def _stop_all(compiling: list) -> None:
     """Stop the compilers of a model that goes, or at exit."""
     while compiling:
-        codegen.stop(compiling.pop()[0])
+        codegen.stop(compiling.pop())

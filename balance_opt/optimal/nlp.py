@@ -25,7 +25,6 @@ from balance_opt.optimal.constraints import (
 from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
 from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_STAGES, PlannerOptions
 from balance_opt.optimal.problem import (
-    Block,
     BlockStack,
     ParameterLayout,
     StructureKey,
@@ -47,26 +46,6 @@ class NLPStructure:
     row_kinds: tuple[Constraint, ...]
     kinds: tuple[Constraint, ...]
     build_time: float
-
-    @property
-    def n_w(self) -> int:
-        """Size of the decision vector."""
-        return self.variables.size
-
-    @property
-    def n_g(self) -> int:
-        """Size of the constraint vector."""
-        return self.rows.size
-
-    @property
-    def n_p(self) -> int:
-        """Size of the parameter vector."""
-        return self.parameters.size
-
-    @property
-    def constraints(self) -> list[Block]:
-        """The constraint vector's blocks, in order."""
-        return self.rows.blocks
 
 
 @dataclass

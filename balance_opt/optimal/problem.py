@@ -348,17 +348,6 @@ def check_problem(
     return q_B0, horizon
 
 
-def momentum_of(h0) -> np.ndarray:
-    """A total momentum ``[linear; angular]`` (6,) [N s; N m s] as a float array (zero for
-    ``None``)."""
-    h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float).ravel()
-    if h0.size != 6 or not np.all(np.isfinite(h0)):
-        raise InputError(
-            f"momentum h0 must be 6 finite values [linear; angular], got {h0.tolist()}"
-        )
-    return h0
-
-
 @dataclass(frozen=True)
 class Bounds:
     """The numbers of a problem's NLP that its solve lowers or sets, never in place: the
@@ -445,7 +434,11 @@ class BalanceProblem:
         self.control = options.control
         self.point_times = self.transcription.point_taus(self.N) * self.h
         q_M, q_dot_M, q_ddot_M = mission.sample(self.point_times)
-        self.h0 = momentum_of(h0)
+        self.h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float).ravel()
+        if self.h0.size != 6 or not np.all(np.isfinite(self.h0)):
+            raise InputError(
+                f"momentum h0 must be 6 finite values [linear; angular], got {self.h0.tolist()}"
+            )
         h0_rows = np.broadcast_to(self.h0, (self.point_times.size, self.h0.size))
         self.mission_samples = np.hstack([q_M, q_dot_M, q_ddot_M, h0_rows]).T
         self.q_rest = (

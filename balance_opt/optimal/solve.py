@@ -157,7 +157,7 @@ class BalanceNLP(BalanceProblem):
     @property
     def constraints(self) -> list[Block]:
         """The constraint vector's blocks, in order."""
-        return self.structure.constraints
+        return self.structure.rows.blocks
 
     def constraint_name(self, index: int) -> tuple[str, float, str]:
         """``(name, time [s], unit)`` of constraint ``index`` (for an interval's constraint, the
@@ -184,7 +184,7 @@ class BalanceNLP(BalanceProblem):
 
     def _variable_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Free variables, narrowed by every constraint kind in turn."""
-        n_w = self.structure.n_w
+        n_w = self.structure.variables.size
         lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
         for kind in self.structure.kinds:
             kind.bound_variables(self, lower, upper)
@@ -192,7 +192,7 @@ class BalanceNLP(BalanceProblem):
 
     def _constraint_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Each block of rows bounded by the kind that owns it."""
-        lower, upper = np.empty(self.structure.n_g), np.empty(self.structure.n_g)
+        lower, upper = np.empty(self.structure.rows.size), np.empty(self.structure.rows.size)
         for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
             lower[block.slice], upper[block.slice] = kind.row_bounds(self, block)
         return lower, upper
@@ -212,9 +212,9 @@ class BalanceNLP(BalanceProblem):
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
             return np.clip(self.pack(sol), self.lbx, self.ubx)
         w = np.asarray(guess, dtype=float).ravel()
-        if w.size != self.structure.n_w:
+        if w.size != self.structure.variables.size:
             raise InputError(
-                f"initial guess vector has {w.size} entries, the NLP has {self.structure.n_w}"
+                f"initial guess vector has {w.size} entries, the NLP has {self.structure.variables.size}"
             )
         return w
 
