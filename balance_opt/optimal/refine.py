@@ -250,22 +250,18 @@ def plan_peak(nlp, guess) -> BalanceResult:
     done: list[SolveReport] = []
     stage_nlp = None
     for stage in inner:
-        if isinstance(guess, IntegralStart):  # the first stage, done by a multi-start
-            report, guess = guess.report, guess.following
-        else:
+        if stage.name == "integral":  # done here, or by a multi-start
+            start = guess if isinstance(guess, IntegralStart) else integral_stage(nlp, guess)
+            report, guess = start.report, start.following
+        else:  # its reference drift: the start's peak (the smooth term then weighs like the peak's)
             stage_nlp = nlp.at_stage(stage)
-            if stage.name == "smooth":  # its reference drift: the start's peak (the smooth
-                # term then weighs like the peak's)
-                X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
-                reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
-                stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
-            elif isinstance(guess, np.ndarray):  # a decision vector of this problem
-                guess = nlp.unpack(nlp.initial_guess(guess))
+            X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
+            reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
+            stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
             report = stage_nlp.solve_stage(guess)
-            if report.success:
-                guess = report.solution
-            else:
-                log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
+            guess = report.solution if report.success else guess
+        if not report.success:
+            log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
         done.append(report)
     before = PlanReport(tuple(done))
     stages = tuple(r.as_inner_stage() for r in done)

@@ -268,9 +268,8 @@ class BalanceNLP(BalanceProblem):
         worst = self.largest_violation(w, np.array(out["g"]).ravel())
         result = resimulate(self, report.solution, self.trajectory(report.solution))
         t3 = time.perf_counter()
-        stats = self.structure.solver.stats()
         result.solver = PlanReport((report,))
-        result.info.update(self._report(stats, report.objective, worst, (t0, t1, t2, t3)))
+        result.info.update(self._report(report, worst, (t0, t1, t2, t3)))
         result.info["nlp_solution"] = w.tolist()
         if not report.success:
             name, t, amount, unit, where = worst
@@ -321,18 +320,17 @@ class BalanceNLP(BalanceProblem):
         report's ``status``."""
         return self._ipopt(self.initial_guess(initial_guess))[1]
 
-    def _report(self, stats: dict, objective: float, worst, times) -> dict:
+    def _report(self, report: SolveReport, worst, times) -> dict:
         """The solver's part of ``BalanceResult.info``."""
         t0, t1, t2, t3 = times
-        status = str(stats.get("return_status", "unknown"))
-        iters = stats.get("iterations", {})
+        iters = self.structure.solver.stats().get("iterations", {})
         key = self.structure.key
         kernels = self.model.kernels(self.control, key.torque_limits, key.momentum, key.collision)
         return {
-            "status": status,
-            "success": status in SUCCESS_STATUSES,
-            "iterations": int(stats.get("iter_count", 0)),
-            "objective": objective,
+            "status": report.status,
+            "success": report.success,
+            "iterations": report.iterations,
+            "objective": report.objective,
             "max_constraint_violation": worst[2],
             "max_violation_at": {
                 "constraint": worst[0],
