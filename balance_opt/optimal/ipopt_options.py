@@ -153,22 +153,38 @@ def option_catalog() -> dict[str, IpoptOption]:
 
 
 def linear_solver_loads(name: str) -> bool:
-    """Whether Ipopt can load linear solver ``name``: a one-variable solve with it (Ipopt
-    answers ``Invalid_Option`` for a solver whose library is not installed)."""
+    """Whether Ipopt can load linear solver ``name``: a one-variable solve with it, in a child
+    process (without the HSL library some solvers crash the process that asks for them)."""
     if name in BUNDLED_LINEAR_SOLVERS:
         return True
-    import casadi as cs
+    import subprocess
+    import sys
 
-    x = cs.SX.sym("x")
-    opts = {"ipopt.linear_solver": name, "ipopt.print_level": 0, "ipopt.sb": "yes"}
-    opts["print_time"] = False
-    try:
-        solver = cs.nlpsol("probe", "ipopt", {"x": x, "f": (x - 1) ** 2}, opts)
-        solver(x0=0.0)
-    except RuntimeError:
-        return False
-    status = solver.stats().get("return_status")
-    return status not in ("Invalid_Option", "Invalid_Problem_Definition")
+    probe = subprocess.run(
+        [sys.executable, "-c", _PROBE, name],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    return probe.returncode == 0 and probe.stdout.strip() == "loads"
+
+
+#: The child's side of :func:`linear_solver_loads`: prints "loads" when the solve ran.
+_PROBE = """
+import sys
+import casadi as cs
+x = cs.SX.sym("x")
+opts = {"ipopt.linear_solver": sys.argv[1], "ipopt.print_level": 0, "print_time": False,
+        "ipopt.sb": "yes"}
+try:
+    solver = cs.nlpsol("probe", "ipopt", {"x": x, "f": (x - 1) ** 2}, opts)
+    solver(x0=0.0)
+except RuntimeError:
+    sys.exit(1)
+status = solver.stats().get("return_status")
+print("loads" if status not in ("Invalid_Option", "Invalid_Problem_Definition") else "no")
+"""
 
 
 def option_problem(name: str, value: Any, catalog: Mapping[str, IpoptOption]) -> str | None:
