@@ -341,6 +341,29 @@ class TorqueLimit(Constraint):
         )
         return t, np.array(tau)[problem.model.n_M :].T
 
+    def tighten(self, problem, result):
+        """The effort factors lowered at the points of every interval where a torque exceeds
+        its limit by more than half :data:`TORQUE_TOLERANCE`, scaled by ``limit / peak`` there.
+        Half: the torques are evaluated at points of each interval, and a plan accepted at the
+        tolerance itself there could pass it between them."""
+        t, tau = self.torques(problem, result)
+        ratio = np.abs(tau) / problem.limits.effort  # (T, n_B), inf effort -> 0
+        if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE / 2:
+            return {}, []
+        N = problem.N
+        interval = np.minimum((t / problem.h).astype(int), N - 1)
+        per_interval = np.zeros((N, problem.model.n_B))
+        np.maximum.at(per_interval, interval, ratio)
+        broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
+        scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
+        factor = np.array(problem.bounds.torque_factor)
+        mids = problem.transcription.has_midpoints
+        for k in np.flatnonzero(broken.any(axis=1)):
+            for c in [k, k + 1] + ([N + 1 + k] if mids else []):
+                factor[:, c] = np.minimum(factor[:, c], factor[:, c] * scale[k])
+        worst, n = float(ratio.max() - 1.0), int(broken.any(axis=1).sum())
+        return {"torque_factor": factor}, [f"torque bounds on {n} intervals (worst +{worst:.2%})"]
+
     def check(self, problem, result):
         """The worst torque beyond its limit by more than :data:`TORQUE_TOLERANCE` (relative:
         the refinement accepts as much between the collocation points)."""

@@ -9,7 +9,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from balance_opt.errors import SolverError
-from balance_opt.optimal.constraints import TORQUE_TOLERANCE, TorqueLimit
 from balance_opt.optimal.options import PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.result import BalanceResult
@@ -346,10 +345,6 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
     """The lower bounds (changes of :class:`~balance_opt.optimal.problem.Bounds`) where the
     re-simulated ``result`` breaks them beyond tolerance, and what they lower, in words."""
     changes, out = {}, []
-    if nlp.structure.key.torque_limits:
-        factor, words = _tighten_torques(nlp, result)
-        if words:
-            changes["torque_factor"], out = factor, words
     for kind in nlp.structure.kinds:  # the kinds that tighten bounds of their own
         more, words = kind.tighten(nlp, result)
         changes.update(more)
@@ -363,29 +358,3 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
             changes[field] = current * bound / value * (1.0 - ATTITUDE_TOLERANCE / 2)
             out.append(f"{field} bound {current:.6g} -> {changes[field]:.6g} rad")
     return changes, out
-
-
-def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]:
-    """The effort factors with the points of every interval where a torque exceeds its limit
-    by more than half :data:`TORQUE_TOLERANCE` scaled by ``limit / peak`` there. Half: the
-    torques are evaluated at points of each interval, and a plan accepted at the tolerance
-    itself there could pass it between them."""
-    effort = nlp.limits.effort
-    t, tau = TorqueLimit.torques(nlp, result)
-    ratio = np.abs(tau) / effort  # (T, n_B), inf effort -> 0
-    if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE / 2:
-        return nlp.bounds.torque_factor, []
-    N = nlp.N
-    interval = np.minimum((t / nlp.h).astype(int), N - 1)
-    per_interval = np.zeros((N, nlp.model.n_B))
-    np.maximum.at(per_interval, interval, ratio)
-    broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
-    scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
-    factor = np.array(nlp.bounds.torque_factor)
-    mids = nlp.transcription.has_midpoints
-    for k in np.flatnonzero(broken.any(axis=1)):
-        for c in [k, k + 1] + ([N + 1 + k] if mids else []):
-            factor[:, c] = np.minimum(factor[:, c], factor[:, c] * scale[k])
-    worst = float(ratio.max() - 1.0)
-    n = int(broken.any(axis=1).sum())
-    return factor, [f"torque bounds on {n} intervals (worst +{worst:.2%})"]

@@ -211,11 +211,9 @@ class BalanceNLP(BalanceProblem):
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
             return np.clip(self.pack(sol), self.lbx, self.ubx)
-        w = np.asarray(guess, dtype=float).ravel()
-        if w.size != self.structure.variables.size:
-            raise InputError(
-                f"initial guess vector has {w.size} entries, the NLP has {self.structure.variables.size}"
-            )
+        w, n_w = np.asarray(guess, dtype=float).ravel(), self.structure.variables.size
+        if w.size != n_w:
+            raise InputError(f"initial guess vector has {w.size} entries, the NLP has {n_w}")
         return w
 
     @classmethod
