@@ -188,12 +188,7 @@ class VariableLayout(BlockStack):
 
     def unpack_symbolic(self, w) -> Solution:
         """States and controls of a symbolic decision vector (CasADi column vector)."""
-        return Solution(
-            **{
-                n: cs.reshape(w[b.offset : b.offset + b.size], *b.shape)
-                for n, b in self.by_name.items()
-            }
-        )
+        return Solution(**{n: cs.reshape(w[b.slice], *b.shape) for n, b in self.by_name.items()})
 
     def pack(self, sol: Solution) -> np.ndarray:
         """The numeric decision vector of unpacked states and controls."""
@@ -254,19 +249,10 @@ class ParameterLayout:
     @property
     def slices(self) -> dict[str, slice]:
         """Each field's entries in ``p``."""
-        sizes = {
-            "h": 1,
-            "terminal_weight": 1,
-            "running_weights": self.n_weights,
-            "path_scale": 1,
-            "terminal_scale": 1,
-            "peak_weight": 1,
-            "smooth_weight": 1,
-            "smooth_scale": 1,
-            "jerk_weight": 1,
-            "q_rest": self.n_B,
-            "mission": self.n_m * self.n_points,
-        }
+        sizes = dict.fromkeys(NLPParameters._fields, 1)  # the scalars
+        sizes.update(
+            running_weights=self.n_weights, q_rest=self.n_B, mission=self.n_m * self.n_points
+        )
         out, start = {}, 0
         for name in NLPParameters._fields:
             out[name] = slice(start, start + sizes[name])
@@ -281,8 +267,7 @@ class ParameterLayout:
         """The numeric parameter vector of a problem."""
         p = np.empty(self.size)
         for name, sl in self.slices.items():
-            value = np.asarray(getattr(values, name), dtype=float)
-            p[sl] = value.ravel(order="F")
+            p[sl] = np.asarray(getattr(values, name), dtype=float).ravel(order="F")
         return p
 
     def unpack_symbolic(self, p) -> NLPParameters:

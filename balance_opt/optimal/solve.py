@@ -55,24 +55,9 @@ class BalanceNLP(BalanceProblem):
     (``lbx``/``ubx``, ``lbg``/``ubg``, ``parameters``), built by :func:`build_balance_nlp`;
     ``build_time`` is 0 when the structure was cached."""
 
-    def __init__(
-        self,
-        model: PlannerModel,
-        structure: NLPStructure,
-        mission,
-        q_B0: np.ndarray,
-        options: PlannerOptions,
-        horizon: float,
-        setup_time: float,
-        build_time: float = 0.0,
-        robot: FloatingRobot | None = None,
-        h0=None,
-        collision=None,
-    ):
-        super().__init__(model, mission, q_B0, options, horizon, robot, h0, collision)
-        self.structure = structure
-        self.setup_time = setup_time
-        self.build_time = build_time
+    def __init__(self, structure: NLPStructure, setup_time: float, build_time: float, *problem):
+        super().__init__(*problem)  # model, mission, q_B0, options, horizon, robot, h0, collision
+        self.structure, self.setup_time, self.build_time = structure, setup_time, build_time
         self._set_bounds()
 
     def with_bounds(self, **changes) -> BalanceNLP:
@@ -444,19 +429,9 @@ def build_balance_nlp(
         model.nlp_cache[key] = build_structure(model, key, options)
     structure = model.nlp_cache[key]
     build_time = structure.build_time if built_now else 0.0
-    return BalanceNLP(
-        model,
-        structure,
-        mission_trajectory,
-        q_B0,
-        options,
-        horizon,
-        time.perf_counter() - start - build_time,
-        build_time,
-        robot,
-        h0,
-        collision,
-    )
+    setup_time = time.perf_counter() - start - build_time
+    problem = (model, mission_trajectory, q_B0, options, horizon, robot, h0, collision)
+    return BalanceNLP(structure, setup_time, build_time, *problem)
 
 
 def plan_optimal(
