@@ -43,8 +43,7 @@ from balance_opt.optimal.problem import (
     StructureKey,
     check_problem,
 )
-from balance_opt.optimal.refine import PlanReport, SolveReport, solve_with_bounds
-from balance_opt.optimal.starts import multi_start
+from balance_opt.optimal.refine import PlanReport, SolveReport, multi_start, solve_with_bounds
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
