@@ -44,7 +44,6 @@ class CollisionSetup:
     geometry: RobotGeometry
     rows: ClearanceRows
     pairs: list[Pair]
-    fixed_pairs: list[Pair]
     initial_contacts: list[Pair]
     initial_rows: np.ndarray
     owner: dict[int, int | None]
@@ -169,13 +168,12 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
             ", ".join(p.name for p in contacts),
         )
     touching = {p.index for p in contacts}
-    pairs, fixed = [], []
-    for p in geometry.pairs:
-        if p.index in touching:
-            continue
-        (pairs if {geometry.body(p.first), geometry.body(p.second)} & moved else fixed).append(p)
+    pairs = [
+        p
+        for p in geometry.pairs
+        if p.index not in touching and {geometry.body(p.first), geometry.body(p.second)} & moved
+    ]
     out_of_reach = _out_of_reach(geometry, pairs, moved, options.collision_margin + WATCH)
-    fixed += [p for p in pairs if p.index in out_of_reach]
     pairs = [p for p in pairs if p.index not in out_of_reach]
     if not pairs:
         return None
@@ -197,15 +195,13 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     shape_of = {i: k for k, s in enumerate(rows.shapes) for i in s.objects}
     unrowed = [p for p in pairs if (shape_of[p.first], shape_of[p.second]) in overlap]
     unrowed += [p for p in pairs if (shape_of[p.second], shape_of[p.first]) in overlap]
-    kept = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
-    fixed += [p for p in pairs if p not in kept]
-    pairs = kept
+    pairs = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
     f = models.function(geometry, rows)
     initial = np.array(f(E @ q0 + e)).ravel()
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)
     threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner, threshold)
+    return CollisionSetup(geometry, rows, pairs, contacts, initial, owner, threshold)
 
 
 def report(problem, result) -> ClearanceReport:
