@@ -127,7 +127,6 @@ class BlockStack:
         return block
 
     def block_at(self, index: int) -> Block:
-        """The block holding entry ``index``."""
         offsets = [b.offset for b in self.blocks]
         return self.blocks[int(np.searchsorted(offsets, index, side="right")) - 1]
 

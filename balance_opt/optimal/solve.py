@@ -140,7 +140,6 @@ class BalanceNLP(BalanceProblem):
 
     @property
     def constraints(self) -> list[Block]:
-        """The constraint vector's blocks, in order."""
         return self.structure.rows.blocks
 
     def constraint_name(self, index: int) -> tuple[str, float, str]:
@@ -159,11 +158,9 @@ class BalanceNLP(BalanceProblem):
         return f"{name} at t = {t:.3f} s"
 
     def unpack(self, w) -> Solution:
-        """States and controls of a decision vector."""
         return self.structure.variables.unpack(w)
 
     def pack(self, sol: Solution) -> np.ndarray:
-        """The decision vector of unpacked states and controls."""
         return self.structure.variables.pack(sol)
 
     def _variable_bounds(self) -> tuple[np.ndarray, np.ndarray]:
