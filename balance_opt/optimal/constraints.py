@@ -485,7 +485,7 @@ class InitialState(Constraint):
         return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
     def bound_variables(self, problem, lower, upper):
-        if self.index == 0:
+        if self.index == 0:  # the start: the base at its initial attitude too
             lower.X[:3, 0] = upper.X[:3, 0] = 0.0
         for kind, value in self.targets(problem):
             _pin(problem, lower, upper, problem.N if self.index else 0, kind, value)
