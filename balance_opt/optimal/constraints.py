@@ -250,8 +250,8 @@ class JerkLimit(JointLimit):
                 "use control 'jerk' or transcription 'hermite-simpson'"
             )
         self.kind, self.name, self.control = "jerk", "jerk limit", control
-        # every Bernstein coefficient of the jerk polynomial of degree control_degree (+ 1 for
-        # an acceleration control: its derivative)
+        # a row per Bernstein coefficient of the jerk: the jerk control's own, or those of the
+        # acceleration control's derivative, one degree lower
         degree = transcription.control_degree - (1 if control == "acceleration" else 0)
         self.interior = tuple(range(degree + 1))
 
@@ -269,7 +269,7 @@ class JerkLimit(JointLimit):
         return self._coefficient_rows(nlp, "jerk limit", coefficients)
 
     def bound_variables(self, problem, lower, upper):
-        pass
+        """None: its rows bound every coefficient of the jerk, the nodes' values too."""
 
     def check(self, problem, result):
         """The jerk of the re-simulated motion by finite differences of its accelerations: the
