@@ -27,8 +27,6 @@ log = logging.getLogger(__name__)
 
 #: Ipopt option types, as its documentation names them.
 INTEGER, REAL, STRING = "integer", "real", "string"
-#: Linear solvers known to be in the CasADi wheel's Ipopt (no load test needed).
-BUNDLED_LINEAR_SOLVERS = ("mumps",)
 
 #: Options Ipopt accepts but does not document (``sb``: suppress the banner).
 UNDOCUMENTED = {"sb": ("yes", "no")}
@@ -155,7 +153,7 @@ def option_catalog() -> dict[str, IpoptOption]:
 def linear_solver_loads(name: str) -> bool:
     """Whether Ipopt can load linear solver ``name``: a one-variable solve with it, in a child
     process (without the HSL library some solvers crash the process that asks for them)."""
-    if name in BUNDLED_LINEAR_SOLVERS:
+    if name == "mumps":  # in the CasADi wheel's Ipopt
         return True
     import subprocess
     import sys

@@ -365,12 +365,11 @@ class PlannerModel:
             self._kernels[variant] = PointKernels(
                 *loaded, *sizes, True, 0.0, kernels.library, n_clearance=kernels.n_clearance
             )
-            for key in [
-                k
-                for k in self.nlp_cache
-                if (k.control, k.torque_limits, k.momentum, k.collision) == variant
-            ]:
-                del self.nlp_cache[key]
+            self.nlp_cache = {
+                k: v
+                for k, v in self.nlp_cache.items()
+                if (k.control, k.torque_limits, k.momentum, k.collision) != variant
+            }
             log.info("planner kernels of %s: compiled library loaded", self.robot.name)
             swapped += 1
         return swapped
