@@ -49,7 +49,7 @@ class StageForm:
 def _indices(problem):
     """Per node and midpoint, the planner's variable indices; and that of ``S`` (or None)."""
     layout = problem.structure.variables
-    ix = layout.unpack(np.arange(problem.structure.n_w, dtype=float))
+    ix = layout.unpack(np.arange(problem.structure.variables.size, dtype=float))
     X, Xm, U, Um = (np.asarray(a).astype(int) for a in (ix.X, ix.Xm, ix.U, ix.Um))
     nodes = [np.r_[X[:, k], U[:, k]] for k in range(X.shape[1])]
     mids = [np.r_[Xm[:, k], Um[:, k]] for k in range(Xm.shape[1])]
@@ -89,7 +89,7 @@ def stage_form(problem, captured: dict) -> StageForm:
     N, n_node = len(mids), len(nodes[0])
     n_state, n_control = n_node + (S is not None), n_node + len(mids[0])
     fg = cs.Function("fg", [captured["x"], captured["p"]], [captured["f"], captured["g"]])
-    w = cs.SX.sym("w", problem.structure.n_w)
+    w = cs.SX.sym("w", problem.structure.variables.size)
     f, g = fg.expand()(w, cs.DM(problem.parameters))
     x = [cs.SX.sym(f"x{k}", n_state) for k in range(N + 1)]
     u = [cs.SX.sym(f"u{k}", n_control) for k in range(N)]  # [copy of node k+1; midpoint k]
@@ -138,7 +138,7 @@ def stage_form(problem, captured: dict) -> StageForm:
         return np.concatenate(out).astype(float)
 
     def from_stages(zv: np.ndarray) -> np.ndarray:
-        v, pos = np.empty(problem.structure.n_w), 0
+        v, pos = np.empty(problem.structure.variables.size), 0
         for k in range(N + 1):
             v[nodes[k]] = zv[pos : pos + n_node]
             pos += n_node

@@ -76,7 +76,7 @@ def test_torques_with_momentum_reproduce_the_accelerations_in_forward_dynamics(m
     joint accelerations, and that state's centroidal momentum is ``h_b``."""
     rng = np.random.default_rng(5)
     robot = model.robot
-    tau_fun = model.momentum_torque_fun()
+    tau_fun = model.torque_fun(True)
     data = robot.model.createData()
     lim = robot.limits
     for _ in range(5):

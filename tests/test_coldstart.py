@@ -163,7 +163,7 @@ def test_failed_background_compilation_is_reported_not_retried(tmp_path, monkeyp
     assert first.background and not first.compiled
     assert codegen.wait_for_library(first.library, timeout=300) is None
     # the compiler ran as this process's child: ended, and reaped by finish() (no zombie)
-    assert codegen.finish(first.process, first.library, timeout=10)
+    assert codegen.finish(first.process, timeout=10)
     assert {p.pid for p in psutil.Process().children(recursive=True)} <= children
     note = Path(first.library).with_suffix(".failed")
     assert "out of memory" in note.read_text()
@@ -192,7 +192,7 @@ def test_a_background_compilation_not_done_in_time_is_stopped(tmp_path, monkeypa
     children = {p.pid for p in psutil.Process().children(recursive=True)}
     out = codegen.compile_functions([fun], tmp_path / "cache", "digest", background=True)
     assert out.background and out.process is not None
-    assert not codegen.finish(out.process, out.library, timeout=0.5)
+    assert not codegen.finish(out.process, timeout=0.5)
     assert psutil.wait_procs(
         [p for p in psutil.Process().children(recursive=True) if p.pid not in children], 5
     )[1] == []

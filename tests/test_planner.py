@@ -55,10 +55,14 @@ from balance_opt.optimal.collocation import (
     joint_chain_coefficients,
 )
 from balance_opt.optimal.constraints import TorqueLimit
-from balance_opt.optimal.layout import NLPParameters, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
+from balance_opt.optimal.problem import (
+    BalanceProblem,
+    NLPParameters,
+    PlannerSolverError,
+    StructureKey,
+)
 from balance_opt.optimal.solve import build_balance_nlp, plan_optimal
 from balance_opt.result import BalanceResult
 
@@ -245,11 +249,12 @@ def test_assembled_derivatives_match_casadi_ad(model, capture, transcription, co
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
     solver = nlp.structure.solver
     rng = np.random.default_rng(3)
-    w = nlp.initial_guess("rest") + 0.1 * rng.normal(size=nlp.structure.n_w)
-    lam = rng.normal(size=nlp.structure.n_g)
-    x, p = cs.MX.sym("x", nlp.structure.n_w), cs.MX.sym("p", nlp.structure.n_p)
+    w = nlp.initial_guess("rest") + 0.1 * rng.normal(size=nlp.structure.variables.size)
+    lam = rng.normal(size=nlp.structure.rows.size)
+    x = cs.MX.sym("x", nlp.structure.variables.size)
+    p = cs.MX.sym("p", nlp.structure.parameters.size)
     f, g = solver.get_function("nlp_f")(x, p), solver.get_function("nlp_g")(x, p)
-    lf, lg = cs.MX.sym("lf"), cs.MX.sym("lg", nlp.structure.n_g)
+    lf, lg = cs.MX.sym("lf"), cs.MX.sym("lg", nlp.structure.rows.size)
     refs = {
         "nlp_grad_f": (cs.Function("r", [x, p], [cs.gradient(f, x)]), (w, nlp.parameters), 1),
         "nlp_jac_g": (cs.Function("r", [x, p], [cs.jacobian(g, x)]), (w, nlp.parameters), 1),
@@ -517,7 +522,7 @@ def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_pl
     assert other.structure is nlp.structure and other.build_time == 0.0
     assert not np.array_equal(other.parameters, nlp.parameters)
     N, n_x, n_u = 50, model.n_x("acceleration"), model.n_u
-    assert nlp.structure.n_w == (2 * N + 1) * (n_x + n_u)
+    assert nlp.structure.variables.size == (2 * N + 1) * (n_x + n_u)
     assert [b.name for b in nlp.constraints[:2]] == [
         "collocation (Hermite midpoint)",
         "collocation (Simpson)",
@@ -555,7 +560,7 @@ def test_structure_key_and_parameter_layout(model, capture):
     assert model.nlp_cache[key] is nlp.structure
     assert StructureKey.of(nlp.limits, options) == key
     assert StructureKey.of(nlp.limits, dataclasses.replace(options, control="jerk")) != key
-    p = cs.SX.sym("p", nlp.structure.n_p)
+    p = cs.SX.sym("p", nlp.structure.parameters.size)
     fields = nlp.structure.parameters.unpack_symbolic(p)
     unpack = cs.Function("unpack", [p], list(fields))
     values = dict(zip(NLPParameters._fields, (np.array(v) for v in unpack(nlp.parameters))))
@@ -787,7 +792,7 @@ def test_ipopt_runs_with_one_blas_thread_unless_told(variable, threads):
     import sys
 
     script = (
-        "from balance_opt.optimal import blas\n"
+        "from balance_opt.optimal import nlp\n"
         "from balance_opt.app.scenarios import capture_task\n"
         "from balance_opt.optimal.model import PlannerModel\n"
         "from balance_opt.optimal.options import PlannerOptions\n"

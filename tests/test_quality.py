@@ -19,10 +19,9 @@ import pytest
 from balance_opt.model.library import paper_robot
 from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.guess import resampled
-from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.problem import PlannerSolverError
+from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.report.outputs import solver_metrics
 
@@ -81,7 +80,8 @@ def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(mod
         assert inner.N == 10 and inner.h == pytest.approx(4 * nlp.h)
         assert inner.stage(name) is inner  # as a multi-start's worker builds it
         assert not [b for b in inner.constraints if b.name.endswith("limit between points")]
-        assert inner.structure.n_g == on_inner_grid.structure.n_g - rows_between - epigraph
+        expected = on_inner_grid.structure.rows.size - rows_between - epigraph
+        assert inner.structure.rows.size == expected
         n_w = inner.lbx.size  # the plan's structure has one more variable: S
         assert on_inner_grid.lbx.size == n_w + 1
         np.testing.assert_array_equal(inner.lbx, on_inner_grid.lbx[:n_w])
@@ -144,7 +144,7 @@ def _no_better_from_a_perturbed_plan(nlp, plan, seed: int = 0) -> None:
     """Local optimality: Ipopt started from the plan's solution with its controls perturbed by
     1 % finds no smaller objective."""
     rng = np.random.default_rng(seed)
-    sol = nlp.solution_of(plan)
+    sol = plan.solver.solution
 
     def shaken(u):
         return None if u is None else u * (1.0 + 0.01 * rng.standard_normal(u.shape))
@@ -301,7 +301,7 @@ def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
     assert plan.max_drift < stages[0]["nlp_max_drift_rad"]
     _no_violations(plan)
     # a plan of the peak problem like any other: its solution carries the peak variable
-    assert nlp.solution_of(plan).S is not None
+    assert plan.solver.solution.S is not None
 
 
 @pytest.mark.slow
@@ -349,7 +349,7 @@ def test_torque_limits_hold_between_the_collocation_points(model, capture):
 def _plan_torque_excess(model, capture, nlp, plan, effort) -> float:
     """The largest relative excess of the plan's torques over ``effort`` on a 2.5 ms grid."""
     t = np.linspace(0.0, nlp.horizon, 4001)
-    q_B, qd_B, qdd_B = nlp.trajectory(nlp.solution_of(plan)).sample(t)
+    q_B, qd_B, qdd_B = nlp.trajectory(plan.solver.solution).sample(t)
     q_M, qd_M, qdd_M = capture.mission.sample(t)
     tau = np.array(
         model.torque_fun().map(t.size)(
@@ -390,7 +390,7 @@ def test_a_problem_solved_twice_gives_the_same_plan(model, capture):
     )
     first, second = nlp.solve(), nlp.solve()
     assert first.info["refinement"]["rounds"] >= 1
-    assert np.all(nlp.torque_factor == 1.0)
+    assert np.all(nlp.bounds.torque_factor == 1.0)
     assert second.info["refinement"]["rounds"] == first.info["refinement"]["rounds"]
     assert second.info["refinement"]["tightened"] == first.info["refinement"]["tightened"]
     assert second == first  # the same motion, bit for bit

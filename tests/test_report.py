@@ -10,7 +10,7 @@ import pytest
 
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques, plan_torques
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
-from balance_opt.optimal.ipopt_version import ipopt_version
+from balance_opt.optimal.ipopt_options import ipopt_version
 from balance_opt.report.outputs import (
     effort_metrics,
     limit_margins,
@@ -20,7 +20,6 @@ from balance_opt.report.outputs import (
     write_trajectory_csv,
     write_trajectory_npz,
 )
-from balance_opt.report.scene import magnification, magnified_axes
 from balance_opt.report.report import (
     MOMENTUM_TOLERANCE,
     TORQUE_TOLERANCE,
@@ -32,6 +31,7 @@ from balance_opt.report.report import (
     torque_sparkline,
     torque_table,
 )
+from balance_opt.report.scene import magnification, magnified_axes
 from balance_opt.report.style import method_label
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 

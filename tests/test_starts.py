@@ -1,4 +1,4 @@
-"""Multi-start (:mod:`balance_opt.optimal.starts`): starts whose first plans agree are merged,
+"""Multi-start (:func:`balance_opt.optimal.refine.multi_start`): starts whose first plans agree are merged,
 the plan kept is the best objective among the starts, the outcome is the same whether the
 starts run in this process or in a process pool, and Ctrl-C ends a multi-start at once.
 """
@@ -19,9 +19,14 @@ from balance_opt.optimal.solve import build_balance_nlp
 
 
 def test_first_plans_are_one_within_the_state_and_control_tolerances():
-    from balance_opt.optimal.layout import Solution
-    from balance_opt.optimal.refine import IntegralStart, SolveReport
-    from balance_opt.optimal.starts import SAME_CONTROL, SAME_PLAN, same_first_plan
+    from balance_opt.optimal.problem import Solution
+    from balance_opt.optimal.refine import (
+        SAME_CONTROL,
+        SAME_PLAN,
+        IntegralStart,
+        SolveReport,
+        same_first_plan,
+    )
 
     def first(dx=0.0, du=0.0, status="Solve_Succeeded"):
         X, U = np.zeros((9, 5)), np.ones((3, 5))

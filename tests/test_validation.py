@@ -426,7 +426,7 @@ def test_size_estimate_counts_the_planners_own_problem(
     def size(st):
         jac = st.solver.get_function("nlp_jac_g").sparsity_out(1).nnz()
         hess = st.solver.get_function("nlp_hess_l").sparsity_out(0).nnz()
-        return np.array([st.n_w, st.n_g, jac + hess + st.n_w + st.n_g])
+        return np.array([st.variables.size, st.rows.size, jac + hess + st.variables.size + st.rows.size])
 
     counts, inner_counts = [], []
     for N in (4, 6):  # below the inner stages' smallest grid: they have the plan's intervals

@@ -170,15 +170,10 @@ def _compiling(library: Path) -> bool:
         return True
 
 
-def _failure_note(library: Path) -> Path:
-    """Where a failed background compilation leaves its error message."""
-    return library.with_suffix(".failed")
-
-
 def _recent_failure(library: Path) -> str:
     """The error of a background compilation of ``library`` that failed within
     :data:`RETRY_SECONDS` (not retried before then), else ``""``."""
-    note = _failure_note(library)
+    note = library.with_suffix(".failed")  # a failed background compilation's message
     try:
         if time.time() - note.stat().st_mtime < RETRY_SECONDS:
             return note.read_text().strip()[:300] or "no message"
@@ -205,17 +200,16 @@ class Compilation:
                 if check_record(library)[0] is None:
                     _compile(compiler, source, library, self)
             enforce_limit(library.parent, keep=[library, record_path(library)])
-            _failure_note(library).unlink(missing_ok=True)
+            library.with_suffix(".failed").unlink(missing_ok=True)
         except OSError as exc:  # the planner keeps the VM; noted, so that runs do not retry
             if not self.stopped:
                 with contextlib.suppress(OSError):
-                    atomic_write_text(_failure_note(library), str(exc))
+                    atomic_write_text(library.with_suffix(".failed"), str(exc))
 
 
-def finish(process: Compilation, library: str | Path, timeout: float = COMPILE_WAIT) -> bool:
+def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
     """Wait up to ``timeout`` [s] for a background compilation this process started, then stop
     it if it still runs (the next run starts again). Returns whether it ended on its own."""
-    del library  # the compilation knows it
     if process.thread.is_alive():
         log.info(
             "waiting for the C compiler of the planner kernels (at most %.0f s; the next runs "

@@ -44,7 +44,6 @@ class CollisionSetup:
     geometry: RobotGeometry
     rows: ClearanceRows
     pairs: list[Pair]
-    fixed_pairs: list[Pair]
     initial_contacts: list[Pair]
     initial_rows: np.ndarray
     owner: dict[int, int | None]
@@ -76,18 +75,15 @@ class CollisionModels:
 
     def function(self, geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
         if rows.key not in self.rows:
-            self.rows[rows.key] = (rows, rows_function(geometry, rows))
+            # the rows as a function of the model joints' positions
+            q = cs.SX.sym("q_model", len(geometry.moving_joints))
+            f = cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
+            self.rows[rows.key] = (rows, f)
         return self.rows[rows.key][1]
 
     def labels(self, key: str) -> tuple[str, ...]:
         """The labels of the rows of a key (none for ``""``)."""
         return self.rows[key][0].labels if key else ()
-
-
-def rows_function(geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
-    """``clearance(q_model) -> rows``: the rows as a function of the model joints' positions."""
-    q = cs.SX.sym("q_model", len(geometry.moving_joints))
-    return cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
 
 
 def _moving_rows(geometry: RobotGeometry, rows: ClearanceRows) -> ClearanceRows:
@@ -172,13 +168,12 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
             ", ".join(p.name for p in contacts),
         )
     touching = {p.index for p in contacts}
-    pairs, fixed = [], []
-    for p in geometry.pairs:
-        if p.index in touching:
-            continue
-        (pairs if {geometry.body(p.first), geometry.body(p.second)} & moved else fixed).append(p)
+    pairs = [
+        p
+        for p in geometry.pairs
+        if p.index not in touching and {geometry.body(p.first), geometry.body(p.second)} & moved
+    ]
     out_of_reach = _out_of_reach(geometry, pairs, moved, options.collision_margin + WATCH)
-    fixed += [p for p in pairs if p.index in out_of_reach]
     pairs = [p for p in pairs if p.index not in out_of_reach]
     if not pairs:
         return None
@@ -200,15 +195,13 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     shape_of = {i: k for k, s in enumerate(rows.shapes) for i in s.objects}
     unrowed = [p for p in pairs if (shape_of[p.first], shape_of[p.second]) in overlap]
     unrowed += [p for p in pairs if (shape_of[p.second], shape_of[p.first]) in overlap]
-    kept = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
-    fixed += [p for p in pairs if p not in kept]
-    pairs = kept
+    pairs = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
     f = models.function(geometry, rows)
     initial = np.array(f(E @ q0 + e)).ravel()
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)
     threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, fixed, contacts, initial, owner, threshold)
+    return CollisionSetup(geometry, rows, pairs, contacts, initial, owner, threshold)
 
 
 def report(problem, result) -> ClearanceReport:
@@ -259,7 +252,7 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     said = [f"collision rows of {len(short)} pairs ({closest})"]
     margin, setup, N = problem.options.collision_margin, problem.collision, problem.N
     mids = problem.transcription.has_midpoints
-    bound = np.array(problem.collision_bound)
+    bound = np.array(problem.bounds.collision)
     q = np.hstack([result.q_M, result.q_B])
     for pair in short:
         row = setup.owner[pair.index]

@@ -10,10 +10,17 @@ import numpy as np
 
 from balance_opt.errors import InputError
 from balance_opt.motion.so3 import matrix_from_quaternion
-from balance_opt.optimal.collocation import Transcription, bernstein_value
-from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey, unit_of
 from balance_opt.optimal import collision
-from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError
+from balance_opt.optimal.collocation import Transcription, bernstein_value
+from balance_opt.optimal.problem import (
+    BalanceProblem,
+    Block,
+    NLPParameters,
+    PlannerSolverError,
+    Solution,
+    StructureKey,
+    unit_of,
+)
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
@@ -173,17 +180,22 @@ class JointLimit(Constraint):
             "position": (lim.lower, lim.upper),
             "velocity": (-lim.velocity, lim.velocity),
             "acceleration": (-lim.acceleration, lim.acceleration),
+            "jerk": (-lim.jerk, lim.jerk),
         }[self.kind]
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         if not self.interior:
             return []
         coefficients = [nlp.levels[self.level][i] for i in self.interior]
+        return self._coefficient_rows(nlp, f"{self.kind} limit between points", coefficients)
+
+    def _coefficient_rows(self, nlp: SymbolicNLP, name: str, coefficients: list) -> list[Rows]:
+        """One row per Bernstein coefficient (``self.interior``) and joint, per interval."""
         labels = tuple(
             f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
         )
         block = Block(
-            f"{self.kind} limit between points",
+            name,
             labels,
             (unit_of(self.kind),) * len(labels),
             np.arange(nlp.key.intervals, dtype=float),
@@ -222,15 +234,13 @@ class JointLimit(Constraint):
         )
 
 
-class JerkLimit(Constraint):
+class JerkLimit(JointLimit):
     """The balance joints' jerk limits [rad/s^3] on the continuous plan: on every interval the
     jerk is a polynomial (the derivative of the acceleration's, or with control ``"jerk"`` the
     control's own) and every one of its Bernstein coefficients is a row. The acceleration must
     then be continuous, so that the torques, and the reaction on the base, have no steps: the
     trapezoidal rule with control ``"acceleration"`` (a constant acceleration per interval) is
     refused."""
-
-    name = "jerk limit"
 
     def __init__(self, transcription: Transcription, control: str):
         if control == "acceleration" and transcription.control_degree == 0:
@@ -239,7 +249,11 @@ class JerkLimit(Constraint):
                 f"{transcription.name} rule with control 'acceleration' steps it at every node: "
                 "use control 'jerk' or transcription 'hermite-simpson'"
             )
-        self.control = control
+        self.kind, self.name, self.control = "jerk", "jerk limit", control
+        # a row per Bernstein coefficient of the jerk: the jerk control's own, or those of the
+        # acceleration control's derivative, one degree lower
+        degree = transcription.control_degree - (1 if control == "acceleration" else 0)
+        self.interior = tuple(range(degree + 1))
 
     def coefficients(self, levels: list, h) -> list:
         """Bernstein coefficients of the jerk on every interval, each (n_B, N), from the balance
@@ -252,25 +266,10 @@ class JerkLimit(Constraint):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         coefficients = self.coefficients(nlp.levels, nlp.parameters.h)
-        labels = tuple(
-            f"{j} jerk (control point {i})" for i in range(len(coefficients)) for j in nlp.joints
-        )
-        block = Block(
-            "jerk limit",
-            labels,
-            ("rad/s^3",) * len(labels),
-            np.arange(nlp.key.intervals, dtype=float),
-            per_interval=True,
-        )
-        return [(block, cs.vertcat(*coefficients))]
+        return self._coefficient_rows(nlp, "jerk limit", coefficients)
 
-    def row_bounds(self, problem, block):
-        jerk = problem.limits.jerk
-        reps = len(block.rows) // jerk.size
-        return (
-            _per_column(np.tile(-jerk, reps), len(block.taus)),
-            _per_column(np.tile(jerk, reps), len(block.taus)),
-        )
+    def bound_variables(self, problem, lower, upper):
+        """None: its rows bound every coefficient of the jerk, the nodes' values too."""
 
     def check(self, problem, result):
         """The jerk of the re-simulated motion by finite differences of its accelerations: the
@@ -310,9 +309,9 @@ class TorqueLimit(Constraint):
         return [(block, nlp.torque)]
 
     def row_bounds(self, problem, block):
-        """The effort limits, times ``problem.torque_factor`` (n_B, n_points) where the
+        """The effort limits, times ``problem.bounds.torque_factor`` (n_B, n_points) where the
         refinement tightened them."""
-        effort = problem.limits.effort[:, None] * problem.torque_factor
+        effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
         return -effort.ravel(order="F"), effort.ravel(order="F")
 
     @staticmethod
@@ -334,13 +333,36 @@ class TorqueLimit(Constraint):
                 [np.interp(t, result.t, result.quaternion[:, i]) for i in range(4)], axis=1
             )
             quaternion /= np.linalg.norm(quaternion, axis=1, keepdims=True)
-        torque = problem.model.momentum_torque_fun().map(t.size)
+        torque = problem.model.torque_fun(True).map(t.size)
         Rt = np.swapaxes(matrix_from_quaternion(quaternion), -1, -2)
         h_b = np.hstack([Rt @ problem.h0[:3], Rt @ problem.h0[3:]])  # R^T h0, base axes
         tau = torque(
             np.hstack([q_M, q_B]).T, np.hstack([qd_M, qd_B]).T, np.hstack([qdd_M, qdd_B]).T, h_b.T
         )
         return t, np.array(tau)[problem.model.n_M :].T
+
+    def tighten(self, problem, result):
+        """The effort factors lowered at the points of every interval where a torque exceeds
+        its limit by more than half :data:`TORQUE_TOLERANCE`, scaled by ``limit / peak`` there.
+        Half: the torques are evaluated at points of each interval, and a plan accepted at the
+        tolerance itself there could pass it between them."""
+        t, tau = self.torques(problem, result)
+        ratio = np.abs(tau) / problem.limits.effort  # (T, n_B), inf effort -> 0
+        if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE / 2:
+            return {}, []
+        N = problem.N
+        interval = np.minimum((t / problem.h).astype(int), N - 1)
+        per_interval = np.zeros((N, problem.model.n_B))
+        np.maximum.at(per_interval, interval, ratio)
+        broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
+        scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
+        factor = np.array(problem.bounds.torque_factor)
+        mids = problem.transcription.has_midpoints
+        for k in np.flatnonzero(broken.any(axis=1)):
+            for c in [k, k + 1] + ([N + 1 + k] if mids else []):
+                factor[:, c] = np.minimum(factor[:, c], factor[:, c] * scale[k])
+        worst, n = float(ratio.max() - 1.0), int(broken.any(axis=1).sum())
+        return {"torque_factor": factor}, [f"torque bounds on {n} intervals (worst +{worst:.2%})"]
 
     def check(self, problem, result):
         """The worst torque beyond its limit by more than :data:`TORQUE_TOLERANCE` (relative:
@@ -370,6 +392,10 @@ class AttitudeBound(Constraint):
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.ones(block.size)
 
+    def _rows(self, label: str, taus, values) -> list[Rows]:
+        """Its one row, of a relative quantity, at the points ``taus``."""
+        return [(Block(self.name, (label,), ("(relative)",), taus), values)]
+
 
 class PathAttitudeBound(AttitudeBound):
     """``|log R(t)| <= path_attitude_bound`` at every collocation point (the parameter
@@ -379,13 +405,9 @@ class PathAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        block = Block(
-            "path attitude bound",
-            ("attitude |phi|^2 / bound^2",),
-            ("(relative)",),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2))]
+        taus = nlp.transcription.point_taus(nlp.key.intervals)
+        values = nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2)
+        return self._rows("attitude |phi|^2 / bound^2", taus, values)
 
     def check(self, problem, result):
         if problem.options.path_attitude_bound is None:
@@ -397,26 +419,22 @@ class PathAttitudeBound(AttitudeBound):
 class PeakEpigraph(PathAttitudeBound):
     """The peak objective's epigraph: ``|phi_k|^2 / PEAK_SCALE^2 <= S`` at every collocation
     point, ``S >= 0``; with a path attitude bound, ``S`` is bounded by it (tightened by the
-    refinement: ``problem.path_bound``), and its check is the bound's."""
+    refinement: ``problem.bounds.path``), and its check is the bound's."""
 
     name = "peak epigraph"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        block = Block(
-            "peak epigraph",
-            ("attitude |phi|^2 / PEAK_SCALE^2 - S",),
-            ("(relative)",),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S)]
+        taus = nlp.transcription.point_taus(nlp.key.intervals)
+        values = cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S
+        return self._rows("attitude |phi|^2 / PEAK_SCALE^2 - S", taus, values)
 
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.zeros(block.size)
 
     def bound_variables(self, problem, lower, upper):
         lower.S[:] = 0.0
-        bound = problem.path_bound
+        bound = problem.bounds.path
         upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
 
 
@@ -427,13 +445,8 @@ class TerminalAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
-        block = Block(
-            "terminal attitude bound",
-            ("attitude |phi_T|^2 / bound^2",),
-            ("(relative)",),
-            np.array([float(N)]),
-        )
-        return [(block, nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N]))]
+        values = nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N])
+        return self._rows("attitude |phi_T|^2 / bound^2", np.array([float(N)]), values)
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
@@ -461,10 +474,10 @@ class InitialState(Constraint):
     balance arm at rest at ``q_B0``; with ``start: rest`` also its acceleration zero (no torque
     step at ``t = 0``)."""
 
-    name = "initial state"
+    name, index, when = "initial state", 0, "initial"
 
     def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
-        """``(derivative, value)`` of the balance joints at ``t = 0``."""
+        """``(derivative, value)`` of the balance joints at the node."""
         n_levels = len(problem.model.joint_rows(problem.control))
         if problem.options.start == "rest":
             n_levels = 3
@@ -472,36 +485,29 @@ class InitialState(Constraint):
         return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
     def bound_variables(self, problem, lower, upper):
-        lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+        if self.index == 0:  # the start: the base at its initial attitude too
+            lower.X[:3, 0] = upper.X[:3, 0] = 0.0
         for kind, value in self.targets(problem):
-            _pin(problem, lower, upper, 0, kind, value)
+            _pin(problem, lower, upper, problem.N if self.index else 0, kind, value)
 
     def check(self, problem, result):
-        return _worst_state(problem, result, 0, "initial", self.targets(problem))
+        return _worst_state(problem, result, self.index, self.when, self.targets(problem))
 
 
-class EndConditions(Constraint):
+class EndConditions(InitialState):
     """The options ``end`` (``still``: zero velocity at the last node; ``rest``: zero velocity
     and acceleration; ``rest_at_end`` is ``end: rest``) and ``final_configuration`` (the last
     node's position)."""
 
-    name = "end conditions"
+    name, index, when = "end conditions", -1, "final"
 
     def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
-        """``(derivative, value)`` of every prescribed end value."""
         out = []
         if problem.options.final_configuration is not None:
             out.append(("position", np.asarray(problem.options.final_configuration)))
         n_levels = {"free": 1, "still": 2, "rest": 3}[problem.options.end_condition]
         out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
         return out
-
-    def bound_variables(self, problem, lower, upper):
-        for kind, value in self.targets(problem):
-            _pin(problem, lower, upper, problem.N, kind, value)
-
-    def check(self, problem, result):
-        return _worst_state(problem, result, -1, "final", self.targets(problem))
 
 
 def _worst_state(problem, result, index: int, when: str, targets) -> Violation | None:
@@ -526,7 +532,7 @@ class Collision(Constraint):
     """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
     every collocation point, one row per body the balance joints move, the soft minimum of
     its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
-    ``problem.collision_bound``). The shapes contain the bodies; between the points the
+    ``problem.bounds.collision``). The shapes contain the bodies; between the points the
     refinement raises a row's bound where the re-simulated motion comes closer than the margin
     (:meth:`tighten`), and a plan that still penetrates fails (:meth:`accept`)."""
 
@@ -543,7 +549,7 @@ class Collision(Constraint):
         return [(block, nlp.clearance)]
 
     def row_bounds(self, problem, block):
-        return problem.collision_bound.ravel(order="F"), np.full(block.size, np.inf)
+        return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)
 
     def check(self, problem, result):
         closest = collision.shortfall(problem, result)

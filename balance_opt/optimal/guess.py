@@ -8,9 +8,8 @@ import logging
 import numpy as np
 
 from balance_opt.errors import InputError, SolverError
-from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.options import GUESSES
-from balance_opt.optimal.problem import BalanceProblem
+from balance_opt.optimal.problem import BalanceProblem, Solution
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -29,20 +28,9 @@ def guess_solution(problem: BalanceProblem, guess, first_state: np.ndarray) -> S
             return analytic_guess(problem, first_state)
         except SolverError as exc:
             log.info("analytic law failed (%s); starting from rest", exc)
-    return rest_guess(problem, first_state)
-
-
-def rest_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution:
-    """The balance arm held at ``q_B0``, the attitude it leaves (Phase I's)."""
-    q_B = np.tile(problem.q_B0, (2, 1))
-    return from_samples(
-        problem,
-        first_state,
-        np.array([0.0, problem.horizon]),
-        q_B,
-        np.zeros_like(q_B),
-        np.zeros_like(q_B),
-    )
+    # the balance arm held at q_B0, the attitude it leaves (Phase I's)
+    q_B, t = np.tile(problem.q_B0, (2, 1)), np.array([0.0, problem.horizon])
+    return from_samples(problem, first_state, t, q_B, np.zeros_like(q_B), np.zeros_like(q_B))
 
 
 def random_guess(problem: BalanceProblem, first_state: np.ndarray, rng) -> Solution:

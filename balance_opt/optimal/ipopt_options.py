@@ -1,9 +1,12 @@
-"""Ipopt options checked against Ipopt's own option list, before any planning."""
+"""Ipopt options checked against Ipopt's own option list, before any planning; the version of
+the Ipopt library the planner solves with, for the record of a run."""
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import difflib
+import glob
 import html
 import importlib.metadata
 import json
@@ -24,8 +27,6 @@ log = logging.getLogger(__name__)
 
 #: Ipopt option types, as its documentation names them.
 INTEGER, REAL, STRING = "integer", "real", "string"
-#: Linear solvers known to be in the CasADi wheel's Ipopt (no load test needed).
-BUNDLED_LINEAR_SOLVERS = ("mumps",)
 
 #: Options Ipopt accepts but does not document (``sb``: suppress the banner).
 UNDOCUMENTED = {"sb": ("yes", "no")}
@@ -152,7 +153,7 @@ def option_catalog() -> dict[str, IpoptOption]:
 def linear_solver_loads(name: str) -> bool:
     """Whether Ipopt can load linear solver ``name``: a one-variable solve with it, in a child
     process (without the HSL library some solvers crash the process that asks for them)."""
-    if name in BUNDLED_LINEAR_SOLVERS:
+    if name == "mumps":  # in the CasADi wheel's Ipopt
         return True
     import subprocess
     import sys
@@ -241,3 +242,25 @@ def check_ipopt_options(
             raise error(name, problem)
         out[name] = int(value) if catalog[name].type == INTEGER else value
     return out
+
+
+def ipopt_version() -> str:
+    """Version of the Ipopt library bundled with CasADi (e.g. ``"3.14.19"``), or ``"unknown"``."""
+    import casadi
+
+    folder = os.path.dirname(casadi.__file__)
+    patterns = ("libipopt.so*", "libipopt*.dylib", "libipopt*.dll", "ipopt*.dll")
+    candidates = sorted(
+        {p for pat in patterns for p in glob.glob(os.path.join(folder, pat))}, key=len
+    )
+    for path in candidates:
+        try:
+            lib = ctypes.CDLL(path)
+            getter = lib.GetIpoptVersion
+        except (OSError, AttributeError):
+            continue
+        major, minor, release = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
+        getter(ctypes.byref(major), ctypes.byref(minor), ctypes.byref(release))
+        return f"{major.value}.{minor.value}.{release.value}"
+    log.debug("no Ipopt library with GetIpoptVersion in %s", folder)
+    return "unknown"

@@ -41,6 +41,13 @@ def _tag(momentum: bool) -> str:
     return "_h" if momentum else ""
 
 
+def _function(name: str, inputs: dict, outputs: dict) -> cs.Function:
+    """An SX function of named inputs and outputs, its common subexpressions computed once."""
+    return cs.Function(
+        name, [*inputs.values()], [*outputs.values()], [*inputs], [*outputs], {"cse": True}
+    )
+
+
 def check_control(control: str) -> str:
     """The control's name, checked against :data:`CONTROLS`."""
     if control not in CONTROLS:
@@ -75,14 +82,6 @@ class PointKernels:
     def clearance(self, Y):
         """The clearance rows of kernel outputs ``Y`` (n_c, n_points), or ``None``."""
         return Y[self.n_y - self.n_clearance :, :] if self.n_clearance else None
-
-    @property
-    def jacobian_sparsity(self) -> cs.Sparsity:
-        return self.jacobian.sparsity_out(1)
-
-    @property
-    def hessian_sparsity(self) -> cs.Sparsity:
-        return self.hessian.sparsity_out(0)
 
 
 class PlannerModel:
@@ -137,6 +136,10 @@ class PlannerModel:
     def _stored(self, name: str, make) -> list[cs.Function]:
         """The functions ``name``: from the disk store, else made (and saved)."""
         return self.store.get(name, make) if self.store is not None else make()
+
+    def _stored_one(self, name: str, make) -> cs.Function:
+        """The function ``name``: from memory, else from the disk store, else made."""
+        return self._cached(name, lambda: self._stored(name, lambda: [make()])[0])
 
     def n_x(self, control: str) -> int:
         """State size: attitude (3) and balance position, velocity (and acceleration for jerk)."""
@@ -208,17 +211,13 @@ class PlannerModel:
             omega = self._omega(q_M, q_B, q_dot_M, q_dot_B, ell)
             parts = [inverse_right_jacobian_sym(phi) @ omega, q_dot_B]
             parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B :], u]
-            return cs.Function(
+            return _function(
                 "balance_dynamics",
-                [x, u, m],
-                [cs.vertcat(*parts), omega],
-                ["x", "u", "m"],
-                ["x_dot", "omega"],
-                {"cse": True},
+                {"x": x, "u": u, "m": m},
+                {"x_dot": cs.vertcat(*parts), "omega": omega},
             )
 
-        name = f"dynamics_{check_control(control)}{_tag(momentum)}"
-        return self._cached(name, lambda: self._stored(name, lambda: [make()])[0])
+        return self._stored_one(f"dynamics_{check_control(control)}{_tag(momentum)}", make)
 
     def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
@@ -236,14 +235,8 @@ class PlannerModel:
                 + weights[2] * cs.dot(u, u)
                 + weights[3] * cs.dot(dq, dq)
             )
-            return cs.Function(
-                "balance_point",
-                [x, u, m, weights, q_rest],
-                [x_dot, L],
-                ["x", "u", "m", "weights", "q_rest"],
-                ["x_dot", "L"],
-                {"cse": True},
-            )
+            inputs = {"x": x, "u": u, "m": m, "weights": weights, "q_rest": q_rest}
+            return _function("balance_point", inputs, {"x_dot": x_dot, "L": L})
 
         return self._cached(f"point_{check_control(control)}{_tag(momentum)}", make)
 
@@ -272,9 +265,7 @@ class PlannerModel:
         h = cs.SX(h.array if hasattr(h, "array") else h)
         if robot.followers:
             M, h = G.T @ M @ G, G.T @ h
-        return cs.Function(
-            "floating_dynamics_terms", [q, nu], [M, h], ["q", "nu"], ["M", "h"], {"cse": True}
-        )
+        return _function("floating_dynamics_terms", {"q": q, "nu": nu}, {"M": M, "h": h})
 
     def _torques(self, q, q_dot, q_ddot, v_b):
         """``tau`` of the free-floating inverse dynamics with the base twist ``v_b``."""
@@ -282,48 +273,26 @@ class PlannerModel:
         a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
         return M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
 
-    def torque_fun(self) -> cs.Function:
-        """``joint_torques(q, q_dot, q_ddot) -> tau``: :meth:`momentum_torque_fun` with zero
-        momentum (the base twist ``J_base q_dot``, Eq. 19)."""
+    def torque_fun(self, momentum: bool = False) -> cs.Function:
+        """``joint_torques(q, q_dot, q_ddot) -> tau``: arm joint torques [N m] (arm order) that
+        produce the joint accelerations ``q_ddot`` of the free-floating system with no external
+        wrench on the base, at zero momentum (the base twist ``J_base q_dot``, Eq. 19); with
+        ``momentum``, ``joint_torques_h(q, q_dot, q_ddot, h_b)`` at the momentum ``h_b`` (base
+        axes, [linear; angular about the CoM])."""
 
         def make():
             n = self.robot.n
-            q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
-            tau = self._torques(q, q_dot, q_ddot, self.maps.base_jacobian_fun()(q) @ q_dot)
-            return cs.Function(
-                "joint_torques",
-                [q, q_dot, q_ddot],
-                [tau],
-                ["q", "q_dot", "q_ddot"],
-                ["tau"],
-                {"cse": True},
-            )
-
-        return self._cached("torque", lambda: self._stored("torque", lambda: [make()])[0])
-
-    def momentum_torque_fun(self) -> cs.Function:
-        """``joint_torques_h(q, q_dot, q_ddot, h_b) -> tau``: arm joint torques [N m] (arm order)
-        that produce the joint accelerations ``q_ddot`` of the free-floating system with the
-        momentum ``h_b`` (base axes, [linear; angular about the CoM]) and no external wrench on
-        the base."""
-
-        def make():
-            n = self.robot.n
-            q, q_dot, q_ddot = cs.SX.sym("q", n), cs.SX.sym("q_dot", n), cs.SX.sym("q_ddot", n)
-            h_mom = cs.SX.sym("h_b", MOMENTUM_ROWS)
-            A = self.maps.centroidal_momentum_matrix_fun()(q)
-            v_b = self.maps.base_jacobian_fun()(q) @ q_dot + cs.solve(A[:, :6], h_mom)
+            inputs = {k: cs.SX.sym(k, n) for k in ("q", "q_dot", "q_ddot")}
+            q, q_dot, q_ddot = inputs.values()
+            v_b = self.maps.base_jacobian_fun()(q) @ q_dot
+            if momentum:
+                inputs["h_b"] = cs.SX.sym("h_b", MOMENTUM_ROWS)
+                A = self.maps.centroidal_momentum_matrix_fun()(q)
+                v_b = v_b + cs.solve(A[:, :6], inputs["h_b"])
             tau = self._torques(q, q_dot, q_ddot, v_b)
-            return cs.Function(
-                "joint_torques_h",
-                [q, q_dot, q_ddot, h_mom],
-                [tau],
-                ["q", "q_dot", "q_ddot", "h_b"],
-                ["tau"],
-                {"cse": True},
-            )
+            return _function(f"joint_torques{_tag(momentum)}", inputs, {"tau": tau})
 
-        return self._cached("torque_h", lambda: self._stored("torque_h", lambda: [make()])[0])
+        return self._stored_one(f"torque{_tag(momentum)}", make)
 
     def balance_torque_fun(
         self, control: str = "acceleration", momentum: bool = True
@@ -341,16 +310,11 @@ class PlannerModel:
                 cs.vertcat(q_ddot_M, q_ddot_B),
             )
             if momentum:
-                tau = self.momentum_torque_fun()(*joints, self._momentum_in_base(phi, m))
+                tau = self.torque_fun(True)(*joints, self._momentum_in_base(phi, m))
             else:
                 tau = self.torque_fun()(*joints)
-            return cs.Function(
-                "balance_torques",
-                [x, u, m],
-                [tau[self.n_M :]],
-                ["x", "u", "m"],
-                ["tau_B"],
-                {"cse": True},
+            return _function(
+                "balance_torques", {"x": x, "u": u, "m": m}, {"tau_B": tau[self.n_M :]}
             )
 
         return self._cached(f"balance_torque_{check_control(control)}{_tag(momentum)}", make)
@@ -380,7 +344,7 @@ class PlannerModel:
         [s], stopping those that do not end (:func:`~balance_opt.optimal.codegen.finish`); the
         end of every planning call (nothing it started outlives it)."""
         while self._compiling:
-            codegen.finish(*self._compiling.pop(), timeout)
+            codegen.finish(self._compiling.pop(), timeout)
 
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
@@ -401,12 +365,11 @@ class PlannerModel:
             self._kernels[variant] = PointKernels(
                 *loaded, *sizes, True, 0.0, kernels.library, n_clearance=kernels.n_clearance
             )
-            for key in [
-                k
-                for k in self.nlp_cache
-                if (k.control, k.torque_limits, k.momentum, k.collision) == variant
-            ]:
-                del self.nlp_cache[key]
+            self.nlp_cache = {
+                k: v
+                for k, v in self.nlp_cache.items()
+                if (k.control, k.torque_limits, k.momentum, k.collision) != variant
+            }
             log.info("planner kernels of %s: compiled library loaded", self.robot.name)
             swapped += 1
         return swapped
@@ -450,7 +413,7 @@ class PlannerModel:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
             return PointKernels(*functions, *sizes, n_clearance=n_c)
         if out.process is not None:
-            self._compiling.append((out.process, out.library))
+            self._compiling.append(out.process)
         compiled = (out.compiled, out.compile_time, out.library, out.background)
         return PointKernels(*out.functions, *sizes, *compiled, n_clearance=n_c)
 
@@ -477,39 +440,21 @@ class PlannerModel:
         mu = cs.SX.sym("mu", y.numel())
         c = cs.SX.sym("c", y.numel())
         hess, _ = cs.hessian(cs.dot(mu, y), z)
-        names = ["z", "m", "weights", "q_rest"]
-        inputs = [z, m, weights, q_rest]
-        opts = {"cse": True}
+        inputs = {"z": z, "m": m, "weights": weights, "q_rest": q_rest}
+        cy = cs.dot(c, y)
         return [
-            cs.Function(f"balance_kernel_{suffix}", inputs, [y], names, ["y"], opts),
-            cs.Function(
-                f"balance_kernel_jac_{suffix}",
-                inputs,
-                [y, cs.jacobian(y, z)],
-                names,
-                ["y", "dy_dz"],
-                opts,
-            ),
-            cs.Function(
+            _function(f"balance_kernel_{suffix}", inputs, {"y": y}),
+            _function(f"balance_kernel_jac_{suffix}", inputs, {"y": y, "dy_dz": cs.jacobian(y, z)}),
+            _function(
                 f"balance_kernel_grad_{suffix}",
-                [*inputs, c],
-                [cs.dot(c, y), cs.gradient(cs.dot(c, y), z)],
-                [*names, "c"],
-                ["cy", "grad"],
-                opts,
+                {**inputs, "c": c},
+                {"cy": cy, "grad": cs.gradient(cy, z)},
             ),
-            cs.Function(
-                f"balance_kernel_hess_{suffix}",
-                [*inputs, mu],
-                [cs.tril(hess)],
-                [*names, "mu"],
-                ["d2"],
-                opts,
-            ),
+            _function(f"balance_kernel_hess_{suffix}", {**inputs, "mu": mu}, {"d2": cs.tril(hess)}),
         ]
 
 
 def _stop_all(compiling: list) -> None:
     """Stop the compilers of a model that goes, or at exit."""
     while compiling:
-        codegen.stop(compiling.pop()[0])
+        codegen.stop(compiling.pop())

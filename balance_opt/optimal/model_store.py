@@ -84,7 +84,6 @@ class FunctionStore:
         self.prefix = f"{re.sub(r'[^A-Za-z0-9._-]+', '_', label)[:40]}_{key}"
 
     def path(self, name: str) -> Path:
-        """The file of the entry ``name``."""
         return self.folder / f"{self.prefix}_{name}.casadi"
 
     def load(self, name: str) -> list[cs.Function] | None:

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import ctypes
 import logging
+import os
 import time
 from dataclasses import dataclass
 from math import comb
+from pathlib import Path
 
 import casadi as cs
 import numpy as np
 
 from balance_opt import progress
-from balance_opt.optimal import blas
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
     PEAK_POWER,
@@ -20,15 +22,14 @@ from balance_opt.optimal.constraints import (
     SymbolicNLP,
     constraint_kinds,
 )
-from balance_opt.optimal.layout import (
-    Block,
+from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
+from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_STAGES, PlannerOptions
+from balance_opt.optimal.problem import (
     BlockStack,
     ParameterLayout,
     StructureKey,
     VariableLayout,
 )
-from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
-from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_STAGES, PlannerOptions
 
 log = logging.getLogger(__name__)
 
@@ -45,26 +46,6 @@ class NLPStructure:
     row_kinds: tuple[Constraint, ...]
     kinds: tuple[Constraint, ...]
     build_time: float
-
-    @property
-    def n_w(self) -> int:
-        """Size of the decision vector."""
-        return self.variables.size
-
-    @property
-    def n_g(self) -> int:
-        """Size of the constraint vector."""
-        return self.rows.size
-
-    @property
-    def n_p(self) -> int:
-        """Size of the parameter vector."""
-        return self.parameters.size
-
-    @property
-    def constraints(self) -> list[Block]:
-        """The constraint vector's blocks, in order."""
-        return self.rows.blocks
 
 
 @dataclass
@@ -215,11 +196,17 @@ def _outer_functions(w, y, p, cost, g) -> _Outer:
     )
 
 
-def _scatter(
-    sparsity: cs.Sparsity, n_points: int, rows_of_point, cols_of_point, shape, upper: bool = False
-):
-    """Sparsity and nonzero permutation that place the nonzeros of a mapped per-point sparse
-    output (``n_points`` copies of ``sparsity`` side by side) into one global sparse matrix."""
+def _scattered(
+    values: cs.MX,
+    sparsity: cs.Sparsity,
+    n_points: int,
+    rows_of_point,
+    cols_of_point,
+    shape,
+    upper: bool = False,
+) -> cs.MX:
+    """The nonzeros of a mapped per-point sparse output (``n_points`` copies of ``sparsity``
+    side by side) placed into one global sparse matrix."""
     local_rows, local_cols = (np.asarray(v) for v in sparsity.get_triplet())
     nnz = local_rows.size
     rows = np.concatenate([rows_of_point(i)[local_rows] for i in range(n_points)])
@@ -232,100 +219,61 @@ def _scatter(
     mapping = np.asarray(mapping)
     if mapping.size != nnz * n_points or np.unique(mapping).size != mapping.size:
         raise AssertionError("overlapping per-point blocks")  # every variable belongs to one point
-    return global_sp, mapping
+    return cs.sparsity_cast(values.nz[mapping.tolist()], global_sp)
 
 
-@dataclass
-class _Mapped:
-    """The NLP's MX symbols and the per-point view of them that the kernels are mapped over."""
-
-    w: cs.MX
-    p: cs.MX
-    Z: cs.MX
-    data: tuple
-    point_idx: np.ndarray
-
-    @classmethod
-    def of(cls, kernels: PointKernels, variables: VariableLayout, parameters: ParameterLayout):
-        point_idx = variables.point_indices()
-        point_flat = point_idx.ravel(order="F")
-        if not np.array_equal(np.sort(point_flat), np.arange(point_flat.size)):
-            raise AssertionError("the points' variables must come first, each in one point")
-        w, p = cs.MX.sym("w", variables.size), cs.MX.sym("p", parameters.size)
-        Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
-        par = parameters.unpack_symbolic(p)
-        return cls(w, p, Z, (par.mission, par.running_weights, par.q_rest), point_idx)
-
-    @property
-    def n_points(self) -> int:
-        return self.point_idx.shape[1]
-
-    @property
-    def n_w(self) -> int:
-        return self.w.numel()
-
-
-def _gradient(kernels: PointKernels, outer: _Outer, x: _Mapped) -> cs.Function:
-    """The objective's gradient: ``f_w`` plus ``d(c_i^T y_i)/dz_i`` per point (reverse mode),
-    scattered to ``w``."""
-    n_pt = x.point_idx.size
-    f0, f_w, f_Y = outer.gradient(x.w, x.p)
-    cy, grad_z = kernels.gradient.map(x.n_points)(
-        x.Z, *x.data, cs.reshape(f_Y, kernels.n_y, x.n_points)
-    )
+def _derivatives(kernels: PointKernels, outer: _Outer, w, p, Z, data, point_idx, n_g) -> dict:
+    """Ipopt's ``grad_f``, ``jac_g`` and ``hess_lag``: the outer problem's, plus the kernels'
+    mapped over the points and scattered to ``w`` (``dY/dw`` is block diagonal, and so is the
+    kernels' part of the Hessian, weighted by ``mu``)."""
+    n_y, n_points, n_w, n_pt = kernels.n_y, point_idx.shape[1], w.numel(), point_idx.size
+    f0, f_w, f_Y = outer.gradient(w, p)
+    cy, grad_z = kernels.gradient.map(n_points)(Z, *data, cs.reshape(f_Y, kernels.n_y, n_points))
     scatter_w = np.empty(n_pt, dtype=int)
-    scatter_w[x.point_idx.ravel(order="F")] = np.arange(n_pt)
-    grad_points = cs.vertcat(cs.vec(grad_z)[scatter_w.tolist()], cs.MX.zeros(x.n_w - n_pt))
-    return cs.Function(
-        "nlp_grad_f",
-        [x.w, x.p],
-        [f0 + cs.sum2(cy), f_w + grad_points],
-        ["x", "p"],
-        ["f", "grad_f_x"],
-    )
-
-
-def _jacobian(kernels: PointKernels, outer: _Outer, x: _Mapped) -> cs.Function:
-    """The constraints' Jacobian ``G_w + G_Y dY/dw``, ``dY/dw`` block diagonal."""
-    n_y = kernels.n_y
-    Y, dY = kernels.jacobian.map(x.n_points)(x.Z, *x.data)
-    sp_dy, perm_dy = _scatter(
-        kernels.jacobian_sparsity,
-        x.n_points,
+    scatter_w[point_idx.ravel(order="F")] = np.arange(n_pt)
+    grad_points = cs.vertcat(cs.vec(grad_z)[scatter_w.tolist()], cs.MX.zeros(n_w - n_pt))
+    Y, dY = kernels.jacobian.map(n_points)(Z, *data)
+    dYdw = _scattered(
+        dY,
+        kernels.jacobian.sparsity_out(1),
+        n_points,
         lambda i: n_y * i + np.arange(n_y),
-        lambda i: x.point_idx[:, i],
-        (n_y * x.n_points, x.n_w),
+        lambda i: point_idx[:, i],
+        (n_y * n_points, n_w),
     )
-    dYdw = cs.sparsity_cast(dY.nz[perm_dy.tolist()], sp_dy)
-    G_w, G_Y = outer.jacobian(x.w, x.p)
-    g = outer.value(x.w, cs.vec(Y), x.p)[1]
-    return cs.Function(
-        "nlp_jac_g", [x.w, x.p], [g, G_w + cs.mtimes(G_Y, dYdw)], ["x", "p"], ["g", "jac_g_x"]
-    )
-
-
-def _hessian(kernels: PointKernels, outer: _Outer, x: _Mapped, n_g: int) -> cs.Function:
-    """The Lagrangian's Hessian (upper triangle): the outer problem's plus each point's kernel
-    Hessian weighted by ``mu``."""
+    G_w, G_Y = outer.jacobian(w, p)
+    g = outer.value(w, cs.vec(Y), p)[1]
     lf, lg = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", n_g)
-    H_outer, mu = outer.hessian(x.w, x.p, lf, lg)
-    d2 = kernels.hessian.map(x.n_points)(x.Z, *x.data, cs.reshape(mu, kernels.n_y, x.n_points))
-    sp_h, perm_h = _scatter(
-        kernels.hessian_sparsity,
-        x.n_points,
-        lambda i: x.point_idx[:, i],
-        lambda i: x.point_idx[:, i],
-        (x.n_w, x.n_w),
+    H_outer, mu = outer.hessian(w, p, lf, lg)
+    d2 = kernels.hessian.map(n_points)(Z, *data, cs.reshape(mu, kernels.n_y, n_points))
+    H_kernel = _scattered(
+        d2,
+        kernels.hessian.sparsity_out(0),
+        n_points,
+        lambda i: point_idx[:, i],
+        lambda i: point_idx[:, i],
+        (n_w, n_w),
         upper=True,
     )
-    H_kernel = cs.sparsity_cast(d2.nz[perm_h.tolist()], sp_h)
-    return cs.Function(
-        "nlp_hess_l",
-        [x.w, x.p, lf, lg],
-        [H_outer + H_kernel],
-        ["x", "p", "lam_f", "lam_g"],
-        ["triu_hess_gamma_x_x"],
-    )
+    return {
+        "grad_f": cs.Function(
+            "nlp_grad_f",
+            [w, p],
+            [f0 + cs.sum2(cy), f_w + grad_points],
+            ["x", "p"],
+            ["f", "grad_f_x"],
+        ),
+        "jac_g": cs.Function(
+            "nlp_jac_g", [w, p], [g, G_w + cs.mtimes(G_Y, dYdw)], ["x", "p"], ["g", "jac_g_x"]
+        ),
+        "hess_lag": cs.Function(
+            "nlp_hess_l",
+            [w, p, lf, lg],
+            [H_outer + H_kernel],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
+        ),
+    }
 
 
 def ipopt_options_for(
@@ -353,25 +301,65 @@ def _ipopt_solver(
 ) -> cs.Function:
     """The NLP in MX (the kernels mapped over the points, the outer problem on top) with its
     assembled derivatives (see the module docstring), handed to Ipopt."""
-    x = _Mapped.of(kernels, variables, parameters)
-    y = cs.vec(kernels.value.map(x.n_points)(x.Z, *x.data))
-    f, g = outer.value(x.w, y, x.p)
+    point_idx = variables.point_indices()
+    point_flat = point_idx.ravel(order="F")
+    if not np.array_equal(np.sort(point_flat), np.arange(point_flat.size)):
+        raise AssertionError("the points' variables must come first, each in one point")
+    w, p = cs.MX.sym("w", variables.size), cs.MX.sym("p", parameters.size)
+    Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
+    par = parameters.unpack_symbolic(p)
+    data = (par.mission, par.running_weights, par.q_rest)
+    y = cs.vec(kernels.value.map(point_idx.shape[1])(Z, *data))
+    f, g = outer.value(w, y, p)
     solver = cs.nlpsol(
         "balance_nlp",
         "ipopt",
-        {"x": x.w, "p": x.p, "f": f, "g": g},
+        {"x": w, "p": p, "f": f, "g": g},
         {
             "ipopt": ipopt,
             "print_time": False,
             "record_time": True,
             "calc_lam_p": False,
             "calc_lam_x": False,
-            "grad_f": _gradient(kernels, outer, x),
-            "jac_g": _jacobian(kernels, outer, x),
-            "hess_lag": _hessian(kernels, outer, x, n_g),
+            **_derivatives(kernels, outer, w, p, Z, data, point_idx, n_g),
             # the live progress line (balance_opt.progress); returns at once when it is off
-            **progress.nlpsol_options(x.w.numel(), n_g),
+            **progress.nlpsol_options(w.numel(), n_g),
         },
     )
-    blas.one_thread_for_ipopt()  # the plugin, and its OpenBLAS, are loaded now
+    one_thread_for_ipopt()  # the plugin, and its OpenBLAS, are loaded now
     return solver
+
+
+#: The environment variables OpenBLAS reads its number of threads from: one set overrides
+#: the choice.
+THREADS_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def casadi_openblas() -> ctypes.CDLL | None:
+    """The OpenBLAS that CasADi's Ipopt plugin loaded, or ``None`` when none is loaded (before
+    the first ``nlpsol``, or another build of CasADi). The wheel holds several copies of the
+    file under different names: opening one by its path could load a second, unused instance,
+    so it is looked up by name among the loaded libraries only (``RTLD_NOLOAD``)."""
+    if not hasattr(os, "RTLD_NOLOAD"):
+        return None  # no way to find the loaded one without loading another
+    mode = os.RTLD_NOLOAD | os.RTLD_LAZY
+    for path in sorted(Path(cs.__file__).parent.glob("libcasadi-tp-openblas*")):
+        try:
+            lib = ctypes.CDLL(path.name, mode=mode)
+            lib.openblas_get_num_threads  # noqa: B018 (raises AttributeError without it)
+        except (OSError, AttributeError):
+            continue
+        return lib
+    return None
+
+
+def one_thread_for_ipopt() -> None:
+    """Set CasADi's OpenBLAS to one thread for Ipopt's linear algebra (each time an NLP is
+    built: cheap), unless one of :data:`THREADS_VARIABLES` is set."""
+    if any(os.environ.get(name) for name in THREADS_VARIABLES):
+        return
+    lib = casadi_openblas()
+    if lib is None:
+        log.debug("CasADi's Ipopt loaded no OpenBLAS of its own: its threads are left alone")
+        return
+    lib.openblas_set_num_threads(ctypes.c_int(1))

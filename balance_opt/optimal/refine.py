@@ -1,5 +1,6 @@
 """The outer loop of the optimal planner: the peak objective's stages, bounds reached through the
-peak problem, and limits held on the whole re-simulated motion."""
+peak problem, limits held on the whole re-simulated motion, and the multi-start
+(``options.starts`` initial guesses, the plan of the smallest objective kept)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from balance_opt.errors import SolverError
-from balance_opt.optimal.constraints import TORQUE_TOLERANCE, TorqueLimit
-from balance_opt.optimal.layout import Solution
-from balance_opt.optimal.options import PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
-from balance_opt.optimal.problem import PlannerSolverError
+from balance_opt.optimal.guess import random_guess
+from balance_opt.optimal.options import GUESSES, PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
+from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -251,22 +251,18 @@ def plan_peak(nlp, guess) -> BalanceResult:
     done: list[SolveReport] = []
     stage_nlp = None
     for stage in inner:
-        if isinstance(guess, IntegralStart):  # the first stage, done by a multi-start
-            report, guess = guess.report, guess.following
-        else:
+        if stage.name == "integral":  # done here, or by a multi-start
+            start = guess if isinstance(guess, IntegralStart) else integral_stage(nlp, guess)
+            report, guess = start.report, start.following
+        else:  # its reference drift: the start's peak (the smooth term then weighs like the peak's)
             stage_nlp = nlp.at_stage(stage)
-            if stage.name == "smooth":  # its reference drift: the start's peak (the smooth
-                # term then weighs like the peak's)
-                X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
-                reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
-                stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
-            elif isinstance(guess, np.ndarray):  # a decision vector of this problem
-                guess = nlp.unpack(nlp.initial_guess(guess))
+            X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
+            reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
+            stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
             report = stage_nlp.solve_stage(guess)
-            if report.success:
-                guess = report.solution
-            else:
-                log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
+            guess = report.solution if report.success else guess
+        if not report.success:
+            log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
         done.append(report)
     before = PlanReport(tuple(done))
     stages = tuple(r.as_inner_stage() for r in done)
@@ -294,7 +290,7 @@ def _smooth_plan(nlp, smooth, guess, before: PlanReport) -> BalanceResult:
     fallback): solved on ``nlp``'s grid with the rows between the points, priced at the
     reference drift of the inner ``smooth`` stage, from ``guess``. Its solution is the peak
     problem's (with ``S``, the plan's own peak), as every later step expects."""
-    final = nlp.at_stage(SMOOTH_PLAN).with_bounds(peak_reference=smooth.peak_reference)
+    final = nlp.at_stage(SMOOTH_PLAN).with_bounds(peak_reference=smooth.bounds.peak_reference)
     result = _solve_once(final, guess, before)
     w = nlp.initial_guess(result.solver.solution)
     result.solver = replace(result.solver, solution=nlp.unpack(w))
@@ -351,10 +347,6 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
     """The lower bounds (changes of :class:`~balance_opt.optimal.problem.Bounds`) where the
     re-simulated ``result`` breaks them beyond tolerance, and what they lower, in words."""
     changes, out = {}, []
-    if nlp.structure.key.torque_limits:
-        factor, words = _tighten_torques(nlp, result)
-        if words:
-            changes["torque_factor"], out = factor, words
     for kind in nlp.structure.kinds:  # the kinds that tighten bounds of their own
         more, words = kind.tighten(nlp, result)
         changes.update(more)
@@ -370,27 +362,123 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
     return changes, out
 
 
-def _tighten_torques(nlp, result: BalanceResult) -> tuple[np.ndarray, list[str]]:
-    """The effort factors with the points of every interval where a torque exceeds its limit
-    by more than half :data:`TORQUE_TOLERANCE` scaled by ``limit / peak`` there. Half: the
-    torques are evaluated at points of each interval, and a plan accepted at the tolerance
-    itself there could pass it between them."""
-    effort = nlp.limits.effort
-    t, tau = TorqueLimit.torques(nlp, result)
-    ratio = np.abs(tau) / effort  # (T, n_B), inf effort -> 0
-    if not ratio.size or ratio.max() <= 1.0 + TORQUE_TOLERANCE / 2:
-        return nlp.torque_factor, []
-    N = nlp.N
-    interval = np.minimum((t / nlp.h).astype(int), N - 1)
-    per_interval = np.zeros((N, nlp.model.n_B))
-    np.maximum.at(per_interval, interval, ratio)
-    broken = per_interval > 1.0 + TORQUE_TOLERANCE / 2
-    scale = np.where(broken, (1.0 - TORQUE_TOLERANCE / 4) / per_interval, 1.0)
-    factor = np.array(nlp.torque_factor)
-    mids = nlp.transcription.has_midpoints
-    for k in np.flatnonzero(broken.any(axis=1)):
-        for c in [k, k + 1] + ([N + 1 + k] if mids else []):
-            factor[:, c] = np.minimum(factor[:, c], factor[:, c] * scale[k])
-    worst = float(ratio.max() - 1.0)
-    n = int(broken.any(axis=1).sum())
-    return factor, [f"torque bounds on {n} intervals (worst +{worst:.2%})"]
+#: Largest difference between two first-stage plans' states (rad, rad/s) under which they are
+#: one plan.
+SAME_PLAN = 1e-4
+#: The same for their controls (rad/s^2, or rad/s^3 with jerk control): Ipopt's tolerance
+#: leaves more in them than in the states.
+SAME_CONTROL = 1e-3
+
+
+def start_guesses(nlp, guess) -> list[tuple[str, object]]:
+    """``(label, guess)`` of every start: the named ones, then random decision vectors."""
+    rng = np.random.default_rng(nlp.options.seed)
+    named = [guess] + [g for g in GUESSES if g != guess]
+    out = []
+    for g in named[: nlp.options.starts]:
+        out.append((g if isinstance(g, str) else type(g).__name__, g))
+    first_state = nlp.unpack(nlp.lbx).X[3:, 0]
+    while len(out) < nlp.options.starts:
+        out.append(("random", nlp.pack(random_guess(nlp, first_state, rng))))
+    return out
+
+
+class StartTask:
+    """One phase of a start on a problem, a callable of the start's guess: ``"first"`` the
+    integral stage (its :class:`~balance_opt.optimal.refine.IntegralStart`), ``"plan"`` the
+    whole solve (``(result, None)`` or ``(None, error)``; in another process the error as
+    ``(message, status)``: the planner's errors do not pickle)."""
+
+    def __init__(self, nlp, phase: str):
+        self.nlp, self.phase, self.remote = nlp, phase, False
+
+    def __getstate__(self) -> dict:
+        n, key = self.nlp, self.nlp.structure.key
+        stage = None if key.between_points else key.objective
+        data = (n.model.robot, n.robot, n.mission, n.q_B0, n.options, n.h0, stage)
+        # the problem's own class rebuilds it (pickled by reference: no import of solve here)
+        return {"build": type(n).from_data, "data": data, "phase": self.phase}
+
+    def __setstate__(self, state: dict) -> None:
+        self.nlp = state["build"](*state["data"])
+        self.phase, self.remote = state["phase"], True
+
+    def __call__(self, guess):
+        if self.phase == "first":
+            return integral_stage(self.nlp, guess)
+        try:
+            return solve_with_bounds(self.nlp, guess), None
+        except SolverError as exc:
+            return None, ((str(exc), str(exc.status)) if self.remote else exc)
+
+
+def same_first_plan(a: IntegralStart, b: IntegralStart) -> bool:
+    """Two first stages reached one plan: both solved, states within :data:`SAME_PLAN`,
+    controls within :data:`SAME_CONTROL`."""
+    if not (a.report.success and b.report.success):
+        return False
+    x, y = a.following, b.following
+    return bool(np.abs(x.X - y.X).max() <= SAME_PLAN and np.abs(x.U - y.U).max() <= SAME_CONTROL)
+
+
+def multi_start(nlp, guess, executor=None):
+    """Solve from ``options.starts`` guesses (:func:`start_guesses`) and keep the plan of
+    the smallest objective; ``info["starts"]`` holds every start's outcome and the spread."""
+    run = map if executor is None else executor.map
+    guesses = start_guesses(nlp, guess)
+    single = nlp.variant(starts=1)
+    starting = [g for _, g in guesses]
+    owner = list(range(len(starting)))
+    if nlp.options.objective == "peak" or nlp.options.path_attitude_bound is not None:
+        # decision vectors as states and controls: the first stage's problem needs no other
+        starting = [
+            nlp.unpack(nlp.initial_guess(g)) if isinstance(g, np.ndarray) else g for g in starting
+        ]
+        first = list(run(StartTask(single.at_stage(PEAK_STAGES[0]), "first"), starting))
+        for i in range(len(first)):
+            same = (j for j in range(i) if owner[j] == j and same_first_plan(first[j], first[i]))
+            owner[i] = next(same, i)
+        starting = first
+    distinct = sorted(set(owner))
+    solved = dict(zip(distinct, run(StartTask(single, "plan"), [starting[i] for i in distinct])))
+    best, first_error, runs = None, None, []
+    for i, (label, _) in enumerate(guesses):
+        result, error = solved[owner[i]]
+        entry = {"guess": label} if owner[i] == i else {"guess": label, "same_as": owner[i]}
+        if result is None:
+            error = error if isinstance(error, SolverError) else SolverError(error[0], error[1])
+            first_error = first_error or error
+            runs.append({**entry, "status": str(error.status)})
+            continue
+        runs.append({**entry, **_outcome(result)})
+        if best is None or result.info["objective"] < best.info["objective"]:
+            best = result
+    if best is None:
+        raise first_error
+    done = [r for r in runs if "objective" in r]
+    log.info("multi-start: %d starts, %d solved, %d distinct", len(runs), len(done), len(distinct))
+    best.info["starts"] = {
+        "runs": runs,
+        "solved": len(done),
+        "distinct": len(distinct),
+        "workers": 1 if executor is None else None,  # an executor's own count is its own
+        "objective_spread": _spread(done, "objective"),
+        "max_drift_spread_rad": _spread(done, "max_drift_rad"),
+    }
+    return best
+
+
+def _outcome(result) -> dict:
+    """What ``info["starts"]`` records of a solved start."""
+    return {
+        "status": result.info["status"],
+        "objective": result.info["objective"],
+        "max_drift_rad": result.max_drift,
+        "final_drift_rad": result.final_drift,
+        "iterations": result.info["total_iterations"],
+        "solve_s": result.info["total_solve_time_s"],  # every Ipopt solve of the start
+    }
+
+
+def _spread(runs: list[dict], key: str) -> float:
+    return float(max(r[key] for r in runs) - min(r[key] for r in runs))

@@ -25,7 +25,6 @@ from balance_opt.optimal.collision import collision_setup
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
 from balance_opt.optimal.guess import guess_solution, resampled
-from balance_opt.optimal.layout import Block, NLPParameters, Solution, StructureKey
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
 from balance_opt.optimal.options import (
@@ -35,45 +34,29 @@ from balance_opt.optimal.options import (
     PlannerOptions,
     Stage,
 )
-from balance_opt.optimal.problem import BalanceProblem, PlannerSolverError, check_problem
-from balance_opt.optimal.refine import PlanReport, SolveReport, solve_with_bounds
-from balance_opt.optimal.starts import multi_start
+from balance_opt.optimal.problem import (
+    BalanceProblem,
+    Block,
+    NLPParameters,
+    PlannerSolverError,
+    Solution,
+    StructureKey,
+    check_problem,
+)
+from balance_opt.optimal.refine import PlanReport, SolveReport, multi_start, solve_with_bounds
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
 
 class BalanceNLP(BalanceProblem):
-    """One balance planning problem with its compiled NLP and numeric inputs.
+    """One balance planning problem with its compiled NLP (``structure``) and numeric inputs
+    (``lbx``/``ubx``, ``lbg``/``ubg``, ``parameters``), built by :func:`build_balance_nlp`;
+    ``build_time`` is 0 when the structure was cached."""
 
-    Built by :func:`build_balance_nlp`; inspect ``variables``, ``constraints``, ``lbx``/``ubx``,
-    ``lbg``/``ubg``, ``parameters``, or name an index with :meth:`constraint_name`.
-
-    Args:
-        model, mission, q_B0, options, horizon: the problem (see :class:`BalanceProblem`).
-        structure: the compiled NLP of its structure.
-        setup_time: wall time to set the problem up [s].
-        build_time: wall time spent building the structure for it [s] (0 when cached).
-    """
-
-    def __init__(
-        self,
-        model: PlannerModel,
-        structure: NLPStructure,
-        mission,
-        q_B0: np.ndarray,
-        options: PlannerOptions,
-        horizon: float,
-        setup_time: float,
-        build_time: float = 0.0,
-        robot: FloatingRobot | None = None,
-        h0=None,
-        collision=None,
-    ):
-        super().__init__(model, mission, q_B0, options, horizon, robot, h0, collision)
-        self.structure = structure
-        self.setup_time = setup_time
-        self.build_time = build_time
+    def __init__(self, structure: NLPStructure, setup_time: float, build_time: float, *problem):
+        super().__init__(*problem)  # model, mission, q_B0, options, horizon, robot, h0, collision
+        self.structure, self.setup_time, self.build_time = structure, setup_time, build_time
         self._set_bounds()
 
     def with_bounds(self, **changes) -> BalanceNLP:
@@ -89,14 +72,14 @@ class BalanceNLP(BalanceProblem):
         weights = self.options.weights
         peak = self.structure.key.objective in ("peak", "smooth")
         smooth = self.structure.key.objective == "smooth"
-        c = self.peak_reference
+        c = self.bounds.peak_reference
         self.parameters = self.structure.parameters.pack(
             NLPParameters(
                 h=self.h,
                 terminal_weight=weights.peak_terminal if peak else weights.terminal,
                 running_weights=weights.running("peak" if peak else "integral"),
-                path_scale=attitude_scale(self.path_bound),
-                terminal_scale=attitude_scale(self.terminal_bound),
+                path_scale=attitude_scale(self.bounds.path),
+                terminal_scale=attitude_scale(self.bounds.terminal),
                 peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
                 # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
                 smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
@@ -150,10 +133,6 @@ class BalanceNLP(BalanceProblem):
         stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == name)
         return self.at_stage(stage)
 
-    def solution_of(self, result: BalanceResult) -> Solution:
-        """The NLP solution a result of this problem's structure was re-simulated from."""
-        return result.solver.solution
-
     @property
     def variables(self) -> dict[str, Block]:
         """The decision vector's blocks by name (``X``, ``Xm``, ``U``, ``Um``)."""
@@ -161,8 +140,7 @@ class BalanceNLP(BalanceProblem):
 
     @property
     def constraints(self) -> list[Block]:
-        """The constraint vector's blocks, in order."""
-        return self.structure.constraints
+        return self.structure.rows.blocks
 
     def constraint_name(self, index: int) -> tuple[str, float, str]:
         """``(name, time [s], unit)`` of constraint ``index`` (for an interval's constraint, the
@@ -179,23 +157,15 @@ class BalanceNLP(BalanceProblem):
             return f"{name} on the interval {t:.3f}-{t + self.h:.3f} s"
         return f"{name} at t = {t:.3f} s"
 
-    def variable_name(self, index: int) -> tuple[str, float, str]:
-        """``(name, time [s], unit)`` of decision variable ``index``."""
-        layout = self.structure.variables
-        name, tau = layout.describe(index)
-        return name, tau * self.h, layout.block_at(index).locate(index)[1]
-
     def unpack(self, w) -> Solution:
-        """States and controls of a decision vector."""
         return self.structure.variables.unpack(w)
 
     def pack(self, sol: Solution) -> np.ndarray:
-        """The decision vector of unpacked states and controls."""
         return self.structure.variables.pack(sol)
 
     def _variable_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Free variables, narrowed by every constraint kind in turn."""
-        n_w = self.structure.n_w
+        n_w = self.structure.variables.size
         lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
         for kind in self.structure.kinds:
             kind.bound_variables(self, lower, upper)
@@ -203,7 +173,7 @@ class BalanceNLP(BalanceProblem):
 
     def _constraint_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Each block of rows bounded by the kind that owns it."""
-        lower, upper = np.empty(self.structure.n_g), np.empty(self.structure.n_g)
+        lower, upper = np.empty(self.structure.rows.size), np.empty(self.structure.rows.size)
         for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
             lower[block.slice], upper[block.slice] = kind.row_bounds(self, block)
         return lower, upper
@@ -222,11 +192,9 @@ class BalanceNLP(BalanceProblem):
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
             return np.clip(self.pack(sol), self.lbx, self.ubx)
-        w = np.asarray(guess, dtype=float).ravel()
-        if w.size != self.structure.n_w:
-            raise InputError(
-                f"initial guess vector has {w.size} entries, the NLP has {self.structure.n_w}"
-            )
+        w, n_w = np.asarray(guess, dtype=float).ravel(), self.structure.variables.size
+        if w.size != n_w:
+            raise InputError(f"initial guess vector has {w.size} entries, the NLP has {n_w}")
         return w
 
     @classmethod
@@ -279,9 +247,8 @@ class BalanceNLP(BalanceProblem):
         worst = self.largest_violation(w, np.array(out["g"]).ravel())
         result = resimulate(self, report.solution, self.trajectory(report.solution))
         t3 = time.perf_counter()
-        stats = self.structure.solver.stats()
         result.solver = PlanReport((report,))
-        result.info.update(self._report(stats, report.objective, worst, (t0, t1, t2, t3)))
+        result.info.update(self._report(report, worst, (t0, t1, t2, t3)))
         result.info["nlp_solution"] = w.tolist()
         if not report.success:
             name, t, amount, unit, where = worst
@@ -332,20 +299,17 @@ class BalanceNLP(BalanceProblem):
         report's ``status``."""
         return self._ipopt(self.initial_guess(initial_guess))[1]
 
-    def _report(self, stats: dict, objective: float, worst, times) -> dict:
+    def _report(self, report: SolveReport, worst, times) -> dict:
         """The solver's part of ``BalanceResult.info``."""
         t0, t1, t2, t3 = times
-        status = str(stats.get("return_status", "unknown"))
-        iters = stats.get("iterations", {})
+        iters = self.structure.solver.stats().get("iterations", {})
         key = self.structure.key
-        kernels = self.model.kernels(
-            self.control, key.torque_limits, key.momentum, key.collision
-        )
+        kernels = self.model.kernels(self.control, key.torque_limits, key.momentum, key.collision)
         return {
-            "status": status,
-            "success": status in SUCCESS_STATUSES,
-            "iterations": int(stats.get("iter_count", 0)),
-            "objective": objective,
+            "status": report.status,
+            "success": report.success,
+            "iterations": report.iterations,
+            "objective": report.objective,
             "max_constraint_violation": worst[2],
             "max_violation_at": {
                 "constraint": worst[0],
@@ -385,7 +349,9 @@ class BalanceNLP(BalanceProblem):
             name, t, unit = self.constraint_name(i)
             return name, t, float(viol_g[i]), unit, self.describe_constraint(i)
         i = int(np.argmax(viol_x))
-        name, t, unit = self.variable_name(i)
+        layout = self.structure.variables
+        name, tau = layout.describe(i)
+        t, unit = tau * self.h, layout.block_at(i).locate(i)[1]
         return f"bound on {name}", t, float(viol_x[i]), unit, f"bound on {name} at t = {t:.3f} s"
 
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
@@ -408,7 +374,7 @@ def build_balance_nlp(
     """Build the balance NLP of a mission.
 
     The compiled structure is taken from ``planner_model.nlp_cache`` when a problem of the same
-    structure (:class:`~balance_opt.optimal.layout.StructureKey`: intervals, transcription,
+    structure (:class:`~balance_opt.optimal.problem.StructureKey`: intervals, transcription,
     control, constraint switches, solver options) was built before; the mission, horizon,
     ``q_B0``, weights and bounds are numeric inputs.
 
@@ -459,19 +425,9 @@ def build_balance_nlp(
         model.nlp_cache[key] = build_structure(model, key, options)
     structure = model.nlp_cache[key]
     build_time = structure.build_time if built_now else 0.0
-    return BalanceNLP(
-        model,
-        structure,
-        mission_trajectory,
-        q_B0,
-        options,
-        horizon,
-        time.perf_counter() - start - build_time,
-        build_time,
-        robot,
-        h0,
-        collision,
-    )
+    setup_time = time.perf_counter() - start - build_time
+    problem = (model, mission_trajectory, q_B0, options, horizon, robot, h0, collision)
+    return BalanceNLP(structure, setup_time, build_time, *problem)
 
 
 def plan_optimal(
@@ -488,23 +444,13 @@ def plan_optimal(
     return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
 
 
-def _fine_grid(N: int, h: float, step: float) -> tuple[np.ndarray, int]:
-    """The re-simulation grid: every interval split into ``sub`` equal steps no longer than
-    ``step``, so the grid holds every node. Returns ``(times, sub)``."""
-    sub = max(1, math.ceil(h / step - 1e-9))
-    return np.arange(N * sub + 1) * (h / sub), sub
-
-
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
-    """Re-simulate a plan on a fine grid (:func:`_fine_grid`, ``options.resample_step``).
-
-    The balance joints follow the collocation polynomial, the attitude is integrated by
-    :func:`balance_opt.motion.replay.replay` (numeric Pinocchio, RK4 on the unit quaternion,
-    one step per grid interval, so that no step straddles a node, where the joint motion's
-    higher derivatives jump; on the capture task at the default step within 1e-10 rad of a 20
-    times finer step); limit violations are those of the fine grid (``result.violations``). ``info["resimulation"]`` reports the collocation defects (NLP
-    attitude at the nodes against the re-simulated one; joint polynomial at each interval's end
-    against the next node), the momentum residual, the drift, the limit violations and, as
+    """Re-simulate a plan on a fine grid: every interval split into ``sub`` equal steps no
+    longer than ``options.resample_step``, so that no RK4 step of
+    :func:`balance_opt.motion.replay.replay` straddles a node, where the joint motion's higher
+    derivatives jump. ``info["resimulation"]`` reports the collocation defects (NLP attitude at
+    the nodes against the re-simulated one; joint polynomial at each interval's end against
+    the next node), the momentum residual, the drift, the limit violations and, as
     ``constraint_violations``, every constraint kind the re-simulated motion breaks beyond
     tolerance (:meth:`~balance_opt.optimal.constraints.Constraint.check`: between the
     collocation points, torques and the path attitude bound are not enforced).
@@ -512,7 +458,8 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     # imported here: a multi-start's worker that only solves first stages never needs it
     from balance_opt.motion.replay import replay
 
-    t, sub = _fine_grid(nlp.N, nlp.h, nlp.options.resample_step)
+    sub = max(1, math.ceil(nlp.h / nlp.options.resample_step - 1e-9))
+    t = np.arange(nlp.N * sub + 1) * (nlp.h / sub)
     result = replay(
         nlp.robot,
         nlp.mission,

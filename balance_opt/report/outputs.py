@@ -18,7 +18,7 @@ import numpy as np
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
-from balance_opt.optimal.ipopt_version import ipopt_version
+from balance_opt.optimal.ipopt_options import ipopt_version
 from balance_opt.result import ATTITUDE_COLUMNS, BULKY_INFO_KEYS, BalanceResult
 
 log = logging.getLogger(__name__)
