@@ -428,30 +428,25 @@ def test_resume_skips_finished_cases_after_an_interruption(tmp_path, tests_on_pa
 
 @pytest.mark.slow
 def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
-    """Kill a running ``balance-opt sweep`` (parent and workers, SIGKILL), then ``--resume``."""
+    """Kill a running ``balance-opt sweep`` (parent and workers, SIGKILL), then ``--resume``.
+    The cases after the first three wait for a file to go (:func:`held_toy_case`), so the kill
+    finds exactly three records however slow the machine is."""
     sweep_file = tmp_path / "toy.yaml"
     sweep_file.write_text(
         f"task: {PAPER_TASK}\nname: toy\nmethods: [optimal]\ngrid:\n"
         f"  mission.duration: [{', '.join(str(1.0 + i) for i in range(10))}]\n"
     )
     out = tmp_path / "out"
-    # the toy runner sleeps 0.4 s per case (parameter 'sleep' is not set: use the slow variant)
-    cmd = [
-        sys.executable,
-        "-m",
-        "balance_opt.cli",
-        "sweep",
-        str(sweep_file),
-        "-o",
-        str(out),
-        "-j",
-        "2",
-        "--runner",
-        "test_sweep:slow_toy_case",
-        "--no-plots",
-    ]
+    hold = tmp_path / "hold"
+    hold.touch()
+    cmd = [sys.executable, "-m", "balance_opt.cli", "sweep", str(sweep_file), "-o", str(out)]
+    cmd += ["-j", "2", "--runner", "test_sweep:held_toy_case", "--no-plots"]
     proc = subprocess.Popen(
-        cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        cmd,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env={**os.environ, HOLD_ENV: str(hold)},
     )
     try:
         deadline = time.monotonic() + SUBPROCESS_TIMEOUT
@@ -463,29 +458,35 @@ def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(timeout=SUBPROCESS_TIMEOUT)
     done = {p.stem: p.read_bytes() for p in (out / "cases").glob("*.json")}
-    assert 3 <= len(done) < 10
+    assert len(done) == 3
     assert all(json.loads(b)["status"] == STATUS_OK for b in done.values())  # whole records only
 
     from balance_opt.cli import main
 
     again = ["sweep", str(sweep_file), "-o", str(out), "-j", "2", "--no-plots"]
-    again += ["--runner", "test_sweep:slow_toy_case"]
+    again += ["--runner", "test_sweep:held_toy_case"]  # nothing held in this process
     assert main(again) == 2  # not without --resume
     assert main([*again, "--resume"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    # the finished cases are skipped and kept as they were, the others run; a case whose record
-    # a worker completed in the instant of the kill may be run again (a record is whole either way)
-    assert summary["skipped"] + summary["ran"] == 10 and 3 <= summary["skipped"] <= len(done)
-    kept = [cid for cid, b in done.items() if (out / "cases" / f"{cid}.json").read_bytes() == b]
-    assert len(kept) >= summary["skipped"]
+    # the finished cases are skipped and kept as they were, the others run
+    assert (summary["skipped"], summary["ran"]) == (3, 7)
+    assert all((out / "cases" / f"{cid}.json").read_bytes() == b for cid, b in done.items())
     _columns, rows = read_table_csv(out / "results.csv")
     assert [int(r["index"]) for r in rows] == list(range(10))
     assert {r["status"] for r in rows} == {"ok"}
 
 
-def slow_toy_case(case: dict) -> dict:
-    """``toy_case`` taking 0.4 s (a case of the kill-and-resume test)."""
-    time.sleep(0.4)
+#: A file whose existence holds :func:`held_toy_case`'s cases after the first three.
+HOLD_ENV = "BALANCE_OPT_TEST_HOLD"
+
+
+def held_toy_case(case: dict) -> dict:
+    """``toy_case``; the cases after the first three wait while the file named by
+    :data:`HOLD_ENV` exists (at most :data:`SUBPROCESS_TIMEOUT`)."""
+    hold = os.environ.get(HOLD_ENV)
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
+    while hold and case["index"] >= 3 and Path(hold).exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
     return toy_case(case)
 
 
