@@ -450,14 +450,14 @@ def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
     )
     try:
         deadline = time.monotonic() + SUBPROCESS_TIMEOUT
-        while len(list((out / "cases").glob("*.json"))) < 3:
+        while len(list((out / "cases").glob(RECORDS))) < 3:
             assert proc.poll() is None, proc.stderr.read().decode()
             assert time.monotonic() < deadline, "the sweep did not start"
             time.sleep(0.05)
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(timeout=SUBPROCESS_TIMEOUT)
-    done = {p.stem: p.read_bytes() for p in (out / "cases").glob("*.json")}
+    done = {p.stem: p.read_bytes() for p in (out / "cases").glob(RECORDS)}
     assert len(done) == 3
     assert all(json.loads(b)["status"] == STATUS_OK for b in done.values())  # whole records only
 
@@ -476,6 +476,8 @@ def test_resume_after_the_process_is_killed(tmp_path, tests_on_path):
     assert {r["status"] for r in rows} == {"ok"}
 
 
+#: The case records of a sweep folder (not a record being written: ``.<id>.<pid>.tmp.json``).
+RECORDS = "[!.]*.json"
 #: A file whose existence holds :func:`held_toy_case`'s cases after the first three.
 HOLD_ENV = "BALANCE_OPT_TEST_HOLD"
 
