@@ -488,13 +488,7 @@ def simulate_plan(
     """Simulate a plan: its mission and balance motions (interpolated between its samples)
     tracked by the controller. Keyword arguments go to :func:`simulate`."""
     kwargs.setdefault("attitude", (plan.t, plan.quaternion))
-    return simulate(
-        robot,
-        SampledTrajectory.from_result(plan, "mission"),
-        SampledTrajectory.from_result(plan, "balance"),
-        options,
-        **kwargs,
-    )
+    return simulate(robot, plan, plan, options, **kwargs)
 
 
 def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> SimulationResult:

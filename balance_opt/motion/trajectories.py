@@ -12,15 +12,11 @@ from __future__ import annotations
 import csv
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
-
 import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError, TrajectoryError
-
-if TYPE_CHECKING:
-    from balance_opt.result import BalanceResult
+from balance_opt.result import BalanceResult
 
 
 class JointTrajectory:
@@ -310,14 +306,17 @@ TrajectoryLike = JointTrajectory | Callable | tuple
 
 def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callable, float | None]:
     """``(sample, duration)`` for a trajectory given as an object with ``sample(t)``, a callable
-    ``f(t) -> (q, q_dot, q_ddot)`` of an array of times, or a tuple of sample arrays
-    ``(t, q[, q_dot[, q_ddot]])`` (a :class:`SampledTrajectory`).
+    ``f(t) -> (q, q_dot, q_ddot)`` of an array of times, a tuple of sample arrays
+    ``(t, q[, q_dot[, q_ddot]])`` (a :class:`SampledTrajectory`), or a :class:`BalanceResult`
+    (its ``what`` part, ``"mission"`` or ``"balance"``, interpolated).
 
     Raises:
         TrajectoryError: the trajectory has the wrong number of joints.
     """
     if isinstance(trajectory, tuple):
         trajectory = SampledTrajectory(*trajectory)
+    elif isinstance(trajectory, BalanceResult):
+        trajectory = SampledTrajectory.from_result(trajectory, what)
     sample = trajectory.sample if hasattr(trajectory, "sample") else trajectory
     if not callable(sample):
         raise TrajectoryError(
