@@ -51,7 +51,7 @@ from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.momentum_check import MOMENTUM_SCALE_FLOOR
-from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
+from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory, arm_samples
 from balance_opt.result import AttitudeHistory, BalanceResult
 
 log = logging.getLogger(__name__)
@@ -106,13 +106,7 @@ class _ArmPlan:
         """``(q, q_dot, q_ddot)`` at times ``t``, each (T, n), and the plan's torques (T, n)
         with :meth:`add_feedforward`."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        out = [np.empty((t.size, self.robot.n)) for _ in range(3)]
-        for traj, idx in (
-            (self.mission, self.robot.mission_indices),
-            (self.balance, self.robot.balance_indices),
-        ):
-            for o, s in zip(out, traj.sample(t)):
-                o[:, idx] = np.reshape(s, (t.size, -1))
+        out = arm_samples(self.robot, self.mission.sample, self.balance.sample, t)
         if not self.feedforward:
             return tuple(out)
         quaternion = None

@@ -18,7 +18,7 @@ from balance_opt.motion.integration import initial_quaternion, integrate, output
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_rate
-from balance_opt.motion.trajectories import TrajectoryLike, as_sampler
+from balance_opt.motion.trajectories import TrajectoryLike, arm_samples, as_sampler
 from balance_opt.result import BalanceResult
 
 
@@ -81,10 +81,7 @@ def replay(
             _adaptive_rhs(maps, sample_M, sample_B, L), q0, t, integration
         )
     t = t[: quat.shape[0]]
-    q, q_dot, q_ddot = (np.empty((t.size, robot.n)) for _ in range(3))
-    for samples, cols in ((sample_M(t), M), (sample_B(t), B)):
-        for full, part in zip((q, q_dot, q_ddot), samples):
-            full[:, cols] = part
+    q, q_dot, q_ddot = arm_samples(robot, sample_M, sample_B, t)
     info = {
         "integration": stats,
         "h0": None if h0 is None else np.asarray(h0, dtype=float).tolist(),
@@ -130,13 +127,7 @@ class _StageRates:
 
     def at(self, times: np.ndarray) -> None:
         """Evaluate the maps at ``times`` (S,); :meth:`omega` then takes indices into them."""
-        robot = self.maps.robot
-        q, q_dot = np.empty((times.size, robot.n)), np.empty((times.size, robot.n))
-        for samples, cols in (
-            (self.sample_M(times), robot.mission_indices),
-            (self.sample_B(times), robot.balance_indices),
-        ):
-            q[:, cols], q_dot[:, cols] = samples[0], samples[1]
+        q, q_dot, _ = arm_samples(self.maps.robot, self.sample_M, self.sample_B, times)
         I_G, A = self.maps.angular_maps(q)
         self.omega_table = base_angular_velocity(I_G, A, q_dot)  # omega at zero momentum
         self._inverse = np.linalg.inv(I_G) if self.spinning else None

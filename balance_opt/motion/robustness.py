@@ -50,7 +50,7 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.motion.replay import attitude_from_rates, replay, rk4_stage_times
 from balance_opt.motion.so3 import rotation_angle
-from balance_opt.motion.trajectories import SampledTrajectory
+from balance_opt.motion.trajectories import SampledTrajectory, arm_samples
 from balance_opt.result import BalanceResult
 
 #: Smallest eigenvalue of a body's second moment before it is perturbed, relative to its trace
@@ -222,10 +222,7 @@ class _Kinematics:
 
     def __init__(self, robot: FloatingRobot, mission, balance, times: np.ndarray):
         maps = NumericMaps(robot)
-        q, q_dot = np.empty((times.size, robot.n)), np.empty((times.size, robot.n))
-        for sampler, cols in ((mission, robot.mission_indices), (balance, robot.balance_indices)):
-            samples = sampler.sample(times)
-            q[:, cols], q_dot[:, cols] = samples[0], samples[1]
+        q, q_dot, _ = arm_samples(robot, mission.sample, balance.sample, times)
         qp, vp = maps.configurations(q), maps.velocities(q_dot)
         model, data = robot.model, robot.model.createData()
         nb = model.njoints - 1

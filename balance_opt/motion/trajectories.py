@@ -110,77 +110,6 @@ class ViaPoints(JointTrajectory):
         return s(t), s(t, 1), s(t, 2)
 
 
-class CsvTrajectory(JointTrajectory):
-    """A trajectory read from a CSV file: a ``time`` column, one column per joint by name.
-
-    Samples are interpolated with a cubic spline (C2). Columns for other joints are ignored;
-    times must start at 0 and increase strictly.
-
-    Args:
-        path: CSV file.
-        joint_names: the columns to read, in the arm's joint order.
-        time_column: name of the time column.
-
-    Raises:
-        TrajectoryError: naming the file, and the line or column at fault.
-    """
-
-    def __init__(self, path: str | Path, joint_names: Sequence[str], time_column: str = "time"):
-        self.path = Path(path)
-        self.joint_names = tuple(joint_names)
-        where = str(self.path)
-        try:
-            with self.path.open(newline="") as fh:
-                rows = list(csv.reader(fh))
-        except OSError as exc:
-            raise TrajectoryError(f"{where}: cannot read trajectory CSV: {exc.strerror}") from None
-        rows = [r for r in rows if r and any(c.strip() for c in r)]
-        if len(rows) < 3:
-            raise TrajectoryError(
-                f"{where}: needs a header line and at least 2 samples, found {max(len(rows) - 1, 0)}"
-            )
-        header = [h.strip() for h in rows[0]]
-        missing = [c for c in (time_column, *self.joint_names) if c not in header]
-        if missing:
-            raise TrajectoryError(
-                f"{where}: line 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}"
-            )
-        cols = [header.index(c) for c in (time_column, *self.joint_names)]
-        data = np.empty((len(rows) - 1, len(cols)))
-        for i, row in enumerate(rows[1:]):
-            if len(row) != len(header):
-                raise TrajectoryError(
-                    f"{where}: line {i + 2}: {len(row)} fields, header has {len(header)}"
-                )
-            for k, c in enumerate(cols):
-                try:
-                    data[i, k] = float(row[c])
-                except ValueError:
-                    raise TrajectoryError(
-                        f"{where}: line {i + 2}, column '{header[c]}': not a number: {row[c]!r}"
-                    ) from None
-        if not np.all(np.isfinite(data)):
-            raise TrajectoryError(f"{where}: non-finite values")
-        t = data[:, 0]
-        if t[0] != 0.0:
-            raise TrajectoryError(f"{where}: line 2: time must start at 0, got {t[0]}")
-        bad = np.flatnonzero(np.diff(t) <= 0)
-        if bad.size:
-            raise TrajectoryError(
-                f"{where}: line {bad[0] + 3}: time does not increase ({t[bad[0]]} then {t[bad[0] + 1]})"
-            )
-        self.duration = float(t[-1])
-        self.dof = len(self.joint_names)
-        from scipy.interpolate import CubicSpline  # a slow import: only when used
-
-        self._spline = CubicSpline(t, data[:, 1:], bc_type="natural")
-
-    def sample(self, t):
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
-        s = self._spline
-        return s(t), s(t, 1), s(t, 2)
-
-
 # ---------------------------------------------------------------------------------- sampled
 class SampledTrajectory(JointTrajectory):
     """A joint trajectory given as samples, interpolated piecewise.
@@ -301,6 +230,68 @@ class SampledTrajectory(JointTrajectory):
         return q, np.where(out, 0.0, q_dot), np.where(out, 0.0, q_ddot)
 
 
+class CsvTrajectory(SampledTrajectory):
+    """A trajectory read from a CSV file: a ``time`` column, one column per joint by name.
+
+    Samples are interpolated with a natural cubic spline (C2). Columns for other joints are ignored;
+    times must start at 0 and increase strictly.
+
+    Args:
+        path: CSV file.
+        joint_names: the columns to read, in the arm's joint order.
+        time_column: name of the time column.
+
+    Raises:
+        TrajectoryError: naming the file, and the line or column at fault.
+    """
+
+    def __init__(self, path: str | Path, joint_names: Sequence[str], time_column: str = "time"):
+        self.path = Path(path)
+        self.joint_names = tuple(joint_names)
+        where = str(self.path)
+        try:
+            with self.path.open(newline="") as fh:
+                rows = list(csv.reader(fh))
+        except OSError as exc:
+            raise TrajectoryError(f"{where}: cannot read trajectory CSV: {exc.strerror}") from None
+        rows = [r for r in rows if r and any(c.strip() for c in r)]
+        if len(rows) < 3:
+            raise TrajectoryError(
+                f"{where}: needs a header line and at least 2 samples, found {max(len(rows) - 1, 0)}"
+            )
+        header = [h.strip() for h in rows[0]]
+        missing = [c for c in (time_column, *self.joint_names) if c not in header]
+        if missing:
+            raise TrajectoryError(
+                f"{where}: line 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}"
+            )
+        cols = [header.index(c) for c in (time_column, *self.joint_names)]
+        data = np.empty((len(rows) - 1, len(cols)))
+        for i, row in enumerate(rows[1:]):
+            if len(row) != len(header):
+                raise TrajectoryError(
+                    f"{where}: line {i + 2}: {len(row)} fields, header has {len(header)}"
+                )
+            for k, c in enumerate(cols):
+                try:
+                    data[i, k] = float(row[c])
+                except ValueError:
+                    raise TrajectoryError(
+                        f"{where}: line {i + 2}, column '{header[c]}': not a number: {row[c]!r}"
+                    ) from None
+        if not np.all(np.isfinite(data)):
+            raise TrajectoryError(f"{where}: non-finite values")
+        t = data[:, 0]
+        if t[0] != 0.0:
+            raise TrajectoryError(f"{where}: line 2: time must start at 0, got {t[0]}")
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if bad.size:
+            raise TrajectoryError(
+                f"{where}: line {bad[0] + 3}: time does not increase ({t[bad[0]]} then {t[bad[0] + 1]})"
+            )
+        super().__init__(t, data[:, 1:])
+
+
 TrajectoryLike = JointTrajectory | Callable | tuple
 
 
@@ -330,6 +321,19 @@ def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callabl
         )
     duration = getattr(trajectory, "duration", None)
     return sample, (None if duration is None else float(duration))
+
+
+def arm_samples(robot, sample_M: Callable, sample_B: Callable, t) -> list[np.ndarray]:
+    """``[q, q_dot, q_ddot]`` (T, n) each: mission and balance samples at times ``t`` stacked
+    into the robot's arm vectors."""
+    out = [np.empty((t.size, robot.n)) for _ in range(3)]
+    for samples, cols in (
+        (sample_M(t), robot.mission_indices),
+        (sample_B(t), robot.balance_indices),
+    ):
+        for full, part in zip(out, samples):
+            full[:, cols] = part
+    return out
 
 
 # ---------------------------------------------------------------------------------- Cartesian goals
