@@ -38,11 +38,8 @@ def rollout(
     t_eval=None,
     quaternion0=None,
 ) -> BalanceResult:
-    """Phase II: the balance trajectory of the analytic law (Eq. 31) along a mission motion.
-
-    Integrates the base attitude and the balance joints together; ``q_dot_B`` at the output
-    times is the law at the integrated state and ``q_ddot_B`` is Eq. 32 there (the exact time
-    derivative of the law).
+    """Phase II: the balance trajectory of the analytic law (Eq. 31, 32) along a mission motion
+    (see the module docstring).
 
     Args:
         robot: the floating robot.

@@ -33,17 +33,13 @@ def replay(
     quaternion0=None,
     method: str = "simulation",
 ) -> BalanceResult:
-    """Integrate the base attitude for GIVEN joint motions of both arms (momentum conservation).
-
-    The base angular velocity is ``omega = I_G^{-1} (R^T L - A q_dot)`` at every instant (Eq. 26
-    with the initial momentum ``h0``), integrated on SO(3) to the integrator's tolerance. Use it
-    to re-simulate a plan on a fine grid, or to get the paper's Fig. 3 and 5.
+    """Integrate the base attitude for GIVEN joint motions of both arms (momentum conservation,
+    ``omega = I_G^{-1} (R^T L - A q_dot)``, Eq. 26 with the initial momentum ``h0``).
 
     Args:
         robot: the floating robot.
         mission: mission arm motion (n_M joints), in any form
-            :func:`~balance_opt.motion.trajectories.as_sampler` takes (a result's: through
-            ``SampledTrajectory.from_result``).
+            :func:`~balance_opt.motion.trajectories.as_sampler` takes.
         balance: balance arms' motion, the same ways, all balance joints stacked (n_B).
         h0: initial momentum, world frame (3 angular or 6 [linear; angular] values), ``None`` for 0.
         integration: integrator settings.
