@@ -256,7 +256,7 @@ def clearance(
     coarse = np.unique(np.r_[np.arange(0, t.size, COARSE), t.size - 1])
     D = np.empty((coarse.size, index.size))
     for row, k in enumerate(coarse):
-        pin.computeDistances(model, data, geom, gdata, geometry.pin_q(q[k]))
+        pin.computeDistances(model, data, geom, gdata, geometry.robot.pin_q(q[k]))
         results = gdata.distanceResults
         D[row] = [results[int(i)].min_distance for i in index]
     evaluations = D.size

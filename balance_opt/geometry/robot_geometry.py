@@ -234,15 +234,11 @@ class RobotGeometry:
         return [self.model.getJointId(j) for j in self.robot.model_joint_names]
 
     # ------------------------------------------------------------------ distances
-    def pin_q(self, q) -> np.ndarray:
-        """Pinocchio configuration of the arm vector ``q``, base at the identity (distances
-        between the robot's own bodies do not depend on the base pose)."""
-        return self.robot.pin_q(q)
-
     def place(self, q) -> None:
-        """Place every object at the arm configuration ``q``."""
+        """Place every object at the arm configuration ``q``, base at the identity (distances
+        between the robot's own bodies do not depend on the base pose)."""
         pin.updateGeometryPlacements(
-            self.model, self.data, self.geometry_model, self.geometry_data, self.pin_q(q)
+            self.model, self.data, self.geometry_model, self.geometry_data, self.robot.pin_q(q)
         )
 
     def distances(self, q, pairs: Sequence[int] | None = None) -> np.ndarray:
@@ -260,21 +256,13 @@ class RobotGeometry:
     def smallest_along(self, q) -> np.ndarray:
         """The smallest distance [m] of any checked pair at every configuration of ``q``
         (T, n) (inf without pairs)."""
-        out = np.full(len(q), np.inf)
-        if self.pairs:
-            for k, qk in enumerate(q):
-                out[k] = self.distances(qk).min()
-        return out
+        if not self.pairs:
+            return np.full(len(q), np.inf)
+        return np.array([self.distances(qk).min() for qk in q])
 
     def distances_along(self, q, pair: int) -> np.ndarray:
         """The distance [m] of pair ``pair`` at every configuration of ``q`` (T, n)."""
-        out = np.empty(len(q))
-        for k, qk in enumerate(q):
-            self.place(qk)
-            out[k] = pin.computeDistance(
-                self.geometry_model, self.geometry_data, int(pair)
-            ).min_distance
-        return out
+        return np.array([self.distances(qk, [pair])[0] for qk in q])
 
     def contacts(self, q) -> list[Pair]:
         """The checked pairs in contact (distance <= 0) at the arm configuration ``q``."""

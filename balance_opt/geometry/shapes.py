@@ -35,7 +35,6 @@ from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
-import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.geometry.robot_geometry import RobotGeometry
@@ -213,13 +212,6 @@ def joint_placements(geometry: RobotGeometry, q_model) -> dict[int, tuple]:
                 raise InputError(f"joint '{model.names[j]}' ({kind}): no collision kinematics")
         out[j] = (R, p)
     return out
-
-
-def numeric_placements(geometry: RobotGeometry, q) -> dict[int, pin.SE3]:
-    """Pinocchio's joint placements at the arm configuration ``q`` (base at the identity)."""
-    data = geometry.model.createData()
-    pin.forwardKinematics(geometry.model, data, geometry.pin_q(q))
-    return {j: data.oMi[j] for j in range(1, geometry.model.njoints)}
 
 
 # ---------------------------------------------------------------------------------- distances
