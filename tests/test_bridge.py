@@ -257,7 +257,7 @@ def test_build_progress_is_logged(fake_compiler, monkeypatch, caplog):
 
 @pytest.fixture
 def no_pinocchio_casadi():
-    if symbolic._pinocchio_casadi_imports():
+    if symbolic._imports("pinocchio.casadi"):
         pytest.skip("pinocchio.casadi imports here: auto never needs the bridge")
 
 

@@ -141,17 +141,6 @@ def _lower(da, db, motion):
     return np.where(np.abs(da - db) >= motion, np.minimum(da, db), 0.5 * (da + db - motion))
 
 
-def _pair_distance(geometry, pair: int, configuration):
-    """``distance(time)`` of one pair along the motion."""
-
-    def distance(time):
-        geometry.place(configuration(time))
-        gm, gd = geometry.geometry_model, geometry.geometry_data
-        return pin.computeDistance(gm, gd, pair).min_distance
-
-    return distance
-
-
 def _first_contact(distance, t, motion, until: float, tolerance: float = 1e-6) -> float:
     """The first time a pair touches (distance within ``tolerance``), at the latest ``until``
     (a time it does), by conservative advancement from ``t[0]``: on the step of the samples
@@ -293,7 +282,10 @@ def clearance(
         # advancement (the refinement finds penetrations, not where they begin)
         contacts = []
         for c in sorted({c for _, c in first}):
-            distance = _pair_distance(geometry, int(index[c]), configuration)
+
+            def distance(time, pair=int(index[c])):
+                return geometry.distances(configuration(time), [pair])[0]
+
             until = min(tn for tn, k in first if k == c)
             contacts.append((_first_contact(distance, t, partial(motion, c=c), until), c))
         tp, c = min(contacts)

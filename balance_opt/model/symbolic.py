@@ -29,6 +29,7 @@ cached), and ``name(...)`` evaluates it and returns NumPy arrays.
 
 from __future__ import annotations
 
+import importlib
 import logging
 from functools import cached_property
 
@@ -53,17 +54,9 @@ BACKENDS = ("pinocchio", "adam")
 CASADI = LinearAlgebra(cs.solve, cs.inv, cs.SX.eye)
 
 
-def _pinocchio_casadi_imports() -> bool:
+def _imports(module: str) -> bool:
     try:
-        import pinocchio.casadi  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def _adam_imports() -> bool:
-    try:
-        import adam.casadi  # noqa: F401
+        importlib.import_module(module)
     except ImportError:
         return False
     return True
@@ -76,12 +69,12 @@ def available_backends() -> list[str]:
     """
     found = []
     try:
-        if not _pinocchio_casadi_imports():
+        if not _imports("pinocchio.casadi"):
             find_toolchain()
         found.append("pinocchio")
     except BridgeUnavailable:
         pass
-    if _adam_imports():
+    if _imports("adam.casadi"):
         found.append("adam")
     return found
 
@@ -91,7 +84,7 @@ _NOTED: set[str] = set()  # fallback reasons already logged by this process
 
 def _fall_back_to_adam(reason: str) -> tuple[str, str]:
     """Choose adam for ``auto``, saying why once per process and reason."""
-    if not _adam_imports():
+    if not _imports("adam.casadi"):
         raise BalanceOptError(
             f"no symbolic backend: the Pinocchio-CasADi bridge is unavailable ({reason}) "
             "and adam-robotics[casadi] is not installed"
@@ -111,10 +104,10 @@ def _resolve_backend(backend: str) -> tuple[str, str]:
     if backend not in ("auto", *BACKENDS):
         raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
     if backend == "adam":
-        if not _adam_imports():
+        if not _imports("adam.casadi"):
             raise BalanceOptError("backend 'adam' cannot be imported here")
         return "adam", "adam"
-    if _pinocchio_casadi_imports():
+    if _imports("pinocchio.casadi"):
         return "pinocchio", "pinocchio (pinocchio.casadi)"
     try:
         record = ensure_bridge()
