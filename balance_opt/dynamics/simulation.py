@@ -1,36 +1,18 @@
 """Forward-dynamics simulation of the free-floating robot: the check every balance plan goes
 through.
 
-The system is the free-flyer base and its arms with no gravity, no external wrench, no
-thrusters or wheels (``docs/physics.md``, "Forces on the base"); its momentum is therefore
-constant. Accelerations come from Pinocchio's articulated-body algorithm (``pin.aba``) with the
-joint torques of one of two controllers that track the planned trajectories of *all* arm joints
-(mission and balance):
+No gravity, no external wrench (``docs/physics.md``, "Forces on the base"): the momentum is
+constant. Accelerations come from ``pin.aba`` with the torques of a controller that tracks the
+planned motion of *all* arm joints: ``"pd"`` (the paper's Phase I controller), by default plus
+the plan's own free-floating inverse-dynamics torques (``docs/executable-plans.md``, "Tracked as
+planned"), or ``"computed-torque"``, whose feedforward comes from the simulated state: the base
+rows of ``M(q) [a_b; q_ddot_d] + h = [0; tau]`` give ``a_b = -M_bb^{-1} (M_bj q_ddot_d + h_b)``
+and the joint rows the torque.
 
-* ``"pd"``, the paper's Phase I controller: ``tau = K_p (q_d - q) + K_d (q_dot_d - q_dot)``,
-  by default plus the plan's own torques ``tau_d`` (``feedforward``): the free-floating inverse
-  dynamics of the planned ``q_d, q_dot_d, q_ddot_d`` (base unactuated, its twist from momentum
-  conservation, :mod:`balance_opt.dynamics.inverse_dynamics`), which a robot would be sent with
-  the plan. A plan the robot can follow is then followed to the integration error; PD alone
-  trails it by about ``q_ddot_d / K_p``;
-* ``"computed-torque"``: the free-floating inverse dynamics of the planned joint accelerations
-  plus the same PD terms. With the joint accelerations ``q_ddot_d`` given, the base
-  acceleration follows from the base rows of ``M(q) [a_b; q_ddot_d] + h = [0; tau]``
-  (the base is unactuated), ``a_b = -M_bb^{-1} (M_bj q_ddot_d + h_b)``, and the joint rows give
-  the feed-forward torque.
-
-Mimic joints that follow an arm joint are driven by it: in the coordinates ``nu = [base twist;
-q_dot]`` with ``v = G nu`` (``FloatingRobot.velocity_map``, constant), the accelerations are
-``a = G (G^T M G)^{-1} G^T (tau - h)``, Pinocchio's ``crba`` and ``nonLinearEffects`` in place
-of ``aba``; the follower's reaction is no torque of the driver's.
-
-Integration keeps the configuration on its manifold (:mod:`balance_opt.dynamics.rkmk`: RK4 or
-an adaptive Dormand-Prince 5(4), both Runge-Kutta-Munthe-Kaas schemes).
-
-The initial state is the planned joint state at ``t = 0`` and the base twist that gives the
-system its initial momentum ``h0`` (zero by default):
-``v_b = A_b^{-1} (h0 - A_j q_dot)`` (``J_base q_dot`` for ``h0 = 0``, paper Eq. 19, 26), by
-:meth:`balance_opt.model.maps.NumericMaps.base_twist`.
+Mimic followers move with their drivers: with ``v = G nu`` (``FloatingRobot.velocity_map``),
+``a = G (G^T M G)^{-1} G^T (tau - h)`` replaces ``aba``. Integration keeps the configuration on
+its manifold (:mod:`balance_opt.dynamics.rkmk`). The initial base twist gives the system its
+momentum ``h0`` (zero by default): ``v_b = A_b^{-1} (h0 - A_j q_dot)`` (Eq. 19, 26).
 """
 
 from __future__ import annotations

@@ -1,24 +1,17 @@
-"""How close a motion brings the robot's bodies to each other, on the continuous motion.
+"""How close a motion brings the robot's bodies to each other, on the continuous motion
+(``docs/collision.md``, "The clearance of a motion").
 
-The motion is given by samples of the arm vector; between two samples it is the straight line
-in joint space (the re-simulated plans are sampled every 10 ms or finer, where that line is
-within ``h^2 |q_ddot| / 8`` of the plan). Exact distances (coal) are computed at samples,
-and between them *conservative advancement* bounds the motion: over an interval every point
-of a body moves at most ``sum_j |dq_j| R_j`` (``R_j``: the largest distance from joint ``j`` to
-a point of the body, a constant of the robot, :attr:`RobotGeometry.reach`), so a pair whose
-distances at the interval's ends are ``d_a``, ``d_b`` and whose two bodies move by at most ``M``
-stays at least ``(d_a + d_b - M) / 2`` apart. Where that bound could be below the pair's
-smallest distance so far (by more than ``resolution``), the interval is split at its midpoint
-and the distance computed there, down to ``min_step``. A thin link swept through a body
-between two samples is found this way; a sampled check would miss it.
+Between two samples the motion is the straight line in joint space. Distances (coal) are exact
+at samples; in between, *conservative advancement* bounds them: every point of a body moves at
+most ``sum_j |dq_j| R_j`` (:attr:`RobotGeometry.reach`), so a pair ``d_a``, ``d_b`` apart at an
+interval's ends, its bodies moving by at most ``M``, stays ``(d_a + d_b - M) / 2`` apart. An
+interval whose bound could be below the pair's smallest distance so far (by more than
+``resolution``) is split, down to ``min_step``; pairs beyond ``watch`` are only certified to
+stay beyond it.
 
-Every pair's distance is computed at every :data:`COARSE`-th sample; an interval
-between them is split at its middle sample first (its halves bounded by the joints' travel
-over their samples), between two samples at its middle time. Pairs that stay farther than
-``watch`` are not refined that finely: their lower bound is certified above
-``watch - resolution``, their minimum is the smallest one computed. The first penetration's
-time is where its pair first touches, found from the start by the same bound (advancing by
-its distance over its bodies' largest speed).
+Every pair is computed at every :data:`COARSE`-th sample; an interval between them is split at
+its middle sample first, between two samples at its middle time. The first penetration's time
+is where its pair first touches, found from the start by the same bound.
 """
 
 from __future__ import annotations

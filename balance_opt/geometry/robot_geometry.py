@@ -1,24 +1,12 @@
 """The volume of a robot's bodies: Pinocchio's geometry model of its URDF, the pairs of bodies
-that are checked against each other, and exact distances (coal).
+that are checked against each other, and exact distances (coal). ``docs/collision.md`` says
+where the geometry comes from and which pairs are checked.
 
-A *body* is what moves as one piece: a joint of the robot's reduced model (``robot.model``,
-locked joints folded into their parents, the base and everything fixed to it one body). The
-geometry comes from the URDF's ``<collision>`` elements, or from its ``<visual>`` elements when
-it has none (:attr:`RobotGeometry.source` says which). Meshes are replaced by their convex
-hulls: coal reads a mesh as its triangles, so a body deep inside a mesh reads as a small
-distance, while the hull's distance is signed; the hull also contains the mesh, so a clearance
-measured on hulls holds for the meshes.
-
-Pairs of geometry objects left out (:attr:`RobotGeometry.ignored`, with the reason):
-
-* ``same body``: objects of one body never move against each other;
-* ``adjacent``: objects of a body and of its parent body (they touch at the joint by design);
-* ``srdf``: pairs an SRDF's ``<disable_collisions>`` names (example-robot-data ships some,
-  found next to the URDF);
-* ``ignored``: pairs the caller names (by link names).
-
-Pairs already in contact at a configuration are found by :meth:`RobotGeometry.contacts`; the
-planner reports them and leaves them out of that plan.
+A *body* is a joint of the robot's reduced model (the base and everything fixed or locked to it
+one body). Meshes are replaced by their convex hulls: a hull's distance is signed, and a
+clearance measured on hulls holds for the meshes. Pairs left out (:attr:`RobotGeometry.ignored`)
+are those of one body (``same body``), of a body and its parent (``adjacent``), named by an
+SRDF (``srdf``) or by the caller (``ignored``).
 """
 
 from __future__ import annotations

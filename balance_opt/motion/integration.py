@@ -1,22 +1,13 @@
 """Integration of an attitude state on SO(3), with or without other states (the balance
 joints), and the output grids of rollouts and replays.
 
-Attitude representation: a unit quaternion (x, y, z, w) integrated with its kinematics
-``q_dot = 1/2 q * (omega, 0)`` (``R_dot = R [omega]_x``, ``omega`` in the base frame,
-:func:`balance_opt.motion.so3.quaternion_rate`). This flow keeps ``|q| = 1`` exactly, so the
-adaptive integrator keeps the norm to within its tolerance and the fixed-step RK4 renormalises
-after every step; every quaternion handed out is renormalised. No Euler angles are ever
-integrated (``docs/physics.md``, "Attitude").
-
-Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`):
-
-* ``"adaptive"`` (default): Dormand-Prince 8(5,3), SciPy's ``solve_ivp(method="DOP853")``, with
-  error control on the whole state (``rtol``, ``atol``) and its 7th-order dense output at the
-  output times; exact to the integration tolerance. It stops after ``max_evaluations``
-  evaluations of the right-hand side (a law that runs away shrinks the step without end) and
-  shows a progress line every :data:`PROGRESS_EVERY_S` while it runs.
-* ``"rk4"``: classic fixed-step Runge-Kutta 4, each output interval split into steps no longer
-  than ``step``.
+The attitude is a unit quaternion (x, y, z, w) integrated with ``q_dot = 1/2 q * (omega, 0)``
+(``omega`` in the base frame), never Euler angles (``docs/physics.md``, "Attitude"); RK4
+renormalises it after every step, and every quaternion handed out is renormalised.
+Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`): ``"adaptive"``, SciPy's
+DOP853 with error control on the whole state and its dense output, stopped after
+``max_evaluations`` (a law that runs away); ``"rk4"``, classic fixed-step RK4, each output
+interval split into steps no longer than ``step``.
 """
 
 from __future__ import annotations
