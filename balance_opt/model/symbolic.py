@@ -5,23 +5,16 @@ Everything is a function of the arm vector ``q`` alone, with the base at the ide
 expressed in the base frame, these maps do not depend on the base pose (``docs/physics.md``,
 "Momentum maps"), which keeps the functions small and the NLP free of base position.
 
-Two backends produce the two primitive expressions everything else is built from (the
-centroidal momentum matrix and each end effector's frame Jacobian, both with the base at the
-identity, base columns first, then arm joints in arm order):
+Everything is built from two primitives (the centroidal momentum matrix and each end
+effector's frame Jacobian, base columns first), from one of two backends: ``"pinocchio"``,
+Pinocchio's own algorithms on ``casadi.SX`` (``pinocchio.casadi`` where it imports, else the
+compiled bridge of :mod:`balance_opt.model.bridge`), or ``"adam"`` (``adam-robotics``, pure
+Python). ``"auto"`` takes ``"pinocchio"`` where it works, else ``"adam"``, and says why in one
+log line per process.
 
-* ``"pinocchio"``: Pinocchio's own algorithms on ``casadi.SX``: through ``pinocchio.casadi``
-  where it imports (conda or source builds), else through the Pinocchio-CasADi bridge
-  (:mod:`balance_opt.model.bridge`, a small C++ program compiled once per machine against the
-  pip wheels; it needs a C++ compiler);
-* ``"adam"``: ``adam-robotics`` (``adam.casadi``), pure Python.
-
-``backend="auto"`` takes ``"pinocchio"`` where it works (building the bridge on first use),
-else ``"adam"``, and then says why in one log line per process. Pinocchio's expressions are
-the smaller (``benchmarks/bench_bridge.py``).
-
-Mimic joints that follow an arm joint (``FloatingRobot.followers``) are evaluated as joints of
-their own at ``k q_driver + c``, and their columns are then folded, times ``k``, into their
-drivers' (:func:`model_joint_positions`, :func:`model_velocity_map`): a follower's momentum belongs to its driver.
+Mimic followers (``FloatingRobot.followers``) are joints of their own at ``k q_driver + c``
+whose columns are then folded, times ``k``, into their drivers' (:func:`model_joint_positions`,
+:func:`model_velocity_map`).
 
 Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
 cached), and ``name(...)`` evaluates it and returns NumPy arrays.
