@@ -199,12 +199,6 @@ class BalanceLaw:
             sol.q_dot_B, s.omega, sol.residual, float(sol.sigma_min), float(sol.damping)
         )
 
-    def attitude_rate(self, q, q_dot_M, quaternion) -> tuple[np.ndarray, np.ndarray]:
-        """``(q_dot_B, omega)`` at one instant: the integrator's right-hand side."""
-        I_G, A = self.maps.angular_maps(q)
-        s = self._solve(I_G, A, q_dot_M, q[self.balance], quaternion)
-        return s.sol.q_dot_B, s.omega
-
     # ------------------------------------------------------------------ along a path
     def along(self, q, q_dot_M, q_ddot_M, quaternion) -> LawPath:
         """The law (Eq. 31 and 32) along sampled arm vectors ``q`` (T, n) [rad], mission rates

@@ -76,8 +76,8 @@ def rollout(
         qM, qdM, _ = sample_M(np.array([ti]))
         q_buf[M] = qM[0]
         q_buf[B] = y[4:]
-        q_dot_B, omega = law.attitude_rate(q_buf, qdM[0], y[:4] / np.linalg.norm(y[:4]))
-        return np.concatenate((quaternion_rate(y[:4], omega), q_dot_B))
+        s = law.rates(q_buf, qdM[0], y[:4] / np.linalg.norm(y[:4]))
+        return np.concatenate((quaternion_rate(y[:4], s.omega), s.q_dot_B))
 
     Y, stats, failure = integrate(rhs, np.r_[quat0, q_B0], t, integration)
     result = _result(law, sample_M, t[: Y.shape[0]], Y, stats)
