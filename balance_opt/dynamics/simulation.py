@@ -346,11 +346,9 @@ def simulate(
 
     Args:
         robot: the floating robot.
-        mission: the mission arm's planned motion: anything with ``sample(t) -> (q, q_dot,
-            q_ddot)`` and ``duration``
-            (a :class:`~balance_opt.motion.trajectories.JointTrajectory`),
-            a :class:`BalanceResult` (its mission part, interpolated), or a position (n_M,) [rad]
-            to hold.
+        mission: the mission arm's planned motion: a
+            :class:`~balance_opt.motion.trajectories.JointTrajectory`, a :class:`BalanceResult`
+            (its mission part, interpolated), or a position (n_M,) [rad] to hold.
         balance: the balance arms' planned motion, same forms (n_B joints, balance arms
             stacked in order).
         options: see :class:`SimulationOptions`.

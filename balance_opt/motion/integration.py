@@ -69,13 +69,8 @@ def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> 
 
 # ---------------------------------------------------------------------------------- integration
 def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
-    """Integrate ``y' = rhs(t, y)`` whose first 4 entries are a unit quaternion.
-
-    Args:
-        rhs: right-hand side ``(t, y) -> y'``.
-        y0: initial state, quaternion first.
-        t: output times (T,), the first the initial time.
-        options: integrator settings.
+    """Integrate ``y' = rhs(t, y)`` from ``y0`` (a unit quaternion first) over the output times
+    ``t`` (the first the initial time).
 
     Returns:
         ``(Y, stats, message)``: states at the output times with normalised quaternions (T', ny)

@@ -146,17 +146,8 @@ def drift_under_model_error(
     options: RobustnessOptions | None = None,
     h0=None,
 ) -> RobustnessResult:
-    """Replay every plan's joint motion on ``options.samples`` perturbed models.
-
-    Args:
-        robot: the robot the plans were made for.
-        plans: plans by method name.
-        options: the study's settings.
-        h0: the system's momentum (world frame, 3 angular or 6 values), as planned.
-
-    Returns:
-        The drift spread of each plan.
-    """
+    """Replay every plan (by method name) on ``options.samples`` perturbed models of ``robot``,
+    with the system's momentum ``h0`` (world frame, 3 angular or 6 values) as planned."""
     opts = options or RobustnessOptions()
     start = time.perf_counter()
     rng = np.random.default_rng(opts.seed)
