@@ -27,7 +27,6 @@ def phase_one(
     h0=None,
     integration: IntegrationOptions | None = None,
     t_eval=None,
-    quaternion0=None,
 ) -> BalanceResult:
     """Phase I (Fig. 2): base attitude with the mission arm moving and the balance arm held at
     ``q_B0`` [rad]. ``method="mission-only"``. Other arguments as in :func:`replay`."""
@@ -47,7 +46,6 @@ def phase_one(
         h0=h0,
         integration=integration,
         t_eval=t_eval,
-        quaternion0=quaternion0,
         method="mission-only",
     )
 

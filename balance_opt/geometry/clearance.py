@@ -6,7 +6,7 @@ at samples; in between, *conservative advancement* bounds them: every point of a
 most ``sum_j |dq_j| R_j`` (:attr:`RobotGeometry.reach`), so a pair ``d_a``, ``d_b`` apart at an
 interval's ends, its bodies moving by at most ``M``, stays ``(d_a + d_b - M) / 2`` apart. An
 interval whose bound could be below the pair's smallest distance so far (by more than
-``resolution``) is split, down to ``min_step``; pairs beyond ``watch`` are only certified to
+:data:`RESOLUTION`) is split, down to :data:`MIN_STEP`; pairs beyond ``watch`` are only certified to
 stay beyond it.
 
 Every pair is computed at every :data:`COARSE`-th sample; an interval between them is split at
@@ -160,7 +160,7 @@ def _refine(geometry, index, items, configuration, state, limits) -> int:
     more than one step of the samples ``i_a .. i_b`` it is split at a sample, whose halves'
     bounds come from ``motion(i, j)``; below, at its middle (the straight line), halving it."""
     best, best_t, lower, first = state
-    resolution, watch, min_step, t, motion = limits
+    watch, t, motion = limits
     geom, gdata = geometry.geometry_model, geometry.geometry_data
     evaluations = 0
     while items:
@@ -187,7 +187,7 @@ def _refine(geometry, index, items, configuration, state, limits) -> int:
                     halves = ((ta, tm, da, dm, 0.5 * m, ia, ib), (tm, tb, dm, db, 0.5 * m, ia, ib))
                 for a, b, d1, d2, mh, i1, i2 in halves:
                     bound = float(_lower(d1, d2, mh))
-                    if bound >= min(best[c], watch) - resolution or b - a <= min_step:
+                    if bound >= min(best[c], watch) - RESOLUTION or b - a <= MIN_STEP:
                         lower[c] = min(lower[c], bound)
                     else:
                         items.append((c, a, b, d1, d2, mh, i1, i2))
@@ -199,9 +199,7 @@ def clearance(
     t,
     q,
     pairs: Sequence[int] | None = None,
-    resolution: float = RESOLUTION,
     watch: float = WATCH,
-    min_step: float = MIN_STEP,
 ) -> ClearanceReport:
     """The clearance of a motion of the robot (see the module docstring).
 
@@ -210,9 +208,7 @@ def clearance(
         t: sample times (T,) [s], increasing.
         q: the arm vector at each sample (T, n) [rad or m] (mission arm, then balance arms).
         pairs: indices of the pairs to check (default: every pair of ``geometry``).
-        resolution: precision of each pair's smallest distance [m].
         watch: pairs farther than this are only certified to stay beyond it [m].
-        min_step: shortest interval split [s].
     """
     t = np.asarray(t, dtype=float).ravel()
     q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -249,7 +245,7 @@ def clearance(
     neg = D <= 0.0
     first = [(t[coarse[np.argmax(neg[:, c])]], c) for c in range(index.size) if neg[:, c].any()]
     items = []  # see _refine
-    target = np.minimum(best, watch) - resolution
+    target = np.minimum(best, watch) - RESOLUTION
     for r in range(coarse.size - 1):
         ia, ib = int(coarse[r]), int(coarse[r + 1])
         m = (travel[ib] - travel[ia]) @ coef.T
@@ -262,7 +258,7 @@ def clearance(
         return np.array([np.interp(time, t, q[:, j]) for j in range(q.shape[1])])
 
     state = (best, best_t, lower, first)
-    limits = (resolution, watch, min_step, t, motion)
+    limits = (watch, t, motion)
     evaluations += _refine(geometry, index, items, configuration, state, limits)
     lower = np.minimum(lower, best)
     report = tuple(

@@ -21,7 +21,6 @@ import numpy as np
 from balance_opt import progress
 from balance_opt.errors import InputError
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.so3 import IDENTITY_QUATERNION
 
 #: The scheme behind ``"adaptive"``.
 ADAPTIVE_SCHEME = "DOP853"
@@ -32,22 +31,6 @@ _STEP_SLACK = 1e-9
 
 
 # ---------------------------------------------------------------------------------- output grids
-def initial_quaternion(quaternion0) -> np.ndarray:
-    """The initial base attitude, normalised (identity for ``None``).
-
-    Raises:
-        InputError: not a non-zero, finite quaternion (x, y, z, w).
-    """
-    if quaternion0 is None:
-        return IDENTITY_QUATERNION.copy()
-    q = np.asarray(quaternion0, dtype=float).ravel()
-    if q.size != 4 or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0:
-        raise InputError(
-            f"initial attitude must be a non-zero quaternion (x, y, z, w), got {q.tolist()}"
-        )
-    return q / np.linalg.norm(q)
-
-
 def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> np.ndarray:
     """The output times: ``t_eval`` checked, else 0 to ``duration`` [s] in
     ``round(duration / options.output_step)`` equal intervals.

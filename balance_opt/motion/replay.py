@@ -14,10 +14,10 @@ import numpy as np
 from balance_opt.errors import InputError, SolverError
 from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.integration import initial_quaternion, integrate, output_grid
+from balance_opt.motion.integration import integrate, output_grid
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_rate
+from balance_opt.motion.so3 import IDENTITY_QUATERNION, matrix_from_quaternion, quaternion_rate
 from balance_opt.motion.trajectories import TrajectoryLike, arm_samples, as_sampler
 from balance_opt.result import BalanceResult
 
@@ -30,7 +30,6 @@ def replay(
     h0=None,
     integration: IntegrationOptions | None = None,
     t_eval=None,
-    quaternion0=None,
     method: str = "simulation",
 ) -> BalanceResult:
     """Integrate the base attitude for GIVEN joint motions of both arms (momentum conservation,
@@ -45,7 +44,6 @@ def replay(
         integration: integrator settings.
         t_eval: output times [s] (default: every ``integration.output_step`` over the longer
             motion).
-        quaternion0: initial base attitude (x, y, z, w), identity by default.
         method: the result's ``method`` label.
 
     Returns:
@@ -68,7 +66,7 @@ def replay(
         )
     L = L[-3:].copy()  # the angular part, world axes [N m s]
     maps = NumericMaps(robot)
-    q0 = initial_quaternion(quaternion0)
+    q0 = IDENTITY_QUATERNION.copy()  # the drift is measured from the initial attitude
     if integration.method == "rk4":  # fixed steps: every joint sample known before integrating
         rates = _StageRates(maps, sample_M, sample_B, L)
         quat, stats, failure = _rk4_given_joints(rates, q0, t, integration)
@@ -183,7 +181,7 @@ def rk4_stage_times(t: np.ndarray, options: IntegrationOptions):
     return np.concatenate([starts, starts + 0.5 * h, t[-1:]]), n_sub, h
 
 
-def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOptions, q0=None):
+def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOptions):
     """The base attitude (..., T, 4) at ``t`` from base rates that do not depend on it (zero
     momentum), given at :func:`rk4_stage_times` ``(times, ...)``, (..., 2 S + 1, 3) [rad/s,
     base frame]: the same RK4 steps as :func:`replay` with ``method="rk4"``, for one rate
@@ -193,7 +191,7 @@ def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOp
         SolverError: the integration failed (non-finite rates).
     """
     _, n_sub, h = rk4_stage_times(t, options)
-    Y, message = _step_matrices(omega, initial_quaternion(q0), t, n_sub, h)
+    Y, message = _step_matrices(omega, IDENTITY_QUATERNION, t, n_sub, h)
     if message is not None:
         raise SolverError(f"attitude replay failed: {message}", "integration_failed", None)
     return Y

@@ -77,14 +77,7 @@ def count_reversals(values: np.ndarray, threshold: float) -> int:
     return count
 
 
-def smoothness(
-    t,
-    q_ddot,
-    joints,
-    acceleration_limit=None,
-    tau=None,
-    fraction: float = REVERSAL_FRACTION,
-) -> Smoothness:
+def smoothness(t, q_ddot, joints, acceleration_limit=None, tau=None) -> Smoothness:
     """Smoothness figures of merit of a sampled motion (see the module docstring).
 
     Args:
@@ -93,7 +86,6 @@ def smoothness(
         joints: joint names (n,).
         acceleration_limit: per joint (n,) [rad/s^2] (``inf`` or ``None``: no limit).
         tau: joint torques (T, n) [N m], optional.
-        fraction: the reversal hysteresis as a fraction of the acceleration scale.
 
     Returns:
         The figures per joint.
@@ -112,7 +104,7 @@ def smoothness(
     dt = np.diff(t)[:, None]
     limit = np.full(n, np.inf) if acceleration_limit is None else np.asarray(acceleration_limit)
     scale = np.where(np.isfinite(limit), limit, np.abs(a).max(axis=0))
-    threshold = fraction * scale
+    threshold = REVERSAL_FRACTION * scale
     rate = None
     if tau is not None:
         tau = np.asarray(tau, dtype=float).reshape(t.size, n)
