@@ -119,28 +119,19 @@ class BalanceLaw:
         options: law settings (defaults: :class:`BalanceLawOptions`).
         q_B0: initial balance configuration [rad]; the null-space goal of joints without finite
             limits (default: the neutral configuration).
-        reference: ``R_0`` of the attitude feedback, a quaternion (x, y, z, w) (default identity).
 
     Raises:
         InputError: a null-space goal of the wrong size.
     """
 
-    def __init__(
-        self,
-        robot: FloatingRobot,
-        options: BalanceLawOptions | None = None,
-        q_B0=None,
-        reference=None,
-    ):
+    def __init__(self, robot: FloatingRobot, options: BalanceLawOptions | None = None, q_B0=None):
         self.robot = robot
         self.options = options or BalanceLawOptions()
         self.maps = NumericMaps(robot)
         self.mission = robot.mission_indices
         self.balance = robot.balance_indices
         self.goal = self._null_space_goal(q_B0)
-        self.reference = (
-            IDENTITY_QUATERNION.copy() if reference is None else np.asarray(reference, dtype=float)
-        )
+        self.reference = IDENTITY_QUATERNION  # R_0 of the feedback: the initial attitude
         self.angular_momentum = self.options.angular_momentum
 
     def _null_space_goal(self, q_B0) -> np.ndarray:
