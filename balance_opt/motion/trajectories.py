@@ -374,13 +374,12 @@ def _goal_rotation(orientation) -> np.ndarray | None:
     )
 
 
-def solve_cartesian_goal(
-    robot, q_start, position, orientation=None, arm: str = "mission", base: pin.SE3 | None = None
-) -> np.ndarray:
-    """The joint goal [rad] that puts an arm's end effector on a goal pose, by inverse kinematics.
+def solve_cartesian_goal(robot, q_start, position, orientation=None) -> np.ndarray:
+    """The joint goal [rad] that puts the mission end effector on a goal pose, by inverse
+    kinematics.
 
-    The goal is in the world frame with the base at its initial pose (``base``, identity by
-    default), and the inverse kinematics keep the base there: the joint goal is the one that
+    The goal is in the frame of the base at its initial pose (the identity), and the inverse
+    kinematics keep the base there: the joint goal is the one that
     puts the end effector on the goal *as seen from the base at the start*. During the motion
     the base turns and drifts as momentum conservation forces it (that is what the balance arm
     corrects), so the world-frame end point can differ; the joint goal does not.
@@ -395,8 +394,6 @@ def solve_cartesian_goal(
         position: goal position of the end-effector frame's origin, world frame [m].
         orientation: goal orientation, a quaternion (x, y, z, w) or a 3 x 3 rotation matrix;
             ``None`` for position only.
-        arm: the arm whose end effector is placed.
-        base: initial base pose (identity by default).
 
     Raises:
         TrajectoryError: bad inputs, or the goal is out of reach within the joint limits; the
@@ -409,7 +406,7 @@ def solve_cartesian_goal(
             f"Cartesian goal position must be 3 finite numbers [m], got {goal_p.tolist()}"
         )
     goal_R = _goal_rotation(orientation)
-    arm = robot.arm(arm)
+    arm = robot.mission
     q_start = np.asarray(q_start, dtype=float).ravel()
     if q_start.size != arm.dof:
         raise TrajectoryError(
@@ -426,7 +423,7 @@ def solve_cartesian_goal(
 
     def error(q):
         q_full[arm.indices] = q
-        qp = robot.pin_q(q_full, base)
+        qp = robot.pin_q(q_full)
         J = pin.computeFrameJacobian(model, data, qp, frame, pin.LOCAL_WORLD_ALIGNED)
         J = robot.arm_columns(J)[:, cols]
         pose = data.oMf[frame]
@@ -476,20 +473,12 @@ def _point(v) -> str:
     return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
 
 
-def cartesian_goal(
-    robot,
-    q_start,
-    position,
-    duration: float,
-    orientation=None,
-    arm: str = "mission",
-    base: pin.SE3 | None = None,
-) -> PointToPoint:
-    """Point-to-point motion (quintic, rest to rest) of an arm to a Cartesian goal
+def cartesian_goal(robot, q_start, position, duration: float, orientation=None) -> PointToPoint:
+    """Point-to-point motion (quintic, rest to rest) of the mission arm to a Cartesian goal
     (:func:`solve_cartesian_goal`; the arguments are its own and the motion's ``duration`` [s]).
 
     Raises:
         TrajectoryError: unreachable goal (with the remaining distance), bad inputs.
     """
-    goal = solve_cartesian_goal(robot, q_start, position, orientation, arm, base)
+    goal = solve_cartesian_goal(robot, q_start, position, orientation)
     return PointToPoint(q_start, goal, duration)
