@@ -338,7 +338,6 @@ def simulate(
     options: SimulationOptions | None = None,
     *,
     duration: float | None = None,
-    base: pin.SE3 | None = None,
     initial_state: tuple[np.ndarray, np.ndarray] | None = None,
     attitude: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SimulationResult:
@@ -353,7 +352,6 @@ def simulate(
             stacked in order).
         options: see :class:`SimulationOptions`.
         duration: simulated time [s]; the longer of the two trajectories by default.
-        base: initial base pose in the world (identity by default).
         initial_state: Pinocchio ``(q, v)`` to start from instead of the plan's start with the
             twist of ``options.h0`` (after a capture's impulse, say).
         attitude: the plan's base attitude, ``(t, quaternion)`` samples, for the feedforward
@@ -383,9 +381,8 @@ def simulate(
     if opts.feedforward and opts.controller == "pd":
         plan.add_feedforward(h0, attitude)
     if initial_state is None:  # the plan's start, the base twist of the momentum h0
-        R = (base or pin.SE3.Identity()).rotation
-        twist = NumericMaps(robot).base_twist(q0, qd0, np.r_[R.T @ h0[:3], R.T @ h0[3:]])
-        initial_state = robot.pin_q(q0, base), robot.pin_v(qd0, twist)
+        twist = NumericMaps(robot).base_twist(q0, qd0, h0)  # the base starts at the identity
+        initial_state = robot.pin_q(q0), robot.pin_v(qd0, twist)
     x0 = initial_state
 
     if opts.integrator == "rk4":
