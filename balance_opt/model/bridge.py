@@ -231,11 +231,6 @@ def _build_key(toolchain: Toolchain) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
-def cache_folder() -> Path:
-    """``<kernel cache folder>/pinocchio-bridge`` (see ``default_cache_dir``)."""
-    return default_cache_dir() / FOLDER
-
-
 # ----------------------------------------------------------------------------- the program
 def _first_error(stderr: str) -> str:
     lines = [line.strip() for line in stderr.splitlines() if line.strip()]
@@ -324,7 +319,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     """The bridge program, built first if it is not cached (or if its cached bytes changed).
 
     Args:
-        cache_dir: folder of the program (default :func:`cache_folder`).
+        cache_dir: folder of the program (default ``<kernel cache folder>/pinocchio-bridge``).
 
     Returns:
         The program's build record.
@@ -333,7 +328,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
         BridgeUnavailable: no compiler, missing headers, or the build failed.
     """
     toolchain = find_toolchain()
-    folder = Path(cache_dir) if cache_dir is not None else cache_folder()
+    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir() / FOLDER
     program = folder / f"pinocchio_casadi_bridge_{_build_key(toolchain)}"
     known = _BUILT.get(program)
     if known is not None and known[0] == _signature(program):

@@ -29,7 +29,7 @@ import logging
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +62,6 @@ class _UrdfJoint:
     type: str
     parent: str
     child: str
-    element: ET.Element = field(repr=False)
     mimic: tuple[str, float, float] | None = None  # (driver, multiplier, offset)
 
 
@@ -99,7 +98,6 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             el.get("type", ""),
             parent.get("link"),
             child.get("link"),
-            el,
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     for warning in check_urdf_physics(root, source):
