@@ -115,7 +115,6 @@ class BalanceLaw:
     """The analytic balance law of a robot, evaluated with numeric Pinocchio.
 
     Args:
-        robot: the floating robot.
         options: law settings (defaults: :class:`BalanceLawOptions`).
         q_B0: initial balance configuration [rad]; the null-space goal of joints without finite
             limits (default: the neutral configuration).

@@ -41,11 +41,9 @@ def rollout(
     (see the module docstring).
 
     Args:
-        robot: the floating robot.
         mission: the mission arm's motion (see :func:`~balance_opt.motion.trajectories.as_sampler`).
         q_B0: initial balance joint positions [rad].
         options: the law's settings (``h0``, damping, null space, feedback).
-        integration: integrator settings.
         t_eval: output times [s] (default: every ``integration.output_step`` over the mission).
 
     Returns:

@@ -62,7 +62,6 @@ def free_floating_torques(
     """Free-floating inverse dynamics of a motion of every arm joint (see the module docstring).
 
     Args:
-        robot: the floating robot.
         q, q_dot, q_ddot: arm joint positions, rates and accelerations (T, n), arm order
             (``robot.joint_names``) [rad, rad/s, rad/s^2; m for prismatic joints].
         quaternion: base attitude (T, 4), (x, y, z, w); needed only when ``h0`` is not zero

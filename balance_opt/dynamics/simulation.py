@@ -344,13 +344,11 @@ def simulate(
     """Simulate the free-floating robot tracking a mission and a balance trajectory.
 
     Args:
-        robot: the floating robot.
         mission: the mission arm's planned motion: a
             :class:`~balance_opt.motion.trajectories.JointTrajectory`, a :class:`BalanceResult`
             (its mission part, interpolated), or a position (n_M,) [rad] to hold.
         balance: the balance arms' planned motion, same forms (n_B joints, balance arms
             stacked in order).
-        options: see :class:`SimulationOptions`.
         duration: simulated time [s]; the longer of the two trajectories by default.
         initial_state: Pinocchio ``(q, v)`` to start from instead of the plan's start with the
             twist of ``options.h0`` (after a capture's impulse, say).

@@ -64,7 +64,6 @@ def arm_wrenches_on_base(
     """The wrench each arm exerts on the base along a motion (paper Fig. 4).
 
     Args:
-        robot: the floating robot.
         q_pin, v, a: Pinocchio configurations (T, nq), velocities and accelerations (T, nv) of a
             motion that obeys the free-floating dynamics (for instance the ABA accelerations of
             a simulation); base twist and acceleration in the base frame.

@@ -30,7 +30,6 @@ def momentum_residual(maps: NumericMaps, t, q, q_dot, quaternion, angular_moment
     """Relative angular-momentum residual (T,) of a sampled motion (see the module docstring).
 
     Args:
-        maps: the robot's numeric maps.
         t: sample times (T,) [s].
         q, q_dot: arm positions and rates (T, n) [rad, rad/s].
         quaternion: base attitude (T, 4), (x, y, z, w).

@@ -36,12 +36,10 @@ def replay(
     ``omega = I_G^{-1} (R^T L - A q_dot)``, Eq. 26 with the initial momentum ``h0``).
 
     Args:
-        robot: the floating robot.
         mission: mission arm motion (n_M joints), in any form
             :func:`~balance_opt.motion.trajectories.as_sampler` takes.
         balance: balance arms' motion, the same ways, all balance joints stacked (n_B).
         h0: initial momentum, world frame (3 angular or 6 [linear; angular] values), ``None`` for 0.
-        integration: integrator settings.
         t_eval: output times [s] (default: every ``integration.output_step`` over the longer
             motion).
         method: the result's ``method`` label.

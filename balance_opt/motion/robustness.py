@@ -117,7 +117,6 @@ class RobustnessResult:
     """Drift under model error of one or more plans (the same perturbed models for all).
 
     Attributes:
-        options: the study's settings.
         methods: per method, its :class:`DriftSpread`.
         attitude_p95: per method, the 95th percentile over the models of the attitude error
             ``|log R(t)|`` at each of the plan's samples (T,) [rad] (a band for figures).
