@@ -104,8 +104,6 @@ class RobotGeometry:
         ignore: pairs of link names left out as well.
 
     Attributes:
-        robot: as given.
-        model: ``robot.model``.
         geometry_model: Pinocchio's geometry model (meshes as convex hulls), its collision pairs
             the checked ones.
         source: ``"collision"`` or ``"visual"``: the URDF elements the geometry was built from.

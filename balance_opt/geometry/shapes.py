@@ -32,8 +32,7 @@ from balance_opt.geometry.robot_geometry import RobotGeometry
 #: Ipopt takes more iterations to follow them (benchmarks/bench_collision.py, docs/collision.md).
 BETA = 500.0
 #: Spacing of the spheres along a capsule against a box, in capsule radii: the spheres grow by
-#: at most 12 % of the radius to cover the capsule. Half a radius (3 % larger spheres) gave the
-#: capture task the same plan (peak 0.0261 rad, clearance 0.0313 m) with kernels a third larger.
+#: at most 12 % of the radius to cover the capsule; closer spheres only make the kernels larger.
 SPHERE_SPACING = 1.0
 #: Sides of the prism fitted around a cylinder (its circumscribed polygon).
 PRISM_SIDES = 16

@@ -87,9 +87,6 @@ def smoothness(t, q_ddot, joints, acceleration_limit=None, tau=None) -> Smoothne
         acceleration_limit: per joint (n,) [rad/s^2] (``inf`` or ``None``: no limit).
         tau: joint torques (T, n) [N m], optional.
 
-    Returns:
-        The figures per joint.
-
     Raises:
         ValueError: arrays of mismatched shapes, or fewer than two samples.
     """
