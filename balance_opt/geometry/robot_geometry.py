@@ -11,7 +11,6 @@ SRDF (``srdf``) or by the caller (``ignored``).
 
 from __future__ import annotations
 
-import importlib.metadata
 import logging
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Sequence
@@ -23,12 +22,10 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
+from balance_opt.model.catalog import DISTRIBUTION, example_robots
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
-
-#: The distribution whose share folder resolves ``package://`` paths of its robots.
-EXAMPLE_ROBOT_DATA = "example-robot-data"
 
 
 class NoGeometryError(InputError):
@@ -58,19 +55,11 @@ class Pair:
 def package_dirs(urdf_path: Path | None) -> list[str]:
     """Folders ``package://`` paths resolve against: example-robot-data's share folder (the one
     that holds ``example-robot-data/``), and the URDF's folder and the two above it."""
-    out = []
     try:
-        dist = importlib.metadata.distribution(EXAMPLE_ROBOT_DATA)
-    except importlib.metadata.PackageNotFoundError:
-        dist = None
-    for f in (dist.files or ()) if dist is not None else ():
-        parts = Path(str(f)).parts
-        if EXAMPLE_ROBOT_DATA not in parts[:-1]:
-            continue
-        if parts[parts.index(EXAMPLE_ROBOT_DATA) + 1] == "robots":
-            share = Path(str(dist.locate_file(Path(*parts[: parts.index(EXAMPLE_ROBOT_DATA)]))))
-            out.append(str(share))
-            break
+        path = next(iter(example_robots().values()))  # <share>/example-robot-data/robots/...
+        out = [str(Path(*path.parts[: path.parts.index(DISTRIBUTION)]))]
+    except (InputError, StopIteration, ValueError):  # not installed, or not laid out so
+        out = []
     if urdf_path is not None:
         folder = urdf_path.resolve().parent
         out += [str(folder), str(folder.parent), str(folder.parent.parent)]
