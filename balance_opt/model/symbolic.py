@@ -22,6 +22,7 @@ cached), and ``name(...)`` evaluates it and returns NumPy arrays.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import logging
 from functools import cached_property
@@ -254,6 +255,20 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     return A, jac
 
 
+def _built_once(method):
+    """A ``*_fun`` method of :class:`SymbolicMaps` whose function is built on the first call
+    with given arguments, then reused."""
+
+    @functools.wraps(method)
+    def cached(self, *args):
+        key = (method.__name__, *args)
+        if key not in self._funs:
+            self._funs[key] = method(self, *args)
+        return self._funs[key]
+
+    return cached
+
+
 class SymbolicMaps:
     """CasADi momentum maps of a floating robot.
 
@@ -273,6 +288,7 @@ class SymbolicMaps:
         self.robot = robot
         self.backend, self.backend_description = _resolve_backend(backend)
         n = robot.n
+        self._funs: dict[tuple, cs.Function] = {}
         self._q = cs.SX.sym("q", n)
         self._qd = cs.SX.sym("q_dot", n)
         try:
@@ -316,104 +332,78 @@ class SymbolicMaps:
         )
 
     # ------------------------------------------------------------------ functions
-    @cached_property
-    def _funs(self) -> dict[str, cs.Function]:
-        return {}
-
-    def _cached(self, name, make):
-        if name not in self._funs:
-            self._funs[name] = make()
-        return self._funs[name]
-
+    @_built_once
     def centroidal_momentum_matrix_fun(self) -> cs.Function:
         """``centroidal_momentum_matrix(q) -> A_G``: 6 x (6+n), momentum [linear; angular] about the
         CoM in base-frame axes, for the base twist in the base frame and the arm joint rates.
         In world axes it is ``blkdiag(R, R) A_G``."""
-        return self._cached(
-            "cmm", lambda: self._fun("centroidal_momentum_matrix", {"q": self._q}, {"A_G": self._A})
-        )
+        return self._fun("centroidal_momentum_matrix", {"q": self._q}, {"A_G": self._A})
 
+    @_built_once
     def base_jacobian_fun(self) -> cs.Function:
         """``base_jacobian(q) -> J_base``: 6 x n, ``v_b = J_base q_dot`` with zero momentum
         (Eq. 19), the base twist [linear; angular] in the base frame."""
-        return self._cached(
-            "J_base", lambda: self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base})
-        )
+        return self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base})
 
+    @_built_once
     def angular_jacobians_fun(self) -> cs.Function:
         """``angular_jacobians(q) -> (J_wM, J_wB)``: the base angular velocity in the base frame is
         ``J_wM q_dot_M + J_wB q_dot_B`` (Eq. 26; balance arms stacked in ``J_wB``)."""
+        Jw = self._J_w
+        return self._fun(
+            "angular_jacobians",
+            {"q": self._q},
+            {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]},
+        )
 
-        def make():
-            Jw = self._J_w
-            return self._fun(
-                "angular_jacobians",
-                {"q": self._q},
-                {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]},
-            )
-
-        return self._cached("J_w", make)
-
+    @_built_once
     def angular_jacobian_rates_fun(self) -> cs.Function:
         """``angular_jacobian_rates(q, q_dot) -> (dJ_wM, dJ_wB)``: time derivatives of
         ``J_wM`` and ``J_wB`` along ``q_dot`` (needed for Eq. 32)."""
+        Jw = self._J_w
+        return self._fun(
+            "angular_jacobian_rates",
+            {"q": self._q, "q_dot": self._qd},
+            {
+                "dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
+                "dJ_wB": self._rate(Jw[:, self._balance_cols]),
+            },
+        )
 
-        def make():
-            Jw = self._J_w
-            return self._fun(
-                "angular_jacobian_rates",
-                {"q": self._q, "q_dot": self._qd},
-                {
-                    "dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
-                    "dJ_wB": self._rate(Jw[:, self._balance_cols]),
-                },
-            )
-
-        return self._cached("dJ_w", make)
-
+    @_built_once
     def ee_generalized_jacobian_fun(self, arm: str = "mission") -> cs.Function:
         """``ee_generalized_jacobian_<arm>(q) -> (J_star, M)``: the end effector's twist
         [linear velocity of its origin; angular velocity], in base-frame axes, is
         ``J_star q_dot`` with the base moving as momentum conservation forces it (Eq. 20-22).
         ``M`` is the arm's own columns of ``J_star``: the paper's coupling factor (Eq. 22)."""
+        columns = self._cols([arm])  # an unknown arm: ArmError
+        J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
+        return self._fun(
+            f"ee_generalized_jacobian_{arm}",
+            {"q": self._q},
+            {"J_star": J_star, "M": J_star[:, columns]},
+        )
 
-        def make():
-            J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
-            return self._fun(
-                f"ee_generalized_jacobian_{arm}",
-                {"q": self._q},
-                {"J_star": J_star, "M": J_star[:, self._cols([arm])]},
-            )
-
-        self.robot.arm(arm)
-        return self._cached(f"J_star_{arm}", make)
-
+    @_built_once
     def coupling_factors_fun(self, arm: str = "mission") -> cs.Function:
         """``coupling_factors_<arm>(q) -> (M, N)``: ``M`` maps the arm's joint rates to its end
         effector's twist (Eq. 22); ``N`` maps the end effector's twist to the base twist
         (Eq. 24), ``N = J_base,arm M^+`` (the Moore-Penrose inverse where the arm has fewer
         than 6 joints, so that ``N`` is exact on the twists the arm can produce)."""
+        _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
+        N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
+        return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
 
-        def make():
-            _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-            N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
-            return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
-
-        return self._cached(f"MN_{arm}", make)
-
+    @_built_once
     def force_map_fun(self, arm: str = "mission") -> cs.Function:
         """``force_map_<arm>(q, F_e) -> F_B``: the wrench on the base from an end-effector wrench
         ``F_e`` [force; torque], ``F_B = N^{-T} F_e`` (Eq. 25), with the Moore-Penrose inverse
         of ``N^T`` where ``N`` is rank deficient (arms with fewer than 6 joints)."""
-
-        def make():
-            _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-            F_e = cs.SX.sym("F_e", 6)
-            J_base_arm = self._J_base[:, self._cols([arm])]
-            F_B = coupling.force_on_base(J_base_arm, M, F_e, CASADI)
-            return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
-
-        return self._cached(f"F_{arm}", make)
+        _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
+        F_e = cs.SX.sym("F_e", 6)
+        J_base_arm = self._J_base[:, self._cols([arm])]
+        F_B = coupling.force_on_base(J_base_arm, M, F_e, CASADI)
+        return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
 
     # ------------------------------------------------------------------ numeric evaluators
     def centroidal_momentum_matrix(self, q) -> np.ndarray:
