@@ -47,7 +47,7 @@ def grid_clearance(geometry: RobotGeometry, t, q, step: float = 1e-3):
     gm, gd = geometry.geometry_model, geometry.geometry_data
     names = [p.name for p in geometry.pairs]
     for qk in qg:
-        pin.computeDistances(geometry.model, geometry.data, gm, gd, geometry.pin_q(qk))
+        pin.computeDistances(geometry.model, geometry.data, gm, gd, geometry.robot.pin_q(qk))
         d = [r.min_distance for r in gd.distanceResults]
         k = int(np.argmin(d))
         if d[k] < best:

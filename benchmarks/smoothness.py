@@ -24,7 +24,7 @@ import numpy as np
 
 from balance_opt.app.pipeline import run_task
 from balance_opt.app.scenarios import CAPTURE_BALANCE_ACCELERATION, capture_task
-from balance_opt.dynamics.inverse_dynamics import plan_torques
+from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.tasks.task import load_task
 from balance_opt.model.library import paper_robot
 from balance_opt.motion.smoothness import smoothness
@@ -49,7 +49,7 @@ def _row(label: str, robot, capture, options: PlannerOptions, guess) -> str:
     model = PlannerModel(robot)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options, robot).solve(guess)
     elapsed = time.perf_counter() - start
-    tau = plan_torques(robot, plan).tau[:, [robot.joint_index(j) for j in plan.balance_joints]]
+    tau = plan_joint_torques(plan, robot)[:, len(plan.mission_joints) :]
     limits = robot.limits.acceleration[robot.balance_indices]
     s = smoothness(plan.t, plan.q_ddot_B, plan.balance_joints, limits, tau)
     iterations = plan.info.get("total_iterations", "?")

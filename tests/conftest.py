@@ -16,9 +16,35 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.cache import default_cache_dir
-from balance_opt.model.bridge import copy_programs
+from balance_opt.cache import check_record, default_cache_dir
+from balance_opt.model.bridge import FOLDER
 from balance_opt.optimal.collocation import joint_chain_coefficients
+
+
+def copy_programs(source_cache: Path, target_cache: Path) -> list[Path]:
+    """Copy the bridge programs built in the cache folder ``source_cache`` (those whose bytes
+    match their records) into ``target_cache``'s bridge folder, where it has none; the source
+    is only read (no lock taken, nothing written): a test session that keeps its own cache
+    seeds it from the user's instead of building the bridge again for minutes.
+
+    Returns:
+        The programs copied.
+    """
+    source, target = Path(source_cache) / FOLDER, Path(target_cache) / FOLDER
+    copied = []
+    for record in sorted(source.glob("pinocchio_casadi_bridge_*.json")):
+        program = record.with_suffix("")
+        destination = target / program.name
+        if destination.exists() or check_record(program)[0] is None:
+            continue
+        target.mkdir(parents=True, exist_ok=True)
+        partial = target / f"{program.name}.copy.tmp"
+        shutil.copy2(program, partial)
+        os.replace(partial, destination)  # the program before its record: never a record alone
+        shutil.copy2(record, target / record.name)
+        copied.append(destination)
+    return copied
+
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 

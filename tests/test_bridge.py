@@ -18,6 +18,7 @@ import casadi as cs
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import copy_programs
 
 from balance_opt.errors import BalanceOptError
 from balance_opt.model import bridge, symbolic
@@ -257,7 +258,7 @@ def test_build_progress_is_logged(fake_compiler, monkeypatch, caplog):
 
 @pytest.fixture
 def no_pinocchio_casadi():
-    if symbolic._pinocchio_casadi_imports():
+    if symbolic._imports("pinocchio.casadi"):
         pytest.skip("pinocchio.casadi imports here: auto never needs the bridge")
 
 
@@ -304,11 +305,11 @@ def test_built_programs_are_copied_into_another_cache_read_only(fake_compiler):
     broken.write_bytes(b"changed")
     broken.with_suffix(".json").write_text(built.with_suffix(".json").read_text())
     before = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in (user / bridge.FOLDER).iterdir()}
-    assert bridge.copy_programs(user, session) == [session / bridge.FOLDER / built.name]
+    assert copy_programs(user, session) == [session / bridge.FOLDER / built.name]
     after = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in (user / bridge.FOLDER).iterdir()}
     assert after == before
     calls = (fake_compiler / "calls.txt").read_text().count("call")
     record = bridge.ensure_bridge(session / bridge.FOLDER)
     assert not record.built_now and record.path == session / bridge.FOLDER / built.name
     assert (fake_compiler / "calls.txt").read_text().count("call") == calls
-    assert bridge.copy_programs(user, session) == []  # already there
+    assert copy_programs(user, session) == []  # already there

@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from balance_opt.dynamics.inverse_dynamics import free_floating_torques, plan_torques
+from balance_opt.dynamics.inverse_dynamics import free_floating_torques, plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import quaternion_from_rotvec
 from balance_opt.result import BalanceResult
@@ -117,7 +117,7 @@ def test_forward_dynamics_driven_by_the_torques_follows_the_motion(paper, h0):
     np.testing.assert_allclose(v[:6], torque(steps * dt, qp).base_twist[0], rtol=0, atol=1e-9)
 
 
-def test_plan_torques_orders_columns_by_the_plan(paper):
+def test_plan_joint_torques_orders_columns_by_the_plan(paper):
     t = np.linspace(0, 2, 5)
     q, qd, qdd = _motion(paper.n, t, 3)
     M, B = paper.mission_indices, paper.balance_indices
@@ -127,7 +127,7 @@ def test_plan_torques_orders_columns_by_the_plan(paper):
     )  # fmt: skip
     assert res.q_M.shape[1] == M.size and res.q_B.shape[1] == B.size
     np.testing.assert_array_equal(
-        plan_torques(paper, res).tau, free_floating_torques(paper, q, qd, qdd).tau
+        plan_joint_torques(res, paper), free_floating_torques(paper, q, qd, qdd).tau
     )
 
 

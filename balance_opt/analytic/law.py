@@ -22,23 +22,11 @@ force with the balance arm at rest and ``e_R = log(R_0^T R)`` is the optional at
 
     J_wB q_ddot_B = b_dot - dJ_wB q_dot_B,   b_dot = -d(omega_f)/dt - K Jr^{-1}(e_R) omega.
 
-How ``J_wB q_dot_B = b`` is solved (:mod:`balance_opt.analytic.least_squares`), with the SVD
-``J_wB = U S V^T``:
-
-* square and well conditioned (``sigma_min >= damping_threshold``): the exact solve;
-* near a singular configuration (``sigma_min < damping_threshold``): damped least squares
-  ``q_dot_B = V S / (S^2 + lambda^2) U^T b`` with the variable damping
-  ``lambda^2 = max_damping^2 (1 - (sigma_min / damping_threshold)^2)^2``, continuous with a
-  continuous derivative in ``sigma_min`` (so ``q_ddot_B`` stays continuous). The base angular
-  velocity it leaves is reported;
-* more joints than 3 (a redundant arm, or several balance arms stacked): the same minimum-norm
-  (damped) inverse plus a null-space term ``(I - V V^T) z``, ``z = -k (q_B - q_goal)``, the
-  projector onto the exact null space of ``J_wB``, so that the null-space motion never rotates
-  the base. The default goal is the middle of the joint range (the initial position for a joint
-  without finite limits).
-
-``q_ddot_B`` is the exact time derivative of this velocity law (damping and null-space terms
-included), wherever ``J_wB`` has full rank.
+``J_wB q_dot_B = b`` is solved by :mod:`balance_opt.analytic.least_squares`: exactly, by
+damped least squares near a singular ``J_wB`` (``sigma_min < damping_threshold``; the base
+rate it leaves is reported), or with a null-space term ``z = -k (q_B - q_goal)`` for more than 3
+balance joints (default goal: the middle of each joint's range, the start for a joint without
+finite limits). ``q_ddot_B`` is the exact time derivative of that velocity law.
 """
 
 from __future__ import annotations
@@ -127,32 +115,22 @@ class BalanceLaw:
     """The analytic balance law of a robot, evaluated with numeric Pinocchio.
 
     Args:
-        robot: the floating robot.
         options: law settings (defaults: :class:`BalanceLawOptions`).
         q_B0: initial balance configuration [rad]; the null-space goal of joints without finite
             limits (default: the neutral configuration).
-        reference: ``R_0`` of the attitude feedback, a quaternion (x, y, z, w) (default identity).
 
     Raises:
         InputError: a null-space goal of the wrong size.
     """
 
-    def __init__(
-        self,
-        robot: FloatingRobot,
-        options: BalanceLawOptions | None = None,
-        q_B0=None,
-        reference=None,
-    ):
+    def __init__(self, robot: FloatingRobot, options: BalanceLawOptions | None = None, q_B0=None):
         self.robot = robot
         self.options = options or BalanceLawOptions()
         self.maps = NumericMaps(robot)
         self.mission = robot.mission_indices
         self.balance = robot.balance_indices
         self.goal = self._null_space_goal(q_B0)
-        self.reference = (
-            IDENTITY_QUATERNION.copy() if reference is None else np.asarray(reference, dtype=float)
-        )
+        self.reference = IDENTITY_QUATERNION  # R_0 of the feedback: the initial attitude
         self.angular_momentum = self.options.angular_momentum
 
     def _null_space_goal(self, q_B0) -> np.ndarray:
@@ -198,13 +176,8 @@ class BalanceLaw:
 
     # ------------------------------------------------------------------ one sample
     def rates(self, q, q_dot_M, quaternion=None) -> LawSample:
-        """Balance joint rates at one instant (Eq. 31).
-
-        Args:
-            q: arm vector (mission and balance joints) [rad].
-            q_dot_M: mission joint rates [rad/s].
-            quaternion: base attitude (x, y, z, w), for ``h0`` and the feedback (default identity).
-        """
+        """Balance joint rates at one instant (Eq. 31) for the arm vector ``q`` [rad], the
+        mission rates ``q_dot_M`` [rad/s] and the base attitude (x, y, z, w; identity)."""
         q = np.asarray(q, dtype=float)
         quaternion = (
             IDENTITY_QUATERNION if quaternion is None else np.asarray(quaternion, dtype=float)
@@ -216,21 +189,10 @@ class BalanceLaw:
             sol.q_dot_B, s.omega, sol.residual, float(sol.sigma_min), float(sol.damping)
         )
 
-    def attitude_rate(self, q, q_dot_M, quaternion) -> tuple[np.ndarray, np.ndarray]:
-        """``(q_dot_B, omega)`` at one instant: the integrator's right-hand side."""
-        I_G, A = self.maps.angular_maps(q)
-        s = self._solve(I_G, A, q_dot_M, q[self.balance], quaternion)
-        return s.sol.q_dot_B, s.omega
-
     # ------------------------------------------------------------------ along a path
     def along(self, q, q_dot_M, q_ddot_M, quaternion) -> LawPath:
-        """The law along sampled states, batched (Eq. 31 and 32).
-
-        Args:
-            q: (T, n) arm vectors; the balance columns are the state the law acts from [rad].
-            q_dot_M, q_ddot_M: (T, n_M) mission rates and accelerations.
-            quaternion: (T, 4) base attitude.
-        """
+        """The law (Eq. 31 and 32) along sampled arm vectors ``q`` (T, n) [rad], mission rates
+        and accelerations (T, n_M) and base attitudes (T, 4)."""
         q = np.asarray(q, dtype=float)
         Ag = self.maps.centroidal(q)
         I_G, A = self.maps.angular_blocks(Ag)

@@ -1,9 +1,6 @@
-"""Settings of the analytic balance law (Eq. 31, 32; ``docs/physics.md``, "The balance law").
-
-Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
-its meaning, its unit and its bounds serve Python calls and the ``analytic`` section of task
-files alike (``balance-opt validate --reference``).
-"""
+"""Settings of the analytic balance law (Eq. 31, 32; ``docs/physics.md``, "The balance law"),
+declared once for Python calls and the ``analytic`` section of task files
+(:func:`~balance_opt.config.typed_config.setting`)."""
 
 from __future__ import annotations
 
@@ -25,16 +22,9 @@ DEFAULT_NULL_SPACE_GAIN = 1.0
 
 @dataclass(frozen=True)
 class BalanceLawOptions:
-    """Settings of the analytic balance law.
-
-    Below ``damping_threshold`` (``epsilon``) damped least squares replaces the exact solve of
-    ``J_wB q_dot_B = b``, with the damping ``lambda = max_damping (1 - (sigma_min /
-    epsilon)^2)``, 0 above; a threshold of 0 always solves exactly (a pseudo-inverse for a
-    non-square ``J_wB``). The null-space term ``z = -k (q_B - q_goal)`` (gain
-    ``null_space_gain``) only acts when the balance joints are more than 3; the default goal
-    is the middle of each joint's range (its initial position if the joint has no finite
-    limits). ``h0`` is set from the task's ``initial.momentum``, not from the ``analytic``
-    section.
+    """Settings of the analytic balance law (how they act:
+    :mod:`balance_opt.analytic.least_squares`). ``h0`` comes from the task's
+    ``initial.momentum``.
 
     Raises:
         InputError: a field that does not fit its declaration (``"balance law option

@@ -18,10 +18,10 @@ from balance_opt.analytic.law import BalanceLaw
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.errors import InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.integration import initial_quaternion, integrate, output_grid
+from balance_opt.motion.integration import integrate, output_grid
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.so3 import quaternion_rate
+from balance_opt.motion.so3 import IDENTITY_QUATERNION, quaternion_rate
 from balance_opt.motion.trajectories import TrajectoryLike, as_sampler
 from balance_opt.result import BalanceResult
 
@@ -36,22 +36,15 @@ def rollout(
     *,
     integration: IntegrationOptions | None = None,
     t_eval=None,
-    quaternion0=None,
 ) -> BalanceResult:
-    """Phase II: the balance trajectory of the analytic law (Eq. 31) along a mission motion.
-
-    Integrates the base attitude and the balance joints together; ``q_dot_B`` at the output
-    times is the law at the integrated state and ``q_ddot_B`` is Eq. 32 there (the exact time
-    derivative of the law).
+    """Phase II: the balance trajectory of the analytic law (Eq. 31, 32) along a mission motion
+    (see the module docstring).
 
     Args:
-        robot: the floating robot.
         mission: the mission arm's motion (see :func:`~balance_opt.motion.trajectories.as_sampler`).
         q_B0: initial balance joint positions [rad].
         options: the law's settings (``h0``, damping, null space, feedback).
-        integration: integrator settings.
         t_eval: output times [s] (default: every ``integration.output_step`` over the mission).
-        quaternion0: initial base attitude (x, y, z, w), also the feedback's ``R_0`` (identity).
 
     Returns:
         A result with ``method="analytic"``; ``info`` holds the law's options, damping and
@@ -70,8 +63,7 @@ def rollout(
         raise InputError(
             f"initial balance configuration has {q_B0.size} values, the balance joints are {B.size}"
         )
-    quat0 = initial_quaternion(quaternion0)
-    law = BalanceLaw(robot, options, q_B0=q_B0, reference=quat0)
+    law = BalanceLaw(robot, options, q_B0=q_B0)
     t = output_grid(t_eval, duration, integration)
     q_buf = np.empty(robot.n)
 
@@ -79,10 +71,10 @@ def rollout(
         qM, qdM, _ = sample_M(np.array([ti]))
         q_buf[M] = qM[0]
         q_buf[B] = y[4:]
-        q_dot_B, omega = law.attitude_rate(q_buf, qdM[0], y[:4] / np.linalg.norm(y[:4]))
-        return np.concatenate((quaternion_rate(y[:4], omega), q_dot_B))
+        s = law.rates(q_buf, qdM[0], y[:4] / np.linalg.norm(y[:4]))
+        return np.concatenate((quaternion_rate(y[:4], s.omega), s.q_dot_B))
 
-    Y, stats, failure = integrate(rhs, np.r_[quat0, q_B0], t, integration)
+    Y, stats, failure = integrate(rhs, np.r_[IDENTITY_QUATERNION, q_B0], t, integration)
     result = _result(law, sample_M, t[: Y.shape[0]], Y, stats)
     if failure is not None:
         reason = (

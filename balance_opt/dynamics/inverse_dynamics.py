@@ -62,7 +62,6 @@ def free_floating_torques(
     """Free-floating inverse dynamics of a motion of every arm joint (see the module docstring).
 
     Args:
-        robot: the floating robot.
         q, q_dot, q_ddot: arm joint positions, rates and accelerations (T, n), arm order
             (``robot.joint_names``) [rad, rad/s, rad/s^2; m for prismatic joints].
         quaternion: base attitude (T, 4), (x, y, z, w); needed only when ``h0`` is not zero
@@ -104,10 +103,11 @@ def free_floating_torques(
     return InverseDynamics(tuple(robot.joint_names), tau, twist, acc)
 
 
-def plan_torques(robot: FloatingRobot, result: BalanceResult, h0=None) -> InverseDynamics:
-    """:func:`free_floating_torques` of a plan's joint motion (its mission and balance joints;
-    any other arm joint held still at its neutral position), with the plan's base attitude for
-    a non-zero momentum ``h0`` (world frame [N s; N m s])."""
+def plan_joint_torques(result: BalanceResult, robot: FloatingRobot, h0=None) -> np.ndarray:
+    """Joint torques (T, n) of a plan's joint motion by :func:`free_floating_torques` (any arm
+    joint not in the plan held still at its neutral position), columns in the order of the
+    plan's mission then balance joints [N m; N for prismatic joints], with the plan's base
+    attitude for the system's momentum ``h0`` (world frame; zero by default)."""
     names = (*result.mission_joints, *result.balance_joints)
     columns = [robot.joint_index(j) for j in names]
     T = result.t.size
@@ -116,12 +116,4 @@ def plan_torques(robot: FloatingRobot, result: BalanceResult, h0=None) -> Invers
     q[:, columns] = np.hstack([result.q_M, result.q_B])
     q_dot[:, columns] = np.hstack([result.q_dot_M, result.q_dot_B])
     q_ddot[:, columns] = np.hstack([result.q_ddot_M, result.q_ddot_B])
-    return free_floating_torques(robot, q, q_dot, q_ddot, result.quaternion, h0)
-
-
-def plan_joint_torques(result: BalanceResult, robot: FloatingRobot, h0=None) -> np.ndarray:
-    """Joint torques (T, n) of :func:`plan_torques`, columns in the order of the plan's mission
-    then balance joints [N m; N for prismatic joints], for the system's momentum ``h0`` (world
-    frame; zero by default)."""
-    names = (*result.mission_joints, *result.balance_joints)
-    return plan_torques(robot, result, h0).tau[:, [robot.joint_index(j) for j in names]]
+    return free_floating_torques(robot, q, q_dot, q_ddot, result.quaternion, h0).tau[:, columns]

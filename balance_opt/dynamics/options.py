@@ -1,9 +1,5 @@
-"""Settings of the forward-dynamics simulation.
-
-Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
-its meaning, its unit and its bounds serve Python calls and the ``simulation`` section of task
-files alike (``balance-opt validate --reference``).
-"""
+"""Settings of the forward-dynamics simulation, declared once for Python calls and the
+``simulation`` section of task files (:func:`~balance_opt.config.typed_config.setting`)."""
 
 from __future__ import annotations
 
@@ -31,11 +27,8 @@ class SimulationOptions:
     components scaled as if of unit size. ``output_dt`` is rounded to a whole number of
     ``"rk4"`` steps; ``None`` outputs every ``"rk4"`` step (``"dopri5"``: every 0.01 s). The
     default gains are ``kp = M_ii bandwidth^2`` and ``kd = 2 damping_ratio bandwidth M_ii``,
-    ``M_ii`` the joint's diagonal inertia at the start. With ``controller: pd`` and
-    ``feedforward`` (the default) the PD terms are added to the plan's torques; the
-    ``computed-torque`` controller has its own feedforward, from the simulated state, and ignores
-    ``feedforward``. ``h0`` is set from the task's
-    ``initial.momentum``, not from the ``simulation`` section.
+    ``M_ii`` the joint's diagonal inertia at the start. ``h0`` comes from the task's
+    ``initial.momentum``.
 
     Raises:
         InputError: a field that does not fit its declaration (``"simulation option 'dt': must

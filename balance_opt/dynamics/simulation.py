@@ -1,36 +1,18 @@
 """Forward-dynamics simulation of the free-floating robot: the check every balance plan goes
 through.
 
-The system is the free-flyer base and its arms with no gravity, no external wrench, no
-thrusters or wheels (``docs/physics.md``, "Forces on the base"); its momentum is therefore
-constant. Accelerations come from Pinocchio's articulated-body algorithm (``pin.aba``) with the
-joint torques of one of two controllers that track the planned trajectories of *all* arm joints
-(mission and balance):
+No gravity, no external wrench (``docs/physics.md``, "Forces on the base"): the momentum is
+constant. Accelerations come from ``pin.aba`` with the torques of a controller that tracks the
+planned motion of *all* arm joints: ``"pd"`` (the paper's Phase I controller), by default plus
+the plan's own free-floating inverse-dynamics torques (``docs/executable-plans.md``, "Tracked as
+planned"), or ``"computed-torque"``, whose feedforward comes from the simulated state: the base
+rows of ``M(q) [a_b; q_ddot_d] + h = [0; tau]`` give ``a_b = -M_bb^{-1} (M_bj q_ddot_d + h_b)``
+and the joint rows the torque.
 
-* ``"pd"``, the paper's Phase I controller: ``tau = K_p (q_d - q) + K_d (q_dot_d - q_dot)``,
-  by default plus the plan's own torques ``tau_d`` (``feedforward``): the free-floating inverse
-  dynamics of the planned ``q_d, q_dot_d, q_ddot_d`` (base unactuated, its twist from momentum
-  conservation, :mod:`balance_opt.dynamics.inverse_dynamics`), which a robot would be sent with
-  the plan. A plan the robot can follow is then followed to the integration error; PD alone
-  trails it by about ``q_ddot_d / K_p``;
-* ``"computed-torque"``: the free-floating inverse dynamics of the planned joint accelerations
-  plus the same PD terms. With the joint accelerations ``q_ddot_d`` given, the base
-  acceleration follows from the base rows of ``M(q) [a_b; q_ddot_d] + h = [0; tau]``
-  (the base is unactuated), ``a_b = -M_bb^{-1} (M_bj q_ddot_d + h_b)``, and the joint rows give
-  the feed-forward torque.
-
-Mimic joints that follow an arm joint are driven by it: in the coordinates ``nu = [base twist;
-q_dot]`` with ``v = G nu`` (``FloatingRobot.velocity_map``, constant), the accelerations are
-``a = G (G^T M G)^{-1} G^T (tau - h)``, Pinocchio's ``crba`` and ``nonLinearEffects`` in place
-of ``aba``; the follower's reaction is no torque of the driver's.
-
-Integration keeps the configuration on its manifold (:mod:`balance_opt.dynamics.rkmk`: RK4 or
-an adaptive Dormand-Prince 5(4), both Runge-Kutta-Munthe-Kaas schemes).
-
-The initial state is the planned joint state at ``t = 0`` and the base twist that gives the
-system its initial momentum ``h0`` (zero by default):
-``v_b = A_b^{-1} (h0 - A_j q_dot)`` (``J_base q_dot`` for ``h0 = 0``, paper Eq. 19, 26), by
-:meth:`balance_opt.model.maps.NumericMaps.base_twist`.
+Mimic followers move with their drivers: with ``v = G nu`` (``FloatingRobot.velocity_map``),
+``a = G (G^T M G)^{-1} G^T (tau - h)`` replaces ``aba``. Integration keeps the configuration on
+its manifold (:mod:`balance_opt.dynamics.rkmk`). The initial base twist gives the system its
+momentum ``h0`` (zero by default): ``v_b = A_b^{-1} (h0 - A_j q_dot)`` (Eq. 19, 26).
 """
 
 from __future__ import annotations
@@ -51,7 +33,7 @@ from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.momentum_check import MOMENTUM_SCALE_FLOOR
-from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory
+from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory, arm_samples
 from balance_opt.result import AttitudeHistory, BalanceResult
 
 log = logging.getLogger(__name__)
@@ -106,13 +88,7 @@ class _ArmPlan:
         """``(q, q_dot, q_ddot)`` at times ``t``, each (T, n), and the plan's torques (T, n)
         with :meth:`add_feedforward`."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        out = [np.empty((t.size, self.robot.n)) for _ in range(3)]
-        for traj, idx in (
-            (self.mission, self.robot.mission_indices),
-            (self.balance, self.robot.balance_indices),
-        ):
-            for o, s in zip(out, traj.sample(t)):
-                o[:, idx] = np.reshape(s, (t.size, -1))
+        out = arm_samples(self.robot, self.mission.sample, self.balance.sample, t)
         if not self.feedforward:
             return tuple(out)
         quaternion = None
@@ -362,24 +338,18 @@ def simulate(
     options: SimulationOptions | None = None,
     *,
     duration: float | None = None,
-    base: pin.SE3 | None = None,
     initial_state: tuple[np.ndarray, np.ndarray] | None = None,
     attitude: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SimulationResult:
     """Simulate the free-floating robot tracking a mission and a balance trajectory.
 
     Args:
-        robot: the floating robot.
-        mission: the mission arm's planned motion: anything with ``sample(t) -> (q, q_dot,
-            q_ddot)`` and ``duration``
-            (a :class:`~balance_opt.motion.trajectories.JointTrajectory`),
-            a :class:`BalanceResult` (its mission part, interpolated), or a position (n_M,) [rad]
-            to hold.
+        mission: the mission arm's planned motion: a
+            :class:`~balance_opt.motion.trajectories.JointTrajectory`, a :class:`BalanceResult`
+            (its mission part, interpolated), or a position (n_M,) [rad] to hold.
         balance: the balance arms' planned motion, same forms (n_B joints, balance arms
             stacked in order).
-        options: see :class:`SimulationOptions`.
         duration: simulated time [s]; the longer of the two trajectories by default.
-        base: initial base pose in the world (identity by default).
         initial_state: Pinocchio ``(q, v)`` to start from instead of the plan's start with the
             twist of ``options.h0`` (after a capture's impulse, say).
         attitude: the plan's base attitude, ``(t, quaternion)`` samples, for the feedforward
@@ -409,9 +379,8 @@ def simulate(
     if opts.feedforward and opts.controller == "pd":
         plan.add_feedforward(h0, attitude)
     if initial_state is None:  # the plan's start, the base twist of the momentum h0
-        R = (base or pin.SE3.Identity()).rotation
-        twist = NumericMaps(robot).base_twist(q0, qd0, np.r_[R.T @ h0[:3], R.T @ h0[3:]])
-        initial_state = robot.pin_q(q0, base), robot.pin_v(qd0, twist)
+        twist = NumericMaps(robot).base_twist(q0, qd0, h0)  # the base starts at the identity
+        initial_state = robot.pin_q(q0), robot.pin_v(qd0, twist)
     x0 = initial_state
 
     if opts.integrator == "rk4":
@@ -488,13 +457,7 @@ def simulate_plan(
     """Simulate a plan: its mission and balance motions (interpolated between its samples)
     tracked by the controller. Keyword arguments go to :func:`simulate`."""
     kwargs.setdefault("attitude", (plan.t, plan.quaternion))
-    return simulate(
-        robot,
-        SampledTrajectory.from_result(plan, "mission"),
-        SampledTrajectory.from_result(plan, "balance"),
-        options,
-        **kwargs,
-    )
+    return simulate(robot, plan, plan, options, **kwargs)
 
 
 def _postprocess(robot, dyn: _Dynamics, plan: _ArmPlan, t, Q, V, A, TAU, h0) -> SimulationResult:

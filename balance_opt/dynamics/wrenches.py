@@ -1,15 +1,10 @@
 """The wrench each arm exerts on the base (paper Fig. 4), from the free-floating dynamics.
 
-Running Pinocchio's RNEA with the accelerations a forward-dynamics simulation produced gives, in
-``data.f[j]``, the spatial force that body ``j``'s parent transmits to it across joint ``j``
-(joint ``j``'s frame). For an arm's *root joint* (its first joint, whose parent is the base)
-this is the force the base exerts on the whole arm; the arm exerts its opposite on the base.
-Transformed to the base frame and summed over the arms it equals the base's Newton-Euler
-wrench ``I_b a_b + v_b x* I_b v_b`` (``docs/physics.md``, "Forces on the base"), because the
-free-flyer joint carries no torque.
-
-Wrenches are 6-vectors ``[force; torque]`` in base-frame axes, torque about the base frame's
-origin (the base centroid for the paper robot) [N, N m].
+Pinocchio's RNEA, run with the accelerations of a forward-dynamics simulation, gives in
+``data.f[j]`` the spatial force joint ``j``'s parent body transmits to body ``j`` (joint ``j``'s
+frame). At an arm's *root joint* (the one whose parent is the base) this is the force the base
+exerts on the whole arm, the opposite of the arm's on the base. Summed over the arms it equals
+the base's Newton-Euler wrench (``docs/physics.md``, "Forces on the base").
 """
 
 from __future__ import annotations
@@ -69,7 +64,6 @@ def arm_wrenches_on_base(
     """The wrench each arm exerts on the base along a motion (paper Fig. 4).
 
     Args:
-        robot: the floating robot.
         q_pin, v, a: Pinocchio configurations (T, nq), velocities and accelerations (T, nv) of a
             motion that obeys the free-floating dynamics (for instance the ABA accelerations of
             a simulation); base twist and acceleration in the base frame.

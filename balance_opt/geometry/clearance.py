@@ -1,24 +1,17 @@
-"""How close a motion brings the robot's bodies to each other, on the continuous motion.
+"""How close a motion brings the robot's bodies to each other, on the continuous motion
+(``docs/collision.md``, "The clearance of a motion").
 
-The motion is given by samples of the arm vector; between two samples it is the straight line
-in joint space (the re-simulated plans are sampled every 10 ms or finer, where that line is
-within ``h^2 |q_ddot| / 8`` of the plan). Exact distances (coal) are computed at samples,
-and between them *conservative advancement* bounds the motion: over an interval every point
-of a body moves at most ``sum_j |dq_j| R_j`` (``R_j``: the largest distance from joint ``j`` to
-a point of the body, a constant of the robot, :attr:`RobotGeometry.reach`), so a pair whose
-distances at the interval's ends are ``d_a``, ``d_b`` and whose two bodies move by at most ``M``
-stays at least ``(d_a + d_b - M) / 2`` apart. Where that bound could be below the pair's
-smallest distance so far (by more than ``resolution``), the interval is split at its midpoint
-and the distance computed there, down to ``min_step``. A thin link swept through a body
-between two samples is found this way; a sampled check would miss it.
+Between two samples the motion is the straight line in joint space. Distances (coal) are exact
+at samples; in between, *conservative advancement* bounds them: every point of a body moves at
+most ``sum_j |dq_j| R_j`` (:attr:`RobotGeometry.reach`), so a pair ``d_a``, ``d_b`` apart at an
+interval's ends, its bodies moving by at most ``M``, stays ``(d_a + d_b - M) / 2`` apart. An
+interval whose bound could be below the pair's smallest distance so far (by more than
+:data:`RESOLUTION`) is split, down to :data:`MIN_STEP`; pairs beyond ``watch`` are only certified to
+stay beyond it.
 
-Every pair's distance is computed at every :data:`COARSE`-th sample; an interval
-between them is split at its middle sample first (its halves bounded by the joints' travel
-over their samples), between two samples at its middle time. Pairs that stay farther than
-``watch`` are not refined that finely: their lower bound is certified above
-``watch - resolution``, their minimum is the smallest one computed. The first penetration's
-time is where its pair first touches, found from the start by the same bound (advancing by
-its distance over its bodies' largest speed).
+Every pair is computed at every :data:`COARSE`-th sample; an interval between them is split at
+its middle sample first, between two samples at its middle time. The first penetration's time
+is where its pair first touches, found from the start by the same bound.
 """
 
 from __future__ import annotations
@@ -152,17 +145,6 @@ def _lower(da, db, motion):
     return np.where(np.abs(da - db) >= motion, np.minimum(da, db), 0.5 * (da + db - motion))
 
 
-def _pair_distance(geometry, pair: int, configuration):
-    """``distance(time)`` of one pair along the motion."""
-
-    def distance(time):
-        geometry.place(configuration(time))
-        gm, gd = geometry.geometry_model, geometry.geometry_data
-        return pin.computeDistance(gm, gd, pair).min_distance
-
-    return distance
-
-
 def _first_contact(distance, t, motion, until: float, tolerance: float = 1e-6) -> float:
     """The first time a pair touches (distance within ``tolerance``), at the latest ``until``
     (a time it does), by conservative advancement from ``t[0]``: on the step of the samples
@@ -189,7 +171,7 @@ def _refine(geometry, index, items, configuration, state, limits) -> int:
     more than one step of the samples ``i_a .. i_b`` it is split at a sample, whose halves'
     bounds come from ``motion(i, j)``; below, at its middle (the straight line), halving it."""
     best, best_t, lower, first = state
-    resolution, watch, min_step, t, motion = limits
+    watch, t, motion = limits
     geom, gdata = geometry.geometry_model, geometry.geometry_data
     evaluations = 0
     while items:
@@ -216,7 +198,7 @@ def _refine(geometry, index, items, configuration, state, limits) -> int:
                     halves = ((ta, tm, da, dm, 0.5 * m, ia, ib), (tm, tb, dm, db, 0.5 * m, ia, ib))
                 for a, b, d1, d2, mh, i1, i2 in halves:
                     bound = float(_lower(d1, d2, mh))
-                    if bound >= min(best[c], watch) - resolution or b - a <= min_step:
+                    if bound >= min(best[c], watch) - RESOLUTION or b - a <= MIN_STEP:
                         lower[c] = min(lower[c], bound)
                     else:
                         items.append((c, a, b, d1, d2, mh, i1, i2))
@@ -228,9 +210,7 @@ def clearance(
     t,
     q,
     pairs: Sequence[int] | None = None,
-    resolution: float = RESOLUTION,
     watch: float = WATCH,
-    min_step: float = MIN_STEP,
 ) -> ClearanceReport:
     """The clearance of a motion of the robot (see the module docstring).
 
@@ -239,9 +219,7 @@ def clearance(
         t: sample times (T,) [s], increasing.
         q: the arm vector at each sample (T, n) [rad or m] (mission arm, then balance arms).
         pairs: indices of the pairs to check (default: every pair of ``geometry``).
-        resolution: precision of each pair's smallest distance [m].
         watch: pairs farther than this are only certified to stay beyond it [m].
-        min_step: shortest interval split [s].
     """
     t = np.asarray(t, dtype=float).ravel()
     q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -267,7 +245,7 @@ def clearance(
     coarse = np.unique(np.r_[np.arange(0, t.size, COARSE), t.size - 1])
     D = np.empty((coarse.size, index.size))
     for row, k in enumerate(coarse):
-        pin.computeDistances(model, data, geom, gdata, geometry.pin_q(q[k]))
+        pin.computeDistances(model, data, geom, gdata, geometry.robot.pin_q(q[k]))
         results = gdata.distanceResults
         D[row] = [results[int(i)].min_distance for i in index]
     evaluations = D.size
@@ -278,7 +256,7 @@ def clearance(
     neg = D <= 0.0
     first = [(t[coarse[np.argmax(neg[:, c])]], c) for c in range(index.size) if neg[:, c].any()]
     items = []  # see _refine
-    target = np.minimum(best, watch) - resolution
+    target = np.minimum(best, watch) - RESOLUTION
     for r in range(coarse.size - 1):
         ia, ib = int(coarse[r]), int(coarse[r + 1])
         m = (travel[ib] - travel[ia]) @ coef.T
@@ -291,7 +269,7 @@ def clearance(
         return np.array([np.interp(time, t, q[:, j]) for j in range(q.shape[1])])
 
     state = (best, best_t, lower, first)
-    limits = (resolution, watch, min_step, t, motion)
+    limits = (watch, t, motion)
     evaluations += _refine(geometry, index, items, configuration, state, limits)
     lower = np.minimum(lower, best)
     report = tuple(
@@ -304,7 +282,10 @@ def clearance(
         # advancement (the refinement finds penetrations, not where they begin)
         contacts = []
         for c in sorted({c for _, c in first}):
-            distance = _pair_distance(geometry, int(index[c]), configuration)
+
+            def distance(time, pair=int(index[c])):
+                return geometry.distances(configuration(time), [pair])[0]
+
             until = min(tn for tn, k in first if k == c)
             contacts.append((_first_contact(distance, t, partial(motion, c=c), until), c))
         tp, c = min(contacts)

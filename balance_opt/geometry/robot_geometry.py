@@ -1,31 +1,17 @@
 """The volume of a robot's bodies: Pinocchio's geometry model of its URDF, the pairs of bodies
-that are checked against each other, and exact distances (coal).
+that are checked against each other, and exact distances (coal). ``docs/collision.md`` says
+where the geometry comes from and which pairs are checked.
 
-A *body* is what moves as one piece: a joint of the robot's reduced model (``robot.model``,
-locked joints folded into their parents, the base and everything fixed to it one body). The
-geometry comes from the URDF's ``<collision>`` elements, or from its ``<visual>`` elements when
-it has none (:attr:`RobotGeometry.source` says which). Meshes are replaced by their convex
-hulls: coal reads a mesh as its triangles, so a body deep inside a mesh reads as a small
-distance, while the hull's distance is signed; the hull also contains the mesh, so a clearance
-measured on hulls holds for the meshes.
-
-Pairs of geometry objects left out (:attr:`RobotGeometry.ignored`, with the reason):
-
-* ``same body``: objects of one body never move against each other;
-* ``adjacent``: objects of a body and of its parent body (they touch at the joint by design;
-  not a captured target, :data:`~balance_opt.model.capture.TARGET_LINK`, which is checked
-  against the link before the one that holds it);
-* ``srdf``: pairs an SRDF's ``<disable_collisions>`` names (example-robot-data ships some,
-  found next to the URDF);
-* ``ignored``: pairs the caller names (by link names).
-
-Pairs already in contact at a configuration are found by :meth:`RobotGeometry.contacts`; the
-planner reports them and leaves them out of that plan.
+A *body* is a joint of the robot's reduced model (the base and everything fixed or locked to it
+one body). Meshes are replaced by their convex hulls: a hull's distance is signed, and a
+clearance measured on hulls holds for the meshes. Pairs left out (:attr:`RobotGeometry.ignored`)
+are those of one body (``same body``), of a body and its parent (``adjacent``; not a captured
+target, :data:`~balance_opt.model.capture.TARGET_LINK`: it meets no link at a joint), named by
+an SRDF (``srdf``) or by the caller (``ignored``).
 """
 
 from __future__ import annotations
 
-import importlib.metadata
 import logging
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Sequence
@@ -38,12 +24,10 @@ import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.model.capture import TARGET_LINK
+from balance_opt.model.catalog import DISTRIBUTION, example_robots
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
-
-#: The distribution whose share folder resolves ``package://`` paths of its robots.
-EXAMPLE_ROBOT_DATA = "example-robot-data"
 
 
 class NoGeometryError(InputError):
@@ -73,19 +57,11 @@ class Pair:
 def package_dirs(urdf_path: Path | None) -> list[str]:
     """Folders ``package://`` paths resolve against: example-robot-data's share folder (the one
     that holds ``example-robot-data/``), and the URDF's folder and the two above it."""
-    out = []
     try:
-        dist = importlib.metadata.distribution(EXAMPLE_ROBOT_DATA)
-    except importlib.metadata.PackageNotFoundError:
-        dist = None
-    for f in (dist.files or ()) if dist is not None else ():
-        parts = Path(str(f)).parts
-        if EXAMPLE_ROBOT_DATA not in parts[:-1]:
-            continue
-        if parts[parts.index(EXAMPLE_ROBOT_DATA) + 1] == "robots":
-            share = Path(str(dist.locate_file(Path(*parts[: parts.index(EXAMPLE_ROBOT_DATA)]))))
-            out.append(str(share))
-            break
+        path = next(iter(example_robots().values()))  # <share>/example-robot-data/robots/...
+        out = [str(Path(*path.parts[: path.parts.index(DISTRIBUTION)]))]
+    except (InputError, StopIteration, ValueError):  # not installed, or not laid out so
+        out = []
     if urdf_path is not None:
         folder = urdf_path.resolve().parent
         out += [str(folder), str(folder.parent), str(folder.parent.parent)]
@@ -119,8 +95,6 @@ class RobotGeometry:
         ignore: pairs of link names left out as well.
 
     Attributes:
-        robot: as given.
-        model: ``robot.model``.
         geometry_model: Pinocchio's geometry model (meshes as convex hulls), its collision pairs
             the checked ones.
         source: ``"collision"`` or ``"visual"``: the URDF elements the geometry was built from.
@@ -243,15 +217,11 @@ class RobotGeometry:
         return [self.model.getJointId(j) for j in self.robot.model_joint_names]
 
     # ------------------------------------------------------------------ distances
-    def pin_q(self, q) -> np.ndarray:
-        """Pinocchio configuration of the arm vector ``q``, base at the identity (distances
-        between the robot's own bodies do not depend on the base pose)."""
-        return self.robot.pin_q(q)
-
     def place(self, q) -> None:
-        """Place every object at the arm configuration ``q``."""
+        """Place every object at the arm configuration ``q``, base at the identity (distances
+        between the robot's own bodies do not depend on the base pose)."""
         pin.updateGeometryPlacements(
-            self.model, self.data, self.geometry_model, self.geometry_data, self.pin_q(q)
+            self.model, self.data, self.geometry_model, self.geometry_data, self.robot.pin_q(q)
         )
 
     def distances(self, q, pairs: Sequence[int] | None = None) -> np.ndarray:
@@ -269,21 +239,13 @@ class RobotGeometry:
     def smallest_along(self, q, pairs: Sequence[int] | None = None) -> np.ndarray:
         """The smallest distance [m] of the pairs (indices, default all) at every configuration
         of ``q`` (T, n) (inf without pairs)."""
-        out = np.full(len(q), np.inf)
-        if self.pairs and (pairs is None or len(pairs)):
-            for k, qk in enumerate(q):
-                out[k] = self.distances(qk, pairs).min()
-        return out
+        if not self.pairs or (pairs is not None and not len(pairs)):
+            return np.full(len(q), np.inf)
+        return np.array([self.distances(qk, pairs).min() for qk in q])
 
     def distances_along(self, q, pair: int) -> np.ndarray:
         """The distance [m] of pair ``pair`` at every configuration of ``q`` (T, n)."""
-        out = np.empty(len(q))
-        for k, qk in enumerate(q):
-            self.place(qk)
-            out[k] = pin.computeDistance(
-                self.geometry_model, self.geometry_data, int(pair)
-            ).min_distance
-        return out
+        return np.array([self.distances(qk, [pair])[0] for qk in q])
 
     def contacts(self, q) -> list[Pair]:
         """The checked pairs in contact (distance <= 0) at the arm configuration ``q``."""

@@ -1,31 +1,19 @@
 """Smooth shapes that contain the robot's bodies, and their distances as CasADi expressions of
-the joint positions: what the optimal planner's collision constraints are written with.
+the joint positions: what the optimal planner's collision constraints are written with
+(``docs/collision.md``, "Collision avoidance in the optimal planner").
 
-Exact distances between meshes or cylinders are not smooth functions of the configuration, so
-the planner works with simpler shapes fitted around them (:func:`fit_shapes`):
+:func:`fit_shapes`: every body but the base gets one capsule containing its geometry (exact for
+a lone cylinder, sphere or capsule, else fitted around points whose hull contains it, along the
+principal axis of smallest volume); each object of the base gets its own shape (a box stays a
+box, a mesh gets the box around it, a primitive its exact capsule).
 
-* every body but the base gets one *capsule* (a segment and a radius: the points within the
-  radius of the segment) that contains all its geometry: a cylinder, sphere or capsule alone is
-  its own exact capsule; otherwise the capsule is fitted around points whose convex hull
-  contains the geometry (a box's corners, a mesh hull's vertices, a prism around each
-  cylinder), along the axis (of the three principal ones) that gives the smallest volume;
-* the base (the root body, with everything fixed to it) is large and irregular: each of its
-  objects gets a shape of its own: a box stays the exact box, a mesh gets the box around it
-  in its own frame, a cylinder, sphere or capsule its exact capsule.
-
-Distances, in :func:`clearance_expressions`: capsule to capsule is the segments' distance less
-the radii; capsule to box is the smallest signed distance from the box of the centres of
-spheres strung along the capsule's segment (spaced by at most its radius, each sphere's radius
-enlarged so that together they contain the capsule) less that radius. A shape's distance is
-never larger than the true one (the shapes contain the bodies): a constraint on it is safe.
-
-The planner bounds one quantity per body that the balance joints move: the *soft minimum*
-``m - log(sum_k exp(-beta (d_k - m))) / beta`` (``m = min_k d_k``) of the distances of all its
-pairs: smooth, and below the smallest of them by at most ``log(n) / beta``.
-
-Symbolic placements come from a forward kinematics over the numeric Pinocchio model
-(:func:`joint_placements`): revolute, continuous and prismatic joints about any axis, the base
-at the identity (distances between the robot's bodies do not depend on the base pose).
+Distances (:func:`shape_distance`): capsule to capsule, the segments' distance less the radii;
+capsule to box, the soft minimum of the signed distances of spheres strung along the capsule
+(spaced by at most its radius, enlarged to contain it). The shapes contain the bodies, so a
+constraint on their distance is safe. A row bounds the *soft minimum*
+``m - log(sum_k exp(-beta (d_k - m))) / beta`` (``m = min_k d_k``) of a body's pairs: smooth,
+at most ``log(n) / beta`` below the smallest. Placements (:func:`joint_placements`) are a
+forward kinematics of revolute, continuous and prismatic joints, base at the identity.
 """
 
 from __future__ import annotations
@@ -35,7 +23,6 @@ from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
-import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.geometry.robot_geometry import RobotGeometry
@@ -45,8 +32,7 @@ from balance_opt.geometry.robot_geometry import RobotGeometry
 #: Ipopt takes more iterations to follow them (benchmarks/bench_collision.py, docs/collision.md).
 BETA = 500.0
 #: Spacing of the spheres along a capsule against a box, in capsule radii: the spheres grow by
-#: at most 12 % of the radius to cover the capsule. Half a radius (3 % larger spheres) gave the
-#: capture task the same plan (peak 0.0261 rad, clearance 0.0313 m) with kernels a third larger.
+#: at most 12 % of the radius to cover the capsule; closer spheres only make the kernels larger.
 SPHERE_SPACING = 1.0
 #: Sides of the prism fitted around a cylinder (its circumscribed polygon).
 PRISM_SIDES = 16
@@ -213,13 +199,6 @@ def joint_placements(geometry: RobotGeometry, q_model) -> dict[int, tuple]:
                 raise InputError(f"joint '{model.names[j]}' ({kind}): no collision kinematics")
         out[j] = (R, p)
     return out
-
-
-def numeric_placements(geometry: RobotGeometry, q) -> dict[int, pin.SE3]:
-    """Pinocchio's joint placements at the arm configuration ``q`` (base at the identity)."""
-    data = geometry.model.createData()
-    pin.forwardKinematics(geometry.model, data, geometry.pin_q(q))
-    return {j: data.oMi[j] for j in range(1, geometry.model.njoints)}
 
 
 # ---------------------------------------------------------------------------------- distances

@@ -231,11 +231,6 @@ def _build_key(toolchain: Toolchain) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
-def cache_folder() -> Path:
-    """``<kernel cache folder>/pinocchio-bridge`` (see ``default_cache_dir``)."""
-    return default_cache_dir() / FOLDER
-
-
 # ----------------------------------------------------------------------------- the program
 def _first_error(stderr: str) -> str:
     lines = [line.strip() for line in stderr.splitlines() if line.strip()]
@@ -324,7 +319,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     """The bridge program, built first if it is not cached (or if its cached bytes changed).
 
     Args:
-        cache_dir: folder of the program (default :func:`cache_folder`).
+        cache_dir: folder of the program (default ``<kernel cache folder>/pinocchio-bridge``).
 
     Returns:
         The program's build record.
@@ -333,7 +328,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
         BridgeUnavailable: no compiler, missing headers, or the build failed.
     """
     toolchain = find_toolchain()
-    folder = Path(cache_dir) if cache_dir is not None else cache_folder()
+    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir() / FOLDER
     program = folder / f"pinocchio_casadi_bridge_{_build_key(toolchain)}"
     known = _BUILT.get(program)
     if known is not None and known[0] == _signature(program):
@@ -351,31 +346,6 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
         raise BridgeUnavailable(f"build failed: {exc}") from exc
     _BUILT[program] = (_signature(program), record)
     return record
-
-
-def copy_programs(source_cache: Path, target_cache: Path) -> list[Path]:
-    """Copy the bridge programs built in the cache folder ``source_cache`` (those whose bytes
-    match their records) into ``target_cache``'s bridge folder, where it has none; the source
-    is only read (no lock taken, nothing written). A test session that keeps its own cache
-    seeds it from the user's this way instead of building the bridge again for minutes.
-
-    Returns:
-        The programs copied.
-    """
-    source, target = Path(source_cache) / FOLDER, Path(target_cache) / FOLDER
-    copied = []
-    for record in sorted(source.glob("pinocchio_casadi_bridge_*.json")):
-        program = record.with_suffix("")
-        destination = target / program.name
-        if destination.exists() or check_record(program)[0] is None:
-            continue
-        target.mkdir(parents=True, exist_ok=True)
-        partial = target / f"{program.name}.copy.tmp"
-        shutil.copy2(program, partial)
-        os.replace(partial, destination)  # the program before its record: never a record alone
-        shutil.copy2(record, target / record.name)
-        copied.append(destination)
-    return copied
 
 
 # ----------------------------------------------------------------------------- per robot

@@ -146,15 +146,9 @@ def attached_urdf(robot: FloatingRobot, target: Target) -> str:
 def attach_target(robot: FloatingRobot, target: Target) -> FloatingRobot:
     """The robot after the capture: same arms, locks, limits and end-effector frames, with the
     target rigidly attached to the mission end effector."""
-    lim = robot.limits
+    keys = ("lower", "upper", "velocity", "acceleration", "effort")
     limits = {
-        j: {
-            "lower": float(lim.lower[i]),
-            "upper": float(lim.upper[i]),
-            "velocity": float(lim.velocity[i]),
-            "acceleration": float(lim.acceleration[i]),
-            "effort": float(lim.effort[i]),
-        }
+        j: {k: float(getattr(robot.limits, k)[i]) for k in keys}
         for i, j in enumerate(robot.joint_names)
         if robot.joint_type(j) != "continuous"
     }

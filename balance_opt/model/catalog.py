@@ -1,15 +1,10 @@
 """The robots of example-robot-data, by name, and their joints grouped by chain
 (``balance-opt robots``).
 
-The robot files are those of the installed ``example-robot-data`` distribution (version 6 ships
-robot files only, with no Python loader), found through its metadata: every file ending in
-``.urdf``. A robot's name is its file's stem (``panda.urdf``: ``panda``); when two files share a
-stem, each is named after its description folder instead (``anymal_b_simple``,
-``anymal_c_simple``). :data:`ALIASES` adds the short names example-robot-data's own loaders use
-(``talos``: ``talos_reduced``, ``ur5``: ``ur5_robot``).
-
-The planners use only the kinematic and inertial model (``<inertial>``); meshes matter only to
-the 3D scene (:mod:`balance_opt.report.scene`).
+The robot files are the ``.urdf`` files of the installed ``example-robot-data`` distribution
+(version 6 ships no Python loader), found through its metadata. A robot's name is its file's
+stem (``panda.urdf``: ``panda``), or, when two files share a stem, its description folder's
+(``anymal_b_simple``); :data:`ALIASES` adds the short names example-robot-data's loaders use.
 
 A chain is a sequence of movable joints, each the only movable joint below the previous one; it
 starts below the root or below a joint where the tree branches, and ends at a leaf or at a joint

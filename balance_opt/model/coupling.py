@@ -5,16 +5,6 @@ Every formula takes its linear algebra (:class:`LinearAlgebra`) as an argument: 
 maps pass :data:`NUMPY`, the symbolic maps pass CasADi's. The maps are functions of the arm
 configuration alone, with the base at the identity pose (base-frame axes); columns are the
 base twist [linear; angular] in the base frame first, then the arm joints in arm order.
-
-* ``J_base = -A_b^{-1} A_j`` (Eq. 19): base twist per joint rates at zero momentum, from the
-  centroidal momentum matrix ``A_G = [A_b, A_j]``;
-* ``J_w = -I_G^{-1} A`` (Eq. 26): its angular rows, from the angular rows of ``A_G`` alone
-  (``I_G``, the locked inertia about the CoM, and ``A``, the joint columns): the base's linear
-  velocity adds no angular momentum about the CoM;
-* ``J_e* = J_e,j + J_e,b J_base`` (Eq. 20-21): an end effector's twist per joint rates with
-  the base moving as momentum conservation forces it; ``M`` (Eq. 22) is its arm's own columns;
-* ``N = J_base,arm M^+`` (Eq. 24): base twist per end-effector twist;
-* ``F_B = N^{-T} F_e`` (Eq. 25): wrench on the base per end-effector wrench.
 """
 
 from __future__ import annotations

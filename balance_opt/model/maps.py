@@ -64,31 +64,12 @@ class NumericMaps:
         self.model = robot.model
         self.data = robot.model.createData()
         self.mass = robot.total_mass
-        # model joints: the arm joints, then the mimic joints that follow them
-        ids = [self.model.getJointId(j) for j in robot.model_joint_names]
-        idx_q = np.array([self.model.joints[i].idx_q for i in ids], dtype=int)
-        nq = np.array([self.model.joints[i].nq for i in ids], dtype=int)
-        self._one = np.flatnonzero(nq == 1)
-        self._two = np.flatnonzero(nq == 2)  # continuous joints stored as (cos, sin)
-        self._idx_q_one = idx_q[self._one]
-        self._idx_q_two = idx_q[self._two]
-        self._q_ref = robot.pin_q(robot.neutral())  # base at identity, locked joints in place
-        self._idx_v = robot.model_v_indices
-        E, e = robot.mimic_matrix
-        self._mimic = (E.T, e) if robot.followers else None
 
     # ------------------------------------------------------------------ Pinocchio vectors
     def configurations(self, q, quaternion=None) -> np.ndarray:
         """Pinocchio configurations (..., nq) of arm vectors (..., n): base at the origin with
         attitude ``quaternion`` (..., 4), (x, y, z, w), identity by default."""
-        q = np.asarray(q, dtype=float)
-        if self._mimic is not None:
-            q = q @ self._mimic[0] + self._mimic[1]
-        out = self._q_ref.copy() if q.ndim == 1 else np.tile(self._q_ref, q.shape[:-1] + (1,))
-        out[..., self._idx_q_one] = q[..., self._one]
-        if self._two.size:
-            out[..., self._idx_q_two] = np.cos(q[..., self._two])
-            out[..., self._idx_q_two + 1] = np.sin(q[..., self._two])
+        out = self.robot.pin_q(q)
         if quaternion is not None:
             out[..., 3:7] = quaternion
         return out
@@ -96,11 +77,7 @@ class NumericMaps:
     def velocities(self, q_dot, omega=None) -> np.ndarray:
         """Pinocchio velocities (..., nv) of arm rates (..., n), the base not translating and
         turning at ``omega`` (..., 3) [rad/s, base frame] (at rest by default)."""
-        q_dot = np.asarray(q_dot, dtype=float)
-        if self._mimic is not None:
-            q_dot = q_dot @ self._mimic[0]
-        out = np.zeros(q_dot.shape[:-1] + (self.model.nv,))
-        out[..., self._idx_v] = q_dot
+        out = self.robot.pin_v(q_dot)
         if omega is not None:
             out[..., 3:6] = omega
         return out

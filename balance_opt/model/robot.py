@@ -29,7 +29,7 @@ import logging
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +62,6 @@ class _UrdfJoint:
     type: str
     parent: str
     child: str
-    element: ET.Element = field(repr=False)
     mimic: tuple[str, float, float] | None = None  # (driver, multiplier, offset)
 
 
@@ -99,7 +98,6 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             el.get("type", ""),
             parent.get("link"),
             child.get("link"),
-            el,
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     for warning in check_urdf_physics(root, source):
@@ -536,27 +534,29 @@ class FloatingRobot:
 
     # ----------------------------------------------------------------------------- conversions
     def pin_q(self, q, base: pin.SE3 | None = None) -> np.ndarray:
-        """Pinocchio configuration from the arm vector ``q`` and the base pose (identity by
-        default), followers placed by their drivers."""
+        """Pinocchio configurations (..., nq) of arm vectors (..., n) and the base pose
+        (identity by default), followers placed by their drivers."""
         q = np.asarray(q, dtype=float)
         if self.followers:
-            q = self._mimic_E @ q + self._mimic_e
-        qp = pin.neutral(self.model)
+            q = q @ self._mimic_E.T + self._mimic_e
+        qp = np.tile(pin.neutral(self.model), q.shape[:-1] + (1,))
         if base is not None:
-            qp[:7] = pin.SE3ToXYZQUAT(base)
-        one = self._model_nq == 1
-        qp[self._model_idx_q[one]] = q[one]
-        for i in np.flatnonzero(~one):
-            qp[self._model_idx_q[i] : self._model_idx_q[i] + 2] = [math.cos(q[i]), math.sin(q[i])]
+            qp[..., :7] = pin.SE3ToXYZQUAT(base)
+        one, idx = self._model_nq == 1, self._model_idx_q
+        qp[..., idx[one]] = q[..., one]
+        if not one.all():  # continuous joints stored as (cos, sin)
+            qp[..., idx[~one]] = np.cos(q[..., ~one])
+            qp[..., idx[~one] + 1] = np.sin(q[..., ~one])
         return qp
 
     def pin_v(self, q_dot, base_twist=None) -> np.ndarray:
-        """Pinocchio velocity from arm joint rates and the base twist (local frame, zero by
-        default), followers moving with their drivers."""
-        v = np.zeros(self.model.nv)
+        """Pinocchio velocities (..., nv) of arm joint rates (..., n) and the base twist (local
+        frame, zero by default), followers moving with their drivers."""
+        q_dot = np.asarray(q_dot, dtype=float)
+        v = np.zeros(q_dot.shape[:-1] + (self.model.nv,))
         if base_twist is not None:
-            v[:6] = base_twist
-        v[self._model_idx_v] = self._mimic_E @ np.asarray(q_dot, dtype=float)
+            v[..., :6] = base_twist
+        v[..., self._model_idx_v] = q_dot @ self._mimic_E.T
         return v
 
     def arm_q(self, q_pin) -> np.ndarray:

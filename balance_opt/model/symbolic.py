@@ -5,23 +5,16 @@ Everything is a function of the arm vector ``q`` alone, with the base at the ide
 expressed in the base frame, these maps do not depend on the base pose (``docs/physics.md``,
 "Momentum maps"), which keeps the functions small and the NLP free of base position.
 
-Two backends produce the two primitive expressions everything else is built from (the
-centroidal momentum matrix and each end effector's frame Jacobian, both with the base at the
-identity, base columns first, then arm joints in arm order):
+Everything is built from two primitives (the centroidal momentum matrix and each end
+effector's frame Jacobian, base columns first), from one of two backends: ``"pinocchio"``,
+Pinocchio's own algorithms on ``casadi.SX`` (``pinocchio.casadi`` where it imports, else the
+compiled bridge of :mod:`balance_opt.model.bridge`), or ``"adam"`` (``adam-robotics``, pure
+Python). ``"auto"`` takes ``"pinocchio"`` where it works, else ``"adam"``, and says why in one
+log line per process.
 
-* ``"pinocchio"``: Pinocchio's own algorithms on ``casadi.SX``: through ``pinocchio.casadi``
-  where it imports (conda or source builds), else through the Pinocchio-CasADi bridge
-  (:mod:`balance_opt.model.bridge`, a small C++ program compiled once per machine against the
-  pip wheels; it needs a C++ compiler);
-* ``"adam"``: ``adam-robotics`` (``adam.casadi``), pure Python.
-
-``backend="auto"`` takes ``"pinocchio"`` where it works (building the bridge on first use),
-else ``"adam"``, and then says why in one log line per process. Pinocchio's expressions are
-the smaller (``benchmarks/bench_bridge.py``).
-
-Mimic joints that follow an arm joint (``FloatingRobot.followers``) are evaluated as joints of
-their own at ``k q_driver + c``, and their columns are then folded, times ``k``, into their
-drivers' (:func:`model_joint_positions`, :func:`model_velocity_map`): a follower's momentum belongs to its driver.
+Mimic followers (``FloatingRobot.followers``) are joints of their own at ``k q_driver + c``
+whose columns are then folded, times ``k``, into their drivers' (:func:`model_joint_positions`,
+:func:`model_velocity_map`).
 
 Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
 cached), and ``name(...)`` evaluates it and returns NumPy arrays.
@@ -29,6 +22,8 @@ cached), and ``name(...)`` evaluates it and returns NumPy arrays.
 
 from __future__ import annotations
 
+import functools
+import importlib
 import logging
 from functools import cached_property
 
@@ -53,17 +48,9 @@ BACKENDS = ("pinocchio", "adam")
 CASADI = LinearAlgebra(cs.solve, cs.inv, cs.SX.eye)
 
 
-def _pinocchio_casadi_imports() -> bool:
+def _imports(module: str) -> bool:
     try:
-        import pinocchio.casadi  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def _adam_imports() -> bool:
-    try:
-        import adam.casadi  # noqa: F401
+        importlib.import_module(module)
     except ImportError:
         return False
     return True
@@ -76,12 +63,12 @@ def available_backends() -> list[str]:
     """
     found = []
     try:
-        if not _pinocchio_casadi_imports():
+        if not _imports("pinocchio.casadi"):
             find_toolchain()
         found.append("pinocchio")
     except BridgeUnavailable:
         pass
-    if _adam_imports():
+    if _imports("adam.casadi"):
         found.append("adam")
     return found
 
@@ -91,7 +78,7 @@ _NOTED: set[str] = set()  # fallback reasons already logged by this process
 
 def _fall_back_to_adam(reason: str) -> tuple[str, str]:
     """Choose adam for ``auto``, saying why once per process and reason."""
-    if not _adam_imports():
+    if not _imports("adam.casadi"):
         raise BalanceOptError(
             f"no symbolic backend: the Pinocchio-CasADi bridge is unavailable ({reason}) "
             "and adam-robotics[casadi] is not installed"
@@ -111,10 +98,10 @@ def _resolve_backend(backend: str) -> tuple[str, str]:
     if backend not in ("auto", *BACKENDS):
         raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
     if backend == "adam":
-        if not _adam_imports():
+        if not _imports("adam.casadi"):
             raise BalanceOptError("backend 'adam' cannot be imported here")
         return "adam", "adam"
-    if _pinocchio_casadi_imports():
+    if _imports("pinocchio.casadi"):
         return "pinocchio", "pinocchio (pinocchio.casadi)"
     try:
         record = ensure_bridge()
@@ -268,6 +255,20 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     return A, jac
 
 
+def _built_once(method):
+    """A ``*_fun`` method of :class:`SymbolicMaps` whose function is built on the first call
+    with given arguments, then reused."""
+
+    @functools.wraps(method)
+    def cached(self, *args):
+        key = (method.__name__, *args)
+        if key not in self._funs:
+            self._funs[key] = method(self, *args)
+        return self._funs[key]
+
+    return cached
+
+
 class SymbolicMaps:
     """CasADi momentum maps of a floating robot.
 
@@ -287,6 +288,7 @@ class SymbolicMaps:
         self.robot = robot
         self.backend, self.backend_description = _resolve_backend(backend)
         n = robot.n
+        self._funs: dict[tuple, cs.Function] = {}
         self._q = cs.SX.sym("q", n)
         self._qd = cs.SX.sym("q_dot", n)
         try:
@@ -330,104 +332,78 @@ class SymbolicMaps:
         )
 
     # ------------------------------------------------------------------ functions
-    @cached_property
-    def _funs(self) -> dict[str, cs.Function]:
-        return {}
-
-    def _cached(self, name, make):
-        if name not in self._funs:
-            self._funs[name] = make()
-        return self._funs[name]
-
+    @_built_once
     def centroidal_momentum_matrix_fun(self) -> cs.Function:
         """``centroidal_momentum_matrix(q) -> A_G``: 6 x (6+n), momentum [linear; angular] about the
         CoM in base-frame axes, for the base twist in the base frame and the arm joint rates.
         In world axes it is ``blkdiag(R, R) A_G``."""
-        return self._cached(
-            "cmm", lambda: self._fun("centroidal_momentum_matrix", {"q": self._q}, {"A_G": self._A})
-        )
+        return self._fun("centroidal_momentum_matrix", {"q": self._q}, {"A_G": self._A})
 
+    @_built_once
     def base_jacobian_fun(self) -> cs.Function:
         """``base_jacobian(q) -> J_base``: 6 x n, ``v_b = J_base q_dot`` with zero momentum
         (Eq. 19), the base twist [linear; angular] in the base frame."""
-        return self._cached(
-            "J_base", lambda: self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base})
-        )
+        return self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base})
 
+    @_built_once
     def angular_jacobians_fun(self) -> cs.Function:
         """``angular_jacobians(q) -> (J_wM, J_wB)``: the base angular velocity in the base frame is
         ``J_wM q_dot_M + J_wB q_dot_B`` (Eq. 26; balance arms stacked in ``J_wB``)."""
+        Jw = self._J_w
+        return self._fun(
+            "angular_jacobians",
+            {"q": self._q},
+            {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]},
+        )
 
-        def make():
-            Jw = self._J_w
-            return self._fun(
-                "angular_jacobians",
-                {"q": self._q},
-                {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]},
-            )
-
-        return self._cached("J_w", make)
-
+    @_built_once
     def angular_jacobian_rates_fun(self) -> cs.Function:
         """``angular_jacobian_rates(q, q_dot) -> (dJ_wM, dJ_wB)``: time derivatives of
         ``J_wM`` and ``J_wB`` along ``q_dot`` (needed for Eq. 32)."""
+        Jw = self._J_w
+        return self._fun(
+            "angular_jacobian_rates",
+            {"q": self._q, "q_dot": self._qd},
+            {
+                "dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
+                "dJ_wB": self._rate(Jw[:, self._balance_cols]),
+            },
+        )
 
-        def make():
-            Jw = self._J_w
-            return self._fun(
-                "angular_jacobian_rates",
-                {"q": self._q, "q_dot": self._qd},
-                {
-                    "dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
-                    "dJ_wB": self._rate(Jw[:, self._balance_cols]),
-                },
-            )
-
-        return self._cached("dJ_w", make)
-
+    @_built_once
     def ee_generalized_jacobian_fun(self, arm: str = "mission") -> cs.Function:
         """``ee_generalized_jacobian_<arm>(q) -> (J_star, M)``: the end effector's twist
         [linear velocity of its origin; angular velocity], in base-frame axes, is
         ``J_star q_dot`` with the base moving as momentum conservation forces it (Eq. 20-22).
         ``M`` is the arm's own columns of ``J_star``: the paper's coupling factor (Eq. 22)."""
+        columns = self._cols([arm])  # an unknown arm: ArmError
+        J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
+        return self._fun(
+            f"ee_generalized_jacobian_{arm}",
+            {"q": self._q},
+            {"J_star": J_star, "M": J_star[:, columns]},
+        )
 
-        def make():
-            J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
-            return self._fun(
-                f"ee_generalized_jacobian_{arm}",
-                {"q": self._q},
-                {"J_star": J_star, "M": J_star[:, self._cols([arm])]},
-            )
-
-        self.robot.arm(arm)
-        return self._cached(f"J_star_{arm}", make)
-
+    @_built_once
     def coupling_factors_fun(self, arm: str = "mission") -> cs.Function:
         """``coupling_factors_<arm>(q) -> (M, N)``: ``M`` maps the arm's joint rates to its end
         effector's twist (Eq. 22); ``N`` maps the end effector's twist to the base twist
         (Eq. 24), ``N = J_base,arm M^+`` (the Moore-Penrose inverse where the arm has fewer
         than 6 joints, so that ``N`` is exact on the twists the arm can produce)."""
+        _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
+        N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
+        return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
 
-        def make():
-            _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-            N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
-            return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
-
-        return self._cached(f"MN_{arm}", make)
-
+    @_built_once
     def force_map_fun(self, arm: str = "mission") -> cs.Function:
         """``force_map_<arm>(q, F_e) -> F_B``: the wrench on the base from an end-effector wrench
         ``F_e`` [force; torque], ``F_B = N^{-T} F_e`` (Eq. 25), with the Moore-Penrose inverse
         of ``N^T`` where ``N`` is rank deficient (arms with fewer than 6 joints)."""
-
-        def make():
-            _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-            F_e = cs.SX.sym("F_e", 6)
-            J_base_arm = self._J_base[:, self._cols([arm])]
-            F_B = coupling.force_on_base(J_base_arm, M, F_e, CASADI)
-            return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
-
-        return self._cached(f"F_{arm}", make)
+        _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
+        F_e = cs.SX.sym("F_e", 6)
+        J_base_arm = self._J_base[:, self._cols([arm])]
+        F_B = coupling.force_on_base(J_base_arm, M, F_e, CASADI)
+        return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
 
     # ------------------------------------------------------------------ numeric evaluators
     def centroidal_momentum_matrix(self, q) -> np.ndarray:

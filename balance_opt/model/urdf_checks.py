@@ -1,21 +1,14 @@
 """Why a URDF is refused: its physical sanity, checked before Pinocchio loads it, and urdfdom's
 own reasons when Pinocchio refuses it.
 
-urdfdom and Pinocchio load many files that describe no physical robot: a negative mass, an
-inertia with a negative principal moment, a joint axis of length zero, a link with two parents.
-The momentum maps of such a model are meaningless (or NaN), and the failure shows up much later,
-deep inside a solver. These checks name the link or joint at fault instead.
+urdfdom and Pinocchio load many files that describe no physical robot (a negative mass, an
+inertia that is not positive semi-definite, a zero-length axis, a link with two parents, a
+loop); their momentum maps are meaningless and the failure would show up deep inside a solver.
+These checks refuse such a file naming the link or joint at fault, and warn about possible but
+implausible values (the triangle inequality broken, zero mass with non-zero inertia).
 
-Errors (the file is refused): a link mass that is negative or not finite; an inertia matrix that
-is not positive semi-definite; a joint axis of zero length; a joint whose parent or child link is
-missing; a link that is the child of two joints; more than one root link; a kinematic loop.
-
-Warnings (physically possible, but almost always a typo): principal moments that break the
-triangle inequality (no rigid body has them); a link with zero mass but non-zero inertia.
-
-:func:`pinocchio_model` builds the model; urdfdom, the parser under Pinocchio, prints why it
-refuses a file on the process's standard error and Pinocchio raises a bare "does not contain a
-valid URDF model": that output is captured into the error instead of reaching the terminal.
+:func:`pinocchio_model` captures what urdfdom prints on standard error when Pinocchio refuses a
+file (Pinocchio itself only says "does not contain a valid URDF model") into the error.
 """
 
 from __future__ import annotations

@@ -1,22 +1,13 @@
 """Integration of an attitude state on SO(3), with or without other states (the balance
 joints), and the output grids of rollouts and replays.
 
-Attitude representation: a unit quaternion (x, y, z, w) integrated with its kinematics
-``q_dot = 1/2 q * (omega, 0)`` (``R_dot = R [omega]_x``, ``omega`` in the base frame,
-:func:`balance_opt.motion.so3.quaternion_rate`). This flow keeps ``|q| = 1`` exactly, so the
-adaptive integrator keeps the norm to within its tolerance and the fixed-step RK4 renormalises
-after every step; every quaternion handed out is renormalised. No Euler angles are ever
-integrated (``docs/physics.md``, "Attitude").
-
-Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`):
-
-* ``"adaptive"`` (default): Dormand-Prince 8(5,3), SciPy's ``solve_ivp(method="DOP853")``, with
-  error control on the whole state (``rtol``, ``atol``) and its 7th-order dense output at the
-  output times; exact to the integration tolerance. It stops after ``max_evaluations``
-  evaluations of the right-hand side (a law that runs away shrinks the step without end) and
-  shows a progress line every :data:`PROGRESS_EVERY_S` while it runs.
-* ``"rk4"``: classic fixed-step Runge-Kutta 4, each output interval split into steps no longer
-  than ``step``.
+The attitude is a unit quaternion (x, y, z, w) integrated with ``q_dot = 1/2 q * (omega, 0)``
+(``omega`` in the base frame), never Euler angles (``docs/physics.md``, "Attitude"); RK4
+renormalises it after every step, and every quaternion handed out is renormalised.
+Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`): ``"adaptive"``, SciPy's
+DOP853 with error control on the whole state and its dense output, stopped after
+``max_evaluations`` (a law that runs away); ``"rk4"``, classic fixed-step RK4, each output
+interval split into steps no longer than ``step``.
 """
 
 from __future__ import annotations
@@ -30,7 +21,6 @@ import numpy as np
 from balance_opt import progress
 from balance_opt.errors import InputError
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.so3 import IDENTITY_QUATERNION
 
 #: The scheme behind ``"adaptive"``.
 ADAPTIVE_SCHEME = "DOP853"
@@ -41,22 +31,6 @@ _STEP_SLACK = 1e-9
 
 
 # ---------------------------------------------------------------------------------- output grids
-def initial_quaternion(quaternion0) -> np.ndarray:
-    """The initial base attitude, normalised (identity for ``None``).
-
-    Raises:
-        InputError: not a non-zero, finite quaternion (x, y, z, w).
-    """
-    if quaternion0 is None:
-        return IDENTITY_QUATERNION.copy()
-    q = np.asarray(quaternion0, dtype=float).ravel()
-    if q.size != 4 or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0:
-        raise InputError(
-            f"initial attitude must be a non-zero quaternion (x, y, z, w), got {q.tolist()}"
-        )
-    return q / np.linalg.norm(q)
-
-
 def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> np.ndarray:
     """The output times: ``t_eval`` checked, else 0 to ``duration`` [s] in
     ``round(duration / options.output_step)`` equal intervals.
@@ -78,13 +52,8 @@ def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> 
 
 # ---------------------------------------------------------------------------------- integration
 def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
-    """Integrate ``y' = rhs(t, y)`` whose first 4 entries are a unit quaternion.
-
-    Args:
-        rhs: right-hand side ``(t, y) -> y'``.
-        y0: initial state, quaternion first.
-        t: output times (T,), the first the initial time.
-        options: integrator settings.
+    """Integrate ``y' = rhs(t, y)`` from ``y0`` (a unit quaternion first) over the output times
+    ``t`` (the first the initial time).
 
     Returns:
         ``(Y, stats, message)``: states at the output times with normalised quaternions (T', ny)

@@ -30,7 +30,6 @@ def momentum_residual(maps: NumericMaps, t, q, q_dot, quaternion, angular_moment
     """Relative angular-momentum residual (T,) of a sampled motion (see the module docstring).
 
     Args:
-        maps: the robot's numeric maps.
         t: sample times (T,) [s].
         q, q_dot: arm positions and rates (T, n) [rad, rad/s].
         quaternion: base attitude (T, 4), (x, y, z, w).
@@ -51,14 +50,8 @@ def momentum_residual(maps: NumericMaps, t, q, q_dot, quaternion, angular_moment
 def momentum_scale(maps: NumericMaps, Ag: np.ndarray, q_dot: np.ndarray, L0: np.ndarray) -> float:
     """``max_t sum_arms |A_arm q_dot_arm| + |L0|`` [N m s]: the largest angular momentum the arms
     carry, each on its own (a balance arm that cancels the mission arm's momentum adds to the
-    scale rather than removing from it), plus the initial momentum.
-
-    Args:
-        maps: the robot's numeric maps.
-        Ag: Pinocchio's ``A_G`` along the motion (T, 6, nv).
-        q_dot: arm rates (T, n) [rad/s].
-        L0: initial angular momentum (3,) [N m s].
-    """
+    scale rather than removing from it), plus the initial momentum ``L0`` (3,) [N m s]; ``Ag``
+    is Pinocchio's ``A_G`` along the motion (T, 6, nv), ``q_dot`` the arm rates (T, n)."""
     carried = np.zeros(q_dot.shape[0])
     for arm in maps.robot.arms:
         rates = np.zeros_like(q_dot)

@@ -1,9 +1,6 @@
-"""Settings of the attitude integration (rollouts and replays).
-
-Each field is declared once, with :func:`~balance_opt.config.typed_config.setting`: its default,
-its meaning, its unit and its bounds serve Python calls and task files alike (there the keys
-sit in the ``analytic`` section, ``method`` written ``integrator``).
-"""
+"""Settings of the attitude integration (rollouts and replays) and of the model-error study,
+declared once for Python calls and task files (:func:`~balance_opt.config.typed_config.setting`;
+the integration keys sit in the ``analytic`` section, ``method`` written ``integrator``)."""
 
 from __future__ import annotations
 

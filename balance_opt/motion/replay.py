@@ -14,11 +14,11 @@ import numpy as np
 from balance_opt.errors import InputError, SolverError
 from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.integration import initial_quaternion, integrate, output_grid
+from balance_opt.motion.integration import integrate, output_grid
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_rate
-from balance_opt.motion.trajectories import TrajectoryLike, as_sampler
+from balance_opt.motion.so3 import IDENTITY_QUATERNION, matrix_from_quaternion, quaternion_rate
+from balance_opt.motion.trajectories import TrajectoryLike, arm_samples, as_sampler
 from balance_opt.result import BalanceResult
 
 
@@ -30,26 +30,18 @@ def replay(
     h0=None,
     integration: IntegrationOptions | None = None,
     t_eval=None,
-    quaternion0=None,
     method: str = "simulation",
 ) -> BalanceResult:
-    """Integrate the base attitude for GIVEN joint motions of both arms (momentum conservation).
-
-    The base angular velocity is ``omega = I_G^{-1} (R^T L - A q_dot)`` at every instant (Eq. 26
-    with the initial momentum ``h0``), integrated on SO(3) to the integrator's tolerance. Use it
-    to re-simulate a plan on a fine grid, or to get the paper's Fig. 3 and 5.
+    """Integrate the base attitude for GIVEN joint motions of both arms (momentum conservation,
+    ``omega = I_G^{-1} (R^T L - A q_dot)``, Eq. 26 with the initial momentum ``h0``).
 
     Args:
-        robot: the floating robot.
         mission: mission arm motion (n_M joints), in any form
-            :func:`~balance_opt.motion.trajectories.as_sampler` takes (a result's: through
-            ``SampledTrajectory.from_result``).
+            :func:`~balance_opt.motion.trajectories.as_sampler` takes.
         balance: balance arms' motion, the same ways, all balance joints stacked (n_B).
         h0: initial momentum, world frame (3 angular or 6 [linear; angular] values), ``None`` for 0.
-        integration: integrator settings.
         t_eval: output times [s] (default: every ``integration.output_step`` over the longer
             motion).
-        quaternion0: initial base attitude (x, y, z, w), identity by default.
         method: the result's ``method`` label.
 
     Returns:
@@ -72,7 +64,7 @@ def replay(
         )
     L = L[-3:].copy()  # the angular part, world axes [N m s]
     maps = NumericMaps(robot)
-    q0 = initial_quaternion(quaternion0)
+    q0 = IDENTITY_QUATERNION.copy()  # the drift is measured from the initial attitude
     if integration.method == "rk4":  # fixed steps: every joint sample known before integrating
         rates = _StageRates(maps, sample_M, sample_B, L)
         quat, stats, failure = _rk4_given_joints(rates, q0, t, integration)
@@ -81,10 +73,7 @@ def replay(
             _adaptive_rhs(maps, sample_M, sample_B, L), q0, t, integration
         )
     t = t[: quat.shape[0]]
-    q, q_dot, q_ddot = (np.empty((t.size, robot.n)) for _ in range(3))
-    for samples, cols in ((sample_M(t), M), (sample_B(t), B)):
-        for full, part in zip((q, q_dot, q_ddot), samples):
-            full[:, cols] = part
+    q, q_dot, q_ddot = arm_samples(robot, sample_M, sample_B, t)
     info = {
         "integration": stats,
         "h0": None if h0 is None else np.asarray(h0, dtype=float).tolist(),
@@ -130,13 +119,7 @@ class _StageRates:
 
     def at(self, times: np.ndarray) -> None:
         """Evaluate the maps at ``times`` (S,); :meth:`omega` then takes indices into them."""
-        robot = self.maps.robot
-        q, q_dot = np.empty((times.size, robot.n)), np.empty((times.size, robot.n))
-        for samples, cols in (
-            (self.sample_M(times), robot.mission_indices),
-            (self.sample_B(times), robot.balance_indices),
-        ):
-            q[:, cols], q_dot[:, cols] = samples[0], samples[1]
+        q, q_dot, _ = arm_samples(self.maps.robot, self.sample_M, self.sample_B, times)
         I_G, A = self.maps.angular_maps(q)
         self.omega_table = base_angular_velocity(I_G, A, q_dot)  # omega at zero momentum
         self._inverse = np.linalg.inv(I_G) if self.spinning else None
@@ -196,7 +179,7 @@ def rk4_stage_times(t: np.ndarray, options: IntegrationOptions):
     return np.concatenate([starts, starts + 0.5 * h, t[-1:]]), n_sub, h
 
 
-def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOptions, q0=None):
+def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOptions):
     """The base attitude (..., T, 4) at ``t`` from base rates that do not depend on it (zero
     momentum), given at :func:`rk4_stage_times` ``(times, ...)``, (..., 2 S + 1, 3) [rad/s,
     base frame]: the same RK4 steps as :func:`replay` with ``method="rk4"``, for one rate
@@ -206,7 +189,7 @@ def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOp
         SolverError: the integration failed (non-finite rates).
     """
     _, n_sub, h = rk4_stage_times(t, options)
-    Y, message = _step_matrices(omega, initial_quaternion(q0), t, n_sub, h)
+    Y, message = _step_matrices(omega, IDENTITY_QUATERNION, t, n_sub, h)
     if message is not None:
         raise SolverError(f"attitude replay failed: {message}", "integration_failed", None)
     return Y

@@ -1,39 +1,18 @@
 """Drift under model error: how a plan's base drift spreads when the robot's masses, centres of
-mass and inertias are not what the plan assumed.
+mass and inertias are not what the plan assumed (``docs/executable-plans.md``, "Drift under
+model error").
 
-A plan is a joint motion. Given the joint motion, the base attitude of any model follows from
-momentum conservation alone (:func:`~balance_opt.motion.replay.replay`), so a Monte Carlo over
-models costs one kinematic replay per model: K seeded models, each link's inertial parameters
-perturbed, the plan's joint motion replayed on each, the drift (peak and final) summarised by
-its median, 95th percentile and largest value. Every method's plan is replayed on the same K
-models, so that methods compare on equal terms.
+K seeded models, each body's inertial parameters perturbed in log-Cholesky coordinates of its
+pseudo-inertia (every draw a physical body, a zero perturbation the model itself); every
+method's plan is replayed on the same K models, and the drift (peak and final) summarised by its
+median, 95th percentile and largest value.
 
-Perturbations stay physical by construction. A body's inertial parameters are its mass ``m``,
-centre of mass ``c`` and the second moment of its mass about the centre of mass,
-``Sigma = int (r - c)(r - c)^T dm = tr(I_c) / 2 * 1 - I_c`` (``I_c`` its rotational inertia about
-the centre of mass). The pseudo-inertia ``[[Sigma + m c c^T, m c], [m c^T, m]]`` is positive
-definite exactly when ``m > 0`` and ``Sigma`` is positive definite, and then ``I_c = tr(Sigma) 1
-- Sigma`` is positive definite and meets the triangle inequality (its principal moments are sums
-of two of ``Sigma``'s eigenvalues); this is the condition of Wensing, Kim and Slotine. The
-perturbation acts on the log-Cholesky coordinates of these factors (Rucker and Wensing):
-with relative size ``e`` and independent standard normal draws ``z``,
-
-* ``m' = m exp(e z)``;
-* ``Sigma = L L^T`` (Cholesky), ``L'_ii = L_ii exp(e z / 2)``, ``L'_ij = L_ij + (e / 2) z
-  sqrt(L_ii L_jj)`` below the diagonal, ``Sigma' = L' L'^T``: each second moment changes by
-  about ``e``, relatively, and the principal axes turn a little;
-* ``c' = c + e z rho``, ``rho = sqrt(tr(Sigma) / m)`` the body's radius of gyration.
-
-Any draw is a physical body; a zero perturbation returns the model itself.
-
-The replays share their work. Perturbing inertial parameters leaves the kinematics alone: the
-bodies' placements ``X_i(t)`` relative to the base and their velocities ``v_i(t)`` with the base
-held are computed once per plan. For zero momentum, each model's base twist is then
-``v_b = -M_bb^{-1} sum_i X_i^* I_i v_i`` with the composite inertia
-``M_bb = sum_i X_i^* I_i X_i^{-1}`` (``X_i^*`` the force transform to the base), the spatial
-inertias ``I_i`` entering linearly: a few batched products per model, then the replay's own RK4
-steps (:func:`~balance_opt.motion.replay.attitude_from_rates`), so that a zero perturbation gives
-the plan's replay back. With a non-zero momentum each model is replayed in full.
+The replays share their work: the kinematics do not depend on the inertial parameters, and for
+zero momentum each model's base twist is ``v_b = -M_bb^{-1} sum_i X_i^* I_i v_i`` with
+``M_bb = sum_i X_i^* I_i X_i^{-1}``, linear in the spatial inertias ``I_i``: a few batched
+products per model, then the replay's own RK4 steps
+(:func:`~balance_opt.motion.replay.attitude_from_rates`). With a non-zero momentum each model is
+replayed in full.
 """
 
 from __future__ import annotations
@@ -50,7 +29,7 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.motion.replay import attitude_from_rates, replay, rk4_stage_times
 from balance_opt.motion.so3 import rotation_angle
-from balance_opt.motion.trajectories import SampledTrajectory
+from balance_opt.motion.trajectories import SampledTrajectory, arm_samples
 from balance_opt.result import BalanceResult
 
 #: Smallest eigenvalue of a body's second moment before it is perturbed, relative to its trace
@@ -68,8 +47,12 @@ def second_moment(inertia: pin.Inertia) -> np.ndarray:
 
 
 def perturbed_inertia(inertia: pin.Inertia, size: float, rng: np.random.Generator) -> pin.Inertia:
-    """A physical body near ``inertia`` (see the module docstring): mass, centre of mass and
-    second moment perturbed by about ``size``, relatively, in log-Cholesky coordinates."""
+    """A physical body near ``inertia``, perturbed by about ``size``, relatively: with standard
+    normal draws ``z``, ``m' = m exp(size z)``; the Cholesky factor ``L`` of ``Sigma`` gets
+    ``L'_ii = L_ii exp(size z / 2)`` and ``L'_ij = L_ij + (size / 2) z sqrt(L_ii L_jj)``; ``c' = c
+    + size z rho`` with ``rho = sqrt(tr(Sigma) / m)`` the radius of gyration. ``m > 0`` and a
+    positive definite ``Sigma`` make ``I_c = tr(Sigma) 1 - Sigma`` physical (Wensing, Kim and
+    Slotine; log-Cholesky coordinates: Rucker and Wensing)."""
     m, c = float(inertia.mass), np.asarray(inertia.lever, dtype=float)
     z = rng.standard_normal(10)  # drawn for every body, so that bodies keep their draws
     if m <= 0.0 or size == 0.0:
@@ -134,7 +117,6 @@ class RobustnessResult:
     """Drift under model error of one or more plans (the same perturbed models for all).
 
     Attributes:
-        options: the study's settings.
         methods: per method, its :class:`DriftSpread`.
         attitude_p95: per method, the 95th percentile over the models of the attitude error
             ``|log R(t)|`` at each of the plan's samples (T,) [rad] (a band for figures).
@@ -163,17 +145,8 @@ def drift_under_model_error(
     options: RobustnessOptions | None = None,
     h0=None,
 ) -> RobustnessResult:
-    """Replay every plan's joint motion on ``options.samples`` perturbed models.
-
-    Args:
-        robot: the robot the plans were made for.
-        plans: plans by method name.
-        options: the study's settings.
-        h0: the system's momentum (world frame, 3 angular or 6 values), as planned.
-
-    Returns:
-        The drift spread of each plan.
-    """
+    """Replay every plan (by method name) on ``options.samples`` perturbed models of ``robot``,
+    with the system's momentum ``h0`` (world frame, 3 angular or 6 values) as planned."""
     opts = options or RobustnessOptions()
     start = time.perf_counter()
     rng = np.random.default_rng(opts.seed)
@@ -222,10 +195,7 @@ class _Kinematics:
 
     def __init__(self, robot: FloatingRobot, mission, balance, times: np.ndarray):
         maps = NumericMaps(robot)
-        q, q_dot = np.empty((times.size, robot.n)), np.empty((times.size, robot.n))
-        for sampler, cols in ((mission, robot.mission_indices), (balance, robot.balance_indices)):
-            samples = sampler.sample(times)
-            q[:, cols], q_dot[:, cols] = samples[0], samples[1]
+        q, q_dot, _ = arm_samples(robot, mission.sample, balance.sample, times)
         qp, vp = maps.configurations(q), maps.velocities(q_dot)
         model, data = robot.model, robot.model.createData()
         nb = model.njoints - 1
@@ -267,7 +237,7 @@ def _integration_of(plan: BalanceResult) -> IntegrationOptions:
     """Fixed-step RK4: with the plan's own step when it was replayed so (the optimal planner's
     plans: a zero perturbation then gives the plan back exactly), else one step per sample
     interval (the error-controlled integration of the analytic law would cost a full replay
-    per model; RK4 on its 10 ms samples agrees with it to 1e-11 rad on the capture task)."""
+    per model, for a difference far below the drifts compared)."""
     info = plan.info.get("integration") or {}
     if info.get("method") == "rk4" and info.get("step"):
         return IntegrationOptions(method="rk4", step=float(info["step"]))

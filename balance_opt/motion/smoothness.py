@@ -1,26 +1,12 @@
-"""Smoothness figures of merit of a sampled joint motion: largest jerk, acceleration reversals,
-largest torque rate, per joint.
+"""Smoothness figures of merit of a sampled joint motion, per joint: largest jerk
+(``max |q_dddot|`` [rad/s^3], by finite differences of the sampled accelerations: never more
+than the continuous motion's), acceleration reversals (counted with hysteresis, see
+:func:`count_reversals`) and largest torque rate [N m/s]. Definitions and their reasons:
+``docs/executable-plans.md``, "Smoothness figures of merit".
 
-A plan can meet every position, velocity and acceleration limit and still be hard on the robot:
-an acceleration that swings from one limit to the other and back many times (bang-bang chatter)
-is a torque that does the same, on the joints' gearboxes and on the base. These numbers say how
-much of that a motion has. Everything is computed from samples (``t``, accelerations, torques):
-a pure function, the same for any method's result.
-
-Definitions (per joint):
-
-* **largest jerk** ``max |q_dddot|`` [rad/s^3]: finite differences of the sampled accelerations,
-  ``|a_{i+1} - a_i| / (t_{i+1} - t_i)``: the mean jerk over each sample interval, so never more
-  than the true largest jerk of the continuous motion, and equal to it as the samples get denser.
-* **acceleration reversals**: how many times the acceleration turns back, counted with
-  hysteresis. The acceleration's running extremum is followed; a reversal is counted when the
-  acceleration moves back from it by more than ``threshold``, and that point starts the next
-  swing. ``threshold = REVERSAL_FRACTION * scale``, ``scale`` the joint's acceleration limit when
-  it is finite, else the joint's largest ``|q_ddot|`` over the motion. Ripples smaller than the
-  threshold (sampling, the solver's tolerance) are not counted; a bang-bang switch between the
-  limits always is. A smooth rest-to-rest move (the acceleration up, down, back to zero) has 2.
-* **largest torque rate** ``max |tau_dot|`` [N m/s]: finite differences of the sampled torques
-  (when torques are given).
+A reversal counts when the acceleration moves back from its running extremum by more than
+``REVERSAL_FRACTION * scale`` (``scale``: the joint's acceleration limit when finite, else its
+largest ``|q_ddot|``); that point starts the next swing.
 """
 
 from __future__ import annotations
@@ -91,14 +77,7 @@ def count_reversals(values: np.ndarray, threshold: float) -> int:
     return count
 
 
-def smoothness(
-    t,
-    q_ddot,
-    joints,
-    acceleration_limit=None,
-    tau=None,
-    fraction: float = REVERSAL_FRACTION,
-) -> Smoothness:
+def smoothness(t, q_ddot, joints, acceleration_limit=None, tau=None) -> Smoothness:
     """Smoothness figures of merit of a sampled motion (see the module docstring).
 
     Args:
@@ -107,10 +86,6 @@ def smoothness(
         joints: joint names (n,).
         acceleration_limit: per joint (n,) [rad/s^2] (``inf`` or ``None``: no limit).
         tau: joint torques (T, n) [N m], optional.
-        fraction: the reversal hysteresis as a fraction of the acceleration scale.
-
-    Returns:
-        The figures per joint.
 
     Raises:
         ValueError: arrays of mismatched shapes, or fewer than two samples.
@@ -126,7 +101,7 @@ def smoothness(
     dt = np.diff(t)[:, None]
     limit = np.full(n, np.inf) if acceleration_limit is None else np.asarray(acceleration_limit)
     scale = np.where(np.isfinite(limit), limit, np.abs(a).max(axis=0))
-    threshold = fraction * scale
+    threshold = REVERSAL_FRACTION * scale
     rate = None
     if tau is not None:
         tau = np.asarray(tau, dtype=float).reshape(t.size, n)

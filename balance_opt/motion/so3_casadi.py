@@ -17,19 +17,23 @@ def skew_sym(v):
     )
 
 
+def _angle(phi):
+    """``(a2, small, a2_safe, a)``: ``|phi|^2``, whether the series applies, and a safe angle
+    where it does, at which the closed forms and their derivatives stay finite."""
+    a2 = cs.dot(phi, phi)
+    small = a2 < SERIES_ANGLE**2
+    a2_safe = cs.if_else(small, 1.0, a2)
+    return a2, small, a2_safe, cs.sqrt(a2_safe)
+
+
 def inverse_right_jacobian_sym(phi):
     """``Jr^{-1}(phi)`` for a CasADi rotation vector: ``phi_dot = Jr^{-1}(phi) omega`` for the body
     rate ``omega`` of ``R = exp([phi]_x)`` (the numeric face:
     :func:`balance_opt.motion.so3.inverse_right_jacobian`).
 
-    Below :data:`~balance_opt.motion.so3.SERIES_ANGLE` the series replaces the closed form, and
-    the closed form is evaluated at a safe angle there so that neither it nor its derivatives
-    produce NaN.
+    Below :data:`~balance_opt.motion.so3.SERIES_ANGLE` the series replaces the closed form.
     """
-    a2 = cs.dot(phi, phi)
-    small = a2 < SERIES_ANGLE**2
-    a2_safe = cs.if_else(small, 1.0, a2)
-    a = cs.sqrt(a2_safe)
+    a2, small, a2_safe, a = _angle(phi)
     c_closed = jr_inverse_closed(a2_safe, a, cs.cos(a), cs.sin(a))
     c = cs.if_else(small, jr_inverse_series(a2), c_closed)
     K = skew_sym(phi)
@@ -39,12 +43,8 @@ def inverse_right_jacobian_sym(phi):
 def rotation_matrix_sym(phi):
     """``R = exp([phi]_x)`` (Rodrigues) for a CasADi rotation vector: ``I + s K + c K^2`` with
     ``s = sin(a)/a``, ``c = (1 - cos a)/a^2``, their series below
-    :data:`~balance_opt.motion.so3.SERIES_ANGLE` (the closed forms evaluated at a safe angle
-    there, so that neither they nor their derivatives produce NaN)."""
-    a2 = cs.dot(phi, phi)
-    small = a2 < SERIES_ANGLE**2
-    a2_safe = cs.if_else(small, 1.0, a2)
-    a = cs.sqrt(a2_safe)
+    :data:`~balance_opt.motion.so3.SERIES_ANGLE`."""
+    a2, small, a2_safe, a = _angle(phi)
     s = cs.if_else(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, cs.sin(a) / a)
     c = cs.if_else(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0, (1.0 - cs.cos(a)) / a2_safe)
     K = skew_sym(phi)

@@ -12,15 +12,11 @@ from __future__ import annotations
 import csv
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
-
 import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError, TrajectoryError
-
-if TYPE_CHECKING:
-    from balance_opt.result import BalanceResult
+from balance_opt.result import BalanceResult
 
 
 class JointTrajectory:
@@ -109,77 +105,6 @@ class ViaPoints(JointTrajectory):
     def sample(self, t):
         if self._spline is None:
             return self._ptp.sample(t)
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
-        s = self._spline
-        return s(t), s(t, 1), s(t, 2)
-
-
-class CsvTrajectory(JointTrajectory):
-    """A trajectory read from a CSV file: a ``time`` column, one column per joint by name.
-
-    Samples are interpolated with a cubic spline (C2). Columns for other joints are ignored;
-    times must start at 0 and increase strictly.
-
-    Args:
-        path: CSV file.
-        joint_names: the columns to read, in the arm's joint order.
-        time_column: name of the time column.
-
-    Raises:
-        TrajectoryError: naming the file, and the line or column at fault.
-    """
-
-    def __init__(self, path: str | Path, joint_names: Sequence[str], time_column: str = "time"):
-        self.path = Path(path)
-        self.joint_names = tuple(joint_names)
-        where = str(self.path)
-        try:
-            with self.path.open(newline="") as fh:
-                rows = list(csv.reader(fh))
-        except OSError as exc:
-            raise TrajectoryError(f"{where}: cannot read trajectory CSV: {exc.strerror}") from None
-        rows = [r for r in rows if r and any(c.strip() for c in r)]
-        if len(rows) < 3:
-            raise TrajectoryError(
-                f"{where}: needs a header line and at least 2 samples, found {max(len(rows) - 1, 0)}"
-            )
-        header = [h.strip() for h in rows[0]]
-        missing = [c for c in (time_column, *self.joint_names) if c not in header]
-        if missing:
-            raise TrajectoryError(
-                f"{where}: line 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}"
-            )
-        cols = [header.index(c) for c in (time_column, *self.joint_names)]
-        data = np.empty((len(rows) - 1, len(cols)))
-        for i, row in enumerate(rows[1:]):
-            if len(row) != len(header):
-                raise TrajectoryError(
-                    f"{where}: line {i + 2}: {len(row)} fields, header has {len(header)}"
-                )
-            for k, c in enumerate(cols):
-                try:
-                    data[i, k] = float(row[c])
-                except ValueError:
-                    raise TrajectoryError(
-                        f"{where}: line {i + 2}, column '{header[c]}': not a number: {row[c]!r}"
-                    ) from None
-        if not np.all(np.isfinite(data)):
-            raise TrajectoryError(f"{where}: non-finite values")
-        t = data[:, 0]
-        if t[0] != 0.0:
-            raise TrajectoryError(f"{where}: line 2: time must start at 0, got {t[0]}")
-        bad = np.flatnonzero(np.diff(t) <= 0)
-        if bad.size:
-            raise TrajectoryError(
-                f"{where}: line {bad[0] + 3}: time does not increase ({t[bad[0]]} then {t[bad[0] + 1]})"
-            )
-        self.duration = float(t[-1])
-        self.dof = len(self.joint_names)
-        from scipy.interpolate import CubicSpline  # a slow import: only when used
-
-        self._spline = CubicSpline(t, data[:, 1:], bc_type="natural")
-
-    def sample(self, t):
         t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
         s = self._spline
         return s(t), s(t, 1), s(t, 2)
@@ -305,19 +230,84 @@ class SampledTrajectory(JointTrajectory):
         return q, np.where(out, 0.0, q_dot), np.where(out, 0.0, q_ddot)
 
 
+class CsvTrajectory(SampledTrajectory):
+    """A trajectory read from a CSV file: a ``time`` column, one column per joint by name.
+
+    Samples are interpolated with a natural cubic spline (C2). Columns for other joints are ignored;
+    times must start at 0 and increase strictly.
+
+    Args:
+        path: CSV file.
+        joint_names: the columns to read, in the arm's joint order.
+        time_column: name of the time column.
+
+    Raises:
+        TrajectoryError: naming the file, and the line or column at fault.
+    """
+
+    def __init__(self, path: str | Path, joint_names: Sequence[str], time_column: str = "time"):
+        self.path = Path(path)
+        self.joint_names = tuple(joint_names)
+        where = str(self.path)
+        try:
+            with self.path.open(newline="") as fh:
+                rows = list(csv.reader(fh))
+        except OSError as exc:
+            raise TrajectoryError(f"{where}: cannot read trajectory CSV: {exc.strerror}") from None
+        rows = [r for r in rows if r and any(c.strip() for c in r)]
+        if len(rows) < 3:
+            raise TrajectoryError(
+                f"{where}: needs a header line and at least 2 samples, found {max(len(rows) - 1, 0)}"
+            )
+        header = [h.strip() for h in rows[0]]
+        missing = [c for c in (time_column, *self.joint_names) if c not in header]
+        if missing:
+            raise TrajectoryError(
+                f"{where}: line 1: missing column(s) {', '.join(missing)}; header has {', '.join(header)}"
+            )
+        cols = [header.index(c) for c in (time_column, *self.joint_names)]
+        data = np.empty((len(rows) - 1, len(cols)))
+        for i, row in enumerate(rows[1:]):
+            if len(row) != len(header):
+                raise TrajectoryError(
+                    f"{where}: line {i + 2}: {len(row)} fields, header has {len(header)}"
+                )
+            for k, c in enumerate(cols):
+                try:
+                    data[i, k] = float(row[c])
+                except ValueError:
+                    raise TrajectoryError(
+                        f"{where}: line {i + 2}, column '{header[c]}': not a number: {row[c]!r}"
+                    ) from None
+        if not np.all(np.isfinite(data)):
+            raise TrajectoryError(f"{where}: non-finite values")
+        t = data[:, 0]
+        if t[0] != 0.0:
+            raise TrajectoryError(f"{where}: line 2: time must start at 0, got {t[0]}")
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if bad.size:
+            raise TrajectoryError(
+                f"{where}: line {bad[0] + 3}: time does not increase ({t[bad[0]]} then {t[bad[0] + 1]})"
+            )
+        super().__init__(t, data[:, 1:])
+
+
 TrajectoryLike = JointTrajectory | Callable | tuple
 
 
 def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callable, float | None]:
     """``(sample, duration)`` for a trajectory given as an object with ``sample(t)``, a callable
-    ``f(t) -> (q, q_dot, q_ddot)`` of an array of times, or a tuple of sample arrays
-    ``(t, q[, q_dot[, q_ddot]])`` (a :class:`SampledTrajectory`).
+    ``f(t) -> (q, q_dot, q_ddot)`` of an array of times, a tuple of sample arrays
+    ``(t, q[, q_dot[, q_ddot]])`` (a :class:`SampledTrajectory`), or a :class:`BalanceResult`
+    (its ``what`` part, ``"mission"`` or ``"balance"``, interpolated).
 
     Raises:
         TrajectoryError: the trajectory has the wrong number of joints.
     """
     if isinstance(trajectory, tuple):
         trajectory = SampledTrajectory(*trajectory)
+    elif isinstance(trajectory, BalanceResult):
+        trajectory = SampledTrajectory.from_result(trajectory, what)
     sample = trajectory.sample if hasattr(trajectory, "sample") else trajectory
     if not callable(sample):
         raise TrajectoryError(
@@ -331,6 +321,19 @@ def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callabl
         )
     duration = getattr(trajectory, "duration", None)
     return sample, (None if duration is None else float(duration))
+
+
+def arm_samples(robot, sample_M: Callable, sample_B: Callable, t) -> list[np.ndarray]:
+    """``[q, q_dot, q_ddot]`` (T, n) each: mission and balance samples at times ``t`` stacked
+    into the robot's arm vectors."""
+    out = [np.empty((t.size, robot.n)) for _ in range(3)]
+    for samples, cols in (
+        (sample_M(t), robot.mission_indices),
+        (sample_B(t), robot.balance_indices),
+    ):
+        for full, part in zip(out, samples):
+            full[:, cols] = part
+    return out
 
 
 # ---------------------------------------------------------------------------------- Cartesian goals
@@ -371,13 +374,12 @@ def _goal_rotation(orientation) -> np.ndarray | None:
     )
 
 
-def solve_cartesian_goal(
-    robot, q_start, position, orientation=None, arm: str = "mission", base: pin.SE3 | None = None
-) -> np.ndarray:
-    """The joint goal [rad] that puts an arm's end effector on a goal pose, by inverse kinematics.
+def solve_cartesian_goal(robot, q_start, position, orientation=None) -> np.ndarray:
+    """The joint goal [rad] that puts the mission end effector on a goal pose, by inverse
+    kinematics.
 
-    The goal is in the world frame with the base at its initial pose (``base``, identity by
-    default), and the inverse kinematics keep the base there: the joint goal is the one that
+    The goal is in the frame of the base at its initial pose (the identity), and the inverse
+    kinematics keep the base there: the joint goal is the one that
     puts the end effector on the goal *as seen from the base at the start*. During the motion
     the base turns and drifts as momentum conservation forces it (that is what the balance arm
     corrects), so the world-frame end point can differ; the joint goal does not.
@@ -392,8 +394,6 @@ def solve_cartesian_goal(
         position: goal position of the end-effector frame's origin, world frame [m].
         orientation: goal orientation, a quaternion (x, y, z, w) or a 3 x 3 rotation matrix;
             ``None`` for position only.
-        arm: the arm whose end effector is placed.
-        base: initial base pose (identity by default).
 
     Raises:
         TrajectoryError: bad inputs, or the goal is out of reach within the joint limits; the
@@ -406,7 +406,7 @@ def solve_cartesian_goal(
             f"Cartesian goal position must be 3 finite numbers [m], got {goal_p.tolist()}"
         )
     goal_R = _goal_rotation(orientation)
-    arm = robot.arm(arm)
+    arm = robot.mission
     q_start = np.asarray(q_start, dtype=float).ravel()
     if q_start.size != arm.dof:
         raise TrajectoryError(
@@ -423,7 +423,7 @@ def solve_cartesian_goal(
 
     def error(q):
         q_full[arm.indices] = q
-        qp = robot.pin_q(q_full, base)
+        qp = robot.pin_q(q_full)
         J = pin.computeFrameJacobian(model, data, qp, frame, pin.LOCAL_WORLD_ALIGNED)
         J = robot.arm_columns(J)[:, cols]
         pose = data.oMf[frame]
@@ -473,20 +473,12 @@ def _point(v) -> str:
     return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
 
 
-def cartesian_goal(
-    robot,
-    q_start,
-    position,
-    duration: float,
-    orientation=None,
-    arm: str = "mission",
-    base: pin.SE3 | None = None,
-) -> PointToPoint:
-    """Point-to-point motion (quintic, rest to rest) of an arm to a Cartesian goal
+def cartesian_goal(robot, q_start, position, duration: float, orientation=None) -> PointToPoint:
+    """Point-to-point motion (quintic, rest to rest) of the mission arm to a Cartesian goal
     (:func:`solve_cartesian_goal`; the arguments are its own and the motion's ``duration`` [s]).
 
     Raises:
         TrajectoryError: unreachable goal (with the remaining distance), bad inputs.
     """
-    goal = solve_cartesian_goal(robot, q_start, position, orientation, arm, base)
+    goal = solve_cartesian_goal(robot, q_start, position, orientation)
     return PointToPoint(q_start, goal, duration)
