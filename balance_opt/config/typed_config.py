@@ -36,28 +36,108 @@ given.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import math
 import re
+import types
 import typing
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, Union
 
-from balance_opt.config.keypath import format_path
-from balance_opt.config.type_names import (
-    describe,
-    is_union,
-    plural,
-    suggest,
-    tag_of,
-    type_hints,
-    value_words,
-)
+from balance_opt.config.yaml_lines import format_path
 from balance_opt.errors import InputError
 
 _MISSING = dataclasses.MISSING
 
 
+# ------------------------------------------------------------------------------ types in words
+@functools.cache
+def type_hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def is_union(tp) -> bool:
+    return typing.get_origin(tp) in (Union, types.UnionType)
+
+
+def union_args(tp) -> tuple:
+    return typing.get_args(tp) if is_union(tp) else (tp,)
+
+
+def tag_of(cls) -> str | None:
+    """The ``type`` literal of a tagged-union member, or None."""
+    if not dataclasses.is_dataclass(cls):
+        return None
+    tp = type_hints(cls).get("type")
+    if typing.get_origin(tp) is Literal and len(typing.get_args(tp)) == 1:
+        return typing.get_args(tp)[0]
+    return None
+
+
+def describe(tp) -> str:
+    """Human name of a type, as used in 'expected ...' messages and the reference."""
+    if tp is type(None):
+        return "null"
+    if is_union(tp):
+        members = [a for a in typing.get_args(tp) if a is not type(None)]
+        if all(tag_of(a) for a in members):
+            return "a mapping with type: " + " | ".join(tag_of(a) for a in members)
+        return " or ".join(describe(a) for a in members)
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin is tuple:
+        return f"a list of {plural(typing.get_args(tp)[0])}"
+    if origin is dict:
+        return f"a mapping of names to {plural(typing.get_args(tp)[1])}"
+    if dataclasses.is_dataclass(tp):
+        return "a mapping"
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
+        tp, str(tp)
+    )
+
+
+def plural(tp) -> str:
+    if is_union(tp):
+        return " or ".join(plural(a) for a in typing.get_args(tp) if a is not type(None))
+    origin = typing.get_origin(tp)
+    if origin is tuple:
+        return f"lists of {plural(typing.get_args(tp)[0])}"
+    if origin is dict or dataclasses.is_dataclass(tp):
+        return "mappings"
+    if origin is Literal:
+        return "names (" + ", ".join(repr(a) for a in typing.get_args(tp)) + ")"
+    return {bool: "booleans", int: "integers", float: "numbers", str: "strings"}.get(tp, str(tp))
+
+
+def value_words(value) -> str:
+    kind = {
+        dict: "a mapping",
+        list: "a list",
+        str: "a string",
+        bool: "a boolean",
+        int: "an integer",
+        float: "a number",
+        type(None): "nothing (null)",
+    }.get(type(value), type(value).__name__)
+    if isinstance(value, (dict, list)):
+        return kind
+    if isinstance(value, bool):
+        return f"{str(value).lower()} ({kind})"
+    return f"{value!r} ({kind})"
+
+
+def suggest(name: Any, candidates) -> str:
+    """``"; did you mean 'x'?"`` for close matches, else ``""``."""
+    names = [str(c) for c in candidates]
+    close = difflib.get_close_matches(str(name), names, n=3)
+    if not close and len(str(name)) >= 3:  # an abbreviation: 'accel' for 'acceleration'
+        close = [c for c in names if c.startswith(str(name))][:3]
+    return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+
+
+# ----------------------------------------------------------------------------------- settings
 def setting(
     default: Any = _MISSING,
     *,
@@ -93,29 +173,9 @@ def setting(
         pattern: ``(regular expression, the rule in words)`` a string must match in full.
         per: the list holds one value per item of this kind (e.g. ``"balance joint"``); checked
             by the user of :func:`walk_settings`, who knows how many there are.
-        key: name of the key in files, when it differs from the attribute's.
-        section: name of the mapping the key is written in (see the module docstring).
-        inline: write the keys of this dataclass-typed field in the parent's mapping.
-        after: list the key after this other key.
-        in_file: ``False`` for a field that files do not set.
+        key, section, inline, after, in_file: where the key is in files (module docstring).
     """
-    meta = {
-        "doc": doc,
-        "unit": unit,
-        "minimum": minimum,
-        "exclusive_minimum": exclusive_minimum,
-        "finite": finite,
-        "min_items": min_items,
-        "max_items": max_items,
-        "item": item,
-        "pattern": pattern,
-        "per": per,
-        "key": key,
-        "section": section,
-        "inline": inline,
-        "after": after,
-        "in_file": in_file,
-    }
+    meta = {k: v for k, v in locals().items() if k not in ("default", "factory")}
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -200,9 +260,7 @@ def file_layout(cls) -> tuple:
 
 
 def get_attr(obj, attrs: tuple[str, ...]):
-    for name in attrs:
-        obj = getattr(obj, name)
-    return obj
+    return functools.reduce(getattr, attrs, obj)
 
 
 # ----------------------------------------------------------------------------------- validation
@@ -230,13 +288,12 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
         raise _Invalid(path, f"must be at least {lo:g}{unit}, got {value:g}")
 
 
-def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
-    if not isinstance(value, list):
-        raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
+def _convert_list(value: list, tp, meta: dict, path: tuple) -> tuple:
     n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
     if n_lo is not None and len(value) < n_lo and meta.get("item"):
         got = f"got {len(value)}" if value else "got an empty list"
-        raise _Invalid(path, f"must name at least {_count(n_lo, meta['item'])}, {got}")
+        items = f"one {meta['item']}" if n_lo == 1 else f"{n_lo} {meta['item']}s"
+        raise _Invalid(path, f"must name at least {items}, {got}")
     if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
         raise _Invalid(
             path, f"expected a list of {n_lo} {plural(typing.get_args(tp)[0])}, got {len(value)}"
@@ -249,39 +306,6 @@ def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
     return tuple(
         _convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value)
     )
-
-
-def _count(n: int, noun: str) -> str:
-    """``"one joint"``, ``"2 joints"``."""
-    return f"one {noun}" if n == 1 else f"{n} {noun}s"
-
-
-def _convert_scalar(value, tp, meta: dict, path: tuple):
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise _Invalid(path, f"expected true or false, got {value_words(value)}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise _Invalid(path, f"expected an integer, got {value_words(value)}")
-        _check_number(value, meta, path)
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _Invalid(path, f"expected a number, got {value_words(value)}")
-        _check_number(float(value), meta, path)
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise _Invalid(path, f"expected a string, got {value_words(value)}")
-        if not value.strip():
-            raise _Invalid(path, "expected a non-empty string")
-        if meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
-            raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
-        return value
-    if tp is Any:
-        return value
-    raise TypeError(f"typed_config: unsupported field type {tp!r} at {path}")
 
 
 def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
@@ -297,11 +321,13 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
                 + (suggest(value, options) if isinstance(value, str) else ""),
             )
         return value
+    if tp is Any or (dataclasses.is_dataclass(tp) and isinstance(value, tp)):
+        return value  # a dataclass built in Python checked itself
+    if not _same_kind(value, tp):
+        raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
     if origin is tuple:
         return _convert_list(value, tp, meta, path)
     if origin is dict:
-        if not isinstance(value, dict):
-            raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
         value_tp = typing.get_args(tp)[1]
         out = {}
         for k, v in value.items():
@@ -310,14 +336,17 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
             out[k] = _convert(v, value_tp, meta, (*path, k))
         return out
     if dataclasses.is_dataclass(tp):
-        if isinstance(value, tp):  # built in Python: it checked itself
-            return value
-        if not isinstance(value, dict):
-            raise _Invalid(path, f"expected a mapping, got {value_words(value)}")
         tree: dict = {}
         _read_mapping(value, file_layout(tp), path, tree, getattr(tp, "__exactly_one__", ()))
         return _build(tp, tree, path)
-    return _convert_scalar(value, tp, meta, path)
+    if tp in (int, float):
+        _check_number(value, meta, path)
+        return tp(value)
+    if tp is str and not value.strip():
+        raise _Invalid(path, "expected a non-empty string")
+    if tp is str and meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
+        raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
+    return value
 
 
 def _convert_union(value, tp, meta, path):
@@ -382,7 +411,7 @@ def _same_kind(value, tp) -> bool:
         return isinstance(value, int) and not isinstance(value, bool)
     if tp is float:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
-    return False
+    raise TypeError(f"typed_config: unsupported field type {tp!r}")
 
 
 def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=()) -> None:
@@ -499,16 +528,12 @@ def check_settings(obj, what: str) -> None:
             object.__setattr__(obj, f.name, converted)
 
 
-def walk_settings(obj, path: Sequence[Any] = ()) -> Iterator[tuple[tuple, Any, dict]]:
+def walk_settings(obj, path: tuple = (), entries=None) -> Iterator[tuple[tuple, Any, dict]]:
     """Every value of the typed tree ``obj``: ``(key path in the file, value, declaration)``,
     depth first (the values of nested dataclasses, not the dataclasses)."""
-    yield from _walk(obj, file_layout(type(obj)), tuple(path))
-
-
-def _walk(obj, entries: tuple, path: tuple):
-    for e in entries:
+    for e in file_layout(type(obj)) if entries is None else entries:
         if isinstance(e, Section):
-            yield from _walk(obj, e.entries, (*path, e.key))
+            yield from walk_settings(obj, (*path, e.key), e.entries)
             continue
         value = get_attr(obj, e.attrs)
         if dataclasses.is_dataclass(value):

@@ -15,13 +15,16 @@ import typing
 from dataclasses import MISSING
 from typing import Any, Literal
 
-from balance_opt.config.type_names import describe, is_union, tag_of, union_args
 from balance_opt.config.typed_config import (
     NUMBER_META,
     Section,
+    describe,
     field_default,
     file_layout,
     get_attr,
+    is_union,
+    tag_of,
+    union_args,
 )
 
 

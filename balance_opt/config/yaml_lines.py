@@ -21,8 +21,21 @@ from typing import Any
 
 import yaml
 
-from balance_opt.config.keypath import KeyPath, format_path
 from balance_opt.errors import InputError
+
+#: A key path: mapping keys (str) and sequence positions (int), outermost first.
+KeyPath = tuple[Any, ...]
+
+
+def format_path(path: Sequence[Any]) -> str:
+    """``("mission", "goal", 2)`` -> ``"mission.goal[2]"``; the empty path is ``"(top level)"``."""
+    out = ""
+    for part in path:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += f".{part}" if out else str(part)
+    return out or "(top level)"
 
 
 class TaskFileError(InputError):
@@ -51,6 +64,7 @@ class _Loader(yaml.SafeLoader):
     """SafeLoader that also reads ``1e-3`` as a float."""
 
 
+_FLOAT_TAG = "tag:yaml.org,2002:float"
 _FLOAT = re.compile(
     r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
     |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
@@ -60,15 +74,10 @@ _FLOAT = re.compile(
     re.VERBOSE,
 )
 _Loader.yaml_implicit_resolvers = {
-    k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    k: [r for r in v if r[0] != _FLOAT_TAG]
+    for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
 }
-for _first in "-+0123456789.":
-    _Loader.yaml_implicit_resolvers[_first] = [
-        (tag, regexp)
-        for tag, regexp in _Loader.yaml_implicit_resolvers.get(_first, [])
-        if tag != "tag:yaml.org,2002:float"
-    ]
-_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT, list("-+0123456789."))
+_Loader.add_implicit_resolver(_FLOAT_TAG, _FLOAT, list("-+0123456789."))
 
 
 @dataclass(frozen=True)

@@ -166,9 +166,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
         )
     if "task" in doc.data and "task" not in TaskSpec.__dataclass_fields__:
         # a sweep file names its base task under ``task``; no task file has that key
-        raise doc.error(
-            ("task",), "this is a sweep file, not a task file: use balance-opt sweep"
-        )
+        raise doc.error(("task",), "this is a sweep file, not a task file: use balance-opt sweep")
     spec: TaskSpec = _with_srdf(_with_checked_ipopt(from_data(TaskSpec, doc), doc), doc, base_dir)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)

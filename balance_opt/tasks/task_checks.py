@@ -9,9 +9,8 @@ import logging
 
 import numpy as np
 
-from balance_opt.config.keypath import format_path
 from balance_opt.config.typed_config import walk_settings
-from balance_opt.config.yaml_lines import TaskFileError, YamlDocument
+from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, format_path
 from balance_opt.errors import InfeasibleLimitsError, TrajectoryError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.trajectories import JointTrajectory
