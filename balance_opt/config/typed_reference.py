@@ -43,10 +43,9 @@ def _schema(tp, meta: dict, defs: dict) -> dict:
     if origin is tuple:
         item_meta = {k: meta.get(k) for k in NUMBER_META}
         out = {"type": "array", "items": _schema(typing.get_args(tp)[0], item_meta, defs)}
-        if meta.get("min_items") is not None:
-            out["minItems"] = meta["min_items"]
-        if meta.get("max_items") is not None:
-            out["maxItems"] = meta["max_items"]
+        for name, key in (("min_items", "minItems"), ("max_items", "maxItems")):
+            if meta.get(name) is not None:
+                out[key] = meta[name]
         return out
     if origin is dict:
         return {
@@ -185,21 +184,17 @@ def _default_text(f) -> str:
     return repr(default) if isinstance(default, str) else str(_json_default(default))
 
 
-def reference_rows(cls, prefix: str = "") -> list[tuple[str, str, str, str]]:
+def reference_rows(cls, prefix: str = "", entries=None) -> list[tuple[str, str, str, str]]:
     """Rows ``(key path, type, default, meaning)`` of every key of the format, depth first.
 
     Tagged-union members are listed under ``prefix (type: tag)``.
     """
-    return _entry_rows(file_layout(cls), prefix)
-
-
-def _entry_rows(entries: tuple, prefix: str) -> list[tuple[str, str, str, str]]:
     rows = []
-    for e in entries:
+    for e in file_layout(cls) if entries is None else entries:
         key = f"{prefix}{e.key}"
         if isinstance(e, Section):
             rows.append((key, "mapping", "see below", e.doc))
-            rows.extend(_entry_rows(e.entries, f"{key}."))
+            rows.extend(reference_rows(cls, f"{key}.", e.entries))
             continue
         tp, doc = e.tp, _doc(e.meta)
         members = [m for m in union_args(tp) if m is not type(None)]
