@@ -20,12 +20,6 @@ import numpy as np
 import pytest
 
 from balance_opt.config.yaml_lines import TaskFileError, format_path
-from balance_opt.sweep.cases import (
-    apply_overrides,
-    case_id_from,
-    parameter_columns,
-    parse_key_path,
-)
 from balance_opt.sweep.engine import (
     STATUS_OK,
     LocalPoolEngine,
@@ -35,7 +29,14 @@ from balance_opt.sweep.engine import (
     write_json_atomic,
 )
 from balance_opt.sweep.run import run_sweep
-from balance_opt.sweep.spec import load_sweep, parse_sweep
+from balance_opt.sweep.spec import (
+    apply_overrides,
+    case_id_from,
+    load_sweep,
+    parameter_columns,
+    parse_key_path,
+    parse_sweep,
+)
 from balance_opt.sweep.tables import (
     diagnostics_table,
     is_timing_column,

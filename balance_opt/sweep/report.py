@@ -23,7 +23,7 @@ import numpy as np
 
 from balance_opt.report.output_dir import replaced_atomically
 from balance_opt.report.style import SCREEN_DPI, method_style, styled
-from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
+from balance_opt.sweep.spec import canonical_json, is_number, parameter_columns
 from balance_opt.sweep.tables import write_tables
 
 logger = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from balance_opt.report.output_dir import replaced_atomically
-from balance_opt.sweep.cases import parameter_columns
+from balance_opt.sweep.spec import parameter_columns
 
 #: Leading columns of both tables: they identify a case.
 KEY_COLUMNS = ("index", "case_id", "method")
