@@ -7,6 +7,7 @@ imported by name in the worker processes); the end-to-end tests run the real pla
 paper's task with tiny horizons.
 """
 
+import csv
 import json
 import os
 import re
@@ -28,6 +29,7 @@ from balance_opt.sweep.engine import (
     run_cases,
     write_json_atomic,
 )
+from balance_opt.sweep.report import diagnostics_table, is_timing_column, results_table
 from balance_opt.sweep.run import run_sweep
 from balance_opt.sweep.spec import (
     apply_overrides,
@@ -37,12 +39,6 @@ from balance_opt.sweep.spec import (
     parse_key_path,
     parse_sweep,
 )
-from balance_opt.sweep.tables import (
-    diagnostics_table,
-    is_timing_column,
-    read_table_csv,
-    results_table,
-)
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_TASK = ROOT / "examples" / "capture_task.yaml"
@@ -51,6 +47,13 @@ TOY_RUNNER = "test_sweep:toy_case"
 LIMIT_SLACK = 1e-6
 #: Seconds a test waits for a subprocess sweep before giving up.
 SUBPROCESS_TIMEOUT = 120
+
+
+def read_table_csv(path) -> tuple[list[str], list[dict[str, str]]]:
+    """Columns and rows (as text) of a table the sweep wrote."""
+    with Path(path).open(newline="") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or []), list(reader)
 
 
 # ------------------------------------------------------------------------------ toy case function
@@ -560,7 +563,7 @@ def test_table_order_and_timing_columns():
 
 def test_the_two_tables_hold_every_recorded_value_once():
     """Every metric, error and timing value of a record is in exactly one of the two tables."""
-    from balance_opt.sweep.tables import flatten
+    from balance_opt.sweep.report import flatten
 
     record = {
         "index": 0,
