@@ -247,9 +247,14 @@ def _save(fig, path: str | Path) -> Path:
 
 
 def _method_style(method: str, **extra) -> dict[str, Any]:
-    """Colour and marker of a method as in every other figure (:mod:`balance_opt.report.style`)."""
+    """Colour, label and marker of a method as in every other figure
+    (:mod:`balance_opt.report.style`)."""
     style = method_style(method)
-    return {"color": style["color"], "label": style["label"], **extra}
+    return {
+        "color": style["color"],
+        "label": style["label"],
+        "marker": style["marker"] or "o",
+    } | extra
 
 
 def _drift_axis(ax, which: str, values) -> None:
@@ -305,14 +310,10 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
         if paired:
             _paired_panel(axes[0][2], paired)
             more, more_labels = axes[0][2].get_legend_handles_labels()
-            handles, labels = (
-                handles + more,
-                labels
-                + [
-                    f"{x} ({len(paired)} parameter sets)" if x != "equal" else x
-                    for x in more_labels
-                ],
-            )
+            handles += more
+            labels += [
+                x if x == "equal" else f"{x} ({len(paired)} parameter sets)" for x in more_labels
+            ]
         fig.legend(handles, labels, loc="outside upper center", ncol=len(handles))
         return _save(fig, path)
 
@@ -324,16 +325,15 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
             [d for r in ok if r["method"] == method if (d := _drift(r, key)) is not None]
         )
         if values.size:
-            few = values.size <= FEW_CASES  # a step through one point draws nothing
             ax.step(
                 values,
                 np.arange(1, values.size + 1) / values.size,
                 where="post",
-                **_method_style(
-                    method, linestyle=_line_style(method), marker=_marker(method) if few else ""
-                ),
+                **_method_style(method, linestyle=method_style(method)["linestyle"]),
             )
             ax.lines[-1].set_label(f"{ax.lines[-1].get_label()} ({values.size})")
+            if values.size > FEW_CASES:  # markers only where a step through one point is invisible
+                ax.lines[-1].set_marker("")
     _drift_axis(ax, "x", [_drift(r, key) for r in ok])
     ax.set_xlabel(f"{title} of the base attitude [rad]")
     ax.set_ylabel("fraction of cases")
@@ -343,9 +343,9 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
 
 def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
     """Optimal against analytic drift of the same parameter sets, with the diagonal."""
-    for key, marker, label in (
-        (MAX_DRIFT, "o", "maximum drift"),
-        (FINAL_DRIFT, "x", "final drift"),
+    for key, label, style in (
+        (MAX_DRIFT, "maximum drift", {"marker": "o", "facecolors": "none", "edgecolors": "black"}),
+        (FINAL_DRIFT, "final drift", {"marker": "x", "color": "#808080"}),
     ):
         xy = np.array(
             [
@@ -355,16 +355,7 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
             ]
         )
         if xy.size:
-            ax.scatter(
-                xy[:, 0],
-                xy[:, 1],
-                marker=marker,
-                s=18,
-                label=label,
-                facecolors="none" if marker == "o" else None,
-                edgecolors="black" if marker == "o" else None,
-                color="#808080" if marker == "x" else None,
-            )
+            ax.scatter(xy[:, 0], xy[:, 1], s=18, label=label, **style)
     drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
     drifts = [d for d in drifts if d is not None]
     _drift_axis(ax, "x", drifts)
@@ -463,46 +454,30 @@ def _parameter_panels(axes, views, ok: Sequence[dict], methods: Sequence[str]) -
             ax = axes[i][j]
             for k, method in enumerate(methods):
                 points = [
-                    (x_of[r["index"]], _drift(r, key))
+                    (x_of[r["index"]], d)
                     for r in ok
-                    if r["method"] == method and r["index"] in x_of
+                    if r["method"] == method and r["index"] in x_of and (d := _drift(r, key))
                 ]
-                points = [(x, d) for x, d in points if d is not None]
                 if not points:
                     continue
                 x = np.array([p[0] for p in points])
                 if labels is not None:  # categories: methods side by side around each tick
                     x = x + CATEGORY_SPREAD * (k - (len(methods) - 1) / 2)
-                ax.scatter(
-                    x,
-                    [p[1] for p in points],
-                    s=16,
-                    alpha=0.8,
-                    **_method_style(method, marker=_marker(method)),
-                )
+                ax.scatter(x, [p[1] for p in points], s=16, alpha=0.8, **_method_style(method))
             if labels is not None:
                 ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize="small", ha="right")
                 ax.set_xlim(-0.5, len(labels) - 0.5)
-            elif all(isinstance(values[i], int) for i in indices):
+            else:
+                ax.margins(x=PARAMETER_MARGIN)
+            if labels is None and all(isinstance(values[i], int) for i in indices):
                 from matplotlib.ticker import MaxNLocator
 
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-                ax.margins(x=PARAMETER_MARGIN)
-            else:
-                ax.margins(x=PARAMETER_MARGIN)
             _drift_axis(ax, "y", [_drift(r, key) for r in ok])
             ax.grid(True, which="major", alpha=0.3)
             ax.set_xlabel(column)
             if j == 0:
                 ax.set_ylabel(f"{what} drift [rad]")
-
-
-def _marker(method: str) -> str:
-    return method_style(method)["marker"] or "o"
-
-
-def _line_style(method: str):
-    return method_style(method)["linestyle"]
 
 
 def plot_file_name(name: str) -> str:
@@ -537,11 +512,3 @@ def write_report(
             if p is not None:
                 written[f"drift_vs:{name}"] = p
     return written
-
-
-__all__ = [
-    "plot_drift_against_parameter",
-    "plot_drift_distribution",
-    "summarize",
-    "write_report",
-]
