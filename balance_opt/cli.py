@@ -89,7 +89,7 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
 
 
 def _cmd_schema(args) -> int:
-    from balance_opt.tasks.task import task_json_schema
+    from balance_opt.tasks.task_spec import task_json_schema
 
     print(json.dumps(task_json_schema(), indent=2))
     return EXIT_OK
@@ -103,7 +103,7 @@ def _cmd_validate(args) -> int:
     if args.schema:
         return _cmd_schema(args)
     if args.reference:
-        from balance_opt.tasks.task import task_reference_markdown
+        from balance_opt.tasks.task_spec import task_reference_markdown
 
         print(task_reference_markdown())
         return EXIT_OK

@@ -18,13 +18,13 @@ from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.tasks.task import (
-    load_task,
-    task_from_dict,
+from balance_opt.tasks.task import load_task, task_from_dict
+from balance_opt.tasks.task_spec import (
+    PtpMission,
+    TaskSpec,
     task_json_schema,
     task_reference_markdown,
 )
-from balance_opt.tasks.task_spec import PtpMission, TaskSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

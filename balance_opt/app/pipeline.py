@@ -19,7 +19,7 @@ from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.report.output_dir import OutputFolder
 from balance_opt.result import BalanceResult
-from balance_opt.tasks.task import Task, check_methods, check_optimal_supported
+from balance_opt.tasks.task import Task, check_methods
 
 if TYPE_CHECKING:
     from balance_opt.dynamics.simulation import SimulationResult
@@ -115,7 +115,7 @@ def plan_optimal(
         _checked_plan(warm_start)
     if task.target is not None:
         return _captured(task, "optimal", solver_options, models, executor)
-    check_optimal_supported(task)
+    check_methods(task, ("optimal",))
     spec = task.spec.optimal
     options = task.planner_options(solver_options)
     model = (models if models is not None else ModelCache()).planner_model(

@@ -25,7 +25,6 @@ from balance_opt.model.robot import FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.tasks.task_checks import (
-    TaskLimitsError,
     TaskTrajectoryError,
     check_capture,
     check_lengths,
@@ -39,8 +38,6 @@ from balance_opt.tasks.task_spec import (
     PtpMission,
     TaskSpec,
     ViaMission,
-    task_json_schema,
-    task_reference_markdown,
 )
 
 log = logging.getLogger(__name__)
@@ -373,29 +370,20 @@ def _cartesian_mission(
 
 def check_methods(task: Task, methods) -> None:
     """What the planning ``methods`` need of the task beyond its loading, checked before
-    anything is computed (``balance-opt validate`` checks those of ``plan``'s default
-    methods, analytic and optimal).
+    anything is computed (``balance-opt validate`` checks those of ``plan``'s default methods).
+
+    The optimal planner cannot handle torque limits on a robot with a prismatic model joint
+    (their inverse dynamics come from adam-robotics, which mishandles prismatic joints), nor a
+    prismatic model joint where the symbolic backend is adam (``robot.backend: adam``, or
+    ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the Pinocchio-CasADi
+    bridge).
 
     Raises:
-        TaskFileError: located at the key the method cannot work with.
-    """
-    if "optimal" in methods:
-        check_optimal_supported(task)
-
-
-def check_optimal_supported(task: Task) -> None:
-    """What the optimal planner cannot do, located in the task: torque limits on a robot with a prismatic
-    model joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
-    joints), or a prismatic model joint where the symbolic backend is adam (``robot.backend:
-    adam``, or ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the
-    Pinocchio-CasADi bridge).
-
-    Raises:
-        TaskFileError: naming the key and the way out.
+        TaskFileError: located at the key the method cannot work with, naming the way out.
     """
     robot = task.robot
     prismatic = [j for j in robot.model_joint_names if robot.joint_type(j) == "prismatic"]
-    if not prismatic:
+    if "optimal" not in methods or not prismatic:
         return
     joint = prismatic[0]
     if task.spec.optimal.planner.torque_limits:
@@ -422,19 +410,3 @@ def check_optimal_supported(task: Task) -> None:
         f"joint '{joint}' is prismatic, which the adam backend ({why}) cannot handle; lock "
         "it, use the pinocchio backend, or plan with --method analytic",
     )
-
-
-__all__ = [
-    "Task",
-    "TaskFileError",
-    "TaskLimitsError",
-    "TaskSpec",
-    "TaskTrajectoryError",
-    "check_methods",
-    "check_optimal_supported",
-    "load_task",
-    "task_from_dict",
-    "task_from_document",
-    "task_json_schema",
-    "task_reference_markdown",
-]
