@@ -1,36 +1,24 @@
 """Typed configuration: one declaration per setting, for files and for Python alike.
 
 A format is a tree of frozen dataclasses whose fields are declared with :func:`setting` (a
-``dataclasses.field`` that also carries a description, a unit and value constraints). From that
-one declaration this module derives
+``dataclasses.field`` that also carries a description, a unit and value constraints). From it
+come the validator of files (:func:`from_data`: every error names the file, the line, the key
+path and what was expected), that of Python calls (:func:`check_settings`, from the dataclass's
+``__post_init__``), the JSON Schema and the reference table
+(:mod:`balance_opt.config.typed_reference`), and :func:`walk_settings` for checks that need
+more than the value (one value per joint of a robot, ...).
 
-* the validator of files, :func:`from_data`: plain data (from :mod:`balance_opt.config.yaml_lines`)
-  to typed objects, every error naming the file, the line and the key path and what was expected;
-* the validator of Python calls, :func:`check_settings`, which the dataclass's ``__post_init__``
-  calls: the same checks, an :class:`~balance_opt.errors.InputError` naming the option;
-* the JSON Schema and the README's reference table (:mod:`balance_opt.config.typed_reference`,
-  from :func:`file_layout`, the keys as laid out in a file);
-* :func:`walk_settings`: every value of a tree with its key path and declaration, for checks
-  that need more than the value (one value per joint of a robot, ...).
+Field types: ``bool``, ``int``, ``float`` (an int is accepted), ``str``, ``Literal[...]``,
+``tuple[T, ...]`` (a YAML list), ``dict[str, T]`` (free keys), ``T | None``, unions of those,
+nested dataclasses, and *tagged unions*: dataclasses that each have a ``type: Literal["..."]``
+field, chosen by the ``type`` key.
 
-Supported field types: ``bool``, ``int``, ``float`` (an int is accepted), ``str``,
-``Literal[...]``, ``tuple[T, ...]`` (a YAML list), ``dict[str, T]`` (a mapping with free keys),
-``T | None``, unions of those, nested dataclasses, and *tagged unions*: a union of dataclasses
-that each have a ``type: Literal["..."]`` field, chosen by the ``type`` key.
-
-A field's key in the file may differ from its place on the class:
-
-* ``key="integrator"``: the key is named differently from the attribute;
-* ``section="constraints"``: the field is an attribute of the class but its key is written
-  inside the mapping ``constraints``; the class's ``__sections__`` describes each section;
-* ``inline=True`` (a dataclass-typed field): the other way round, the keys of the nested
-  dataclass are written in the parent's mapping, as if they were its own;
-* ``after="horizon"``: the key is listed after another key (schema and reference order);
-* ``in_file=False``: the field is set from elsewhere, not a key of the file; Python calls are
-  still checked.
-
-A dataclass may set ``__exactly_one__ = ("a", "b", ...)``: exactly one of these keys must be
-given.
+Where a field's key is in the file: ``key="integrator"`` names it differently from the
+attribute; ``section="constraints"`` writes it inside the mapping ``constraints`` (described in
+the class's ``__sections__``); ``inline=True`` writes the keys of a nested dataclass in the
+parent's mapping; ``after="horizon"`` lists it after another key; ``in_file=False`` leaves it
+out of files (Python calls are still checked). A dataclass may set ``__exactly_one__ = ("a",
+"b", ...)``: exactly one of these keys must be given.
 """
 
 from __future__ import annotations

@@ -158,11 +158,15 @@ def canonical_json(data: Any) -> str:
     return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=True)
 
 
+def _sha256(data: Any) -> str:
+    return hashlib.sha256(canonical_json(data).encode()).hexdigest()
+
+
 def case_id_from(method: str, parameters: dict[str, Any], setup_hash: str) -> str:
     """Stable id of a case: a hash of its method, its parameters and what all cases share (the
     base task, ``simulate``, the solver options: ``setup_hash``)."""
-    text = canonical_json({"method": method, "parameters": parameters, "setup": setup_hash})
-    return hashlib.sha256(text.encode()).hexdigest()[:CASE_ID_DIGITS]
+    key = {"method": method, "parameters": parameters, "setup": setup_hash}
+    return _sha256(key)[:CASE_ID_DIGITS]
 
 
 def _as_array(value: Any, what: str) -> np.ndarray:
@@ -271,14 +275,22 @@ def _parameter_places(spec: SweepSpec, doc: YamlDocument) -> dict[str, tuple]:
     return where
 
 
-def _parameter_sets(spec: SweepSpec, doc: YamlDocument) -> tuple[list[dict], dict[str, tuple]]:
-    """Parameter sets (key path -> value) in expansion order, and where each key path is
-    written in the sweep file."""
+def expand_cases(
+    spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str, base_dir: str, solver_options
+) -> tuple[list[dict], dict[str, tuple]]:
+    """The cases of a sweep (see the module docstring), in a fixed order: parameter sets in file
+    order (grid, then list, then random samples, innermost last), each with every method; and
+    where each varied key path is written in the sweep file.
+
+    Raises:
+        TaskFileError: a bad key path, a parameter varied in two places or that cannot be put in
+            the task, or two cases with the same method and parameters.
+    """
     where = _parameter_places(spec, doc)
     grid_sets = [dict(zip(spec.grid, combo)) for combo in itertools.product(*spec.grid.values())]
     list_sets = [dict(entry) for entry in spec.cases] or [{}]
     random_sets = [{}] if spec.random is None else draw_samples(spec.random, doc)
-    sets = []
+    cases, seen = [], {}
     for g, c, r in itertools.product(grid_sets, list_sets, random_sets):
         clash = (set(g) & set(c)) | (set(g) & set(r)) | (set(c) & set(r))
         if clash:
@@ -288,23 +300,7 @@ def _parameter_sets(spec: SweepSpec, doc: YamlDocument) -> tuple[list[dict], dic
                 f"parameter '{name}' is varied in more than one of grid, "
                 "cases and random; vary each parameter in one place",
             )
-        sets.append({**g, **c, **r})
-    return sets, where
-
-
-def expand_cases(
-    spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str, base_dir: str
-) -> tuple[list[dict], dict[str, tuple]]:
-    """The cases of a sweep (see the module docstring), in a fixed order: parameter sets in file order
-    (grid, then list, then random samples, innermost last), each with every method.
-
-    Raises:
-        TaskFileError: a bad key path, a parameter that cannot be put in the task, or two cases
-            with the same method and parameters.
-    """
-    sets, where = _parameter_sets(spec, doc)
-    cases, seen = [], {}
-    for parameters in sets:
+        parameters = {**g, **c, **r}
         try:
             case_task = apply_overrides(task, parameters)
         except KeyError as exc:
@@ -329,6 +325,7 @@ def expand_cases(
                     "task": case_task,
                     "base_dir": base_dir,
                     "simulate": spec.simulate,
+                    "solver_options": solver_options,
                 }
             )
     return cases, where
@@ -365,12 +362,8 @@ def parameter_columns(parameters: dict[str, Any]) -> dict[str, Any]:
 
 
 def is_number(value: Any) -> bool:
-    """A real number (not a boolean), finite or not."""
-    return (
-        isinstance(value, (int, float))
-        and not isinstance(value, bool)
-        and not (isinstance(value, float) and math.isnan(value))
-    )
+    """A real number (not a boolean, not NaN), finite or not."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value == value
 
 
 SWEEP_SCHEMA_ID = "https://balance-opt.invalid/sweep.schema.json"
@@ -420,20 +413,19 @@ class Sweep:
 def sweep_from_document(
     doc: YamlDocument, base_dir: str | Path, solver_options: dict[str, Any] | None = None
 ) -> Sweep:
-    """A :class:`Sweep` from a parsed sweep file.
+    """A :class:`Sweep` from a parsed sweep file in folder ``base_dir``; ``solver_options``
+    (``--solver-option``) are the Ipopt options of every case, part of the ids.
 
     The base task and the task of every case are loaded in full. Limits no plan can meet and
     missions that cannot be built are not errors of the sweep file: in a study they are results,
     so such a case fails when it runs and the sweep goes on.
 
-    Args:
-        base_dir: folder of the sweep file (relative paths start there).
-        solver_options: Ipopt options for every case (``--solver-option``); part of the ids.
-
     Raises:
         TaskFileError: anything wrong in the sweep file or the base task, or a parameter value
             of the wrong type or at an unknown key (located at the parameter in the sweep file).
     """
+    from balance_opt.tasks.task import task_from_document
+
     if not isinstance(doc.data, dict):
         raise doc.error(
             (), "expected a mapping with the keys of a sweep (task, grid, cases, random)"
@@ -454,29 +446,21 @@ def sweep_from_document(
         )
     task_dir = task_path.parent if task_path is not None else base_dir.resolve()
     task = task_doc.data
-    task_hash = hashlib.sha256(canonical_json(task).encode()).hexdigest()
-    _load_task(task_doc, task_dir, task_hash, prefix)
-    solver_options = dict(solver_options or {})
-    setup = {"task": task_hash, "simulate": spec.simulate, "solver_options": solver_options}
-    setup_hash = hashlib.sha256(canonical_json(setup).encode()).hexdigest()
-    cases, where = expand_cases(spec, doc, task, setup_hash, str(task_dir))
-    for case in cases:
-        case["solver_options"] = solver_options
-    _check_case_tasks(cases, doc, task_doc, task_dir, where)
-    logger.info("sweep %s: %d case(s)", doc.source, len(cases))
-    return Sweep(spec, doc.source, str(task_dir), task, setup_hash, cases, tuple(where))
-
-
-def _load_task(task_doc: YamlDocument, task_dir: Path, task_hash: str, prefix: tuple):
-    """Load the base task; errors in an inline task get the ``task.`` prefix on their key path."""
-    from balance_opt.tasks.task import task_from_document
-
+    task_hash = _sha256(task)
     try:
-        return task_from_document(task_doc, task_dir, task_hash)
+        task_from_document(task_doc, task_dir, task_hash)
     except TaskFileError as exc:
         if not prefix:
             raise
         raise type(exc)(exc.source, exc.line, (*prefix, *exc.path), exc.reason) from None
+    solver_options = dict(solver_options or {})
+    setup_hash = _sha256(
+        {"task": task_hash, "simulate": spec.simulate, "solver_options": solver_options}
+    )
+    cases, where = expand_cases(spec, doc, task, setup_hash, str(task_dir), solver_options)
+    _check_case_tasks(cases, doc, task_doc, task_dir, where)
+    logger.info("sweep %s: %d case(s)", doc.source, len(cases))
+    return Sweep(spec, doc.source, str(task_dir), task, setup_hash, cases, tuple(where))
 
 
 def _check_case_tasks(
