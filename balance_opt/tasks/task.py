@@ -320,52 +320,35 @@ def _via_points(m: ViaMission, doc: YamlDocument) -> ViaPoints:
     return ViaPoints(m.times, np.array(m.points))
 
 
-def _csv_mission(m: CsvMission, doc: YamlDocument, base_dir: Path, robot) -> CsvTrajectory:
-    path = base_dir / m.file
-    if not path.is_file():
-        raise doc.error(("mission", "file"), f"no such CSV file: {path}")
-    try:
-        return CsvTrajectory(path, robot.mission.joints, time_column=m.time_column)
-    except TrajectoryError as exc:
-        raise doc.error(("mission", "file"), str(exc), TaskTrajectoryError) from None
-
-
 def _build_mission(
     spec: TaskSpec, doc: YamlDocument, base_dir: Path, robot: FloatingRobot
 ) -> JointTrajectory:
-    """The mission trajectory (list lengths per mission joint already checked)."""
+    """The mission trajectory (list lengths per mission joint already checked); a Cartesian
+    goal is solved by inverse kinematics (base at its initial pose), then reached point to
+    point."""
     m = spec.mission
+    key = {CsvMission: "file", CartesianMission: "position"}.get(type(m))
     try:
         if isinstance(m, PtpMission):
             return PointToPoint(np.array(m.start), np.array(m.goal), m.duration)
         if isinstance(m, ViaMission):
             return _via_points(m, doc)
         if isinstance(m, CsvMission):
-            return _csv_mission(m, doc, base_dir, robot)
-        if isinstance(m, CartesianMission):
-            return _cartesian_mission(m, doc, robot)
-    except TrajectoryError as exc:
-        if isinstance(exc, TaskFileError):
-            raise
-        raise doc.error(("mission",), str(exc), TaskTrajectoryError) from None
-    raise AssertionError(f"unhandled mission type {type(m).__name__}")
+            path = base_dir / m.file
+            if not path.is_file():
+                raise doc.error(("mission", "file"), f"no such CSV file: {path}")
+            return CsvTrajectory(path, robot.mission.joints, time_column=m.time_column)
+        import pinocchio as pin
 
+        from balance_opt.motion.trajectories import cartesian_goal
 
-def _cartesian_mission(
-    m: CartesianMission, doc: YamlDocument, robot: FloatingRobot
-) -> JointTrajectory:
-    """Inverse kinematics to the goal pose (base at its initial pose), then point to point."""
-    import pinocchio as pin
-
-    from balance_opt.motion.trajectories import cartesian_goal
-
-    rotation = None if m.orientation is None else pin.rpy.rpyToMatrix(*m.orientation)
-    try:
+        rotation = None if m.orientation is None else pin.rpy.rpyToMatrix(*m.orientation)
         return cartesian_goal(
             robot, np.array(m.start), m.position, m.duration, orientation=rotation
         )
     except TrajectoryError as exc:
-        raise doc.error(("mission", "position"), str(exc), TaskTrajectoryError) from None
+        where = ("mission",) if key is None else ("mission", key)
+        raise doc.error(where, str(exc), TaskTrajectoryError) from None
 
 
 def check_methods(task: Task, methods) -> None:
