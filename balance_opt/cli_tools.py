@@ -15,8 +15,16 @@ def _count(n: int, one: str, many: str) -> str:
 
 
 def _cmd_cache(args) -> int:
-    from balance_opt.cache import CACHE_ENV, default_cache_dir
-    from balance_opt.cache_admin import KINDS, LIMIT_ENV, clear, entries, format_size, size_limit
+    from balance_opt.cache import (
+        CACHE_ENV,
+        KINDS,
+        LIMIT_ENV,
+        clear,
+        default_cache_dir,
+        entries,
+        format_size,
+        size_limit,
+    )
 
     folder = default_cache_dir()
     origin = f"${CACHE_ENV}" if os.environ.get(CACHE_ENV) else "default; set $" + CACHE_ENV
