@@ -473,8 +473,7 @@ def _check_case_tasks(
     """Load the task of every distinct parameter set; an error is reported at the line of the
     varied parameter in the sweep file. Limits no plan can meet and missions that cannot be
     built are left to fail their case when it runs: in a study they are results, not typos."""
-    from balance_opt.tasks.task import task_from_document
-    from balance_opt.tasks.task_checks import TaskLimitsError, TaskTrajectoryError
+    from balance_opt.tasks.task import TaskLimitsError, TaskTrajectoryError, task_from_document
 
     checked = set()
     for case in cases:

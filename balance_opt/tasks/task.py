@@ -1,7 +1,9 @@
 """Task files: one YAML file says which robot, which arms, which mission and which options.
 
 Every error is an :class:`~balance_opt.errors.InputError` whose message starts with
-``FILE:LINE: KEY.PATH:``. Loading imports neither CasADi nor the planner."""
+``FILE:LINE: KEY.PATH:``. Loading imports neither CasADi nor the planner.
+:func:`~balance_opt.config.typed_config.from_data` checks each value alone; what depends on the
+robot, the mission or another value is checked once they are built (``check_*``)."""
 
 from __future__ import annotations
 
@@ -17,21 +19,21 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.config.typed_config import from_data
-from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, load_yaml
-from balance_opt.errors import ArmError, InputError, JointError, TrajectoryError, URDFLoadError
+from balance_opt.config.typed_config import from_data, walk_settings
+from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, format_path, load_yaml
+from balance_opt.errors import (
+    ArmError,
+    InfeasibleLimitsError,
+    InputError,
+    JointError,
+    TrajectoryError,
+    URDFLoadError,
+)
 from balance_opt.model.arms import LIMIT_KEYS
 from balance_opt.model.robot import FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
-from balance_opt.tasks.task_checks import (
-    TaskTrajectoryError,
-    check_capture,
-    check_lengths,
-    check_limits,
-    check_problem_size,
-    check_time_grids,
-)
+from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
 from balance_opt.tasks.task_spec import (
     CartesianMission,
     CsvMission,
@@ -40,7 +42,32 @@ from balance_opt.tasks.task_spec import (
     ViaMission,
 )
 
+#: Samples per second used to check a mission trajectory against its limits [1/s].
+LIMIT_CHECK_RATE = 200.0
+#: Fewest samples used to check a mission trajectory against its limits.
+LIMIT_CHECK_MIN_SAMPLES = 501
+#: Most samples in one time grid of a plan (its outputs, its re-simulation, its simulation's
+#: outputs): a sample of the paper robot's plan is about 60 numbers in memory and 1 kB of CSV,
+#: so 1e6 samples are about 0.5 GB of arrays and 1 GB of files, for each method.
+MAX_SAMPLES = 1_000_000
+#: Fewest fixed integration steps (simulation ``rk4``, analytic ``rk4``) over the mission: a step
+#: longer than 1/100 of the motion does not resolve it.
+MIN_STEPS_PER_MISSION = 100
+#: Ipopt iterations of a typical optimal plan, all its solves, by objective (the peak objective
+#: has three stages), and the estimated planning time above which loading warns [s].
+TYPICAL_ITERATIONS = {"integral": 50, "peak": 300}
+LONG_PLAN_SECONDS = 600.0
+
+
 log = logging.getLogger(__name__)
+
+
+class TaskLimitsError(TaskFileError, InfeasibleLimitsError):
+    """Limits that no plan can meet, located in the task file."""
+
+
+class TaskTrajectoryError(TaskFileError, TrajectoryError):
+    """A mission trajectory that cannot be built, located in the task file."""
 
 
 @dataclass(frozen=True)
@@ -153,7 +180,7 @@ def task_from_dict(
 def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     """Validate a parsed document (types, keys, ranges: :func:`~balance_opt.config.typed_config.from_data`),
     resolve its files, build its robot and mission, check the per-joint lists and the limits
-    (:mod:`balance_opt.tasks.task_checks`) and set the initial momentum in the options.
+    and set the initial momentum in the options.
     """
     if not isinstance(doc.data, dict):
         raise doc.error(
@@ -393,3 +420,328 @@ def check_methods(task: Task, methods) -> None:
         f"joint '{joint}' is prismatic, which the adam backend ({why}) cannot handle; lock "
         "it, use the pinocchio backend, or plan with --method analytic",
     )
+
+
+# ------------------------------------------------------------ checks that need the robot, the mission
+def _joints_per_kind(robot: FloatingRobot) -> dict[str, list[str]]:
+    """The joints a ``per=`` declaration counts: mission, balance (arms stacked) or all arms."""
+    return {
+        "mission joint": list(robot.mission.joints),
+        "balance joint": [robot.joint_names[i] for i in robot.balance_indices],
+        "arm joint": list(robot.joint_names),
+    }
+
+
+def check_lengths(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
+    """Every list of the task declared with one value per joint of a kind (``per=``) has that
+    many values; a list of such lists (via points) is checked item by item.
+
+    Raises:
+        TaskFileError: ``"expected 3 values (one per balance joint: ...), got 2"``.
+    """
+    joints = _joints_per_kind(robot)
+    for path, value, meta in walk_settings(spec):
+        kind = meta.get("per")
+        if kind is None or not isinstance(value, tuple):
+            continue  # not per joint, not given, or one value for every joint (kp: 5)
+        nested = bool(value) and isinstance(value[0], tuple)
+        items = [((*path, i), v) for i, v in enumerate(value)] if nested else [(path, value)]
+        names = joints[kind]
+        for where, values in items:
+            if len(values) != len(names):
+                raise doc.error(
+                    where,
+                    f"expected {len(names)} values (one per {kind}: {', '.join(names)}), "
+                    f"got {len(values)}",
+                )
+
+
+def _limit_source(spec: TaskSpec, joint: str, key: str) -> str:
+    over = spec.limits.get(joint)
+    return (
+        f"limits.{joint}.{key}" if over is not None and getattr(over, key) is not None else "URDF"
+    )
+
+
+def _check_start(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, q_B0) -> None:
+    lim = robot.limits
+    for k, i in enumerate(robot.balance_indices):
+        j, q = robot.joint_names[i], q_B0[k]
+        if not lim.lower[i] - LIMIT_TOLERANCE <= q <= lim.upper[i] + LIMIT_TOLERANCE:
+            key = "lower" if q < lim.lower[i] else "upper"
+            raise doc.error(
+                ("initial", "balance", k) if spec.initial.balance else ("initial",),
+                f"balance joint '{j}' starts at {q:g} rad, outside its position limits "
+                f"[{lim.lower[i]:g}, {lim.upper[i]:g}] rad ({key} limit from "
+                f"{_limit_source(spec, j, key)}); no plan can meet them",
+                TaskLimitsError,
+            )
+
+
+def _set_positions(m, col: int) -> list[tuple[tuple, float]]:
+    """``(key, value)`` of every position the task sets for mission joint ``col``."""
+    if isinstance(m, PtpMission):
+        return [(("mission", "start", col), m.start[col]), (("mission", "goal", col), m.goal[col])]
+    if isinstance(m, ViaMission):
+        return [(("mission", "points", k, col), p[col]) for k, p in enumerate(m.points)]
+    return [(("mission", "start", col), m.start[col])]  # cartesian: the goal is solved for
+
+
+def _mission_key(spec: TaskSpec, kind: str, col: int, lim: tuple[float, float]) -> tuple:
+    """Where the task sets what makes mission joint ``col`` leave its ``kind`` limit: a start,
+    goal or via point outside the position limits, else the duration (or the times, the file)."""
+    m = spec.mission
+    if isinstance(m, CsvMission):
+        return ("mission", "file")
+    if kind == "position":
+        for key, value in _set_positions(m, col):
+            if not lim[0] - LIMIT_TOLERANCE <= value <= lim[1] + LIMIT_TOLERANCE:
+                return key
+        if isinstance(m, CartesianMission):
+            return ("mission", "position")
+    if isinstance(m, ViaMission):
+        return ("mission", "points" if kind == "position" else "times")
+    return ("mission", "duration")
+
+
+def _check_mission(
+    spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, mission: JointTrajectory
+) -> None:
+    lim = robot.limits
+    t = np.linspace(
+        0.0,
+        mission.duration,
+        min(MAX_SAMPLES, max(LIMIT_CHECK_MIN_SAMPLES, int(mission.duration * LIMIT_CHECK_RATE))),
+    )
+    q, qd, qdd = mission.sample(t)
+    idx = robot.mission_indices
+    violations = find_limit_violations(t, robot.mission.joints, q, qd, qdd, lim.subset(idx))
+    if violations:
+        v = violations[0]
+        col = robot.mission.joints.index(v.joint)
+        key = {"position": "lower", "velocity": "velocity", "acceleration": "acceleration"}[v.kind]
+        if v.kind == "position":
+            key = "upper" if q[:, col].max() > lim.upper[idx[col]] else "lower"
+        bounds = (lim.lower[idx[col]], lim.upper[idx[col]])
+        raise doc.error(
+            _mission_key(spec, v.kind, col, bounds),
+            f"the mission trajectory leaves the limits of the mission arm, which "
+            f"follows it as given: {v} (limit from "
+            f"{_limit_source(spec, v.joint, key)}); no plan can meet them",
+            TaskLimitsError,
+        )
+
+
+def _check_planner(
+    spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, duration: float
+) -> None:
+    planner = spec.optimal.planner
+    if planner.horizon is not None and planner.horizon < duration:
+        raise doc.error(
+            ("optimal", "horizon"),
+            f"the horizon ({planner.horizon:g} s) is shorter than the mission ({duration:g} s)",
+        )
+    final = planner.final_configuration
+    if final is not None and planner.position_limits:
+        lim = robot.limits.subset(robot.balance_indices)
+        for k, value in enumerate(final):
+            if not lim.lower[k] - LIMIT_TOLERANCE <= value <= lim.upper[k] + LIMIT_TOLERANCE:
+                j = robot.joint_names[robot.balance_indices[k]]
+                raise doc.error(
+                    ("optimal", "constraints", "final_configuration", k),
+                    f"balance joint '{j}' must end at {value:g} rad, outside its position limits "
+                    f"[{lim.lower[k]:g}, {lim.upper[k]:g}] rad; no plan can meet them",
+                    TaskLimitsError,
+                )
+
+
+def check_limits(
+    spec: TaskSpec,
+    doc: YamlDocument,
+    robot: FloatingRobot,
+    mission: JointTrajectory,
+    q_B0: np.ndarray,
+) -> None:
+    """Limits no plan can meet (a balance start or a prescribed final configuration outside the
+    position limits, a mission that leaves its own limits) and a horizon shorter than the mission.
+
+    Raises:
+        TaskLimitsError: naming the limit's source (``limits.J.KEY`` or URDF).
+        TaskFileError: ``optimal.horizon`` shorter than the mission.
+    """
+    _check_start(spec, doc, robot, q_B0)
+    _check_mission(spec, doc, robot, mission)
+    _check_planner(spec, doc, robot, float(mission.duration))
+
+
+def _given(doc: YamlDocument, path: tuple) -> bool:
+    """Whether the file sets the key at ``path``."""
+    node = doc.data
+    for part in path:
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def duration_key(spec: TaskSpec) -> tuple:
+    """The key of the task that sets the mission's duration."""
+    m = spec.mission
+    if isinstance(m, ViaMission):
+        return ("mission", "times", len(m.times) - 1)
+    if isinstance(m, CsvMission):
+        return ("mission", "file")
+    return ("mission", "duration")
+
+
+def _grids(spec: TaskSpec, duration: float) -> list[tuple[str, tuple, float, float, tuple]]:
+    """``(what, step key, step [s], span [s], span key)`` of each time grid of a plan."""
+    planner, sim = spec.optimal.planner, spec.simulation
+    span = max(duration, planner.horizon or 0.0)
+    span_key = ("optimal", "horizon") if span > duration else duration_key(spec)
+    integration = spec.analytic.integration
+    sim_out = ("simulation", "output_dt") if sim.output_dt is not None else ("simulation", "dt")
+    return [
+        (
+            "the analytic plan's outputs",
+            ("analytic", "output_step"),
+            integration.output_step,
+            duration,
+            duration_key(spec),
+        ),
+        (
+            "the re-simulation of the optimal plan",
+            ("optimal", "resample_step"),
+            planner.resample_step,
+            span,
+            span_key,
+        ),
+        ("the simulation's outputs", sim_out, sim.output_dt or sim.dt, span, span_key),
+    ]
+
+
+def _fixed_steps(spec: TaskSpec) -> list[tuple[str, tuple, float]]:
+    """``(integrator, step key, step [s])`` of the fixed-step integrations of a task."""
+    steps = []
+    if spec.simulation.integrator == "rk4":
+        steps.append(("the simulation's rk4", ("simulation", "dt"), spec.simulation.dt))
+    integration = spec.analytic.integration
+    if integration.method == "rk4":
+        key = "step" if integration.step is not None else "output_step"
+        steps.append(("the analytic rk4", ("analytic", key), getattr(integration, key)))
+    return steps
+
+
+def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None:
+    """No time grid of a plan longer than :data:`MAX_SAMPLES` samples (each error located at
+    the step when the file sets it, else at the duration), and no fixed integration step
+    longer than 1/:data:`MIN_STEPS_PER_MISSION` of the mission.
+
+    Raises:
+        TaskFileError: ``"mission.duration: a mission of 1e+308 s sampled every 0.01 s ..."``.
+    """
+    for what, step_key, step, span, span_key in _grids(spec, duration):
+        samples = span / step
+        if samples <= MAX_SAMPLES:
+            continue
+        count = f"{samples:.3g}" if np.isfinite(samples) else "over 1e308"
+        if _given(doc, step_key):
+            raise doc.error(
+                step_key,
+                f"{step:g} s over {span:g} s ({what}) is {count} samples; a plan may "
+                f"hold at most {MAX_SAMPLES:g}: over {span:g} s the step must be at least "
+                f"{span / MAX_SAMPLES:.3g} s",
+            )
+        raise doc.error(
+            span_key,
+            f"{span:g} s sampled every {step:g} s ({format_path(step_key)}: {what}) is {count} "
+            f"samples; a plan may hold at most {MAX_SAMPLES:g}: at that step the longest is "
+            f"{step * MAX_SAMPLES:.3g} s",
+        )
+    for what, key, step in _fixed_steps(spec):
+        longest = duration / MIN_STEPS_PER_MISSION
+        if step > longest:
+            raise doc.error(
+                key,
+                f"{what} step of {step:g} s does not resolve the {duration:g} s mission: it "
+                f"must be at most 1/{MIN_STEPS_PER_MISSION} of it, {longest:.3g} s",
+            )
+
+
+def _duration_words(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
+    """The optimal planner's problem fits in the memory budget
+    (:func:`~balance_opt.optimal.budget.memory_budget`), by an estimate made before anything
+    is built.
+
+    Raises:
+        TaskFileError: at ``optimal.intervals``, with the estimate and the largest ``N`` that
+            fits.
+    """
+    from balance_opt.optimal.budget import largest_intervals, memory_budget, problem_size
+
+    planner = spec.optimal.planner
+    limits = robot.limits.subset(robot.balance_indices)
+    size = problem_size(planner, limits)
+    budget = memory_budget()
+    iterations = TYPICAL_ITERATIONS[planner.objective] * planner.starts
+    expected = size.build_seconds + iterations * size.iteration_seconds
+    if size.memory_bytes <= budget:
+        if expected > LONG_PLAN_SECONDS:
+            log.warning(
+                "%s: the optimal plan with %d intervals may take about %s (build %s, then "
+                "%s per Ipopt iteration)",
+                doc.source,
+                planner.intervals,
+                _duration_words(expected),
+                _duration_words(size.build_seconds),
+                _duration_words(size.iteration_seconds),
+            )
+        return
+    matrices = (
+        "Ipopt's KKT matrix"
+        if size.problems == 1
+        else f"the KKT matrices of the {size.problems} NLPs the plan builds"
+    )
+    raise doc.error(
+        ("optimal", "intervals"),
+        f"{planner.intervals} intervals would need about {size.memory_bytes / 2**30:.1f} GiB of "
+        f"memory ({len(limits.lower)} balance joints: {size.variables:.3g} variables, "
+        f"{size.nonzeros:.3g} non-zeros in {matrices}), about "
+        f"{_duration_words(size.build_seconds)} to build and "
+        f"{_duration_words(size.iteration_seconds)} per Ipopt iteration; a plan "
+        f"may use {budget / 2**30:.1f} GiB (half of this machine's memory): at most "
+        f"{largest_intervals(planner, limits, budget)} intervals fit",
+    )
+
+
+def check_capture(spec: TaskSpec, doc: YamlDocument, duration: float):
+    """The capture section as a :class:`~balance_opt.model.capture.Target` (``None`` without
+    one): the capture time strictly inside the mission, a physical inertia.
+
+    Raises:
+        TaskFileError: located at ``capture.time`` or ``capture.inertia``.
+    """
+    from balance_opt.model.capture import Target
+
+    c = spec.capture
+    if c is None:
+        return None
+    if not c.time < duration:
+        raise doc.error(
+            ("capture", "time"),
+            f"must be before the end of the mission ({duration:g} s), got {c.time:g} s",
+        )
+    try:
+        return Target(
+            c.time, c.mass, np.array(c.inertia), c.com, c.linear_velocity, c.angular_velocity
+        )
+    except InputError as exc:
+        raise doc.error(("capture", "inertia"), str(exc)) from None
