@@ -191,7 +191,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     if "task" in doc.data and "task" not in TaskSpec.__dataclass_fields__:
         # a sweep file names its base task under ``task``; no task file has that key
         raise doc.error(("task",), "this is a sweep file, not a task file: use balance-opt sweep")
-    spec: TaskSpec = _with_srdf(_with_checked_ipopt(from_data(TaskSpec, doc), doc), doc, base_dir)
+    spec = _completed(from_data(TaskSpec, doc), doc, base_dir)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)
     check_problem_size(spec, doc, robot)
@@ -205,7 +205,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     check_limits(spec, doc, robot, mission, q_B0)
     target = check_capture(spec, doc, float(mission.duration))
     task = Task(
-        _with_momentum(spec),
+        spec,
         doc.source,
         base_dir,
         sha256,
@@ -220,39 +220,34 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     return task
 
 
-def _with_checked_ipopt(spec: TaskSpec, doc: YamlDocument) -> TaskSpec:
-    """``spec`` with ``optimal.ipopt`` checked against Ipopt's own option list and its values
-    in the types Ipopt wants (CasADi is imported only when the list is not cached yet)."""
+def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
+    """``spec`` with ``initial.momentum`` as the ``h0`` of the law and of the simulation,
+    ``optimal.ipopt`` checked against Ipopt's own option list and its values in the types Ipopt
+    wants (CasADi is imported only when the list is not cached yet), and ``robot.srdf`` (checked
+    to exist) as the planner's collision SRDF, an absolute path: the run's clearance check reads
+    it from there too."""
     planner = spec.optimal.planner
-    if not planner.ipopt:
-        return spec
-    from balance_opt.optimal.ipopt_options import check_ipopt_options
+    if planner.ipopt:
+        from balance_opt.optimal.ipopt_options import check_ipopt_options
 
-    ipopt = check_ipopt_options(
-        planner.ipopt, lambda name, problem: doc.error(("optimal", "ipopt", name), problem)
-    )
-    optimal = dataclasses.replace(spec.optimal, planner=dataclasses.replace(planner, ipopt=ipopt))
-    return dataclasses.replace(spec, optimal=optimal)
-
-
-def _with_srdf(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
-    """``spec`` with ``robot.srdf`` (checked to exist) as the planner's collision SRDF, an
-    absolute path: the run's clearance check reads it from there too."""
-    if spec.robot.srdf is None:
-        return spec
-    path = (base_dir / spec.robot.srdf).resolve()
-    if not path.is_file():
-        raise doc.error(("robot", "srdf"), f"no such SRDF file: {path}")
-    planner = dataclasses.replace(spec.optimal.planner, collision_srdf=str(path))
-    return dataclasses.replace(spec, optimal=dataclasses.replace(spec.optimal, planner=planner))
-
-
-def _with_momentum(spec: TaskSpec) -> TaskSpec:
-    """``spec`` with ``initial.momentum`` as the ``h0`` of the law and of the simulation."""
+        ipopt = check_ipopt_options(
+            planner.ipopt, lambda name, problem: doc.error(("optimal", "ipopt", name), problem)
+        )
+        planner = dataclasses.replace(planner, ipopt=ipopt)
+    if spec.robot.srdf is not None:
+        path = (base_dir / spec.robot.srdf).resolve()
+        if not path.is_file():
+            raise doc.error(("robot", "srdf"), f"no such SRDF file: {path}")
+        planner = dataclasses.replace(planner, collision_srdf=str(path))
     h0 = spec.initial.momentum
-    analytic = dataclasses.replace(spec.analytic, law=dataclasses.replace(spec.analytic.law, h0=h0))
-    simulation = dataclasses.replace(spec.simulation, h0=h0)
-    return dataclasses.replace(spec, analytic=analytic, simulation=simulation)
+    return dataclasses.replace(
+        spec,
+        analytic=dataclasses.replace(
+            spec.analytic, law=dataclasses.replace(spec.analytic.law, h0=h0)
+        ),
+        simulation=dataclasses.replace(spec.simulation, h0=h0),
+        optimal=dataclasses.replace(spec.optimal, planner=planner),
+    )
 
 
 def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
@@ -274,28 +269,18 @@ def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
 
 
 def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
-    """Key path where ``joint`` is named in the task: under ``limits`` or ``arms.locked`` first
-    when the ``reason`` is about a limit or a lock, else in the arms."""
-    data = doc.data
-    arms = data.get("arms") if isinstance(data.get("arms"), dict) else {}
+    """Key path where ``joint`` is named in the (validated) task: under ``limits`` or
+    ``arms.locked`` first when the ``reason`` is about a limit or a lock, else in the arms."""
+    arms = doc.data["arms"]
     candidates = []
     for key in ("mission", "balance"):
-        value = arms.get(key)
-        for i, item in enumerate(value if isinstance(value, list) else []):
+        for i, item in enumerate(arms[key]):
             if item == joint:
                 candidates.append(("arms", key, i))
             elif isinstance(item, list) and joint in item:
                 candidates.append(("arms", key, i, item.index(joint)))
-    locked = (
-        ("arms", "locked", joint)
-        if isinstance(arms.get("locked"), dict) and joint in arms["locked"]
-        else None
-    )
-    limits = (
-        ("limits", joint)
-        if isinstance(data.get("limits"), dict) and joint in data["limits"]
-        else None
-    )
+    locked = ("arms", "locked", joint) if joint in arms.get("locked", {}) else None
+    limits = ("limits", joint) if joint in doc.data.get("limits", {}) else None
     if locked and "lock" in reason:
         candidates.insert(0, locked)
     elif limits and "limit" in reason:
