@@ -43,15 +43,9 @@ class SweepOutcome:
 
 
 def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
-    """Check (and create) the output folder of a sweep.
-
-    An existing, non-empty folder is used only with ``resume`` (its finished cases are kept)
-    or ``force`` (the results of a previous sweep in it are deleted first).
-
-    Raises:
-        OutputFolderError: the folder is not empty and neither ``resume`` nor ``force`` is given,
-            or it cannot be created.
-    """
+    """Check (and create) the output folder of a sweep: an existing, non-empty folder is used
+    only with ``resume`` (its finished cases are kept) or ``force`` (the results of a previous
+    sweep in it are deleted first)."""
     out_dir = Path(out_dir)
     make_parent(out_dir)
     if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
@@ -106,22 +100,18 @@ def run_sweep(
     on_result=None,
     engine=None,
 ) -> SweepOutcome:
-    """Run every case of a sweep and write its results, table, summary and plots.
+    """Run every case of a sweep and write its results, table, summary and plots into
+    ``out_dir`` (layout: ``docs/sweeps.md``), even when cases failed, and on an interruption for
+    the cases finished so far.
 
     Args:
-        out_dir: output folder (layout: ``docs/sweeps.md``).
         jobs: worker processes (0: in this process); with ``scheduler="local"``, Dask workers.
         scheduler: None (local process pool), ``"local"`` (a Dask cluster on the loopback
             interface, started and stopped here) or a Dask scheduler address.
-        resume: keep the finished cases found in ``out_dir`` and run the others.
+        resume, retry_failed, on_result: see :func:`balance_opt.sweep.engine.run_cases`.
         force: start over in a non-empty ``out_dir``.
-        retry_failed: with ``resume``, run the failed cases again too.
         runner: ``"module:function"`` of the case function.
-        on_result: progress callback, see :func:`balance_opt.sweep.engine.run_cases`.
         engine: an engine to use instead of the one ``jobs`` and ``scheduler`` describe.
-
-    The table and summary are written even when cases failed, and on an interruption for the
-    cases finished so far.
 
     Raises:
         OutputFolderError: the folder cannot be used, or another sweep is writing to it.
@@ -164,6 +154,3 @@ def _write_interrupted(sweep: Sweep, out_dir: Path, extra: dict[str, Any]) -> No
         len(done),
         len(sweep.cases),
     )
-
-
-__all__ = ["MANIFEST", "TASK_RUNNER", "SweepOutcome", "prepare_output_dir", "run_sweep"]
