@@ -30,7 +30,7 @@ import math
 import re
 import types
 import typing
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping
 from typing import Any, Literal, Union
 
 from balance_opt.config.yaml_lines import format_path
@@ -439,11 +439,9 @@ def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=(
 def _build(cls, tree: dict, path: tuple):
     """``cls`` from the keyword arguments ``tree``; its own (cross-field) checks located at the
     mapping's ``path``."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    inline = {f.name for f in dataclasses.fields(cls) if f.metadata.get("inline")}
     kwargs = {
-        name: _build(type_hints(cls)[name], value, path)
-        if fields[name].metadata.get("inline")
-        else value
+        name: _build(type_hints(cls)[name], value, path) if name in inline else value
         for name, value in tree.items()
     }
     try:
@@ -452,23 +450,16 @@ def _build(cls, tree: dict, path: tuple):
         raise _Invalid(path, str(exc)) from None
 
 
-def from_data(cls, doc, path: Sequence[Any] = ()):
-    """Typed ``cls`` instance from the plain data of ``doc`` (at ``path`` inside it).
-
-    Args:
-        cls: the dataclass at the root of the format.
-        doc: a :class:`~balance_opt.config.yaml_lines.YamlDocument`.
-        path: key path of the value inside the document.
+def from_data(cls, doc):
+    """The dataclass ``cls`` (the root of a format) from the plain data of the
+    :class:`~balance_opt.config.yaml_lines.YamlDocument` ``doc``.
 
     Raises:
         TaskFileError: naming the file, the line and the key path of the first bad value, and what
             was expected there.
     """
-    value = doc.data
-    for part in path:
-        value = value[part]
     try:
-        return _convert(value, cls, {}, tuple(path))
+        return _convert(doc.data, cls, {}, ())
     except _Invalid as exc:
         raise doc.error(exc.path, exc.reason) from None
 
@@ -476,9 +467,11 @@ def from_data(cls, doc, path: Sequence[Any] = ()):
 def _plain(value):
     """A Python value as the plain data of a file: sequences and arrays as lists, NumPy scalars
     as Python numbers, mappings as dicts; dataclasses are kept."""
-    if value is None or isinstance(value, (str, bool, int, float)):
-        return value
-    if dataclasses.is_dataclass(value):
+    if (
+        value is None
+        or isinstance(value, (str, bool, int, float))
+        or dataclasses.is_dataclass(value)
+    ):
         return value
     if isinstance(value, Mapping):
         return {k: _plain(v) for k, v in value.items()}
@@ -491,17 +484,12 @@ def _plain(value):
 
 def check_settings(obj, what: str) -> None:
     """Check and normalise the fields of the frozen dataclass ``obj`` against their
-    :func:`setting` declarations (for its ``__post_init__``).
-
-    Lists and arrays become tuples of Python numbers, mappings dicts, ints given for floats
-    floats.
-
-    Args:
-        obj: the instance, fields already set.
-        what: how the error names an option, e.g. ``"planner option"``.
+    :func:`setting` declarations (for its ``__post_init__``): lists and arrays become tuples of
+    Python numbers, mappings dicts, ints given for floats floats.
 
     Raises:
-        InputError: ``"<what> '<name>': <problem>"`` for the first field that does not fit.
+        InputError: ``"<what> '<name>': <problem>"`` for the first field that does not fit
+            (``what``: e.g. ``"planner option"``).
     """
     hints = type_hints(type(obj))
     for f in dataclasses.fields(obj):

@@ -97,19 +97,13 @@ class YamlDocument:
     def line_of(self, path: Sequence[Any]) -> int | None:
         """Line of ``path``, or of its nearest ancestor present in the file (``None`` if none)."""
         path = tuple(path)
-        while True:
-            if path in self.lines:
-                return self.lines[path]
-            if not path:
-                return None
+        while path and path not in self.lines:
             path = path[:-1]
+        return self.lines.get(path)
 
-    def error(
-        self, path: Sequence[Any], reason: str, cls: type[TaskFileError] | None = None
-    ) -> TaskFileError:
-        """A :class:`TaskFileError` (or its subclass ``cls``) located at ``path`` in this
-        document."""
-        return (cls or TaskFileError)(self.source, self.line_of(path), path, reason)
+    def error(self, path: Sequence[Any], reason: str, cls=TaskFileError) -> TaskFileError:
+        """A :class:`TaskFileError` (or its subclass ``cls``) located at ``path``."""
+        return cls(self.source, self.line_of(path), path, reason)
 
 
 def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source: str) -> Any:
