@@ -32,7 +32,7 @@ import signal
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -438,7 +438,7 @@ def run_cases(
     cases: Sequence[Mapping],
     runner: str,
     out_dir: str | Path,
-    engine=None,
+    engine,
     resume: bool = False,
     retry_failed: bool = False,
     on_result: Callable[[dict, int, int], None] | None = None,
@@ -447,7 +447,7 @@ def run_cases(
     run now and those found on disk).
 
     Args:
-        engine: an engine (default: one worker process); entered and left here.
+        engine: entered and left here.
         resume: skip the cases that already have a result file.
         retry_failed: with ``resume``, run again the cases whose recorded status is not ``ok``.
         on_result: called after each result is written, with the result, the number of cases
@@ -457,7 +457,6 @@ def run_cases(
     ids = [case["case_id"] for case in cases]
     if len(set(ids)) != len(ids):
         raise ValueError("case ids are not unique")
-    engine = engine if engine is not None else LocalPoolEngine(1)
     found: dict[str, dict] = {}
     if resume:
         for case in cases:
@@ -495,11 +494,3 @@ def run_cases(
     run.elapsed_s = time.perf_counter() - start
     run.results = sorted(found.values(), key=lambda r: r["index"])
     return run
-
-
-def iter_results(out_dir: str | Path, case_ids: Iterable[str]) -> Iterator[dict]:
-    """The recorded results of the given cases (those that have one)."""
-    for case_id in case_ids:
-        record = read_result(out_dir, case_id)
-        if record is not None:
-            yield record

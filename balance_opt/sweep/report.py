@@ -118,16 +118,6 @@ def _split(result: dict) -> tuple[dict[str, Any], dict[str, Any]]:
     return tidy, extra
 
 
-def _columns(rows: Sequence[dict], order: Sequence[str] | None = None) -> list[str]:
-    """The columns of ``rows``: ``order`` first (those some row has), then the others in
-    first-seen order, the timing columns last."""
-    seen: dict[str, None] = {}
-    for row in rows:
-        seen.update(dict.fromkeys(row))
-    names = [c for c in order or () if c in seen] + [c for c in seen if c not in (order or ())]
-    return [c for c in names if not is_timing_column(c)] + [c for c in names if is_timing_column(c)]
-
-
 def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
     """Columns and rows of ``results.csv`` (columns: ``docs/sweeps.md``), rows in case-index order."""
     rows = [_split(r)[0] for r in sorted(results, key=lambda r: r["index"])]
@@ -151,7 +141,11 @@ def diagnostics_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str
     """Columns and rows of ``diagnostics.csv``: the key columns, then everything a case recorded
     that ``results.csv`` leaves out (first-seen order, timing columns last)."""
     rows = [_split(r)[1] for r in sorted(results, key=lambda r: r["index"])]
-    return _columns(rows, KEY_COLUMNS), rows
+    seen = dict.fromkeys(KEY_COLUMNS if rows else ())
+    for row in rows:
+        seen.update(dict.fromkeys(row))
+    timing = [c for c in seen if is_timing_column(c)]
+    return [c for c in seen if c not in timing] + timing, rows
 
 
 def _cell(value: Any) -> str:
@@ -176,15 +170,6 @@ def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dic
         for row in rows:
             writer.writerow([_cell(row.get(c)) for c in columns])
     return path
-
-
-def write_tables(out_dir: str | Path, results: Sequence[dict]) -> dict[str, Path]:
-    """Write ``results.csv`` and ``diagnostics.csv`` into ``out_dir``; name -> path."""
-    out_dir = Path(out_dir)
-    return {
-        "table": write_table_csv(out_dir / "results.csv", *results_table(results)),
-        "diagnostics": write_table_csv(out_dir / "diagnostics.csv", *diagnostics_table(results)),
-    }
 
 
 # ----------------------------------------------------------------------------------- plots
@@ -496,7 +481,10 @@ def write_report(
     per varied key path; returns name -> path of every file written.
     """
     out_dir = Path(out_dir)
-    written: dict[str, Path] = write_tables(out_dir, results)
+    written = {
+        "table": write_table_csv(out_dir / "results.csv", *results_table(results)),
+        "diagnostics": write_table_csv(out_dir / "diagnostics.csv", *diagnostics_table(results)),
+    }
     summary = {**(extra_summary or {}), **summarize(results)}
     with replaced_atomically(out_dir / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")

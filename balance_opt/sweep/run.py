@@ -16,8 +16,8 @@ from balance_opt.interrupts import handling_signals
 from balance_opt.report.output_dir import FolderLock, OutputFolderError, make_parent
 from balance_opt.sweep.engine import (
     CASES_DIR,
-    iter_results,
     make_engine,
+    read_result,
     run_cases,
     write_json_atomic,
 )
@@ -145,7 +145,7 @@ def run_sweep(
 
 def _write_interrupted(sweep: Sweep, out_dir: Path, extra: dict[str, Any]) -> None:
     """The table and summary of the cases an interrupted sweep finished (no plots)."""
-    done = list(iter_results(out_dir, [c["case_id"] for c in sweep.cases]))
+    done = [r for c in sweep.cases if (r := read_result(out_dir, c["case_id"])) is not None]
     write_report(
         out_dir, done, sweep.varied, plots=False, extra_summary={**extra, "interrupted": True}
     )
