@@ -448,21 +448,6 @@ def _limit_source(spec: TaskSpec, joint: str, key: str) -> str:
     )
 
 
-def _check_start(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, q_B0) -> None:
-    lim = robot.limits
-    for k, i in enumerate(robot.balance_indices):
-        j, q = robot.joint_names[i], q_B0[k]
-        if not lim.lower[i] - LIMIT_TOLERANCE <= q <= lim.upper[i] + LIMIT_TOLERANCE:
-            key = "lower" if q < lim.lower[i] else "upper"
-            raise doc.error(
-                ("initial", "balance", k) if spec.initial.balance else ("initial",),
-                f"balance joint '{j}' starts at {q:g} rad, outside its position limits "
-                f"[{lim.lower[i]:g}, {lim.upper[i]:g}] rad ({key} limit from "
-                f"{_limit_source(spec, j, key)}); no plan can meet them",
-                TaskLimitsError,
-            )
-
-
 def _set_positions(m, col: int) -> list[tuple[tuple, float]]:
     """``(key, value)`` of every position the task sets for mission joint ``col``."""
     if isinstance(m, PtpMission):
@@ -489,14 +474,37 @@ def _mission_key(spec: TaskSpec, kind: str, col: int, lim: tuple[float, float]) 
     return ("mission", "duration")
 
 
-def _check_mission(
-    spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, mission: JointTrajectory
+def check_limits(
+    spec: TaskSpec,
+    doc: YamlDocument,
+    robot: FloatingRobot,
+    mission: JointTrajectory,
+    q_B0: np.ndarray,
 ) -> None:
+    """Limits no plan can meet (a balance start or a prescribed final configuration outside the
+    position limits, a mission that leaves its own limits) and a horizon shorter than the mission.
+
+    Raises:
+        TaskLimitsError: naming the limit's source (``limits.J.KEY`` or URDF).
+        TaskFileError: ``optimal.horizon`` shorter than the mission.
+    """
     lim = robot.limits
+    for k, i in enumerate(robot.balance_indices):
+        j, q = robot.joint_names[i], q_B0[k]
+        if not lim.lower[i] - LIMIT_TOLERANCE <= q <= lim.upper[i] + LIMIT_TOLERANCE:
+            key = "lower" if q < lim.lower[i] else "upper"
+            raise doc.error(
+                ("initial", "balance", k) if spec.initial.balance else ("initial",),
+                f"balance joint '{j}' starts at {q:g} rad, outside its position limits "
+                f"[{lim.lower[i]:g}, {lim.upper[i]:g}] rad ({key} limit from "
+                f"{_limit_source(spec, j, key)}); no plan can meet them",
+                TaskLimitsError,
+            )
+    duration = float(mission.duration)
     t = np.linspace(
         0.0,
-        mission.duration,
-        min(MAX_SAMPLES, max(LIMIT_CHECK_MIN_SAMPLES, int(mission.duration * LIMIT_CHECK_RATE))),
+        duration,
+        min(MAX_SAMPLES, max(LIMIT_CHECK_MIN_SAMPLES, int(duration * LIMIT_CHECK_RATE))),
     )
     q, qd, qdd = mission.sample(t)
     idx = robot.mission_indices
@@ -515,11 +523,6 @@ def _check_mission(
             f"{_limit_source(spec, v.joint, key)}); no plan can meet them",
             TaskLimitsError,
         )
-
-
-def _check_planner(
-    spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot, duration: float
-) -> None:
     planner = spec.optimal.planner
     if planner.horizon is not None and planner.horizon < duration:
         raise doc.error(
@@ -538,25 +541,6 @@ def _check_planner(
                     f"[{lim.lower[k]:g}, {lim.upper[k]:g}] rad; no plan can meet them",
                     TaskLimitsError,
                 )
-
-
-def check_limits(
-    spec: TaskSpec,
-    doc: YamlDocument,
-    robot: FloatingRobot,
-    mission: JointTrajectory,
-    q_B0: np.ndarray,
-) -> None:
-    """Limits no plan can meet (a balance start or a prescribed final configuration outside the
-    position limits, a mission that leaves its own limits) and a horizon shorter than the mission.
-
-    Raises:
-        TaskLimitsError: naming the limit's source (``limits.J.KEY`` or URDF).
-        TaskFileError: ``optimal.horizon`` shorter than the mission.
-    """
-    _check_start(spec, doc, robot, q_B0)
-    _check_mission(spec, doc, robot, mission)
-    _check_planner(spec, doc, robot, float(mission.duration))
 
 
 def _given(doc: YamlDocument, path: tuple) -> bool:
@@ -579,44 +563,6 @@ def duration_key(spec: TaskSpec) -> tuple:
     return ("mission", "duration")
 
 
-def _grids(spec: TaskSpec, duration: float) -> list[tuple[str, tuple, float, float, tuple]]:
-    """``(what, step key, step [s], span [s], span key)`` of each time grid of a plan."""
-    planner, sim = spec.optimal.planner, spec.simulation
-    span = max(duration, planner.horizon or 0.0)
-    span_key = ("optimal", "horizon") if span > duration else duration_key(spec)
-    integration = spec.analytic.integration
-    sim_out = ("simulation", "output_dt") if sim.output_dt is not None else ("simulation", "dt")
-    return [
-        (
-            "the analytic plan's outputs",
-            ("analytic", "output_step"),
-            integration.output_step,
-            duration,
-            duration_key(spec),
-        ),
-        (
-            "the re-simulation of the optimal plan",
-            ("optimal", "resample_step"),
-            planner.resample_step,
-            span,
-            span_key,
-        ),
-        ("the simulation's outputs", sim_out, sim.output_dt or sim.dt, span, span_key),
-    ]
-
-
-def _fixed_steps(spec: TaskSpec) -> list[tuple[str, tuple, float]]:
-    """``(integrator, step key, step [s])`` of the fixed-step integrations of a task."""
-    steps = []
-    if spec.simulation.integrator == "rk4":
-        steps.append(("the simulation's rk4", ("simulation", "dt"), spec.simulation.dt))
-    integration = spec.analytic.integration
-    if integration.method == "rk4":
-        key = "step" if integration.step is not None else "output_step"
-        steps.append(("the analytic rk4", ("analytic", key), getattr(integration, key)))
-    return steps
-
-
 def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None:
     """No time grid of a plan longer than :data:`MAX_SAMPLES` samples (each error located at
     the step when the file sets it, else at the duration), and no fixed integration step
@@ -625,7 +571,21 @@ def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None
     Raises:
         TaskFileError: ``"mission.duration: a mission of 1e+308 s sampled every 0.01 s ..."``.
     """
-    for what, step_key, step, span, span_key in _grids(spec, duration):
+    planner, sim, integration = spec.optimal.planner, spec.simulation, spec.analytic.integration
+    plan_span = max(duration, planner.horizon or 0.0)
+    plan_key = ("optimal", "horizon") if plan_span > duration else duration_key(spec)
+    sim_out = ("simulation", "output_dt") if sim.output_dt is not None else ("simulation", "dt")
+    grids = [  # what, step key, step [s]; over the mission (the first), else the plan
+        ("the analytic plan's outputs", ("analytic", "output_step"), integration.output_step),
+        (
+            "the re-simulation of the optimal plan",
+            ("optimal", "resample_step"),
+            planner.resample_step,
+        ),
+        ("the simulation's outputs", sim_out, sim.output_dt or sim.dt),
+    ]
+    for k, (what, step_key, step) in enumerate(grids):
+        span, span_key = (duration, duration_key(spec)) if k == 0 else (plan_span, plan_key)
         samples = span / step
         if samples <= MAX_SAMPLES:
             continue
@@ -643,7 +603,13 @@ def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None
             f"samples; a plan may hold at most {MAX_SAMPLES:g}: at that step the longest is "
             f"{step * MAX_SAMPLES:.3g} s",
         )
-    for what, key, step in _fixed_steps(spec):
+    steps = []  # the fixed-step integrations: integrator, step key, step [s]
+    if sim.integrator == "rk4":
+        steps.append(("the simulation's rk4", ("simulation", "dt"), sim.dt))
+    if integration.method == "rk4":
+        key = "step" if integration.step is not None else "output_step"
+        steps.append(("the analytic rk4", ("analytic", key), getattr(integration, key)))
+    for what, key, step in steps:
         longest = duration / MIN_STEPS_PER_MISSION
         if step > longest:
             raise doc.error(
