@@ -133,20 +133,38 @@ def is_stale(path: Path, now: float | None = None) -> bool:
     return age > STALE_SECONDS
 
 
+def _is_temporary(name: str) -> bool:
+    return _TMP_MARK in name or bool(_LEGACY_TMP.match(name))
+
+
+def _walk(folder: Path) -> list[Path]:
+    """Files and temporary folders under ``folder`` (a temporary folder counts as one item)."""
+    found = []
+    for root, dirs, files in os.walk(folder):
+        temporary = [d for d in dirs if _is_temporary(d)]
+        dirs[:] = [d for d in dirs if d not in temporary]
+        found += [Path(root) / name for name in [*temporary, *files]]
+    return found
+
+
+def _delete(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
+def _remove(entry) -> None:
+    for path in entry.files:
+        _delete(path)
+
+
 def clean_stale(folder: Path) -> list[Path]:
     """Remove the leftovers of killed builds in ``folder`` and its sub-folders; returns them."""
-    removed = []
-    for root, dirs, files in os.walk(folder):
-        for name in [*dirs, *files]:
-            path = Path(root) / name
-            if is_stale(path):
-                if path.is_dir() and not path.is_symlink():
-                    shutil.rmtree(path, ignore_errors=True)
-                else:
-                    with contextlib.suppress(OSError):
-                        path.unlink()
-                removed.append(path)
-        dirs[:] = [d for d in dirs if _TMP_MARK not in d and not _LEGACY_TMP.match(d)]
+    removed = [path for path in _walk(folder) if is_stale(path)]
+    for path in removed:
+        _delete(path)
     return removed
 
 
@@ -252,7 +270,7 @@ def size_limit() -> int:
 
 
 def _kind(relative: Path) -> str:
-    if any(_TMP_MARK in part or _LEGACY_TMP.match(part) for part in relative.parts):
+    if any(_is_temporary(part) for part in relative.parts):
         return "temporary"
     if relative.parts[0] == BRIDGE_FOLDER:
         return "bridge"
@@ -263,14 +281,6 @@ def _kind(relative: Path) -> str:
     if relative.name.startswith("ipopt-options-"):
         return "Ipopt options"
     return "other"
-
-
-def _walk(folder: Path) -> Iterable[Path]:
-    """Files and temporary folders under ``folder`` (a temporary folder counts as one item)."""
-    for root, dirs, files in os.walk(folder):
-        temporary = [d for d in dirs if _TMP_MARK in d or _LEGACY_TMP.match(d)]
-        dirs[:] = [d for d in dirs if d not in temporary]
-        yield from (Path(root) / name for name in [*temporary, *files])
 
 
 def _size(path: Path) -> int:
@@ -303,15 +313,6 @@ def entries(folder: Path) -> list[Entry]:
             entry.size += _size(path)
             entry.last_used = max(entry.last_used, path.stat().st_mtime)
     return sorted(found.values(), key=lambda e: (KINDS.index(e.kind), e.name))
-
-
-def _remove(entry: Entry) -> None:
-    for path in entry.files:
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            with contextlib.suppress(FileNotFoundError):
-                path.unlink()
 
 
 def enforce_limit(folder: Path, keep: Iterable[Path] = (), limit: int | None = None) -> list[Entry]:
