@@ -179,8 +179,8 @@ def _as_array(value: Any, what: str) -> np.ndarray:
     return arr
 
 
-def _checked_draw(dist: Distribution) -> tuple[str, Any, Any]:
-    """``(kind, a, b)`` of a distribution, its bounds as arrays.
+def _sampler(dist: Distribution):
+    """The function ``rng -> value`` of a distribution, its bounds checked first.
 
     Raises:
         ValueError: bounds of mismatched shapes, ``low > high`` or a negative ``std``.
@@ -193,31 +193,22 @@ def _checked_draw(dist: Distribution) -> tuple[str, Any, Any]:
             raise ValueError(
                 f"low must not exceed high, got low={low.tolist()}, high={high.tolist()}"
             )
-        return "uniform", low, high
+        return lambda rng: np.asarray(rng.uniform(low, high)).tolist()
     if dist.normal is not None:
         mean, std = (_as_array(v, f"normal {k}") for k, v in zip(("mean", "std"), dist.normal))
         if mean.shape != std.shape and std.ndim != 0:
             raise ValueError(f"mean has shape {mean.shape} but std has {std.shape}")
         if np.any(std < 0):
             raise ValueError(f"std must not be negative, got {std.tolist()}")
-        return "normal", mean, np.broadcast_to(std, mean.shape)
+        std = np.broadcast_to(std, mean.shape)
+        return lambda rng: np.asarray(rng.normal(mean, std)).tolist()
     if dist.integers is not None:
         low, high = dist.integers
         if low > high:
             raise ValueError(f"low must not exceed high, got [{low}, {high}]")
-        return "integers", low, high
-    return "choice", list(dist.choice), None
-
-
-def _draw(rng: np.random.Generator, kind: str, a: Any, b: Any) -> Any:
-    """One value of a checked distribution (see :func:`_checked_draw`)."""
-    if kind == "uniform":
-        return np.asarray(rng.uniform(a, b)).tolist()
-    if kind == "normal":
-        return np.asarray(rng.normal(a, b)).tolist()
-    if kind == "integers":
-        return int(rng.integers(a, b, endpoint=True))
-    return copy.deepcopy(a[int(rng.integers(len(a)))])
+        return lambda rng: int(rng.integers(low, high, endpoint=True))
+    choices = list(dist.choice)
+    return lambda rng: copy.deepcopy(choices[int(rng.integers(len(choices)))])
 
 
 def draw_samples(random: RandomSamples, doc: YamlDocument) -> list[dict[str, Any]]:
@@ -228,16 +219,14 @@ def draw_samples(random: RandomSamples, doc: YamlDocument) -> list[dict[str, Any
     Raises:
         TaskFileError: bounds of mismatched shapes, ``low > high`` or a negative ``std``.
     """
-    draws = {}
+    samplers = {}
     for name, dist in random.parameters.items():
         try:
-            draws[name] = _checked_draw(dist)
+            samplers[name] = _sampler(dist)
         except ValueError as exc:
             raise doc.error(("random", "parameters", name), str(exc)) from None
     rng = np.random.default_rng(random.seed)
-    return [
-        {name: _draw(rng, *draw) for name, draw in draws.items()} for _ in range(random.samples)
-    ]
+    return [{name: draw(rng) for name, draw in samplers.items()} for _ in range(random.samples)]
 
 
 def _parameter_places(spec: SweepSpec, doc: YamlDocument) -> dict[str, tuple]:
