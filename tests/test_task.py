@@ -11,8 +11,7 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import capture_task
-from balance_opt.config.typed_config import from_data
-from balance_opt.config.typed_reference import reference_rows
+from balance_opt.config.typed_config import from_data, reference_rows
 from balance_opt.config.yaml_lines import TaskFileError, format_path, parse_yaml
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError

@@ -23,8 +23,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from balance_opt.config.typed_config import from_data, setting
-from balance_opt.config.typed_reference import json_schema, reference_markdown
+from balance_opt.config.typed_config import from_data, json_schema, reference_markdown, setting
 from balance_opt.config.yaml_lines import (
     TaskFileError,
     YamlDocument,
