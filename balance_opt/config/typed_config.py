@@ -615,7 +615,7 @@ def _object_schema(entries: tuple, description: str, defs: dict) -> tuple[dict, 
             prop = {"allOf": [prop]}
         prop["description"] = _doc(e.meta)
         default = field_default(e.field)
-        if default is MISSING:
+        if default is _MISSING:
             required.append(e.key)
         elif default is not None:
             prop["default"] = _json_default(default)
@@ -659,7 +659,7 @@ def json_schema(cls, title: str, schema_id: str | None = None) -> dict:
 # ----------------------------------------------------------------------------------- reference
 def _default_text(f) -> str:
     default = field_default(f)
-    if default is MISSING:
+    if default is _MISSING:
         return "required"
     if dataclasses.is_dataclass(default):
         return "see below"
