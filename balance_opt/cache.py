@@ -113,7 +113,7 @@ def pid_alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except OSError:  # exists, owned by someone else
-        return True
+        pass
     return True
 
 
@@ -316,13 +316,9 @@ def entries(folder: Path) -> list[Entry]:
 
 
 def enforce_limit(folder: Path, keep: Iterable[Path] = (), limit: int | None = None) -> list[Entry]:
-    """Delete least recently used evictable entries while ``folder`` exceeds ``limit`` [bytes].
-
-    Entries in use (their lock held by another process) and the files in ``keep`` stay.
-
-    Returns:
-        The entries deleted.
-    """
+    """Delete least recently used evictable entries while ``folder`` exceeds ``limit`` [bytes];
+    entries in use (their lock held by another process) and the files in ``keep`` stay. Returns
+    the entries deleted."""
     limit = size_limit() if limit is None else limit
     all_entries = entries(folder)
     total = sum(e.size for e in all_entries)
@@ -346,13 +342,9 @@ def enforce_limit(folder: Path, keep: Iterable[Path] = (), limit: int | None = N
 
 
 def clear(folder: Path) -> tuple[list[Entry], list[Entry]]:
-    """Delete every entry of the cache, each under its lock (waiting for a build under way).
-
-    Temporary builds of live processes are left alone. Lock files no process holds are removed.
-
-    Returns:
-        ``(entries deleted, entries kept because in use)``.
-    """
+    """Delete every entry of the cache, each under its lock (waiting for a build under way),
+    but the temporary builds of live processes, and the lock files no process holds; returns
+    ``(entries deleted, entries kept because in use)``."""
     deleted, kept = [], []
     for entry in entries(folder):
         if entry.kind == "temporary":

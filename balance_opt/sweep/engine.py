@@ -79,13 +79,12 @@ def error_record(exc: BaseException) -> dict[str, Any]:
 
 
 def execute_case(runner: str, case: dict) -> dict:
-    """Run one case in the current process and return its result record (plain data).
+    """Run one case in this process; its result record (plain data).
 
     The runner returns ``status``, ``metrics`` and optionally ``error``, ``info`` and ``timing``;
-    any exception it raises becomes a result with status ``error`` (``solver_failed`` for a
-    :class:`~balance_opt.errors.SolverError`). The record's ``timing`` adds the case's wall
-    time (``case_s``) and the worker's CPU time meanwhile (``cpu_s``) [s] and its process id: the
-    only fields that depend on where and when the case ran.
+    an exception it raises becomes status ``error`` (``solver_failed`` for a ``SolverError``).
+    ``timing`` adds the wall time (``case_s``), the CPU time (``cpu_s``) [s] and the process id:
+    the only fields that depend on where and when the case ran.
     """
     from balance_opt.errors import SolverError
 
@@ -120,13 +119,11 @@ def _crash_record(case: dict, exc: BaseException) -> dict:
 
 
 def result_path(out_dir: str | Path, case_id: str) -> Path:
-    """Where the result of case ``case_id`` is written."""
     return Path(out_dir) / CASES_DIR / f"{case_id}.json"
 
 
 def write_json_atomic(path: str | Path, data: Any) -> None:
-    """Write ``data`` as JSON so that ``path`` holds either its old content or the whole new
-    one, never a part (:func:`~balance_opt.report.output_dir.replaced_atomically`)."""
+    """Write ``data`` as JSON atomically (the old content or the whole new one, never a part)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with replaced_atomically(path) as tmp:

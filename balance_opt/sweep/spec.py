@@ -136,19 +136,17 @@ def apply_overrides(task: dict, parameters: dict[str, Any]) -> dict:
         path = parse_key_path(text)
         node = out
         for depth, part in enumerate(path):
-            last = depth == len(path) - 1
             where = format_path(path[:depth]) or "the task"
             if isinstance(part, int):
                 if not isinstance(node, list) or part >= len(node):
                     raise KeyError(f"parameter '{text}': {where} has no item [{part}]")
             elif not isinstance(node, dict):
                 raise KeyError(f"parameter '{text}': {where} is not a mapping")
-            if last:
+            elif part not in node and depth < len(path) - 1:
+                node[part] = {}
+            if depth == len(path) - 1:
                 node[part] = copy.deepcopy(value)
-            else:
-                if isinstance(part, str) and part not in node:
-                    node[part] = {}
-                node = node[part]
+            node = node[part]
     return out
 
 
