@@ -234,12 +234,8 @@ def _save(fig, path: str | Path) -> Path:
 def _method_style(method: str, **extra) -> dict[str, Any]:
     """Colour, label and marker of a method as in every other figure
     (:mod:`balance_opt.report.style`)."""
-    style = method_style(method)
-    return {
-        "color": style["color"],
-        "label": style["label"],
-        "marker": style["marker"] or "o",
-    } | extra
+    s = method_style(method)
+    return {"color": s["color"], "label": s["label"], "marker": s["marker"] or "o", **extra}
 
 
 def _drift_axis(ax, which: str, values) -> None:
@@ -260,10 +256,7 @@ def _drift_axis(ax, which: str, values) -> None:
         axis.set_minor_formatter(NullFormatter())
         return
     axis.set_major_formatter(FormatStrFormatter("%.3g"))
-    if which == "x":
-        ax.set_xlim(left=0.0)
-    else:
-        ax.set_ylim(bottom=0.0)
+    (ax.set_xlim if which == "x" else ax.set_ylim)(0.0)
 
 
 def _drift(result: dict, key: str) -> float | None:
