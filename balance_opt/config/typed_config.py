@@ -686,22 +686,21 @@ def reference_rows(cls, prefix: str = "", entries=None) -> list[tuple[str, str, 
             rows.append((key, "mapping", "see below", e.doc))
             rows.extend(reference_rows(cls, f"{key}.", e.entries))
             continue
-        tp, doc = e.tp, _doc(e.meta)
+        tp, doc, default = e.tp, _doc(e.meta), _default_text(e.field)
         members = [m for m in union_args(tp) if m is not type(None)]
-        if len(members) > 1 and all(tag_of(m) for m in members):
-            rows.append((key, describe(tp), _default_text(e.field), doc))
+        if len(members) == 1 and dataclasses.is_dataclass(members[0]):
+            rows.append((key, "mapping", default, doc))
+            rows.extend(reference_rows(members[0], f"{key}."))
+        elif typing.get_origin(tp) is dict and dataclasses.is_dataclass(typing.get_args(tp)[1]):
+            rows.append((key, "mapping of names to mappings", default, doc))
+            rows.extend(reference_rows(typing.get_args(tp)[1], f"{key}.NAME."))
+        else:
+            rows.append((key, describe(tp), default, doc))
+        if len(members) > 1 and all(tag_of(m) for m in members):  # tagged union
             for m in members:
                 for sub in reference_rows(m, f"{key}."):
                     if sub[0] != f"{key}.type":
                         rows.append((f"{sub[0]} (type: {tag_of(m)})", *sub[1:]))
-        elif len(members) == 1 and dataclasses.is_dataclass(members[0]):
-            rows.append((key, "mapping", _default_text(e.field), doc))
-            rows.extend(reference_rows(members[0], f"{key}."))
-        elif typing.get_origin(tp) is dict and dataclasses.is_dataclass(typing.get_args(tp)[1]):
-            rows.append((key, "mapping of names to mappings", _default_text(e.field), doc))
-            rows.extend(reference_rows(typing.get_args(tp)[1], f"{key}.NAME."))
-        else:
-            rows.append((key, describe(tp), _default_text(e.field), doc))
     return rows
 
 

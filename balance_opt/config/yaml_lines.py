@@ -107,7 +107,7 @@ class YamlDocument:
 
 
 def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source: str) -> Any:
-    lines[path] = node.start_mark.line + 1
+    lines.setdefault(path, node.start_mark.line + 1)  # a mapping value: its key's line
     if isinstance(node, yaml.MappingNode):
         loader.flatten_mapping(node)  # resolve '<<' merge keys
         out: dict = {}
@@ -126,7 +126,6 @@ def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source:
                 )
             lines[(*path, key)] = key_node.start_mark.line + 1
             out[key] = _build(value_node, loader, (*path, key), lines, source)
-            lines[(*path, key)] = key_node.start_mark.line + 1  # the key's line, not its value's
         return out
     if isinstance(node, yaml.SequenceNode):
         return [

@@ -109,11 +109,7 @@ class SweepSpec:
 
 
 def parse_key_path(text: str) -> tuple[Any, ...]:
-    """``"mission.goal[2]"`` -> ``("mission", "goal", 2)`` (the inverse of ``format_path``).
-
-    Raises:
-        ValueError: ``text`` is not a key path.
-    """
+    """``"mission.goal[2]"`` -> ``("mission", "goal", 2)`` (the inverse of ``format_path``)."""
     if not isinstance(text, str) or not _KEY_PATH.fullmatch(text):
         raise ValueError(
             f"'{text}' is not a key path (expected names joined by '.', and [i] for "
@@ -125,12 +121,7 @@ def parse_key_path(text: str) -> tuple[Any, ...]:
 def apply_overrides(task: dict, parameters: dict[str, Any]) -> dict:
     """A copy of the task data with each parameter's value put at its key path.
 
-    Mappings missing on the way are created; a list item must exist.
-
-    Raises:
-        KeyError: a path goes through a value that is not a mapping, or past the end of a list
-            (the message names the parameter).
-    """
+    Mappings missing on the way are created; a list item must exist."""
     out = copy.deepcopy(task)
     for text, value in parameters.items():
         path = parse_key_path(text)
@@ -177,11 +168,7 @@ def _as_array(value: Any, what: str) -> np.ndarray:
 
 
 def _sampler(dist: Distribution):
-    """The function ``rng -> value`` of a distribution, its bounds checked first.
-
-    Raises:
-        ValueError: bounds of mismatched shapes, ``low > high`` or a negative ``std``.
-    """
+    """The function ``rng -> value`` of a distribution, its bounds checked first."""
     if dist.uniform is not None:
         low, high = (_as_array(v, f"uniform {k}") for k, v in zip(("low", "high"), dist.uniform))
         if low.shape != high.shape:
@@ -211,11 +198,7 @@ def _sampler(dist: Distribution):
 def draw_samples(random: RandomSamples, doc: YamlDocument) -> list[dict[str, Any]]:
     """The parameter sets of a ``random`` block, drawn with ``numpy.random.default_rng(seed)``
     in a fixed order (sample by sample, parameters in file order): the same file gives the same
-    samples on every machine.
-
-    Raises:
-        TaskFileError: bounds of mismatched shapes, ``low > high`` or a negative ``std``.
-    """
+    samples on every machine."""
     samplers = {}
     for name, dist in random.parameters.items():
         try:
@@ -229,15 +212,13 @@ def draw_samples(random: RandomSamples, doc: YamlDocument) -> list[dict[str, Any
 def _parameter_places(spec: SweepSpec, doc: YamlDocument) -> dict[str, tuple]:
     """Where each varied key path is written in the sweep file, after checking the key paths
     and the number of cases (before anything is expanded or drawn)."""
+    places = [("grid", name) for name in spec.grid]
+    places += [("cases", i, name) for i, entry in enumerate(spec.cases) for name in entry]
+    random = spec.random.parameters if spec.random else {}
+    places += [("random", "parameters", name) for name in random]
     where: dict[str, tuple] = {}
-    for name in spec.grid:
-        where.setdefault(name, ("grid", name))
-    for i, entry in enumerate(spec.cases):
-        for name in entry:
-            where.setdefault(name, ("cases", i, name))
-    if spec.random is not None:
-        for name in spec.random.parameters:
-            where.setdefault(name, ("random", "parameters", name))
+    for at in places:
+        where.setdefault(at[-1], at)
     for name, at in where.items():
         try:
             parse_key_path(name)
