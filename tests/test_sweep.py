@@ -563,8 +563,6 @@ def test_table_order_and_timing_columns():
 
 def test_the_two_tables_hold_every_recorded_value_once():
     """Every metric, error and timing value of a record is in exactly one of the two tables."""
-    from balance_opt.sweep.report import flatten
-
     record = {
         "index": 0,
         "case_id": "c",
@@ -585,8 +583,7 @@ def test_the_two_tables_hold_every_recorded_value_once():
     (_, (tidy,)), (_, (diag,)) = results_table([record]), diagnostics_table([record])
     shared = {"index", "case_id", "method"}
     assert not (set(tidy) & set(diag)) - shared
-    metrics: dict = {}
-    flatten("", record["metrics"], metrics)
+    metrics = parameter_columns(record["metrics"], lists=False)
     del metrics["method"]
     for name, value in metrics.items():
         assert (tidy.get(name), diag.get(name)).count(value) == 1, name

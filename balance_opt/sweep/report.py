@@ -80,15 +80,6 @@ def is_timing_column(name: str) -> bool:
     return not name.startswith(PARAM_PREFIX) and bool(_TIMING_METRIC.search(name))
 
 
-def flatten(prefix: str, value: Any, out: dict) -> None:
-    """Nested mappings into ``out`` with their keys joined by ``.``."""
-    if isinstance(value, dict):
-        for key, item in value.items():
-            flatten(f"{prefix}.{key}" if prefix else str(key), item, out)
-    else:
-        out[prefix] = value
-
-
 def _split(result: dict) -> tuple[dict[str, Any], dict[str, Any]]:
     """The cells of one case: ``(results row, diagnostics row)``."""
     keys = {key: result.get(key) for key in KEY_COLUMNS}
@@ -96,8 +87,7 @@ def _split(result: dict) -> tuple[dict[str, Any], dict[str, Any]]:
     extra: dict[str, Any] = dict(keys)
     for name, value in parameter_columns(result.get("parameters", {})).items():
         tidy[PARAM_PREFIX + name] = value
-    metrics: dict[str, Any] = {}
-    flatten("", result.get("metrics") or {}, metrics)
+    metrics = parameter_columns(result.get("metrics") or {}, lists=False)
     metrics.pop("method", None)  # the key column
     for name in METRICS:
         if name in metrics:

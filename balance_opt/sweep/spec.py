@@ -308,13 +308,13 @@ def varied_prefix(path: tuple, parameters: dict[str, Any]) -> str | None:
     return None
 
 
-def parameter_columns(parameters: dict[str, Any]) -> dict[str, Any]:
-    """Flat table columns of a parameter set: a list becomes one column per item
-    (``mission.goal[0]``, ...), a mapping one column per key; scalars stay as they are."""
+def parameter_columns(data: dict[str, Any], lists: bool = True) -> dict[str, Any]:
+    """Flat table columns of a parameter set (or of nested ``data``): a mapping becomes one column
+    per key (``a.b``), with ``lists`` a list one column per item (``mission.goal[0]``, ...)."""
     out: dict[str, Any] = {}
 
     def walk(prefix: str, value: Any) -> None:
-        if isinstance(value, list):
+        if lists and isinstance(value, list):
             for i, item in enumerate(value):
                 walk(f"{prefix}[{i}]", item)
         elif isinstance(value, dict):
@@ -323,8 +323,8 @@ def parameter_columns(parameters: dict[str, Any]) -> dict[str, Any]:
         else:
             out[prefix] = value
 
-    for name, value in parameters.items():
-        walk(name, value)
+    for name, value in data.items():
+        walk(str(name), value)
     return out
 
 
