@@ -88,20 +88,20 @@ def execute_case(runner: str, case: dict) -> dict:
     """
     from balance_opt.errors import SolverError
 
-    out: dict[str, Any] = {}
+    runner_timing: dict[str, Any] = {}
     with _CASE_LOCK:
         start, cpu_start = time.perf_counter(), time.process_time()
         try:
             out = resolve_runner(runner)(case)
             status = out.get("status", STATUS_OK)
             record = _record(case, status, out.get("error"), out.get("metrics", {}))
-            record["info"] = out.get("info", {})
+            record["info"], runner_timing = out.get("info", {}), out.get("timing", {})
         except SolverError as exc:
             record = _record(case, STATUS_SOLVER_FAILED, error_record(exc))
         except Exception as exc:  # noqa: BLE001 - a failing case is recorded, the sweep goes on
             record = _record(case, STATUS_ERROR, error_record(exc))
         elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
-    timing = {"case_s": elapsed, "cpu_s": cpu, "pid": os.getpid(), **out.get("timing", {})}
+    timing = {"case_s": elapsed, "cpu_s": cpu, "pid": os.getpid(), **runner_timing}
     return {**record, "timing": timing}
 
 
