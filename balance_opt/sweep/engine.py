@@ -352,12 +352,10 @@ class DaskEngine:
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-        if self._cluster is not None:
-            self._cluster.close()
-            self._cluster = None
+        for resource in (self._client, self._cluster):  # the client first
+            if resource is not None:
+                resource.close()
+        self._client = self._cluster = None
         return False
 
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:

@@ -178,18 +178,15 @@ def task_from_dict(
 
 
 def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
-    """Validate a parsed document (types, keys, ranges: :func:`~balance_opt.config.typed_config.from_data`),
-    resolve its files, build its robot and mission, check the per-joint lists and the limits
-    and set the initial momentum in the options.
-    """
+    """Validate a parsed document, resolve its files, build its robot and mission and check
+    what depends on them (the ``check_*`` below)."""
     if not isinstance(doc.data, dict):
         raise doc.error(
             (),
             f"expected a mapping of task keys ({', '.join(TaskSpec.__dataclass_fields__)}), "
             f"got {type(doc.data).__name__}",
         )
-    if "task" in doc.data and "task" not in TaskSpec.__dataclass_fields__:
-        # a sweep file names its base task under ``task``; no task file has that key
+    if "task" in doc.data:  # a sweep file names its base task there; no task file has that key
         raise doc.error(("task",), "this is a sweep file, not a task file: use balance-opt sweep")
     spec = _completed(from_data(TaskSpec, doc), doc, base_dir)
     robot = _build_robot(spec, doc, base_dir)
@@ -408,15 +405,6 @@ def check_methods(task: Task, methods) -> None:
 
 
 # ------------------------------------------------------------ checks that need the robot, the mission
-def _joints_per_kind(robot: FloatingRobot) -> dict[str, list[str]]:
-    """The joints a ``per=`` declaration counts: mission, balance (arms stacked) or all arms."""
-    return {
-        "mission joint": list(robot.mission.joints),
-        "balance joint": [robot.joint_names[i] for i in robot.balance_indices],
-        "arm joint": list(robot.joint_names),
-    }
-
-
 def check_lengths(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
     """Every list of the task declared with one value per joint of a kind (``per=``) has that
     many values; a list of such lists (via points) is checked item by item.
@@ -424,7 +412,11 @@ def check_lengths(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> No
     Raises:
         TaskFileError: ``"expected 3 values (one per balance joint: ...), got 2"``.
     """
-    joints = _joints_per_kind(robot)
+    joints = {  # what a ``per=`` declaration counts: balance arms stacked, all arm joints
+        "mission joint": list(robot.mission.joints),
+        "balance joint": [robot.joint_names[i] for i in robot.balance_indices],
+        "arm joint": list(robot.joint_names),
+    }
     for path, value, meta in walk_settings(spec):
         kind = meta.get("per")
         if kind is None or not isinstance(value, tuple):
