@@ -403,15 +403,11 @@ def sweep_from_document(
         task_path = (base_dir / spec.task).resolve()
         if not task_path.is_file():
             raise doc.error(("task",), f"no task file {task_path}")
-        task_doc, prefix = load_yaml(task_path), ()
+        task_doc, task_dir, prefix = load_yaml(task_path), task_path.parent, ()
     else:
-        task_path, prefix = None, ("task",)
-        task_doc = YamlDocument(
-            doc.data["task"],
-            doc.source,
-            {k[1:]: v for k, v in doc.lines.items() if k[:1] == ("task",)},
-        )
-    task_dir = task_path.parent if task_path is not None else base_dir.resolve()
+        lines = {k[1:]: v for k, v in doc.lines.items() if k[:1] == ("task",)}
+        task_doc = YamlDocument(doc.data["task"], doc.source, lines)
+        task_dir, prefix = base_dir.resolve(), ("task",)
     task = task_doc.data
     task_hash = _sha256(task)
     try:
