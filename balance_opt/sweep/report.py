@@ -448,11 +448,6 @@ def _parameter_panels(axes, views, ok: Sequence[dict], methods: Sequence[str]) -
                 ax.set_ylabel(f"{what} drift [rad]")
 
 
-def plot_file_name(name: str) -> str:
-    """File name of the drift-against-parameter plot of key path ``name``."""
-    return "drift_vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") + ".png"
-
-
 def write_report(
     out_dir: str | Path,
     results: Sequence[dict],
@@ -479,7 +474,8 @@ def write_report(
         if p is not None:
             written["drift_distribution"] = p
         for name in varied:
-            p = plot_drift_against_parameter(results, name, plot_dir / plot_file_name(name))
+            file = "drift_vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") + ".png"
+            p = plot_drift_against_parameter(results, name, plot_dir / file)
             if p is not None:
                 written[f"drift_vs:{name}"] = p
     return written

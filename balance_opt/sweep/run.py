@@ -132,8 +132,15 @@ def run_sweep(
                 retry_failed=retry_failed,
                 on_result=on_result,
             )
-        except KeyboardInterrupt:
-            _write_interrupted(sweep, out_dir, extra)
+        except KeyboardInterrupt:  # the table and summary of the cases finished (no plots)
+            done = [r for c in sweep.cases if (r := read_result(out_dir, c["case_id"])) is not None]
+            extra["interrupted"] = True
+            write_report(out_dir, done, sweep.varied, plots=False, extra_summary=extra)
+            logger.warning(
+                "interrupted: %d of %d case(s) finished; run again with --resume to go on",
+                len(done),
+                len(sweep.cases),
+            )
             raise
         extra.update(
             workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped)
@@ -141,16 +148,3 @@ def run_sweep(
         files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
     summary = json.loads(files["summary"].read_text())
     return SweepOutcome(run, files, summary)
-
-
-def _write_interrupted(sweep: Sweep, out_dir: Path, extra: dict[str, Any]) -> None:
-    """The table and summary of the cases an interrupted sweep finished (no plots)."""
-    done = [r for c in sweep.cases if (r := read_result(out_dir, c["case_id"])) is not None]
-    write_report(
-        out_dir, done, sweep.varied, plots=False, extra_summary={**extra, "interrupted": True}
-    )
-    logger.warning(
-        "interrupted: %d of %d case(s) finished; run again with --resume to go on",
-        len(done),
-        len(sweep.cases),
-    )

@@ -298,16 +298,6 @@ def expand_cases(
     return cases, where
 
 
-def varied_prefix(path: tuple, parameters: dict[str, Any]) -> str | None:
-    """The varied parameter whose key path is a prefix of ``path`` (or extends it)."""
-    for name in parameters:
-        p = parse_key_path(name)
-        n = min(len(p), len(path))
-        if p[:n] == tuple(path[:n]):
-            return name
-    return None
-
-
 def parameter_columns(data: dict[str, Any], lists: bool = True) -> dict[str, Any]:
     """Flat table columns of a parameter set (or of nested ``data``): a mapping becomes one column
     per key (``a.b``), with ``lists`` a list one column per item (``mission.goal[0]``, ...)."""
@@ -451,7 +441,9 @@ def _check_case_tasks(
         except (TaskLimitsError, TaskTrajectoryError):
             continue
         except TaskFileError as exc:
-            culprit = varied_prefix(exc.path, case["parameters"])
+            # the varied parameter whose key path is a prefix of the culprit's (or extends it)
+            prefixes = {name: parse_key_path(name)[: len(exc.path)] for name in case["parameters"]}
+            culprit = next((n for n, p in prefixes.items() if p == exc.path[: len(p)]), None)
             if culprit is None:
                 raise
             value = canonical_json(case["parameters"][culprit])
