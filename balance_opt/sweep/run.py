@@ -72,21 +72,6 @@ def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
     return out_dir
 
 
-def sweep_manifest(sweep: Sweep) -> dict[str, Any]:
-    """The content of ``sweep.json``: the sweep's name, source, varied key paths, methods and
-    every case's index, id, method and parameters."""
-    return {
-        "name": sweep.name,
-        "source": sweep.source,
-        "setup_hash": sweep.setup_hash,
-        "varied": list(sweep.varied),
-        "methods": list(sweep.spec.methods),
-        "cases": [
-            {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
-        ],
-    }
-
-
 def run_sweep(
     sweep: Sweep,
     out_dir: str | Path,
@@ -119,7 +104,17 @@ def run_sweep(
     make_parent(Path(out_dir).absolute())
     with handling_signals(), FolderLock(out_dir):
         out_dir = prepare_output_dir(out_dir, resume, force)
-        write_json_atomic(out_dir / MANIFEST, sweep_manifest(sweep))
+        manifest = {
+            "name": sweep.name,
+            "source": sweep.source,
+            "setup_hash": sweep.setup_hash,
+            "varied": list(sweep.varied),
+            "methods": list(sweep.spec.methods),
+            "cases": [
+                {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
+            ],
+        }
+        write_json_atomic(out_dir / MANIFEST, manifest)
         engine = engine if engine is not None else make_engine(jobs, scheduler)
         extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
         try:
