@@ -373,10 +373,8 @@ def _parameter_views(results: Sequence[dict], name: str) -> dict[str, dict[int, 
     itself when it is a scalar, or a list or mapping taking few distinct values (then as
     categories); else one column per item (``mission.goal[0]``, ...)."""
     values = {r["index"]: r["parameters"][name] for r in results}
-    distinct = {canonical_json(v) for v in values.values()}
-    if all(not isinstance(v, (list, dict)) for v in values.values()) or (
-        len(distinct) <= MAX_CATEGORIES
-    ):
+    scalar = all(not isinstance(v, (list, dict)) for v in values.values())
+    if scalar or len({canonical_json(v) for v in values.values()}) <= MAX_CATEGORIES:
         return {name: values}
     views: dict[str, dict[int, Any]] = {}
     for index, value in values.items():
