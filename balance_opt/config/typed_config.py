@@ -55,12 +55,9 @@ def union_args(tp) -> tuple:
 
 def tag_of(cls) -> str | None:
     """The ``type`` literal of a tagged-union member, or None."""
-    if not dataclasses.is_dataclass(cls):
-        return None
-    tp = type_hints(cls).get("type")
-    if typing.get_origin(tp) is Literal and len(typing.get_args(tp)) == 1:
-        return typing.get_args(tp)[0]
-    return None
+    tp = type_hints(cls).get("type") if dataclasses.is_dataclass(cls) else None
+    args = typing.get_args(tp)
+    return args[0] if typing.get_origin(tp) is Literal and len(args) == 1 else None
 
 
 def describe(tp) -> str:
@@ -252,12 +249,12 @@ def get_attr(obj, attrs: tuple[str, ...]):
 
 
 # ----------------------------------------------------------------------------------- validation
+@dataclasses.dataclass
 class _Invalid(Exception):
     """Internal: a value at ``path`` does not fit; turned into an InputError by the callers."""
 
-    def __init__(self, path: tuple, reason: str):
-        self.path = path
-        self.reason = reason
+    path: tuple
+    reason: str
 
 
 NUMBER_META = ("minimum", "exclusive_minimum", "finite", "unit")
