@@ -249,7 +249,7 @@ def get_attr(obj, attrs: tuple[str, ...]):
 
 
 # ----------------------------------------------------------------------------------- validation
-@dataclasses.dataclass
+@dataclasses.dataclass(eq=False)  # hashable by identity, as exceptions are
 class _Invalid(Exception):
     """Internal: a value at ``path`` does not fit; turned into an InputError by the callers."""
 
