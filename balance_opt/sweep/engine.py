@@ -199,16 +199,11 @@ def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
             process.kill()
 
 
-class InProcessEngine:
-    """Runs the cases one after the other in this process (``--jobs 0``: debugging, profiling)."""
+class InProcessEngine(contextlib.nullcontext):
+    """Runs the cases one after the other in this process (``--jobs 0``: debugging, profiling);
+    nothing to start or stop."""
 
     workers = 1
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
 
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
         for case in cases:
