@@ -324,14 +324,11 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
         )
         if xy.size:
             ax.scatter(xy[:, 0], xy[:, 1], s=18, label=label, **style)
-    drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
-    drifts = [d for d in drifts if d is not None]
+    drifts = [d for p in paired for r in p for k in (MAX_DRIFT, FINAL_DRIFT) if (d := _drift(r, k))]
     _drift_axis(ax, "x", drifts)
     _drift_axis(ax, "y", drifts)
-    if ax.get_xscale() == "log":
-        lo, hi = min(drifts) / PAIRED_MARGIN, max(drifts) * PAIRED_MARGIN
-    else:
-        lo, hi = 0.0, max(drifts) * PAIRED_MARGIN
+    lo = min(drifts) / PAIRED_MARGIN if ax.get_xscale() == "log" else 0.0
+    hi = max(drifts) * PAIRED_MARGIN
     ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8, ls="--", label="equal")
     ax.set_xlim(lo, hi)
     ax.set_ylim(lo, hi)
