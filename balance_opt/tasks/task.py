@@ -194,11 +194,8 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     check_problem_size(spec, doc, robot)
     mission = _build_mission(spec, doc, base_dir, robot)
     check_time_grids(spec, doc, float(mission.duration))
-    q_B0 = (
-        robot.neutral()[robot.balance_indices]
-        if spec.initial.balance is None
-        else np.array(spec.initial.balance)
-    )
+    balance = spec.initial.balance
+    q_B0 = robot.neutral()[robot.balance_indices] if balance is None else np.array(balance)
     check_limits(spec, doc, robot, mission, q_B0)
     target = check_capture(spec, doc, float(mission.duration))
     task = Task(
