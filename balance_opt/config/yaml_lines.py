@@ -135,11 +135,8 @@ def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source:
 
 
 def parse_yaml(text: str, source: str) -> YamlDocument:
-    """Parse YAML ``text``; ``source`` names it in error messages.
-
-    Raises:
-        TaskFileError: a YAML syntax error (with its line), a duplicate key, or an empty document.
-    """
+    """Parse YAML ``text``; ``source`` names it in error messages (a syntax error with its line,
+    a duplicate key, an empty document)."""
     loader = _Loader(text)
     try:
         node = loader.get_single_node()
@@ -165,11 +162,7 @@ def parse_yaml(text: str, source: str) -> YamlDocument:
 
 
 def load_yaml(path: str | Path) -> YamlDocument:
-    """Read and parse the YAML file at ``path`` (see :func:`parse_yaml`).
-
-    Raises:
-        TaskFileError: the file cannot be read, or is not valid YAML.
-    """
+    """Read and parse the YAML file at ``path`` (see :func:`parse_yaml`)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

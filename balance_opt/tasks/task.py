@@ -664,11 +664,7 @@ def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) 
 
 def check_capture(spec: TaskSpec, doc: YamlDocument, duration: float):
     """The capture section as a :class:`~balance_opt.model.capture.Target` (``None`` without
-    one): the capture time strictly inside the mission, a physical inertia.
-
-    Raises:
-        TaskFileError: located at ``capture.time`` or ``capture.inertia``.
-    """
+    one): the capture time strictly inside the mission, a physical inertia."""
     from balance_opt.model.capture import Target
 
     c = spec.capture
