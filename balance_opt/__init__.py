@@ -1,23 +1,7 @@
 """balance-opt: balance-arm motion planning for free-floating multi-arm space robots.
 
-The stages, one subpackage each, lowest first (each imports only from those before it; see
-``docs/architecture.md``):
-
-* ``config``: typed settings (one declaration per option), YAML with line numbers, key paths;
-* ``model``: the robot (URDF on a free-flying base, arms by joint names) and its momentum maps,
-  numeric (Pinocchio) and symbolic (CasADi);
-* ``motion``: joint trajectories, SO(3) attitude, the kinematic replay of joint motions and the
-  momentum check of a sampled motion;
-* ``analytic``: the paper's balance law, its rollout and its phases; ``optimal``: the optimal
-  planner (NLP);
-* ``dynamics``: forward-dynamics simulation of a plan and the wrenches on the base;
-* ``tasks``: task files; ``report``: output files, figures and the HTML report;
-* ``app``: running a task end to end (``pipeline``), the paper's study; ``sweep``: many tasks.
-
-``result`` holds the plan type every method returns, ``errors`` the exceptions, ``cli`` the
-``balance-opt`` command.
-
-The notebook API is at the top level::
+The stages, one subpackage each, are mapped in ``docs/architecture.md``. The notebook API is at
+the top level::
 
     import balance_opt as bo
 
@@ -88,27 +72,17 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
 
 
-__all__ = [
-    "Arm",
-    "BalanceOptError",
-    "BalanceResult",
-    "FloatingRobot",
-    "InputError",
-    "JointLimits",
-    "LimitViolation",
-    "SimulationResult",
-    "SolverError",
-    "Task",
-    "TaskRun",
-    "__version__",
-    "baxter_floating",
-    "load_task",
-    "paper_robot",
-    "plan_analytic",
-    "plan_mission_only",
-    "plan_optimal",
-    "plot_result",
-    "run_task",
-    "simulate",
-    "task_from_dict",
-]
+__all__ = sorted(
+    [
+        "Arm",
+        "BalanceOptError",
+        "FloatingRobot",
+        "InputError",
+        "JointLimits",
+        "SolverError",
+        "__version__",
+        "baxter_floating",
+        "paper_robot",
+        *_LAZY,
+    ]
+)

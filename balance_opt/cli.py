@@ -103,8 +103,16 @@ def _count(n: int, one: str, many: str) -> str:
 
 
 def _cmd_cache(args) -> int:
-    from balance_opt.cache import CACHE_ENV, default_cache_dir
-    from balance_opt.cache_admin import KINDS, LIMIT_ENV, clear, entries, format_size, size_limit
+    from balance_opt.cache import (
+        CACHE_ENV,
+        KINDS,
+        LIMIT_ENV,
+        clear,
+        default_cache_dir,
+        entries,
+        format_size,
+        size_limit,
+    )
 
     folder = default_cache_dir()
     origin = f"${CACHE_ENV}" if os.environ.get(CACHE_ENV) else "default; set $" + CACHE_ENV
@@ -246,12 +254,8 @@ def _reference_asked(args, schema: Callable[[], dict], reference: Callable[[], s
 def _cmd_validate(args) -> int:
     """Check every task file given, each error printed with its file; exit 2 if any failed."""
     from balance_opt.errors import InputError
-    from balance_opt.tasks.task import (
-        check_methods,
-        load_task,
-        task_json_schema,
-        task_reference_markdown,
-    )
+    from balance_opt.tasks.task import check_methods, load_task
+    from balance_opt.tasks.task_spec import task_json_schema, task_reference_markdown
 
     if _reference_asked(args, task_json_schema, task_reference_markdown):
         return EXIT_OK

@@ -77,6 +77,3 @@ def handling_signals() -> Iterator[None]:
             signal.signal(signum, handler)
         if outermost:
             _received.clear()
-
-
-__all__ = ["SIGNALS", "Interrupted", "handling_signals", "raise_if_interrupted"]

@@ -1,11 +1,7 @@
 """The result of a balance plan, shared by the analytic law, the optimal planner and replays, so
-that any two compare field by field.
-
-A :class:`BalanceResult` is also what a notebook holds: a short ``repr``, value equality and
-:meth:`BalanceResult.to_dataframe` (pandas, imported only then). Drawing one is the report's
-business (:func:`balance_opt.report.plots.plot_result`, ``balance_opt.plot_result``): a
-result is made in the lowest layers of the package (motion, analytic, optimal, dynamics) and
-knows nothing of figures.
+that any two compare field by field; in a notebook: a short ``repr``, value equality and
+:meth:`BalanceResult.to_dataframe`. It is made in the lowest layers of the package and knows
+nothing of figures (:func:`balance_opt.report.plots.plot_result` draws one).
 """
 
 from __future__ import annotations
@@ -58,15 +54,9 @@ class LimitViolation:
 def find_limit_violations(
     t, names, q, q_dot, q_ddot, limits: JointLimits, tolerance: float = LIMIT_TOLERANCE
 ) -> list[LimitViolation]:
-    """Every stretch of samples where a joint leaves its position, velocity or acceleration limits.
-
-    Args:
-        t: sample times (T,).
-        names: joint names (n,).
-        q, q_dot, q_ddot: joint trajectories (T, n).
-        limits: limits of these joints (see :meth:`JointLimits.subset`).
-        tolerance: excess that still counts as inside.
-    """
+    """Every stretch of samples (times ``t`` (T,)) where a joint of ``names`` leaves its
+    position, velocity or acceleration ``limits`` by more than ``tolerance``; ``q``, ``q_dot``,
+    ``q_ddot`` are (T, n)."""
     found = []
     checks = (
         ("position", q, np.maximum(q - limits.upper, limits.lower - q)),

@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
-    from balance_opt.sweep.tables import is_timing_column, results_table
+    from balance_opt.sweep.report import is_timing_column, results_table
     from balance_opt.sweep.run import run_sweep
     from balance_opt.sweep.spec import parse_sweep
 

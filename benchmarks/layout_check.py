@@ -38,7 +38,7 @@ MAX_CYCLES_PER_GROUP = 20
 #: imports only from its own layer and those before it; parts of one layer may import each
 #: other as long as no modules form a cycle.
 LAYERS = (
-    ("base", ("errors", "interrupts", "progress", "cache", "cache_admin")),
+    ("base", ("errors", "interrupts", "progress", "cache")),
     ("config", ("config",)),
     ("model", ("model",)),
     ("geometry", ("geometry",)),

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from balance_opt import cache, cache_admin
+from balance_opt import cache
 from balance_opt.optimal import codegen
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,21 +152,21 @@ def test_size_bound_evicts_least_recently_used_kernels(tmp_path, monkeypatch):
     bridge.parent.mkdir()
     bridge.write_bytes(b"\0" * 5000)  # never evicted, however old
     os.utime(bridge, (0, 0))
-    monkeypatch.setenv(cache_admin.LIMIT_ENV, "14K")
-    assert cache_admin.size_limit() == 14 * 1024
-    evicted = cache_admin.enforce_limit(tmp_path, keep=[old])
+    monkeypatch.setenv(cache.LIMIT_ENV, "14K")
+    assert cache.size_limit() == 14 * 1024
+    evicted = cache.enforce_limit(tmp_path, keep=[old])
     assert [e.name for e in evicted] == [middle.name]
     assert old.exists() and new.exists() and bridge.exists()
     assert not middle.exists() and not cache.record_path(middle).exists()
-    assert cache_admin.enforce_limit(tmp_path) == []  # 13 kB + records: under the bound
+    assert cache.enforce_limit(tmp_path) == []  # 13 kB + records: under the bound
 
 
 @pytest.mark.parametrize(
     "text, size", [("", 2 * 1024**3), ("500M", 500 * 1024**2), ("1.5G", 1.5 * 1024**3)]
 )
 def test_size_limit_from_the_environment(monkeypatch, text, size):
-    monkeypatch.setenv(cache_admin.LIMIT_ENV, text)
-    assert cache_admin.size_limit() == int(size)
+    monkeypatch.setenv(cache.LIMIT_ENV, text)
+    assert cache.size_limit() == int(size)
 
 
 def test_inventory_groups_by_kind_and_clear_deletes_all(tmp_path):
@@ -180,7 +180,7 @@ def test_inventory_groups_by_kind_and_clear_deletes_all(tmp_path):
     (tmp_path / "ipopt-options-casadi-3.8.2.json").write_text("{}")
     live = tmp_path / f"balance_kernels_b.tmp-{__import__('socket').gethostname()}-{os.getpid()}-q"
     live.mkdir()
-    found = {(e.kind, e.name): e for e in cache_admin.entries(tmp_path)}
+    found = {(e.kind, e.name): e for e in cache.entries(tmp_path)}
     assert set(found) == {
         ("planner kernels", "balance_kernels_aaa.so"),
         ("bridge", "pinocchio-bridge/pinocchio_casadi_bridge_0123"),
@@ -190,7 +190,7 @@ def test_inventory_groups_by_kind_and_clear_deletes_all(tmp_path):
     }
     kernels = found[("planner kernels", "balance_kernels_aaa.so")]
     assert kernels.size == 1000 + cache.record_path(tmp_path / kernels.name).stat().st_size
-    deleted, kept = cache_admin.clear(tmp_path)
+    deleted, kept = cache.clear(tmp_path)
     assert len(deleted) == 4 and [e.name for e in kept] == [live.name]
     assert sorted(p.name for p in tmp_path.rglob("*")) == [live.name]
 

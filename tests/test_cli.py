@@ -20,7 +20,7 @@ from balance_opt.cli import main
 from balance_opt.cli import parse_solver_option
 from balance_opt.model.library import shipped_urdf
 from balance_opt.report.outputs import read_npz_result
-from balance_opt.tasks.task import task_json_schema
+from balance_opt.tasks.task_spec import task_json_schema
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

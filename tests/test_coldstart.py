@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from balance_opt import cache, cache_admin
+from balance_opt import cache
 from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal import codegen
@@ -65,9 +65,9 @@ def test_stored_model_round_trips_and_matches_numeric_pinocchio(paper, tmp_path)
     expected = base_angular_velocity(I_G, A, np.r_[qd_M, qd_B], ell=R.T @ h0[3:])
     assert np.abs(np.array(omega).ravel() - expected).max() < 1e-12
     assert np.abs(expected).max() > 1e-3  # not a trivially zero case
-    kinds = {e.kind for e in cache_admin.entries(tmp_path)}
+    kinds = {e.kind for e in cache.entries(tmp_path)}
     assert "planner models" in kinds
-    assert all(e.evictable for e in cache_admin.entries(tmp_path) if e.kind == "planner models")
+    assert all(e.evictable for e in cache.entries(tmp_path) if e.kind == "planner models")
 
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage", "no record"])

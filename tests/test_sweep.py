@@ -7,6 +7,7 @@ imported by name in the worker processes); the end-to-end tests run the real pla
 paper's task with tiny horizons.
 """
 
+import csv
 import json
 import os
 import re
@@ -20,12 +21,6 @@ import numpy as np
 import pytest
 
 from balance_opt.config.yaml_lines import TaskFileError, format_path
-from balance_opt.sweep.cases import (
-    apply_overrides,
-    case_id_from,
-    parameter_columns,
-    parse_key_path,
-)
 from balance_opt.sweep.engine import (
     STATUS_OK,
     LocalPoolEngine,
@@ -34,13 +29,15 @@ from balance_opt.sweep.engine import (
     run_cases,
     write_json_atomic,
 )
+from balance_opt.sweep.report import diagnostics_table, is_timing_column, results_table
 from balance_opt.sweep.run import run_sweep
-from balance_opt.sweep.spec import load_sweep, parse_sweep
-from balance_opt.sweep.tables import (
-    diagnostics_table,
-    is_timing_column,
-    read_table_csv,
-    results_table,
+from balance_opt.sweep.spec import (
+    apply_overrides,
+    case_id_from,
+    load_sweep,
+    parameter_columns,
+    parse_key_path,
+    parse_sweep,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,6 +47,13 @@ TOY_RUNNER = "test_sweep:toy_case"
 LIMIT_SLACK = 1e-6
 #: Seconds a test waits for a subprocess sweep before giving up.
 SUBPROCESS_TIMEOUT = 120
+
+
+def read_table_csv(path) -> tuple[list[str], list[dict[str, str]]]:
+    """Columns and rows (as text) of a table the sweep wrote."""
+    with Path(path).open(newline="") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or []), list(reader)
 
 
 # ------------------------------------------------------------------------------ toy case function
@@ -562,8 +566,6 @@ def test_table_order_and_timing_columns():
 
 def test_the_two_tables_hold_every_recorded_value_once():
     """Every metric, error and timing value of a record is in exactly one of the two tables."""
-    from balance_opt.sweep.tables import flatten
-
     record = {
         "index": 0,
         "case_id": "c",
@@ -584,8 +586,7 @@ def test_the_two_tables_hold_every_recorded_value_once():
     (_, (tidy,)), (_, (diag,)) = results_table([record]), diagnostics_table([record])
     shared = {"index", "case_id", "method"}
     assert not (set(tidy) & set(diag)) - shared
-    metrics: dict = {}
-    flatten("", record["metrics"], metrics)
+    metrics = parameter_columns(record["metrics"], lists=False)
     del metrics["method"]
     for name, value in metrics.items():
         assert (tidy.get(name), diag.get(name)).count(value) == 1, name

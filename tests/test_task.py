@@ -11,20 +11,19 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import capture_task
-from balance_opt.config.typed_config import from_data
-from balance_opt.config.typed_reference import reference_rows
+from balance_opt.config.typed_config import from_data, reference_rows
 from balance_opt.config.yaml_lines import TaskFileError, format_path, parse_yaml
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.tasks.task import (
-    load_task,
-    task_from_dict,
+from balance_opt.tasks.task import load_task, task_from_dict
+from balance_opt.tasks.task_spec import (
+    PtpMission,
+    TaskSpec,
     task_json_schema,
     task_reference_markdown,
 )
-from balance_opt.tasks.task_spec import PtpMission, TaskSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

@@ -26,7 +26,7 @@ from balance_opt.report import plots
 from balance_opt.report.output_dir import OutputFolder
 from balance_opt.report.style import SCREEN_DPI, SIM, method_label
 from balance_opt.result import BalanceResult
-from balance_opt.tasks.task import Task, check_methods, check_optimal_supported
+from balance_opt.tasks.task import Task, check_methods
 
 if TYPE_CHECKING:
     from balance_opt.dynamics.simulation import SimulationResult
@@ -433,7 +433,7 @@ def plan_optimal(
         _checked_plan(warm_start)
     if task.target is not None:
         return plan_captured(task, "optimal", solver_options, models, executor)
-    check_optimal_supported(task)
+    check_methods(task, ("optimal",))
     guess = task.spec.optimal.initial_guess
     return plan_part(
         task, "optimal", task.robot, task.mission, task.q_B0, task.h0,

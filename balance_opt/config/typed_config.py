@@ -1,63 +1,128 @@
 """Typed configuration: one declaration per setting, for files and for Python alike.
 
 A format is a tree of frozen dataclasses whose fields are declared with :func:`setting` (a
-``dataclasses.field`` that also carries a description, a unit and value constraints). From that
-one declaration this module derives
+``dataclasses.field`` that also carries a description, a unit and value constraints). From it
+come the validator of files (:func:`from_data`: every error names the file, the line, the key
+path and what was expected), that of Python calls (:func:`check_settings`, from the dataclass's
+``__post_init__``), the JSON Schema for editors (:func:`json_schema`), the reference table
+(:func:`reference_markdown`), and :func:`walk_settings` for checks that need more than the
+value (one value per joint of a robot, ...).
 
-* the validator of files, :func:`from_data`: plain data (from :mod:`balance_opt.config.yaml_lines`)
-  to typed objects, every error naming the file, the line and the key path and what was expected;
-* the validator of Python calls, :func:`check_settings`, which the dataclass's ``__post_init__``
-  calls: the same checks, an :class:`~balance_opt.errors.InputError` naming the option;
-* the JSON Schema and the README's reference table (:mod:`balance_opt.config.typed_reference`,
-  from :func:`file_layout`, the keys as laid out in a file);
-* :func:`walk_settings`: every value of a tree with its key path and declaration, for checks
-  that need more than the value (one value per joint of a robot, ...).
+Field types: ``bool``, ``int``, ``float`` (an int is accepted), ``str``, ``Literal[...]``,
+``tuple[T, ...]`` (a YAML list), ``dict[str, T]`` (free keys), ``T | None``, unions of those,
+nested dataclasses, and *tagged unions*: dataclasses that each have a ``type: Literal["..."]``
+field, chosen by the ``type`` key.
 
-Supported field types: ``bool``, ``int``, ``float`` (an int is accepted), ``str``,
-``Literal[...]``, ``tuple[T, ...]`` (a YAML list), ``dict[str, T]`` (a mapping with free keys),
-``T | None``, unions of those, nested dataclasses, and *tagged unions*: a union of dataclasses
-that each have a ``type: Literal["..."]`` field, chosen by the ``type`` key.
-
-A field's key in the file may differ from its place on the class:
-
-* ``key="integrator"``: the key is named differently from the attribute;
-* ``section="constraints"``: the field is an attribute of the class but its key is written
-  inside the mapping ``constraints``; the class's ``__sections__`` describes each section;
-* ``inline=True`` (a dataclass-typed field): the other way round, the keys of the nested
-  dataclass are written in the parent's mapping, as if they were its own;
-* ``after="horizon"``: the key is listed after another key (schema and reference order);
-* ``in_file=False``: the field is set from elsewhere, not a key of the file; Python calls are
-  still checked.
-
-A dataclass may set ``__exactly_one__ = ("a", "b", ...)``: exactly one of these keys must be
-given.
+Where a field's key is in the file: ``key="integrator"`` names it differently from the
+attribute; ``section="constraints"`` writes it inside the mapping ``constraints`` (described in
+the class's ``__sections__``); ``inline=True`` writes the keys of a nested dataclass in the
+parent's mapping; ``after="horizon"`` lists it after another key; ``in_file=False`` leaves it
+out of files (Python calls are still checked). A dataclass may set ``__exactly_one__ = ("a",
+"b", ...)``: exactly one of these keys must be given.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import math
 import re
+import types
 import typing
-from collections.abc import Iterator, Mapping, Sequence
-from typing import Any, Literal
+from collections.abc import Iterator, Mapping
+from typing import Any, Literal, Union
 
-from balance_opt.config.keypath import format_path
-from balance_opt.config.type_names import (
-    describe,
-    is_union,
-    plural,
-    suggest,
-    tag_of,
-    type_hints,
-    value_words,
-)
+from balance_opt.config.yaml_lines import format_path
 from balance_opt.errors import InputError
 
 _MISSING = dataclasses.MISSING
 
 
+# ------------------------------------------------------------------------------ types in words
+@functools.cache
+def type_hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def is_union(tp) -> bool:
+    return typing.get_origin(tp) in (Union, types.UnionType)
+
+
+def union_args(tp) -> tuple:
+    return typing.get_args(tp) if is_union(tp) else (tp,)
+
+
+def tag_of(cls) -> str | None:
+    """The ``type`` literal of a tagged-union member, or None."""
+    tp = type_hints(cls).get("type") if dataclasses.is_dataclass(cls) else None
+    args = typing.get_args(tp)
+    return args[0] if typing.get_origin(tp) is Literal and len(args) == 1 else None
+
+
+def describe(tp) -> str:
+    """Human name of a type, as used in 'expected ...' messages and the reference."""
+    if tp is type(None):
+        return "null"
+    if is_union(tp):
+        members = [a for a in typing.get_args(tp) if a is not type(None)]
+        if all(tag_of(a) for a in members):
+            return "a mapping with type: " + " | ".join(tag_of(a) for a in members)
+        return " or ".join(describe(a) for a in members)
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin is tuple:
+        return f"a list of {plural(typing.get_args(tp)[0])}"
+    if origin is dict:
+        return f"a mapping of names to {plural(typing.get_args(tp)[1])}"
+    if dataclasses.is_dataclass(tp):
+        return "a mapping"
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
+        tp, str(tp)
+    )
+
+
+def plural(tp) -> str:
+    if is_union(tp):
+        return " or ".join(plural(a) for a in typing.get_args(tp) if a is not type(None))
+    origin = typing.get_origin(tp)
+    if origin is tuple:
+        return f"lists of {plural(typing.get_args(tp)[0])}"
+    if origin is dict or dataclasses.is_dataclass(tp):
+        return "mappings"
+    if origin is Literal:
+        return "names (" + ", ".join(repr(a) for a in typing.get_args(tp)) + ")"
+    return {bool: "booleans", int: "integers", float: "numbers", str: "strings"}.get(tp, str(tp))
+
+
+def value_words(value) -> str:
+    kind = {
+        dict: "a mapping",
+        list: "a list",
+        str: "a string",
+        bool: "a boolean",
+        int: "an integer",
+        float: "a number",
+        type(None): "nothing (null)",
+    }.get(type(value), type(value).__name__)
+    if isinstance(value, (dict, list)):
+        return kind
+    if isinstance(value, bool):
+        return f"{str(value).lower()} ({kind})"
+    return f"{value!r} ({kind})"
+
+
+def suggest(name: Any, candidates) -> str:
+    """``"; did you mean 'x'?"`` for close matches, else ``""``."""
+    names = [str(c) for c in candidates]
+    close = difflib.get_close_matches(str(name), names, n=3)
+    if not close and len(str(name)) >= 3:  # an abbreviation: 'accel' for 'acceleration'
+        close = [c for c in names if c.startswith(str(name))][:3]
+    return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+
+
+# ----------------------------------------------------------------------------------- settings
 def setting(
     default: Any = _MISSING,
     *,
@@ -93,29 +158,9 @@ def setting(
         pattern: ``(regular expression, the rule in words)`` a string must match in full.
         per: the list holds one value per item of this kind (e.g. ``"balance joint"``); checked
             by the user of :func:`walk_settings`, who knows how many there are.
-        key: name of the key in files, when it differs from the attribute's.
-        section: name of the mapping the key is written in (see the module docstring).
-        inline: write the keys of this dataclass-typed field in the parent's mapping.
-        after: list the key after this other key.
-        in_file: ``False`` for a field that files do not set.
+        key, section, inline, after, in_file: where the key is in files (module docstring).
     """
-    meta = {
-        "doc": doc,
-        "unit": unit,
-        "minimum": minimum,
-        "exclusive_minimum": exclusive_minimum,
-        "finite": finite,
-        "min_items": min_items,
-        "max_items": max_items,
-        "item": item,
-        "pattern": pattern,
-        "per": per,
-        "key": key,
-        "section": section,
-        "inline": inline,
-        "after": after,
-        "in_file": in_file,
-    }
+    meta = {k: v for k, v in locals().items() if k not in ("default", "factory")}
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -200,18 +245,16 @@ def file_layout(cls) -> tuple:
 
 
 def get_attr(obj, attrs: tuple[str, ...]):
-    for name in attrs:
-        obj = getattr(obj, name)
-    return obj
+    return functools.reduce(getattr, attrs, obj)
 
 
 # ----------------------------------------------------------------------------------- validation
+@dataclasses.dataclass(eq=False)  # hashable by identity, as exceptions are
 class _Invalid(Exception):
     """Internal: a value at ``path`` does not fit; turned into an InputError by the callers."""
 
-    def __init__(self, path: tuple, reason: str):
-        self.path = path
-        self.reason = reason
+    path: tuple
+    reason: str
 
 
 NUMBER_META = ("minimum", "exclusive_minimum", "finite", "unit")
@@ -230,13 +273,12 @@ def _check_number(value: float, meta: dict, path: tuple) -> None:
         raise _Invalid(path, f"must be at least {lo:g}{unit}, got {value:g}")
 
 
-def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
-    if not isinstance(value, list):
-        raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
+def _convert_list(value: list, tp, meta: dict, path: tuple) -> tuple:
     n_lo, n_hi = meta.get("min_items"), meta.get("max_items")
     if n_lo is not None and len(value) < n_lo and meta.get("item"):
         got = f"got {len(value)}" if value else "got an empty list"
-        raise _Invalid(path, f"must name at least {_count(n_lo, meta['item'])}, {got}")
+        items = f"one {meta['item']}" if n_lo == 1 else f"{n_lo} {meta['item']}s"
+        raise _Invalid(path, f"must name at least {items}, {got}")
     if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
         raise _Invalid(
             path, f"expected a list of {n_lo} {plural(typing.get_args(tp)[0])}, got {len(value)}"
@@ -249,39 +291,6 @@ def _convert_list(value, tp, meta: dict, path: tuple) -> tuple:
     return tuple(
         _convert(v, typing.get_args(tp)[0], item_meta, (*path, i)) for i, v in enumerate(value)
     )
-
-
-def _count(n: int, noun: str) -> str:
-    """``"one joint"``, ``"2 joints"``."""
-    return f"one {noun}" if n == 1 else f"{n} {noun}s"
-
-
-def _convert_scalar(value, tp, meta: dict, path: tuple):
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise _Invalid(path, f"expected true or false, got {value_words(value)}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise _Invalid(path, f"expected an integer, got {value_words(value)}")
-        _check_number(value, meta, path)
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _Invalid(path, f"expected a number, got {value_words(value)}")
-        _check_number(float(value), meta, path)
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise _Invalid(path, f"expected a string, got {value_words(value)}")
-        if not value.strip():
-            raise _Invalid(path, "expected a non-empty string")
-        if meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
-            raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
-        return value
-    if tp is Any:
-        return value
-    raise TypeError(f"typed_config: unsupported field type {tp!r} at {path}")
 
 
 def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
@@ -297,11 +306,13 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
                 + (suggest(value, options) if isinstance(value, str) else ""),
             )
         return value
+    if tp is Any or (dataclasses.is_dataclass(tp) and isinstance(value, tp)):
+        return value  # a dataclass built in Python checked itself
+    if not _same_kind(value, tp):
+        raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
     if origin is tuple:
         return _convert_list(value, tp, meta, path)
     if origin is dict:
-        if not isinstance(value, dict):
-            raise _Invalid(path, f"expected {describe(tp)}, got {value_words(value)}")
         value_tp = typing.get_args(tp)[1]
         out = {}
         for k, v in value.items():
@@ -310,14 +321,17 @@ def _convert(value: Any, tp, meta: dict, path: tuple) -> Any:
             out[k] = _convert(v, value_tp, meta, (*path, k))
         return out
     if dataclasses.is_dataclass(tp):
-        if isinstance(value, tp):  # built in Python: it checked itself
-            return value
-        if not isinstance(value, dict):
-            raise _Invalid(path, f"expected a mapping, got {value_words(value)}")
         tree: dict = {}
         _read_mapping(value, file_layout(tp), path, tree, getattr(tp, "__exactly_one__", ()))
         return _build(tp, tree, path)
-    return _convert_scalar(value, tp, meta, path)
+    if tp in (int, float):
+        _check_number(value, meta, path)
+        return tp(value)
+    if tp is str and not value.strip():
+        raise _Invalid(path, "expected a non-empty string")
+    if tp is str and meta.get("pattern") and not re.fullmatch(meta["pattern"][0], value):
+        raise _Invalid(path, f"{value!r} is not allowed here: use {meta['pattern'][1]}")
+    return value
 
 
 def _convert_union(value, tp, meta, path):
@@ -382,7 +396,7 @@ def _same_kind(value, tp) -> bool:
         return isinstance(value, int) and not isinstance(value, bool)
     if tp is float:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
-    return False
+    raise TypeError(f"typed_config: unsupported field type {tp!r}")
 
 
 def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=()) -> None:
@@ -422,11 +436,9 @@ def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=(
 def _build(cls, tree: dict, path: tuple):
     """``cls`` from the keyword arguments ``tree``; its own (cross-field) checks located at the
     mapping's ``path``."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    inline = {f.name for f in dataclasses.fields(cls) if f.metadata.get("inline")}
     kwargs = {
-        name: _build(type_hints(cls)[name], value, path)
-        if fields[name].metadata.get("inline")
-        else value
+        name: _build(type_hints(cls)[name], value, path) if name in inline else value
         for name, value in tree.items()
     }
     try:
@@ -435,23 +447,16 @@ def _build(cls, tree: dict, path: tuple):
         raise _Invalid(path, str(exc)) from None
 
 
-def from_data(cls, doc, path: Sequence[Any] = ()):
-    """Typed ``cls`` instance from the plain data of ``doc`` (at ``path`` inside it).
-
-    Args:
-        cls: the dataclass at the root of the format.
-        doc: a :class:`~balance_opt.config.yaml_lines.YamlDocument`.
-        path: key path of the value inside the document.
+def from_data(cls, doc):
+    """The dataclass ``cls`` (the root of a format) from the plain data of the
+    :class:`~balance_opt.config.yaml_lines.YamlDocument` ``doc``.
 
     Raises:
         TaskFileError: naming the file, the line and the key path of the first bad value, and what
             was expected there.
     """
-    value = doc.data
-    for part in path:
-        value = value[part]
     try:
-        return _convert(value, cls, {}, tuple(path))
+        return _convert(doc.data, cls, {}, ())
     except _Invalid as exc:
         raise doc.error(exc.path, exc.reason) from None
 
@@ -459,9 +464,11 @@ def from_data(cls, doc, path: Sequence[Any] = ()):
 def _plain(value):
     """A Python value as the plain data of a file: sequences and arrays as lists, NumPy scalars
     as Python numbers, mappings as dicts; dataclasses are kept."""
-    if value is None or isinstance(value, (str, bool, int, float)):
-        return value
-    if dataclasses.is_dataclass(value):
+    if (
+        value is None
+        or isinstance(value, (str, bool, int, float))
+        or dataclasses.is_dataclass(value)
+    ):
         return value
     if isinstance(value, Mapping):
         return {k: _plain(v) for k, v in value.items()}
@@ -474,17 +481,12 @@ def _plain(value):
 
 def check_settings(obj, what: str) -> None:
     """Check and normalise the fields of the frozen dataclass ``obj`` against their
-    :func:`setting` declarations (for its ``__post_init__``).
-
-    Lists and arrays become tuples of Python numbers, mappings dicts, ints given for floats
-    floats.
-
-    Args:
-        obj: the instance, fields already set.
-        what: how the error names an option, e.g. ``"planner option"``.
+    :func:`setting` declarations (for its ``__post_init__``): lists and arrays become tuples of
+    Python numbers, mappings dicts, ints given for floats floats.
 
     Raises:
-        InputError: ``"<what> '<name>': <problem>"`` for the first field that does not fit.
+        InputError: ``"<what> '<name>': <problem>"`` for the first field that does not fit
+            (``what``: e.g. ``"planner option"``).
     """
     hints = type_hints(type(obj))
     for f in dataclasses.fields(obj):
@@ -499,19 +501,215 @@ def check_settings(obj, what: str) -> None:
             object.__setattr__(obj, f.name, converted)
 
 
-def walk_settings(obj, path: Sequence[Any] = ()) -> Iterator[tuple[tuple, Any, dict]]:
+def walk_settings(obj, path: tuple = (), entries=None) -> Iterator[tuple[tuple, Any, dict]]:
     """Every value of the typed tree ``obj``: ``(key path in the file, value, declaration)``,
     depth first (the values of nested dataclasses, not the dataclasses)."""
-    yield from _walk(obj, file_layout(type(obj)), tuple(path))
-
-
-def _walk(obj, entries: tuple, path: tuple):
-    for e in entries:
+    for e in file_layout(type(obj)) if entries is None else entries:
         if isinstance(e, Section):
-            yield from _walk(obj, e.entries, (*path, e.key))
+            yield from walk_settings(obj, (*path, e.key), e.entries)
             continue
         value = get_attr(obj, e.attrs)
         if dataclasses.is_dataclass(value):
             yield from walk_settings(value, (*path, e.key))
         else:
             yield (*path, e.key), value, e.meta
+
+
+# ----------------------------------------------------------------------------------- JSON Schema
+def _schema(tp, meta: dict, defs: dict) -> dict:
+    if is_union(tp):
+        members = typing.get_args(tp)
+        if all(tag_of(m) for m in members if m is not type(None)):
+            return {"oneOf": [_schema(m, meta, defs) for m in members]}
+        return {"anyOf": [_schema(m, meta, defs) for m in members]}
+    origin = typing.get_origin(tp)
+    if tp is type(None):
+        return {"type": "null"}
+    if origin is Literal:
+        return {"enum": list(typing.get_args(tp))}
+    if origin is tuple:
+        item_meta = {k: meta.get(k) for k in NUMBER_META}
+        out = {"type": "array", "items": _schema(typing.get_args(tp)[0], item_meta, defs)}
+        for name, key in (("min_items", "minItems"), ("max_items", "maxItems")):
+            if meta.get(name) is not None:
+                out[key] = meta[name]
+        return out
+    if origin is dict:
+        return {
+            "type": "object",
+            "additionalProperties": _schema(typing.get_args(tp)[1], meta, defs),
+        }
+    if dataclasses.is_dataclass(tp):
+        name = tp.__name__
+        if name not in defs:
+            defs[name] = None  # placeholder against recursion
+            defs[name] = dataclass_schema(tp, defs)
+        return {"$ref": f"#/$defs/{name}"}
+    if tp in (int, float):
+        out = {"type": "integer" if tp is int else "number"}
+        for name, key in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum")):
+            if meta.get(name) is not None:
+                out[key] = meta[name]
+        return out
+    if tp is bool:
+        return {"type": "boolean"}
+    if tp is str:
+        if meta.get("pattern"):
+            return {"type": "string", "pattern": f"^(?:{meta['pattern'][0]})$"}
+        return {"type": "string", "minLength": 1}
+    if tp is Any:
+        return {}
+    raise TypeError(f"typed_config: unsupported field type {tp!r}")
+
+
+def _json_default(value):
+    if dataclasses.is_dataclass(value):
+        return _entries_data(value, file_layout(type(value)))
+    if isinstance(value, tuple):
+        return [_json_default(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _json_default(v) for k, v in value.items()}
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _entries_data(obj, entries: tuple) -> dict:
+    """The keys of ``entries`` with their values in ``obj`` (``None``: their defaults), as
+    plain data laid out as in a file."""
+    out = {}
+    for e in entries:
+        if isinstance(e, Section):
+            out[e.key] = _entries_data(obj, e.entries)
+        else:
+            out[e.key] = _json_default(
+                field_default(e.field) if obj is None else get_attr(obj, e.attrs)
+            )
+    return out
+
+
+def _doc(meta: dict) -> str:
+    doc = meta.get("doc", "")
+    return f"{doc} [{meta['unit']}]" if meta.get("unit") else doc
+
+
+def _object_schema(entries: tuple, description: str, defs: dict) -> tuple[dict, list]:
+    """JSON Schema object of a mapping with the keys ``entries``, and its required keys."""
+    props, required = {}, []
+    for e in entries:
+        if isinstance(e, Section):
+            if e.name not in defs:
+                schema, _ = _object_schema(e.entries, e.doc[:1].upper() + e.doc[1:] + ".", defs)
+                defs[e.name] = schema
+            props[e.key] = {
+                "allOf": [{"$ref": f"#/$defs/{e.name}"}],
+                "description": e.doc,
+                "default": _entries_data(None, e.entries),
+            }
+            continue
+        prop = _schema(e.tp, e.meta, defs)
+        if "$ref" in prop:
+            prop = {"allOf": [prop]}
+        prop["description"] = _doc(e.meta)
+        default = field_default(e.field)
+        if default is _MISSING:
+            required.append(e.key)
+        elif default is not None:
+            prop["default"] = _json_default(default)
+        props[e.key] = prop
+    out = {
+        "type": "object",
+        "description": description,
+        "properties": props,
+        "additionalProperties": False,
+    }
+    return out, required
+
+
+def dataclass_schema(cls, defs: dict) -> dict:
+    """JSON Schema object of one dataclass (nested dataclasses go to ``defs``)."""
+    description = (cls.__doc__ or "").strip().split("\n\n")[0]
+    out, required = _object_schema(file_layout(cls), description, defs)
+    if tag_of(cls) and "type" not in required:
+        required.insert(0, "type")  # the tag selects the member: always given
+    if required:
+        out["required"] = required
+    one_of = getattr(cls, "__exactly_one__", ())
+    if one_of:
+        out["oneOf"] = [{"required": [k]} for k in one_of]
+    return out
+
+
+def json_schema(cls, title: str, schema_id: str | None = None) -> dict:
+    """JSON Schema (draft 2020-12) of the format whose root is the dataclass ``cls``."""
+    defs: dict = {}
+    root = dataclass_schema(cls, defs)
+    out = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title}
+    if schema_id:
+        out["$id"] = schema_id
+    out.update(root)
+    if defs:
+        out["$defs"] = defs
+    return out
+
+
+# ----------------------------------------------------------------------------------- reference
+def _default_text(f) -> str:
+    default = field_default(f)
+    if default is _MISSING:
+        return "required"
+    if dataclasses.is_dataclass(default):
+        return "see below"
+    if default is None:
+        return "none"
+    if isinstance(default, bool):
+        return str(default).lower()
+    if isinstance(default, float) and math.isinf(default):
+        return "inf" if default > 0 else "-inf"
+    if isinstance(default, (tuple, dict)) and not default:
+        return "[]" if isinstance(default, tuple) else "{}"
+    return repr(default) if isinstance(default, str) else str(_json_default(default))
+
+
+def reference_rows(cls, prefix: str = "", entries=None) -> list[tuple[str, str, str, str]]:
+    """Rows ``(key path, type, default, meaning)`` of every key of the format, depth first.
+
+    Tagged-union members are listed under ``prefix (type: tag)``.
+    """
+    rows = []
+    for e in file_layout(cls) if entries is None else entries:
+        key = f"{prefix}{e.key}"
+        if isinstance(e, Section):
+            rows.append((key, "mapping", "see below", e.doc))
+            rows.extend(reference_rows(cls, f"{key}.", e.entries))
+            continue
+        tp, doc, default = e.tp, _doc(e.meta), _default_text(e.field)
+        members = [m for m in union_args(tp) if m is not type(None)]
+        if len(members) == 1 and dataclasses.is_dataclass(members[0]):
+            rows.append((key, "mapping", default, doc))
+            rows.extend(reference_rows(members[0], f"{key}."))
+        elif typing.get_origin(tp) is dict and dataclasses.is_dataclass(typing.get_args(tp)[1]):
+            rows.append((key, "mapping of names to mappings", default, doc))
+            rows.extend(reference_rows(typing.get_args(tp)[1], f"{key}.NAME."))
+        else:
+            rows.append((key, describe(tp), default, doc))
+        if len(members) > 1 and all(tag_of(m) for m in members):  # tagged union
+            for m in members:
+                for sub in reference_rows(m, f"{key}."):
+                    if sub[0] != f"{key}.type":
+                        rows.append((f"{sub[0]} (type: {tag_of(m)})", *sub[1:]))
+    return rows
+
+
+def reference_markdown(cls) -> str:
+    """The reference table of the format as Markdown (key, type, default, meaning)."""
+    lines = ["| key | type | default | meaning |", "| --- | --- | --- | --- |"]
+    for key, tp, default, doc in reference_rows(cls):
+        cells = (
+            f"`{key}`",
+            tp,
+            f"`{default}`" if default not in ("required", "see below", "none") else default,
+            doc,
+        )
+        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "\n".join(lines)

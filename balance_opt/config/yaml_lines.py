@@ -21,8 +21,21 @@ from typing import Any
 
 import yaml
 
-from balance_opt.config.keypath import KeyPath, format_path
 from balance_opt.errors import InputError
+
+#: A key path: mapping keys (str) and sequence positions (int), outermost first.
+KeyPath = tuple[Any, ...]
+
+
+def format_path(path: Sequence[Any]) -> str:
+    """``("mission", "goal", 2)`` -> ``"mission.goal[2]"``; the empty path is ``"(top level)"``."""
+    out = ""
+    for part in path:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += f".{part}" if out else str(part)
+    return out or "(top level)"
 
 
 class TaskFileError(InputError):
@@ -51,6 +64,7 @@ class _Loader(yaml.SafeLoader):
     """SafeLoader that also reads ``1e-3`` as a float."""
 
 
+_FLOAT_TAG = "tag:yaml.org,2002:float"
 _FLOAT = re.compile(
     r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
     |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
@@ -60,15 +74,10 @@ _FLOAT = re.compile(
     re.VERBOSE,
 )
 _Loader.yaml_implicit_resolvers = {
-    k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    k: [r for r in v if r[0] != _FLOAT_TAG]
+    for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
 }
-for _first in "-+0123456789.":
-    _Loader.yaml_implicit_resolvers[_first] = [
-        (tag, regexp)
-        for tag, regexp in _Loader.yaml_implicit_resolvers.get(_first, [])
-        if tag != "tag:yaml.org,2002:float"
-    ]
-_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT, list("-+0123456789."))
+_Loader.add_implicit_resolver(_FLOAT_TAG, _FLOAT, list("-+0123456789."))
 
 
 @dataclass(frozen=True)
@@ -88,23 +97,17 @@ class YamlDocument:
     def line_of(self, path: Sequence[Any]) -> int | None:
         """Line of ``path``, or of its nearest ancestor present in the file (``None`` if none)."""
         path = tuple(path)
-        while True:
-            if path in self.lines:
-                return self.lines[path]
-            if not path:
-                return None
+        while path and path not in self.lines:
             path = path[:-1]
+        return self.lines.get(path)
 
-    def error(
-        self, path: Sequence[Any], reason: str, cls: type[TaskFileError] | None = None
-    ) -> TaskFileError:
-        """A :class:`TaskFileError` (or its subclass ``cls``) located at ``path`` in this
-        document."""
-        return (cls or TaskFileError)(self.source, self.line_of(path), path, reason)
+    def error(self, path: Sequence[Any], reason: str, cls=TaskFileError) -> TaskFileError:
+        """A :class:`TaskFileError` (or its subclass ``cls``) located at ``path``."""
+        return cls(self.source, self.line_of(path), path, reason)
 
 
 def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source: str) -> Any:
-    lines[path] = node.start_mark.line + 1
+    lines.setdefault(path, node.start_mark.line + 1)  # a mapping value: its key's line
     if isinstance(node, yaml.MappingNode):
         loader.flatten_mapping(node)  # resolve '<<' merge keys
         out: dict = {}
@@ -123,7 +126,6 @@ def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source:
                 )
             lines[(*path, key)] = key_node.start_mark.line + 1
             out[key] = _build(value_node, loader, (*path, key), lines, source)
-            lines[(*path, key)] = key_node.start_mark.line + 1  # the key's line, not its value's
         return out
     if isinstance(node, yaml.SequenceNode):
         return [
@@ -133,11 +135,8 @@ def _build(node: yaml.Node, loader: _Loader, path: KeyPath, lines: dict, source:
 
 
 def parse_yaml(text: str, source: str) -> YamlDocument:
-    """Parse YAML ``text``; ``source`` names it in error messages.
-
-    Raises:
-        TaskFileError: a YAML syntax error (with its line), a duplicate key, or an empty document.
-    """
+    """Parse YAML ``text``; ``source`` names it in error messages (a syntax error with its line,
+    a duplicate key, an empty document)."""
     loader = _Loader(text)
     try:
         node = loader.get_single_node()
@@ -163,11 +162,7 @@ def parse_yaml(text: str, source: str) -> YamlDocument:
 
 
 def load_yaml(path: str | Path) -> YamlDocument:
-    """Read and parse the YAML file at ``path`` (see :func:`parse_yaml`).
-
-    Raises:
-        TaskFileError: the file cannot be read, or is not valid YAML.
-    """
+    """Read and parse the YAML file at ``path`` (see :func:`parse_yaml`)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

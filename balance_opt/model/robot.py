@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from balance_opt.config.type_names import suggest
+from balance_opt.config.typed_config import suggest
 from balance_opt.errors import ArmError, JointError, URDFLoadError
 from balance_opt.model.arms import LIMIT_KEYS, Arm, JointLimits
 from balance_opt.model.joints import (

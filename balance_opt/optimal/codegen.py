@@ -23,12 +23,12 @@ from balance_opt.cache import (
     check_record,
     clean_stale,
     default_cache_dir,
+    enforce_limit,
     file_lock,
     record_path,
     touch,
     write_record,
 )
-from balance_opt.cache_admin import enforce_limit
 
 log = logging.getLogger(__name__)
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from balance_opt.cache import (
+    MODELS_FOLDER,
     build_dir,
     check_record,
     default_cache_dir,
@@ -23,7 +24,6 @@ from balance_opt.cache import (
     touch,
     write_record,
 )
-from balance_opt.cache_admin import MODELS_FOLDER
 
 if TYPE_CHECKING:  # casadi is imported where used: kinematics_key stays a light import
     import casadi as cs

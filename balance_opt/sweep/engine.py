@@ -3,20 +3,36 @@
 A case and its result are plain data, and the runner is named by a ``"module:function"`` string
 imported in the worker, so nothing but plain data crosses a process boundary. Workers are
 processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each finished case is
-written atomically to ``<out>/cases/<case_id>.json``, so ``resume=True`` can skip it."""
+written atomically to ``<out>/cases/<case_id>.json``, so ``resume=True`` can skip it.
+
+The workers of the local pool never outlive the sweep that started them:
+
+* each asks the kernel to kill it when its parent dies (Linux ``prctl(PR_SET_PDEATHSIG,
+  SIGKILL)``; elsewhere a thread that watches the parent's process id), so ``kill -9`` of a
+  sweep leaves no worker computing on, holding memory and the sweep's stdout open (a
+  ``balance-opt sweep ... | tee log`` then sees the end of its input). Once the workers are
+  gone, multiprocessing's resource tracker sees its pipe closed and ends too;
+* they ignore SIGINT: Ctrl-C in a terminal reaches the whole process group, and it is the
+  parent that handles it, by :func:`stop_pool`: the cases not started are cancelled and the
+  workers are ended at once (SIGTERM, then SIGKILL), instead of finishing their cases first.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import importlib
 import json
 import logging
 import math
+import multiprocessing
+import multiprocessing.connection
 import os
+import signal
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -24,7 +40,6 @@ from pathlib import Path
 from typing import Any
 
 from balance_opt.report.output_dir import replaced_atomically
-from balance_opt.sweep.workers import new_pool, stop_pool
 
 logger = logging.getLogger(__name__)
 
@@ -38,20 +53,22 @@ CASES_DIR = "cases"
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 #: Lines of a failing case's traceback kept in its result file.
 TRACEBACK_LINES = 12
+#: Seconds between two looks at the parent where the kernel cannot signal its death.
+PARENT_POLL_S = 0.5
+#: Seconds the workers get to end on SIGTERM before they are killed.
+STOP_GRACE_S = 2.0
+_PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h)
 
 # One case at a time per process, even on a multi-threaded Dask worker (MUMPS is not thread-safe).
 _CASE_LOCK = threading.Lock()
-_RUNNERS: dict[str, Callable[[dict], dict]] = {}
 
 
 def resolve_runner(spec: str) -> Callable[[dict], dict]:
-    """The function named by ``"package.module:function"``, imported once per process."""
-    if spec not in _RUNNERS:
-        module_name, sep, name = spec.partition(":")
-        if not sep or not module_name or not name:
-            raise ValueError(f"runner must be 'module:function', got '{spec}'")
-        _RUNNERS[spec] = getattr(importlib.import_module(module_name), name)
-    return _RUNNERS[spec]
+    """The function named by ``"package.module:function"``."""
+    module_name, sep, name = spec.partition(":")
+    if not sep or not module_name or not name:
+        raise ValueError(f"runner must be 'module:function', got '{spec}'")
+    return getattr(importlib.import_module(module_name), name)
 
 
 def error_record(exc: BaseException) -> dict[str, Any]:
@@ -62,50 +79,51 @@ def error_record(exc: BaseException) -> dict[str, Any]:
 
 
 def execute_case(runner: str, case: dict) -> dict:
-    """Run one case in the current process and return its result record (plain data).
+    """Run one case in this process; its result record (plain data).
 
     The runner returns ``status``, ``metrics`` and optionally ``error``, ``info`` and ``timing``;
-    any exception it raises becomes a result with status ``error`` (``solver_failed`` for a
-    :class:`~balance_opt.errors.SolverError`). The record's ``timing`` adds the case's wall
-    time (``case_s``) and the worker's CPU time meanwhile (``cpu_s``) [s] and its process id: the
-    only fields that depend on where and when the case ran.
+    an exception it raises becomes status ``error`` (``solver_failed`` for a ``SolverError``).
+    ``timing`` adds the wall time (``case_s``), the CPU time (``cpu_s``) [s] and the process id:
+    the only fields that depend on where and when the case ran.
     """
     from balance_opt.errors import SolverError
 
-    record = {key: case[key] for key in ("index", "case_id", "method", "parameters")}
+    runner_timing: dict[str, Any] = {}
     with _CASE_LOCK:
         start, cpu_start = time.perf_counter(), time.process_time()
         try:
             out = resolve_runner(runner)(case)
-            record.update(
-                status=out.get("status", STATUS_OK),
-                error=out.get("error"),
-                metrics=out.get("metrics", {}),
-                info=out.get("info", {}),
-                runner_timing=out.get("timing", {}),
-            )
+            status = out.get("status", STATUS_OK)
+            record = _record(case, status, out.get("error"), out.get("metrics", {}))
+            record["info"], runner_timing = out.get("info", {}), out.get("timing", {})
         except SolverError as exc:
-            record.update(status=STATUS_SOLVER_FAILED, error=error_record(exc), metrics={}, info={})
+            record = _record(case, STATUS_SOLVER_FAILED, error_record(exc))
         except Exception as exc:  # noqa: BLE001 - a failing case is recorded, the sweep goes on
-            record.update(status=STATUS_ERROR, error=error_record(exc), metrics={}, info={})
+            record = _record(case, STATUS_ERROR, error_record(exc))
         elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
-    record["timing"] = {
-        "case_s": elapsed,
-        "cpu_s": cpu,
-        "pid": os.getpid(),
-        **record.pop("runner_timing", {}),
-    }
-    return record
+    timing = {"case_s": elapsed, "cpu_s": cpu, "pid": os.getpid(), **runner_timing}
+    return {**record, "timing": timing}
+
+
+def _record(case: dict, status: str, error: dict | None, metrics: dict | None = None) -> dict:
+    """A result record of ``case`` without its timing."""
+    record = {key: case[key] for key in ("index", "case_id", "method", "parameters")}
+    return {**record, "status": status, "error": error, "metrics": metrics or {}, "info": {}}
+
+
+def _crash_record(case: dict, exc: BaseException) -> dict:
+    """The record of a case whose worker process died running it."""
+    message = f"the worker process running this case died: {exc}"
+    error = {"type": "WorkerCrashed", "message": message, "traceback": ""}
+    return {**_record(case, STATUS_ERROR, error), "timing": {"case_s": math.nan, "pid": None}}
 
 
 def result_path(out_dir: str | Path, case_id: str) -> Path:
-    """Where the result of case ``case_id`` is written."""
     return Path(out_dir) / CASES_DIR / f"{case_id}.json"
 
 
 def write_json_atomic(path: str | Path, data: Any) -> None:
-    """Write ``data`` as JSON so that ``path`` holds either its old content or the whole new
-    one, never a part (:func:`~balance_opt.report.output_dir.replaced_atomically`)."""
+    """Write ``data`` as JSON atomically (the old content or the whole new one, never a part)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with replaced_atomically(path) as tmp:
@@ -126,16 +144,66 @@ def read_result(out_dir: str | Path, case_id: str) -> dict | None:
     return data
 
 
-class InProcessEngine:
-    """Runs the cases one after the other in this process (``--jobs 0``: debugging, profiling)."""
+def _die_with_parent() -> bool:
+    """Ask the kernel for SIGKILL when the parent dies (Linux); False where unavailable."""
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return False
+    return prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+
+
+def _watch_parent(parent_pid: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_POLL_S)
+    os._exit(1)
+
+
+def init_worker(parent_pid: int) -> None:
+    """Initializer of each pool worker (see the module docstring); ``parent_pid`` is taken
+    before the worker started, so that a parent that died before the worker could ask to die
+    with it is noticed here."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if not _die_with_parent():
+        threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def new_pool(jobs: int) -> ProcessPoolExecutor:
+    """A process pool of ``jobs`` workers that end with this process."""
+    return ProcessPoolExecutor(
+        max_workers=jobs,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=init_worker,
+        initargs=(os.getpid(),),
+    )
+
+
+def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
+    """Cancel the cases not started and end the workers now, running cases included."""
+    # The executor has no public way to end running workers before Python 3.14.
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        with contextlib.suppress(Exception):
+            process.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
+    running = {p.sentinel: p for p in processes}
+    deadline = time.monotonic() + grace_s
+    while running and (left := deadline - time.monotonic()) > 0:
+        for sentinel in multiprocessing.connection.wait(list(running), timeout=left):
+            running.pop(sentinel)
+    for process in running.values():
+        logger.debug("worker %s did not end on SIGTERM: killed", process.pid)
+        with contextlib.suppress(Exception):
+            process.kill()
+
+
+class InProcessEngine(contextlib.nullcontext):
+    """Runs the cases one after the other in this process (``--jobs 0``: debugging, profiling);
+    nothing to start or stop."""
 
     workers = 1
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
 
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
         for case in cases:
@@ -160,49 +228,34 @@ def _single_threaded_children():
 
 class LocalPoolEngine:
     """A pool of ``jobs`` worker processes on this machine (``concurrent.futures``, started with
-    ``spawn``: no state inherited from the parent, the same on Linux, macOS and Windows).
+    ``spawn``, never ``fork``: CasADi and Pinocchio hold state that must not be copied into a
+    child; the same on Linux, macOS and Windows).
 
     A worker process that dies (a crash in native code) breaks the pool: the unfinished cases are
     then run again one at a time, each in a fresh process, and a case whose process dies again
     is recorded as an error (``WorkerCrashed``). The workers end with this process, even when it
-    is killed, and an interruption ends them at once (:mod:`balance_opt.sweep.workers`).
-
-    Args:
-        jobs: number of worker processes (>= 1).
-        start_method: ``"spawn"`` or ``"forkserver"`` (never ``"fork"``: CasADi and Pinocchio
-            hold state that must not be copied into a child).
+    is killed, and an interruption ends them at once (module docstring).
     """
 
-    def __init__(self, jobs: int, start_method: str = "spawn"):
+    def __init__(self, jobs: int):
         if jobs < 1:
             raise ValueError(f"jobs must be >= 1, got {jobs}")
-        if start_method not in ("spawn", "forkserver"):
-            raise ValueError(f"start_method must be 'spawn' or 'forkserver', got '{start_method}'")
         self.workers = jobs
-        self.start_method = start_method
         self._pool: ProcessPoolExecutor | None = None
-        self._env = None
-
-    def _new_pool(self, jobs: int) -> ProcessPoolExecutor:
-        return new_pool(jobs, self.start_method)
 
     def __enter__(self):
         self._env = _single_threaded_children()
         self._env.__enter__()
-        self._pool = self._new_pool(self.workers)
+        self._pool = new_pool(self.workers)
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        if self._pool is not None:
-            if exc_type is None:
-                self._pool.shutdown(wait=True)
-            else:  # an interruption: drop the cases not started, end the running ones now
-                stop_pool(self._pool)
-            self._pool = None
-        if self._env is not None:
-            self._env.__exit__(exc_type, exc, tb)
-            self._env = None
-        return False
+        if exc_type is None:
+            self._pool.shutdown(wait=True)
+        else:  # an interruption: drop the cases not started, end the running ones now
+            stop_pool(self._pool)
+        self._pool = None
+        return self._env.__exit__(exc_type, exc, tb)
 
     def map(self, function: Callable, *iterables) -> Iterator:
         """``function`` over ``iterables`` in the workers, results in order: the engine as the
@@ -229,37 +282,21 @@ class LocalPoolEngine:
                 "a worker process died; running %d unfinished case(s) one at a time", len(suspects)
             )
             self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = self._new_pool(self.workers)
+            self._pool = new_pool(self.workers)
             for case in sorted(suspects, key=lambda c: c["index"]):
-                alone = self._new_pool(1)
+                alone = new_pool(1)
                 try:
                     record = alone.submit(execute_case, runner, case).result()
                 except BrokenProcessPool as exc:
-                    record = self._crash_record(case, exc)
+                    record = _crash_record(case, exc)
                 except BaseException:
                     stop_pool(alone)
                     raise
                 alone.shutdown(wait=True)
                 yield record
 
-    @staticmethod
-    def _crash_record(case: dict, exc: BaseException) -> dict:
-        record = {key: case[key] for key in ("index", "case_id", "method", "parameters")}
-        record.update(
-            status=STATUS_ERROR,
-            metrics={},
-            info={},
-            timing={"case_s": math.nan, "pid": None},
-            error={
-                "type": "WorkerCrashed",
-                "message": f"the worker process running this case died: {exc}",
-                "traceback": "",
-            },
-        )
-        return record
-
     def describe(self) -> str:
-        return f"local process pool, {self.workers} worker(s) ({self.start_method})"
+        return f"local process pool, {self.workers} worker(s) (spawn)"
 
 
 class DaskEngine:
@@ -310,12 +347,10 @@ class DaskEngine:
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-        if self._cluster is not None:
-            self._cluster.close()
-            self._cluster = None
+        for resource in (self._client, self._cluster):  # the client first
+            if resource is not None:
+                resource.close()
+        self._client = self._cluster = None
         return False
 
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
@@ -342,7 +377,7 @@ class DaskEngine:
                     continue
                 else:  # it killed every worker that ran it (KilledWorker), or was cancelled
                     exc = value[1] if isinstance(value, tuple) and len(value) == 3 else value
-                    record = LocalPoolEngine._crash_record(by_key[fut.key], exc)
+                    record = _crash_record(by_key[fut.key], exc)
                 pending.discard(fut)
                 fut.release()  # the worker may forget it: nothing to recompute if it dies later
                 yield record
@@ -393,7 +428,7 @@ def run_cases(
     cases: Sequence[Mapping],
     runner: str,
     out_dir: str | Path,
-    engine=None,
+    engine,
     resume: bool = False,
     retry_failed: bool = False,
     on_result: Callable[[dict, int, int], None] | None = None,
@@ -402,7 +437,7 @@ def run_cases(
     run now and those found on disk).
 
     Args:
-        engine: an engine (default: one worker process); entered and left here.
+        engine: entered and left here.
         resume: skip the cases that already have a result file.
         retry_failed: with ``resume``, run again the cases whose recorded status is not ``ok``.
         on_result: called after each result is written, with the result, the number of cases
@@ -412,7 +447,6 @@ def run_cases(
     ids = [case["case_id"] for case in cases]
     if len(set(ids)) != len(ids):
         raise ValueError("case ids are not unique")
-    engine = engine if engine is not None else LocalPoolEngine(1)
     found: dict[str, dict] = {}
     if resume:
         for case in cases:
@@ -450,11 +484,3 @@ def run_cases(
     run.elapsed_s = time.perf_counter() - start
     run.results = sorted(found.values(), key=lambda r: r["index"])
     return run
-
-
-def iter_results(out_dir: str | Path, case_ids: Iterable[str]) -> Iterator[dict]:
-    """The recorded results of the given cases (those that have one)."""
-    for case_id in case_ids:
-        record = read_result(out_dir, case_id)
-        if record is not None:
-            yield record

@@ -1,5 +1,8 @@
-"""The results of a sweep: its tables (:mod:`balance_opt.sweep.tables`: ``results.csv``,
-``diagnostics.csv``), ``summary.json`` and a few summary plots.
+"""The results of a sweep: its tables ``results.csv`` and ``diagnostics.csv`` (columns:
+``docs/sweeps.md``), ``summary.json`` and a few summary plots.
+
+Floats are written in full precision (``repr``) so that two runs of the same sweep compare cell
+by cell. Parquet is not written: pyarrow is about 100 MB for tables any tool reads as CSV.
 
 Every file is written atomically (:func:`~balance_opt.report.output_dir.replaced_atomically`): an
 interrupted sweep leaves the old table, summary or plot, or the whole new one.
@@ -11,11 +14,12 @@ varied parameter.
 
 from __future__ import annotations
 
+import csv
 import json
 import logging
 import re
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +27,142 @@ import numpy as np
 
 from balance_opt.report.output_dir import replaced_atomically
 from balance_opt.report.style import SCREEN_DPI, method_style, styled
-from balance_opt.sweep.cases import canonical_json, is_number, parameter_columns
-from balance_opt.sweep.tables import write_tables
+from balance_opt.sweep.spec import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
+
+#: Leading columns of both tables: they identify a case.
+KEY_COLUMNS = ("index", "case_id", "method")
+#: Prefixes of the parameter, baseline and time columns.
+PARAM_PREFIX, BASELINE_PREFIX, TIMING_PREFIX = "param.", "mission_only.", "time."
+#: The figures of merit in ``results.csv`` (flattened ``metrics.json`` names), in this order; a
+#: column appears when at least one case has it (``solver.*``: optimal cases; ``simulation.*``:
+#: sweeps with ``simulate: true``).
+METRICS = (
+    "duration_s",
+    "max_drift_rad",
+    "final_drift_rad",
+    "max_base_rate_rad_s",
+    "peak_balance_rate_rad_s",
+    "min_sigma_min",
+    "max_momentum_residual",
+    "limit_violations",
+    "min_limit_margin.position",
+    "min_limit_margin.velocity",
+    "min_limit_margin.acceleration",
+    "balance_limit_margin.position",
+    "balance_limit_margin.velocity",
+    "balance_limit_margin.acceleration",
+    "solver.status",
+    "solver.iterations",
+    "solver.objective",
+    "solver.max_constraint_violation",
+    "simulation.max_drift_rad",
+    "simulation.final_drift_rad",
+    "simulation.max_tracking_error_rad",
+    "simulation.max_relative_momentum_residual",
+)
+#: The baseline's figures in ``results.csv`` (after :data:`BASELINE_PREFIX`).
+BASELINE = ("max_drift_rad", "final_drift_rad", "max_base_rate_rad_s")
+#: The times in ``results.csv`` (after :data:`TIMING_PREFIX`) [s]: the whole case in its worker,
+#: the worker's CPU time meanwhile, the plan, the baseline replay.
+TIMES = ("case_s", "cpu_s", "plan_s", "baseline_s")
+#: Metric names that hold wall times (they differ from run to run, unlike everything else:
+#: ``solver.solve_time_s``, ``details.wall_time_s.build``, ...; not
+#: ``details.max_violation_at.time_s``, a time along the motion).
+_TIMING_METRIC = re.compile(r"(^|[._])(wall_time|solve_time|build_time|elapsed)(_s)?($|[._])")
+
+
+def is_timing_column(name: str) -> bool:
+    """True for columns that depend on when and where a case ran (wall times, process ids)."""
+    if name.startswith(TIMING_PREFIX):
+        return True
+    return not name.startswith(PARAM_PREFIX) and bool(_TIMING_METRIC.search(name))
+
+
+def _split(result: dict) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The cells of one case: ``(results row, diagnostics row)``."""
+    keys = {key: result.get(key) for key in KEY_COLUMNS}
+    tidy: dict[str, Any] = {**keys, "status": result.get("status")}
+    extra: dict[str, Any] = dict(keys)
+    for name, value in parameter_columns(result.get("parameters", {})).items():
+        tidy[PARAM_PREFIX + name] = value
+    metrics = parameter_columns(result.get("metrics") or {}, lists=False)
+    metrics.pop("method", None)  # the key column
+    for name in METRICS:
+        if name in metrics:
+            tidy[name] = metrics.pop(name)
+    baseline = (result.get("info") or {}).get("mission_only") or {}
+    for name in BASELINE:
+        tidy[BASELINE_PREFIX + name] = baseline.get(name)
+    error = result.get("error") or {}
+    tidy["error_type"] = error.get("type")
+    tidy["error_message"] = error.get("message")
+    timing = dict(result.get("timing") or {})
+    for name in TIMES:
+        tidy[TIMING_PREFIX + name] = timing.pop(name, None)
+    extra.update(metrics)
+    extra["error_traceback"] = error.get("traceback")
+    for name, value in timing.items():
+        extra[TIMING_PREFIX + name] = value
+    return tidy, extra
+
+
+def results_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
+    """Columns and rows of ``results.csv`` (columns: ``docs/sweeps.md``), rows in case-index order."""
+    rows = [_split(r)[0] for r in sorted(results, key=lambda r: r["index"])]
+    if not rows:
+        return [*KEY_COLUMNS, "status"], []
+    params = [c for row in rows for c in row if c.startswith(PARAM_PREFIX)]
+    order = [
+        *KEY_COLUMNS,
+        "status",
+        *dict.fromkeys(params),
+        *(m for m in METRICS if any(m in row for row in rows)),
+        *(BASELINE_PREFIX + name for name in BASELINE),
+        "error_type",
+        "error_message",
+        *(TIMING_PREFIX + name for name in TIMES),
+    ]
+    return [c for c in order if any(c in row for row in rows)], rows
+
+
+def diagnostics_table(results: Iterable[dict]) -> tuple[list[str], list[dict[str, Any]]]:
+    """Columns and rows of ``diagnostics.csv``: the key columns, then everything a case recorded
+    that ``results.csv`` leaves out (first-seen order, timing columns last)."""
+    rows = [_split(r)[1] for r in sorted(results, key=lambda r: r["index"])]
+    seen = dict.fromkeys(KEY_COLUMNS if rows else ())
+    for row in rows:
+        seen.update(dict.fromkeys(row))
+    timing = [c for c in seen if is_timing_column(c)]
+    return [c for c in seen if c not in timing] + timing, rows
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return json.dumps(value)
+    return str(value)
+
+
+def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dict]) -> Path:
+    """Write a table as CSV (floats as ``repr``: read back exactly; empty cell for missing),
+    atomically."""
+    path = Path(path)
+    with replaced_atomically(path) as tmp, tmp.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([_cell(row.get(c)) for c in columns])
+    return path
+
+
+# ----------------------------------------------------------------------------------- plots
 
 #: The metrics plotted: maximum and final base rotation from the start [rad].
 MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
@@ -86,9 +222,10 @@ def _save(fig, path: str | Path) -> Path:
 
 
 def _method_style(method: str, **extra) -> dict[str, Any]:
-    """Colour and marker of a method as in every other figure (:mod:`balance_opt.report.style`)."""
-    style = method_style(method)
-    return {"color": style["color"], "label": style["label"], **extra}
+    """Colour, label and marker of a method as in every other figure
+    (:mod:`balance_opt.report.style`)."""
+    s = method_style(method)
+    return {"color": s["color"], "label": s["label"], "marker": s["marker"] or "o", **extra}
 
 
 def _drift_axis(ax, which: str, values) -> None:
@@ -109,10 +246,7 @@ def _drift_axis(ax, which: str, values) -> None:
         axis.set_minor_formatter(NullFormatter())
         return
     axis.set_major_formatter(FormatStrFormatter("%.3g"))
-    if which == "x":
-        ax.set_xlim(left=0.0)
-    else:
-        ax.set_ylim(bottom=0.0)
+    (ax.set_xlim if which == "x" else ax.set_ylim)(0.0)
 
 
 def _drift(result: dict, key: str) -> float | None:
@@ -144,14 +278,10 @@ def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path |
         if paired:
             _paired_panel(axes[0][2], paired)
             more, more_labels = axes[0][2].get_legend_handles_labels()
-            handles, labels = (
-                handles + more,
-                labels
-                + [
-                    f"{x} ({len(paired)} parameter sets)" if x != "equal" else x
-                    for x in more_labels
-                ],
-            )
+            handles += more
+            labels += [
+                x if x == "equal" else f"{x} ({len(paired)} parameter sets)" for x in more_labels
+            ]
         fig.legend(handles, labels, loc="outside upper center", ncol=len(handles))
         return _save(fig, path)
 
@@ -163,16 +293,15 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
             [d for r in ok if r["method"] == method if (d := _drift(r, key)) is not None]
         )
         if values.size:
-            few = values.size <= FEW_CASES  # a step through one point draws nothing
             ax.step(
                 values,
                 np.arange(1, values.size + 1) / values.size,
                 where="post",
-                **_method_style(
-                    method, linestyle=_line_style(method), marker=_marker(method) if few else ""
-                ),
+                **_method_style(method, linestyle=method_style(method)["linestyle"]),
             )
             ax.lines[-1].set_label(f"{ax.lines[-1].get_label()} ({values.size})")
+            if values.size > FEW_CASES:  # markers only where a step through one point is invisible
+                ax.lines[-1].set_marker("")
     _drift_axis(ax, "x", [_drift(r, key) for r in ok])
     ax.set_xlabel(f"{title} of the base attitude [rad]")
     ax.set_ylabel("fraction of cases")
@@ -182,9 +311,9 @@ def _distribution_panel(ax, ok: Sequence[dict], methods: Sequence[str], key: str
 
 def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
     """Optimal against analytic drift of the same parameter sets, with the diagonal."""
-    for key, marker, label in (
-        (MAX_DRIFT, "o", "maximum drift"),
-        (FINAL_DRIFT, "x", "final drift"),
+    for key, label, style in (
+        (MAX_DRIFT, "maximum drift", {"marker": "o", "facecolors": "none", "edgecolors": "black"}),
+        (FINAL_DRIFT, "final drift", {"marker": "x", "color": "#808080"}),
     ):
         xy = np.array(
             [
@@ -194,24 +323,12 @@ def _paired_panel(ax, paired: Sequence[tuple[dict, dict]]) -> None:
             ]
         )
         if xy.size:
-            ax.scatter(
-                xy[:, 0],
-                xy[:, 1],
-                marker=marker,
-                s=18,
-                label=label,
-                facecolors="none" if marker == "o" else None,
-                edgecolors="black" if marker == "o" else None,
-                color="#808080" if marker == "x" else None,
-            )
-    drifts = [_drift(r, k) for pair in paired for r in pair for k in (MAX_DRIFT, FINAL_DRIFT)]
-    drifts = [d for d in drifts if d is not None]
+            ax.scatter(xy[:, 0], xy[:, 1], s=18, label=label, **style)
+    drifts = [d for p in paired for r in p for k in (MAX_DRIFT, FINAL_DRIFT) if (d := _drift(r, k))]
     _drift_axis(ax, "x", drifts)
     _drift_axis(ax, "y", drifts)
-    if ax.get_xscale() == "log":
-        lo, hi = min(drifts) / PAIRED_MARGIN, max(drifts) * PAIRED_MARGIN
-    else:
-        lo, hi = 0.0, max(drifts) * PAIRED_MARGIN
+    lo = min(drifts) / PAIRED_MARGIN if ax.get_xscale() == "log" else 0.0
+    hi = max(drifts) * PAIRED_MARGIN
     ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8, ls="--", label="equal")
     ax.set_xlim(lo, hi)
     ax.set_ylim(lo, hi)
@@ -253,10 +370,8 @@ def _parameter_views(results: Sequence[dict], name: str) -> dict[str, dict[int, 
     itself when it is a scalar, or a list or mapping taking few distinct values (then as
     categories); else one column per item (``mission.goal[0]``, ...)."""
     values = {r["index"]: r["parameters"][name] for r in results}
-    distinct = {canonical_json(v) for v in values.values()}
-    if all(not isinstance(v, (list, dict)) for v in values.values()) or (
-        len(distinct) <= MAX_CATEGORIES
-    ):
+    scalar = all(not isinstance(v, (list, dict)) for v in values.values())
+    if scalar or len({canonical_json(v) for v in values.values()}) <= MAX_CATEGORIES:
         return {name: values}
     views: dict[str, dict[int, Any]] = {}
     for index, value in values.items():
@@ -302,51 +417,30 @@ def _parameter_panels(axes, views, ok: Sequence[dict], methods: Sequence[str]) -
             ax = axes[i][j]
             for k, method in enumerate(methods):
                 points = [
-                    (x_of[r["index"]], _drift(r, key))
+                    (x_of[r["index"]], d)
                     for r in ok
-                    if r["method"] == method and r["index"] in x_of
+                    if r["method"] == method and r["index"] in x_of and (d := _drift(r, key))
                 ]
-                points = [(x, d) for x, d in points if d is not None]
                 if not points:
                     continue
                 x = np.array([p[0] for p in points])
                 if labels is not None:  # categories: methods side by side around each tick
                     x = x + CATEGORY_SPREAD * (k - (len(methods) - 1) / 2)
-                ax.scatter(
-                    x,
-                    [p[1] for p in points],
-                    s=16,
-                    alpha=0.8,
-                    **_method_style(method, marker=_marker(method)),
-                )
+                ax.scatter(x, [p[1] for p in points], s=16, alpha=0.8, **_method_style(method))
             if labels is not None:
                 ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize="small", ha="right")
                 ax.set_xlim(-0.5, len(labels) - 0.5)
-            elif all(isinstance(values[i], int) for i in indices):
+            else:
+                ax.margins(x=PARAMETER_MARGIN)
+            if labels is None and all(isinstance(values[i], int) for i in indices):
                 from matplotlib.ticker import MaxNLocator
 
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-                ax.margins(x=PARAMETER_MARGIN)
-            else:
-                ax.margins(x=PARAMETER_MARGIN)
             _drift_axis(ax, "y", [_drift(r, key) for r in ok])
             ax.grid(True, which="major", alpha=0.3)
             ax.set_xlabel(column)
             if j == 0:
                 ax.set_ylabel(f"{what} drift [rad]")
-
-
-def _marker(method: str) -> str:
-    return method_style(method)["marker"] or "o"
-
-
-def _line_style(method: str):
-    return method_style(method)["linestyle"]
-
-
-def plot_file_name(name: str) -> str:
-    """File name of the drift-against-parameter plot of key path ``name``."""
-    return "drift_vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") + ".png"
 
 
 def write_report(
@@ -360,7 +454,10 @@ def write_report(
     per varied key path; returns name -> path of every file written.
     """
     out_dir = Path(out_dir)
-    written: dict[str, Path] = write_tables(out_dir, results)
+    written = {
+        "table": write_table_csv(out_dir / "results.csv", *results_table(results)),
+        "diagnostics": write_table_csv(out_dir / "diagnostics.csv", *diagnostics_table(results)),
+    }
     summary = {**(extra_summary or {}), **summarize(results)}
     with replaced_atomically(out_dir / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
@@ -372,15 +469,8 @@ def write_report(
         if p is not None:
             written["drift_distribution"] = p
         for name in varied:
-            p = plot_drift_against_parameter(results, name, plot_dir / plot_file_name(name))
+            file = "drift_vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") + ".png"
+            p = plot_drift_against_parameter(results, name, plot_dir / file)
             if p is not None:
                 written[f"drift_vs:{name}"] = p
     return written
-
-
-__all__ = [
-    "plot_drift_against_parameter",
-    "plot_drift_distribution",
-    "summarize",
-    "write_report",
-]

@@ -16,8 +16,8 @@ from balance_opt.interrupts import handling_signals
 from balance_opt.report.output_dir import FolderLock, OutputFolderError, make_parent
 from balance_opt.sweep.engine import (
     CASES_DIR,
-    iter_results,
     make_engine,
+    read_result,
     run_cases,
     write_json_atomic,
 )
@@ -43,15 +43,9 @@ class SweepOutcome:
 
 
 def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
-    """Check (and create) the output folder of a sweep.
-
-    An existing, non-empty folder is used only with ``resume`` (its finished cases are kept)
-    or ``force`` (the results of a previous sweep in it are deleted first).
-
-    Raises:
-        OutputFolderError: the folder is not empty and neither ``resume`` nor ``force`` is given,
-            or it cannot be created.
-    """
+    """Check (and create) the output folder of a sweep: an existing, non-empty folder is used
+    only with ``resume`` (its finished cases are kept) or ``force`` (the results of a previous
+    sweep in it are deleted first)."""
     out_dir = Path(out_dir)
     make_parent(out_dir)
     if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
@@ -78,21 +72,6 @@ def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
     return out_dir
 
 
-def sweep_manifest(sweep: Sweep) -> dict[str, Any]:
-    """The content of ``sweep.json``: the sweep's name, source, varied key paths, methods and
-    every case's index, id, method and parameters."""
-    return {
-        "name": sweep.name,
-        "source": sweep.source,
-        "setup_hash": sweep.setup_hash,
-        "varied": list(sweep.varied),
-        "methods": list(sweep.spec.methods),
-        "cases": [
-            {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
-        ],
-    }
-
-
 def run_sweep(
     sweep: Sweep,
     out_dir: str | Path,
@@ -106,22 +85,18 @@ def run_sweep(
     on_result=None,
     engine=None,
 ) -> SweepOutcome:
-    """Run every case of a sweep and write its results, table, summary and plots.
+    """Run every case of a sweep and write its results, table, summary and plots into
+    ``out_dir`` (layout: ``docs/sweeps.md``), even when cases failed, and on an interruption for
+    the cases finished so far.
 
     Args:
-        out_dir: output folder (layout: ``docs/sweeps.md``).
         jobs: worker processes (0: in this process); with ``scheduler="local"``, Dask workers.
         scheduler: None (local process pool), ``"local"`` (a Dask cluster on the loopback
             interface, started and stopped here) or a Dask scheduler address.
-        resume: keep the finished cases found in ``out_dir`` and run the others.
+        resume, retry_failed, on_result: see :func:`balance_opt.sweep.engine.run_cases`.
         force: start over in a non-empty ``out_dir``.
-        retry_failed: with ``resume``, run the failed cases again too.
         runner: ``"module:function"`` of the case function.
-        on_result: progress callback, see :func:`balance_opt.sweep.engine.run_cases`.
         engine: an engine to use instead of the one ``jobs`` and ``scheduler`` describe.
-
-    The table and summary are written even when cases failed, and on an interruption for the
-    cases finished so far.
 
     Raises:
         OutputFolderError: the folder cannot be used, or another sweep is writing to it.
@@ -129,7 +104,17 @@ def run_sweep(
     make_parent(Path(out_dir).absolute())
     with handling_signals(), FolderLock(out_dir):
         out_dir = prepare_output_dir(out_dir, resume, force)
-        write_json_atomic(out_dir / MANIFEST, sweep_manifest(sweep))
+        manifest = {
+            "name": sweep.name,
+            "source": sweep.source,
+            "setup_hash": sweep.setup_hash,
+            "varied": list(sweep.varied),
+            "methods": list(sweep.spec.methods),
+            "cases": [
+                {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
+            ],
+        }
+        write_json_atomic(out_dir / MANIFEST, manifest)
         engine = engine if engine is not None else make_engine(jobs, scheduler)
         extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}
         try:
@@ -142,8 +127,15 @@ def run_sweep(
                 retry_failed=retry_failed,
                 on_result=on_result,
             )
-        except KeyboardInterrupt:
-            _write_interrupted(sweep, out_dir, extra)
+        except KeyboardInterrupt:  # the table and summary of the cases finished (no plots)
+            done = [r for c in sweep.cases if (r := read_result(out_dir, c["case_id"])) is not None]
+            extra["interrupted"] = True
+            write_report(out_dir, done, sweep.varied, plots=False, extra_summary=extra)
+            logger.warning(
+                "interrupted: %d of %d case(s) finished; run again with --resume to go on",
+                len(done),
+                len(sweep.cases),
+            )
             raise
         extra.update(
             workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped)
@@ -151,19 +143,3 @@ def run_sweep(
         files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
     summary = json.loads(files["summary"].read_text())
     return SweepOutcome(run, files, summary)
-
-
-def _write_interrupted(sweep: Sweep, out_dir: Path, extra: dict[str, Any]) -> None:
-    """The table and summary of the cases an interrupted sweep finished (no plots)."""
-    done = list(iter_results(out_dir, [c["case_id"] for c in sweep.cases]))
-    write_report(
-        out_dir, done, sweep.varied, plots=False, extra_summary={**extra, "interrupted": True}
-    )
-    logger.warning(
-        "interrupted: %d of %d case(s) finished; run again with --resume to go on",
-        len(done),
-        len(sweep.cases),
-    )
-
-
-__all__ = ["MANIFEST", "TASK_RUNNER", "SweepOutcome", "prepare_output_dir", "run_sweep"]

@@ -41,14 +41,6 @@ def mission_only_baseline(task) -> dict:
     }
 
 
-def _metrics(result, task, simulate: bool) -> dict:
-    from balance_opt.app.pipeline import simulate_result
-    from balance_opt.report.outputs import method_metrics
-
-    simulation = simulate_result(task, result) if simulate else None
-    return method_metrics(result, task.robot, simulation)
-
-
 def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     """The case function of task sweeps (see :func:`balance_opt.sweep.engine.execute_case`).
 
@@ -58,8 +50,9 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
         ``info["mission_only"]`` is :func:`mission_only_baseline`. Other errors are raised, and
         recorded by the engine.
     """
-    from balance_opt.app.pipeline import plan
+    from balance_opt.app.pipeline import plan, simulate_result
     from balance_opt.errors import SolverError
+    from balance_opt.report.outputs import method_metrics
     from balance_opt.sweep.engine import STATUS_OK, STATUS_SOLVER_FAILED, error_record
     from balance_opt.tasks.task import task_from_dict
 
@@ -77,7 +70,8 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     planned = time.perf_counter()
     baseline = mission_only_baseline(task)
     replayed = time.perf_counter()
-    metrics = _metrics(result, task, bool(case.get("simulate")))
+    simulation = simulate_result(task, result) if case.get("simulate") else None
+    metrics = method_metrics(result, task.robot, simulation)
     done = time.perf_counter()
     timing = {
         "load_s": loaded - start,

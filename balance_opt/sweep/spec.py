@@ -1,18 +1,29 @@
-"""Sweep files: a base task and the parameters to vary (format: ``docs/sweeps.md``).
+"""Sweep files (format: ``docs/sweeps.md``): a base task and the parameters to vary (key paths
+into the task; a grid, a list, seeded random samples), expanded into cases.
 
-Each case id hashes its method, its parameters and the base task, so the same case has the same
-id in every run whatever the order or the number of workers (``--resume`` relies on it)."""
+A case is plain data (a dict): ``index``, ``case_id``, ``method``, ``parameters`` (key path ->
+value), ``task`` (the base task's data with the parameters put in), ``base_dir``, ``simulate``
+and ``solver_options``. Each case id hashes its method, its parameters and the base task, so the
+same case has the same id in every run whatever the order or the number of workers
+(``--resume`` relies on it).
+"""
 
 from __future__ import annotations
 
+import copy
 import hashlib
+import itertools
+import json
 import logging
+import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from balance_opt.config.typed_config import from_data
-from balance_opt.config.typed_reference import json_schema, reference_markdown
+import numpy as np
+
+from balance_opt.config.typed_config import from_data, json_schema, reference_markdown, setting
 from balance_opt.config.yaml_lines import (
     TaskFileError,
     YamlDocument,
@@ -20,9 +31,297 @@ from balance_opt.config.yaml_lines import (
     load_yaml,
     parse_yaml,
 )
-from balance_opt.sweep.cases import SweepSpec, canonical_json, expand_cases, varied_prefix
 
 logger = logging.getLogger(__name__)
+
+#: Hex digits of a case id (48 bits: a collision among a million cases has odds ~2e-3).
+CASE_ID_DIGITS = 12
+#: Largest number of cases a sweep file may expand to (a typo in a grid should not start a
+#: year of computation).
+MAX_CASES = 1_000_000
+_NAME = r"[^.\[\]\s]+"
+_KEY_PATH = re.compile(rf"{_NAME}(?:\.{_NAME}|\[\d+\])*")
+_SEGMENT = re.compile(rf"({_NAME})|\[(\d+)\]")
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """How one parameter is drawn in ``random`` sampling (exactly one key)."""
+
+    __exactly_one__ = ("uniform", "normal", "choice", "integers")
+
+    uniform: tuple[Any, ...] | None = setting(
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[low, high]: uniform between low and high (numbers, or lists of the same length, "
+        "drawn element by element)",
+    )
+    normal: tuple[Any, ...] | None = setting(
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[mean, std]: normal distribution (numbers, or lists of the same length)",
+    )
+    choice: tuple[Any, ...] | None = setting(
+        None, min_items=1, doc="values to pick from, each equally likely"
+    )
+    integers: tuple[int, ...] | None = setting(
+        None,
+        min_items=2,
+        max_items=2,
+        doc="[low, high]: an integer from low to high, both included",
+    )
+
+
+@dataclass(frozen=True)
+class RandomSamples:
+    """Seeded random samples of some parameters."""
+
+    seed: int = setting(doc="seed of the random generator (numpy default_rng)")
+    samples: int = setting(doc="number of samples", minimum=1)
+    parameters: dict[str, Distribution] = setting(doc="key path of the task -> its distribution")
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A sweep: a base task, the methods, and the parameters to vary.
+
+    The cases are the product of the grid, the list of cases and the random samples (each
+    defaulting to the base task alone), times the methods.
+    """
+
+    task: str | dict[str, Any] = setting(
+        doc="the base task: a task file (path relative to the sweep file) or an inline task mapping"
+    )
+    name: str | None = setting(None, doc="name of the study (for the report)")
+    methods: tuple[Literal["analytic", "optimal"], ...] = setting(
+        ("analytic", "optimal"), min_items=1, doc="planning methods run on every parameter set"
+    )
+    simulate: bool = setting(False, doc="also simulate each plan with the free-floating dynamics")
+    grid: dict[str, tuple[Any, ...]] = setting(
+        factory=dict, doc="key path of the task -> list of values; every combination is a case"
+    )
+    cases: tuple[dict[str, Any], ...] = setting(
+        (), doc="a list of parameter sets (key path -> value), each one a case"
+    )
+    random: RandomSamples | None = setting(None, doc="seeded random samples of parameters")
+
+
+def parse_key_path(text: str) -> tuple[Any, ...]:
+    """``"mission.goal[2]"`` -> ``("mission", "goal", 2)`` (the inverse of ``format_path``)."""
+    if not isinstance(text, str) or not _KEY_PATH.fullmatch(text):
+        raise ValueError(
+            f"'{text}' is not a key path (expected names joined by '.', and [i] for "
+            "list items, like mission.goal[2])"
+        )
+    return tuple(name if name else int(index) for name, index in _SEGMENT.findall(text))
+
+
+def apply_overrides(task: dict, parameters: dict[str, Any]) -> dict:
+    """A copy of the task data with each parameter's value put at its key path.
+
+    Mappings missing on the way are created; a list item must exist."""
+    out = copy.deepcopy(task)
+    for text, value in parameters.items():
+        path = parse_key_path(text)
+        node = out
+        for depth, part in enumerate(path):
+            where = format_path(path[:depth]) or "the task"
+            if isinstance(part, int):
+                if not isinstance(node, list) or part >= len(node):
+                    raise KeyError(f"parameter '{text}': {where} has no item [{part}]")
+            elif not isinstance(node, dict):
+                raise KeyError(f"parameter '{text}': {where} is not a mapping")
+            elif part not in node and depth < len(path) - 1:
+                node[part] = {}
+            if depth == len(path) - 1:
+                node[part] = copy.deepcopy(value)
+            node = node[part]
+    return out
+
+
+def canonical_json(data: Any) -> str:
+    """JSON with sorted keys and no spaces: equal data, equal text (floats as ``repr``)."""
+    return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+def _sha256(data: Any) -> str:
+    return hashlib.sha256(canonical_json(data).encode()).hexdigest()
+
+
+def case_id_from(method: str, parameters: dict[str, Any], setup_hash: str) -> str:
+    """Stable id of a case: a hash of its method, its parameters and what all cases share (the
+    base task, ``simulate``, the solver options: ``setup_hash``)."""
+    key = {"method": method, "parameters": parameters, "setup": setup_hash}
+    return _sha256(key)[:CASE_ID_DIGITS]
+
+
+def _as_array(value: Any, what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number or a list of numbers, got {value!r}") from None
+    if arr.ndim > 1:
+        raise ValueError(f"{what} must be a number or a list of numbers, got {value!r}")
+    return arr
+
+
+def _sampler(dist: Distribution):
+    """The function ``rng -> value`` of a distribution, its bounds checked first."""
+    if dist.uniform is not None:
+        low, high = (_as_array(v, f"uniform {k}") for k, v in zip(("low", "high"), dist.uniform))
+        if low.shape != high.shape:
+            raise ValueError(f"low has shape {low.shape} but high has {high.shape}")
+        if np.any(low > high):
+            raise ValueError(
+                f"low must not exceed high, got low={low.tolist()}, high={high.tolist()}"
+            )
+        return lambda rng: np.asarray(rng.uniform(low, high)).tolist()
+    if dist.normal is not None:
+        mean, std = (_as_array(v, f"normal {k}") for k, v in zip(("mean", "std"), dist.normal))
+        if mean.shape != std.shape and std.ndim != 0:
+            raise ValueError(f"mean has shape {mean.shape} but std has {std.shape}")
+        if np.any(std < 0):
+            raise ValueError(f"std must not be negative, got {std.tolist()}")
+        std = np.broadcast_to(std, mean.shape)
+        return lambda rng: np.asarray(rng.normal(mean, std)).tolist()
+    if dist.integers is not None:
+        low, high = dist.integers
+        if low > high:
+            raise ValueError(f"low must not exceed high, got [{low}, {high}]")
+        return lambda rng: int(rng.integers(low, high, endpoint=True))
+    choices = list(dist.choice)
+    return lambda rng: copy.deepcopy(choices[int(rng.integers(len(choices)))])
+
+
+def draw_samples(random: RandomSamples, doc: YamlDocument) -> list[dict[str, Any]]:
+    """The parameter sets of a ``random`` block, drawn with ``numpy.random.default_rng(seed)``
+    in a fixed order (sample by sample, parameters in file order): the same file gives the same
+    samples on every machine."""
+    samplers = {}
+    for name, dist in random.parameters.items():
+        try:
+            samplers[name] = _sampler(dist)
+        except ValueError as exc:
+            raise doc.error(("random", "parameters", name), str(exc)) from None
+    rng = np.random.default_rng(random.seed)
+    return [{name: draw(rng) for name, draw in samplers.items()} for _ in range(random.samples)]
+
+
+def _parameter_places(spec: SweepSpec, doc: YamlDocument) -> dict[str, tuple]:
+    """Where each varied key path is written in the sweep file, after checking the key paths
+    and the number of cases (before anything is expanded or drawn)."""
+    places = [("grid", name) for name in spec.grid]
+    places += [("cases", i, name) for i, entry in enumerate(spec.cases) for name in entry]
+    random = spec.random.parameters if spec.random else {}
+    places += [("random", "parameters", name) for name in random]
+    where: dict[str, tuple] = {}
+    for at in places:
+        where.setdefault(at[-1], at)
+    for name, at in where.items():
+        try:
+            parse_key_path(name)
+        except ValueError as exc:
+            raise doc.error(at, str(exc)) from None
+        if name == "method":
+            raise doc.error(
+                at,
+                "the method is not a task parameter: list the methods under "
+                "'methods' (e.g. methods: [analytic, optimal])",
+            )
+    for name, values in spec.grid.items():
+        if not values:
+            raise doc.error(("grid", name), "expected at least one value")
+    total = math.prod(len(v) for v in spec.grid.values()) * max(1, len(spec.cases))
+    total *= (spec.random.samples if spec.random is not None else 1) * len(spec.methods)
+    if total > MAX_CASES:
+        raise doc.error(
+            (), f"the sweep expands to {total} cases, more than the {MAX_CASES} allowed"
+        )
+    return where
+
+
+def expand_cases(
+    spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str, base_dir: str, solver_options
+) -> tuple[list[dict], dict[str, tuple]]:
+    """The cases of a sweep (see the module docstring), in a fixed order: parameter sets in file
+    order (grid, then list, then random samples, innermost last), each with every method; and
+    where each varied key path is written in the sweep file.
+
+    Raises:
+        TaskFileError: a bad key path, a parameter varied in two places or that cannot be put in
+            the task, or two cases with the same method and parameters.
+    """
+    where = _parameter_places(spec, doc)
+    grid_sets = [dict(zip(spec.grid, combo)) for combo in itertools.product(*spec.grid.values())]
+    list_sets = [dict(entry) for entry in spec.cases] or [{}]
+    random_sets = [{}] if spec.random is None else draw_samples(spec.random, doc)
+    cases, seen = [], {}
+    for g, c, r in itertools.product(grid_sets, list_sets, random_sets):
+        clash = (set(g) & set(c)) | (set(g) & set(r)) | (set(c) & set(r))
+        if clash:
+            name = min(clash)
+            raise doc.error(
+                where[name],
+                f"parameter '{name}' is varied in more than one of grid, "
+                "cases and random; vary each parameter in one place",
+            )
+        parameters = {**g, **c, **r}
+        try:
+            case_task = apply_overrides(task, parameters)
+        except KeyError as exc:
+            name = str(exc.args[0]).split("'")[1]
+            raise doc.error(where[name], exc.args[0]) from None
+        for method in spec.methods:
+            case_id = case_id_from(method, parameters, setup_hash)
+            index = len(cases)
+            if case_id in seen:
+                raise doc.error(
+                    (),
+                    f"case {index} ({method}, {canonical_json(parameters)}) is the "
+                    f"same as case {seen[case_id]}; every case must differ",
+                )
+            seen[case_id] = index
+            cases.append(
+                {
+                    "index": index,
+                    "case_id": case_id,
+                    "method": method,
+                    "parameters": parameters,
+                    "task": case_task,
+                    "base_dir": base_dir,
+                    "simulate": spec.simulate,
+                    "solver_options": solver_options,
+                }
+            )
+    return cases, where
+
+
+def parameter_columns(data: dict[str, Any], lists: bool = True) -> dict[str, Any]:
+    """Flat table columns of a parameter set (or of nested ``data``): a mapping becomes one column
+    per key (``a.b``), with ``lists`` a list one column per item (``mission.goal[0]``, ...)."""
+    out: dict[str, Any] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if lists and isinstance(value, list):
+            for i, item in enumerate(value):
+                walk(f"{prefix}[{i}]", item)
+        elif isinstance(value, dict):
+            for key, item in value.items():
+                walk(f"{prefix}.{key}", item)
+        else:
+            out[prefix] = value
+
+    for name, value in data.items():
+        walk(str(name), value)
+    return out
+
+
+def is_number(value: Any) -> bool:
+    """A real number (not a boolean, not NaN), finite or not."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value == value
+
 
 SWEEP_SCHEMA_ID = "https://balance-opt.invalid/sweep.schema.json"
 
@@ -71,20 +370,19 @@ class Sweep:
 def sweep_from_document(
     doc: YamlDocument, base_dir: str | Path, solver_options: dict[str, Any] | None = None
 ) -> Sweep:
-    """A :class:`Sweep` from a parsed sweep file.
+    """A :class:`Sweep` from a parsed sweep file in folder ``base_dir``; ``solver_options``
+    (``--solver-option``) are the Ipopt options of every case, part of the ids.
 
     The base task and the task of every case are loaded in full. Limits no plan can meet and
     missions that cannot be built are not errors of the sweep file: in a study they are results,
     so such a case fails when it runs and the sweep goes on.
 
-    Args:
-        base_dir: folder of the sweep file (relative paths start there).
-        solver_options: Ipopt options for every case (``--solver-option``); part of the ids.
-
     Raises:
         TaskFileError: anything wrong in the sweep file or the base task, or a parameter value
             of the wrong type or at an unknown key (located at the parameter in the sweep file).
     """
+    from balance_opt.tasks.task import task_from_document
+
     if not isinstance(doc.data, dict):
         raise doc.error(
             (), "expected a mapping with the keys of a sweep (task, grid, cases, random)"
@@ -95,39 +393,27 @@ def sweep_from_document(
         task_path = (base_dir / spec.task).resolve()
         if not task_path.is_file():
             raise doc.error(("task",), f"no task file {task_path}")
-        task_doc, prefix = load_yaml(task_path), ()
+        task_doc, task_dir, prefix = load_yaml(task_path), task_path.parent, ()
     else:
-        task_path, prefix = None, ("task",)
-        task_doc = YamlDocument(
-            doc.data["task"],
-            doc.source,
-            {k[1:]: v for k, v in doc.lines.items() if k[:1] == ("task",)},
-        )
-    task_dir = task_path.parent if task_path is not None else base_dir.resolve()
+        lines = {k[1:]: v for k, v in doc.lines.items() if k[:1] == ("task",)}
+        task_doc = YamlDocument(doc.data["task"], doc.source, lines)
+        task_dir, prefix = base_dir.resolve(), ("task",)
     task = task_doc.data
-    task_hash = hashlib.sha256(canonical_json(task).encode()).hexdigest()
-    _load_task(task_doc, task_dir, task_hash, prefix)
-    solver_options = dict(solver_options or {})
-    setup = {"task": task_hash, "simulate": spec.simulate, "solver_options": solver_options}
-    setup_hash = hashlib.sha256(canonical_json(setup).encode()).hexdigest()
-    cases, where = expand_cases(spec, doc, task, setup_hash, str(task_dir))
-    for case in cases:
-        case["solver_options"] = solver_options
-    _check_case_tasks(cases, doc, task_doc, task_dir, where)
-    logger.info("sweep %s: %d case(s)", doc.source, len(cases))
-    return Sweep(spec, doc.source, str(task_dir), task, setup_hash, cases, tuple(where))
-
-
-def _load_task(task_doc: YamlDocument, task_dir: Path, task_hash: str, prefix: tuple):
-    """Load the base task; errors in an inline task get the ``task.`` prefix on their key path."""
-    from balance_opt.tasks.task import task_from_document
-
+    task_hash = _sha256(task)
     try:
-        return task_from_document(task_doc, task_dir, task_hash)
+        task_from_document(task_doc, task_dir, task_hash)
     except TaskFileError as exc:
         if not prefix:
             raise
         raise type(exc)(exc.source, exc.line, (*prefix, *exc.path), exc.reason) from None
+    solver_options = dict(solver_options or {})
+    setup_hash = _sha256(
+        {"task": task_hash, "simulate": spec.simulate, "solver_options": solver_options}
+    )
+    cases, where = expand_cases(spec, doc, task, setup_hash, str(task_dir), solver_options)
+    _check_case_tasks(cases, doc, task_doc, task_dir, where)
+    logger.info("sweep %s: %d case(s)", doc.source, len(cases))
+    return Sweep(spec, doc.source, str(task_dir), task, setup_hash, cases, tuple(where))
 
 
 def _check_case_tasks(
@@ -155,7 +441,9 @@ def _check_case_tasks(
         except (TaskLimitsError, TaskTrajectoryError):
             continue
         except TaskFileError as exc:
-            culprit = varied_prefix(exc.path, case["parameters"])
+            # the varied parameter whose key path is a prefix of the culprit's (or extends it)
+            prefixes = {name: parse_key_path(name)[: len(exc.path)] for name in case["parameters"]}
+            culprit = next((n for n, p in prefixes.items() if p == exc.path[: len(p)]), None)
             if culprit is None:
                 raise
             value = canonical_json(case["parameters"][culprit])
@@ -177,14 +465,3 @@ def parse_sweep(
 ) -> Sweep:
     """A :class:`Sweep` from YAML text (tests, generated sweeps)."""
     return sweep_from_document(parse_yaml(text, source), base_dir, solver_options)
-
-
-__all__ = [
-    "Sweep",
-    "SweepSpec",
-    "load_sweep",
-    "parse_sweep",
-    "sweep_from_document",
-    "sweep_json_schema",
-    "sweep_reference_markdown",
-]

@@ -1,7 +1,9 @@
 """Task files: one YAML file says which robot, which arms, which mission and which options.
 
 Every error is an :class:`~balance_opt.errors.InputError` whose message starts with
-``FILE:LINE: KEY.PATH:``. Loading imports neither CasADi nor the planner."""
+``FILE:LINE: KEY.PATH:``. Loading imports neither CasADi nor the planner.
+:func:`~balance_opt.config.typed_config.from_data` checks each value alone; what depends on the
+robot, the mission or another value is checked once they are built (``check_*``)."""
 
 from __future__ import annotations
 
@@ -17,33 +19,55 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.config.typed_config import from_data
-from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, load_yaml
-from balance_opt.errors import ArmError, InputError, JointError, TrajectoryError, URDFLoadError
+from balance_opt.config.typed_config import from_data, walk_settings
+from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, format_path, load_yaml
+from balance_opt.errors import (
+    ArmError,
+    InfeasibleLimitsError,
+    InputError,
+    JointError,
+    TrajectoryError,
+    URDFLoadError,
+)
 from balance_opt.model.arms import LIMIT_KEYS
 from balance_opt.model.robot import FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
-from balance_opt.tasks.task_checks import (
-    TaskLimitsError,
-    TaskTrajectoryError,
-    check_capture,
-    check_lengths,
-    check_limits,
-    check_problem_size,
-    check_time_grids,
-)
+from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
 from balance_opt.tasks.task_spec import (
     CartesianMission,
     CsvMission,
     PtpMission,
     TaskSpec,
     ViaMission,
-    task_json_schema,
-    task_reference_markdown,
 )
 
+#: Samples per second used to check a mission trajectory against its limits [1/s].
+LIMIT_CHECK_RATE = 200.0
+#: Fewest samples used to check a mission trajectory against its limits.
+LIMIT_CHECK_MIN_SAMPLES = 501
+#: Most samples in one time grid of a plan (its outputs, its re-simulation, its simulation's
+#: outputs): a sample of the paper robot's plan is about 60 numbers in memory and 1 kB of CSV,
+#: so 1e6 samples are about 0.5 GB of arrays and 1 GB of files, for each method.
+MAX_SAMPLES = 1_000_000
+#: Fewest fixed integration steps (simulation ``rk4``, analytic ``rk4``) over the mission: a step
+#: longer than 1/100 of the motion does not resolve it.
+MIN_STEPS_PER_MISSION = 100
+#: Ipopt iterations of a typical optimal plan, all its solves, by objective (the peak objective
+#: has three stages), and the estimated planning time above which loading warns [s].
+TYPICAL_ITERATIONS = {"integral": 50, "peak": 300}
+LONG_PLAN_SECONDS = 600.0
+
+
 log = logging.getLogger(__name__)
+
+
+class TaskLimitsError(TaskFileError, InfeasibleLimitsError):
+    """Limits that no plan can meet, located in the task file."""
+
+
+class TaskTrajectoryError(TaskFileError, TrajectoryError):
+    """A mission trajectory that cannot be built, located in the task file."""
 
 
 @dataclass(frozen=True)
@@ -154,36 +178,28 @@ def task_from_dict(
 
 
 def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
-    """Validate a parsed document (types, keys, ranges: :func:`~balance_opt.config.typed_config.from_data`),
-    resolve its files, build its robot and mission, check the per-joint lists and the limits
-    (:mod:`balance_opt.tasks.task_checks`) and set the initial momentum in the options.
-    """
+    """Validate a parsed document, resolve its files, build its robot and mission and check
+    what depends on them (the ``check_*`` below)."""
     if not isinstance(doc.data, dict):
         raise doc.error(
             (),
             f"expected a mapping of task keys ({', '.join(TaskSpec.__dataclass_fields__)}), "
             f"got {type(doc.data).__name__}",
         )
-    if "task" in doc.data and "task" not in TaskSpec.__dataclass_fields__:
-        # a sweep file names its base task under ``task``; no task file has that key
-        raise doc.error(
-            ("task",), "this is a sweep file, not a task file: use balance-opt sweep"
-        )
-    spec: TaskSpec = _with_srdf(_with_checked_ipopt(from_data(TaskSpec, doc), doc), doc, base_dir)
+    if "task" in doc.data:  # a sweep file names its base task there; no task file has that key
+        raise doc.error(("task",), "this is a sweep file, not a task file: use balance-opt sweep")
+    spec = _completed(from_data(TaskSpec, doc), doc, base_dir)
     robot = _build_robot(spec, doc, base_dir)
     check_lengths(spec, doc, robot)
     check_problem_size(spec, doc, robot)
     mission = _build_mission(spec, doc, base_dir, robot)
     check_time_grids(spec, doc, float(mission.duration))
-    q_B0 = (
-        robot.neutral()[robot.balance_indices]
-        if spec.initial.balance is None
-        else np.array(spec.initial.balance)
-    )
+    balance = spec.initial.balance
+    q_B0 = robot.neutral()[robot.balance_indices] if balance is None else np.array(balance)
     check_limits(spec, doc, robot, mission, q_B0)
     target = check_capture(spec, doc, float(mission.duration))
     task = Task(
-        _with_momentum(spec),
+        spec,
         doc.source,
         base_dir,
         sha256,
@@ -198,39 +214,34 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     return task
 
 
-def _with_checked_ipopt(spec: TaskSpec, doc: YamlDocument) -> TaskSpec:
-    """``spec`` with ``optimal.ipopt`` checked against Ipopt's own option list and its values
-    in the types Ipopt wants (CasADi is imported only when the list is not cached yet)."""
+def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
+    """``spec`` with ``initial.momentum`` as the ``h0`` of the law and of the simulation,
+    ``optimal.ipopt`` checked against Ipopt's own option list and its values in the types Ipopt
+    wants (CasADi is imported only when the list is not cached yet), and ``robot.srdf`` (checked
+    to exist) as the planner's collision SRDF, an absolute path: the run's clearance check reads
+    it from there too."""
     planner = spec.optimal.planner
-    if not planner.ipopt:
-        return spec
-    from balance_opt.optimal.ipopt_options import check_ipopt_options
+    if planner.ipopt:
+        from balance_opt.optimal.ipopt_options import check_ipopt_options
 
-    ipopt = check_ipopt_options(
-        planner.ipopt, lambda name, problem: doc.error(("optimal", "ipopt", name), problem)
-    )
-    optimal = dataclasses.replace(spec.optimal, planner=dataclasses.replace(planner, ipopt=ipopt))
-    return dataclasses.replace(spec, optimal=optimal)
-
-
-def _with_srdf(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
-    """``spec`` with ``robot.srdf`` (checked to exist) as the planner's collision SRDF, an
-    absolute path: the run's clearance check reads it from there too."""
-    if spec.robot.srdf is None:
-        return spec
-    path = (base_dir / spec.robot.srdf).resolve()
-    if not path.is_file():
-        raise doc.error(("robot", "srdf"), f"no such SRDF file: {path}")
-    planner = dataclasses.replace(spec.optimal.planner, collision_srdf=str(path))
-    return dataclasses.replace(spec, optimal=dataclasses.replace(spec.optimal, planner=planner))
-
-
-def _with_momentum(spec: TaskSpec) -> TaskSpec:
-    """``spec`` with ``initial.momentum`` as the ``h0`` of the law and of the simulation."""
+        ipopt = check_ipopt_options(
+            planner.ipopt, lambda name, problem: doc.error(("optimal", "ipopt", name), problem)
+        )
+        planner = dataclasses.replace(planner, ipopt=ipopt)
+    if spec.robot.srdf is not None:
+        path = (base_dir / spec.robot.srdf).resolve()
+        if not path.is_file():
+            raise doc.error(("robot", "srdf"), f"no such SRDF file: {path}")
+        planner = dataclasses.replace(planner, collision_srdf=str(path))
     h0 = spec.initial.momentum
-    analytic = dataclasses.replace(spec.analytic, law=dataclasses.replace(spec.analytic.law, h0=h0))
-    simulation = dataclasses.replace(spec.simulation, h0=h0)
-    return dataclasses.replace(spec, analytic=analytic, simulation=simulation)
+    return dataclasses.replace(
+        spec,
+        analytic=dataclasses.replace(
+            spec.analytic, law=dataclasses.replace(spec.analytic.law, h0=h0)
+        ),
+        simulation=dataclasses.replace(spec.simulation, h0=h0),
+        optimal=dataclasses.replace(spec.optimal, planner=planner),
+    )
 
 
 def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
@@ -252,28 +263,18 @@ def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
 
 
 def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
-    """Key path where ``joint`` is named in the task: under ``limits`` or ``arms.locked`` first
-    when the ``reason`` is about a limit or a lock, else in the arms."""
-    data = doc.data
-    arms = data.get("arms") if isinstance(data.get("arms"), dict) else {}
+    """Key path where ``joint`` is named in the (validated) task: under ``limits`` or
+    ``arms.locked`` first when the ``reason`` is about a limit or a lock, else in the arms."""
+    arms = doc.data["arms"]
     candidates = []
     for key in ("mission", "balance"):
-        value = arms.get(key)
-        for i, item in enumerate(value if isinstance(value, list) else []):
+        for i, item in enumerate(arms[key]):
             if item == joint:
                 candidates.append(("arms", key, i))
             elif isinstance(item, list) and joint in item:
                 candidates.append(("arms", key, i, item.index(joint)))
-    locked = (
-        ("arms", "locked", joint)
-        if isinstance(arms.get("locked"), dict) and joint in arms["locked"]
-        else None
-    )
-    limits = (
-        ("limits", joint)
-        if isinstance(data.get("limits"), dict) and joint in data["limits"]
-        else None
-    )
+    locked = ("arms", "locked", joint) if joint in arms.get("locked", {}) else None
+    limits = ("limits", joint) if joint in doc.data.get("limits", {}) else None
     if locked and "lock" in reason:
         candidates.insert(0, locked)
     elif limits and "limit" in reason:
@@ -325,79 +326,53 @@ def _via_points(m: ViaMission, doc: YamlDocument) -> ViaPoints:
     return ViaPoints(m.times, np.array(m.points))
 
 
-def _csv_mission(m: CsvMission, doc: YamlDocument, base_dir: Path, robot) -> CsvTrajectory:
-    path = base_dir / m.file
-    if not path.is_file():
-        raise doc.error(("mission", "file"), f"no such CSV file: {path}")
-    try:
-        return CsvTrajectory(path, robot.mission.joints, time_column=m.time_column)
-    except TrajectoryError as exc:
-        raise doc.error(("mission", "file"), str(exc), TaskTrajectoryError) from None
-
-
 def _build_mission(
     spec: TaskSpec, doc: YamlDocument, base_dir: Path, robot: FloatingRobot
 ) -> JointTrajectory:
-    """The mission trajectory (list lengths per mission joint already checked)."""
+    """The mission trajectory (list lengths per mission joint already checked); a Cartesian
+    goal is solved by inverse kinematics (base at its initial pose), then reached point to
+    point."""
     m = spec.mission
+    key = {CsvMission: "file", CartesianMission: "position"}.get(type(m))
     try:
         if isinstance(m, PtpMission):
             return PointToPoint(np.array(m.start), np.array(m.goal), m.duration)
         if isinstance(m, ViaMission):
             return _via_points(m, doc)
         if isinstance(m, CsvMission):
-            return _csv_mission(m, doc, base_dir, robot)
-        if isinstance(m, CartesianMission):
-            return _cartesian_mission(m, doc, robot)
-    except TrajectoryError as exc:
-        if isinstance(exc, TaskFileError):
-            raise
-        raise doc.error(("mission",), str(exc), TaskTrajectoryError) from None
-    raise AssertionError(f"unhandled mission type {type(m).__name__}")
+            path = base_dir / m.file
+            if not path.is_file():
+                raise doc.error(("mission", "file"), f"no such CSV file: {path}")
+            return CsvTrajectory(path, robot.mission.joints, time_column=m.time_column)
+        import pinocchio as pin
 
+        from balance_opt.motion.trajectories import cartesian_goal
 
-def _cartesian_mission(
-    m: CartesianMission, doc: YamlDocument, robot: FloatingRobot
-) -> JointTrajectory:
-    """Inverse kinematics to the goal pose (base at its initial pose), then point to point."""
-    import pinocchio as pin
-
-    from balance_opt.motion.trajectories import cartesian_goal
-
-    rotation = None if m.orientation is None else pin.rpy.rpyToMatrix(*m.orientation)
-    try:
+        rotation = None if m.orientation is None else pin.rpy.rpyToMatrix(*m.orientation)
         return cartesian_goal(
             robot, np.array(m.start), m.position, m.duration, orientation=rotation
         )
     except TrajectoryError as exc:
-        raise doc.error(("mission", "position"), str(exc), TaskTrajectoryError) from None
+        where = ("mission",) if key is None else ("mission", key)
+        raise doc.error(where, str(exc), TaskTrajectoryError) from None
 
 
 def check_methods(task: Task, methods) -> None:
     """What the planning ``methods`` need of the task beyond its loading, checked before
-    anything is computed (``balance-opt validate`` checks those of ``plan``'s default
-    methods, analytic and optimal).
+    anything is computed (``balance-opt validate`` checks those of ``plan``'s default methods).
+
+    The optimal planner cannot handle torque limits on a robot with a prismatic model joint
+    (their inverse dynamics come from adam-robotics, which mishandles prismatic joints), nor a
+    prismatic model joint where the symbolic backend is adam (``robot.backend: adam``, or
+    ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the Pinocchio-CasADi
+    bridge).
 
     Raises:
-        TaskFileError: located at the key the method cannot work with.
-    """
-    if "optimal" in methods:
-        check_optimal_supported(task)
-
-
-def check_optimal_supported(task: Task) -> None:
-    """What the optimal planner cannot do, located in the task: torque limits on a robot with a prismatic
-    model joint (their inverse dynamics come from adam-robotics, which mishandles prismatic
-    joints), or a prismatic model joint where the symbolic backend is adam (``robot.backend:
-    adam``, or ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the
-    Pinocchio-CasADi bridge).
-
-    Raises:
-        TaskFileError: naming the key and the way out.
+        TaskFileError: located at the key the method cannot work with, naming the way out.
     """
     robot = task.robot
     prismatic = [j for j in robot.model_joint_names if robot.joint_type(j) == "prismatic"]
-    if not prismatic:
+    if "optimal" not in methods or not prismatic:
         return
     joint = prismatic[0]
     if task.spec.optimal.planner.torque_limits:
@@ -426,17 +401,283 @@ def check_optimal_supported(task: Task) -> None:
     )
 
 
-__all__ = [
-    "Task",
-    "TaskFileError",
-    "TaskLimitsError",
-    "TaskSpec",
-    "TaskTrajectoryError",
-    "check_methods",
-    "check_optimal_supported",
-    "load_task",
-    "task_from_dict",
-    "task_from_document",
-    "task_json_schema",
-    "task_reference_markdown",
-]
+# ------------------------------------------------------------ checks that need the robot, the mission
+def check_lengths(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
+    """Every list of the task declared with one value per joint of a kind (``per=``) has that
+    many values; a list of such lists (via points) is checked item by item.
+
+    Raises:
+        TaskFileError: ``"expected 3 values (one per balance joint: ...), got 2"``.
+    """
+    joints = {  # what a ``per=`` declaration counts: balance arms stacked, all arm joints
+        "mission joint": list(robot.mission.joints),
+        "balance joint": [robot.joint_names[i] for i in robot.balance_indices],
+        "arm joint": list(robot.joint_names),
+    }
+    for path, value, meta in walk_settings(spec):
+        kind = meta.get("per")
+        if kind is None or not isinstance(value, tuple):
+            continue  # not per joint, not given, or one value for every joint (kp: 5)
+        nested = bool(value) and isinstance(value[0], tuple)
+        items = [((*path, i), v) for i, v in enumerate(value)] if nested else [(path, value)]
+        names = joints[kind]
+        for where, values in items:
+            if len(values) != len(names):
+                raise doc.error(
+                    where,
+                    f"expected {len(names)} values (one per {kind}: {', '.join(names)}), "
+                    f"got {len(values)}",
+                )
+
+
+def _limit_source(spec: TaskSpec, joint: str, key: str) -> str:
+    over = spec.limits.get(joint)
+    return (
+        f"limits.{joint}.{key}" if over is not None and getattr(over, key) is not None else "URDF"
+    )
+
+
+def _set_positions(m, col: int) -> list[tuple[tuple, float]]:
+    """``(key, value)`` of every position the task sets for mission joint ``col``."""
+    if isinstance(m, PtpMission):
+        return [(("mission", "start", col), m.start[col]), (("mission", "goal", col), m.goal[col])]
+    if isinstance(m, ViaMission):
+        return [(("mission", "points", k, col), p[col]) for k, p in enumerate(m.points)]
+    return [(("mission", "start", col), m.start[col])]  # cartesian: the goal is solved for
+
+
+def _mission_key(spec: TaskSpec, kind: str, col: int, lim: tuple[float, float]) -> tuple:
+    """Where the task sets what makes mission joint ``col`` leave its ``kind`` limit: a start,
+    goal or via point outside the position limits, else the duration (or the times, the file)."""
+    m = spec.mission
+    if isinstance(m, CsvMission):
+        return ("mission", "file")
+    if kind == "position":
+        for key, value in _set_positions(m, col):
+            if not lim[0] - LIMIT_TOLERANCE <= value <= lim[1] + LIMIT_TOLERANCE:
+                return key
+        if isinstance(m, CartesianMission):
+            return ("mission", "position")
+    if isinstance(m, ViaMission):
+        return ("mission", "points" if kind == "position" else "times")
+    return ("mission", "duration")
+
+
+def check_limits(
+    spec: TaskSpec,
+    doc: YamlDocument,
+    robot: FloatingRobot,
+    mission: JointTrajectory,
+    q_B0: np.ndarray,
+) -> None:
+    """Limits no plan can meet (a balance start or a prescribed final configuration outside the
+    position limits, a mission that leaves its own limits) and a horizon shorter than the mission.
+
+    Raises:
+        TaskLimitsError: naming the limit's source (``limits.J.KEY`` or URDF).
+        TaskFileError: ``optimal.horizon`` shorter than the mission.
+    """
+    lim = robot.limits
+    for k, i in enumerate(robot.balance_indices):
+        j, q = robot.joint_names[i], q_B0[k]
+        if not lim.lower[i] - LIMIT_TOLERANCE <= q <= lim.upper[i] + LIMIT_TOLERANCE:
+            key = "lower" if q < lim.lower[i] else "upper"
+            raise doc.error(
+                ("initial", "balance", k) if spec.initial.balance else ("initial",),
+                f"balance joint '{j}' starts at {q:g} rad, outside its position limits "
+                f"[{lim.lower[i]:g}, {lim.upper[i]:g}] rad ({key} limit from "
+                f"{_limit_source(spec, j, key)}); no plan can meet them",
+                TaskLimitsError,
+            )
+    duration = float(mission.duration)
+    t = np.linspace(
+        0.0,
+        duration,
+        min(MAX_SAMPLES, max(LIMIT_CHECK_MIN_SAMPLES, int(duration * LIMIT_CHECK_RATE))),
+    )
+    q, qd, qdd = mission.sample(t)
+    idx = robot.mission_indices
+    violations = find_limit_violations(t, robot.mission.joints, q, qd, qdd, lim.subset(idx))
+    if violations:
+        v = violations[0]
+        col = robot.mission.joints.index(v.joint)
+        key = {"position": "lower", "velocity": "velocity", "acceleration": "acceleration"}[v.kind]
+        if v.kind == "position":
+            key = "upper" if q[:, col].max() > lim.upper[idx[col]] else "lower"
+        bounds = (lim.lower[idx[col]], lim.upper[idx[col]])
+        raise doc.error(
+            _mission_key(spec, v.kind, col, bounds),
+            f"the mission trajectory leaves the limits of the mission arm, which "
+            f"follows it as given: {v} (limit from "
+            f"{_limit_source(spec, v.joint, key)}); no plan can meet them",
+            TaskLimitsError,
+        )
+    planner = spec.optimal.planner
+    if planner.horizon is not None and planner.horizon < duration:
+        raise doc.error(
+            ("optimal", "horizon"),
+            f"the horizon ({planner.horizon:g} s) is shorter than the mission ({duration:g} s)",
+        )
+    final = planner.final_configuration
+    if final is not None and planner.position_limits:
+        lim = robot.limits.subset(robot.balance_indices)
+        for k, value in enumerate(final):
+            if not lim.lower[k] - LIMIT_TOLERANCE <= value <= lim.upper[k] + LIMIT_TOLERANCE:
+                j = robot.joint_names[robot.balance_indices[k]]
+                raise doc.error(
+                    ("optimal", "constraints", "final_configuration", k),
+                    f"balance joint '{j}' must end at {value:g} rad, outside its position limits "
+                    f"[{lim.lower[k]:g}, {lim.upper[k]:g}] rad; no plan can meet them",
+                    TaskLimitsError,
+                )
+
+
+def _given(doc: YamlDocument, path: tuple) -> bool:
+    """Whether the file sets the key at ``path``."""
+    node = doc.data
+    for part in path:
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def duration_key(spec: TaskSpec) -> tuple:
+    """The key of the task that sets the mission's duration."""
+    m = spec.mission
+    if isinstance(m, ViaMission):
+        return ("mission", "times", len(m.times) - 1)
+    if isinstance(m, CsvMission):
+        return ("mission", "file")
+    return ("mission", "duration")
+
+
+def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None:
+    """No time grid of a plan longer than :data:`MAX_SAMPLES` samples (each error located at
+    the step when the file sets it, else at the duration), and no fixed integration step
+    longer than 1/:data:`MIN_STEPS_PER_MISSION` of the mission.
+
+    Raises:
+        TaskFileError: ``"mission.duration: a mission of 1e+308 s sampled every 0.01 s ..."``.
+    """
+    planner, sim, integration = spec.optimal.planner, spec.simulation, spec.analytic.integration
+    plan_span = max(duration, planner.horizon or 0.0)
+    plan_key = ("optimal", "horizon") if plan_span > duration else duration_key(spec)
+    sim_out = ("simulation", "output_dt") if sim.output_dt is not None else ("simulation", "dt")
+    grids = [  # what, step key, step [s]; over the mission (the first), else the plan
+        ("the analytic plan's outputs", ("analytic", "output_step"), integration.output_step),
+        (
+            "the re-simulation of the optimal plan",
+            ("optimal", "resample_step"),
+            planner.resample_step,
+        ),
+        ("the simulation's outputs", sim_out, sim.output_dt or sim.dt),
+    ]
+    for k, (what, step_key, step) in enumerate(grids):
+        span, span_key = (duration, duration_key(spec)) if k == 0 else (plan_span, plan_key)
+        samples = span / step
+        if samples <= MAX_SAMPLES:
+            continue
+        count = f"{samples:.3g}" if np.isfinite(samples) else "over 1e308"
+        if _given(doc, step_key):
+            raise doc.error(
+                step_key,
+                f"{step:g} s over {span:g} s ({what}) is {count} samples; a plan may "
+                f"hold at most {MAX_SAMPLES:g}: over {span:g} s the step must be at least "
+                f"{span / MAX_SAMPLES:.3g} s",
+            )
+        raise doc.error(
+            span_key,
+            f"{span:g} s sampled every {step:g} s ({format_path(step_key)}: {what}) is {count} "
+            f"samples; a plan may hold at most {MAX_SAMPLES:g}: at that step the longest is "
+            f"{step * MAX_SAMPLES:.3g} s",
+        )
+    steps = []  # the fixed-step integrations: integrator, step key, step [s]
+    if sim.integrator == "rk4":
+        steps.append(("the simulation's rk4", ("simulation", "dt"), sim.dt))
+    if integration.method == "rk4":
+        key = "step" if integration.step is not None else "output_step"
+        steps.append(("the analytic rk4", ("analytic", key), getattr(integration, key)))
+    for what, key, step in steps:
+        longest = duration / MIN_STEPS_PER_MISSION
+        if step > longest:
+            raise doc.error(
+                key,
+                f"{what} step of {step:g} s does not resolve the {duration:g} s mission: it "
+                f"must be at most 1/{MIN_STEPS_PER_MISSION} of it, {longest:.3g} s",
+            )
+
+
+def _duration_words(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
+    """The optimal planner's problem fits in the memory budget
+    (:func:`~balance_opt.optimal.budget.memory_budget`), by an estimate made before anything
+    is built.
+
+    Raises:
+        TaskFileError: at ``optimal.intervals``, with the estimate and the largest ``N`` that
+            fits.
+    """
+    from balance_opt.optimal.budget import largest_intervals, memory_budget, problem_size
+
+    planner = spec.optimal.planner
+    limits = robot.limits.subset(robot.balance_indices)
+    size = problem_size(planner, limits)
+    budget = memory_budget()
+    iterations = TYPICAL_ITERATIONS[planner.objective] * planner.starts
+    expected = size.build_seconds + iterations * size.iteration_seconds
+    if size.memory_bytes <= budget:
+        if expected > LONG_PLAN_SECONDS:
+            log.warning(
+                "%s: the optimal plan with %d intervals may take about %s (build %s, then "
+                "%s per Ipopt iteration)",
+                doc.source,
+                planner.intervals,
+                _duration_words(expected),
+                _duration_words(size.build_seconds),
+                _duration_words(size.iteration_seconds),
+            )
+        return
+    matrices = (
+        "Ipopt's KKT matrix"
+        if size.problems == 1
+        else f"the KKT matrices of the {size.problems} NLPs the plan builds"
+    )
+    raise doc.error(
+        ("optimal", "intervals"),
+        f"{planner.intervals} intervals would need about {size.memory_bytes / 2**30:.1f} GiB of "
+        f"memory ({len(limits.lower)} balance joints: {size.variables:.3g} variables, "
+        f"{size.nonzeros:.3g} non-zeros in {matrices}), about "
+        f"{_duration_words(size.build_seconds)} to build and "
+        f"{_duration_words(size.iteration_seconds)} per Ipopt iteration; a plan "
+        f"may use {budget / 2**30:.1f} GiB (half of this machine's memory): at most "
+        f"{largest_intervals(planner, limits, budget)} intervals fit",
+    )
+
+
+def check_capture(spec: TaskSpec, doc: YamlDocument, duration: float):
+    """The capture section as a :class:`~balance_opt.model.capture.Target` (``None`` without
+    one): the capture time strictly inside the mission, a physical inertia."""
+    from balance_opt.model.capture import Target
+
+    c = spec.capture
+    if c is None:
+        return None
+    if not c.time < duration:
+        raise doc.error(
+            ("capture", "time"),
+            f"must be before the end of the mission ({duration:g} s), got {c.time:g} s",
+        )
+    try:
+        return Target(
+            c.time, c.mass, np.array(c.inertia), c.com, c.linear_velocity, c.angular_velocity
+        )
+    except InputError as exc:
+        raise doc.error(("capture", "inertia"), str(exc)) from None
