@@ -71,6 +71,9 @@ class PointKernels:
     library: str | None = None
     background: bool = False
     n_clearance: int = 0
+    #: with clearance rows: the outputs ``y`` without them (the cost needs none of them, and
+    #: Ipopt evaluates the cost at every trial point of its line search)
+    cost: cs.Function | None = None
 
     def split(self, Y) -> tuple:
         """``(x_dot, L, tau_B)``: the rows of kernel outputs ``Y`` (n_y, n_points); ``tau_B`` is
@@ -353,8 +356,8 @@ class PlannerModel:
         for variant, kernels in list(self._kernels.items()):
             if not kernels.background or not Path(kernels.library).exists():
                 continue
-            names = [f.name() for f in (kernels.value, kernels.jacobian, kernels.gradient)]
-            names.append(kernels.hessian.name())
+            functions = (kernels.value, kernels.jacobian, kernels.gradient, kernels.hessian)
+            names = [f.name() for f in (*functions, kernels.cost) if f is not None]
             try:
                 loaded = codegen.load_cached(names, Path(kernels.library))
             except BlockingIOError:
@@ -362,8 +365,8 @@ class PlannerModel:
             if loaded is None:
                 continue
             sizes = (kernels.n_x, kernels.n_z, kernels.n_y)
-            self._kernels[variant] = PointKernels(
-                *loaded, *sizes, True, 0.0, kernels.library, n_clearance=kernels.n_clearance
+            self._kernels[variant] = _point_kernels(
+                loaded, sizes, True, 0.0, kernels.library, n_clearance=kernels.n_clearance
             )
             self.nlp_cache = {
                 k: v
@@ -381,10 +384,11 @@ class PlannerModel:
         store or built, compiled now or in the background as :attr:`compile` says."""
         suffix = f"{control}{'_torque' if torque else ''}{_tag(momentum)}"
         suffix += f"_c{clearance}" if clearance else ""
-        names = [f"balance_kernel{part}_{suffix}" for part in ("", "_jac", "_grad", "_hess")]
         n_x = self.n_x(control)
         sizes = (n_x, n_x + self.n_u, self.n_y(control, torque, clearance))
         n_c = sizes[2] - self.n_y(control, torque)
+        parts = ("", "_jac", "_grad", "_hess") + (("_cost",) if n_c else ())
+        names = [f"balance_kernel{part}_{suffix}" for part in parts]
         digest = f"{self.key}/{suffix}" if self.store is not None else None
         compiler = codegen.find_compiler() if self.compile else None
         if compiler is not None and digest is not None:
@@ -394,13 +398,13 @@ class PlannerModel:
             except BlockingIOError:  # being compiled by another process
                 loaded = None
             if loaded is not None:
-                return PointKernels(*loaded, *sizes, True, 0.0, str(library), n_clearance=n_c)
+                return _point_kernels(loaded, sizes, True, 0.0, str(library), n_clearance=n_c)
         functions = self._stored(
             f"kernels_{suffix}",
             lambda: self._kernel_functions(control, torque, momentum, suffix, clearance),
         )
         if not self.compile:
-            return PointKernels(*functions, *sizes, n_clearance=n_c)
+            return _point_kernels(functions, sizes, n_clearance=n_c)
         try:
             out = codegen.compile_functions(
                 functions,
@@ -411,16 +415,18 @@ class PlannerModel:
             )
         except (OSError, RuntimeError) as exc:
             log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
-            return PointKernels(*functions, *sizes, n_clearance=n_c)
+            return _point_kernels(functions, sizes, n_clearance=n_c)
         if out.process is not None:
             self._compiling.append(out.process)
         compiled = (out.compiled, out.compile_time, out.library, out.background)
-        return PointKernels(*out.functions, *sizes, *compiled, n_clearance=n_c)
+        return _point_kernels(out.functions, sizes, *compiled, n_clearance=n_c)
 
     def _kernel_functions(
         self, control: str, torque: bool, momentum: bool, suffix: str, clearance: str = ""
     ) -> list[cs.Function]:
-        """The four point kernels as SX functions (value, Jacobian, gradient, Hessian)."""
+        """The point kernels as SX functions: value, Jacobian, gradient (of the outputs before
+        the clearance rows: the cost's), Hessian, and with clearance rows the outputs before
+        them (:attr:`PointKernels.cost`)."""
         n_x, n_u = self.n_x(control), self.n_u
         z = cs.SX.sym("z", n_x + n_u)
         m = cs.SX.sym("m", self.n_m)
@@ -431,6 +437,7 @@ class PlannerModel:
         parts = [x_dot, L]
         if torque:
             parts.append(self.balance_torque_fun(control, momentum)(x, u, m))
+        y_cost = cs.vertcat(*parts)
         if clearance:  # the clearance rows at the arm configuration [q_M; q_B]
             _, f = self.collisions.rows[clearance]
             E, e = self.robot.mimic_matrix
@@ -438,10 +445,11 @@ class PlannerModel:
             parts.append(f(cs.DM(E) @ q + cs.DM(e)))
         y = cs.vertcat(*parts)
         mu = cs.SX.sym("mu", y.numel())
-        c = cs.SX.sym("c", y.numel())
+        c = cs.SX.sym("c", y_cost.numel())
         hess, _ = cs.hessian(cs.dot(mu, y), z)
         inputs = {"z": z, "m": m, "weights": weights, "q_rest": q_rest}
-        cy = cs.dot(c, y)
+        cy = cs.dot(c, y_cost)
+        cost = _function(f"balance_kernel_cost_{suffix}", inputs, {"y": y_cost})
         return [
             _function(f"balance_kernel_{suffix}", inputs, {"y": y}),
             _function(f"balance_kernel_jac_{suffix}", inputs, {"y": y, "dy_dz": cs.jacobian(y, z)}),
@@ -451,7 +459,16 @@ class PlannerModel:
                 {"cy": cy, "grad": cs.gradient(cy, z)},
             ),
             _function(f"balance_kernel_hess_{suffix}", {**inputs, "mu": mu}, {"d2": cs.tril(hess)}),
+            *([cost] if clearance else []),
         ]
+
+
+def _point_kernels(functions, sizes, *compiled, n_clearance: int = 0) -> PointKernels:
+    """:class:`PointKernels` of the kernel functions in :meth:`PlannerModel._kernel_functions`'s
+    order."""
+    functions = list(functions)
+    cost = functions[4] if len(functions) > 4 else None
+    return PointKernels(*functions[:4], *sizes, *compiled, n_clearance=n_clearance, cost=cost)
 
 
 def _stop_all(compiling: list) -> None:

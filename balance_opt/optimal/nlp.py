@@ -130,6 +130,8 @@ def _outer_problem(
     )
     if key.objective == "peak":  # the only stage that prices it (BalanceNLP._set_bounds)
         cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)
+    if kernels.n_clearance and cs.depends_on(cost, cs.vec(kernels.clearance(Y))):
+        raise AssertionError("the cost must not depend on the clearance rows (PointKernels.cost)")
     rows, row_kinds, parts = BlockStack(), [], []
     for kind in kinds:
         for block, values in kind.rows(symbols):
@@ -228,7 +230,8 @@ def _derivatives(kernels: PointKernels, outer: _Outer, w, p, Z, data, point_idx,
     kernels' part of the Hessian, weighted by ``mu``)."""
     n_y, n_points, n_w, n_pt = kernels.n_y, point_idx.shape[1], w.numel(), point_idx.size
     f0, f_w, f_Y = outer.gradient(w, p)
-    cy, grad_z = kernels.gradient.map(n_points)(Z, *data, cs.reshape(f_Y, kernels.n_y, n_points))
+    seeds = cs.reshape(f_Y, n_y, n_points)[: n_y - kernels.n_clearance, :]  # none on clearance
+    cy, grad_z = kernels.gradient.map(n_points)(Z, *data, seeds)
     scatter_w = np.empty(n_pt, dtype=int)
     scatter_w[point_idx.ravel(order="F")] = np.arange(n_pt)
     grad_points = cs.vertcat(cs.vec(grad_z)[scatter_w.tolist()], cs.MX.zeros(n_w - n_pt))
@@ -309,8 +312,14 @@ def _ipopt_solver(
     Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
     par = parameters.unpack_symbolic(p)
     data = (par.mission, par.running_weights, par.q_rest)
-    y = cs.vec(kernels.value.map(point_idx.shape[1])(Z, *data))
-    f, g = outer.value(w, y, p)
+    n_points = point_idx.shape[1]
+    Y = kernels.value.map(n_points)(Z, *data)
+    g = outer.value(w, cs.vec(Y), p)[1]
+    if kernels.cost is not None:  # the cost from the kernel without the clearance rows
+        Y = cs.vertcat(
+            kernels.cost.map(n_points)(Z, *data), cs.MX.zeros(kernels.n_clearance, n_points)
+        )
+    f = outer.value(w, cs.vec(Y), p)[0]
     solver = cs.nlpsol(
         "balance_nlp",
         "ipopt",
