@@ -6,7 +6,9 @@ between the robot's checked bodies (coal, every pair not left out by adjacency, 
 contact at the start) on a 1 ms grid of the motion (joint positions interpolated linearly
 between the re-simulation's samples) and the pair that comes closest, the certified lower bound
 of :func:`~balance_opt.geometry.clearance.clearance` on the continuous motion, Ipopt's
-iterations and time (every solve behind the plan), and the wall time of planning (building the
+iterations and time (every solve behind the plan) per iteration, split into the calls of the
+cost and its gradient, of the constraints and their derivatives (``g``, Jacobian, Hessian of the
+Lagrangian), and Ipopt's own work (its linear algebra mostly), and the wall time of planning (building the
 NLP included: each setting has its own structure), the fastest of ``--repeat`` plans (default
 2: the first of each setting also builds the planner model and may run its kernels on CasADi's
 VM while they compile), with its ratio to the fastest plan without avoidance. Run:
@@ -68,7 +70,7 @@ def main(argv=None) -> None:
     header = (
         f"{'task':<26} {'avoid':<5} {'status':<24} {'peak rad':>9} {'final rad':>10} "
         f"{'clear 1ms m':>11} {'bound m':>8} {'closest pair':<34} {'iters':>6} {'ipopt s':>8} "
-        f"{'plan s':>7} {'ratio':>6}"
+        f"{'ms/it: cost':>11} {'rows':>5} {'own':>5} {'plan s':>7} {'ratio':>6}"
     )
     print(header)
     print("-" * len(header))
@@ -88,8 +90,7 @@ def main(argv=None) -> None:
                 runs[avoid].append((time.perf_counter() - start, result, status))
         base = min(r[0] for r in runs[False])
         for avoid in (False, True):
-            wall = min(r[0] for r in runs[avoid])
-            _, result, status = runs[avoid][-1]
+            wall, result, status = min(runs[avoid], key=lambda r: r[0])
             if result is None:
                 print(f"{task.name:<26} {str(avoid):<5} {status}")
                 continue
@@ -99,10 +100,15 @@ def main(argv=None) -> None:
             report = result.solver
             iters = report.iterations if report is not None else 0
             ipopt_s = report.solve_s if report is not None else float("nan")
+            calls = report.evaluations_s if report is not None else {}
+            cost = calls.get("f", 0.0) + calls.get("grad_f", 0.0)
+            rows = sum(calls.get(k, 0.0) for k in ("g", "jac_g", "hess_l"))
+            per = 1e3 / max(iters, 1)
             print(
                 f"{task.name:<26} {str(avoid):<5} {status[:24]:<24} {result.max_drift:9.4f} "
-                f"{result.final_drift:10.2e} {best:11.4f} {bound:8.4f} {pair:<34} {iters:6d} {ipopt_s:8.2f} {wall:7.2f} "
-                f"{wall / base:6.2f}",
+                f"{result.final_drift:10.2e} {best:11.4f} {bound:8.4f} {pair:<34} {iters:6d} "
+                f"{ipopt_s:8.2f} {cost * per:11.2f} {rows * per:5.2f} "
+                f"{(ipopt_s - cost - rows) * per:5.2f} {wall:7.2f} {wall / base:6.2f}",
                 flush=True,
             )
 

@@ -26,6 +26,11 @@ MAX_ROUNDS = 6
 BOUND_MARGIN = 1e-3
 
 
+#: The NLP's functions Ipopt calls: the cost, the constraints and their derivatives (CasADi's
+#: ``nlp_*`` functions of an ``nlpsol``).
+NLP_FUNCTIONS = ("f", "grad_f", "g", "jac_g", "hess_l")
+
+
 @dataclass(frozen=True)
 class SolveReport:
     """One Ipopt solve, or one stage of a plan (an entry of :attr:`PlanReport.stages`).
@@ -42,6 +47,9 @@ class SolveReport:
         drifts: figures of the stage's plan [rad], by name: ``nlp_max_drift_rad`` and
             ``nlp_final_drift_rad`` at the collocation points (inner stages),
             ``max_drift_rad`` and ``final_drift_rad`` re-simulated (the peak stage).
+        evaluations_s: the wall time [s] of Ipopt's calls of the NLP's functions, by name
+            (:data:`NLP_FUNCTIONS`); the rest of ``solve_s`` is Ipopt's own work, its linear
+            algebra mostly.
     """
 
     stage: str
@@ -52,6 +60,7 @@ class SolveReport:
     objective: float
     solution: Solution
     drifts: tuple[tuple[str, float], ...] = ()
+    evaluations_s: tuple[tuple[str, float], ...] = ()
 
     @property
     def success(self) -> bool:
@@ -135,6 +144,15 @@ class PlanReport:
     def solve_s(self) -> float:
         """Ipopt's wall time, all solves [s]."""
         return sum(s.solve_s for s in self.solves)
+
+    @property
+    def evaluations_s(self) -> dict[str, float]:
+        """The wall time [s] of Ipopt's calls of each NLP function, all solves."""
+        out = dict.fromkeys(NLP_FUNCTIONS, 0.0)
+        for solve in self.solves:
+            for name, seconds in solve.evaluations_s:
+                out[name] += seconds
+        return out
 
     def then(self, later: PlanReport) -> PlanReport:
         """This report followed by the solves of ``later`` (its solution the plan's)."""

@@ -43,7 +43,13 @@ from balance_opt.optimal.problem import (
     StructureKey,
     check_problem,
 )
-from balance_opt.optimal.refine import PlanReport, SolveReport, multi_start, solve_with_bounds
+from balance_opt.optimal.refine import (
+    NLP_FUNCTIONS,
+    PlanReport,
+    SolveReport,
+    multi_start,
+    solve_with_bounds,
+)
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -290,6 +296,9 @@ class BalanceNLP(BalanceProblem):
             solve_s=wall,
             objective=float(out["f"]),
             solution=self.unpack(np.array(out["x"]).ravel()),
+            evaluations_s=tuple(
+                (name, float(stats.get(f"t_wall_nlp_{name}", 0.0))) for name in NLP_FUNCTIONS
+            ),
         )
         return out, report
 
