@@ -305,6 +305,13 @@ def test_capture_section_errors_name_the_key(tmp_path):
     flat.write_text(text.replace("[2.083, 0, 0, 2.083, 0, 2.083]", "[1.0, 0, 0, 1.0, 0, 3.0]"))
     with pytest.raises(InputError, match=r"capture\.inertia: target inertia is not physical"):
         load_task(flat)
+    no_capture = tmp_path / "no_capture.yaml"
+    body = text[: text.index("capture:")] + text[text.index("limits:") :]
+    ignore = "optimal:\n  collision: {ignore: [[balance_link3, capture_target]]}\n"
+    no_capture.write_text(body + ignore)
+    message = r"optimal\.collision\.ignore: capture_target is the captured target"
+    with pytest.raises(InputError, match=message):
+        load_task(no_capture)
 
 
 @pytest.mark.slow

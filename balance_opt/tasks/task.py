@@ -30,6 +30,7 @@ from balance_opt.errors import (
     URDFLoadError,
 )
 from balance_opt.model.arms import LIMIT_KEYS
+from balance_opt.model.capture import TARGET_LINK
 from balance_opt.model.robot import FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
@@ -198,6 +199,12 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     q_B0 = robot.neutral()[robot.balance_indices] if balance is None else np.array(balance)
     check_limits(spec, doc, robot, mission, q_B0)
     target = check_capture(spec, doc, float(mission.duration))
+    ignore = spec.optimal.planner.collision_ignore
+    if target is None and any(TARGET_LINK in pair for pair in ignore):
+        raise doc.error(
+            ("optimal", "collision", "ignore"),
+            f"{TARGET_LINK} is the captured target, and this task has no capture section",
+        )
     task = Task(
         spec,
         doc.source,
