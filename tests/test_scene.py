@@ -285,6 +285,15 @@ def test_the_page_is_self_contained(paper, paper_scene, tmp_path):
     assert path.stat().st_size < 3e6
 
 
+def _headless(url: str) -> subprocess.CompletedProcess:
+    """The page at ``url`` after 3 s of headless Chromium's virtual time, as its DOM."""
+    return subprocess.run(
+        ["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=3000",
+         "--dump-dom", url],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium is not installed")
 def test_the_page_runs_in_a_browser(paper, paper_scene, tmp_path):
@@ -293,11 +302,7 @@ def test_the_page_runs_in_a_browser(paper, paper_scene, tmp_path):
     res, scene = paper_scene
     path = tmp_path / "scene.html"
     path.write_text(scene_html(scene))
-    proc = subprocess.run(
-        ["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=3000",
-         "--dump-dom", f"{path.as_uri()}#method=test&t=1.2"],
-        capture_output=True, text=True, timeout=120, check=False,
-    )  # fmt: skip
+    proc = _headless(f"{path.as_uri()}#method=test&t=1.2")
     label = re.search(r'<span id="scene-label">([^<]*)</span>', proc.stdout)
     assert label, proc.stderr[-2000:]
     angle = scene.meta["methods"]["test"]["angle"][12]  # the sample at 1.2 s
@@ -306,11 +311,7 @@ def test_the_page_runs_in_a_browser(paper, paper_scene, tmp_path):
     assert label.group(1).startswith(text)
     assert "<canvas" in proc.stdout  # the viewer's WebGL canvas
     # "play" runs the viewer's player: the time shown moves on from where it started
-    proc = subprocess.run(
-        ["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=3000",
-         "--dump-dom", f"{path.as_uri()}#method=test&t=1.2&play"],
-        capture_output=True, text=True, timeout=120, check=False,
-    )  # fmt: skip
+    proc = _headless(f"{path.as_uri()}#method=test&t=1.2&play")
     shown = re.search(r'<span id="scene-label">t = ([0-9.]+) s of 2.00 s', proc.stdout)
     assert shown and 1.2 < float(shown.group(1)) <= 2.0, proc.stdout[-500:]
 
