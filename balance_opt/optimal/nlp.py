@@ -52,7 +52,8 @@ class NLPStructure:
 class _Outer:
     """The outer problem's functions (SX, see the module docstring)."""
 
-    value: cs.Function  # (w, y, p) -> (f, g)
+    cost: cs.Function  # (w, y, p) -> f
+    constraints: cs.Function  # (w, y, p) -> g
     gradient: cs.Function  # (w, p) -> (f at y = 0, f_w, f_Y^T)
     jacobian: cs.Function  # (w, p) -> (G_w, G_Y)
     hessian: cs.Function  # (w, p, lam_f, lam_g) -> (triu d2L/dw2, dL/dy = mu)
@@ -183,7 +184,9 @@ def _outer_functions(w, y, p, cost, g) -> _Outer:
     if cs.depends_on(G_Y, cs.vertcat(w, y)) or cs.depends_on(f_Y, cs.vertcat(w, y)):
         raise AssertionError("the outer problem must be linear in the kernel outputs")
     return _Outer(
-        cs.Function("outer", [w, y, p], [cost, g]),
+        # apart: Ipopt evaluates the cost alone at every trial point of its line search
+        cs.Function("outer_cost", [w, y, p], [cost]),
+        cs.Function("outer_g", [w, y, p], [g]),
         cs.Function(
             "outer_grad",
             [w, p],
@@ -245,7 +248,7 @@ def _derivatives(kernels: PointKernels, outer: _Outer, w, p, Z, data, point_idx,
         (n_y * n_points, n_w),
     )
     G_w, G_Y = outer.jacobian(w, p)
-    g = outer.value(w, cs.vec(Y), p)[1]
+    g = outer.constraints(w, cs.vec(Y), p)
     lf, lg = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", n_g)
     H_outer, mu = outer.hessian(w, p, lf, lg)
     d2 = kernels.hessian.map(n_points)(Z, *data, cs.reshape(mu, kernels.n_y, n_points))
@@ -314,12 +317,12 @@ def _ipopt_solver(
     data = (par.mission, par.running_weights, par.q_rest)
     n_points = point_idx.shape[1]
     Y = kernels.value.map(n_points)(Z, *data)
-    g = outer.value(w, cs.vec(Y), p)[1]
+    g = outer.constraints(w, cs.vec(Y), p)
     if kernels.cost is not None:  # the cost from the kernel without the clearance rows
         Y = cs.vertcat(
             kernels.cost.map(n_points)(Z, *data), cs.MX.zeros(kernels.n_clearance, n_points)
         )
-    f = outer.value(w, cs.vec(Y), p)[0]
+    f = outer.cost(w, cs.vec(Y), p)
     solver = cs.nlpsol(
         "balance_nlp",
         "ipopt",
