@@ -1,14 +1,7 @@
-"""Capturing a moving target: the robot with the target attached, and the momentum the capture
-leaves (``docs/physics.md``, "Capture").
-
-At the capture time the target becomes rigidly attached to the mission end effector (an
-inelastic impact). Nothing outside the robot and the target acts on them, so their total
-momentum is the same just before and just after: the momentum after is the robot's plus the
-target's, taken about the common centre of mass. :func:`attach_target` builds the robot after
-the capture as a new :class:`~balance_opt.model.robot.FloatingRobot` whose URDF has the target
-as a fixed child link of the mission end-effector link, so that every backend, numeric and
-symbolic, handles it unchanged; :func:`momentum_after_capture` gives the momentum it carries.
-"""
+"""Capturing a moving target (``docs/physics.md``, "Capture"): an inelastic impact that
+attaches it rigidly to the mission end effector. :func:`attach_target` builds the robot after
+the capture as a new URDF with the target as a fixed link, so every backend handles it
+unchanged; :func:`capture_state` gives the momentum across the capture."""
 
 from __future__ import annotations
 

@@ -1,14 +1,9 @@
 """The robots of example-robot-data, by name, and their joints grouped by chain
 (``balance-opt robots``).
 
-The robot files are the ``.urdf`` files of the installed ``example-robot-data`` distribution
-(version 6 ships no Python loader), found through its metadata. A robot's name is its file's
-stem (``panda.urdf``: ``panda``), or, when two files share a stem, its description folder's
-(``anymal_b_simple``); :data:`ALIASES` adds the short names example-robot-data's loaders use.
-
-A chain is a sequence of movable joints, each the only movable joint below the previous one; it
-starts below the root or below a joint where the tree branches, and ends at a leaf or at a joint
-with several movable joints below it. An arm of a task is usually one chain, or its first joints.
+A robot's name is its URDF's stem, or its description folder's when two files share a stem;
+:data:`ALIASES` adds example-robot-data's short names. A chain is a sequence of movable joints,
+each the only movable joint below the previous one.
 """
 
 from __future__ import annotations
@@ -68,11 +63,7 @@ def example_robots() -> dict[str, Path]:
 
 
 def resolve_name(name: str) -> str:
-    """The catalog name of ``name`` (an alias resolved).
-
-    Raises:
-        InputError: unknown name, with the closest known names.
-    """
+    """The catalog name of ``name`` (an alias resolved); InputError with close names."""
     robots = example_robots()
     name = ALIASES.get(name, name)
     if name in robots:
@@ -112,16 +103,8 @@ class JointInfo:
 
 @dataclass
 class RobotInfo:
-    """A robot of the catalog: its file, whether it loads, and its movable joints by chain.
-
-    Attributes:
-        name: catalog name.
-        path: URDF file.
-        error: why it does not load ("" when it does).
-        chains: movable joints by chain, from the root down.
-        mass: total mass [kg].
-        warnings: implausible but possible values in the file.
-    """
+    """A robot of the catalog: its file, why it does not load ("" when it does), its movable
+    joints by chain from the root down, its mass [kg] and the implausible values in its file."""
 
     name: str
     path: Path

@@ -1,11 +1,6 @@
 """The paper's coupling factors (Eq. 19-25), written once for NumPy arrays and CasADi
-expressions (``docs/physics.md``, "Coupling factors"), and the coupling measures of ``J_wB``.
-
-Every formula takes its linear algebra (:class:`LinearAlgebra`) as an argument: the numeric
-maps pass :data:`NUMPY`, the symbolic maps pass CasADi's. The maps are functions of the arm
-configuration alone, with the base at the identity pose (base-frame axes); columns are the
-base twist [linear; angular] in the base frame first, then the arm joints in arm order.
-"""
+expressions through a :class:`LinearAlgebra` argument, and the coupling measures of ``J_wB``.
+Columns: the base twist [linear; angular] in the base frame, then the arm joints."""
 
 from __future__ import annotations
 
@@ -22,13 +17,7 @@ TWIST = 6
 
 @dataclass(frozen=True)
 class LinearAlgebra:
-    """The three operations the coupling factors need, for one array type.
-
-    Attributes:
-        solve: ``solve(a, b) = a^{-1} b`` for a square ``a``.
-        inv: ``inv(a) = a^{-1}``.
-        eye: ``eye(n)``, the identity.
-    """
+    """``solve(a, b) = a^{-1} b``, ``inv`` and ``eye`` for one array type."""
 
     solve: Callable
     inv: Callable

@@ -1,18 +1,9 @@
-"""Numeric momentum maps with Pinocchio: the reference for the symbolic maps, and the fast path
-of the analytic law, the replays and the simulator, for one configuration or a batch.
+"""Numeric momentum maps with Pinocchio, for one configuration or a batch: the reference for the
+symbolic maps and the fast path of the analytic law, the replays and the simulator.
 
-Conventions (``docs/physics.md``, "Frames and conventions" and "Momentum maps"): Pinocchio's
-free-flyer velocity ``v[:6]`` is the base twist in the base frame; ``pin.computeCentroidalMap``
-gives ``A_G`` with world-aligned rows about the CoM. Computed with the base at the identity
-pose, ``A_G`` is expressed in the base frame, and so are the maps derived from it, which do not
-depend on the base pose.
-
-Mimic joints that follow an arm joint move with it: configurations place them by their drivers,
-and every map over arm joints folds a follower's column, times its multiplier, into its
-driver's (``FloatingRobot.arm_columns``).
-
-:func:`base_angular_velocity` is THE base rate forced by the joints (``docs/physics.md``, "Base
-motion forced by the joints"): every numeric caller goes through it.
+Computed with the base at the identity pose, so in base-frame axes and independent of the base
+pose (``docs/physics.md``, "Momentum maps"); mimic followers are folded into their drivers'
+columns (``FloatingRobot.arm_columns``).
 """
 
 from __future__ import annotations
@@ -49,15 +40,9 @@ def angular_jacobian_rate(I_G, dI_G, dA, J_w) -> np.ndarray:
 
 
 class NumericMaps:
-    """Momentum maps of a floating robot evaluated with numeric Pinocchio.
-
-    Methods taking an arm configuration ``q`` accept one (n,) or, where they say so, a batch
-    (T, n). Index arrays and a configuration template are prepared once, for inner loops.
-
-    Args:
-        robot: the floating robot; a private Pinocchio data is created (one ``NumericMaps``
-            per thread).
-    """
+    """Momentum maps of a floating robot evaluated with numeric Pinocchio; methods take one
+    configuration (n,) or, where they say so, a batch (T, n). One instance per thread (it owns
+    a Pinocchio data)."""
 
     def __init__(self, robot: FloatingRobot):
         self.robot = robot
@@ -155,11 +140,7 @@ class NumericMaps:
 
     def base_twist(self, q, q_dot, h0_base=None) -> np.ndarray:
         """Base twist [linear; angular] in the base frame forced by the joint rates, for the
-        momentum ``h0_base`` ([linear; angular about the CoM], base-frame axes; zero by default).
-
-        The angular part is :func:`base_angular_velocity`; the linear part then follows from the
-        linear rows, ``A_b,lin [v; omega] = p0 - A_j,lin q_dot``.
-        """
+        momentum ``h0_base`` ([linear; angular about the CoM], base-frame axes; zero by default)."""
         h0 = np.zeros(6) if h0_base is None else np.asarray(h0_base, dtype=float)
         A = self.centroidal_momentum_matrix(q)
         omega = base_angular_velocity(A[3:, 3:6], A[3:, 6:], q_dot, h0[3:])

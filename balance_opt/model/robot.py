@@ -1,26 +1,14 @@
 """Floating-base robot model: a URDF with a free-flyer root, arms assigned by joint names.
 
-The robot's *arm vector* ``q`` (and ``q_dot``, ``q_ddot``) holds the joints of every arm in the
-order the user named them: the mission arm first, then each balance arm. Every other movable
-joint is locked at a fixed position. Pinocchio orders joints differently (depth-first over the
-kinematic tree), so conversions always go through joint names, never through positions.
+The *arm vector* ``q`` holds the joints of every arm in the order the user named them, mission
+arm first; every other movable joint is locked. Pinocchio orders joints depth-first, so
+conversions always go through joint names. A mimic joint whose driver is an arm joint is a
+*follower*: it stays movable and its momentum goes into its driver's column (``velocity_map``);
+the *model joints* are the arm joints, then the followers.
 
-A URDF mimic joint follows its driver, ``q = k q_driver + c`` (``<mimic joint= multiplier=
-offset=>``, chains of mimics resolved to the first driver). When the driver is locked, the
-mimic is locked at ``k q_driver + c``; when the driver is an arm joint, the mimic is a
-*follower*: it stays movable in the models below and moves with its driver, so its momentum
-belongs to the driver's column (``velocity_map``). The *model joints* are the arm joints
-followed by the followers.
-
-Two views of the same robot are kept:
-
-* ``robot.model``: a numeric Pinocchio model (free-flyer root, zero gravity) reduced by
-  ``pin.buildReducedModel`` with the locked joints at their positions;
-* ``robot.locked_urdf``: the URDF text with each locked joint turned into a fixed joint whose
-  origin holds the locked position, and the followers' ``<mimic>`` tags removed (every
-  consumer drives them through ``mimic_matrix``); symbolic backends are built from it.
-
-Building the two by different routes is deliberate: the tests compare them.
+``robot.model`` (Pinocchio, reduced with ``pin.buildReducedModel``) and ``robot.locked_urdf``
+(locked joints turned fixed, followers' ``<mimic>`` tags removed; the symbolic backends read it)
+are built by different routes on purpose: the tests compare them.
 """
 
 from __future__ import annotations
@@ -120,11 +108,7 @@ def _ancestors(model: pin.Model, joint_id: int) -> list[int]:
 
 
 class LimitOverrideError(JointError):
-    """A limit override (``limits={joint: {key: value}}``) that no joint can have.
-
-    Attributes:
-        key: the override at fault (``"lower"``, ``"velocity"``, ...).
-    """
+    """A limit override that no joint can have; ``key`` is the override at fault."""
 
     def __init__(self, joint: str, source: str, key: str, reason: str):
         self.key = key

@@ -1,23 +1,10 @@
-"""Symbolic momentum maps in CasADi: the centroidal momentum matrix, the base's generalized
-Jacobian, its angular rows per arm and their time derivatives, and the paper's coupling factors.
+"""Symbolic momentum maps in CasADi, functions of the arm vector ``q`` alone (base at the
+identity pose, base-frame axes: ``docs/physics.md``, "Momentum maps").
 
-Everything is a function of the arm vector ``q`` alone, with the base at the identity pose:
-expressed in the base frame, these maps do not depend on the base pose (``docs/physics.md``,
-"Momentum maps"), which keeps the functions small and the NLP free of base position.
-
-Everything is built from two primitives (the centroidal momentum matrix and each end
-effector's frame Jacobian, base columns first), from one of two backends: ``"pinocchio"``,
-Pinocchio's own algorithms on ``casadi.SX`` (``pinocchio.casadi`` where it imports, else the
-compiled bridge of :mod:`balance_opt.model.bridge`), or ``"adam"`` (``adam-robotics``, pure
-Python). ``"auto"`` takes ``"pinocchio"`` where it works, else ``"adam"``, and says why in one
-log line per process.
-
-Mimic followers (``FloatingRobot.followers``) are joints of their own at ``k q_driver + c``
-whose columns are then folded, times ``k``, into their drivers' (:func:`model_joint_positions`,
-:func:`model_velocity_map`).
-
-Each map comes as a pair: ``name_fun()`` returns the named ``casadi.Function`` (built once, then
-cached), and ``name(...)`` evaluates it and returns NumPy arrays.
+All are built from two primitives, the centroidal momentum matrix and each end effector's frame
+Jacobian, from the backend ``"pinocchio"`` (``pinocchio.casadi``, else the compiled bridge of
+:mod:`balance_opt.model.bridge`) or ``"adam"``; ``"auto"`` takes the first that works. Each map
+comes as ``name_fun()`` (the cached ``casadi.Function``) and ``name(...)`` (NumPy arrays).
 """
 
 from __future__ import annotations
@@ -90,11 +77,7 @@ def _fall_back_to_adam(reason: str) -> tuple[str, str]:
 
 
 def _resolve_backend(backend: str) -> tuple[str, str]:
-    """``(backend, description)`` for the backend asked for; builds the bridge if needed.
-
-    Raises:
-        BalanceOptError: unknown backend, or the one asked for cannot be used here.
-    """
+    """``(backend, description)`` for the backend asked for; builds the bridge if needed."""
     if backend not in ("auto", *BACKENDS):
         raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
     if backend == "adam":
@@ -215,13 +198,7 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
 
 def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     """The primitives from Pinocchio's algorithms on ``casadi.SX``: through ``pinocchio.casadi``
-    where it imports, else through the bridge (:func:`balance_opt.model.bridge.bridge_primitives`).
-
-    The ``pinocchio.casadi`` path is written against its API (``cpin.Model(model)`` casts the
-    numeric model; ``computeCentroidalMap``, ``computeJointJacobians``,
-    ``updateFramePlacements``, ``getFrameJacobian`` take and return ``casadi.SX``); the test
-    suite runs it with a numeric stand-in where only PyPI's ``pin`` is installed.
-    """
+    where it imports, else through the bridge (:func:`balance_opt.model.bridge.bridge_primitives`)."""
     import pinocchio as pin
 
     try:
@@ -256,8 +233,7 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
 
 
 def _built_once(method):
-    """A ``*_fun`` method of :class:`SymbolicMaps` whose function is built on the first call
-    with given arguments, then reused."""
+    """Cache a ``*_fun`` method's function per arguments."""
 
     @functools.wraps(method)
     def cached(self, *args):
@@ -274,11 +250,8 @@ class SymbolicMaps:
 
     Args:
         robot: the floating robot.
-        backend: ``"auto"``, ``"adam"`` or ``"pinocchio"``.
-
-    Attributes:
-        backend: the backend used, ``"pinocchio"`` or ``"adam"``.
-        backend_description: the same with how or why, see :func:`backend_description`.
+        backend: ``"auto"``, ``"adam"`` or ``"pinocchio"``; the one used and why are in
+            ``backend`` and ``backend_description``.
 
     Raises:
         BalanceOptError: the backend asked for cannot be used here.
