@@ -1,9 +1,6 @@
-"""Exceptions of balance-opt.
-
-Every error a user can cause derives from :class:`BalanceOptError` and says which file, key,
-joint or constraint is at fault, so that the CLI can print it as is and exit with code 2
-(bad input) or 1 (solver failure).
-"""
+"""Exceptions of balance-opt. Every error a user can cause derives from :class:`BalanceOptError`
+and names the file, key, joint or constraint at fault; the CLI exits with 2 (bad input) or 1
+(solver failure)."""
 
 from __future__ import annotations
 

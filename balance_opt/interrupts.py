@@ -1,15 +1,8 @@
 """Interrupts (Ctrl-C, SIGTERM) that stop a run wherever they arrive, inside Ipopt included.
 
-Python turns SIGINT into :class:`KeyboardInterrupt` at the next bytecode, and SIGTERM ends the
-process at once by default (leaving a staging folder behind and a sweep's workers running).
-Within :func:`handling_signals` both raise :class:`Interrupted`, a ``KeyboardInterrupt``, and
-the signal is also recorded.
-
-The record is what makes Ctrl-C work inside Ipopt: between iterations CasADi runs the Python
-signal handler, but it catches the exception the handler raises, and Ipopt then stops with the
-status ``NonIpopt_Exception_Thrown`` as if it had failed. Code that calls into such a library
-calls :func:`raise_if_interrupted` right after it (the optimal planner does, after Ipopt), so
-that the interruption goes on instead of a half-converged iterate being taken for a result.
+Within :func:`handling_signals` both raise :class:`Interrupted` (a ``KeyboardInterrupt``) and are
+recorded. CasADi swallows the exception raised in Ipopt's callbacks (Ipopt then stops as if it
+had failed), so code calling such a library calls :func:`raise_if_interrupted` right after.
 """
 
 from __future__ import annotations
@@ -28,11 +21,7 @@ _received: list[int] = []
 
 
 class Interrupted(KeyboardInterrupt):
-    """The run was interrupted by a signal.
-
-    Attributes:
-        signum: the signal (``signal.SIGINT`` or ``signal.SIGTERM``).
-    """
+    """The run was interrupted by the signal ``signum`` (SIGINT or SIGTERM)."""
 
     def __init__(self, signum: int):
         self.signum = signum
@@ -56,9 +45,8 @@ def raise_if_interrupted() -> None:
 def handling_signals() -> Iterator[None]:
     """Within the block, SIGINT and SIGTERM raise :class:`Interrupted` and are recorded.
 
-    The handlers are installed only from the main thread (the only one Python runs them in)
-    and only over Python's defaults; the previous ones are restored at the end. Nested blocks
-    share the outermost one; the record is cleared when it starts and when it ends.
+    Installed only from the main thread and only over Python's defaults, restored at the end;
+    nested blocks share the outermost one.
     """
     if threading.current_thread() is not threading.main_thread():
         yield

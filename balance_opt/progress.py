@@ -1,15 +1,8 @@
-"""Progress of long work on stderr: a stage notice (a kernel compilation, say) and a live line of
-the optimal planner's Ipopt iterations (iteration, objective, constraint violation).
+"""Progress of long work on stderr: stage notices and a live line of Ipopt's iterations.
 
-Silent until :func:`configure` turns it on (the ``balance-opt`` command does, unless ``-q``):
-library code calls :func:`status` and the planner's hooks unconditionally, and a notebook or a
-sweep worker sees nothing. On a terminal the line updates in place (at most
-:data:`REFRESH_S` apart); elsewhere (a log file, CI) each stage is one line and a solve ends with
-one summary line, without the per-iteration updates.
-
-The planner's NLP gets an Ipopt iteration callback (:func:`nlpsol_options`, built once per NLP
-structure); :func:`solving` wraps one Ipopt call with the constraint bounds the violation is
-measured against. While progress is off the callback returns at once.
+Silent until :func:`configure` turns it on (the CLI does, unless ``-q``), so notebooks and sweep
+workers see nothing. On a terminal the line updates in place; elsewhere each stage and each
+solve's summary is one line.
 """
 
 from __future__ import annotations
@@ -86,9 +79,8 @@ def configure(enabled: bool, stream: IO[str] | None = None) -> None:
 
 
 def status(message: str) -> None:
-    """A stage notice (e.g. ``"compiling the planner's kernels (about 30 s) ..."``): the live line
-    on a terminal (replaced by what comes next), a line of its own elsewhere. Nothing when
-    progress is off; the message is logged at debug level in any case."""
+    """A stage notice: the live line on a terminal, a line of its own elsewhere; logged at
+    debug level in any case."""
     logging.getLogger("balance_opt.progress").debug("%s", message)
     _STATE.write(message, live=True)
 
@@ -135,13 +127,8 @@ def iteration(objective: float, g: np.ndarray | None) -> None:
 
 @contextlib.contextmanager
 def solving(lbg: Any, ubg: Any, label: str = "Ipopt") -> Iterator[None]:
-    """Around one Ipopt call: its iterations feed the live line, and one summary line
-    (iterations, last objective and constraint violation, wall time) ends it.
-
-    Args:
-        lbg, ubg: the constraint bounds of this call (the violation is measured against them).
-        label: what the line starts with.
-    """
+    """Around one Ipopt call with constraint bounds ``lbg``, ``ubg``: its iterations feed the
+    live line, and one summary line (iterations, objective, violation, wall time) ends it."""
     if not _STATE.enabled:
         yield
         return
@@ -166,10 +153,8 @@ _CALLBACKS: list[Any] = []
 
 
 def nlpsol_options(n_x: int, n_g: int) -> dict[str, Any]:
-    """The ``nlpsol`` options that give a solver of ``n_x`` variables and ``n_g`` constraints
-    the progress line: an ``iteration_callback`` feeding :func:`iteration` (it returns at once
-    while no :func:`solving` block is active), whose errors (a bug here) are ignored rather
-    than ending the solve."""
+    """``nlpsol`` options that give an NLP the progress line: an ``iteration_callback`` feeding
+    :func:`iteration`, whose errors are ignored rather than ending the solve."""
     import casadi as cs
 
     class _IterationCallback(cs.Callback):

@@ -1,8 +1,5 @@
-"""Joint handling of the URDF: mimic joints (read, chains resolved, the map of the arm vector to
-the joints they drive) and locked joints written into the URDF text as fixed joints.
-
-A mimic joint follows its driver, ``q = multiplier * q_driver + offset`` (URDF ``<mimic>``).
-"""
+"""Joint handling of the URDF: mimic joints (``q = multiplier * q_driver + offset``, chains
+resolved) and locked joints written into the URDF text as fixed joints."""
 
 from __future__ import annotations
 
@@ -20,13 +17,8 @@ MOVABLE_TYPES = ("revolute", "continuous", "prismatic")
 
 @dataclass(frozen=True)
 class Mimic:
-    """How a mimic joint follows its driver: ``q = multiplier * q_driver + offset``.
-
-    Attributes:
-        driver: the joint it follows (the first driver of a chain of mimics).
-        multiplier: ``k`` [rad/rad, m/m, or mixed units between joint types].
-        offset: ``c`` [rad or m].
-    """
+    """How a mimic joint follows ``driver`` (the first of a chain of mimics):
+    ``q = multiplier * q_driver + offset`` [rad or m]."""
 
     driver: str
     multiplier: float

@@ -1,9 +1,5 @@
-"""Where robot files come from, and ready-made robots.
-
-Robot files are the URDFs shipped in ``balance_opt/urdf/`` and those of ``example-robot-data``,
-by name (:mod:`balance_opt.model.catalog`). The ready-made robots are the paper's Table 1 robot and Baxter on a
-floating base.
-"""
+"""Where robot files come from (``balance_opt/urdf/``, example-robot-data by name), and
+ready-made robots: the paper's Table 1 robot and Baxter on a floating base."""
 
 from __future__ import annotations
 
@@ -39,10 +35,7 @@ def shipped_urdf(name: str = PAPER_ROBOT) -> Path:
 # ---------------------------------------------------------------------------------- robots
 def paper_robot(limits: Mapping[str, Mapping[str, float]] | None = None) -> FloatingRobot:
     """The two-arm robot of the paper's Table 1 (``urdf/paper_robot.urdf``, ``docs/physics.md``,
-    "The Table 1 robot").
-
-    Mission arm ``mission_joint1..3`` and balance arm ``balance_joint1..3``, each yaw-pitch-pitch.
-    """
+    "The Table 1 robot"): arms ``mission_joint1..3`` and ``balance_joint1..3``, yaw-pitch-pitch."""
     return FloatingRobot(shipped_urdf(), PAPER_MISSION_JOINTS, PAPER_BALANCE_JOINTS, limits=limits)
 
 

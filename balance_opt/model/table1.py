@@ -1,12 +1,6 @@
-"""URDF text of the paper's Table 1 robot under a chosen reading of what Table 1 leaves open.
-
-Table 1 fixes each body's mass, length and inertia. It gives no joint axes and no mount points:
-a :class:`Table1Reading` states them. The links keep the frames of ``urdf/paper_robot.md``
-(link 1 along its frame's z, links 2 and 3 along their x; joint 2 at the top of link 1 turned
-by ``rpy (pi/2, 0, 0)``, joint 3 at the end of link 2), so the central inertias, read from
-Table 1 as that file explains, are the same numbers in every reading. A reading only moves the
-arms' mounts on the base and turns each joint's axis within its frame.
-"""
+"""URDF text of the paper's Table 1 robot under a chosen reading (:class:`Table1Reading`) of
+what Table 1 leaves open: joint axes and mount points. Masses, lengths and central inertias are
+Table 1's in every reading (link frames of ``urdf/paper_robot.md``)."""
 
 from __future__ import annotations
 
@@ -38,13 +32,8 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class ArmReading:
-    """Where one arm sits on the base and how its joints turn.
-
-    Attributes:
-        mount_xyz: joint 1's origin in the base frame [m] (the base's centroid is the origin).
-        mount_rpy: joint 1's frame in the base frame, roll-pitch-yaw [rad].
-        axes: each joint's axis in its own frame (unit vectors).
-    """
+    """Where one arm sits on the base (joint 1's origin [m] and roll-pitch-yaw [rad] in the base
+    frame, the base's centroid at the origin) and each joint's unit axis in its own frame."""
 
     mount_xyz: Vec3
     mount_rpy: Vec3

@@ -1,15 +1,7 @@
-"""Why a URDF is refused: its physical sanity, checked before Pinocchio loads it, and urdfdom's
-own reasons when Pinocchio refuses it.
-
-urdfdom and Pinocchio load many files that describe no physical robot (a negative mass, an
-inertia that is not positive semi-definite, a zero-length axis, a link with two parents, a
-loop); their momentum maps are meaningless and the failure would show up deep inside a solver.
-These checks refuse such a file naming the link or joint at fault, and warn about possible but
-implausible values (the triangle inequality broken, zero mass with non-zero inertia).
-
-:func:`pinocchio_model` captures what urdfdom prints on standard error when Pinocchio refuses a
-file (Pinocchio itself only says "does not contain a valid URDF model") into the error.
-"""
+"""Why a URDF is refused: its physical sanity (negative mass, inertia not positive
+semi-definite, zero axis, two parents, loops), checked before Pinocchio loads it so the error
+names the link or joint rather than failing deep in a solver; and urdfdom's own reasons, captured
+from standard error, when Pinocchio refuses it."""
 
 from __future__ import annotations
 
@@ -182,9 +174,8 @@ def check_urdf_physics(root: ET.Element, source: str) -> list[str]:
 
 @contextlib.contextmanager
 def _stderr_captured(lines: list[str]):
-    """Collect what C++ code prints on file descriptor 2 into ``lines`` instead of the terminal
-    (urdfdom, under Pinocchio, prints why it refuses a file there and raises a bare "not a
-    valid URDF model"). Output of other threads in the meantime is collected too."""
+    """Collect what C++ code (urdfdom) prints on file descriptor 2 into ``lines``; other
+    threads' output in the meantime is collected too."""
     sys.stderr.flush()
     saved = os.dup(2)
     with tempfile.TemporaryFile(mode="w+b") as tmp:
