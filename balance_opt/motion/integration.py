@@ -1,13 +1,7 @@
-"""Integration of an attitude state on SO(3), with or without other states (the balance
-joints), and the output grids of rollouts and replays.
-
-The attitude is a unit quaternion (x, y, z, w) integrated with ``q_dot = 1/2 q * (omega, 0)``
-(``omega`` in the base frame), never Euler angles (``docs/physics.md``, "Attitude"); RK4
-renormalises it after every step, and every quaternion handed out is renormalised.
-Integrators (:class:`~balance_opt.motion.options.IntegrationOptions`): ``"adaptive"``, SciPy's
-DOP853 with error control on the whole state and its dense output, stopped after
-``max_evaluations`` (a law that runs away); ``"rk4"``, classic fixed-step RK4, each output
-interval split into steps no longer than ``step``.
+"""Integration of an attitude state (a unit quaternion (x, y, z, w) first, then e.g. the balance
+joints) on SO(3), and the output grids of rollouts and replays (``docs/physics.md``,
+"Attitude"). ``"adaptive"``: SciPy's DOP853 with dense output, stopped after
+``max_evaluations``; ``"rk4"``: fixed steps no longer than ``step``, renormalised after each.
 """
 
 from __future__ import annotations
@@ -52,14 +46,9 @@ def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> 
 
 # ---------------------------------------------------------------------------------- integration
 def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
-    """Integrate ``y' = rhs(t, y)`` from ``y0`` (a unit quaternion first) over the output times
-    ``t`` (the first the initial time).
-
-    Returns:
-        ``(Y, stats, message)``: states at the output times with normalised quaternions (T', ny)
-        (T' < T when the integration failed), statistics (plain data) and ``None`` on success,
-        else the integrator's message.
-    """
+    """Integrate ``y' = rhs(t, y)`` from ``y0`` over the output times ``t`` (the first the
+    initial time). Returns ``(Y, stats, message)``: states with normalised quaternions (fewer
+    rows when the integration failed), plain-data statistics, and ``None`` or the failure."""
     run = _adaptive if options.method == "adaptive" else _rk4
     Y, stats, message = run(rhs, y0, t, options)
     Y[:, :4] /= np.linalg.norm(Y[:, :4], axis=1, keepdims=True)
@@ -67,9 +56,8 @@ def integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
 
 
 def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
-    """SciPy's DOP853 stepped here rather than through ``solve_ivp``: a law whose rates run
-    away drives the step toward zero, and only a loop of our own can stop it after
-    ``options.max_evaluations`` and say how far it got while it runs."""
+    """DOP853 stepped here rather than through ``solve_ivp``, so a law whose rates run away is
+    stopped after ``options.max_evaluations``."""
     from scipy.integrate import DOP853  # scipy.integrate takes a while to import: on use
 
     solver = DOP853(

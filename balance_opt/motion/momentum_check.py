@@ -1,18 +1,10 @@
-"""An independent check that a sampled motion conserves angular momentum: the figure of merit
-``momentum_residual`` of every :class:`~balance_opt.result.BalanceResult`.
+"""An independent check that a sampled motion conserves angular momentum: ``momentum_residual``
+of every :class:`~balance_opt.result.BalanceResult`.
 
-It uses only what a result exports (times, joint positions and rates, base attitude) and shares
-no code with the base rate the planners compute
-(:func:`balance_opt.model.maps.base_angular_velocity`): the base rate is recovered from the
-exported attitudes by finite differences (:func:`balance_opt.motion.so3.body_rates_from_samples`),
-and the momentum is ``A_G(q, R) v`` from ``pin.computeCentroidalMap`` at the exported attitude,
-in world axes. An attitude that does not follow the joints (integrated wrongly, or not at all)
-shows up as a residual of order one.
-
-The residual is relative (``docs/physics.md``, "Base motion forced by the joints"): the angular
-momentum about the CoM against the initial one, ``|L(t) - L0|``, over the largest angular
-momentum the arms carry plus ``|L0|`` (:func:`momentum_scale`). Its floor is the
-finite-difference error of the recovered rate.
+It shares no code with the planners' base rate: the rate is recovered from the exported
+attitudes by finite differences, and the momentum is ``A_G(q, R) v`` in world axes, so an
+attitude that does not follow the joints shows as a residual of order one. The residual is
+``|L(t) - L0|`` over :func:`momentum_scale` (``docs/physics.md``).
 """
 
 from __future__ import annotations
@@ -27,18 +19,8 @@ MOMENTUM_SCALE_FLOOR = 1e-12
 
 
 def momentum_residual(maps: NumericMaps, t, q, q_dot, quaternion, angular_momentum=None):
-    """Relative angular-momentum residual (T,) of a sampled motion (see the module docstring).
-
-    Args:
-        t: sample times (T,) [s].
-        q, q_dot: arm positions and rates (T, n) [rad, rad/s].
-        quaternion: base attitude (T, 4), (x, y, z, w).
-        angular_momentum: the initial angular momentum about the CoM, world axes (3,) [N m s];
-            ``None`` for zero.
-
-    Returns:
-        ``|L(t) - L0| / scale`` per sample; NaN for a single sample (no rate to recover).
-    """
+    """Relative angular-momentum residual (T,) of a sampled motion (NaN for a single sample);
+    ``angular_momentum``: the initial one about the CoM, world axes [N m s], ``None`` for zero."""
     L0 = np.zeros(3) if angular_momentum is None else np.asarray(angular_momentum, dtype=float)
     q_dot = np.asarray(q_dot, dtype=float)
     omega = body_rates_from_samples(t, quaternion)

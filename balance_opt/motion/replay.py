@@ -1,11 +1,6 @@
 """Replays: the base attitude that GIVEN joint motions of both arms produce, from momentum
-conservation alone (no balance law), as a :class:`~balance_opt.result.BalanceResult`.
-
-Used to re-simulate a plan on a fine grid, for the paper's phases and figures
-(:mod:`balance_opt.analytic.phases`) and by the optimal planner. The base angular velocity is
-:func:`balance_opt.model.maps.base_angular_velocity` at every instant (Eq. 26 with the initial
-momentum ``h0``), integrated on SO(3) (:mod:`balance_opt.motion.integration`).
-"""
+conservation alone (Eq. 26 with the initial momentum, integrated on SO(3)), as a
+:class:`~balance_opt.result.BalanceResult`."""
 
 from __future__ import annotations
 
@@ -105,13 +100,8 @@ def _adaptive_rhs(maps: NumericMaps, sample_M, sample_B, L: np.ndarray):
 
 
 class _StageRates:
-    """The base rate at given times, from the joint motions sampled in one batch.
-
-    The joints are given, so everything but the attitude is known before integrating: the maps
-    are evaluated once per stage time (one batched Pinocchio pass instead of a Python call per
-    right-hand side). With momentum ``L``, ``omega = I_G^{-1} (R^T L - A q_dot)`` depends on
-    the attitude: its two parts are kept apart.
-    """
+    """The base rate at given times, from the joint motions sampled in one batch (one Pinocchio
+    pass per stage time); the attitude-dependent part ``I_G^{-1} R^T L`` is kept apart."""
 
     def __init__(self, maps: NumericMaps, sample_M, sample_B, L: np.ndarray):
         self.maps, self.sample_M, self.sample_B, self.L = maps, sample_M, sample_B, L
@@ -147,10 +137,9 @@ def _to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def _rk4_given_joints(rates: _StageRates, y0: np.ndarray, t: np.ndarray, options):
-    """Classic RK4 on the unit quaternion, the steps of
-    :func:`balance_opt.motion.integration.integrate` (``n_sub`` equal steps per output interval,
-    none longer than ``options.step``), with the base rate at every stage time evaluated in one
-    batch first. Returns ``(Y, stats, message)`` like ``integrate``."""
+    """Classic RK4 on the unit quaternion with the steps of
+    :func:`~balance_opt.motion.integration.integrate` and the base rate at every stage time
+    evaluated in one batch first. Returns ``(Y, stats, message)``."""
     step = options.step or options.output_step
     times, n_sub, h = rk4_stage_times(t, options)
     S = h.size
@@ -227,11 +216,9 @@ def _rate_matrices(omega: np.ndarray) -> np.ndarray:
 
 
 def _step_matrices(omega: np.ndarray, y0, t, n_sub, h):
-    """RK4 when the rate does not depend on the attitude: ``q_dot = M(t) q`` is linear, so
-    each step is one 4 x 4 matrix, ``I + h/6 (k1 + 2 k2 + 2 k3 + k4)`` written for matrices,
-    all built in one batch; the loop only chains them (the same steps as :func:`_stagewise`,
-    equal to rounding). ``omega`` holds the rates at the step starts (S), midpoints (S) and the
-    end (1). Returns ``(Y, message)``."""
+    """RK4 when the rate does not depend on the attitude: each step is one 4 x 4 matrix, all
+    built in one batch, then chained. ``omega`` holds the rates at the step starts (S), midpoints
+    (S) and the end (1). Returns ``(Y, message)``."""
     S = h.size
     M = _rate_matrices(omega)
     ends = np.append(np.arange(1, S), 2 * S)  # a step's end is the next step's start

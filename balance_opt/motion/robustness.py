@@ -1,17 +1,9 @@
-"""Drift under model error: how a plan's base drift spreads when the robot's masses, centres of
-mass and inertias are not what the plan assumed (``docs/executable-plans.md``, "Drift under
-model error").
+"""Drift under model error (``docs/executable-plans.md``): every plan replayed on K seeded
+models whose inertial parameters are perturbed in log-Cholesky coordinates (always physical),
+the drift summarised by its median, 95th percentile and maximum.
 
-K seeded models, each body's inertial parameters perturbed in log-Cholesky coordinates of its
-pseudo-inertia (every draw a physical body, a zero perturbation the model itself); every
-method's plan is replayed on the same K models, and the drift (peak and final) summarised by its
-median, 95th percentile and largest value.
-
-The replays share their work: the kinematics do not depend on the inertial parameters, and for
-zero momentum each model's base twist is ``v_b = -M_bb^{-1} sum_i X_i^* I_i v_i`` with
-``M_bb = sum_i X_i^* I_i X_i^{-1}``, linear in the spatial inertias ``I_i``: a few batched
-products per model, then the replay's own RK4 steps
-(:func:`~balance_opt.motion.replay.attitude_from_rates`). With a non-zero momentum each model is
+At zero momentum the base twist is linear in the spatial inertias, so the kinematics are
+computed once and each model costs a few batched products; with momentum each model is
 replayed in full.
 """
 
@@ -85,12 +77,8 @@ def perturbed_robot(robot: FloatingRobot, size: float, rng: np.random.Generator)
 
 @dataclass(frozen=True)
 class DriftSpread:
-    """The drift of one plan over the perturbed models.
-
-    Attributes:
-        nominal_peak, nominal_final: the plan's own largest and final drift [rad].
-        peak, final: largest and final drift on each perturbed model (K,) [rad].
-    """
+    """The drift of one plan: its own peak and final drift, and those on each perturbed model
+    (K,) [rad]."""
 
     nominal_peak: float
     nominal_final: float
@@ -189,9 +177,8 @@ def _inertia_basis() -> np.ndarray:
 
 
 class _Kinematics:
-    """What the momentum of any model along a joint motion is made of, at given times: the
-    composite inertia and the joints' momentum at the base, linear in every body's dynamic
-    parameters (see the module docstring)."""
+    """Composite inertia and joint momentum at the base along a joint motion, linear in every
+    body's dynamic parameters."""
 
     def __init__(self, robot: FloatingRobot, mission, balance, times: np.ndarray):
         maps = NumericMaps(robot)
@@ -234,10 +221,8 @@ class _Kinematics:
 
 
 def _integration_of(plan: BalanceResult) -> IntegrationOptions:
-    """Fixed-step RK4: with the plan's own step when it was replayed so (the optimal planner's
-    plans: a zero perturbation then gives the plan back exactly), else one step per sample
-    interval (the error-controlled integration of the analytic law would cost a full replay
-    per model, for a difference far below the drifts compared)."""
+    """Fixed-step RK4 with the plan's own step when it was replayed so (a zero perturbation then
+    gives the plan back exactly), else one step per sample interval."""
     info = plan.info.get("integration") or {}
     if info.get("method") == "rk4" and info.get("step"):
         return IntegrationOptions(method="rk4", step=float(info["step"]))

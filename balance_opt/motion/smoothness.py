@@ -1,13 +1,7 @@
-"""Smoothness figures of merit of a sampled joint motion, per joint: largest jerk
-(``max |q_dddot|`` [rad/s^3], by finite differences of the sampled accelerations: never more
-than the continuous motion's), acceleration reversals (counted with hysteresis, see
-:func:`count_reversals`) and largest torque rate [N m/s]. Definitions and their reasons:
-``docs/executable-plans.md``, "Smoothness figures of merit".
-
-A reversal counts when the acceleration moves back from its running extremum by more than
-``REVERSAL_FRACTION * scale`` (``scale``: the joint's acceleration limit when finite, else its
-largest ``|q_ddot|``); that point starts the next swing.
-"""
+"""Smoothness figures of merit of a sampled joint motion, per joint: largest jerk (by finite
+differences of the accelerations), acceleration reversals counted with hysteresis
+(``REVERSAL_FRACTION`` of the acceleration limit, else of the largest ``|q_ddot|``) and largest
+torque rate (``docs/executable-plans.md``, "Smoothness figures of merit")."""
 
 from __future__ import annotations
 
@@ -24,15 +18,9 @@ REVERSAL_FRACTION = 0.1
 
 @dataclass(frozen=True)
 class Smoothness:
-    """Smoothness figures of merit of a motion, per joint (see the module docstring).
-
-    Attributes:
-        joints: joint names.
-        max_jerk: largest jerk per joint [rad/s^3].
-        reversals: acceleration reversals per joint.
-        max_torque_rate: largest torque rate per joint [N m/s], or ``None`` without torques.
-        reversal_threshold: the hysteresis used per joint [rad/s^2].
-    """
+    """Smoothness figures of merit of a motion, per joint: ``max_jerk`` [rad/s^3],
+    ``reversals``, ``max_torque_rate`` [N m/s] (``None`` without torques) and the
+    ``reversal_threshold`` used [rad/s^2]."""
 
     joints: tuple[str, ...]
     max_jerk: np.ndarray

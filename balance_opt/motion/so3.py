@@ -1,14 +1,7 @@
-"""Base attitude on SO(3), numeric: unit quaternions (x, y, z, w, Pinocchio's order), rotation
-matrices, roll-pitch-yaw, rotation vectors (log and exp), ``[v]_x``, the inverse right Jacobian
-of the exponential, and body rates recovered from sampled attitudes. Vectorised over leading
-dimensions.
-
-Attitude is always integrated on the group (``R_dot = R [omega]_x`` with ``omega`` in the base
-frame), never through Euler angles; roll-pitch-yaw is only a way to report it, with Pinocchio's
-convention ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (``docs/physics.md``, "Attitude").
-
-:mod:`balance_opt.motion.so3_casadi` holds the CasADi face of ``[v]_x`` and ``Jr^{-1}``; both
-faces use :data:`SERIES_ANGLE` and the coefficient functions defined here.
+"""Base attitude on SO(3), numeric and vectorised: unit quaternions (x, y, z, w, Pinocchio's
+order), rotation matrices, roll-pitch-yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``, for reports only),
+rotation vectors, ``[v]_x``, ``Jr^{-1}`` and body rates from sampled attitudes.
+:mod:`balance_opt.motion.so3_casadi` shares :data:`SERIES_ANGLE` and the coefficients.
 """
 
 from __future__ import annotations
@@ -183,25 +176,10 @@ def _coefficient_weights(nodes: np.ndarray, degree) -> np.ndarray:
 
 
 def body_rates_from_samples(t, q, points: int = RATE_STENCIL) -> np.ndarray:
-    """Body rates (T, 3) [rad/s] of an attitude history, by finite differences of the attitudes
-    alone (no dynamics): at each sample ``t_k`` the derivative of ``log(q_k^{-1} q(t))``, whose
-    value at ``t_k`` is the body rate.
-
-    The derivative is that of the polynomial through ``points`` consecutive samples (error
-    O(h^(points - 1)) for a smooth motion). Of the windows that contain ``t_k``, the smoothest is
-    used, the one whose polynomial has the smallest top two coefficients (in the spirit of
-    essentially non-oscillatory schemes): a motion whose acceleration or jerk has
-    corners (a collocated plan) is then differentiated from one side of the corner rather than
-    across it.
-
-    Args:
-        t: strictly increasing times (T,) [s].
-        q: unit quaternions (T, 4), (x, y, z, w).
-        points: stencil size (fewer when there are fewer samples).
-
-    Returns:
-        (T, 3) body rates; NaN when there is a single sample.
-    """
+    """Body rates (T, 3) [rad/s] of an attitude history (T, 4), by finite differences: at each
+    ``t_k`` the derivative of ``log(q_k^{-1} q(t))`` through ``points`` samples, taken over the
+    smoothest window containing ``t_k`` (the smallest top coefficients, ENO-like), so corners
+    of a collocated plan are differentiated from one side. NaN for a single sample."""
     t = np.asarray(t, dtype=float)
     q = np.asarray(q, dtype=float)
     T = t.size

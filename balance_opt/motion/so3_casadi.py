@@ -1,7 +1,5 @@
-"""The CasADi face of :mod:`balance_opt.motion.so3`: ``[v]_x``, ``exp`` and the inverse right Jacobian of
-SO(3) for symbolic rotation vectors (the optimal planner's attitude kinematics). Same threshold
-(:data:`~balance_opt.motion.so3.SERIES_ANGLE`) and same coefficients as the numeric face.
-"""
+"""The CasADi face of :mod:`balance_opt.motion.so3` (same threshold and coefficients) for
+symbolic rotation vectors: the optimal planner's attitude kinematics."""
 
 from __future__ import annotations
 
@@ -27,12 +25,8 @@ def _angle(phi):
 
 
 def inverse_right_jacobian_sym(phi):
-    """``Jr^{-1}(phi)`` for a CasADi rotation vector: ``phi_dot = Jr^{-1}(phi) omega`` for the body
-    rate ``omega`` of ``R = exp([phi]_x)`` (the numeric face:
-    :func:`balance_opt.motion.so3.inverse_right_jacobian`).
-
-    Below :data:`~balance_opt.motion.so3.SERIES_ANGLE` the series replaces the closed form.
-    """
+    """``Jr^{-1}(phi)`` for a CasADi rotation vector (see
+    :func:`balance_opt.motion.so3.inverse_right_jacobian`)."""
     a2, small, a2_safe, a = _angle(phi)
     c_closed = jr_inverse_closed(a2_safe, a, cs.cos(a), cs.sin(a))
     c = cs.if_else(small, jr_inverse_series(a2), c_closed)

@@ -1,11 +1,5 @@
-"""Joint-space trajectories, sampled at any times with position, velocity and acceleration: the
-mission motions (point to point, via points, CSV files, Cartesian goals) and sampled arrays
-(plans and results replayed).
-
-Every trajectory has ``duration`` [s], ``dof`` and ``sample(t) -> (q, q_dot, q_ddot)`` for an
-array of times ``t`` (T,), each (T, dof). Before ``0`` and after ``duration`` the arm rests at
-its end points.
-"""
+"""Joint-space trajectories: ``duration`` [s], ``dof`` and ``sample(t) -> (q, q_dot, q_ddot)``
+(each (T, dof)); at rest at the end points outside ``[0, duration]``."""
 
 from __future__ import annotations
 
@@ -112,18 +106,9 @@ class ViaPoints(JointTrajectory):
 
 # ---------------------------------------------------------------------------------- sampled
 class SampledTrajectory(JointTrajectory):
-    """A joint trajectory given as samples, interpolated piecewise.
-
-    With positions, velocities and accelerations: quintic Hermite interpolation (C2, error
-    O(h^6)), the natural choice to replay a plan or a :class:`BalanceResult`; with positions and
-    velocities: cubic Hermite (C1); with positions only: a natural cubic spline (C2). Before the
-    first and after the last sample the arm rests at its end positions.
-
-    Args:
-        t: strictly increasing sample times (T,) [s], the first 0.
-        q: positions (T, dof) [rad].
-        q_dot: velocities (T, dof) [rad/s], optional.
-        q_ddot: accelerations (T, dof) [rad/s^2], optional (needs ``q_dot``).
+    """A joint trajectory given as samples (T,) and (T, dof): quintic Hermite with positions,
+    velocities and accelerations (to replay a plan), cubic Hermite without accelerations, a
+    natural cubic spline from positions alone. Times start at 0 and increase strictly.
 
     Raises:
         TrajectoryError: bad times or shapes.
@@ -231,19 +216,8 @@ class SampledTrajectory(JointTrajectory):
 
 
 class CsvTrajectory(SampledTrajectory):
-    """A trajectory read from a CSV file: a ``time`` column, one column per joint by name.
-
-    Samples are interpolated with a natural cubic spline (C2). Columns for other joints are ignored;
-    times must start at 0 and increase strictly.
-
-    Args:
-        path: CSV file.
-        joint_names: the columns to read, in the arm's joint order.
-        time_column: name of the time column.
-
-    Raises:
-        TrajectoryError: naming the file, and the line or column at fault.
-    """
+    """A trajectory read from a CSV file: a ``time`` column, one column per joint by name
+    (natural cubic spline); TrajectoryError names the file, and the line or column at fault."""
 
     def __init__(self, path: str | Path, joint_names: Sequence[str], time_column: str = "time"):
         self.path = Path(path)
@@ -375,30 +349,14 @@ def _goal_rotation(orientation) -> np.ndarray | None:
 
 
 def solve_cartesian_goal(robot, q_start, position, orientation=None) -> np.ndarray:
-    """The joint goal [rad] that puts the mission end effector on a goal pose, by inverse
-    kinematics.
-
-    The goal is in the frame of the base at its initial pose (the identity), and the inverse
-    kinematics keep the base there: the joint goal is the one that
-    puts the end effector on the goal *as seen from the base at the start*. During the motion
-    the base turns and drifts as momentum conservation forces it (that is what the balance arm
-    corrects), so the world-frame end point can differ; the joint goal does not.
-
-    Solved by damped Gauss-Newton on the numeric Pinocchio model, joints clipped to their
-    position limits after every step, from the arm's start first and then from seeded random
-    configurations within the limits.
-
-    Args:
-        robot: the :class:`~balance_opt.model.robot.FloatingRobot`.
-        q_start: the arm's joint start [rad] (also the first IK start).
-        position: goal position of the end-effector frame's origin, world frame [m].
-        orientation: goal orientation, a quaternion (x, y, z, w) or a 3 x 3 rotation matrix;
-            ``None`` for position only.
+    """The joint goal [rad] that puts the mission end effector on a goal pose in the frame of
+    the base at its initial pose, by damped Gauss-Newton within the position limits from the
+    arm's start, then from seeded random starts. ``orientation``: a quaternion (x, y, z, w), a
+    3 x 3 rotation matrix or ``None``.
 
     Raises:
-        TrajectoryError: bad inputs, or the goal is out of reach within the joint limits; the
-            message and the ``distance`` [m] (and ``angle`` [rad]) attributes give how far the
-            best configuration found stays from it.
+        TrajectoryError: bad inputs, or the goal is out of reach; ``distance`` [m] and ``angle``
+            [rad] say how far the best configuration found stays from it.
     """
     goal_p = np.asarray(position, dtype=float).ravel()
     if goal_p.size != 3 or not np.all(np.isfinite(goal_p)):
@@ -474,11 +432,7 @@ def _point(v) -> str:
 
 
 def cartesian_goal(robot, q_start, position, duration: float, orientation=None) -> PointToPoint:
-    """Point-to-point motion (quintic, rest to rest) of the mission arm to a Cartesian goal
-    (:func:`solve_cartesian_goal`; the arguments are its own and the motion's ``duration`` [s]).
-
-    Raises:
-        TrajectoryError: unreachable goal (with the remaining distance), bad inputs.
-    """
+    """Quintic rest-to-rest motion of the mission arm to a Cartesian goal
+    (:func:`solve_cartesian_goal`) in ``duration`` [s]."""
     goal = solve_cartesian_goal(robot, q_start, position, orientation)
     return PointToPoint(q_start, goal, duration)
