@@ -1,32 +1,10 @@
-"""The paper's analytic balance law (Eq. 26-32): balance-arm rates and accelerations that cancel
-the base rotation the mission arm causes.
+"""The paper's analytic balance law (Eq. 26-32; ``docs/physics.md``, "The balance law"):
+balance-arm rates and accelerations that cancel the base rotation the mission arm causes.
 
-Derived from angular momentum conservation about the system's CoM (``docs/physics.md``, "The
-balance law"). In base-frame axes, with ``I_G`` the locked inertia about the CoM and ``A_M``,
-``A_B`` the angular rows of the centroidal momentum matrix for the mission and balance joints,
-
-    I_G omega + A_M q_dot_M + A_B q_dot_B = R^T L,                          (Eq. 26, with h0)
-
-so the base angular velocity (base frame) is ``omega = J_wM q_dot_M + J_wB q_dot_B + omega_h``
-with ``J_w = -I_G^{-1} A`` and ``omega_h = I_G^{-1} R^T L`` (``L``: initial angular momentum
-about the CoM, constant in the world frame; the linear momentum does not enter ``omega``).
-It is computed by :func:`balance_opt.model.maps.base_angular_velocity`.
-
-The law asks the balance arm for
-
-    J_wB q_dot_B = b,   b = -omega_f - K e_R,                               (Eq. 31)
-
-where ``omega_f = J_wM q_dot_M + omega_h`` is the base rate the mission arm (and ``h0``) would
-force with the balance arm at rest and ``e_R = log(R_0^T R)`` is the optional attitude feedback
-(gain ``K`` [1/s]); and its time derivative (Eq. 32, the paper's version mixes indices)
-
-    J_wB q_ddot_B = b_dot - dJ_wB q_dot_B,   b_dot = -d(omega_f)/dt - K Jr^{-1}(e_R) omega.
-
-``J_wB q_dot_B = b`` is solved by :mod:`balance_opt.analytic.least_squares`: exactly, by
-damped least squares near a singular ``J_wB`` (``sigma_min < damping_threshold``; the base
-rate it leaves is reported), or with a null-space term ``z = -k (q_B - q_goal)`` for more than 3
-balance joints (default goal: the middle of each joint's range, the start for a joint without
-finite limits). ``q_ddot_B`` is the exact time derivative of that velocity law.
+With ``omega_f = J_wM q_dot_M + omega_h`` the base rate the mission arm (and ``h0``) would force
+and ``e_R = log(R_0^T R)`` the optional attitude feedback (gain ``K``), the balance arm is asked
+for ``J_wB q_dot_B = b = -omega_f - K e_R`` (Eq. 31), solved by
+:mod:`balance_opt.analytic.least_squares`, and for its exact time derivative (Eq. 32).
 """
 
 from __future__ import annotations
@@ -59,16 +37,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class LawSample:
-    """The law at one configuration (see :meth:`BalanceLaw.rates`).
-
-    Attributes:
-        q_dot_B: balance joint rates [rad/s] (Eq. 31).
-        omega: base angular velocity these rates leave, base frame [rad/s] (zero for the exact
-            open-loop law; ``-K e_R`` with feedback).
-        residual: ``J_wB q_dot_B - b`` [rad/s], what damping leaves undone.
-        sigma_min: smallest singular value of ``J_wB``.
-        damping: ``lambda`` used.
-    """
+    """The law at one configuration: ``q_dot_B`` [rad/s], the base rate ``omega`` it leaves
+    [rad/s, base frame], the ``residual`` ``J_wB q_dot_B - b``, ``sigma_min`` and ``damping``."""
 
     q_dot_B: np.ndarray
     omega: np.ndarray
@@ -79,15 +49,8 @@ class LawSample:
 
 @dataclass
 class LawPath:
-    """The law evaluated along a sampled motion (batched :class:`BalanceLaw` output).
-
-    Attributes:
-        q_dot_B, q_ddot_B: (T, n_B) [rad/s, rad/s^2] (Eq. 31, 32).
-        omega: (T, 3) base angular velocity, base frame [rad/s].
-        residual: (T, 3) [rad/s] ``J_wB q_dot_B - b``.
-        sigma_min, damping: (T,).
-        condition: (T,) condition number of ``J_wB`` (``inf`` where singular).
-    """
+    """The law along a sampled motion: :class:`LawSample`'s fields per sample, ``q_ddot_B``
+    (Eq. 32) and the ``condition`` number of ``J_wB`` (``inf`` where singular)."""
 
     q_dot_B: np.ndarray
     q_ddot_B: np.ndarray

@@ -1,16 +1,7 @@
-"""The solve at the heart of the balance law: ``J x = b`` for the balance rates (Eq. 31) by
-exact, damped or minimum-norm least squares with a null-space term, and the exact time
-derivative of that solution (Eq. 32). Plain linear algebra, batched over leading dimensions.
-
-With the SVD ``J = U S V^T`` (``J``: 3 x n_B, ``docs/physics.md``, "The balance law"):
-
-* well conditioned (``sigma_min >= epsilon``): ``x = V S^{-1} U^T b``, the exact solve (the
-  minimum-norm one when ``n_B > 3``);
-* near a singular ``J`` (``sigma_min < epsilon``): damped least squares
-  ``x = V S / (S^2 + lambda^2) U^T b`` with the variable damping of :func:`damping`;
-* ``n_B > 3``: plus the null-space term ``(I - V V^T) z``, the projection of ``z`` on the exact
-  null space of ``J``, so that it never changes ``J x``.
-"""
+"""``J x = b`` for the balance rates (Eq. 31) by exact, damped or minimum-norm least squares
+with a null-space term ``(I - V V^T) z``, and the exact time derivative of that solution
+(Eq. 32); batched. Damped (``x = V S / (S^2 + lambda^2) U^T b``) where ``sigma_min`` is below
+the threshold (``docs/physics.md``, "The balance law")."""
 
 from __future__ import annotations
 
@@ -38,21 +29,9 @@ def _safe_divide(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def damping(sigma_min, threshold: float, max_damping: float) -> tuple[np.ndarray, np.ndarray]:
-    """Variable damping (Nakamura-Hanafusa style) and its derivative.
-
-    ``lambda^2 = lambda_max^2 (1 - (sigma_min / epsilon)^2)^2`` below ``epsilon``, else 0. A
-    function of ``sigma_min^2`` (an eigenvalue of ``J J^T``, smooth where ``sigma_min(t)`` touches
-    zero and bounces back) with zero slope at ``epsilon``: the damped rates are C1 in time, so
-    ``q_ddot_B`` (Eq. 32) stays continuous through both events.
-
-    Args:
-        sigma_min: smallest singular value of ``J_wB`` (...).
-        threshold: ``epsilon``; 0 for none.
-        max_damping: ``lambda_max``.
-
-    Returns:
-        ``(lambda^2, d(lambda^2)/d(sigma_min))``, each (...).
-    """
+    """Variable damping and its derivative ``(lambda^2, d(lambda^2)/d(sigma_min))``:
+    ``lambda_max^2 (1 - (sigma_min / epsilon)^2)^2`` below ``epsilon`` (``threshold``; 0 for
+    none), else 0; zero slope at ``epsilon`` keeps ``q_ddot_B`` continuous."""
     sigma_min = np.asarray(sigma_min, dtype=float)
     if threshold <= 0:
         zero = np.zeros_like(sigma_min)
@@ -63,18 +42,9 @@ def damping(sigma_min, threshold: float, max_damping: float) -> tuple[np.ndarray
 
 @dataclass
 class VelocityLawSolution:
-    """One solve of ``J_wB q_dot_B = b`` (Eq. 31), batched over leading dimensions.
-
-    Attributes:
-        q_dot_B: balance joint rates [rad/s].
-        b: the base angular velocity the balance arm is asked for [rad/s].
-        residual: ``J_wB q_dot_B - b`` [rad/s], what the damped inverse leaves undone (zero for
-            the exact solve).
-        sigma_min: smallest singular value of ``J_wB`` (among its first 3).
-        damping: ``lambda`` used (0 when exact).
-        J_wB, U, S, Vt, z, damping2_rate: reused by :func:`acceleration_law` (the SVD, the
-            null-space velocity and ``d(lambda^2)/d(sigma_min)``).
-    """
+    """One solve of ``J_wB q_dot_B = b`` (Eq. 31), batched: ``q_dot_B``, ``b`` [rad/s], the
+    ``residual`` damping leaves, ``sigma_min`` and ``damping``; the SVD and the rest are reused by
+    :func:`acceleration_law`."""
 
     q_dot_B: np.ndarray
     b: np.ndarray
@@ -99,14 +69,8 @@ class VelocityLawSolution:
 def velocity_law(
     J_wB: np.ndarray, b: np.ndarray, z: np.ndarray, options: BalanceLawOptions
 ) -> VelocityLawSolution:
-    """Solve ``J_wB q_dot_B = b`` (Eq. 31) the way ``options`` says (module docstring).
-
-    Args:
-        J_wB: (..., 3, n_B).
-        b: requested base angular velocity (..., 3) [rad/s].
-        z: null-space velocity (..., n_B) [rad/s]; projected on the null space of ``J_wB``.
-        options: law settings (``damping_threshold``, ``max_damping``).
-    """
+    """Solve ``J_wB`` (..., 3, n_B) ``q_dot_B = b`` (Eq. 31), ``z`` (..., n_B) projected on the
+    null space of ``J_wB``."""
     U, S, Vt = np.linalg.svd(J_wB, full_matrices=False)
     sigma_min = S[..., -1]
     lam2, dlam2 = damping(sigma_min, options.damping_threshold, options.max_damping)
@@ -123,21 +87,8 @@ def velocity_law(
 def acceleration_law(
     sol: VelocityLawSolution, dJ_wB: np.ndarray, b_dot: np.ndarray, z_dot: np.ndarray
 ) -> np.ndarray:
-    """Balance joint accelerations (Eq. 32): the exact time derivative of :func:`velocity_law`.
-
-    For a square, undamped ``J_wB`` this is ``J_wB q_ddot_B = b_dot - dJ_wB q_dot_B``; the
-    damping (through ``d sigma_min / dt = u^T dJ_wB v``) and the null-space projector add their
-    own derivative terms.
-
-    Args:
-        sol: the velocity-level solution at the same samples.
-        dJ_wB: time derivative of ``J_wB`` (..., 3, n_B).
-        b_dot: time derivative of ``b`` (..., 3) [rad/s^2].
-        z_dot: time derivative of the null-space velocity (..., n_B) [rad/s^2].
-
-    Returns:
-        ``q_ddot_B`` (..., n_B) [rad/s^2].
-    """
+    """Balance joint accelerations (Eq. 32), the exact time derivative of :func:`velocity_law`
+    (damping and null-space projector included), from ``dJ_wB``, ``b_dot`` and ``z_dot``."""
     J, U, S, Vt = sol.J_wB, sol.U, sol.S, sol.Vt
     lam2 = sol.damping**2
     denom = S**2 + lam2[..., None]

@@ -1,11 +1,6 @@
-"""The paper's phases and its attitude figures, each a :class:`BalanceResult`.
-
-* Phase I (:func:`phase_one`, paper Fig. 2): the mission arm moves alone, the balance arm is held
-  at its start; the base turns as momentum conservation forces it (Eq. 26 integrated).
-* Phase II (:func:`balance_opt.analytic.rollout.rollout`): the balance trajectory computed by
-  the analytic law (Eq. 31, 32).
-* :func:`both` (Fig. 5): the attitude with both arms moving, replayed from the two motions.
-"""
+"""The paper's phases and its attitude figures, each a :class:`BalanceResult`: Phase I (the
+mission arm alone, Fig. 2), Phase II (:func:`balance_opt.analytic.rollout.rollout`) and both
+arms replayed (Fig. 5)."""
 
 from __future__ import annotations
 

@@ -1,12 +1,6 @@
-"""Phase II: the analytic law's balance trajectory along a mission motion, with the base
-attitude it leaves, as a :class:`~balance_opt.result.BalanceResult`.
-
-The base attitude and the balance joints are integrated together on SO(3)
-(:mod:`balance_opt.motion.integration`), the balance rates being the law's (Eq. 31) at the
-integrated state. The per-sample outputs (``omega``, ``sigma_min``, ``q_dot_B``, ``q_ddot_B`` by
-Eq. 31 and 32) are evaluated after the integration at the output times, in one batched pass of
-numeric Pinocchio (:meth:`~balance_opt.analytic.law.BalanceLaw.along`).
-"""
+"""Phase II: the analytic law's balance trajectory along a mission motion, as a
+:class:`~balance_opt.result.BalanceResult`: attitude and balance joints integrated together on
+SO(3), then the per-sample outputs evaluated in one batched pass (:meth:`BalanceLaw.along`)."""
 
 from __future__ import annotations
 
@@ -37,18 +31,13 @@ def rollout(
     integration: IntegrationOptions | None = None,
     t_eval=None,
 ) -> BalanceResult:
-    """Phase II: the balance trajectory of the analytic law (Eq. 31, 32) along a mission motion
-    (see the module docstring).
+    """Phase II: the balance trajectory of the analytic law (Eq. 31, 32) along a mission motion.
 
     Args:
         mission: the mission arm's motion (see :func:`~balance_opt.motion.trajectories.as_sampler`).
         q_B0: initial balance joint positions [rad].
         options: the law's settings (``h0``, damping, null space, feedback).
         t_eval: output times [s] (default: every ``integration.output_step`` over the mission).
-
-    Returns:
-        A result with ``method="analytic"``; ``info`` holds the law's options, damping and
-        residual statistics and the integrator's.
 
     Raises:
         SolverError: the integration failed (the law blew up); ``result`` holds the motion up to

@@ -1,13 +1,6 @@
-"""Forward dynamics through a capture: the simulation of the robot before the capture, the
-impulse that attaches the target, and the simulation of the robot with the target after it
-(``docs/physics.md``, "Capture").
-
-The impact is taken as instantaneous and inelastic, with the joints held by their controllers
-through it: joint positions and rates do not jump, the base twist does. The twist after is the
-one that gives the robot with the target the total momentum of robot and target just before
-(:func:`~balance_opt.model.capture.capture_state`, from the simulated state at the capture,
-not from the plan), so the simulated momentum is conserved through the impulse; each phase
-then conserves its own to the integrator's tolerance.
+"""Forward dynamics through a capture (``docs/physics.md``, "Capture"): the robot simulated up
+to the capture, an instantaneous inelastic impulse (joints held: only the base twist jumps, to
+the one that conserves the total momentum of robot and target), then the robot with the target.
 """
 
 from __future__ import annotations
@@ -55,15 +48,10 @@ def simulate_with_capture(
     plan: BalanceResult,
     options: SimulationOptions | None = None,
 ) -> SimulationResult:
-    """Simulate a plan through the capture of ``target`` (see the module docstring).
-
-    Returns:
-        One result over the whole plan (the second phase's first sample, at the capture, left
-        out); its ``h0`` is per sample (T, 6): the momentum each phase conserves. ``robot``
-        is the robot before the capture (same joints and limits as after);
-        ``info["capture"]`` holds the momentum and base twists across the impulse and
-        ``info["after_capture"]`` the second phase's own info.
-    """
+    """Simulate a plan through the capture of ``target``: one result over the whole plan whose
+    ``h0`` is per sample (T, 6), the momentum each phase conserves; ``info["capture"]`` holds
+    the momentum and base twists across the impulse, ``info["after_capture"]`` the second
+    phase's info."""
     opts = options or SimulationOptions()
     mission = SampledTrajectory.from_result(plan, "mission")
     balance = SampledTrajectory.from_result(plan, "balance")

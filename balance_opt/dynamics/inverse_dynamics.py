@@ -1,23 +1,10 @@
-"""Free-floating inverse dynamics of a joint motion: the arm-joint torques that make the joints
-follow given positions, rates and accelerations while nothing acts on the base.
+"""Free-floating inverse dynamics of a joint motion: the arm-joint torques [N m; N for prismatic
+joints] that make the joints follow it while nothing acts on the base.
 
-With the Pinocchio velocity ``v = G [v_b; q_dot]`` (``G``: :attr:`FloatingRobot.velocity_map`,
-mimic followers moving with their drivers) the equations of motion in the reduced coordinates
-are ``M_r [a_b; q_ddot] + h_r = [0; tau]``, ``M_r = G^T M G``, ``h_r = G^T h(q, v)``. The first
-six rows (no wrench on the base) fix the base acceleration
-
-    a_b = -M_r,bb^-1 (M_r,bj q_ddot + h_r,b),
-
-and the joint rows then give ``tau = M_r,jb a_b + M_r,jj q_ddot + h_r,j``. Both use one RNEA
-with the base acceleration zero (``G^T rnea(q, v, G [0; q_ddot]) = M_r [0; q_ddot] + h_r``) and
-the joint-space inertia from CRBA. The base twist ``v_b`` is not an input: momentum conservation
-fixes it from the joints, as the base rows of the same inertia give the system's momentum at
-the base origin, ``M_r,bb v_b + M_r,bj q_dot = h``, for the system's momentum ``h0`` (world
-frame, about the CoM, constant; rotated into the base frame with the base attitude of each
-sample and moved to the base origin).
-
-Units: torques [N m] for revolute joints, forces [N] for prismatic ones; base twist and
-acceleration in the base frame [m/s, rad/s; m/s^2, rad/s^2].
+In the reduced coordinates ``[v_b; q_dot]`` (``v = G [v_b; q_dot]``, ``G`` the robot's
+``velocity_map``), ``M_r [a_b; q_ddot] + h_r = [0; tau]``: the base rows fix ``a_b``, the joint
+rows give ``tau``, from one RNEA and one CRBA. The base twist follows from momentum conservation,
+``M_r,bb v_b + M_r,bj q_dot = h`` (the momentum ``h0`` moved to the base origin, base frame).
 """
 
 from __future__ import annotations
@@ -35,14 +22,8 @@ from balance_opt.result import BalanceResult
 
 @dataclass(frozen=True)
 class InverseDynamics:
-    """Torques and base motion of a joint motion under free-floating dynamics.
-
-    Attributes:
-        joints: arm joint names, the columns of ``tau``.
-        tau: joint torques (T, n) [N m; N for prismatic joints].
-        base_twist: base twist [linear; angular] (T, 6), base frame [m/s; rad/s].
-        base_acceleration: base spatial acceleration (T, 6), base frame [m/s^2; rad/s^2].
-    """
+    """Torques ``tau`` (T, n) of the ``joints``, base twist and spatial acceleration (T, 6) in
+    the base frame [m/s, rad/s; m/s^2, rad/s^2]."""
 
     joints: tuple[str, ...]
     tau: np.ndarray
@@ -104,10 +85,8 @@ def free_floating_torques(
 
 
 def plan_joint_torques(result: BalanceResult, robot: FloatingRobot, h0=None) -> np.ndarray:
-    """Joint torques (T, n) of a plan's joint motion by :func:`free_floating_torques` (any arm
-    joint not in the plan held still at its neutral position), columns in the order of the
-    plan's mission then balance joints [N m; N for prismatic joints], with the plan's base
-    attitude for the system's momentum ``h0`` (world frame; zero by default)."""
+    """Joint torques (T, n) of a plan's joint motion (other arm joints held at neutral), in the
+    plan's mission then balance order, for the momentum ``h0`` (world frame; zero by default)."""
     names = (*result.mission_joints, *result.balance_joints)
     columns = [robot.joint_index(j) for j in names]
     T = result.t.size

@@ -1,23 +1,10 @@
-"""Runge-Kutta-Munthe-Kaas (RKMK) integrators of the free-floating dynamics, on the manifold of
-Pinocchio configurations (``docs/physics.md``, "Attitude").
-
-A step from ``q_n`` works in the local coordinates ``u`` with ``q = pin.integrate(q_n, u)``,
-where the velocity ``v`` (base twist in the base frame) maps to ``u_dot = dDifference(q_n, q) v``
-exactly (``pin.dDifference``, the inverse right Jacobian of the SE(3) exponential for the base).
-Plain RK in ``u`` is then exact to the method's order; mixing the stage velocities without that
-map would cost two orders on the base rotation.
-
-* :func:`rk4`: the classical fixed-step RK4 in that form. The planned trajectories are sampled
-  at every stage time before the loop, vectorised.
-* :func:`dopri5`: the Dormand-Prince 5(4) embedded pair in the same form, with error control on
-  the tangent-space increments (``atol + rtol |x|`` per component, RMS norm) and steps that land
-  on every output time.
-
-Both take the dynamics as a callable ``dyn(q, v, q_des, q_dot_des, q_ddot_des[, tau_des]) ->
-(a, tau)`` (with ``dyn.model`` and ``dyn.idx_v``), the plan as ``plan.sample(t) -> (q, q_dot,
-q_ddot[, tau])`` in arm order (whatever the plan samples is passed on: the plan's own torques,
-as feedforward, when it has them), and :func:`dopri5` the step control as ``opts`` (``dt``,
-``max_step``, ``rtol``, ``atol``: :class:`~balance_opt.dynamics.options.SimulationOptions`).
+"""Runge-Kutta-Munthe-Kaas integrators of the free-floating dynamics on the manifold of Pinocchio
+configurations (``docs/physics.md``, "Attitude"): a step works in the local coordinates ``u``
+of ``q = pin.integrate(q_n, u)``, with ``u_dot = dDifference(q_n, q) v``, so plain RK in ``u``
+keeps its order. :func:`rk4` (fixed step, the plan sampled at every stage time first) and
+:func:`dopri5` (Dormand-Prince 5(4), error control on the tangent increments, landing on every
+output time) take ``dyn(q, v, q_des, q_dot_des, q_ddot_des[, tau_des]) -> (a, tau)`` and the plan
+as ``plan.sample(t)`` in arm order.
 """
 
 from __future__ import annotations

@@ -1,18 +1,10 @@
 """Forward-dynamics simulation of the free-floating robot: the check every balance plan goes
-through.
+through (``docs/physics.md``, "Forces on the base"; ``docs/executable-plans.md``).
 
-No gravity, no external wrench (``docs/physics.md``, "Forces on the base"): the momentum is
-constant. Accelerations come from ``pin.aba`` with the torques of a controller that tracks the
-planned motion of *all* arm joints: ``"pd"`` (the paper's Phase I controller), by default plus
-the plan's own free-floating inverse-dynamics torques (``docs/executable-plans.md``, "Tracked as
-planned"), or ``"computed-torque"``, whose feedforward comes from the simulated state: the base
-rows of ``M(q) [a_b; q_ddot_d] + h = [0; tau]`` give ``a_b = -M_bb^{-1} (M_bj q_ddot_d + h_b)``
-and the joint rows the torque.
-
-Mimic followers move with their drivers: with ``v = G nu`` (``FloatingRobot.velocity_map``),
-``a = G (G^T M G)^{-1} G^T (tau - h)`` replaces ``aba``. Integration keeps the configuration on
-its manifold (:mod:`balance_opt.dynamics.rkmk`). The initial base twist gives the system its
-momentum ``h0`` (zero by default): ``v_b = A_b^{-1} (h0 - A_j q_dot)`` (Eq. 19, 26).
+No gravity, no external wrench: the momentum ``h0`` is constant. ``pin.aba`` (with mimic
+followers, ``a = G (G^T M G)^{-1} G^T (tau - h)``) under a controller that tracks *all* arm
+joints: ``"pd"`` (the paper's Phase I), by default plus the plan's own inverse-dynamics torques,
+or ``"computed-torque"``. Integrated on the manifold by :mod:`balance_opt.dynamics.rkmk`.
 """
 
 from __future__ import annotations
@@ -78,10 +70,9 @@ class _ArmPlan:
         self._attitude = None
 
     def add_feedforward(self, h0: np.ndarray, attitude=None) -> None:
-        """Make :meth:`sample` return the plan's torques too: the free-floating inverse
-        dynamics of the planned joint motion with momentum ``h0`` (world frame), the base at
-        the planned ``attitude`` (``(t, quaternion)`` samples, nearest taken; the identity when
-        ``None``: the attitude matters only for a non-zero ``h0``)."""
+        """Make :meth:`sample` return the plan's inverse-dynamics torques too, for momentum
+        ``h0`` (world frame) and the planned ``attitude`` (``(t, quaternion)``, nearest sample;
+        identity when ``None``)."""
         self.feedforward, self._h0, self._attitude = True, np.asarray(h0, dtype=float), attitude
 
     def sample(self, t):
@@ -123,12 +114,8 @@ def default_gains(
     damping_ratio: float = DEFAULT_DAMPING_RATIO,
 ) -> tuple[np.ndarray, np.ndarray]:
     """PD gains that give each joint, alone with the base held, the ``bandwidth`` [rad/s] and
-    ``damping_ratio``: ``K_p = M_ii w^2``, ``K_d = 2 zeta w M_ii`` with ``M_ii`` the joint-space
-    inertia's diagonal at arm configuration ``q`` [kg m^2].
-
-    Returns:
-        ``(kp, kd)`` in arm order [N m/rad, N m s/rad].
-    """
+    ``damping_ratio``: ``(K_p, K_d) = (M_ii w^2, 2 zeta w M_ii)`` with ``M_ii`` the joint-space
+    inertia's diagonal at ``q``, in arm order."""
     data = robot.model.createData()
     M = symmetric(pin.crba(robot.model, data, robot.pin_q(q)))
     G = robot.velocity_map  # a driver's inertia includes its followers'
@@ -236,9 +223,8 @@ class SimulationResult(AttitudeHistory):
         return np.maximum(lin, ang)
 
     def as_balance_result(self, method: str = "simulation") -> BalanceResult:
-        """The simulated motion as a :class:`BalanceResult`, to compare field by field with the
-        plan it tracked. ``momentum_residual`` there is the relative angular momentum error
-        ``|L - L0| / scale_L``; ``sigma_min`` is recomputed along the simulated path."""
+        """The simulated motion as a :class:`BalanceResult` (angular momentum residual,
+        ``sigma_min`` recomputed along the simulated path)."""
         maps = NumericMaps(self.robot)
         info = dict(self.info)
         info.update(

@@ -1,11 +1,6 @@
-"""The wrench each arm exerts on the base (paper Fig. 4), from the free-floating dynamics.
-
-Pinocchio's RNEA, run with the accelerations of a forward-dynamics simulation, gives in
-``data.f[j]`` the spatial force joint ``j``'s parent body transmits to body ``j`` (joint ``j``'s
-frame). At an arm's *root joint* (the one whose parent is the base) this is the force the base
-exerts on the whole arm, the opposite of the arm's on the base. Summed over the arms it equals
-the base's Newton-Euler wrench (``docs/physics.md``, "Forces on the base").
-"""
+"""The wrench each arm exerts on the base (paper Fig. 4): minus RNEA's ``data.f`` at the arm's
+root joint, run with the simulation's accelerations; summed over the arms, the base's
+Newton-Euler wrench (``docs/physics.md``, "Forces on the base")."""
 
 from __future__ import annotations
 
@@ -61,18 +56,9 @@ def arm_root_joints(robot: FloatingRobot) -> dict[str, int]:
 def arm_wrenches_on_base(
     robot: FloatingRobot, q_pin, v, a, data: pin.Data | None = None
 ) -> dict[str, np.ndarray]:
-    """The wrench each arm exerts on the base along a motion (paper Fig. 4).
-
-    Args:
-        q_pin, v, a: Pinocchio configurations (T, nq), velocities and accelerations (T, nv) of a
-            motion that obeys the free-floating dynamics (for instance the ABA accelerations of
-            a simulation); base twist and acceleration in the base frame.
-        data: a Pinocchio data of ``robot.model`` to reuse (a new one by default).
-
-    Returns:
-        ``{arm name: (T, 6)}``: ``[force; torque]`` the arm exerts ON the base, base-frame axes,
-        torque about the base frame's origin [N, N m].
-    """
+    """The wrench each arm exerts on the base along a motion that obeys the free-floating
+    dynamics (``q_pin``, ``v``, ``a``: Pinocchio state and accelerations, T rows):
+    ``{arm: (T, 6)}``, ``[force; torque]`` in base axes, torque about the base origin [N, N m]."""
     model = robot.model
     data = data or model.createData()
     q_pin, v, a = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q_pin, v, a))
