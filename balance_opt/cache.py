@@ -1,21 +1,10 @@
-"""The one on-disk cache of balance-opt: compiled planner kernels, the Pinocchio-CasADi bridge and
-Ipopt's option catalog, in ``$BALANCE_OPT_CACHE``, else ``$XDG_CACHE_HOME/balance-opt``
-(``~/.cache/balance-opt``).
+"""The one on-disk cache of balance-opt (planner kernels, the Pinocchio-CasADi bridge, Ipopt's
+option catalog) in ``$BALANCE_OPT_CACHE``, else ``$XDG_CACHE_HOME/balance-opt``.
 
-The rules that keep it harmless, shared by every builder:
-
-* a file lock per artefact (:func:`file_lock`): one process builds, the others wait;
-* builds happen in a temporary folder named after the host and the process
-  (:func:`build_dir`), and the result is renamed into place atomically; a build killed part-way
-  leaves that folder behind, and :func:`clean_stale` removes it once its process is gone (or
-  after :data:`STALE_SECONDS` when the process cannot be checked);
-* a record beside each artefact holds its SHA-256 and size (:func:`write_record`), checked
-  before the artefact is used (:func:`check_record`): a truncated or foreign file is rebuilt,
-  never loaded.
-
-``balance-opt cache`` lists the cache and clears it (``docs/cache.md``). The size bound deletes
-the least recently used planner kernels, planner models and bridge functions, never the bridge
-program, whose build takes minutes.
+Shared rules (``docs/cache.md``): a file lock per artefact; builds in a temporary folder named
+after host and process, renamed into place (leftovers of killed builds removed by
+:func:`clean_stale`); a record of SHA-256 and size checked before use. The size bound evicts
+the least recently used kernels, models and bridge functions, never the bridge program.
 """
 
 from __future__ import annotations
@@ -49,12 +38,8 @@ def default_cache_dir() -> Path:
 
 @contextlib.contextmanager
 def file_lock(path: Path, blocking: bool = True) -> Iterator[None]:
-    """An exclusive lock on ``path`` (POSIX ``flock``; no lock where ``fcntl`` is missing), so
-    that one process builds a cached artefact while the others wait for it.
-
-    Raises:
-        BlockingIOError: ``blocking`` is false and another process holds the lock.
-    """
+    """An exclusive ``flock`` on ``path`` (none where ``fcntl`` is missing); BlockingIOError
+    when not ``blocking`` and another process holds it."""
     try:
         import fcntl
     except ImportError:  # Windows: concurrent builds stay correct (atomic rename)

@@ -1,17 +1,7 @@
 """How close a motion brings the robot's bodies to each other, on the continuous motion
-(``docs/collision.md``, "The clearance of a motion").
-
-Between two samples the motion is the straight line in joint space. Distances (coal) are exact
-at samples; in between, *conservative advancement* bounds them: every point of a body moves at
-most ``sum_j |dq_j| R_j`` (:attr:`RobotGeometry.reach`), so a pair ``d_a``, ``d_b`` apart at an
-interval's ends, its bodies moving by at most ``M``, stays ``(d_a + d_b - M) / 2`` apart. An
-interval whose bound could be below the pair's smallest distance so far (by more than
-:data:`RESOLUTION`) is split, down to :data:`MIN_STEP`; pairs beyond ``watch`` are only certified to
-stay beyond it.
-
-Every pair is computed at every :data:`COARSE`-th sample; an interval between them is split at
-its middle sample first, between two samples at its middle time. The first penetration's time
-is where its pair first touches, found from the start by the same bound.
+(``docs/collision.md``, "The clearance of a motion"): exact distances (coal) at samples and, in
+between, conservative advancement (bodies move at most ``sum_j |dq_j| R_j``), intervals split
+until each pair's bound is settled to :data:`RESOLUTION` (down to :data:`MIN_STEP`).
 """
 
 from __future__ import annotations
@@ -38,15 +28,8 @@ COARSE = 10
 
 @dataclass(frozen=True)
 class PairClearance:
-    """One pair's smallest distance over a motion.
-
-    Attributes:
-        pair: the two links (``"balance_link3 / base_link"``).
-        index: the pair's index in the geometry's pairs.
-        distance: the smallest distance computed [m] (negative: penetration depth).
-        time: when [s].
-        lower_bound: a bound the distance stays above on the whole continuous motion [m].
-    """
+    """One pair's smallest distance over a motion [m] (negative: penetration depth), when [s],
+    and a ``lower_bound`` it stays above on the whole continuous motion [m]."""
 
     pair: str
     index: int
@@ -67,14 +50,8 @@ class Penetration:
 
 @dataclass(frozen=True)
 class ClearanceReport:
-    """The clearance of a motion (:func:`clearance`).
-
-    Attributes:
-        pairs: every checked pair's smallest distance, in the geometry's order.
-        first_penetration: the earliest penetration found, or ``None``.
-        source: the URDF elements the geometry came from (``"collision"``, ``"visual"``).
-        evaluations: exact distances computed.
-    """
+    """The clearance of a motion (:func:`clearance`): every checked pair, the first penetration
+    (or ``None``), the URDF elements the geometry came from and the exact distances computed."""
 
     pairs: tuple[PairClearance, ...]
     first_penetration: Penetration | None
@@ -146,10 +123,8 @@ def _lower(da, db, motion):
 
 
 def _first_contact(distance, t, motion, until: float, tolerance: float = 1e-6) -> float:
-    """The first time a pair touches (distance within ``tolerance``), at the latest ``until``
-    (a time it does), by conservative advancement from ``t[0]``: on the step of the samples
-    ``k, k + 1`` its bodies approach at most at ``motion(k, k + 1) / (t[k+1] - t[k])``, so a
-    pair ``d`` apart cannot touch in the next ``d`` over that speed."""
+    """The first time a pair touches (within ``tolerance``), at the latest ``until``, by
+    conservative advancement from ``t[0]``."""
     k, tau = 0, float(t[0])
     d = distance(tau)
     for _ in range(100_000):  # converges geometrically; the bound only guards a stall
@@ -164,12 +139,9 @@ def _first_contact(distance, t, motion, until: float, tolerance: float = 1e-6) -
 
 
 def _refine(geometry, index, items, configuration, state, limits) -> int:
-    """Split the intervals ``items`` until each pair's bound is settled (see the module
-    docstring), updating ``state`` (best distance, its time, lower bound per pair, the
-    penetrations found) in place; returns the distances computed. An item is
-    ``(pair column, t_a, t_b, d_a, d_b, motion bound, i_a, i_b)``: while the interval spans
-    more than one step of the samples ``i_a .. i_b`` it is split at a sample, whose halves'
-    bounds come from ``motion(i, j)``; below, at its middle (the straight line), halving it."""
+    """Split the intervals ``items`` until each pair's bound is settled, updating ``state`` (best
+    distance, its time, lower bound per pair, penetrations) in place; returns the distances
+    computed. An item is ``(pair column, t_a, t_b, d_a, d_b, motion bound, i_a, i_b)``."""
     best, best_t, lower, first = state
     watch, t, motion = limits
     geom, gdata = geometry.geometry_model, geometry.geometry_data
@@ -212,15 +184,9 @@ def clearance(
     pairs: Sequence[int] | None = None,
     watch: float = WATCH,
 ) -> ClearanceReport:
-    """The clearance of a motion of the robot (see the module docstring).
-
-    Args:
-        geometry: the robot's geometry.
-        t: sample times (T,) [s], increasing.
-        q: the arm vector at each sample (T, n) [rad or m] (mission arm, then balance arms).
-        pairs: indices of the pairs to check (default: every pair of ``geometry``).
-        watch: pairs farther than this are only certified to stay beyond it [m].
-    """
+    """The clearance of a motion of the robot: sample times ``t`` (T,), arm vectors ``q``
+    (T, n); ``pairs`` (default all) farther than ``watch`` [m] are only certified to stay beyond
+    it."""
     t = np.asarray(t, dtype=float).ravel()
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if q.shape[0] != t.size:

@@ -1,13 +1,7 @@
-"""The volume of a robot's bodies: Pinocchio's geometry model of its URDF, the pairs of bodies
-that are checked against each other, and exact distances (coal). ``docs/collision.md`` says
-where the geometry comes from and which pairs are checked.
-
-A *body* is a joint of the robot's reduced model (the base and everything fixed or locked to it
-one body). Meshes are replaced by their convex hulls: a hull's distance is signed, and a
-clearance measured on hulls holds for the meshes. Pairs left out (:attr:`RobotGeometry.ignored`)
-are those of one body (``same body``), of a body and its parent (``adjacent``; not a captured
-target, :data:`~balance_opt.model.capture.TARGET_LINK`: it meets no link at a joint), named by
-an SRDF (``srdf``) or by the caller (``ignored``).
+"""The volume of a robot's bodies: Pinocchio's geometry model (meshes as convex hulls, so
+distances are signed and hold for the meshes), the pairs checked and exact distances (coal).
+A *body* is a joint of the reduced model; pairs of one body, of adjacent bodies, named by an
+SRDF or by the caller are left out (``docs/collision.md``).
 """
 
 from __future__ import annotations
@@ -36,13 +30,8 @@ class NoGeometryError(InputError):
 
 @dataclass(frozen=True)
 class Pair:
-    """A pair of geometry objects checked against each other.
-
-    Attributes:
-        index: its index in the geometry model's collision pairs.
-        first, second: the geometry objects' indices.
-        links: the two objects' links (``("balance_link3", "base_link")``).
-    """
+    """A checked pair: its index among the collision pairs, the geometry objects' indices and
+    their ``links``."""
 
     index: int
     first: int
@@ -275,11 +264,9 @@ class RobotGeometry:
     # ------------------------------------------------------------------ motion bound
     @cached_property
     def reach(self) -> np.ndarray:
-        """(n_objects, n_moving) bound on the distance from each moving joint's axis (its
-        origin) to any point of each object below it [m], whatever the configuration (0 for
-        joints not above the object; 1 for a prismatic joint: it moves every point by its
-        displacement): the lengths of the joint placements between them, the object's offset
-        and the radius of its bounding box about its frame."""
+        """(n_objects, n_moving) bound [m] on how far each moving joint's axis is from any point
+        of each object below it, whatever the configuration (0 for joints not above it; 1 for a
+        prismatic joint, which moves every point by its displacement)."""
         model, geom = self.model, self.geometry_model
         column = {j: c for c, j in enumerate(self.moving_joints)}
         out = np.zeros((geom.ngeoms, len(column)))

@@ -1,19 +1,7 @@
 """Smooth shapes that contain the robot's bodies, and their distances as CasADi expressions of
-the joint positions: what the optimal planner's collision constraints are written with
-(``docs/collision.md``, "Collision avoidance in the optimal planner").
-
-:func:`fit_shapes`: every body but the base gets one capsule containing its geometry (exact for
-a lone cylinder, sphere or capsule, else fitted around points whose hull contains it, along the
-principal axis of smallest volume); each object of the base gets its own shape (a box stays a
-box, a mesh gets the box around it, a primitive its exact capsule).
-
-Distances (:func:`shape_distance`): capsule to capsule, the segments' distance less the radii;
-capsule to box, the soft minimum of the signed distances of spheres strung along the capsule
-(spaced by at most its radius, enlarged to contain it). The shapes contain the bodies, so a
-constraint on their distance is safe. A row bounds the *soft minimum*
-``m - log(sum_k exp(-beta (d_k - m))) / beta`` (``m = min_k d_k``) of a body's pairs: smooth,
-at most ``log(n) / beta`` below the smallest. Placements (:func:`joint_placements`) are a
-forward kinematics of revolute, continuous and prismatic joints, base at the identity.
+the joint positions: the optimal planner's collision constraints (``docs/collision.md``).
+Every body but the base gets one capsule; each base object a box or capsule. A row bounds the
+soft minimum of a body's pairs, at most ``log(n) / beta`` below the smallest.
 """
 
 from __future__ import annotations
@@ -42,18 +30,9 @@ RADIUS_FACTORS = np.linspace(1.0, 2.0, 21)
 
 @dataclass(frozen=True)
 class Shape:
-    """A fitted shape in the frame of its body's joint.
-
-    Attributes:
-        name: the geometry object (base shapes) or body link it stands for.
-        body: the joint of ``robot.model`` that carries it.
-        kind: ``"capsule"`` or ``"box"``.
-        a, b: the capsule's segment ends [m] (a box: its centre twice).
-        radius: the capsule's radius [m] (a box: 0).
-        rotation: the box's axes in the joint frame (3 x 3; identity for a capsule).
-        half: the box's half sides [m] (zeros for a capsule).
-        objects: the geometry objects it contains.
-    """
+    """A fitted shape in the frame of its body's joint (``body``, a joint of ``robot.model``):
+    a ``"capsule"`` (segment ``a``-``b`` [m], ``radius``) or a ``"box"`` (centre ``a`` = ``b``,
+    axes ``rotation``, ``half`` sides [m]), and the geometry ``objects`` it contains."""
 
     name: str
     body: int
@@ -274,16 +253,8 @@ def shape_distance(first: Shape, second: Shape, frames: dict):
 # ---------------------------------------------------------------------------------- rows
 @dataclass(frozen=True)
 class ClearanceRows:
-    """What the planner's collision rows bound: one soft minimum per body the balance joints
-    move, over the fitted-shape pairs assigned to it, and a row of its own for each pair in
-    ``alone`` (:func:`clearance_rows`).
-
-    Attributes:
-        shapes: the fitted shapes.
-        rows: per row, ``(label, ((shape, shape), ...))``: its pairs (shape indices), the
-            shape of the body the balance joints move first.
-        key: a content key of the shapes, pairs and soft minimum (for compiled kernels).
-    """
+    """The planner's collision rows: per row, ``(label, ((shape, shape), ...))``, the shape the
+    balance joints move first, and a content ``key`` of shapes, pairs and soft minimum."""
 
     shapes: tuple[Shape, ...]
     rows: tuple[tuple[str, tuple[tuple[int, int], ...]], ...]
@@ -327,12 +298,9 @@ class ClearanceRows:
 def clearance_rows(
     geometry: RobotGeometry, pairs, moved_by_balance: set[int], alone=frozenset(), skip=()
 ) -> ClearanceRows:
-    """The planner's rows for the checked geometry pairs ``pairs`` (:class:`Pair` list) that
-    involve a body the balance joints move (``moved_by_balance``: joints of ``robot.model``):
-    each shape pair goes to the row of its body the balance joints move (the deeper one when
-    both do), or to a row of its own if it is in ``alone`` (shape index pairs, that body's
-    first: pairs whose shapes start close, so that the bound of their row must start lower);
-    shape pairs in ``skip`` get no row."""
+    """The planner's rows for the checked ``pairs`` that involve a body the balance joints move:
+    each shape pair goes to the row of that body (the deeper one when both move), or to a row of
+    its own if in ``alone``; pairs in ``skip`` get no row."""
     shapes = fit_shapes(geometry)
     of_object = {}
     for k, s in enumerate(shapes):
