@@ -1,24 +1,10 @@
-"""Typed configuration: one declaration per setting, for files and for Python alike.
+"""Typed configuration: one declaration per setting (:func:`setting`), for files and Python.
 
-A format is a tree of frozen dataclasses whose fields are declared with :func:`setting` (a
-``dataclasses.field`` that also carries a description, a unit and value constraints). From it
-come the validator of files (:func:`from_data`: every error names the file, the line, the key
-path and what was expected), that of Python calls (:func:`check_settings`, from the dataclass's
-``__post_init__``), the JSON Schema for editors (:func:`json_schema`), the reference table
-(:func:`reference_markdown`), and :func:`walk_settings` for checks that need more than the
-value (one value per joint of a robot, ...).
-
-Field types: ``bool``, ``int``, ``float`` (an int is accepted), ``str``, ``Literal[...]``,
-``tuple[T, ...]`` (a YAML list), ``dict[str, T]`` (free keys), ``T | None``, unions of those,
-nested dataclasses, and *tagged unions*: dataclasses that each have a ``type: Literal["..."]``
-field, chosen by the ``type`` key.
-
-Where a field's key is in the file: ``key="integrator"`` names it differently from the
-attribute; ``section="constraints"`` writes it inside the mapping ``constraints`` (described in
-the class's ``__sections__``); ``inline=True`` writes the keys of a nested dataclass in the
-parent's mapping; ``after="horizon"`` lists it after another key; ``in_file=False`` leaves it
-out of files (Python calls are still checked). A dataclass may set ``__exactly_one__ = ("a",
-"b", ...)``: exactly one of these keys must be given.
+From a tree of frozen dataclasses come the file validator (:func:`from_data`, errors naming
+file, line and key path), the check of Python calls (:func:`check_settings`), the JSON Schema,
+the reference table and :func:`walk_settings`. Field types: ``bool``, ``int``, ``float``,
+``str``, ``Literal``, ``tuple[T, ...]``, ``dict[str, T]``, optionals, unions, nested dataclasses
+and tagged unions (a ``type: Literal[...]`` field). A class may set ``__exactly_one__``.
 """
 
 from __future__ import annotations
@@ -158,7 +144,9 @@ def setting(
         pattern: ``(regular expression, the rule in words)`` a string must match in full.
         per: the list holds one value per item of this kind (e.g. ``"balance joint"``); checked
             by the user of :func:`walk_settings`, who knows how many there are.
-        key, section, inline, after, in_file: where the key is in files (module docstring).
+        key, section, inline, after, in_file: the key's name in files, the mapping it sits in
+            (described in the class's ``__sections__``), a nested dataclass's keys written
+            in the parent's mapping, the key it is listed after, whether files have it.
     """
     meta = {k: v for k, v in locals().items() if k not in ("default", "factory")}
     if factory is not None:

@@ -1,20 +1,10 @@
 """Run the cases of a sweep: in this process, on a local process pool, or on a Dask cluster.
 
-A case and its result are plain data, and the runner is named by a ``"module:function"`` string
-imported in the worker, so nothing but plain data crosses a process boundary. Workers are
-processes, never threads: Ipopt's MUMPS linear solver is not thread-safe. Each finished case is
-written atomically to ``<out>/cases/<case_id>.json``, so ``resume=True`` can skip it.
-
-The workers of the local pool never outlive the sweep that started them:
-
-* each asks the kernel to kill it when its parent dies (Linux ``prctl(PR_SET_PDEATHSIG,
-  SIGKILL)``; elsewhere a thread that watches the parent's process id), so ``kill -9`` of a
-  sweep leaves no worker computing on, holding memory and the sweep's stdout open (a
-  ``balance-opt sweep ... | tee log`` then sees the end of its input). Once the workers are
-  gone, multiprocessing's resource tracker sees its pipe closed and ends too;
-* they ignore SIGINT: Ctrl-C in a terminal reaches the whole process group, and it is the
-  parent that handles it, by :func:`stop_pool`: the cases not started are cancelled and the
-  workers are ended at once (SIGTERM, then SIGKILL), instead of finishing their cases first.
+Cases, results and the runner (a ``"module:function"`` string) are plain data; workers are
+processes, never threads (MUMPS is not thread-safe). Each finished case is written atomically to
+``<out>/cases/<case_id>.json`` for ``resume``. Pool workers never outlive the sweep: each dies
+with its parent (``prctl(PR_SET_PDEATHSIG)``, else a watcher thread), and they ignore SIGINT,
+which the parent handles by ending them at once (:func:`stop_pool`).
 """
 
 from __future__ import annotations
@@ -79,13 +69,9 @@ def error_record(exc: BaseException) -> dict[str, Any]:
 
 
 def execute_case(runner: str, case: dict) -> dict:
-    """Run one case in this process; its result record (plain data).
-
-    The runner returns ``status``, ``metrics`` and optionally ``error``, ``info`` and ``timing``;
-    an exception it raises becomes status ``error`` (``solver_failed`` for a ``SolverError``).
-    ``timing`` adds the wall time (``case_s``), the CPU time (``cpu_s``) [s] and the process id:
-    the only fields that depend on where and when the case ran.
-    """
+    """Run one case in this process; its result record (plain data). An exception becomes
+    status ``error`` (``solver_failed`` for a ``SolverError``); ``timing`` gets the wall and CPU
+    times [s] and the process id."""
     from balance_opt.errors import SolverError
 
     runner_timing: dict[str, Any] = {}
@@ -160,9 +146,8 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def init_worker(parent_pid: int) -> None:
-    """Initializer of each pool worker (see the module docstring); ``parent_pid`` is taken
-    before the worker started, so that a parent that died before the worker could ask to die
-    with it is noticed here."""
+    """Initializer of each pool worker; ``parent_pid`` is taken before the worker started, so a
+    parent that died before the worker could ask to die with it is noticed."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if not _die_with_parent():
         threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
@@ -227,15 +212,9 @@ def _single_threaded_children():
 
 
 class LocalPoolEngine:
-    """A pool of ``jobs`` worker processes on this machine (``concurrent.futures``, started with
-    ``spawn``, never ``fork``: CasADi and Pinocchio hold state that must not be copied into a
-    child; the same on Linux, macOS and Windows).
-
-    A worker process that dies (a crash in native code) breaks the pool: the unfinished cases are
-    then run again one at a time, each in a fresh process, and a case whose process dies again
-    is recorded as an error (``WorkerCrashed``). The workers end with this process, even when it
-    is killed, and an interruption ends them at once (module docstring).
-    """
+    """A pool of ``jobs`` worker processes started with ``spawn`` (CasADi and Pinocchio state
+    must not be forked). When a worker dies the unfinished cases run again one at a time, each in
+    a fresh process; a case whose process dies again is recorded as ``WorkerCrashed``."""
 
     def __init__(self, jobs: int):
         if jobs < 1:
@@ -300,18 +279,9 @@ class LocalPoolEngine:
 
 
 class DaskEngine:
-    """Dask distributed: a running scheduler (``address``), or a local cluster of ``workers``
-    processes on the loopback interface, started here and stopped on exit.
-
-    Workers of a remote cluster need balance-opt installed. Start them with one thread each
-    (``dask worker ADDRESS --nthreads 1``); a lock runs one case at a time per process anyway.
-
-    Args:
-        address: scheduler address (``tcp://host:8786``); None to start a local cluster.
-        workers: number of worker processes of the local cluster.
-        host: interface of the local cluster (loopback by default: nothing is exposed).
-        timeout: longest wait for all the cases [s] (``TimeoutError`` after it); None: no limit.
-    """
+    """Dask distributed: a running scheduler (``address``; workers need balance-opt installed,
+    one thread each), or a local cluster of ``workers`` processes on ``host``, started here and
+    stopped on exit. ``timeout``: longest wait for all the cases [s], None for no limit."""
 
     def __init__(
         self,
@@ -391,9 +361,7 @@ class DaskEngine:
 
 
 def make_engine(jobs: int = 1, scheduler: str | None = None):
-    """The engine the command line asks for (``jobs`` and ``scheduler`` as in
-    :func:`balance_opt.sweep.run.run_sweep`).
-    """
+    """The engine of ``jobs`` and ``scheduler`` (as in :func:`balance_opt.sweep.run.run_sweep`)."""
     if scheduler is None:
         return InProcessEngine() if jobs == 0 else LocalPoolEngine(jobs)
     if scheduler == "local":
@@ -403,15 +371,8 @@ def make_engine(jobs: int = 1, scheduler: str | None = None):
 
 @dataclass
 class SweepRun:
-    """What a call of :func:`run_cases` did.
-
-    Attributes:
-        results: the result record of every case, in case-index order (skipped ones included).
-        ran: ids of the cases run now.
-        skipped: ids of the cases skipped because they had a result already (``resume``).
-        elapsed_s: wall time of the call [s].
-        workers: number of worker processes.
-    """
+    """What :func:`run_cases` did: every result in case-index order (skipped ones included), the
+    ids run now and skipped (``resume``), the wall time [s] and the number of workers."""
 
     results: list[dict]
     ran: list[str] = field(default_factory=list)
@@ -434,15 +395,9 @@ def run_cases(
     on_result: Callable[[dict, int, int], None] | None = None,
 ) -> SweepRun:
     """Run every case, write each result as it comes, and return them all in index order (those
-    run now and those found on disk).
-
-    Args:
-        engine: entered and left here.
-        resume: skip the cases that already have a result file.
-        retry_failed: with ``resume``, run again the cases whose recorded status is not ``ok``.
-        on_result: called after each result is written, with the result, the number of cases
-            done so far and the number to run (progress display; may raise to stop the sweep).
-    """
+    run now and those found on disk). ``resume`` skips cases with a result file (failed ones too
+    unless ``retry_failed``); ``on_result(record, done, to_run)`` is called after each write
+    and may raise to stop the sweep."""
     cases = [dict(case) for case in cases]
     ids = [case["case_id"] for case in cases]
     if len(set(ids)) != len(ids):

@@ -1,16 +1,6 @@
-"""The results of a sweep: its tables ``results.csv`` and ``diagnostics.csv`` (columns:
-``docs/sweeps.md``), ``summary.json`` and a few summary plots.
-
-Floats are written in full precision (``repr``) so that two runs of the same sweep compare cell
-by cell. Parquet is not written: pyarrow is about 100 MB for tables any tool reads as CSV.
-
-Every file is written atomically (:func:`~balance_opt.report.output_dir.replaced_atomically`): an
-interrupted sweep leaves the old table, summary or plot, or the whole new one.
-
-Plots (PNG): the distribution of the maximum and final attitude drift of each method with the
-analytic and optimal drift of each parameter set against each other, and the drift against each
-varied parameter.
-"""
+"""The results of a sweep: ``results.csv``, ``diagnostics.csv`` (columns: ``docs/sweeps.md``),
+``summary.json`` and drift plots, each written atomically; floats in full precision (``repr``)
+so two runs compare cell by cell."""
 
 from __future__ import annotations
 
@@ -229,9 +219,8 @@ def _method_style(method: str, **extra) -> dict[str, Any]:
 
 
 def _drift_axis(ax, which: str, values) -> None:
-    """A logarithmic drift axis (powers of ten labelled) when the drifts span more than
-    :data:`LOG_SCALE_RATIO`, a linear one from zero otherwise (log ticks over a decade or so
-    are unreadable)."""
+    """A logarithmic drift axis when the drifts span more than :data:`LOG_SCALE_RATIO`, else a
+    linear one from zero."""
     from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
     axis = ax.xaxis if which == "x" else ax.yaxis
@@ -259,10 +248,8 @@ FEW_CASES = 10
 
 
 def plot_drift_distribution(results: Sequence[dict], path: str | Path) -> Path | None:
-    """Cumulative distribution of the maximum and the final drift of each method and, for the
-    parameter sets planned by both methods, the optimal drift against the analytic one (drift
-    axes logarithmic when the drifts span more than :data:`LOG_SCALE_RATIO`). Returns the file
-    written, or None when no case has a drift."""
+    """Cumulative distribution of the maximum and the final drift of each method and the optimal
+    drift against the analytic one per parameter set; the file written, or None without drifts."""
     ok = [r for r in results if r["status"] == "ok"]
     methods = sorted({r["method"] for r in ok})
     if not any(_drift(r, MAX_DRIFT) is not None for r in ok):
@@ -387,9 +374,8 @@ def plot_drift_against_parameter(
     results: Sequence[dict], name: str, path: str | Path
 ) -> Path | None:
     """Maximum (top) and final (bottom) drift against the varied parameter ``name``, one colour
-    per method, failed cases left out. A list parameter with many distinct values gets one
-    panel column per item; with few (at most :data:`MAX_CATEGORIES`), one panel of categories.
-    Returns the file written, or None when no successful case has the parameter."""
+    per method (a list parameter: one panel column per item, or categories when few distinct
+    values); the file written, or None when no successful case has the parameter."""
     ok = [r for r in results if r["status"] == "ok" and name in r["parameters"]]
     if name.startswith("optimal."):  # the other methods do not depend on it
         ok = [r for r in ok if r["method"] == "optimal"]

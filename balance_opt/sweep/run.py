@@ -1,8 +1,5 @@
-"""Running a sweep: its output folder, the manifest of its cases (``sweep.json``), the cases
-on an engine (:mod:`balance_opt.sweep.engine`), then the table, summary and plots.
-
-A sweep's folder grows case by case (so that ``--resume`` can finish it), so each file in it is
-written atomically instead of the whole folder, and the folder is locked while the sweep runs."""
+"""Running a sweep: its locked output folder, the manifest of its cases (``sweep.json``), the
+cases on an engine, then the table, summary and plots."""
 
 from __future__ import annotations
 
@@ -43,9 +40,8 @@ class SweepOutcome:
 
 
 def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
-    """Check (and create) the output folder of a sweep: an existing, non-empty folder is used
-    only with ``resume`` (its finished cases are kept) or ``force`` (the results of a previous
-    sweep in it are deleted first)."""
+    """Check (and create) a sweep's output folder: a non-empty one only with ``resume`` (its
+    finished cases kept) or ``force`` (a previous sweep's results deleted first)."""
     out_dir = Path(out_dir)
     make_parent(out_dir)
     if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:

@@ -1,9 +1,6 @@
-"""What one case of a task sweep does, in a worker process: build its task, plan it with its
-method (optionally simulate the plan), and return the metrics of ``metrics.json`` as plain data.
-
-Each worker keeps one :class:`~balance_opt.app.models.ModelCache` (:data:`WORKER_MODELS`) for its
-life. What cases vary enters the NLP as parameters and bounds, so a new case of a known
-structure costs no build."""
+"""One case of a task sweep, in a worker process: build its task, plan it (optionally simulate),
+return the metrics of ``metrics.json``. Each worker keeps one ``ModelCache``
+(:data:`WORKER_MODELS`): what cases vary enters the NLP as parameters, so no rebuild."""
 
 from __future__ import annotations
 
@@ -25,10 +22,9 @@ BASELINE_STEPS = 200
 
 
 def mission_only_baseline(task) -> dict:
-    """The base drift the case's mission causes with the balance arms held at their start: a
-    kinematic replay (momentum conservation, RK4 on :data:`BASELINE_STEPS` steps), the
-    reference every plan of the case is compared with. Plain data: ``max_drift_rad``,
-    ``final_drift_rad``, ``max_base_rate_rad_s``."""
+    """The base drift of the case's mission with the balance arms held (a kinematic replay of
+    :data:`BASELINE_STEPS` RK4 steps): ``max_drift_rad``, ``final_drift_rad``,
+    ``max_base_rate_rad_s``."""
     from balance_opt.analytic.phases import phase_one
     from balance_opt.motion.options import IntegrationOptions
 
@@ -42,14 +38,9 @@ def mission_only_baseline(task) -> dict:
 
 
 def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
-    """The case function of task sweeps (see :func:`balance_opt.sweep.engine.execute_case`).
-
-    Returns:
-        ``{"status", "metrics", "error", "info", "timing"}``: status ``ok``, or
-        ``solver_failed`` with the metrics of what the method computed before it failed;
-        ``info["mission_only"]`` is :func:`mission_only_baseline`. Other errors are raised, and
-        recorded by the engine.
-    """
+    """The case function of task sweeps: ``{"status", "metrics", "error", "info", "timing"}``,
+    status ``ok`` or ``solver_failed`` (with the metrics computed before the failure); other
+    errors are raised, and recorded by the engine."""
     from balance_opt.app.pipeline import plan, simulate_result
     from balance_opt.errors import SolverError
     from balance_opt.report.outputs import method_metrics

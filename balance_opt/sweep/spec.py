@@ -1,12 +1,6 @@
-"""Sweep files (format: ``docs/sweeps.md``): a base task and the parameters to vary (key paths
-into the task; a grid, a list, seeded random samples), expanded into cases.
-
-A case is plain data (a dict): ``index``, ``case_id``, ``method``, ``parameters`` (key path ->
-value), ``task`` (the base task's data with the parameters put in), ``base_dir``, ``simulate``
-and ``solver_options``. Each case id hashes its method, its parameters and the base task, so the
-same case has the same id in every run whatever the order or the number of workers
-(``--resume`` relies on it).
-"""
+"""Sweep files (``docs/sweeps.md``): a base task and the parameters to vary, expanded into cases
+(plain dicts). A case id hashes its method, its parameters and the shared setup, so it is the
+same in every run (``--resume`` relies on it)."""
 
 from __future__ import annotations
 
@@ -85,11 +79,7 @@ class RandomSamples:
 
 @dataclass(frozen=True)
 class SweepSpec:
-    """A sweep: a base task, the methods, and the parameters to vary.
-
-    The cases are the product of the grid, the list of cases and the random samples (each
-    defaulting to the base task alone), times the methods.
-    """
+    """A sweep: a base task, the methods, and the parameters to vary."""
 
     task: str | dict[str, Any] = setting(
         doc="the base task: a task file (path relative to the sweep file) or an inline task mapping"
@@ -119,9 +109,8 @@ def parse_key_path(text: str) -> tuple[Any, ...]:
 
 
 def apply_overrides(task: dict, parameters: dict[str, Any]) -> dict:
-    """A copy of the task data with each parameter's value put at its key path.
-
-    Mappings missing on the way are created; a list item must exist."""
+    """A copy of the task data with each parameter's value put at its key path (missing
+    mappings created; a list item must exist)."""
     out = copy.deepcopy(task)
     for text, value in parameters.items():
         path = parse_key_path(text)
@@ -196,9 +185,8 @@ def _sampler(dist: Distribution):
 
 
 def draw_samples(random: RandomSamples, doc: YamlDocument) -> list[dict[str, Any]]:
-    """The parameter sets of a ``random`` block, drawn with ``numpy.random.default_rng(seed)``
-    in a fixed order (sample by sample, parameters in file order): the same file gives the same
-    samples on every machine."""
+    """The parameter sets of a ``random`` block, drawn in a fixed order (sample by sample,
+    parameters in file order) from ``default_rng(seed)``."""
     samplers = {}
     for name, dist in random.parameters.items():
         try:
@@ -245,9 +233,8 @@ def _parameter_places(spec: SweepSpec, doc: YamlDocument) -> dict[str, tuple]:
 def expand_cases(
     spec: SweepSpec, doc: YamlDocument, task: dict, setup_hash: str, base_dir: str, solver_options
 ) -> tuple[list[dict], dict[str, tuple]]:
-    """The cases of a sweep (see the module docstring), in a fixed order: parameter sets in file
-    order (grid, then list, then random samples, innermost last), each with every method; and
-    where each varied key path is written in the sweep file.
+    """The cases of a sweep in a fixed order (grid, then list, then random samples, innermost
+    last, each with every method) and where each varied key path is in the sweep file.
 
     Raises:
         TaskFileError: a bad key path, a parameter varied in two places or that cannot be put in
@@ -339,20 +326,9 @@ def sweep_reference_markdown() -> str:
 
 @dataclass(frozen=True)
 class Sweep:
-    """A validated sweep file and its cases.
-
-    Attributes:
-        spec: the typed sweep file.
-        source: the sweep file (as given), for messages.
-        base_dir: folder against which relative paths of the base task are resolved.
-        task: the base task as plain data.
-        setup_hash: SHA-256 of what every case shares: the base task, ``simulate`` and the
-            solver options (part of every case id).
-        cases: the cases in expansion order, plain data: ``index``, ``case_id``, ``method``,
-            ``parameters`` (key path -> value), ``task`` (the base task with the parameters
-            applied), ``base_dir`` and ``simulate``.
-        varied: the key paths varied, in file order.
-    """
+    """A validated sweep file: its typed ``spec``, ``source``, ``base_dir`` of the base task,
+    the base ``task`` as data, the ``setup_hash`` every case id includes, the ``cases`` in
+    expansion order and the ``varied`` key paths."""
 
     spec: SweepSpec
     source: str
@@ -371,11 +347,7 @@ def sweep_from_document(
     doc: YamlDocument, base_dir: str | Path, solver_options: dict[str, Any] | None = None
 ) -> Sweep:
     """A :class:`Sweep` from a parsed sweep file in folder ``base_dir``; ``solver_options``
-    (``--solver-option``) are the Ipopt options of every case, part of the ids.
-
-    The base task and the task of every case are loaded in full. Limits no plan can meet and
-    missions that cannot be built are not errors of the sweep file: in a study they are results,
-    so such a case fails when it runs and the sweep goes on.
+    (``--solver-option``) apply to every case and enter the ids.
 
     Raises:
         TaskFileError: anything wrong in the sweep file or the base task, or a parameter value

@@ -1,8 +1,5 @@
 """Task files: one YAML file says which robot, which arms, which mission and which options.
-
-Every error is an :class:`~balance_opt.errors.InputError` whose message starts with
-``FILE:LINE: KEY.PATH:``. Loading imports neither CasADi nor the planner.
-:func:`~balance_opt.config.typed_config.from_data` checks each value alone; what depends on the
+Every error is a :class:`TaskFileError` (``FILE:LINE: KEY.PATH: ...``); what depends on the
 robot, the mission or another value is checked once they are built (``check_*``)."""
 
 from __future__ import annotations
@@ -168,10 +165,8 @@ def load_task(path: str | Path) -> Task:
 def task_from_dict(
     data: Mapping[str, Any], base_dir: str | Path = ".", source: str = "<dict>"
 ) -> Task:
-    """Build a task from plain data (the content of a task file as dicts and lists).
-
-    Relative paths are taken from ``base_dir``. Errors name ``source`` and the key path (no line).
-    """
+    """Build a task from plain data (a task file's content); relative paths from ``base_dir``,
+    errors name ``source`` and the key path (no line)."""
     data = json.loads(json.dumps(data))  # plain, detached copy
     doc = YamlDocument(data, source, {})
     digest = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
@@ -223,10 +218,8 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
 
 def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
     """``spec`` with ``initial.momentum`` as the ``h0`` of the law and of the simulation,
-    ``optimal.ipopt`` checked against Ipopt's own option list and its values in the types Ipopt
-    wants (CasADi is imported only when the list is not cached yet), and ``robot.srdf`` (checked
-    to exist) as the planner's collision SRDF, an absolute path: the run's clearance check reads
-    it from there too."""
+    ``optimal.ipopt`` checked against Ipopt's option list, and ``robot.srdf`` (checked to exist)
+    as the planner's collision SRDF, an absolute path."""
     planner = spec.optimal.planner
     if planner.ipopt:
         from balance_opt.optimal.ipopt_options import check_ipopt_options
@@ -336,9 +329,8 @@ def _via_points(m: ViaMission, doc: YamlDocument) -> ViaPoints:
 def _build_mission(
     spec: TaskSpec, doc: YamlDocument, base_dir: Path, robot: FloatingRobot
 ) -> JointTrajectory:
-    """The mission trajectory (list lengths per mission joint already checked); a Cartesian
-    goal is solved by inverse kinematics (base at its initial pose), then reached point to
-    point."""
+    """The mission trajectory; a Cartesian goal is solved by inverse kinematics, then reached
+    point to point."""
     m = spec.mission
     key = {CsvMission: "file", CartesianMission: "position"}.get(type(m))
     try:
@@ -365,14 +357,8 @@ def _build_mission(
 
 
 def check_methods(task: Task, methods) -> None:
-    """What the planning ``methods`` need of the task beyond its loading, checked before
-    anything is computed (``balance-opt validate`` checks those of ``plan``'s default methods).
-
-    The optimal planner cannot handle torque limits on a robot with a prismatic model joint
-    (their inverse dynamics come from adam-robotics, which mishandles prismatic joints), nor a
-    prismatic model joint where the symbolic backend is adam (``robot.backend: adam``, or
-    ``auto`` with neither ``pinocchio.casadi`` nor a C++ toolchain for the Pinocchio-CasADi
-    bridge).
+    """What the planning ``methods`` need of the task beyond its loading: no torque limits
+    (adam-robotics inverse dynamics) and no adam backend with a prismatic model joint.
 
     Raises:
         TaskFileError: located at the key the method cannot work with, naming the way out.
@@ -560,13 +546,9 @@ def duration_key(spec: TaskSpec) -> tuple:
 
 
 def check_time_grids(spec: TaskSpec, doc: YamlDocument, duration: float) -> None:
-    """No time grid of a plan longer than :data:`MAX_SAMPLES` samples (each error located at
-    the step when the file sets it, else at the duration), and no fixed integration step
-    longer than 1/:data:`MIN_STEPS_PER_MISSION` of the mission.
-
-    Raises:
-        TaskFileError: ``"mission.duration: a mission of 1e+308 s sampled every 0.01 s ..."``.
-    """
+    """No time grid of a plan longer than :data:`MAX_SAMPLES` samples (located at the step when
+    the file sets it, else at the duration), and no fixed integration step longer than
+    1/:data:`MIN_STEPS_PER_MISSION` of the mission."""
     planner, sim, integration = spec.optimal.planner, spec.simulation, spec.analytic.integration
     plan_span = max(duration, planner.horizon or 0.0)
     plan_key = ("optimal", "horizon") if plan_span > duration else duration_key(spec)
@@ -624,14 +606,8 @@ def _duration_words(seconds: float) -> str:
 
 
 def check_problem_size(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
-    """The optimal planner's problem fits in the memory budget
-    (:func:`~balance_opt.optimal.budget.memory_budget`), by an estimate made before anything
-    is built.
-
-    Raises:
-        TaskFileError: at ``optimal.intervals``, with the estimate and the largest ``N`` that
-            fits.
-    """
+    """The optimal planner's problem fits in the memory budget, by an estimate made before
+    anything is built (else an error at ``optimal.intervals`` with the largest ``N`` that fits)."""
     from balance_opt.optimal.budget import largest_intervals, memory_budget, problem_size
 
     planner = spec.optimal.planner

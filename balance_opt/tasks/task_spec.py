@@ -1,7 +1,5 @@
-"""The task-file format: a tree of frozen dataclasses rooted at :class:`TaskSpec`.
-
-The tree is the single source of truth for the validator, the JSON Schema and the reference
-table; the method sections are the library's own option classes, declared once in their stage."""
+"""The task-file format: a tree of frozen dataclasses rooted at :class:`TaskSpec`, the single
+source of the validator, the JSON Schema and the reference table."""
 
 from __future__ import annotations
 
