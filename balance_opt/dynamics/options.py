@@ -27,12 +27,7 @@ class SimulationOptions:
     components scaled as if of unit size. ``output_dt`` is rounded to a whole number of
     ``"rk4"`` steps; ``None`` outputs every ``"rk4"`` step (``"dopri5"``: every 0.01 s). The
     default gains are ``kp = M_ii bandwidth^2`` and ``kd = 2 damping_ratio bandwidth M_ii``,
-    ``M_ii`` the joint's diagonal inertia at the start. ``h0`` comes from the task's
-    ``initial.momentum``.
-
-    Raises:
-        InputError: a field that does not fit its declaration (``"simulation option 'dt': must
-            be greater than 0 s, got -0.001"``).
+    ``M_ii`` the joint's diagonal inertia at the start.
     """
 
     integrator: Literal[INTEGRATORS] = setting(

@@ -27,10 +27,6 @@ class IntegrationOptions:
 
     ``atol`` is in quaternion units (~ [rad] / 2) for the attitude and [rad] for the joints.
     ``step`` bounds the step of either method (``"rk4"`` without it: ``output_step``).
-
-    Raises:
-        InputError: a field that does not fit its declaration (``"integration option 'rtol':
-            must be greater than 0, got 0"``).
     """
 
     method: Literal[INTEGRATION_METHODS] = setting(
@@ -76,10 +72,6 @@ class RobustnessOptions:
     perturbed by ``perturbation`` (relative, physical by construction), seeded by ``seed``.
 
     ``enabled`` unset runs the study in ``compare`` and not in ``plan``.
-
-    Raises:
-        InputError: a field that does not fit its declaration (``"robustness option 'samples':
-            must be at least 1, got 0"``).
     """
 
     enabled: bool | None = setting(None, doc="run the study (default: in compare, not in plan)")
