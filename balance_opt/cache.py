@@ -70,8 +70,7 @@ def _tmp_prefix(stem: str) -> str:
 @contextlib.contextmanager
 def build_dir(folder: Path, stem: str) -> Iterator[Path]:
     """A temporary folder in ``folder`` for building ``stem``, removed on exit; its name holds
-    the host and process id, so that :func:`clean_stale` can tell a killed build from a live one.
-    """
+    the host and process id for :func:`clean_stale`."""
     with tempfile.TemporaryDirectory(prefix=_tmp_prefix(stem), dir=folder) as tmp:
         yield Path(tmp)
 
@@ -161,11 +160,8 @@ def record_path(artefact: Path) -> Path:
 
 def sha256_of(path: Path) -> str:
     """The SHA-256 of a file's bytes (hex)."""
-    digest = hashlib.sha256()
     with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 def write_record(artefact: Path, **extra) -> dict:
@@ -219,9 +215,8 @@ _UNITS = {"": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
 
 @dataclass
 class Entry:
-    """One artefact of the cache with its record (if any); ``name`` is its path relative to the
-    cache folder, ``last_used`` the latest modification of its files (POSIX time).
-    """
+    """One artefact of the cache with its record (if any); ``name`` relative to the cache
+    folder, ``last_used`` the latest modification of its files (POSIX time)."""
 
     kind: str
     name: str
@@ -231,8 +226,7 @@ class Entry:
 
     @property
     def evictable(self) -> bool:
-        """Planner kernels and models, bridge functions (rebuilt in seconds to minutes when
-        needed)."""
+        """Planner kernels and models, bridge functions (rebuilt when needed)."""
         return self.kind in ("planner kernels", "planner models") or (
             self.kind == "bridge" and self.name.endswith(".casadi")
         )

@@ -1,14 +1,6 @@
-"""YAML documents that remember where every value came from.
-
-``yaml.safe_load`` forgets line numbers, so an error found while validating a task file could
-not say where the culprit is. :func:`load_yaml` composes the document with PyYAML (nodes carry
-``start_mark.line``), builds plain Python data from the nodes, and keeps a table from each key
-path (``("mission", "goal", 2)``, printed ``mission.goal[2]``) to its 1-based line.
-
-Two deliberate departures from ``yaml.safe_load``:
-
-* a key given twice in one mapping is an error (PyYAML silently keeps the last one);
-* ``1e-3`` and ``2E5`` are floats (YAML 1.1, which PyYAML follows, wants ``1.0e-3``).
+"""YAML documents that remember the 1-based line of every key path (``("mission", "goal", 2)``,
+printed ``mission.goal[2]``), so validation errors can say where the culprit is. Unlike
+``yaml.safe_load``, a key given twice is an error and ``1e-3`` is a float.
 """
 
 from __future__ import annotations
@@ -39,17 +31,8 @@ def format_path(path: Sequence[Any]) -> str:
 
 
 class TaskFileError(InputError):
-    """An error in a YAML file, located by file, line and key path.
-
-    The message reads ``FILE:LINE: KEY.PATH: what is wrong; what was expected`` so that editors
-    and terminals can jump to the line.
-
-    Attributes:
-        source: the file (as given by the user) or ``"<dict>"`` for data built in Python.
-        line: 1-based line, or ``None`` when unknown.
-        path: key path of the culprit (see :func:`format_path`).
-        reason: what is wrong and what was expected.
-    """
+    """An error in a YAML file: ``FILE:LINE: KEY.PATH: reason`` (so editors can jump to the
+    line); ``source`` is ``"<dict>"`` for data built in Python, ``line`` ``None`` when unknown."""
 
     def __init__(self, source: str, line: int | None, path: Sequence[Any], reason: str):
         self.source = source
@@ -82,13 +65,8 @@ _Loader.add_implicit_resolver(_FLOAT_TAG, _FLOAT, list("-+0123456789."))
 
 @dataclass(frozen=True)
 class YamlDocument:
-    """Plain data read from a YAML file, with the line of every key path.
-
-    Attributes:
-        data: the document as dicts, lists and scalars.
-        source: the file name used in error messages.
-        lines: 1-based line of each key path present in the file.
-    """
+    """Plain data read from a YAML file (``source`` names it in errors), with the 1-based line
+    of each key path present in the file."""
 
     data: Any
     source: str

@@ -243,9 +243,8 @@ class RobotGeometry:
 
     def summary(self, q, margin: float = 0.0) -> dict:
         """What is checked, as plain data (``metrics.json``'s ``geometry``, ``inspect``): the
-        elements the geometry comes from, the SRDF, the checked pairs, the link pairs left out by
-        reason, and the checked pairs closer than ``margin`` [m] at the arm configuration ``q``
-        (the ones at a distance <= 0 in contact), closest first."""
+        geometry's source, the SRDF, the checked pairs, the pairs left out by reason, and the
+        pairs closer than ``margin`` [m] at ``q``, closest first."""
         ignored = dict.fromkeys(("same body", "adjacent", "srdf", "ignored"), 0)
         for reason in self.ignored.values():
             ignored[reason] += 1

@@ -62,9 +62,7 @@ class Target:
 
     def box(self) -> tuple[np.ndarray, np.ndarray]:
         """The target's volume: side lengths (3,) [m] of the uniform box with its mass and
-        inertia, and the box's axes (3, 3) in the mission end-effector frame (its principal
-        axes, a right-handed frame). The task gives only mass and inertia; the scene draws this
-        box and the clearance check keeps the bodies off it after the capture."""
+        inertia, and its principal axes (3, 3) in the mission end-effector frame (right-handed)."""
         moments, axes = np.linalg.eigh(self.inertia)
         equal = np.isclose(moments[:, None], moments[None, :], rtol=1e-9, atol=0.0)
         # equal moments leave the axes free within their plane (or all of them free): there the
@@ -96,9 +94,8 @@ def _urdf_text(robot: FloatingRobot) -> str:
 
 def attached_urdf(robot: FloatingRobot, target: Target) -> str:
     """The robot's URDF with the target as the fixed link :data:`TARGET_LINK` under the mission
-    end-effector link, its origin at the target's CoM, axes those of the end effector; its
-    volume (:meth:`Target.box`) is a ``<collision>`` box, or a ``<visual>`` one when the robot's
-    geometry comes from its visual elements (the geometry reads one kind)."""
+    end-effector link, origin at the target's CoM; its box is a ``<collision>`` element, or a
+    ``<visual>`` one when the robot's geometry comes from visual elements."""
     root = ET.fromstring(_urdf_text(robot))
     source = Path(robot.source)
     if source.is_file():  # the new URDF is text: meshes found next to the file stay found
@@ -223,14 +220,10 @@ def capture_state(
     quaternion,
     h_before,
 ) -> CaptureState:
-    """The momentum and base twists across the capture.
-
-    The target's momentum about the common CoM ``c`` adds to the robot's: with the robot's CoM
-    ``c_r`` (velocity ``p_r / m_r``), the target's ``c_t`` (velocity ``v_t``) and the reduced
-    mass ``mu = m_r m_t / (m_r + m_t)``,
-    ``L_after = L_r + I_t omega_t + mu (c_t - c_r) x (v_t - p_r / m_r)`` and
-    ``p_after = p_r + m_t v_t``. The joint rates do not jump; the base twists solve
-    ``A_G v = R^T h`` of each robot.
+    """The momentum and base twists across the capture: the target's momentum about the common
+    CoM adds to the robot's (reduced mass ``mu = m_r m_t / (m_r + m_t)``:
+    ``L_after = L_r + I_t omega_t + mu (c_t - c_r) x (v_t - p_r / m_r)``, ``p_after = p_r +
+    m_t v_t``); the joint rates do not jump, the base twists solve ``A_G v = R^T h``.
 
     Args:
         robot, after: the robot before and after the capture (:func:`attach_target`).
