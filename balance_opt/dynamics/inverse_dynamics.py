@@ -40,19 +40,9 @@ def symmetric(M: np.ndarray) -> np.ndarray:
 def free_floating_torques(
     robot: FloatingRobot, q, q_dot, q_ddot, quaternion=None, h0=None
 ) -> InverseDynamics:
-    """Free-floating inverse dynamics of a motion of every arm joint (see the module docstring).
-
-    Args:
-        q, q_dot, q_ddot: arm joint positions, rates and accelerations (T, n), arm order
-            (``robot.joint_names``) [rad, rad/s, rad/s^2; m for prismatic joints].
-        quaternion: base attitude (T, 4), (x, y, z, w); needed only when ``h0`` is not zero
-            (the identity by default).
-        h0: the system's momentum [linear; angular about the CoM], world frame [N s; N m s];
-            zero by default.
-
-    Returns:
-        The torques, the base twist and the base acceleration at each sample.
-    """
+    """Free-floating inverse dynamics of a motion of every arm joint: ``q``, ``q_dot``,
+    ``q_ddot`` (T, n) in arm order; ``quaternion`` (T, 4) matters only for a non-zero ``h0``
+    (world frame [N s; N m s], zero by default)."""
     q, q_dot, q_ddot = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, q_dot, q_ddot))
     T = q.shape[0]
     h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float)

@@ -27,11 +27,7 @@ _STEP_SLACK = 1e-9
 # ---------------------------------------------------------------------------------- output grids
 def output_grid(t_eval, duration: float | None, options: IntegrationOptions) -> np.ndarray:
     """The output times: ``t_eval`` checked, else 0 to ``duration`` [s] in
-    ``round(duration / options.output_step)`` equal intervals.
-
-    Raises:
-        InputError: bad output times, or none while the duration is unknown.
-    """
+    ``round(duration / options.output_step)`` equal intervals; InputError when neither."""
     if t_eval is not None:
         t = np.asarray(t_eval, dtype=float).ravel()
         if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):

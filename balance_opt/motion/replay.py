@@ -27,21 +27,12 @@ def replay(
     t_eval=None,
     method: str = "simulation",
 ) -> BalanceResult:
-    """Integrate the base attitude for GIVEN joint motions of both arms (momentum conservation,
-    ``omega = I_G^{-1} (R^T L - A q_dot)``, Eq. 26 with the initial momentum ``h0``).
+    """Integrate the base attitude for GIVEN joint motions of both arms (Eq. 26 with the initial
+    momentum ``h0``, world frame, 3 or 6 values).
 
-    Args:
-        mission: mission arm motion (n_M joints), in any form
-            :func:`~balance_opt.motion.trajectories.as_sampler` takes.
-        balance: balance arms' motion, the same ways, all balance joints stacked (n_B).
-        h0: initial momentum, world frame (3 angular or 6 [linear; angular] values), ``None`` for 0.
-        t_eval: output times [s] (default: every ``integration.output_step`` over the longer
-            motion).
-        method: the result's ``method`` label.
-
-    Returns:
-        A result whose ``q_dot``/``q_ddot`` are the given motions' and whose ``omega``, attitude,
-        ``sigma_min`` and momentum residual come from the replay.
+    ``mission`` and ``balance`` (all balance joints stacked) take any form
+    :func:`~balance_opt.motion.trajectories.as_sampler` takes; ``t_eval`` defaults to every
+    ``integration.output_step`` over the longer motion.
 
     Raises:
         SolverError: the integration failed; ``result`` holds the part integrated.
@@ -153,13 +144,9 @@ def _rk4_given_joints(rates: _StageRates, y0: np.ndarray, t: np.ndarray, options
 
 
 def rk4_stage_times(t: np.ndarray, options: IntegrationOptions):
-    """The stage times of the fixed-step RK4 replay to output times ``t``: ``n_sub`` equal
-    steps per output interval, none longer than ``options.step`` (else ``output_step``).
-
-    Returns:
-        ``(times, n_sub, h)``: the step starts (S), their midpoints (S) and the end (1) in one
-        array; the steps per output interval; each step's length (S,).
-    """
+    """``(times, n_sub, h)`` of the fixed-step RK4 replay to output times ``t``: the step starts
+    (S), midpoints (S) and the end (1) in one array, ``n_sub`` equal steps per output interval
+    (none longer than ``options.step``, else ``output_step``), each step's length (S,)."""
     step = options.step or options.output_step
     n_sub = np.maximum(1, np.ceil(np.diff(t) / step - 1e-9)).astype(int)
     h = np.repeat(np.diff(t) / n_sub, n_sub)
@@ -170,13 +157,8 @@ def rk4_stage_times(t: np.ndarray, options: IntegrationOptions):
 
 def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOptions):
     """The base attitude (..., T, 4) at ``t`` from base rates that do not depend on it (zero
-    momentum), given at :func:`rk4_stage_times` ``(times, ...)``, (..., 2 S + 1, 3) [rad/s,
-    base frame]: the same RK4 steps as :func:`replay` with ``method="rk4"``, for one rate
-    history or a batch.
-
-    Raises:
-        SolverError: the integration failed (non-finite rates).
-    """
+    momentum) given at :func:`rk4_stage_times` [rad/s, base frame], one history or a batch:
+    :func:`replay`'s RK4 steps. SolverError for non-finite rates."""
     _, n_sub, h = rk4_stage_times(t, options)
     Y, message = _step_matrices(omega, IDENTITY_QUATERNION, t, n_sub, h)
     if message is not None:

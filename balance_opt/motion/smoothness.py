@@ -66,18 +66,9 @@ def count_reversals(values: np.ndarray, threshold: float) -> int:
 
 
 def smoothness(t, q_ddot, joints, acceleration_limit=None, tau=None) -> Smoothness:
-    """Smoothness figures of merit of a sampled motion (see the module docstring).
-
-    Args:
-        t: sample times (T,) [s], increasing.
-        q_ddot: joint accelerations (T, n) [rad/s^2].
-        joints: joint names (n,).
-        acceleration_limit: per joint (n,) [rad/s^2] (``inf`` or ``None``: no limit).
-        tau: joint torques (T, n) [N m], optional.
-
-    Raises:
-        ValueError: arrays of mismatched shapes, or fewer than two samples.
-    """
+    """Smoothness figures of merit of a sampled motion: times ``t`` (T,), ``q_ddot`` and
+    optional ``tau`` (T, n), ``acceleration_limit`` per joint (``inf`` or ``None``: none).
+    ValueError for mismatched shapes or fewer than two samples."""
     t = np.asarray(t, dtype=float).ravel()
     a = np.asarray(q_ddot, dtype=float).reshape(t.size, -1)
     n = a.shape[1]

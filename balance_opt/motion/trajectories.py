@@ -61,15 +61,8 @@ class PointToPoint(JointTrajectory):
 
 
 class ViaPoints(JointTrajectory):
-    """A smooth motion through via points, at rest at the first and last.
-
-    The profile is a quintic B-spline through the points with zero velocity and acceleration at
-    both ends: C4 inside, so accelerations (Eq. 32) and jerks are continuous.
-
-    Args:
-        times: strictly increasing times of the points [s], the first 0.
-        points: (K, dof) joint positions [rad], K >= 2.
-    """
+    """A smooth motion through via points (``times`` from 0, ``points`` (K, dof)), at rest at the
+    first and last: a quintic B-spline, C4 inside, so accelerations and jerks are continuous."""
 
     def __init__(self, times: Sequence[float], points):
         self.times = np.asarray(times, dtype=float)
@@ -271,13 +264,9 @@ TrajectoryLike = JointTrajectory | Callable | tuple
 
 def as_sampler(trajectory: TrajectoryLike, dof: int, what: str) -> tuple[Callable, float | None]:
     """``(sample, duration)`` for a trajectory given as an object with ``sample(t)``, a callable
-    ``f(t) -> (q, q_dot, q_ddot)`` of an array of times, a tuple of sample arrays
-    ``(t, q[, q_dot[, q_ddot]])`` (a :class:`SampledTrajectory`), or a :class:`BalanceResult`
-    (its ``what`` part, ``"mission"`` or ``"balance"``, interpolated).
-
-    Raises:
-        TrajectoryError: the trajectory has the wrong number of joints.
-    """
+    ``f(t) -> (q, q_dot, q_ddot)``, a tuple ``(t, q[, q_dot[, q_ddot]])``, or a
+    :class:`BalanceResult` (its ``what`` part, interpolated); TrajectoryError for a wrong number
+    of joints."""
     if isinstance(trajectory, tuple):
         trajectory = SampledTrajectory(*trajectory)
     elif isinstance(trajectory, BalanceResult):

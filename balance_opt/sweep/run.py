@@ -82,16 +82,13 @@ def run_sweep(
     engine=None,
 ) -> SweepOutcome:
     """Run every case of a sweep and write its results, table, summary and plots into
-    ``out_dir`` (layout: ``docs/sweeps.md``), even when cases failed, and on an interruption for
-    the cases finished so far.
+    ``out_dir`` (``docs/sweeps.md``), even when cases failed or on an interruption.
 
     Args:
         jobs: worker processes (0: in this process); with ``scheduler="local"``, Dask workers.
         scheduler: None (local process pool), ``"local"`` (a Dask cluster on the loopback
-            interface, started and stopped here) or a Dask scheduler address.
+            interface) or a Dask scheduler address.
         resume, retry_failed, on_result: see :func:`balance_opt.sweep.engine.run_cases`.
-        force: start over in a non-empty ``out_dir``.
-        runner: ``"module:function"`` of the case function.
         engine: an engine to use instead of the one ``jobs`` and ``scheduler`` describe.
 
     Raises:
