@@ -436,13 +436,8 @@ def _build(cls, tree: dict, path: tuple):
 
 
 def from_data(cls, doc):
-    """The dataclass ``cls`` (the root of a format) from the plain data of the
-    :class:`~balance_opt.config.yaml_lines.YamlDocument` ``doc``.
-
-    Raises:
-        TaskFileError: naming the file, the line and the key path of the first bad value, and what
-            was expected there.
-    """
+    """The dataclass ``cls`` (the root of a format) from the plain data of ``doc``; the first
+    bad value raises a TaskFileError naming file, line, key path and what was expected."""
     try:
         return _convert(doc.data, cls, {}, ())
     except _Invalid as exc:
@@ -660,10 +655,8 @@ def _default_text(f) -> str:
 
 
 def reference_rows(cls, prefix: str = "", entries=None) -> list[tuple[str, str, str, str]]:
-    """Rows ``(key path, type, default, meaning)`` of every key of the format, depth first.
-
-    Tagged-union members are listed under ``prefix (type: tag)``.
-    """
+    """Rows ``(key path, type, default, meaning)`` of every key of the format, depth first;
+    tagged-union members under ``prefix (type: tag)``."""
     rows = []
     for e in file_layout(cls) if entries is None else entries:
         key = f"{prefix}{e.key}"

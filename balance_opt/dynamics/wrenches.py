@@ -15,13 +15,8 @@ BASE_JOINT_ID = 1
 
 
 def arm_root_joints(robot: FloatingRobot) -> dict[str, int]:
-    """Pinocchio joint id of each arm's root joint (the ancestor of its joints whose parent is
-    the base), in arm order.
-
-    Raises:
-        ArmError: an arm's joints hang from several root joints, or two arms share one (their
-            wrenches on the base cannot be told apart).
-    """
+    """Pinocchio joint id of each arm's root joint (whose parent is the base), in arm order;
+    ArmError when an arm hangs from several or two arms share one."""
     model = robot.model
     roots: dict[str, int] = {}
     owner: dict[int, str] = {}

@@ -146,13 +146,9 @@ def _rotation(axis: np.ndarray, angle) -> cs.SX:
 
 
 def joint_placements(geometry: RobotGeometry, q_model) -> dict[int, tuple]:
-    """``{joint: (R, p)}``: every joint frame of ``robot.model`` in the base frame (base at the
-    identity) as CasADi expressions of the model joints' positions ``q_model`` (arm joints,
-    then followers: ``robot.model_joint_names``).
-
-    Raises:
-        InputError: a joint that is not revolute, continuous or prismatic.
-    """
+    """``{joint: (R, p)}``: every joint frame of ``robot.model`` in the base frame as CasADi
+    expressions of ``q_model`` (``robot.model_joint_names``); InputError for a joint that is not
+    revolute, continuous or prismatic."""
     model = geometry.model
     column = {j: c for c, j in enumerate(geometry.moving_joints)}
     out = {}

@@ -144,11 +144,8 @@ def _library_dir(name: str) -> str | None:
 
 
 def find_toolchain() -> Toolchain:
-    """The compiler, headers and libraries the bridge needs, found without building anything.
-
-    Raises:
-        BridgeUnavailable: no C++ compiler, or a header or library is missing.
-    """
+    """The compiler, headers and libraries the bridge needs, found without building anything
+    (BridgeUnavailable when one is missing)."""
     if os.name == "nt":
         raise BridgeUnavailable("not supported on Windows")
     compiler = find_cxx_compiler()

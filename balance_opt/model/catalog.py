@@ -36,11 +36,7 @@ MOVABLE = ("revolute", "continuous", "prismatic", "floating", "planar")
 
 @functools.lru_cache(maxsize=1)
 def example_robots() -> dict[str, Path]:
-    """Every URDF of the installed example-robot-data, by robot name (see the module docstring).
-
-    Raises:
-        InputError: example-robot-data is not installed.
-    """
+    """Every URDF of the installed example-robot-data, by robot name."""
     try:
         dist = importlib.metadata.distribution(DISTRIBUTION)
     except importlib.metadata.PackageNotFoundError:
@@ -78,12 +74,7 @@ def resolve_name(name: str) -> str:
 
 
 def example_urdf(name: str) -> Path:
-    """Path of the example-robot-data URDF of robot ``name`` (or an alias).
-
-    Raises:
-        InputError: example-robot-data is not installed, or no robot has that name (the message
-            suggests the closest names).
-    """
+    """Path of the example-robot-data URDF of robot ``name`` (or an alias)."""
     return example_robots()[resolve_name(name)]
 
 

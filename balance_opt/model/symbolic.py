@@ -44,10 +44,8 @@ def _imports(module: str) -> bool:
 
 
 def available_backends() -> list[str]:
-    """Backends usable on this machine, in order of preference, found without building
-    anything: ``"pinocchio"`` where ``pinocchio.casadi`` imports or the bridge's compiler,
-    headers and libraries are all found (its build may still fail), ``"adam"`` where it imports.
-    """
+    """Backends usable here, in order of preference, found without building anything (the
+    bridge's build may still fail)."""
     found = []
     try:
         if not _imports("pinocchio.casadi"):
@@ -99,24 +97,15 @@ def _resolve_backend(backend: str) -> tuple[str, str]:
 
 
 def backend_description(backend: str = "auto") -> str:
-    """What ``SymbolicMaps(robot, backend)`` uses here, for ``balance-opt inspect``: e.g.
-    ``"pinocchio (bridge, built in 95 s)"`` or ``"adam (no C++ compiler found: ...)"``.
-    Builds the bridge first if ``backend`` may use it and it is not cached yet.
-
-    Raises:
-        BalanceOptError: as :class:`SymbolicMaps` does for this ``backend``.
-    """
+    """What ``SymbolicMaps(robot, backend)`` uses here, for ``balance-opt inspect`` (e.g.
+    ``"pinocchio (bridge, built in 95 s)"``); builds the bridge first if needed."""
     return _resolve_backend(backend)[1]
 
 
 def backend_identity(backend: str = "auto") -> tuple[str, str]:
     """``(backend, identity)``: the backend ``SymbolicMaps(robot, backend)`` uses here and what
-    its expressions depend on (the bridge program's build key, or the library's version), for
-    the keys of cached planner models. Builds the bridge first if needed.
-
-    Raises:
-        BalanceOptError: as :class:`SymbolicMaps` does for this ``backend``.
-    """
+    its expressions depend on (the bridge's build key, or the library's version), for the keys
+    of cached planner models. Builds the bridge first if needed."""
     from importlib import metadata
 
     name, description = _resolve_backend(backend)
@@ -345,10 +334,9 @@ class SymbolicMaps:
 
     @_built_once
     def ee_generalized_jacobian_fun(self, arm: str = "mission") -> cs.Function:
-        """``ee_generalized_jacobian_<arm>(q) -> (J_star, M)``: the end effector's twist
-        [linear velocity of its origin; angular velocity], in base-frame axes, is
-        ``J_star q_dot`` with the base moving as momentum conservation forces it (Eq. 20-22).
-        ``M`` is the arm's own columns of ``J_star``: the paper's coupling factor (Eq. 22)."""
+        """``ee_generalized_jacobian_<arm>(q) -> (J_star, M)``: the end effector's twist in
+        base-frame axes is ``J_star q_dot`` with the base moving freely (Eq. 20-22); ``M`` is
+        the arm's own columns of ``J_star`` (Eq. 22)."""
         columns = self._cols([arm])  # an unknown arm: ArmError
         J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
         return self._fun(
@@ -359,10 +347,8 @@ class SymbolicMaps:
 
     @_built_once
     def coupling_factors_fun(self, arm: str = "mission") -> cs.Function:
-        """``coupling_factors_<arm>(q) -> (M, N)``: ``M`` maps the arm's joint rates to its end
-        effector's twist (Eq. 22); ``N`` maps the end effector's twist to the base twist
-        (Eq. 24), ``N = J_base,arm M^+`` (the Moore-Penrose inverse where the arm has fewer
-        than 6 joints, so that ``N`` is exact on the twists the arm can produce)."""
+        """``coupling_factors_<arm>(q) -> (M, N)``: ``M`` (Eq. 22) and ``N = J_base,arm M^+``
+        (Eq. 24; Moore-Penrose where the arm has fewer than 6 joints)."""
         _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
         N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
         return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})

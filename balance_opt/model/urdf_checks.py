@@ -205,11 +205,8 @@ def _urdfdom_reasons(lines: list[str]) -> str:
 
 
 def pinocchio_model(text: str, source: str) -> pin.Model:
-    """Pinocchio's model of the URDF ``text`` on a free-flyer root joint.
-
-    Raises:
-        URDFLoadError: Pinocchio refused the file, with urdfdom's reasons.
-    """
+    """Pinocchio's model of the URDF ``text`` on a free-flyer root joint (URDFLoadError with
+    urdfdom's reasons)."""
     printed: list[str] = []
     try:
         with _stderr_captured(printed):

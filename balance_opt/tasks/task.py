@@ -396,12 +396,8 @@ def check_methods(task: Task, methods) -> None:
 
 # ------------------------------------------------------------ checks that need the robot, the mission
 def check_lengths(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
-    """Every list of the task declared with one value per joint of a kind (``per=``) has that
-    many values; a list of such lists (via points) is checked item by item.
-
-    Raises:
-        TaskFileError: ``"expected 3 values (one per balance joint: ...), got 2"``.
-    """
+    """Every list declared with one value per joint of a kind (``per=``) has that many values;
+    a list of such lists (via points) is checked item by item."""
     joints = {  # what a ``per=`` declaration counts: balance arms stacked, all arm joints
         "mission joint": list(robot.mission.joints),
         "balance joint": [robot.joint_names[i] for i in robot.balance_indices],
@@ -464,12 +460,8 @@ def check_limits(
     q_B0: np.ndarray,
 ) -> None:
     """Limits no plan can meet (a balance start or a prescribed final configuration outside the
-    position limits, a mission that leaves its own limits) and a horizon shorter than the mission.
-
-    Raises:
-        TaskLimitsError: naming the limit's source (``limits.J.KEY`` or URDF).
-        TaskFileError: ``optimal.horizon`` shorter than the mission.
-    """
+    position limits, a mission that leaves its own limits; TaskLimitsError naming the limit's
+    source) and a horizon shorter than the mission."""
     lim = robot.limits
     for k, i in enumerate(robot.balance_indices):
         j, q = robot.joint_names[i], q_B0[k]
