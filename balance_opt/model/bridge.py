@@ -52,9 +52,8 @@ DEFINES = (
     "PINOCCHIO_URDFDOM_HEADERS_PATCH_VERSION=0",
 )
 LIBRARIES = ("pinocchio_parsers", "pinocchio_default")
-#: What the build notice announces: about 1.5 min of CPU with g++ 12, stretched to several
-#: minutes of wall time when other processes share the cores; the "still building" lines say
-#: how much CPU the compiler has had so far.
+#: What the build notice announces [min]: the wall time stretches when other processes share
+#: the cores; the "still building" lines say how much CPU the compiler has had so far.
 BUILD_MINUTES = "1-6"
 #: Seconds between two "still building" log lines.
 PROGRESS_SECONDS = 30

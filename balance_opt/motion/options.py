@@ -15,9 +15,8 @@ DEFAULT_ATOL = 1e-12
 #: Default spacing of the output samples [s]: 100 Hz, what a report needs.
 DEFAULT_OUTPUT_STEP = 0.01
 INTEGRATION_METHODS = ("adaptive", "rk4")
-#: Default budget of the adaptive integrator: the shipped examples take 200 to 1200
-#: evaluations (12 a step); a law whose rates run away takes hundreds of thousands (at a few
-#: tenths of a millisecond each).
+#: Default budget of the adaptive integrator: far above what a sound law needs, far below what
+#: a law whose rates run away would take.
 DEFAULT_MAX_EVALUATIONS = 20_000
 
 
