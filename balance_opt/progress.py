@@ -31,7 +31,6 @@ class _Progress:
         self.live = False  # a live line is on screen (terminal only)
         self.last_write = 0.0
         self.lock = threading.Lock()
-        # the Ipopt call in progress
         self.solve: dict[str, Any] | None = None
 
     @property

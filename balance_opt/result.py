@@ -70,7 +70,6 @@ def find_limit_violations(
             outside = excess[:, j] > tolerance
             if not outside.any():
                 continue
-            # contiguous runs of samples outside the limit
             edges = np.diff(np.r_[0, outside.astype(int), 0])
             for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
                 worst = float(excess[start:stop, j].max())

@@ -299,7 +299,6 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
         return known[1]
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        # one process builds, the others wait for it
         with file_lock(folder / f"{program.name}.lock"):
             saved, _ = check_record(program)
             if saved is not None and {"wall_seconds", "cpu_seconds"} <= saved.keys():

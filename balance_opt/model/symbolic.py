@@ -199,7 +199,6 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     model = robot.model
     cmodel = cpin.Model(model)
     cdata = cmodel.createData()
-    # Pinocchio configuration with the base at the identity pose, model joints set by name.
     qp = cs.SX(robot.pin_q(np.zeros(robot.n)))
     qm = model_joint_positions(robot, q)
     for i, name in enumerate(robot.model_joint_names):
