@@ -37,12 +37,12 @@ import time
 import numpy as np
 
 from balance_opt.analytic.options import BalanceLawOptions
-from balance_opt.analytic.phases import both, phase_one
 from balance_opt.analytic.rollout import rollout
 from balance_opt.errors import SolverError
 from balance_opt.model.library import table1_robot
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.table1 import ArmReading, Table1Reading
+from balance_opt.motion.replay import phase_one, replay
 from balance_opt.motion.trajectories import PointToPoint
 
 SEED = 5
@@ -142,7 +142,7 @@ def case(robot, mission_name: str, q_B0) -> dict:
         return row
     # the attitude the law's motion leaves, replayed from its samples (quintic interpolation,
     # momentum conservation), not the law's own integration, which cancels the base rate exactly
-    replayed = both(robot, mission, law)
+    replayed = replay(robot, mission, law)
     rate = np.abs(law.q_dot_B).max(axis=0)
     acc = np.abs(law.q_ddot_B).max(axis=0)
     pos = np.abs(law.q_B).max(axis=0) / POSITION_LIMITS

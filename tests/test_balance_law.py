@@ -28,7 +28,6 @@ from balance_opt.analytic.options import (
     DEFAULT_MAX_DAMPING,
     BalanceLawOptions,
 )
-from balance_opt.analytic.phases import both, phase_one
 from balance_opt.analytic.rollout import rollout
 from balance_opt.errors import InputError, SolverError, TrajectoryError
 from balance_opt.model.library import paper_robot
@@ -36,7 +35,7 @@ from balance_opt.model.maps import NumericMaps
 from balance_opt.motion import replay as replay_module
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
-from balance_opt.motion.replay import replay
+from balance_opt.motion.replay import phase_one, replay
 from balance_opt.motion.so3 import (
     matrix_from_quaternion,
     quaternion_conjugate,
@@ -154,7 +153,7 @@ def test_replayed_plan_keeps_base_still(paper, nonsingular):
     again = replay(paper, mission, SampledTrajectory.from_result(res), integration=KHZ)
     assert again.max_drift <= STILL_ANGLE
     np.testing.assert_allclose(again.q_dot_B, res.q_dot_B, rtol=0, atol=1e-12)
-    assert both(paper, mission, res, integration=KHZ).max_drift <= STILL_ANGLE
+    assert replay(paper, mission, res, integration=KHZ).max_drift <= STILL_ANGLE
 
 
 def test_replay_accepts_sample_arrays_and_callables(paper, nonsingular):
@@ -180,7 +179,7 @@ def test_balance_only_is_not_minus_mission_only(paper, nonsingular):
     to, but not exactly, the opposite of Fig. 2 (a holonomic system would cancel exactly)."""
     mission, res = nonsingular
     hold = PointToPoint(NONSINGULAR_START[:3], NONSINGULAR_START[:3], res.t[-1])
-    alone = rotvec_from_quaternion(both(paper, hold, res, integration=KHZ).quaternion[-1])
+    alone = rotvec_from_quaternion(replay(paper, hold, res, integration=KHZ).quaternion[-1])
     first = rotvec_from_quaternion(
         phase_one(paper, mission, NONSINGULAR_START[3:], integration=KHZ).quaternion[-1]
     )
@@ -341,7 +340,7 @@ def test_dls_bounds_rates_and_reports_its_residual(capture, capture_dls):
     )
     assert np.abs(res.q_dot_B).max() < 1.0  # within the paper robot's 1 rad/s
     # the residual rate integrates to the attitude the motion actually produces
-    again = both(robot, capture.mission, res, integration=KHZ)
+    again = replay(robot, capture.mission, res, integration=KHZ)
     assert _angle_between(again.quaternion, res.quaternion).max() <= ATTITUDE_ATOL
     assert res.max_drift > 0.01  # damping trades attitude for bounded rates on this arm
 

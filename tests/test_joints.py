@@ -313,8 +313,8 @@ def test_plans_with_prismatic_and_continuous_balance_joints():
     """Analytic and optimal (N = 20) plans on the robot with a prismatic and a continuous balance
     joint (and the mimic finger): the analytic law keeps the momentum exactly but ignores the
     limits; the optimal plan meets them (re-simulated with numeric Pinocchio)."""
-    from balance_opt.analytic.phases import phase_one
     from balance_opt.analytic.rollout import rollout
+    from balance_opt.motion.replay import phase_one
     from balance_opt.motion.trajectories import PointToPoint
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.options import PlannerOptions

@@ -32,7 +32,6 @@ import pinocchio as pin
 import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
-from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.scenarios import CAPTURE_MISSION_GOAL, CAPTURE_MISSION_START
 from balance_opt.errors import InfeasibleLimitsError, InputError
@@ -44,6 +43,7 @@ from balance_opt.motion.so3 import (
     matrix_from_quaternion,
     quaternion_from_rotvec,
 )
+from balance_opt.motion.replay import phase_one
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal import codegen

@@ -328,9 +328,9 @@ def test_report_opens_with_a_headline_and_shows_figures_at_the_columns_width(tmp
 def test_a_penetrating_plan_counts_as_a_violation(paper):
     """A motion whose bodies penetrate is flagged where its limit violations are counted: in
     ``violations``, ``limit_violations``, by kind, and in the words of the CLI and the report."""
-    from balance_opt.analytic.phases import phase_one
     from balance_opt.app.scenarios import capture_task
     from balance_opt.geometry.clearance import ClearanceReport, PairClearance, Penetration
+    from balance_opt.motion.replay import phase_one
     from balance_opt.report.outputs import method_metrics
     from balance_opt.report.report import violation_count_text
 

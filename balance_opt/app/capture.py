@@ -165,7 +165,7 @@ def plan_part(
     ``guess``, ``models`` (:class:`~balance_opt.app.models.ModelCache`) and ``executor``."""
     a = task.spec.analytic
     if method == "mission-only":
-        from balance_opt.analytic.phases import phase_one
+        from balance_opt.motion.replay import phase_one
 
         return phase_one(robot, mission, q_B0, h0=h0, integration=a.integration)
     if method == "analytic":

@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 
 from balance_opt.analytic.options import BalanceLawOptions
-from balance_opt.analytic.phases import phase_one
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
 from balance_opt.app.pipeline import _timed
@@ -28,6 +27,7 @@ from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.replay import phase_one
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
 from balance_opt.report.output_dir import OutputFolder

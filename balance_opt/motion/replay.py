@@ -1,6 +1,6 @@
 """Replays: the base attitude that GIVEN joint motions of both arms produce, from momentum
 conservation alone (Eq. 26 with the initial momentum, integrated on SO(3)), as a
-:class:`~balance_opt.result.BalanceResult`."""
+:class:`~balance_opt.result.BalanceResult`; with the balance arm held, the paper's Phase I."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from balance_opt.motion.integration import integrate, output_grid
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.so3 import IDENTITY_QUATERNION, matrix_from_quaternion, quaternion_rate
-from balance_opt.motion.trajectories import TrajectoryLike, arm_samples, as_sampler
+from balance_opt.motion.trajectories import PointToPoint, TrajectoryLike, arm_samples, as_sampler
 from balance_opt.result import BalanceResult
 
 
@@ -88,6 +88,37 @@ def _adaptive_rhs(maps: NumericMaps, sample_M, sample_B, L: np.ndarray):
         return quaternion_rate(y, base_angular_velocity(I_G, A, qd_buf, ell))
 
     return rhs
+
+
+def phase_one(
+    robot: FloatingRobot,
+    mission: TrajectoryLike,
+    q_B0,
+    *,
+    h0=None,
+    integration: IntegrationOptions | None = None,
+    t_eval=None,
+) -> BalanceResult:
+    """Phase I (Fig. 2): base attitude with the mission arm moving and the balance arm held at
+    ``q_B0`` [rad]. ``method="mission-only"``. Other arguments as in :func:`replay`."""
+    if t_eval is not None:
+        duration = float(np.max(t_eval))
+    else:
+        duration = as_sampler(mission, robot.mission.dof, "mission")[1]
+        if duration is None:
+            raise InputError(
+                "output times are needed: the mission motion is a plain callable with no duration"
+            )
+    q_B0 = np.asarray(q_B0, dtype=float).ravel()
+    return replay(
+        robot,
+        mission,
+        PointToPoint(q_B0, q_B0, duration),
+        h0=h0,
+        integration=integration,
+        t_eval=t_eval,
+        method="mission-only",
+    )
 
 
 class _StageRates:

@@ -25,8 +25,8 @@ def mission_only_baseline(task) -> dict:
     """The base drift of the case's mission with the balance arms held (a kinematic replay of
     :data:`BASELINE_STEPS` RK4 steps): ``max_drift_rad``, ``final_drift_rad``,
     ``max_base_rate_rad_s``."""
-    from balance_opt.analytic.phases import phase_one
     from balance_opt.motion.options import IntegrationOptions
+    from balance_opt.motion.replay import phase_one
 
     step = task.mission.duration / BASELINE_STEPS
     steps = IntegrationOptions(method="rk4", output_step=step)
