@@ -76,8 +76,7 @@ def build_dir(folder: Path, stem: str) -> Iterator[Path]:
 
 
 def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``path`` through a temporary file and an atomic rename (readers see the old or the
-    new content, never a part)."""
+    """Write ``path`` through a temporary file and an atomic rename."""
     fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.name), dir=path.parent)
     try:
         with os.fdopen(fd, "w") as fh:
@@ -298,9 +297,8 @@ def entries(folder: Path) -> list[Entry]:
 
 
 def enforce_limit(folder: Path, keep: Iterable[Path] = (), limit: int | None = None) -> list[Entry]:
-    """Delete least recently used evictable entries while ``folder`` exceeds ``limit`` [bytes];
-    entries in use (their lock held by another process) and the files in ``keep`` stay. Returns
-    the entries deleted."""
+    """Delete least recently used evictable entries while ``folder`` exceeds ``limit`` [bytes],
+    but those in use (lock held elsewhere) or in ``keep``; returns the entries deleted."""
     limit = size_limit() if limit is None else limit
     all_entries = entries(folder)
     total = sum(e.size for e in all_entries)
@@ -324,9 +322,8 @@ def enforce_limit(folder: Path, keep: Iterable[Path] = (), limit: int | None = N
 
 
 def clear(folder: Path) -> tuple[list[Entry], list[Entry]]:
-    """Delete every entry of the cache, each under its lock (waiting for a build under way),
-    but the temporary builds of live processes, and the lock files no process holds; returns
-    ``(entries deleted, entries kept because in use)``."""
+    """Delete every entry, each under its lock, but live processes' temporary builds, and the
+    lock files no process holds; returns ``(deleted, kept because in use)``."""
     deleted, kept = [], []
     for entry in entries(folder):
         if entry.kind == "temporary":

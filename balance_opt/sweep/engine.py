@@ -117,8 +117,7 @@ def write_json_atomic(path: str | Path, data: Any) -> None:
 
 
 def read_result(out_dir: str | Path, case_id: str) -> dict | None:
-    """The recorded result of a case, or None if there is none (or it is not a whole record of
-    this case)."""
+    """The recorded result of a case, or None if there is no whole record of it."""
     path = result_path(out_dir, case_id)
     try:
         data = json.loads(path.read_text())
@@ -185,8 +184,7 @@ def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
 
 
 class InProcessEngine(contextlib.nullcontext):
-    """Runs the cases one after the other in this process (``--jobs 0``: debugging, profiling);
-    nothing to start or stop."""
+    """Runs the cases one after the other in this process (``--jobs 0``)."""
 
     workers = 1
 
@@ -200,8 +198,7 @@ class InProcessEngine(contextlib.nullcontext):
 
 @contextlib.contextmanager
 def _single_threaded_children():
-    """Environment inherited by worker processes started inside the block (see
-    ``SINGLE_THREAD_ENV``); variables the user has set are kept."""
+    """Worker processes started inside the block get ``SINGLE_THREAD_ENV`` (user's values kept)."""
     added = {k: v for k, v in SINGLE_THREAD_ENV.items() if k not in os.environ}
     os.environ.update(added)
     try:
@@ -237,8 +234,7 @@ class LocalPoolEngine:
         return self._env.__exit__(exc_type, exc, tb)
 
     def map(self, function: Callable, *iterables) -> Iterator:
-        """``function`` over ``iterables`` in the workers, results in order: the engine as the
-        executor of the optimal planner's starts (``optimal.starts > 1``)."""
+        """``function`` over ``iterables`` in the workers, in order (the planner's starts)."""
         return self._pool.map(function, *iterables)
 
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:

@@ -141,8 +141,7 @@ def _cell(value: Any) -> str:
 
 
 def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dict]) -> Path:
-    """Write a table as CSV (floats as ``repr``: read back exactly; empty cell for missing),
-    atomically."""
+    """Write a table as CSV atomically (floats as ``repr``; empty cell for missing)."""
     path = Path(path)
     with replaced_atomically(path) as tmp, tmp.open("w", newline="") as f:
         writer = csv.writer(f)
@@ -195,8 +194,7 @@ def summarize(results: Sequence[dict]) -> dict[str, Any]:
 
 
 def _figure(n_rows: int, n_cols: int, height: float = 2.6):
-    """Panels a paper column wide each, with the column fonts of :mod:`balance_opt.report.style`
-    (constrained layout: category labels vary in length)."""
+    """Panels a paper column wide each, in the column fonts of :mod:`balance_opt.report.style`."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(PANEL_WIDTH * n_cols, height * n_rows), layout="constrained")
@@ -212,15 +210,13 @@ def _save(fig, path: str | Path) -> Path:
 
 
 def _method_style(method: str, **extra) -> dict[str, Any]:
-    """Colour, label and marker of a method as in every other figure
-    (:mod:`balance_opt.report.style`)."""
+    """Colour, label and marker of a method as in every other figure."""
     s = method_style(method)
     return {"color": s["color"], "label": s["label"], "marker": s["marker"] or "o", **extra}
 
 
 def _drift_axis(ax, which: str, values) -> None:
-    """A logarithmic drift axis when the drifts span more than :data:`LOG_SCALE_RATIO`, else a
-    linear one from zero."""
+    """A logarithmic drift axis beyond :data:`LOG_SCALE_RATIO`, else a linear one from zero."""
     from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
     axis = ax.xaxis if which == "x" else ax.yaxis
@@ -436,9 +432,8 @@ def write_report(
     plots: bool = True,
     extra_summary: dict | None = None,
 ) -> dict[str, Path]:
-    """Write the tables, ``summary.json`` (with ``extra_summary``) and, with ``plots``, one plot
-    per varied key path; returns name -> path of every file written.
-    """
+    """Write the tables, ``summary.json`` and, with ``plots``, one plot per varied key path;
+    returns name -> path of every file written."""
     out_dir = Path(out_dir)
     written = {
         "table": write_table_csv(out_dir / "results.csv", *results_table(results)),

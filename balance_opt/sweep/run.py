@@ -31,8 +31,7 @@ MANIFEST = "sweep.json"
 
 @dataclass
 class SweepOutcome:
-    """What :func:`run_sweep` did: the run (results, ran, skipped), the files written and the
-    summary written to ``summary.json``."""
+    """What :func:`run_sweep` did: the run, the files written and the summary."""
 
     run: Any
     files: dict[str, Path]

@@ -140,8 +140,7 @@ def _sha256(data: Any) -> str:
 
 
 def case_id_from(method: str, parameters: dict[str, Any], setup_hash: str) -> str:
-    """Stable id of a case: a hash of its method, its parameters and what all cases share (the
-    base task, ``simulate``, the solver options: ``setup_hash``)."""
+    """Stable id of a case: a hash of its method, its parameters and ``setup_hash``."""
     key = {"method": method, "parameters": parameters, "setup": setup_hash}
     return _sha256(key)[:CASE_ID_DIGITS]
 
@@ -314,8 +313,7 @@ SWEEP_SCHEMA_ID = "https://balance-opt.invalid/sweep.schema.json"
 
 
 def sweep_json_schema() -> dict:
-    """JSON Schema (draft 2020-12) of sweep files, for editors (``balance-opt sweep --schema``);
-    the inline ``task`` and the parameter values are those of task files."""
+    """JSON Schema (draft 2020-12) of sweep files (``balance-opt sweep --schema``)."""
     return json_schema(SweepSpec, "balance-opt sweep file", SWEEP_SCHEMA_ID)
 
 
@@ -395,9 +393,8 @@ def _check_case_tasks(
     task_dir: Path,
     where: dict[str, tuple],
 ) -> None:
-    """Load the task of every distinct parameter set; an error is reported at the line of the
-    varied parameter in the sweep file. Limits no plan can meet and missions that cannot be
-    built are left to fail their case when it runs: in a study they are results, not typos."""
+    """Load the task of every distinct parameter set, errors located at the varied parameter;
+    limits no plan can meet and unbuildable missions fail their case when it runs instead."""
     from balance_opt.tasks.task import TaskLimitsError, TaskTrajectoryError, task_from_document
 
     checked = set()
