@@ -369,8 +369,7 @@ def _convert_union(value, tp, meta, path):
 
 
 def _same_kind(value, tp) -> bool:
-    """Whether ``value`` is of the kind of type ``tp`` (a list for a tuple, a number for a
-    float...), whatever its content or range."""
+    """Whether ``value`` is of the kind of ``tp`` (a list for a tuple...), whatever its content."""
     origin = typing.get_origin(tp)
     if origin is tuple:
         return isinstance(value, list)
@@ -388,8 +387,7 @@ def _same_kind(value, tp) -> bool:
 
 
 def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=()) -> None:
-    """Convert the keys of ``value`` (a mapping at ``path``) into ``tree``, a nested dict of
-    keyword arguments by attribute path."""
+    """Convert the keys of mapping ``value`` into ``tree``, keyword arguments by attribute path."""
     keys = {e.key: e for e in entries}
     for key in value:
         if key not in keys:
@@ -422,8 +420,7 @@ def _read_mapping(value: dict, entries: tuple, path: tuple, tree: dict, one_of=(
 
 
 def _build(cls, tree: dict, path: tuple):
-    """``cls`` from the keyword arguments ``tree``; its own (cross-field) checks located at the
-    mapping's ``path``."""
+    """``cls`` from the keyword arguments ``tree``, its own checks' errors located at ``path``."""
     inline = {f.name for f in dataclasses.fields(cls) if f.metadata.get("inline")}
     kwargs = {
         name: _build(type_hints(cls)[name], value, path) if name in inline else value

@@ -89,8 +89,7 @@ class ClearanceReport:
         )
 
     def to_dict(self, closest: int = 5) -> dict:
-        """Plain data for ``metrics.json``: the minimum, the first penetration and the
-        ``closest`` pairs."""
+        """Plain data for ``metrics.json``: minimum, first penetration, ``closest`` pairs."""
         best = sorted(self.pairs, key=lambda p: p.distance)[:closest]
         pen = self.first_penetration
         return {

@@ -201,8 +201,7 @@ class RobotGeometry:
 
     @cached_property
     def moving_joints(self) -> list[int]:
-        """Joints of ``model`` that move (the root free-flyer excluded): arm joints, then
-        followers (``robot.model_joint_names``)."""
+        """Joints of ``model`` that move: arm joints, then followers (root free-flyer excluded)."""
         return [self.model.getJointId(j) for j in self.robot.model_joint_names]
 
     # ------------------------------------------------------------------ distances
@@ -214,8 +213,7 @@ class RobotGeometry:
         )
 
     def distances(self, q, pairs: Sequence[int] | None = None) -> np.ndarray:
-        """Exact distances [m] (negative: penetration depth) of the pairs (indices, default
-        all) at the arm configuration ``q``."""
+        """Exact distances [m] (negative: penetration) of the ``pairs`` (default all) at ``q``."""
         self.place(q)
         pairs = range(len(self.geometry_model.collisionPairs)) if pairs is None else pairs
         return np.array(
@@ -226,8 +224,7 @@ class RobotGeometry:
         )
 
     def smallest_along(self, q, pairs: Sequence[int] | None = None) -> np.ndarray:
-        """The smallest distance [m] of the pairs (indices, default all) at every configuration
-        of ``q`` (T, n) (inf without pairs)."""
+        """The smallest distance [m] of the ``pairs`` (default all) at each row of ``q`` (T, n)."""
         if not self.pairs or (pairs is not None and not len(pairs)):
             return np.full(len(q), np.inf)
         return np.array([self.distances(qk, pairs).min() for qk in q])

@@ -209,8 +209,8 @@ def box_distance(point, half):
 
 
 def soft_min(values, beta: float = BETA):
-    """``m - log(sum exp(-beta (v - m))) / beta``, ``m = min v``: at most ``log(n) / beta``
-    below the smallest value, smooth."""
+    """``m - log(sum exp(-beta (v - m))) / beta``, ``m = min v``: smooth, ``log(n) / beta`` below
+    at most."""
     values = cs.vertcat(*values)
     m = cs.mmin(values)
     return m - cs.log(cs.sum1(cs.exp(-beta * (values - m)))) / beta
@@ -221,8 +221,7 @@ def _place(R, p, x):
 
 
 def shape_distance(first: Shape, second: Shape, frames: dict):
-    """The distance of two fitted shapes (at least one a capsule) as a CasADi expression;
-    ``frames`` from :func:`joint_placements`."""
+    """The distance of two fitted shapes (one at least a capsule) as a CasADi expression."""
     if first.kind == "box":
         first, second = second, first
     R1, p1 = frames[first.body]
@@ -341,7 +340,6 @@ def _chain(model, j: int) -> list[int]:
 
 
 def moved_by(geometry: RobotGeometry, joints) -> set[int]:
-    """Joints of ``robot.model`` moved by the given arm joints (names): them and every joint
-    below them."""
+    """Joints of ``robot.model`` moved by the given arm joints (names): them and all below."""
     ids = {geometry.model.getJointId(j) for j in joints}
     return {j for j in range(1, geometry.model.njoints) if ids & set(_chain(geometry.model, j))}

@@ -131,8 +131,7 @@ class Task:
         return dict(zip(self.robot.mission.joints, map(float, self.mission.qf)))
 
     def planner_options(self, extra_ipopt: Mapping[str, Any] | None = None) -> PlannerOptions:
-        """The planner's options; ``extra_ipopt`` (``--solver-option``) overrides
-        ``optimal.ipopt``."""
+        """The planner's options, ``extra_ipopt`` (``--solver-option``) over ``optimal.ipopt``."""
         planner = self.spec.optimal.planner
         if not extra_ipopt:
             return planner
@@ -329,8 +328,7 @@ def _via_points(m: ViaMission, doc: YamlDocument) -> ViaPoints:
 def _build_mission(
     spec: TaskSpec, doc: YamlDocument, base_dir: Path, robot: FloatingRobot
 ) -> JointTrajectory:
-    """The mission trajectory; a Cartesian goal is solved by inverse kinematics, then reached
-    point to point."""
+    """The mission trajectory (a Cartesian goal solved by inverse kinematics)."""
     m = spec.mission
     key = {CsvMission: "file", CartesianMission: "position"}.get(type(m))
     try:
