@@ -187,7 +187,7 @@ def _primitives_adam(robot: FloatingRobot, q: cs.SX):
 
 def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     """The primitives from Pinocchio's algorithms on ``casadi.SX``: through ``pinocchio.casadi``
-    where it imports, else through the bridge (:func:`balance_opt.model.bridge.bridge_primitives`)."""
+    where it imports, else through the bridge (:mod:`balance_opt.model.bridge`)."""
     import pinocchio as pin
 
     try:
