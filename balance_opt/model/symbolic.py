@@ -371,20 +371,16 @@ class SymbolicMaps:
         return np.array(self.base_jacobian_fun()(q))
 
     def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
-        J_wM, J_wB = self.angular_jacobians_fun()(q)
-        return np.array(J_wM), np.array(J_wB)
+        return tuple(map(np.array, self.angular_jacobians_fun()(q)))
 
     def angular_jacobian_rates(self, q, q_dot) -> tuple[np.ndarray, np.ndarray]:
-        dJ_wM, dJ_wB = self.angular_jacobian_rates_fun()(q, q_dot)
-        return np.array(dJ_wM), np.array(dJ_wB)
+        return tuple(map(np.array, self.angular_jacobian_rates_fun()(q, q_dot)))
 
     def ee_generalized_jacobian(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
-        J_star, M = self.ee_generalized_jacobian_fun(arm)(q)
-        return np.array(J_star), np.array(M)
+        return tuple(map(np.array, self.ee_generalized_jacobian_fun(arm)(q)))
 
     def coupling_factors(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
-        M, N = self.coupling_factors_fun(arm)(q)
-        return np.array(M), np.array(N)
+        return tuple(map(np.array, self.coupling_factors_fun(arm)(q)))
 
     def force_map(self, q, F_e, arm: str = "mission") -> np.ndarray:
         return np.array(self.force_map_fun(arm)(q, F_e)).ravel()
