@@ -48,10 +48,8 @@ def simulate_with_capture(
     plan: BalanceResult,
     options: SimulationOptions | None = None,
 ) -> SimulationResult:
-    """Simulate a plan through the capture of ``target``: one result over the whole plan whose
-    ``h0`` is per sample (T, 6), the momentum each phase conserves; ``info["capture"]`` holds
-    the momentum and base twists across the impulse, ``info["after_capture"]`` the second
-    phase's info."""
+    """Simulate a plan through the capture of ``target``: one result whose ``h0`` is per sample
+    (T, 6); ``info["capture"]`` holds the impulse, ``info["after_capture"]`` phase two's info."""
     opts = options or SimulationOptions()
     mission = SampledTrajectory.from_result(plan, "mission")
     balance = SampledTrajectory.from_result(plan, "balance")

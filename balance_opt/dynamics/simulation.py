@@ -76,8 +76,7 @@ class _ArmPlan:
         self.feedforward, self._h0, self._attitude = True, np.asarray(h0, dtype=float), attitude
 
     def sample(self, t):
-        """``(q, q_dot, q_ddot)`` at times ``t``, each (T, n), and the plan's torques (T, n)
-        with :meth:`add_feedforward`."""
+        """``(q, q_dot, q_ddot)`` (T, n) at times ``t``, and the plan's torques if any."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         out = arm_samples(self.robot, self.mission.sample, self.balance.sample, t)
         if not self.feedforward:
@@ -440,8 +439,7 @@ def _log_run(result: SimulationResult) -> None:
 def simulate_plan(
     robot: FloatingRobot, plan: BalanceResult, options: SimulationOptions | None = None, **kwargs
 ) -> SimulationResult:
-    """Simulate a plan: its mission and balance motions (interpolated between its samples)
-    tracked by the controller. Keyword arguments go to :func:`simulate`."""
+    """Simulate a plan (interpolated between its samples); keyword arguments to :func:`simulate`."""
     kwargs.setdefault("attitude", (plan.t, plan.quaternion))
     return simulate(robot, plan, plan, options, **kwargs)
 

@@ -260,8 +260,7 @@ def _step_matrices(omega: np.ndarray, y0, t, n_sub, h):
 
 
 def _chain_batch(P: np.ndarray, y0, t, n_sub):
-    """:func:`_step_matrices`' chain for a batch of step matrices (..., S, 4, 4): the attitudes
-    (..., T, 4). Returns ``(Y, message)``."""
+    """:func:`_step_matrices`' chain for a batch (..., S, 4, 4): ``(Y (..., T, 4), message)``."""
     last = np.cumsum(n_sub) - 1
     Y = np.empty(P.shape[:-3] + (t.size, 4))
     y = np.broadcast_to(np.asarray(y0, dtype=float), P.shape[:-3] + (4,)).copy()

@@ -66,8 +66,7 @@ def perturbed_inertia(inertia: pin.Inertia, size: float, rng: np.random.Generato
 
 
 def perturbed_robot(robot: FloatingRobot, size: float, rng: np.random.Generator) -> FloatingRobot:
-    """The robot with every body's inertial parameters perturbed (:func:`perturbed_inertia`):
-    a shallow copy with its own Pinocchio model."""
+    """The robot with every body's inertia perturbed: a shallow copy, its own Pinocchio model."""
     out = copy.copy(robot)
     out.model = robot.model.copy()
     for i in range(1, robot.model.njoints):
@@ -203,8 +202,7 @@ class _Kinematics:
         self.n_bodies = nb
 
     def base_rates(self, robots) -> np.ndarray:
-        """The base angular velocity (K, T, 3) [rad/s, base frame] of each robot at zero
-        momentum."""
+        """The base angular velocity (K, T, 3) [rad/s, base frame] of each robot, zero momentum."""
         params = np.stack(
             [
                 np.concatenate(

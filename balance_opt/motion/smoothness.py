@@ -44,8 +44,7 @@ class Smoothness:
 
 
 def count_reversals(values: np.ndarray, threshold: float) -> int:
-    """Turns of a sampled signal (T,) that move back more than ``threshold`` from the running
-    extremum (hysteresis; see the module docstring)."""
+    """Turns of a signal (T,) that move back more than ``threshold`` from the running extremum."""
     values = np.asarray(values, dtype=float)
     if values.size < 2 or not threshold > 0:
         return 0

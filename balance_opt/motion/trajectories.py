@@ -421,7 +421,6 @@ def _point(v) -> str:
 
 
 def cartesian_goal(robot, q_start, position, duration: float, orientation=None) -> PointToPoint:
-    """Quintic rest-to-rest motion of the mission arm to a Cartesian goal
-    (:func:`solve_cartesian_goal`) in ``duration`` [s]."""
+    """Quintic rest-to-rest motion of the mission arm to a Cartesian goal in ``duration`` [s]."""
     goal = solve_cartesian_goal(robot, q_start, position, orientation)
     return PointToPoint(q_start, goal, duration)
