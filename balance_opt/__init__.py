@@ -20,9 +20,8 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from balance_opt.errors import BalanceOptError, InputError, SolverError
-from balance_opt.model.arms import Arm, JointLimits
 from balance_opt.model.library import baxter_floating, paper_robot
-from balance_opt.model.robot import FloatingRobot
+from balance_opt.model.robot import Arm, FloatingRobot, JointLimits
 
 __version__ = "0.1.0"
 

@@ -26,9 +26,8 @@ from balance_opt.errors import (
     TrajectoryError,
     URDFLoadError,
 )
-from balance_opt.model.arms import LIMIT_KEYS
 from balance_opt.model.capture import TARGET_LINK
-from balance_opt.model.robot import FloatingRobot, LimitOverrideError
+from balance_opt.model.robot import LIMIT_KEYS, FloatingRobot, LimitOverrideError
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
