@@ -123,24 +123,18 @@ class BalanceResult(AttitudeHistory):
         q_B, q_dot_B, q_ddot_B: balance arms [rad, rad/s, rad/s^2].
         quaternion: base attitude (T, 4), (x, y, z, w).
         omega: base angular velocity (T, 3), base frame [rad/s].
-        momentum_residual: relative angular momentum residual of the motion (T,): the angular
-            momentum about the CoM against the initial one, ``|L(t) - L0|``, over the largest
-            angular momentum the joints carry plus ``|L0|``. For planned and replayed motions it
-            is recomputed from the exported samples alone, the base rate by finite differences
-            of the attitude (:mod:`balance_opt.motion.momentum_check`); for a simulation, from the
-            simulated state.
+        momentum_residual: relative angular momentum residual (T,), ``|L(t) - L0|`` over the
+            largest angular momentum the joints carry plus ``|L0|``, recomputed from the
+            exported samples alone (:mod:`balance_opt.motion.momentum_check`; a simulation's
+            from its state).
         sigma_min: smallest singular value of ``J_wB`` along the path (T,).
         violations: every joint-limit violation of the balance (and mission) joints.
-        info: method-specific details (damping used, solver status and statistics, re-simulation
-            report, ...), plain data only.
+        info: method-specific details (damping used, solver statistics, ...), plain data only.
         solver: for optimal plans, every Ipopt solve behind the plan
-            (:class:`~balance_opt.optimal.refine.PlanReport`: each stage's status, iterations,
-            time, objective and solution, and their totals); ``None`` for the other methods.
+            (:class:`~balance_opt.optimal.refine.PlanReport`); ``None`` for the other methods.
 
-    Equality (``==``) compares the motion, not the record of how it was computed: two results
-    are equal when their method, joint names, every array (exactly, NaN equal to NaN, shapes
-    included) and their limit violations are equal; ``info`` (wall times, solver statistics)
-    is left out, so the same plan computed twice compares equal. It never raises. Results are
+    Equality (``==``) compares the motion: method, joint names, every array (exactly, NaN equal
+    to NaN) and the limit violations, not ``info`` or ``solver``; it never raises. Results are
     mutable, hence unhashable.
     """
 
