@@ -31,7 +31,7 @@ def end_effector_poses(robot: FloatingRobot, q) -> dict[str, tuple[np.ndarray, n
     return out
 
 
-def _vector(v) -> str:
+def vector_text(v) -> str:
     return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
 
 
@@ -48,7 +48,7 @@ def robot_summary(robot: FloatingRobot, q=None) -> str:
         lines.append(f"  {arm.name} arm: {arm.dof} joints, end effector '{arm.ee_frame}'")
         position, rpy = poses[arm.name]
         lines.append(
-            f"    end effector at {_vector(position)} m, roll-pitch-yaw {_vector(rpy)} rad "
+            f"    end effector at {vector_text(position)} m, roll-pitch-yaw {vector_text(rpy)} rad "
             "(initial base frame)"
         )
         lines.append(

@@ -10,6 +10,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError, TrajectoryError
+from balance_opt.model.summary import vector_text
 from balance_opt.result import BalanceResult
 
 
@@ -409,15 +410,11 @@ def solve_cartesian_goal(robot, q_start, position, orientation=None) -> np.ndarr
         f"Cartesian goal {goal_p.tolist()} for end effector "
         f"'{arm.ee_frame}' of the {arm.name} arm is unreachable within the "
         f"joint limits: remaining distance {what}; the closest point reached is "
-        f"{_point(closest)} m (joints {_point(closest_q)}), the end effector starts at "
-        f"{_point(start)} m"
+        f"{vector_text(closest)} m (joints {vector_text(closest_q)}), the end effector starts at "
+        f"{vector_text(start)} m"
     )
     err.distance, err.angle, err.closest = distance, angle, closest
     raise err
-
-
-def _point(v) -> str:
-    return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
 
 
 def cartesian_goal(robot, q_start, position, duration: float, orientation=None) -> PointToPoint:
