@@ -282,16 +282,10 @@ class BalanceResult(AttitudeHistory):
         return "\n".join(lines[:REPR_LINES])
 
     def to_dataframe(self) -> pandas.DataFrame:
-        """The motion as a table: the columns of the CSV files this method's results are written
-        to, indexed by time.
-
-        Returns:
-            A DataFrame indexed by ``time`` [s], with one column per arm joint by name (mission
-            joints first) [rad; m for a prismatic joint], the base attitude as a quaternion
-            (``base_qx .. base_qw``), as roll, pitch, yaw (``base_roll``, ``base_pitch``,
-            ``base_yaw``) [rad] and as the rotation from the start (``base_angle``) [rad]. The
-            unit of each column is in ``df.attrs["units"]``.
-        """
+        """The motion as a table indexed by ``time`` [s], with the columns of this method's CSV
+        file: one per arm joint by name (mission joints first), the base attitude as a
+        quaternion (``base_qx .. base_qw``), as roll, pitch, yaw and as the rotation from the
+        start (``base_angle``); the unit of each column is in ``df.attrs["units"]``."""
         import pandas as pd
 
         joints = (*self.mission_joints, *self.balance_joints)

@@ -164,16 +164,12 @@ class CaptureState:
         twist_before, twist_after: base twist [linear; angular], base frame [m/s; rad/s].
         target_com: the target's CoM relative to the base origin, world axes [m].
         ee_impulse: the impulse the target gives the mission end effector, base-frame axes,
-            ``[linear (N s); angular about the end effector's origin (N m s)]``: minus the
-            target's momentum change as it takes the end effector's motion.
-        base_impulse: that impulse carried to the base by the coupling factors,
-            ``N^{-T} ee_impulse`` (Eq. 25 in impulse form), base frame [N s; N m s]. With an
-            arm of fewer than six joints ``N`` is rank deficient and this is its Moore-Penrose
-            form: large where the arm is far from transmitting the impulse as a wrench.
-        base_momentum_jump: the momentum change of the base body itself, ``I_b (v_after -
-            v_before)`` (spatial inertia of the base link and what is locked to it), base frame,
-            angular part about the base origin [N s; N m s]: the impulse the arm's root joints
-            actually give the base with the joints held through the impact.
+            ``[linear (N s); angular about the end effector's origin (N m s)]``.
+        base_impulse: ``N^{-T} ee_impulse`` (Eq. 25 in impulse form; Moore-Penrose with fewer
+            than six arm joints), base frame [N s; N m s].
+        base_momentum_jump: the base body's own momentum change ``I_b (v_after - v_before)``,
+            base frame, angular part about the base origin [N s; N m s]: the impulse the arm's
+            root joints give the base with the joints held through the impact.
     """
 
     h_before: np.ndarray
