@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from balance_opt.report.output_dir import replaced_atomically
-from balance_opt.report.style import SCREEN_DPI, method_style, styled
+from balance_opt.report.style import SCREEN_DPI, WIDTHS, method_style, styled
 from balance_opt.sweep.spec import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
@@ -157,8 +157,6 @@ def write_table_csv(path: str | Path, columns: Sequence[str], rows: Sequence[dic
 MAX_DRIFT, FINAL_DRIFT = "max_drift_rad", "final_drift_rad"
 #: Drift drawn at this floor on log axes when it is zero [rad].
 DRIFT_FLOOR = 1e-12
-#: Figure width of one panel [in]: a paper column (:data:`balance_opt.report.style.WIDTHS`).
-PANEL_WIDTH = 3.5
 #: Ratio of the largest to the smallest drift beyond which drift axes are logarithmic.
 LOG_SCALE_RATIO = 30.0
 #: Below this ratio of the largest to the smallest drift (two decades), a logarithmic drift
@@ -197,7 +195,7 @@ def _figure(n_rows: int, n_cols: int, height: float = 2.6):
     """Panels a paper column wide each, in the column fonts of :mod:`balance_opt.report.style`."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(PANEL_WIDTH * n_cols, height * n_rows), layout="constrained")
+    fig = Figure(figsize=(WIDTHS["column"] * n_cols, height * n_rows), layout="constrained")
     axes = fig.subplots(n_rows, n_cols, squeeze=False)
     return fig, axes
 
