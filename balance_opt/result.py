@@ -1,8 +1,5 @@
-"""The result of a balance plan, shared by the analytic law, the optimal planner and replays, so
-that any two compare field by field; in a notebook: a short ``repr``, value equality and
-:meth:`BalanceResult.to_dataframe`. It is made in the lowest layers of the package and knows
-nothing of figures (:func:`balance_opt.report.plots.plot_result` draws one).
-"""
+"""The result of a balance plan, shared by every method so any two compare field by field;
+it knows nothing of figures (:func:`balance_opt.report.plots.plot_result` draws one)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
-"""Settings of the analytic balance law (Eq. 31, 32; ``docs/physics.md``, "The balance law"),
-declared once for Python calls and the ``analytic`` section of task files
-(:func:`~balance_opt.config.typed_config.setting`)."""
+"""Settings of the analytic balance law, declared once for Python calls and the ``analytic``
+section of task files."""
 
 from __future__ import annotations
 

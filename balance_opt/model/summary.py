@@ -1,6 +1,5 @@
-"""A readable summary of a floating robot: mass, arms, joints and limits (with their units),
-mimic joints, locked joints, and the coupling measures at a configuration (the home configuration
-by default)."""
+"""A readable summary of a floating robot: arms, joints, limits, mimic and locked joints, and
+the coupling measures at a configuration."""
 
 from __future__ import annotations
 

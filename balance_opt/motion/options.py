@@ -1,6 +1,5 @@
-"""Settings of the attitude integration (rollouts and replays) and of the model-error study,
-declared once for Python calls and task files (:func:`~balance_opt.config.typed_config.setting`;
-the integration keys sit in the ``analytic`` section, ``method`` written ``integrator``)."""
+"""Settings of the attitude integration and of the model-error study, declared once for Python
+calls and task files (integration keys in the ``analytic`` section)."""
 
 from __future__ import annotations
 
