@@ -220,7 +220,8 @@ class _Kinematics:
 
 def _integration_of(plan: BalanceResult) -> IntegrationOptions:
     """Fixed-step RK4 with the plan's own step when it was replayed so (a zero perturbation then
-    gives the plan back exactly), else one step per sample interval."""
+    gives the plan back exactly), else one step per sample interval: error control would cost a
+    full replay per model, for a difference far below the drifts compared."""
     info = plan.info.get("integration") or {}
     if info.get("method") == "rk4" and info.get("step"):
         return IntegrationOptions(method="rk4", step=float(info["step"]))
