@@ -118,11 +118,13 @@ class BalanceNLP(BalanceProblem):
             between_points=between_points,
         )
 
-    def at_stage(self, stage: Stage) -> BalanceNLP:
+    def stage(self, stage: Stage | str, final: bool = False) -> BalanceNLP:
         """The same problem as a :class:`~balance_opt.optimal.options.Stage` of the peak
-        objective (:data:`~balance_opt.optimal.options.PEAK_STAGES`, or
-        :data:`~balance_opt.optimal.options.SMOOTH_PLAN`): its objective, grid and rows; the
-        integral stage without attitude bounds. Itself when it is that stage already."""
+        objective, or the one of :data:`~balance_opt.optimal.options.PEAK_STAGES` of that name
+        (with ``final``, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`): its objective, grid
+        and rows; the integral stage without attitude bounds. Itself when it is that stage."""
+        if isinstance(stage, str):
+            stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == stage)
         key = self.structure.key
         if key.objective == stage.name and key.between_points == stage.between_points:
             return self
@@ -132,12 +134,6 @@ class BalanceNLP(BalanceProblem):
                 objective="integral", path_attitude_bound=None, terminal_attitude_bound=None
             )
         return self.variant(stage.name, stage.between_points, **changes)
-
-    def stage(self, name: str, final: bool = False) -> BalanceNLP:
-        """:meth:`at_stage` by name: ``"integral"`` or ``"smooth"`` (with ``final``, the smooth
-        peak as a plan of its own, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`)."""
-        stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == name)
-        return self.at_stage(stage)
 
     @property
     def variables(self) -> dict[str, Block]:
@@ -231,13 +227,16 @@ class BalanceNLP(BalanceProblem):
         finally:  # a compilation of the kernels this plan started ends with it
             self.model.finish_compiling()
 
-    def solve_once(self, initial_guess="analytic") -> BalanceResult:
+    def solve_once(
+        self, initial_guess="analytic", before: PlanReport | None = None
+    ) -> BalanceResult:
         """Solve with Ipopt once, re-simulate the plan, return it.
 
         Args:
             initial_guess: ``"analytic"`` (the analytic law clipped to the limits; the rest
                 guess when the law is unavailable), ``"rest"``, a :class:`BalanceResult`, or a
                 decision vector.
+            before: the report of the solves before this one, in its plan's ``solver``.
 
         Raises:
             PlannerSolverError: Ipopt stopped without a solution (infeasible, iteration limit,
@@ -253,7 +252,7 @@ class BalanceNLP(BalanceProblem):
         worst = self.largest_violation(w, np.array(out["g"]).ravel())
         result = resimulate(self, report.solution, self.trajectory(report.solution))
         t3 = time.perf_counter()
-        result.solver = PlanReport((report,))
+        result.solver = (PlanReport(()) if before is None else before).then(report)
         result.info.update(self._report(report, worst, (t0, t1, t2, t3)))
         result.info["nlp_solution"] = w.tolist()
         if not report.success:
