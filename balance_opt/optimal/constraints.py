@@ -67,11 +67,6 @@ class SymbolicNLP:
 Rows = tuple[Block, Any]
 
 
-def _per_column(values, n_columns: int) -> np.ndarray:
-    """A bound per row repeated for every column, stacked like a block (column by column)."""
-    return np.tile(np.asarray(values, dtype=float)[:, None], n_columns).ravel(order="F")
-
-
 def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Violation | None:
     """The largest entry of ``excess`` (T, n) above :data:`LIMIT_TOLERANCE`, as a violation of
     ``describe(names[column])`` at ``t[row]``; ``None`` when none is above."""
@@ -83,39 +78,33 @@ def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Vio
 
 
 class Constraint:
-    """One kind of constraint of the balance NLP (the base adds nothing; see the module
-    docstring for the four things a kind owns)."""
+    """One kind of constraint of the balance NLP. A kind owns its rows of ``g`` (``(block,
+    values)`` pairs, the block named for the failure messages) and their bounds (stacked column
+    by column), the bounds it puts on the variables (in place), the check of the re-simulated
+    motion (its worst violation beyond :data:`LIMIT_TOLERANCE`), the refinement's tightening
+    (changes of :class:`~balance_opt.optimal.problem.Bounds` and what they tighten, in words)
+    and the refined plan's acceptance (it raises
+    :class:`~balance_opt.optimal.problem.PlannerSolverError` if the plan is no plan)."""
 
     name = "constraint"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        """The rows this kind adds to ``g``: ``(block, values)`` pairs, the block named for the
-        failure messages (its name, a label and a unit per row, a time per column)."""
         return []
 
     def row_bounds(self, problem: BalanceProblem, block: Block) -> tuple[np.ndarray, np.ndarray]:
-        """Lower and upper bounds of one of its blocks of rows in ``g``, stacked column by
-        column."""
         raise NotImplementedError(f"{self.name} adds no rows")
 
     def bound_variables(self, problem: BalanceProblem, lower: Solution, upper: Solution) -> None:
-        """Narrow the decision variables' bounds, in place."""
+        pass
 
     def check(self, problem: BalanceProblem, result: BalanceResult) -> Violation | None:
-        """The worst violation by the re-simulated motion beyond :data:`LIMIT_TOLERANCE`, or
-        ``None``."""
         return None
 
     def tighten(self, problem: BalanceProblem, result: BalanceResult) -> tuple[dict, list[str]]:
-        """This kind's bounds tightened where the re-simulated ``result`` breaks it, for the
-        refinement's next problem (:func:`~balance_opt.optimal.refine.refine`): changes of
-        :class:`~balance_opt.optimal.problem.Bounds` (none: ``{}``) and what they tighten, in
-        words."""
         return {}, []
 
     def accept(self, problem: BalanceProblem, result: BalanceResult) -> None:
-        """Raise :class:`~balance_opt.optimal.problem.PlannerSolverError` if the refined plan
-        still breaks this kind so badly that it is no plan."""
+        pass
 
 
 class Collocation(Constraint):
@@ -174,7 +163,6 @@ class JointLimit(Constraint):
         self.interior = tuple(range(1, degree)) if between_points else ()
 
     def limits(self, problem: BalanceProblem) -> tuple[np.ndarray, np.ndarray]:
-        """Lower and upper limit of every balance joint."""
         lim = problem.limits
         return {
             "position": (lim.lower, lim.upper),
@@ -190,7 +178,6 @@ class JointLimit(Constraint):
         return self._coefficient_rows(nlp, f"{self.kind} limit between points", coefficients)
 
     def _coefficient_rows(self, nlp: SymbolicNLP, name: str, coefficients: list) -> list[Rows]:
-        """One row per Bernstein coefficient (``self.interior``) and joint, per interval."""
         labels = tuple(
             f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
         )
@@ -205,11 +192,8 @@ class JointLimit(Constraint):
 
     def row_bounds(self, problem, block):
         lower, upper = self.limits(problem)
-        reps = len(self.interior)
-        return (
-            _per_column(np.tile(lower, reps), len(block.taus)),
-            _per_column(np.tile(upper, reps), len(block.taus)),
-        )
+        reps = len(self.interior) * len(block.taus)  # per row, stacked column by column
+        return np.tile(lower, reps).astype(float), np.tile(upper, reps).astype(float)
 
     def bound_variables(self, problem, lower, upper):
         low, high = self.limits(problem)
@@ -269,7 +253,7 @@ class JerkLimit(JointLimit):
         return self._coefficient_rows(nlp, "jerk limit", coefficients)
 
     def bound_variables(self, problem, lower, upper):
-        """None: its rows bound every coefficient of the jerk, the nodes' values too."""
+        pass  # its rows bound every coefficient of the jerk, the nodes' values too
 
     def check(self, problem, result):
         """The jerk of the re-simulated motion by finite differences of its accelerations: the
@@ -309,8 +293,6 @@ class TorqueLimit(Constraint):
         return [(block, nlp.torque)]
 
     def row_bounds(self, problem, block):
-        """The effort limits, times ``problem.bounds.torque_factor`` (n_B, n_points) where the
-        refinement tightened them."""
         effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
         return -effort.ravel(order="F"), effort.ravel(order="F")
 
@@ -393,7 +375,6 @@ class AttitudeBound(Constraint):
         return np.full(block.size, -np.inf), np.ones(block.size)
 
     def _rows(self, label: str, taus, values) -> list[Rows]:
-        """Its one row, of a relative quantity, at the points ``taus``."""
         return [(Block(self.name, (label,), ("(relative)",), taus), values)]
 
 

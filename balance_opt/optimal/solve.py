@@ -74,7 +74,6 @@ class BalanceNLP(BalanceProblem):
         return new
 
     def _set_bounds(self) -> None:
-        """Set the parameter vector and the bounds from :attr:`bounds`."""
         weights = self.options.weights
         peak = self.structure.key.objective in ("peak", "smooth")
         smooth = self.structure.key.objective == "smooth"
@@ -98,8 +97,15 @@ class BalanceNLP(BalanceProblem):
                 mission=self.mission_samples,
             )
         )
-        self.lbx, self.ubx = self._variable_bounds()
-        self.lbg, self.ubg = self._constraint_bounds()
+        # the variables free, narrowed by every kind in turn; each block of rows by its kind
+        n_w, n_g = self.structure.variables.size, self.structure.rows.size
+        lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
+        for kind in self.structure.kinds:
+            kind.bound_variables(self, lower, upper)
+        self.lbx, self.ubx = self.pack(lower), self.pack(upper)
+        self.lbg, self.ubg = np.empty(n_g), np.empty(n_g)
+        for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
+            self.lbg[block.slice], self.ubg[block.slice] = kind.row_bounds(self, block)
 
     def variant(
         self, stage: str | None = None, between_points: bool = False, **changes
@@ -137,7 +143,6 @@ class BalanceNLP(BalanceProblem):
 
     @property
     def variables(self) -> dict[str, Block]:
-        """The decision vector's blocks by name (``X``, ``Xm``, ``U``, ``Um``)."""
         return self.structure.variables.by_name
 
     @property
@@ -152,7 +157,6 @@ class BalanceNLP(BalanceProblem):
         return f"{block.name}: {row}", tau * self.h, unit
 
     def describe_constraint(self, index: int) -> str:
-        """Constraint ``index`` in words: what, which joint or quantity, when."""
         block = self.structure.rows.block_at(index)
         name, t, _ = self.constraint_name(index)
         if block.per_interval:
@@ -164,21 +168,6 @@ class BalanceNLP(BalanceProblem):
 
     def pack(self, sol: Solution) -> np.ndarray:
         return self.structure.variables.pack(sol)
-
-    def _variable_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Free variables, narrowed by every constraint kind in turn."""
-        n_w = self.structure.variables.size
-        lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
-        for kind in self.structure.kinds:
-            kind.bound_variables(self, lower, upper)
-        return self.pack(lower), self.pack(upper)
-
-    def _constraint_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each block of rows bounded by the kind that owns it."""
-        lower, upper = np.empty(self.structure.rows.size), np.empty(self.structure.rows.size)
-        for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
-            lower[block.slice], upper[block.slice] = kind.row_bounds(self, block)
-        return lower, upper
 
     def initial_guess(self, guess="analytic") -> np.ndarray:
         """The decision vector to start from: ``"analytic"``, ``"rest"``, a
@@ -270,17 +259,13 @@ class BalanceNLP(BalanceProblem):
             log.warning("Ipopt: %s", report.status)
         return result
 
-    def _progress_label(self) -> str:
-        """What the progress line of an Ipopt solve starts with: the stage of the peak
-        objective it solves (``integral``, ``smooth`` or ``peak``), if any."""
-        key = self.structure.key
-        staged = key.objective != "integral" or not key.between_points  # inner stages go without
-        return f"Ipopt (N = {self.N}{f', {key.objective} stage' if staged else ''})"
-
     def _ipopt(self, w0: np.ndarray) -> tuple[dict, SolveReport]:
         """One Ipopt solve from ``w0``: its raw output and its report."""
+        key = self.structure.key
+        staged = key.objective != "integral" or not key.between_points  # a stage of the peak
+        label = f"Ipopt (N = {self.N}{f', {key.objective} stage' if staged else ''})"
         t0 = time.perf_counter()
-        with progress.solving(self.lbg, self.ubg, self._progress_label()):
+        with progress.solving(self.lbg, self.ubg, label):
             out = self.structure.solver(
                 x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
             )
@@ -288,7 +273,7 @@ class BalanceNLP(BalanceProblem):
         wall = time.perf_counter() - t0
         stats = self.structure.solver.stats()
         report = SolveReport(
-            stage=self.structure.key.objective,
+            stage=key.objective,
             intervals=self.N,
             status=str(stats.get("return_status", "unknown")),
             iterations=int(stats.get("iter_count", 0)),
@@ -308,7 +293,6 @@ class BalanceNLP(BalanceProblem):
         return self._ipopt(self.initial_guess(initial_guess))[1]
 
     def _report(self, report: SolveReport, worst, times) -> dict:
-        """The solver's part of ``BalanceResult.info``."""
         t0, t1, t2, t3 = times
         iters = self.structure.solver.stats().get("iterations", {})
         key = self.structure.key
@@ -363,7 +347,6 @@ class BalanceNLP(BalanceProblem):
         return f"bound on {name}", t, float(viol_x[i]), unit, f"bound on {name} at t = {t:.3f} s"
 
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
-        """The balance joints' continuous motion of a solution."""
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
         levels = joint_chain_coefficients(self.transcription, starts, sol.U, sol.Um, self.h)
         return CollocatedTrajectory(self.h, levels)
@@ -379,12 +362,10 @@ def build_balance_nlp(
     stage: str | None = None,
     between_points: bool = False,
 ) -> BalanceNLP:
-    """Build the balance NLP of a mission.
-
-    The compiled structure is taken from ``planner_model.nlp_cache`` when a problem of the same
-    structure (:class:`~balance_opt.optimal.problem.StructureKey`: intervals, transcription,
-    control, constraint switches, solver options) was built before; the mission, horizon,
-    ``q_B0``, weights and bounds are numeric inputs.
+    """Build the balance NLP of a mission. The compiled structure is taken from
+    ``planner_model.nlp_cache`` when a problem of the same
+    :class:`~balance_opt.optimal.problem.StructureKey` was built before; the mission, horizon,
+    ``q_B0``, ``h0``, weights and bounds are numeric inputs.
 
     Args:
         planner_model: the robot's :class:`PlannerModel` (or the robot: a model is built, not kept).
@@ -392,16 +373,11 @@ def build_balance_nlp(
         q_B0: initial balance configuration [rad] (the balance arm starts at rest).
         options: planner settings (defaults: :class:`PlannerOptions`).
         robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
-            may change the limits; the model and its compiled NLPs stay valid); default: the
-            model's robot.
+            may change the limits); default: the model's robot.
         h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
-            [N s; N m s] (the base starts at the identity); ``None`` for zero. A parameter:
-            every ``h0`` shares the compiled NLP.
-        stage: a stage of the peak objective (:mod:`balance_opt.optimal.refine`):
-            ``"smooth"`` (a structure no option names) or ``"integral"``; the stage's
-            structure has no joint-limit rows between the points (its plan is a warm start)
-            unless ``between_points``.
-        between_points: with ``stage``, keep those rows (the smooth peak as a plan).
+            [N s; N m s] (the base starts at the identity); ``None`` for zero.
+        stage: a stage of the peak objective, ``"smooth"`` or ``"integral"``, whose structure
+            has no joint-limit rows between the points unless ``between_points``.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
@@ -454,15 +430,11 @@ def plan_optimal(
 
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
     """Re-simulate a plan on a fine grid: every interval split into ``sub`` equal steps no
-    longer than ``options.resample_step``, so that no RK4 step of
-    :func:`balance_opt.motion.replay.replay` straddles a node, where the joint motion's higher
-    derivatives jump. ``info["resimulation"]`` reports the collocation defects (NLP attitude at
-    the nodes against the re-simulated one; joint polynomial at each interval's end against
-    the next node), the momentum residual, the drift, the limit violations and, as
-    ``constraint_violations``, every constraint kind the re-simulated motion breaks beyond
-    tolerance (:meth:`~balance_opt.optimal.constraints.Constraint.check`: between the
-    collocation points, torques and the path attitude bound are not enforced).
-    """
+    longer than ``options.resample_step``, so that no RK4 step straddles a node, where the joint
+    motion's higher derivatives jump. ``info["resimulation"]`` reports the collocation defects,
+    the momentum residual, the drift, the limit violations and every constraint kind the
+    re-simulated motion breaks beyond tolerance (between the collocation points, torques and
+    the path attitude bound are not enforced)."""
     # imported here: a multi-start's worker that only solves first stages never needs it
     from balance_opt.motion.replay import replay
 
@@ -477,7 +449,6 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         h0=nlp.h0,
         integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])),
     )
-    # collocation defects: NLP attitude at the nodes vs the re-simulated one
     q_nlp = quaternion_from_rotvec(sol.X[:3].T)
     attitude_defect = rotation_angle(
         quaternion_multiply(quaternion_conjugate(q_nlp), result.quaternion[::sub])
