@@ -167,6 +167,7 @@ def largest_intervals(options, limits, budget: float) -> int:
     """The largest ``N`` whose problem fits in ``budget`` bytes."""
     nonzeros = _nonzeros_per_interval(options, limits)
     N = max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
+
     # the inner stages' grid is rounded up to whole intervals: the size per interval at
     # ``options.intervals`` can be a little below the one at N
     def size(n: int) -> float:
