@@ -533,9 +533,10 @@ class Collision(Constraint):
         return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)
 
     def check(self, problem, result):
-        closest = collision.shortfall(problem, result)
-        if closest is None:
+        pairs = collision.short(problem, result)
+        if not pairs:
             return None
+        closest = pairs[0]
         amount = problem.collision.threshold[closest.index] - closest.distance
         return Violation(f"collision margin of {closest.pair}", closest.time, amount, "m")
 
@@ -543,7 +544,7 @@ class Collision(Constraint):
         return collision.tighten(problem, result)
 
     def accept(self, problem, result):
-        pen = collision.penetration(problem, result)
+        pen = collision.report(problem, result).first_penetration
         if pen is not None:
             raise PlannerSolverError(
                 f"no collision-free plan found: {pen.pair} penetrate by {pen.depth:.4g} m at "
