@@ -90,7 +90,7 @@ class PlanReport:
     Attributes:
         solves: every Ipopt solve behind the plan, in order (the stages, the bounded problem,
             the refinement's rounds), failed ones included.
-        solution: the plan's NLP solution (default: the last solve's).
+        solution: the plan's NLP solution.
         stages: the peak objective's stages, when it was solved in stages (``None`` else).
         refinement: what the refinement (:func:`refine`) did, ``info["refinement"]``: its
             rounds, what it tightened in each, in words, and the Ipopt work of its re-solves
@@ -103,10 +103,6 @@ class PlanReport:
     stages: tuple[SolveReport, ...] | None = None
     refinement: dict | None = None
     smallest_peak: float | None = None
-
-    def __post_init__(self):
-        if self.solution is None and self.solves:
-            object.__setattr__(self, "solution", self.solves[-1].solution)
 
     @property
     def iterations(self) -> int:
@@ -126,7 +122,6 @@ class PlanReport:
         return out
 
     def then(self, solve: SolveReport) -> PlanReport:
-        """This report followed by ``solve`` (its solution the plan's)."""
         return replace(self, solves=self.solves + (solve,), solution=solve.solution)
 
     def as_info(self) -> dict:
