@@ -472,7 +472,18 @@ class InitialState(Constraint):
             _pin(problem, lower, upper, problem.N if self.index else 0, kind, value)
 
     def check(self, problem, result):
-        return _worst_state(problem, result, self.index, self.when, self.targets(problem))
+        state = dict(zip(DERIVATIVES, (result.q_B, result.q_dot_B, result.q_ddot_B)))
+        found = [
+            _worst(
+                np.abs(state[kind][self.index] - value)[None, :],
+                result.t[[self.index]],
+                problem.balance_joints,
+                lambda joint, kind=kind: f"{self.when} {kind} of {joint}",
+                unit_of(kind),
+            )
+            for kind, value in self.targets(problem)
+        ]
+        return max((v for v in found if v is not None), key=lambda v: v.amount, default=None)
 
 
 class EndConditions(InitialState):
@@ -489,24 +500,6 @@ class EndConditions(InitialState):
         n_levels = {"free": 1, "still": 2, "rest": 3}[problem.options.end_condition]
         out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
         return out
-
-
-def _worst_state(problem, result, index: int, when: str, targets) -> Violation | None:
-    """The worst distance of the balance joints' state at sample ``index`` from ``targets``
-    (``[(derivative, value)]``)."""
-    worst = None
-    for kind, value in targets:
-        actual = (result.q_B, result.q_dot_B, result.q_ddot_B)[DERIVATIVES.index(kind)][index]
-        found = _worst(
-            np.abs(actual - value)[None, :],
-            result.t[[index]],
-            problem.balance_joints,
-            lambda joint, kind=kind: f"{when} {kind} of {joint}",
-            unit_of(kind),
-        )
-        if found is not None and (worst is None or found.amount > worst.amount):
-            worst = found
-    return worst
 
 
 class Collision(Constraint):

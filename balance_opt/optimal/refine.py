@@ -148,9 +148,8 @@ def _refinement(rounds: list, solves) -> dict:
 
 
 def solve_with_bounds(nlp, guess) -> BalanceResult:
-    """Solve, with a path attitude bound through the free peak problem first, then
-    :func:`refine`. The plan, or the result a failure carries, holds its :class:`PlanReport` as
-    ``solver``, written into its ``info``."""
+    """Solve (with a path attitude bound through the free peak problem first), then
+    :func:`refine`; the plan's (or a failure's) :class:`PlanReport` written into its ``info``."""
     try:
         result = _solve_with_bounds(nlp, guess)
     except SolverError as exc:
@@ -216,17 +215,17 @@ def _lowest_peak(free, peak_plan: BalanceResult) -> BalanceResult:
 
 @dataclass(frozen=True)
 class IntegralStart:
-    """An inner stage of :func:`plan_peak`, done (the first one by a multi-start's worker): its
-    report and the next stage's guess (its plan, or its own guess when it failed)."""
+    """An inner stage of :func:`plan_peak`, done: its report and the next stage's guess (its
+    plan, or its own guess when it failed)."""
 
     report: SolveReport
     following: object
 
 
 def inner_stage(nlp, stage, guess):
-    """The inner ``stage`` of the peak problem ``nlp`` solved from ``guess``: its
-    :class:`IntegralStart` and the stage's problem. The smooth stage's reference drift ``c`` is
-    the peak of its start (the smooth term then weighs like the peak's)."""
+    """The inner ``stage`` of the peak problem ``nlp`` solved: its :class:`IntegralStart` and
+    its problem. The smooth stage's reference drift ``c`` is the peak of its start (the smooth
+    term then weighs like the peak's)."""
     if isinstance(guess, np.ndarray):  # a decision vector of this problem
         guess = nlp.unpack(nlp.initial_guess(guess))
     stage_nlp = nlp.stage(stage)
@@ -283,9 +282,8 @@ def plan_peak(nlp, guess) -> BalanceResult:
 
 
 def refine(nlp, result: BalanceResult) -> BalanceResult:
-    """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
-    warm started, until every one holds (or :data:`MAX_ROUNDS`). Each round solves a new problem
-    (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`): ``nlp`` is left as it was."""
+    """Tighten the bounds the re-simulated motion breaks and solve again, warm started, until
+    every one holds (or :data:`MAX_ROUNDS`); each round solves a new problem."""
     rounds, before = [], len(result.solver.solves)
     for _ in range(MAX_ROUNDS):
         changes, tightened = _tighten(nlp, result)
@@ -306,8 +304,8 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
 
 
 def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
-    """The lower bounds (changes of :class:`~balance_opt.optimal.problem.Bounds`) where the
-    re-simulated ``result`` breaks them beyond tolerance, and what they lower, in words."""
+    """The bounds the re-simulated ``result`` breaks, tightened (changes of
+    :class:`~balance_opt.optimal.problem.Bounds`), and what they lower, in words."""
     changes, out = {}, []
     for kind in nlp.structure.kinds:
         more, words = kind.tighten(nlp, result)
@@ -354,8 +352,7 @@ class StartTask:
 
 
 def same_first_plan(a: IntegralStart, b: IntegralStart) -> bool:
-    """Two first stages reached one plan: both solved, states within :data:`SAME_PLAN`,
-    controls within :data:`SAME_CONTROL`."""
+    """Two first stages solved and reached one plan."""
     if not (a.report.success and b.report.success):
         return False
     x, y = a.following, b.following

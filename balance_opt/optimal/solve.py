@@ -66,8 +66,8 @@ class BalanceNLP(BalanceProblem):
         self._set_bounds()
 
     def with_bounds(self, **changes) -> BalanceNLP:
-        """The same problem with other :class:`~balance_opt.optimal.problem.Bounds` (fields
-        ``path``, ``terminal``, ``torque_factor``, ``peak_reference``); this one is unchanged."""
+        """The same problem with other :class:`~balance_opt.optimal.problem.Bounds`; this one
+        is unchanged."""
         new = copy.copy(self)
         new.bounds = dataclasses.replace(self.bounds, **changes)
         new._set_bounds()
@@ -110,8 +110,7 @@ class BalanceNLP(BalanceProblem):
     def variant(
         self, stage: str | None = None, between_points: bool = False, **changes
     ) -> BalanceNLP:
-        """The same problem with other options (its bounds untightened), as a ``stage`` of the
-        peak objective if given (see :func:`build_balance_nlp`)."""
+        """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
         return build_balance_nlp(
             self.model,
@@ -170,10 +169,9 @@ class BalanceNLP(BalanceProblem):
         return self.structure.variables.pack(sol)
 
     def initial_guess(self, guess="analytic") -> np.ndarray:
-        """The decision vector to start from: ``"analytic"``, ``"rest"``, a
-        :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution` (of a
-        structure with or without the peak's variable ``S``, on any number of intervals) or a
-        decision vector (:mod:`balance_opt.optimal.guess`)."""
+        """The decision vector to start from: ``"analytic"`` (the analytic law, else rest),
+        ``"rest"``, a :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution`
+        (with or without ``S``, on any grid) or a decision vector."""
         if isinstance(guess, (str, BalanceResult, Solution)):
             if isinstance(guess, Solution):  # of this grid or another (an inner stage's)
                 sol = resampled(guess, self.N)
@@ -195,19 +193,12 @@ class BalanceNLP(BalanceProblem):
         return build_balance_nlp(model, mission, q_B0, options, robot, h0=h0, stage=stage)
 
     def solve(self, initial_guess="analytic", executor=None) -> BalanceResult:
-        """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
-        the peak problem first, then the torque and attitude bounds refined until the
-        re-simulated motion meets them, from ``options.starts`` guesses
-        (:mod:`balance_opt.optimal.refine`).
-
-        Args:
-            initial_guess: see :meth:`solve_once`.
-            executor: what runs a multi-start's starts (anything with ``map``, e.g. a
-                :class:`concurrent.futures.ProcessPoolExecutor`); ``None``: this process.
+        """The plan (:mod:`balance_opt.optimal.refine`), from ``options.starts`` guesses, their
+        starts run by ``executor`` (anything with ``map``; ``None``: this process).
 
         Raises:
             PlannerSolverError: Ipopt stopped without a solution, or the path attitude bound is
-                below the smallest peak found (the message states it).
+                below the smallest peak found.
         """
         try:
             if self.options.starts > 1:
@@ -219,18 +210,12 @@ class BalanceNLP(BalanceProblem):
     def solve_once(
         self, initial_guess="analytic", before: PlanReport | None = None
     ) -> BalanceResult:
-        """Solve with Ipopt once, re-simulate the plan, return it.
-
-        Args:
-            initial_guess: ``"analytic"`` (the analytic law clipped to the limits; the rest
-                guess when the law is unavailable), ``"rest"``, a :class:`BalanceResult`, or a
-                decision vector.
-            before: the report of the solves before this one, in its plan's ``solver``.
+        """Solve with Ipopt once from ``initial_guess`` (see :meth:`initial_guess`) and
+        re-simulate the plan, its ``solver`` the report ``before`` followed by this solve.
 
         Raises:
-            PlannerSolverError: Ipopt stopped without a solution (infeasible, iteration limit,
-                ...); its message names the status and the most violated constraint, its
-                ``result`` is the last iterate, re-simulated.
+            PlannerSolverError: Ipopt stopped without a solution; its message names the status
+                and the most violated constraint, its ``result`` is the last iterate.
         """
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
@@ -287,9 +272,7 @@ class BalanceNLP(BalanceProblem):
         return out, report
 
     def solve_stage(self, initial_guess) -> SolveReport:
-        """Solve with Ipopt once without re-simulating (an inner stage of the peak objective,
-        :func:`~balance_opt.optimal.refine.plan_peak`). A failure is not raised: it is the
-        report's ``status``."""
+        """Solve with Ipopt once, not re-simulated, a failure not raised (an inner stage)."""
         return self._ipopt(self.initial_guess(initial_guess))[1]
 
     def _report(self, report: SolveReport, worst, times) -> dict:
@@ -332,8 +315,7 @@ class BalanceNLP(BalanceProblem):
         }
 
     def largest_violation(self, w, g) -> tuple[str, float, float, str, str]:
-        """``(name, time [s], amount, unit, description)`` of the most violated constraint or
-        bound."""
+        """``(name, time [s], amount, unit, description)`` of the worst constraint or bound."""
         viol_g = np.maximum(np.maximum(self.lbg - g, g - self.ubg), 0.0)
         viol_x = np.maximum(np.maximum(self.lbx - w, w - self.ubx), 0.0)
         if viol_g.size and viol_g.max() >= (viol_x.max() if viol_x.size else 0.0):
@@ -422,9 +404,8 @@ def plan_optimal(
     initial_guess="analytic",
     h0=None,
 ) -> BalanceResult:
-    """Plan the balance arm's motion for a mission: :func:`build_balance_nlp` then
-    :meth:`BalanceNLP.solve`. Pass a :class:`PlannerModel` to reuse the symbolic model and the
-    compiled NLPs across calls; ``h0`` is the total momentum (see :func:`build_balance_nlp`)."""
+    """:func:`build_balance_nlp` then :meth:`BalanceNLP.solve` (a :class:`PlannerModel` keeps
+    the symbolic model and the compiled NLPs across calls)."""
     return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
 
 
