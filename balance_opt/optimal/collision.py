@@ -75,7 +75,6 @@ class CollisionModels:
 
     def function(self, geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
         if rows.key not in self.rows:
-            # the rows as a function of the model joints' positions
             q = cs.SX.sym("q_model", len(geometry.moving_joints))
             f = cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
             self.rows[rows.key] = (rows, f)
@@ -185,8 +184,7 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
     # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
-    # distance is least smooth (Ipopt gets stuck there); the
-    # check alone holds these pairs (a penetration fails the plan)
+    # distance is least smooth; the check alone holds these pairs (a penetration fails the plan)
     overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
     rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
     rows = _moving_rows(geometry, rows)

@@ -111,7 +111,6 @@ class PlannerModel:
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
         self.nlp_cache: dict = {}
-        # the robot's geometry and collision rows (balance_opt.optimal.collision)
         self.collisions = CollisionModels(robot)
 
     @property
