@@ -67,14 +67,15 @@ class SymbolicNLP:
 Rows = tuple[Block, Any]
 
 
-def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Violation | None:
+def _worst(problem, excess, t: np.ndarray, what: str, unit: str) -> Violation | None:
     """The largest entry of ``excess`` (T, n) above :data:`LIMIT_TOLERANCE`, as a violation of
-    ``describe(names[column])`` at ``t[row]``; ``None`` when none is above."""
+    ``what`` (formatted with the balance joint of its column) at ``t[row]``, or ``None``."""
     excess = np.asarray(excess, dtype=float)
     if excess.size == 0 or not excess.max() > LIMIT_TOLERANCE:
         return None
     row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
-    return Violation(describe(names[col]), float(t[row]), float(excess[row, col]), unit)
+    what = what.format(problem.balance_joints[col])
+    return Violation(what, float(t[row]), float(excess[row, col]), unit)
 
 
 class Constraint:
@@ -209,13 +210,8 @@ class JointLimit(Constraint):
     def check(self, problem, result):
         values = (result.q_B, result.q_dot_B, result.q_ddot_B)[self.level]
         low, high = self.limits(problem)
-        return _worst(
-            np.maximum(values - high, low - values),
-            result.t,
-            problem.balance_joints,
-            lambda joint: f"{self.kind} limit of {joint}",
-            unit_of(self.kind),
-        )
+        excess = np.maximum(values - high, low - values)
+        return _worst(problem, excess, result.t, f"{self.kind} limit of {{}}", unit_of(self.kind))
 
 
 class JerkLimit(JointLimit):
@@ -259,13 +255,8 @@ class JerkLimit(JointLimit):
         """The jerk of the re-simulated motion by finite differences of its accelerations: the
         mean jerk over each sample interval, never above the largest."""
         jerk = np.diff(result.q_ddot_B, axis=0) / np.diff(result.t)[:, None]
-        return _worst(
-            np.abs(jerk) - problem.limits.jerk,
-            result.t[:-1],
-            problem.balance_joints,
-            lambda joint: f"jerk limit of {joint}",
-            "rad/s^3",
-        )
+        excess = np.abs(jerk) - problem.limits.jerk
+        return _worst(problem, excess, result.t[:-1], "jerk limit of {}", "rad/s^3")
 
 
 #: Relative excess of a torque over its effort limit, on the continuous plan, that is accepted
@@ -351,14 +342,8 @@ class TorqueLimit(Constraint):
         the refinement accepts as much between the collocation points)."""
         t, tau = self.torques(problem, result)
         effort = problem.limits.effort
-        excess = np.abs(tau) - effort
-        return _worst(
-            np.where(np.abs(tau) > effort * (1.0 + TORQUE_TOLERANCE), excess, 0.0),
-            t,
-            problem.balance_joints,
-            lambda joint: f"torque limit of {joint}",
-            "N m",
-        )
+        excess = np.where(np.abs(tau) > effort * (1.0 + TORQUE_TOLERANCE), np.abs(tau) - effort, 0)
+        return _worst(problem, excess, t, "torque limit of {}", "N m")
 
 
 def attitude_scale(bound: float | None) -> float:
@@ -394,7 +379,7 @@ class PathAttitudeBound(AttitudeBound):
         if problem.options.path_attitude_bound is None:
             return None
         excess = result.angle - problem.options.path_attitude_bound
-        return _worst(excess[:, None], result.t, ["|log R|"], lambda _: self.name, "rad")
+        return _worst(problem, excess[:, None], result.t, self.name, "rad")
 
 
 class PeakEpigraph(PathAttitudeBound):
@@ -431,7 +416,7 @@ class TerminalAttitudeBound(AttitudeBound):
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
-        return _worst([[excess]], result.t[-1:], ["|log R_T|"], lambda _: self.name, "rad")
+        return _worst(problem, [[excess]], result.t[-1:], self.name, "rad")
 
 
 def _pin(problem: BalanceProblem, lower, upper, node: int, kind: str, value) -> None:
@@ -475,10 +460,10 @@ class InitialState(Constraint):
         state = dict(zip(DERIVATIVES, (result.q_B, result.q_dot_B, result.q_ddot_B)))
         found = [
             _worst(
+                problem,
                 np.abs(state[kind][self.index] - value)[None, :],
                 result.t[[self.index]],
-                problem.balance_joints,
-                lambda joint, kind=kind: f"{self.when} {kind} of {joint}",
+                f"{self.when} {kind} of {{}}",
                 unit_of(kind),
             )
             for kind, value in self.targets(problem)
