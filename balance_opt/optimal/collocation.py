@@ -64,21 +64,15 @@ class Transcription:
         return [0.5 * (u0 + u1)]
 
 
-def integrate_bernstein(coefficients: list, start, h) -> list:
-    """Bernstein coefficients of ``y(tau) = start + integral_0^tau c`` on ``[0, h]``, where ``c`` has
-    the Bernstein coefficients ``coefficients`` (degree ``d``) in ``s = tau / h``."""
-    degree = len(coefficients) - 1
-    out = [start]
-    for c in coefficients:
-        out.append(out[-1] + (h / (degree + 1)) * c)
-    return out
-
-
 def joint_chain_coefficients(transcription: Transcription, starts: list, U, Um, h) -> list[list]:
-    """Bernstein coefficients of every derivative of the balance joints on every interval."""
+    """Bernstein coefficients of every derivative of the balance joints on every interval: the
+    control's, then each integral ``start + int_0^tau c`` on ``[0, h]``, one degree higher."""
     levels = [transcription.control_coefficients(U, Um)]
     for start in reversed(starts):
-        levels.append(integrate_bernstein(levels[-1], start, h))
+        level = [start]
+        for c in levels[-1]:
+            level.append(level[-1] + (h / len(levels[-1])) * c)
+        levels.append(level)
     return levels[::-1]
 
 
