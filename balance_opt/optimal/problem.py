@@ -254,10 +254,7 @@ class ParameterLayout:
         return self.slices["mission"].stop
 
     def pack(self, values: NLPParameters) -> np.ndarray:
-        p = np.empty(self.size)
-        for name, sl in self.slices.items():
-            p[sl] = np.asarray(getattr(values, name), dtype=float).ravel(order="F")
-        return p
+        return np.concatenate([np.asarray(v, dtype=float).ravel(order="F") for v in values])
 
     def unpack_symbolic(self, p) -> NLPParameters:
         """The fields of a symbolic parameter vector (CasADi column vector): each a column
