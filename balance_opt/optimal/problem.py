@@ -295,6 +295,7 @@ def check_problem(
     for what, values in (
         ("initial configuration q_B0", q_B0),
         ("final_configuration", options.final_configuration),
+        ("rest_configuration", options.rest_configuration),
     ):
         if values is None:
             continue
@@ -303,7 +304,7 @@ def check_problem(
             raise InputError(
                 f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
             )
-        if not options.position_limits:
+        if not options.position_limits or what == "rest_configuration":
             continue
         for j, name in enumerate(names):
             if not lim.lower[j] - LIMIT_TOLERANCE <= values[j] <= lim.upper[j] + LIMIT_TOLERANCE:
@@ -311,11 +312,6 @@ def check_problem(
                     f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
                     f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
                 )
-    if options.rest_configuration is not None and len(options.rest_configuration) != model.n_B:
-        raise InputError(
-            f"planner option 'rest_configuration' has {len(options.rest_configuration)} values, "
-            f"the balance joints are {model.n_B}"
-        )
     return q_B0, horizon
 
 
