@@ -344,27 +344,18 @@ def build_balance_nlp(
     stage: str | None = None,
     between_points: bool = False,
 ) -> BalanceNLP:
-    """Build the balance NLP of a mission. The compiled structure is taken from
-    ``planner_model.nlp_cache`` when a problem of the same
-    :class:`~balance_opt.optimal.problem.StructureKey` was built before; the mission, horizon,
-    ``q_B0``, ``h0``, weights and bounds are numeric inputs.
-
-    Args:
-        planner_model: the robot's :class:`PlannerModel` (or the robot: a model is built, not kept).
-        mission_trajectory: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
-        q_B0: initial balance configuration [rad] (the balance arm starts at rest).
-        options: planner settings (defaults: :class:`PlannerOptions`).
-        robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
-            may change the limits); default: the model's robot.
-        h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
-            [N s; N m s] (the base starts at the identity); ``None`` for zero.
-        stage: a stage of the peak objective, ``"smooth"`` or ``"integral"``, whose structure
-            has no joint-limit rows between the points unless ``between_points``.
+    """Build the balance NLP of a mission: the mission arm's motion (``sample(t) -> q, q_dot,
+    q_ddot``, ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the
+    limits of ``robot`` (default: the model's robot), the system's total momentum ``h0`` (world
+    frame, ``[linear; angular about the CoM]`` [N s; N m s], the base starting at the identity;
+    ``None``: zero). The compiled structure is taken from ``planner_model.nlp_cache`` when one of
+    the same :class:`~balance_opt.optimal.problem.StructureKey` was built; the rest is numeric
+    input. ``stage``: an inner stage of the peak objective (``"smooth"`` or ``"integral"``),
+    without the joint-limit rows between the points unless ``between_points``.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
-        InfeasibleLimitsError: limits no plan can meet (``q_B0`` or the prescribed final
-            configuration outside the position limits), naming the joint.
+        InfeasibleLimitsError: ``q_B0`` or the final configuration outside the position limits.
     """
     start = time.perf_counter()
     model = (
