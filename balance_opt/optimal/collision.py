@@ -49,11 +49,6 @@ class CollisionSetup:
     owner: dict[int, int | None]
     threshold: dict[int, float]
 
-    @property
-    def key(self) -> str:
-        """The structure's collision key (the rows' content key)."""
-        return self.rows.key
-
 
 class CollisionModels:
     """A robot's collision geometry and rows, built once per planner model: its geometry per

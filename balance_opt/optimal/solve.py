@@ -371,7 +371,7 @@ def build_balance_nlp(
         robot.limits.subset(robot.balance_indices),
         options,
         momentum,
-        collision.key if collision is not None else "",
+        collision.rows.key if collision is not None else "",
     )
     if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
         key = dataclasses.replace(
