@@ -3,10 +3,9 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -119,10 +118,10 @@ def _built(options) -> list:
     bounded, peak = options.path_attitude_bound is not None, options.objective == "peak"
     built = [options]
     if bounded and (not peak or options.terminal_attitude_bound is not None):
-        built.append(dataclasses.replace(options, objective="peak", **free))
+        built.append(replace(options, objective="peak", **free))
     if peak or bounded:
         built += [
-            dataclasses.replace(
+            replace(
                 options,
                 objective="integral",
                 intervals=stage.intervals(options.intervals, options.transcription),
@@ -169,9 +168,6 @@ def largest_intervals(options, limits, budget: float) -> int:
     N = max(0, math.floor((budget - BASE_BYTES) / (BYTES_PER_NONZERO * nonzeros)))
     # the inner stages' grid is rounded up to whole intervals: the size per interval at
     # ``options.intervals`` can be a little below the one at N
-    def size(n: int) -> float:
-        return problem_size(dataclasses.replace(options, intervals=n), limits).memory_bytes
-
-    while N > 0 and size(N) > budget:
+    while N > 0 and problem_size(replace(options, intervals=N), limits).memory_bytes > budget:
         N -= 1
     return N

@@ -49,11 +49,6 @@ class CollisionSetup:
     owner: dict[int, int | None]
     threshold: dict[int, float]
 
-    @property
-    def key(self) -> str:
-        """The structure's collision key (the rows' content key)."""
-        return self.rows.key
-
 
 class CollisionModels:
     """A robot's collision geometry and rows, built once per planner model: its geometry per
@@ -75,7 +70,6 @@ class CollisionModels:
 
     def function(self, geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
         if rows.key not in self.rows:
-            # the rows as a function of the model joints' positions
             q = cs.SX.sym("q_model", len(geometry.moving_joints))
             f = cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
             self.rows[rows.key] = (rows, f)
@@ -185,8 +179,7 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
     # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
-    # distance is least smooth (Ipopt gets stuck there); the
-    # check alone holds these pairs (a penetration fails the plan)
+    # distance is least smooth; the check alone holds these pairs (a penetration fails the plan)
     overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
     rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
     rows = _moving_rows(geometry, rows)
@@ -206,7 +199,7 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
 
 def report(problem, result) -> ClearanceReport:
     """The clearance of a re-simulated plan of ``problem`` over the pairs the balance joints
-    move (computed once per result: the check and the refinement share it)."""
+    move (computed once per result: the check, the refinement and the acceptance share it)."""
     last = problem.last_clearance
     if last is not None and last[0] is result:
         return last[1]
@@ -222,7 +215,7 @@ def report(problem, result) -> ClearanceReport:
     return out
 
 
-def _short(problem, result, rowed: bool = False) -> list[PairClearance]:
+def short(problem, result, rowed: bool = False) -> list[PairClearance]:
     """The pairs closer than their threshold (the margin, or their distance at the start if
     smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first; with
     ``rowed`` only those with a row (the ones the refinement can push)."""
@@ -235,26 +228,20 @@ def _short(problem, result, rowed: bool = False) -> list[PairClearance]:
     ]
 
 
-def shortfall(problem, result) -> PairClearance | None:
-    """The pair that comes closest, if closer than its threshold (see :func:`_short`)."""
-    short = _short(problem, result)
-    return short[0] if short else None
-
-
 def tighten(problem, result) -> tuple[dict, list[str]]:
     """The collision rows' bounds (a change of :class:`~balance_opt.optimal.problem.Bounds`)
     raised for the pairs closer than the margin by their shortfall plus :data:`PUSH` on every
     interval where they are (and on the one of their minimum), and what it raised, in words."""
-    short = _short(problem, result, rowed=True)
-    if not short:
+    pairs = short(problem, result, rowed=True)
+    if not pairs:
         return {}, []
-    closest = f"closest {short[0].pair}, {short[0].distance:.4f} m"
-    said = [f"collision rows of {len(short)} pairs ({closest})"]
+    closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
+    said = [f"collision rows of {len(pairs)} pairs ({closest})"]
     margin, setup, N = problem.options.collision_margin, problem.collision, problem.N
     mids = problem.transcription.has_midpoints
     bound = np.array(problem.bounds.collision)
     q = np.hstack([result.q_M, result.q_B])
-    for pair in short:
+    for pair in pairs:
         row = setup.owner[pair.index]
         d = setup.geometry.distances_along(q, pair.index)
         times = np.append(result.t[d < margin], pair.time)
@@ -264,9 +251,3 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     # the arm starts at rest where it is: the first node's rows cannot move
     bound[:, 0] = np.minimum(bound[:, 0], setup.initial_rows - COLLISION_SLACK)
     return {"collision": bound}, said
-
-
-def penetration(problem, result):
-    """The first penetration of the plan's bodies
-    (:class:`~balance_opt.geometry.clearance.Penetration`), or ``None``."""
-    return report(problem, result).first_penetration

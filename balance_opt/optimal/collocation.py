@@ -10,27 +10,19 @@ import numpy as np
 
 from balance_opt.motion.trajectories import JointTrajectory
 
-HERMITE_SIMPSON = "hermite-simpson"
-TRAPEZOIDAL = "trapezoidal"
-TRANSCRIPTIONS = (HERMITE_SIMPSON, TRAPEZOIDAL)
+TRANSCRIPTIONS = ("hermite-simpson", "trapezoidal")
 
 
 @dataclass(frozen=True)
 class Transcription:
     """One collocation scheme."""
 
-    name: str
-
-    def __post_init__(self):
-        if self.name not in TRANSCRIPTIONS:
-            raise ValueError(
-                f"unknown transcription '{self.name}'; expected one of {', '.join(TRANSCRIPTIONS)}"
-            )
+    name: str  # one of TRANSCRIPTIONS (PlannerOptions checks it)
 
     @property
     def has_midpoints(self) -> bool:
-        """Whether states and controls are also decision variables at interval midpoints."""
-        return self.name == HERMITE_SIMPSON
+        """States and controls are also decision variables at the intervals' midpoints."""
+        return self.name == TRANSCRIPTIONS[0]
 
     @property
     def control_degree(self) -> int:
@@ -38,7 +30,6 @@ class Transcription:
         return 2 if self.has_midpoints else 0
 
     def n_points(self, N: int) -> int:
-        """Number of collocation points: nodes, then midpoints."""
         return 2 * N + 1 if self.has_midpoints else N + 1
 
     def point_taus(self, N: int) -> np.ndarray:
@@ -47,7 +38,7 @@ class Transcription:
         return np.r_[nodes, nodes[:-1] + 0.5] if self.has_midpoints else nodes
 
     def defects(self, X, Xm, F, Fm, h) -> list[tuple[str, object]]:
-        """Collocation defects, each (n_x, N), that must vanish."""
+        """``(name, defect (n_x, N))`` of the rows that must vanish."""
         x0, x1, f0, f1 = X[:, :-1], X[:, 1:], F[:, :-1], F[:, 1:]
         if self.has_midpoints:
             return [
@@ -73,21 +64,15 @@ class Transcription:
         return [0.5 * (u0 + u1)]
 
 
-def integrate_bernstein(coefficients: list, start, h) -> list:
-    """Bernstein coefficients of ``y(tau) = start + integral_0^tau c`` on ``[0, h]``, where ``c`` has
-    the Bernstein coefficients ``coefficients`` (degree ``d``) in ``s = tau / h``."""
-    degree = len(coefficients) - 1
-    out = [start]
-    for c in coefficients:
-        out.append(out[-1] + (h / (degree + 1)) * c)
-    return out
-
-
 def joint_chain_coefficients(transcription: Transcription, starts: list, U, Um, h) -> list[list]:
-    """Bernstein coefficients of every derivative of the balance joints on every interval."""
+    """Bernstein coefficients of every derivative of the balance joints on every interval: the
+    control's, then each integral ``start + int_0^tau c`` on ``[0, h]``, one degree higher."""
     levels = [transcription.control_coefficients(U, Um)]
     for start in reversed(starts):
-        levels.append(integrate_bernstein(levels[-1], start, h))
+        level = [start]
+        for c in levels[-1]:
+            level.append(level[-1] + (h / len(levels[-1])) * c)
+        levels.append(level)
     return levels[::-1]
 
 
@@ -147,6 +132,5 @@ class CollocatedTrajectory(JointTrajectory):
         return tuple(out)
 
     def interval_ends(self) -> list[np.ndarray]:
-        """Per derivative (position, velocity, acceleration), the value at the end of every
-        interval (N, n): the last Bernstein coefficient."""
+        """Position, velocity and acceleration at the end of every interval (N, n)."""
         return [c[:, -1, :] for c in self._coefficients]

@@ -67,55 +67,45 @@ class SymbolicNLP:
 Rows = tuple[Block, Any]
 
 
-def _per_column(values, n_columns: int) -> np.ndarray:
-    """A bound per row repeated for every column, stacked like a block (column by column)."""
-    return np.tile(np.asarray(values, dtype=float)[:, None], n_columns).ravel(order="F")
-
-
-def _worst(excess: np.ndarray, t: np.ndarray, names, describe, unit: str) -> Violation | None:
+def _worst(problem, excess, t: np.ndarray, what: str, unit: str) -> Violation | None:
     """The largest entry of ``excess`` (T, n) above :data:`LIMIT_TOLERANCE`, as a violation of
-    ``describe(names[column])`` at ``t[row]``; ``None`` when none is above."""
+    ``what`` (formatted with the balance joint of its column) at ``t[row]``, or ``None``."""
     excess = np.asarray(excess, dtype=float)
     if excess.size == 0 or not excess.max() > LIMIT_TOLERANCE:
         return None
     row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
-    return Violation(describe(names[col]), float(t[row]), float(excess[row, col]), unit)
+    what = what.format(problem.balance_joints[col])
+    return Violation(what, float(t[row]), float(excess[row, col]), unit)
 
 
 class Constraint:
-    """One kind of constraint of the balance NLP (the base adds nothing; see the module
-    docstring for the four things a kind owns)."""
+    """One kind of constraint of the balance NLP. A kind owns its rows of ``g`` (``(block,
+    values)`` pairs, the block named for the failure messages) and their bounds (stacked column
+    by column), the bounds it puts on the variables (in place), the check of the re-simulated
+    motion (its worst violation beyond :data:`LIMIT_TOLERANCE`), the refinement's tightening
+    (changes of :class:`~balance_opt.optimal.problem.Bounds` and what they tighten, in words)
+    and the refined plan's acceptance (it raises
+    :class:`~balance_opt.optimal.problem.PlannerSolverError` if the plan is no plan)."""
 
     name = "constraint"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        """The rows this kind adds to ``g``: ``(block, values)`` pairs, the block named for the
-        failure messages (its name, a label and a unit per row, a time per column)."""
         return []
 
     def row_bounds(self, problem: BalanceProblem, block: Block) -> tuple[np.ndarray, np.ndarray]:
-        """Lower and upper bounds of one of its blocks of rows in ``g``, stacked column by
-        column."""
         raise NotImplementedError(f"{self.name} adds no rows")
 
     def bound_variables(self, problem: BalanceProblem, lower: Solution, upper: Solution) -> None:
-        """Narrow the decision variables' bounds, in place."""
+        pass
 
     def check(self, problem: BalanceProblem, result: BalanceResult) -> Violation | None:
-        """The worst violation by the re-simulated motion beyond :data:`LIMIT_TOLERANCE`, or
-        ``None``."""
         return None
 
     def tighten(self, problem: BalanceProblem, result: BalanceResult) -> tuple[dict, list[str]]:
-        """This kind's bounds tightened where the re-simulated ``result`` breaks it, for the
-        refinement's next problem (:func:`~balance_opt.optimal.refine.refine`): changes of
-        :class:`~balance_opt.optimal.problem.Bounds` (none: ``{}``) and what they tighten, in
-        words."""
         return {}, []
 
     def accept(self, problem: BalanceProblem, result: BalanceResult) -> None:
-        """Raise :class:`~balance_opt.optimal.problem.PlannerSolverError` if the refined plan
-        still breaks this kind so badly that it is no plan."""
+        pass
 
 
 class Collocation(Constraint):
@@ -174,7 +164,6 @@ class JointLimit(Constraint):
         self.interior = tuple(range(1, degree)) if between_points else ()
 
     def limits(self, problem: BalanceProblem) -> tuple[np.ndarray, np.ndarray]:
-        """Lower and upper limit of every balance joint."""
         lim = problem.limits
         return {
             "position": (lim.lower, lim.upper),
@@ -190,7 +179,6 @@ class JointLimit(Constraint):
         return self._coefficient_rows(nlp, f"{self.kind} limit between points", coefficients)
 
     def _coefficient_rows(self, nlp: SymbolicNLP, name: str, coefficients: list) -> list[Rows]:
-        """One row per Bernstein coefficient (``self.interior``) and joint, per interval."""
         labels = tuple(
             f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
         )
@@ -205,11 +193,8 @@ class JointLimit(Constraint):
 
     def row_bounds(self, problem, block):
         lower, upper = self.limits(problem)
-        reps = len(self.interior)
-        return (
-            _per_column(np.tile(lower, reps), len(block.taus)),
-            _per_column(np.tile(upper, reps), len(block.taus)),
-        )
+        reps = len(self.interior) * len(block.taus)  # per row, stacked column by column
+        return np.tile(lower, reps).astype(float), np.tile(upper, reps).astype(float)
 
     def bound_variables(self, problem, lower, upper):
         low, high = self.limits(problem)
@@ -225,13 +210,8 @@ class JointLimit(Constraint):
     def check(self, problem, result):
         values = (result.q_B, result.q_dot_B, result.q_ddot_B)[self.level]
         low, high = self.limits(problem)
-        return _worst(
-            np.maximum(values - high, low - values),
-            result.t,
-            problem.balance_joints,
-            lambda joint: f"{self.kind} limit of {joint}",
-            unit_of(self.kind),
-        )
+        excess = np.maximum(values - high, low - values)
+        return _worst(problem, excess, result.t, f"{self.kind} limit of {{}}", unit_of(self.kind))
 
 
 class JerkLimit(JointLimit):
@@ -269,19 +249,14 @@ class JerkLimit(JointLimit):
         return self._coefficient_rows(nlp, "jerk limit", coefficients)
 
     def bound_variables(self, problem, lower, upper):
-        """None: its rows bound every coefficient of the jerk, the nodes' values too."""
+        pass  # its rows bound every coefficient of the jerk, the nodes' values too
 
     def check(self, problem, result):
         """The jerk of the re-simulated motion by finite differences of its accelerations: the
         mean jerk over each sample interval, never above the largest."""
         jerk = np.diff(result.q_ddot_B, axis=0) / np.diff(result.t)[:, None]
-        return _worst(
-            np.abs(jerk) - problem.limits.jerk,
-            result.t[:-1],
-            problem.balance_joints,
-            lambda joint: f"jerk limit of {joint}",
-            "rad/s^3",
-        )
+        excess = np.abs(jerk) - problem.limits.jerk
+        return _worst(problem, excess, result.t[:-1], "jerk limit of {}", "rad/s^3")
 
 
 #: Relative excess of a torque over its effort limit, on the continuous plan, that is accepted
@@ -309,8 +284,6 @@ class TorqueLimit(Constraint):
         return [(block, nlp.torque)]
 
     def row_bounds(self, problem, block):
-        """The effort limits, times ``problem.bounds.torque_factor`` (n_B, n_points) where the
-        refinement tightened them."""
         effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
         return -effort.ravel(order="F"), effort.ravel(order="F")
 
@@ -369,14 +342,8 @@ class TorqueLimit(Constraint):
         the refinement accepts as much between the collocation points)."""
         t, tau = self.torques(problem, result)
         effort = problem.limits.effort
-        excess = np.abs(tau) - effort
-        return _worst(
-            np.where(np.abs(tau) > effort * (1.0 + TORQUE_TOLERANCE), excess, 0.0),
-            t,
-            problem.balance_joints,
-            lambda joint: f"torque limit of {joint}",
-            "N m",
-        )
+        excess = np.where(np.abs(tau) > effort * (1.0 + TORQUE_TOLERANCE), np.abs(tau) - effort, 0)
+        return _worst(problem, excess, t, "torque limit of {}", "N m")
 
 
 def attitude_scale(bound: float | None) -> float:
@@ -393,7 +360,6 @@ class AttitudeBound(Constraint):
         return np.full(block.size, -np.inf), np.ones(block.size)
 
     def _rows(self, label: str, taus, values) -> list[Rows]:
-        """Its one row, of a relative quantity, at the points ``taus``."""
         return [(Block(self.name, (label,), ("(relative)",), taus), values)]
 
 
@@ -413,7 +379,7 @@ class PathAttitudeBound(AttitudeBound):
         if problem.options.path_attitude_bound is None:
             return None
         excess = result.angle - problem.options.path_attitude_bound
-        return _worst(excess[:, None], result.t, ["|log R|"], lambda _: self.name, "rad")
+        return _worst(problem, excess[:, None], result.t, self.name, "rad")
 
 
 class PeakEpigraph(PathAttitudeBound):
@@ -450,7 +416,7 @@ class TerminalAttitudeBound(AttitudeBound):
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
-        return _worst([[excess]], result.t[-1:], ["|log R_T|"], lambda _: self.name, "rad")
+        return _worst(problem, [[excess]], result.t[-1:], self.name, "rad")
 
 
 def _pin(problem: BalanceProblem, lower, upper, node: int, kind: str, value) -> None:
@@ -491,7 +457,18 @@ class InitialState(Constraint):
             _pin(problem, lower, upper, problem.N if self.index else 0, kind, value)
 
     def check(self, problem, result):
-        return _worst_state(problem, result, self.index, self.when, self.targets(problem))
+        state = dict(zip(DERIVATIVES, (result.q_B, result.q_dot_B, result.q_ddot_B)))
+        found = [
+            _worst(
+                problem,
+                np.abs(state[kind][self.index] - value)[None, :],
+                result.t[[self.index]],
+                f"{self.when} {kind} of {{}}",
+                unit_of(kind),
+            )
+            for kind, value in self.targets(problem)
+        ]
+        return max((v for v in found if v is not None), key=lambda v: v.amount, default=None)
 
 
 class EndConditions(InitialState):
@@ -508,24 +485,6 @@ class EndConditions(InitialState):
         n_levels = {"free": 1, "still": 2, "rest": 3}[problem.options.end_condition]
         out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
         return out
-
-
-def _worst_state(problem, result, index: int, when: str, targets) -> Violation | None:
-    """The worst distance of the balance joints' state at sample ``index`` from ``targets``
-    (``[(derivative, value)]``)."""
-    worst = None
-    for kind, value in targets:
-        actual = (result.q_B, result.q_dot_B, result.q_ddot_B)[DERIVATIVES.index(kind)][index]
-        found = _worst(
-            np.abs(actual - value)[None, :],
-            result.t[[index]],
-            problem.balance_joints,
-            lambda joint, kind=kind: f"{when} {kind} of {joint}",
-            unit_of(kind),
-        )
-        if found is not None and (worst is None or found.amount > worst.amount):
-            worst = found
-    return worst
 
 
 class Collision(Constraint):
@@ -552,9 +511,10 @@ class Collision(Constraint):
         return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)
 
     def check(self, problem, result):
-        closest = collision.shortfall(problem, result)
-        if closest is None:
+        pairs = collision.short(problem, result)
+        if not pairs:
             return None
+        closest = pairs[0]
         amount = problem.collision.threshold[closest.index] - closest.distance
         return Violation(f"collision margin of {closest.pair}", closest.time, amount, "m")
 
@@ -562,7 +522,7 @@ class Collision(Constraint):
         return collision.tighten(problem, result)
 
     def accept(self, problem, result):
-        pen = collision.penetration(problem, result)
+        pen = collision.report(problem, result).first_penetration
         if pen is not None:
             raise PlannerSolverError(
                 f"no collision-free plan found: {pen.pair} penetrate by {pen.depth:.4g} m at "

@@ -133,7 +133,7 @@ def resampled(sol: Solution, N: int) -> Solution:
     Ipopt removes in its first iterations. Points both grids share keep their values exactly."""
     n = sol.X.shape[1] - 1
     if n == N:
-        return Solution(sol.X.copy(), sol.U.copy(), _copy(sol.Xm), _copy(sol.Um))
+        return Solution(*(None if a is None else a.copy() for a in (sol.X, sol.U, sol.Xm, sol.Um)))
     has_midpoints = sol.Xm is not None
     nodes = np.arange(N + 1) * (n / N)  # the new points in units of sol's intervals
     taus = [nodes, nodes[:-1] + 0.5 * (n / N)] if has_midpoints else [nodes]
@@ -158,7 +158,3 @@ def _interpolate(a: np.ndarray, mid: np.ndarray | None, tau: np.ndarray) -> np.n
         + mid[:, k] * (4.0 * s * (1.0 - s))
         + a1 * (s * (2.0 * s - 1.0))
     )
-
-
-def _copy(a):
-    return None if a is None else a.copy()

@@ -36,6 +36,8 @@ _TYPE = re.compile(r"this (integer|real|string) option")
 _RANGE = re.compile(
     r"valid range for this (?:integer|real) option is (.*?) and its default", re.DOTALL
 )
+#: A range ``lo < name <= hi``, either side optional (``unrestricted``: neither).
+_BOUNDS = re.compile(r"(?:(\S+) (<=?) )?\w+(?: (<=?) (\S+))?")
 _VALUE = re.compile(r"^ - ([^:\s]+):", re.MULTILINE)
 
 
@@ -66,31 +68,6 @@ class IpoptOption:
         return what + (" " + " and ".join(parts) if parts else "")
 
 
-def _number(text: str) -> float:
-    """A number of Ipopt's documentation: ``1``, ``0.5``, ``10<sup>-08</sup>``, ``+inf``."""
-    text = html.unescape(text).strip()
-    match = re.fullmatch(r"([+-]?[\d.]+)<sup>([+-]?\d+)</sup>", text)
-    if match:
-        return float(match.group(1)) ** float(match.group(2))
-    return float(text)
-
-
-def _range(name: str, text: str) -> dict[str, Any]:
-    """Bounds of ``lo < name <= hi`` (either side optional, or ``unrestricted``)."""
-    text = " ".join(html.unescape(text).replace("≤", "<=").split())
-    if text == "unrestricted":
-        return {}
-    out: dict[str, Any] = {}
-    left, _, right = text.partition(name)
-    if left.strip():
-        value, op = left.strip().rsplit(" ", 1)
-        out.update(lower=_number(value), lower_strict=op == "<")
-    if right.strip():
-        op, value = right.strip().split(" ", 1)
-        out.update(upper=_number(value), upper_strict=op == "<")
-    return out
-
-
 def parse_documentation(text: str) -> dict[str, IpoptOption]:
     """Options from Ipopt's Doxygen-mode option documentation."""
     catalog = {}
@@ -99,9 +76,13 @@ def parse_documentation(text: str) -> dict[str, IpoptOption]:
         if kind is None:
             continue
         fields: dict[str, Any] = {}
-        bounds = _RANGE.search(body)
-        if bounds:
-            fields = _range(name, bounds.group(1))
+        span = _RANGE.search(body)
+        span = " ".join(html.unescape(span.group(1)).replace("≤", "<=").split()) if span else ""
+        lower, lower_op, upper_op, upper = _BOUNDS.fullmatch(span).groups() if span else [None] * 4
+        if lower is not None:
+            fields.update(lower=float(lower), lower_strict=lower_op == "<")
+        if upper is not None:
+            fields.update(upper=float(upper), upper_strict=upper_op == "<")
         if kind.group(1) == STRING:
             fields["values"] = tuple(_VALUE.findall(body))
         catalog[name] = IpoptOption(name=name, type=kind.group(1), **fields)

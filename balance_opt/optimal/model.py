@@ -25,7 +25,6 @@ from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_m
 from balance_opt.optimal import codegen
 from balance_opt.optimal.collision import CollisionModels
 from balance_opt.optimal.model_store import FunctionStore, model_key
-from balance_opt.optimal.options import CONTROLS
 
 log = logging.getLogger(__name__)
 
@@ -37,22 +36,13 @@ RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
 
 
 def _tag(momentum: bool) -> str:
-    """Name suffix of the functions with the momentum terms."""
     return "_h" if momentum else ""
 
 
 def _function(name: str, inputs: dict, outputs: dict) -> cs.Function:
-    """An SX function of named inputs and outputs, its common subexpressions computed once."""
     return cs.Function(
         name, [*inputs.values()], [*outputs.values()], [*inputs], [*outputs], {"cse": True}
     )
-
-
-def check_control(control: str) -> str:
-    """The control's name, checked against :data:`CONTROLS`."""
-    if control not in CONTROLS:
-        raise ValueError(f"unknown control '{control}'; expected one of {', '.join(CONTROLS)}")
-    return control
 
 
 @dataclass(frozen=True)
@@ -121,32 +111,27 @@ class PlannerModel:
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
         self.nlp_cache: dict = {}
-        # the robot's geometry and collision rows (balance_opt.optimal.collision)
         self.collisions = CollisionModels(robot)
 
     @property
     def maps(self) -> SymbolicMaps:
-        """The symbolic momentum maps (built on first use)."""
         if self._maps is None:
             self._maps = SymbolicMaps(self.robot, self._backend)
         return self._maps
 
     @cached_property
     def key(self) -> str:
-        """The model's content key (:func:`~balance_opt.optimal.model_store.model_key`)."""
         return model_key(self.robot, backend_identity(self._backend)[1])
 
     def _stored(self, name: str, make) -> list[cs.Function]:
-        """The functions ``name``: from the disk store, else made (and saved)."""
         return self.store.get(name, make) if self.store is not None else make()
 
     def _stored_one(self, name: str, make) -> cs.Function:
-        """The function ``name``: from memory, else from the disk store, else made."""
         return self._cached(name, lambda: self._stored(name, lambda: [make()])[0])
 
     def n_x(self, control: str) -> int:
         """State size: attitude (3) and balance position, velocity (and acceleration for jerk)."""
-        return 3 + (2 if check_control(control) == "acceleration" else 3) * self.n_B
+        return 3 + (2 if control == "acceleration" else 3) * self.n_B
 
     @property
     def n_u(self) -> int:
@@ -166,7 +151,6 @@ class PlannerModel:
         ]
 
     def state_labels(self, control: str) -> list[str]:
-        """Human names of the state components (for constraint names)."""
         names = self.robot.joint_names
         balance = [names[i] for i in self.robot.balance_indices]
         labels = [f"attitude phi_{a}" for a in "xyz"]
@@ -220,7 +204,7 @@ class PlannerModel:
                 {"x_dot": cs.vertcat(*parts), "omega": omega},
             )
 
-        return self._stored_one(f"dynamics_{check_control(control)}{_tag(momentum)}", make)
+        return self._stored_one(f"dynamics_{control}{_tag(momentum)}", make)
 
     def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
         """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
@@ -241,7 +225,7 @@ class PlannerModel:
             inputs = {"x": x, "u": u, "m": m, "weights": weights, "q_rest": q_rest}
             return _function("balance_point", inputs, {"x_dot": x_dot, "L": L})
 
-        return self._cached(f"point_{check_control(control)}{_tag(momentum)}", make)
+        return self._cached(f"point_{control}{_tag(momentum)}", make)
 
     @cached_property
     def _dynamics_terms(self) -> cs.Function:
@@ -320,10 +304,9 @@ class PlannerModel:
                 "balance_torques", {"x": x, "u": u, "m": m}, {"tau_B": tau[self.n_M :]}
             )
 
-        return self._cached(f"balance_torque_{check_control(control)}{_tag(momentum)}", make)
+        return self._cached(f"balance_torque_{control}{_tag(momentum)}", make)
 
     def n_y(self, control: str, torque: bool, clearance: str = "") -> int:
-        """Size of a point kernel's output ``y``."""
         n_c = len(self.collisions.rows[clearance][0].rows) if clearance else 0
         return self.n_x(control) + 1 + (self.n_B if torque else 0) + n_c
 
@@ -337,7 +320,7 @@ class PlannerModel:
         """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting
         and collision rows (their key, registered in :attr:`collisions`), built once
         (and compiled once, if the model compiles)."""
-        key = (check_control(control), bool(torque), bool(momentum), clearance)
+        key = (control, bool(torque), bool(momentum), clearance)
         if key not in self._kernels:
             self._kernels[key] = self._make_kernels(*key)
         return self._kernels[key]
@@ -358,16 +341,11 @@ class PlannerModel:
                 continue
             functions = (kernels.value, kernels.jacobian, kernels.gradient, kernels.hessian)
             names = [f.name() for f in (*functions, kernels.cost) if f is not None]
-            try:
-                loaded = codegen.load_cached(names, Path(kernels.library))
-            except BlockingIOError:
-                loaded = None
+            sizes = (kernels.n_x, kernels.n_z, kernels.n_y)
+            loaded = _from_library(names, kernels.library, sizes, kernels.n_clearance)
             if loaded is None:
                 continue
-            sizes = (kernels.n_x, kernels.n_z, kernels.n_y)
-            self._kernels[variant] = _point_kernels(
-                loaded, sizes, True, 0.0, kernels.library, n_clearance=kernels.n_clearance
-            )
+            self._kernels[variant] = loaded
             self.nlp_cache = {
                 k: v
                 for k, v in self.nlp_cache.items()
@@ -393,12 +371,9 @@ class PlannerModel:
         compiler = codegen.find_compiler() if self.compile else None
         if compiler is not None and digest is not None:
             library = codegen.library_path(digest, compiler, self.cache_dir)
-            try:
-                loaded = codegen.load_cached(names, library)
-            except BlockingIOError:  # being compiled by another process
-                loaded = None
+            loaded = _from_library(names, str(library), sizes, n_c)
             if loaded is not None:
-                return _point_kernels(loaded, sizes, True, 0.0, str(library), n_clearance=n_c)
+                return loaded
         functions = self._stored(
             f"kernels_{suffix}",
             lambda: self._kernel_functions(control, torque, momentum, suffix, clearance),
@@ -464,14 +439,23 @@ class PlannerModel:
 
 
 def _point_kernels(functions, sizes, *compiled, n_clearance: int = 0) -> PointKernels:
-    """:class:`PointKernels` of the kernel functions in :meth:`PlannerModel._kernel_functions`'s
-    order."""
     functions = list(functions)
     cost = functions[4] if len(functions) > 4 else None
     return PointKernels(*functions[:4], *sizes, *compiled, n_clearance=n_clearance, cost=cost)
 
 
+def _from_library(names, library: str, sizes, n_clearance: int) -> PointKernels | None:
+    """The kernels ``names`` from a compiled library, or ``None`` (missing, or being compiled
+    by another process)."""
+    try:
+        loaded = codegen.load_cached(names, Path(library))
+    except BlockingIOError:
+        return None
+    if loaded is None:
+        return None
+    return _point_kernels(loaded, sizes, True, 0.0, library, n_clearance=n_clearance)
+
+
 def _stop_all(compiling: list) -> None:
-    """Stop the compilers of a model that goes, or at exit."""
     while compiling:
         codegen.stop(compiling.pop())

@@ -32,7 +32,6 @@ if TYPE_CHECKING:  # casadi is imported where used: kinematics_key stays a light
 
 log = logging.getLogger(__name__)
 
-FOLDER = MODELS_FOLDER
 #: The modules whose code decides the planner's symbolic functions.
 FORMULATION_MODULES = (
     "balance_opt.optimal.model",
@@ -80,7 +79,7 @@ class FunctionStore:
 
     def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
         root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-        self.folder = root / FOLDER
+        self.folder = root / MODELS_FOLDER
         self.prefix = f"{re.sub(r'[^A-Za-z0-9._-]+', '_', label)[:40]}_{key}"
 
     def path(self, name: str) -> Path:
@@ -109,8 +108,8 @@ class FunctionStore:
         return None
 
     def save(self, name: str, functions: list[cs.Function]) -> None:
-        """Save ``functions`` as ``name`` (a failure to write is logged, not raised: the cache
-        only saves time)."""
+        """Save ``functions`` as ``name`` (a failure to write is only logged: the cache only
+        saves time)."""
         import casadi as cs
 
         path = self.path(name)
@@ -130,7 +129,6 @@ class FunctionStore:
             log.warning("planner model not cached (%s): %s", path, exc)
 
     def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
-        """The functions saved as ``name``, made and saved first when not on disk."""
         functions = self.load(name)
         if functions is None:
             functions = make()

@@ -1,4 +1,8 @@
-"""Building the compiled balance NLP of one structure from the per-point kernels."""
+"""Building the compiled balance NLP of one structure. Its nonlinear work is in the point
+kernels (:class:`~balance_opt.optimal.model.PointKernels`: the outputs ``y`` of one collocation
+point and their derivatives), mapped over the points; the outer problem (the cost and the rows of
+``g`` in the variables ``w`` and the kernels' outputs ``Y``) is linear in ``Y``, so Ipopt's
+derivatives are the outer problem's plus the kernels' scattered to ``w``."""
 
 from __future__ import annotations
 
@@ -50,7 +54,7 @@ class NLPStructure:
 
 @dataclass
 class _Outer:
-    """The outer problem's functions (SX, see the module docstring)."""
+    """The outer problem's functions (SX)."""
 
     cost: cs.Function  # (w, y, p) -> f
     constraints: cs.Function  # (w, y, p) -> g
@@ -82,13 +86,7 @@ def build_structure(
     solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, ipopt)
     build_time = time.perf_counter() - start
     log.debug(
-        "balance NLP (N = %d, %s, %s) built in %.3f s: %d variables, %d constraints",
-        N,
-        key.transcription,
-        key.control,
-        build_time,
-        variables.size,
-        rows.size,
+        "%s built in %.3f s: %d variables, %d rows", key, build_time, variables.size, rows.size
     )
     return NLPStructure(key, solver, variables, parameters, rows, row_kinds, kinds, build_time)
 
@@ -170,7 +168,6 @@ def jerk_integral(acceleration: list, h):
 
 
 def _sum_all(x):
-    """Sum of every entry, CasADi or NumPy."""
     return cs.sum1(cs.sum2(x)) if isinstance(x, (cs.SX, cs.MX, cs.DM)) else np.sum(x)
 
 
@@ -306,7 +303,7 @@ def _ipopt_solver(
     ipopt: dict,
 ) -> cs.Function:
     """The NLP in MX (the kernels mapped over the points, the outer problem on top) with its
-    assembled derivatives (see the module docstring), handed to Ipopt."""
+    assembled derivatives, handed to Ipopt."""
     point_idx = variables.point_indices()
     point_flat = point_idx.ravel(order="F")
     if not np.array_equal(np.sort(point_flat), np.arange(point_flat.size)):

@@ -64,14 +64,12 @@ class Stage:
     mu_intervals: int | None = None
 
     def ipopt_at(self, N: int) -> dict:
-        """Its Ipopt options on a grid of ``N`` intervals."""
         ipopt = dict(self.ipopt)
         if self.mu_intervals is not None and "mu_init" in ipopt and N > self.mu_intervals:
             ipopt["mu_init"] = ipopt["mu_init"] * self.mu_intervals / N
         return ipopt
 
     def intervals(self, N: int, transcription: str) -> int:
-        """The stage's intervals for a plan of ``N`` intervals."""
         if not self.coarse:
             return N
         return min(N, max(INNER_MIN_INTERVALS, -(-N // INNER_COARSENING[transcription])))
@@ -177,15 +175,13 @@ class CostWeights:
         check_settings(self, "planner weight")
 
     def running(self, objective: str = "integral") -> np.ndarray:
-        """The running-cost weights in the order of
-        :data:`balance_opt.optimal.model.RUNNING_WEIGHTS`, under ``objective``."""
+        """The running-cost weights (:data:`~balance_opt.optimal.model.RUNNING_WEIGHTS`)."""
         factor = self.regularisation if objective == "peak" else 1.0
         return factor * np.array([self.omega, self.attitude, self.smoothness, self.rest])
 
     def jerk_weight(self, objective: str = "integral") -> float:
-        """The weight of the jerk term under ``objective``: ``regularisation * jerk`` for the
-        peak, 0 for the integral objective (a least-squares problem: its plans are smooth
-        without it)."""
+        """The jerk term's weight: none in the integral objective (a least-squares problem: its
+        plans are smooth without it)."""
         return self.regularisation * self.jerk if objective == "peak" else 0.0
 
 
@@ -347,9 +343,7 @@ class PlannerOptions:
 
     @property
     def end_condition(self) -> str:
-        """The end condition, ``rest_at_end`` mapped onto ``"rest"``."""
         return "rest" if self.rest_at_end else self.end
 
     def as_dict(self) -> dict:
-        """Plain data (for ``BalanceResult.info``)."""
         return dataclasses.asdict(self)

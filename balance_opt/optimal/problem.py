@@ -31,8 +31,7 @@ UNITS = {
 
 
 def unit_of(label: str) -> str:
-    """Unit of a state, control or limit label: the attitude rows are in rad, a joint row in the
-    unit of its last word (:data:`UNITS`)."""
+    """Unit of a state, control or limit label (an attitude row's is rad)."""
     if label.startswith("attitude"):
         return "rad"
     return UNITS[label.split()[-1]]
@@ -59,7 +58,6 @@ class StructureKey:
 
     @classmethod
     def of(cls, limits, options, momentum: bool = False, collision: str = "") -> StructureKey:
-        """The key of a problem."""
         enforced = limited_kinds(options, limits)
         joints = ("position", "velocity", "acceleration", "jerk")
         return cls(
@@ -102,7 +100,6 @@ class Block:
 
     @property
     def slice(self) -> slice:
-        """Its entries in the stacked vector."""
         return slice(self.offset, self.offset + self.size)
 
     def locate(self, index: int) -> tuple[str, str, float]:
@@ -120,7 +117,6 @@ class BlockStack:
         self.size = 0
 
     def add(self, block: Block) -> Block:
-        """Stack a block after the others; returns it with its offset."""
         block = dataclasses.replace(block, offset=self.size)
         self.blocks.append(block)
         self.size += block.size
@@ -153,8 +149,7 @@ class Solution:
 
 
 class VariableLayout(BlockStack):
-    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S`` (see the module
-    docstring)."""
+    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S``."""
 
     def __init__(
         self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
@@ -179,18 +174,15 @@ class VariableLayout(BlockStack):
             self.by_name["S"] = self.add(Block("S", label, ("(relative)",), np.array([0.0])))
 
     def unpack(self, w) -> Solution:
-        """States and controls of a numeric decision vector."""
         w = np.asarray(w, dtype=float).ravel()
         return Solution(
             **{n: w[b.slice].reshape(b.shape, order="F") for n, b in self.by_name.items()}
         )
 
     def unpack_symbolic(self, w) -> Solution:
-        """States and controls of a symbolic decision vector (CasADi column vector)."""
         return Solution(**{n: cs.reshape(w[b.slice], *b.shape) for n, b in self.by_name.items()})
 
     def pack(self, sol: Solution) -> np.ndarray:
-        """The numeric decision vector of unpacked states and controls."""
         w = np.empty(self.size)
         for name, b in self.by_name.items():
             w[b.slice] = np.asarray(getattr(sol, name), dtype=float).ravel(order="F")
@@ -247,7 +239,6 @@ class ParameterLayout:
 
     @property
     def slices(self) -> dict[str, slice]:
-        """Each field's entries in ``p``."""
         sizes = dict.fromkeys(NLPParameters._fields, 1)  # the scalars
         sizes.update(
             running_weights=self.n_weights, q_rest=self.n_B, mission=self.n_m * self.n_points
@@ -263,11 +254,7 @@ class ParameterLayout:
         return self.slices["mission"].stop
 
     def pack(self, values: NLPParameters) -> np.ndarray:
-        """The numeric parameter vector of a problem."""
-        p = np.empty(self.size)
-        for name, sl in self.slices.items():
-            p[sl] = np.asarray(getattr(values, name), dtype=float).ravel(order="F")
-        return p
+        return np.concatenate([np.asarray(v, dtype=float).ravel(order="F") for v in values])
 
     def unpack_symbolic(self, p) -> NLPParameters:
         """The fields of a symbolic parameter vector (CasADi column vector): each a column
@@ -284,7 +271,7 @@ def check_problem(
     options: PlannerOptions,
     robot: FloatingRobot | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Check a problem's sizes and configurations against the robot."""
+    """Check a problem's sizes and configurations against the robot: ``(q_B0, horizon)``."""
     robot = model.robot if robot is None else robot
     if robot.joint_names != model.robot.joint_names:
         raise InputError(f"robot {robot.name} is not the robot of the planner model")
@@ -308,6 +295,7 @@ def check_problem(
     for what, values in (
         ("initial configuration q_B0", q_B0),
         ("final_configuration", options.final_configuration),
+        ("rest_configuration", options.rest_configuration),
     ):
         if values is None:
             continue
@@ -316,7 +304,7 @@ def check_problem(
             raise InputError(
                 f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
             )
-        if not options.position_limits:
+        if not options.position_limits or what == "rest_configuration":
             continue
         for j, name in enumerate(names):
             if not lim.lower[j] - LIMIT_TOLERANCE <= values[j] <= lim.upper[j] + LIMIT_TOLERANCE:
@@ -324,11 +312,6 @@ def check_problem(
                     f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
                     f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
                 )
-    if options.rest_configuration is not None and len(options.rest_configuration) != model.n_B:
-        raise InputError(
-            f"planner option 'rest_configuration' has {len(options.rest_configuration)} values, "
-            f"the balance joints are {model.n_B}"
-        )
     return q_B0, horizon
 
 
@@ -367,31 +350,18 @@ class Bounds:
 
 
 class BalanceProblem:
-    """The numeric data of one balance planning problem.
-
-    Args:
-        model: the robot's planner model.
-        mission: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
-        q_B0: initial balance configuration [rad], checked by :func:`check_problem`.
-        options: the planner settings.
-        horizon: planning horizon [s], from :func:`check_problem`.
-        h0: the system's constant total momentum, world frame (the base starts at the
-            identity), ``[linear (N s); angular about the CoM (N m s)]``; ``None`` for zero.
-        collision: its collision avoidance
-            (:class:`~balance_opt.optimal.collision.CollisionSetup`), or ``None``.
+    """The numeric data of one balance planning problem (``q_B0`` and ``horizon`` from
+    :func:`check_problem`; ``h0``: the system's constant total momentum, world frame, the base
+    starting at the identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for
+    zero; ``collision``: its :class:`~balance_opt.optimal.collision.CollisionSetup` or ``None``).
 
     Attributes:
-        model, robot, mission, q_B0, options, horizon: as given (``robot`` is the model's).
         N, h: number of intervals and their length [s].
-        transcription, control: the collocation scheme and the control input.
         point_times: times of the collocation points [s], nodes then midpoints.
         mission_samples: each point's data ``[q_M; q_dot_M; q_ddot_M; h0]`` (n_m, n_points).
         q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
-        limits: the balance joints' limits.
         bounds: the :class:`Bounds` its NLP enforces: the options' until the refinement
             makes a new problem with lower ones.
-        balance_joints: their names.
-        collision: as given.
     """
 
     def __init__(

@@ -24,11 +24,14 @@ MAX_ROUNDS = 6
 #: Relative excess of a bound over the smallest peak below which the peak plan is re-solved
 #: with the bound (its re-simulated peak may cross it between the points).
 BOUND_MARGIN = 1e-3
-
-
-#: The NLP's functions Ipopt calls: the cost, the constraints and their derivatives (CasADi's
-#: ``nlp_*`` functions of an ``nlpsol``).
+#: The NLP's functions Ipopt calls (CasADi's ``nlp_*`` functions of an ``nlpsol``).
 NLP_FUNCTIONS = ("f", "grad_f", "g", "jac_g", "hess_l")
+#: Largest difference between two first-stage plans' states (rad, rad/s) under which they are
+#: one plan.
+SAME_PLAN = 1e-4
+#: The same for their controls (rad/s^2, or rad/s^3 with jerk control): Ipopt's tolerance
+#: leaves more in them than in the states.
+SAME_CONTROL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -39,17 +42,15 @@ class SolveReport:
         stage: the objective of the structure solved (``"integral"``, ``"smooth"``, ``"peak"``)
             or the stage's name in the plan (``"bounded"``, ``"smooth, re-simulated"``).
         intervals: its grid's ``N``.
-        status: Ipopt's return status.
-        iterations: Ipopt's iterations.
+        status, iterations: Ipopt's return status and iterations.
         solve_s: Ipopt's wall time [s].
         objective: the objective's value at the solution.
         solution: the solution (the warm start of what follows it).
         drifts: figures of the stage's plan [rad], by name: ``nlp_max_drift_rad`` and
             ``nlp_final_drift_rad`` at the collocation points (inner stages),
             ``max_drift_rad`` and ``final_drift_rad`` re-simulated (the peak stage).
-        evaluations_s: the wall time [s] of Ipopt's calls of the NLP's functions, by name
-            (:data:`NLP_FUNCTIONS`); the rest of ``solve_s`` is Ipopt's own work, its linear
-            algebra mostly.
+        evaluations_s: the wall time [s] of Ipopt's calls of each of :data:`NLP_FUNCTIONS`;
+            the rest of ``solve_s`` is Ipopt's own work, its linear algebra mostly.
     """
 
     stage: str
@@ -67,11 +68,9 @@ class SolveReport:
         return self.status in SUCCESS_STATUSES
 
     def as_stage(self, stage: str | None = None, **drifts: float) -> SolveReport:
-        """This solve as a stage of a plan: renamed, with the figures ``drifts``."""
         return replace(self, stage=stage or self.stage, drifts=tuple(drifts.items()))
 
     def as_inner_stage(self) -> SolveReport:
-        """This solve as an inner stage: with its largest and final drift at the points."""
         X, _ = self.solution.points()
         return self.as_stage(
             nlp_max_drift_rad=float(np.linalg.norm(X[:3], axis=0).max()),
@@ -80,33 +79,8 @@ class SolveReport:
 
     def entry(self) -> dict:
         """Its entry of ``info["stages"]`` (``metrics.json``'s ``details.stages``)."""
-        return {
-            "stage": self.stage,
-            "intervals": self.intervals,
-            "status": self.status,
-            "iterations": self.iterations,
-            "solve_s": self.solve_s,
-            **dict(self.drifts),
-        }
-
-
-@dataclass(frozen=True)
-class Refinement:
-    """What the refinement (:func:`refine`) did: what it tightened in each round, in words, and
-    the Ipopt work of its re-solves."""
-
-    rounds: tuple[tuple[str, ...], ...] = ()
-    iterations: int = 0
-    solve_s: float = 0.0
-
-    def as_dict(self) -> dict:
-        """``info["refinement"]``."""
-        return {
-            "rounds": len(self.rounds),
-            "tightened": [list(r) for r in self.rounds],
-            "iterations": self.iterations,
-            "solve_s": self.solve_s,
-        }
+        fields = ("stage", "intervals", "status", "iterations", "solve_s")
+        return {**{k: getattr(self, k) for k in fields}, **dict(self.drifts)}
 
 
 @dataclass(frozen=True)
@@ -116,33 +90,26 @@ class PlanReport:
     Attributes:
         solves: every Ipopt solve behind the plan, in order (the stages, the bounded problem,
             the refinement's rounds), failed ones included.
-        solution: the plan's NLP solution (default: the last solve's).
+        solution: the plan's NLP solution.
         stages: the peak objective's stages, when it was solved in stages (``None`` else).
-        refinement: what the refinement did (``None`` before it ran).
+        refinement: what the refinement (:func:`refine`) did, ``info["refinement"]``: its
+            rounds, what it tightened in each, in words, and the Ipopt work of its re-solves
+            (``None`` before it ran).
         smallest_peak: with a path attitude bound, the smallest peak found [rad].
-
-    :meth:`as_info` writes it into the result's ``info`` (``metrics.json``'s ``details`` and
-    its ``solver`` totals).
     """
 
     solves: tuple[SolveReport, ...]
     solution: Solution | None = None
     stages: tuple[SolveReport, ...] | None = None
-    refinement: Refinement | None = None
+    refinement: dict | None = None
     smallest_peak: float | None = None
-
-    def __post_init__(self):
-        if self.solution is None and self.solves:
-            object.__setattr__(self, "solution", self.solves[-1].solution)
 
     @property
     def iterations(self) -> int:
-        """Ipopt's iterations, all solves."""
         return sum(s.iterations for s in self.solves)
 
     @property
     def solve_s(self) -> float:
-        """Ipopt's wall time, all solves [s]."""
         return sum(s.solve_s for s in self.solves)
 
     @property
@@ -154,9 +121,8 @@ class PlanReport:
                 out[name] += seconds
         return out
 
-    def then(self, later: PlanReport) -> PlanReport:
-        """This report followed by the solves of ``later`` (its solution the plan's)."""
-        return replace(self, solves=self.solves + later.solves, solution=later.solution)
+    def then(self, solve: SolveReport) -> PlanReport:
+        return replace(self, solves=self.solves + (solve,), solution=solve.solution)
 
     def as_info(self) -> dict:
         """Its entries of ``BalanceResult.info``."""
@@ -166,28 +132,24 @@ class PlanReport:
         if self.stages is not None:
             out["stages"] = [s.entry() for s in self.stages]
         if self.refinement is not None:
-            out["refinement"] = self.refinement.as_dict()
+            out["refinement"] = self.refinement
         out["total_iterations"] = self.iterations
         out["total_solve_time_s"] = self.solve_s
         return out
 
 
-def _solve_once(nlp, guess, before: PlanReport) -> BalanceResult:
-    """``nlp.solve_once(guess)``, its plan's (or its failure's) report following ``before``."""
-    try:
-        result = nlp.solve_once(guess)
-    except SolverError as exc:
-        if getattr(exc.result, "solver", None) is not None:
-            exc.result.solver = before.then(exc.result.solver)
-        raise
-    result.solver = before.then(result.solver)
-    return result
+def _refinement(rounds: list, solves) -> dict:
+    return {
+        "rounds": len(rounds),
+        "tightened": [list(r) for r in rounds],
+        "iterations": sum(s.iterations for s in solves),
+        "solve_s": sum(s.solve_s for s in solves),
+    }
 
 
 def solve_with_bounds(nlp, guess) -> BalanceResult:
-    """Solve a problem whose path attitude bound may stall Ipopt (see the module docstring),
-    then :func:`refine`. The plan, or the result a failure carries, holds its
-    :class:`PlanReport` as ``solver``, written into its ``info``."""
+    """Solve (with a path attitude bound through the free peak problem first), then
+    :func:`refine`; the plan's (or a failure's) :class:`PlanReport` written into its ``info``."""
     try:
         result = _solve_with_bounds(nlp, guess)
     except SolverError as exc:
@@ -203,7 +165,7 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
     if bound is None:
         if nlp.options.objective == "peak":
             return refine(nlp, plan_peak(nlp, guess))
-        return refine(nlp, _solve_once(nlp, guess, PlanReport(())))
+        return refine(nlp, nlp.solve_once(guess))
     free = nlp.variant(objective="peak", path_attitude_bound=None, terminal_attitude_bound=None)
     peak_plan = plan_peak(free, guess)
     priced = peak_plan.max_drift <= bound * (1.0 + ATTITUDE_TOLERANCE)
@@ -226,119 +188,102 @@ def _solve_with_bounds(nlp, guess) -> BalanceResult:
     same = same and priced  # else peak_plan leaves the final drift unpriced: not this problem's
     if same and smallest <= bound * (1.0 - BOUND_MARGIN):
         # the peak plan of the bounded problem is the free one: the bound is not active
-        peak_plan.solver = replace(peak_plan.solver, refinement=Refinement())
+        peak_plan.solver = replace(peak_plan.solver, refinement=_refinement([], ()))
         return peak_plan
-    result = _solve_once(nlp, peak_plan.solver.solution, peak_plan.solver)
+    result = nlp.solve_once(peak_plan.solver.solution, peak_plan.solver)
     bounded = result.solver.solves[-1].as_stage("bounded")
     result.solver = replace(result.solver, stages=result.solver.stages + (bounded,))
     return refine(nlp, result)
 
 
 def _lowest_peak(free, peak_plan: BalanceResult) -> BalanceResult:
-    """The smallest peak of the problem ``free``: its peak problem with the final drift left
-    unpriced, warm started from its ``peak_plan``, which prices the final drift
-    (``weights.peak_terminal``) and so peaks higher than it must. A path bound between the two
-    peaks can be met; a final-drift bound is a bound of its own (``terminal_attitude_bound``).
-    The peak plan itself should that solve fail."""
-    weights = replace(free.options.weights, peak_terminal=0.0)
-    loose = free.variant(weights=weights)
+    """The smallest peak of the problem ``free``: its peak problem with the final drift
+    unpriced, from its ``peak_plan`` (which prices it, ``weights.peak_terminal``, and so peaks
+    higher than it must); ``peak_plan`` itself should that solve fail."""
+    loose = free.variant(weights=replace(free.options.weights, peak_terminal=0.0))
     try:
-        result = _solve_once(loose, peak_plan.solver.solution, peak_plan.solver)
+        result = loose.solve_once(peak_plan.solver.solution, peak_plan.solver)
     except SolverError as exc:
         log.warning("peak without the final drift's price failed (%s); its peak stands", exc)
         return peak_plan
     lowest = result.solver.solves[-1].as_stage(
-        "peak, final drift free",
-        max_drift_rad=result.max_drift,
-        final_drift_rad=result.final_drift,
+        "peak, final drift free", max_drift_rad=result.max_drift, final_drift_rad=result.final_drift
     )
     result.solver = replace(result.solver, stages=peak_plan.solver.stages + (lowest,))
     return result
 
 
-def plan_peak(nlp, guess) -> BalanceResult:
-    """Solve a peak problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES`,
-    each warm started from the last: the integral objective's plan, the smooth peak (the
-    drift's L_16 norm, without the epigraph's inequality rows, priced like the peak at the
-    start's peak ``c``), then the exact epigraph, which converges fast from near its plan. The
-    inner stages run on a coarser grid and are not re-simulated; a failed one hands its guess on.
-    Should the epigraph stage fail, the smooth peak is solved on the plan's grid from the inner
-    stage's plan and kept (with a warning, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`).
-    The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts."""
-    *inner, last = PEAK_STAGES
-    done: list[SolveReport] = []
-    stage_nlp = None
-    for stage in inner:
-        if stage.name == "integral":  # done here, or by a multi-start
-            start = guess if isinstance(guess, IntegralStart) else integral_stage(nlp, guess)
-            report, guess = start.report, start.following
-        else:  # its reference drift: the start's peak (the smooth term then weighs like the peak's)
-            stage_nlp = nlp.at_stage(stage)
-            X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
-            reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
-            stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
-            report = stage_nlp.solve_stage(guess)
-            guess = report.solution if report.success else guess
-        if not report.success:
-            log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
-        done.append(report)
-    before = PlanReport(tuple(done))
-    stages = tuple(r.as_inner_stage() for r in done)
-    try:
-        result = _solve_once(nlp.at_stage(last), guess, before)
-    except SolverError as exc:
-        if not done[-1].success:
-            raise
-        log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
-        failed = getattr(exc.result, "solver", None) or before
-        before = replace(before, solves=failed.solves)
-        stages += failed.solves[len(done) :]  # the failed peak stage
-        result = _smooth_plan(nlp, stage_nlp, guess, before)
-        stages += (result.solver.solves[-1].as_stage("smooth, re-simulated"),)
-    else:
-        peak = result.solver.solves[-1]
-        drifts = {"max_drift_rad": result.max_drift, "final_drift_rad": result.final_drift}
-        stages += (peak.as_stage(**drifts),)
-    result.solver = replace(result.solver, stages=stages)
-    return result
-
-
-def _smooth_plan(nlp, smooth, guess, before: PlanReport) -> BalanceResult:
-    """The smooth peak as the plan of the peak problem ``nlp`` (a failed epigraph stage's
-    fallback): solved on ``nlp``'s grid with the rows between the points, priced at the
-    reference drift of the inner ``smooth`` stage, from ``guess``. Its solution is the peak
-    problem's (with ``S``, the plan's own peak), as every later step expects."""
-    final = nlp.at_stage(SMOOTH_PLAN).with_bounds(peak_reference=smooth.bounds.peak_reference)
-    result = _solve_once(final, guess, before)
-    w = nlp.initial_guess(result.solver.solution)
-    result.solver = replace(result.solver, solution=nlp.unpack(w))
-    result.info["nlp_solution"] = w.tolist()
-    return result
-
-
 @dataclass(frozen=True)
 class IntegralStart:
-    """The first stage of :func:`plan_peak`, done: its report and the next stage's guess (the
-    integral plan, or the original guess when the stage failed)."""
+    """An inner stage of :func:`plan_peak`, done: its report and the next stage's guess (its
+    plan, or its own guess when it failed)."""
 
     report: SolveReport
     following: object
 
 
-def integral_stage(nlp, guess) -> IntegralStart:
-    """The first stage of :func:`plan_peak` for the problem ``nlp``: the integral objective's
-    plan, without bounds, from ``guess``."""
+def inner_stage(nlp, stage, guess):
+    """The inner ``stage`` of the peak problem ``nlp`` solved: its :class:`IntegralStart` and
+    its problem. The smooth stage's reference drift ``c`` is the peak of its start (the smooth
+    term then weighs like the peak's)."""
     if isinstance(guess, np.ndarray):  # a decision vector of this problem
         guess = nlp.unpack(nlp.initial_guess(guess))
-    report = nlp.at_stage(PEAK_STAGES[0]).solve_stage(guess)
-    return IntegralStart(report, report.solution if report.success else guess)
+    stage_nlp = nlp.stage(stage)
+    if stage.name == "smooth":
+        X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
+        reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
+        stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
+    report = stage_nlp.solve_stage(guess)
+    return IntegralStart(report, report.solution if report.success else guess), stage_nlp
+
+
+def plan_peak(nlp, guess) -> BalanceResult:
+    """Solve a peak problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES`,
+    each warm started from the last: the integral objective's plan, the smooth peak (the
+    drift's L_16 norm, without the epigraph's rows), then the exact epigraph, which converges
+    fast from near its plan. The inner stages are not re-simulated; a failed one hands its
+    guess on. Should the epigraph stage fail, the smooth peak is solved on the plan's grid and
+    kept (:data:`~balance_opt.optimal.options.SMOOTH_PLAN`, with a warning)."""
+    *inner, last = PEAK_STAGES
+    done, stage_nlp = [], None
+    for stage in inner:
+        if stage.name == "integral" and isinstance(guess, IntegralStart):  # by a multi-start
+            start = guess
+        else:
+            start, stage_nlp = inner_stage(nlp, stage, guess)
+        if not start.report.success:
+            log.info(
+                "%s stage: %s; the next starts from its guess", stage.name, start.report.status
+            )
+        done.append(start.report)
+        guess = start.following
+    before = PlanReport(tuple(done))
+    stages = tuple(r.as_inner_stage() for r in done)
+    try:
+        result = nlp.stage(last).solve_once(guess, before)
+    except SolverError as exc:
+        if not done[-1].success:
+            raise
+        log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
+        before = getattr(exc.result, "solver", None) or before
+        stages += before.solves[len(done) :]  # the failed peak stage
+        # on the plan's grid, priced at the inner smooth stage's reference drift
+        final = nlp.stage(SMOOTH_PLAN).with_bounds(peak_reference=stage_nlp.bounds.peak_reference)
+        result = final.solve_once(guess, before)
+        w = nlp.initial_guess(result.solver.solution)  # with S: the peak problem's solution
+        result.solver = replace(result.solver, solution=nlp.unpack(w))
+        result.info["nlp_solution"] = w.tolist()
+        stages += (result.solver.solves[-1].as_stage("smooth, re-simulated"),)
+    else:
+        drifts = {"max_drift_rad": result.max_drift, "final_drift_rad": result.final_drift}
+        stages += (result.solver.solves[-1].as_stage(**drifts),)
+    result.solver = replace(result.solver, stages=stages)
+    return result
 
 
 def refine(nlp, result: BalanceResult) -> BalanceResult:
-    """Tighten the torque and attitude bounds the re-simulated motion breaks and solve again,
-    warm started, until every one holds (or :data:`MAX_ROUNDS`). Each round solves a new problem
-    (:meth:`~balance_opt.optimal.solve.BalanceNLP.with_bounds`): ``nlp`` is left as it was. The
-    plan's ``solver.refinement`` lists what was tightened in each round."""
+    """Tighten the bounds the re-simulated motion breaks and solve again, warm started, until
+    every one holds (or :data:`MAX_ROUNDS`); each round solves a new problem."""
     rounds, before = [], len(result.solver.solves)
     for _ in range(MAX_ROUNDS):
         changes, tightened = _tighten(nlp, result)
@@ -347,25 +292,22 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
         rounds.append(tuple(tightened))
         log.info("refinement: %s", "; ".join(tightened))
         nlp = nlp.with_bounds(**changes)
-        result = _solve_once(nlp, result.solver.solution, result.solver)
+        result = nlp.solve_once(result.solver.solution, result.solver)
     else:
         if _tighten(nlp, result)[1]:
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
     for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure
         kind.accept(nlp, result)
-    extra = result.solver.solves[before:]
-    refinement = Refinement(
-        tuple(rounds), sum(s.iterations for s in extra), sum(s.solve_s for s in extra)
-    )
+    refinement = _refinement(rounds, result.solver.solves[before:])
     result.solver = replace(result.solver, refinement=refinement)
     return result
 
 
 def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
-    """The lower bounds (changes of :class:`~balance_opt.optimal.problem.Bounds`) where the
-    re-simulated ``result`` breaks them beyond tolerance, and what they lower, in words."""
+    """The bounds the re-simulated ``result`` breaks, tightened (changes of
+    :class:`~balance_opt.optimal.problem.Bounds`), and what they lower, in words."""
     changes, out = {}, []
-    for kind in nlp.structure.kinds:  # the kinds that tighten bounds of their own
+    for kind in nlp.structure.kinds:
         more, words = kind.tighten(nlp, result)
         changes.update(more)
         out += words
@@ -380,32 +322,11 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
     return changes, out
 
 
-#: Largest difference between two first-stage plans' states (rad, rad/s) under which they are
-#: one plan.
-SAME_PLAN = 1e-4
-#: The same for their controls (rad/s^2, or rad/s^3 with jerk control): Ipopt's tolerance
-#: leaves more in them than in the states.
-SAME_CONTROL = 1e-3
-
-
-def start_guesses(nlp, guess) -> list[tuple[str, object]]:
-    """``(label, guess)`` of every start: the named ones, then random decision vectors."""
-    rng = np.random.default_rng(nlp.options.seed)
-    named = [guess] + [g for g in GUESSES if g != guess]
-    out = []
-    for g in named[: nlp.options.starts]:
-        out.append((g if isinstance(g, str) else type(g).__name__, g))
-    first_state = nlp.unpack(nlp.lbx).X[3:, 0]
-    while len(out) < nlp.options.starts:
-        out.append(("random", nlp.pack(random_guess(nlp, first_state, rng))))
-    return out
-
-
 class StartTask:
     """One phase of a start on a problem, a callable of the start's guess: ``"first"`` the
-    integral stage (its :class:`~balance_opt.optimal.refine.IntegralStart`), ``"plan"`` the
-    whole solve (``(result, None)`` or ``(None, error)``; in another process the error as
-    ``(message, status)``: the planner's errors do not pickle)."""
+    integral stage (its :class:`IntegralStart`), ``"plan"`` the whole solve (``(result, None)``
+    or ``(None, error)``; in another process the error as ``(message, status)``: the planner's
+    errors do not pickle)."""
 
     def __init__(self, nlp, phase: str):
         self.nlp, self.phase, self.remote = nlp, phase, False
@@ -423,7 +344,7 @@ class StartTask:
 
     def __call__(self, guess):
         if self.phase == "first":
-            return integral_stage(self.nlp, guess)
+            return inner_stage(self.nlp, PEAK_STAGES[0], guess)[0]
         try:
             return solve_with_bounds(self.nlp, guess), None
         except SolverError as exc:
@@ -431,8 +352,7 @@ class StartTask:
 
 
 def same_first_plan(a: IntegralStart, b: IntegralStart) -> bool:
-    """Two first stages reached one plan: both solved, states within :data:`SAME_PLAN`,
-    controls within :data:`SAME_CONTROL`."""
+    """Two first stages solved and reached one plan."""
     if not (a.report.success and b.report.success):
         return False
     x, y = a.following, b.following
@@ -440,10 +360,16 @@ def same_first_plan(a: IntegralStart, b: IntegralStart) -> bool:
 
 
 def multi_start(nlp, guess, executor=None):
-    """Solve from ``options.starts`` guesses (:func:`start_guesses`) and keep the plan of
-    the smallest objective; ``info["starts"]`` holds every start's outcome and the spread."""
+    """Solve from ``options.starts`` guesses (the named ones, then random decision vectors) and
+    keep the plan of the smallest objective; ``info["starts"]`` holds every start's outcome and
+    the spread. Starts whose first stages reach one plan are solved once."""
     run = map if executor is None else executor.map
-    guesses = start_guesses(nlp, guess)
+    rng = np.random.default_rng(nlp.options.seed)
+    named = ([guess] + [g for g in GUESSES if g != guess])[: nlp.options.starts]
+    guesses = [(g if isinstance(g, str) else type(g).__name__, g) for g in named]
+    first_state = nlp.unpack(nlp.lbx).X[3:, 0]
+    while len(guesses) < nlp.options.starts:
+        guesses.append(("random", nlp.pack(random_guess(nlp, first_state, rng))))
     single = nlp.variant(starts=1)
     starting = [g for _, g in guesses]
     owner = list(range(len(starting)))
@@ -452,7 +378,7 @@ def multi_start(nlp, guess, executor=None):
         starting = [
             nlp.unpack(nlp.initial_guess(g)) if isinstance(g, np.ndarray) else g for g in starting
         ]
-        first = list(run(StartTask(single.at_stage(PEAK_STAGES[0]), "first"), starting))
+        first = list(run(StartTask(single.stage(PEAK_STAGES[0]), "first"), starting))
         for i in range(len(first)):
             same = (j for j in range(i) if owner[j] == j and same_first_plan(first[j], first[i]))
             owner[i] = next(same, i)
@@ -468,35 +394,33 @@ def multi_start(nlp, guess, executor=None):
             first_error = first_error or error
             runs.append({**entry, "status": str(error.status)})
             continue
-        runs.append({**entry, **_outcome(result)})
+        runs.append(
+            {
+                **entry,
+                "status": result.info["status"],
+                "objective": result.info["objective"],
+                "max_drift_rad": result.max_drift,
+                "final_drift_rad": result.final_drift,
+                "iterations": result.info["total_iterations"],
+                "solve_s": result.info["total_solve_time_s"],  # every Ipopt solve of the start
+            }
+        )
         if best is None or result.info["objective"] < best.info["objective"]:
             best = result
     if best is None:
         raise first_error
     done = [r for r in runs if "objective" in r]
     log.info("multi-start: %d starts, %d solved, %d distinct", len(runs), len(done), len(distinct))
+
+    def spread(key: str) -> float:
+        return float(max(r[key] for r in done) - min(r[key] for r in done))
+
     best.info["starts"] = {
         "runs": runs,
         "solved": len(done),
         "distinct": len(distinct),
         "workers": 1 if executor is None else None,  # an executor's own count is its own
-        "objective_spread": _spread(done, "objective"),
-        "max_drift_spread_rad": _spread(done, "max_drift_rad"),
+        "objective_spread": spread("objective"),
+        "max_drift_spread_rad": spread("max_drift_rad"),
     }
     return best
-
-
-def _outcome(result) -> dict:
-    """What ``info["starts"]`` records of a solved start."""
-    return {
-        "status": result.info["status"],
-        "objective": result.info["objective"],
-        "max_drift_rad": result.max_drift,
-        "final_drift_rad": result.final_drift,
-        "iterations": result.info["total_iterations"],
-        "solve_s": result.info["total_solve_time_s"],  # every Ipopt solve of the start
-    }
-
-
-def _spread(runs: list[dict], key: str) -> float:
-    return float(max(r[key] for r in runs) - min(r[key] for r in runs))

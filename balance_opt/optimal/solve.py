@@ -66,15 +66,14 @@ class BalanceNLP(BalanceProblem):
         self._set_bounds()
 
     def with_bounds(self, **changes) -> BalanceNLP:
-        """The same problem with other :class:`~balance_opt.optimal.problem.Bounds` (fields
-        ``path``, ``terminal``, ``torque_factor``, ``peak_reference``); this one is unchanged."""
+        """The same problem with other :class:`~balance_opt.optimal.problem.Bounds`; this one
+        is unchanged."""
         new = copy.copy(self)
         new.bounds = dataclasses.replace(self.bounds, **changes)
         new._set_bounds()
         return new
 
     def _set_bounds(self) -> None:
-        """Set the parameter vector and the bounds from :attr:`bounds`."""
         weights = self.options.weights
         peak = self.structure.key.objective in ("peak", "smooth")
         smooth = self.structure.key.objective == "smooth"
@@ -98,14 +97,20 @@ class BalanceNLP(BalanceProblem):
                 mission=self.mission_samples,
             )
         )
-        self.lbx, self.ubx = self._variable_bounds()
-        self.lbg, self.ubg = self._constraint_bounds()
+        # the variables free, narrowed by every kind in turn; each block of rows by its kind
+        n_w, n_g = self.structure.variables.size, self.structure.rows.size
+        lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
+        for kind in self.structure.kinds:
+            kind.bound_variables(self, lower, upper)
+        self.lbx, self.ubx = self.pack(lower), self.pack(upper)
+        self.lbg, self.ubg = np.empty(n_g), np.empty(n_g)
+        for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
+            self.lbg[block.slice], self.ubg[block.slice] = kind.row_bounds(self, block)
 
     def variant(
         self, stage: str | None = None, between_points: bool = False, **changes
     ) -> BalanceNLP:
-        """The same problem with other options (its bounds untightened), as a ``stage`` of the
-        peak objective if given (see :func:`build_balance_nlp`)."""
+        """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
         return build_balance_nlp(
             self.model,
@@ -118,11 +123,13 @@ class BalanceNLP(BalanceProblem):
             between_points=between_points,
         )
 
-    def at_stage(self, stage: Stage) -> BalanceNLP:
+    def stage(self, stage: Stage | str, final: bool = False) -> BalanceNLP:
         """The same problem as a :class:`~balance_opt.optimal.options.Stage` of the peak
-        objective (:data:`~balance_opt.optimal.options.PEAK_STAGES`, or
-        :data:`~balance_opt.optimal.options.SMOOTH_PLAN`): its objective, grid and rows; the
-        integral stage without attitude bounds. Itself when it is that stage already."""
+        objective, or the one of :data:`~balance_opt.optimal.options.PEAK_STAGES` of that name
+        (with ``final``, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`): its objective, grid
+        and rows; the integral stage without attitude bounds. Itself when it is that stage."""
+        if isinstance(stage, str):
+            stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == stage)
         key = self.structure.key
         if key.objective == stage.name and key.between_points == stage.between_points:
             return self
@@ -133,15 +140,8 @@ class BalanceNLP(BalanceProblem):
             )
         return self.variant(stage.name, stage.between_points, **changes)
 
-    def stage(self, name: str, final: bool = False) -> BalanceNLP:
-        """:meth:`at_stage` by name: ``"integral"`` or ``"smooth"`` (with ``final``, the smooth
-        peak as a plan of its own, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`)."""
-        stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == name)
-        return self.at_stage(stage)
-
     @property
     def variables(self) -> dict[str, Block]:
-        """The decision vector's blocks by name (``X``, ``Xm``, ``U``, ``Um``)."""
         return self.structure.variables.by_name
 
     @property
@@ -156,7 +156,6 @@ class BalanceNLP(BalanceProblem):
         return f"{block.name}: {row}", tau * self.h, unit
 
     def describe_constraint(self, index: int) -> str:
-        """Constraint ``index`` in words: what, which joint or quantity, when."""
         block = self.structure.rows.block_at(index)
         name, t, _ = self.constraint_name(index)
         if block.per_interval:
@@ -169,26 +168,10 @@ class BalanceNLP(BalanceProblem):
     def pack(self, sol: Solution) -> np.ndarray:
         return self.structure.variables.pack(sol)
 
-    def _variable_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Free variables, narrowed by every constraint kind in turn."""
-        n_w = self.structure.variables.size
-        lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
-        for kind in self.structure.kinds:
-            kind.bound_variables(self, lower, upper)
-        return self.pack(lower), self.pack(upper)
-
-    def _constraint_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each block of rows bounded by the kind that owns it."""
-        lower, upper = np.empty(self.structure.rows.size), np.empty(self.structure.rows.size)
-        for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
-            lower[block.slice], upper[block.slice] = kind.row_bounds(self, block)
-        return lower, upper
-
     def initial_guess(self, guess="analytic") -> np.ndarray:
-        """The decision vector to start from: ``"analytic"``, ``"rest"``, a
-        :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution` (of a
-        structure with or without the peak's variable ``S``, on any number of intervals) or a
-        decision vector (:mod:`balance_opt.optimal.guess`)."""
+        """The decision vector to start from: ``"analytic"`` (the analytic law, else rest),
+        ``"rest"``, a :class:`BalanceResult` (its balance motion, clipped), a :class:`Solution`
+        (with or without ``S``, on any grid) or a decision vector."""
         if isinstance(guess, (str, BalanceResult, Solution)):
             if isinstance(guess, Solution):  # of this grid or another (an inner stage's)
                 sol = resampled(guess, self.N)
@@ -210,19 +193,12 @@ class BalanceNLP(BalanceProblem):
         return build_balance_nlp(model, mission, q_B0, options, robot, h0=h0, stage=stage)
 
     def solve(self, initial_guess="analytic", executor=None) -> BalanceResult:
-        """Solve with Ipopt, re-simulate the plan, return it; with a path attitude bound through
-        the peak problem first, then the torque and attitude bounds refined until the
-        re-simulated motion meets them, from ``options.starts`` guesses
-        (:mod:`balance_opt.optimal.refine`).
-
-        Args:
-            initial_guess: see :meth:`solve_once`.
-            executor: what runs a multi-start's starts (anything with ``map``, e.g. a
-                :class:`concurrent.futures.ProcessPoolExecutor`); ``None``: this process.
+        """The plan (:mod:`balance_opt.optimal.refine`), from ``options.starts`` guesses, their
+        starts run by ``executor`` (anything with ``map``; ``None``: this process).
 
         Raises:
             PlannerSolverError: Ipopt stopped without a solution, or the path attitude bound is
-                below the smallest peak found (the message states it).
+                below the smallest peak found.
         """
         try:
             if self.options.starts > 1:
@@ -231,18 +207,15 @@ class BalanceNLP(BalanceProblem):
         finally:  # a compilation of the kernels this plan started ends with it
             self.model.finish_compiling()
 
-    def solve_once(self, initial_guess="analytic") -> BalanceResult:
-        """Solve with Ipopt once, re-simulate the plan, return it.
-
-        Args:
-            initial_guess: ``"analytic"`` (the analytic law clipped to the limits; the rest
-                guess when the law is unavailable), ``"rest"``, a :class:`BalanceResult`, or a
-                decision vector.
+    def solve_once(
+        self, initial_guess="analytic", before: PlanReport | None = None
+    ) -> BalanceResult:
+        """Solve with Ipopt once from ``initial_guess`` (see :meth:`initial_guess`) and
+        re-simulate the plan, its ``solver`` the report ``before`` followed by this solve.
 
         Raises:
-            PlannerSolverError: Ipopt stopped without a solution (infeasible, iteration limit,
-                ...); its message names the status and the most violated constraint, its
-                ``result`` is the last iterate, re-simulated.
+            PlannerSolverError: Ipopt stopped without a solution; its message names the status
+                and the most violated constraint, its ``result`` is the last iterate.
         """
         t0 = time.perf_counter()
         w0 = self.initial_guess(initial_guess)
@@ -253,7 +226,7 @@ class BalanceNLP(BalanceProblem):
         worst = self.largest_violation(w, np.array(out["g"]).ravel())
         result = resimulate(self, report.solution, self.trajectory(report.solution))
         t3 = time.perf_counter()
-        result.solver = PlanReport((report,))
+        result.solver = (PlanReport(()) if before is None else before).then(report)
         result.info.update(self._report(report, worst, (t0, t1, t2, t3)))
         result.info["nlp_solution"] = w.tolist()
         if not report.success:
@@ -271,17 +244,13 @@ class BalanceNLP(BalanceProblem):
             log.warning("Ipopt: %s", report.status)
         return result
 
-    def _progress_label(self) -> str:
-        """What the progress line of an Ipopt solve starts with: the stage of the peak
-        objective it solves (``integral``, ``smooth`` or ``peak``), if any."""
-        key = self.structure.key
-        staged = key.objective != "integral" or not key.between_points  # inner stages go without
-        return f"Ipopt (N = {self.N}{f', {key.objective} stage' if staged else ''})"
-
     def _ipopt(self, w0: np.ndarray) -> tuple[dict, SolveReport]:
         """One Ipopt solve from ``w0``: its raw output and its report."""
+        key = self.structure.key
+        staged = key.objective != "integral" or not key.between_points  # a stage of the peak
+        label = f"Ipopt (N = {self.N}{f', {key.objective} stage' if staged else ''})"
         t0 = time.perf_counter()
-        with progress.solving(self.lbg, self.ubg, self._progress_label()):
+        with progress.solving(self.lbg, self.ubg, label):
             out = self.structure.solver(
                 x0=w0, p=self.parameters, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg
             )
@@ -289,7 +258,7 @@ class BalanceNLP(BalanceProblem):
         wall = time.perf_counter() - t0
         stats = self.structure.solver.stats()
         report = SolveReport(
-            stage=self.structure.key.objective,
+            stage=key.objective,
             intervals=self.N,
             status=str(stats.get("return_status", "unknown")),
             iterations=int(stats.get("iter_count", 0)),
@@ -303,13 +272,10 @@ class BalanceNLP(BalanceProblem):
         return out, report
 
     def solve_stage(self, initial_guess) -> SolveReport:
-        """Solve with Ipopt once without re-simulating (an inner stage of the peak objective,
-        :func:`~balance_opt.optimal.refine.plan_peak`). A failure is not raised: it is the
-        report's ``status``."""
+        """Solve with Ipopt once, not re-simulated, a failure not raised (an inner stage)."""
         return self._ipopt(self.initial_guess(initial_guess))[1]
 
     def _report(self, report: SolveReport, worst, times) -> dict:
-        """The solver's part of ``BalanceResult.info``."""
         t0, t1, t2, t3 = times
         iters = self.structure.solver.stats().get("iterations", {})
         key = self.structure.key
@@ -349,8 +315,7 @@ class BalanceNLP(BalanceProblem):
         }
 
     def largest_violation(self, w, g) -> tuple[str, float, float, str, str]:
-        """``(name, time [s], amount, unit, description)`` of the most violated constraint or
-        bound."""
+        """``(name, time [s], amount, unit, description)`` of the worst constraint or bound."""
         viol_g = np.maximum(np.maximum(self.lbg - g, g - self.ubg), 0.0)
         viol_x = np.maximum(np.maximum(self.lbx - w, w - self.ubx), 0.0)
         if viol_g.size and viol_g.max() >= (viol_x.max() if viol_x.size else 0.0):
@@ -364,7 +329,6 @@ class BalanceNLP(BalanceProblem):
         return f"bound on {name}", t, float(viol_x[i]), unit, f"bound on {name} at t = {t:.3f} s"
 
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
-        """The balance joints' continuous motion of a solution."""
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
         levels = joint_chain_coefficients(self.transcription, starts, sol.U, sol.Um, self.h)
         return CollocatedTrajectory(self.h, levels)
@@ -380,34 +344,18 @@ def build_balance_nlp(
     stage: str | None = None,
     between_points: bool = False,
 ) -> BalanceNLP:
-    """Build the balance NLP of a mission.
-
-    The compiled structure is taken from ``planner_model.nlp_cache`` when a problem of the same
-    structure (:class:`~balance_opt.optimal.problem.StructureKey`: intervals, transcription,
-    control, constraint switches, solver options) was built before; the mission, horizon,
-    ``q_B0``, weights and bounds are numeric inputs.
-
-    Args:
-        planner_model: the robot's :class:`PlannerModel` (or the robot: a model is built, not kept).
-        mission_trajectory: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``, ``duration``).
-        q_B0: initial balance configuration [rad] (the balance arm starts at rest).
-        options: planner settings (defaults: :class:`PlannerOptions`).
-        robot: the robot whose joint limits bound the plan, of the model's kinematics (a task
-            may change the limits; the model and its compiled NLPs stay valid); default: the
-            model's robot.
-        h0: the system's total momentum, world frame, ``[linear; angular about the CoM]``
-            [N s; N m s] (the base starts at the identity); ``None`` for zero. A parameter:
-            every ``h0`` shares the compiled NLP.
-        stage: a stage of the peak objective (:mod:`balance_opt.optimal.refine`):
-            ``"smooth"`` (a structure no option names) or ``"integral"``; the stage's
-            structure has no joint-limit rows between the points (its plan is a warm start)
-            unless ``between_points``.
-        between_points: with ``stage``, keep those rows (the smooth peak as a plan).
+    """Build the balance NLP of a mission: the mission arm's motion (``sample(t) -> q, q_dot,
+    q_ddot``, ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the
+    limits of ``robot`` (default: the model's robot), the system's total momentum ``h0`` (world
+    frame, ``[linear; angular about the CoM]`` [N s; N m s], the base starting at the identity;
+    ``None``: zero). The compiled structure is taken from ``planner_model.nlp_cache`` when one of
+    the same :class:`~balance_opt.optimal.problem.StructureKey` was built; the rest is numeric
+    input. ``stage``: an inner stage of the peak objective (``"smooth"`` or ``"integral"``),
+    without the joint-limit rows between the points unless ``between_points``.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
-        InfeasibleLimitsError: limits no plan can meet (``q_B0`` or the prescribed final
-            configuration outside the position limits), naming the joint.
+        InfeasibleLimitsError: ``q_B0`` or the final configuration outside the position limits.
     """
     start = time.perf_counter()
     model = (
@@ -423,7 +371,7 @@ def build_balance_nlp(
         robot.limits.subset(robot.balance_indices),
         options,
         momentum,
-        collision.key if collision is not None else "",
+        collision.rows.key if collision is not None else "",
     )
     if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
         key = dataclasses.replace(
@@ -447,23 +395,18 @@ def plan_optimal(
     initial_guess="analytic",
     h0=None,
 ) -> BalanceResult:
-    """Plan the balance arm's motion for a mission: :func:`build_balance_nlp` then
-    :meth:`BalanceNLP.solve`. Pass a :class:`PlannerModel` to reuse the symbolic model and the
-    compiled NLPs across calls; ``h0`` is the total momentum (see :func:`build_balance_nlp`)."""
+    """:func:`build_balance_nlp` then :meth:`BalanceNLP.solve` (a :class:`PlannerModel` keeps
+    the symbolic model and the compiled NLPs across calls)."""
     return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
 
 
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
     """Re-simulate a plan on a fine grid: every interval split into ``sub`` equal steps no
-    longer than ``options.resample_step``, so that no RK4 step of
-    :func:`balance_opt.motion.replay.replay` straddles a node, where the joint motion's higher
-    derivatives jump. ``info["resimulation"]`` reports the collocation defects (NLP attitude at
-    the nodes against the re-simulated one; joint polynomial at each interval's end against
-    the next node), the momentum residual, the drift, the limit violations and, as
-    ``constraint_violations``, every constraint kind the re-simulated motion breaks beyond
-    tolerance (:meth:`~balance_opt.optimal.constraints.Constraint.check`: between the
-    collocation points, torques and the path attitude bound are not enforced).
-    """
+    longer than ``options.resample_step``, so that no RK4 step straddles a node, where the joint
+    motion's higher derivatives jump. ``info["resimulation"]`` reports the collocation defects,
+    the momentum residual, the drift, the limit violations and every constraint kind the
+    re-simulated motion breaks beyond tolerance (between the collocation points, torques and
+    the path attitude bound are not enforced)."""
     # imported here: a multi-start's worker that only solves first stages never needs it
     from balance_opt.motion.replay import replay
 
@@ -478,7 +421,6 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         h0=nlp.h0,
         integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])),
     )
-    # collocation defects: NLP attitude at the nodes vs the re-simulated one
     q_nlp = quaternion_from_rotvec(sol.X[:3].T)
     attitude_defect = rotation_angle(
         quaternion_multiply(quaternion_conjugate(q_nlp), result.quaternion[::sub])
