@@ -130,24 +130,34 @@ def to_json(value: Any) -> Any:
     return str(value)
 
 
+#: The kinds of joint limits, in the order of ``metrics.json``.
+LIMIT_KINDS = ("position", "velocity", "acceleration")
+
+
+def limit_bounds(limits, kind: str, i: int) -> tuple[float, float]:
+    """Lower and upper bound of joint ``i``'s limit of ``kind`` (a rate limit is symmetric)."""
+    if kind == "position":
+        return limits.lower[i], limits.upper[i]
+    value = getattr(limits, kind)[i]
+    return -value, value
+
+
 def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict[str, float]]:
     """Smallest distance to each limit over the motion, per joint: ``{joint: {"position": m,
     "velocity": m, "acceleration": m}}`` [rad, rad/s, rad/s^2; m, m/s, m/s^2 for a prismatic
-    joint]; negative where the limit is broken,
-    ``inf`` (``null`` in JSON) where there is no limit."""
-    names = (*result.mission_joints, *result.balance_joints)
-    q = np.hstack([result.q_M, result.q_B])
-    qd = np.hstack([result.q_dot_M, result.q_dot_B])
-    qdd = np.hstack([result.q_ddot_M, result.q_ddot_B])
-    lim = robot.limits
+    joint]; negative where the limit is broken, ``inf`` (``null`` in JSON) where there is no
+    limit."""
+    series = {
+        "position": np.hstack([result.q_M, result.q_B]),
+        "velocity": np.hstack([result.q_dot_M, result.q_dot_B]),
+        "acceleration": np.hstack([result.q_ddot_M, result.q_ddot_B]),
+    }
     out = {}
-    for k, name in enumerate(names):
-        i = robot.joint_index(name)
-        out[name] = {
-            "position": float(min(np.min(lim.upper[i] - q[:, k]), np.min(q[:, k] - lim.lower[i]))),
-            "velocity": float(lim.velocity[i] - np.max(np.abs(qd[:, k]))),
-            "acceleration": float(lim.acceleration[i] - np.max(np.abs(qdd[:, k]))),
-        }
+    for k, name in enumerate((*result.mission_joints, *result.balance_joints)):
+        out[name] = {}
+        for kind, x in series.items():
+            lo, hi = limit_bounds(robot.limits, kind, robot.joint_index(name))
+            out[name][kind] = float(min(np.min(hi - x[:, k]), np.min(x[:, k] - lo)))
     return out
 
 
@@ -212,8 +222,7 @@ def effort_metrics(
 
     def smallest(subset):
         values = [joints[j]["relative_margin"] for j in subset]
-        values = [v for v in values if v is not None]
-        return min(values) if values else None
+        return min((v for v in values if v is not None), default=None)
 
     return {
         "joints": joints,
@@ -223,14 +232,6 @@ def effort_metrics(
     }
 
 
-#: Kinds of joint limits and the size of each a relative margin is taken of.
-_LIMIT_SCALES = {
-    "position": lambda lim, i: lim.upper[i] - lim.lower[i],
-    "velocity": lambda lim, i: lim.velocity[i],
-    "acceleration": lambda lim, i: lim.acceleration[i],
-}
-
-
 def relative_limit_margins(
     margins: Mapping[str, Mapping[str, float]], robot: FloatingRobot, joints
 ) -> dict[str, float]:
@@ -238,13 +239,13 @@ def relative_limit_margins(
     the size of its limit (the position range, the velocity or acceleration limit): 0 on the
     limit, 1 at rest for a rate; ``inf`` where none of them has that limit."""
     out = {}
-    for kind, scale in _LIMIT_SCALES.items():
-        values = [
-            margins[j][kind] / scale(robot.limits, robot.joint_index(j))
-            for j in joints
-            if math.isfinite(margins[j][kind])
-        ]
-        out[kind] = min(values) if values else math.inf
+    for kind in LIMIT_KINDS:
+        values = []
+        for j in joints:
+            lo, hi = limit_bounds(robot.limits, kind, robot.joint_index(j))
+            if math.isfinite(margins[j][kind]):
+                values.append(margins[j][kind] / (hi - lo if kind == "position" else hi))
+        out[kind] = min(values, default=math.inf)
     return out
 
 
@@ -313,13 +314,9 @@ def method_metrics(
     rates = np.abs(np.hstack([result.q_dot_M, result.q_dot_B]))
     out = dict(result.summary())
     out["limit_margins"] = margins
-    out["min_limit_margin"] = {
-        kind: min(m[kind] for m in margins.values())
-        for kind in ("position", "velocity", "acceleration")
-    }
+    out["min_limit_margin"] = {k: min(m[k] for m in margins.values()) for k in LIMIT_KINDS}
     out["balance_limit_margin"] = {
-        kind: min(margins[j][kind] for j in result.balance_joints)
-        for kind in ("position", "velocity", "acceleration")
+        k: min(margins[j][k] for j in result.balance_joints) for k in LIMIT_KINDS
     }
     out["balance_relative_limit_margin"] = relative_limit_margins(
         margins, robot, result.balance_joints
@@ -336,7 +333,7 @@ def method_metrics(
     out["smoothness"] = _smoothness_metrics(result, robot, torques)
     kinds = [v.kind for v in result.violations]
     out["limit_violations_by_kind"] = {
-        **{kind: kinds.count(kind) for kind in ("position", "velocity", "acceleration")},
+        **{kind: kinds.count(kind) for kind in LIMIT_KINDS},
         "effort": len(out["effort"]["violations"]),
         "collision": len(collisions),
     }
@@ -373,13 +370,21 @@ def _collision_violations(clearance) -> list[str]:
     return [f"{pen.pair}: collision from t = {pen.time:.3f} s, {pen.depth:.4g} m deep"]
 
 
-def _capture_block(info: Mapping[str, Any], t, quaternion, t_c: float) -> dict[str, Any]:
-    """Attitude drift before the capture (from the start) and after it (from the attitude at
-    the capture) [rad], and the capture's jumps and impulses."""
+def capture_drifts(t, quaternion, t_c: float) -> tuple[int, np.ndarray, np.ndarray]:
+    """The index ``k`` of the last sample at or before the capture time ``t_c``, the drift [rad]
+    from the start at every sample and the drift from the attitude at the capture at samples
+    ``k`` on."""
     quaternion = np.asarray(quaternion)
     k = int(np.flatnonzero(np.asarray(t) <= t_c + 1e-12)[-1])
     from_start = rotation_angle(relative_rotation(quaternion[:1], quaternion))
     after = rotation_angle(relative_rotation(quaternion[k : k + 1], quaternion[k:]))
+    return k, from_start, after
+
+
+def _capture_block(info: Mapping[str, Any], t, quaternion, t_c: float) -> dict[str, Any]:
+    """Attitude drift before the capture (from the start) and after it (from the attitude at
+    the capture) [rad], and the capture's jumps and impulses."""
+    k, from_start, after = capture_drifts(t, quaternion, t_c)
     jump = info["omega_jump"]
     vectors = (
         "ee_impulse",

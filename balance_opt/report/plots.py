@@ -4,10 +4,9 @@ capture.
 
 Every function takes ``{name: result}`` of the curves to overlay; the name is a method of
 :mod:`balance_opt.report.style` and gives the curve its look and label. The figures carry no
-title (a caption belongs to the text around them) and touch no pyplot state. Given ``axes=`` a
-function draws into the caller's axes; given no ``stem`` it writes nothing. :func:`plot_result`
-(``balance_opt.plot_result``) is a quick look at one result for notebooks, on axes the caller
-owns (or a new figure), leaving the caller's matplotlib settings alone.
+title (a caption belongs to the text around them) and touch no pyplot state; given no ``stem``
+a function writes nothing. :func:`plot_result` (``balance_opt.plot_result``) is a quick look at
+one result for notebooks, on axes the caller owns (or a new figure).
 
 Constrained layout renders every text once per file written, which is slow. These figures have a
 known shape (panels sharing the time axis, a y label left of the first column, a legend above),
@@ -24,8 +23,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.report import style
+from balance_opt.report.outputs import capture_drifts, limit_bounds
 from balance_opt.report.style import WIDTHS, font_sizes
 from balance_opt.result import BalanceResult
 
@@ -163,41 +162,25 @@ def _time_axes(axes, t_end: float, labels: Sequence[str]) -> None:
     axes[-1].set_xlim(0.0, t_end)
 
 
-def draw_attitude(axes, results: Mapping[str, Any]) -> list:
-    """Draw roll, pitch and yaw [deg] of each result into three axes, or, into one axes, the
-    base's rotation angle from its start [deg]. Returns the curves of the first axes."""
-    axes = list(np.atleast_1d(axes))
-    for name, res in results.items():
-        kwargs = style.method_style(name)
-        if len(axes) == 1:
-            axes[0].plot(res.t, np.degrees(res.angle), **kwargs)
-            continue
-        deg = np.degrees(res.rpy)
-        for k, ax in enumerate(axes):
-            ax.plot(res.t, deg[:, k], **kwargs)
-    return axes[0].get_lines()
-
-
 def attitude_figure(
     results: Mapping[str, Any],
     stem: str | Path | None = None,
     *,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
-    axes=None,
 ) -> tuple[Any, list[Path]]:
     """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
-    one column wide (or into three ``axes``); returns the figure and the files written."""
-    t_end = max(float(res.t[-1]) for res in results.values())
-    if axes is not None:
-        draw_attitude(axes, results)
-        return np.atleast_1d(axes)[0].figure, []
+    one column wide; returns the figure and the files written."""
     with style.styled("column"):
         fig = style.figure("column", STACK_HEIGHT)
         axes = fig.subplots(3, 1, sharex=True)
-        handles = draw_attitude(axes, results)
+        for name, res in results.items():
+            kwargs = style.method_style(name)
+            for k, ax in enumerate(axes):
+                ax.plot(res.t, np.degrees(res.rpy[:, k]), **kwargs)
+        t_end = max(float(res.t[-1]) for res in results.values())
         _time_axes(axes, t_end, [f"{a} [deg]" for a in ATTITUDE_AXES])
-        layout(fig, axes[:, None], handles, "column")
+        layout(fig, axes[:, None], axes[0].get_lines(), "column")
         return fig, _finish(fig, stem, formats, dpi)
 
 
@@ -373,13 +356,6 @@ OFF_SCALE = 1.5
 LIMIT_STYLE = {"color": "0.35", "linestyle": (0, (1.0, 1.0)), "linewidth": 0.9, "label": "limit"}
 
 
-def _bounds(lim, kind: str, i: int) -> tuple[float, float]:
-    if kind == "position":
-        return lim.lower[i], lim.upper[i]
-    value = getattr(lim, kind)[i]
-    return -value, value
-
-
 def joint_limits_figure(
     results: Mapping[str, BalanceResult],
     robot: FloatingRobot,
@@ -439,7 +415,7 @@ def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joint
         ax = axes[r]
         for name, res in results.items():
             ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
-        bounds = [b for b in _bounds(robot.limits, kind, i) if np.isfinite(b)]
+        bounds = [b for b in limit_bounds(robot.limits, kind, i) if np.isfinite(b)]
         if bounds:  # one line for both limits (NaN between): fewer artists than axhline
             t0, t1 = first.t[0], first.t[-1]
             ys = [y for b in bounds for y in (b, b, np.nan)]
@@ -468,11 +444,10 @@ def capture_figure(
         ax_w, ax_a = fig.subplots(2, 1, sharex=True)
         for name, r in results.items():
             kwargs = style.method_style(name)
-            t, quat = np.asarray(r.t), np.asarray(r.quaternion)
+            t = np.asarray(r.t)
+            k, from_start, since = capture_drifts(t, r.quaternion, t_c)
             ax_w.plot(t, np.degrees(np.linalg.norm(r.omega, axis=1)), **kwargs)
-            ax_a.plot(t, np.degrees(rotation_angle(relative_rotation(quat[:1], quat))), **kwargs)
-            k = int(np.flatnonzero(t <= t_c + 1e-12)[-1])
-            since = rotation_angle(relative_rotation(quat[k : k + 1], quat[k:]))
+            ax_a.plot(t, np.degrees(from_start), **kwargs)
             thin = {**kwargs, "linewidth": 0.6, "marker": "", "label": None}
             ax_a.plot(t[k:], np.degrees(since), **thin)
         for ax in (ax_w, ax_a):
@@ -483,7 +458,7 @@ def capture_figure(
         ax_w.legend(loc="best")
         ax_w.set_ylim(bottom=0.0)
         ax_a.set_ylim(bottom=0.0)
-    return fig, _finish(fig, stem, formats, dpi)
+        return fig, _finish(fig, stem, formats, dpi)
 
 
 #: What :func:`plot_result` can draw: ``kind -> y-axis label``.
