@@ -340,42 +340,33 @@ def _animation(
     """The lowered ``set_animation`` command: per node (a meshcat path) its position and
     quaternion keys (times [s] from the start, three.js's (x, y, z, w) order); ``visible``: per
     node its visibility at each time of ``t`` (bool (K,)), stored as keys where it changes
-    (three.js holds a boolean key until the next one)."""
-    from meshcat.animation import Animation, AnimationClip, AnimationTrack
-    from meshcat.commands import SetAnimation
+    (three.js holds a boolean key until the next one).
 
-    class Track(AnimationTrack):
-        """meshcat's track with its key times (and numeric values) as float32 arrays, which
-        three.js reads as they are, instead of a small map per key: a quarter of the size;
-        a visibility track's values a list of booleans."""
+    Key times and numeric values are float32 arrays, which three.js reads as they are, instead
+    of meshcat's small map per key: a quarter of the size."""
 
-        def lower(self):
-            values = np.ravel(self.values)
-            return {
-                "name": "." + self.name,
-                "type": self.jstype,
-                "times": _float32(self.frames),
-                "values": [bool(v) for v in values] if self.jstype == "bool" else _float32(values),
-            }
+    def clip(path, *tracks) -> dict:
+        lowered = [
+            {"name": "." + name, "type": kind, "times": _float32(times), "values": values}
+            for name, kind, times, values in tracks
+        ]  # key times in seconds: fps 1
+        return {"path": path.lower(), "clip": {"fps": 1.0, "name": "default", "tracks": lowered}}
 
-    clips = {
-        path: AnimationClip(
-            {
-                "position": Track("position", "vector3", t, position),
-                "quaternion": Track("quaternion", "quaternion", t, quaternion),
-            },
-            fps=1.0,  # key times in seconds
+    clips = [
+        clip(
+            path,
+            ("position", "vector3", t, _float32(position)),
+            ("quaternion", "quaternion", t, _float32(quaternion)),
         )
         for path, (position, quaternion) in tracks.items()
-    }
+    ]
     for path, shown in (visible or {}).items():
         shown = np.asarray(shown, dtype=bool)
         # the last key too: every clip lasts the whole motion
         keys = np.unique(np.r_[0, np.flatnonzero(shown[1:] != shown[:-1]) + 1, shown.size - 1])
-        clips[path] = AnimationClip(
-            {"visible": Track("visible", "bool", t[keys], shown[keys])}, fps=1.0
-        )
-    return SetAnimation(Animation(clips), play=False, repetitions=1).lower()
+        clips.append(clip(path, ("visible", "bool", t[keys], [bool(v) for v in shown[keys]])))
+    options = {"play": False, "repetitions": 1}
+    return {"type": "set_animation", "animations": clips, "options": options, "path": ""}
 
 
 def _tracks(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -654,22 +645,19 @@ const sl = document.getElementById('scene-t'), btn = document.getElementById('sc
 const lab = document.getElementById('scene-label'), note = document.getElementById('scene-note');
 const anim = viewer.animator;
 function method() { return S.methods[sel.value]; }
-function angleAt(m, t) { let k = 0;
-  while (k + 1 < m.angle_t.length && m.angle_t[k + 1] <= t + 1e-9) k++;
-  return m.angle[k]; }
-function show(t) { const m = method(), a = angleAt(m, t);
+// the key in force at t: the last one at or before it
+function keyAt(times, t) { let k = 0;
+  while (k + 1 < times.length && times[k + 1] <= t + 1e-9) k++;
+  return k; }
+function show(t) { const m = method(), a = m.angle[keyAt(m.angle_t, t)];
   let s = 't = ' + (m.t0 + t).toFixed(2) + ' s of ' + (m.t0 + m.duration).toFixed(2) +
     ' s; base rotation from the start ' + a.toPrecision(3) + ' rad (' +
     (a * 180 / Math.PI).toFixed(2) + ' deg)';
   if (S.target) s += (m.t0 + t >= S.target.time ? '; target captured' : '; target free') +
     ' (capture at ' + S.target.time + ' s)';
-  const near = m.near ? textAt(m.near, t) : '';
+  const near = m.near ? m.near[keyAt(m.near.map(function (n) { return n[0]; }), t)][1] : '';
   if (near) s += '; ' + near;
   lab.textContent = s; sl.value = t; }
-// the proximity label in force at t: the last change at or before it
-function textAt(keys, t) { let k = 0;
-  while (k + 1 < keys.length && keys[k + 1][0] <= t + 1e-9) k++;
-  return keys[k][1]; }
 // the viewer's player applies only running actions: hold them paused at the time shown
 function seek(t) { anim.playing = false; anim.clock.stop();
   anim.actions.forEach(function (a) { a.play(); a.paused = true; a.time = t; });
