@@ -271,26 +271,19 @@ def comparison_table(
     order = _ordered(methods)
     failed = {m for m in order if m in (failures or {})}
     head = "".join(_method_head(m, m in failed) for m in order)
-    body, section, section_rows = [], None, []
-
-    def flush():
-        if section is not None and section_rows:
-            body.append(
-                f'<tr class="section"><td colspan="{len(order) + 1}">{html.escape(section)}</td></tr>'
-            )
-            body.extend(section_rows)
-
+    body, section = [], None
     for label, make in _ROWS:
         if make is None:
-            flush()
-            section, section_rows = label, []
+            section = label
             continue
         cells = [make(methods[m]) for m in order]
         if all(c is None for c in cells):
             continue
+        if section is not None:  # the heading of a section goes before its first row
+            body.append(f'<tr class="section"><td colspan="{len(order) + 1}">{section}</td></tr>')
+            section = None
         row = "".join(_cell(c, m in failed) for c, m in zip(cells, order))
-        section_rows.append(f"<tr><td>{html.escape(label)}</td>{row}</tr>")
-    flush()
+        body.append(f"<tr><td>{html.escape(label)}</td>{row}</tr>")
     return f"<table><thead><tr><th></th>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
