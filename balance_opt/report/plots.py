@@ -44,9 +44,7 @@ _PT = 1.0 / 72.0
 
 
 def text_width(text: str, size_pt: float) -> float:
-    """Estimated width of ``text`` in inches at ``size_pt`` (mathtext counted as 4 glyphs)."""
-    if text.startswith("$"):
-        return 4 * _DIGIT_EM * size_pt * _PT
+    """Estimated width of ``text`` [in] at ``size_pt``."""
     em = sum(
         _DIGIT_EM if c.isdigit() else _GLYPH_EM.get(c, 0.58 if c.islower() else 0.7) for c in text
     )
@@ -83,10 +81,8 @@ def _legend_columns(labels: Sequence[str], width: str) -> int:
 
 def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = False) -> None:
     """Place a grid of panels (margins from the tick labels and fonts, room above for column
-    titles) and a frameless legend of ``handles`` above them, in as many columns as fit.
-
-    Call after the data are drawn (the y tick labels depend on the data).
-    """
+    titles) and a frameless legend of ``handles`` above them, in as many columns as fit. Call
+    after the data are drawn (the y tick labels depend on the data)."""
     from matplotlib.lines import Line2D
 
     ncol = _legend_columns([h.get_label() for h in handles], width)
@@ -141,8 +137,6 @@ def column_title(ax, text: str, width: str) -> None:
 
 
 FORMATS = ("png", "pdf")
-ATTITUDE_AXES = ("roll", "pitch", "yaw")
-TORQUE_AXES = ("x", "y", "z")
 #: Height of a three-panel figure [in].
 STACK_HEIGHT = 3.9
 
@@ -169,8 +163,8 @@ def attitude_figure(
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
 ) -> tuple[Any, list[Path]]:
-    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
-    one column wide; returns the figure and the files written."""
+    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5);
+    returns the figure and the files written (none without ``stem``)."""
     with style.styled("column"):
         fig = style.figure("column", STACK_HEIGHT)
         axes = fig.subplots(3, 1, sharex=True)
@@ -179,7 +173,7 @@ def attitude_figure(
             for k, ax in enumerate(axes):
                 ax.plot(res.t, np.degrees(res.rpy[:, k]), **kwargs)
         t_end = max(float(res.t[-1]) for res in results.values())
-        _time_axes(axes, t_end, [f"{a} [deg]" for a in ATTITUDE_AXES])
+        _time_axes(axes, t_end, [f"{a} [deg]" for a in ("roll", "pitch", "yaw")])
         layout(fig, axes[:, None], axes[0].get_lines(), "column")
         return fig, _finish(fig, stem, formats, dpi)
 
@@ -194,13 +188,9 @@ def model_error_figure(
     dpi: int = style.PRINT_DPI,
 ) -> tuple[Any, list[Path]]:
     """The base's rotation from its start [deg] of each plan as planned (the line) and the 95th
-    percentile over perturbed models (the band up to the dotted edge), one column wide.
-
-    Args:
-        results: ``{name: result}`` with ``t`` and ``angle``.
-        bands: ``{name: p95 angle at result.t}`` [rad] (a plan without one has no band).
-        perturbation: the relative model error the bands are for (named in the legend).
-    """
+    percentile over perturbed models (``bands``: ``{name: p95 angle at result.t}`` [rad]; the
+    band up to the dotted edge); ``perturbation``, the relative model error, is named in the
+    legend."""
     with style.styled("column"):
         fig = style.figure("column", 2.4)
         ax = fig.subplots(1, 1)
@@ -231,7 +221,7 @@ def clearance_figure(
 ) -> tuple[Any, list[Path]]:
     """The smallest distance between any two bodies that may touch [m] against time, one curve
     per motion ``{name: (t, distance)}``, with zero (contact) and the planner's ``margin``
-    (dotted) marked; one column wide."""
+    (dotted) marked."""
     with style.styled("column"):
         fig = style.figure("column", 2.4)
         ax = fig.subplots(1, 1)
@@ -253,12 +243,11 @@ def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
     """(wrench, plot kwargs) of the sum, the mission arm and the balance arm(s) of one plan."""
     balance = sum(w for arm, w in sim.arm_wrenches.items() if arm != "mission")
     sim_name = name if name.endswith(style.SIM) else f"{name}{style.SIM}"
-    balance_style = {**style.method_style(sim_name), "label": f"{style.method_label(name)}: "}
-    balance_style["label"] += "balance arm"
     # Where the balance arm carries most of the sum (the optimal plan's torques), the two
     # curves coincide: the balance arm wide and pale under the thin sum keeps both readable,
     # in greyscale too.
-    balance_style.update(linewidth=2.6, alpha=0.55, zorder=1.8)
+    balance_style = {**style.method_style(sim_name), "linewidth": 2.6, "alpha": 0.55, "zorder": 1.8}
+    balance_style["label"] = f"{style.method_label(name)}: balance arm"
     return [
         (sim.total_wrench, {**style.method_style("sum"), "zorder": 2.5}),
         (sim.arm_wrenches["mission"], style.method_style("arm:mission")),
@@ -275,9 +264,7 @@ def reaction_torque_figure(
 ) -> tuple[Any, list[Path]]:
     """Torque the arms exert on the base [N m], base axes, against time (paper Fig. 4): one
     column of panels per plan, each with its own scale (the analytic law's torques are tens of
-    times smaller than the optimal plan's); a page wide for two plans or more. Returns the figure
-    and the files written.
-    """
+    times smaller than the optimal plan's); a page wide for two plans or more."""
     width = "page" if len(simulations) > 1 else "column"
     with style.styled(width):
         fig = style.figure(width, 4.0 if width == "page" else STACK_HEIGHT)
@@ -289,10 +276,8 @@ def reaction_torque_figure(
                 for k, ax in enumerate(axes[:, c]):
                     ax.plot(sim.t, wrench[:, 3 + k], **kwargs)
             handles += axes[0, c].get_lines()[(0 if c == 0 else 2) :]
-            _time_axes(axes[:, c], t_end, [f"torque {a} [N m]" for a in TORQUE_AXES])
-            if c:
-                for ax in axes[:, c]:
-                    ax.set_ylabel("")
+            labels = [f"torque {a} [N m]" if c == 0 else "" for a in "xyz"]
+            _time_axes(axes[:, c], t_end, labels)
             column_title(axes[0, c], style.method_label(name), width)
         layout(fig, axes, handles, width, column_titles=True)
         return fig, _finish(fig, stem, formats, dpi)
@@ -440,8 +425,9 @@ def capture_figure(
     """For each result (a plan or a simulation), ``|omega_b|`` [deg/s] and the drift [deg] from
     the start (thick) and from the attitude at the capture (thin, after it)."""
     with style.styled("column"):
-        fig = style.figure("column", 4.2, layout="constrained")
-        ax_w, ax_a = fig.subplots(2, 1, sharex=True)
+        fig = style.figure("column", 4.2)
+        axes = fig.subplots(2, 1, sharex=True)
+        ax_w, ax_a = axes
         for name, r in results.items():
             kwargs = style.method_style(name)
             t = np.asarray(r.t)
@@ -450,14 +436,12 @@ def capture_figure(
             ax_a.plot(t, np.degrees(from_start), **kwargs)
             thin = {**kwargs, "linewidth": 0.6, "marker": "", "label": None}
             ax_a.plot(t[k:], np.degrees(since), **thin)
-        for ax in (ax_w, ax_a):
+        t_end = max(float(r.t[-1]) for r in results.values())
+        _time_axes(axes, t_end, ["|ω_b| [deg/s]", "drift [deg]"])
+        for ax in axes:
             ax.axvline(t_c, color="0.4", linestyle=":", linewidth=0.8)
-        ax_w.set_ylabel("|ω_b| [deg/s]")
-        ax_a.set_ylabel("drift [deg]")
-        ax_a.set_xlabel("time [s]")
-        ax_w.legend(loc="best")
-        ax_w.set_ylim(bottom=0.0)
-        ax_a.set_ylim(bottom=0.0)
+            ax.set_ylim(bottom=0.0)
+        layout(fig, axes[:, None], ax_w.get_lines()[: len(results)], "column")
         return fig, _finish(fig, stem, formats, dpi)
 
 
