@@ -75,13 +75,14 @@ def magnification(max_angle: float) -> float:
     return float(max(f * power for f in (1, 2, 5) if f * power <= want))
 
 
-def magnified_axes(quaternion: np.ndarray, factor: float) -> np.ndarray:
-    """Base axes (T, 3, 3) (rows: x, y, z in the world) of the attitude ``R0 exp(factor
-    log(R0^T R))``: the rotation from the start ``R0``, magnified."""
+def magnified_rotation(quaternion: np.ndarray, factor: float) -> np.ndarray:
+    """The base's attitudes (T, 3, 3) ``R0 exp(factor log(R0^T R))``: its rotation from the
+    start ``R0``, magnified."""
     phi = rotvec_from_quaternion(relative_rotation(quaternion[:1], quaternion))
     R0 = matrix_from_quaternion(quaternion[0])
-    R = np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
-    return np.swapaxes(R, 1, 2)
+    return np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
+
+
 #: Three.js draws a cylinder along its y axis, Pinocchio along z: a quarter turn about x.
 _CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 
@@ -139,14 +140,6 @@ def cluster_vertices(
     return merged[used], f.reshape(-1, 3)
 
 
-def _mesh_arrays(geometry) -> tuple[np.ndarray, np.ndarray]:
-    faces = np.array(
-        [[tri[0], tri[1], tri[2]] for tri in map(geometry.tri_indices, range(geometry.num_tris))],
-        dtype=np.int64,
-    )
-    return np.asarray(geometry.vertices(), dtype=float), faces
-
-
 def _shape(obj: pin.GeometryObject, cell: float, meshes: dict) -> tuple[Any, np.ndarray] | None:
     """meshcat geometry of a Pinocchio geometry object and its intrinsic transform (4, 4);
     meshes are read once per file (``meshes``: this build's cache). None: a shape not drawn."""
@@ -164,7 +157,8 @@ def _shape(obj: pin.GeometryObject, cell: float, meshes: dict) -> tuple[Any, np.
     if isinstance(g, coal.BVHModelBase):
         key = (obj.meshPath, tuple(np.asarray(obj.meshScale)))
         if key not in meshes:
-            v, f = cluster_vertices(*_mesh_arrays(g), cell)
+            faces = [[t[0], t[1], t[2]] for t in map(g.tri_indices, range(g.num_tris))]
+            v, f = cluster_vertices(g.vertices(), faces, cell)
             meshes[key] = mg.TriangularMeshGeometry(v, f)
         return meshes[key], np.eye(4)
     log.warning("scene: %s (%s) is not drawn", obj.name, type(g).__name__)
@@ -265,7 +259,7 @@ def scene_poses(
     q = np.empty_like(q_plan)
     for k, joint in enumerate((*result.mission_joints, *result.balance_joints)):
         q[:, robot.joint_index(joint)] = q_plan[:, k]
-    R = np.swapaxes(magnified_axes(result.quaternion[index], factor), 1, 2)
+    R = magnified_rotation(result.quaternion[index], factor)
     p0 = np.zeros(3) if h0 is None else np.asarray(h0, dtype=float)[:3]
     mass, ee = robot.total_mass, model.getFrameId(robot.mission.ee_frame)
     t_c = target.time if target is not None else np.inf
@@ -373,10 +367,9 @@ def _tracks(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions (K, 3) and unit quaternions (K, 4) (x, y, z, w) of placements (K, 4, 4), each
     quaternion on the side of its predecessor (the same rotations, no half-turn between keys)."""
     quaternions = np.array([pin.Quaternion(M[:3, :3]).coeffs() for M in poses])
-    for k in range(1, len(quaternions)):
-        if quaternions[k] @ quaternions[k - 1] < 0:
-            quaternions[k] *= -1
-    return poses[:, :3, 3], quaternions
+    turns = np.einsum("ij,ij->i", quaternions[1:], quaternions[:-1]) < 0
+    sides = np.cumprod(np.r_[1.0, np.where(turns, -1.0, 1.0)])
+    return poses[:, :3, 3], quaternions * sides[:, None]
 
 
 @dataclass
@@ -485,10 +478,8 @@ def build_scene(
     if target is not None:
         sides, axes = target.box()
         path = _path(TARGET_NODE, "box")
-        frame = np.eye(4)
-        frame[:3, :3] = axes
         box = _object(mg.Box(list(sides)), TARGET_COLOUR, 0.85, False)
-        send(SetObject(box, path=path), SetTransform(frame, path))
+        send(SetObject(box, path=path), SetTransform(pin.SE3(axes, np.zeros(3)).homogeneous, path))
     # the view: the grid under the robot, the camera orbiting about its middle
     hull = np.vstack(
         [start["joints"][:, :, :3, 3].reshape(-1, 3)]  # the joints along the first plan
