@@ -46,7 +46,6 @@ SCENE_FPS = 25
 MESH_GRID = 200
 #: Colour of the links that belong to no arm (the base and what is fixed to it).
 BASE_COLOUR = "#A0A0A0"
-#: Colour of the captured target.
 TARGET_COLOUR = "#009E73"
 #: Path of the robot's nodes in the viewer's scene tree.
 ROOT = ("meshcat", "robot")
@@ -141,8 +140,8 @@ def cluster_vertices(
 
 
 def _shape(obj: pin.GeometryObject, cell: float, meshes: dict) -> tuple[Any, np.ndarray] | None:
-    """meshcat geometry of a Pinocchio geometry object and its intrinsic transform (4, 4);
-    meshes are read once per file (``meshes``: this build's cache). None: a shape not drawn."""
+    """meshcat geometry of a Pinocchio geometry object and its intrinsic transform (4, 4), or
+    None; ``meshes``: the meshes read so far, by file."""
     import coal
     import meshcat.geometry as mg
 
@@ -184,7 +183,7 @@ def _colour(index: int, robot: FloatingRobot) -> str:
 
 
 def _object(geometry, colour: str, opacity: float, flat: bool):
-    """A meshcat mesh object; simplified meshes are shaded flat (no normals to store)."""
+    """A meshcat mesh object; ``flat``: shaded flat (a simplified mesh: no normals to store)."""
     import meshcat.geometry as mg
 
     material = mg.MeshPhongMaterial(
@@ -194,8 +193,8 @@ def _object(geometry, colour: str, opacity: float, flat: bool):
 
 
 def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
-    """Every drawn piece of the robot's visual geometry, coloured by arm (``size``: the robot's
-    size [m], which sets the mesh simplification)."""
+    """Every drawn piece of the robot's visual geometry, coloured by arm; ``size``: the robot's
+    size [m], which sets the mesh simplification."""
     import meshcat.geometry as mg
 
     gmodel, meshes, arm = visual_model(robot), {}, _arm_of_joint(robot)
@@ -239,19 +238,11 @@ def scene_poses(
     factor: float = 1.0,
     fps: float = SCENE_FPS,
 ) -> dict[str, np.ndarray]:
-    """World placements of the scene's nodes along a plan.
-
-    Args:
-        joints: Pinocchio joint ids whose placements are wanted.
-        h0: initial momentum, world frame (6,); None: at rest.
-        factor: magnification of the base's rotation from its start (1: the plan's attitude).
-        fps: samples per second; the plan's own sample at or after each time is taken.
-
-    Returns:
-        ``t`` (K,) the sample times used [s], ``index`` (K,) their indices in the plan, ``base``
-        (K, 4, 4), ``joints`` (K, J, 4, 4) and, with a target, ``target`` (K, 4, 4) its box's
-        centre and axes.
-    """
+    """World placements along a plan (at :func:`frame_index`) of the Pinocchio ``joints``, for
+    the initial momentum ``h0`` (world frame, (6,); None: at rest), the base's rotation from its
+    start magnified ``factor`` times: ``t`` (K,) the sample times [s], ``index`` (K,) their
+    indices in the plan, ``base`` (K, 4, 4), ``joints`` (K, J, 4, 4) and, with a target,
+    ``target`` (K, 4, 4) its box's centre and axes."""
     model, data = robot.model, robot.model.createData()
     index = frame_index(result.t, fps)
     t = result.t[index]
@@ -390,8 +381,7 @@ class Scene:
 
 
 def _path(*names: str):
-    """The meshcat path of a node under :data:`ROOT` (or, with a leading "/", of the
-    viewer's own nodes: ``"/Grid"``)."""
+    """The meshcat path of a node under :data:`ROOT`; ``"/Grid"``: of the viewer's own."""
     from meshcat.path import Path as MeshcatPath
 
     if names and names[0].startswith("/"):
@@ -413,17 +403,11 @@ def build_scene(
     geometry=None,
     margin: float = 0.0,
 ) -> Scene:
-    """The scene of a run's plans (see the module docstring).
-
-    Args:
-        results: ``{method: plan}`` (the mission arm alone, analytic, optimal...).
-        h0: initial momentum, world frame (6,).
-        target: the target captured during the mission, or None.
-        labels: display name per method (default :func:`~balance_opt.report.style.method_label`).
-        geometry: the robot's collision geometry or None: with it, the links of a checked pair
-            closer than ``margin`` [m] are drawn amber at those frames, those of a pair that
-            penetrates red (:func:`proximity_levels`).
-    """
+    """The scene of a run's plans ``{method: plan}``; ``h0``: the initial momentum, world frame
+    (6,); ``labels``: display names (default :func:`~balance_opt.report.style.method_label`).
+    With the robot's collision ``geometry``, the links of a checked pair closer than ``margin``
+    [m] are drawn amber at those frames, those of a pair that penetrates red
+    (:func:`proximity_levels`)."""
     import meshcat.geometry as mg
     from meshcat.commands import SetObject, SetProperty, SetTransform
 
@@ -440,8 +424,8 @@ def build_scene(
         setup.extend(_pack(c.lower()) for c in commands)
 
     def place(obj: SceneObject, path, colour: str | None = None) -> None:
-        """A piece (in ``colour``, highlighted; else its own) at its placement; a mesh already
-        sent is handed over by the page (a mesh file several links carry is sent once)."""
+        # a mesh already sent is handed over by the page: a mesh file several links carry is
+        # sent once
         nonlocal sent
         shape = obj.mesh.geometry
         if obj.vertices and id(shape) in carrier:
@@ -738,9 +722,7 @@ def write_scene(
     geometry=None,
     margin: float = 0.0,
 ) -> Path:
-    """Build the scene of ``results`` (:func:`build_scene`; ``geometry`` and ``margin``: the
-    highlighting of links that come close), write its page to ``path`` and return the path; its
-    size is logged."""
+    """Write the page of :func:`build_scene` to ``path``."""
     path = Path(path)
     scene = build_scene(robot, results, h0, target, labels, geometry=geometry, margin=margin)
     path.write_text(scene_html(scene, title), encoding="utf-8")
