@@ -57,8 +57,6 @@ def format_value(value: Any, tolerance: float | None = None, unit: str = "", dig
     suffix = f" {unit}" if unit else ""
     if value is None:
         return "\u2013"
-    if isinstance(value, bool):
-        return "yes" if value else "no"
     if isinstance(value, float):
         if not math.isfinite(value):
             return "inf" if value > 0 else "-inf"
@@ -103,7 +101,7 @@ Cell = tuple[str, str] | None
 
 
 def _value(path: str, show: Callable[[Any, Mapping], Cell]) -> Callable[[Mapping], Cell]:
-    """The cell of the value at ``path`` of a method's metrics, ``show(value, metrics)``."""
+    """``show(value, metrics)`` of the value at ``path`` of a method's metrics."""
 
     def cell(m):
         value = _get(m, path)
