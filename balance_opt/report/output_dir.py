@@ -17,7 +17,6 @@ import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
-from types import TracebackType
 from typing import TYPE_CHECKING
 
 from balance_opt.cache import pid_alive
@@ -73,12 +72,9 @@ def make_parent(target: Path) -> None:
 
 
 class FolderLock:
-    """Exclusive lock of a target folder while a run writes to it: ``flock`` on the file
-    ``.NAME.lock`` beside the folder, holding the process id of its holder.
-
-    Args:
-        target: the folder (its parent must exist: :func:`make_parent`).
-    """
+    """Exclusive lock of a ``target`` folder (its parent must exist: :func:`make_parent`) while
+    a run writes to it: ``flock`` on the file ``.NAME.lock`` beside the folder, holding the
+    process id of its holder."""
 
     def __init__(self, target: str | Path):
         self.target = _target_path(target)
@@ -257,12 +253,7 @@ class OutputFolder:
         self._depth += 1
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *_) -> None:
         self._depth -= 1
         if exc_type is not None:
             self.abort()
