@@ -526,12 +526,9 @@ def render_report(
             of :func:`balance_opt.dynamics.inverse_dynamics.plan_joint_torques`, drawn over the
             motion in the torque tables (left out: peaks only).
     """
-    task = metrics.get("task", {})
+    task, methods = metrics.get("task", {}), metrics.get("methods", {})
+    failures = metrics.get("failures") or {}
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())
-    failures = "".join(
-        f'<p class="failure">FAILED: {html.escape(method_label(k))}: {html.escape(v)}</p>'
-        for k, v in (metrics.get("failures") or {}).items()
-    )
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     parts = [
         "<!DOCTYPE html>",
@@ -549,16 +546,17 @@ def render_report(
         parts.append(f'<p class="headline">{html.escape(line)}</p>')
     if description:
         parts.append(f"<p>{html.escape(description)}</p>")
-    parts.append(failures)
-    methods = metrics.get("methods", {})
+    parts.extend(
+        f'<p class="failure">FAILED: {html.escape(method_label(k))}: {html.escape(v)}</p>'
+        for k, v in failures.items()
+    )
     parts.extend(
         f'<p class="failure">WARNING: {html.escape(method_label(k))}: {html.escape(w)}</p>'
         for k, m in methods.items()
         for w in m.get("warnings") or ()
     )
-    fails = metrics.get("failures") or {}
     parts.append("<h2>Comparison</h2>")
-    parts.append(comparison_table(methods, fails))
+    parts.append(comparison_table(methods, failures))
     parts.append(_NOTES)
     parts.append("<h2>Limit violations</h2>")
     parts.append(_violations(methods))
@@ -571,7 +569,7 @@ def render_report(
             "the limit dashed, the at-the-limit band shaded). The whole time series is in each "
             "method's NPZ file (<code>joint_torque</code>).</p>"
         )
-        parts.append(_torque_profiles(methods, fails, torques))
+        parts.append(_torque_profiles(methods, failures, torques))
     parts.append(capture_table(metrics.get("capture")))  # "" without a capture
     if figures:
         parts.append("<h2>Figures</h2>")

@@ -512,19 +512,18 @@ def build_scene(
             animations[key] = _pack(_animation(tracks, pose["t"] - pose["t"][0], visible))
             poses[key] = pose
         pose = poses[f"{name}|1"]
+        times = [round(float(x - pose["t"][0]), 4) for x in pose["t"]]  # from the start
         meta_methods[name] = {
             "label": (labels or {}).get(name) or method_label(name),
             "t0": float(pose["t"][0]),
             "duration": float(pose["t"][-1] - pose["t"][0]),
-            "angle_t": [round(float(x - pose["t"][0]), 4) for x in pose["t"]],
+            "angle_t": times,
             "angle": [float(f"{a:.4g}") for a in res.angle[pose["index"]]],
         }
-        if name in texts:  # the label's text where it changes: [time from the start, text]
+        if name in texts:  # the label's text where it changes
             text = texts[name]
             meta_methods[name]["near"] = [
-                [round(float(pose["t"][k] - pose["t"][0]), 4), text[k]]
-                for k in range(len(text))
-                if k == 0 or text[k] != text[k - 1]
+                [times[k], text[k]] for k in range(len(text)) if k == 0 or text[k] != text[k - 1]
             ]
     arms = [
         {"label": f"{arm.name} arm", "colour": ARM_COLOURS[a % len(ARM_COLOURS)]}
@@ -678,20 +677,17 @@ def scene_html(scene: Scene, title: str = "") -> str:
         f'<option value="{f:g}">{"as planned" if f == 1 else f"magnified x {f:g}"}</option>'
         for f in meta["factors"]
     )
-    keys = "".join(
-        f'<span class="key" style="background:{a["colour"]}"></span>{html.escape(a["label"])}'
-        for a in meta["arms"]
-    )
-    keys += f'<span class="key" style="background:{meta["base_colour"]}"></span>base'
+
+    def key(colour: str, text: str) -> str:
+        return f'<span class="key" style="background:{colour}"></span>{text}'
+
+    keys = [key(a["colour"], html.escape(a["label"])) for a in meta["arms"]]
+    keys.append(key(meta["base_colour"], "base"))
     if meta["target"]:
-        keys += f'<span class="key" style="background:{meta["target"]["colour"]}"></span>target'
-    near = meta["proximity"]
-    if near:
-        keys += (
-            f'<span class="key" style="background:{near["near"]}"></span>closer than the '
-            f'collision margin ({near["margin"]:g} m)'
-            f'<span class="key" style="background:{near["touch"]}"></span>penetrating'
-        )
+        keys.append(key(meta["target"]["colour"], "target"))
+    if near := meta["proximity"]:
+        keys.append(key(near["near"], f"closer than the collision margin ({near['margin']:g} m)"))
+        keys.append(key(near["touch"], "penetrating"))
     data = {k: v for k, v in meta.items() if k != "robot"}
     data.update(setup=scene.setup, animations=scene.animations)
     script = _PLAYER.replace("SCENE_DATA", json.dumps(data, separators=(",", ":")))
@@ -705,7 +701,7 @@ def scene_html(scene: Scene, title: str = "") -> str:
         '<button id="scene-play" type="button">play</button>'
         '<input id="scene-t" type="range" min="0" max="1" step="0.01" value="0"> '
         f'<span id="scene-label"></span><div id="scene-note"></div>'
-        f'<div class="meta">{heading}: {keys}; base axes red x, green y, blue z. '
+        f'<div class="meta">{heading}: {"".join(keys)}; base axes red x, green y, blue z. '
         "Drag to turn, scroll to zoom.</div></div>"
         f"<script>{bundle}</script><script>{script}</script></body></html>"
     )
