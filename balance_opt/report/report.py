@@ -51,9 +51,9 @@ code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-
 """
 
 
-def format_value(value: Any, tolerance: float | None = None, unit: str = "", digits=4) -> str:
+def format_value(value: Any, tolerance: float | None = None, unit: str = "") -> str:
     """A value as plain text: ``"0 (< 1e-12 rad)"`` when its magnitude is below ``tolerance``,
-    ``"-"`` for None, ``"inf"``, else ``digits`` significant digits, then the unit."""
+    ``"-"`` for None, ``"inf"``, else 4 significant digits, then the unit."""
     suffix = f" {unit}" if unit else ""
     if value is None:
         return "\u2013"
@@ -62,7 +62,7 @@ def format_value(value: Any, tolerance: float | None = None, unit: str = "", dig
             return "inf" if value > 0 else "-inf"
         if tolerance is not None and abs(value) < tolerance:
             return f"0 (< {tolerance:g}{suffix})"
-        return f"{value:.{digits}g}{suffix}"
+        return f"{value:.4g}{suffix}"
     return f"{value}{suffix}"
 
 
@@ -331,7 +331,7 @@ def torque_table(
         css = margin_class(relative, relative, 1e-6) if relative is not None else ""
         cells = [
             (format_value(e.get("peak_Nm"), TORQUE_TOLERANCE), ""),
-            (format_value(e.get("peak_time_s"), digits=4), ""),
+            (format_value(e.get("peak_time_s")), ""),
             ("no limit", "") if e.get("limit_Nm") is None else (format_value(e["limit_Nm"]), ""),
             (format_value(margin, TORQUE_TOLERANCE), css) if margin is not None else None,
             (f"{100 * relative:.4g} %", css) if relative is not None else None,

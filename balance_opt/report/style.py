@@ -153,18 +153,15 @@ def styled(width: str = "column") -> Iterator[None]:
         yield
 
 
-def figure(width: str = "column", height: float = 2.6, layout: str | None = None):
+def figure(width: str = "column", height: float = 2.6):
     """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide and ``height`` [in]
-    tall; build its artists inside :func:`styled` with the same width so that fonts fit.
-
-    ``layout="constrained"`` makes matplotlib measure every text at each save, which is slow;
-    ``None`` leaves the panels to the caller (:func:`balance_opt.report.plots.layout`).
-    """
+    tall, its panels placed by the caller (:func:`balance_opt.report.plots.layout`); build its
+    artists inside :func:`styled` with the same width so that fonts fit."""
     from matplotlib.figure import Figure
 
     if width not in WIDTHS:
         raise ValueError(f"figure width must be one of {', '.join(WIDTHS)}, got {width!r}")
-    return Figure(figsize=(WIDTHS[width], height), layout=layout)
+    return Figure(figsize=(WIDTHS[width], height))
 
 
 def save(
