@@ -551,20 +551,11 @@ def build_scene(
 def proximity_levels(
     geometry, distances: np.ndarray, margin: float, links: Mapping[str, int]
 ) -> tuple[dict[str, np.ndarray], list[str]]:
-    """How close the drawn links come at each frame.
-
-    Args:
-        geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`.
-        distances: (K, P) the distance [m] of each checked pair (``geometry.pairs``) per frame.
-        margin: the collision margin [m].
-        links: the drawn links, each with its body (Pinocchio joint). A pair's link that is not
-            drawn (a collision-only link) stands for every drawn link of its body.
-
-    Returns:
-        per link its level at each frame (K,): 2 where a pair of it penetrates (distance < 0),
-        1 where one is closer than ``margin``, 0 otherwise; and per frame the label's text
-        naming those pairs ("" when none).
-    """
+    """How close the drawn ``links`` (each with its body, a Pinocchio joint) come at each frame,
+    from the distances (K, P) [m] of the ``geometry``'s checked pairs: per link its level at each
+    frame (2 where a pair of it penetrates, 1 where one is closer than ``margin`` [m], 0
+    otherwise) and per frame the label's text naming those pairs ("" when none). A pair's link
+    that is not drawn (a collision-only link) stands for every drawn link of its body."""
     d = np.asarray(distances, dtype=float)
     pair_level = np.where(d < 0.0, 2, np.where(d < margin, 1, 0))
     out = {link: np.zeros(d.shape[0], dtype=int) for link in links}
