@@ -515,17 +515,10 @@ def render_report(
     extra_html: str = "",
     torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> str:
-    """The report as one HTML string.
-
-    Args:
-        metrics: the content of ``metrics.json`` (:func:`balance_opt.report.outputs.run_metrics`).
-        figures: ``(caption, PNG file)`` pairs, embedded in that order.
-        description: the task's description.
-        extra_html: trusted HTML appended at the end (e.g. the 3D scene).
-        torques: per method ``(t, tau)``, the sample times [s] and joint torques (T, n) [N m]
-            of :func:`balance_opt.dynamics.inverse_dynamics.plan_joint_torques`, drawn over the
-            motion in the torque tables (left out: peaks only).
-    """
+    """The report of ``metrics`` (the content of ``metrics.json``) as one HTML string, with the
+    ``figures`` ``(caption, PNG file)`` embedded in that order, trusted ``extra_html`` at the end
+    (the 3D scene) and, per method, ``torques`` ``(t, tau)`` (times [s], joint torques (T, n)
+    [N m]) drawn over the motion in the torque tables (left out: peaks only)."""
     task, methods = metrics.get("task", {}), metrics.get("methods", {})
     failures = metrics.get("failures") or {}
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())
