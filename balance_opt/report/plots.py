@@ -79,10 +79,10 @@ def _legend_columns(labels: Sequence[str], width: str) -> int:
     return 1
 
 
-def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = False) -> None:
-    """Place a grid of panels (margins from the tick labels and fonts, room above for column
-    titles) and a frameless legend of ``handles`` above them, in as many columns as fit. Call
-    after the data are drawn (the y tick labels depend on the data)."""
+def layout(fig, axes: np.ndarray, handles, width: str, column_titles: Sequence[str] = ()) -> None:
+    """Place a grid of panels (margins from the tick labels and fonts), the titles of its
+    columns (a plan, a joint) and a frameless legend of ``handles`` above them, in as many
+    columns as fit. Call after the data are drawn (the y tick labels depend on the data)."""
     from matplotlib.lines import Line2D
 
     ncol = _legend_columns([h.get_label() for h in handles], width)
@@ -113,6 +113,9 @@ def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = Fal
     order = [r * ncol + c for c in range(ncol) for r in range(rows)]  # legends fill by column
     padded = list(handles) + [Line2D([], [], alpha=0, label=" ")] * (rows * ncol - len(handles))
     cells = [padded[i] for i in order]
+    for ax, title in zip(axes[0], column_titles):
+        # at a fixed height: matplotlib's own placement measures the axis at every draw
+        ax.set_title(title, fontsize=base, y=1.0, pad=3.0)
     fig.legend(
         cells,
         [h.get_label() for h in cells],
@@ -127,13 +130,6 @@ def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = Fal
         borderpad=0.0,
         fontsize=leg,
     )
-
-
-def column_title(ax, text: str, width: str) -> None:
-    """Name a column of panels (a plan, a joint) above its top panel. Placed at a fixed height
-    (:func:`layout` leaves room): matplotlib's automatic placement measures the axis at every
-    draw."""
-    ax.set_title(text, fontsize=font_sizes(width)["base"], y=1.0, pad=3.0)
 
 
 FORMATS = ("png", "pdf")
@@ -278,8 +274,8 @@ def reaction_torque_figure(
             handles += axes[0, c].get_lines()[(0 if c == 0 else 2) :]
             labels = [f"torque {a} [N m]" if c == 0 else "" for a in "xyz"]
             _time_axes(axes[:, c], t_end, labels)
-            column_title(axes[0, c], style.method_label(name), width)
-        layout(fig, axes, handles, width, column_titles=True)
+        titles = [style.method_label(name) for name in simulations]
+        layout(fig, axes, handles, width, column_titles=titles)
         return fig, _finish(fig, stem, formats, dpi)
 
 
@@ -362,11 +358,10 @@ def joint_limits_figure(
         axes = fig.subplots(len(_ROWS), len(joints), sharex=True, squeeze=False)
         for c, joint in enumerate(joints):
             _joint_column(axes[:, c], results, robot, joint, list(first.balance_joints))
-            column_title(axes[0, c], joint, width)
         handles = axes[0, 0].get_lines()
         handles = [h for h in handles if h.get_label() != "_limit"][: len(results)]
         handles.append(Line2D([], [], **LIMIT_STYLE))
-        layout(fig, axes, handles, width, column_titles=True)
+        layout(fig, axes, handles, width, column_titles=joints)
         return fig, _finish(fig, stem, formats, dpi)
 
 
