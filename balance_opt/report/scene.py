@@ -82,21 +82,16 @@ def magnified_rotation(quaternion: np.ndarray, factor: float) -> np.ndarray:
     return np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
 
 
-#: Three.js draws a cylinder along its y axis, Pinocchio along z: a quarter turn about x.
-_CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
-
 
 @dataclass(frozen=True)
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
-    placement in the joint frame, the meshcat object (``intrinsic``: its transform from
-    meshcat's axes to Pinocchio's), its vertex count (meshes), the corners of its bounding
-    box in the joint frame (8, 3) [m] and its link (frame) name."""
+    placement in the joint frame, the meshcat object, its vertex count (meshes), the corners
+    of its bounding box in the joint frame (8, 3) [m] and its link (frame) name."""
 
     name: str
     joint: int
     placement: pin.SE3
-    intrinsic: np.ndarray
     mesh: Any  # a meshcat.geometry.Mesh
     vertices: int
     corners: np.ndarray
@@ -139,29 +134,22 @@ def cluster_vertices(
     return merged[used], f.reshape(-1, 3)
 
 
-def _shape(obj: pin.GeometryObject, cell: float, meshes: dict) -> tuple[Any, np.ndarray] | None:
-    """meshcat geometry of a Pinocchio geometry object and its intrinsic transform (4, 4), or
-    None; ``meshes``: the meshes read so far, by file."""
+def _shape(obj: pin.GeometryObject, cell: float, meshes: dict):
+    """meshcat geometry of a Pinocchio geometry object, or None (a shape meshcat cannot draw);
+    ``meshes``: the meshes read so far, by file."""
     import coal
     import meshcat.geometry as mg
+    from pinocchio.visualize.meshcat_visualizer import loadPrimitive
 
     g = obj.geometry
-    if isinstance(g, coal.Box):
-        return mg.Box(list(2.0 * np.asarray(g.halfSide))), np.eye(4)
-    if isinstance(g, (coal.Cylinder, coal.Capsule)):  # a capsule: the cylinder that holds it
-        length = 2.0 * g.halfLength + (2.0 * g.radius if isinstance(g, coal.Capsule) else 0.0)
-        return mg.Cylinder(length, g.radius), _CYLINDER_AXIS
-    if isinstance(g, coal.Sphere):
-        return mg.Sphere(g.radius), np.eye(4)
-    if isinstance(g, coal.BVHModelBase):
-        key = (obj.meshPath, tuple(np.asarray(obj.meshScale)))
-        if key not in meshes:
-            faces = [[t[0], t[1], t[2]] for t in map(g.tri_indices, range(g.num_tris))]
-            v, f = cluster_vertices(g.vertices(), faces, cell)
-            meshes[key] = mg.TriangularMeshGeometry(v, f)
-        return meshes[key], np.eye(4)
-    log.warning("scene: %s (%s) is not drawn", obj.name, type(g).__name__)
-    return None
+    if not isinstance(g, coal.BVHModelBase):
+        return loadPrimitive(obj)  # with meshcat's turn of the axes (cylinders) built in
+    key = (obj.meshPath, tuple(np.asarray(obj.meshScale)))
+    if key not in meshes:
+        faces = [[t[0], t[1], t[2]] for t in map(g.tri_indices, range(g.num_tris))]
+        v, f = cluster_vertices(g.vertices(), faces, cell)
+        meshes[key] = mg.TriangularMeshGeometry(v, f)
+    return meshes[key]
 
 
 def _arm_of_joint(robot: FloatingRobot) -> dict[int, int]:
@@ -201,10 +189,9 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
     cell = size / MESH_GRID
     out = []
     for obj in gmodel.geometryObjects:
-        shape = _shape(obj, cell, meshes)
-        if shape is None:
+        geometry = _shape(obj, cell, meshes)
+        if geometry is None:
             continue
-        geometry, intrinsic = shape
         opacity = float(min(obj.meshColor[3], 1.0)) if obj.meshColor[3] > 0 else 1.0
         mesh = isinstance(geometry, mg.TriangularMeshGeometry)
         drawn = _object(geometry, _colour(arm[obj.parentJoint], robot), opacity, mesh)
@@ -215,7 +202,7 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         corners = corners @ obj.placement.rotation.T + obj.placement.translation
         out.append(
             SceneObject(
-                obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners,
+                obj.name, obj.parentJoint, obj.placement, drawn, n, corners,
                 robot.model.frames[obj.parentFrame].name,
             )
         )  # fmt: skip
@@ -438,8 +425,7 @@ def build_scene(
             drawn = _object(shape, colour, HIGHLIGHT_OPACITY, bool(obj.vertices))
         else:
             drawn = mg.Mesh(shape, obj.mesh.material)
-        transform = obj.placement.homogeneous @ obj.intrinsic
-        send(SetObject(drawn, path=path), SetTransform(transform, path))
+        send(SetObject(drawn, path=path), SetTransform(obj.placement.homogeneous, path))
 
     for obj in objects:
         place(obj, _path(_node_name(robot, obj.joint), obj.name))
