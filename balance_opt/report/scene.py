@@ -157,13 +157,10 @@ def _arm_of_joint(robot: FloatingRobot) -> dict[int, int]:
     ``len(robot.arms)`` for the base and what hangs from it outside the arms."""
     model = robot.model
     arm_of = {model.getJointId(j): a for a, arm in enumerate(robot.arms) for j in arm.joints}
-    out = {}
-    for j in range(model.njoints):
-        k = j
-        while k > 1 and k not in arm_of:
-            k = model.parents[k]
-        out[j] = arm_of.get(k, len(robot.arms))
-    return out
+    return {
+        j: next((arm_of[k] for k in reversed(model.supports[j]) if k in arm_of), len(robot.arms))
+        for j in range(model.njoints)
+    }
 
 
 def _colour(index: int, robot: FloatingRobot) -> str:
