@@ -347,21 +347,18 @@ def _collision_violations(clearance) -> list[str]:
     return [f"{pen.pair}: collision from t = {pen.time:.3f} s, {pen.depth:.4g} m deep"]
 
 
-def capture_drifts(t, quaternion, t_c: float) -> tuple[int, np.ndarray, np.ndarray]:
-    """The index ``k`` of the last sample at or before the capture time ``t_c``, the drift [rad]
-    from the start at every sample and the drift from the attitude at the capture at samples
-    ``k`` on."""
-    quaternion = np.asarray(quaternion)
-    k = int(np.flatnonzero(np.asarray(t) <= t_c + 1e-12)[-1])
-    from_start = rotation_angle(relative_rotation(quaternion[:1], quaternion))
-    after = rotation_angle(relative_rotation(quaternion[k : k + 1], quaternion[k:]))
-    return k, from_start, after
+def capture_drifts(motion, t_c: float) -> tuple[int, np.ndarray]:
+    """The index ``k`` of the last sample of ``motion`` at or before the capture time ``t_c``
+    and the drift [rad] from the attitude at the capture at samples ``k`` on."""
+    k = int(np.flatnonzero(np.asarray(motion.t) <= t_c + 1e-12)[-1])
+    quaternion = np.asarray(motion.quaternion)
+    return k, rotation_angle(relative_rotation(quaternion[k : k + 1], quaternion[k:]))
 
 
-def _capture_block(info: Mapping[str, Any], t, quaternion, t_c: float) -> dict[str, Any]:
+def _capture_block(info: Mapping[str, Any], motion, t_c: float) -> dict[str, Any]:
     """Attitude drift before the capture (from the start) and after it (from the attitude at
     the capture) [rad], and the capture's jumps and impulses."""
-    k, from_start, after = capture_drifts(t, quaternion, t_c)
+    (k, after), from_start = capture_drifts(motion, t_c), motion.angle
     jump = info["omega_jump"]
     vectors = (
         "ee_impulse",
@@ -404,7 +401,7 @@ def capture_metrics(task, results: Mapping[str, Any], simulations=None) -> dict[
         for name, r in motions.items():
             info = r.info.get("capture")
             if info is not None:
-                out[block][name] = _capture_block(info, r.t, r.quaternion, t_c)
+                out[block][name] = _capture_block(info, r, t_c)
     return out
 
 

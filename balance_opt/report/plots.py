@@ -426,9 +426,9 @@ def capture_figure(
         for name, r in results.items():
             kwargs = style.method_style(name)
             t = np.asarray(r.t)
-            k, from_start, since = capture_drifts(t, r.quaternion, t_c)
+            k, since = capture_drifts(r, t_c)
             ax_w.plot(t, np.degrees(np.linalg.norm(r.omega, axis=1)), **kwargs)
-            ax_a.plot(t, np.degrees(from_start), **kwargs)
+            ax_a.plot(t, np.degrees(r.angle), **kwargs)
             thin = {**kwargs, "linewidth": 0.6, "marker": "", "label": None}
             ax_a.plot(t[k:], np.degrees(since), **thin)
         t_end = max(float(r.t[-1]) for r in results.values())
