@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.report.outputs import EFFORT_TOLERANCE
 from balance_opt.report.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 
@@ -145,7 +146,7 @@ def _effort_margin(path: str) -> Callable[[Mapping], Cell]:
         relative = _get(m, path)
         if relative is None:
             return "no limit", ""
-        return f"{100 * relative:.4g} %", margin_class(relative, relative, 1e-6)
+        return f"{100 * relative:.4g} %", margin_class(relative, relative, EFFORT_TOLERANCE)
 
     return cell
 
@@ -328,7 +329,7 @@ def torque_table(
     rows = []
     for k, (joint, e) in enumerate((effort.get("joints") or {}).items()):
         margin, relative = e.get("margin_Nm"), e.get("relative_margin")
-        css = margin_class(relative, relative, 1e-6) if relative is not None else ""
+        css = margin_class(relative, relative, EFFORT_TOLERANCE) if relative is not None else ""
         cells = [
             (format_value(e.get("peak_Nm"), TORQUE_TOLERANCE), ""),
             (format_value(e.get("peak_time_s")), ""),
@@ -493,7 +494,7 @@ _NOTES = (
     "to a balance-joint limit over the motion, and the smallest such distance as a fraction of "
     "the limit (the position range, the velocity, acceleration or effort limit). Colours: "
     '<span class="swatch" style="background:#ffcdd2"></span>broken (beyond the limit by more '
-    f"than {LIMIT_TOLERANCE:g} in the limit's unit; efforts: 1e-6 of the limit), "
+    f"than {LIMIT_TOLERANCE:g} in the limit's unit; efforts: {EFFORT_TOLERANCE:g} of the limit), "
     '<span class="swatch" style="background:#ffe082"></span>at the limit (within '
     f"{100 * AT_LIMIT_BAND:g} % of it), "
     '<span class="swatch" style="background:#dcedc8"></span>inside. Values below their '
