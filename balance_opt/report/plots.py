@@ -288,15 +288,11 @@ def paper_figure_set(
     balance_only,
     balanced,
 ) -> tuple[dict[str, list[Path]], dict[str, Any]]:
-    """The paper's Figs. 2-5 of one study, as ``({"fig2": [files], ...}, {"fig2": Figure})``.
-
-    Args:
-        stems: file name without suffix of ``"fig2"`` ... ``"fig5"``.
-        mission_only: simulation of the mission arm alone (Fig. 2 solid, Fig. 5 reference).
-        kinematic: the mission arm alone under the momentum model (Fig. 2 dashed).
-        balance_only: ``{method: simulation}`` of each plan's balance arm alone (Fig. 3).
-        balanced: ``{method: simulation}`` of each plan, both arms moving (Figs. 4, 5).
-    """
+    """The paper's Figs. 2-5 of one study, files named ``stems``, as ``({"fig2": [files], ...},
+    {"fig2": Figure})``: Fig. 2 the simulation of the ``mission_only`` arm over its
+    ``kinematic`` model, Fig. 3 the simulations ``{method: simulation}`` of each plan's
+    ``balance_only`` arm, Figs. 4 and 5 those of each plan with both arms moving (``balanced``),
+    Fig. 5 with the mission arm alone."""
 
     def sims(results):
         return {f"{name}{style.SIM}": res for name, res in results.items()}
