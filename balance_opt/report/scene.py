@@ -448,19 +448,13 @@ def build_scene(
         box = _object(mg.Box(list(sides)), TARGET_COLOUR, 0.85, False)
         send(SetObject(box, path=path), SetTransform(pin.SE3(axes, np.zeros(3)).homogeneous, path))
     # the view: the grid under the robot, the camera orbiting about its middle
-    hull = np.vstack(
-        [start["joints"][:, :, :3, 3].reshape(-1, 3)]  # the joints along the first plan
-        + [
-            o.corners @ start["joints"][0][o.joint - 1][:3, :3].T
-            + start["joints"][0][o.joint - 1][:3, 3]
-            for o in objects
-        ]
-    )
+    H = {o.joint: start["joints"][0][o.joint - 1] for o in objects}  # at the first sample
+    pieces = [o.corners @ H[o.joint][:3, :3].T + H[o.joint][:3, 3] for o in objects]
+    hull = np.vstack([start["joints"][:, :, :3, 3].reshape(-1, 3), *pieces])  # + the joints
     lo, hi = hull.min(axis=0), hull.max(axis=0)
     centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
-    grid, cam = np.eye(4), np.eye(4)
-    grid[:3, 3] = [centre[0], centre[1], lo[2] - 0.15 * extent]
-    cam[:3, 3] = centre
+    grid = pin.SE3(np.eye(3), np.array([*centre[:2], lo[2] - 0.15 * extent])).homogeneous
+    cam = pin.SE3(np.eye(3), centre).homogeneous
     d = 0.45 * extent + 0.2
     send(
         SetTransform(grid, _path("/Grid")),
@@ -696,12 +690,8 @@ def write_scene(
     path = Path(path)
     scene = build_scene(robot, results, h0, target, labels, geometry=geometry, margin=margin)
     path.write_text(scene_html(scene, title), encoding="utf-8")
-    log.info(
-        "scene: %s, %.1f MB (%d mesh vertices)",
-        path.name,
-        path.stat().st_size / 1e6,
-        scene.meta["vertices"],
-    )
+    megabytes = path.stat().st_size / 1e6
+    log.info("scene: %s, %.1f MB (%d mesh vertices)", path.name, megabytes, scene.meta["vertices"])
     return path
 
 
