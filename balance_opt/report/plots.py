@@ -329,7 +329,6 @@ MAX_COLUMNS = 7
 #: The y axis of a row reaches at most this many times a limit beyond it: a plan far outside
 #: (a law that ran away) would otherwise squash every other plan and the limits to a line.
 OFF_SCALE = 1.5
-#: Style of the limit lines.
 LIMIT_STYLE = {"color": "0.35", "linestyle": (0, (1.0, 1.0)), "linewidth": 0.9, "label": "limit"}
 
 
@@ -352,11 +351,9 @@ def joint_limits_figure(
     with style.styled(width):
         fig = style.figure(width, 4.0)
         axes = fig.subplots(len(_ROWS), len(joints), sharex=True, squeeze=False)
-        for c, joint in enumerate(joints):
-            _joint_column(axes[:, c], results, robot, joint, list(first.balance_joints))
-        handles = axes[0, 0].get_lines()
-        handles = [h for h in handles if h.get_label() != "_limit"][: len(results)]
-        handles.append(Line2D([], [], **LIMIT_STYLE))
+        for k in range(len(joints)):
+            _joint_column(axes[:, k], results, robot, k)
+        handles = [*axes[0, 0].get_lines()[: len(results)], Line2D([], [], **LIMIT_STYLE)]
         layout(fig, axes, handles, width, column_titles=joints)
         return fig, _finish(fig, stem, formats, dpi)
 
@@ -381,14 +378,13 @@ def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
     )
 
 
-def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joints) -> None:
+def _joint_column(axes, results, robot: FloatingRobot, k: int) -> None:
+    """The panels of balance joint ``k``."""
     from matplotlib.ticker import MaxNLocator
 
-    i = robot.joint_index(joint)
-    k = balance_joints.index(joint)
     first = next(iter(results.values()))
-    for r, (field, kind, label) in enumerate(_ROWS):
-        ax = axes[r]
+    i = robot.joint_index(first.balance_joints[k])
+    for ax, (field, kind, label) in zip(axes, _ROWS):
         for name, res in results.items():
             ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
         bounds = [b for b in limit_bounds(robot.limits, kind, i) if np.isfinite(b)]
@@ -398,7 +394,7 @@ def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joint
             ax.plot([t0, t1, np.nan] * len(bounds), ys, **{**LIMIT_STYLE, "label": "_limit"})
         if len(bounds) == 2:
             _clip_off_scale(ax, results, field, k, bounds)
-        if joint == balance_joints[0]:
+        if k == 0:
             ax.set_ylabel(label)
         ax.yaxis.set_major_locator(MaxNLocator(4))
         ax.margins(x=0)
