@@ -25,7 +25,7 @@ import numpy as np
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.report import style
 from balance_opt.report.outputs import capture_drifts, limit_bounds
-from balance_opt.report.style import WIDTHS, font_sizes
+from balance_opt.report.style import FONTS, WIDTHS
 from balance_opt.result import BalanceResult
 
 if TYPE_CHECKING:
@@ -70,7 +70,7 @@ def _y_extent(ax, tick_pt: float, label_pt: float) -> float:
 def _legend_columns(labels: Sequence[str], width: str) -> int:
     """How many legend columns fit across a figure of ``width``, the entries filling rows
     (a column is as wide as its widest entry)."""
-    size = font_sizes(width)["legend"]
+    size = FONTS[width]["legend"]
     entries = [text_width(s, size) + (2.6 + 0.5 + 1.2) * size * _PT for s in labels]
     room = WIDTHS[width] - 2 * _EDGE
     for ncol in range(len(entries), 1, -1):
@@ -88,8 +88,7 @@ def layout(fig, axes: np.ndarray, handles, width: str, column_titles: Sequence[s
     ncol = _legend_columns([h.get_label() for h in handles], width)
     rows = math.ceil(len(handles) / ncol)
     axes = np.atleast_2d(axes)
-    fonts = font_sizes(width)
-    tick, base, leg = fonts["tick"], fonts["base"], fonts["legend"]
+    tick, base, leg = FONTS[width]["tick"], FONTS[width]["base"], FONTS[width]["legend"]
     fig_w, fig_h = fig.get_size_inches()
     n_rows, n_cols = axes.shape
     extents = [max(_y_extent(ax, tick, base) for ax in axes[:, c]) for c in range(n_cols)]

@@ -68,8 +68,9 @@ ARM_COLOURS = ("#7B3294", "#A6611A", "#CC79A7", "#DFC27D", "#5E3C99")
 #: Colours of names without a style (a plan the user named): Okabe-Ito, after the ones above.
 _EXTRA = ("#009E73", "#CC79A7", "#56B4E9", "#D55E00")
 
-#: Font sizes [pt] per figure width: readable once printed at that width.
-_FONTS = {
+#: Font sizes [pt] per figure width, readable once printed at that width: ``base`` (labels),
+#: ``tick``, ``legend``.
+FONTS = {
     "column": {"base": 8.0, "tick": 7.0, "legend": 7.0},
     "page": {"base": 9.0, "tick": 8.0, "legend": 8.0},
 }
@@ -115,17 +116,12 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
     return style
 
 
-def font_sizes(width: str = "column") -> dict[str, float]:
-    """Font sizes [pt] of a figure ``width`` wide: ``base`` (labels), ``tick``, ``legend``."""
-    return dict(_FONTS[width])
-
-
 @contextlib.contextmanager
 def styled(width: str = "column") -> Iterator[None]:
     """Matplotlib settings of a figure ``width`` wide for the block (nothing global changes)."""
     import matplotlib as mpl
 
-    font = font_sizes(width)
+    font = FONTS[width]
     rc = {
         "font.size": font["base"],
         "axes.labelsize": font["base"],
