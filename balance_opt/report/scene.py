@@ -262,8 +262,7 @@ def scene_poses(
             both = (mass * com + target.mass * c_t) / total
             shift = line_after[0] + (t[i] - t_c) * line_after[1] - both
         base[i] = pin.SE3(R[i], shift).homogeneous
-        for k, j in enumerate(joints):
-            placements[i, k] = data.oMi[j].homogeneous
+        placements[i] = [data.oMi[j].homogeneous for j in joints]
         placements[i, :, :3, 3] += shift
         if target is not None:
             target_pose[i] = (data.oMf[ee] * pin.SE3(np.eye(3), target.com)).homogeneous
@@ -426,7 +425,6 @@ def build_scene(
 
     for obj in objects:
         place(obj, _path(_node_name(robot, obj.joint), obj.name))
-    # the frames at which each plan is drawn, and how close its bodies are at each
     links = {o.link: o.joint for o in objects}
     levels, texts = {}, {}
     if geometry is not None:
