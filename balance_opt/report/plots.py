@@ -136,10 +136,6 @@ FORMATS = ("png", "pdf")
 STACK_HEIGHT = 3.9
 
 
-def _finish(fig, stem, formats, dpi) -> list[Path]:
-    return [] if stem is None else style.save(fig, stem, formats, dpi=dpi)
-
-
 def _time_axes(axes, t_end: float, labels: Sequence[str]) -> None:
     from matplotlib.ticker import MaxNLocator
 
@@ -170,7 +166,7 @@ def attitude_figure(
         t_end = max(float(res.t[-1]) for res in results.values())
         _time_axes(axes, t_end, [f"{a} [deg]" for a in ("roll", "pitch", "yaw")])
         layout(fig, axes[:, None], axes[0].get_lines(), "column")
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def model_error_figure(
@@ -203,7 +199,7 @@ def model_error_figure(
                            label=f"95th percentile, {perturbation:.0%} model error")
         _time_axes([ax], max(float(r.t[-1]) for r in results.values()), ["rotation [deg]"])
         layout(fig, ax, handles, "column")
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def clearance_figure(
@@ -231,7 +227,7 @@ def clearance_figure(
         _time_axes([ax], t_end, ["smallest distance [m]"])
         handles = ax.get_lines()[: len(curves)]
         layout(fig, ax, handles, "column")
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
@@ -275,7 +271,7 @@ def reaction_torque_figure(
             _time_axes(axes[:, c], t_end, labels)
         titles = [style.method_label(name) for name in simulations]
         layout(fig, axes, handles, width, column_titles=titles)
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def paper_figure_set(
@@ -354,7 +350,7 @@ def joint_limits_figure(
             _joint_column(axes[:, k], results, robot, k)
         handles = [*axes[0, 0].get_lines()[: len(results)], Line2D([], [], **LIMIT_STYLE)]
         layout(fig, axes, handles, width, column_titles=joints)
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
@@ -428,7 +424,7 @@ def capture_figure(
             ax.axvline(t_c, color="0.4", linestyle=":", linewidth=0.8)
             ax.set_ylim(bottom=0.0)
         layout(fig, axes[:, None], ax_w.get_lines()[: len(results)], "column")
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 #: What :func:`plot_result` can draw: ``kind -> y-axis label``.

@@ -162,12 +162,15 @@ def figure(width: str = "column", height: float = 2.6):
 
 def save(
     fig,
-    path_without_suffix: str | Path,
+    path_without_suffix: str | Path | None,
     formats: Sequence[str] = ("png", "pdf"),
     dpi: int = PRINT_DPI,
 ) -> list[Path]:
     """Write ``fig`` as ``<path>.<format>`` for each format (PNG at ``dpi``), the folder created
-    when missing; returns the files. Call inside :func:`styled` (TrueType fonts in a PDF)."""
+    when missing; returns the files (none without a path). Call inside :func:`styled`
+    (TrueType fonts in a PDF)."""
+    if path_without_suffix is None:
+        return []
     stem = Path(path_without_suffix)
     stem.parent.mkdir(parents=True, exist_ok=True)
     paths = []
