@@ -31,7 +31,7 @@ from balance_opt.report.report import (
     torque_sparkline,
     torque_table,
 )
-from balance_opt.report.scene import magnification, magnified_axes
+from balance_opt.report.scene import magnification, magnified_rotation
 from balance_opt.report.style import method_label
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
 
@@ -238,14 +238,14 @@ def test_effort_violations_are_counted_and_no_limit_said():
 
 
 # ------------------------------------------------------------------------ magnified rotation
-def test_magnification_and_magnified_axes(paper):
+def test_magnification_and_magnified_rotation(paper):
     assert magnification(0.0929) == 5 and magnification(0.01) == 50
     assert magnification(0.6) == 1 and magnification(0.0) == 1
     res = _result(paper)
     ref = matrix_from_quaternion(res.quaternion[0])
-    mag = magnified_axes(res.quaternion, 10.0)
+    mag = magnified_rotation(res.quaternion, 10.0)
     for k in (5, 20):
-        turned = ref.T @ mag[k].T  # R0^T R_mag
+        turned = ref.T @ mag[k]  # R0^T R_mag
         angle = math.acos((np.trace(turned) - 1) / 2)
         assert angle == pytest.approx(10 * res.angle[k], rel=1e-9)
 

@@ -17,7 +17,6 @@ import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
-from types import TracebackType
 from typing import TYPE_CHECKING
 
 from balance_opt.cache import pid_alive
@@ -26,7 +25,7 @@ from balance_opt.errors import InputError
 if TYPE_CHECKING:  # typing.Self is Python 3.11+; annotations are not evaluated at run time
     from typing_extensions import Self
 
-#: Name prefixes of the helper entries kept beside a target folder ``NAME``.
+#: Names of the helper entries kept beside a target folder ``NAME``.
 STAGING_PREFIX = ".{name}.partial-"
 LOCK_NAME = ".{name}.lock"
 _RENAME_EXCHANGE = 2  # renameat2 flag (Linux >= 3.15)
@@ -38,7 +37,7 @@ class OutputFolderError(InputError):
 
 
 def _exchange(a: Path, b: Path) -> bool:
-    """Atomically swap two paths with Linux's ``renameat2(RENAME_EXCHANGE)``; False if absent."""
+    """Swap two paths with Linux's ``renameat2(RENAME_EXCHANGE)``; False where it is absent."""
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         renameat2 = libc.renameat2
@@ -53,18 +52,15 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def _target_path(target: str | Path) -> Path:
-    """The absolute target; a symbolic link to a folder is followed (the folder is replaced,
-    the link kept)."""
+    """The absolute target; a symbolic link is followed (the folder is replaced, the link
+    kept)."""
     path = Path(target).absolute()
     return path.resolve() if path.is_symlink() else path
 
 
 def make_parent(target: Path) -> None:
-    """Create the folder that will hold ``target``.
-
-    Raises:
-        OutputFolderError: it cannot be created (a regular file in the way, no permission, ...).
-    """
+    """Create the folder that will hold ``target``, or raise :class:`OutputFolderError` naming
+    what is in the way."""
     if target.exists() and not target.is_dir():
         raise OutputFolderError(f"output folder {target} exists and is not a folder")
     try:
@@ -76,12 +72,9 @@ def make_parent(target: Path) -> None:
 
 
 class FolderLock:
-    """Exclusive lock of a target folder while a run writes to it: ``flock`` on the file
-    ``.NAME.lock`` beside the folder, holding the process id of its holder.
-
-    Args:
-        target: the folder (its parent must exist: :func:`make_parent`).
-    """
+    """Exclusive lock of a ``target`` folder (its parent must exist: :func:`make_parent`) while
+    a run writes to it: ``flock`` on the file ``.NAME.lock`` beside the folder, holding the
+    process id of its holder."""
 
     def __init__(self, target: str | Path):
         self.target = _target_path(target)
@@ -89,12 +82,8 @@ class FolderLock:
         self._fd: int | None = None
 
     def acquire(self) -> None:
-        """Take the lock, without waiting.
-
-        Raises:
-            OutputFolderError: another process holds it (its id is named), or the lock file
-                cannot be created.
-        """
+        """Take the lock without waiting; :class:`OutputFolderError` names the process that
+        holds it."""
         try:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
@@ -122,7 +111,6 @@ class FolderLock:
         self._fd = fd
 
     def release(self) -> None:
-        """Give the lock up and remove its file (nothing if not held)."""
         if self._fd is not None:
             with contextlib.suppress(OSError):
                 os.unlink(self.path)
@@ -175,7 +163,6 @@ class OutputFolder:
         self._lock = FolderLock(self.target)
         self._depth = 0  # nested ``with`` blocks: the outermost one commits
 
-    # ------------------------------------------------------------------ opening
     def open(self) -> Path:
         """Check the location, take the lock and create the staging folder; returns it (the
         same one if already open)."""
@@ -194,9 +181,6 @@ class OutputFolder:
         try:
             shutil.rmtree(staging, ignore_errors=True)
             staging.mkdir()
-            probe = staging / ".write-test"
-            probe.write_bytes(b"")
-            probe.unlink()
         except OSError as exc:
             self._lock.release()
             raise OutputFolderError(
@@ -206,7 +190,6 @@ class OutputFolder:
         return staging
 
     def _check_replaceable(self) -> None:
-        """Refuse a target that exists and is not empty, unless ``force``."""
         try:
             not_empty = self.target.is_dir() and any(self.target.iterdir())
         except OSError as exc:
@@ -233,7 +216,6 @@ class OutputFolder:
             raise RuntimeError("OutputFolder.final() outside open() and commit()")
         return self.target / Path(path).relative_to(self.staging)
 
-    # ------------------------------------------------------------------ closing
     def commit(self) -> Path:
         """Move the complete staging folder into place (replacing the old target).
 
@@ -271,12 +253,7 @@ class OutputFolder:
         self._depth += 1
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *_) -> None:
         self._depth -= 1
         if exc_type is not None:
             self.abort()

@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import importlib.metadata
 import json
-import logging
 import math
 import platform
 from collections.abc import Mapping
@@ -20,8 +19,6 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.optimal.ipopt_options import ipopt_version
 from balance_opt.result import ATTITUDE_COLUMNS, BULKY_INFO_KEYS, BalanceResult
-
-log = logging.getLogger(__name__)
 
 #: The arrays of a :class:`~balance_opt.result.BalanceResult` sampled on its time grid.
 SAMPLED_ARRAYS = (
@@ -51,7 +48,6 @@ def _distribution_version(name: str) -> str:
 
 
 def software_versions() -> dict[str, str]:
-    """Versions of balance-opt and of the libraries that computed the results."""
     import casadi
     import pinocchio
 
@@ -68,12 +64,7 @@ def software_versions() -> dict[str, str]:
 
 def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
     """Column names and (T, k) values of the CSV of ``result`` (``docs/outputs.md``)."""
-    names = [
-        "time",
-        *result.mission_joints,
-        *result.balance_joints,
-        *ATTITUDE_COLUMNS,
-    ]
+    names = ["time", *result.mission_joints, *result.balance_joints, *ATTITUDE_COLUMNS]
     values = np.column_stack(
         [result.t, result.q_M, result.q_B, result.quaternion, result.rpy, result.angle]
     )
@@ -81,7 +72,7 @@ def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
 
 
 def write_trajectory_csv(path: str | Path, result: BalanceResult) -> Path:
-    """Write the CSV of ``result`` (full double precision) and return its path."""
+    """Write the CSV of ``result`` in full double precision."""
     path = Path(path)
     names, values = trajectory_columns(result)
     with path.open("w", newline="") as fh:
@@ -94,9 +85,9 @@ def write_trajectory_csv(path: str | Path, result: BalanceResult) -> Path:
 def write_trajectory_npz(
     path: str | Path, result: BalanceResult, joint_torque: np.ndarray | None = None
 ) -> Path:
-    """Write every array of ``result`` to a compressed ``.npz`` and return its path; with
-    ``joint_torque``, the plan's joint torques
-    (:func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques`), that too."""
+    """Write every array of ``result`` to a compressed ``.npz``, with the plan's
+    ``joint_torque`` (:func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques`) when
+    given."""
     path = Path(path)
     extra = {} if joint_torque is None else {"joint_torque": joint_torque}
     np.savez_compressed(
@@ -130,24 +121,34 @@ def to_json(value: Any) -> Any:
     return str(value)
 
 
+#: The kinds of joint limits, in the order of ``metrics.json``.
+LIMIT_KINDS = ("position", "velocity", "acceleration")
+
+
+def limit_bounds(limits, kind: str, i: int) -> tuple[float, float]:
+    """Lower and upper bound of joint ``i``'s limit of ``kind`` (a rate limit is symmetric)."""
+    if kind == "position":
+        return limits.lower[i], limits.upper[i]
+    value = getattr(limits, kind)[i]
+    return -value, value
+
+
 def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict[str, float]]:
     """Smallest distance to each limit over the motion, per joint: ``{joint: {"position": m,
     "velocity": m, "acceleration": m}}`` [rad, rad/s, rad/s^2; m, m/s, m/s^2 for a prismatic
-    joint]; negative where the limit is broken,
-    ``inf`` (``null`` in JSON) where there is no limit."""
-    names = (*result.mission_joints, *result.balance_joints)
-    q = np.hstack([result.q_M, result.q_B])
-    qd = np.hstack([result.q_dot_M, result.q_dot_B])
-    qdd = np.hstack([result.q_ddot_M, result.q_ddot_B])
-    lim = robot.limits
+    joint]; negative where the limit is broken, ``inf`` (``null`` in JSON) where there is no
+    limit."""
+    series = {
+        "position": np.hstack([result.q_M, result.q_B]),
+        "velocity": np.hstack([result.q_dot_M, result.q_dot_B]),
+        "acceleration": np.hstack([result.q_ddot_M, result.q_ddot_B]),
+    }
     out = {}
-    for k, name in enumerate(names):
-        i = robot.joint_index(name)
-        out[name] = {
-            "position": float(min(np.min(lim.upper[i] - q[:, k]), np.min(q[:, k] - lim.lower[i]))),
-            "velocity": float(lim.velocity[i] - np.max(np.abs(qd[:, k]))),
-            "acceleration": float(lim.acceleration[i] - np.max(np.abs(qdd[:, k]))),
-        }
+    for k, name in enumerate((*result.mission_joints, *result.balance_joints)):
+        out[name] = {}
+        for kind, x in series.items():
+            lo, hi = limit_bounds(robot.limits, kind, robot.joint_index(name))
+            out[name][kind] = float(min(np.min(hi - x[:, k]), np.min(x[:, k] - lo)))
     return out
 
 
@@ -156,8 +157,8 @@ EFFORT_TOLERANCE = 1e-6
 
 
 def _effort_violations(t, names, tau, limits) -> list[str]:
-    """Stretches of samples where ``|tau|`` exceeds a finite effort limit by more than
-    :data:`EFFORT_TOLERANCE` of it, in the words of :class:`~balance_opt.result.LimitViolation`."""
+    """Stretches of samples where ``|tau|`` exceeds an effort limit by more than
+    :data:`EFFORT_TOLERANCE` of it, worded as :class:`~balance_opt.result.LimitViolation`."""
     found = []
     for j, name in enumerate(names):
         limit = limits[j]
@@ -183,11 +184,9 @@ def _has_limit(limit: float) -> bool:
 def effort_metrics(
     result: BalanceResult, robot: FloatingRobot, h0=None, torques: np.ndarray | None = None
 ) -> dict[str, Any]:
-    """Effort margins and torque profile of a plan (the ``effort`` block of ``docs/outputs.md``),
-    from the free-floating inverse dynamics of its joint motion: ``torques`` when the caller has
-    them, else :func:`~balance_opt.dynamics.inverse_dynamics.plan_joint_torques` for the momentum
-    ``h0``. Units N m (N for a prismatic joint).
-    """
+    """The ``effort`` block of ``docs/outputs.md`` [N m; N for a prismatic joint] from the
+    plan's joint ``torques``, else from its free-floating inverse dynamics for the momentum
+    ``h0``."""
     names = (*result.mission_joints, *result.balance_joints)
     tau = plan_joint_torques(result, robot, h0) if torques is None else torques
     limits = np.array([robot.limits.effort[robot.joint_index(j)] for j in names])
@@ -198,22 +197,16 @@ def effort_metrics(
         entry = {"peak_Nm": peak, "peak_time_s": float(result.t[i])}
         if _has_limit(limit):
             margin = limit - peak
-            broken = margin < -EFFORT_TOLERANCE * limit
-            entry |= {
-                "limit_Nm": limit,
-                "margin_Nm": margin,
-                "relative_margin": margin / limit,
-                "status": "broken" if broken else "inside",
-            }
+            status = "broken" if margin < -EFFORT_TOLERANCE * limit else "inside"
+            entry |= {"limit_Nm": limit, "margin_Nm": margin, "relative_margin": margin / limit}
         else:
+            status = "no limit"
             entry |= {"limit_Nm": None, "margin_Nm": None, "relative_margin": None}
-            entry["status"] = "no limit"
-        joints[name] = entry
+        joints[name] = {**entry, "status": status}
 
     def smallest(subset):
         values = [joints[j]["relative_margin"] for j in subset]
-        values = [v for v in values if v is not None]
-        return min(values) if values else None
+        return min((v for v in values if v is not None), default=None)
 
     return {
         "joints": joints,
@@ -223,28 +216,20 @@ def effort_metrics(
     }
 
 
-#: Kinds of joint limits and the size of each a relative margin is taken of.
-_LIMIT_SCALES = {
-    "position": lambda lim, i: lim.upper[i] - lim.lower[i],
-    "velocity": lambda lim, i: lim.velocity[i],
-    "acceleration": lambda lim, i: lim.acceleration[i],
-}
-
-
 def relative_limit_margins(
     margins: Mapping[str, Mapping[str, float]], robot: FloatingRobot, joints
 ) -> dict[str, float]:
-    """The smallest margin of :func:`limit_margins` over ``joints``, per kind, each relative to
-    the size of its limit (the position range, the velocity or acceleration limit): 0 on the
-    limit, 1 at rest for a rate; ``inf`` where none of them has that limit."""
+    """The smallest margin of :func:`limit_margins` over ``joints``, per kind, relative to the
+    size of its limit (the position range, the rate limit): 0 on the limit, 1 at rest for a
+    rate; ``inf`` where none of them has that limit."""
     out = {}
-    for kind, scale in _LIMIT_SCALES.items():
-        values = [
-            margins[j][kind] / scale(robot.limits, robot.joint_index(j))
-            for j in joints
-            if math.isfinite(margins[j][kind])
-        ]
-        out[kind] = min(values) if values else math.inf
+    for kind in LIMIT_KINDS:
+        values = []
+        for j in joints:
+            lo, hi = limit_bounds(robot.limits, kind, robot.joint_index(j))
+            if math.isfinite(margins[j][kind]):
+                values.append(margins[j][kind] / (hi - lo if kind == "position" else hi))
+        out[kind] = min(values, default=math.inf)
     return out
 
 
@@ -260,10 +245,8 @@ def peak_reaction_torques(simulation) -> dict[str, float]:
 
 
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
-    """Status, iterations and times of the solver that produced a result, from its ``info``
-    (the ``solver`` block of ``docs/outputs.md``); ``None`` where the method has no such figure
-    (the analytic law has no iterations).
-    """
+    """The ``solver`` block of ``docs/outputs.md`` from a result's ``info``; ``None`` where the
+    method has no such figure (the analytic law has no iterations)."""
     wall = info.get("wall_time_s")
     wall = wall if isinstance(wall, Mapping) else {}
     return {
@@ -279,8 +262,6 @@ def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _smoothness_metrics(result: BalanceResult, robot: FloatingRobot, torques) -> dict:
-    """Largest jerk, acceleration reversals and largest torque rate of each balance joint
-    (:func:`~balance_opt.motion.smoothness.smoothness`)."""
     from balance_opt.motion.smoothness import smoothness
 
     cols = [robot.joint_names.index(j) for j in result.balance_joints]
@@ -302,24 +283,17 @@ def method_metrics(
     clearance=None,
     simulated_clearance=None,
 ) -> dict[str, Any]:
-    """Figures of merit of one plan, plain JSON data (keys: ``docs/outputs.md``).
-
-    ``h0`` is the system's momentum (world frame, zero by default) for the effort figures, unless
-    the plan's ``torques`` are given; with a ``simulation`` of the plan, its drift, tracking error,
-    momentum residual and peak reaction torques are added.
-    """
+    """Figures of merit of one plan, plain JSON data (keys: ``docs/outputs.md``); ``h0`` is the
+    system's momentum (world frame, zero by default) for the effort figures, unless the plan's
+    ``torques`` are given."""
     margins = limit_margins(result, robot)
     names = (*result.mission_joints, *result.balance_joints)
     rates = np.abs(np.hstack([result.q_dot_M, result.q_dot_B]))
     out = dict(result.summary())
     out["limit_margins"] = margins
-    out["min_limit_margin"] = {
-        kind: min(m[kind] for m in margins.values())
-        for kind in ("position", "velocity", "acceleration")
-    }
+    out["min_limit_margin"] = {k: min(m[k] for m in margins.values()) for k in LIMIT_KINDS}
     out["balance_limit_margin"] = {
-        kind: min(margins[j][kind] for j in result.balance_joints)
-        for kind in ("position", "velocity", "acceleration")
+        k: min(margins[j][k] for j in result.balance_joints) for k in LIMIT_KINDS
     }
     out["balance_relative_limit_margin"] = relative_limit_margins(
         margins, robot, result.balance_joints
@@ -336,7 +310,7 @@ def method_metrics(
     out["smoothness"] = _smoothness_metrics(result, robot, torques)
     kinds = [v.kind for v in result.violations]
     out["limit_violations_by_kind"] = {
-        **{kind: kinds.count(kind) for kind in ("position", "velocity", "acceleration")},
+        **{kind: kinds.count(kind) for kind in LIMIT_KINDS},
         "effort": len(out["effort"]["violations"]),
         "collision": len(collisions),
     }
@@ -363,7 +337,7 @@ def method_metrics(
 
 
 def _collision_violations(clearance) -> list[str]:
-    """The first penetration of a motion as a violation (``[]``: none)."""
+    """The first penetration (or touch) of a motion as a violation."""
     pen = clearance.first_penetration
     if pen is None and clearance.collision_free:
         return []
@@ -373,13 +347,18 @@ def _collision_violations(clearance) -> list[str]:
     return [f"{pen.pair}: collision from t = {pen.time:.3f} s, {pen.depth:.4g} m deep"]
 
 
-def _capture_block(info: Mapping[str, Any], t, quaternion, t_c: float) -> dict[str, Any]:
+def capture_drifts(motion, t_c: float) -> tuple[int, np.ndarray]:
+    """The index ``k`` of the last sample of ``motion`` at or before the capture time ``t_c``
+    and the drift [rad] from the attitude at the capture at samples ``k`` on."""
+    k = int(np.flatnonzero(np.asarray(motion.t) <= t_c + 1e-12)[-1])
+    quaternion = np.asarray(motion.quaternion)
+    return k, rotation_angle(relative_rotation(quaternion[k : k + 1], quaternion[k:]))
+
+
+def _capture_block(info: Mapping[str, Any], motion, t_c: float) -> dict[str, Any]:
     """Attitude drift before the capture (from the start) and after it (from the attitude at
     the capture) [rad], and the capture's jumps and impulses."""
-    quaternion = np.asarray(quaternion)
-    k = int(np.flatnonzero(np.asarray(t) <= t_c + 1e-12)[-1])
-    from_start = rotation_angle(relative_rotation(quaternion[:1], quaternion))
-    after = rotation_angle(relative_rotation(quaternion[k : k + 1], quaternion[k:]))
+    (k, after), from_start = capture_drifts(motion, t_c), motion.angle
     jump = info["omega_jump"]
     vectors = (
         "ee_impulse",
@@ -401,9 +380,7 @@ def _capture_block(info: Mapping[str, Any], t, quaternion, t_c: float) -> dict[s
 
 
 def capture_metrics(task, results: Mapping[str, Any], simulations=None) -> dict[str, Any] | None:
-    """The ``capture`` block of ``metrics.json`` (``docs/outputs.md``); ``None`` for a task
-    without a capture.
-    """
+    """The ``capture`` block of ``metrics.json``; ``None`` for a task without a capture."""
     target = getattr(task, "target", None)
     if target is None:
         return None
@@ -424,7 +401,7 @@ def capture_metrics(task, results: Mapping[str, Any], simulations=None) -> dict[
         for name, r in motions.items():
             info = r.info.get("capture")
             if info is not None:
-                out[block][name] = _capture_block(info, r.t, r.quaternion, t_c)
+                out[block][name] = _capture_block(info, r, t_c)
     return out
 
 
@@ -439,16 +416,11 @@ def run_metrics(
     simulated_clearances: Mapping[str, Any] | None = None,
     geometry: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The content of ``metrics.json``: the task (file, name, SHA-256; for a Cartesian mission
-    ``cartesian_goal_rad``, the joint goal inverse kinematics found), the versions, and
-    :func:`method_metrics` of each result by method name (with its joint ``torques`` by method
-    name when the caller has them); ``failures`` lists methods whose solver failed (their best
-    iterate is among ``results``). With the plans' drift under model error (a
-    :class:`~balance_opt.motion.robustness.RobustnessResult`), each method's ``robustness``
-    holds its spread and the top-level ``robustness`` the study's settings. ``clearances`` (and
-    ``simulated_clearances``): each plan's (simulation's)
-    :class:`~balance_opt.geometry.clearance.ClearanceReport`; ``geometry``: what the check holds
-    apart and the pairs close at the start
+    """The content of ``metrics.json`` (``docs/outputs.md``): the task, the versions and
+    :func:`method_metrics` of each result, with what the caller has of each method (simulation,
+    joint torques, clearance reports), by method name. ``failures``: methods whose solver
+    failed (their best iterate is among ``results``); ``robustness``: the plans' drift under
+    model error; ``geometry``: what the clearance check holds apart
     (:meth:`~balance_opt.geometry.robot_geometry.RobotGeometry.summary`)."""
     simulations, torques = simulations or {}, torques or {}
     capture = capture_metrics(task, results, simulations)  # None without a capture
@@ -489,14 +461,14 @@ def run_metrics(
 
 
 def write_metrics(path: str | Path, metrics: Mapping[str, Any]) -> Path:
-    """Write ``metrics`` as indented JSON (strict: no NaN or Infinity) and return the path."""
+    """Write ``metrics`` as strict JSON (no NaN or Infinity)."""
     path = Path(path)
     path.write_text(json.dumps(to_json(metrics), indent=2, allow_nan=False) + "\n")
     return path
 
 
 def read_npz_result(path: str | Path) -> BalanceResult:
-    """Read back a result written by :func:`write_trajectory_npz` (violations are not kept)."""
+    """A result written by :func:`write_trajectory_npz` (violations are not kept)."""
     with np.load(path, allow_pickle=False) as z:
         return BalanceResult(
             method=str(z["method"]),

@@ -4,10 +4,9 @@ capture.
 
 Every function takes ``{name: result}`` of the curves to overlay; the name is a method of
 :mod:`balance_opt.report.style` and gives the curve its look and label. The figures carry no
-title (a caption belongs to the text around them) and touch no pyplot state. Given ``axes=`` a
-function draws into the caller's axes; given no ``stem`` it writes nothing. :func:`plot_result`
-(``balance_opt.plot_result``) is a quick look at one result for notebooks, on axes the caller
-owns (or a new figure), leaving the caller's matplotlib settings alone.
+title (a caption belongs to the text around them) and touch no pyplot state; given no ``stem``
+a function writes nothing. :func:`plot_result` (``balance_opt.plot_result``) is a quick look at
+one result for notebooks, on axes the caller owns (or a new figure).
 
 Constrained layout renders every text once per file written, which is slow. These figures have a
 known shape (panels sharing the time axis, a y label left of the first column, a legend above),
@@ -24,9 +23,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.report import style
-from balance_opt.report.style import WIDTHS, font_sizes
+from balance_opt.report.outputs import capture_drifts, limit_bounds
+from balance_opt.report.style import FONTS, WIDTHS
 from balance_opt.result import BalanceResult
 
 if TYPE_CHECKING:
@@ -45,9 +44,7 @@ _PT = 1.0 / 72.0
 
 
 def text_width(text: str, size_pt: float) -> float:
-    """Estimated width of ``text`` in inches at ``size_pt`` (mathtext counted as 4 glyphs)."""
-    if text.startswith("$"):
-        return 4 * _DIGIT_EM * size_pt * _PT
+    """Estimated width of ``text`` [in] at ``size_pt``."""
     em = sum(
         _DIGIT_EM if c.isdigit() else _GLYPH_EM.get(c, 0.58 if c.islower() else 0.7) for c in text
     )
@@ -73,7 +70,7 @@ def _y_extent(ax, tick_pt: float, label_pt: float) -> float:
 def _legend_columns(labels: Sequence[str], width: str) -> int:
     """How many legend columns fit across a figure of ``width``, the entries filling rows
     (a column is as wide as its widest entry)."""
-    size = font_sizes(width)["legend"]
+    size = FONTS[width]["legend"]
     entries = [text_width(s, size) + (2.6 + 0.5 + 1.2) * size * _PT for s in labels]
     room = WIDTHS[width] - 2 * _EDGE
     for ncol in range(len(entries), 1, -1):
@@ -82,19 +79,16 @@ def _legend_columns(labels: Sequence[str], width: str) -> int:
     return 1
 
 
-def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = False) -> None:
-    """Place a grid of panels (margins from the tick labels and fonts, room above for column
-    titles) and a frameless legend of ``handles`` above them, in as many columns as fit.
-
-    Call after the data are drawn (the y tick labels depend on the data).
-    """
+def layout(fig, axes: np.ndarray, handles, width: str, column_titles: Sequence[str] = ()) -> None:
+    """Place a grid of panels (margins from the tick labels and fonts), the titles of its
+    columns (a plan, a joint) and a frameless legend of ``handles`` above them, in as many
+    columns as fit. Call after the data are drawn (the y tick labels depend on the data)."""
     from matplotlib.lines import Line2D
 
     ncol = _legend_columns([h.get_label() for h in handles], width)
     rows = math.ceil(len(handles) / ncol)
     axes = np.atleast_2d(axes)
-    fonts = font_sizes(width)
-    tick, base, leg = fonts["tick"], fonts["base"], fonts["legend"]
+    tick, base, leg = FONTS[width]["tick"], FONTS[width]["base"], FONTS[width]["legend"]
     fig_w, fig_h = fig.get_size_inches()
     n_rows, n_cols = axes.shape
     extents = [max(_y_extent(ax, tick, base) for ax in axes[:, c]) for c in range(n_cols)]
@@ -118,6 +112,9 @@ def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = Fal
     order = [r * ncol + c for c in range(ncol) for r in range(rows)]  # legends fill by column
     padded = list(handles) + [Line2D([], [], alpha=0, label=" ")] * (rows * ncol - len(handles))
     cells = [padded[i] for i in order]
+    for ax, title in zip(axes[0], column_titles):
+        # at a fixed height: matplotlib's own placement measures the axis at every draw
+        ax.set_title(title, fontsize=base, y=1.0, pad=3.0)
     fig.legend(
         cells,
         [h.get_label() for h in cells],
@@ -134,22 +131,9 @@ def layout(fig, axes: np.ndarray, handles, width: str, column_titles: bool = Fal
     )
 
 
-def column_title(ax, text: str, width: str) -> None:
-    """Name a column of panels (a plan, a joint) above its top panel. Placed at a fixed height
-    (:func:`layout` leaves room): matplotlib's automatic placement measures the axis at every
-    draw."""
-    ax.set_title(text, fontsize=font_sizes(width)["base"], y=1.0, pad=3.0)
-
-
 FORMATS = ("png", "pdf")
-ATTITUDE_AXES = ("roll", "pitch", "yaw")
-TORQUE_AXES = ("x", "y", "z")
 #: Height of a three-panel figure [in].
 STACK_HEIGHT = 3.9
-
-
-def _finish(fig, stem, formats, dpi) -> list[Path]:
-    return [] if stem is None else style.save(fig, stem, formats, dpi=dpi)
 
 
 def _time_axes(axes, t_end: float, labels: Sequence[str]) -> None:
@@ -163,42 +147,26 @@ def _time_axes(axes, t_end: float, labels: Sequence[str]) -> None:
     axes[-1].set_xlim(0.0, t_end)
 
 
-def draw_attitude(axes, results: Mapping[str, Any]) -> list:
-    """Draw roll, pitch and yaw [deg] of each result into three axes, or, into one axes, the
-    base's rotation angle from its start [deg]. Returns the curves of the first axes."""
-    axes = list(np.atleast_1d(axes))
-    for name, res in results.items():
-        kwargs = style.method_style(name)
-        if len(axes) == 1:
-            axes[0].plot(res.t, np.degrees(res.angle), **kwargs)
-            continue
-        deg = np.degrees(res.rpy)
-        for k, ax in enumerate(axes):
-            ax.plot(res.t, deg[:, k], **kwargs)
-    return axes[0].get_lines()
-
-
 def attitude_figure(
     results: Mapping[str, Any],
     stem: str | Path | None = None,
     *,
     formats: Sequence[str] = FORMATS,
     dpi: int = style.PRINT_DPI,
-    axes=None,
 ) -> tuple[Any, list[Path]]:
-    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5),
-    one column wide (or into three ``axes``); returns the figure and the files written."""
-    t_end = max(float(res.t[-1]) for res in results.values())
-    if axes is not None:
-        draw_attitude(axes, results)
-        return np.atleast_1d(axes)[0].figure, []
+    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5);
+    returns the figure and the files written (none without ``stem``)."""
     with style.styled("column"):
         fig = style.figure("column", STACK_HEIGHT)
         axes = fig.subplots(3, 1, sharex=True)
-        handles = draw_attitude(axes, results)
-        _time_axes(axes, t_end, [f"{a} [deg]" for a in ATTITUDE_AXES])
-        layout(fig, axes[:, None], handles, "column")
-        return fig, _finish(fig, stem, formats, dpi)
+        for name, res in results.items():
+            kwargs = style.method_style(name)
+            for k, ax in enumerate(axes):
+                ax.plot(res.t, np.degrees(res.rpy[:, k]), **kwargs)
+        t_end = max(float(res.t[-1]) for res in results.values())
+        _time_axes(axes, t_end, [f"{a} [deg]" for a in ("roll", "pitch", "yaw")])
+        layout(fig, axes[:, None], axes[0].get_lines(), "column")
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def model_error_figure(
@@ -211,13 +179,9 @@ def model_error_figure(
     dpi: int = style.PRINT_DPI,
 ) -> tuple[Any, list[Path]]:
     """The base's rotation from its start [deg] of each plan as planned (the line) and the 95th
-    percentile over perturbed models (the band up to the dotted edge), one column wide.
-
-    Args:
-        results: ``{name: result}`` with ``t`` and ``angle``.
-        bands: ``{name: p95 angle at result.t}`` [rad] (a plan without one has no band).
-        perturbation: the relative model error the bands are for (named in the legend).
-    """
+    percentile over perturbed models (``bands``: ``{name: p95 angle at result.t}`` [rad]; the
+    band up to the dotted edge); ``perturbation``, the relative model error, is named in the
+    legend."""
     with style.styled("column"):
         fig = style.figure("column", 2.4)
         ax = fig.subplots(1, 1)
@@ -235,7 +199,7 @@ def model_error_figure(
                            label=f"95th percentile, {perturbation:.0%} model error")
         _time_axes([ax], max(float(r.t[-1]) for r in results.values()), ["rotation [deg]"])
         layout(fig, ax, handles, "column")
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def clearance_figure(
@@ -248,7 +212,7 @@ def clearance_figure(
 ) -> tuple[Any, list[Path]]:
     """The smallest distance between any two bodies that may touch [m] against time, one curve
     per motion ``{name: (t, distance)}``, with zero (contact) and the planner's ``margin``
-    (dotted) marked; one column wide."""
+    (dotted) marked."""
     with style.styled("column"):
         fig = style.figure("column", 2.4)
         ax = fig.subplots(1, 1)
@@ -263,19 +227,18 @@ def clearance_figure(
         _time_axes([ax], t_end, ["smallest distance [m]"])
         handles = ax.get_lines()[: len(curves)]
         layout(fig, ax, handles, "column")
-        return fig, _finish(fig, stem, formats, dpi)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
     """(wrench, plot kwargs) of the sum, the mission arm and the balance arm(s) of one plan."""
     balance = sum(w for arm, w in sim.arm_wrenches.items() if arm != "mission")
     sim_name = name if name.endswith(style.SIM) else f"{name}{style.SIM}"
-    balance_style = {**style.method_style(sim_name), "label": f"{style.method_label(name)}: "}
-    balance_style["label"] += "balance arm"
     # Where the balance arm carries most of the sum (the optimal plan's torques), the two
     # curves coincide: the balance arm wide and pale under the thin sum keeps both readable,
     # in greyscale too.
-    balance_style.update(linewidth=2.6, alpha=0.55, zorder=1.8)
+    balance_style = {**style.method_style(sim_name), "linewidth": 2.6, "alpha": 0.55, "zorder": 1.8}
+    balance_style["label"] = f"{style.method_label(name)}: balance arm"
     return [
         (sim.total_wrench, {**style.method_style("sum"), "zorder": 2.5}),
         (sim.arm_wrenches["mission"], style.method_style("arm:mission")),
@@ -292,9 +255,7 @@ def reaction_torque_figure(
 ) -> tuple[Any, list[Path]]:
     """Torque the arms exert on the base [N m], base axes, against time (paper Fig. 4): one
     column of panels per plan, each with its own scale (the analytic law's torques are tens of
-    times smaller than the optimal plan's); a page wide for two plans or more. Returns the figure
-    and the files written.
-    """
+    times smaller than the optimal plan's); a page wide for two plans or more."""
     width = "page" if len(simulations) > 1 else "column"
     with style.styled(width):
         fig = style.figure(width, 4.0 if width == "page" else STACK_HEIGHT)
@@ -306,13 +267,11 @@ def reaction_torque_figure(
                 for k, ax in enumerate(axes[:, c]):
                     ax.plot(sim.t, wrench[:, 3 + k], **kwargs)
             handles += axes[0, c].get_lines()[(0 if c == 0 else 2) :]
-            _time_axes(axes[:, c], t_end, [f"torque {a} [N m]" for a in TORQUE_AXES])
-            if c:
-                for ax in axes[:, c]:
-                    ax.set_ylabel("")
-            column_title(axes[0, c], style.method_label(name), width)
-        layout(fig, axes, handles, width, column_titles=True)
-        return fig, _finish(fig, stem, formats, dpi)
+            labels = [f"torque {a} [N m]" if c == 0 else "" for a in "xyz"]
+            _time_axes(axes[:, c], t_end, labels)
+        titles = [style.method_label(name) for name in simulations]
+        layout(fig, axes, handles, width, column_titles=titles)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def paper_figure_set(
@@ -324,15 +283,11 @@ def paper_figure_set(
     balance_only,
     balanced,
 ) -> tuple[dict[str, list[Path]], dict[str, Any]]:
-    """The paper's Figs. 2-5 of one study, as ``({"fig2": [files], ...}, {"fig2": Figure})``.
-
-    Args:
-        stems: file name without suffix of ``"fig2"`` ... ``"fig5"``.
-        mission_only: simulation of the mission arm alone (Fig. 2 solid, Fig. 5 reference).
-        kinematic: the mission arm alone under the momentum model (Fig. 2 dashed).
-        balance_only: ``{method: simulation}`` of each plan's balance arm alone (Fig. 3).
-        balanced: ``{method: simulation}`` of each plan, both arms moving (Figs. 4, 5).
-    """
+    """The paper's Figs. 2-5 of one study, files named ``stems``, as ``({"fig2": [files], ...},
+    {"fig2": Figure})``: Fig. 2 the simulation of the ``mission_only`` arm over its
+    ``kinematic`` model, Fig. 3 the simulations ``{method: simulation}`` of each plan's
+    ``balance_only`` arm, Figs. 4 and 5 those of each plan with both arms moving (``balanced``),
+    Fig. 5 with the mission arm alone."""
 
     def sims(results):
         return {f"{name}{style.SIM}": res for name, res in results.items()}
@@ -369,15 +324,7 @@ MAX_COLUMNS = 7
 #: The y axis of a row reaches at most this many times a limit beyond it: a plan far outside
 #: (a law that ran away) would otherwise squash every other plan and the limits to a line.
 OFF_SCALE = 1.5
-#: Style of the limit lines.
 LIMIT_STYLE = {"color": "0.35", "linestyle": (0, (1.0, 1.0)), "linewidth": 0.9, "label": "limit"}
-
-
-def _bounds(lim, kind: str, i: int) -> tuple[float, float]:
-    if kind == "position":
-        return lim.lower[i], lim.upper[i]
-    value = getattr(lim, kind)[i]
-    return -value, value
 
 
 def joint_limits_figure(
@@ -399,14 +346,11 @@ def joint_limits_figure(
     with style.styled(width):
         fig = style.figure(width, 4.0)
         axes = fig.subplots(len(_ROWS), len(joints), sharex=True, squeeze=False)
-        for c, joint in enumerate(joints):
-            _joint_column(axes[:, c], results, robot, joint, list(first.balance_joints))
-            column_title(axes[0, c], joint, width)
-        handles = axes[0, 0].get_lines()
-        handles = [h for h in handles if h.get_label() != "_limit"][: len(results)]
-        handles.append(Line2D([], [], **LIMIT_STYLE))
-        layout(fig, axes, handles, width, column_titles=True)
-        return fig, _finish(fig, stem, formats, dpi)
+        for k in range(len(joints)):
+            _joint_column(axes[:, k], results, robot, k)
+        handles = [*axes[0, 0].get_lines()[: len(results)], Line2D([], [], **LIMIT_STYLE)]
+        layout(fig, axes, handles, width, column_titles=joints)
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
@@ -429,24 +373,23 @@ def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
     )
 
 
-def _joint_column(axes, results, robot: FloatingRobot, joint: str, balance_joints) -> None:
+def _joint_column(axes, results, robot: FloatingRobot, k: int) -> None:
+    """The panels of balance joint ``k``."""
     from matplotlib.ticker import MaxNLocator
 
-    i = robot.joint_index(joint)
-    k = balance_joints.index(joint)
     first = next(iter(results.values()))
-    for r, (field, kind, label) in enumerate(_ROWS):
-        ax = axes[r]
+    i = robot.joint_index(first.balance_joints[k])
+    for ax, (field, kind, label) in zip(axes, _ROWS):
         for name, res in results.items():
             ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
-        bounds = [b for b in _bounds(robot.limits, kind, i) if np.isfinite(b)]
+        bounds = [b for b in limit_bounds(robot.limits, kind, i) if np.isfinite(b)]
         if bounds:  # one line for both limits (NaN between): fewer artists than axhline
             t0, t1 = first.t[0], first.t[-1]
             ys = [y for b in bounds for y in (b, b, np.nan)]
             ax.plot([t0, t1, np.nan] * len(bounds), ys, **{**LIMIT_STYLE, "label": "_limit"})
         if len(bounds) == 2:
             _clip_off_scale(ax, results, field, k, bounds)
-        if joint == balance_joints[0]:
+        if k == 0:
             ax.set_ylabel(label)
         ax.yaxis.set_major_locator(MaxNLocator(4))
         ax.margins(x=0)
@@ -464,26 +407,24 @@ def capture_figure(
     """For each result (a plan or a simulation), ``|omega_b|`` [deg/s] and the drift [deg] from
     the start (thick) and from the attitude at the capture (thin, after it)."""
     with style.styled("column"):
-        fig = style.figure("column", 4.2, layout="constrained")
-        ax_w, ax_a = fig.subplots(2, 1, sharex=True)
+        fig = style.figure("column", 4.2)
+        axes = fig.subplots(2, 1, sharex=True)
+        ax_w, ax_a = axes
         for name, r in results.items():
             kwargs = style.method_style(name)
-            t, quat = np.asarray(r.t), np.asarray(r.quaternion)
+            t = np.asarray(r.t)
+            k, since = capture_drifts(r, t_c)
             ax_w.plot(t, np.degrees(np.linalg.norm(r.omega, axis=1)), **kwargs)
-            ax_a.plot(t, np.degrees(rotation_angle(relative_rotation(quat[:1], quat))), **kwargs)
-            k = int(np.flatnonzero(t <= t_c + 1e-12)[-1])
-            since = rotation_angle(relative_rotation(quat[k : k + 1], quat[k:]))
+            ax_a.plot(t, np.degrees(r.angle), **kwargs)
             thin = {**kwargs, "linewidth": 0.6, "marker": "", "label": None}
             ax_a.plot(t[k:], np.degrees(since), **thin)
-        for ax in (ax_w, ax_a):
+        t_end = max(float(r.t[-1]) for r in results.values())
+        _time_axes(axes, t_end, ["|ω_b| [deg/s]", "drift [deg]"])
+        for ax in axes:
             ax.axvline(t_c, color="0.4", linestyle=":", linewidth=0.8)
-        ax_w.set_ylabel("|ω_b| [deg/s]")
-        ax_a.set_ylabel("drift [deg]")
-        ax_a.set_xlabel("time [s]")
-        ax_w.legend(loc="best")
-        ax_w.set_ylim(bottom=0.0)
-        ax_a.set_ylim(bottom=0.0)
-    return fig, _finish(fig, stem, formats, dpi)
+            ax.set_ylim(bottom=0.0)
+        layout(fig, axes[:, None], ax_w.get_lines()[: len(results)], "column")
+        return fig, style.save(fig, stem, formats, dpi)
 
 
 #: What :func:`plot_result` can draw: ``kind -> y-axis label``.

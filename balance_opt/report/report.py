@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.report.outputs import EFFORT_TOLERANCE
 from balance_opt.report.style import method_colour, method_label
 from balance_opt.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 
@@ -51,20 +52,18 @@ code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-
 """
 
 
-def format_value(value: Any, tolerance: float | None = None, unit: str = "", digits=4) -> str:
+def format_value(value: Any, tolerance: float | None = None, unit: str = "") -> str:
     """A value as plain text: ``"0 (< 1e-12 rad)"`` when its magnitude is below ``tolerance``,
-    ``"-"`` for None, ``"inf"``, else ``digits`` significant digits, then the unit."""
+    ``"-"`` for None, ``"inf"``, else 4 significant digits, then the unit."""
     suffix = f" {unit}" if unit else ""
     if value is None:
         return "\u2013"
-    if isinstance(value, bool):
-        return "yes" if value else "no"
     if isinstance(value, float):
         if not math.isfinite(value):
             return "inf" if value > 0 else "-inf"
         if tolerance is not None and abs(value) < tolerance:
             return f"0 (< {tolerance:g}{suffix})"
-        return f"{value:.{digits}g}{suffix}"
+        return f"{value:.4g}{suffix}"
     return f"{value}{suffix}"
 
 
@@ -103,7 +102,7 @@ Cell = tuple[str, str] | None
 
 
 def _value(path: str, show: Callable[[Any, Mapping], Cell]) -> Callable[[Mapping], Cell]:
-    """The cell of the value at ``path`` of a method's metrics, ``show(value, metrics)``."""
+    """``show(value, metrics)`` of the value at ``path`` of a method's metrics."""
 
     def cell(m):
         value = _get(m, path)
@@ -147,7 +146,7 @@ def _effort_margin(path: str) -> Callable[[Mapping], Cell]:
         relative = _get(m, path)
         if relative is None:
             return "no limit", ""
-        return f"{100 * relative:.4g} %", margin_class(relative, relative, 1e-6)
+        return f"{100 * relative:.4g} %", margin_class(relative, relative, EFFORT_TOLERANCE)
 
     return cell
 
@@ -271,26 +270,19 @@ def comparison_table(
     order = _ordered(methods)
     failed = {m for m in order if m in (failures or {})}
     head = "".join(_method_head(m, m in failed) for m in order)
-    body, section, section_rows = [], None, []
-
-    def flush():
-        if section is not None and section_rows:
-            body.append(
-                f'<tr class="section"><td colspan="{len(order) + 1}">{html.escape(section)}</td></tr>'
-            )
-            body.extend(section_rows)
-
+    body, section = [], None
     for label, make in _ROWS:
         if make is None:
-            flush()
-            section, section_rows = label, []
+            section = label
             continue
         cells = [make(methods[m]) for m in order]
         if all(c is None for c in cells):
             continue
+        if section is not None:  # the heading of a section goes before its first row
+            body.append(f'<tr class="section"><td colspan="{len(order) + 1}">{section}</td></tr>')
+            section = None
         row = "".join(_cell(c, m in failed) for c, m in zip(cells, order))
-        section_rows.append(f"<tr><td>{html.escape(label)}</td>{row}</tr>")
-    flush()
+        body.append(f"<tr><td>{html.escape(label)}</td>{row}</tr>")
     return f"<table><thead><tr><th></th>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
@@ -337,10 +329,10 @@ def torque_table(
     rows = []
     for k, (joint, e) in enumerate((effort.get("joints") or {}).items()):
         margin, relative = e.get("margin_Nm"), e.get("relative_margin")
-        css = margin_class(relative, relative, 1e-6) if relative is not None else ""
+        css = margin_class(relative, relative, EFFORT_TOLERANCE) if relative is not None else ""
         cells = [
             (format_value(e.get("peak_Nm"), TORQUE_TOLERANCE), ""),
-            (format_value(e.get("peak_time_s"), digits=4), ""),
+            (format_value(e.get("peak_time_s")), ""),
             ("no limit", "") if e.get("limit_Nm") is None else (format_value(e["limit_Nm"]), ""),
             (format_value(margin, TORQUE_TOLERANCE), css) if margin is not None else None,
             (f"{100 * relative:.4g} %", css) if relative is not None else None,
@@ -502,7 +494,7 @@ _NOTES = (
     "to a balance-joint limit over the motion, and the smallest such distance as a fraction of "
     "the limit (the position range, the velocity, acceleration or effort limit). Colours: "
     '<span class="swatch" style="background:#ffcdd2"></span>broken (beyond the limit by more '
-    f"than {LIMIT_TOLERANCE:g} in the limit's unit; efforts: 1e-6 of the limit), "
+    f"than {LIMIT_TOLERANCE:g} in the limit's unit; efforts: {EFFORT_TOLERANCE:g} of the limit), "
     '<span class="swatch" style="background:#ffe082"></span>at the limit (within '
     f"{100 * AT_LIMIT_BAND:g} % of it), "
     '<span class="swatch" style="background:#dcedc8"></span>inside. Values below their '
@@ -524,23 +516,13 @@ def render_report(
     extra_html: str = "",
     torques: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> str:
-    """The report as one HTML string.
-
-    Args:
-        metrics: the content of ``metrics.json`` (:func:`balance_opt.report.outputs.run_metrics`).
-        figures: ``(caption, PNG file)`` pairs, embedded in that order.
-        description: the task's description.
-        extra_html: trusted HTML appended at the end (e.g. the 3D scene).
-        torques: per method ``(t, tau)``, the sample times [s] and joint torques (T, n) [N m]
-            of :func:`balance_opt.dynamics.inverse_dynamics.plan_joint_torques`, drawn over the
-            motion in the torque tables (left out: peaks only).
-    """
-    task = metrics.get("task", {})
+    """The report of ``metrics`` (the content of ``metrics.json``) as one HTML string, with the
+    ``figures`` ``(caption, PNG file)`` embedded in that order, trusted ``extra_html`` at the end
+    (the 3D scene) and, per method, ``torques`` ``(t, tau)`` (times [s], joint torques (T, n)
+    [N m]) drawn over the motion in the torque tables (left out: peaks only)."""
+    task, methods = metrics.get("task", {}), metrics.get("methods", {})
+    failures = metrics.get("failures") or {}
     versions = ", ".join(f"{k} {v}" for k, v in metrics.get("versions", {}).items())
-    failures = "".join(
-        f'<p class="failure">FAILED: {html.escape(method_label(k))}: {html.escape(v)}</p>'
-        for k, v in (metrics.get("failures") or {}).items()
-    )
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     parts = [
         "<!DOCTYPE html>",
@@ -558,16 +540,17 @@ def render_report(
         parts.append(f'<p class="headline">{html.escape(line)}</p>')
     if description:
         parts.append(f"<p>{html.escape(description)}</p>")
-    parts.append(failures)
-    methods = metrics.get("methods", {})
+    parts.extend(
+        f'<p class="failure">FAILED: {html.escape(method_label(k))}: {html.escape(v)}</p>'
+        for k, v in failures.items()
+    )
     parts.extend(
         f'<p class="failure">WARNING: {html.escape(method_label(k))}: {html.escape(w)}</p>'
         for k, m in methods.items()
         for w in m.get("warnings") or ()
     )
-    fails = metrics.get("failures") or {}
     parts.append("<h2>Comparison</h2>")
-    parts.append(comparison_table(methods, fails))
+    parts.append(comparison_table(methods, failures))
     parts.append(_NOTES)
     parts.append("<h2>Limit violations</h2>")
     parts.append(_violations(methods))
@@ -580,7 +563,7 @@ def render_report(
             "the limit dashed, the at-the-limit band shaded). The whole time series is in each "
             "method's NPZ file (<code>joint_torque</code>).</p>"
         )
-        parts.append(_torque_profiles(methods, fails, torques))
+        parts.append(_torque_profiles(methods, failures, torques))
     parts.append(capture_table(metrics.get("capture")))  # "" without a capture
     if figures:
         parts.append("<h2>Figures</h2>")

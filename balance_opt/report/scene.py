@@ -46,7 +46,6 @@ SCENE_FPS = 25
 MESH_GRID = 200
 #: Colour of the links that belong to no arm (the base and what is fixed to it).
 BASE_COLOUR = "#A0A0A0"
-#: Colour of the captured target.
 TARGET_COLOUR = "#009E73"
 #: Path of the robot's nodes in the viewer's scene tree.
 ROOT = ("meshcat", "robot")
@@ -75,28 +74,24 @@ def magnification(max_angle: float) -> float:
     return float(max(f * power for f in (1, 2, 5) if f * power <= want))
 
 
-def magnified_axes(quaternion: np.ndarray, factor: float) -> np.ndarray:
-    """Base axes (T, 3, 3) (rows: x, y, z in the world) of the attitude ``R0 exp(factor
-    log(R0^T R))``: the rotation from the start ``R0``, magnified."""
+def magnified_rotation(quaternion: np.ndarray, factor: float) -> np.ndarray:
+    """The base's attitudes (T, 3, 3) ``R0 exp(factor log(R0^T R))``: its rotation from the
+    start ``R0``, magnified."""
     phi = rotvec_from_quaternion(relative_rotation(quaternion[:1], quaternion))
     R0 = matrix_from_quaternion(quaternion[0])
-    R = np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
-    return np.swapaxes(R, 1, 2)
-#: Three.js draws a cylinder along its y axis, Pinocchio along z: a quarter turn about x.
-_CYLINDER_AXIS = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+    return np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
+
 
 
 @dataclass(frozen=True)
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
-    placement in the joint frame, the meshcat object (``intrinsic``: its transform from
-    meshcat's axes to Pinocchio's), its vertex count (meshes), the corners of its bounding
-    box in the joint frame (8, 3) [m] and its link (frame) name."""
+    placement in the joint frame, the meshcat object, its vertex count (meshes), the corners
+    of its bounding box in the joint frame (8, 3) [m] and its link (frame) name."""
 
     name: str
     joint: int
     placement: pin.SE3
-    intrinsic: np.ndarray
     mesh: Any  # a meshcat.geometry.Mesh
     vertices: int
     corners: np.ndarray
@@ -139,36 +134,22 @@ def cluster_vertices(
     return merged[used], f.reshape(-1, 3)
 
 
-def _mesh_arrays(geometry) -> tuple[np.ndarray, np.ndarray]:
-    faces = np.array(
-        [[tri[0], tri[1], tri[2]] for tri in map(geometry.tri_indices, range(geometry.num_tris))],
-        dtype=np.int64,
-    )
-    return np.asarray(geometry.vertices(), dtype=float), faces
-
-
-def _shape(obj: pin.GeometryObject, cell: float, meshes: dict) -> tuple[Any, np.ndarray] | None:
-    """meshcat geometry of a Pinocchio geometry object and its intrinsic transform (4, 4);
-    meshes are read once per file (``meshes``: this build's cache). None: a shape not drawn."""
+def _shape(obj: pin.GeometryObject, cell: float, meshes: dict):
+    """meshcat geometry of a Pinocchio geometry object, or None (a shape meshcat cannot draw);
+    ``meshes``: the meshes read so far, by file."""
     import coal
     import meshcat.geometry as mg
+    from pinocchio.visualize.meshcat_visualizer import loadPrimitive
 
     g = obj.geometry
-    if isinstance(g, coal.Box):
-        return mg.Box(list(2.0 * np.asarray(g.halfSide))), np.eye(4)
-    if isinstance(g, (coal.Cylinder, coal.Capsule)):  # a capsule: the cylinder that holds it
-        length = 2.0 * g.halfLength + (2.0 * g.radius if isinstance(g, coal.Capsule) else 0.0)
-        return mg.Cylinder(length, g.radius), _CYLINDER_AXIS
-    if isinstance(g, coal.Sphere):
-        return mg.Sphere(g.radius), np.eye(4)
-    if isinstance(g, coal.BVHModelBase):
-        key = (obj.meshPath, tuple(np.asarray(obj.meshScale)))
-        if key not in meshes:
-            v, f = cluster_vertices(*_mesh_arrays(g), cell)
-            meshes[key] = mg.TriangularMeshGeometry(v, f)
-        return meshes[key], np.eye(4)
-    log.warning("scene: %s (%s) is not drawn", obj.name, type(g).__name__)
-    return None
+    if not isinstance(g, coal.BVHModelBase):
+        return loadPrimitive(obj)  # with meshcat's turn of the axes (cylinders) built in
+    key = (obj.meshPath, tuple(np.asarray(obj.meshScale)))
+    if key not in meshes:
+        faces = [[t[0], t[1], t[2]] for t in map(g.tri_indices, range(g.num_tris))]
+        v, f = cluster_vertices(g.vertices(), faces, cell)
+        meshes[key] = mg.TriangularMeshGeometry(v, f)
+    return meshes[key]
 
 
 def _arm_of_joint(robot: FloatingRobot) -> dict[int, int]:
@@ -176,13 +157,10 @@ def _arm_of_joint(robot: FloatingRobot) -> dict[int, int]:
     ``len(robot.arms)`` for the base and what hangs from it outside the arms."""
     model = robot.model
     arm_of = {model.getJointId(j): a for a, arm in enumerate(robot.arms) for j in arm.joints}
-    out = {}
-    for j in range(model.njoints):
-        k = j
-        while k > 1 and k not in arm_of:
-            k = model.parents[k]
-        out[j] = arm_of.get(k, len(robot.arms))
-    return out
+    return {
+        j: next((arm_of[k] for k in reversed(model.supports[j]) if k in arm_of), len(robot.arms))
+        for j in range(model.njoints)
+    }
 
 
 def _colour(index: int, robot: FloatingRobot) -> str:
@@ -190,7 +168,7 @@ def _colour(index: int, robot: FloatingRobot) -> str:
 
 
 def _object(geometry, colour: str, opacity: float, flat: bool):
-    """A meshcat mesh object; simplified meshes are shaded flat (no normals to store)."""
+    """A meshcat mesh object; ``flat``: shaded flat (a simplified mesh: no normals to store)."""
     import meshcat.geometry as mg
 
     material = mg.MeshPhongMaterial(
@@ -200,18 +178,17 @@ def _object(geometry, colour: str, opacity: float, flat: bool):
 
 
 def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
-    """Every drawn piece of the robot's visual geometry, coloured by arm (``size``: the robot's
-    size [m], which sets the mesh simplification)."""
+    """Every drawn piece of the robot's visual geometry, coloured by arm; ``size``: the robot's
+    size [m], which sets the mesh simplification."""
     import meshcat.geometry as mg
 
     gmodel, meshes, arm = visual_model(robot), {}, _arm_of_joint(robot)
     cell = size / MESH_GRID
     out = []
     for obj in gmodel.geometryObjects:
-        shape = _shape(obj, cell, meshes)
-        if shape is None:
+        geometry = _shape(obj, cell, meshes)
+        if geometry is None:
             continue
-        geometry, intrinsic = shape
         opacity = float(min(obj.meshColor[3], 1.0)) if obj.meshColor[3] > 0 else 1.0
         mesh = isinstance(geometry, mg.TriangularMeshGeometry)
         drawn = _object(geometry, _colour(arm[obj.parentJoint], robot), opacity, mesh)
@@ -222,7 +199,7 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         corners = corners @ obj.placement.rotation.T + obj.placement.translation
         out.append(
             SceneObject(
-                obj.name, obj.parentJoint, obj.placement, intrinsic, drawn, n, corners,
+                obj.name, obj.parentJoint, obj.placement, drawn, n, corners,
                 robot.model.frames[obj.parentFrame].name,
             )
         )  # fmt: skip
@@ -245,19 +222,11 @@ def scene_poses(
     factor: float = 1.0,
     fps: float = SCENE_FPS,
 ) -> dict[str, np.ndarray]:
-    """World placements of the scene's nodes along a plan.
-
-    Args:
-        joints: Pinocchio joint ids whose placements are wanted.
-        h0: initial momentum, world frame (6,); None: at rest.
-        factor: magnification of the base's rotation from its start (1: the plan's attitude).
-        fps: samples per second; the plan's own sample at or after each time is taken.
-
-    Returns:
-        ``t`` (K,) the sample times used [s], ``index`` (K,) their indices in the plan, ``base``
-        (K, 4, 4), ``joints`` (K, J, 4, 4) and, with a target, ``target`` (K, 4, 4) its box's
-        centre and axes.
-    """
+    """World placements along a plan (at :func:`frame_index`) of the Pinocchio ``joints``, for
+    the initial momentum ``h0`` (world frame, (6,); None: at rest), the base's rotation from its
+    start magnified ``factor`` times: ``t`` (K,) the sample times [s], ``index`` (K,) their
+    indices in the plan, ``base`` (K, 4, 4), ``joints`` (K, J, 4, 4) and, with a target,
+    ``target`` (K, 4, 4) its box's centre and axes."""
     model, data = robot.model, robot.model.createData()
     index = frame_index(result.t, fps)
     t = result.t[index]
@@ -265,7 +234,7 @@ def scene_poses(
     q = np.empty_like(q_plan)
     for k, joint in enumerate((*result.mission_joints, *result.balance_joints)):
         q[:, robot.joint_index(joint)] = q_plan[:, k]
-    R = np.swapaxes(magnified_axes(result.quaternion[index], factor), 1, 2)
+    R = magnified_rotation(result.quaternion[index], factor)
     p0 = np.zeros(3) if h0 is None else np.asarray(h0, dtype=float)[:3]
     mass, ee = robot.total_mass, model.getFrameId(robot.mission.ee_frame)
     t_c = target.time if target is not None else np.inf
@@ -293,8 +262,7 @@ def scene_poses(
             both = (mass * com + target.mass * c_t) / total
             shift = line_after[0] + (t[i] - t_c) * line_after[1] - both
         base[i] = pin.SE3(R[i], shift).homogeneous
-        for k, j in enumerate(joints):
-            placements[i, k] = data.oMi[j].homogeneous
+        placements[i] = [data.oMi[j].homogeneous for j in joints]
         placements[i, :, :3, 3] += shift
         if target is not None:
             target_pose[i] = (data.oMf[ee] * pin.SE3(np.eye(3), target.com)).homogeneous
@@ -340,52 +308,42 @@ def _animation(
     """The lowered ``set_animation`` command: per node (a meshcat path) its position and
     quaternion keys (times [s] from the start, three.js's (x, y, z, w) order); ``visible``: per
     node its visibility at each time of ``t`` (bool (K,)), stored as keys where it changes
-    (three.js holds a boolean key until the next one)."""
-    from meshcat.animation import Animation, AnimationClip, AnimationTrack
-    from meshcat.commands import SetAnimation
+    (three.js holds a boolean key until the next one).
 
-    class Track(AnimationTrack):
-        """meshcat's track with its key times (and numeric values) as float32 arrays, which
-        three.js reads as they are, instead of a small map per key: a quarter of the size;
-        a visibility track's values a list of booleans."""
+    Key times and numeric values are float32 arrays, which three.js reads as they are, instead
+    of meshcat's small map per key: a quarter of the size."""
 
-        def lower(self):
-            values = np.ravel(self.values)
-            return {
-                "name": "." + self.name,
-                "type": self.jstype,
-                "times": _float32(self.frames),
-                "values": [bool(v) for v in values] if self.jstype == "bool" else _float32(values),
-            }
+    def clip(path, *tracks) -> dict:
+        lowered = [
+            {"name": "." + name, "type": kind, "times": _float32(times), "values": values}
+            for name, kind, times, values in tracks
+        ]  # key times in seconds: fps 1
+        return {"path": path.lower(), "clip": {"fps": 1.0, "name": "default", "tracks": lowered}}
 
-    clips = {
-        path: AnimationClip(
-            {
-                "position": Track("position", "vector3", t, position),
-                "quaternion": Track("quaternion", "quaternion", t, quaternion),
-            },
-            fps=1.0,  # key times in seconds
+    clips = [
+        clip(
+            path,
+            ("position", "vector3", t, _float32(position)),
+            ("quaternion", "quaternion", t, _float32(quaternion)),
         )
         for path, (position, quaternion) in tracks.items()
-    }
+    ]
     for path, shown in (visible or {}).items():
         shown = np.asarray(shown, dtype=bool)
         # the last key too: every clip lasts the whole motion
         keys = np.unique(np.r_[0, np.flatnonzero(shown[1:] != shown[:-1]) + 1, shown.size - 1])
-        clips[path] = AnimationClip(
-            {"visible": Track("visible", "bool", t[keys], shown[keys])}, fps=1.0
-        )
-    return SetAnimation(Animation(clips), play=False, repetitions=1).lower()
+        clips.append(clip(path, ("visible", "bool", t[keys], [bool(v) for v in shown[keys]])))
+    options = {"play": False, "repetitions": 1}
+    return {"type": "set_animation", "animations": clips, "options": options, "path": ""}
 
 
 def _tracks(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions (K, 3) and unit quaternions (K, 4) (x, y, z, w) of placements (K, 4, 4), each
     quaternion on the side of its predecessor (the same rotations, no half-turn between keys)."""
     quaternions = np.array([pin.Quaternion(M[:3, :3]).coeffs() for M in poses])
-    for k in range(1, len(quaternions)):
-        if quaternions[k] @ quaternions[k - 1] < 0:
-            quaternions[k] *= -1
-    return poses[:, :3, 3], quaternions
+    turns = np.einsum("ij,ij->i", quaternions[1:], quaternions[:-1]) < 0
+    sides = np.cumprod(np.r_[1.0, np.where(turns, -1.0, 1.0)])
+    return poses[:, :3, 3], quaternions * sides[:, None]
 
 
 @dataclass
@@ -406,8 +364,7 @@ class Scene:
 
 
 def _path(*names: str):
-    """The meshcat path of a node under :data:`ROOT` (or, with a leading "/", of the
-    viewer's own nodes: ``"/Grid"``)."""
+    """The meshcat path of a node under :data:`ROOT`; ``"/Grid"``: of the viewer's own."""
     from meshcat.path import Path as MeshcatPath
 
     if names and names[0].startswith("/"):
@@ -429,17 +386,11 @@ def build_scene(
     geometry=None,
     margin: float = 0.0,
 ) -> Scene:
-    """The scene of a run's plans (see the module docstring).
-
-    Args:
-        results: ``{method: plan}`` (the mission arm alone, analytic, optimal...).
-        h0: initial momentum, world frame (6,).
-        target: the target captured during the mission, or None.
-        labels: display name per method (default :func:`~balance_opt.report.style.method_label`).
-        geometry: the robot's collision geometry or None: with it, the links of a checked pair
-            closer than ``margin`` [m] are drawn amber at those frames, those of a pair that
-            penetrates red (:func:`proximity_levels`).
-    """
+    """The scene of a run's plans ``{method: plan}``; ``h0``: the initial momentum, world frame
+    (6,); ``labels``: display names (default :func:`~balance_opt.report.style.method_label`).
+    With the robot's collision ``geometry``, the links of a checked pair closer than ``margin``
+    [m] are drawn amber at those frames, those of a pair that penetrates red
+    (:func:`proximity_levels`)."""
     import meshcat.geometry as mg
     from meshcat.commands import SetObject, SetProperty, SetTransform
 
@@ -456,8 +407,8 @@ def build_scene(
         setup.extend(_pack(c.lower()) for c in commands)
 
     def place(obj: SceneObject, path, colour: str | None = None) -> None:
-        """A piece (in ``colour``, highlighted; else its own) at its placement; a mesh already
-        sent is handed over by the page (a mesh file several links carry is sent once)."""
+        # a mesh already sent is handed over by the page: a mesh file several links carry is
+        # sent once
         nonlocal sent
         shape = obj.mesh.geometry
         if obj.vertices and id(shape) in carrier:
@@ -470,12 +421,10 @@ def build_scene(
             drawn = _object(shape, colour, HIGHLIGHT_OPACITY, bool(obj.vertices))
         else:
             drawn = mg.Mesh(shape, obj.mesh.material)
-        transform = obj.placement.homogeneous @ obj.intrinsic
-        send(SetObject(drawn, path=path), SetTransform(transform, path))
+        send(SetObject(drawn, path=path), SetTransform(obj.placement.homogeneous, path))
 
     for obj in objects:
         place(obj, _path(_node_name(robot, obj.joint), obj.name))
-    # the frames at which each plan is drawn, and how close its bodies are at each
     links = {o.link: o.joint for o in objects}
     levels, texts = {}, {}
     if geometry is not None:
@@ -494,24 +443,16 @@ def build_scene(
     if target is not None:
         sides, axes = target.box()
         path = _path(TARGET_NODE, "box")
-        frame = np.eye(4)
-        frame[:3, :3] = axes
         box = _object(mg.Box(list(sides)), TARGET_COLOUR, 0.85, False)
-        send(SetObject(box, path=path), SetTransform(frame, path))
+        send(SetObject(box, path=path), SetTransform(pin.SE3(axes, np.zeros(3)).homogeneous, path))
     # the view: the grid under the robot, the camera orbiting about its middle
-    hull = np.vstack(
-        [start["joints"][:, :, :3, 3].reshape(-1, 3)]  # the joints along the first plan
-        + [
-            o.corners @ start["joints"][0][o.joint - 1][:3, :3].T
-            + start["joints"][0][o.joint - 1][:3, 3]
-            for o in objects
-        ]
-    )
+    H = {o.joint: start["joints"][0][o.joint - 1] for o in objects}  # at the first sample
+    pieces = [o.corners @ H[o.joint][:3, :3].T + H[o.joint][:3, 3] for o in objects]
+    hull = np.vstack([start["joints"][:, :, :3, 3].reshape(-1, 3), *pieces])  # + the joints
     lo, hi = hull.min(axis=0), hull.max(axis=0)
     centre, extent = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
-    grid, cam = np.eye(4), np.eye(4)
-    grid[:3, 3] = [centre[0], centre[1], lo[2] - 0.15 * extent]
-    cam[:3, 3] = centre
+    grid = pin.SE3(np.eye(3), np.array([*centre[:2], lo[2] - 0.15 * extent])).homogeneous
+    cam = pin.SE3(np.eye(3), centre).homogeneous
     d = 0.45 * extent + 0.2
     send(
         SetTransform(grid, _path("/Grid")),
@@ -546,19 +487,18 @@ def build_scene(
             animations[key] = _pack(_animation(tracks, pose["t"] - pose["t"][0], visible))
             poses[key] = pose
         pose = poses[f"{name}|1"]
+        times = [round(float(x - pose["t"][0]), 4) for x in pose["t"]]  # from the start
         meta_methods[name] = {
             "label": (labels or {}).get(name) or method_label(name),
             "t0": float(pose["t"][0]),
             "duration": float(pose["t"][-1] - pose["t"][0]),
-            "angle_t": [round(float(x - pose["t"][0]), 4) for x in pose["t"]],
+            "angle_t": times,
             "angle": [float(f"{a:.4g}") for a in res.angle[pose["index"]]],
         }
-        if name in texts:  # the label's text where it changes: [time from the start, text]
+        if name in texts:  # the label's text where it changes
             text = texts[name]
             meta_methods[name]["near"] = [
-                [round(float(pose["t"][k] - pose["t"][0]), 4), text[k]]
-                for k in range(len(text))
-                if k == 0 or text[k] != text[k - 1]
+                [times[k], text[k]] for k in range(len(text)) if k == 0 or text[k] != text[k - 1]
             ]
     arms = [
         {"label": f"{arm.name} arm", "colour": ARM_COLOURS[a % len(ARM_COLOURS)]}
@@ -586,20 +526,11 @@ def build_scene(
 def proximity_levels(
     geometry, distances: np.ndarray, margin: float, links: Mapping[str, int]
 ) -> tuple[dict[str, np.ndarray], list[str]]:
-    """How close the drawn links come at each frame.
-
-    Args:
-        geometry: the robot's :class:`~balance_opt.geometry.robot_geometry.RobotGeometry`.
-        distances: (K, P) the distance [m] of each checked pair (``geometry.pairs``) per frame.
-        margin: the collision margin [m].
-        links: the drawn links, each with its body (Pinocchio joint). A pair's link that is not
-            drawn (a collision-only link) stands for every drawn link of its body.
-
-    Returns:
-        per link its level at each frame (K,): 2 where a pair of it penetrates (distance < 0),
-        1 where one is closer than ``margin``, 0 otherwise; and per frame the label's text
-        naming those pairs ("" when none).
-    """
+    """How close the drawn ``links`` (each with its body, a Pinocchio joint) come at each frame,
+    from the distances (K, P) [m] of the ``geometry``'s checked pairs: per link its level at each
+    frame (2 where a pair of it penetrates, 1 where one is closer than ``margin`` [m], 0
+    otherwise) and per frame the label's text naming those pairs ("" when none). A pair's link
+    that is not drawn (a collision-only link) stands for every drawn link of its body."""
     d = np.asarray(distances, dtype=float)
     pair_level = np.where(d < 0.0, 2, np.where(d < margin, 1, 0))
     out = {link: np.zeros(d.shape[0], dtype=int) for link in links}
@@ -654,22 +585,19 @@ const sl = document.getElementById('scene-t'), btn = document.getElementById('sc
 const lab = document.getElementById('scene-label'), note = document.getElementById('scene-note');
 const anim = viewer.animator;
 function method() { return S.methods[sel.value]; }
-function angleAt(m, t) { let k = 0;
-  while (k + 1 < m.angle_t.length && m.angle_t[k + 1] <= t + 1e-9) k++;
-  return m.angle[k]; }
-function show(t) { const m = method(), a = angleAt(m, t);
+// the key in force at t: the last one at or before it
+function keyAt(times, t) { let k = 0;
+  while (k + 1 < times.length && times[k + 1] <= t + 1e-9) k++;
+  return k; }
+function show(t) { const m = method(), a = m.angle[keyAt(m.angle_t, t)];
   let s = 't = ' + (m.t0 + t).toFixed(2) + ' s of ' + (m.t0 + m.duration).toFixed(2) +
     ' s; base rotation from the start ' + a.toPrecision(3) + ' rad (' +
     (a * 180 / Math.PI).toFixed(2) + ' deg)';
   if (S.target) s += (m.t0 + t >= S.target.time ? '; target captured' : '; target free') +
     ' (capture at ' + S.target.time + ' s)';
-  const near = m.near ? textAt(m.near, t) : '';
+  const near = m.near ? m.near[keyAt(m.near.map(function (n) { return n[0]; }), t)][1] : '';
   if (near) s += '; ' + near;
   lab.textContent = s; sl.value = t; }
-// the proximity label in force at t: the last change at or before it
-function textAt(keys, t) { let k = 0;
-  while (k + 1 < keys.length && keys[k + 1][0] <= t + 1e-9) k++;
-  return keys[k][1]; }
 // the viewer's player applies only running actions: hold them paused at the time shown
 function seek(t) { anim.playing = false; anim.clock.stop();
   anim.actions.forEach(function (a) { a.play(); a.paused = true; a.time = t; });
@@ -715,20 +643,17 @@ def scene_html(scene: Scene, title: str = "") -> str:
         f'<option value="{f:g}">{"as planned" if f == 1 else f"magnified x {f:g}"}</option>'
         for f in meta["factors"]
     )
-    keys = "".join(
-        f'<span class="key" style="background:{a["colour"]}"></span>{html.escape(a["label"])}'
-        for a in meta["arms"]
-    )
-    keys += f'<span class="key" style="background:{meta["base_colour"]}"></span>base'
+
+    def key(colour: str, text: str) -> str:
+        return f'<span class="key" style="background:{colour}"></span>{text}'
+
+    keys = [key(a["colour"], html.escape(a["label"])) for a in meta["arms"]]
+    keys.append(key(meta["base_colour"], "base"))
     if meta["target"]:
-        keys += f'<span class="key" style="background:{meta["target"]["colour"]}"></span>target'
-    near = meta["proximity"]
-    if near:
-        keys += (
-            f'<span class="key" style="background:{near["near"]}"></span>closer than the '
-            f'collision margin ({near["margin"]:g} m)'
-            f'<span class="key" style="background:{near["touch"]}"></span>penetrating'
-        )
+        keys.append(key(meta["target"]["colour"], "target"))
+    if near := meta["proximity"]:
+        keys.append(key(near["near"], f"closer than the collision margin ({near['margin']:g} m)"))
+        keys.append(key(near["touch"], "penetrating"))
     data = {k: v for k, v in meta.items() if k != "robot"}
     data.update(setup=scene.setup, animations=scene.animations)
     script = _PLAYER.replace("SCENE_DATA", json.dumps(data, separators=(",", ":")))
@@ -742,7 +667,7 @@ def scene_html(scene: Scene, title: str = "") -> str:
         '<button id="scene-play" type="button">play</button>'
         '<input id="scene-t" type="range" min="0" max="1" step="0.01" value="0"> '
         f'<span id="scene-label"></span><div id="scene-note"></div>'
-        f'<div class="meta">{heading}: {keys}; base axes red x, green y, blue z. '
+        f'<div class="meta">{heading}: {"".join(keys)}; base axes red x, green y, blue z. '
         "Drag to turn, scroll to zoom.</div></div>"
         f"<script>{bundle}</script><script>{script}</script></body></html>"
     )
@@ -759,18 +684,12 @@ def write_scene(
     geometry=None,
     margin: float = 0.0,
 ) -> Path:
-    """Build the scene of ``results`` (:func:`build_scene`; ``geometry`` and ``margin``: the
-    highlighting of links that come close), write its page to ``path`` and return the path; its
-    size is logged."""
+    """Write the page of :func:`build_scene` to ``path``."""
     path = Path(path)
     scene = build_scene(robot, results, h0, target, labels, geometry=geometry, margin=margin)
     path.write_text(scene_html(scene, title), encoding="utf-8")
-    log.info(
-        "scene: %s, %.1f MB (%d mesh vertices)",
-        path.name,
-        path.stat().st_size / 1e6,
-        scene.meta["vertices"],
-    )
+    megabytes = path.stat().st_size / 1e6
+    log.info("scene: %s, %.1f MB (%d mesh vertices)", path.name, megabytes, scene.meta["vertices"])
     return path
 
 

@@ -33,11 +33,6 @@ SIM, KINEMATIC = ":sim", ":kinematic"
 _SUFFIX_LABELS = {SIM: " (forward dynamics)", KINEMATIC: " (momentum model)"}
 
 _BLACK, _BLUE, _ORANGE, _GREY = "#000000", "#0072B2", "#E69F00", "#808080"
-_DASHED = (0, (5.0, 2.0))
-_DASH_DOT = (0, (6.0, 1.5, 1.5, 1.5))
-_DASH_DOT_DOT = (0, (5.0, 1.2, 1.2, 1.2, 1.2, 1.2))
-_LONG_DASH = (0, (9.0, 2.5))
-_DOTTED = (0, (1.0, 1.3))
 
 #: Markers every this fraction of the axes' diagonal (markers at even spacing whatever the
 #: sampling, a dozen or so per curve), the first one this far along (so that the markers of
@@ -45,20 +40,21 @@ _DOTTED = (0, (1.0, 1.3))
 MARK_EVERY = 0.09
 _MARK_START = {"mission-only": 0.0, "analytic": 0.03, "optimal": 0.06}
 
+_HOLLOW = {"fillstyle": "none"}
 _STYLES: dict[str, dict[str, Any]] = {
-    "mission-only": {"color": _BLACK, "linestyle": _DASHED, "marker": "s"},
-    "analytic": {"color": _ORANGE, "linestyle": _DASH_DOT, "marker": "^"},
+    "mission-only": {"color": _BLACK, "linestyle": (0, (5.0, 2.0)), "marker": "s"},
+    "analytic": {"color": _ORANGE, "linestyle": (0, (6.0, 1.5, 1.5, 1.5)), "marker": "^"},
     "optimal": {"color": _BLUE, "linestyle": "-", "marker": "o"},
-    "mission-only:sim": {"color": _BLACK, "linestyle": "-", "marker": "s", "fillstyle": "none"},
+    "mission-only:sim": {"color": _BLACK, "linestyle": "-", "marker": "s", **_HOLLOW},
     "analytic:sim": {
         "color": _ORANGE,
-        "linestyle": _DASH_DOT_DOT,
+        "linestyle": (0, (5.0, 1.2, 1.2, 1.2, 1.2, 1.2)),
         "marker": "^",
-        "fillstyle": "none",
+        **_HOLLOW,
     },
-    "optimal:sim": {"color": _BLUE, "linestyle": _LONG_DASH, "marker": "o", "fillstyle": "none"},
+    "optimal:sim": {"color": _BLUE, "linestyle": (0, (9.0, 2.5)), "marker": "o", **_HOLLOW},
     "sum": {"color": _BLACK, "linestyle": "-", "marker": "", "linewidth": 1.4},
-    "arm:mission": {"color": _GREY, "linestyle": _DOTTED, "marker": "", "linewidth": 1.1},
+    "arm:mission": {"color": _GREY, "linestyle": (0, (1.0, 1.3)), "marker": "", "linewidth": 1.1},
 }
 #: Methods with a style, in legend order.
 METHODS = tuple(_STYLES)
@@ -72,8 +68,9 @@ ARM_COLOURS = ("#7B3294", "#A6611A", "#CC79A7", "#DFC27D", "#5E3C99")
 #: Colours of names without a style (a plan the user named): Okabe-Ito, after the ones above.
 _EXTRA = ("#009E73", "#CC79A7", "#56B4E9", "#D55E00")
 
-#: Font sizes [pt] per figure width: readable once printed at that width.
-_FONTS = {
+#: Font sizes [pt] per figure width, readable once printed at that width: ``base`` (labels),
+#: ``tick``, ``legend``.
+FONTS = {
     "column": {"base": 8.0, "tick": 7.0, "legend": 7.0},
     "page": {"base": 9.0, "tick": 8.0, "legend": 8.0},
 }
@@ -94,19 +91,13 @@ def method_label(name: str) -> str:
 
 
 def method_colour(name: str) -> str:
-    """The colour of a method (hex); an unknown name gets a fixed colour of its own."""
     return method_style(name)["color"]
 
 
 def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
     """Keyword arguments of ``Axes.plot`` for method ``name``: colour, line style, width,
-    marker (sparse) and label.
-
-    Args:
-        name: a name of :data:`METHODS`, or ``"<method>:kinematic"``; another name gets a solid
-            line in a colour derived from the name (stable between runs).
-        markers: draw the markers (off for dense plots such as a joint grid).
-    """
+    marker (sparse, unless ``markers`` is off) and label. A name without a style gets a solid
+    line in a colour derived from the name (stable between runs)."""
     base, suffix = _base(name)
     if suffix == KINEMATIC:
         return {**_KINEMATIC_BAND, "color": method_colour(base), "label": method_label(name)}
@@ -114,7 +105,7 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
         style = dict(_STYLES[name])
     else:
         colour = _EXTRA[sum(map(ord, name)) % len(_EXTRA)]
-        style = {"color": colour, "linestyle": "-", "marker": "D", "fillstyle": "none"}
+        style = {"color": colour, "linestyle": "-", "marker": "D", **_HOLLOW}
     style.setdefault("linewidth", 1.2)
     if style["marker"] and markers:
         start = _MARK_START.get(base, 0.0)
@@ -125,15 +116,13 @@ def method_style(name: str, *, markers: bool = True) -> dict[str, Any]:
     return style
 
 
-def font_sizes(width: str = "column") -> dict[str, float]:
-    """Font sizes [pt] of a figure ``width`` wide: ``base`` (labels), ``tick``, ``legend``."""
-    return dict(_FONTS[_checked_width(width)])
+@contextlib.contextmanager
+def styled(width: str = "column") -> Iterator[None]:
+    """Matplotlib settings of a figure ``width`` wide for the block (nothing global changes)."""
+    import matplotlib as mpl
 
-
-def rc_params(width: str = "column") -> dict[str, Any]:
-    """Matplotlib settings of a figure ``width`` wide (``"column"`` or ``"page"``)."""
-    font = font_sizes(width)
-    return {
+    font = FONTS[width]
+    rc = {
         "font.size": font["base"],
         "axes.labelsize": font["base"],
         "axes.titlesize": font["base"],
@@ -156,63 +145,39 @@ def rc_params(width: str = "column") -> dict[str, Any]:
         "path.simplify": True,
         "axes.formatter.useoffset": False,
     }
-
-
-def _checked_width(width: str) -> str:
-    if width not in WIDTHS:
-        raise ValueError(f"figure width must be one of {', '.join(WIDTHS)}, got {width!r}")
-    return width
-
-
-@contextlib.contextmanager
-def styled(width: str = "column") -> Iterator[None]:
-    """Matplotlib settings of :func:`rc_params` for the block (nothing global changes)."""
-    import matplotlib as mpl
-
-    with mpl.rc_context(rc_params(width)):
+    with mpl.rc_context(rc):
         yield
 
 
-def figure(width: str = "column", height: float = 2.6, layout: str | None = None):
-    """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide (``"column"`` 3.5 in,
-    ``"page"`` 7 in) and ``height`` [in] tall; build its artists inside :func:`styled` with the
-    same width so that fonts fit.
-
-    ``layout="constrained"`` makes matplotlib measure every text at each save, which is slow;
-    ``None`` leaves the panels to the caller (:func:`balance_opt.report.plots.layout`).
-    """
+def figure(width: str = "column", height: float = 2.6):
+    """A ``matplotlib.figure.Figure`` (no pyplot state) ``width`` wide and ``height`` [in]
+    tall, its panels placed by the caller (:func:`balance_opt.report.plots.layout`); build its
+    artists inside :func:`styled` with the same width so that fonts fit."""
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(WIDTHS[_checked_width(width)], height), layout=layout)
+    if width not in WIDTHS:
+        raise ValueError(f"figure width must be one of {', '.join(WIDTHS)}, got {width!r}")
+    return Figure(figsize=(WIDTHS[width], height))
 
 
 def save(
     fig,
-    path_without_suffix: str | Path,
+    path_without_suffix: str | Path | None,
     formats: Sequence[str] = ("png", "pdf"),
     dpi: int = PRINT_DPI,
 ) -> list[Path]:
     """Write ``fig`` as ``<path>.<format>`` for each format (PNG at ``dpi``), the folder created
-    when missing; returns the files."""
-    import matplotlib as mpl
-
+    when missing; returns the files (none without a path). Call inside :func:`styled`
+    (TrueType fonts in a PDF)."""
+    if path_without_suffix is None:
+        return []
     stem = Path(path_without_suffix)
     stem.parent.mkdir(parents=True, exist_ok=True)
     paths = []
-    with mpl.rc_context({"pdf.fonttype": 42, "ps.fonttype": 42}):
-        for fmt in formats:
-            path = stem.with_name(f"{stem.name}.{fmt}")
-            # no creation date in a PDF, so the same figure gives the same file
-            metadata = {"CreationDate": None} if fmt == "pdf" else None
-            fig.savefig(path, dpi=dpi, format=fmt, metadata=metadata)
-            paths.append(path)
+    for fmt in formats:
+        path = stem.with_name(f"{stem.name}.{fmt}")
+        # no creation date in a PDF, so the same figure gives the same file
+        metadata = {"CreationDate": None} if fmt == "pdf" else None
+        fig.savefig(path, dpi=dpi, format=fmt, metadata=metadata)
+        paths.append(path)
     return paths
-
-
-def luminance(colour: str) -> float:
-    """ITU-R 601 luma of a colour, 0 (black) to 1 (white): its grey in greyscale print."""
-    from matplotlib.colors import to_rgb
-
-    r, g, b = to_rgb(colour)
-    return 0.299 * r + 0.587 * g + 0.114 * b
-
