@@ -794,3 +794,34 @@ def test_worker_reuses_the_model_and_the_nlp_across_cases(tmp_path):
     assert all(peak <= limit + LIMIT_SLACK for peak, limit in zip(peaks, limits)), peaks
     np.testing.assert_allclose(peaks[:2], 0.3, rtol=0, atol=LIMIT_SLACK)  # the tight limit binds
     assert min(peaks[2:]) > 0.3 + 0.1, peaks
+
+
+def test_case_effort_holds_the_task_momentum(tmp_path):
+    """A case's joint torques (its ``effort`` block) are those of the task's own momentum: the
+    same as a run of that task writes to metrics.json, and not those of a system at rest."""
+    from balance_opt.app.pipeline import run_task
+    from balance_opt.sweep import runner as sweep_runner
+    from balance_opt.tasks.task import task_from_dict
+
+    text = (
+        f"task: {PAPER_TASK}\nmethods: [analytic]\n"
+        "grid:\n  initial.momentum: [[0.0, 0.0, 0.0, 0.0, 0.0, 0.5]]\n"
+    )
+    sweep = parse_sweep(text, "momentum.yaml", tmp_path)
+    (case,) = sweep.cases
+    record = sweep_runner.run_task_case(case)
+    task = task_from_dict(case["task"], Path(case["base_dir"]))
+    assert task.h0[5] == 0.5
+    run = run_task(task, methods=("analytic",), output_dir=tmp_path / "run")
+    expected = run.metrics["methods"]["analytic"]["effort"]["joints"]
+    got = record["metrics"]["effort"]["joints"]
+    for joint, entry in expected.items():
+        assert got[joint]["peak_Nm"] == pytest.approx(entry["peak_Nm"], rel=1e-12), joint
+    at_rest = task_from_dict(
+        {**case["task"], "initial": {"balance": [0.0, 0.5, -1.0]}}, Path(case["base_dir"])
+    )
+    rest = run_task(at_rest, methods=("analytic",), output_dir=tmp_path / "rest")
+    rest_peaks = [
+        e["peak_Nm"] for e in rest.metrics["methods"]["analytic"]["effort"]["joints"].values()
+    ]
+    assert max(abs(g["peak_Nm"] - r) for g, r in zip(got.values(), rest_peaks)) > 1e-3

@@ -62,7 +62,7 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     baseline = mission_only_baseline(task)
     replayed = time.perf_counter()
     simulation = simulate_result(task, result) if case.get("simulate") else None
-    metrics = method_metrics(result, task.robot, simulation)
+    metrics = method_metrics(result, task.robot, simulation, task.h0)
     done = time.perf_counter()
     timing = {
         "load_s": loaded - start,
