@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import heapq
 import logging
 import os
 import platform
+import re
 import shutil
 import signal
 import subprocess
@@ -42,6 +44,10 @@ RETRY_SECONDS = 24 * 3600.0
 #: How long the planning call that started a background compilation waits for it at its end
 #: [s] before stopping it (the next run then starts it again).
 COMPILE_WAIT = 300.0
+#: Statements per C function of a split kernel (:func:`split_functions`): the compiler's
+#: register allocation grows faster than linearly with a function's length, so a Hessian of
+#: 10^5 statements in pieces of this size compiles in a fraction of the time, and runs as fast.
+PART_STATEMENTS = 300
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 
@@ -158,7 +164,123 @@ def _source(functions: list[cs.Function]) -> str:
     generator = cs.CodeGenerator("balance_kernels.c", {"with_header": False})
     for f in functions:
         generator.add(f)
-    return generator.dump()
+    return split_functions(generator.dump())
+
+
+# CasADi's C code of an SX function: a body of scalar assignments to work variables ``a<k>``
+# (reused once dead) and writes of outputs, in one C function per CasADi function
+_BODY_START = re.compile(
+    r"^static int (casadi_f\d+)\(const casadi_real\*\* arg, casadi_real\*\* res, "
+    r"casadi_int\* iw, casadi_real\* w, int mem\) \{$"
+)
+_VARIABLE = re.compile(r"\ba\d+\b")
+_ASSIGN = re.compile(r"^  (a\d+)=(.*);$")
+_OUTPUT = re.compile(r"^  if \(res\[\d+\]!=0\) res\[\d+\]\[\d+\]=a\d+;$")
+_NOINLINE = """#if defined(__GNUC__)
+#define BALANCE_NOINLINE __attribute__((noinline))
+#elif defined(_MSC_VER)
+#define BALANCE_NOINLINE __declspec(noinline)
+#else
+#define BALANCE_NOINLINE
+#endif
+"""
+
+
+def split_functions(source: str, statements: int = PART_STATEMENTS) -> str:
+    """CasADi's C ``source`` with each function body longer than ``statements`` cut into
+    parts of at most that many, each a C function of its own, called in order.
+
+    The parts run the same operations in the same order, so the results are the same to the
+    last bit; a value one part computes and a later one reads passes through an array on the
+    stack (a body of another form is left whole)."""
+    lines = source.split("\n")
+    out, i, split = [], 0, False
+    while i < len(lines):
+        start = _BODY_START.match(lines[i])
+        if start is None:
+            out.append(lines[i])
+            i += 1
+            continue
+        j = i + 1
+        while lines[j].startswith("  casadi_real a"):
+            j += 1
+        end = lines.index("  return 0;", j)
+        body = lines[j:end]
+        if (
+            len(body) > statements
+            and lines[end + 1] == "}"
+            and all(_ASSIGN.match(line) or _OUTPUT.match(line) for line in body)
+        ):
+            out += _parts(start.group(1), body, statements)
+            split = True
+        else:
+            out += lines[i : end + 2]
+        i = end + 2
+    return _NOINLINE + "\n".join(out) if split else source
+
+
+def _parts(name: str, body: list[str], statements: int) -> list[str]:
+    """The C functions of a body cut into parts (see :func:`split_functions`)."""
+    size = -(-len(body) // -(-len(body) // statements))  # parts of equal size
+    # each assignment's value gets a number of its own (the body reuses variable names)
+    current: dict[str, int] = {}
+    first, last = [], []  # the part that computes a value, the last part that reads it
+    code = []  # (value assigned or None, right-hand side with values as \0<number>\0)
+    for k, line in enumerate(body):
+        part = k // size
+
+        def read(match: re.Match, part: int = part) -> str:
+            value = current[match.group(0)]
+            last[value] = part
+            return f"\0{value}\0"
+
+        assign = _ASSIGN.match(line)
+        text = _VARIABLE.sub(read, assign.group(2) if assign else line)
+        if assign:
+            current[assign.group(1)] = len(first)
+            code.append((len(first), text))
+            first.append(part)
+            last.append(part)
+        else:
+            code.append((None, text))
+    # the values read by a later part: slots of the array, each reused once its value's
+    # last reader has run
+    slot, free, busy, n_slots = {}, [], [], 0
+    for value, part in enumerate(first):
+        if last[value] == part:
+            continue
+        while busy and busy[0][0] < part:
+            free.append(heapq.heappop(busy)[1])
+        if not free:
+            free.append(n_slots)
+            n_slots += 1
+        slot[value] = free.pop()
+        heapq.heappush(busy, (last[value], slot[value]))
+
+    def name_of(value: int) -> str:
+        return f"s[{slot[value]}]" if value in slot else f"v{value}"
+
+    def fill(text: str) -> str:
+        return re.sub("\0(\\d+)\0", lambda m: name_of(int(m.group(1))), text)
+
+    out, n_parts = [], -(-len(body) // size)
+    for part in range(n_parts):
+        lines = code[part * size : (part + 1) * size]
+        out.append(
+            f"static BALANCE_NOINLINE void {name}_part{part}(const casadi_real** arg, "
+            "casadi_real** res, casadi_real* s) {"
+        )
+        local = [f"v{v}" for v, _ in lines if v is not None and v not in slot]
+        out += ["  casadi_real " + ", ".join(local[a : a + 12]) + ";" for a in range(0, len(local), 12)]
+        out += [f"  {name_of(v)}={fill(t)};" if v is not None else fill(t) for v, t in lines]
+        out += ["}", ""]
+    out.append(
+        f"static int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw, "
+        "casadi_real* w, int mem) {"
+    )
+    out.append(f"  casadi_real s[{max(n_slots, 1)}];")
+    out += [f"  {name}_part{part}(arg, res, s);" for part in range(n_parts)]
+    return [*out, "  return 0;", "}"]
 
 
 def _compiling(library: Path) -> bool:
