@@ -271,7 +271,7 @@ def _parts(name: str, body: list[str], statements: int) -> list[str]:
             "casadi_real** res, casadi_real* s) {"
         )
         local = [f"v{v}" for v, _ in lines if v is not None and v not in slot]
-        out += ["  casadi_real " + ", ".join(local[a : a + 12]) + ";" for a in range(0, len(local), 12)]
+        out += [f"  casadi_real {', '.join(local[a : a + 12])};" for a in range(0, len(local), 12)]
         out += [f"  {name_of(v)}={fill(t)};" if v is not None else fill(t) for v, t in lines]
         out += ["}", ""]
     out.append(
