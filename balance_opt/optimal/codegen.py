@@ -176,7 +176,7 @@ _BODY_START = re.compile(
     r"^static int (casadi_f\d+)\(const casadi_real\*\* arg, casadi_real\*\* res, "
     r"casadi_int\* iw, casadi_real\* w, int mem\) \{$"
 )
-_VARIABLE = re.compile(r"\ba\d+\b")
+_VARIABLE = re.compile(r"\b(a\d+)\b")
 _ASSIGN = re.compile(r"^  (a\d+)=(.*);$")
 _OUTPUT = re.compile(r"^  if \(res\[\d+\]!=0\) res\[\d+\]\[\d+\]=a\d+;$")
 # a part: never inlined back into its caller, not exported from the library
@@ -233,24 +233,21 @@ def _parts(name: str, body: list[str], statements: int) -> list[str]:
     # each assignment's value gets a number of its own (the body reuses variable names)
     current: dict[str, int] = {}
     first, last = [], []  # the part that computes a value, the last part that reads it
-    code = []  # (value assigned or None, right-hand side with values as \0<number>\0)
+    code = []  # (value assigned or None, the text with the values read at odd places)
     for k, line in enumerate(body):
         part = k // size
-
-        def read(match: re.Match, part: int = part) -> str:
-            value = current[match.group(0)]
-            last[value] = part
-            return f"\0{value}\0"
-
         assign = _ASSIGN.match(line)
-        text = _VARIABLE.sub(read, assign.group(2) if assign else line)
+        pieces = _VARIABLE.split(assign.group(2) if assign else line)
+        for i in range(1, len(pieces), 2):
+            pieces[i] = value = current[pieces[i]]
+            last[value] = part
         if assign:
             current[assign.group(1)] = len(first)
-            code.append((len(first), text))
+            code.append((len(first), pieces))
             first.append(part)
             last.append(part)
         else:
-            code.append((None, text))
+            code.append((None, pieces))
     # the values read by a later part: slots of the array, each reused once its value's
     # last reader has run
     slot, free, busy, n_slots = {}, [], [], 0
@@ -265,11 +262,11 @@ def _parts(name: str, body: list[str], statements: int) -> list[str]:
         slot[value] = free.pop()
         heapq.heappush(busy, (last[value], slot[value]))
 
-    def name_of(value: int) -> str:
-        return f"s[{slot[value]}]" if value in slot else f"v{value}"
+    names = [f"s[{slot[v]}]" if v in slot else f"v{v}" for v in range(len(first))]
 
-    def fill(text: str) -> str:
-        return re.sub("\0(\\d+)\0", lambda m: name_of(int(m.group(1))), text)
+    def fill(pieces: list) -> str:
+        pieces[1::2] = [names[v] for v in pieces[1::2]]
+        return "".join(pieces)
 
     out, n_parts = [], -(-len(body) // size)
     for part in range(n_parts):
@@ -280,7 +277,7 @@ def _parts(name: str, body: list[str], statements: int) -> list[str]:
         )
         local = [f"v{v}" for v, _ in lines if v is not None and v not in slot]
         out += [f"  casadi_real {', '.join(local[a : a + 12])};" for a in range(0, len(local), 12)]
-        out += [f"  {name_of(v)}={fill(t)};" if v is not None else fill(t) for v, t in lines]
+        out += [f"  {names[v]}={fill(t)};" if v is not None else fill(t) for v, t in lines]
         out += ["}", ""]
     out.append(
         f"static int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw, "
