@@ -427,7 +427,7 @@ def _compile(compiler: str, source: str, library: Path, owner: Compilation | Non
         out = tmp / library.name
         files = []
         for k, text in enumerate(c_files(source)):
-            files.append(tmp / f"balance_kernels_{k}.c")
+            files.append(tmp / (f"balance_kernels_{k}.c" if k else "balance_kernels.c"))
             files[-1].write_text(text)
         inputs = [str(f) for f in files]
         if len(files) > 1:  # compiled at once, then linked
