@@ -143,6 +143,18 @@ def test_a_kernel_cut_into_c_functions_computes_the_same_bits(tmp_path):
 
 
 @needs_cc
+def test_kernels_that_do_not_build_as_several_files_build_as_one(tmp_path, monkeypatch, caplog):
+    x = cs.SX.sym("x", 2)
+    fun = cs.Function("coldstart_fallback_kernel", [x], [cs.sin(x[0]) * x[1]])
+    monkeypatch.setattr(codegen, "c_files", lambda source: [source, "not C;"])
+    with caplog.at_level(logging.WARNING, logger="balance_opt"):
+        out = codegen.compile_functions([fun], tmp_path, "digest")
+    assert out.compiled and "the kernels as 2 C files did not build" in caplog.text
+    value = float(out.functions[0]([0.5, 2.0]))
+    np.testing.assert_allclose(value, np.sin(0.5) * 2.0, rtol=0, atol=1e-15)
+
+
+@needs_cc
 @pytest.mark.slow
 def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, caplog):
     mission = PointToPoint([0.0, 0.3, -0.6], [1.2, 0.9, -1.6], 10.0)
