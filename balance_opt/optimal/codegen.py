@@ -212,7 +212,10 @@ def split_functions(source: str, statements: int = PART_STATEMENTS) -> str:
         j = i + 1
         while lines[j].startswith("  casadi_real a"):
             j += 1
-        end = lines.index("  return 0;", j)
+        end = next((k for k in range(j, len(lines) - 1) if lines[k] == "  return 0;"), None)
+        if end is None:  # not of this form: the rest as it is
+            out += lines[i:]
+            break
         body = lines[j:end]
         if (
             len(body) > statements
