@@ -111,6 +111,50 @@ def test_compilation_under_way_is_not_waited_for(tmp_path):
 
 
 @needs_cc
+def test_a_kernel_cut_into_c_functions_computes_the_same_bits(tmp_path):
+    """A long body cut into parts (split_functions) runs the same operations in the same order:
+    its library gives the whole body's results to the last bit, and CasADi's VM's."""
+    z = cs.SX.sym("z", 6)
+    y = z
+    for k in range(4):  # values read far from where they are computed, names reused
+        y = cs.sin(y * cs.DM(np.arange(1.0, 7.0)) + cs.cos(y[::-1]) * z[k])
+    hessian, _ = cs.hessian(cs.sumsqr(y), z)
+    fun = cs.Function("split_test_kernel", [z], [cs.tril(hessian), y], {"cse": True})
+    generator = cs.CodeGenerator("split_test.c", {"with_header": False})
+    generator.add(fun)
+    whole = generator.dump()
+    assert codegen.split_functions(whole, 10**6) == whole  # short enough: left as it is
+    cut = codegen.split_functions(whole, 40)
+    assert cut.count("casadi_f0_part") >= 2 * 5  # at least 5 parts, each defined and called
+    assert len(codegen.c_files(cut)) == codegen.COMPILE_JOBS == 2  # compiled at once, linked
+    compiler = codegen.find_compiler()
+    libraries = []
+    for name, source in (("whole", whole), ("cut", cut)):
+        codegen._compile(compiler, source, tmp_path / f"{name}.so")
+        libraries.append(cs.external("split_test_kernel", str(tmp_path / f"{name}.so")))
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        arg = rng.uniform(-2, 2, 6)
+        (h_whole, y_whole), (h_cut, y_cut) = (lib(arg) for lib in libraries)
+        assert np.array(h_cut).tobytes() == np.array(h_whole).tobytes()
+        assert np.array(y_cut).tobytes() == np.array(y_whole).tobytes()
+        h_vm, _ = fun(arg)
+        np.testing.assert_allclose(np.array(h_cut), np.array(h_vm), rtol=0, atol=1e-12)
+
+
+@needs_cc
+def test_kernels_that_do_not_build_as_several_files_build_as_one(tmp_path, monkeypatch, caplog):
+    x = cs.SX.sym("x", 2)
+    fun = cs.Function("coldstart_fallback_kernel", [x], [cs.sin(x[0]) * x[1]])
+    monkeypatch.setattr(codegen, "c_files", lambda source: [source, "not C;"])
+    with caplog.at_level(logging.WARNING, logger="balance_opt"):
+        out = codegen.compile_functions([fun], tmp_path, "digest")
+    assert out.compiled and "the kernels as 2 C files did not build" in caplog.text
+    value = float(out.functions[0]([0.5, 2.0]))
+    np.testing.assert_allclose(value, np.sin(0.5) * 2.0, rtol=0, atol=1e-15)
+
+
+@needs_cc
 @pytest.mark.slow
 def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, caplog):
     mission = PointToPoint([0.0, 0.3, -0.6], [1.2, 0.9, -1.6], 10.0)

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import heapq
 import logging
 import os
 import platform
+import re
 import shutil
 import signal
 import subprocess
@@ -42,6 +44,13 @@ RETRY_SECONDS = 24 * 3600.0
 #: How long the planning call that started a background compilation waits for it at its end
 #: [s] before stopping it (the next run then starts it again).
 COMPILE_WAIT = 300.0
+#: Statements per C function of a split kernel (:func:`split_functions`): the compiler's
+#: register allocation grows faster than linearly with a function's length, so a Hessian of
+#: 10^5 statements in pieces of this size compiles in a fraction of the time, and runs as fast.
+PART_STATEMENTS = 300
+#: The parts of the split kernels are compiled as this many C files at once (concurrent
+#: compiler processes, waited for), then linked into one library.
+COMPILE_JOBS = 2
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 
@@ -158,7 +167,164 @@ def _source(functions: list[cs.Function]) -> str:
     generator = cs.CodeGenerator("balance_kernels.c", {"with_header": False})
     for f in functions:
         generator.add(f)
-    return generator.dump()
+    return split_functions(generator.dump())
+
+
+# CasADi's C code of an SX function: a body of scalar assignments to work variables ``a<k>``
+# (reused once dead) and writes of outputs, in one C function per CasADi function
+_BODY_START = re.compile(
+    r"^static int (casadi_f\d+)\(const casadi_real\*\* arg, casadi_real\*\* res, "
+    r"casadi_int\* iw, casadi_real\* w, int mem\) \{$"
+)
+_VARIABLE = re.compile(r"\b(a\d+)\b")
+_ASSIGN = re.compile(r"^  (a\d+)=(.*);$")
+_OUTPUT = re.compile(r"^  if \(res\[\d+\]!=0\) res\[\d+\]\[\d+\]=a\d+;$")
+# a part: never inlined back into its caller, not exported from the library
+_PART_MACRO = """#if defined(__GNUC__)
+#define BALANCE_PART __attribute__((noinline, visibility("hidden")))
+#elif defined(_MSC_VER)
+#define BALANCE_PART __declspec(noinline)
+#else
+#define BALANCE_PART
+#endif
+"""
+_PART_START = re.compile(r"^BALANCE_PART void casadi_f\d+_part\d+\(.*\{$")
+# CasADi's helpers (casadi_sq, casadi_fmax, ...) and where its preamble ends
+_HELPER = re.compile(r"^(casadi_real|casadi_int|int|void) \**casadi_\w+\(")
+_PREAMBLE_END = "/* Configuration this file was compiled with */"
+
+
+def split_functions(source: str, statements: int = PART_STATEMENTS) -> str:
+    """CasADi's C ``source`` with each function body longer than ``statements`` cut into
+    parts of at most that many, each a C function of its own, called in order.
+
+    The parts run the same operations in the same order, so the results are the same to the
+    last bit; a value one part computes and a later one reads passes through an array on the
+    stack (a body of another form is left whole)."""
+    lines = source.split("\n")
+    out, i, split = [], 0, False
+    while i < len(lines):
+        start = _BODY_START.match(lines[i])
+        if start is None:
+            out.append(lines[i])
+            i += 1
+            continue
+        j = i + 1
+        while lines[j].startswith("  casadi_real a"):
+            j += 1
+        end = next((k for k in range(j, len(lines) - 1) if lines[k] == "  return 0;"), None)
+        if end is None:  # not of this form: the rest as it is
+            out += lines[i:]
+            break
+        body = lines[j:end]
+        if (
+            len(body) > statements
+            and lines[end + 1] == "}"
+            and all(_ASSIGN.match(line) or _OUTPUT.match(line) for line in body)
+        ):
+            out += _parts(start.group(1), body, statements)
+            split = True
+        else:
+            out += lines[i : end + 2]
+        i = end + 2
+    return _PART_MACRO + "\n".join(out) if split else source
+
+
+def _parts(name: str, body: list[str], statements: int) -> list[str]:
+    """The C functions of a body cut into parts (see :func:`split_functions`)."""
+    size = -(-len(body) // -(-len(body) // statements))  # parts of equal size
+    # each assignment's value gets a number of its own (the body reuses variable names)
+    current: dict[str, int] = {}
+    first, last = [], []  # the part that computes a value, the last part that reads it
+    code = []  # (value assigned or None, the text with the values read at odd places)
+    for k, line in enumerate(body):
+        part = k // size
+        assign = _ASSIGN.match(line)
+        pieces = _VARIABLE.split(assign.group(2) if assign else line)
+        for i in range(1, len(pieces), 2):
+            pieces[i] = value = current[pieces[i]]
+            last[value] = part
+        if assign:
+            current[assign.group(1)] = len(first)
+            code.append((len(first), pieces))
+            first.append(part)
+            last.append(part)
+        else:
+            code.append((None, pieces))
+    # the values read by a later part: slots of the array, each reused once its value's
+    # last reader has run
+    slot, free, busy, n_slots = {}, [], [], 0
+    for value, part in enumerate(first):
+        if last[value] == part:
+            continue
+        while busy and busy[0][0] < part:
+            free.append(heapq.heappop(busy)[1])
+        if not free:
+            free.append(n_slots)
+            n_slots += 1
+        slot[value] = free.pop()
+        heapq.heappush(busy, (last[value], slot[value]))
+
+    names = [f"s[{slot[v]}]" if v in slot else f"v{v}" for v in range(len(first))]
+
+    def fill(pieces: list) -> str:
+        pieces[1::2] = [names[v] for v in pieces[1::2]]
+        return "".join(pieces)
+
+    out, n_parts = [], -(-len(body) // size)
+    for part in range(n_parts):
+        lines = code[part * size : (part + 1) * size]
+        out.append(
+            f"BALANCE_PART void {name}_part{part}(const casadi_real** arg, "
+            "casadi_real** res, casadi_real* s) {"
+        )
+        local = [f"v{v}" for v, _ in lines if v is not None and v not in slot]
+        out += [f"  casadi_real {', '.join(local[a : a + 12])};" for a in range(0, len(local), 12)]
+        out += [f"  {names[v]}={fill(t)};" if v is not None else fill(t) for v, t in lines]
+        out += ["}", ""]
+    out.append(
+        f"static int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw, "
+        "casadi_real* w, int mem) {"
+    )
+    out.append(f"  casadi_real s[{max(n_slots, 1)}];")
+    out += [f"  {name}_part{part}(arg, res, s);" for part in range(n_parts)]
+    return [*out, "  return 0;", "}"]
+
+
+def c_files(source: str, jobs: int = COMPILE_JOBS) -> list[str]:
+    """The split ``source`` (:func:`split_functions`) as up to ``jobs`` C files to compile at
+    once and link: the first is ``source`` without the parts the others define (declared
+    instead); the others hold about equal shares of the parts, after CasADi's preamble (its
+    helpers made local to the file, so the compiler can inline them there too)."""
+    lines = source.split("\n")
+    starts = [k for k, line in enumerate(lines) if _PART_START.match(line)]
+    if jobs < 2 or len(starts) < 2 or _PREAMBLE_END not in lines:
+        return [source]
+    ends = [lines.index("}", k) for k in starts]
+    total = sum(e - k for k, e in zip(starts, ends))
+    # the last parts, about (jobs - 1) / jobs of all lines, go to the other files in turn
+    moved, share, size = [[] for _ in range(jobs - 1)], total / jobs, 0
+    for k, e in zip(reversed(starts), reversed(ends)):
+        if size + e - k > share * (jobs - 1):
+            break
+        moved[int(size // share)].append((k, e))
+        size += e - k
+    if not any(moved):
+        return [source]
+    preamble = [
+        f"static {line}" if _HELPER.match(line) else line
+        for line in lines[: lines.index(_PREAMBLE_END)]
+    ]
+    first, cut = list(lines), set()
+    others = []
+    for group in moved:
+        body = []
+        for k, e in sorted(group):
+            body += lines[k : e + 1]
+            first[k] = lines[k][:-2] + ";"  # the declaration
+            cut.update(range(k + 1, e + 1))
+        others.append("\n".join([*preamble, _PART_MACRO, *body, ""]))
+    return ["\n".join(line for k, line in enumerate(first) if k not in cut), *others]
 
 
 def _compiling(library: Path) -> bool:
@@ -183,11 +349,12 @@ def _recent_failure(library: Path) -> str:
 
 
 class Compilation:
-    """A background compilation: a thread of this process that runs the compiler (a child
-    process at low priority) while it holds the library's lock, taken here."""
+    """A background compilation: a thread of this process that runs the compilers (child
+    processes at low priority) while it holds the library's lock, taken here."""
 
     def __init__(self, compiler: str, source: str, library: Path):
-        self.library, self.compiler, self.stopped = library, None, False
+        self.library, self.stopped = library, False
+        self.compilers: list[subprocess.Popen] = []
         self._lock = contextlib.ExitStack()
         self._lock.enter_context(file_lock(library.parent / f"{library.name}.lock", False))
         self.thread = threading.Thread(target=self._run, args=(compiler, source), daemon=True)
@@ -227,13 +394,13 @@ def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
 def stop(process: Compilation) -> None:
     """Stop a background compilation (the compiler and what it started) and wait for it."""
     process.stopped = True
-    compiler = process.compiler
-    if compiler is not None and compiler.poll() is None:
-        if os.name == "posix":
-            with contextlib.suppress(OSError):
-                os.killpg(compiler.pid, signal.SIGTERM)
-        else:
-            compiler.terminate()
+    for compiler in list(process.compilers):
+        if compiler.poll() is None:
+            if os.name == "posix":
+                with contextlib.suppress(OSError):
+                    os.killpg(compiler.pid, signal.SIGTERM)
+            else:
+                compiler.terminate()
     process.thread.join(10.0)
 
 
@@ -253,37 +420,80 @@ def wait_for_library(library: str | Path, timeout: float = 3600.0) -> dict | Non
 
 def _compile(compiler: str, source: str, library: Path, owner: Compilation | None = None) -> float:
     """Compile C ``source`` to the shared ``library`` and record it; returns the wall time [s].
-    The caller holds the library's lock; a background ``owner`` runs the compiler niced and
-    can stop it."""
+    A split source is compiled as several files at once (:func:`c_files`), then linked. The
+    caller holds the library's lock; a background ``owner`` runs the compilers niced and can
+    stop them."""
     for path in (library, record_path(library)):
         path.unlink(missing_ok=True)
     start = time.perf_counter()
     with build_dir(library.parent, library.stem) as tmp:
-        c_file = tmp / "balance_kernels.c"
-        c_file.write_text(source)
         out = tmp / library.name
-        command = [compiler, *COMPILER_FLAGS, str(c_file), "-o", str(out), "-lm"]
-        if owner is not None and shutil.which("nice"):
-            command = [shutil.which("nice"), "-n", str(BACKGROUND_NICENESS), *command]
-        proc = subprocess.Popen(
-            command,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
-            start_new_session=owner is not None and os.name == "posix",  # stop() ends its group
-        )
-        if owner is not None:
-            owner.compiler = proc
-            if owner.stopped:  # stop() came before the compiler started
-                proc.kill()
-        _, err = proc.communicate()
-        if owner is not None and owner.stopped:
-            raise OSError("stopped")
-        if proc.returncode != 0:
-            raise OSError(f"{compiler} failed on the balance kernels: {err.strip()[:500]}")
+        texts = c_files(source)
+        try:
+            _build(compiler, texts, out, owner)
+        except OSError as exc:  # one file cannot depend on how CasADi's preamble is laid out
+            if len(texts) == 1 or (owner is not None and owner.stopped):
+                raise
+            log.warning("the kernels as %d C files did not build (%s); as one", len(texts), exc)
+            _build(compiler, [source], out, owner)
         os.replace(out, library)  # atomic: a process never loads a partial library
     elapsed = time.perf_counter() - start
     write_record(library, compile_seconds=round(elapsed, 3))
     log.info("compiled balance kernels to %s in %.1f s", library, elapsed)
     return elapsed
+
+
+def _build(compiler: str, texts: list[str], out: Path, owner: Compilation | None) -> None:
+    """Compile the C files of ``texts`` at once and link them to ``out``."""
+    names = ["balance_kernels.c"] + [f"balance_kernels_{k}.c" for k in range(1, len(texts))]
+    files = [out.parent / name for name in names]
+    for path, text in zip(files, texts):
+        path.write_text(text)
+    inputs = [str(f) for f in files]
+    if len(files) > 1:
+        inputs = [str(f.with_suffix(".o")) for f in files]
+        jobs = [[*COMPILER_FLAGS, "-c", str(f), "-o", o] for f, o in zip(files, inputs)]
+        _run_compilers(jobs, compiler, owner)
+    _run_compilers([[*COMPILER_FLAGS, *inputs, "-o", str(out), "-lm"]], compiler, owner)
+
+
+def _run_compilers(arguments: list[list[str]], compiler: str, owner: Compilation | None) -> None:
+    """Run ``compiler`` with each list of ``arguments`` at once and wait for all of them."""
+    nice = shutil.which("nice") if owner is not None else None
+    procs = []
+    try:
+        for args in arguments:
+            command = [compiler, *args]
+            if nice:
+                command = [nice, "-n", str(BACKGROUND_NICENESS), *command]
+            procs.append(
+                subprocess.Popen(
+                    command,
+                    stdin=subprocess.DEVNULL,
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.PIPE,
+                    text=True,
+                    # stop() ends each one's process group
+                    start_new_session=owner is not None and os.name == "posix",
+                )
+            )
+            if owner is not None:
+                owner.compilers.append(procs[-1])
+                if owner.stopped:  # stop() came before this compiler started
+                    procs[-1].kill()
+        errors = [proc.communicate()[1] for proc in procs]
+    finally:
+        for proc in procs:  # an exception here: no compiler left running
+            if proc.poll() is None:
+                if owner is not None and os.name == "posix":
+                    with contextlib.suppress(OSError):
+                        os.killpg(proc.pid, signal.SIGKILL)
+                proc.kill()
+                proc.wait()
+            if owner is not None:
+                owner.compilers.remove(proc)
+    if owner is not None and owner.stopped:
+        raise OSError("stopped")
+    for proc, err in zip(procs, errors):
+        if proc.returncode != 0:
+            raise OSError(f"{compiler} failed on the balance kernels: {err.strip()[:500]}")
