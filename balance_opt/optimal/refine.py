@@ -262,18 +262,26 @@ def plan_peak(nlp, guess) -> BalanceResult:
     drift's L_16 norm, without the epigraph's inequality rows, priced like the peak at the
     start's peak ``c``), then the exact epigraph, which converges fast from near its plan. The
     inner stages run on a coarser grid and are not re-simulated; a failed one hands its guess on.
+    On a grid finer than the epigraph stage's ``fine_above``, the inner stages and the epigraph
+    first solve the problem on the coarser grids of its :meth:`~.options.Stage.grids`.
     Should the epigraph stage fail, the smooth peak is solved on the plan's grid from the inner
     stage's plan and kept (with a warning, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`).
     The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts."""
     *inner, last = PEAK_STAGES
+    grids = last.grids(nlp.N, nlp.transcription.name)
+    coarsest = nlp
+    if len(grids) > 1:
+        if isinstance(guess, np.ndarray):  # a decision vector of nlp
+            guess = nlp.unpack(nlp.initial_guess(guess))
+        coarsest = nlp.variant(intervals=grids[0])
     done: list[SolveReport] = []
     stage_nlp = None
     for stage in inner:
         if stage.name == "integral":  # done here, or by a multi-start
-            start = guess if isinstance(guess, IntegralStart) else integral_stage(nlp, guess)
+            start = guess if isinstance(guess, IntegralStart) else integral_stage(coarsest, guess)
             report, guess = start.report, start.following
         else:  # its reference drift: the start's peak (the smooth term then weighs like the peak's)
-            stage_nlp = nlp.at_stage(stage)
+            stage_nlp = coarsest.at_stage(stage)
             X, _ = stage_nlp.unpack(stage_nlp.initial_guess(guess)).points()
             reference = max(float(np.linalg.norm(X[:3], axis=0).max()), 1e-4)
             stage_nlp = stage_nlp.with_bounds(peak_reference=reference)
@@ -281,6 +289,12 @@ def plan_peak(nlp, guess) -> BalanceResult:
             guess = report.solution if report.success else guess
         if not report.success:
             log.info("%s stage: %s; the next starts from its guess", stage.name, report.status)
+        done.append(report)
+    for n in grids[:-1]:  # the epigraph on the coarser grids, each from the last
+        report = nlp.variant(intervals=n).at_stage(last).solve_stage(guess)
+        if not report.success:
+            log.info("peak stage on %d intervals: %s; the next starts from its guess", n, report.status)
+        guess = report.solution if report.success else guess
         done.append(report)
     before = PlanReport(tuple(done))
     stages = tuple(r.as_inner_stage() for r in done)
