@@ -292,8 +292,8 @@ def plan_peak(nlp, guess) -> BalanceResult:
         done.append(report)
     for n in grids[:-1]:  # the epigraph on the coarser grids, each from the last
         report = nlp.variant(intervals=n).at_stage(last).solve_stage(guess)
-        if not report.success:
-            log.info("peak stage on %d intervals: %s; the next starts from its guess", n, report.status)
+        if not report.success:  # as an inner stage's failure
+            log.info("peak stage (N = %d): %s; the next starts from its guess", n, report.status)
         guess = report.solution if report.success else guess
         done.append(report)
     before = PlanReport(tuple(done))
