@@ -269,11 +269,9 @@ def plan_peak(nlp, guess) -> BalanceResult:
     The plan's ``solver.stages`` reports each stage's status, iterations, intervals and drifts."""
     *inner, last = PEAK_STAGES
     grids = last.grids(nlp.N, nlp.transcription.name)
-    coarsest = nlp
-    if len(grids) > 1:
-        if isinstance(guess, np.ndarray):  # a decision vector of nlp
-            guess = nlp.unpack(nlp.initial_guess(guess))
-        coarsest = nlp.variant(intervals=grids[0])
+    coarsest = coarsest_problem(nlp)
+    if coarsest is not nlp and isinstance(guess, np.ndarray):  # a decision vector of nlp
+        guess = nlp.unpack(nlp.initial_guess(guess))
     done: list[SolveReport] = []
     stage_nlp = None
     for stage in inner:
@@ -328,6 +326,14 @@ def _smooth_plan(nlp, smooth, guess, before: PlanReport) -> BalanceResult:
     result.solver = replace(result.solver, solution=nlp.unpack(w))
     result.info["nlp_solution"] = w.tolist()
     return result
+
+
+def coarsest_problem(nlp):
+    """The peak problem ``nlp`` on the coarsest of its epigraph stage's grids
+    (:meth:`~balance_opt.optimal.options.Stage.grids`), whose inner stages start its plan:
+    ``nlp`` itself up to the stage's ``fine_above``."""
+    grids = PEAK_STAGES[-1].grids(nlp.N, nlp.transcription.name)
+    return nlp if len(grids) == 1 else nlp.variant(intervals=grids[0])
 
 
 @dataclass(frozen=True)
@@ -466,7 +472,8 @@ def multi_start(nlp, guess, executor=None):
         starting = [
             nlp.unpack(nlp.initial_guess(g)) if isinstance(g, np.ndarray) else g for g in starting
         ]
-        first = list(run(StartTask(single.at_stage(PEAK_STAGES[0]), "first"), starting))
+        first_stage = coarsest_problem(single).at_stage(PEAK_STAGES[0])
+        first = list(run(StartTask(first_stage, "first"), starting))
         for i in range(len(first)):
             same = (j for j in range(i) if owner[j] == j and same_first_plan(first[j], first[i]))
             owner[i] = next(same, i)
