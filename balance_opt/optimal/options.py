@@ -34,15 +34,17 @@ PEAK_IPOPT = {"mu_init": 1e-3}
 #: plan on a coarser grid they do not.
 PEAK_GRID_INTERVALS = 100
 #: Ipopt options of the epigraph stage over :data:`PEAK_IPOPT` on a grid finer than
-#: :data:`PEAK_GRID_INTERVALS`. It starts from the coarser grid's plan: a barrier parameter as
-#: small as the final one's order keeps it there. The approximate minimum fill ordering of
-#: MUMPS factors its KKT matrix faster than the one MUMPS picks itself.
+#: :data:`PEAK_GRID_INTERVALS`. It starts from its own plan on a coarser grid: a smaller barrier
+#: parameter than from the smooth stage keeps it near it (a larger one first pulls it away). MUMPS
+#: picks its fill-reducing ordering by the matrix's size, and on these larger matrices its
+#: choice factorises slower than the approximate minimum fill ordering (AMF).
 PEAK_FINE_IPOPT = {"mu_init": 1e-5, "mumps_pivot_order": 2}
 #: Ipopt options of the peak objective's smooth stage (its start is close: no globalisation).
 SMOOTH_IPOPT = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "never-monotone-mode"}
 #: The peak objective's inner stages solve on a grid this many times coarser than the plan's
-#: (:meth:`Stage.intervals`), by transcription: the epigraph stage only needs the drift's shape
-#: from them. The trapezoidal rule has half the points per interval.
+#: (:meth:`Stage.intervals`; a fine plan's coarsest, :meth:`Stage.grids`), by transcription: the
+#: epigraph stage only needs the drift's shape from them. The trapezoidal rule has half the
+#: points per interval. A fine plan's grids are as many times coarser than one another.
 INNER_COARSENING = {"hermite-simpson": 4, "trapezoidal": 2}
 #: Intervals of the inner stages' grid at least (the plan's own, if it has fewer).
 INNER_MIN_INTERVALS = 10
