@@ -299,7 +299,7 @@ def plan_peak(nlp, guess) -> BalanceResult:
     try:
         result = _solve_once(nlp.at_stage(last), guess, before)
     except SolverError as exc:
-        if not done[-1].success:
+        if not done[len(inner) - 1].success:  # the smooth stage, which the fallback needs
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
         failed = getattr(exc.result, "solver", None) or before
