@@ -35,9 +35,9 @@ PEAK_IPOPT = {"mu_init": 1e-3}
 PEAK_GRID_INTERVALS = 100
 #: Ipopt options of the epigraph stage over :data:`PEAK_IPOPT` on a grid finer than
 #: :data:`PEAK_GRID_INTERVALS`. It starts from its own plan on a coarser grid: a smaller barrier
-#: parameter than from the smooth stage keeps it near it (a larger one first pulls it away). MUMPS
-#: picks its fill-reducing ordering by the matrix's size, and on these larger matrices its
-#: choice factorises slower than the approximate minimum fill ordering (AMF).
+#: parameter than from the smooth stage keeps it near it (a larger one first pulls it away). On
+#: these larger matrices the fill-reducing ordering MUMPS picks itself factorises slower than the
+#: approximate minimum fill one (AMF; docs/performance.md, grid scaling).
 PEAK_FINE_IPOPT = {"mu_init": 1e-5, "mumps_pivot_order": 2}
 #: Ipopt options of the peak objective's smooth stage (its start is close: no globalisation).
 SMOOTH_IPOPT = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "never-monotone-mode"}
