@@ -819,18 +819,33 @@ def test_ipopt_runs_with_one_blas_thread_unless_told(variable, threads):
     assert out.stdout.split()[-1] == str(threads)
 
 
-def test_the_peak_stage_barrier_start_scales_with_the_grid_and_yields_to_the_user():
-    """The epigraph stage's ``mu_init`` is PEAK_IPOPT's up to PEAK_MU_INTERVALS intervals and
-    shrinks as a finer grid (its rows) grows; the other stages keep theirs; ``optimal.ipopt``
-    still has the last word."""
+def test_a_fine_peak_plan_goes_through_coarser_grids_with_its_own_ipopt_options():
+    """Up to PEAK_GRID_INTERVALS the epigraph stage solves on the plan's grid alone with
+    PEAK_IPOPT; above, first on the grids of a plan INNER_COARSENING times coarser (never
+    below PEAK_GRID_INTERVALS), and the plan's grid gets PEAK_FINE_IPOPT; the other stages
+    keep theirs; ``optimal.ipopt`` still has the last word."""
     from balance_opt.optimal.nlp import ipopt_options_for
-    from balance_opt.optimal.options import PEAK_IPOPT, PEAK_MU_INTERVALS
+    from balance_opt.optimal.options import (
+        PEAK_FINE_IPOPT,
+        PEAK_GRID_INTERVALS,
+        PEAK_IPOPT,
+        PEAK_STAGES,
+    )
 
-    base = PEAK_IPOPT["mu_init"]
-    at = {n: ipopt_options_for("peak", PlannerOptions(intervals=n))["mu_init"] for n in (50, 400)}
-    assert at[50] == base
-    assert ipopt_options_for("peak", PlannerOptions(intervals=PEAK_MU_INTERVALS))["mu_init"] == base
-    assert at[400] == pytest.approx(base * PEAK_MU_INTERVALS / 400)
+    peak = PEAK_STAGES[-1]
+    assert peak.name == "peak" and PEAK_GRID_INTERVALS == 100
+    assert all(s.fine_above is None for s in PEAK_STAGES[:-1])
+    assert peak.grids(100, "hermite-simpson") == [100]
+    assert peak.grids(40, "trapezoidal") == [40]
+    assert peak.grids(101, "hermite-simpson") == [100, 101]
+    assert peak.grids(400, "hermite-simpson") == [100, 400]
+    assert peak.grids(1000, "hermite-simpson") == [100, 250, 1000]
+    assert peak.grids(400, "trapezoidal") == [100, 200, 400]
+    for n in (50, PEAK_GRID_INTERVALS):
+        coarse = ipopt_options_for("peak", PlannerOptions(intervals=n))
+        assert coarse["mu_init"] == PEAK_IPOPT["mu_init"] and "mumps_pivot_order" not in coarse
+    fine = ipopt_options_for("peak", PlannerOptions(intervals=400))
+    assert {k: fine[k] for k in PEAK_FINE_IPOPT} == PEAK_FINE_IPOPT
     assert "mu_init" not in ipopt_options_for("smooth", PlannerOptions(intervals=400))
     mine = PlannerOptions(intervals=400, ipopt={"mu_init": 0.05})
     assert ipopt_options_for("peak", mine)["mu_init"] == 0.05

@@ -305,6 +305,37 @@ def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
 
 
 @pytest.mark.slow
+def test_a_fine_peak_plan_is_reached_through_a_coarser_grid(capture, coarse_peak, monkeypatch):
+    """Above the epigraph stage's ``fine_above`` (lowered here to 20 intervals), the inner stages
+    solve on the coarser grid's coarse grid, the epigraph on the coarser grid and then on the
+    plan's, each from the last: the same plan as the stages on the plan's grid reach, the
+    work reported the sum of the solves."""
+    from balance_opt.optimal import nlp as nlp_module
+    from balance_opt.optimal import refine
+    from balance_opt.optimal.options import PEAK_STAGES
+
+    stages = (*PEAK_STAGES[:-1], dataclasses.replace(PEAK_STAGES[-1], fine_above=20))
+    for module in (refine, nlp_module):  # the stages, and the stage's Ipopt options
+        monkeypatch.setattr(module, "PEAK_STAGES", stages)
+    model = PlannerModel(capture.robot)  # structures of its own: built with those options
+    options = PlannerOptions(collision_avoidance=False, intervals=40, objective="peak")
+    plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
+    reported = plan.info["stages"]
+    assert [(s["stage"], s["intervals"]) for s in reported] == [
+        ("integral", 10),
+        ("smooth", 10),
+        ("peak", 20),
+        ("peak", 40),
+    ]
+    assert all(s["status"] == "Solve_Succeeded" for s in reported)
+    assert plan.info["total_iterations"] == sum(s["iterations"] for s in reported)
+    assert plan.info["intervals"] == 40
+    assert plan.max_drift == pytest.approx(coarse_peak.max_drift, rel=1e-5)
+    assert plan.info["objective"] == pytest.approx(coarse_peak.info["objective"], rel=1e-5)
+    _no_violations(plan)
+
+
+@pytest.mark.slow
 def test_a_bound_is_met_when_the_free_peak_stage_fails(model, capture):
     """A path bound goes through the free peak problem (refine.solve_with_bounds); when its
     epigraph stage fails, the smooth peak stands in for it, and the bounded problem starts from

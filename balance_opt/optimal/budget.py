@@ -111,20 +111,23 @@ _INNER = {"position_limits": False, "velocity_limits": False, "acceleration_limi
 def _built(options) -> list:
     """The options of every NLP a plan with ``options`` builds, each with its own intervals:
     the plan's, the free peak problem's of a path bound (the plan's own when it is a peak
-    problem without a terminal bound: a peak problem's path bound adds no rows), and the coarse
-    stages of :data:`~balance_opt.optimal.options.PEAK_STAGES` (the smooth stage has the
-    integral's size: no epigraph)."""
+    problem without a terminal bound: a peak problem's path bound adds no rows), the peak
+    problem's on the coarser grids of its epigraph stage (:meth:`~.options.Stage.grids`) and the
+    coarse stages of :data:`~balance_opt.optimal.options.PEAK_STAGES` on the coarsest's grid (the
+    smooth stage has the integral's size: no epigraph)."""
     free = {"path_attitude_bound": None, "terminal_attitude_bound": None}
     bounded, peak = options.path_attitude_bound is not None, options.objective == "peak"
     built = [options]
     if bounded and (not peak or options.terminal_attitude_bound is not None):
         built.append(replace(options, objective="peak", **free))
     if peak or bounded:
+        grids = PEAK_STAGES[-1].grids(options.intervals, options.transcription)
+        built += [replace(options, objective="peak", intervals=n, **free) for n in grids[:-1]]
         built += [
             replace(
                 options,
                 objective="integral",
-                intervals=stage.intervals(options.intervals, options.transcription),
+                intervals=stage.intervals(grids[0], options.transcription),
                 **free,
                 **({} if stage.between_points else _INNER),
             )

@@ -28,14 +28,23 @@ DEFAULT_IPOPT = {
 #: Ipopt options of the peak objective's epigraph stage over :data:`DEFAULT_IPOPT`: it starts
 #: near its plan, from the smooth stage's, and a small initial barrier parameter keeps it there.
 PEAK_IPOPT = {"mu_init": 1e-3}
-#: On grids finer than this many intervals, the epigraph stage's ``mu_init`` is scaled by this
-#: over the stage's intervals: every epigraph row's barrier term pulls the peak ``S`` up.
-PEAK_MU_INTERVALS = 100
+#: A peak plan on a grid finer than this many intervals is reached through the peak plan of a
+#: coarser grid (:meth:`Stage.grids`): from the smooth stage, the epigraph's iterations grow with
+#: the grid (the smooth plan's chatter, which the jerk term prices, grows with it), from its own
+#: plan on a coarser grid they do not.
+PEAK_GRID_INTERVALS = 100
+#: Ipopt options of the epigraph stage over :data:`PEAK_IPOPT` on a grid finer than
+#: :data:`PEAK_GRID_INTERVALS`. It starts from its own plan on a coarser grid: a smaller barrier
+#: parameter than from the smooth stage keeps it near it (a larger one first pulls it away). On
+#: these larger matrices the fill-reducing ordering MUMPS picks itself factorises slower than the
+#: approximate minimum fill one (AMF; docs/performance.md, grid scaling).
+PEAK_FINE_IPOPT = {"mu_init": 1e-5, "mumps_pivot_order": 2}
 #: Ipopt options of the peak objective's smooth stage (its start is close: no globalisation).
 SMOOTH_IPOPT = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "never-monotone-mode"}
 #: The peak objective's inner stages solve on a grid this many times coarser than the plan's
-#: (:meth:`Stage.intervals`), by transcription: the epigraph stage only needs the drift's shape
-#: from them. The trapezoidal rule has half the points per interval.
+#: (:meth:`Stage.intervals`; a fine plan's coarsest, :meth:`Stage.grids`), by transcription: the
+#: epigraph stage only needs the drift's shape from them. The trapezoidal rule has half the
+#: points per interval. A fine plan's grids are as many times coarser than one another.
 INNER_COARSENING = {"hermite-simpson": 4, "trapezoidal": 2}
 #: Intervals of the inner stages' grid at least (the plan's own, if it has fewer).
 INNER_MIN_INTERVALS = 10
@@ -53,21 +62,33 @@ class Stage:
         between_points: with the joint-limit rows between the collocation points (an inner
             stage's plan is only a warm start: without them an iteration costs a third less).
         ipopt: its Ipopt options over :data:`DEFAULT_IPOPT`.
-        mu_intervals: on a finer grid than this, its ``mu_init`` is the one in ``ipopt`` scaled
-            by this over its intervals (:data:`PEAK_MU_INTERVALS`); ``None``: as it is.
+        fine_above: on a grid finer than this many intervals, the stage is solved first on the
+            grids of :meth:`grids` (:data:`PEAK_GRID_INTERVALS`); ``None``: on the plan's only.
+        fine_ipopt: its Ipopt options over ``ipopt`` on a grid finer than ``fine_above``.
     """
 
     name: str
     coarse: bool
     between_points: bool
     ipopt: tuple[tuple[str, object], ...] = ()
-    mu_intervals: int | None = None
+    fine_above: int | None = None
+    fine_ipopt: tuple[tuple[str, object], ...] = ()
 
     def ipopt_at(self, N: int) -> dict:
         ipopt = dict(self.ipopt)
-        if self.mu_intervals is not None and "mu_init" in ipopt and N > self.mu_intervals:
-            ipopt["mu_init"] = ipopt["mu_init"] * self.mu_intervals / N
+        if self.fine_above is not None and N > self.fine_above:
+            ipopt.update(self.fine_ipopt)
         return ipopt
+
+    def grids(self, N: int, transcription: str) -> list[int]:
+        """The grids the stage is solved on for a plan of ``N`` intervals, coarsest first, each
+        solve started from the last: ``[N]``, or on a grid finer than ``fine_above`` the grids
+        of a plan :data:`INNER_COARSENING` times coarser (of ``fine_above`` intervals at
+        least), then ``N``."""
+        if self.fine_above is None or N <= self.fine_above:
+            return [N]
+        coarser = max(self.fine_above, -(-N // INNER_COARSENING[transcription]))
+        return [*self.grids(coarser, transcription), N]
 
     def intervals(self, N: int, transcription: str) -> int:
         if not self.coarse:
@@ -79,7 +100,14 @@ class Stage:
 PEAK_STAGES = (
     Stage("integral", True, False),
     Stage("smooth", True, False, tuple(SMOOTH_IPOPT.items())),
-    Stage("peak", False, True, tuple(PEAK_IPOPT.items()), PEAK_MU_INTERVALS),
+    Stage(
+        "peak",
+        False,
+        True,
+        tuple(PEAK_IPOPT.items()),
+        PEAK_GRID_INTERVALS,
+        tuple(PEAK_FINE_IPOPT.items()),
+    ),
 )
 #: What a failed epigraph stage falls back on: the smooth peak as a plan of its own.
 SMOOTH_PLAN = Stage("smooth", False, True, tuple(SMOOTH_IPOPT.items()))

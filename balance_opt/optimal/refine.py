@@ -213,6 +213,14 @@ def _lowest_peak(free, peak_plan: BalanceResult) -> BalanceResult:
     return result
 
 
+def coarsest_problem(nlp):
+    """The peak problem ``nlp`` on the coarsest of its epigraph stage's grids
+    (:meth:`~balance_opt.optimal.options.Stage.grids`), whose inner stages start its plan:
+    ``nlp`` itself up to the stage's ``fine_above``."""
+    grids = PEAK_STAGES[-1].grids(nlp.N, nlp.transcription.name)
+    return nlp if len(grids) == 1 else nlp.variant(intervals=grids[0])
+
+
 @dataclass(frozen=True)
 class IntegralStart:
     """An inner stage of :func:`plan_peak`, done: its report and the next stage's guess (its
@@ -242,27 +250,39 @@ def plan_peak(nlp, guess) -> BalanceResult:
     each warm started from the last: the integral objective's plan, the smooth peak (the
     drift's L_16 norm, without the epigraph's rows), then the exact epigraph, which converges
     fast from near its plan. The inner stages are not re-simulated; a failed one hands its
-    guess on. Should the epigraph stage fail, the smooth peak is solved on the plan's grid and
-    kept (:data:`~balance_opt.optimal.options.SMOOTH_PLAN`, with a warning)."""
+    guess on. On a grid finer than the epigraph stage's ``fine_above``, the inner stages and the
+    epigraph first solve the problem on the coarser grids of its
+    :meth:`~balance_opt.optimal.options.Stage.grids`. Should the epigraph stage fail, the smooth
+    peak is solved on the plan's grid and kept (:data:`~balance_opt.optimal.options.SMOOTH_PLAN`,
+    with a warning)."""
     *inner, last = PEAK_STAGES
+    coarsest = coarsest_problem(nlp)
+    if coarsest is not nlp and isinstance(guess, np.ndarray):  # a decision vector of nlp
+        guess = nlp.unpack(nlp.initial_guess(guess))
     done, stage_nlp = [], None
     for stage in inner:
         if stage.name == "integral" and isinstance(guess, IntegralStart):  # by a multi-start
             start = guess
         else:
-            start, stage_nlp = inner_stage(nlp, stage, guess)
+            start, stage_nlp = inner_stage(coarsest, stage, guess)
         if not start.report.success:
             log.info(
                 "%s stage: %s; the next starts from its guess", stage.name, start.report.status
             )
         done.append(start.report)
         guess = start.following
+    for n in last.grids(nlp.N, nlp.transcription.name)[:-1]:  # the epigraph, coarse to fine
+        report = nlp.variant(intervals=n).stage(last).solve_stage(guess)
+        if not report.success:  # as an inner stage's failure
+            log.info("peak stage (N = %d): %s; the next starts from its guess", n, report.status)
+        guess = report.solution if report.success else guess
+        done.append(report)
     before = PlanReport(tuple(done))
     stages = tuple(r.as_inner_stage() for r in done)
     try:
         result = nlp.stage(last).solve_once(guess, before)
     except SolverError as exc:
-        if not done[-1].success:
+        if not done[len(inner) - 1].success:  # the smooth stage, which the fallback needs
             raise
         log.warning("peak stage failed (%s); the smooth peak's plan is kept", exc)
         before = getattr(exc.result, "solver", None) or before
@@ -378,7 +398,8 @@ def multi_start(nlp, guess, executor=None):
         starting = [
             nlp.unpack(nlp.initial_guess(g)) if isinstance(g, np.ndarray) else g for g in starting
         ]
-        first = list(run(StartTask(single.stage(PEAK_STAGES[0]), "first"), starting))
+        first_stage = coarsest_problem(single).stage(PEAK_STAGES[0])
+        first = list(run(StartTask(first_stage, "first"), starting))
         for i in range(len(first)):
             same = (j for j in range(i) if owner[j] == j and same_first_plan(first[j], first[i]))
             owner[i] = next(same, i)
