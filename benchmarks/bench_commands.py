@@ -8,8 +8,10 @@ shared machine hits them alike. Prints per command the median wall time, the med
 the process (user + system: on a loaded machine wall time waits for a CPU, CPU time does not),
 and the ratio of each median to validate's (targets in :data:`TARGETS`), then the stages of the
 median run of each command from its ``-v`` log (``STAGE: done in X s`` lines; ``rest`` is the
-time no stage accounts for: interpreter start, imports, task loading, writing the files). The
-tables also replace the ``commands`` section of ``docs/performance.md``.
+time no stage accounts for: interpreter start, imports, task loading, writing the files), and
+what the imports a planning command makes beyond validate's take (:data:`LATER_IMPORTS`: each
+inside a stage above or in its rest). The tables also replace the ``commands`` section of
+``docs/performance.md``.
 
     python benchmarks/bench_commands.py [TASK ...] [--repeats 3] [--cache DIR]
         [--source CHECKOUT] [--against OTHER_CHECKOUT] [--no-doc]
@@ -116,6 +118,7 @@ def main(argv=None) -> int:
         for source, source_runs in zip(sources, runs):
             where = f" ({source})" if len(sources) > 1 else ""
             lines += ["", f"**{task.name}**{where}", "", *_table(source_runs)]
+    lines += _import_costs(envs[0], args.repeats)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     print("\n".join(lines))
     if not args.no_doc and not args.against:
@@ -123,6 +126,36 @@ def main(argv=None) -> int:
         command = f"python benchmarks/bench_commands.py {tasks} --repeats {args.repeats}"
         print(f"wrote {write_section('commands', command, lines, load)}")
     return 0
+
+
+#: Imports a planning command makes beyond validate's, each timed in a fresh interpreter that
+#: has imported validate's already (NumPy, Pinocchio, CasADi, balance_opt).
+LATER_IMPORTS = {
+    "scipy.integrate": "the attitude integration (DOP853) of the mission arm alone and the law",
+    "matplotlib.figure, matplotlib.backends.backend_agg": "the figures",
+    "meshcat.geometry": "the 3D scene",
+}
+
+
+def _import_costs(env: dict[str, str], repeats: int) -> list[str]:
+    """The median time [s] of each of :data:`LATER_IMPORTS`, as table lines."""
+    out = ["", "| import | for | median [s] |", "| --- | --- | --- |"]
+    for modules, what in LATER_IMPORTS.items():
+        code = (
+            "import time, numpy, pinocchio, casadi, balance_opt.cli, balance_opt.tasks.task\n"
+            f"t = time.perf_counter()\nimport {modules}\nprint(time.perf_counter() - t)"
+        )
+        times = [
+            float(
+                subprocess.run(
+                    [sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                    check=True, cwd=env["PYTHONPATH"],
+                ).stdout
+            )
+            for _ in range(repeats)
+        ]  # fmt: skip
+        out.append(f"| `{modules}` | {what} | {statistics.median(times):.2f} |")
+    return out
 
 
 def _table(runs: dict[str, list[tuple[float, float, dict[str, float]]]]) -> list[str]:
