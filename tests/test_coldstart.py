@@ -241,3 +241,48 @@ def test_a_background_compilation_not_done_in_time_is_stopped(tmp_path, monkeypa
         [p for p in psutil.Process().children(recursive=True) if p.pid not in children], 5
     )[1] == []
     assert not Path(out.library).exists() and not list((tmp_path / "cache").glob("*.c"))
+
+
+@pytest.mark.skipif(os.name != "posix", reason="process groups")
+def test_an_interrupted_compilation_leaves_no_compiler_running(tmp_path):
+    """A compilation in the foreground interrupted while its compilers run: what each compiler
+    started (cc1, as) ends with it, not only the compiler driver."""
+    import signal
+    import threading
+    import time
+
+    import psutil
+
+    pids = tmp_path / "pids"
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    # a driver that works through a child of its own, as cc does through cc1
+    (bindir / "driver-cc").write_text(f'#!/bin/sh\nsleep 60 &\necho $! >> "{pids}"\nwait\n')
+    (bindir / "driver-cc").chmod(0o755)
+
+    def interrupt() -> None:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and (
+            not pids.exists() or len(pids.read_text().split()) < 2
+        ):
+            time.sleep(0.05)
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+
+    timer = threading.Thread(target=interrupt)
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        codegen._run_compilers([["a.c"], ["b.c"]], str(bindir / "driver-cc"), None)
+    timer.join()
+    children = [int(p) for p in pids.read_text().split()]
+    assert len(children) == 2
+
+    def running(pid: int) -> bool:
+        try:
+            return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+        except psutil.NoSuchProcess:
+            return False
+
+    deadline = time.monotonic() + 5
+    while any(running(pid) for pid in children) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(running(pid) for pid in children)

@@ -390,6 +390,25 @@ def test_too_many_intervals_are_refused_with_the_largest_that_fits(
     assert budget.problem_size(bigger, limits).memory_bytes > 4 * 2**30
 
 
+@pytest.mark.parametrize("transcription", ["hermite-simpson", "trapezoidal"])
+def test_the_largest_intervals_that_fit_are_the_largest(tmp_path, transcription):
+    """The N offered in place of too many intervals fits and N + 1 does not, also where a fine
+    peak plan's coarser grids (Stage.grids) make the size per interval change with N."""
+    from balance_opt.optimal import budget
+
+    task = load_task(_task(tmp_path, extra=f"optimal: {{transcription: {transcription}}}\n"))
+    limits = task.robot.limits.subset([3, 4, 5])
+
+    def size(n: int) -> float:
+        options = dataclasses.replace(task.spec.optimal.planner, intervals=n)
+        return budget.problem_size(options, limits).memory_bytes
+
+    for asked, fits in ((2000, 1600), (1001, 800), (100000, 30000)):
+        options = dataclasses.replace(task.spec.optimal.planner, intervals=asked)
+        largest = budget.largest_intervals(options, limits, size(fits))
+        assert largest >= fits and size(largest) <= size(fits) < size(largest + 1)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("transcription", "control", "torque", "acceleration", "objective", "jerk"),

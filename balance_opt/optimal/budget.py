@@ -173,4 +173,8 @@ def largest_intervals(options, limits, budget: float) -> int:
     # ``options.intervals`` can be a little below the one at N
     while N > 0 and problem_size(replace(options, intervals=N), limits).memory_bytes > budget:
         N -= 1
+    # and a fine peak plan's coarser grids (Stage.grids) weigh less per interval on some grids
+    # than on others: the one at ``options.intervals`` can be above the one at N
+    while N >= 2 and problem_size(replace(options, intervals=N + 1), limits).memory_bytes <= budget:
+        N += 1
     return N

@@ -473,8 +473,9 @@ def _run_compilers(arguments: list[list[str]], compiler: str, owner: Compilation
                     stdout=subprocess.DEVNULL,
                     stderr=subprocess.PIPE,
                     text=True,
-                    # stop() ends each one's process group
-                    start_new_session=owner is not None and os.name == "posix",
+                    # a group of its own, ended whole (the driver and the cc1, as it ran):
+                    # by stop(), or below if this call is interrupted
+                    start_new_session=os.name == "posix",
                 )
             )
             if owner is not None:
@@ -485,7 +486,7 @@ def _run_compilers(arguments: list[list[str]], compiler: str, owner: Compilation
     finally:
         for proc in procs:  # an exception here: no compiler left running
             if proc.poll() is None:
-                if owner is not None and os.name == "posix":
+                if os.name == "posix":
                     with contextlib.suppress(OSError):
                         os.killpg(proc.pid, signal.SIGKILL)
                 proc.kill()
