@@ -35,8 +35,10 @@ from balance_opt.cache import (
 log = logging.getLogger(__name__)
 
 #: C compiler flags of the kernels: -O1 runs them as fast as -O2 and compiles faster; no
-#: -march=native or -ffast-math, so that results do not depend on the machine.
-COMPILER_FLAGS = ("-O1", "-shared", "-fPIC")
+#: -march=native or -ffast-math, and no fused multiply-adds (which a machine with FMA would
+#: otherwise form where it can), so that results do not depend on the machine and a kernel cut
+#: into parts (:func:`split_functions`) computes the same bits as the whole one.
+COMPILER_FLAGS = ("-O1", "-ffp-contract=off", "-shared", "-fPIC")
 #: Niceness of the background compiler: the plan being solved meanwhile keeps the CPU.
 BACKGROUND_NICENESS = 10
 #: A failed background compilation is not started again before this time [s] has passed.
