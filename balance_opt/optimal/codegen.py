@@ -397,13 +397,22 @@ def stop(process: Compilation) -> None:
     """Stop a background compilation (the compiler and what it started) and wait for it."""
     process.stopped = True
     for compiler in list(process.compilers):
-        if compiler.poll() is None:
-            if os.name == "posix":
-                with contextlib.suppress(OSError):
-                    os.killpg(compiler.pid, signal.SIGTERM)
-            else:
-                compiler.terminate()
+        _end(compiler, force=False)
     process.thread.join(10.0)
+
+
+def _end(proc: subprocess.Popen, force: bool) -> None:
+    """End a running compiler and everything it started (its process group, of its own on
+    POSIX: the driver and its ``cc1``): terminated, or killed with ``force``."""
+    if proc.poll() is not None:
+        return
+    if os.name == "posix":
+        with contextlib.suppress(OSError):
+            os.killpg(proc.pid, signal.SIGKILL if force else signal.SIGTERM)
+    elif force:
+        proc.kill()
+    else:
+        proc.terminate()
 
 
 def wait_for_library(library: str | Path, timeout: float = 3600.0) -> dict | None:
@@ -483,15 +492,13 @@ def _run_compilers(arguments: list[list[str]], compiler: str, owner: Compilation
             if owner is not None:
                 owner.compilers.append(procs[-1])
                 if owner.stopped:  # stop() came before this compiler started
-                    procs[-1].kill()
+                    _end(procs[-1], force=True)
         errors = [proc.communicate()[1] for proc in procs]
     finally:
         for proc in procs:  # an exception here: no compiler left running
             if proc.poll() is None:
-                if os.name == "posix":
-                    with contextlib.suppress(OSError):
-                        os.killpg(proc.pid, signal.SIGKILL)
-                proc.kill()
+                _end(proc, force=True)
+                proc.kill()  # the driver, should its group be gone already
                 proc.wait()
             if owner is not None:
                 owner.compilers.remove(proc)
