@@ -23,7 +23,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -208,56 +208,39 @@ def _single_threaded_children():
             os.environ.pop(key, None)
 
 
-class LocalPoolEngine:
-    """A pool of ``jobs`` worker processes started with ``spawn`` (CasADi and Pinocchio state
-    must not be forked). When a worker dies the unfinished cases run again one at a time, each in
-    a fresh process; a case whose process dies again is recorded as ``WorkerCrashed``."""
+class _ExecutorEngine:
+    """Runs the cases on a ``concurrent.futures`` executor (``self._executor``): the local pool,
+    or Dask's through ``Client.get_executor``. A case whose worker died is recorded as
+    ``WorkerCrashed``; ``timeout``: longest wait for all the cases [s], None for no limit."""
 
-    def __init__(self, jobs: int):
-        if jobs < 1:
-            raise ValueError(f"jobs must be >= 1, got {jobs}")
-        self.workers = jobs
-        self._pool: ProcessPoolExecutor | None = None
-
-    def __enter__(self):
-        self._env = _single_threaded_children()
-        self._env.__enter__()
-        self._pool = new_pool(self.workers)
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            self._pool.shutdown(wait=True)
-        else:  # an interruption: drop the cases not started, end the running ones now
-            stop_pool(self._pool)
-        self._pool = None
-        return self._env.__exit__(exc_type, exc, tb)
+    timeout: float | None = None
 
     def map(self, function: Callable, *iterables) -> Iterator:
         """``function`` over ``iterables`` in the workers, in order (the planner's starts)."""
-        return self._pool.map(function, *iterables)
+        return self._executor.map(function, *iterables)
 
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
+        futures = {self._executor.submit(execute_case, runner, case): case for case in cases}
         suspects: list[dict] = []
-        futures = {self._pool.submit(execute_case, runner, case): case for case in cases}
-        while futures:
-            done, _ = wait(futures, return_when=FIRST_COMPLETED)
-            for fut in sorted(done, key=lambda f: futures[f]["index"]):
-                case = futures.pop(fut)
+        try:
+            for fut in as_completed(futures, timeout=self.timeout):
                 try:
-                    record = fut.result()
+                    yield fut.result()
                 except BrokenProcessPool:
-                    suspects.append(case)
-                    continue
-                yield record
+                    suspects.append(futures[fut])
+                except Exception as exc:  # noqa: BLE001 - Dask's KilledWorker, a cancelled case
+                    yield _crash_record(futures[fut], exc)
+        finally:
+            for fut in futures:
+                fut.cancel()
         if suspects:
-            # A worker died and took the pool with it: every case not finished raised. Run
+            # A pool worker died and took the pool with it: every case not finished raised. Run
             # them again one at a time, each in a fresh process, so the culprit is known.
             logger.warning(
                 "a worker process died; running %d unfinished case(s) one at a time", len(suspects)
             )
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = new_pool(self.workers)
+            self._executor.shutdown(wait=True, cancel_futures=True)
+            self._executor = new_pool(self.workers)
             for case in sorted(suspects, key=lambda c: c["index"]):
                 alone = new_pool(1)
                 try:
@@ -270,14 +253,40 @@ class LocalPoolEngine:
                 alone.shutdown(wait=True)
                 yield record
 
+
+class LocalPoolEngine(_ExecutorEngine):
+    """A pool of ``jobs`` worker processes started with ``spawn`` (CasADi and Pinocchio state
+    must not be forked). When a worker dies the unfinished cases run again one at a time, each in
+    a fresh process; a case whose process dies again is recorded as ``WorkerCrashed``."""
+
+    def __init__(self, jobs: int):
+        if jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {jobs}")
+        self.workers = jobs
+
+    def __enter__(self):
+        self._env = _single_threaded_children()
+        self._env.__enter__()
+        self._executor = new_pool(self.workers)
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self._executor.shutdown(wait=True)
+        else:  # an interruption: drop the cases not started, end the running ones now
+            stop_pool(self._executor)
+        self._executor = None
+        return self._env.__exit__(exc_type, exc, tb)
+
     def describe(self) -> str:
         return f"local process pool, {self.workers} worker(s) (spawn)"
 
 
-class DaskEngine:
+class DaskEngine(_ExecutorEngine):
     """Dask distributed: a running scheduler (``address``; workers need balance-opt installed,
     one thread each), or a local cluster of ``workers`` processes on ``host``, started here and
-    stopped on exit. ``timeout``: longest wait for all the cases [s], None for no limit."""
+    stopped on exit. A case whose worker dies is computed again elsewhere, until it has killed
+    every worker that ran it (``KilledWorker``)."""
 
     def __init__(
         self,
@@ -309,6 +318,7 @@ class DaskEngine:
         else:
             self._client = Client(self.address)
             self.workers = max(1, len(self._client.scheduler_info().get("workers", {})))
+        self._executor = self._client.get_executor(pure=False)
         logger.info("Dask scheduler %s, %d worker(s)", self._client.scheduler.address, self.workers)
         return self
 
@@ -316,40 +326,8 @@ class DaskEngine:
         for resource in (self._client, self._cluster):  # the client first
             if resource is not None:
                 resource.close()
-        self._client = self._cluster = None
+        self._client = self._cluster = self._executor = None
         return False
-
-    def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
-        from dask.distributed import as_completed
-
-        futures = [
-            self._client.submit(
-                execute_case, runner, case, pure=False, key=f"case-{case['case_id']}"
-            )
-            for case in cases
-        ]
-        by_key = {fut.key: case for fut, case in zip(futures, cases)}
-        pending = set(futures)
-        completed = as_completed(
-            futures, with_results=True, raise_errors=False, timeout=self.timeout
-        )
-        del futures
-        try:
-            for fut, value in completed:
-                if fut.status == "finished":
-                    record = value
-                elif fut.status in ("lost", "pending"):  # its worker died: it is computed again
-                    completed.add(fut)
-                    continue
-                else:  # it killed every worker that ran it (KilledWorker), or was cancelled
-                    exc = value[1] if isinstance(value, tuple) and len(value) == 3 else value
-                    record = _crash_record(by_key[fut.key], exc)
-                pending.discard(fut)
-                fut.release()  # the worker may forget it: nothing to recompute if it dies later
-                yield record
-        finally:
-            if pending:
-                self._client.cancel(list(pending))
 
     def describe(self) -> str:
         where = self.address or f"local cluster on {self.host}"
