@@ -429,9 +429,9 @@ def write_report(
     varied: Sequence[str],
     plots: bool = True,
     extra_summary: dict | None = None,
-) -> dict[str, Path]:
+) -> tuple[dict[str, Path], dict[str, Any]]:
     """Write the tables, ``summary.json`` and, with ``plots``, one plot per varied key path;
-    returns name -> path of every file written."""
+    returns name -> path of every file written, and the summary."""
     out_dir = Path(out_dir)
     written = {
         "table": write_table_csv(out_dir / "results.csv", *results_table(results)),
@@ -452,4 +452,4 @@ def write_report(
             p = plot_drift_against_parameter(results, name, plot_dir / file)
             if p is not None:
                 written[f"drift_vs:{name}"] = p
-    return written
+    return written, summary

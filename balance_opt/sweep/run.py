@@ -3,7 +3,6 @@ cases on an engine, then the table, summary and plots."""
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,35 +37,6 @@ class SweepOutcome:
     summary: dict[str, Any]
 
 
-def prepare_output_dir(out_dir: str | Path, resume: bool, force: bool) -> Path:
-    """Check (and create) a sweep's output folder: a non-empty one only with ``resume`` (its
-    finished cases kept) or ``force`` (a previous sweep's results deleted first)."""
-    out_dir = Path(out_dir)
-    make_parent(out_dir)
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
-        if not force:
-            raise OutputFolderError(
-                f"output directory {out_dir} exists and is not empty; nothing was run. "
-                "Use --resume to finish the sweep in it, --force to start it over, "
-                "or choose another --output"
-            )
-        for old in [
-            *(out_dir / CASES_DIR).glob("*.json"),
-            *(out_dir / "plots").glob("*.png"),
-            out_dir / "results.csv",
-            out_dir / "summary.json",
-            out_dir / MANIFEST,
-        ]:
-            old.unlink(missing_ok=True)
-    try:
-        out_dir.mkdir(exist_ok=True)
-    except OSError as exc:
-        raise OutputFolderError(
-            f"cannot create output folder {out_dir}: {exc.strerror or exc}"
-        ) from None
-    return out_dir
-
-
 def run_sweep(
     sweep: Sweep,
     out_dir: str | Path,
@@ -93,9 +63,32 @@ def run_sweep(
     Raises:
         OutputFolderError: the folder cannot be used, or another sweep is writing to it.
     """
-    make_parent(Path(out_dir).absolute())
+    out_dir = Path(out_dir)
+    make_parent(out_dir.absolute())
     with handling_signals(), FolderLock(out_dir):
-        out_dir = prepare_output_dir(out_dir, resume, force)
+        # a folder with files only with ``resume`` (its finished cases kept) or ``force`` (a
+        # previous sweep's results deleted first)
+        if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
+            if not force:
+                raise OutputFolderError(
+                    f"output directory {out_dir} exists and is not empty; nothing was run. "
+                    "Use --resume to finish the sweep in it, --force to start it over, "
+                    "or choose another --output"
+                )
+            for old in [
+                *(out_dir / CASES_DIR).glob("*.json"),
+                *(out_dir / "plots").glob("*.png"),
+                out_dir / "results.csv",
+                out_dir / "summary.json",
+                out_dir / MANIFEST,
+            ]:
+                old.unlink(missing_ok=True)
+        try:
+            out_dir.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise OutputFolderError(
+                f"cannot create output folder {out_dir}: {exc.strerror or exc}"
+            ) from None
         manifest = {
             "name": sweep.name,
             "source": sweep.source,
@@ -132,6 +125,5 @@ def run_sweep(
         extra.update(
             workers=run.workers, elapsed_s=run.elapsed_s, ran=len(run.ran), skipped=len(run.skipped)
         )
-        files = write_report(out_dir, run.results, sweep.varied, plots=plots, extra_summary=extra)
-    summary = json.loads(files["summary"].read_text())
+        files, summary = write_report(out_dir, run.results, sweep.varied, plots, extra)
     return SweepOutcome(run, files, summary)
