@@ -101,32 +101,19 @@ def _get(metrics: Mapping[str, Any], path: str):
 Cell = tuple[str, str] | None
 
 
-def _value(path: str, show: Callable[[Any, Mapping], Cell]) -> Callable[[Mapping], Cell]:
-    """``show(value, metrics)`` of the value at ``path`` of a method's metrics."""
-
-    def cell(m):
-        value = _get(m, path)
-        return None if value is None else show(value, m)
-
-    return cell
+def _plain(tolerance=None, unit: str = "") -> Callable[[Any, Mapping], Cell]:
+    return lambda v, m: (format_value(v, tolerance, unit), "")
 
 
-def _plain(path: str, tolerance=None, unit: str = "") -> Callable[[Mapping], Cell]:
-    return _value(path, lambda v, m: (format_value(v, tolerance, unit), ""))
+def _angle(per: str = "", tolerance=ANGLE_TOLERANCE) -> Callable[[Any, Mapping], Cell]:
+    return lambda v, m: (format_angle(v, tolerance, per), "")
 
 
-def _angle(path: str, per: str = "", tolerance=ANGLE_TOLERANCE) -> Callable[[Mapping], Cell]:
-    return _value(path, lambda v, m: (format_angle(v, tolerance, per), ""))
-
-
-def _kinematic_margin(kind: str) -> Callable[[Mapping], Cell]:
+def _kinematic_margin(kind: str) -> Callable[[Any, Mapping], Cell]:
     """The balance arm's smallest margin of one kind, with the smallest relative margin."""
 
-    def cell(m):
-        margin = _get(m, f"balance_limit_margin.{kind}")
+    def show(margin, m):
         relative = _get(m, f"balance_relative_limit_margin.{kind}")
-        if margin is None:
-            return None
         if not math.isfinite(margin):
             return "no limit", ""
         text = format_value(margin, LIMIT_TOLERANCE)
@@ -134,54 +121,41 @@ def _kinematic_margin(kind: str) -> Callable[[Mapping], Cell]:
             text += f"; {100 * relative:.3g} % of the limit"
         return text, margin_class(margin, relative, LIMIT_TOLERANCE)
 
-    return cell
+    return show
 
 
-def _effort_margin(path: str) -> Callable[[Mapping], Cell]:
+def _effort_margin(key: str) -> Callable[[Any, Mapping], Cell]:
     """The smallest relative effort margin (``None`` in the metrics: no joint has a limit)."""
 
-    def cell(m):
-        if _get(m, "effort") is None:
-            return None
-        relative = _get(m, path)
+    def show(effort, m):
+        relative = effort.get(key)
         if relative is None:
             return "no limit", ""
         return f"{100 * relative:.4g} %", margin_class(relative, relative, EFFORT_TOLERANCE)
 
-    return cell
+    return show
 
 
-def _per_joint(path: str, key: str, fmt: str = "{:.3g}") -> Callable[[Mapping], Cell]:
+def _per_joint(key: str, fmt: str = "{:.3g}") -> Callable[[Any, Mapping], Cell]:
     """One figure of every balance joint, in joint order, joined by slashes."""
 
-    def cell(m):
-        values = _get(m, path) or {}
+    def show(values, m):
         text = " / ".join(fmt.format(v[key]) for v in values.values() if key in v)
         return (text, "") if text else None
 
-    return cell
+    return show
 
 
-def _clearance(path: str) -> Callable[[Mapping], Cell]:
+def _clearance(c, m) -> Cell:
     """The smallest distance between bodies and the pair, red where they penetrate."""
-
-    def show(c, m):
-        if c.get("closest_pair") is None:
-            return None
-        text = f"{c['min_distance_m']:.4g} ({c['closest_pair']}, t = {c['closest_time_s']:.2f} s)"
-        return text, ("inside" if c["collision_free"] else "broken")
-
-    return _value(path, show)
+    if c.get("closest_pair") is None:
+        return None
+    text = f"{c['min_distance_m']:.4g} ({c['closest_pair']}, t = {c['closest_time_s']:.2f} s)"
+    return text, ("inside" if c["collision_free"] else "broken")
 
 
-def _count(path: str) -> Callable[[Mapping], Cell]:
-    return _value(
-        path,
-        lambda v, m: (
-            violation_count_text(v, m.get("limit_violations_by_kind")),
-            "broken" if v else "inside",
-        ),
-    )
+def _count(v, m) -> Cell:
+    return violation_count_text(v, m.get("limit_violations_by_kind")), "broken" if v else "inside"
 
 
 def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
@@ -195,58 +169,80 @@ def violation_count_text(total: int, by_kind: Mapping[str, int] | None) -> str:
     return text + (f", {collision} collision)" if collision else ")")
 
 
-def _residual(path: str) -> Callable[[Mapping], Cell]:
+def _residual(v, m) -> Cell:
     """A relative momentum residual, flagged above :data:`UNTRUSTED_RESIDUAL`."""
-
-    def show(v, m):
-        return format_value(v, MOMENTUM_TOLERANCE), "broken" if v > UNTRUSTED_RESIDUAL else ""
-
-    return _value(path, show)
+    return format_value(v, MOMENTUM_TOLERANCE), "broken" if v > UNTRUSTED_RESIDUAL else ""
 
 
-#: Rows of the comparison table: (label, cell of a method's metrics); a None cell maker
-#: starts a section.
-_ROWS: list[tuple[str, Callable[[Mapping], Cell] | None]] = [
-    ("Attitude", None),
-    ("max attitude drift", _angle("max_drift_rad")),
-    ("final attitude drift", _angle("final_drift_rad")),
-    ("max base angular rate", _angle("max_base_rate_rad_s", "/s", RATE_TOLERANCE)),
-    ("max relative angular momentum residual", _residual("max_momentum_residual")),
-    ("Balance arm", None),
-    ("peak balance joint rate [rad/s or m/s]", _plain("peak_balance_rate_rad_s")),
-    ("position limit margin [rad or m]", _kinematic_margin("position")),
-    ("velocity limit margin [rad/s or m/s]", _kinematic_margin("velocity")),
-    ("acceleration limit margin [rad/s^2 or m/s^2]", _kinematic_margin("acceleration")),
+#: Rows of the comparison table: (label, path in a method's metrics, ``show(value, metrics)``
+#: of the value there); a row without a path starts a section.
+_ROWS: list[tuple[str, str | None, Callable[[Any, Mapping], Cell] | None]] = [
+    ("Attitude", None, None),
+    ("max attitude drift", "max_drift_rad", _angle()),
+    ("final attitude drift", "final_drift_rad", _angle()),
+    ("max base angular rate", "max_base_rate_rad_s", _angle("/s", RATE_TOLERANCE)),
+    ("max relative angular momentum residual", "max_momentum_residual", _residual),
+    ("Balance arm", None, None),
+    ("peak balance joint rate [rad/s or m/s]", "peak_balance_rate_rad_s", _plain()),
+    (
+        "position limit margin [rad or m]",
+        "balance_limit_margin.position",
+        _kinematic_margin("position"),
+    ),
+    (
+        "velocity limit margin [rad/s or m/s]",
+        "balance_limit_margin.velocity",
+        _kinematic_margin("velocity"),
+    ),
+    (
+        "acceleration limit margin [rad/s^2 or m/s^2]",
+        "balance_limit_margin.acceleration",
+        _kinematic_margin("acceleration"),
+    ),
     (
         "effort limit margin (smallest, of the limit)",
-        _effort_margin("effort.balance_min_relative_margin"),
+        "effort",
+        _effort_margin("balance_min_relative_margin"),
     ),
-    ("smallest singular value of J_wB", _plain("min_sigma_min", SIGMA_TOLERANCE)),
-    ("acceleration reversals, per joint", _per_joint("smoothness", "acceleration_reversals", "{}")),
-    ("largest jerk, per joint [rad/s^3]", _per_joint("smoothness", "max_jerk_rad_s3")),
-    ("largest torque rate, per joint [N m/s]", _per_joint("smoothness", "max_torque_rate_Nm_s")),
-    ("All arms", None),
-    ("effort limit margin (smallest, of the limit)", _effort_margin("effort.min_relative_margin")),
-    ("limit violations (position, rate, acceleration, effort, collision)", _count("limit_violations")),
-    ("smallest distance between bodies [m]", _clearance("clearance")),
-    ("Solver", None),
-    ("status", _plain("solver.status")),
-    ("iterations", _plain("solver.iterations")),
-    ("solve time [s]", _plain("solver.solve_time_s")),
-    ("Under model error (perturbed masses, centres of mass, inertias)", None),
-    ("max attitude drift, median", _angle("robustness.max_drift.median_rad")),
-    ("max attitude drift, 95th percentile", _angle("robustness.max_drift.p95_rad")),
-    ("final attitude drift, 95th percentile", _angle("robustness.final_drift.p95_rad")),
-    ("Forward-dynamics simulation", None),
-    ("max attitude drift", _angle("simulation.max_drift_rad")),
-    ("final attitude drift", _angle("simulation.final_drift_rad")),
-    ("max joint tracking error", _angle("simulation.max_tracking_error_rad")),
-    ("smallest distance between bodies [m]", _clearance("simulation.clearance")),
+    ("smallest singular value of J_wB", "min_sigma_min", _plain(SIGMA_TOLERANCE)),
+    ("acceleration reversals, per joint", "smoothness", _per_joint("acceleration_reversals", "{}")),
+    ("largest jerk, per joint [rad/s^3]", "smoothness", _per_joint("max_jerk_rad_s3")),
+    ("largest torque rate, per joint [N m/s]", "smoothness", _per_joint("max_torque_rate_Nm_s")),
+    ("All arms", None, None),
+    (
+        "effort limit margin (smallest, of the limit)",
+        "effort",
+        _effort_margin("min_relative_margin"),
+    ),
+    (
+        "limit violations (position, rate, acceleration, effort, collision)",
+        "limit_violations",
+        _count,
+    ),
+    ("smallest distance between bodies [m]", "clearance", _clearance),
+    ("Solver", None, None),
+    ("status", "solver.status", _plain()),
+    ("iterations", "solver.iterations", _plain()),
+    ("solve time [s]", "solver.solve_time_s", _plain()),
+    ("Under model error (perturbed masses, centres of mass, inertias)", None, None),
+    ("max attitude drift, median", "robustness.max_drift.median_rad", _angle()),
+    ("max attitude drift, 95th percentile", "robustness.max_drift.p95_rad", _angle()),
+    ("final attitude drift, 95th percentile", "robustness.final_drift.p95_rad", _angle()),
+    ("Forward-dynamics simulation", None, None),
+    ("max attitude drift", "simulation.max_drift_rad", _angle()),
+    ("final attitude drift", "simulation.final_drift_rad", _angle()),
+    ("max joint tracking error", "simulation.max_tracking_error_rad", _angle()),
+    ("smallest distance between bodies [m]", "simulation.clearance", _clearance),
     (
         "peak total reaction torque on the base [N m]",
-        _plain("simulation.peak_reaction_torque_Nm.total", TORQUE_TOLERANCE),
+        "simulation.peak_reaction_torque_Nm.total",
+        _plain(TORQUE_TOLERANCE),
     ),
-    ("max relative momentum residual", _residual("simulation.max_relative_momentum_residual")),
+    (
+        "max relative momentum residual",
+        "simulation.max_relative_momentum_residual",
+        _residual,
+    ),
 ]
 
 
@@ -271,11 +267,12 @@ def comparison_table(
     failed = {m for m in order if m in (failures or {})}
     head = "".join(_method_head(m, m in failed) for m in order)
     body, section = [], None
-    for label, make in _ROWS:
-        if make is None:
+    for label, path, show in _ROWS:
+        if path is None:
             section = label
             continue
-        cells = [make(methods[m]) for m in order]
+        values = [_get(methods[m], path) for m in order]
+        cells = [None if v is None else show(v, methods[m]) for v, m in zip(values, order)]
         if all(c is None for c in cells):
             continue
         if section is not None:  # the heading of a section goes before its first row
@@ -571,4 +568,3 @@ def render_report(
     parts.append(extra_html)
     parts.append("</body></html>")
     return "\n".join(parts)
-
