@@ -129,15 +129,6 @@ def read_result(out_dir: str | Path, case_id: str) -> dict | None:
     return data
 
 
-def _die_with_parent() -> bool:
-    """Ask the kernel for SIGKILL when the parent dies (Linux); False where unavailable."""
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return False
-    return prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
-
-
 def _watch_parent(parent_pid: int) -> None:
     while os.getppid() == parent_pid:
         time.sleep(PARENT_POLL_S)
@@ -145,10 +136,15 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def init_worker(parent_pid: int) -> None:
-    """Initializer of each pool worker; ``parent_pid`` is taken before the worker started, so a
-    parent that died before the worker could ask to die with it is noticed."""
+    """Initializer of each pool worker: SIGKILL when the parent dies (Linux's ``prctl``, else a
+    watcher thread); ``parent_pid`` is taken before the worker started, so a parent that died
+    before the worker could ask to die with it is noticed."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if not _die_with_parent():
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        prctl = None
+    if prctl is None or prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) != 0:
         threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
     if os.getppid() != parent_pid:
         os._exit(1)

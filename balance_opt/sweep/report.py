@@ -17,6 +17,7 @@ import numpy as np
 
 from balance_opt.report.output_dir import replaced_atomically
 from balance_opt.report.style import SCREEN_DPI, WIDTHS, method_style, styled
+from balance_opt.sweep.engine import write_json_atomic
 from balance_opt.sweep.spec import canonical_json, is_number, parameter_columns
 
 logger = logging.getLogger(__name__)
@@ -438,9 +439,8 @@ def write_report(
         "diagnostics": write_table_csv(out_dir / "diagnostics.csv", *diagnostics_table(results)),
     }
     summary = {**(extra_summary or {}), **summarize(results)}
-    with replaced_atomically(out_dir / "summary.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
     written["summary"] = out_dir / "summary.json"
+    write_json_atomic(written["summary"], summary)
     if plots:
         plot_dir = out_dir / "plots"
         plot_dir.mkdir(exist_ok=True)
