@@ -82,7 +82,6 @@ def magnified_rotation(quaternion: np.ndarray, factor: float) -> np.ndarray:
     return np.array([R0 @ matrix_from_quaternion(q) for q in quaternion_from_rotvec(factor * phi)])
 
 
-
 @dataclass(frozen=True)
 class SceneObject:
     """One piece of visual geometry: its node name, the Pinocchio joint it moves with, its
@@ -152,19 +151,19 @@ def _shape(obj: pin.GeometryObject, cell: float, meshes: dict):
     return meshes[key]
 
 
-def _arm_of_joint(robot: FloatingRobot) -> dict[int, int]:
-    """Arm index of each Pinocchio joint (the nearest arm joint at or above it);
-    ``len(robot.arms)`` for the base and what hangs from it outside the arms."""
-    model = robot.model
-    arm_of = {model.getJointId(j): a for a, arm in enumerate(robot.arms) for j in arm.joints}
+def _joint_colours(robot: FloatingRobot) -> dict[int, str]:
+    """Colour of each Pinocchio joint: its arm's (that of the nearest arm joint at or above it),
+    :data:`BASE_COLOUR` for the base and what hangs from it outside the arms."""
+    model, n = robot.model, len(ARM_COLOURS)
+    own = {
+        model.getJointId(j): ARM_COLOURS[a % n]
+        for a, arm in enumerate(robot.arms)
+        for j in arm.joints
+    }
     return {
-        j: next((arm_of[k] for k in reversed(model.supports[j]) if k in arm_of), len(robot.arms))
+        j: next((own[k] for k in reversed(model.supports[j]) if k in own), BASE_COLOUR)
         for j in range(model.njoints)
     }
-
-
-def _colour(index: int, robot: FloatingRobot) -> str:
-    return BASE_COLOUR if index >= len(robot.arms) else ARM_COLOURS[index % len(ARM_COLOURS)]
 
 
 def _object(geometry, colour: str, opacity: float, flat: bool):
@@ -182,7 +181,7 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
     size [m], which sets the mesh simplification."""
     import meshcat.geometry as mg
 
-    gmodel, meshes, arm = visual_model(robot), {}, _arm_of_joint(robot)
+    gmodel, meshes, colour = visual_model(robot), {}, _joint_colours(robot)
     cell = size / MESH_GRID
     out = []
     for obj in gmodel.geometryObjects:
@@ -191,7 +190,7 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
             continue
         opacity = float(min(obj.meshColor[3], 1.0)) if obj.meshColor[3] > 0 else 1.0
         mesh = isinstance(geometry, mg.TriangularMeshGeometry)
-        drawn = _object(geometry, _colour(arm[obj.parentJoint], robot), opacity, mesh)
+        drawn = _object(geometry, colour[obj.parentJoint], opacity, mesh)
         n = int(geometry.vertices.shape[0]) if mesh else 0
         obj.geometry.computeLocalAABB()
         box = obj.geometry.aabb_local

@@ -324,14 +324,11 @@ def sweep_reference_markdown() -> str:
 
 @dataclass(frozen=True)
 class Sweep:
-    """A validated sweep file: its typed ``spec``, ``source``, ``base_dir`` of the base task,
-    the base ``task`` as data, the ``setup_hash`` every case id includes, the ``cases`` in
-    expansion order and the ``varied`` key paths."""
+    """A validated sweep file: its typed ``spec``, ``source``, the ``setup_hash`` every case id
+    includes, the ``cases`` in expansion order and the ``varied`` key paths."""
 
     spec: SweepSpec
     source: str
-    base_dir: str
-    task: dict
     setup_hash: str
     cases: list[dict] = field(repr=False)
     varied: tuple[str, ...] = ()
@@ -383,7 +380,7 @@ def sweep_from_document(
     cases, where = expand_cases(spec, doc, task, setup_hash, str(task_dir), solver_options)
     _check_case_tasks(cases, doc, task_doc, task_dir, where)
     logger.info("sweep %s: %d case(s)", doc.source, len(cases))
-    return Sweep(spec, doc.source, str(task_dir), task, setup_hash, cases, tuple(where))
+    return Sweep(spec, doc.source, setup_hash, cases, tuple(where))
 
 
 def _check_case_tasks(
