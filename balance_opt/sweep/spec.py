@@ -324,18 +324,16 @@ def sweep_reference_markdown() -> str:
 
 @dataclass(frozen=True)
 class Sweep:
-    """A validated sweep file: its typed ``spec``, ``source``, the ``setup_hash`` every case id
-    includes, the ``cases`` in expansion order and the ``varied`` key paths."""
+    """A validated sweep file: its typed ``spec``, ``name`` (the file's stem when it has none),
+    ``source``, the ``setup_hash`` every case id includes, the ``cases`` in expansion order and
+    the ``varied`` key paths."""
 
     spec: SweepSpec
+    name: str
     source: str
     setup_hash: str
     cases: list[dict] = field(repr=False)
     varied: tuple[str, ...] = ()
-
-    @property
-    def name(self) -> str:
-        return self.spec.name or Path(self.source).stem
 
 
 def sweep_from_document(
@@ -380,7 +378,8 @@ def sweep_from_document(
     cases, where = expand_cases(spec, doc, task, setup_hash, str(task_dir), solver_options)
     _check_case_tasks(cases, doc, task_doc, task_dir, where)
     logger.info("sweep %s: %d case(s)", doc.source, len(cases))
-    return Sweep(spec, doc.source, setup_hash, cases, tuple(where))
+    name = spec.name or Path(doc.source).stem
+    return Sweep(spec, name, doc.source, setup_hash, cases, tuple(where))
 
 
 def _check_case_tasks(
