@@ -278,25 +278,19 @@ class LocalPoolEngine(_ExecutorEngine):
         return f"local process pool, {self.workers} worker(s) (spawn)"
 
 
+@dataclass
 class DaskEngine(_ExecutorEngine):
     """Dask distributed: a running scheduler (``address``; workers need balance-opt installed,
     one thread each), or a local cluster of ``workers`` processes on ``host``, started here and
     stopped on exit. A case whose worker dies is computed again elsewhere, until it has killed
     every worker that ran it (``KilledWorker``)."""
 
-    def __init__(
-        self,
-        address: str | None = None,
-        workers: int = 2,
-        host: str = "127.0.0.1",
-        timeout: float | None = None,
-    ):
-        self.address = address
-        self.workers = workers
-        self.host = host
-        self.timeout = timeout
-        self._cluster = None
-        self._client = None
+    address: str | None = None
+    workers: int = 2
+    host: str = "127.0.0.1"
+    timeout: float | None = None
+    _cluster: Any = field(default=None, repr=False)
+    _client: Any = field(default=None, repr=False)
 
     def __enter__(self):
         from dask.distributed import Client, LocalCluster
