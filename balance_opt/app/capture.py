@@ -207,19 +207,27 @@ def _phase_options(task, p: Phase, solver_options):
     return dataclasses.replace(options, intervals=n_second, horizon=None)
 
 
-def plan_captured(
-    task, method: str, solver_options=None, models=None, executor=None
+def plan_task(
+    task, method: str, solver_options=None, models=None, executor=None, guess=None
 ) -> BalanceResult:
-    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task with
-    a capture: :func:`plan_with_capture` with that method in each phase (the law holding each
-    phase's momentum)."""
+    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task; with
+    a capture, :func:`plan_with_capture` with that method in each phase (the law holding each
+    phase's momentum). ``guess``: the optimal planner's initial guess (default: the task's
+    ``optimal.initial_guess``; not for a task with a capture)."""
+    initial_guess = task.spec.optimal.initial_guess
+    if task.target is None:
+        options = task.planner_options(solver_options) if method == "optimal" else None
+        return plan_part(
+            task, method, task.robot, task.mission, task.q_B0, task.h0, options=options,
+            guess=initial_guess if guess is None else guess, models=models, executor=executor,
+        )  # fmt: skip
 
     def plan_phase(p: Phase) -> BalanceResult:
         law = dataclasses.replace(task.spec.analytic.law, h0=tuple(float(v) for v in p.h0))
         options = _phase_options(task, p, solver_options) if method == "optimal" else None
         return plan_part(
             task, method, p.robot, p.mission, p.q_B0, p.h0, law=law, options=options,
-            guess=task.spec.optimal.initial_guess, models=models, executor=executor,
+            guess=initial_guess, models=models, executor=executor,
         )  # fmt: skip
 
     return plan_with_capture(task, plan_phase)
