@@ -32,7 +32,6 @@ DESCRIPTION = (
     "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
     "law and an optimal planner, compared."
 )
-_HANDLER_FLAG = "_balance_opt_cli"
 __all__ = ["build_parser", "main"]
 
 log = logging.getLogger("balance_opt.cli")
@@ -221,11 +220,8 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     Python must not leave a handler on a stream that may be closed later)."""
     logger = logging.getLogger("balance_opt")
     level = logger.level
-    for h in [h for h in logger.handlers if getattr(h, _HANDLER_FLAG, False)]:
-        logger.removeHandler(h)
     progress.configure(not quiet, sys.stderr)
     handler = progress.LogHandler(sys.stderr)
-    setattr(handler, _HANDLER_FLAG, True)
     handler.setFormatter(
         logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S")
         if verbose
@@ -331,8 +327,10 @@ def _print_geometry(task) -> None:
     close = s["initial_contacts"] + s["initial_within_margin"]
     if not close:
         print(f"  at the initial configuration every pair is at least {s['margin_m']:g} m apart")
-    for kind, items in (("in contact", s["initial_contacts"]),
-                        (f"within the margin {s['margin_m']:g} m", s["initial_within_margin"])):
+    for kind, items in (
+        ("in contact", s["initial_contacts"]),
+        (f"within the margin {s['margin_m']:g} m", s["initial_within_margin"]),
+    ):
         if items:
             pairs = ", ".join(f"{c['pair']} ({c['distance_m']:.4f} m)" for c in items)
             print(f"  {kind} at the initial configuration: {pairs}")
@@ -617,7 +615,9 @@ def _flag(parser: argparse.ArgumentParser, *names: str, help: str, **kwargs) -> 
     parser.add_argument(*names, action="store_true", help=help, **kwargs)
 
 
-def _compute_options(parser, output: str, force: str, solver_option: str) -> None:
+def _compute_options(
+    parser, output: str, force: str = _FORCE_HELP, solver_option: str = _SOLVER_OPTION_HELP
+) -> None:
     """``--output``, ``--force``, ``--solver-option`` and ``--backend``, with a command's help."""
     parser.add_argument("-o", "--output", metavar="DIR", help=_OUTPUT_HELP.format(output))
     _flag(parser, "-f", "--force", help=force)
@@ -636,13 +636,8 @@ def _backend_option(parser: argparse.ArgumentParser) -> None:
 def _method_option(parser, help: str = "planning method (default: both)") -> None:
     """``-m``/``--method``: analytic, optimal or both (the default), or mission-only (the
     reference alone, which every run computes)."""
-    parser.add_argument(
-        "-m",
-        "--method",
-        choices=("analytic", "optimal", "both", "mission-only"),
-        default="both",
-        help=help,
-    )
+    methods = ("analytic", "optimal", "both", "mission-only")
+    parser.add_argument("-m", "--method", choices=methods, default="both", help=help)
 
 
 def _reference_options(parser, what: str) -> None:
@@ -650,18 +645,13 @@ def _reference_options(parser, what: str) -> None:
     _flag(parser, "--reference", help=f"print the {what}-file reference (Markdown) and exit")
 
 
-def _run_command(sub, name: str, help: str, run, output=f"{DEFAULT_OUTPUT_ROOT}/<task name>"):
-    """A command that computes: ``TASK`` (but the paper study) and :func:`_compute_options`."""
-    p = sub.add_parser(name, help=help)
-    if name != "paper-figures":
-        p.add_argument("task", help="task file (YAML)")
-    _compute_options(p, output, _FORCE_HELP, _SOLVER_OPTION_HELP)
-    p.set_defaults(run=run)
-    return p
-
-
 def _add_commands(sub) -> None:
-    p = sub.add_parser("validate", help="check task files (everything short of planning)")
+    def command(name: str, run, help: str, **kwargs) -> argparse.ArgumentParser:
+        parser = sub.add_parser(name, help=help, **kwargs)
+        parser.set_defaults(run=run)
+        return parser
+
+    p = command("validate", _cmd_validate, "check task files (everything short of planning)")
     p.add_argument("tasks", nargs="*", metavar="TASK", help="task files (YAML)")
     _reference_options(p, "task")
     _method_option(
@@ -669,29 +659,24 @@ def _add_commands(sub) -> None:
         "check what these methods need (default: both; analytic leaves out the optimal "
         "planner's checks)",
     )
-    p.set_defaults(run=_cmd_validate)
-
-    p = sub.add_parser("schema", help="print the JSON Schema of task files")
-    p.set_defaults(run=_cmd_validate, schema=True)
-
-    p = sub.add_parser("inspect", help="print a robot summary and its coupling measures")
+    command("schema", _cmd_validate, "print the JSON Schema of task files").set_defaults(
+        schema=True
+    )
+    p = command("inspect", _cmd_inspect, "print a robot summary and its coupling measures")
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
     _backend_option(p)
-    p.set_defaults(run=_cmd_inspect)
 
     for name, help in (
         ("plan", "plan the balance motion, write trajectories, metrics, figures, report"),
         ("simulate", "plan, then check each plan in a forward-dynamics simulation"),
         ("compare", "analytic and optimal plans, simulated, and the comparison report"),
     ):
-        p = _run_command(sub, name, help, _run_task_command)
+        p = command(name, _run_task_command, help)
+        p.add_argument("task", help="task file (YAML)")
+        _compute_options(p, f"{DEFAULT_OUTPUT_ROOT}/<task name>")
         if name == "compare":
-            p.add_argument(
-                "--no-simulate",
-                dest="simulate",
-                action="store_false",
-                help="skip the forward-dynamics simulation",
-            )
+            no_simulate = "skip the forward-dynamics simulation"
+            p.add_argument("--no-simulate", dest="simulate", action="store_false", help=no_simulate)
             p.set_defaults(method="both")
             continue
         _method_option(p)
@@ -699,13 +684,10 @@ def _add_commands(sub) -> None:
             _flag(p, "--simulate", help="also simulate each plan (as the simulate command)")
         else:
             p.set_defaults(simulate=True)
-    p = _run_command(
-        sub,
-        "paper-figures",
-        "the paper's study: Figs 2-5 on the Table 1 robot",
-        _cmd_paper_figures,
-        str(PAPER_FIGURES_FOLDER),
+    p = command(
+        "paper-figures", _cmd_paper_figures, "the paper's study: Figs 2-5 on the Table 1 robot"
     )
+    _compute_options(p, str(PAPER_FIGURES_FOLDER))
     p.add_argument(
         "--task",
         help="study this task instead (its robot, mission, balance start and options; both "
@@ -713,9 +695,10 @@ def _add_commands(sub) -> None:
         "law against the optimal plan on examples/capture_task.yaml's",
     )
 
-    p = sub.add_parser(
+    p = command(
         "sweep",
-        help="run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
+        _cmd_sweep,
+        "run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
         description="Run every case of a sweep file (a base task and the parameters to vary); "
         "write one result per case as it finishes, the table results.csv, "
         "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
@@ -734,7 +717,6 @@ def _add_commands(sub) -> None:
         "-j",
         "--jobs",
         type=int,
-        default=None,
         metavar="N",
         help="worker processes (default: the number of CPUs; 0 runs the cases in this process)",
     )
@@ -751,12 +733,12 @@ def _add_commands(sub) -> None:
     _flag(p, "--no-plots", help="skip the summary plots")
     _reference_options(p, "sweep")
     # "module:function" of another case function (tests); default: the task runner
-    p.add_argument("--runner", default=None, help=argparse.SUPPRESS)
-    p.set_defaults(run=_cmd_sweep)
+    p.add_argument("--runner", help=argparse.SUPPRESS)
 
-    p = sub.add_parser(
+    p = command(
         "view",
-        help="show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
+        _cmd_view,
+        "show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
         description="Serve the 3D scene of a result folder (its scene.html, or one built from "
         "its NPZ files) or of a task file (planned first, both methods) on 127.0.0.1 and open "
         "it in a browser; Ctrl-C stops.",
@@ -765,18 +747,15 @@ def _add_commands(sub) -> None:
     _flag(p, "--no-browser", help="print the URL and serve, open no browser")
     p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
     _backend_option(p)
-    p.set_defaults(run=_cmd_view)
 
-    p = sub.add_parser(
-        "cache", help="show the cache of compiled kernels and the bridge, or clear it"
+    p = command(
+        "cache", _cmd_cache, "show the cache of compiled kernels and the bridge, or clear it"
     )
     _flag(p, "--clear", help="delete every cached entry")
     _flag(p, "--list", help="list every entry (default: a summary)")
-    p.set_defaults(run=_cmd_cache)
 
-    p = sub.add_parser("robots", help="robots usable as robot.example, with their joints by chain")
+    p = command("robots", _cmd_robots, "robots usable as robot.example, with their joints by chain")
     p.add_argument("name", nargs="?", help="one robot in detail")
-    p.set_defaults(run=_cmd_robots)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -798,13 +777,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _verbosity(parser: argparse.ArgumentParser, default) -> None:
-    _flag(
-        parser,
-        "-v",
-        "--verbose",
-        default=default,
-        help="log debug messages, and show Ipopt's iteration log (stdout)",
-    )
+    help = "log debug messages, and show Ipopt's iteration log (stdout)"
+    _flag(parser, "-v", "--verbose", default=default, help=help)
     _flag(
         parser, "-q", "--quiet", default=default, help="print only warnings and errors: no progress"
     )
