@@ -20,7 +20,7 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
-from balance_opt.app.pipeline import _timed
+from balance_opt.app.pipeline import METHODS, _timed
 from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
@@ -38,7 +38,6 @@ from balance_opt.tasks.task import Task
 
 log = logging.getLogger(__name__)
 
-METHODS = ("analytic", "optimal")
 #: Output spacing of the plans and of the simulations [s].
 STUDY_OUTPUT_STEP = 0.01
 FIGURE_STEMS = {
