@@ -27,11 +27,6 @@ from balance_opt.report.output_dir import OutputFolder
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: A closed output pipe: 128 + SIGPIPE, what a shell reports for ``cat`` ended by it.
 EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
-VERSION = f"balance-opt {__version__}"
-DESCRIPTION = (
-    "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
-    "law and an optimal planner, compared."
-)
 __all__ = ["build_parser", "main"]
 
 log = logging.getLogger("balance_opt.cli")
@@ -60,26 +55,16 @@ def parse_solver_option(text: str) -> tuple[str, int | float | str]:
     return key, value
 
 
-#: Ipopt's iteration log, shown (on stdout) with ``--verbose`` as the optimal planner's progress.
-VERBOSE_IPOPT = {"print_level": 5}
-
-
-def command_line_ipopt(args) -> dict:
-    """``--solver-option`` values, checked against Ipopt's own option list."""
+def ipopt_options_of(args, task=None) -> dict:
+    """``--solver-option`` values, checked against Ipopt's own option list; with ``--verbose``,
+    Ipopt's iteration log (on stdout, as the optimal planner's progress) too, unless the task or
+    the command line sets ``print_level`` (not in a sweep: its workers are silent)."""
     from balance_opt.optimal.ipopt_options import check_ipopt_options
 
-    return check_ipopt_options(
-        dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
-    )
-
-
-def ipopt_options_of(args, task=None) -> dict:
-    """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
-    task or the command line sets ``print_level``)."""
-    options = command_line_ipopt(args)
+    options = check_ipopt_options(dict(parse_solver_option(s) for s in args.solver_option or []))
     task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}
-    if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
-        options.update(VERBOSE_IPOPT)
+    if args.verbose and args.command != "sweep" and "print_level" not in {**task_ipopt, **options}:
+        options["print_level"] = 5
     return options
 
 
@@ -102,45 +87,36 @@ def _count(n: int, one: str, many: str) -> str:
 
 
 def _cmd_cache(args) -> int:
-    from balance_opt.cache import (
-        CACHE_ENV,
-        KINDS,
-        LIMIT_ENV,
-        clear,
-        default_cache_dir,
-        entries,
-        format_size,
-        size_limit,
-    )
+    from balance_opt import cache
 
-    folder = default_cache_dir()
-    origin = f"${CACHE_ENV}" if os.environ.get(CACHE_ENV) else "default; set $" + CACHE_ENV
+    folder, env, size = cache.default_cache_dir(), cache.CACHE_ENV, cache.format_size
+    origin = f"${env}" if os.environ.get(env) else f"default; set ${env}"
     print(f"cache folder: {folder} ({origin})")
     if not folder.is_dir():
         print("empty (the folder does not exist yet)")
         return EXIT_OK
     if args.clear:
-        deleted, kept = clear(folder)
-        size = sum(e.size for e in deleted)
-        print(f"deleted {_count(len(deleted), 'entry', 'entries')} ({format_size(size)})")
+        deleted, kept = cache.clear(folder)
+        freed = size(sum(e.size for e in deleted))
+        print(f"deleted {_count(len(deleted), 'entry', 'entries')} ({freed})")
         for entry in kept:
             print(f"kept {entry.name}: a build under way in another process")
         return EXIT_OK
-    found = entries(folder)
+    found = cache.entries(folder)
     total = sum(e.size for e in found)
-    print(f"size: {format_size(total)} (bound {format_size(size_limit())}, ${LIMIT_ENV})")
-    for kind in KINDS:
+    print(f"size: {size(total)} (bound {size(cache.size_limit())}, ${cache.LIMIT_ENV})")
+    for kind in cache.KINDS:
         group = [e for e in found if e.kind == kind]
         if not group:
             continue
         print(
-            f"{kind}: {_count(len(group), 'entry', 'entries')}, {format_size(sum(e.size for e in group))}"
+            f"{kind}: {_count(len(group), 'entry', 'entries')}, {size(sum(e.size for e in group))}"
         )
         if not args.list:
             continue
         for e in group:
             used = datetime.datetime.fromtimestamp(e.last_used).strftime("%Y-%m-%d %H:%M")
-            print(f"  {e.name}  {format_size(e.size)}  last used {used}")
+            print(f"  {e.name}  {size(e.size)}  last used {used}")
     if found and not args.list:
         print("--list shows every entry")
     return EXIT_OK
@@ -493,7 +469,7 @@ def _cmd_sweep(args) -> int:
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
     progress.configure(False)  # one log line per case, no Ipopt line (workers are silent)
-    solver_options = command_line_ipopt(args)
+    solver_options = ipopt_options_of(args)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
         raise InputError(f"--jobs must be >= 0, got {jobs}")
@@ -763,12 +739,13 @@ def build_parser() -> argparse.ArgumentParser:
     works)."""
     parser = argparse.ArgumentParser(
         prog="balance-opt",
-        description=DESCRIPTION,
+        description="Balance-arm motion planning for free-floating multi-arm space robots: the "
+        "paper's analytic law and an optimal planner, compared.",
         epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted, "
         "141 output pipe closed",
     )
     _verbosity(parser, False)
-    parser.add_argument("--version", action="version", version=VERSION)
+    parser.add_argument("--version", action="version", version=f"balance-opt {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_commands(sub)
     for p in sub.choices.values():
