@@ -72,7 +72,7 @@ def plan_with_capture(task, plan_phase) -> BalanceResult:
         0,
     )
     before = plan_phase(first)
-    q_c, qd_c, quat_c = _state_at_end(task.robot, before)
+    q_c, qd_c, quat_c = _state_at_end(before)
     after_robot = task.robot_after_capture
     state = capture_state(task.robot, after_robot, task.target, q_c, qd_c, quat_c, task.h0)
     R_c = matrix_from_quaternion(quat_c)
@@ -93,13 +93,10 @@ def plan_with_capture(task, plan_phase) -> BalanceResult:
     return join_phases(task, before, _in_world(after, quat_c, t_c), state)
 
 
-def _state_at_end(robot: FloatingRobot, result: BalanceResult):
-    """Arm positions, rates and the attitude at a result's last sample."""
-    q, q_dot = np.empty(robot.n), np.empty(robot.n)
-    M, B = robot.mission_indices, robot.balance_indices
-    q[M], q[B] = result.q_M[-1], result.q_B[-1]
-    q_dot[M], q_dot[B] = result.q_dot_M[-1], result.q_dot_B[-1]
-    return q, q_dot, result.quaternion[-1]
+def _state_at_end(r: BalanceResult):
+    """Arm positions, rates (arm vectors: the mission joints, then the balance joints) and the
+    attitude at a result's last sample."""
+    return np.r_[r.q_M[-1], r.q_B[-1]], np.r_[r.q_dot_M[-1], r.q_dot_B[-1]], r.quaternion[-1]
 
 
 def _in_world(result: BalanceResult, quat_c: np.ndarray, t_c: float) -> BalanceResult:
@@ -119,10 +116,9 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
         for name in SAMPLED_ARRAYS
     }
     robot = task.robot
-    q, q_dot, q_ddot = (np.empty((arrays["t"].size, robot.n)) for _ in range(3))
-    M, B = robot.mission_indices, robot.balance_indices
-    for full, suffix in ((q, ""), (q_dot, "_dot"), (q_ddot, "_ddot")):
-        full[:, M], full[:, B] = arrays[f"q{suffix}_M"], arrays[f"q{suffix}_B"]
+    q, q_dot, q_ddot = (
+        np.hstack([arrays[f"q{s}_M"], arrays[f"q{s}_B"]]) for s in ("", "_dot", "_ddot")
+    )
     info = dict(before.info)
     info["after_capture"] = {k: v for k, v in after.info.items() if k not in BULKY_INFO_KEYS}
     success = [r.info.get("success") for r in (before, after)]
@@ -130,7 +126,7 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
         info["success"] = all(s is not False for s in success)
         if before.info.get("success") and not after.info.get("success"):
             info["status"] = after.info.get("status")
-    # the solver's work of both phases (io.outputs.solver_metrics reports the totals)
+    # the solver's work of both phases (report.outputs.solver_metrics reports the totals)
     for key in ("iterations", "total_iterations", "total_solve_time_s"):
         if key in before.info and key in after.info:
             info[key] = before.info[key] + after.info[key]
