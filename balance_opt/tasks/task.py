@@ -194,18 +194,8 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
             ("optimal", "collision", "ignore"),
             f"{TARGET_LINK} is the captured target, and this task has no capture section",
         )
-    task = Task(
-        spec,
-        doc.source,
-        base_dir,
-        sha256,
-        robot,
-        mission,
-        q_B0,
-        np.array(spec.initial.momentum),
-        doc,
-        target,
-    )
+    h0 = np.array(spec.initial.momentum)
+    task = Task(spec, doc.source, base_dir, sha256, robot, mission, q_B0, h0, doc, target)
     log.debug("task %s: %r, mission %.3g s", doc.source, robot, mission.duration)
     return task
 
@@ -238,24 +228,6 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
     )
 
 
-def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
-    from balance_opt.model.catalog import example_urdf
-    from balance_opt.model.library import shipped_urdf
-
-    r = spec.robot
-    if r.urdf is not None:
-        path = base_dir / r.urdf
-        if not path.is_file():
-            raise doc.error(("robot", "urdf"), f"no such URDF file: {path}")
-        return path
-    try:
-        return shipped_urdf(r.shipped) if r.shipped is not None else example_urdf(r.example)
-    except InputError as exc:
-        raise doc.error(
-            ("robot", "shipped" if r.shipped is not None else "example"), str(exc)
-        ) from None
-
-
 def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
     """Key path where ``joint`` is named in the (validated) task: under ``limits`` or
     ``arms.locked`` first when the ``reason`` is about a limit or a lock, else in the arms."""
@@ -278,7 +250,20 @@ def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
 
 
 def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingRobot:
-    urdf = _urdf_path(spec, doc, base_dir)
+    from balance_opt.model.catalog import example_urdf
+    from balance_opt.model.library import shipped_urdf
+
+    r = spec.robot
+    key = next(k for k in ("urdf", "shipped", "example") if getattr(r, k) is not None)
+    if key == "urdf":
+        urdf = base_dir / r.urdf
+        if not urdf.is_file():
+            raise doc.error(("robot", "urdf"), f"no such URDF file: {urdf}")
+    else:
+        try:
+            urdf = shipped_urdf(r.shipped) if key == "shipped" else example_urdf(r.example)
+        except InputError as exc:
+            raise doc.error(("robot", key), str(exc)) from None
     limits = {
         j: {k: getattr(lim, k) for k in LIMIT_KEYS if getattr(lim, k) is not None}
         for j, lim in spec.limits.items()
@@ -290,7 +275,6 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
             urdf, list(a.mission), balance, locked=a.locked, limits=limits, ee_frames=a.ee_frames
         )
     except URDFLoadError as exc:
-        key = next(k for k in ("urdf", "shipped", "example") if getattr(spec.robot, k) is not None)
         raise doc.error(("robot", key), str(exc)) from None
     except LimitOverrideError as exc:
         raise doc.error(("limits", exc.joint, exc.key), str(exc)) from None
