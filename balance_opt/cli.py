@@ -367,17 +367,15 @@ def _run_task_command(args) -> int:
     elapsed = time.perf_counter() - started
     print(f"wrote {len(run.files)} files to {folder.target} in {elapsed:.1f} s")
     for name, res in run.results.items():
-        m = run.metrics.get("methods", {}).get(name, {})
-        count = violation_count_text(
-            m.get("limit_violations", len(res.violations)), m.get("limit_violations_by_kind")
-        )
+        m = run.metrics["methods"][name]
+        count = violation_count_text(m["limit_violations"], m["limit_violations_by_kind"])
         print(
             f"  {name:<13s} max drift {res.max_drift:.3g} rad, final drift "
             f"{res.final_drift:.3g} rad, {count} limit violations"
         )
         for line in _more_summary(m):
             print(f"  {'':<13s} {line}")
-        for warning in m.get("warnings", res.warnings()):
+        for warning in m["warnings"]:
             print(f"  {'':<13s} WARNING: {warning}")
     if run.report is not None:
         print(f"report: {run.report}")
@@ -508,43 +506,32 @@ def _cmd_sweep(args) -> int:
 def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
     """The scene page of a result folder (its ``scene.html``, or one built into ``folder`` from
     its NPZ files and task file) or of a task file (planned here, both methods)."""
-    from balance_opt.app.pipeline import (
-        METRICS_FILE,
-        REFERENCE,
-        SCENE_FILE,
-        TaskRun,
-        run_task,
-        write_run_scene,
-    )
+    from balance_opt.app import pipeline
     from balance_opt.errors import InputError
 
-    if source.is_dir():
-        if (source / SCENE_FILE).is_file():
-            return source / SCENE_FILE
-        from balance_opt.report.outputs import read_npz_result
+    scene, metrics = pipeline.SCENE_FILE, source / pipeline.METRICS_FILE
+    if not source.is_dir():
+        run = pipeline.run_task(_load_task(source, backend), methods=pipeline.METHODS)
+        return pipeline.write_run_scene(run, folder / scene)
+    if (source / scene).is_file():
+        return source / scene
+    from balance_opt.report.outputs import read_npz_result
 
-        metrics = source / METRICS_FILE
-        if not metrics.is_file():
-            raise InputError(
-                f"{source}: no {SCENE_FILE} and no {METRICS_FILE}: not a result folder"
-            )
-        content = json.loads(metrics.read_text())
-        task_file = content.get("task", {}).get("file", "")
-        if not Path(task_file).is_file():
-            raise InputError(
-                f"{metrics}: task file '{task_file}' not found (the scene needs its robot)"
-            )
-        names = (REFERENCE, "analytic", "optimal")
-        files = {n: source / f"{n}.npz" for n in names}
-        results = {n: read_npz_result(f) for n, f in files.items() if f.is_file()}
-        if not results:
-            raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
-        task = _load_task(task_file, backend)
-        run = TaskRun(task, results=results, failures=content.get("failures") or {})
-    else:
-        task = _load_task(source, backend)
-        run = run_task(task, methods=("analytic", "optimal"))
-    return write_run_scene(run, folder / SCENE_FILE)
+    if not metrics.is_file():
+        raise InputError(f"{source}: no {scene} and no {metrics.name}: not a result folder")
+    content = json.loads(metrics.read_text())
+    task_file = content.get("task", {}).get("file", "")
+    if not Path(task_file).is_file():
+        raise InputError(
+            f"{metrics}: task file '{task_file}' not found (the scene needs its robot)"
+        )
+    names = (pipeline.REFERENCE, *pipeline.METHODS)
+    results = {n: read_npz_result(f) for n in names if (f := source / f"{n}.npz").is_file()}
+    if not results:
+        raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
+    failures = content.get("failures") or {}
+    run = pipeline.TaskRun(_load_task(task_file, backend), results=results, failures=failures)
+    return pipeline.write_run_scene(run, folder / scene)
 
 
 def _wait_for_stop(server, url: str) -> None:
