@@ -155,10 +155,8 @@ def plan_part(
     models=None,
     executor=None,
 ) -> BalanceResult:
-    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a whole task
-    or of one phase of a capture: its robot, mission, balance start ``q_B0`` and momentum ``h0``;
-    the analytic ``law`` (default: the task's), the optimal planner's ``options``, initial
-    ``guess``, ``models`` (:class:`~balance_opt.app.models.ModelCache`) and ``executor``."""
+    """The plan of ``method`` of a whole task or of one phase of a capture (its own robot,
+    mission, balance start and momentum); ``law`` defaults to the task's."""
     a = task.spec.analytic
     if method == "mission-only":
         from balance_opt.motion.replay import phase_one

@@ -560,12 +560,10 @@ CLEARANCE_CURVE_SAMPLES = 300
 
 
 def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> None:
-    """The clearance of each motion ``(t, arm vectors)`` (a plan's, a simulation's) on the continuous
-    motion (:func:`~balance_opt.geometry.clearance.clearance`) and its smallest distance over
-    time for the figure, into ``into`` as ``{name: (report, t, distance)}``. From a capture on,
-    the target is a body too (its pairs checked on the motion after it). A robot without
-    geometry has none (a log line says so). A geometry that does not load (a missing mesh)
-    leaves the check out with a warning."""
+    """The clearance of each motion ``(t, arm vectors)`` (a plan's, a simulation's) on the
+    continuous motion (:func:`~balance_opt.geometry.clearance.clearance`) and its smallest
+    distance over time for the figure, into ``into`` as ``{name: (report, t, distance)}``. From a
+    capture on, the target is a body too (its pairs checked on the motion after it)."""
     from balance_opt.geometry.clearance import clearance
 
     if run_geometry(run) is False:
