@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 from balance_opt import __version__, progress
@@ -173,21 +173,12 @@ def _load_task(path, backend: str | None):
     return dataclasses.replace(task, spec=dataclasses.replace(task.spec, robot=robot))
 
 
-@contextlib.contextmanager
-def _early_output(args) -> Iterator[OutputFolder | None]:
-    """The ``--output`` folder opened (checked, locked, staging created) before anything else,
-    even before the task is loaded; ``None`` without ``--output``. Given up if the block fails
-    before the run takes it over."""
-    if not args.output:
-        yield None
-        return
-    folder = OutputFolder(args.output, args.force)
-    folder.open()
-    try:
-        yield folder
-    except BaseException:
-        folder.abort()
-        raise
+def _early_output(args) -> OutputFolder | contextlib.nullcontext:
+    """The ``--output`` folder, for a ``with`` block around the whole command: opened (checked,
+    locked, staging created) before anything else, even before the task is loaded, and
+    committed when the block ends (the run's own ``with`` inside it is not the outermost); a
+    null context without ``--output``."""
+    return OutputFolder(args.output, args.force) if args.output else contextlib.nullcontext()
 
 
 def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
