@@ -603,14 +603,9 @@ def _model_error_into(run: TaskRun) -> None:
         log.info("%s: drift under model error not computed across a capture", task.name)
         return
     options = task.spec.robustness
-    log.info(
-        "%s: drift under %.0f %% model error (%d models) ...",
-        task.name,
-        100 * options.perturbation,
-        options.samples,
-    )
-    run.robustness = drift_under_model_error(task.robot, run.results, options, task.h0)
-    log.info("%s: drift under model error: done in %.2f s", task.name, run.robustness.wall_time_s)
+    what = f"drift under {100 * options.perturbation:.0f} % model error ({options.samples} models)"
+    with _timed(f"{task.name}: {what}"):
+        run.robustness = drift_under_model_error(task.robot, run.results, options, task.h0)
 
 
 def _checked_plans(
