@@ -181,10 +181,11 @@ def _early_output(args) -> OutputFolder | contextlib.nullcontext:
     return OutputFolder(args.output, args.force) if args.output else contextlib.nullcontext()
 
 
-def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
+@contextlib.contextmanager
+def _logging_to_stderr(verbose: bool, quiet: bool):
     """Log balance-opt's messages to the current stderr (progress at INFO), and show the live
-    progress line there unless ``quiet``; returns what undoes it (:func:`main` called from
-    Python must not leave a handler on a stream that may be closed later)."""
+    progress line there unless ``quiet``, for the block only (:func:`main` called from Python
+    must not leave a handler on a stream that may be closed later)."""
     logger = logging.getLogger("balance_opt")
     level = logger.level
     progress.configure(not quiet, sys.stderr)
@@ -196,12 +197,12 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     )
     logger.addHandler(handler)
     logger.setLevel(logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO)
-
-    def restore() -> None:
+    try:
+        yield
+    finally:  # the live line ends before the error message main prints
+        progress.configure(False)
         logger.removeHandler(handler)
         logger.setLevel(level)
-
-    return restore
 
 
 def _reference_asked(args, schema: Callable[[], dict], reference: Callable[[], str]) -> bool:
@@ -759,9 +760,8 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code or 0)
-    restore_logging = _configure_logging(args.verbose, args.quiet)
     try:
-        with handling_signals():
+        with _logging_to_stderr(args.verbose, args.quiet), handling_signals():
             code = args.run(args)
             sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
             return code
@@ -776,14 +776,10 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(f"failure: {exc}", EXIT_SOLVER)
     except KeyboardInterrupt:
         return _fail("interrupted", EXIT_INTERRUPTED)
-    finally:
-        progress.configure(False)
-        restore_logging()
 
 
 def _fail(message: str, code: int) -> int:
     """Print ``balance-opt: message`` on stderr (on a line of its own) and return ``code``."""
-    progress.clear()
     print(f"balance-opt: {message}", file=sys.stderr)
     return code
 
