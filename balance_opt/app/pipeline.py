@@ -296,11 +296,9 @@ def write_run_scene(run: TaskRun, path: Path) -> Path:
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
-    """PNG figures of a run at one resolution (:data:`~balance_opt.report.style.SCREEN_DPI`, the
-    report's): the plans' attitude with the mission arm alone, the balance joints against their
-    limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
-    the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
-    ``(caption, path)`` pairs, in the report's order."""
+    """The PNG figures of a run at the report's resolution (PNG only: the report embeds them,
+    and ``paper-figures`` writes the PDFs for print), as ``(caption, path)`` pairs in the
+    report's order."""
     figures = []
 
     def draw(key, function, *args, note="", **kwargs):
