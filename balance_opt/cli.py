@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 from balance_opt import __version__, progress
@@ -27,12 +27,6 @@ from balance_opt.report.output_dir import OutputFolder
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: A closed output pipe: 128 + SIGPIPE, what a shell reports for ``cat`` ended by it.
 EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
-VERSION = f"balance-opt {__version__}"
-DESCRIPTION = (
-    "Balance-arm motion planning for free-floating multi-arm space robots: the paper's analytic "
-    "law and an optimal planner, compared."
-)
-_HANDLER_FLAG = "_balance_opt_cli"
 __all__ = ["build_parser", "main"]
 
 log = logging.getLogger("balance_opt.cli")
@@ -61,26 +55,16 @@ def parse_solver_option(text: str) -> tuple[str, int | float | str]:
     return key, value
 
 
-#: Ipopt's iteration log, shown (on stdout) with ``--verbose`` as the optimal planner's progress.
-VERBOSE_IPOPT = {"print_level": 5}
-
-
-def command_line_ipopt(args) -> dict:
-    """``--solver-option`` values, checked against Ipopt's own option list."""
+def ipopt_options_of(args, task=None) -> dict:
+    """``--solver-option`` values, checked against Ipopt's own option list; with ``--verbose``,
+    Ipopt's iteration log (on stdout, as the optimal planner's progress) too, unless the task or
+    the command line sets ``print_level`` (not in a sweep: its workers are silent)."""
     from balance_opt.optimal.ipopt_options import check_ipopt_options
 
-    return check_ipopt_options(
-        dict(parse_solver_option(s) for s in getattr(args, "solver_option", None) or [])
-    )
-
-
-def ipopt_options_of(args, task=None) -> dict:
-    """``--solver-option`` values; with ``--verbose``, Ipopt's iteration log too (unless the
-    task or the command line sets ``print_level``)."""
-    options = command_line_ipopt(args)
+    options = check_ipopt_options(dict(parse_solver_option(s) for s in args.solver_option or []))
     task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}
-    if args.verbose and "print_level" not in options and "print_level" not in task_ipopt:
-        options.update(VERBOSE_IPOPT)
+    if args.verbose and args.command != "sweep" and "print_level" not in {**task_ipopt, **options}:
+        options["print_level"] = 5
     return options
 
 
@@ -103,45 +87,36 @@ def _count(n: int, one: str, many: str) -> str:
 
 
 def _cmd_cache(args) -> int:
-    from balance_opt.cache import (
-        CACHE_ENV,
-        KINDS,
-        LIMIT_ENV,
-        clear,
-        default_cache_dir,
-        entries,
-        format_size,
-        size_limit,
-    )
+    from balance_opt import cache
 
-    folder = default_cache_dir()
-    origin = f"${CACHE_ENV}" if os.environ.get(CACHE_ENV) else "default; set $" + CACHE_ENV
+    folder, env, size = cache.default_cache_dir(), cache.CACHE_ENV, cache.format_size
+    origin = f"${env}" if os.environ.get(env) else f"default; set ${env}"
     print(f"cache folder: {folder} ({origin})")
     if not folder.is_dir():
         print("empty (the folder does not exist yet)")
         return EXIT_OK
     if args.clear:
-        deleted, kept = clear(folder)
-        size = sum(e.size for e in deleted)
-        print(f"deleted {_count(len(deleted), 'entry', 'entries')} ({format_size(size)})")
+        deleted, kept = cache.clear(folder)
+        freed = size(sum(e.size for e in deleted))
+        print(f"deleted {_count(len(deleted), 'entry', 'entries')} ({freed})")
         for entry in kept:
             print(f"kept {entry.name}: a build under way in another process")
         return EXIT_OK
-    found = entries(folder)
+    found = cache.entries(folder)
     total = sum(e.size for e in found)
-    print(f"size: {format_size(total)} (bound {format_size(size_limit())}, ${LIMIT_ENV})")
-    for kind in KINDS:
+    print(f"size: {size(total)} (bound {size(cache.size_limit())}, ${cache.LIMIT_ENV})")
+    for kind in cache.KINDS:
         group = [e for e in found if e.kind == kind]
         if not group:
             continue
         print(
-            f"{kind}: {_count(len(group), 'entry', 'entries')}, {format_size(sum(e.size for e in group))}"
+            f"{kind}: {_count(len(group), 'entry', 'entries')}, {size(sum(e.size for e in group))}"
         )
         if not args.list:
             continue
         for e in group:
             used = datetime.datetime.fromtimestamp(e.last_used).strftime("%Y-%m-%d %H:%M")
-            print(f"  {e.name}  {format_size(e.size)}  last used {used}")
+            print(f"  {e.name}  {size(e.size)}  last used {used}")
     if found and not args.list:
         print("--list shows every entry")
     return EXIT_OK
@@ -198,34 +173,23 @@ def _load_task(path, backend: str | None):
     return dataclasses.replace(task, spec=dataclasses.replace(task.spec, robot=robot))
 
 
+def _early_output(args) -> OutputFolder | contextlib.nullcontext:
+    """The ``--output`` folder, for a ``with`` block around the whole command: opened (checked,
+    locked, staging created) before anything else, even before the task is loaded, and
+    committed when the block ends (the run's own ``with`` inside it is not the outermost); a
+    null context without ``--output``."""
+    return OutputFolder(args.output, args.force) if args.output else contextlib.nullcontext()
+
+
 @contextlib.contextmanager
-def _early_output(args) -> Iterator[OutputFolder | None]:
-    """The ``--output`` folder opened (checked, locked, staging created) before anything else,
-    even before the task is loaded; ``None`` without ``--output``. Given up if the block fails
-    before the run takes it over."""
-    if not args.output:
-        yield None
-        return
-    folder = OutputFolder(args.output, args.force)
-    folder.open()
-    try:
-        yield folder
-    except BaseException:
-        folder.abort()
-        raise
-
-
-def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
+def _logging_to_stderr(verbose: bool, quiet: bool):
     """Log balance-opt's messages to the current stderr (progress at INFO), and show the live
-    progress line there unless ``quiet``; returns what undoes it (:func:`main` called from
-    Python must not leave a handler on a stream that may be closed later)."""
+    progress line there unless ``quiet``, for the block only (:func:`main` called from Python
+    must not leave a handler on a stream that may be closed later)."""
     logger = logging.getLogger("balance_opt")
     level = logger.level
-    for h in [h for h in logger.handlers if getattr(h, _HANDLER_FLAG, False)]:
-        logger.removeHandler(h)
     progress.configure(not quiet, sys.stderr)
     handler = progress.LogHandler(sys.stderr)
-    setattr(handler, _HANDLER_FLAG, True)
     handler.setFormatter(
         logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%H:%M:%S")
         if verbose
@@ -233,12 +197,12 @@ def _configure_logging(verbose: bool, quiet: bool) -> Callable[[], None]:
     )
     logger.addHandler(handler)
     logger.setLevel(logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO)
-
-    def restore() -> None:
+    try:
+        yield
+    finally:  # the live line ends before the error message main prints
+        progress.configure(False)
         logger.removeHandler(handler)
         logger.setLevel(level)
-
-    return restore
 
 
 def _reference_asked(args, schema: Callable[[], dict], reference: Callable[[], str]) -> bool:
@@ -331,8 +295,10 @@ def _print_geometry(task) -> None:
     close = s["initial_contacts"] + s["initial_within_margin"]
     if not close:
         print(f"  at the initial configuration every pair is at least {s['margin_m']:g} m apart")
-    for kind, items in (("in contact", s["initial_contacts"]),
-                        (f"within the margin {s['margin_m']:g} m", s["initial_within_margin"])):
+    for kind, items in (
+        ("in contact", s["initial_contacts"]),
+        (f"within the margin {s['margin_m']:g} m", s["initial_within_margin"]),
+    ):
         if items:
             pairs = ", ".join(f"{c['pair']} ({c['distance_m']:.4f} m)" for c in items)
             print(f"  {kind} at the initial configuration: {pairs}")
@@ -393,17 +359,15 @@ def _run_task_command(args) -> int:
     elapsed = time.perf_counter() - started
     print(f"wrote {len(run.files)} files to {folder.target} in {elapsed:.1f} s")
     for name, res in run.results.items():
-        m = run.metrics.get("methods", {}).get(name, {})
-        count = violation_count_text(
-            m.get("limit_violations", len(res.violations)), m.get("limit_violations_by_kind")
-        )
+        m = run.metrics["methods"][name]
+        count = violation_count_text(m["limit_violations"], m["limit_violations_by_kind"])
         print(
             f"  {name:<13s} max drift {res.max_drift:.3g} rad, final drift "
             f"{res.final_drift:.3g} rad, {count} limit violations"
         )
         for line in _more_summary(m):
             print(f"  {'':<13s} {line}")
-        for warning in m.get("warnings", res.warnings()):
+        for warning in m["warnings"]:
             print(f"  {'':<13s} WARNING: {warning}")
     if run.report is not None:
         print(f"report: {run.report}")
@@ -495,7 +459,7 @@ def _cmd_sweep(args) -> int:
     if args.sweep is None:
         raise InputError("sweep: give a sweep file, or --schema")
     progress.configure(False)  # one log line per case, no Ipopt line (workers are silent)
-    solver_options = command_line_ipopt(args)
+    solver_options = ipopt_options_of(args)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 0:
         raise InputError(f"--jobs must be >= 0, got {jobs}")
@@ -534,43 +498,32 @@ def _cmd_sweep(args) -> int:
 def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
     """The scene page of a result folder (its ``scene.html``, or one built into ``folder`` from
     its NPZ files and task file) or of a task file (planned here, both methods)."""
-    from balance_opt.app.pipeline import (
-        METRICS_FILE,
-        REFERENCE,
-        SCENE_FILE,
-        TaskRun,
-        run_task,
-        write_run_scene,
-    )
+    from balance_opt.app import pipeline
     from balance_opt.errors import InputError
 
-    if source.is_dir():
-        if (source / SCENE_FILE).is_file():
-            return source / SCENE_FILE
-        from balance_opt.report.outputs import read_npz_result
+    scene, metrics = pipeline.SCENE_FILE, source / pipeline.METRICS_FILE
+    if not source.is_dir():
+        run = pipeline.run_task(_load_task(source, backend), methods=pipeline.METHODS)
+        return pipeline.write_run_scene(run, folder / scene)
+    if (source / scene).is_file():
+        return source / scene
+    from balance_opt.report.outputs import read_npz_result
 
-        metrics = source / METRICS_FILE
-        if not metrics.is_file():
-            raise InputError(
-                f"{source}: no {SCENE_FILE} and no {METRICS_FILE}: not a result folder"
-            )
-        content = json.loads(metrics.read_text())
-        task_file = content.get("task", {}).get("file", "")
-        if not Path(task_file).is_file():
-            raise InputError(
-                f"{metrics}: task file '{task_file}' not found (the scene needs its robot)"
-            )
-        names = (REFERENCE, "analytic", "optimal")
-        files = {n: source / f"{n}.npz" for n in names}
-        results = {n: read_npz_result(f) for n, f in files.items() if f.is_file()}
-        if not results:
-            raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
-        task = _load_task(task_file, backend)
-        run = TaskRun(task, results=results, failures=content.get("failures") or {})
-    else:
-        task = _load_task(source, backend)
-        run = run_task(task, methods=("analytic", "optimal"))
-    return write_run_scene(run, folder / SCENE_FILE)
+    if not metrics.is_file():
+        raise InputError(f"{source}: no {scene} and no {metrics.name}: not a result folder")
+    content = json.loads(metrics.read_text())
+    task_file = content.get("task", {}).get("file", "")
+    if not Path(task_file).is_file():
+        raise InputError(
+            f"{metrics}: task file '{task_file}' not found (the scene needs its robot)"
+        )
+    names = (pipeline.REFERENCE, *pipeline.METHODS)
+    results = {n: read_npz_result(f) for n in names if (f := source / f"{n}.npz").is_file()}
+    if not results:
+        raise InputError(f"{source}: no NPZ trajectories (outputs.npz was off?)")
+    failures = content.get("failures") or {}
+    run = pipeline.TaskRun(_load_task(task_file, backend), results=results, failures=failures)
+    return pipeline.write_run_scene(run, folder / scene)
 
 
 def _wait_for_stop(server, url: str) -> None:
@@ -617,7 +570,9 @@ def _flag(parser: argparse.ArgumentParser, *names: str, help: str, **kwargs) -> 
     parser.add_argument(*names, action="store_true", help=help, **kwargs)
 
 
-def _compute_options(parser, output: str, force: str, solver_option: str) -> None:
+def _compute_options(
+    parser, output: str, force: str = _FORCE_HELP, solver_option: str = _SOLVER_OPTION_HELP
+) -> None:
     """``--output``, ``--force``, ``--solver-option`` and ``--backend``, with a command's help."""
     parser.add_argument("-o", "--output", metavar="DIR", help=_OUTPUT_HELP.format(output))
     _flag(parser, "-f", "--force", help=force)
@@ -636,13 +591,8 @@ def _backend_option(parser: argparse.ArgumentParser) -> None:
 def _method_option(parser, help: str = "planning method (default: both)") -> None:
     """``-m``/``--method``: analytic, optimal or both (the default), or mission-only (the
     reference alone, which every run computes)."""
-    parser.add_argument(
-        "-m",
-        "--method",
-        choices=("analytic", "optimal", "both", "mission-only"),
-        default="both",
-        help=help,
-    )
+    methods = ("analytic", "optimal", "both", "mission-only")
+    parser.add_argument("-m", "--method", choices=methods, default="both", help=help)
 
 
 def _reference_options(parser, what: str) -> None:
@@ -650,18 +600,13 @@ def _reference_options(parser, what: str) -> None:
     _flag(parser, "--reference", help=f"print the {what}-file reference (Markdown) and exit")
 
 
-def _run_command(sub, name: str, help: str, run, output=f"{DEFAULT_OUTPUT_ROOT}/<task name>"):
-    """A command that computes: ``TASK`` (but the paper study) and :func:`_compute_options`."""
-    p = sub.add_parser(name, help=help)
-    if name != "paper-figures":
-        p.add_argument("task", help="task file (YAML)")
-    _compute_options(p, output, _FORCE_HELP, _SOLVER_OPTION_HELP)
-    p.set_defaults(run=run)
-    return p
-
-
 def _add_commands(sub) -> None:
-    p = sub.add_parser("validate", help="check task files (everything short of planning)")
+    def command(name: str, run, help: str, **kwargs) -> argparse.ArgumentParser:
+        parser = sub.add_parser(name, help=help, **kwargs)
+        parser.set_defaults(run=run)
+        return parser
+
+    p = command("validate", _cmd_validate, "check task files (everything short of planning)")
     p.add_argument("tasks", nargs="*", metavar="TASK", help="task files (YAML)")
     _reference_options(p, "task")
     _method_option(
@@ -669,29 +614,24 @@ def _add_commands(sub) -> None:
         "check what these methods need (default: both; analytic leaves out the optimal "
         "planner's checks)",
     )
-    p.set_defaults(run=_cmd_validate)
-
-    p = sub.add_parser("schema", help="print the JSON Schema of task files")
-    p.set_defaults(run=_cmd_validate, schema=True)
-
-    p = sub.add_parser("inspect", help="print a robot summary and its coupling measures")
+    command("schema", _cmd_validate, "print the JSON Schema of task files").set_defaults(
+        schema=True
+    )
+    p = command("inspect", _cmd_inspect, "print a robot summary and its coupling measures")
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
     _backend_option(p)
-    p.set_defaults(run=_cmd_inspect)
 
     for name, help in (
         ("plan", "plan the balance motion, write trajectories, metrics, figures, report"),
         ("simulate", "plan, then check each plan in a forward-dynamics simulation"),
         ("compare", "analytic and optimal plans, simulated, and the comparison report"),
     ):
-        p = _run_command(sub, name, help, _run_task_command)
+        p = command(name, _run_task_command, help)
+        p.add_argument("task", help="task file (YAML)")
+        _compute_options(p, f"{DEFAULT_OUTPUT_ROOT}/<task name>")
         if name == "compare":
-            p.add_argument(
-                "--no-simulate",
-                dest="simulate",
-                action="store_false",
-                help="skip the forward-dynamics simulation",
-            )
+            no_simulate = "skip the forward-dynamics simulation"
+            p.add_argument("--no-simulate", dest="simulate", action="store_false", help=no_simulate)
             p.set_defaults(method="both")
             continue
         _method_option(p)
@@ -699,13 +639,10 @@ def _add_commands(sub) -> None:
             _flag(p, "--simulate", help="also simulate each plan (as the simulate command)")
         else:
             p.set_defaults(simulate=True)
-    p = _run_command(
-        sub,
-        "paper-figures",
-        "the paper's study: Figs 2-5 on the Table 1 robot",
-        _cmd_paper_figures,
-        str(PAPER_FIGURES_FOLDER),
+    p = command(
+        "paper-figures", _cmd_paper_figures, "the paper's study: Figs 2-5 on the Table 1 robot"
     )
+    _compute_options(p, str(PAPER_FIGURES_FOLDER))
     p.add_argument(
         "--task",
         help="study this task instead (its robot, mission, balance start and options; both "
@@ -713,9 +650,10 @@ def _add_commands(sub) -> None:
         "law against the optimal plan on examples/capture_task.yaml's",
     )
 
-    p = sub.add_parser(
+    p = command(
         "sweep",
-        help="run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
+        _cmd_sweep,
+        "run a study: many tasks from a sweep file, on a process pool or a Dask cluster",
         description="Run every case of a sweep file (a base task and the parameters to vary); "
         "write one result per case as it finishes, the table results.csv, "
         "summary.json and plots. Exit code 0 when every case succeeded, 1 when some "
@@ -734,7 +672,6 @@ def _add_commands(sub) -> None:
         "-j",
         "--jobs",
         type=int,
-        default=None,
         metavar="N",
         help="worker processes (default: the number of CPUs; 0 runs the cases in this process)",
     )
@@ -751,12 +688,12 @@ def _add_commands(sub) -> None:
     _flag(p, "--no-plots", help="skip the summary plots")
     _reference_options(p, "sweep")
     # "module:function" of another case function (tests); default: the task runner
-    p.add_argument("--runner", default=None, help=argparse.SUPPRESS)
-    p.set_defaults(run=_cmd_sweep)
+    p.add_argument("--runner", help=argparse.SUPPRESS)
 
-    p = sub.add_parser(
+    p = command(
         "view",
-        help="show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
+        _cmd_view,
+        "show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
         description="Serve the 3D scene of a result folder (its scene.html, or one built from "
         "its NPZ files) or of a task file (planned first, both methods) on 127.0.0.1 and open "
         "it in a browser; Ctrl-C stops.",
@@ -765,18 +702,15 @@ def _add_commands(sub) -> None:
     _flag(p, "--no-browser", help="print the URL and serve, open no browser")
     p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
     _backend_option(p)
-    p.set_defaults(run=_cmd_view)
 
-    p = sub.add_parser(
-        "cache", help="show the cache of compiled kernels and the bridge, or clear it"
+    p = command(
+        "cache", _cmd_cache, "show the cache of compiled kernels and the bridge, or clear it"
     )
     _flag(p, "--clear", help="delete every cached entry")
     _flag(p, "--list", help="list every entry (default: a summary)")
-    p.set_defaults(run=_cmd_cache)
 
-    p = sub.add_parser("robots", help="robots usable as robot.example, with their joints by chain")
+    p = command("robots", _cmd_robots, "robots usable as robot.example, with their joints by chain")
     p.add_argument("name", nargs="?", help="one robot in detail")
-    p.set_defaults(run=_cmd_robots)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -784,12 +718,13 @@ def build_parser() -> argparse.ArgumentParser:
     works)."""
     parser = argparse.ArgumentParser(
         prog="balance-opt",
-        description=DESCRIPTION,
+        description="Balance-arm motion planning for free-floating multi-arm space robots: the "
+        "paper's analytic law and an optimal planner, compared.",
         epilog="exit codes: 0 success, 2 bad input, 1 solver failure, 130 interrupted, "
         "141 output pipe closed",
     )
     _verbosity(parser, False)
-    parser.add_argument("--version", action="version", version=VERSION)
+    parser.add_argument("--version", action="version", version=f"balance-opt {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_commands(sub)
     for p in sub.choices.values():
@@ -798,13 +733,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _verbosity(parser: argparse.ArgumentParser, default) -> None:
-    _flag(
-        parser,
-        "-v",
-        "--verbose",
-        default=default,
-        help="log debug messages, and show Ipopt's iteration log (stdout)",
-    )
+    help = "log debug messages, and show Ipopt's iteration log (stdout)"
+    _flag(parser, "-v", "--verbose", default=default, help=help)
     _flag(
         parser, "-q", "--quiet", default=default, help="print only warnings and errors: no progress"
     )
@@ -830,9 +760,8 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code or 0)
-    restore_logging = _configure_logging(args.verbose, args.quiet)
     try:
-        with handling_signals():
+        with _logging_to_stderr(args.verbose, args.quiet), handling_signals():
             code = args.run(args)
             sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
             return code
@@ -847,14 +776,10 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(f"failure: {exc}", EXIT_SOLVER)
     except KeyboardInterrupt:
         return _fail("interrupted", EXIT_INTERRUPTED)
-    finally:
-        progress.configure(False)
-        restore_logging()
 
 
 def _fail(message: str, code: int) -> int:
     """Print ``balance-opt: message`` on stderr (on a line of its own) and return ``code``."""
-    progress.clear()
     print(f"balance-opt: {message}", file=sys.stderr)
     return code
 

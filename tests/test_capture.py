@@ -20,8 +20,8 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
-from balance_opt.app.capture import plan_captured
-from balance_opt.app.pipeline import run_task, simulate_result
+from balance_opt.app.capture import plan_task
+from balance_opt.app.pipeline import run_task, simulate
 from balance_opt.errors import InputError
 from balance_opt.model.capture import Target, attach_target, capture_state
 from balance_opt.model.maps import NumericMaps
@@ -208,7 +208,7 @@ def _check_conserved(task, q, q_dot, quaternion, twist_before, twist_after):
 def test_capture_conserves_the_total_momentum_in_the_plan(example):
     """The analytic plan's state at the capture with the base twists it reports: robot plus
     target before equals the robot with the target after, to round-off."""
-    plan = plan_captured(example, "analytic")
+    plan = plan_task(example, "analytic")
     k = int(np.flatnonzero(plan.t <= example.target.time)[-1])
     robot = example.robot
     q, q_dot = np.empty(robot.n), np.empty(robot.n)
@@ -228,7 +228,7 @@ def test_capture_conserves_the_total_momentum_in_the_plan(example):
     assert np.max(plan.momentum_residual) < 1e-8
     # with the joint rates continuous (the balance arm held; the law's own rates jump at the
     # capture, and the base rate with them), the next sample's base rate is the jump's
-    held = plan_captured(example, "mission-only")
+    held = plan_task(example, "mission-only")
     after = held.info["capture"]["base_twist_after"][3:]
     np.testing.assert_allclose(held.omega[k + 1], after, rtol=0, atol=5e-4)  # 10 ms later
     assert np.max(np.abs(held.omega[k + 1] - held.omega[k])) > 5e-3
@@ -272,8 +272,8 @@ def test_simulation_conserves_the_momentum_through_the_capture(example):
     """Forward dynamics of the analytic plan: the impulse gives the robot with the target the
     momentum robot and target had (round-off), each phase keeps its own (integrator
     tolerance), and the simulated base rate jumps by the plan's jump."""
-    plan = plan_captured(example, "analytic")
-    sim = simulate_result(example, plan)
+    plan = plan_task(example, "analytic")
+    sim = simulate(example, plan)
     k = int(np.flatnonzero(sim.t <= example.target.time)[-1])
     info = sim.info["capture"]
     _check_conserved(
@@ -319,9 +319,9 @@ def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
     """On the example the analytic law stays within the limits; the optimal plan, through the
     same capture, keeps the base at least as still and within the limits too, its balance
     joints at rest at the capture (continuous rates)."""
-    law = plan_captured(example, "analytic")
+    law = plan_task(example, "analytic")
     assert not law.violations
-    plan = plan_captured(example, "optimal")
+    plan = plan_task(example, "optimal")
     assert plan.info["success"] and not plan.violations
     assert plan.max_drift <= law.max_drift + 1e-6
     # the reported solver work is both phases' (each: its stages and its refinement)

@@ -353,7 +353,7 @@ def test_default_output_folder_checked_before_any_computation(tmp_path, capsys, 
     task = _task_file(tmp_path)
     monkeypatch.chdir(tmp_path)
     (tmp_path / "results").write_text("a file where the results folder goes")
-    monkeypatch.setattr(pipeline, "_compute", lambda *a: pytest.fail("planning started"))
+    monkeypatch.setattr(pipeline, "_plan_into", lambda *a: pytest.fail("planning started"))
     assert main(["plan", str(task)]) == 2
     err = capsys.readouterr().err
     results = tmp_path / "results"

@@ -10,7 +10,6 @@ balance rates are continuous through the capture; end conditions apply to the se
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -39,67 +38,10 @@ class MissionWindow:
         return self.mission.sample(np.asarray(t, dtype=float) + self.t0)
 
 
-@dataclass
-class Phase:
-    """What one phase (``index`` 0 or 1) is planned from: its robot, mission window, balance
-    start and momentum (in the axes of its initial base attitude)."""
-
-    robot: FloatingRobot
-    mission: MissionWindow
-    q_B0: np.ndarray
-    h0: np.ndarray
-    index: int
-
-
-def _rotated(h: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """``R^T h`` of a momentum [linear; angular]."""
-    return np.r_[R.T @ h[:3], R.T @ h[3:]]
-
-
-def plan_with_capture(task, plan_phase) -> BalanceResult:
-    """Plan ``task`` in two phases with ``plan_phase(phase) -> BalanceResult`` (each phase in
-    its own start frame, see the module docstring) and join them.
-
-    Raises:
-        SolverError: a phase failed; its ``result`` joins what was planned.
-    """
-    t_c, T = task.target.time, task.duration
-    first = Phase(
-        task.robot,
-        MissionWindow(task.mission, 0.0, t_c),
-        np.asarray(task.q_B0, dtype=float),
-        np.asarray(task.h0, dtype=float),
-        0,
-    )
-    before = plan_phase(first)
-    q_c, qd_c, quat_c = _state_at_end(task.robot, before)
-    after_robot = task.robot_after_capture
-    state = capture_state(task.robot, after_robot, task.target, q_c, qd_c, quat_c, task.h0)
-    R_c = matrix_from_quaternion(quat_c)
-    second = Phase(
-        after_robot,
-        MissionWindow(task.mission, t_c, T),
-        before.q_B[-1].copy(),
-        _rotated(state.h_after, R_c),
-        1,
-    )
-    try:
-        after = plan_phase(second)
-    except SolverError as exc:
-        if exc.result is None:
-            raise
-        joined = join_phases(task, before, _in_world(exc.result, quat_c, t_c), state)
-        raise SolverError(str(exc), exc.status, joined) from exc
-    return join_phases(task, before, _in_world(after, quat_c, t_c), state)
-
-
-def _state_at_end(robot: FloatingRobot, result: BalanceResult):
-    """Arm positions, rates and the attitude at a result's last sample."""
-    q, q_dot = np.empty(robot.n), np.empty(robot.n)
-    M, B = robot.mission_indices, robot.balance_indices
-    q[M], q[B] = result.q_M[-1], result.q_B[-1]
-    q_dot[M], q_dot[B] = result.q_dot_M[-1], result.q_dot_B[-1]
-    return q, q_dot, result.quaternion[-1]
+def _state_at_end(r: BalanceResult):
+    """Arm positions, rates (arm vectors: the mission joints, then the balance joints) and the
+    attitude at a result's last sample."""
+    return np.r_[r.q_M[-1], r.q_B[-1]], np.r_[r.q_dot_M[-1], r.q_dot_B[-1]], r.quaternion[-1]
 
 
 def _in_world(result: BalanceResult, quat_c: np.ndarray, t_c: float) -> BalanceResult:
@@ -119,10 +61,9 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
         for name in SAMPLED_ARRAYS
     }
     robot = task.robot
-    q, q_dot, q_ddot = (np.empty((arrays["t"].size, robot.n)) for _ in range(3))
-    M, B = robot.mission_indices, robot.balance_indices
-    for full, suffix in ((q, ""), (q_dot, "_dot"), (q_ddot, "_ddot")):
-        full[:, M], full[:, B] = arrays[f"q{suffix}_M"], arrays[f"q{suffix}_B"]
+    q, q_dot, q_ddot = (
+        np.hstack([arrays[f"q{s}_M"], arrays[f"q{s}_B"]]) for s in ("", "_dot", "_ddot")
+    )
     info = dict(before.info)
     info["after_capture"] = {k: v for k, v in after.info.items() if k not in BULKY_INFO_KEYS}
     success = [r.info.get("success") for r in (before, after)]
@@ -130,7 +71,7 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
         info["success"] = all(s is not False for s in success)
         if before.info.get("success") and not after.info.get("success"):
             info["status"] = after.info.get("status")
-    # the solver's work of both phases (io.outputs.solver_metrics reports the totals)
+    # the solver's work of both phases (report.outputs.solver_metrics reports the totals)
     for key in ("iterations", "total_iterations", "total_solve_time_s"):
         if key in before.info and key in after.info:
             info[key] = before.info[key] + after.info[key]
@@ -146,23 +87,10 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
 
 
 def plan_part(
-    task,
-    method: str,
-    robot: FloatingRobot,
-    mission,
-    q_B0,
-    h0,
-    *,
-    law=None,
-    options=None,
-    guess=None,
-    models=None,
-    executor=None,
+    task, method: str, robot: FloatingRobot, mission, q_B0, h0, options, guess, models, executor
 ) -> BalanceResult:
-    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a whole task
-    or of one phase of a capture: its robot, mission, balance start ``q_B0`` and momentum ``h0``;
-    the analytic ``law`` (default: the task's), the optimal planner's ``options``, initial
-    ``guess``, ``models`` (:class:`~balance_opt.app.models.ModelCache`) and ``executor``."""
+    """The plan of ``method`` of a whole task or of one phase of a capture: its own robot,
+    mission, balance start and momentum ``h0`` (the law's feedback holds it)."""
     a = task.spec.analytic
     if method == "mission-only":
         from balance_opt.motion.replay import phase_one
@@ -171,7 +99,7 @@ def plan_part(
     if method == "analytic":
         from balance_opt.analytic.rollout import rollout
 
-        law = a.law if law is None else law
+        law = dataclasses.replace(a.law, h0=tuple(float(v) for v in h0))
         return rollout(robot, mission, q_B0, law, integration=a.integration)
     from balance_opt.app.models import ModelCache
     from balance_opt.optimal.solve import build_balance_nlp
@@ -183,43 +111,63 @@ def plan_part(
     return nlp.solve(guess, executor)
 
 
-def phase_intervals(intervals: int, t_c: float, duration: float) -> tuple[int, int]:
-    """The optimal planner's intervals before and after the capture, in proportion to the
-    phases' durations, at least 2 each."""
-    first = min(max(2, round(intervals * t_c / duration)), max(2, intervals - 2))
-    return first, max(2, intervals - first)
+def _phase_options(task, options, index: int):
+    """The optimal planner's options of phase ``index``: its share of the intervals (in
+    proportion to the phases' durations, at least 2 each), the end conditions of the module
+    docstring."""
+    n = options.intervals
+    first = min(max(2, round(n * task.target.time / task.duration)), max(2, n - 2))
+    if index == 1:
+        return dataclasses.replace(options, intervals=max(2, n - first), horizon=None)
+    return dataclasses.replace(
+        options,
+        intervals=first,
+        end=options.start,
+        rest_at_end=False,
+        horizon=None,
+        final_configuration=None,
+        terminal_attitude_bound=None,
+    )
 
 
-def _phase_options(task, p: Phase, solver_options):
-    """The optimal planner's options of a phase."""
-    options = task.planner_options(solver_options)
-    n_first, n_second = phase_intervals(options.intervals, task.target.time, task.duration)
-    if p.index == 0:  # end in the second phase's start condition: continuous joint rates
-        return dataclasses.replace(
-            options,
-            intervals=n_first,
-            end=options.start,
-            rest_at_end=False,
-            horizon=None,
-            final_configuration=None,  # the task's end is the second phase's
-            terminal_attitude_bound=None,
-        )
-    return dataclasses.replace(options, intervals=n_second, horizon=None)
-
-
-def plan_captured(
-    task, method: str, solver_options=None, models=None, executor=None
+def plan_task(
+    task, method: str, solver_options=None, models=None, executor=None, guess=None
 ) -> BalanceResult:
-    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task with
-    a capture: :func:`plan_with_capture` with that method in each phase (the law holding each
-    phase's momentum)."""
+    """The plan of ``method`` (``"mission-only"``, ``"analytic"``, ``"optimal"``) of a task; with
+    a capture, that method in each phase (each in its own start frame, see the module
+    docstring), joined. ``guess``: the optimal planner's initial guess (default: the task's
+    ``optimal.initial_guess``; a given one covers the whole mission: not for a capture).
 
-    def plan_phase(p: Phase) -> BalanceResult:
-        law = dataclasses.replace(task.spec.analytic.law, h0=tuple(float(v) for v in p.h0))
-        options = _phase_options(task, p, solver_options) if method == "optimal" else None
+    Raises:
+        SolverError: the method failed; with a capture its ``result`` joins what was planned.
+    """
+    options = task.planner_options(solver_options) if method == "optimal" else None
+    initial_guess = task.spec.optimal.initial_guess
+    if task.target is None:
         return plan_part(
-            task, method, p.robot, p.mission, p.q_B0, p.h0, law=law, options=options,
-            guess=task.spec.optimal.initial_guess, models=models, executor=executor,
+            task, method, task.robot, task.mission, task.q_B0, task.h0, options,
+            initial_guess if guess is None else guess, models, executor,
         )  # fmt: skip
 
-    return plan_with_capture(task, plan_phase)
+    def phase(index: int, robot, mission, q_B0, h0) -> BalanceResult:
+        phase_options = None if options is None else _phase_options(task, options, index)
+        return plan_part(
+            task, method, robot, mission, q_B0, h0, phase_options, initial_guess, models, executor
+        )
+
+    t_c, q_B0 = task.target.time, np.asarray(task.q_B0, dtype=float)
+    before = phase(0, task.robot, MissionWindow(task.mission, 0.0, t_c), q_B0, task.h0)
+    q_c, qd_c, quat_c = _state_at_end(before)
+    after_robot = task.robot_after_capture
+    state = capture_state(task.robot, after_robot, task.target, q_c, qd_c, quat_c, task.h0)
+    R_c, h = matrix_from_quaternion(quat_c), state.h_after
+    h_c = np.r_[R_c.T @ h[:3], R_c.T @ h[3:]]  # in the axes of the base attitude at t_c
+    window = MissionWindow(task.mission, t_c, task.duration)
+    try:
+        after = phase(1, after_robot, window, before.q_B[-1].copy(), h_c)
+    except SolverError as exc:
+        if exc.result is None:
+            raise
+        joined = join_phases(task, before, _in_world(exc.result, quat_c, t_c), state)
+        raise SolverError(str(exc), exc.status, joined) from exc
+    return join_phases(task, before, _in_world(after, quat_c, t_c), state)

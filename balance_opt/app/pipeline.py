@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from balance_opt.app.capture import plan_captured, plan_part
+from balance_opt.app.capture import plan_task
 from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
@@ -296,11 +296,9 @@ def write_run_scene(run: TaskRun, path: Path) -> Path:
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
-    """PNG figures of a run at one resolution (:data:`~balance_opt.report.style.SCREEN_DPI`, the
-    report's): the plans' attitude with the mission arm alone, the balance joints against their
-    limits and, when simulated, the simulated attitude and the torques on the base. PNG only:
-    the report embeds them, and ``paper-figures`` writes the PDFs for print. Returns
-    ``(caption, path)`` pairs, in the report's order."""
+    """The PNG figures of a run at the report's resolution (PNG only: the report embeds them,
+    and ``paper-figures`` writes the PDFs for print), as ``(caption, path)`` pairs in the
+    report's order."""
     figures = []
 
     def draw(key, function, *args, note="", **kwargs):
@@ -389,10 +387,7 @@ def plan_mission_only(task: Task | str | Path) -> BalanceResult:
     held at its start, integrated from momentum conservation: the reference of every plan
     (``method="mission-only"``).
     """
-    task = checked_task(task)
-    if task.target is not None:
-        return plan_captured(task, REFERENCE)
-    return plan_part(task, REFERENCE, task.robot, task.mission, task.q_B0, task.h0)
+    return plan_task(checked_task(task), REFERENCE)
 
 
 def plan_analytic(task: Task | str | Path) -> BalanceResult:
@@ -401,10 +396,7 @@ def plan_analytic(task: Task | str | Path) -> BalanceResult:
     Raises:
         SolverError: the rollout failed; ``result`` holds the motion up to the failure.
     """
-    task = checked_task(task)
-    if task.target is not None:
-        return plan_captured(task, "analytic")
-    return plan_part(task, "analytic", task.robot, task.mission, task.q_B0, task.h0)
+    return plan_task(checked_task(task), "analytic")
 
 
 def plan_optimal(
@@ -431,16 +423,11 @@ def plan_optimal(
     task = checked_task(task)
     if warm_start is not None:
         _checked_plan(warm_start)
-    if task.target is not None:
-        return plan_captured(task, "optimal", solver_options, models, executor)
     check_methods(task, ("optimal",))
-    guess = task.spec.optimal.initial_guess
-    return plan_part(
-        task, "optimal", task.robot, task.mission, task.q_B0, task.h0,
-        options=task.planner_options(solver_options),
-        guess=warm_start if (warm_start is not None and guess == "analytic") else guess,
-        models=models, executor=executor,
-    )  # fmt: skip
+    warm = warm_start is not None and task.spec.optimal.initial_guess == "analytic"
+    return plan_task(
+        task, "optimal", solver_options, models, executor, warm_start if warm else None
+    )
 
 
 def plan(
@@ -483,10 +470,6 @@ def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
             task.robot, task.robot_after_capture, task.target, plan, task.spec.simulation
         )
     return simulate_plan(task.robot, plan, task.spec.simulation)
-
-
-#: The name :func:`simulate` had first (the sweep's runner uses it).
-simulate_result = simulate
 
 
 def run_task(
@@ -532,59 +515,41 @@ def run_task(
     task = checked_task(task)
     methods = _checked_methods(task, methods)
     given = _checked_plans(task, methods, plans or {})
-    given_sims = dict(simulations or {})
+    given_sims = simulations or {}
     if robustness is None:
         robustness = task.spec.robustness.runs_in("plan")
-    args = (task, methods, simulate, solver_options, models, given, given_sims, executor, robustness)
-    if output_dir is None:
-        with handling_signals():
-            return _compute(*args)
-    folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
-    with handling_signals(), folder:
-        run = _compute(*args)
-        write_run(run, folder.staging)
-        run.files = [folder.final(path) for path in run.files]
-        run.report = None if run.report is None else folder.final(run.report)
-    return run
-
-
-def _compute(
-    task: Task,
-    methods,
-    simulate: bool,
-    solver_options,
-    models,
-    given: dict,
-    given_sims: dict,
-    executor: Any | None = None,
-    robustness: bool = False,
-) -> TaskRun:
-    """The plans (the reference first), with ``robustness`` their drift under model error, and
-    with ``simulate`` their simulations, in this process and in this order; the ones given are
-    taken as they are."""
-    run = TaskRun(task)
-    models = models if models is not None else ModelCache()
-    for method in (REFERENCE, *methods):
-        if method in given:
-            log.info("%s: %s plan given, not planned again", task.name, method)
-            run.results[method] = given[method]
-            if given[method].info.get("success", True) is False:
-                run.failures[method] = f"given plan: solver status {given[method].status}"
-        else:
-            _plan_into(run, method, solver_options, models, executor)
-    if robustness:
-        _model_error_into(run)
-    _clearance_into(
-        run, {n: (r.t, np.hstack([r.q_M, r.q_B])) for n, r in run.results.items()}, run.clearance
-    )
-    if simulate:
-        for name in list(run.results):
-            if name in given_sims:
-                run.simulations[name] = given_sims[name]
+    folder = output_dir
+    if output_dir is not None and not isinstance(output_dir, OutputFolder):
+        folder = OutputFolder(output_dir, force)
+    with handling_signals(), contextlib.nullcontext() if folder is None else folder:
+        # the plans (the reference first), their drift under model error and their
+        # simulations, in this process and in this order; the ones given are taken as they are
+        run = TaskRun(task)
+        models = models if models is not None else ModelCache()
+        for method in (REFERENCE, *methods):
+            if method in given:
+                log.info("%s: %s plan given, not planned again", task.name, method)
+                run.results[method] = given[method]
+                if given[method].info.get("success", True) is False:
+                    run.failures[method] = f"given plan: solver status {given[method].status}"
             else:
-                _simulate_into(run, name)
-        sims = {name: (sim.t, sim.q) for name, sim in run.simulations.items()}
-        _clearance_into(run, sims, run.simulated_clearance)
+                _plan_into(run, method, solver_options, models, executor)
+        if robustness:
+            _model_error_into(run)
+        motions = {n: (r.t, np.hstack([r.q_M, r.q_B])) for n, r in run.results.items()}
+        _clearance_into(run, motions, run.clearance)
+        if simulate:
+            for name in list(run.results):
+                if name in given_sims:
+                    run.simulations[name] = given_sims[name]
+                else:
+                    _simulate_into(run, name)
+            sims = {name: (sim.t, sim.q) for name, sim in run.simulations.items()}
+            _clearance_into(run, sims, run.simulated_clearance)
+        if folder is not None:
+            write_run(run, folder.staging)
+            run.files = [folder.final(path) for path in run.files]
+            run.report = None if run.report is None else folder.final(run.report)
     return run
 
 
@@ -593,12 +558,10 @@ CLEARANCE_CURVE_SAMPLES = 300
 
 
 def _clearance_into(run: TaskRun, motions: Mapping[str, tuple], into: dict) -> None:
-    """The clearance of each motion ``(t, arm vectors)`` (a plan's, a simulation's) on the continuous
-    motion (:func:`~balance_opt.geometry.clearance.clearance`) and its smallest distance over
-    time for the figure, into ``into`` as ``{name: (report, t, distance)}``. From a capture on,
-    the target is a body too (its pairs checked on the motion after it). A robot without
-    geometry has none (a log line says so). A geometry that does not load (a missing mesh)
-    leaves the check out with a warning."""
+    """The clearance of each motion ``(t, arm vectors)`` (a plan's, a simulation's) on the
+    continuous motion (:func:`~balance_opt.geometry.clearance.clearance`) and its smallest
+    distance over time for the figure, into ``into`` as ``{name: (report, t, distance)}``. From a
+    capture on, the target is a body too (its pairs checked on the motion after it)."""
     from balance_opt.geometry.clearance import clearance
 
     if run_geometry(run) is False:
@@ -638,12 +601,9 @@ def _model_error_into(run: TaskRun) -> None:
         log.info("%s: drift under model error not computed across a capture", task.name)
         return
     options = task.spec.robustness
-    log.info(
-        "%s: drift under %.0f %% model error (%d models) ...",
-        task.name, 100 * options.perturbation, options.samples,
-    )
-    run.robustness = drift_under_model_error(task.robot, run.results, options, task.h0)
-    log.info("%s: drift under model error: done in %.2f s", task.name, run.robustness.wall_time_s)
+    what = f"drift under {100 * options.perturbation:.0f} % model error ({options.samples} models)"
+    with _timed(f"{task.name}: {what}"):
+        run.robustness = drift_under_model_error(task.robot, run.results, options, task.h0)
 
 
 def _checked_plans(
@@ -731,7 +691,7 @@ def _simulate_into(run: TaskRun, name: str) -> None:
 
     task = run.task
     with _timed(f"{task.name}: forward-dynamics simulation of {name}"):
-        sim = simulate_result(task, run.results[name])
+        sim = simulate(task, run.results[name])
     diverged = divergence(sim)
     if diverged:
         message = (

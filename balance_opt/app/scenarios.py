@@ -14,23 +14,11 @@ from balance_opt.model.library import paper_robot, paper_robot_fig5
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.trajectories import PointToPoint
 
-#: Mission arm start and capture configurations [rad], and the move's duration [s].
+#: Mission arm start and capture configurations [rad].
 CAPTURE_MISSION_START = (0.0, 0.3, -0.6)
 CAPTURE_MISSION_GOAL = (1.2, 0.9, -1.6)
-CAPTURE_DURATION = 10.0
-#: Balance arm start [rad]: elbow bent, but with both arms in the base's x-z plane (joint 1 at
-#: 0) ``J_wB`` is exactly singular there (singular values 0.090, 0.059, 3e-19): the pitch joints
-#: turn the base only about y, and the yaw joint only about one direction of the x-z plane, so
-#: no balance rate cancels a base rate along (-0.73, 0, 0.69) and Eq. 31 has no solution.
-CAPTURE_BALANCE_START = (0.0, 0.5, -1.0)
 #: Balance joint acceleration limit [rad/s^2] (URDF carries none).
 CAPTURE_BALANCE_ACCELERATION = 2.0
-
-#: The Fig. 5 study's mission and balance start [rad, s] (``docs/paper_fig5_study.md``).
-FIG5_MISSION_START = (0.0, 0.3, -0.6)
-FIG5_MISSION_GOAL = (0.8, 0.7, -1.2)
-FIG5_DURATION = 10.0
-FIG5_BALANCE_START = (-0.36, 0.46, -0.41)
 
 
 @dataclass(frozen=True)
@@ -57,11 +45,14 @@ def _balance_acceleration_limits() -> dict:
 
 def capture_task() -> Scenario:
     """The hard case: the shipped reading of Table 1, a 10 s point-to-point capture move of the
-    mission arm, the balance arm starting bent at an exactly singular ``J_wB``, balance joint
-    accelerations limited to 2 rad/s^2."""
+    mission arm, balance joint accelerations limited to 2 rad/s^2, and the balance arm starting
+    bent where ``J_wB`` is exactly singular (singular values 0.090, 0.059, 3e-19): with both
+    arms in the base's x-z plane the pitch joints turn the base only about y and the yaw joint
+    only about one direction of that plane, so no balance rate cancels a base rate along
+    (-0.73, 0, 0.69) and Eq. 31 has no solution."""
     robot = paper_robot(limits=_balance_acceleration_limits())
-    mission = PointToPoint(CAPTURE_MISSION_START, CAPTURE_MISSION_GOAL, CAPTURE_DURATION)
-    return Scenario(robot, mission, np.array(CAPTURE_BALANCE_START), "capture_task")
+    mission = PointToPoint(CAPTURE_MISSION_START, CAPTURE_MISSION_GOAL, 10.0)
+    return Scenario(robot, mission, np.array([0.0, 0.5, -1.0]), "capture_task")
 
 
 def paper_fig5() -> Scenario:
@@ -69,6 +60,6 @@ def paper_fig5() -> Scenario:
     :data:`~balance_opt.model.table1.FIG5_READING`, its balance start and mission, balance joint
     accelerations limited to 2 rad/s^2, and the exact law (no damping)."""
     robot = paper_robot_fig5(limits=_balance_acceleration_limits())
-    mission = PointToPoint(FIG5_MISSION_START, FIG5_MISSION_GOAL, FIG5_DURATION)
+    mission = PointToPoint((0.0, 0.3, -0.6), (0.8, 0.7, -1.2), 10.0)
     law = BalanceLawOptions(damping_threshold=0.0)
-    return Scenario(robot, mission, np.array(FIG5_BALANCE_START), "paper_fig5", law)
+    return Scenario(robot, mission, np.array([-0.36, 0.46, -0.41]), "paper_fig5", law)

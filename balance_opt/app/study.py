@@ -20,7 +20,7 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
-from balance_opt.app.pipeline import _timed
+from balance_opt.app.pipeline import METHODS, _timed
 from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
@@ -31,14 +31,13 @@ from balance_opt.motion.replay import phase_one
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
 from balance_opt.report.output_dir import OutputFolder
-from balance_opt.report.outputs import peak_reaction_torques
+from balance_opt.report.outputs import peak_reaction_torques, to_json
 from balance_opt.report.plots import FORMATS, paper_figure_set
 from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
 from balance_opt.tasks.task import Task
 
 log = logging.getLogger(__name__)
 
-METHODS = ("analytic", "optimal")
 #: Output spacing of the plans and of the simulations [s].
 STUDY_OUTPUT_STEP = 0.01
 FIGURE_STEMS = {
@@ -98,15 +97,6 @@ def _plan(
         return exc.result, str(exc.status)
 
 
-def _plain(value):
-    """JSON form of the numpy values a result's ``info`` may hold."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return str(value)
-
-
 def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
     return {
         "max_drift_rad": float(sim.angle.max()),
@@ -116,40 +106,6 @@ def _simulation_summary(sim: SimulationResult) -> dict[str, Any]:
         "max_relative_momentum_residual": float(sim.momentum_residual.max()),
         "peak_torque_on_base_Nm": peak_reaction_torques(sim),
         "wall_time_s": sim.info["wall_time_s"],
-    }
-
-
-def _summary(
-    scenario: Scenario, sim_opts, mission_only, plans, status, balance_only, balanced
-) -> dict[str, Any]:
-    """The figures of merit of ``study.json`` (without the list of figures)."""
-    mission = scenario.mission
-    return {
-        "scenario": {
-            "name": scenario.name,
-            "robot": scenario.robot.name,
-            "mission_start_rad": list(map(float, mission.start)),
-            "mission_goal_rad": list(map(float, mission.end)),
-            "duration_s": mission.duration,
-            "balance_start_rad": scenario.q_B0.tolist(),
-        },
-        "simulation": {
-            "integrator": sim_opts.integrator,
-            "dt_s": sim_opts.dt,
-            "controller": sim_opts.controller,
-        },
-        "mission_only": _simulation_summary(mission_only),
-        "plans": {
-            m: {
-                "status": status[m],
-                "plan": plans[m].summary(),
-                "limit_violations": [str(v) for v in plans[m].violations],
-                "details": {k: v for k, v in plans[m].info.items() if k not in BULKY_INFO_KEYS},
-                "balance_only": _simulation_summary(balance_only[m]),
-                "balanced": _simulation_summary(balanced[m]),
-            }
-            for m in plans
-        },
     }
 
 
@@ -190,31 +146,55 @@ def scenario_study(
         mission_only = simulate(robot, mission, scenario.q_B0, sim_opts)
     kinematic = phase_one(robot, mission, scenario.q_B0, t_eval=mission_only.t)
 
-    plans, status, balance_only, balanced = {}, {}, {}, {}
+    plans, balance_only, balanced, merits = {}, {}, {}, {}
     for method in methods:
-        plans[method], status[method] = _plan(method, scenario, law, planner, backend)
+        plan, status = _plan(method, scenario, law, planner, backend)
         # Fig. 3: the plan's balance motion with the mission arm held at its start
         name = f"{scenario.name}: forward-dynamics simulation of the {method} plan"
         with _timed(f"{name}'s balance arm alone (Fig. 3)"):
-            balance_only[method] = simulate(robot, mission.start, plans[method], sim_opts)
+            balance_only[method] = simulate(robot, mission.start, plan, sim_opts)
         with _timed(f"{name} (Figs. 4, 5)"):
-            balanced[method] = simulate_plan(robot, plans[method], sim_opts)
+            balanced[method] = simulate_plan(robot, plan, sim_opts)
+        plans[method] = plan
+        merits[method] = {
+            "status": status,
+            "plan": plan.summary(),
+            "limit_violations": [str(v) for v in plan.violations],
+            "details": {k: v for k, v in plan.info.items() if k not in BULKY_INFO_KEYS},
+            "balance_only": _simulation_summary(balance_only[method]),
+            "balanced": _simulation_summary(balanced[method]),
+        }
+        log.info(
+            "%s on %s: final drift %.3g rad planned, %.3g rad simulated; %d limit violations",
+            method,
+            scenario.name,
+            plan.final_drift,
+            balanced[method].angle[-1],
+            len(plan.violations),
+        )
 
     figures, objects = paper_figure_set(
         output_dir, FIGURE_STEMS, formats, mission_only, kinematic, balance_only, balanced
     )
-    summary = _summary(scenario, sim_opts, mission_only, plans, status, balance_only, balanced)
-    summary["figures"] = {k: [p.name for p in v] for k, v in figures.items()}
-    (output_dir / "study.json").write_text(json.dumps(summary, indent=2, default=_plain))
-    for m in methods:
-        log.info(
-            "%s on %s: final drift %.3g rad planned, %.3g rad simulated; %d limit violations",
-            m,
-            scenario.name,
-            plans[m].final_drift,
-            balanced[m].angle[-1],
-            len(plans[m].violations),
-        )
+    summary = {
+        "scenario": {
+            "name": scenario.name,
+            "robot": robot.name,
+            "mission_start_rad": list(map(float, mission.start)),
+            "mission_goal_rad": list(map(float, mission.end)),
+            "duration_s": mission.duration,
+            "balance_start_rad": scenario.q_B0.tolist(),
+        },
+        "simulation": {
+            "integrator": sim_opts.integrator,
+            "dt_s": sim_opts.dt,
+            "controller": sim_opts.controller,
+        },
+        "mission_only": _simulation_summary(mission_only),
+        "plans": merits,
+        "figures": {k: [p.name for p in v] for k, v in figures.items()},
+    }
+    (output_dir / "study.json").write_text(json.dumps(to_json(summary), indent=2))
     return StudyResult(
         output_dir,
         plans,
@@ -258,11 +238,7 @@ def paper_study(
     *,
     scenario: Scenario | None = None,
     methods: Sequence[str] | None = None,
-    simulation: SimulationOptions | None = None,
-    law: BalanceLawOptions | None = None,
-    planner: PlannerOptions | None = None,
-    formats: Sequence[str] = FORMATS,
-    backend: str = "auto",
+    **options,
 ) -> PaperStudy:
     """The paper's Figs. 2-5: by default each part of :data:`PAPER_PARTS` in its own subfolder
     of ``output_dir``; with ``scenario``, that scenario alone, in a subfolder of its name.
@@ -272,70 +248,53 @@ def paper_study(
             part's summary.
         scenario: a scenario to study instead of the paper's parts.
         methods: plans to overlay (default: each part's; ``scenario``: both).
-        simulation, law, planner, formats, backend: as in :func:`scenario_study`, for every
-            part (default: each scenario's own law).
+        options: ``simulation``, ``law``, ``planner``, ``formats``, ``backend`` of
+            :func:`scenario_study`, for every part (default: each scenario's own law).
 
     Raises:
         InputError: an unknown method.
     """
     output_dir = Path(output_dir)
-    if scenario is not None:
-        parts = [(scenario.name, lambda: scenario, METHODS)]
-    else:
-        parts = list(PAPER_PARTS)
-    results = {}
-    for name, make, default_methods in parts:
-        results[name] = scenario_study(
-            make(),
-            output_dir / name,
-            methods=methods or default_methods,
-            simulation=simulation,
-            law=law,
-            planner=planner,
-            formats=formats,
-            backend=backend,
+    parts = PAPER_PARTS if scenario is None else [(scenario.name, lambda: scenario, METHODS)]
+    results = {
+        name: scenario_study(
+            make(), output_dir / name, methods=methods or default_methods, **options
         )
+        for name, make, default_methods in parts
+    }
     summary = {name: r.summary for name, r in results.items()}
-    (output_dir / "study.json").write_text(json.dumps(summary, indent=2, default=_plain))
+    (output_dir / "study.json").write_text(json.dumps(to_json(summary), indent=2))
     figures = {f"{name}/{k}": v for name, r in results.items() for k, v in r.figures.items()}
     return PaperStudy(output_dir, results, figures, summary)
 
 
 def paper_figures(
-    output_dir: str | Path | OutputFolder,
+    folder: OutputFolder,
     task: Task | None = None,
     solver_options: Mapping[str, Any] | None = None,
-    force: bool = False,
     backend: str | None = None,
 ) -> list[Path]:
-    """The paper's study (Figs. 2-5, :func:`balance_opt.app.study.paper_study`) written to
-    ``output_dir``, all-or-nothing as :func:`run_task` writes: by default Figs. 2-5 of the
-    paper's law on ``paper_fig5`` and the law against the optimal plan on ``capture_task``,
-    each in a subfolder; with ``task``, Figs. 2-5 of that task (its robot, mission, balance
-    start and options), both methods, in a subfolder of its name. ``backend`` (the optimal
-    planner's symbolic backend) defaults to the task's ``robot.backend``, else ``"auto"``.
+    """``balance-opt paper-figures``: the paper's study (:func:`paper_study`) written to
+    ``folder`` all-or-nothing, as :func:`~balance_opt.app.pipeline.run_task` writes; with
+    ``task``, Figs. 2-5 of that task (its robot, mission, balance start and options), both
+    methods, in a subfolder of its name. ``backend`` defaults to the task's ``robot.backend``.
 
     Raises:
-        InputError: the output folder cannot be used (see :func:`run_task`), checked first.
         KeyboardInterrupt: Ctrl-C or SIGTERM; nothing is written.
     """
-    folder = output_dir if isinstance(output_dir, OutputFolder) else OutputFolder(output_dir, force)
-    kwargs = {}
+    options = {"backend": backend or (task.spec.robot.backend if task is not None else "auto")}
     if task is not None:
-        kwargs = {
-            "scenario": Scenario(
-                task.robot, task.mission, task.q_B0, task.name, task.spec.analytic.law
-            ),
-            "law": task.spec.analytic.law,
-            "planner": task.planner_options(solver_options),
-            "simulation": task.spec.simulation,
-        }
+        law = task.spec.analytic.law
+        options.update(
+            scenario=Scenario(task.robot, task.mission, task.q_B0, task.name, law),
+            law=law,
+            planner=task.planner_options(solver_options),
+            simulation=task.spec.simulation,
+        )
     elif solver_options:
-        kwargs = {"planner": PlannerOptions(ipopt=dict(solver_options))}
+        options["planner"] = PlannerOptions(ipopt=dict(solver_options))
     with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
-        if backend is None:
-            backend = task.spec.robot.backend if task is not None else "auto"
-        study = paper_study(folder.staging, backend=backend, **kwargs)
+        study = paper_study(folder.staging, **options)
         files = [p for paths in study.figures.values() for p in paths]
         jsons = [folder.staging / name / "study.json" for name in study.parts]
         return [folder.final(p) for p in (*files, *jsons, folder.staging / "study.json")]

@@ -41,7 +41,7 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     """The case function of task sweeps: ``{"status", "metrics", "error", "info", "timing"}``,
     status ``ok`` or ``solver_failed`` (with the metrics computed before the failure); other
     errors are raised, and recorded by the engine."""
-    from balance_opt.app.pipeline import plan, simulate_result
+    from balance_opt.app.pipeline import plan, simulate
     from balance_opt.errors import SolverError
     from balance_opt.report.outputs import method_metrics
     from balance_opt.sweep.engine import STATUS_OK, STATUS_SOLVER_FAILED, error_record
@@ -61,7 +61,7 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     planned = time.perf_counter()
     baseline = mission_only_baseline(task)
     replayed = time.perf_counter()
-    simulation = simulate_result(task, result) if case.get("simulate") else None
+    simulation = simulate(task, result) if case.get("simulate") else None
     metrics = method_metrics(result, task.robot, simulation, task.h0)
     done = time.perf_counter()
     timing = {

@@ -136,10 +136,6 @@ class Task:
             return planner
         return dataclasses.replace(planner, ipopt={**planner.ipopt, **extra_ipopt})
 
-    def error(self, path, reason: str, cls=TaskFileError) -> TaskFileError:
-        """An error located at key ``path`` of this task's file."""
-        return self.document.error(path, reason, cls)
-
     def __repr__(self) -> str:  # short for notebooks: the spec alone is pages long
         arms = "; ".join(f"{a.name} {a.dof} joints" for a in self.robot.arms)
         return (
@@ -198,18 +194,8 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
             ("optimal", "collision", "ignore"),
             f"{TARGET_LINK} is the captured target, and this task has no capture section",
         )
-    task = Task(
-        spec,
-        doc.source,
-        base_dir,
-        sha256,
-        robot,
-        mission,
-        q_B0,
-        np.array(spec.initial.momentum),
-        doc,
-        target,
-    )
+    h0 = np.array(spec.initial.momentum)
+    task = Task(spec, doc.source, base_dir, sha256, robot, mission, q_B0, h0, doc, target)
     log.debug("task %s: %r, mission %.3g s", doc.source, robot, mission.duration)
     return task
 
@@ -242,24 +228,6 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
     )
 
 
-def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
-    from balance_opt.model.catalog import example_urdf
-    from balance_opt.model.library import shipped_urdf
-
-    r = spec.robot
-    if r.urdf is not None:
-        path = base_dir / r.urdf
-        if not path.is_file():
-            raise doc.error(("robot", "urdf"), f"no such URDF file: {path}")
-        return path
-    try:
-        return shipped_urdf(r.shipped) if r.shipped is not None else example_urdf(r.example)
-    except InputError as exc:
-        raise doc.error(
-            ("robot", "shipped" if r.shipped is not None else "example"), str(exc)
-        ) from None
-
-
 def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
     """Key path where ``joint`` is named in the (validated) task: under ``limits`` or
     ``arms.locked`` first when the ``reason`` is about a limit or a lock, else in the arms."""
@@ -282,7 +250,20 @@ def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
 
 
 def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingRobot:
-    urdf = _urdf_path(spec, doc, base_dir)
+    from balance_opt.model.catalog import example_urdf
+    from balance_opt.model.library import shipped_urdf
+
+    r = spec.robot
+    key = next(k for k in ("urdf", "shipped", "example") if getattr(r, k) is not None)
+    if key == "urdf":
+        urdf = base_dir / r.urdf
+        if not urdf.is_file():
+            raise doc.error(("robot", "urdf"), f"no such URDF file: {urdf}")
+    else:
+        try:
+            urdf = shipped_urdf(r.shipped) if key == "shipped" else example_urdf(r.example)
+        except InputError as exc:
+            raise doc.error(("robot", key), str(exc)) from None
     limits = {
         j: {k: getattr(lim, k) for k in LIMIT_KEYS if getattr(lim, k) is not None}
         for j, lim in spec.limits.items()
@@ -294,7 +275,6 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
             urdf, list(a.mission), balance, locked=a.locked, limits=limits, ee_frames=a.ee_frames
         )
     except URDFLoadError as exc:
-        key = next(k for k in ("urdf", "shipped", "example") if getattr(spec.robot, k) is not None)
         raise doc.error(("robot", key), str(exc)) from None
     except LimitOverrideError as exc:
         raise doc.error(("limits", exc.joint, exc.key), str(exc)) from None
@@ -308,13 +288,7 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
 
 
 def _via_points(m: ViaMission, doc: YamlDocument) -> ViaPoints:
-    if len(m.times) != len(m.points):
-        raise doc.error(
-            ("mission", "times"),
-            f"expected one time per point: {len(m.points)} points, {len(m.times)} times",
-        )
-    if m.times[0] != 0.0:
-        raise doc.error(("mission", "times", 0), f"the first time must be 0 s, got {m.times[0]:g}")
+    # located at the time that does not increase; ViaPoints checks the counts and the start
     for i in range(1, len(m.times)):
         if not m.times[i] > m.times[i - 1]:
             raise doc.error(
@@ -329,7 +303,7 @@ def _build_mission(
 ) -> JointTrajectory:
     """The mission trajectory (a Cartesian goal solved by inverse kinematics)."""
     m = spec.mission
-    key = {CsvMission: "file", CartesianMission: "position"}.get(type(m))
+    key = {CsvMission: "file", CartesianMission: "position", ViaMission: "times"}.get(type(m))
     try:
         if isinstance(m, PtpMission):
             return PointToPoint(np.array(m.start), np.array(m.goal), m.duration)
@@ -366,7 +340,7 @@ def check_methods(task: Task, methods) -> None:
         return
     joint = prismatic[0]
     if task.spec.optimal.planner.torque_limits:
-        raise task.error(
+        raise task.document.error(
             ("optimal", "constraints", "torque_limits"),
             f"torque limits are computed with adam-robotics, which cannot handle the prismatic "
             f"joint '{joint}'; turn them off, lock the joint, or plan with --method analytic",
@@ -384,7 +358,7 @@ def check_methods(task: Task, methods) -> None:
         why = "robot.backend"
     else:
         return
-    raise task.error(
+    raise task.document.error(
         _joint_path(task.document, joint),
         f"joint '{joint}' is prismatic, which the adam backend ({why}) cannot handle; lock "
         "it, use the pinocchio backend, or plan with --method analytic",
