@@ -97,7 +97,7 @@ ATTITUDE_COLUMNS = tuple(
 )
 #: ``BalanceResult.info`` entries left out of ``metrics.json`` and of summaries (kept in the
 #: NPZ): large arrays.
-BULKY_INFO_KEYS = ("nlp_solution", "history")
+BULKY_INFO_KEYS = ("history",)
 #: Rows of :meth:`BalanceResult.__repr__` at most (a notebook cell's worth).
 REPR_LINES = 12
 

@@ -479,7 +479,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
         PlannerOptions(**INTEGRAL, intervals=20, torque_limits=True),
     )
     plan = nlp.solve("rest")
-    sol = nlp.unpack(plan.info["nlp_solution"])
+    sol = plan.solver.solution
     tau = torque_model.balance_torque_fun().map(nlp.point_times.size)
     Z, V = np.hstack([sol.X, sol.Xm]), np.hstack([sol.U, sol.Um])
     torques = np.array(tau(Z, V, nlp.mission_samples))
@@ -495,7 +495,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     free = build_balance_nlp(
         torque_model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=20)
     ).solve("rest")
-    sol = nlp.unpack(free.info["nlp_solution"])
+    sol = free.solver.solution
     assert (
         np.abs(
             np.array(
@@ -512,7 +512,10 @@ def test_same_task_same_plan(model, capture, capture_plan):
     ).solve()
     for field in ("q_B", "q_dot_B", "q_ddot_B", "quaternion", "omega"):
         np.testing.assert_array_equal(getattr(again, field), getattr(capture_plan, field))
-    assert again.info["nlp_solution"] == capture_plan.info["nlp_solution"]
+    for name in ("X", "Xm", "U", "Um"):
+        np.testing.assert_array_equal(
+            getattr(again.solver.solution, name), getattr(capture_plan.solver.solution, name)
+        )
 
 
 def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_plane):

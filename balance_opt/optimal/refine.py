@@ -292,7 +292,6 @@ def plan_peak(nlp, guess) -> BalanceResult:
         result = final.solve_once(guess, before)
         w = nlp.initial_guess(result.solver.solution)  # with S: the peak problem's solution
         result.solver = replace(result.solver, solution=nlp.unpack(w))
-        result.info["nlp_solution"] = w.tolist()
         stages += (result.solver.solves[-1].as_stage("smooth, re-simulated"),)
     else:
         drifts = {"max_drift_rad": result.max_drift, "final_drift_rad": result.final_drift}

@@ -228,7 +228,6 @@ class BalanceNLP(BalanceProblem):
         t3 = time.perf_counter()
         result.solver = (PlanReport(()) if before is None else before).then(report)
         result.info.update(self._report(report, worst, (t0, t1, t2, t3)))
-        result.info["nlp_solution"] = w.tolist()
         if not report.success:
             name, t, amount, unit, where = worst
             raise PlannerSolverError(
