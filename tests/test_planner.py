@@ -564,7 +564,7 @@ def test_structure_key_and_parameter_layout(model, capture):
     assert StructureKey.of(nlp.limits, options) == key
     assert StructureKey.of(nlp.limits, dataclasses.replace(options, control="jerk")) != key
     p = cs.SX.sym("p", nlp.structure.parameters.size)
-    fields = nlp.structure.parameters.unpack_symbolic(p)
+    fields = nlp.structure.parameters.unpack(p, NLPParameters)
     unpack = cs.Function("unpack", [p], list(fields))
     values = dict(zip(NLPParameters._fields, (np.array(v) for v in unpack(nlp.parameters))))
     assert values["h"] == nlp.h and values["terminal_weight"] == options.weights.terminal

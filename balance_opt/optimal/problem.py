@@ -110,21 +110,42 @@ class Block:
 
 
 class BlockStack:
-    """Blocks stacked one after the other into a vector."""
+    """Blocks stacked one after the other into a vector: the decision variables, the parameters
+    or the rows of ``g``. A block of variables or parameters is a field of what the vector
+    unpacks to (:class:`Solution`, :class:`NLPParameters`)."""
 
-    def __init__(self):
+    def __init__(self, *blocks: Block):
         self.blocks: list[Block] = []
+        self.by_name: dict[str, Block] = {}
         self.size = 0
+        for block in blocks:
+            self.add(block)
 
     def add(self, block: Block) -> Block:
         block = dataclasses.replace(block, offset=self.size)
         self.blocks.append(block)
+        self.by_name[block.name] = block
         self.size += block.size
         return block
 
     def block_at(self, index: int) -> Block:
         offsets = [b.offset for b in self.blocks]
         return self.blocks[int(np.searchsorted(offsets, index, side="right")) - 1]
+
+    def unpack(self, w, into=None):
+        """The blocks of ``w`` (NumPy, or a CasADi symbol), each a (rows, columns) matrix, as
+        the fields of ``into`` (default :class:`Solution`)."""
+        into = into or Solution
+        if isinstance(w, (cs.SX, cs.MX)):
+            return into(**{n: cs.reshape(w[b.slice], *b.shape) for n, b in self.by_name.items()})
+        w = np.asarray(w, dtype=float).ravel()
+        return into(**{n: w[b.slice].reshape(b.shape, order="F") for n, b in self.by_name.items()})
+
+    def pack(self, fields) -> np.ndarray:
+        w = np.empty(self.size)
+        for name, b in self.by_name.items():
+            w[b.slice] = np.asarray(getattr(fields, name), dtype=float).ravel(order="F")
+        return w
 
 
 @dataclass
@@ -148,67 +169,25 @@ class Solution:
         return cs.horzcat(self.X, self.Xm), cs.horzcat(self.U, self.Um)
 
 
-class VariableLayout(BlockStack):
-    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S``."""
-
-    def __init__(
-        self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
+def variable_layout(
+    transcription: Transcription, N: int, state_labels, control_labels, peak=False
+) -> BlockStack:
+    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um`` (the midpoints' with the
+    transcription's midpoints) and ``S`` (with ``peak``)."""
+    nodes = np.arange(N + 1, dtype=float)
+    layout = BlockStack()
+    for name, labels, taus in (
+        ("X", state_labels, nodes),
+        ("Xm", state_labels, nodes[:-1] + 0.5),
+        ("U", control_labels, nodes),
+        ("Um", control_labels, nodes[:-1] + 0.5),
     ):
-        super().__init__()
-        nodes = np.arange(N + 1, dtype=float)
-        mids = nodes[:-1] + 0.5
-        self.has_midpoints = transcription.has_midpoints
-        self.by_name: dict[str, Block] = {}
-        for name, labels, taus in (
-            ("X", state_labels, nodes),
-            ("Xm", state_labels, mids),
-            ("U", control_labels, nodes),
-            ("Um", control_labels, mids),
-        ):
-            if name.endswith("m") and not self.has_midpoints:
-                continue
-            units = tuple(unit_of(r) for r in labels)
-            self.by_name[name] = self.add(Block(name, tuple(labels), units, taus))
-        if peak:
-            label = ("attitude peak^2 / PEAK_SCALE^2",)
-            self.by_name["S"] = self.add(Block("S", label, ("(relative)",), np.array([0.0])))
-
-    def unpack(self, w) -> Solution:
-        w = np.asarray(w, dtype=float).ravel()
-        return Solution(
-            **{n: w[b.slice].reshape(b.shape, order="F") for n, b in self.by_name.items()}
-        )
-
-    def unpack_symbolic(self, w) -> Solution:
-        return Solution(**{n: cs.reshape(w[b.slice], *b.shape) for n, b in self.by_name.items()})
-
-    def pack(self, sol: Solution) -> np.ndarray:
-        w = np.empty(self.size)
-        for name, b in self.by_name.items():
-            w[b.slice] = np.asarray(getattr(sol, name), dtype=float).ravel(order="F")
-        return w
-
-    def point_indices(self) -> np.ndarray:
-        """(n_z, n_points) indices into ``w`` of each point's ``z = [x; u]``, points in the order
-        nodes, then midpoints."""
-
-        def indices(name):
-            b = self.by_name[name]
-            return b.offset + np.arange(b.size).reshape(b.shape, order="F")
-
-        X, U = indices("X"), indices("U")
-        if self.has_midpoints:
-            X, U = np.hstack([X, indices("Xm")]), np.hstack([U, indices("Um")])
-        return np.vstack([X, U])
-
-    def describe(self, index: int) -> tuple[str, float]:
-        """``(name, tau)`` of entry ``index``: ``"node balance_joint1 velocity"``,
-        ``"midpoint ..."``, ``"peak ..."``."""
-        block = self.block_at(index)
-        row, _, tau = block.locate(index)
-        if block.name == "S":
-            return f"peak {row}", tau
-        return f"{'midpoint' if block.name.endswith('m') else 'node'} {row}", tau
+        if transcription.has_midpoints or not name.endswith("m"):
+            layout.add(Block(name, tuple(labels), tuple(unit_of(r) for r in labels), taus))
+    if peak:
+        label = ("attitude peak^2 / PEAK_SCALE^2",)
+        layout.add(Block("S", label, ("(relative)",), np.array([0.0])))
+    return layout
 
 
 class NLPParameters(NamedTuple):
@@ -227,41 +206,17 @@ class NLPParameters(NamedTuple):
     mission: Any
 
 
-@dataclass(frozen=True)
-class ParameterLayout:
-    """The parameter vector ``p``: the fields of :class:`NLPParameters`, one after the other
-    (the mission samples column by column)."""
-
-    n_weights: int
-    n_B: int
-    n_m: int
-    n_points: int
-
-    @property
-    def slices(self) -> dict[str, slice]:
-        sizes = dict.fromkeys(NLPParameters._fields, 1)  # the scalars
-        sizes.update(
-            running_weights=self.n_weights, q_rest=self.n_B, mission=self.n_m * self.n_points
+def parameter_layout(n_weights: int, n_B: int, n_m: int, n_points: int) -> BlockStack:
+    """The parameter vector ``p``: the fields of :class:`NLPParameters`, one after the other,
+    each a column (the scalars 1 x 1) but the mission samples, (n_m, n_points)."""
+    rows = dict.fromkeys(NLPParameters._fields, 1)
+    rows.update(running_weights=n_weights, q_rest=n_B, mission=n_m)
+    return BlockStack(
+        *(
+            Block(name, (name,) * n, ("",) * n, np.arange(n_points if name == "mission" else 1.0))
+            for name, n in rows.items()
         )
-        out, start = {}, 0
-        for name in NLPParameters._fields:
-            out[name] = slice(start, start + sizes[name])
-            start += sizes[name]
-        return out
-
-    @property
-    def size(self) -> int:
-        return self.slices["mission"].stop
-
-    def pack(self, values: NLPParameters) -> np.ndarray:
-        return np.concatenate([np.asarray(v, dtype=float).ravel(order="F") for v in values])
-
-    def unpack_symbolic(self, p) -> NLPParameters:
-        """The fields of a symbolic parameter vector (CasADi column vector): each a column
-        (the scalars 1 x 1), the mission samples an (n_m, n_points) matrix."""
-        fields = {name: p[sl] for name, sl in self.slices.items()}
-        fields["mission"] = cs.reshape(fields["mission"], self.n_m, self.n_points)
-        return NLPParameters(**fields)
+    )
 
 
 def check_problem(

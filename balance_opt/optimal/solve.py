@@ -322,10 +322,11 @@ class BalanceNLP(BalanceProblem):
             name, t, unit = self.constraint_name(i)
             return name, t, float(viol_g[i]), unit, self.describe_constraint(i)
         i = int(np.argmax(viol_x))
-        layout = self.structure.variables
-        name, tau = layout.describe(i)
-        t, unit = tau * self.h, layout.block_at(i).locate(i)[1]
-        return f"bound on {name}", t, float(viol_x[i]), unit, f"bound on {name} at t = {t:.3f} s"
+        block = self.structure.variables.block_at(i)
+        row, unit, tau = block.locate(i)
+        where = {"S": "peak", "Xm": "midpoint", "Um": "midpoint"}.get(block.name, "node")
+        name, t = f"bound on {where} {row}", tau * self.h
+        return name, t, float(viol_x[i]), unit, f"{name} at t = {t:.3f} s"
 
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
