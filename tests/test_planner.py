@@ -526,12 +526,20 @@ def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_pl
     assert not np.array_equal(other.parameters, nlp.parameters)
     N, n_x, n_u = 50, model.n_x("acceleration"), model.n_u
     assert nlp.structure.variables.size == (2 * N + 1) * (n_x + n_u)
-    assert [b.name for b in nlp.constraints[:2]] == [
+    assert [b.name for b in nlp.structure.rows.blocks[:2]] == [
         "collocation (Hermite midpoint)",
         "collocation (Simpson)",
     ]
-    assert nlp.constraint_name(0) == ("collocation (Hermite midpoint): attitude phi_x", 0.0, "rad")
-    assert nlp.describe_constraint(n_x * N + n_x + 5) == (
+    w, g = np.clip(np.zeros(nlp.lbx.size), nlp.lbx, nlp.ubx), np.zeros(nlp.lbg.size)
+    g[0] = 0.5  # the collocation rows are equalities
+    assert nlp.largest_violation(w, g)[:4] == (
+        "collocation (Hermite midpoint): attitude phi_x",
+        0.0,
+        0.5,
+        "rad",
+    )
+    g[n_x * N + n_x + 5] = 1.0
+    assert nlp.largest_violation(w, g)[4] == (
         "collocation (Simpson): balance_joint3 position on the interval 0.200-0.400 s"
     )
     # the initial state is fixed by the bounds, the limits are bounds of the other nodes

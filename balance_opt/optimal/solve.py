@@ -36,7 +36,6 @@ from balance_opt.optimal.options import (
 )
 from balance_opt.optimal.problem import (
     BalanceProblem,
-    Block,
     NLPParameters,
     PlannerSolverError,
     Solution,
@@ -53,6 +52,9 @@ from balance_opt.optimal.refine import (
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
+
+#: What a variable block's entries are named by in a failure message (else ``"node"``).
+POINT_NAMES = {"S": "peak", "Xm": "midpoint", "Um": "midpoint"}
 
 
 class BalanceNLP(BalanceProblem):
@@ -140,28 +142,6 @@ class BalanceNLP(BalanceProblem):
             )
         return self.variant(stage.name, stage.between_points, **changes)
 
-    @property
-    def variables(self) -> dict[str, Block]:
-        return self.structure.variables.by_name
-
-    @property
-    def constraints(self) -> list[Block]:
-        return self.structure.rows.blocks
-
-    def constraint_name(self, index: int) -> tuple[str, float, str]:
-        """``(name, time [s], unit)`` of constraint ``index`` (for an interval's constraint, the
-        interval's start)."""
-        block = self.structure.rows.block_at(index)
-        row, unit, tau = block.locate(index)
-        return f"{block.name}: {row}", tau * self.h, unit
-
-    def describe_constraint(self, index: int) -> str:
-        block = self.structure.rows.block_at(index)
-        name, t, _ = self.constraint_name(index)
-        if block.per_interval:
-            return f"{name} on the interval {t:.3f}-{t + self.h:.3f} s"
-        return f"{name} at t = {t:.3f} s"
-
     def unpack(self, w) -> Solution:
         return self.structure.variables.unpack(w)
 
@@ -177,7 +157,7 @@ class BalanceNLP(BalanceProblem):
                 sol = resampled(guess, self.N)
             else:
                 sol = guess_solution(self, guess, self.unpack(self.lbx).X[3:, 0])
-            if "S" in self.variables:  # the guess's own peak
+            if "S" in self.structure.variables.by_name:  # the guess's own peak
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
             return np.clip(self.pack(sol), self.lbx, self.ubx)
@@ -314,19 +294,29 @@ class BalanceNLP(BalanceProblem):
         }
 
     def largest_violation(self, w, g) -> tuple[str, float, float, str, str]:
-        """``(name, time [s], amount, unit, description)`` of the worst constraint or bound."""
+        """``(name, time [s], amount, unit, description)`` of the worst constraint or bound (of
+        an interval's constraint, the interval's start)."""
         viol_g = np.maximum(np.maximum(self.lbg - g, g - self.ubg), 0.0)
         viol_x = np.maximum(np.maximum(self.lbx - w, w - self.ubx), 0.0)
-        if viol_g.size and viol_g.max() >= (viol_x.max() if viol_x.size else 0.0):
-            i = int(np.argmax(viol_g))
-            name, t, unit = self.constraint_name(i)
-            return name, t, float(viol_g[i]), unit, self.describe_constraint(i)
-        i = int(np.argmax(viol_x))
-        block = self.structure.variables.block_at(i)
+        row_worst = viol_g.size and viol_g.max() >= (viol_x.max() if viol_x.size else 0.0)
+        viol, layout = (viol_g, "rows") if row_worst else (viol_x, "variables")
+        i = int(np.argmax(viol))
+        block = getattr(self.structure, layout).block_at(i)
         row, unit, tau = block.locate(i)
-        where = {"S": "peak", "Xm": "midpoint", "Um": "midpoint"}.get(block.name, "node")
-        name, t = f"bound on {where} {row}", tau * self.h
-        return name, t, float(viol_x[i]), unit, f"{name} at t = {t:.3f} s"
+        t = tau * self.h
+        if row_worst:
+            name = f"{block.name}: {row}"
+        else:
+            name = f"bound on {POINT_NAMES.get(block.name, 'node')} {row}"
+        if block.per_interval:
+            return (
+                name,
+                t,
+                float(viol[i]),
+                unit,
+                f"{name} on the interval {t:.3f}-{t + self.h:.3f} s",
+            )
+        return name, t, float(viol[i]), unit, f"{name} at t = {t:.3f} s"
 
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
