@@ -149,18 +149,7 @@ def _refinement(rounds: list, solves) -> dict:
 
 def solve_with_bounds(nlp, guess) -> BalanceResult:
     """Solve (with a path attitude bound through the free peak problem first), then
-    :func:`refine`; the plan's (or a failure's) :class:`PlanReport` written into its ``info``."""
-    try:
-        result = _solve_with_bounds(nlp, guess)
-    except SolverError as exc:
-        if getattr(exc.result, "solver", None) is not None:
-            exc.result.info.update(exc.result.solver.as_info())
-        raise
-    result.info.update(result.solver.as_info())
-    return result
-
-
-def _solve_with_bounds(nlp, guess) -> BalanceResult:
+    :func:`refine`."""
     bound = nlp.options.path_attitude_bound
     if bound is None:
         if nlp.options.objective == "peak":
@@ -414,18 +403,19 @@ def multi_start(nlp, guess, executor=None):
             first_error = first_error or error
             runs.append({**entry, "status": str(error.status)})
             continue
+        last = result.solver.solves[-1]
         runs.append(
             {
                 **entry,
-                "status": result.info["status"],
-                "objective": result.info["objective"],
+                "status": last.status,
+                "objective": last.objective,
                 "max_drift_rad": result.max_drift,
                 "final_drift_rad": result.final_drift,
-                "iterations": result.info["total_iterations"],
-                "solve_s": result.info["total_solve_time_s"],  # every Ipopt solve of the start
+                "iterations": result.solver.iterations,
+                "solve_s": result.solver.solve_s,  # every Ipopt solve of the start
             }
         )
-        if best is None or result.info["objective"] < best.info["objective"]:
+        if best is None or last.objective < best.solver.solves[-1].objective:
             best = result
     if best is None:
         raise first_error

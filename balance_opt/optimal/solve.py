@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from balance_opt import progress
-from balance_opt.errors import InputError
+from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
@@ -182,10 +182,17 @@ class BalanceNLP(BalanceProblem):
         """
         try:
             if self.options.starts > 1:
-                return multi_start(self, initial_guess, executor)
-            return solve_with_bounds(self, initial_guess)
+                result = multi_start(self, initial_guess, executor)
+            else:
+                result = solve_with_bounds(self, initial_guess)
+        except SolverError as exc:  # the plan's report, or the failure's, written into its info
+            if getattr(exc.result, "solver", None) is not None:
+                exc.result.info.update(exc.result.solver.as_info())
+            raise
         finally:  # a compilation of the kernels this plan started ends with it
             self.model.finish_compiling()
+        result.info.update(result.solver.as_info())
+        return result
 
     def solve_once(
         self, initial_guess="analytic", before: PlanReport | None = None
