@@ -346,11 +346,6 @@ class TorqueLimit(Constraint):
         return _worst(problem, excess, t, "torque limit of {}", "N m")
 
 
-def attitude_scale(bound: float | None) -> float:
-    """The parameter an attitude bound enters with: ``1 / bound^2`` (1 when unset)."""
-    return 1.0 / bound**2 if bound else 1.0
-
-
 class AttitudeBound(Constraint):
     """A bound on the base's rotation from its initial attitude, ``|log R| <= bound``, as rows
     ``|phi|^2 / bound^2 <= 1``: squared, so that the rows are smooth at ``phi = 0``; scaled,
@@ -419,22 +414,6 @@ class TerminalAttitudeBound(AttitudeBound):
         return _worst(problem, [[excess]], result.t[-1:], self.name, "rad")
 
 
-def _pin(problem: BalanceProblem, lower, upper, node: int, kind: str, value) -> None:
-    """Fix a derivative of the balance joints at a node: a state's rows, or (the acceleration
-    with control ``"acceleration"``) the control there. The trapezoidal rule's acceleration is
-    constant on an interval, the mean of its two nodes' controls: both are fixed."""
-    rows = problem.model.joint_rows(problem.control)
-    level = DERIVATIVES.index(kind)
-    if level < len(rows):
-        lower.X[rows[level], node] = upper.X[rows[level], node] = value
-        return
-    nodes = (
-        [node] if problem.transcription.has_midpoints else [node, node + (1 if node == 0 else -1)]
-    )
-    for k in nodes:
-        lower.U[:, k] = upper.U[:, k] = value
-
-
 class InitialState(Constraint):
     """The planner's starting point: the base at its initial attitude (``phi = 0``) and the
     balance arm at rest at ``q_B0``; with ``start: rest`` also its acceleration zero (no torque
@@ -451,10 +430,21 @@ class InitialState(Constraint):
         return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
     def bound_variables(self, problem, lower, upper):
+        """Each target fixes a state's rows at the node, or (the acceleration with control
+        ``"acceleration"``) the control there; the trapezoidal rule's acceleration is constant
+        on an interval, the mean of its two nodes' controls: both are fixed."""
         if self.index == 0:  # the start: the base at its initial attitude too
             lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+        node, rows = problem.N if self.index else 0, problem.model.joint_rows(problem.control)
         for kind, value in self.targets(problem):
-            _pin(problem, lower, upper, problem.N if self.index else 0, kind, value)
+            level = DERIVATIVES.index(kind)
+            if level < len(rows):
+                lower.X[rows[level], node] = upper.X[rows[level], node] = value
+            elif problem.transcription.has_midpoints:
+                lower.U[:, node] = upper.U[:, node] = value
+            else:
+                nodes = [node, node + (1 if node == 0 else -1)]
+                lower.U[:, nodes] = upper.U[:, nodes] = value[:, None]
 
     def check(self, problem, result):
         state = dict(zip(DERIVATIVES, (result.q_B, result.q_dot_B, result.q_ddot_B)))

@@ -23,7 +23,7 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.optimal.collision import collision_setup
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
+from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import NLPStructure, build_structure
@@ -85,8 +85,9 @@ class BalanceNLP(BalanceProblem):
                 h=self.h,
                 terminal_weight=weights.peak_terminal if peak else weights.terminal,
                 running_weights=weights.running("peak" if peak else "integral"),
-                path_scale=attitude_scale(self.bounds.path),
-                terminal_scale=attitude_scale(self.bounds.terminal),
+                # an attitude bound's rows are |phi|^2 / bound^2 <= 1
+                path_scale=1.0 / self.bounds.path**2 if self.bounds.path else 1.0,
+                terminal_scale=1.0 / self.bounds.terminal**2 if self.bounds.terminal else 1.0,
                 peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
                 # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
                 smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
