@@ -487,7 +487,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     # the re-simulation's torque check sees at least the torques at the points: with a lower
     # effort limit it reports what the points exceed it by, or more (between the points)
     lowered = dataclasses.replace(nlp.limits, effort=np.full(3, 0.25))
-    problem = BalanceProblem(torque_model, capture.mission, capture.q_B0, nlp.options, 10.0)
+    problem = BalanceProblem(torque_model, capture.mission, capture.q_B0, nlp.options)
     problem.limits = lowered
     check = TorqueLimit().check(problem, plan)
     assert check.unit == "N m" and check.amount >= np.abs(torques).max() - 0.25 - 1e-9

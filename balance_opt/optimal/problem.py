@@ -14,7 +14,7 @@ import numpy as np
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.optimal.budget import limited_kinds
-from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK
+from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK, collision_setup
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -219,57 +219,6 @@ def parameter_layout(n_weights: int, n_B: int, n_m: int, n_points: int) -> Block
     )
 
 
-def check_problem(
-    model: PlannerModel,
-    mission,
-    q_B0,
-    options: PlannerOptions,
-    robot: FloatingRobot | None = None,
-) -> tuple[np.ndarray, float]:
-    """Check a problem's sizes and configurations against the robot: ``(q_B0, horizon)``."""
-    robot = model.robot if robot is None else robot
-    if robot.joint_names != model.robot.joint_names:
-        raise InputError(f"robot {robot.name} is not the robot of the planner model")
-    if getattr(mission, "dof", None) != model.n_M:
-        raise InputError(
-            f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
-            f"the mission arm of {robot.name} has {model.n_M}"
-        )
-    q_B0 = np.asarray(q_B0, dtype=float).ravel()
-    names = [robot.joint_names[i] for i in robot.balance_indices]
-    if q_B0.size != model.n_B:
-        raise InputError(
-            f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
-        )
-    horizon = float(mission.duration if options.horizon is None else options.horizon)
-    if horizon < mission.duration:
-        raise InputError(
-            f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
-        )
-    lim = robot.limits.subset(robot.balance_indices)
-    for what, values in (
-        ("initial configuration q_B0", q_B0),
-        ("final_configuration", options.final_configuration),
-        ("rest_configuration", options.rest_configuration),
-    ):
-        if values is None:
-            continue
-        values = np.asarray(values, dtype=float)
-        if values.size != model.n_B:
-            raise InputError(
-                f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
-            )
-        if not options.position_limits or what == "rest_configuration":
-            continue
-        for j, name in enumerate(names):
-            if not lim.lower[j] - LIMIT_TOLERANCE <= values[j] <= lim.upper[j] + LIMIT_TOLERANCE:
-                raise InfeasibleLimitsError(
-                    f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
-                    f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
-                )
-    return q_B0, horizon
-
-
 @dataclass(frozen=True)
 class Bounds:
     """The numbers of a problem's NLP that its solve lowers or sets, never in place: the
@@ -305,38 +254,88 @@ class Bounds:
 
 
 class BalanceProblem:
-    """The numeric data of one balance planning problem (``q_B0`` and ``horizon`` from
-    :func:`check_problem`; ``h0``: the system's constant total momentum, world frame, the base
-    starting at the identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for
-    zero; ``collision``: its :class:`~balance_opt.optimal.collision.CollisionSetup` or ``None``).
+    """The numeric data of one balance planning problem, checked against the robot before
+    anything is built: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``,
+    ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the limits of
+    ``robot`` (default: the model's robot; the model's kinematics, possibly other limits), and
+    ``h0``: the system's constant total momentum, world frame, the base starting at the
+    identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for zero.
 
     Attributes:
+        horizon: the options' horizon, else the mission's duration [s].
         N, h: number of intervals and their length [s].
         point_times: times of the collocation points [s], nodes then midpoints.
         mission_samples: each point's data ``[q_M; q_dot_M; q_ddot_M; h0]`` (n_m, n_points).
         q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
+        collision: its :class:`~balance_opt.optimal.collision.CollisionSetup` or ``None``.
         bounds: the :class:`Bounds` its NLP enforces: the options' until the refinement
             makes a new problem with lower ones.
+
+    Raises:
+        InputError: sizes or options that do not fit the robot.
+        InfeasibleLimitsError: ``q_B0`` or the final configuration outside the position limits.
     """
 
     def __init__(
         self,
         model: PlannerModel,
         mission,
-        q_B0: np.ndarray,
+        q_B0,
         options: PlannerOptions,
-        horizon: float,
         robot: FloatingRobot | None = None,
         h0=None,
-        collision=None,
     ):
         self.model = model
-        # The task's robot: the model's kinematics, possibly other limits.
-        self.robot = model.robot if robot is None else robot
+        self.robot = robot = model.robot if robot is None else robot
         self.mission = mission
-        self.q_B0 = q_B0
         self.options = options
-        self.horizon = horizon
+        if robot.joint_names != model.robot.joint_names:
+            raise InputError(f"robot {robot.name} is not the robot of the planner model")
+        if getattr(mission, "dof", None) != model.n_M:
+            raise InputError(
+                f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
+                f"the mission arm of {robot.name} has {model.n_M}"
+            )
+        self.q_B0 = q_B0 = np.asarray(q_B0, dtype=float).ravel()
+        self.limits = lim = robot.limits.subset(robot.balance_indices)
+        self.balance_joints = names = tuple(robot.joint_names[i] for i in robot.balance_indices)
+        if q_B0.size != model.n_B:
+            raise InputError(
+                f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
+            )
+        self.horizon = horizon = float(
+            mission.duration if options.horizon is None else options.horizon
+        )
+        if horizon < mission.duration:
+            raise InputError(
+                f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
+            )
+        for what, values in (
+            ("initial configuration q_B0", q_B0),
+            ("final_configuration", options.final_configuration),
+            ("rest_configuration", options.rest_configuration),
+        ):
+            if values is None:
+                continue
+            values = np.asarray(values, dtype=float)
+            if values.size != model.n_B:
+                raise InputError(
+                    f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
+                )
+            if not options.position_limits or what == "rest_configuration":
+                continue
+            for j, name in enumerate(names):
+                if (
+                    not lim.lower[j] - LIMIT_TOLERANCE
+                    <= values[j]
+                    <= lim.upper[j] + LIMIT_TOLERANCE
+                ):
+                    raise InfeasibleLimitsError(
+                        f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
+                        f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
+                    )
+        q_M0 = np.atleast_2d(mission.sample(np.zeros(1))[0])[0]
+        self.collision = collision = collision_setup(model, options, np.concatenate([q_M0, q_B0]))
         self.N = options.intervals
         self.h = horizon / self.N
         self.transcription = Transcription(options.transcription)
@@ -353,9 +352,6 @@ class BalanceProblem:
         self.q_rest = (
             q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
         )
-        self.limits = self.robot.limits.subset(self.robot.balance_indices)
-        self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
-        self.collision = collision
         collision_bound = None
         if collision is not None:
             start = np.minimum(

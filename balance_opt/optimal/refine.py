@@ -11,6 +11,7 @@ import numpy as np
 
 from balance_opt.errors import SolverError
 from balance_opt.optimal.guess import random_guess
+from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import GUESSES, PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.result import BalanceResult
@@ -342,12 +343,13 @@ class StartTask:
     def __getstate__(self) -> dict:
         n, key = self.nlp, self.nlp.structure.key
         stage = None if key.between_points else key.objective
-        data = (n.model.robot, n.robot, n.mission, n.q_B0, n.options, n.h0, stage)
+        data = (n.model.robot, n.mission, n.q_B0, n.options, n.robot, n.h0, stage)
         # the problem's own class rebuilds it (pickled by reference: no import of solve here)
-        return {"build": type(n).from_data, "data": data, "phase": self.phase}
+        return {"build": type(n), "data": data, "phase": self.phase}
 
     def __setstate__(self, state: dict) -> None:
-        self.nlp = state["build"](*state["data"])
+        robot, *data = state["data"]
+        self.nlp = state["build"](PlannerModel(robot), *data)
         self.phase, self.remote = state["phase"], True
 
     def __call__(self, guess):

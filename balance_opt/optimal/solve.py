@@ -21,12 +21,11 @@ from balance_opt.motion.so3 import (
     quaternion_multiply,
     rotation_angle,
 )
-from balance_opt.optimal.collision import collision_setup
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.model import PlannerModel
-from balance_opt.optimal.nlp import NLPStructure, build_structure
+from balance_opt.optimal.nlp import build_structure
 from balance_opt.optimal.options import (
     PEAK_STAGES,
     SMOOTH_PLAN,
@@ -40,7 +39,6 @@ from balance_opt.optimal.problem import (
     PlannerSolverError,
     Solution,
     StructureKey,
-    check_problem,
 )
 from balance_opt.optimal.refine import (
     NLP_FUNCTIONS,
@@ -60,12 +58,29 @@ POINT_NAMES = {"S": "peak", "Xm": "midpoint", "Um": "midpoint"}
 class BalanceNLP(BalanceProblem):
     """One balance planning problem with its compiled NLP (``structure``) and numeric inputs
     (``lbx``/``ubx``, ``lbg``/``ubg``, ``parameters``), built by :func:`build_balance_nlp`;
-    ``build_time`` is 0 when the structure was cached."""
+    ``build_time`` is 0 when the structure was cached. ``stage``: an inner stage of the peak
+    objective (``"smooth"`` or ``"integral"``), without the joint-limit rows between the points
+    unless ``between``."""
 
-    def __init__(self, structure: NLPStructure, setup_time: float, build_time: float, *problem):
-        super().__init__(*problem)  # model, mission, q_B0, options, horizon, robot, h0, collision
-        self.structure, self.setup_time, self.build_time = structure, setup_time, build_time
+    def __init__(
+        self, model, mission, q_B0, options, robot=None, h0=None, stage=None, between=False
+    ):
+        start = time.perf_counter()
+        super().__init__(model, mission, q_B0, options, robot, h0)
+        momentum = bool(np.any(self.h0 != 0.0))
+        collision = self.collision.rows.key if self.collision is not None else ""
+        key = StructureKey.of(self.limits, options, momentum, collision)
+        if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
+            key = dataclasses.replace(
+                key, objective=stage, path_attitude_bound=False, between_points=between
+            )
+        built_now = key not in model.nlp_cache
+        if built_now:
+            model.nlp_cache[key] = build_structure(model, key, options)
+        self.structure = model.nlp_cache[key]
+        self.build_time = self.structure.build_time if built_now else 0.0
         self._set_bounds()
+        self.setup_time = time.perf_counter() - start - self.build_time
 
     def with_bounds(self, **changes) -> BalanceNLP:
         """The same problem with other :class:`~balance_opt.optimal.problem.Bounds`; this one
@@ -110,20 +125,11 @@ class BalanceNLP(BalanceProblem):
         for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
             self.lbg[block.slice], self.ubg[block.slice] = kind.row_bounds(self, block)
 
-    def variant(
-        self, stage: str | None = None, between_points: bool = False, **changes
-    ) -> BalanceNLP:
+    def variant(self, stage: str | None = None, between: bool = False, **changes) -> BalanceNLP:
         """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
-        return build_balance_nlp(
-            self.model,
-            self.mission,
-            self.q_B0,
-            options,
-            self.robot,
-            h0=self.h0,
-            stage=stage,
-            between_points=between_points,
+        return BalanceNLP(
+            self.model, self.mission, self.q_B0, options, self.robot, self.h0, stage, between
         )
 
     def stage(self, stage: Stage | str, final: bool = False) -> BalanceNLP:
@@ -166,12 +172,6 @@ class BalanceNLP(BalanceProblem):
         if w.size != n_w:
             raise InputError(f"initial guess vector has {w.size} entries, the NLP has {n_w}")
         return w
-
-    @classmethod
-    def from_data(cls, model_robot, robot, mission, q_B0, options, h0, stage) -> BalanceNLP:
-        """The problem rebuilt from its data in another process (a multi-start's worker)."""
-        model = PlannerModel(model_robot)
-        return build_balance_nlp(model, mission, q_B0, options, robot, h0=h0, stage=stage)
 
     def solve(self, initial_guess="analytic", executor=None) -> BalanceResult:
         """The plan (:mod:`balance_opt.optimal.refine`), from ``options.starts`` guesses, their
@@ -339,50 +339,21 @@ def build_balance_nlp(
     options: PlannerOptions | None = None,
     robot: FloatingRobot | None = None,
     h0=None,
-    stage: str | None = None,
-    between_points: bool = False,
 ) -> BalanceNLP:
-    """Build the balance NLP of a mission: the mission arm's motion (``sample(t) -> q, q_dot,
-    q_ddot``, ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the
-    limits of ``robot`` (default: the model's robot), the system's total momentum ``h0`` (world
-    frame, ``[linear; angular about the CoM]`` [N s; N m s], the base starting at the identity;
-    ``None``: zero). The compiled structure is taken from ``planner_model.nlp_cache`` when one of
-    the same :class:`~balance_opt.optimal.problem.StructureKey` was built; the rest is numeric
-    input. ``stage``: an inner stage of the peak objective (``"smooth"`` or ``"integral"``),
-    without the joint-limit rows between the points unless ``between_points``.
+    """Build the balance NLP of a mission (the arguments:
+    :class:`~balance_opt.optimal.problem.BalanceProblem`). The compiled structure is taken from
+    ``planner_model.nlp_cache`` when one of the same
+    :class:`~balance_opt.optimal.problem.StructureKey` was built; the rest is numeric input.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
         InfeasibleLimitsError: ``q_B0`` or the final configuration outside the position limits.
     """
-    start = time.perf_counter()
     model = (
         planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
     )
     options = options or PlannerOptions()
-    robot = model.robot if robot is None else robot
-    q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
-    momentum = h0 is not None and bool(np.any(np.asarray(h0, dtype=float) != 0.0))
-    q_M0 = np.atleast_2d(mission_trajectory.sample(np.zeros(1))[0])[0]
-    collision = collision_setup(model, options, np.concatenate([q_M0, q_B0]))
-    key = StructureKey.of(
-        robot.limits.subset(robot.balance_indices),
-        options,
-        momentum,
-        collision.rows.key if collision is not None else "",
-    )
-    if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
-        key = dataclasses.replace(
-            key, objective=stage, path_attitude_bound=False, between_points=between_points
-        )
-    built_now = key not in model.nlp_cache
-    if built_now:
-        model.nlp_cache[key] = build_structure(model, key, options)
-    structure = model.nlp_cache[key]
-    build_time = structure.build_time if built_now else 0.0
-    setup_time = time.perf_counter() - start - build_time
-    problem = (model, mission_trajectory, q_B0, options, horizon, robot, h0, collision)
-    return BalanceNLP(structure, setup_time, build_time, *problem)
+    return BalanceNLP(model, mission_trajectory, q_B0, options, robot, h0)
 
 
 def plan_optimal(
