@@ -63,7 +63,7 @@ from balance_opt.optimal.problem import (
     PlannerSolverError,
     StructureKey,
 )
-from balance_opt.optimal.solve import build_balance_nlp, plan_optimal
+from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.result import BalanceResult
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
@@ -776,17 +776,6 @@ def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
     assert not kernels.compiled
     assert "balance kernels not compiled (no C compiler found" in caplog.text
     assert not PlannerModel(capture.robot, compile="auto").compile
-
-
-def test_plan_optimal_shortcut(capture, model, in_plane):
-    plan = plan_optimal(
-        model,
-        in_plane,
-        capture.q_B0,
-        PlannerOptions(**INTEGRAL, intervals=10),
-        initial_guess="rest",
-    )
-    assert plan.method == "optimal" and plan.info["intervals"] == 10 and plan.violations == []
 
 
 @pytest.mark.parametrize(("variable", "threads"), [(None, 1), ("2", 2)])

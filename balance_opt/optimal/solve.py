@@ -356,19 +356,6 @@ def build_balance_nlp(
     return BalanceNLP(model, mission_trajectory, q_B0, options, robot, h0)
 
 
-def plan_optimal(
-    robot: FloatingRobot | PlannerModel,
-    mission,
-    q_B0,
-    options: PlannerOptions | None = None,
-    initial_guess="analytic",
-    h0=None,
-) -> BalanceResult:
-    """:func:`build_balance_nlp` then :meth:`BalanceNLP.solve` (a :class:`PlannerModel` keeps
-    the symbolic model and the compiled NLPs across calls)."""
-    return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
-
-
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
     """Re-simulate a plan on a fine grid: every interval split into ``sub`` equal steps no
     longer than ``options.resample_step``, so that no RK4 step straddles a node, where the joint
