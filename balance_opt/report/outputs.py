@@ -9,6 +9,7 @@ import json
 import math
 import platform
 from collections.abc import Mapping
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -18,22 +19,10 @@ from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.optimal.ipopt_options import ipopt_version
-from balance_opt.result import ATTITUDE_COLUMNS, BULKY_INFO_KEYS, BalanceResult
+from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
 
 #: The arrays of a :class:`~balance_opt.result.BalanceResult` sampled on its time grid.
-SAMPLED_ARRAYS = (
-    "t",
-    "q_M",
-    "q_dot_M",
-    "q_ddot_M",
-    "q_B",
-    "q_dot_B",
-    "q_ddot_B",
-    "quaternion",
-    "omega",
-    "momentum_residual",
-    "sigma_min",
-)
+SAMPLED_ARRAYS = tuple(f.name for f in fields(BalanceResult) if f.type == "np.ndarray")
 #: Version of the metrics.json layout; 2: ``effort`` margins added, and ``violations`` /
 #: ``limit_violations`` count effort limits too; 3: ``solver.iterations`` and
 #: ``solver.solve_time_s`` count every Ipopt solve behind the plan (were the last solve's).
@@ -62,19 +51,10 @@ def software_versions() -> dict[str, str]:
     }
 
 
-def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
-    """Column names and (T, k) values of the CSV of ``result`` (``docs/outputs.md``)."""
-    names = ["time", *result.mission_joints, *result.balance_joints, *ATTITUDE_COLUMNS]
-    values = np.column_stack(
-        [result.t, result.q_M, result.q_B, result.quaternion, result.rpy, result.angle]
-    )
-    return names, values
-
-
 def write_trajectory_csv(path: str | Path, result: BalanceResult) -> Path:
     """Write the CSV of ``result`` in full double precision."""
     path = Path(path)
-    names, values = trajectory_columns(result)
+    names, values = result.columns()
     with path.open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(names)
