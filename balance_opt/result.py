@@ -48,6 +48,14 @@ class LimitViolation:
         )
 
 
+def limit_bounds(limits: JointLimits, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of each joint's limit of ``kind`` (a rate limit is symmetric)."""
+    if kind == "position":
+        return limits.lower, limits.upper
+    value = getattr(limits, kind)
+    return -value, value
+
+
 def find_limit_violations(
     t, names, q, q_dot, q_ddot, limits: JointLimits, tolerance: float = LIMIT_TOLERANCE
 ) -> list[LimitViolation]:

@@ -21,7 +21,7 @@ from balance_opt.optimal.problem import (
     StructureKey,
     unit_of,
 )
-from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
+from balance_opt.result import LIMIT_TOLERANCE, BalanceResult, limit_bounds
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")
@@ -163,15 +163,6 @@ class JointLimit(Constraint):
         degree = transcription.control_degree + control_level - self.level
         self.interior = tuple(range(1, degree)) if between_points else ()
 
-    def limits(self, problem: BalanceProblem) -> tuple[np.ndarray, np.ndarray]:
-        lim = problem.limits
-        return {
-            "position": (lim.lower, lim.upper),
-            "velocity": (-lim.velocity, lim.velocity),
-            "acceleration": (-lim.acceleration, lim.acceleration),
-            "jerk": (-lim.jerk, lim.jerk),
-        }[self.kind]
-
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         if not self.interior:
             return []
@@ -192,12 +183,12 @@ class JointLimit(Constraint):
         return [(block, cs.vertcat(*coefficients))]
 
     def row_bounds(self, problem, block):
-        lower, upper = self.limits(problem)
+        lower, upper = limit_bounds(problem.limits, self.kind)
         reps = len(self.interior) * len(block.taus)  # per row, stacked column by column
         return np.tile(lower, reps).astype(float), np.tile(upper, reps).astype(float)
 
     def bound_variables(self, problem, lower, upper):
-        low, high = self.limits(problem)
+        low, high = limit_bounds(problem.limits, self.kind)
         if self.level == 2 and self.control == "acceleration":  # the control itself
             names, rows = ("U", "Um"), slice(None)
         else:
@@ -209,7 +200,7 @@ class JointLimit(Constraint):
 
     def check(self, problem, result):
         values = (result.q_B, result.q_dot_B, result.q_ddot_B)[self.level]
-        low, high = self.limits(problem)
+        low, high = limit_bounds(problem.limits, self.kind)
         excess = np.maximum(values - high, low - values)
         return _worst(problem, excess, result.t, f"{self.kind} limit of {{}}", unit_of(self.kind))
 
