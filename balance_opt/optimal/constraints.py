@@ -67,6 +67,13 @@ class SymbolicNLP:
 Rows = tuple[Block, Any]
 
 
+def block_rows(nlp: SymbolicNLP, name, labels, unit, values, taus=None, per_interval=False):
+    """One block of rows ``values`` named ``name``, a row per label, all in ``unit``, at ``taus``
+    (default: every collocation point), or on the intervals that start there."""
+    taus = nlp.transcription.point_taus(nlp.key.intervals) if taus is None else taus
+    return [(Block(name, tuple(labels), (unit,) * len(labels), taus, per_interval), values)]
+
+
 def _worst(problem, excess, t: np.ndarray, what: str, unit: str) -> Violation | None:
     """The largest entry of ``excess`` (T, n) above :data:`LIMIT_TOLERANCE`, as a violation of
     ``what`` (formatted with the balance joint of its column) at ``t[row]``, or ``None``."""
@@ -170,17 +177,10 @@ class JointLimit(Constraint):
         return self._coefficient_rows(nlp, f"{self.kind} limit between points", coefficients)
 
     def _coefficient_rows(self, nlp: SymbolicNLP, name: str, coefficients: list) -> list[Rows]:
-        labels = tuple(
-            f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
-        )
-        block = Block(
-            name,
-            labels,
-            (unit_of(self.kind),) * len(labels),
-            np.arange(nlp.key.intervals, dtype=float),
-            per_interval=True,
-        )
-        return [(block, cs.vertcat(*coefficients))]
+        labels = [f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints]
+        intervals = np.arange(nlp.key.intervals, dtype=float)
+        values = cs.vertcat(*coefficients)
+        return block_rows(nlp, name, labels, unit_of(self.kind), values, intervals, True)
 
     def row_bounds(self, problem, block):
         lower, upper = limit_bounds(problem.limits, self.kind)
@@ -266,13 +266,7 @@ class TorqueLimit(Constraint):
     name = "torque limit"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        block = Block(
-            "torque limit",
-            tuple(f"{j} torque" for j in nlp.joints),
-            ("N m",) * len(nlp.joints),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, nlp.torque)]
+        return block_rows(nlp, self.name, [f"{j} torque" for j in nlp.joints], "N m", nlp.torque)
 
     def row_bounds(self, problem, block):
         effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
@@ -345,9 +339,6 @@ class AttitudeBound(Constraint):
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.ones(block.size)
 
-    def _rows(self, label: str, taus, values) -> list[Rows]:
-        return [(Block(self.name, (label,), ("(relative)",), taus), values)]
-
 
 class PathAttitudeBound(AttitudeBound):
     """``|log R(t)| <= path_attitude_bound`` at every collocation point (the parameter
@@ -357,9 +348,8 @@ class PathAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        taus = nlp.transcription.point_taus(nlp.key.intervals)
         values = nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2)
-        return self._rows("attitude |phi|^2 / bound^2", taus, values)
+        return block_rows(nlp, self.name, ["attitude |phi|^2 / bound^2"], "(relative)", values)
 
     def check(self, problem, result):
         if problem.options.path_attitude_bound is None:
@@ -377,9 +367,9 @@ class PeakEpigraph(PathAttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        taus = nlp.transcription.point_taus(nlp.key.intervals)
         values = cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S
-        return self._rows("attitude |phi|^2 / PEAK_SCALE^2 - S", taus, values)
+        label = "attitude |phi|^2 / PEAK_SCALE^2 - S"
+        return block_rows(nlp, self.name, [label], "(relative)", values)
 
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.zeros(block.size)
@@ -398,7 +388,8 @@ class TerminalAttitudeBound(AttitudeBound):
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
         values = nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N])
-        return self._rows("attitude |phi_T|^2 / bound^2", np.array([float(N)]), values)
+        label = "attitude |phi_T|^2 / bound^2"
+        return block_rows(nlp, self.name, [label], "(relative)", values, np.array([float(N)]))
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
@@ -479,14 +470,8 @@ class Collision(Constraint):
     name = "collision"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        labels = tuple(f"{label} (soft minimum)" for label in nlp.clearance_labels)
-        block = Block(
-            "collision clearance",
-            labels,
-            ("m",) * len(labels),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, nlp.clearance)]
+        labels = [f"{label} (soft minimum)" for label in nlp.clearance_labels]
+        return block_rows(nlp, "collision clearance", labels, "m", nlp.clearance)
 
     def row_bounds(self, problem, block):
         return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)
