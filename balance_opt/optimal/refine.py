@@ -377,9 +377,8 @@ def multi_start(nlp, guess, executor=None):
     rng = np.random.default_rng(nlp.options.seed)
     named = ([guess] + [g for g in GUESSES if g != guess])[: nlp.options.starts]
     guesses = [(g if isinstance(g, str) else type(g).__name__, g) for g in named]
-    first_state = nlp.unpack(nlp.lbx).X[3:, 0]
     while len(guesses) < nlp.options.starts:
-        guesses.append(("random", nlp.pack(random_guess(nlp, first_state, rng))))
+        guesses.append(("random", nlp.pack(random_guess(nlp, rng))))
     single = nlp.variant(starts=1)
     starting = [g for _, g in guesses]
     owner = list(range(len(starting)))

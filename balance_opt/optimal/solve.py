@@ -163,7 +163,7 @@ class BalanceNLP(BalanceProblem):
             if isinstance(guess, Solution):  # of this grid or another (an inner stage's)
                 sol = resampled(guess, self.N)
             else:
-                sol = guess_solution(self, guess, self.unpack(self.lbx).X[3:, 0])
+                sol = guess_solution(self, guess)
             if "S" in self.structure.variables.by_name:  # the guess's own peak
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
