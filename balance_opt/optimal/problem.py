@@ -297,43 +297,18 @@ class BalanceProblem:
                 f"the mission arm of {robot.name} has {model.n_M}"
             )
         self.q_B0 = q_B0 = np.asarray(q_B0, dtype=float).ravel()
-        self.limits = lim = robot.limits.subset(robot.balance_indices)
+        self.limits = robot.limits.subset(robot.balance_indices)
         self.balance_joints = names = tuple(robot.joint_names[i] for i in robot.balance_indices)
         if q_B0.size != model.n_B:
             raise InputError(
                 f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
             )
-        self.horizon = horizon = float(
-            mission.duration if options.horizon is None else options.horizon
-        )
+        self.horizon = horizon = float(options.horizon or mission.duration)  # None or > 0
         if horizon < mission.duration:
             raise InputError(
                 f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
             )
-        for what, values in (
-            ("initial configuration q_B0", q_B0),
-            ("final_configuration", options.final_configuration),
-            ("rest_configuration", options.rest_configuration),
-        ):
-            if values is None:
-                continue
-            values = np.asarray(values, dtype=float)
-            if values.size != model.n_B:
-                raise InputError(
-                    f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
-                )
-            if not options.position_limits or what == "rest_configuration":
-                continue
-            for j, name in enumerate(names):
-                if (
-                    not lim.lower[j] - LIMIT_TOLERANCE
-                    <= values[j]
-                    <= lim.upper[j] + LIMIT_TOLERANCE
-                ):
-                    raise InfeasibleLimitsError(
-                        f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
-                        f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
-                    )
+        self._check_configurations()
         q_M0 = np.atleast_2d(mission.sample(np.zeros(1))[0])[0]
         self.collision = collision = collision_setup(model, options, np.concatenate([q_M0, q_B0]))
         self.N = options.intervals
@@ -367,6 +342,33 @@ class BalanceProblem:
         )
         # the last clearance check and the result it checked (the refinement reads it)
         self.last_clearance = None
+
+    def _check_configurations(self) -> None:
+        options, lim, n_B = self.options, self.limits, self.model.n_B
+        for what, values in (
+            ("initial configuration q_B0", self.q_B0),
+            ("final_configuration", options.final_configuration),
+            ("rest_configuration", options.rest_configuration),
+        ):
+            if values is None:
+                continue
+            values = np.asarray(values, dtype=float)
+            if values.size != n_B:
+                raise InputError(
+                    f"planner option '{what}' has {values.size} values, the balance joints are {n_B}"
+                )
+            if not options.position_limits or what == "rest_configuration":
+                continue
+            for j, name in enumerate(self.balance_joints):
+                if (
+                    not lim.lower[j] - LIMIT_TOLERANCE
+                    <= values[j]
+                    <= lim.upper[j] + LIMIT_TOLERANCE
+                ):
+                    raise InfeasibleLimitsError(
+                        f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
+                        f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
+                    )
 
 
 class PlannerSolverError(SolverError):
