@@ -48,6 +48,14 @@ class LimitViolation:
         )
 
 
+def limit_bounds(limits: JointLimits, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of each joint's limit of ``kind`` (a rate limit is symmetric)."""
+    if kind == "position":
+        return limits.lower, limits.upper
+    value = getattr(limits, kind)
+    return -value, value
+
+
 def find_limit_violations(
     t, names, q, q_dot, q_ddot, limits: JointLimits, tolerance: float = LIMIT_TOLERANCE
 ) -> list[LimitViolation]:
@@ -90,14 +98,13 @@ class AttitudeHistory:
         return rotation_angle(relative_rotation(self.quaternion[:1], self.quaternion))
 
 
-#: Columns of :meth:`BalanceResult.to_dataframe` after the joints: the same names as the CSV
-#: files (:func:`balance_opt.report.outputs.trajectory_columns`).
+#: Columns of :meth:`BalanceResult.columns` after the joints.
 ATTITUDE_COLUMNS = tuple(
     "base_" + c for c in ("qx", "qy", "qz", "qw", "roll", "pitch", "yaw", "angle")
 )
 #: ``BalanceResult.info`` entries left out of ``metrics.json`` and of summaries (kept in the
 #: NPZ): large arrays.
-BULKY_INFO_KEYS = ("nlp_solution", "history")
+BULKY_INFO_KEYS = ("history",)
 #: Rows of :meth:`BalanceResult.__repr__` at most (a notebook cell's worth).
 REPR_LINES = 12
 
@@ -278,19 +285,25 @@ class BalanceResult(AttitudeHistory):
         lines += [f"  WARNING    {w}" for w in self.warnings()]
         return "\n".join(lines[:REPR_LINES])
 
+    def columns(self) -> tuple[list[str], np.ndarray]:
+        """Column names and (T, k) values of the motion's table (its CSV file,
+        ``docs/outputs.md``): ``time`` [s], one per arm joint by name (mission joints first), the
+        base attitude as a quaternion (``base_qx .. base_qw``), as roll, pitch, yaw and as the
+        rotation from the start (``base_angle``)."""
+        names = ["time", *self.mission_joints, *self.balance_joints, *ATTITUDE_COLUMNS]
+        values = np.column_stack(
+            [self.t, self.q_M, self.q_B, self.quaternion, self.rpy, self.angle]
+        )
+        return names, values
+
     def to_dataframe(self) -> pandas.DataFrame:
-        """The motion as a table indexed by ``time`` [s], with the columns of this method's CSV
-        file: one per arm joint by name (mission joints first), the base attitude as a
-        quaternion (``base_qx .. base_qw``), as roll, pitch, yaw and as the rotation from the
-        start (``base_angle``); the unit of each column is in ``df.attrs["units"]``."""
+        """The :meth:`columns` as a table indexed by ``time``; the unit of each column is in
+        ``df.attrs["units"]``."""
         import pandas as pd
 
-        joints = (*self.mission_joints, *self.balance_joints)
-        values = np.column_stack([self.q_M, self.q_B, self.quaternion, self.rpy, self.angle])
-        df = pd.DataFrame(
-            values, index=pd.Index(self.t, name="time"), columns=[*joints, *ATTITUDE_COLUMNS]
-        )
-        units = dict.fromkeys(joints, "rad")
+        names, values = self.columns()
+        df = pd.DataFrame(values[:, 1:], index=pd.Index(self.t, name="time"), columns=names[1:])
+        units = dict.fromkeys(names[1 : -len(ATTITUDE_COLUMNS)], "rad")
         units.update(dict.fromkeys(ATTITUDE_COLUMNS[:4], "1"))
         units.update(dict.fromkeys(ATTITUDE_COLUMNS[4:], "rad"))
         df.attrs["units"] = {"time": "s", **units}

@@ -118,7 +118,7 @@ def model(capture):
 def _inside_hull(nlp, plan) -> None:
     """Every Bernstein coefficient of the plan's joint position, velocity and acceleration on
     every interval is inside the limits: the continuous motion is (convex hull)."""
-    sol = nlp.unpack(plan.info["nlp_solution"])
+    sol = plan.solver.solution
     levels = joint_chain_coefficients(
         nlp.transcription, [sol.X[3:6, :-1], sol.X[6:9, :-1]], sol.U, sol.Um, nlp.h
     )

@@ -141,7 +141,7 @@ def _synthetic(method="optimal", n_balance=7, violations=0) -> BalanceResult:
             LimitViolation(balance[0], "velocity", 0.1 * k, 0.1 * k + 0.05, 0.01)
             for k in range(violations)
         ],
-        info={"status": "Solve_Succeeded", "nlp_solution": list(range(50_000))},
+        info={"status": "Solve_Succeeded", "history": {"obj": list(range(50_000))}},
     )
 
 

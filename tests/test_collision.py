@@ -243,7 +243,7 @@ def test_planner_keeps_the_arm_out_of_the_base():
     inside = clearance(geometry, free.t, np.hstack([free.q_M, free.q_B]))
     assert inside.min_distance < -0.05 and inside.closest.pair == "base / boom"
     nlp, safe = _pulled_into_the_cube(avoid=True)
-    assert [b.name for b in nlp.constraints if b.name == "collision clearance"]
+    assert [b.name for b in nlp.structure.rows.blocks if b.name == "collision clearance"]
     report = clearance(geometry, safe.t, np.hstack([safe.q_M, safe.q_B]))
     assert report.min_distance >= 0.02 - 1e-5
     assert report.collision_free

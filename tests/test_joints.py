@@ -318,7 +318,7 @@ def test_plans_with_prismatic_and_continuous_balance_joints():
     from balance_opt.motion.trajectories import PointToPoint
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.options import PlannerOptions
-    from balance_opt.optimal.solve import plan_optimal
+    from balance_opt.optimal.solve import build_balance_nlp
 
     limits = {"b2": {"lower": -0.05, "upper": 0.05, "velocity": 0.2}, "b3": {"velocity": 1.0}}
     robot = FloatingRobot(URDF, MISSION, BALANCE, locked=LOCKED, limits=limits)
@@ -332,9 +332,8 @@ def test_plans_with_prismatic_and_continuous_balance_joints():
     assert np.abs(L).max() < 1e-12
     assert {(v.joint, v.kind) for v in analytic.violations} >= {("b2", "position")}
 
-    plan = plan_optimal(
-        PlannerModel(robot, compile=False), mission, q_B0, PlannerOptions(intervals=20)
-    )
+    model = PlannerModel(robot, compile=False)
+    plan = build_balance_nlp(model, mission, q_B0, PlannerOptions(intervals=20)).solve()
     assert plan.violations == []
     tol = 1e-6
     assert np.abs(plan.q_B[:, 1]).max() < 0.05 + tol  # prismatic [m]

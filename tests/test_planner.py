@@ -63,7 +63,7 @@ from balance_opt.optimal.problem import (
     PlannerSolverError,
     StructureKey,
 )
-from balance_opt.optimal.solve import build_balance_nlp, plan_optimal
+from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.result import BalanceResult
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
@@ -479,7 +479,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
         PlannerOptions(**INTEGRAL, intervals=20, torque_limits=True),
     )
     plan = nlp.solve("rest")
-    sol = nlp.unpack(plan.info["nlp_solution"])
+    sol = plan.solver.solution
     tau = torque_model.balance_torque_fun().map(nlp.point_times.size)
     Z, V = np.hstack([sol.X, sol.Xm]), np.hstack([sol.U, sol.Um])
     torques = np.array(tau(Z, V, nlp.mission_samples))
@@ -487,7 +487,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     # the re-simulation's torque check sees at least the torques at the points: with a lower
     # effort limit it reports what the points exceed it by, or more (between the points)
     lowered = dataclasses.replace(nlp.limits, effort=np.full(3, 0.25))
-    problem = BalanceProblem(torque_model, capture.mission, capture.q_B0, nlp.options, 10.0)
+    problem = BalanceProblem(torque_model, capture.mission, capture.q_B0, nlp.options)
     problem.limits = lowered
     check = TorqueLimit().check(problem, plan)
     assert check.unit == "N m" and check.amount >= np.abs(torques).max() - 0.25 - 1e-9
@@ -495,7 +495,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     free = build_balance_nlp(
         torque_model, capture.mission, capture.q_B0, PlannerOptions(**INTEGRAL, intervals=20)
     ).solve("rest")
-    sol = nlp.unpack(free.info["nlp_solution"])
+    sol = free.solver.solution
     assert (
         np.abs(
             np.array(
@@ -512,7 +512,10 @@ def test_same_task_same_plan(model, capture, capture_plan):
     ).solve()
     for field in ("q_B", "q_dot_B", "q_ddot_B", "quaternion", "omega"):
         np.testing.assert_array_equal(getattr(again, field), getattr(capture_plan, field))
-    assert again.info["nlp_solution"] == capture_plan.info["nlp_solution"]
+    for name in ("X", "Xm", "U", "Um"):
+        np.testing.assert_array_equal(
+            getattr(again.solver.solution, name), getattr(capture_plan.solver.solution, name)
+        )
 
 
 def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_plane):
@@ -523,12 +526,20 @@ def test_nlp_is_inspectable_and_reused_for_another_mission(model, capture, in_pl
     assert not np.array_equal(other.parameters, nlp.parameters)
     N, n_x, n_u = 50, model.n_x("acceleration"), model.n_u
     assert nlp.structure.variables.size == (2 * N + 1) * (n_x + n_u)
-    assert [b.name for b in nlp.constraints[:2]] == [
+    assert [b.name for b in nlp.structure.rows.blocks[:2]] == [
         "collocation (Hermite midpoint)",
         "collocation (Simpson)",
     ]
-    assert nlp.constraint_name(0) == ("collocation (Hermite midpoint): attitude phi_x", 0.0, "rad")
-    assert nlp.describe_constraint(n_x * N + n_x + 5) == (
+    w, g = np.clip(np.zeros(nlp.lbx.size), nlp.lbx, nlp.ubx), np.zeros(nlp.lbg.size)
+    g[0] = 0.5  # the collocation rows are equalities
+    assert nlp.largest_violation(w, g)[:4] == (
+        "collocation (Hermite midpoint): attitude phi_x",
+        0.0,
+        0.5,
+        "rad",
+    )
+    g[n_x * N + n_x + 5] = 1.0
+    assert nlp.largest_violation(w, g)[4] == (
         "collocation (Simpson): balance_joint3 position on the interval 0.200-0.400 s"
     )
     # the initial state is fixed by the bounds, the limits are bounds of the other nodes
@@ -561,7 +572,7 @@ def test_structure_key_and_parameter_layout(model, capture):
     assert StructureKey.of(nlp.limits, options) == key
     assert StructureKey.of(nlp.limits, dataclasses.replace(options, control="jerk")) != key
     p = cs.SX.sym("p", nlp.structure.parameters.size)
-    fields = nlp.structure.parameters.unpack_symbolic(p)
+    fields = nlp.structure.parameters.unpack(p, NLPParameters)
     unpack = cs.Function("unpack", [p], list(fields))
     values = dict(zip(NLPParameters._fields, (np.array(v) for v in unpack(nlp.parameters))))
     assert values["h"] == nlp.h and values["terminal_weight"] == options.weights.terminal
@@ -765,17 +776,6 @@ def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
     assert not kernels.compiled
     assert "balance kernels not compiled (no C compiler found" in caplog.text
     assert not PlannerModel(capture.robot, compile="auto").compile
-
-
-def test_plan_optimal_shortcut(capture, model, in_plane):
-    plan = plan_optimal(
-        model,
-        in_plane,
-        capture.q_B0,
-        PlannerOptions(**INTEGRAL, intervals=10),
-        initial_guess="rest",
-    )
-    assert plan.method == "optimal" and plan.info["intervals"] == 10 and plan.violations == []
 
 
 @pytest.mark.parametrize(("variable", "threads"), [(None, 1), ("2", 2)])

@@ -65,21 +65,24 @@ def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(mod
     of a plan on the inner grid. The smooth peak kept when the epigraph fails is on the plan's
     grid, with the rows."""
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions(intervals=40))
-    between = [b.name for b in nlp.constraints if b.name.endswith("limit between points")]
+    blocks = nlp.structure.rows.blocks
+    between = [b.name for b in blocks if b.name.endswith("limit between points")]
     assert between == [
         f"{k} limit between points" for k in ("position", "velocity", "acceleration")
     ]
     on_inner_grid = build_balance_nlp(
         model, capture.mission, capture.q_B0, PlannerOptions(intervals=10)
     )
-    rows_between = sum(b.size for b in on_inner_grid.constraints if b.name.endswith("points"))
-    epigraph = sum(b.size for b in on_inner_grid.constraints if b.name == "peak epigraph")
+    blocks = on_inner_grid.structure.rows.blocks
+    rows_between = sum(b.size for b in blocks if b.name.endswith("points"))
+    epigraph = sum(b.size for b in blocks if b.name == "peak epigraph")
     for name in ("integral", "smooth"):
         inner = nlp.stage(name)
         assert inner.structure.key.objective == name
         assert inner.N == 10 and inner.h == pytest.approx(4 * nlp.h)
         assert inner.stage(name) is inner  # as a multi-start's worker builds it
-        assert not [b for b in inner.constraints if b.name.endswith("limit between points")]
+        blocks = inner.structure.rows.blocks
+        assert not [b for b in blocks if b.name.endswith("limit between points")]
         expected = on_inner_grid.structure.rows.size - rows_between - epigraph
         assert inner.structure.rows.size == expected
         n_w = inner.lbx.size  # the plan's structure has one more variable: S
@@ -92,9 +95,8 @@ def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(mod
     assert trapezoidal.stage("integral").N == trapezoidal.stage("smooth").N == 20
     final = nlp.stage("smooth", final=True)
     assert final.N == 40 and final.structure.key.objective == "smooth"
-    assert [b.name for b in final.constraints if b.name.endswith("limit between points")] == (
-        between
-    )
+    blocks = final.structure.rows.blocks
+    assert [b.name for b in blocks if b.name.endswith("limit between points")] == between
 
 
 @pytest.mark.parametrize("n, N", [(10, 40), (40, 10), (10, 25), (7, 7)])

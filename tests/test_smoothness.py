@@ -120,7 +120,7 @@ def limited():
 def test_jerk_limits_hold_on_the_whole_continuous_plan(limited):
     nlp, plan = limited
     assert "jerk" in nlp.structure.key.joint_limits
-    sol = nlp.unpack(plan.info["nlp_solution"])
+    sol = plan.solver.solution
     levels = joint_chain_coefficients(
         nlp.transcription, [sol.X[3:6, :-1], sol.X[6:9, :-1]], sol.U, sol.Um, nlp.h
     )

@@ -29,7 +29,7 @@ from balance_opt.interrupts import handling_signals
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.replay import phase_one
 from balance_opt.optimal.options import PlannerOptions
-from balance_opt.optimal.solve import plan_optimal
+from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.report.output_dir import OutputFolder
 from balance_opt.report.outputs import peak_reaction_torques, to_json
 from balance_opt.report.plots import FORMATS, paper_figure_set
@@ -89,7 +89,7 @@ def _plan(
             integration = IntegrationOptions(output_step=STUDY_OUTPUT_STEP)
             return rollout(robot, mission, scenario.q_B0, law, integration=integration), "ok"
         model = ModelCache().planner_model(robot, backend)
-        return plan_optimal(model, mission, scenario.q_B0, planner), "ok"
+        return build_balance_nlp(model, mission, scenario.q_B0, planner).solve(), "ok"
     except SolverError as exc:
         if exc.result is None:
             raise

@@ -21,7 +21,7 @@ from balance_opt.optimal.problem import (
     StructureKey,
     unit_of,
 )
-from balance_opt.result import LIMIT_TOLERANCE, BalanceResult
+from balance_opt.result import LIMIT_TOLERANCE, BalanceResult, limit_bounds
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")
@@ -65,6 +65,13 @@ class SymbolicNLP:
 
 #: Rows a kind adds to ``g``: a block (not yet stacked) and its values, (rows, columns), symbolic.
 Rows = tuple[Block, Any]
+
+
+def block_rows(nlp: SymbolicNLP, name, labels, unit, values, taus=None, per_interval=False):
+    """One block of rows ``values`` named ``name``, a row per label, all in ``unit``, at ``taus``
+    (default: every collocation point), or on the intervals that start there."""
+    taus = nlp.transcription.point_taus(nlp.key.intervals) if taus is None else taus
+    return [(Block(name, tuple(labels), (unit,) * len(labels), taus, per_interval), values)]
 
 
 def _worst(problem, excess, t: np.ndarray, what: str, unit: str) -> Violation | None:
@@ -163,15 +170,6 @@ class JointLimit(Constraint):
         degree = transcription.control_degree + control_level - self.level
         self.interior = tuple(range(1, degree)) if between_points else ()
 
-    def limits(self, problem: BalanceProblem) -> tuple[np.ndarray, np.ndarray]:
-        lim = problem.limits
-        return {
-            "position": (lim.lower, lim.upper),
-            "velocity": (-lim.velocity, lim.velocity),
-            "acceleration": (-lim.acceleration, lim.acceleration),
-            "jerk": (-lim.jerk, lim.jerk),
-        }[self.kind]
-
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         if not self.interior:
             return []
@@ -179,25 +177,18 @@ class JointLimit(Constraint):
         return self._coefficient_rows(nlp, f"{self.kind} limit between points", coefficients)
 
     def _coefficient_rows(self, nlp: SymbolicNLP, name: str, coefficients: list) -> list[Rows]:
-        labels = tuple(
-            f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints
-        )
-        block = Block(
-            name,
-            labels,
-            (unit_of(self.kind),) * len(labels),
-            np.arange(nlp.key.intervals, dtype=float),
-            per_interval=True,
-        )
-        return [(block, cs.vertcat(*coefficients))]
+        labels = [f"{j} {self.kind} (control point {i})" for i in self.interior for j in nlp.joints]
+        intervals = np.arange(nlp.key.intervals, dtype=float)
+        values = cs.vertcat(*coefficients)
+        return block_rows(nlp, name, labels, unit_of(self.kind), values, intervals, True)
 
     def row_bounds(self, problem, block):
-        lower, upper = self.limits(problem)
+        lower, upper = limit_bounds(problem.limits, self.kind)
         reps = len(self.interior) * len(block.taus)  # per row, stacked column by column
         return np.tile(lower, reps).astype(float), np.tile(upper, reps).astype(float)
 
     def bound_variables(self, problem, lower, upper):
-        low, high = self.limits(problem)
+        low, high = limit_bounds(problem.limits, self.kind)
         if self.level == 2 and self.control == "acceleration":  # the control itself
             names, rows = ("U", "Um"), slice(None)
         else:
@@ -209,7 +200,7 @@ class JointLimit(Constraint):
 
     def check(self, problem, result):
         values = (result.q_B, result.q_dot_B, result.q_ddot_B)[self.level]
-        low, high = self.limits(problem)
+        low, high = limit_bounds(problem.limits, self.kind)
         excess = np.maximum(values - high, low - values)
         return _worst(problem, excess, result.t, f"{self.kind} limit of {{}}", unit_of(self.kind))
 
@@ -275,13 +266,7 @@ class TorqueLimit(Constraint):
     name = "torque limit"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        block = Block(
-            "torque limit",
-            tuple(f"{j} torque" for j in nlp.joints),
-            ("N m",) * len(nlp.joints),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, nlp.torque)]
+        return block_rows(nlp, self.name, [f"{j} torque" for j in nlp.joints], "N m", nlp.torque)
 
     def row_bounds(self, problem, block):
         effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
@@ -346,11 +331,6 @@ class TorqueLimit(Constraint):
         return _worst(problem, excess, t, "torque limit of {}", "N m")
 
 
-def attitude_scale(bound: float | None) -> float:
-    """The parameter an attitude bound enters with: ``1 / bound^2`` (1 when unset)."""
-    return 1.0 / bound**2 if bound else 1.0
-
-
 class AttitudeBound(Constraint):
     """A bound on the base's rotation from its initial attitude, ``|log R| <= bound``, as rows
     ``|phi|^2 / bound^2 <= 1``: squared, so that the rows are smooth at ``phi = 0``; scaled,
@@ -358,9 +338,6 @@ class AttitudeBound(Constraint):
 
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.ones(block.size)
-
-    def _rows(self, label: str, taus, values) -> list[Rows]:
-        return [(Block(self.name, (label,), ("(relative)",), taus), values)]
 
 
 class PathAttitudeBound(AttitudeBound):
@@ -371,9 +348,8 @@ class PathAttitudeBound(AttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        taus = nlp.transcription.point_taus(nlp.key.intervals)
         values = nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2)
-        return self._rows("attitude |phi|^2 / bound^2", taus, values)
+        return block_rows(nlp, self.name, ["attitude |phi|^2 / bound^2"], "(relative)", values)
 
     def check(self, problem, result):
         if problem.options.path_attitude_bound is None:
@@ -391,9 +367,9 @@ class PeakEpigraph(PathAttitudeBound):
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
-        taus = nlp.transcription.point_taus(nlp.key.intervals)
         values = cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S
-        return self._rows("attitude |phi|^2 / PEAK_SCALE^2 - S", taus, values)
+        label = "attitude |phi|^2 / PEAK_SCALE^2 - S"
+        return block_rows(nlp, self.name, [label], "(relative)", values)
 
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.zeros(block.size)
@@ -412,27 +388,12 @@ class TerminalAttitudeBound(AttitudeBound):
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
         values = nlp.parameters.terminal_scale * cs.sumsqr(nlp.variables.X[:3, N])
-        return self._rows("attitude |phi_T|^2 / bound^2", np.array([float(N)]), values)
+        label = "attitude |phi_T|^2 / bound^2"
+        return block_rows(nlp, self.name, [label], "(relative)", values, np.array([float(N)]))
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
         return _worst(problem, [[excess]], result.t[-1:], self.name, "rad")
-
-
-def _pin(problem: BalanceProblem, lower, upper, node: int, kind: str, value) -> None:
-    """Fix a derivative of the balance joints at a node: a state's rows, or (the acceleration
-    with control ``"acceleration"``) the control there. The trapezoidal rule's acceleration is
-    constant on an interval, the mean of its two nodes' controls: both are fixed."""
-    rows = problem.model.joint_rows(problem.control)
-    level = DERIVATIVES.index(kind)
-    if level < len(rows):
-        lower.X[rows[level], node] = upper.X[rows[level], node] = value
-        return
-    nodes = (
-        [node] if problem.transcription.has_midpoints else [node, node + (1 if node == 0 else -1)]
-    )
-    for k in nodes:
-        lower.U[:, k] = upper.U[:, k] = value
 
 
 class InitialState(Constraint):
@@ -451,10 +412,21 @@ class InitialState(Constraint):
         return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
     def bound_variables(self, problem, lower, upper):
+        """Each target fixes a state's rows at the node, or (the acceleration with control
+        ``"acceleration"``) the control there; the trapezoidal rule's acceleration is constant
+        on an interval, the mean of its two nodes' controls: both are fixed."""
         if self.index == 0:  # the start: the base at its initial attitude too
             lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+        node, rows = problem.N if self.index else 0, problem.model.joint_rows(problem.control)
         for kind, value in self.targets(problem):
-            _pin(problem, lower, upper, problem.N if self.index else 0, kind, value)
+            level = DERIVATIVES.index(kind)
+            if level < len(rows):
+                lower.X[rows[level], node] = upper.X[rows[level], node] = value
+            elif problem.transcription.has_midpoints:
+                lower.U[:, node] = upper.U[:, node] = value
+            else:
+                nodes = [node, node + (1 if node == 0 else -1)]
+                lower.U[:, nodes] = upper.U[:, nodes] = value[:, None]
 
     def check(self, problem, result):
         state = dict(zip(DERIVATIVES, (result.q_B, result.q_dot_B, result.q_ddot_B)))
@@ -498,14 +470,8 @@ class Collision(Constraint):
     name = "collision"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        labels = tuple(f"{label} (soft minimum)" for label in nlp.clearance_labels)
-        block = Block(
-            "collision clearance",
-            labels,
-            ("m",) * len(labels),
-            nlp.transcription.point_taus(nlp.key.intervals),
-        )
-        return [(block, nlp.clearance)]
+        labels = [f"{label} (soft minimum)" for label in nlp.clearance_labels]
+        return block_rows(nlp, "collision clearance", labels, "m", nlp.clearance)
 
     def row_bounds(self, problem, block):
         return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)

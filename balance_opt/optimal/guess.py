@@ -15,25 +15,25 @@ from balance_opt.result import BalanceResult
 log = logging.getLogger(__name__)
 
 
-def guess_solution(problem: BalanceProblem, guess, first_state: np.ndarray) -> Solution:
+def guess_solution(problem: BalanceProblem, guess) -> Solution:
     """The guess named by ``guess``, unclipped."""
     if isinstance(guess, BalanceResult):
-        return from_samples(problem, first_state, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)
+        return from_samples(problem, guess.t, guess.q_B, guess.q_dot_B, guess.q_ddot_B)
     if guess not in GUESSES:
         raise InputError(
             f"initial guess must be one of {', '.join(GUESSES)} or a BalanceResult, got {guess!r}"
         )
     if guess == "analytic":
         try:
-            return analytic_guess(problem, first_state)
+            return analytic_guess(problem)
         except SolverError as exc:
             log.info("analytic law failed (%s); starting from rest", exc)
     # the balance arm held at q_B0, the attitude it leaves (Phase I's)
     q_B, t = np.tile(problem.q_B0, (2, 1)), np.array([0.0, problem.horizon])
-    return from_samples(problem, first_state, t, q_B, np.zeros_like(q_B), np.zeros_like(q_B))
+    return from_samples(problem, t, q_B, np.zeros_like(q_B), np.zeros_like(q_B))
 
 
-def random_guess(problem: BalanceProblem, first_state: np.ndarray, rng) -> Solution:
+def random_guess(problem: BalanceProblem, rng) -> Solution:
     """A smooth random balance motion from rest to rest: ``q_B0`` plus three raised-cosine
     modes per joint with amplitudes drawn up to 0.5 rad (the m-th mode's divided by m),
     clipped to the limits by :func:`from_samples`."""
@@ -50,10 +50,10 @@ def random_guess(problem: BalanceProblem, first_state: np.ndarray, rng) -> Solut
         q += 0.5 * np.outer(1.0 - np.cos(w * t), a)
         qd += 0.5 * w * np.outer(np.sin(w * t), a)
         qdd += 0.5 * w**2 * np.outer(np.cos(w * t), a)
-    return from_samples(problem, first_state, t, q, qd, qdd)
+    return from_samples(problem, t, q, qd, qdd)
 
 
-def analytic_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution:
+def analytic_guess(problem: BalanceProblem) -> Solution:
     """The analytic law's balance motion (Eq. 31, 32), clipped to the limits."""
     from balance_opt.analytic.options import BalanceLawOptions
     from balance_opt.analytic.rollout import rollout
@@ -64,12 +64,10 @@ def analytic_guess(problem: BalanceProblem, first_state: np.ndarray) -> Solution
     # a starting point needs no 1e-10 tolerance: Ipopt ends at the same plan from 1e-6
     loose = IntegrationOptions(rtol=1e-6, atol=1e-9)
     plan = rollout(problem.robot, problem.mission, problem.q_B0, law, t_eval=t, integration=loose)
-    return from_samples(problem, first_state, plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
+    return from_samples(problem, plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
 
 
-def from_samples(
-    problem: BalanceProblem, first_state: np.ndarray, t, q_B, q_dot_B, q_ddot_B
-) -> Solution:
+def from_samples(problem: BalanceProblem, t, q_B, q_dot_B, q_ddot_B) -> Solution:
     """A point of the NLP from sampled balance motion (T, n_B) at times ``t`` (T,):
     interpolated at the points, clipped to the limits, the initial state imposed and the
     attitude integrated along it. With control ``"jerk"`` the jerk is the acceleration's
@@ -97,7 +95,7 @@ def from_samples(
         Z[:, N + 1 :].copy() if has_midpoints else None,
         u[:, N + 1 :].copy() if has_midpoints else None,
     )
-    sol.X[3:, 0] = first_state
+    sol.X[3:, 0] = problem.unpack(problem.lbx).X[3:, 0]
     attitude_along(problem, sol)
     return sol
 

@@ -30,9 +30,10 @@ from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernel
 from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_STAGES, PlannerOptions
 from balance_opt.optimal.problem import (
     BlockStack,
-    ParameterLayout,
+    NLPParameters,
     StructureKey,
-    VariableLayout,
+    parameter_layout,
+    variable_layout,
 )
 
 log = logging.getLogger(__name__)
@@ -44,8 +45,8 @@ class NLPStructure:
 
     key: StructureKey
     solver: cs.Function
-    variables: VariableLayout
-    parameters: ParameterLayout
+    variables: BlockStack
+    parameters: BlockStack
     rows: BlockStack
     row_kinds: tuple[Constraint, ...]
     kinds: tuple[Constraint, ...]
@@ -72,14 +73,14 @@ def build_structure(
     tr = Transcription(key.transcription)
     N, n_pts = key.intervals, tr.n_points(key.intervals)
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
-    variables = VariableLayout(
+    variables = variable_layout(
         tr,
         N,
         model.state_labels(key.control),
         [f"{j} {key.control}" for j in joints],
         peak=key.objective == "peak",
     )
-    parameters = ParameterLayout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
+    parameters = parameter_layout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
     outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds)
     ipopt = ipopt_options_for(key.objective, options, key.intervals)
@@ -95,8 +96,8 @@ def _outer_problem(
     model: PlannerModel,
     key: StructureKey,
     kernels: PointKernels,
-    variables: VariableLayout,
-    parameters: ParameterLayout,
+    variables: BlockStack,
+    parameters: BlockStack,
     kinds: tuple[Constraint, ...],
 ) -> tuple[_Outer, BlockStack, tuple[Constraint, ...]]:
     """The outer problem in SX: the cost, and every kind's rows stacked into ``g``."""
@@ -104,8 +105,8 @@ def _outer_problem(
     w = cs.SX.sym("w", variables.size)
     Y = cs.SX.sym("Y", kernels.n_y, tr.n_points(N))
     p = cs.SX.sym("p", parameters.size)
-    v = variables.unpack_symbolic(w)
-    par = parameters.unpack_symbolic(p)
+    v = variables.unpack(w)
+    par = parameters.unpack(p, NLPParameters)
     x_dot, running, torque = kernels.split(Y)
     cost = par.h * cs.mtimes(running, cs.DM(tr.quadrature_weights(N)))
     cost = cost + par.terminal_weight * cs.sumsqr(v.X[:3, N])
@@ -294,23 +295,37 @@ def ipopt_options_for(
     return ipopt
 
 
+def _point_indices(variables: BlockStack) -> np.ndarray:
+    """(n_z, n_points) indices into ``w`` of each point's ``z = [x; u]``, points in the order
+    nodes, then midpoints."""
+
+    def indices(name):
+        b = variables.by_name[name]
+        return b.offset + np.arange(b.size).reshape(b.shape, order="F")
+
+    X, U = indices("X"), indices("U")
+    if "Xm" in variables.by_name:
+        X, U = np.hstack([X, indices("Xm")]), np.hstack([U, indices("Um")])
+    return np.vstack([X, U])
+
+
 def _ipopt_solver(
     kernels: PointKernels,
-    variables: VariableLayout,
-    parameters: ParameterLayout,
+    variables: BlockStack,
+    parameters: BlockStack,
     outer: _Outer,
     n_g: int,
     ipopt: dict,
 ) -> cs.Function:
     """The NLP in MX (the kernels mapped over the points, the outer problem on top) with its
     assembled derivatives, handed to Ipopt."""
-    point_idx = variables.point_indices()
+    point_idx = _point_indices(variables)
     point_flat = point_idx.ravel(order="F")
     if not np.array_equal(np.sort(point_flat), np.arange(point_flat.size)):
         raise AssertionError("the points' variables must come first, each in one point")
     w, p = cs.MX.sym("w", variables.size), cs.MX.sym("p", parameters.size)
     Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
-    par = parameters.unpack_symbolic(p)
+    par = parameters.unpack(p, NLPParameters)
     data = (par.mission, par.running_weights, par.q_rest)
     n_points = point_idx.shape[1]
     Y = kernels.value.map(n_points)(Z, *data)

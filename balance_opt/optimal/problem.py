@@ -14,7 +14,7 @@ import numpy as np
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.optimal.budget import limited_kinds
-from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK
+from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK, collision_setup
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -110,21 +110,42 @@ class Block:
 
 
 class BlockStack:
-    """Blocks stacked one after the other into a vector."""
+    """Blocks stacked one after the other into a vector: the decision variables, the parameters
+    or the rows of ``g``. A block of variables or parameters is a field of what the vector
+    unpacks to (:class:`Solution`, :class:`NLPParameters`)."""
 
-    def __init__(self):
+    def __init__(self, *blocks: Block):
         self.blocks: list[Block] = []
+        self.by_name: dict[str, Block] = {}
         self.size = 0
+        for block in blocks:
+            self.add(block)
 
     def add(self, block: Block) -> Block:
         block = dataclasses.replace(block, offset=self.size)
         self.blocks.append(block)
+        self.by_name[block.name] = block
         self.size += block.size
         return block
 
     def block_at(self, index: int) -> Block:
         offsets = [b.offset for b in self.blocks]
         return self.blocks[int(np.searchsorted(offsets, index, side="right")) - 1]
+
+    def unpack(self, w, into=None):
+        """The blocks of ``w`` (NumPy, or a CasADi symbol), each a (rows, columns) matrix, as
+        the fields of ``into`` (default :class:`Solution`)."""
+        into = into or Solution
+        if isinstance(w, (cs.SX, cs.MX)):
+            return into(**{n: cs.reshape(w[b.slice], *b.shape) for n, b in self.by_name.items()})
+        w = np.asarray(w, dtype=float).ravel()
+        return into(**{n: w[b.slice].reshape(b.shape, order="F") for n, b in self.by_name.items()})
+
+    def pack(self, fields) -> np.ndarray:
+        w = np.empty(self.size)
+        for name, b in self.by_name.items():
+            w[b.slice] = np.asarray(getattr(fields, name), dtype=float).ravel(order="F")
+        return w
 
 
 @dataclass
@@ -148,67 +169,25 @@ class Solution:
         return cs.horzcat(self.X, self.Xm), cs.horzcat(self.U, self.Um)
 
 
-class VariableLayout(BlockStack):
-    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um``, ``S``."""
-
-    def __init__(
-        self, transcription: Transcription, N: int, state_labels, control_labels, peak=False
+def variable_layout(
+    transcription: Transcription, N: int, state_labels, control_labels, peak=False
+) -> BlockStack:
+    """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um`` (the midpoints' with the
+    transcription's midpoints) and ``S`` (with ``peak``)."""
+    nodes = np.arange(N + 1, dtype=float)
+    layout = BlockStack()
+    for name, labels, taus in (
+        ("X", state_labels, nodes),
+        ("Xm", state_labels, nodes[:-1] + 0.5),
+        ("U", control_labels, nodes),
+        ("Um", control_labels, nodes[:-1] + 0.5),
     ):
-        super().__init__()
-        nodes = np.arange(N + 1, dtype=float)
-        mids = nodes[:-1] + 0.5
-        self.has_midpoints = transcription.has_midpoints
-        self.by_name: dict[str, Block] = {}
-        for name, labels, taus in (
-            ("X", state_labels, nodes),
-            ("Xm", state_labels, mids),
-            ("U", control_labels, nodes),
-            ("Um", control_labels, mids),
-        ):
-            if name.endswith("m") and not self.has_midpoints:
-                continue
-            units = tuple(unit_of(r) for r in labels)
-            self.by_name[name] = self.add(Block(name, tuple(labels), units, taus))
-        if peak:
-            label = ("attitude peak^2 / PEAK_SCALE^2",)
-            self.by_name["S"] = self.add(Block("S", label, ("(relative)",), np.array([0.0])))
-
-    def unpack(self, w) -> Solution:
-        w = np.asarray(w, dtype=float).ravel()
-        return Solution(
-            **{n: w[b.slice].reshape(b.shape, order="F") for n, b in self.by_name.items()}
-        )
-
-    def unpack_symbolic(self, w) -> Solution:
-        return Solution(**{n: cs.reshape(w[b.slice], *b.shape) for n, b in self.by_name.items()})
-
-    def pack(self, sol: Solution) -> np.ndarray:
-        w = np.empty(self.size)
-        for name, b in self.by_name.items():
-            w[b.slice] = np.asarray(getattr(sol, name), dtype=float).ravel(order="F")
-        return w
-
-    def point_indices(self) -> np.ndarray:
-        """(n_z, n_points) indices into ``w`` of each point's ``z = [x; u]``, points in the order
-        nodes, then midpoints."""
-
-        def indices(name):
-            b = self.by_name[name]
-            return b.offset + np.arange(b.size).reshape(b.shape, order="F")
-
-        X, U = indices("X"), indices("U")
-        if self.has_midpoints:
-            X, U = np.hstack([X, indices("Xm")]), np.hstack([U, indices("Um")])
-        return np.vstack([X, U])
-
-    def describe(self, index: int) -> tuple[str, float]:
-        """``(name, tau)`` of entry ``index``: ``"node balance_joint1 velocity"``,
-        ``"midpoint ..."``, ``"peak ..."``."""
-        block = self.block_at(index)
-        row, _, tau = block.locate(index)
-        if block.name == "S":
-            return f"peak {row}", tau
-        return f"{'midpoint' if block.name.endswith('m') else 'node'} {row}", tau
+        if transcription.has_midpoints or not name.endswith("m"):
+            layout.add(Block(name, tuple(labels), tuple(unit_of(r) for r in labels), taus))
+    if peak:
+        label = ("attitude peak^2 / PEAK_SCALE^2",)
+        layout.add(Block("S", label, ("(relative)",), np.array([0.0])))
+    return layout
 
 
 class NLPParameters(NamedTuple):
@@ -227,92 +206,17 @@ class NLPParameters(NamedTuple):
     mission: Any
 
 
-@dataclass(frozen=True)
-class ParameterLayout:
-    """The parameter vector ``p``: the fields of :class:`NLPParameters`, one after the other
-    (the mission samples column by column)."""
-
-    n_weights: int
-    n_B: int
-    n_m: int
-    n_points: int
-
-    @property
-    def slices(self) -> dict[str, slice]:
-        sizes = dict.fromkeys(NLPParameters._fields, 1)  # the scalars
-        sizes.update(
-            running_weights=self.n_weights, q_rest=self.n_B, mission=self.n_m * self.n_points
+def parameter_layout(n_weights: int, n_B: int, n_m: int, n_points: int) -> BlockStack:
+    """The parameter vector ``p``: the fields of :class:`NLPParameters`, one after the other,
+    each a column (the scalars 1 x 1) but the mission samples, (n_m, n_points)."""
+    rows = dict.fromkeys(NLPParameters._fields, 1)
+    rows.update(running_weights=n_weights, q_rest=n_B, mission=n_m)
+    return BlockStack(
+        *(
+            Block(name, (name,) * n, ("",) * n, np.arange(n_points if name == "mission" else 1.0))
+            for name, n in rows.items()
         )
-        out, start = {}, 0
-        for name in NLPParameters._fields:
-            out[name] = slice(start, start + sizes[name])
-            start += sizes[name]
-        return out
-
-    @property
-    def size(self) -> int:
-        return self.slices["mission"].stop
-
-    def pack(self, values: NLPParameters) -> np.ndarray:
-        return np.concatenate([np.asarray(v, dtype=float).ravel(order="F") for v in values])
-
-    def unpack_symbolic(self, p) -> NLPParameters:
-        """The fields of a symbolic parameter vector (CasADi column vector): each a column
-        (the scalars 1 x 1), the mission samples an (n_m, n_points) matrix."""
-        fields = {name: p[sl] for name, sl in self.slices.items()}
-        fields["mission"] = cs.reshape(fields["mission"], self.n_m, self.n_points)
-        return NLPParameters(**fields)
-
-
-def check_problem(
-    model: PlannerModel,
-    mission,
-    q_B0,
-    options: PlannerOptions,
-    robot: FloatingRobot | None = None,
-) -> tuple[np.ndarray, float]:
-    """Check a problem's sizes and configurations against the robot: ``(q_B0, horizon)``."""
-    robot = model.robot if robot is None else robot
-    if robot.joint_names != model.robot.joint_names:
-        raise InputError(f"robot {robot.name} is not the robot of the planner model")
-    if getattr(mission, "dof", None) != model.n_M:
-        raise InputError(
-            f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
-            f"the mission arm of {robot.name} has {model.n_M}"
-        )
-    q_B0 = np.asarray(q_B0, dtype=float).ravel()
-    names = [robot.joint_names[i] for i in robot.balance_indices]
-    if q_B0.size != model.n_B:
-        raise InputError(
-            f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
-        )
-    horizon = float(mission.duration if options.horizon is None else options.horizon)
-    if horizon < mission.duration:
-        raise InputError(
-            f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
-        )
-    lim = robot.limits.subset(robot.balance_indices)
-    for what, values in (
-        ("initial configuration q_B0", q_B0),
-        ("final_configuration", options.final_configuration),
-        ("rest_configuration", options.rest_configuration),
-    ):
-        if values is None:
-            continue
-        values = np.asarray(values, dtype=float)
-        if values.size != model.n_B:
-            raise InputError(
-                f"planner option '{what}' has {values.size} values, the balance joints are {model.n_B}"
-            )
-        if not options.position_limits or what == "rest_configuration":
-            continue
-        for j, name in enumerate(names):
-            if not lim.lower[j] - LIMIT_TOLERANCE <= values[j] <= lim.upper[j] + LIMIT_TOLERANCE:
-                raise InfeasibleLimitsError(
-                    f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
-                    f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
-                )
-    return q_B0, horizon
+    )
 
 
 @dataclass(frozen=True)
@@ -350,38 +254,63 @@ class Bounds:
 
 
 class BalanceProblem:
-    """The numeric data of one balance planning problem (``q_B0`` and ``horizon`` from
-    :func:`check_problem`; ``h0``: the system's constant total momentum, world frame, the base
-    starting at the identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for
-    zero; ``collision``: its :class:`~balance_opt.optimal.collision.CollisionSetup` or ``None``).
+    """The numeric data of one balance planning problem, checked against the robot before
+    anything is built: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``,
+    ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the limits of
+    ``robot`` (default: the model's robot; the model's kinematics, possibly other limits), and
+    ``h0``: the system's constant total momentum, world frame, the base starting at the
+    identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for zero.
 
     Attributes:
+        horizon: the options' horizon, else the mission's duration [s].
         N, h: number of intervals and their length [s].
         point_times: times of the collocation points [s], nodes then midpoints.
         mission_samples: each point's data ``[q_M; q_dot_M; q_ddot_M; h0]`` (n_m, n_points).
         q_rest: configuration of the rest pull [rad] (``q_B0`` unless the options give one).
+        collision: its :class:`~balance_opt.optimal.collision.CollisionSetup` or ``None``.
         bounds: the :class:`Bounds` its NLP enforces: the options' until the refinement
             makes a new problem with lower ones.
+
+    Raises:
+        InputError: sizes or options that do not fit the robot.
+        InfeasibleLimitsError: ``q_B0`` or the final configuration outside the position limits.
     """
 
     def __init__(
         self,
         model: PlannerModel,
         mission,
-        q_B0: np.ndarray,
+        q_B0,
         options: PlannerOptions,
-        horizon: float,
         robot: FloatingRobot | None = None,
         h0=None,
-        collision=None,
     ):
         self.model = model
-        # The task's robot: the model's kinematics, possibly other limits.
-        self.robot = model.robot if robot is None else robot
+        self.robot = robot = model.robot if robot is None else robot
         self.mission = mission
-        self.q_B0 = q_B0
         self.options = options
-        self.horizon = horizon
+        if robot.joint_names != model.robot.joint_names:
+            raise InputError(f"robot {robot.name} is not the robot of the planner model")
+        if getattr(mission, "dof", None) != model.n_M:
+            raise InputError(
+                f"mission trajectory has {getattr(mission, 'dof', '?')} joints, "
+                f"the mission arm of {robot.name} has {model.n_M}"
+            )
+        self.q_B0 = q_B0 = np.asarray(q_B0, dtype=float).ravel()
+        self.limits = robot.limits.subset(robot.balance_indices)
+        self.balance_joints = names = tuple(robot.joint_names[i] for i in robot.balance_indices)
+        if q_B0.size != model.n_B:
+            raise InputError(
+                f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
+            )
+        self.horizon = horizon = float(options.horizon or mission.duration)  # None or > 0
+        if horizon < mission.duration:
+            raise InputError(
+                f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
+            )
+        self._check_configurations()
+        q_M0 = np.atleast_2d(mission.sample(np.zeros(1))[0])[0]
+        self.collision = collision = collision_setup(model, options, np.concatenate([q_M0, q_B0]))
         self.N = options.intervals
         self.h = horizon / self.N
         self.transcription = Transcription(options.transcription)
@@ -398,9 +327,6 @@ class BalanceProblem:
         self.q_rest = (
             q_B0 if options.rest_configuration is None else np.array(options.rest_configuration)
         )
-        self.limits = self.robot.limits.subset(self.robot.balance_indices)
-        self.balance_joints = tuple(self.robot.joint_names[i] for i in self.robot.balance_indices)
-        self.collision = collision
         collision_bound = None
         if collision is not None:
             start = np.minimum(
@@ -416,6 +342,33 @@ class BalanceProblem:
         )
         # the last clearance check and the result it checked (the refinement reads it)
         self.last_clearance = None
+
+    def _check_configurations(self) -> None:
+        options, lim, n_B = self.options, self.limits, self.model.n_B
+        for what, values in (
+            ("initial configuration q_B0", self.q_B0),
+            ("final_configuration", options.final_configuration),
+            ("rest_configuration", options.rest_configuration),
+        ):
+            if values is None:
+                continue
+            values = np.asarray(values, dtype=float)
+            if values.size != n_B:
+                raise InputError(
+                    f"planner option '{what}' has {values.size} values, the balance joints are {n_B}"
+                )
+            if not options.position_limits or what == "rest_configuration":
+                continue
+            for j, name in enumerate(self.balance_joints):
+                if (
+                    not lim.lower[j] - LIMIT_TOLERANCE
+                    <= values[j]
+                    <= lim.upper[j] + LIMIT_TOLERANCE
+                ):
+                    raise InfeasibleLimitsError(
+                        f"balance joint '{name}': {what} is {values[j]:.6g} rad, outside its position limits "
+                        f"[{lim.lower[j]:.6g}, {lim.upper[j]:.6g}] rad"
+                    )
 
 
 class PlannerSolverError(SolverError):

@@ -11,6 +11,7 @@ import numpy as np
 
 from balance_opt.errors import SolverError
 from balance_opt.optimal.guess import random_guess
+from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import GUESSES, PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.result import BalanceResult
@@ -149,18 +150,7 @@ def _refinement(rounds: list, solves) -> dict:
 
 def solve_with_bounds(nlp, guess) -> BalanceResult:
     """Solve (with a path attitude bound through the free peak problem first), then
-    :func:`refine`; the plan's (or a failure's) :class:`PlanReport` written into its ``info``."""
-    try:
-        result = _solve_with_bounds(nlp, guess)
-    except SolverError as exc:
-        if getattr(exc.result, "solver", None) is not None:
-            exc.result.info.update(exc.result.solver.as_info())
-        raise
-    result.info.update(result.solver.as_info())
-    return result
-
-
-def _solve_with_bounds(nlp, guess) -> BalanceResult:
+    :func:`refine`."""
     bound = nlp.options.path_attitude_bound
     if bound is None:
         if nlp.options.objective == "peak":
@@ -292,7 +282,6 @@ def plan_peak(nlp, guess) -> BalanceResult:
         result = final.solve_once(guess, before)
         w = nlp.initial_guess(result.solver.solution)  # with S: the peak problem's solution
         result.solver = replace(result.solver, solution=nlp.unpack(w))
-        result.info["nlp_solution"] = w.tolist()
         stages += (result.solver.solves[-1].as_stage("smooth, re-simulated"),)
     else:
         drifts = {"max_drift_rad": result.max_drift, "final_drift_rad": result.final_drift}
@@ -354,12 +343,13 @@ class StartTask:
     def __getstate__(self) -> dict:
         n, key = self.nlp, self.nlp.structure.key
         stage = None if key.between_points else key.objective
-        data = (n.model.robot, n.robot, n.mission, n.q_B0, n.options, n.h0, stage)
+        data = (n.model.robot, n.mission, n.q_B0, n.options, n.robot, n.h0, stage)
         # the problem's own class rebuilds it (pickled by reference: no import of solve here)
-        return {"build": type(n).from_data, "data": data, "phase": self.phase}
+        return {"build": type(n), "data": data, "phase": self.phase}
 
     def __setstate__(self, state: dict) -> None:
-        self.nlp = state["build"](*state["data"])
+        robot, *data = state["data"]
+        self.nlp = state["build"](PlannerModel(robot), *data)
         self.phase, self.remote = state["phase"], True
 
     def __call__(self, guess):
@@ -387,9 +377,8 @@ def multi_start(nlp, guess, executor=None):
     rng = np.random.default_rng(nlp.options.seed)
     named = ([guess] + [g for g in GUESSES if g != guess])[: nlp.options.starts]
     guesses = [(g if isinstance(g, str) else type(g).__name__, g) for g in named]
-    first_state = nlp.unpack(nlp.lbx).X[3:, 0]
     while len(guesses) < nlp.options.starts:
-        guesses.append(("random", nlp.pack(random_guess(nlp, first_state, rng))))
+        guesses.append(("random", nlp.pack(random_guess(nlp, rng))))
     single = nlp.variant(starts=1)
     starting = [g for _, g in guesses]
     owner = list(range(len(starting)))
@@ -415,18 +404,19 @@ def multi_start(nlp, guess, executor=None):
             first_error = first_error or error
             runs.append({**entry, "status": str(error.status)})
             continue
+        last = result.solver.solves[-1]
         runs.append(
             {
                 **entry,
-                "status": result.info["status"],
-                "objective": result.info["objective"],
+                "status": last.status,
+                "objective": last.objective,
                 "max_drift_rad": result.max_drift,
                 "final_drift_rad": result.final_drift,
-                "iterations": result.info["total_iterations"],
-                "solve_s": result.info["total_solve_time_s"],  # every Ipopt solve of the start
+                "iterations": result.solver.iterations,
+                "solve_s": result.solver.solve_s,  # every Ipopt solve of the start
             }
         )
-        if best is None or result.info["objective"] < best.info["objective"]:
+        if best is None or last.objective < best.solver.solves[-1].objective:
             best = result
     if best is None:
         raise first_error

@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from balance_opt import progress
-from balance_opt.errors import InputError
+from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
@@ -21,12 +21,11 @@ from balance_opt.motion.so3 import (
     quaternion_multiply,
     rotation_angle,
 )
-from balance_opt.optimal.collision import collision_setup
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, attitude_scale
+from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.model import PlannerModel
-from balance_opt.optimal.nlp import NLPStructure, build_structure
+from balance_opt.optimal.nlp import build_structure
 from balance_opt.optimal.options import (
     PEAK_STAGES,
     SMOOTH_PLAN,
@@ -36,12 +35,10 @@ from balance_opt.optimal.options import (
 )
 from balance_opt.optimal.problem import (
     BalanceProblem,
-    Block,
     NLPParameters,
     PlannerSolverError,
     Solution,
     StructureKey,
-    check_problem,
 )
 from balance_opt.optimal.refine import (
     NLP_FUNCTIONS,
@@ -54,16 +51,36 @@ from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
+#: What a variable block's entries are named by in a failure message (else ``"node"``).
+POINT_NAMES = {"S": "peak", "Xm": "midpoint", "Um": "midpoint"}
+
 
 class BalanceNLP(BalanceProblem):
     """One balance planning problem with its compiled NLP (``structure``) and numeric inputs
     (``lbx``/``ubx``, ``lbg``/``ubg``, ``parameters``), built by :func:`build_balance_nlp`;
-    ``build_time`` is 0 when the structure was cached."""
+    ``build_time`` is 0 when the structure was cached. ``stage``: an inner stage of the peak
+    objective (``"smooth"`` or ``"integral"``), without the joint-limit rows between the points
+    unless ``between``."""
 
-    def __init__(self, structure: NLPStructure, setup_time: float, build_time: float, *problem):
-        super().__init__(*problem)  # model, mission, q_B0, options, horizon, robot, h0, collision
-        self.structure, self.setup_time, self.build_time = structure, setup_time, build_time
+    def __init__(
+        self, model, mission, q_B0, options, robot=None, h0=None, stage=None, between=False
+    ):
+        start = time.perf_counter()
+        super().__init__(model, mission, q_B0, options, robot, h0)
+        momentum = bool(np.any(self.h0 != 0.0))
+        collision = self.collision.rows.key if self.collision is not None else ""
+        key = StructureKey.of(self.limits, options, momentum, collision)
+        if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
+            key = dataclasses.replace(
+                key, objective=stage, path_attitude_bound=False, between_points=between
+            )
+        built_now = key not in model.nlp_cache
+        if built_now:
+            model.nlp_cache[key] = build_structure(model, key, options)
+        self.structure = model.nlp_cache[key]
+        self.build_time = self.structure.build_time if built_now else 0.0
         self._set_bounds()
+        self.setup_time = time.perf_counter() - start - self.build_time
 
     def with_bounds(self, **changes) -> BalanceNLP:
         """The same problem with other :class:`~balance_opt.optimal.problem.Bounds`; this one
@@ -83,8 +100,9 @@ class BalanceNLP(BalanceProblem):
                 h=self.h,
                 terminal_weight=weights.peak_terminal if peak else weights.terminal,
                 running_weights=weights.running("peak" if peak else "integral"),
-                path_scale=attitude_scale(self.bounds.path),
-                terminal_scale=attitude_scale(self.bounds.terminal),
+                # an attitude bound's rows are |phi|^2 / bound^2 <= 1
+                path_scale=1.0 / self.bounds.path**2 if self.bounds.path else 1.0,
+                terminal_scale=1.0 / self.bounds.terminal**2 if self.bounds.terminal else 1.0,
                 peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
                 # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
                 smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
@@ -107,20 +125,11 @@ class BalanceNLP(BalanceProblem):
         for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
             self.lbg[block.slice], self.ubg[block.slice] = kind.row_bounds(self, block)
 
-    def variant(
-        self, stage: str | None = None, between_points: bool = False, **changes
-    ) -> BalanceNLP:
+    def variant(self, stage: str | None = None, between: bool = False, **changes) -> BalanceNLP:
         """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
-        return build_balance_nlp(
-            self.model,
-            self.mission,
-            self.q_B0,
-            options,
-            self.robot,
-            h0=self.h0,
-            stage=stage,
-            between_points=between_points,
+        return BalanceNLP(
+            self.model, self.mission, self.q_B0, options, self.robot, self.h0, stage, between
         )
 
     def stage(self, stage: Stage | str, final: bool = False) -> BalanceNLP:
@@ -140,28 +149,6 @@ class BalanceNLP(BalanceProblem):
             )
         return self.variant(stage.name, stage.between_points, **changes)
 
-    @property
-    def variables(self) -> dict[str, Block]:
-        return self.structure.variables.by_name
-
-    @property
-    def constraints(self) -> list[Block]:
-        return self.structure.rows.blocks
-
-    def constraint_name(self, index: int) -> tuple[str, float, str]:
-        """``(name, time [s], unit)`` of constraint ``index`` (for an interval's constraint, the
-        interval's start)."""
-        block = self.structure.rows.block_at(index)
-        row, unit, tau = block.locate(index)
-        return f"{block.name}: {row}", tau * self.h, unit
-
-    def describe_constraint(self, index: int) -> str:
-        block = self.structure.rows.block_at(index)
-        name, t, _ = self.constraint_name(index)
-        if block.per_interval:
-            return f"{name} on the interval {t:.3f}-{t + self.h:.3f} s"
-        return f"{name} at t = {t:.3f} s"
-
     def unpack(self, w) -> Solution:
         return self.structure.variables.unpack(w)
 
@@ -176,8 +163,8 @@ class BalanceNLP(BalanceProblem):
             if isinstance(guess, Solution):  # of this grid or another (an inner stage's)
                 sol = resampled(guess, self.N)
             else:
-                sol = guess_solution(self, guess, self.unpack(self.lbx).X[3:, 0])
-            if "S" in self.variables:  # the guess's own peak
+                sol = guess_solution(self, guess)
+            if "S" in self.structure.variables.by_name:  # the guess's own peak
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
             return np.clip(self.pack(sol), self.lbx, self.ubx)
@@ -185,12 +172,6 @@ class BalanceNLP(BalanceProblem):
         if w.size != n_w:
             raise InputError(f"initial guess vector has {w.size} entries, the NLP has {n_w}")
         return w
-
-    @classmethod
-    def from_data(cls, model_robot, robot, mission, q_B0, options, h0, stage) -> BalanceNLP:
-        """The problem rebuilt from its data in another process (a multi-start's worker)."""
-        model = PlannerModel(model_robot)
-        return build_balance_nlp(model, mission, q_B0, options, robot, h0=h0, stage=stage)
 
     def solve(self, initial_guess="analytic", executor=None) -> BalanceResult:
         """The plan (:mod:`balance_opt.optimal.refine`), from ``options.starts`` guesses, their
@@ -202,10 +183,17 @@ class BalanceNLP(BalanceProblem):
         """
         try:
             if self.options.starts > 1:
-                return multi_start(self, initial_guess, executor)
-            return solve_with_bounds(self, initial_guess)
+                result = multi_start(self, initial_guess, executor)
+            else:
+                result = solve_with_bounds(self, initial_guess)
+        except SolverError as exc:  # the plan's report, or the failure's, written into its info
+            if getattr(exc.result, "solver", None) is not None:
+                exc.result.info.update(exc.result.solver.as_info())
+            raise
         finally:  # a compilation of the kernels this plan started ends with it
             self.model.finish_compiling()
+        result.info.update(result.solver.as_info())
+        return result
 
     def solve_once(
         self, initial_guess="analytic", before: PlanReport | None = None
@@ -228,7 +216,6 @@ class BalanceNLP(BalanceProblem):
         t3 = time.perf_counter()
         result.solver = (PlanReport(()) if before is None else before).then(report)
         result.info.update(self._report(report, worst, (t0, t1, t2, t3)))
-        result.info["nlp_solution"] = w.tolist()
         if not report.success:
             name, t, amount, unit, where = worst
             raise PlannerSolverError(
@@ -315,18 +302,29 @@ class BalanceNLP(BalanceProblem):
         }
 
     def largest_violation(self, w, g) -> tuple[str, float, float, str, str]:
-        """``(name, time [s], amount, unit, description)`` of the worst constraint or bound."""
+        """``(name, time [s], amount, unit, description)`` of the worst constraint or bound (of
+        an interval's constraint, the interval's start)."""
         viol_g = np.maximum(np.maximum(self.lbg - g, g - self.ubg), 0.0)
         viol_x = np.maximum(np.maximum(self.lbx - w, w - self.ubx), 0.0)
-        if viol_g.size and viol_g.max() >= (viol_x.max() if viol_x.size else 0.0):
-            i = int(np.argmax(viol_g))
-            name, t, unit = self.constraint_name(i)
-            return name, t, float(viol_g[i]), unit, self.describe_constraint(i)
-        i = int(np.argmax(viol_x))
-        layout = self.structure.variables
-        name, tau = layout.describe(i)
-        t, unit = tau * self.h, layout.block_at(i).locate(i)[1]
-        return f"bound on {name}", t, float(viol_x[i]), unit, f"bound on {name} at t = {t:.3f} s"
+        row_worst = viol_g.size and viol_g.max() >= (viol_x.max() if viol_x.size else 0.0)
+        viol, layout = (viol_g, "rows") if row_worst else (viol_x, "variables")
+        i = int(np.argmax(viol))
+        block = getattr(self.structure, layout).block_at(i)
+        row, unit, tau = block.locate(i)
+        t = tau * self.h
+        if row_worst:
+            name = f"{block.name}: {row}"
+        else:
+            name = f"bound on {POINT_NAMES.get(block.name, 'node')} {row}"
+        if block.per_interval:
+            return (
+                name,
+                t,
+                float(viol[i]),
+                unit,
+                f"{name} on the interval {t:.3f}-{t + self.h:.3f} s",
+            )
+        return name, t, float(viol[i]), unit, f"{name} at t = {t:.3f} s"
 
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
@@ -341,63 +339,21 @@ def build_balance_nlp(
     options: PlannerOptions | None = None,
     robot: FloatingRobot | None = None,
     h0=None,
-    stage: str | None = None,
-    between_points: bool = False,
 ) -> BalanceNLP:
-    """Build the balance NLP of a mission: the mission arm's motion (``sample(t) -> q, q_dot,
-    q_ddot``, ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the
-    limits of ``robot`` (default: the model's robot), the system's total momentum ``h0`` (world
-    frame, ``[linear; angular about the CoM]`` [N s; N m s], the base starting at the identity;
-    ``None``: zero). The compiled structure is taken from ``planner_model.nlp_cache`` when one of
-    the same :class:`~balance_opt.optimal.problem.StructureKey` was built; the rest is numeric
-    input. ``stage``: an inner stage of the peak objective (``"smooth"`` or ``"integral"``),
-    without the joint-limit rows between the points unless ``between_points``.
+    """Build the balance NLP of a mission (the arguments:
+    :class:`~balance_opt.optimal.problem.BalanceProblem`). The compiled structure is taken from
+    ``planner_model.nlp_cache`` when one of the same
+    :class:`~balance_opt.optimal.problem.StructureKey` was built; the rest is numeric input.
 
     Raises:
         InputError: sizes or options that do not fit the robot.
         InfeasibleLimitsError: ``q_B0`` or the final configuration outside the position limits.
     """
-    start = time.perf_counter()
     model = (
         planner_model if isinstance(planner_model, PlannerModel) else PlannerModel(planner_model)
     )
     options = options or PlannerOptions()
-    robot = model.robot if robot is None else robot
-    q_B0, horizon = check_problem(model, mission_trajectory, q_B0, options, robot)
-    momentum = h0 is not None and bool(np.any(np.asarray(h0, dtype=float) != 0.0))
-    q_M0 = np.atleast_2d(mission_trajectory.sample(np.zeros(1))[0])[0]
-    collision = collision_setup(model, options, np.concatenate([q_M0, q_B0]))
-    key = StructureKey.of(
-        robot.limits.subset(robot.balance_indices),
-        options,
-        momentum,
-        collision.rows.key if collision is not None else "",
-    )
-    if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
-        key = dataclasses.replace(
-            key, objective=stage, path_attitude_bound=False, between_points=between_points
-        )
-    built_now = key not in model.nlp_cache
-    if built_now:
-        model.nlp_cache[key] = build_structure(model, key, options)
-    structure = model.nlp_cache[key]
-    build_time = structure.build_time if built_now else 0.0
-    setup_time = time.perf_counter() - start - build_time
-    problem = (model, mission_trajectory, q_B0, options, horizon, robot, h0, collision)
-    return BalanceNLP(structure, setup_time, build_time, *problem)
-
-
-def plan_optimal(
-    robot: FloatingRobot | PlannerModel,
-    mission,
-    q_B0,
-    options: PlannerOptions | None = None,
-    initial_guess="analytic",
-    h0=None,
-) -> BalanceResult:
-    """:func:`build_balance_nlp` then :meth:`BalanceNLP.solve` (a :class:`PlannerModel` keeps
-    the symbolic model and the compiled NLPs across calls)."""
-    return build_balance_nlp(robot, mission, q_B0, options, h0=h0).solve(initial_guess)
+    return BalanceNLP(model, mission_trajectory, q_B0, options, robot, h0)
 
 
 def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:

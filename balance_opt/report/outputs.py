@@ -9,6 +9,7 @@ import json
 import math
 import platform
 from collections.abc import Mapping
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -18,22 +19,10 @@ from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.optimal.ipopt_options import ipopt_version
-from balance_opt.result import ATTITUDE_COLUMNS, BULKY_INFO_KEYS, BalanceResult
+from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, limit_bounds
 
 #: The arrays of a :class:`~balance_opt.result.BalanceResult` sampled on its time grid.
-SAMPLED_ARRAYS = (
-    "t",
-    "q_M",
-    "q_dot_M",
-    "q_ddot_M",
-    "q_B",
-    "q_dot_B",
-    "q_ddot_B",
-    "quaternion",
-    "omega",
-    "momentum_residual",
-    "sigma_min",
-)
+SAMPLED_ARRAYS = tuple(f.name for f in fields(BalanceResult) if f.type == "np.ndarray")
 #: Version of the metrics.json layout; 2: ``effort`` margins added, and ``violations`` /
 #: ``limit_violations`` count effort limits too; 3: ``solver.iterations`` and
 #: ``solver.solve_time_s`` count every Ipopt solve behind the plan (were the last solve's).
@@ -62,19 +51,10 @@ def software_versions() -> dict[str, str]:
     }
 
 
-def trajectory_columns(result: BalanceResult) -> tuple[list[str], np.ndarray]:
-    """Column names and (T, k) values of the CSV of ``result`` (``docs/outputs.md``)."""
-    names = ["time", *result.mission_joints, *result.balance_joints, *ATTITUDE_COLUMNS]
-    values = np.column_stack(
-        [result.t, result.q_M, result.q_B, result.quaternion, result.rpy, result.angle]
-    )
-    return names, values
-
-
 def write_trajectory_csv(path: str | Path, result: BalanceResult) -> Path:
     """Write the CSV of ``result`` in full double precision."""
     path = Path(path)
-    names, values = trajectory_columns(result)
+    names, values = result.columns()
     with path.open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(names)
@@ -125,14 +105,6 @@ def to_json(value: Any) -> Any:
 LIMIT_KINDS = ("position", "velocity", "acceleration")
 
 
-def limit_bounds(limits, kind: str, i: int) -> tuple[float, float]:
-    """Lower and upper bound of joint ``i``'s limit of ``kind`` (a rate limit is symmetric)."""
-    if kind == "position":
-        return limits.lower[i], limits.upper[i]
-    value = getattr(limits, kind)[i]
-    return -value, value
-
-
 def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict[str, float]]:
     """Smallest distance to each limit over the motion, per joint: ``{joint: {"position": m,
     "velocity": m, "acceleration": m}}`` [rad, rad/s, rad/s^2; m, m/s, m/s^2 for a prismatic
@@ -147,7 +119,7 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
     for k, name in enumerate((*result.mission_joints, *result.balance_joints)):
         out[name] = {}
         for kind, x in series.items():
-            lo, hi = limit_bounds(robot.limits, kind, robot.joint_index(name))
+            lo, hi = (b[robot.joint_index(name)] for b in limit_bounds(robot.limits, kind))
             out[name][kind] = float(min(np.min(hi - x[:, k]), np.min(x[:, k] - lo)))
     return out
 
@@ -226,7 +198,7 @@ def relative_limit_margins(
     for kind in LIMIT_KINDS:
         values = []
         for j in joints:
-            lo, hi = limit_bounds(robot.limits, kind, robot.joint_index(j))
+            lo, hi = (b[robot.joint_index(j)] for b in limit_bounds(robot.limits, kind))
             if math.isfinite(margins[j][kind]):
                 values.append(margins[j][kind] / (hi - lo if kind == "position" else hi))
         out[kind] = min(values, default=math.inf)

@@ -24,9 +24,9 @@ import numpy as np
 
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.report import style
-from balance_opt.report.outputs import capture_drifts, limit_bounds
+from balance_opt.report.outputs import capture_drifts
 from balance_opt.report.style import FONTS, WIDTHS
-from balance_opt.result import BalanceResult
+from balance_opt.result import BalanceResult, limit_bounds
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -382,7 +382,7 @@ def _joint_column(axes, results, robot: FloatingRobot, k: int) -> None:
     for ax, (field, kind, label) in zip(axes, _ROWS):
         for name, res in results.items():
             ax.plot(res.t, getattr(res, field)[:, k], **style.method_style(name, markers=False))
-        bounds = [b for b in limit_bounds(robot.limits, kind, i) if np.isfinite(b)]
+        bounds = [b[i] for b in limit_bounds(robot.limits, kind) if np.isfinite(b[i])]
         if bounds:  # one line for both limits (NaN between): fewer artists than axhline
             t0, t1 = first.t[0], first.t[-1]
             ys = [y for b in bounds for y in (b, b, np.nan)]
