@@ -136,14 +136,8 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     for warning in check_urdf_physics(root, source):
-        message = f"URDF {source}: {warning}"
-        if message not in _WARNED:  # once: robots are built again and again
-            _WARNED.add(message)
-            log.warning("%s", message)
+        log.warning("URDF %s: %s", source, warning)
     return root, joints
-
-
-_WARNED: set[str] = set()
 
 
 def _ancestors(model: pin.Model, joint_id: int) -> list[int]:
