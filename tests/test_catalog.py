@@ -11,7 +11,7 @@ import pytest
 from balance_opt import cache
 from balance_opt.cli import main
 from balance_opt.errors import InputError
-from balance_opt.model.catalog import ALIASES, _chains, example_robots, example_urdf, robot_info
+from balance_opt.model.library import ALIASES, _chains, example_robots, example_urdf, robot_info
 
 pytest.importorskip("importlib.metadata")
 
@@ -166,14 +166,14 @@ def test_cache_command_shows_and_clears(tmp_path, monkeypatch, capsys):
 
 
 def test_robots_without_joints_print_no_blank_line(capsys, monkeypatch):
-    from balance_opt.model import catalog
+    from balance_opt.model import library
 
     infos = {
         "box": dataclasses.replace(robot_info("ur5"), name="box", chains=[]),
         "ur5": robot_info("ur5"),
     }
-    monkeypatch.setattr(catalog, "example_robots", lambda: list(infos))
-    monkeypatch.setattr(catalog, "robot_info", infos.__getitem__)
+    monkeypatch.setattr(library, "example_robots", lambda: list(infos))
+    monkeypatch.setattr(library, "robot_info", lambda name, robots=None: infos[name])
     assert main(["robots"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert "" not in out

@@ -18,7 +18,7 @@ import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.model.capture import TARGET_LINK
-from balance_opt.model.catalog import DISTRIBUTION, example_robots
+from balance_opt.model.library import DISTRIBUTION, example_robots
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)

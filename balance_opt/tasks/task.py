@@ -243,8 +243,7 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
 
 
 def _urdf_path(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> Path:
-    from balance_opt.model.catalog import example_urdf
-    from balance_opt.model.library import shipped_urdf
+    from balance_opt.model.library import example_urdf, shipped_urdf
 
     r = spec.robot
     if r.urdf is not None:
