@@ -140,14 +140,6 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
     return root, joints
 
 
-def _ancestors(model: pin.Model, joint_id: int) -> list[int]:
-    """``joint_id`` and the joints above it up to the root (Pinocchio's joint ids)."""
-    out = [joint_id]
-    while model.parents[out[-1]] != 0:
-        out.append(model.parents[out[-1]])
-    return out
-
-
 class LimitOverrideError(JointError):
     """A limit override that no joint can have; ``key`` is the override at fault."""
 
@@ -416,10 +408,8 @@ class FloatingRobot:
         """Refuse a balance arm that moves no mass and no inertia: its motion would change
         nothing, and every plan would equal the mission arm alone."""
         model = self.model
-        ids = {self._joint_ids[i] for i in arm.indices}
-        moved = [  # every body below a joint of the arm
-            b for b in range(1, model.njoints) if ids & set(_ancestors(model, b))
-        ]
+        # every body below a joint of the arm
+        moved = sorted(set().union(*(model.subtrees[self._joint_ids[i]] for i in arm.indices)))
         mass = sum(model.inertias[b].mass for b in moved)
         inertia = sum(float(np.trace(model.inertias[b].inertia)) for b in moved)
         scale = sum(float(np.trace(model.inertias[b].inertia)) for b in range(model.njoints))
