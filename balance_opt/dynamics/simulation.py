@@ -58,22 +58,16 @@ def _as_trajectory(value, dof: int, what: str) -> tuple[Any, float]:
 
 class _ArmPlan:
     """Mission and balance trajectories stacked into the robot's arm vector; with
-    :meth:`add_feedforward`, also the plan's own joint torques."""
+    ``feedforward``, also the plan's own joint torques (inverse dynamics) for the momentum
+    ``h0`` (world frame) and the planned ``attitude`` (``(t, quaternion)``, nearest sample;
+    identity when ``None``)."""
 
-    def __init__(self, robot: FloatingRobot, mission, balance):
+    def __init__(self, robot: FloatingRobot, mission, balance, feedforward, h0, attitude):
         self.robot = robot
         self.mission, d_M = _as_trajectory(mission, robot.mission.dof, "mission")
         self.balance, d_B = _as_trajectory(balance, robot.balance_indices.size, "balance")
         self.duration = max(d_M, d_B)
-        self.feedforward = False
-        self._h0 = np.zeros(6)
-        self._attitude = None
-
-    def add_feedforward(self, h0: np.ndarray, attitude=None) -> None:
-        """Make :meth:`sample` return the plan's inverse-dynamics torques too, for momentum
-        ``h0`` (world frame) and the planned ``attitude`` (``(t, quaternion)``, nearest sample;
-        identity when ``None``)."""
-        self.feedforward, self._h0, self._attitude = True, np.asarray(h0, dtype=float), attitude
+        self.feedforward, self._h0, self._attitude = feedforward, h0, attitude
 
     def sample(self, t):
         """``(q, q_dot, q_ddot)`` (T, n) at times ``t``, and the plan's torques if any."""
@@ -129,8 +123,8 @@ class SimulationResult(AttitudeHistory):
 
     Attributes:
         t: sample times (T,) [s].
-        joint_names: arm joints, arm order (mission first); ``mission_indices`` and
-            ``balance_indices`` select each part.
+        joint_names: arm joints, arm order (mission first); the robot's ``mission_indices``
+            and ``balance_indices`` select each part.
         q, q_dot, q_ddot: simulated joint motion (T, n) [rad, rad/s, rad/s^2].
         q_des, q_dot_des, q_ddot_des: the planned joint motion at the same times.
         tau: joint torques (T, n) [N m].
@@ -182,14 +176,6 @@ class SimulationResult(AttitudeHistory):
                 f"  momentum   max relative residual {float(self.momentum_residual.max()):.3g}",
             ]
         return "\n".join(lines)
-
-    @property
-    def mission_indices(self) -> np.ndarray:
-        return self.robot.mission_indices
-
-    @property
-    def balance_indices(self) -> np.ndarray:
-        return self.robot.balance_indices
 
     @property
     def quaternion(self) -> np.ndarray:
@@ -350,19 +336,18 @@ def simulate(
     """
     opts = options or SimulationOptions()
     started = time.perf_counter()
-    plan = _ArmPlan(robot, mission, balance)
+    h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
+    feedforward = opts.feedforward and opts.controller == "pd"
+    plan = _ArmPlan(robot, mission, balance, feedforward, h0, attitude)
     t_end = float(plan.duration if duration is None else duration)
     if not t_end > 0:
         raise TrajectoryError(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
-    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1)))
+    q0, qd0 = (x[0] for x in plan.sample(np.zeros(1))[:2])
     kp, kd = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
     kp, kd = _per_joint(opts.kp, kp, "kp"), _per_joint(opts.kd, kd, "kd")
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
-    h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
-    if opts.feedforward and opts.controller == "pd":
-        plan.add_feedforward(h0, attitude)
     if initial_state is None:  # the plan's start, the base twist of the momentum h0
         twist = NumericMaps(robot).base_twist(q0, qd0, h0)  # the base starts at the identity
         initial_state = robot.pin_q(q0), robot.pin_v(qd0, twist)
