@@ -162,15 +162,6 @@ def nlpsol(name: str, problem: dict[str, Any], options: dict[str, Any]) -> Any:
         def get_n_in(self) -> int:
             return cs.nlpsol_n_out()
 
-        def get_n_out(self) -> int:
-            return 1
-
-        def get_name_in(self, i: int) -> str:
-            return cs.nlpsol_out(i)
-
-        def get_name_out(self, i: int) -> str:
-            return "ret"
-
         def get_sparsity_in(self, i: int) -> Any:
             name = cs.nlpsol_out(i)
             if name == "f":
