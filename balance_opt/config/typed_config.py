@@ -42,12 +42,13 @@ def tag_of(cls) -> str | None:
     return args[0] if typing.get_origin(tp) is Literal and len(args) == 1 else None
 
 
-#: Scalar types in words: one value, several.
-_WORDS = {
-    bool: ("true or false", "booleans"),
-    int: ("an integer", "integers"),
-    float: ("a number", "numbers"),
-    str: ("a string", "strings"),
+#: Scalar field types: the Python types of their values in files (a bool is no number), their
+#: JSON Schema type, and their names for one value and for several.
+_SCALARS = {
+    bool: ((bool,), "boolean", "true or false", "booleans"),
+    int: ((int,), "integer", "an integer", "integers"),
+    float: ((int, float), "number", "a number", "numbers"),
+    str: ((str,), "string", "a string", "strings"),
 }
 
 
@@ -72,7 +73,7 @@ def describe(tp, plural: bool = False) -> str:
         return "mappings" if plural else f"a mapping of names to {value}"
     if dataclasses.is_dataclass(tp):
         return "mappings" if plural else "a mapping"
-    return _WORDS[tp][plural] if tp in _WORDS else str(tp)
+    return _SCALARS[tp][2 + plural] if tp in _SCALARS else str(tp)
 
 
 def value_words(value) -> str:
@@ -369,14 +370,10 @@ def _same_kind(value, tp) -> bool:
         return isinstance(value, list)
     if origin is dict or dataclasses.is_dataclass(tp):
         return isinstance(value, dict)
-    if origin is Literal or tp is str:
+    if origin is Literal:
         return isinstance(value, str)
-    if tp is bool:
-        return isinstance(value, bool)
-    if tp is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if tp is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if tp in _SCALARS:
+        return isinstance(value, _SCALARS[tp][0]) and (tp is bool or not isinstance(value, bool))
     raise TypeError(f"typed_config: unsupported field type {tp!r}")
 
 
@@ -519,18 +516,16 @@ def _schema(tp, meta: dict, defs: dict) -> dict:
             defs[name] = None  # placeholder against recursion
             defs[name] = dataclass_schema(tp, defs)
         return {"$ref": f"#/$defs/{name}"}
-    if tp in (int, float):
-        out = {"type": "integer" if tp is int else "number"}
-        for name, key in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum")):
-            if meta.get(name) is not None:
-                out[key] = meta[name]
-        return out
-    if tp is bool:
-        return {"type": "boolean"}
     if tp is str:
         if meta.get("pattern"):
             return {"type": "string", "pattern": f"^(?:{meta['pattern'][0]})$"}
         return {"type": "string", "minLength": 1}
+    if tp in _SCALARS:
+        out = {"type": _SCALARS[tp][1]}
+        for name, key in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum")):
+            if meta.get(name) is not None:
+                out[key] = meta[name]
+        return out
     if tp is Any:
         return {}
     raise TypeError(f"typed_config: unsupported field type {tp!r}")
