@@ -18,7 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.dynamics.inverse_dynamics import free_floating_torques, symmetric
-from balance_opt.dynamics.options import DEFAULT_BANDWIDTH, DEFAULT_DAMPING_RATIO, SimulationOptions
+from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.rkmk import dopri5, rk4
 from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
@@ -98,22 +98,6 @@ def _per_joint(value, default: np.ndarray, name: str) -> np.ndarray:
             f"simulation option '{name}' needs one value per arm joint ({n}), got {arr.size}"
         )
     return arr.copy()
-
-
-def default_gains(
-    robot: FloatingRobot,
-    q,
-    bandwidth: float = DEFAULT_BANDWIDTH,
-    damping_ratio: float = DEFAULT_DAMPING_RATIO,
-) -> tuple[np.ndarray, np.ndarray]:
-    """PD gains that give each joint, alone with the base held, the ``bandwidth`` [rad/s] and
-    ``damping_ratio``: ``(K_p, K_d) = (M_ii w^2, 2 zeta w M_ii)`` with ``M_ii`` the joint-space
-    inertia's diagonal at ``q``, in arm order."""
-    data = robot.model.createData()
-    M = symmetric(pin.crba(robot.model, data, robot.pin_q(q)))
-    G = robot.velocity_map  # a driver's inertia includes its followers'
-    m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
-    return m_ii * bandwidth**2, 2.0 * damping_ratio * bandwidth * m_ii
 
 
 # --------------------------------------------------------------------------------- result
@@ -345,8 +329,14 @@ def simulate(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
     q0, qd0 = (x[0] for x in plan.sample(np.zeros(1))[:2])
-    kp, kd = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
-    kp, kd = _per_joint(opts.kp, kp, "kp"), _per_joint(opts.kd, kd, "kd")
+    # the default gains (SimulationOptions): M_ii the joint-space inertia's diagonal at the start,
+    # a driver's including its followers'
+    M = symmetric(pin.crba(robot.model, robot.model.createData(), robot.pin_q(q0)))
+    G = robot.velocity_map
+    m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
+    w, zeta = opts.bandwidth, opts.damping_ratio
+    kp = _per_joint(opts.kp, m_ii * w**2, "kp")
+    kd = _per_joint(opts.kd, 2.0 * zeta * w * m_ii, "kd")
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     if initial_state is None:  # the plan's start, the base twist of the momentum h0
         twist = NumericMaps(robot).base_twist(q0, qd0, h0)  # the base starts at the identity
