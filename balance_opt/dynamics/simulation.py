@@ -247,15 +247,12 @@ class _Dynamics:
     def joint_positions(self, q):
         return q[self._q] if self.revolute_only else self.robot.arm_q(q)
 
-    def position_error(self, qd, q):
+    def __call__(self, q, v, qd, vd, ad, tau_d=None):
+        """``tau_d``: the plan's own torques at this instant, when the plan carries them."""
         e = qd - self.joint_positions(q)
         if not self.revolute_only:  # continuous joints: shortest way round
             e = (e + np.pi) % (2 * np.pi) - np.pi
-        return e
-
-    def __call__(self, q, v, qd, vd, ad, tau_d=None):
-        """``tau_d``: the plan's own torques at this instant, when the plan carries them."""
-        tau = self.kp * self.position_error(qd, q) + self.kd * (vd - v[self._v])
+        tau = self.kp * e + self.kd * (vd - v[self._v])
         if self.computed_torque:
             tau = tau + self.feedforward(q, v, ad)
         elif tau_d is not None:
