@@ -129,7 +129,7 @@ def _print_joint_lines(chains) -> None:
 
 
 def _cmd_robots(args) -> int:
-    from balance_opt.model.catalog import ALIASES, example_robots, robot_info
+    from balance_opt.model.library import ALIASES, example_robots, robot_info
 
     if args.name:
         info = robot_info(args.name)
@@ -149,7 +149,7 @@ def _cmd_robots(args) -> int:
     failed = []
     robots = example_robots()
     for name in robots:
-        info = robot_info(name)
+        info = robot_info(name, robots)
         if info.error:
             failed.append(info)
             continue

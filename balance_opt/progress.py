@@ -146,15 +146,13 @@ def solving(lbg: Any, ubg: Any, label: str = "Ipopt") -> Iterator[None]:
             _STATE.clear()
 
 
-#: Callbacks handed to solvers: kept alive as long as the process (CasADi holds no Python
-#: reference to them; one per NLP structure).
-_CALLBACKS: list[Any] = []
-
-
-def nlpsol_options(n_x: int, n_g: int) -> dict[str, Any]:
-    """``nlpsol`` options that give an NLP the progress line: an ``iteration_callback`` feeding
-    :func:`iteration`, whose errors are ignored rather than ending the solve."""
+def nlpsol(name: str, problem: dict[str, Any], options: dict[str, Any]) -> Any:
+    """``casadi.nlpsol(name, "ipopt", problem, options)`` with the progress line: an
+    ``iteration_callback`` feeding :func:`iteration`, whose errors are ignored rather than ending
+    the solve. The solver holds the callback (CasADi keeps no Python reference to it)."""
     import casadi as cs
+
+    n_x, n_g = problem["x"].numel(), problem["g"].numel()
 
     class _IterationCallback(cs.Callback):
         def __init__(self) -> None:
@@ -163,15 +161,6 @@ def nlpsol_options(n_x: int, n_g: int) -> dict[str, Any]:
 
         def get_n_in(self) -> int:
             return cs.nlpsol_n_out()
-
-        def get_n_out(self) -> int:
-            return 1
-
-        def get_name_in(self, i: int) -> str:
-            return cs.nlpsol_out(i)
-
-        def get_name_out(self, i: int) -> str:
-            return "ret"
 
         def get_sparsity_in(self, i: int) -> Any:
             name = cs.nlpsol_out(i)
@@ -199,5 +188,7 @@ def nlpsol_options(n_x: int, n_g: int) -> dict[str, Any]:
             return 0
 
     callback = _IterationCallback()
-    _CALLBACKS.append(callback)
-    return {"iteration_callback": callback, "iteration_callback_ignore_errors": True}
+    options = {**options, "iteration_callback": callback, "iteration_callback_ignore_errors": True}
+    solver = cs.nlpsol(name, "ipopt", problem, options)
+    solver.progress_callback = callback
+    return solver

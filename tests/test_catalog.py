@@ -11,7 +11,8 @@ import pytest
 from balance_opt import cache
 from balance_opt.cli import main
 from balance_opt.errors import InputError
-from balance_opt.model.catalog import ALIASES, _chains, example_robots, example_urdf, robot_info
+from balance_opt.model.library import ALIASES, _chains, example_robots, example_urdf, robot_info
+from balance_opt.model.robot import parse_urdf
 
 pytest.importorskip("importlib.metadata")
 
@@ -62,7 +63,7 @@ def test_talos_arms_are_chains_and_panda_fingers_mimic():
         _names, talos
     )
     panda = {j.name: j for c in robot_info("panda").chains for j in c}
-    assert panda["panda_finger_joint2"].mimic == "panda_finger_joint1"
+    assert panda["panda_finger_joint2"].mimic[0] == "panda_finger_joint1"
     assert str(panda["panda_finger_joint1"]) == "panda_finger_joint1 (prismatic)"
 
 
@@ -83,8 +84,10 @@ def test_chains_split_at_branches_and_pass_fixed_joints():
         joint("d1", "f", "d1", "continuous"),
         joint("d2", "b", "d2"),  # a second chain from the root
     ]
-    root = ET.fromstring(f'<robot name="t">{links}{"".join(joints)}</robot>')
-    assert [_names(c) for c in _chains(root)] == [["j1", "j2"], ["c1", "c2"], ["d1"], ["d2"]]
+    text = f'<robot name="t">{links}{"".join(joints)}</robot>'
+    root, urdf_joints, _ = parse_urdf(text, "<URDF string>")
+    expected = [["j1", "j2"], ["c1", "c2"], ["d1"], ["d2"]]
+    assert [_names(c) for c in _chains(root, urdf_joints)] == expected
 
 
 def test_a_task_names_talos_by_its_short_name(tmp_path):
@@ -166,14 +169,14 @@ def test_cache_command_shows_and_clears(tmp_path, monkeypatch, capsys):
 
 
 def test_robots_without_joints_print_no_blank_line(capsys, monkeypatch):
-    from balance_opt.model import catalog
+    from balance_opt.model import library
 
     infos = {
         "box": dataclasses.replace(robot_info("ur5"), name="box", chains=[]),
         "ur5": robot_info("ur5"),
     }
-    monkeypatch.setattr(catalog, "example_robots", lambda: list(infos))
-    monkeypatch.setattr(catalog, "robot_info", infos.__getitem__)
+    monkeypatch.setattr(library, "example_robots", lambda: list(infos))
+    monkeypatch.setattr(library, "robot_info", lambda name, robots=None: infos[name])
     assert main(["robots"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert "" not in out

@@ -93,15 +93,10 @@ def test_the_ipopt_callback_follows_the_solve_and_stops_it_on_an_interrupt(monke
     cs = pytest.importorskip("casadi")
     n = 30
     x = cs.MX.sym("x", n)
-    solver = cs.nlpsol(
+    solver = progress.nlpsol(  # as the planner's NLP
         "toy",
-        "ipopt",
         {"x": x, "f": cs.sumsqr(x - 1), "g": x[1:] - x[:-1]},
-        {
-            "ipopt": {"print_level": 0, "sb": "yes"},
-            "print_time": False,
-            **progress.nlpsol_options(n, n - 1),  # as the planner's NLP
-        },
+        {"ipopt": {"print_level": 0, "sb": "yes"}, "print_time": False},
     )
     x0 = np.linspace(0.0, 29.0, n)  # steps of 1 against bounds of +-0.1: violation 0.9
     stream = io.StringIO()

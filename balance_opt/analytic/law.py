@@ -36,29 +36,19 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class LawSample:
-    """The law at one configuration: ``q_dot_B`` [rad/s], the base rate ``omega`` it leaves
-    [rad/s, base frame], the ``residual`` ``J_wB q_dot_B - b``, ``sigma_min`` and ``damping``."""
-
-    q_dot_B: np.ndarray
-    omega: np.ndarray
-    residual: np.ndarray
-    sigma_min: float
-    damping: float
-
-
-@dataclass
 class LawPath:
-    """The law along a sampled motion: :class:`LawSample`'s fields per sample, ``q_ddot_B``
-    (Eq. 32) and the ``condition`` number of ``J_wB`` (``inf`` where singular)."""
+    """The law at one configuration or, per sample, along a motion: ``q_dot_B`` [rad/s], the
+    base rate ``omega`` it leaves [rad/s, base frame], the ``residual`` ``J_wB q_dot_B - b``,
+    ``sigma_min`` and ``damping``; along a motion also ``q_ddot_B`` (Eq. 32) and the
+    ``condition`` number of ``J_wB`` (``inf`` where singular)."""
 
     q_dot_B: np.ndarray
-    q_ddot_B: np.ndarray
     omega: np.ndarray
     residual: np.ndarray
-    sigma_min: np.ndarray
-    damping: np.ndarray
-    condition: np.ndarray
+    sigma_min: np.ndarray | float
+    damping: np.ndarray | float
+    q_ddot_B: np.ndarray | None = None
+    condition: np.ndarray | None = None
 
 
 @dataclass
@@ -138,7 +128,7 @@ class BalanceLaw:
         return _Solved(sol, J_wB, q_dot, omega, omega_free, ell, e_R)
 
     # ------------------------------------------------------------------ one sample
-    def rates(self, q, q_dot_M, quaternion=None) -> LawSample:
+    def rates(self, q, q_dot_M, quaternion=None) -> LawPath:
         """Balance joint rates at one instant (Eq. 31) for the arm vector ``q`` [rad], the
         mission rates ``q_dot_M`` [rad/s] and the base attitude (x, y, z, w; identity)."""
         q = np.asarray(q, dtype=float)
@@ -148,9 +138,7 @@ class BalanceLaw:
         I_G, A = self.maps.angular_maps(q)
         s = self._solve(I_G, A, np.asarray(q_dot_M, dtype=float), q[self.balance], quaternion)
         sol = s.sol
-        return LawSample(
-            sol.q_dot_B, s.omega, sol.residual, float(sol.sigma_min), float(sol.damping)
-        )
+        return LawPath(sol.q_dot_B, s.omega, sol.residual, float(sol.sigma_min), float(sol.damping))
 
     # ------------------------------------------------------------------ along a path
     def along(self, q, q_dot_M, q_ddot_M, quaternion) -> LawPath:
@@ -180,11 +168,5 @@ class BalanceLaw:
         q_ddot_B = acceleration_law(s.sol, dJ_wB, b_dot, z_dot)
         sol = s.sol
         return LawPath(
-            sol.q_dot_B,
-            q_ddot_B,
-            s.omega,
-            sol.residual,
-            sol.sigma_min,
-            sol.damping,
-            sol.condition,
+            sol.q_dot_B, s.omega, sol.residual, sol.sigma_min, sol.damping, q_ddot_B, sol.condition
         )

@@ -13,16 +13,6 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.model.coupling import N_ROTATIONS
 
 
-def _mv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Batched ``M x``."""
-    return np.matvec(M, x)
-
-
-def _mtv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Batched ``M^T x``."""
-    return np.vecmat(x, M)
-
-
 def _safe_divide(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a / b`` with 0 where ``b == 0`` (the pseudo-inverse convention)."""
     return np.divide(a, b, out=np.zeros(np.broadcast(a, b).shape), where=b != 0)
@@ -75,10 +65,10 @@ def velocity_law(
     sigma_min = S[..., -1]
     lam2, dlam2 = damping(sigma_min, options.damping_threshold, options.max_damping)
     gain = _safe_divide(S, S**2 + lam2[..., None])
-    q_dot_B = _mtv(Vt, gain * _mtv(U, b))
+    q_dot_B = np.vecmat(gain * np.vecmat(b, U), Vt)
     if J_wB.shape[-1] > S.shape[-1]:  # redundant: exact null-space projection (I - V V^T) z
-        q_dot_B = q_dot_B + z - _mtv(Vt, _mv(Vt, z))
-    residual = _mv(J_wB, q_dot_B) - b
+        q_dot_B = q_dot_B + z - np.vecmat(np.matvec(Vt, z), Vt)
+    residual = np.matvec(J_wB, q_dot_B) - b
     return VelocityLawSolution(
         q_dot_B, b, residual, sigma_min, np.sqrt(lam2), J_wB, U, S, Vt, z, dlam2
     )
@@ -97,18 +87,25 @@ def acceleration_law(
     lam2_dot = sol.damping2_rate * sigma_dot
 
     def dls(v):  # J^# v, the (damped) inverse
-        return _mtv(Vt, _safe_divide(S, denom) * _mtv(U, v))
+        return np.vecmat(_safe_divide(S, denom) * np.vecmat(v, U), Vt)
 
     b = sol.b
     if J.shape[-1] >= N_ROTATIONS:  # x = J^T y, y = (J J^T + lambda^2 I)^{-1} b
-        x = _mtv(Vt, _safe_divide(S, denom) * _mtv(U, b))
-        y = _mv(U, _safe_divide(_mtv(U, b), denom))
-        c = b_dot - _mv(dJ_wB, x) - _mv(J, _mtv(dJ_wB, y)) - lam2_dot[..., None] * y
-        x_dot = _mtv(dJ_wB, y) + dls(c)
+        x = np.vecmat(_safe_divide(S, denom) * np.vecmat(b, U), Vt)
+        y = np.matvec(U, _safe_divide(np.vecmat(b, U), denom))
+        c = (
+            b_dot
+            - np.matvec(dJ_wB, x)
+            - np.matvec(J, np.vecmat(y, dJ_wB))
+            - lam2_dot[..., None] * y
+        )
+        x_dot = np.vecmat(y, dJ_wB) + dls(c)
     else:  # tall: x = (J^T J + lambda^2 I)^{-1} J^T b
         x = dls(b)
-        c = _mtv(dJ_wB, b - _mv(J, x)) - lam2_dot[..., None] * x
-        x_dot = _mtv(Vt, _safe_divide(_mv(Vt, c), denom)) + dls(b_dot - _mv(dJ_wB, x))
+        c = np.vecmat(b - np.matvec(J, x), dJ_wB) - lam2_dot[..., None] * x
+        x_dot = np.vecmat(_safe_divide(np.matvec(Vt, c), denom), Vt) + dls(
+            b_dot - np.matvec(dJ_wB, x)
+        )
     if J.shape[-1] > S.shape[-1]:
         x_dot = x_dot + _null_space_rate(sol, dJ_wB, z_dot)
     return x_dot
@@ -118,9 +115,9 @@ def _null_space_rate(sol: VelocityLawSolution, dJ_wB, z_dot) -> np.ndarray:
     """Time derivative of the null-space term ``w = P z``, ``P = I - J^+ J``:
     ``dw = -P dJ^T (J J^T)^{-1} J z - J^+ dJ P z + P dz``."""
     U, S, Vt, z = sol.U, sol.S, sol.Vt, sol.z
-    Pz = z - _mtv(Vt, _mv(Vt, z))
-    JJinvJz = _mv(U, _safe_divide(_mv(Vt, z), S))  # (J J^T)^{-1} J z = U S^{-1} V^T z
-    v = -_mtv(dJ_wB, JJinvJz) + z_dot
-    Pv = v - _mtv(Vt, _mv(Vt, v))
-    pinv_term = _mtv(Vt, _safe_divide(_mtv(U, _mv(dJ_wB, Pz)), S))
+    Pz = z - np.vecmat(np.matvec(Vt, z), Vt)
+    JJinvJz = np.matvec(U, _safe_divide(np.matvec(Vt, z), S))  # (J J^T)^{-1} J z = U S^{-1} V^T z
+    v = -np.vecmat(JJinvJz, dJ_wB) + z_dot
+    Pv = v - np.vecmat(np.matvec(Vt, v), Vt)
+    pinv_term = np.vecmat(_safe_divide(np.vecmat(np.matvec(dJ_wB, Pz), U), S), Vt)
     return Pv - pinv_term

@@ -35,10 +35,6 @@ def is_union(tp) -> bool:
     return typing.get_origin(tp) in (Union, types.UnionType)
 
 
-def union_args(tp) -> tuple:
-    return typing.get_args(tp) if is_union(tp) else (tp,)
-
-
 def tag_of(cls) -> str | None:
     """The ``type`` literal of a tagged-union member, or None."""
     tp = type_hints(cls).get("type") if dataclasses.is_dataclass(cls) else None
@@ -46,40 +42,38 @@ def tag_of(cls) -> str | None:
     return args[0] if typing.get_origin(tp) is Literal and len(args) == 1 else None
 
 
-def describe(tp) -> str:
-    """Human name of a type, as used in 'expected ...' messages and the reference."""
+#: Scalar field types: the Python types of their values in files (a bool is no number), their
+#: JSON Schema type, and their names for one value and for several.
+_SCALARS = {
+    bool: ((bool,), "boolean", "true or false", "booleans"),
+    int: ((int,), "integer", "an integer", "integers"),
+    float: ((int, float), "number", "a number", "numbers"),
+    str: ((str,), "string", "a string", "strings"),
+}
+
+
+def describe(tp, plural: bool = False) -> str:
+    """Human name of a type (of several values of it: ``plural``), as used in 'expected ...'
+    messages and the reference."""
     if tp is type(None):
         return "null"
     if is_union(tp):
         members = [a for a in typing.get_args(tp) if a is not type(None)]
-        if all(tag_of(a) for a in members):
+        if not plural and all(tag_of(a) for a in members):
             return "a mapping with type: " + " | ".join(tag_of(a) for a in members)
-        return " or ".join(describe(a) for a in members)
+        return " or ".join(describe(a, plural) for a in members)
     origin = typing.get_origin(tp)
     if origin is Literal:
-        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+        names = ", ".join(repr(a) for a in typing.get_args(tp))
+        return f"names ({names})" if plural else f"one of {names}"
     if origin is tuple:
-        return f"a list of {plural(typing.get_args(tp)[0])}"
+        return ("lists of " if plural else "a list of ") + describe(typing.get_args(tp)[0], True)
     if origin is dict:
-        return f"a mapping of names to {plural(typing.get_args(tp)[1])}"
+        value = describe(typing.get_args(tp)[1], True)
+        return "mappings" if plural else f"a mapping of names to {value}"
     if dataclasses.is_dataclass(tp):
-        return "a mapping"
-    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
-        tp, str(tp)
-    )
-
-
-def plural(tp) -> str:
-    if is_union(tp):
-        return " or ".join(plural(a) for a in typing.get_args(tp) if a is not type(None))
-    origin = typing.get_origin(tp)
-    if origin is tuple:
-        return f"lists of {plural(typing.get_args(tp)[0])}"
-    if origin is dict or dataclasses.is_dataclass(tp):
-        return "mappings"
-    if origin is Literal:
-        return "names (" + ", ".join(repr(a) for a in typing.get_args(tp)) + ")"
-    return {bool: "booleans", int: "integers", float: "numbers", str: "strings"}.get(tp, str(tp))
+        return "mappings" if plural else "a mapping"
+    return _SCALARS[tp][2 + plural] if tp in _SCALARS else str(tp)
 
 
 def value_words(value) -> str:
@@ -269,7 +263,8 @@ def _convert_list(value: list, tp, meta: dict, path: tuple) -> tuple:
         raise _Invalid(path, f"must name at least {items}, {got}")
     if n_lo is not None and n_lo == n_hi and len(value) != n_lo:
         raise _Invalid(
-            path, f"expected a list of {n_lo} {plural(typing.get_args(tp)[0])}, got {len(value)}"
+            path,
+            f"expected a list of {n_lo} {describe(typing.get_args(tp)[0], True)}, got {len(value)}",
         )
     if n_lo is not None and len(value) < n_lo:
         raise _Invalid(path, f"expected at least {n_lo} items, got {len(value)}")
@@ -375,14 +370,10 @@ def _same_kind(value, tp) -> bool:
         return isinstance(value, list)
     if origin is dict or dataclasses.is_dataclass(tp):
         return isinstance(value, dict)
-    if origin is Literal or tp is str:
+    if origin is Literal:
         return isinstance(value, str)
-    if tp is bool:
-        return isinstance(value, bool)
-    if tp is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if tp is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if tp in _SCALARS:
+        return isinstance(value, _SCALARS[tp][0]) and (tp is bool or not isinstance(value, bool))
     raise TypeError(f"typed_config: unsupported field type {tp!r}")
 
 
@@ -525,18 +516,16 @@ def _schema(tp, meta: dict, defs: dict) -> dict:
             defs[name] = None  # placeholder against recursion
             defs[name] = dataclass_schema(tp, defs)
         return {"$ref": f"#/$defs/{name}"}
-    if tp in (int, float):
-        out = {"type": "integer" if tp is int else "number"}
-        for name, key in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum")):
-            if meta.get(name) is not None:
-                out[key] = meta[name]
-        return out
-    if tp is bool:
-        return {"type": "boolean"}
     if tp is str:
         if meta.get("pattern"):
             return {"type": "string", "pattern": f"^(?:{meta['pattern'][0]})$"}
         return {"type": "string", "minLength": 1}
+    if tp in _SCALARS:
+        out = {"type": _SCALARS[tp][1]}
+        for name, key in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum")):
+            if meta.get(name) is not None:
+                out[key] = meta[name]
+        return out
     if tp is Any:
         return {}
     raise TypeError(f"typed_config: unsupported field type {tp!r}")
@@ -662,7 +651,9 @@ def reference_rows(cls, prefix: str = "", entries=None) -> list[tuple[str, str, 
             rows.extend(reference_rows(cls, f"{key}.", e.entries))
             continue
         tp, doc, default = e.tp, _doc(e.meta), _default_text(e.field)
-        members = [m for m in union_args(tp) if m is not type(None)]
+        members = [
+            m for m in (typing.get_args(tp) if is_union(tp) else (tp,)) if m is not type(None)
+        ]
         if len(members) == 1 and dataclasses.is_dataclass(members[0]):
             rows.append((key, "mapping", default, doc))
             rows.extend(reference_rows(members[0], f"{key}."))

@@ -18,7 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.dynamics.inverse_dynamics import free_floating_torques, symmetric
-from balance_opt.dynamics.options import DEFAULT_BANDWIDTH, DEFAULT_DAMPING_RATIO, SimulationOptions
+from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.rkmk import dopri5, rk4
 from balance_opt.dynamics.wrenches import arm_wrenches_on_base
 from balance_opt.errors import InputError, TrajectoryError
@@ -58,22 +58,16 @@ def _as_trajectory(value, dof: int, what: str) -> tuple[Any, float]:
 
 class _ArmPlan:
     """Mission and balance trajectories stacked into the robot's arm vector; with
-    :meth:`add_feedforward`, also the plan's own joint torques."""
+    ``feedforward``, also the plan's own joint torques (inverse dynamics) for the momentum
+    ``h0`` (world frame) and the planned ``attitude`` (``(t, quaternion)``, nearest sample;
+    identity when ``None``)."""
 
-    def __init__(self, robot: FloatingRobot, mission, balance):
+    def __init__(self, robot: FloatingRobot, mission, balance, feedforward, h0, attitude):
         self.robot = robot
         self.mission, d_M = _as_trajectory(mission, robot.mission.dof, "mission")
         self.balance, d_B = _as_trajectory(balance, robot.balance_indices.size, "balance")
         self.duration = max(d_M, d_B)
-        self.feedforward = False
-        self._h0 = np.zeros(6)
-        self._attitude = None
-
-    def add_feedforward(self, h0: np.ndarray, attitude=None) -> None:
-        """Make :meth:`sample` return the plan's inverse-dynamics torques too, for momentum
-        ``h0`` (world frame) and the planned ``attitude`` (``(t, quaternion)``, nearest sample;
-        identity when ``None``)."""
-        self.feedforward, self._h0, self._attitude = True, np.asarray(h0, dtype=float), attitude
+        self.feedforward, self._h0, self._attitude = feedforward, h0, attitude
 
     def sample(self, t):
         """``(q, q_dot, q_ddot)`` (T, n) at times ``t``, and the plan's torques if any."""
@@ -106,22 +100,6 @@ def _per_joint(value, default: np.ndarray, name: str) -> np.ndarray:
     return arr.copy()
 
 
-def default_gains(
-    robot: FloatingRobot,
-    q,
-    bandwidth: float = DEFAULT_BANDWIDTH,
-    damping_ratio: float = DEFAULT_DAMPING_RATIO,
-) -> tuple[np.ndarray, np.ndarray]:
-    """PD gains that give each joint, alone with the base held, the ``bandwidth`` [rad/s] and
-    ``damping_ratio``: ``(K_p, K_d) = (M_ii w^2, 2 zeta w M_ii)`` with ``M_ii`` the joint-space
-    inertia's diagonal at ``q``, in arm order."""
-    data = robot.model.createData()
-    M = symmetric(pin.crba(robot.model, data, robot.pin_q(q)))
-    G = robot.velocity_map  # a driver's inertia includes its followers'
-    m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
-    return m_ii * bandwidth**2, 2.0 * damping_ratio * bandwidth * m_ii
-
-
 # --------------------------------------------------------------------------------- result
 @dataclass
 class SimulationResult(AttitudeHistory):
@@ -129,8 +107,8 @@ class SimulationResult(AttitudeHistory):
 
     Attributes:
         t: sample times (T,) [s].
-        joint_names: arm joints, arm order (mission first); ``mission_indices`` and
-            ``balance_indices`` select each part.
+        joint_names: arm joints, arm order (mission first); the robot's ``mission_indices``
+            and ``balance_indices`` select each part.
         q, q_dot, q_ddot: simulated joint motion (T, n) [rad, rad/s, rad/s^2].
         q_des, q_dot_des, q_ddot_des: the planned joint motion at the same times.
         tau: joint torques (T, n) [N m].
@@ -182,14 +160,6 @@ class SimulationResult(AttitudeHistory):
                 f"  momentum   max relative residual {float(self.momentum_residual.max()):.3g}",
             ]
         return "\n".join(lines)
-
-    @property
-    def mission_indices(self) -> np.ndarray:
-        return self.robot.mission_indices
-
-    @property
-    def balance_indices(self) -> np.ndarray:
-        return self.robot.balance_indices
 
     @property
     def quaternion(self) -> np.ndarray:
@@ -277,15 +247,12 @@ class _Dynamics:
     def joint_positions(self, q):
         return q[self._q] if self.revolute_only else self.robot.arm_q(q)
 
-    def position_error(self, qd, q):
+    def __call__(self, q, v, qd, vd, ad, tau_d=None):
+        """``tau_d``: the plan's own torques at this instant, when the plan carries them."""
         e = qd - self.joint_positions(q)
         if not self.revolute_only:  # continuous joints: shortest way round
             e = (e + np.pi) % (2 * np.pi) - np.pi
-        return e
-
-    def __call__(self, q, v, qd, vd, ad, tau_d=None):
-        """``tau_d``: the plan's own torques at this instant, when the plan carries them."""
-        tau = self.kp * self.position_error(qd, q) + self.kd * (vd - v[self._v])
+        tau = self.kp * e + self.kd * (vd - v[self._v])
         if self.computed_torque:
             tau = tau + self.feedforward(q, v, ad)
         elif tau_d is not None:
@@ -350,19 +317,24 @@ def simulate(
     """
     opts = options or SimulationOptions()
     started = time.perf_counter()
-    plan = _ArmPlan(robot, mission, balance)
+    h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
+    feedforward = opts.feedforward and opts.controller == "pd"
+    plan = _ArmPlan(robot, mission, balance, feedforward, h0, attitude)
     t_end = float(plan.duration if duration is None else duration)
     if not t_end > 0:
         raise TrajectoryError(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
-    q0, qd0, _ = (x[0] for x in plan.sample(np.zeros(1)))
-    kp, kd = default_gains(robot, q0, opts.bandwidth, opts.damping_ratio)
-    kp, kd = _per_joint(opts.kp, kp, "kp"), _per_joint(opts.kd, kd, "kd")
+    q0, qd0 = (x[0] for x in plan.sample(np.zeros(1))[:2])
+    # the default gains (SimulationOptions): M_ii the joint-space inertia's diagonal at the start,
+    # a driver's including its followers'
+    M = symmetric(pin.crba(robot.model, robot.model.createData(), robot.pin_q(q0)))
+    G = robot.velocity_map
+    m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
+    w, zeta = opts.bandwidth, opts.damping_ratio
+    kp = _per_joint(opts.kp, m_ii * w**2, "kp")
+    kd = _per_joint(opts.kd, 2.0 * zeta * w * m_ii, "kd")
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
-    h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
-    if opts.feedforward and opts.controller == "pd":
-        plan.add_feedforward(h0, attitude)
     if initial_state is None:  # the plan's start, the base twist of the momentum h0
         twist = NumericMaps(robot).base_twist(q0, qd0, h0)  # the base starts at the identity
         initial_state = robot.pin_q(q0), robot.pin_v(qd0, twist)

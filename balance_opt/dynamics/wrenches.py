@@ -21,12 +21,8 @@ def arm_root_joints(robot: FloatingRobot) -> dict[str, int]:
     roots: dict[str, int] = {}
     owner: dict[int, str] = {}
     for arm in robot.arms:
-        found = set()
-        for name in arm.joints:
-            j = model.getJointId(name)
-            while model.parents[j] != BASE_JOINT_ID:
-                j = model.parents[j]
-            found.add(j)
+        # the joint below the base on the way to each of the arm's joints
+        found = {model.supports[model.getJointId(name)][BASE_JOINT_ID + 1] for name in arm.joints}
         if len(found) != 1:
             names = ", ".join(sorted(model.names[j] for j in found))
             raise ArmError(

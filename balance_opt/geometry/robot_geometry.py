@@ -18,7 +18,7 @@ import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.model.capture import TARGET_LINK
-from balance_opt.model.catalog import DISTRIBUTION, example_robots
+from balance_opt.model.library import DISTRIBUTION, example_robots
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
@@ -70,10 +70,6 @@ def default_srdf(urdf_path: Path | None) -> Path | None:
     return found[0] if len(found) == 1 else None
 
 
-def _has_collision(urdf_text: str) -> bool:
-    return ET.fromstring(urdf_text).find("link/collision") is not None
-
-
 class RobotGeometry:
     """The geometry of a floating robot and the pairs of objects checked for collision.
 
@@ -106,7 +102,8 @@ class RobotGeometry:
         self.model = robot.model
         urdf_path = None if robot.source.startswith("<") else Path(robot.source)
         text = robot.locked_urdf
-        self.source = "collision" if _has_collision(text) else "visual"
+        has_collision = ET.fromstring(text).find("link/collision") is not None
+        self.source = "collision" if has_collision else "visual"
         kind = pin.COLLISION if self.source == "collision" else pin.VISUAL
         try:
             geom = pin.buildGeomFromUrdfString(
@@ -132,9 +129,12 @@ class RobotGeometry:
         # a captured target is no link that meets its parent at a joint: it is checked
         # against the link before the one that holds it
         self._drop(
-            lambda a, b: TARGET_LINK not in (self._link(a), self._link(b))
-            and (
-                parents[a.parentJoint] == b.parentJoint or parents[b.parentJoint] == a.parentJoint
+            lambda a, b: (
+                TARGET_LINK not in (self._link(a), self._link(b))
+                and (
+                    parents[a.parentJoint] == b.parentJoint
+                    or parents[b.parentJoint] == a.parentJoint
+                )
             ),
             "adjacent",
         )

@@ -190,9 +190,7 @@ def segment_distance(p1, q1, p2, q2):
     denom = a * e - b * b  # 0 for parallel segments: start from s = 0 then
     s = cs.if_else(denom > 1e-9 * a * e, _clamp01((b * f - c * e) / denom), 0.0)
     t_free = (b * s + f) / e
-    s = cs.if_else(
-        t_free < 0, _clamp01(-c / a), cs.if_else(t_free > 1, _clamp01((b - c) / a), s)
-    )
+    s = cs.if_else(t_free < 0, _clamp01(-c / a), cs.if_else(t_free > 1, _clamp01((b - c) / a), s))
     t = _clamp01(t_free)
     gap = p1 + s * d1 - p2 - t * d2
     return cs.sqrt(cs.dot(gap, gap) + 1e-12)
@@ -301,7 +299,7 @@ def clearance_rows(
     for k, s in enumerate(shapes):
         for i in s.objects:
             of_object[i] = k
-    depth = {j: len(_chain(geometry.model, j)) for j in range(geometry.model.njoints)}
+    depth = {j: len(geometry.model.supports[j]) for j in range(geometry.model.njoints)}
     rows: dict[int, set] = {}
     for p in pairs:
         s1, s2 = of_object[p.first], of_object[p.second]
@@ -331,15 +329,7 @@ def _body_name(geometry: RobotGeometry, body: int) -> str:
     return geometry.model.names[body]
 
 
-def _chain(model, j: int) -> list[int]:
-    out = []
-    while j > 0:
-        out.append(j)
-        j = int(model.parents[j])
-    return out
-
-
 def moved_by(geometry: RobotGeometry, joints) -> set[int]:
     """Joints of ``robot.model`` moved by the given arm joints (names): them and all below."""
-    ids = {geometry.model.getJointId(j) for j in joints}
-    return {j for j in range(1, geometry.model.njoints) if ids & set(_chain(geometry.model, j))}
+    model = geometry.model
+    return set().union(*(model.subtrees[model.getJointId(j)] for j in joints))

@@ -1,15 +1,26 @@
-"""Where robot files come from (``balance_opt/urdf/``, example-robot-data by name), and
-ready-made robots: the paper's Table 1 robot and Baxter on a floating base."""
+"""The robots balance-opt knows: the URDFs it ships (``balance_opt/urdf/``), those of
+example-robot-data by name with their joints grouped by chain (``balance-opt robots``), and
+ready-made robots: the paper's Table 1 robot and Baxter on a floating base.
+
+An example-robot-data robot's name is its URDF's stem, or its description folder's when two
+files share a stem; :data:`ALIASES` adds example-robot-data's short names. A chain is a sequence
+of movable joints, each the only movable joint below the previous one.
+"""
 
 from __future__ import annotations
 
+import difflib
+import importlib.metadata
 import importlib.resources
+import xml.etree.ElementTree as ET
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import pinocchio as pin
+
 from balance_opt.errors import InputError
-from balance_opt.model.catalog import example_urdf
-from balance_opt.model.robot import FloatingRobot
+from balance_opt.model.robot import FloatingRobot, UrdfJoint, parse_urdf
 from balance_opt.model.table1 import Table1Reading, table1_urdf
 
 PAPER_ROBOT = "paper_robot.urdf"
@@ -67,3 +78,136 @@ def baxter_floating(
     left, right = BAXTER_LEFT_ARM, BAXTER_RIGHT_ARM
     arms = (left, right) if mission == "left" else (right, left)
     return FloatingRobot(example_urdf("baxter"), arms[0], arms[1], locked=locked)
+
+
+# ---------------------------------------------------------------------------------- catalog
+DISTRIBUTION = "example-robot-data"
+#: Short names: example-robot-data's loader names whose file stem differs.
+ALIASES = {
+    "talos": "talos_reduced",
+    "talos_arm": "talos_left_arm",
+    "talos_full": "talos_full_v2",
+    "ur3": "ur3_robot",
+    "ur5": "ur5_robot",
+    "ur10": "ur10_robot",
+    "hyq": "hyq_no_sensors",
+    "anymal": "anymal_b_simple",
+    "anymal_c": "anymal_c_simple",
+}
+#: Joint types that move (``fixed`` joints only carry a link along).
+MOVABLE = ("revolute", "continuous", "prismatic", "floating", "planar")
+
+
+def example_robots() -> dict[str, Path]:
+    """Every URDF of the installed example-robot-data, by robot name (read anew at each call:
+    a caller asking for many keeps the mapping)."""
+    try:
+        dist = importlib.metadata.distribution(DISTRIBUTION)
+    except importlib.metadata.PackageNotFoundError:
+        raise InputError(f"{DISTRIBUTION} is not installed (pip install {DISTRIBUTION})") from None
+    files = sorted(Path(str(dist.locate_file(f))) for f in dist.files or () if f.suffix == ".urdf")
+    stems: dict[str, list[Path]] = {}
+    for path in files:
+        stems.setdefault(path.stem, []).append(path)
+    robots: dict[str, Path] = {}
+    for stem, paths in stems.items():
+        if len(paths) == 1:
+            robots[stem] = paths[0]
+            continue
+        for path in paths:  # .../robots/<folder>_description/<urdf|robots>/<stem>.urdf
+            folder = path.parent.parent.name
+            for suffix in ("_description", "_data"):
+                folder = folder.removesuffix(suffix)
+            robots[folder if folder not in stems else f"{folder}_{stem}"] = path
+    return dict(sorted(robots.items()))
+
+
+def resolve_name(name: str, robots: Mapping[str, Path]) -> str:
+    """The name in ``robots`` (:func:`example_robots`) of ``name`` (an alias resolved);
+    InputError with close names."""
+    name = ALIASES.get(name, name)
+    if name in robots:
+        return name
+    known = sorted({*robots, *ALIASES})
+    close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+    hint = f"did you mean {', '.join(close)}? " if close else ""
+    raise InputError(
+        f"unknown example-robot-data robot '{name}'; {hint}"
+        f"list them with `balance-opt robots` ({len(robots)} robots)"
+    )
+
+
+def example_urdf(name: str) -> Path:
+    """Path of the example-robot-data URDF of robot ``name`` (or an alias)."""
+    robots = example_robots()
+    return robots[resolve_name(name, robots)]
+
+
+# ----------------------------------------------------------------------------- chains
+@dataclass
+class RobotInfo:
+    """A robot of the catalog: its file, why it does not load ("" when it does), its movable
+    joints by chain from the root down, its mass [kg] and the implausible values in its file."""
+
+    name: str
+    path: Path
+    error: str = ""
+    chains: list[list[UrdfJoint]] = field(default_factory=list)
+    mass: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def dof(self) -> int:
+        return sum(len(c) for c in self.chains)
+
+
+def _chains(root: ET.Element, joints: Mapping[str, UrdfJoint]) -> list[list[UrdfJoint]]:
+    """Movable joints grouped by chain (module docstring), depth first from the root link."""
+    below: dict[str, list[UrdfJoint]] = {}  # link -> joints whose parent it is
+    for joint in joints.values():
+        below.setdefault(joint.parent, []).append(joint)
+    children = {j.child for j in joints.values()}
+    roots = [link.get("name") for link in root.findall("link") if link.get("name") not in children]
+
+    def movable_below(link: str) -> list[UrdfJoint]:
+        """The first movable joints under ``link`` (through fixed joints)."""
+        found = []
+        for joint in below.get(link, []):
+            if joint.type in MOVABLE:
+                found.append(joint)
+            else:
+                found.extend(movable_below(joint.child))
+        return found
+
+    chains: list[list[UrdfJoint]] = []
+    starts = [j for r in roots for j in movable_below(r)]
+    while starts:
+        joint, chain = starts.pop(0), []
+        while True:
+            chain.append(joint)
+            nxt = movable_below(joint.child)
+            if len(nxt) != 1:
+                starts[:0] = nxt  # each branch is a chain of its own
+                break
+            joint = nxt[0]
+        chains.append(chain)
+    return chains
+
+
+def robot_info(name: str, robots: Mapping[str, Path] | None = None) -> RobotInfo:
+    """Load robot ``name`` of ``robots`` (default: :func:`example_robots`) as balance-opt would
+    (XML, physical checks, Pinocchio on a free-flying base) and group its movable joints by
+    chain; a failure is recorded, not raised."""
+    robots = example_robots() if robots is None else robots
+    resolved = resolve_name(name, robots)
+    info = RobotInfo(resolved, robots[resolved])
+    try:
+        text = info.path.read_text()
+        root, joints, info.warnings = parse_urdf(text, str(info.path))
+        model = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+        info.mass = float(sum(inertia.mass for inertia in model.inertias))
+        info.chains = _chains(root, joints)
+    except Exception as exc:  # noqa: BLE001 (any reason a file does not load is reported)
+        message = " ".join(str(exc).replace(f"URDF {info.path}: ", "").split())
+        info.error = f"{type(exc).__name__}: {message}"[:300]
+    return info

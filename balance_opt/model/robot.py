@@ -92,12 +92,18 @@ class Arm:
 
 
 @dataclass(frozen=True)
-class _UrdfJoint:
+class UrdfJoint:
+    """A ``<joint>`` of a URDF; ``mimic``: ``(driver, multiplier, offset)`` of a movable joint."""
+
     name: str
     type: str
     parent: str
     child: str
-    mimic: tuple[str, float, float] | None = None  # (driver, multiplier, offset)
+    mimic: tuple[str, float, float] | None = None
+
+    def __str__(self) -> str:
+        kind = self.type if self.mimic is None else f"{self.type}, mimics {self.mimic[0]}"
+        return f"{self.name} ({kind})"
 
 
 def _read_urdf(urdf: str | Path) -> tuple[str, str]:
@@ -113,14 +119,17 @@ def _read_urdf(urdf: str | Path) -> tuple[str, str]:
     return str(urdf), "<URDF string>"
 
 
-def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJoint]]:
+def parse_urdf(text: str, source: str) -> tuple[ET.Element, dict[str, UrdfJoint], list[str]]:
+    """The root element of URDF ``text``, its joints by name and the warnings of
+    :func:`~balance_opt.model.urdf_checks.check_urdf_physics` (which raises for a non-physical
+    file)."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
         raise URDFLoadError(source, f"XML parse error: {exc}") from exc
     if root.tag != "robot":
         raise URDFLoadError(source, f"root element is <{root.tag}>, expected <robot>")
-    joints: dict[str, _UrdfJoint] = {}
+    joints: dict[str, UrdfJoint] = {}
     for el in root.findall("joint"):
         name = el.get("name")
         parent, child = el.find("parent"), el.find("child")
@@ -128,30 +137,14 @@ def _parse_joints(text: str, source: str) -> tuple[ET.Element, dict[str, _UrdfJo
             raise URDFLoadError(
                 source, f"a <joint> lacks a name, parent or child: {ET.tostring(el)[:80]!r}"
             )
-        joints[name] = _UrdfJoint(
+        joints[name] = UrdfJoint(
             name,
             el.get("type", ""),
             parent.get("link"),
             child.get("link"),
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
-    for warning in check_urdf_physics(root, source):
-        message = f"URDF {source}: {warning}"
-        if message not in _WARNED:  # once: robots are built again and again
-            _WARNED.add(message)
-            log.warning("%s", message)
-    return root, joints
-
-
-_WARNED: set[str] = set()
-
-
-def _ancestors(model: pin.Model, joint_id: int) -> list[int]:
-    """``joint_id`` and the joints above it up to the root (Pinocchio's joint ids)."""
-    out = [joint_id]
-    while model.parents[out[-1]] != 0:
-        out.append(model.parents[out[-1]])
-    return out
+    return root, joints, check_urdf_physics(root, source)
 
 
 class LimitOverrideError(JointError):
@@ -196,7 +189,9 @@ class FloatingRobot:
         ee_frames: Mapping[str, str] | None = None,
     ):
         text, self.source = _read_urdf(urdf)
-        root, self._urdf_joints = _parse_joints(text, self.source)
+        root, self._urdf_joints, warnings = parse_urdf(text, self.source)
+        for warning in warnings:
+            log.warning("URDF %s: %s", self.source, warning)
         self.mimics: dict[str, Mimic] = resolve_mimics(self._urdf_joints, self.source)
         self.name = root.get("name", "robot")
 
@@ -422,10 +417,8 @@ class FloatingRobot:
         """Refuse a balance arm that moves no mass and no inertia: its motion would change
         nothing, and every plan would equal the mission arm alone."""
         model = self.model
-        ids = {self._joint_ids[i] for i in arm.indices}
-        moved = [  # every body below a joint of the arm
-            b for b in range(1, model.njoints) if ids & set(_ancestors(model, b))
-        ]
+        # every body below a joint of the arm
+        moved = sorted(set().union(*(model.subtrees[self._joint_ids[i]] for i in arm.indices)))
         mass = sum(model.inertias[b].mass for b in moved)
         inertia = sum(float(np.trace(model.inertias[b].inertia)) for b in moved)
         scale = sum(float(np.trace(model.inertias[b].inertia)) for b in range(model.njoints))

@@ -58,19 +58,13 @@ def available_backends() -> list[str]:
     return found
 
 
-_NOTED: set[str] = set()  # fallback reasons already logged by this process
-
-
 def _fall_back_to_adam(reason: str) -> tuple[str, str]:
-    """Choose adam for ``auto``, saying why once per process and reason."""
+    """Choose adam for ``auto``: ``("adam", "adam (<why not the bridge>)")``."""
     if not _imports("adam.casadi"):
         raise BalanceOptError(
             f"no symbolic backend: the Pinocchio-CasADi bridge is unavailable ({reason}) "
             "and adam-robotics[casadi] is not installed"
         )
-    if reason not in _NOTED:
-        _NOTED.add(reason)
-        log.info("symbolic backend: adam, not the Pinocchio-CasADi bridge: %s", reason)
     return "adam", f"adam ({reason})"
 
 
@@ -260,6 +254,10 @@ class SymbolicMaps:
                 raise
             self.backend, self.backend_description = _fall_back_to_adam(exc.reason)
             self._A, self._J_ee = _primitives_adam(robot, self._q)
+        if backend == "auto" and self.backend == "adam":  # why, each time maps are built
+            log.info(
+                "symbolic backend: %s, not the Pinocchio-CasADi bridge", self.backend_description
+            )
         log.debug("symbolic maps of %s built with %s", robot.name, self.backend_description)
 
     # ------------------------------------------------------------------ expressions

@@ -52,8 +52,7 @@ def replay(
     maps = NumericMaps(robot)
     q0 = IDENTITY_QUATERNION.copy()  # the drift is measured from the initial attitude
     if integration.method == "rk4":  # fixed steps: every joint sample known before integrating
-        rates = _StageRates(maps, sample_M, sample_B, L)
-        quat, stats, failure = _rk4_given_joints(rates, q0, t, integration)
+        quat, stats, failure = _rk4_given_joints(maps, sample_M, sample_B, L, q0, t, integration)
     else:
         quat, stats, failure = integrate(
             _adaptive_rhs(maps, sample_M, sample_B, L), q0, t, integration
@@ -121,28 +120,6 @@ def phase_one(
     )
 
 
-class _StageRates:
-    """The base rate at given times, from the joint motions sampled in one batch (one Pinocchio
-    pass per stage time); the attitude-dependent part ``I_G^{-1} R^T L`` is kept apart."""
-
-    def __init__(self, maps: NumericMaps, sample_M, sample_B, L: np.ndarray):
-        self.maps, self.sample_M, self.sample_B, self.L = maps, sample_M, sample_B, L
-        self.spinning = bool(L.any())
-
-    def at(self, times: np.ndarray) -> None:
-        """Evaluate the maps at ``times`` (S,); :meth:`omega` then takes indices into them."""
-        q, q_dot, _ = arm_samples(self.maps.robot, self.sample_M, self.sample_B, times)
-        I_G, A = self.maps.angular_maps(q)
-        self.omega_table = base_angular_velocity(I_G, A, q_dot)  # omega at zero momentum
-        self._inverse = np.linalg.inv(I_G) if self.spinning else None
-
-    def omega(self, j: int, y: np.ndarray) -> np.ndarray:
-        """The base rate at stage time ``j`` for the (unnormalised) quaternion ``y``."""
-        if not self.spinning:
-            return self.omega_table[j]
-        return self.omega_table[j] + self._inverse[j] @ _to_body(y / np.linalg.norm(y), self.L)
-
-
 def _to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``R^T v`` for the unit quaternion ``q`` (x, y, z, w): ``v - 2 w (u x v) + 2 u x (u x v)``
     with ``u = (x, y, z)``, written out (the inner loop of a spinning replay)."""
@@ -158,18 +135,28 @@ def _to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     )
 
 
-def _rk4_given_joints(rates: _StageRates, y0: np.ndarray, t: np.ndarray, options):
+def _rk4_given_joints(maps: NumericMaps, sample_M, sample_B, L, y0, t, options):
     """Classic RK4 on the unit quaternion with the steps of
-    :func:`~balance_opt.motion.integration.integrate` and the base rate at every stage time
-    evaluated in one batch first. Returns ``(Y, stats, message)``."""
+    :func:`~balance_opt.motion.integration.integrate`, the base rate at every stage time
+    evaluated in one batch first (one Pinocchio pass per stage time); with momentum ``L``, its
+    attitude-dependent part ``I_G^{-1} R^T L`` is added stage by stage. Returns
+    ``(Y, stats, message)``."""
     step = options.step or options.output_step
     times, n_sub, h = rk4_stage_times(t, options)
-    S = h.size
-    rates.at(times)
-    if rates.spinning:
-        Y, message = _stagewise(rates, y0, t, n_sub, h)
+    q, q_dot, _ = arm_samples(maps.robot, sample_M, sample_B, times)
+    I_G, A = maps.angular_maps(q)
+    omega = base_angular_velocity(I_G, A, q_dot)  # at zero momentum
+    if L.any():
+        inverse = np.linalg.inv(I_G)
+
+        def rate(j: int, y: np.ndarray) -> np.ndarray:
+            """The base rate at stage time ``j`` for the (unnormalised) quaternion ``y``."""
+            return omega[j] + inverse[j] @ _to_body(y / np.linalg.norm(y), L)
+
+        Y, message = _stagewise(rate, y0, t, n_sub, h)
     else:
-        Y, message = _step_matrices(rates.omega_table, y0, t, n_sub, h)
+        Y, message = _step_matrices(omega, y0, t, n_sub, h)
+    S = h.size
     stats = {"method": "rk4", "step": step, "steps": int(S), "rhs_evaluations": 4 * int(S)}
     return Y, stats, message
 
@@ -197,7 +184,7 @@ def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOp
     return Y
 
 
-def _stagewise(rates: _StageRates, y0, t, n_sub, h):
+def _stagewise(rate, y0, t, n_sub, h):
     """RK4 stage by stage (the rate depends on the attitude). Returns ``(Y, message)``."""
     S = h.size
     ends = np.append(np.arange(1, S), 2 * S)  # a step's end is the next step's start
@@ -207,10 +194,10 @@ def _stagewise(rates: _StageRates, y0, t, n_sub, h):
     for k in range(t.size - 1):
         for _ in range(n_sub[k]):
             hs, mid = h[s], S + s
-            k1 = quaternion_rate(y, rates.omega(s, y))
-            k2 = quaternion_rate(y + 0.5 * hs * k1, rates.omega(mid, y + 0.5 * hs * k1))
-            k3 = quaternion_rate(y + 0.5 * hs * k2, rates.omega(mid, y + 0.5 * hs * k2))
-            k4 = quaternion_rate(y + hs * k3, rates.omega(ends[s], y + hs * k3))
+            k1 = quaternion_rate(y, rate(s, y))
+            k2 = quaternion_rate(y + 0.5 * hs * k1, rate(mid, y + 0.5 * hs * k1))
+            k3 = quaternion_rate(y + 0.5 * hs * k2, rate(mid, y + 0.5 * hs * k2))
+            k4 = quaternion_rate(y + hs * k3, rate(ends[s], y + hs * k3))
             y = y + (hs / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
             y /= np.linalg.norm(y)
             s += 1

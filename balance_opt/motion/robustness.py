@@ -146,7 +146,7 @@ def drift_under_model_error(
         angles = np.empty((opts.samples, plan.t.size))
         if integration.method == "rk4" and (h0 is None or not np.any(h0)):
             times = rk4_stage_times(plan.t, integration)[0]
-            omega = _Kinematics(robot, mission, balance, times).base_rates(models)
+            omega = _base_rates(robot, mission, balance, times, models)
             angles[:] = rotation_angle(attitude_from_rates(omega, plan.t, integration))
         else:  # the rate depends on the attitude: every model replayed in full
             for k, model in enumerate(models):
@@ -175,47 +175,41 @@ def _inertia_basis() -> np.ndarray:
     return B
 
 
-class _Kinematics:
-    """Composite inertia and joint momentum at the base along a joint motion, linear in every
-    body's dynamic parameters."""
-
-    def __init__(self, robot: FloatingRobot, mission, balance, times: np.ndarray):
-        maps = NumericMaps(robot)
-        q, q_dot, _ = arm_samples(robot, mission.sample, balance.sample, times)
-        qp, vp = maps.configurations(q), maps.velocities(q_dot)
-        model, data = robot.model, robot.model.createData()
-        nb = model.njoints - 1
-        force = np.empty((times.size, nb, 6, 6))  # X_i^*: body forces to the base
-        velocity = np.empty((times.size, nb, 6))  # v_i, body frame, base held
-        for k in range(times.size):
-            pin.forwardKinematics(model, data, qp[k], vp[k])
-            for i in range(nb):
-                force[k, i] = data.oMi[i + 1].toDualActionMatrix()
-                velocity[k, i] = data.v[i + 1].vector
-        FB = np.einsum("tiab,pbc->tipac", force, _inertia_basis())
-        T = times.size
-        # (T, 6, 6, nb * 10) and (T, 6, nb * 10): X^* B_p X^*T and X^* B_p v per body, parameter
-        composite = FB @ np.swapaxes(force, -1, -2)[:, :, None]
-        self.composite = np.moveaxis(composite, (1, 2), (3, 4)).reshape(T, 6, 6, nb * 10)
-        momentum = (FB @ velocity[:, :, None, :, None])[..., 0]
-        self.momentum = np.moveaxis(momentum, (1, 2), (2, 3)).reshape(T, 6, nb * 10)
-        self.n_bodies = nb
-
-    def base_rates(self, robots) -> np.ndarray:
-        """The base angular velocity (K, T, 3) [rad/s, base frame] of each robot, zero momentum."""
-        params = np.stack(
-            [
-                np.concatenate(
-                    [r.model.inertias[i + 1].toDynamicParameters() for i in range(self.n_bodies)]
-                )
-                for r in robots
-            ],
-            axis=-1,
-        )  # (nb * 10, K)
-        composite = np.moveaxis(self.composite @ params, -1, 0)  # (K, T, 6, 6)
-        momentum = np.moveaxis(self.momentum @ params, -1, 0)  # (K, T, 6)
-        twist = -np.linalg.solve(composite, momentum[..., None])[..., 0]
-        return twist[..., 3:]
+def _base_rates(robot: FloatingRobot, mission, balance, times: np.ndarray, robots) -> np.ndarray:
+    """The base angular velocity (K, T, 3) [rad/s, base frame] of each of ``robots`` (``robot``
+    perturbed) along a joint motion at zero momentum: the composite inertia and the joint momentum
+    at the base are linear in every body's dynamic parameters, so the kinematics are computed once
+    (on ``robot``)."""
+    maps = NumericMaps(robot)
+    q, q_dot, _ = arm_samples(robot, mission.sample, balance.sample, times)
+    qp, vp = maps.configurations(q), maps.velocities(q_dot)
+    model, data = robot.model, robot.model.createData()
+    nb = model.njoints - 1
+    force = np.empty((times.size, nb, 6, 6))  # X_i^*: body forces to the base
+    velocity = np.empty((times.size, nb, 6))  # v_i, body frame, base held
+    for k in range(times.size):
+        pin.forwardKinematics(model, data, qp[k], vp[k])
+        for i in range(nb):
+            force[k, i] = data.oMi[i + 1].toDualActionMatrix()
+            velocity[k, i] = data.v[i + 1].vector
+    FB = np.einsum("tiab,pbc->tipac", force, _inertia_basis())
+    T = times.size
+    # (T, 6, 6, nb * 10) and (T, 6, nb * 10): X^* B_p X^*T and X^* B_p v per body, parameter
+    composite = FB @ np.swapaxes(force, -1, -2)[:, :, None]
+    composite = np.moveaxis(composite, (1, 2), (3, 4)).reshape(T, 6, 6, nb * 10)
+    momentum = (FB @ velocity[:, :, None, :, None])[..., 0]
+    momentum = np.moveaxis(momentum, (1, 2), (2, 3)).reshape(T, 6, nb * 10)
+    params = np.stack(
+        [
+            np.concatenate([r.model.inertias[i + 1].toDynamicParameters() for i in range(nb)])
+            for r in robots
+        ],
+        axis=-1,
+    )  # (nb * 10, K)
+    composite = np.moveaxis(composite @ params, -1, 0)  # (K, T, 6, 6)
+    momentum = np.moveaxis(momentum @ params, -1, 0)  # (K, T, 6)
+    twist = -np.linalg.solve(composite, momentum[..., None])[..., 0]
+    return twist[..., 3:]
 
 
 def _integration_of(plan: BalanceResult) -> IntegrationOptions:

@@ -335,9 +335,9 @@ def _ipopt_solver(
             kernels.cost.map(n_points)(Z, *data), cs.MX.zeros(kernels.n_clearance, n_points)
         )
     f = outer.cost(w, cs.vec(Y), p)
-    solver = cs.nlpsol(
+    # with the live progress line (balance_opt.progress); returns at once when it is off
+    solver = progress.nlpsol(
         "balance_nlp",
-        "ipopt",
         {"x": w, "p": p, "f": f, "g": g},
         {
             "ipopt": ipopt,
@@ -346,8 +346,6 @@ def _ipopt_solver(
             "calc_lam_p": False,
             "calc_lam_x": False,
             **_derivatives(kernels, outer, w, p, Z, data, point_idx, n_g),
-            # the live progress line (balance_opt.progress); returns at once when it is off
-            **progress.nlpsol_options(w.numel(), n_g),
         },
     )
     one_thread_for_ipopt()  # the plugin, and its OpenBLAS, are loaded now

@@ -250,8 +250,7 @@ def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
 
 
 def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingRobot:
-    from balance_opt.model.catalog import example_urdf
-    from balance_opt.model.library import shipped_urdf
+    from balance_opt.model.library import example_urdf, shipped_urdf
 
     r = spec.robot
     key = next(k for k in ("urdf", "shipped", "example") if getattr(r, k) is not None)
