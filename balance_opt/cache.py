@@ -16,10 +16,13 @@ import logging
 import os
 import re
 import shutil
+import signal
 import socket
+import subprocess
 import tempfile
+import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -149,6 +152,67 @@ def clean_stale(folder: Path) -> list[Path]:
     for path in removed:
         _delete(path)
     return removed
+
+
+# ----------------------------------------------------------------------------- compilers
+def first_error(output: str) -> str:
+    """The first line of a compiler's ``output`` that names an error, else its first line."""
+    lines = [line.strip() for line in output.splitlines() if line.strip()]
+    errors = [line for line in lines if "error" in line.lower()]
+    return (errors or lines or ["no message"])[0][:300]
+
+
+def run_commands(
+    commands: list[list[str]],
+    stop: threading.Event | None = None,
+    tick: Callable[[int], None] | None = None,
+    every: float = 30.0,
+) -> list[str]:
+    """Run ``commands`` (compilers, the bridge program) at once as children of this process and
+    wait for all of them; returns the output (stdout and stderr) of each.
+
+    Each runs in a process group of its own, ended whole (a compiler driver and the ``cc1`` it
+    started) when this call ends first: interrupted, or ``stop`` set (OSError ``stopped``).
+    ``tick(group)`` is called every ``every`` [s] with the first command's group. Raises
+    OSError with the first error line (:func:`first_error`) of a command that failed."""
+    stop = stop if stop is not None else threading.Event()
+    procs = []
+    with contextlib.ExitStack() as files:
+        outputs = [files.enter_context(tempfile.TemporaryFile()) for _ in commands]
+        try:
+            for command, out in zip(commands, outputs):
+                procs.append(
+                    subprocess.Popen(
+                        command,
+                        stdin=subprocess.DEVNULL,
+                        stdout=out,
+                        stderr=subprocess.STDOUT,
+                        start_new_session=os.name == "posix",
+                    )
+                )
+            start, ticks = time.monotonic(), 1
+            while any(proc.poll() is None for proc in procs):
+                if stop.wait(0.05):
+                    raise OSError("stopped")
+                if tick is not None and time.monotonic() - start >= ticks * every:
+                    tick(procs[0].pid)
+                    ticks += 1
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    if os.name == "posix":
+                        with contextlib.suppress(OSError):
+                            os.killpg(proc.pid, signal.SIGKILL)
+                    proc.kill()
+                    proc.wait()
+        texts = []
+        for out in outputs:
+            out.seek(0)
+            texts.append(out.read().decode(errors="replace"))
+    for proc, text in zip(procs, texts):
+        if proc.returncode != 0:
+            raise OSError(first_error(text))
+    return texts
 
 
 # ----------------------------------------------------------------------------- integrity records

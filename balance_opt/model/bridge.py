@@ -19,16 +19,21 @@ import logging
 import os
 import platform
 import shutil
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 
 import casadi as cs
 
-from balance_opt.cache import build_dir, check_record, default_cache_dir, file_lock, write_record
+from balance_opt.cache import (
+    build_dir,
+    check_record,
+    default_cache_dir,
+    file_lock,
+    run_commands,
+    write_record,
+)
 from balance_opt.errors import BalanceOptError
 
 log = logging.getLogger(__name__)
@@ -174,15 +179,12 @@ def find_toolchain() -> Toolchain:
     return Toolchain(compiler, includes, (pinocchio_lib, str(casadi_dir)))
 
 
-@cache
 def _compiler_version(compiler: str) -> str:
     try:
-        out = subprocess.run(
-            [compiler, "--version"], capture_output=True, text=True, timeout=60, check=False
-        )
-    except (OSError, subprocess.SubprocessError) as exc:
+        out = run_commands([[compiler, "--version"]])[0]
+    except OSError as exc:
         raise BridgeUnavailable(f"{compiler} does not run: {exc}") from exc
-    return (out.stdout.splitlines() or [""])[0]
+    return (out.splitlines() or [""])[0]
 
 
 def _build_key(toolchain: Toolchain) -> str:
@@ -202,12 +204,6 @@ def _build_key(toolchain: Toolchain) -> str:
 
 
 # ----------------------------------------------------------------------------- the program
-def _first_error(stderr: str) -> str:
-    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
-    errors = [line for line in lines if "error" in line.lower()]
-    return (errors or lines or ["no message"])[0][:300]
-
-
 def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
     """Build the program into a temporary name in its folder, then rename it into place."""
     log.info(
@@ -217,28 +213,17 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
         program.parent,
     )
     start, cpu0 = time.perf_counter(), _children_cpu()
+
+    def progress(group: int) -> None:
+        cpu = _children_cpu() - cpu0 + _group_cpu(group)
+        elapsed = time.perf_counter() - start
+        log.info(
+            "... still building the bridge (%.0f s so far, %.0f s of CPU of about 90)", elapsed, cpu
+        )
+
     with build_dir(program.parent, program.name) as tmp:
-        out = Path(tmp) / program.name
-        with open(Path(tmp) / "stderr.txt", "w+") as err:
-            proc = subprocess.Popen(
-                toolchain.command(out), stdout=subprocess.DEVNULL, stderr=err, text=True
-            )
-            while True:
-                try:
-                    proc.wait(timeout=PROGRESS_SECONDS)
-                    break
-                except subprocess.TimeoutExpired:
-                    elapsed = time.perf_counter() - start
-                    cpu = _children_cpu() - cpu0 + _process_cpu(proc.pid)
-                    log.info(
-                        "... still building the bridge (%.0f s so far, %.0f s of CPU of about 90)",
-                        elapsed,
-                        cpu,
-                    )
-            err.seek(0)
-            stderr = err.read()
-        if proc.returncode != 0:
-            raise BridgeUnavailable(f"build failed: {_first_error(stderr)}")
+        out = tmp / program.name
+        run_commands([toolchain.command(out)], tick=progress, every=PROGRESS_SECONDS)
         wall, cpu = time.perf_counter() - start, _children_cpu() - cpu0
         os.replace(out, program)  # atomic: no process ever runs a half-written program
     write_record(program, wall_seconds=wall, cpu_seconds=cpu)
@@ -246,20 +231,17 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
     return BuildRecord(program, wall, cpu, True)
 
 
-def _process_cpu(pid: int) -> float:
-    """CPU seconds of a running process tree (the compiler driver and the compiler it runs),
-    finished children included, from ``/proc``; 0 where there is no ``/proc``."""
-    stats = {}
+def _group_cpu(group: int) -> float:
+    """CPU seconds of the running processes of a process group (the compiler driver and the
+    compiler it runs, their finished children included), from ``/proc``; 0 without it."""
+    ticks = 0
     for entry in Path("/proc").glob("[0-9]*/stat"):
         with contextlib.suppress(OSError, ValueError, IndexError):
             fields = entry.read_text().rsplit(")", 1)[1].split()
-            # after the name: state, ppid, ..., utime (12th), stime, cutime, cstime
-            stats[int(entry.parent.name)] = (int(fields[1]), sum(map(int, fields[11:15])))
-    tree, ticks = {pid}, 0
-    for _ in range(8):  # a few generations: driver, compiler, assembler
-        tree |= {p for p, (parent, _) in stats.items() if parent in tree}
-    ticks = sum(stats[p][1] for p in tree if p in stats)
-    return ticks / os.sysconf("SC_CLK_TCK") if ticks else 0.0
+            # after the name: state, ppid, pgrp, ..., utime (12th), stime, cutime, cstime
+            if int(fields[2]) == group:
+                ticks += sum(map(int, fields[11:15]))
+    return ticks / os.sysconf("SC_CLK_TCK")
 
 
 def _children_cpu() -> float:
@@ -267,22 +249,6 @@ def _children_cpu() -> float:
 
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_utime + usage.ru_stime
-
-
-def _signature(path: Path) -> tuple | None:
-    """Size, modification time and inode of ``path``: what changes if the file is replaced,
-    truncated or rewritten (``None`` when it is missing)."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return (st.st_size, st.st_mtime_ns, st.st_ino)
-
-
-# Programs checked (or built) and functions loaded by this process, with the file signature
-# they were checked at: a file changed since is checked again.
-_BUILT: dict[Path, tuple[tuple, BuildRecord]] = {}
-_LOADED: dict[Path, tuple[tuple, cs.Function]] = {}
 
 
 def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
@@ -294,9 +260,6 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     toolchain = find_toolchain()
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir() / FOLDER
     program = folder / f"pinocchio_casadi_bridge_{_build_key(toolchain)}"
-    known = _BUILT.get(program)
-    if known is not None and known[0] == _signature(program):
-        return known[1]
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with file_lock(folder / f"{program.name}.lock"):
@@ -307,7 +270,6 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
                 record = _compile(toolchain, program)
     except OSError as exc:  # unwritable cache folder, compiler gone, disk full, ...
         raise BridgeUnavailable(f"build failed: {exc}") from exc
-    _BUILT[program] = (_signature(program), record)
     return record
 
 
@@ -340,21 +302,16 @@ def _generate(program: Path, robot, path: Path) -> float:
     """Run the program on ``robot``; the function lands in ``path``. Returns the time [s]."""
     start = time.perf_counter()
     with build_dir(path.parent, path.stem) as tmp:
-        urdf = Path(tmp) / "robot.urdf"
+        urdf = tmp / "robot.urdf"
         urdf.write_text(robot.locked_urdf)
-        out = Path(tmp) / path.name
+        out = tmp / path.name
         frames = [arm.ee_frame for arm in robot.arms]
         joints = robot.model_joint_names
         args = [str(program), str(urdf), str(out), str(len(joints)), *joints, *frames]
         try:
-            proc = subprocess.run(args, capture_output=True, text=True, check=False)
-        except OSError as exc:  # e.g. the program was replaced by a broken file meanwhile
-            raise BridgeUnavailable(f"the bridge does not run: {exc}") from exc
-        if proc.returncode != 0:
-            raise BridgeUnavailable(
-                f"the bridge failed on {robot.name} (exit status {proc.returncode}): "
-                f"{_first_error(proc.stderr)}"
-            )
+            run_commands([args])
+        except OSError as exc:  # also a program replaced by a broken file meanwhile
+            raise BridgeUnavailable(f"the bridge failed on {robot.name}: {exc}") from exc
         os.replace(out, path)
     return time.perf_counter() - start
 
@@ -368,9 +325,6 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
     """
     program = ensure_bridge(cache_dir).path
     path = function_path(robot, program)
-    known = _LOADED.get(path)
-    if known is not None and known[0] == _signature(path):
-        return known[1]
     fun = _load(path, robot)
     if fun is None:
         try:
@@ -382,7 +336,6 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
         if fun is None:
             raise BridgeUnavailable(f"the bridge wrote an unreadable function file {path}")
         log.info("Pinocchio primitives of %s generated in %.2f s", robot.name, elapsed)
-    _LOADED[path] = (_signature(path), fun)
     return fun
 
 

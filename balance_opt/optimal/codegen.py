@@ -10,8 +10,6 @@ import os
 import platform
 import re
 import shutil
-import signal
-import subprocess
 import threading
 import time
 from dataclasses import dataclass
@@ -28,6 +26,7 @@ from balance_opt.cache import (
     enforce_limit,
     file_lock,
     record_path,
+    run_commands,
     touch,
     write_record,
 )
@@ -91,12 +90,16 @@ def library_path(digest: str, compiler: str, cache_dir: Path | None = None) -> P
     return folder / f"balance_kernels_{name}{_SUFFIX}"
 
 
+def _lock(library: Path) -> Path:
+    return library.parent / f"{library.name}.lock"
+
+
 def load_cached(names: list[str], library: Path) -> list[cs.Function] | None:
     """The functions ``names`` of ``library`` if it is cached and intact, else ``None`` (a
     damaged library is deleted, so that it is rebuilt)."""
     if not library.exists():
         return None
-    with file_lock(library.parent / f"{library.name}.lock", blocking=False):
+    with file_lock(_lock(library), blocking=False):
         record, problem = check_record(library)
         if record is None:
             log.warning("cached balance kernels %s: %s; deleting and rebuilding", library, problem)
@@ -157,7 +160,7 @@ def compile_functions(
                 return Compiled(functions, False, 0.0, str(library), True, process)
         return Compiled(functions, False, 0.0, str(library), True)
     log.info("compiling %s ...", what)
-    with file_lock(library.parent / f"{library.name}.lock"):  # one compiles, the others wait
+    with file_lock(_lock(library)):  # one compiles, the others wait
         elapsed = 0.0 if check_record(library)[0] else _compile(compiler, source, library)
     externals = load_cached(names, library)
     if externals is None:
@@ -329,15 +332,6 @@ def c_files(source: str, jobs: int = COMPILE_JOBS) -> list[str]:
     return ["\n".join(line for k, line in enumerate(first) if k not in cut), *others]
 
 
-def _compiling(library: Path) -> bool:
-    """Whether another process holds the lock of ``library`` (compiling it)."""
-    try:
-        with file_lock(library.parent / f"{library.name}.lock", blocking=False):
-            return False
-    except BlockingIOError:
-        return True
-
-
 def _recent_failure(library: Path) -> str:
     """The error of a background compilation of ``library`` that failed within
     :data:`RETRY_SECONDS` (not retried before then), else ``""``."""
@@ -350,90 +344,68 @@ def _recent_failure(library: Path) -> str:
     return ""
 
 
-class Compilation:
+class Compilation(threading.Thread):
     """A background compilation: a thread of this process that runs the compilers (child
     processes at low priority) while it holds the library's lock, taken here."""
 
     def __init__(self, compiler: str, source: str, library: Path):
-        self.library, self.stopped = library, False
-        self.compilers: list[subprocess.Popen] = []
+        super().__init__(daemon=True)
+        self.compiler, self.source, self.library = compiler, source, library
+        self.stopped = threading.Event()
         self._lock = contextlib.ExitStack()
-        self._lock.enter_context(file_lock(library.parent / f"{library.name}.lock", False))
-        self.thread = threading.Thread(target=self._run, args=(compiler, source), daemon=True)
-        self.thread.start()
+        self._lock.enter_context(file_lock(_lock(library), blocking=False))
+        self.start()
 
-    def _run(self, compiler: str, source: str) -> None:
+    def run(self) -> None:
         library = self.library
         try:
             with self._lock:
                 if check_record(library)[0] is None:
-                    _compile(compiler, source, library, self)
+                    _compile(self.compiler, self.source, library, self.stopped)
             enforce_limit(library.parent, keep=[library, record_path(library)])
             library.with_suffix(".failed").unlink(missing_ok=True)
         except OSError as exc:  # the planner keeps the VM; noted, so that runs do not retry
-            if not self.stopped:
+            if not self.stopped.is_set():
                 with contextlib.suppress(OSError):
                     atomic_write_text(library.with_suffix(".failed"), str(exc))
+
+    def stop(self) -> None:
+        """Stop the compilers (and what they started) and wait for the thread."""
+        self.stopped.set()
+        self.join(10.0)
 
 
 def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
     """Wait up to ``timeout`` [s] for a background compilation this process started, then stop
     it if it still runs (the next run starts again). Returns whether it ended on its own."""
-    if process.thread.is_alive():
+    if process.is_alive():
         log.info(
             "waiting for the C compiler of the planner kernels (at most %.0f s; the next runs "
             "load the library) ...",
             timeout,
         )
-    process.thread.join(timeout)
-    if not process.thread.is_alive():
+    process.join(timeout)
+    if not process.is_alive():
         return True
-    stop(process)
+    process.stop()
     log.warning("planner kernels: compilation stopped after %.0f s; not cached", timeout)
     return False
 
 
-def stop(process: Compilation) -> None:
-    """Stop a background compilation (the compiler and what it started) and wait for it."""
-    process.stopped = True
-    for compiler in list(process.compilers):
-        _end(compiler, force=False)
-    process.thread.join(10.0)
+def wait_for_library(library: str | Path) -> dict | None:
+    """Wait for the compilation of ``library`` under way in any process to end (for benchmarks
+    and tests): its record (``compile_seconds``), or ``None`` (failed)."""
+    with file_lock(_lock(Path(library))):
+        return check_record(Path(library))[0]
 
 
-def _end(proc: subprocess.Popen, force: bool) -> None:
-    """End a running compiler and everything it started (its process group, of its own on
-    POSIX: the driver and its ``cc1``): terminated, or killed with ``force``."""
-    if proc.poll() is not None:
-        return
-    if os.name == "posix":
-        with contextlib.suppress(OSError):
-            os.killpg(proc.pid, signal.SIGKILL if force else signal.SIGTERM)
-    elif force:
-        proc.kill()
-    else:
-        proc.terminate()
-
-
-def wait_for_library(library: str | Path, timeout: float = 3600.0) -> dict | None:
-    """Wait for the compilation of ``library`` under way in any process to end (for
-    benchmarks and tests): its record (``compile_seconds``), or ``None`` (failed, or not
-    ended within ``timeout`` [s])."""
-    library = Path(library)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        record, _ = check_record(library)
-        if record is not None or not _compiling(library):
-            return record
-        time.sleep(0.5)
-    return None
-
-
-def _compile(compiler: str, source: str, library: Path, owner: Compilation | None = None) -> float:
+def _compile(
+    compiler: str, source: str, library: Path, stop: threading.Event | None = None
+) -> float:
     """Compile C ``source`` to the shared ``library`` and record it; returns the wall time [s].
     A split source is compiled as several files at once (:func:`c_files`), then linked. The
-    caller holds the library's lock; a background ``owner`` runs the compilers niced and can
-    stop them."""
+    caller holds the library's lock; a background compilation (``stop`` given) runs the
+    compilers niced and ends them when ``stop`` is set."""
     for path in (library, record_path(library)):
         path.unlink(missing_ok=True)
     start = time.perf_counter()
@@ -441,12 +413,12 @@ def _compile(compiler: str, source: str, library: Path, owner: Compilation | Non
         out = tmp / library.name
         texts = c_files(source)
         try:
-            _build(compiler, texts, out, owner)
+            _build(compiler, texts, out, stop)
         except OSError as exc:  # one file cannot depend on how CasADi's preamble is laid out
-            if len(texts) == 1 or (owner is not None and owner.stopped):
+            if len(texts) == 1 or (stop is not None and stop.is_set()):
                 raise
             log.warning("the kernels as %d C files did not build (%s); as one", len(texts), exc)
-            _build(compiler, [source], out, owner)
+            _build(compiler, [source], out, stop)
         os.replace(out, library)  # atomic: a process never loads a partial library
     elapsed = time.perf_counter() - start
     write_record(library, compile_seconds=round(elapsed, 3))
@@ -454,56 +426,21 @@ def _compile(compiler: str, source: str, library: Path, owner: Compilation | Non
     return elapsed
 
 
-def _build(compiler: str, texts: list[str], out: Path, owner: Compilation | None) -> None:
+def _build(compiler: str, texts: list[str], out: Path, stop: threading.Event | None) -> None:
     """Compile the C files of ``texts`` at once and link them to ``out``."""
     names = ["balance_kernels.c"] + [f"balance_kernels_{k}.c" for k in range(1, len(texts))]
     files = [out.parent / name for name in names]
     for path, text in zip(files, texts):
         path.write_text(text)
+    command = [compiler, *COMPILER_FLAGS]
+    nice = shutil.which("nice") if stop is not None else None
+    if nice:  # in the background: the plan being solved keeps the CPU
+        command = [nice, "-n", str(BACKGROUND_NICENESS), *command]
     inputs = [str(f) for f in files]
-    if len(files) > 1:
-        inputs = [str(f.with_suffix(".o")) for f in files]
-        jobs = [[*COMPILER_FLAGS, "-c", str(f), "-o", o] for f, o in zip(files, inputs)]
-        _run_compilers(jobs, compiler, owner)
-    _run_compilers([[*COMPILER_FLAGS, *inputs, "-o", str(out), "-lm"]], compiler, owner)
-
-
-def _run_compilers(arguments: list[list[str]], compiler: str, owner: Compilation | None) -> None:
-    """Run ``compiler`` with each list of ``arguments`` at once and wait for all of them."""
-    nice = shutil.which("nice") if owner is not None else None
-    procs = []
     try:
-        for args in arguments:
-            command = [compiler, *args]
-            if nice:
-                command = [nice, "-n", str(BACKGROUND_NICENESS), *command]
-            procs.append(
-                subprocess.Popen(
-                    command,
-                    stdin=subprocess.DEVNULL,
-                    stdout=subprocess.DEVNULL,
-                    stderr=subprocess.PIPE,
-                    text=True,
-                    # a group of its own, ended whole (the driver and the cc1, as it ran):
-                    # by stop(), or below if this call is interrupted
-                    start_new_session=os.name == "posix",
-                )
-            )
-            if owner is not None:
-                owner.compilers.append(procs[-1])
-                if owner.stopped:  # stop() came before this compiler started
-                    _end(procs[-1], force=True)
-        errors = [proc.communicate()[1] for proc in procs]
-    finally:
-        for proc in procs:  # an exception here: no compiler left running
-            if proc.poll() is None:
-                _end(proc, force=True)
-                proc.kill()  # the driver, should its group be gone already
-                proc.wait()
-            if owner is not None:
-                owner.compilers.remove(proc)
-    if owner is not None and owner.stopped:
-        raise OSError("stopped")
-    for proc, err in zip(procs, errors):
-        if proc.returncode != 0:
-            raise OSError(f"{compiler} failed on the balance kernels: {err.strip()[:500]}")
+        if len(files) > 1:
+            inputs = [str(f.with_suffix(".o")) for f in files]
+            run_commands([[*command, "-c", str(f), "-o", o] for f, o in zip(files, inputs)], stop)
+        run_commands([[*command, *inputs, "-o", str(out), "-lm"]], stop)
+    except OSError as exc:
+        raise OSError(f"{compiler} failed on the balance kernels: {exc}") from exc

@@ -458,4 +458,4 @@ def _from_library(names, library: str, sizes, n_clearance: int) -> PointKernels 
 
 def _stop_all(compiling: list) -> None:
     while compiling:
-        codegen.stop(compiling.pop())
+        compiling.pop().stop()
