@@ -3,6 +3,7 @@ cost and the free-floating inverse dynamics as CasADi functions of ONE collocati
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import weakref
 from dataclasses import dataclass
@@ -335,25 +336,19 @@ class PlannerModel:
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
         has finished (and drop the NLPs built on them); for processes that plan many tasks."""
-        swapped = 0
+        done = []
         for variant, kernels in list(self._kernels.items()):
-            if not kernels.background or not Path(kernels.library).exists():
-                continue
-            functions = (kernels.value, kernels.jacobian, kernels.gradient, kernels.hessian)
-            names = [f.name() for f in (*functions, kernels.cost) if f is not None]
-            sizes = (kernels.n_x, kernels.n_z, kernels.n_y)
-            loaded = _from_library(names, kernels.library, sizes, kernels.n_clearance)
-            if loaded is None:
-                continue
-            self._kernels[variant] = loaded
-            self.nlp_cache = {
-                k: v
-                for k, v in self.nlp_cache.items()
-                if (k.control, k.torque_limits, k.momentum, k.collision) != variant
-            }
+            if kernels.background and Path(kernels.library).exists():
+                self._kernels[variant] = self._make_kernels(*variant)
+                done += [variant] if self._kernels[variant].compiled else []
+        if done:
             log.info("planner kernels of %s: compiled library loaded", self.robot.name)
-            swapped += 1
-        return swapped
+        self.nlp_cache = {
+            k: v
+            for k, v in self.nlp_cache.items()
+            if (k.control, k.torque_limits, k.momentum, k.collision) not in done
+        }
+        return len(done)
 
     def _make_kernels(
         self, control: str, torque: bool, momentum: bool, clearance: str
@@ -371,30 +366,33 @@ class PlannerModel:
         compiler = codegen.find_compiler() if self.compile else None
         if compiler is not None and digest is not None:
             library = codegen.library_path(digest, compiler, self.cache_dir)
-            loaded = _from_library(names, str(library), sizes, n_c)
-            if loaded is not None:
-                return loaded
+            with contextlib.suppress(BlockingIOError):  # being compiled by another process
+                loaded = codegen.load_cached(names, library)
+                if loaded is not None:
+                    return _point_kernels(
+                        codegen.Compiled(loaded, True, 0.0, str(library)), sizes, n_c
+                    )
         functions = self._stored(
             f"kernels_{suffix}",
             lambda: self._kernel_functions(control, torque, momentum, suffix, clearance),
         )
-        if not self.compile:
-            return _point_kernels(functions, sizes, n_clearance=n_c)
-        try:
-            out = codegen.compile_functions(
-                functions,
-                self.cache_dir,
-                digest,
-                background=self.compile == "background",
-                label=self.robot.name,
-            )
-        except (OSError, RuntimeError) as exc:
-            log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
-            return _point_kernels(functions, sizes, n_clearance=n_c)
-        if out.process is not None:
-            self._compiling.append(out.process)
-        compiled = (out.compiled, out.compile_time, out.library, out.background)
-        return _point_kernels(out.functions, sizes, *compiled, n_clearance=n_c)
+        out = codegen.Compiled(functions, False, 0.0, None)
+        if self.compile:
+            try:
+                out = codegen.compile_functions(
+                    functions,
+                    self.cache_dir,
+                    digest,
+                    background=self.compile == "background",
+                    label=self.robot.name,
+                )
+            except (OSError, RuntimeError) as exc:
+                log.warning(
+                    "balance kernels not compiled (%s); using CasADi's virtual machine", exc
+                )
+            if out.process is not None:
+                self._compiling.append(out.process)
+        return _point_kernels(out, sizes, n_c)
 
     def _kernel_functions(
         self, control: str, torque: bool, momentum: bool, suffix: str, clearance: str = ""
@@ -438,22 +436,10 @@ class PlannerModel:
         ]
 
 
-def _point_kernels(functions, sizes, *compiled, n_clearance: int = 0) -> PointKernels:
-    functions = list(functions)
-    cost = functions[4] if len(functions) > 4 else None
-    return PointKernels(*functions[:4], *sizes, *compiled, n_clearance=n_clearance, cost=cost)
-
-
-def _from_library(names, library: str, sizes, n_clearance: int) -> PointKernels | None:
-    """The kernels ``names`` from a compiled library, or ``None`` (missing, or being compiled
-    by another process)."""
-    try:
-        loaded = codegen.load_cached(names, Path(library))
-    except BlockingIOError:
-        return None
-    if loaded is None:
-        return None
-    return _point_kernels(loaded, sizes, True, 0.0, library, n_clearance=n_clearance)
+def _point_kernels(out: codegen.Compiled, sizes: tuple, n_clearance: int) -> PointKernels:
+    f = list(out.functions)
+    compiled = (out.compiled, out.compile_time, out.library, out.background, n_clearance)
+    return PointKernels(*f[:4], *sizes, *compiled, f[4] if len(f) > 4 else None)
 
 
 def _stop_all(compiling: list) -> None:
