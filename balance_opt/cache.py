@@ -26,6 +26,8 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+log = logging.getLogger(__name__)
+
 #: Environment variable that moves the cache folder.
 CACHE_ENV = "BALANCE_OPT_CACHE"
 
@@ -264,8 +266,34 @@ def touch(path: Path) -> None:
         os.utime(path)
 
 
+def lock_path(artefact: Path) -> Path:
+    """The lock file of ``artefact``, held while it is built, checked and loaded, or evicted."""
+    return artefact.parent / f"{artefact.name}.lock"
+
+
+def load_checked(artefact: Path, load: Callable, what: str, then: str, blocking: bool = True):
+    """``load(artefact)`` if it matches its record (then touched), under its lock so that no
+    other process evicts it meanwhile; else ``None``, a damaged artefact deleted with a warning
+    (``cached <what>: <what is wrong>; <then>``)."""
+    if not artefact.exists():
+        return None
+    with file_lock(lock_path(artefact), blocking):
+        record, problem = check_record(artefact)
+        if record is not None:
+            try:
+                value = load(artefact)
+            except RuntimeError as exc:  # CasADi's, on a file it cannot read
+                problem = f"unreadable ({str(exc).strip().splitlines()[-1][:200]})"
+            else:
+                touch(record_path(artefact))
+                return value
+        log.warning("cached %s: %s; %s", what, problem, then)
+        for path in (artefact, record_path(artefact)):
+            path.unlink(missing_ok=True)
+    return None
+
+
 # ----------------------------------------------------------------------------- inventory, bound
-log = logging.getLogger(__name__)
 
 #: Environment variable bounding the cache size: bytes, or a number with K, M, G (powers of 1024).
 LIMIT_ENV = "BALANCE_OPT_CACHE_LIMIT"
@@ -299,7 +327,7 @@ class Entry:
 
     @property
     def lock(self) -> Path:
-        return self.files[0].parent / f"{self.files[0].name}.lock"
+        return lock_path(self.files[0])
 
 
 def size_limit() -> int:

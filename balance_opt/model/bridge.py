@@ -31,6 +31,7 @@ from balance_opt.cache import (
     check_record,
     default_cache_dir,
     file_lock,
+    lock_path,
     run_commands,
     write_record,
 )
@@ -262,7 +263,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     program = folder / f"pinocchio_casadi_bridge_{_build_key(toolchain)}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with file_lock(folder / f"{program.name}.lock"):
+        with file_lock(lock_path(program)):
             saved, _ = check_record(program)
             if saved is not None and {"wall_seconds", "cpu_seconds"} <= saved.keys():
                 record = BuildRecord(program, saved["wall_seconds"], saved["cpu_seconds"], False)

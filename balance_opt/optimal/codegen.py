@@ -25,9 +25,10 @@ from balance_opt.cache import (
     default_cache_dir,
     enforce_limit,
     file_lock,
+    load_checked,
+    lock_path,
     record_path,
     run_commands,
-    touch,
     write_record,
 )
 
@@ -90,26 +91,18 @@ def library_path(digest: str, compiler: str, cache_dir: Path | None = None) -> P
     return folder / f"balance_kernels_{name}{_SUFFIX}"
 
 
-def _lock(library: Path) -> Path:
-    return library.parent / f"{library.name}.lock"
-
-
 def load_cached(names: list[str], library: Path) -> list[cs.Function] | None:
     """The functions ``names`` of ``library`` if it is cached and intact, else ``None`` (a
-    damaged library is deleted, so that it is rebuilt)."""
-    if not library.exists():
-        return None
-    with file_lock(_lock(library), blocking=False):
-        record, problem = check_record(library)
-        if record is None:
-            log.warning("cached balance kernels %s: %s; deleting and rebuilding", library, problem)
-            for path in (library, record_path(library)):
-                path.unlink(missing_ok=True)
-            return None
-        touch(record_path(library))  # most recently used: evicted last
-        # loaded under the lock, so that no other process evicts it between check and load;
-        # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
-        return [cs.external(name, str(library), {"enable_fd": True}) for name in names]
+    damaged library is deleted, so that it is rebuilt); BlockingIOError while another process
+    compiles it."""
+    # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
+    return load_checked(
+        library,
+        lambda path: [cs.external(name, str(path), {"enable_fd": True}) for name in names],
+        f"balance kernels {library}",
+        "deleting and rebuilding",
+        blocking=False,
+    )
 
 
 def compile_functions(
@@ -160,7 +153,7 @@ def compile_functions(
                 return Compiled(functions, False, 0.0, str(library), True, process)
         return Compiled(functions, False, 0.0, str(library), True)
     log.info("compiling %s ...", what)
-    with file_lock(_lock(library)):  # one compiles, the others wait
+    with file_lock(lock_path(library)):  # one compiles, the others wait
         elapsed = 0.0 if check_record(library)[0] else _compile(compiler, source, library)
     externals = load_cached(names, library)
     if externals is None:
@@ -353,7 +346,7 @@ class Compilation(threading.Thread):
         self.compiler, self.source, self.library = compiler, source, library
         self.stopped = threading.Event()
         self._lock = contextlib.ExitStack()
-        self._lock.enter_context(file_lock(_lock(library), blocking=False))
+        self._lock.enter_context(file_lock(lock_path(library), blocking=False))
         self.start()
 
     def run(self) -> None:
@@ -395,7 +388,7 @@ def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
 def wait_for_library(library: str | Path) -> dict | None:
     """Wait for the compilation of ``library`` under way in any process to end (for benchmarks
     and tests): its record (``compile_seconds``), or ``None`` (failed)."""
-    with file_lock(_lock(Path(library))):
+    with file_lock(lock_path(Path(library))):
         return check_record(Path(library))[0]
 
 

@@ -10,18 +10,16 @@ import logging
 import os
 import re
 from collections.abc import Callable
-from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from balance_opt.cache import (
     MODELS_FOLDER,
     build_dir,
-    check_record,
     default_cache_dir,
     file_lock,
-    record_path,
-    touch,
+    load_checked,
+    lock_path,
     write_record,
 )
 
@@ -56,7 +54,6 @@ def kinematics_key(robot: FloatingRobot) -> str:
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
 
-@cache
 def formulation_fingerprint() -> str:
     """Hash of the source of :data:`FORMULATION_MODULES` and of CasADi's version."""
     import casadi as cs
@@ -90,22 +87,12 @@ class FunctionStore:
         import casadi as cs
 
         path = self.path(name)
-        if not path.exists():
-            return None
-        # under the lock: a writer renames the file into place before it records it
-        with file_lock(self.folder / f"{path.name}.lock"):
-            record, problem = check_record(path)
-            if record is not None:
-                try:
-                    functions = cs.FileDeserializer(str(path)).unpack()
-                    touch(record_path(path))
-                    return list(functions)
-                except RuntimeError as exc:
-                    problem = f"unreadable ({str(exc).strip().splitlines()[-1][:200]})"
-            log.warning("cached planner model %s: %s; building it again", path, problem)
-            for p in (path, record_path(path)):
-                p.unlink(missing_ok=True)
-        return None
+        return load_checked(
+            path,
+            lambda p: list(cs.FileDeserializer(str(p)).unpack()),
+            f"planner model {path}",
+            "building it again",
+        )
 
     def save(self, name: str, functions: list[cs.Function]) -> None:
         """Save ``functions`` as ``name`` (a failure to write is only logged: the cache only
@@ -115,10 +102,7 @@ class FunctionStore:
         path = self.path(name)
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
-            with (
-                file_lock(self.folder / f"{path.name}.lock"),
-                build_dir(self.folder, path.stem) as tmp,
-            ):
+            with file_lock(lock_path(path)), build_dir(self.folder, path.stem) as tmp:
                 out = tmp / path.name
                 serializer = cs.FileSerializer(str(out))
                 serializer.pack(functions)
