@@ -365,21 +365,12 @@ def _size(path: Path) -> int:
 def entries(folder: Path) -> list[Entry]:
     """The artefacts in ``folder`` (lock files left out), each with its record."""
     found: dict[Path, Entry] = {}
-    for path in _walk(folder):
-        relative = path.relative_to(folder)
-        kind = _kind(relative)
+    paths = {path: _kind(path.relative_to(folder)) for path in _walk(folder)}
+    owners = {record_path(p): p for p in paths if p.suffix not in (".json", ".lock", ".failed")}
+    for path, kind in paths.items():
         if path.name.endswith(".lock") and kind != "temporary":
             continue
-        # a record is listed with its artefact (same name, suffix .json)
-        key = path
-        if path.suffix == ".json" and kind in _RECORDED:
-            siblings = [p for p in path.parent.glob(f"{path.stem}*") if p != path]
-            artefacts = [
-                p
-                for p in siblings
-                if record_path(p) == path and p.is_file() and not p.name.endswith(".lock")
-            ]
-            key = artefacts[0] if artefacts else path
+        key = owners.get(path, path) if kind in _RECORDED else path  # a record: its artefact's
         with contextlib.suppress(OSError):
             entry = found.setdefault(key, Entry(kind, str(key.relative_to(folder))))
             entry.files.insert(0, path) if path == key else entry.files.append(path)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import heapq
 import logging
@@ -12,7 +13,6 @@ import re
 import shutil
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as cs
@@ -56,7 +56,7 @@ COMPILE_JOBS = 2
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class Compiled:
     """What :func:`compile_functions` returns."""
 
@@ -112,27 +112,27 @@ def compile_functions(
     background: bool = False,
     label: str = "",
 ) -> Compiled:
-    """Compile CasADi functions to one shared library, cached on disk."""
+    """Compile CasADi functions to one shared library, cached on disk; in the ``background``:
+    by a :class:`Compilation` (``process``) while the functions run on CasADi's VM."""
     compiler = find_compiler()
     if compiler is None:
         raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
-    source = None
-    if digest is None:
-        source = _source(functions)
-        digest = hashlib.sha256(source.encode()).hexdigest()
+    source = _source(functions) if digest is None else None
+    digest = digest or hashlib.sha256(source.encode()).hexdigest()
     library = library_path(digest, compiler, cache_dir)
     library.parent.mkdir(parents=True, exist_ok=True)
     names = [f.name() for f in functions]
+    vm = Compiled(functions, False, 0.0, str(library), True)
     try:
         loaded = load_cached(names, library)
     except BlockingIOError:  # being compiled by another process
         if background:
-            return Compiled(functions, False, 0.0, str(library), True)
+            return vm
         loaded = None
     if loaded is not None:
         return Compiled(loaded, True, 0.0, str(library))
     clean_stale(library.parent)
-    source = source if source is not None else _source(functions)
+    source = source or _source(functions)
     what = f"planner kernels for {label}" if label else "planner kernels"
     if background:
         failure = _recent_failure(library)
@@ -143,15 +143,9 @@ def compile_functions(
                 what,
                 failure,
             )
-        else:
-            try:
-                process = Compilation(compiler, source, library)
-            except BlockingIOError:
-                log.info("%s are being compiled by another process; not waiting", what)
-            else:
-                log.info("compiling %s (background) ...", what)
-                return Compiled(functions, False, 0.0, str(library), True, process)
-        return Compiled(functions, False, 0.0, str(library), True)
+            return vm
+        log.info("compiling %s (background) ...", what)
+        return dataclasses.replace(vm, process=Compilation(compiler, source, library))
     log.info("compiling %s ...", what)
     with file_lock(lock_path(library)):  # one compiles, the others wait
         elapsed = 0.0 if check_record(library)[0] else _compile(compiler, source, library)
