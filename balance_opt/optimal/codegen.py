@@ -144,8 +144,13 @@ def compile_functions(
                 failure,
             )
             return vm
+        try:
+            process = Compilation(compiler, source, library)
+        except BlockingIOError:
+            log.info("%s are being compiled by another process; not waiting", what)
+            return vm
         log.info("compiling %s (background) ...", what)
-        return dataclasses.replace(vm, process=Compilation(compiler, source, library))
+        return dataclasses.replace(vm, process=process)
     log.info("compiling %s ...", what)
     with file_lock(lock_path(library)):  # one compiles, the others wait
         elapsed = 0.0 if check_record(library)[0] else _compile(compiler, source, library)
