@@ -63,6 +63,15 @@ LIBRARIES = ("pinocchio_parsers", "pinocchio_default")
 BUILD_MINUTES = "1-6"
 #: Seconds between two "still building" log lines.
 PROGRESS_SECONDS = 30
+#: The headers the bridge includes, each with the folders of an install prefix's ``include``
+#: that may hold it, in search order (none: CasADi's, in its package folder).
+HEADERS = {
+    "pinocchio/autodiff/casadi.hpp": ("",),
+    "Eigen/Core": ("eigen3", ""),
+    "urdf_model/model.h": ("urdfdom_headers", ""),
+    "boost/mpl/list.hpp": ("",),
+    "casadi/casadi.hpp": (),
+}
 #: The pip packages that bring the headers, named in the "headers not found" reason.
 HEADER_PACKAGES = "pin, casadi, cmeel-eigen, cmeel-urdfdom-headers"
 FOLDER = "pinocchio-bridge"
@@ -131,23 +140,6 @@ def _prefixes() -> list[Path]:
     return [p for p in [*cmeel, Path(sys.prefix), Path("/usr/local"), Path("/usr")] if p.is_dir()]
 
 
-def _header_dir(header: str, subfolders: tuple[str, ...] = ("",)) -> str | None:
-    for prefix in _prefixes():
-        for sub in subfolders:
-            folder = prefix / "include" / sub
-            if (folder / header).is_file():
-                return str(folder)
-    return None
-
-
-def _library_dir(name: str) -> str | None:
-    for prefix in _prefixes():
-        for lib in ("lib", "lib64"):
-            if (prefix / lib / f"lib{name}.so").exists():
-                return str(prefix / lib)
-    return None
-
-
 def find_toolchain() -> Toolchain:
     """The compiler, headers and libraries the bridge needs, found without building anything
     (BridgeUnavailable when one is missing)."""
@@ -156,28 +148,23 @@ def find_toolchain() -> Toolchain:
     compiler = find_cxx_compiler()
     if compiler is None:
         raise BridgeUnavailable("no C++ compiler found: tried $CXX, c++, g++, clang++")
-    casadi_dir = Path(cs.__file__).parent
-    headers = {
-        "pinocchio/autodiff/casadi.hpp": _header_dir("pinocchio/autodiff/casadi.hpp"),
-        "Eigen/Core": _header_dir("Eigen/Core", ("eigen3", "")),
-        "urdf_model/model.h": _header_dir("urdf_model/model.h", ("urdfdom_headers", "")),
-        "boost/mpl/list.hpp": _header_dir("boost/mpl/list.hpp"),
-        "casadi/casadi.hpp": (
-            str(casadi_dir / "include")
-            if (casadi_dir / "include" / "casadi" / "casadi.hpp").is_file()
-            else None
-        ),
-    }
-    missing = [h for h, d in headers.items() if d is None]
+    casadi_dir, prefixes = Path(cs.__file__).parent, _prefixes()
+    found = {}
+    for header, subfolders in HEADERS.items():
+        folders = [p / "include" / sub for p in prefixes for sub in subfolders]
+        folders = folders if subfolders else [casadi_dir / "include"]
+        found[header] = next((str(f) for f in folders if (f / header).is_file()), None)
+    missing = [h for h, d in found.items() if d is None]
     if missing:
         raise BridgeUnavailable(
             f"C++ headers not found: {', '.join(missing)} (pip packages {HEADER_PACKAGES})"
         )
-    pinocchio_lib = _library_dir(LIBRARIES[0])
+    libraries = [p / lib for p in prefixes for lib in ("lib", "lib64")]
+    pinocchio_lib = next((d for d in libraries if (d / f"lib{LIBRARIES[0]}.so").exists()), None)
     if pinocchio_lib is None or not (casadi_dir / "libcasadi.so").exists():
         raise BridgeUnavailable("Pinocchio's or CasADi's shared libraries not found")
-    includes = tuple(dict.fromkeys(headers.values()))  # in order, without repeats
-    return Toolchain(compiler, includes, (pinocchio_lib, str(casadi_dir)))
+    includes = tuple(dict.fromkeys(found.values()))  # in order, without repeats
+    return Toolchain(compiler, includes, (str(pinocchio_lib), str(casadi_dir)))
 
 
 def _compiler_version(compiler: str) -> str:
