@@ -108,7 +108,7 @@ class PlannerModel:
         self._compiling: list = []
         weakref.finalize(self, _stop_all, self._compiling)
         self.cache_dir = cache_dir
-        self.store = FunctionStore(robot.name, self.key, cache_dir) if store and self.key else None
+        self.store = FunctionStore(robot.name, self.key, cache_dir) if store else None
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
         self.nlp_cache: dict = {}

@@ -82,24 +82,21 @@ class FunctionStore:
     def path(self, name: str) -> Path:
         return self.folder / f"{self.prefix}_{name}.casadi"
 
-    def load(self, name: str) -> list[cs.Function] | None:
-        """The functions saved as ``name``, or ``None`` (missing; damaged: then deleted)."""
+    def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
+        """The functions saved as ``name`` (a damaged file deleted), else ``make()``'s, saved (a
+        failure to write is only logged: the cache only saves time)."""
         import casadi as cs
 
         path = self.path(name)
-        return load_checked(
+        functions = load_checked(
             path,
             lambda p: list(cs.FileDeserializer(str(p)).unpack()),
             f"planner model {path}",
             "building it again",
         )
-
-    def save(self, name: str, functions: list[cs.Function]) -> None:
-        """Save ``functions`` as ``name`` (a failure to write is only logged: the cache only
-        saves time)."""
-        import casadi as cs
-
-        path = self.path(name)
+        if functions is not None:
+            return functions
+        functions = make()
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             with file_lock(lock_path(path)), build_dir(self.folder, path.stem) as tmp:
@@ -111,10 +108,4 @@ class FunctionStore:
                 write_record(path)
         except (OSError, RuntimeError) as exc:
             log.warning("planner model not cached (%s): %s", path, exc)
-
-    def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
-        functions = self.load(name)
-        if functions is None:
-            functions = make()
-            self.save(name, functions)
         return functions
