@@ -266,6 +266,17 @@ def touch(path: Path) -> None:
         os.utime(path)
 
 
+def kinematics_key(robot) -> str:
+    """SHA-256 of what a planner model depends on: the locked URDF (links, joints, inertia,
+    locked positions), the arm joints in order and the end-effector frames."""
+    content = {
+        "urdf": robot.locked_urdf,
+        "joints": list(robot.joint_names),
+        "arms": [[arm.name, list(arm.joints), arm.ee_frame] for arm in robot.arms],
+    }
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+
 def lock_path(artefact: Path) -> Path:
     """The lock file of ``artefact``, held while it is built, checked and loaded, or evicted."""
     return artefact.parent / f"{artefact.name}.lock"

@@ -14,8 +14,7 @@ from balance_opt import cache
 from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal import codegen
-from balance_opt.optimal.model import PlannerModel
-from balance_opt.optimal.model_store import FunctionStore, model_key
+from balance_opt.optimal.model import FunctionStore, PlannerModel, model_key
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import plan_optimal
 

@@ -11,7 +11,7 @@ import logging
 import time
 from typing import TYPE_CHECKING
 
-from balance_opt.optimal.model_store import kinematics_key
+from balance_opt.cache import kinematics_key
 
 if TYPE_CHECKING:
     from balance_opt.model.robot import FloatingRobot

@@ -220,11 +220,7 @@ def ipopt_version() -> str:
     import casadi
 
     folder = os.path.dirname(casadi.__file__)
-    patterns = ("libipopt.so*", "libipopt*.dylib", "libipopt*.dll", "ipopt*.dll")
-    candidates = sorted(
-        {p for pat in patterns for p in glob.glob(os.path.join(folder, pat))}, key=len
-    )
-    for path in candidates:
+    for path in sorted(glob.glob(os.path.join(folder, "*ipopt*")), key=len):  # libipopt first
         try:
             lib = ctypes.CDLL(path)
             getter = lib.GetIpoptVersion

@@ -1,17 +1,33 @@
 """The per-robot symbolic model of the optimal balance planner: the balance dynamics, the running
-cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point."""
+cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point, saved
+on disk once and loaded by every later run instead of being built again."""
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import importlib.util
 import logging
+import os
+import re
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
 import casadi as cs
 
+from balance_opt.cache import (
+    MODELS_FOLDER,
+    build_dir,
+    default_cache_dir,
+    file_lock,
+    kinematics_key,
+    load_checked,
+    lock_path,
+    write_record,
+)
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import (
@@ -25,15 +41,79 @@ from balance_opt.model.symbolic import (
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.collision import CollisionModels
-from balance_opt.optimal.model_store import FunctionStore, model_key
 
 log = logging.getLogger(__name__)
+
+#: The modules whose code decides the planner's symbolic functions.
+FORMULATION_MODULES = (
+    "balance_opt.optimal.model",
+    "balance_opt.model.symbolic",
+    "balance_opt.model.coupling",
+    "balance_opt.model.robot",
+    "balance_opt.model.joints",
+    "balance_opt.model.bridge",
+    "balance_opt.motion.so3_casadi",
+)
 
 #: Rows of the momentum ``h0`` at the end of a point's data ``m`` ([linear; angular]).
 MOMENTUM_ROWS = 6
 
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
+
+
+def formulation_fingerprint() -> str:
+    """Hash of the source of :data:`FORMULATION_MODULES` and of CasADi's version."""
+    digest = hashlib.sha256(cs.__version__.encode())
+    for name in FORMULATION_MODULES:
+        spec = importlib.util.find_spec(name)
+        digest.update(Path(spec.origin).read_bytes() if spec and spec.origin else name.encode())
+    return digest.hexdigest()
+
+
+def model_key(robot: FloatingRobot, backend_identity: str) -> str:
+    """The content key of a robot's planner model built with a backend: its kinematics, the
+    backend and the code of the formulation."""
+    parts = [kinematics_key(robot), backend_identity, formulation_fingerprint()]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:20]
+
+
+class FunctionStore:
+    """Named lists of CasADi functions of one planner model, on disk."""
+
+    def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
+        root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self.folder = root / MODELS_FOLDER
+        self.prefix = f"{re.sub(r'[^A-Za-z0-9._-]+', '_', label)[:40]}_{key}"
+
+    def path(self, name: str) -> Path:
+        return self.folder / f"{self.prefix}_{name}.casadi"
+
+    def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
+        """The functions saved as ``name`` (a damaged file deleted), else ``make()``'s, saved (a
+        failure to write is only logged: the cache only saves time)."""
+        path = self.path(name)
+        functions = load_checked(
+            path,
+            lambda p: list(cs.FileDeserializer(str(p)).unpack()),
+            f"planner model {path}",
+            "building it again",
+        )
+        if functions is not None:
+            return functions
+        functions = make()
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            with file_lock(lock_path(path)), build_dir(self.folder, path.stem) as tmp:
+                out = tmp / path.name
+                serializer = cs.FileSerializer(str(out))
+                serializer.pack(functions)
+                del serializer  # closes the file
+                os.replace(out, path)
+                write_record(path)
+        except (OSError, RuntimeError) as exc:
+            log.warning("planner model not cached (%s): %s", path, exc)
+        return functions
 
 
 def _tag(momentum: bool) -> str:
@@ -80,7 +160,7 @@ class PointKernels:
 
 class PlannerModel:
     """Symbolic model of a robot for the optimal planner, built once and cached in memory and
-    on disk (:mod:`balance_opt.optimal.model_store`)."""
+    on disk (:class:`FunctionStore`)."""
 
     def __init__(
         self,
