@@ -4,7 +4,8 @@ option catalog) in ``$BALANCE_OPT_CACHE``, else ``$XDG_CACHE_HOME/balance-opt``.
 Shared rules (``docs/cache.md``): a file lock per artefact; builds in a temporary folder named
 after host and process, renamed into place (leftovers of killed builds removed by
 :func:`clean_stale`); a record of SHA-256 and size checked before use. The size bound evicts
-the least recently used kernels, models and bridge functions, never the bridge program.
+the least recently used kernels, models and bridge functions, never the bridge program. The
+compilers that build them run through :func:`run_commands`.
 """
 
 from __future__ import annotations
