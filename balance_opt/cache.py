@@ -82,7 +82,6 @@ def build_dir(folder: Path, stem: str) -> Iterator[Path]:
 
 
 def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``path`` through a temporary file and an atomic rename."""
     fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.name), dir=path.parent)
     try:
         with os.fdopen(fd, "w") as fh:
@@ -96,7 +95,6 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether process ``pid`` exists on this host."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -159,7 +157,6 @@ def clean_stale(folder: Path) -> list[Path]:
 
 # ----------------------------------------------------------------------------- compilers
 def first_error(output: str) -> str:
-    """The first line of a compiler's ``output`` that names an error, else its first line."""
     lines = [line.strip() for line in output.splitlines() if line.strip()]
     errors = [line for line in lines if "error" in line.lower()]
     return (errors or lines or ["no message"])[0][:300]
@@ -220,12 +217,10 @@ def run_commands(
 
 # ----------------------------------------------------------------------------- integrity records
 def record_path(artefact: Path) -> Path:
-    """The record beside ``artefact``: its name with the suffix replaced by ``.json``."""
     return artefact.with_suffix(".json")
 
 
 def sha256_of(path: Path) -> str:
-    """The SHA-256 of a file's bytes (hex)."""
     digest = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):

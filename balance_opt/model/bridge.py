@@ -193,7 +193,6 @@ def _build_key(toolchain: Toolchain) -> str:
 
 # ----------------------------------------------------------------------------- the program
 def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
-    """Build the program into a temporary name in its folder, then rename it into place."""
     log.info(
         "building the Pinocchio-CasADi bridge (once per machine: about 1.5 min of CPU, %s min "
         "of wall time depending on the load) in %s",
@@ -265,7 +264,6 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
 
 
 def function_path(robot, program: Path) -> Path:
-    """Where the function of ``robot`` made by ``program`` is cached."""
     frames = [arm.ee_frame for arm in robot.arms]
     spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
     key = hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]

@@ -58,8 +58,6 @@ _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 @dataclasses.dataclass(frozen=True)
 class Compiled:
-    """What :func:`compile_functions` returns."""
-
     functions: list[cs.Function]
     compiled: bool
     compile_time: float
@@ -228,7 +226,6 @@ def split_functions(source: str, statements: int = PART_STATEMENTS) -> str:
 
 
 def _parts(name: str, body: list[str], statements: int) -> list[str]:
-    """The C functions of a body cut into parts (see :func:`split_functions`)."""
     size = -(-len(body) // -(-len(body) // statements))  # parts of equal size
     # each assignment's value gets a number of its own (the body reuses variable names)
     current: dict[str, int] = {}
@@ -362,7 +359,6 @@ class Compilation(threading.Thread):
                     atomic_write_text(library.with_suffix(".failed"), str(exc))
 
     def stop(self) -> None:
-        """Stop the compilers (and what they started) and wait for the thread."""
         self.stopped.set()
         self.join(10.0)
 
@@ -419,7 +415,6 @@ def _compile(
 
 
 def _build(compiler: str, texts: list[str], out: Path, stop: threading.Event | None) -> None:
-    """Compile the C files of ``texts`` at once and link them to ``out``."""
     names = ["balance_kernels.c"] + [f"balance_kernels_{k}.c" for k in range(1, len(texts))]
     files = [out.parent / name for name in names]
     for path, text in zip(files, texts):

@@ -336,7 +336,6 @@ class PlannerModel:
         return _function("floating_dynamics_terms", {"q": q, "nu": nu}, {"M": M, "h": h})
 
     def _torques(self, q, q_dot, q_ddot, v_b):
-        """``tau`` of the free-floating inverse dynamics with the base twist ``v_b``."""
         M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
         a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
         return M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
