@@ -31,6 +31,7 @@ from balance_opt.cache import (
     check_record,
     default_cache_dir,
     file_lock,
+    kinematics_key,
     lock_path,
     run_commands,
     write_record,
@@ -264,9 +265,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
 
 
 def function_path(robot, program: Path) -> Path:
-    frames = [arm.ee_frame for arm in robot.arms]
-    spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
-    key = hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
+    key = hashlib.sha256(f"{program.name}\n{kinematics_key(robot)}".encode()).hexdigest()[:16]
     return program.parent / "functions" / f"{robot.name}_{key}.casadi"
 
 
