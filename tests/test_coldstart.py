@@ -125,7 +125,7 @@ def test_a_kernel_cut_into_c_functions_computes_the_same_bits(tmp_path):
     assert codegen.split_functions(whole, 10**6) == whole  # short enough: left as it is
     cut = codegen.split_functions(whole, 40)
     assert cut.count("casadi_f0_part") >= 2 * 5  # at least 5 parts, each defined and called
-    assert len(codegen.c_files(cut)) == codegen.COMPILE_JOBS == 2  # compiled at once, linked
+    assert len(codegen.c_files(cut)) == 2  # compiled at once, linked
     compiler = codegen.find_compiler()
     libraries = []
     for name, source in (("whole", whole), ("cut", cut)):

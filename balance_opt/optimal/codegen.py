@@ -50,9 +50,6 @@ COMPILE_WAIT = 300.0
 #: register allocation grows faster than linearly with a function's length, so a Hessian of
 #: 10^5 statements in pieces of this size compiles in a fraction of the time, and runs as fast.
 PART_STATEMENTS = 300
-#: The parts of the split kernels are compiled as this many C files at once (concurrent
-#: compiler processes, waited for), then linked into one library.
-COMPILE_JOBS = 2
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 
@@ -285,40 +282,35 @@ def _parts(name: str, body: list[str], statements: int) -> list[str]:
     return [*out, "  return 0;", "}"]
 
 
-def c_files(source: str, jobs: int = COMPILE_JOBS) -> list[str]:
-    """The split ``source`` (:func:`split_functions`) as up to ``jobs`` C files to compile at
-    once and link: the first is ``source`` without the parts the others define (declared
-    instead); the others hold about equal shares of the parts, after CasADi's preamble (its
-    helpers made local to the file, so the compiler can inline them there too)."""
+def c_files(source: str) -> list[str]:
+    """The split ``source`` (:func:`split_functions`) as two C files to compile at once and
+    link: ``source`` without its last parts, about half of its lines (declared instead), and
+    those parts after CasADi's preamble (its helpers made local to the file, so the compiler can
+    inline them there too)."""
     lines = source.split("\n")
     starts = [k for k, line in enumerate(lines) if _PART_START.match(line)]
-    if jobs < 2 or len(starts) < 2 or _PREAMBLE_END not in lines:
+    if len(starts) < 2 or _PREAMBLE_END not in lines:
         return [source]
-    ends = [lines.index("}", k) for k in starts]
-    total = sum(e - k for k, e in zip(starts, ends))
-    # the last parts, about (jobs - 1) / jobs of all lines, go to the other files in turn
-    moved, share, size = [[] for _ in range(jobs - 1)], total / jobs, 0
-    for k, e in zip(reversed(starts), reversed(ends)):
-        if size + e - k > share * (jobs - 1):
+    parts = [(k, lines.index("}", k)) for k in starts]
+    half, size, moved = sum(e - k for k, e in parts) / 2, 0, []
+    for k, e in reversed(parts):
+        if size + e - k > half:
             break
-        moved[int(size // share)].append((k, e))
+        moved.append((k, e))
         size += e - k
-    if not any(moved):
+    if not moved:
         return [source]
     preamble = [
         f"static {line}" if _HELPER.match(line) else line
         for line in lines[: lines.index(_PREAMBLE_END)]
     ]
-    first, cut = list(lines), set()
-    others = []
-    for group in moved:
-        body = []
-        for k, e in sorted(group):
-            body += lines[k : e + 1]
-            first[k] = lines[k][:-2] + ";"  # the declaration
-            cut.update(range(k + 1, e + 1))
-        others.append("\n".join([*preamble, _PART_MACRO, *body, ""]))
-    return ["\n".join(line for k, line in enumerate(first) if k not in cut), *others]
+    first, cut, body = list(lines), set(), []
+    for k, e in sorted(moved):
+        body += lines[k : e + 1]
+        first[k] = lines[k][:-2] + ";"  # the declaration
+        cut.update(range(k + 1, e + 1))
+    second = "\n".join([*preamble, _PART_MACRO, *body, ""])
+    return ["\n".join(line for k, line in enumerate(first) if k not in cut), second]
 
 
 def _recent_failure(library: Path) -> str:
