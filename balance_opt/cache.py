@@ -429,12 +429,9 @@ def clear(folder: Path) -> tuple[list[Entry], list[Entry]]:
         with contextlib.suppress(BlockingIOError, OSError), file_lock(lock, blocking=False):
             lock.unlink()
     for sub in sorted(folder.rglob("*"), reverse=True):  # empty sub-folders, deepest first
-        if (
-            sub.is_dir()
-            and _kind(sub.relative_to(folder)) != "temporary"
-            and not any(sub.iterdir())
-        ):
-            sub.rmdir()
+        if sub.is_dir() and _kind(sub.relative_to(folder)) != "temporary":
+            with contextlib.suppress(OSError):  # not empty
+                sub.rmdir()
     return deleted, kept
 
 
