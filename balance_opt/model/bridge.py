@@ -233,10 +233,8 @@ def _group_cpu(group: int) -> float:
 
 
 def _children_cpu() -> float:
-    import resource  # POSIX only, like the bridge
-
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
+    times = os.times()
+    return times.children_user + times.children_system
 
 
 def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
