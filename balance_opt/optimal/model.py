@@ -376,10 +376,8 @@ class PlannerModel:
                 cs.vertcat(q_dot_M, q_dot_B),
                 cs.vertcat(q_ddot_M, q_ddot_B),
             )
-            if momentum:
-                tau = self.torque_fun(True)(*joints, self._momentum_in_base(phi, m))
-            else:
-                tau = self.torque_fun()(*joints)
+            h_b = [self._momentum_in_base(phi, m)] if momentum else []
+            tau = self.torque_fun(momentum)(*joints, *h_b)
             return _function(
                 "balance_torques", {"x": x, "u": u, "m": m}, {"tau_B": tau[self.n_M :]}
             )
