@@ -236,12 +236,9 @@ def test_a_background_compilation_not_done_in_time_is_stopped(tmp_path, monkeypa
     out = codegen.compile_functions([fun], tmp_path / "cache", "digest", background=True)
     assert out.background and out.process is not None
     assert not codegen.finish(out.process, timeout=0.5)
-    assert (
-        psutil.wait_procs(
-            [p for p in psutil.Process().children(recursive=True) if p.pid not in children], 5
-        )[1]
-        == []
-    )
+    assert psutil.wait_procs(
+        [p for p in psutil.Process().children(recursive=True) if p.pid not in children], 5
+    )[1] == []
     assert not Path(out.library).exists() and not list((tmp_path / "cache").glob("*.c"))
 
 
