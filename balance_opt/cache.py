@@ -4,7 +4,8 @@ option catalog) in ``$BALANCE_OPT_CACHE``, else ``$XDG_CACHE_HOME/balance-opt``.
 Shared rules (``docs/cache.md``): a file lock per artefact; builds in a temporary folder named
 after host and process, renamed into place (leftovers of killed builds removed by
 :func:`clean_stale`); a record of SHA-256 and size checked before use. The size bound evicts
-the least recently used kernels, models and bridge functions, never the bridge program.
+the least recently used kernels, models and bridge functions, never the bridge program. The
+compilers that build them run through :func:`run_commands`.
 """
 
 from __future__ import annotations
@@ -16,12 +17,17 @@ import logging
 import os
 import re
 import shutil
+import signal
 import socket
+import subprocess
 import tempfile
+import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+log = logging.getLogger(__name__)
 
 #: Environment variable that moves the cache folder.
 CACHE_ENV = "BALANCE_OPT_CACHE"
@@ -76,7 +82,6 @@ def build_dir(folder: Path, stem: str) -> Iterator[Path]:
 
 
 def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``path`` through a temporary file and an atomic rename."""
     fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.name), dir=path.parent)
     try:
         with os.fdopen(fd, "w") as fh:
@@ -90,7 +95,6 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether process ``pid`` exists on this host."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -151,14 +155,72 @@ def clean_stale(folder: Path) -> list[Path]:
     return removed
 
 
+# ----------------------------------------------------------------------------- compilers
+def first_error(output: str) -> str:
+    lines = [line.strip() for line in output.splitlines() if line.strip()]
+    errors = [line for line in lines if "error" in line.lower()]
+    return (errors or lines or ["no message"])[0][:300]
+
+
+def run_commands(
+    commands: list[list[str]],
+    stop: threading.Event | None = None,
+    tick: Callable[[int], None] | None = None,
+    every: float = 30.0,
+) -> list[str]:
+    """Run ``commands`` (compilers, the bridge program) at once as children of this process and
+    wait for all of them; returns the output (stdout and stderr) of each.
+
+    Each runs in a process group of its own, ended whole (a compiler driver and the ``cc1`` it
+    started) when this call ends first: interrupted, or ``stop`` set (OSError ``stopped``).
+    ``tick(group)`` is called every ``every`` [s] with the first command's group. Raises
+    OSError with the first error line (:func:`first_error`) of a command that failed."""
+    stop = stop if stop is not None else threading.Event()
+    procs = []
+    with contextlib.ExitStack() as files:
+        outputs = [files.enter_context(tempfile.TemporaryFile()) for _ in commands]
+        try:
+            for command, out in zip(commands, outputs):
+                procs.append(
+                    subprocess.Popen(
+                        command,
+                        stdin=subprocess.DEVNULL,
+                        stdout=out,
+                        stderr=subprocess.STDOUT,
+                        start_new_session=os.name == "posix",
+                    )
+                )
+            start, ticks = time.monotonic(), 1
+            while any(proc.poll() is None for proc in procs):
+                if stop.wait(0.05):
+                    raise OSError("stopped")
+                if tick is not None and time.monotonic() - start >= ticks * every:
+                    tick(procs[0].pid)
+                    ticks += 1
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    if os.name == "posix":
+                        with contextlib.suppress(OSError):
+                            os.killpg(proc.pid, signal.SIGKILL)
+                    proc.kill()
+                    proc.wait()
+        texts = []
+        for out in outputs:
+            out.seek(0)
+            texts.append(out.read().decode(errors="replace"))
+    for proc, text in zip(procs, texts):
+        if proc.returncode != 0:
+            raise OSError(first_error(text))
+    return texts
+
+
 # ----------------------------------------------------------------------------- integrity records
 def record_path(artefact: Path) -> Path:
-    """The record beside ``artefact``: its name with the suffix replaced by ``.json``."""
     return artefact.with_suffix(".json")
 
 
 def sha256_of(path: Path) -> str:
-    """The SHA-256 of a file's bytes (hex)."""
     digest = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -200,8 +262,45 @@ def touch(path: Path) -> None:
         os.utime(path)
 
 
+def kinematics_key(robot) -> str:
+    """SHA-256 of what a planner model depends on: the locked URDF (links, joints, inertia,
+    locked positions), the arm joints in order and the end-effector frames."""
+    content = {
+        "urdf": robot.locked_urdf,
+        "joints": list(robot.joint_names),
+        "arms": [[arm.name, list(arm.joints), arm.ee_frame] for arm in robot.arms],
+    }
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+
+def lock_path(artefact: Path) -> Path:
+    """The lock file of ``artefact``, held while it is built, checked and loaded, or evicted."""
+    return artefact.parent / f"{artefact.name}.lock"
+
+
+def load_checked(artefact: Path, load: Callable, what: str, then: str, blocking: bool = True):
+    """``load(artefact)`` if it matches its record (then touched), under its lock so that no
+    other process evicts it meanwhile; else ``None``, a damaged artefact deleted with a warning
+    (``cached <what>: <what is wrong>; <then>``)."""
+    if not artefact.exists():
+        return None
+    with file_lock(lock_path(artefact), blocking):
+        record, problem = check_record(artefact)
+        if record is not None:
+            try:
+                value = load(artefact)
+            except RuntimeError as exc:  # CasADi's, on a file it cannot read
+                problem = f"unreadable ({str(exc).strip().splitlines()[-1][:200]})"
+            else:
+                touch(record_path(artefact))
+                return value
+        log.warning("cached %s: %s; %s", what, problem, then)
+        for path in (artefact, record_path(artefact)):
+            path.unlink(missing_ok=True)
+    return None
+
+
 # ----------------------------------------------------------------------------- inventory, bound
-log = logging.getLogger(__name__)
 
 #: Environment variable bounding the cache size: bytes, or a number with K, M, G (powers of 1024).
 LIMIT_ENV = "BALANCE_OPT_CACHE_LIMIT"
@@ -235,7 +334,7 @@ class Entry:
 
     @property
     def lock(self) -> Path:
-        return self.files[0].parent / f"{self.files[0].name}.lock"
+        return lock_path(self.files[0])
 
 
 def size_limit() -> int:
@@ -273,21 +372,12 @@ def _size(path: Path) -> int:
 def entries(folder: Path) -> list[Entry]:
     """The artefacts in ``folder`` (lock files left out), each with its record."""
     found: dict[Path, Entry] = {}
-    for path in _walk(folder):
-        relative = path.relative_to(folder)
-        kind = _kind(relative)
+    paths = {path: _kind(path.relative_to(folder)) for path in _walk(folder)}
+    owners = {record_path(p): p for p in paths if p.suffix not in (".json", ".lock", ".failed")}
+    for path, kind in paths.items():
         if path.name.endswith(".lock") and kind != "temporary":
             continue
-        # a record is listed with its artefact (same name, suffix .json)
-        key = path
-        if path.suffix == ".json" and kind in _RECORDED:
-            siblings = [p for p in path.parent.glob(f"{path.stem}*") if p != path]
-            artefacts = [
-                p
-                for p in siblings
-                if record_path(p) == path and p.is_file() and not p.name.endswith(".lock")
-            ]
-            key = artefacts[0] if artefacts else path
+        key = owners.get(path, path) if kind in _RECORDED else path  # a record: its artefact's
         with contextlib.suppress(OSError):
             entry = found.setdefault(key, Entry(kind, str(key.relative_to(folder))))
             entry.files.insert(0, path) if path == key else entry.files.append(path)
@@ -339,12 +429,9 @@ def clear(folder: Path) -> tuple[list[Entry], list[Entry]]:
         with contextlib.suppress(BlockingIOError, OSError), file_lock(lock, blocking=False):
             lock.unlink()
     for sub in sorted(folder.rglob("*"), reverse=True):  # empty sub-folders, deepest first
-        if (
-            sub.is_dir()
-            and _kind(sub.relative_to(folder)) != "temporary"
-            and not any(sub.iterdir())
-        ):
-            sub.rmdir()
+        if sub.is_dir() and _kind(sub.relative_to(folder)) != "temporary":
+            with contextlib.suppress(OSError):  # not empty
+                sub.rmdir()
     return deleted, kept
 
 

@@ -1,6 +1,8 @@
 """Reliability: bad input refused before any work, with the option, key or file named."""
 
 import math
+import subprocess
+import sys
 
 import pytest
 
@@ -70,6 +72,23 @@ def test_bad_ipopt_option_is_named(catalog, name, value, message):
 )
 def test_good_ipopt_option_passes(catalog, name, value):
     assert ipopt_options.option_problem(name, value, catalog) is None
+
+
+def test_probing_linear_solvers_leaves_ipopt_usable():
+    """The probe runs in this process: a refused ``ma97`` (no HSL library) would make the next
+    Ipopt solve of the process crash, so the probes and a solve after them run in a child."""
+    code = (
+        "import casadi as cs\n"
+        "from balance_opt.optimal.ipopt_options import linear_solver_loads\n"
+        "found = [linear_solver_loads(n) for n in ('ma97', 'ma57', 'pardiso', 'mumps')]\n"
+        "x = cs.SX.sym('x')\n"
+        "opts = {'ipopt.print_level': 0, 'ipopt.sb': 'yes', 'print_time': 0}\n"
+        "solver = cs.nlpsol('s', 'ipopt', {'x': x, 'f': (x - 2) ** 2}, opts)\n"
+        "print(found[-1], float(solver(x0=0)['x']))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "2.0"]
 
 
 def test_catalog_cached_on_disk_is_reused(tmp_path, monkeypatch, catalog):

@@ -7,17 +7,13 @@ robot share a model. Joint limits are not part of it: they are numeric bounds of
 
 from __future__ import annotations
 
-import logging
-import time
 from typing import TYPE_CHECKING
 
-from balance_opt.optimal.model_store import kinematics_key
+from balance_opt.cache import kinematics_key
 
 if TYPE_CHECKING:
     from balance_opt.model.robot import FloatingRobot
     from balance_opt.optimal.model import PlannerModel
-
-log = logging.getLogger(__name__)
 
 
 class ModelCache:
@@ -44,12 +40,8 @@ class ModelCache:
 
         key = f"{kinematics_key(robot)}/{backend}"
         model = self._models.get(key)
-        if model is None:
-            start = time.perf_counter()
+        if model is None:  # built lazily: its functions when a plan first asks for them
             model = PlannerModel(robot, compile=self.compile, backend=backend)
-            log.debug(
-                "planner model of %s built in %.3f s", robot.name, time.perf_counter() - start
-            )
             self._models[key] = model
         else:
             model.upgrade_kernels()  # a background compilation may have finished meanwhile

@@ -19,16 +19,23 @@ import logging
 import os
 import platform
 import shutil
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 
 import casadi as cs
 
-from balance_opt.cache import build_dir, check_record, default_cache_dir, file_lock, write_record
+from balance_opt.cache import (
+    build_dir,
+    check_record,
+    default_cache_dir,
+    file_lock,
+    kinematics_key,
+    lock_path,
+    run_commands,
+    write_record,
+)
 from balance_opt.errors import BalanceOptError
 
 log = logging.getLogger(__name__)
@@ -57,6 +64,15 @@ LIBRARIES = ("pinocchio_parsers", "pinocchio_default")
 BUILD_MINUTES = "1-6"
 #: Seconds between two "still building" log lines.
 PROGRESS_SECONDS = 30
+#: The headers the bridge includes, each with the folders of an install prefix's ``include``
+#: that may hold it, in search order (none: CasADi's, in its package folder).
+HEADERS = {
+    "pinocchio/autodiff/casadi.hpp": ("",),
+    "Eigen/Core": ("eigen3", ""),
+    "urdf_model/model.h": ("urdfdom_headers", ""),
+    "boost/mpl/list.hpp": ("",),
+    "casadi/casadi.hpp": (),
+}
 #: The pip packages that bring the headers, named in the "headers not found" reason.
 HEADER_PACKAGES = "pin, casadi, cmeel-eigen, cmeel-urdfdom-headers"
 FOLDER = "pinocchio-bridge"
@@ -125,23 +141,6 @@ def _prefixes() -> list[Path]:
     return [p for p in [*cmeel, Path(sys.prefix), Path("/usr/local"), Path("/usr")] if p.is_dir()]
 
 
-def _header_dir(header: str, subfolders: tuple[str, ...] = ("",)) -> str | None:
-    for prefix in _prefixes():
-        for sub in subfolders:
-            folder = prefix / "include" / sub
-            if (folder / header).is_file():
-                return str(folder)
-    return None
-
-
-def _library_dir(name: str) -> str | None:
-    for prefix in _prefixes():
-        for lib in ("lib", "lib64"):
-            if (prefix / lib / f"lib{name}.so").exists():
-                return str(prefix / lib)
-    return None
-
-
 def find_toolchain() -> Toolchain:
     """The compiler, headers and libraries the bridge needs, found without building anything
     (BridgeUnavailable when one is missing)."""
@@ -150,39 +149,31 @@ def find_toolchain() -> Toolchain:
     compiler = find_cxx_compiler()
     if compiler is None:
         raise BridgeUnavailable("no C++ compiler found: tried $CXX, c++, g++, clang++")
-    casadi_dir = Path(cs.__file__).parent
-    headers = {
-        "pinocchio/autodiff/casadi.hpp": _header_dir("pinocchio/autodiff/casadi.hpp"),
-        "Eigen/Core": _header_dir("Eigen/Core", ("eigen3", "")),
-        "urdf_model/model.h": _header_dir("urdf_model/model.h", ("urdfdom_headers", "")),
-        "boost/mpl/list.hpp": _header_dir("boost/mpl/list.hpp"),
-        "casadi/casadi.hpp": (
-            str(casadi_dir / "include")
-            if (casadi_dir / "include" / "casadi" / "casadi.hpp").is_file()
-            else None
-        ),
-    }
-    missing = [h for h, d in headers.items() if d is None]
+    casadi_dir, prefixes = Path(cs.__file__).parent, _prefixes()
+    found = {}
+    for header, subfolders in HEADERS.items():
+        folders = [p / "include" / sub for p in prefixes for sub in subfolders]
+        folders = folders if subfolders else [casadi_dir / "include"]
+        found[header] = next((str(f) for f in folders if (f / header).is_file()), None)
+    missing = [h for h, d in found.items() if d is None]
     if missing:
         raise BridgeUnavailable(
             f"C++ headers not found: {', '.join(missing)} (pip packages {HEADER_PACKAGES})"
         )
-    pinocchio_lib = _library_dir(LIBRARIES[0])
+    libraries = [p / lib for p in prefixes for lib in ("lib", "lib64")]
+    pinocchio_lib = next((d for d in libraries if (d / f"lib{LIBRARIES[0]}.so").exists()), None)
     if pinocchio_lib is None or not (casadi_dir / "libcasadi.so").exists():
         raise BridgeUnavailable("Pinocchio's or CasADi's shared libraries not found")
-    includes = tuple(dict.fromkeys(headers.values()))  # in order, without repeats
-    return Toolchain(compiler, includes, (pinocchio_lib, str(casadi_dir)))
+    includes = tuple(dict.fromkeys(found.values()))  # in order, without repeats
+    return Toolchain(compiler, includes, (str(pinocchio_lib), str(casadi_dir)))
 
 
-@cache
 def _compiler_version(compiler: str) -> str:
     try:
-        out = subprocess.run(
-            [compiler, "--version"], capture_output=True, text=True, timeout=60, check=False
-        )
-    except (OSError, subprocess.SubprocessError) as exc:
+        out = run_commands([[compiler, "--version"]])[0]
+    except OSError as exc:
         raise BridgeUnavailable(f"{compiler} does not run: {exc}") from exc
-    return (out.stdout.splitlines() or [""])[0]
+    return (out.splitlines() or [""])[0]
 
 
 def _build_key(toolchain: Toolchain) -> str:
@@ -202,14 +193,7 @@ def _build_key(toolchain: Toolchain) -> str:
 
 
 # ----------------------------------------------------------------------------- the program
-def _first_error(stderr: str) -> str:
-    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
-    errors = [line for line in lines if "error" in line.lower()]
-    return (errors or lines or ["no message"])[0][:300]
-
-
 def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
-    """Build the program into a temporary name in its folder, then rename it into place."""
     log.info(
         "building the Pinocchio-CasADi bridge (once per machine: about 1.5 min of CPU, %s min "
         "of wall time depending on the load) in %s",
@@ -217,28 +201,17 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
         program.parent,
     )
     start, cpu0 = time.perf_counter(), _children_cpu()
+
+    def progress(group: int) -> None:
+        cpu = _children_cpu() - cpu0 + _group_cpu(group)
+        elapsed = time.perf_counter() - start
+        log.info(
+            "... still building the bridge (%.0f s so far, %.0f s of CPU of about 90)", elapsed, cpu
+        )
+
     with build_dir(program.parent, program.name) as tmp:
-        out = Path(tmp) / program.name
-        with open(Path(tmp) / "stderr.txt", "w+") as err:
-            proc = subprocess.Popen(
-                toolchain.command(out), stdout=subprocess.DEVNULL, stderr=err, text=True
-            )
-            while True:
-                try:
-                    proc.wait(timeout=PROGRESS_SECONDS)
-                    break
-                except subprocess.TimeoutExpired:
-                    elapsed = time.perf_counter() - start
-                    cpu = _children_cpu() - cpu0 + _process_cpu(proc.pid)
-                    log.info(
-                        "... still building the bridge (%.0f s so far, %.0f s of CPU of about 90)",
-                        elapsed,
-                        cpu,
-                    )
-            err.seek(0)
-            stderr = err.read()
-        if proc.returncode != 0:
-            raise BridgeUnavailable(f"build failed: {_first_error(stderr)}")
+        out = tmp / program.name
+        run_commands([toolchain.command(out)], tick=progress, every=PROGRESS_SECONDS)
         wall, cpu = time.perf_counter() - start, _children_cpu() - cpu0
         os.replace(out, program)  # atomic: no process ever runs a half-written program
     write_record(program, wall_seconds=wall, cpu_seconds=cpu)
@@ -246,43 +219,22 @@ def _compile(toolchain: Toolchain, program: Path) -> BuildRecord:
     return BuildRecord(program, wall, cpu, True)
 
 
-def _process_cpu(pid: int) -> float:
-    """CPU seconds of a running process tree (the compiler driver and the compiler it runs),
-    finished children included, from ``/proc``; 0 where there is no ``/proc``."""
-    stats = {}
+def _group_cpu(group: int) -> float:
+    """CPU seconds of the running processes of a process group (the compiler driver and the
+    compiler it runs, their finished children included), from ``/proc``; 0 without it."""
+    ticks = 0
     for entry in Path("/proc").glob("[0-9]*/stat"):
         with contextlib.suppress(OSError, ValueError, IndexError):
             fields = entry.read_text().rsplit(")", 1)[1].split()
-            # after the name: state, ppid, ..., utime (12th), stime, cutime, cstime
-            stats[int(entry.parent.name)] = (int(fields[1]), sum(map(int, fields[11:15])))
-    tree, ticks = {pid}, 0
-    for _ in range(8):  # a few generations: driver, compiler, assembler
-        tree |= {p for p, (parent, _) in stats.items() if parent in tree}
-    ticks = sum(stats[p][1] for p in tree if p in stats)
-    return ticks / os.sysconf("SC_CLK_TCK") if ticks else 0.0
+            # after the name: state, ppid, pgrp, ..., utime (12th), stime, cutime, cstime
+            if int(fields[2]) == group:
+                ticks += sum(map(int, fields[11:15]))
+    return ticks / os.sysconf("SC_CLK_TCK")
 
 
 def _children_cpu() -> float:
-    import resource  # POSIX only, like the bridge
-
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
-
-
-def _signature(path: Path) -> tuple | None:
-    """Size, modification time and inode of ``path``: what changes if the file is replaced,
-    truncated or rewritten (``None`` when it is missing)."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return (st.st_size, st.st_mtime_ns, st.st_ino)
-
-
-# Programs checked (or built) and functions loaded by this process, with the file signature
-# they were checked at: a file changed since is checked again.
-_BUILT: dict[Path, tuple[tuple, BuildRecord]] = {}
-_LOADED: dict[Path, tuple[tuple, cs.Function]] = {}
+    times = os.times()
+    return times.children_user + times.children_system
 
 
 def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
@@ -294,12 +246,9 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
     toolchain = find_toolchain()
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir() / FOLDER
     program = folder / f"pinocchio_casadi_bridge_{_build_key(toolchain)}"
-    known = _BUILT.get(program)
-    if known is not None and known[0] == _signature(program):
-        return known[1]
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with file_lock(folder / f"{program.name}.lock"):
+        with file_lock(lock_path(program)):
             saved, _ = check_record(program)
             if saved is not None and {"wall_seconds", "cpu_seconds"} <= saved.keys():
                 record = BuildRecord(program, saved["wall_seconds"], saved["cpu_seconds"], False)
@@ -307,7 +256,6 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
                 record = _compile(toolchain, program)
     except OSError as exc:  # unwritable cache folder, compiler gone, disk full, ...
         raise BridgeUnavailable(f"build failed: {exc}") from exc
-    _BUILT[program] = (_signature(program), record)
     return record
 
 
@@ -315,10 +263,7 @@ def ensure_bridge(cache_dir: Path | None = None) -> BuildRecord:
 
 
 def function_path(robot, program: Path) -> Path:
-    """Where the function of ``robot`` made by ``program`` is cached."""
-    frames = [arm.ee_frame for arm in robot.arms]
-    spec = [program.name, robot.locked_urdf, *robot.model_joint_names, "|", *frames]
-    key = hashlib.sha256("\n".join(spec).encode()).hexdigest()[:16]
+    key = hashlib.sha256(f"{program.name}\n{kinematics_key(robot)}".encode()).hexdigest()[:16]
     return program.parent / "functions" / f"{robot.name}_{key}.casadi"
 
 
@@ -336,29 +281,6 @@ def _load(path: Path, robot) -> cs.Function | None:
     return fun
 
 
-def _generate(program: Path, robot, path: Path) -> float:
-    """Run the program on ``robot``; the function lands in ``path``. Returns the time [s]."""
-    start = time.perf_counter()
-    with build_dir(path.parent, path.stem) as tmp:
-        urdf = Path(tmp) / "robot.urdf"
-        urdf.write_text(robot.locked_urdf)
-        out = Path(tmp) / path.name
-        frames = [arm.ee_frame for arm in robot.arms]
-        joints = robot.model_joint_names
-        args = [str(program), str(urdf), str(out), str(len(joints)), *joints, *frames]
-        try:
-            proc = subprocess.run(args, capture_output=True, text=True, check=False)
-        except OSError as exc:  # e.g. the program was replaced by a broken file meanwhile
-            raise BridgeUnavailable(f"the bridge does not run: {exc}") from exc
-        if proc.returncode != 0:
-            raise BridgeUnavailable(
-                f"the bridge failed on {robot.name} (exit status {proc.returncode}): "
-                f"{_first_error(proc.stderr)}"
-            )
-        os.replace(out, path)
-    return time.perf_counter() - start
-
-
 def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
     """``pinocchio_primitives(q) -> (A_G, J_0, ..., J_m)`` of ``robot`` (6 x (6+m) each,
     world-aligned axes, base columns first), from the cache or generated by the bridge program.
@@ -368,21 +290,24 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
     """
     program = ensure_bridge(cache_dir).path
     path = function_path(robot, program)
-    known = _LOADED.get(path)
-    if known is not None and known[0] == _signature(path):
-        return known[1]
     fun = _load(path, robot)
-    if fun is None:
+    if fun is None:  # the program run on the robot, its function renamed into place
+        start, joints = time.perf_counter(), robot.model_joint_names
+        frames = [arm.ee_frame for arm in robot.arms]
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise BridgeUnavailable(f"cache folder: {exc}") from exc
-        elapsed = _generate(program, robot, path)
+            with build_dir(path.parent, path.stem) as tmp:
+                (tmp / "robot.urdf").write_text(robot.locked_urdf)
+                files = [str(tmp / "robot.urdf"), str(tmp / path.name)]
+                run_commands([[str(program), *files, str(len(joints)), *joints, *frames]])
+                os.replace(tmp / path.name, path)
+        except OSError as exc:  # also a program replaced by a broken file meanwhile
+            raise BridgeUnavailable(f"the bridge failed on {robot.name}: {exc}") from exc
         fun = _load(path, robot)
         if fun is None:
             raise BridgeUnavailable(f"the bridge wrote an unreadable function file {path}")
+        elapsed = time.perf_counter() - start
         log.info("Pinocchio primitives of %s generated in %.2f s", robot.name, elapsed)
-    _LOADED[path] = (_signature(path), fun)
     return fun
 
 

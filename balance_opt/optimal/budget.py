@@ -32,9 +32,7 @@ JACOBIAN_FIT = {"hermite-simpson": (5.46, 3.60), "trapezoidal": (4.94, 2.15)}
 class ProblemSize:
     """The estimated size of one optimal problem."""
 
-    intervals: int
     variables: int
-    constraints: int
     nonzeros: int
     problems: int = 1
 
@@ -148,11 +146,10 @@ def problem_size(options, limits) -> ProblemSize:
     """The size of the optimal problem of the planner ``options`` (a
     :class:`~balance_opt.optimal.options.PlannerOptions`) whose balance joints have the
     ``limits`` (a :class:`~balance_opt.model.robot.JointLimits`, one entry per balance joint):
-    its variables and constraints, and the non-zeros of every NLP its plan builds."""
-    n_w, n_g, _ = _per_interval(options, limits)
+    its variables and the non-zeros of every NLP its plan builds."""
     N = options.intervals
     nonzeros = round(_nonzeros_per_interval(options, limits) * N)
-    return ProblemSize(N, n_w * N, n_g * N, nonzeros, len(_built(options)))
+    return ProblemSize(_per_interval(options, limits)[0] * N, nonzeros, len(_built(options)))
 
 
 def memory_budget() -> float:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import heapq
 import logging
@@ -10,11 +11,8 @@ import os
 import platform
 import re
 import shutil
-import signal
-import subprocess
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as cs
@@ -27,8 +25,10 @@ from balance_opt.cache import (
     default_cache_dir,
     enforce_limit,
     file_lock,
+    load_checked,
+    lock_path,
     record_path,
-    touch,
+    run_commands,
     write_record,
 )
 
@@ -50,16 +50,11 @@ COMPILE_WAIT = 300.0
 #: register allocation grows faster than linearly with a function's length, so a Hessian of
 #: 10^5 statements in pieces of this size compiles in a fraction of the time, and runs as fast.
 PART_STATEMENTS = 300
-#: The parts of the split kernels are compiled as this many C files at once (concurrent
-#: compiler processes, waited for), then linked into one library.
-COMPILE_JOBS = 2
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class Compiled:
-    """What :func:`compile_functions` returns."""
-
     functions: list[cs.Function]
     compiled: bool
     compile_time: float
@@ -93,20 +88,16 @@ def library_path(digest: str, compiler: str, cache_dir: Path | None = None) -> P
 
 def load_cached(names: list[str], library: Path) -> list[cs.Function] | None:
     """The functions ``names`` of ``library`` if it is cached and intact, else ``None`` (a
-    damaged library is deleted, so that it is rebuilt)."""
-    if not library.exists():
-        return None
-    with file_lock(library.parent / f"{library.name}.lock", blocking=False):
-        record, problem = check_record(library)
-        if record is None:
-            log.warning("cached balance kernels %s: %s; deleting and rebuilding", library, problem)
-            for path in (library, record_path(library)):
-                path.unlink(missing_ok=True)
-            return None
-        touch(record_path(library))  # most recently used: evicted last
-        # loaded under the lock, so that no other process evicts it between check and load;
-        # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
-        return [cs.external(name, str(library), {"enable_fd": True}) for name in names]
+    damaged library is deleted, so that it is rebuilt); BlockingIOError while another process
+    compiles it."""
+    # finite differences only let CasADi build (never evaluate) derivative graphs it asks for
+    return load_checked(
+        library,
+        lambda path: [cs.external(name, str(path), {"enable_fd": True}) for name in names],
+        f"balance kernels {library}",
+        "deleting and rebuilding",
+        blocking=False,
+    )
 
 
 def compile_functions(
@@ -116,27 +107,27 @@ def compile_functions(
     background: bool = False,
     label: str = "",
 ) -> Compiled:
-    """Compile CasADi functions to one shared library, cached on disk."""
+    """Compile CasADi functions to one shared library, cached on disk; in the ``background``:
+    by a :class:`Compilation` (``process``) while the functions run on CasADi's VM."""
     compiler = find_compiler()
     if compiler is None:
         raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
-    source = None
-    if digest is None:
-        source = _source(functions)
-        digest = hashlib.sha256(source.encode()).hexdigest()
+    source = _source(functions) if digest is None else None
+    digest = digest or hashlib.sha256(source.encode()).hexdigest()
     library = library_path(digest, compiler, cache_dir)
     library.parent.mkdir(parents=True, exist_ok=True)
     names = [f.name() for f in functions]
+    vm = Compiled(functions, False, 0.0, str(library), True)
     try:
         loaded = load_cached(names, library)
     except BlockingIOError:  # being compiled by another process
         if background:
-            return Compiled(functions, False, 0.0, str(library), True)
+            return vm
         loaded = None
     if loaded is not None:
         return Compiled(loaded, True, 0.0, str(library))
     clean_stale(library.parent)
-    source = source if source is not None else _source(functions)
+    source = source or _source(functions)
     what = f"planner kernels for {label}" if label else "planner kernels"
     if background:
         failure = _recent_failure(library)
@@ -147,17 +138,16 @@ def compile_functions(
                 what,
                 failure,
             )
-        else:
-            try:
-                process = Compilation(compiler, source, library)
-            except BlockingIOError:
-                log.info("%s are being compiled by another process; not waiting", what)
-            else:
-                log.info("compiling %s (background) ...", what)
-                return Compiled(functions, False, 0.0, str(library), True, process)
-        return Compiled(functions, False, 0.0, str(library), True)
+            return vm
+        try:
+            process = Compilation(compiler, source, library)
+        except BlockingIOError:
+            log.info("%s are being compiled by another process; not waiting", what)
+            return vm
+        log.info("compiling %s (background) ...", what)
+        return dataclasses.replace(vm, process=process)
     log.info("compiling %s ...", what)
-    with file_lock(library.parent / f"{library.name}.lock"):  # one compiles, the others wait
+    with file_lock(lock_path(library)):  # one compiles, the others wait
         elapsed = 0.0 if check_record(library)[0] else _compile(compiler, source, library)
     externals = load_cached(names, library)
     if externals is None:
@@ -233,7 +223,6 @@ def split_functions(source: str, statements: int = PART_STATEMENTS) -> str:
 
 
 def _parts(name: str, body: list[str], statements: int) -> list[str]:
-    """The C functions of a body cut into parts (see :func:`split_functions`)."""
     size = -(-len(body) // -(-len(body) // statements))  # parts of equal size
     # each assignment's value gets a number of its own (the body reuses variable names)
     current: dict[str, int] = {}
@@ -293,49 +282,35 @@ def _parts(name: str, body: list[str], statements: int) -> list[str]:
     return [*out, "  return 0;", "}"]
 
 
-def c_files(source: str, jobs: int = COMPILE_JOBS) -> list[str]:
-    """The split ``source`` (:func:`split_functions`) as up to ``jobs`` C files to compile at
-    once and link: the first is ``source`` without the parts the others define (declared
-    instead); the others hold about equal shares of the parts, after CasADi's preamble (its
-    helpers made local to the file, so the compiler can inline them there too)."""
+def c_files(source: str) -> list[str]:
+    """The split ``source`` (:func:`split_functions`) as two C files to compile at once and
+    link: ``source`` without its last parts, about half of its lines (declared instead), and
+    those parts after CasADi's preamble (its helpers made local to the file, so the compiler can
+    inline them there too)."""
     lines = source.split("\n")
     starts = [k for k, line in enumerate(lines) if _PART_START.match(line)]
-    if jobs < 2 or len(starts) < 2 or _PREAMBLE_END not in lines:
+    if len(starts) < 2 or _PREAMBLE_END not in lines:
         return [source]
-    ends = [lines.index("}", k) for k in starts]
-    total = sum(e - k for k, e in zip(starts, ends))
-    # the last parts, about (jobs - 1) / jobs of all lines, go to the other files in turn
-    moved, share, size = [[] for _ in range(jobs - 1)], total / jobs, 0
-    for k, e in zip(reversed(starts), reversed(ends)):
-        if size + e - k > share * (jobs - 1):
+    parts = [(k, lines.index("}", k)) for k in starts]
+    half, size, moved = sum(e - k for k, e in parts) / 2, 0, []
+    for k, e in reversed(parts):
+        if size + e - k > half:
             break
-        moved[int(size // share)].append((k, e))
+        moved.append((k, e))
         size += e - k
-    if not any(moved):
+    if not moved:
         return [source]
     preamble = [
         f"static {line}" if _HELPER.match(line) else line
         for line in lines[: lines.index(_PREAMBLE_END)]
     ]
-    first, cut = list(lines), set()
-    others = []
-    for group in moved:
-        body = []
-        for k, e in sorted(group):
-            body += lines[k : e + 1]
-            first[k] = lines[k][:-2] + ";"  # the declaration
-            cut.update(range(k + 1, e + 1))
-        others.append("\n".join([*preamble, _PART_MACRO, *body, ""]))
-    return ["\n".join(line for k, line in enumerate(first) if k not in cut), *others]
-
-
-def _compiling(library: Path) -> bool:
-    """Whether another process holds the lock of ``library`` (compiling it)."""
-    try:
-        with file_lock(library.parent / f"{library.name}.lock", blocking=False):
-            return False
-    except BlockingIOError:
-        return True
+    first, cut, body = list(lines), set(), []
+    for k, e in sorted(moved):
+        body += lines[k : e + 1]
+        first[k] = lines[k][:-2] + ";"  # the declaration
+        cut.update(range(k + 1, e + 1))
+    second = "\n".join([*preamble, _PART_MACRO, *body, ""])
+    return ["\n".join(line for k, line in enumerate(first) if k not in cut), second]
 
 
 def _recent_failure(library: Path) -> str:
@@ -350,90 +325,67 @@ def _recent_failure(library: Path) -> str:
     return ""
 
 
-class Compilation:
+class Compilation(threading.Thread):
     """A background compilation: a thread of this process that runs the compilers (child
     processes at low priority) while it holds the library's lock, taken here."""
 
     def __init__(self, compiler: str, source: str, library: Path):
-        self.library, self.stopped = library, False
-        self.compilers: list[subprocess.Popen] = []
+        super().__init__(daemon=True)
+        self.compiler, self.source, self.library = compiler, source, library
+        self.stopped = threading.Event()
         self._lock = contextlib.ExitStack()
-        self._lock.enter_context(file_lock(library.parent / f"{library.name}.lock", False))
-        self.thread = threading.Thread(target=self._run, args=(compiler, source), daemon=True)
-        self.thread.start()
+        self._lock.enter_context(file_lock(lock_path(library), blocking=False))
+        self.start()
 
-    def _run(self, compiler: str, source: str) -> None:
+    def run(self) -> None:
         library = self.library
         try:
             with self._lock:
                 if check_record(library)[0] is None:
-                    _compile(compiler, source, library, self)
+                    _compile(self.compiler, self.source, library, self.stopped)
             enforce_limit(library.parent, keep=[library, record_path(library)])
             library.with_suffix(".failed").unlink(missing_ok=True)
         except OSError as exc:  # the planner keeps the VM; noted, so that runs do not retry
-            if not self.stopped:
+            if not self.stopped.is_set():
                 with contextlib.suppress(OSError):
                     atomic_write_text(library.with_suffix(".failed"), str(exc))
+
+    def stop(self) -> None:
+        self.stopped.set()
+        self.join(10.0)
 
 
 def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
     """Wait up to ``timeout`` [s] for a background compilation this process started, then stop
     it if it still runs (the next run starts again). Returns whether it ended on its own."""
-    if process.thread.is_alive():
+    if process.is_alive():
         log.info(
             "waiting for the C compiler of the planner kernels (at most %.0f s; the next runs "
             "load the library) ...",
             timeout,
         )
-    process.thread.join(timeout)
-    if not process.thread.is_alive():
+    process.join(timeout)
+    if not process.is_alive():
         return True
-    stop(process)
+    process.stop()
     log.warning("planner kernels: compilation stopped after %.0f s; not cached", timeout)
     return False
 
 
-def stop(process: Compilation) -> None:
-    """Stop a background compilation (the compiler and what it started) and wait for it."""
-    process.stopped = True
-    for compiler in list(process.compilers):
-        _end(compiler, force=False)
-    process.thread.join(10.0)
+def wait_for_library(library: str | Path) -> dict | None:
+    """Wait for the compilation of ``library`` under way in any process to end (for benchmarks
+    and tests): its record (``compile_seconds``), or ``None`` (failed)."""
+    with file_lock(lock_path(Path(library))):
+        return check_record(Path(library))[0]
 
 
-def _end(proc: subprocess.Popen, force: bool) -> None:
-    """End a running compiler and everything it started (its process group, of its own on
-    POSIX: the driver and its ``cc1``): terminated, or killed with ``force``."""
-    if proc.poll() is not None:
-        return
-    if os.name == "posix":
-        with contextlib.suppress(OSError):
-            os.killpg(proc.pid, signal.SIGKILL if force else signal.SIGTERM)
-    elif force:
-        proc.kill()
-    else:
-        proc.terminate()
-
-
-def wait_for_library(library: str | Path, timeout: float = 3600.0) -> dict | None:
-    """Wait for the compilation of ``library`` under way in any process to end (for
-    benchmarks and tests): its record (``compile_seconds``), or ``None`` (failed, or not
-    ended within ``timeout`` [s])."""
-    library = Path(library)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        record, _ = check_record(library)
-        if record is not None or not _compiling(library):
-            return record
-        time.sleep(0.5)
-    return None
-
-
-def _compile(compiler: str, source: str, library: Path, owner: Compilation | None = None) -> float:
+def _compile(
+    compiler: str, source: str, library: Path, stop: threading.Event | None = None
+) -> float:
     """Compile C ``source`` to the shared ``library`` and record it; returns the wall time [s].
     A split source is compiled as several files at once (:func:`c_files`), then linked. The
-    caller holds the library's lock; a background ``owner`` runs the compilers niced and can
-    stop them."""
+    caller holds the library's lock; a background compilation (``stop`` given) runs the
+    compilers niced and ends them when ``stop`` is set."""
     for path in (library, record_path(library)):
         path.unlink(missing_ok=True)
     start = time.perf_counter()
@@ -441,12 +393,12 @@ def _compile(compiler: str, source: str, library: Path, owner: Compilation | Non
         out = tmp / library.name
         texts = c_files(source)
         try:
-            _build(compiler, texts, out, owner)
+            _build(compiler, texts, out, stop)
         except OSError as exc:  # one file cannot depend on how CasADi's preamble is laid out
-            if len(texts) == 1 or (owner is not None and owner.stopped):
+            if len(texts) == 1 or (stop is not None and stop.is_set()):
                 raise
             log.warning("the kernels as %d C files did not build (%s); as one", len(texts), exc)
-            _build(compiler, [source], out, owner)
+            _build(compiler, [source], out, stop)
         os.replace(out, library)  # atomic: a process never loads a partial library
     elapsed = time.perf_counter() - start
     write_record(library, compile_seconds=round(elapsed, 3))
@@ -454,56 +406,20 @@ def _compile(compiler: str, source: str, library: Path, owner: Compilation | Non
     return elapsed
 
 
-def _build(compiler: str, texts: list[str], out: Path, owner: Compilation | None) -> None:
-    """Compile the C files of ``texts`` at once and link them to ``out``."""
+def _build(compiler: str, texts: list[str], out: Path, stop: threading.Event | None) -> None:
     names = ["balance_kernels.c"] + [f"balance_kernels_{k}.c" for k in range(1, len(texts))]
     files = [out.parent / name for name in names]
     for path, text in zip(files, texts):
         path.write_text(text)
+    command = [compiler, *COMPILER_FLAGS]
+    nice = shutil.which("nice") if stop is not None else None
+    if nice:  # in the background: the plan being solved keeps the CPU
+        command = [nice, "-n", str(BACKGROUND_NICENESS), *command]
     inputs = [str(f) for f in files]
-    if len(files) > 1:
-        inputs = [str(f.with_suffix(".o")) for f in files]
-        jobs = [[*COMPILER_FLAGS, "-c", str(f), "-o", o] for f, o in zip(files, inputs)]
-        _run_compilers(jobs, compiler, owner)
-    _run_compilers([[*COMPILER_FLAGS, *inputs, "-o", str(out), "-lm"]], compiler, owner)
-
-
-def _run_compilers(arguments: list[list[str]], compiler: str, owner: Compilation | None) -> None:
-    """Run ``compiler`` with each list of ``arguments`` at once and wait for all of them."""
-    nice = shutil.which("nice") if owner is not None else None
-    procs = []
     try:
-        for args in arguments:
-            command = [compiler, *args]
-            if nice:
-                command = [nice, "-n", str(BACKGROUND_NICENESS), *command]
-            procs.append(
-                subprocess.Popen(
-                    command,
-                    stdin=subprocess.DEVNULL,
-                    stdout=subprocess.DEVNULL,
-                    stderr=subprocess.PIPE,
-                    text=True,
-                    # a group of its own, ended whole (the driver and the cc1, as it ran):
-                    # by stop(), or below if this call is interrupted
-                    start_new_session=os.name == "posix",
-                )
-            )
-            if owner is not None:
-                owner.compilers.append(procs[-1])
-                if owner.stopped:  # stop() came before this compiler started
-                    _end(procs[-1], force=True)
-        errors = [proc.communicate()[1] for proc in procs]
-    finally:
-        for proc in procs:  # an exception here: no compiler left running
-            if proc.poll() is None:
-                _end(proc, force=True)
-                proc.kill()  # the driver, should its group be gone already
-                proc.wait()
-            if owner is not None:
-                owner.compilers.remove(proc)
-    if owner is not None and owner.stopped:
-        raise OSError("stopped")
-    for proc, err in zip(procs, errors):
-        if proc.returncode != 0:
-            raise OSError(f"{compiler} failed on the balance kernels: {err.strip()[:500]}")
+        if len(files) > 1:
+            inputs = [str(f.with_suffix(".o")) for f in files]
+            run_commands([[*command, "-c", str(f), "-o", o] for f, o in zip(files, inputs)], stop)
+        run_commands([[*command, *inputs, "-o", str(out), "-lm"]], stop)
+    except OSError as exc:
+        raise OSError(f"{compiler} failed on the balance kernels: {exc}") from exc

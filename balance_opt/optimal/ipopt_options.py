@@ -14,6 +14,7 @@ import logging
 import math
 import os
 import re
+import sys
 import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
@@ -131,39 +132,28 @@ def option_catalog() -> dict[str, IpoptOption]:
     return catalog
 
 
+#: The file name suffix of the libraries Ipopt loads linear solvers from (``hsllib``,
+#: ``pardisolib``: ``libhsl.so``, ``libpardiso.so`` on Linux).
+_LIBRARY_SUFFIX = {"darwin": ".dylib", "win32": ".dll"}.get(sys.platform, ".so")
+
+
 def linear_solver_loads(name: str) -> bool:
-    """Whether Ipopt can load linear solver ``name``: a one-variable solve with it, in a child
-    process (without the HSL library some solvers crash the process that asks for them)."""
-    if name == "mumps":  # in the CasADi wheel's Ipopt
-        return True
-    import subprocess
-    import sys
+    """Whether Ipopt can load linear solver ``name``: a one-variable solve with it. Without its
+    library Ipopt refuses an HSL or Pardiso solver (``Invalid_Option``), but a refused ``ma97``
+    crashes the next solve of the process: these are tried only when their library loads."""
+    import casadi as cs
 
-    probe = subprocess.run(
-        [sys.executable, "-c", _PROBE, name],
-        check=False,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    return probe.returncode == 0 and probe.stdout.strip() == "loads"
-
-
-#: The child's side of :func:`linear_solver_loads`: prints "loads" when the solve ran.
-_PROBE = """
-import sys
-import casadi as cs
-x = cs.SX.sym("x")
-opts = {"ipopt.linear_solver": sys.argv[1], "ipopt.print_level": 0, "print_time": False,
-        "ipopt.sb": "yes"}
-try:
-    solver = cs.nlpsol("probe", "ipopt", {"x": x, "f": (x - 1) ** 2}, opts)
+    library = "libhsl" if name.startswith("ma") else "libpardiso" if name == "pardiso" else None
+    if library is not None:
+        try:
+            ctypes.CDLL(library + _LIBRARY_SUFFIX)
+        except OSError:
+            return False
+    x = cs.SX.sym("x")
+    opts = {"ipopt.linear_solver": name, "ipopt.print_level": 0, "ipopt.sb": "yes"}
+    solver = cs.nlpsol("probe", "ipopt", {"x": x, "f": (x - 1) ** 2}, {**opts, "print_time": 0})
     solver(x0=0.0)
-except RuntimeError:
-    sys.exit(1)
-status = solver.stats().get("return_status")
-print("loads" if status not in ("Invalid_Option", "Invalid_Problem_Definition") else "no")
-"""
+    return solver.stats()["return_status"] not in ("Invalid_Option", "Invalid_Problem_Definition")
 
 
 def option_problem(name: str, value: Any, catalog: Mapping[str, IpoptOption]) -> str | None:
@@ -230,11 +220,7 @@ def ipopt_version() -> str:
     import casadi
 
     folder = os.path.dirname(casadi.__file__)
-    patterns = ("libipopt.so*", "libipopt*.dylib", "libipopt*.dll", "ipopt*.dll")
-    candidates = sorted(
-        {p for pat in patterns for p in glob.glob(os.path.join(folder, pat))}, key=len
-    )
-    for path in candidates:
+    for path in sorted(glob.glob(os.path.join(folder, "*ipopt*")), key=len):  # libipopt first
         try:
             lib = ctypes.CDLL(path)
             getter = lib.GetIpoptVersion

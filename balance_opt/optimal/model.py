@@ -1,16 +1,33 @@
 """The per-robot symbolic model of the optimal balance planner: the balance dynamics, the running
-cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point."""
+cost and the free-floating inverse dynamics as CasADi functions of ONE collocation point, saved
+on disk once and loaded by every later run instead of being built again."""
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import importlib.util
 import logging
+import os
+import re
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
 import casadi as cs
 
+from balance_opt.cache import (
+    MODELS_FOLDER,
+    build_dir,
+    default_cache_dir,
+    file_lock,
+    kinematics_key,
+    load_checked,
+    lock_path,
+    write_record,
+)
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import (
@@ -24,15 +41,79 @@ from balance_opt.model.symbolic import (
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.collision import CollisionModels
-from balance_opt.optimal.model_store import FunctionStore, model_key
 
 log = logging.getLogger(__name__)
+
+#: The modules whose code decides the planner's symbolic functions.
+FORMULATION_MODULES = (
+    "balance_opt.optimal.model",
+    "balance_opt.model.symbolic",
+    "balance_opt.model.coupling",
+    "balance_opt.model.robot",
+    "balance_opt.model.joints",
+    "balance_opt.model.bridge",
+    "balance_opt.motion.so3_casadi",
+)
 
 #: Rows of the momentum ``h0`` at the end of a point's data ``m`` ([linear; angular]).
 MOMENTUM_ROWS = 6
 
 #: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
 RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
+
+
+def formulation_fingerprint() -> str:
+    """Hash of the source of :data:`FORMULATION_MODULES` and of CasADi's version."""
+    digest = hashlib.sha256(cs.__version__.encode())
+    for name in FORMULATION_MODULES:
+        spec = importlib.util.find_spec(name)
+        digest.update(Path(spec.origin).read_bytes() if spec and spec.origin else name.encode())
+    return digest.hexdigest()
+
+
+def model_key(robot: FloatingRobot, backend_identity: str) -> str:
+    """The content key of a robot's planner model built with a backend: its kinematics, the
+    backend and the code of the formulation."""
+    parts = [kinematics_key(robot), backend_identity, formulation_fingerprint()]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:20]
+
+
+class FunctionStore:
+    """Named lists of CasADi functions of one planner model, on disk."""
+
+    def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
+        root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self.folder = root / MODELS_FOLDER
+        self.prefix = f"{re.sub(r'[^A-Za-z0-9._-]+', '_', label)[:40]}_{key}"
+
+    def path(self, name: str) -> Path:
+        return self.folder / f"{self.prefix}_{name}.casadi"
+
+    def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
+        """The functions saved as ``name`` (a damaged file deleted), else ``make()``'s, saved (a
+        failure to write is only logged: the cache only saves time)."""
+        path = self.path(name)
+        functions = load_checked(
+            path,
+            lambda p: list(cs.FileDeserializer(str(p)).unpack()),
+            f"planner model {path}",
+            "building it again",
+        )
+        if functions is not None:
+            return functions
+        functions = make()
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            with file_lock(lock_path(path)), build_dir(self.folder, path.stem) as tmp:
+                out = tmp / path.name
+                serializer = cs.FileSerializer(str(out))
+                serializer.pack(functions)
+                del serializer  # closes the file
+                os.replace(out, path)
+                write_record(path)
+        except (OSError, RuntimeError) as exc:
+            log.warning("planner model not cached (%s): %s", path, exc)
+        return functions
 
 
 def _tag(momentum: bool) -> str:
@@ -79,7 +160,7 @@ class PointKernels:
 
 class PlannerModel:
     """Symbolic model of a robot for the optimal planner, built once and cached in memory and
-    on disk (:mod:`balance_opt.optimal.model_store`)."""
+    on disk (:class:`FunctionStore`)."""
 
     def __init__(
         self,
@@ -107,7 +188,7 @@ class PlannerModel:
         self._compiling: list = []
         weakref.finalize(self, _stop_all, self._compiling)
         self.cache_dir = cache_dir
-        self.store = FunctionStore(robot.name, self.key, cache_dir) if store and self.key else None
+        self.store = FunctionStore(robot.name, self.key, cache_dir) if store else None
         self._funs: dict[str, cs.Function] = {}
         self._kernels: dict[tuple, PointKernels] = {}
         self.nlp_cache: dict = {}
@@ -255,7 +336,6 @@ class PlannerModel:
         return _function("floating_dynamics_terms", {"q": q, "nu": nu}, {"M": M, "h": h})
 
     def _torques(self, q, q_dot, q_ddot, v_b):
-        """``tau`` of the free-floating inverse dynamics with the base twist ``v_b``."""
         M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
         a_b = -cs.solve(M[:6, :6], M[:6, 6:] @ q_ddot + h[:6])
         return M[6:, :6] @ a_b + M[6:, 6:] @ q_ddot + h[6:]
@@ -296,10 +376,8 @@ class PlannerModel:
                 cs.vertcat(q_dot_M, q_dot_B),
                 cs.vertcat(q_ddot_M, q_ddot_B),
             )
-            if momentum:
-                tau = self.torque_fun(True)(*joints, self._momentum_in_base(phi, m))
-            else:
-                tau = self.torque_fun()(*joints)
+            h_b = [self._momentum_in_base(phi, m)] if momentum else []
+            tau = self.torque_fun(momentum)(*joints, *h_b)
             return _function(
                 "balance_torques", {"x": x, "u": u, "m": m}, {"tau_B": tau[self.n_M :]}
             )
@@ -335,25 +413,19 @@ class PlannerModel:
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
         has finished (and drop the NLPs built on them); for processes that plan many tasks."""
-        swapped = 0
+        done = []
         for variant, kernels in list(self._kernels.items()):
-            if not kernels.background or not Path(kernels.library).exists():
-                continue
-            functions = (kernels.value, kernels.jacobian, kernels.gradient, kernels.hessian)
-            names = [f.name() for f in (*functions, kernels.cost) if f is not None]
-            sizes = (kernels.n_x, kernels.n_z, kernels.n_y)
-            loaded = _from_library(names, kernels.library, sizes, kernels.n_clearance)
-            if loaded is None:
-                continue
-            self._kernels[variant] = loaded
-            self.nlp_cache = {
-                k: v
-                for k, v in self.nlp_cache.items()
-                if (k.control, k.torque_limits, k.momentum, k.collision) != variant
-            }
+            if kernels.background and Path(kernels.library).exists():
+                self._kernels[variant] = self._make_kernels(*variant)
+                done += [variant] if self._kernels[variant].compiled else []
+        if done:
             log.info("planner kernels of %s: compiled library loaded", self.robot.name)
-            swapped += 1
-        return swapped
+        self.nlp_cache = {
+            k: v
+            for k, v in self.nlp_cache.items()
+            if (k.control, k.torque_limits, k.momentum, k.collision) not in done
+        }
+        return len(done)
 
     def _make_kernels(
         self, control: str, torque: bool, momentum: bool, clearance: str
@@ -371,30 +443,33 @@ class PlannerModel:
         compiler = codegen.find_compiler() if self.compile else None
         if compiler is not None and digest is not None:
             library = codegen.library_path(digest, compiler, self.cache_dir)
-            loaded = _from_library(names, str(library), sizes, n_c)
-            if loaded is not None:
-                return loaded
+            with contextlib.suppress(BlockingIOError):  # being compiled by another process
+                loaded = codegen.load_cached(names, library)
+                if loaded is not None:
+                    return _point_kernels(
+                        codegen.Compiled(loaded, True, 0.0, str(library)), sizes, n_c
+                    )
         functions = self._stored(
             f"kernels_{suffix}",
             lambda: self._kernel_functions(control, torque, momentum, suffix, clearance),
         )
-        if not self.compile:
-            return _point_kernels(functions, sizes, n_clearance=n_c)
-        try:
-            out = codegen.compile_functions(
-                functions,
-                self.cache_dir,
-                digest,
-                background=self.compile == "background",
-                label=self.robot.name,
-            )
-        except (OSError, RuntimeError) as exc:
-            log.warning("balance kernels not compiled (%s); using CasADi's virtual machine", exc)
-            return _point_kernels(functions, sizes, n_clearance=n_c)
-        if out.process is not None:
-            self._compiling.append(out.process)
-        compiled = (out.compiled, out.compile_time, out.library, out.background)
-        return _point_kernels(out.functions, sizes, *compiled, n_clearance=n_c)
+        out = codegen.Compiled(functions, False, 0.0, None)
+        if self.compile:
+            try:
+                out = codegen.compile_functions(
+                    functions,
+                    self.cache_dir,
+                    digest,
+                    background=self.compile == "background",
+                    label=self.robot.name,
+                )
+            except (OSError, RuntimeError) as exc:
+                log.warning(
+                    "balance kernels not compiled (%s); using CasADi's virtual machine", exc
+                )
+            if out.process is not None:
+                self._compiling.append(out.process)
+        return _point_kernels(out, sizes, n_c)
 
     def _kernel_functions(
         self, control: str, torque: bool, momentum: bool, suffix: str, clearance: str = ""
@@ -438,24 +513,12 @@ class PlannerModel:
         ]
 
 
-def _point_kernels(functions, sizes, *compiled, n_clearance: int = 0) -> PointKernels:
-    functions = list(functions)
-    cost = functions[4] if len(functions) > 4 else None
-    return PointKernels(*functions[:4], *sizes, *compiled, n_clearance=n_clearance, cost=cost)
-
-
-def _from_library(names, library: str, sizes, n_clearance: int) -> PointKernels | None:
-    """The kernels ``names`` from a compiled library, or ``None`` (missing, or being compiled
-    by another process)."""
-    try:
-        loaded = codegen.load_cached(names, Path(library))
-    except BlockingIOError:
-        return None
-    if loaded is None:
-        return None
-    return _point_kernels(loaded, sizes, True, 0.0, library, n_clearance=n_clearance)
+def _point_kernels(out: codegen.Compiled, sizes: tuple, n_clearance: int) -> PointKernels:
+    f = list(out.functions)
+    compiled = (out.compiled, out.compile_time, out.library, out.background, n_clearance)
+    return PointKernels(*f[:4], *sizes, *compiled, f[4] if len(f) > 4 else None)
 
 
 def _stop_all(compiling: list) -> None:
     while compiling:
-        codegen.stop(compiling.pop())
+        compiling.pop().stop()
