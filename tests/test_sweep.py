@@ -741,6 +741,24 @@ def test_dask_local_cluster_on_loopback(pool_run, real_sweep):
     assert workers_left() == []
 
 
+@pytest.mark.slow
+def test_dask_forgets_a_case_once_its_record_is_taken():
+    """Dask keeps a result as long as a future refers to it, and computes it again when the
+    worker holding it dies: the engine holds no future of a case whose record it has handed on
+    (only the current one, until the next is asked for)."""
+    from balance_opt.sweep.engine import DaskEngine
+
+    cases = toy_cases(4)
+    held = []
+    with DaskEngine(None, workers=1, timeout=DASK_TIMEOUT) as engine:
+        for k, _ in enumerate(engine.imap_unordered(TOY_RUNNER, cases)):
+            deadline = time.monotonic() + 10  # a released future leaves the client's table soon
+            while len(engine._client.futures) > len(cases) - k and time.monotonic() < deadline:
+                time.sleep(0.05)
+            held.append(len(engine._client.futures))
+    assert held == [4, 3, 2, 1]
+
+
 def test_model_cache_key_is_the_kinematics_not_the_limits():
     """Robots that differ only in their limits share a planner model; other locked positions
     (another inertia of the locked chain) or another robot do not."""

@@ -447,6 +447,36 @@ BAD_TASKS = [
         TaskFileError,
     ),
     (
+        "via times fewer than points",
+        [
+            (
+                (
+                    "  type: ptp\n  start: [0.0, 0.3, -0.6]          # [rad]\n  goal: [1.2, 0.9, -1.6]           # capture "
+                    "configuration [rad]\n  duration: 10.0                   # [s]"
+                ),
+                "  type: via\n  times: [0, 10]\n  points: [[0, 0, 0], [1, 1, 1], [2, 2, 2]]",
+            )
+        ],
+        "times:",
+        "mission.times: expected one time per point: 3 points, 2 times",
+        TaskFileError,
+    ),
+    (
+        "via times not starting at 0",
+        [
+            (
+                (
+                    "  type: ptp\n  start: [0.0, 0.3, -0.6]          # [rad]\n  goal: [1.2, 0.9, -1.6]           # capture "
+                    "configuration [rad]\n  duration: 10.0                   # [s]"
+                ),
+                "  type: via\n  times: [1, 4, 10]\n  points: [[0, 0, 0], [1, 1, 1], [2, 2, 2]]",
+            )
+        ],
+        "times:",
+        "mission.times[0]: the first time must be 0 s, got 1",
+        TaskFileError,
+    ),
+    (
         "via point of the wrong length",
         [
             (

@@ -220,12 +220,15 @@ class _ExecutorEngine:
         suspects: list[dict] = []
         try:
             for fut in as_completed(futures, timeout=self.timeout):
+                # dropped once done: Dask releases a result nobody holds, and does not compute
+                # it again when the worker that keeps it dies
+                case = futures.pop(fut)
                 try:
                     yield fut.result()
                 except BrokenProcessPool:
-                    suspects.append(futures[fut])
+                    suspects.append(case)
                 except Exception as exc:  # noqa: BLE001 - Dask's KilledWorker, a cancelled case
-                    yield _crash_record(futures[fut], exc)
+                    yield _crash_record(case, exc)
         finally:
             for fut in futures:
                 fut.cancel()

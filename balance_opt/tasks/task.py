@@ -287,7 +287,13 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
 
 
 def _via_points(m: ViaMission, doc: YamlDocument) -> ViaPoints:
-    # located at the time that does not increase; ViaPoints checks the counts and the start
+    if len(m.times) != len(m.points):
+        raise doc.error(
+            ("mission", "times"),
+            f"expected one time per point: {len(m.points)} points, {len(m.times)} times",
+        )
+    if m.times[0] != 0.0:
+        raise doc.error(("mission", "times", 0), f"the first time must be 0 s, got {m.times[0]:g}")
     for i in range(1, len(m.times)):
         if not m.times[i] > m.times[i - 1]:
             raise doc.error(
@@ -302,7 +308,7 @@ def _build_mission(
 ) -> JointTrajectory:
     """The mission trajectory (a Cartesian goal solved by inverse kinematics)."""
     m = spec.mission
-    key = {CsvMission: "file", CartesianMission: "position", ViaMission: "times"}.get(type(m))
+    key = {CsvMission: "file", CartesianMission: "position"}.get(type(m))
     try:
         if isinstance(m, PtpMission):
             return PointToPoint(np.array(m.start), np.array(m.goal), m.duration)
