@@ -369,6 +369,19 @@ def test_run_writes_the_capture_block_report_and_figure(tmp_path):
     assert f"Capture at t = {example.target.time:g} s" in report
 
 
+def test_a_mission_only_run_of_a_capture_task_draws_the_mission_arms_capture(tmp_path, capsys):
+    """``plan --method mission-only`` on a capture task: no balance plan to show, so the capture
+    figure shows the mission arm alone (it once had no curve and raised)."""
+    from balance_opt.cli import main
+
+    out = tmp_path / "out"
+    code = main(["plan", str(EXAMPLE), "--method", "mission-only", "--output", str(out), "-q"])
+    assert code == 0, capsys.readouterr().err
+    assert (out / "capture.png").is_file()
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert set(metrics["capture"]["methods"]) == {"mission-only"}
+
+
 def test_the_targets_box_has_its_mass_and_inertia_and_rides_on_the_end_effector(paper):
     """The target's volume is the uniform box of its mass and inertia (Pinocchio's box inertia
     gives the inertia back), on the mission end effector at the target's CoM."""

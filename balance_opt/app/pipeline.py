@@ -329,8 +329,9 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
         balanced = {k: v for k, v in run.simulations.items() if k != REFERENCE}
         if balanced:
             draw("torque", plots.reaction_torque_figure, balanced, note=_torque_scales(balanced))
-    if run.task.target is not None:  # issue 16
-        curves = {**plans, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in plans}}
+    if run.task.target is not None:
+        shown = plans or run.results  # a mission-only run: the mission arm's own motion
+        curves = {**shown, **{f"{k}{SIM}": v for k, v in run.simulations.items() if k in shown}}
         draw("capture", plots.capture_figure, curves, run.task.target.time)
     return figures
 
