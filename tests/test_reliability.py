@@ -1,6 +1,7 @@
 """Reliability: bad input refused before any work, with the option, key or file named."""
 
 import math
+import os
 import subprocess
 import sys
 
@@ -89,6 +90,36 @@ def test_probing_linear_solvers_leaves_ipopt_usable():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["True", "2.0"]
+
+
+def test_an_hsl_library_without_the_solver_is_refused_not_a_crash(tmp_path):
+    """A ``libhsl`` that loads but lacks the solver's functions (a partial HSL build; here an
+    empty library) makes Ipopt crash on ``ma97``: the probe refuses it before Ipopt tries. Run
+    in a child, with the library on the loader's path as an installed one would be."""
+    from balance_opt.optimal.codegen import find_compiler
+
+    compiler = find_compiler()
+    if compiler is None:
+        pytest.skip("no C compiler")
+    (tmp_path / "empty.c").write_text("int balance_opt_nothing;\n")
+    library = tmp_path / "libhsl.so"
+    subprocess.run([compiler, "-shared", "-fPIC", "-o", library, tmp_path / "empty.c"], check=True)
+    code = (
+        "from balance_opt.optimal.ipopt_options import option_catalog, option_problem\n"
+        "catalog = option_catalog()\n"
+        "for solver in ('ma97', 'ma27'):\n"
+        "    print(option_problem('linear_solver', solver, catalog))\n"
+        f"print(option_problem('linear_solver', 'ma97', catalog, {{'hsllib': '{library}'}}))\n"
+    )
+    env = {**os.environ, "LD_LIBRARY_PATH": str(tmp_path)}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=False, env=env
+    )
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert len(lines) == 3
+    for line, solver in zip(lines, ("ma97", "ma27", "ma97")):
+        assert line.startswith(f"Ipopt cannot load linear solver '{solver}'")
 
 
 def test_catalog_cached_on_disk_is_reused(tmp_path, monkeypatch, catalog):

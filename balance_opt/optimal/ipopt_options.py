@@ -19,6 +19,7 @@ import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 from balance_opt.cache import atomic_write_text, default_cache_dir
@@ -135,29 +136,57 @@ def option_catalog() -> dict[str, IpoptOption]:
 #: The file name suffix of the libraries Ipopt loads linear solvers from (``hsllib``,
 #: ``pardisolib``: ``libhsl.so``, ``libpardiso.so`` on Linux).
 _LIBRARY_SUFFIX = {"darwin": ".dylib", "win32": ".dll"}.get(sys.platform, ".so")
+#: The library option of each solver Ipopt loads at run time, and functions Ipopt takes from it.
+_LOADED_SOLVERS = {
+    "ma27": ("hsllib", ("ma27ad", "ma27bd", "ma27cd", "ma27id")),
+    "ma57": ("hsllib", ("ma57ad", "ma57bd", "ma57cd", "ma57id")),
+    "ma77": ("hsllib", ("ma77_default_control_d", "ma77_analyse_d", "ma77_factor_d")),
+    "ma86": ("hsllib", ("ma86_default_control_d", "ma86_analyse_d", "ma86_factor_d")),
+    "ma97": ("hsllib", ("ma97_default_control_d", "ma97_analyse_d", "ma97_factor_d")),
+    "pardiso": ("pardisolib", ("pardisoinit", "pardiso")),
+}
 
 
-def linear_solver_loads(name: str) -> bool:
-    """Whether Ipopt can load linear solver ``name``: a one-variable solve with it. Without its
-    library Ipopt refuses an HSL or Pardiso solver (``Invalid_Option``), but a refused ``ma97``
-    crashes the next solve of the process: these are tried only when their library loads."""
+def _exports(library: ctypes.CDLL, function: str) -> bool:
+    """Whether ``library`` has ``function`` under one of the names a Fortran or C build gives."""
+    names = (function, function + "_", function.upper(), function.upper() + "_")
+    return any(hasattr(library, name) for name in names)
+
+
+def linear_solver_loads(name: str, libraries: Mapping[str, Any] = MappingProxyType({})) -> bool:
+    """Whether Ipopt can load linear solver ``name`` (with the ``hsllib``/``pardisolib`` of
+    ``libraries``, else Ipopt's default library): a one-variable solve with it. An HSL or
+    Pardiso solver is tried only when its library loads and has the solver's functions: Ipopt
+    refuses one whose library is missing, but a refused ``ma97`` crashes the next solve of the
+    process, and one whose functions are missing crashes at once."""
     import casadi as cs
 
-    library = "libhsl" if name.startswith("ma") else "libpardiso" if name == "pardiso" else None
-    if library is not None:
+    opts = {"ipopt.linear_solver": name, "ipopt.print_level": 0, "ipopt.sb": "yes"}
+    if name in _LOADED_SOLVERS:
+        option, functions = _LOADED_SOLVERS[name]
+        path = libraries.get(option)
+        if path:
+            opts[f"ipopt.{option}"] = path
         try:
-            ctypes.CDLL(library + _LIBRARY_SUFFIX)
+            library = ctypes.CDLL(path or f"lib{option[: -len('lib')]}{_LIBRARY_SUFFIX}")
         except OSError:
             return False
+        if not all(_exports(library, f) for f in functions):
+            return False
     x = cs.SX.sym("x")
-    opts = {"ipopt.linear_solver": name, "ipopt.print_level": 0, "ipopt.sb": "yes"}
     solver = cs.nlpsol("probe", "ipopt", {"x": x, "f": (x - 1) ** 2}, {**opts, "print_time": 0})
     solver(x0=0.0)
     return solver.stats()["return_status"] not in ("Invalid_Option", "Invalid_Problem_Definition")
 
 
-def option_problem(name: str, value: Any, catalog: Mapping[str, IpoptOption]) -> str | None:
-    """What is wrong with Ipopt option ``name = value``, or ``None`` when Ipopt accepts it."""
+def option_problem(
+    name: str,
+    value: Any,
+    catalog: Mapping[str, IpoptOption],
+    libraries: Mapping[str, Any] = MappingProxyType({}),
+) -> str | None:
+    """What is wrong with Ipopt option ``name = value`` (given the other options ``libraries``,
+    which may name the linear solvers' libraries), or ``None`` when Ipopt accepts it."""
     option = catalog.get(name)
     if option is None:
         close = difflib.get_close_matches(name, list(catalog), n=1)
@@ -169,7 +198,7 @@ def option_problem(name: str, value: Any, catalog: Mapping[str, IpoptOption]) ->
             return f"Ipopt option '{name}' takes a string, got {value!r}; {expected}"
         if option.values and value not in option.values:
             return f"Ipopt option '{name}' does not accept {value!r}; {expected}"
-        if name == "linear_solver" and not linear_solver_loads(value):
+        if name == "linear_solver" and not linear_solver_loads(value, libraries):
             return (
                 f"Ipopt cannot load linear solver {value!r} (not in this installation: the HSL "
                 "solvers need a separately installed library); 'mumps' is always available"
@@ -208,7 +237,7 @@ def check_ipopt_options(
         return dict(options)
     out = {}
     for name, value in options.items():
-        problem = option_problem(name, value, catalog)
+        problem = option_problem(name, value, catalog, options)
         if problem is not None:
             raise error(name, problem)
         out[name] = int(value) if catalog[name].type == INTEGER else value
