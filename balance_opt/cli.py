@@ -751,7 +751,7 @@ def _detach_stdout() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 success, 1 solver failure, 2 bad input,
-    130 interrupted by Ctrl-C or SIGTERM, 141 output pipe closed)."""
+    130 interrupted by Ctrl-C, SIGTERM or SIGHUP, 141 output pipe closed)."""
     from balance_opt.errors import BalanceOptError, InputError, SolverError
     from balance_opt.interrupts import handling_signals
 

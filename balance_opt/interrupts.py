@@ -1,7 +1,7 @@
-"""Interrupts (Ctrl-C, SIGTERM) that stop a run wherever they arrive, inside Ipopt included.
+"""Interrupts (Ctrl-C, SIGTERM, SIGHUP) that stop a run wherever they arrive, Ipopt included.
 
-Within :func:`handling_signals` both raise :class:`Interrupted` (a ``KeyboardInterrupt``) and are
-recorded. CasADi swallows the exception raised in Ipopt's callbacks (Ipopt then stops as if it
+Within :func:`handling_signals` each raises :class:`Interrupted` (a ``KeyboardInterrupt``) and
+is recorded. CasADi swallows the exception raised in Ipopt's callbacks (Ipopt then stops as if it
 had failed), so code calling such a library calls :func:`raise_if_interrupted` right after.
 """
 
@@ -12,8 +12,11 @@ import signal
 import threading
 from collections.abc import Iterator
 
-#: The signals turned into :class:`Interrupted`.
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: The signals turned into :class:`Interrupted`; SIGHUP too (a closed terminal), since the
+#: compilers run in sessions of their own that the terminal's signals do not reach.
+SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
 #: Python's own handlers, replaced within :func:`handling_signals` (a handler of the caller's
 #: own, or SIG_IGN, is left as it is).
 _DEFAULTS = (signal.default_int_handler, signal.SIG_DFL)
@@ -21,7 +24,7 @@ _received: list[int] = []
 
 
 class Interrupted(KeyboardInterrupt):
-    """The run was interrupted by the signal ``signum`` (SIGINT or SIGTERM)."""
+    """The run was interrupted by the signal ``signum`` (one of :data:`SIGNALS`)."""
 
     def __init__(self, signum: int):
         self.signum = signum
@@ -43,7 +46,7 @@ def raise_if_interrupted() -> None:
 
 @contextlib.contextmanager
 def handling_signals() -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM raise :class:`Interrupted` and are recorded.
+    """Within the block, the :data:`SIGNALS` raise :class:`Interrupted` and are recorded.
 
     Installed only from the main thread and only over Python's defaults, restored at the end;
     nested blocks share the outermost one.

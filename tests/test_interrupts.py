@@ -1,4 +1,4 @@
-"""Interrupts and worker processes: Ctrl-C and SIGTERM before, inside and after the Ipopt solve,
+"""Interrupts and worker processes: Ctrl-C, SIGTERM and SIGHUP before, inside and after the Ipopt solve,
 and while the files are written (exit 130, "interrupted", the previous results untouched, no
 staging folder left); a sweep's workers end with their parent, even after ``kill -9``, and
 Ctrl-C on a sweep returns within seconds.
@@ -206,7 +206,7 @@ def _start_slow_solve(task: Path, out: Path) -> tuple[subprocess.Popen, list[str
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_interrupt_inside_ipopt_exits_130_and_writes_nothing(tmp_path, signum):
     task = _fast_task(tmp_path, intervals=40)
     out, before = _previous_run(tmp_path, task)
