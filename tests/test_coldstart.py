@@ -256,8 +256,6 @@ def test_an_interrupted_compilation_leaves_no_compiler_running(tmp_path):
     import threading
     import time
 
-    import psutil
-
     pids = tmp_path / "pids"
     bindir = tmp_path / "bin"
     bindir.mkdir()
@@ -281,13 +279,53 @@ def test_an_interrupted_compilation_leaves_no_compiler_running(tmp_path):
     children = [int(p) for p in pids.read_text().split()]
     assert len(children) == 2
 
+    assert not _still_running(children)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="process groups")
+def test_an_interrupt_while_waiting_for_the_compiler_ends_it(tmp_path):
+    """The end of a plan waits for its background compilation; an interrupt during that wait
+    (a second Ctrl-C) ends the compilers too, rather than leaving them to the daemon thread that
+    dies with the process."""
+    import signal
+    import threading
+    import time
+
+    pids = tmp_path / "pids"
+    driver = tmp_path / "driver-cc"
+    driver.write_text(f'#!/bin/sh\nsleep 60 &\necho $! >> "{pids}"\nwait\n')
+    driver.chmod(0o755)
+    compilation = codegen.Compilation(str(driver), "int x;\n", tmp_path / "k.so")
+
+    def interrupt() -> None:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not pids.exists():
+            time.sleep(0.05)
+        time.sleep(0.2)  # inside finish()'s wait
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+
+    timer = threading.Thread(target=interrupt)
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        codegen.finish(compilation, timeout=60)
+    timer.join()
+    assert not compilation.is_alive()
+    assert not _still_running([int(p) for p in pids.read_text().split()])
+
+
+def _still_running(pids: list[int], wait: float = 5.0) -> list[int]:
+    """The processes of ``pids`` still running (not ended, nor zombies) after up to ``wait`` s."""
+    import time
+
+    import psutil
+
     def running(pid: int) -> bool:
         try:
             return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
         except psutil.NoSuchProcess:
             return False
 
-    deadline = time.monotonic() + 5
-    while any(running(pid) for pid in children) and time.monotonic() < deadline:
+    deadline = time.monotonic() + wait
+    while any(running(pid) for pid in pids) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not any(running(pid) for pid in children)
+    return [pid for pid in pids if running(pid)]

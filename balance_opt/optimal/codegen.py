@@ -364,7 +364,11 @@ def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
             "load the library) ...",
             timeout,
         )
-    process.join(timeout)
+    try:
+        process.join(timeout)
+    except BaseException:  # a second Ctrl-C while waiting: the compilers end with the command
+        process.stop()
+        raise
     if not process.is_alive():
         return True
     process.stop()

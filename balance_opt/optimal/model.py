@@ -407,8 +407,11 @@ class PlannerModel:
         """Wait for the background compilations this model started, each at most ``timeout``
         [s], stopping those that do not end (:func:`~balance_opt.optimal.codegen.finish`); the
         end of every planning call (nothing it started outlives it)."""
-        while self._compiling:
-            codegen.finish(self._compiling.pop(), timeout)
+        try:
+            while self._compiling:
+                codegen.finish(self._compiling.pop(), timeout)
+        finally:  # interrupted while waiting for one: the others end too
+            _stop_all(self._compiling)
 
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation
