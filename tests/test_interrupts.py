@@ -257,7 +257,19 @@ def sleepy_case(case: dict) -> dict:
     return {"status": "ok", "metrics": {}}
 
 
-def _start_sleepy_sweep(tmp_path: Path, stdout=subprocess.DEVNULL):
+def compiling_case(case: dict) -> dict:
+    """A sleepy case that waits on a child command run as the kernels' compilers are (in a
+    session of its own, which a signal to the sweep does not reach); the child writes its
+    process id to ``$SLEEPY_DIR/child-<worker pid>``."""
+    from balance_opt.cache import run_commands
+
+    Path(os.environ["SLEEPY_DIR"], str(os.getpid())).write_text(str(case["index"]))
+    child = Path(os.environ["SLEEPY_DIR"]).parent / f"child-{os.getpid()}"
+    run_commands([["sh", "-c", f'echo $$ > "{child}"; exec sleep 600']])
+    return {"status": "ok", "metrics": {}}
+
+
+def _start_sleepy_sweep(tmp_path: Path, stdout=subprocess.DEVNULL, case="sleepy_case"):
     """A sweep of 6 sleepy cases on 2 workers, started in a session of its own; returns once
     both workers run a case, with the process and every descendant of it."""
     sweep = tmp_path / "sleepy.yaml"
@@ -274,7 +286,7 @@ def _start_sleepy_sweep(tmp_path: Path, stdout=subprocess.DEVNULL):
     }
     args = ["sweep", str(sweep), "-o", str(tmp_path / "out"), "-j", "2", "--no-plots"]
     proc = subprocess.Popen(
-        _cli(*args, "--runner", "test_interrupts:sleepy_case"),
+        _cli(*args, "--runner", f"test_interrupts:{case}"),
         stdout=stdout,
         stderr=subprocess.PIPE,
         env=env,
@@ -342,3 +354,25 @@ def test_interrupted_sweep_returns_at_once_without_orphans(tmp_path, how):
         assert summary["interrupted"] is True and summary["cases"] == 0
     finally:
         _end_all(proc, descendants)
+
+
+@pytest.mark.slow
+def test_an_interrupted_sweep_ends_the_compilers_of_its_cases(tmp_path):
+    """The workers' cases unwind on the sweep's SIGTERM: what they run in sessions of their own
+    (the kernels' compilers, the bridge build) ends with them."""
+    proc, descendants = _start_sleepy_sweep(tmp_path, case="compiling_case")
+    commands = []
+    try:
+        deadline = time.monotonic() + START_TIMEOUT
+        while len(children := list(tmp_path.glob("child-*"))) < 2 or not all(
+            c.read_text().strip() for c in children
+        ):
+            assert time.monotonic() < deadline, "the cases did not start their commands"
+            time.sleep(0.05)
+        commands = [psutil.Process(int(c.read_text())) for c in children]
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=30) == 130
+        _gone, alive = psutil.wait_procs(commands, timeout=10)
+        assert alive == [], [p.cmdline() for p in alive]
+    finally:
+        _end_all(proc, descendants + [p for p in commands if p.is_running()])

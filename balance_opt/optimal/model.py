@@ -411,7 +411,11 @@ class PlannerModel:
             while self._compiling:
                 codegen.finish(self._compiling.pop(), timeout)
         finally:  # interrupted while waiting for one: the others end too
-            _stop_all(self._compiling)
+            self.stop_compiling()
+
+    def stop_compiling(self) -> None:
+        """Stop the background compilations this model started (they are not cached)."""
+        _stop_all(self._compiling)
 
     def upgrade_kernels(self) -> int:
         """Swap kernels running on the VM for their library once its background compilation

@@ -190,6 +190,9 @@ class BalanceNLP(BalanceProblem):
             if getattr(exc.result, "solver", None) is not None:
                 exc.result.info.update(exc.result.solver.as_info())
             raise
+        except KeyboardInterrupt:  # stopped: the compilations this plan started stop now too
+            self.model.stop_compiling()
+            raise
         finally:  # a compilation of the kernels this plan started ends with it
             self.model.finish_compiling()
         result.info.update(result.solver.as_info())

@@ -135,6 +135,26 @@ def _watch_parent(parent_pid: int) -> None:
     os._exit(1)
 
 
+class _Stopped(BaseException):
+    """SIGTERM in a pool worker running a case (the sweep is stopped)."""
+
+
+def _stop_case(signum, frame) -> None:
+    raise _Stopped
+
+
+def execute_in_worker(runner: str, case: dict) -> dict:
+    """:func:`execute_case` in a pool worker, where SIGTERM unwinds the case (the compilers it
+    started, in sessions of their own, end with it) before the worker exits."""
+    previous = signal.signal(signal.SIGTERM, _stop_case)
+    try:
+        return execute_case(runner, case)
+    except _Stopped:
+        os._exit(128 + signal.SIGTERM)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def init_worker(parent_pid: int) -> None:
     """Initializer of each pool worker: SIGKILL when the parent dies (Linux's ``prctl``, else a
     watcher thread); ``parent_pid`` is taken before the worker started, so a parent that died
@@ -210,13 +230,14 @@ class _ExecutorEngine:
     ``WorkerCrashed``; ``timeout``: longest wait for all the cases [s], None for no limit."""
 
     timeout: float | None = None
+    execute = staticmethod(execute_case)
 
     def map(self, function: Callable, *iterables) -> Iterator:
         """``function`` over ``iterables`` in the workers, in order (the planner's starts)."""
         return self._executor.map(function, *iterables)
 
     def imap_unordered(self, runner: str, cases: Sequence[dict]) -> Iterator[dict]:
-        futures = {self._executor.submit(execute_case, runner, case): case for case in cases}
+        futures = {self._executor.submit(self.execute, runner, case): case for case in cases}
         suspects: list[dict] = []
         try:
             for fut in as_completed(futures, timeout=self.timeout):
@@ -243,7 +264,7 @@ class _ExecutorEngine:
             for case in sorted(suspects, key=lambda c: c["index"]):
                 alone = new_pool(1)
                 try:
-                    record = alone.submit(execute_case, runner, case).result()
+                    record = alone.submit(self.execute, runner, case).result()
                 except BrokenProcessPool as exc:
                     record = _crash_record(case, exc)
                 except BaseException:
@@ -257,6 +278,8 @@ class LocalPoolEngine(_ExecutorEngine):
     """A pool of ``jobs`` worker processes started with ``spawn`` (CasADi and Pinocchio state
     must not be forked). When a worker dies the unfinished cases run again one at a time, each in
     a fresh process; a case whose process dies again is recorded as ``WorkerCrashed``."""
+
+    execute = staticmethod(execute_in_worker)
 
     def __init__(self, jobs: int):
         if jobs < 1:
