@@ -759,6 +759,25 @@ def test_dask_forgets_a_case_once_its_record_is_taken():
     assert held == [4, 3, 2, 1]
 
 
+def test_a_urdfs_warnings_are_shown_once_per_sweep_not_per_case(tmp_path, caplog):
+    """Every case of a sweep builds its robot from the one URDF: its implausible values are
+    logged when the sweep is loaded, not again for each case checked and run."""
+    urdf = (ROOT / "urdf" / "paper_robot.urdf").read_text()
+    moments = 'ixx="0.1062" ixy="0" ixz="0" iyy="0.1062" iyz="0" izz="0.16"'
+    assert moments in urdf
+    (tmp_path / "robot.urdf").write_text(urdf.replace(moments, moments.replace("0.16", "0.25"), 1))
+    task = PAPER_TASK.read_text().replace("shipped: paper_robot.urdf", "urdf: robot.urdf")
+    (tmp_path / "task.yaml").write_text(task)
+    (tmp_path / "sweep.yaml").write_text(
+        "task: task.yaml\nmethods: [analytic]\ngrid:\n  mission.duration: [4.0, 5.0, 6.0]\n"
+    )
+    with caplog.at_level("WARNING", logger="balance_opt"):
+        outcome = run_sweep(load_sweep(tmp_path / "sweep.yaml"), tmp_path / "out", jobs=0)
+    assert len(outcome.run.ran) == 3
+    warned = [r for r in caplog.records if "triangle inequality" in r.getMessage()]
+    assert len(warned) == 1, [r.getMessage() for r in warned]
+
+
 def test_model_cache_key_is_the_kinematics_not_the_limits():
     """Robots that differ only in their limits share a planner model; other locked positions
     (another inertia of the locked chain) or another robot do not."""

@@ -13,10 +13,11 @@ are built by different routes on purpose: the tests compare them.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -153,6 +154,18 @@ class LimitOverrideError(JointError):
     def __init__(self, joint: str, source: str, key: str, reason: str):
         self.key = key
         super().__init__(joint, source, reason)
+
+
+@contextlib.contextmanager
+def urdf_warnings_shown() -> Iterator[None]:
+    """Within the block, robots are built without logging their URDF's warnings (implausible
+    values), for the many robots a sweep builds from one file whose warnings were shown once."""
+    before = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(before)
 
 
 class FloatingRobot:

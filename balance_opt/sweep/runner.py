@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from balance_opt.app.models import ModelCache
+from balance_opt.model.robot import urdf_warnings_shown
 
 logger = logging.getLogger(__name__)
 
@@ -41,13 +42,18 @@ def run_task_case(case: dict, models: ModelCache | None = None) -> dict:
     """The case function of task sweeps: ``{"status", "metrics", "error", "info", "timing"}``,
     status ``ok`` or ``solver_failed`` (with the metrics computed before the failure); other
     errors are raised, and recorded by the engine."""
+    models = WORKER_MODELS if models is None else models
+    with urdf_warnings_shown():  # by the sweep's load of its task
+        return _run_task_case(case, models)
+
+
+def _run_task_case(case: dict, models: ModelCache) -> dict:
     from balance_opt.app.pipeline import plan, simulate
     from balance_opt.errors import SolverError
     from balance_opt.report.outputs import method_metrics
     from balance_opt.sweep.engine import STATUS_OK, STATUS_SOLVER_FAILED, error_record
     from balance_opt.tasks.task import task_from_dict
 
-    models = WORKER_MODELS if models is None else models
     start = time.perf_counter()
     task = task_from_dict(case["task"], Path(case["base_dir"]), source=f"case {case['index']}")
     loaded = time.perf_counter()
