@@ -190,7 +190,13 @@ def _start_slow_solve(task: Path, out: Path) -> tuple[subprocess.Popen, list[str
     for option in SLOW_IPOPT:
         args += ["--solver-option", option]
     proc = subprocess.Popen(
-        _cli(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1
+        _cli(*args),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        bufsize=1,
+        # SIGHUP as a terminal's command gets it: a test run under nohup would pass it on ignored
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL),
     )
     seen: list[str] = []
     deadline = time.monotonic() + START_TIMEOUT
