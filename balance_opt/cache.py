@@ -167,12 +167,14 @@ def run_commands(
     stop: threading.Event | None = None,
     tick: Callable[[int], None] | None = None,
     every: float = 30.0,
+    timeout: float | None = None,
 ) -> list[str]:
     """Run ``commands`` (compilers, the bridge program) at once as children of this process and
     wait for all of them; returns the output (stdout and stderr) of each.
 
     Each runs in a process group of its own, ended whole (a compiler driver and the ``cc1`` it
-    started) when this call ends first: interrupted, or ``stop`` set (OSError ``stopped``).
+    started) when this call ends first: interrupted, ``stop`` set (OSError ``stopped``), or
+    ``timeout`` [s] past.
     ``tick(group)`` is called every ``every`` [s] with the first command's group. Raises
     OSError with the first error line (:func:`first_error`) of a command that failed."""
     stop = stop if stop is not None else threading.Event()
@@ -194,6 +196,8 @@ def run_commands(
             while any(proc.poll() is None for proc in procs):
                 if stop.wait(0.05):
                     raise OSError("stopped")
+                if timeout is not None and time.monotonic() - start > timeout:
+                    raise OSError(f"no answer in {timeout:g} s")
                 if tick is not None and time.monotonic() - start >= ticks * every:
                     tick(procs[0].pid)
                     ticks += 1

@@ -313,6 +313,17 @@ def test_an_interrupt_while_waiting_for_the_compiler_ends_it(tmp_path):
     assert not _still_running([int(p) for p in pids.read_text().split()])
 
 
+@pytest.mark.skipif(os.name != "posix", reason="process groups")
+def test_a_command_past_its_timeout_is_ended(tmp_path):
+    """A child that does not answer in time (a compiler wrapper that hangs) is an error, and
+    ends with everything it started."""
+    pids = tmp_path / "pids"
+    command = ["sh", "-c", f'sleep 60 & echo $! > "{pids}"; wait']
+    with pytest.raises(OSError, match=r"^no answer in 0\.5 s$"):
+        cache.run_commands([command], timeout=0.5)
+    assert not _still_running([int(pids.read_text())])
+
+
 def _still_running(pids: list[int], wait: float = 5.0) -> list[int]:
     """The processes of ``pids`` still running (not ended, nor zombies) after up to ``wait`` s."""
     import time

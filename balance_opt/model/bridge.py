@@ -64,6 +64,8 @@ LIBRARIES = ("pinocchio_parsers", "pinocchio_default")
 BUILD_MINUTES = "1-6"
 #: Seconds between two "still building" log lines.
 PROGRESS_SECONDS = 30
+#: Seconds ``$CXX --version`` may take (a wrapper that hangs makes the bridge unavailable).
+VERSION_TIMEOUT = 60.0
 #: The headers the bridge includes, each with the folders of an install prefix's ``include``
 #: that may hold it, in search order (none: CasADi's, in its package folder).
 HEADERS = {
@@ -170,7 +172,7 @@ def find_toolchain() -> Toolchain:
 
 def _compiler_version(compiler: str) -> str:
     try:
-        out = run_commands([[compiler, "--version"]])[0]
+        out = run_commands([[compiler, "--version"]], timeout=VERSION_TIMEOUT)[0]
     except OSError as exc:
         raise BridgeUnavailable(f"{compiler} does not run: {exc}") from exc
     return (out.splitlines() or [""])[0]
