@@ -193,14 +193,17 @@ def run_commands(
                     )
                 )
             start, ticks = time.monotonic(), 1
-            while any(proc.poll() is None for proc in procs):
-                if stop.wait(0.05):
+            while running := [proc for proc in procs if proc.poll() is None]:
+                if stop.is_set():
                     raise OSError("stopped")
                 if timeout is not None and time.monotonic() - start > timeout:
                     raise OSError(f"no answer in {timeout:g} s")
                 if tick is not None and time.monotonic() - start >= ticks * every:
                     tick(procs[0].pid)
                     ticks += 1
+                # back at once when it ends (a short command takes milliseconds, not a poll)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    running[0].wait(0.05)
         finally:
             for proc in procs:
                 if proc.poll() is None:

@@ -58,26 +58,40 @@ def available_backends() -> list[str]:
     return found
 
 
-def _fall_back_to_adam(reason: str) -> tuple[str, str]:
-    """Choose adam for ``auto``: ``("adam", "adam (<why not the bridge>)")``."""
+def _adam_identity() -> str:
+    """What adam's expressions depend on: its version."""
+    from importlib import metadata
+
+    return f"adam-robotics {metadata.version('adam-robotics')}"
+
+
+def _fall_back_to_adam(reason: str) -> tuple[str, str, str]:
+    """Choose adam for ``auto``: ``("adam", "adam (<why not the bridge>)", identity)``."""
     if not _imports("adam.casadi"):
         raise BalanceOptError(
             f"no symbolic backend: the Pinocchio-CasADi bridge is unavailable ({reason}) "
             "and adam-robotics[casadi] is not installed"
         )
-    return "adam", f"adam ({reason})"
+    return "adam", f"adam ({reason})", _adam_identity()
 
 
-def _resolve_backend(backend: str) -> tuple[str, str]:
-    """``(backend, description)`` for the backend asked for; builds the bridge if needed."""
+def _resolve_backend(backend: str) -> tuple[str, str, str]:
+    """``(backend, description, identity)`` for the backend asked for (see
+    :func:`backend_identity`); builds the bridge if needed."""
     if backend not in ("auto", *BACKENDS):
         raise BalanceOptError(f"unknown backend '{backend}'; expected auto, {', '.join(BACKENDS)}")
     if backend == "adam":
         if not _imports("adam.casadi"):
             raise BalanceOptError("backend 'adam' cannot be imported here")
-        return "adam", "adam"
+        return "adam", "adam", _adam_identity()
     if _imports("pinocchio.casadi"):
-        return "pinocchio", "pinocchio (pinocchio.casadi)"
+        import pinocchio
+
+        return (
+            "pinocchio",
+            "pinocchio (pinocchio.casadi)",
+            f"pinocchio.casadi {pinocchio.__version__}",
+        )
     try:
         record = ensure_bridge()
     except BridgeUnavailable as exc:
@@ -87,7 +101,8 @@ def _resolve_backend(backend: str) -> tuple[str, str]:
             "backend 'pinocchio' cannot be used here: pinocchio.casadi does not import (PyPI's "
             f"pin wheels lack it) and the Pinocchio-CasADi bridge is unavailable: {exc.reason}"
         ) from None
-    return "pinocchio", f"pinocchio (bridge, built in {record.wall_seconds:.0f} s)"
+    built = f"pinocchio (bridge, built in {record.wall_seconds:.0f} s)"
+    return "pinocchio", built, f"bridge {record.path.name}"
 
 
 def backend_description(backend: str = "auto") -> str:
@@ -100,16 +115,8 @@ def backend_identity(backend: str = "auto") -> tuple[str, str]:
     """``(backend, identity)``: the backend ``SymbolicMaps(robot, backend)`` uses here and what
     its expressions depend on (the bridge's build key, or the library's version), for the keys
     of cached planner models. Builds the bridge first if needed."""
-    from importlib import metadata
-
-    name, description = _resolve_backend(backend)
-    if name == "adam":
-        return name, f"adam-robotics {metadata.version('adam-robotics')}"
-    if "bridge" in description:
-        return name, f"bridge {ensure_bridge().path.name}"
-    import pinocchio
-
-    return name, f"pinocchio.casadi {pinocchio.__version__}"
+    name, _, identity = _resolve_backend(backend)
+    return name, identity
 
 
 def model_joint_positions(robot: FloatingRobot, q: cs.SX) -> cs.SX:
@@ -241,7 +248,7 @@ class SymbolicMaps:
 
     def __init__(self, robot: FloatingRobot, backend: str = "auto"):
         self.robot = robot
-        self.backend, self.backend_description = _resolve_backend(backend)
+        self.backend, self.backend_description, _ = _resolve_backend(backend)
         n = robot.n
         self._funs: dict[tuple, cs.Function] = {}
         self._q = cs.SX.sym("q", n)
@@ -252,7 +259,7 @@ class SymbolicMaps:
         except BridgeUnavailable as exc:  # built, but failed on this robot
             if backend != "auto":
                 raise
-            self.backend, self.backend_description = _fall_back_to_adam(exc.reason)
+            self.backend, self.backend_description, _ = _fall_back_to_adam(exc.reason)
             self._A, self._J_ee = _primitives_adam(robot, self._q)
         if backend == "auto" and self.backend == "adam":  # why, each time maps are built
             log.info(

@@ -393,37 +393,34 @@ def _check_case_tasks(
     limits no plan can meet and unbuildable missions fail their case when it runs instead. The
     URDF's warnings are not shown again: the load of the base task showed them."""
     from balance_opt.model.robot import urdf_warnings_shown
-
-    distinct: dict[str, dict] = {}  # the first case of each parameter set
-    for case in cases:
-        if case["parameters"]:
-            distinct.setdefault(canonical_json(case["parameters"]), case)
-    with urdf_warnings_shown():
-        for key, case in distinct.items():
-            _check_case_task(case, key, doc, task_doc, task_dir, where)
-
-
-def _check_case_task(case: dict, key: str, doc, task_doc, task_dir: Path, where: dict) -> None:
     from balance_opt.tasks.task import TaskLimitsError, TaskTrajectoryError, task_from_document
 
-    try:
-        task_from_document(
-            YamlDocument(case["task"], task_doc.source, task_doc.lines), task_dir, key
-        )
-    except (TaskLimitsError, TaskTrajectoryError):
-        return
-    except TaskFileError as exc:
-        # the varied parameter whose key path is a prefix of the culprit's (or extends it)
-        prefixes = {name: parse_key_path(name)[: len(exc.path)] for name in case["parameters"]}
-        culprit = next((n for n, p in prefixes.items() if p == exc.path[: len(p)]), None)
-        if culprit is None:
-            raise
-        value = canonical_json(case["parameters"][culprit])
-        inner = format_path(exc.path)
-        inner = "" if inner == culprit else f"{inner}: "
-        raise doc.error(
-            where[culprit], f"{culprit} = {value} (case {case['index']}): {inner}{exc.reason}"
-        ) from None
+    checked = set()
+    with urdf_warnings_shown():
+        for case in cases:
+            key = canonical_json(case["parameters"])
+            if not case["parameters"] or key in checked:
+                continue
+            checked.add(key)
+            try:
+                task_from_document(
+                    YamlDocument(case["task"], task_doc.source, task_doc.lines), task_dir, key
+                )
+            except (TaskLimitsError, TaskTrajectoryError):
+                continue
+            except TaskFileError as exc:
+                # the varied parameter whose key path is a prefix of the culprit's (or extends it)
+                paths = {name: parse_key_path(name)[: len(exc.path)] for name in case["parameters"]}
+                culprit = next((n for n, p in paths.items() if p == exc.path[: len(p)]), None)
+                if culprit is None:
+                    raise
+                value = canonical_json(case["parameters"][culprit])
+                inner = format_path(exc.path)
+                inner = "" if inner == culprit else f"{inner}: "
+                raise doc.error(
+                    where[culprit],
+                    f"{culprit} = {value} (case {case['index']}): {inner}{exc.reason}",
+                ) from None
 
 
 def load_sweep(path: str | Path, solver_options: dict[str, Any] | None = None) -> Sweep:
