@@ -45,7 +45,7 @@ class InitialCollisionError(InputError):
     def __init__(self, geometry: RobotGeometry, q0: np.ndarray, contacts: list[Pair]):
         d = geometry.distances(q0, [p.index for p in contacts])
         self.pairs = [p.name for p in contacts]
-        pairs = ", ".join(f"{p.name} ({-x:.4f} m deep)" for p, x in zip(contacts, d))
+        pairs = ", ".join(f"{p.name} ({max(-x, 0.0):.4f} m deep)" for p, x in zip(contacts, d))
         super().__init__(
             f"{geometry.robot.name}: the initial configuration is in collision: {pairs}; "
             "move it, or leave the pairs out (robot.srdf, optimal.collision.ignore) if the "
