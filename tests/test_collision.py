@@ -1,7 +1,6 @@
 """Collision geometry, the clearance check and collision avoidance in the optimal planner
 (issue 24), against coal's exact distances and Pinocchio's kinematics."""
 
-
 import casadi as cs
 import numpy as np
 import pinocchio as pin
