@@ -5,6 +5,7 @@ import casadi as cs
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import urdf_task
 
 from balance_opt.errors import InputError
 from balance_opt.geometry import shapes
@@ -333,16 +334,12 @@ def test_baxter_plan_is_collision_free():
 
 
 def _toy_task(tmp_path, balance, srdf=None):
-    (tmp_path / "toy.urdf").write_text(toy_urdf())
-    task = tmp_path / "toy.yaml"
-    task.write_text(
-        "name: toy\nrobot:\n  urdf: toy.urdf\n"
-        + (f"  srdf: {srdf}\n" if srdf else "")
-        + "arms: {mission: [yaw], balance: [turn, swing]}\n"
+    body = (
+        "arms: {mission: [yaw], balance: [turn, swing]}\n"
         f"initial: {{balance: {list(balance)}}}\n"
         "mission: {type: ptp, start: [0.0], goal: [0.6], duration: 3.0}\n"
     )
-    return task
+    return urdf_task(tmp_path, "toy", toy_urdf(), body, srdf)
 
 
 def test_geometry_summary_against_coal(toy):

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import urdf_task
 
 from balance_opt.geometry import self_collision
 from balance_opt.geometry.clearance import clearance
@@ -112,16 +113,12 @@ def test_a_pair_in_contact_in_the_reference_pose_is_disabled_as_default(wrists):
 
 
 def _wrist_task(tmp_path, srdf=None):
-    (tmp_path / "wrists.urdf").write_text(wrist_urdf())
-    task = tmp_path / "wrists.yaml"
-    task.write_text(
-        "name: wrists\nrobot:\n  urdf: wrists.urdf\n"
-        + (f"  srdf: {srdf}\n" if srdf else "")
-        + "arms: {mission: [j1, j2, j3], balance: [k1, k2]}\n"
+    body = (
+        "arms: {mission: [j1, j2, j3], balance: [k1, k2]}\n"
         "initial: {balance: [0.0, 0.0]}\n"
         "mission: {type: ptp, start: [0.0, 0.5, 0.0], goal: [0.8, 1.5, 1.0], duration: 2.0}\n"
     )
-    return task
+    return urdf_task(tmp_path, "wrists", wrist_urdf(), body, srdf)
 
 
 def test_a_plan_through_always_overlapping_wrists_reports_no_collision(tmp_path, wrists):
