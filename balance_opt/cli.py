@@ -249,9 +249,15 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_inspect(args) -> int:
+    from balance_opt.errors import InputError
     from balance_opt.model.summary import robot_summary
     from balance_opt.model.symbolic import backend_description  # builds the bridge if used
 
+    srdf = None if args.write_srdf is None else Path(args.write_srdf)
+    if srdf is not None and args.task is None:
+        raise InputError("inspect --write-srdf: give a task file (its robot, locks and ignores)")
+    if srdf is not None and srdf.exists() and not args.force:  # before the work, not after
+        raise InputError(f"{srdf} exists; use --force to replace it, or choose another file")
     if args.task is None:
         from balance_opt.model.library import paper_robot
 
@@ -262,14 +268,31 @@ def _cmd_inspect(args) -> int:
     print(f"task {task.name} ({task.source}, sha256 {task.sha256[:12]})")
     print(robot_summary(task.robot, task.q0))
     _print_cartesian_goal(task)
-    _print_geometry(task)
+    geometry = _print_geometry(task)
     print(f"symbolic backend: {backend_description(task.spec.robot.backend)}")
+    if srdf is not None:
+        _write_srdf(task, geometry, srdf)
     return EXIT_OK
 
 
-def _print_geometry(task) -> None:
+def _write_srdf(task, geometry, path: Path) -> None:
+    """The SRDF of the pairs the robot leaves out (not the task's), for the user to review."""
+    from balance_opt.errors import InputError
+    from balance_opt.geometry.self_collision import srdf_text
+    from balance_opt.report.output_dir import replaced_atomically
+
+    if geometry is None:
+        raise InputError(f"--write-srdf {path}: the robot's geometry is not loaded")
+    text = srdf_text(task.robot.name, geometry.disabled)
+    with replaced_atomically(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    print(f"wrote {path}: {len(geometry.disabled)} disabled link pairs")
+
+
+def _print_geometry(task):
     """What the clearance check and the planner's collision avoidance hold apart (the task's
-    ignored pairs and SRDF applied) and the pairs already close at the initial configuration."""
+    ignored pairs and SRDF applied, or the computed pairs) and the pairs already close at the
+    initial configuration; the geometry, or None when it does not load."""
     from balance_opt.errors import InputError
     from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
 
@@ -280,18 +303,30 @@ def _print_geometry(task) -> None:
         )
     except NoGeometryError as exc:
         print(f"geometry: none ({exc}): no clearance check, no collision avoidance")
-        return
+        return None
     except InputError as exc:
         print(f"geometry: not loaded ({exc})")
-        return
+        return None
     s = geometry.summary(task.q0, planner.collision_margin)
     left_out = s["link_pairs_ignored"]
     print(
         f"geometry from the URDF's <{s['source']}> elements: {s['pairs_checked']} pairs checked; "
         f"link pairs left out: {left_out['same body']} same body, {left_out['adjacent']} "
-        f"adjacent, {left_out['srdf']} by the SRDF, {left_out['ignored']} ignored by the task"
+        f"adjacent, {left_out['srdf']} by the SRDF, {left_out['default'] + left_out['always']} "
+        f"computed, {left_out['ignored']} ignored by the task"
     )
-    print(f"  SRDF: {s['srdf'] or 'none'}")
+    if s["srdf"] is not None:
+        print(f"  pairs left out by the SRDF {s['srdf']}")
+    else:
+        print(
+            f"  pairs left out computed (no SRDF): {left_out['adjacent']} adjacent, "
+            f"{left_out['default']} in the reference pose, {left_out['always']} in nearly "
+            f"every sampled configuration ({s['samples']} samples)"
+        )
+        for reason, what in (("default", "reference pose"), ("always", "nearly always")):
+            pairs = [f"{a} / {b}" for (a, b), r in sorted(geometry.ignored.items()) if r == reason]
+            if pairs:
+                print(f"    {what}: {', '.join(pairs)}")
     close = s["initial_contacts"] + s["initial_within_margin"]
     if not close:
         print(f"  at the initial configuration every pair is at least {s['margin_m']:g} m apart")
@@ -303,7 +338,11 @@ def _print_geometry(task) -> None:
             pairs = ", ".join(f"{c['pair']} ({c['distance_m']:.4f} m)" for c in items)
             print(f"  {kind} at the initial configuration: {pairs}")
     if s["initial_contacts"]:
-        print("  (pairs in contact at the start are left out of the optimal plan)")
+        print(
+            "  (the task starts in collision: the optimal planner refuses it; move the initial "
+            "configuration, or leave the pairs out with robot.srdf or optimal.collision.ignore)"
+        )
+    return geometry
 
 
 def _print_cartesian_goal(task) -> None:
@@ -620,6 +659,13 @@ def _add_commands(sub) -> None:
     p = command("inspect", _cmd_inspect, "print a robot summary and its coupling measures")
     p.add_argument("task", nargs="?", help="task file (default: the paper's Table 1 robot)")
     _backend_option(p)
+    p.add_argument(
+        "--write-srdf",
+        metavar="FILE",
+        help="write the link pairs the robot leaves out of the collision checks (computed, or "
+        "its SRDF's) as an SRDF, to review, edit and give as robot.srdf",
+    )
+    _flag(p, "-f", "--force", help="replace the --write-srdf FILE if it exists")
 
     for name, help in (
         ("plan", "plan the balance motion, write trajectories, metrics, figures, report"),

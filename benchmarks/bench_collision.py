@@ -2,9 +2,9 @@
 ``optimal.collision.avoid`` on and off, side by side.
 
 For each plan: the peak and final drift of the re-simulated motion, the smallest exact distance
-between the robot's checked bodies (coal, every pair not left out by adjacency, SRDF or
-contact at the start) on a 1 ms grid of the motion (joint positions interpolated linearly
-between the re-simulation's samples) and the pair that comes closest, the certified lower bound
+between the robot's checked bodies (coal, every pair the robot's geometry checks:
+docs/collision.md, "Which pairs are checked") on a 1 ms grid of the motion (joint positions
+interpolated linearly between the re-simulation's samples) and the pair that comes closest, the certified lower bound
 of :func:`~balance_opt.geometry.clearance.clearance` on the continuous motion, Ipopt's
 iterations and time (every solve behind the plan) per iteration, split into the calls of the
 cost and its gradient, of the constraints and their derivatives (``g``, Jacobian, Hessian of the

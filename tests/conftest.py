@@ -21,6 +21,17 @@ from balance_opt.model.bridge import FOLDER
 from balance_opt.optimal.collocation import joint_chain_coefficients
 
 
+def urdf_task(folder: Path, name: str, urdf: str, body: str, srdf: str | None = None) -> Path:
+    """A task file ``NAME.yaml`` in ``folder`` on the URDF text ``urdf`` (written as
+    ``NAME.urdf`` beside it), with ``robot.srdf`` if given, and the rest of the task
+    ``body`` (YAML: arms, initial, mission)."""
+    (folder / f"{name}.urdf").write_text(urdf)
+    task = folder / f"{name}.yaml"
+    srdf_line = f"  srdf: {srdf}\n" if srdf else ""
+    task.write_text(f"name: {name}\nrobot:\n  urdf: {name}.urdf\n{srdf_line}{body}")
+    return task
+
+
 def copy_programs(source_cache: Path, target_cache: Path) -> list[Path]:
     """Copy the bridge programs built in the cache folder ``source_cache`` (those whose bytes
     match their records) into ``target_cache``'s bridge folder, where it has none; the source

@@ -1,12 +1,11 @@
 """Collision geometry, the clearance check and collision avoidance in the optimal planner
 (issue 24), against coal's exact distances and Pinocchio's kinematics."""
 
-import logging
-
 import casadi as cs
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import urdf_task
 
 from balance_opt.errors import InputError
 from balance_opt.geometry import shapes
@@ -252,20 +251,30 @@ def test_planner_keeps_the_arm_out_of_the_base():
     assert safe.q_B[-1, 1] > 0.05
 
 
-def test_pairs_in_contact_at_the_start_are_reported_and_left_out(caplog):
+def test_a_start_in_collision_is_refused_before_the_solve():
+    """The boom 1 rad down starts 0.13 m inside the cube: a pair in contact only sometimes
+    (neither in the reference pose nor nearly always), so the task's fault, not a pair to
+    leave out of the plan."""
     from balance_opt.motion.trajectories import PointToPoint
+    from balance_opt.optimal.collision import InitialCollisionError
     from balance_opt.optimal.model import PlannerModel
     from balance_opt.optimal.options import PlannerOptions
     from balance_opt.optimal.solve import build_balance_nlp
 
     robot = FloatingRobot(toy_urdf(), ["yaw"], ["turn", "swing"])
     model = PlannerModel(robot, compile=False, store=False)
-    with caplog.at_level(logging.WARNING, logger="balance_opt.optimal.collision"):
-        nlp = build_balance_nlp(
+    message = (
+        r"^toy: the initial configuration is in collision: base / boom \(0\.1300 m deep\); "
+        r"move it, or leave the pairs out \(robot\.srdf, optimal\.collision\.ignore\) if "
+        r"the geometry overlaps there by design$"
+    )
+    with pytest.raises(InitialCollisionError, match=message) as caught:
+        build_balance_nlp(
             model, PointToPoint([0.0], [0.6], 3.0), [0.0, 1.0], PlannerOptions(intervals=10)
         )
-    assert [p.name for p in nlp.collision.initial_contacts] == ["base / boom"]
-    assert "base / boom" in caplog.text
+    assert caught.value.pairs == ["base / boom"]
+    options = PlannerOptions(intervals=10, collision_ignore=(("base", "boom"),))
+    nlp = build_balance_nlp(model, PointToPoint([0.0], [0.6], 3.0), [0.0, 1.0], options)
     assert "base / boom" not in {p.name for p in nlp.collision.pairs}
     bare = FloatingRobot(toy_urdf(tags=()), ["yaw"], ["turn", "swing"])
     with pytest.raises(InputError, match="has no <collision> or <visual> geometry"):
@@ -325,16 +334,12 @@ def test_baxter_plan_is_collision_free():
 
 
 def _toy_task(tmp_path, balance, srdf=None):
-    (tmp_path / "toy.urdf").write_text(toy_urdf())
-    task = tmp_path / "toy.yaml"
-    task.write_text(
-        "name: toy\nrobot:\n  urdf: toy.urdf\n"
-        + (f"  srdf: {srdf}\n" if srdf else "")
-        + "arms: {mission: [yaw], balance: [turn, swing]}\n"
+    body = (
+        "arms: {mission: [yaw], balance: [turn, swing]}\n"
         f"initial: {{balance: {list(balance)}}}\n"
         "mission: {type: ptp, start: [0.0], goal: [0.6], duration: 3.0}\n"
     )
-    return task
+    return urdf_task(tmp_path, "toy", toy_urdf(), body, srdf)
 
 
 def test_geometry_summary_against_coal(toy):
@@ -343,7 +348,10 @@ def test_geometry_summary_against_coal(toy):
     exact = dict(zip((p.name for p in geometry.pairs), geometry.distances(q)))
     s = geometry.summary(q, margin=0.05)
     assert (s["source"], s["srdf"], s["pairs_checked"]) == ("collision", None, 4)
-    assert s["link_pairs_ignored"] == {"same body": 0, "adjacent": 3, "srdf": 0, "ignored": 0}
+    assert s["samples"] == 1000
+    assert s["link_pairs_ignored"] == {
+        "same body": 0, "adjacent": 3, "default": 0, "always": 0, "srdf": 0, "ignored": 0
+    }  # fmt: skip
     # coal's penetration depth (EPA, warm-started) varies in its last digits between calls
     [contact] = s["initial_contacts"]
     assert contact["pair"] == "base / boom"
@@ -368,14 +376,26 @@ def test_inspect_says_what_is_checked_and_what_starts_in_contact(tmp_path, capsy
     out = capsys.readouterr().out
     assert (
         "geometry from the URDF's <collision> elements: 3 pairs checked; link pairs left out: "
-        "0 same body, 3 adjacent, 1 by the SRDF, 0 ignored by the task\n"
-        f"  SRDF: {tmp_path / 'toy.srdf'}\n"
+        "0 same body, 3 adjacent, 1 by the SRDF, 0 computed, 0 ignored by the task\n"
+        f"  pairs left out by the SRDF {tmp_path / 'toy.srdf'}\n"
         "  in contact at the initial configuration: base / boom (-0."
     ) in out
-    assert "(pairs in contact at the start are left out of the optimal plan)" in out
+    assert (
+        "  (the task starts in collision: the optimal planner refuses it; move the initial "
+        "configuration, or leave the pairs out with robot.srdf or optimal.collision.ignore)\n"
+    ) in out
+    # without robot.srdf, the SRDF named after the URDF beside it is found
+    assert main(["inspect", str(_toy_task(tmp_path, [0.0, -0.5]))]) == 0
+    assert f"  pairs left out by the SRDF {tmp_path / 'toy.srdf'}\n" in capsys.readouterr().out
+    (tmp_path / "toy.srdf").unlink()
     assert main(["inspect", str(_toy_task(tmp_path, [0.0, -0.5]))]) == 0
     out = capsys.readouterr().out
-    assert "4 pairs checked" in out and "  SRDF: none\n" in out
+    assert (
+        "link pairs left out: 0 same body, 3 adjacent, 0 by the SRDF, 0 computed, 0 ignored by "
+        "the task\n  pairs left out computed (no SRDF): 3 adjacent, 0 in the reference pose, 0 "
+        "in nearly every sampled configuration (1000 samples)\n"
+    ) in out
+    assert "4 pairs checked" in out
     assert "  at the initial configuration every pair is at least 0.03 m apart\n" in out
 
 

@@ -265,7 +265,7 @@ def capture_geometry(run: TaskRun):
         try:
             geometry = RobotGeometry(
                 run.task.robot_after_capture,
-                srdf=run.geometry.srdf or False,
+                disabled=run.geometry.disabled,  # the same pairs as before the capture
                 ignore=run.task.spec.optimal.planner.collision_ignore,
             )
         except InputError as exc:  # a mesh not found from the URDF text: the rest still counts

@@ -1,14 +1,16 @@
 """The volume of a robot's bodies: Pinocchio's geometry model (meshes as convex hulls, so
 distances are signed and hold for the meshes), the pairs checked and exact distances (coal).
 A *body* is a joint of the reduced model; pairs of one body, of adjacent bodies, named by an
-SRDF or by the caller are left out (``docs/collision.md``).
+SRDF (or, without one, computed as MoveIt's setup assistant does:
+:mod:`~balance_opt.geometry.self_collision`) or by the caller are left out
+(``docs/collision.md``).
 """
 
 from __future__ import annotations
 
 import logging
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -17,6 +19,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
+from balance_opt.geometry import self_collision
 from balance_opt.model.capture import TARGET_LINK
 from balance_opt.model.library import DISTRIBUTION, example_robots
 from balance_opt.model.robot import FloatingRobot
@@ -58,10 +61,14 @@ def package_dirs(urdf_path: Path | None) -> list[str]:
 
 
 def default_srdf(urdf_path: Path | None) -> Path | None:
-    """The SRDF shipped next to a URDF (``../srdf/*.srdf`` of its description folder), if
-    exactly one, or one named after the URDF."""
+    """The SRDF beside a URDF: ``NAME.srdf`` next to ``NAME.urdf``, else the one shipped in
+    ``../srdf/`` of its description folder (example-robot-data), if exactly one there or one
+    named after the URDF."""
     if urdf_path is None:
         return None
+    beside = urdf_path.resolve().with_suffix(".srdf")
+    if beside.is_file():
+        return beside
     folder = urdf_path.resolve().parent.parent / "srdf"
     found = sorted(folder.glob("*.srdf")) if folder.is_dir() else []
     named = [p for p in found if p.stem == urdf_path.stem]
@@ -76,14 +83,20 @@ class RobotGeometry:
     Args:
         robot: the robot (its reduced model: locked joints are fixed).
         srdf: an SRDF whose ``<disable_collisions>`` pairs are left out; default: the one
-            shipped next to the URDF (example-robot-data), if any; ``False``: none.
+            beside the URDF (:func:`default_srdf`), if any; ``False``: none. Without an SRDF
+            the pairs in contact in the reference pose or in nearly every configuration are
+            computed (:func:`~balance_opt.geometry.self_collision.disabled_pairs`).
         ignore: pairs of link names left out as well.
+        disabled: link pairs to leave out with their reasons, instead of an SRDF's or computed
+            ones (the robot after a capture takes those of the robot before it).
 
     Attributes:
         geometry_model: Pinocchio's geometry model (meshes as convex hulls), its collision pairs
             the checked ones.
         source: ``"collision"`` or ``"visual"``: the URDF elements the geometry was built from.
-        srdf: the SRDF applied, or ``None``.
+        srdf: the SRDF applied, or ``None`` (the pairs were computed, or ``disabled`` given).
+        samples: the configurations sampled to compute the pairs (0: an SRDF or ``disabled``
+            gave them).
         pairs: the checked pairs (:class:`Pair`), in the geometry model's order.
         ignored: the pairs left out, ``{(link, link): reason}``.
 
@@ -97,6 +110,7 @@ class RobotGeometry:
         robot: FloatingRobot,
         srdf: str | Path | bool | None = None,
         ignore: Iterable[Sequence[str]] = (),
+        disabled: Mapping[tuple[str, str], str] | None = None,
     ):
         self.robot = robot
         self.model = robot.model
@@ -139,16 +153,30 @@ class RobotGeometry:
             "adjacent",
         )
         self.srdf = None
-        if srdf is not False:
+        self.samples = 0
+        path = None
+        if srdf is not False and disabled is None:
             path = Path(srdf) if srdf not in (None, True) else default_srdf(urdf_path)
-            if path is not None:
-                if not path.is_file():
-                    raise InputError(f"SRDF {path}: no such file")
-                before = self._pair_links()
-                pin.removeCollisionPairs(self.model, geom, str(path))
-                for links in before - self._pair_links():
-                    self.ignored.setdefault(links, "srdf")
-                self.srdf = path
+        if path is not None:
+            if not path.is_file():
+                raise InputError(f"SRDF {path}: no such file")
+            before = self._pair_links()
+            pin.removeCollisionPairs(self.model, geom, str(path))
+            for links in before - self._pair_links():
+                self.ignored.setdefault(links, "srdf")
+            self.srdf = path
+        else:
+            if disabled is None:
+                self.geometry_data = pin.GeometryData(geom)
+                self.data = self.model.createData()
+                self.pairs = self._make_pairs()
+                self.samples = self_collision.SAMPLES
+                disabled = self_collision.disabled_pairs(self, self.samples)
+            for reason in dict.fromkeys(disabled.values()):
+                chosen = {frozenset(k) for k, r in disabled.items() if r == reason}
+                self._drop(
+                    lambda a, b: frozenset((self._link(a), self._link(b))) in chosen, reason
+                )
         names = {self.link(i) for i in range(geom.ngeoms)}
         wanted = set()
         for pair in ignore:
@@ -238,11 +266,18 @@ class RobotGeometry:
         d = self.distances(q)
         return [p for p in self.pairs if d[p.index] <= 0.0]
 
+    @property
+    def disabled(self) -> dict[tuple[str, str], str]:
+        """The link pairs the robot leaves out, not the task (``ignored`` less the task's)."""
+        return {k: r for k, r in self.ignored.items() if r != "ignored"}
+
     def summary(self, q, margin: float = 0.0) -> dict:
         """What is checked, as plain data (``metrics.json``'s ``geometry``, ``inspect``): the
-        geometry's source, the SRDF, the checked pairs, the pairs left out by reason, and the
-        pairs closer than ``margin`` [m] at ``q``, closest first."""
-        ignored = dict.fromkeys(("same body", "adjacent", "srdf", "ignored"), 0)
+        geometry's source, the SRDF, the samples of computed pairs, the checked pairs, the pairs
+        left out by reason, and the pairs closer than ``margin`` [m] at ``q``, closest
+        first."""
+        reasons = ("same body", "adjacent", "default", "always", "srdf", "ignored")
+        ignored = dict.fromkeys(reasons, 0)
         for reason in self.ignored.values():
             ignored[reason] += 1
         d = self.distances(q) if self.pairs else np.empty(0)
@@ -250,6 +285,7 @@ class RobotGeometry:
         return {
             "source": self.source,
             "srdf": None if self.srdf is None else str(self.srdf),
+            "samples": self.samples,
             "pairs_checked": len(self.pairs),
             "link_pairs_ignored": ignored,
             "margin_m": float(margin),

@@ -10,6 +10,7 @@ import casadi as cs
 import numpy as np
 import pinocchio as pin
 
+from balance_opt.errors import InputError
 from balance_opt.geometry.clearance import ClearanceReport, PairClearance, clearance
 from balance_opt.geometry.robot_geometry import NoGeometryError, Pair, RobotGeometry
 from balance_opt.geometry.shapes import ClearanceRows, clearance_rows, moved_by
@@ -37,6 +38,21 @@ WATCH = 0.05
 ALONE_GAP = 0.01
 
 
+class InitialCollisionError(InputError):
+    """Checked pairs in contact at a plan's initial configuration: no plan can keep them
+    apart, and every plan's clearance check would report them."""
+
+    def __init__(self, geometry: RobotGeometry, q0: np.ndarray, contacts: list[Pair]):
+        d = geometry.distances(q0, [p.index for p in contacts])
+        self.pairs = [p.name for p in contacts]
+        pairs = ", ".join(f"{p.name} ({max(-x, 0.0):.4f} m deep)" for p, x in zip(contacts, d))
+        super().__init__(
+            f"{geometry.robot.name}: the initial configuration is in collision: {pairs}; "
+            "move it, or leave the pairs out (robot.srdf, optimal.collision.ignore) if the "
+            "geometry overlaps there by design"
+        )
+
+
 @dataclass
 class CollisionSetup:
     """The collision avoidance of one problem."""
@@ -44,7 +60,6 @@ class CollisionSetup:
     geometry: RobotGeometry
     rows: ClearanceRows
     pairs: list[Pair]
-    initial_contacts: list[Pair]
     initial_rows: np.ndarray
     owner: dict[int, int | None]
     threshold: dict[int, float]
@@ -155,18 +170,9 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     robot = geometry.robot
     moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
     contacts = geometry.contacts(q0)
-    if contacts:
-        log.warning(
-            "%s: pairs in contact at the initial configuration, not checked in this plan: %s",
-            robot.name,
-            ", ".join(p.name for p in contacts),
-        )
-    touching = {p.index for p in contacts}
-    pairs = [
-        p
-        for p in geometry.pairs
-        if p.index not in touching and {geometry.body(p.first), geometry.body(p.second)} & moved
-    ]
+    if contacts:  # not disabled (SRDF, reference pose, nearly always): the task's own fault
+        raise InitialCollisionError(geometry, q0, contacts)
+    pairs = [p for p in geometry.pairs if {geometry.body(p.first), geometry.body(p.second)} & moved]
     out_of_reach = _out_of_reach(geometry, pairs, moved, options.collision_margin + WATCH)
     pairs = [p for p in pairs if p.index not in out_of_reach]
     if not pairs:
@@ -194,7 +200,7 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)
     threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, contacts, initial, owner, threshold)
+    return CollisionSetup(geometry, rows, pairs, initial, owner, threshold)
 
 
 def report(problem, result) -> ClearanceReport:

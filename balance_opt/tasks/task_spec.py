@@ -44,8 +44,9 @@ class RobotSpec:
     srdf: str | None = setting(
         None,
         doc="path of an SRDF file, relative to the task file, whose disable_collisions pairs "
-        "the clearance check and the collision avoidance leave out (default: the SRDF shipped "
-        "with an example-robot-data robot, if any)",
+        "the clearance check and the collision avoidance leave out (default: NAME.srdf beside "
+        "NAME.urdf, or the SRDF shipped with an example-robot-data robot; without one, the "
+        "pairs are computed: `balance-opt inspect TASK --write-srdf FILE` writes them)",
     )
     backend: Literal[SYMBOLIC_BACKENDS] = setting(
         "auto",

@@ -1,0 +1,203 @@
+"""Self-collision pairs of a robot without an SRDF, computed as MoveIt's setup assistant does
+(issue 34): a pair in contact in nearly every configuration is disabled, one in contact only
+sometimes is checked, and every part of a run uses the same pairs."""
+
+import json
+
+import numpy as np
+import pytest
+from conftest import urdf_task
+
+from balance_opt.geometry import self_collision
+from balance_opt.geometry.clearance import clearance
+from balance_opt.geometry.robot_geometry import RobotGeometry
+from balance_opt.model.robot import FloatingRobot
+
+INERTIA = '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>'
+
+
+def _link(name, mass, *collisions):
+    shapes = "".join(
+        f'<collision><origin xyz="{xyz}"/><geometry>{g}</geometry></collision>'
+        for xyz, g in collisions
+    )
+    return (
+        f'<link name="{name}"><inertial><mass value="{mass}"/>{INERTIA}</inertial>{shapes}'
+        "</link>"
+    )
+
+
+def _joint(name, parent, child, xyz, axis, limit):
+    return (
+        f'<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
+        f'<origin xyz="{xyz}"/><axis xyz="{axis}"/>'
+        f'<limit lower="-{limit}" upper="{limit}" velocity="2" effort="50"/></joint>'
+    )
+
+
+def wrist_urdf() -> str:
+    """A 0.2 m cube; on top (0.6 m up) a mission arm ``j1`` (about z) - ``j2`` (about z) -
+    ``j3`` whose link ``l3`` is a sphere of radius 0.02 at 0.2 m from ``j2``'s axis; ``l1``
+    carries two slabs 0.04 m either side of that axis' plane: the sphere is inside one of them
+    unless ``|sin q2| < 0.1``, in 3.3 % of ``q2``'s range [-3, 3] (clear at zero). Below the
+    cube, the balance arm's ``paddle`` (0.3 m along x, ``k2`` about y, 0.05 m below the cube,
+    turned about z by ``k1`` through a link without geometry: the cube and the paddle are not
+    adjacent) swings into the cube from about 0.3 rad up, in a third of its range."""
+    slab = '<box size="0.6 0.26 0.1"/>'
+    return (
+        '<robot name="wrists">'
+        + _link("base", 100.0, ("0 0 0", '<box size="0.2 0.2 0.2"/>'))
+        + _link("l1", 2.0, ("0 0.17 0", slab), ("0 -0.17 0", slab))
+        + _link("l2", 1.0)
+        + _link("l3", 1.0, ("0 0 0", '<sphere radius="0.02"/>'))
+        + _link("paddle", 2.0, ("0.15 0 0", '<box size="0.3 0.04 0.04"/>'))
+        + _joint("j1", "base", "l1", "0 0 0.6", "0 0 1", 3.0)
+        + _joint("j2", "l1", "l2", "0 0 0", "0 0 1", 3.0)
+        + _joint("j3", "l2", "l3", "0.2 0 0", "1 0 0", 3.0)
+        + _link("hub", 1.0)
+        + _joint("k1", "base", "hub", "0 0 -0.15", "0 0 1", 3.0)
+        + _joint("k2", "hub", "paddle", "0 0 0", "0 1 0", 2.0)
+        + "</robot>"
+    )
+
+
+@pytest.fixture(scope="module")
+def wrists():
+    return FloatingRobot(wrist_urdf(), ["j1", "j2", "j3"], ["k1", "k2"])
+
+
+def _in_contact(geometry, links, samples=2000, seed=7):
+    """Configurations (another seed than the rule's) and whether the pair of ``links`` is in
+    contact at each."""
+    q = self_collision.sample_configurations(geometry.robot, samples, seed)
+    return q, geometry.smallest_along(q, _object_pairs(geometry, links)) <= 0.0
+
+
+def _object_pairs(geometry, links):
+    return [p.index for p in geometry.pairs if set(p.links) == set(links)]
+
+
+def test_pairs_in_contact_nearly_always_are_disabled_the_others_checked(wrists):
+    bare = RobotGeometry(wrists, disabled={})  # no SRDF, nothing computed
+    assert bare.samples == 0 and bare.srdf is None
+    q, touch = _in_contact(bare, ("l1", "l3"))
+    gap = 0.2 * np.abs(np.sin(q[:, 1])) - 0.02  # how far the sphere reaches into a slab
+    assert np.array_equal(touch[np.abs(gap) > 1e-6], gap[np.abs(gap) > 1e-6] > 0.0)
+    assert 0.95 < touch.mean() < 1.0 and not touch[np.abs(q[:, 1]) < 0.09].any()
+    assert 0.2 < _in_contact(bare, ("base", "paddle"))[1].mean() < 0.5
+    geometry = RobotGeometry(wrists)
+    assert geometry.srdf is None and geometry.samples == self_collision.SAMPLES == 1000
+    assert geometry.ignored == {
+        ("base", "l1"): "adjacent",
+        ("l1", "l3"): "always",
+    }
+    assert {frozenset(p.links) for p in geometry.pairs} == {
+        frozenset(p.links) for p in bare.pairs
+    } - {frozenset(("l1", "l3"))}
+    assert "paddle" in {link for p in geometry.pairs for link in p.links}
+    # the same robot gives the same pairs
+    assert RobotGeometry(wrists).ignored == geometry.ignored
+
+
+def test_a_pair_in_contact_in_the_reference_pose_is_disabled_as_default(wrists):
+    """With ``j2`` limited to [0.3, 3] rad the sphere sits inside a slab in every pose, the
+    reference pose (``j2`` at 0.3 rad, zero moved inside the limits) among them: contact in the
+    reference pose is the reason given."""
+    narrow = FloatingRobot(
+        wrist_urdf(), ["j1", "j2", "j3"], ["k1", "k2"], limits={"j2": {"lower": 0.3}}
+    )
+    assert narrow.neutral()[1] == 0.3
+    geometry = RobotGeometry(narrow)
+    assert geometry.ignored[("l1", "l3")] == "default"
+    assert geometry.summary(narrow.neutral())["link_pairs_ignored"]["default"] == 1
+
+
+def _wrist_task(tmp_path, srdf=None):
+    body = (
+        "arms: {mission: [j1, j2, j3], balance: [k1, k2]}\n"
+        "initial: {balance: [0.0, 0.0]}\n"
+        "mission: {type: ptp, start: [0.0, 0.5, 0.0], goal: [0.8, 1.5, 1.0], duration: 2.0}\n"
+    )
+    return urdf_task(tmp_path, "wrists", wrist_urdf(), body, srdf)
+
+
+def test_a_plan_through_always_overlapping_wrists_reports_no_collision(tmp_path, wrists):
+    from balance_opt.cli import main
+
+    out = tmp_path / "out"
+    argv = ["plan", str(_wrist_task(tmp_path)), "-m", "mission-only", "-o", str(out), "-q"]
+    assert main(argv) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    geometry = metrics["geometry"]
+    assert (geometry["srdf"], geometry["samples"]) == (None, 1000)
+    assert geometry["link_pairs_ignored"]["always"] == 1
+    assert geometry["initial_contacts"] == []
+    reference = metrics["methods"]["mission-only"]["clearance"]
+    assert reference["collision_free"] and reference["first_penetration"] is None
+    # the wrists overlap on the whole motion: checked, they would be a collision from t = 0
+    from balance_opt.app.pipeline import plan
+    from balance_opt.tasks.task import load_task
+
+    result = plan(load_task(tmp_path / "wrists.yaml"), "mission-only")
+    q = np.hstack([result.q_M, result.q_B])
+    bare = RobotGeometry(wrists, disabled={})
+    pairs = _object_pairs(bare, ("l1", "l3"))
+    assert bare.smallest_along(q, pairs).max() < 0.0
+    assert clearance(bare, result.t, q, pairs=pairs).first_penetration.time == 0.0
+
+
+def test_an_optimal_plan_starts_with_the_wrists_overlapping(wrists):
+    from balance_opt.motion.trajectories import PointToPoint
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.options import PlannerOptions
+    from balance_opt.optimal.solve import build_balance_nlp
+
+    model = PlannerModel(wrists, compile=False, store=False)
+    mission = PointToPoint([0.0, 0.5, 0.0], [0.8, 1.5, 1.0], 2.0)
+    nlp = build_balance_nlp(model, mission, [0.0, 0.0], PlannerOptions(intervals=10))
+    assert nlp.collision.geometry.ignored[("l1", "l3")] == "always"
+    kept = {frozenset(p.links) for p in nlp.collision.pairs}
+    assert frozenset(("base", "paddle")) in kept and frozenset(("l1", "l3")) not in kept
+
+
+def test_write_srdf_round_trips_and_keeps_an_existing_file(tmp_path, capsys):
+    from balance_opt.cli import main
+    from balance_opt.tasks.task import load_task
+
+    task = _wrist_task(tmp_path)
+    srdf = tmp_path / "reviewed.srdf"
+    assert main(["inspect", str(task), "--write-srdf", str(srdf)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "geometry from the URDF's <collision> elements: 5 pairs checked; link pairs left out: "
+        "0 same body, 1 adjacent, 0 by the SRDF, 1 computed, 0 ignored by the task\n"
+        "  pairs left out computed (no SRDF): 1 adjacent, 0 in the reference pose, 1 in nearly "
+        "every sampled configuration (1000 samples)\n"
+        "    nearly always: l1 / l3\n"
+    ) in out
+    assert f"wrote {srdf}: 2 disabled link pairs\n" in out
+    assert srdf.read_text() == (
+        '<robot name="wrists">\n'
+        '  <disable_collisions link1="base" link2="l1" reason="Adjacent" />\n'
+        '  <disable_collisions link1="l1" link2="l3" reason="Always" />\n'
+        "</robot>\n"
+    )
+    computed = RobotGeometry(load_task(task).robot)
+    given = load_task(_wrist_task(tmp_path, srdf="reviewed.srdf"))
+    loaded = RobotGeometry(given.robot, srdf=given.planner_options().collision_srdf)
+    assert loaded.srdf == srdf and loaded.samples == 0
+    assert [p.links for p in loaded.pairs] == [p.links for p in computed.pairs]
+    assert main(["inspect", str(tmp_path / "wrists.yaml")]) == 0
+    assert f"  pairs left out by the SRDF {srdf}\n" in capsys.readouterr().out
+    # an existing file is kept unless --force
+    srdf.write_text("<robot/>")
+    assert main(["inspect", str(task), "--write-srdf", str(srdf)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err == (
+        f"balance-opt: error: {srdf} exists; use --force to replace it, or choose another file\n"
+    )
+    assert srdf.read_text() == "<robot/>"
+    task = _wrist_task(tmp_path)  # without robot.srdf again: the pairs computed
+    assert main(["inspect", str(task), "--write-srdf", str(srdf), "--force"]) == 0
+    assert 'reason="Always"' in srdf.read_text()
