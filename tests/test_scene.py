@@ -18,6 +18,7 @@ import pytest
 import umsgpack
 
 from balance_opt.cli import main
+from balance_opt.motion.result import BalanceResult
 from balance_opt.report.outputs import write_trajectory_npz
 from balance_opt.report.scene import (
     ARM_COLOURS,
@@ -37,7 +38,6 @@ from balance_opt.motion.so3 import (
     relative_rotation,
     rotvec_from_quaternion,
 )
-from balance_opt.result import BalanceResult
 
 ROOT = Path(__file__).resolve().parents[1]
 ATOL = 1e-9

@@ -20,9 +20,9 @@ from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.motion.replay import attitude_from_rates, replay, rk4_stage_times
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import rotation_angle
 from balance_opt.motion.trajectories import SampledTrajectory, arm_samples
-from balance_opt.result import BalanceResult
 
 #: Smallest eigenvalue of a body's second moment before it is perturbed, relative to its trace
 #: (or its mass, in kg m^2, for a point mass).

@@ -28,6 +28,7 @@ import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import (
     matrix_from_quaternion,
     quaternion_from_rotvec,
@@ -35,7 +36,6 @@ from balance_opt.motion.so3 import (
     rotvec_from_quaternion,
 )
 from balance_opt.report.style import ARM_COLOURS, method_label
-from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
