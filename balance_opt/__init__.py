@@ -27,8 +27,8 @@ __version__ = "0.1.0"
 
 #: Public names imported on first use: ``name -> module``.
 _LAZY = {
-    "BalanceResult": "balance_opt.result",
-    "LimitViolation": "balance_opt.result",
+    "BalanceResult": "balance_opt.motion.result",
+    "LimitViolation": "balance_opt.motion.result",
     "Task": "balance_opt.tasks.task",
     "load_task": "balance_opt.tasks.task",
     "task_from_dict": "balance_opt.tasks.task",
@@ -52,8 +52,8 @@ if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ impo
         simulate,
     )
     from balance_opt.dynamics.simulation import SimulationResult
+    from balance_opt.motion.result import BalanceResult, LimitViolation
     from balance_opt.report.plots import plot_result
-    from balance_opt.result import BalanceResult, LimitViolation
     from balance_opt.tasks.task import Task, load_task, task_from_dict
 
 

@@ -44,19 +44,20 @@ def default_cache_dir() -> Path:
 
 @contextlib.contextmanager
 def file_lock(path: Path, blocking: bool = True) -> Iterator[None]:
-    """An exclusive ``flock`` on ``path`` (none where ``fcntl`` is missing); BlockingIOError
-    when not ``blocking`` and another process holds it."""
+    """An exclusive lock on ``path`` (``filelock``: ``flock`` on POSIX, ``msvcrt`` on Windows), a
+    new one per call (a second call waits, in this process too); BlockingIOError when not
+    ``blocking`` and it is held."""
+    import filelock
+
+    lock = filelock.FileLock(path, blocking=blocking)
     try:
-        import fcntl
-    except ImportError:  # Windows: concurrent builds stay correct (atomic rename)
+        lock.acquire()
+    except filelock.Timeout as exc:
+        raise BlockingIOError(f"{path}: locked by another process") from exc
+    try:
         yield
-        return
-    with open(path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+    finally:
+        lock.release()
 
 
 # ----------------------------------------------------------------------------- temporary builds

@@ -16,7 +16,6 @@ import os
 import re
 import signal
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -565,31 +564,25 @@ def _scene_page(source: Path, backend: str | None, folder: Path) -> Path:
     return pipeline.write_run_scene(run, folder / scene)
 
 
-def _wait_for_stop(server, url: str) -> None:
-    """Serve until Ctrl-C (tests replace this to fetch the page and return)."""
-    threading.Event().wait()
-
-
 def _cmd_view(args) -> int:
     import tempfile
     import webbrowser
 
-    from balance_opt.report.scene import serve
-
-    with tempfile.TemporaryDirectory(prefix="balance-opt-view-") as scratch:
-        page = _scene_page(Path(args.source), args.backend, Path(scratch))
-        server, url = serve(page, args.port)
-        try:
-            print(url, flush=True)
-            log.info("serving %s on %s (Ctrl-C stops)", page, url)
-            if not args.no_browser:
-                webbrowser.open(url, new=2)
-            _wait_for_stop(server, url)
-        except KeyboardInterrupt:
-            log.info("view: stopped")
-        finally:
-            server.shutdown()
-            server.server_close()
+    # a scene built here (of a task, or of an older result folder, which stays as it was) is
+    # kept for the browser to read after the command ends
+    folder = Path(tempfile.mkdtemp(prefix="balance-opt-view-"))
+    try:
+        page = _scene_page(Path(args.source), args.backend, folder).resolve()
+    finally:
+        if not any(folder.iterdir()):  # the result folder's own page, or an error
+            folder.rmdir()
+    print(page, flush=True)
+    if args.no_browser:
+        return EXIT_OK
+    if webbrowser.open(page.as_uri(), new=2):
+        log.info("opened %s in a browser", page.as_uri())
+    else:
+        log.warning("no browser found: open %s in one (the file is self-contained)", page)
     return EXIT_OK
 
 
@@ -739,14 +732,13 @@ def _add_commands(sub) -> None:
     p = command(
         "view",
         _cmd_view,
-        "show the 3D scene of a run's plans in a browser (served on 127.0.0.1)",
-        description="Serve the 3D scene of a result folder (its scene.html, or one built from "
-        "its NPZ files) or of a task file (planned first, both methods) on 127.0.0.1 and open "
-        "it in a browser; Ctrl-C stops.",
+        "open the 3D scene of a run's plans in a browser (a self-contained file)",
+        description="Open the 3D scene of a result folder (its scene.html, or one built from "
+        "its NPZ files into a temporary folder) or of a task file (planned first, both methods) "
+        "in a browser; prints the page's path.",
     )
     p.add_argument("source", metavar="RESULT_DIR|TASK", help="result folder or task file")
-    _flag(p, "--no-browser", help="print the URL and serve, open no browser")
-    p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: a free one)")
+    _flag(p, "--no-browser", help="print the page's path, open no browser")
     _backend_option(p)
 
     p = command(

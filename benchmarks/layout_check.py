@@ -8,14 +8,17 @@ Prints four tables:
   containing ``long:`` on the ``def`` line or on the line above the function (above its
   decorators, if any);
 * the imports that run up the declared layers (:data:`LAYERS`: a module may import from its own
-  layer and the layers listed before it), and the import cycles between balance_opt modules.
-  Both count imports at any depth (inside functions too) but not those under
+  layer and the layers listed before it), the import cycles between balance_opt modules, and
+  those between parts (a subpackage or a module directly in the package is one node: two parts
+  of one layer that import each other are a cycle even when no modules are). All count imports
+  at any depth (inside functions too) but not those under
   ``if TYPE_CHECKING:``, which never run. An import ``from balance_opt.a import b`` is an edge
   to the module ``balance_opt.a.b`` when there is one, else to ``balance_opt.a`` (importing a
   module also runs its parent packages' ``__init__``; those implicit edges are not counted, as
   every import tool does).
 
-Exits 1 when an import runs upward, a cycle exists or a part of the package is in no layer;
+Exits 1 when an import runs upward, a cycle (of modules or of parts) exists or a part of the
+package is in no layer;
 the size and function tables only report.
 
     python benchmarks/layout_check.py [--package PATH] [--top 10] [--max-lines 80]
@@ -36,13 +39,13 @@ MAX_CYCLES_PER_GROUP = 20
 #: The declared layers, lowest first: ``(layer, parts)``. A part is a subpackage or a module
 #: directly in the package (``""`` is the package's ``__init__``, the notebook API). A module
 #: imports only from its own layer and those before it; parts of one layer may import each
-#: other as long as no modules form a cycle.
+#: other one way only (no cycle of parts).
 LAYERS = (
     ("base", ("errors", "interrupts", "progress", "cache")),
     ("config", ("config",)),
     ("model", ("model",)),
     ("geometry", ("geometry",)),
-    ("motion", ("motion", "result")),
+    ("motion", ("motion",)),
     ("analytic", ("analytic",)),
     ("optimal", ("optimal",)),
     ("dynamics", ("dynamics",)),
@@ -129,6 +132,14 @@ def upward_imports(graph: dict[str, set[str]]) -> list[tuple[str, str, str, str]
             if a is not None and b is not None and b > a:
                 found.append((module, target, names[a], names[b]))
     return found
+
+
+def part_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """The imports between parts (:func:`part_of`): ``part -> parts it imports`` (not itself)."""
+    parts = {part_of(m): set() for m in graph}
+    for module, targets in graph.items():
+        parts[part_of(module)] |= {part_of(t) for t in targets} - {part_of(module)}
+    return parts
 
 
 def long_functions(tree: ast.AST, lines: list[str], limit: int):
@@ -298,7 +309,14 @@ def main(argv=None) -> int:
             print("    " + " -> ".join(m.removeprefix(short) for m in cycle))
         if len(found) == MAX_CYCLES_PER_GROUP:
             print(f"    ... (first {MAX_CYCLES_PER_GROUP} cycles shown)")
-    return 1 if upward or groups or unplaced else 0
+
+    parts = part_graph(graph)
+    part_groups = strongly_connected(parts)
+    part_cycles = [c for g in part_groups for c in simple_cycles(parts, g, MAX_CYCLES_PER_GROUP)]
+    print(f"cycles between parts: {len(part_cycles)}")
+    for cycle in part_cycles:
+        print("  " + " -> ".join(p or "__init__" for p in cycle))
+    return 1 if upward or groups or part_groups or unplaced else 0
 
 
 if __name__ == "__main__":

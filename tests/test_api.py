@@ -14,9 +14,9 @@ import pytest
 import balance_opt as bo
 from balance_opt.app import pipeline
 from balance_opt.errors import InputError
+from balance_opt.motion.result import REPR_LINES, BalanceResult, LimitViolation
 from balance_opt.report.output_dir import OutputFolder, OutputFolderError
 from balance_opt.report.outputs import write_trajectory_csv
-from balance_opt.result import REPR_LINES, BalanceResult, LimitViolation
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

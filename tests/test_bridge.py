@@ -101,12 +101,16 @@ def test_bridge_matches_numeric_pinocchio(robot):
     rng = np.random.default_rng(2024)
     for _ in range(N_CONFIGS):
         q = _random_q(robot, rng)
-        A, *jac = (np.array(x) for x in fun(q))
+        A, *jac, oMi = (np.array(x) for x in fun(q))
         A_ref, jac_ref = _pinocchio_primitives(robot, q)
         np.testing.assert_allclose(A, A_ref, rtol=0, atol=ATOL)
         assert len(jac) == len(robot.arms)
         for J, J_ref in zip(jac, jac_ref):
             np.testing.assert_allclose(J, J_ref, rtol=0, atol=ATOL)
+        data = robot.model.createData()
+        pin.forwardKinematics(robot.model, data, robot.pin_q(q))
+        placements = [np.r_[M.rotation.ravel(order="F"), M.translation] for M in data.oMi[1:]]
+        np.testing.assert_allclose(oMi, np.array(placements).T, rtol=0, atol=ATOL)
 
 
 @pytest.mark.slow

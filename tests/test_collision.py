@@ -13,6 +13,7 @@ from balance_opt.geometry.clearance import clearance
 from balance_opt.geometry.robot_geometry import RobotGeometry
 from balance_opt.model.capture import Target, attach_target
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.model.symbolic import SymbolicMaps
 
 
 def _link(name, mass, geometry, origin="0 0 0", rpy="0 0 0", tags=("collision",)):
@@ -106,7 +107,7 @@ def test_symbolic_placements_match_pinocchio(name, request):
     robot = request.getfixturevalue(name)
     geometry = RobotGeometry(robot)
     q = cs.SX.sym("q", len(geometry.moving_joints))
-    frames = shapes.joint_placements(geometry, q)
+    frames = shapes.joint_placements(SymbolicMaps(robot).joint_placements_fun(), q)
     joints = sorted(frames)
     f = cs.Function("frames", [q], [v for j in joints for v in frames[j]])
     E, e = robot.mimic_matrix
@@ -131,7 +132,7 @@ def test_fitted_shapes_never_farther_than_the_exact_geometry(name, request):
     fitted = shapes.fit_shapes(geometry)
     of = {i: k for k, s in enumerate(fitted) for i in s.objects}
     q = cs.SX.sym("q", len(geometry.moving_joints))
-    frames = shapes.joint_placements(geometry, q)
+    frames = shapes.joint_placements(SymbolicMaps(robot).joint_placements_fun(), q)
     pairs = [p for p in geometry.pairs if of[p.first] != of[p.second]]
     f = cs.Function(
         "d",

@@ -8,8 +8,8 @@ import pytest
 
 from balance_opt.dynamics.inverse_dynamics import free_floating_torques, plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import quaternion_from_rotvec
-from balance_opt.result import BalanceResult
 
 _WHEEL = """
   <link name="{name}"><inertial><origin xyz="0 0 0"/><mass value="{m}"/>

@@ -1,5 +1,6 @@
 """benchmarks/layout_check.py on small made-up packages: it finds an upward import and a cycle
-wherever the import sits (inside a function too, not under ``if TYPE_CHECKING:``), and fails."""
+(of modules, or of parts) wherever the import sits (inside a function too, not under
+``if TYPE_CHECKING:``), and fails."""
 
 import subprocess
 import sys
@@ -89,10 +90,34 @@ def test_a_part_in_no_layer_fails(tmp_path):
 
 def test_the_package_keeps_its_layers():
     code, out = _check(CHECK.parents[1] / "balance_opt")
-    assert "import cycles: 0 in 0 group(s)" in out
+    assert "import cycles: 0 in 0 group(s)" in out and "cycles between parts: 0" in out
     upward = [line for line in out.splitlines() if line.startswith("  ") and " -> " in line]
     if (CHECK.parents[1] / "balance_opt" / "optimal" / "start_schedule.py").exists():
         # on its way out of the planner, with its pool of sweep workers
         assert all(line.startswith("  optimal.start_schedule ") for line in upward), out
     else:
         assert code == 0 and not upward, out
+
+
+def test_two_parts_of_one_layer_importing_each_other_fail(tmp_path, monkeypatch, capsys):
+    """No module imports itself back, but part ``motion`` imports part ``result`` and back: the
+    cycle a shared layer used to hide."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("layout_check", CHECK)
+    layout = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(layout)
+    layers = [(n, ("motion", "result") if n == "motion" else p) for n, p in layout.LAYERS]
+    monkeypatch.setattr(layout, "LAYERS", tuple(layers))
+    package = _package(
+        tmp_path,
+        {
+            "motion/so3.py": "def angle():\n    pass\n",
+            "motion/replay.py": "from balance_opt.result import Result\n",
+            "result.py": "from balance_opt.motion.so3 import angle\nclass Result:\n    pass\n",
+        },
+    )
+    code = layout.main(["--package", str(package)])
+    out = capsys.readouterr().out
+    assert "import cycles: 0 in 0 group(s)" in out and "upward imports: 0" in out
+    assert code == 1 and "cycles between parts: 1\n  motion -> result -> motion" in out

@@ -561,3 +561,18 @@ def test_adam_reads_inertials_without_an_origin():
         q = rng.uniform(-1.5, 1.5, robot.n)
         A_sym = np.array(maps.centroidal_momentum_matrix_fun()(q))
         np.testing.assert_allclose(A_sym, numeric.centroidal_momentum_matrix(q), atol=1e-12)
+
+
+def test_joint_placements_are_pinocchios(case):
+    """Every joint frame by the backend (what the collision shapes are placed with) against
+    numeric Pinocchio's forward kinematics, at the model joints' positions (followers too)."""
+    robot, f = case.ref.robot, case.maps.joint_placements_fun()
+    E, e = robot.mimic_matrix
+    model, data = robot.model, robot.model.createData()
+    for q in case.ref.Q[:10]:
+        oMi = np.array(f(E @ q + e))
+        pin.forwardKinematics(model, data, robot.pin_q(q))
+        for j in range(1, model.njoints):
+            rotation, translation = oMi[:9, j - 1].reshape(3, 3, order="F"), oMi[9:, j - 1]
+            _close(rotation, data.oMi[j].rotation)
+            _close(translation, data.oMi[j].translation)

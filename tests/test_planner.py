@@ -37,6 +37,7 @@ from balance_opt.app.scenarios import CAPTURE_MISSION_GOAL, CAPTURE_MISSION_STAR
 from balance_opt.errors import InfeasibleLimitsError, InputError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import (
     SERIES_ANGLE,
     inverse_right_jacobian,
@@ -64,7 +65,6 @@ from balance_opt.optimal.problem import (
     StructureKey,
 )
 from balance_opt.optimal.solve import build_balance_nlp
-from balance_opt.result import BalanceResult
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
 MODEL_TOLERANCE = 1e-9

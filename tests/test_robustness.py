@@ -13,6 +13,7 @@ from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.motion.replay import replay
 from balance_opt.motion.robustness import (
     drift_under_model_error,
+    log_cholesky,
     perturbed_inertia,
     perturbed_robot,
     second_moment,
@@ -134,3 +135,24 @@ def test_robustness_options():
     assert RobustnessOptions(enabled=True).runs_in("plan")
     with pytest.raises(InputError, match="robustness option 'samples': must be at least 1"):
         RobustnessOptions(samples=0)
+
+
+def test_the_perturbation_is_in_pinocchios_log_cholesky_coordinates():
+    """The coordinates are Pinocchio's (they give the body back), and each perturbed body is
+    ``LogCholeskyParameters(theta + size * scale * z)`` with standard normal ``z``: the mass
+    and the factor's diagonal move by ``size z / 2`` in their logarithm, the centre of mass by
+    ``size z`` radii of gyration; the shape ``Sigma / m`` is kept as the mass changes."""
+    body = pin.Inertia(3.0, np.array([0.1, -0.2, 0.3]), np.diag([0.05, 0.04, 0.02]))
+    theta = log_cholesky(body)
+    back = pin.LogCholeskyParameters(theta).toInertia()
+    np.testing.assert_allclose(back.matrix(), body.matrix(), rtol=0, atol=1e-14)
+    assert theta[0] == pytest.approx(0.5 * np.log(3.0)) and np.allclose(theta[7:], body.lever)
+    rho = np.sqrt(np.trace(second_moment(body)) / body.mass)
+    rng, size = np.random.default_rng(11), 0.1
+    moved = np.array([log_cholesky(perturbed_inertia(body, size, rng)) - theta for _ in range(400)])
+    z = np.hstack([moved[:, :4] / (0.5 * size), moved[:, 7:] / (size * rho)])
+    np.testing.assert_allclose(z.std(axis=0), 1.0, atol=0.12)
+    np.testing.assert_allclose(z.mean(axis=0), 0.0, atol=0.15)
+    # a heavier draw of the same shape: only the mass moved, the inertia follows it
+    one = pin.LogCholeskyParameters(theta + np.r_[0.1, np.zeros(9)]).toInertia()
+    np.testing.assert_allclose(one.inertia, np.exp(0.2) * body.inertia, rtol=1e-12, atol=1e-15)

@@ -1,15 +1,13 @@
 """The 3D scene (balance_opt/report/scene.py) and ``balance-opt view``: every link with geometry is
 in the scene at the placement numeric Pinocchio gives at the plan's samples, the centre of mass
 on its free-flight line (across a capture too), the packed animation holds those placements,
-meshes are simplified, the page loads nothing from outside, and the view command serves it."""
+meshes are simplified, the page loads nothing from outside, and the view command opens it."""
 
 import base64
 import json
 import re
 import shutil
 import subprocess
-import urllib.error
-import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +16,7 @@ import pytest
 import umsgpack
 
 from balance_opt.cli import main
+from balance_opt.motion.result import BalanceResult
 from balance_opt.report.outputs import write_trajectory_npz
 from balance_opt.report.scene import (
     ARM_COLOURS,
@@ -37,7 +36,6 @@ from balance_opt.motion.so3 import (
     relative_rotation,
     rotvec_from_quaternion,
 )
-from balance_opt.result import BalanceResult
 
 ROOT = Path(__file__).resolve().parents[1]
 ATOL = 1e-9
@@ -346,61 +344,69 @@ def test_baxter_meshes_are_in_the_scene_simplified(baxter, tmp_path):
 
 
 # ------------------------------------------------------------------------------------------- CLI
-def _serve_once(monkeypatch) -> dict:
-    """Make ``balance-opt view`` fetch its own page once instead of waiting for Ctrl-C."""
-    import balance_opt.cli as cli
+def _browser(monkeypatch, found: bool = True) -> list[str]:
+    """The URLs ``balance-opt view`` hands to the browser (``found``: whether one opens)."""
+    import webbrowser
 
-    seen = {}
+    opened = []
 
-    def fetch(server, url):
-        with urllib.request.urlopen(url, timeout=30) as reply:
-            seen.update(url=url, status=reply.status, page=reply.read().decode())
-        try:  # the page only, not the rest of its folder
-            urllib.request.urlopen(url.replace("scene.html", "metrics.json"), timeout=30)
-        except urllib.error.HTTPError as exc:
-            seen["other"] = exc.code
+    def open_url(url, new=0):
+        opened.append(url)
+        return found
 
-    monkeypatch.setattr(cli, "_wait_for_stop", fetch)
-    return seen
+    monkeypatch.setattr(webbrowser, "open", open_url)
+    return opened
 
 
-def _gone(url: str) -> bool:
-    try:
-        urllib.request.urlopen(url, timeout=5)
-    except (urllib.error.URLError, ConnectionError):
-        return True
-    return False
-
-
-def test_view_serves_a_result_folder_on_localhost_and_stops(paper, monkeypatch, tmp_path, capsys):
+def test_view_opens_a_scene_built_from_a_result_folder(paper, monkeypatch, tmp_path, capsys):
     res = _result(paper, 4)
     folder = tmp_path / "run"
     folder.mkdir()
     write_trajectory_npz(folder / "analytic.npz", res)
     task = ROOT / "examples" / "capture_task.yaml"
     (folder / "metrics.json").write_text(json.dumps({"task": {"file": str(task)}}))
-    seen = _serve_once(monkeypatch)
-    assert main(["view", str(folder), "--no-browser"]) == 0
-    assert re.fullmatch(r"http://127\.0\.0\.1:\d+/scene\.html", seen["url"])
-    assert seen["url"] in capsys.readouterr().out
-    assert seen["status"] == 200 and "MeshCat.Viewer" in seen["page"] and seen["other"] == 404
-    assert '<option value="analytic">analytic law</option>' in seen["page"]
-    assert _gone(seen["url"])  # the server stopped with the command
+    opened = _browser(monkeypatch)
+    assert main(["view", str(folder)]) == 0
+    page = Path(capsys.readouterr().out.strip())
+    assert opened == [page.as_uri()] and page.name == "scene.html"
+    text = page.read_text()  # there after the command: no server to stop
+    assert "MeshCat.Viewer" in text and '<option value="analytic">analytic law</option>' in text
+    assert EXTERNAL.search(text) is None
     assert not (folder / "scene.html").exists()  # the result folder is left as it was
+    shutil.rmtree(page.parent)
 
 
-def test_view_serves_the_scene_a_run_wrote(paper, monkeypatch, tmp_path):
+def test_view_opens_the_scene_a_run_wrote(monkeypatch, tmp_path, capsys):
     folder = tmp_path / "run"
     folder.mkdir()
     (folder / "scene.html").write_text("<!DOCTYPE html><title>written by the run</title>")
-    seen = _serve_once(monkeypatch)
+    opened = _browser(monkeypatch)
+    assert main(["view", str(folder)]) == 0
+    page = (folder / "scene.html").resolve()
+    assert capsys.readouterr().out == f"{page}\n" and opened == [page.as_uri()]
+
+
+def test_view_without_a_browser_prints_the_path(monkeypatch, tmp_path, capsys, caplog):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "scene.html").write_text("<!DOCTYPE html><title>written by the run</title>")
+    page = (folder / "scene.html").resolve()
+    opened = _browser(monkeypatch, found=False)
+    assert main(["view", str(folder)]) == 0
+    assert capsys.readouterr().out == f"{page}\n" and "no browser found" in caplog.text
     assert main(["view", str(folder), "--no-browser"]) == 0
-    assert "written by the run" in seen["page"] and _gone(seen["url"])
+    assert capsys.readouterr().out == f"{page}\n" and len(opened) == 1  # not asked again
 
 
-def test_view_of_a_folder_that_is_no_result_is_exit_2(tmp_path, capsys):
+def test_view_of_a_folder_that_is_no_result_is_exit_2(tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
     assert main(["view", str(tmp_path), "--no-browser"]) == 2
     assert "no scene.html and no metrics.json: not a result folder" in capsys.readouterr().err
+    assert not any(scratch.iterdir())  # no folder left for a page never written
 
 
 def _paper_task(tmp_path: Path, urdf_text: str | None = None) -> Path:
@@ -440,13 +446,16 @@ def test_a_missing_mesh_leaves_the_scene_out_not_the_run(tmp_path, caplog):
 
 
 @pytest.mark.slow
-def test_view_of_a_task_plans_it_and_serves_its_scene(monkeypatch, capsys):
-    seen = _serve_once(monkeypatch)
+def test_view_of_a_task_plans_it_and_opens_its_scene(monkeypatch, capsys):
+    opened = _browser(monkeypatch)
     task = ROOT / "examples" / "capture_tumbling_target.yaml"
-    assert main(["view", str(task), "--no-browser", "-q"]) == 0
+    assert main(["view", str(task), "-q"]) == 0
+    page = Path(capsys.readouterr().out.strip())
+    text = page.read_text()
     for option in ("mission arm alone", "analytic law", "optimal plan"):
-        assert f">{option}</option>" in seen["page"]
-    assert '"target":{"time":5.0' in seen["page"] and _gone(seen["url"])
+        assert f">{option}</option>" in text
+    assert '"target":{"time":5.0' in text and opened == [page.as_uri()]
+    shutil.rmtree(page.parent)
 
 
 # ------------------------------------------------------------------------------ bodies too close

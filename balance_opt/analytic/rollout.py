@@ -1,5 +1,5 @@
 """Phase II: the analytic law's balance trajectory along a mission motion, as a
-:class:`~balance_opt.result.BalanceResult`: attitude and balance joints integrated together on
+:class:`~balance_opt.motion.result.BalanceResult`: attitude and balance joints integrated together on
 SO(3), then the per-sample outputs evaluated in one batched pass (:meth:`BalanceLaw.along`)."""
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.integration import integrate, output_grid
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import IDENTITY_QUATERNION, quaternion_rate
 from balance_opt.motion.trajectories import TrajectoryLike, as_sampler
-from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 

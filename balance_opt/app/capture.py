@@ -16,9 +16,9 @@ import numpy as np
 from balance_opt.errors import SolverError
 from balance_opt.model.capture import CaptureState, capture_state
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violations
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
 from balance_opt.report.outputs import SAMPLED_ARRAYS
-from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violations
 
 
 class MissionWindow:

@@ -22,10 +22,10 @@ from balance_opt.app.capture import plan_task
 from balance_opt.app.models import ModelCache
 from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
+from balance_opt.motion.result import BalanceResult
 from balance_opt.report import plots
 from balance_opt.report.output_dir import OutputFolder
 from balance_opt.report.style import SCREEN_DPI, SIM, method_label
-from balance_opt.result import BalanceResult
 from balance_opt.tasks.task import Task, check_methods
 
 if TYPE_CHECKING:

@@ -28,12 +28,12 @@ from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.replay import phase_one
+from balance_opt.motion.result import BULKY_INFO_KEYS, BalanceResult
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.report.output_dir import OutputFolder
 from balance_opt.report.outputs import peak_reaction_torques, to_json
 from balance_opt.report.plots import FORMATS, paper_figure_set
-from balance_opt.result import BULKY_INFO_KEYS, BalanceResult
 from balance_opt.tasks.task import Task
 
 log = logging.getLogger(__name__)

@@ -14,8 +14,8 @@ from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate
 from balance_opt.model.capture import CaptureState, Target, capture_state
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.trajectories import SampledTrajectory
-from balance_opt.result import BalanceResult
 
 
 class _Shifted:

@@ -16,8 +16,8 @@ import pinocchio as pin
 
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import matrix_from_quaternion
-from balance_opt.result import BalanceResult
 
 
 @dataclass(frozen=True)

@@ -25,8 +25,8 @@ from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.momentum_check import MOMENTUM_SCALE_FLOOR
+from balance_opt.motion.result import AttitudeHistory, BalanceResult
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory, arm_samples
-from balance_opt.result import AttitudeHistory, BalanceResult
 
 log = logging.getLogger(__name__)
 

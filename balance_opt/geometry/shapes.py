@@ -140,40 +140,13 @@ def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
 
 
 # ---------------------------------------------------------------------------------- kinematics
-def _rotation(axis: np.ndarray, angle) -> cs.SX:
-    K = cs.DM([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return cs.DM.eye(3) + cs.sin(angle) * K + (1 - cs.cos(angle)) * (K @ K)
-
-
-def joint_placements(geometry: RobotGeometry, q_model) -> dict[int, tuple]:
+def joint_placements(placements: cs.Function, q_model) -> dict[int, tuple]:
     """``{joint: (R, p)}``: every joint frame of ``robot.model`` in the base frame as CasADi
-    expressions of ``q_model`` (``robot.model_joint_names``); InputError for a joint that is not
-    revolute, continuous or prismatic."""
-    model = geometry.model
-    column = {j: c for c, j in enumerate(geometry.moving_joints)}
-    out = {}
-    for j in range(1, model.njoints):
-        parent = int(model.parents[j])
-        M = model.jointPlacements[j]
-        if parent == 0:  # the base (free-flyer at the identity)
-            out[j] = (cs.DM(M.rotation), cs.DM(M.translation))
-            continue
-        R0, p0 = out[parent]
-        R = R0 @ cs.DM(M.rotation)
-        p = p0 + R0 @ cs.DM(M.translation)
-        if j in column:
-            joint = model.joints[j]
-            kind = joint.shortname()
-            axis = np.asarray(joint.extract().getMotionAxis(), dtype=float)
-            value = q_model[column[j]]
-            if kind.startswith(("JointModelR", "JointModelRevolute")):
-                R = R @ _rotation(axis, value)
-            elif kind.startswith(("JointModelP", "JointModelPrismatic")):
-                p = p + R @ cs.DM(axis) * value
-            else:
-                raise InputError(f"joint '{model.names[j]}' ({kind}): no collision kinematics")
-        out[j] = (R, p)
-    return out
+    expressions of ``q_model`` (``robot.model_joint_names``), by ``placements``, the planner's
+    own kinematics (:meth:`~balance_opt.model.symbolic.SymbolicMaps.joint_placements_fun`)."""
+    oMi = placements(q_model)
+    columns = range(1, oMi.shape[1] + 1)  # joint j in column j - 1 (the universe left out)
+    return {j: (cs.reshape(oMi[:9, j - 1], 3, 3), oMi[9:, j - 1]) for j in columns}
 
 
 # ---------------------------------------------------------------------------------- distances
@@ -258,10 +231,11 @@ class ClearanceRows:
         wanted = {(shape[pair.first], shape[pair.second]), (shape[pair.second], shape[pair.first])}
         return next((k for k, (_, pairs) in enumerate(self.rows) if wanted & set(pairs)), None)
 
-    def pair_distances(self, geometry: RobotGeometry) -> tuple[list, cs.Function]:
-        """Every shape pair of the rows and ``d(q_model)``, their distances."""
-        q = cs.SX.sym("q_model", len(geometry.moving_joints))
-        frames = joint_placements(geometry, q)
+    def pair_distances(self, placements: cs.Function) -> tuple[list, cs.Function]:
+        """Every shape pair of the rows and ``d(q_model)``, their distances (the joints placed
+        by ``placements``: :func:`joint_placements`)."""
+        q = cs.SX.sym("q_model", placements.size1_in(0))
+        frames = joint_placements(placements, q)
         pairs = [p for _, row in self.rows for p in row]
         d = [shape_distance(self.shapes[i], self.shapes[k], frames) for i, k in pairs]
         return pairs, cs.Function("shape_distances", [q], [cs.vertcat(*d)])
@@ -278,9 +252,10 @@ class ClearanceRows:
     def labels(self) -> tuple[str, ...]:
         return tuple(label for label, _ in self.rows)
 
-    def expressions(self, geometry: RobotGeometry, q_model):
-        """The rows' soft minima (n_rows,) as CasADi expressions of ``q_model``."""
-        frames = joint_placements(geometry, q_model)
+    def expressions(self, placements: cs.Function, q_model):
+        """The rows' soft minima (n_rows,) as CasADi expressions of ``q_model`` (the joints
+        placed by ``placements``: :func:`joint_placements`)."""
+        frames = joint_placements(placements, q_model)
         out = []
         for _, pairs in self.rows:
             d = [shape_distance(self.shapes[i], self.shapes[k], frames) for i, k in pairs]

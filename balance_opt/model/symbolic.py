@@ -21,6 +21,7 @@ from balance_opt.errors import BalanceOptError, JointError
 from balance_opt.model import coupling
 from balance_opt.model.bridge import (
     BridgeUnavailable,
+    bridge_function,
     bridge_primitives,
     ensure_bridge,
     find_toolchain,
@@ -200,15 +201,7 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
     model = robot.model
     cmodel = cpin.Model(model)
     cdata = cmodel.createData()
-    qp = cs.SX(robot.pin_q(np.zeros(robot.n)))
-    qm = model_joint_positions(robot, q)
-    for i, name in enumerate(robot.model_joint_names):
-        joint = model.joints[model.getJointId(name)]
-        if joint.nq == 1:
-            qp[joint.idx_q] = qm[i]
-        else:  # continuous joint stored as (cos, sin)
-            qp[joint.idx_q] = cs.cos(qm[i])
-            qp[joint.idx_q + 1] = cs.sin(qm[i])
+    qp = _pin_configuration(robot, model_joint_positions(robot, q))
     G = cs.DM(robot.velocity_map)  # [base; arm joints], followers folded into their drivers
     A = cs.mtimes(cs.SX(cpin.computeCentroidalMap(cmodel, cdata, qp)), G)
     cpin.computeJointJacobians(cmodel, cdata, qp)  # also the joint placements oMi
@@ -219,6 +212,44 @@ def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
         J = cs.SX(cpin.getFrameJacobian(cmodel, cdata, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))
         jac[arm.name] = cs.mtimes(J, G)
     return A, jac
+
+
+def _pin_configuration(robot: FloatingRobot, qm: cs.SX) -> cs.SX:
+    """Pinocchio's configuration (base at the identity) at the model joints' positions ``qm``."""
+    model, qp = robot.model, cs.SX(robot.pin_q(np.zeros(robot.n)))
+    for i, name in enumerate(robot.model_joint_names):
+        joint = model.joints[model.getJointId(name)]
+        if joint.nq == 1:
+            qp[joint.idx_q] = qm[i]
+        else:  # continuous joint stored as (cos, sin)
+            qp[joint.idx_q] = cs.cos(qm[i])
+            qp[joint.idx_q + 1] = cs.sin(qm[i])
+    return qp
+
+
+def _placements(robot: FloatingRobot, backend: str, qm: cs.SX) -> cs.SX:
+    """Every joint's placement ``oMi`` (12 x (njoints - 1): rotation by columns, then
+    translation; base at the identity) at the model joints' positions ``qm``, by ``backend``."""
+    if backend == "adam":  # a joint's frame is its child link's
+        import pinocchio as pin
+
+        kd, H, model = adam_kindyn(robot), cs.SX.eye(4), robot.model
+        link = {}
+        for frame in model.frames:
+            if frame.type == pin.FrameType.BODY and frame.placement.isIdentity():
+                link.setdefault(frame.parentJoint, frame.name)
+        T = [kd.forward_kinematics(link[j], H, qm) for j in range(1, model.njoints)]
+        T = [cs.SX(t.array if hasattr(t, "array") else t) for t in T]
+        return cs.horzcat(*(cs.vertcat(cs.vec(t[:3, :3]), t[:3, 3]) for t in T))
+    try:
+        import pinocchio.casadi as cpin
+    except ImportError:
+        return cs.SX(bridge_function(robot)(qm)[-1])  # the bridge's last output
+    cmodel = cpin.Model(robot.model)
+    cdata = cmodel.createData()
+    cpin.forwardKinematics(cmodel, cdata, _pin_configuration(robot, qm))
+    M = [cdata.oMi[j] for j in range(1, cmodel.njoints)]
+    return cs.horzcat(*(cs.vertcat(cs.vec(cs.SX(m.rotation)), cs.SX(m.translation)) for m in M))
 
 
 def _built_once(method):
@@ -356,6 +387,16 @@ class SymbolicMaps:
         _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
         N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
         return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
+
+    @_built_once
+    def joint_placements_fun(self) -> cs.Function:
+        """``joint_placements(q_model) -> oMi``: every joint frame of ``robot.model`` in the base
+        frame (the base at the identity), 12 x (njoints - 1) (column ``j - 1``: joint ``j``'s
+        rotation by columns, then its translation), at the model joints' positions
+        (``robot.model_joint_names``: arm joints, then followers), by this backend."""
+        qm = cs.SX.sym("q_model", len(self.robot.model_joint_names))
+        oMi = _placements(self.robot, self.backend, qm)
+        return self._fun("joint_placements", {"q_model": qm}, {"oMi": oMi})
 
     @_built_once
     def force_map_fun(self, arm: str = "mission") -> cs.Function:

@@ -1,5 +1,5 @@
 """An independent check that a sampled motion conserves angular momentum: ``momentum_residual``
-of every :class:`~balance_opt.result.BalanceResult`.
+of every :class:`~balance_opt.motion.result.BalanceResult`.
 
 It shares no code with the planners' base rate: the rate is recovered from the exported
 attitudes by finite differences, and the momentum is ``A_G(q, R) v`` in world axes, so an

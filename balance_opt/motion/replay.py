@@ -1,6 +1,6 @@
 """Replays: the base attitude that GIVEN joint motions of both arms produce, from momentum
 conservation alone (Eq. 26 with the initial momentum, integrated on SO(3)), as a
-:class:`~balance_opt.result.BalanceResult`; with the balance arm held, the paper's Phase I."""
+:class:`~balance_opt.motion.result.BalanceResult`; with the balance arm held, the paper's Phase I."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.integration import integrate, output_grid
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import IDENTITY_QUATERNION, matrix_from_quaternion, quaternion_rate
 from balance_opt.motion.trajectories import PointToPoint, TrajectoryLike, arm_samples, as_sampler
-from balance_opt.result import BalanceResult
 
 
 def replay(

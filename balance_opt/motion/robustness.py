@@ -1,5 +1,6 @@
 """Drift under model error (``docs/executable-plans.md``): every plan replayed on K seeded
-models whose inertial parameters are perturbed in log-Cholesky coordinates (always physical),
+models whose inertial parameters are perturbed in Pinocchio's log-Cholesky coordinates (always
+physical),
 the drift summarised by its median, 95th percentile and maximum.
 
 At zero momentum the base twist is linear in the spatial inertias, so the kinematics are
@@ -20,9 +21,9 @@ from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.motion.replay import attitude_from_rates, replay, rk4_stage_times
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import rotation_angle
 from balance_opt.motion.trajectories import SampledTrajectory, arm_samples
-from balance_opt.result import BalanceResult
 
 #: Smallest eigenvalue of a body's second moment before it is perturbed, relative to its trace
 #: (or its mass, in kg m^2, for a point mass).
@@ -38,31 +39,38 @@ def second_moment(inertia: pin.Inertia) -> np.ndarray:
     return 0.5 * np.trace(I_c) * np.eye(3) - I_c
 
 
+def log_cholesky(inertia: pin.Inertia) -> np.ndarray:
+    """Pinocchio's log-Cholesky parameters ``(alpha, d1, d2, d3, s12, s23, s13, t1, t2, t3)`` of
+    a body (``m > 0``, ``Sigma`` positive definite): the inverse of
+    ``pin.LogCholeskyParameters(theta).toPseudoInertia()``, from the upper triangular factor
+    ``U = exp(alpha) [[A, c], [0, 1]]`` of its pseudo-inertia ``J = U U^T``: ``m = exp(2 alpha)``,
+    ``A`` (``exp(d)`` on its diagonal, ``s`` above) the factor of ``Sigma / m``, ``t = c``."""
+    J = pin.PseudoInertia.FromInertia(inertia).toMatrix()
+    U = np.linalg.cholesky(J[::-1, ::-1])[::-1, ::-1]  # upper triangular, J = U U^T
+    A = U / U[3, 3]
+    return np.r_[np.log(U[3, 3]), np.log(np.diag(A)[:3]), A[0, 1], A[1, 2], A[0, 2], A[:3, 3]]
+
+
 def perturbed_inertia(inertia: pin.Inertia, size: float, rng: np.random.Generator) -> pin.Inertia:
-    """A physical body near ``inertia``, perturbed by about ``size``, relatively: with standard
-    normal draws ``z``, ``m' = m exp(size z)``; the Cholesky factor ``L`` of ``Sigma`` gets
-    ``L'_ii = L_ii exp(size z / 2)`` and ``L'_ij = L_ij + (size / 2) z sqrt(L_ii L_jj)``; ``c' = c
-    + size z rho`` with ``rho = sqrt(tr(Sigma) / m)`` the radius of gyration. ``m > 0`` and a
-    positive definite ``Sigma`` make ``I_c = tr(Sigma) 1 - Sigma`` physical (Wensing, Kim and
-    Slotine; log-Cholesky coordinates: Rucker and Wensing)."""
+    """A physical body near ``inertia``, perturbed by about ``size``, relatively, in Pinocchio's
+    log-Cholesky coordinates (:func:`log_cholesky`; Rucker and Wensing), where every point is a
+    physical body: with standard normal draws ``z``, ``alpha`` and ``d`` move by ``size z / 2``
+    (the mass and the factor's diagonal times ``exp(size z)``, ``exp(size z / 2)``), ``s_ij`` by
+    ``(size / 2) z sqrt(A_ii A_jj)`` and ``c`` by ``size z rho``, ``rho = sqrt(tr(Sigma) / m)``
+    the radius of gyration. The body keeps its shape ``Sigma / m`` as its mass changes."""
     m, c = float(inertia.mass), np.asarray(inertia.lever, dtype=float)
     z = rng.standard_normal(10)  # drawn for every body, so that bodies keep their draws
     if m <= 0.0 or size == 0.0:
         return pin.Inertia(inertia)
     # a body on the boundary (a point mass, a thin rod: Sigma singular) gets a vanishing
-    # thickness first, so that Sigma has a Cholesky factor
+    # thickness first, so that its pseudo-inertia has a Cholesky factor
     w, V = np.linalg.eigh(second_moment(inertia))
     sigma = (V * np.maximum(w, SIGMA_FLOOR * max(w.sum(), m))) @ V.T
-    L = np.linalg.cholesky(sigma)
-    d = np.sqrt(np.diag(L))
-    L2 = np.diag(np.diag(L) * np.exp(0.5 * size * z[1:4]))
-    for (i, j), zij in zip(((1, 0), (2, 0), (2, 1)), z[4:7]):
-        L2[i, j] = L[i, j] + 0.5 * size * zij * d[i] * d[j]
-    sigma2 = L2 @ L2.T
-    m2 = m * np.exp(size * z[0])
-    rho = np.sqrt(np.trace(sigma) / m)
-    c2 = c + size * rho * z[7:10]
-    return pin.Inertia(m2, c2, np.trace(sigma2) * np.eye(3) - sigma2)
+    theta = log_cholesky(pin.Inertia(m, c, np.trace(sigma) * np.eye(3) - sigma))
+    a, rho = np.exp(theta[1:4]), np.sqrt(np.trace(sigma) / m)
+    pairs = np.sqrt(a[[0, 1, 0]] * a[[1, 2, 2]])  # s12, s23, s13
+    scale = np.r_[np.full(4, 0.5), 0.5 * pairs, np.full(3, rho)]
+    return pin.LogCholeskyParameters(theta + size * scale * z).toInertia()
 
 
 def perturbed_robot(robot: FloatingRobot, size: float, rng: np.random.Generator) -> FloatingRobot:

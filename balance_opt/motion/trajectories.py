@@ -11,7 +11,7 @@ import pinocchio as pin
 
 from balance_opt.errors import InputError, TrajectoryError
 from balance_opt.model.summary import vector_text
-from balance_opt.result import BalanceResult
+from balance_opt.motion.result import BalanceResult
 
 
 class JointTrajectory:

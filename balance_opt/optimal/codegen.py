@@ -327,20 +327,32 @@ def _recent_failure(library: Path) -> str:
 
 class Compilation(threading.Thread):
     """A background compilation: a thread of this process that runs the compilers (child
-    processes at low priority) while it holds the library's lock, taken here."""
+    processes at low priority) while it holds the library's lock, which it takes (without
+    waiting) before the constructor returns: BlockingIOError when another holds it."""
 
     def __init__(self, compiler: str, source: str, library: Path):
         super().__init__(daemon=True)
         self.compiler, self.source, self.library = compiler, source, library
         self.stopped = threading.Event()
-        self._lock = contextlib.ExitStack()
-        self._lock.enter_context(file_lock(lock_path(library), blocking=False))
+        self._locked = threading.Event()
+        self._refused: OSError | None = None
         self.start()
+        self._locked.wait()
+        if self._refused is not None:
+            raise self._refused
 
     def run(self) -> None:
         library = self.library
+        held = contextlib.ExitStack()
+        try:  # taken and released by this thread (filelock keeps its holds per thread)
+            held.enter_context(file_lock(lock_path(library), blocking=False))
+        except OSError as exc:
+            self._refused = exc
+            return
+        finally:
+            self._locked.set()
         try:
-            with self._lock:
+            with held:
                 if check_record(library)[0] is None:
                     _compile(self.compiler, self.source, library, self.stopped)
             enforce_limit(library.parent, keep=[library, record_path(library)])

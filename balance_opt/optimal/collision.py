@@ -83,10 +83,10 @@ class CollisionModels:
             self.geometries[key] = RobotGeometry(self.robot, srdf=srdf, ignore=key[0])
         return self.geometries[key]
 
-    def function(self, geometry: RobotGeometry, rows: ClearanceRows) -> cs.Function:
+    def function(self, rows: ClearanceRows, placements: cs.Function) -> cs.Function:
         if rows.key not in self.rows:
-            q = cs.SX.sym("q_model", len(geometry.moving_joints))
-            f = cs.Function("clearance_rows", [q], [rows.expressions(geometry, q)], {"cse": True})
+            q = cs.SX.sym("q_model", placements.size1_in(0))
+            f = cs.Function("clearance_rows", [q], [rows.expressions(placements, q)], {"cse": True})
             self.rows[rows.key] = (rows, f)
         return self.rows[rows.key][1]
 
@@ -95,13 +95,13 @@ class CollisionModels:
         return self.rows[key][0].labels if key else ()
 
 
-def _moving_rows(geometry: RobotGeometry, rows: ClearanceRows) -> ClearanceRows:
+def _moving_rows(geometry: RobotGeometry, rows: ClearanceRows, placements) -> ClearanceRows:
     """``rows`` without the rows the balance joints cannot change (a link turning about its
     own axis of symmetry, its pairs with bodies the mission moves): constant rows in the NLP."""
     robot = geometry.robot
     q = cs.SX.sym("q", robot.n)
     E, e = robot.mimic_matrix
-    values = rows.expressions(geometry, cs.DM(E) @ q + cs.DM(e))
+    values = rows.expressions(placements, cs.DM(E) @ q + cs.DM(e))
     balance = q[robot.mission.dof :]
     keep = [k for k in range(values.numel()) if cs.depends_on(values[k], balance)]
     return dataclasses.replace(rows, rows=tuple(rows.rows[k] for k in keep))
@@ -156,12 +156,12 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
         np.asarray(q0, float).tobytes(),
     )
     setups = model.collisions.setups
-    if key not in setups:
-        setups[key] = _setup(model.collisions, options, q0)
+    if key not in setups:  # the shapes placed by the planner's own kinematics
+        setups[key] = _setup(model.collisions, options, q0, model.maps.joint_placements_fun())
     return setups[key]
 
 
-def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup | None:
+def _setup(models: CollisionModels, options, q0: np.ndarray, placements) -> CollisionSetup | None:
     try:
         geometry = models.geometry(options.collision_ignore, options.collision_srdf)
     except NoGeometryError as exc:  # nothing to keep apart
@@ -181,21 +181,21 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     # pairs whose shapes start closer than the margin get rows of their own, bounded below
     # their start: in a shared row they would lower the bound of every pair of their body
     E, e = robot.mimic_matrix
-    shape_pairs, distances = rows.pair_distances(geometry)
+    shape_pairs, distances = rows.pair_distances(placements)
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
     # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
     # distance is least smooth; the check alone holds these pairs (a penetration fails the plan)
     overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
     rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
-    rows = _moving_rows(geometry, rows)
+    rows = _moving_rows(geometry, rows, placements)
     if not rows.rows:
         return None
     shape_of = {i: k for k, s in enumerate(rows.shapes) for i in s.objects}
     unrowed = [p for p in pairs if (shape_of[p.first], shape_of[p.second]) in overlap]
     unrowed += [p for p in pairs if (shape_of[p.second], shape_of[p.first]) in overlap]
     pairs = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
-    f = models.function(geometry, rows)
+    f = models.function(rows, placements)
     initial = np.array(f(E @ q0 + e)).ravel()
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)

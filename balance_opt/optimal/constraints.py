@@ -9,6 +9,7 @@ import casadi as cs
 import numpy as np
 
 from balance_opt.errors import InputError
+from balance_opt.motion.result import LIMIT_TOLERANCE, BalanceResult, limit_bounds
 from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.optimal import collision
 from balance_opt.optimal.collocation import Transcription, bernstein_value
@@ -21,7 +22,6 @@ from balance_opt.optimal.problem import (
     StructureKey,
     unit_of,
 )
-from balance_opt.result import LIMIT_TOLERANCE, BalanceResult, limit_bounds
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")

@@ -8,9 +8,9 @@ import logging
 import numpy as np
 
 from balance_opt.errors import InputError, SolverError
+from balance_opt.motion.result import BalanceResult
 from balance_opt.optimal.options import GUESSES
 from balance_opt.optimal.problem import BalanceProblem, Solution
-from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 

@@ -53,6 +53,7 @@ FORMULATION_MODULES = (
     "balance_opt.model.joints",
     "balance_opt.model.bridge",
     "balance_opt.motion.so3_casadi",
+    "balance_opt.geometry.shapes",  # the collision rows in the kernels
 )
 
 #: Rows of the momentum ``h0`` at the end of a point's data ``m`` ([linear; angular]).

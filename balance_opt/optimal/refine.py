@@ -10,11 +10,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from balance_opt.errors import SolverError
+from balance_opt.motion.result import BalanceResult
 from balance_opt.optimal.guess import random_guess
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import GUESSES, PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.problem import PlannerSolverError, Solution
-from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 

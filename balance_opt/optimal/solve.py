@@ -15,6 +15,7 @@ from balance_opt.errors import InputError, SolverError
 from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import (
     quaternion_conjugate,
     quaternion_from_rotvec,
@@ -47,7 +48,6 @@ from balance_opt.optimal.refine import (
     multi_start,
     solve_with_bounds,
 )
-from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 

@@ -17,11 +17,11 @@ import numpy as np
 
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BULKY_INFO_KEYS, BalanceResult, limit_bounds
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.optimal.ipopt_options import ipopt_version
-from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, limit_bounds
 
-#: The arrays of a :class:`~balance_opt.result.BalanceResult` sampled on its time grid.
+#: The arrays of a :class:`~balance_opt.motion.result.BalanceResult` sampled on its time grid.
 SAMPLED_ARRAYS = tuple(f.name for f in fields(BalanceResult) if f.type == "np.ndarray")
 #: Version of the metrics.json layout; 2: ``effort`` margins added, and ``violations`` /
 #: ``limit_violations`` count effort limits too; 3: ``solver.iterations`` and
@@ -130,7 +130,7 @@ EFFORT_TOLERANCE = 1e-6
 
 def _effort_violations(t, names, tau, limits) -> list[str]:
     """Stretches of samples where ``|tau|`` exceeds an effort limit by more than
-    :data:`EFFORT_TOLERANCE` of it, worded as :class:`~balance_opt.result.LimitViolation`."""
+    :data:`EFFORT_TOLERANCE` of it, worded as :class:`~balance_opt.motion.result.LimitViolation`."""
     found = []
     for j, name in enumerate(names):
         limit = limits[j]

@@ -23,10 +23,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BalanceResult, limit_bounds
 from balance_opt.report import style
 from balance_opt.report.outputs import capture_drifts
 from balance_opt.report.style import FONTS, WIDTHS
-from balance_opt.result import BalanceResult, limit_bounds
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from balance_opt.motion.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 from balance_opt.report.outputs import EFFORT_TOLERANCE
 from balance_opt.report.style import method_colour, method_label
-from balance_opt.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 
 #: Order of the methods in the tables (others follow in the order given).
 METHOD_ORDER = ("mission-only", "analytic", "optimal")

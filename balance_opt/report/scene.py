@@ -1,7 +1,8 @@
 """The 3D scene of a run in one offline HTML file drawn by the meshcat viewer (``docs/viewer.md``).
 
 No meshcat server, socket or subprocess: meshcat's geometry and command objects are lowered to
-the dicts the viewer decodes, packed with msgpack and inlined in the page beside its bundle.
+the dicts the viewer decodes, packed with msgpack and inlined in the page beside its bundle and
+the page's player and style (package data: ``assets/scene_player.js``, ``assets/scene.css``).
 
 One node per Pinocchio joint that carries geometry, animated with the joint's world placement,
 so a mesh is stored once and a frame costs seven numbers per joint. The base moves so that the
@@ -13,11 +14,9 @@ from __future__ import annotations
 
 import base64
 import html
-import http.server
 import itertools
 import json
 import logging
-import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,7 @@ import pinocchio as pin
 
 from balance_opt.errors import InputError
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import (
     matrix_from_quaternion,
     quaternion_from_rotvec,
@@ -35,7 +35,6 @@ from balance_opt.motion.so3 import (
     rotvec_from_quaternion,
 )
 from balance_opt.report.style import ARM_COLOURS, method_label
-from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
 
@@ -552,77 +551,14 @@ def proximity_levels(
     return out, texts
 
 
-_PAGE_STYLE = """
-html, body { margin: 0; height: 100%; overflow: hidden; font: 13px sans-serif; }
-#scene-pane { position: absolute; top: 0; left: 0; right: 0; bottom: 96px; overflow: hidden; }
-#scene-bar { position: absolute; left: 0; right: 0; bottom: 0; height: 96px; padding: 6px 10px;
-  box-sizing: border-box; background: #f4f4f4; border-top: 1px solid #ccc; }
-#scene-bar select, #scene-bar button { font: inherit; margin-right: 6px; }
-#scene-t { width: 45%; vertical-align: middle; }
-.key { display: inline-block; width: 0.9em; height: 0.9em; margin: 0 0.3em 0 0.8em;
-  vertical-align: -0.1em; border: 1px solid #555; }
-#scene-label { display: block; margin-top: 4px; } #scene-note { color: #444; margin-top: 2px; }
-"""
 
-_PLAYER = """
-const S = SCENE_DATA;
-const pane = document.getElementById('scene-pane');
-const viewer = new MeshCat.Viewer(pane);
-const fit = viewer.set_3d_pane_size.bind(viewer);  // the viewer takes the window's height
-viewer.set_3d_pane_size = function () { fit(pane.clientWidth, pane.clientHeight); };
-viewer.set_3d_pane_size();
-function run(b64) { const s = atob(b64), a = new Uint8Array(s.length);
-  for (let i = 0; i < s.length; i++) a[i] = s.charCodeAt(i);
-  viewer.handle_command_bytearray(a); }
-S.setup.forEach(run);
-// a mesh that several links carry is sent once: the others take its geometry
-function drawnAt(path) { return viewer.scene_tree.find(path.split('/').filter(Boolean)
-  .concat(['<object>'])).object; }
-S.shared.forEach(function (s) { drawnAt(s[0]).geometry = drawnAt(s[1]).geometry; });
-const sel = document.getElementById('scene-method'), mag = document.getElementById('scene-mag');
-const sl = document.getElementById('scene-t'), btn = document.getElementById('scene-play');
-const lab = document.getElementById('scene-label'), note = document.getElementById('scene-note');
-const anim = viewer.animator;
-function method() { return S.methods[sel.value]; }
-// the key in force at t: the last one at or before it
-function keyAt(times, t) { let k = 0;
-  while (k + 1 < times.length && times[k + 1] <= t + 1e-9) k++;
-  return k; }
-function show(t) { const m = method(), a = m.angle[keyAt(m.angle_t, t)];
-  let s = 't = ' + (m.t0 + t).toFixed(2) + ' s of ' + (m.t0 + m.duration).toFixed(2) +
-    ' s; base rotation from the start ' + a.toPrecision(3) + ' rad (' +
-    (a * 180 / Math.PI).toFixed(2) + ' deg)';
-  if (S.target) s += (m.t0 + t >= S.target.time ? '; target captured' : '; target free') +
-    ' (capture at ' + S.target.time + ' s)';
-  const near = m.near ? m.near[keyAt(m.near.map(function (n) { return n[0]; }), t)][1] : '';
-  if (near) s += '; ' + near;
-  lab.textContent = s; sl.value = t; }
-// the viewer's player applies only running actions: hold them paused at the time shown
-function seek(t) { anim.playing = false; anim.clock.stop();
-  anim.actions.forEach(function (a) { a.play(); a.paused = true; a.time = t; });
-  anim.mixer.update(0); viewer.set_dirty(); show(t); btn.textContent = 'play'; }
-function load(t) { run(S.animations[sel.value + '|' + mag.value]);
-  sl.max = method().duration; seek(Math.min(t, method().duration));
-  const f = +mag.value;
-  note.textContent = f === 1 ? 'Base rotation: as planned.' :
-    'Base rotation magnified ' + f + ' times (its rotation from the start), so that a drift ' +
-    'of a few degrees shows; the arms move as planned relative to the base.'; }
-sel.onchange = function () { load(+sl.value); }; mag.onchange = sel.onchange;
-sl.oninput = function () { seek(+sl.value); };
-btn.onclick = function () { if (anim.playing) { seek(+sl.value); return; }
-  const t = +sl.value >= method().duration - 1e-6 ? 0 : +sl.value;
-  seek(t); anim.actions.forEach(function (a) { a.paused = false; });
-  anim.clock.start(); anim.playing = true; btn.textContent = 'pause'; };
-(function tick() {
-  if (anim.playing) show(anim.actions.reduce(function (m, a) { return Math.max(m, a.time); }, 0));
-  else if (btn.textContent === 'pause') btn.textContent = 'play';
-  requestAnimationFrame(tick); })();
-const h = new URLSearchParams(location.hash.slice(1));
-if (h.has('method') && S.methods[h.get('method')]) sel.value = h.get('method');
-if (h.has('magnify') && S.factors.indexOf(+h.get('magnify')) >= 0) mag.value = h.get('magnify');
-load(h.has('t') ? +h.get('t') : 0);
-if (h.has('play')) btn.onclick();
-"""
+
+
+def _asset(name: str) -> str:
+    """A file of the page shipped with the package (``balance_opt/report/assets``)."""
+    from importlib.resources import files
+
+    return (files("balance_opt.report") / "assets" / name).read_text(encoding="utf-8")
 
 
 def scene_html(scene: Scene, title: str = "") -> str:
@@ -655,11 +591,12 @@ def scene_html(scene: Scene, title: str = "") -> str:
         keys.append(key(near["touch"], "penetrating"))
     data = {k: v for k, v in meta.items() if k != "robot"}
     data.update(setup=scene.setup, animations=scene.animations)
-    script = _PLAYER.replace("SCENE_DATA", json.dumps(data, separators=(",", ":")))
+    player, style = _asset("scene_player.js"), _asset("scene.css")
+    script = player.replace("SCENE_DATA", json.dumps(data, separators=(",", ":")))
     heading = html.escape(title or meta["robot"])
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-        f"<title>balance-opt scene: {heading}</title><style>{_PAGE_STYLE}</style></head><body>"
+        f"<title>balance-opt scene: {heading}</title><style>{style}</style></head><body>"
         '<div id="scene-pane"></div><div id="scene-bar">'
         f'<select id="scene-method" title="plan">{options}</select>'
         f'<select id="scene-mag" title="base rotation">{rotations}</select>'
@@ -690,30 +627,3 @@ def write_scene(
     megabytes = path.stat().st_size / 1e6
     log.info("scene: %s, %.1f MB (%d mesh vertices)", path.name, megabytes, scene.meta["vertices"])
     return path
-
-
-def serve(page: str | Path, port: int = 0) -> tuple[http.server.ThreadingHTTPServer, str]:
-    """Serve the page (and nothing else of its folder) on 127.0.0.1 (``port`` 0: a free one)
-    from a thread; returns the server (``shutdown()`` stops it) and the page's URL."""
-    page = Path(page)
-    body, name = page.read_bytes(), page.name
-
-    class Handler(http.server.BaseHTTPRequestHandler):
-        def do_GET(self):  # noqa: N802 (the base class's name)
-            if self.path.split("?")[0] not in ("/", f"/{name}"):
-                self.send_error(404)
-                return
-            self.send_response(200)
-            self.send_header("Content-Type", "text/html; charset=utf-8")
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
-
-        def log_message(self, format, *args):  # noqa: A002 (the base class's name)
-            log.debug("view: " + format, *args)
-
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), Handler)
-    thread = threading.Thread(target=server.serve_forever, name="balance-opt view", daemon=True)
-    thread.start()
-    host, port = server.server_address[:2]
-    return server, f"http://{host}:{port}/{name}"

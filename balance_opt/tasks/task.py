@@ -28,9 +28,9 @@ from balance_opt.errors import (
 )
 from balance_opt.model.capture import TARGET_LINK
 from balance_opt.model.robot import LIMIT_KEYS, FloatingRobot, LimitOverrideError
+from balance_opt.motion.result import LIMIT_TOLERANCE, find_limit_violations
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
-from balance_opt.result import LIMIT_TOLERANCE, find_limit_violations
 from balance_opt.tasks.task_spec import (
     CartesianMission,
     CsvMission,

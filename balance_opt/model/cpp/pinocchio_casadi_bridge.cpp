@@ -11,10 +11,13 @@
 // URDF is a URDF file (locked joints already fixed), OUT the file to save the function to,
 // JOINT_i the arm joints in arm order and FRAME_k the end-effector frames. The model gets a
 // free-flyer root at the identity pose. The saved function is
-//   pinocchio_primitives(q[N]) -> (A_G[6 x (6+N)], J_1[6 x (6+N)], ..., J_M[6 x (6+N)])
+//   pinocchio_primitives(q[N]) -> (A_G[6 x (6+N)], J_1[6 x (6+N)], ..., J_M[6 x (6+N)],
+//                                  oMi[12 x (njoints-1)])
 // with A_G the centroidal momentum matrix and J_k the frame Jacobian of FRAME_k in
 // LOCAL_WORLD_ALIGNED axes; columns are the base twist (local = world at the identity) then
-// the arm joints in arm order. Continuous joints (Pinocchio's (cos, sin) pair) take the angle.
+// the arm joints in arm order. oMi holds each joint's placement (joints 1 to njoints-1): its
+// rotation by columns, then its translation. Continuous joints (Pinocchio's (cos, sin) pair)
+// take the angle.
 //
 // Exit status: 0 on success, 1 on bad usage, 2 when the model cannot be built or a name is
 // unknown (message on stderr).
@@ -83,6 +86,21 @@ SX select_columns(const SXData::Matrix6x& M, const std::vector<int>& cols) {
   return out;
 }
 
+// Every joint's placement oMi, one column per joint (the universe left out): the rotation by
+// columns, then the translation.
+SX joint_placements(const SXModel& cmodel, const SXData& cdata) {
+  SX out = SX::zeros(12, static_cast<casadi_int>(cmodel.njoints - 1));
+  for (int j = 1; j < cmodel.njoints; ++j) {
+    for (int c = 0; c < 3; ++c) {
+      for (int r = 0; r < 3; ++r) {
+        out(3 * c + r, j - 1) = cdata.oMi[j].rotation()(r, c);
+      }
+      out(9 + c, j - 1) = cdata.oMi[j].translation()(c);
+    }
+  }
+  return out;
+}
+
 void check_names(const pinocchio::Model& model, const std::vector<std::string>& joints,
                  const std::vector<std::string>& frames) {
   for (const std::string& name : joints) {
@@ -123,6 +141,8 @@ int run(const std::string& urdf, const std::string& out, const std::vector<std::
     outputs.push_back(select_columns(J, cols));
     names.push_back("J_" + std::to_string(k));
   }
+  outputs.push_back(joint_placements(cmodel, cdata));
+  names.push_back("oMi");
   casadi::Function f("pinocchio_primitives", {q}, outputs, {"q"}, names);
   f.save(out);
   return 0;
