@@ -26,6 +26,7 @@ from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import build_structure
+from balance_opt.optimal import timing
 from balance_opt.optimal.options import (
     PEAK_STAGES,
     SMOOTH_PLAN,
@@ -69,14 +70,15 @@ class BalanceNLP(BalanceProblem):
         super().__init__(model, mission, q_B0, options, robot, h0)
         momentum = bool(np.any(self.h0 != 0.0))
         collision = self.collision.rows.key if self.collision is not None else ""
-        key = StructureKey.of(self.limits, options, momentum, collision)
+        path = self.mission_path if self.free_timing else None
+        key = StructureKey.of(self.limits, options, momentum, collision, path.key if path else "")
         if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
             key = dataclasses.replace(
                 key, objective=stage, path_attitude_bound=False, between_points=between
             )
         built_now = key not in model.nlp_cache
         if built_now:
-            model.nlp_cache[key] = build_structure(model, key, options)
+            model.nlp_cache[key] = build_structure(model, key, options, path)
         self.structure = model.nlp_cache[key]
         self.build_time = self.structure.build_time if built_now else 0.0
         self._set_bounds()
@@ -164,6 +166,8 @@ class BalanceNLP(BalanceProblem):
                 sol = resampled(guess, self.N)
             else:
                 sol = guess_solution(self, guess)
+            if self.free_timing:
+                timing.guess_timing(self, sol)
             if "S" in self.structure.variables.by_name:  # the guess's own peak
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
@@ -329,6 +333,11 @@ class BalanceNLP(BalanceProblem):
             )
         return name, t, float(viol[i]), unit, f"{name} at t = {t:.3f} s"
 
+    def mission_motion(self, sol: Solution):
+        """The mission arm's motion of a solution: the given mission, or with a free timing
+        its path re-timed (:func:`~balance_opt.optimal.timing.retimed`)."""
+        return timing.retimed(self, sol) if self.free_timing else self.mission
+
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
         levels = joint_chain_coefficients(self.transcription, starts, sol.U, sol.Um, self.h)
@@ -371,9 +380,10 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
 
     sub = max(1, math.ceil(nlp.h / nlp.options.resample_step - 1e-9))
     t = np.arange(nlp.N * sub + 1) * (nlp.h / sub)
+    mission = nlp.mission_motion(sol)
     result = replay(
         nlp.robot,
-        nlp.mission,
+        mission,
         trajectory,
         t_eval=t,
         method="optimal",
@@ -401,4 +411,6 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         "limit_violations": [str(v) for v in result.violations],
         "constraint_violations": [str(v) for v in checks if v is not None],
     }
+    if nlp.free_timing:
+        result.info["timing"] = timing.timing_info(nlp, result, mission)
     return result

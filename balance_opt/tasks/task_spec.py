@@ -10,7 +10,7 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.config.typed_config import json_schema, reference_markdown, setting
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
-from balance_opt.optimal.options import GUESSES, PlannerOptions
+from balance_opt.optimal.options import GUESSES, TIMINGS, PlannerOptions
 
 #: Values of ``robot.backend``: ``auto`` and :data:`balance_opt.model.symbolic.BACKENDS` (not
 #: imported: loading a task does not import CasADi).
@@ -100,7 +100,19 @@ class InitialSpec:
 
 
 @dataclass(frozen=True, kw_only=True)
-class PtpMission:
+class TimedMission:
+    """What every mission type has: its timing."""
+
+    timing: Literal[TIMINGS] = setting(
+        TIMINGS[0],
+        doc="given: the trajectory as given; free: its path, the timing planned by the optimal "
+        "planner together with the balance arm (mission joints within their velocity and "
+        "acceleration limits; the analytic law keeps the given timing)",
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class PtpMission(TimedMission):
     """Point to point, rest to rest, quintic time law (the paper's PTP)."""
 
     type: Literal["ptp"] = setting("ptp", doc="point to point")
@@ -114,7 +126,7 @@ class PtpMission:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ViaMission:
+class ViaMission(TimedMission):
     """Through via points, smooth (C4), at rest at the first and last."""
 
     type: Literal["via"] = setting("via", doc="via points")
@@ -127,7 +139,7 @@ class ViaMission:
 
 
 @dataclass(frozen=True, kw_only=True)
-class CsvMission:
+class CsvMission(TimedMission):
     """Read from a CSV file: a time column and one column per mission joint, by name."""
 
     type: Literal["csv"] = setting("csv", doc="CSV file")
@@ -136,7 +148,7 @@ class CsvMission:
 
 
 @dataclass(frozen=True, kw_only=True)
-class CartesianMission:
+class CartesianMission(TimedMission):
     """A goal pose of the mission end effector, solved to joint angles by inverse kinematics,
     then reached point to point."""
 
