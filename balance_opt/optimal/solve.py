@@ -186,7 +186,9 @@ class BalanceNLP(BalanceProblem):
                 below the smallest peak found.
         """
         try:
-            if self.options.starts > 1:
+            if self.options.objective == "time":
+                result = fastest(self, initial_guess, executor)
+            elif self.options.starts > 1:
                 result = multi_start(self, initial_guess, executor)
             else:
                 result = solve_with_bounds(self, initial_guess)
@@ -342,6 +344,84 @@ class BalanceNLP(BalanceProblem):
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
         levels = joint_chain_coefficients(self.transcription, starts, sol.U, sol.Um, self.h)
         return CollocatedTrajectory(self.h, levels)
+
+
+#: Width of the bracket [s] at which the search for the shortest duration stops.
+TIME_RESOLUTION = 0.1
+
+
+def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
+    """``objective: time``: the shortest horizon whose peak plan keeps the path attitude bound
+    (and the terminal one), by bisection between the shortest motion the mission joints' limits
+    allow (:func:`~balance_opt.optimal.timing.shortest_duration`) and the given duration
+    (doubled until feasible, twice at most). A bisection, not the horizon as a variable: with
+    rest at the end, a plan of a duration is one of every longer duration (both arms then wait
+    at rest), so feasibility is monotone in the duration, and every probe is an ordinary peak
+    plan, re-simulated and refined. ``info["minimum_time"]`` lists the probes.
+
+    Raises:
+        InputError: the timing is not free or there is no path attitude bound.
+        PlannerSolverError: not even the longest duration tried keeps the bound.
+    """
+    bound = nlp.options.path_attitude_bound
+    if not nlp.free_timing or bound is None:
+        raise InputError(
+            "objective time needs a free mission timing (mission.timing: free) and a "
+            "path_attitude_bound"
+        )
+    probes: list[dict] = []
+
+    def probe(T: float):
+        variant = nlp.variant(objective="peak", horizon=T)
+        try:
+            result = variant.solve(guess, executor)
+        except SolverError as exc:
+            probes.append({"duration_s": T, "feasible": False, "reason": str(exc)})
+            log.info("objective time: %.3f s does not keep the bound (%s)", T, exc)
+            return None
+        probes.append(
+            {
+                "duration_s": T,
+                "feasible": True,
+                "max_drift_rad": result.max_drift,
+                "final_drift_rad": result.final_drift,
+            }
+        )
+        log.info("objective time: %.3f s keeps the bound (peak %.4g rad)", T, result.max_drift)
+        return result
+
+    lo = timing.shortest_duration(nlp.mission_path, nlp.path_rate_limits)
+    hi, best = nlp.mission.duration, None
+    for _ in range(3):
+        best = probe(hi)
+        if best is not None:
+            break
+        lo, hi = hi, 2.0 * hi
+    if best is None:
+        last = probes[-1]
+        raise PlannerSolverError(
+            f"objective time: no duration up to {hi:.3g} s keeps the path attitude bound "
+            f"{bound:.4g} rad ({last['reason']})",
+            "Bound_Not_Kept",
+            None,
+            "path attitude bound",
+            hi,
+            0.0,
+        )
+    while hi - lo > TIME_RESOLUTION:
+        T = 0.5 * (lo + hi)
+        found = probe(T)
+        if found is None:
+            lo = T
+        else:
+            hi, best = T, found
+    best.info["minimum_time"] = {
+        "duration_s": hi,
+        "bracket_s": [lo, hi],
+        "resolution_s": TIME_RESOLUTION,
+        "probes": probes,
+    }
+    return best
 
 
 def build_balance_nlp(

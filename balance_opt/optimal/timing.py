@@ -41,6 +41,8 @@ from balance_opt.optimal.collocation import (
 
 #: Quintic Hermite pieces of a curved path (a mission that is not point to point).
 PATH_SEGMENTS = 40
+#: Samples of the path progress in ``info["timing"]`` (and ``metrics.json``).
+PROGRESS_SAMPLES = 201
 #: Rows of the path chain's states (``sigma``, ``sigma_dot``) and of the mission data ``M``
 #: per mission joint (``q_M``, ``q_dot_M``, ``q_ddot_M``).
 PATH_STATES = ("progress", "progress rate")
@@ -233,6 +235,18 @@ def path_rate_limits(path: MissionPath, limits: MissionData) -> tuple[float, flo
     )
 
 
+def shortest_duration(path: MissionPath, rate_limits: tuple[float, float]) -> float:
+    """A lower bound of the duration [s] of a rest-to-rest motion along the path: along a
+    straight path, the time optimal motion of ``sigma`` with its rate and acceleration limits
+    (accelerate, coast, brake); along a curved one, zero."""
+    v, a = rate_limits
+    if not np.isfinite(v) or not np.isfinite(a):
+        return 0.0
+    if v * v / a >= 1.0:  # the rate limit is never reached
+        return 2.0 * float(np.sqrt(1.0 / a))
+    return 1.0 / v + v / a
+
+
 def path_levels(transcription: Transcription, sol, h) -> list[list]:
     """Bernstein coefficients of ``sigma``, ``sigma_dot``, ``sigma_ddot`` on every interval."""
     starts = [sol.P[0:1, :-1], sol.P[1:2, :-1]]
@@ -265,16 +279,18 @@ def retimed(problem, sol) -> RetimedMission:
 
 def timing_info(problem, result, mission: RetimedMission) -> dict:
     """``info["timing"]``: the duration, the path progress ``s(t)`` (given-time equivalent, at
-    the result's samples), the mission's largest joint rates and accelerations."""
+    :data:`PROGRESS_SAMPLES` of the result's samples), the mission's largest joint rates and
+    accelerations."""
     path = problem.mission_path
-    sigma = mission.timing(result.t)[0]
+    t = result.t[np.unique(np.linspace(0, result.t.size - 1, PROGRESS_SAMPLES).astype(int))]
+    sigma = mission.timing(t)[0]
     joints = problem.robot.mission.joints
     return {
         "timing": "free",
         "duration_s": float(mission.duration),
         "given_duration_s": path.duration,
         "path": "straight joint segment" if path.linear else f"{PATH_SEGMENTS} quintic pieces",
-        "progress_t": [float(v) for v in result.t],
+        "progress_t": [float(v) for v in t],
         "progress_s": [float(v) for v in path.given_time(sigma)],
         "mission_peak_rate_rad_s": dict(zip(joints, np.abs(result.q_dot_M).max(axis=0).tolist())),
         "mission_peak_acceleration_rad_s2": dict(
