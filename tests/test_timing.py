@@ -240,3 +240,54 @@ def _retimed(task, result):
     model = PlannerModel(task.robot, compile=False)
     problem = BalanceProblem(model, task.mission, task.q_B0, task.planner_options(), task.robot)
     return retimed(problem, result.solver.solution)
+
+
+@pytest.mark.slow
+def test_shortest_mission_within_a_drift_bound(tmp_path):
+    """``objective: time``: the duration found keeps the bound (re-simulated), the last
+    shorter one probed did not, and both are within the search's resolution."""
+    from balance_opt.app.pipeline import plan_optimal
+    from balance_opt.optimal.solve import TIME_RESOLUTION
+
+    extra = (
+        "optimal:\n  objective: time\n  intervals: 12\n  collision: {avoid: false}\n"
+        "  constraints: {path_attitude_bound: 0.03}\n"
+    )
+    task = load_task(_task(tmp_path, _free(extra=extra)))
+    result = plan_optimal(task)
+    found = result.info["minimum_time"]
+    T = found["duration_s"]
+    assert result.t[-1] == pytest.approx(T) and T < 10.0
+    assert result.max_drift <= 0.03 * (1 + 1e-3)
+    lo, hi = found["bracket_s"]
+    assert hi == T and hi - lo <= TIME_RESOLUTION
+    probed = {p["duration_s"]: p["feasible"] for p in found["probes"]}
+    assert probed[hi] and probed.get(lo) is False
+    # the mission ends at its goal, at the plan's end
+    np.testing.assert_allclose(result.q_M[-1], task.mission.end, atol=1e-8)
+
+
+@pytest.mark.slow
+def test_free_timing_of_a_curved_path(tmp_path):
+    """A via-point mission re-timed: the mission joints stay on the given path (to its
+    interpolation by quintic pieces), end at its last point, within their limits."""
+    from balance_opt.app.pipeline import plan_optimal
+
+    via = (
+        "  type: via\n  timing: free\n  times: [0, 4, 10]\n"
+        "  points: [[0.0, 0.3, -0.6], [0.7, 0.4, -1.2], [1.2, 0.9, -1.6]]\n"
+    )
+    text = re.sub(r"  type: ptp\n.*?\n\n", via + "\n", CAPTURE, flags=re.DOTALL)
+    text += "optimal:\n  intervals: 12\n  collision: {avoid: false}\n"
+    task = load_task(_task(tmp_path, text))
+    result = plan_optimal(task)
+    path = MissionPath(task.mission)
+    sigma = result.solver.solution.P[0]
+    assert np.all(np.diff(sigma) > -1e-7)
+    # every sample of the re-timed mission is a point of the given path
+    dense = task.mission.sample(np.linspace(0.0, 10.0, 20001))[0]
+    gap = np.min(np.linalg.norm(result.q_M[:, None, :] - dense[None, :, :], axis=2), axis=1)
+    assert gap.max() < 1e-3
+    np.testing.assert_allclose(result.q_M[-1], task.mission.end, atol=1e-6)
+    assert not result.violations, result.violations
+    assert path.linear is False

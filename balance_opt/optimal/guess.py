@@ -10,6 +10,7 @@ import numpy as np
 from balance_opt.errors import InputError, SolverError
 from balance_opt.optimal.options import GUESSES
 from balance_opt.optimal.problem import BalanceProblem, Solution
+from balance_opt.optimal.timing import guess_timing
 from balance_opt.result import BalanceResult
 
 log = logging.getLogger(__name__)
@@ -98,6 +99,8 @@ def from_samples(problem: BalanceProblem, t, q_B, q_dot_B, q_ddot_B) -> Solution
     )
     sol.X[3:, 0] = problem.unpack(problem.lbx).X[3:, 0]
     attitude_along(problem, sol)
+    if problem.free_timing:  # the mission at the given timing, stretched to the horizon
+        guess_timing(problem, sol)
     return sol
 
 
