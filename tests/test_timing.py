@@ -91,7 +91,7 @@ def test_straight_path_of_a_point_to_point_mission_and_its_given_progress():
         (
             _free(CAPTURE.replace("  mission_joint2: {acceleration: 2.0}\n", "")),
             "timing: free",
-            "mission.timing: a free timing needs a acceleration limit of every mission joint; "
+            "mission.timing: a free timing needs an acceleration limit of every mission joint; "
             "mission_joint2 has none (set limits.mission_joint2.acceleration)",
         ),
         (
@@ -119,14 +119,15 @@ def test_bad_timing_keys_name_file_line_and_key(tmp_path, text, fragment, messag
 def test_free_timing_with_a_capture_is_refused(tmp_path):
     text = (EXAMPLES / "capture_tumbling_target.yaml").read_text()
     text = re.sub(r"(\n  duration: [^\n]*\n)", r"\1  timing: free\n", text, count=1)
-    text = text.replace("  balance_joint1: {acceleration", "  mission_joint1: {acceleration: 2.0}\n"
-                        "  mission_joint2: {acceleration: 2.0}\n  mission_joint3: {acceleration: 2.0}\n"
-                        "  balance_joint1: {acceleration", 1)
+    limits = "".join(f"  mission_joint{i}: {{acceleration: 2.0}}\n" for i in (1, 2, 3))
+    first = "  balance_joint1: {acceleration"
+    text = text.replace(first, limits + first, 1)
     path = _task(tmp_path, text)
-    with pytest.raises(TaskFileError, match=re.escape(
+    message = (
         f"{path}:{_line_of(text, 'timing: free')}: mission.timing: a free timing is not "
         "available with a capture (the capture time is fixed); use timing: given"
-    )):
+    )
+    with pytest.raises(TaskFileError, match=re.escape(message)):
         load_task(path)
 
 
@@ -173,7 +174,8 @@ def free_plan(tmp_path_factory):
     from balance_opt.app.pipeline import run_task
 
     folder = tmp_path_factory.mktemp("free")
-    text = _free(extra="optimal:\n  intervals: 20\n  collision: {avoid: false}\n  weights: {jerk: 0}\n")
+    options = "  intervals: 20\n  collision: {avoid: false}\n  weights: {jerk: 0}\n"
+    text = _free(extra="optimal:\n" + options)
     text += "outputs: {plots: false, report: false, animation: false}\n"
     task = load_task(_task(folder, text))
     run = run_task(task, methods=("optimal",), output_dir=folder / "out", robustness=False)

@@ -506,18 +506,19 @@ class Collision(Constraint):
 
 
 class MissionTiming(Constraint):
-    """The free timing's rows and bounds (see the module docstring): the path chain integrated
-    exactly, the mission joints on the path, ``sigma`` in [0, 1] and never backwards, the
-    mission joints within their limits."""
+    """A free mission timing's rows and bounds (:mod:`balance_opt.optimal.timing`): the path
+    progress ``sigma`` integrated exactly, the mission joints on the path at every point,
+    ``sigma`` in [0, 1] and never backwards on the continuous motion, the mission joints within
+    their limits (on a straight path between the points too, through ``sigma``'s Bernstein
+    coefficients; :meth:`check` looks between the points on the re-simulated motion)."""
 
     name = "mission timing"
 
-    def __init__(self, transcription: Transcription, path_key: str):
+    def __init__(self, transcription: Transcription):
         self.transcription = transcription
-        self.linear = path_key.startswith("linear:")
         degree = transcription.control_degree + 2  # sigma's polynomial degree
         # interior Bernstein coefficients of sigma, sigma_dot, sigma_ddot
-        self.interior = (tuple(range(1, degree)), tuple(range(1, degree - 1)), tuple(range(1, degree - 2)))
+        self.interior = tuple(tuple(range(1, degree - k)) for k in range(3))
 
     def rows(self, nlp):
         tr, N, v, h = self.transcription, nlp.key.intervals, nlp.variables, nlp.parameters.h
@@ -558,7 +559,8 @@ class MissionTiming(Constraint):
         out += block_rows(nlp, "mission on its path", labels, "(path)", cs.horzcat(*columns))
         # between the points: sigma in [0, 1], sigma_dot >= 0 (and the limits of a straight path)
         coefficients, labels = [], []
-        for level, indices, name in zip(levels, self.interior, ("progress", "progress rate", "progress acceleration")):
+        names = ("progress", "progress rate", "progress acceleration")
+        for level, indices, name in zip(levels, self.interior, names):
             for i in indices:
                 coefficients.append(level[i])
                 labels.append(f"{name} (control point {i})")
@@ -596,7 +598,7 @@ class MissionTiming(Constraint):
         for name in ("A", "Am"):
             if getattr(lower, name) is not None:
                 getattr(lower, name)[:], getattr(upper, name)[:] = bounds[2]
-        lim, n = problem.mission_limits, problem.model.n_M
+        lim = problem.mission_limits
         low = np.r_[lim.lower, -lim.velocity, -lim.acceleration]
         high = np.r_[lim.upper, lim.velocity, lim.acceleration]
         for name in ("M", "Mm"):
@@ -612,7 +614,6 @@ class MissionTiming(Constraint):
             lower.A[:, [0, N]] = upper.A[:, [0, N]] = 0.0
         else:  # the trapezoidal rule's acceleration is constant on an interval
             lower.A[:, [0, 1, N - 1, N]] = upper.A[:, [0, 1, N - 1, N]] = 0.0
-        del n
 
     def check(self, problem, result):
         """The mission joints' limits on the re-simulated motion (between the points on a
@@ -661,6 +662,6 @@ def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
     if key.collision:
         kinds.append(Collision())
     if key.timing:
-        kinds.append(MissionTiming(transcription, key.timing))
+        kinds.append(MissionTiming(transcription))
     kinds += [InitialState(), EndConditions()]
     return tuple(kinds)

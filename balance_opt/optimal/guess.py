@@ -138,7 +138,8 @@ def resampled(sol: Solution, N: int) -> Solution:
     pairs = [("X", "U")] + ([("P", "A")] if sol.P is not None else [])
     names = [a + m for pair in pairs for m in ("", "m") for a in pair]
     if n == N:
-        return Solution(**{k: None if getattr(sol, k) is None else getattr(sol, k).copy() for k in names})
+        copies = {k: getattr(sol, k) for k in names}
+        return Solution(**{k: None if v is None else v.copy() for k, v in copies.items()})
     has_midpoints = sol.Xm is not None
     nodes = np.arange(N + 1) * (n / N)  # the new points in units of sol's intervals
     taus = [nodes, nodes[:-1] + 0.5 * (n / N)] if has_midpoints else [nodes]

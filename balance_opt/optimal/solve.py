@@ -392,11 +392,11 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
 
     lo = timing.shortest_duration(nlp.mission_path, nlp.path_rate_limits)
     hi, best = nlp.mission.duration, None
-    for _ in range(3):
+    for longer in (1.0, 2.0, 2.0):
+        lo, hi = (hi, hi * longer) if longer > 1.0 else (lo, hi)
         best = probe(hi)
         if best is not None:
             break
-        lo, hi = hi, 2.0 * hi
     if best is None:
         last = probes[-1]
         raise PlannerSolverError(

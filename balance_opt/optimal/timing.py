@@ -136,7 +136,8 @@ class MissionPath:
             lo = -np.inf if k == 0 else self.knots[k]
             hi = np.inf if k == K - 1 else self.knots[k + 1]
             on = cs.logic_and(sigma >= lo, sigma < hi)
-            parts = [p + cs.if_else(on, v, cs.SX.zeros(self.dof, 1)) for p, v in zip(parts, (q, d1, d2))]
+            zero = cs.SX.zeros(self.dof, 1)
+            parts = [p + cs.if_else(on, v, zero) for p, v in zip(parts, (q, d1, d2))]
         return tuple(parts)
 
     def joints(self, sigma, sigma_dot, sigma_ddot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

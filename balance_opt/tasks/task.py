@@ -258,8 +258,8 @@ def check_timing(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> Non
             if not np.isfinite(value):
                 raise doc.error(
                     ("mission", "timing"),
-                    f"a free timing needs a {kind} limit of every mission joint; "
-                    f"{joint} has none (set limits.{joint}.{kind})",
+                    f"a free timing needs {'an' if kind == 'acceleration' else 'a'} {kind} limit "
+                    f"of every mission joint; {joint} has none (set limits.{joint}.{kind})",
                 )
 
 
