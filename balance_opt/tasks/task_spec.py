@@ -99,11 +99,9 @@ class InitialSpec:
     )
 
 
-@dataclass(frozen=True, kw_only=True)
-class TimedMission:
-    """What every mission type has: its timing."""
-
-    timing: Literal[TIMINGS] = setting(
+def _timing():
+    """Every mission type's ``timing`` (one declaration, last among its keys)."""
+    return setting(
         TIMINGS[0],
         doc="given: the trajectory as given; free: its path, the timing planned by the optimal "
         "planner together with the balance arm (mission joints within their velocity and "
@@ -112,7 +110,7 @@ class TimedMission:
 
 
 @dataclass(frozen=True, kw_only=True)
-class PtpMission(TimedMission):
+class PtpMission:
     """Point to point, rest to rest, quintic time law (the paper's PTP)."""
 
     type: Literal["ptp"] = setting("ptp", doc="point to point")
@@ -123,10 +121,11 @@ class PtpMission(TimedMission):
         unit="rad", per="mission joint", doc="mission joint positions at the end", min_items=1
     )
     duration: float = setting(unit="s", exclusive_minimum=0.0, doc="duration of the move")
+    timing: Literal[TIMINGS] = _timing()
 
 
 @dataclass(frozen=True, kw_only=True)
-class ViaMission(TimedMission):
+class ViaMission:
     """Through via points, smooth (C4), at rest at the first and last."""
 
     type: Literal["via"] = setting("via", doc="via points")
@@ -136,19 +135,21 @@ class ViaMission(TimedMission):
     points: tuple[tuple[float, ...], ...] = setting(
         unit="rad", per="mission joint", min_items=2, doc="mission joint positions at each time"
     )
+    timing: Literal[TIMINGS] = _timing()
 
 
 @dataclass(frozen=True, kw_only=True)
-class CsvMission(TimedMission):
+class CsvMission:
     """Read from a CSV file: a time column and one column per mission joint, by name."""
 
     type: Literal["csv"] = setting("csv", doc="CSV file")
     file: str = setting(doc="path of the CSV file, relative to the task file")
     time_column: str = setting("time", doc="name of the time column [s]")
+    timing: Literal[TIMINGS] = _timing()
 
 
 @dataclass(frozen=True, kw_only=True)
-class CartesianMission(TimedMission):
+class CartesianMission:
     """A goal pose of the mission end effector, solved to joint angles by inverse kinematics,
     then reached point to point."""
 
@@ -170,6 +171,7 @@ class CartesianMission(TimedMission):
         doc="goal roll, pitch, yaw of the end effector, initial base frame (default: free)",
     )
     duration: float = setting(unit="s", exclusive_minimum=0.0, doc="duration of the move")
+    timing: Literal[TIMINGS] = _timing()
 
 
 MissionSpec = PtpMission | ViaMission | CsvMission | CartesianMission
