@@ -12,7 +12,6 @@ from balance_opt.errors import InputError
 from balance_opt.motion.so3 import matrix_from_quaternion
 from balance_opt.optimal import collision
 from balance_opt.optimal.collocation import Transcription, bernstein_value
-from balance_opt.optimal.timing import MISSION_LEVELS, PATH_STATES, path_levels
 from balance_opt.optimal.problem import (
     BalanceProblem,
     Block,
@@ -22,6 +21,7 @@ from balance_opt.optimal.problem import (
     StructureKey,
     unit_of,
 )
+from balance_opt.optimal.timing import MISSION_LEVELS, PATH_STATES, path_levels
 from balance_opt.result import LIMIT_TOLERANCE, BalanceResult, limit_bounds
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.

@@ -28,7 +28,6 @@ from balance_opt.optimal.constraints import (
 )
 from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
 from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_STAGES, PlannerOptions
-from balance_opt.optimal.timing import MISSION_LEVELS
 from balance_opt.optimal.problem import (
     BlockStack,
     NLPParameters,
@@ -36,6 +35,7 @@ from balance_opt.optimal.problem import (
     parameter_layout,
     variable_layout,
 )
+from balance_opt.optimal.timing import MISSION_LEVELS
 
 log = logging.getLogger(__name__)
 

@@ -13,11 +13,11 @@ import numpy as np
 
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.optimal import timing
 from balance_opt.optimal.budget import limited_kinds
 from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK, collision_setup
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
-from balance_opt.optimal import timing
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.result import LIMIT_TOLERANCE
 

@@ -21,12 +21,12 @@ from balance_opt.motion.so3 import (
     quaternion_multiply,
     rotation_angle,
 )
+from balance_opt.optimal import timing
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import build_structure
-from balance_opt.optimal import timing
 from balance_opt.optimal.options import (
     PEAK_STAGES,
     SMOOTH_PLAN,
