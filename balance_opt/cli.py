@@ -377,6 +377,10 @@ def _run_task_command(args) -> int:
         task = _load_task(args.task, args.backend)
         solver_options = ipopt_options_of(args, task)
         folder = folder or OutputFolder(default_output_folder(task.name), args.force)
+        if args.command == "compare" and task.spec.mission.timing == "free":
+            from balance_opt.app.pipeline import GIVEN_TIMING
+
+            methods += (GIVEN_TIMING,) if "optimal" in methods else ()
         started = time.perf_counter()
         with _starts_executor(task, methods) as executor:
             run = run_task(

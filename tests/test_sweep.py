@@ -251,7 +251,7 @@ BAD_SWEEPS = [
         (
             "grid.mission.duraton: mission.duraton = 5.0 (case 0): unknown key 'duraton'; "
             "expected one of type, "
-            "start, goal, duration; did you mean 'duration'?"
+            "start, goal, duration, timing; did you mean 'duration'?"
         ),
     ),
     (

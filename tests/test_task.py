@@ -333,8 +333,8 @@ BAD_TASKS = [
         "mission faster than its limits",
         [
             (
-                "balance_joint1: {acceleration: 2.0}",
-                "balance_joint1: {acceleration: 2.0}\n  mission_joint1: {velocity: 0.1}",
+                "mission_joint1: {acceleration: 2.0}",
+                "mission_joint1: {acceleration: 2.0, velocity: 0.1}",
             )
         ],
         "duration:",

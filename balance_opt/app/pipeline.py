@@ -9,6 +9,7 @@ marked, and :attr:`TaskRun.failures` names it (the CLI then exits with code 1)."
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import time
 from collections.abc import Mapping, Sequence
@@ -34,6 +35,9 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 METHODS = ("analytic", "optimal")
+#: With a free mission timing (``mission.timing: free``), the optimal plan at the given timing,
+#: which ``compare`` puts beside the free one.
+GIVEN_TIMING = "optimal-given"
 #: Name of the reference result: the mission arm alone, balance arm held (Phase I, Fig. 2).
 REFERENCE = "mission-only"
 METRICS_FILE = "metrics.json"
@@ -74,6 +78,13 @@ FIGURES = {
     "joints": (
         "balance_joints",
         "Balance joint positions, rates and accelerations of each plan with their limits (dotted)",
+    ),
+    "timing": (
+        "mission_timing",
+        "Free mission timing: the path progress s(t) of the optimal plan (the time at which the "
+        "given trajectory passes where the re-timed mission is), the given timing dotted (s = t); "
+        "below, the drift of the optimal plans at the free and at the given timing (the analytic "
+        "law follows the given timing: it has no say over the mission)",
     ),
     "capture": (
         "capture",
@@ -323,6 +334,10 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
         )
     if plans:
         draw("joints", plots.joint_limits_figure, plans, run.task.robot)
+    free = run.results.get("optimal")
+    if free is not None and "timing" in free.info:
+        both = {k: v for k, v in plans.items() if k in ("optimal", GIVEN_TIMING)}
+        draw("timing", plots.timing_figure, free.info["timing"], both)
     if run.simulations:
         sims = {f"{k}{SIM}": v for k, v in _reference_last(run.simulations).items()}
         draw("simulated_attitude", plots.attitude_figure, sims)
@@ -453,7 +468,24 @@ def plan(
         return plan_analytic(task)
     if method == "optimal":
         return plan_optimal(task, solver_options, warm_start, models, executor)
+    if method == GIVEN_TIMING:
+        result = plan_optimal(given_timing(task), solver_options, warm_start, models, executor)
+        return dataclasses.replace(result, method=GIVEN_TIMING)
     raise InputError(f"unknown method '{method}'; expected {' or '.join(METHODS)}")
+
+
+def given_timing(task: Task) -> Task:
+    """The task at its mission's given timing (a time objective becomes the peak, its bound
+    left out): :data:`GIVEN_TIMING`'s."""
+    spec, planner = task.spec, task.spec.optimal.planner
+    changes = {"timing": "given"}
+    if planner.objective == "time":
+        changes.update(objective="peak", path_attitude_bound=None)
+    optimal = dataclasses.replace(spec.optimal, planner=dataclasses.replace(planner, **changes))
+    mission = dataclasses.replace(spec.mission, timing="given")
+    return dataclasses.replace(
+        task, spec=dataclasses.replace(spec, mission=mission, optimal=optimal)
+    )
 
 
 def simulate(task: Task, plan: BalanceResult) -> SimulationResult:
@@ -638,10 +670,11 @@ def _checked_methods(task: Task, methods: Sequence[str]) -> tuple[str, ...]:
     (``"mission-only"``) may be asked for alone: every run computes it."""
     given = tuple(dict.fromkeys(methods))
     methods = tuple(m for m in given if m != REFERENCE)
-    unknown = [m for m in methods if m not in METHODS]
+    known = METHODS + ((GIVEN_TIMING,) if task.spec.mission.timing == "free" else ())
+    unknown = [m for m in methods if m not in known]
     if unknown or not given:
         raise InputError(
-            f"methods must be among {', '.join((REFERENCE, *METHODS))}, "
+            f"methods must be among {', '.join((REFERENCE, *known))}, "
             f"got {', '.join(given) or 'none'}"
         )
     check_methods(task, methods)
@@ -655,7 +688,7 @@ def _plan_into(
     task = run.task
     if method == REFERENCE:
         what = "mission arm alone (Phase I)"
-    elif method == "optimal":
+    elif method in ("optimal", GIVEN_TIMING):
         spec = task.spec.optimal.planner
         what = f"optimal plan (N = {spec.intervals}, {spec.transcription}, Ipopt)"
     else:

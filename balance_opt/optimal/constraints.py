@@ -22,6 +22,7 @@ from balance_opt.optimal.problem import (
     StructureKey,
     unit_of,
 )
+from balance_opt.optimal.timing import MISSION_LEVELS, PATH_STATES, path_levels
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")
@@ -61,6 +62,8 @@ class SymbolicNLP:
     parameters: NLPParameters
     clearance: Any = None
     clearance_labels: tuple[str, ...] = ()
+    mission_path: Any = None
+    mission_joints: tuple[str, ...] = ()
 
 
 #: Rows a kind adds to ``g``: a block (not yet stacked) and its values, (rows, columns), symbolic.
@@ -286,7 +289,8 @@ class TorqueLimit(Constraint):
             s[-1] -= 1e-9
             t = ((np.arange(problem.N)[:, None] + s[None, :]) * problem.h).ravel()
             q_B, qd_B, qdd_B = problem.trajectory(solution).sample(t)
-            q_M, qd_M, qdd_M = problem.mission.sample(np.minimum(t, problem.mission.duration))
+            motion = problem.mission_motion(solution)
+            q_M, qd_M, qdd_M = motion.sample(np.minimum(t, motion.duration))
             quaternion = np.stack(
                 [np.interp(t, result.t, result.quaternion[:, i]) for i in range(4)], axis=1
             )
@@ -501,6 +505,139 @@ class Collision(Constraint):
             )
 
 
+class MissionTiming(Constraint):
+    """A free mission timing's rows and bounds (:mod:`balance_opt.optimal.timing`): the path
+    progress ``sigma`` integrated exactly, the mission joints on the path at every point,
+    ``sigma`` in [0, 1] and never backwards on the continuous motion, the mission joints within
+    their limits (on a straight path between the points too, through ``sigma``'s Bernstein
+    coefficients; :meth:`check` looks between the points on the re-simulated motion)."""
+
+    name = "mission timing"
+
+    def __init__(self, transcription: Transcription):
+        self.transcription = transcription
+        degree = transcription.control_degree + 2  # sigma's polynomial degree
+        # interior Bernstein coefficients of sigma, sigma_dot, sigma_ddot
+        self.interior = tuple(tuple(range(1, degree - k)) for k in range(3))
+
+    def rows(self, nlp):
+        tr, N, v, h = self.transcription, nlp.key.intervals, nlp.variables, nlp.parameters.h
+        levels = path_levels(tr, v, h)
+        states = levels[:-1]
+        ends = cs.vertcat(*(bernstein_value(level, 1.0) for level in states))
+        out = block_rows(
+            nlp,
+            "mission timing (collocation)",
+            PATH_STATES,
+            "(path)",
+            v.P[:, 1:] - ends,
+            np.arange(N, dtype=float),
+            True,
+        )
+        if tr.has_midpoints:
+            mids = cs.vertcat(*(bernstein_value(level, 0.5) for level in states))
+            out += block_rows(
+                nlp,
+                "mission timing (midpoint)",
+                PATH_STATES,
+                "(path)",
+                v.Pm - mids,
+                np.arange(N, dtype=float),
+                True,
+            )
+        # the mission joints at every point on the path
+        path = nlp.mission_path
+        P = v.P if v.Pm is None else cs.horzcat(v.P, v.Pm)
+        A = v.A if v.Am is None else cs.horzcat(v.A, v.Am)
+        M = v.M if v.Mm is None else cs.horzcat(v.M, v.Mm)
+        columns = []
+        for k in range(P.shape[1]):
+            q, d1, d2 = path.symbolic(P[0, k])
+            sd, sdd = P[1, k], A[0, k]
+            columns.append(cs.vertcat(q, d1 * sd, d2 * sd**2 + d1 * sdd) - M[:, k])
+        labels = [f"{j} {kind}" for kind in MISSION_LEVELS for j in nlp.mission_joints]
+        out += block_rows(nlp, "mission on its path", labels, "(path)", cs.horzcat(*columns))
+        # between the points: sigma in [0, 1], sigma_dot >= 0 (and the limits of a straight path)
+        coefficients, labels = [], []
+        names = ("progress", "progress rate", "progress acceleration")
+        for level, indices, name in zip(levels, self.interior, names):
+            for i in indices:
+                coefficients.append(level[i])
+                labels.append(f"{name} (control point {i})")
+        out += block_rows(
+            nlp,
+            "mission timing between points",
+            labels,
+            "(path)",
+            cs.vertcat(*coefficients),
+            np.arange(N, dtype=float),
+            True,
+        )
+        return out
+
+    def _level_bounds(self, problem) -> list[tuple[float, float]]:
+        v_max, a_max = problem.path_rate_limits
+        return [(0.0, 1.0), (0.0, v_max), (-a_max, a_max)]
+
+    def row_bounds(self, problem, block):
+        if block.name != "mission timing between points":
+            return np.zeros(block.size), np.zeros(block.size)
+        lo, hi = [], []
+        for (low, high), indices in zip(self._level_bounds(problem), self.interior):
+            lo += [low] * len(indices)
+            hi += [high] * len(indices)
+        reps = len(block.taus)
+        return np.tile(lo, reps).astype(float), np.tile(hi, reps).astype(float)
+
+    def bound_variables(self, problem, lower, upper):
+        bounds = self._level_bounds(problem)
+        for name in ("P", "Pm"):
+            if getattr(lower, name) is not None:
+                for r in (0, 1):
+                    getattr(lower, name)[r, :], getattr(upper, name)[r, :] = bounds[r]
+        for name in ("A", "Am"):
+            if getattr(lower, name) is not None:
+                getattr(lower, name)[:], getattr(upper, name)[:] = bounds[2]
+        lim = problem.mission_limits
+        low = np.r_[lim.lower, -lim.velocity, -lim.acceleration]
+        high = np.r_[lim.upper, lim.velocity, lim.acceleration]
+        for name in ("M", "Mm"):
+            if getattr(lower, name) is not None:
+                getattr(lower, name)[:] = low[:, None]
+                getattr(upper, name)[:] = high[:, None]
+        # the ends: sigma 0 and 1, the mission arm at rest (no torque step either)
+        N = problem.N
+        lower.P[:, 0] = upper.P[:, 0] = 0.0
+        lower.P[0, N] = upper.P[0, N] = 1.0
+        lower.P[1, N] = upper.P[1, N] = 0.0
+        if problem.transcription.has_midpoints:
+            lower.A[:, [0, N]] = upper.A[:, [0, N]] = 0.0
+        else:  # the trapezoidal rule's acceleration is constant on an interval
+            lower.A[:, [0, 1, N - 1, N]] = upper.A[:, [0, 1, N - 1, N]] = 0.0
+
+    def check(self, problem, result):
+        """The mission joints' limits on the re-simulated motion (between the points on a
+        curved path)."""
+        lim = problem.mission_limits
+        worst = None
+        for kind, values, high in (
+            ("velocity", result.q_dot_M, lim.velocity),
+            ("acceleration", result.q_ddot_M, lim.acceleration),
+        ):
+            excess = np.abs(values) - high
+            if excess.size and excess.max() > LIMIT_TOLERANCE:
+                row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
+                found = Violation(
+                    f"{kind} limit of {problem.robot.mission.joints[col]}",
+                    float(result.t[row]),
+                    float(excess[row, col]),
+                    "rad/s" if kind == "velocity" else "rad/s^2",
+                )
+                if worst is None or found.amount > worst.amount:
+                    worst = found
+        return worst
+
+
 def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
     """The constraint kinds of a structure, in the order of their rows in ``g`` and of their
     variable bounds (later kinds override earlier ones: the fixed initial and end values win
@@ -524,5 +661,7 @@ def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
         kinds.append(TerminalAttitudeBound())
     if key.collision:
         kinds.append(Collision())
+    if key.timing:
+        kinds.append(MissionTiming(transcription))
     kinds += [InitialState(), EndConditions()]
     return tuple(kinds)

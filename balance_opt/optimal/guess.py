@@ -11,6 +11,7 @@ from balance_opt.errors import InputError, SolverError
 from balance_opt.motion.result import BalanceResult
 from balance_opt.optimal.options import GUESSES
 from balance_opt.optimal.problem import BalanceProblem, Solution
+from balance_opt.optimal.timing import guess_timing
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +64,8 @@ def analytic_guess(problem: BalanceProblem) -> Solution:
     law = BalanceLawOptions(h0=tuple(problem.h0.tolist()))
     # a starting point needs no 1e-10 tolerance: Ipopt ends at the same plan from 1e-6
     loose = IntegrationOptions(rtol=1e-6, atol=1e-9)
-    plan = rollout(problem.robot, problem.mission, problem.q_B0, law, t_eval=t, integration=loose)
+    mission = problem.timed_mission
+    plan = rollout(problem.robot, mission, problem.q_B0, law, t_eval=t, integration=loose)
     return from_samples(problem, plan.t, plan.q_B, plan.q_dot_B, plan.q_ddot_B)
 
 
@@ -97,6 +99,8 @@ def from_samples(problem: BalanceProblem, t, q_B, q_dot_B, q_ddot_B) -> Solution
     )
     sol.X[3:, 0] = problem.unpack(problem.lbx).X[3:, 0]
     attitude_along(problem, sol)
+    if problem.free_timing:  # the mission at the given timing, stretched to the horizon
+        guess_timing(problem, sol)
     return sol
 
 
@@ -130,15 +134,21 @@ def resampled(sol: Solution, N: int) -> Solution:
     nodes and the midpoint (Hermite-Simpson) or linearly (trapezoidal): a guess, whose defects
     Ipopt removes in its first iterations. Points both grids share keep their values exactly."""
     n = sol.X.shape[1] - 1
+    # a free timing's progress too (its mission joints follow from it: guess_timing)
+    pairs = [("X", "U")] + ([("P", "A")] if sol.P is not None else [])
+    names = [a + m for pair in pairs for m in ("", "m") for a in pair]
     if n == N:
-        return Solution(*(None if a is None else a.copy() for a in (sol.X, sol.U, sol.Xm, sol.Um)))
+        copies = {k: getattr(sol, k) for k in names}
+        return Solution(**{k: None if v is None else v.copy() for k, v in copies.items()})
     has_midpoints = sol.Xm is not None
     nodes = np.arange(N + 1) * (n / N)  # the new points in units of sol's intervals
     taus = [nodes, nodes[:-1] + 0.5 * (n / N)] if has_midpoints else [nodes]
-    X, U = (
-        [_interpolate(a, am, tau) for tau in taus] for a, am in ((sol.X, sol.Xm), (sol.U, sol.Um))
-    )
-    return Solution(X[0], U[0], X[1] if has_midpoints else None, U[1] if has_midpoints else None)
+    out = {}
+    for pair in pairs:
+        for a in pair:
+            v = [_interpolate(getattr(sol, a), getattr(sol, a + "m"), tau) for tau in taus]
+            out[a], out[a + "m"] = v[0], (v[1] if has_midpoints else None)
+    return Solution(**out)
 
 
 def _interpolate(a: np.ndarray, mid: np.ndarray | None, tau: np.ndarray) -> np.ndarray:

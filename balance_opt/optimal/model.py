@@ -395,11 +395,14 @@ class PlannerModel:
         torque: bool = False,
         momentum: bool = False,
         clearance: str = "",
+        timing: bool = False,
     ) -> PointKernels:
         """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting
         and collision rows (their key, registered in :attr:`collisions`), built once
-        (and compiled once, if the model compiles)."""
-        key = (control, bool(torque), bool(momentum), clearance)
+        (and compiled once, if the model compiles); with ``timing`` (a free mission timing)
+        the mission joints ``[q_M; q_dot_M; q_ddot_M]`` are the last rows of ``z``, not of
+        the data ``m``."""
+        key = (control, bool(torque), bool(momentum), clearance) + ((True,) if timing else ())
         if key not in self._kernels:
             self._kernels[key] = self._make_kernels(*key)
         return self._kernels[key]
@@ -431,19 +434,22 @@ class PlannerModel:
         self.nlp_cache = {
             k: v
             for k, v in self.nlp_cache.items()
-            if (k.control, k.torque_limits, k.momentum, k.collision) not in done
+            if (k.control, k.torque_limits, k.momentum, k.collision) + ((True,) if k.timing else ())
+            not in done
         }
         return len(done)
 
     def _make_kernels(
-        self, control: str, torque: bool, momentum: bool, clearance: str
+        self, control: str, torque: bool, momentum: bool, clearance: str, timing: bool = False
     ) -> PointKernels:
         """The kernels from the compiled library (no expression built), else from the disk
         store or built, compiled now or in the background as :attr:`compile` says."""
         suffix = f"{control}{'_torque' if torque else ''}{_tag(momentum)}"
         suffix += f"_c{clearance}" if clearance else ""
+        suffix += "_free" if timing else ""
         n_x = self.n_x(control)
-        sizes = (n_x, n_x + self.n_u, self.n_y(control, torque, clearance))
+        n_z = n_x + self.n_u + (3 * self.n_M if timing else 0)
+        sizes = (n_x, n_z, self.n_y(control, torque, clearance))
         n_c = sizes[2] - self.n_y(control, torque)
         parts = ("", "_jac", "_grad", "_hess") + (("_cost",) if n_c else ())
         names = [f"balance_kernel{part}_{suffix}" for part in parts]
@@ -459,7 +465,7 @@ class PlannerModel:
                     )
         functions = self._stored(
             f"kernels_{suffix}",
-            lambda: self._kernel_functions(control, torque, momentum, suffix, clearance),
+            lambda: self._kernel_functions(control, torque, momentum, suffix, clearance, timing),
         )
         out = codegen.Compiled(functions, False, 0.0, None)
         if self.compile:
@@ -480,17 +486,25 @@ class PlannerModel:
         return _point_kernels(out, sizes, n_c)
 
     def _kernel_functions(
-        self, control: str, torque: bool, momentum: bool, suffix: str, clearance: str = ""
+        self,
+        control: str,
+        torque: bool,
+        momentum: bool,
+        suffix: str,
+        clearance: str = "",
+        timing: bool = False,
     ) -> list[cs.Function]:
         """The point kernels as SX functions: value, Jacobian, gradient (of the outputs before
         the clearance rows: the cost's), Hessian, and with clearance rows the outputs before
         them (:attr:`PointKernels.cost`)."""
-        n_x, n_u = self.n_x(control), self.n_u
-        z = cs.SX.sym("z", n_x + n_u)
-        m = cs.SX.sym("m", self.n_m)
+        n_x, n_u, n_j = self.n_x(control), self.n_u, 3 * self.n_M
+        z = cs.SX.sym("z", n_x + n_u + (n_j if timing else 0))
+        m_in = cs.SX.sym("m", self.n_m)
         weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
         q_rest = cs.SX.sym("q_rest", self.n_B)
-        x, u = z[:n_x], z[n_x:]
+        x, u = z[:n_x], z[n_x : n_x + n_u]
+        # a free timing's mission joints are variables: the data's rows of them are unused
+        m = cs.vertcat(z[n_x + n_u :], m_in[n_j:]) if timing else m_in
         x_dot, L = self.point_fun(control, momentum)(x, u, m, weights, q_rest)
         parts = [x_dot, L]
         if torque:
@@ -505,7 +519,7 @@ class PlannerModel:
         mu = cs.SX.sym("mu", y.numel())
         c = cs.SX.sym("c", y_cost.numel())
         hess, _ = cs.hessian(cs.dot(mu, y), z)
-        inputs = {"z": z, "m": m, "weights": weights, "q_rest": q_rest}
+        inputs = {"z": z, "m": m_in, "weights": weights, "q_rest": q_rest}
         cy = cs.dot(c, y_cost)
         cost = _function(f"balance_kernel_cost_{suffix}", inputs, {"y": y_cost})
         return [

@@ -35,6 +35,7 @@ from balance_opt.optimal.problem import (
     parameter_layout,
     variable_layout,
 )
+from balance_opt.optimal.timing import MISSION_LEVELS
 
 log = logging.getLogger(__name__)
 
@@ -65,11 +66,14 @@ class _Outer:
 
 
 def build_structure(
-    model: PlannerModel, key: StructureKey, options: PlannerOptions
+    model: PlannerModel, key: StructureKey, options: PlannerOptions, path=None
 ) -> NLPStructure:
-    """Build and compile the NLP of a structure."""
+    """Build and compile the NLP of a structure (with a free mission timing, of its
+    :class:`~balance_opt.optimal.timing.MissionPath` ``path``)."""
     start = time.perf_counter()
-    kernels = model.kernels(key.control, key.torque_limits, key.momentum, key.collision)
+    kernels = model.kernels(
+        key.control, key.torque_limits, key.momentum, key.collision, bool(key.timing)
+    )
     tr = Transcription(key.transcription)
     N, n_pts = key.intervals, tr.n_points(key.intervals)
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
@@ -79,10 +83,13 @@ def build_structure(
         model.state_labels(key.control),
         [f"{j} {key.control}" for j in joints],
         peak=key.objective == "peak",
+        mission_labels=mission_labels(model) if key.timing else (),
     )
     parameters = parameter_layout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
-    outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds)
+    outer, rows, row_kinds = _outer_problem(
+        model, key, kernels, variables, parameters, kinds, path
+    )
     ipopt = ipopt_options_for(key.objective, options, key.intervals)
     solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, ipopt)
     build_time = time.perf_counter() - start
@@ -99,6 +106,7 @@ def _outer_problem(
     variables: BlockStack,
     parameters: BlockStack,
     kinds: tuple[Constraint, ...],
+    path=None,
 ) -> tuple[_Outer, BlockStack, tuple[Constraint, ...]]:
     """The outer problem in SX: the cost, and every kind's rows stacked into ``g``."""
     tr, N = Transcription(key.transcription), key.intervals
@@ -127,6 +135,8 @@ def _outer_problem(
         parameters=par,
         clearance=kernels.clearance(Y),
         clearance_labels=model.collisions.labels(key.collision),
+        mission_path=path,
+        mission_joints=tuple(model.robot.mission.joints),
     )
     if key.objective == "peak":  # the only stage that prices it (BalanceNLP._set_bounds)
         cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)
@@ -140,6 +150,12 @@ def _outer_problem(
             parts.append(cs.vec(values))
     g = cs.vertcat(*parts)
     return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_kinds)
+
+
+def mission_labels(model: PlannerModel) -> list[str]:
+    """Rows of a free timing's mission joints at a point (kernel inputs after ``x``, ``u``)."""
+    joints = model.robot.mission.joints
+    return [f"{j} {kind}" for kind in MISSION_LEVELS for j in joints]
 
 
 def _smooth_peak(v, par, weights: np.ndarray):
@@ -303,10 +319,10 @@ def _point_indices(variables: BlockStack) -> np.ndarray:
         b = variables.by_name[name]
         return b.offset + np.arange(b.size).reshape(b.shape, order="F")
 
-    X, U = indices("X"), indices("U")
+    names = ["X", "U"] + (["M"] if "M" in variables.by_name else [])
     if "Xm" in variables.by_name:
-        X, U = np.hstack([X, indices("Xm")]), np.hstack([U, indices("Um")])
-    return np.vstack([X, U])
+        return np.vstack([np.hstack([indices(n), indices(n + "m")]) for n in names])
+    return np.vstack([indices(n) for n in names])
 
 
 def _ipopt_solver(

@@ -119,7 +119,9 @@ JERK_DEFAULT = 1.0
 #: Initial guesses :meth:`BalanceNLP.solve` knows by name.
 GUESSES = ("analytic", "rest")
 #: Objectives: the largest attitude error over the motion, or the integral of squared drift.
-OBJECTIVES = ("peak", "integral")
+OBJECTIVES = ("peak", "integral", "time")
+#: The mission's timing: the given trajectory's, or free along its path (optimal/timing.py).
+TIMINGS = ("given", "free")
 #: Conditions on the balance arm at the start and at the end of the plan: ``rest`` is zero
 #: velocity and zero acceleration (no torque step), ``still`` zero velocity only, ``free``
 #: nothing (the end only; the arm always starts at rest at ``q_B0``).
@@ -238,7 +240,9 @@ class PlannerOptions:
     # 'peak': what users want (the stillest base); it solves in three stages (refine.plan_peak).
     objective: Literal[OBJECTIVES] = setting(
         "peak",
-        doc="minimise the largest attitude error (peak) or the integral of squared drift",
+        doc="minimise the largest attitude error (peak), the integral of squared drift, or the "
+        "duration (time: the shortest horizon whose peak plan keeps "
+        "constraints.path_attitude_bound; needs mission.timing: free)",
     )
     intervals: int = setting(100, minimum=2, doc="collocation intervals N")
     transcription: Literal[TRANSCRIPTIONS] = setting(TRANSCRIPTIONS[0], doc="collocation scheme")
@@ -365,9 +369,15 @@ class PlannerOptions:
     ipopt: dict[str, int | float | str] = setting(
         factory=dict, doc="Ipopt options passed through, e.g. {print_level: 5}"
     )
+    timing: Literal[TIMINGS] = setting(
+        TIMINGS[0],
+        in_file=False,  # the task's mission.timing
+        doc="the mission's timing: given, or free along its path, planned with the balance arm",
+    )
 
     def __post_init__(self):
         check_settings(self, "planner option")
+
 
     @property
     def end_condition(self) -> str:

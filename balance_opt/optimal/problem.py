@@ -14,6 +14,7 @@ import numpy as np
 from balance_opt.errors import InfeasibleLimitsError, InputError, SolverError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import LIMIT_TOLERANCE
+from balance_opt.optimal import timing
 from balance_opt.optimal.budget import limited_kinds
 from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK, collision_setup
 from balance_opt.optimal.collocation import Transcription
@@ -55,9 +56,13 @@ class StructureKey:
     momentum: bool = False
     between_points: bool = True
     collision: str = ""
+    #: a free mission timing: its path's key (:class:`~balance_opt.optimal.timing.MissionPath`)
+    timing: str = ""
 
     @classmethod
-    def of(cls, limits, options, momentum: bool = False, collision: str = "") -> StructureKey:
+    def of(
+        cls, limits, options, momentum: bool = False, collision: str = "", timing: str = ""
+    ) -> StructureKey:
         enforced = limited_kinds(options, limits)
         joints = ("position", "velocity", "acceleration", "jerk")
         return cls(
@@ -66,15 +71,16 @@ class StructureKey:
             control=options.control,
             joint_limits=tuple(sorted(kind for kind in joints if enforced[kind])),
             torque_limits=enforced["torque"],
-            objective=options.objective,
+            objective="peak" if options.objective == "time" else options.objective,
             path_attitude_bound=options.path_attitude_bound is not None
-            and options.objective != "peak",
+            and options.objective not in ("peak", "time"),
             terminal_attitude_bound=options.terminal_attitude_bound is not None,
             tolerance=options.tolerance,
             max_iterations=int(options.max_iterations),
             ipopt=tuple(sorted((k, repr(v)) for k, v in options.ipopt.items())),
             momentum=bool(momentum),
             collision=collision if options.collision_avoidance else "",
+            timing=timing,
         )
 
 
@@ -159,6 +165,14 @@ class Solution:
     Xm: Any = None
     Um: Any = None
     S: Any = None
+    #: a free mission timing's (:mod:`balance_opt.optimal.timing`): the mission joints at the
+    #: points, the path progress and its rate, its acceleration
+    M: Any = None
+    Mm: Any = None
+    P: Any = None
+    Pm: Any = None
+    A: Any = None
+    Am: Any = None
 
     def points(self) -> tuple[Any, Any]:
         """``(states, controls)`` at every collocation point: nodes, then midpoints."""
@@ -170,10 +184,17 @@ class Solution:
 
 
 def variable_layout(
-    transcription: Transcription, N: int, state_labels, control_labels, peak=False
+    transcription: Transcription,
+    N: int,
+    state_labels,
+    control_labels,
+    peak=False,
+    mission_labels=(),
 ) -> BlockStack:
     """The decision vector's blocks ``X``, ``Xm``, ``U``, ``Um`` (the midpoints' with the
-    transcription's midpoints) and ``S`` (with ``peak``)."""
+    transcription's midpoints), with ``mission_labels`` (a free mission timing) ``M``, ``Mm``
+    (the mission joints at the points: kernel inputs, so before the others), ``P``, ``Pm``,
+    ``A``, ``Am`` (the path progress), and ``S`` (with ``peak``)."""
     nodes = np.arange(N + 1, dtype=float)
     layout = BlockStack()
     for name, labels, taus in (
@@ -184,6 +205,14 @@ def variable_layout(
     ):
         if transcription.has_midpoints or not name.endswith("m"):
             layout.add(Block(name, tuple(labels), tuple(unit_of(r) for r in labels), taus))
+    if mission_labels:
+        path = {"P": ("path progress", "path progress rate"), "A": ("path progress acceleration",)}
+        for name, labels in (("M", mission_labels), *path.items()):
+            for suffix, taus in (("", nodes), ("m", nodes[:-1] + 0.5)):
+                if transcription.has_midpoints or not suffix:
+                    units = ("(path)",) * len(labels) if name != "M" else None
+                    units = units or tuple(unit_of(r) for r in labels)
+                    layout.add(Block(name + suffix, tuple(labels), units, taus))
     if peak:
         label = ("attitude peak^2 / PEAK_SCALE^2",)
         layout.add(Block("S", label, ("(relative)",), np.array([0.0])))
@@ -304,7 +333,16 @@ class BalanceProblem:
                 f"q_B0 has {q_B0.size} values, the balance joints are {model.n_B} ({', '.join(names)})"
             )
         self.horizon = horizon = float(options.horizon or mission.duration)  # None or > 0
-        if horizon < mission.duration:
+        self.free_timing = options.timing == "free"
+        # the mission as the planner starts from: the given one, or its path at the given
+        # timing stretched to the horizon (a free timing, balance_opt.optimal.timing)
+        self.timed_mission = mission
+        if self.free_timing:
+            self.mission_path = timing.MissionPath(mission)
+            self.mission_limits = timing.mission_limits(robot)
+            self.path_rate_limits = timing.path_rate_limits(self.mission_path, self.mission_limits)
+            self.timed_mission = timing.initial_timing(self.mission_path, horizon)
+        elif horizon < mission.duration:
             raise InputError(
                 f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
             )
@@ -316,7 +354,7 @@ class BalanceProblem:
         self.transcription = Transcription(options.transcription)
         self.control = options.control
         self.point_times = self.transcription.point_taus(self.N) * self.h
-        q_M, q_dot_M, q_ddot_M = mission.sample(self.point_times)
+        q_M, q_dot_M, q_ddot_M = self.timed_mission.sample(self.point_times)
         self.h0 = np.zeros(6) if h0 is None else np.asarray(h0, dtype=float).ravel()
         if self.h0.size != 6 or not np.all(np.isfinite(self.h0)):
             raise InputError(

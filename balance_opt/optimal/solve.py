@@ -22,6 +22,7 @@ from balance_opt.motion.so3 import (
     quaternion_multiply,
     rotation_angle,
 )
+from balance_opt.optimal import timing
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
 from balance_opt.optimal.guess import guess_solution, resampled
@@ -69,14 +70,15 @@ class BalanceNLP(BalanceProblem):
         super().__init__(model, mission, q_B0, options, robot, h0)
         momentum = bool(np.any(self.h0 != 0.0))
         collision = self.collision.rows.key if self.collision is not None else ""
-        key = StructureKey.of(self.limits, options, momentum, collision)
+        path = self.mission_path if self.free_timing else None
+        key = StructureKey.of(self.limits, options, momentum, collision, path.key if path else "")
         if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
             key = dataclasses.replace(
                 key, objective=stage, path_attitude_bound=False, between_points=between
             )
         built_now = key not in model.nlp_cache
         if built_now:
-            model.nlp_cache[key] = build_structure(model, key, options)
+            model.nlp_cache[key] = build_structure(model, key, options, path)
         self.structure = model.nlp_cache[key]
         self.build_time = self.structure.build_time if built_now else 0.0
         self._set_bounds()
@@ -164,6 +166,8 @@ class BalanceNLP(BalanceProblem):
                 sol = resampled(guess, self.N)
             else:
                 sol = guess_solution(self, guess)
+            if self.free_timing:
+                timing.guess_timing(self, sol)
             if "S" in self.structure.variables.by_name:  # the guess's own peak
                 X, _ = sol.points()
                 sol.S = np.array([[np.max(np.sum(X[:3] ** 2, axis=0)) / PEAK_SCALE**2]])
@@ -182,7 +186,9 @@ class BalanceNLP(BalanceProblem):
                 below the smallest peak found.
         """
         try:
-            if self.options.starts > 1:
+            if self.options.objective == "time":
+                result = fastest(self, initial_guess, executor)
+            elif self.options.starts > 1:
                 result = multi_start(self, initial_guess, executor)
             else:
                 result = solve_with_bounds(self, initial_guess)
@@ -329,10 +335,93 @@ class BalanceNLP(BalanceProblem):
             )
         return name, t, float(viol[i]), unit, f"{name} at t = {t:.3f} s"
 
+    def mission_motion(self, sol: Solution):
+        """The mission arm's motion of a solution: the given mission, or with a free timing
+        its path re-timed (:func:`~balance_opt.optimal.timing.retimed`)."""
+        return timing.retimed(self, sol) if self.free_timing else self.mission
+
     def trajectory(self, sol: Solution) -> CollocatedTrajectory:
         starts = [sol.X[r, :-1] for r in self.model.joint_rows(self.control)]
         levels = joint_chain_coefficients(self.transcription, starts, sol.U, sol.Um, self.h)
         return CollocatedTrajectory(self.h, levels)
+
+
+#: Width of the bracket [s] at which the search for the shortest duration stops.
+TIME_RESOLUTION = 0.1
+
+
+def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
+    """``objective: time``: the shortest horizon whose peak plan keeps the path attitude bound
+    (and the terminal one), by bisection between the shortest motion the mission joints' limits
+    allow (:func:`~balance_opt.optimal.timing.shortest_duration`) and the given duration
+    (doubled until feasible, twice at most). A bisection, not the horizon as a variable: with
+    rest at the end, a plan of a duration is one of every longer duration (both arms then wait
+    at rest), so feasibility is monotone in the duration, and every probe is an ordinary peak
+    plan, re-simulated and refined. ``info["minimum_time"]`` lists the probes.
+
+    Raises:
+        InputError: the timing is not free or there is no path attitude bound.
+        PlannerSolverError: not even the longest duration tried keeps the bound.
+    """
+    bound = nlp.options.path_attitude_bound
+    if not nlp.free_timing or bound is None:
+        raise InputError(
+            "objective time needs a free mission timing (mission.timing: free) and a "
+            "path_attitude_bound"
+        )
+    probes: list[dict] = []
+
+    def probe(T: float):
+        variant = nlp.variant(objective="peak", horizon=T)
+        try:
+            result = variant.solve(guess, executor)
+        except SolverError as exc:
+            probes.append({"duration_s": T, "feasible": False, "reason": str(exc)})
+            log.info("objective time: %.3f s does not keep the bound (%s)", T, exc)
+            return None
+        probes.append(
+            {
+                "duration_s": T,
+                "feasible": True,
+                "max_drift_rad": result.max_drift,
+                "final_drift_rad": result.final_drift,
+            }
+        )
+        log.info("objective time: %.3f s keeps the bound (peak %.4g rad)", T, result.max_drift)
+        return result
+
+    lo = timing.shortest_duration(nlp.mission_path, nlp.path_rate_limits)
+    hi, best = nlp.mission.duration, None
+    for longer in (1.0, 2.0, 2.0):
+        lo, hi = (hi, hi * longer) if longer > 1.0 else (lo, hi)
+        best = probe(hi)
+        if best is not None:
+            break
+    if best is None:
+        last = probes[-1]
+        raise PlannerSolverError(
+            f"objective time: no duration up to {hi:.3g} s keeps the path attitude bound "
+            f"{bound:.4g} rad ({last['reason']})",
+            "Bound_Not_Kept",
+            None,
+            "path attitude bound",
+            hi,
+            0.0,
+        )
+    while hi - lo > TIME_RESOLUTION:
+        T = 0.5 * (lo + hi)
+        found = probe(T)
+        if found is None:
+            lo = T
+        else:
+            hi, best = T, found
+    best.info["minimum_time"] = {
+        "duration_s": hi,
+        "bracket_s": [lo, hi],
+        "resolution_s": TIME_RESOLUTION,
+        "probes": probes,
+    }
+    return best
 
 
 def build_balance_nlp(
@@ -371,9 +460,10 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
 
     sub = max(1, math.ceil(nlp.h / nlp.options.resample_step - 1e-9))
     t = np.arange(nlp.N * sub + 1) * (nlp.h / sub)
+    mission = nlp.mission_motion(sol)
     result = replay(
         nlp.robot,
-        nlp.mission,
+        mission,
         trajectory,
         t_eval=t,
         method="optimal",
@@ -401,4 +491,6 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         "limit_violations": [str(v) for v in result.violations],
         "constraint_violations": [str(v) for v in checks if v is not None],
     }
+    if nlp.free_timing:
+        result.info["timing"] = timing.timing_info(nlp, result, mission)
     return result

@@ -288,6 +288,8 @@ def method_metrics(
     }
     out["warnings"] = result.warnings()
     out["solver"] = solver_metrics(result.info)
+    # the mission's timing: given, or free (the duration, the path progress, the mission's rates)
+    out["timing"] = result.info.get("timing", {"timing": "given"})
     out["details"] = {k: v for k, v in result.info.items() if k not in BULKY_INFO_KEYS}
     if simulation is not None:
         sim = simulation.as_balance_result("simulation")

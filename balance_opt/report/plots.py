@@ -169,6 +169,33 @@ def attitude_figure(
         return fig, style.save(fig, stem, formats, dpi)
 
 
+def timing_figure(
+    timing: Mapping[str, Any],
+    results: Mapping[str, Any],
+    stem: str | Path | None = None,
+    *,
+    formats: Sequence[str] = FORMATS,
+    dpi: int = style.PRINT_DPI,
+) -> tuple[Any, list[Path]]:
+    """A free mission timing (``info["timing"]`` of the plan): the path progress ``s(t)``
+    [s] against time with the given timing (``s = t``, dotted), and the attitude drift [deg] of
+    ``results`` (the optimal plans at the free and at the given timing)."""
+    with style.styled("column"):
+        fig = style.figure("column", STACK_HEIGHT * 2 / 3)
+        axes = fig.subplots(2, 1, sharex=True)
+        t, s = np.asarray(timing["progress_t"]), np.asarray(timing["progress_s"])
+        given = float(timing["given_duration_s"])
+        axes[0].plot(t, s, **style.method_style("optimal"))
+        axes[0].plot([0.0, given], [0.0, given], **style.method_style("optimal-given"))
+        for name, res in results.items():
+            axes[1].plot(res.t, np.degrees(res.angle), **style.method_style(name))
+        t_end = max([float(t[-1]), given] + [float(r.t[-1]) for r in results.values()])
+        _time_axes(axes, t_end, ["path progress s [s]", "drift [deg]"])
+        handles = axes[1].get_lines() if results else axes[0].get_lines()
+        layout(fig, axes[:, None], handles, "column")
+        return fig, style.save(fig, stem, formats, dpi)
+
+
 def model_error_figure(
     results: Mapping[str, Any],
     bands: Mapping[str, np.ndarray],

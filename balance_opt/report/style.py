@@ -25,6 +25,7 @@ _LABELS = {
     "mission-only": "mission arm alone",
     "analytic": "analytic law",
     "optimal": "optimal plan",
+    "optimal-given": "optimal plan, given timing",
     "sum": "sum of arms",
     "arm:mission": "mission arm",
 }
@@ -38,13 +39,15 @@ _BLACK, _BLUE, _ORANGE, _GREY = "#000000", "#0072B2", "#E69F00", "#808080"
 #: sampling, a dozen or so per curve), the first one this far along (so that the markers of
 #: curves that overlap do not sit on each other).
 MARK_EVERY = 0.09
-_MARK_START = {"mission-only": 0.0, "analytic": 0.03, "optimal": 0.06}
+_MARK_START = {"mission-only": 0.0, "analytic": 0.03, "optimal": 0.06, "optimal-given": 0.045}
 
 _HOLLOW = {"fillstyle": "none"}
 _STYLES: dict[str, dict[str, Any]] = {
     "mission-only": {"color": _BLACK, "linestyle": (0, (5.0, 2.0)), "marker": "s"},
     "analytic": {"color": _ORANGE, "linestyle": (0, (6.0, 1.5, 1.5, 1.5)), "marker": "^"},
     "optimal": {"color": _BLUE, "linestyle": "-", "marker": "o"},
+    # a free mission timing's optimal plan at the given timing (compare): blue, dotted
+    "optimal-given": {"color": _BLUE, "linestyle": (0, (1.2, 1.4)), "marker": "D"},
     "mission-only:sim": {"color": _BLACK, "linestyle": "-", "marker": "s", **_HOLLOW},
     "analytic:sim": {
         "color": _ORANGE,
@@ -53,6 +56,12 @@ _STYLES: dict[str, dict[str, Any]] = {
         **_HOLLOW,
     },
     "optimal:sim": {"color": _BLUE, "linestyle": (0, (9.0, 2.5)), "marker": "o", **_HOLLOW},
+    "optimal-given:sim": {
+        "color": _BLUE,
+        "linestyle": (0, (3.0, 1.5)),
+        "marker": "D",
+        **_HOLLOW,
+    },
     "sum": {"color": _BLACK, "linestyle": "-", "marker": "", "linewidth": 1.4},
     "arm:mission": {"color": _GREY, "linestyle": (0, (1.0, 1.3)), "marker": "", "linewidth": 1.1},
 }

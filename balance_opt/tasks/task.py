@@ -52,7 +52,8 @@ MAX_SAMPLES = 1_000_000
 MIN_STEPS_PER_MISSION = 100
 #: Ipopt iterations of a typical optimal plan, all its solves, by objective (the peak objective
 #: has three stages), and the estimated planning time above which loading warns [s].
-TYPICAL_ITERATIONS = {"integral": 50, "peak": 300}
+#: ``time``: a bisection of about six peak plans.
+TYPICAL_ITERATIONS = {"integral": 50, "peak": 300, "time": 1800}
 LONG_PLAN_SECONDS = 600.0
 
 
@@ -188,6 +189,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     q_B0 = robot.neutral()[robot.balance_indices] if balance is None else np.array(balance)
     check_limits(spec, doc, robot, mission, q_B0)
     target = check_capture(spec, doc, float(mission.duration))
+    check_timing(spec, doc, robot)
     ignore = spec.optimal.planner.collision_ignore
     if target is None and any(TARGET_LINK in pair for pair in ignore):
         raise doc.error(
@@ -217,6 +219,8 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
         if not path.is_file():
             raise doc.error(("robot", "srdf"), f"no such SRDF file: {path}")
         planner = dataclasses.replace(planner, collision_srdf=str(path))
+    if spec.mission.timing != planner.timing:
+        planner = dataclasses.replace(planner, timing=spec.mission.timing)
     h0 = spec.initial.momentum
     return dataclasses.replace(
         spec,
@@ -226,6 +230,37 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
         simulation=dataclasses.replace(spec.simulation, h0=h0),
         optimal=dataclasses.replace(spec.optimal, planner=planner),
     )
+
+
+def check_timing(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
+    """A free mission timing: no capture, every mission joint with a velocity and an
+    acceleration limit; ``optimal.objective: time`` only with it and a path attitude bound."""
+    planner = spec.optimal.planner
+    if planner.objective == "time" and (
+        spec.mission.timing != "free" or planner.path_attitude_bound is None
+    ):
+        raise doc.error(
+            ("optimal", "objective"),
+            "objective time (the shortest mission within a drift bound) needs mission.timing: "
+            "free and optimal.constraints.path_attitude_bound",
+        )
+    if spec.mission.timing != "free":
+        return
+    if spec.capture is not None:
+        raise doc.error(
+            ("mission", "timing"),
+            "a free timing is not available with a capture (the capture time is fixed); "
+            "use timing: given",
+        )
+    lim = robot.limits.subset(robot.mission_indices)
+    for kind in ("velocity", "acceleration"):
+        for joint, value in zip(robot.mission.joints, getattr(lim, kind)):
+            if not np.isfinite(value):
+                raise doc.error(
+                    ("mission", "timing"),
+                    f"a free timing needs {'an' if kind == 'acceleration' else 'a'} {kind} limit "
+                    f"of every mission joint; {joint} has none (set limits.{joint}.{kind})",
+                )
 
 
 def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:

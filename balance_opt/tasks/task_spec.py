@@ -10,7 +10,7 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.config.typed_config import json_schema, reference_markdown, setting
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
-from balance_opt.optimal.options import GUESSES, PlannerOptions
+from balance_opt.optimal.options import GUESSES, TIMINGS, PlannerOptions
 
 #: Values of ``robot.backend``: ``auto`` and :data:`balance_opt.model.symbolic.BACKENDS` (not
 #: imported: loading a task does not import CasADi).
@@ -100,6 +100,16 @@ class InitialSpec:
     )
 
 
+def _timing():
+    """Every mission type's ``timing`` (one declaration, last among its keys)."""
+    return setting(
+        TIMINGS[0],
+        doc="given: the trajectory as given; free: its path, the timing planned by the optimal "
+        "planner together with the balance arm (mission joints within their velocity and "
+        "acceleration limits; the analytic law keeps the given timing)",
+    )
+
+
 @dataclass(frozen=True, kw_only=True)
 class PtpMission:
     """Point to point, rest to rest, quintic time law (the paper's PTP)."""
@@ -112,6 +122,7 @@ class PtpMission:
         unit="rad", per="mission joint", doc="mission joint positions at the end", min_items=1
     )
     duration: float = setting(unit="s", exclusive_minimum=0.0, doc="duration of the move")
+    timing: Literal[TIMINGS] = _timing()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -125,6 +136,7 @@ class ViaMission:
     points: tuple[tuple[float, ...], ...] = setting(
         unit="rad", per="mission joint", min_items=2, doc="mission joint positions at each time"
     )
+    timing: Literal[TIMINGS] = _timing()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -134,6 +146,7 @@ class CsvMission:
     type: Literal["csv"] = setting("csv", doc="CSV file")
     file: str = setting(doc="path of the CSV file, relative to the task file")
     time_column: str = setting("time", doc="name of the time column [s]")
+    timing: Literal[TIMINGS] = _timing()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -159,6 +172,7 @@ class CartesianMission:
         doc="goal roll, pitch, yaw of the end effector, initial base frame (default: free)",
     )
     duration: float = setting(unit="s", exclusive_minimum=0.0, doc="duration of the move")
+    timing: Literal[TIMINGS] = _timing()
 
 
 MissionSpec = PtpMission | ViaMission | CsvMission | CartesianMission
