@@ -16,6 +16,9 @@ if TYPE_CHECKING:
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
+#: Relative excess over an effort limit that still counts as inside (numerical tolerance): the
+#: optimal planner's refinement and the reported effort figures share it.
+EFFORT_TOLERANCE = 1e-6
 #: Relative momentum residual above which a plan's samples do not follow momentum conservation
 #: (a motion too fast for its samples, or a law that ran away): its figures are not to be
 #: trusted. Sound plans stay below 1e-6 (the finite-difference floor of the check).

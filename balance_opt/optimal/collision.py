@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections import Counter
 from dataclasses import dataclass
 
 import casadi as cs
@@ -37,17 +38,52 @@ WATCH = 0.05
 ALONE_GAP = 0.01
 
 
+#: Why a checked pair has no row in the planner (:attr:`CollisionSetup.left_out`).
+MISSION_ONLY = "moved by the mission alone (checked, the planner cannot change it)"
+IN_CONTACT = "in contact at the start"
+OUT_OF_REACH = "out of the balance arm's reach"
+CONSTANT = "a distance the balance joints cannot change"
+
+
 @dataclass
 class CollisionSetup:
-    """The collision avoidance of one problem."""
+    """The collision avoidance of one problem.
+
+    Attributes:
+        pairs: the checked pairs the planner holds, each with a row (``owner``).
+        watched: per row, whether it starts unbounded: the row of a pair whose fitted shapes
+            overlap at the start while its bodies do not (a bound there would start inside a
+            shape); the refinement bounds it where the exact check finds the pair too close.
+        left_out: every other checked pair of the geometry, by name, and why it has no row.
+    """
 
     geometry: RobotGeometry
     rows: ClearanceRows
     pairs: list[Pair]
     initial_contacts: list[Pair]
     initial_rows: np.ndarray
-    owner: dict[int, int | None]
+    owner: dict[int, int]
     threshold: dict[int, float]
+    watched: np.ndarray
+    left_out: dict[str, str]
+
+    def start_bounds(self, margin: float) -> np.ndarray:
+        """The rows' lower bounds before any refinement [m]: the margin plus
+        :data:`COLLISION_ALLOWANCE`, below a row's start value by :data:`COLLISION_SLACK` at
+        most, and none for a watched row."""
+        start = np.minimum(margin + COLLISION_ALLOWANCE, self.initial_rows - COLLISION_SLACK)
+        return np.where(self.watched, -np.inf, start)
+
+    def account(self) -> dict:
+        """What the planner does with each checked pair, as plain data: the pairs with a row
+        (``constrained``), those of them whose row waits for the check (``watched``), and the
+        pairs left out, counted by reason."""
+        watched = set(np.flatnonzero(self.watched).tolist())
+        return {
+            "constrained": len(self.pairs),
+            "watched": sorted(p.name for p in self.pairs if self.owner[p.index] in watched),
+            "left_out": dict(Counter(self.left_out.values())),
+        }
 
 
 class CollisionModels:
@@ -161,13 +197,18 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
             robot.name,
             ", ".join(p.name for p in contacts),
         )
+    left_out = {p.name: IN_CONTACT for p in contacts}
     touching = {p.index for p in contacts}
-    pairs = [
-        p
-        for p in geometry.pairs
-        if p.index not in touching and {geometry.body(p.first), geometry.body(p.second)} & moved
-    ]
+    pairs = []
+    for p in geometry.pairs:
+        if p.index in touching:
+            continue
+        if {geometry.body(p.first), geometry.body(p.second)} & moved:
+            pairs.append(p)
+        else:
+            left_out[p.name] = MISSION_ONLY
     out_of_reach = _out_of_reach(geometry, pairs, moved, options.collision_margin + WATCH)
+    left_out |= {p.name: OUT_OF_REACH for p in pairs if p.index in out_of_reach}
     pairs = [p for p in pairs if p.index not in out_of_reach]
     if not pairs:
         return None
@@ -178,23 +219,31 @@ def _setup(models: CollisionModels, options, q0: np.ndarray) -> CollisionSetup |
     shape_pairs, distances = rows.pair_distances(geometry)
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
-    # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
-    # distance is least smooth; the check alone holds these pairs (a penetration fails the plan)
+    # shapes that overlap where the bodies do not: a bound there would start inside a shape,
+    # where the distance is least smooth (Ipopt got stuck on one); their rows start unbounded
+    # and the refinement bounds them where the exact check finds the pair too close
     overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
-    rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
-    rows = _moving_rows(geometry, rows)
+    rows = _moving_rows(geometry, clearance_rows(geometry, pairs, moved, alone))
     if not rows.rows:
         return None
-    shape_of = {i: k for k, s in enumerate(rows.shapes) for i in s.objects}
-    unrowed = [p for p in pairs if (shape_of[p.first], shape_of[p.second]) in overlap]
-    unrowed += [p for p in pairs if (shape_of[p.second], shape_of[p.first]) in overlap]
-    pairs = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
+    left_out |= {p.name: CONSTANT for p in pairs if rows.row_of(p) is None}
+    pairs = [p for p in pairs if rows.row_of(p) is not None]
+    log.info(
+        "%s: %d checked pairs held by %d collision rows; left out: %s",
+        robot.name,
+        len(pairs),
+        len(rows.rows),
+        ", ".join(f"{n} {r}" for r, n in Counter(left_out.values()).items()) or "none",
+    )
     f = models.function(geometry, rows)
     initial = np.array(f(E @ q0 + e)).ravel()
+    watched = np.array([len(row) == 1 and row[0] in overlap for _, row in rows.rows], dtype=bool)
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)
     threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, contacts, initial, owner, threshold)
+    return CollisionSetup(
+        geometry, rows, pairs, contacts, initial, owner, threshold, watched, left_out
+    )
 
 
 def report(problem, result) -> ClearanceReport:
@@ -215,24 +264,35 @@ def report(problem, result) -> ClearanceReport:
     return out
 
 
-def short(problem, result, rowed: bool = False) -> list[PairClearance]:
+def short(problem, result) -> list[PairClearance]:
     """The pairs closer than their threshold (the margin, or their distance at the start if
-    smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first; with
-    ``rowed`` only those with a row (the ones the refinement can push)."""
+    smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first."""
     setup = problem.collision
     return [
         p
         for p in report(problem, result).below(problem.options.collision_margin)
         if p.distance < setup.threshold[p.index] - TOLERANCE
-        and not (rowed and setup.owner[p.index] is None)
     ]
+
+
+def _row_values(problem, result) -> np.ndarray:
+    """The collision rows' values at the collocation points of a re-simulated plan (n_c,
+    n_points) [m]."""
+    setup = problem.collision
+    q = np.hstack([result.q_M, result.q_B])
+    points = np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
+    E, e = setup.geometry.robot.mimic_matrix
+    f = problem.model.collisions.function(setup.geometry, setup.rows)
+    return np.array(f.map(points.shape[0])((points @ E.T + e).T))
 
 
 def tighten(problem, result) -> tuple[dict, list[str]]:
     """The collision rows' bounds (a change of :class:`~balance_opt.optimal.problem.Bounds`)
-    raised for the pairs closer than the margin by their shortfall plus :data:`PUSH` on every
-    interval where they are (and on the one of their minimum), and what it raised, in words."""
-    pairs = short(problem, result, rowed=True)
+    raised for the pairs closer than the margin on every interval where they are (and on the
+    one of their minimum): to the row's bound or its value in this plan, whichever is larger,
+    plus the shortfall and :data:`PUSH` (a watched row has no bound until then); and what it
+    raised, in words."""
+    pairs = short(problem, result)
     if not pairs:
         return {}, []
     closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
@@ -240,6 +300,7 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     margin, setup, N = problem.options.collision_margin, problem.collision, problem.N
     mids = problem.transcription.has_midpoints
     bound = np.array(problem.bounds.collision)
+    values = _row_values(problem, result)
     q = np.hstack([result.q_M, result.q_B])
     for pair in pairs:
         row = setup.owner[pair.index]
@@ -247,7 +308,8 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
         times = np.append(result.t[d < margin], pair.time)
         for k in np.unique(np.minimum((times / problem.h).astype(int), N - 1)):
             columns = [k, k + 1] + ([N + 1 + k] if mids else [])
-            bound[row, columns] += margin - pair.distance + PUSH
+            floor = np.maximum(bound[row, columns], values[row, columns])
+            bound[row, columns] = floor + margin - pair.distance + PUSH
     # the arm starts at rest where it is: the first node's rows cannot move
     bound[:, 0] = np.minimum(bound[:, 0], setup.initial_rows - COLLISION_SLACK)
     return {"collision": bound}, said

@@ -305,10 +305,10 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     else:
         if _tighten(nlp, result)[1]:
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
-    for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure
-        kind.accept(nlp, result)
     refinement = _refinement(rounds, result.solver.solves[before:])
     result.solver = replace(result.solver, refinement=refinement)
+    for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure (its rounds said)
+        kind.accept(nlp, result)
     return result
 
 

@@ -401,4 +401,6 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         "limit_violations": [str(v) for v in result.violations],
         "constraint_violations": [str(v) for v in checks if v is not None],
     }
+    if nlp.collision is not None:  # every checked pair: held by a row, or why not
+        result.info["resimulation"]["collision_pairs"] = nlp.collision.account()
     return result

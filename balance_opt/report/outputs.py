@@ -19,7 +19,7 @@ from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.optimal.ipopt_options import ipopt_version
-from balance_opt.result import BULKY_INFO_KEYS, BalanceResult, limit_bounds
+from balance_opt.result import BULKY_INFO_KEYS, EFFORT_TOLERANCE, BalanceResult, limit_bounds
 
 #: The arrays of a :class:`~balance_opt.result.BalanceResult` sampled on its time grid.
 SAMPLED_ARRAYS = tuple(f.name for f in fields(BalanceResult) if f.type == "np.ndarray")
@@ -124,8 +124,6 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
     return out
 
 
-#: Relative excess over an effort limit that still counts as inside (numerical tolerance).
-EFFORT_TOLERANCE = 1e-6
 
 
 def _effort_violations(t, names, tau, limits) -> list[str]:
