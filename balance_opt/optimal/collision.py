@@ -288,28 +288,38 @@ def _row_values(problem, result) -> np.ndarray:
 
 def tighten(problem, result) -> tuple[dict, list[str]]:
     """The collision rows' bounds (a change of :class:`~balance_opt.optimal.problem.Bounds`)
-    raised for the pairs closer than the margin on every interval where they are (and on the
-    one of their minimum): to the row's bound or its value in this plan, whichever is larger,
-    plus the shortfall and :data:`PUSH` (a watched row has no bound until then); and what it
-    raised, in words."""
+    raised for the pairs closer than their threshold (:func:`short`) on every interval where
+    they are (and on the one of their minimum): to the row's bound or its value in this plan,
+    whichever is larger, plus the interval's shortfall and :data:`PUSH` (a watched row has no
+    bound until then); and what it raised, in words."""
     pairs = short(problem, result)
     if not pairs:
         return {}, []
     closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
     said = [f"collision rows of {len(pairs)} pairs ({closest})"]
-    margin, setup, N = problem.options.collision_margin, problem.collision, problem.N
+    setup, N = problem.collision, problem.N
     mids = problem.transcription.has_midpoints
-    bound = np.array(problem.bounds.collision)
-    values = _row_values(problem, result)
+    before = problem.bounds.collision
+    bound = np.array(before)
+    # from this plan's bound or value: pairs that share a row raise it once, by the most
+    floor = np.maximum(before, _row_values(problem, result))
     q = np.hstack([result.q_M, result.q_B])
     for pair in pairs:
         row = setup.owner[pair.index]
+        target = setup.threshold[pair.index]
         d = setup.geometry.distances_along(q, pair.index)
-        times = np.append(result.t[d < margin], pair.time)
-        for k in np.unique(np.minimum((times / problem.h).astype(int), N - 1)):
+        close = d < target
+        times = np.append(result.t[close], pair.time)
+        distances = np.append(d[close], pair.distance)
+        # each interval by its own shortfall: the deepest one would push where the pair only
+        # grazes the margin as far as where it goes through
+        intervals = np.minimum((times / problem.h).astype(int), N - 1)
+        shortfall = np.full(N, -np.inf)
+        np.maximum.at(shortfall, intervals, target - distances)
+        for k in np.unique(intervals):
             columns = [k, k + 1] + ([N + 1 + k] if mids else [])
-            floor = np.maximum(bound[row, columns], values[row, columns])
-            bound[row, columns] = floor + margin - pair.distance + PUSH
+            raised = floor[row, columns] + shortfall[k] + PUSH
+            bound[row, columns] = np.maximum(bound[row, columns], raised)
     # the arm starts at rest where it is: the first node's rows cannot move
     bound[:, 0] = np.minimum(bound[:, 0], setup.initial_rows - COLLISION_SLACK)
     return {"collision": bound}, said

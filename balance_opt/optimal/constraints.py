@@ -264,8 +264,12 @@ TORQUE_POINTS = 65
 
 def rounds_tried(result: BalanceResult) -> str:
     """``"after n refinement rounds"`` of a refined plan (for the message of a failure)."""
-    n = ((getattr(result, "solver", None) and result.solver.refinement) or {}).get("rounds", 0)
-    return f"after {n} refinement round{'' if n == 1 else 's'}"
+    refinement = (getattr(result, "solver", None) and result.solver.refinement) or {}
+    n = refinement.get("rounds", 0)
+    said = f"after {n} refinement round{'' if n == 1 else 's'}"
+    if "failed" in refinement:
+        said += f" (the next re-solve failed: {refinement['failed']})"
+    return said
 
 
 class TorqueLimit(Constraint):
