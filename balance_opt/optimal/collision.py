@@ -27,7 +27,8 @@ COLLISION_ALLOWANCE = 2e-3
 #: Distance [m] by which the re-simulated motion may come closer than the margin without a
 #: refinement round.
 TOLERANCE = 1e-6
-#: The refinement raises a row's bound by the pair's shortfall and this much more [m].
+#: The refinement raises a row's bound by the pair's shortfall and as much more, up to this
+#: [m].
 PUSH = 2e-3
 #: The check certifies the pairs' distances down to the margin plus this [m] (farther pairs are
 #: only known to stay beyond it).
@@ -290,8 +291,9 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     """The collision rows' bounds (a change of :class:`~balance_opt.optimal.problem.Bounds`)
     raised for the pairs closer than their threshold (:func:`short`) on every interval where
     they are (and on the one of their minimum): to the row's bound or its value in this plan,
-    whichever is larger, plus the interval's shortfall and :data:`PUSH` (a watched row has no
-    bound until then); and what it raised, in words."""
+    whichever is larger, plus twice the interval's shortfall, or the shortfall and
+    :data:`PUSH` if less (a watched row has no bound until then); and what it raised, in
+    words."""
     pairs = short(problem, result)
     if not pairs:
         return {}, []
@@ -308,17 +310,19 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
         row = setup.owner[pair.index]
         target = setup.threshold[pair.index]
         d = setup.geometry.distances_along(q, pair.index)
-        close = d < target
+        close = d < target - TOLERANCE
         times = np.append(result.t[close], pair.time)
         distances = np.append(d[close], pair.distance)
-        # each interval by its own shortfall: the deepest one would push where the pair only
-        # grazes the margin as far as where it goes through
+        # each interval by its own shortfall, and pushed beyond it by as much, up to PUSH: the
+        # deepest shortfall, or a full PUSH, would push a pair that only grazes its threshold
+        # (one held at its start distance, next to an arm that starts at rest) as far as where
+        # it goes through, farther than the arm can move there
         intervals = np.minimum((times / problem.h).astype(int), N - 1)
         shortfall = np.full(N, -np.inf)
         np.maximum.at(shortfall, intervals, target - distances)
         for k in np.unique(intervals):
             columns = [k, k + 1] + ([N + 1 + k] if mids else [])
-            raised = floor[row, columns] + shortfall[k] + PUSH
+            raised = floor[row, columns] + shortfall[k] + min(PUSH, shortfall[k])
             bound[row, columns] = np.maximum(bound[row, columns], raised)
     # the arm starts at rest where it is: the first node's rows cannot move
     bound[:, 0] = np.minimum(bound[:, 0], setup.initial_rows - COLLISION_SLACK)

@@ -543,8 +543,9 @@ class Collision(Constraint):
             )
         pairs = collision.short(problem, result)
         if pairs:
-            p = pairs[0]
-            threshold = problem.collision.threshold[p.index]
+            threshold = problem.collision.threshold
+            p = max(pairs, key=lambda p: threshold[p.index] - p.distance)  # the farthest in
+            threshold = threshold[p.index]
             raise PlannerSolverError(
                 f"no plan keeps the collision margin: {p.pair} come within {p.distance:.4g} m "
                 f"at t = {p.time:.3f} s, {threshold - p.distance:.4g} m inside the "

@@ -304,7 +304,7 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
             again = tighter.solve_once(result.solver.solution, result.solver)
         except SolverError as exc:  # the last plan stands, to be judged by what it breaks
             failed = exc
-            log.warning("refinement: the re-solve failed (%s)", exc.status)
+            log.warning("refinement: the re-solve failed: %s", exc)
             break
         rounds.append(tuple(tightened))
         nlp, result = tighter, again
