@@ -265,14 +265,19 @@ def report(problem, result) -> ClearanceReport:
     return out
 
 
-def short(problem, result) -> list[PairClearance]:
+def short(problem, result, held: bool = False) -> list[PairClearance]:
     """The pairs closer than their threshold (the margin, or their distance at the start if
-    smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first."""
+    smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first; with
+    ``held`` only those the planner holds to it: all but the watched pairs that do not
+    penetrate. A watched row measures overlapping shapes, whose distance does not follow the
+    bodies' (Talos's torso and shoulder: six rounds of raising it left the pair where it was);
+    it is raised only against a penetration."""
     setup = problem.collision
     return [
         p
         for p in report(problem, result).below(problem.options.collision_margin)
         if p.distance < setup.threshold[p.index] - TOLERANCE
+        and not (held and p.distance >= 0.0 and setup.watched[setup.owner[p.index]])
     ]
 
 
@@ -294,7 +299,7 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     whichever is larger, plus twice the interval's shortfall, or the shortfall and
     :data:`PUSH` if less (a watched row has no bound until then); and what it raised, in
     words."""
-    pairs = short(problem, result)
+    pairs = short(problem, result, held=True)
     if not pairs:
         return {}, []
     closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,6 +23,8 @@ from balance_opt.optimal.problem import (
     unit_of,
 )
 from balance_opt.result import EFFORT_TOLERANCE, LIMIT_TOLERANCE, BalanceResult, limit_bounds
+
+log = logging.getLogger(__name__)
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")
@@ -541,7 +544,18 @@ class Collision(Constraint):
                 pen.time,
                 pen.depth,
             )
-        pairs = collision.short(problem, result)
+        loose = collision.short(problem, result)
+        pairs = collision.short(problem, result, held=True)
+        for p in loose:
+            if p not in pairs:
+                log.warning(
+                    "%s come within %.4g m at t = %.3f s, inside the %.4g m they should keep: "
+                    "their fitted shapes overlap, the planner does not hold their margin",
+                    p.pair,
+                    p.distance,
+                    p.time,
+                    problem.collision.threshold[p.index],
+                )
         if pairs:
             threshold = problem.collision.threshold
             p = max(pairs, key=lambda p: threshold[p.index] - p.distance)  # the farthest in
