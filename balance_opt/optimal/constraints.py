@@ -505,9 +505,11 @@ class Collision(Constraint):
     """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
     every collocation point, one row per body the balance joints move, the soft minimum of
     its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
-    ``problem.bounds.collision``). The shapes contain the bodies; between the points the
-    refinement raises a row's bound where the re-simulated motion comes closer than the margin
-    (:meth:`tighten`), and a plan that still penetrates fails (:meth:`accept`)."""
+    ``problem.bounds.collision``), and rows of their own for pairs that start close (watched,
+    unbounded, where their shapes overlap). The shapes contain the bodies; between the points
+    the refinement raises a row's bound where the re-simulated motion comes closer than the
+    margin (:meth:`tighten`), and a plan that still penetrates, or comes closer than the
+    margin by a pair it holds, fails (:meth:`accept`)."""
 
     name = "collision"
 
