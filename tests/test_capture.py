@@ -316,11 +316,12 @@ def test_capture_section_errors_name_the_key(tmp_path):
 
 @pytest.mark.slow
 def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
-    """On the example the analytic law stays within the limits; the optimal plan, through the
-    same capture, keeps the base at least as still and within the limits too, its balance
-    joints at rest at the capture (continuous rates)."""
+    """On the example the analytic law stays within the limits but at the capture, where its
+    balance rates step (an acceleration no arm performs: counted, tests/test_planner_pairs.py);
+    the optimal plan, through the same capture, keeps the base at least as still and within
+    every limit, its balance joints at rest at the capture (continuous rates)."""
     law = plan_task(example, "analytic")
-    assert not law.violations
+    assert law.violations and all(v.step is not None for v in law.violations)
     plan = plan_task(example, "optimal")
     assert plan.info["success"] and not plan.violations
     assert plan.max_drift <= law.max_drift + 1e-6

@@ -16,7 +16,12 @@ import numpy as np
 from balance_opt.errors import SolverError
 from balance_opt.model.capture import CaptureState, capture_state
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.result import BULKY_INFO_KEYS, BalanceResult, find_limit_violations
+from balance_opt.motion.result import (
+    BULKY_INFO_KEYS,
+    BalanceResult,
+    find_limit_violations,
+    rate_steps,
+)
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
 from balance_opt.report.outputs import SAMPLED_ARRAYS
 
@@ -76,12 +81,22 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
         if key in before.info and key in after.info:
             info[key] = before.info[key] + after.info[key]
     info["capture"] = state.as_dict(task.target.time)
+    # the rates the second phase starts from: a jump there is counted (the law's does jump)
+    steps = rate_steps(
+        float(before.t[-1]),
+        float(after.t[1] - after.t[0]),
+        robot.joint_names,
+        np.r_[before.q_dot_M[-1], before.q_dot_B[-1]],
+        np.r_[after.q_dot_M[0], after.q_dot_B[0]],
+        robot.limits,
+    )
     return dataclasses.replace(
         before,
         **arrays,
         violations=find_limit_violations(
             arrays["t"], robot.joint_names, q, q_dot, q_ddot, robot.limits
-        ),
+        )
+        + steps,
         info=info,
     )
 

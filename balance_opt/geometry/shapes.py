@@ -264,11 +264,11 @@ class ClearanceRows:
 
 
 def clearance_rows(
-    geometry: RobotGeometry, pairs, moved_by_balance: set[int], alone=frozenset(), skip=()
+    geometry: RobotGeometry, pairs, moved_by_balance: set[int], alone=frozenset()
 ) -> ClearanceRows:
     """The planner's rows for the checked ``pairs`` that involve a body the balance joints move:
     each shape pair goes to the row of that body (the deeper one when both move), or to a row of
-    its own if in ``alone``; pairs in ``skip`` get no row."""
+    its own if in ``alone``."""
     shapes = fit_shapes(geometry)
     of_object = {}
     for k, s in enumerate(shapes):
@@ -284,8 +284,7 @@ def clearance_rows(
             continue
         owner = max(moved, key=lambda b: depth[b])
         own, other = (s1, s2) if b1 == owner else (s2, s1)
-        if (own, other) not in skip:
-            rows.setdefault(owner, set()).add((own, other))
+        rows.setdefault(owner, set()).add((own, other))
     out = []
     for body in sorted(rows):
         shared = sorted(p for p in rows[body] if p not in alone)

@@ -16,6 +16,9 @@ if TYPE_CHECKING:
 
 #: Excess below which a limit counts as met [rad, rad/s, rad/s^2]: solver tolerance, not physics.
 LIMIT_TOLERANCE = 1e-6
+#: Relative excess over an effort limit that still counts as inside (numerical tolerance): the
+#: optimal planner's refinement and the reported effort figures share it.
+EFFORT_TOLERANCE = 1e-6
 #: Relative momentum residual above which a plan's samples do not follow momentum conservation
 #: (a motion too fast for its samples, or a law that ran away): its figures are not to be
 #: trusted. Sound plans stay below 1e-6 (the finite-difference floor of the check).
@@ -32,6 +35,9 @@ class LimitViolation:
         t_start: first sample outside the limit [s].
         t_end: last sample outside the limit [s].
         worst_excess: largest distance beyond the limit over the stretch [rad, rad/s, rad/s^2].
+        step: for a rate step (:func:`rate_steps`), the jump of the joint rate [rad/s]: an
+            instantaneous change, an acceleration no arm performs; ``worst_excess`` is then the
+            jump over one sample interval less the limit.
     """
 
     joint: str
@@ -39,9 +45,16 @@ class LimitViolation:
     t_start: float
     t_end: float
     worst_excess: float
+    step: float | None = None
 
     def __str__(self) -> str:
         unit = {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2"}[self.kind]
+        if self.step is not None:
+            return (
+                f"{self.joint}: rate step of {self.step:.4g} rad/s at t = {self.t_start:.3f} s, "
+                f"an instantaneous change (no finite acceleration; over one sample "
+                f"{self.worst_excess:.4g} rad/s^2 beyond the acceleration limit)"
+            )
         return (
             f"{self.joint}: {self.kind} limit exceeded by up to {self.worst_excess:.4g} {unit} "
             f"from t = {self.t_start:.3f} s to {self.t_end:.3f} s"
@@ -79,6 +92,24 @@ def find_limit_violations(
             for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
                 worst = float(excess[start:stop, j].max())
                 found.append(LimitViolation(name, kind, float(t[start]), float(t[stop - 1]), worst))
+    return found
+
+
+def rate_steps(
+    t: float, dt: float, names, before, after, limits: JointLimits
+) -> list[LimitViolation]:
+    """The joints of ``names`` whose rate jumps at time ``t`` [s] (from ``before`` to ``after``,
+    (n,) [rad/s]) by more than :data:`LIMIT_TOLERANCE` while they have an acceleration limit,
+    as acceleration violations: a step is an infinite acceleration; ``worst_excess`` is the
+    jump over the sample interval ``dt`` [s] less the limit (what finite differences of the
+    samples give), at least 0."""
+    jump = np.abs(np.asarray(after, dtype=float) - np.asarray(before, dtype=float))
+    found = []
+    for j, name in enumerate(names):
+        limit = float(limits.acceleration[j])
+        if np.isfinite(limit) and jump[j] > LIMIT_TOLERANCE:
+            excess = max(float(jump[j]) / dt - limit, 0.0)
+            found.append(LimitViolation(name, "acceleration", t, t, excess, float(jump[j])))
     return found
 
 

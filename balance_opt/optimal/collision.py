@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections import Counter
 from dataclasses import dataclass
 
 import casadi as cs
@@ -27,7 +28,8 @@ COLLISION_ALLOWANCE = 2e-3
 #: Distance [m] by which the re-simulated motion may come closer than the margin without a
 #: refinement round.
 TOLERANCE = 1e-6
-#: The refinement raises a row's bound by the pair's shortfall and this much more [m].
+#: The refinement raises a row's bound by the pair's shortfall and as much more, up to this
+#: [m].
 PUSH = 2e-3
 #: The check certifies the pairs' distances down to the margin plus this [m] (farther pairs are
 #: only known to stay beyond it).
@@ -53,16 +55,50 @@ class InitialCollisionError(InputError):
         )
 
 
+#: Why a checked pair has no row in the planner (:attr:`CollisionSetup.left_out`).
+MISSION_ONLY = "moved by the mission alone (checked, the planner cannot change it)"
+OUT_OF_REACH = "out of the balance arm's reach"
+CONSTANT = "a distance the balance joints cannot change"
+
+
 @dataclass
 class CollisionSetup:
-    """The collision avoidance of one problem."""
+    """The collision avoidance of one problem.
+
+    Attributes:
+        pairs: the checked pairs the planner holds, each with a row (``owner``).
+        watched: per row, whether it starts unbounded: the row of a pair whose fitted shapes
+            overlap at the start while its bodies do not (a bound there would start inside a
+            shape); the refinement bounds it where the exact check finds the pair too close.
+        left_out: every other checked pair of the geometry, by name, and why it has no row.
+    """
 
     geometry: RobotGeometry
     rows: ClearanceRows
     pairs: list[Pair]
     initial_rows: np.ndarray
-    owner: dict[int, int | None]
+    owner: dict[int, int]
     threshold: dict[int, float]
+    watched: np.ndarray
+    left_out: dict[str, str]
+
+    def start_bounds(self, margin: float) -> np.ndarray:
+        """The rows' lower bounds before any refinement [m]: the margin plus
+        :data:`COLLISION_ALLOWANCE`, below a row's start value by :data:`COLLISION_SLACK` at
+        most, and none for a watched row."""
+        start = np.minimum(margin + COLLISION_ALLOWANCE, self.initial_rows - COLLISION_SLACK)
+        return np.where(self.watched, -np.inf, start)
+
+    def account(self) -> dict:
+        """What the planner does with each checked pair, as plain data: the pairs with a row
+        (``constrained``), those of them whose row waits for the check (``watched``), and the
+        pairs left out, counted by reason."""
+        watched = set(np.flatnonzero(self.watched).tolist())
+        return {
+            "constrained": len(self.pairs),
+            "watched": sorted(p.name for p in self.pairs if self.owner[p.index] in watched),
+            "left_out": dict(Counter(self.left_out.values())),
+        }
 
 
 class CollisionModels:
@@ -172,8 +208,15 @@ def _setup(models: CollisionModels, options, q0: np.ndarray, placements) -> Coll
     contacts = geometry.contacts(q0)
     if contacts:  # not disabled (SRDF, reference pose, nearly always): the task's own fault
         raise InitialCollisionError(geometry, q0, contacts)
-    pairs = [p for p in geometry.pairs if {geometry.body(p.first), geometry.body(p.second)} & moved]
+    left_out = {}
+    pairs = []
+    for p in geometry.pairs:
+        if {geometry.body(p.first), geometry.body(p.second)} & moved:
+            pairs.append(p)
+        else:
+            left_out[p.name] = MISSION_ONLY
     out_of_reach = _out_of_reach(geometry, pairs, moved, options.collision_margin + WATCH)
+    left_out |= {p.name: OUT_OF_REACH for p in pairs if p.index in out_of_reach}
     pairs = [p for p in pairs if p.index not in out_of_reach]
     if not pairs:
         return None
@@ -184,23 +227,29 @@ def _setup(models: CollisionModels, options, q0: np.ndarray, placements) -> Coll
     shape_pairs, distances = rows.pair_distances(placements)
     start = np.array(distances(E @ q0 + e)).ravel()
     alone = {p for p, d in zip(shape_pairs, start) if d < options.collision_margin + ALONE_GAP}
-    # shapes that overlap where the bodies do not: a row there sits inside a shape, where the
-    # distance is least smooth; the check alone holds these pairs (a penetration fails the plan)
+    # shapes that overlap where the bodies do not: a bound there would start inside a shape,
+    # where the distance is least smooth (Ipopt got stuck on one); their rows start unbounded
+    # and the refinement bounds them where the exact check finds the pair too close
     overlap = {p for p, d in zip(shape_pairs, start) if d < 0.0}
-    rows = clearance_rows(geometry, pairs, moved, alone, skip=overlap)
-    rows = _moving_rows(geometry, rows, placements)
+    rows = _moving_rows(geometry, clearance_rows(geometry, pairs, moved, alone), placements)
     if not rows.rows:
         return None
-    shape_of = {i: k for k, s in enumerate(rows.shapes) for i in s.objects}
-    unrowed = [p for p in pairs if (shape_of[p.first], shape_of[p.second]) in overlap]
-    unrowed += [p for p in pairs if (shape_of[p.second], shape_of[p.first]) in overlap]
-    pairs = [p for p in pairs if rows.row_of(p) is not None or p in unrowed]
+    left_out |= {p.name: CONSTANT for p in pairs if rows.row_of(p) is None}
+    pairs = [p for p in pairs if rows.row_of(p) is not None]
+    log.info(
+        "%s: %d checked pairs held by %d collision rows; left out: %s",
+        robot.name,
+        len(pairs),
+        len(rows.rows),
+        ", ".join(f"{n} {r}" for r, n in Counter(left_out.values()).items()) or "none",
+    )
     f = models.function(rows, placements)
     initial = np.array(f(E @ q0 + e)).ravel()
+    watched = np.array([len(row) == 1 and row[0] in overlap for _, row in rows.rows], dtype=bool)
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)
     threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, initial, owner, threshold)
+    return CollisionSetup(geometry, rows, pairs, initial, owner, threshold, watched, left_out)
 
 
 def report(problem, result) -> ClearanceReport:
@@ -221,39 +270,70 @@ def report(problem, result) -> ClearanceReport:
     return out
 
 
-def short(problem, result, rowed: bool = False) -> list[PairClearance]:
+def short(problem, result, held: bool = False) -> list[PairClearance]:
     """The pairs closer than their threshold (the margin, or their distance at the start if
     smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first; with
-    ``rowed`` only those with a row (the ones the refinement can push)."""
+    ``held`` only those the planner holds to it: all but the watched pairs that do not
+    penetrate. A watched row measures overlapping shapes, whose distance does not follow the
+    bodies' (Talos's torso and shoulder: six rounds of raising it left the pair where it was);
+    it is raised only against a penetration."""
     setup = problem.collision
     return [
         p
         for p in report(problem, result).below(problem.options.collision_margin)
         if p.distance < setup.threshold[p.index] - TOLERANCE
-        and not (rowed and setup.owner[p.index] is None)
+        and not (held and p.distance >= 0.0 and setup.watched[setup.owner[p.index]])
     ]
+
+
+def _row_values(problem, result) -> np.ndarray:
+    """The collision rows' values at the collocation points of a re-simulated plan (n_c,
+    n_points) [m]."""
+    setup = problem.collision
+    q = np.hstack([result.q_M, result.q_B])
+    points = np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
+    E, e = setup.geometry.robot.mimic_matrix
+    f = problem.model.collisions.function(setup.geometry, setup.rows)
+    return np.array(f.map(points.shape[0])((points @ E.T + e).T))
 
 
 def tighten(problem, result) -> tuple[dict, list[str]]:
     """The collision rows' bounds (a change of :class:`~balance_opt.optimal.problem.Bounds`)
-    raised for the pairs closer than the margin by their shortfall plus :data:`PUSH` on every
-    interval where they are (and on the one of their minimum), and what it raised, in words."""
-    pairs = short(problem, result, rowed=True)
+    raised for the pairs closer than their threshold (:func:`short`) on every interval where
+    they are (and on the one of their minimum): to the row's bound or its value in this plan,
+    whichever is larger, plus twice the interval's shortfall, or the shortfall and
+    :data:`PUSH` if less (a watched row has no bound until then); and what it raised, in
+    words."""
+    pairs = short(problem, result, held=True)
     if not pairs:
         return {}, []
     closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
     said = [f"collision rows of {len(pairs)} pairs ({closest})"]
-    margin, setup, N = problem.options.collision_margin, problem.collision, problem.N
+    setup, N = problem.collision, problem.N
     mids = problem.transcription.has_midpoints
-    bound = np.array(problem.bounds.collision)
+    before = problem.bounds.collision
+    bound = np.array(before)
+    # from this plan's bound or value: pairs that share a row raise it once, by the most
+    floor = np.maximum(before, _row_values(problem, result))
     q = np.hstack([result.q_M, result.q_B])
     for pair in pairs:
         row = setup.owner[pair.index]
+        target = setup.threshold[pair.index]
         d = setup.geometry.distances_along(q, pair.index)
-        times = np.append(result.t[d < margin], pair.time)
-        for k in np.unique(np.minimum((times / problem.h).astype(int), N - 1)):
+        close = d < target - TOLERANCE
+        times = np.append(result.t[close], pair.time)
+        distances = np.append(d[close], pair.distance)
+        # each interval by its own shortfall, and pushed beyond it by as much, up to PUSH: the
+        # deepest shortfall, or a full PUSH, would push a pair that only grazes its threshold
+        # (one held at its start distance, next to an arm that starts at rest) as far as where
+        # it goes through, farther than the arm can move there
+        intervals = np.minimum((times / problem.h).astype(int), N - 1)
+        shortfall = np.full(N, -np.inf)
+        np.maximum.at(shortfall, intervals, target - distances)
+        for k in np.unique(intervals):
             columns = [k, k + 1] + ([N + 1 + k] if mids else [])
-            bound[row, columns] += margin - pair.distance + PUSH
+            raised = floor[row, columns] + shortfall[k] + min(PUSH, shortfall[k])
+            bound[row, columns] = np.maximum(bound[row, columns], raised)
     # the arm starts at rest where it is: the first node's rows cannot move
     bound[:, 0] = np.minimum(bound[:, 0], setup.initial_rows - COLLISION_SLACK)
     return {"collision": bound}, said

@@ -16,7 +16,7 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import LIMIT_TOLERANCE
 from balance_opt.optimal import timing
 from balance_opt.optimal.budget import limited_kinds
-from balance_opt.optimal.collision import COLLISION_ALLOWANCE, COLLISION_SLACK, collision_setup
+from balance_opt.optimal.collision import collision_setup
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -261,9 +261,8 @@ class Bounds:
         torque_factor: factor on the effort limits at each point (n_B, n_points), read-only.
         peak_reference: the drift ``c`` of the smooth peak stage [rad].
         collision: lower bound of each collision row at each point (n_c, n_points) [m], or
-            ``None`` without collision avoidance; read-only: the margin plus
-            :data:`COLLISION_ALLOWANCE`, lower for a row that starts closer (its value at
-            ``t = 0`` less :data:`COLLISION_SLACK`: the arm starts there, at rest), raised by
+            ``None`` without collision avoidance; read-only: at first
+            :meth:`~balance_opt.optimal.collision.CollisionSetup.start_bounds`, raised by
             the refinement where the re-simulated motion came too close.
     """
 
@@ -367,10 +366,7 @@ class BalanceProblem:
         )
         collision_bound = None
         if collision is not None:
-            start = np.minimum(
-                options.collision_margin + COLLISION_ALLOWANCE,
-                collision.initial_rows - COLLISION_SLACK,
-            )
+            start = collision.start_bounds(options.collision_margin)
             collision_bound = np.tile(start[:, None], self.point_times.size)
         self.bounds = Bounds(
             options.path_attitude_bound,

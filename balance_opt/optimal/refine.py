@@ -293,22 +293,32 @@ def plan_peak(nlp, guess) -> BalanceResult:
 def refine(nlp, result: BalanceResult) -> BalanceResult:
     """Tighten the bounds the re-simulated motion breaks and solve again, warm started, until
     every one holds (or :data:`MAX_ROUNDS`); each round solves a new problem."""
-    rounds, before = [], len(result.solver.solves)
+    rounds, before, failed = [], len(result.solver.solves), None
     for _ in range(MAX_ROUNDS):
         changes, tightened = _tighten(nlp, result)
         if not tightened:
             break
-        rounds.append(tuple(tightened))
         log.info("refinement: %s", "; ".join(tightened))
-        nlp = nlp.with_bounds(**changes)
-        result = nlp.solve_once(result.solver.solution, result.solver)
+        tighter = nlp.with_bounds(**changes)
+        try:
+            again = tighter.solve_once(result.solver.solution, result.solver)
+        except SolverError as exc:  # the last plan stands, to be judged by what it breaks
+            failed = exc
+            log.warning("refinement: the re-solve failed: %s", exc)
+            break
+        rounds.append(tuple(tightened))
+        nlp, result = tighter, again
     else:
         if _tighten(nlp, result)[1]:
             log.warning("refinement: bounds still broken after %d rounds", MAX_ROUNDS)
-    for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure
-        kind.accept(nlp, result)
     refinement = _refinement(rounds, result.solver.solves[before:])
+    if failed is not None:
+        refinement["failed"] = str(failed.status)
     result.solver = replace(result.solver, refinement=refinement)
+    for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure (its rounds said)
+        kind.accept(nlp, result)
+    if failed is not None:
+        raise failed
     return result
 
 

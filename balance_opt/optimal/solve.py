@@ -493,4 +493,6 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     }
     if nlp.free_timing:
         result.info["timing"] = timing.timing_info(nlp, result, mission)
+    if nlp.collision is not None:  # every checked pair: held by a row, or why not
+        result.info["resimulation"]["collision_pairs"] = nlp.collision.account()
     return result

@@ -17,7 +17,7 @@ import numpy as np
 
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.result import BULKY_INFO_KEYS, BalanceResult, limit_bounds
+from balance_opt.motion.result import BULKY_INFO_KEYS, EFFORT_TOLERANCE, BalanceResult, limit_bounds
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
 from balance_opt.optimal.ipopt_options import ipopt_version
 
@@ -109,7 +109,8 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
     """Smallest distance to each limit over the motion, per joint: ``{joint: {"position": m,
     "velocity": m, "acceleration": m}}`` [rad, rad/s, rad/s^2; m, m/s, m/s^2 for a prismatic
     joint]; negative where the limit is broken, ``inf`` (``null`` in JSON) where there is no
-    limit."""
+    limit; a rate step (:func:`~balance_opt.motion.result.rate_steps`) counts as its acceleration
+    over one sample."""
     series = {
         "position": np.hstack([result.q_M, result.q_B]),
         "velocity": np.hstack([result.q_dot_M, result.q_dot_B]),
@@ -121,11 +122,12 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
         for kind, x in series.items():
             lo, hi = (b[robot.joint_index(name)] for b in limit_bounds(robot.limits, kind))
             out[name][kind] = float(min(np.min(hi - x[:, k]), np.min(x[:, k] - lo)))
+    for v in result.violations:  # a rate step's acceleration is not in the samples
+        if v.step is not None:
+            out[v.joint][v.kind] = min(out[v.joint][v.kind], -v.worst_excess)
     return out
 
 
-#: Relative excess over an effort limit that still counts as inside (numerical tolerance).
-EFFORT_TOLERANCE = 1e-6
 
 
 def _effort_violations(t, names, tau, limits) -> list[str]:
