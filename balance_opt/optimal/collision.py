@@ -293,7 +293,7 @@ def _row_values(problem, result) -> np.ndarray:
     q = np.hstack([result.q_M, result.q_B])
     points = np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
     E, e = setup.geometry.robot.mimic_matrix
-    f = problem.model.collisions.function(setup.geometry, setup.rows)
+    f = problem.model.collisions.function(setup.rows, problem.model.maps.joint_placements_fun())
     return np.array(f.map(points.shape[0])((points @ E.T + e).T))
 
 
