@@ -215,6 +215,7 @@ def run(name: str, folder: Path) -> dict:
     proc = subprocess.run(
         [*_command(), "plan", str(task), "--method", "optimal", "--output", str(out), "--force"],
         env={**os.environ, **env},
+        check=False,  # a failed plan is a row of the table
         capture_output=True,
         text=True,
     )
@@ -240,7 +241,9 @@ def run(name: str, folder: Path) -> dict:
         if scene.is_file()
         else "not written"
     )
-    warnings = [line for line in proc.stderr.splitlines() if "not written" in line or "mesh" in line]
+    warnings = [
+        line for line in proc.stderr.splitlines() if "not written" in line or "not found" in line
+    ]
     row["notes"] = "; ".join(warnings[:2])
     return row
 

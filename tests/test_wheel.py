@@ -37,8 +37,7 @@ def test_the_wheel_holds_every_module_and_the_data_files(tmp_path):
     subpackages = {Path(m).parent.as_posix() for m in modules if m.endswith("/__init__.py")}
     assert "balance_opt/geometry" in subpackages  # the one a hand-kept list left out
     assert {m for m in names if m.endswith(".py")} == modules
-    data = {f"balance_opt/urdf/{p.name}" for p in (ROOT / "urdf").glob("*.*")
-            if p.suffix != ".py"}
+    data = {f"balance_opt/urdf/{p.name}" for p in (ROOT / "urdf").glob("*.*") if p.suffix != ".py"}
     data |= {f"balance_opt/model/cpp/{p.name}" for p in (package / "model" / "cpp").glob("*.cpp")}
     assert len(data) >= 5 and data <= names
     assert "balance_opt/urdf/paper_robot.urdf" in names
