@@ -162,3 +162,20 @@ def test_relative_meshes_and_the_packages_key(layout):
         InputError, match=r"meshy\.yaml:4: robot\.packages\[1\]: no such folder: .*/work/nope$"
     ):
         load_task(_task(urdf, "[../pkgs, ../nope]"))
+
+
+@pytest.mark.slow
+def test_planning_with_a_missing_mesh_fails_naming_it_and_writes_nothing(layout, capsys):
+    from balance_opt.cli import main
+
+    urdf, _ = layout
+    out = urdf.parent / "out"
+    assert main(["plan", str(_task(urdf)), "--method", "optimal", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"balance-opt: error: mesh {URI} not found; folders searched: {urdf.parent} " in err
+    assert f"add the folder that holds {PACKAGE}/ to robot.packages in the task file" in err
+    assert not out.exists()
+    # the same task with the folder listed plans, avoidance on, and its scene shows the mesh
+    assert main(["plan", str(_task(urdf, "[../pkgs]")), "--method", "optimal", "-o", str(out)]) == 0
+    assert "3D scene not written" not in capsys.readouterr().err
+    assert (out / "scene.html").is_file()
