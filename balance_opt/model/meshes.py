@@ -73,10 +73,16 @@ def package_folders(
     return out
 
 
-def resolve_mesh(uri: str, urdf_path: Path | None, packages: Sequence[str | Path] = ()) -> Path:
+def resolve_mesh(
+    uri: str,
+    urdf_path: Path | None,
+    packages: Sequence[str | Path] = (),
+    folders: dict[str, list[tuple[Path, str]]] | None = None,
+) -> Path:
     """The file of mesh ``uri``: ``package://NAME/REST`` searched as the module says, ``file://``
     and absolute paths as they are, other paths relative to the URDF's folder (the working
-    folder for a URDF given as text).
+    folder for a URDF given as text). ``folders``: the caller's record of each package's
+    folders (:func:`package_folders`), filled on first use.
 
     Raises:
         MeshNotFoundError: no such file; it names ``uri``, every folder searched, and the key
@@ -84,14 +90,16 @@ def resolve_mesh(uri: str, urdf_path: Path | None, packages: Sequence[str | Path
     """
     if uri.startswith(PACKAGE):
         name, _, rest = uri[len(PACKAGE) :].partition("/")
-        searched = package_folders(name, urdf_path, packages)
-        for folder, _ in searched:
+        folders = {} if folders is None else folders
+        if name not in folders:
+            folders[name] = package_folders(name, urdf_path, packages)
+        for folder, _ in folders[name]:
             for candidate in (folder / name / rest, folder / rest if folder.name == name else None):
                 if candidate is not None and candidate.is_file():
                     return candidate.resolve()
         raise MeshNotFoundError(
             uri,
-            searched,
+            folders[name],
             f"add the folder that holds {name}/ to {PACKAGES_KEY} in the task file "
             "(or to ROS_PACKAGE_PATH)",
         )
@@ -125,12 +133,13 @@ def resolved_urdf(
     urdf_path = None if source.startswith("<") else Path(source)
     kinds = ("collision", "visual") if kind is None else (kind,)
     found: dict[str, str] = {}
+    folders: dict[str, list[tuple[Path, str]]] = {}  # searched once per package
     for k in kinds:
         for mesh in root.iterfind(f"link/{k}/geometry/mesh"):
             uri = mesh.get("filename", "")
             if uri not in found:
                 try:
-                    found[uri] = str(resolve_mesh(uri, urdf_path, packages))
+                    found[uri] = str(resolve_mesh(uri, urdf_path, packages, folders))
                 except MeshNotFoundError:
                     if strict:
                         raise
