@@ -302,11 +302,21 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
         j: {k: getattr(lim, k) for k in LIMIT_KEYS if getattr(lim, k) is not None}
         for j, lim in spec.limits.items()
     }
+    packages = [(base_dir / p).resolve() for p in r.packages]
+    for i, folder in enumerate(packages):
+        if not folder.is_dir():
+            raise doc.error(("robot", "packages", i), f"no such folder: {folder}")
     a = spec.arms
     balance = list(a.balance) if isinstance(a.balance[0], str) else [list(b) for b in a.balance]
     try:
         return FloatingRobot(
-            urdf, list(a.mission), balance, locked=a.locked, limits=limits, ee_frames=a.ee_frames
+            urdf,
+            list(a.mission),
+            balance,
+            locked=a.locked,
+            limits=limits,
+            ee_frames=a.ee_frames,
+            packages=packages,
         )
     except URDFLoadError as exc:
         raise doc.error(("robot", key), str(exc)) from None

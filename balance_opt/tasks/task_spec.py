@@ -48,6 +48,13 @@ class RobotSpec:
         "NAME.urdf, or the SRDF shipped with an example-robot-data robot; without one, the "
         "pairs are computed: `balance-opt inspect TASK --write-srdf FILE` writes them)",
     )
+    packages: tuple[str, ...] = setting(
+        (),
+        doc="folders, relative to the task file, searched first for the URDF's package://NAME/... "
+        "meshes: each holds NAME/ or is named NAME (then ROS_PACKAGE_PATH, the URDF's folder and "
+        "the three above it, the installed example-robot-data)",
+        item="folder",
+    )
     backend: Literal[SYMBOLIC_BACKENDS] = setting(
         "auto",
         doc="symbolic backend of the optimal planner's momentum maps: pinocchio (Pinocchio's "
