@@ -1,5 +1,5 @@
 """The wheel a user installs (issue 34): every subpackage of ``balance_opt/`` and the data files
-the package reads at run time (shipped URDFs, the bridge's C++ source). ``.ci/run`` installs the
+the package reads at run time (shipped URDFs, the bridge's C++ source, the scene's player). ``.ci/run`` installs the
 same wheel into a fresh venv and plans from outside the checkout."""
 
 import shutil
@@ -39,7 +39,9 @@ def test_the_wheel_holds_every_module_and_the_data_files(tmp_path):
     assert {m for m in names if m.endswith(".py")} == modules
     data = {f"balance_opt/urdf/{p.name}" for p in (ROOT / "urdf").glob("*.*") if p.suffix != ".py"}
     data |= {f"balance_opt/model/cpp/{p.name}" for p in (package / "model" / "cpp").glob("*.cpp")}
-    assert len(data) >= 5 and data <= names
+    data |= {f"balance_opt/report/assets/{p.name}" for p in (package / "report" / "assets").glob("*")}
+    assert len(data) >= 7 and data <= names
+    assert {"balance_opt/report/assets/scene_player.js", "balance_opt/report/assets/scene.css"} <= names
     assert "balance_opt/urdf/paper_robot.urdf" in names
     entry = zipfile.ZipFile(wheel).read(
         next(n for n in names if n.endswith(".dist-info/entry_points.txt"))
