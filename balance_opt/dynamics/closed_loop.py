@@ -109,6 +109,8 @@ def fly_closed_loop(
     simulation: SimulationOptions | None = None,
     options: ClosedLoopOptions | None = None,
     prepared: bool = False,
+    deadline: float | None = None,
+    delayed: bool = False,
 ) -> ClosedLoopRun:
     """Fly the first ``plan`` of ``replanner``'s problem closed loop on the robot ``truth`` (the
     nominal robot perturbed, or itself): see the module docstring.
@@ -118,6 +120,10 @@ def fly_closed_loop(
             plan's start, whatever the truth).
         options: the period and the momentum a re-plan assumes.
         prepared: the re-plans' NLPs are built already (:meth:`Replanner.prepare`).
+        deadline: compute time after which a re-plan is late [s] (default: the period;
+            ``math.inf``: never, so that the motion does not depend on the machine at all).
+        delayed: a re-plan applies a period after its measurement, from a predicted state
+            (else at once: see the module docstring).
     """
     opts = options or ClosedLoopOptions()
     sim_opts = simulation or SimulationOptions()
@@ -125,8 +131,11 @@ def fly_closed_loop(
     nominal = nlp.robot
     m = max(1, round(opts.period / nlp.h))
     period = m * nlp.h
+    deadline = period if deadline is None else deadline
     bounds = list(range(0, nlp.N, m)) + [nlp.N]  # the periods' first nodes, and the end
-    switch_nodes = bounds[2:-1]  # measured at the period before; the first is the plan's own
+    lag = 1 if delayed else 0  # periods between a measurement and its plan
+    # a re-plan has 2 intervals at least (the planner's smallest grid)
+    switch_nodes = [n for n in bounds[1 + lag : -1] if nlp.N - n >= 2]
     in_force = replanner.first(plan)
     prepare_s = 0.0
     if not prepared:
@@ -164,14 +173,18 @@ def fly_closed_loop(
         # from the attitude at t = 0 (a part's own angle is from its start)
         measured_peak = max(measured_peak, float(rotation_angle(part.quaternion).max()))
         if pending is not None:  # the re-plan computed during this period applies from t_b
-            if pending.success and pending.compute_s <= period:
+            if pending.success and pending.compute_s <= deadline:
                 in_force = pending.segment
             pending = None
-        if j + 2 < len(bounds) - 1:  # measure at t_b, re-plan for the period after
-            c = bounds[j + 2]
+        c = bounds[min(j + 1 + lag, len(bounds) - 1)]
+        if c in switch_nodes:  # measure at t_b, re-plan for node c
             pending = _replan(replanner, in_force, state, b, c, measured_peak, opts, data)
             replans.append(pending)
-            late += pending.success and pending.compute_s > period
+            late += pending.success and pending.compute_s > deadline
+            if not delayed:
+                if pending.success and pending.compute_s <= deadline:
+                    in_force = pending.segment
+                pending = None
     run = ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
     return run
 

@@ -90,9 +90,9 @@ class Replanner:
         self.ipopt = {**REPLAN_IPOPT, **(ipopt or {})}
 
     def first(self, plan) -> Segment:
-        """The first plan (a :class:`~balance_opt.result.BalanceResult` of ``nlp``) as the plan
-        in force from node 0."""
-        solution = plan.solver.solution
+        """The first plan (a :class:`~balance_opt.result.BalanceResult` of ``nlp``, or its NLP
+        :class:`~balance_opt.optimal.problem.Solution`) as the plan in force from node 0."""
+        solution = plan if isinstance(plan, Solution) else plan.solver.solution
         return Segment(0, solution, self.nlp.trajectory(solution))
 
     def problem(self, node: int, start: StartState, q_B: np.ndarray, h0=None) -> BalanceNLP:
