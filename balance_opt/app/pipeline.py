@@ -55,6 +55,12 @@ FIGURES = {
         "joint motion is replayed on robots whose masses, centres of mass and inertias are "
         "perturbed (shaded up to the dotted edge)",
     ),
+    "closed_loop": (
+        "attitude_closed_loop",
+        "Base rotation of each plan as planned (line), and its 95th percentile over perturbed "
+        "true robots in forward dynamics: flown open loop (dotted) and closed loop, re-planned "
+        "from the measured state every period (dashed, shaded)",
+    ),
     "attitude": (
         "attitude_plans",
         "Base attitude of each plan (momentum model), with the mission arm alone for reference",
@@ -329,6 +335,15 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
             _reference_last(run.results),
             run.robustness.attitude_p95,
             perturbation=run.robustness.options.perturbation,
+        )
+    if run.closed_loop is not None and run.closed_loop.bands:
+        draw(
+            "closed_loop",
+            plots.closed_loop_figure,
+            run.results,
+            run.robustness.attitude_p95 if run.robustness is not None else {},
+            run.closed_loop.bands,
+            perturbation=run.closed_loop.options.perturbation,
         )
     if plans:
         draw("joints", plots.joint_limits_figure, plans, run.task.robot)

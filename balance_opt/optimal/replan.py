@@ -20,6 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from balance_opt.errors import SolverError
+from balance_opt.motion.so3 import (
+    quaternion_conjugate,
+    quaternion_from_rotvec,
+    quaternion_multiply,
+    rotvec_from_quaternion,
+)
 from balance_opt.motion.trajectories import MissionWindow
 from balance_opt.optimal.collocation import CollocatedTrajectory
 from balance_opt.optimal.problem import Solution, StartState
@@ -54,12 +60,24 @@ class Segment:
         qdd = X[3 + 2 * n_B :, d] if X.shape[0] > 3 + 2 * n_B else self.solution.U[:, d]
         return q.copy(), qd.copy(), qdd.copy(), X[:3, d].copy()
 
-    def tail(self, node: int) -> Solution:
-        """Its solution from a node of the first plan's grid on (a warm start)."""
+    def tail(self, node: int, attitude=None) -> Solution:
+        """Its solution from a node of the first plan's grid on (a warm start); with
+        ``attitude`` (a rotation vector [rad]) its base attitudes turned so that they start
+        there: at zero momentum the same joint motion turns the base by the same rotations
+        from wherever it starts, so the guess keeps its collocation defects at zero."""
         d = node - self.node
         s = self.solution
         cut = [None if a is None else a[:, d:].copy() for a in (s.X, s.U, s.Xm, s.Um)]
-        return Solution(*cut, S=None if s.S is None else s.S.copy())
+        if attitude is not None:
+            start = quaternion_from_rotvec(s.X[:3, d])
+            offset = quaternion_multiply(
+                quaternion_from_rotvec(np.asarray(attitude, float)), quaternion_conjugate(start)
+            )
+            for a in (cut[0], cut[2]):
+                if a is not None:
+                    turned = quaternion_multiply(offset, quaternion_from_rotvec(a[:3].T))
+                    a[:3] = rotvec_from_quaternion(turned).T
+        return Solution(*cut, S=None)
 
 
 @dataclass(frozen=True)
@@ -147,7 +165,7 @@ class Replanner:
         q, qd, qdd, _ = in_force.state(node)
         try:
             nlp = self.problem(node, StartState(qd, qdd, np.asarray(attitude, float), peak), q, h0)
-            report = nlp.solve_stage(in_force.tail(node))
+            report = nlp.solve_stage(in_force.tail(node, attitude))
         except SolverError as exc:
             return ReplanOutcome(node, None, str(exc.status), 0, time.perf_counter() - started)
         segment = None
