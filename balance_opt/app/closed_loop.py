@@ -13,7 +13,6 @@ and the re-plans' NLPs once and flies its models one after the other.
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 import time
 import xml.etree.ElementTree as ET
@@ -27,7 +26,6 @@ from balance_opt.dynamics.options import ClosedLoopOptions
 from balance_opt.motion.robustness import PERCENTILE, perturbed_robot
 from balance_opt.result import find_limit_violations
 
-log = logging.getLogger(__name__)
 
 #: Files of the worst closed-loop run (the largest peak drift over every method's runs).
 WORST_CSV, WORST_URDF = "closed_loop_worst.csv", "closed_loop_worst.urdf"
@@ -290,5 +288,6 @@ def _set_inertial(link, inertia) -> None:
     ET.SubElement(inertial, "origin", xyz=" ".join(f"{v:.17g}" for v in c), rpy="0 0 0")
     ET.SubElement(inertial, "mass", value=f"{float(inertia.mass):.17g}")
     I = np.asarray(inertia.inertia, dtype=float)
-    names = {"ixx": I[0, 0], "ixy": I[0, 1], "ixz": I[0, 2], "iyy": I[1, 1], "iyz": I[1, 2], "izz": I[2, 2]}
-    ET.SubElement(inertial, "inertia", **{k: f"{v:.17g}" for k, v in names.items()})
+    entries = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2)}
+    entries["izz"] = (2, 2)
+    ET.SubElement(inertial, "inertia", **{k: f"{I[ij]:.17g}" for k, ij in entries.items()})

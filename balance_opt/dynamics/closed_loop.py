@@ -15,7 +15,6 @@ dropped by its measured time, the only thing the machine changes).
 from __future__ import annotations
 
 import dataclasses
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -83,7 +82,9 @@ def _joined(parts: list[SimulationResult], starts: list[float]) -> SimulationRes
             continue
         pieces = [getattr(p, f.name)[(1 if i else 0) :] for i, p in enumerate(parts)]
         arrays[f.name] = np.concatenate(pieces)
-    arrays["t"] = np.concatenate([p.t[(1 if i else 0) :] + s for i, (p, s) in enumerate(zip(parts, starts))])
+    arrays["t"] = np.concatenate(
+        [p.t[(1 if i else 0) :] + s for i, (p, s) in enumerate(zip(parts, starts))]
+    )
     wrenches = {
         arm: np.concatenate([p.arm_wrenches[arm][(1 if i else 0) :] for i, p in enumerate(parts)])
         for arm in first.arm_wrenches

@@ -101,8 +101,8 @@ REPLAN_MOMENTA = ("zero", "measured")
 
 @dataclass(frozen=True)
 class ClosedLoopOptions:
-    """The closed-loop study (:mod:`balance_opt.dynamics.closed_loop`, ``docs/executable-plans.md``):
-    each plan flown on ``samples`` perturbed true models in forward dynamics, the balance arm
+    """The closed-loop study (:mod:`balance_opt.dynamics.closed_loop`,
+    ``docs/executable-plans.md``): each plan flown on ``samples`` perturbed true models in forward dynamics, the balance arm
     re-planned every ``period`` from the measured state with the nominal model.
     ``perturbation`` and ``seed`` unset take the ``robustness`` section's, so that open and
     closed loop are compared on the same true models.
