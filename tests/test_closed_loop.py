@@ -78,18 +78,21 @@ def test_replan_from_a_mid_motion_state_matches_an_independent_replay(planned):
     assert rotation_angle(replayed.quaternion[-1]) < 0.5 * np.linalg.norm(attitude - phi)
 
 
+def _flown_both_ways(task, replanner, plan):
+    """The plan simulated open loop and flown closed loop, on the nominal robot (every re-plan
+    applied, whatever its time)."""
+    open_loop = simulate_plan(task.robot, plan, task.spec.simulation)
+    options = ClosedLoopOptions(period=PERIOD)
+    run = fly_closed_loop(
+        task.robot, replanner, plan, task.spec.simulation, options, deadline=math.inf
+    )
+    return open_loop, run
+
+
 @pytest.mark.slow
 def test_closed_loop_without_model_error_reproduces_the_plan(planned):
     task, nlp, plan, replanner = planned
-    open_loop = simulate_plan(task.robot, plan, task.spec.simulation)
-    run = fly_closed_loop(
-        task.robot,
-        replanner,
-        plan,
-        task.spec.simulation,
-        ClosedLoopOptions(period=PERIOD),
-        deadline=math.inf,
-    )
+    open_loop, run = _flown_both_ways(task, replanner, plan)
     assert [r.node for r in run.replans] == [10, 20, 30, 40]
     assert run.failed == 0
     assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
@@ -101,15 +104,7 @@ def test_closed_loop_without_model_error_reproduces_the_plan(planned):
 def test_a_failed_replan_keeps_the_plan_in_force(planned):
     task, nlp, plan, _ = planned
     failing = Replanner(nlp, {"max_iter": 0})  # Ipopt stops before its first step
-    open_loop = simulate_plan(task.robot, plan, task.spec.simulation)
-    run = fly_closed_loop(
-        task.robot,
-        failing,
-        plan,
-        task.spec.simulation,
-        ClosedLoopOptions(period=PERIOD),
-        deadline=math.inf,
-    )
+    open_loop, run = _flown_both_ways(task, failing, plan)
     assert len(run.replans) == 4 and run.failed == 4
     assert {r.status for r in run.replans} == {"Maximum_Iterations_Exceeded"}
     # the first plan flown to the end: the open-loop motion
@@ -165,3 +160,25 @@ def test_closed_loop_defaults_follow_the_robustness_section(tmp_path):
         0.2,
         7,
     )
+
+
+def test_the_worst_runs_urdf_holds_its_true_robot():
+    """``closed_loop_worst.urdf``: the URDF with the perturbed inertias, which Pinocchio reads
+    back into the true robot's model (every joint's body, fixed links merged)."""
+    import pinocchio as pin
+
+    from balance_opt.app.closed_loop import perturbed_urdf, true_robots
+
+    task = load_task(EXAMPLES / "capture_task.yaml")
+    truth = true_robots(task.robot, ClosedLoopOptions(samples=2, perturbation=0.1, seed=0))[1]
+    text = perturbed_urdf(task.robot, truth)
+    model = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+    assert model.njoints == truth.model.njoints
+    for i in range(1, model.njoints):
+        assert model.names[i] == truth.model.names[i]
+        read, true = model.inertias[i], truth.model.inertias[i]
+        assert abs(read.mass - true.mass) < 1e-12 * true.mass
+        np.testing.assert_allclose(read.lever, true.lever, atol=1e-12)
+        np.testing.assert_allclose(read.inertia, true.inertia, atol=1e-12)
+    # and it is not the nominal robot
+    assert abs(model.inertias[1].mass - task.robot.model.inertias[1].mass) > 1e-6
