@@ -236,7 +236,7 @@ def closed_loop_figure(
                                 label="95th percentile closed loop")
         t_end = max(float(results[n].t[-1]) for n in names)
         _time_axes(list(axes), t_end, ["rotation [deg]"] * len(names))
-        layout(fig, axes[0], handles, "column")
+        layout(fig, axes[:, None], handles, "column")
         return fig, style.save(fig, stem, formats, dpi)
 
 
