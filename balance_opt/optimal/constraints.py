@@ -421,7 +421,8 @@ class PeakEpigraph(PathAttitudeBound):
         return np.full(block.size, -np.inf), np.zeros(block.size)
 
     def bound_variables(self, problem, lower, upper):
-        lower.S[:] = 0.0
+        # a re-plan's: at least the peak the motion already had
+        lower.S[:] = 0.0 if problem.start is None else (problem.start.peak / PEAK_SCALE) ** 2
         bound = problem.bounds.path
         upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
 
@@ -452,8 +453,16 @@ class InitialState(Constraint):
     def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
         """``(derivative, value)`` of the balance joints at the node."""
         n_levels = len(problem.model.joint_rows(problem.control))
-        if problem.options.start == "rest":
+        start = problem.start
+        if problem.options.start == "rest" or start is not None:
             n_levels = 3
+        if start is not None:  # a re-plan: continuous with the motion it takes over
+            if not problem.transcription.has_midpoints and n_levels > len(
+                problem.model.joint_rows(problem.control)
+            ):
+                n_levels = 2  # a constant acceleration per interval: it steps at every node
+            values = [problem.q_B0, start.velocity, start.acceleration]
+            return list(zip(DERIVATIVES[:n_levels], values))
         zeros = np.zeros_like(problem.q_B0)
         return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
@@ -462,7 +471,8 @@ class InitialState(Constraint):
         ``"acceleration"``) the control there; the trapezoidal rule's acceleration is constant
         on an interval, the mean of its two nodes' controls: both are fixed."""
         if self.index == 0:  # the start: the base at its initial attitude too
-            lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+            start = problem.start
+            lower.X[:3, 0] = upper.X[:3, 0] = 0.0 if start is None else start.attitude
         node, rows = problem.N if self.index else 0, problem.model.joint_rows(problem.control)
         for kind, value in self.targets(problem):
             level = DERIVATIVES.index(kind)

@@ -281,13 +281,36 @@ class Bounds:
                 object.__setattr__(self, name, value)
 
 
+@dataclass(frozen=True)
+class StartState:
+    """Where a re-plan starts (:mod:`balance_opt.optimal.replan`): the balance arm in the middle
+    of a motion and the base turned, instead of the arm at rest at ``q_B0`` and the base at its
+    initial attitude. The problem's ``q_B0`` is the balance joints' positions there.
+
+    Attributes:
+        velocity, acceleration: the balance joints' rates [rad/s] and accelerations [rad/s^2]
+            there (n_B,): the commanded motion stays continuous at the switch.
+        attitude: the base's rotation vector ``log R`` there [rad] (3,); the drift stays
+            measured from the attitude at ``t = 0``.
+        peak: the largest drift of the motion before the start [rad]: the peak objective's
+            epigraph variable is at least this (the objective stays the whole motion's peak).
+    """
+
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    attitude: np.ndarray
+    peak: float = 0.0
+
+
 class BalanceProblem:
     """The numeric data of one balance planning problem, checked against the robot before
     anything is built: the mission arm's motion (``sample(t) -> q, q_dot, q_ddot``,
     ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the limits of
     ``robot`` (default: the model's robot; the model's kinematics, possibly other limits), and
     ``h0``: the system's constant total momentum, world frame, the base starting at the
-    identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for zero.
+    identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for zero. ``start``:
+    a :class:`StartState` to start from instead of rest (a re-plan; the mission then starts
+    where the re-plan does).
 
     Attributes:
         horizon: the options' horizon, else the mission's duration [s].
@@ -312,8 +335,10 @@ class BalanceProblem:
         options: PlannerOptions,
         robot: FloatingRobot | None = None,
         h0=None,
+        start: StartState | None = None,
     ):
         self.model = model
+        self.start = start
         self.robot = robot = model.robot if robot is None else robot
         self.mission = mission
         self.options = options

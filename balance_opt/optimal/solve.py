@@ -64,10 +64,20 @@ class BalanceNLP(BalanceProblem):
     unless ``between``."""
 
     def __init__(
-        self, model, mission, q_B0, options, robot=None, h0=None, stage=None, between=False
+        self,
+        model,
+        mission,
+        q_B0,
+        options,
+        robot=None,
+        h0=None,
+        stage=None,
+        between=False,
+        *,
+        start=None,
     ):
-        start = time.perf_counter()
-        super().__init__(model, mission, q_B0, options, robot, h0)
+        started = time.perf_counter()
+        super().__init__(model, mission, q_B0, options, robot, h0, start)
         momentum = bool(np.any(self.h0 != 0.0))
         collision = self.collision.rows.key if self.collision is not None else ""
         path = self.mission_path if self.free_timing else None
@@ -82,7 +92,7 @@ class BalanceNLP(BalanceProblem):
         self.structure = model.nlp_cache[key]
         self.build_time = self.structure.build_time if built_now else 0.0
         self._set_bounds()
-        self.setup_time = time.perf_counter() - start - self.build_time
+        self.setup_time = time.perf_counter() - started - self.build_time
 
     def with_bounds(self, **changes) -> BalanceNLP:
         """The same problem with other :class:`~balance_opt.optimal.problem.Bounds`; this one
@@ -131,7 +141,15 @@ class BalanceNLP(BalanceProblem):
         """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
         return BalanceNLP(
-            self.model, self.mission, self.q_B0, options, self.robot, self.h0, stage, between
+            self.model,
+            self.mission,
+            self.q_B0,
+            options,
+            self.robot,
+            self.h0,
+            stage,
+            between,
+            start=self.start,
         )
 
     def stage(self, stage: Stage | str, final: bool = False) -> BalanceNLP:
@@ -469,6 +487,7 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         method="optimal",
         h0=nlp.h0,
         integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])),
+        attitude0=None if nlp.start is None else quaternion_from_rotvec(nlp.start.attitude),
     )
     q_nlp = quaternion_from_rotvec(sol.X[:3].T)
     attitude_defect = rotation_angle(

@@ -8,7 +8,7 @@ from typing import Literal
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.config.typed_config import json_schema, reference_markdown, setting
-from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.optimal.options import GUESSES, TIMINGS, PlannerOptions
 
@@ -319,6 +319,10 @@ class TaskSpec:
     )
     robustness: RobustnessOptions = setting(
         factory=RobustnessOptions, doc="drift under model error (perturbed masses and inertias)"
+    )
+    closed_loop: ClosedLoopOptions = setting(
+        factory=ClosedLoopOptions,
+        doc="closed loop: re-planning from the measured state on perturbed models (--closed-loop)",
     )
     outputs: OutputsSpec = setting(factory=OutputsSpec, doc="files to write")
 
