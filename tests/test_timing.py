@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from balance_opt.config.yaml_lines import TaskFileError
+from balance_opt.errors import InputError
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory, ViaPoints
 from balance_opt.optimal.timing import MissionPath, shortest_duration
 from balance_opt.tasks.task import load_task
@@ -106,14 +107,121 @@ def test_straight_path_of_a_point_to_point_mission_and_its_given_progress():
             "optimal.objective: objective time (the shortest mission within a drift bound) "
             "needs mission.timing: free and optimal.constraints.path_attitude_bound",
         ),
+        (
+            _free(
+                CAPTURE.replace("momentum: [0, 0, 0, 0, 0, 0]", "momentum: [0, 0, 0, 0, 0, 0.2]"),
+                "optimal:\n  objective: time\n  constraints: {path_attitude_bound: 0.03}\n",
+            ),
+            "momentum: [0, 0, 0, 0, 0, 0.2]",
+            "initial.momentum: optimal.objective: time needs a zero initial momentum: with "
+            "momentum the base drifts while the arms wait, so a longer mission is not always a "
+            "stiller one",
+        ),
     ],
-    ids=["unknown timing", "no acceleration limit", "time without free", "time without bound"],
+    ids=[
+        "unknown timing",
+        "no acceleration limit",
+        "time without free",
+        "time without bound",
+        "time with momentum",
+    ],
 )
 def test_bad_timing_keys_name_file_line_and_key(tmp_path, text, fragment, message):
     path = _task(tmp_path, text)
     with pytest.raises(TaskFileError) as info:
         load_task(path)
     assert str(info.value).startswith(f"{path}:{_line_of(text, fragment)}: {message}")
+
+
+def _plan(max_drift, final_drift=0.0, rounds=6):
+    """A stand-in for a refined, re-simulated plan: its drift (peak at t = 2 s of a 4 s
+    motion) and its refinement rounds."""
+    from types import SimpleNamespace
+
+    t = np.linspace(0.0, 4.0, 5)
+    angle = np.array([0.0, 0.5, 1.0, 0.5, 0.0]) * max_drift
+    angle[-1] = final_drift
+    solver = SimpleNamespace(refinement={"rounds": rounds})
+    return SimpleNamespace(
+        t=t, angle=angle, max_drift=max_drift, final_drift=final_drift, solver=solver, info={}
+    )
+
+
+@pytest.mark.parametrize(
+    "kind, drifts, message",
+    [
+        (
+            "PathAttitudeBound",
+            (0.0125, 0.001),
+            "no plan keeps the path_attitude_bound: the base turns 0.0125 rad at t = 2.000 s, "
+            "0.0025 rad (+25.000%) over its 0.01 rad, after 6 refinement rounds",
+        ),
+        (
+            "PeakEpigraph",
+            (0.0125, 0.001),
+            "no plan keeps the path_attitude_bound: the base turns 0.0125 rad at t = 2.000 s, "
+            "0.0025 rad (+25.000%) over its 0.01 rad, after 6 refinement rounds",
+        ),
+        (
+            "TerminalAttitudeBound",
+            (0.009, 0.003),
+            "no plan keeps the terminal_attitude_bound: the base ends 0.003 rad from its "
+            "initial attitude, 0.001 rad (+50.000%) over its 0.002 rad, after 6 refinement "
+            "rounds",
+        ),
+    ],
+)
+def test_a_plan_over_its_attitude_bound_after_the_rounds_fails(kind, drifts, message):
+    """A plan whose re-simulated drift still breaks an attitude bound after the refinement is
+    no plan (it was returned as a success before, the rounds only logged)."""
+    from types import SimpleNamespace
+
+    from balance_opt.optimal import constraints
+    from balance_opt.optimal.problem import PlannerSolverError
+
+    options = SimpleNamespace(path_attitude_bound=0.01, terminal_attitude_bound=0.002)
+    problem = SimpleNamespace(options=options)
+    bound = getattr(constraints, kind)()
+    with pytest.raises(PlannerSolverError, match=re.escape(message)) as info:
+        bound.accept(problem, _plan(*drifts))
+    assert info.value.status == "Attitude_Bound"
+    # within the planner's tolerance (1e-3 of the bound) both bounds hold
+    bound.accept(problem, _plan(0.01 * (1 + 0.9e-3), 0.002 * (1 + 0.9e-3)))
+
+
+def test_shortest_duration_probes_judge_the_resimulated_drift():
+    """A probe whose plan comes back (no solver error) with its re-simulated peak over the
+    bound is not feasible: with a peak of 0.08 rad s / T and a bound of 0.01 rad, the shortest
+    duration is 8 s (every probe counted as feasible before: 0.08 s)."""
+    from types import SimpleNamespace
+
+    from balance_opt.optimal.solve import TIME_RESOLUTION, fastest
+
+    mission = PointToPoint([0.0, 0.3, -0.6], [1.2, 0.9, -1.6], 10.0)
+    options = SimpleNamespace(path_attitude_bound=0.01, terminal_attitude_bound=None)
+
+    class Probe:
+        def __init__(self, horizon):
+            self.horizon = horizon
+
+        def solve(self, guess, executor):
+            return _plan(0.08 / self.horizon)
+
+    nlp = SimpleNamespace(
+        options=options,
+        free_timing=True,
+        h0=np.zeros(6),
+        mission=mission,
+        mission_path=MissionPath(mission),
+        path_rate_limits=(np.inf, np.inf),
+        variant=lambda objective, horizon: Probe(horizon),
+    )
+    found = fastest(nlp, None).info["minimum_time"]
+    assert 8.0 <= found["duration_s"] <= 8.0 + TIME_RESOLUTION
+    assert all(p["feasible"] == (p["duration_s"] >= 8.0) for p in found["probes"])
+    nlp.h0 = np.r_[0.0, 0.0, 0.0, 0.0, 0.0, 0.2]
+    with pytest.raises(InputError, match=re.escape("objective time needs a zero initial momentum")):
+        fastest(nlp, None)
 
 
 def test_free_timing_with_a_capture_is_refused(tmp_path):

@@ -35,6 +35,9 @@ PEAK_SCALE = 0.01
 #: Exponent ``p`` of the smooth peak (the ``smooth`` stage of the peak objective): the drift's
 #: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``.
 PEAK_POWER = 16
+#: Relative excess of the re-simulated drift over an attitude bound within which the bound
+#: counts as kept: the refinement tightens above it, a plan still above it fails.
+ATTITUDE_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -377,13 +380,52 @@ class TorqueLimit(Constraint):
         )
 
 
+def broken_attitude_bounds(options, result: BalanceResult) -> list[tuple[str, float, float]]:
+    """The attitude bounds of ``options`` the re-simulated ``result`` breaks by more than
+    :data:`ATTITUDE_TOLERANCE` of them: ``(field, bound, value)``, ``field`` ``"path"`` (the
+    peak drift) or ``"terminal"`` (the final drift) [rad]."""
+    return [
+        (field, bound, value)
+        for field, bound, value in (
+            ("path", options.path_attitude_bound, result.max_drift),
+            ("terminal", options.terminal_attitude_bound, result.final_drift),
+        )
+        if bound is not None and value > bound * (1.0 + ATTITUDE_TOLERANCE)
+    ]
+
+
 class AttitudeBound(Constraint):
     """A bound on the base's rotation from its initial attitude, ``|log R| <= bound``, as rows
     ``|phi|^2 / bound^2 <= 1``: squared, so that the rows are smooth at ``phi = 0``; scaled,
-    so that Ipopt's absolute constraint tolerance is relative to the bound."""
+    so that Ipopt's absolute constraint tolerance is relative to the bound. A plan whose
+    re-simulated drift still breaks the bound after the refinement fails (:meth:`accept`)."""
+
+    field = "path"
 
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.ones(block.size)
+
+    def accept(self, problem, result):
+        """A plan over the bound (by more than :data:`ATTITUDE_TOLERANCE` of it) after the
+        refinement fails, naming the bound, the amount, the time and the rounds tried."""
+        for field, bound, value in broken_attitude_bounds(problem.options, result):
+            if field != self.field:
+                continue
+            if field == "path":
+                t = float(result.t[int(np.argmax(result.angle))])
+                said = f"the base turns {value:.6g} rad at t = {t:.3f} s"
+            else:
+                t = float(result.t[-1])
+                said = f"the base ends {value:.6g} rad from its initial attitude"
+            raise PlannerSolverError(
+                f"no plan keeps the {field}_attitude_bound: {said}, {value - bound:.4g} rad "
+                f"({value / bound - 1.0:+.3%}) over its {bound:.6g} rad, {rounds_tried(result)}",
+                "Attitude_Bound",
+                result,
+                f"{field} attitude bound",
+                t,
+                value - bound,
+            )
 
 
 class PathAttitudeBound(AttitudeBound):
@@ -430,6 +472,7 @@ class TerminalAttitudeBound(AttitudeBound):
     """``|log R_T| <= terminal_attitude_bound`` at the last node."""
 
     name = "terminal attitude bound"
+    field = "terminal"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
