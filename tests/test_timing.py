@@ -401,3 +401,144 @@ def test_free_timing_of_a_curved_path(tmp_path):
     np.testing.assert_allclose(result.q_M[-1], task.mission.end, atol=1e-6)
     assert not result.violations, result.violations
     assert path.linear is False
+
+
+# --------------------------------------------- the mission limits between the points (curved path)
+
+
+class _Motion:
+    """A mission of two joints on [0, 1] s: a revolute one whose rate peaks at 1.05 rad/s
+    (t = 0.5 s), a prismatic one whose acceleration peaks at 10.3 m/s^2 (t = 0.25, 0.75 s)."""
+
+    c = 10.3 / (4 * np.pi**2)
+
+    def sample(self, t):
+        t = np.asarray(t, dtype=float)
+        w = 2 * np.pi
+        q = np.stack([1.05 / np.pi * (1 - np.cos(np.pi * t)), self.c * np.sin(w * t)], axis=1)
+        qd = np.stack([1.05 * np.sin(np.pi * t), self.c * w * np.cos(w * t)], axis=1)
+        qdd = np.stack([1.05 * np.pi * np.cos(np.pi * t), -self.c * w**2 * np.sin(w * t)], axis=1)
+        return q, qd, qdd
+
+
+def _limited(velocity=1.0, acceleration=10.0, lower=-0.3, upper=0.3, factor=None):
+    """A stand-in free-timing problem of 10 intervals of 0.1 s (with midpoints) following
+    :class:`_Motion`, and its plan after 6 refinement rounds."""
+    from types import SimpleNamespace
+
+    from balance_opt.optimal.timing import MissionData
+
+    limits = MissionData(
+        np.array([-1.0, lower]),
+        np.array([1.0, upper]),
+        np.array([velocity, 2.0]),
+        np.array([10.0, acceleration]),
+    )
+    robot = SimpleNamespace(
+        mission=SimpleNamespace(joints=("j1", "j2")),
+        joint_units=("rad", "m", "rad"),
+        mission_indices=np.array([0, 1]),
+    )
+    problem = SimpleNamespace(
+        mission_limits=limits,
+        robot=robot,
+        N=10,
+        h=0.1,
+        model=SimpleNamespace(n_M=2),
+        point_times=np.zeros(21),
+        transcription=SimpleNamespace(has_midpoints=True),
+        bounds=SimpleNamespace(mission_factor=factor),
+        path_rate_limits=(np.inf, np.inf),
+        mission_motion=lambda solution: _Motion(),
+    )
+    t = np.linspace(0.0, 1.0, 11)
+    q, qd, qdd = _Motion().sample(t)
+    solver = SimpleNamespace(solution=object(), refinement={"rounds": 6})
+    result = SimpleNamespace(t=t, q_M=q, q_dot_M=qd, q_ddot_M=qdd, solver=solver)
+    return problem, result
+
+
+def test_mission_limits_between_points_ranked_relative_to_the_limits_and_refused():
+    """The worst breach is the largest relative to its limit (5 % of 1 rad/s, not 3 % of
+    10 m/s^2, though 0.05 < 0.3), in the joint's unit; a plan still breaking it after the
+    refinement fails, naming the joint, the amount, the time and the rounds."""
+    from balance_opt.optimal.constraints import MissionTiming
+    from balance_opt.optimal.problem import PlannerSolverError
+
+    kind = MissionTiming.__new__(MissionTiming)
+    problem, result = _limited()
+    worst = kind.check(problem, result)
+    assert (worst.constraint, worst.unit) == ("velocity limit of j1", "rad/s")
+    assert worst.time == pytest.approx(0.5) and worst.amount == pytest.approx(0.05)
+    message = (
+        "no free timing keeps the mission joints' limits: j1 exceeds its velocity limit 1 "
+        "rad/s by 0.05 rad/s (+5.000%) at t = 0.500 s, after 6 refinement rounds"
+    )
+    with pytest.raises(PlannerSolverError, match=re.escape(message)):
+        kind.accept(problem, result)
+    # the prismatic joint's acceleration in m/s^2 once the revolute one is within its limit
+    problem, result = _limited(velocity=1.1)
+    worst = kind.check(problem, result)
+    assert (worst.constraint, worst.unit) == ("acceleration limit of j2", "m/s^2")
+    assert worst.time == pytest.approx(0.25) and worst.amount == pytest.approx(0.3)
+    # a position beyond the range (the quintic pieces can overshoot): relative to its width
+    problem, result = _limited(velocity=1.1, acceleration=10.4, lower=-0.25, upper=0.25)
+    worst = kind.check(problem, result)
+    assert (worst.constraint, worst.unit) == ("position limit of j2", "m")
+    assert worst.amount == pytest.approx(_Motion.c - 0.25)
+    message = (
+        "no free timing keeps the mission joints' limits: j2 leaves its range [-0.25, 0.25] m "
+        "by 0.0109 m (the path's, whatever its timing) at t = 0.250 s, after 6 refinement rounds"
+    )
+    with pytest.raises(PlannerSolverError, match=re.escape(message)):
+        kind.accept(problem, result)
+    # within the limits: nothing to report, nothing to refuse
+    problem, result = _limited(velocity=1.1, acceleration=10.4)
+    assert kind.check(problem, result) is None
+    kind.accept(problem, result)
+
+
+def test_mission_limits_tightened_on_the_intervals_that_break_them():
+    """The refinement lowers the mission joints' rate and acceleration bounds at the points of
+    the intervals where the continuous motion breaks a limit (by (1 - 1e-3) / (1 + excess)),
+    and the next problem's variable bounds are the lowered ones."""
+    from types import SimpleNamespace
+
+    from balance_opt.optimal.constraints import MissionTiming
+
+    kind = MissionTiming.__new__(MissionTiming)
+    problem, result = _limited()
+    changes, words = kind.tighten(problem, result)
+    factor = changes["mission_factor"]
+    assert words == ["mission joint bounds on 4 intervals (worst +5.000%)"]
+    assert factor.shape == (4, 21)
+    # j1's rate breaks on intervals 4 and 5 (t in 0.40-0.60 s), j2's acceleration on 2 and 7
+    lowered = {0: [4, 5, 6, 15, 16], 3: [2, 3, 13, 7, 8, 18]}
+    expected = np.ones_like(factor)
+    expected[0, lowered[0]] = (1 - 1e-3) / 1.05
+    expected[3, lowered[3]] = (1 - 1e-3) / 1.03
+    np.testing.assert_allclose(factor, expected, rtol=2e-4)
+    assert np.all(factor[expected == 1.0] == 1.0)
+    # the lowered bounds on the mission data M (nodes) and Mm (midpoints)
+    problem, _ = _limited(factor=factor)
+    N = problem.N
+
+    def blank(columns):
+        return np.zeros((6, columns))
+
+    lower = SimpleNamespace(
+        P=np.zeros((2, N + 1)),
+        Pm=np.zeros((2, N)),
+        A=np.zeros((1, N + 1)),
+        Am=np.zeros((1, N)),
+        M=blank(N + 1),
+        Mm=blank(N),
+    )
+    upper = SimpleNamespace(**{k: v.copy() for k, v in vars(lower).items()})
+    kind.bound_variables(problem, lower, upper)
+    np.testing.assert_allclose(upper.M[2], factor[0, : N + 1])  # j1's rate
+    np.testing.assert_allclose(lower.Mm[5], -10.0 * factor[3, N + 1 :])  # j2's acceleration
+    np.testing.assert_array_equal(upper.M[:2], [[1.0] * (N + 1), [0.3] * (N + 1)])
+    # a motion within the limits tightens nothing
+    problem, result = _limited(velocity=1.1, acceleration=10.4)
+    assert kind.tighten(problem, result) == ({}, [])

@@ -17,7 +17,8 @@ never followed backwards). The mission joints' limits: at every collocation poin
 on a straight path, where the mission's rates are ``(qf - q0)`` times ``sigma``'s, also on the
 continuous motion, through the Bernstein coefficients of ``sigma``'s polynomials (as the balance
 limits are held between the points). On a curved path the limits between the points are checked
-on the re-simulated motion (:class:`~balance_opt.optimal.constraints.MissionTiming`).
+on the continuous motion, tightened by the refinement where it breaks them, and a plan still
+breaking one fails (:class:`~balance_opt.optimal.constraints.MissionTiming`).
 
 The path progress reported (``info["timing"]``) is ``s(t)``: the time at which the given
 trajectory passes where the re-timed one is at ``t`` (``s = t`` for the given timing).
