@@ -401,6 +401,15 @@ def test_free_timing_of_a_curved_path(tmp_path):
     np.testing.assert_allclose(result.q_M[-1], task.mission.end, atol=1e-6)
     assert not result.violations, result.violations
     assert path.linear is False
+    # the chain rule through the quintic pieces: the re-timed mission's rates and accelerations
+    # against central differences of its positions every 0.1 ms, within their own error
+    mission = _retimed(task, result)
+    t = np.linspace(0.0, mission.duration, int(round(mission.duration / 1e-4)) + 1)
+    q, qd, qdd = mission.sample(t)
+    jerk = np.abs(np.diff(qdd, axis=0)).max(axis=0) / 1e-4 * 1.05
+    rate, acceleration = _central_differences(t, q)
+    assert np.all(np.abs(rate - qd[1:-1]) <= jerk * 1e-8 / 6 + 1e-12)
+    assert np.all(np.abs(acceleration - qdd[1:-1]) <= jerk * 1e-4 / 3 + 1e-7)
 
 
 # --------------------------------------------- the mission limits between the points (curved path)
@@ -542,3 +551,53 @@ def test_mission_limits_tightened_on_the_intervals_that_break_them():
     # a motion within the limits tightens nothing
     problem, result = _limited(velocity=1.1, acceleration=10.4)
     assert kind.tighten(problem, result) == ({}, [])
+
+
+# ----------------------------------- the exported mission against its own finite differences
+
+
+def _central_differences(t, q):
+    """Rates and accelerations of positions ``q`` (T, n) on the uniform grid ``t`` by central
+    differences, at the interior samples: owes nothing to the path's chain rule."""
+    dt = t[1] - t[0]
+    np.testing.assert_allclose(np.diff(t), dt, rtol=1e-9)
+    return (q[2:] - q[:-2]) / (2 * dt), (q[2:] - 2 * q[1:-1] + q[:-2]) / dt**2
+
+
+@pytest.mark.slow
+def test_exported_mission_rates_are_the_derivatives_of_its_positions(free_plan):
+    """The exported mission rates and accelerations (NPZ and CSV) against central differences
+    of the exported positions, and of the re-timed mission sampled every 0.1 ms, within the
+    differences' own error; the mission joints' limits checked on those differences (not on
+    the planner's own rates)."""
+    from balance_opt.report.outputs import read_npz_result
+
+    task, result, out = free_plan
+    lim = task.robot.limits.subset(task.robot.mission_indices)
+    # the re-timed mission sampled every 0.1 ms: its third derivative's bound ``jerk`` (it
+    # steps at the nodes), which bounds the differences' error: dt^2 / 6 jerk for the rates,
+    # dt / 3 jerk for the accelerations
+    mission = _retimed(task, result)
+    fine = np.linspace(0.0, mission.duration, int(round(mission.duration / 1e-4)) + 1)
+    q, qd, qdd = mission.sample(fine)
+    dt = fine[1] - fine[0]
+    jerk = np.abs(np.diff(qdd, axis=0)).max(axis=0) / dt * 1.05
+    rate, acceleration = _central_differences(fine, q)
+    assert np.all(np.abs(rate - qd[1:-1]) <= jerk * dt**2 / 6 + 1e-12)
+    assert np.all(np.abs(acceleration - qdd[1:-1]) <= jerk * dt / 3 + 1e-7)
+    assert np.all(np.abs(rate) <= lim.velocity * (1 + 1e-6))
+    assert np.all(np.abs(acceleration) <= lim.acceleration + jerk * dt / 3 + 1e-7)
+    # the exported positions (NPZ and CSV) at 100 Hz against the exported rates
+    saved = read_npz_result(out / "optimal.npz")
+    csv = np.genfromtxt(out / "optimal.csv", delimiter=",", names=True)
+    q = np.stack([csv[name] for name in task.robot.mission.joints], axis=1)
+    np.testing.assert_allclose(q, saved.q_M, atol=1e-12)
+    rate, acceleration = _central_differences(saved.t, q)
+    dt = saved.t[1] - saved.t[0]
+    assert np.all(np.abs(rate - saved.q_dot_M[1:-1]) <= jerk * dt**2 / 6 + 1e-9)
+    assert np.all(np.abs(acceleration - saved.q_ddot_M[1:-1]) <= jerk * dt / 3 + 1e-7)
+    assert np.all(np.abs(rate) <= lim.velocity * (1 + 1e-6) + jerk * dt**2 / 6)
+    assert np.all(np.abs(acceleration) <= lim.acceleration + jerk * dt / 3)
+    # the given (quintic) timing's rates fail the same comparison: it discriminates
+    given = task.mission.sample(saved.t)[1]
+    assert np.abs(rate - given[1:-1]).max() > 100 * (jerk * dt**2 / 6).max()
