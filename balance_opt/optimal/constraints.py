@@ -739,9 +739,9 @@ class MissionTiming(Constraint):
     def motion(problem: BalanceProblem, result: BalanceResult) -> tuple:
         """The re-timed mission of a plan on the continuous motion (:data:`TORQUE_POINTS` per
         interval and the result's own samples): ``(t (T,) [s], q, q_dot, q_ddot (T, n_M))``;
-        without the plan's solution, the result's samples."""
+        without the plan's solution (or a problem that cannot re-time), the result's samples."""
         solution = getattr(getattr(result, "solver", None), "solution", None)
-        if solution is None:
+        if solution is None or not hasattr(problem, "mission_motion"):
             return result.t, result.q_M, result.q_dot_M, result.q_ddot_M
         s = np.linspace(0.0, 1.0, TORQUE_POINTS)
         t = ((np.arange(problem.N)[:, None] + s[None, :]) * problem.h).ravel()
