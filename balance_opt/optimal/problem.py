@@ -264,6 +264,10 @@ class Bounds:
             ``None`` without collision avoidance; read-only: at first
             :meth:`~balance_opt.optimal.collision.CollisionSetup.start_bounds`, raised by
             the refinement where the re-simulated motion came too close.
+        mission_factor: with a free mission timing, factor on the mission joints' velocity
+            and acceleration limits at each point (2 n_M, n_points: the rates, then the
+            accelerations), read-only; ``None``: the limits (lowered by the refinement where
+            the re-simulated motion breaks them between the points).
     """
 
     path: float | None
@@ -271,9 +275,10 @@ class Bounds:
     torque_factor: np.ndarray
     peak_reference: float = 1.0
     collision: np.ndarray | None = None
+    mission_factor: np.ndarray | None = None
 
     def __post_init__(self):
-        for name in ("torque_factor", "collision"):
+        for name in ("torque_factor", "collision", "mission_factor"):
             value = getattr(self, name)
             if value is not None:
                 value = np.array(value, dtype=float)

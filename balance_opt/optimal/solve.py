@@ -24,7 +24,7 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.optimal import timing
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
+from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, broken_attitude_bounds
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import build_structure
@@ -373,12 +373,16 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
     (and the terminal one), by bisection between the shortest motion the mission joints' limits
     allow (:func:`~balance_opt.optimal.timing.shortest_duration`) and the given duration
     (doubled until feasible, twice at most). A bisection, not the horizon as a variable: with
-    rest at the end, a plan of a duration is one of every longer duration (both arms then wait
-    at rest), so feasibility is monotone in the duration, and every probe is an ordinary peak
-    plan, re-simulated and refined. ``info["minimum_time"]`` lists the probes.
+    rest at the end and no momentum, a plan of a duration is one of every longer duration (both
+    arms then wait at rest, and so does the base), so feasibility is monotone in the duration,
+    and every probe is an ordinary peak plan, re-simulated and refined. A probe is feasible
+    only if its re-simulated plan keeps the bounds (within
+    :data:`~balance_opt.optimal.constraints.ATTITUDE_TOLERANCE`). ``info["minimum_time"]``
+    lists the probes.
 
     Raises:
-        InputError: the timing is not free or there is no path attitude bound.
+        InputError: the timing is not free, there is no path attitude bound, or the initial
+            momentum is not zero (the base drifts while the arms wait: not monotone).
         PlannerSolverError: not even the longest duration tried keeps the bound.
     """
     bound = nlp.options.path_attitude_bound
@@ -387,12 +391,29 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
             "objective time needs a free mission timing (mission.timing: free) and a "
             "path_attitude_bound"
         )
+    if np.any(np.asarray(nlp.h0) != 0.0):
+        raise InputError(
+            "objective time needs a zero initial momentum (initial.momentum): with momentum "
+            "the base drifts while the arms wait, and a longer mission is not always stiller"
+        )
     probes: list[dict] = []
 
     def probe(T: float):
         variant = nlp.variant(objective="peak", horizon=T)
         try:
             result = variant.solve(guess, executor)
+            broken = broken_attitude_bounds(nlp.options, result)
+            if broken:  # the refinement's rounds did not bring it within the bound
+                field, limit, value = broken[0]
+                raise PlannerSolverError(
+                    f"the re-simulated plan breaks the {field}_attitude_bound {limit:.6g} rad "
+                    f"by {value - limit:.4g} rad",
+                    "Attitude_Bound",
+                    result,
+                    f"{field} attitude bound",
+                    T,
+                    value - limit,
+                )
         except SolverError as exc:
             probes.append({"duration_s": T, "feasible": False, "reason": str(exc)})
             log.info("objective time: %.3f s does not keep the bound (%s)", T, exc)

@@ -234,7 +234,8 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
 
 def check_timing(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
     """A free mission timing: no capture, every mission joint with a velocity and an
-    acceleration limit; ``optimal.objective: time`` only with it and a path attitude bound."""
+    acceleration limit; ``optimal.objective: time`` only with it, a path attitude bound and
+    no initial momentum."""
     planner = spec.optimal.planner
     if planner.objective == "time" and (
         spec.mission.timing != "free" or planner.path_attitude_bound is None
@@ -243,6 +244,12 @@ def check_timing(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> Non
             ("optimal", "objective"),
             "objective time (the shortest mission within a drift bound) needs mission.timing: "
             "free and optimal.constraints.path_attitude_bound",
+        )
+    if planner.objective == "time" and any(v != 0.0 for v in spec.initial.momentum):
+        raise doc.error(
+            ("initial", "momentum"),
+            "optimal.objective: time needs a zero initial momentum: with momentum the base "
+            "drifts while the arms wait, so a longer mission is not always a stiller one",
         )
     if spec.mission.timing != "free":
         return
