@@ -49,11 +49,12 @@ def file_lock(path: Path, blocking: bool = True) -> Iterator[None]:
     ``blocking`` and it is held."""
     import filelock
 
-    lock = filelock.FileLock(path, blocking=blocking)
+    # no soft-lock fallback: a soft lock left by a killed process would block every later wait
+    lock = filelock.FileLock(path, blocking=blocking, fallback_to_soft=False)
     try:
         lock.acquire()
     except filelock.Timeout as exc:
-        raise BlockingIOError(f"{path}: locked by another process") from exc
+        raise BlockingIOError(f"{path}: locked (by another process, or another thread)") from exc
     try:
         yield
     finally:

@@ -352,10 +352,18 @@ def _print_cartesian_goal(task) -> None:
 
 
 @contextlib.contextmanager
-def _starts_executor(task, methods: tuple[str, ...]):
+def _starts_executor(task, methods: tuple[str, ...], args=None):
     """The sweep engine's process pool for the optimal planner's starts (``optimal.starts >
-    1``: one worker per start, at most one per CPU), for this command only; ``None`` when there
-    is nothing to run beside this process."""
+    1``: one worker per start, at most one per CPU) and the closed loop's models
+    (``--closed-loop``: one per CPU, or Dask with ``--scheduler``), for this command only;
+    ``None`` when there is nothing to run beside this process."""
+    if getattr(args, "closed_loop", False):
+        from balance_opt.sweep.engine import make_engine
+
+        with make_engine(os.cpu_count() or 1, args.scheduler) as engine:
+            log.info("closed loop: %s", engine.describe())
+            yield engine
+        return
     starts = task.spec.optimal.planner.starts
     jobs = min(starts, os.cpu_count() or 1)
     if "optimal" not in methods or starts < 2 or jobs < 2:
@@ -382,7 +390,7 @@ def _run_task_command(args) -> int:
 
             methods += (GIVEN_TIMING,) if "optimal" in methods else ()
         started = time.perf_counter()
-        with _starts_executor(task, methods) as executor:
+        with _starts_executor(task, methods, args) as executor:
             run = run_task(
                 task,
                 methods=methods,
@@ -393,6 +401,7 @@ def _run_task_command(args) -> int:
                 robustness=task.spec.robustness.runs_in(
                     "compare" if args.command == "compare" else "plan"
                 ),
+                closed_loop=getattr(args, "closed_loop", False),
             )
     from balance_opt.report.report import violation_count_text
 
@@ -446,6 +455,16 @@ def _more_summary(metrics: dict) -> list[str]:
         reversals = "/".join(str(v["acceleration_reversals"]) for v in smooth.values())
         jerk = max(v["max_jerk_rad_s3"] for v in smooth.values())
         lines.append(f"acceleration reversals {reversals}, largest jerk {jerk:.3g} rad/s^3")
+    closed = metrics.get("closed_loop")
+    if closed:
+        peak, final, times = closed["max_drift"], closed["final_drift"], closed["replan_time_s"]
+        lines.append(
+            f"closed loop ({closed['samples']} models, period {closed['period_s']:g} s): max "
+            f"drift {peak['median_rad']:.3g} (median) / {peak['p95_rad']:.3g} (95 %) rad, final "
+            f"{final['p95_rad']:.3g} (95 %) rad; re-plans {times['median']:.3g} s median, "
+            f"{times['max']:.3g} s max, {closed['failed_replans']} of {closed['replans']} failed "
+            f"or late"
+        )
     spread = metrics.get("robustness")
     if spread:
         peak, final = spread["max_drift"], spread["final_drift"]
@@ -672,6 +691,19 @@ def _add_commands(sub) -> None:
         p = command(name, _run_task_command, help)
         p.add_argument("task", help="task file (YAML)")
         _compute_options(p, f"{DEFAULT_OUTPUT_ROOT}/<task name>")
+        if name != "plan":
+            _flag(
+                p,
+                "--closed-loop",
+                help="also fly each plan closed loop on perturbed robots, the optimal plan "
+                "re-planned every closed_loop.period from the measured state",
+            )
+            p.add_argument(
+                "--scheduler",
+                metavar="ADDRESS",
+                help="with --closed-loop, run its models on Dask: a scheduler's address, or "
+                "'local' (default: a local process pool, one worker per CPU)",
+            )
         if name == "compare":
             no_simulate = "skip the forward-dynamics simulation"
             p.add_argument("--no-simulate", dest="simulate", action="store_false", help=no_simulate)

@@ -13,7 +13,7 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import capture_task
 from balance_opt.config.typed_config import from_data, reference_rows
 from balance_opt.config.yaml_lines import TaskFileError, format_path, parse_yaml
-from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.optimal.options import CostWeights, PlannerOptions
@@ -202,7 +202,7 @@ BAD_TASKS = [
         "^mision:",
         (
             "mision: unknown key 'mision'; expected one of name, description, robot, arms, mission, initial, "
-            "capture, limits, analytic, optimal, simulation, robustness, outputs; did you mean 'mission'?"
+            "capture, limits, analytic, optimal, simulation, robustness, closed_loop, outputs; did you mean 'mission'?"
         ),
         TaskFileError,
     ),
@@ -670,6 +670,7 @@ OPTION_SECTIONS = {
     PlannerOptions: (("optimal",), lambda spec: spec.optimal.planner),
     CostWeights: (("optimal", "weights"), lambda spec: spec.optimal.planner.weights),
     SimulationOptions: (("simulation",), lambda spec: spec.simulation),
+    ClosedLoopOptions: (("closed_loop",), lambda spec: spec.closed_loop),
 }
 
 
@@ -738,7 +739,7 @@ def test_option_keys_of_the_task_format():
     assert rows == {k: d for k, d in OPTION_KEYS_DEFAULTS}
 
 
-OPTION_KEYS = ("analytic", "optimal", "simulation", "robustness")
+OPTION_KEYS = ("analytic", "optimal", "simulation", "robustness", "closed_loop")
 OPTION_KEYS_DEFAULTS = [
     ("analytic", "see below"),
     ("analytic.damping_threshold", "0.001"),
@@ -810,6 +811,11 @@ OPTION_KEYS_DEFAULTS = [
     ("robustness.samples", "50"),
     ("robustness.perturbation", "0.1"),
     ("robustness.seed", "0"),
+    ("closed_loop", "see below"),
+    ("closed_loop.period", "0.5"),
+    ("closed_loop.samples", "20"),
+    ("closed_loop.perturbation", "none"),
+    ("closed_loop.seed", "none"),
 ]
 
 

@@ -23,24 +23,8 @@ from balance_opt.motion.result import (
     rate_steps,
 )
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_multiply
+from balance_opt.motion.trajectories import MissionWindow
 from balance_opt.report.outputs import SAMPLED_ARRAYS
-
-
-class MissionWindow:
-    """The mission arm's motion over ``[t0, t1]`` of a longer mission, its clock starting at 0.
-
-    Attributes:
-        dof, duration, start: as a trajectory's.
-    """
-
-    def __init__(self, mission, t0: float, t1: float):
-        self.mission, self.t0 = mission, float(t0)
-        self.duration = float(t1) - float(t0)
-        self.dof = mission.dof
-        self.start = np.asarray(mission.sample(np.array([self.t0]))[0])[0]
-
-    def sample(self, t):
-        return self.mission.sample(np.asarray(t, dtype=float) + self.t0)
 
 
 def _state_at_end(r: BalanceResult):

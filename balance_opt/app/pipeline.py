@@ -59,6 +59,12 @@ FIGURES = {
         "joint motion is replayed on robots whose masses, centres of mass and inertias are "
         "perturbed (shaded up to the dotted edge)",
     ),
+    "closed_loop": (
+        "attitude_closed_loop",
+        "Base rotation of each plan as planned (line), and its 95th percentile over perturbed "
+        "true robots in forward dynamics: flown open loop (dotted) and closed loop, re-planned "
+        "from the measured state every period (dashed, shaded)",
+    ),
     "attitude": (
         "attitude_plans",
         "Base attitude of each plan (momentum model), with the mission arm alone for reference",
@@ -116,6 +122,8 @@ class TaskRun:
             (``False``: it has none; ``None``: not built yet).
         geometry_after: with a capture, the geometry after it and the target's pairs
             (:func:`capture_geometry`; ``False``: it did not load).
+        closed_loop: the plans flown closed loop on perturbed robots
+            (:class:`~balance_opt.app.closed_loop.ClosedLoopStudy`), if studied.
     """
 
     task: Task
@@ -130,6 +138,7 @@ class TaskRun:
     simulated_clearance: dict[str, Any] = field(default_factory=dict)
     geometry: Any = None
     geometry_after: Any = None
+    closed_loop: Any = None
 
     @property
     def ok(self) -> bool:
@@ -199,6 +208,12 @@ def write_run(run: TaskRun, output_dir: Path) -> list[Path]:
         # what the clearance check held apart and the pairs close at the start
         run.geometry.summary(run.task.q0, margin) if run.geometry else None,
     )
+    if run.closed_loop is not None:
+        from balance_opt.app.closed_loop import write_worst
+
+        for name in run.closed_loop.runs:
+            run.metrics["methods"][name]["closed_loop"] = run.closed_loop.metrics(name)
+        files += write_worst(run.closed_loop, run.task, output_dir)
     files.append(write_metrics(output_dir / METRICS_FILE, run.metrics))
     figures = []
     if out.plots or out.report:
@@ -331,6 +346,15 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
             _reference_last(run.results),
             run.robustness.attitude_p95,
             perturbation=run.robustness.options.perturbation,
+        )
+    if run.closed_loop is not None and run.closed_loop.bands:
+        draw(
+            "closed_loop",
+            plots.closed_loop_figure,
+            run.results,
+            run.robustness.attitude_p95 if run.robustness is not None else {},
+            run.closed_loop.bands,
+            perturbation=run.closed_loop.options.perturbation,
         )
     if plans:
         draw("joints", plots.joint_limits_figure, plans, run.task.robot)
@@ -517,6 +541,7 @@ def run_task(
     simulations: Mapping[str, SimulationResult] | None = None,
     executor: Any | None = None,
     robustness: bool | None = None,
+    closed_loop: bool = False,
 ) -> TaskRun:
     """Plan a task with each method, optionally simulate each plan, and write the outputs.
 
@@ -535,6 +560,8 @@ def run_task(
         executor: runs the optimal planner's starts (see :func:`plan_optimal`); owned by the caller.
         robustness: replay every plan on perturbed models; ``None``: the task's
             ``robustness.enabled``.
+        closed_loop: fly every plan closed loop on perturbed models (``closed_loop:``), its
+            Monte Carlo on ``executor``.
 
     Returns:
         The run; ``run.failures`` names the methods whose solver failed (their best iterate is
@@ -579,6 +606,8 @@ def run_task(
                     _simulate_into(run, name)
             sims = {name: (sim.t, sim.q) for name, sim in run.simulations.items()}
             _clearance_into(run, sims, run.simulated_clearance)
+        if closed_loop:
+            _closed_loop_into(run, executor)
         if folder is not None:
             write_run(run, folder.staging)
             run.files = [folder.final(path) for path in run.files]
@@ -637,6 +666,27 @@ def _model_error_into(run: TaskRun) -> None:
     what = f"drift under {100 * options.perturbation:.0f} % model error ({options.samples} models)"
     with _timed(f"{task.name}: {what}"):
         run.robustness = drift_under_model_error(task.robot, run.results, options, task.h0)
+
+
+def _closed_loop_into(run: TaskRun, executor) -> None:
+    """Every plan that did not fail flown closed loop on perturbed models (not across a
+    capture)."""
+    from balance_opt.app.closed_loop import closed_loop_study
+
+    task = run.task
+    if task.target is not None:
+        log.info("%s: no closed loop across a capture", task.name)
+        return
+    plans = {
+        m: r for m, r in run.results.items() if m in METHODS and m not in run.failures
+    }
+    planner = task.spec.optimal.planner
+    geometry = None
+    if run_geometry(run) is not False:
+        geometry = (planner.collision_srdf, planner.collision_ignore)
+    opts = task.spec.closed_loop
+    with _timed(f"{task.name}: closed loop ({opts.samples} models, period {opts.period:g} s)"):
+        run.closed_loop = closed_loop_study(task, plans, executor, geometry)
 
 
 def _checked_plans(

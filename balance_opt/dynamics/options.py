@@ -93,3 +93,40 @@ class SimulationOptions:
 
     def __post_init__(self):
         check_settings(self, "simulation option")
+
+
+#: What the re-planning controller assumes the system's momentum is at a re-plan.
+REPLAN_MOMENTA = ("zero", "measured")
+
+
+@dataclass(frozen=True)
+class ClosedLoopOptions:
+    """The closed-loop study (:mod:`balance_opt.dynamics.closed_loop`,
+    ``docs/executable-plans.md``): each plan flown on ``samples`` perturbed true models in forward dynamics, the balance arm
+    re-planned every ``period`` from the measured state with the nominal model.
+    ``perturbation`` and ``seed`` unset take the ``robustness`` section's, so that open and
+    closed loop are compared on the same true models.
+    """
+
+    period: float = setting(
+        0.5, unit="s", exclusive_minimum=0.0, doc="control period: time between two re-plans"
+    )
+    samples: int = setting(20, minimum=1, doc="perturbed true models")
+    perturbation: float | None = setting(
+        None,
+        minimum=0.0,
+        doc="relative size of the model error (default: robustness.perturbation)",
+    )
+    seed: int | None = setting(
+        None, minimum=0, doc="seed of the perturbations (default: robustness.seed)"
+    )
+    # a study setting, not a task's: docs/executable-plans.md says why zero is kept
+    momentum: Literal[REPLAN_MOMENTA] = setting(
+        REPLAN_MOMENTA[0],
+        in_file=False,
+        doc="momentum a re-plan assumes: zero (the true system's) or the nominal model's "
+        "from the measured rates",
+    )
+
+    def __post_init__(self):
+        check_settings(self, "closed-loop option")

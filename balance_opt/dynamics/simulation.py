@@ -62,8 +62,11 @@ class _ArmPlan:
     ``h0`` (world frame) and the planned ``attitude`` (``(t, quaternion)``, nearest sample;
     identity when ``None``)."""
 
-    def __init__(self, robot: FloatingRobot, mission, balance, feedforward, h0, attitude):
+    def __init__(
+        self, robot: FloatingRobot, mission, balance, feedforward, h0, attitude, model=None
+    ):
         self.robot = robot
+        self.model = robot if model is None else model  # what the controller knows
         self.mission, d_M = _as_trajectory(mission, robot.mission.dof, "mission")
         self.balance, d_B = _as_trajectory(balance, robot.balance_indices.size, "balance")
         self.duration = max(d_M, d_B)
@@ -80,7 +83,7 @@ class _ArmPlan:
             times, quaternions = self._attitude
             nearest = np.clip(np.searchsorted(times, t), 0, len(times) - 1)
             quaternion = np.asarray(quaternions)[nearest]
-        ffd = free_floating_torques(self.robot, *out, quaternion=quaternion, h0=self._h0)
+        ffd = free_floating_torques(self.model, *out, quaternion=quaternion, h0=self._h0)
         return (*out, ffd.tau)
 
 
@@ -292,6 +295,7 @@ def simulate(
     duration: float | None = None,
     initial_state: tuple[np.ndarray, np.ndarray] | None = None,
     attitude: tuple[np.ndarray, np.ndarray] | None = None,
+    model: FloatingRobot | None = None,
 ) -> SimulationResult:
     """Simulate the free-floating robot tracking a mission and a balance trajectory.
 
@@ -306,6 +310,9 @@ def simulate(
             twist of ``options.h0`` (after a capture's impulse, say).
         attitude: the plan's base attitude, ``(t, quaternion)`` samples, for the feedforward
             torques under a non-zero ``options.h0`` (identity by default).
+        model: the robot as the controller knows it (the plan's feedforward torques; the
+            computed torque is refused with another), ``robot`` by default: ``robot`` is the
+            truth that is integrated (a perturbed model, in the closed loop).
 
     Returns:
         The simulated motion, with outputs computed at ``options.output_dt``.
@@ -319,7 +326,9 @@ def simulate(
     started = time.perf_counter()
     h0 = np.zeros(6) if opts.h0 is None else np.asarray(opts.h0, dtype=float)
     feedforward = opts.feedforward and opts.controller == "pd"
-    plan = _ArmPlan(robot, mission, balance, feedforward, h0, attitude)
+    if model is not None and model is not robot and opts.controller == "computed-torque":
+        raise InputError("the computed-torque controller takes the simulated robot's own model")
+    plan = _ArmPlan(robot, mission, balance, feedforward, h0, attitude, model)
     t_end = float(plan.duration if duration is None else duration)
     if not t_end > 0:
         raise TrajectoryError(

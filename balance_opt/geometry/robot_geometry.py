@@ -21,7 +21,7 @@ import pinocchio as pin
 from balance_opt.errors import InputError
 from balance_opt.geometry import self_collision
 from balance_opt.model.capture import TARGET_LINK
-from balance_opt.model.library import DISTRIBUTION, example_robots
+from balance_opt.model.meshes import resolved_urdf
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
@@ -44,20 +44,6 @@ class Pair:
     @property
     def name(self) -> str:
         return f"{self.links[0]} / {self.links[1]}"
-
-
-def package_dirs(urdf_path: Path | None) -> list[str]:
-    """Folders ``package://`` paths resolve against: example-robot-data's share folder (the one
-    that holds ``example-robot-data/``), and the URDF's folder and the two above it."""
-    try:
-        path = next(iter(example_robots().values()))  # <share>/example-robot-data/robots/...
-        out = [str(Path(*path.parts[: path.parts.index(DISTRIBUTION)]))]
-    except (InputError, StopIteration, ValueError):  # not installed, or not laid out so
-        out = []
-    if urdf_path is not None:
-        folder = urdf_path.resolve().parent
-        out += [str(folder), str(folder.parent), str(folder.parent.parent)]
-    return out
 
 
 def default_srdf(urdf_path: Path | None) -> Path | None:
@@ -89,6 +75,8 @@ class RobotGeometry:
         ignore: pairs of link names left out as well.
         disabled: link pairs to leave out with their reasons, instead of an SRDF's or computed
             ones (the robot after a capture takes those of the robot before it).
+        packages: folders searched first for ``package://`` meshes (default: the robot's
+            ``packages``; :mod:`~balance_opt.model.meshes` has the search order).
 
     Attributes:
         geometry_model: Pinocchio's geometry model (meshes as convex hulls), its collision pairs
@@ -111,18 +99,18 @@ class RobotGeometry:
         srdf: str | Path | bool | None = None,
         ignore: Iterable[Sequence[str]] = (),
         disabled: Mapping[tuple[str, str], str] | None = None,
+        packages: Sequence[str | Path] | None = None,
     ):
         self.robot = robot
         self.model = robot.model
         urdf_path = None if robot.source.startswith("<") else Path(robot.source)
-        text = robot.locked_urdf
-        has_collision = ET.fromstring(text).find("link/collision") is not None
+        has_collision = ET.fromstring(robot.locked_urdf).find("link/collision") is not None
         self.source = "collision" if has_collision else "visual"
         kind = pin.COLLISION if self.source == "collision" else pin.VISUAL
+        packages = robot.packages if packages is None else packages
+        text = resolved_urdf(robot.locked_urdf, robot.source, packages, self.source)
         try:
-            geom = pin.buildGeomFromUrdfString(
-                self.model, text, kind, package_dirs=package_dirs(urdf_path)
-            )
+            geom = pin.buildGeomFromUrdfString(self.model, text, kind)
         except ValueError as exc:
             raise InputError(
                 f"geometry of {robot.source}: {exc} (plan without collision avoidance: "

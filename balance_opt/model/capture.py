@@ -13,6 +13,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
+from balance_opt.model.meshes import resolved_urdf
 from balance_opt.model.robot import FloatingRobot
 
 #: Name of the target's link and of its fixed joint in the robot after the capture.
@@ -96,13 +97,10 @@ def attached_urdf(robot: FloatingRobot, target: Target) -> str:
     """The robot's URDF with the target as the fixed link :data:`TARGET_LINK` under the mission
     end-effector link, origin at the target's CoM; its box is a ``<collision>`` element, or a
     ``<visual>`` one when the robot's geometry comes from visual elements."""
-    root = ET.fromstring(_urdf_text(robot))
-    source = Path(robot.source)
-    if source.is_file():  # the new URDF is text: meshes found next to the file stay found
-        for mesh in root.iter("mesh"):
-            name = mesh.get("filename", "")
-            if name and "://" not in name and not Path(name).is_absolute():
-                mesh.set("filename", str((source.parent / name).resolve()))
+    # the new URDF is text of no file: its meshes are found now, from the robot's file (one
+    # not found stays as it is: the geometry built from the new URDF names it)
+    text = resolved_urdf(_urdf_text(robot), robot.source, robot.packages, strict=False)
+    root = ET.fromstring(text)
     link = ET.SubElement(root, "link", name=TARGET_LINK)
     sides, axes = target.box()
     kind = "collision" if root.find("link/collision") is not None else "visual"
@@ -150,6 +148,7 @@ def attach_target(robot: FloatingRobot, target: Target) -> FloatingRobot:
         locked=robot.locked,
         limits=limits,
         ee_frames={arm.name: arm.ee_frame for arm in robot.arms},
+        packages=robot.packages,
     )
 
 

@@ -184,6 +184,9 @@ class FloatingRobot:
             ...); by default the last link reached from the arm's most distal joint (the
             deepest in the kinematic tree, whatever the order the joints were named in) through
             fixed joints, while that chain does not branch.
+        packages: folders searched first for the URDF's ``package://`` meshes
+            (:mod:`~balance_opt.model.meshes`; the task file's ``robot.packages``), kept as
+            ``packages`` for whatever loads the robot's geometry.
 
     Raises:
         URDFLoadError: the URDF cannot be read, parsed or loaded by Pinocchio.
@@ -200,8 +203,10 @@ class FloatingRobot:
         locked: Mapping[str, float] | None = None,
         limits: Mapping[str, Mapping[str, float]] | None = None,
         ee_frames: Mapping[str, str] | None = None,
+        packages: Sequence[str | Path] = (),
     ):
         text, self.source = _read_urdf(urdf)
+        self.packages: tuple[Path, ...] = tuple(Path(p) for p in packages)
         root, self._urdf_joints, warnings = parse_urdf(text, self.source)
         for warning in warnings:
             log.warning("URDF %s: %s", self.source, warning)

@@ -26,13 +26,16 @@ def replay(
     integration: IntegrationOptions | None = None,
     t_eval=None,
     method: str = "simulation",
+    attitude0=None,
 ) -> BalanceResult:
     """Integrate the base attitude for GIVEN joint motions of both arms (Eq. 26 with the initial
     momentum ``h0``, world frame, 3 or 6 values).
 
     ``mission`` and ``balance`` (all balance joints stacked) take any form
     :func:`~balance_opt.motion.trajectories.as_sampler` takes; ``t_eval`` defaults to every
-    ``integration.output_step`` over the longer motion.
+    ``integration.output_step`` over the longer motion. ``attitude0``: the base's attitude
+    at the first output time, a quaternion (x, y, z, w), the identity by default (the drift is
+    measured from it: a replay from the middle of a motion gives the attitude it started from).
 
     Raises:
         SolverError: the integration failed; ``result`` holds the part integrated.
@@ -50,7 +53,8 @@ def replay(
         )
     L = L[-3:].copy()  # the angular part, world axes [N m s]
     maps = NumericMaps(robot)
-    q0 = IDENTITY_QUATERNION.copy()  # the drift is measured from the initial attitude
+    # the drift is measured from the initial attitude
+    q0 = IDENTITY_QUATERNION.copy() if attitude0 is None else np.array(attitude0, dtype=float)
     if integration.method == "rk4":  # fixed steps: every joint sample known before integrating
         quat, stats, failure = _rk4_given_joints(maps, sample_M, sample_B, L, q0, t, integration)
     else:

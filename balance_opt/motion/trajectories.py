@@ -209,6 +209,24 @@ class SampledTrajectory(JointTrajectory):
         return q, np.where(out, 0.0, q_dot), np.where(out, 0.0, q_ddot)
 
 
+class MissionWindow:
+    """A joint motion over ``[t0, t1]`` of a longer one (the mission of a capture's phase, of a
+    re-plan), its clock starting at 0.
+
+    Attributes:
+        dof, duration, start: as a trajectory's.
+    """
+
+    def __init__(self, mission, t0: float, t1: float):
+        self.mission, self.t0 = mission, float(t0)
+        self.duration = float(t1) - float(t0)
+        self.dof = mission.dof
+        self.start = np.asarray(mission.sample(np.array([self.t0]))[0])[0]
+
+    def sample(self, t):
+        return self.mission.sample(np.asarray(t, dtype=float) + self.t0)
+
+
 class CsvTrajectory(SampledTrajectory):
     """A trajectory read from a CSV file: a ``time`` column, one column per joint by name
     (natural cubic spline); TrajectoryError names the file, and the line or column at fault."""

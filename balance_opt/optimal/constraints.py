@@ -35,6 +35,9 @@ PEAK_SCALE = 0.01
 #: Exponent ``p`` of the smooth peak (the ``smooth`` stage of the peak objective): the drift's
 #: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``.
 PEAK_POWER = 16
+#: Relative excess of the re-simulated drift over an attitude bound within which the bound
+#: counts as kept: the refinement tightens above it, a plan still above it fails.
+ATTITUDE_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -377,13 +380,52 @@ class TorqueLimit(Constraint):
         )
 
 
+def broken_attitude_bounds(options, result: BalanceResult) -> list[tuple[str, float, float]]:
+    """The attitude bounds of ``options`` the re-simulated ``result`` breaks by more than
+    :data:`ATTITUDE_TOLERANCE` of them: ``(field, bound, value)``, ``field`` ``"path"`` (the
+    peak drift) or ``"terminal"`` (the final drift) [rad]."""
+    return [
+        (field, bound, value)
+        for field, bound, value in (
+            ("path", options.path_attitude_bound, result.max_drift),
+            ("terminal", options.terminal_attitude_bound, result.final_drift),
+        )
+        if bound is not None and value > bound * (1.0 + ATTITUDE_TOLERANCE)
+    ]
+
+
 class AttitudeBound(Constraint):
     """A bound on the base's rotation from its initial attitude, ``|log R| <= bound``, as rows
     ``|phi|^2 / bound^2 <= 1``: squared, so that the rows are smooth at ``phi = 0``; scaled,
-    so that Ipopt's absolute constraint tolerance is relative to the bound."""
+    so that Ipopt's absolute constraint tolerance is relative to the bound. A plan whose
+    re-simulated drift still breaks the bound after the refinement fails (:meth:`accept`)."""
+
+    field = "path"
 
     def row_bounds(self, problem, block):
         return np.full(block.size, -np.inf), np.ones(block.size)
+
+    def accept(self, problem, result):
+        """A plan over the bound (by more than :data:`ATTITUDE_TOLERANCE` of it) after the
+        refinement fails, naming the bound, the amount, the time and the rounds tried."""
+        for field, bound, value in broken_attitude_bounds(problem.options, result):
+            if field != self.field:
+                continue
+            if field == "path":
+                t = float(result.t[int(np.argmax(result.angle))])
+                said = f"the base turns {value:.6g} rad at t = {t:.3f} s"
+            else:
+                t = float(result.t[-1])
+                said = f"the base ends {value:.6g} rad from its initial attitude"
+            raise PlannerSolverError(
+                f"no plan keeps the {field}_attitude_bound: {said}, {value - bound:.4g} rad "
+                f"({value / bound - 1.0:+.3%}) over its {bound:.6g} rad, {rounds_tried(result)}",
+                "Attitude_Bound",
+                result,
+                f"{field} attitude bound",
+                t,
+                value - bound,
+            )
 
 
 class PathAttitudeBound(AttitudeBound):
@@ -421,7 +463,8 @@ class PeakEpigraph(PathAttitudeBound):
         return np.full(block.size, -np.inf), np.zeros(block.size)
 
     def bound_variables(self, problem, lower, upper):
-        lower.S[:] = 0.0
+        # a re-plan's: at least the peak the motion already had
+        lower.S[:] = 0.0 if problem.start is None else (problem.start.peak / PEAK_SCALE) ** 2
         bound = problem.bounds.path
         upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
 
@@ -430,6 +473,7 @@ class TerminalAttitudeBound(AttitudeBound):
     """``|log R_T| <= terminal_attitude_bound`` at the last node."""
 
     name = "terminal attitude bound"
+    field = "terminal"
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
@@ -452,8 +496,16 @@ class InitialState(Constraint):
     def targets(self, problem: BalanceProblem) -> list[tuple[str, np.ndarray]]:
         """``(derivative, value)`` of the balance joints at the node."""
         n_levels = len(problem.model.joint_rows(problem.control))
-        if problem.options.start == "rest":
+        start = problem.start
+        if problem.options.start == "rest" or start is not None:
             n_levels = 3
+        if start is not None:  # a re-plan: continuous with the motion it takes over
+            if not problem.transcription.has_midpoints and n_levels > len(
+                problem.model.joint_rows(problem.control)
+            ):
+                n_levels = 2  # a constant acceleration per interval: it steps at every node
+            values = [problem.q_B0, start.velocity, start.acceleration]
+            return list(zip(DERIVATIVES[:n_levels], values))
         zeros = np.zeros_like(problem.q_B0)
         return list(zip(DERIVATIVES[:n_levels], [problem.q_B0, zeros, zeros]))
 
@@ -462,7 +514,8 @@ class InitialState(Constraint):
         ``"acceleration"``) the control there; the trapezoidal rule's acceleration is constant
         on an interval, the mean of its two nodes' controls: both are fixed."""
         if self.index == 0:  # the start: the base at its initial attitude too
-            lower.X[:3, 0] = upper.X[:3, 0] = 0.0
+            start = problem.start
+            lower.X[:3, 0] = upper.X[:3, 0] = 0.0 if start is None else start.attitude
         node, rows = problem.N if self.index else 0, problem.model.joint_rows(problem.control)
         for kind, value in self.targets(problem):
             level = DERIVATIVES.index(kind)
@@ -583,7 +636,10 @@ class MissionTiming(Constraint):
     progress ``sigma`` integrated exactly, the mission joints on the path at every point,
     ``sigma`` in [0, 1] and never backwards on the continuous motion, the mission joints within
     their limits (on a straight path between the points too, through ``sigma``'s Bernstein
-    coefficients; :meth:`check` looks between the points on the re-simulated motion)."""
+    coefficients). On a curved path the limits between the points are checked on the
+    continuous re-timed motion (:meth:`check`), lowered by the refinement on the intervals that
+    break them (:meth:`tighten`, ``problem.bounds.mission_factor``), and a plan still breaking
+    one fails (:meth:`accept`)."""
 
     name = "mission timing"
 
@@ -671,15 +727,16 @@ class MissionTiming(Constraint):
         for name in ("A", "Am"):
             if getattr(lower, name) is not None:
                 getattr(lower, name)[:], getattr(upper, name)[:] = bounds[2]
-        lim = problem.mission_limits
-        low = np.r_[lim.lower, -lim.velocity, -lim.acceleration]
-        high = np.r_[lim.upper, lim.velocity, lim.acceleration]
-        for name in ("M", "Mm"):
-            if getattr(lower, name) is not None:
-                getattr(lower, name)[:] = low[:, None]
-                getattr(upper, name)[:] = high[:, None]
+        lim, N, n = problem.mission_limits, problem.N, problem.model.n_M
+        rates = np.r_[lim.velocity, lim.acceleration][:, None] * np.ones(problem.point_times.size)
+        if problem.bounds.mission_factor is not None:  # lowered by the refinement
+            rates = rates * problem.bounds.mission_factor
+        for name, columns in (("M", slice(0, N + 1)), ("Mm", slice(N + 1, None))):
+            low, high = getattr(lower, name), getattr(upper, name)
+            if low is not None:
+                low[:n], high[:n] = lim.lower[:, None], lim.upper[:, None]
+                low[n:], high[n:] = -rates[:, columns], rates[:, columns]
         # the ends: sigma 0 and 1, the mission arm at rest (no torque step either)
-        N = problem.N
         lower.P[:, 0] = upper.P[:, 0] = 0.0
         lower.P[0, N] = upper.P[0, N] = 1.0
         lower.P[1, N] = upper.P[1, N] = 0.0
@@ -688,27 +745,128 @@ class MissionTiming(Constraint):
         else:  # the trapezoidal rule's acceleration is constant on an interval
             lower.A[:, [0, 1, N - 1, N]] = upper.A[:, [0, 1, N - 1, N]] = 0.0
 
-    def check(self, problem, result):
-        """The mission joints' limits on the re-simulated motion (between the points on a
-        curved path)."""
+    @staticmethod
+    def motion(problem: BalanceProblem, result: BalanceResult) -> tuple:
+        """The re-timed mission of a plan on the continuous motion (:data:`TORQUE_POINTS` per
+        interval and the result's own samples): ``(t (T,) [s], q, q_dot, q_ddot (T, n_M))``;
+        without the plan's solution (or a problem that cannot re-time), the result's samples."""
+        solution = getattr(getattr(result, "solver", None), "solution", None)
+        if solution is None or not hasattr(problem, "mission_motion"):
+            return result.t, result.q_M, result.q_dot_M, result.q_ddot_M
+        s = np.linspace(0.0, 1.0, TORQUE_POINTS)
+        t = ((np.arange(problem.N)[:, None] + s[None, :]) * problem.h).ravel()
+        t = np.union1d(t, np.asarray(result.t, dtype=float))
+        t = np.unique(np.minimum(t, problem.N * problem.h))
+        return (t, *problem.mission_motion(solution).sample(t))
+
+    @classmethod
+    def ratios(cls, problem, result) -> tuple[np.ndarray, dict]:
+        """The mission joints' excess over their limits on the continuous motion, relative to
+        each limit: ``(t, {kind: (T, n_M)})``, ``kind`` ``position`` (beyond the nearer end of
+        the range, over the range's width), ``velocity``, ``acceleration`` (over the limit);
+        zero within the limits (and for an infinite one)."""
         lim = problem.mission_limits
+        t, q, qd, qdd = cls.motion(problem, result)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            width = np.where(np.isfinite(lim.upper - lim.lower), lim.upper - lim.lower, np.inf)
+            beyond = np.maximum(q - lim.upper, lim.lower - q)
+            ratios = {
+                "position": np.maximum(beyond, 0.0) / width,
+                "velocity": np.maximum(np.abs(qd) / lim.velocity - 1.0, 0.0),
+                "acceleration": np.maximum(np.abs(qdd) / lim.acceleration - 1.0, 0.0),
+            }
+        return t, {k: np.nan_to_num(v, nan=0.0, posinf=0.0) for k, v in ratios.items()}
+
+    @staticmethod
+    def _limit(problem, kind: str, col: int) -> tuple[float, str]:
+        """The limit of ``kind`` of mission joint ``col`` and its unit (of a prismatic joint in
+        m, of a revolute one in rad; per s, s^2)."""
+        lim, robot = problem.mission_limits, problem.robot
+        unit = robot.joint_units[int(robot.mission_indices[col])]
+        if kind == "velocity":
+            return float(lim.velocity[col]), f"{unit}/s"
+        if kind == "acceleration":
+            return float(lim.acceleration[col]), f"{unit}/s^2"
+        return float(lim.upper[col] - lim.lower[col]), unit
+
+    def check(self, problem, result):
+        """The mission joints' worst breach of their position, velocity and acceleration
+        limits on the continuous re-timed motion (between the points on a curved path), ranked
+        by the breach relative to its limit (a position's to the range's width), reported in
+        the joint's unit; breaches below :data:`LIMIT_TOLERANCE` of the limit are none."""
+        t, ratios = self.ratios(problem, result)
         worst = None
-        for kind, values, high in (
-            ("velocity", result.q_dot_M, lim.velocity),
-            ("acceleration", result.q_ddot_M, lim.acceleration),
-        ):
-            excess = np.abs(values) - high
-            if excess.size and excess.max() > LIMIT_TOLERANCE:
-                row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
-                found = Violation(
-                    f"{kind} limit of {problem.robot.mission.joints[col]}",
-                    float(result.t[row]),
-                    float(excess[row, col]),
-                    "rad/s" if kind == "velocity" else "rad/s^2",
-                )
-                if worst is None or found.amount > worst.amount:
-                    worst = found
-        return worst
+        for kind, ratio in ratios.items():
+            if not ratio.size or ratio.max() <= LIMIT_TOLERANCE:
+                continue
+            row, col = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+            if worst is None or ratio[row, col] > worst[0]:
+                worst = (float(ratio[row, col]), kind, int(row), int(col))
+        if worst is None:
+            return None
+        ratio, kind, row, col = worst
+        limit, unit = self._limit(problem, kind, col)
+        joint = problem.robot.mission.joints[col]
+        return Violation(f"{kind} limit of {joint}", float(t[row]), ratio * limit, unit)
+
+    def tighten(self, problem, result):
+        """The mission joints' velocity and acceleration bounds lowered at the points of every
+        interval where the continuous motion breaks a limit (by more than
+        :data:`LIMIT_TOLERANCE` of it), scaled by ``(1 - TORQUE_MARGIN) / (1 + excess)``
+        there. Positions are the path's, whatever the timing: not tightened."""
+        t, ratios = self.ratios(problem, result)
+        N, n = problem.N, problem.model.n_M
+        interval = np.minimum((t / problem.h).astype(int), N - 1)
+        per_interval = np.zeros((N, 2 * n))
+        np.maximum.at(
+            per_interval, interval, np.hstack([ratios["velocity"], ratios["acceleration"]])
+        )
+        broken = per_interval > LIMIT_TOLERANCE
+        if not broken.any():
+            return {}, []
+        scale = np.where(broken, (1.0 - TORQUE_MARGIN) / (1.0 + per_interval), 1.0)
+        before = problem.bounds.mission_factor
+        before = np.ones((2 * n, problem.point_times.size)) if before is None else before
+        factor = before.copy()
+        mids = problem.transcription.has_midpoints
+        for k in np.flatnonzero(broken.any(axis=1)):
+            # a node two broken intervals share takes the lower of their scales, not both
+            for c in [k, k + 1] + ([N + 1 + k] if mids else []):
+                factor[:, c] = np.minimum(factor[:, c], before[:, c] * scale[k])
+        worst, count = float(per_interval.max()), int(broken.any(axis=1).sum())
+        words = f"mission joint bounds on {count} intervals (worst +{worst:.3%})"
+        return {"mission_factor": factor}, [words]
+
+    def accept(self, problem, result):
+        """A plan whose re-timed mission still breaks a mission joint's limit after the
+        refinement fails, naming the joint, the limit, the amount, the time and the rounds."""
+        worst = self.check(problem, result)
+        if worst is None:
+            return
+        kind, joint = worst.constraint.split(" limit of ")
+        col = problem.robot.mission.joints.index(joint)
+        limit, _ = self._limit(problem, kind, col)
+        lim = problem.mission_limits
+        if kind == "position":
+            said = (
+                f"{joint} leaves its range [{lim.lower[col]:g}, {lim.upper[col]:g}] "
+                f"{worst.unit} by {worst.amount:.4g} {worst.unit} (the path's, whatever its "
+                "timing)"
+            )
+        else:
+            said = (
+                f"{joint} exceeds its {kind} limit {limit:g} {worst.unit} by {worst.amount:.4g} "
+                f"{worst.unit} ({worst.amount / limit:+.3%})"
+            )
+        raise PlannerSolverError(
+            f"no free timing keeps the mission joints' limits: {said} at "
+            f"t = {worst.time:.3f} s, {rounds_tried(result)}",
+            "Mission_Limit",
+            result,
+            worst.constraint,
+            worst.time,
+            worst.amount,
+        )
 
 
 def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:

@@ -264,6 +264,10 @@ class Bounds:
             ``None`` without collision avoidance; read-only: at first
             :meth:`~balance_opt.optimal.collision.CollisionSetup.start_bounds`, raised by
             the refinement where the re-simulated motion came too close.
+        mission_factor: with a free mission timing, factor on the mission joints' velocity
+            and acceleration limits at each point (2 n_M, n_points: the rates, then the
+            accelerations), read-only; ``None``: the limits (lowered by the refinement where
+            the re-simulated motion breaks them between the points).
     """
 
     path: float | None
@@ -271,14 +275,36 @@ class Bounds:
     torque_factor: np.ndarray
     peak_reference: float = 1.0
     collision: np.ndarray | None = None
+    mission_factor: np.ndarray | None = None
 
     def __post_init__(self):
-        for name in ("torque_factor", "collision"):
+        for name in ("torque_factor", "collision", "mission_factor"):
             value = getattr(self, name)
             if value is not None:
                 value = np.array(value, dtype=float)
                 value.flags.writeable = False
                 object.__setattr__(self, name, value)
+
+
+@dataclass(frozen=True)
+class StartState:
+    """Where a re-plan starts (:mod:`balance_opt.optimal.replan`): the balance arm in the middle
+    of a motion and the base turned, instead of the arm at rest at ``q_B0`` and the base at its
+    initial attitude. The problem's ``q_B0`` is the balance joints' positions there.
+
+    Attributes:
+        velocity, acceleration: the balance joints' rates [rad/s] and accelerations [rad/s^2]
+            there (n_B,): the commanded motion stays continuous at the switch.
+        attitude: the base's rotation vector ``log R`` there [rad] (3,); the drift stays
+            measured from the attitude at ``t = 0``.
+        peak: the largest drift of the motion before the start [rad]: the peak objective's
+            epigraph variable is at least this (the objective stays the whole motion's peak).
+    """
+
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    attitude: np.ndarray
+    peak: float = 0.0
 
 
 class BalanceProblem:
@@ -287,7 +313,9 @@ class BalanceProblem:
     ``duration``), the balance arm starting at rest at ``q_B0`` [rad], within the limits of
     ``robot`` (default: the model's robot; the model's kinematics, possibly other limits), and
     ``h0``: the system's constant total momentum, world frame, the base starting at the
-    identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for zero.
+    identity, ``[linear (N s); angular about the CoM (N m s)]``, ``None`` for zero. ``start``:
+    a :class:`StartState` to start from instead of rest (a re-plan; the mission then starts
+    where the re-plan does).
 
     Attributes:
         horizon: the options' horizon, else the mission's duration [s].
@@ -312,8 +340,10 @@ class BalanceProblem:
         options: PlannerOptions,
         robot: FloatingRobot | None = None,
         h0=None,
+        start: StartState | None = None,
     ):
         self.model = model
+        self.start = start
         self.robot = robot = model.robot if robot is None else robot
         self.mission = mission
         self.options = options

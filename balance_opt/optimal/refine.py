@@ -11,6 +11,7 @@ import numpy as np
 
 from balance_opt.errors import SolverError
 from balance_opt.motion.result import BalanceResult
+from balance_opt.optimal.constraints import ATTITUDE_TOLERANCE, broken_attitude_bounds
 from balance_opt.optimal.guess import random_guess
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import GUESSES, PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
@@ -18,8 +19,6 @@ from balance_opt.optimal.problem import PlannerSolverError, Solution
 
 log = logging.getLogger(__name__)
 
-#: Relative excess of the re-simulated attitude over an attitude bound accepted without refining.
-ATTITUDE_TOLERANCE = 1e-3
 #: Re-solves of the refinement at most.
 MAX_ROUNDS = 6
 #: Relative excess of a bound over the smallest peak below which the peak plan is re-solved
@@ -330,14 +329,10 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
         more, words = kind.tighten(nlp, result)
         changes.update(more)
         out += words
-    for field, bound, value in (
-        ("path", nlp.options.path_attitude_bound, result.max_drift),
-        ("terminal", nlp.options.terminal_attitude_bound, result.final_drift),
-    ):
-        if bound is not None and value > bound * (1.0 + ATTITUDE_TOLERANCE):
-            current = getattr(nlp.bounds, field)
-            changes[field] = current * bound / value * (1.0 - ATTITUDE_TOLERANCE / 2)
-            out.append(f"{field} bound {current:.6g} -> {changes[field]:.6g} rad")
+    for field, bound, value in broken_attitude_bounds(nlp.options, result):
+        current = getattr(nlp.bounds, field)
+        changes[field] = current * bound / value * (1.0 - ATTITUDE_TOLERANCE / 2)
+        out.append(f"{field} bound {current:.6g} -> {changes[field]:.6g} rad")
     return changes, out
 
 

@@ -24,7 +24,7 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.optimal import timing
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE
+from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, broken_attitude_bounds
 from balance_opt.optimal.guess import guess_solution, resampled
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import build_structure
@@ -64,10 +64,20 @@ class BalanceNLP(BalanceProblem):
     unless ``between``."""
 
     def __init__(
-        self, model, mission, q_B0, options, robot=None, h0=None, stage=None, between=False
+        self,
+        model,
+        mission,
+        q_B0,
+        options,
+        robot=None,
+        h0=None,
+        stage=None,
+        between=False,
+        *,
+        start=None,
     ):
-        start = time.perf_counter()
-        super().__init__(model, mission, q_B0, options, robot, h0)
+        started = time.perf_counter()
+        super().__init__(model, mission, q_B0, options, robot, h0, start)
         momentum = bool(np.any(self.h0 != 0.0))
         collision = self.collision.rows.key if self.collision is not None else ""
         path = self.mission_path if self.free_timing else None
@@ -82,7 +92,7 @@ class BalanceNLP(BalanceProblem):
         self.structure = model.nlp_cache[key]
         self.build_time = self.structure.build_time if built_now else 0.0
         self._set_bounds()
-        self.setup_time = time.perf_counter() - start - self.build_time
+        self.setup_time = time.perf_counter() - started - self.build_time
 
     def with_bounds(self, **changes) -> BalanceNLP:
         """The same problem with other :class:`~balance_opt.optimal.problem.Bounds`; this one
@@ -131,7 +141,15 @@ class BalanceNLP(BalanceProblem):
         """The same problem with other options (its bounds untightened)."""
         options = dataclasses.replace(self.options, **changes)
         return BalanceNLP(
-            self.model, self.mission, self.q_B0, options, self.robot, self.h0, stage, between
+            self.model,
+            self.mission,
+            self.q_B0,
+            options,
+            self.robot,
+            self.h0,
+            stage,
+            between,
+            start=self.start,
         )
 
     def stage(self, stage: Stage | str, final: bool = False) -> BalanceNLP:
@@ -355,12 +373,16 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
     (and the terminal one), by bisection between the shortest motion the mission joints' limits
     allow (:func:`~balance_opt.optimal.timing.shortest_duration`) and the given duration
     (doubled until feasible, twice at most). A bisection, not the horizon as a variable: with
-    rest at the end, a plan of a duration is one of every longer duration (both arms then wait
-    at rest), so feasibility is monotone in the duration, and every probe is an ordinary peak
-    plan, re-simulated and refined. ``info["minimum_time"]`` lists the probes.
+    rest at the end and no momentum, a plan of a duration is one of every longer duration (both
+    arms then wait at rest, and so does the base), so feasibility is monotone in the duration,
+    and every probe is an ordinary peak plan, re-simulated and refined. A probe is feasible
+    only if its re-simulated plan keeps the bounds (within
+    :data:`~balance_opt.optimal.constraints.ATTITUDE_TOLERANCE`). ``info["minimum_time"]``
+    lists the probes.
 
     Raises:
-        InputError: the timing is not free or there is no path attitude bound.
+        InputError: the timing is not free, there is no path attitude bound, or the initial
+            momentum is not zero (the base drifts while the arms wait: not monotone).
         PlannerSolverError: not even the longest duration tried keeps the bound.
     """
     bound = nlp.options.path_attitude_bound
@@ -369,12 +391,29 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
             "objective time needs a free mission timing (mission.timing: free) and a "
             "path_attitude_bound"
         )
+    if np.any(np.asarray(nlp.h0) != 0.0):
+        raise InputError(
+            "objective time needs a zero initial momentum (initial.momentum): with momentum "
+            "the base drifts while the arms wait, and a longer mission is not always stiller"
+        )
     probes: list[dict] = []
 
     def probe(T: float):
         variant = nlp.variant(objective="peak", horizon=T)
         try:
             result = variant.solve(guess, executor)
+            broken = broken_attitude_bounds(nlp.options, result)
+            if broken:  # the refinement's rounds did not bring it within the bound
+                field, limit, value = broken[0]
+                raise PlannerSolverError(
+                    f"the re-simulated plan breaks the {field}_attitude_bound {limit:.6g} rad "
+                    f"by {value - limit:.4g} rad",
+                    "Attitude_Bound",
+                    result,
+                    f"{field} attitude bound",
+                    T,
+                    value - limit,
+                )
         except SolverError as exc:
             probes.append({"duration_s": T, "feasible": False, "reason": str(exc)})
             log.info("objective time: %.3f s does not keep the bound (%s)", T, exc)
@@ -469,6 +508,7 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
         method="optimal",
         h0=nlp.h0,
         integration=IntegrationOptions(method="rk4", step=float(t[1] - t[0])),
+        attitude0=None if nlp.start is None else quaternion_from_rotvec(nlp.start.attitude),
     )
     q_nlp = quaternion_from_rotvec(sol.X[:3].T)
     attitude_defect = rotation_angle(

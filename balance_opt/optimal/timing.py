@@ -17,7 +17,8 @@ never followed backwards). The mission joints' limits: at every collocation poin
 on a straight path, where the mission's rates are ``(qf - q0)`` times ``sigma``'s, also on the
 continuous motion, through the Bernstein coefficients of ``sigma``'s polynomials (as the balance
 limits are held between the points). On a curved path the limits between the points are checked
-on the re-simulated motion (:class:`~balance_opt.optimal.constraints.MissionTiming`).
+on the continuous motion, tightened by the refinement where it breaks them, and a plan still
+breaking one fails (:class:`~balance_opt.optimal.constraints.MissionTiming`).
 
 The path progress reported (``info["timing"]``) is ``s(t)``: the time at which the given
 trajectory passes where the re-timed one is at ``t`` (``s = t`` for the given timing).
@@ -59,9 +60,7 @@ def _quintic_hermite(y0, d0, a0, y1, d1, a1, L) -> np.ndarray:
             [6 * L, 12 * L**2, 20 * L**3],
         ]
     )
-    rhs = np.stack(
-        [y1 - y0 - d0 * L - 0.5 * a0 * L**2, d1 - d0 - a0 * L, a1 - a0], axis=0
-    )
+    rhs = np.stack([y1 - y0 - d0 * L - 0.5 * a0 * L**2, d1 - d0 - a0 * L, a1 - a0], axis=0)
     high = np.linalg.solve(A, rhs)
     return np.vstack([y0, d0, 0.5 * a0, high])
 
@@ -78,7 +77,6 @@ class MissionPath:
     """
 
     def __init__(self, mission: JointTrajectory):
-        self.mission = mission
         self.duration = T0 = float(mission.duration)
         self.dof = n = int(mission.dof)
         self.linear = isinstance(mission, PointToPoint)
@@ -281,7 +279,7 @@ def retimed(problem, sol) -> RetimedMission:
 def timing_info(problem, result, mission: RetimedMission) -> dict:
     """``info["timing"]``: the duration, the path progress ``s(t)`` (given-time equivalent, at
     :data:`PROGRESS_SAMPLES` of the result's samples), the mission's largest joint rates and
-    accelerations."""
+    accelerations (rad/s, rad/s^2; m/s, m/s^2 for a prismatic joint)."""
     path = problem.mission_path
     t = result.t[np.unique(np.linspace(0, result.t.size - 1, PROGRESS_SAMPLES).astype(int))]
     sigma = mission.timing(t)[0]
@@ -293,6 +291,7 @@ def timing_info(problem, result, mission: RetimedMission) -> dict:
         "path": "straight joint segment" if path.linear else f"{PATH_SEGMENTS} quintic pieces",
         "progress_t": [float(v) for v in t],
         "progress_s": [float(v) for v in path.given_time(sigma)],
+        # named for revolute joints, as every joint figure: a prismatic joint's are in m/s, m/s^2
         "mission_peak_rate_rad_s": dict(zip(joints, np.abs(result.q_dot_M).max(axis=0).tolist())),
         "mission_peak_acceleration_rad_s2": dict(
             zip(joints, np.abs(result.q_ddot_M).max(axis=0).tolist())

@@ -229,6 +229,44 @@ def model_error_figure(
         return fig, style.save(fig, stem, formats, dpi)
 
 
+def closed_loop_figure(
+    results: Mapping[str, Any],
+    open_bands: Mapping[str, np.ndarray],
+    closed_bands: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    stem: str | Path | None = None,
+    *,
+    perturbation: float,
+    formats: Sequence[str] = FORMATS,
+    dpi: int = style.PRINT_DPI,
+) -> tuple[Any, list[Path]]:
+    """One panel per method of ``closed_bands`` (``{name: (t, p95 angle)}`` [s, rad]): the plan
+    as planned (its line), the 95th percentile over perturbed true models flown open loop
+    (``open_bands``, at ``results[name].t``; dotted) and closed loop (dashed, shaded) [deg]."""
+    names = list(closed_bands)
+    with style.styled("column"):
+        fig = style.figure("column", 1.6 * len(names) + 0.8)
+        axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
+        for ax, name in zip(axes, names):
+            res, kwargs = results[name], style.method_style(name)
+            colour = kwargs.get("color")
+            ax.plot(res.t, np.degrees(res.angle), **kwargs)
+            if name in open_bands:
+                ax.plot(res.t, np.degrees(open_bands[name]), color=colour, linestyle=":",
+                        linewidth=0.9)
+            t, band = closed_bands[name]
+            ax.fill_between(t, 0.0, np.degrees(band), color=colour, alpha=0.18, linewidth=0)
+            ax.plot(t, np.degrees(band), color=colour, linestyle="--", linewidth=0.9)
+        handles = [ax.get_lines()[0] for ax in axes]
+        handles += axes[0].plot([], [], color="0.3", linestyle=":", linewidth=0.9,
+                                label=f"95th percentile open loop, {perturbation:.0%} model error")
+        handles += axes[0].plot([], [], color="0.3", linestyle="--", linewidth=0.9,
+                                label="95th percentile closed loop")
+        t_end = max(float(results[n].t[-1]) for n in names)
+        _time_axes(list(axes), t_end, ["rotation [deg]"] * len(names))
+        layout(fig, axes[:, None], handles, "column")
+        return fig, style.save(fig, stem, formats, dpi)
+
+
 def clearance_figure(
     curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
     margin: float | None,

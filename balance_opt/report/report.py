@@ -154,6 +154,14 @@ def _clearance(c, m) -> Cell:
     return text, ("inside" if c["collision_free"] else "broken")
 
 
+def _replan_times(v, m) -> Cell:
+    return f"{v['median']:.3g} / {v['max']:.3g}", ""
+
+
+def _replan_failures(v, m) -> Cell:
+    return f"{v['failed_replans']} of {v['replans']}", "broken" if v["failed_replans"] else "inside"
+
+
 def _count(v, m) -> Cell:
     return violation_count_text(v, m.get("limit_violations_by_kind")), "broken" if v else "inside"
 
@@ -228,6 +236,15 @@ _ROWS: list[tuple[str, str | None, Callable[[Any, Mapping], Cell] | None]] = [
     ("max attitude drift, median", "robustness.max_drift.median_rad", _angle()),
     ("max attitude drift, 95th percentile", "robustness.max_drift.p95_rad", _angle()),
     ("final attitude drift, 95th percentile", "robustness.final_drift.p95_rad", _angle()),
+    ("Closed loop (perturbed true robots, re-planned from the measured state)", None, None),
+    ("max attitude drift, median", "closed_loop.max_drift.median_rad", _angle()),
+    ("max attitude drift, 95th percentile", "closed_loop.max_drift.p95_rad", _angle()),
+    ("final attitude drift, median", "closed_loop.final_drift.median_rad", _angle()),
+    ("final attitude drift, 95th percentile", "closed_loop.final_drift.p95_rad", _angle()),
+    ("re-plan time, median / largest [s]", "closed_loop.replan_time_s", _replan_times),
+    ("re-plans failed or late, of all", "closed_loop", _replan_failures),
+    ("smallest distance between bodies, every run [m]", "closed_loop.min_clearance_m", _plain()),
+    ("limit violations, every run", "closed_loop.limit_violations", _plain()),
     ("Forward-dynamics simulation", None, None),
     ("max attitude drift", "simulation.max_drift_rad", _angle()),
     ("final attitude drift", "simulation.final_drift_rad", _angle()),

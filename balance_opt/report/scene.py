@@ -26,6 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
+from balance_opt.model.meshes import resolved_urdf
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import (
@@ -98,14 +99,11 @@ class SceneObject:
 
 def visual_model(robot: FloatingRobot) -> pin.GeometryModel:
     """The URDF's visual geometry on ``robot.model`` (locked joints fixed where they are locked);
-    ``package://`` meshes are looked up in the folders above the URDF file."""
-    source = Path(robot.source)
-    dirs = [str(p) for p in list(source.resolve().parents)[:6]] if source.is_file() else []
+    meshes found as :mod:`~balance_opt.model.meshes` says (``robot.packages`` first)."""
     try:
-        return pin.buildGeomFromUrdfString(
-            robot.model, robot.locked_urdf, pin.VISUAL, package_dirs=dirs
-        )
-    except (ValueError, RuntimeError) as exc:
+        text = resolved_urdf(robot.locked_urdf, robot.source, robot.packages, "visual")
+        return pin.buildGeomFromUrdfString(robot.model, text, pin.VISUAL)
+    except (ValueError, RuntimeError, InputError) as exc:
         raise InputError(f"{robot.source}: cannot load the visual geometry: {exc}") from exc
 
 

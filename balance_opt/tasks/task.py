@@ -234,7 +234,8 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
 
 def check_timing(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> None:
     """A free mission timing: no capture, every mission joint with a velocity and an
-    acceleration limit; ``optimal.objective: time`` only with it and a path attitude bound."""
+    acceleration limit; ``optimal.objective: time`` only with it, a path attitude bound and
+    no initial momentum."""
     planner = spec.optimal.planner
     if planner.objective == "time" and (
         spec.mission.timing != "free" or planner.path_attitude_bound is None
@@ -243,6 +244,12 @@ def check_timing(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> Non
             ("optimal", "objective"),
             "objective time (the shortest mission within a drift bound) needs mission.timing: "
             "free and optimal.constraints.path_attitude_bound",
+        )
+    if planner.objective == "time" and any(v != 0.0 for v in spec.initial.momentum):
+        raise doc.error(
+            ("initial", "momentum"),
+            "optimal.objective: time needs a zero initial momentum: with momentum the base "
+            "drifts while the arms wait, so a longer mission is not always a stiller one",
         )
     if spec.mission.timing != "free":
         return
@@ -302,11 +309,21 @@ def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingR
         j: {k: getattr(lim, k) for k in LIMIT_KEYS if getattr(lim, k) is not None}
         for j, lim in spec.limits.items()
     }
+    packages = [(base_dir / p).resolve() for p in r.packages]
+    for i, folder in enumerate(packages):
+        if not folder.is_dir():
+            raise doc.error(("robot", "packages", i), f"no such folder: {folder}")
     a = spec.arms
     balance = list(a.balance) if isinstance(a.balance[0], str) else [list(b) for b in a.balance]
     try:
         return FloatingRobot(
-            urdf, list(a.mission), balance, locked=a.locked, limits=limits, ee_frames=a.ee_frames
+            urdf,
+            list(a.mission),
+            balance,
+            locked=a.locked,
+            limits=limits,
+            ee_frames=a.ee_frames,
+            packages=packages,
         )
     except URDFLoadError as exc:
         raise doc.error(("robot", key), str(exc)) from None

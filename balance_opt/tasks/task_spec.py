@@ -8,7 +8,7 @@ from typing import Literal
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.config.typed_config import json_schema, reference_markdown, setting
-from balance_opt.dynamics.options import SimulationOptions
+from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.optimal.options import GUESSES, TIMINGS, PlannerOptions
 
@@ -47,6 +47,13 @@ class RobotSpec:
         "the clearance check and the collision avoidance leave out (default: NAME.srdf beside "
         "NAME.urdf, or the SRDF shipped with an example-robot-data robot; without one, the "
         "pairs are computed: `balance-opt inspect TASK --write-srdf FILE` writes them)",
+    )
+    packages: tuple[str, ...] = setting(
+        (),
+        doc="folders, relative to the task file, searched first for the URDF's package://NAME/... "
+        "meshes: each holds NAME/ or is named NAME (then ROS_PACKAGE_PATH, the URDF's folder and "
+        "the three above it, the installed example-robot-data)",
+        item="folder",
     )
     backend: Literal[SYMBOLIC_BACKENDS] = setting(
         "auto",
@@ -312,6 +319,10 @@ class TaskSpec:
     )
     robustness: RobustnessOptions = setting(
         factory=RobustnessOptions, doc="drift under model error (perturbed masses and inertias)"
+    )
+    closed_loop: ClosedLoopOptions = setting(
+        factory=ClosedLoopOptions,
+        doc="closed loop: re-planning from the measured state on perturbed models (--closed-loop)",
     )
     outputs: OutputsSpec = setting(factory=OutputsSpec, doc="files to write")
 

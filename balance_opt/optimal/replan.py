@@ -1,0 +1,176 @@
+"""Re-planning the balance arm's remaining motion from the middle of a motion
+(``docs/executable-plans.md``, "Closed loop").
+
+A re-plan is the tail of the first plan's problem: the same grid from the switch node to the
+end (the horizon and the grid shrink together, so that with the predicted state equal to the
+plan's own the tail of the plan solves it: Bellman), starting from a
+:class:`~balance_opt.optimal.problem.StartState` (the balance arm's positions, rates and
+accelerations, the base's attitude, the peak so far), warm started from the plan in force. Each
+tail length is its own NLP structure: :meth:`Replanner.prepare` builds them all before the
+motion starts, so that a re-plan costs one warm-started Ipopt solve of the epigraph stage (no
+inner stages, no refinement, no re-simulation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from balance_opt.errors import SolverError
+from balance_opt.motion.so3 import (
+    quaternion_conjugate,
+    quaternion_from_rotvec,
+    quaternion_multiply,
+    rotvec_from_quaternion,
+)
+from balance_opt.motion.trajectories import MissionWindow
+from balance_opt.optimal.collocation import CollocatedTrajectory
+from balance_opt.optimal.problem import Solution, StartState
+from balance_opt.optimal.solve import BalanceNLP
+
+#: Ipopt options of a re-plan over the epigraph stage's: it starts at the plan in force, shifted,
+#: which solves it but for the state's difference; a small barrier parameter keeps it there.
+REPLAN_IPOPT = {"mu_init": 1e-6, "bound_push": 1e-8, "bound_frac": 1e-8}
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A plan in force: its solution on the nodes ``node`` to ``N`` of the first plan's grid.
+
+    Attributes:
+        node: the first plan's node it starts at (its ``t = 0`` is ``node * h``).
+        solution: its NLP solution (states, controls, ``S``).
+        trajectory: its balance motion, local time.
+    """
+
+    node: int
+    solution: Solution
+    trajectory: CollocatedTrajectory
+
+    def state(self, node: int) -> tuple[np.ndarray, ...]:
+        """``(q_B, q_dot_B, q_ddot_B, phi)`` at a node of the first plan's grid: its own node
+        values, exactly (the warm start of the re-plan from there has them)."""
+        d = node - self.node
+        n_B = self.trajectory.dof
+        X = self.solution.X
+        q, qd = X[3 : 3 + n_B, d], X[3 + n_B : 3 + 2 * n_B, d]
+        qdd = X[3 + 2 * n_B :, d] if X.shape[0] > 3 + 2 * n_B else self.solution.U[:, d]
+        return q.copy(), qd.copy(), qdd.copy(), X[:3, d].copy()
+
+    def tail(self, node: int, attitude=None) -> Solution:
+        """Its solution from a node of the first plan's grid on (a warm start); with
+        ``attitude`` (a rotation vector [rad]) its base attitudes turned so that they start
+        there: at zero momentum the same joint motion turns the base by the same rotations
+        from wherever it starts, so the guess keeps its collocation defects at zero."""
+        d = node - self.node
+        s = self.solution
+        cut = [None if a is None else a[:, d:].copy() for a in (s.X, s.U, s.Xm, s.Um)]
+        if attitude is not None:
+            start = quaternion_from_rotvec(s.X[:3, d])
+            offset = quaternion_multiply(
+                quaternion_from_rotvec(np.asarray(attitude, float)), quaternion_conjugate(start)
+            )
+            for a in (cut[0], cut[2]):
+                if a is not None:
+                    turned = quaternion_multiply(offset, quaternion_from_rotvec(a[:3].T))
+                    a[:3] = rotvec_from_quaternion(turned).T
+        return Solution(*cut, S=None)
+
+
+@dataclass(frozen=True)
+class ReplanOutcome:
+    """One re-plan: ``segment`` its plan (``None`` when it failed), Ipopt's ``status`` and
+    ``iterations``, ``compute_s`` the wall time of the whole re-plan [s]."""
+
+    node: int
+    segment: Segment | None
+    status: str
+    iterations: int
+    compute_s: float
+
+    @property
+    def success(self) -> bool:
+        return self.segment is not None
+
+
+class Replanner:
+    """Re-plans of the first plan's problem ``nlp`` (a
+    :class:`~balance_opt.optimal.solve.BalanceNLP` with the peak objective or another) from
+    nodes of its grid; ``ipopt``: Ipopt options over :data:`REPLAN_IPOPT`."""
+
+    def __init__(self, nlp: BalanceNLP, ipopt: dict | None = None):
+        if nlp.start is not None:
+            raise ValueError("the first plan's problem starts at rest")
+        self.nlp = nlp
+        self.ipopt = {**REPLAN_IPOPT, **(ipopt or {})}
+
+    def first(self, plan) -> Segment:
+        """The first plan (a :class:`~balance_opt.motion.result.BalanceResult` of ``nlp``, or its NLP
+        :class:`~balance_opt.optimal.problem.Solution`) as the plan in force from node 0."""
+        solution = plan if isinstance(plan, Solution) else plan.solver.solution
+        return Segment(0, solution, self.nlp.trajectory(solution))
+
+    def problem(self, node: int, start: StartState, q_B: np.ndarray, h0=None) -> BalanceNLP:
+        """The re-plan's problem from ``node`` (0 < node < N) with the balance joints at ``q_B``
+        [rad] and the momentum ``h0`` (``None``: the first plan's)."""
+        nlp = self.nlp
+        N = nlp.N - node
+        if not 0 < N < nlp.N:
+            raise ValueError(f"a re-plan starts at a node inside the grid (1 to {nlp.N - 1})")
+        t0 = node * nlp.h
+        mission = MissionWindow(nlp.mission, t0, max(nlp.mission.duration, t0))
+        options = dataclasses.replace(
+            nlp.options,
+            intervals=N,
+            horizon=N * nlp.h,
+            starts=1,
+            rest_configuration=tuple(float(v) for v in nlp.q_rest),
+            ipopt={**nlp.options.ipopt, **self.ipopt},
+        )
+        return BalanceNLP(
+            nlp.model,
+            mission,
+            q_B,
+            options,
+            nlp.robot,
+            nlp.h0 if h0 is None else h0,
+            start=start,
+        )
+
+    def prepare(self, first: Segment, nodes, h0=None) -> float:
+        """Build the NLP of every re-plan from ``nodes`` before the motion (each tail length is
+        a structure of its own, cached on the planner model); returns the time it took [s]."""
+        started = time.perf_counter()
+        for node in nodes:
+            q, qd, qdd, phi = first.state(node)
+            self.problem(node, StartState(qd, qdd, phi), q, h0)
+        return time.perf_counter() - started
+
+    def replan(
+        self,
+        node: int,
+        in_force: Segment,
+        attitude: np.ndarray,
+        peak: float,
+        h0=None,
+    ) -> ReplanOutcome:
+        """The remaining motion from ``node``: the balance arm where the plan in force has it
+        there (the command stays continuous), the base at ``attitude`` (a rotation vector
+        [rad]), ``peak`` the largest drift so far [rad]; warm started from the plan in force.
+        A failed solve gives no segment."""
+        started = time.perf_counter()
+        q, qd, qdd, _ = in_force.state(node)
+        try:
+            nlp = self.problem(node, StartState(qd, qdd, np.asarray(attitude, float), peak), q, h0)
+            report = nlp.solve_stage(in_force.tail(node, attitude))
+        except SolverError as exc:
+            return ReplanOutcome(node, None, str(exc.status), 0, time.perf_counter() - started)
+        segment = None
+        if report.success:
+            segment = Segment(node, report.solution, nlp.trajectory(report.solution))
+        return ReplanOutcome(
+            node, segment, report.status, report.iterations, time.perf_counter() - started
+        )

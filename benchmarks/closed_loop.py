@@ -1,0 +1,111 @@
+"""The closed loop's re-plans against their period (``docs/executable-plans.md``, "Closed loop"):
+the capture task's optimal plan flown on perturbed true robots, re-planned every period from
+the measured state, in this process, one model after the other.
+
+Prints, per true model, the peak and final drift open loop (the plan flown unchanged) and closed
+loop, the re-plans' Ipopt iterations and compute times; then the compute times of every re-plan
+(median, 95th percentile, largest) against the period, and the time to build the re-plans' NLPs
+before the motion (not a re-plan: a controller does it before it starts). Every re-plan is
+applied whatever its time (``deadline = inf``), so that the drifts are those of a controller
+that has the time; the count of re-plans over the period says how many a real one would drop.
+The first plan is made before the motion and is not a re-plan.
+
+Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
+measured]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from balance_opt.app.closed_loop import resolved_options, true_robots
+from balance_opt.app.models import ModelCache
+from balance_opt.dynamics.closed_loop import fly_closed_loop
+from balance_opt.dynamics.simulation import simulate_plan
+from balance_opt.optimal.replan import Replanner
+from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.tasks.task import load_task
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("task", nargs="?", default=str(ROOT / "examples" / "capture_task.yaml"))
+    parser.add_argument("--models", type=int, default=4, help="true models flown")
+    parser.add_argument("--period", type=float, help="control period [s]")
+    parser.add_argument("--momentum", choices=("zero", "measured"), default="zero")
+    args = parser.parse_args()
+
+    task = load_task(args.task)
+    options = resolved_options(task)
+    options = dataclasses.replace(
+        options,
+        samples=args.models,
+        period=args.period or options.period,
+        momentum=args.momentum,
+    )
+    model = ModelCache().planner_model(task.robot, task.spec.robot.backend)
+    planner = task.spec.optimal.planner
+    started = time.perf_counter()
+    nlp = build_balance_nlp(model, task.mission, task.q_B0, planner, robot=task.robot, h0=task.h0)
+    plan = nlp.solve(task.spec.optimal.initial_guess)
+    print(
+        f"{task.name}: first plan (N = {nlp.N}) in {time.perf_counter() - started:.1f} s: "
+        f"peak {plan.max_drift:.4g} rad, final {plan.final_drift:.4g} rad"
+    )
+    replanner = Replanner(nlp)
+    print(
+        f"period {options.period:g} s, momentum at a re-plan: {options.momentum}, "
+        f"{options.perturbation:.0%} model error, seed {options.seed}"
+    )
+    header = (
+        f"{'model':>5} {'open peak':>10} {'closed peak':>11} {'open final':>10} "
+        f"{'closed final':>12} {'failed':>6} {'over':>4}  iterations"
+    )
+    print(header)
+    times, prepare_s = [], None
+    peaks, finals = [], []
+    for k, truth in enumerate(true_robots(task.robot, options)):
+        open_loop = simulate_plan(truth, plan, task.spec.simulation)
+        run = fly_closed_loop(
+            truth,
+            replanner,
+            plan,
+            task.spec.simulation,
+            options,
+            prepared=k > 0,
+            deadline=math.inf,
+        )
+        prepare_s = run.prepare_s if k == 0 else prepare_s
+        times += run.compute_s.tolist()
+        peaks.append(run.max_drift)
+        finals.append(run.final_drift)
+        over = int(np.sum(run.compute_s > run.period_s))
+        iterations = " ".join(str(r.iterations) for r in run.replans)
+        print(
+            f"{k:>5} {float(open_loop.angle.max()):>10.4g} {run.max_drift:>11.4g} "
+            f"{float(open_loop.angle[-1]):>10.4g} {run.final_drift:>12.4g} {run.failed:>6} "
+            f"{over:>4}  {iterations}"
+        )
+    t = np.array(times)
+    print(
+        f"closed loop over {args.models} models: peak median {np.median(peaks):.4g}, "
+        f"95 % {np.percentile(peaks, 95):.4g} rad; final median {np.median(finals):.4g}, "
+        f"95 % {np.percentile(finals, 95):.4g} rad"
+    )
+    print(
+        f"re-plans: {t.size}, compute time median {np.median(t):.3f} s, 95 % "
+        f"{np.percentile(t, 95):.3f} s, largest {t.max():.3f} s; {int(np.sum(t > options.period))} "
+        f"over the period; NLPs built before the motion in {prepare_s:.1f} s"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+"""Closed loop: a re-plan from the middle of a motion, checked against an independent replay;
+the closed-loop flight with no model error reproduces the plan; a failed re-plan keeps the plan
+in force; the ``closed_loop:`` task keys."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from balance_opt.dynamics.closed_loop import fly_closed_loop
+from balance_opt.dynamics.options import ClosedLoopOptions
+from balance_opt.dynamics.simulation import simulate_plan
+from balance_opt.errors import InputError
+from balance_opt.motion.replay import replay
+from balance_opt.motion.so3 import (
+    quaternion_from_rotvec,
+    relative_rotation,
+    rotation_angle,
+)
+from balance_opt.motion.trajectories import MissionWindow
+from balance_opt.optimal.replan import Replanner
+from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.tasks.task import load_task
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+#: A coarse grid keeps the plan and its re-plans' NLPs quick to build.
+INTERVALS = 50
+PERIOD = 2.0  # 10 intervals of 0.2 s: re-plans from nodes 10, 20, 30, 40
+
+
+@pytest.fixture(scope="module")
+def planned():
+    """The capture task's optimal plan on a coarse grid, its problem and its re-planner."""
+    task = load_task(EXAMPLES / "capture_task.yaml")
+    options = dataclasses.replace(task.spec.optimal.planner, intervals=INTERVALS)
+    nlp = build_balance_nlp(task.robot, task.mission, task.q_B0, options, h0=task.h0)
+    plan = nlp.solve("analytic")
+    return task, nlp, plan, Replanner(nlp)
+
+
+@pytest.mark.slow
+def test_replan_from_a_mid_motion_state_matches_an_independent_replay(planned):
+    task, nlp, plan, replanner = planned
+    first = replanner.first(plan)
+    node = 20
+    # the base turned 20 mrad away from where the plan has it: a re-plan has to correct it
+    _, _, _, phi = first.state(node)
+    attitude = phi + np.array([0.02, -0.01, 0.005])
+    out = replanner.replan(node, first, attitude, peak=plan.max_drift)
+    assert out.success, out.status
+    segment = out.segment
+    # the balance arm starts where the plan in force has it (position, rate, acceleration)
+    q, qd, qdd = (np.asarray(v)[0] for v in segment.trajectory.sample(np.zeros(1)))
+    for got, want in zip((q, qd, qdd), first.state(node)[:3]):
+        np.testing.assert_allclose(got, want, atol=1e-9)
+    # replayed from the measured attitude by momentum conservation (numeric Pinocchio, RK4),
+    # the re-planned joint motion turns the base as the planner's own states say
+    t0 = node * nlp.h
+    nodes = np.arange(nlp.N - node + 1) * nlp.h
+    replayed = replay(
+        task.robot,
+        MissionWindow(task.mission, t0, task.duration),
+        segment.trajectory,
+        t_eval=nodes,
+        attitude0=quaternion_from_rotvec(attitude),
+    )
+    planned_q = quaternion_from_rotvec(segment.solution.X[:3].T)
+    error = rotation_angle(relative_rotation(planned_q, replayed.quaternion))
+    assert error[0] < 1e-12
+    # within the collocation's error on 0.2 s intervals, far below the 22 mrad the re-plan
+    # corrects (a re-plan that ignored the measured attitude would be off by all of it)
+    assert error.max() < 1e-4
+    # and it corrects the offset: the final drift is well below the 22 mrad it started off by
+    assert rotation_angle(replayed.quaternion[-1]) < 0.5 * np.linalg.norm(attitude - phi)
+
+
+def _flown_both_ways(task, replanner, plan):
+    """The plan simulated open loop and flown closed loop, on the nominal robot (every re-plan
+    applied, whatever its time)."""
+    open_loop = simulate_plan(task.robot, plan, task.spec.simulation)
+    options = ClosedLoopOptions(period=PERIOD)
+    run = fly_closed_loop(
+        task.robot, replanner, plan, task.spec.simulation, options, deadline=math.inf
+    )
+    return open_loop, run
+
+
+@pytest.mark.slow
+def test_closed_loop_without_model_error_reproduces_the_plan(planned):
+    task, nlp, plan, replanner = planned
+    open_loop, run = _flown_both_ways(task, replanner, plan)
+    assert [r.node for r in run.replans] == [10, 20, 30, 40]
+    assert run.failed == 0
+    assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
+    assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
+    np.testing.assert_allclose(run.simulation.t, open_loop.t, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_a_failed_replan_keeps_the_plan_in_force(planned):
+    task, nlp, plan, _ = planned
+    failing = Replanner(nlp, {"max_iter": 0})  # Ipopt stops before its first step
+    open_loop, run = _flown_both_ways(task, failing, plan)
+    assert len(run.replans) == 4 and run.failed == 4
+    assert {r.status for r in run.replans} == {"Maximum_Iterations_Exceeded"}
+    # the first plan flown to the end: the open-loop motion
+    np.testing.assert_allclose(run.simulation.q, open_loop.q, atol=1e-9)
+    np.testing.assert_allclose(run.simulation.quaternion, open_loop.quaternion, atol=1e-9)
+
+
+TASK = """name: t
+robot: {shipped: paper_robot.urdf}
+arms:
+  mission: [mission_joint1, mission_joint2, mission_joint3]
+  balance: [balance_joint1, balance_joint2, balance_joint3]
+initial: {balance: [0.0, 0.5, -1.0]}
+mission: {type: ptp, start: [0.0, 0.3, -0.6], goal: [0.2, 0.4, -0.7], duration: 2.0}
+closed_loop:
+"""
+
+
+@pytest.mark.parametrize(
+    "entry, message",
+    [
+        ("period: 0", "closed_loop.period: must be greater than 0 s, got 0"),
+        ("samples: 0", "closed_loop.samples: must be at least 1, got 0"),
+        ("perturbation: -0.1", "closed_loop.perturbation: must be at least 0, got -0.1"),
+        ("seed: -1", "closed_loop.seed: must be at least 0, got -1"),
+        (
+            "momentum: measured",
+            "closed_loop.momentum: unknown key 'momentum'; expected one of period, samples, "
+            "perturbation, seed",
+        ),
+    ],
+)
+def test_bad_closed_loop_values_name_file_line_and_key(tmp_path, entry, message):
+    path = tmp_path / "task.yaml"
+    path.write_text(TASK + f"  {entry}\n")
+    with pytest.raises(InputError) as info:
+        load_task(path)
+    assert str(info.value) == f"{path}:9: {message}"
+
+
+def test_closed_loop_defaults_follow_the_robustness_section(tmp_path):
+    from balance_opt.app.closed_loop import resolved_options
+
+    path = tmp_path / "task.yaml"
+    path.write_text(
+        TASK.replace("closed_loop:\n", "robustness: {perturbation: 0.2, seed: 7}\n")
+        + "closed_loop: {samples: 3}\n"
+    )
+    options = resolved_options(load_task(path))
+    assert (options.period, options.samples, options.perturbation, options.seed) == (
+        0.5,
+        3,
+        0.2,
+        7,
+    )
+
+
+def test_the_worst_runs_urdf_holds_its_true_robot():
+    """``closed_loop_worst.urdf``: the URDF with the perturbed inertias, which Pinocchio reads
+    back into the true robot's model (every joint's body, fixed links merged)."""
+    import pinocchio as pin
+
+    from balance_opt.app.closed_loop import perturbed_urdf, true_robots
+
+    task = load_task(EXAMPLES / "capture_task.yaml")
+    truth = true_robots(task.robot, ClosedLoopOptions(samples=2, perturbation=0.1, seed=0))[1]
+    text = perturbed_urdf(task.robot, truth)
+    model = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+    assert model.njoints == truth.model.njoints
+    for i in range(1, model.njoints):
+        assert model.names[i] == truth.model.names[i]
+        read, true = model.inertias[i], truth.model.inertias[i]
+        assert abs(read.mass - true.mass) < 1e-12 * true.mass
+        np.testing.assert_allclose(read.lever, true.lever, atol=1e-12)
+        np.testing.assert_allclose(read.inertia, true.inertia, atol=1e-12)
+    # and it is not the nominal robot
+    assert abs(model.inertias[1].mass - task.robot.model.inertias[1].mass) > 1e-6

@@ -1,0 +1,181 @@
+"""Meshes found as users lay them out (issue 34): ``package://`` resolved through the task's
+``robot.packages``, ``ROS_PACKAGE_PATH`` and the folders above the URDF, for the collision
+geometry and the 3D scene alike; a mesh not found names every folder searched."""
+
+import re
+import shutil
+
+import numpy as np
+import pytest
+
+from balance_opt.errors import InputError
+from balance_opt.geometry.robot_geometry import RobotGeometry
+from balance_opt.model.library import example_urdf
+from balance_opt.model.meshes import MeshNotFoundError, resolve_mesh
+from balance_opt.model.robot import FloatingRobot
+from balance_opt.report.scene import visual_model
+from balance_opt.tasks.task import load_task
+
+PACKAGE = "meshy_description"
+URI = f"package://{PACKAGE}/meshes/shoulder.stl"
+
+
+def _urdf(mesh: str) -> str:
+    """A box base with a one-joint mission arm whose link is ``mesh`` (collision and visual)
+    and a one-joint balance arm (a cylinder)."""
+    inertia = '<inertia ixx="0.05" iyy="0.05" izz="0.05" ixy="0" ixz="0" iyz="0"/>'
+
+    def link(name, mass, shape):
+        return (
+            f'<link name="{name}"><inertial><mass value="{mass}"/>{inertia}</inertial>'
+            f"<visual><geometry>{shape}</geometry></visual>"
+            f"<collision><geometry>{shape}</geometry></collision></link>"
+        )
+
+    def joint(name, child, xyz):
+        return (
+            f'<joint name="{name}" type="revolute"><parent link="base"/><child link="{child}"/>'
+            f'<origin xyz="{xyz}"/><axis xyz="0 0 1"/>'
+            '<limit lower="-3" upper="3" velocity="2" effort="50"/></joint>'
+        )
+
+    return (
+        '<robot name="meshy">'
+        + link("base", 50.0, '<box size="0.4 0.4 0.4"/>')
+        + link("arm", 2.0, f'<mesh filename="{mesh}"/>')
+        + link("post", 2.0, '<cylinder radius="0.03" length="0.3"/>')
+        + joint("reach", "arm", "0.0 0.0 0.35")
+        + joint("swing", "post", "0.3 0.3 0.35")
+        + "</robot>"
+    )
+
+
+@pytest.fixture
+def layout(tmp_path, monkeypatch):
+    """A user's robot: ``work/robot/meshy.urdf`` naming ``package://meshy_description/...``,
+    the package under ``work/pkgs/``, out of reach of the folders above the URDF; no
+    ``ROS_PACKAGE_PATH``."""
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    stl = example_urdf("ur5").parent.parent / "meshes" / "ur5" / "collision" / "shoulder.stl"
+    mesh = tmp_path / "work" / "pkgs" / PACKAGE / "meshes" / "shoulder.stl"
+    mesh.parent.mkdir(parents=True)
+    shutil.copy(stl, mesh)
+    urdf = tmp_path / "work" / "robot" / "meshy.urdf"
+    urdf.parent.mkdir()
+    urdf.write_text(_urdf(URI))
+    return urdf, mesh
+
+
+def _task(urdf, packages=None):
+    path = urdf.parent / "meshy.yaml"
+    path.write_text(
+        f"name: meshy\nrobot:\n  urdf: {urdf.name}\n"
+        + (f"  packages: {packages}\n" if packages is not None else "")
+        + "arms: {mission: [reach], balance: [swing]}\n"
+        "mission: {type: ptp, start: [0.0], goal: [0.6], duration: 3.0}\n"
+    )
+    return path
+
+
+def _meshes(model) -> list[str]:
+    """The mesh files of a Pinocchio geometry model (primitives have a ``meshPath`` too)."""
+    return [o.meshPath for o in model.geometryObjects if o.meshPath.endswith(".stl")]
+
+
+def _distances_with_absolute_path(urdf, mesh, q):
+    """The distances of the same robot whose URDF names the mesh by its absolute path."""
+    robot = FloatingRobot(_urdf(str(mesh)), ["reach"], ["swing"])
+    return RobotGeometry(robot).distances(q)
+
+
+def test_a_missing_mesh_names_every_folder_searched(layout):
+    urdf, _ = layout
+    robot = FloatingRobot(urdf, ["reach"], ["swing"])
+    folder = urdf.parent
+    above = [folder, folder.parent, folder.parent.parent, folder.parent.parent.parent]
+    expected = (
+        f"mesh {URI} not found; folders searched: "
+        + "; ".join(f"{p} (above the URDF)" for p in above)
+        + f"; add the folder that holds {PACKAGE}/ to robot.packages in the task file "
+        "(or to ROS_PACKAGE_PATH)"
+    )
+    with pytest.raises(MeshNotFoundError, match=f"^{re.escape(expected)}$") as caught:
+        RobotGeometry(robot)
+    assert [p for p, _ in caught.value.searched] == above
+    # the 3D scene's visual geometry says the same, after the file it comes from
+    with pytest.raises(
+        InputError, match=re.escape(f"{urdf}: cannot load the visual geometry: {expected}")
+    ):
+        visual_model(robot)
+
+
+def test_meshes_found_through_robot_packages(layout):
+    urdf, mesh = layout
+    task = load_task(_task(urdf, "[../pkgs]"))
+    assert task.robot.packages == (mesh.parents[2],)
+    geometry = RobotGeometry(task.robot)
+    assert _meshes(geometry.geometry_model) == [str(mesh)]
+    q = np.array([0.4, -0.2])
+    assert geometry.distances(q) == pytest.approx(_distances_with_absolute_path(urdf, mesh, q))
+    assert _meshes(visual_model(task.robot)) == [str(mesh)]
+    # a folder named after the package is taken as the package itself
+    named = load_task(_task(urdf, f"[../pkgs/{PACKAGE}]"))
+    assert resolve_mesh(URI, urdf, named.robot.packages) == mesh
+
+
+def test_meshes_found_through_ros_package_path_and_above_the_urdf(layout, monkeypatch):
+    urdf, mesh = layout
+    robot = FloatingRobot(urdf, ["reach"], ["swing"])
+    monkeypatch.setenv("ROS_PACKAGE_PATH", f"/nonexistent:{mesh.parents[2]}")
+    geometry = RobotGeometry(robot)
+    assert _meshes(geometry.geometry_model) == [str(mesh)]
+    monkeypatch.delenv("ROS_PACKAGE_PATH")
+    # the URDF moved inside its package (PACKAGE/urdf/): found above it
+    inside = mesh.parents[1] / "urdf" / "meshy.urdf"
+    inside.parent.mkdir()
+    shutil.copy(urdf, inside)
+    assert resolve_mesh(URI, inside) == mesh
+    # robot.packages comes first: a folder of its own wins over ROS_PACKAGE_PATH
+    other = urdf.parent / "other" / PACKAGE / "meshes" / "shoulder.stl"
+    other.parent.mkdir(parents=True)
+    shutil.copy(mesh, other)
+    monkeypatch.setenv("ROS_PACKAGE_PATH", str(mesh.parents[2]))
+    assert resolve_mesh(URI, urdf, [other.parents[2]]) == other
+
+
+def test_relative_meshes_and_the_packages_key(layout):
+    urdf, mesh = layout
+    relative = urdf.parent / "relative.urdf"
+    relative.write_text(_urdf(f"../pkgs/{PACKAGE}/meshes/shoulder.stl"))
+    geometry = RobotGeometry(FloatingRobot(relative, ["reach"], ["swing"]))
+    assert _meshes(geometry.geometry_model) == [str(mesh)]
+    relative.write_text(_urdf("meshes/none.stl"))
+    with pytest.raises(
+        MeshNotFoundError,
+        match=re.escape(
+            f"mesh meshes/none.stl not found; folders searched: {urdf.parent} (the URDF's "
+            "folder); a mesh path without package:// is relative to the URDF file"
+        ),
+    ):
+        RobotGeometry(FloatingRobot(relative, ["reach"], ["swing"]))
+    with pytest.raises(
+        InputError, match=r"meshy\.yaml:4: robot\.packages\[1\]: no such folder: .*/work/nope$"
+    ):
+        load_task(_task(urdf, "[../pkgs, ../nope]"))
+
+
+@pytest.mark.slow
+def test_planning_with_a_missing_mesh_fails_naming_it_and_writes_nothing(layout, capsys):
+    from balance_opt.cli import main
+
+    urdf, _ = layout
+    out = urdf.parent / "out"
+    assert main(["plan", str(_task(urdf)), "--method", "optimal", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"balance-opt: error: mesh {URI} not found; folders searched: {urdf.parent} " in err
+    assert f"add the folder that holds {PACKAGE}/ to robot.packages in the task file" in err
+    assert not out.exists()
+    # the same task with the folder listed plans, avoidance on, and its scene shows the mesh
+    assert main(["plan", str(_task(urdf, "[../pkgs]")), "--method", "optimal", "-o", str(out)]) == 0
+    assert "3D scene not written" not in capsys.readouterr().err
+    assert (out / "scene.html").is_file()
