@@ -7,8 +7,8 @@ linearly between the re-simulation's samples) and its pair; the binding pairs, t
 within the margin plus 2 cm, each with its smallest exact distance and, at that instant, the
 distance of the planner's fitted shapes (which the planner holds to the margin plus 2 mm; the
 capsules contain the links, so the difference is what the shapes cost); Ipopt's iterations
-over every solve and the wall time (inflated on a loaded machine; the first plan of a setting
-also compiles its kernels).
+over every solve, the status of the last solve and the wall time (inflated on a loaded
+machine; the first plan of a setting also compiles its kernels).
 
 The settings: collision avoidance off (the jerk term off: the issue's independent formulation;
 and on); the defaults from either initial guess and with ``optimal.starts: 3`` and 6; a margin
@@ -147,7 +147,7 @@ def main(argv=None) -> None:
     header = (
         f"{'setting':<30} {'margin':>6} {'jerk':>4} {'starts':>6} {'guess':<8} {'from':>4} "
         f"{'peak rad':>9} {'final rad':>9} {'clear m':>8} {'closest pair':<30} {'iters':>6} "
-        f"{'wall s':>7}  binding pairs: exact / fitted m"
+        f"{'wall s':>7} {'last Ipopt status':<26} binding pairs: exact / fitted m"
     )
     print(header)
     print("-" * len(header))
@@ -182,9 +182,10 @@ def main(argv=None) -> None:
                 fitted = fitted_distance(geometry, shapes, pair, qg[j])
                 binding.append(f"{pair.name} {d[j, i]:.4f} / {fitted:.4f} (t {grid[j]:.2f})")
         iterations = result.solver.iterations if result.solver is not None else 0
+        last = result.solver.solves[-1].status if result.solver is not None else "-"
         print(
             f"{lead}{result.max_drift:9.4f} {result.final_drift:9.4f} {d[k]:8.4f} "
-            f"{geometry.pairs[k[1]].name:<30} {iterations:6d} {wall:7.0f}  "
+            f"{geometry.pairs[k[1]].name:<30} {iterations:6d} {wall:7.0f} {last:<26} "
             f"{'; '.join(binding) or '-'}{status}",
             flush=True,
         )
