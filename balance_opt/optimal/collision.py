@@ -286,7 +286,7 @@ def short(problem, result, held: bool = False) -> list[PairClearance]:
     ]
 
 
-def _row_values(problem, result) -> np.ndarray:
+def row_values(problem, result) -> np.ndarray:
     """The collision rows' values at the collocation points of a re-simulated plan (n_c,
     n_points) [m]."""
     setup = problem.collision
@@ -314,7 +314,7 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     before = problem.bounds.collision
     bound = np.array(before)
     # from this plan's bound or value: pairs that share a row raise it once, by the most
-    floor = np.maximum(before, _row_values(problem, result))
+    floor = np.maximum(before, row_values(problem, result))
     q = np.hstack([result.q_M, result.q_B])
     for pair in pairs:
         row = setup.owner[pair.index]
