@@ -201,3 +201,78 @@ def test_write_srdf_round_trips_and_keeps_an_existing_file(tmp_path, capsys):
     task = _wrist_task(tmp_path)  # without robot.srdf again: the pairs computed
     assert main(["inspect", str(task), "--write-srdf", str(srdf), "--force"]) == 0
     assert 'reason="Always"' in srdf.read_text()
+
+
+def flap_urdf() -> str:
+    """The 0.2 m cube of :func:`wrist_urdf` with a mission arm ``j1`` far above it (``l1``: a
+    sphere 0.6 m up), and a balance arm ``f1`` - ``f2`` (both about z, at 0.3 m along x from
+    the cube's centre, through a link without geometry: not adjacent to the cube) whose
+    ``flap``, a bar 0.14 m long from 0.08 m to 0.22 m of the axis, reaches 0.02 m into the cube
+    at zero and clears it unless ``f1 + f2`` turns it back within about 0.4 rad."""
+    return (
+        '<robot name="flap">'
+        + _link("base", 100.0, ("0 0 0", '<box size="0.2 0.2 0.2"/>'))
+        + _link("l1", 1.0, ("0 0 0", '<sphere radius="0.02"/>'))
+        + _joint("j1", "base", "l1", "0 0 0.6", "1 0 0", 3.0)
+        + _link("mount", 1.0)
+        + _link("flap", 1.0, ("-0.15 0 0", '<box size="0.14 0.04 0.04"/>'))
+        + _joint("f1", "base", "mount", "0.3 0 0", "0 0 1", 3.0)
+        + _joint("f2", "mount", "flap", "0 0 0", "0 0 1", 3.0)
+        + "</robot>"
+    )
+
+
+def test_a_pair_in_contact_in_the_reference_pose_but_rarely_else_is_checked():
+    """The flap starts in the cube at zero, the reference pose, and is clear of it in most
+    configurations: the pair is kept (MoveIt's reference-pose rule alone would disable it for
+    the whole motion, and a start there would not be refused)."""
+    flap = FloatingRobot(flap_urdf(), ["j1"], ["f1", "f2"])
+    bare = RobotGeometry(flap, disabled={})
+    pairs = _object_pairs(bare, ("base", "flap"))
+    assert bare.distances(flap.neutral(), pairs)[0] == pytest.approx(-0.02, abs=1e-6)
+    q, touch = _in_contact(bare, ("base", "flap"))
+    # the bar's near end reaches x = 0.1 (the cube's face) within |f1 + f2| < 0.43 rad about
+    turn = np.angle(np.exp(1j * (q[:, 1] + q[:, 2])))
+    assert not touch[np.abs(turn) > 0.6].any() and touch[np.abs(turn) < 0.3].all()
+    assert 0.05 < touch.mean() < self_collision.DEFAULT
+    geometry = RobotGeometry(flap)
+    assert geometry.ignored == {("base", "l1"): "adjacent"}
+    assert geometry.computed == []
+    assert {frozenset(p.links) for p in geometry.pairs} == {frozenset(p.links) for p in bare.pairs}
+    assert [p.name for p in geometry.contacts(flap.neutral())] == ["base / flap"]
+
+
+@pytest.mark.slow  # the planner model of a new robot
+def test_a_start_in_contact_on_a_kept_reference_pair_is_refused():
+    from balance_opt.motion.trajectories import PointToPoint
+    from balance_opt.optimal.collision import InitialCollisionError
+    from balance_opt.optimal.model import PlannerModel
+    from balance_opt.optimal.options import PlannerOptions
+    from balance_opt.optimal.solve import build_balance_nlp
+
+    flap = FloatingRobot(flap_urdf(), ["j1"], ["f1", "f2"])
+    model = PlannerModel(flap, compile=False, store=False)
+    mission = PointToPoint([0.0], [0.5], 2.0)
+    with pytest.raises(
+        InitialCollisionError,
+        match=r"^flap: the initial configuration is in collision: base / flap \(0\.0200 m deep\)",
+    ):
+        build_balance_nlp(model, mission, flap.neutral()[1:], PlannerOptions(intervals=10))
+
+
+def test_a_run_names_the_computed_pairs_in_its_log_and_metrics(tmp_path, caplog):
+    import logging
+
+    from balance_opt.app.pipeline import run_task
+    from balance_opt.tasks.task import load_task
+
+    caplog.set_level(logging.INFO, logger="balance_opt")
+    out = tmp_path / "out"
+    run_task(load_task(_wrist_task(tmp_path)), methods=("analytic",), output_dir=out)
+    said = [r.getMessage() for r in caplog.records if "as computed" in r.getMessage()]
+    assert said == [
+        "wrists: no SRDF: link pairs left out as computed (robot.srdf to choose): "
+        "l1 / l3 (always)"
+    ]
+    geometry = json.loads((out / "metrics.json").read_text())["geometry"]
+    assert geometry["computed_disabled"] == [{"pair": "l1 / l3", "reason": "always"}]

@@ -260,6 +260,14 @@ def run_geometry(run: TaskRun):
         except InputError as exc:  # a mesh file missing: the plans still count
             log.warning("%s: no clearance check: %s", run.task.name, exc)
             run.geometry = False
+        else:  # nobody reviews pairs computed without an SRDF: say which, once per run
+            computed = run.geometry.computed
+            if computed:
+                log.info(
+                    "%s: no SRDF: link pairs left out as computed (robot.srdf to choose): %s",
+                    run.task.name,
+                    ", ".join(f"{n} ({r})" for n, r in computed),
+                )
     return run.geometry
 
 
