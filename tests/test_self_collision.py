@@ -271,8 +271,10 @@ def test_a_run_names_the_computed_pairs_in_its_log_and_metrics(tmp_path, caplog)
     run_task(load_task(_wrist_task(tmp_path)), methods=("analytic",), output_dir=out)
     said = [r.getMessage() for r in caplog.records if "as computed" in r.getMessage()]
     assert said == [
-        "wrists: no SRDF: link pairs left out as computed (robot.srdf to choose): "
-        "l1 / l3 (always)"
+        (
+            "wrists: no SRDF: link pairs left out as computed (robot.srdf to choose): "
+            "l1 / l3 (always)"
+        )
     ]
     geometry = json.loads((out / "metrics.json").read_text())["geometry"]
     assert geometry["computed_disabled"] == [{"pair": "l1 / l3", "reason": "always"}]

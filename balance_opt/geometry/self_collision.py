@@ -116,4 +116,3 @@ def srdf_text(robot_name: str, disabled: Mapping[tuple[str, str], str]) -> str:
         )
         item.tail = "\n  " if k + 1 < len(written) else "\n"
     return ET.tostring(root, encoding="unicode") + "\n"
-
