@@ -3,6 +3,7 @@
 sometimes is checked, and every part of a run uses the same pairs."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -242,22 +243,56 @@ def test_a_pair_in_contact_in_the_reference_pose_but_rarely_else_is_checked():
     assert [p.name for p in geometry.contacts(flap.neutral())] == ["base / flap"]
 
 
-@pytest.mark.slow  # the planner model of a new robot
-def test_a_start_in_contact_on_a_kept_reference_pair_is_refused():
-    from balance_opt.motion.trajectories import PointToPoint
-    from balance_opt.optimal.collision import InitialCollisionError
-    from balance_opt.optimal.model import PlannerModel
-    from balance_opt.optimal.options import PlannerOptions
-    from balance_opt.optimal.solve import build_balance_nlp
+def _flap_task(folder, initial=""):
+    body = (
+        "arms: {mission: [j1], balance: [f1, f2]}\n"
+        f"{initial}"
+        "mission: {type: ptp, start: [0.0], goal: [0.5], duration: 2.0}\n"
+    )
+    task = urdf_task(folder, "flap", flap_urdf(), body)
+    # adam: the planner model without the Pinocchio bridge's build
+    task.write_text(task.read_text().replace("robot:\n", "robot:\n  backend: adam\n"))
+    return task
 
-    flap = FloatingRobot(flap_urdf(), ["j1"], ["f1", "f2"])
-    model = PlannerModel(flap, compile=False, store=False)
-    mission = PointToPoint([0.0], [0.5], 2.0)
+
+def test_a_start_in_contact_on_a_kept_reference_pair_is_refused_at_its_key(tmp_path):
+    """The default balance start is the reference pose, where the flap is in the cube: the
+    optimal plan is refused (the pair is checked), naming the task's key, before the planner's
+    kinematics are built; the start given is named by its line."""
+    from balance_opt.app.pipeline import plan
+    from balance_opt.cli import main
+    from balance_opt.config.yaml_lines import TaskFileError
+    from balance_opt.tasks.task import load_task, start_error
+
+    contact = (
+        "flap: the initial configuration is in collision: base / flap (0.0200 m deep); move it, "
+        "or leave the pairs out (robot.srdf, optimal.collision.ignore) if the geometry overlaps "
+        "there by design"
+    )
+    task = _flap_task(tmp_path)
+    message = (
+        f"{task}: initial.balance: {contact} (not given: the balance arm starts at zero, inside "
+        "its limits)"
+    )
+    with pytest.raises(TaskFileError, match=f"^{re.escape(message)}$"):
+        plan(load_task(task), "optimal")
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "optimal", "-o", str(out), "-q"]) == 2
+    assert not out.exists()
+    given = _flap_task(tmp_path, "initial:\n  balance: [0.1, 0.0]\n")
     with pytest.raises(
-        InitialCollisionError,
-        match=r"^flap: the initial configuration is in collision: base / flap \(0\.0200 m deep\)",
+        TaskFileError, match=r"flap\.yaml:7: initial\.balance: flap: the initial configuration "
     ):
-        build_balance_nlp(model, mission, flap.neutral()[1:], PlannerOptions(intervals=10))
+        plan(load_task(given), "optimal")
+    # pairs of the mission arm alone: its start
+    mission = start_error(load_task(given), "in collision", balance=False)
+    assert str(mission) == f"{given}:8: mission.start: in collision"
+    # the other methods plan; the clearance check reports the contact from t = 0
+    result = plan(load_task(task), "analytic")
+    geometry = RobotGeometry(load_task(task).robot)
+    report = clearance(geometry, result.t, np.hstack([result.q_M, result.q_B]))
+    assert report.first_penetration.pair == "base / flap"
+    assert report.first_penetration.time == 0.0
 
 
 def test_a_run_names_the_computed_pairs_in_its_log_and_metrics(tmp_path, caplog):

@@ -42,11 +42,22 @@ ALONE_GAP = 0.01
 
 class InitialCollisionError(InputError):
     """Checked pairs in contact at a plan's initial configuration: no plan can keep them
-    apart, and every plan's clearance check would report them."""
+    apart, and every plan's clearance check would report them.
+
+    Attributes:
+        pairs: the pairs in contact, by name.
+        balance: whether a body the balance joints move is among them (the balance start is at
+            fault, not the mission's alone).
+    """
 
     def __init__(self, geometry: RobotGeometry, q0: np.ndarray, contacts: list[Pair]):
         d = geometry.distances(q0, [p.index for p in contacts])
         self.pairs = [p.name for p in contacts]
+        robot = geometry.robot
+        moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
+        self.balance = any(
+            {geometry.body(p.first), geometry.body(p.second)} & moved for p in contacts
+        )
         pairs = ", ".join(f"{p.name} ({max(-x, 0.0):.4f} m deep)" for p, x in zip(contacts, d))
         super().__init__(
             f"{geometry.robot.name}: the initial configuration is in collision: {pairs}; "
@@ -197,17 +208,32 @@ def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
     return setups[key]
 
 
-def _setup(models: CollisionModels, options, q0: np.ndarray, placements) -> CollisionSetup | None:
+def check_start(models: CollisionModels, options, q0: np.ndarray) -> RobotGeometry | None:
+    """The geometry a problem of ``options`` starting at the arm configuration ``q0`` keeps
+    apart (``None``: no avoidance, or no geometry), checked before anything else is built.
+
+    Raises:
+        InitialCollisionError: checked pairs in contact at ``q0``.
+    """
+    if not options.collision_avoidance:
+        return None
     try:
         geometry = models.geometry(options.collision_ignore, options.collision_srdf)
     except NoGeometryError as exc:  # nothing to keep apart
         log.info("no collision avoidance: %s", exc)
         return None
-    robot = geometry.robot
-    moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
     contacts = geometry.contacts(q0)
     if contacts:  # not disabled (SRDF, reference pose, nearly always): the task's own fault
         raise InitialCollisionError(geometry, q0, contacts)
+    return geometry
+
+
+def _setup(models: CollisionModels, options, q0: np.ndarray, placements) -> CollisionSetup | None:
+    geometry = check_start(models, options, q0)
+    if geometry is None:
+        return None
+    robot = geometry.robot
+    moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
     left_out = {}
     pairs = []
     for p in geometry.pairs:
