@@ -313,3 +313,39 @@ def test_a_run_names_the_computed_pairs_in_its_log_and_metrics(tmp_path, caplog)
     ]
     geometry = json.loads((out / "metrics.json").read_text())["geometry"]
     assert geometry["computed_disabled"] == [{"pair": "l1 / l3", "reason": "always"}]
+
+
+def test_the_run_and_the_planner_share_one_geometry_per_robot_limits(tmp_path, monkeypatch):
+    """The pairs computed without an SRDF (a thousand samples) once per run: the run's
+    clearance check takes the planner's geometry from the model cache; a robot of the same
+    kinematics with other limits gets its own (its samples are drawn inside its limits)."""
+    from balance_opt.app.models import ModelCache
+    from balance_opt.app.pipeline import run_task
+    from balance_opt.optimal.collision import check_start
+    from balance_opt.tasks.task import load_task
+
+    path = _wrist_task(tmp_path)
+    path.write_text(path.read_text().replace("robot:\n", "robot:\n  backend: adam\n"))
+    task = load_task(path)
+    computed = []
+    disabled_pairs = self_collision.disabled_pairs
+
+    def counted(*args):
+        computed.append(args)
+        return disabled_pairs(*args)
+
+    monkeypatch.setattr(self_collision, "disabled_pairs", counted)
+    models = ModelCache(compile=False)
+    model = models.planner_model(task.robot, "adam")
+    options = task.planner_options()
+    geometry = check_start(model.collisions, options, task.q0, task.robot)  # as plan_part does
+    run = run_task(task, methods=("analytic",), models=models)
+    assert run.geometry is geometry and len(computed) == 1
+    assert run_task(task, methods=("analytic",)).geometry is not geometry  # no planner model
+    assert len(computed) == 2
+    narrow = FloatingRobot(
+        wrist_urdf(), ["j1", "j2", "j3"], ["k1", "k2"], limits={"j2": {"lower": 0.3}}
+    )
+    other = model.collisions.geometry(options.collision_ignore, options.collision_srdf, narrow)
+    assert other is not geometry and len(computed) == 3
+    assert (geometry.ignored[("l1", "l3")], other.ignored[("l1", "l3")]) == ("always", "default")

@@ -125,7 +125,8 @@ def plan_part(
         robot, task.spec.robot.backend
     )
     try:  # before the planner's kinematics are built
-        check_start(model.collisions, options, np.r_[mission.sample(np.zeros(1))[0].ravel(), q_B0])
+        q0 = np.r_[mission.sample(np.zeros(1))[0].ravel(), q_B0]
+        check_start(model.collisions, options, q0, robot)
     except InitialCollisionError as exc:
         if robot is not task.robot:  # the start after a capture: no key of the task sets it
             raise

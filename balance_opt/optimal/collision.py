@@ -112,6 +112,12 @@ class CollisionSetup:
         }
 
 
+def _robot_key(robot) -> tuple:
+    """What of a robot of the model's kinematics its geometry depends on: the limits (the
+    samples of the pairs computed without an SRDF are drawn inside them) and the mesh folders."""
+    return (robot.limits.lower.tobytes(), robot.limits.upper.tobytes(), robot.packages)
+
+
 class CollisionModels:
     """A robot's collision geometry and rows, built once per planner model: its geometry per
     set of ignored pairs, the setup of each problem's start, each rows key's rows with their
@@ -124,10 +130,15 @@ class CollisionModels:
         #: rows key -> (rows, ``clearance_rows(q_model)``)
         self.rows: dict = {}
 
-    def geometry(self, ignore=(), srdf: str | None = None) -> RobotGeometry:
-        key = (tuple(sorted(tuple(sorted(p)) for p in ignore)), srdf)
+    def geometry(self, ignore=(), srdf: str | None = None, robot=None) -> RobotGeometry:
+        """The geometry of ``robot`` (default: the model's; the model's kinematics, possibly
+        other limits) with the pairs ``ignore`` and ``srdf`` left out, built once: the planner
+        and a run's clearance check share it (``app.pipeline.run_geometry``)."""
+        robot = self.robot if robot is None else robot
+        ignore = tuple(sorted(tuple(sorted(p)) for p in ignore))
+        key = (ignore, srdf, _robot_key(robot))
         if key not in self.geometries:
-            self.geometries[key] = RobotGeometry(self.robot, srdf=srdf, ignore=key[0])
+            self.geometries[key] = RobotGeometry(robot, srdf=srdf, ignore=ignore)
         return self.geometries[key]
 
     def function(self, rows: ClearanceRows, placements: cs.Function) -> cs.Function:
@@ -189,28 +200,35 @@ def _out_of_reach(geometry: RobotGeometry, pairs, moved: set[int], beyond: float
     return out
 
 
-def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
+def collision_setup(model, options, q0: np.ndarray, robot=None) -> CollisionSetup | None:
     """The collision avoidance of a problem of ``model`` (a
-    :class:`~balance_opt.optimal.model.PlannerModel`) starting at the arm configuration ``q0``;
-    ``None`` when ``options.collision_avoidance`` is off or no pair involves the balance arm."""
+    :class:`~balance_opt.optimal.model.PlannerModel`) for ``robot`` (default: the model's)
+    starting at the arm configuration ``q0``; ``None`` when ``options.collision_avoidance`` is
+    off or no pair involves the balance arm."""
     if not options.collision_avoidance:
         return None
+    robot = model.robot if robot is None else robot
     # the stages and refinements of one plan are variants of one problem: built once
     key = (
         options.collision_ignore,
         options.collision_srdf,
         options.collision_margin,
         np.asarray(q0, float).tobytes(),
+        _robot_key(robot),
     )
     setups = model.collisions.setups
     if key not in setups:  # the shapes placed by the planner's own kinematics
-        setups[key] = _setup(model.collisions, options, q0, model.maps.joint_placements_fun())
+        placements = model.maps.joint_placements_fun()
+        setups[key] = _setup(model.collisions, options, q0, placements, robot)
     return setups[key]
 
 
-def check_start(models: CollisionModels, options, q0: np.ndarray) -> RobotGeometry | None:
-    """The geometry a problem of ``options`` starting at the arm configuration ``q0`` keeps
-    apart (``None``: no avoidance, or no geometry), checked before anything else is built.
+def check_start(
+    models: CollisionModels, options, q0: np.ndarray, robot=None
+) -> RobotGeometry | None:
+    """The geometry a problem of ``options`` for ``robot`` (default: the model's) starting at
+    the arm configuration ``q0`` keeps apart (``None``: no avoidance, or no geometry), checked
+    before anything else is built.
 
     Raises:
         InitialCollisionError: checked pairs in contact at ``q0``.
@@ -218,7 +236,7 @@ def check_start(models: CollisionModels, options, q0: np.ndarray) -> RobotGeomet
     if not options.collision_avoidance:
         return None
     try:
-        geometry = models.geometry(options.collision_ignore, options.collision_srdf)
+        geometry = models.geometry(options.collision_ignore, options.collision_srdf, robot)
     except NoGeometryError as exc:  # nothing to keep apart
         log.info("no collision avoidance: %s", exc)
         return None
@@ -228,8 +246,10 @@ def check_start(models: CollisionModels, options, q0: np.ndarray) -> RobotGeomet
     return geometry
 
 
-def _setup(models: CollisionModels, options, q0: np.ndarray, placements) -> CollisionSetup | None:
-    geometry = check_start(models, options, q0)
+def _setup(
+    models: CollisionModels, options, q0: np.ndarray, placements, robot
+) -> CollisionSetup | None:
+    geometry = check_start(models, options, q0, robot)
     if geometry is None:
         return None
     robot = geometry.robot
