@@ -4,6 +4,7 @@ geometry and the 3D scene alike; a mesh not found names every folder searched.""
 
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import pytest
 from balance_opt.errors import InputError
 from balance_opt.geometry.robot_geometry import RobotGeometry
 from balance_opt.model.library import example_urdf
-from balance_opt.model.meshes import MeshNotFoundError, resolve_mesh
+from balance_opt.model.meshes import MeshNotFoundError, package_folders, resolve_mesh
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.report.scene import visual_model
 from balance_opt.tasks.task import load_task
@@ -94,7 +95,7 @@ def test_a_missing_mesh_names_every_folder_searched(layout):
     folder = urdf.parent
     above = [folder, folder.parent, folder.parent.parent, folder.parent.parent.parent]
     expected = (
-        f"mesh {URI} not found; folders searched: "
+        f"{urdf}: link arm: mesh {URI} not found; folders searched: "
         + "; ".join(f"{p} (above the URDF)" for p in above)
         + f"; add the folder that holds {PACKAGE}/ to robot.packages in the task file "
         "(or to ROS_PACKAGE_PATH)"
@@ -104,9 +105,19 @@ def test_a_missing_mesh_names_every_folder_searched(layout):
     assert [p for p, _ in caught.value.searched] == above
     # the 3D scene's visual geometry says the same, after the file it comes from
     with pytest.raises(
-        InputError, match=re.escape(f"{urdf}: cannot load the visual geometry: {expected}")
+        InputError, match=f"^{re.escape(f'cannot load the visual geometry: {expected}')}$"
     ):
         visual_model(robot)
+    # a URDF as text: no file to name; the link still
+    text = FloatingRobot(_urdf(URI), ["reach"], ["swing"])
+    with pytest.raises(MeshNotFoundError, match=f"^URDF text: link arm: mesh {URI} not found; "):
+        RobotGeometry(text)
+
+
+def test_the_folders_above_the_urdf_stop_before_the_root(monkeypatch):
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    folders = package_folders(PACKAGE, Path("/srv/robots/meshy.urdf"))
+    assert folders == [(Path("/srv/robots"), "above the URDF"), (Path("/srv"), "above the URDF")]
 
 
 def test_meshes_found_through_robot_packages(layout):
@@ -153,7 +164,8 @@ def test_relative_meshes_and_the_packages_key(layout):
     with pytest.raises(
         MeshNotFoundError,
         match=re.escape(
-            f"mesh meshes/none.stl not found; folders searched: {urdf.parent} (the URDF's "
+            f"{relative}: link arm: mesh meshes/none.stl not found; folders searched: "
+            f"{urdf.parent} (the URDF's "
             "folder); a mesh path without package:// is relative to the URDF file"
         ),
     ):
@@ -172,7 +184,10 @@ def test_planning_with_a_missing_mesh_fails_naming_it_and_writes_nothing(layout,
     out = urdf.parent / "out"
     assert main(["plan", str(_task(urdf)), "--method", "optimal", "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert f"balance-opt: error: mesh {URI} not found; folders searched: {urdf.parent} " in err
+    assert (
+        f"balance-opt: error: {urdf}: link arm: mesh {URI} not found; folders searched: "
+        f"{urdf.parent} "
+    ) in err
     assert f"add the folder that holds {PACKAGE}/ to robot.packages in the task file" in err
     assert not out.exists()
     # the same task with the folder listed plans, avoidance on, and its scene shows the mesh

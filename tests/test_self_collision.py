@@ -3,6 +3,7 @@
 sometimes is checked, and every part of a run uses the same pairs."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -201,3 +202,150 @@ def test_write_srdf_round_trips_and_keeps_an_existing_file(tmp_path, capsys):
     task = _wrist_task(tmp_path)  # without robot.srdf again: the pairs computed
     assert main(["inspect", str(task), "--write-srdf", str(srdf), "--force"]) == 0
     assert 'reason="Always"' in srdf.read_text()
+
+
+def flap_urdf() -> str:
+    """The 0.2 m cube of :func:`wrist_urdf` with a mission arm ``j1`` far above it (``l1``: a
+    sphere 0.6 m up), and a balance arm ``f1`` - ``f2`` (both about z, at 0.3 m along x from
+    the cube's centre, through a link without geometry: not adjacent to the cube) whose
+    ``flap``, a bar 0.14 m long from 0.08 m to 0.22 m of the axis, reaches 0.02 m into the cube
+    at zero and clears it unless ``f1 + f2`` turns it back within about 0.4 rad."""
+    return (
+        '<robot name="flap">'
+        + _link("base", 100.0, ("0 0 0", '<box size="0.2 0.2 0.2"/>'))
+        + _link("l1", 1.0, ("0 0 0", '<sphere radius="0.02"/>'))
+        + _joint("j1", "base", "l1", "0 0 0.6", "1 0 0", 3.0)
+        + _link("mount", 1.0)
+        + _link("flap", 1.0, ("-0.15 0 0", '<box size="0.14 0.04 0.04"/>'))
+        + _joint("f1", "base", "mount", "0.3 0 0", "0 0 1", 3.0)
+        + _joint("f2", "mount", "flap", "0 0 0", "0 0 1", 3.0)
+        + "</robot>"
+    )
+
+
+def test_a_pair_in_contact_in_the_reference_pose_but_rarely_else_is_checked():
+    """The flap starts in the cube at zero, the reference pose, and is clear of it in most
+    configurations: the pair is kept (MoveIt's reference-pose rule alone would disable it for
+    the whole motion, and a start there would not be refused)."""
+    flap = FloatingRobot(flap_urdf(), ["j1"], ["f1", "f2"])
+    bare = RobotGeometry(flap, disabled={})
+    pairs = _object_pairs(bare, ("base", "flap"))
+    assert bare.distances(flap.neutral(), pairs)[0] == pytest.approx(-0.02, abs=1e-6)
+    q, touch = _in_contact(bare, ("base", "flap"))
+    # the bar's near end reaches x = 0.1 (the cube's face) within |f1 + f2| < 0.43 rad about
+    turn = np.angle(np.exp(1j * (q[:, 1] + q[:, 2])))
+    assert not touch[np.abs(turn) > 0.6].any() and touch[np.abs(turn) < 0.3].all()
+    assert 0.05 < touch.mean() < self_collision.DEFAULT
+    geometry = RobotGeometry(flap)
+    assert geometry.ignored == {("base", "l1"): "adjacent"}
+    assert geometry.computed == []
+    assert {frozenset(p.links) for p in geometry.pairs} == {frozenset(p.links) for p in bare.pairs}
+    assert [p.name for p in geometry.contacts(flap.neutral())] == ["base / flap"]
+
+
+def _flap_task(folder, initial=""):
+    body = (
+        "arms: {mission: [j1], balance: [f1, f2]}\n"
+        f"{initial}"
+        "mission: {type: ptp, start: [0.0], goal: [0.5], duration: 2.0}\n"
+    )
+    task = urdf_task(folder, "flap", flap_urdf(), body)
+    # adam: the planner model without the Pinocchio bridge's build
+    task.write_text(task.read_text().replace("robot:\n", "robot:\n  backend: adam\n"))
+    return task
+
+
+def test_a_start_in_contact_on_a_kept_reference_pair_is_refused_at_its_key(tmp_path):
+    """The default balance start is the reference pose, where the flap is in the cube: the
+    optimal plan is refused (the pair is checked), naming the task's key, before the planner's
+    kinematics are built; the start given is named by its line."""
+    from balance_opt.app.pipeline import plan
+    from balance_opt.cli import main
+    from balance_opt.config.yaml_lines import TaskFileError
+    from balance_opt.tasks.task import load_task, start_error
+
+    contact = (
+        "flap: the initial configuration is in collision: base / flap (0.0200 m deep); move it, "
+        "or leave the pairs out (robot.srdf, optimal.collision.ignore) if the geometry overlaps "
+        "there by design"
+    )
+    task = _flap_task(tmp_path)
+    message = (
+        f"{task}: initial.balance: {contact} (not given: the balance arm starts at zero, inside "
+        "its limits)"
+    )
+    with pytest.raises(TaskFileError, match=f"^{re.escape(message)}$"):
+        plan(load_task(task), "optimal")
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "optimal", "-o", str(out), "-q"]) == 2
+    assert not out.exists()
+    given = _flap_task(tmp_path, "initial:\n  balance: [0.1, 0.0]\n")
+    with pytest.raises(
+        TaskFileError, match=r"flap\.yaml:7: initial\.balance: flap: the initial configuration "
+    ):
+        plan(load_task(given), "optimal")
+    # pairs of the mission arm alone: its start
+    mission = start_error(load_task(given), "in collision", balance=False)
+    assert str(mission) == f"{given}:8: mission.start: in collision"
+    # the other methods plan; the clearance check reports the contact from t = 0
+    result = plan(load_task(task), "analytic")
+    geometry = RobotGeometry(load_task(task).robot)
+    report = clearance(geometry, result.t, np.hstack([result.q_M, result.q_B]))
+    assert report.first_penetration.pair == "base / flap"
+    assert report.first_penetration.time == 0.0
+
+
+def test_a_run_names_the_computed_pairs_in_its_log_and_metrics(tmp_path, caplog):
+    import logging
+
+    from balance_opt.app.pipeline import run_task
+    from balance_opt.tasks.task import load_task
+
+    caplog.set_level(logging.INFO, logger="balance_opt")
+    out = tmp_path / "out"
+    run_task(load_task(_wrist_task(tmp_path)), methods=("analytic",), output_dir=out)
+    said = [r.getMessage() for r in caplog.records if "as computed" in r.getMessage()]
+    assert said == [
+        (
+            "wrists: no SRDF: link pairs left out as computed (robot.srdf to choose): "
+            "l1 / l3 (always)"
+        )
+    ]
+    geometry = json.loads((out / "metrics.json").read_text())["geometry"]
+    assert geometry["computed_disabled"] == [{"pair": "l1 / l3", "reason": "always"}]
+
+
+def test_the_run_and_the_planner_share_one_geometry_per_robot_limits(tmp_path, monkeypatch):
+    """The pairs computed without an SRDF (a thousand samples) once per run: the run's
+    clearance check takes the planner's geometry from the model cache; a robot of the same
+    kinematics with other limits gets its own (its samples are drawn inside its limits)."""
+    from balance_opt.app.models import ModelCache
+    from balance_opt.app.pipeline import run_task
+    from balance_opt.optimal.collision import check_start
+    from balance_opt.tasks.task import load_task
+
+    path = _wrist_task(tmp_path)
+    path.write_text(path.read_text().replace("robot:\n", "robot:\n  backend: adam\n"))
+    task = load_task(path)
+    computed = []
+    disabled_pairs = self_collision.disabled_pairs
+
+    def counted(*args):
+        computed.append(args)
+        return disabled_pairs(*args)
+
+    monkeypatch.setattr(self_collision, "disabled_pairs", counted)
+    models = ModelCache(compile=False)
+    model = models.planner_model(task.robot, "adam")
+    options = task.planner_options()
+    geometry = check_start(model.collisions, options, task.q0, task.robot)  # as plan_part does
+    run = run_task(task, methods=("analytic",), models=models)
+    assert run.geometry is geometry and len(computed) == 1
+    assert run_task(task, methods=("analytic",)).geometry is not geometry  # no planner model
+    assert len(computed) == 2
+    narrow = FloatingRobot(
+        wrist_urdf(), ["j1", "j2", "j3"], ["k1", "k2"], limits={"j2": {"lower": 0.3}}
+    )
+    other = model.collisions.geometry(options.collision_ignore, options.collision_srdf, narrow)
+    assert other is not geometry and len(computed) == 3
+    assert (geometry.ignored[("l1", "l3")], other.ignored[("l1", "l3")]) == ("always", "default")

@@ -101,11 +101,20 @@ def plan_part(
         law = dataclasses.replace(a.law, h0=tuple(float(v) for v in h0))
         return rollout(robot, mission, q_B0, law, integration=a.integration)
     from balance_opt.app.models import ModelCache
+    from balance_opt.optimal.collision import InitialCollisionError, check_start
     from balance_opt.optimal.solve import build_balance_nlp
+    from balance_opt.tasks.task import start_error
 
     model = (models if models is not None else ModelCache()).planner_model(
         robot, task.spec.robot.backend
     )
+    try:  # before the planner's kinematics are built
+        q0 = np.r_[mission.sample(np.zeros(1))[0].ravel(), q_B0]
+        check_start(model.collisions, options, q0, robot)
+    except InitialCollisionError as exc:
+        if robot is not task.robot:  # the start after a capture: no key of the task sets it
+            raise
+        raise start_error(task, str(exc), exc.balance) from exc
     nlp = build_balance_nlp(model, mission, q_B0, options, robot=robot, h0=h0)
     return nlp.solve(guess, executor)
 

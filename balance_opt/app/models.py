@@ -47,6 +47,13 @@ class ModelCache:
             model.upgrade_kernels()  # a background compilation may have finished meanwhile
         return model
 
+    def collisions(self, robot: FloatingRobot, backend: str = "auto"):
+        """The collision models (:class:`~balance_opt.optimal.collision.CollisionModels`) of
+        the planner model of ``robot``'s kinematics and ``backend`` if one was built (nothing is
+        built for this), else ``None``."""
+        model = self._models.get(f"{kinematics_key(robot)}/{backend}")
+        return None if model is None else model.collisions
+
     def __len__(self) -> int:
         return len(self._models)
 

@@ -257,24 +257,42 @@ def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
     ), scene
 
 
-def run_geometry(run: TaskRun):
+def run_geometry(run: TaskRun, models: ModelCache | None = None):
     """The run's robot geometry (:class:`~balance_opt.geometry.robot_geometry.RobotGeometry`),
-    built once and kept on ``run.geometry``; ``False`` for a robot without geometry (a log line
-    says so) or whose geometry does not load (a missing mesh: a warning)."""
+    built once and kept on ``run.geometry``: the optimal planner's when ``models`` holds its
+    planner model (the pairs computed without an SRDF cost a thousand samples); ``False`` for
+    a robot without geometry (a log line says so) or whose geometry does not load (a missing
+    mesh: a warning)."""
     from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
 
     if run.geometry is None:
-        planner = run.task.spec.optimal.planner
+        task, planner = run.task, run.task.spec.optimal.planner
+        collisions = (
+            None if models is None else models.collisions(task.robot, task.spec.robot.backend)
+        )
         try:
-            run.geometry = RobotGeometry(
-                run.task.robot, srdf=planner.collision_srdf, ignore=planner.collision_ignore
-            )
+            if collisions is not None:
+                run.geometry = collisions.geometry(
+                    planner.collision_ignore, planner.collision_srdf, task.robot
+                )
+            else:
+                run.geometry = RobotGeometry(
+                    task.robot, srdf=planner.collision_srdf, ignore=planner.collision_ignore
+                )
         except NoGeometryError as exc:
             log.info("%s: no clearance check: %s", run.task.name, exc)
             run.geometry = False
         except InputError as exc:  # a mesh file missing: the plans still count
             log.warning("%s: no clearance check: %s", run.task.name, exc)
             run.geometry = False
+        else:  # nobody reviews pairs computed without an SRDF: say which, once per run
+            computed = run.geometry.computed
+            if computed:
+                log.info(
+                    "%s: no SRDF: link pairs left out as computed (robot.srdf to choose): %s",
+                    run.task.name,
+                    ", ".join(f"{n} ({r})" for n, r in computed),
+                )
     return run.geometry
 
 
@@ -594,6 +612,7 @@ def run_task(
                     run.failures[method] = f"given plan: solver status {given[method].status}"
             else:
                 _plan_into(run, method, solver_options, models, executor)
+        run_geometry(run, models)  # the planner's, if it planned
         if robustness:
             _model_error_into(run)
         motions = {n: (r.t, np.hstack([r.q_M, r.q_B])) for n, r in run.results.items()}

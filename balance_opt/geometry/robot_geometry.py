@@ -259,11 +259,20 @@ class RobotGeometry:
         """The link pairs the robot leaves out, not the task (``ignored`` less the task's)."""
         return {k: r for k, r in self.ignored.items() if r != "ignored"}
 
+    @property
+    def computed(self) -> list[tuple[str, str]]:
+        """The link pairs disabled by the rules of
+        :mod:`~balance_opt.geometry.self_collision` (no SRDF), as ``(pair name, reason)``,
+        sorted (empty with an SRDF)."""
+        return sorted(
+            (f"{a} / {b}", r) for (a, b), r in self.ignored.items() if r in ("default", "always")
+        )
+
     def summary(self, q, margin: float = 0.0) -> dict:
         """What is checked, as plain data (``metrics.json``'s ``geometry``, ``inspect``): the
         geometry's source, the SRDF, the samples of computed pairs, the checked pairs, the pairs
-        left out by reason, and the pairs closer than ``margin`` [m] at ``q``, closest
-        first."""
+        left out by reason, the computed ones by name, and the pairs closer than ``margin`` [m]
+        at ``q``, closest first."""
         reasons = ("same body", "adjacent", "default", "always", "srdf", "ignored")
         ignored = dict.fromkeys(reasons, 0)
         for reason in self.ignored.values():
@@ -276,6 +285,7 @@ class RobotGeometry:
             "samples": self.samples,
             "pairs_checked": len(self.pairs),
             "link_pairs_ignored": ignored,
+            "computed_disabled": [{"pair": n, "reason": r} for n, r in self.computed],
             "margin_m": float(margin),
             "initial_contacts": [{"pair": n, "distance_m": x} for x, n in close if x <= 0.0],
             "initial_within_margin": [{"pair": n, "distance_m": x} for x, n in close if x > 0.0],

@@ -6,7 +6,8 @@ Besides the pairs of one body and of adjacent bodies (left out by
 
 - ``"default"``: in contact in the reference pose: the arm joints at zero (inside their limits:
   :meth:`~balance_opt.model.robot.FloatingRobot.neutral`), the locked joints at the task's
-  values (they are fixed in the robot's reduced model);
+  values (they are fixed in the robot's reduced model), and in at least :data:`DEFAULT` of the
+  sampled configurations as well;
 - ``"always"``: in contact in at least :data:`ALWAYS` of :data:`SAMPLES` configurations drawn
   uniformly inside the arm joints' limits (seeded: the same robot gives the same pairs).
 
@@ -31,6 +32,15 @@ SAMPLES = 1000
 #: Share of the samples a pair must be in contact in to be disabled as ``"always"`` (MoveIt's
 #: default 95 %).
 ALWAYS = 0.95
+#: Share of the samples a pair in contact in the reference pose must be in contact in too, to
+#: be disabled as ``"default"``. MoveIt disables every pair in contact there and counts on a
+#: person reviewing the list in its setup assistant; here nobody does, and the reference pose
+#: is also the default balance start. Pairs that overlap by design (Talos's and Baxter's wrist
+#: and elbow hulls) are in contact in every sample; those the pose alone puts in contact
+#: (Talos's hands in its thighs' hulls) in about 1 %: a share above one half tells one from
+#: the other with a wide gap on both sides, and a pair kept so is checked (a start in contact
+#: on it is refused) rather than silently dropped.
+DEFAULT = 0.5
 #: Seed of the samples.
 SEED = 0
 #: The SRDF ``reason`` of each reason a pair is left out (``"ignored"``: by the task, not
@@ -70,14 +80,18 @@ def disabled_pairs(geometry, samples: int = SAMPLES) -> dict[tuple[str, str], st
     """The link pairs among ``geometry.pairs`` to disable, ``{(link, link): "default" |
     "always"}``.
 
-    The ``"always"`` rule drops a pair from the count at its ``samples - ceil(ALWAYS samples) +
-    1``-th sample out of contact, so that most pairs cost a few distances, not ``samples``.
+    A pair is dropped from the count at its first sample out of contact beyond the share its
+    rule allows (:data:`DEFAULT` for a pair in contact in the reference pose, :data:`ALWAYS`
+    for the others), so that most pairs cost a few distances, not ``samples``.
     """
     by_link = _link_pairs(geometry.pairs)
     geometry.place(geometry.robot.neutral())
-    out = {links: "default" for links, idx in by_link.items() if _in_contact(geometry, idx)}
-    alive = {links: 0 for links in by_link if links not in out}  # -> samples out of contact
-    allowed = samples - math.ceil(ALWAYS * samples)
+    reference = {links for links, idx in by_link.items() if _in_contact(geometry, idx)}
+    allowed = {  # samples out of contact a pair may be in and still be disabled
+        links: samples - math.ceil((DEFAULT if links in reference else ALWAYS) * samples)
+        for links in by_link
+    }
+    alive = dict.fromkeys(by_link, 0)  # -> samples out of contact
     for q in sample_configurations(geometry.robot, samples):
         if not alive:
             break
@@ -85,10 +99,9 @@ def disabled_pairs(geometry, samples: int = SAMPLES) -> dict[tuple[str, str], st
         for links in list(alive):
             if not _in_contact(geometry, by_link[links]):
                 alive[links] += 1
-                if alive[links] > allowed:
+                if alive[links] > allowed[links]:
                     del alive[links]
-    out.update(dict.fromkeys(alive, "always"))
-    return out
+    return {links: "default" if links in reference else "always" for links in alive}
 
 
 def srdf_text(robot_name: str, disabled: Mapping[tuple[str, str], str]) -> str:
@@ -103,4 +116,3 @@ def srdf_text(robot_name: str, disabled: Mapping[tuple[str, str], str]) -> str:
         )
         item.tail = "\n  " if k + 1 < len(written) else "\n"
     return ET.tostring(root, encoding="unicode") + "\n"
-

@@ -4,7 +4,8 @@
 order holds everywhere and a mesh not found is one error that names the folders searched.
 
 Search order of ``package://NAME/REST``: the folders the task's ``robot.packages`` lists, those of
-``ROS_PACKAGE_PATH``, the URDF's folder and the three above it, and, for NAME
+``ROS_PACKAGE_PATH``, the URDF's folder and the three above it (never the filesystem's root,
+which holds no package), and, for NAME
 ``example-robot-data``, the installed example-robot-data. In each folder ``F`` the mesh is
 ``F/NAME/REST``, or ``F/REST`` when ``F`` is itself named NAME.
 """
@@ -30,13 +31,23 @@ PACKAGES_KEY = "robot.packages"
 
 
 class MeshNotFoundError(InputError):
-    """A mesh file that none of the folders searched holds."""
+    """A mesh file that none of the folders searched holds; with the URDF (its file, or
+    ``<...>`` for text) and the link that names it when they are known."""
 
-    def __init__(self, uri: str, searched: Sequence[tuple[Path, str]], hint: str):
-        self.uri = uri
-        self.searched = list(searched)
+    def __init__(
+        self,
+        uri: str,
+        searched: Sequence[tuple[Path, str]],
+        hint: str,
+        source: str | None = None,
+        link: str | None = None,
+    ):
+        self.uri, self.searched, self.hint = uri, list(searched), hint
+        self.source, self.link = source, link
         where = "; ".join(f"{folder} ({origin})" for folder, origin in searched) or "no folder"
-        super().__init__(f"mesh {uri} not found; folders searched: {where}; {hint}")
+        urdf = "" if source is None else "URDF text: " if source.startswith("<") else f"{source}: "
+        owner = "" if link is None else f"link {link}: "
+        super().__init__(f"{urdf}{owner}mesh {uri} not found; folders searched: {where}; {hint}")
 
 
 def _example_share() -> Path | None:
@@ -59,13 +70,15 @@ def package_folders(
 ) -> list[tuple[Path, str]]:
     """The folders searched for the meshes of package ``name``, in order, each with where it
     comes from: ``packages`` (``robot.packages``), ``ROS_PACKAGE_PATH``, the URDF's folder and
-    the :data:`FOLDERS_ABOVE` above it, and example-robot-data's share folder for its own name."""
+    the :data:`FOLDERS_ABOVE` above it (not the root), and example-robot-data's share folder
+    for its own name."""
     out = [(Path(p), PACKAGES_KEY) for p in packages]
     ros = os.environ.get("ROS_PACKAGE_PATH", "")
     out += [(Path(p), "ROS_PACKAGE_PATH") for p in ros.split(os.pathsep) if p]
     if urdf_path is not None:
         folder = urdf_path.resolve().parent
-        out += [(p, "above the URDF") for p in [folder, *folder.parents][: FOLDERS_ABOVE + 1]]
+        above = [folder, *folder.parents][: FOLDERS_ABOVE + 1]
+        out += [(p, "above the URDF") for p in above if p.parent != p]
     if name == EXAMPLE_PACKAGE:
         share = _example_share()
         if share is not None:
@@ -135,14 +148,17 @@ def resolved_urdf(
     found: dict[str, str] = {}
     folders: dict[str, list[tuple[Path, str]]] = {}  # searched once per package
     for k in kinds:
-        for mesh in root.iterfind(f"link/{k}/geometry/mesh"):
-            uri = mesh.get("filename", "")
-            if uri not in found:
-                try:
-                    found[uri] = str(resolve_mesh(uri, urdf_path, packages, folders))
-                except MeshNotFoundError:
-                    if strict:
-                        raise
-                    found[uri] = uri
-            mesh.set("filename", found[uri])
+        for link in root.iterfind("link"):
+            for mesh in link.iterfind(f"{k}/geometry/mesh"):
+                uri = mesh.get("filename", "")
+                if uri not in found:
+                    try:
+                        found[uri] = str(resolve_mesh(uri, urdf_path, packages, folders))
+                    except MeshNotFoundError as exc:
+                        if strict:  # the file and the link the user looks for
+                            raise MeshNotFoundError(
+                                uri, exc.searched, exc.hint, source, link.get("name")
+                            ) from None
+                        found[uri] = uri
+                mesh.set("filename", found[uri])
     return ET.tostring(root, encoding="unicode") if found else text

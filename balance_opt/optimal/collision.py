@@ -42,11 +42,22 @@ ALONE_GAP = 0.01
 
 class InitialCollisionError(InputError):
     """Checked pairs in contact at a plan's initial configuration: no plan can keep them
-    apart, and every plan's clearance check would report them."""
+    apart, and every plan's clearance check would report them.
+
+    Attributes:
+        pairs: the pairs in contact, by name.
+        balance: whether a body the balance joints move is among them (the balance start is at
+            fault, not the mission's alone).
+    """
 
     def __init__(self, geometry: RobotGeometry, q0: np.ndarray, contacts: list[Pair]):
         d = geometry.distances(q0, [p.index for p in contacts])
         self.pairs = [p.name for p in contacts]
+        robot = geometry.robot
+        moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
+        self.balance = any(
+            {geometry.body(p.first), geometry.body(p.second)} & moved for p in contacts
+        )
         pairs = ", ".join(f"{p.name} ({max(-x, 0.0):.4f} m deep)" for p, x in zip(contacts, d))
         super().__init__(
             f"{geometry.robot.name}: the initial configuration is in collision: {pairs}; "
@@ -101,6 +112,12 @@ class CollisionSetup:
         }
 
 
+def _robot_key(robot) -> tuple:
+    """What of a robot of the model's kinematics its geometry depends on: the limits (the
+    samples of the pairs computed without an SRDF are drawn inside them) and the mesh folders."""
+    return (robot.limits.lower.tobytes(), robot.limits.upper.tobytes(), robot.packages)
+
+
 class CollisionModels:
     """A robot's collision geometry and rows, built once per planner model: its geometry per
     set of ignored pairs, the setup of each problem's start, each rows key's rows with their
@@ -113,10 +130,15 @@ class CollisionModels:
         #: rows key -> (rows, ``clearance_rows(q_model)``)
         self.rows: dict = {}
 
-    def geometry(self, ignore=(), srdf: str | None = None) -> RobotGeometry:
-        key = (tuple(sorted(tuple(sorted(p)) for p in ignore)), srdf)
+    def geometry(self, ignore=(), srdf: str | None = None, robot=None) -> RobotGeometry:
+        """The geometry of ``robot`` (default: the model's; the model's kinematics, possibly
+        other limits) with the pairs ``ignore`` and ``srdf`` left out, built once: the planner
+        and a run's clearance check share it (``app.pipeline.run_geometry``)."""
+        robot = self.robot if robot is None else robot
+        ignore = tuple(sorted(tuple(sorted(p)) for p in ignore))
+        key = (ignore, srdf, _robot_key(robot))
         if key not in self.geometries:
-            self.geometries[key] = RobotGeometry(self.robot, srdf=srdf, ignore=key[0])
+            self.geometries[key] = RobotGeometry(robot, srdf=srdf, ignore=ignore)
         return self.geometries[key]
 
     def function(self, rows: ClearanceRows, placements: cs.Function) -> cs.Function:
@@ -178,36 +200,60 @@ def _out_of_reach(geometry: RobotGeometry, pairs, moved: set[int], beyond: float
     return out
 
 
-def collision_setup(model, options, q0: np.ndarray) -> CollisionSetup | None:
+def collision_setup(model, options, q0: np.ndarray, robot=None) -> CollisionSetup | None:
     """The collision avoidance of a problem of ``model`` (a
-    :class:`~balance_opt.optimal.model.PlannerModel`) starting at the arm configuration ``q0``;
-    ``None`` when ``options.collision_avoidance`` is off or no pair involves the balance arm."""
+    :class:`~balance_opt.optimal.model.PlannerModel`) for ``robot`` (default: the model's)
+    starting at the arm configuration ``q0``; ``None`` when ``options.collision_avoidance`` is
+    off or no pair involves the balance arm."""
     if not options.collision_avoidance:
         return None
+    robot = model.robot if robot is None else robot
     # the stages and refinements of one plan are variants of one problem: built once
     key = (
         options.collision_ignore,
         options.collision_srdf,
         options.collision_margin,
         np.asarray(q0, float).tobytes(),
+        _robot_key(robot),
     )
     setups = model.collisions.setups
     if key not in setups:  # the shapes placed by the planner's own kinematics
-        setups[key] = _setup(model.collisions, options, q0, model.maps.joint_placements_fun())
+        placements = model.maps.joint_placements_fun()
+        setups[key] = _setup(model.collisions, options, q0, placements, robot)
     return setups[key]
 
 
-def _setup(models: CollisionModels, options, q0: np.ndarray, placements) -> CollisionSetup | None:
+def check_start(
+    models: CollisionModels, options, q0: np.ndarray, robot=None
+) -> RobotGeometry | None:
+    """The geometry a problem of ``options`` for ``robot`` (default: the model's) starting at
+    the arm configuration ``q0`` keeps apart (``None``: no avoidance, or no geometry), checked
+    before anything else is built.
+
+    Raises:
+        InitialCollisionError: checked pairs in contact at ``q0``.
+    """
+    if not options.collision_avoidance:
+        return None
     try:
-        geometry = models.geometry(options.collision_ignore, options.collision_srdf)
+        geometry = models.geometry(options.collision_ignore, options.collision_srdf, robot)
     except NoGeometryError as exc:  # nothing to keep apart
         log.info("no collision avoidance: %s", exc)
         return None
-    robot = geometry.robot
-    moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
     contacts = geometry.contacts(q0)
     if contacts:  # not disabled (SRDF, reference pose, nearly always): the task's own fault
         raise InitialCollisionError(geometry, q0, contacts)
+    return geometry
+
+
+def _setup(
+    models: CollisionModels, options, q0: np.ndarray, placements, robot
+) -> CollisionSetup | None:
+    geometry = check_start(models, options, q0, robot)
+    if geometry is None:
+        return None
+    robot = geometry.robot
+    moved = moved_by(geometry, [robot.joint_names[i] for i in robot.balance_indices])
     left_out = {}
     pairs = []
     for p in geometry.pairs:

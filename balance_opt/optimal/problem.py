@@ -377,7 +377,8 @@ class BalanceProblem:
             )
         self._check_configurations()
         q_M0 = np.atleast_2d(mission.sample(np.zeros(1))[0])[0]
-        self.collision = collision = collision_setup(model, options, np.concatenate([q_M0, q_B0]))
+        q0 = np.concatenate([q_M0, q_B0])
+        self.collision = collision = collision_setup(model, options, q0, robot)
         self.N = options.intervals
         self.h = horizon / self.N
         self.transcription = Transcription(options.transcription)

@@ -26,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
-from balance_opt.model.meshes import resolved_urdf
+from balance_opt.model.meshes import MeshNotFoundError, resolved_urdf
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import (
@@ -103,6 +103,8 @@ def visual_model(robot: FloatingRobot) -> pin.GeometryModel:
     try:
         text = resolved_urdf(robot.locked_urdf, robot.source, robot.packages, "visual")
         return pin.buildGeomFromUrdfString(robot.model, text, pin.VISUAL)
+    except MeshNotFoundError as exc:  # it names the URDF and the link
+        raise InputError(f"cannot load the visual geometry: {exc}") from exc
     except (ValueError, RuntimeError, InputError) as exc:
         raise InputError(f"{robot.source}: cannot load the visual geometry: {exc}") from exc
 

@@ -463,6 +463,26 @@ def _set_positions(m, col: int) -> list[tuple[tuple, float]]:
     return [(("mission", "start", col), m.start[col])]  # cartesian: the goal is solved for
 
 
+def start_error(task: Task, reason: str, balance: bool) -> TaskFileError:
+    """``reason``, a start in collision (found when the optimal planner sets up its collision
+    avoidance, where the geometry is built), located at the key that sets the start:
+    ``initial.balance`` when a pair the balance arm moves is in contact (``balance``), else
+    the mission's start."""
+    spec, doc = task.spec, task.document
+    if balance and spec.initial.balance is None:  # the key to add: no line of its own
+        reason += " (not given: the balance arm starts at zero, inside its limits)"
+        return TaskFileError(
+            doc.source, doc.lines.get(("initial",)), ("initial", "balance"), reason
+        )
+    if balance:
+        return doc.error(("initial", "balance"), reason)
+    m = spec.mission
+    key = {CsvMission: ("mission", "file"), ViaMission: ("mission", "points", 0)}.get(
+        type(m), ("mission", "start")
+    )
+    return doc.error(key, reason)
+
+
 def _mission_key(spec: TaskSpec, kind: str, col: int, lim: tuple[float, float]) -> tuple:
     """Where the task sets what makes mission joint ``col`` leave its ``kind`` limit: a start,
     goal or via point outside the position limits, else the duration (or the times, the file)."""
