@@ -98,7 +98,10 @@ def baxter(folder: Path) -> tuple[Path, dict]:
     (package / "urdf").mkdir(parents=True)
     (package / "urdf" / "baxter.urdf").write_text(text)
     task = package / "urdf" / "baxter.yaml"
-    untucked = "[0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0]"
+    # examples/baxter_floating.yaml's untucked arms bend the wrist (w1) to 1.26 rad, where
+    # the URDF's wrist and forearm-cover cylinders overlap by 9.8 mm (a pair Baxter's own SRDF
+    # leaves out by hand, "User"): without it the start is in collision, and a user moves it
+    untucked = "[0.0, -0.55, 0.0, 0.75, 0.0, 0.6, 0.0]"
     task.write_text(
         "name: baxter_user\nrobot:\n  urdf: baxter.urdf\n"
         f"arms:\n  mission: {list(BAXTER_LEFT_ARM)}\n  balance: {list(BAXTER_RIGHT_ARM)}\n"
