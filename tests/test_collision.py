@@ -489,7 +489,8 @@ def test_a_mesh_is_its_convex_hull_by_an_independent_computation():
         + "</robot>"
     )
     geometry = RobotGeometry(FloatingRobot(urdf, ["swing"], ["reach"]), srdf=False)
-    obj = next(o for o in geometry.geometry_model.geometryObjects if isinstance(o.geometry, coal.ConvexBase))
+    objects = geometry.geometry_model.geometryObjects
+    obj = next(o for o in objects if isinstance(o.geometry, coal.ConvexBase))
     vertices = np.asarray(coal.MeshLoader().load(str(stl), np.ones(3)).vertices())
     hull = ConvexHull(vertices)
     assert obj.geometry.num_points == len(hull.vertices) < len(vertices)
