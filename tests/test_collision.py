@@ -398,7 +398,8 @@ def test_inspect_says_what_is_checked_and_what_starts_in_contact(tmp_path, capsy
     assert (
         "link pairs left out: 0 same body, 3 adjacent, 0 by the SRDF, 0 computed, 0 ignored by "
         "the task\n  pairs left out computed (no SRDF): 3 adjacent, 0 in the reference pose, 0 "
-        "in nearly every sampled configuration (1000 samples)\n"
+        "in nearly every sampled configuration, 0 one body apart and never more than 0.02 m "
+        "apart (1000 samples)\n"
     ) in out
     assert "4 pairs checked" in out
     assert "  at the initial configuration every pair is at least 0.03 m apart\n" in out

@@ -280,7 +280,7 @@ class RobotGeometry:
         geometry's source, the SRDF, the samples of computed pairs, the checked pairs, the pairs
         left out by reason, and the pairs closer than ``margin`` [m] at ``q``, closest
         first."""
-        reasons = ("same body", "adjacent", "default", "always", "srdf", "ignored")
+        reasons = ("same body", "adjacent", "default", "always", "near", "srdf", "ignored")
         ignored = dict.fromkeys(reasons, 0)
         for reason in self.ignored.values():
             ignored[reason] += 1
