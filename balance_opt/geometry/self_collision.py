@@ -63,13 +63,13 @@ def _link_pairs(pairs) -> dict[tuple[str, str], list[int]]:
 
 
 def _distance(geometry, indices: Iterable[int]) -> float:
+    """The smallest exact distance [m] of the object pairs ``indices`` where they are placed."""
     gm, gd = geometry.geometry_model, geometry.geometry_data
     return min(pin.computeDistance(gm, gd, int(k)).min_distance for k in indices)
 
 
 def _in_contact(geometry, indices: Iterable[int]) -> bool:
-    gm, gd = geometry.geometry_model, geometry.geometry_data
-    return any(pin.computeDistance(gm, gd, int(k)).min_distance <= 0.0 for k in indices)
+    return _distance(geometry, indices) <= 0.0
 
 
 def _one_apart(geometry, index: int) -> bool:
