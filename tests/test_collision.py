@@ -355,7 +355,8 @@ def test_geometry_summary_against_coal(toy):
     assert (s["source"], s["srdf"], s["pairs_checked"]) == ("collision", None, 4)
     assert s["samples"] == 1000
     assert s["link_pairs_ignored"] == {
-        "same body": 0, "adjacent": 3, "default": 0, "always": 0, "srdf": 0, "ignored": 0
+        "same body": 0, "adjacent": 3, "default": 0, "always": 0, "near": 0, "srdf": 0,
+        "ignored": 0,
     }  # fmt: skip
     # coal's penetration depth (EPA, warm-started) varies in its last digits between calls
     [contact] = s["initial_contacts"]
