@@ -294,6 +294,7 @@ def _print_geometry(task):
     initial configuration; the geometry, or None when it does not load."""
     from balance_opt.errors import InputError
     from balance_opt.geometry.robot_geometry import NoGeometryError, RobotGeometry
+    from balance_opt.geometry.self_collision import NEAR
 
     planner = task.spec.optimal.planner
     try:
@@ -311,8 +312,9 @@ def _print_geometry(task):
     print(
         f"geometry from the URDF's <{s['source']}> elements: {s['pairs_checked']} pairs checked; "
         f"link pairs left out: {left_out['same body']} same body, {left_out['adjacent']} "
-        f"adjacent, {left_out['srdf']} by the SRDF, {left_out['default'] + left_out['always']} "
-        f"computed, {left_out['ignored']} ignored by the task"
+        f"adjacent, {left_out['srdf']} by the SRDF, "
+        f"{left_out['default'] + left_out['always'] + left_out['near']} computed, "
+        f"{left_out['ignored']} ignored by the task"
     )
     if s["srdf"] is not None:
         print(f"  pairs left out by the SRDF {s['srdf']}")
@@ -320,9 +322,11 @@ def _print_geometry(task):
         print(
             f"  pairs left out computed (no SRDF): {left_out['adjacent']} adjacent, "
             f"{left_out['default']} in the reference pose, {left_out['always']} in nearly "
-            f"every sampled configuration ({s['samples']} samples)"
+            f"every sampled configuration, {left_out['near']} one body apart and never more "
+            f"than {NEAR:g} m apart ({s['samples']} samples)"
         )
-        for reason, what in (("default", "reference pose"), ("always", "nearly always")):
+        reasons = ("default", "reference pose"), ("always", "nearly always"), ("near", "near")
+        for reason, what in reasons:
             pairs = [f"{a} / {b}" for (a, b), r in sorted(geometry.ignored.items()) if r == reason]
             if pairs:
                 print(f"    {what}: {', '.join(pairs)}")

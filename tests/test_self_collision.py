@@ -173,7 +173,8 @@ def test_write_srdf_round_trips_and_keeps_an_existing_file(tmp_path, capsys):
         "geometry from the URDF's <collision> elements: 5 pairs checked; link pairs left out: "
         "0 same body, 1 adjacent, 0 by the SRDF, 1 computed, 0 ignored by the task\n"
         "  pairs left out computed (no SRDF): 1 adjacent, 0 in the reference pose, 1 in nearly "
-        "every sampled configuration (1000 samples)\n"
+        "every sampled configuration, 0 one body apart and never more than 0.02 m apart "
+        "(1000 samples)\n"
         "    nearly always: l1 / l3\n"
     ) in out
     assert f"wrote {srdf}: 2 disabled link pairs\n" in out
@@ -349,3 +350,52 @@ def test_the_run_and_the_planner_share_one_geometry_per_robot_limits(tmp_path, m
     other = model.collisions.geometry(options.collision_ignore, options.collision_srdf, narrow)
     assert other is not geometry and len(computed) == 3
     assert (geometry.ignored[("l1", "l3")], other.ignored[("l1", "l3")]) == ("always", "default")
+
+
+def near_urdf() -> str:
+    """A 0.2 m cube with two arms alike but for one offset: ``a1`` (about z) turns a 0.3 m
+    post (radius 0.03) whose top is ``gap`` below ``a2`` (about y, a link without geometry),
+    which swings a 0.3 m rod (radius 0.03) starting 0.01 m from ``a2``; post and rod are one
+    body apart. The balance arm's gap is 5 mm: post and rod are never more than 15 mm apart,
+    and touch as the rod swings down. The mission arm's gap is 0.1 m: they are up to 0.11 m
+    apart."""
+    post, rod = '<cylinder radius="0.03" length="0.3"/>', '<cylinder radius="0.03" length="0.3"/>'
+    out = '<robot name="near">' + _link("base", 100.0, ("0 0 0", '<box size="0.2 0.2 0.2"/>'))
+    for arm, y, gap in (("m", 0.5, 0.1), ("b", -0.5, 0.005)):
+        out += (
+            _link(f"{arm}_post", 2.0, ("0 0 0.15", post))
+            + _link(f"{arm}_hub", 1.0)
+            + _link(f"{arm}_rod", 2.0, ("0 0 0.16", rod))
+            + _joint(f"{arm}1", "base", f"{arm}_post", f"0 {y} 0.1", "0 0 1", 3.0)
+            + _joint(f"{arm}2", f"{arm}_post", f"{arm}_hub", f"0 0 {0.3 + gap}", "0 1 0", 1.5)
+            + _joint(f"{arm}3", f"{arm}_hub", f"{arm}_rod", "0 0 0", "0 0 1", 3.0)
+        )
+    return out + "</robot>"
+
+
+def test_bodies_one_apart_never_clear_of_each_other_are_disabled_as_near():
+    """A pair of bodies one body apart that never gets 2 cm clear (the balance arm's post and
+    rod, 5 mm apart at best, by an independent grid over the joint that moves them apart) is
+    disabled as ``near``: no motion can keep it clear, as none can keep adjacent bodies apart;
+    the same pair with a 0.1 m gap (the mission arm's) is checked, and so is the base against
+    each rod (one body apart too, but far). Written as an SRDF, the pair is ``Adjacent``."""
+    robot = FloatingRobot(near_urdf(), ["m1", "m2", "m3"], ["b1", "b2", "b3"])
+    geometry = RobotGeometry(robot, srdf=False)
+    near = {k for k, r in geometry.ignored.items() if r == "near"}
+    assert near == {("b_post", "b_rod")}
+    checked = {tuple(sorted(p.links)) for p in geometry.pairs}
+    assert {("m_post", "m_rod"), ("b_rod", "base"), ("base", "m_rod")} <= checked
+    every = RobotGeometry(robot, disabled={})  # nothing computed: every pair's distance
+    grid = np.zeros((301, robot.n))
+    grid[:, [1, 4]] = np.linspace(-1.5, 1.5, 301)[:, None]  # m2 and b2 over their range
+    along = {
+        links: every.smallest_along(grid, _object_pairs(every, links))
+        for links in (("b_post", "b_rod"), ("m_post", "m_rod"))
+    }
+    far = {links: d.max() for links, d in along.items()}
+    assert far[("b_post", "b_rod")] == pytest.approx(0.015, abs=1e-6)
+    assert along[("b_post", "b_rod")].min() < 0.0  # it can collide: the rule is not "never"
+    assert far[("m_post", "m_rod")] > 0.1
+    assert 'link1="b_post" link2="b_rod" reason="Adjacent"' in self_collision.srdf_text(
+        "near", geometry.disabled
+    )

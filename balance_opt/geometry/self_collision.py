@@ -9,7 +9,12 @@ Besides the pairs of one body and of adjacent bodies (left out by
   values (they are fixed in the robot's reduced model), and in at least :data:`DEFAULT` of the
   sampled configurations as well;
 - ``"always"``: in contact in at least :data:`ALWAYS` of :data:`SAMPLES` configurations drawn
-  uniformly inside the arm joints' limits (seeded: the same robot gives the same pairs).
+  uniformly inside the arm joints' limits (seeded: the same robot gives the same pairs);
+- ``"near"``: of bodies one body apart (a joint's parent body and its child's child) and never
+  more than :data:`NEAR` apart, in the reference pose and every sample: they meet at the body
+  between them, as adjacent bodies meet at their joint (the UR5's wrist 1 and 3, forearm and
+  wrist 2, base and upper arm, Baxter's shoulder and elbow, Talos's arm 5 and its wrist's force
+  sensor: each disabled by the robot's own SRDF too).
 
 A link pair is in contact when one of its objects' pairs is (exact distance <= 0, as the
 clearance check counts it). The captured target's pairs are never disabled so.
@@ -43,6 +48,9 @@ ALWAYS = 0.95
 DEFAULT = 0.5
 #: Seed of the samples.
 SEED = 0
+#: Largest distance [m] of a ``"near"`` pair: bodies one body apart that are never farther apart
+#: than this cannot be kept clear by any motion (the users' robots' near pairs: at most 18 mm).
+NEAR = 0.02
 #: The SRDF ``reason`` of each reason a pair is left out (``"ignored"``: by the task, not
 #: written).
 SRDF_REASONS = {
@@ -50,6 +58,7 @@ SRDF_REASONS = {
     "adjacent": "Adjacent",
     "default": "Default",
     "always": "Always",
+    "near": "Adjacent",
     "srdf": "User",
 }
 
@@ -63,9 +72,22 @@ def _link_pairs(pairs) -> dict[tuple[str, str], list[int]]:
     return out
 
 
-def _in_contact(geometry, indices: Iterable[int]) -> bool:
+def _distance(geometry, indices: Iterable[int]) -> float:
+    """The smallest exact distance [m] of the object pairs ``indices`` where they are placed."""
     gm, gd = geometry.geometry_model, geometry.geometry_data
-    return any(pin.computeDistance(gm, gd, int(k)).min_distance <= 0.0 for k in indices)
+    return min(pin.computeDistance(gm, gd, int(k)).min_distance for k in indices)
+
+
+def _in_contact(geometry, indices: Iterable[int]) -> bool:
+    return _distance(geometry, indices) <= 0.0
+
+
+def _one_apart(geometry, index: int) -> bool:
+    """Whether the bodies of object pair ``index`` are one body apart (grandparent and child)."""
+    pair = geometry.geometry_model.collisionPairs[index]
+    a, b = geometry.body(pair.first), geometry.body(pair.second)
+    parents = geometry.model.parents
+    return (a > 0 and parents[parents[a]] == b) or (b > 0 and parents[parents[b]] == a)
 
 
 def sample_configurations(robot, samples: int = SAMPLES, seed: int = SEED) -> np.ndarray:
@@ -78,11 +100,12 @@ def sample_configurations(robot, samples: int = SAMPLES, seed: int = SEED) -> np
 
 def disabled_pairs(geometry, samples: int = SAMPLES) -> dict[tuple[str, str], str]:
     """The link pairs among ``geometry.pairs`` to disable, ``{(link, link): "default" |
-    "always"}``.
+    "always" | "near"}``.
 
-    A pair is dropped from the count at its first sample out of contact beyond the share its
-    rule allows (:data:`DEFAULT` for a pair in contact in the reference pose, :data:`ALWAYS`
-    for the others), so that most pairs cost a few distances, not ``samples``.
+    A pair is dropped from the ``"default"``/``"always"`` count at its first sample out of
+    contact beyond the share its rule allows (:data:`DEFAULT` for a pair in contact in the
+    reference pose, :data:`ALWAYS` for the others), and from the ``"near"`` one at its first
+    sample farther than :data:`NEAR`, so that most pairs cost a few distances, not ``samples``.
     """
     by_link = _link_pairs(geometry.pairs)
     geometry.place(geometry.robot.neutral())
@@ -92,8 +115,13 @@ def disabled_pairs(geometry, samples: int = SAMPLES) -> dict[tuple[str, str], st
         for links in by_link
     }
     alive = dict.fromkeys(by_link, 0)  # -> samples out of contact
+    near = {
+        links
+        for links, idx in by_link.items()
+        if _one_apart(geometry, idx[0]) and _distance(geometry, idx) <= NEAR
+    }
     for q in sample_configurations(geometry.robot, samples):
-        if not alive:
+        if not alive and not near:
             break
         geometry.place(q)
         for links in list(alive):
@@ -101,7 +129,10 @@ def disabled_pairs(geometry, samples: int = SAMPLES) -> dict[tuple[str, str], st
                 alive[links] += 1
                 if alive[links] > allowed[links]:
                     del alive[links]
-    return {links: "default" if links in reference else "always" for links in alive}
+        near = {links for links in near if _distance(geometry, by_link[links]) <= NEAR}
+    out = {links: "default" if links in reference else "always" for links in alive}
+    out.update({links: "near" for links in near if links not in out})
+    return out
 
 
 def srdf_text(robot_name: str, disabled: Mapping[tuple[str, str], str]) -> str:

@@ -61,8 +61,9 @@ def _capsule_of_primitive(obj) -> tuple[np.ndarray, np.ndarray, float] | None:
     return None
 
 
-def _hull_points(obj) -> np.ndarray:
-    """Points whose convex hull contains the object, in its joint's frame."""
+def _hull_points(obj, mesh_vertices: np.ndarray | None = None) -> np.ndarray:
+    """Points whose convex hull contains the object, in its joint's frame; a mesh's are its
+    ``mesh_vertices`` (every vertex, as the capsule was always fitted: the same capsules)."""
     g, M = obj.geometry, obj.placement
     name = type(g).__name__
     if name == "Box":
@@ -74,6 +75,8 @@ def _hull_points(obj) -> np.ndarray:
         angle = np.arange(PRISM_SIDES) * 2 * np.pi / PRISM_SIDES
         ring = np.stack([np.cos(angle), np.sin(angle)], axis=1) * r / np.cos(np.pi / PRISM_SIDES)
         local = np.vstack([np.hstack([ring, np.full((PRISM_SIDES, 1), z)]) for z in (-half, half)])
+    elif mesh_vertices is not None:
+        local = mesh_vertices
     elif hasattr(g, "points"):
         local = np.asarray(g.points())
     else:
@@ -106,7 +109,7 @@ def fit_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
 
 def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
     """The fitted shapes of every body with geometry (see the module docstring)."""
-    objs = geometry.geometry_model.geometryObjects
+    objs, meshes = geometry.geometry_model.geometryObjects, geometry.mesh_vertices
     root = min(int(o.parentJoint) for o in objs)
     by_body: dict[int, list[int]] = {}
     for i, o in enumerate(objs):
@@ -133,7 +136,9 @@ def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
                 continue
             exact = _capsule_of_primitive(first) if len(group) == 1 else None
             if exact is None:
-                exact = fit_capsule(np.vstack([_hull_points(objs[i]) for i in group]))
+                exact = fit_capsule(
+                    np.vstack([_hull_points(objs[i], meshes.get(i)) for i in group])
+                )
             a, b, r = exact
             shapes.append(Shape(name, body, "capsule", a, b, r, eye, zero, tuple(group)))
     return shapes

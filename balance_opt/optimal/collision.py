@@ -316,20 +316,24 @@ def report(problem, result) -> ClearanceReport:
     return out
 
 
-def short(problem, result, held: bool = False) -> list[PairClearance]:
-    """The pairs closer than their threshold (the margin, or their distance at the start if
-    smaller: the arm starts at rest there) beyond :data:`TOLERANCE`, closest first; with
-    ``held`` only those the planner holds to it: all but the watched pairs that do not
-    penetrate. A watched row measures overlapping shapes, whose distance does not follow the
-    bodies' (Talos's torso and shoulder: six rounds of raising it left the pair where it was);
-    it is raised only against a penetration."""
-    setup = problem.collision
+def short(problem, result) -> list[PairClearance]:
+    """The pairs closer than they must keep, closest first: the margin (less
+    :data:`TOLERANCE`), or, for a pair that starts closer (the arm starts at rest there), its
+    distance at the start less :data:`COLLISION_SLACK`, as its row is bounded. A watched pair
+    too (its fitted shapes overlap at the start): its row is raised as any other, and a plan
+    that stays too close after the rounds fails."""
+    setup, margin = problem.collision, problem.options.collision_margin
     return [
         p
-        for p in report(problem, result).below(problem.options.collision_margin)
-        if p.distance < setup.threshold[p.index] - TOLERANCE
-        and not (held and p.distance >= 0.0 and setup.watched[setup.owner[p.index]])
+        for p in report(problem, result).below(margin)
+        if p.distance < setup.threshold[p.index] - _allowance(setup.threshold[p.index], margin)
     ]
+
+
+def _allowance(threshold: float, margin: float) -> float:
+    """How far below its threshold [m] a pair may come: :data:`COLLISION_SLACK` for a pair
+    held to its distance at the start (below the margin), else :data:`TOLERANCE`."""
+    return COLLISION_SLACK if threshold < margin else TOLERANCE
 
 
 def row_values(problem, result) -> np.ndarray:
@@ -350,7 +354,7 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     whichever is larger, plus twice the interval's shortfall, or the shortfall and
     :data:`PUSH` if less (a watched row has no bound until then); and what it raised, in
     words."""
-    pairs = short(problem, result, held=True)
+    pairs = short(problem, result)
     if not pairs:
         return {}, []
     closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,8 +23,6 @@ from balance_opt.optimal.problem import (
     unit_of,
 )
 from balance_opt.optimal.timing import MISSION_LEVELS, PATH_STATES, path_levels
-
-log = logging.getLogger(__name__)
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")
@@ -566,7 +563,8 @@ class Collision(Constraint):
     unbounded, where their shapes overlap). The shapes contain the bodies; between the points
     the refinement raises a row's bound where the re-simulated motion comes closer than the
     margin (:meth:`tighten`), and a plan that still penetrates, or comes closer than the
-    margin by a pair it holds, fails (:meth:`accept`)."""
+    margin (a pair that starts closer: than its start, less the rows' slack), fails
+    (:meth:`accept`)."""
 
     name = "collision"
 
@@ -603,18 +601,7 @@ class Collision(Constraint):
                 pen.time,
                 pen.depth,
             )
-        loose = collision.short(problem, result)
-        pairs = collision.short(problem, result, held=True)
-        for p in loose:
-            if p not in pairs:
-                log.warning(
-                    "%s come within %.4g m at t = %.3f s, inside the %.4g m they should keep: "
-                    "their fitted shapes overlap, the planner does not hold their margin",
-                    p.pair,
-                    p.distance,
-                    p.time,
-                    problem.collision.threshold[p.index],
-                )
+        pairs = collision.short(problem, result)
         if pairs:
             threshold = problem.collision.threshold
             p = max(pairs, key=lambda p: threshold[p.index] - p.distance)  # the farthest in
