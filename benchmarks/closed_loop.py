@@ -11,7 +11,7 @@ that has the time; the count of re-plans over the period says how many a real on
 The first plan is made before the motion and is not a re-plan.
 
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
-measured] [--margin F] [--floor plan|measured]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period).
+measured] [--margin F] [--floor measured|plan]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def main() -> None:
     parser.add_argument("--period", type=float, help="control period [s]")
     parser.add_argument("--momentum", choices=("zero", "measured"), default="zero")
     parser.add_argument("--margin", type=float, help="closed-loop limit margin (fraction)")
-    parser.add_argument("--floor", choices=("plan", "measured"), default="plan")
+    parser.add_argument("--floor", choices=("measured", "plan"), default="measured")
     args = parser.parse_args()
 
     task = load_task(args.task)

@@ -153,9 +153,8 @@ def fly_closed_loop(
     state, parts, starts = None, [], []
     replans, late, pending = [], 0, None
     measured_peak = 0.0
-    # the peak the first plan promised: a re-plan's floor when the truth has gone above it
-    # (else each re-plan would let the rest of the motion ride the largest drift so far, and
-    # the model error push it higher every period)
+    # with peak_floor "plan", the peak the first plan promised caps a re-plan's floor once the
+    # truth has gone above it (the rest of the motion aimed back at it, not at the drift so far)
     cap = math.inf if opts.peak_floor == "measured" else _peak(in_force)
     data = nominal.model.createData()  # the measured momentum's, in the nominal model
     for j in range(len(bounds) - 1):

@@ -98,9 +98,9 @@ class SimulationOptions:
 
 #: What the re-planning controller assumes the system's momentum is at a re-plan.
 REPLAN_MOMENTA = ("zero", "measured")
-#: The floor of a re-plan's peak (its epigraph variable's lower bound): the largest drift so far,
-#: capped at the first plan's peak ("plan"), or the largest drift so far ("measured").
-PEAK_FLOORS = ("plan", "measured")
+#: The floor of a re-plan's peak (its epigraph variable's lower bound): the largest drift so far
+#: ("measured"), or the largest drift so far capped at the first plan's peak ("plan").
+PEAK_FLOORS = ("measured", "plan")
 
 
 @dataclass(frozen=True)
@@ -139,12 +139,12 @@ class ClosedLoopOptions:
         "from the measured rates",
     )
 
-    # a study setting, not a task's: docs/executable-plans.md says why "plan" is kept
+    # a study setting, not a task's: docs/executable-plans.md says why "measured" is kept
     peak_floor: Literal[PEAK_FLOORS] = setting(
         PEAK_FLOORS[0],
         in_file=False,
-        doc="a re-plan's peak floor: the drift so far capped at the first plan's peak (plan), "
-        "or the drift so far (measured)",
+        doc="a re-plan's peak floor: the drift so far (measured), or the drift so far capped "
+        "at the first plan's peak (plan)",
     )
 
     def __post_init__(self):
