@@ -78,6 +78,20 @@ def test_replan_from_a_mid_motion_state_matches_an_independent_replay(planned):
     assert rotation_angle(replayed.quaternion[-1]) < 0.5 * np.linalg.norm(attitude - phi)
 
 
+@pytest.mark.slow
+def test_a_replan_from_a_node_whose_window_rounds_above_the_grid(planned):
+    """From node 43 of 50 on 10 s, the mission window (10 - 8.6 s) rounds above 7 intervals of
+    0.2 s: the re-plan's horizon covers it. With the plan's own state there, the re-plan
+    keeps the plan's tail (Bellman)."""
+    task, nlp, plan, replanner = planned
+    node = 43
+    assert task.duration - node * nlp.h > (nlp.N - node) * nlp.h
+    first = replanner.first(plan)
+    out = replanner.replan(node, first, first.state(node)[3], peak=plan.max_drift)
+    assert out.success, out.status
+    np.testing.assert_allclose(out.segment.solution.X, first.solution.X[:, node:], atol=1e-4)
+
+
 def _flown_both_ways(task, replanner, plan):
     """The plan simulated open loop and flown closed loop, on the nominal robot (every re-plan
     applied, whatever its time)."""

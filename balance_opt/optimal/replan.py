@@ -143,7 +143,8 @@ class Replanner:
         options = dataclasses.replace(
             nlp.options,
             intervals=N,
-            horizon=N * nlp.h,
+            # the window's end minus its start may round above N * h (node 81 of 100 on 10 s)
+            horizon=max(N * nlp.h, mission.duration),
             starts=1,
             rest_configuration=tuple(float(v) for v in nlp.q_rest),
             ipopt={**nlp.options.ipopt, **self.ipopt},
