@@ -11,7 +11,7 @@ that has the time; the count of re-plans over the period says how many a real on
 The first plan is made before the motion and is not a re-plan.
 
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
-measured]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period).
+measured] [--margin F] [--floor measured|plan]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period).
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ from balance_opt.app.closed_loop import resolved_options, true_robots
 from balance_opt.app.models import ModelCache
 from balance_opt.dynamics.closed_loop import fly_closed_loop
 from balance_opt.dynamics.simulation import simulate_plan
-from balance_opt.optimal.replan import Replanner
+from balance_opt.motion.result import find_limit_violations
+from balance_opt.optimal.replan import Replanner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 
@@ -41,6 +42,8 @@ def main() -> None:
     parser.add_argument("--models", type=int, default=4, help="true models flown")
     parser.add_argument("--period", type=float, help="control period [s]")
     parser.add_argument("--momentum", choices=("zero", "measured"), default="zero")
+    parser.add_argument("--margin", type=float, help="closed-loop limit margin (fraction)")
+    parser.add_argument("--floor", choices=("measured", "plan"), default="measured")
     args = parser.parse_args()
 
     task = load_task(args.task)
@@ -50,6 +53,8 @@ def main() -> None:
         samples=args.models,
         period=args.period or options.period,
         momentum=args.momentum,
+        peak_floor=args.floor,
+        margin=options.margin if args.margin is None else args.margin,
     )
     model = ModelCache().planner_model(task.robot, task.spec.robot.backend)
     planner = task.spec.optimal.planner
@@ -60,24 +65,35 @@ def main() -> None:
         f"{task.name}: first plan (N = {nlp.N}) in {time.perf_counter() - started:.1f} s: "
         f"peak {plan.max_drift:.4g} rad, final {plan.final_drift:.4g} rad"
     )
+    # the closed loop plans inside its margin, its first plan too (as balance-opt compare)
+    robot = margined(task.robot, options.margin)
+    closed_plan = plan
+    if robot is not task.robot:
+        nlp = build_balance_nlp(model, task.mission, task.q_B0, planner, robot=robot, h0=task.h0)
+        closed_plan = nlp.solve(plan.solver.solution)
+        print(
+            f"closed-loop first plan, limits {options.margin:.0%} inside: peak "
+            f"{closed_plan.max_drift:.4g} rad, final {closed_plan.final_drift:.4g} rad"
+        )
     replanner = Replanner(nlp)
     print(
-        f"period {options.period:g} s, momentum at a re-plan: {options.momentum}, "
+        f"period {options.period:g} s, momentum at a re-plan: {options.momentum}, peak floor: "
+        f"{options.peak_floor}, "
         f"{options.perturbation:.0%} model error, seed {options.seed}"
     )
     header = (
         f"{'model':>5} {'open peak':>10} {'closed peak':>11} {'open final':>10} "
-        f"{'closed final':>12} {'failed':>6} {'over':>4}  iterations"
+        f"{'closed final':>12} {'failed':>6} {'over':>4} {'limits open/closed':>18}  iterations"
     )
     print(header)
-    times, prepare_s = [], None
+    times, prepare_s, violated = [], None, 0
     peaks, finals = [], []
     for k, truth in enumerate(true_robots(task.robot, options)):
         open_loop = simulate_plan(truth, plan, task.spec.simulation)
         run = fly_closed_loop(
             truth,
             replanner,
-            plan,
+            closed_plan,
             task.spec.simulation,
             options,
             prepared=k > 0,
@@ -88,11 +104,13 @@ def main() -> None:
         peaks.append(run.max_drift)
         finals.append(run.final_drift)
         over = int(np.sum(run.compute_s > run.period_s))
+        limits = [len(violations(task.robot, s)) for s in (open_loop, run.simulation)]
+        violated += limits[1]
         iterations = " ".join(str(r.iterations) for r in run.replans)
         print(
             f"{k:>5} {float(open_loop.angle.max()):>10.4g} {run.max_drift:>11.4g} "
             f"{float(open_loop.angle[-1]):>10.4g} {run.final_drift:>12.4g} {run.failed:>6} "
-            f"{over:>4}  {iterations}"
+            f"{over:>4} {limits[0]:>9}/{limits[1]:<8}  {iterations}"
         )
     t = np.array(times)
     print(
@@ -104,6 +122,14 @@ def main() -> None:
         f"re-plans: {t.size}, compute time median {np.median(t):.3f} s, 95 % "
         f"{np.percentile(t, 95):.3f} s, largest {t.max():.3f} s; {int(np.sum(t > options.period))} "
         f"over the period; NLPs built before the motion in {prepare_s:.1f} s"
+    )
+    print(f"joint limit violations of the closed-loop runs (true limits): {violated}")
+
+
+def violations(robot, sim) -> list:
+    """The stretches of a simulated motion outside the robot's (true) joint limits."""
+    return find_limit_violations(
+        sim.t, robot.joint_names, sim.q, sim.q_dot, sim.q_ddot, robot.limits
     )
 
 

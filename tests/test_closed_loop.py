@@ -22,7 +22,7 @@ from balance_opt.motion.so3 import (
     rotation_angle,
 )
 from balance_opt.motion.trajectories import MissionWindow
-from balance_opt.optimal.replan import Replanner
+from balance_opt.optimal.replan import Replanner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 
@@ -76,6 +76,20 @@ def test_replan_from_a_mid_motion_state_matches_an_independent_replay(planned):
     assert error.max() < 1e-4
     # and it corrects the offset: the final drift is well below the 22 mrad it started off by
     assert rotation_angle(replayed.quaternion[-1]) < 0.5 * np.linalg.norm(attitude - phi)
+
+
+@pytest.mark.slow
+def test_a_replan_from_a_node_whose_window_rounds_above_the_grid(planned):
+    """From node 43 of 50 on 10 s, the mission window (10 - 8.6 s) rounds above 7 intervals of
+    0.2 s: the re-plan's horizon covers it. With the plan's own state there, the re-plan
+    keeps the plan's tail (Bellman)."""
+    task, nlp, plan, replanner = planned
+    node = 43
+    assert task.duration - node * nlp.h > (nlp.N - node) * nlp.h
+    first = replanner.first(plan)
+    out = replanner.replan(node, first, first.state(node)[3], peak=plan.max_drift)
+    assert out.success, out.status
+    np.testing.assert_allclose(out.segment.solution.X, first.solution.X[:, node:], atol=1e-4)
 
 
 def _flown_both_ways(task, replanner, plan):
@@ -133,8 +147,9 @@ closed_loop:
         (
             "momentum: measured",
             "closed_loop.momentum: unknown key 'momentum'; expected one of period, samples, "
-            "perturbation, seed",
+            "perturbation, seed, margin",
         ),
+        ("margin: -0.1", "closed_loop.margin: must be at least 0, got -0.1"),
     ],
 )
 def test_bad_closed_loop_values_name_file_line_and_key(tmp_path, entry, message):
@@ -182,3 +197,34 @@ def test_the_worst_runs_urdf_holds_its_true_robot():
         np.testing.assert_allclose(read.inertia, true.inertia, atol=1e-12)
     # and it is not the nominal robot
     assert abs(model.inertias[1].mass - task.robot.model.inertias[1].mass) > 1e-6
+
+
+def test_a_margin_of_one_or_more_is_refused(tmp_path):
+    path = tmp_path / "task.yaml"
+    path.write_text(TASK + "  margin: 1.0\n")
+    with pytest.raises(InputError) as info:
+        load_task(path)
+    assert str(info.value) == (
+        f"{path}:8: closed_loop: closed-loop option 'margin' must be < 1 (a fraction of the "
+        "limits), got 1"
+    )
+
+
+def test_the_margin_tightens_the_balance_joints_rates_and_nothing_else():
+    task = load_task(EXAMPLES / "capture_task.yaml")
+    robot = task.robot
+    assert margined(robot, 0.0) is robot
+    tight = margined(robot, 0.05)
+    balance = robot.balance_indices
+    others = np.setdiff1d(np.arange(robot.n), balance)
+    for kind in ("velocity", "acceleration"):
+        np.testing.assert_allclose(
+            getattr(tight.limits, kind)[balance], 0.95 * getattr(robot.limits, kind)[balance]
+        )
+        np.testing.assert_array_equal(
+            getattr(tight.limits, kind)[others], getattr(robot.limits, kind)[others]
+        )
+    for kind in ("lower", "upper", "effort", "jerk"):
+        np.testing.assert_array_equal(getattr(tight.limits, kind), getattr(robot.limits, kind))
+    # the robot itself keeps its limits (the violation check uses them)
+    assert robot.limits.acceleration[balance][0] == 2.0

@@ -816,6 +816,7 @@ OPTION_KEYS_DEFAULTS = [
     ("closed_loop.samples", "20"),
     ("closed_loop.perturbation", "none"),
     ("closed_loop.seed", "none"),
+    ("closed_loop.margin", "0.03"),
 ]
 
 

@@ -23,9 +23,8 @@ from typing import Any
 import numpy as np
 
 from balance_opt.dynamics.options import ClosedLoopOptions
-from balance_opt.motion.robustness import PERCENTILE, perturbed_robot
 from balance_opt.motion.result import find_limit_violations
-
+from balance_opt.motion.robustness import PERCENTILE, perturbed_robot
 
 #: Files of the worst closed-loop run (the largest peak drift over every method's runs).
 WORST_CSV, WORST_URDF = "closed_loop_worst.csv", "closed_loop_worst.urdf"
@@ -71,17 +70,22 @@ class ClosedLoopChunk:
         from balance_opt.dynamics.closed_loop import fly_closed_loop
         from balance_opt.dynamics.simulation import simulate
         from balance_opt.optimal.model import PlannerModel
-        from balance_opt.optimal.replan import Replanner
+        from balance_opt.optimal.replan import Replanner, margined
         from balance_opt.optimal.solve import build_balance_nlp
 
         truths = true_robots(self.robot, self.options)
         geometry = self._geometry()
-        replanner, prepare_s = None, 0.0
+        replanner, prepare_s, first = None, 0.0, self.solution
         if self.solution is not None:
             model = PlannerModel(self.robot, backend=self.backend)
+            # the closed loop plans inside its margin: its first plan too (from the open-loop
+            # plan), so that a re-plan's start, the plan in force's, is inside it
+            robot = margined(self.robot, self.options.margin)
             nlp = build_balance_nlp(
-                model, self.mission, self.q_B0, self.planner, robot=self.robot, h0=self.h0
+                model, self.mission, self.q_B0, self.planner, robot=robot, h0=self.h0
             )
+            if robot is not self.robot:
+                first = nlp.solve(self.solution).solver.solution
             replanner = Replanner(nlp)
         out = []
         for k in indices:
@@ -89,7 +93,7 @@ class ClosedLoopChunk:
                 run = fly_closed_loop(
                     truths[k],
                     replanner,
-                    self.solution,
+                    first,
                     self.simulation,
                     self.options,
                     prepared=k != indices[0],
@@ -229,8 +233,8 @@ def write_worst(study: ClosedLoopStudy, task, output_dir: Path) -> list[Path]:
     """The worst run's motion (``closed_loop_worst.csv``, the columns of every trajectory CSV)
     and its true robot (``closed_loop_worst.urdf``)."""
     from balance_opt.model.maps import NumericMaps
-    from balance_opt.report.outputs import write_trajectory_csv
     from balance_opt.motion.result import BalanceResult
+    from balance_opt.report.outputs import write_trajectory_csv
 
     method, run = study.worst()
     truth = true_robots(task.robot, study.options)[run["index"]]

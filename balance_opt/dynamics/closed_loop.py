@@ -15,6 +15,7 @@ dropped by its measured time, the only thing the machine changes).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -144,9 +145,7 @@ def fly_closed_loop(
         prepare_s = replanner.prepare(in_force, switch_nodes, h0)
     # the gains of the nominal robot at the plan's start, kept for every period
     if sim_opts.kp is None or sim_opts.kd is None:
-        probe = simulate(
-            nominal, nlp.mission, in_force.trajectory, sim_opts, duration=sim_opts.dt
-        )
+        probe = simulate(nominal, nlp.mission, in_force.trajectory, sim_opts, duration=sim_opts.dt)
         sim_opts = dataclasses.replace(
             sim_opts, kp=tuple(probe.info["kp"]), kd=tuple(probe.info["kd"])
         )
@@ -154,6 +153,9 @@ def fly_closed_loop(
     state, parts, starts = None, [], []
     replans, late, pending = [], 0, None
     measured_peak = 0.0
+    # with peak_floor "plan", the peak the first plan promised caps a re-plan's floor once the
+    # truth has gone above it (the rest of the motion aimed back at it, not at the drift so far)
+    cap = math.inf if opts.peak_floor == "measured" else _peak(in_force)
     data = nominal.model.createData()  # the measured momentum's, in the nominal model
     for j in range(len(bounds) - 1):
         a, b = bounds[j], bounds[j + 1]
@@ -179,7 +181,7 @@ def fly_closed_loop(
             pending = None
         c = bounds[min(j + 1 + lag, len(bounds) - 1)]
         if c in switch_nodes:  # measure at t_b, re-plan for node c
-            pending = _replan(replanner, in_force, state, b, c, measured_peak, opts, data)
+            pending = _replan(replanner, in_force, state, b, c, measured_peak, cap, opts, data)
             replans.append(pending)
             late += pending.success and pending.compute_s > deadline
             if not delayed:
@@ -190,15 +192,22 @@ def fly_closed_loop(
     return run
 
 
-def _replan(replanner, in_force: Segment, state, b: int, c: int, peak: float, opts, data):
+def _peak(segment: Segment) -> float:
+    """A plan's largest drift over its nodes (and midpoints) [rad]."""
+    s = segment.solution
+    points = s.X[:3] if s.Xm is None else np.hstack([s.X[:3], s.Xm[:3]])
+    return float(np.linalg.norm(points, axis=0).max())
+
+
+def _replan(replanner, in_force: Segment, state, b: int, c: int, peak, cap, opts, data):
     """The re-plan from the state measured at node ``b`` for node ``c``, a period later: the
     attitude predicted by the plan in force's own increment over the period, the peak so far
-    that and the predicted path's largest drift."""
+    that and the predicted path's largest drift, at most ``cap``."""
     q_meas = state[0][3:7]
     path = [
         quaternion_multiply(q_meas, _attitude_increment(in_force, b, i)) for i in range(b, c + 1)
     ]
-    peak = max(peak, float(np.max(rotation_angle(np.array(path)))))
+    peak = min(max(peak, float(np.max(rotation_angle(np.array(path))))), cap)
     h0 = None
     if opts.momentum == "measured":  # the nominal model's momentum at the measured state
         nominal = replanner.nlp.robot

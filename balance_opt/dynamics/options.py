@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from balance_opt.config.typed_config import check_settings, setting
+from balance_opt.errors import InputError
 
 #: Default integration step [s].
 DEFAULT_DT = 1e-3
@@ -97,6 +98,9 @@ class SimulationOptions:
 
 #: What the re-planning controller assumes the system's momentum is at a re-plan.
 REPLAN_MOMENTA = ("zero", "measured")
+#: The floor of a re-plan's peak (its epigraph variable's lower bound): the largest drift so far
+#: ("measured"), or the largest drift so far capped at the first plan's peak ("plan").
+PEAK_FLOORS = ("measured", "plan")
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,13 @@ class ClosedLoopOptions:
     seed: int | None = setting(
         None, minimum=0, doc="seed of the perturbations (default: robustness.seed)"
     )
+    margin: float = setting(
+        0.03,
+        minimum=0.0,
+        doc="fraction by which the closed-loop plans (first plan and re-plans) tighten the "
+        "balance joints' velocity and acceleration limits, for the joint controllers' tracking "
+        "error on the true robot",
+    )
     # a study setting, not a task's: docs/executable-plans.md says why zero is kept
     momentum: Literal[REPLAN_MOMENTA] = setting(
         REPLAN_MOMENTA[0],
@@ -128,5 +139,18 @@ class ClosedLoopOptions:
         "from the measured rates",
     )
 
+    # a study setting, not a task's: docs/executable-plans.md says why "measured" is kept
+    peak_floor: Literal[PEAK_FLOORS] = setting(
+        PEAK_FLOORS[0],
+        in_file=False,
+        doc="a re-plan's peak floor: the drift so far (measured), or the drift so far capped "
+        "at the first plan's peak (plan)",
+    )
+
     def __post_init__(self):
         check_settings(self, "closed-loop option")
+        if self.margin >= 1.0:
+            raise InputError(
+                f"closed-loop option 'margin' must be < 1 (a fraction of the limits), "
+                f"got {self.margin:g}"
+            )

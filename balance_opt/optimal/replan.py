@@ -13,6 +13,7 @@ inner stages, no refinement, no re-simulation).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from dataclasses import dataclass
@@ -34,6 +35,23 @@ from balance_opt.optimal.solve import BalanceNLP
 #: Ipopt options of a re-plan over the epigraph stage's: it starts at the plan in force, shifted,
 #: which solves it but for the state's difference; a small barrier parameter keeps it there.
 REPLAN_IPOPT = {"mu_init": 1e-6, "bound_push": 1e-8, "bound_frac": 1e-8}
+
+
+def margined(robot, margin: float):
+    """``robot`` (a :class:`~balance_opt.model.robot.FloatingRobot`) with its balance joints'
+    velocity and acceleration limits tightened by the fraction ``margin``: what a controller
+    that tracks its plans imperfectly plans with, so that the tracked motion stays inside the
+    true limits (``docs/executable-plans.md``, "Closed loop"). ``margin`` 0: ``robot`` itself."""
+    if margin == 0:
+        return robot
+    limits = robot.limits
+    velocity, acceleration = limits.velocity.copy(), limits.acceleration.copy()
+    balance = robot.balance_indices
+    velocity[balance] *= 1.0 - margin
+    acceleration[balance] *= 1.0 - margin
+    out = copy.copy(robot)
+    out.limits = dataclasses.replace(limits, velocity=velocity, acceleration=acceleration)
+    return out
 
 
 @dataclass(frozen=True)
@@ -125,7 +143,8 @@ class Replanner:
         options = dataclasses.replace(
             nlp.options,
             intervals=N,
-            horizon=N * nlp.h,
+            # the window's end minus its start may round above N * h (node 81 of 100 on 10 s)
+            horizon=max(N * nlp.h, mission.duration),
             starts=1,
             rest_configuration=tuple(float(v) for v in nlp.q_rest),
             ipopt={**nlp.options.ipopt, **self.ipopt},
@@ -144,6 +163,11 @@ class Replanner:
         """Build the NLP of every re-plan from ``nodes`` before the motion (each tail length is
         a structure of its own, cached on the planner model); returns the time it took [s]."""
         started = time.perf_counter()
+        # a re-plan runs the compiled kernels, not CasADi's virtual machine (its Hessian alone
+        # took half a re-plan's time there): a first plan's background compilation is waited
+        # for here, before the motion, like the NLPs below
+        self.nlp.model.finish_compiling()
+        self.nlp.model.upgrade_kernels()
         for node in nodes:
             q, qd, qdd, phi = first.state(node)
             self.problem(node, StartState(qd, qdd, phi), q, h0)
