@@ -10,7 +10,6 @@ says that the tests that need it build one (minutes).
 import os
 import shutil
 import tempfile
-
 from pathlib import Path
 
 import numpy as np

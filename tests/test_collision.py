@@ -50,8 +50,9 @@ def toy_urdf(tags=("collision",)) -> str:
         '<robot name="toy">'
         + _link("base", 100.0, '<box size="0.6 0.6 0.6"/>', tags=tags)
         + _link("mast", 2.0, '<cylinder radius="0.03" length="0.3"/>', "0 0 0.15", tags=tags)
-        + _link("post", 2.0, '<cylinder radius="0.03" length="0.1"/>', "0 0 0.05", tags=tags)
-        .replace("</link>", "")
+        + _link(
+            "post", 2.0, '<cylinder radius="0.03" length="0.1"/>', "0 0 0.05", tags=tags
+        ).replace("</link>", "")
         + "".join(
             f'<{tag}><origin xyz="0 0 0.08"/><geometry><box size="0.05 0.05 0.04"/></geometry>'
             f"</{tag}>"
@@ -409,7 +410,9 @@ def test_inspect_says_what_is_checked_and_what_starts_in_contact(tmp_path, capsy
 def test_a_missing_srdf_is_an_error_at_its_key(tmp_path):
     from balance_opt.tasks.task import load_task
 
-    with pytest.raises(InputError, match=r"toy\.yaml:4: robot\.srdf: no such SRDF file: .*nope\.srdf"):
+    with pytest.raises(
+        InputError, match=r"toy\.yaml:4: robot\.srdf: no such SRDF file: .*nope\.srdf"
+    ):
         load_task(_toy_task(tmp_path, [0.0, 0.0], srdf="nope.srdf"))
 
 
@@ -455,12 +458,16 @@ def test_a_mesh_next_to_the_urdf_is_found_after_a_capture(tmp_path):
     (tmp_path / "meshes").mkdir()
     corners = ["0 0 0", "0.1 0 0", "0 0.1 0", "0 0 0.1"]
     faces = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
-    stl = "solid tip\n" + "".join(
-        "facet normal 0 0 0\nouter loop\n"
-        + "".join(f"vertex {corners[k]}\n" for k in face)
-        + "endloop\nendfacet\n"
-        for face in faces
-    ) + "endsolid tip\n"
+    stl = (
+        "solid tip\n"
+        + "".join(
+            "facet normal 0 0 0\nouter loop\n"
+            + "".join(f"vertex {corners[k]}\n" for k in face)
+            + "endloop\nendfacet\n"
+            for face in faces
+        )
+        + "endsolid tip\n"
+    )
     (tmp_path / "meshes" / "tip.stl").write_text(stl)
     text = toy_urdf().replace(
         '<cylinder radius="0.03" length="0.3"/>', '<mesh filename="meshes/tip.stl"/>'

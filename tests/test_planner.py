@@ -37,6 +37,7 @@ from balance_opt.app.scenarios import CAPTURE_MISSION_GOAL, CAPTURE_MISSION_STAR
 from balance_opt.errors import InfeasibleLimitsError, InputError
 from balance_opt.model.library import paper_robot
 from balance_opt.model.maps import NumericMaps
+from balance_opt.motion.replay import phase_one
 from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import (
     SERIES_ANGLE,
@@ -44,7 +45,6 @@ from balance_opt.motion.so3 import (
     matrix_from_quaternion,
     quaternion_from_rotvec,
 )
-from balance_opt.motion.replay import phase_one
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal import codegen

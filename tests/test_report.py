@@ -340,7 +340,9 @@ def test_a_penetrating_plan_counts_as_a_violation(paper):
     report = ClearanceReport((pair,), Penetration(pair.pair, 3.5, 0.39), "collision", 10)
     m = method_metrics(plan, scenario.robot, clearance=report)
     assert m["clearance"]["collision_free"] is False
-    assert m["violations"][-1] == "balance_link3 / base_link: collision from t = 3.500 s, 0.39 m deep"
+    assert (
+        m["violations"][-1] == "balance_link3 / base_link: collision from t = 3.500 s, 0.39 m deep"
+    )
     assert m["limit_violations_by_kind"]["collision"] == 1
     assert m["limit_violations"] == len(m["violations"])
     text = violation_count_text(m["limit_violations"], m["limit_violations_by_kind"])

@@ -16,7 +16,14 @@ import pytest
 import umsgpack
 
 from balance_opt.cli import main
+from balance_opt.model.capture import Target
 from balance_opt.motion.result import BalanceResult
+from balance_opt.motion.so3 import (
+    matrix_from_quaternion,
+    quaternion_from_rotvec,
+    relative_rotation,
+    rotvec_from_quaternion,
+)
 from balance_opt.report.outputs import write_trajectory_npz
 from balance_opt.report.scene import (
     ARM_COLOURS,
@@ -28,13 +35,6 @@ from balance_opt.report.scene import (
     scene_html,
     visual_model,
     write_scene,
-)
-from balance_opt.model.capture import Target
-from balance_opt.motion.so3 import (
-    matrix_from_quaternion,
-    quaternion_from_rotvec,
-    relative_rotation,
-    rotvec_from_quaternion,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

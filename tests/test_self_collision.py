@@ -23,8 +23,7 @@ def _link(name, mass, *collisions):
         for xyz, g in collisions
     )
     return (
-        f'<link name="{name}"><inertial><mass value="{mass}"/>{INERTIA}</inertial>{shapes}'
-        "</link>"
+        f'<link name="{name}"><inertial><mass value="{mass}"/>{INERTIA}</inertial>{shapes}</link>'
     )
 
 

@@ -441,10 +441,13 @@ def test_size_estimate_counts_the_planners_own_problem(
     model = PlannerModel(paper, compile=False)
     mission = PointToPoint(np.zeros(3), np.full(3, 0.1), 2.0)
     balance_limits = robot.limits.subset(robot.balance_indices)
+
     def size(st):
         jac = st.solver.get_function("nlp_jac_g").sparsity_out(1).nnz()
         hess = st.solver.get_function("nlp_hess_l").sparsity_out(0).nnz()
-        return np.array([st.variables.size, st.rows.size, jac + hess + st.variables.size + st.rows.size])
+        return np.array(
+            [st.variables.size, st.rows.size, jac + hess + st.variables.size + st.rows.size]
+        )
 
     counts, inner_counts = [], []
     for N in (4, 6):  # below the inner stages' smallest grid: they have the plan's intervals

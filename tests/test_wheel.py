@@ -39,9 +39,14 @@ def test_the_wheel_holds_every_module_and_the_data_files(tmp_path):
     assert {m for m in names if m.endswith(".py")} == modules
     data = {f"balance_opt/urdf/{p.name}" for p in (ROOT / "urdf").glob("*.*") if p.suffix != ".py"}
     data |= {f"balance_opt/model/cpp/{p.name}" for p in (package / "model" / "cpp").glob("*.cpp")}
-    data |= {f"balance_opt/report/assets/{p.name}" for p in (package / "report" / "assets").glob("*")}
+    data |= {
+        f"balance_opt/report/assets/{p.name}" for p in (package / "report" / "assets").glob("*")
+    }
     assert len(data) >= 7 and data <= names
-    assert {"balance_opt/report/assets/scene_player.js", "balance_opt/report/assets/scene.css"} <= names
+    assert {
+        "balance_opt/report/assets/scene_player.js",
+        "balance_opt/report/assets/scene.css",
+    } <= names
     assert "balance_opt/urdf/paper_robot.urdf" in names
     entry = zipfile.ZipFile(wheel).read(
         next(n for n in names if n.endswith(".dist-info/entry_points.txt"))

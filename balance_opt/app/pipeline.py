@@ -696,9 +696,7 @@ def _closed_loop_into(run: TaskRun, executor) -> None:
     if task.target is not None:
         log.info("%s: no closed loop across a capture", task.name)
         return
-    plans = {
-        m: r for m, r in run.results.items() if m in METHODS and m not in run.failures
-    }
+    plans = {m: r for m, r in run.results.items() if m in METHODS and m not in run.failures}
     planner = task.spec.optimal.planner
     geometry = None
     if run_geometry(run) is not False:

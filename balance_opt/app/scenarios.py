@@ -51,7 +51,9 @@ def capture_task() -> Scenario:
     only about one direction of that plane, so no balance rate cancels a base rate along
     (-0.73, 0, 0.69) and Eq. 31 has no solution."""
     # the mission joints' acceleration limits: for a free mission timing only (issue 37)
-    mission = {f"mission_joint{i}": {"acceleration": CAPTURE_BALANCE_ACCELERATION} for i in (1, 2, 3)}
+    mission = {
+        f"mission_joint{i}": {"acceleration": CAPTURE_BALANCE_ACCELERATION} for i in (1, 2, 3)
+    }
     robot = paper_robot(limits={**mission, **_balance_acceleration_limits()})
     mission = PointToPoint(CAPTURE_MISSION_START, CAPTURE_MISSION_GOAL, 10.0)
     return Scenario(robot, mission, np.array([0.0, 0.5, -1.0]), "capture_task")

@@ -178,9 +178,7 @@ class RobotGeometry:
                 disabled = self_collision.disabled_pairs(self, self.samples)
             for reason in dict.fromkeys(disabled.values()):
                 chosen = {frozenset(k) for k, r in disabled.items() if r == reason}
-                self._drop(
-                    lambda a, b: frozenset((self._link(a), self._link(b))) in chosen, reason
-                )
+                self._drop(lambda a, b: frozenset((self._link(a), self._link(b))) in chosen, reason)
         names = {self.link(i) for i in range(geom.ngeoms)}
         wanted = set()
         for pair in ignore:

@@ -87,9 +87,7 @@ def build_structure(
     )
     parameters = parameter_layout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
     kinds = constraint_kinds(key)
-    outer, rows, row_kinds = _outer_problem(
-        model, key, kernels, variables, parameters, kinds, path
-    )
+    outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds, path)
     ipopt = ipopt_options_for(key.objective, options, key.intervals)
     solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, ipopt)
     build_time = time.perf_counter() - start

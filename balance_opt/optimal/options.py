@@ -378,7 +378,6 @@ class PlannerOptions:
     def __post_init__(self):
         check_settings(self, "planner option")
 
-
     @property
     def end_condition(self) -> str:
         return "rest" if self.rest_at_end else self.end

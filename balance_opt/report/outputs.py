@@ -128,8 +128,6 @@ def limit_margins(result: BalanceResult, robot: FloatingRobot) -> dict[str, dict
     return out
 
 
-
-
 def _effort_violations(t, names, tau, limits) -> list[str]:
     """Stretches of samples where ``|tau|`` exceeds an effort limit by more than
     :data:`EFFORT_TOLERANCE` of it, worded as :class:`~balance_opt.motion.result.LimitViolation`."""
@@ -241,7 +239,7 @@ def _smoothness_metrics(result: BalanceResult, robot: FloatingRobot, torques) ->
     cols = [robot.joint_names.index(j) for j in result.balance_joints]
     tau = None
     if torques is not None:  # columns: mission joints, then balance joints
-        tau = np.asarray(torques)[:, len(result.mission_joints):]
+        tau = np.asarray(torques)[:, len(result.mission_joints) :]
     figures = smoothness(
         result.t, result.q_ddot_B, result.balance_joints, robot.limits.acceleration[cols], tau
     )

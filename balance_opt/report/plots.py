@@ -218,12 +218,19 @@ def model_error_figure(
             if name in bands:
                 band = np.degrees(bands[name])
                 colour = kwargs.get("color")
-                ax.fill_between(res.t, np.degrees(res.angle), band, color=colour, alpha=0.18,
-                                linewidth=0)
+                ax.fill_between(
+                    res.t, np.degrees(res.angle), band, color=colour, alpha=0.18, linewidth=0
+                )
                 ax.plot(res.t, band, color=colour, linestyle=":", linewidth=0.9)
         handles = [line for line in ax.get_lines() if line.get_linestyle() != ":"]
-        handles += ax.plot([], [], color="0.3", linestyle=":", linewidth=0.9,
-                           label=f"95th percentile, {perturbation:.0%} model error")
+        handles += ax.plot(
+            [],
+            [],
+            color="0.3",
+            linestyle=":",
+            linewidth=0.9,
+            label=f"95th percentile, {perturbation:.0%} model error",
+        )
         _time_axes([ax], max(float(r.t[-1]) for r in results.values()), ["rotation [deg]"])
         layout(fig, ax, handles, "column")
         return fig, style.save(fig, stem, formats, dpi)
@@ -251,16 +258,24 @@ def closed_loop_figure(
             colour = kwargs.get("color")
             ax.plot(res.t, np.degrees(res.angle), **kwargs)
             if name in open_bands:
-                ax.plot(res.t, np.degrees(open_bands[name]), color=colour, linestyle=":",
-                        linewidth=0.9)
+                ax.plot(
+                    res.t, np.degrees(open_bands[name]), color=colour, linestyle=":", linewidth=0.9
+                )
             t, band = closed_bands[name]
             ax.fill_between(t, 0.0, np.degrees(band), color=colour, alpha=0.18, linewidth=0)
             ax.plot(t, np.degrees(band), color=colour, linestyle="--", linewidth=0.9)
         handles = [ax.get_lines()[0] for ax in axes]
-        handles += axes[0].plot([], [], color="0.3", linestyle=":", linewidth=0.9,
-                                label=f"95th percentile open loop, {perturbation:.0%} model error")
-        handles += axes[0].plot([], [], color="0.3", linestyle="--", linewidth=0.9,
-                                label="95th percentile closed loop")
+        handles += axes[0].plot(
+            [],
+            [],
+            color="0.3",
+            linestyle=":",
+            linewidth=0.9,
+            label=f"95th percentile open loop, {perturbation:.0%} model error",
+        )
+        handles += axes[0].plot(
+            [], [], color="0.3", linestyle="--", linewidth=0.9, label="95th percentile closed loop"
+        )
         t_end = max(float(results[n].t[-1]) for n in names)
         _time_axes(list(axes), t_end, ["rotation [deg]"] * len(names))
         layout(fig, axes[:, None], handles, "column")
@@ -286,8 +301,15 @@ def clearance_figure(
         ax.axhline(0.0, color="0.2", linewidth=0.8)
         if margin is not None:
             ax.axhline(margin, color="0.4", linestyle=":", linewidth=0.9)
-            ax.annotate(f"margin {margin:g} m", (0.01, margin), xycoords=("axes fraction", "data"),
-                        ha="left", va="bottom", fontsize="small", color="0.3")
+            ax.annotate(
+                f"margin {margin:g} m",
+                (0.01, margin),
+                xycoords=("axes fraction", "data"),
+                ha="left",
+                va="bottom",
+                fontsize="small",
+                color="0.3",
+            )
         t_end = max(float(t[-1]) for t, _ in curves.values())
         _time_axes([ax], t_end, ["smallest distance [m]"])
         handles = ax.get_lines()[: len(curves)]
@@ -433,8 +455,15 @@ def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
         return
     ax.set_ylim(low, high)
     ax.text(
-        0.02, 0.97, "\n".join(off), transform=ax.transAxes, va="top", ha="left",
-        fontsize="x-small", color="0.2", bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+        0.02,
+        0.97,
+        "\n".join(off),
+        transform=ax.transAxes,
+        va="top",
+        ha="left",
+        fontsize="x-small",
+        color="0.2",
+        bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
     )
 
 

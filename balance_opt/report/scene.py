@@ -551,9 +551,6 @@ def proximity_levels(
     return out, texts
 
 
-
-
-
 def _asset(name: str) -> str:
     """A file of the page shipped with the package (``balance_opt/report/assets``)."""
     from importlib.resources import files
