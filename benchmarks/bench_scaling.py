@@ -68,7 +68,7 @@ def main(argv=None) -> int:
         models = ModelCache()
         start = time.perf_counter()
         first = task_with_intervals(path, args.intervals[0], args.objective)
-        models.planner_model(first.robot, first.spec.robot.backend).kernels()
+        point_kernels(models.planner_model(first.robot, first.spec.robot.backend))
         model_s = time.perf_counter() - start
         joints = f"{first.robot.mission_indices.size} + {first.robot.balance_indices.size}"
         first_cpu = None

@@ -15,6 +15,7 @@ from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.motion.trajectories import PointToPoint
 from balance_opt.optimal import codegen
 from balance_opt.optimal.model import FunctionStore, PlannerModel, model_key
+from balance_opt.optimal.nlp import point_kernels
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
 
@@ -41,7 +42,7 @@ def _same_kernels(a, b, tol: float) -> None:
 
 def test_stored_model_round_trips_and_matches_numeric_pinocchio(paper, tmp_path):
     fresh = PlannerModel(paper, compile=False, cache_dir=tmp_path)
-    k1, dyn1 = fresh.kernels(), fresh.dynamics_fun()
+    k1, dyn1 = point_kernels(fresh), fresh.dynamics_fun()
     stored = sorted(p.name for p in (tmp_path / "planner-models").glob("*.casadi"))
     assert [n.split(fresh.key)[1] for n in stored] == [
         "_dynamics_acceleration.casadi",  # built for the kernels (no momentum)
@@ -49,7 +50,7 @@ def test_stored_model_round_trips_and_matches_numeric_pinocchio(paper, tmp_path)
         "_kernels_acceleration.casadi",
     ]
     warm = PlannerModel(paper, compile=False, cache_dir=tmp_path)
-    k2, dyn2 = warm.kernels(), warm.dynamics_fun()
+    k2, dyn2 = point_kernels(warm), warm.dynamics_fun()
     assert warm._maps is None  # loaded: no momentum map was built
     _same_kernels(k1, k2, 0.0)  # the same expression graph: bit for bit
     # the loaded dynamics against numeric Pinocchio: omega_b = I_G^{-1} (R^T L0 - A q_dot)
@@ -72,7 +73,7 @@ def test_stored_model_round_trips_and_matches_numeric_pinocchio(paper, tmp_path)
 @pytest.mark.parametrize("damage", ["truncate", "garbage", "no record"])
 def test_damaged_stored_model_is_built_again(paper, tmp_path, caplog, damage):
     model = PlannerModel(paper, compile=False, cache_dir=tmp_path)
-    reference = model.kernels()
+    reference = point_kernels(model)
     path = model.store.path("kernels_acceleration")
     data = path.read_bytes()
     if damage == "truncate":
@@ -82,7 +83,7 @@ def test_damaged_stored_model_is_built_again(paper, tmp_path, caplog, damage):
     else:
         cache.record_path(path).unlink()
     with caplog.at_level(logging.WARNING, logger="balance_opt"):
-        again = PlannerModel(paper, compile=False, cache_dir=tmp_path).kernels()
+        again = point_kernels(PlannerModel(paper, compile=False, cache_dir=tmp_path))
     assert f"cached planner model {path}" in caplog.text and "building it again" in caplog.text
     _same_kernels(reference, again, 0.0)
     assert cache.check_record(path)[0] is not None  # saved again, intact
@@ -160,7 +161,7 @@ def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, cap
     q_B0, options = np.array([0.0, 0.5, -1.0]), PlannerOptions(intervals=30)
     first = PlannerModel(paper, compile="background", cache_dir=tmp_path)
     with caplog.at_level(logging.INFO, logger="balance_opt"):
-        vm = first.kernels()
+        vm = point_kernels(first)
     assert "compiling planner kernels for paper_robot (background) ..." in caplog.text
     assert vm.background and not vm.compiled and vm.library
     plan_vm = build_balance_nlp(first, mission, q_B0, options).solve()
@@ -169,7 +170,7 @@ def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, cap
     assert not list(tmp_path.glob("*.c")) and not list(tmp_path.glob("*.tmp-*"))
     # the next run (a new model, as a new process would build) loads the library
     second = PlannerModel(paper, compile="auto", cache_dir=tmp_path)
-    compiled = second.kernels()
+    compiled = point_kernels(second)
     assert compiled.compiled and compiled.library == vm.library and second._maps is None
     _same_kernels(vm, compiled, 1e-9)
     plan_c = build_balance_nlp(second, mission, q_B0, options).solve()
@@ -181,7 +182,7 @@ def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, cap
     assert np.abs(w_vm - w_c).max() < 1e-7
     assert abs(plan_vm.final_drift - plan_c.final_drift) < 1e-9
     # a process that keeps the first model swaps the library in for its next plans
-    assert first.upgrade_kernels() >= 1 and first.kernels().compiled and not first.nlp_cache
+    assert first.upgrade_kernels() >= 1 and point_kernels(first).compiled and not first.nlp_cache
 
 
 def test_talos_example_has_fourteen_arm_joints():

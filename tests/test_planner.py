@@ -25,6 +25,7 @@ import dataclasses
 import logging
 import re
 from math import comb
+from types import SimpleNamespace
 
 import casadi as cs
 import numpy as np
@@ -57,14 +58,11 @@ from balance_opt.optimal.collocation import (
 )
 from balance_opt.optimal.constraints import TorqueLimit
 from balance_opt.optimal.model import PlannerModel
+from balance_opt.optimal.nlp import point_kernels
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.problem import (
-    BalanceProblem,
-    NLPParameters,
-    PlannerSolverError,
-    StructureKey,
-)
+from balance_opt.optimal.problem import BalanceProblem, StructureKey
 from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.optimal.terms import PlannerSolverError
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
 MODEL_TOLERANCE = 1e-9
@@ -572,9 +570,9 @@ def test_structure_key_and_parameter_layout(model, capture):
     assert StructureKey.of(nlp.limits, options) == key
     assert StructureKey.of(nlp.limits, dataclasses.replace(options, control="jerk")) != key
     p = cs.SX.sym("p", nlp.structure.parameters.size)
-    fields = nlp.structure.parameters.unpack(p, NLPParameters)
-    unpack = cs.Function("unpack", [p], list(fields))
-    values = dict(zip(NLPParameters._fields, (np.array(v) for v in unpack(nlp.parameters))))
+    fields = vars(nlp.structure.parameters.unpack(p, SimpleNamespace))
+    unpack = cs.Function("unpack", [p], list(fields.values()))
+    values = dict(zip(fields, (np.array(v) for v in unpack(nlp.parameters))))
     assert values["h"] == nlp.h and values["terminal_weight"] == options.weights.terminal
     np.testing.assert_array_equal(values["running_weights"].ravel(), [100.0, 300.0, 1e-3, 2.0])
     assert values["path_scale"] == 1 / 0.2**2 and values["terminal_scale"] == 1 / 0.05**2
@@ -599,7 +597,7 @@ def test_constraint_checks_agree_with_the_result(model, capture, capture_law):
         final_configuration=tuple(capture.q_B0),
     )
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options)
-    found = {kind.name: kind.check(nlp, law) for kind in nlp.structure.kinds}
+    found = {term.name: term.check(nlp, law) for term in nlp.structure.terms}
     for kind in ("position", "velocity", "acceleration"):
         expected = [v for v in law.violations if v.kind == kind and v.joint in nlp.balance_joints]
         check = found[f"{kind} limit"]
@@ -772,7 +770,7 @@ def test_without_a_compiler_the_kernels_fall_back(monkeypatch, capture, caplog):
     monkeypatch.setattr(codegen, "find_compiler", lambda: None)
     fallback = PlannerModel(capture.robot, compile=True)
     with caplog.at_level(logging.WARNING, logger="balance_opt.optimal.model"):
-        kernels = fallback.kernels()
+        kernels = point_kernels(fallback)
     assert not kernels.compiled
     assert "balance kernels not compiled (no C compiler found" in caplog.text
     assert not PlannerModel(capture.robot, compile="auto").compile

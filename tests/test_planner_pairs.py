@@ -103,7 +103,7 @@ def test_the_planner_gives_up_naming_pair_depth_time_and_rounds():
     the pair's row starts unbounded (watched) and the refinement bounds it where the check
     finds the pair too close; that capsule cannot tell the fold apart, the re-solve is
     infeasible, and the plan fails with the pair, its depth, the time and the rounds."""
-    from balance_opt.optimal.problem import PlannerSolverError
+    from balance_opt.optimal.terms import PlannerSolverError
 
     with pytest.raises(PlannerSolverError) as caught:
         _fold_plan(0.5, avoid=True)
@@ -197,7 +197,7 @@ def test_a_plan_over_its_effort_limit_after_the_rounds_fails_saying_by_how_much(
 ):
     from balance_opt.app.capture import plan_task
     from balance_opt.optimal import refine
-    from balance_opt.optimal.problem import PlannerSolverError
+    from balance_opt.optimal.terms import PlannerSolverError
 
     monkeypatch.setattr(refine, "MAX_ROUNDS", 0)
     with pytest.raises(PlannerSolverError) as caught:
@@ -249,7 +249,7 @@ def test_a_watched_pair_inside_its_margin_fails_the_plan():
     away, inside the 20 mm margin, without touching it; the refinement raises its row, the
     re-solve does not finish, and the plan fails naming the pair, its distance (the exact one
     on the continuous motion), the time and the rounds; it was a warning with exit 0."""
-    from balance_opt.optimal.problem import PlannerSolverError
+    from balance_opt.optimal.terms import PlannerSolverError
 
     with pytest.raises(PlannerSolverError) as caught:
         _fold_plan(0.5, avoid=True, fold=1.8)

@@ -19,10 +19,11 @@ import pytest
 from balance_opt.model.library import paper_robot
 from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.guess import resampled
+from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import CostWeights, PlannerOptions
-from balance_opt.optimal.problem import PlannerSolverError, Solution
 from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.optimal.terms import PlannerSolverError
 from balance_opt.report.outputs import solver_metrics
 
 BALANCE = ("balance_joint1", "balance_joint2", "balance_joint3")
@@ -49,7 +50,10 @@ def coarse_peak(model, capture):
     bound is reached, refused or met) does not depend on it, and a fresh solve and the
     planner's own reach the same local optimum more reliably without it."""
     return build_balance_nlp(
-        model, capture.mission, capture.q_B0, PlannerOptions(collision_avoidance=False, intervals=40, objective="peak")
+        model,
+        capture.mission,
+        capture.q_B0,
+        PlannerOptions(collision_avoidance=False, intervals=40, objective="peak"),
     ).solve()
 
 
@@ -220,7 +224,9 @@ def test_start_and_end_conditions(model, capture):
 @pytest.mark.slow
 def test_path_bound_above_the_best_peak_is_met_from_the_default_guess(model, capture, coarse_peak):
     bound = 1.05 * coarse_peak.max_drift
-    options = PlannerOptions(collision_avoidance=False, intervals=40, objective="integral", path_attitude_bound=bound)
+    options = PlannerOptions(
+        collision_avoidance=False, intervals=40, objective="integral", path_attitude_bound=bound
+    )
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
     assert plan.max_drift <= bound * (1 + 1e-3)
     _no_violations(plan)
@@ -232,7 +238,9 @@ def lowest_peak(model, capture):
     peak under the task's end conditions."""
     options = PlannerOptions(
         collision_avoidance=False,
-        intervals=40, objective="peak", weights=CostWeights(peak_terminal=0.0)
+        intervals=40,
+        objective="peak",
+        weights=CostWeights(peak_terminal=0.0),
     )
     return build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
 
@@ -246,7 +254,9 @@ def test_path_bound_below_the_priced_peak_but_above_the_smallest_is_met(
     assert lowest_peak.max_drift < coarse_peak.max_drift * (1 - 5e-3)
     bound = 0.5 * (lowest_peak.max_drift + coarse_peak.max_drift)
     for objective in ("peak", "integral"):
-        options = PlannerOptions(collision_avoidance=False, intervals=40, objective=objective, path_attitude_bound=bound)
+        options = PlannerOptions(
+            collision_avoidance=False, intervals=40, objective=objective, path_attitude_bound=bound
+        )
         plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
         assert plan.max_drift <= bound * (1 + 1e-3)
         # the smallest peak it reports is no worse than an independent solve of that problem
@@ -262,7 +272,9 @@ def test_path_bound_below_the_priced_peak_but_above_the_smallest_is_met(
 @pytest.mark.slow
 def test_impossible_path_bound_fails_with_the_smallest_peak(model, capture, lowest_peak):
     best = lowest_peak.max_drift
-    options = PlannerOptions(collision_avoidance=False, intervals=40, path_attitude_bound=0.8 * best)
+    options = PlannerOptions(
+        collision_avoidance=False, intervals=40, path_attitude_bound=0.8 * best
+    )
     with pytest.raises(
         PlannerSolverError, match="below the smallest peak the planner found"
     ) as info:
@@ -307,20 +319,18 @@ def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
 
 
 @pytest.mark.slow
-def test_a_fine_peak_plan_is_reached_through_a_coarser_grid(capture, coarse_peak, monkeypatch):
-    """Above the epigraph stage's ``fine_above`` (lowered here to 20 intervals), the inner stages
-    solve on the coarser grid's coarse grid, the epigraph on the coarser grid and then on the
-    plan's, each from the last: the same plan as the stages on the plan's grid reach, the
-    work reported the sum of the solves."""
-    from balance_opt.optimal import nlp as nlp_module
-    from balance_opt.optimal import refine
+def test_a_fine_peak_plan_is_reached_through_a_coarser_grid(capture, coarse_peak):
+    """Above the epigraph stage's ``fine_above`` (lowered here to 20 intervals, through the
+    options' stages), the inner stages solve on the coarser grid's coarse grid, the epigraph on
+    the coarser grid and then on the plan's, each from the last: the same plan as the stages on
+    the plan's grid reach, the work reported the sum of the solves."""
     from balance_opt.optimal.options import PEAK_STAGES
 
     stages = (*PEAK_STAGES[:-1], dataclasses.replace(PEAK_STAGES[-1], fine_above=20))
-    for module in (refine, nlp_module):  # the stages, and the stage's Ipopt options
-        monkeypatch.setattr(module, "PEAK_STAGES", stages)
-    model = PlannerModel(capture.robot)  # structures of its own: built with those options
-    options = PlannerOptions(collision_avoidance=False, intervals=40, objective="peak")
+    model = PlannerModel(capture.robot)
+    options = PlannerOptions(
+        collision_avoidance=False, intervals=40, objective="peak", stages=stages
+    )
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
     reported = plan.info["stages"]
     assert [(s["stage"], s["intervals"]) for s in reported] == [

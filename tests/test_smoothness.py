@@ -15,7 +15,7 @@ from balance_opt.optimal.collocation import (
     joint_chain_coefficients,
 )
 from balance_opt.optimal.constraints import JerkLimit
-from balance_opt.optimal.nlp import jerk_integral
+from balance_opt.optimal.objectives import jerk_integral
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
 

@@ -19,7 +19,7 @@ from balance_opt.optimal.solve import build_balance_nlp
 
 
 def test_first_plans_are_one_within_the_state_and_control_tolerances():
-    from balance_opt.optimal.problem import Solution
+    from balance_opt.optimal.layout import Solution
     from balance_opt.optimal.refine import (
         SAME_CONTROL,
         SAME_PLAN,

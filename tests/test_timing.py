@@ -15,6 +15,7 @@ import pytest
 from balance_opt.config.yaml_lines import TaskFileError
 from balance_opt.errors import InputError
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory, ViaPoints
+from balance_opt.optimal.nlp import point_kernels
 from balance_opt.optimal.timing import MissionPath, shortest_duration
 from balance_opt.tasks.task import load_task
 
@@ -176,12 +177,13 @@ def test_a_plan_over_its_attitude_bound_after_the_rounds_fails(kind, drifts, mes
     no plan (it was returned as a success before, the rounds only logged)."""
     from types import SimpleNamespace
 
-    from balance_opt.optimal import constraints
-    from balance_opt.optimal.problem import PlannerSolverError
+    from balance_opt.optimal import constraints, objectives
+    from balance_opt.optimal.terms import PlannerSolverError
 
     options = SimpleNamespace(path_attitude_bound=0.01, terminal_attitude_bound=0.002)
     problem = SimpleNamespace(options=options)
-    bound = getattr(constraints, kind)()
+    bound = getattr(constraints, kind, None) or getattr(objectives, kind)
+    bound = bound()
     with pytest.raises(PlannerSolverError, match=re.escape(message)) as info:
         bound.accept(problem, _plan(*drifts))
     assert info.value.status == "Attitude_Bound"
@@ -264,9 +266,9 @@ def test_given_timing_problem_has_no_timing_variables_rows_or_kernel_inputs(tmp_
     assert {"M", "Mm", "P", "Pm", "A", "Am"} <= set(f.variables.by_name)
     assert not any("mission" in b.name for b in g.rows.blocks)
     assert g.rows.size < f.rows.size
-    kernels = model.kernels("acceleration")
+    kernels = point_kernels(model)
     assert kernels.n_z == model.n_x("acceleration") + model.n_u
-    assert model.kernels("acceleration", timing=True).n_z == kernels.n_z + 3 * model.n_M
+    assert point_kernels(model, timing=True).n_z == kernels.n_z + 3 * model.n_M
     # the given problem's mission data are the given mission's samples
     q, qd, qdd = given.mission.sample(nlps[0].point_times)
     np.testing.assert_array_equal(nlps[0].mission_samples[:9], np.hstack([q, qd, qdd]).T)
@@ -471,8 +473,8 @@ def test_mission_limits_between_points_ranked_relative_to_the_limits_and_refused
     """The worst breach is the largest relative to its limit (5 % of 1 rad/s, not 3 % of
     10 m/s^2, though 0.05 < 0.3), in the joint's unit; a plan still breaking it after the
     refinement fails, naming the joint, the amount, the time and the rounds."""
-    from balance_opt.optimal.constraints import MissionTiming
-    from balance_opt.optimal.problem import PlannerSolverError
+    from balance_opt.optimal.terms import PlannerSolverError
+    from balance_opt.optimal.timing import MissionTiming
 
     kind = MissionTiming.__new__(MissionTiming)
     problem, result = _limited()
@@ -513,7 +515,7 @@ def test_mission_limits_tightened_on_the_intervals_that_break_them():
     and the next problem's variable bounds are the lowered ones."""
     from types import SimpleNamespace
 
-    from balance_opt.optimal.constraints import MissionTiming
+    from balance_opt.optimal.timing import MissionTiming
 
     kind = MissionTiming.__new__(MissionTiming)
     problem, result = _limited()

@@ -15,6 +15,16 @@ from balance_opt.errors import InputError
 from balance_opt.geometry.clearance import ClearanceReport, PairClearance, clearance
 from balance_opt.geometry.robot_geometry import NoGeometryError, Pair, RobotGeometry
 from balance_opt.geometry.shapes import ClearanceRows, clearance_rows, moved_by
+from balance_opt.optimal.terms import (
+    Output,
+    PlannerSolverError,
+    Rows,
+    SymbolicNLP,
+    Term,
+    Violation,
+    block_rows,
+    rounds_tried,
+)
 
 log = logging.getLogger(__name__)
 
@@ -300,11 +310,12 @@ def _setup(
 
 def report(problem, result) -> ClearanceReport:
     """The clearance of a re-simulated plan of ``problem`` over the pairs the balance joints
-    move (computed once per result: the check, the refinement and the acceptance share it)."""
-    last = problem.last_clearance
-    if last is not None and last[0] is result:
-        return last[1]
+    move (computed once per result and collision setup: the check, the refinement and the
+    acceptance share it; kept with the result, which the solve made)."""
     setup = problem.collision
+    last = getattr(result, "_clearance", None)
+    if last is not None and last[0] is setup:
+        return last[1]
     out = clearance(
         setup.geometry,
         result.t,
@@ -312,7 +323,7 @@ def report(problem, result) -> ClearanceReport:
         pairs=[p.index for p in setup.pairs],
         watch=problem.options.collision_margin + WATCH,
     )
-    problem.last_clearance = (result, out)
+    result._clearance = (setup, out)
     return out
 
 
@@ -387,3 +398,75 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     # the arm starts at rest where it is: the first node's rows cannot move
     bound[:, 0] = np.minimum(bound[:, 0], setup.initial_rows - COLLISION_SLACK)
     return {"collision": bound}, said
+
+
+class Collision(Term):
+    """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
+    every collocation point, one row per body the balance joints move, the soft minimum of
+    its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
+    ``problem.bounds.collision``), and rows of their own for pairs that start close (watched,
+    unbounded, where their shapes overlap). The shapes contain the bodies; between the points
+    the refinement raises a row's bound where the re-simulated motion comes closer than the
+    margin (:meth:`tighten`), and a plan that still penetrates, or comes closer than the
+    margin (a pair that starts closer: than its start, less the rows' slack), fails
+    (:meth:`accept`)."""
+
+    name = "collision"
+
+    def __init__(self, key: str):
+        self.key = key  # of the collision rows (:class:`CollisionModels`)
+
+    def outputs(self, model):
+        rows, f = model.collisions.rows[self.key]
+        # out of the cost: Ipopt's line search needs none of them
+        return (Output("clearance", len(rows.rows), f"_c{self.key}", lambda p: f(p.q), False),)
+
+    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
+        labels = [f"{label} (soft minimum)" for label in nlp.model.collisions.labels(self.key)]
+        clearance = nlp.outputs["clearance"]
+        return block_rows(nlp, "collision clearance", labels, "m", clearance)
+
+    def row_bounds(self, problem, block):
+        return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)
+
+    def check(self, problem, result):
+        pairs = short(problem, result)
+        if not pairs:
+            return None
+        closest = pairs[0]
+        amount = problem.collision.threshold[closest.index] - closest.distance
+        return Violation(f"collision margin of {closest.pair}", closest.time, amount, "m")
+
+    def tighten(self, problem, result):
+        return tighten(problem, result)
+
+    def accept(self, problem, result):
+        """A plan that still penetrates, or comes closer than the margin, after the
+        refinement fails, naming the pair, the depth, the time and the rounds tried."""
+        rounds = rounds_tried(result)
+        pen = report(problem, result).first_penetration
+        if pen is not None:
+            raise PlannerSolverError(
+                f"no collision-free plan found: {pen.pair} penetrate by {pen.depth:.4g} m at "
+                f"t = {pen.time:.3f} s, {rounds}",
+                "Collision",
+                result,
+                f"collision of {pen.pair}",
+                pen.time,
+                pen.depth,
+            )
+        pairs = short(problem, result)
+        if pairs:
+            threshold = problem.collision.threshold
+            p = max(pairs, key=lambda p: threshold[p.index] - p.distance)  # the farthest in
+            threshold = threshold[p.index]
+            raise PlannerSolverError(
+                f"no plan keeps the collision margin: {p.pair} come within {p.distance:.4g} m "
+                f"at t = {p.time:.3f} s, {threshold - p.distance:.4g} m inside the "
+                f"{threshold:.4g} m they must keep, {rounds}",
+                "Collision",
+                result,
+                f"collision margin of {p.pair}",
+                p.time,
+                threshold - p.distance,
+            )

@@ -1,127 +1,39 @@
-"""The constraint kinds of the balance NLP, each one object that owns everything about it."""
+"""The constraint terms of the balance NLP (:class:`~balance_opt.optimal.terms.Term`): the
+collocation, the balance joints' limits and torques, the attitude bounds, the start and the end."""
 
 from __future__ import annotations
-
-from dataclasses import dataclass
-from typing import Any
 
 import casadi as cs
 import numpy as np
 
 from balance_opt.errors import InputError
-from balance_opt.motion.result import EFFORT_TOLERANCE, LIMIT_TOLERANCE, BalanceResult, limit_bounds
+from balance_opt.motion.result import EFFORT_TOLERANCE, BalanceResult, limit_bounds
 from balance_opt.motion.so3 import matrix_from_quaternion
-from balance_opt.optimal import collision
 from balance_opt.optimal.collocation import Transcription, bernstein_value
-from balance_opt.optimal.problem import (
-    BalanceProblem,
-    Block,
-    NLPParameters,
+from balance_opt.optimal.layout import Block, unit_of
+from balance_opt.optimal.problem import BalanceProblem
+from balance_opt.optimal.terms import (
+    TORQUE_MARGIN,
+    TORQUE_POINTS,
+    Output,
     PlannerSolverError,
-    Solution,
-    StructureKey,
-    unit_of,
+    Rows,
+    Size,
+    SymbolicNLP,
+    Term,
+    block_rows,
+    rounds_tried,
+    worst,
 )
-from balance_opt.optimal.timing import MISSION_LEVELS, PATH_STATES, path_levels
 
 #: The balance joints' derivatives, in the order of their Bernstein levels.
 DERIVATIVES = ("position", "velocity", "acceleration")
-#: Unit of the peak objective's epigraph variable: ``S = peak^2 / PEAK_SCALE^2`` [rad], so that
-#: ``S`` is of order 1 on drifts of a few hundredths of a radian.
-PEAK_SCALE = 0.01
-#: Exponent ``p`` of the smooth peak (the ``smooth`` stage of the peak objective): the drift's
-#: weighted L_p norm to the power p, ``sum_k q_k (|phi_k| / c)^p``.
-PEAK_POWER = 16
 #: Relative excess of the re-simulated drift over an attitude bound within which the bound
 #: counts as kept: the refinement tightens above it, a plan still above it fails.
 ATTITUDE_TOLERANCE = 1e-3
 
 
-@dataclass(frozen=True)
-class Violation:
-    """The worst breach of a constraint by a motion."""
-
-    constraint: str
-    time: float
-    amount: float
-    unit: str
-
-    def __str__(self) -> str:
-        return f"{self.constraint} at t = {self.time:.3f} s, by {self.amount:.4g} {self.unit}"
-
-
-@dataclass(frozen=True)
-class SymbolicNLP:
-    """What the constraint rows are made of, in the build (CasADi SX)."""
-
-    key: StructureKey
-    transcription: Transcription
-    joints: tuple[str, ...]
-    state_labels: tuple[str, ...]
-    variables: Solution
-    levels: list[list]
-    x_dot: Any
-    torque: Any
-    parameters: NLPParameters
-    clearance: Any = None
-    clearance_labels: tuple[str, ...] = ()
-    mission_path: Any = None
-    mission_joints: tuple[str, ...] = ()
-
-
-#: Rows a kind adds to ``g``: a block (not yet stacked) and its values, (rows, columns), symbolic.
-Rows = tuple[Block, Any]
-
-
-def block_rows(nlp: SymbolicNLP, name, labels, unit, values, taus=None, per_interval=False):
-    """One block of rows ``values`` named ``name``, a row per label, all in ``unit``, at ``taus``
-    (default: every collocation point), or on the intervals that start there."""
-    taus = nlp.transcription.point_taus(nlp.key.intervals) if taus is None else taus
-    return [(Block(name, tuple(labels), (unit,) * len(labels), taus, per_interval), values)]
-
-
-def _worst(problem, excess, t: np.ndarray, what: str, unit: str) -> Violation | None:
-    """The largest entry of ``excess`` (T, n) above :data:`LIMIT_TOLERANCE`, as a violation of
-    ``what`` (formatted with the balance joint of its column) at ``t[row]``, or ``None``."""
-    excess = np.asarray(excess, dtype=float)
-    if excess.size == 0 or not excess.max() > LIMIT_TOLERANCE:
-        return None
-    row, col = np.unravel_index(int(np.argmax(excess)), excess.shape)
-    what = what.format(problem.balance_joints[col])
-    return Violation(what, float(t[row]), float(excess[row, col]), unit)
-
-
-class Constraint:
-    """One kind of constraint of the balance NLP. A kind owns its rows of ``g`` (``(block,
-    values)`` pairs, the block named for the failure messages) and their bounds (stacked column
-    by column), the bounds it puts on the variables (in place), the check of the re-simulated
-    motion (its worst violation beyond :data:`LIMIT_TOLERANCE`), the refinement's tightening
-    (changes of :class:`~balance_opt.optimal.problem.Bounds` and what they tighten, in words)
-    and the refined plan's acceptance (it raises
-    :class:`~balance_opt.optimal.problem.PlannerSolverError` if the plan is no plan)."""
-
-    name = "constraint"
-
-    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        return []
-
-    def row_bounds(self, problem: BalanceProblem, block: Block) -> tuple[np.ndarray, np.ndarray]:
-        raise NotImplementedError(f"{self.name} adds no rows")
-
-    def bound_variables(self, problem: BalanceProblem, lower: Solution, upper: Solution) -> None:
-        pass
-
-    def check(self, problem: BalanceProblem, result: BalanceResult) -> Violation | None:
-        return None
-
-    def tighten(self, problem: BalanceProblem, result: BalanceResult) -> tuple[dict, list[str]]:
-        return {}, []
-
-    def accept(self, problem: BalanceProblem, result: BalanceResult) -> None:
-        pass
-
-
-class Collocation(Constraint):
+class Collocation(Term):
     """The collocation defects: the attitude by the transcription; the balance joints, a chain
     of integrators, exactly (each node, and each midpoint, is the value of the integrated
     control polynomial, so the continuous plan passes through every node; see
@@ -129,13 +41,30 @@ class Collocation(Constraint):
 
     name = "collocation"
 
+    def outputs(self, model):
+        n_x = model.n_x(self.control)
+        return (Output("dynamics", n_x, "", lambda point: point.x_dot),)
+
+    def __init__(self, control: str):
+        self.control = control
+
+    def parameters(self, model, n_points):
+        return {"h": (1, 1), "mission": (model.n_m, n_points)}
+
+    def values(self, problem):
+        return {"h": problem.h, "mission": problem.mission_samples}
+
+    def size(self, shape):
+        rows = shape.points * shape.n_x  # a midpoint defect and a Simpson defect, or one
+        return Size(rows, shape.row_fit * rows)
+
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         tr, N, v = nlp.transcription, nlp.key.intervals, nlp.variables
         h = nlp.parameters.h
         levels = nlp.levels[:-1]  # the joint states' polynomials, not the control's
         joint_ends = cs.vertcat(*(bernstein_value(level, 1.0) for level in levels))
         joint_mids = cs.vertcat(*(bernstein_value(level, 0.5) for level in levels))
-        F = nlp.x_dot
+        F = nlp.outputs["dynamics"]
         Fn, Fm = F[:, : N + 1], (F[:, N + 1 :] if tr.has_midpoints else None)
         out = []
         for name, defect in tr.defects(v.X, v.Xm, Fn, Fm, h):
@@ -158,7 +87,7 @@ class Collocation(Constraint):
         return np.zeros(block.size), np.zeros(block.size)
 
 
-class JointLimit(Constraint):
+class JointLimit(Term):
     """A joint limit of the balance joints (position, velocity or acceleration) on the
     continuous plan: bounds on the nodes' (and midpoints') values and constraint rows on the
     interior Bernstein coefficients of every interval (see the module docstring)."""
@@ -175,6 +104,10 @@ class JointLimit(Constraint):
         control_level = 2 if control == "acceleration" else 3
         degree = transcription.control_degree + control_level - self.level
         self.interior = tuple(range(1, degree)) if between_points else ()
+
+    def size(self, shape):
+        rows = shape.n_B * len(self.interior)
+        return Size(rows, shape.row_fit * rows)
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         if not self.interior:
@@ -208,7 +141,7 @@ class JointLimit(Constraint):
         values = (result.q_B, result.q_dot_B, result.q_ddot_B)[self.level]
         low, high = limit_bounds(problem.limits, self.kind)
         excess = np.maximum(values - high, low - values)
-        return _worst(problem, excess, result.t, f"{self.kind} limit of {{}}", unit_of(self.kind))
+        return worst(problem, excess, result.t, f"{self.kind} limit of {{}}", unit_of(self.kind))
 
 
 class JerkLimit(JointLimit):
@@ -232,6 +165,13 @@ class JerkLimit(JointLimit):
         degree = transcription.control_degree - (1 if control == "acceleration" else 0)
         self.interior = tuple(range(degree + 1))
 
+    def size(self, shape):
+        # every Bernstein coefficient is a row, on the controls of its interval: the
+        # acceleration's three, or (control jerk) one to three of the jerk's
+        rows = shape.n_B * len(self.interior)
+        per_row = (5 / 3 if shape.points == 2 else 2) if self.control == "jerk" else 3
+        return Size(rows, rows * per_row)
+
     def coefficients(self, levels: list, h) -> list:
         """Bernstein coefficients of the jerk on every interval, each (n_B, N), from the balance
         joints' levels (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`)."""
@@ -253,39 +193,30 @@ class JerkLimit(JointLimit):
         mean jerk over each sample interval, never above the largest."""
         jerk = np.diff(result.q_ddot_B, axis=0) / np.diff(result.t)[:, None]
         excess = np.abs(jerk) - problem.limits.jerk
-        return _worst(problem, excess, result.t[:-1], "jerk limit of {}", "rad/s^3")
+        return worst(problem, excess, result.t[:-1], "jerk limit of {}", "rad/s^3")
 
 
-#: Where the re-simulated plan's torque exceeds its effort limit (beyond
-#: :data:`~balance_opt.motion.result.EFFORT_TOLERANCE`), the refinement bounds it this much below the
-#: limit (relative) on that interval: the torque rows hold at the collocation points only, and a
-#: bound at the limit itself leaves the torque between them just over it again (+0.08 % at the
-#: samples was reported as a success before).
-TORQUE_MARGIN = 1e-3
-#: Points per collocation interval, both ends included, at which the refinement and the check
-#: evaluate the torques (:meth:`TorqueLimit.torques`): the torque of a plan bent around a body
-#: peaks inside an interval, and a coarse grid there misses a peak by more than the tolerance.
-TORQUE_POINTS = 65
-
-
-def rounds_tried(result: BalanceResult) -> str:
-    """``"after n refinement rounds"`` of a refined plan (for the message of a failure)."""
-    refinement = (getattr(result, "solver", None) and result.solver.refinement) or {}
-    n = refinement.get("rounds", 0)
-    said = f"after {n} refinement round{'' if n == 1 else 's'}"
-    if "failed" in refinement:
-        said += f" (the next re-solve failed: {refinement['failed']})"
-    return said
-
-
-class TorqueLimit(Constraint):
+class TorqueLimit(Term):
     """The balance joints' effort limits [N m] on the torques of the free-floating inverse
     dynamics, at the collocation points (the point kernels compute the torques)."""
 
     name = "torque limit"
 
+    def __init__(self, control: str, momentum: bool):
+        self.control, self.momentum = control, momentum
+
+    def outputs(self, model):
+        torques = model.balance_torque_fun(self.control, self.momentum)
+        return (Output("torque", model.n_B, "_torque", lambda p: torques(p.x, p.u, p.m)),)
+
+    def size(self, shape):
+        # a torque row depends on a point's positions, rates and controls
+        rows = shape.points * shape.n_B
+        return Size(rows, 3 * shape.n_B * rows, shape.points * shape.n_B**2)
+
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        return block_rows(nlp, self.name, [f"{j} torque" for j in nlp.joints], "N m", nlp.torque)
+        torque = nlp.outputs["torque"]
+        return block_rows(nlp, self.name, [f"{j} torque" for j in nlp.joints], "N m", torque)
 
     def row_bounds(self, problem, block):
         effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
@@ -355,7 +286,7 @@ class TorqueLimit(Constraint):
         """The worst torque beyond its limit (by more than
         :data:`~balance_opt.motion.result.EFFORT_TOLERANCE` of it)."""
         t, excess = self._excess(problem, result)
-        return _worst(problem, excess, t, "torque limit of {}", "N m")
+        return worst(problem, excess, t, "torque limit of {}", "N m")
 
     def accept(self, problem, result):
         """A plan whose torque still exceeds an effort limit after the refinement fails,
@@ -391,7 +322,7 @@ def broken_attitude_bounds(options, result: BalanceResult) -> list[tuple[str, fl
     ]
 
 
-class AttitudeBound(Constraint):
+class AttitudeBound(Term):
     """A bound on the base's rotation from its initial attitude, ``|log R| <= bound``, as rows
     ``|phi|^2 / bound^2 <= 1``: squared, so that the rows are smooth at ``phi = 0``; scaled,
     so that Ipopt's absolute constraint tolerance is relative to the bound. A plan whose
@@ -431,6 +362,15 @@ class PathAttitudeBound(AttitudeBound):
 
     name = "path attitude bound"
 
+    def parameters(self, model, n_points):
+        return {"path_scale": (1, 1)}
+
+    def values(self, problem):
+        return {"path_scale": 1.0 / problem.bounds.path**2 if problem.bounds.path else 1.0}
+
+    def size(self, shape):
+        return Size(shape.points, 3 * shape.points)  # a row on each point's phi
+
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
         values = nlp.parameters.path_scale * cs.sum1(X[:3, :] ** 2)
@@ -440,30 +380,7 @@ class PathAttitudeBound(AttitudeBound):
         if problem.options.path_attitude_bound is None:
             return None
         excess = result.angle - problem.options.path_attitude_bound
-        return _worst(problem, excess[:, None], result.t, self.name, "rad")
-
-
-class PeakEpigraph(PathAttitudeBound):
-    """The peak objective's epigraph: ``|phi_k|^2 / PEAK_SCALE^2 <= S`` at every collocation
-    point, ``S >= 0``; with a path attitude bound, ``S`` is bounded by it (tightened by the
-    refinement: ``problem.bounds.path``), and its check is the bound's."""
-
-    name = "peak epigraph"
-
-    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        X, _ = nlp.variables.points()
-        values = cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S
-        label = "attitude |phi|^2 / PEAK_SCALE^2 - S"
-        return block_rows(nlp, self.name, [label], "(relative)", values)
-
-    def row_bounds(self, problem, block):
-        return np.full(block.size, -np.inf), np.zeros(block.size)
-
-    def bound_variables(self, problem, lower, upper):
-        # a re-plan's: at least the peak the motion already had
-        lower.S[:] = 0.0 if problem.start is None else (problem.start.peak / PEAK_SCALE) ** 2
-        bound = problem.bounds.path
-        upper.S[:] = np.inf if bound is None else (bound / PEAK_SCALE) ** 2
+        return worst(problem, excess[:, None], result.t, self.name, "rad")
 
 
 class TerminalAttitudeBound(AttitudeBound):
@@ -471,6 +388,13 @@ class TerminalAttitudeBound(AttitudeBound):
 
     name = "terminal attitude bound"
     field = "terminal"
+
+    def parameters(self, model, n_points):
+        return {"terminal_scale": (1, 1)}
+
+    def values(self, problem):
+        bound = problem.bounds.terminal
+        return {"terminal_scale": 1.0 / bound**2 if bound else 1.0}
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         N = nlp.key.intervals
@@ -480,10 +404,10 @@ class TerminalAttitudeBound(AttitudeBound):
 
     def check(self, problem, result):
         excess = result.final_drift - problem.options.terminal_attitude_bound
-        return _worst(problem, [[excess]], result.t[-1:], self.name, "rad")
+        return worst(problem, [[excess]], result.t[-1:], self.name, "rad")
 
 
-class InitialState(Constraint):
+class InitialState(Term):
     """The planner's starting point: the base at its initial attitude (``phi = 0``) and the
     balance arm at rest at ``q_B0``; with ``start: rest`` also its acceleration zero (no torque
     step at ``t = 0``)."""
@@ -527,7 +451,7 @@ class InitialState(Constraint):
     def check(self, problem, result):
         state = dict(zip(DERIVATIVES, (result.q_B, result.q_dot_B, result.q_ddot_B)))
         found = [
-            _worst(
+            worst(
                 problem,
                 np.abs(state[kind][self.index] - value)[None, :],
                 result.t[[self.index]],
@@ -553,333 +477,3 @@ class EndConditions(InitialState):
         n_levels = {"free": 1, "still": 2, "rest": 3}[problem.options.end_condition]
         out += [(kind, np.zeros(problem.model.n_B)) for kind in DERIVATIVES[1:n_levels]]
         return out
-
-
-class Collision(Constraint):
-    """Collision avoidance (:mod:`balance_opt.optimal.collision`, which does the work): at
-    every collocation point, one row per body the balance joints move, the soft minimum of
-    its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
-    ``problem.bounds.collision``), and rows of their own for pairs that start close (watched,
-    unbounded, where their shapes overlap). The shapes contain the bodies; between the points
-    the refinement raises a row's bound where the re-simulated motion comes closer than the
-    margin (:meth:`tighten`), and a plan that still penetrates, or comes closer than the
-    margin (a pair that starts closer: than its start, less the rows' slack), fails
-    (:meth:`accept`)."""
-
-    name = "collision"
-
-    def rows(self, nlp: SymbolicNLP) -> list[Rows]:
-        labels = [f"{label} (soft minimum)" for label in nlp.clearance_labels]
-        return block_rows(nlp, "collision clearance", labels, "m", nlp.clearance)
-
-    def row_bounds(self, problem, block):
-        return problem.bounds.collision.ravel(order="F"), np.full(block.size, np.inf)
-
-    def check(self, problem, result):
-        pairs = collision.short(problem, result)
-        if not pairs:
-            return None
-        closest = pairs[0]
-        amount = problem.collision.threshold[closest.index] - closest.distance
-        return Violation(f"collision margin of {closest.pair}", closest.time, amount, "m")
-
-    def tighten(self, problem, result):
-        return collision.tighten(problem, result)
-
-    def accept(self, problem, result):
-        """A plan that still penetrates, or comes closer than the margin, after the
-        refinement fails, naming the pair, the depth, the time and the rounds tried."""
-        rounds = rounds_tried(result)
-        pen = collision.report(problem, result).first_penetration
-        if pen is not None:
-            raise PlannerSolverError(
-                f"no collision-free plan found: {pen.pair} penetrate by {pen.depth:.4g} m at "
-                f"t = {pen.time:.3f} s, {rounds}",
-                "Collision",
-                result,
-                f"collision of {pen.pair}",
-                pen.time,
-                pen.depth,
-            )
-        pairs = collision.short(problem, result)
-        if pairs:
-            threshold = problem.collision.threshold
-            p = max(pairs, key=lambda p: threshold[p.index] - p.distance)  # the farthest in
-            threshold = threshold[p.index]
-            raise PlannerSolverError(
-                f"no plan keeps the collision margin: {p.pair} come within {p.distance:.4g} m "
-                f"at t = {p.time:.3f} s, {threshold - p.distance:.4g} m inside the "
-                f"{threshold:.4g} m they must keep, {rounds}",
-                "Collision",
-                result,
-                f"collision margin of {p.pair}",
-                p.time,
-                threshold - p.distance,
-            )
-
-
-class MissionTiming(Constraint):
-    """A free mission timing's rows and bounds (:mod:`balance_opt.optimal.timing`): the path
-    progress ``sigma`` integrated exactly, the mission joints on the path at every point,
-    ``sigma`` in [0, 1] and never backwards on the continuous motion, the mission joints within
-    their limits (on a straight path between the points too, through ``sigma``'s Bernstein
-    coefficients). On a curved path the limits between the points are checked on the
-    continuous re-timed motion (:meth:`check`), lowered by the refinement on the intervals that
-    break them (:meth:`tighten`, ``problem.bounds.mission_factor``), and a plan still breaking
-    one fails (:meth:`accept`)."""
-
-    name = "mission timing"
-
-    def __init__(self, transcription: Transcription):
-        self.transcription = transcription
-        degree = transcription.control_degree + 2  # sigma's polynomial degree
-        # interior Bernstein coefficients of sigma, sigma_dot, sigma_ddot
-        self.interior = tuple(tuple(range(1, degree - k)) for k in range(3))
-
-    def rows(self, nlp):
-        tr, N, v, h = self.transcription, nlp.key.intervals, nlp.variables, nlp.parameters.h
-        levels = path_levels(tr, v, h)
-        states = levels[:-1]
-        ends = cs.vertcat(*(bernstein_value(level, 1.0) for level in states))
-        out = block_rows(
-            nlp,
-            "mission timing (collocation)",
-            PATH_STATES,
-            "(path)",
-            v.P[:, 1:] - ends,
-            np.arange(N, dtype=float),
-            True,
-        )
-        if tr.has_midpoints:
-            mids = cs.vertcat(*(bernstein_value(level, 0.5) for level in states))
-            out += block_rows(
-                nlp,
-                "mission timing (midpoint)",
-                PATH_STATES,
-                "(path)",
-                v.Pm - mids,
-                np.arange(N, dtype=float),
-                True,
-            )
-        # the mission joints at every point on the path
-        path = nlp.mission_path
-        P = v.P if v.Pm is None else cs.horzcat(v.P, v.Pm)
-        A = v.A if v.Am is None else cs.horzcat(v.A, v.Am)
-        M = v.M if v.Mm is None else cs.horzcat(v.M, v.Mm)
-        columns = []
-        for k in range(P.shape[1]):
-            q, d1, d2 = path.symbolic(P[0, k])
-            sd, sdd = P[1, k], A[0, k]
-            columns.append(cs.vertcat(q, d1 * sd, d2 * sd**2 + d1 * sdd) - M[:, k])
-        labels = [f"{j} {kind}" for kind in MISSION_LEVELS for j in nlp.mission_joints]
-        out += block_rows(nlp, "mission on its path", labels, "(path)", cs.horzcat(*columns))
-        # between the points: sigma in [0, 1], sigma_dot >= 0 (and the limits of a straight path)
-        coefficients, labels = [], []
-        names = ("progress", "progress rate", "progress acceleration")
-        for level, indices, name in zip(levels, self.interior, names):
-            for i in indices:
-                coefficients.append(level[i])
-                labels.append(f"{name} (control point {i})")
-        out += block_rows(
-            nlp,
-            "mission timing between points",
-            labels,
-            "(path)",
-            cs.vertcat(*coefficients),
-            np.arange(N, dtype=float),
-            True,
-        )
-        return out
-
-    def _level_bounds(self, problem) -> list[tuple[float, float]]:
-        v_max, a_max = problem.path_rate_limits
-        return [(0.0, 1.0), (0.0, v_max), (-a_max, a_max)]
-
-    def row_bounds(self, problem, block):
-        if block.name != "mission timing between points":
-            return np.zeros(block.size), np.zeros(block.size)
-        lo, hi = [], []
-        for (low, high), indices in zip(self._level_bounds(problem), self.interior):
-            lo += [low] * len(indices)
-            hi += [high] * len(indices)
-        reps = len(block.taus)
-        return np.tile(lo, reps).astype(float), np.tile(hi, reps).astype(float)
-
-    def bound_variables(self, problem, lower, upper):
-        bounds = self._level_bounds(problem)
-        for name in ("P", "Pm"):
-            if getattr(lower, name) is not None:
-                for r in (0, 1):
-                    getattr(lower, name)[r, :], getattr(upper, name)[r, :] = bounds[r]
-        for name in ("A", "Am"):
-            if getattr(lower, name) is not None:
-                getattr(lower, name)[:], getattr(upper, name)[:] = bounds[2]
-        lim, N, n = problem.mission_limits, problem.N, problem.model.n_M
-        rates = np.r_[lim.velocity, lim.acceleration][:, None] * np.ones(problem.point_times.size)
-        if problem.bounds.mission_factor is not None:  # lowered by the refinement
-            rates = rates * problem.bounds.mission_factor
-        for name, columns in (("M", slice(0, N + 1)), ("Mm", slice(N + 1, None))):
-            low, high = getattr(lower, name), getattr(upper, name)
-            if low is not None:
-                low[:n], high[:n] = lim.lower[:, None], lim.upper[:, None]
-                low[n:], high[n:] = -rates[:, columns], rates[:, columns]
-        # the ends: sigma 0 and 1, the mission arm at rest (no torque step either)
-        lower.P[:, 0] = upper.P[:, 0] = 0.0
-        lower.P[0, N] = upper.P[0, N] = 1.0
-        lower.P[1, N] = upper.P[1, N] = 0.0
-        if problem.transcription.has_midpoints:
-            lower.A[:, [0, N]] = upper.A[:, [0, N]] = 0.0
-        else:  # the trapezoidal rule's acceleration is constant on an interval
-            lower.A[:, [0, 1, N - 1, N]] = upper.A[:, [0, 1, N - 1, N]] = 0.0
-
-    @staticmethod
-    def motion(problem: BalanceProblem, result: BalanceResult) -> tuple:
-        """The re-timed mission of a plan on the continuous motion (:data:`TORQUE_POINTS` per
-        interval and the result's own samples): ``(t (T,) [s], q, q_dot, q_ddot (T, n_M))``;
-        without the plan's solution (or a problem that cannot re-time), the result's samples."""
-        solution = getattr(getattr(result, "solver", None), "solution", None)
-        if solution is None or not hasattr(problem, "mission_motion"):
-            return result.t, result.q_M, result.q_dot_M, result.q_ddot_M
-        s = np.linspace(0.0, 1.0, TORQUE_POINTS)
-        t = ((np.arange(problem.N)[:, None] + s[None, :]) * problem.h).ravel()
-        t = np.union1d(t, np.asarray(result.t, dtype=float))
-        t = np.unique(np.minimum(t, problem.N * problem.h))
-        return (t, *problem.mission_motion(solution).sample(t))
-
-    @classmethod
-    def ratios(cls, problem, result) -> tuple[np.ndarray, dict]:
-        """The mission joints' excess over their limits on the continuous motion, relative to
-        each limit: ``(t, {kind: (T, n_M)})``, ``kind`` ``position`` (beyond the nearer end of
-        the range, over the range's width), ``velocity``, ``acceleration`` (over the limit);
-        zero within the limits (and for an infinite one)."""
-        lim = problem.mission_limits
-        t, q, qd, qdd = cls.motion(problem, result)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            width = np.where(np.isfinite(lim.upper - lim.lower), lim.upper - lim.lower, np.inf)
-            beyond = np.maximum(q - lim.upper, lim.lower - q)
-            ratios = {
-                "position": np.maximum(beyond, 0.0) / width,
-                "velocity": np.maximum(np.abs(qd) / lim.velocity - 1.0, 0.0),
-                "acceleration": np.maximum(np.abs(qdd) / lim.acceleration - 1.0, 0.0),
-            }
-        return t, {k: np.nan_to_num(v, nan=0.0, posinf=0.0) for k, v in ratios.items()}
-
-    @staticmethod
-    def _limit(problem, kind: str, col: int) -> tuple[float, str]:
-        """The limit of ``kind`` of mission joint ``col`` and its unit (of a prismatic joint in
-        m, of a revolute one in rad; per s, s^2)."""
-        lim, robot = problem.mission_limits, problem.robot
-        unit = robot.joint_units[int(robot.mission_indices[col])]
-        if kind == "velocity":
-            return float(lim.velocity[col]), f"{unit}/s"
-        if kind == "acceleration":
-            return float(lim.acceleration[col]), f"{unit}/s^2"
-        return float(lim.upper[col] - lim.lower[col]), unit
-
-    def check(self, problem, result):
-        """The mission joints' worst breach of their position, velocity and acceleration
-        limits on the continuous re-timed motion (between the points on a curved path), ranked
-        by the breach relative to its limit (a position's to the range's width), reported in
-        the joint's unit; breaches below :data:`LIMIT_TOLERANCE` of the limit are none."""
-        t, ratios = self.ratios(problem, result)
-        worst = None
-        for kind, ratio in ratios.items():
-            if not ratio.size or ratio.max() <= LIMIT_TOLERANCE:
-                continue
-            row, col = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
-            if worst is None or ratio[row, col] > worst[0]:
-                worst = (float(ratio[row, col]), kind, int(row), int(col))
-        if worst is None:
-            return None
-        ratio, kind, row, col = worst
-        limit, unit = self._limit(problem, kind, col)
-        joint = problem.robot.mission.joints[col]
-        return Violation(f"{kind} limit of {joint}", float(t[row]), ratio * limit, unit)
-
-    def tighten(self, problem, result):
-        """The mission joints' velocity and acceleration bounds lowered at the points of every
-        interval where the continuous motion breaks a limit (by more than
-        :data:`LIMIT_TOLERANCE` of it), scaled by ``(1 - TORQUE_MARGIN) / (1 + excess)``
-        there. Positions are the path's, whatever the timing: not tightened."""
-        t, ratios = self.ratios(problem, result)
-        N, n = problem.N, problem.model.n_M
-        interval = np.minimum((t / problem.h).astype(int), N - 1)
-        per_interval = np.zeros((N, 2 * n))
-        np.maximum.at(
-            per_interval, interval, np.hstack([ratios["velocity"], ratios["acceleration"]])
-        )
-        broken = per_interval > LIMIT_TOLERANCE
-        if not broken.any():
-            return {}, []
-        scale = np.where(broken, (1.0 - TORQUE_MARGIN) / (1.0 + per_interval), 1.0)
-        before = problem.bounds.mission_factor
-        before = np.ones((2 * n, problem.point_times.size)) if before is None else before
-        factor = before.copy()
-        mids = problem.transcription.has_midpoints
-        for k in np.flatnonzero(broken.any(axis=1)):
-            # a node two broken intervals share takes the lower of their scales, not both
-            for c in [k, k + 1] + ([N + 1 + k] if mids else []):
-                factor[:, c] = np.minimum(factor[:, c], before[:, c] * scale[k])
-        worst, count = float(per_interval.max()), int(broken.any(axis=1).sum())
-        words = f"mission joint bounds on {count} intervals (worst +{worst:.3%})"
-        return {"mission_factor": factor}, [words]
-
-    def accept(self, problem, result):
-        """A plan whose re-timed mission still breaks a mission joint's limit after the
-        refinement fails, naming the joint, the limit, the amount, the time and the rounds."""
-        worst = self.check(problem, result)
-        if worst is None:
-            return
-        kind, joint = worst.constraint.split(" limit of ")
-        col = problem.robot.mission.joints.index(joint)
-        limit, _ = self._limit(problem, kind, col)
-        lim = problem.mission_limits
-        if kind == "position":
-            said = (
-                f"{joint} leaves its range [{lim.lower[col]:g}, {lim.upper[col]:g}] "
-                f"{worst.unit} by {worst.amount:.4g} {worst.unit} (the path's, whatever its "
-                "timing)"
-            )
-        else:
-            said = (
-                f"{joint} exceeds its {kind} limit {limit:g} {worst.unit} by {worst.amount:.4g} "
-                f"{worst.unit} ({worst.amount / limit:+.3%})"
-            )
-        raise PlannerSolverError(
-            f"no free timing keeps the mission joints' limits: {said} at "
-            f"t = {worst.time:.3f} s, {rounds_tried(result)}",
-            "Mission_Limit",
-            result,
-            worst.constraint,
-            worst.time,
-            worst.amount,
-        )
-
-
-def constraint_kinds(key: StructureKey) -> tuple[Constraint, ...]:
-    """The constraint kinds of a structure, in the order of their rows in ``g`` and of their
-    variable bounds (later kinds override earlier ones: the fixed initial and end values win
-    over the limits)."""
-    transcription = Transcription(key.transcription)
-    kinds: list[Constraint] = [Collocation()]
-    kinds += [
-        JointLimit(kind, transcription, key.control, key.between_points)
-        for kind in DERIVATIVES
-        if kind in key.joint_limits
-    ]
-    if "jerk" in key.joint_limits:
-        kinds.append(JerkLimit(transcription, key.control))
-    if key.torque_limits:
-        kinds.append(TorqueLimit())
-    if key.objective == "peak":
-        kinds.append(PeakEpigraph())
-    if key.path_attitude_bound:
-        kinds.append(PathAttitudeBound())
-    if key.terminal_attitude_bound:
-        kinds.append(TerminalAttitudeBound())
-    if key.collision:
-        kinds.append(Collision())
-    if key.timing:
-        kinds.append(MissionTiming(transcription))
-    kinds += [InitialState(), EndConditions()]
-    return tuple(kinds)

@@ -9,8 +9,9 @@ import numpy as np
 
 from balance_opt.errors import InputError, SolverError
 from balance_opt.motion.result import BalanceResult
+from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.options import GUESSES
-from balance_opt.optimal.problem import BalanceProblem, Solution
+from balance_opt.optimal.problem import BalanceProblem
 from balance_opt.optimal.timing import guess_timing
 
 log = logging.getLogger(__name__)

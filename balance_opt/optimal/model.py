@@ -12,7 +12,7 @@ import os
 import re
 import weakref
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
@@ -41,6 +41,7 @@ from balance_opt.model.symbolic import (
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
 from balance_opt.optimal import codegen
 from balance_opt.optimal.collision import CollisionModels
+from balance_opt.optimal.terms import Output, Point
 
 log = logging.getLogger(__name__)
 
@@ -58,9 +59,6 @@ FORMULATION_MODULES = (
 
 #: Rows of the momentum ``h0`` at the end of a point's data ``m`` ([linear; angular]).
 MOMENTUM_ROWS = 6
-
-#: Names of the cost weights, in the order of the ``weights`` input of :meth:`PlannerModel.point_fun`.
-RUNNING_WEIGHTS = ("omega", "attitude", "smoothness", "rest")
 
 
 def formulation_fingerprint() -> str:
@@ -129,7 +127,9 @@ def _function(name: str, inputs: dict, outputs: dict) -> cs.Function:
 
 @dataclass(frozen=True)
 class PointKernels:
-    """The NLP's nonlinear work at one collocation point, with its exact derivatives."""
+    """The NLP's nonlinear work at one collocation point, with its exact derivatives: the
+    outputs ``y`` of the terms' :class:`Output` declarations (``layout``: ``(name, size)`` in
+    order), stacked."""
 
     value: cs.Function
     jacobian: cs.Function
@@ -137,26 +137,28 @@ class PointKernels:
     hessian: cs.Function
     n_x: int
     n_z: int
-    n_y: int
+    layout: tuple[tuple[str, int], ...]
+    n_cost: int
     compiled: bool = False
     compile_time: float = 0.0
     library: str | None = None
     background: bool = False
-    n_clearance: int = 0
-    #: with clearance rows: the outputs ``y`` without them (the cost needs none of them, and
-    #: Ipopt evaluates the cost at every trial point of its line search)
+    #: with outputs out of the cost: the outputs ``y`` without them
     cost: cs.Function | None = None
+    #: ``(control, outputs, momentum, timing)`` it was made of (to make it again)
+    variant: tuple = field(default=(), compare=False, repr=False)
 
-    def split(self, Y) -> tuple:
-        """``(x_dot, L, tau_B)``: the rows of kernel outputs ``Y`` (n_y, n_points); ``tau_B`` is
-        ``None`` without torques."""
-        end = self.n_y - self.n_clearance
-        torque = Y[self.n_x + 1 : end, :] if end > self.n_x + 1 else None
-        return Y[: self.n_x, :], Y[self.n_x, :], torque
+    @property
+    def n_y(self) -> int:
+        return sum(size for _, size in self.layout)
 
-    def clearance(self, Y):
-        """The clearance rows of kernel outputs ``Y`` (n_c, n_points), or ``None``."""
-        return Y[self.n_y - self.n_clearance :, :] if self.n_clearance else None
+    def rows(self, Y) -> dict:
+        """The rows of kernel outputs ``Y`` (n_y, n_points) by output name."""
+        out, start = {}, 0
+        for name, size in self.layout:
+            out[name] = Y[start : start + size, :]
+            start += size
+        return out
 
 
 class PlannerModel:
@@ -288,27 +290,6 @@ class PlannerModel:
 
         return self._stored_one(f"dynamics_{control}{_tag(momentum)}", make)
 
-    def point_fun(self, control: str = "acceleration", momentum: bool = True) -> cs.Function:
-        """``balance_point(x, u, m, weights, q_rest) -> (x_dot, L)``: dynamics and running cost
-        at one collocation point (the point kernels' first outputs)."""
-
-        def make():
-            x, u, m, phi, q_B, _, _, _ = self._symbols(control)
-            weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
-            q_rest = cs.SX.sym("q_rest", self.n_B)
-            x_dot, omega = self.dynamics_fun(control, momentum)(x, u, m)
-            dq = q_B - q_rest
-            L = (
-                weights[0] * cs.dot(omega, omega)
-                + weights[1] * cs.dot(phi, phi)
-                + weights[2] * cs.dot(u, u)
-                + weights[3] * cs.dot(dq, dq)
-            )
-            inputs = {"x": x, "u": u, "m": m, "weights": weights, "q_rest": q_rest}
-            return _function("balance_point", inputs, {"x_dot": x_dot, "L": L})
-
-        return self._cached(f"point_{control}{_tag(momentum)}", make)
-
     @cached_property
     def _dynamics_terms(self) -> cs.Function:
         """``(q, nu) -> (M, h)``: mass matrix and bias forces of the free-floating system,
@@ -385,26 +366,20 @@ class PlannerModel:
 
         return self._cached(f"balance_torque_{control}{_tag(momentum)}", make)
 
-    def n_y(self, control: str, torque: bool, clearance: str = "") -> int:
-        n_c = len(self.collisions.rows[clearance][0].rows) if clearance else 0
-        return self.n_x(control) + 1 + (self.n_B if torque else 0) + n_c
-
     def kernels(
         self,
         control: str = "acceleration",
-        torque: bool = False,
+        outputs: tuple[Output, ...] = (),
         momentum: bool = False,
-        clearance: str = "",
         timing: bool = False,
     ) -> PointKernels:
-        """The point kernels (:class:`PointKernels`) of a control, torque and momentum setting
-        and collision rows (their key, registered in :attr:`collisions`), built once
-        (and compiled once, if the model compiles); with ``timing`` (a free mission timing)
-        the mission joints ``[q_M; q_dot_M; q_ddot_M]`` are the last rows of ``z``, not of
-        the data ``m``."""
-        key = (control, bool(torque), bool(momentum), clearance) + ((True,) if timing else ())
+        """The point kernels (:class:`PointKernels`) of a control, the terms' ``outputs`` and
+        momentum setting, built once (and compiled once, if the model compiles); with
+        ``timing`` (a free mission timing) the mission joints ``[q_M; q_dot_M; q_ddot_M]`` are
+        the last rows of ``z``, not of the data ``m``."""
+        key = kernel_key(control, outputs, momentum, timing)
         if key not in self._kernels:
-            self._kernels[key] = self._make_kernels(*key)
+            self._kernels[key] = self._make_kernels(control, tuple(outputs), momentum, timing)
         return self._kernels[key]
 
     def finish_compiling(self, timeout: float = codegen.COMPILE_WAIT) -> None:
@@ -425,33 +400,29 @@ class PlannerModel:
         """Swap kernels running on the VM for their library once its background compilation
         has finished (and drop the NLPs built on them); for processes that plan many tasks."""
         done = []
-        for variant, kernels in list(self._kernels.items()):
+        for key, kernels in list(self._kernels.items()):
             if kernels.background and Path(kernels.library).exists():
-                self._kernels[variant] = self._make_kernels(*variant)
-                done += [variant] if self._kernels[variant].compiled else []
+                self._kernels[key] = self._make_kernels(*kernels.variant)
+                done += [key] if self._kernels[key].compiled else []
         if done:
             log.info("planner kernels of %s: compiled library loaded", self.robot.name)
-        self.nlp_cache = {
-            k: v
-            for k, v in self.nlp_cache.items()
-            if (k.control, k.torque_limits, k.momentum, k.collision) + ((True,) if k.timing else ())
-            not in done
-        }
+        self.nlp_cache = {k: v for k, v in self.nlp_cache.items() if v.kernel_key not in done}
         return len(done)
 
     def _make_kernels(
-        self, control: str, torque: bool, momentum: bool, clearance: str, timing: bool = False
+        self, control: str, outputs: tuple[Output, ...], momentum: bool, timing: bool = False
     ) -> PointKernels:
         """The kernels from the compiled library (no expression built), else from the disk
         store or built, compiled now or in the background as :attr:`compile` says."""
-        suffix = f"{control}{'_torque' if torque else ''}{_tag(momentum)}"
-        suffix += f"_c{clearance}" if clearance else ""
-        suffix += "_free" if timing else ""
+        tags = "".join(o.tag for o in outputs)
+        suffix = f"{control}{tags}{_tag(momentum)}{'_free' if timing else ''}"
         n_x = self.n_x(control)
         n_z = n_x + self.n_u + (3 * self.n_M if timing else 0)
-        sizes = (n_x, n_z, self.n_y(control, torque, clearance))
-        n_c = sizes[2] - self.n_y(control, torque)
-        parts = ("", "_jac", "_grad", "_hess") + (("_cost",) if n_c else ())
+        costly = any(not o.in_cost for o in outputs)
+        sizes = (n_x, n_z, tuple((o.name, o.size) for o in outputs))
+        sizes += (sum(o.size for o in outputs if o.in_cost),)
+        variant = (control, outputs, momentum, timing)
+        parts = ("", "_jac", "_grad", "_hess") + (("_cost",) if costly else ())
         names = [f"balance_kernel{part}_{suffix}" for part in parts]
         digest = f"{self.key}/{suffix}" if self.store is not None else None
         compiler = codegen.find_compiler() if self.compile else None
@@ -460,12 +431,11 @@ class PlannerModel:
             with contextlib.suppress(BlockingIOError):  # being compiled by another process
                 loaded = codegen.load_cached(names, library)
                 if loaded is not None:
-                    return _point_kernels(
-                        codegen.Compiled(loaded, True, 0.0, str(library)), sizes, n_c
-                    )
+                    compiled = codegen.Compiled(loaded, True, 0.0, str(library))
+                    return _point_kernels(compiled, sizes, variant)
         functions = self._stored(
             f"kernels_{suffix}",
-            lambda: self._kernel_functions(control, torque, momentum, suffix, clearance, timing),
+            lambda: self._kernel_functions(control, outputs, momentum, suffix, timing),
         )
         out = codegen.Compiled(functions, False, 0.0, None)
         if self.compile:
@@ -483,43 +453,37 @@ class PlannerModel:
                 )
             if out.process is not None:
                 self._compiling.append(out.process)
-        return _point_kernels(out, sizes, n_c)
+        return _point_kernels(out, sizes, variant)
 
     def _kernel_functions(
         self,
         control: str,
-        torque: bool,
+        outputs: tuple[Output, ...],
         momentum: bool,
         suffix: str,
-        clearance: str = "",
         timing: bool = False,
     ) -> list[cs.Function]:
-        """The point kernels as SX functions: value, Jacobian, gradient (of the outputs before
-        the clearance rows: the cost's), Hessian, and with clearance rows the outputs before
-        them (:attr:`PointKernels.cost`)."""
+        """The point kernels as SX functions: value, Jacobian, gradient (of the outputs in the
+        cost), Hessian, and with outputs out of the cost the outputs before them
+        (:attr:`PointKernels.cost`)."""
         n_x, n_u, n_j = self.n_x(control), self.n_u, 3 * self.n_M
         z = cs.SX.sym("z", n_x + n_u + (n_j if timing else 0))
         m_in = cs.SX.sym("m", self.n_m)
-        weights = cs.SX.sym("weights", len(RUNNING_WEIGHTS))
-        q_rest = cs.SX.sym("q_rest", self.n_B)
+        extra = dict(i for o in outputs for i in o.inputs)
+        inputs = {"z": z, "m": m_in} | {k: cs.SX.sym(k, n) for k, n in extra.items()}
         x, u = z[:n_x], z[n_x : n_x + n_u]
         # a free timing's mission joints are variables: the data's rows of them are unused
         m = cs.vertcat(z[n_x + n_u :], m_in[n_j:]) if timing else m_in
-        x_dot, L = self.point_fun(control, momentum)(x, u, m, weights, q_rest)
-        parts = [x_dot, L]
-        if torque:
-            parts.append(self.balance_torque_fun(control, momentum)(x, u, m))
-        y_cost = cs.vertcat(*parts)
-        if clearance:  # the clearance rows at the arm configuration [q_M; q_B]
-            _, f = self.collisions.rows[clearance]
-            E, e = self.robot.mimic_matrix
-            q = cs.vertcat(m[: self.n_M], x[3 : 3 + self.n_B])
-            parts.append(f(cs.DM(E) @ q + cs.DM(e)))
+        x_dot, omega = self.dynamics_fun(control, momentum)(x, u, m)
+        E, e = self.robot.mimic_matrix
+        q = cs.DM(E) @ cs.vertcat(m[: self.n_M], x[3 : 3 + self.n_B]) + cs.DM(e)
+        point = Point(self, control, momentum, x, u, m, q, x_dot, omega, inputs)
+        parts = [o.make(point) for o in outputs]
         y = cs.vertcat(*parts)
+        y_cost = cs.vertcat(*(p for p, o in zip(parts, outputs) if o.in_cost))
         mu = cs.SX.sym("mu", y.numel())
         c = cs.SX.sym("c", y_cost.numel())
         hess, _ = cs.hessian(cs.dot(mu, y), z)
-        inputs = {"z": z, "m": m_in, "weights": weights, "q_rest": q_rest}
         cy = cs.dot(c, y_cost)
         cost = _function(f"balance_kernel_cost_{suffix}", inputs, {"y": y_cost})
         return [
@@ -531,14 +495,19 @@ class PlannerModel:
                 {"cy": cy, "grad": cs.gradient(cy, z)},
             ),
             _function(f"balance_kernel_hess_{suffix}", {**inputs, "mu": mu}, {"d2": cs.tril(hess)}),
-            *([cost] if clearance else []),
+            *([cost] if y_cost.numel() < y.numel() else []),
         ]
 
 
-def _point_kernels(out: codegen.Compiled, sizes: tuple, n_clearance: int) -> PointKernels:
+def kernel_key(control: str, outputs, momentum: bool, timing: bool) -> tuple:
+    """What makes two point kernels one: the control, the outputs' tags, momentum, timing."""
+    return (control, tuple(o.tag for o in outputs), bool(momentum), bool(timing))
+
+
+def _point_kernels(out: codegen.Compiled, sizes: tuple, variant: tuple) -> PointKernels:
     f = list(out.functions)
-    compiled = (out.compiled, out.compile_time, out.library, out.background, n_clearance)
-    return PointKernels(*f[:4], *sizes, *compiled, f[4] if len(f) > 4 else None)
+    compiled = (out.compiled, out.compile_time, out.library, out.background)
+    return PointKernels(*f[:4], *sizes, *compiled, f[4] if len(f) > 4 else None, variant)
 
 
 def _stop_all(compiling: list) -> None:

@@ -11,33 +11,90 @@ import logging
 import os
 import time
 from dataclasses import dataclass
-from math import comb
 from pathlib import Path
+from types import SimpleNamespace
 
 import casadi as cs
 import numpy as np
 
 from balance_opt import progress
+from balance_opt.optimal.collision import Collision
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
-    PEAK_POWER,
-    PEAK_SCALE,
-    Constraint,
-    SymbolicNLP,
-    constraint_kinds,
+    DERIVATIVES,
+    Collocation,
+    EndConditions,
+    InitialState,
+    JerkLimit,
+    JointLimit,
+    PathAttitudeBound,
+    TerminalAttitudeBound,
+    TorqueLimit,
 )
-from balance_opt.optimal.model import RUNNING_WEIGHTS, PlannerModel, PointKernels
-from balance_opt.optimal.options import DEFAULT_IPOPT, PEAK_STAGES, PlannerOptions
-from balance_opt.optimal.problem import (
-    BlockStack,
-    NLPParameters,
-    StructureKey,
-    parameter_layout,
-    variable_layout,
+from balance_opt.optimal.layout import BlockStack, parameter_layout, variable_layout
+from balance_opt.optimal.model import PlannerModel, PointKernels, kernel_key
+from balance_opt.optimal.objectives import (
+    JerkPrice,
+    PeakEpigraph,
+    RunningCost,
+    SmoothPeak,
+    TerminalCost,
 )
-from balance_opt.optimal.timing import MISSION_LEVELS
+from balance_opt.optimal.options import DEFAULT_IPOPT, PlannerOptions
+from balance_opt.optimal.problem import StructureKey
+from balance_opt.optimal.terms import SymbolicNLP, Term
+from balance_opt.optimal.timing import MISSION_LEVELS, MissionTiming
 
 log = logging.getLogger(__name__)
+
+
+def terms_of(key: StructureKey) -> tuple[Term, ...]:
+    """The terms of a structure, in the order of their kernel outputs, of their parts of the
+    cost, of their rows in ``g`` and of their variable bounds (later terms override earlier
+    ones: the fixed initial and end values win over the limits)."""
+    transcription = Transcription(key.transcription)
+    peak = key.objective in ("peak", "smooth")  # the peak objective's, its stages'
+    terms: list[Term] = [
+        Collocation(key.control),
+        RunningCost(regularised=peak),
+        TerminalCost("peak_terminal" if peak else "terminal"),
+    ]
+    terms += [
+        JointLimit(kind, transcription, key.control, key.between_points)
+        for kind in DERIVATIVES
+        if kind in key.joint_limits
+    ]
+    if "jerk" in key.joint_limits:
+        terms.append(JerkLimit(transcription, key.control))
+    if key.torque_limits:
+        terms.append(TorqueLimit(key.control, key.momentum))
+    if key.objective == "peak":
+        terms += [PeakEpigraph(), JerkPrice(key.control)]
+    elif key.objective == "smooth":
+        terms.append(SmoothPeak())
+    if key.path_attitude_bound:
+        terms.append(PathAttitudeBound())
+    if key.terminal_attitude_bound:
+        terms.append(TerminalAttitudeBound())
+    if key.collision:
+        terms.append(Collision(key.collision))
+    if key.timing:
+        terms.append(MissionTiming(transcription))
+    return (*terms, InitialState(), EndConditions())
+
+
+def point_kernels(
+    model: PlannerModel,
+    control: str = "acceleration",
+    extra: tuple[Term, ...] = (),
+    momentum: bool = False,
+    timing: bool = False,
+) -> PointKernels:
+    """The point kernels of every structure's outputs (the dynamics, the running cost) and of
+    the ``extra`` terms'."""
+    terms = (Collocation(control), RunningCost(regularised=False), *extra)
+    outputs = tuple(o for term in terms for o in term.outputs(model))
+    return model.kernels(control, outputs, momentum, timing)
 
 
 @dataclass
@@ -49,9 +106,14 @@ class NLPStructure:
     variables: BlockStack
     parameters: BlockStack
     rows: BlockStack
-    row_kinds: tuple[Constraint, ...]
-    kinds: tuple[Constraint, ...]
+    row_terms: tuple[Term, ...]
+    terms: tuple[Term, ...]
+    kernels: PointKernels
     build_time: float
+
+    @property
+    def kernel_key(self) -> tuple:
+        return kernel_key(*self.kernels.variant)
 
 
 @dataclass
@@ -71,9 +133,9 @@ def build_structure(
     """Build and compile the NLP of a structure (with a free mission timing, of its
     :class:`~balance_opt.optimal.timing.MissionPath` ``path``)."""
     start = time.perf_counter()
-    kernels = model.kernels(
-        key.control, key.torque_limits, key.momentum, key.collision, bool(key.timing)
-    )
+    terms = terms_of(key)
+    outputs = tuple(o for term in terms for o in term.outputs(model))
+    kernels = model.kernels(key.control, outputs, key.momentum, bool(key.timing))
     tr = Transcription(key.transcription)
     N, n_pts = key.intervals, tr.n_points(key.intervals)
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
@@ -82,19 +144,23 @@ def build_structure(
         N,
         model.state_labels(key.control),
         [f"{j} {key.control}" for j in joints],
-        peak=key.objective == "peak",
         mission_labels=mission_labels(model) if key.timing else (),
+        extra=tuple(block for term in terms for block in term.variables()),
     )
-    parameters = parameter_layout(len(RUNNING_WEIGHTS), model.n_B, model.n_m, n_pts)
-    kinds = constraint_kinds(key)
-    outer, rows, row_kinds = _outer_problem(model, key, kernels, variables, parameters, kinds, path)
+    parameters = parameter_layout(
+        {name: shape for term in terms for name, shape in term.parameters(model, n_pts).items()}
+    )
+    outer, rows, row_terms = _outer_problem(model, key, kernels, variables, parameters, terms, path)
     ipopt = ipopt_options_for(key.objective, options, key.intervals)
-    solver = _ipopt_solver(kernels, variables, parameters, outer, rows.size, ipopt)
+    inputs = tuple(dict(i for o in outputs for i in o.inputs))
+    solver = _ipopt_solver(kernels, inputs, variables, parameters, outer, rows.size, ipopt)
     build_time = time.perf_counter() - start
     log.debug(
         "%s built in %.3f s: %d variables, %d rows", key, build_time, variables.size, rows.size
     )
-    return NLPStructure(key, solver, variables, parameters, rows, row_kinds, kinds, build_time)
+    return NLPStructure(
+        key, solver, variables, parameters, rows, row_terms, terms, kernels, build_time
+    )
 
 
 def _outer_problem(
@@ -103,23 +169,17 @@ def _outer_problem(
     kernels: PointKernels,
     variables: BlockStack,
     parameters: BlockStack,
-    kinds: tuple[Constraint, ...],
+    terms: tuple[Term, ...],
     path=None,
-) -> tuple[_Outer, BlockStack, tuple[Constraint, ...]]:
-    """The outer problem in SX: the cost, and every kind's rows stacked into ``g``."""
+) -> tuple[_Outer, BlockStack, tuple[Term, ...]]:
+    """The outer problem in SX: the terms' parts of the cost summed, and their rows stacked
+    into ``g``."""
     tr, N = Transcription(key.transcription), key.intervals
     w = cs.SX.sym("w", variables.size)
     Y = cs.SX.sym("Y", kernels.n_y, tr.n_points(N))
     p = cs.SX.sym("p", parameters.size)
     v = variables.unpack(w)
-    par = parameters.unpack(p, NLPParameters)
-    x_dot, running, torque = kernels.split(Y)
-    cost = par.h * cs.mtimes(running, cs.DM(tr.quadrature_weights(N)))
-    cost = cost + par.terminal_weight * cs.sumsqr(v.X[:3, N])
-    if key.objective == "peak":  # S is the squared peak in units of PEAK_SCALE^2
-        cost = cost + par.peak_weight * PEAK_SCALE**2 * v.S
-    elif key.objective == "smooth":
-        cost = cost + par.smooth_weight * _smooth_peak(v, par, tr.quadrature_weights(N))
+    par = parameters.unpack(p, SimpleNamespace)
     starts = [v.X[r, :-1] for r in model.joint_rows(key.control)]
     symbols = SymbolicNLP(
         key=key,
@@ -128,62 +188,33 @@ def _outer_problem(
         state_labels=tuple(model.state_labels(key.control)),
         variables=v,
         levels=joint_chain_coefficients(tr, starts, v.U, v.Um, par.h),
-        x_dot=x_dot,
-        torque=torque,
+        outputs=kernels.rows(Y),
         parameters=par,
-        clearance=kernels.clearance(Y),
-        clearance_labels=model.collisions.labels(key.collision),
+        model=model,
         mission_path=path,
         mission_joints=tuple(model.robot.mission.joints),
     )
-    if key.objective == "peak":  # the only stage that prices it (BalanceNLP._set_bounds)
-        cost = cost + par.jerk_weight * jerk_integral(symbols.levels[2], par.h)
-    if kernels.n_clearance and cs.depends_on(cost, cs.vec(kernels.clearance(Y))):
-        raise AssertionError("the cost must not depend on the clearance rows (PointKernels.cost)")
-    rows, row_kinds, parts = BlockStack(), [], []
-    for kind in kinds:
-        for block, values in kind.rows(symbols):
+    cost = None
+    for term in terms:
+        part = term.cost(symbols)
+        if part is not None:
+            cost = part if cost is None else cost + part
+    if kernels.n_cost < kernels.n_y and cs.depends_on(cost, cs.vec(Y[kernels.n_cost :, :])):
+        raise AssertionError("the cost must not depend on the outputs out of the cost")
+    rows, row_terms, parts = BlockStack(), [], []
+    for term in terms:
+        for block, values in term.rows(symbols):
             rows.add(block)
-            row_kinds.append(kind)
+            row_terms.append(term)
             parts.append(cs.vec(values))
     g = cs.vertcat(*parts)
-    return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_kinds)
+    return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_terms)
 
 
 def mission_labels(model: PlannerModel) -> list[str]:
     """Rows of a free timing's mission joints at a point (kernel inputs after ``x``, ``u``)."""
     joints = model.robot.mission.joints
     return [f"{j} {kind}" for kind in MISSION_LEVELS for j in joints]
-
-
-def _smooth_peak(v, par, weights: np.ndarray):
-    """``sum_k q_k (|phi_k| / c)^PEAK_POWER`` over the collocation points, ``q_k`` the
-    quadrature weights scaled to sum to 1: the drift's L_p norm to the power p, which prices
-    the peak and, unlike the epigraph, has no inequality rows (Ipopt solves it like the
-    integral objective); separable over the points."""
-    X, _ = v.points()
-    ratio = cs.sum1(X[:3, :] ** 2) * par.smooth_scale
-    q = cs.DM(weights / weights.sum())
-    return cs.mtimes(ratio ** (PEAK_POWER // 2), q)
-
-
-def jerk_integral(acceleration: list, h):
-    """``int |q_dddot|^2 dt`` of a piecewise polynomial acceleration, summed over its joints."""
-    d = len(acceleration) - 1
-    if d == 0:  # a constant per interval: the steps are all there is
-        jumps = acceleration[0][:, :-1] - acceleration[0][:, 1:]
-        return _sum_all(jumps * jumps) / h
-    m, total = d - 1, 0
-    b = [(d / h) * (acceleration[i + 1] - acceleration[i]) for i in range(d)]
-    for i in range(m + 1):
-        for j in range(m + 1):
-            gram = comb(m, i) * comb(m, j) / ((2 * m + 1) * comb(2 * m, i + j))
-            total = total + h * gram * _sum_all(b[i] * b[j])
-    return total
-
-
-def _sum_all(x):
-    return cs.sum1(cs.sum2(x)) if isinstance(x, (cs.SX, cs.MX, cs.DM)) else np.sum(x)
 
 
 def _outer_functions(w, y, p, cost, g) -> _Outer:
@@ -245,7 +276,7 @@ def _derivatives(kernels: PointKernels, outer: _Outer, w, p, Z, data, point_idx,
     kernels' part of the Hessian, weighted by ``mu``)."""
     n_y, n_points, n_w, n_pt = kernels.n_y, point_idx.shape[1], w.numel(), point_idx.size
     f0, f_w, f_Y = outer.gradient(w, p)
-    seeds = cs.reshape(f_Y, n_y, n_points)[: n_y - kernels.n_clearance, :]  # none on clearance
+    seeds = cs.reshape(f_Y, n_y, n_points)[: kernels.n_cost, :]  # none on outputs out of it
     cy, grad_z = kernels.gradient.map(n_points)(Z, *data, seeds)
     scatter_w = np.empty(n_pt, dtype=int)
     scatter_w[point_idx.ravel(order="F")] = np.arange(n_pt)
@@ -304,7 +335,7 @@ def ipopt_options_for(
     ipopt = dict(DEFAULT_IPOPT)
     ipopt.update({"tol": options.tolerance, "max_iter": int(options.max_iterations)})
     n = options.intervals if intervals is None else intervals
-    ipopt.update(next((s.ipopt_at(n) for s in PEAK_STAGES if s.name == objective), {}))
+    ipopt.update(next((s.ipopt_at(n) for s in options.stages if s.name == objective), {}))
     ipopt.update(options.ipopt)
     return ipopt
 
@@ -325,6 +356,7 @@ def _point_indices(variables: BlockStack) -> np.ndarray:
 
 def _ipopt_solver(
     kernels: PointKernels,
+    inputs: tuple[str, ...],
     variables: BlockStack,
     parameters: BlockStack,
     outer: _Outer,
@@ -339,14 +371,15 @@ def _ipopt_solver(
         raise AssertionError("the points' variables must come first, each in one point")
     w, p = cs.MX.sym("w", variables.size), cs.MX.sym("p", parameters.size)
     Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
-    par = parameters.unpack(p, NLPParameters)
-    data = (par.mission, par.running_weights, par.q_rest)
+    par = parameters.unpack(p, SimpleNamespace)
+    data = (par.mission, *(getattr(par, name) for name in inputs))
     n_points = point_idx.shape[1]
     Y = kernels.value.map(n_points)(Z, *data)
     g = outer.constraints(w, cs.vec(Y), p)
-    if kernels.cost is not None:  # the cost from the kernel without the clearance rows
+    if kernels.cost is not None:  # the cost from the kernel without the outputs out of it
         Y = cs.vertcat(
-            kernels.cost.map(n_points)(Z, *data), cs.MX.zeros(kernels.n_clearance, n_points)
+            kernels.cost.map(n_points)(Z, *data),
+            cs.MX.zeros(kernels.n_y - kernels.n_cost, n_points),
         )
     f = outer.cost(w, cs.vec(Y), p)
     # with the live progress line (balance_opt.progress); returns at once when it is off

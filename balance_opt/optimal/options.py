@@ -6,8 +6,6 @@ import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-import numpy as np
-
 from balance_opt.config.typed_config import check_settings, setting
 from balance_opt.optimal.collocation import TRANSCRIPTIONS
 
@@ -204,16 +202,6 @@ class CostWeights:
     def __post_init__(self):
         check_settings(self, "planner weight")
 
-    def running(self, objective: str = "integral") -> np.ndarray:
-        """The running-cost weights (:data:`~balance_opt.optimal.model.RUNNING_WEIGHTS`)."""
-        factor = self.regularisation if objective == "peak" else 1.0
-        return factor * np.array([self.omega, self.attitude, self.smoothness, self.rest])
-
-    def jerk_weight(self, objective: str = "integral") -> float:
-        """The jerk term's weight: none in the integral objective (a least-squares problem: its
-        plans are smooth without it)."""
-        return self.regularisation * self.jerk if objective == "peak" else 0.0
-
 
 @dataclass(frozen=True)
 class PlannerOptions:
@@ -374,6 +362,11 @@ class PlannerOptions:
         in_file=False,  # the task's mission.timing
         doc="the mission's timing: given, or free along its path, planned with the balance arm",
     )
+    #: the peak objective's stages, in order (:func:`~balance_opt.optimal.refine.plan_peak`);
+    #: not a task key
+    stages: tuple[Stage, ...] = dataclasses.field(
+        default=PEAK_STAGES, repr=False, metadata={"in_file": False}
+    )
 
     def __post_init__(self):
         check_settings(self, "planner option")
@@ -383,4 +376,7 @@ class PlannerOptions:
         return "rest" if self.rest_at_end else self.end
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The options as written to ``metrics.json`` (the stages are the code's)."""
+        out = dataclasses.asdict(self)
+        del out["stages"]
+        return out

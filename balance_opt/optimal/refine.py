@@ -13,9 +13,10 @@ from balance_opt.errors import SolverError
 from balance_opt.motion.result import BalanceResult
 from balance_opt.optimal.constraints import ATTITUDE_TOLERANCE, broken_attitude_bounds
 from balance_opt.optimal.guess import random_guess
+from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
-from balance_opt.optimal.options import GUESSES, PEAK_STAGES, SMOOTH_PLAN, SUCCESS_STATUSES
-from balance_opt.optimal.problem import PlannerSolverError, Solution
+from balance_opt.optimal.options import GUESSES, SMOOTH_PLAN, SUCCESS_STATUSES
+from balance_opt.optimal.terms import PlannerSolverError
 
 log = logging.getLogger(__name__)
 
@@ -206,7 +207,7 @@ def coarsest_problem(nlp):
     """The peak problem ``nlp`` on the coarsest of its epigraph stage's grids
     (:meth:`~balance_opt.optimal.options.Stage.grids`), whose inner stages start its plan:
     ``nlp`` itself up to the stage's ``fine_above``."""
-    grids = PEAK_STAGES[-1].grids(nlp.N, nlp.transcription.name)
+    grids = nlp.options.stages[-1].grids(nlp.N, nlp.transcription.name)
     return nlp if len(grids) == 1 else nlp.variant(intervals=grids[0])
 
 
@@ -235,7 +236,8 @@ def inner_stage(nlp, stage, guess):
 
 
 def plan_peak(nlp, guess) -> BalanceResult:
-    """Solve a peak problem in the stages :data:`~balance_opt.optimal.options.PEAK_STAGES`,
+    """Solve a peak problem in the stages of its options (by default
+    :data:`~balance_opt.optimal.options.PEAK_STAGES`),
     each warm started from the last: the integral objective's plan, the smooth peak (the
     drift's L_16 norm, without the epigraph's rows), then the exact epigraph, which converges
     fast from near its plan. The inner stages are not re-simulated; a failed one hands its
@@ -244,7 +246,7 @@ def plan_peak(nlp, guess) -> BalanceResult:
     :meth:`~balance_opt.optimal.options.Stage.grids`. Should the epigraph stage fail, the smooth
     peak is solved on the plan's grid and kept (:data:`~balance_opt.optimal.options.SMOOTH_PLAN`,
     with a warning)."""
-    *inner, last = PEAK_STAGES
+    *inner, last = nlp.options.stages
     coarsest = coarsest_problem(nlp)
     if coarsest is not nlp and isinstance(guess, np.ndarray):  # a decision vector of nlp
         guess = nlp.unpack(nlp.initial_guess(guess))
@@ -314,8 +316,8 @@ def refine(nlp, result: BalanceResult) -> BalanceResult:
     if failed is not None:
         refinement["failed"] = str(failed.status)
     result.solver = replace(result.solver, refinement=refinement)
-    for kind in nlp.structure.kinds:  # a plan some kind rejects is a failure (its rounds said)
-        kind.accept(nlp, result)
+    for term in nlp.structure.terms:  # a plan some term rejects is a failure (its rounds said)
+        term.accept(nlp, result)
     if failed is not None:
         raise failed
     return result
@@ -325,8 +327,8 @@ def _tighten(nlp, result: BalanceResult) -> tuple[dict, list[str]]:
     """The bounds the re-simulated ``result`` breaks, tightened (changes of
     :class:`~balance_opt.optimal.problem.Bounds`), and what they lower, in words."""
     changes, out = {}, []
-    for kind in nlp.structure.kinds:
-        more, words = kind.tighten(nlp, result)
+    for term in nlp.structure.terms:
+        more, words = term.tighten(nlp, result)
         changes.update(more)
         out += words
     for field, bound, value in broken_attitude_bounds(nlp.options, result):
@@ -359,7 +361,7 @@ class StartTask:
 
     def __call__(self, guess):
         if self.phase == "first":
-            return inner_stage(self.nlp, PEAK_STAGES[0], guess)[0]
+            return inner_stage(self.nlp, self.nlp.options.stages[0], guess)[0]
         try:
             return solve_with_bounds(self.nlp, guess), None
         except SolverError as exc:
@@ -392,7 +394,7 @@ def multi_start(nlp, guess, executor=None):
         starting = [
             nlp.unpack(nlp.initial_guess(g)) if isinstance(g, np.ndarray) else g for g in starting
         ]
-        first_stage = coarsest_problem(single).stage(PEAK_STAGES[0])
+        first_stage = coarsest_problem(single).stage(single.options.stages[0])
         first = list(run(StartTask(first_stage, "first"), starting))
         for i in range(len(first)):
             same = (j for j in range(i) if owner[j] == j and same_first_plan(first[j], first[i]))

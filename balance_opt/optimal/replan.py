@@ -29,7 +29,8 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.motion.trajectories import MissionWindow
 from balance_opt.optimal.collocation import CollocatedTrajectory
-from balance_opt.optimal.problem import Solution, StartState
+from balance_opt.optimal.layout import Solution
+from balance_opt.optimal.problem import StartState
 from balance_opt.optimal.solve import BalanceNLP
 
 #: Ipopt options of a re-plan over the epigraph stage's: it starts at the plan in force, shifted,

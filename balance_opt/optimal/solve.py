@@ -7,6 +7,7 @@ import dataclasses
 import logging
 import math
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -24,24 +25,14 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.optimal import timing
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
-from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, broken_attitude_bounds
+from balance_opt.optimal.constraints import broken_attitude_bounds
 from balance_opt.optimal.guess import guess_solution, resampled
+from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.nlp import build_structure
-from balance_opt.optimal.options import (
-    PEAK_STAGES,
-    SMOOTH_PLAN,
-    SUCCESS_STATUSES,
-    PlannerOptions,
-    Stage,
-)
-from balance_opt.optimal.problem import (
-    BalanceProblem,
-    NLPParameters,
-    PlannerSolverError,
-    Solution,
-    StructureKey,
-)
+from balance_opt.optimal.objectives import PEAK_SCALE
+from balance_opt.optimal.options import SMOOTH_PLAN, SUCCESS_STATUSES, PlannerOptions, Stage
+from balance_opt.optimal.problem import BalanceProblem, StructureKey
 from balance_opt.optimal.refine import (
     NLP_FUNCTIONS,
     PlanReport,
@@ -49,6 +40,7 @@ from balance_opt.optimal.refine import (
     multi_start,
     solve_with_bounds,
 )
+from balance_opt.optimal.terms import PlannerSolverError
 
 log = logging.getLogger(__name__)
 
@@ -103,39 +95,19 @@ class BalanceNLP(BalanceProblem):
         return new
 
     def _set_bounds(self) -> None:
-        weights = self.options.weights
-        peak = self.structure.key.objective in ("peak", "smooth")
-        smooth = self.structure.key.objective == "smooth"
-        c = self.bounds.peak_reference
-        self.parameters = self.structure.parameters.pack(
-            NLPParameters(
-                h=self.h,
-                terminal_weight=weights.peak_terminal if peak else weights.terminal,
-                running_weights=weights.running("peak" if peak else "integral"),
-                # an attitude bound's rows are |phi|^2 / bound^2 <= 1
-                path_scale=1.0 / self.bounds.path**2 if self.bounds.path else 1.0,
-                terminal_scale=1.0 / self.bounds.terminal**2 if self.bounds.terminal else 1.0,
-                peak_weight=weights.peak if self.structure.key.objective == "peak" else 0.0,
-                # as much as the peak's weight is worth at |phi| = c (see refine.plan_peak)
-                smooth_weight=2.0 * weights.peak * c**2 / PEAK_POWER if smooth else 0.0,
-                smooth_scale=1.0 / c**2 if smooth else 1.0,
-                # the peak objective's inner stages are warm starts: no jerk price to bend them
-                jerk_weight=weights.jerk_weight(self.options.objective)
-                if self.structure.key.objective == self.options.objective
-                else 0.0,
-                q_rest=self.q_rest,
-                mission=self.mission_samples,
-            )
-        )
-        # the variables free, narrowed by every kind in turn; each block of rows by its kind
+        values = {}
+        for term in self.structure.terms:
+            values.update(term.values(self))
+        self.parameters = self.structure.parameters.pack(SimpleNamespace(**values))
+        # the variables free, narrowed by every term in turn; each block of rows by its term
         n_w, n_g = self.structure.variables.size, self.structure.rows.size
         lower, upper = self.unpack(np.full(n_w, -np.inf)), self.unpack(np.full(n_w, np.inf))
-        for kind in self.structure.kinds:
-            kind.bound_variables(self, lower, upper)
+        for term in self.structure.terms:
+            term.bound_variables(self, lower, upper)
         self.lbx, self.ubx = self.pack(lower), self.pack(upper)
         self.lbg, self.ubg = np.empty(n_g), np.empty(n_g)
-        for block, kind in zip(self.structure.rows.blocks, self.structure.row_kinds):
-            self.lbg[block.slice], self.ubg[block.slice] = kind.row_bounds(self, block)
+        for block, term in zip(self.structure.rows.blocks, self.structure.row_terms):
+            self.lbg[block.slice], self.ubg[block.slice] = term.row_bounds(self, block)
 
     def variant(self, stage: str | None = None, between: bool = False, **changes) -> BalanceNLP:
         """The same problem with other options (its bounds untightened)."""
@@ -154,11 +126,12 @@ class BalanceNLP(BalanceProblem):
 
     def stage(self, stage: Stage | str, final: bool = False) -> BalanceNLP:
         """The same problem as a :class:`~balance_opt.optimal.options.Stage` of the peak
-        objective, or the one of :data:`~balance_opt.optimal.options.PEAK_STAGES` of that name
-        (with ``final``, :data:`~balance_opt.optimal.options.SMOOTH_PLAN`): its objective, grid
-        and rows; the integral stage without attitude bounds. Itself when it is that stage."""
+        objective, or the one of the options' ``stages`` of that name (with ``final``,
+        :data:`~balance_opt.optimal.options.SMOOTH_PLAN`): its objective, grid and rows; the
+        integral stage without attitude bounds. Itself when it is that stage."""
         if isinstance(stage, str):
-            stage = SMOOTH_PLAN if final else next(s for s in PEAK_STAGES if s.name == stage)
+            stages = self.options.stages
+            stage = SMOOTH_PLAN if final else next(s for s in stages if s.name == stage)
         key = self.structure.key
         if key.objective == stage.name and key.between_points == stage.between_points:
             return self
@@ -292,8 +265,7 @@ class BalanceNLP(BalanceProblem):
     def _report(self, report: SolveReport, worst, times) -> dict:
         t0, t1, t2, t3 = times
         iters = self.structure.solver.stats().get("iterations", {})
-        key = self.structure.key
-        kernels = self.model.kernels(self.control, key.torque_limits, key.momentum, key.collision)
+        kernels = self.structure.kernels
         return {
             "status": report.status,
             "success": report.success,
@@ -517,7 +489,7 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     rows = nlp.model.joint_rows(nlp.control)
     ends = trajectory.interval_ends()
     joint_defect = max(float(np.abs(ends[k] - sol.X[rows[k], 1:].T).max()) for k in (0, 1))
-    checks = (kind.check(nlp, result) for kind in nlp.structure.kinds)
+    checks = (term.check(nlp, result) for term in nlp.structure.terms)
     result.info["resimulation"] = {
         "samples": int(t.size),
         "step_s": float(t[1] - t[0]),
