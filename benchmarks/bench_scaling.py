@@ -54,6 +54,7 @@ def main(argv=None) -> int:
 
     from balance_opt.app.models import ModelCache
     from balance_opt.app.pipeline import plan_optimal
+    from balance_opt.optimal.nlp import point_kernels
 
     load = os.getloadavg()[0]
     print(f"{os.cpu_count()} CPUs, load average {load:.2f} before")
