@@ -33,13 +33,7 @@ from balance_opt.optimal.constraints import (
 )
 from balance_opt.optimal.layout import BlockStack, parameter_layout, variable_layout
 from balance_opt.optimal.model import PlannerModel, PointKernels, kernel_key
-from balance_opt.optimal.objectives import (
-    JerkPrice,
-    PeakEpigraph,
-    RunningCost,
-    SmoothPeak,
-    TerminalCost,
-)
+from balance_opt.optimal.objectives import OBJECTIVES, RunningCost, TerminalCost
 from balance_opt.optimal.options import DEFAULT_IPOPT, PlannerOptions
 from balance_opt.optimal.problem import StructureKey
 from balance_opt.optimal.terms import SymbolicNLP, Term
@@ -53,11 +47,11 @@ def terms_of(key: StructureKey) -> tuple[Term, ...]:
     cost, of their rows in ``g`` and of their variable bounds (later terms override earlier
     ones: the fixed initial and end values win over the limits)."""
     transcription = Transcription(key.transcription)
-    peak = key.objective in ("peak", "smooth")  # the peak objective's, its stages'
+    objective = OBJECTIVES[key.objective]
     terms: list[Term] = [
         Collocation(key.control),
-        RunningCost(regularised=peak),
-        TerminalCost("peak_terminal" if peak else "terminal"),
+        RunningCost(objective.regularised),
+        TerminalCost("peak_terminal" if objective.regularised else "terminal"),
     ]
     terms += [
         JointLimit(kind, transcription, key.control, key.between_points)
@@ -68,10 +62,7 @@ def terms_of(key: StructureKey) -> tuple[Term, ...]:
         terms.append(JerkLimit(transcription, key.control))
     if key.torque_limits:
         terms.append(TorqueLimit(key.control, key.momentum))
-    if key.objective == "peak":
-        terms += [PeakEpigraph(), JerkPrice(key.control)]
-    elif key.objective == "smooth":
-        terms.append(SmoothPeak())
+    terms += objective.terms(key.control)
     if key.path_attitude_bound:
         terms.append(PathAttitudeBound())
     if key.terminal_attitude_bound:

@@ -8,6 +8,8 @@ adds the epigraph's ``peak * s^2`` and the jerk price and scales the running cos
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from math import comb
 
 import casadi as cs
@@ -15,7 +17,7 @@ import numpy as np
 
 from balance_opt.optimal.constraints import PathAttitudeBound
 from balance_opt.optimal.layout import Block
-from balance_opt.optimal.terms import Output, Rows, Size, SymbolicNLP, Term, block_rows
+from balance_opt.optimal.terms import Output, Rows, SymbolicNLP, Term, block_rows
 
 #: Unit of the peak objective's epigraph variable: ``S = peak^2 / PEAK_SCALE^2`` [rad], so that
 #: ``S`` is of order 1 on drifts of a few hundredths of a radian.
@@ -107,9 +109,6 @@ class PeakEpigraph(PathAttitudeBound):
     def cost(self, nlp: SymbolicNLP):
         return nlp.parameters.peak_weight * PEAK_SCALE**2 * nlp.variables.S
 
-    def size(self, shape):
-        return Size(shape.points, 4 * shape.points)  # on each point's phi and on S
-
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
         values = cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S
@@ -175,10 +174,35 @@ class JerkPrice(Term):
     def cost(self, nlp: SymbolicNLP):
         return nlp.parameters.jerk_weight * jerk_integral(nlp.levels[2], nlp.parameters.h)
 
-    def size(self, shape):
-        # it couples an interval's controls
-        per_joint = 3 if shape.points == 2 else (1 if self.control == "jerk" else 2)
-        return Size(hessian=shape.n_B * per_joint)
+
+@dataclass(frozen=True)
+class Objective:
+    """An objective of a structure (``StructureKey.objective``): the terms it adds to every
+    structure's (after the limits and torques, before the bounds: their rows' order), whether
+    it prices the running cost scaled by ``regularisation`` and the final attitude by
+    ``peak_terminal`` (``regularised``), and whether a plan of it is solved through the
+    options' stages (``staged``: :func:`~balance_opt.optimal.refine.plan_peak`)."""
+
+    terms: Callable[[str], tuple[Term, ...]]  # of the control
+    regularised: bool = False
+    staged: bool = False
+
+
+#: The objectives by name: a new one is an entry (and its terms); ``"smooth"`` is the peak
+#: objective's inner stage. ``objective: time`` searches the horizon with peak plans
+#: (:func:`~balance_opt.optimal.solve.fastest`).
+OBJECTIVES = {
+    "integral": Objective(lambda control: ()),
+    "smooth": Objective(lambda control: (SmoothPeak(),), regularised=True),
+    "peak": Objective(
+        lambda control: (PeakEpigraph(), JerkPrice(control)), regularised=True, staged=True
+    ),
+}
+
+
+def objective_of(options) -> Objective:
+    """The objective a plan of the planner ``options`` solves (``time``: peak plans)."""
+    return OBJECTIVES["peak" if options.objective == "time" else options.objective]
 
 
 def jerk_integral(acceleration: list, h):

@@ -15,6 +15,7 @@ from balance_opt.optimal.constraints import ATTITUDE_TOLERANCE, broken_attitude_
 from balance_opt.optimal.guess import random_guess
 from balance_opt.optimal.layout import Solution
 from balance_opt.optimal.model import PlannerModel
+from balance_opt.optimal.objectives import objective_of
 from balance_opt.optimal.options import GUESSES, SMOOTH_PLAN, SUCCESS_STATUSES
 from balance_opt.optimal.terms import PlannerSolverError
 
@@ -153,7 +154,7 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
     :func:`refine`."""
     bound = nlp.options.path_attitude_bound
     if bound is None:
-        if nlp.options.objective == "peak":
+        if objective_of(nlp.options).staged:
             return refine(nlp, plan_peak(nlp, guess))
         return refine(nlp, nlp.solve_once(guess))
     free = nlp.variant(objective="peak", path_attitude_bound=None, terminal_attitude_bound=None)
@@ -174,7 +175,7 @@ def solve_with_bounds(nlp, guess) -> BalanceResult:
             t,
             smallest - bound,
         )
-    same = nlp.options.objective == "peak" and nlp.options.terminal_attitude_bound is None
+    same = objective_of(nlp.options).staged and nlp.options.terminal_attitude_bound is None
     same = same and priced  # else peak_plan leaves the final drift unpriced: not this problem's
     if same and smallest <= bound * (1.0 - BOUND_MARGIN):
         # the peak plan of the bounded problem is the free one: the bound is not active
@@ -389,7 +390,7 @@ def multi_start(nlp, guess, executor=None):
     single = nlp.variant(starts=1)
     starting = [g for _, g in guesses]
     owner = list(range(len(starting)))
-    if nlp.options.objective == "peak" or nlp.options.path_attitude_bound is not None:
+    if objective_of(nlp.options).staged or nlp.options.path_attitude_bound is not None:
         # decision vectors as states and controls: the first stage's problem needs no other
         starting = [
             nlp.unpack(nlp.initial_guess(g)) if isinstance(g, np.ndarray) else g for g in starting
