@@ -371,35 +371,7 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
     probes: list[dict] = []
 
     def probe(T: float):
-        variant = nlp.variant(objective="peak", horizon=T)
-        try:
-            result = variant.solve(guess, executor)
-            broken = broken_attitude_bounds(nlp.options, result)
-            if broken:  # the refinement's rounds did not bring it within the bound
-                field, limit, value = broken[0]
-                raise PlannerSolverError(
-                    f"the re-simulated plan breaks the {field}_attitude_bound {limit:.6g} rad "
-                    f"by {value - limit:.4g} rad",
-                    "Attitude_Bound",
-                    result,
-                    f"{field} attitude bound",
-                    T,
-                    value - limit,
-                )
-        except SolverError as exc:
-            probes.append({"duration_s": T, "feasible": False, "reason": str(exc)})
-            log.info("objective time: %.3f s does not keep the bound (%s)", T, exc)
-            return None
-        probes.append(
-            {
-                "duration_s": T,
-                "feasible": True,
-                "max_drift_rad": result.max_drift,
-                "final_drift_rad": result.final_drift,
-            }
-        )
-        log.info("objective time: %.3f s keeps the bound (peak %.4g rad)", T, result.max_drift)
-        return result
+        return _probe(nlp, T, guess, executor, probes)
 
     lo = timing.shortest_duration(nlp.mission_path, nlp.path_rate_limits)
     hi, best = nlp.mission.duration, None
@@ -433,6 +405,34 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
         "probes": probes,
     }
     return best
+
+
+def _probe(nlp: BalanceNLP, T: float, guess, executor, probes: list) -> BalanceResult | None:
+    """One probe of :func:`fastest`: the peak plan of horizon ``T`` if it keeps the attitude
+    bounds re-simulated, else ``None``; its outcome appended to ``probes``."""
+    variant = nlp.variant(objective="peak", horizon=T)
+    try:
+        result = variant.solve(guess, executor)
+        broken = broken_attitude_bounds(nlp.options, result)
+        if broken:  # the refinement's rounds did not bring it within the bound
+            field, limit, value = broken[0]
+            raise PlannerSolverError(
+                f"the re-simulated plan breaks the {field}_attitude_bound {limit:.6g} rad "
+                f"by {value - limit:.4g} rad",
+                "Attitude_Bound",
+                result,
+                f"{field} attitude bound",
+                T,
+                value - limit,
+            )
+    except SolverError as exc:
+        probes.append({"duration_s": T, "feasible": False, "reason": str(exc)})
+        log.info("objective time: %.3f s does not keep the bound (%s)", T, exc)
+        return None
+    drifts = {"max_drift_rad": result.max_drift, "final_drift_rad": result.final_drift}
+    probes.append({"duration_s": T, "feasible": True, **drifts})
+    log.info("objective time: %.3f s keeps the bound (peak %.4g rad)", T, result.max_drift)
+    return result
 
 
 def build_balance_nlp(
