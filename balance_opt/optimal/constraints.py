@@ -42,7 +42,7 @@ class Collocation(Term):
 
     def outputs(self, model):
         n_x = model.n_x(self.control)
-        return (Output("dynamics", n_x, "", lambda point: point.x_dot),)
+        return (Output("dynamics", n_x, "", lambda point: point.x_dot, with_dynamics=True),)
 
     def __init__(self, control: str):
         self.control = control

@@ -474,11 +474,11 @@ class PlannerModel:
         x, u = z[:n_x], z[n_x : n_x + n_u]
         # a free timing's mission joints are variables: the data's rows of them are unused
         m = cs.vertcat(z[n_x + n_u :], m_in[n_j:]) if timing else m_in
-        x_dot, omega = self.dynamics_fun(control, momentum)(x, u, m)
-        E, e = self.robot.mimic_matrix
-        q = cs.DM(E) @ cs.vertcat(m[: self.n_M], x[3 : 3 + self.n_B]) + cs.DM(e)
-        point = Point(self, control, momentum, x, u, m, q, x_dot, omega, inputs)
-        parts = [o.make(point) for o in outputs]
+        given = [inputs[k] for k in extra]
+        fused = self._point_function(control, momentum, outputs, extra)(x, u, m, *given)
+        fused = iter([fused] if isinstance(fused, cs.SX) else fused)
+        point = self._point(control, momentum, x, u, m, dict(zip(extra, given)))
+        parts = [next(fused) if o.with_dynamics else o.make(point) for o in outputs]
         y = cs.vertcat(*parts)
         y_cost = cs.vertcat(*(p for p, o in zip(parts, outputs) if o.in_cost))
         mu = cs.SX.sym("mu", y.numel())
@@ -497,6 +497,21 @@ class PlannerModel:
             _function(f"balance_kernel_hess_{suffix}", {**inputs, "mu": mu}, {"d2": cs.tril(hess)}),
             *([cost] if y_cost.numel() < y.numel() else []),
         ]
+
+    def _point(self, control, momentum, x, u, m, inputs) -> Point:
+        x_dot, omega = self.dynamics_fun(control, momentum)(x, u, m)
+        E, e = self.robot.mimic_matrix
+        q = cs.DM(E) @ cs.vertcat(m[: self.n_M], x[3 : 3 + self.n_B]) + cs.DM(e)
+        return Point(self, control, momentum, x, u, m, q, x_dot, omega, inputs)
+
+    def _point_function(self, control, momentum, outputs, extra: dict) -> cs.Function:
+        """``balance_point(x, u, m, *inputs)``: the outputs made ``with_dynamics`` at one point,
+        one function with the dynamics (their common subexpressions shared)."""
+        x, u, m, *_ = self._symbols(control)
+        inputs = {k: cs.SX.sym(k, n) for k, n in extra.items()}
+        point = self._point(control, momentum, x, u, m, inputs)
+        made = {o.name: o.make(point) for o in outputs if o.with_dynamics}
+        return _function("balance_point", {"x": x, "u": u, "m": m, **inputs}, made)
 
 
 def kernel_key(control: str, outputs, momentum: bool, timing: bool) -> tuple:

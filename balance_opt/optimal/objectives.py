@@ -53,7 +53,7 @@ class RunningCost(Term):
             )
 
         inputs = (("running_weights", len(self.weights)), ("q_rest", model.n_B))
-        return (Output(self.name, 1, "", running, inputs=inputs),)
+        return (Output(self.name, 1, "", running, inputs=inputs, with_dynamics=True),)
 
     def parameters(self, model, n_points):
         return {"running_weights": (len(self.weights), 1), "q_rest": (model.n_B, 1)}

@@ -101,7 +101,8 @@ class Output:
     the kernel inputs it reads besides the point's ``z`` and ``m``, ``(name, rows)``, fed from
     the NLP's parameters of that name. An output out of the cost (``in_cost`` false, e.g. the
     collision rows) is left out of the kernel Ipopt evaluates for the cost alone, at every trial
-    point of its line search: such outputs come last."""
+    point of its line search: such outputs come last. An output ``with_dynamics`` is made in one
+    function with the dynamics (the running cost: it shares ``omega``)."""
 
     name: str
     size: int
@@ -109,6 +110,7 @@ class Output:
     make: Callable = field(compare=False, repr=False)
     in_cost: bool = True
     inputs: tuple[tuple[str, int], ...] = ()
+    with_dynamics: bool = False
 
 
 #: Rows a term adds to ``g``: a block (not yet stacked) and its values, (rows, columns), symbolic.
