@@ -107,7 +107,7 @@ def test_every_module_of_the_package_is_named_in_the_architecture():
     "text, problem",
     [
         ("  motion/    so3, warp (a new one)\n", "diagram, motion/ warp"),
-        ("| a concept | `optimal/terms.py` |\n", "`optimal/terms.py`"),
+        ("| a concept | `optimal/stale.py` |\n", "`optimal/stale.py`"),
     ],
 )
 def test_a_stale_name_is_found(text, problem):

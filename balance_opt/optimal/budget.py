@@ -95,7 +95,7 @@ def _per_interval(options, limits) -> tuple[int, int, float]:
     jacobian += jerk_rows * ((5 / 3 if tr.has_midpoints else 2) if jerk else 3)
     k = 3 + 2 * n_B
     hessian = points * (k * (k + 1) / 2 + n_B + (n_B**2 if limited["torque"] else 0))
-    if peak:  # the jerk term (nlp.jerk_integral) couples an interval's controls
+    if peak:  # the jerk price (objectives.jerk_integral) couples an interval's controls
         hessian += n_B * (3 if tr.has_midpoints else (1 if jerk else 2))
     n_g = n_g_fit + torque_rows + path_rows + jerk_rows
     return n_w, n_g, jacobian + hessian + n_w + n_g
