@@ -487,7 +487,7 @@ def test_torque_limits_hold_at_the_collocation_points(capture):
     lowered = dataclasses.replace(nlp.limits, effort=np.full(3, 0.25))
     problem = BalanceProblem(torque_model, capture.mission, capture.q_B0, nlp.options)
     problem.limits = lowered
-    check = TorqueLimit().check(problem, plan)
+    check = TorqueLimit("acceleration", False).check(problem, plan)
     assert check.unit == "N m" and check.amount >= np.abs(torques).max() - 0.25 - 1e-9
     # and without the constraint the same task needs more torque: the bound is active
     free = build_balance_nlp(
