@@ -1,5 +1,5 @@
 """How much memory and time the optimal planner's problem needs, estimated before it is built
-from the sizes its terms declare (:meth:`~balance_opt.optimal.terms.Term.size`)."""
+(no CasADi needed)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,9 @@ import math
 import os
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from balance_opt.optimal.collocation import Transcription
-from balance_opt.optimal.nlp import terms_of
-from balance_opt.optimal.objectives import objective_of
-from balance_opt.optimal.problem import StructureKey
-from balance_opt.optimal.terms import Size
 
 #: Bytes of memory per non-zero of the KKT matrix.
 BYTES_PER_NONZERO = 400
@@ -53,35 +51,54 @@ class ProblemSize:
         return ITERATION_SECONDS_PER_NONZERO * self.nonzeros / self.problems
 
 
-@dataclass(frozen=True)
-class Shape:
-    """What a term's size per interval depends on (:meth:`~balance_opt.optimal.terms.Term.size`):
-    the balance joints, the state's rows, the collocation points per interval and the Jacobian
-    non-zeros per row of the rows that :data:`JACOBIAN_FIT` fits (the collocation's and the
-    joint limits')."""
+def limited_kinds(options, limits) -> dict[str, bool]:
+    """Which limit constraints the planner adds: asked for, and finite for some balance joint."""
+    return {
+        "acceleration": options.acceleration_limits
+        and bool(np.isfinite(limits.acceleration).any()),
+        "velocity": options.velocity_limits and bool(np.isfinite(limits.velocity).any()),
+        "position": options.position_limits
+        and bool((np.isfinite(limits.lower) | np.isfinite(limits.upper)).any()),
+        "torque": options.torque_limits and bool(np.isfinite(limits.effort).any()),
+        "jerk": options.jerk_limits and bool(np.isfinite(limits.jerk).any()),
+    }
 
-    n_B: int
-    n_x: int
-    points: int
-    row_fit: float
 
-
-def _per_interval(options, limits) -> tuple[int, float, float]:
+def _per_interval(options, limits) -> tuple[int, int, float]:
     """(variables, constraints, KKT non-zeros) per interval of the problem of ``options`` with
-    the balance joints' ``limits``: the variables' own and the point kernels', and the sizes
-    of its terms (:func:`~balance_opt.optimal.nlp.terms_of`)."""
+    the balance joints' ``limits``."""
     tr = Transcription(options.transcription)
     n_B = len(limits.lower)
     points = 2 if tr.has_midpoints else 1
-    n_x = 3 + (3 if options.control == "jerk" else 2) * n_B
+    jerk = options.control == "jerk"
+    n_x = 3 + (3 if jerk else 2) * n_B
     n_w = points * (n_x + n_B)
+    limited = limited_kinds(options, limits)
+    degree = tr.control_degree + (1 if jerk else 0)  # of the acceleration polynomial
+    interior = sum(
+        max(degree + i - 1, 0)
+        for i, kind in enumerate(("acceleration", "velocity", "position"))
+        if limited[kind]
+    )
+    # Hermite-Simpson has a midpoint defect and a Simpson defect, trapezoidal one
+    n_g_fit = points * n_x + n_B * interior
+    torque_rows = points * n_B if limited["torque"] else 0
+    peak = options.objective == "peak"
+    path_rows = points if peak or options.path_attitude_bound is not None else 0
     a, b = JACOBIAN_FIT[tr.name]
-    shape = Shape(n_B, n_x, points, b)
-    size = sum((t.size(shape) for t in terms_of(StructureKey.of(limits, options))), Size())
+    # a torque row depends on a point's positions, rates and controls; an attitude row on phi
+    # (and the epigraph's on the peak variable too)
+    jacobian = a * n_w + b * n_g_fit + 3 * n_B * torque_rows + (4 if peak else 3) * path_rows
+    # every Bernstein coefficient of the jerk is a row (constraints.JerkLimit), on the controls
+    # of its interval: the acceleration's three, or (control jerk) one to three of the jerk's
+    jerk_rows = n_B * (tr.control_degree + (1 if jerk else 0)) if limited["jerk"] else 0
+    jacobian += jerk_rows * ((5 / 3 if tr.has_midpoints else 2) if jerk else 3)
     k = 3 + 2 * n_B
-    # the kernels' Hessian at a point: the attitude, positions and rates, and the controls
-    hessian = points * (k * (k + 1) / 2 + n_B) + size.hessian
-    return n_w, size.rows, a * n_w + size.jacobian + hessian + n_w + size.rows
+    hessian = points * (k * (k + 1) / 2 + n_B + (n_B**2 if limited["torque"] else 0))
+    if peak:  # the jerk price (objectives.jerk_integral) couples an interval's controls
+        hessian += n_B * (3 if tr.has_midpoints else (1 if jerk else 2))
+    n_g = n_g_fit + torque_rows + path_rows + jerk_rows
+    return n_w, n_g, jacobian + hessian + n_w + n_g
 
 
 #: What makes a problem an inner stage's, for its size: no joint-limit rows between the points.
@@ -93,10 +110,10 @@ def _built(options) -> list:
     the plan's, the free peak problem's of a path bound (the plan's own when it is a peak
     problem without a terminal bound: a peak problem's path bound adds no rows), the peak
     problem's on the coarser grids of its epigraph stage (:meth:`~.options.Stage.grids`) and the
-    coarse stages of its ``stages`` on the coarsest's grid (the
+    coarse stages of the options' ``stages`` on the coarsest's grid (the
     smooth stage has the integral's size: no epigraph)."""
     free = {"path_attitude_bound": None, "terminal_attitude_bound": None}
-    bounded, peak = options.path_attitude_bound is not None, objective_of(options).staged
+    bounded, peak = options.path_attitude_bound is not None, options.objective == "peak"
     built = [options]
     if bounded and (not peak or options.terminal_attitude_bound is not None):
         built.append(replace(options, objective="peak", **free))

@@ -314,8 +314,8 @@ def report(problem, result) -> ClearanceReport:
     acceptance share it; kept with the result, which the solve made)."""
     setup = problem.collision
     last = getattr(result, "_clearance", None)
-    if last is not None and last[0] is setup:
-        return last[1]
+    if last is not None and last.setup is setup:
+        return last.report
     out = clearance(
         setup.geometry,
         result.t,
@@ -323,8 +323,20 @@ def report(problem, result) -> ClearanceReport:
         pairs=[p.index for p in setup.pairs],
         watch=problem.options.collision_margin + WATCH,
     )
-    result._clearance = (setup, out)
+    result._clearance = _Checked(setup, out)
     return out
+
+
+class _Checked:
+    """A result's clearance report for one collision setup, kept with the result (which the
+    solve made; the problem is left alone); not pickled with it: a plan sent to another
+    process is checked again there."""
+
+    def __init__(self, setup=None, report=None):
+        self.setup, self.report = setup, report
+
+    def __reduce__(self):
+        return (_Checked, ())
 
 
 def short(problem, result) -> list[PairClearance]:

@@ -18,7 +18,6 @@ from balance_opt.optimal.terms import (
     Output,
     PlannerSolverError,
     Rows,
-    Size,
     SymbolicNLP,
     Term,
     block_rows,
@@ -53,10 +52,6 @@ class Collocation(Term):
 
     def values(self, problem):
         return {"h": problem.h, "mission": problem.mission_samples}
-
-    def size(self, shape):
-        rows = shape.points * shape.n_x  # a midpoint defect and a Simpson defect, or one
-        return Size(rows, shape.row_fit * rows)
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         tr, N, v = nlp.transcription, nlp.key.intervals, nlp.variables
@@ -104,10 +99,6 @@ class JointLimit(Term):
         control_level = 2 if control == "acceleration" else 3
         degree = transcription.control_degree + control_level - self.level
         self.interior = tuple(range(1, degree)) if between_points else ()
-
-    def size(self, shape):
-        rows = shape.n_B * len(self.interior)
-        return Size(rows, shape.row_fit * rows)
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         if not self.interior:
@@ -165,13 +156,6 @@ class JerkLimit(JointLimit):
         degree = transcription.control_degree - (1 if control == "acceleration" else 0)
         self.interior = tuple(range(degree + 1))
 
-    def size(self, shape):
-        # every Bernstein coefficient is a row, on the controls of its interval: the
-        # acceleration's three, or (control jerk) one to three of the jerk's
-        rows = shape.n_B * len(self.interior)
-        per_row = (5 / 3 if shape.points == 2 else 2) if self.control == "jerk" else 3
-        return Size(rows, rows * per_row)
-
     def coefficients(self, levels: list, h) -> list:
         """Bernstein coefficients of the jerk on every interval, each (n_B, N), from the balance
         joints' levels (:func:`~balance_opt.optimal.collocation.joint_chain_coefficients`)."""
@@ -208,11 +192,6 @@ class TorqueLimit(Term):
     def outputs(self, model):
         torques = model.balance_torque_fun(self.control, self.momentum)
         return (Output("torque", model.n_B, "_torque", lambda p: torques(p.x, p.u, p.m)),)
-
-    def size(self, shape):
-        # a torque row depends on a point's positions, rates and controls
-        rows = shape.points * shape.n_B
-        return Size(rows, 3 * shape.n_B * rows, shape.points * shape.n_B**2)
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         torque = nlp.outputs["torque"]
@@ -367,9 +346,6 @@ class PathAttitudeBound(AttitudeBound):
 
     def values(self, problem):
         return {"path_scale": 1.0 / problem.bounds.path**2 if problem.bounds.path else 1.0}
-
-    def size(self, shape):
-        return Size(shape.points, 3 * shape.points)  # a row on each point's phi
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()

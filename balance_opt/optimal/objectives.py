@@ -17,7 +17,7 @@ import numpy as np
 
 from balance_opt.optimal.constraints import PathAttitudeBound
 from balance_opt.optimal.layout import Block
-from balance_opt.optimal.terms import Output, Rows, Size, SymbolicNLP, Term, block_rows
+from balance_opt.optimal.terms import Output, Rows, SymbolicNLP, Term, block_rows
 
 #: Unit of the peak objective's epigraph variable: ``S = peak^2 / PEAK_SCALE^2`` [rad], so that
 #: ``S`` is of order 1 on drifts of a few hundredths of a radian.
@@ -109,9 +109,6 @@ class PeakEpigraph(PathAttitudeBound):
     def cost(self, nlp: SymbolicNLP):
         return nlp.parameters.peak_weight * PEAK_SCALE**2 * nlp.variables.S
 
-    def size(self, shape):
-        return Size(shape.points, 4 * shape.points)  # on each point's phi and on S
-
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()
         values = cs.sum1(X[:3, :] ** 2) / PEAK_SCALE**2 - nlp.variables.S
@@ -176,11 +173,6 @@ class JerkPrice(Term):
 
     def cost(self, nlp: SymbolicNLP):
         return nlp.parameters.jerk_weight * jerk_integral(nlp.levels[2], nlp.parameters.h)
-
-    def size(self, shape):
-        # it couples an interval's controls
-        per_joint = 3 if shape.points == 2 else (1 if self.control == "jerk" else 2)
-        return Size(hessian=shape.n_B * per_joint)
 
 
 @dataclass(frozen=True)

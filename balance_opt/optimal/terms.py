@@ -164,9 +164,7 @@ class Term:
       :class:`~balance_opt.optimal.problem.Bounds` after a check, and what they tighten, in
       words;
     * :meth:`accept`: the refined plan's acceptance (it raises :class:`PlannerSolverError` if
-      the plan is no plan);
-    * :meth:`size`: its share of the problem's size per interval, for the budget
-      (:mod:`balance_opt.optimal.budget`), before anything is built.
+      the plan is no plan).
     """
 
     name = "term"
@@ -203,21 +201,3 @@ class Term:
 
     def accept(self, problem: BalanceProblem, result: BalanceResult) -> None:
         pass
-
-    def size(self, shape) -> Size:
-        return Size()
-
-
-@dataclass(frozen=True)
-class Size:
-    """A term's share of one collocation interval of the NLP: its rows of ``g`` and the
-    non-zeros it adds to the Jacobian and to the Hessian of the Lagrangian (estimates)."""
-
-    rows: float = 0.0
-    jacobian: float = 0.0
-    hessian: float = 0.0
-
-    def __add__(self, other: Size) -> Size:
-        return Size(
-            self.rows + other.rows, self.jacobian + other.jacobian, self.hessian + other.hessian
-        )
