@@ -54,7 +54,7 @@ LAYERS = (
     ("report", ("report",)),
     ("app", ("app",)),
     ("sweep", ("sweep",)),
-    ("cli", ("cli", "")),
+    ("cli", ("commands", "cli", "")),
 )
 
 

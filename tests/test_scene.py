@@ -577,7 +577,8 @@ def test_a_run_s_scene_uses_the_run_s_geometry_and_margin(
     """``write_run_scene`` highlights with the geometry the run already has (none is built) and
     the task's collision margin; a run whose robot has no geometry (``False``) gets none."""
     import balance_opt.geometry.robot_geometry as robot_geometry
-    from balance_opt.app.pipeline import TaskRun, write_run_scene
+    from balance_opt.app.run_files import write_run_scene
+    from balance_opt.app.task_run import TaskRun
     from balance_opt.tasks.task import load_task
 
     def no_rebuild(*args, **kwargs):

@@ -20,8 +20,8 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
-from balance_opt.app.pipeline import METHODS, _timed
 from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
+from balance_opt.app.task_run import METHODS, timed
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
@@ -142,7 +142,7 @@ def scenario_study(
     robot, mission = scenario.robot, scenario.mission
 
     # Fig. 2: the mission arm alone, the balance arm held at its start
-    with _timed(f"{scenario.name}: forward-dynamics simulation of the mission arm alone (Fig. 2)"):
+    with timed(f"{scenario.name}: forward-dynamics simulation of the mission arm alone (Fig. 2)"):
         mission_only = simulate(robot, mission, scenario.q_B0, sim_opts)
     kinematic = phase_one(robot, mission, scenario.q_B0, t_eval=mission_only.t)
 
@@ -151,9 +151,9 @@ def scenario_study(
         plan, status = _plan(method, scenario, law, planner, backend)
         # Fig. 3: the plan's balance motion with the mission arm held at its start
         name = f"{scenario.name}: forward-dynamics simulation of the {method} plan"
-        with _timed(f"{name}'s balance arm alone (Fig. 3)"):
+        with timed(f"{name}'s balance arm alone (Fig. 3)"):
             balance_only[method] = simulate(robot, mission.start, plan, sim_opts)
-        with _timed(f"{name} (Figs. 4, 5)"):
+        with timed(f"{name} (Figs. 4, 5)"):
             balanced[method] = simulate_plan(robot, plan, sim_opts)
         plans[method] = plan
         merits[method] = {
@@ -293,7 +293,7 @@ def paper_figures(
         )
     elif solver_options:
         options["planner"] = PlannerOptions(ipopt=dict(solver_options))
-    with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
+    with handling_signals(), folder, timed("paper study (Figs. 2-5)"):
         study = paper_study(folder.staging, **options)
         files = [p for paths in study.figures.values() for p in paths]
         jsons = [folder.staging / name / "study.json" for name in study.parts]
