@@ -31,11 +31,10 @@ from balance_opt.report.scene import (
     NEAR_COLOUR,
     TOUCH_COLOUR,
     build_scene,
-    cluster_vertices,
     scene_html,
-    visual_model,
     write_scene,
 )
+from balance_opt.report.scene_meshes import cluster_vertices, visual_model
 
 ROOT = Path(__file__).resolve().parents[1]
 ATOL = 1e-9

@@ -34,7 +34,7 @@ from balance_opt.model.joints import (
     parse_mimic,
     resolve_mimics,
 )
-from balance_opt.model.limits import joint_limits
+from balance_opt.model.limits import JointLimits, joint_limits
 from balance_opt.model.urdf_checks import check_urdf_physics, pinocchio_model
 
 log = logging.getLogger(__name__)
@@ -234,14 +234,7 @@ class FloatingRobot:
                 f"end-effector frame given for an arm that does not exist "
                 f"(arms: {', '.join(a.name for a in self.arms)})",
             )
-        self.limits = joint_limits(
-            self.model,
-            self.joint_names,
-            self.followers,
-            (self._pin_nq, self._pin_idx_q, self._pin_idx_v),
-            limits or {},
-            self.source,
-        )
+        self.limits = self._make_limits(limits or {})
         for arm in self.balance_arms:
             self._check_moves_mass(arm)
 
@@ -373,6 +366,12 @@ class FloatingRobot:
             arms.append(Arm(name, tuple(joints), np.arange(start, start + len(joints)), frame))
             start += len(joints)
         return arms
+
+    def _make_limits(self, overrides: Mapping[str, Mapping[str, float]]) -> JointLimits:
+        indices = (self._pin_nq, self._pin_idx_q, self._pin_idx_v)
+        return joint_limits(
+            self.model, self.joint_names, self.followers, indices, overrides, self.source
+        )
 
     def _check_moves_mass(self, arm: Arm) -> None:
         """Refuse a balance arm that moves no mass and no inertia: its motion would change
