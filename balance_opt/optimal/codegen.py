@@ -340,7 +340,7 @@ def _recent_failure(library: Path) -> str:
 
 class Compilation(threading.Thread):
     """A background compilation: a thread of this process that runs the compilers (child
-    processes at low priority) while it holds the library's lock, which it takes (without
+    processes, niced by ``niceness``) while it holds the library's lock, which it takes (without
     waiting) before the constructor returns: BlockingIOError when another holds it."""
 
     def __init__(
