@@ -34,8 +34,8 @@ from balance_opt.optimal.solve import BalanceNLP
 
 #: Ipopt options of a re-plan over the epigraph stage's: it starts at the plan in force, shifted,
 #: which solves it but for the state's difference; a small barrier parameter keeps it near there
-#: (1e-4: on two of the capture task's true robots 17 % fewer iterations than 1e-6 and the
-#: largest 30 % fewer; 1e-3 and 1e-2 take more, as 1e-8 does).
+#: (1e-4: on the capture task's 20 true robots 12 % fewer iterations than 1e-6, the 95th
+#: percentile 46 against 73, the same drifts; 1e-3, 1e-2 and 1e-8 take more).
 REPLAN_IPOPT = {"mu_init": 1e-4, "bound_push": 1e-8, "bound_frac": 1e-8}
 #: Ipopt's statuses of a solve stopped by its time budget: a late re-plan, not a failed one.
 OUT_OF_TIME = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
