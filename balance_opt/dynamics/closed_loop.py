@@ -7,7 +7,8 @@ attitude and rate) is turned into a re-plan that applies from ``t_j + period``, 
 the period. Its start is predicted to ``t_j + period``: the balance arm where the plan in force
 (already commanded) has it, the base turned from the measured attitude by the plan's own
 increment over the period (the nominal model's). A re-plan that fails, or that took longer than
-the period on the machine that ran it, leaves the plan in force and is counted. The simulation
+the period on the machine that ran it (or that Ipopt stopped at its time budget: the
+replanner's ``budget``), leaves the plan in force and is counted. The simulation
 does not wait for the clock: the same truth and plans give the same motion (a late re-plan is
 dropped by its measured time, the only thing the machine changes).
 """
@@ -56,8 +57,8 @@ class ClosedLoopRun:
 
     @property
     def failed(self) -> int:
-        """Re-plans that failed (the plan in force kept)."""
-        return sum(not r.success for r in self.replans)
+        """Re-plans that failed (the plan in force kept), not for their time."""
+        return sum(not r.success and not r.out_of_time for r in self.replans)
 
     @property
     def compute_s(self) -> np.ndarray:
@@ -143,12 +144,7 @@ def fly_closed_loop(
     if not prepared:
         h0 = nlp.h0 if opts.momentum == "zero" else np.r_[0.0, 0.0, 0.0, 1e-9, 0.0, 0.0]
         prepare_s = replanner.prepare(in_force, switch_nodes, h0)
-    # the gains of the nominal robot at the plan's start, kept for every period
-    if sim_opts.kp is None or sim_opts.kd is None:
-        probe = simulate(nominal, nlp.mission, in_force.trajectory, sim_opts, duration=sim_opts.dt)
-        sim_opts = dataclasses.replace(
-            sim_opts, kp=tuple(probe.info["kp"]), kd=tuple(probe.info["kd"])
-        )
+    sim_opts = _with_nominal_gains(sim_opts, nlp, in_force)
     mission = nlp.mission
     state, parts, starts = None, [], []
     replans, late, pending = [], 0, None
@@ -183,13 +179,21 @@ def fly_closed_loop(
         if c in switch_nodes:  # measure at t_b, re-plan for node c
             pending = _replan(replanner, in_force, state, b, c, measured_peak, cap, opts, data)
             replans.append(pending)
-            late += pending.success and pending.compute_s > deadline
+            late += pending.out_of_time or (pending.success and pending.compute_s > deadline)
             if not delayed:
                 if pending.success and pending.compute_s <= deadline:
                     in_force = pending.segment
                 pending = None
-    run = ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
-    return run
+    return ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
+
+
+def _with_nominal_gains(sim_opts: SimulationOptions, nlp, in_force: Segment) -> SimulationOptions:
+    """``sim_opts`` with the gains of the nominal robot at the plan's start (the options' own
+    when given), kept for every period whatever the truth."""
+    if sim_opts.kp is not None and sim_opts.kd is not None:
+        return sim_opts
+    probe = simulate(nlp.robot, nlp.mission, in_force.trajectory, sim_opts, duration=sim_opts.dt)
+    return dataclasses.replace(sim_opts, kp=tuple(probe.info["kp"]), kd=tuple(probe.info["kd"]))
 
 
 def _peak(segment: Segment) -> float:
