@@ -1,12 +1,15 @@
 """Smooth shapes that contain the robot's bodies, and their distances as CasADi expressions of
 the joint positions: the optimal planner's collision constraints (``docs/collision.md``).
-Every body but the base gets one capsule; each base object a box or capsule. A row bounds the
-soft minimum of a body's pairs, at most ``log(n) / beta`` below the smallest.
+Every geometry object gets a shape of its own: a capsule, or on the base a box or capsule. A
+body of several objects (an arm link with a cover cylinder fixed on it) so keeps them apart:
+one capsule stretched over both would reach where neither does. A row bounds the soft minimum
+of a body's shape pairs, at most ``log(n) / beta`` below the smallest.
 """
 
 from __future__ import annotations
 
 import hashlib
+from collections import Counter
 from dataclasses import dataclass
 
 import casadi as cs
@@ -108,19 +111,21 @@ def fit_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
-    """The fitted shapes of every body with geometry (see the module docstring)."""
+    """The fitted shapes of every geometry object, body by body (see the module docstring)."""
     objs, meshes = geometry.geometry_model.geometryObjects, geometry.mesh_vertices
     root = min(int(o.parentJoint) for o in objs)
     by_body: dict[int, list[int]] = {}
     for i, o in enumerate(objs):
         by_body.setdefault(int(o.parentJoint), []).append(i)
+    links = Counter(geometry.link(i) for i in range(len(objs)))
     shapes = []
     eye, zero = np.eye(3), np.zeros(3)
     for body, members in sorted(by_body.items()):
-        groups = [[i] for i in members] if body == root else [members]
-        for group in groups:
+        for group in [[i] for i in members]:
             first = objs[group[0]]
-            name = first.name if body == root else geometry.link(group[0])
+            link = geometry.link(group[0])
+            # named by link where the link has one object (the pairs' names are links')
+            name = first.name if body == root or links[link] > 1 else link
             kind = type(first.geometry).__name__
             if body == root and kind not in ("Cylinder", "Capsule", "Sphere"):
                 # a box, or the box around a mesh hull in its own frame
