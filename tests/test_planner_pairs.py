@@ -12,7 +12,6 @@ import pytest
 from test_collision import _joint, _link
 
 from balance_opt.geometry import shapes
-
 from balance_opt.geometry.clearance import clearance
 from balance_opt.geometry.robot_geometry import RobotGeometry
 from balance_opt.model.robot import FloatingRobot
