@@ -326,14 +326,14 @@ def test_the_analytic_laws_rate_step_at_a_capture_is_counted_and_shown():
 @pytest.mark.slow
 def test_a_watched_pair_inside_its_margin_fails_the_plan():
     """A watched pair (its fitted shapes overlap at the start: the tower's plate) is held to the
-    margin like any other: pulled to fold 1.8 rad, the fore arm passes the plate's edge 13 mm
+    margin like any other: pulled to fold 2.0 rad, the fore arm passes the plate's edge 18 mm
     away, inside the 20 mm margin, without touching it; the refinement raises its row, the
     re-solve does not finish, and the plan fails naming the pair, its distance (the exact one
     on the continuous motion), the time and the rounds; it was a warning with exit 0."""
     from balance_opt.optimal.problem import PlannerSolverError
 
     with pytest.raises(PlannerSolverError) as caught:
-        _fold_plan(0.5, avoid=True, fold=1.8)
+        _fold_plan(0.5, avoid=True, fold=2.0)
     pattern = (
         r"no plan keeps the collision margin: tower / fore come within (0\.0\d+) m at "
         r"t = (\d\.\d{3}) s, 0\.00\d+ m inside the 0\.02 m they must keep, after \d refinement "
