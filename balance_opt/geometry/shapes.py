@@ -1,15 +1,12 @@
 """Smooth shapes that contain the robot's bodies, and their distances as CasADi expressions of
 the joint positions: the optimal planner's collision constraints (``docs/collision.md``).
-Every geometry object gets a shape of its own: a capsule, or on the base a box or capsule. A
-body of several objects (an arm link with a cover cylinder fixed on it) so keeps them apart:
-one capsule stretched over both would reach where neither does. A row bounds the soft minimum
-of a body's shape pairs, at most ``log(n) / beta`` below the smallest.
+Every body but the base gets one capsule; each base object a box or capsule. A row bounds the
+soft minimum of a body's pairs, at most ``log(n) / beta`` below the smallest.
 """
 
 from __future__ import annotations
 
 import hashlib
-from collections import Counter
 from dataclasses import dataclass
 
 import casadi as cs
@@ -111,31 +108,39 @@ def fit_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
-    """The fitted shapes of every geometry object, body by body (see the module docstring)."""
+    """The fitted shapes of every body with geometry (see the module docstring)."""
     objs, meshes = geometry.geometry_model.geometryObjects, geometry.mesh_vertices
     root = min(int(o.parentJoint) for o in objs)
-    links = Counter(geometry.link(i) for i in range(len(objs)))
+    by_body: dict[int, list[int]] = {}
+    for i, o in enumerate(objs):
+        by_body.setdefault(int(o.parentJoint), []).append(i)
     shapes = []
     eye, zero = np.eye(3), np.zeros(3)
-    for i in sorted(range(len(objs)), key=lambda k: (int(objs[k].parentJoint), k)):
-        obj, body = objs[i], int(objs[i].parentJoint)
-        link, kind = geometry.link(i), type(objs[i].geometry).__name__
-        # named by link where the link has one object (the pairs' names are links')
-        name = obj.name if body == root or links[link] > 1 else link
-        if body == root and kind not in ("Cylinder", "Capsule", "Sphere"):
-            # a box, or the box around a mesh hull in its own frame
-            M = obj.placement
-            box = obj.geometry.aabb_local
-            lo, hi = np.asarray(box.min_, dtype=float), np.asarray(box.max_, dtype=float)
-            centre = M.translation + M.rotation @ (0.5 * (lo + hi))
-            half = 0.5 * (hi - lo)
-            shapes.append(
-                Shape(name, body, "box", centre, centre, 0.0, M.rotation.copy(), half, (i,))
-            )
-            continue
-        exact = _capsule_of_primitive(obj)
-        a, b, r = exact if exact is not None else fit_capsule(_hull_points(obj, meshes.get(i)))
-        shapes.append(Shape(name, body, "capsule", a, b, r, eye, zero, (i,)))
+    for body, members in sorted(by_body.items()):
+        groups = [[i] for i in members] if body == root else [members]
+        for group in groups:
+            first = objs[group[0]]
+            name = first.name if body == root else geometry.link(group[0])
+            kind = type(first.geometry).__name__
+            if body == root and kind not in ("Cylinder", "Capsule", "Sphere"):
+                # a box, or the box around a mesh hull in its own frame
+                M = first.placement
+                box = first.geometry.aabb_local
+                lo, hi = np.asarray(box.min_, dtype=float), np.asarray(box.max_, dtype=float)
+                centre = M.translation + M.rotation @ (0.5 * (lo + hi))
+                half = 0.5 * (hi - lo)
+                rotation = M.rotation.copy()
+                shapes.append(
+                    Shape(name, body, "box", centre, centre, 0.0, rotation, half, tuple(group))
+                )
+                continue
+            exact = _capsule_of_primitive(first) if len(group) == 1 else None
+            if exact is None:
+                exact = fit_capsule(
+                    np.vstack([_hull_points(objs[i], meshes.get(i)) for i in group])
+                )
+            a, b, r = exact
+            shapes.append(Shape(name, body, "capsule", a, b, r, eye, zero, tuple(group)))
     return shapes
 
 
