@@ -224,14 +224,16 @@ class BalanceNLP(BalanceProblem):
         return result
 
     def _solve_clear_of_bodies(self, initial_guess) -> BalanceResult:
-        """:func:`solve_with_bounds`; should it fail from the analytic law's guess where that
+        """:func:`solve_with_bounds`; should Ipopt fail from the analytic law's guess where that
         guess goes through a body (:func:`~balance_opt.optimal.collision.guess_through`), it
-        is solved again from rest, where the arm keeps every row."""
+        is solved again from rest, where the arm keeps every row. A plan found and then
+        judged in collision after the refinement's rounds is not: the rounds start from the
+        plan, not the guess (Baxter's user robot failed the same way from rest)."""
         try:
             return solve_with_bounds(self, initial_guess)
         except PlannerSolverError as exc:
             analytic = isinstance(initial_guess, str) and initial_guess == "analytic"
-            if self.collision is None or not analytic:
+            if self.collision is None or not analytic or exc.status == "Collision":
                 raise
             through = guess_through(self, self.unpack(self.initial_guess(initial_guess)))
             if through is None:
