@@ -47,9 +47,6 @@ class Collocation(Term):
     def __init__(self, control: str):
         self.control = control
 
-    def parameters(self, model, n_points):
-        return {"h": (1, 1), "mission": (model.n_m, n_points)}
-
     def values(self, problem):
         return {"h": problem.h, "mission": problem.mission_samples}
 
@@ -341,9 +338,6 @@ class PathAttitudeBound(AttitudeBound):
 
     name = "path attitude bound"
 
-    def parameters(self, model, n_points):
-        return {"path_scale": (1, 1)}
-
     def values(self, problem):
         return {"path_scale": 1.0 / problem.bounds.path**2 if problem.bounds.path else 1.0}
 
@@ -364,9 +358,6 @@ class TerminalAttitudeBound(AttitudeBound):
 
     name = "terminal attitude bound"
     field = "terminal"
-
-    def parameters(self, model, n_points):
-        return {"terminal_scale": (1, 1)}
 
     def values(self, problem):
         bound = problem.bounds.terminal

@@ -163,13 +163,13 @@ def variable_layout(
     return layout
 
 
-def parameter_layout(declared: dict[str, tuple[int, int]]) -> BlockStack:
-    """The parameter vector ``p``: the terms' parameters (:meth:`~.terms.Term.parameters`,
-    ``name -> (rows, columns)``), one after the other, each a matrix stacked column by column;
-    it unpacks to a namespace of them."""
-    return BlockStack(
-        *(
-            Block(name, (name,) * rows, ("",) * rows, np.arange(float(columns)))
-            for name, (rows, columns) in declared.items()
-        )
-    )
+def parameter_layout(values: dict[str, Any]) -> BlockStack:
+    """The parameter vector ``p``: the terms' values (:meth:`~.terms.Term.values`), one after
+    the other, each a matrix stacked column by column (a scalar 1 x 1, a vector a column); it
+    unpacks to a namespace of them."""
+    blocks = []
+    for name, value in values.items():
+        value = np.asarray(value, dtype=float)
+        rows, columns = value.shape if value.ndim == 2 else (value.size, 1)
+        blocks.append(Block(name, (name,) * rows, ("",) * rows, np.arange(float(columns))))
+    return BlockStack(*blocks)

@@ -118,17 +118,16 @@ class _Outer:
     hessian: cs.Function  # (w, p, lam_f, lam_g) -> (triu d2L/dw2, dL/dy = mu)
 
 
-def build_structure(
-    model: PlannerModel, key: StructureKey, options: PlannerOptions, path=None
-) -> NLPStructure:
-    """Build and compile the NLP of a structure (with a free mission timing, of its
+def build_structure(model: PlannerModel, key: StructureKey, problem, path=None) -> NLPStructure:
+    """Build and compile the NLP of a structure, the parameters laid out as ``problem``'s (a
+    :class:`~balance_opt.optimal.problem.BalanceProblem`; with a free mission timing, of its
     :class:`~balance_opt.optimal.timing.MissionPath` ``path``)."""
     start = time.perf_counter()
     terms = terms_of(key)
     outputs = tuple(o for term in terms for o in term.outputs(model))
     kernels = model.kernels(key.control, outputs, key.momentum, bool(key.timing))
     tr = Transcription(key.transcription)
-    N, n_pts = key.intervals, tr.n_points(key.intervals)
+    N = key.intervals
     joints = [model.robot.joint_names[i] for i in model.robot.balance_indices]
     variables = variable_layout(
         tr,
@@ -138,11 +137,9 @@ def build_structure(
         mission_labels=mission_labels(model) if key.timing else (),
         extra=tuple(block for term in terms for block in term.variables()),
     )
-    parameters = parameter_layout(
-        {name: shape for term in terms for name, shape in term.parameters(model, n_pts).items()}
-    )
+    parameters = parameter_layout({k: v for term in terms for k, v in term.values(problem).items()})
     outer, rows, row_terms = _outer_problem(model, key, kernels, variables, parameters, terms, path)
-    ipopt = ipopt_options_for(key.objective, options, key.intervals)
+    ipopt = ipopt_options_for(key.objective, problem.options, key.intervals)
     inputs = tuple(dict(i for o in outputs for i in o.inputs))
     solver = _ipopt_solver(kernels, inputs, variables, parameters, outer, rows.size, ipopt)
     build_time = time.perf_counter() - start

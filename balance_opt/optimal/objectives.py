@@ -55,9 +55,6 @@ class RunningCost(Term):
         inputs = (("running_weights", len(self.weights)), ("q_rest", model.n_B))
         return (Output(self.name, 1, "", running, inputs=inputs, with_dynamics=True),)
 
-    def parameters(self, model, n_points):
-        return {"running_weights": (len(self.weights), 1), "q_rest": (model.n_B, 1)}
-
     def values(self, problem):
         weights = problem.options.weights
         factor = weights.regularisation if self.regularised else 1.0
@@ -77,9 +74,6 @@ class TerminalCost(Term):
     def __init__(self, weight: str):
         self.weight = weight
 
-    def parameters(self, model, n_points):
-        return {"terminal_weight": (1, 1)}
-
     def values(self, problem):
         return {"terminal_weight": getattr(problem.options.weights, self.weight)}
 
@@ -95,9 +89,6 @@ class PeakEpigraph(PathAttitudeBound):
     ``problem.bounds.path``), and its check is the bound's."""
 
     name = "peak epigraph"
-
-    def parameters(self, model, n_points):
-        return {"peak_weight": (1, 1)}
 
     def values(self, problem):
         return {"peak_weight": problem.options.weights.peak}
@@ -135,9 +126,6 @@ class SmoothPeak(Term):
 
     name = "smooth peak"
 
-    def parameters(self, model, n_points):
-        return {"smooth_weight": (1, 1), "smooth_scale": (1, 1)}
-
     def values(self, problem):
         c = problem.bounds.peak_reference
         weight = 2.0 * problem.options.weights.peak * c**2 / PEAK_POWER
@@ -162,9 +150,6 @@ class JerkPrice(Term):
 
     def __init__(self, control: str):
         self.control = control
-
-    def parameters(self, model, n_points):
-        return {"jerk_weight": (1, 1)}
 
     def values(self, problem):
         weights = problem.options.weights

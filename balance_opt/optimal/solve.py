@@ -81,7 +81,7 @@ class BalanceNLP(BalanceProblem):
             )
         built_now = key not in model.nlp_cache
         if built_now:
-            model.nlp_cache[key] = build_structure(model, key, options, path)
+            model.nlp_cache[key] = build_structure(model, key, self, path)
         self.structure = model.nlp_cache[key]
         self.build_time = self.structure.build_time if built_now else 0.0
         self._set_bounds()

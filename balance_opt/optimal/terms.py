@@ -151,8 +151,9 @@ class Term:
 
     * :meth:`outputs`: what it needs the point kernels to compute at every collocation point
       (:class:`~balance_opt.optimal.model.Output`; they key the kernels);
-    * :meth:`parameters` and :meth:`values`: its numbers in the parameter vector ``p``
-      (weights, scales), declared once and packed from the problem for every solve;
+    * :meth:`values`: its numbers in the parameter vector ``p`` (weights, scales, a bound the
+      refinement lowers), by name, packed from the problem for every solve (their layout is
+      read from the first problem's: a scalar, a column, or a matrix of columns);
     * :meth:`variables`: decision variables of its own (the peak's epigraph variable);
     * :meth:`cost`: its part of the objective (symbolic), if any;
     * :meth:`rows` and :meth:`row_bounds`: its rows of ``g`` (``(block, values)`` pairs, the
@@ -171,9 +172,6 @@ class Term:
 
     def outputs(self, model: PlannerModel) -> tuple[Output, ...]:
         return ()
-
-    def parameters(self, model: PlannerModel, n_points: int) -> dict[str, tuple[int, int]]:
-        return {}
 
     def values(self, problem: BalanceProblem) -> dict[str, Any]:
         return {}
