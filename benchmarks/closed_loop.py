@@ -75,7 +75,7 @@ def main() -> None:
         f"peak {plan.max_drift:.4g} rad, final {plan.final_drift:.4g} rad"
     )
     # the closed loop plans inside its margin, its first plan too (as balance-opt compare)
-    robot = margined(task.robot, options.margin)
+    robot = margined(task.robot, *options.margins)
     closed_plan = plan
     if robot is not task.robot:
         nlp = build_balance_nlp(model, task.mission, task.q_B0, planner, robot=robot, h0=task.h0)
