@@ -125,7 +125,7 @@ class ClosedLoopOptions:
         None, minimum=0, doc="seed of the perturbations (default: robustness.seed)"
     )
     margin: float = setting(
-        0.03,
+        0.06,
         minimum=0.0,
         doc="fraction by which the closed-loop plans (first plan and re-plans) tighten the "
         "balance joints' velocity and acceleration limits, for the joint controllers' tracking "
