@@ -819,7 +819,7 @@ OPTION_KEYS_DEFAULTS = [
     ("closed_loop.seed", "none"),
     ("closed_loop.margin", "0.06"),
     ("closed_loop.position_margin", "0.002"),
-    ("closed_loop.jerk", "10.0"),
+    ("closed_loop.jerk", "15.0"),
 ]
 
 

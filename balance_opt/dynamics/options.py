@@ -139,7 +139,7 @@ class ClosedLoopOptions:
         "position limits (at most a quarter of a joint's range), for the tracking error",
     )
     jerk: float | None = setting(
-        10.0,
+        15.0,
         unit="rad/s^3",
         exclusive_minimum=0.0,
         doc="largest jerk of the balance joints in the closed-loop plans (the robot's own if "
