@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from balance_opt.config.typed_config import from_data, walk_settings
+from balance_opt.config.typed_config import from_data, suggest, walk_settings
 from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, format_path, load_yaml
 from balance_opt.errors import (
     ArmError,
@@ -190,6 +190,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     check_limits(spec, doc, robot, mission, q_B0)
     target = check_capture(spec, doc, float(mission.duration))
     check_timing(spec, doc, robot)
+    check_keep_out(spec, doc, robot, mission, q_B0)
     ignore = spec.optimal.planner.collision_ignore
     if target is None and any(TARGET_LINK in pair for pair in ignore):
         raise doc.error(
@@ -268,6 +269,67 @@ def check_timing(spec: TaskSpec, doc: YamlDocument, robot: FloatingRobot) -> Non
                     f"a free timing needs {'an' if kind == 'acceleration' else 'a'} {kind} limit "
                     f"of every mission joint; {joint} has none (set limits.{joint}.{kind})",
                 )
+
+
+def check_keep_out(spec: TaskSpec, doc: YamlDocument, robot, mission, q_B0) -> None:
+    """The keep-out zones (names once, frames of the robot, arms of the task, sizes) given to
+    the robot, and none that the mission arm's trajectory enters: the planner cannot move it.
+    """
+    from balance_opt.geometry.keep_out import zone_problems
+
+    arms = [a.name for a in robot.arms]
+    frames = [f.name for f in robot.model.frames if f.name != "universe"]
+    for i, zone in enumerate(spec.keep_out):
+        earlier = [z.name for z in spec.keep_out[:i]]
+        if zone.name in earlier:
+            raise doc.error(
+                ("keep_out", i, "name"),
+                f"zone {zone.name} is named twice (also keep_out[{earlier.index(zone.name)}])",
+            )
+        if zone.frame not in frames:
+            raise doc.error(
+                ("keep_out", i, "frame"),
+                f"{robot.name} has no frame {zone.frame}" + suggest(zone.frame, frames),
+            )
+        for k, arm in enumerate(zone.arms or ()):
+            if arm not in arms:
+                raise doc.error(
+                    ("keep_out", i, "arms", k), f"no arm {arm}; the arms are {', '.join(arms)}"
+                )
+        for path, problem in zone_problems(zone):
+            raise doc.error(("keep_out", i, *path), problem)
+    if not spec.keep_out:
+        return
+    from balance_opt.geometry.clearance import clearance
+    from balance_opt.geometry.robot_geometry import RobotGeometry
+
+    robot.keep_out = spec.keep_out
+    geometry = RobotGeometry(robot, disabled={})  # the zones' pairs alone are wanted
+    moved = {
+        j
+        for name in robot.mission.joints
+        for j in robot.model.subtrees[robot.model.getJointId(name)]
+    }
+    pairs = [
+        p.index
+        for p in geometry.pairs
+        if {p.first, p.second} & geometry.zones.keys()
+        and {geometry.body(p.first), geometry.body(p.second)} & moved
+    ]
+    t = np.linspace(0.0, float(mission.duration), 401)
+    q = np.hstack([mission.sample(t)[0], np.tile(q_B0, (t.size, 1))])
+    hit = clearance(geometry, t, q, pairs=pairs, watch=0.0).first_penetration
+    if hit is not None:
+        label = next(z for z in hit.pair.split(" / ") if z.startswith("keep_out:"))
+        i = [z.label for z in spec.keep_out].index(label)
+        link = hit.pair.replace(label, "").strip(" /")
+        raise doc.error(
+            ("keep_out", i),
+            f"zone {spec.keep_out[i].name}: the mission arm's trajectory enters it: {link} at "
+            f"t = {hit.time:.3f} s ({hit.depth:.4f} m deep); the planner cannot move the mission "
+            "arm: move the zone or the mission, or bind the zone to the balance arms only "
+            "(arms: [balance])",
+        )
 
 
 def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
