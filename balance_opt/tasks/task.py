@@ -305,16 +305,15 @@ def check_keep_out(spec: TaskSpec, doc: YamlDocument, robot, mission, q_B0) -> N
 
     robot.keep_out = spec.keep_out
     geometry = RobotGeometry(robot, disabled={})  # the zones' pairs alone are wanted
-    moved = {
-        j
-        for name in robot.mission.joints
-        for j in robot.model.subtrees[robot.model.getJointId(name)]
-    }
-    pairs = [
+    tree = robot.model.subtrees
+    balance = set().union(
+        *(tree[robot.model.getJointId(robot.joint_names[i])] for i in robot.balance_indices)
+    )
+    pairs = [  # the zones' pairs the balance arm does not move
         p.index
         for p in geometry.pairs
         if {p.first, p.second} & geometry.zones.keys()
-        and {geometry.body(p.first), geometry.body(p.second)} & moved
+        and not {geometry.body(p.first), geometry.body(p.second)} & balance
     ]
     t = np.linspace(0.0, float(mission.duration), 401)
     q = np.hstack([mission.sample(t)[0], np.tile(q_B0, (t.size, 1))])
@@ -325,10 +324,10 @@ def check_keep_out(spec: TaskSpec, doc: YamlDocument, robot, mission, q_B0) -> N
         link = hit.pair.replace(label, "").strip(" /")
         raise doc.error(
             ("keep_out", i),
-            f"zone {spec.keep_out[i].name}: the mission arm's trajectory enters it: {link} at "
-            f"t = {hit.time:.3f} s ({hit.depth:.4f} m deep); the planner cannot move the mission "
-            "arm: move the zone or the mission, or bind the zone to the balance arms only "
-            "(arms: [balance])",
+            f"zone {spec.keep_out[i].name}: the mission arm's trajectory enters it: {link} from "
+            f"t = {hit.time:.3f} s, {hit.depth:.4f} m deep at most; the planner cannot move the "
+            "mission arm: move the zone or the mission, or bind the zone to the balance arms "
+            "only (arms: [balance])",
         )
 
 
