@@ -118,6 +118,13 @@ def test_a_zone_the_mission_arm_enters_is_an_input_error(tmp_path):
     geometry = RobotGeometry(task.robot)
     zoned = [p.name for p in geometry.pairs if "keep_out:dock" in p.links]
     assert zoned == [f"balance_link{k} / keep_out:dock" for k in (1, 2, 3)]
+    # the scene draws it on the base, translucent
+    from balance_opt.report.scene import ZONE_OPACITY, scene_objects
+
+    drawn = [o for o in scene_objects(task.robot, 1.0) if o.name == "keep_out:dock"]
+    assert len(drawn) == 1 and drawn[0].joint == 1
+    assert drawn[0].mesh.material.opacity == ZONE_OPACITY < 1
+    np.testing.assert_allclose(drawn[0].placement.translation, [0.4, 0.3, 1.4])
 
 
 def test_the_clearance_check_flags_a_mission_only_plan_through_a_zone(tmp_path):
