@@ -319,12 +319,17 @@ def check_keep_out(spec: TaskSpec, doc: YamlDocument, robot, mission, q_B0) -> N
     q = np.hstack([mission.sample(t)[0], np.tile(q_B0, (t.size, 1))])
     hit = clearance(geometry, t, q, pairs=pairs, watch=0.0).first_penetration
     if hit is not None:
-        label = next(z for z in hit.pair.split(" / ") if z.startswith("keep_out:"))
-        i = [z.label for z in spec.keep_out].index(label)
-        link = hit.pair.replace(label, "").strip(" /")
+        pair = next(p for p in geometry.pairs if p.name == hit.pair)
+        zone, link = (
+            (pair.second, pair.first)
+            if pair.second in geometry.zones
+            else (pair.first, pair.second)
+        )
+        i = spec.keep_out.index(geometry.zones[zone])
         raise doc.error(
             ("keep_out", i),
-            f"zone {spec.keep_out[i].name}: the mission arm's trajectory enters it: {link} from "
+            f"zone {spec.keep_out[i].name}: the mission arm's trajectory enters it: "
+            f"{geometry.link(link)} from "
             f"t = {hit.time:.3f} s, {hit.depth:.4f} m deep at most; the planner cannot move the "
             "mission arm: move the zone or the mission, or bind the zone to the balance arms "
             "only (arms: [balance])",
