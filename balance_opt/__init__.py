@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 from balance_opt.errors import BalanceOptError, InputError, SolverError
 from balance_opt.model.library import baxter_floating, paper_robot
-from balance_opt.model.robot import Arm, FloatingRobot, JointLimits
+from balance_opt.model.limits import JointLimits
+from balance_opt.model.robot import Arm, FloatingRobot
 
 __version__ = "0.1.0"
 
@@ -32,7 +33,7 @@ _LAZY = {
     "Task": "balance_opt.tasks.task",
     "load_task": "balance_opt.tasks.task",
     "task_from_dict": "balance_opt.tasks.task",
-    "TaskRun": "balance_opt.app.pipeline",
+    "TaskRun": "balance_opt.app.task_run",
     "plan_mission_only": "balance_opt.app.pipeline",
     "plan_analytic": "balance_opt.app.pipeline",
     "plan_optimal": "balance_opt.app.pipeline",
@@ -44,13 +45,13 @@ _LAZY = {
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ imports them
     from balance_opt.app.pipeline import (
-        TaskRun,
         plan_analytic,
         plan_mission_only,
         plan_optimal,
         run_task,
         simulate,
     )
+    from balance_opt.app.task_run import TaskRun
     from balance_opt.dynamics.simulation import SimulationResult
     from balance_opt.motion.result import BalanceResult, LimitViolation
     from balance_opt.report.plots import plot_result

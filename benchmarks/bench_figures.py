@@ -32,7 +32,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from balance_opt.app.pipeline import run_task
-    from balance_opt.app.pipeline import write_figures
+    from balance_opt.app.run_files import write_figures
     from balance_opt.tasks.task import load_task
 
     run = run_task(load_task(args.task), methods=("analytic", "optimal"), simulate=True)

@@ -18,10 +18,11 @@ Prints four tables:
   every import tool does).
 
 Exits 1 when an import runs upward, a cycle (of modules or of parts) exists or a part of the
-package is in no layer;
-the size and function tables only report.
+package is in no layer. The size and function tables only report, unless ``--sizes`` is given:
+then a module over 600 lines or a function over ``--max-lines`` (a ``long:`` reason or not) fails
+too, and the last line counts them.
 
-    python benchmarks/layout_check.py [--package PATH] [--top 10] [--max-lines 80]
+    python benchmarks/layout_check.py [--package PATH] [--top 10] [--max-lines 80] [--sizes]
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ LAYERS = (
     ("report", ("report",)),
     ("app", ("app",)),
     ("sweep", ("sweep",)),
-    ("cli", ("cli", "")),
+    ("cli", ("commands", "cli", "")),
 )
 
 
@@ -239,6 +240,11 @@ def main(argv=None) -> int:
     parser.add_argument("--package", type=Path, default=ROOT / "balance_opt")
     parser.add_argument("--top", type=int, default=10, help="largest modules shown")
     parser.add_argument("--max-lines", type=int, default=80, help="longest function allowed")
+    parser.add_argument(
+        "--sizes",
+        action="store_true",
+        help=f"fail on a module over {MODULE_LIMIT} lines or a function over --max-lines",
+    )
     args = parser.parse_args(argv)
     package = args.package.resolve()
     files = sorted(package.rglob("*.py"))
@@ -316,7 +322,13 @@ def main(argv=None) -> int:
     print(f"cycles between parts: {len(part_cycles)}")
     for cycle in part_cycles:
         print("  " + " -> ".join(p or "__init__" for p in cycle))
-    return 1 if upward or groups or part_groups or unplaced else 0
+    if args.sizes:
+        print(
+            f"size limits: {over} module(s) over {MODULE_LIMIT} lines, "
+            f"{len(long_rows)} function(s) over {args.max_lines} lines"
+        )
+    oversized = args.sizes and (over or long_rows)
+    return 1 if upward or groups or part_groups or unplaced or oversized else 0
 
 
 if __name__ == "__main__":

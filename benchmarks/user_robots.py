@@ -199,7 +199,7 @@ def _command() -> list[str]:
 
 def _mesh_objects(task_path: Path, env: dict) -> int:
     """The mesh objects of the task robot's visual geometry, found as the run found them."""
-    from balance_opt.report.scene import visual_model
+    from balance_opt.report.scene_meshes import visual_model
     from balance_opt.tasks.task import load_task
 
     before = os.environ.get("ROS_PACKAGE_PATH")

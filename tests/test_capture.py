@@ -453,7 +453,7 @@ def test_equal_moments_give_the_box_the_end_effectors_axes(moments):
 def test_the_check_after_the_capture_starts_at_the_capture():
     """The motion after the capture starts at its time: a sample a rounding error before it
     counts, a grid without it gets the interpolated configuration."""
-    from balance_opt.app.pipeline import _from_capture
+    from balance_opt.app.run_studies import _from_capture
 
     t = np.arange(0, 11) * 0.1
     q = np.column_stack([t, 2 * t])

@@ -17,7 +17,7 @@ import pytest
 
 import balance_opt
 from balance_opt.cli import main
-from balance_opt.cli import parse_solver_option
+from balance_opt.commands.common import parse_solver_option
 from balance_opt.model.library import shipped_urdf
 from balance_opt.report.outputs import read_npz_result
 from balance_opt.tasks.task_spec import task_json_schema

@@ -272,7 +272,7 @@ def test_joint_figure_keeps_the_limits_in_view_past_a_runaway_plan(paper):
 
 
 def test_torque_caption_says_how_far_apart_the_scales_are():
-    from balance_opt.app.pipeline import _torque_scales
+    from balance_opt.app.run_files import _torque_scales
 
     rng = np.random.default_rng(3)
     sims = {"analytic": fake_simulation(rng, 0.01), "optimal": fake_simulation(rng, 0.3)}

@@ -119,7 +119,7 @@ def test_a_zone_the_mission_arm_enters_is_an_input_error(tmp_path):
     zoned = [p.name for p in geometry.pairs if "keep_out:dock" in p.links]
     assert zoned == [f"balance_link{k} / keep_out:dock" for k in (1, 2, 3)]
     # the scene draws it on the base, translucent
-    from balance_opt.report.scene import ZONE_OPACITY, scene_objects
+    from balance_opt.report.scene_meshes import ZONE_OPACITY, scene_objects
 
     drawn = [o for o in scene_objects(task.robot, 1.0) if o.name == "keep_out:dock"]
     assert len(drawn) == 1 and drawn[0].joint == 1

@@ -2,6 +2,7 @@
 (of modules, or of parts) wherever the import sits (inside a function too, not under
 ``if TYPE_CHECKING:``), and fails."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -121,3 +122,41 @@ def test_two_parts_of_one_layer_importing_each_other_fail(tmp_path, monkeypatch,
     out = capsys.readouterr().out
     assert "import cycles: 0 in 0 group(s)" in out and "upward imports: 0" in out
     assert code == 1 and "cycles between parts: 1\n  motion -> result -> motion" in out
+
+
+@pytest.mark.parametrize("sizes", [False, True])
+def test_sizes_fail_only_with_the_flag(tmp_path, sizes):
+    """A module over 600 lines and a function over 80 are listed always, and fail with
+    ``--sizes``."""
+    body = "".join(f"    x{i} = {i}\n" for i in range(85))
+    package = _package(
+        tmp_path,
+        {
+            "model/big.py": "def long():\n" + body + "".join(f"Y{i} = {i}\n" for i in range(600)),
+            "model/small.py": "def short():\n    return 1\n",
+        },
+    )
+    done = subprocess.run(
+        [sys.executable, str(CHECK), "--package", str(package), *(["--sizes"] if sizes else [])],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    out = done.stdout
+    assert re.search(r"^balance_opt/model/big.py +686 +OVER", out, re.MULTILINE), out
+    assert re.search(r"^balance_opt/model/big.py:1 +long +86 +NO", out, re.MULTILINE), out
+    if sizes:
+        assert done.returncode == 1
+        assert "size limits: 1 module(s) over 600 lines, 1 function(s) over 80 lines" in out
+    else:
+        assert done.returncode == 0 and "size limits" not in out
+
+
+def test_no_module_over_600_lines_nor_function_over_80_outside_optimal():
+    """The size limits hold outside ``optimal/`` (whose restructuring brings it under them; then
+    ``--sizes`` in ``.ci/run`` checks the whole package)."""
+    _, out = _check(CHECK.parents[1] / "balance_opt")
+    rows = [line.split() for line in out.splitlines() if line.startswith("balance_opt/")]
+    over = [r[0] for r in rows if r[-1] == "OVER"]  # the modules' table
+    long = [r[0] for r in rows if ".py:" in r[0]]  # the functions' table
+    assert rows and all(r.startswith("balance_opt/optimal/") for r in over + long), out

@@ -14,7 +14,7 @@ from balance_opt.geometry.robot_geometry import RobotGeometry
 from balance_opt.model.library import example_urdf
 from balance_opt.model.meshes import MeshNotFoundError, package_folders, resolve_mesh
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.report.scene import visual_model
+from balance_opt.report.scene_meshes import visual_model
 from balance_opt.tasks.task import load_task
 
 PACKAGE = "meshy_description"

@@ -126,7 +126,7 @@ def test_the_planner_gives_up_naming_pair_depth_time_and_rounds():
 def test_a_rate_step_is_an_acceleration_violation():
     """A jump of a joint rate is an acceleration no arm performs: counted for the joints with
     an acceleration limit, with what finite differences over one sample give."""
-    from balance_opt.model.robot import JointLimits
+    from balance_opt.model.limits import JointLimits
 
     inf = np.full(3, np.inf)
     limits = JointLimits(-inf, inf, inf, np.array([2.0, np.inf, 2.0]), inf, inf)

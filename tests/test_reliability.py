@@ -425,7 +425,7 @@ def test_default_output_folder_checked_before_any_computation(tmp_path, capsys, 
 def test_default_output_folder_name_is_sanitised(name, folder):
     from pathlib import Path
 
-    from balance_opt.cli import default_output_folder
+    from balance_opt.commands.common import default_output_folder
 
     assert default_output_folder(name) == Path("results") / folder
 

@@ -32,7 +32,7 @@ from balance_opt.report.report import (
     torque_sparkline,
     torque_table,
 )
-from balance_opt.report.scene import magnification, magnified_rotation
+from balance_opt.report.scene_poses import magnification, magnified_rotation
 from balance_opt.report.style import method_label
 
 

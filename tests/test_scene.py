@@ -31,11 +31,10 @@ from balance_opt.report.scene import (
     NEAR_COLOUR,
     TOUCH_COLOUR,
     build_scene,
-    cluster_vertices,
     scene_html,
-    visual_model,
     write_scene,
 )
+from balance_opt.report.scene_meshes import cluster_vertices, visual_model
 
 ROOT = Path(__file__).resolve().parents[1]
 ATOL = 1e-9
@@ -577,7 +576,8 @@ def test_a_run_s_scene_uses_the_run_s_geometry_and_margin(
     """``write_run_scene`` highlights with the geometry the run already has (none is built) and
     the task's collision margin; a run whose robot has no geometry (``False``) gets none."""
     import balance_opt.geometry.robot_geometry as robot_geometry
-    from balance_opt.app.pipeline import TaskRun, write_run_scene
+    from balance_opt.app.run_files import write_run_scene
+    from balance_opt.app.task_run import TaskRun
     from balance_opt.tasks.task import load_task
 
     def no_rebuild(*args, **kwargs):

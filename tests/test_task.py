@@ -11,7 +11,8 @@ import pytest
 
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.app.scenarios import capture_task
-from balance_opt.config.typed_config import from_data, reference_rows
+from balance_opt.config.schema import reference_rows
+from balance_opt.config.typed_config import from_data
 from balance_opt.config.yaml_lines import TaskFileError, format_path, parse_yaml
 from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError

@@ -20,8 +20,8 @@ import numpy as np
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.analytic.rollout import rollout
 from balance_opt.app.models import ModelCache
-from balance_opt.app.pipeline import METHODS, _timed
 from balance_opt.app.scenarios import Scenario, capture_task, paper_fig5
+from balance_opt.app.task_run import METHODS, timed
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate, simulate_plan
 from balance_opt.errors import InputError, SolverError
@@ -142,20 +142,15 @@ def scenario_study(
     robot, mission = scenario.robot, scenario.mission
 
     # Fig. 2: the mission arm alone, the balance arm held at its start
-    with _timed(f"{scenario.name}: forward-dynamics simulation of the mission arm alone (Fig. 2)"):
+    with timed(f"{scenario.name}: forward-dynamics simulation of the mission arm alone (Fig. 2)"):
         mission_only = simulate(robot, mission, scenario.q_B0, sim_opts)
     kinematic = phase_one(robot, mission, scenario.q_B0, t_eval=mission_only.t)
 
     plans, balance_only, balanced, merits = {}, {}, {}, {}
     for method in methods:
         plan, status = _plan(method, scenario, law, planner, backend)
-        # Fig. 3: the plan's balance motion with the mission arm held at its start
-        name = f"{scenario.name}: forward-dynamics simulation of the {method} plan"
-        with _timed(f"{name}'s balance arm alone (Fig. 3)"):
-            balance_only[method] = simulate(robot, mission.start, plan, sim_opts)
-        with _timed(f"{name} (Figs. 4, 5)"):
-            balanced[method] = simulate_plan(robot, plan, sim_opts)
         plans[method] = plan
+        balance_only[method], balanced[method] = _simulated(scenario, method, plan, sim_opts)
         merits[method] = {
             "status": status,
             "plan": plan.summary(),
@@ -164,19 +159,30 @@ def scenario_study(
             "balance_only": _simulation_summary(balance_only[method]),
             "balanced": _simulation_summary(balanced[method]),
         }
-        log.info(
-            "%s on %s: final drift %.3g rad planned, %.3g rad simulated; %d limit violations",
-            method,
-            scenario.name,
-            plan.final_drift,
-            balanced[method].angle[-1],
-            len(plan.violations),
-        )
 
     figures, objects = paper_figure_set(
         output_dir, FIGURE_STEMS, formats, mission_only, kinematic, balance_only, balanced
     )
-    summary = {
+    summary = _summary(scenario, sim_opts, mission_only, merits, figures)
+    (output_dir / "study.json").write_text(json.dumps(to_json(summary), indent=2))
+    return StudyResult(
+        output_dir,
+        plans,
+        mission_only,
+        kinematic,
+        balance_only,
+        balanced,
+        figures,
+        objects,
+        summary,
+    )
+
+
+def _summary(scenario: Scenario, sim_opts, mission_only, merits: dict, figures: dict) -> dict:
+    """The content of ``study.json``: the scenario, the simulator, each plan's merits, the
+    figures' files."""
+    robot, mission = scenario.robot, scenario.mission
+    return {
         "scenario": {
             "name": scenario.name,
             "robot": robot.name,
@@ -194,18 +200,26 @@ def scenario_study(
         "plans": merits,
         "figures": {k: [p.name for p in v] for k, v in figures.items()},
     }
-    (output_dir / "study.json").write_text(json.dumps(to_json(summary), indent=2))
-    return StudyResult(
-        output_dir,
-        plans,
-        mission_only,
-        kinematic,
-        balance_only,
-        balanced,
-        figures,
-        objects,
-        summary,
+
+
+def _simulated(scenario: Scenario, method: str, plan, sim_opts: SimulationOptions) -> tuple:
+    """The forward-dynamics simulations of one plan: its balance motion with the mission arm
+    held at its start (Fig. 3), and the whole plan (Figs. 4, 5)."""
+    robot, mission = scenario.robot, scenario.mission
+    name = f"{scenario.name}: forward-dynamics simulation of the {method} plan"
+    with timed(f"{name}'s balance arm alone (Fig. 3)"):
+        balance_only = simulate(robot, mission.start, plan, sim_opts)
+    with timed(f"{name} (Figs. 4, 5)"):
+        balanced = simulate_plan(robot, plan, sim_opts)
+    log.info(
+        "%s on %s: final drift %.3g rad planned, %.3g rad simulated; %d limit violations",
+        method,
+        scenario.name,
+        plan.final_drift,
+        balanced.angle[-1],
+        len(plan.violations),
     )
+    return balance_only, balanced
 
 
 #: The parts of :func:`paper_study`: name, scenario, methods. Figs. 2-5 with the paper's law on
@@ -293,7 +307,7 @@ def paper_figures(
         )
     elif solver_options:
         options["planner"] = PlannerOptions(ipopt=dict(solver_options))
-    with handling_signals(), folder, _timed("paper study (Figs. 2-5)"):
+    with handling_signals(), folder, timed("paper study (Figs. 2-5)"):
         study = paper_study(folder.staging, **options)
         files = [p for paths in study.figures.values() for p in paths]
         jsons = [folder.staging / name / "study.json" for name in study.parts]

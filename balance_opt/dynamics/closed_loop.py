@@ -143,12 +143,7 @@ def fly_closed_loop(
     if not prepared:
         h0 = nlp.h0 if opts.momentum == "zero" else np.r_[0.0, 0.0, 0.0, 1e-9, 0.0, 0.0]
         prepare_s = replanner.prepare(in_force, switch_nodes, h0)
-    # the gains of the nominal robot at the plan's start, kept for every period
-    if sim_opts.kp is None or sim_opts.kd is None:
-        probe = simulate(nominal, nlp.mission, in_force.trajectory, sim_opts, duration=sim_opts.dt)
-        sim_opts = dataclasses.replace(
-            sim_opts, kp=tuple(probe.info["kp"]), kd=tuple(probe.info["kd"])
-        )
+    sim_opts = _with_nominal_gains(sim_opts, nlp, in_force)
     mission = nlp.mission
     state, parts, starts = None, [], []
     replans, late, pending = [], 0, None
@@ -188,8 +183,16 @@ def fly_closed_loop(
                 if pending.success and pending.compute_s <= deadline:
                     in_force = pending.segment
                 pending = None
-    run = ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
-    return run
+    return ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
+
+
+def _with_nominal_gains(sim_opts: SimulationOptions, nlp, in_force: Segment) -> SimulationOptions:
+    """``sim_opts`` with the gains of the nominal robot at the plan's start (the options' own
+    when given), kept for every period whatever the truth."""
+    if sim_opts.kp is not None and sim_opts.kd is not None:
+        return sim_opts
+    probe = simulate(nlp.robot, nlp.mission, in_force.trajectory, sim_opts, duration=sim_opts.dt)
+    return dataclasses.replace(sim_opts, kp=tuple(probe.info["kp"]), kd=tuple(probe.info["kd"]))
 
 
 def _peak(segment: Segment) -> float:

@@ -285,6 +285,29 @@ class _Dynamics:
         return tau0[self.idx_v] + M[:6, self.idx_v].T @ a_b
 
 
+def _gains(robot: FloatingRobot, q0: np.ndarray, opts: SimulationOptions) -> tuple:
+    """The PD gains ``(kp, kd)`` per joint: the options', or by default (SimulationOptions) from
+    M_ii, the joint-space inertia's diagonal at the start ``q0`` (a driver's including its
+    followers')."""
+    M = symmetric(pin.crba(robot.model, robot.model.createData(), robot.pin_q(q0)))
+    G = robot.velocity_map
+    m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
+    w, zeta = opts.bandwidth, opts.damping_ratio
+    kp = _per_joint(opts.kp, m_ii * w**2, "kp")
+    kd = _per_joint(opts.kd, 2.0 * zeta * w * m_ii, "kd")
+    return kp, kd
+
+
+def _integrate(dyn: _Dynamics, plan: _ArmPlan, x0, t_end: float, opts: SimulationOptions):
+    """The motion from ``x0`` to ``t_end`` with the options' integrator, sampled every
+    ``output_dt``: ``(t, Q, V, A, TAU, stats)``."""
+    if opts.integrator == "rk4":
+        output_dt = opts.output_dt or opts.dt
+        stride = max(1, round(output_dt / opts.dt))
+        return rk4(dyn, plan, x0, t_end, opts.dt, stride)
+    return dopri5(dyn, plan, x0, t_end, opts, opts.output_dt or 0.01)
+
+
 # --------------------------------------------------------------------------------- entry points
 def simulate(
     robot: FloatingRobot,
@@ -335,27 +358,14 @@ def simulate(
             f"nothing to simulate: duration {t_end} s (give 'duration' or a moving trajectory)"
         )
     q0, qd0 = (x[0] for x in plan.sample(np.zeros(1))[:2])
-    # the default gains (SimulationOptions): M_ii the joint-space inertia's diagonal at the start,
-    # a driver's including its followers'
-    M = symmetric(pin.crba(robot.model, robot.model.createData(), robot.pin_q(q0)))
-    G = robot.velocity_map
-    m_ii = np.einsum("vi,vw,wi->i", G, M, G)[6:]
-    w, zeta = opts.bandwidth, opts.damping_ratio
-    kp = _per_joint(opts.kp, m_ii * w**2, "kp")
-    kd = _per_joint(opts.kd, 2.0 * zeta * w * m_ii, "kd")
+    kp, kd = _gains(robot, q0, opts)
     dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
     if initial_state is None:  # the plan's start, the base twist of the momentum h0
         twist = NumericMaps(robot).base_twist(q0, qd0, h0)  # the base starts at the identity
         initial_state = robot.pin_q(q0), robot.pin_v(qd0, twist)
     x0 = initial_state
 
-    if opts.integrator == "rk4":
-        output_dt = opts.output_dt or opts.dt
-        stride = max(1, round(output_dt / opts.dt))
-        t, Q, V, A, TAU, stats = rk4(dyn, plan, x0, t_end, opts.dt, stride)
-    else:
-        output_dt = opts.output_dt or 0.01
-        t, Q, V, A, TAU, stats = dopri5(dyn, plan, x0, t_end, opts, output_dt)
+    t, Q, V, A, TAU, stats = _integrate(dyn, plan, x0, t_end, opts)
     integrated = time.perf_counter()
 
     result = _postprocess(robot, dyn, plan, t, Q, V, A, TAU, h0)

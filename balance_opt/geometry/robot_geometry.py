@@ -181,7 +181,16 @@ class RobotGeometry:
             for reason in dict.fromkeys(disabled.values()):
                 chosen = {frozenset(k) for k, r in disabled.items() if r == reason}
                 self._drop(lambda a, b: frozenset((self._link(a), self._link(b))) in chosen, reason)
-        names = {self.link(i) for i in range(geom.ngeoms)}
+        self._drop_ignored(ignore)
+        self.zones = self._add_zones(robot.keep_out)
+        self.geometry_data = pin.GeometryData(geom)
+        self.data = self.model.createData()
+        self.pairs: list[Pair] = self._make_pairs()
+
+    def _drop_ignored(self, ignore: Iterable[Sequence[str]]) -> None:
+        """Leave out the link pairs the task ignores, each checked to name two links with
+        geometry (a pair of the captured target waits for the robot after the capture)."""
+        names = {self.link(i) for i in range(self.geometry_model.ngeoms)}
         wanted = set()
         for pair in ignore:
             pair = tuple(pair)
@@ -195,10 +204,6 @@ class RobotGeometry:
                 )
             wanted.add(frozenset(pair))
         self._drop(lambda a, b: frozenset((self._link(a), self._link(b))) in wanted, "ignored")
-        self.zones = self._add_zones(robot.keep_out)
-        self.geometry_data = pin.GeometryData(geom)
-        self.data = self.model.createData()
-        self.pairs: list[Pair] = self._make_pairs()
 
     # ------------------------------------------------------------------ pairs
     def link(self, index: int) -> str:

@@ -31,10 +31,10 @@ from balance_opt.model.joints import (
     Mimic,
     lock_joints,
     mimic_matrix,
-    narrow_driver_limits,
     parse_mimic,
     resolve_mimics,
 )
+from balance_opt.model.limits import JointLimits, joint_limits
 from balance_opt.model.urdf_checks import check_urdf_physics, pinocchio_model
 
 log = logging.getLogger(__name__)
@@ -42,33 +42,6 @@ log = logging.getLogger(__name__)
 #: A balance arm whose links have less than this fraction of the robot's mass and of its
 #: inertia moves nothing: it is refused.
 MASSLESS = 1e-9
-#: Limit kinds, in the order of :class:`JointLimits`' fields.
-LIMIT_KEYS = ("lower", "upper", "velocity", "acceleration", "effort", "jerk")
-
-
-@dataclass(frozen=True)
-class JointLimits:
-    """Limits of the arm joints, in arm order.
-
-    Attributes:
-        lower: lowest position [rad or m] (``-inf`` for continuous joints).
-        upper: highest position [rad or m].
-        velocity: largest speed [rad/s or m/s].
-        acceleration: largest acceleration [rad/s^2]; URDF has none, so ``inf`` unless set.
-        effort: largest torque [N m] or force [N].
-        jerk: largest jerk [rad/s^3]; URDF has none, so ``inf`` unless set.
-    """
-
-    lower: np.ndarray
-    upper: np.ndarray
-    velocity: np.ndarray
-    acceleration: np.ndarray
-    effort: np.ndarray
-    jerk: np.ndarray
-
-    def subset(self, indices) -> JointLimits:
-        """The limits of the joints at ``indices`` of the arm vector."""
-        return JointLimits(*(getattr(self, k)[indices] for k in LIMIT_KEYS))
 
 
 @dataclass(frozen=True)
@@ -146,14 +119,6 @@ def parse_urdf(text: str, source: str) -> tuple[ET.Element, dict[str, UrdfJoint]
             parse_mimic(el, source) if el.get("type") in MOVABLE_TYPES else None,
         )
     return root, joints, check_urdf_physics(root, source)
-
-
-class LimitOverrideError(JointError):
-    """A limit override that no joint can have; ``key`` is the override at fault."""
-
-    def __init__(self, joint: str, source: str, key: str, reason: str):
-        self.key = key
-        super().__init__(joint, source, reason)
 
 
 @contextlib.contextmanager
@@ -408,33 +373,10 @@ class FloatingRobot:
         return arms
 
     def _make_limits(self, overrides: Mapping[str, Mapping[str, float]]) -> JointLimits:
-        values = {k: np.full(self.n, np.inf) for k in LIMIT_KEYS}
-        values["lower"] = -values["lower"]
-        for i, j in enumerate(self.joint_names):
-            if self._pin_nq[i] == 1:
-                values["lower"][i] = self.model.lowerPositionLimit[self._pin_idx_q[i]]
-                values["upper"][i] = self.model.upperPositionLimit[self._pin_idx_q[i]]
-            values["velocity"][i] = self.model.velocityLimit[self._pin_idx_v[i]]
-            values["effort"][i] = self.model.effortLimit[self._pin_idx_v[i]]
-        narrow_driver_limits(values, self.model, self.joint_names, self.followers)
-        for j, over in overrides.items():
-            if j not in self.joint_names:
-                raise JointError(
-                    j,
-                    self.source,
-                    "limit override for a joint that is in no arm" + suggest(j, self.joint_names),
-                )
-            for key, value in over.items():
-                if key not in LIMIT_KEYS:
-                    raise JointError(
-                        j,
-                        self.source,
-                        f"unknown limit '{key}'; expected one of {', '.join(LIMIT_KEYS)}",
-                    )
-                values[key][self.joint_names.index(j)] = float(value)
-        for i, j in enumerate(self.joint_names):
-            self._check_limits_of(j, {k: values[k][i] for k in LIMIT_KEYS}, overrides.get(j, {}))
-        return JointLimits(**values)
+        indices = (self._pin_nq, self._pin_idx_q, self._pin_idx_v)
+        return joint_limits(
+            self.model, self.joint_names, self.followers, indices, overrides, self.source
+        )
 
     def _check_moves_mass(self, arm: Arm) -> None:
         """Refuse a balance arm that moves no mass and no inertia: its motion would change
@@ -453,35 +395,6 @@ class FloatingRobot:
                 f"{mass:.3g} kg (of {self.total_mass:.4g} kg); a massless balance arm cannot "
                 "balance anything (check their <inertial> elements)",
             )
-
-    def _check_limits_of(self, joint: str, value: dict, given: Mapping[str, float]) -> None:
-        """Limits of ``joint`` that no joint can have, blamed on the override that set them
-        (:class:`LimitOverrideError`), else on the URDF."""
-        lo, hi = value["lower"], value["upper"]
-        if not lo <= hi:
-            if "lower" not in given and "upper" not in given:
-                raise URDFLoadError(
-                    self.source, f"joint '{joint}': <limit> has lower {lo:g} above upper {hi:g}"
-                )
-            key = "lower" if "lower" in given else "upper"
-            other = "upper" if key == "lower" else "lower"
-            raise LimitOverrideError(
-                joint,
-                self.source,
-                key,
-                f"lower limit {lo:g} is above upper limit {hi:g}"
-                + ("" if other in given else f" ({other} limit from the URDF)"),
-            )
-        for key in ("velocity", "acceleration", "effort", "jerk"):
-            if not value[key] > 0:
-                if key not in given:
-                    raise URDFLoadError(
-                        self.source,
-                        f"joint '{joint}': <limit> has {key} {value[key]:g}; it must be positive",
-                    )
-                raise LimitOverrideError(
-                    joint, self.source, key, f"{key} limit must be positive, got {value[key]:g}"
-                )
 
     # ----------------------------------------------------------------------------- structure
     @property

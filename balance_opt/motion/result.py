@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from balance_opt.model.robot import JointLimits
+from balance_opt.model.limits import JointLimits
 from balance_opt.motion.so3 import relative_rotation, rotation_angle, rpy_from_quaternion
 
 if TYPE_CHECKING:

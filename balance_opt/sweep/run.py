@@ -37,6 +37,46 @@ class SweepOutcome:
     summary: dict[str, Any]
 
 
+def _prepared(out_dir: Path, resume: bool, force: bool) -> None:
+    """``out_dir`` created; a folder with files only with ``resume`` (its finished cases kept)
+    or ``force`` (a previous sweep's results deleted first)."""
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
+        if not force:
+            raise OutputFolderError(
+                f"output directory {out_dir} exists and is not empty; nothing was run. "
+                "Use --resume to finish the sweep in it, --force to start it over, "
+                "or choose another --output"
+            )
+        for old in [
+            *(out_dir / CASES_DIR).glob("*.json"),
+            *(out_dir / "plots").glob("*.png"),
+            out_dir / "results.csv",
+            out_dir / "summary.json",
+            out_dir / MANIFEST,
+        ]:
+            old.unlink(missing_ok=True)
+    try:
+        out_dir.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise OutputFolderError(
+            f"cannot create output folder {out_dir}: {exc.strerror or exc}"
+        ) from None
+
+
+def _manifest(sweep: Sweep) -> dict:
+    """The sweep's manifest: its name, source, setup hash, what varies and every case."""
+    return {
+        "name": sweep.name,
+        "source": sweep.source,
+        "setup_hash": sweep.setup_hash,
+        "varied": list(sweep.varied),
+        "methods": list(sweep.spec.methods),
+        "cases": [
+            {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
+        ],
+    }
+
+
 def run_sweep(
     sweep: Sweep,
     out_dir: str | Path,
@@ -66,39 +106,8 @@ def run_sweep(
     out_dir = Path(out_dir)
     make_parent(out_dir.absolute())
     with handling_signals(), FolderLock(out_dir):
-        # a folder with files only with ``resume`` (its finished cases kept) or ``force`` (a
-        # previous sweep's results deleted first)
-        if out_dir.is_dir() and any(out_dir.iterdir()) and not resume:
-            if not force:
-                raise OutputFolderError(
-                    f"output directory {out_dir} exists and is not empty; nothing was run. "
-                    "Use --resume to finish the sweep in it, --force to start it over, "
-                    "or choose another --output"
-                )
-            for old in [
-                *(out_dir / CASES_DIR).glob("*.json"),
-                *(out_dir / "plots").glob("*.png"),
-                out_dir / "results.csv",
-                out_dir / "summary.json",
-                out_dir / MANIFEST,
-            ]:
-                old.unlink(missing_ok=True)
-        try:
-            out_dir.mkdir(exist_ok=True)
-        except OSError as exc:
-            raise OutputFolderError(
-                f"cannot create output folder {out_dir}: {exc.strerror or exc}"
-            ) from None
-        manifest = {
-            "name": sweep.name,
-            "source": sweep.source,
-            "setup_hash": sweep.setup_hash,
-            "varied": list(sweep.varied),
-            "methods": list(sweep.spec.methods),
-            "cases": [
-                {k: c[k] for k in ("index", "case_id", "method", "parameters")} for c in sweep.cases
-            ],
-        }
+        _prepared(out_dir, resume, force)
+        manifest = _manifest(sweep)
         write_json_atomic(out_dir / MANIFEST, manifest)
         engine = engine if engine is not None else make_engine(jobs, scheduler)
         extra = {"name": sweep.name, "source": sweep.source, "engine": engine.describe()}

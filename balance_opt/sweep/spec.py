@@ -17,7 +17,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from balance_opt.config.typed_config import from_data, json_schema, reference_markdown, setting
+from balance_opt.config.schema import json_schema, reference_markdown
+from balance_opt.config.typed_config import from_data, setting
 from balance_opt.config.yaml_lines import (
     TaskFileError,
     YamlDocument,
@@ -393,7 +394,8 @@ def _check_case_tasks(
     limits no plan can meet and unbuildable missions fail their case when it runs instead. The
     URDF's warnings are not shown again: the load of the base task showed them."""
     from balance_opt.model.robot import urdf_warnings_shown
-    from balance_opt.tasks.task import TaskLimitsError, TaskTrajectoryError, task_from_document
+    from balance_opt.tasks.checks import TaskLimitsError, TaskTrajectoryError
+    from balance_opt.tasks.task import task_from_document
 
     checked = set()
     with urdf_warnings_shown():

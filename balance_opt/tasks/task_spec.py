@@ -7,7 +7,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 from balance_opt.analytic.options import BalanceLawOptions
-from balance_opt.config.typed_config import json_schema, reference_markdown, setting
+from balance_opt.config.schema import json_schema, reference_markdown
+from balance_opt.config.typed_config import setting
 from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.geometry.keep_out import KeepOutZone
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
