@@ -184,6 +184,40 @@ def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, cap
     assert first.upgrade_kernels() >= 1 and first.kernels().compiled and not first.nlp_cache
 
 
+@needs_cc
+def test_auto_compiles_the_kernels_before_the_first_plan(paper, tmp_path, caplog):
+    """``compile="auto"`` (the default): a new robot's kernels are compiled before its first
+    plan, which runs on them (nothing left running); they compute the VM's bits."""
+    with caplog.at_level(logging.INFO, logger="balance_opt"):
+        kernels = PlannerModel(paper, compile="auto", cache_dir=tmp_path).kernels()
+    assert "compiling planner kernels for paper_robot (at most 300 s) ..." in caplog.text
+    assert kernels.compiled and not kernels.background and kernels.compile_time > 0
+    assert cache.check_record(Path(kernels.library))[0]["compile_seconds"] > 0
+    vm = PlannerModel(paper, compile=False, cache_dir=tmp_path).kernels()
+    _same_kernels(vm, kernels, 0.0)
+
+
+def _broken_compiler(tmp_path, monkeypatch, message: str, name: str) -> cs.Function:
+    """``$CC`` a compiler that fails with ``message``; a small function to compile."""
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    (bindir / "broken-cc").write_text(f"#!/bin/sh\necho 'broken-cc: {message}' >&2\nexit 1\n")
+    (bindir / "broken-cc").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bindir}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("CC", "broken-cc")
+    x = cs.SX.sym("x", 2)
+    return cs.Function(name, [x], [cs.cos(x[0]) * x[1]])
+
+
+def test_auto_falls_back_to_the_vm_when_the_compiler_fails(tmp_path, monkeypatch, caplog):
+    fun = _broken_compiler(tmp_path, monkeypatch, "no space", "coldstart_auto_failing_kernel")
+    with caplog.at_level(logging.WARNING, logger="balance_opt"):
+        out = codegen.compile_functions([fun], tmp_path, "digest", background=True, wait=True)
+    assert not out.compiled and out.process is None and out.functions == [fun]
+    assert "planner kernels not compiled; using CasADi's virtual machine" in caplog.text
+    assert "no space" in Path(out.library).with_suffix(".failed").read_text()
+
+
 def test_talos_example_has_fourteen_arm_joints():
     from balance_opt.tasks.task import load_task
 
@@ -193,14 +227,7 @@ def test_talos_example_has_fourteen_arm_joints():
 
 
 def test_failed_background_compilation_is_reported_not_retried(tmp_path, monkeypatch, caplog):
-    bindir = tmp_path / "bin"
-    bindir.mkdir()
-    (bindir / "broken-cc").write_text("#!/bin/sh\necho 'broken-cc: out of memory' >&2\nexit 1\n")
-    (bindir / "broken-cc").chmod(0o755)
-    monkeypatch.setenv("PATH", f"{bindir}{os.pathsep}{os.environ['PATH']}")
-    monkeypatch.setenv("CC", "broken-cc")
-    x = cs.SX.sym("x", 2)
-    fun = cs.Function("coldstart_failing_kernel", [x], [cs.cos(x[0]) * x[1]])
+    fun = _broken_compiler(tmp_path, monkeypatch, "out of memory", "coldstart_failing_kernel")
     folder = tmp_path / "cache"
     import psutil
 

@@ -2,6 +2,7 @@
 ``robot.packages``, ``ROS_PACKAGE_PATH`` and the folders above the URDF, for the collision
 geometry and the 3D scene alike; a mesh not found names every folder searched."""
 
+import json
 import re
 import shutil
 from pathlib import Path
@@ -194,3 +195,88 @@ def test_planning_with_a_missing_mesh_fails_naming_it_and_writes_nothing(layout,
     assert main(["plan", str(_task(urdf, "[../pkgs]")), "--method", "optimal", "-o", str(out)]) == 0
     assert "3D scene not written" not in capsys.readouterr().err
     assert (out / "scene.html").is_file()
+
+
+def _wrist_urdf(mesh: str) -> str:
+    """A box base; a mission arm ``lift`` - ``pitch`` - ``roll``, three joints about one
+    vertical axis, whose first link ``forearm`` and last link ``hand`` carry the same ``mesh``
+    at that axis (``knuckle`` between them, a 0.02 m sphere 0.1 m out): the two meshes share
+    the axis in every pose, as wrist meshes modelled around one joint do, and are not
+    adjacent; a balance arm ``swing`` (a cylinder) beside it."""
+    inertia = '<inertia ixx="0.05" iyy="0.05" izz="0.05" ixy="0" ixz="0" iyz="0"/>'
+
+    def link(name, mass, shape, xyz="0 0 0"):
+        geometry = f'<origin xyz="{xyz}"/><geometry>{shape}</geometry>'
+        return (
+            f'<link name="{name}"><inertial><mass value="{mass}"/>{inertia}</inertial>'
+            f"<visual>{geometry}</visual><collision>{geometry}</collision></link>"
+        )
+
+    def joint(name, parent, child, xyz, axis):
+        return (
+            f'<joint name="{name}" type="revolute"><parent link="{parent}"/>'
+            f'<child link="{child}"/><origin xyz="{xyz}"/><axis xyz="{axis}"/>'
+            '<limit lower="-3" upper="3" velocity="2" effort="50"/></joint>'
+        )
+
+    shape = f'<mesh filename="{mesh}"/>'
+    return (
+        '<robot name="wrist_meshes">'
+        + link("base", 50.0, '<box size="0.4 0.4 0.4"/>')
+        + link("forearm", 2.0, shape)
+        + link("knuckle", 0.5, '<sphere radius="0.02"/>', "0.1 0 0")
+        + link("hand", 1.0, shape)
+        + link("post", 2.0, '<cylinder radius="0.03" length="0.3"/>')
+        + joint("lift", "base", "forearm", "0 0 0.6", "0 0 1")
+        + joint("pitch", "forearm", "knuckle", "0 0 0", "0 0 1")
+        + joint("roll", "knuckle", "hand", "0 0 0", "0 0 1")
+        + joint("swing", "base", "post", "0.5 0.5 0.35", "0 0 1")
+        + "</robot>"
+    )
+
+
+def test_wrist_meshes_overlapping_in_every_pose_are_left_out_without_an_srdf(layout, tmp_path):
+    """Two meshes of a user's arm (found through robot.packages, no SRDF) that overlap in
+    every configuration: the computed pairs leave them out, the exact check of a plan then
+    reports no collision, though the bare geometry has them in contact at every sample."""
+    from balance_opt.cli import main
+    from balance_opt.geometry import self_collision
+
+    urdf, mesh = layout
+    urdf.write_text(_wrist_urdf(URI))
+    task = urdf.parent / "wrist.yaml"
+    task.write_text(
+        f"name: wrist_meshes\nrobot:\n  urdf: {urdf.name}\n  packages: [../pkgs]\n"
+        "arms: {mission: [lift, pitch, roll], balance: [swing]}\n"
+        "initial: {balance: [0.0]}\n"
+        "mission: {type: ptp, start: [0.0, 0.0, 0.0], goal: [1.0, 1.5, -2.0], duration: 2.0}\n"
+    )
+    robot = load_task(task).robot
+    bare = RobotGeometry(robot, disabled={})
+    pairs = [p.index for p in bare.pairs if set(p.links) == {"forearm", "hand"}]
+    assert pairs and all(
+        str(mesh) == o.meshPath
+        for o in bare.geometry_model.geometryObjects
+        if o.name.startswith(("forearm", "hand"))
+    )
+    q = self_collision.sample_configurations(robot, 300, seed=11)
+    assert (bare.smallest_along(q, pairs) < 0.0).all()  # in contact at every sample
+    geometry = RobotGeometry(robot)
+    assert geometry.srdf is None
+    assert geometry.ignored[("forearm", "hand")] in ("default", "always")
+    assert not any(set(p.links) == {"forearm", "hand"} for p in geometry.pairs)
+    out = tmp_path / "out"
+    assert main(["plan", str(task), "-m", "mission-only", "-o", str(out), "-q"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["geometry"]["srdf"] is None and metrics["geometry"]["initial_contacts"] == []
+    assert metrics["methods"]["mission-only"]["clearance"]["collision_free"]
+
+
+def test_example_robot_data_meshes_found_in_the_installed_package(tmp_path, monkeypatch):
+    """``package://example-robot-data/...`` (a URDF copied out of it, as users do) resolves
+    to the installed package's file, with no ROS_PACKAGE_PATH and nothing above the URDF."""
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    installed = example_urdf("ur5").parent.parent / "meshes" / "ur5" / "collision" / "wrist1.stl"
+    uri = "package://example-robot-data/robots/ur_description/meshes/ur5/collision/wrist1.stl"
+    found = resolve_mesh(uri, tmp_path / "robot" / "ur5.urdf")
+    assert found.samefile(installed)

@@ -21,7 +21,8 @@ class ModelCache:
 
     Args:
         compile: how the models compile their point kernels (``PlannerModel``'s ``compile``:
-            ``"auto"`` in the background, ``True`` now and waiting, ``False`` never).
+            ``"auto"`` before the first plan, ``"background"`` while it runs on the VM, ``True``
+            now, ``False`` never).
     """
 
     def __init__(self, compile: bool | str = "auto"):

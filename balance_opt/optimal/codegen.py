@@ -39,7 +39,8 @@ log = logging.getLogger(__name__)
 #: otherwise form where it can), so that results do not depend on the machine and a kernel cut
 #: into parts (:func:`split_functions`) computes the same bits as the whole one.
 COMPILER_FLAGS = ("-O1", "-ffp-contract=off", "-shared", "-fPIC")
-#: Niceness of the background compiler: the plan being solved meanwhile keeps the CPU.
+#: Niceness of the background compiler: the plan being solved meanwhile keeps the CPU (not for
+#: a compilation the plan waits for, :func:`compile_functions`'s ``wait``).
 BACKGROUND_NICENESS = 10
 #: A failed background compilation is not started again before this time [s] has passed.
 RETRY_SECONDS = 24 * 3600.0
@@ -106,9 +107,13 @@ def compile_functions(
     digest: str | None = None,
     background: bool = False,
     label: str = "",
+    wait: bool = False,
 ) -> Compiled:
     """Compile CasADi functions to one shared library, cached on disk; in the ``background``:
-    by a :class:`Compilation` (``process``) while the functions run on CasADi's VM."""
+    by a :class:`Compilation` (``process``) while the functions run on CasADi's VM; with
+    ``wait`` as well, by a :class:`Compilation` at full priority that this call waits for (at
+    most :data:`COMPILE_WAIT`): the library's functions, or the VM's if it failed or was
+    stopped (a failure is not retried before :data:`RETRY_SECONDS`, as in the background)."""
     compiler = find_compiler()
     if compiler is None:
         raise OSError("no C compiler found (tried $CC, cc, gcc, clang)")
@@ -140,12 +145,20 @@ def compile_functions(
             )
             return vm
         try:
-            process = Compilation(compiler, source, library)
+            process = Compilation(compiler, source, library, 0 if wait else BACKGROUND_NICENESS)
         except BlockingIOError:
             log.info("%s are being compiled by another process; not waiting", what)
             return vm
-        log.info("compiling %s (background) ...", what)
-        return dataclasses.replace(vm, process=process)
+        if not wait:
+            log.info("compiling %s (background) ...", what)
+            return dataclasses.replace(vm, process=process)
+        log.info("compiling %s (at most %.0f s) ...", what, COMPILE_WAIT)
+        start = time.perf_counter()
+        loaded = load_cached(names, library) if finish(process, announce=False) else None
+        if loaded is None:  # failed (noted) or stopped: this plan runs on the VM
+            log.warning("%s not compiled; using CasADi's virtual machine", what)
+            return vm
+        return Compiled(loaded, True, time.perf_counter() - start, str(library))
     log.info("compiling %s ...", what)
     with file_lock(lock_path(library)):  # one compiles, the others wait
         elapsed = 0.0 if check_record(library)[0] else _compile(compiler, source, library)
@@ -327,12 +340,15 @@ def _recent_failure(library: Path) -> str:
 
 class Compilation(threading.Thread):
     """A background compilation: a thread of this process that runs the compilers (child
-    processes at low priority) while it holds the library's lock, which it takes (without
+    processes, niced by ``niceness``) while it holds the library's lock, which it takes (without
     waiting) before the constructor returns: BlockingIOError when another holds it."""
 
-    def __init__(self, compiler: str, source: str, library: Path):
+    def __init__(
+        self, compiler: str, source: str, library: Path, niceness: int = BACKGROUND_NICENESS
+    ):
         super().__init__(daemon=True)
         self.compiler, self.source, self.library = compiler, source, library
+        self.niceness = niceness
         self.stopped = threading.Event()
         self._locked = threading.Event()
         self._refused: OSError | None = None
@@ -354,7 +370,7 @@ class Compilation(threading.Thread):
         try:
             with held:
                 if check_record(library)[0] is None:
-                    _compile(self.compiler, self.source, library, self.stopped)
+                    _compile(self.compiler, self.source, library, self.stopped, self.niceness)
             enforce_limit(library.parent, keep=[library, record_path(library)])
             library.with_suffix(".failed").unlink(missing_ok=True)
         except OSError as exc:  # the planner keeps the VM; noted, so that runs do not retry
@@ -367,10 +383,10 @@ class Compilation(threading.Thread):
         self.join(10.0)
 
 
-def finish(process: Compilation, timeout: float = COMPILE_WAIT) -> bool:
+def finish(process: Compilation, timeout: float = COMPILE_WAIT, announce: bool = True) -> bool:
     """Wait up to ``timeout`` [s] for a background compilation this process started, then stop
     it if it still runs (the next run starts again). Returns whether it ended on its own."""
-    if process.is_alive():
+    if announce and process.is_alive():
         log.info(
             "waiting for the C compiler of the planner kernels (at most %.0f s; the next runs "
             "load the library) ...",
@@ -396,12 +412,16 @@ def wait_for_library(library: str | Path) -> dict | None:
 
 
 def _compile(
-    compiler: str, source: str, library: Path, stop: threading.Event | None = None
+    compiler: str,
+    source: str,
+    library: Path,
+    stop: threading.Event | None = None,
+    niceness: int = 0,
 ) -> float:
     """Compile C ``source`` to the shared ``library`` and record it; returns the wall time [s].
     A split source is compiled as several files at once (:func:`c_files`), then linked. The
-    caller holds the library's lock; a background compilation (``stop`` given) runs the
-    compilers niced and ends them when ``stop`` is set."""
+    caller holds the library's lock; a compilation in a :class:`Compilation` (``stop`` given)
+    ends its compilers when ``stop`` is set, and runs them at ``niceness``."""
     for path in (library, record_path(library)):
         path.unlink(missing_ok=True)
     start = time.perf_counter()
@@ -409,12 +429,12 @@ def _compile(
         out = tmp / library.name
         texts = c_files(source)
         try:
-            _build(compiler, texts, out, stop)
+            _build(compiler, texts, out, stop, niceness)
         except OSError as exc:  # one file cannot depend on how CasADi's preamble is laid out
             if len(texts) == 1 or (stop is not None and stop.is_set()):
                 raise
             log.warning("the kernels as %d C files did not build (%s); as one", len(texts), exc)
-            _build(compiler, [source], out, stop)
+            _build(compiler, [source], out, stop, niceness)
         os.replace(out, library)  # atomic: a process never loads a partial library
     elapsed = time.perf_counter() - start
     write_record(library, compile_seconds=round(elapsed, 3))
@@ -422,15 +442,17 @@ def _compile(
     return elapsed
 
 
-def _build(compiler: str, texts: list[str], out: Path, stop: threading.Event | None) -> None:
+def _build(
+    compiler: str, texts: list[str], out: Path, stop: threading.Event | None, niceness: int
+) -> None:
     names = ["balance_kernels.c"] + [f"balance_kernels_{k}.c" for k in range(1, len(texts))]
     files = [out.parent / name for name in names]
     for path, text in zip(files, texts):
         path.write_text(text)
     command = [compiler, *COMPILER_FLAGS]
-    nice = shutil.which("nice") if stop is not None else None
+    nice = shutil.which("nice") if niceness else None
     if nice:  # in the background: the plan being solved keeps the CPU
-        command = [nice, "-n", str(BACKGROUND_NICENESS), *command]
+        command = [nice, "-n", str(niceness), *command]
     inputs = [str(f) for f in files]
     try:
         if len(files) > 1:

@@ -161,7 +161,12 @@ class PointKernels:
 
 class PlannerModel:
     """Symbolic model of a robot for the optimal planner, built once and cached in memory and
-    on disk (:class:`FunctionStore`)."""
+    on disk (:class:`FunctionStore`).
+
+    ``compile``: ``"auto"`` compiles a new robot's point kernels before its first plan solves,
+    waiting (at most :data:`~balance_opt.optimal.codegen.COMPILE_WAIT`; the VM if that fails),
+    if there is a C compiler; ``"background"`` solves on CasADi's VM while they compile and
+    waits at the end of the plan; ``True`` compiles now; ``False`` never."""
 
     def __init__(
         self,
@@ -181,8 +186,8 @@ class PlannerModel:
         self._backend = maps.backend if maps is not None else backend
         self.n_M = robot.mission.dof
         self.n_B = int(robot.balance_indices.size)
-        if compile == "auto":
-            compile = "background" if codegen.find_compiler() is not None else False
+        if compile == "auto" and codegen.find_compiler() is None:
+            compile = False
         self.compile = compile
         # background compilations this model started: waited for at the end of a plan
         # (finish_compiling), stopped when the model goes or the process exits
@@ -474,8 +479,10 @@ class PlannerModel:
                     functions,
                     self.cache_dir,
                     digest,
-                    background=self.compile == "background",
+                    background=self.compile in ("auto", "background"),
                     label=self.robot.name,
+                    # the compilers on every core cost less than the VM's solve beside them
+                    wait=self.compile == "auto",
                 )
             except (OSError, RuntimeError) as exc:
                 log.warning(
