@@ -10,8 +10,15 @@ applied whatever its time (``deadline = inf``), so that the drifts are those of 
 that has the time; the count of re-plans over the period says how many a real one would drop.
 The first plan is made before the motion and is not a re-plan.
 
+Also printed: where a re-plan's time goes (Ipopt's calls of the compiled kernels against its
+own work, mostly MUMPS's factorisations), the drift the open-loop flights have reached at the
+first two re-plans (what the closed loop cannot undo) and the joint-limit violations by joint
+and kind. ``--budget`` gives every re-plan Ipopt's ``max_wall_time`` of its period (as
+``balance-opt compare`` does): the motion then depends on the machine.
+
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
-measured] [--margin F] [--floor measured|plan]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period).
+measured] [--margin F] [--floor measured|plan] [--budget]`` (default:
+``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period).
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ import argparse
 import dataclasses
 import math
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +52,7 @@ def main() -> None:
     parser.add_argument("--momentum", choices=("zero", "measured"), default="zero")
     parser.add_argument("--margin", type=float, help="closed-loop limit margin (fraction)")
     parser.add_argument("--floor", choices=("measured", "plan"), default="measured")
+    parser.add_argument("--budget", action="store_true", help="stop Ipopt at the period")
     args = parser.parse_args()
 
     task = load_task(args.task)
@@ -75,7 +84,7 @@ def main() -> None:
             f"closed-loop first plan, limits {options.margin:.0%} inside: peak "
             f"{closed_plan.max_drift:.4g} rad, final {closed_plan.final_drift:.4g} rad"
         )
-    replanner = Replanner(nlp)
+    replanner = Replanner(nlp, budget=options.period if args.budget else None)
     print(
         f"period {options.period:g} s, momentum at a re-plan: {options.momentum}, peak floor: "
         f"{options.peak_floor}, "
@@ -87,7 +96,8 @@ def main() -> None:
     )
     print(header)
     times, prepare_s, violated = [], None, 0
-    peaks, finals = [], []
+    peaks, finals, early, kinds, outcomes = [], [], [], Counter(), []
+    m = max(1, round(options.period / nlp.h))
     for k, truth in enumerate(true_robots(task.robot, options)):
         open_loop = simulate_plan(truth, plan, task.spec.simulation)
         run = fly_closed_loop(
@@ -101,11 +111,15 @@ def main() -> None:
         )
         prepare_s = run.prepare_s if k == 0 else prepare_s
         times += run.compute_s.tolist()
+        outcomes += run.replans
         peaks.append(run.max_drift)
         finals.append(run.final_drift)
         over = int(np.sum(run.compute_s > run.period_s))
-        limits = [len(violations(task.robot, s)) for s in (open_loop, run.simulation)]
+        found = [violations(task.robot, s) for s in (open_loop, run.simulation)]
+        limits = [len(v) for v in found]
         violated += limits[1]
+        kinds.update(f"{v.joint} {v.kind}" for v in found[1])
+        early.append([_drift_at(open_loop, i * m * nlp.h) for i in (1, 2)])
         iterations = " ".join(str(r.iterations) for r in run.replans)
         print(
             f"{k:>5} {float(open_loop.angle.max()):>10.4g} {run.max_drift:>11.4g} "
@@ -123,7 +137,29 @@ def main() -> None:
         f"{np.percentile(t, 95):.3f} s, largest {t.max():.3f} s; {int(np.sum(t > options.period))} "
         f"over the period; NLPs built before the motion in {prepare_s:.1f} s"
     )
-    print(f"joint limit violations of the closed-loop runs (true limits): {violated}")
+    print(
+        f"joint limit violations of the closed-loop runs (true limits): {violated}"
+        + "".join(f"; {n} {k}" for k, n in sorted(kinds.items()))
+    )
+    solve, kernels = sum(r.solve_s for r in outcomes), sum(r.kernels_s for r in outcomes)
+    its = np.array([r.iterations for r in outcomes])
+    print(
+        f"Ipopt: {its.sum()} iterations over the re-plans (median {np.median(its):.0f}, largest "
+        f"{its.max()}), {1e3 * solve / max(its.sum(), 1):.1f} ms each; the kernels' "
+        f"evaluations {kernels / max(solve, 1e-12):.0%} of Ipopt's time, its own work the rest; "
+        f"set-up and plan {t.sum() - solve:.2f} s in all"
+    )
+    early = np.array(early)
+    nominal = [
+        _drift_at(simulate_plan(task.robot, plan, task.spec.simulation), i * m * nlp.h)
+        for i in (1, 2)
+    ]
+    for i, label in enumerate(("first", "second")):
+        print(
+            f"drift at the {label} re-plan ({(i + 1) * m * nlp.h:g} s): nominal plan "
+            f"{nominal[i]:.4g} rad; open-loop flights median {np.median(early[:, i]):.4g}, "
+            f"95 % {np.percentile(early[:, i], 95):.4g}, largest {early[:, i].max():.4g} rad"
+        )
 
 
 def violations(robot, sim) -> list:
@@ -131,6 +167,11 @@ def violations(robot, sim) -> list:
     return find_limit_violations(
         sim.t, robot.joint_names, sim.q, sim.q_dot, sim.q_ddot, robot.limits
     )
+
+
+def _drift_at(sim, t: float) -> float:
+    """A simulation's drift at the time ``t`` [s] (its nearest sample)."""
+    return float(sim.angle[int(np.argmin(np.abs(sim.t - t)))])
 
 
 if __name__ == "__main__":

@@ -22,6 +22,8 @@ from balance_opt.motion.so3 import (
     rotation_angle,
 )
 from balance_opt.motion.trajectories import MissionWindow
+from balance_opt.optimal.collision import collision_setup, restarted
+from balance_opt.optimal.problem import StartState
 from balance_opt.optimal.replan import Replanner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
@@ -124,6 +126,47 @@ def test_a_failed_replan_keeps_the_plan_in_force(planned):
     # the first plan flown to the end: the open-loop motion
     np.testing.assert_allclose(run.simulation.q, open_loop.q, atol=1e-9)
     np.testing.assert_allclose(run.simulation.quaternion, open_loop.quaternion, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_a_replan_stopped_by_its_time_budget_is_late_and_keeps_the_plan(planned):
+    task, nlp, plan, _ = planned
+    # a budget no solve fits in: Ipopt stops at its wall-time limit every time
+    hurried = Replanner(nlp, budget=1e-9)
+    assert hurried.ipopt["max_wall_time"] == pytest.approx(0.95e-9)
+    open_loop, run = _flown_both_ways(task, hurried, plan)
+    assert {r.status for r in run.replans} == {"Maximum_WallTime_Exceeded"}
+    assert all(r.out_of_time and not r.success for r in run.replans)
+    assert run.late == 4 and run.failed == 0  # late, not failed
+    np.testing.assert_allclose(run.simulation.quaternion, open_loop.quaternion, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_a_replan_keeps_the_collision_rows_built_before_the_motion(planned):
+    """From a start the plan in force has moved, a re-plan keeps the NLP structure built
+    before the motion, its collision rows starting where a set-up from that start has them."""
+    task, nlp, plan, replanner = planned
+    first = replanner.first(plan)
+    node = 30
+    replanner.prepare(first, [node])
+    prepared = replanner.prepared[node]
+    q, qd, qdd, phi = first.state(node)
+    moved = q + np.array([0.05, -0.1, 0.08])  # where another plan in force has the arm
+    structures = len(nlp.model.nlp_cache)
+    kept = replanner.problem(node, StartState(qd, qdd, phi, 0.0, prepared), moved)
+    assert len(nlp.model.nlp_cache) == structures and kept.structure is prepared.structure
+    fresh = replanner.problem(node, StartState(qd, qdd, phi), moved)  # chosen from this start
+    assert fresh.collision.rows.key == prepared.collision.rows.key
+    np.testing.assert_allclose(kept.lbg, fresh.lbg)
+    # the balance link 3 folded back toward the base: its row starts 0.13 m nearer than at
+    # the plan's start, and the rows kept start there as a set-up from there does
+    q0 = np.concatenate([task.mission.sample(np.zeros(1))[0][0], [-1.302, 1.524, -2.3]])
+    here = collision_setup(nlp.model, nlp.options, q0, nlp.robot)
+    assert here.rows.key == nlp.collision.rows.key
+    again = restarted(nlp.collision, nlp.model, nlp.options, q0)
+    assert np.abs(here.initial_rows - nlp.collision.initial_rows).max() > 0.1
+    np.testing.assert_allclose(again.initial_rows, here.initial_rows, atol=1e-12)
+    assert again.threshold == pytest.approx(here.threshold, abs=1e-12)
 
 
 TASK = """name: t

@@ -86,7 +86,8 @@ class ClosedLoopChunk:
             )
             if robot is not self.robot:
                 first = nlp.solve(self.solution).solver.solution
-            replanner = Replanner(nlp)
+            # a re-plan that has used its period stops there (late): the plan in force stays
+            replanner = Replanner(nlp, budget=self.options.period)
         out = []
         for k in indices:
             if replanner is not None:

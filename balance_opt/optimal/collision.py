@@ -225,6 +225,26 @@ def collision_setup(model, options, q0: np.ndarray, robot=None) -> CollisionSetu
     return setups[key]
 
 
+def restarted(
+    setup: CollisionSetup | None, model, options, q0: np.ndarray
+) -> CollisionSetup | None:
+    """``setup``, the collision avoidance of the same problem from another start, with its rows'
+    start values and its pairs' thresholds taken at ``q0``: a re-plan
+    (:mod:`balance_opt.optimal.replan`) keeps the rows, and so the NLP structure, built before
+    the motion (choosing them again from every measured start costs a quarter second, and a
+    row set of its own a new structure); only the start's bounds move."""
+    if setup is None:
+        return None
+    E, e = setup.geometry.robot.mimic_matrix
+    f = model.collisions.function(setup.rows, model.maps.joint_placements_fun())
+    indices = [p.index for p in setup.pairs]
+    exact = dict(zip(indices, setup.geometry.distances(q0, indices)))
+    threshold = {i: min(options.collision_margin, d) for i, d in exact.items()}
+    return dataclasses.replace(
+        setup, initial_rows=np.array(f(E @ q0 + e)).ravel(), threshold=threshold
+    )
+
+
 def check_start(
     models: CollisionModels, options, q0: np.ndarray, robot=None
 ) -> RobotGeometry | None:

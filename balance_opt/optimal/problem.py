@@ -16,7 +16,7 @@ from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import LIMIT_TOLERANCE
 from balance_opt.optimal import timing
 from balance_opt.optimal.budget import limited_kinds
-from balance_opt.optimal.collision import collision_setup
+from balance_opt.optimal.collision import collision_setup, restarted
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions
@@ -299,12 +299,16 @@ class StartState:
             measured from the attitude at ``t = 0``.
         peak: the largest drift of the motion before the start [rad]: the peak objective's
             epigraph variable is at least this (the objective stays the whole motion's peak).
+        prepared: the same problem built before the motion from the planned start, whose
+            collision rows (and so NLP structure) the re-plan keeps
+            (:func:`~balance_opt.optimal.collision.restarted`); ``None``: chosen from this start.
     """
 
     velocity: np.ndarray
     acceleration: np.ndarray
     attitude: np.ndarray
     peak: float = 0.0
+    prepared: Any = None
 
 
 class BalanceProblem:
@@ -378,7 +382,11 @@ class BalanceProblem:
         self._check_configurations()
         q_M0 = np.atleast_2d(mission.sample(np.zeros(1))[0])[0]
         q0 = np.concatenate([q_M0, q_B0])
-        self.collision = collision = collision_setup(model, options, q0, robot)
+        if start is not None and start.prepared is not None:
+            collision = restarted(start.prepared.collision, model, options, q0)
+        else:
+            collision = collision_setup(model, options, q0, robot)
+        self.collision = collision
         self.N = options.intervals
         self.h = horizon / self.N
         self.transcription = Transcription(options.transcription)
