@@ -50,8 +50,8 @@ def fold_urdf(flange: float = 0.0) -> str:
     )
 
 
-def _fold_plan(flange: float, avoid: bool, fold: float = 2.6):
-    """The fold robot's plan whose rest pull (the fore arm folded ``fold`` [rad]; 2.6: into
+def _fold_problem(flange: float, avoid: bool = True, fold: float = 2.6):
+    """The fold robot's problem whose rest pull (the fore arm folded ``fold`` [rad]; 2.6: into
     the tower) drags the fore arm through the tower unless the planner keeps it out."""
     from balance_opt.motion.trajectories import PointToPoint
     from balance_opt.optimal.model import PlannerModel
@@ -69,7 +69,12 @@ def _fold_plan(flange: float, avoid: bool, fold: float = 2.6):
         collision_margin=MARGIN,
     )
     model = PlannerModel(robot, compile=False, store=False)
-    nlp = build_balance_nlp(model, PointToPoint([0.0], [0.6], 3.0), [0.0, 0.0, 0.0], options)
+    return build_balance_nlp(model, PointToPoint([0.0], [0.6], 3.0), [0.0, 0.0, 0.0], options)
+
+
+def _fold_plan(flange: float, avoid: bool, fold: float = 2.6):
+    """The fold robot's plan (:func:`_fold_problem`), from rest."""
+    nlp = _fold_problem(flange, avoid, fold)
     return nlp, nlp.solve("rest")
 
 
@@ -96,6 +101,23 @@ def test_a_pair_inside_the_balance_arm_is_held_on_the_continuous_motion():
     assert min(p.lower_bound for p in report.pairs) >= MARGIN - 1e-6
     # the pull still acts: the fore arm is folded far down, along the tower
     assert safe.q_B[-1, 2] > 2.0
+
+
+def test_a_guess_through_a_body_is_found():
+    """A guess that folds the fore arm into the tower breaks the fore arm's row, found at the
+    point where it is deepest; the arm held at rest breaks none (a plan failing from the
+    analytic law's guess is solved again from rest when that guess goes through a body)."""
+    from balance_opt.optimal.collision import guess_through
+    from balance_opt.optimal.guess import from_samples, guess_solution
+
+    nlp = _fold_problem(0.0)
+    t = np.linspace(0.0, 3.0, 61)
+    fold = 2.6 * np.sin(np.pi * t / 3.0) ** 2  # into the tower and back, deepest at 1.5 s
+    q = np.stack([np.zeros_like(t), np.zeros_like(t), fold], axis=1)
+    zero = np.zeros_like(q)
+    found = guess_through(nlp, from_samples(nlp, t, q, zero, zero))
+    assert re.fullmatch(r"fore clearance 0\.\d+ m below its bound at t = 1\.500 s", found), found
+    assert guess_through(nlp, guess_solution(nlp, "rest")) is None
 
 
 def test_the_planner_gives_up_naming_pair_depth_time_and_rounds():

@@ -409,3 +409,27 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     # the arm starts at rest where it is: the first node's rows cannot move
     bound[:, 0] = np.minimum(bound[:, 0], setup.initial_rows - COLLISION_SLACK)
     return {"collision": bound}, said
+
+
+def guess_through(problem, guess) -> str | None:
+    """Where the guess ``guess`` (a :class:`~balance_opt.optimal.problem.Solution` of
+    ``problem``) breaks a collision row's bound by more than :data:`COLLISION_SLACK`: the row,
+    the time and by how much, in words; ``None`` where it keeps them all.
+
+    The analytic law knows no bodies: its motion may drive a link through another (the UR5
+    satellite's turns the wrist through the forearm). Started inside a body, Ipopt can end at a
+    point of least infeasibility, where the row's two sides pull the link both ways."""
+    setup = problem.collision
+    X, _ = guess.points()
+    n_M, n_B = setup.geometry.robot.mission.dof, problem.model.n_B
+    q = np.vstack([problem.mission_samples[:n_M], X[3 : 3 + n_B]])  # (n, n_points)
+    E, e = setup.geometry.robot.mimic_matrix
+    f = problem.model.collisions.function(setup.rows, problem.model.maps.joint_placements_fun())
+    shortfall = problem.bounds.collision - np.array(f.map(q.shape[1])(E @ q + e[:, None]))
+    row, point = np.unravel_index(int(np.argmax(shortfall)), shortfall.shape)
+    if shortfall[row, point] <= COLLISION_SLACK:
+        return None
+    return (
+        f"{setup.rows.labels[row]} {shortfall[row, point]:.3g} m below its bound at "
+        f"t = {problem.point_times[point]:.3f} s"
+    )

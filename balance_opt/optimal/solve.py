@@ -23,6 +23,7 @@ from balance_opt.motion.so3 import (
     rotation_angle,
 )
 from balance_opt.optimal import timing
+from balance_opt.optimal.collision import guess_through
 from balance_opt.optimal.collocation import CollocatedTrajectory, joint_chain_coefficients
 from balance_opt.optimal.constraints import PEAK_POWER, PEAK_SCALE, broken_attitude_bounds
 from balance_opt.optimal.guess import guess_solution, resampled
@@ -209,7 +210,7 @@ class BalanceNLP(BalanceProblem):
             elif self.options.starts > 1:
                 result = multi_start(self, initial_guess, executor)
             else:
-                result = solve_with_bounds(self, initial_guess)
+                result = self._solve_clear_of_bodies(initial_guess)
         except SolverError as exc:  # the plan's report, or the failure's, written into its info
             if getattr(exc.result, "solver", None) is not None:
                 exc.result.info.update(exc.result.solver.as_info())
@@ -221,6 +222,29 @@ class BalanceNLP(BalanceProblem):
             self.model.finish_compiling()
         result.info.update(result.solver.as_info())
         return result
+
+    def _solve_clear_of_bodies(self, initial_guess) -> BalanceResult:
+        """:func:`solve_with_bounds`; should Ipopt fail from the analytic law's guess where that
+        guess goes through a body (:func:`~balance_opt.optimal.collision.guess_through`), it
+        is solved again from rest, where the arm keeps every row. A plan found and then
+        judged in collision after the refinement's rounds is not: the rounds start from the
+        plan, not the guess (Baxter's user robot failed the same way from rest)."""
+        try:
+            return solve_with_bounds(self, initial_guess)
+        except PlannerSolverError as exc:
+            analytic = isinstance(initial_guess, str) and initial_guess == "analytic"
+            if self.collision is None or not analytic or exc.status == "Collision":
+                raise
+            through = guess_through(self, self.unpack(self.initial_guess(initial_guess)))
+            if through is None:
+                raise
+            log.warning(
+                "the plan from the analytic law's guess failed (%s), a guess that goes through "
+                "a body (%s): planning again from rest",
+                exc,
+                through,
+            )
+        return solve_with_bounds(self, "rest")
 
     def solve_once(
         self, initial_guess="analytic", before: PlanReport | None = None
