@@ -16,6 +16,7 @@ from balance_opt.dynamics.options import ClosedLoopOptions
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.errors import InputError
 from balance_opt.motion.replay import replay
+from balance_opt.motion.result import find_limit_violations
 from balance_opt.motion.so3 import (
     quaternion_from_rotvec,
     relative_rotation,
@@ -190,9 +191,11 @@ closed_loop:
         (
             "momentum: measured",
             "closed_loop.momentum: unknown key 'momentum'; expected one of period, samples, "
-            "perturbation, seed, margin",
+            "perturbation, seed, margin, position_margin, jerk",
         ),
         ("margin: -0.1", "closed_loop.margin: must be at least 0, got -0.1"),
+        ("position_margin: -1", "closed_loop.position_margin: must be at least 0 rad, got -1"),
+        ("jerk: 0", "closed_loop.jerk: must be greater than 0 rad/s^3, got 0"),
     ],
 )
 def test_bad_closed_loop_values_name_file_line_and_key(tmp_path, entry, message):
@@ -271,3 +274,54 @@ def test_the_margin_tightens_the_balance_joints_rates_and_nothing_else():
         np.testing.assert_array_equal(getattr(tight.limits, kind), getattr(robot.limits, kind))
     # the robot itself keeps its limits (the violation check uses them)
     assert robot.limits.acceleration[balance][0] == 2.0
+
+
+def test_the_position_margin_and_the_jerk_bound_hold_the_balance_joints_only():
+    task = load_task(EXAMPLES / "capture_task.yaml")
+    robot = task.robot
+    tight = margined(robot, 0.0, 0.002, 10.0)
+    balance = robot.balance_indices
+    others = np.setdiff1d(np.arange(robot.n), balance)
+    limits, own = tight.limits, robot.limits
+    np.testing.assert_allclose(limits.lower[balance], own.lower[balance] + 0.002)
+    np.testing.assert_allclose(limits.upper[balance], own.upper[balance] - 0.002)
+    np.testing.assert_array_equal(limits.jerk[balance], [10.0] * balance.size)
+    for kind in ("lower", "upper", "jerk"):
+        np.testing.assert_array_equal(getattr(limits, kind)[others], getattr(own, kind)[others])
+    for kind in ("velocity", "acceleration", "effort"):
+        np.testing.assert_array_equal(getattr(limits, kind), getattr(own, kind))
+    # a margin wider than a quarter of a joint's range keeps half the range
+    span = own.upper[balance] - own.lower[balance]
+    wide = margined(robot, 0.0, 10.0).limits
+    np.testing.assert_allclose(wide.upper[balance] - wide.lower[balance], 0.5 * span)
+
+
+@pytest.mark.slow
+def test_the_closed_loop_margins_keep_a_true_robot_inside_its_limits(planned):
+    """Flown closed loop on a robot 10 % off, a plan that rides its limits leaves them (its
+    joint controllers track it with a lag, largest where a re-plan turns the acceleration);
+    with the margins (rates, accelerations, positions, jerk) the true motion stays inside the
+    robot's own limits."""
+    from balance_opt.app.closed_loop import true_robots
+
+    task, nlp, plan, replanner = planned
+    truth = true_robots(task.robot, ClosedLoopOptions(samples=4, perturbation=0.1, seed=0))[3]
+
+    def violations(replanner, first, options):
+        run = fly_closed_loop(
+            truth, replanner, first, task.spec.simulation, options, deadline=math.inf
+        )
+        s = run.simulation
+        limits = task.robot.limits
+        return find_limit_violations(s.t, task.robot.joint_names, s.q, s.q_dot, s.q_ddot, limits)
+
+    bare = ClosedLoopOptions(period=1.0, margin=0.0, position_margin=0.0, jerk=None)
+    assert margined(task.robot, *bare.margins) is task.robot
+    assert len(violations(replanner, plan, bare)) >= 3
+    options = ClosedLoopOptions(period=1.0)
+    robot = margined(task.robot, *options.margins)
+    tight = build_balance_nlp(
+        nlp.model, task.mission, task.q_B0, nlp.options, robot=robot, h0=task.h0
+    )
+    first = tight.solve(plan.solver.solution)
+    assert violations(Replanner(tight), first, options) == []

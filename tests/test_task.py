@@ -817,7 +817,9 @@ OPTION_KEYS_DEFAULTS = [
     ("closed_loop.samples", "20"),
     ("closed_loop.perturbation", "none"),
     ("closed_loop.seed", "none"),
-    ("closed_loop.margin", "0.03"),
+    ("closed_loop.margin", "0.06"),
+    ("closed_loop.position_margin", "0.002"),
+    ("closed_loop.jerk", "15.0"),
 ]
 
 

@@ -80,7 +80,7 @@ class ClosedLoopChunk:
             model = PlannerModel(self.robot, backend=self.backend)
             # the closed loop plans inside its margin: its first plan too (from the open-loop
             # plan), so that a re-plan's start, the plan in force's, is inside it
-            robot = margined(self.robot, self.options.margin)
+            robot = margined(self.robot, *self.options.margins)
             nlp = build_balance_nlp(
                 model, self.mission, self.q_B0, self.planner, robot=robot, h0=self.h0
             )

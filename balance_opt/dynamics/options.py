@@ -125,11 +125,26 @@ class ClosedLoopOptions:
         None, minimum=0, doc="seed of the perturbations (default: robustness.seed)"
     )
     margin: float = setting(
-        0.03,
+        0.06,
         minimum=0.0,
         doc="fraction by which the closed-loop plans (first plan and re-plans) tighten the "
         "balance joints' velocity and acceleration limits, for the joint controllers' tracking "
         "error on the true robot",
+    )
+    position_margin: float = setting(
+        0.002,
+        unit="rad",
+        minimum=0.0,
+        doc="distance by which the closed-loop plans keep the balance joints inside their "
+        "position limits (at most a quarter of a joint's range), for the tracking error",
+    )
+    jerk: float | None = setting(
+        15.0,
+        unit="rad/s^3",
+        exclusive_minimum=0.0,
+        doc="largest jerk of the balance joints in the closed-loop plans (the robot's own if "
+        "lower; null: the robot's): a re-plan that turns the acceleration faster is tracked "
+        "with an overshoot on the true robot",
     )
     # a study setting, not a task's: docs/executable-plans.md says why zero is kept
     momentum: Literal[REPLAN_MOMENTA] = setting(
@@ -146,6 +161,12 @@ class ClosedLoopOptions:
         doc="a re-plan's peak floor: the drift so far (measured), or the drift so far capped "
         "at the first plan's peak (plan)",
     )
+
+    @property
+    def margins(self) -> tuple[float, float, float | None]:
+        """``(margin, position_margin, jerk)``: the arguments of
+        :func:`~balance_opt.optimal.replan.margined` after the robot."""
+        return self.margin, self.position_margin, self.jerk
 
     def __post_init__(self):
         check_settings(self, "closed-loop option")

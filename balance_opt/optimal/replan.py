@@ -44,20 +44,33 @@ OUT_OF_TIME = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
 SOLVE_SHARE = 0.95
 
 
-def margined(robot, margin: float):
-    """``robot`` (a :class:`~balance_opt.model.robot.FloatingRobot`) with its balance joints'
-    velocity and acceleration limits tightened by the fraction ``margin``: what a controller
-    that tracks its plans imperfectly plans with, so that the tracked motion stays inside the
-    true limits (``docs/executable-plans.md``, "Closed loop"). ``margin`` 0: ``robot`` itself."""
-    if margin == 0:
+def margined(robot, margin: float, position: float = 0.0, jerk: float | None = None):
+    """``robot`` (a :class:`~balance_opt.model.robot.FloatingRobot`) as a controller that tracks
+    its plans imperfectly plans with it, so that the tracked motion stays inside the true limits
+    (``docs/executable-plans.md``, "Closed loop"): its balance joints' velocity and acceleration
+    limits tightened by the fraction ``margin``, their position limits by ``position`` [rad]
+    at each end (at most a quarter of the range), and their jerk at most ``jerk`` [rad/s^3]
+    (``None``: the robot's). All zero or unset: ``robot`` itself."""
+    if margin == 0 and position == 0 and jerk is None:
         return robot
     limits = robot.limits
-    velocity, acceleration = limits.velocity.copy(), limits.acceleration.copy()
     balance = robot.balance_indices
-    velocity[balance] *= 1.0 - margin
-    acceleration[balance] *= 1.0 - margin
+    changed = {}
+    for key, scale in (("velocity", 1.0 - margin), ("acceleration", 1.0 - margin)):
+        changed[key] = getattr(limits, key).copy()
+        changed[key][balance] *= scale
+    lower, upper = limits.lower.copy(), limits.upper.copy()
+    span = upper[balance] - lower[balance]
+    # a finite range only; a quarter of it at most, so that a narrow joint keeps a range
+    inward = np.where(np.isfinite(span), np.minimum(position, 0.25 * span), 0.0)
+    lower[balance] += inward
+    upper[balance] -= inward
+    changed.update(lower=lower, upper=upper)
+    if jerk is not None:
+        changed["jerk"] = limits.jerk.copy()
+        changed["jerk"][balance] = np.minimum(changed["jerk"][balance], jerk)
     out = copy.copy(robot)
-    out.limits = dataclasses.replace(limits, velocity=velocity, acceleration=acceleration)
+    out.limits = dataclasses.replace(limits, **changed)
     return out
 
 
