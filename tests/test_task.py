@@ -203,7 +203,7 @@ BAD_TASKS = [
         "^mision:",
         (
             "mision: unknown key 'mision'; expected one of name, description, robot, arms, mission, initial, "
-            "capture, limits, analytic, optimal, simulation, robustness, closed_loop, outputs; did you mean 'mission'?"
+            "capture, limits, keep_out, analytic, optimal, simulation, robustness, closed_loop, outputs; did you mean 'mission'?"
         ),
         TaskFileError,
     ),

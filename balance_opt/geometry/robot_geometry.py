@@ -20,7 +20,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.errors import InputError
-from balance_opt.geometry import self_collision
+from balance_opt.geometry import keep_out, self_collision
 from balance_opt.model.capture import TARGET_LINK
 from balance_opt.model.meshes import resolved_urdf
 from balance_opt.model.robot import FloatingRobot
@@ -102,6 +102,8 @@ class RobotGeometry:
             fitted capsules contain them, so they contain the hull).
         pairs: the checked pairs (:class:`Pair`), in the geometry model's order.
         ignored: the pairs left out, ``{(link, link): reason}``.
+        zones: the robot's keep-out zones (``robot.keep_out``) by object index
+            (:mod:`~balance_opt.geometry.keep_out`).
 
     Raises:
         InputError: the URDF has no geometry, a mesh cannot be found, an ignored pair names a
@@ -180,6 +182,7 @@ class RobotGeometry:
                 chosen = {frozenset(k) for k, r in disabled.items() if r == reason}
                 self._drop(lambda a, b: frozenset((self._link(a), self._link(b))) in chosen, reason)
         self._drop_ignored(ignore)
+        self.zones = self._add_zones(robot.keep_out)
         self.geometry_data = pin.GeometryData(geom)
         self.data = self.model.createData()
         self.pairs: list[Pair] = self._make_pairs()
@@ -208,7 +211,29 @@ class RobotGeometry:
         return self._link(self.geometry_model.geometryObjects[index])
 
     def _link(self, obj) -> str:
+        if obj.name.startswith(keep_out.PREFIX):  # a zone: its pairs name it
+            return obj.name
         return self.model.frames[obj.parentFrame].name
+
+    def _add_zones(self, zones) -> dict[int, keep_out.KeepOutZone]:
+        """Each keep-out zone as an object on its frame's joint, paired with every object of
+        the bodies its arms move (not its own body): no pair of a zone is left out as adjacent,
+        by an SRDF or computed, since a zone meets no link by design. Returns the zones by
+        object index."""
+        model, geom = self.model, self.geometry_model
+        out = {}
+        for zone in zones:
+            obj = keep_out.zone_object(zone, model)
+            index = geom.addGeometryObject(obj)
+            out[index] = zone
+            arms = zone.arms or [arm.name for arm in self.robot.arms]
+            joints = [j for arm in arms for j in self.robot.arm(arm).joints]
+            bodies = set().union(*(model.subtrees[model.getJointId(j)] for j in joints))
+            bodies.discard(obj.parentJoint)
+            for i, other in enumerate(geom.geometryObjects):
+                if i not in out and other.parentJoint in bodies:
+                    geom.addCollisionPair(pin.CollisionPair(i, index))
+        return out
 
     def _pair_links(self) -> set[tuple[str, str]]:
         return {tuple(sorted(p.links)) for p in self._make_pairs()}

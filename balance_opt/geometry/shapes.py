@@ -117,9 +117,13 @@ def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
     shapes = []
     eye, zero = np.eye(3), np.zeros(3)
     for body, members in sorted(by_body.items()):
-        groups = [[i] for i in members] if body == root else [members]
-        for group in groups:
+        own = [i for i in members if i not in geometry.zones]
+        groups = [[i] for i in own] if body == root else [own] if own else []
+        for group in groups + [[i] for i in members if i in geometry.zones]:
             first = objs[group[0]]
+            if group[0] in geometry.zones:
+                shapes.append(zone_shape(first, body, group[0]))
+                continue
             name = first.name if body == root else geometry.link(group[0])
             kind = type(first.geometry).__name__
             if body == root and kind not in ("Cylinder", "Capsule", "Sphere"):
@@ -142,6 +146,25 @@ def fit_shapes(geometry: RobotGeometry) -> list[Shape]:
             a, b, r = exact
             shapes.append(Shape(name, body, "capsule", a, b, r, eye, zero, tuple(group)))
     return shapes
+
+
+def zone_shape(obj, body: int, index: int) -> Shape:
+    """The fitted shape of keep-out zone object ``index``: its box, the capsule of its
+    cylinder (which contains it), or its cone (``a`` the apex, ``b`` the base's centre,
+    ``radius`` the base's; its distance is exact: :func:`cone_distance`)."""
+    g, M = obj.geometry, obj.placement
+    eye, zero = np.eye(3), np.zeros(3)
+    kind = type(g).__name__
+    if kind == "Box":
+        centre = M.translation.copy()
+        half = np.asarray(g.halfSide, dtype=float)
+        return Shape(obj.name, body, "box", centre, centre, 0.0, M.rotation.copy(), half, (index,))
+    if kind == "Cone":  # coal's cone: apex at +halfLength on its z axis
+        ax = M.rotation[:, 2] * g.halfLength
+        apex, base = M.translation + ax, M.translation - ax
+        return Shape(obj.name, body, "cone", apex, base, float(g.radius), eye, zero, (index,))
+    a, b, r = _capsule_of_primitive(obj)
+    return Shape(obj.name, body, "capsule", a, b, r, eye, zero, (index,))
 
 
 # ---------------------------------------------------------------------------------- kinematics
@@ -184,6 +207,36 @@ def box_distance(point, half):
     return cs.sqrt(cs.dot(outside, outside) + 1e-12) + cs.fmin(cs.mmax(d), 0.0)
 
 
+def cone_distance(point, apex, base, radius: float):
+    """Signed distance of ``point`` from the solid cone of ``apex``, base centre ``base`` and
+    base ``radius`` (CasADi; points and cone in one frame): in the plane through the axis the
+    cone is the triangle apex, base centre, rim, and the distance is the exact one to it (its
+    slant and base edges; inside, minus the depth below the nearer of the side and the base).
+    The closest feature changes only where both edges' distances are the rim's, so the
+    smallest of them is smooth (once) wherever the distance is positive."""
+    axis = base - apex
+    length = cs.sqrt(cs.dot(axis, axis))
+    u = axis / length
+    v = point - apex
+    h = cs.dot(v, u)
+    rho = cs.sqrt(cs.fmax(cs.dot(v, v) - h * h, 0.0) + 1e-12)
+    slant = cs.sqrt(length**2 + radius**2)
+    sin_a, cos_a = radius / slant, length / slant
+
+    def to_segment(p0, p1):  # (rho, h) of the segment's ends
+        d = (p1[0] - p0[0], p1[1] - p0[1])
+        s = _clamp01(((rho - p0[0]) * d[0] + (h - p0[1]) * d[1]) / (d[0] ** 2 + d[1] ** 2))
+        x, y = rho - p0[0] - s * d[0], h - p0[1] - s * d[1]
+        return cs.sqrt(x * x + y * y + 1e-12)
+
+    outside = cs.fmin(
+        to_segment((0.0, 0.0), (radius, length)), to_segment((0.0, length), (radius, length))
+    )
+    depth = cs.fmin(length - h, h * sin_a - rho * cos_a)
+    inside = cs.logic_and(cs.logic_and(h >= 0, h <= length), rho * cos_a <= h * sin_a)
+    return cs.if_else(inside, -depth, outside)
+
+
 def soft_min(values, beta: float = BETA):
     """``m - log(sum exp(-beta (v - m))) / beta``, ``m = min v``: smooth, ``log(n) / beta`` below
     at most."""
@@ -198,7 +251,7 @@ def _place(R, p, x):
 
 def shape_distance(first: Shape, second: Shape, frames: dict):
     """The distance of two fitted shapes (one at least a capsule) as a CasADi expression."""
-    if first.kind == "box":
+    if first.kind != "capsule":
         first, second = second, first
     R1, p1 = frames[first.body]
     a1, b1 = _place(R1, p1, first.a), _place(R1, p1, first.b)
@@ -206,7 +259,7 @@ def shape_distance(first: Shape, second: Shape, frames: dict):
     if second.kind == "capsule":
         a2, b2 = _place(R2, p2, second.a), _place(R2, p2, second.b)
         return segment_distance(a1, b1, a2, b2) - first.radius - second.radius
-    # capsule against box: spheres along the segment, in the box's frame
+    # capsule against box or cone: spheres along the segment
     length = float(np.linalg.norm(first.b - first.a))
     spacing = SPHERE_SPACING * max(first.radius, 1e-6)
     n = max(2, int(np.ceil(length / spacing)) + 1)
@@ -214,10 +267,14 @@ def shape_distance(first: Shape, second: Shape, frames: dict):
     radius = float(np.sqrt(first.radius**2 + (step / 2) ** 2))
     R_box = R2 @ cs.DM(second.rotation)
     centre = _place(R2, p2, second.a)
+    base = _place(R2, p2, second.b)
     out = []
     for s in np.linspace(0.0, 1.0, n):
-        x = R_box.T @ (a1 + s * (b1 - a1) - centre)
-        out.append(box_distance(x, second.half) - radius)
+        x = a1 + s * (b1 - a1)
+        if second.kind == "cone":
+            out.append(cone_distance(x, centre, base, second.radius) - radius)
+        else:  # in the box's frame
+            out.append(box_distance(R_box.T @ (x - centre), second.half) - radius)
     return soft_min(out)
 
 
@@ -281,6 +338,7 @@ def clearance_rows(
             of_object[i] = k
     depth = {j: len(geometry.model.supports[j]) for j in range(geometry.model.njoints)}
     rows: dict[int, set] = {}
+    zoned = set()
     for p in pairs:
         s1, s2 = of_object[p.first], of_object[p.second]
         b1, b2 = shapes[s1].body, shapes[s2].body
@@ -289,7 +347,11 @@ def clearance_rows(
             continue
         owner = max(moved, key=lambda b: depth[b])
         own, other = (s1, s2) if b1 == owner else (s2, s1)
-        rows.setdefault(owner, set()).add((own, other))
+        if {p.first, p.second} & geometry.zones.keys():
+            own, other = (s1, s2) if p.second in geometry.zones else (s2, s1)
+            zoned.add((own, other))
+        else:
+            rows.setdefault(owner, set()).add((own, other))
     out = []
     for body in sorted(rows):
         shared = sorted(p for p in rows[body] if p not in alone)
@@ -297,7 +359,15 @@ def clearance_rows(
             out.append((f"{_body_name(geometry, body)} clearance", tuple(shared)))
         for i, k in sorted(p for p in rows[body] if p in alone):
             out.append((f"{shapes[i].name} / {shapes[k].name} clearance", ((i, k),)))
-    return ClearanceRows(tuple(shapes), tuple(out))
+    return ClearanceRows(tuple(shapes), tuple(out + keep_out_rows(shapes, zoned)))
+
+
+def keep_out_rows(shapes, zoned) -> list:
+    """The planner's keep-out rows: one per pair of a body's shape and a zone's
+    (``zoned``: their indices in ``shapes``), never shared (a zone is a volume the arm must
+    stay out of, not a body beside it: its bound is the margin whatever the body's other
+    pairs), each held, checked and refined as the other collision rows."""
+    return [(f"{shapes[i].name} / {shapes[k].name} clearance", ((i, k),)) for i, k in sorted(zoned)]
 
 
 def _body_name(geometry: RobotGeometry, body: int) -> str:

@@ -149,6 +149,7 @@ def attach_target(robot: FloatingRobot, target: Target) -> FloatingRobot:
         limits=limits,
         ee_frames={arm.name: arm.ee_frame for arm in robot.arms},
         packages=robot.packages,
+        keep_out=robot.keep_out,
     )
 
 

@@ -152,6 +152,9 @@ class FloatingRobot:
         packages: folders searched first for the URDF's ``package://`` meshes
             (:mod:`~balance_opt.model.meshes`; the task file's ``robot.packages``), kept as
             ``packages`` for whatever loads the robot's geometry.
+        keep_out: keep-out zones fixed on its frames (the task file's ``keep_out``), kept as
+            ``keep_out`` for whatever loads the robot's geometry
+            (:mod:`~balance_opt.geometry.keep_out`).
 
     Raises:
         URDFLoadError: the URDF cannot be read, parsed or loaded by Pinocchio.
@@ -169,9 +172,11 @@ class FloatingRobot:
         limits: Mapping[str, Mapping[str, float]] | None = None,
         ee_frames: Mapping[str, str] | None = None,
         packages: Sequence[str | Path] = (),
+        keep_out: Sequence = (),
     ):
         text, self.source = _read_urdf(urdf)
         self.packages: tuple[Path, ...] = tuple(Path(p) for p in packages)
+        self.keep_out: tuple = tuple(keep_out)
         root, self._urdf_joints, warnings = parse_urdf(text, self.source)
         for warning in warnings:
             log.warning("URDF %s: %s", self.source, warning)

@@ -124,8 +124,10 @@ class CollisionSetup:
 
 def _robot_key(robot) -> tuple:
     """What of a robot of the model's kinematics its geometry depends on: the limits (the
-    samples of the pairs computed without an SRDF are drawn inside them) and the mesh folders."""
-    return (robot.limits.lower.tobytes(), robot.limits.upper.tobytes(), robot.packages)
+    samples of the pairs computed without an SRDF are drawn inside them), the mesh folders and
+    the keep-out zones."""
+    limits = robot.limits
+    return (limits.lower.tobytes(), limits.upper.tobytes(), robot.packages, robot.keep_out)
 
 
 class CollisionModels:

@@ -22,6 +22,8 @@ MESH_GRID = 200
 
 #: Colour of the links that belong to no arm (the base and what is fixed to it).
 BASE_COLOUR = "#A0A0A0"
+#: Keep-out zones: translucent, so that the links show through them.
+ZONE_COLOUR, ZONE_OPACITY = "#CC79A7", 0.25
 
 
 @dataclass(frozen=True)
@@ -118,20 +120,25 @@ def mesh_object(geometry, colour: str, opacity: float, flat: bool):
 
 
 def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
-    """Every drawn piece of the robot's visual geometry, coloured by arm; ``size``: the robot's
-    size [m], which sets the mesh simplification."""
+    """Every drawn piece of the robot's visual geometry, coloured by arm, and its keep-out
+    zones, translucent; ``size``: the robot's size [m], which sets the mesh simplification."""
     import meshcat.geometry as mg
+
+    from balance_opt.geometry.keep_out import zone_object
 
     gmodel, meshes, colour = visual_model(robot), {}, _joint_colours(robot)
     cell = size / MESH_GRID
     out = []
-    for obj in gmodel.geometryObjects:
+    zones = [zone_object(zone, robot.model) for zone in robot.keep_out]
+    pieces = [(obj, False) for obj in gmodel.geometryObjects] + [(obj, True) for obj in zones]
+    for obj, zone in pieces:
         geometry = _shape(obj, cell, meshes)
         if geometry is None:
             continue
         opacity = float(min(obj.meshColor[3], 1.0)) if obj.meshColor[3] > 0 else 1.0
         mesh = isinstance(geometry, mg.TriangularMeshGeometry)
-        drawn = mesh_object(geometry, colour[obj.parentJoint], opacity, mesh)
+        tint, opacity = (ZONE_COLOUR, ZONE_OPACITY) if zone else (colour[obj.parentJoint], opacity)
+        drawn = mesh_object(geometry, tint, opacity, mesh)
         n = int(geometry.vertices.shape[0]) if mesh else 0
         obj.geometry.computeLocalAABB()
         box = obj.geometry.aabb_local
@@ -140,7 +147,7 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         out.append(
             SceneObject(
                 obj.name, obj.parentJoint, obj.placement, drawn, n, corners,
-                robot.model.frames[obj.parentFrame].name,
+                obj.name if zone else robot.model.frames[obj.parentFrame].name,
             )
         )  # fmt: skip
     return out

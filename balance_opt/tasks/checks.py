@@ -8,7 +8,7 @@ import logging
 
 import numpy as np
 
-from balance_opt.config.typed_config import walk_settings
+from balance_opt.config.typed_config import suggest, walk_settings
 from balance_opt.config.yaml_lines import TaskFileError, YamlDocument, format_path
 from balance_opt.errors import InfeasibleLimitsError, InputError, TrajectoryError
 from balance_opt.model.robot import FloatingRobot
@@ -361,3 +361,68 @@ def check_capture(spec: TaskSpec, doc: YamlDocument, duration: float):
         )
     except InputError as exc:
         raise doc.error(("capture", "inertia"), str(exc)) from None
+
+
+def check_keep_out(spec: TaskSpec, doc: YamlDocument, robot, mission, q_B0) -> None:
+    """The keep-out zones (names once, frames of the robot, arms of the task, sizes) given to
+    the robot, and none that the mission arm's trajectory enters: the planner cannot move it.
+    """
+    from balance_opt.geometry.keep_out import zone_problems
+
+    arms = [a.name for a in robot.arms]
+    frames = [f.name for f in robot.model.frames if f.name != "universe"]
+    for i, zone in enumerate(spec.keep_out):
+        earlier = [z.name for z in spec.keep_out[:i]]
+        if zone.name in earlier:
+            raise doc.error(
+                ("keep_out", i, "name"),
+                f"zone {zone.name} is named twice (also keep_out[{earlier.index(zone.name)}])",
+            )
+        if zone.frame not in frames:
+            raise doc.error(
+                ("keep_out", i, "frame"),
+                f"{robot.name} has no frame {zone.frame}" + suggest(zone.frame, frames),
+            )
+        for k, arm in enumerate(zone.arms or ()):
+            if arm not in arms:
+                raise doc.error(
+                    ("keep_out", i, "arms", k), f"no arm {arm}; the arms are {', '.join(arms)}"
+                )
+        for path, problem in zone_problems(zone):
+            raise doc.error(("keep_out", i, *path), problem)
+    if not spec.keep_out:
+        return
+    from balance_opt.geometry.clearance import clearance
+    from balance_opt.geometry.robot_geometry import RobotGeometry
+
+    robot.keep_out = spec.keep_out
+    geometry = RobotGeometry(robot, disabled={})  # the zones' pairs alone are wanted
+    tree = robot.model.subtrees
+    balance = set().union(
+        *(tree[robot.model.getJointId(robot.joint_names[i])] for i in robot.balance_indices)
+    )
+    pairs = [  # the zones' pairs the balance arm does not move
+        p.index
+        for p in geometry.pairs
+        if {p.first, p.second} & geometry.zones.keys()
+        and not {geometry.body(p.first), geometry.body(p.second)} & balance
+    ]
+    t = np.linspace(0.0, float(mission.duration), 401)
+    q = np.hstack([mission.sample(t)[0], np.tile(q_B0, (t.size, 1))])
+    hit = clearance(geometry, t, q, pairs=pairs, watch=0.0).first_penetration
+    if hit is not None:
+        pair = next(p for p in geometry.pairs if p.name == hit.pair)
+        zone, link = (
+            (pair.second, pair.first)
+            if pair.second in geometry.zones
+            else (pair.first, pair.second)
+        )
+        i = spec.keep_out.index(geometry.zones[zone])
+        raise doc.error(
+            ("keep_out", i),
+            f"zone {spec.keep_out[i].name}: the mission arm's trajectory enters it: "
+            f"{geometry.link(link)} from "
+            f"t = {hit.time:.3f} s, {hit.depth:.4f} m deep at most; the planner cannot move the "
+            "mission arm: move the zone or the mission, or bind the zone to the balance arms "
+            "only (arms: [balance])",
+        )

@@ -34,6 +34,7 @@ from balance_opt.optimal.options import PlannerOptions
 from balance_opt.tasks.checks import (
     TaskTrajectoryError,
     check_capture,
+    check_keep_out,
     check_lengths,
     check_limits,
     check_problem_size,
@@ -173,6 +174,7 @@ def task_from_document(doc: YamlDocument, base_dir: Path, sha256: str) -> Task:
     check_limits(spec, doc, robot, mission, q_B0)
     target = check_capture(spec, doc, float(mission.duration))
     check_timing(spec, doc, robot)
+    check_keep_out(spec, doc, robot, mission, q_B0)
     ignore = spec.optimal.planner.collision_ignore
     if target is None and any(TARGET_LINK in pair for pair in ignore):
         raise doc.error(

@@ -10,6 +10,7 @@ from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.config.schema import json_schema, reference_markdown
 from balance_opt.config.typed_config import setting
 from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
+from balance_opt.geometry.keep_out import KeepOutZone
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
 from balance_opt.optimal.options import GUESSES, TIMINGS, PlannerOptions
 
@@ -312,6 +313,11 @@ class TaskSpec:
     )
     limits: dict[str, LimitSpec] = setting(
         factory=dict, doc="limit overrides, by joint name (NAME: a joint of an arm)"
+    )
+    keep_out: tuple[KeepOutZone, ...] = setting(
+        (),
+        doc="keep-out zones fixed on robot frames that the arms' links must stay out of "
+        "(docs/collision.md)",
     )
     analytic: AnalyticSpec = setting(factory=AnalyticSpec, doc="the analytic balance law")
     optimal: OptimalSpec = setting(factory=OptimalSpec, doc="the optimal planner")
