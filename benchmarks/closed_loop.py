@@ -17,8 +17,10 @@ and kind. ``--budget`` gives every re-plan Ipopt's ``max_wall_time`` of its peri
 ``balance-opt compare`` does): the motion then depends on the machine.
 
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
-measured] [--margin F] [--position-margin RAD] [--jerk J] [--floor measured|plan] [--budget]``
-(default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period and margins).
+measured] [--margin F] [--position-margin RAD] [--jerk J] [--floor measured|plan] [--budget]
+[--terminal F]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
+and margins; ``--terminal``: the factor on the final drift's price in the closed loop's plans,
+``optimal.replan.TERMINAL_FACTOR`` by default).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from balance_opt.app.models import ModelCache
 from balance_opt.dynamics.closed_loop import fly_closed_loop
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.motion.result import find_limit_violations
-from balance_opt.optimal.replan import Replanner, margined
+from balance_opt.optimal.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 
@@ -55,6 +57,9 @@ def main() -> None:
     parser.add_argument("--jerk", type=float, help="closed-loop jerk bound [rad/s^3]")
     parser.add_argument("--floor", choices=("measured", "plan"), default="measured")
     parser.add_argument("--budget", action="store_true", help="stop Ipopt at the period")
+    parser.add_argument(
+        "--terminal", type=float, default=TERMINAL_FACTOR, help="factor on the final drift's price"
+    )
     args = parser.parse_args()
 
     task = load_task(args.task)
@@ -82,12 +87,13 @@ def main() -> None:
     )
     # the closed loop plans inside its margin, its first plan too (as balance-opt compare)
     robot = margined(task.robot, *options.margins)
-    closed_plan = plan
-    if robot is not task.robot:
-        nlp = build_balance_nlp(model, task.mission, task.q_B0, planner, robot=robot, h0=task.h0)
+    closed_plan, closed = plan, closed_loop_planner(planner, args.terminal)
+    if robot is not task.robot or closed is not planner:
+        nlp = build_balance_nlp(model, task.mission, task.q_B0, closed, robot=robot, h0=task.h0)
         closed_plan = nlp.solve(plan.solver.solution)
         print(
-            f"closed-loop first plan, limits {options.margin:.0%} inside: peak "
+            f"closed-loop first plan, limits {options.margin:.0%} inside, final drift priced "
+            f"{args.terminal:g} times: peak "
             f"{closed_plan.max_drift:.4g} rad, final {closed_plan.final_drift:.4g} rad"
         )
     replanner = Replanner(nlp, budget=options.period if args.budget else None)

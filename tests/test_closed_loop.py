@@ -25,7 +25,7 @@ from balance_opt.motion.so3 import (
 from balance_opt.motion.trajectories import MissionWindow
 from balance_opt.optimal.collision import collision_setup, restarted
 from balance_opt.optimal.problem import StartState
-from balance_opt.optimal.replan import Replanner, margined
+from balance_opt.optimal.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 
@@ -93,6 +93,36 @@ def test_a_replan_from_a_node_whose_window_rounds_above_the_grid(planned):
     out = replanner.replan(node, first, first.state(node)[3], peak=plan.max_drift)
     assert out.success, out.status
     np.testing.assert_allclose(out.segment.solution.X, first.solution.X[:, node:], atol=1e-4)
+
+
+@pytest.mark.slow
+def test_the_closed_loops_price_of_the_final_drift_brings_a_replans_final_drift_down(planned):
+    """From a state whose base has drifted further than planned, mid-motion, a re-plan at the
+    open-loop plan's price of the final drift gives some of it up for the peak; at the closed
+    loop's price (:func:`closed_loop_planner`) it plans a final drift far smaller. The first
+    plan and the re-plans have that one objective: without model error the closed loop
+    reproduces its first plan."""
+    task, nlp, plan, replanner = planned
+    assert closed_loop_planner(nlp.options, 1.0) is nlp.options
+    priced = closed_loop_planner(nlp.options)
+    assert priced.weights.peak_terminal == TERMINAL_FACTOR * nlp.options.weights.peak_terminal
+    closed = build_balance_nlp(task.robot, task.mission, task.q_B0, priced, h0=task.h0)
+    closed_plan = closed.solve(plan.solver.solution)
+    node = 30
+    first = replanner.first(plan)
+    phi = first.state(node)[3]
+    attitude, peak = 1.3 * phi, 1.3 * plan.max_drift  # 30 % further than planned
+    finals = []
+    for r in (replanner, Replanner(closed)):
+        out = r.replan(node, first, attitude, peak=peak)
+        assert out.success, out.status
+        finals.append(float(np.linalg.norm(out.segment.solution.X[:3, -1])))
+    assert finals[1] < 0.5 * finals[0], finals
+    # without model error the closed loop at that price reproduces its own first plan
+    open_loop, run = _flown_both_ways(task, Replanner(closed), closed_plan)
+    assert run.failed == 0
+    assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
+    assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
 
 
 def _flown_both_ways(task, replanner, plan):

@@ -70,7 +70,7 @@ class ClosedLoopChunk:
         from balance_opt.dynamics.closed_loop import fly_closed_loop
         from balance_opt.dynamics.simulation import simulate
         from balance_opt.optimal.model import PlannerModel
-        from balance_opt.optimal.replan import Replanner, margined
+        from balance_opt.optimal.replan import Replanner, closed_loop_planner, margined
         from balance_opt.optimal.solve import build_balance_nlp
 
         truths = true_robots(self.robot, self.options)
@@ -81,10 +81,11 @@ class ClosedLoopChunk:
             # the closed loop plans inside its margin: its first plan too (from the open-loop
             # plan), so that a re-plan's start, the plan in force's, is inside it
             robot = margined(self.robot, *self.options.margins)
+            planner = closed_loop_planner(self.planner)  # the final drift priced higher
             nlp = build_balance_nlp(
-                model, self.mission, self.q_B0, self.planner, robot=robot, h0=self.h0
+                model, self.mission, self.q_B0, planner, robot=robot, h0=self.h0
             )
-            if robot is not self.robot:
+            if robot is not self.robot or planner is not self.planner:
                 first = nlp.solve(self.solution).solver.solution
             # a re-plan that has used its period stops there (late): the plan in force stays
             replanner = Replanner(nlp, budget=self.options.period)
