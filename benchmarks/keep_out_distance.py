@@ -32,6 +32,8 @@ def main() -> None:
     parser.add_argument("--arm", default="balance_", help="prefix of the arm's link names")
     parser.add_argument("--step", type=float, default=2e-4, help="sample spacing [s]")
     args = parser.parse_args()
+    if args.cone is None and (args.center is None or args.size is None):
+        parser.error("give the zone: --center and --size for a box, or --cone")
 
     data = np.genfromtxt(args.csv, delimiter=",", names=True)
     model = pin.buildModelFromUrdf(args.urdf)  # fixed base: distances to the base do not
