@@ -39,7 +39,7 @@ from pathlib import Path
 from perf_doc import write_section
 
 from balance_opt.model.bridge import BridgeUnavailable, ensure_bridge
-from balance_opt.optimal.codegen import wait_for_library
+from balance_opt.solvers.codegen import wait_for_library
 
 ROOT = Path(__file__).resolve().parent.parent
 TASKS = (

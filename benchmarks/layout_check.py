@@ -43,6 +43,7 @@ MAX_CYCLES_PER_GROUP = 20
 #: other one way only (no cycle of parts).
 LAYERS = (
     ("base", ("errors", "interrupts", "progress", "cache")),
+    ("solvers", ("solvers",)),
     ("config", ("config",)),
     ("model", ("model",)),
     ("geometry", ("geometry",)),

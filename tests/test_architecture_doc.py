@@ -86,7 +86,7 @@ def test_the_diagram_reads_every_layer():
     names = diagram_names(DOC.read_text())
     # one module of each layer, read through comments in parentheses across lines
     for module in ("errors.py", "config/yaml_lines.py", "model/coupling.py", "geometry/shapes.py",
-                   "motion/robustness.py", "analytic/rollout.py", "optimal/ipopt_options.py",
+                   "motion/robustness.py", "analytic/rollout.py", "solvers/ipopt_options.py",
                    "dynamics/capture_impulse.py", "tasks/task.py", "report/scene.py",
                    "app/scenarios.py", "sweep/runner.py", "cli.py", "__init__.py"):  # fmt: skip
         assert module in names, module

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from balance_opt import cache
-from balance_opt.optimal import codegen
+from balance_opt.solvers import codegen
 
 ROOT = Path(__file__).resolve().parents[1]
 needs_cc = pytest.mark.skipif(codegen.find_compiler() is None, reason="no C compiler")
@@ -22,7 +22,7 @@ needs_cc = pytest.mark.skipif(codegen.find_compiler() is None, reason="no C comp
 _CHILD = """
 import logging, sys
 import casadi as cs
-from balance_opt.optimal.codegen import compile_functions
+from balance_opt.solvers.codegen import compile_functions
 logging.basicConfig(level=logging.WARNING, format="%(message)s")
 x = cs.SX.sym("x", 2)
 fun = cs.Function("cache_test_kernel", [x], [cs.sin(x[0]) * x[1] + cs.cos(x[1])])

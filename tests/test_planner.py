@@ -48,8 +48,8 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.motion.trajectories import PointToPoint
-from balance_opt.optimal import codegen
-from balance_opt.optimal.codegen import compile_functions
+from balance_opt.solvers import codegen
+from balance_opt.solvers.codegen import compile_functions
 from balance_opt.optimal.collocation import (
     CollocatedTrajectory,
     Transcription,

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from balance_opt.optimal import ipopt_options
+from balance_opt.solvers import ipopt_options
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +80,7 @@ def test_probing_linear_solvers_leaves_ipopt_usable():
     Ipopt solve of the process crash, so the probes and a solve after them run in a child."""
     code = (
         "import casadi as cs\n"
-        "from balance_opt.optimal.ipopt_options import linear_solver_loads\n"
+        "from balance_opt.solvers.ipopt_options import linear_solver_loads\n"
         "found = [linear_solver_loads(n) for n in ('ma97', 'ma57', 'pardiso', 'mumps')]\n"
         "x = cs.SX.sym('x')\n"
         "opts = {'ipopt.print_level': 0, 'ipopt.sb': 'yes', 'print_time': 0}\n"
@@ -96,7 +96,7 @@ def test_an_hsl_library_without_the_solver_is_refused_not_a_crash(tmp_path):
     """A ``libhsl`` that loads but lacks the solver's functions (a partial HSL build; here an
     empty library) makes Ipopt crash on ``ma97``: the probe refuses it before Ipopt tries. Run
     in a child, with the library on the loader's path as an installed one would be."""
-    from balance_opt.optimal.codegen import find_compiler
+    from balance_opt.solvers.codegen import find_compiler
 
     compiler = find_compiler()
     if compiler is None:
@@ -105,7 +105,7 @@ def test_an_hsl_library_without_the_solver_is_refused_not_a_crash(tmp_path):
     library = tmp_path / "libhsl.so"
     subprocess.run([compiler, "-shared", "-fPIC", "-o", library, tmp_path / "empty.c"], check=True)
     code = (
-        "from balance_opt.optimal.ipopt_options import option_catalog, option_problem\n"
+        "from balance_opt.solvers.ipopt_options import option_catalog, option_problem\n"
         "catalog = option_catalog()\n"
         "for solver in ('ma97', 'ma27'):\n"
         "    print(option_problem('linear_solver', solver, catalog))\n"

@@ -131,7 +131,7 @@ def test_bad_solver_option_is_refused_before_planning(tmp_path, capsys, option, 
 
 
 def test_checking_ipopt_options_needs_no_casadi_once_the_list_is_cached(tmp_path, monkeypatch):
-    from balance_opt.optimal import ipopt_options
+    from balance_opt.solvers import ipopt_options
 
     monkeypatch.setenv("BALANCE_OPT_CACHE", str(tmp_path / "cache"))
     ipopt_options.option_catalog()  # asks Ipopt once, writes the cache

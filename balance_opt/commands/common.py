@@ -48,7 +48,7 @@ def ipopt_options_of(args, task=None) -> dict:
     """``--solver-option`` values, checked against Ipopt's own option list; with ``--verbose``,
     Ipopt's iteration log (on stdout, as the optimal planner's progress) too, unless the task or
     the command line sets ``print_level`` (not in a sweep: its workers are silent)."""
-    from balance_opt.optimal.ipopt_options import check_ipopt_options
+    from balance_opt.solvers.ipopt_options import check_ipopt_options
 
     options = check_ipopt_options(dict(parse_solver_option(s) for s in args.solver_option or []))
     task_ipopt = task.spec.optimal.planner.ipopt if task is not None else {}

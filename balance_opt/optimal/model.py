@@ -39,7 +39,7 @@ from balance_opt.model.symbolic import (
     model_velocity_map,
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
-from balance_opt.optimal import codegen
+from balance_opt.solvers import codegen
 from balance_opt.optimal.collision import CollisionModels
 from balance_opt.optimal.terms import Output, Point
 
@@ -166,7 +166,7 @@ class PlannerModel:
     on disk (:class:`FunctionStore`).
 
     ``compile``: ``"auto"`` compiles a new robot's point kernels before its first plan solves,
-    waiting (at most :data:`~balance_opt.optimal.codegen.COMPILE_WAIT`; the VM if that fails),
+    waiting (at most :data:`~balance_opt.solvers.codegen.COMPILE_WAIT`; the VM if that fails),
     if there is a C compiler; ``"background"`` solves on CasADi's VM while they compile and
     waits at the end of the plan; ``True`` compiles now; ``False`` never."""
 
@@ -389,7 +389,7 @@ class PlannerModel:
 
     def finish_compiling(self, timeout: float = codegen.COMPILE_WAIT) -> None:
         """Wait for the background compilations this model started, each at most ``timeout``
-        [s], stopping those that do not end (:func:`~balance_opt.optimal.codegen.finish`); the
+        [s], stopping those that do not end (:func:`~balance_opt.solvers.codegen.finish`); the
         end of every planning call (nothing it started outlives it)."""
         try:
             while self._compiling:

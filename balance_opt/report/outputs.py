@@ -19,7 +19,7 @@ from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import BULKY_INFO_KEYS, EFFORT_TOLERANCE, BalanceResult, limit_bounds
 from balance_opt.motion.so3 import relative_rotation, rotation_angle
-from balance_opt.optimal.ipopt_options import ipopt_version
+from balance_opt.solvers.ipopt_options import ipopt_version
 
 #: The arrays of a :class:`~balance_opt.motion.result.BalanceResult` sampled on its time grid.
 SAMPLED_ARRAYS = tuple(f.name for f in fields(BalanceResult) if f.type == "np.ndarray")

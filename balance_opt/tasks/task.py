@@ -193,7 +193,7 @@ def _completed(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> TaskSpec:
     as the planner's collision SRDF, an absolute path."""
     planner = spec.optimal.planner
     if planner.ipopt:
-        from balance_opt.optimal.ipopt_options import check_ipopt_options
+        from balance_opt.solvers.ipopt_options import check_ipopt_options
 
         ipopt = check_ipopt_options(
             planner.ipopt, lambda name, problem: doc.error(("optimal", "ipopt", name), problem)
