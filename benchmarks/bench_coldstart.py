@@ -58,7 +58,7 @@ task = load_task(sys.argv[1])
 # "auto": compile the kernels, then solve; "background": solve on the VM while they compile
 models = ModelCache(compile=sys.argv[2])
 result = plan_optimal(task, models=models)
-info = result.info
+info = result.details()
 print(json.dumps({
     "plan_wall": time.perf_counter() - start,
     "iterations": info.get("total_iterations", info["iterations"]),

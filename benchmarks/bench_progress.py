@@ -63,8 +63,8 @@ def main(argv=None) -> None:
                 progress.configure(mode != "off", stream)
                 before = spent[0]
                 result = nlp.solve_once("analytic")
-                times[mode].append(result.info["wall_time_s"]["solve"])
-                iterations = result.info["iterations"]
+                times[mode].append(result.solver.last.wall_time_s["solve"])
+                iterations = result.solver.solves[-1].iterations
                 if mode == "terminal":
                     in_terminal += spent[0] - before
                     counted += iterations + 1  # Ipopt calls back for iteration 0 too

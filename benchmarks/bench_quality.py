@@ -87,13 +87,13 @@ def quality_table(
     base = {d: (p, w) for d, n, p, w in rows if n == "integral"}
     for duration, name, plan, wall in rows:
         ref = " / ".join(f"{v:.4f}" for v in REFERENCE.get(duration, ()))
-        its = plan.info["total_iterations"]
+        its = plan.solver.iterations
         ratio = "-"
         if duration in base:
             b_plan, b_wall = base[duration]
-            ratio = f"{wall / b_wall:.1f} / {its / b_plan.info['total_iterations']:.1f}"
+            ratio = f"{wall / b_wall:.1f} / {its / b_plan.solver.iterations:.1f}"
         median = f" ({medians[duration, name]:.1f})" if repeat > 1 else ""
-        stages = ", ".join(_stage_cell(s) for s in plan.info.get("stages", []))
+        stages = ", ".join(_stage_cell(s) for s in plan.details().get("stages", []))
         print(
             f"| {duration:g} s | {name} | {plan.max_drift:.5f} | {plan.final_drift:.5f} | {ref} "
             f"| {wall:.1f}{median} | {its} | {ratio} | {stages or '-'} |"
@@ -142,7 +142,7 @@ def multi_start_table(model, capture, intervals: int, starts: int, repeat: int =
     print("| --- | --- | --- | --- | --- | --- | --- |")
     one = rows[1][1]
     for k, (plan, wall, cpu) in rows.items():
-        info = plan.info.get("starts", {})
+        info = plan.solver.starts or {}
         spread = info.get("max_drift_spread_rad", 0.0)
         print(
             f"| {k} | {info.get('distinct', 1)} | {wall:.1f} "

@@ -75,14 +75,14 @@ def main(argv=None) -> int:
         first_cpu = None
         for n in args.intervals:
             task = task_with_intervals(path, n, args.objective)
-            built = plan_optimal(task, models=models).info["wall_time_s"]
+            built = plan_optimal(task, models=models).solver.last.wall_time_s
             w0, c0 = time.perf_counter(), time.process_time()
             again = plan_optimal(task, models=models)
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
             first_cpu = first_cpu or cpu
-            split, iters = again.info["wall_time_s"], again.info["total_iterations"]
-            ipopt = again.info["total_solve_time_s"]  # every Ipopt solve (the peak's stages)
-            stages = again.info.get("stages") or []
+            split, iters = again.solver.last.wall_time_s, again.solver.iterations
+            ipopt = again.solver.solve_s  # every Ipopt solve (the peak's stages)
+            stages = again.details().get("stages") or []
             by_stage = " + ".join(f"{s['iterations']}" for s in stages) or str(iters)
             lines.append(
                 f"| {path.stem} | {joints} | {n} | {built['build']:.2f} | {split['guess']:.2f} "

@@ -52,7 +52,7 @@ def _row(label: str, robot, capture, options: PlannerOptions, guess) -> str:
     tau = plan_joint_torques(plan, robot)[:, len(plan.mission_joints) :]
     limits = robot.limits.acceleration[robot.balance_indices]
     s = smoothness(plan.t, plan.q_ddot_B, plan.balance_joints, limits, tau)
-    iterations = plan.info.get("total_iterations", "?")
+    iterations = plan.solver.iterations if plan.solver is not None else "?"
     return (
         f"{label:32s} {plan.max_drift:8.5f} {plan.final_drift:9.6f} "
         f"{'/'.join(str(int(r)) for r in s.reversals):>10s} {s.max_jerk.max():8.1f} "

@@ -134,8 +134,8 @@ def test_optimal_plan_with_momentum_matches_an_independent_attitude(model, captu
     options = PlannerOptions(intervals=25, objective="integral")
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options, h0=H0)
     plan = nlp.solve()
-    assert plan.info["success"]
-    defect = plan.info["resimulation"]["attitude_defect_max_rad"]
+    assert plan.details()["success"]
+    defect = plan.solver.checks.attitude_defect_max_rad
     assert defect < COLLOCATION_RELATIVE_ERROR * plan.max_drift
     # the residual's floor is its finite differences': ~1e-7 on smooth motion, up to ~1e-5 at
     # a sample next to the peak plan's acceleration switches (7.5e-6 here); an attitude that
@@ -214,7 +214,7 @@ def test_capture_conserves_the_total_momentum_in_the_plan(example):
     q, q_dot = np.empty(robot.n), np.empty(robot.n)
     q[robot.mission_indices], q[robot.balance_indices] = plan.q_M[k], plan.q_B[k]
     q_dot[robot.mission_indices], q_dot[robot.balance_indices] = plan.q_dot_M[k], plan.q_dot_B[k]
-    info = plan.info["capture"]
+    info = plan.details()["capture"]
     assert np.linalg.norm(info["omega_jump"]) > 1e-3  # a real jump
     _check_conserved(
         example,
@@ -229,7 +229,7 @@ def test_capture_conserves_the_total_momentum_in_the_plan(example):
     # with the joint rates continuous (the balance arm held; the law's own rates jump at the
     # capture, and the base rate with them), the next sample's base rate is the jump's
     held = plan_task(example, "mission-only")
-    after = held.info["capture"]["base_twist_after"][3:]
+    after = held.details()["capture"]["base_twist_after"][3:]
     np.testing.assert_allclose(held.omega[k + 1], after, rtol=0, atol=5e-4)  # 10 ms later
     assert np.max(np.abs(held.omega[k + 1] - held.omega[k])) > 5e-3
 
@@ -275,7 +275,7 @@ def test_simulation_conserves_the_momentum_through_the_capture(example):
     plan = plan_task(example, "analytic")
     sim = simulate(example, plan)
     k = int(np.flatnonzero(sim.t <= example.target.time)[-1])
-    info = sim.info["capture"]
+    info = sim.details()["capture"]
     _check_conserved(
         example,
         example.robot.arm_q(sim.q_pin[k]),
@@ -287,7 +287,7 @@ def test_simulation_conserves_the_momentum_through_the_capture(example):
     assert np.max(sim.momentum_residual) < SIMULATION_TOLERANCE
     np.testing.assert_allclose(sim.h0[k + 1], info["momentum_after"])
     np.testing.assert_allclose(
-        info["omega_jump"], plan.info["capture"]["omega_jump"], rtol=0, atol=1e-4
+        info["omega_jump"], plan.details()["capture"]["omega_jump"], rtol=0, atol=1e-4
     )
 
 
@@ -323,15 +323,16 @@ def test_optimal_capture_plan_no_worse_than_the_law_within_limits(example):
     law = plan_task(example, "analytic")
     assert law.violations and all(v.step is not None for v in law.violations)
     plan = plan_task(example, "optimal")
-    assert plan.info["success"] and not plan.violations
+    assert plan.details()["success"] and not plan.violations
     assert plan.max_drift <= law.max_drift + 1e-6
     # the reported solver work is both phases' (each: its stages and its refinement)
     before = (
-        sum(s["iterations"] for s in plan.info["stages"]) + plan.info["refinement"]["iterations"]
+        sum(s["iterations"] for s in plan.details()["stages"])
+        + plan.solver.refinement["iterations"]
     )
-    after = plan.info["after_capture"]
+    after = plan.details()["after_capture"]
     after_total = sum(s["iterations"] for s in after["stages"]) + after["refinement"]["iterations"]
-    assert solver_metrics(plan.info)["iterations"] == before + after_total
+    assert solver_metrics(plan.details())["iterations"] == before + after_total
     k = int(np.flatnonzero(plan.t <= example.target.time)[-1])
     np.testing.assert_allclose(plan.q_dot_B[k], 0.0, atol=1e-9)
     # the residual's floor is its finite differences': ~1e-7 on smooth motion, up to ~1e-5 at

@@ -174,7 +174,7 @@ def test_background_library_is_picked_up_and_plans_the_same(paper, tmp_path, cap
     assert compiled.compiled and compiled.library == vm.library and second._maps is None
     _same_kernels(vm, compiled, 1e-9)
     plan_c = build_balance_nlp(second, mission, q_B0, options).solve()
-    assert plan_c.info["kernels"]["compiled"] and not plan_vm.info["kernels"]["compiled"]
+    assert plan_c.solver.last.kernels["compiled"] and not plan_vm.solver.last.kernels["compiled"]
     w_vm, w_c = (
         np.hstack([np.ravel(a) for a in vars(p.solver.solution).values() if a is not None])
         for p in (plan_vm, plan_c)

@@ -326,7 +326,7 @@ def test_capture_task_plan_avoids_the_base_and_keeps_its_drift(capture):
     assert _grid_clearance(geometry, plan) >= 0.03
     assert plan.max_drift <= 0.028
     assert plan.final_drift <= 1e-3
-    assert plan.info["resimulation"]["constraint_violations"] == []
+    assert plan.solver.checks.constraint_violations == ()
 
 
 @pytest.mark.slow

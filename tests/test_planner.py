@@ -362,7 +362,7 @@ def test_no_worse_than_an_analytic_law_that_stays_inside_the_limits(model, captu
 def test_capture_task_meets_every_limit_and_beats_phase_one(capture, capture_plan, capture_law):
     plan = capture_plan
     assert isinstance(plan, BalanceResult) and plan.method == "optimal"
-    assert plan.info["status"] == "Solve_Succeeded"
+    assert plan.solver.status == "Solve_Succeeded"
     # the analytic law breaks the limits on this task
     law = capture_law
     assert any(v.kind == "position" and v.worst_excess > 1.0 for v in law.violations)
@@ -374,14 +374,33 @@ def test_capture_task_meets_every_limit_and_beats_phase_one(capture, capture_pla
     phase1 = phase_one(capture.robot, capture.mission, capture.q_B0, t_eval=plan.t)
     assert plan.max_drift * DRIFT_REDUCTION_10S <= phase1.max_drift
     assert plan.final_drift * 50 <= phase1.final_drift
-    report = plan.info["resimulation"]
+    report = plan.solver.checks.as_dict()
     # the NLP's own attitude at the nodes is the re-simulated one to 0.1 % of the drift
     assert report["attitude_defect_max_rad"] < COLLOCATION_RELATIVE_ERROR * plan.max_drift
     assert report["joint_defect_max"] < NODE_TOLERANCE
     assert report["max_momentum_residual"] < 1e-6  # relative, finite-difference floor ~1e-8
     # every constraint kind holds on the re-simulated motion too
     assert report["constraint_violations"] == []
-    assert len(plan.info["history"]["inf_pr"]) == plan.info["iterations"] + 1
+    assert len(plan.solver.last.history["inf_pr"]) == plan.solver.solves[-1].iterations + 1
+
+
+def test_a_plan_is_typed_and_its_files_details_are_built_from_it(capture_plan):
+    """The solve writes no dict: ``info`` holds the replay's entries alone, the solver's
+    report the rest, and :meth:`BalanceResult.details` joins them in the files' order."""
+    plan = capture_plan
+    assert list(plan.info) == ["integration", "h0"]
+    details = plan.details()
+    assert list(details) == [
+        "integration", "h0", "resimulation", "status", "success", "iterations", "objective",
+        "max_constraint_violation", "max_violation_at", "wall_time_s", "kernels", "history",
+        "intervals", "transcription", "control", "horizon_s", "options", "refinement",
+        "total_iterations", "total_solve_time_s",
+    ]  # fmt: skip
+    last = plan.solver.solves[-1]
+    assert (details["status"], details["iterations"]) == (last.status, last.iterations)
+    assert details["resimulation"] == plan.solver.checks.as_dict()
+    assert details["total_iterations"] == sum(s.iterations for s in plan.solver.solves)
+    assert details["refinement"] == plan.solver.refinement and plan.solver.stages is None
 
 
 def test_capture_task_limits_hold_on_the_whole_continuous_plan(
@@ -427,7 +446,7 @@ def test_hard_terminal_attitude_bound_met_in_resimulation(model, capture):
     ).solve()
     assert bounded.final_drift <= bound + TERMINAL_TOLERANCE
     assert bounded.violations == []
-    assert bounded.info["resimulation"]["constraint_violations"] == []
+    assert bounded.solver.checks.constraint_violations == ()
 
 
 def test_rest_at_end_and_prescribed_final_configuration(model, capture):
@@ -440,7 +459,7 @@ def test_rest_at_end_and_prescribed_final_configuration(model, capture):
     np.testing.assert_allclose(plan.q_dot_B[-1], 0.0, rtol=0, atol=NODE_TOLERANCE)
     np.testing.assert_allclose(plan.q_B[0], capture.q_B0, rtol=0, atol=0)
     np.testing.assert_allclose(plan.q_dot_B[0], 0.0, rtol=0, atol=0)
-    assert plan.info["resimulation"]["constraint_violations"] == []
+    assert plan.solver.checks.constraint_violations == ()
 
 
 @pytest.mark.parametrize(
@@ -453,8 +472,11 @@ def test_other_transcriptions_plan_within_limits(
     options = PlannerOptions(**INTEGRAL, intervals=50, transcription=transcription, control=control)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
     assert plan.violations == []
-    assert plan.info["transcription"] == transcription and plan.info["control"] == control
-    assert plan.info["resimulation"]["joint_defect_max"] < NODE_TOLERANCE  # through every node
+    assert (
+        plan.solver.last.problem["transcription"] == transcription
+        and plan.solver.last.problem["control"] == control
+    )
+    assert plan.solver.checks.joint_defect_max < NODE_TOLERANCE  # through every node
     phase1 = phase_one(capture.robot, capture.mission, capture.q_B0, t_eval=plan.t)
     assert plan.max_drift * DRIFT_REDUCTION_10S <= phase1.max_drift
     if (
@@ -646,8 +668,8 @@ def test_infeasible_problem_names_status_and_constraint(capture):
     assert (
         err.status == "Infeasible_Problem_Detected" and "balance_joint3 position" in err.constraint
     )
-    assert isinstance(err.result, BalanceResult) and err.result.info["success"] is False
-    assert err.violation == pytest.approx(err.result.info["max_constraint_violation"], rel=0, abs=0)
+    assert isinstance(err.result, BalanceResult) and err.result.solver.success is False
+    assert err.violation == pytest.approx(err.result.solver.last.violation[2], rel=0, abs=0)
 
 
 def test_iteration_limit_raises_with_the_best_iterate(model, capture):
@@ -658,7 +680,7 @@ def test_iteration_limit_raises_with_the_best_iterate(model, capture):
         r"iterations; largest constraint violation: .+ by .+",
     ) as info:
         build_balance_nlp(model, capture.mission, capture.q_B0, options).solve("rest")
-    assert info.value.result.info["iterations"] == 2
+    assert info.value.result.solver.solves[-1].iterations == 2
 
 
 def test_limits_no_plan_can_meet_raise_before_solving(model, capture):

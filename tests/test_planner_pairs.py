@@ -95,7 +95,7 @@ def test_a_pair_inside_the_balance_arm_is_held_on_the_continuous_motion():
         "moved by the mission alone (checked, the planner cannot change it)",
         "a distance the balance joints cannot change",
     }
-    account = safe.info["resimulation"]["collision_pairs"]
+    account = safe.solver.checks.collision_pairs
     assert account["constrained"] == len(held) and account["watched"] == []
     report = clearance(geometry, safe.t, np.hstack([safe.q_M, safe.q_B]), watch=1.0)
     assert min(p.lower_bound for p in report.pairs) >= MARGIN - 1e-6
@@ -141,7 +141,7 @@ def test_the_planner_gives_up_naming_pair_depth_time_and_rounds():
     assert report.first_penetration.pair == "tower / fore"
     assert abs(report.first_penetration.depth - depth) <= 5e-6  # the message's 4 digits
     # both of the tower's objects (its cylinder and its plate) against the fore arm: watched
-    watched = failed.info["resimulation"]["collision_pairs"]["watched"]
+    watched = failed.solver.checks.collision_pairs["watched"]
     assert watched == ["tower / fore", "tower / fore"]
 
 
@@ -283,7 +283,7 @@ def test_a_watched_pair_inside_its_margin_fails_the_plan():
     match = re.fullmatch(pattern, str(caught.value))
     assert match, str(caught.value)
     failed = caught.value.result
-    assert failed.info["resimulation"]["collision_pairs"]["watched"] == ["tower / fore"] * 2
+    assert failed.solver.checks.collision_pairs["watched"] == ["tower / fore"] * 2
     geometry = RobotGeometry(FloatingRobot(fold_urdf(0.5), ["yaw"], ["turn", "lift", "fold"]))
     report = clearance(geometry, failed.t, np.hstack([failed.q_M, failed.q_B]), watch=1.0)
     assert report.first_penetration is None

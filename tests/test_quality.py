@@ -59,7 +59,7 @@ def coarse_peak(model, capture):
 
 def _no_violations(plan):
     assert plan.violations == []
-    assert plan.info["resimulation"]["constraint_violations"] == []
+    assert plan.solver.checks.constraint_violations == ()
 
 
 def test_inner_peak_stages_are_coarse_and_go_without_the_rows_between_points(model, capture):
@@ -157,7 +157,7 @@ def _no_better_from_a_perturbed_plan(nlp, plan, seed: int = 0) -> None:
 
     perturbed = dataclasses.replace(sol, U=shaken(sol.U), Um=shaken(sol.Um))
     again = nlp.solve_once(perturbed)
-    assert again.info["objective"] >= plan.info["objective"] * (1.0 - 1e-6)
+    assert again.solver.solves[-1].objective >= plan.solver.solves[-1].objective * (1.0 - 1e-6)
 
 
 @pytest.mark.slow
@@ -166,11 +166,14 @@ def test_peak_plan_of_the_capture_task(model, capture, inside_hull):
     integral objective's plan with the same ends; no better plan near it; rest at both ends."""
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, PlannerOptions())
     plan = nlp.solve()
-    assert plan.info["intervals"] == 100 and plan.info["options"]["objective"] == "peak"
-    assert [s["stage"] for s in plan.info["stages"]] == ["integral", "smooth", "peak"]
-    assert [s["intervals"] for s in plan.info["stages"]] == [25, 25, 100]
-    assert plan.info["total_iterations"] == sum(s["iterations"] for s in plan.info["stages"])
-    assert plan.info["total_solve_time_s"] == sum(s["solve_s"] for s in plan.info["stages"])
+    assert (
+        plan.solver.last.problem["intervals"] == 100
+        and plan.solver.last.problem["options"]["objective"] == "peak"
+    )
+    assert [s["stage"] for s in plan.details()["stages"]] == ["integral", "smooth", "peak"]
+    assert [s["intervals"] for s in plan.details()["stages"]] == [25, 25, 100]
+    assert plan.solver.iterations == sum(s["iterations"] for s in plan.details()["stages"])
+    assert plan.solver.solve_s == sum(s["solve_s"] for s in plan.details()["stages"])
     integral = build_balance_nlp(
         model, capture.mission, capture.q_B0, PlannerOptions(objective="integral")
     ).solve()
@@ -261,11 +264,11 @@ def test_path_bound_below_the_priced_peak_but_above_the_smallest_is_met(
         assert plan.max_drift <= bound * (1 + 1e-3)
         # the smallest peak it reports is no worse than an independent solve of that problem
         # (each is a local optimum; the planner's starts from the priced peak plan)
-        assert plan.info["smallest_peak_rad"] <= lowest_peak.max_drift * (1 + 2e-3)
+        assert plan.solver.smallest_peak <= lowest_peak.max_drift * (1 + 2e-3)
         assert plan.violations == []
         # the epigraph holds at the points; between them the drift may pass its variable by a
         # few micro-radians, which the bound (checked above on the whole motion) allows
-        others = plan.info["resimulation"]["constraint_violations"]
+        others = plan.solver.checks.constraint_violations
         assert [v for v in others if not v.startswith("peak epigraph")] == []
 
 
@@ -284,9 +287,9 @@ def test_impossible_path_bound_fails_with_the_smallest_peak(model, capture, lowe
     assert f"{smallest:.6g} rad" in str(info.value)
     assert info.value.status == "Bound_Below_Smallest_Peak"
     # the failure's result reports the work of every stage behind it, not the last solve's
-    stages = info.value.result.info["stages"]
+    stages = info.value.result.details()["stages"]
     assert [s["stage"] for s in stages] == ["integral", "smooth", "peak", "peak, final drift free"]
-    assert solver_metrics(info.value.result.info)["iterations"] == sum(
+    assert solver_metrics(info.value.result.details())["iterations"] == sum(
         s["iterations"] for s in stages
     )
     assert info.value.violation == pytest.approx(smallest - 0.8 * best, rel=1e-6)
@@ -303,13 +306,15 @@ def test_a_failed_peak_stage_and_its_fallback_are_counted(model, capture):
     problems = (nlp.stage("integral"), nlp.stage("smooth"), nlp.stage("smooth", final=True))
     with _counted_solves(nlp, *problems, fail_first=nlp) as calls:
         plan = nlp.solve()
-    stages = plan.info["stages"]
+    stages = plan.details()["stages"]
     assert [s["stage"] for s in stages] == ["integral", "smooth", "peak", "smooth, re-simulated"]
     assert [s["intervals"] for s in stages] == [10, 10, 30, 30]
-    assert plan.info["intervals"] == 30 and plan.t[-1] == pytest.approx(capture.mission.duration)
+    assert plan.solver.last.problem["intervals"] == 30 and plan.t[-1] == pytest.approx(
+        capture.mission.duration
+    )
     assert stages[2]["status"] == "Maximum_Iterations_Exceeded" and stages[2]["iterations"] > 0
     assert len(calls) == 4
-    assert solver_metrics(plan.info)["iterations"] == sum(i for i, _ in calls)
+    assert solver_metrics(plan.details())["iterations"] == sum(i for i, _ in calls)
     # it is the smooth peak, priced at the inner stage's reference drift: stiller than the
     # integral plan it started from (priced at 1 rad, it came out 8 % worse than that plan)
     assert plan.max_drift < stages[0]["nlp_max_drift_rad"]
@@ -332,7 +337,7 @@ def test_a_fine_peak_plan_is_reached_through_a_coarser_grid(capture, coarse_peak
         collision_avoidance=False, intervals=40, objective="peak", stages=stages
     )
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
-    reported = plan.info["stages"]
+    reported = plan.details()["stages"]
     assert [(s["stage"], s["intervals"]) for s in reported] == [
         ("integral", 10),
         ("smooth", 10),
@@ -340,10 +345,12 @@ def test_a_fine_peak_plan_is_reached_through_a_coarser_grid(capture, coarse_peak
         ("peak", 40),
     ]
     assert all(s["status"] == "Solve_Succeeded" for s in reported)
-    assert plan.info["total_iterations"] == sum(s["iterations"] for s in reported)
-    assert plan.info["intervals"] == 40
+    assert plan.solver.iterations == sum(s["iterations"] for s in reported)
+    assert plan.solver.last.problem["intervals"] == 40
     assert plan.max_drift == pytest.approx(coarse_peak.max_drift, rel=1e-5)
-    assert plan.info["objective"] == pytest.approx(coarse_peak.info["objective"], rel=1e-5)
+    assert plan.solver.solves[-1].objective == pytest.approx(
+        coarse_peak.solver.solves[-1].objective, rel=1e-5
+    )
     _no_violations(plan)
 
 
@@ -357,7 +364,7 @@ def test_a_bound_is_met_when_the_free_peak_stage_fails(model, capture):
     free = nlp.variant(objective="peak", path_attitude_bound=None, terminal_attitude_bound=None)
     with _counted_solves(free, fail_first=free):
         plan = nlp.solve()
-    assert [s["stage"] for s in plan.info["stages"]] == [
+    assert [s["stage"] for s in plan.details()["stages"]] == [
         "integral",
         "smooth",
         "peak",
@@ -379,11 +386,11 @@ def test_torque_limits_hold_between_the_collocation_points(model, capture):
     nlp = build_balance_nlp(model, capture.mission, capture.q_B0, options, robot=robot)
     with _counted_solves(nlp) as calls:
         plan = nlp.solve()
-    assert plan.info["refinement"]["rounds"] >= 1  # the points alone did not hold them
+    assert plan.solver.refinement["rounds"] >= 1  # the points alone did not hold them
     # the reported work is every Ipopt solve's: the first and each re-solve
-    assert len(calls) == 1 + plan.info["refinement"]["rounds"]
-    reported = solver_metrics(plan.info)
-    assert reported["iterations"] == plan.info["total_iterations"] == sum(i for i, _ in calls)
+    assert len(calls) == 1 + plan.solver.refinement["rounds"]
+    reported = solver_metrics(plan.details())
+    assert reported["iterations"] == plan.solver.iterations == sum(i for i, _ in calls)
     assert reported["solve_time_s"] == pytest.approx(sum(w for _, w in calls), abs=0.05)
     excess = _plan_torque_excess(model, capture, nlp, plan, effort)
     assert -0.01 < excess <= TORQUE_EXCESS  # the limits bind, and hold
@@ -432,26 +439,26 @@ def test_a_problem_solved_twice_gives_the_same_plan(model, capture):
         model, capture.mission, capture.q_B0, options, robot=paper_robot(limits=limits)
     )
     first, second = nlp.solve(), nlp.solve()
-    assert first.info["refinement"]["rounds"] >= 1
+    assert first.solver.refinement["rounds"] >= 1
     assert np.all(nlp.bounds.torque_factor == 1.0)
-    assert second.info["refinement"]["rounds"] == first.info["refinement"]["rounds"]
-    assert second.info["refinement"]["tightened"] == first.info["refinement"]["tightened"]
+    assert second.solver.refinement["rounds"] == first.solver.refinement["rounds"]
+    assert second.solver.refinement["tightened"] == first.solver.refinement["tightened"]
     assert second == first  # the same motion, bit for bit
-    assert len(second.solver.solves) == 1 + first.info["refinement"]["rounds"]
+    assert len(second.solver.solves) == 1 + first.solver.refinement["rounds"]
 
 
 @pytest.mark.slow
 def test_multi_start_keeps_the_best_and_reports_the_spread(model, capture):
     options = PlannerOptions(intervals=20, objective="integral", starts=3, seed=1)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
-    starts = plan.info["starts"]
+    starts = plan.solver.starts
     assert [r["guess"] for r in starts["runs"]] == ["analytic", "rest", "random"]
     objectives = [r["objective"] for r in starts["runs"] if "objective" in r]
-    assert plan.info["objective"] == min(objectives)
+    assert plan.solver.solves[-1].objective == min(objectives)
     assert starts["objective_spread"] == pytest.approx(max(objectives) - min(objectives))
     again = dataclasses.replace(options, starts=1)
     single = build_balance_nlp(model, capture.mission, capture.q_B0, again).solve()
-    assert plan.info["objective"] <= single.info["objective"] + 1e-9
+    assert plan.solver.solves[-1].objective <= single.solver.solves[-1].objective + 1e-9
 
 
 @pytest.mark.slow
@@ -460,7 +467,7 @@ def test_peak_multi_start_merges_starts_that_reach_the_same_first_plan(model, ca
     plan is the single start's."""
     options = PlannerOptions(intervals=20, starts=3, seed=2)
     plan = build_balance_nlp(model, capture.mission, capture.q_B0, options).solve()
-    starts = plan.info["starts"]
+    starts = plan.solver.starts
     assert starts["distinct"] == 1 and starts["solved"] == 3
     assert [r.get("same_as") for r in starts["runs"]] == [None, 0, 0]
     assert starts["max_drift_spread_rad"] == 0.0

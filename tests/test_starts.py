@@ -56,13 +56,13 @@ def test_multi_start_is_the_same_in_this_process_and_in_a_pool(capture, objectiv
     spawn = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(2, mp_context=spawn) as pool:
         shared = nlp.solve(executor=pool)
-    runs = alone.info["starts"]["runs"]
+    runs = alone.solver.starts["runs"]
     assert [r["guess"] for r in runs] == ["analytic", "rest", "random"]
     objectives = [r["objective"] for r in runs if "objective" in r]
-    assert alone.info["objective"] == min(objectives)
+    assert alone.solver.solves[-1].objective == min(objectives)
     # the same plans; to the last bit when both processes run the same compiled kernels (not
     # while this one runs them on CasADi's VM as a fresh cache compiles them): 1e-7
-    for a, b in zip(runs, shared.info["starts"]["runs"], strict=True):
+    for a, b in zip(runs, shared.solver.starts["runs"], strict=True):
         assert a.get("same_as") == b.get("same_as") and a["status"] == b["status"]
         assert a["objective"] == pytest.approx(b["objective"], rel=1e-7)
     assert shared.max_drift == pytest.approx(alone.max_drift, rel=1e-7)
@@ -157,4 +157,4 @@ def test_run_task_hands_the_starts_to_the_executor_it_is_given():
     executor = Recording()
     run = run_task(task, methods=("optimal",), executor=executor)
     assert executor.phases == ["first", "plan"]
-    assert run.results["optimal"].info["starts"]["solved"] >= 1
+    assert run.results["optimal"].solver.starts["solved"] >= 1

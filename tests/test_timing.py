@@ -16,6 +16,7 @@ from balance_opt.config.yaml_lines import TaskFileError
 from balance_opt.errors import InputError
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory, ViaPoints
 from balance_opt.optimal.nlp import point_kernels
+from balance_opt.optimal.refine import PlanReport
 from balance_opt.optimal.timing import MissionPath, shortest_duration
 from balance_opt.tasks.task import load_task
 
@@ -142,7 +143,7 @@ def _plan(max_drift, final_drift=0.0, rounds=6):
     t = np.linspace(0.0, 4.0, 5)
     angle = np.array([0.0, 0.5, 1.0, 0.5, 0.0]) * max_drift
     angle[-1] = final_drift
-    solver = SimpleNamespace(refinement={"rounds": rounds})
+    solver = PlanReport((), refinement={"rounds": rounds})
     return SimpleNamespace(
         t=t, angle=angle, max_drift=max_drift, final_drift=final_drift, solver=solver, info={}
     )
@@ -218,7 +219,7 @@ def test_shortest_duration_probes_judge_the_resimulated_drift():
         path_rate_limits=(np.inf, np.inf),
         variant=lambda objective, horizon: Probe(horizon),
     )
-    found = fastest(nlp, None).info["minimum_time"]
+    found = fastest(nlp, None).solver.minimum_time
     assert 8.0 <= found["duration_s"] <= 8.0 + TIME_RESOLUTION
     assert all(p["feasible"] == (p["duration_s"] >= 8.0) for p in found["probes"])
     nlp.h0 = np.r_[0.0, 0.0, 0.0, 0.0, 0.0, 0.2]
@@ -367,7 +368,7 @@ def test_shortest_mission_within_a_drift_bound(tmp_path):
     )
     task = load_task(_task(tmp_path, _free(extra=extra)))
     result = plan_optimal(task)
-    found = result.info["minimum_time"]
+    found = result.solver.minimum_time
     T = found["duration_s"]
     assert result.t[-1] == pytest.approx(T) and T < 10.0
     assert result.max_drift <= 0.03 * (1 + 1e-3)

@@ -43,7 +43,7 @@ def _in_world(result: BalanceResult, quat_c: np.ndarray, t_c: float) -> BalanceR
 def join_phases(task, before: BalanceResult, after: BalanceResult, state: CaptureState):
     """One result of the two phases: the samples of both (the second's first sample, at the
     capture, left out: the first's last is the state just before), the limit violations of the
-    whole motion, the first phase's ``info`` with the second's under ``after_capture`` (without
+    whole motion, the first phase's details with the second's under ``after_capture`` (without
     its bulky arrays), the iterations of both, and the capture's numbers under ``capture``."""
     arrays = {
         name: np.concatenate([getattr(before, name), getattr(after, name)[1:]])
@@ -53,17 +53,17 @@ def join_phases(task, before: BalanceResult, after: BalanceResult, state: Captur
     q, q_dot, q_ddot = (
         np.hstack([arrays[f"q{s}_M"], arrays[f"q{s}_B"]]) for s in ("", "_dot", "_ddot")
     )
-    info = dict(before.info)
-    info["after_capture"] = {k: v for k, v in after.info.items() if k not in BULKY_INFO_KEYS}
-    success = [r.info.get("success") for r in (before, after)]
+    info, second = before.details(), after.details()
+    info["after_capture"] = {k: v for k, v in second.items() if k not in BULKY_INFO_KEYS}
+    success = [r.get("success") for r in (info, second)]
     if any(s is not None for s in success):
         info["success"] = all(s is not False for s in success)
-        if before.info.get("success") and not after.info.get("success"):
-            info["status"] = after.info.get("status")
+        if success[0] and not success[1]:
+            info["status"] = second.get("status")
     # the solver's work of both phases (report.outputs.solver_metrics reports the totals)
     for key in ("iterations", "total_iterations", "total_solve_time_s"):
-        if key in before.info and key in after.info:
-            info[key] = before.info[key] + after.info[key]
+        if key in info and key in second:
+            info[key] = info[key] + second[key]
     info["capture"] = state.as_dict(task.target.time)
     # the rates the second phase starts from: a jump there is counted (the law's does jump)
     steps = rate_steps(

@@ -267,7 +267,7 @@ def _plans_into(
         if method in given:
             log.info("%s: %s plan given, not planned again", run.task.name, method)
             run.results[method] = given[method]
-            if given[method].info.get("success", True) is False:
+            if given[method].details().get("success", True) is False:
                 run.failures[method] = f"given plan: solver status {given[method].status}"
         else:
             _plan_into(run, method, solver_options, models, executor)

@@ -155,7 +155,7 @@ def scenario_study(
             "status": status,
             "plan": plan.summary(),
             "limit_violations": [str(v) for v in plan.violations],
-            "details": {k: v for k, v in plan.info.items() if k not in BULKY_INFO_KEYS},
+            "details": {k: v for k, v in plan.details().items() if k not in BULKY_INFO_KEYS},
             "balance_only": _simulation_summary(balance_only[method]),
             "balanced": _simulation_summary(balanced[method]),
         }

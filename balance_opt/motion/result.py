@@ -164,8 +164,11 @@ class BalanceResult(AttitudeHistory):
             from its state).
         sigma_min: smallest singular value of ``J_wB`` along the path (T,).
         violations: every joint-limit violation of the balance (and mission) joints.
-        info: method-specific details (damping used, solver statistics, ...), plain data only.
-        solver: for optimal plans, every Ipopt solve behind the plan
+        info: method-specific details (damping used, the integrator's statistics, ...), plain
+            data only; an optimal plan's solver details are in ``solver`` (:meth:`details`
+            joins both).
+        solver: for optimal plans, how the plan was solved and checked: every Ipopt solve, the
+            stages, the refinement, the re-simulation's checks, the timings
             (:class:`~balance_opt.optimal.refine.PlanReport`); ``None`` for the other methods.
 
     Equality (``==``) compares the motion: method, joint names, every array (exactly, NaN equal
@@ -271,9 +274,22 @@ class BalanceResult(AttitudeHistory):
     # ------------------------------------------------------------------ notebook helpers
     @property
     def status(self) -> str:
-        """The solver's status (``info["status"]``) for optimal plans, ``"ok"`` for the other
-        methods (which either return a motion or raise)."""
+        """The solver's status for optimal plans (``solver.status``; a plan joined from two
+        phases, the one its ``info`` names), ``"ok"`` for the other methods (which either return
+        a motion or raise)."""
+        if "status" not in self.info and self.solver is not None:
+            return str(self.solver.status)
         return str(self.info.get("status", "ok"))
+
+    def details(self) -> dict[str, Any]:
+        """What the written files hold of the method's details (the NPZ's ``info``,
+        ``metrics.json``'s ``details``): ``info`` followed, for an optimal plan, by its solver's
+        report as plain data (``solver.as_info()``), built on each call; an entry ``info`` has
+        itself wins (a plan joined from two phases holds both phases' figures there)."""
+        out = dict(self.info)
+        if self.solver is not None:
+            out.update((k, v) for k, v in self.solver.as_info().items() if k not in out)
+        return out
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, BalanceResult):

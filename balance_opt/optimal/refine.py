@@ -5,7 +5,7 @@ peak problem, limits held on the whole re-simulated motion, and the multi-start
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -86,18 +86,77 @@ class SolveReport:
 
 
 @dataclass(frozen=True)
+class Checks:
+    """The re-simulated plan checked (:func:`~balance_opt.optimal.solve.resimulate`;
+    ``metrics.json``'s ``details.resimulation``): its samples, the collocation defects, the
+    momentum residual, the drift, every limit violation and every term's violation on the
+    continuous motion (between the collocation points torques and the path attitude bound are
+    not enforced), and what the planner does with each checked pair of bodies."""
+
+    samples: int
+    step_s: float
+    attitude_defect_max_rad: float
+    attitude_defect_final_rad: float
+    joint_defect_max: float
+    max_momentum_residual: float
+    max_drift_rad: float
+    final_drift_rad: float
+    nlp_final_drift_rad: float
+    limit_violations: tuple[str, ...]
+    constraint_violations: tuple[str, ...]
+    collision_pairs: dict | None = None
+
+    def as_dict(self) -> dict:
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        for key in ("limit_violations", "constraint_violations"):
+            out[key] = list(out[key])
+        if self.collision_pairs is None:
+            del out["collision_pairs"]
+        return out
+
+
+@dataclass(frozen=True)
+class LastSolve:
+    """The plan's last Ipopt solve, on the problem it solved (the rest of
+    :meth:`PlanReport.as_info`).
+
+    Attributes:
+        violation: its worst constraint or bound, ``(name, time [s], amount, unit,
+            description)`` (:meth:`~balance_opt.optimal.solve.BalanceNLP.largest_violation`).
+        wall_time_s: its wall times [s] by part (``build``, ``setup``, ``guess``, ``solve``,
+            ``resimulate``).
+        kernels: whether its kernels ran compiled, their compile time [s] and library.
+        history: Ipopt's objective and infeasibilities per iteration.
+        problem: its grid, transcription, control, horizon and options, as plain data.
+    """
+
+    violation: tuple[str, float, float, str, str]
+    wall_time_s: dict[str, float]
+    kernels: dict
+    history: dict[str, list[float]]
+    problem: dict
+
+
+@dataclass(frozen=True)
 class PlanReport:
-    """How an optimal plan was solved (``BalanceResult.solver``).
+    """How an optimal plan was solved and checked (``BalanceResult.solver``): the typed record
+    the written files' ``info`` is built from (:meth:`as_info`).
 
     Attributes:
         solves: every Ipopt solve behind the plan, in order (the stages, the bounded problem,
             the refinement's rounds), failed ones included.
         solution: the plan's NLP solution.
         stages: the peak objective's stages, when it was solved in stages (``None`` else).
-        refinement: what the refinement (:func:`refine`) did, ``info["refinement"]``: its
+        refinement: what the refinement (:func:`refine`) did (``details.refinement``): its
             rounds, what it tightened in each, in words, and the Ipopt work of its re-solves
             (``None`` before it ran).
         smallest_peak: with a path attitude bound, the smallest peak found [rad].
+        last: the last solve's details (``None`` before a solve was re-simulated).
+        checks: the re-simulated plan checked.
+        timing: a free mission timing's figures
+            (:func:`~balance_opt.optimal.timing.timing_info`; ``None``: the given timing).
+        starts: a multi-start's every start (:func:`multi_start`).
+        minimum_time: ``objective: time``'s probes (:func:`~balance_opt.optimal.solve.fastest`).
     """
 
     solves: tuple[SolveReport, ...]
@@ -105,6 +164,20 @@ class PlanReport:
     stages: tuple[SolveReport, ...] | None = None
     refinement: dict | None = None
     smallest_peak: float | None = None
+    last: LastSolve | None = None
+    checks: Checks | None = None
+    timing: dict | None = None
+    starts: dict | None = None
+    minimum_time: dict | None = None
+
+    @property
+    def status(self) -> str:
+        """The last solve's Ipopt status."""
+        return self.solves[-1].status
+
+    @property
+    def success(self) -> bool:
+        return self.solves[-1].success
 
     @property
     def iterations(self) -> int:
@@ -127,8 +200,17 @@ class PlanReport:
         return replace(self, solves=self.solves + (solve,), solution=solve.solution)
 
     def as_info(self) -> dict:
-        """Its entries of ``BalanceResult.info``."""
+        """The report as the plain data of the written files (``metrics.json``'s ``details``,
+        the NPZ's ``info``: docs/outputs.md), in their order."""
         out = {}
+        if self.checks is not None:
+            out["resimulation"] = self.checks.as_dict()
+        if self.timing is not None:
+            out["timing"] = self.timing
+        if self.last is not None:
+            out.update(self._last_solve())
+        if self.starts is not None:
+            out["starts"] = self.starts
         if self.smallest_peak is not None:
             out["smallest_peak_rad"] = self.smallest_peak
         if self.stages is not None:
@@ -137,7 +219,30 @@ class PlanReport:
             out["refinement"] = self.refinement
         out["total_iterations"] = self.iterations
         out["total_solve_time_s"] = self.solve_s
+        if self.minimum_time is not None:
+            out["minimum_time"] = self.minimum_time
         return out
+
+    def _last_solve(self) -> dict:
+        solve, last = self.solves[-1], self.last
+        name, t, amount, unit, where = last.violation
+        return {
+            "status": solve.status,
+            "success": solve.success,
+            "iterations": solve.iterations,
+            "objective": solve.objective,
+            "max_constraint_violation": amount,
+            "max_violation_at": {
+                "constraint": name,
+                "time_s": t,
+                "unit": unit,
+                "description": where,
+            },
+            "wall_time_s": last.wall_time_s,
+            "kernels": last.kernels,
+            "history": last.history,
+            **last.problem,
+        }
 
 
 def _refinement(rounds: list, solves) -> dict:
@@ -379,7 +484,7 @@ def same_first_plan(a: IntegralStart, b: IntegralStart) -> bool:
 
 def multi_start(nlp, guess, executor=None):
     """Solve from ``options.starts`` guesses (the named ones, then random decision vectors) and
-    keep the plan of the smallest objective; ``info["starts"]`` holds every start's outcome and
+    keep the plan of the smallest objective; its report's ``starts`` holds every start's outcome and
     the spread. Starts whose first stages reach one plan are solved once."""
     run = map if executor is None else executor.map
     rng = np.random.default_rng(nlp.options.seed)
@@ -434,7 +539,7 @@ def multi_start(nlp, guess, executor=None):
     def spread(key: str) -> float:
         return float(max(r[key] for r in done) - min(r[key] for r in done))
 
-    best.info["starts"] = {
+    starts = {
         "runs": runs,
         "solved": len(done),
         "distinct": len(distinct),
@@ -442,4 +547,5 @@ def multi_start(nlp, guess, executor=None):
         "objective_spread": spread("objective"),
         "max_drift_spread_rad": spread("max_drift_rad"),
     }
+    best.solver = replace(best.solver, starts=starts)
     return best

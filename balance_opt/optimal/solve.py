@@ -36,6 +36,8 @@ from balance_opt.optimal.options import SMOOTH_PLAN, SUCCESS_STATUSES, PlannerOp
 from balance_opt.optimal.problem import BalanceProblem, StructureKey
 from balance_opt.optimal.refine import (
     NLP_FUNCTIONS,
+    Checks,
+    LastSolve,
     PlanReport,
     SolveReport,
     multi_start,
@@ -184,16 +186,11 @@ class BalanceNLP(BalanceProblem):
                 result = multi_start(self, initial_guess, executor)
             else:
                 result = self._solve_clear_of_bodies(initial_guess)
-        except SolverError as exc:  # the plan's report, or the failure's, written into its info
-            if getattr(exc.result, "solver", None) is not None:
-                exc.result.info.update(exc.result.solver.as_info())
-            raise
         except KeyboardInterrupt:  # stopped: the compilations this plan started stop now too
             self.model.stop_compiling()
             raise
         finally:  # a compilation of the kernels this plan started ends with it
             self.model.finish_compiling()
-        result.info.update(result.solver.as_info())
         return result
 
     def _solve_clear_of_bodies(self, initial_guess) -> BalanceResult:
@@ -236,10 +233,16 @@ class BalanceNLP(BalanceProblem):
         t2 = t1 + report.solve_s
         w = np.array(out["x"]).ravel()
         worst = self.largest_violation(w, np.array(out["g"]).ravel())
-        result = resimulate(self, report.solution, self.trajectory(report.solution))
+        result, checks, timing_figures = resimulate(
+            self, report.solution, self.trajectory(report.solution)
+        )
         t3 = time.perf_counter()
-        result.solver = (PlanReport(()) if before is None else before).then(report)
-        result.info.update(self._report(report, worst, (t0, t1, t2, t3)))
+        result.solver = dataclasses.replace(
+            (PlanReport(()) if before is None else before).then(report),
+            last=self._last_solve(worst, (t0, t1, t2, t3)),
+            checks=checks,
+            timing=timing_figures,
+        )
         if not report.success:
             name, t, amount, unit, where = worst
             raise PlannerSolverError(
@@ -286,43 +289,33 @@ class BalanceNLP(BalanceProblem):
         """Solve with Ipopt once, not re-simulated, a failure not raised (an inner stage)."""
         return self._ipopt(self.initial_guess(initial_guess))[1]
 
-    def _report(self, report: SolveReport, worst, times) -> dict:
+    def _last_solve(self, worst, times) -> LastSolve:
         t0, t1, t2, t3 = times
         iters = self.structure.solver.stats().get("iterations", {})
         kernels = self.structure.kernels
-        return {
-            "status": report.status,
-            "success": report.success,
-            "iterations": report.iterations,
-            "objective": report.objective,
-            "max_constraint_violation": worst[2],
-            "max_violation_at": {
-                "constraint": worst[0],
-                "time_s": worst[1],
-                "unit": worst[3],
-                "description": worst[4],
-            },
-            "wall_time_s": {
+        return LastSolve(
+            violation=worst,
+            wall_time_s={
                 "build": self.build_time,
                 "setup": self.setup_time,
                 "guess": t1 - t0,
                 "solve": t2 - t1,
                 "resimulate": t3 - t2,
             },
-            "kernels": {
+            kernels={
                 "compiled": kernels.compiled,
                 "compile_time_s": kernels.compile_time,
                 "library": kernels.library,
             },
-            "history": {
-                k: [float(v) for v in iters.get(k, [])] for k in ("obj", "inf_pr", "inf_du")
+            history={k: [float(v) for v in iters.get(k, [])] for k in ("obj", "inf_pr", "inf_du")},
+            problem={
+                "intervals": self.N,
+                "transcription": self.transcription.name,
+                "control": self.control,
+                "horizon_s": self.horizon,
+                "options": self.options.as_dict(),
             },
-            "intervals": self.N,
-            "transcription": self.transcription.name,
-            "control": self.control,
-            "horizon_s": self.horizon,
-            "options": self.options.as_dict(),
-        }
+        )
 
     def largest_violation(self, w, g) -> tuple[str, float, float, str, str]:
         """``(name, time [s], amount, unit, description)`` of the worst constraint or bound (of
@@ -373,8 +366,8 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
     arms then wait at rest, and so does the base), so feasibility is monotone in the duration,
     and every probe is an ordinary peak plan, re-simulated and refined. A probe is feasible
     only if its re-simulated plan keeps the bounds (within
-    :data:`~balance_opt.optimal.constraints.ATTITUDE_TOLERANCE`). ``info["minimum_time"]``
-    lists the probes.
+    :data:`~balance_opt.optimal.constraints.ATTITUDE_TOLERANCE`). Its report's
+    ``minimum_time`` lists the probes.
 
     Raises:
         InputError: the timing is not free, there is no path attitude bound, or the initial
@@ -422,12 +415,13 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
             lo = T
         else:
             hi, best = T, found
-    best.info["minimum_time"] = {
+    minimum_time = {
         "duration_s": hi,
         "bracket_s": [lo, hi],
         "resolution_s": TIME_RESOLUTION,
         "probes": probes,
     }
+    best.solver = dataclasses.replace(best.solver, minimum_time=minimum_time)
     return best
 
 
@@ -483,13 +477,13 @@ def build_balance_nlp(
     return BalanceNLP(model, mission_trajectory, q_B0, options, robot, h0)
 
 
-def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory) -> BalanceResult:
+def resimulate(
+    nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory
+) -> tuple[BalanceResult, Checks, dict | None]:
     """Re-simulate a plan on a fine grid: every interval split into ``sub`` equal steps no
     longer than ``options.resample_step``, so that no RK4 step straddles a node, where the joint
-    motion's higher derivatives jump. ``info["resimulation"]`` reports the collocation defects,
-    the momentum residual, the drift, the limit violations and every constraint kind the
-    re-simulated motion breaks beyond tolerance (between the collocation points, torques and
-    the path attitude bound are not enforced)."""
+    motion's higher derivatives jump: the motion, its :class:`~balance_opt.optimal.refine.Checks`
+    and a free mission timing's figures (``None`` for the given timing)."""
     # imported here: a multi-start's worker that only solves first stages never needs it
     from balance_opt.motion.replay import replay
 
@@ -513,22 +507,21 @@ def resimulate(nlp: BalanceNLP, sol: Solution, trajectory: CollocatedTrajectory)
     rows = nlp.model.joint_rows(nlp.control)
     ends = trajectory.interval_ends()
     joint_defect = max(float(np.abs(ends[k] - sol.X[rows[k], 1:].T).max()) for k in (0, 1))
-    checks = (term.check(nlp, result) for term in nlp.structure.terms)
-    result.info["resimulation"] = {
-        "samples": int(t.size),
-        "step_s": float(t[1] - t[0]),
-        "attitude_defect_max_rad": float(attitude_defect.max()),
-        "attitude_defect_final_rad": float(attitude_defect[-1]),
-        "joint_defect_max": joint_defect,
-        "max_momentum_residual": float(result.momentum_residual.max()),
-        "max_drift_rad": result.max_drift,
-        "final_drift_rad": result.final_drift,
-        "nlp_final_drift_rad": float(np.linalg.norm(sol.X[:3, -1])),
-        "limit_violations": [str(v) for v in result.violations],
-        "constraint_violations": [str(v) for v in checks if v is not None],
-    }
-    if nlp.free_timing:
-        result.info["timing"] = timing.timing_info(nlp, result, mission)
-    if nlp.collision is not None:  # every checked pair: held by a row, or why not
-        result.info["resimulation"]["collision_pairs"] = nlp.collision.account()
-    return result
+    broken = (term.check(nlp, result) for term in nlp.structure.terms)
+    checks = Checks(
+        samples=int(t.size),
+        step_s=float(t[1] - t[0]),
+        attitude_defect_max_rad=float(attitude_defect.max()),
+        attitude_defect_final_rad=float(attitude_defect[-1]),
+        joint_defect_max=joint_defect,
+        max_momentum_residual=float(result.momentum_residual.max()),
+        max_drift_rad=result.max_drift,
+        final_drift_rad=result.final_drift,
+        nlp_final_drift_rad=float(np.linalg.norm(sol.X[:3, -1])),
+        limit_violations=tuple(str(v) for v in result.violations),
+        constraint_violations=tuple(str(v) for v in broken if v is not None),
+        # every checked pair: held by a row, or why not
+        collision_pairs=None if nlp.collision is None else nlp.collision.account(),
+    )
+    figures = timing.timing_info(nlp, result, mission) if nlp.free_timing else None
+    return result, checks, figures

@@ -20,7 +20,7 @@ limits are held between the points). On a curved path the limits between the poi
 on the continuous motion, tightened by the refinement where it breaks them, and a plan still
 breaking one fails (:class:`MissionTiming`).
 
-The path progress reported (``info["timing"]``) is ``s(t)``: the time at which the given
+The path progress reported (the plan's ``solver.timing``) is ``s(t)``: the time at which the given
 trajectory passes where the re-timed one is at ``t`` (``s = t`` for the given timing).
 """
 
@@ -53,7 +53,7 @@ from balance_opt.optimal.terms import (
 
 #: Quintic Hermite pieces of a curved path (a mission that is not point to point).
 PATH_SEGMENTS = 40
-#: Samples of the path progress in ``info["timing"]`` (and ``metrics.json``).
+#: Samples of the path progress in a plan's ``solver.timing`` (and ``metrics.json``).
 PROGRESS_SAMPLES = 201
 #: Rows of the path chain's states (``sigma``, ``sigma_dot``) and of the mission data ``M``
 #: per mission joint (``q_M``, ``q_dot_M``, ``q_ddot_M``).
@@ -288,7 +288,7 @@ def retimed(problem, sol) -> RetimedMission:
 
 
 def timing_info(problem, result, mission: RetimedMission) -> dict:
-    """``info["timing"]``: the duration, the path progress ``s(t)`` (given-time equivalent, at
+    """A plan's ``solver.timing`` (``metrics.json``'s ``timing``): the duration, the path progress ``s(t)`` (given-time equivalent, at
     :data:`PROGRESS_SAMPLES` of the result's samples), the mission's largest joint rates and
     accelerations (rad/s, rad/s^2; m/s, m/s^2 for a prismatic joint)."""
     path = problem.mission_path

@@ -77,7 +77,7 @@ def write_trajectory_npz(
         mission_joints=np.array(result.mission_joints),
         balance_joints=np.array(result.balance_joints),
         **{name: getattr(result, name) for name in (*SAMPLED_ARRAYS, "rpy", "angle")},
-        info=json.dumps(to_json(result.info)),
+        info=json.dumps(to_json(result.details())),
     )
     return path
 
@@ -217,7 +217,8 @@ def peak_reaction_torques(simulation) -> dict[str, float]:
 
 
 def solver_metrics(info: Mapping[str, Any]) -> dict[str, Any]:
-    """The ``solver`` block of ``docs/outputs.md`` from a result's ``info``; ``None`` where the
+    """The ``solver`` block of ``docs/outputs.md`` from a result's details
+    (:meth:`~balance_opt.motion.result.BalanceResult.details`); ``None`` where the
     method has no such figure (the analytic law has no iterations)."""
     wall = info.get("wall_time_s")
     wall = wall if isinstance(wall, Mapping) else {}
@@ -287,10 +288,11 @@ def method_metrics(
         "collision": len(collisions),
     }
     out["warnings"] = result.warnings()
-    out["solver"] = solver_metrics(result.info)
+    details = result.details()
+    out["solver"] = solver_metrics(details)
     # the mission's timing: given, or free (the duration, the path progress, the mission's rates)
-    out["timing"] = result.info.get("timing", {"timing": "given"})
-    out["details"] = {k: v for k, v in result.info.items() if k not in BULKY_INFO_KEYS}
+    out["timing"] = details.get("timing", {"timing": "given"})
+    out["details"] = {k: v for k, v in details.items() if k not in BULKY_INFO_KEYS}
     if simulation is not None:
         sim = simulation.as_balance_result("simulation")
         out["simulation"] = {
