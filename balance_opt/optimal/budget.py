@@ -1,13 +1,11 @@
 """How much memory and time the optimal planner's problem needs, estimated before it is built
-(no CasADi needed)."""
+from its terms' sizes (:meth:`~balance_opt.optimal.terms.Term.size`), nothing compiled."""
 
 from __future__ import annotations
 
 import math
 import os
 from dataclasses import dataclass, replace
-
-import numpy as np
 
 from balance_opt.optimal.collocation import Transcription
 
@@ -23,8 +21,6 @@ FALLBACK_BUDGET = 4 * 2**30
 BUILD_SECONDS_PER_NONZERO = 15e-6
 #: Wall time of one Ipopt iteration per non-zero [s].
 ITERATION_SECONDS_PER_NONZERO = 1e-6
-#: Jacobian non-zeros per variable and per constraint of an interval, by transcription (fitted).
-JACOBIAN_FIT = {"hermite-simpson": (5.46, 3.60), "trapezoidal": (4.94, 2.15)}
 
 
 @dataclass(frozen=True)
@@ -51,54 +47,19 @@ class ProblemSize:
         return ITERATION_SECONDS_PER_NONZERO * self.nonzeros / self.problems
 
 
-def limited_kinds(options, limits) -> dict[str, bool]:
-    """Which limit constraints the planner adds: asked for, and finite for some balance joint."""
-    return {
-        "acceleration": options.acceleration_limits
-        and bool(np.isfinite(limits.acceleration).any()),
-        "velocity": options.velocity_limits and bool(np.isfinite(limits.velocity).any()),
-        "position": options.position_limits
-        and bool((np.isfinite(limits.lower) | np.isfinite(limits.upper)).any()),
-        "torque": options.torque_limits and bool(np.isfinite(limits.effort).any()),
-        "jerk": options.jerk_limits and bool(np.isfinite(limits.jerk).any()),
-    }
-
-
 def _per_interval(options, limits) -> tuple[int, int, float]:
     """(variables, constraints, KKT non-zeros) per interval of the problem of ``options`` with
-    the balance joints' ``limits``."""
-    tr = Transcription(options.transcription)
-    n_B = len(limits.lower)
-    points = 2 if tr.has_midpoints else 1
-    jerk = options.control == "jerk"
-    n_x = 3 + (3 if jerk else 2) * n_B
-    n_w = points * (n_x + n_B)
-    limited = limited_kinds(options, limits)
-    degree = tr.control_degree + (1 if jerk else 0)  # of the acceleration polynomial
-    interior = sum(
-        max(degree + i - 1, 0)
-        for i, kind in enumerate(("acceleration", "velocity", "position"))
-        if limited[kind]
-    )
-    # Hermite-Simpson has a midpoint defect and a Simpson defect, trapezoidal one
-    n_g_fit = points * n_x + n_B * interior
-    torque_rows = points * n_B if limited["torque"] else 0
-    peak = options.objective == "peak"
-    path_rows = points if peak or options.path_attitude_bound is not None else 0
-    a, b = JACOBIAN_FIT[tr.name]
-    # a torque row depends on a point's positions, rates and controls; an attitude row on phi
-    # (and the epigraph's on the peak variable too)
-    jacobian = a * n_w + b * n_g_fit + 3 * n_B * torque_rows + (4 if peak else 3) * path_rows
-    # every Bernstein coefficient of the jerk is a row (constraints.JerkLimit), on the controls
-    # of its interval: the acceleration's three, or (control jerk) one to three of the jerk's
-    jerk_rows = n_B * (tr.control_degree + (1 if jerk else 0)) if limited["jerk"] else 0
-    jacobian += jerk_rows * ((5 / 3 if tr.has_midpoints else 2) if jerk else 3)
-    k = 3 + 2 * n_B
-    hessian = points * (k * (k + 1) / 2 + n_B + (n_B**2 if limited["torque"] else 0))
-    if peak:  # the jerk price (objectives.jerk_integral) couples an interval's controls
-        hessian += n_B * (3 if tr.has_midpoints else (1 if jerk else 2))
-    n_g = n_g_fit + torque_rows + path_rows + jerk_rows
-    return n_w, n_g, jacobian + hessian + n_w + n_g
+    the balance joints' ``limits``: the sum of its terms' sizes
+    (:meth:`~balance_opt.optimal.terms.Term.size`)."""
+    # imported here: the terms are built of CasADi, which loading a task file needs nowhere else
+    from balance_opt.optimal.nlp import terms_of
+    from balance_opt.optimal.problem import StructureKey
+    from balance_opt.optimal.terms import Size
+
+    transcription, n_B = Transcription(options.transcription), len(limits.lower)
+    terms = terms_of(StructureKey.of(limits, options))
+    size = sum((term.size(n_B, transcription) for term in terms), Size())
+    return round(size.variables), round(size.rows), size.nonzeros
 
 
 #: What makes a problem an inner stage's, for its size: no joint-limit rows between the points.

@@ -18,9 +18,11 @@ from balance_opt.optimal.terms import (
     Output,
     PlannerSolverError,
     Rows,
+    Size,
     SymbolicNLP,
     Term,
     block_rows,
+    points_per_interval,
     rounds_tried,
     worst,
 )
@@ -30,6 +32,9 @@ DERIVATIVES = ("position", "velocity", "acceleration")
 #: Relative excess of the re-simulated drift over an attitude bound within which the bound
 #: counts as kept: the refinement tightens above it, a plan still above it fails.
 ATTITUDE_TOLERANCE = 1e-3
+#: Jacobian non-zeros per variable and per collocation or joint-limit row of an interval, by
+#: transcription (fitted to the built NLPs: :meth:`Collocation.size`).
+JACOBIAN_FIT = {"hermite-simpson": (5.46, 3.60), "trapezoidal": (4.94, 2.15)}
 
 
 class Collocation(Term):
@@ -49,6 +54,17 @@ class Collocation(Term):
 
     def values(self, problem):
         return {"h": problem.h, "mission": problem.mission_samples}
+
+    def size(self, n_B, transcription):
+        """The states and controls of the points and their defects; the Jacobian fitted
+        (:data:`JACOBIAN_FIT`), the dynamics' Hessian dense in a point's attitude, positions and
+        rates."""
+        points = points_per_interval(transcription)
+        n_x = 3 + (3 if self.control == "jerk" else 2) * n_B
+        n_w, rows = points * (n_x + n_B), points * n_x
+        a, b = JACOBIAN_FIT[transcription.name]
+        k = 3 + 2 * n_B
+        return Size(n_w, rows, a * n_w + b * rows + points * k * (k + 1) / 2 + n_w + rows)
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         tr, N, v = nlp.transcription, nlp.key.intervals, nlp.variables
@@ -96,6 +112,11 @@ class JointLimit(Term):
         control_level = 2 if control == "acceleration" else 3
         degree = transcription.control_degree + control_level - self.level
         self.interior = tuple(range(1, degree)) if between_points else ()
+
+    def size(self, n_B, transcription):
+        """A row per interior coefficient and joint, its Jacobian fitted as a defect's."""
+        rows = n_B * len(self.interior)
+        return Size(0, rows, (JACOBIAN_FIT[transcription.name][1] + 1) * rows)
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         if not self.interior:
@@ -169,6 +190,16 @@ class JerkLimit(JointLimit):
     def bound_variables(self, problem, lower, upper):
         pass  # its rows bound every coefficient of the jerk, the nodes' values too
 
+    def size(self, n_B, transcription):
+        """A row per coefficient and joint, on the controls of its interval: the acceleration's
+        three, or (control jerk) one to three of the jerk's."""
+        rows = n_B * len(self.interior)
+        if self.control == "jerk":
+            per_row = 5 / 3 if transcription.has_midpoints else 2
+        else:
+            per_row = 3
+        return Size(0, rows, (per_row + 1) * rows)
+
     def check(self, problem, result):
         """The jerk of the re-simulated motion by finite differences of its accelerations: the
         mean jerk over each sample interval, never above the largest."""
@@ -197,6 +228,13 @@ class TorqueLimit(Term):
     def row_bounds(self, problem, block):
         effort = problem.limits.effort[:, None] * problem.bounds.torque_factor
         return -effort.ravel(order="F"), effort.ravel(order="F")
+
+    def size(self, n_B, transcription):
+        """A row per point and joint, on the point's positions, rates and controls; its
+        Hessian dense in them."""
+        points = points_per_interval(transcription)
+        rows = points * n_B
+        return Size(0, rows, 3 * n_B * rows + points * n_B**2 + rows)
 
     @staticmethod
     def torques(problem: BalanceProblem, result: BalanceResult) -> tuple[np.ndarray, np.ndarray]:
@@ -337,9 +375,15 @@ class PathAttitudeBound(AttitudeBound):
     ``path_scale`` holds the bound the refinement may have tightened)."""
 
     name = "path attitude bound"
+    #: Jacobian non-zeros of a row: the point's attitude
+    row_nonzeros = 3
 
     def values(self, problem):
         return {"path_scale": 1.0 / problem.bounds.path**2 if problem.bounds.path else 1.0}
+
+    def size(self, n_B, transcription):
+        rows = points_per_interval(transcription)
+        return Size(0, rows, (self.row_nonzeros + 1) * rows)
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         X, _ = nlp.variables.points()

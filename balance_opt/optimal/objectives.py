@@ -17,7 +17,15 @@ import numpy as np
 
 from balance_opt.optimal.constraints import PathAttitudeBound
 from balance_opt.optimal.layout import Block
-from balance_opt.optimal.terms import Output, Rows, SymbolicNLP, Term, block_rows
+from balance_opt.optimal.terms import (
+    Output,
+    Rows,
+    Size,
+    SymbolicNLP,
+    Term,
+    block_rows,
+    points_per_interval,
+)
 
 #: Unit of the peak objective's epigraph variable: ``S = peak^2 / PEAK_SCALE^2`` [rad], so that
 #: ``S`` is of order 1 on drifts of a few hundredths of a radian.
@@ -65,6 +73,10 @@ class RunningCost(Term):
         quadrature = cs.DM(nlp.transcription.quadrature_weights(nlp.key.intervals))
         return nlp.parameters.h * cs.mtimes(nlp.outputs[self.name], quadrature)
 
+    def size(self, n_B, transcription):
+        """The controls' squares: a Hessian entry per point and control."""
+        return Size(0, 0, points_per_interval(transcription) * n_B)
+
 
 class TerminalCost(Term):
     """``terminal |log R_T|^2`` (``peak_terminal`` in the peak objective's structures)."""
@@ -89,6 +101,7 @@ class PeakEpigraph(PathAttitudeBound):
     ``problem.bounds.path``), and its check is the bound's."""
 
     name = "peak epigraph"
+    row_nonzeros = 4  # the point's attitude and S
 
     def values(self, problem):
         return {"peak_weight": problem.options.weights.peak}
@@ -158,6 +171,12 @@ class JerkPrice(Term):
 
     def cost(self, nlp: SymbolicNLP):
         return nlp.parameters.jerk_weight * jerk_integral(nlp.levels[2], nlp.parameters.h)
+
+    def size(self, n_B, transcription):
+        """It couples an interval's controls (a Hessian entry per joint and pair of them)."""
+        if transcription.has_midpoints:
+            return Size(0, 0, 3 * n_B)
+        return Size(0, 0, (1 if self.control == "jerk" else 2) * n_B)
 
 
 @dataclass(frozen=True)

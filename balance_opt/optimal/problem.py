@@ -13,11 +13,23 @@ from balance_opt.errors import InfeasibleLimitsError, InputError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import LIMIT_TOLERANCE
 from balance_opt.optimal import timing
-from balance_opt.optimal.budget import limited_kinds
 from balance_opt.optimal.collision import collision_setup, restarted
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions, Stage
+
+
+def limited_kinds(options, limits) -> dict[str, bool]:
+    """Which limit constraints the planner adds: asked for, and finite for some balance joint."""
+    return {
+        "acceleration": options.acceleration_limits
+        and bool(np.isfinite(limits.acceleration).any()),
+        "velocity": options.velocity_limits and bool(np.isfinite(limits.velocity).any()),
+        "position": options.position_limits
+        and bool((np.isfinite(limits.lower) | np.isfinite(limits.upper)).any()),
+        "torque": options.torque_limits and bool(np.isfinite(limits.effort).any()),
+        "jerk": options.jerk_limits and bool(np.isfinite(limits.jerk).any()),
+    }
 
 
 @dataclass(frozen=True)

@@ -145,6 +145,29 @@ def rounds_tried(result: BalanceResult) -> str:
     return said
 
 
+@dataclass(frozen=True)
+class Size:
+    """A term's share of its NLP per collocation interval (the problem-size estimate,
+    :mod:`balance_opt.optimal.budget`): decision variables, rows of ``g`` and non-zeros of the
+    KKT matrix (its Jacobian's and Hessian's entries, one per variable and per row besides)."""
+
+    variables: float = 0.0
+    rows: float = 0.0
+    nonzeros: float = 0.0
+
+    def __add__(self, other: Size) -> Size:
+        return Size(
+            self.variables + other.variables,
+            self.rows + other.rows,
+            self.nonzeros + other.nonzeros,
+        )
+
+
+def points_per_interval(transcription: Transcription) -> int:
+    """Collocation points per interval: a node, and the midpoint if the transcription has one."""
+    return 2 if transcription.has_midpoints else 1
+
+
 class Term:
     """One nonlinear piece of the balance NLP, a constraint or a part of the objective. A term
     declares
@@ -165,7 +188,9 @@ class Term:
       :class:`~balance_opt.optimal.problem.Bounds` after a check, and what they tighten, in
       words;
     * :meth:`accept`: the refined plan's acceptance (it raises :class:`PlannerSolverError` if
-      the plan is no plan).
+      the plan is no plan);
+    * :meth:`size`: its share of the NLP per interval, for the problem-size estimate made before
+      anything is built (what is not per interval, e.g. the terminal rows, is left out).
     """
 
     name = "term"
@@ -199,3 +224,7 @@ class Term:
 
     def accept(self, problem: BalanceProblem, result: BalanceResult) -> None:
         pass
+
+    def size(self, n_B: int, transcription: Transcription) -> Size:
+        """Its :class:`Size` per interval with ``n_B`` balance joints."""
+        return Size()
