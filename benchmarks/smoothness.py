@@ -25,12 +25,12 @@ import numpy as np
 from balance_opt.app.pipeline import run_task
 from balance_opt.app.scenarios import CAPTURE_BALANCE_ACCELERATION, capture_task
 from balance_opt.dynamics.inverse_dynamics import plan_joint_torques
-from balance_opt.tasks.task import load_task
 from balance_opt.model.library import paper_robot
 from balance_opt.motion.smoothness import smoothness
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import JERK_DEFAULT, CostWeights, PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
+from balance_opt.tasks.task import load_task
 
 BALANCE = ("balance_joint1", "balance_joint2", "balance_joint3")
 TASK = "examples/capture_task.yaml"

@@ -48,8 +48,6 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym
 from balance_opt.motion.trajectories import PointToPoint
-from balance_opt.solvers import codegen
-from balance_opt.solvers.codegen import compile_functions
 from balance_opt.optimal.collocation import (
     CollocatedTrajectory,
     Transcription,
@@ -63,6 +61,8 @@ from balance_opt.optimal.options import CostWeights, PlannerOptions
 from balance_opt.optimal.problem import BalanceProblem, StructureKey
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.optimal.terms import PlannerSolverError
+from balance_opt.solvers import codegen
+from balance_opt.solvers.codegen import compile_functions
 
 #: Model against numeric Pinocchio [rad/s], and exact algebra [rad/s].
 MODEL_TOLERANCE = 1e-9

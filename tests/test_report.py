@@ -11,7 +11,6 @@ import pytest
 from balance_opt.dynamics.inverse_dynamics import free_floating_torques, plan_joint_torques
 from balance_opt.motion.result import LIMIT_TOLERANCE, BalanceResult
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
-from balance_opt.solvers.ipopt_options import ipopt_version
 from balance_opt.report.outputs import (
     effort_metrics,
     limit_margins,
@@ -34,6 +33,7 @@ from balance_opt.report.report import (
 )
 from balance_opt.report.scene_poses import magnification, magnified_rotation
 from balance_opt.report.style import method_label
+from balance_opt.solvers.ipopt_options import ipopt_version
 
 
 def _result(robot, seed=0, samples=21):

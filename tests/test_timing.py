@@ -14,10 +14,10 @@ import pytest
 
 from balance_opt.config.yaml_lines import TaskFileError
 from balance_opt.errors import InputError
+from balance_opt.motion.retiming import MissionPath, shortest_duration
 from balance_opt.motion.trajectories import PointToPoint, SampledTrajectory, ViaPoints
 from balance_opt.optimal.nlp import point_kernels
 from balance_opt.optimal.refine import PlanReport
-from balance_opt.optimal.timing import MissionPath, shortest_duration
 from balance_opt.tasks.task import load_task
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -438,7 +438,7 @@ def _limited(velocity=1.0, acceleration=10.0, lower=-0.3, upper=0.3, factor=None
     :class:`_Motion`, and its plan after 6 refinement rounds."""
     from types import SimpleNamespace
 
-    from balance_opt.optimal.timing import MissionData
+    from balance_opt.motion.retiming import MissionData
 
     limits = MissionData(
         np.array([-1.0, lower]),

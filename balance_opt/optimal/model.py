@@ -39,9 +39,9 @@ from balance_opt.model.symbolic import (
     model_velocity_map,
 )
 from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_matrix_sym
-from balance_opt.solvers import codegen
 from balance_opt.optimal.collision import CollisionModels
 from balance_opt.optimal.terms import Output, Point
+from balance_opt.solvers import codegen
 
 log = logging.getLogger(__name__)
 

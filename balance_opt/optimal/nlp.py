@@ -121,7 +121,7 @@ class _Outer:
 def build_structure(model: PlannerModel, key: StructureKey, problem, path=None) -> NLPStructure:
     """Build and compile the NLP of a structure, the parameters laid out as ``problem``'s (a
     :class:`~balance_opt.optimal.problem.BalanceProblem`; with a free mission timing, of its
-    :class:`~balance_opt.optimal.timing.MissionPath` ``path``)."""
+    :class:`~balance_opt.motion.retiming.MissionPath` ``path``)."""
     start = time.perf_counter()
     terms = terms_of(key)
     outputs = tuple(o for term in terms for o in term.outputs(model))

@@ -11,8 +11,8 @@ import numpy as np
 
 from balance_opt.errors import InfeasibleLimitsError, InputError
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion import retiming
 from balance_opt.motion.result import LIMIT_TOLERANCE
-from balance_opt.optimal import timing
 from balance_opt.optimal.collision import collision_setup, restarted
 from balance_opt.optimal.collocation import Transcription
 from balance_opt.optimal.model import PlannerModel
@@ -50,7 +50,7 @@ class StructureKey:
     momentum: bool = False
     between_points: bool = True
     collision: str = ""
-    #: a free mission timing: its path's key (:class:`~balance_opt.optimal.timing.MissionPath`)
+    #: a free mission timing: its path's key (:class:`~balance_opt.motion.retiming.MissionPath`)
     timing: str = ""
     #: the peak objective's stages (their Ipopt options are the structure's)
     stages: tuple[Stage, ...] = ()
@@ -204,10 +204,12 @@ class BalanceProblem:
         # timing stretched to the horizon (a free timing, balance_opt.optimal.timing)
         self.timed_mission = mission
         if self.free_timing:
-            self.mission_path = timing.MissionPath(mission)
-            self.mission_limits = timing.mission_limits(robot)
-            self.path_rate_limits = timing.path_rate_limits(self.mission_path, self.mission_limits)
-            self.timed_mission = timing.initial_timing(self.mission_path, horizon)
+            self.mission_path = retiming.MissionPath(mission)
+            self.mission_limits = retiming.mission_limits(robot)
+            self.path_rate_limits = retiming.path_rate_limits(
+                self.mission_path, self.mission_limits
+            )
+            self.timed_mission = retiming.initial_timing(self.mission_path, horizon)
         elif horizon < mission.duration:
             raise InputError(
                 f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"

@@ -17,6 +17,7 @@ from balance_opt.interrupts import raise_if_interrupted
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.result import BalanceResult
+from balance_opt.motion.retiming import shortest_duration
 from balance_opt.motion.so3 import (
     quaternion_conjugate,
     quaternion_from_rotvec,
@@ -360,7 +361,7 @@ TIME_RESOLUTION = 0.1
 def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
     """``objective: time``: the shortest horizon whose peak plan keeps the path attitude bound
     (and the terminal one), by bisection between the shortest motion the mission joints' limits
-    allow (:func:`~balance_opt.optimal.timing.shortest_duration`) and the given duration
+    allow (:func:`~balance_opt.motion.retiming.shortest_duration`) and the given duration
     (doubled until feasible, twice at most). A bisection, not the horizon as a variable: with
     rest at the end and no momentum, a plan of a duration is one of every longer duration (both
     arms then wait at rest, and so does the base), so feasibility is monotone in the duration,
@@ -390,7 +391,7 @@ def fastest(nlp: BalanceNLP, guess, executor=None) -> BalanceResult:
     def probe(T: float):
         return _probe(nlp, T, guess, executor, probes)
 
-    lo = timing.shortest_duration(nlp.mission_path, nlp.path_rate_limits)
+    lo = shortest_duration(nlp.mission_path, nlp.path_rate_limits)
     hi, best = nlp.mission.duration, None
     for longer in (1.0, 2.0, 2.0):
         lo, hi = (hi, hi * longer) if longer > 1.0 else (lo, hi)
