@@ -13,11 +13,12 @@ from scipy.spatial.transform import Rotation
 from balance_opt import cache
 from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.motion.trajectories import PointToPoint
-from balance_opt.optimal.model import FunctionStore, PlannerModel, model_key
+from balance_opt.optimal.model import PlannerModel, model_key
 from balance_opt.optimal.nlp import point_kernels
 from balance_opt.optimal.options import PlannerOptions
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.solvers import codegen
+from balance_opt.solvers.codegen import FunctionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 needs_cc = pytest.mark.skipif(codegen.find_compiler() is None, reason="no C compiler")

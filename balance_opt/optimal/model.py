@@ -8,10 +8,7 @@ import contextlib
 import hashlib
 import importlib.util
 import logging
-import os
-import re
 import weakref
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -19,14 +16,7 @@ from pathlib import Path
 import casadi as cs
 
 from balance_opt.cache import (
-    MODELS_FOLDER,
-    build_dir,
-    default_cache_dir,
-    file_lock,
     kinematics_key,
-    load_checked,
-    lock_path,
-    write_record,
 )
 from balance_opt.errors import BalanceOptError
 from balance_opt.model.robot import FloatingRobot
@@ -42,6 +32,7 @@ from balance_opt.motion.so3_casadi import inverse_right_jacobian_sym, rotation_m
 from balance_opt.optimal.collision import CollisionModels
 from balance_opt.optimal.terms import Output, Point
 from balance_opt.solvers import codegen
+from balance_opt.solvers.codegen import FunctionStore
 
 log = logging.getLogger(__name__)
 
@@ -75,44 +66,6 @@ def model_key(robot: FloatingRobot, backend_identity: str) -> str:
     backend and the code of the formulation."""
     parts = [kinematics_key(robot), backend_identity, formulation_fingerprint()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:20]
-
-
-class FunctionStore:
-    """Named lists of CasADi functions of one planner model, on disk."""
-
-    def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
-        root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-        self.folder = root / MODELS_FOLDER
-        self.prefix = f"{re.sub(r'[^A-Za-z0-9._-]+', '_', label)[:40]}_{key}"
-
-    def path(self, name: str) -> Path:
-        return self.folder / f"{self.prefix}_{name}.casadi"
-
-    def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
-        """The functions saved as ``name`` (a damaged file deleted), else ``make()``'s, saved (a
-        failure to write is only logged: the cache only saves time)."""
-        path = self.path(name)
-        functions = load_checked(
-            path,
-            lambda p: list(cs.FileDeserializer(str(p)).unpack()),
-            f"planner model {path}",
-            "building it again",
-        )
-        if functions is not None:
-            return functions
-        functions = make()
-        try:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            with file_lock(lock_path(path)), build_dir(self.folder, path.stem) as tmp:
-                out = tmp / path.name
-                serializer = cs.FileSerializer(str(out))
-                serializer.pack(functions)
-                del serializer  # closes the file
-                os.replace(out, path)
-                write_record(path)
-        except (OSError, RuntimeError) as exc:
-            log.warning("planner model not cached (%s): %s", path, exc)
-        return functions
 
 
 def _tag(momentum: bool) -> str:

@@ -6,12 +6,9 @@ derivatives are the outer problem's plus the kernels' scattered to ``w``."""
 
 from __future__ import annotations
 
-import ctypes
 import logging
-import os
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from types import SimpleNamespace
 
 import casadi as cs
@@ -38,6 +35,7 @@ from balance_opt.optimal.options import DEFAULT_IPOPT, PlannerOptions
 from balance_opt.optimal.problem import StructureKey
 from balance_opt.optimal.terms import SymbolicNLP, Term
 from balance_opt.optimal.timing import MISSION_LEVELS, MissionTiming
+from balance_opt.solvers.ipopt_options import one_thread_for_ipopt
 
 log = logging.getLogger(__name__)
 
@@ -385,38 +383,3 @@ def _ipopt_solver(
     )
     one_thread_for_ipopt()  # the plugin, and its OpenBLAS, are loaded now
     return solver
-
-
-#: The environment variables OpenBLAS reads its number of threads from: one set overrides
-#: the choice.
-THREADS_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
-
-
-def casadi_openblas() -> ctypes.CDLL | None:
-    """The OpenBLAS that CasADi's Ipopt plugin loaded, or ``None`` when none is loaded (before
-    the first ``nlpsol``, or another build of CasADi). The wheel holds several copies of the
-    file under different names: opening one by its path could load a second, unused instance,
-    so it is looked up by name among the loaded libraries only (``RTLD_NOLOAD``)."""
-    if not hasattr(os, "RTLD_NOLOAD"):
-        return None  # no way to find the loaded one without loading another
-    mode = os.RTLD_NOLOAD | os.RTLD_LAZY
-    for path in sorted(Path(cs.__file__).parent.glob("libcasadi-tp-openblas*")):
-        try:
-            lib = ctypes.CDLL(path.name, mode=mode)
-            lib.openblas_get_num_threads  # noqa: B018 (raises AttributeError without it)
-        except (OSError, AttributeError):
-            continue
-        return lib
-    return None
-
-
-def one_thread_for_ipopt() -> None:
-    """Set CasADi's OpenBLAS to one thread for Ipopt's linear algebra (each time an NLP is
-    built: cheap), unless one of :data:`THREADS_VARIABLES` is set."""
-    if any(os.environ.get(name) for name in THREADS_VARIABLES):
-        return
-    lib = casadi_openblas()
-    if lib is None:
-        log.debug("CasADi's Ipopt loaded no OpenBLAS of its own: its threads are left alone")
-        return
-    lib.openblas_set_num_threads(ctypes.c_int(1))

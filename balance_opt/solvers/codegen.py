@@ -1,4 +1,5 @@
-"""Compiling the planner's CasADi kernels to C, with an on-disk cache shared by processes."""
+"""CasADi functions on disk: serialized (:class:`FunctionStore`), and compiled to C, with an
+on-disk cache shared by processes."""
 
 from __future__ import annotations
 
@@ -13,11 +14,13 @@ import re
 import shutil
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as cs
 
 from balance_opt.cache import (
+    MODELS_FOLDER,
     atomic_write_text,
     build_dir,
     check_record,
@@ -54,6 +57,44 @@ COMPILE_WAIT = 300.0
 #: 10^5 statements in pieces of this size compiles in a fraction of the time, and runs as fast.
 PART_STATEMENTS = 300
 _SUFFIX = ".dll" if os.name == "nt" else ".so"
+
+
+class FunctionStore:
+    """Named lists of CasADi functions of one planner model, on disk."""
+
+    def __init__(self, label: str, key: str, cache_dir: str | Path | None = None):
+        root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self.folder = root / MODELS_FOLDER
+        self.prefix = f"{re.sub(r'[^A-Za-z0-9._-]+', '_', label)[:40]}_{key}"
+
+    def path(self, name: str) -> Path:
+        return self.folder / f"{self.prefix}_{name}.casadi"
+
+    def get(self, name: str, make: Callable[[], list[cs.Function]]) -> list[cs.Function]:
+        """The functions saved as ``name`` (a damaged file deleted), else ``make()``'s, saved (a
+        failure to write is only logged: the cache only saves time)."""
+        path = self.path(name)
+        functions = load_checked(
+            path,
+            lambda p: list(cs.FileDeserializer(str(p)).unpack()),
+            f"planner model {path}",
+            "building it again",
+        )
+        if functions is not None:
+            return functions
+        functions = make()
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            with file_lock(lock_path(path)), build_dir(self.folder, path.stem) as tmp:
+                out = tmp / path.name
+                serializer = cs.FileSerializer(str(out))
+                serializer.pack(functions)
+                del serializer  # closes the file
+                os.replace(out, path)
+                write_record(path)
+        except (OSError, RuntimeError) as exc:
+            log.warning("planner model not cached (%s): %s", path, exc)
+        return functions
 
 
 @dataclasses.dataclass(frozen=True)
