@@ -33,6 +33,7 @@ from balance_opt.optimal.collision import CollisionModels
 from balance_opt.optimal.terms import Output, Point
 from balance_opt.solvers import codegen
 from balance_opt.solvers.codegen import FunctionStore
+from balance_opt.solvers.kernel_nlp import function, kernel_functions
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +47,7 @@ FORMULATION_MODULES = (
     "balance_opt.model.bridge",
     "balance_opt.motion.so3_casadi",
     "balance_opt.geometry.shapes",  # the collision rows in the kernels
+    "balance_opt.solvers.kernel_nlp",  # the kernels' derivatives
 )
 
 #: Rows of the momentum ``h0`` at the end of a point's data ``m`` ([linear; angular]).
@@ -70,12 +72,6 @@ def model_key(robot: FloatingRobot, backend_identity: str) -> str:
 
 def _tag(momentum: bool) -> str:
     return "_h" if momentum else ""
-
-
-def _function(name: str, inputs: dict, outputs: dict) -> cs.Function:
-    return cs.Function(
-        name, [*inputs.values()], [*outputs.values()], [*inputs], [*outputs], {"cse": True}
-    )
 
 
 @dataclass(frozen=True)
@@ -240,7 +236,7 @@ class PlannerModel:
             omega = self._omega(q_M, q_B, q_dot_M, q_dot_B, ell)
             parts = [inverse_right_jacobian_sym(phi) @ omega, q_dot_B]
             parts += [u] if control == "acceleration" else [x[3 + 2 * self.n_B :], u]
-            return _function(
+            return function(
                 "balance_dynamics",
                 {"x": x, "u": u, "m": m},
                 {"x_dot": cs.vertcat(*parts), "omega": omega},
@@ -273,7 +269,7 @@ class PlannerModel:
         h = cs.SX(h.array if hasattr(h, "array") else h)
         if robot.followers:
             M, h = G.T @ M @ G, G.T @ h
-        return _function("floating_dynamics_terms", {"q": q, "nu": nu}, {"M": M, "h": h})
+        return function("floating_dynamics_terms", {"q": q, "nu": nu}, {"M": M, "h": h})
 
     def _torques(self, q, q_dot, q_ddot, v_b):
         M, h = self._dynamics_terms(q, cs.vertcat(v_b, q_dot))
@@ -297,7 +293,7 @@ class PlannerModel:
                 A = self.maps.centroidal_momentum_matrix_fun()(q)
                 v_b = v_b + cs.solve(A[:, :6], inputs["h_b"])
             tau = self._torques(q, q_dot, q_ddot, v_b)
-            return _function(f"joint_torques{_tag(momentum)}", inputs, {"tau": tau})
+            return function(f"joint_torques{_tag(momentum)}", inputs, {"tau": tau})
 
         return self._stored_one(f"torque{_tag(momentum)}", make)
 
@@ -318,9 +314,7 @@ class PlannerModel:
             )
             h_b = [self._momentum_in_base(phi, m)] if momentum else []
             tau = self.torque_fun(momentum)(*joints, *h_b)
-            return _function(
-                "balance_torques", {"x": x, "u": u, "m": m}, {"tau_B": tau[self.n_M :]}
-            )
+            return function("balance_torques", {"x": x, "u": u, "m": m}, {"tau_B": tau[self.n_M :]})
 
         return self._cached(f"balance_torque_{control}{_tag(momentum)}", make)
 
@@ -441,22 +435,7 @@ class PlannerModel:
         parts = [next(fused) if o.with_dynamics else o.make(point) for o in outputs]
         y = cs.vertcat(*parts)
         y_cost = cs.vertcat(*(p for p, o in zip(parts, outputs) if o.in_cost))
-        mu = cs.SX.sym("mu", y.numel())
-        c = cs.SX.sym("c", y_cost.numel())
-        hess, _ = cs.hessian(cs.dot(mu, y), z)
-        cy = cs.dot(c, y_cost)
-        cost = _function(f"balance_kernel_cost_{suffix}", inputs, {"y": y_cost})
-        return [
-            _function(f"balance_kernel_{suffix}", inputs, {"y": y}),
-            _function(f"balance_kernel_jac_{suffix}", inputs, {"y": y, "dy_dz": cs.jacobian(y, z)}),
-            _function(
-                f"balance_kernel_grad_{suffix}",
-                {**inputs, "c": c},
-                {"cy": cy, "grad": cs.gradient(cy, z)},
-            ),
-            _function(f"balance_kernel_hess_{suffix}", {**inputs, "mu": mu}, {"d2": cs.tril(hess)}),
-            *([cost] if y_cost.numel() < y.numel() else []),
-        ]
+        return kernel_functions("balance_kernel", suffix, inputs, y, y_cost)
 
     def _point(self, control, momentum, x, u, m, inputs) -> Point:
         x_dot, omega = self.dynamics_fun(control, momentum)(x, u, m)
@@ -471,7 +450,7 @@ class PlannerModel:
         inputs = {k: cs.SX.sym(k, n) for k, n in extra.items()}
         point = self._point(control, momentum, x, u, m, inputs)
         made = {o.name: o.make(point) for o in outputs if o.with_dynamics}
-        return _function("balance_point", {"x": x, "u": u, "m": m, **inputs}, made)
+        return function("balance_point", {"x": x, "u": u, "m": m, **inputs}, made)
 
 
 def kernel_key(control: str, outputs, momentum: bool, timing: bool) -> tuple:

@@ -1,8 +1,7 @@
-"""Building the compiled balance NLP of one structure. Its nonlinear work is in the point
-kernels (:class:`~balance_opt.optimal.model.PointKernels`: the outputs ``y`` of one collocation
-point and their derivatives), mapped over the points; the outer problem (the cost and the rows of
-``g`` in the variables ``w`` and the kernels' outputs ``Y``) is linear in ``Y``, so Ipopt's
-derivatives are the outer problem's plus the kernels' scattered to ``w``."""
+"""Building the compiled balance NLP of one structure: its terms, their point kernels
+(:class:`~balance_opt.optimal.model.PointKernels`: the outputs ``y`` of one collocation point
+and their derivatives), their parts of the cost and their rows of ``g``, linear in the kernels'
+outputs, handed to Ipopt as an NLP of per-point kernels (:mod:`balance_opt.solvers.kernel_nlp`)."""
 
 from __future__ import annotations
 
@@ -14,7 +13,6 @@ from types import SimpleNamespace
 import casadi as cs
 import numpy as np
 
-from balance_opt import progress
 from balance_opt.optimal.collision import Collision
 from balance_opt.optimal.collocation import Transcription, joint_chain_coefficients
 from balance_opt.optimal.constraints import (
@@ -35,7 +33,7 @@ from balance_opt.optimal.options import DEFAULT_IPOPT, PlannerOptions
 from balance_opt.optimal.problem import StructureKey
 from balance_opt.optimal.terms import SymbolicNLP, Term
 from balance_opt.optimal.timing import MISSION_LEVELS, MissionTiming
-from balance_opt.solvers.ipopt_options import one_thread_for_ipopt
+from balance_opt.solvers.kernel_nlp import Outer, kernel_solver, outer_functions
 
 log = logging.getLogger(__name__)
 
@@ -105,17 +103,6 @@ class NLPStructure:
         return kernel_key(*self.kernels.variant)
 
 
-@dataclass
-class _Outer:
-    """The outer problem's functions (SX)."""
-
-    cost: cs.Function  # (w, y, p) -> f
-    constraints: cs.Function  # (w, y, p) -> g
-    gradient: cs.Function  # (w, p) -> (f at y = 0, f_w, f_Y^T)
-    jacobian: cs.Function  # (w, p) -> (G_w, G_Y)
-    hessian: cs.Function  # (w, p, lam_f, lam_g) -> (triu d2L/dw2, dL/dy = mu)
-
-
 def build_structure(model: PlannerModel, key: StructureKey, problem, path=None) -> NLPStructure:
     """Build and compile the NLP of a structure, the parameters laid out as ``problem``'s (a
     :class:`~balance_opt.optimal.problem.BalanceProblem`; with a free mission timing, of its
@@ -139,7 +126,7 @@ def build_structure(model: PlannerModel, key: StructureKey, problem, path=None) 
     outer, rows, row_terms = _outer_problem(model, key, kernels, variables, parameters, terms, path)
     ipopt = ipopt_options_for(key.objective, problem.options, key.intervals)
     inputs = tuple(dict(i for o in outputs for i in o.inputs))
-    solver = _ipopt_solver(kernels, inputs, variables, parameters, outer, rows.size, ipopt)
+    solver = _ipopt_solver(kernels, inputs, variables, parameters, outer, ipopt)
     build_time = time.perf_counter() - start
     log.debug(
         "%s built in %.3f s: %d variables, %d rows", key, build_time, variables.size, rows.size
@@ -157,7 +144,7 @@ def _outer_problem(
     parameters: BlockStack,
     terms: tuple[Term, ...],
     path=None,
-) -> tuple[_Outer, BlockStack, tuple[Term, ...]]:
+) -> tuple[Outer, BlockStack, tuple[Term, ...]]:
     """The outer problem in SX: the terms' parts of the cost summed, and their rows stacked
     into ``g``."""
     tr, N = Transcription(key.transcription), key.intervals
@@ -194,121 +181,13 @@ def _outer_problem(
             row_terms.append(term)
             parts.append(cs.vec(values))
     g = cs.vertcat(*parts)
-    return _outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_terms)
+    return outer_functions(w, cs.vec(Y), p, cost, g), rows, tuple(row_terms)
 
 
 def mission_labels(model: PlannerModel) -> list[str]:
     """Rows of a free timing's mission joints at a point (kernel inputs after ``x``, ``u``)."""
     joints = model.robot.mission.joints
     return [f"{j} {kind}" for kind in MISSION_LEVELS for j in joints]
-
-
-def _outer_functions(w, y, p, cost, g) -> _Outer:
-    """The outer problem's value and derivatives, checked linear in the kernel outputs ``y``."""
-    lam_g = cs.SX.sym("lam_g", g.numel())
-    lam_f = cs.SX.sym("lam_f")
-    lagrangian = lam_f * cost + cs.dot(lam_g, g)
-    G_Y = cs.jacobian(g, y)
-    f_Y = cs.jacobian(cost, y)
-    if cs.depends_on(G_Y, cs.vertcat(w, y)) or cs.depends_on(f_Y, cs.vertcat(w, y)):
-        raise AssertionError("the outer problem must be linear in the kernel outputs")
-    return _Outer(
-        # apart: Ipopt evaluates the cost alone at every trial point of its line search
-        cs.Function("outer_cost", [w, y, p], [cost]),
-        cs.Function("outer_g", [w, y, p], [g]),
-        cs.Function(
-            "outer_grad",
-            [w, p],
-            [cs.substitute(cost, y, cs.DM.zeros(y.shape)), cs.gradient(cost, w), f_Y.T],
-        ),
-        cs.Function("outer_jac", [w, p], [cs.jacobian(g, w), G_Y]),
-        cs.Function(
-            "outer_hess",
-            [w, p, lam_f, lam_g],
-            [cs.triu(cs.hessian(lagrangian, w)[0]), cs.gradient(lagrangian, y)],
-        ),
-    )
-
-
-def _scattered(
-    values: cs.MX,
-    sparsity: cs.Sparsity,
-    n_points: int,
-    rows_of_point,
-    cols_of_point,
-    shape,
-    upper: bool = False,
-) -> cs.MX:
-    """The nonzeros of a mapped per-point sparse output (``n_points`` copies of ``sparsity``
-    side by side) placed into one global sparse matrix."""
-    local_rows, local_cols = (np.asarray(v) for v in sparsity.get_triplet())
-    nnz = local_rows.size
-    rows = np.concatenate([rows_of_point(i)[local_rows] for i in range(n_points)])
-    cols = np.concatenate([cols_of_point(i)[local_cols] for i in range(n_points)])
-    if upper:
-        rows, cols = np.minimum(rows, cols), np.maximum(rows, cols)
-    global_sp, mapping = cs.Sparsity.triplet(
-        int(shape[0]), int(shape[1]), rows.tolist(), cols.tolist(), False
-    )
-    mapping = np.asarray(mapping)
-    if mapping.size != nnz * n_points or np.unique(mapping).size != mapping.size:
-        raise AssertionError("overlapping per-point blocks")  # every variable belongs to one point
-    return cs.sparsity_cast(values.nz[mapping.tolist()], global_sp)
-
-
-def _derivatives(kernels: PointKernels, outer: _Outer, w, p, Z, data, point_idx, n_g) -> dict:
-    """Ipopt's ``grad_f``, ``jac_g`` and ``hess_lag``: the outer problem's, plus the kernels'
-    mapped over the points and scattered to ``w`` (``dY/dw`` is block diagonal, and so is the
-    kernels' part of the Hessian, weighted by ``mu``)."""
-    n_y, n_points, n_w, n_pt = kernels.n_y, point_idx.shape[1], w.numel(), point_idx.size
-    f0, f_w, f_Y = outer.gradient(w, p)
-    seeds = cs.reshape(f_Y, n_y, n_points)[: kernels.n_cost, :]  # none on outputs out of it
-    cy, grad_z = kernels.gradient.map(n_points)(Z, *data, seeds)
-    scatter_w = np.empty(n_pt, dtype=int)
-    scatter_w[point_idx.ravel(order="F")] = np.arange(n_pt)
-    grad_points = cs.vertcat(cs.vec(grad_z)[scatter_w.tolist()], cs.MX.zeros(n_w - n_pt))
-    Y, dY = kernels.jacobian.map(n_points)(Z, *data)
-    dYdw = _scattered(
-        dY,
-        kernels.jacobian.sparsity_out(1),
-        n_points,
-        lambda i: n_y * i + np.arange(n_y),
-        lambda i: point_idx[:, i],
-        (n_y * n_points, n_w),
-    )
-    G_w, G_Y = outer.jacobian(w, p)
-    g = outer.constraints(w, cs.vec(Y), p)
-    lf, lg = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", n_g)
-    H_outer, mu = outer.hessian(w, p, lf, lg)
-    d2 = kernels.hessian.map(n_points)(Z, *data, cs.reshape(mu, kernels.n_y, n_points))
-    H_kernel = _scattered(
-        d2,
-        kernels.hessian.sparsity_out(0),
-        n_points,
-        lambda i: point_idx[:, i],
-        lambda i: point_idx[:, i],
-        (n_w, n_w),
-        upper=True,
-    )
-    return {
-        "grad_f": cs.Function(
-            "nlp_grad_f",
-            [w, p],
-            [f0 + cs.sum2(cy), f_w + grad_points],
-            ["x", "p"],
-            ["f", "grad_f_x"],
-        ),
-        "jac_g": cs.Function(
-            "nlp_jac_g", [w, p], [g, G_w + cs.mtimes(G_Y, dYdw)], ["x", "p"], ["g", "jac_g_x"]
-        ),
-        "hess_lag": cs.Function(
-            "nlp_hess_l",
-            [w, p, lf, lg],
-            [H_outer + H_kernel],
-            ["x", "p", "lam_f", "lam_g"],
-            ["triu_hess_gamma_x_x"],
-        ),
-    }
 
 
 def ipopt_options_for(
@@ -345,41 +224,18 @@ def _ipopt_solver(
     inputs: tuple[str, ...],
     variables: BlockStack,
     parameters: BlockStack,
-    outer: _Outer,
-    n_g: int,
+    outer: Outer,
     ipopt: dict,
 ) -> cs.Function:
-    """The NLP in MX (the kernels mapped over the points, the outer problem on top) with its
-    assembled derivatives, handed to Ipopt."""
+    """The NLP handed to Ipopt (:func:`~balance_opt.solvers.kernel_nlp.kernel_solver`): the
+    kernels at the points of :func:`_point_indices`, fed the mission data and the terms'
+    kernel ``inputs`` from the parameters."""
+
+    def data(p):
+        par = parameters.unpack(p, SimpleNamespace)
+        return (par.mission, *(getattr(par, name) for name in inputs))
+
     point_idx = _point_indices(variables)
-    point_flat = point_idx.ravel(order="F")
-    if not np.array_equal(np.sort(point_flat), np.arange(point_flat.size)):
-        raise AssertionError("the points' variables must come first, each in one point")
-    w, p = cs.MX.sym("w", variables.size), cs.MX.sym("p", parameters.size)
-    Z = cs.reshape(w[point_flat.tolist()], kernels.n_z, point_idx.shape[1])
-    par = parameters.unpack(p, SimpleNamespace)
-    data = (par.mission, *(getattr(par, name) for name in inputs))
-    n_points = point_idx.shape[1]
-    Y = kernels.value.map(n_points)(Z, *data)
-    g = outer.constraints(w, cs.vec(Y), p)
-    if kernels.cost is not None:  # the cost from the kernel without the outputs out of it
-        Y = cs.vertcat(
-            kernels.cost.map(n_points)(Z, *data),
-            cs.MX.zeros(kernels.n_y - kernels.n_cost, n_points),
-        )
-    f = outer.cost(w, cs.vec(Y), p)
-    # with the live progress line (balance_opt.progress); returns at once when it is off
-    solver = progress.nlpsol(
-        "balance_nlp",
-        {"x": w, "p": p, "f": f, "g": g},
-        {
-            "ipopt": ipopt,
-            "print_time": False,
-            "record_time": True,
-            "calc_lam_p": False,
-            "calc_lam_x": False,
-            **_derivatives(kernels, outer, w, p, Z, data, point_idx, n_g),
-        },
+    return kernel_solver(
+        "balance_nlp", kernels, outer, point_idx, variables.size, parameters.size, data, ipopt
     )
-    one_thread_for_ipopt()  # the plugin, and its OpenBLAS, are loaded now
-    return solver
