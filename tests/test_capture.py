@@ -275,7 +275,7 @@ def test_simulation_conserves_the_momentum_through_the_capture(example):
     plan = plan_task(example, "analytic")
     sim = simulate(example, plan)
     k = int(np.flatnonzero(sim.t <= example.target.time)[-1])
-    info = sim.details()["capture"]
+    info = sim.info["capture"]
     _check_conserved(
         example,
         example.robot.arm_q(sim.q_pin[k]),
