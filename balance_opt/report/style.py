@@ -190,3 +190,11 @@ def save(
         fig.savefig(path, dpi=dpi, format=fmt, metadata=metadata)
         paths.append(path)
     return paths
+
+
+def asset(name: str) -> str:
+    """A file of the pages shipped with the package (``balance_opt/report/assets``): the
+    report's and the 3D scene's style, the scene's player."""
+    from importlib.resources import files
+
+    return (files("balance_opt.report") / "assets" / name).read_text(encoding="utf-8")
