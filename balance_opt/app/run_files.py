@@ -14,7 +14,7 @@ from balance_opt.app.run_studies import run_geometry
 from balance_opt.app.task_run import GIVEN_TIMING, REFERENCE, TaskRun, timed
 from balance_opt.errors import InputError
 from balance_opt.report import plots
-from balance_opt.report.style import SCREEN_DPI, SIM, method_label
+from balance_opt.report.style import SCREEN_DPI, SIM, method_label, save
 
 log = logging.getLogger(__name__)
 
@@ -194,8 +194,8 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
 
     def draw(key, function, *args, note="", **kwargs):
         stem, caption = FIGURES[key]
-        _, paths = function(*args, output_dir / stem, formats=("png",), dpi=SCREEN_DPI, **kwargs)
-        figures.append((caption + note, paths[0]))
+        [path] = save(function(*args, **kwargs), output_dir / stem, ("png",), SCREEN_DPI)
+        figures.append((caption + note, path))
 
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
     draw("attitude", plots.attitude_figure, _reference_last(run.results))
