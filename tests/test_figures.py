@@ -8,16 +8,13 @@ from types import SimpleNamespace
 import matplotlib as mpl
 import numpy as np
 import pytest
+from conftest import curve_labels
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_rgb
 from PIL import Image
 
 from balance_opt.report import style
-from balance_opt.report.plots import (
-    attitude_figure,
-    curve_labels,
-    reaction_torque_figure,
-)
+from balance_opt.report.plots import attitude_figure, reaction_torque_figure
 
 #: The methods a reader compares in one figure: plans, or their simulations.
 PLANS = ("mission-only", "analytic", "optimal")

@@ -363,11 +363,6 @@ def paper_figure_set(
     return files, figures
 
 
-def curve_labels(fig) -> list[list[str]]:
-    """The labels of the curves in each panel of a figure (to check what it shows)."""
-    return [[line.get_label() for line in ax.get_lines()] for ax in fig.axes]
-
-
 #: Rows of the figure: (result field, limit field, axis label).
 _ROWS = (
     ("q_B", "position", "position [rad]"),
