@@ -171,19 +171,20 @@ def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
 def write_run_scene(run: TaskRun, path: Path) -> Path:
     """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
     ``path``."""
-    from balance_opt.report.scene import write_scene
+    from balance_opt.report.scene import build_scene, write_scene
 
+    task = run.task
     labels = {
         name: method_label(name) + (" (FAILED)" if name in run.failures else "")
         for name in run.results
     }
     geometry = run_geometry(run)  # the run's own when it checked clearance
     with timed("3D scene"):
-        return write_scene(
-            path, run.task.robot, run.results, run.task.h0, run.task.target, labels,
-            run.task.name, geometry=geometry or None,
-            margin=run.task.spec.optimal.planner.collision_margin,
+        scene = build_scene(
+            task.robot, run.results, task.h0, task.target, labels, geometry=geometry or None,
+            margin=task.spec.optimal.planner.collision_margin,
         )  # fmt: skip
+        return write_scene(path, scene, task.name)
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:

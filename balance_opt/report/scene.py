@@ -344,20 +344,9 @@ def scene_html(scene: Scene, title: str = "") -> str:
     )
 
 
-def write_scene(
-    path: str | Path,
-    robot: FloatingRobot,
-    results: Mapping[str, BalanceResult],
-    h0=None,
-    target=None,
-    labels: Mapping[str, str] | None = None,
-    title: str = "",
-    geometry=None,
-    margin: float = 0.0,
-) -> Path:
-    """Write the page of :func:`build_scene` to ``path``."""
+def write_scene(path: str | Path, scene: Scene, title: str = "") -> Path:
+    """Write the page of a scene (:func:`build_scene`) to ``path``."""
     path = Path(path)
-    scene = build_scene(robot, results, h0, target, labels, geometry=geometry, margin=margin)
     path.write_text(scene_html(scene, title), encoding="utf-8")
     megabytes = path.stat().st_size / 1e6
     log.info("scene: %s, %.1f MB (%d mesh vertices)", path.name, megabytes, scene.meta["vertices"])
