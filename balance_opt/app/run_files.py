@@ -162,7 +162,7 @@ def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
     return (
         '<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through '
         f'each plan (<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
-        "<code>balance-opt view</code> serves it).</p>"
+        "<code>balance-opt view</code> opens it).</p>"
         f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'
         'border:1px solid #ddd"></iframe>'
     ), scene
