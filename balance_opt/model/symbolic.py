@@ -25,14 +25,11 @@ from balance_opt.model.bridge import (
     ensure_bridge,
     find_toolchain,
 )
-from balance_opt.model.coupling import LinearAlgebra
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
 
 BACKENDS = ("pinocchio", "adam")
-#: CasADi's linear algebra, for the base Jacobian of :mod:`balance_opt.model.coupling`.
-CASADI = LinearAlgebra(cs.solve, cs.inv, cs.SX.eye)
 
 
 def _imports(module: str) -> bool:
@@ -296,7 +293,7 @@ class SymbolicMaps:
     def base_jacobian_fun(self) -> cs.Function:
         """``base_jacobian(q) -> J_base``: 6 x n, ``v_b = J_base q_dot`` with zero momentum
         (Eq. 19), the base twist [linear; angular] in the base frame."""
-        J_base = coupling.base_jacobian(self._A, CASADI)
+        J_base = coupling.base_jacobian(self._A, cs.solve)
         return self._fun("base_jacobian", {"q": self._q}, {"J_base": J_base})
 
     @_built_once
