@@ -302,7 +302,7 @@ def test_angular_jacobian_rates(reference_of, name):
     through momentum conservation (the two references also agree with each other)."""
     ref = reference_of(name)
     maps = ref.numeric
-    I_G, A = maps.angular_maps(ref.Q)
+    I_G, _ = maps.angular_maps(ref.Q)
     dI_G, dA = maps.angular_map_rates(ref.Q, ref.QD)
     dJ_w = angular_jacobian_rate(I_G, dI_G, dA, ref.J_base[:, 3:])
     _close(dJ_w, ref.dJ_w_fd)
