@@ -47,14 +47,14 @@ def _timed(make):
 
 def bench_backend(robot, backend: str, repeat: int, compile_kernels: bool) -> dict[str, float]:
     maps, t_maps = _timed(lambda: SymbolicMaps(robot, backend=backend))
-    cmm, jw = maps.centroidal_momentum_matrix_fun(), maps.angular_jacobians_fun()
+    cmm, jb = maps.centroidal_momentum_matrix_fun(), maps.base_jacobian_fun()
     rng = np.random.default_rng(0)
     q = rng.uniform(np.maximum(robot.limits.lower, -1), np.minimum(robot.limits.upper, 1))
     row = {
         "SymbolicMaps build [s]": t_maps,
         "A_G nodes": cmm.n_nodes(),
         "A_G eval [us]": _best_us(lambda: cmm(q), 2000, repeat),
-        "(J_wM, J_wB) eval [us]": _best_us(lambda: jw(q), 1000, repeat),
+        "J_base eval [us]": _best_us(lambda: jb(q), 1000, repeat),
     }
     model = PlannerModel(robot, maps=maps, compile=False, store=False)  # built, not loaded
     kernels, row["planner kernels build [s]"] = _timed(lambda: point_kernels(model))

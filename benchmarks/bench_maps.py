@@ -1,9 +1,10 @@
-"""Time per evaluation of the angular Jacobians ``(J_wM, J_wB)``, side by side:
+"""Time per evaluation of the base Jacobian ``J_base`` (its angular rows are ``(J_wM, J_wB)``),
+side by side:
 
-* the CasADi function ``angular_jacobians`` (symbolic backend), one call from Python, and mapped
-  over 1000 configurations (``fun.map(1000)``, serial and with 2 threads), per configuration;
-* the numeric path ``NumericMaps.angular_jacobians`` (Pinocchio's ``A_G`` and a 3 x 3 solve, as
-  in the analytic law's right-hand side);
+* the CasADi function ``base_jacobian`` (symbolic backend, as the planner uses it), one call
+  from Python, and mapped over 1000 configurations (``fun.map(1000)``, serial and with 2
+  threads), per configuration;
+* the numeric path ``NumericMaps.base_jacobian`` (Pinocchio's ``A_G`` and a 6 x 6 solve);
 * Pinocchio's own ``computeCentroidalMap`` alone, the floor of the numeric path.
 
 Run: ``python benchmarks/bench_maps.py`` (one run, prints one table, times in microseconds:
@@ -33,7 +34,7 @@ def _best_us(stmt, number: int, repeat: int, per: int = 1) -> float:
 
 def bench_robot(robot, repeat: int, rng: np.random.Generator) -> dict[str, float]:
     maps = SymbolicMaps(robot)
-    fun = maps.angular_jacobians_fun()
+    fun = maps.base_jacobian_fun()
     serial, threads = fun.map(N_MAP), fun.map(N_MAP, "thread", 2)
     numeric = NumericMaps(robot)
     Q = rng.uniform(robot.limits.lower, robot.limits.upper, size=(N_MAP, robot.n))
@@ -42,20 +43,14 @@ def bench_robot(robot, repeat: int, rng: np.random.Generator) -> dict[str, float
     q_pin = robot.pin_q(q)
     data = robot.model.createData()
     # the mapped functions must give the single-call results
-    J_wM, J_wB = serial(Q_dm)
     np.testing.assert_allclose(
-        np.array(J_wB)[:, : len(robot.balance_indices)],
-        numeric.angular_jacobians(q)[1],
-        rtol=0,
-        atol=1e-9,
+        np.array(serial(Q_dm))[:, : robot.n], numeric.base_jacobian(q), rtol=0, atol=1e-9
     )
     return {
         "casadi single call": _best_us(lambda: fun(q), 2000, repeat),
         f"casadi map({N_MAP}) serial, per q": _best_us(lambda: serial(Q_dm), 5, repeat, N_MAP),
         f"casadi map({N_MAP}) 2 threads, per q": _best_us(lambda: threads(Q_dm), 5, repeat, N_MAP),
-        "NumericMaps.angular_jacobians": _best_us(
-            lambda: numeric.angular_jacobians(q), 2000, repeat
-        ),
+        "NumericMaps.base_jacobian": _best_us(lambda: numeric.base_jacobian(q), 2000, repeat),
         "pin.computeCentroidalMap alone": _best_us(
             lambda: pin.computeCentroidalMap(robot.model, data, q_pin), 2000, repeat
         ),
@@ -71,7 +66,7 @@ def main(argv=None) -> None:
     results = {name: bench_robot(robot, args.repeat, rng) for name, robot in robots.items()}
     rows = list(next(iter(results.values())))
     width = max(len(r) for r in rows)
-    header = f"{'(J_wM, J_wB) per evaluation [us]':<{width}}" + "".join(f"{n:>16}" for n in results)
+    header = f"{'J_base per evaluation [us]':<{width}}" + "".join(f"{n:>16}" for n in results)
     print(header)
     print("-" * len(header))
     for row in rows:
@@ -80,7 +75,7 @@ def main(argv=None) -> None:
     print(
         f"{ratio:<{width}}"
         + "".join(
-            f"{results[n]['NumericMaps.angular_jacobians'] / results[n]['pin.computeCentroidalMap alone']:>15.2f}x"
+            f"{results[n]['NumericMaps.base_jacobian'] / results[n]['pin.computeCentroidalMap alone']:>15.2f}x"
             for n in results
         )
     )

@@ -78,6 +78,11 @@ def _cache_line() -> str:
     return f"balance-opt test cache: {_SESSION_CACHE} (temporary); {bridge}"
 
 
+def curve_labels(fig) -> list[list[str]]:
+    """The labels of the curves in each panel of a figure (to check what it shows)."""
+    return [[line.get_label() for line in ax.get_lines()] for ax in fig.axes]
+
+
 def pytest_report_header(config):
     return _cache_line()
 

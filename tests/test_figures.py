@@ -8,16 +8,13 @@ from types import SimpleNamespace
 import matplotlib as mpl
 import numpy as np
 import pytest
+from conftest import curve_labels
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_rgb
 from PIL import Image
 
 from balance_opt.report import style
-from balance_opt.report.plots import (
-    attitude_figure,
-    curve_labels,
-    reaction_torque_figure,
-)
+from balance_opt.report.plots import attitude_figure, reaction_torque_figure
 
 #: The methods a reader compares in one figure: plans, or their simulations.
 PLANS = ("mission-only", "analytic", "optimal")
@@ -122,8 +119,8 @@ def test_attitude_figure_writes_nothing_unless_asked(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     rng = np.random.default_rng(3)
     results = {"optimal": fake_attitude(rng), "analytic": fake_attitude(rng)}
-    fig, paths = attitude_figure({**results, "mission-only": fake_attitude(rng)})
-    assert paths == [] and list(tmp_path.iterdir()) == []
+    fig = attitude_figure({**results, "mission-only": fake_attitude(rng)})
+    assert list(tmp_path.iterdir()) == []
     assert titles(fig) == ("", ["", "", ""])
     expected = ["optimal plan", "analytic law", "mission arm alone"]
     assert curve_labels(fig) == [expected] * 3
@@ -138,7 +135,7 @@ def test_attitude_figure_writes_nothing_unless_asked(tmp_path, monkeypatch):
 def test_attitude_figure_files_are_one_column_png_and_pdf(tmp_path):
     rng = np.random.default_rng(4)
     stem = tmp_path / "sub" / "fig.v2"
-    _, paths = attitude_figure({"analytic:sim": fake_attitude(rng)}, stem, formats=("png", "pdf"))
+    paths = style.save(attitude_figure({"analytic:sim": fake_attitude(rng)}), stem, ("png", "pdf"))
     assert [p.name for p in paths] == ["fig.v2.png", "fig.v2.pdf"]
     png = Image.open(paths[0])
     assert png.info["dpi"][0] >= MIN_DPI
@@ -149,8 +146,7 @@ def test_attitude_figure_files_are_one_column_png_and_pdf(tmp_path):
 def test_torque_figure_gives_each_plan_its_own_scale():
     rng = np.random.default_rng(6)
     sims = {"analytic": fake_simulation(rng, 0.3), "optimal": fake_simulation(rng, 8.0)}
-    fig, paths = reaction_torque_figure(sims)
-    assert paths == []
+    fig = reaction_torque_figure(sims)
     assert fig.get_size_inches()[0] == pytest.approx(style.WIDTHS["page"])
     suptitle, panel_titles = titles(fig)
     assert suptitle == "" and set(panel_titles) == {"", "analytic law", "optimal plan"}
@@ -166,9 +162,8 @@ def test_torque_figure_gives_each_plan_its_own_scale():
 
 def test_figures_leave_global_state_alone(tmp_path):
     before = dict(mpl.rcParams)
-    attitude_figure(
-        {"analytic": fake_attitude(np.random.default_rng(0))}, tmp_path / "a", formats=("png",)
-    )
+    fig = attitude_figure({"analytic": fake_attitude(np.random.default_rng(0))})
+    style.save(fig, tmp_path / "a", ("png",))
     assert dict(mpl.rcParams) == before
     assert not (tmp_path / "a.pdf").exists() and (tmp_path / "a.png").exists()
 
@@ -188,7 +183,7 @@ def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path)
     joints = [j for j in paper.joint_names if "balance" in j]
     rng = np.random.default_rng(7)
     plans = {"analytic": fake_plan(joints, rng), "optimal": fake_plan(joints, rng)}
-    fig, _ = joint_limits_figure(plans, paper)
+    fig = joint_limits_figure(plans, paper)
     assert list(tmp_path.iterdir()) == []
     assert titles(fig) == ("", joints + [""] * (2 * len(joints)))
     top = fig.axes[0]
@@ -200,7 +195,7 @@ def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path)
     lo, hi = top.get_ylim()
     assert lo <= paper.limits.lower[i] and hi >= paper.limits.upper[i]
     texts_inside_and_legend_above(fig)
-    _, [path] = joint_limits_figure(plans, paper, tmp_path / "joints")
+    [path] = style.save(fig, tmp_path / "joints", ("png",), style.SCREEN_DPI)
     assert Image.open(path).info["dpi"][0] == pytest.approx(style.SCREEN_DPI, abs=0.5)
 
 
@@ -262,7 +257,7 @@ def test_joint_figure_keeps_the_limits_in_view_past_a_runaway_plan(paper):
     runaway, optimal = fake_plan(joints, rng), fake_plan(joints, rng)
     runaway.q_dot_B = runaway.q_dot_B.copy()
     runaway.q_dot_B[20, 0] = 5e4
-    fig, _ = joint_limits_figure({"analytic": runaway, "optimal": optimal}, paper)
+    fig = joint_limits_figure({"analytic": runaway, "optimal": optimal}, paper)
     rate = fig.axes[len(joints)]  # second row, first joint
     limit = paper.limits.velocity[paper.joint_index(joints[0])]
     np.testing.assert_allclose(rate.get_ylim(), [-OFF_SCALE * limit, OFF_SCALE * limit])
@@ -312,7 +307,7 @@ def test_balance_arm_torque_reads_apart_from_the_sum_it_carries():
     """In the optimal plan's panel the balance arm makes most of the sum: it is drawn wide and
     pale under the thin sum, so both read apart in greyscale (issue 26)."""
     rng = np.random.default_rng(4)
-    fig, _ = reaction_torque_figure({"optimal": fake_simulation(rng, 1.0)}, None)
+    fig = reaction_torque_figure({"optimal": fake_simulation(rng, 1.0)})
     lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
     total, balance = lines["sum of arms"], lines["optimal plan: balance arm"]
     assert balance.get_linewidth() >= 1.5 * total.get_linewidth()

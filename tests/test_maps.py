@@ -1,5 +1,5 @@
-"""Momentum maps: the symbolic CasADi functions (every available backend) against numeric
-Pinocchio, and the numeric maps against independent computations (Pinocchio called directly,
+"""Momentum maps: the symbolic CasADi functions the planner uses (every available backend)
+against numeric Pinocchio, and the numeric maps against independent computations (Pinocchio called directly,
 SVD, finite differences on the manifold, momentum conservation), on the paper's robot and on
 Baxter (floating, left arm mission, right arm balance, head and grippers locked).
 
@@ -16,7 +16,7 @@ import pytest
 from scipy.linalg import block_diag
 
 from balance_opt.errors import BalanceOptError, JointError
-from balance_opt.model.maps import NumericMaps, base_angular_velocity
+from balance_opt.model.maps import NumericMaps, angular_jacobian_rate, base_angular_velocity
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.model.symbolic import BACKENDS, SymbolicMaps, available_backends
 from balance_opt.motion.so3 import matrix_from_quaternion, quaternion_from_rotvec
@@ -86,7 +86,7 @@ def _pinv_transpose_svd(N, rank):
 
 
 def _evaluate(maps, robot, Q, F_E) -> dict:
-    """The maps NumericMaps and SymbolicMaps share, at every configuration, stacked."""
+    """The numeric maps at every configuration, stacked."""
     out = defaultdict(list)
     for q, F_e in zip(Q, F_E):
         out["A"].append(maps.centroidal_momentum_matrix(q))
@@ -98,9 +98,9 @@ def _evaluate(maps, robot, Q, F_E) -> dict:
         for arm in robot.arms:
             J_star, M = maps.ee_generalized_jacobian(q, arm.name)
             M_cf, N = maps.coupling_factors(q, arm.name)
+            assert np.array_equal(M_cf, M)
             out[f"J_star_{arm.name}"].append(J_star)
             out[f"M_{arm.name}"].append(M)
-            out[f"M_cf_{arm.name}"].append(M_cf)
             out[f"N_{arm.name}"].append(N)
             out[f"F_B_{arm.name}"].append(maps.force_map(q, F_e, arm.name))
     return {k: (v if k == "measures" else np.array(v)) for k, v in out.items()}
@@ -166,9 +166,9 @@ def case(request, reference_of):
     ref = reference_of(name)
     robot = ref.robot
     maps = SymbolicMaps(robot, backend=backend)
-    out = _evaluate(maps, robot, ref.Q, ref.F_E)
-    rates = [maps.angular_jacobian_rates(q, q_dot) for q, q_dot in zip(ref.Q, ref.QD)]
-    out["dJ_wM"], out["dJ_wB"] = (np.array(r) for r in zip(*rates))
+    A, J_base = maps.centroidal_momentum_matrix_fun(), maps.base_jacobian_fun()
+    out = {"A": [A(q) for q in ref.Q], "J_base": [J_base(q) for q in ref.Q]}
+    out = {k: np.array([np.array(x) for x in v]) for k, v in out.items()}
     return SimpleNamespace(ref=ref, maps=maps, backend=backend, **out)
 
 
@@ -296,10 +296,17 @@ def test_ee_generalized_jacobian_moves_the_end_effector(reference_of, name):
 
 
 @pytest.mark.parametrize("name", ROBOTS)
-def test_angular_jacobian_rates_reference(reference_of, name):
-    """The two numeric references of the rates agree: finite differences of J_w along q_dot,
-    and Pinocchio's dAg through momentum conservation."""
+def test_angular_jacobian_rates(reference_of, name):
+    """The rates of J_w the balance law uses (Eq. 32), from ``angular_map_rates``, against
+    finite differences of J_w along q_dot and, in the product with q_dot, Pinocchio's dAg
+    through momentum conservation (the two references also agree with each other)."""
     ref = reference_of(name)
+    maps = ref.numeric
+    I_G, _ = maps.angular_maps(ref.Q)
+    dI_G, dA = maps.angular_map_rates(ref.Q, ref.QD)
+    dJ_w = angular_jacobian_rate(I_G, dI_G, dA, ref.J_base[:, 3:])
+    _close(dJ_w, ref.dJ_w_fd)
+    _close(np.einsum("kij,kj->ki", dJ_w, ref.QD), ref.dJ_w_q_dot)
     _close(np.einsum("kij,kj->ki", ref.dJ_w_fd, ref.QD), ref.dJ_w_q_dot)
 
 
@@ -345,75 +352,22 @@ def test_base_jacobian(case):
     _close(residual + np.einsum("kij,kj->ki", A[:, :, 6:], case.ref.QD), 0)  # momentum conservation
 
 
-def test_angular_jacobians(case):
-    robot = case.ref.robot
-    assert case.J_wM.shape == (N_CONFIGS, 3, robot.mission.dof)
-    assert case.J_wB.shape == (N_CONFIGS, 3, len(robot.balance_indices))
-    _close(case.J_wM, case.ref.J_wM)
-    _close(case.J_wB, case.ref.J_wB)
-
-
-def test_angular_jacobian_rates(case):
-    ref = case.ref
-    _close(case.dJ_wM, ref.dJ_w_fd[:, :, ref.mission])
-    _close(case.dJ_wB, ref.dJ_w_fd[:, :, ref.balance])
-    # the combination Eq. 32 uses, against Pinocchio's dAg
-    rate = np.einsum("kij,kj->ki", case.dJ_wM, ref.QD[:, ref.mission]) + np.einsum(
-        "kij,kj->ki", case.dJ_wB, ref.QD[:, ref.balance]
-    )
-    _close(rate, ref.dJ_w_q_dot)
-
-
-def test_ee_generalized_jacobian_and_coupling_factors(case):
-    for arm in case.ref.robot.arms:
-        J_star = getattr(case, f"J_star_{arm.name}")
-        _close(J_star, getattr(case.ref, f"J_star_{arm.name}"), err_msg=arm.name)
-        _close(getattr(case, f"M_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name)
-        _close(getattr(case, f"M_{arm.name}"), J_star[:, :, arm.indices], err_msg=arm.name)
-        _close(
-            getattr(case, f"M_cf_{arm.name}"), getattr(case.ref, f"M_{arm.name}"), err_msg=arm.name
-        )
-        # N = J_base,arm M^+ with M^+ from the normal equations, which square the condition
-        # number of M (up to 2e3 on Baxter): errors of ~eps cond(M)^2 |N| are rounding
-        # (measured <= 0.7 of that with either backend)
-        N, N_svd = getattr(case, f"N_{arm.name}"), getattr(case.ref, f"N_svd_{arm.name}")
-        for k, M in enumerate(getattr(case.ref, f"M_{arm.name}")):
-            s = np.linalg.svd(M, compute_uv=False)
-            rounding = 10 * np.finfo(float).eps * (s[0] / s[-1]) ** 2 * np.abs(N_svd[k]).max()
-            _close(N[k], N_svd[k], atol=max(ATOL, rounding), err_msg=arm.name)
-
-
-def test_force_map(case):
-    for arm in case.ref.robot.arms:
-        F_B, F_B_svd = getattr(case, f"F_B_{arm.name}"), getattr(case.ref, f"F_B_svd_{arm.name}")
-        for k in range(N_CONFIGS):
-            scale = max(1.0, np.abs(F_B_svd[k]).max())
-            _close(F_B[k], F_B_svd[k], atol=FORCE_RTOL * scale, err_msg=arm.name)
-
-
-def test_coupling_measures(case):
-    robot = case.ref.robot
-    for sym, ref, J_wM, J_wB in zip(case.measures, case.ref.measures, case.ref.J_wM, case.ref.J_wB):
+@pytest.mark.parametrize("name", ROBOTS)
+def test_coupling_measures(reference_of, name):
+    """The coupling measures against the SVD of the angular Jacobians."""
+    ref = reference_of(name)
+    columns = ref.robot.balance_arm_columns
+    for m, J_wM, J_wB in zip(ref.measures, ref.J_wM, ref.J_wB):
         s_B = np.linalg.svd(J_wB, compute_uv=False)
-        _close(sym.balance_singular_values, s_B)
-        _close(sym.sigma_min, s_B[2])  # the third: the one that controls the base's 3 rotations
-        _close(sym.mission_norm, np.linalg.svd(J_wM, compute_uv=False)[0])
-        _close(sym.balance_singular_values, ref.balance_singular_values)
-        np.testing.assert_allclose(
-            sym.balance_condition, ref.balance_condition, rtol=CONDITION_RTOL, atol=0
-        )
-        np.testing.assert_allclose(
-            sym.balance_condition,
-            ref.balance_singular_values[0] / ref.sigma_min,
-            rtol=CONDITION_RTOL,
-            atol=0,
-        )
-        _close(sym.sigma_min, ref.sigma_min)
-        _close(sym.mission_norm, ref.mission_norm)
-        assert sym.per_arm.keys() == {a.name for a in robot.balance_arms}
-        for arm, (s, cond) in sym.per_arm.items():
-            _close(s, ref.per_arm[arm][0])
-            np.testing.assert_allclose(cond, ref.per_arm[arm][1], rtol=CONDITION_RTOL, atol=0)
+        _close(m.balance_singular_values, s_B)
+        _close(m.sigma_min, s_B[2])  # the third: the one that controls the base's 3 rotations
+        _close(m.mission_norm, np.linalg.svd(J_wM, compute_uv=False)[0])
+        np.testing.assert_allclose(m.balance_condition, s_B[0] / s_B[2], rtol=CONDITION_RTOL)
+        assert m.per_arm.keys() == columns.keys()
+        for arm, (s, cond) in m.per_arm.items():
+            s_arm = np.linalg.svd(J_wB[:, columns[arm]], compute_uv=False)
+            _close(s, s_arm)
+            np.testing.assert_allclose(cond, s_arm[0] / s_arm[2], rtol=CONDITION_RTOL)
 
 
 def test_functions_are_named_with_named_inputs_and_outputs(case):
@@ -421,23 +375,11 @@ def test_functions_are_named_with_named_inputs_and_outputs(case):
     expected = {
         maps.centroidal_momentum_matrix_fun(): ("centroidal_momentum_matrix", ["q"], ["A_G"]),
         maps.base_jacobian_fun(): ("base_jacobian", ["q"], ["J_base"]),
-        maps.angular_jacobians_fun(): ("angular_jacobians", ["q"], ["J_wM", "J_wB"]),
-        maps.angular_jacobian_rates_fun(): (
-            "angular_jacobian_rates",
-            ["q", "q_dot"],
-            ["dJ_wM", "dJ_wB"],
-        ),
-        maps.ee_generalized_jacobian_fun("balance"): (
-            "ee_generalized_jacobian_balance",
-            ["q"],
-            ["J_star", "M"],
-        ),
-        maps.coupling_factors_fun("mission"): ("coupling_factors_mission", ["q"], ["M", "N"]),
-        maps.force_map_fun("mission"): ("force_map_mission", ["q", "F_e"], ["F_B"]),
+        maps.joint_placements_fun(): ("joint_placements", ["q_model"], ["oMi"]),
     }
     for fun, (name, inputs, outputs) in expected.items():
         assert (fun.name(), fun.name_in(), fun.name_out()) == (name, inputs, outputs)
-    assert maps.angular_jacobians_fun() is maps.angular_jacobians_fun()  # built once
+    assert maps.base_jacobian_fun() is maps.base_jacobian_fun()  # built once
 
 
 # ----------------------------------------------------------------------------------- backends
@@ -489,15 +431,15 @@ def test_adam_backend_names_a_prismatic_arm_joint():
 
 
 def test_pinocchio_backend_glue_with_a_numeric_stand_in(paper, baxter, monkeypatch):
-    """The 'pinocchio' backend's own code (configuration by joint name, column order, frame
-    ids, reference frame) run with a stand-in for ``pinocchio.casadi`` that evaluates numeric
-    Pinocchio on constant SX inputs. pinocchio.casadi itself is not installed here."""
+    """The 'pinocchio' backend's own code (configuration by joint name, column order) run
+    with a stand-in for ``pinocchio.casadi`` that evaluates numeric Pinocchio on constant SX
+    inputs. pinocchio.casadi itself is not installed here."""
     import sys
     import types
 
     import casadi as cs
 
-    from balance_opt.model.symbolic import _primitives_pinocchio
+    from balance_opt.model.symbolic import _centroidal_pinocchio
 
     def numeric(x):
         return np.array(cs.evalf(x))
@@ -510,21 +452,14 @@ def test_pinocchio_backend_glue_with_a_numeric_stand_in(paper, baxter, monkeypat
     fake.computeCentroidalMap = lambda model, data, q: pin.computeCentroidalMap(
         model, data, vector(q)
     )
-    fake.computeJointJacobians = lambda model, data, q: pin.computeJointJacobians(
-        model, data, vector(q)
-    )
-    fake.updateFramePlacements = pin.updateFramePlacements
-    fake.getFrameJacobian = pin.getFrameJacobian
     monkeypatch.setitem(sys.modules, "pinocchio.casadi", fake)
     rng = np.random.default_rng(13)
     for robot in (paper, baxter):
         numeric_maps = NumericMaps(robot)
         for _ in range(3):
             q = rng.uniform(robot.limits.lower, robot.limits.upper)
-            A, jac = _primitives_pinocchio(robot, cs.SX(q))
+            A = _centroidal_pinocchio(robot, cs.SX(q))
             _close(numeric(A), numeric_maps.centroidal_momentum_matrix(q))
-            for arm in robot.arms:
-                _close(numeric(jac[arm.name]), numeric_maps.ee_jacobian(q, arm.name))
 
 
 @pytest.mark.skipif("adam" not in available_backends(), reason="adam-robotics not installed")

@@ -267,9 +267,8 @@ def test_the_external_resource_pattern_catches_what_it_should():
 
 def test_the_page_is_self_contained(paper, paper_scene, tmp_path):
     res, _ = paper_scene
-    path = write_scene(
-        tmp_path / "scene.html", paper, {"mission-only": res, "optimal": res}, H0, title="t"
-    )
+    scene = build_scene(paper, {"mission-only": res, "optimal": res}, H0)
+    path = write_scene(tmp_path / "scene.html", scene, title="t")
     text = path.read_text()
     assert EXTERNAL.search(text) is None
     assert "MeshCat.Viewer" in text and text.count("<script>") == 2  # the bundle, the player
@@ -316,7 +315,7 @@ def test_the_page_runs_in_a_browser(paper, paper_scene, tmp_path):
 @pytest.mark.slow
 def test_baxter_meshes_are_in_the_scene_simplified(baxter, tmp_path):
     res = _result(baxter, 3, samples=11, duration=1.0)
-    path = write_scene(tmp_path / "scene.html", baxter, {"test": res})
+    path = write_scene(tmp_path / "scene.html", build_scene(baxter, {"test": res}))
     gmodel = visual_model(baxter)
     text = path.read_text()
     setup = json.loads(re.search(r"const S = (\{.*?\});\n", text).group(1))["setup"]
@@ -604,10 +603,8 @@ def test_the_page_names_the_penetrating_pair(capture, capture_geometry, tmp_path
     """In headless Chromium, the label at a time balance_link3 is in the base box names the
     pair; at the start it names none."""
     res = _through_the_base(capture.robot, -1.6)
-    path = write_scene(
-        tmp_path / "scene.html", capture.robot, {"swing": res}, geometry=capture_geometry,
-        margin=MARGIN,
-    )  # fmt: skip
+    scene = build_scene(capture.robot, {"swing": res}, geometry=capture_geometry, margin=MARGIN)
+    path = write_scene(tmp_path / "scene.html", scene)
     assert capture_geometry.distances(np.hstack([res.q_M, res.q_B])[80]).min() < 0  # t = 2 s
     labels = {}
     for t in (0, 2):

@@ -5,11 +5,11 @@ import json
 
 import numpy as np
 import pytest
+from conftest import curve_labels
 from PIL import Image
 
 from balance_opt.app.study import FIGURE_STEMS, paper_study
 from balance_opt.errors import InputError
-from balance_opt.report.plots import curve_labels
 from balance_opt.report.style import WIDTHS
 
 #: Smallest PNG resolution a journal accepts for line art [dpi].

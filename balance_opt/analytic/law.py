@@ -21,7 +21,7 @@ from balance_opt.analytic.least_squares import (
 )
 from balance_opt.analytic.options import BalanceLawOptions
 from balance_opt.errors import InputError
-from balance_opt.model.coupling import NUMPY, angular_jacobian
+from balance_opt.model.coupling import angular_jacobian
 from balance_opt.model.maps import NumericMaps, angular_jacobian_rate, base_angular_velocity
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import (
@@ -116,7 +116,7 @@ class BalanceLaw:
             e_R = rotvec_from_quaternion(relative_rotation(self.reference, quaternion))
         else:
             e_R = np.zeros(shape)
-        J_wB = angular_jacobian(I_G, A[..., self.balance], NUMPY)
+        J_wB = angular_jacobian(I_G, A[..., self.balance])
         omega_free = base_angular_velocity(I_G, A[..., self.mission], q_dot_M, ell)
         b = -omega_free - self.options.attitude_gain * e_R
         z = -self.options.null_space_gain * (q_B - self.goal)

@@ -14,7 +14,7 @@ from balance_opt.app.run_studies import run_geometry
 from balance_opt.app.task_run import GIVEN_TIMING, REFERENCE, TaskRun, timed
 from balance_opt.errors import InputError
 from balance_opt.report import plots
-from balance_opt.report.style import SCREEN_DPI, SIM, method_label
+from balance_opt.report.style import SCREEN_DPI, SIM, method_label, save
 
 log = logging.getLogger(__name__)
 
@@ -162,7 +162,7 @@ def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
     return (
         '<h2 id="scene">3D scene</h2><p class="meta">The robot\'s own geometry moving through '
         f'each plan (<a href="{SCENE_FILE}">{SCENE_FILE}</a>, a page of its own; '
-        "<code>balance-opt view</code> serves it).</p>"
+        "<code>balance-opt view</code> opens it).</p>"
         f'<iframe src="{SCENE_FILE}" title="3D scene" style="width:100%;height:600px;'
         'border:1px solid #ddd"></iframe>'
     ), scene
@@ -171,19 +171,20 @@ def _report_sections(run: TaskRun, output_dir: Path) -> tuple[str, Path | None]:
 def write_run_scene(run: TaskRun, path: Path) -> Path:
     """The 3D scene of every plan of ``run`` (:mod:`balance_opt.report.scene`) written to
     ``path``."""
-    from balance_opt.report.scene import write_scene
+    from balance_opt.report.scene import build_scene, write_scene
 
+    task = run.task
     labels = {
         name: method_label(name) + (" (FAILED)" if name in run.failures else "")
         for name in run.results
     }
     geometry = run_geometry(run)  # the run's own when it checked clearance
     with timed("3D scene"):
-        return write_scene(
-            path, run.task.robot, run.results, run.task.h0, run.task.target, labels,
-            run.task.name, geometry=geometry or None,
-            margin=run.task.spec.optimal.planner.collision_margin,
+        scene = build_scene(
+            task.robot, run.results, task.h0, task.target, labels, geometry=geometry or None,
+            margin=task.spec.optimal.planner.collision_margin,
         )  # fmt: skip
+        return write_scene(path, scene, task.name)
 
 
 def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
@@ -194,8 +195,8 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
 
     def draw(key, function, *args, note="", **kwargs):
         stem, caption = FIGURES[key]
-        _, paths = function(*args, output_dir / stem, formats=("png",), dpi=SCREEN_DPI, **kwargs)
-        figures.append((caption + note, paths[0]))
+        [path] = save(function(*args, **kwargs), output_dir / stem, ("png",), SCREEN_DPI)
+        figures.append((caption + note, path))
 
     plans = {k: v for k, v in run.results.items() if k != REFERENCE}
     draw("attitude", plots.attitude_figure, _reference_last(run.results))

@@ -15,18 +15,7 @@ from balance_opt.dynamics.simulation import SimulationResult, simulate
 from balance_opt.model.capture import CaptureState, Target, capture_state
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.result import BalanceResult
-from balance_opt.motion.trajectories import SampledTrajectory
-
-
-class _Shifted:
-    """A trajectory read from ``t0`` on, its clock starting at 0."""
-
-    def __init__(self, trajectory, t0: float):
-        self.trajectory, self.t0 = trajectory, float(t0)
-        self.duration = float(trajectory.duration) - self.t0
-
-    def sample(self, t):
-        return self.trajectory.sample(np.asarray(t, dtype=float) + self.t0)
+from balance_opt.motion.trajectories import MissionWindow, SampledTrajectory
 
 
 def impulse(
@@ -61,8 +50,8 @@ def simulate_with_capture(
     )
     second = simulate(
         after,
-        _Shifted(mission, t_c),
-        _Shifted(balance, t_c),
+        MissionWindow(mission, t_c, mission.duration),
+        MissionWindow(balance, t_c, balance.duration),
         dataclasses.replace(opts, h0=tuple(state.h_after.tolist())),
         initial_state=(q_pin, v),
         attitude=(plan.t - t_c, plan.quaternion),

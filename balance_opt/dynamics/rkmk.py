@@ -39,6 +39,16 @@ _DP_A = np.array(
 )
 _DP_B5 = _DP_A[6]
 _DP_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40])
+_ARG1 = pin.ArgumentPosition.ARG1
+
+
+def _stage(dyn, q, du, vs, planned):
+    """One stage from ``q``: the configuration ``integrate(q, du)`` moving at ``vs``, its
+    acceleration and torque with the plan ``planned`` at the stage's time, and its rate in the
+    local coordinates, ``dDifference(q, qs) vs``: ``(qs, a, tau, u)``."""
+    qs = pin.integrate(dyn.model, q, du)
+    a, tau = dyn(qs, vs, *planned)
+    return qs, a, tau, pin.dDifference(dyn.model, q, qs, _ARG1) @ vs
 
 
 def rk4(dyn, plan, x0, t_end: float, dt: float, stride: int):
@@ -55,7 +65,6 @@ def rk4(dyn, plan, x0, t_end: float, dt: float, stride: int):
     T = out_steps.size
     Q, V, A, TAU = (np.empty((T, m)) for m in (model.nq, model.nv, model.nv, dyn.idx_v.size))
     q, v = x0
-    integrate, ddiff, ARG1 = pin.integrate, pin.dDifference, pin.ArgumentPosition.ARG1
     h2, h6 = h / 2, h / 6
     j = 0
     for k in range(n_steps):
@@ -64,20 +73,10 @@ def rk4(dyn, plan, x0, t_end: float, dt: float, stride: int):
         if is_out[k]:
             Q[j], V[j], A[j], TAU[j] = q, v, a1, tau1
             j += 1
-        v1 = v
-        q2 = integrate(model, q, h2 * v1)
-        v2 = v + h2 * a1
-        a2, _ = dyn(q2, v2, *(X[i + 1] for X in P))
-        u2 = ddiff(model, q, q2, ARG1) @ v2
-        q3 = integrate(model, q, h2 * u2)
-        v3 = v + h2 * a2
-        a3, _ = dyn(q3, v3, *(X[i + 1] for X in P))
-        u3 = ddiff(model, q, q3, ARG1) @ v3
-        q4 = integrate(model, q, h * u3)
-        v4 = v + h * a3
-        a4, _ = dyn(q4, v4, *(X[i + 2] for X in P))
-        u4 = ddiff(model, q, q4, ARG1) @ v4
-        q = integrate(model, q, h6 * (v1 + 2.0 * (u2 + u3) + u4))
+        _, a2, _, u2 = _stage(dyn, q, h2 * v, v + h2 * a1, [X[i + 1] for X in P])
+        _, a3, _, u3 = _stage(dyn, q, h2 * u2, v + h2 * a2, [X[i + 1] for X in P])
+        _, a4, _, u4 = _stage(dyn, q, h * u3, v + h * a3, [X[i + 2] for X in P])
+        q = pin.integrate(model, q, h6 * (v + 2.0 * (u2 + u3) + u4))
         v = v + h6 * (a1 + 2.0 * (a2 + a3) + a4)
     a_end, tau_end = dyn(q, v, *(X[-1] for X in P))
     Q[j], V[j], A[j], TAU[j] = q, v, a_end, tau_end
@@ -88,18 +87,17 @@ def rk4(dyn, plan, x0, t_end: float, dt: float, stride: int):
 def dopri5(dyn, plan, x0, t_end: float, opts, output_dt: float):
     """Adaptive RKMK Dormand-Prince 5(4) with steps that land on the output times."""
     model = dyn.model
-    integrate, ddiff, ARG1 = pin.integrate, pin.dDifference, pin.ArgumentPosition.ARG1
     n_out = max(1, math.ceil(t_end / output_dt - 1e-9))
     t_out = np.linspace(0.0, t_end, n_out + 1)
     nv = model.nv
     Q, V, A, TAU = (np.empty((t_out.size, m)) for m in (model.nq, nv, nv, dyn.idx_v.size))
 
-    def rhs(t, q, v):
-        return dyn(q, v, *(x[0] for x in plan.sample(np.array([t]))))
+    def planned(t):
+        return [x[0] for x in plan.sample(np.array([t]))]
 
     q, v = x0
     t, h = 0.0, min(opts.dt, opts.max_step)
-    a, tau = rhs(t, q, v)
+    a, tau = dyn(q, v, *planned(t))
     Q[0], V[0], A[0], TAU[0] = q, v, a, tau
     KU, KV = np.empty((7, nv)), np.empty((7, nv))
     accepted = rejected = evaluations = 0
@@ -109,11 +107,9 @@ def dopri5(dyn, plan, x0, t_end: float, opts, output_dt: float):
             last = step >= t_out[j] - t
             KU[0], KV[0] = v, a
             for s in range(1, 7):
-                du = step * (_DP_A[s, :s] @ KU[:s])
-                qs = integrate(model, q, du)
-                vs = v + step * (_DP_A[s, :s] @ KV[:s])
-                a_s, tau_s = rhs(t + _DP_C[s] * step, qs, vs)
-                KU[s], KV[s] = ddiff(model, q, qs, ARG1) @ vs, a_s
+                du, vs = step * (_DP_A[s, :s] @ KU[:s]), v + step * (_DP_A[s, :s] @ KV[:s])
+                qs, a_s, tau_s, KU[s] = _stage(dyn, q, du, vs, planned(t + _DP_C[s] * step))
+                KV[s] = a_s
             evaluations += 6
             # the 7th stage sits at the new state (first same as last)
             dv5 = step * (_DP_B5 @ KV)

@@ -3,8 +3,8 @@
 PyPI's ``pin`` wheels lack ``pinocchio.casadi`` but ship Pinocchio's header-only CasADi scalar
 support; with the ``casadi`` and ``cmeel-*`` headers, a small C++ program
 (``cpp/pinocchio_casadi_bridge.cpp``) is compiled once per machine. Run on a robot, it saves
-the centroidal momentum matrix and the end-effector Jacobians as a ``casadi.Function`` file,
-which :func:`bridge_primitives` loads.
+the centroidal momentum matrix, the end-effector Jacobians and every joint's placement as a
+``casadi.Function`` file, which :func:`bridge_function` loads.
 
 Cached in ``<kernel cache>/pinocchio-bridge/``: the program, keyed by its source, compile
 command, compiler and library versions, built under a file lock and checked by SHA-256; and each
@@ -314,9 +314,8 @@ def bridge_function(robot, cache_dir: Path | None = None) -> cs.Function:
     return fun
 
 
-def bridge_primitives(robot, q: cs.SX) -> tuple[cs.SX, dict[str, cs.SX]]:
-    """The centroidal momentum matrix and each arm's end-effector Jacobian as ``casadi.SX``
-    expressions of the model joints' positions ``q`` (``robot.model_joint_names``: the arm
-    joints, then the mimic joints following them; columns: base, then those joints)."""
-    A, *jacobians, _ = bridge_function(robot)(q)
-    return cs.SX(A), {arm.name: cs.SX(J) for arm, J in zip(robot.arms, jacobians)}
+def bridge_centroidal_map(robot, q: cs.SX) -> cs.SX:
+    """The centroidal momentum matrix as a ``casadi.SX`` expression of the model joints'
+    positions ``q`` (``robot.model_joint_names``: the arm joints, then the mimic joints following
+    them; columns: base, then those joints)."""
+    return cs.SX(bridge_function(robot)(q)[0])

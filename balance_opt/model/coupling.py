@@ -1,10 +1,9 @@
-"""The paper's coupling factors (Eq. 19-25), written once for NumPy arrays and CasADi
-expressions through a :class:`LinearAlgebra` argument, and the coupling measures of ``J_wB``.
+"""The paper's coupling factors (Eq. 19-25) and the coupling measures of ``J_wB``, NumPy's;
+the base Jacobian, which the planner's CasADi expressions share, takes the solver of either.
 Columns: the base twist [linear; angular] in the base frame, then the arm joints."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,38 +14,27 @@ N_ROTATIONS = 3
 TWIST = 6
 
 
-@dataclass(frozen=True)
-class LinearAlgebra:
-    """``solve(a, b) = a^{-1} b``, ``inv`` and ``eye`` for one array type."""
-
-    solve: Callable
-    inv: Callable
-    eye: Callable
-
-
-#: NumPy's LAPACK ``gesv``; not SciPy's, whose import would slow every command.
-NUMPY = LinearAlgebra(np.linalg.solve, np.linalg.inv, np.eye)
-
-
-def full_rank_pinv(M, la: LinearAlgebra):
+# NumPy's LAPACK ``gesv`` throughout; not SciPy's, whose import would slow every command.
+def full_rank_pinv(M):
     """Moore-Penrose inverse of a matrix of full rank (tall: left inverse, wide: right inverse),
-    without an SVD (so that CasADi can differentiate it)."""
+    from the normal equations: exact on the rank, without an SVD's cut-off."""
     r, c = M.shape
     if r == c:
-        return la.inv(M)
+        return np.linalg.inv(M)
     if r > c:
-        return la.solve(M.T @ M, M.T)
-    return M.T @ la.solve(M @ M.T, la.eye(r))
+        return np.linalg.solve(M.T @ M, M.T)
+    return M.T @ np.linalg.solve(M @ M.T, np.eye(r))
 
 
-def base_jacobian(A_G, la: LinearAlgebra):
-    """``J_base = -A_b^{-1} A_j`` (6 x n, Eq. 19): base twist per joint rates, zero momentum."""
-    return -la.solve(A_G[:, :TWIST], A_G[:, TWIST:])
+def base_jacobian(A_G, solve=np.linalg.solve):
+    """``J_base = -A_b^{-1} A_j`` (6 x n, Eq. 19): base twist per joint rates, zero momentum;
+    ``solve``: ``casadi.solve`` for an expression."""
+    return -solve(A_G[:, :TWIST], A_G[:, TWIST:])
 
 
-def angular_jacobian(I_G, A, la: LinearAlgebra):
+def angular_jacobian(I_G, A):
     """``J_w = -I_G^{-1} A`` (3 x n): base angular velocity per joint rates, zero momentum."""
-    return -la.solve(I_G, A)
+    return -np.linalg.solve(I_G, A)
 
 
 def generalized_jacobian(J_ee, J_base):
@@ -55,13 +43,13 @@ def generalized_jacobian(J_ee, J_base):
     return J_ee[:, TWIST:] + J_ee[:, :TWIST] @ J_base
 
 
-def coupling_factor(J_base_arm, M, la: LinearAlgebra):
+def coupling_factor(J_base_arm, M):
     """``N = J_base,arm M^+`` (6 x 6, Eq. 24): maps the end effector's twist back to the base
     twist, exactly on the twists the arm can produce (all of them when ``M`` has rank 6)."""
-    return J_base_arm @ full_rank_pinv(M, la)
+    return J_base_arm @ full_rank_pinv(M)
 
 
-def force_on_base(J_base_arm, M, F_e, la: LinearAlgebra):
+def force_on_base(J_base_arm, M, F_e):
     """``F_B = N^{-T} F_e`` (Eq. 25), the Moore-Penrose inverse of ``N^T`` when the arm has fewer
     than 6 joints (``N`` rank deficient).
 
@@ -69,9 +57,9 @@ def force_on_base(J_base_arm, M, F_e, la: LinearAlgebra):
     so ``pinv(N^T) = pinv(C^T) pinv(B)``: exact without a numeric SVD.
     """
     if M.shape[1] >= TWIST:
-        return la.solve(coupling_factor(J_base_arm, M, la).T, F_e)
-    B = full_rank_pinv(M, la).T
-    return full_rank_pinv(J_base_arm.T, la) @ (full_rank_pinv(B, la) @ F_e)
+        return np.linalg.solve(coupling_factor(J_base_arm, M).T, F_e)
+    B = full_rank_pinv(M).T
+    return full_rank_pinv(J_base_arm.T) @ (full_rank_pinv(B) @ F_e)
 
 
 # ---------------------------------------------------------------------------------- measures

@@ -12,7 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from balance_opt.model import coupling
-from balance_opt.model.coupling import NUMPY, CouplingMeasures, coupling_measures
+from balance_opt.model.coupling import CouplingMeasures, coupling_measures
 from balance_opt.model.robot import FloatingRobot
 
 
@@ -131,12 +131,12 @@ class NumericMaps:
     def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
         """``(J_wM, J_wB)``: base angular velocity in the base frame per mission and balance
         rates (balance arms stacked), for one configuration or a batch."""
-        J = coupling.angular_jacobian(*self.angular_maps(q), NUMPY)
+        J = coupling.angular_jacobian(*self.angular_maps(q))
         return J[..., self.robot.mission_indices], J[..., self.robot.balance_indices]
 
     def base_jacobian(self, q) -> np.ndarray:
         """``J_base`` (6 x n): base twist in the base frame per arm joint rates, zero momentum."""
-        return coupling.base_jacobian(self.centroidal_momentum_matrix(q), NUMPY)
+        return coupling.base_jacobian(self.centroidal_momentum_matrix(q))
 
     def base_twist(self, q, q_dot, h0_base=None) -> np.ndarray:
         """Base twist [linear; angular] in the base frame forced by the joint rates, for the
@@ -150,7 +150,7 @@ class NumericMaps:
     def balance_sigma_min(self, I_G, A) -> np.ndarray:
         """Smallest singular value of ``J_wB`` among its first three (...,), from the angular
         maps (:meth:`angular_maps`) of one configuration or a batch."""
-        J_wB = coupling.angular_jacobian(I_G, A[..., self.robot.balance_indices], NUMPY)
+        J_wB = coupling.angular_jacobian(I_G, A[..., self.robot.balance_indices])
         return np.linalg.svd(J_wB, compute_uv=False)[..., -1]
 
     # ------------------------------------------------------------------ end effectors
@@ -173,13 +173,13 @@ class NumericMaps:
         """``(M, N)`` of Eq. 22 and 24."""
         _, M = self.ee_generalized_jacobian(q, arm)
         J_base_arm = self.base_jacobian(q)[:, self.robot.arm(arm).indices]
-        return M, coupling.coupling_factor(J_base_arm, M, NUMPY)
+        return M, coupling.coupling_factor(J_base_arm, M)
 
     def force_map(self, q, F_e, arm: str = "mission") -> np.ndarray:
         """``F_B = N^{-T} F_e`` (Eq. 25), Moore-Penrose inverse where ``N`` is rank deficient."""
         _, M = self.ee_generalized_jacobian(q, arm)
         J_base_arm = self.base_jacobian(q)[:, self.robot.arm(arm).indices]
-        return coupling.force_on_base(J_base_arm, M, np.asarray(F_e, dtype=float), NUMPY)
+        return coupling.force_on_base(J_base_arm, M, np.asarray(F_e, dtype=float))
 
     def coupling_measures(self, q) -> CouplingMeasures:
         """Singular values and condition number of ``J_wB``, norm of ``J_wM`` at ``q``."""

@@ -1,10 +1,10 @@
 """Symbolic momentum maps in CasADi, functions of the arm vector ``q`` alone (base at the
-identity pose, base-frame axes: ``docs/physics.md``, "Momentum maps").
-
-All are built from two primitives, the centroidal momentum matrix and each end effector's frame
-Jacobian, from the backend ``"pinocchio"`` (``pinocchio.casadi``, else the compiled bridge of
+identity pose, base-frame axes: ``docs/physics.md``, "Momentum maps"): what the optimal planner
+builds on, the centroidal momentum matrix, the base Jacobian drawn from it and every joint's
+placement, from the backend ``"pinocchio"`` (``pinocchio.casadi``, else the compiled bridge of
 :mod:`balance_opt.model.bridge`) or ``"adam"``; ``"auto"`` takes the first that works. Each map
-comes as ``name_fun()`` (the cached ``casadi.Function``) and ``name(...)`` (NumPy arrays).
+is a cached ``casadi.Function``, ``name_fun()``; the maps evaluated on numbers are
+:mod:`balance_opt.model.maps`' (the reference these are tested against).
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ from __future__ import annotations
 import functools
 import importlib
 import logging
-from functools import cached_property
 
 import casadi as cs
 import numpy as np
@@ -21,19 +20,16 @@ from balance_opt.errors import BalanceOptError, JointError
 from balance_opt.model import coupling
 from balance_opt.model.bridge import (
     BridgeUnavailable,
+    bridge_centroidal_map,
     bridge_function,
-    bridge_primitives,
     ensure_bridge,
     find_toolchain,
 )
-from balance_opt.model.coupling import CouplingMeasures, LinearAlgebra, coupling_measures
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
 
 BACKENDS = ("pinocchio", "adam")
-#: CasADi's linear algebra, for the coupling factors of :mod:`balance_opt.model.coupling`.
-CASADI = LinearAlgebra(cs.solve, cs.inv, cs.SX.eye)
 
 
 def _imports(module: str) -> bool:
@@ -173,45 +169,25 @@ def adam_kindyn(robot: FloatingRobot):
         urdf_core.on_error = quiet
 
 
-def _primitives_adam(robot: FloatingRobot, q: cs.SX):
+def _centroidal_adam(robot: FloatingRobot, q: cs.SX) -> cs.SX:
+    """The centroidal momentum matrix from adam's algorithms (:func:`_centroidal_pinocchio`)."""
     check_adam_joints(robot)
-    kd = adam_kindyn(robot)
-    H = cs.SX.eye(4)
-    qm = model_joint_positions(robot, q)
-    A = kd.centroidal_momentum_matrix(H, qm)
-    A = A.array if hasattr(A, "array") else A
-    jac = {}
-    for arm in robot.arms:
-        J = kd.jacobian(arm.ee_frame, H, qm)
-        jac[arm.name] = _fold(robot, cs.SX(J.array if hasattr(J, "array") else J))
-    return _fold(robot, cs.SX(A)), jac
+    A = adam_kindyn(robot).centroidal_momentum_matrix(cs.SX.eye(4), model_joint_positions(robot, q))
+    return _fold(robot, cs.SX(A.array if hasattr(A, "array") else A))
 
 
-def _primitives_pinocchio(robot: FloatingRobot, q: cs.SX):
-    """The primitives from Pinocchio's algorithms on ``casadi.SX``: through ``pinocchio.casadi``
-    where it imports, else through the bridge (:mod:`balance_opt.model.bridge`)."""
-    import pinocchio as pin
-
+def _centroidal_pinocchio(robot: FloatingRobot, q: cs.SX) -> cs.SX:
+    """The centroidal momentum matrix (6 x (6+n), columns [base; arm joints]) from Pinocchio's
+    algorithms on ``casadi.SX``: through ``pinocchio.casadi`` where it imports, else through the
+    bridge (:mod:`balance_opt.model.bridge`)."""
     try:
         import pinocchio.casadi as cpin
     except ImportError:
-        A, jac = bridge_primitives(robot, model_joint_positions(robot, q))
-        return _fold(robot, A), {k: _fold(robot, J) for k, J in jac.items()}
-
-    model = robot.model
-    cmodel = cpin.Model(model)
-    cdata = cmodel.createData()
+        return _fold(robot, bridge_centroidal_map(robot, model_joint_positions(robot, q)))
+    cmodel = cpin.Model(robot.model)
     qp = _pin_configuration(robot, model_joint_positions(robot, q))
-    G = cs.DM(robot.velocity_map)  # [base; arm joints], followers folded into their drivers
-    A = cs.mtimes(cs.SX(cpin.computeCentroidalMap(cmodel, cdata, qp)), G)
-    cpin.computeJointJacobians(cmodel, cdata, qp)  # also the joint placements oMi
-    cpin.updateFramePlacements(cmodel, cdata)  # oMf, which LOCAL_WORLD_ALIGNED needs
-    jac = {}
-    for arm in robot.arms:
-        fid = model.getFrameId(arm.ee_frame)
-        J = cs.SX(cpin.getFrameJacobian(cmodel, cdata, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED))
-        jac[arm.name] = cs.mtimes(J, G)
-    return A, jac
+    A = cs.SX(cpin.computeCentroidalMap(cmodel, cmodel.createData(), qp))
+    return cs.mtimes(A, cs.DM(robot.velocity_map))  # followers folded into their drivers
 
 
 def _pin_configuration(robot: FloatingRobot, qm: cs.SX) -> cs.SX:
@@ -280,43 +256,21 @@ class SymbolicMaps:
     def __init__(self, robot: FloatingRobot, backend: str = "auto"):
         self.robot = robot
         self.backend, self.backend_description, _ = _resolve_backend(backend)
-        n = robot.n
         self._funs: dict[tuple, cs.Function] = {}
-        self._q = cs.SX.sym("q", n)
-        self._qd = cs.SX.sym("q_dot", n)
+        self._q = cs.SX.sym("q", robot.n)
         try:
-            build = _primitives_pinocchio if self.backend == "pinocchio" else _primitives_adam
-            self._A, self._J_ee = build(robot, self._q)
+            build = _centroidal_pinocchio if self.backend == "pinocchio" else _centroidal_adam
+            self._A = build(robot, self._q)
         except BridgeUnavailable as exc:  # built, but failed on this robot
             if backend != "auto":
                 raise
             self.backend, self.backend_description, _ = _fall_back_to_adam(exc.reason)
-            self._A, self._J_ee = _primitives_adam(robot, self._q)
+            self._A = _centroidal_adam(robot, self._q)
         if backend == "auto" and self.backend == "adam":  # why, each time maps are built
             log.info(
                 "symbolic backend: %s, not the Pinocchio-CasADi bridge", self.backend_description
             )
         log.debug("symbolic maps of %s built with %s", robot.name, self.backend_description)
-
-    # ------------------------------------------------------------------ expressions
-    @cached_property
-    def _J_base(self) -> cs.SX:
-        return coupling.base_jacobian(self._A, CASADI)
-
-    @cached_property
-    def _J_w(self) -> cs.SX:
-        return coupling.angular_jacobian(self._A[3:, 3:6], self._A[3:, 6:], CASADI)
-
-    def _cols(self, arm_names) -> list[int]:
-        return [int(i) for a in arm_names for i in self.robot.arm(a).indices]
-
-    @cached_property
-    def _balance_cols(self) -> list[int]:
-        return [int(i) for i in self.robot.balance_indices]
-
-    def _rate(self, M: cs.SX) -> cs.SX:
-        """Time derivative d/dt M(q) = sum_i dM/dq_i q_dot_i."""
-        return cs.reshape(cs.jtimes(cs.vec(M), self._q, self._qd), M.shape[0], M.shape[1])
 
     def _fun(self, name: str, inputs: dict, outputs: dict) -> cs.Function:
         return cs.Function(
@@ -328,7 +282,6 @@ class SymbolicMaps:
             {"cse": True},
         )
 
-    # ------------------------------------------------------------------ functions
     @_built_once
     def centroidal_momentum_matrix_fun(self) -> cs.Function:
         """``centroidal_momentum_matrix(q) -> A_G``: 6 x (6+n), momentum [linear; angular] about the
@@ -340,53 +293,8 @@ class SymbolicMaps:
     def base_jacobian_fun(self) -> cs.Function:
         """``base_jacobian(q) -> J_base``: 6 x n, ``v_b = J_base q_dot`` with zero momentum
         (Eq. 19), the base twist [linear; angular] in the base frame."""
-        return self._fun("base_jacobian", {"q": self._q}, {"J_base": self._J_base})
-
-    @_built_once
-    def angular_jacobians_fun(self) -> cs.Function:
-        """``angular_jacobians(q) -> (J_wM, J_wB)``: the base angular velocity in the base frame is
-        ``J_wM q_dot_M + J_wB q_dot_B`` (Eq. 26; balance arms stacked in ``J_wB``)."""
-        Jw = self._J_w
-        return self._fun(
-            "angular_jacobians",
-            {"q": self._q},
-            {"J_wM": Jw[:, self._cols(["mission"])], "J_wB": Jw[:, self._balance_cols]},
-        )
-
-    @_built_once
-    def angular_jacobian_rates_fun(self) -> cs.Function:
-        """``angular_jacobian_rates(q, q_dot) -> (dJ_wM, dJ_wB)``: time derivatives of
-        ``J_wM`` and ``J_wB`` along ``q_dot`` (needed for Eq. 32)."""
-        Jw = self._J_w
-        return self._fun(
-            "angular_jacobian_rates",
-            {"q": self._q, "q_dot": self._qd},
-            {
-                "dJ_wM": self._rate(Jw[:, self._cols(["mission"])]),
-                "dJ_wB": self._rate(Jw[:, self._balance_cols]),
-            },
-        )
-
-    @_built_once
-    def ee_generalized_jacobian_fun(self, arm: str = "mission") -> cs.Function:
-        """``ee_generalized_jacobian_<arm>(q) -> (J_star, M)``: the end effector's twist in
-        base-frame axes is ``J_star q_dot`` with the base moving freely (Eq. 20-22); ``M`` is
-        the arm's own columns of ``J_star`` (Eq. 22)."""
-        columns = self._cols([arm])  # an unknown arm: ArmError
-        J_star = coupling.generalized_jacobian(self._J_ee[arm], self._J_base)
-        return self._fun(
-            f"ee_generalized_jacobian_{arm}",
-            {"q": self._q},
-            {"J_star": J_star, "M": J_star[:, columns]},
-        )
-
-    @_built_once
-    def coupling_factors_fun(self, arm: str = "mission") -> cs.Function:
-        """``coupling_factors_<arm>(q) -> (M, N)``: ``M`` (Eq. 22) and ``N = J_base,arm M^+``
-        (Eq. 24; Moore-Penrose where the arm has fewer than 6 joints)."""
-        _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-        N = coupling.coupling_factor(self._J_base[:, self._cols([arm])], M, CASADI)
-        return self._fun(f"coupling_factors_{arm}", {"q": self._q}, {"M": M, "N": N})
+        J_base = coupling.base_jacobian(self._A, cs.solve)
+        return self._fun("base_jacobian", {"q": self._q}, {"J_base": J_base})
 
     @_built_once
     def joint_placements_fun(self) -> cs.Function:
@@ -397,40 +305,3 @@ class SymbolicMaps:
         qm = cs.SX.sym("q_model", len(self.robot.model_joint_names))
         oMi = _placements(self.robot, self.backend, qm)
         return self._fun("joint_placements", {"q_model": qm}, {"oMi": oMi})
-
-    @_built_once
-    def force_map_fun(self, arm: str = "mission") -> cs.Function:
-        """``force_map_<arm>(q, F_e) -> F_B``: the wrench on the base from an end-effector wrench
-        ``F_e`` [force; torque], ``F_B = N^{-T} F_e`` (Eq. 25), with the Moore-Penrose inverse
-        of ``N^T`` where ``N`` is rank deficient (arms with fewer than 6 joints)."""
-        _, M = self.ee_generalized_jacobian_fun(arm)(self._q)
-        F_e = cs.SX.sym("F_e", 6)
-        J_base_arm = self._J_base[:, self._cols([arm])]
-        F_B = coupling.force_on_base(J_base_arm, M, F_e, CASADI)
-        return self._fun(f"force_map_{arm}", {"q": self._q, "F_e": F_e}, {"F_B": F_B})
-
-    # ------------------------------------------------------------------ numeric evaluators
-    def centroidal_momentum_matrix(self, q) -> np.ndarray:
-        return np.array(self.centroidal_momentum_matrix_fun()(q))
-
-    def base_jacobian(self, q) -> np.ndarray:
-        return np.array(self.base_jacobian_fun()(q))
-
-    def angular_jacobians(self, q) -> tuple[np.ndarray, np.ndarray]:
-        return tuple(map(np.array, self.angular_jacobians_fun()(q)))
-
-    def angular_jacobian_rates(self, q, q_dot) -> tuple[np.ndarray, np.ndarray]:
-        return tuple(map(np.array, self.angular_jacobian_rates_fun()(q, q_dot)))
-
-    def ee_generalized_jacobian(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
-        return tuple(map(np.array, self.ee_generalized_jacobian_fun(arm)(q)))
-
-    def coupling_factors(self, q, arm: str = "mission") -> tuple[np.ndarray, np.ndarray]:
-        return tuple(map(np.array, self.coupling_factors_fun(arm)(q)))
-
-    def force_map(self, q, F_e, arm: str = "mission") -> np.ndarray:
-        return np.array(self.force_map_fun(arm)(q, F_e)).ravel()
-
-    def coupling_measures(self, q) -> CouplingMeasures:
-        """Singular values and condition number of ``J_wB``, norm of ``J_wM`` at ``q``."""
-        return coupling_measures(*self.angular_jacobians(q), self.robot.balance_arm_columns)

@@ -6,7 +6,6 @@ joints) on SO(3), and the output grids of rollouts and replays (``docs/physics.m
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 
@@ -101,27 +100,49 @@ def _adaptive(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: Integration
     return Y[:k].copy(), stats, message
 
 
-def _rk4(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
+def rk4_stage_times(t: np.ndarray, options: IntegrationOptions):
+    """``(times, n_sub, h)`` of the fixed-step RK4 to output times ``t``: the step starts (S),
+    midpoints (S) and the end (1) in one array, ``n_sub`` equal steps per output interval (none
+    longer than ``options.step``, else ``output_step``), each step's length (S,)."""
     step = options.step or options.output_step
+    n_sub = np.maximum(1, np.ceil(np.diff(t) / step - _STEP_SLACK)).astype(int)
+    h = np.repeat(np.diff(t) / n_sub, n_sub)
+    first = np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
+    starts = np.repeat(t[:-1], n_sub) + (np.arange(h.size) - first) * h
+    return np.concatenate([starts, starts + 0.5 * h, t[-1:]]), n_sub, h
+
+
+def _rk4(rhs: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
+    times = rk4_stage_times(t, options)[0]
+    return rk4_stages(lambda j, y: rhs(times[j], y), y0, t, options)
+
+
+def rk4_stages(rate: Callable, y0: np.ndarray, t: np.ndarray, options: IntegrationOptions):
+    """Classic RK4 to the output times ``t`` on :func:`rk4_stage_times`' steps, the quaternion
+    renormalised after each: ``rate(j, y)`` is ``y'`` at stage time ``j`` (the caller may have
+    evaluated what it needs at every stage time at once). Returns ``(Y, stats, message)`` as
+    :func:`integrate`."""
+    _, n_sub, h = rk4_stage_times(t, options)
+    S = h.size
+    ends = np.append(np.arange(1, S), 2 * S)  # a step's end is the next step's start
     Y = np.empty((t.size, y0.size))
     Y[0] = y = np.array(y0, dtype=float)
-    n_steps, message = 0, None
+    s, message = 0, None
     for k in range(t.size - 1):
-        n_sub = max(1, math.ceil((t[k + 1] - t[k]) / step - _STEP_SLACK))
-        h = (t[k + 1] - t[k]) / n_sub
-        for i in range(n_sub):
-            ti = t[k] + i * h
-            k1 = rhs(ti, y)
-            k2 = rhs(ti + 0.5 * h, y + 0.5 * h * k1)
-            k3 = rhs(ti + 0.5 * h, y + 0.5 * h * k2)
-            k4 = rhs(ti + h, y + h * k3)
-            y = y + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+        for _ in range(n_sub[k]):
+            hs, mid = h[s], S + s
+            k1 = rate(s, y)
+            k2 = rate(mid, y + 0.5 * hs * k1)
+            k3 = rate(mid, y + 0.5 * hs * k2)
+            k4 = rate(ends[s], y + hs * k3)
+            y = y + (hs / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
             y[:4] /= np.linalg.norm(y[:4])
-        n_steps += n_sub
+            s += 1
         if not np.all(np.isfinite(y)):
             message = f"non-finite state (at t = {t[k + 1]:.6g} s)"
             Y = Y[: k + 1]
             break
         Y[k + 1] = y
-    stats = {"method": "rk4", "step": step, "steps": n_steps, "rhs_evaluations": 4 * n_steps}
+    step = options.step or options.output_step
+    stats = {"method": "rk4", "step": step, "steps": int(S), "rhs_evaluations": 4 * int(S)}
     return Y, stats, message

@@ -9,7 +9,7 @@ import numpy as np
 from balance_opt.errors import InputError, SolverError
 from balance_opt.model.maps import NumericMaps, base_angular_velocity
 from balance_opt.model.robot import FloatingRobot
-from balance_opt.motion.integration import integrate, output_grid
+from balance_opt.motion.integration import integrate, output_grid, rk4_stage_times, rk4_stages
 from balance_opt.motion.momentum_check import momentum_residual
 from balance_opt.motion.options import IntegrationOptions
 from balance_opt.motion.result import BalanceResult
@@ -145,7 +145,6 @@ def _rk4_given_joints(maps: NumericMaps, sample_M, sample_B, L, y0, t, options):
     evaluated in one batch first (one Pinocchio pass per stage time); with momentum ``L``, its
     attitude-dependent part ``I_G^{-1} R^T L`` is added stage by stage. Returns
     ``(Y, stats, message)``."""
-    step = options.step or options.output_step
     times, n_sub, h = rk4_stage_times(t, options)
     q, q_dot, _ = arm_samples(maps.robot, sample_M, sample_B, times)
     I_G, A = maps.angular_maps(q)
@@ -154,61 +153,26 @@ def _rk4_given_joints(maps: NumericMaps, sample_M, sample_B, L, y0, t, options):
         inverse = np.linalg.inv(I_G)
 
         def rate(j: int, y: np.ndarray) -> np.ndarray:
-            """The base rate at stage time ``j`` for the (unnormalised) quaternion ``y``."""
-            return omega[j] + inverse[j] @ _to_body(y / np.linalg.norm(y), L)
+            """``y'`` at stage time ``j`` for the (unnormalised) quaternion ``y``."""
+            return quaternion_rate(y, omega[j] + inverse[j] @ _to_body(y / np.linalg.norm(y), L))
 
-        Y, message = _stagewise(rate, y0, t, n_sub, h)
-    else:
-        Y, message = _step_matrices(omega, y0, t, n_sub, h)
-    S = h.size
+        return rk4_stages(rate, y0, t, options)
+    Y, message = _step_matrices(omega, y0, t, n_sub, h)
+    step, S = options.step or options.output_step, h.size
     stats = {"method": "rk4", "step": step, "steps": int(S), "rhs_evaluations": 4 * int(S)}
     return Y, stats, message
 
 
-def rk4_stage_times(t: np.ndarray, options: IntegrationOptions):
-    """``(times, n_sub, h)`` of the fixed-step RK4 replay to output times ``t``: the step starts
-    (S), midpoints (S) and the end (1) in one array, ``n_sub`` equal steps per output interval
-    (none longer than ``options.step``, else ``output_step``), each step's length (S,)."""
-    step = options.step or options.output_step
-    n_sub = np.maximum(1, np.ceil(np.diff(t) / step - 1e-9)).astype(int)
-    h = np.repeat(np.diff(t) / n_sub, n_sub)
-    first = np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
-    starts = np.repeat(t[:-1], n_sub) + (np.arange(h.size) - first) * h
-    return np.concatenate([starts, starts + 0.5 * h, t[-1:]]), n_sub, h
-
-
 def attitude_from_rates(omega: np.ndarray, t: np.ndarray, options: IntegrationOptions):
     """The base attitude (..., T, 4) at ``t`` from base rates that do not depend on it (zero
-    momentum) given at :func:`rk4_stage_times` [rad/s, base frame], one history or a batch:
-    :func:`replay`'s RK4 steps. SolverError for non-finite rates."""
+    momentum) given at :func:`~balance_opt.motion.integration.rk4_stage_times` [rad/s, base
+    frame], one history or a batch: :func:`replay`'s RK4 steps. SolverError for non-finite
+    rates."""
     _, n_sub, h = rk4_stage_times(t, options)
     Y, message = _step_matrices(omega, IDENTITY_QUATERNION, t, n_sub, h)
     if message is not None:
         raise SolverError(f"attitude replay failed: {message}", "integration_failed", None)
     return Y
-
-
-def _stagewise(rate, y0, t, n_sub, h):
-    """RK4 stage by stage (the rate depends on the attitude). Returns ``(Y, message)``."""
-    S = h.size
-    ends = np.append(np.arange(1, S), 2 * S)  # a step's end is the next step's start
-    Y = np.empty((t.size, y0.size))
-    Y[0] = y = np.array(y0, dtype=float)
-    s = 0
-    for k in range(t.size - 1):
-        for _ in range(n_sub[k]):
-            hs, mid = h[s], S + s
-            k1 = quaternion_rate(y, rate(s, y))
-            k2 = quaternion_rate(y + 0.5 * hs * k1, rate(mid, y + 0.5 * hs * k1))
-            k3 = quaternion_rate(y + 0.5 * hs * k2, rate(mid, y + 0.5 * hs * k2))
-            k4 = quaternion_rate(y + hs * k3, rate(ends[s], y + hs * k3))
-            y = y + (hs / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
-            y /= np.linalg.norm(y)
-            s += 1
-        if not np.all(np.isfinite(y)):
-            return Y[: k + 1], f"non-finite state (at t = {t[k + 1]:.6g} s)"
-        Y[k + 1] = y
-    return Y, None
 
 
 def _rate_matrices(omega: np.ndarray) -> np.ndarray:

@@ -19,8 +19,9 @@ import pinocchio as pin
 
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
+from balance_opt.motion.integration import rk4_stage_times
 from balance_opt.motion.options import IntegrationOptions, RobustnessOptions
-from balance_opt.motion.replay import attitude_from_rates, replay, rk4_stage_times
+from balance_opt.motion.replay import attitude_from_rates, replay
 from balance_opt.motion.result import BalanceResult
 from balance_opt.motion.so3 import rotation_angle
 from balance_opt.motion.trajectories import SampledTrajectory, arm_samples

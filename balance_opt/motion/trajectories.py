@@ -211,8 +211,8 @@ class SampledTrajectory(JointTrajectory):
 
 
 class MissionWindow:
-    """A joint motion over ``[t0, t1]`` of a longer one (the mission of a capture's phase, of a
-    re-plan), its clock starting at 0.
+    """A joint motion over ``[t0, t1]`` of a longer one (a motion after a capture, the mission of
+    a capture's phase, of a re-plan), its clock starting at 0.
 
     Attributes:
         dof, duration, start: as a trajectory's.

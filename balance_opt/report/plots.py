@@ -4,9 +4,10 @@ capture.
 
 Every function takes ``{name: result}`` of the curves to overlay; the name is a method of
 :mod:`balance_opt.report.style` and gives the curve its look and label. The figures carry no
-title (a caption belongs to the text around them) and touch no pyplot state; given no ``stem``
-a function writes nothing. :func:`plot_result` (``balance_opt.plot_result``) is a quick look at
-one result for notebooks, on axes the caller owns (or a new figure).
+title (a caption belongs to the text around them) and touch no pyplot state; each returns its
+figure, which :func:`balance_opt.report.style.save` writes. :func:`plot_result`
+(``balance_opt.plot_result``) is a quick look at one result for notebooks, on axes the caller
+owns (or a new figure).
 
 Constrained layout renders every text once per file written, which is slow. These figures have a
 known shape (panels sharing the time axis, a y label left of the first column, a legend above),
@@ -30,6 +31,7 @@ from balance_opt.report.style import FONTS, WIDTHS
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 #: Widths of glyphs [em] (DejaVu Sans, rounded up); lower-case letters count as 0.58 em, other
 #: characters as 0.7 em.
@@ -147,15 +149,8 @@ def _time_axes(axes, t_end: float, labels: Sequence[str]) -> None:
     axes[-1].set_xlim(0.0, t_end)
 
 
-def attitude_figure(
-    results: Mapping[str, Any],
-    stem: str | Path | None = None,
-    *,
-    formats: Sequence[str] = FORMATS,
-    dpi: int = style.PRINT_DPI,
-) -> tuple[Any, list[Path]]:
-    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5);
-    returns the figure and the files written (none without ``stem``)."""
+def attitude_figure(results: Mapping[str, Any]) -> Figure:
+    """Base roll, pitch and yaw [deg] against time [s], one panel each (paper Figs. 2, 3, 5)."""
     with style.styled("column"):
         fig = style.figure("column", STACK_HEIGHT)
         axes = fig.subplots(3, 1, sharex=True)
@@ -166,17 +161,10 @@ def attitude_figure(
         t_end = max(float(res.t[-1]) for res in results.values())
         _time_axes(axes, t_end, [f"{a} [deg]" for a in ("roll", "pitch", "yaw")])
         layout(fig, axes[:, None], axes[0].get_lines(), "column")
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
-def timing_figure(
-    timing: Mapping[str, Any],
-    results: Mapping[str, Any],
-    stem: str | Path | None = None,
-    *,
-    formats: Sequence[str] = FORMATS,
-    dpi: int = style.PRINT_DPI,
-) -> tuple[Any, list[Path]]:
+def timing_figure(timing: Mapping[str, Any], results: Mapping[str, Any]) -> Figure:
     """A free mission timing (``info["timing"]`` of the plan): the path progress ``s(t)``
     [s] against time with the given timing (``s = t``, dotted), and the attitude drift [deg] of
     ``results`` (the optimal plans at the free and at the given timing)."""
@@ -193,18 +181,15 @@ def timing_figure(
         _time_axes(axes, t_end, ["path progress s [s]", "drift [deg]"])
         handles = axes[1].get_lines() if results else axes[0].get_lines()
         layout(fig, axes[:, None], handles, "column")
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
 def model_error_figure(
     results: Mapping[str, Any],
     bands: Mapping[str, np.ndarray],
-    stem: str | Path | None = None,
     *,
     perturbation: float,
-    formats: Sequence[str] = FORMATS,
-    dpi: int = style.PRINT_DPI,
-) -> tuple[Any, list[Path]]:
+) -> Figure:
     """The base's rotation from its start [deg] of each plan as planned (the line) and the 95th
     percentile over perturbed models (``bands``: ``{name: p95 angle at result.t}`` [rad]; the
     band up to the dotted edge); ``perturbation``, the relative model error, is named in the
@@ -233,19 +218,16 @@ def model_error_figure(
         )
         _time_axes([ax], max(float(r.t[-1]) for r in results.values()), ["rotation [deg]"])
         layout(fig, ax, handles, "column")
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
 def closed_loop_figure(
     results: Mapping[str, Any],
     open_bands: Mapping[str, np.ndarray],
     closed_bands: Mapping[str, tuple[np.ndarray, np.ndarray]],
-    stem: str | Path | None = None,
     *,
     perturbation: float,
-    formats: Sequence[str] = FORMATS,
-    dpi: int = style.PRINT_DPI,
-) -> tuple[Any, list[Path]]:
+) -> Figure:
     """One panel per method of ``closed_bands`` (``{name: (t, p95 angle)}`` [s, rad]): the plan
     as planned (its line), the 95th percentile over perturbed true models flown open loop
     (``open_bands``, at ``results[name].t``; dotted) and closed loop (dashed, shaded) [deg]."""
@@ -279,17 +261,13 @@ def closed_loop_figure(
         t_end = max(float(results[n].t[-1]) for n in names)
         _time_axes(list(axes), t_end, ["rotation [deg]"] * len(names))
         layout(fig, axes[:, None], handles, "column")
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
 def clearance_figure(
     curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
     margin: float | None,
-    stem: str | Path | None = None,
-    *,
-    formats: Sequence[str] = FORMATS,
-    dpi: int = style.PRINT_DPI,
-) -> tuple[Any, list[Path]]:
+) -> Figure:
     """The smallest distance between any two bodies that may touch [m] against time, one curve
     per motion ``{name: (t, distance)}``, with zero (contact) and the planner's ``margin``
     (dotted) marked."""
@@ -314,7 +292,7 @@ def clearance_figure(
         _time_axes([ax], t_end, ["smallest distance [m]"])
         handles = ax.get_lines()[: len(curves)]
         layout(fig, ax, handles, "column")
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
 def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
@@ -333,13 +311,7 @@ def _torque_parts(name: str, sim) -> list[tuple[np.ndarray, dict[str, Any]]]:
     ]
 
 
-def reaction_torque_figure(
-    simulations: Mapping[str, Any],
-    stem: str | Path | None = None,
-    *,
-    formats: Sequence[str] = FORMATS,
-    dpi: int = style.PRINT_DPI,
-) -> tuple[Any, list[Path]]:
+def reaction_torque_figure(simulations: Mapping[str, Any]) -> Figure:
     """Torque the arms exert on the base [N m], base axes, against time (paper Fig. 4): one
     column of panels per plan, each with its own scale (the analytic law's torques are tens of
     times smaller than the optimal plan's); a page wide for two plans or more."""
@@ -358,7 +330,7 @@ def reaction_torque_figure(
             _time_axes(axes[:, c], t_end, labels)
         titles = [style.method_label(name) for name in simulations]
         layout(fig, axes, handles, width, column_titles=titles)
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
 def paper_figure_set(
@@ -369,7 +341,7 @@ def paper_figure_set(
     kinematic,
     balance_only,
     balanced,
-) -> tuple[dict[str, list[Path]], dict[str, Any]]:
+) -> tuple[dict[str, list[Path]], dict[str, Figure]]:
     """The paper's Figs. 2-5 of one study, files named ``stems``, as ``({"fig2": [files], ...},
     {"fig2": Figure})``: Fig. 2 the simulation of the ``mission_only`` arm over its
     ``kinematic`` model, Fig. 3 the simulations ``{method: simulation}`` of each plan's
@@ -379,25 +351,16 @@ def paper_figure_set(
     def sims(results):
         return {f"{name}{style.SIM}": res for name, res in results.items()}
 
-    figures, objects = {}, {}
-    curves = {
-        "fig2": {"mission-only:sim": mission_only, "mission-only:kinematic": kinematic},
-        "fig3": sims(balance_only),
-        "fig5": {**sims(balanced), "mission-only:sim": mission_only},
+    figures = {
+        "fig2": attitude_figure(
+            {"mission-only:sim": mission_only, "mission-only:kinematic": kinematic}
+        ),
+        "fig3": attitude_figure(sims(balance_only)),
+        "fig4": reaction_torque_figure(balanced),
+        "fig5": attitude_figure({**sims(balanced), "mission-only:sim": mission_only}),
     }
-    for key, results in curves.items():
-        objects[key], figures[key] = attitude_figure(
-            results, output_dir / stems[key], formats=formats
-        )
-    objects["fig4"], figures["fig4"] = reaction_torque_figure(
-        balanced, output_dir / stems["fig4"], formats=formats
-    )
-    return dict(sorted(figures.items())), dict(sorted(objects.items()))
-
-
-def curve_labels(fig) -> list[list[str]]:
-    """The labels of the curves in each panel of a figure (to check what it shows)."""
-    return [[line.get_label() for line in ax.get_lines()] for ax in fig.axes]
+    files = {key: style.save(fig, output_dir / stems[key], formats) for key, fig in figures.items()}
+    return files, figures
 
 
 #: Rows of the figure: (result field, limit field, axis label).
@@ -414,14 +377,7 @@ OFF_SCALE = 1.5
 LIMIT_STYLE = {"color": "0.35", "linestyle": (0, (1.0, 1.0)), "linewidth": 0.9, "label": "limit"}
 
 
-def joint_limits_figure(
-    results: Mapping[str, BalanceResult],
-    robot: FloatingRobot,
-    stem: str | Path | None = None,
-    *,
-    formats: Sequence[str] = ("png",),
-    dpi: int = style.SCREEN_DPI,
-) -> tuple[Any, list[Path]]:
+def joint_limits_figure(results: Mapping[str, BalanceResult], robot: FloatingRobot) -> Figure:
     """Balance joint positions, rates and accelerations of each plan against time, one column
     per joint, the joint's limits dotted. The y range covers both the limits and every plan,
     so a violation is seen at a glance."""
@@ -437,7 +393,7 @@ def joint_limits_figure(
             _joint_column(axes[:, k], results, robot, k)
         handles = [*axes[0, 0].get_lines()[: len(results)], Line2D([], [], **LIMIT_STYLE)]
         layout(fig, axes, handles, width, column_titles=joints)
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
 def _clip_off_scale(ax, results, field: str, k: int, bounds) -> None:
@@ -490,14 +446,7 @@ def _joint_column(axes, results, robot: FloatingRobot, k: int) -> None:
     axes[-1].set_xlabel("time [s]")
 
 
-def capture_figure(
-    results: Mapping[str, object],
-    t_c: float,
-    stem: str | Path | None = None,
-    *,
-    formats: Sequence[str] = FORMATS,
-    dpi: int = style.PRINT_DPI,
-) -> tuple[Any, list[Path]]:
+def capture_figure(results: Mapping[str, object], t_c: float) -> Figure:
     """For each result (a plan or a simulation), ``|omega_b|`` [deg/s] and the drift [deg] from
     the start (thick) and from the attitude at the capture (thin, after it)."""
     with style.styled("column"):
@@ -518,7 +467,7 @@ def capture_figure(
             ax.axvline(t_c, color="0.4", linestyle=":", linewidth=0.8)
             ax.set_ylim(bottom=0.0)
         layout(fig, axes[:, None], ax_w.get_lines()[: len(results)], "column")
-        return fig, style.save(fig, stem, formats, dpi)
+        return fig
 
 
 #: What :func:`plot_result` can draw: ``kind -> y-axis label``.

@@ -15,7 +15,7 @@ import numpy as np
 
 from balance_opt.motion.result import LIMIT_TOLERANCE, UNTRUSTED_RESIDUAL
 from balance_opt.report.outputs import EFFORT_TOLERANCE
-from balance_opt.report.style import method_colour, method_label
+from balance_opt.report.style import asset, method_colour, method_label
 
 #: Order of the methods in the tables (others follow in the order given).
 METHOD_ORDER = ("mission-only", "analytic", "optimal")
@@ -28,28 +28,6 @@ TORQUE_TOLERANCE = 1e-9  # torques [N m]
 SIGMA_TOLERANCE = 1e-12  # singular values of J_wB (rad of base per rad of joint)
 #: A margin inside the limit by at most this fraction of the limit's size is "at the limit".
 AT_LIMIT_BAND = 0.01
-
-_STYLE = """
-body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; margin: 2em auto;
-       max-width: 1100px; color: #222; line-height: 1.4; padding: 0 1em; }
-h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bottom: 1px solid #ddd; }
-table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
-th, td { border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }
-th:first-child, td:first-child { text-align: left; }
-thead th { background: #f2f2f2; white-space: nowrap; } tr.section td { background: #fafafa; font-weight: bold; text-align: left; }
-td.broken { color: #8e0000; background: #ffcdd2; font-weight: bold; }
-td.at-limit { color: #5d4000; background: #ffe082; } td.inside { color: #1b5e20; background: #dcedc8; }
-td.bar { padding: 0.2em 0.4em; vertical-align: middle; line-height: 0; }
-td.failed, th.failed { color: #777; background: repeating-linear-gradient(135deg, #f4f4f4 0 6px,
-  #e8e8e8 6px 12px); font-style: italic; }
-.flag { color: #b00020; font-weight: bold; font-style: normal; }
-.swatch { display: inline-block; width: 0.9em; height: 0.9em; margin-right: 0.4em;
-          vertical-align: -0.1em; border: 1px solid #555; }
-.meta { color: #555; font-size: 0.9em; } figure { margin: 1.5em 0; }
-figure img { width: 100%; height: auto; border: 1px solid #eee; }
-p.headline { font-size: 1.1em; } figcaption { color: #555; font-size: 0.9em; }
-code { background: #f5f5f5; padding: 0 0.2em; } .failure { color: #b00020; font-weight: bold; }
-"""
 
 
 def format_value(value: Any, tolerance: float | None = None, unit: str = "") -> str:
@@ -542,7 +520,7 @@ def render_report(
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>balance-opt: {html.escape(str(task.get('name', 'report')))}</title>",
-        f"<style>{_STYLE}</style></head><body>",
+        f"<style>\n{asset('report.css')}</style></head><body>",
         f"<h1>balance-opt report: {html.escape(str(task.get('name', '')))}</h1>",
         (
             f'<p class="meta">task file <code>{html.escape(str(task.get("file", "")))}</code>, sha256 '

@@ -40,7 +40,7 @@ from balance_opt.report.scene_poses import (
     scene_poses,
     tracks_of,
 )
-from balance_opt.report.style import ARM_COLOURS, method_label
+from balance_opt.report.style import ARM_COLOURS, asset, method_label
 
 log = logging.getLogger(__name__)
 
@@ -296,13 +296,6 @@ def proximity_levels(
     return out, texts
 
 
-def _asset(name: str) -> str:
-    """A file of the page shipped with the package (``balance_opt/report/assets``)."""
-    from importlib.resources import files
-
-    return (files("balance_opt.report") / "assets" / name).read_text(encoding="utf-8")
-
-
 def scene_html(scene: Scene, title: str = "") -> str:
     """The scene as one self-contained HTML page: the meshcat viewer's bundle, the commands,
     a method selector, a base-rotation selector, a play button and a time slider (the URL's
@@ -333,7 +326,7 @@ def scene_html(scene: Scene, title: str = "") -> str:
         keys.append(key(near["touch"], "penetrating"))
     data = {k: v for k, v in meta.items() if k != "robot"}
     data.update(setup=scene.setup, animations=scene.animations)
-    player, style = _asset("scene_player.js"), _asset("scene.css")
+    player, style = asset("scene_player.js"), asset("scene.css")
     script = player.replace("SCENE_DATA", json.dumps(data, separators=(",", ":")))
     heading = html.escape(title or meta["robot"])
     return (
@@ -351,20 +344,9 @@ def scene_html(scene: Scene, title: str = "") -> str:
     )
 
 
-def write_scene(
-    path: str | Path,
-    robot: FloatingRobot,
-    results: Mapping[str, BalanceResult],
-    h0=None,
-    target=None,
-    labels: Mapping[str, str] | None = None,
-    title: str = "",
-    geometry=None,
-    margin: float = 0.0,
-) -> Path:
-    """Write the page of :func:`build_scene` to ``path``."""
+def write_scene(path: str | Path, scene: Scene, title: str = "") -> Path:
+    """Write the page of a scene (:func:`build_scene`) to ``path``."""
     path = Path(path)
-    scene = build_scene(robot, results, h0, target, labels, geometry=geometry, margin=margin)
     path.write_text(scene_html(scene, title), encoding="utf-8")
     megabytes = path.stat().st_size / 1e6
     log.info("scene: %s, %.1f MB (%d mesh vertices)", path.name, megabytes, scene.meta["vertices"])

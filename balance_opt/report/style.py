@@ -171,22 +171,31 @@ def figure(width: str = "column", height: float = 2.6):
 
 def save(
     fig,
-    path_without_suffix: str | Path | None,
+    path_without_suffix: str | Path,
     formats: Sequence[str] = ("png", "pdf"),
     dpi: int = PRINT_DPI,
 ) -> list[Path]:
-    """Write ``fig`` as ``<path>.<format>`` for each format (PNG at ``dpi``), the folder created
-    when missing; returns the files (none without a path). Call inside :func:`styled`
-    (TrueType fonts in a PDF)."""
-    if path_without_suffix is None:
-        return []
+    """Write ``fig`` (made by :func:`figure`) as ``<path>.<format>`` for each format (PNG at
+    ``dpi``), the folder created when missing; returns the files. Written in the settings of
+    the figure's width (:func:`styled`): ticks are made as a figure is drawn, and a PDF gets
+    TrueType fonts."""
+    width = next(name for name, inches in WIDTHS.items() if inches == fig.get_figwidth())
     stem = Path(path_without_suffix)
     stem.parent.mkdir(parents=True, exist_ok=True)
     paths = []
-    for fmt in formats:
-        path = stem.with_name(f"{stem.name}.{fmt}")
-        # no creation date in a PDF, so the same figure gives the same file
-        metadata = {"CreationDate": None} if fmt == "pdf" else None
-        fig.savefig(path, dpi=dpi, format=fmt, metadata=metadata)
-        paths.append(path)
+    with styled(width):
+        for fmt in formats:
+            path = stem.with_name(f"{stem.name}.{fmt}")
+            # no creation date in a PDF, so the same figure gives the same file
+            metadata = {"CreationDate": None} if fmt == "pdf" else None
+            fig.savefig(path, dpi=dpi, format=fmt, metadata=metadata)
+            paths.append(path)
     return paths
+
+
+def asset(name: str) -> str:
+    """A file of the pages shipped with the package (``balance_opt/report/assets``): the
+    report's and the 3D scene's style, the scene's player."""
+    from importlib.resources import files
+
+    return (files("balance_opt.report") / "assets" / name).read_text(encoding="utf-8")
