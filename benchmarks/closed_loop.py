@@ -20,7 +20,7 @@ Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--mome
 measured] [--margin F] [--position-margin RAD] [--jerk J] [--floor measured|plan] [--budget]
 [--terminal F]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
 and margins; ``--terminal``: the factor on the final drift's price in the closed loop's plans,
-``optimal.replan.TERMINAL_FACTOR`` by default).
+``control.replan.TERMINAL_FACTOR`` by default).
 """
 
 from __future__ import annotations
@@ -36,10 +36,10 @@ import numpy as np
 
 from balance_opt.app.closed_loop import resolved_options, true_robots
 from balance_opt.app.models import ModelCache
-from balance_opt.dynamics.closed_loop import fly_closed_loop
+from balance_opt.control.flight import fly_closed_loop
+from balance_opt.control.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.motion.result import find_limit_violations
-from balance_opt.optimal.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 

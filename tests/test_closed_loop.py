@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.dynamics.closed_loop import fly_closed_loop
+from balance_opt.control.flight import fly_closed_loop
+from balance_opt.control.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.dynamics.options import ClosedLoopOptions
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.errors import InputError
@@ -25,7 +26,6 @@ from balance_opt.motion.so3 import (
 from balance_opt.motion.trajectories import MissionWindow
 from balance_opt.optimal.collision import collision_setup, restarted
 from balance_opt.optimal.problem import StartState
-from balance_opt.optimal.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 

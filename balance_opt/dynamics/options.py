@@ -105,7 +105,7 @@ PEAK_FLOORS = ("measured", "plan")
 
 @dataclass(frozen=True)
 class ClosedLoopOptions:
-    """The closed-loop study (:mod:`balance_opt.dynamics.closed_loop`,
+    """The closed-loop study (:mod:`balance_opt.control.flight`,
     ``docs/executable-plans.md``): each plan flown on ``samples`` perturbed true models in forward dynamics, the balance arm
     re-planned every ``period`` from the measured state with the nominal model.
     ``perturbation`` and ``seed`` unset take the ``robustness`` section's, so that open and
@@ -165,7 +165,7 @@ class ClosedLoopOptions:
     @property
     def margins(self) -> tuple[float, float, float | None]:
         """``(margin, position_margin, jerk)``: the arguments of
-        :func:`~balance_opt.optimal.replan.margined` after the robot."""
+        :func:`~balance_opt.control.replan.margined` after the robot."""
         return self.margin, self.position_margin, self.jerk
 
     def __post_init__(self):

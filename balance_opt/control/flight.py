@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from balance_opt.control.replan import Replanner, ReplanOutcome, Segment
 from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate
 from balance_opt.model.robot import FloatingRobot
@@ -33,7 +34,6 @@ from balance_opt.motion.so3 import (
     rotvec_from_quaternion,
 )
 from balance_opt.motion.trajectories import MissionWindow
-from balance_opt.optimal.replan import Replanner, ReplanOutcome, Segment
 
 
 @dataclass
