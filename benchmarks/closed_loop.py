@@ -14,11 +14,13 @@ Also printed: where a re-plan's time goes (Ipopt's calls of the compiled kernels
 own work, mostly MUMPS's factorisations), the drift the open-loop flights have reached at the
 first two re-plans (what the closed loop cannot undo) and the joint-limit violations by joint
 and kind. ``--budget`` gives every re-plan Ipopt's ``max_wall_time`` of its period (as
-``balance-opt compare`` does): the motion then depends on the machine.
+``balance-opt compare`` does) and drops a late one: the motion then depends on the machine.
+``--trace`` prints every re-plan: the true drift there, the peak and final drift it plans.
 
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
 measured] [--margin F] [--position-margin RAD] [--jerk J] [--floor measured|plan] [--budget]
-[--terminal F]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
+[--terminal F] [--trace] [--pick K,..] [--end-period S
+[--end-window S]]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
 and margins; ``--terminal``: the factor on the final drift's price in the closed loop's plans,
 ``control.replan.TERMINAL_FACTOR`` by default).
 """
@@ -56,7 +58,13 @@ def main() -> None:
     parser.add_argument("--position-margin", type=float, help="closed-loop position margin [rad]")
     parser.add_argument("--jerk", type=float, help="closed-loop jerk bound [rad/s^3]")
     parser.add_argument("--floor", choices=("measured", "plan"), default="measured")
-    parser.add_argument("--budget", action="store_true", help="stop Ipopt at the period")
+    parser.add_argument(
+        "--budget", action="store_true", help="stop Ipopt at the period, drop late re-plans"
+    )
+    parser.add_argument("--trace", action="store_true", help="every re-plan of every model")
+    parser.add_argument("--pick", help="fly only these of the models (comma-separated indices)")
+    parser.add_argument("--end-period", type=float, help="period over the last seconds [s]")
+    parser.add_argument("--end-window", type=float, default=2.0, help="those seconds [s]")
     parser.add_argument(
         "--terminal", type=float, default=TERMINAL_FACTOR, help="factor on the final drift's price"
     )
@@ -75,7 +83,10 @@ def main() -> None:
             options.position_margin if args.position_margin is None else args.position_margin
         ),
         jerk=options.jerk if args.jerk is None else args.jerk,
+        end_period=args.end_period,
+        end_window=args.end_window,
     )
+    pick = None if args.pick is None else {int(k) for k in args.pick.split(",")}
     model = ModelCache().planner_model(task.robot, task.spec.robot.backend)
     planner = task.spec.optimal.planner
     started = time.perf_counter()
@@ -110,7 +121,10 @@ def main() -> None:
     times, prepare_s, violated = [], None, 0
     peaks, finals, early, kinds, outcomes = [], [], [], Counter(), []
     m = max(1, round(options.period / nlp.h))
+    first = True
     for k, truth in enumerate(true_robots(task.robot, options)):
+        if pick is not None and k not in pick:
+            continue
         open_loop = simulate_plan(truth, plan, task.spec.simulation)
         run = fly_closed_loop(
             truth,
@@ -118,10 +132,10 @@ def main() -> None:
             closed_plan,
             task.spec.simulation,
             options,
-            prepared=k > 0,
-            deadline=math.inf,
+            prepared=not first,
+            deadline=options.period if args.budget else math.inf,
         )
-        prepare_s = run.prepare_s if k == 0 else prepare_s
+        prepare_s, first = (run.prepare_s if first else prepare_s), False
         times += run.compute_s.tolist()
         outcomes += run.replans
         peaks.append(run.max_drift)
@@ -132,7 +146,12 @@ def main() -> None:
         violated += limits[1]
         kinds.update(f"{v.joint} {v.kind}" for v in found[1])
         early.append([_drift_at(open_loop, i * m * nlp.h) for i in (1, 2)])
-        iterations = " ".join(str(r.iterations) for r in run.replans)
+        # a re-plan stopped by its budget: "+" its iterate applied, "-" late (dropped)
+        iterations = " ".join(
+            f"{r.iterations}{('+' if r.success else '-') if r.stopped else ''}" for r in run.replans
+        )
+        if args.trace:
+            _trace(run, nlp.h)
         print(
             f"{k:>5} {float(open_loop.angle.max()):>10.4g} {run.max_drift:>11.4g} "
             f"{float(open_loop.angle[-1]):>10.4g} {run.final_drift:>12.4g} {run.failed:>6} "
@@ -171,6 +190,22 @@ def main() -> None:
             f"drift at the {label} re-plan ({(i + 1) * m * nlp.h:g} s): nominal plan "
             f"{nominal[i]:.4g} rad; open-loop flights median {np.median(early[:, i]):.4g}, "
             f"95 % {np.percentile(early[:, i], 95):.4g}, largest {early[:, i].max():.4g} rad"
+        )
+
+
+def _trace(run, h: float) -> None:
+    """Per re-plan: its time, the true drift measured there, the peak floor it was given, the
+    peak and final drift it plans, its Ipopt iterations and its last iterate's violation."""
+    sim = run.simulation
+    for r in run.replans:
+        t = r.node * h
+        planned = "-"
+        if r.segment is not None:
+            drift = np.linalg.norm(r.segment.solution.X[:3], axis=0)
+            planned = f"peak {drift.max():.4g} final {drift[-1]:.4g}"
+        print(
+            f"    t {t:5.2f} s: drift {_drift_at(sim, t):.4g} rad, plans {planned}; "
+            f"{r.iterations} its, {r.status}, violation {r.violation:.1e}, {r.compute_s:.3f} s"
         )
 
 

@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 
 from balance_opt.control.flight import fly_closed_loop
-from balance_opt.control.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
+from balance_opt.control.replan import (
+    SOLVE_SHARE,
+    STOPPED_VIOLATION,
+    TERMINAL_FACTOR,
+    Replanner,
+    closed_loop_planner,
+    margined,
+)
 from balance_opt.dynamics.options import ClosedLoopOptions
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.errors import InputError
@@ -162,14 +169,44 @@ def test_a_failed_replan_keeps_the_plan_in_force(planned):
 @pytest.mark.slow
 def test_a_replan_stopped_by_its_time_budget_is_late_and_keeps_the_plan(planned):
     task, nlp, plan, _ = planned
-    # a budget no solve fits in: Ipopt stops at its wall-time limit every time
-    hurried = Replanner(nlp, budget=1e-9)
-    assert hurried.ipopt["max_wall_time"] == pytest.approx(0.95e-9)
+    # a budget no solve fits in: Ipopt stops at its wall-time limit every time; its iterate is
+    # never applied (stopped_violation None)
+    hurried = Replanner(nlp, budget=1e-9, stopped_violation=None)
+    assert hurried.ipopt["max_wall_time"] == pytest.approx(SOLVE_SHARE * 1e-9)
     open_loop, run = _flown_both_ways(task, hurried, plan)
     assert {r.status for r in run.replans} == {"Maximum_WallTime_Exceeded"}
     assert all(r.out_of_time and not r.success for r in run.replans)
     assert run.late == 4 and run.failed == 0  # late, not failed
     np.testing.assert_allclose(run.simulation.quaternion, open_loop.quaternion, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_a_stopped_replans_feasible_iterate_is_applied_and_flies_as_planned(planned):
+    """A re-plan stopped by its time budget whose iterate keeps every constraint (here the
+    warm start Ipopt had not yet left: the plan in force turned to the measured attitude) is
+    applied, not late; replayed from the measured attitude it turns the base as it says. One
+    whose iterate does not keep them (a tolerance no iterate meets) is late."""
+    task, nlp, plan, _ = planned
+    first = Replanner(nlp).first(plan)
+    node = 20
+    attitude = first.state(node)[3] + np.array([0.02, -0.01, 0.005])
+    out = Replanner(nlp, budget=1e-9).replan(node, first, attitude, peak=plan.max_drift)
+    assert out.stopped and out.status == "Maximum_WallTime_Exceeded"
+    assert out.violation <= STOPPED_VIOLATION and out.success and not out.out_of_time
+    t0 = node * nlp.h
+    replayed = replay(
+        task.robot,
+        MissionWindow(task.mission, t0, task.duration),
+        out.segment.trajectory,
+        t_eval=np.arange(nlp.N - node + 1) * nlp.h,
+        attitude0=quaternion_from_rotvec(attitude),
+    )
+    planned_q = quaternion_from_rotvec(out.segment.solution.X[:3].T)
+    assert rotation_angle(relative_rotation(planned_q, replayed.quaternion)).max() < 1e-4
+    strict = Replanner(nlp, budget=1e-9, stopped_violation=out.violation / 2)
+    late = strict.replan(node, first, attitude, peak=plan.max_drift)
+    assert late.out_of_time and not late.success
+    assert late.violation == pytest.approx(out.violation)
 
 
 @pytest.mark.slow

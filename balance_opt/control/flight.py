@@ -135,7 +135,7 @@ def fly_closed_loop(
     m = max(1, round(opts.period / nlp.h))
     period = m * nlp.h
     deadline = period if deadline is None else deadline
-    bounds = list(range(0, nlp.N, m)) + [nlp.N]  # the periods' first nodes, and the end
+    bounds = period_starts(nlp.N, nlp.h, opts)  # the periods' first nodes, and the end
     lag = 1 if delayed else 0  # periods between a measurement and its plan
     # a re-plan has 2 intervals at least (the planner's smallest grid)
     switch_nodes = [n for n in bounds[1 + lag : -1] if nlp.N - n >= 2]
@@ -185,6 +185,19 @@ def fly_closed_loop(
                     in_force = pending.segment
                 pending = None
     return ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
+
+
+def period_starts(N: int, h: float, options: ClosedLoopOptions) -> list[int]:
+    """The first node of every period on a grid of ``N`` intervals of ``h`` [s], and ``N``:
+    every ``options.period``, every ``options.end_period`` over the last ``end_window`` seconds
+    (from the first period's start inside them), each a whole number of intervals."""
+    m = max(1, round(options.period / h))
+    starts = list(range(0, N, m))
+    if options.end_period is not None:
+        end = next((n for n in starts if (N - n) * h <= options.end_window + 1e-9), N)
+        fine = max(1, round(options.end_period / h))
+        starts = [n for n in starts if n < end] + list(range(end, N, fine))
+    return starts + [N]
 
 
 def _with_nominal_gains(sim_opts: SimulationOptions, nlp, in_force: Segment) -> SimulationOptions:

@@ -162,6 +162,18 @@ class ClosedLoopOptions:
         "at the first plan's peak (plan)",
     )
 
+    # a study setting, not a task's: docs/executable-plans.md, "Sixth round"
+    end_period: float | None = setting(
+        None,
+        unit="s",
+        exclusive_minimum=0.0,
+        in_file=False,
+        doc="control period over the motion's last end_window seconds (null: period throughout)",
+    )
+    end_window: float = setting(
+        2.0, unit="s", minimum=0.0, in_file=False, doc="the last seconds of end_period"
+    )
+
     @property
     def margins(self) -> tuple[float, float, float | None]:
         """``(margin, position_margin, jerk)``: the arguments of
