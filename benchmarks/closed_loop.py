@@ -63,8 +63,10 @@ def main() -> None:
     )
     parser.add_argument("--trace", action="store_true", help="every re-plan of every model")
     parser.add_argument("--pick", help="fly only these of the models (comma-separated indices)")
-    parser.add_argument("--end-period", type=float, help="period over the last seconds [s]")
-    parser.add_argument("--end-window", type=float, default=2.0, help="those seconds [s]")
+    parser.add_argument(
+        "--end-period", type=float, help="period over the last seconds [s] (0: the period's)"
+    )
+    parser.add_argument("--end-window", type=float, help="those last seconds [s]")
     parser.add_argument(
         "--terminal", type=float, default=TERMINAL_FACTOR, help="factor on the final drift's price"
     )
@@ -83,8 +85,8 @@ def main() -> None:
             options.position_margin if args.position_margin is None else args.position_margin
         ),
         jerk=options.jerk if args.jerk is None else args.jerk,
-        end_period=args.end_period,
-        end_window=args.end_window,
+        end_period=options.end_period if args.end_period is None else (args.end_period or None),
+        end_window=options.end_window if args.end_window is None else args.end_window,
     )
     pick = None if args.pick is None else {int(k) for k in args.pick.split(",")}
     model = ModelCache().planner_model(task.robot, task.spec.robot.backend)
@@ -108,8 +110,10 @@ def main() -> None:
             f"{closed_plan.max_drift:.4g} rad, final {closed_plan.final_drift:.4g} rad"
         )
     replanner = Replanner(nlp, budget=options.period if args.budget else None)
+    end = f", every {options.end_period:g} s over the last {options.end_window:g} s"
     print(
-        f"period {options.period:g} s, momentum at a re-plan: {options.momentum}, peak floor: "
+        f"period {options.period:g} s{end if options.end_period else ''}, momentum at a "
+        f"re-plan: {options.momentum}, peak floor: "
         f"{options.peak_floor}, "
         f"{options.perturbation:.0%} model error, seed {options.seed}"
     )

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.control.flight import fly_closed_loop
+from balance_opt.control.flight import fly_closed_loop, period_starts
 from balance_opt.control.replan import (
     SOLVE_SHARE,
     STOPPED_VIOLATION,
@@ -132,11 +132,11 @@ def test_the_closed_loops_price_of_the_final_drift_brings_a_replans_final_drift_
     assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
 
 
-def _flown_both_ways(task, replanner, plan):
+def _flown_both_ways(task, replanner, plan, end_period=None):
     """The plan simulated open loop and flown closed loop, on the nominal robot (every re-plan
-    applied, whatever its time)."""
+    applied, whatever its time), every ``PERIOD`` (every ``end_period`` over the last 3 s)."""
     open_loop = simulate_plan(task.robot, plan, task.spec.simulation)
-    options = ClosedLoopOptions(period=PERIOD)
+    options = ClosedLoopOptions(period=PERIOD, end_period=end_period)
     run = fly_closed_loop(
         task.robot, replanner, plan, task.spec.simulation, options, deadline=math.inf
     )
@@ -146,8 +146,9 @@ def _flown_both_ways(task, replanner, plan):
 @pytest.mark.slow
 def test_closed_loop_without_model_error_reproduces_the_plan(planned):
     task, nlp, plan, replanner = planned
-    open_loop, run = _flown_both_ways(task, replanner, plan)
-    assert [r.node for r in run.replans] == [10, 20, 30, 40]
+    # the default end period, 0.2 s (an interval) over the last 3 s: from node 40 on
+    open_loop, run = _flown_both_ways(task, replanner, plan, ClosedLoopOptions().end_period)
+    assert [r.node for r in run.replans] == [10, 20, 30, *range(40, 49)]
     assert run.failed == 0
     assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
     assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
@@ -258,11 +259,13 @@ closed_loop:
         (
             "momentum: measured",
             "closed_loop.momentum: unknown key 'momentum'; expected one of period, samples, "
-            "perturbation, seed, margin, position_margin, jerk",
+            "perturbation, seed, margin, position_margin, jerk, end_period, end_window",
         ),
         ("margin: -0.1", "closed_loop.margin: must be at least 0, got -0.1"),
         ("position_margin: -1", "closed_loop.position_margin: must be at least 0 rad, got -1"),
         ("jerk: 0", "closed_loop.jerk: must be greater than 0 rad/s^3, got 0"),
+        ("end_period: 0", "closed_loop.end_period: must be greater than 0 s, got 0"),
+        ("end_window: -1", "closed_loop.end_window: must be at least 0 s, got -1"),
     ],
 )
 def test_bad_closed_loop_values_name_file_line_and_key(tmp_path, entry, message):
@@ -310,6 +313,20 @@ def test_the_worst_runs_urdf_holds_its_true_robot():
         np.testing.assert_allclose(read.inertia, true.inertia, atol=1e-12)
     # and it is not the nominal robot
     assert abs(model.inertias[1].mass - task.robot.model.inertias[1].mass) > 1e-6
+
+
+def test_the_periods_shorten_over_the_motions_last_seconds():
+    """Every 0.5 s, every 0.2 s from the first period's start inside the last 3 s, each a whole
+    number of intervals; without an end period every 0.5 s to the end."""
+    options = ClosedLoopOptions(period=0.5, end_period=0.2, end_window=3.0)
+    assert period_starts(100, 0.1, options) == [*range(0, 70, 5), *range(70, 100, 2), 100]
+    assert period_starts(100, 0.1, dataclasses.replace(options, end_period=None)) == [
+        *range(0, 100, 5),
+        100,
+    ]
+    # no period starts inside a window shorter than a period: the periods stay as they are
+    short = dataclasses.replace(options, end_window=0.3)
+    assert period_starts(100, 0.1, short) == [*range(0, 100, 5), 100]
 
 
 def test_a_margin_of_one_or_more_is_refused(tmp_path):

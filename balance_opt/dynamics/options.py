@@ -162,16 +162,15 @@ class ClosedLoopOptions:
         "at the first plan's peak (plan)",
     )
 
-    # a study setting, not a task's: docs/executable-plans.md, "Sixth round"
     end_period: float | None = setting(
-        None,
+        0.2,
         unit="s",
         exclusive_minimum=0.0,
-        in_file=False,
-        doc="control period over the motion's last end_window seconds (null: period throughout)",
+        doc="control period over the motion's last end_window seconds, where a re-plan's "
+        "correction has the least time left (null: period throughout)",
     )
     end_window: float = setting(
-        2.0, unit="s", minimum=0.0, in_file=False, doc="the last seconds of end_period"
+        3.0, unit="s", minimum=0.0, doc="the motion's last seconds, re-planned every end_period"
     )
 
     @property
