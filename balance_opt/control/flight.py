@@ -146,7 +146,6 @@ def fly_closed_loop(
         h0 = nlp.h0 if opts.momentum == "zero" else np.r_[0.0, 0.0, 0.0, 1e-9, 0.0, 0.0]
         prepare_s = replanner.prepare(in_force, switch_nodes, h0, lengths)
     sim_opts = _with_nominal_gains(sim_opts, nlp, in_force)
-    mission = nlp.mission
     state, parts, starts = None, [], []
     replans, late, pending, limit = [], 0, None, period
     measured_peak = 0.0
@@ -160,7 +159,7 @@ def fly_closed_loop(
         offset = in_force.node * nlp.h
         part = simulate(
             truth,
-            MissionWindow(mission, t_a, t_b),
+            MissionWindow(nlp.mission, t_a, t_b),
             MissionWindow(in_force.trajectory, t_a - offset, t_b - offset),
             sim_opts,
             duration=t_b - t_a,
@@ -172,20 +171,20 @@ def fly_closed_loop(
         state = (part.q_pin[-1].copy(), part.v[-1].copy())
         # from the attitude at t = 0 (a part's own angle is from its start)
         measured_peak = max(measured_peak, float(rotation_angle(part.quaternion).max()))
-        if pending is not None:  # the re-plan computed during this period applies from t_b
-            if pending.success and pending.compute_s <= limit:
-                in_force = pending.segment
-            pending = None
+        # delayed, the re-plan computed during this period applies from t_b
+        if pending is not None and pending.success and pending.compute_s <= limit:
+            in_force = pending.segment
+        pending = None
         c = bounds[min(j + 1 + lag, len(bounds) - 1)]
         if c in switch_nodes:  # measure at t_b, re-plan for node c
             limit = lengths[c] if deadline is None else deadline
-            pending = _replan(replanner, in_force, state, b, c, measured_peak, cap, opts, data)
-            replans.append(pending)
-            late += pending.out_of_time or (pending.success and pending.compute_s > limit)
-            if not delayed:
-                if pending.success and pending.compute_s <= limit:
-                    in_force = pending.segment
-                pending = None
+            outcome = _replan(replanner, in_force, state, b, c, measured_peak, cap, opts, data)
+            replans.append(outcome)
+            late += outcome.out_of_time or (outcome.success and outcome.compute_s > limit)
+            if delayed:
+                pending = outcome
+            elif outcome.success and outcome.compute_s <= limit:
+                in_force = outcome.segment
     return ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
 
 
