@@ -315,7 +315,7 @@ class Replanner:
 
 def _violation(nlp: BalanceNLP, solution: Solution) -> float:
     """The largest violation of ``nlp``'s constraints and bounds by ``solution``, evaluated
-    (Ipopt's own ``inf_pr`` of a stopped iterate measures its scaled problem, not this one)."""
+    (Ipopt's own ``inf_pr`` of a stopped iterate is not it: 0.013 where this was 0.054)."""
     w = nlp.pack(solution)
     g = np.asarray(nlp.structure.solver.get_function("nlp_g")(w, nlp.parameters)).ravel()
     return nlp.largest_violation(w, g)[2]
