@@ -50,6 +50,7 @@ LAYERS = (
     ("analytic", ("analytic",)),
     ("optimal", ("optimal",)),
     ("dynamics", ("dynamics",)),
+    ("control", ("control",)),
     ("tasks", ("tasks",)),
     ("report", ("report",)),
     ("app", ("app",)),
