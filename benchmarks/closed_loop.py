@@ -7,26 +7,29 @@ loop, the re-plans' Ipopt iterations and compute times; then the compute times o
 (median, 95th percentile, largest) against the period, and the time to build the re-plans' NLPs
 before the motion (not a re-plan: a controller does it before it starts). Every re-plan is
 applied whatever its time (``deadline = inf``), so that the drifts are those of a controller
-that has the time; the count of re-plans over the period says how many a real one would drop.
+that has the time; the count of re-plans over their period says how many a real one would drop.
 The first plan is made before the motion and is not a re-plan.
 
 Also printed: where a re-plan's time goes (Ipopt's calls of the compiled kernels against its
 own work, mostly MUMPS's factorisations), the drift the open-loop flights have reached at the
 first two re-plans (what the closed loop cannot undo) and the joint-limit violations by joint
 and kind. ``--budget`` gives every re-plan Ipopt's ``max_wall_time`` of its period (as
-``balance-opt compare`` does): the motion then depends on the machine.
+``balance-opt compare`` does) and drops a late one: the motion then depends on the machine.
+``--trace`` prints every re-plan: the true drift there, the peak and final drift it plans.
 
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
 measured] [--margin F] [--position-margin RAD] [--jerk J] [--floor measured|plan] [--budget]
-[--terminal F]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
+[--terminal F] [--trace] [--pick K,..] [--end-period S
+[--end-window S]]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
 and margins; ``--terminal``: the factor on the final drift's price in the closed loop's plans,
-``optimal.replan.TERMINAL_FACTOR`` by default).
+``control.replan.TERMINAL_FACTOR`` by default).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import math
 import time
 from collections import Counter
@@ -36,10 +39,10 @@ import numpy as np
 
 from balance_opt.app.closed_loop import resolved_options, true_robots
 from balance_opt.app.models import ModelCache
-from balance_opt.dynamics.closed_loop import fly_closed_loop
+from balance_opt.control.flight import fly_closed_loop, period_starts
+from balance_opt.control.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.motion.result import find_limit_violations
-from balance_opt.optimal.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 
@@ -56,7 +59,15 @@ def main() -> None:
     parser.add_argument("--position-margin", type=float, help="closed-loop position margin [rad]")
     parser.add_argument("--jerk", type=float, help="closed-loop jerk bound [rad/s^3]")
     parser.add_argument("--floor", choices=("measured", "plan"), default="measured")
-    parser.add_argument("--budget", action="store_true", help="stop Ipopt at the period")
+    parser.add_argument(
+        "--budget", action="store_true", help="stop Ipopt at the period, drop late re-plans"
+    )
+    parser.add_argument("--trace", action="store_true", help="every re-plan of every model")
+    parser.add_argument("--pick", help="fly only these of the models (comma-separated indices)")
+    parser.add_argument(
+        "--end-period", type=float, help="period over the last seconds [s] (0: the period's)"
+    )
+    parser.add_argument("--end-window", type=float, help="those last seconds [s]")
     parser.add_argument(
         "--terminal", type=float, default=TERMINAL_FACTOR, help="factor on the final drift's price"
     )
@@ -75,7 +86,10 @@ def main() -> None:
             options.position_margin if args.position_margin is None else args.position_margin
         ),
         jerk=options.jerk if args.jerk is None else args.jerk,
+        end_period=options.end_period if args.end_period is None else (args.end_period or None),
+        end_window=options.end_window if args.end_window is None else args.end_window,
     )
+    pick = None if args.pick is None else {int(k) for k in args.pick.split(",")}
     model = ModelCache().planner_model(task.robot, task.spec.robot.backend)
     planner = task.spec.optimal.planner
     started = time.perf_counter()
@@ -97,8 +111,10 @@ def main() -> None:
             f"{closed_plan.max_drift:.4g} rad, final {closed_plan.final_drift:.4g} rad"
         )
     replanner = Replanner(nlp, budget=options.period if args.budget else None)
+    end = f", every {options.end_period:g} s over the last {options.end_window:g} s"
     print(
-        f"period {options.period:g} s, momentum at a re-plan: {options.momentum}, peak floor: "
+        f"period {options.period:g} s{end if options.end_period else ''}, momentum at a "
+        f"re-plan: {options.momentum}, peak floor: "
         f"{options.peak_floor}, "
         f"{options.perturbation:.0%} model error, seed {options.seed}"
     )
@@ -110,7 +126,13 @@ def main() -> None:
     times, prepare_s, violated = [], None, 0
     peaks, finals, early, kinds, outcomes = [], [], [], Counter(), []
     m = max(1, round(options.period / nlp.h))
+    starts = period_starts(nlp.N, nlp.h, options)
+    periods = {a: (b - a) * nlp.h for a, b in itertools.pairwise(starts)}  # a re-plan's own
+    overs = 0
+    first = True
     for k, truth in enumerate(true_robots(task.robot, options)):
+        if pick is not None and k not in pick:
+            continue
         open_loop = simulate_plan(truth, plan, task.spec.simulation)
         run = fly_closed_loop(
             truth,
@@ -118,21 +140,27 @@ def main() -> None:
             closed_plan,
             task.spec.simulation,
             options,
-            prepared=k > 0,
-            deadline=math.inf,
+            prepared=not first,
+            deadline=options.period if args.budget else math.inf,
         )
-        prepare_s = run.prepare_s if k == 0 else prepare_s
+        prepare_s, first = (run.prepare_s if first else prepare_s), False
         times += run.compute_s.tolist()
         outcomes += run.replans
         peaks.append(run.max_drift)
         finals.append(run.final_drift)
-        over = int(np.sum(run.compute_s > run.period_s))
+        over = sum(r.compute_s > periods[r.node] for r in run.replans)
+        overs += over
         found = [violations(task.robot, s) for s in (open_loop, run.simulation)]
         limits = [len(v) for v in found]
         violated += limits[1]
         kinds.update(f"{v.joint} {v.kind}" for v in found[1])
         early.append([_drift_at(open_loop, i * m * nlp.h) for i in (1, 2)])
-        iterations = " ".join(str(r.iterations) for r in run.replans)
+        # a re-plan stopped by its budget: "+" its iterate applied, "-" late (dropped)
+        iterations = " ".join(
+            f"{r.iterations}{('+' if r.success else '-') if r.stopped else ''}" for r in run.replans
+        )
+        if args.trace:
+            _trace(run, nlp.h)
         print(
             f"{k:>5} {float(open_loop.angle.max()):>10.4g} {run.max_drift:>11.4g} "
             f"{float(open_loop.angle[-1]):>10.4g} {run.final_drift:>12.4g} {run.failed:>6} "
@@ -146,8 +174,8 @@ def main() -> None:
     )
     print(
         f"re-plans: {t.size}, compute time median {np.median(t):.3f} s, 95 % "
-        f"{np.percentile(t, 95):.3f} s, largest {t.max():.3f} s; {int(np.sum(t > options.period))} "
-        f"over the period; NLPs built before the motion in {prepare_s:.1f} s"
+        f"{np.percentile(t, 95):.3f} s, largest {t.max():.3f} s; {overs} "
+        f"over their period; NLPs built before the motion in {prepare_s:.1f} s"
     )
     print(
         f"joint limit violations of the closed-loop runs (true limits): {violated}"
@@ -171,6 +199,22 @@ def main() -> None:
             f"drift at the {label} re-plan ({(i + 1) * m * nlp.h:g} s): nominal plan "
             f"{nominal[i]:.4g} rad; open-loop flights median {np.median(early[:, i]):.4g}, "
             f"95 % {np.percentile(early[:, i], 95):.4g}, largest {early[:, i].max():.4g} rad"
+        )
+
+
+def _trace(run, h: float) -> None:
+    """Per re-plan: its time, the true drift measured there, the peak floor it was given, the
+    peak and final drift it plans, its Ipopt iterations and its last iterate's violation."""
+    sim = run.simulation
+    for r in run.replans:
+        t = r.node * h
+        planned = "-"
+        if r.segment is not None:
+            drift = np.linalg.norm(r.segment.solution.X[:3], axis=0)
+            planned = f"peak {drift.max():.4g} final {drift[-1]:.4g}"
+        print(
+            f"    t {t:5.2f} s: drift {_drift_at(sim, t):.4g} rad, plans {planned}; "
+            f"{r.iterations} its, {r.status}, violation {r.violation:.1e}, {r.compute_s:.3f} s"
         )
 
 

@@ -51,6 +51,7 @@ LAYERS = (
     ("analytic", ("analytic",)),
     ("optimal", ("optimal",)),
     ("dynamics", ("dynamics",)),
+    ("control", ("control",)),
     ("tasks", ("tasks",)),
     ("report", ("report",)),
     ("app", ("app",)),

@@ -11,7 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from balance_opt.dynamics.closed_loop import fly_closed_loop
+from balance_opt.control.flight import fly_closed_loop, period_starts
+from balance_opt.control.replan import (
+    SOLVE_SHARE,
+    STOPPED_VIOLATION,
+    TERMINAL_FACTOR,
+    Replanner,
+    closed_loop_planner,
+    margined,
+)
 from balance_opt.dynamics.options import ClosedLoopOptions
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.errors import InputError
@@ -25,7 +33,6 @@ from balance_opt.motion.so3 import (
 from balance_opt.motion.trajectories import MissionWindow
 from balance_opt.optimal.collision import collision_setup, restarted
 from balance_opt.optimal.problem import StartState
-from balance_opt.optimal.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
 
@@ -125,11 +132,11 @@ def test_the_closed_loops_price_of_the_final_drift_brings_a_replans_final_drift_
     assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
 
 
-def _flown_both_ways(task, replanner, plan):
+def _flown_both_ways(task, replanner, plan, end_period=None):
     """The plan simulated open loop and flown closed loop, on the nominal robot (every re-plan
-    applied, whatever its time)."""
+    applied, whatever its time), every ``PERIOD`` (every ``end_period`` over the last 3 s)."""
     open_loop = simulate_plan(task.robot, plan, task.spec.simulation)
-    options = ClosedLoopOptions(period=PERIOD)
+    options = ClosedLoopOptions(period=PERIOD, end_period=end_period)
     run = fly_closed_loop(
         task.robot, replanner, plan, task.spec.simulation, options, deadline=math.inf
     )
@@ -139,8 +146,9 @@ def _flown_both_ways(task, replanner, plan):
 @pytest.mark.slow
 def test_closed_loop_without_model_error_reproduces_the_plan(planned):
     task, nlp, plan, replanner = planned
-    open_loop, run = _flown_both_ways(task, replanner, plan)
-    assert [r.node for r in run.replans] == [10, 20, 30, 40]
+    # the default end period, 0.2 s (an interval) over the last 3 s: from node 40 on
+    open_loop, run = _flown_both_ways(task, replanner, plan, ClosedLoopOptions().end_period)
+    assert [r.node for r in run.replans] == [10, 20, 30, *range(40, 49)]
     assert run.failed == 0
     assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
     assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
@@ -162,14 +170,44 @@ def test_a_failed_replan_keeps_the_plan_in_force(planned):
 @pytest.mark.slow
 def test_a_replan_stopped_by_its_time_budget_is_late_and_keeps_the_plan(planned):
     task, nlp, plan, _ = planned
-    # a budget no solve fits in: Ipopt stops at its wall-time limit every time
-    hurried = Replanner(nlp, budget=1e-9)
-    assert hurried.ipopt["max_wall_time"] == pytest.approx(0.95e-9)
+    # a budget no solve fits in: Ipopt stops at its wall-time limit every time; its iterate is
+    # never applied (stopped_violation None)
+    hurried = Replanner(nlp, budget=1e-9, stopped_violation=None)
+    assert hurried.ipopt["max_wall_time"] == pytest.approx(SOLVE_SHARE * 1e-9)
     open_loop, run = _flown_both_ways(task, hurried, plan)
     assert {r.status for r in run.replans} == {"Maximum_WallTime_Exceeded"}
     assert all(r.out_of_time and not r.success for r in run.replans)
     assert run.late == 4 and run.failed == 0  # late, not failed
     np.testing.assert_allclose(run.simulation.quaternion, open_loop.quaternion, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_a_stopped_replans_feasible_iterate_is_applied_and_flies_as_planned(planned):
+    """A re-plan stopped by its time budget whose iterate keeps every constraint (here the
+    warm start Ipopt had not yet left: the plan in force turned to the measured attitude) is
+    applied, not late; replayed from the measured attitude it turns the base as it says. One
+    whose iterate does not keep them (a tolerance no iterate meets) is late."""
+    task, nlp, plan, _ = planned
+    first = Replanner(nlp).first(plan)
+    node = 20
+    attitude = first.state(node)[3] + np.array([0.02, -0.01, 0.005])
+    out = Replanner(nlp, budget=1e-9).replan(node, first, attitude, peak=plan.max_drift)
+    assert out.stopped and out.status == "Maximum_WallTime_Exceeded"
+    assert out.violation <= STOPPED_VIOLATION and out.success and not out.out_of_time
+    t0 = node * nlp.h
+    replayed = replay(
+        task.robot,
+        MissionWindow(task.mission, t0, task.duration),
+        out.segment.trajectory,
+        t_eval=np.arange(nlp.N - node + 1) * nlp.h,
+        attitude0=quaternion_from_rotvec(attitude),
+    )
+    planned_q = quaternion_from_rotvec(out.segment.solution.X[:3].T)
+    assert rotation_angle(relative_rotation(planned_q, replayed.quaternion)).max() < 1e-4
+    strict = Replanner(nlp, budget=1e-9, stopped_violation=out.violation / 2)
+    late = strict.replan(node, first, attitude, peak=plan.max_drift)
+    assert late.out_of_time and not late.success
+    assert late.violation == pytest.approx(out.violation)
 
 
 @pytest.mark.slow
@@ -221,11 +259,13 @@ closed_loop:
         (
             "momentum: measured",
             "closed_loop.momentum: unknown key 'momentum'; expected one of period, samples, "
-            "perturbation, seed, margin, position_margin, jerk",
+            "perturbation, seed, margin, position_margin, jerk, end_period, end_window",
         ),
         ("margin: -0.1", "closed_loop.margin: must be at least 0, got -0.1"),
         ("position_margin: -1", "closed_loop.position_margin: must be at least 0 rad, got -1"),
         ("jerk: 0", "closed_loop.jerk: must be greater than 0 rad/s^3, got 0"),
+        ("end_period: 0", "closed_loop.end_period: must be greater than 0 s, got 0"),
+        ("end_window: -1", "closed_loop.end_window: must be at least 0 s, got -1"),
     ],
 )
 def test_bad_closed_loop_values_name_file_line_and_key(tmp_path, entry, message):
@@ -273,6 +313,20 @@ def test_the_worst_runs_urdf_holds_its_true_robot():
         np.testing.assert_allclose(read.inertia, true.inertia, atol=1e-12)
     # and it is not the nominal robot
     assert abs(model.inertias[1].mass - task.robot.model.inertias[1].mass) > 1e-6
+
+
+def test_the_periods_shorten_over_the_motions_last_seconds():
+    """Every 0.5 s, every 0.2 s from the first period's start inside the last 3 s, each a whole
+    number of intervals; without an end period every 0.5 s to the end."""
+    options = ClosedLoopOptions(period=0.5, end_period=0.2, end_window=3.0)
+    assert period_starts(100, 0.1, options) == [*range(0, 70, 5), *range(70, 100, 2), 100]
+    assert period_starts(100, 0.1, dataclasses.replace(options, end_period=None)) == [
+        *range(0, 100, 5),
+        100,
+    ]
+    # no period starts inside a window shorter than a period: the periods stay as they are
+    short = dataclasses.replace(options, end_window=0.3)
+    assert period_starts(100, 0.1, short) == [*range(0, 100, 5), 100]
 
 
 def test_a_margin_of_one_or_more_is_refused(tmp_path):

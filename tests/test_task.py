@@ -820,6 +820,8 @@ OPTION_KEYS_DEFAULTS = [
     ("closed_loop.margin", "0.06"),
     ("closed_loop.position_margin", "0.002"),
     ("closed_loop.jerk", "15.0"),
+    ("closed_loop.end_period", "0.2"),
+    ("closed_loop.end_window", "3.0"),
 ]
 
 

@@ -1,8 +1,8 @@
 """The closed-loop study of a run (``--closed-loop``; ``docs/executable-plans.md``, "Closed
 loop"): every plan flown on ``closed_loop.samples`` perturbed true robots in forward dynamics, the
-optimal plan re-planned every period from the measured state (:mod:`balance_opt.dynamics.
-closed_loop`), the analytic law evaluated at the measured state. The true robots are those of the
-model-error study (same perturbation and seed unless the task says otherwise), so open and closed
+optimal plan re-planned every period from the measured state (:mod:`balance_opt.control.flight`),
+the analytic law evaluated at the measured state. The true robots are those of the model-error
+study (same perturbation and seed unless the task says otherwise), so open and closed
 loop are compared on the same truths.
 
 The Monte Carlo runs on the executor the caller passes (the sweep engine's process pool or Dask:
@@ -67,10 +67,10 @@ class ClosedLoopChunk:
     geometry: tuple | None = None  # (srdf, ignore) of the clearance check, None: no geometry
 
     def __call__(self, indices: list[int]) -> list[dict]:
-        from balance_opt.dynamics.closed_loop import fly_closed_loop
+        from balance_opt.control.flight import fly_closed_loop
+        from balance_opt.control.replan import Replanner, closed_loop_planner, margined
         from balance_opt.dynamics.simulation import simulate
         from balance_opt.optimal.model import PlannerModel
-        from balance_opt.optimal.replan import Replanner, closed_loop_planner, margined
         from balance_opt.optimal.solve import build_balance_nlp
 
         truths = true_robots(self.robot, self.options)

@@ -105,7 +105,7 @@ PEAK_FLOORS = ("measured", "plan")
 
 @dataclass(frozen=True)
 class ClosedLoopOptions:
-    """The closed-loop study (:mod:`balance_opt.dynamics.closed_loop`,
+    """The closed-loop study (:mod:`balance_opt.control.flight`,
     ``docs/executable-plans.md``): each plan flown on ``samples`` perturbed true models in forward dynamics, the balance arm
     re-planned every ``period`` from the measured state with the nominal model.
     ``perturbation`` and ``seed`` unset take the ``robustness`` section's, so that open and
@@ -162,10 +162,21 @@ class ClosedLoopOptions:
         "at the first plan's peak (plan)",
     )
 
+    end_period: float | None = setting(
+        0.2,
+        unit="s",
+        exclusive_minimum=0.0,
+        doc="control period over the motion's last end_window seconds, where a re-plan's "
+        "correction has the least time left (null: period throughout)",
+    )
+    end_window: float = setting(
+        3.0, unit="s", minimum=0.0, doc="the motion's last seconds, re-planned every end_period"
+    )
+
     @property
     def margins(self) -> tuple[float, float, float | None]:
         """``(margin, position_margin, jerk)``: the arguments of
-        :func:`~balance_opt.optimal.replan.margined` after the robot."""
+        :func:`~balance_opt.control.replan.margined` after the robot."""
         return self.margin, self.position_margin, self.jerk
 
     def __post_init__(self):

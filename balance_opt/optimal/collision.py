@@ -240,7 +240,7 @@ def restarted(
 ) -> CollisionSetup | None:
     """``setup``, the collision avoidance of the same problem from another start, with its rows'
     start values and its pairs' thresholds taken at ``q0``: a re-plan
-    (:mod:`balance_opt.optimal.replan`) keeps the rows, and so the NLP structure, built before
+    (:mod:`balance_opt.control.replan`) keeps the rows, and so the NLP structure, built before
     the motion (choosing them again from every measured start costs a quarter second, and a
     row set of its own a new structure); only the start's bounds move."""
     if setup is None:

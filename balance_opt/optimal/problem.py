@@ -121,7 +121,7 @@ class Bounds:
 
 @dataclass(frozen=True)
 class StartState:
-    """Where a re-plan starts (:mod:`balance_opt.optimal.replan`): the balance arm in the middle
+    """Where a re-plan starts (:mod:`balance_opt.control.replan`): the balance arm in the middle
     of a motion and the base turned, instead of the arm at rest at ``q_B0`` and the base at its
     initial attitude. The problem's ``q_B0`` is the balance joints' positions there.
 

@@ -2,26 +2,28 @@
 the true robot (a perturbed model), the balance arm re-planned every period with the nominal
 model from the measured state, the joint controllers tracking the newest plan.
 
-Timing: the state measured at a period's start ``t_j`` (joint positions and rates, base
-attitude and rate) is turned into a re-plan that applies from ``t_j + period``, computed during
-the period. Its start is predicted to ``t_j + period``: the balance arm where the plan in force
-(already commanded) has it, the base turned from the measured attitude by the plan's own
-increment over the period (the nominal model's). A re-plan that fails, or that took longer than
-the period on the machine that ran it (or that Ipopt stopped at its time budget: the
-replanner's ``budget``), leaves the plan in force and is counted. The simulation
-does not wait for the clock: the same truth and plans give the same motion (a late re-plan is
-dropped by its measured time, the only thing the machine changes).
+Timing: the state measured at a period's start (joint positions and rates, base attitude and
+rate) is turned into a re-plan that applies from there (or, ``delayed``, from the next period's
+start, from a state predicted with the plan in force). The periods are ``period`` long, and
+``end_period`` over the motion's last ``end_window`` seconds. A re-plan that fails, or that
+took longer than its period on the machine that ran it, leaves the plan in force and is
+counted; one that Ipopt stopped at its time budget (the replanner's ``budget``) applies its
+iterate if it keeps every constraint, else it is late too. The simulation does not wait for
+the clock: the same truth and plans give the same motion (a late re-plan is dropped by its
+measured time, the only thing the machine changes).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
 
+from balance_opt.control.replan import Replanner, ReplanOutcome, Segment
 from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate
 from balance_opt.model.robot import FloatingRobot
@@ -33,7 +35,6 @@ from balance_opt.motion.so3 import (
     rotvec_from_quaternion,
 )
 from balance_opt.motion.trajectories import MissionWindow
-from balance_opt.optimal.replan import Replanner, ReplanOutcome, Segment
 
 
 @dataclass
@@ -123,7 +124,7 @@ def fly_closed_loop(
             plan's start, whatever the truth).
         options: the period and the momentum a re-plan assumes.
         prepared: the re-plans' NLPs are built already (:meth:`Replanner.prepare`).
-        deadline: compute time after which a re-plan is late [s] (default: the period;
+        deadline: compute time after which a re-plan is late [s] (default: its period;
             ``math.inf``: never, so that the motion does not depend on the machine at all).
         delayed: a re-plan applies a period after its measurement, from a predicted state
             (else at once: see the module docstring).
@@ -132,22 +133,21 @@ def fly_closed_loop(
     sim_opts = simulation or SimulationOptions()
     nlp = replanner.nlp
     nominal = nlp.robot
-    m = max(1, round(opts.period / nlp.h))
-    period = m * nlp.h
-    deadline = period if deadline is None else deadline
-    bounds = list(range(0, nlp.N, m)) + [nlp.N]  # the periods' first nodes, and the end
+    period = max(1, round(opts.period / nlp.h)) * nlp.h
+    bounds = period_starts(nlp.N, nlp.h, opts)  # the periods' first nodes, and the end
     lag = 1 if delayed else 0  # periods between a measurement and its plan
     # a re-plan has 2 intervals at least (the planner's smallest grid)
     switch_nodes = [n for n in bounds[1 + lag : -1] if nlp.N - n >= 2]
+    # each re-plan's own period (shorter near the end with end_period): its compute time
+    lengths = {a: (b - a) * nlp.h for a, b in itertools.pairwise(bounds) if a in switch_nodes}
     in_force = replanner.first(plan)
     prepare_s = 0.0
     if not prepared:
         h0 = nlp.h0 if opts.momentum == "zero" else np.r_[0.0, 0.0, 0.0, 1e-9, 0.0, 0.0]
-        prepare_s = replanner.prepare(in_force, switch_nodes, h0)
+        prepare_s = replanner.prepare(in_force, switch_nodes, h0, lengths)
     sim_opts = _with_nominal_gains(sim_opts, nlp, in_force)
-    mission = nlp.mission
     state, parts, starts = None, [], []
-    replans, late, pending = [], 0, None
+    replans, late, pending, limit = [], 0, None, period
     measured_peak = 0.0
     # with peak_floor "plan", the peak the first plan promised caps a re-plan's floor once the
     # truth has gone above it (the rest of the motion aimed back at it, not at the drift so far)
@@ -159,7 +159,7 @@ def fly_closed_loop(
         offset = in_force.node * nlp.h
         part = simulate(
             truth,
-            MissionWindow(mission, t_a, t_b),
+            MissionWindow(nlp.mission, t_a, t_b),
             MissionWindow(in_force.trajectory, t_a - offset, t_b - offset),
             sim_opts,
             duration=t_b - t_a,
@@ -171,20 +171,34 @@ def fly_closed_loop(
         state = (part.q_pin[-1].copy(), part.v[-1].copy())
         # from the attitude at t = 0 (a part's own angle is from its start)
         measured_peak = max(measured_peak, float(rotation_angle(part.quaternion).max()))
-        if pending is not None:  # the re-plan computed during this period applies from t_b
-            if pending.success and pending.compute_s <= deadline:
-                in_force = pending.segment
-            pending = None
+        # delayed, the re-plan computed during this period applies from t_b
+        if pending is not None and pending.success and pending.compute_s <= limit:
+            in_force = pending.segment
+        pending = None
         c = bounds[min(j + 1 + lag, len(bounds) - 1)]
         if c in switch_nodes:  # measure at t_b, re-plan for node c
-            pending = _replan(replanner, in_force, state, b, c, measured_peak, cap, opts, data)
-            replans.append(pending)
-            late += pending.out_of_time or (pending.success and pending.compute_s > deadline)
-            if not delayed:
-                if pending.success and pending.compute_s <= deadline:
-                    in_force = pending.segment
-                pending = None
+            limit = lengths[c] if deadline is None else deadline
+            outcome = _replan(replanner, in_force, state, b, c, measured_peak, cap, opts, data)
+            replans.append(outcome)
+            late += outcome.out_of_time or (outcome.success and outcome.compute_s > limit)
+            if delayed:
+                pending = outcome
+            elif outcome.success and outcome.compute_s <= limit:
+                in_force = outcome.segment
     return ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
+
+
+def period_starts(N: int, h: float, options: ClosedLoopOptions) -> list[int]:
+    """The first node of every period on a grid of ``N`` intervals of ``h`` [s], and ``N``:
+    every ``options.period``, every ``options.end_period`` over the last ``end_window`` seconds
+    (from the first period's start inside them), each a whole number of intervals."""
+    m = max(1, round(options.period / h))
+    starts = list(range(0, N, m))
+    if options.end_period is not None:
+        end = next((n for n in starts if (N - n) * h <= options.end_window + 1e-9), N)
+        fine = max(1, round(options.end_period / h))
+        starts = [n for n in starts if n < end] + list(range(end, N, fine))
+    return starts + [N]
 
 
 def _with_nominal_gains(sim_opts: SimulationOptions, nlp, in_force: Segment) -> SimulationOptions:
