@@ -92,6 +92,8 @@ class CollisionSetup:
             overlap at the start while its bodies do not (a bound there would start inside a
             shape); the refinement bounds it where the exact check finds the pair too close.
         left_out: every other checked pair of the geometry, by name, and why it has no row.
+        exact: the pairs of the watched rows, held by rows on their exact distance instead
+            (:mod:`~balance_opt.optimal.exact_rows`).
     """
 
     geometry: RobotGeometry
@@ -102,6 +104,14 @@ class CollisionSetup:
     threshold: dict[int, float]
     watched: np.ndarray
     left_out: dict[str, str]
+    exact: tuple[Pair, ...] = ()
+
+    @property
+    def exact_key(self) -> str:
+        """The key of the exact rows' pairs (``""``: none), registered with the models."""
+        if not self.exact:
+            return ""
+        return f"{self.rows.key}:" + ",".join(str(p.index) for p in self.exact)
 
     def start_bounds(self, margin: float) -> np.ndarray:
         """The rows' lower bounds before any refinement [m]: the margin plus
@@ -141,6 +151,8 @@ class CollisionModels:
         self.setups: dict = {}
         #: rows key -> (rows, ``clearance_rows(q_model)``)
         self.rows: dict = {}
+        #: exact rows key (:attr:`CollisionSetup.exact_key`) -> the pairs' names
+        self.exact: dict = {}
 
     def geometry(self, ignore=(), srdf: str | None = None, robot=None) -> RobotGeometry:
         """The geometry of ``robot`` (default: the model's; the model's kinematics, possibly
@@ -327,7 +339,14 @@ def _setup(
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)
     threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, initial, owner, threshold, watched, left_out)
+    # the watched rows' pairs: their shapes cannot tell them apart, their exact distance can
+    held = tuple(p for p in pairs if watched[owner[p.index]])
+    setup = CollisionSetup(
+        geometry, rows, pairs, initial, owner, threshold, watched, left_out, held
+    )
+    if held:
+        models.exact[setup.exact_key] = tuple(p.name for p in held)
+    return setup
 
 
 def report(problem, result) -> ClearanceReport:
@@ -371,11 +390,11 @@ def short(problem, result) -> list[PairClearance]:
     return [
         p
         for p in report(problem, result).below(margin)
-        if p.distance < setup.threshold[p.index] - _allowance(setup.threshold[p.index], margin)
+        if p.distance < setup.threshold[p.index] - allowance(setup.threshold[p.index], margin)
     ]
 
 
-def _allowance(threshold: float, margin: float) -> float:
+def allowance(threshold: float, margin: float) -> float:
     """How far below its threshold [m] a pair may come: :data:`COLLISION_SLACK` for a pair
     held to its distance at the start (below the margin), else :data:`TOLERANCE`."""
     return COLLISION_SLACK if threshold < margin else TOLERANCE
@@ -399,12 +418,14 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     whichever is larger, plus twice the interval's shortfall, or the shortfall and
     :data:`PUSH` if less (a watched row has no bound until then); and what it raised, in
     words."""
-    pairs = short(problem, result)
+    setup = problem.collision
+    exact = {p.index for p in setup.exact}  # held by their exact rows (exact_rows.ExactRows)
+    pairs = [p for p in short(problem, result) if p.index not in exact]
     if not pairs:
         return {}, []
     closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
     said = [f"collision rows of {len(pairs)} pairs ({closest})"]
-    setup, N = problem.collision, problem.N
+    N = problem.N
     mids = problem.transcription.has_midpoints
     before = problem.bounds.collision
     bound = np.array(before)

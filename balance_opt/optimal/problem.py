@@ -42,10 +42,18 @@ class StructureKey:
     timing: str = ""
     #: the peak objective's stages (their Ipopt options are the structure's)
     stages: tuple[Stage, ...] = ()
+    #: the exact rows' pairs (:attr:`~balance_opt.optimal.collision.CollisionSetup.exact_key`)
+    exact: str = ""
 
     @classmethod
     def of(
-        cls, limits, options, momentum: bool = False, collision: str = "", timing: str = ""
+        cls,
+        limits,
+        options,
+        momentum: bool = False,
+        collision: str = "",
+        timing: str = "",
+        exact: str = "",
     ) -> StructureKey:
         enforced = limited_kinds(options, limits)
         joints = ("position", "velocity", "acceleration", "jerk")
@@ -66,6 +74,7 @@ class StructureKey:
             collision=collision if options.collision_avoidance else "",
             timing=timing,
             stages=options.stages,
+            exact=exact if options.collision_avoidance else "",
         )
 
 
@@ -85,6 +94,9 @@ class Bounds:
             ``None`` without collision avoidance; read-only: at first
             :meth:`~balance_opt.optimal.collision.CollisionSetup.start_bounds`, raised by
             the refinement where the re-simulated motion came too close.
+        exact: the exact rows linearised at the last plan
+            (:class:`~balance_opt.optimal.exact_rows.Linearisation`), ``None`` until the
+            refinement linearises them (the rows free).
         mission_factor: with a free mission timing, factor on the mission joints' velocity
             and acceleration limits at each point (2 n_M, n_points: the rates, then the
             accelerations), read-only; ``None``: the limits (lowered by the refinement where
@@ -97,6 +109,7 @@ class Bounds:
     peak_reference: float = 1.0
     collision: np.ndarray | None = None
     mission_factor: np.ndarray | None = None
+    exact: Any = None
 
     def __post_init__(self):
         for name in ("torque_factor", "collision", "mission_factor"):
