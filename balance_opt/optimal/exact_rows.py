@@ -2,9 +2,9 @@
 whose shapes overlap at the start while their bodies do not), linearised at the previous plan
 as TrajOpt does: at every collocation point ``d(q_prev) + grad d(q_prev) . (q - q_prev) >=
 bound``, ``d`` and its gradient from coal's witness points and normal and the frames'
-Jacobians (numeric Pinocchio). The rows start free; the refinement linearises them at each
-plan whose continuous motion brings one of these pairs closer than it must keep, and solves
-again (``docs/collision.md``)."""
+Jacobians (numeric Pinocchio). The first solve's rows are linearised with the balance arm at
+its start; the refinement linearises them again at each plan whose continuous motion brings
+one of these pairs closer than it must keep, and solves again (``docs/collision.md``)."""
 
 from __future__ import annotations
 
@@ -69,61 +69,77 @@ def distance_gradient(geometry: RobotGeometry, q, pair: int) -> tuple[float, np.
     return float(result.min_distance), rate @ robot.velocity_map[:, 6:]
 
 
-def _points(problem, result) -> np.ndarray:
-    """The arm configuration of a re-simulated plan at the collocation points (n_points, n)."""
-    q = np.hstack([result.q_M, result.q_B])
-    return np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
+def at_rest(problem) -> Linearisation:
+    """The exact rows of ``problem`` (a :class:`~balance_opt.optimal.problem.BalanceProblem`
+    with exact pairs) linearised with the balance arm held at its start, the mission moving:
+    the first solve's. Linearised at a plan that passes through a body instead, a row pushes
+    the arm out on the far side, where the start cannot reach (the first plan of two fat
+    cylinders end to end did, and the re-solve was infeasible): from a motion that keeps the
+    pairs apart, each round's rows hold at the plan they are linearised at."""
+    q_M = problem.mission_samples[: problem.model.n_M].T
+    points = np.hstack([q_M, np.tile(problem.q_B0, (q_M.shape[0], 1))])
+    return linearise(problem, points)
 
 
-def linearise(problem, result) -> Linearisation:
-    """The exact rows of ``problem`` linearised at the re-simulated plan ``result``. A point
-    has a row where the pair comes within its threshold plus :data:`ACTIVATE` in this plan or
-    had one before, bounded at the threshold plus :data:`COLLISION_ALLOWANCE` (a pair that
-    starts closer than the margin: its start distance less :data:`COLLISION_SLACK`), raised on
-    each interval where the continuous motion still came too close by its shortfall and as
-    much more, up to :data:`PUSH` (as :func:`~balance_opt.optimal.collision.tighten` does)."""
-    setup, N, n_M = problem.collision, problem.N, problem.model.n_M
+def linearise(problem, points: np.ndarray, result=None) -> Linearisation:
+    """The exact rows of ``problem`` linearised at the arm configurations ``points`` of its
+    collocation points (n_points, n): those of the re-simulated plan ``result`` in a
+    refinement round. A point has a row where the pair comes within its threshold plus
+    :data:`ACTIVATE` there or had one before, bounded at the margin plus
+    :data:`COLLISION_ALLOWANCE`, or at its start distance less :data:`COLLISION_SLACK` if
+    smaller (the arm starts at rest), raised on each interval where the continuous motion
+    of ``result`` came too close by its shortfall and as much more, up to :data:`PUSH` (as
+    :func:`~balance_opt.optimal.collision.tighten` does)."""
+    setup, n_M = problem.collision, problem.model.n_M
     pairs, before = setup.exact, problem.bounds.exact
-    points = _points(problem, result)
     n_w, n_B, n_p = len(pairs), problem.model.n_B, points.shape[0]
     constant, gradient = np.zeros((n_w, n_p)), np.zeros((n_w * n_B, n_p))
     lower = np.full((n_w, n_p), -np.inf)
     margin = problem.options.collision_margin
-    mids = problem.transcription.has_midpoints
-    q = np.hstack([result.q_M, result.q_B])
-    first = np.zeros(n_w)  # each pair's distance at the start
+    start = setup.geometry.distances(points[0], [p.index for p in pairs])
     for w, pair in enumerate(pairs):
         threshold = setup.threshold[pair.index]
-        held = threshold - COLLISION_SLACK if threshold < margin else margin + COLLISION_ALLOWANCE
+        # as the collision rows start (CollisionSetup.start_bounds): the arm starts at rest
+        held = min(margin + COLLISION_ALLOWANCE, start[w] - COLLISION_SLACK)
         for k, qk in enumerate(points):
             d, grad = distance_gradient(setup.geometry, qk, pair.index)
             g = grad[n_M:]
             constant[w, k] = d - g @ qk[n_M:]
             gradient[w * n_B : (w + 1) * n_B, k] = g
-            first[w] = d if k == 0 else first[w]
             if d < threshold + ACTIVATE or (before is not None and before.lower[w, k] > -np.inf):
                 lower[w, k] = held
         if before is not None:  # the raises of earlier rounds stay
             lower[w] = np.maximum(lower[w], before.lower[w])
-        d = setup.geometry.distances_along(q, pair.index)
-        kept = threshold - allowance(threshold, margin)  # what the check holds it to
-        close = d < kept
-        intervals = np.minimum((result.t[close] / problem.h).astype(int), N - 1)
-        shortfall = np.full(N, -np.inf)
-        np.maximum.at(shortfall, intervals, kept - d[close])
-        for k in np.unique(intervals):
-            columns = [k, k + 1] + ([N + 1 + k] if mids else [])
-            s = shortfall[k]
-            lower[w, columns] = np.maximum(lower[w, columns], held) + s + min(PUSH, s)
+        if result is not None:
+            _raise_short(problem, result, pair, held, lower[w])
     # the arm starts at rest where it is: the first node's rows cannot move
-    lower[:, 0] = np.minimum(lower[:, 0], first - COLLISION_SLACK)
+    lower[:, 0] = np.minimum(lower[:, 0], start - COLLISION_SLACK)
     return Linearisation(constant, gradient, lower)
+
+
+def _raise_short(problem, result, pair, held: float, lower: np.ndarray) -> None:
+    """Raise ``lower`` (the pair's row bounds, in place) on each interval where the continuous
+    motion of ``result`` comes closer than the check holds the pair to."""
+    setup, N, margin = problem.collision, problem.N, problem.options.collision_margin
+    threshold = setup.threshold[pair.index]
+    kept = threshold - allowance(threshold, margin)
+    d = setup.geometry.distances_along(np.hstack([result.q_M, result.q_B]), pair.index)
+    close = d < kept
+    intervals = np.minimum((result.t[close] / problem.h).astype(int), N - 1)
+    shortfall = np.full(N, -np.inf)
+    np.maximum.at(shortfall, intervals, kept - d[close])
+    mids = problem.transcription.has_midpoints
+    for k in np.unique(intervals):
+        columns = [k, k + 1] + ([N + 1 + k] if mids else [])
+        s = shortfall[k]
+        lower[columns] = np.maximum(lower[columns], held) + s + min(PUSH, s)
 
 
 class ExactRows(Term):
     """The exact-distance rows of the watched pairs (:mod:`balance_opt.optimal.exact_rows`):
     linear in the balance joints at every collocation point, their coefficients NLP
-    parameters (``problem.bounds.exact``: free rows until the refinement linearises them)."""
+    parameters (``problem.bounds.exact``: linearised with the arm at rest, then at each plan
+    the refinement finds too close)."""
 
     name = "exact collision"
 
@@ -161,9 +177,7 @@ class ExactRows(Term):
         return block_rows(nlp, "collision clearance", labels, "m", values)
 
     def row_bounds(self, problem, block):
-        lin = problem.bounds.exact
-        lower = np.full(block.size, -np.inf) if lin is None else lin.lower.ravel(order="F")
-        return lower, np.full(block.size, np.inf)
+        return problem.bounds.exact.lower.ravel(order="F"), np.full(block.size, np.inf)
 
     def tighten(self, problem, result):
         exact = {p.index for p in problem.collision.exact}
@@ -172,4 +186,6 @@ class ExactRows(Term):
             return {}, []
         closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
         said = f"exact rows of {len(problem.collision.exact)} pairs linearised ({closest})"
-        return {"exact": linearise(problem, result)}, [said]
+        q = np.hstack([result.q_M, result.q_B])
+        points = np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
+        return {"exact": linearise(problem, points, result)}, [said]
