@@ -1,10 +1,15 @@
 """Rows on the exact distance of the pairs the fitted shapes cannot hold (the *watched* pairs,
 whose shapes overlap at the start while their bodies do not), linearised at the previous plan
-as TrajOpt does: at every collocation point ``d(q_prev) + grad d(q_prev) . (q - q_prev) >=
-bound``, ``d`` and its gradient from coal's witness points and normal and the frames'
-Jacobians (numeric Pinocchio). The first solve's rows are linearised with the balance arm at
-its start; the refinement linearises them again at each plan whose continuous motion brings
-one of these pairs closer than it must keep, and solves again (``docs/collision.md``)."""
+as TrajOpt does, less a curvature term that keeps each row to where its linearisation holds:
+at every collocation point
+
+    d(q_0) + grad d(q_0) . (q - q_0) - 1/2 sum_j k_j (q_j - q_0j)^2 >= bound,
+
+``d`` and its gradient from coal's witness points and normal and the frames' Jacobians
+(numeric Pinocchio), ``k_j`` [m/rad^2] the least that keeps the row below the exact
+distance a few steps along joint ``j`` (:func:`curvature`). The first solve's rows are linearised with the balance arm at its start; the
+refinement linearises them again at each plan whose continuous motion brings one of these
+pairs closer than it must keep, and solves again (``docs/collision.md``)."""
 
 from __future__ import annotations
 
@@ -19,26 +24,28 @@ from balance_opt.optimal.collision import (
     COLLISION_ALLOWANCE,
     COLLISION_SLACK,
     PUSH,
-    WATCH,
     allowance,
     short,
 )
 from balance_opt.optimal.terms import Rows, SymbolicNLP, Term, block_rows
 
-#: A point gets its row once the pair comes within its threshold plus this [m] there (in a
-#: linearised plan; it keeps it in the later rounds): farther, the linearisation only
-#: restricts a motion that does not need it.
-ACTIVATE = WATCH
+#: The steps [rad] along each joint at which a row's curvature term is fitted below the exact
+#: distance (:func:`curvature`): up to 1 rad, the distance from Baxter's wrist's start to the
+#: kink where its end and its forearm cover's are parallel (0.6 rad) and beyond.
+SECANT_STEPS = (0.25, 0.5, 1.0)
 
 
 @dataclass(frozen=True)
 class Linearisation:
-    """The exact rows of a problem linearised at a plan: per pair ``w`` and point ``k`` the
-    row ``constant[w, k] + gradient[w n_B : (w + 1) n_B, k] . q_B(k) >= lower[w, k]`` [m]
-    (``lower`` ``-inf`` where a point has no row yet)."""
+    """The exact rows of a problem linearised at arm configurations ``centre`` (n_B, n_points)
+    of the balance joints: per pair ``w`` and point ``k`` the row ``distance[w, k] +
+    g . (q_B(k) - centre[:, k]) - 1/2 sum_j curvature[w n_B + j] (q_B(k) - centre[:, k])_j^2
+    >= lower[w, k]`` [m], ``g = gradient[w n_B : (w + 1) n_B, k]``."""
 
-    constant: np.ndarray
+    distance: np.ndarray
     gradient: np.ndarray
+    centre: np.ndarray
+    curvature: np.ndarray
     lower: np.ndarray
 
 
@@ -69,13 +76,35 @@ def distance_gradient(geometry: RobotGeometry, q, pair: int) -> tuple[float, np.
     return float(result.min_distance), rate @ robot.velocity_map[:, 6:]
 
 
+def curvature(geometry: RobotGeometry, pair, q: np.ndarray, d: float, grad: np.ndarray, n_M: int):
+    """``k`` [m/rad^2] of a pair's row at the arm configuration ``q`` over the balance joints:
+    per joint that turns one of its objects and not the other, the least that keeps the row
+    at or below the exact distance at ``q`` moved by each of :data:`SECANT_STEPS` either way
+    along that joint alone. Without it a row linearised on one side of a kink of the distance
+    (two cylinders' ends parallel, where the nearest rim point jumps across) holds on the
+    other side too, where the distance falls again: Baxter's wrist went through the kink and
+    37 mm into the forearm's cover on the far side."""
+    a, b = geometry.reach[pair.first], geometry.reach[pair.second]
+    E, _ = geometry.robot.mimic_matrix
+    alone = (np.abs(E).T @ ((a == 0.0) != (b == 0.0)))[n_M:] > 0
+    out = np.zeros(alone.size)
+    for j in np.flatnonzero(alone):
+        for step in SECANT_STEPS:
+            for sign in (-1.0, 1.0):
+                moved = q.copy()
+                moved[n_M + j] += sign * step
+                exact = geometry.distances(moved, [pair.index])[0]
+                linear = d + sign * step * grad[j]
+                out[j] = max(out[j], 2.0 * (linear - exact) / step**2)
+    return out
+
+
 def at_rest(problem) -> Linearisation:
     """The exact rows of ``problem`` (a :class:`~balance_opt.optimal.problem.BalanceProblem`
     with exact pairs) linearised with the balance arm held at its start, the mission moving:
     the first solve's. Linearised at a plan that passes through a body instead, a row pushes
     the arm out on the far side, where the start cannot reach (the first plan of two fat
-    cylinders end to end did, and the re-solve was infeasible): from a motion that keeps the
-    pairs apart, each round's rows hold at the plan they are linearised at."""
+    cylinders end to end did, and the re-solve was infeasible)."""
     q_M = problem.mission_samples[: problem.model.n_M].T
     points = np.hstack([q_M, np.tile(problem.q_B0, (q_M.shape[0], 1))])
     return linearise(problem, points)
@@ -84,37 +113,33 @@ def at_rest(problem) -> Linearisation:
 def linearise(problem, points: np.ndarray, result=None) -> Linearisation:
     """The exact rows of ``problem`` linearised at the arm configurations ``points`` of its
     collocation points (n_points, n): those of the re-simulated plan ``result`` in a
-    refinement round. A point has a row where the pair comes within its threshold plus
-    :data:`ACTIVATE` there or had one before, bounded at the margin plus
+    refinement round. Every point has a row, bounded at the margin plus
     :data:`COLLISION_ALLOWANCE`, or at its start distance less :data:`COLLISION_SLACK` if
-    smaller (the arm starts at rest), raised on each interval where the continuous motion
-    of ``result`` came too close by its shortfall and as much more, up to :data:`PUSH` (as
-    :func:`~balance_opt.optimal.collision.tighten` does)."""
+    smaller (the arm starts at rest), raised on each interval where the continuous motion of
+    ``result`` came too close by its shortfall and as much more, up to :data:`PUSH` (as
+    :func:`~balance_opt.optimal.collision.tighten` does); the raises of earlier rounds stay."""
     setup, n_M = problem.collision, problem.model.n_M
     pairs, before = setup.exact, problem.bounds.exact
     n_w, n_B, n_p = len(pairs), problem.model.n_B, points.shape[0]
-    constant, gradient = np.zeros((n_w, n_p)), np.zeros((n_w * n_B, n_p))
-    lower = np.full((n_w, n_p), -np.inf)
+    distance, gradient = np.zeros((n_w, n_p)), np.zeros((n_w * n_B, n_p))
+    bend, lower = np.zeros((n_w * n_B, n_p)), np.zeros((n_w, n_p))
     margin = problem.options.collision_margin
     start = setup.geometry.distances(points[0], [p.index for p in pairs])
     for w, pair in enumerate(pairs):
-        threshold = setup.threshold[pair.index]
-        # as the collision rows start (CollisionSetup.start_bounds): the arm starts at rest
-        held = min(margin + COLLISION_ALLOWANCE, start[w] - COLLISION_SLACK)
         for k, qk in enumerate(points):
-            d, grad = distance_gradient(setup.geometry, qk, pair.index)
-            g = grad[n_M:]
-            constant[w, k] = d - g @ qk[n_M:]
-            gradient[w * n_B : (w + 1) * n_B, k] = g
-            if d < threshold + ACTIVATE or (before is not None and before.lower[w, k] > -np.inf):
-                lower[w, k] = held
-        if before is not None:  # the raises of earlier rounds stay
+            distance[w, k], grad = distance_gradient(setup.geometry, qk, pair.index)
+            rows = slice(w * n_B, (w + 1) * n_B)
+            gradient[rows, k] = grad = grad[n_M:]
+            bend[rows, k] = curvature(setup.geometry, pair, qk, distance[w, k], grad, n_M)
+        # as the collision rows start (CollisionSetup.start_bounds): the arm starts at rest
+        lower[w] = held = min(margin + COLLISION_ALLOWANCE, start[w] - COLLISION_SLACK)
+        if before is not None:
             lower[w] = np.maximum(lower[w], before.lower[w])
         if result is not None:
             _raise_short(problem, result, pair, held, lower[w])
     # the arm starts at rest where it is: the first node's rows cannot move
     lower[:, 0] = np.minimum(lower[:, 0], start - COLLISION_SLACK)
-    return Linearisation(constant, gradient, lower)
+    return Linearisation(distance, gradient, points[:, n_M:].T.copy(), bend, lower)
 
 
 def _raise_short(problem, result, pair, held: float, lower: np.ndarray) -> None:
@@ -137,7 +162,7 @@ def _raise_short(problem, result, pair, held: float, lower: np.ndarray) -> None:
 
 class ExactRows(Term):
     """The exact-distance rows of the watched pairs (:mod:`balance_opt.optimal.exact_rows`):
-    linear in the balance joints at every collocation point, their coefficients NLP
+    quadratic in the balance joints at every collocation point, their coefficients NLP
     parameters (``problem.bounds.exact``: linearised with the arm at rest, then at each plan
     the refinement finds too close)."""
 
@@ -148,33 +173,29 @@ class ExactRows(Term):
 
     def values(self, problem):
         lin = problem.bounds.exact
-        if lin is None:
-            n_w, n_B, n_p = (
-                len(problem.collision.exact),
-                problem.model.n_B,
-                problem.point_times.size,
-            )
-            return {
-                "exact_constant": np.zeros((n_w, n_p)),
-                "exact_gradient": np.zeros((n_w * n_B, n_p)),
-            }
-        return {"exact_constant": lin.constant, "exact_gradient": lin.gradient}
+        return {
+            "exact_distance": lin.distance,
+            "exact_gradient": lin.gradient,
+            "exact_centre": lin.centre,
+            "exact_curvature": lin.curvature,
+        }
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
         pairs = nlp.model.collisions.exact[self.key]
         X, _ = nlp.variables.points()
         n_B = len(nlp.joints)
-        q_B = X[3 : 3 + n_B, :]
         par = nlp.parameters
-        values = cs.vertcat(
-            *[
-                par.exact_constant[w, :]
-                + cs.sum1(par.exact_gradient[w * n_B : (w + 1) * n_B, :] * q_B)
-                for w in range(len(pairs))
-            ]
-        )
+        step = X[3 : 3 + n_B, :] - par.exact_centre
+        values = []
+        for w in range(len(pairs)):
+            rows = slice(w * n_B, (w + 1) * n_B)
+            values.append(
+                par.exact_distance[w, :]
+                + cs.sum1(par.exact_gradient[rows, :] * step)
+                - 0.5 * cs.sum1(par.exact_curvature[rows, :] * step**2)
+            )
         labels = [f"{name} (exact, linearised)" for name in pairs]
-        return block_rows(nlp, "collision clearance", labels, "m", values)
+        return block_rows(nlp, "collision clearance", labels, "m", cs.vertcat(*values))
 
     def row_bounds(self, problem, block):
         return problem.bounds.exact.lower.ravel(order="F"), np.full(block.size, np.inf)
