@@ -70,7 +70,10 @@ def test_the_exact_distance_gradient_is_coals_by_finite_differences():
         h = 1e-3
         steps = np.eye(q.size) * h
         fd = [
-            (geometry.distances(q + e, [pair.index])[0] - geometry.distances(q - e, [pair.index])[0])
+            (
+                geometry.distances(q + e, [pair.index])[0]
+                - geometry.distances(q - e, [pair.index])[0]
+            )
             / (2 * h)
             for e in steps
         ]
