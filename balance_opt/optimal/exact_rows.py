@@ -29,10 +29,11 @@ from balance_opt.optimal.collision import (
 )
 from balance_opt.optimal.terms import Rows, SymbolicNLP, Term, block_rows
 
-#: The steps [rad] along each joint at which a row's curvature term is fitted below the exact
-#: distance (:func:`curvature`): up to 1 rad, the distance from Baxter's wrist's start to the
-#: kink where its end and its forearm cover's are parallel (0.6 rad) and beyond.
-SECANT_STEPS = (0.25, 0.5, 1.0)
+#: The steps [rad] along each joint (and the joint's limit) at which a row's curvature term is
+#: fitted below the exact distance (:func:`curvature`): a kink of the distance lies anywhere
+#: in the joint's range (Baxter's wrist 0.6 rad from the parallel ends of it and its forearm's
+#: cover, its elbow 0.75 rad from another).
+SECANT_STEPS = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,7 @@ class Linearisation:
     distance: np.ndarray
     gradient: np.ndarray
     centre: np.ndarray
-    curvature: np.ndarray
+    bend: np.ndarray
     lower: np.ndarray
 
 
@@ -79,23 +80,26 @@ def distance_gradient(geometry: RobotGeometry, q, pair: int) -> tuple[float, np.
 def curvature(geometry: RobotGeometry, pair, q: np.ndarray, d: float, grad: np.ndarray, n_M: int):
     """``k`` [m/rad^2] of a pair's row at the arm configuration ``q`` over the balance joints:
     per joint that turns one of its objects and not the other, the least that keeps the row
-    at or below the exact distance at ``q`` moved by each of :data:`SECANT_STEPS` either way
-    along that joint alone. Without it a row linearised on one side of a kink of the distance
-    (two cylinders' ends parallel, where the nearest rim point jumps across) holds on the
-    other side too, where the distance falls again: Baxter's wrist went through the kink and
-    37 mm into the forearm's cover on the far side."""
+    at or below the exact distance at ``q`` moved along that joint alone by each of
+    :data:`SECANT_STEPS` either way, and to its limit, inside the limits. Without it a row
+    linearised on one side of a kink of the distance (two cylinders' ends parallel, where the
+    nearest rim point jumps across) holds on the other side too, where the distance falls
+    again: Baxter's wrist went through such a kink and 37 mm into its forearm's cover."""
+    robot = geometry.robot
     a, b = geometry.reach[pair.first], geometry.reach[pair.second]
-    E, _ = geometry.robot.mimic_matrix
+    E, _ = robot.mimic_matrix
     alone = (np.abs(E).T @ ((a == 0.0) != (b == 0.0)))[n_M:] > 0
+    lower = np.maximum(robot.limits.lower[n_M:], -np.pi) - q[n_M:]
+    upper = np.minimum(robot.limits.upper[n_M:], np.pi) + 0.0 - q[n_M:]
     out = np.zeros(alone.size)
     for j in np.flatnonzero(alone):
-        for step in SECANT_STEPS:
-            for sign in (-1.0, 1.0):
+        for room in (lower[j], upper[j]):
+            steps = [x for x in SECANT_STEPS if x < abs(room)] + [abs(room)]
+            for step in (x * np.sign(room) for x in steps if x > 1e-3):
                 moved = q.copy()
-                moved[n_M + j] += sign * step
+                moved[n_M + j] += step
                 exact = geometry.distances(moved, [pair.index])[0]
-                linear = d + sign * step * grad[j]
-                out[j] = max(out[j], 2.0 * (linear - exact) / step**2)
+                out[j] = max(out[j], 2.0 * (d + step * grad[j] - exact) / step**2)
     return out
 
 
@@ -121,25 +125,32 @@ def linearise(problem, points: np.ndarray, result=None) -> Linearisation:
     setup, n_M = problem.collision, problem.model.n_M
     pairs, before = setup.exact, problem.bounds.exact
     n_w, n_B, n_p = len(pairs), problem.model.n_B, points.shape[0]
-    distance, gradient = np.zeros((n_w, n_p)), np.zeros((n_w * n_B, n_p))
-    bend, lower = np.zeros((n_w * n_B, n_p)), np.zeros((n_w, n_p))
+    distance, lower = np.zeros((n_w, n_p)), np.zeros((n_w, n_p))
+    gradient, bend = np.zeros((n_w * n_B, n_p)), np.zeros((n_w * n_B, n_p))
+    centre = np.tile(points[:, n_M:].T, (n_w, 1))
     margin = problem.options.collision_margin
     start = setup.geometry.distances(points[0], [p.index for p in pairs])
     for w, pair in enumerate(pairs):
-        for k, qk in enumerate(points):
-            distance[w, k], grad = distance_gradient(setup.geometry, qk, pair.index)
-            rows = slice(w * n_B, (w + 1) * n_B)
-            gradient[rows, k] = grad = grad[n_M:]
-            bend[rows, k] = curvature(setup.geometry, pair, qk, distance[w, k], grad, n_M)
+        rows = slice(w * n_B, (w + 1) * n_B)
         # as the collision rows start (CollisionSetup.start_bounds): the arm starts at rest
         lower[w] = held = min(margin + COLLISION_ALLOWANCE, start[w] - COLLISION_SLACK)
+        for k, qk in enumerate(points):
+            d, grad = distance_gradient(setup.geometry, qk, pair.index)
+            if before is not None and d < held:
+                # inside the bound: linearised here the row would push the arm out on the far
+                # side; the last row, from where the pair was apart, stays (raised below)
+                distance[w, k], centre[rows, k] = before.distance[w, k], before.centre[rows, k]
+                gradient[rows, k], bend[rows, k] = before.gradient[rows, k], before.bend[rows, k]
+                continue
+            distance[w, k], gradient[rows, k] = d, grad[n_M:]
+            bend[rows, k] = curvature(setup.geometry, pair, qk, d, grad[n_M:], n_M)
         if before is not None:
             lower[w] = np.maximum(lower[w], before.lower[w])
         if result is not None:
             _raise_short(problem, result, pair, held, lower[w])
     # the arm starts at rest where it is: the first node's rows cannot move
     lower[:, 0] = np.minimum(lower[:, 0], start - COLLISION_SLACK)
-    return Linearisation(distance, gradient, points[:, n_M:].T.copy(), bend, lower)
+    return Linearisation(distance, gradient, centre, bend, lower)
 
 
 def _raise_short(problem, result, pair, held: float, lower: np.ndarray) -> None:
@@ -177,7 +188,7 @@ class ExactRows(Term):
             "exact_distance": lin.distance,
             "exact_gradient": lin.gradient,
             "exact_centre": lin.centre,
-            "exact_curvature": lin.curvature,
+            "exact_bend": lin.bend,
         }
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
@@ -185,14 +196,14 @@ class ExactRows(Term):
         X, _ = nlp.variables.points()
         n_B = len(nlp.joints)
         par = nlp.parameters
-        step = X[3 : 3 + n_B, :] - par.exact_centre
         values = []
         for w in range(len(pairs)):
             rows = slice(w * n_B, (w + 1) * n_B)
+            step = X[3 : 3 + n_B, :] - par.exact_centre[rows, :]
             values.append(
                 par.exact_distance[w, :]
                 + cs.sum1(par.exact_gradient[rows, :] * step)
-                - 0.5 * cs.sum1(par.exact_curvature[rows, :] * step**2)
+                - 0.5 * cs.sum1(par.exact_bend[rows, :] * step**2)
             )
         labels = [f"{name} (exact, linearised)" for name in pairs]
         return block_rows(nlp, "collision clearance", labels, "m", cs.vertcat(*values))
