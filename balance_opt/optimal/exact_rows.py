@@ -7,9 +7,10 @@ at every collocation point
 
 ``d`` and its gradient from coal's witness points and normal and the frames' Jacobians
 (numeric Pinocchio), ``k_j`` [m/rad^2] the least that keeps the row below the exact
-distance a few steps along joint ``j`` (:func:`curvature`). The first solve's rows are linearised with the balance arm at its start; the
-refinement linearises them again at each plan whose continuous motion brings one of these
-pairs closer than it must keep, and solves again (``docs/collision.md``)."""
+distance at steps along joint ``j`` up to its limits (:func:`curvature`). The first solve's
+rows are linearised with the balance arm at its start; the refinement linearises them again
+at each plan whose continuous motion brings one of these pairs closer than it must keep, and
+solves again (``docs/collision.md``)."""
 
 from __future__ import annotations
 
@@ -38,10 +39,10 @@ SECANT_STEPS = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
 
 @dataclass(frozen=True)
 class Linearisation:
-    """The exact rows of a problem linearised at arm configurations ``centre`` (n_B, n_points)
-    of the balance joints: per pair ``w`` and point ``k`` the row ``distance[w, k] +
-    g . (q_B(k) - centre[:, k]) - 1/2 sum_j curvature[w n_B + j] (q_B(k) - centre[:, k])_j^2
-    >= lower[w, k]`` [m], ``g = gradient[w n_B : (w + 1) n_B, k]``."""
+    """The exact rows of a problem: per pair ``w`` and point ``k``, with ``r`` the rows
+    ``w n_B .. (w + 1) n_B`` of the balance joints and ``x = q_B(k) - centre[r, k]``, the row
+    ``distance[w, k] + gradient[r, k] . x - 1/2 sum_j bend[r, k]_j x_j^2 >= lower[w, k]``
+    [m]: linearised at ``centre``, bent by ``bend`` [m/rad^2] (:func:`curvature`)."""
 
     distance: np.ndarray
     gradient: np.ndarray
