@@ -400,12 +400,17 @@ def allowance(threshold: float, margin: float) -> float:
     return COLLISION_SLACK if threshold < margin else TOLERANCE
 
 
+def point_configurations(problem, result) -> np.ndarray:
+    """The arm configurations of a re-simulated plan at the collocation points (n_points, n)."""
+    q = np.hstack([result.q_M, result.q_B])
+    return np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
+
+
 def row_values(problem, result) -> np.ndarray:
     """The collision rows' values at the collocation points of a re-simulated plan (n_c,
     n_points) [m]."""
     setup = problem.collision
-    q = np.hstack([result.q_M, result.q_B])
-    points = np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
+    points = point_configurations(problem, result)
     E, e = setup.geometry.robot.mimic_matrix
     f = problem.model.collisions.function(setup.rows, problem.model.maps.joint_placements_fun())
     return np.array(f.map(points.shape[0])((points @ E.T + e).T))

@@ -26,6 +26,7 @@ from balance_opt.optimal.collision import (
     COLLISION_SLACK,
     PUSH,
     allowance,
+    point_configurations,
     short,
 )
 from balance_opt.optimal.terms import Rows, SymbolicNLP, Term, block_rows
@@ -186,10 +187,8 @@ class ExactRows(Term):
     def values(self, problem):
         lin = problem.bounds.exact
         return {
-            "exact_distance": lin.distance,
-            "exact_gradient": lin.gradient,
-            "exact_centre": lin.centre,
-            "exact_bend": lin.bend,
+            f"exact_{name}": getattr(lin, name)
+            for name in ("distance", "gradient", "centre", "bend")
         }
 
     def rows(self, nlp: SymbolicNLP) -> list[Rows]:
@@ -219,6 +218,4 @@ class ExactRows(Term):
             return {}, []
         closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
         said = f"exact rows of {len(problem.collision.exact)} pairs linearised ({closest})"
-        q = np.hstack([result.q_M, result.q_B])
-        points = np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
-        return {"exact": linearise(problem, points, result)}, [said]
+        return {"exact": linearise(problem, point_configurations(problem, result), result)}, [said]
