@@ -88,9 +88,9 @@ class CollisionSetup:
 
     Attributes:
         pairs: the checked pairs the planner holds, each with a row (``owner``).
-        watched: per row, whether it starts unbounded: the row of a pair whose fitted shapes
+        watched: per row, whether it stays unbounded: the row of a pair whose fitted shapes
             overlap at the start while its bodies do not (a bound there would start inside a
-            shape); the refinement bounds it where the exact check finds the pair too close.
+            shape); its pairs are held by exact rows (``exact``).
         left_out: every other checked pair of the geometry, by name, and why it has no row.
         exact: the pairs of the watched rows, held by rows on their exact distance instead
             (:mod:`~balance_opt.optimal.exact_rows`).
@@ -122,7 +122,7 @@ class CollisionSetup:
 
     def account(self) -> dict:
         """What the planner does with each checked pair, as plain data: the pairs with a row
-        (``constrained``), those of them whose row waits for the check (``watched``), and the
+        (``constrained``), those of them held by exact rows instead (``watched``), and the
         pairs left out, counted by reason."""
         watched = set(np.flatnonzero(self.watched).tolist())
         return {
@@ -384,8 +384,9 @@ def short(problem, result) -> list[PairClearance]:
     """The pairs closer than they must keep, closest first: the margin (less
     :data:`TOLERANCE`), or, for a pair that starts closer (the arm starts at rest there), its
     distance at the start less :data:`COLLISION_SLACK`, as its row is bounded. A watched pair
-    too (its fitted shapes overlap at the start): its row is raised as any other, and a plan
-    that stays too close after the rounds fails."""
+    too (its fitted shapes overlap at the start): its exact rows are linearised again
+    (:mod:`~balance_opt.optimal.exact_rows`), and a plan that stays too close after the rounds
+    fails."""
     setup, margin = problem.collision, problem.options.collision_margin
     return [
         p
@@ -421,8 +422,8 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     raised for the pairs closer than their threshold (:func:`short`) on every interval where
     they are (and on the one of their minimum): to the row's bound or its value in this plan,
     whichever is larger, plus twice the interval's shortfall, or the shortfall and
-    :data:`PUSH` if less (a watched row has no bound until then); and what it raised, in
-    words."""
+    :data:`PUSH` if less (not the watched pairs: their exact rows are linearised again,
+    :mod:`~balance_opt.optimal.exact_rows`); and what it raised, in words."""
     setup = problem.collision
     exact = {p.index for p in setup.exact}  # held by their exact rows (exact_rows.ExactRows)
     pairs = [p for p in short(problem, result) if p.index not in exact]
@@ -465,7 +466,7 @@ class Collision(Term):
     every collocation point, one row per body the balance joints move, the soft minimum of
     its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
     ``problem.bounds.collision``), and rows of their own for pairs that start close (watched,
-    unbounded, where their shapes overlap). The shapes contain the bodies; between the points
+    unbounded, where their shapes overlap: held by exact rows instead). The shapes contain the bodies; between the points
     the refinement raises a row's bound where the re-simulated motion comes closer than the
     margin (:meth:`tighten`), and a plan that still penetrates, or comes closer than the
     margin (a pair that starts closer: than its start, less the rows' slack), fails
