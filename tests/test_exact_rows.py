@@ -107,9 +107,10 @@ def _plan(avoid: bool):
 @pytest.mark.slow
 def test_fat_cylinders_end_to_end_are_held_apart_by_their_exact_rows():
     """The fitted capsules of the two fat cylinders overlap from the start (4 cm apart end to
-    end): their row is watched, no bound on it can hold them. Without avoidance the pull
-    drives the fore arm into the upper arm; with it the pair's exact rows, linearised at each
-    plan, keep every checked pair at least the margin apart on the continuous motion (coal at
+    end at 0, 3.1 cm at the start): their row is watched, no bound on it can hold them.
+    Without avoidance the pull drives the fore arm into the upper arm; with it the pair's
+    exact rows (linearised with the arm at rest, and again at each plan the check finds too
+    close) keep every checked pair at least the margin apart on the continuous motion (coal at
     every sample and the check's certified bound between them)."""
     from balance_opt.geometry.shapes import clearance_rows, moved_by
 
