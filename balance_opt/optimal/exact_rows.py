@@ -83,16 +83,18 @@ def curvature(geometry: RobotGeometry, pair, q: np.ndarray, d: float, grad: np.n
     """``k`` [m/rad^2] of a pair's row at the arm configuration ``q`` over the balance joints:
     per joint that turns one of its objects and not the other, the least that keeps the row
     at or below the exact distance at ``q`` moved along that joint alone by each of
-    :data:`SECANT_STEPS` either way, and to its limit, inside the limits. Without it a row
-    linearised on one side of a kink of the distance (two cylinders' ends parallel, where the
-    nearest rim point jumps across) holds on the other side too, where the distance falls
-    again: Baxter's wrist went through such a kink and 37 mm into its forearm's cover."""
+    :data:`SECANT_STEPS` either way and to its limit (half a turn at most), inside the limits.
+    Without it a row linearised on one side of a kink of the distance (two cylinders' ends
+    parallel, where the nearest rim point jumps across) holds on the other side too, where the
+    distance falls again: Baxter's wrist went through such a kink and 37 mm into its forearm's
+    cover."""
     robot = geometry.robot
     a, b = geometry.reach[pair.first], geometry.reach[pair.second]
     E, _ = robot.mimic_matrix
     alone = (np.abs(E).T @ ((a == 0.0) != (b == 0.0)))[n_M:] > 0
-    lower = np.maximum(robot.limits.lower[n_M:], -np.pi) - q[n_M:]
-    upper = np.minimum(robot.limits.upper[n_M:], np.pi) + 0.0 - q[n_M:]
+    # to the limits, half a turn at most (a continuous joint's are infinite)
+    lower = np.maximum(robot.limits.lower[n_M:] - q[n_M:], -np.pi)
+    upper = np.minimum(robot.limits.upper[n_M:] - q[n_M:], np.pi)
     out = np.zeros(alone.size)
     for j in np.flatnonzero(alone):
         for room in (lower[j], upper[j]):
