@@ -88,10 +88,12 @@ class CollisionSetup:
 
     Attributes:
         pairs: the checked pairs the planner holds, each with a row (``owner``).
-        watched: per row, whether it starts unbounded: the row of a pair whose fitted shapes
+        watched: per row, whether it stays unbounded: the row of a pair whose fitted shapes
             overlap at the start while its bodies do not (a bound there would start inside a
-            shape); the refinement bounds it where the exact check finds the pair too close.
+            shape); its pairs are held by exact rows (``exact``).
         left_out: every other checked pair of the geometry, by name, and why it has no row.
+        exact: the pairs of the watched rows, held by rows on their exact distance instead
+            (:mod:`~balance_opt.optimal.exact_rows`).
     """
 
     geometry: RobotGeometry
@@ -102,6 +104,14 @@ class CollisionSetup:
     threshold: dict[int, float]
     watched: np.ndarray
     left_out: dict[str, str]
+    exact: tuple[Pair, ...] = ()
+
+    @property
+    def exact_key(self) -> str:
+        """The key of the exact rows' pairs (``""``: none), registered with the models."""
+        if not self.exact:
+            return ""
+        return f"{self.rows.key}:" + ",".join(str(p.index) for p in self.exact)
 
     def start_bounds(self, margin: float) -> np.ndarray:
         """The rows' lower bounds before any refinement [m]: the margin plus
@@ -112,7 +122,7 @@ class CollisionSetup:
 
     def account(self) -> dict:
         """What the planner does with each checked pair, as plain data: the pairs with a row
-        (``constrained``), those of them whose row waits for the check (``watched``), and the
+        (``constrained``), those of them held by exact rows instead (``watched``), and the
         pairs left out, counted by reason."""
         watched = set(np.flatnonzero(self.watched).tolist())
         return {
@@ -141,6 +151,8 @@ class CollisionModels:
         self.setups: dict = {}
         #: rows key -> (rows, ``clearance_rows(q_model)``)
         self.rows: dict = {}
+        #: exact rows key (:attr:`CollisionSetup.exact_key`) -> the pairs' names
+        self.exact: dict = {}
 
     def geometry(self, ignore=(), srdf: str | None = None, robot=None) -> RobotGeometry:
         """The geometry of ``robot`` (default: the model's; the model's kinematics, possibly
@@ -327,7 +339,14 @@ def _setup(
     owner = {p.index: rows.row_of(p) for p in pairs}
     exact = geometry.distances(q0)
     threshold = {p.index: min(options.collision_margin, exact[p.index]) for p in pairs}
-    return CollisionSetup(geometry, rows, pairs, initial, owner, threshold, watched, left_out)
+    # the watched rows' pairs: their shapes cannot tell them apart, their exact distance can
+    held = tuple(p for p in pairs if watched[owner[p.index]])
+    setup = CollisionSetup(
+        geometry, rows, pairs, initial, owner, threshold, watched, left_out, held
+    )
+    if held:
+        models.exact[setup.exact_key] = tuple(p.name for p in held)
+    return setup
 
 
 def report(problem, result) -> ClearanceReport:
@@ -365,28 +384,34 @@ def short(problem, result) -> list[PairClearance]:
     """The pairs closer than they must keep, closest first: the margin (less
     :data:`TOLERANCE`), or, for a pair that starts closer (the arm starts at rest there), its
     distance at the start less :data:`COLLISION_SLACK`, as its row is bounded. A watched pair
-    too (its fitted shapes overlap at the start): its row is raised as any other, and a plan
-    that stays too close after the rounds fails."""
+    too (its fitted shapes overlap at the start): its exact rows are linearised again
+    (:mod:`~balance_opt.optimal.exact_rows`), and a plan that stays too close after the rounds
+    fails."""
     setup, margin = problem.collision, problem.options.collision_margin
     return [
         p
         for p in report(problem, result).below(margin)
-        if p.distance < setup.threshold[p.index] - _allowance(setup.threshold[p.index], margin)
+        if p.distance < setup.threshold[p.index] - allowance(setup.threshold[p.index], margin)
     ]
 
 
-def _allowance(threshold: float, margin: float) -> float:
+def allowance(threshold: float, margin: float) -> float:
     """How far below its threshold [m] a pair may come: :data:`COLLISION_SLACK` for a pair
     held to its distance at the start (below the margin), else :data:`TOLERANCE`."""
     return COLLISION_SLACK if threshold < margin else TOLERANCE
+
+
+def point_configurations(problem, result) -> np.ndarray:
+    """The arm configurations of a re-simulated plan at the collocation points (n_points, n)."""
+    q = np.hstack([result.q_M, result.q_B])
+    return np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
 
 
 def row_values(problem, result) -> np.ndarray:
     """The collision rows' values at the collocation points of a re-simulated plan (n_c,
     n_points) [m]."""
     setup = problem.collision
-    q = np.hstack([result.q_M, result.q_B])
-    points = np.stack([np.interp(problem.point_times, result.t, c) for c in q.T], axis=1)
+    points = point_configurations(problem, result)
     E, e = setup.geometry.robot.mimic_matrix
     f = problem.model.collisions.function(setup.rows, problem.model.maps.joint_placements_fun())
     return np.array(f.map(points.shape[0])((points @ E.T + e).T))
@@ -397,14 +422,16 @@ def tighten(problem, result) -> tuple[dict, list[str]]:
     raised for the pairs closer than their threshold (:func:`short`) on every interval where
     they are (and on the one of their minimum): to the row's bound or its value in this plan,
     whichever is larger, plus twice the interval's shortfall, or the shortfall and
-    :data:`PUSH` if less (a watched row has no bound until then); and what it raised, in
-    words."""
-    pairs = short(problem, result)
+    :data:`PUSH` if less (not the watched pairs: their exact rows are linearised again,
+    :mod:`~balance_opt.optimal.exact_rows`); and what it raised, in words."""
+    setup = problem.collision
+    exact = {p.index for p in setup.exact}  # held by their exact rows (exact_rows.ExactRows)
+    pairs = [p for p in short(problem, result) if p.index not in exact]
     if not pairs:
         return {}, []
     closest = f"closest {pairs[0].pair}, {pairs[0].distance:.4f} m"
     said = [f"collision rows of {len(pairs)} pairs ({closest})"]
-    setup, N = problem.collision, problem.N
+    N = problem.N
     mids = problem.transcription.has_midpoints
     before = problem.bounds.collision
     bound = np.array(before)
@@ -439,7 +466,7 @@ class Collision(Term):
     every collocation point, one row per body the balance joints move, the soft minimum of
     its fitted shapes' distances to the others, at least ``collision.margin`` (its bounds:
     ``problem.bounds.collision``), and rows of their own for pairs that start close (watched,
-    unbounded, where their shapes overlap). The shapes contain the bodies; between the points
+    unbounded, where their shapes overlap: held by exact rows instead). The shapes contain the bodies; between the points
     the refinement raises a row's bound where the re-simulated motion comes closer than the
     margin (:meth:`tighten`), and a plan that still penetrates, or comes closer than the
     margin (a pair that starts closer: than its start, less the rows' slack), fails

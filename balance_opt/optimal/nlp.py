@@ -26,6 +26,7 @@ from balance_opt.optimal.constraints import (
     TerminalAttitudeBound,
     TorqueLimit,
 )
+from balance_opt.optimal.exact_rows import ExactRows
 from balance_opt.optimal.layout import BlockStack, parameter_layout, variable_layout
 from balance_opt.optimal.model import PlannerModel, PointKernels, kernel_key
 from balance_opt.optimal.objectives import OBJECTIVES, RunningCost, TerminalCost
@@ -65,6 +66,8 @@ def terms_of(key: StructureKey) -> tuple[Term, ...]:
         terms.append(TerminalAttitudeBound())
     if key.collision:
         terms.append(Collision(key.collision))
+    if key.exact:
+        terms.append(ExactRows(key.exact))
     if key.timing:
         terms.append(MissionTiming(transcription))
     return (*terms, InitialState(), EndConditions())

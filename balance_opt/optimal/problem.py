@@ -4,6 +4,7 @@ everything sits in its NLP's vectors."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -15,6 +16,7 @@ from balance_opt.motion import retiming
 from balance_opt.motion.result import LIMIT_TOLERANCE
 from balance_opt.optimal.collision import collision_setup, restarted
 from balance_opt.optimal.collocation import Transcription
+from balance_opt.optimal.exact_rows import at_rest
 from balance_opt.optimal.model import PlannerModel
 from balance_opt.optimal.options import PlannerOptions, Stage
 
@@ -54,10 +56,18 @@ class StructureKey:
     timing: str = ""
     #: the peak objective's stages (their Ipopt options are the structure's)
     stages: tuple[Stage, ...] = ()
+    #: the exact rows' pairs (:attr:`~balance_opt.optimal.collision.CollisionSetup.exact_key`)
+    exact: str = ""
 
     @classmethod
     def of(
-        cls, limits, options, momentum: bool = False, collision: str = "", timing: str = ""
+        cls,
+        limits,
+        options,
+        momentum: bool = False,
+        collision: str = "",
+        timing: str = "",
+        exact: str = "",
     ) -> StructureKey:
         enforced = limited_kinds(options, limits)
         joints = ("position", "velocity", "acceleration", "jerk")
@@ -78,6 +88,7 @@ class StructureKey:
             collision=collision if options.collision_avoidance else "",
             timing=timing,
             stages=options.stages,
+            exact=exact if options.collision_avoidance else "",
         )
 
 
@@ -97,6 +108,11 @@ class Bounds:
             ``None`` without collision avoidance; read-only: at first
             :meth:`~balance_opt.optimal.collision.CollisionSetup.start_bounds`, raised by
             the refinement where the re-simulated motion came too close.
+        exact: the exact rows' linearisation
+            (:class:`~balance_opt.optimal.exact_rows.Linearisation`; ``None`` without exact
+            rows): at first with the balance arm at its start
+            (:func:`~balance_opt.optimal.exact_rows.at_rest`), then at each plan the refinement
+            finds too close.
         mission_factor: with a free mission timing, factor on the mission joints' velocity
             and acceleration limits at each point (2 n_M, n_points: the rates, then the
             accelerations), read-only; ``None``: the limits (lowered by the refinement where
@@ -109,6 +125,7 @@ class Bounds:
     peak_reference: float = 1.0
     collision: np.ndarray | None = None
     mission_factor: np.ndarray | None = None
+    exact: Any = None
 
     def __post_init__(self):
         for name in ("torque_factor", "collision", "mission_factor"):
@@ -204,12 +221,10 @@ class BalanceProblem:
         # timing stretched to the horizon (a free timing, balance_opt.optimal.timing)
         self.timed_mission = mission
         if self.free_timing:
-            self.mission_path = retiming.MissionPath(mission)
+            self.mission_path = path = retiming.MissionPath(mission)
             self.mission_limits = retiming.mission_limits(robot)
-            self.path_rate_limits = retiming.path_rate_limits(
-                self.mission_path, self.mission_limits
-            )
-            self.timed_mission = retiming.initial_timing(self.mission_path, horizon)
+            self.path_rate_limits = retiming.path_rate_limits(path, self.mission_limits)
+            self.timed_mission = retiming.initial_timing(path, horizon)
         elif horizon < mission.duration:
             raise InputError(
                 f"planner option 'horizon' ({horizon} s) is shorter than the mission ({mission.duration} s)"
@@ -248,6 +263,8 @@ class BalanceProblem:
             np.ones((model.n_B, self.point_times.size)),
             collision=collision_bound,
         )
+        if collision is not None and collision.exact:
+            self.bounds = dataclasses.replace(self.bounds, exact=at_rest(self))
 
     def _check_configurations(self) -> None:
         options, lim, n_B = self.options, self.limits, self.model.n_B

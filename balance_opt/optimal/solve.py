@@ -75,9 +75,12 @@ class BalanceNLP(BalanceProblem):
         started = time.perf_counter()
         super().__init__(model, mission, q_B0, options, robot, h0, start)
         momentum = bool(np.any(self.h0 != 0.0))
-        collision = self.collision.rows.key if self.collision is not None else ""
+        collision, exact = "", ""
+        if self.collision is not None:
+            collision, exact = self.collision.rows.key, self.collision.exact_key
         path = self.mission_path if self.free_timing else None
-        key = StructureKey.of(self.limits, options, momentum, collision, path.key if path else "")
+        timed = path.key if path else ""
+        key = StructureKey.of(self.limits, options, momentum, collision, timed, exact)
         if stage is not None:  # an inner stage of the peak objective (balance_opt.optimal.refine)
             key = dataclasses.replace(
                 key, objective=stage, path_attitude_bound=False, between_points=between
