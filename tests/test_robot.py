@@ -531,6 +531,19 @@ def test_input_errors_name_the_culprit(case):
         _paper(**kwargs)
 
 
+def test_an_unknown_joint_is_matched_against_movable_joints_only():
+    """Panda's ``panda_joint8`` is fixed (no arm joint can be): not offered for a typo."""
+    from balance_opt.model.library import example_urdf
+
+    arm = [f"panda_joint{i}" for i in range(1, 8)]
+    with pytest.raises(
+        JointError,
+        match=r"no such joint in the URDF \(arm 'balance'\); did you mean 'panda_joint7'",
+    ) as caught:
+        FloatingRobot(example_urdf("panda"), arm[:3], arm[3:6] + ["panda_jiont7"])
+    assert "panda_joint8" not in str(caught.value)
+
+
 URDF_ERRORS = {
     "not XML": (
         '<robot name="x"><link name="a"></robot>',

@@ -256,7 +256,10 @@ class FloatingRobot:
                     raise JointError(
                         j,
                         self.source,
-                        f"no such joint in the URDF (arm '{arm}')" + suggest(j, self._urdf_joints),
+                        f"no such joint in the URDF (arm '{arm}')"
+                        + suggest(
+                            j, [n for n, u in self._urdf_joints.items() if u.type in MOVABLE_TYPES]
+                        ),
                     )
                 jtype = self._urdf_joints[j].type
                 if jtype == "fixed":
