@@ -401,7 +401,12 @@ def test_solver_failure_is_exit_1_and_still_written(tmp_path, capsys):
         ]
     )
     assert code == 1
-    err = capsys.readouterr().err
+    out_text, err = capsys.readouterr()
+    # the summary on stdout says so too, under the method's line (``compare > log`` keeps it)
+    summary = out_text.splitlines()
+    k = next(i for i, line in enumerate(summary) if line.startswith("  optimal "))
+    assert summary[k + 1] == f"  {'':<13s} FAILED: the solver's last iterate, not a plan"
+    assert not any("FAILED" in line for line in summary[:k])
     assert re.search(
         r"balance-opt: solver failure \(optimal\): Ipopt stopped with status "
         r"'Maximum_Iterations_Exceeded' after 1 iterations; largest constraint violation: ",

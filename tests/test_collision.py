@@ -538,3 +538,27 @@ def test_a_mesh_is_its_convex_hull_by_an_independent_computation():
         assert coal_distance(p) == pytest.approx((A @ p + b).max() - radius, abs=1e-6)
     for p in points[~inside][:30]:
         assert coal_distance(p) == pytest.approx(qp_distance(p) - radius, abs=1e-6)
+
+
+def test_first_contact_steps_over_samples_a_hair_apart():
+    """Conservative advancement over a closed-loop flight's time grid, whose samples at a
+    re-plan's switch lie 2e-13 s apart: the motion bound of that interval makes the speed so
+    high that a step no longer moves the time. The search goes on past it (it stalled for
+    100,000 rounds and returned the stall's time as the first contact)."""
+    from balance_opt.geometry.clearance import _first_contact
+
+    t = np.array([0.0, 1.0, 1.0 + 2e-13, 2.0])
+    calls = []
+
+    def apart(tau):  # 0.1 mm at the switch, 0.9 m/s from it: within the bound 1 m per interval
+        calls.append(tau)
+        return 1e-4 + 0.9 * abs(tau - 1.0)
+
+    assert _first_contact(apart, t, lambda a, b: 1.0, until=1.2) == 1.2
+    assert len(calls) < 50
+
+    def closing(tau):  # ... then closing at 0.9 m/s from t = 1.25 until contact
+        return max(apart(min(tau, 1.25)) - 0.9 * max(tau - 1.25, 0.0), 0.0)
+
+    contact = 1.25 + apart(1.25) / 0.9
+    assert contact - 2e-6 <= _first_contact(closing, t, lambda a, b: 1.0, until=2.0) <= contact

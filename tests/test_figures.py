@@ -199,6 +199,30 @@ def test_joint_figure_draws_each_plan_against_the_robots_limits(paper, tmp_path)
     assert Image.open(path).info["dpi"][0] == pytest.approx(style.SCREEN_DPI, abs=0.5)
 
 
+def test_joint_figure_titles_of_long_joint_names_stay_apart():
+    """Talos's seven ``arm_right_N_joint`` columns: each title names its joint (broken at an
+    underscore), inside its own column's share of the width, and every text in the figure."""
+    from balance_opt.model.library import example_urdf
+    from balance_opt.model.robot import FloatingRobot
+    from balance_opt.report.plots import joint_limits_figure
+
+    arm = [f"arm_right_{i}_joint" for i in range(1, 8)]
+    talos = FloatingRobot(example_urdf("talos"), [a.replace("right", "left") for a in arm], arm)
+    rng = np.random.default_rng(7)
+    fig = joint_limits_figure(
+        {"analytic": fake_plan(arm, rng), "optimal": fake_plan(arm, rng)}, talos
+    )
+    shown = [t for t in titles(fig)[1] if t]
+    assert [t.replace("\n", "") for t in shown] == arm
+    assert all("\n" in t for t in shown)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    boxes = [ax.title.get_window_extent(renderer) for ax in fig.axes[: len(arm)]]
+    for left, right in zip(boxes, boxes[1:]):
+        assert left.x1 < right.x0
+    texts_inside_and_legend_above(fig)
+
+
 def test_sweep_plots_use_the_method_styles(monkeypatch, tmp_path):
     from balance_opt.sweep import report
 

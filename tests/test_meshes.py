@@ -177,6 +177,30 @@ def test_relative_meshes_and_the_packages_key(layout):
         load_task(_task(urdf, "[../pkgs, ../nope]"))
 
 
+def test_a_missing_mesh_is_found_before_planning_at_the_task_key(layout):
+    """``validate`` and ``plan`` refuse a task whose collision meshes are nowhere before
+    anything is computed, at the key that says where meshes are; the analytic law and a plan
+    without avoidance need no mesh."""
+    from balance_opt.tasks.task import check_methods
+
+    urdf, _ = layout
+    task = load_task(_task(urdf))
+    check_methods(task, ("mission-only", "analytic"))
+    searched = f"folders searched: {urdf.parent} (above the URDF); "
+    with pytest.raises(
+        InputError,
+        match=re.escape(f"meshy.yaml:3: robot.urdf: {urdf}: link arm: mesh {URI} not found; ")
+        + ".*"
+        + re.escape(searched)
+        + ".*; or plan without collision avoidance \\(optimal.collision.avoid: false\\)$",
+    ):
+        check_methods(task, ("optimal",))
+    wrong = load_task(_task(urdf, "[.]"))
+    with pytest.raises(InputError, match=r"^.*meshy\.yaml:4: robot\.packages: "):
+        check_methods(wrong, ("optimal",))
+    check_methods(load_task(_task(urdf, "[../pkgs]")), ("optimal",))
+
+
 @pytest.mark.slow
 def test_planning_with_a_missing_mesh_fails_naming_it_and_writes_nothing(layout, capsys):
     from balance_opt.cli import main

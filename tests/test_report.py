@@ -323,6 +323,22 @@ def test_report_opens_with_a_headline_and_shows_figures_at_the_columns_width(tmp
     assert page.index(f'<p class="headline">{line}</p>') < page.index("<h2>Comparison</h2>")
     assert "figure img { width: 100%; height: auto;" in page
     assert headline({"methods": {"optimal": metrics["methods"]["optimal"]}}) is None
+    # an analytic law stiller than the optimal plan (a redundant balance arm it cancels
+    # exactly; two Pandas: 5e-16 against 7.8e-5 rad) is said, with its violations if any
+    metrics["methods"]["analytic"] = {"max_drift_rad": 4.86e-16, "limit_violations": 0}
+    assert (
+        headline(metrics)
+        == line + " The analytic law keeps it stiller still (peak drift 4.86e-16 rad)."
+    )
+    metrics["methods"]["analytic"].update(
+        limit_violations=2, limit_violations_by_kind={"velocity": 2}
+    )
+    assert headline(metrics).endswith(
+        " The analytic law keeps it stiller still (peak drift 4.86e-16 rad, with 2 (2 "
+        "position/velocity/acceleration, 0 effort) limit violations)."
+    )
+    metrics["methods"]["analytic"]["max_drift_rad"] = 0.05
+    assert headline(metrics) == line
 
 
 def test_a_penetrating_plan_counts_as_a_violation(paper):

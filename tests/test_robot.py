@@ -531,6 +531,40 @@ def test_input_errors_name_the_culprit(case):
         _paper(**kwargs)
 
 
+def test_an_unknown_joint_is_matched_against_movable_joints_only():
+    """Panda's ``panda_joint8`` is fixed (no arm joint can be): not offered for a typo."""
+    from balance_opt.model.library import example_urdf
+
+    arm = [f"panda_joint{i}" for i in range(1, 8)]
+    with pytest.raises(
+        JointError,
+        match=r"no such joint in the URDF \(arm 'balance'\); did you mean 'panda_joint7'",
+    ) as caught:
+        FloatingRobot(example_urdf("panda"), arm[:3], arm[3:6] + ["panda_jiont7"])
+    assert "panda_joint8" not in str(caught.value)
+
+
+def test_a_joint_locked_outside_its_limits_is_refused():
+    """Panda's panda_joint4 ranges over [-3.0718, -0.0698] rad: locked at the default 0 (in no
+    arm) or at a value given, the robot could not be there."""
+    from balance_opt.model.library import example_urdf
+
+    arm = [f"panda_joint{i}" for i in range(1, 8)]
+    limits = r"outside its position limits \[-3\.0718, -0\.0698\] rad; lock it inside them"
+    with pytest.raises(
+        JointError,
+        match=r"joint 'panda_joint4' in .*: is in no arm and locked at 0 rad \(the default\), "
+        + limits,
+    ):
+        FloatingRobot(example_urdf("panda"), arm[:3], arm[4:])
+    with pytest.raises(
+        JointError, match=r"joint 'panda_joint4' in .*: locked at 0\.5 rad, " + limits
+    ):
+        FloatingRobot(example_urdf("panda"), arm[:3], arm[4:], locked={"panda_joint4": 0.5})
+    held = FloatingRobot(example_urdf("panda"), arm[:3], arm[4:], locked={"panda_joint4": -1.5})
+    assert held.locked["panda_joint4"] == -1.5
+
+
 URDF_ERRORS = {
     "not XML": (
         '<robot name="x"><link name="a"></robot>',

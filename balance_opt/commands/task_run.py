@@ -88,7 +88,8 @@ def run_task_command(args) -> int:
             f"  {name:<13s} max drift {res.max_drift:.3g} rad, final drift "
             f"{res.final_drift:.3g} rad, {count} limit violations"
         )
-        for line in _more_summary(m):
+        failed = ["FAILED: the solver's last iterate, not a plan"] if name in run.failures else []
+        for line in failed + _more_summary(m):
             print(f"  {'':<13s} {line}")
         for warning in m["warnings"]:
             print(f"  {'':<13s} WARNING: {warning}")

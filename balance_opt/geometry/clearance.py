@@ -132,7 +132,12 @@ def _first_contact(distance, t, motion, until: float, tolerance: float = 1e-6) -
         while k < t.size - 2 and t[k + 1] <= tau:
             k += 1
         speed = motion(k, k + 1) / (t[k + 1] - t[k])
-        tau = min(tau + d / speed, float(t[k + 1])) if speed > 0.0 else float(t[k + 1])
+        step = d / speed if speed > 0.0 else np.inf
+        # samples a hair apart (a closed-loop flight's, 1e-8 s apart where a re-plan takes
+        # over) bound the speed so high that a step no longer moves tau: it stalled there for
+        # the 100,000 rounds, minutes of distances, and gave its time as the contact's; the
+        # interval's end is the next instant checked
+        tau = float(t[k + 1]) if tau + step == tau else min(tau + step, float(t[k + 1]))
         d = distance(tau)
     return float(min(tau, until))
 

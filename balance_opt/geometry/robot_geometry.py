@@ -9,7 +9,6 @@ SRDF (or, without one, computed as MoveIt's setup assistant does:
 from __future__ import annotations
 
 import logging
-import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -22,7 +21,7 @@ import pinocchio as pin
 from balance_opt.errors import InputError
 from balance_opt.geometry import keep_out, self_collision
 from balance_opt.model.capture import TARGET_LINK
-from balance_opt.model.meshes import resolved_urdf
+from balance_opt.model.meshes import geometry_kind, resolved_urdf
 from balance_opt.model.robot import FloatingRobot
 
 log = logging.getLogger(__name__)
@@ -121,8 +120,7 @@ class RobotGeometry:
         self.robot = robot
         self.model = robot.model
         urdf_path = None if robot.source.startswith("<") else Path(robot.source)
-        has_collision = ET.fromstring(robot.locked_urdf).find("link/collision") is not None
-        self.source = "collision" if has_collision else "visual"
+        self.source = geometry_kind(robot.locked_urdf)
         kind = pin.COLLISION if self.source == "collision" else pin.VISUAL
         packages = robot.packages if packages is None else packages
         text = resolved_urdf(robot.locked_urdf, robot.source, packages, self.source)

@@ -131,6 +131,12 @@ def resolve_mesh(
     )
 
 
+def geometry_kind(text: str) -> str:
+    """The URDF elements the clearance check and the collision avoidance read: ``"collision"``
+    when URDF ``text`` has any, else ``"visual"``."""
+    return "collision" if ET.fromstring(text).find("link/collision") is not None else "visual"
+
+
 def resolved_urdf(
     text: str,
     source: str,

@@ -213,6 +213,7 @@ class FloatingRobot:
         self.locked_urdf = lock_joints(root, self._urdf_joints, self.locked, self.followers)
 
         self.model, self.full_model = self._build_pinocchio(text)
+        self._check_locked_limits(set(locked or {}))
 
         ids = [self.model.getJointId(j) for j in self.model_joint_names]
         self._model_idx_q = np.array([self.model.joints[i].idx_q for i in ids], dtype=int)
@@ -256,7 +257,10 @@ class FloatingRobot:
                     raise JointError(
                         j,
                         self.source,
-                        f"no such joint in the URDF (arm '{arm}')" + suggest(j, self._urdf_joints),
+                        f"no such joint in the URDF (arm '{arm}')"
+                        + suggest(
+                            j, [n for n, u in self._urdf_joints.items() if u.type in MOVABLE_TYPES]
+                        ),
                     )
                 jtype = self._urdf_joints[j].type
                 if jtype == "fixed":
@@ -319,6 +323,33 @@ class FloatingRobot:
             if m.driver not in self.joint_names:
                 out[j] = m.multiplier * out[m.driver] + m.offset
         return out
+
+    def _check_locked_limits(self, given: set[str]) -> None:
+        """Every locked joint (but a mimic: its driver is checked) inside its URDF position
+        limits: the robot cannot be held where its joints do not go (Panda's panda_joint4,
+        locked at the default 0, is past its upper limit -0.07 rad)."""
+        full = self.full_model
+        for j, value in self.locked.items():
+            if j in self.mimics or not full.existJointName(j):
+                continue
+            jm = full.joints[full.getJointId(j)]
+            if jm.nq != 1:  # continuous: no limits
+                continue
+            lo, hi = full.lowerPositionLimit[jm.idx_q], full.upperPositionLimit[jm.idx_q]
+            if lo - 1e-9 <= value <= hi + 1e-9 or not (np.isfinite(lo) and np.isfinite(hi)):
+                continue
+            unit = "m" if self._urdf_joints[j].type == "prismatic" else "rad"
+            where = (
+                f"locked at {value:g} {unit}"
+                if j in given
+                else f"is in no arm and locked at {value:g} {unit} (the default)"
+            )
+            raise JointError(
+                j,
+                self.source,
+                f"{where}, outside its position limits [{lo:g}, {hi:g}] {unit}; lock it inside "
+                f"them (arms.locked) or put it in an arm",
+            )
 
     def _build_pinocchio(self, text: str):
         full = pinocchio_model(text, self.source)

@@ -81,6 +81,26 @@ def _legend_columns(labels: Sequence[str], width: str) -> int:
     return 1
 
 
+def _fitted_titles(titles: Sequence[str], room: float, size: float) -> tuple[list[str], float, int]:
+    """Column titles that fit ``room`` [in] each at ``size`` [pt] (long joint names, such as
+    Talos's ``arm_right_1_joint`` over seven columns, ran into each other): a wider one broken
+    in two at the separator (``_``, ``-``, space) that balances its lines best, then the font
+    made smaller if a line is still too wide. Returns the titles, their font size [pt] and
+    their number of lines."""
+
+    def broken(title: str) -> str:
+        cuts = [i + 1 for i, c in enumerate(title[:-1]) if c in "_- "]
+        if text_width(title, size) <= room or not cuts:
+            return title
+        k = min(cuts, key=lambda i: max(text_width(title[:i], size), text_width(title[i:], size)))
+        return f"{title[:k]}\n{title[k:]}"
+
+    out = [broken(t) for t in titles]
+    widest = max((text_width(line, size) for t in out for line in t.split("\n")), default=0.0)
+    lines = max((t.count("\n") + 1 for t in out), default=1)
+    return out, min(size, size * room / widest) if widest else size, lines
+
+
 def layout(fig, axes: np.ndarray, handles, width: str, column_titles: Sequence[str] = ()) -> None:
     """Place a grid of panels (margins from the tick labels and fonts), the titles of its
     columns (a plan, a joint) and a frameless legend of ``handles`` above them, in as many
@@ -100,8 +120,9 @@ def layout(fig, axes: np.ndarray, handles, width: str, column_titles: Sequence[s
     bottom = _EDGE + x_text + (_LABEL_PAD + _LINE * base * _PT if axes[-1, 0].get_xlabel() else 0)
     right = _EDGE + 0.12  # half of the last x tick label
     legend_h = rows * 1.45 * leg * _PT + (0.04 if rows else 0.0)
-    top = _EDGE + legend_h + (_LINE * base * _PT + 0.04 if column_titles else 0.06)
     panel_w = (fig_w - left - right - (n_cols - 1) * gap) / n_cols
+    column_titles, title_pt, lines = _fitted_titles(column_titles, panel_w + gap - 0.08, base)
+    top = _EDGE + legend_h + (lines * _LINE * title_pt * _PT + 0.04 if column_titles else 0.06)
     panel_h = (fig_h - top - bottom - (n_rows - 1) * _ROW_GAP) / n_rows
     fig.subplots_adjust(
         left=left / fig_w,
@@ -116,7 +137,7 @@ def layout(fig, axes: np.ndarray, handles, width: str, column_titles: Sequence[s
     cells = [padded[i] for i in order]
     for ax, title in zip(axes[0], column_titles):
         # at a fixed height: matplotlib's own placement measures the axis at every draw
-        ax.set_title(title, fontsize=base, y=1.0, pad=3.0)
+        ax.set_title(title, fontsize=title_pt, y=1.0, pad=3.0)
     fig.legend(
         cells,
         [h.get_label() for h in cells],

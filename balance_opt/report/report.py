@@ -400,8 +400,10 @@ def _violations(methods: Mapping[str, Mapping[str, Any]]) -> str:
 
 
 def headline(metrics: Mapping[str, Any]) -> str | None:
-    """One sentence computed from ``metrics``: how much stiller the best balance plan keeps the
-    base than the mission arm alone, and at what costs (``None`` without both)."""
+    """One sentence computed from ``metrics``: how much stiller the optimal plan (else the
+    analytic law) keeps the base than the mission arm alone, and at what costs (``None``
+    without both); and, when the analytic law's peak drift is the smaller (a redundant balance
+    arm it cancels exactly), a second sentence that says so, with its limit violations."""
     methods = metrics.get("methods", {})
     reference = methods.get("mission-only")
     name = next((m for m in ("optimal", "analytic") if m in methods), None)
@@ -426,10 +428,20 @@ def headline(metrics: Mapping[str, Any]) -> str | None:
     failures = metrics.get("failures") or {}
     failed = " (FAILED: its solver's last iterate)" if name in failures else ""
     warned = " (WARNING: untrustworthy, see below)" if plan.get("warnings") else ""
+    law = methods.get("analytic") if name == "optimal" else None
+    better = ""
+    if law and law.get("max_drift_rad") is not None and law["max_drift_rad"] < a:
+        broken = law.get("limit_violations")
+        kinds = law.get("limit_violations_by_kind")
+        said = f", with {violation_count_text(broken, kinds)} limit violations" if broken else ""
+        better = (
+            f" The {method_label('analytic')} keeps it stiller still (peak drift "
+            f"{law['max_drift_rad']:.3g} rad{said})."
+        )
     return (
         f"The {method_label(name)}{failed}{warned} keeps the base {how} the "
         f"{method_label('mission-only')} (peak drift {a:.3g} vs {b:.3g} rad), at these costs: "
-        f"{'; '.join(costs)}."
+        f"{'; '.join(costs)}.{better}"
     )
 
 

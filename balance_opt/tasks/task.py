@@ -28,6 +28,7 @@ from balance_opt.errors import (
 )
 from balance_opt.model.capture import TARGET_LINK
 from balance_opt.model.limits import LIMIT_KEYS, LimitOverrideError
+from balance_opt.model.meshes import MeshNotFoundError, geometry_kind, resolved_urdf
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.trajectories import CsvTrajectory, JointTrajectory, PointToPoint, ViaPoints
 from balance_opt.optimal.options import PlannerOptions
@@ -238,11 +239,16 @@ def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
     return candidates[0] if candidates else ("arms",)
 
 
+def _robot_key(robot_spec) -> str:
+    """The key that names the task's URDF: ``urdf``, ``shipped`` or ``example``."""
+    return next(k for k in ("urdf", "shipped", "example") if getattr(robot_spec, k) is not None)
+
+
 def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingRobot:
     from balance_opt.model.library import example_urdf, shipped_urdf
 
     r = spec.robot
-    key = next(k for k in ("urdf", "shipped", "example") if getattr(r, k) is not None)
+    key = _robot_key(r)
     if key == "urdf":
         urdf = base_dir / r.urdf
         if not urdf.is_file():
@@ -332,13 +338,16 @@ def _build_mission(
 
 
 def check_methods(task: Task, methods) -> None:
-    """What the planning ``methods`` need of the task beyond its loading: no torque limits
-    (adam-robotics inverse dynamics) and no adam backend with a prismatic model joint.
+    """What the planning ``methods`` need of the task beyond its loading: the meshes of the
+    optimal planner's collision avoidance, found; no torque limits (adam-robotics inverse
+    dynamics) and no adam backend with a prismatic model joint.
 
     Raises:
         TaskFileError: located at the key the method cannot work with, naming the way out.
     """
     robot = task.robot
+    if "optimal" in methods and task.spec.optimal.planner.collision_avoidance:
+        _check_meshes(task)
     prismatic = [j for j in robot.model_joint_names if robot.joint_type(j) == "prismatic"]
     if "optimal" not in methods or not prismatic:
         return
@@ -367,6 +376,22 @@ def check_methods(task: Task, methods) -> None:
         f"joint '{joint}' is prismatic, which the adam backend ({why}) cannot handle; lock "
         "it, use the pinocchio backend, or plan with --method analytic",
     )
+
+
+def _check_meshes(task: Task) -> None:
+    """The collision geometry's meshes found before anything is planned, a mesh found nowhere
+    located at the key that tells where meshes are (other methods plan without them)."""
+    robot, spec = task.robot, task.spec.robot
+    try:
+        resolved_urdf(
+            robot.locked_urdf, robot.source, robot.packages, geometry_kind(robot.locked_urdf)
+        )
+    except MeshNotFoundError as exc:
+        key = "packages" if spec.packages else _robot_key(spec)
+        raise task.document.error(
+            ("robot", key),
+            f"{exc}; or plan without collision avoidance (optimal.collision.avoid: false)",
+        ) from None
 
 
 def start_error(task: Task, reason: str, balance: bool) -> TaskFileError:
