@@ -5,7 +5,7 @@ peak problem, limits held on the whole re-simulated motion, and the multi-start
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -61,7 +61,7 @@ class SolveReport:
     iterations: int
     solve_s: float
     objective: float
-    solution: Solution
+    solution: Solution = field(repr=False)  # arrays: a repr a notebook can read
     drifts: tuple[tuple[str, float], ...] = ()
     evaluations_s: tuple[tuple[str, float], ...] = ()
 
@@ -133,8 +133,8 @@ class LastSolve:
     violation: tuple[str, float, float, str, str]
     wall_time_s: dict[str, float]
     kernels: dict
-    history: dict[str, list[float]]
-    problem: dict
+    history: dict[str, list[float]] = field(repr=False)
+    problem: dict = field(repr=False)
 
 
 @dataclass(frozen=True)
@@ -160,7 +160,7 @@ class PlanReport:
     """
 
     solves: tuple[SolveReport, ...]
-    solution: Solution | None = None
+    solution: Solution | None = field(default=None, repr=False)
     stages: tuple[SolveReport, ...] | None = None
     refinement: dict | None = None
     smallest_peak: float | None = None
