@@ -42,6 +42,8 @@ class StructureKey:
     timing: str = ""
     #: the peak objective's stages (their Ipopt options are the structure's)
     stages: tuple[Stage, ...] = ()
+    #: the drift priced over the last seconds (``PlannerOptions.late_drift``)
+    late_drift: bool = False
 
     @classmethod
     def of(
@@ -66,6 +68,7 @@ class StructureKey:
             collision=collision if options.collision_avoidance else "",
             timing=timing,
             stages=options.stages,
+            late_drift=options.late_drift is not None,
         )
 
 
