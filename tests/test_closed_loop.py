@@ -112,8 +112,8 @@ def test_the_closed_loops_price_of_the_final_drift_brings_a_replans_final_drift_
     plan and the re-plans have that one objective: without model error the closed loop
     reproduces its first plan."""
     task, nlp, plan, replanner = planned
-    assert closed_loop_planner(nlp.options, 1.0) is nlp.options
-    priced = closed_loop_planner(nlp.options)
+    assert closed_loop_planner(nlp.options, 1.0, None) is nlp.options
+    priced = closed_loop_planner(nlp.options, late=None)
     assert priced.weights.peak_terminal == TERMINAL_FACTOR * nlp.options.weights.peak_terminal
     closed = build_balance_nlp(task.robot, task.mission, task.q_B0, priced, h0=task.h0)
     closed_plan = closed.solve(plan.solver.solution)
@@ -159,6 +159,11 @@ def test_the_late_drift_brings_the_base_back_earlier_and_a_replan_keeps_its_tail
     out = replanner.replan(node, first, first.state(node)[3], peak=late_plan.max_drift)
     assert out.success, out.status
     np.testing.assert_allclose(out.segment.solution.X, first.solution.X[:, node:], atol=1e-4)
+    # and without model error the closed loop with it reproduces its first plan
+    open_loop, run = _flown_both_ways(task, replanner, late_plan, ClosedLoopOptions().end_period)
+    assert run.failed == 0
+    assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
+    assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
 
 
 def test_the_late_drifts_weight_rises_over_its_window_only():
