@@ -19,10 +19,11 @@ and kind. ``--budget`` gives every re-plan Ipopt's ``max_wall_time`` of its peri
 
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
 measured] [--margin F] [--position-margin RAD] [--jerk J] [--floor measured|plan] [--budget]
-[--terminal F] [--trace] [--pick K,..] [--end-period S
+[--terminal F] [--late W,L|none] [--trace] [--pick K,..] [--end-period S
 [--end-window S]]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
 and margins; ``--terminal``: the factor on the final drift's price in the closed loop's plans,
-``control.replan.TERMINAL_FACTOR`` by default).
+``control.replan.TERMINAL_FACTOR`` by default; ``--late``: their late drift's weight and window,
+``control.replan.LATE_DRIFT`` by default).
 """
 
 from __future__ import annotations
