@@ -19,10 +19,11 @@ and kind. ``--budget`` gives every re-plan Ipopt's ``max_wall_time`` of its peri
 
 Run: ``python benchmarks/closed_loop.py [TASK] [--models K] [--period S] [--momentum zero|
 measured] [--margin F] [--position-margin RAD] [--jerk J] [--floor measured|plan] [--budget]
-[--terminal F] [--trace] [--pick K,..] [--end-period S
+[--terminal F] [--late W,L|none] [--trace] [--pick K,..] [--end-period S
 [--end-window S]]`` (default: ``examples/capture_task.yaml``, 4 models, its ``closed_loop:`` period
 and margins; ``--terminal``: the factor on the final drift's price in the closed loop's plans,
-``control.replan.TERMINAL_FACTOR`` by default).
+``control.replan.TERMINAL_FACTOR`` by default; ``--late``: their late drift's weight and window,
+``control.replan.LATE_DRIFT`` by default).
 """
 
 from __future__ import annotations
@@ -40,7 +41,13 @@ import numpy as np
 from balance_opt.app.closed_loop import resolved_options, true_robots
 from balance_opt.app.models import ModelCache
 from balance_opt.control.flight import fly_closed_loop, period_starts
-from balance_opt.control.replan import TERMINAL_FACTOR, Replanner, closed_loop_planner, margined
+from balance_opt.control.replan import (
+    LATE_DRIFT,
+    TERMINAL_FACTOR,
+    Replanner,
+    closed_loop_planner,
+    margined,
+)
 from balance_opt.dynamics.simulation import simulate_plan
 from balance_opt.motion.result import find_limit_violations
 from balance_opt.optimal.solve import build_balance_nlp
@@ -71,7 +78,12 @@ def main() -> None:
     parser.add_argument(
         "--terminal", type=float, default=TERMINAL_FACTOR, help="factor on the final drift's price"
     )
+    parser.add_argument(
+        "--late",
+        help="the late drift's WEIGHT,WINDOW (1/(rad^2 s), s; 'none': not priced)",
+    )
     args = parser.parse_args()
+    late = LATE_DRIFT if args.late is None else _late(args.late)
 
     task = load_task(args.task)
     options = resolved_options(task)
@@ -101,13 +113,13 @@ def main() -> None:
     )
     # the closed loop plans inside its margin, its first plan too (as balance-opt compare)
     robot = margined(task.robot, *options.margins)
-    closed_plan, closed = plan, closed_loop_planner(planner, args.terminal)
+    closed_plan, closed = plan, closed_loop_planner(planner, args.terminal, late)
     if robot is not task.robot or closed is not planner:
         nlp = build_balance_nlp(model, task.mission, task.q_B0, closed, robot=robot, h0=task.h0)
         closed_plan = nlp.solve(plan.solver.solution)
         print(
             f"closed-loop first plan, limits {options.margin:.0%} inside, final drift priced "
-            f"{args.terminal:g} times: peak "
+            f"{args.terminal:g} times, late drift {late}: peak "
             f"{closed_plan.max_drift:.4g} rad, final {closed_plan.final_drift:.4g} rad"
         )
     replanner = Replanner(nlp, budget=options.period if args.budget else None)
@@ -216,6 +228,11 @@ def _trace(run, h: float) -> None:
             f"    t {t:5.2f} s: drift {_drift_at(sim, t):.4g} rad, plans {planned}; "
             f"{r.iterations} its, {r.status}, violation {r.violation:.1e}, {r.compute_s:.3f} s"
         )
+
+
+def _late(text: str):
+    """``--late``: ``WEIGHT,WINDOW`` or ``none``."""
+    return None if text == "none" else tuple(float(v) for v in text.split(","))
 
 
 def violations(robot, sim) -> list:

@@ -13,6 +13,7 @@ import pytest
 
 from balance_opt.control.flight import fly_closed_loop, period_starts
 from balance_opt.control.replan import (
+    LATE_DRIFT,
     SOLVE_SHARE,
     STOPPED_VIOLATION,
     TERMINAL_FACTOR,
@@ -32,6 +33,7 @@ from balance_opt.motion.so3 import (
 )
 from balance_opt.motion.trajectories import MissionWindow
 from balance_opt.optimal.collision import collision_setup, restarted
+from balance_opt.optimal.late_drift import late_weights
 from balance_opt.optimal.problem import StartState
 from balance_opt.optimal.solve import build_balance_nlp
 from balance_opt.tasks.task import load_task
@@ -110,8 +112,8 @@ def test_the_closed_loops_price_of_the_final_drift_brings_a_replans_final_drift_
     plan and the re-plans have that one objective: without model error the closed loop
     reproduces its first plan."""
     task, nlp, plan, replanner = planned
-    assert closed_loop_planner(nlp.options, 1.0) is nlp.options
-    priced = closed_loop_planner(nlp.options)
+    assert closed_loop_planner(nlp.options, 1.0, None) is nlp.options
+    priced = closed_loop_planner(nlp.options, late=None)
     assert priced.weights.peak_terminal == TERMINAL_FACTOR * nlp.options.weights.peak_terminal
     closed = build_balance_nlp(task.robot, task.mission, task.q_B0, priced, h0=task.h0)
     closed_plan = closed.solve(plan.solver.solution)
@@ -130,6 +132,43 @@ def test_the_closed_loops_price_of_the_final_drift_brings_a_replans_final_drift_
     assert run.failed == 0
     assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
     assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
+
+
+@pytest.mark.slow
+def test_the_late_drift_brings_the_base_back_earlier_and_a_replan_keeps_its_tail(planned):
+    """Priced over the last seconds (:mod:`~balance_opt.optimal.late_drift`), the drift is
+    brought back earlier than at the closed loop's price of the final drift alone; its weight is
+    a function of the time left to the end, so a re-plan from inside the window with the plan's
+    own state keeps the plan's tail (a weight of the time since the start of its own problem
+    would price the re-plan's tail later than the plan's: the tail would move)."""
+    task, nlp, plan, _ = planned
+    late = closed_loop_planner(nlp.options, late=(1e5, 3.0))
+    assert late.late_drift == (1e5, 3.0)
+    assert closed_loop_planner(nlp.options).late_drift == LATE_DRIFT
+    plans = []
+    for options in (dataclasses.replace(late, late_drift=None), late):
+        closed = build_balance_nlp(task.robot, task.mission, task.q_B0, options, h0=task.h0)
+        plans.append((closed, closed.solve(plan.solver.solution)))
+    drift = [np.linalg.norm(p.solver.solution.X[:3], axis=0) for _, p in plans]
+    one_second_before = nlp.N - round(1.0 / nlp.h)
+    assert drift[1][one_second_before] < 0.5 * drift[0][one_second_before], drift
+    closed, late_plan = plans[1]
+    replanner = Replanner(closed)
+    first = replanner.first(late_plan)
+    node = 40  # 2 s before the end: inside the window
+    out = replanner.replan(node, first, first.state(node)[3], peak=late_plan.max_drift)
+    assert out.success, out.status
+    np.testing.assert_allclose(out.segment.solution.X, first.solution.X[:, node:], atol=1e-4)
+    # and without model error the closed loop with it reproduces its first plan
+    open_loop, run = _flown_both_ways(task, replanner, late_plan, ClosedLoopOptions().end_period)
+    assert run.failed == 0
+    assert abs(run.max_drift - float(open_loop.angle.max())) < 1e-4
+    assert abs(run.final_drift - float(open_loop.angle[-1])) < 1e-4
+
+
+def test_the_late_drifts_weight_rises_over_its_window_only():
+    to_go = np.array([5.0, 3.0, 2.0, 1.0, 0.0])
+    np.testing.assert_allclose(late_weights(90.0, 3.0, to_go), [0.0, 0.0, 10.0, 40.0, 90.0])
 
 
 def _flown_both_ways(task, replanner, plan, end_period=None):

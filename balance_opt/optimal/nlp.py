@@ -27,6 +27,7 @@ from balance_opt.optimal.constraints import (
     TorqueLimit,
 )
 from balance_opt.optimal.exact_rows import ExactRows
+from balance_opt.optimal.late_drift import LateDrift
 from balance_opt.optimal.layout import BlockStack, parameter_layout, variable_layout
 from balance_opt.optimal.model import PlannerModel, PointKernels, kernel_key
 from balance_opt.optimal.objectives import OBJECTIVES, RunningCost, TerminalCost
@@ -60,6 +61,8 @@ def terms_of(key: StructureKey) -> tuple[Term, ...]:
     if key.torque_limits:
         terms.append(TorqueLimit(key.control, key.momentum))
     terms += objective.terms(key.control)
+    if key.late_drift and key.objective == "peak":  # the epigraph stage's
+        terms.append(LateDrift())
     if key.path_attitude_bound:
         terms.append(PathAttitudeBound())
     if key.terminal_attitude_bound:

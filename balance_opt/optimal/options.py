@@ -367,6 +367,12 @@ class PlannerOptions:
     stages: tuple[Stage, ...] = dataclasses.field(
         default=PEAK_STAGES, repr=False, metadata={"in_file": False}
     )
+    #: the epigraph stage's drift priced over the motion's last seconds, ``(weight [1/(rad^2
+    #: s)], window [s])`` (:mod:`~balance_opt.optimal.late_drift`: the closed loop's plans);
+    #: ``None``: not priced. Not a task key
+    late_drift: tuple[float, float] | None = dataclasses.field(
+        default=None, metadata={"in_file": False}
+    )
 
     def __post_init__(self):
         check_settings(self, "planner option")
@@ -376,7 +382,8 @@ class PlannerOptions:
         return "rest" if self.rest_at_end else self.end
 
     def as_dict(self) -> dict:
-        """The options as written to ``metrics.json`` (the stages are the code's)."""
+        """The options as written to ``metrics.json`` (the stages are the code's, the late
+        drift the closed loop's)."""
         out = dataclasses.asdict(self)
-        del out["stages"]
+        del out["stages"], out["late_drift"]
         return out

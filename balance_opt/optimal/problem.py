@@ -58,6 +58,8 @@ class StructureKey:
     stages: tuple[Stage, ...] = ()
     #: the exact rows' pairs (:attr:`~balance_opt.optimal.collision.CollisionSetup.exact_key`)
     exact: str = ""
+    #: the drift priced over the last seconds (``PlannerOptions.late_drift``)
+    late_drift: bool = False
 
     @classmethod
     def of(
@@ -89,6 +91,7 @@ class StructureKey:
             timing=timing,
             stages=options.stages,
             exact=exact if options.collision_avoidance else "",
+            late_drift=options.late_drift is not None,
         )
 
 
