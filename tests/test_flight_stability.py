@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from balance_opt.app.closed_loop import ClosedLoopStudy
+from balance_opt.app.closed_loop import ClosedLoopChunk, ClosedLoopStudy
 from balance_opt.app.scenarios import capture_task
 from balance_opt.commands.task_run import _more_summary
 from balance_opt.dynamics import simulation
@@ -20,6 +20,8 @@ from balance_opt.motion.so3 import quaternion_conjugate, quaternion_multiply, ro
 #: about 50 / dt (past what MAX_SUBSTEPS sub-steps can hold).
 STIFF_DAMPING = 20.0
 UNSTABLE_DAMPING = 200.0
+#: ... and at about 250 / dt: the perturbed robots of a closed loop diverge whatever their error.
+BLOWN_DAMPING = 1000.0
 #: Attitude agreement of RK4 with sub-steps and the adaptive integrator on the stiff loop [rad].
 INTEGRATOR_AGREEMENT = 1e-8
 
@@ -39,6 +41,7 @@ def run(scenario, **options):
     )
 
 
+@pytest.mark.slow
 def test_stiff_joint_loop_takes_substeps_and_agrees_with_the_adaptive_integrator(
     scenario, monkeypatch
 ):
@@ -99,3 +102,29 @@ def test_a_diverged_closed_loop_run_is_counted_and_named_not_averaged():
     assert "closed loop: 1 simulations diverged: model 1 (boom)" in lines
     alone = ClosedLoopStudy(ClosedLoopOptions(), {"optimal": runs["optimal"][1:2]}, 1.0)
     assert alone.metrics("optimal") == {"samples": 0, "period_s": 0.5, "diverged": {"1": "boom"}}
+
+
+@pytest.mark.slow
+def test_a_closed_loop_flight_that_diverges_is_stopped_and_named(scenario):
+    """The law's branch of a closed-loop chunk (no re-plan) on true robots whose joint loop is
+    past every sub-step: each run is stopped at once and named, none raises or hangs."""
+    chunk = ClosedLoopChunk(
+        "analytic",
+        scenario.robot,
+        scenario.mission,
+        scenario.q_B0,
+        np.zeros(6),
+        None,
+        "pinocchio",
+        SimulationOptions(damping_ratio=BLOWN_DAMPING),
+        ClosedLoopOptions(samples=2, perturbation=0.1, seed=0),
+        balance=scenario.q_B0,
+    )
+    runs = chunk([0, 1])
+    assert [r["index"] for r in runs] == [0, 1]
+    for r in runs:
+        assert re.fullmatch(
+            r"the forward-dynamics simulation diverged at t = 0\.0\d+ s: (non-finite state|"
+            r"joint \w+ at [\d.e+]+ rad/s, over 10 times its velocity limit)",
+            r["diverged"],
+        )
