@@ -67,7 +67,8 @@ def test_a_diverging_simulation_is_stopped_and_named(scenario):
     with pytest.raises(
         DivergenceError,
         match=re.escape("the forward-dynamics simulation diverged at t = ")
-        + r"0\.0\d+ s: joint \w+ at [\d.e+]+ rad/s, over 10 times its velocity limit",
+        + r"0\.0\d+ s: joint \w+ at [\d.e+]+ rad/s, over 10 times its velocity limit and "
+        r"its plan's rate",
     ) as caught:
         run(scenario, damping_ratio=UNSTABLE_DAMPING)
     assert caught.value.t < 0.1
@@ -125,6 +126,7 @@ def test_a_closed_loop_flight_that_diverges_is_stopped_and_named(scenario):
     for r in runs:
         assert re.fullmatch(
             r"the forward-dynamics simulation diverged at t = 0\.0\d+ s: (non-finite state|"
-            r"joint \w+ at [\d.e+]+ rad/s, over 10 times its velocity limit)",
+            r"joint \w+ at [\d.e+]+ rad/s, over 10 times its velocity limit and its plan's "
+            r"rate)",
             r["diverged"],
         )

@@ -259,27 +259,33 @@ class _Dynamics:
         self.G = robot.velocity_map if robot.followers else None
         limits = robot.limits
         self.lower, self.upper = limits.lower, limits.upper
-        self.rate_bound = DIVERGED_RATE * limits.velocity
+        self.rate_limit = limits.velocity
 
-    def check(self, t: float, q, v) -> None:
+    def check(self, t: float, q, v, q_des, v_des) -> None:
         """Stop (:class:`DivergenceError`) a state at ``t`` that is no motion of the robot: not
-        finite, a joint :data:`DIVERGED_POSITION` outside its range or :data:`DIVERGED_RATE`
-        times faster than its velocity limit."""
+        finite, a joint :data:`DIVERGED_POSITION` outside its range and its plan ``q_des``, or
+        :data:`DIVERGED_RATE` times faster than its velocity limit and its plan's rate
+        ``v_des`` (a plan that leaves its limits, the analytic law's, is tracked, not
+        stopped)."""
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             raise DivergenceError(t, "non-finite state")
         position = self.joint_positions(q)
-        outside = np.maximum(self.lower - position, position - self.upper)
+        lower, upper = np.minimum(self.lower, q_des), np.maximum(self.upper, q_des)
+        outside = np.maximum(lower - position, position - upper)
         rate = np.abs(v[self._v])
+        bound = DIVERGED_RATE * np.maximum(self.rate_limit, np.abs(v_des))
         names = self.robot.joint_names
         if outside.max() > DIVERGED_POSITION:
             j = int(np.argmax(outside))
-            raise DivergenceError(t, f"joint {names[j]} {outside[j]:.3g} rad outside its range")
-        if np.any(rate > self.rate_bound):
-            j = int(np.argmax(rate / self.rate_bound))
+            raise DivergenceError(
+                t, f"joint {names[j]} {outside[j]:.3g} rad outside its range and its plan"
+            )
+        if np.any(rate > bound):
+            j = int(np.argmax(rate / bound))
             raise DivergenceError(
                 t,
                 f"joint {names[j]} at {rate[j]:.3g} rad/s, over {DIVERGED_RATE:g} times its "
-                f"velocity limit",
+                f"velocity limit and its plan's rate",
             )
 
     def joint_positions(self, q):
