@@ -62,3 +62,17 @@ class SolverError(BalanceOptError):
         self.status = status
         self.result = result
         super().__init__(message)
+
+
+class DivergenceError(BalanceOptError):
+    """A forward-dynamics simulation whose state left every sane bound: it was stopped there.
+
+    Attributes:
+        t: the time at which it was stopped [s].
+        reason: which bound it left.
+    """
+
+    def __init__(self, t: float, reason: str):
+        self.t = t
+        self.reason = reason
+        super().__init__(f"the forward-dynamics simulation diverged at t = {t:.4g} s: {reason}")

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from balance_opt.dynamics.options import ClosedLoopOptions
+from balance_opt.errors import DivergenceError
 from balance_opt.motion.result import find_limit_violations
 from balance_opt.motion.robustness import PERCENTILE, perturbed_robot
 
@@ -67,9 +68,7 @@ class ClosedLoopChunk:
     geometry: tuple | None = None  # (srdf, ignore) of the clearance check, None: no geometry
 
     def __call__(self, indices: list[int]) -> list[dict]:
-        from balance_opt.control.flight import fly_closed_loop
         from balance_opt.control.replan import Replanner, closed_loop_planner, margined
-        from balance_opt.dynamics.simulation import simulate
         from balance_opt.optimal.model import PlannerModel
         from balance_opt.optimal.solve import build_balance_nlp
 
@@ -91,30 +90,31 @@ class ClosedLoopChunk:
             replanner = Replanner(nlp, budget=self.options.period)
         out = []
         for k in indices:
-            if replanner is not None:
-                run = fly_closed_loop(
-                    truths[k],
-                    replanner,
-                    first,
-                    self.simulation,
-                    self.options,
-                    prepared=k != indices[0],
-                )
-                sim, prepare_s = run.simulation, prepare_s + run.prepare_s
-                replans = {
-                    "compute_s": run.compute_s.tolist(),
-                    "failed": run.failed,
-                    "late": run.late,
-                }
-            else:  # the law's rates depend on the joints alone: it commands what it planned
-                sim = simulate(
-                    truths[k], self.mission, self.balance, self.simulation, model=self.robot
-                )
-                replans = {"compute_s": [], "failed": 0, "late": 0}
-            out.append(self._summary(k, sim, replans, geometry))
+            try:
+                out.append(self._fly(k, truths[k], replanner, first, k != indices[0], geometry))
+            except DivergenceError as error:  # counted and named, not averaged in
+                out.append({"index": k, "diverged": str(error)})
+            prepare_s += out[-1].pop("prepare_s", 0.0)
         if out:
             out[0]["prepare_s"] = prepare_s
         return out
+
+    def _fly(self, k: int, truth, replanner, first, prepared: bool, geometry) -> dict:
+        """The summary of the flight on the true model ``k``."""
+        from balance_opt.control.flight import fly_closed_loop
+        from balance_opt.dynamics.simulation import simulate
+
+        prepare_s = 0.0
+        if replanner is not None:
+            run = fly_closed_loop(
+                truth, replanner, first, self.simulation, self.options, prepared=prepared
+            )
+            sim, prepare_s = run.simulation, run.prepare_s
+            replans = {"compute_s": run.compute_s.tolist(), "failed": run.failed, "late": run.late}
+        else:  # the law's rates depend on the joints alone: it commands what it planned
+            sim = simulate(truth, self.mission, self.balance, self.simulation, model=self.robot)
+            replans = {"compute_s": [], "failed": 0, "late": 0}
+        return dict(self._summary(k, sim, replans, geometry), prepare_s=prepare_s)
 
     def _geometry(self):
         if self.geometry is None:
@@ -160,9 +160,17 @@ class ClosedLoopStudy:
     wall_time_s: float
     bands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
+    def flown(self, method: str) -> list[dict]:
+        """The runs of ``method`` that flew (not stopped as diverged)."""
+        return [r for r in self.runs[method] if "diverged" not in r]
+
     def metrics(self, method: str) -> dict:
-        """``methods.<method>.closed_loop`` of ``metrics.json``."""
-        runs = self.runs[method]
+        """``methods.<method>.closed_loop`` of ``metrics.json``: the spreads over the runs that
+        flew; ``diverged`` names the true models whose simulation was stopped."""
+        runs = self.flown(method)
+        diverged = {str(r["index"]): r["diverged"] for r in self.runs[method] if "diverged" in r}
+        if not runs:
+            return {"samples": 0, "period_s": self.options.period, "diverged": diverged}
         peak = np.array([r["max_drift"] for r in runs])
         final = np.array([r["final_drift"] for r in runs])
         times = np.concatenate([np.asarray(r["compute_s"], dtype=float) for r in runs])
@@ -188,12 +196,13 @@ class ClosedLoopStudy:
             "failed_replans": int(sum(r["failed"] + r["late"] for r in runs)),
             "min_clearance_m": float(min(r["min_clearance"] for r in runs)),
             "limit_violations": int(sum(len(r["limit_violations"]) for r in runs)),
+            "diverged": diverged,
         }
 
     def worst(self) -> tuple[str, dict]:
         """``(method, run)`` of the largest peak drift of every run."""
         return max(
-            ((m, r) for m, runs in self.runs.items() for r in runs),
+            ((m, r) for m in self.runs for r in self.flown(m)),
             key=lambda mr: mr[1]["max_drift"],
         )
 
@@ -207,7 +216,7 @@ def closed_loop_study(task, plans: dict, executor=None, geometry=None) -> Closed
     workers = max(1, int(getattr(executor, "workers", 1) or 1))
     chunks = [list(range(i, options.samples, workers)) for i in range(workers)]
     chunks = [c for c in chunks if c]
-    runs, bands = {}, {}
+    runs = {}
     for method, plan in plans.items():
         chunk = ClosedLoopChunk(
             method,
@@ -226,9 +235,12 @@ def closed_loop_study(task, plans: dict, executor=None, geometry=None) -> Closed
         run = map if executor is None else executor.map
         found = [r for part in run(chunk, chunks) for r in part]
         runs[method] = sorted(found, key=lambda r: r["index"])
-        angles = np.array([r["angle"] for r in runs[method]])
-        bands[method] = (runs[method][0]["t"], np.percentile(angles, PERCENTILE, axis=0))
-    return ClosedLoopStudy(options, runs, time.perf_counter() - started, bands)
+    study = ClosedLoopStudy(options, runs, time.perf_counter() - started)
+    for method in runs:
+        if flown := study.flown(method):
+            angles = np.array([r["angle"] for r in flown])
+            study.bands[method] = (flown[0]["t"], np.percentile(angles, PERCENTILE, axis=0))
+    return study
 
 
 def write_worst(study: ClosedLoopStudy, task, output_dir: Path) -> list[Path]:
@@ -238,6 +250,8 @@ def write_worst(study: ClosedLoopStudy, task, output_dir: Path) -> list[Path]:
     from balance_opt.motion.result import BalanceResult
     from balance_opt.report.outputs import write_trajectory_csv
 
+    if not any(study.flown(m) for m in study.runs):
+        return []
     method, run = study.worst()
     truth = true_robots(task.robot, study.options)[run["index"]]
     t, q, q_dot, q_ddot, quaternion, omega = run["motion"]

@@ -27,7 +27,7 @@ from balance_opt.app.run_studies import (
     run_geometry,
 )
 from balance_opt.app.task_run import GIVEN_TIMING, METHODS, REFERENCE, TaskRun, timed
-from balance_opt.errors import InputError, SolverError
+from balance_opt.errors import DivergenceError, InputError, SolverError
 from balance_opt.interrupts import handling_signals
 from balance_opt.motion.result import BalanceResult
 from balance_opt.report.output_dir import OutputFolder
@@ -359,8 +359,11 @@ def _simulate_into(run: TaskRun, name: str) -> None:
 
     task = run.task
     with timed(f"{task.name}: forward-dynamics simulation of {name}"):
-        sim = simulate(task, run.results[name])
-    diverged = divergence(sim)
+        try:
+            sim = simulate(task, run.results[name])
+            diverged = divergence(sim)
+        except DivergenceError as error:  # stopped where its state left every sane bound
+            sim, diverged = None, f"stopped at t = {error.t:.4g} s: {error.reason}"
     if diverged:
         message = (
             f"the forward-dynamics simulation of the {name} plan diverged ({diverged}); "

@@ -125,7 +125,10 @@ def _more_summary(metrics: dict) -> list[str]:
         jerk = max(v["max_jerk_rad_s3"] for v in smooth.values())
         lines.append(f"acceleration reversals {reversals}, largest jerk {jerk:.3g} rad/s^3")
     closed = metrics.get("closed_loop")
-    if closed:
+    if closed and closed.get("diverged"):
+        named = ", ".join(f"model {k} ({v})" for k, v in closed["diverged"].items())
+        lines.append(f"closed loop: {len(closed['diverged'])} simulations diverged: {named}")
+    if closed and closed["samples"]:
         peak, final, times = closed["max_drift"], closed["final_drift"], closed["replan_time_s"]
         lines.append(
             f"closed loop ({closed['samples']} models, period {closed['period_s']:g} s): max "

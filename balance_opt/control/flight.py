@@ -26,6 +26,7 @@ import pinocchio as pin
 from balance_opt.control.replan import Replanner, ReplanOutcome, Segment
 from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate
+from balance_opt.errors import DivergenceError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import (
     quaternion_from_rotvec,
@@ -132,7 +133,6 @@ def fly_closed_loop(
     opts = options or ClosedLoopOptions()
     sim_opts = simulation or SimulationOptions()
     nlp = replanner.nlp
-    nominal = nlp.robot
     period = max(1, round(opts.period / nlp.h)) * nlp.h
     bounds = period_starts(nlp.N, nlp.h, opts)  # the periods' first nodes, and the end
     lag = 1 if delayed else 0  # periods between a measurement and its plan
@@ -152,20 +152,11 @@ def fly_closed_loop(
     # with peak_floor "plan", the peak the first plan promised caps a re-plan's floor once the
     # truth has gone above it (the rest of the motion aimed back at it, not at the drift so far)
     cap = math.inf if opts.peak_floor == "measured" else _peak(in_force)
-    data = nominal.model.createData()  # the measured momentum's, in the nominal model
+    data = nlp.robot.model.createData()  # the measured momentum's, in the nominal model
     for j in range(len(bounds) - 1):
         a, b = bounds[j], bounds[j + 1]
         t_a, t_b = a * nlp.h, b * nlp.h
-        offset = in_force.node * nlp.h
-        part = simulate(
-            truth,
-            MissionWindow(nlp.mission, t_a, t_b),
-            MissionWindow(in_force.trajectory, t_a - offset, t_b - offset),
-            sim_opts,
-            duration=t_b - t_a,
-            initial_state=state,
-            model=nominal,
-        )
+        part = _fly_period(truth, nlp, in_force, sim_opts, state, t_a, t_b)
         parts.append(part)
         starts.append(t_a)
         state = (part.q_pin[-1].copy(), part.v[-1].copy())
@@ -186,6 +177,24 @@ def fly_closed_loop(
             elif outcome.success and outcome.compute_s <= limit:
                 in_force = outcome.segment
     return ClosedLoopRun(_joined(parts, starts), replans, int(late), period, prepare_s)
+
+
+def _fly_period(truth, nlp, in_force: Segment, sim_opts, state, t_a: float, t_b: float):
+    """The truth's motion from ``state`` at ``t_a`` to ``t_b`` under the plan in force (a
+    diverging one stopped, at the flight's own time)."""
+    offset = in_force.node * nlp.h
+    try:
+        return simulate(
+            truth,
+            MissionWindow(nlp.mission, t_a, t_b),
+            MissionWindow(in_force.trajectory, t_a - offset, t_b - offset),
+            sim_opts,
+            duration=t_b - t_a,
+            initial_state=state,
+            model=nlp.robot,
+        )
+    except DivergenceError as error:
+        raise DivergenceError(t_a + error.t, error.reason) from None
 
 
 def period_starts(N: int, h: float, options: ClosedLoopOptions) -> list[int]:

@@ -4,7 +4,8 @@ of ``q = pin.integrate(q_n, u)``, with ``u_dot = dDifference(q_n, q) v``, so pla
 keeps its order. :func:`rk4` (fixed step, the plan sampled at every stage time first) and
 :func:`dopri5` (Dormand-Prince 5(4), error control on the tangent increments, landing on every
 output time) take ``dyn(q, v, q_des, q_dot_des, q_ddot_des[, tau_des]) -> (a, tau)`` and the plan
-as ``plan.sample(t)`` in arm order.
+as ``plan.sample(t)`` in arm order; ``dyn.check(t, q, v, q_des, v_des)`` stops a diverging
+state at every output sample.
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ def rk4(dyn, plan, x0, t_end: float, dt: float, stride: int):
         i = 2 * k
         a1, tau1 = dyn(q, v, *(X[i] for X in P))
         if is_out[k]:
+            dyn.check(k * h, q, v, P[0][i], P[1][i])
             Q[j], V[j], A[j], TAU[j] = q, v, a1, tau1
             j += 1
         _, a2, _, u2 = _stage(dyn, q, h2 * v, v + h2 * a1, [X[i + 1] for X in P])
@@ -78,6 +80,7 @@ def rk4(dyn, plan, x0, t_end: float, dt: float, stride: int):
         _, a4, _, u4 = _stage(dyn, q, h * u3, v + h * a3, [X[i + 2] for X in P])
         q = pin.integrate(model, q, h6 * (v + 2.0 * (u2 + u3) + u4))
         v = v + h6 * (a1 + 2.0 * (a2 + a3) + a4)
+    dyn.check(n_steps * h, q, v, P[0][-1], P[1][-1])
     a_end, tau_end = dyn(q, v, *(X[-1] for X in P))
     Q[j], V[j], A[j], TAU[j] = q, v, a_end, tau_end
     stats = {"steps": n_steps, "step_s": h, "rhs_evaluations": 4 * n_steps + 1}
@@ -134,6 +137,7 @@ def dopri5(dyn, plan, x0, t_end: float, opts, output_dt: float):
                     f"adaptive integration stalled at t = {t:.6g} s (step {h:.3g} s below "
                     f"{MIN_STEP} s); loosen 'rtol'/'atol' or check the gains"
                 )
+        dyn.check(t, q, v, *planned(t)[:2])
         Q[j], V[j], A[j], TAU[j] = q, v, a, tau
     stats = {"steps": accepted, "rejected_steps": rejected, "rhs_evaluations": evaluations + 1}
     return t_out, Q, V, A, TAU, stats

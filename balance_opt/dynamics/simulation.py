@@ -10,6 +10,7 @@ or ``"computed-torque"``. Integrated on the manifold by :mod:`balance_opt.dynami
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,7 +22,7 @@ from balance_opt.dynamics.inverse_dynamics import free_floating_torques, symmetr
 from balance_opt.dynamics.options import SimulationOptions
 from balance_opt.dynamics.rkmk import dopri5, rk4
 from balance_opt.dynamics.wrenches import arm_wrenches_on_base
-from balance_opt.errors import InputError, TrajectoryError
+from balance_opt.errors import DivergenceError, InputError, TrajectoryError
 from balance_opt.model.maps import NumericMaps
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.momentum_check import MOMENTUM_SCALE_FLOOR
@@ -35,6 +36,16 @@ MOMENTUM_WARNING = 1e-6
 #: Relative momentum residual above which a simulation has diverged: its motion is no longer the
 #: robot's.
 MOMENTUM_DIVERGED = 1e-3
+#: ``|lambda| h`` the fixed RK4 step keeps for the joint PD loop's fastest mode: RK4 is stable up
+#: to 2.78 on the negative real axis; the margin covers configurations between the samples.
+RK4_STABLE = 2.0
+#: Most RK4 sub-steps a simulation takes per ``dt`` to stay stable (past it the divergence guard
+#: stops a run that blows up).
+MAX_SUBSTEPS = 16
+#: Divergence guard: a joint this far outside its position range [rad], or this many times
+#: faster than its velocity limit, is no motion of the robot.
+DIVERGED_POSITION = 1.0
+DIVERGED_RATE = 10.0
 
 
 # --------------------------------------------------------------------------------- trajectories
@@ -246,6 +257,36 @@ class _Dynamics:
         self.tau_full = np.zeros(robot.model.nv)
         self.acc = np.zeros(robot.model.nv)
         self.G = robot.velocity_map if robot.followers else None
+        limits = robot.limits
+        self.lower, self.upper = limits.lower, limits.upper
+        self.rate_limit = limits.velocity
+
+    def check(self, t: float, q, v, q_des, v_des) -> None:
+        """Stop (:class:`DivergenceError`) a state at ``t`` that is no motion of the robot: not
+        finite, a joint :data:`DIVERGED_POSITION` outside its range and its plan ``q_des``, or
+        :data:`DIVERGED_RATE` times faster than its velocity limit and its plan's rate
+        ``v_des`` (a plan that leaves its limits, the analytic law's, is tracked, not
+        stopped)."""
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            raise DivergenceError(t, "non-finite state")
+        position = self.joint_positions(q)
+        lower, upper = np.minimum(self.lower, q_des), np.maximum(self.upper, q_des)
+        outside = np.maximum(lower - position, position - upper)
+        rate = np.abs(v[self._v])
+        bound = DIVERGED_RATE * np.maximum(self.rate_limit, np.abs(v_des))
+        names = self.robot.joint_names
+        if outside.max() > DIVERGED_POSITION:
+            j = int(np.argmax(outside))
+            raise DivergenceError(
+                t, f"joint {names[j]} {outside[j]:.3g} rad outside its range and its plan"
+            )
+        if np.any(rate > bound):
+            j = int(np.argmax(rate / bound))
+            raise DivergenceError(
+                t,
+                f"joint {names[j]} at {rate[j]:.3g} rad/s, over {DIVERGED_RATE:g} times its "
+                f"velocity limit and its plan's rate",
+            )
 
     def joint_positions(self, q):
         return q[self._q] if self.revolute_only else self.robot.arm_q(q)
@@ -298,13 +339,36 @@ def _gains(robot: FloatingRobot, q0: np.ndarray, opts: SimulationOptions) -> tup
     return kp, kd
 
 
+def _fastest_mode(dyn: _Dynamics, q_arm: np.ndarray) -> float:
+    """The largest ``|eigenvalue|`` [1/s] of the joints' PD loop linearized at the arm
+    configurations ``q_arm`` (T, n): the joints' free-floating inertia (the base's rows
+    eliminated: nothing pushes on it) against the gains."""
+    robot, data = dyn.robot, dyn.robot.model.createData()
+    G, n = robot.velocity_map, dyn.kp.size
+    fastest = 0.0
+    for q in q_arm:
+        M = G.T @ symmetric(pin.crba(robot.model, data, robot.pin_q(q))) @ G
+        inverse = np.linalg.inv(M[6:, 6:] - M[6:, :6] @ np.linalg.solve(M[:6, :6], M[:6, 6:]))
+        A = np.block([[np.zeros((n, n)), np.eye(n)], [-inverse * dyn.kp, -inverse * dyn.kd]])
+        fastest = max(fastest, float(np.abs(np.linalg.eigvals(A)).max()))
+    return fastest
+
+
 def _integrate(dyn: _Dynamics, plan: _ArmPlan, x0, t_end: float, opts: SimulationOptions):
     """The motion from ``x0`` to ``t_end`` with the options' integrator, sampled every
-    ``output_dt``: ``(t, Q, V, A, TAU, stats)``."""
+    ``output_dt``: ``(t, Q, V, A, TAU, stats)``. RK4 takes as many sub-steps per ``dt`` (at
+    most :data:`MAX_SUBSTEPS`) as keep the PD loop's fastest mode along the plan stable: light
+    distal links under the default gains are faster than ``1 / dt``."""
     if opts.integrator == "rk4":
         output_dt = opts.output_dt or opts.dt
         stride = max(1, round(output_dt / opts.dt))
-        return rk4(dyn, plan, x0, t_end, opts.dt, stride)
+        times = np.arange(0.0, t_end + output_dt / 2, output_dt)
+        q_arm = arm_samples(dyn.robot, plan.mission.sample, plan.balance.sample, times)[0]
+        need = _fastest_mode(dyn, q_arm) * opts.dt / RK4_STABLE
+        substeps = int(min(MAX_SUBSTEPS, max(1, math.ceil(need))))
+        out = rk4(dyn, plan, x0, t_end, opts.dt / substeps, stride * substeps)
+        out[-1]["substeps"] = substeps
+        return out
     return dopri5(dyn, plan, x0, t_end, opts, opts.output_dt or 0.01)
 
 

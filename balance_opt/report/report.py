@@ -137,7 +137,14 @@ def _replan_times(v, m) -> Cell:
 
 
 def _replan_failures(v, m) -> Cell:
+    if "replans" not in v:  # no run flew
+        return None
     return f"{v['failed_replans']} of {v['replans']}", "broken" if v["failed_replans"] else "inside"
+
+
+def _diverged(v, m) -> Cell:
+    text = "; ".join(f"model {k}: {reason}" for k, reason in v.items())
+    return (text, "broken") if v else ("0", "inside")
 
 
 def _count(v, m) -> Cell:
@@ -223,6 +230,7 @@ _ROWS: list[tuple[str, str | None, Callable[[Any, Mapping], Cell] | None]] = [
     ("re-plans failed or late, of all", "closed_loop", _replan_failures),
     ("smallest distance between bodies, every run [m]", "closed_loop.min_clearance_m", _plain()),
     ("limit violations, every run", "closed_loop.limit_violations", _plain()),
+    ("simulations diverged (stopped, not counted above)", "closed_loop.diverged", _diverged),
     ("Forward-dynamics simulation", None, None),
     ("max attitude drift", "simulation.max_drift_rad", _angle()),
     ("final attitude drift", "simulation.final_drift_rad", _angle()),
