@@ -545,9 +545,12 @@ def test_diverged_simulation_is_a_failure_not_a_result(tmp_path):
     run = run_task(task, methods=("analytic",), simulate=True, output_dir=tmp_path / "out")
     assert "analytic" not in run.simulations
     failure = run.failures["simulation of analytic"]
-    assert failure.startswith(
-        "the forward-dynamics simulation of the analytic plan diverged (relative momentum residual"
-    )
+    assert re.fullmatch(
+        r"the forward-dynamics simulation of the analytic plan diverged \(stopped at t = 2 s: "
+        r"joint mission_joint3 \S+ rad outside its range and its plan\); try a smaller "
+        r"simulation\.dt \(now 20 s\) or the dopri5 integrator",
+        failure,
+    ), failure
     import json
 
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
