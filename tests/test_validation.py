@@ -276,6 +276,32 @@ def test_implausible_inertias_are_warned_about_once_by_link(caplog):
     ]
 
 
+def test_a_massless_base_is_refused_and_a_base_lighter_than_its_links_warned(caplog):
+    """A spacecraft whose file forgot its mass: refused when the base weighs nothing, warned
+    about when it weighs less than a link it carries."""
+    with pytest.raises(URDFLoadError) as info:
+        _load(_robot({"base": '<link name="base"/>'}))
+    assert str(info.value) == (
+        "cannot load URDF <URDF string>: the base (link base, with the links fixed to it and the "
+        "locked joints' links) has no mass: a free-floating spacecraft needs its own; give link "
+        "base an <inertial> with its mass and inertia"
+    )
+    mount = _link("mount", 2.0, (0.01, 0.01, 0.01))
+    fixed = '<joint name="fix" type="fixed"><parent link="base"/><child link="mount"/></joint>'
+    light = _robot({"base": '<link name="base"/>', "mount": mount}, {"fix": fixed})
+    heavy = light.replace(
+        'name="bl1"><inertial><mass value="1.0"', 'name="bl1"><inertial><mass value="3.0"'
+    )
+    with caplog.at_level(logging.WARNING, logger="balance_opt.model.robot"):
+        assert _load(light).model.inertias[1].mass == pytest.approx(2.0)  # no link heavier
+        assert not caplog.records
+        _load(heavy)
+    assert [r.getMessage() for r in caplog.records] == [
+        "URDF <URDF string>: the base (link base and the links fixed to it) weighs 2 kg, less "
+        "than the link of joint b1 it carries (3 kg): is the spacecraft's <inertial> missing?"
+    ]
+
+
 def test_massless_balance_arm_is_refused():
     massless = {n: f'<link name="{n}"/>' for n in ("bl1", "bl2")}
     with pytest.raises(ArmError) as info:

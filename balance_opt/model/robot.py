@@ -35,7 +35,7 @@ from balance_opt.model.joints import (
     resolve_mimics,
 )
 from balance_opt.model.limits import JointLimits, joint_limits
-from balance_opt.model.urdf_checks import check_urdf_physics, pinocchio_model
+from balance_opt.model.urdf_checks import check_base_mass, check_urdf_physics, pinocchio_model
 
 log = logging.getLogger(__name__)
 
@@ -368,6 +368,9 @@ class FloatingRobot:
             lock_ids.append(jid)
         reduced = pin.buildReducedModel(full, sorted(lock_ids), q_ref) if lock_ids else full.copy()
         reduced.gravity = pin.Motion.Zero()
+        warning = check_base_mass(reduced, self.source)
+        if warning:
+            log.warning("URDF %s: %s", self.source, warning)
         return reduced, full
 
     def _depth(self, joint: str) -> int:

@@ -172,6 +172,30 @@ def check_urdf_physics(root: ET.Element, source: str) -> list[str]:
     return warnings
 
 
+def check_base_mass(model: pin.Model, source: str) -> str | None:
+    """A file that forgot its spacecraft's mass: refused when the floating base of ``model``
+    weighs nothing (the arms would balance against each other alone); the warning returned when
+    it weighs less than a link it carries (a bare root link whose mass is only that of the parts
+    bolted to it)."""
+    base_mass = model.inertias[1].mass
+    root = next(f.name for f in model.frames if f.parentJoint == 1 and f.type == pin.FrameType.BODY)
+    if base_mass <= 0:
+        raise URDFLoadError(
+            source,
+            f"the base (link {root}, with the links fixed to it and the locked joints' links) "
+            f"has no mass: a free-floating spacecraft needs its own; give link {root} an "
+            "<inertial> with its mass and inertia",
+        )
+    heaviest = max(range(2, model.njoints), key=lambda j: model.inertias[j].mass, default=None)
+    if heaviest is None or model.inertias[heaviest].mass <= base_mass:
+        return None
+    return (
+        f"the base (link {root} and the links fixed to it) weighs {base_mass:.3g} kg, less than "
+        f"the link of joint {model.names[heaviest]} it carries "
+        f"({model.inertias[heaviest].mass:.3g} kg): is the spacecraft's <inertial> missing?"
+    )
+
+
 @contextlib.contextmanager
 def _stderr_captured(lines: list[str]):
     """Collect what C++ code (urdfdom) prints on file descriptor 2 into ``lines``; other
