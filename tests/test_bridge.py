@@ -118,7 +118,7 @@ def test_pinocchio_backend_maps_equal_adam(robot):
     maps = SymbolicMaps(robot, backend="pinocchio")
     adam = SymbolicMaps(robot, backend="adam")
     assert maps.backend == "pinocchio"
-    assert maps.backend_description.startswith("pinocchio (bridge, built in ")
+    assert maps.backend_description.startswith("pinocchio (bridge, built once per machine: ")
     rng = np.random.default_rng(7)
     for _ in range(N_CONFIGS):
         q = _random_q(robot, rng)
@@ -135,7 +135,7 @@ def test_auto_prefers_the_bridge(paper):
     assert maps.backend == "pinocchio"
     record = bridge.ensure_bridge()
     assert record.path.is_file() and record.wall_seconds > 0 and record.cpu_seconds > 0
-    assert backend_description() == f"pinocchio (bridge, built in {record.wall_seconds:.0f} s)"
+    assert backend_description() == f"pinocchio (bridge, built once per machine: {record.wall_seconds:.0f} s)"
 
 
 @pytest.mark.slow

@@ -98,13 +98,13 @@ def _resolve_backend(backend: str) -> tuple[str, str, str]:
             "backend 'pinocchio' cannot be used here: pinocchio.casadi does not import (PyPI's "
             f"pin wheels lack it) and the Pinocchio-CasADi bridge is unavailable: {exc.reason}"
         ) from None
-    built = f"pinocchio (bridge, built in {record.wall_seconds:.0f} s)"
+    built = f"pinocchio (bridge, built once per machine: {record.wall_seconds:.0f} s)"
     return "pinocchio", built, f"bridge {record.path.name}"
 
 
 def backend_description(backend: str = "auto") -> str:
     """What ``SymbolicMaps(robot, backend)`` uses here, for ``balance-opt inspect`` (e.g.
-    ``"pinocchio (bridge, built in 95 s)"``); builds the bridge first if needed."""
+    ``"pinocchio (bridge, built once per machine: 95 s)"``); builds the bridge first if needed."""
     return _resolve_backend(backend)[1]
 
 
