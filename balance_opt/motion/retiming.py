@@ -147,8 +147,8 @@ class RetimedMission(JointTrajectory):
             s, sd, sdd = self.progress.sample(t)
             return s[:, 0], sd[:, 0], sdd[:, 0]
         scale = self.path.duration / self.duration
-        _, g1, g2 = PointToPoint([0.0], [1.0], self.path.duration).sample(t * scale)
         if self.path.linear:
+            _, g1, g2 = PointToPoint([0.0], [1.0], self.path.duration).sample(t * scale)
             s = self.path.given_progress(t * scale)
             return s, g1[:, 0] * scale, g2[:, 0] * scale**2
         return t / self.duration, np.full(t.size, 1.0 / self.duration), np.zeros(t.size)

@@ -59,10 +59,10 @@ def distance_gradient(geometry: RobotGeometry, q, pair: int) -> tuple[float, np.
     velocities, ``n . (J_2(p_2) - J_1(p_1))``, each point's Jacobian that of its body's joint
     moved to it (``v_p = v + omega x (p - o)``)."""
     robot, model, data = geometry.robot, geometry.model, geometry.data
-    qp = robot.pin_q(q)
-    geometry.place(q)
+    # one forward kinematics for both: the Jacobians' placements place the objects too
+    pin.computeJointJacobians(model, data, robot.pin_q(q))
+    pin.updateGeometryPlacements(model, data, geometry.geometry_model, geometry.geometry_data)
     result = pin.computeDistance(geometry.geometry_model, geometry.geometry_data, int(pair))
-    pin.computeJointJacobians(model, data, qp)
     objects = geometry.geometry_model.geometryObjects
     cp = geometry.geometry_model.collisionPairs[int(pair)]
     normal = np.asarray(result.normal, dtype=float)
