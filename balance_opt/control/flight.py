@@ -26,7 +26,6 @@ import pinocchio as pin
 from balance_opt.control.replan import Replanner, ReplanOutcome, Segment
 from balance_opt.dynamics.options import ClosedLoopOptions, SimulationOptions
 from balance_opt.dynamics.simulation import SimulationResult, simulate
-from balance_opt.errors import DivergenceError
 from balance_opt.model.robot import FloatingRobot
 from balance_opt.motion.so3 import (
     quaternion_from_rotvec,
@@ -183,18 +182,16 @@ def _fly_period(truth, nlp, in_force: Segment, sim_opts, state, t_a: float, t_b:
     """The truth's motion from ``state`` at ``t_a`` to ``t_b`` under the plan in force (a
     diverging one stopped, at the flight's own time)."""
     offset = in_force.node * nlp.h
-    try:
-        return simulate(
-            truth,
-            MissionWindow(nlp.mission, t_a, t_b),
-            MissionWindow(in_force.trajectory, t_a - offset, t_b - offset),
-            sim_opts,
-            duration=t_b - t_a,
-            initial_state=state,
-            model=nlp.robot,
-        )
-    except DivergenceError as error:
-        raise DivergenceError(t_a + error.t, error.reason) from None
+    return simulate(
+        truth,
+        MissionWindow(nlp.mission, t_a, t_b),
+        MissionWindow(in_force.trajectory, t_a - offset, t_b - offset),
+        sim_opts,
+        duration=t_b - t_a,
+        initial_state=state,
+        model=nlp.robot,
+        start=t_a,
+    )
 
 
 def period_starts(N: int, h: float, options: ClosedLoopOptions) -> list[int]:

@@ -54,6 +54,7 @@ def simulate_with_capture(
         MissionWindow(balance, t_c, balance.duration),
         dataclasses.replace(opts, h0=tuple(state.h_after.tolist())),
         initial_state=(q_pin, v),
+        start=t_c,
         attitude=(plan.t - t_c, plan.quaternion),
     )
     return _joined(first, second, t_c, state)

@@ -241,8 +241,11 @@ def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
 class _Dynamics:
     """``(q, v, planned joint state) -> (a, tau)`` with one reused Pinocchio data."""
 
-    def __init__(self, robot: FloatingRobot, kp, kd, controller: str, clip_torque: bool):
+    def __init__(
+        self, robot: FloatingRobot, kp, kd, controller: str, clip_torque: bool, start: float = 0.0
+    ):
         self.robot = robot
+        self.start = start  # the motion's time at t = 0 here: a divergence's time is the motion's
         self.model = robot.model
         self.data = robot.model.createData()
         self.idx_v = robot.pin_v_indices
@@ -268,7 +271,7 @@ class _Dynamics:
         ``v_des`` (a plan that leaves its limits, the analytic law's, is tracked, not
         stopped)."""
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
-            raise DivergenceError(t, "non-finite state")
+            raise DivergenceError(self.start + t, "non-finite state")
         position = self.joint_positions(q)
         lower, upper = np.minimum(self.lower, q_des), np.maximum(self.upper, q_des)
         outside = np.maximum(lower - position, position - upper)
@@ -278,12 +281,13 @@ class _Dynamics:
         if outside.max() > DIVERGED_POSITION:
             j = int(np.argmax(outside))
             raise DivergenceError(
-                t, f"joint {names[j]} {outside[j]:.3g} rad outside its range and its plan"
+                self.start + t,
+                f"joint {names[j]} {outside[j]:.3g} rad outside its range and its plan",
             )
         if np.any(rate > bound):
             j = int(np.argmax(rate / bound))
             raise DivergenceError(
-                t,
+                self.start + t,
                 f"joint {names[j]} at {rate[j]:.3g} rad/s, over {DIVERGED_RATE:g} times its "
                 f"velocity limit and its plan's rate",
             )
@@ -383,6 +387,7 @@ def simulate(
     initial_state: tuple[np.ndarray, np.ndarray] | None = None,
     attitude: tuple[np.ndarray, np.ndarray] | None = None,
     model: FloatingRobot | None = None,
+    start: float = 0.0,
 ) -> SimulationResult:
     """Simulate the free-floating robot tracking a mission and a balance trajectory.
 
@@ -400,6 +405,8 @@ def simulate(
         model: the robot as the controller knows it (the plan's feedforward torques; the
             computed torque is refused with another), ``robot`` by default: ``robot`` is the
             truth that is integrated (a perturbed model, in the closed loop).
+        start: the time [s] of the whole motion at which this part of it starts (a period of
+            the closed loop, the motion after a capture), for a divergence's time.
 
     Returns:
         The simulated motion, with outputs computed at ``options.output_dt``.
@@ -423,7 +430,7 @@ def simulate(
         )
     q0, qd0 = (x[0] for x in plan.sample(np.zeros(1))[:2])
     kp, kd = _gains(robot, q0, opts)
-    dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque)
+    dyn = _Dynamics(robot, kp, kd, opts.controller, opts.clip_torque, start)
     if initial_state is None:  # the plan's start, the base twist of the momentum h0
         twist = NumericMaps(robot).base_twist(q0, qd0, h0)  # the base starts at the identity
         initial_state = robot.pin_q(q0), robot.pin_v(qd0, twist)
