@@ -273,3 +273,32 @@ def test_fitted_distances_to_a_cone_never_exceed_coal_s(capture):
         assert np.all(fitted <= np.maximum(exact, 0.0) + 1e-6)
         close += int(np.sum((exact > 0) & (exact - fitted < 0.02)))
     assert close > 10
+
+
+def test_the_scene_draws_a_cone_with_its_apex_where_the_zone_has_it():
+    """meshcat's cone and coal's point opposite ways: the drawn cone's point (the meshcat
+    cylinder's end of radius 0) lands on the zone's apex, its wide end one length down the
+    axis."""
+    from pinocchio.visualize.meshcat_visualizer import loadPrimitive
+
+    from balance_opt.geometry.keep_out import zone_object
+    from balance_opt.model.library import paper_robot
+    from balance_opt.report.scene_meshes import scene_objects
+
+    zone = KeepOutZone(
+        name="beam",
+        frame="base_link",
+        cone=ZoneCone(apex=(0.1, -0.2, 0.3), axis=(0.3, 0.5, -0.8), half_angle=0.4, length=1.5),
+    )
+    robot = paper_robot()
+    robot.keep_out = (zone,)
+    (drawn,) = [o for o in scene_objects(robot, 1.0) if o.name == "keep_out:beam"]
+    cylinder = loadPrimitive(zone_object(zone, robot.model))
+    assert cylinder.radiusBottom == 0  # three.js: the bottom end is at -y, the top at +y
+    to_zone = drawn.placement.homogeneous @ cylinder.intrinsic_transform()
+    half = cylinder.height / 2
+    axis = np.array(zone.cone.axis) / np.linalg.norm(zone.cone.axis)
+    np.testing.assert_allclose((to_zone @ [0, -half, 0, 1])[:3], zone.cone.apex, atol=1e-12)
+    np.testing.assert_allclose(
+        (to_zone @ [0, half, 0, 1])[:3], np.array(zone.cone.apex) + 1.5 * axis, atol=1e-12
+    )

@@ -119,6 +119,17 @@ def mesh_object(geometry, colour: str, opacity: float, flat: bool):
     return mg.Mesh(geometry, material)
 
 
+#: meshcat's cone (Pinocchio's ``loadPrimitive``) has its base where coal's has its apex (+z):
+#: turned half a turn about x, it is drawn where the distances are computed.
+_CONE_TURN = pin.SE3(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
+
+
+def _is_cone(obj: pin.GeometryObject) -> bool:
+    import coal
+
+    return isinstance(obj.geometry, coal.Cone)
+
+
 def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
     """Every drawn piece of the robot's visual geometry, coloured by arm, and its keep-out
     zones, translucent; ``size``: the robot's size [m], which sets the mesh simplification."""
@@ -144,9 +155,10 @@ def scene_objects(robot: FloatingRobot, size: float) -> list[SceneObject]:
         box = obj.geometry.aabb_local
         corners = np.array(list(itertools.product(*zip(box.min_, box.max_))))
         corners = corners @ obj.placement.rotation.T + obj.placement.translation
+        placement = obj.placement * _CONE_TURN if _is_cone(obj) else obj.placement
         out.append(
             SceneObject(
-                obj.name, obj.parentJoint, obj.placement, drawn, n, corners,
+                obj.name, obj.parentJoint, placement, drawn, n, corners,
                 obj.name if zone else robot.model.frames[obj.parentFrame].name,
             )
         )  # fmt: skip
