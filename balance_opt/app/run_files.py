@@ -225,9 +225,10 @@ def write_figures(run: TaskRun, output_dir: Path) -> list[tuple[str, Path]]:
     if plans:
         draw("joints", plots.joint_limits_figure, plans, run.task.robot)
     free = run.results.get("optimal")
-    if free is not None and free.solver is not None and free.solver.timing is not None:
+    timing = free.details().get("timing") if free is not None else None  # a plan read back too
+    if timing is not None:
         both = {k: v for k, v in plans.items() if k in ("optimal", GIVEN_TIMING)}
-        draw("timing", plots.timing_figure, free.solver.timing, both)
+        draw("timing", plots.timing_figure, timing, both)
     if run.simulations:
         sims = {f"{k}{SIM}": v for k, v in _reference_last(run.simulations).items()}
         draw("simulated_attitude", plots.attitude_figure, sims)
