@@ -304,3 +304,24 @@ def test_example_robot_data_meshes_found_in_the_installed_package(tmp_path, monk
     uri = "package://example-robot-data/robots/ur_description/meshes/ur5/collision/wrist1.stl"
     found = resolve_mesh(uri, tmp_path / "robot" / "ur5.urdf")
     assert found.samefile(installed)
+
+
+def test_a_missing_mesh_of_a_robot_with_keep_out_zones_is_located_at_the_task_key(layout):
+    """Keep-out zones are checked against the robot's bodies when the task loads: a mesh found
+    nowhere is then an error at the key that tells where meshes are, not a bare one."""
+    urdf, _ = layout
+    zone = "keep_out:\n  - {name: box, frame: base, box: {center: [0, 0, -1], size: [0.1, 0.1, 0.1]}}\n"
+
+    def zoned(path):
+        path.write_text(path.read_text() + zone)
+        return path
+
+    with pytest.raises(
+        InputError,
+        match=re.escape(f"meshy.yaml:3: robot.urdf: {urdf}: link arm: mesh {URI} not found; ")
+        + ".*"
+        + re.escape("(the keep-out zones need the robot's bodies)")
+        + "$",
+    ):
+        load_task(zoned(_task(urdf)))
+    assert len(load_task(zoned(_task(urdf, "[../pkgs]"))).spec.keep_out) == 1

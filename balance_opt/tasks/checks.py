@@ -363,6 +363,11 @@ def check_capture(spec: TaskSpec, doc: YamlDocument, duration: float):
         raise doc.error(("capture", "inertia"), str(exc)) from None
 
 
+def robot_key(robot_spec) -> str:
+    """The key that names the task's URDF: ``urdf``, ``shipped`` or ``example``."""
+    return next(k for k in ("urdf", "shipped", "example") if getattr(robot_spec, k) is not None)
+
+
 def check_keep_out(spec: TaskSpec, doc: YamlDocument, robot, mission, q_B0) -> None:
     """The keep-out zones (names once, frames of the robot, arms of the task, sizes) given to
     the robot, and none that the mission arm's trajectory enters: the planner cannot move it.
@@ -394,9 +399,14 @@ def check_keep_out(spec: TaskSpec, doc: YamlDocument, robot, mission, q_B0) -> N
         return
     from balance_opt.geometry.clearance import clearance
     from balance_opt.geometry.robot_geometry import RobotGeometry
+    from balance_opt.model.meshes import MeshNotFoundError
 
     robot.keep_out = spec.keep_out
-    geometry = RobotGeometry(robot, disabled={})  # the zones' pairs alone are wanted
+    try:
+        geometry = RobotGeometry(robot, disabled={})  # the zones' pairs alone are wanted
+    except MeshNotFoundError as exc:  # the zones are checked against the robot's bodies
+        key = "packages" if spec.robot.packages else robot_key(spec.robot)
+        raise doc.error(("robot", key), f"{exc} (the keep-out zones need the robot's bodies)")
     tree = robot.model.subtrees
     balance = set().union(
         *(tree[robot.model.getJointId(robot.joint_names[i])] for i in robot.balance_indices)

@@ -41,6 +41,7 @@ from balance_opt.tasks.checks import (
     check_problem_size,
     check_time_grids,
     check_timing,
+    robot_key,
 )
 from balance_opt.tasks.task_spec import (
     CartesianMission,
@@ -239,16 +240,11 @@ def _joint_path(doc: YamlDocument, joint: str, reason: str = "") -> tuple:
     return candidates[0] if candidates else ("arms",)
 
 
-def _robot_key(robot_spec) -> str:
-    """The key that names the task's URDF: ``urdf``, ``shipped`` or ``example``."""
-    return next(k for k in ("urdf", "shipped", "example") if getattr(robot_spec, k) is not None)
-
-
 def _build_robot(spec: TaskSpec, doc: YamlDocument, base_dir: Path) -> FloatingRobot:
     from balance_opt.model.library import example_urdf, shipped_urdf
 
     r = spec.robot
-    key = _robot_key(r)
+    key = robot_key(r)
     if key == "urdf":
         urdf = base_dir / r.urdf
         if not urdf.is_file():
@@ -387,7 +383,7 @@ def _check_meshes(task: Task) -> None:
             robot.locked_urdf, robot.source, robot.packages, geometry_kind(robot.locked_urdf)
         )
     except MeshNotFoundError as exc:
-        key = "packages" if spec.packages else _robot_key(spec)
+        key = "packages" if spec.packages else robot_key(spec)
         raise task.document.error(
             ("robot", key),
             f"{exc}; or plan without collision avoidance (optimal.collision.avoid: false)",
