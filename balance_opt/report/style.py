@@ -179,7 +179,12 @@ def save(
     ``dpi``), the folder created when missing; returns the files. Written in the settings of
     the figure's width (:func:`styled`): ticks are made as a figure is drawn, and a PDF gets
     TrueType fonts."""
-    width = next(name for name, inches in WIDTHS.items() if inches == fig.get_figwidth())
+    width = next((name for name, inches in WIDTHS.items() if inches == fig.get_figwidth()), None)
+    if width is None:
+        raise ValueError(
+            f"a figure {fig.get_figwidth():g} in wide is not one of style.figure's widths "
+            f"({', '.join(f'{k} {v:g} in' for k, v in WIDTHS.items())})"
+        )
     stem = Path(path_without_suffix)
     stem.parent.mkdir(parents=True, exist_ok=True)
     paths = []
