@@ -44,8 +44,9 @@ class ClosedLoopRun:
     Attributes:
         simulation: the true motion (forward dynamics of the true robot), the whole horizon.
         replans: every re-plan, in order.
-        late: how many re-plans took longer than the period (dropped).
-        period_s: the period used: a whole number of the plan's intervals [s].
+        late: how many re-plans took longer than their period (dropped).
+        period_s: the period before the end window (``end_period`` after it): a whole number of
+            the plan's intervals [s].
         prepare_s: building the re-plans' NLPs before the motion [s].
     """
 
